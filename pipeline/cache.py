@@ -1,0 +1,611 @@
+"""Content-addressed artifact cache, in the style of DVC's run cache (SPEC §9).
+
+Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote.
+A stage's key hashes its name, code version, declared config and input keys
+(:func:`stage_key`). Writes go to ``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/``
+and become visible in a single ``os.rename``; a folder is a valid entry only if its
+``meta.json`` says ``"complete": true`` and every recorded file still has its size
+(and sha256, for files under :data:`HASH_LIMIT`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import json
+import math
+import os
+import re
+import secrets
+import shutil
+import socket
+import subprocess
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from functools import lru_cache
+from importlib import metadata
+from pathlib import Path, PurePath
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact
+
+__all__ = [
+    "HASH_LIMIT",
+    "Cache",
+    "Entry",
+    "EntryInfo",
+    "RunResult",
+    "WriteResult",
+    "canonical_json",
+    "git_commit",
+    "package_versions",
+    "stage_key",
+]
+
+META = "meta.json"
+FORMAT = 1  # bump to invalidate every key (part of the hashed payload)
+HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
+TMP_PREFIX = ".tmp-"
+PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "rerun-sdk", "mcap", "typer")
+_STAGE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+_KEY_RE = re.compile(r"^[0-9a-f]{8,64}$")
+_CHUNK = 1 << 20
+
+
+# --------------------------------------------------------------------------- keys
+
+
+def _canon(obj: Any) -> Any:
+    """Convert ``obj`` to plain JSON values; integral floats become ints (1.0 -> 1)."""
+    if obj is None or isinstance(obj, (bool, np.bool_)):
+        return None if obj is None else bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        if math.isnan(x):
+            return {"__float__": "nan"}
+        if math.isinf(x):
+            return {"__float__": "inf" if x > 0 else "-inf"}
+        return int(x) if x.is_integer() else x  # also maps -0.0 to 0
+    if isinstance(obj, str):
+        return obj
+    if isinstance(obj, enum.Enum):
+        return _canon(obj.value)
+    if isinstance(obj, PurePath):
+        return obj.as_posix()
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in "biuf":
+            raise TypeError(f"cannot hash a numpy array of dtype {obj.dtype}")
+        return _canon(obj.tolist())  # nesting keeps the shape; dtype is ignored
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return _canon(dataclasses.asdict(obj))
+    if isinstance(obj, Mapping):
+        out: dict[str, Any] = {}
+        for k, v in obj.items():
+            ks = k if isinstance(k, str) else json.dumps(_canon(k), sort_keys=True)
+            if ks in out:
+                raise TypeError(f"config keys collide after conversion to text: {ks!r}")
+            out[ks] = _canon(v)
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [_canon(v) for v in obj]
+    if isinstance(obj, (set, frozenset)):
+        items = [_canon(v) for v in obj]
+        return sorted(items, key=lambda v: json.dumps(v, sort_keys=True))
+    raise TypeError(f"cannot hash a config value of type {type(obj).__name__}")
+
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON text of ``obj``: sorted keys, no spaces, floats normalized."""
+    return json.dumps(
+        _canon(obj), sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    )
+
+
+def stage_key(
+    stage: str, code_version: str, config: Mapping[str, Any], input_keys: list[str]
+) -> str:
+    """16-hex key of a stage run: sha256 of the canonical JSON of all it depends on.
+
+    ``input_keys`` is ordered (the stage receives its inputs in that order).
+    """
+    payload = {
+        "format": FORMAT,
+        "stage": stage,
+        "code_version": code_version,
+        "config": config,
+        "inputs": list(input_keys),
+    }
+    return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------- provenance
+
+
+@lru_cache(maxsize=1)
+def package_versions() -> dict[str, str | None]:
+    """Installed versions of the packages a result depends on (None if absent)."""
+    out: dict[str, str | None] = {}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+@lru_cache(maxsize=8)
+def git_commit(path: Path | None = None) -> str | None:
+    """``git rev-parse HEAD`` of the tree holding ``path`` (default: this package), else None."""
+    where = Path(path) if path is not None else Path(__file__).resolve().parent
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
+    try:
+        res = subprocess.run(
+            ["git", "-C", str(where), "rev-parse", "--verify", "-q", "HEAD"],
+            capture_output=True, text=True, timeout=10, env=env, check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    sha = res.stdout.strip()
+    return sha if res.returncode == 0 and re.fullmatch(r"[0-9a-f]{40,64}", sha) else None
+
+
+# --------------------------------------------------------------------------- records
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A valid, complete cache entry."""
+
+    stage: str
+    key: str
+    path: Path
+    meta: dict[str, Any]
+
+    @property
+    def files(self) -> list[str]:
+        """Relative paths of the files recorded in ``meta.json``."""
+        return sorted(self.meta.get("files", {}))
+
+    def file(self, name: str) -> Path:
+        """Path of a recorded file; :class:`MissingArtifact` if the entry has no such file."""
+        if name not in self.meta.get("files", {}):
+            raise MissingArtifact(f"{self.stage}/{self.key} has no file {name!r}")
+        return self.path / name
+
+
+@dataclass(frozen=True)
+class EntryInfo:
+    """One row of :meth:`Cache.list` (valid entries, invalid ones and temporary folders)."""
+
+    stage: str
+    key: str
+    path: Path
+    valid: bool
+    reason: str  # "cached" when valid
+    created: str | None  # ISO 8601 UTC from meta.json
+    size: int  # bytes on disk
+
+
+@dataclass
+class WriteResult:
+    """Optional return value of a writer: extra meta and timings (seconds)."""
+
+    meta: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Outcome of :meth:`Cache.run`: the entry, whether it was a hit, and why it ran."""
+
+    entry: Entry
+    cached: bool
+    reason: str  # "cached" or why the writer had to run
+
+
+Writer = Callable[[Path], "WriteResult | Mapping[str, Any] | None"]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None]:
+    """Size and sha256 (None if size >= limit) of ``path``; fsyncs it on the way."""
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        digest: str | None = None
+        if size < limit:
+            h = hashlib.sha256()
+            while chunk := f.read(_CHUNK):
+                h.update(chunk)
+            digest = h.hexdigest()
+        os.fsync(f.fileno())
+    return size, digest
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(_CHUNK):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _dir_size(path: Path) -> int:
+    total = 0
+    for dirpath, _, names in os.walk(path):
+        for n in names:
+            try:
+                total += os.lstat(os.path.join(dirpath, n)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def _host_tag() -> str:
+    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+
+
+def _proc_stat(pid: int) -> tuple[str, int] | None:
+    """(state, start ticks) of a Linux process from /proc, or None if unavailable."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rfind(")") + 2 :].split()
+    return fields[0], int(fields[19])
+
+
+def _pid_alive(pid: int, start: int) -> bool:
+    """True if process ``pid`` (started at ``start`` ticks, 0 = unknown) still runs."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    except OSError:
+        return False
+    st = _proc_stat(pid)
+    if st is None:
+        return True
+    state, started = st
+    return state not in ("Z", "X") and (start == 0 or started == start)
+
+
+def _tmp_name(key: str) -> str:
+    st = _proc_stat(os.getpid())
+    start = st[1] if st else 0
+    return f"{TMP_PREFIX}{key}-{_host_tag()}-{os.getpid()}-{start}-{secrets.token_hex(4)}"
+
+
+def _parse_tmp(name: str) -> tuple[str, str, int, int] | None:
+    """(key, host tag, pid, start) from a temporary folder name, or None."""
+    parts = name[len(TMP_PREFIX) :].rsplit("-", 4)
+    if not name.startswith(TMP_PREFIX) or len(parts) != 5:
+        return None
+    key, host, pid, start, _ = parts
+    if not (pid.isdigit() and start.isdigit()):
+        return None
+    return key, host, int(pid), int(start)
+
+
+def _json_default(obj: Any) -> Any:
+    """``json.dump`` fallback for meta values (numpy, paths, sets, enums, dataclasses)."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, PurePath):
+        return obj.as_posix()
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj, key=repr)
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.asdict(obj)
+    raise TypeError(f"meta value of type {type(obj).__name__} is not JSON serializable")
+
+
+# --------------------------------------------------------------------------- cache
+
+
+class Cache:
+    """Artifact cache rooted at ``root`` (see module docstring)."""
+
+    def __init__(
+        self, root: Path | str, *, hash_limit: int = HASH_LIMIT, stale_after: float = 600.0
+    ) -> None:
+        """``stale_after``: age (s) after which a temporary folder whose owner cannot be
+        checked (other host, unparseable name) counts as abandoned."""
+        self.root = Path(root)
+        self.hash_limit = hash_limit
+        self.stale_after = stale_after
+
+    # ---- paths and validation
+
+    @staticmethod
+    def _check_stage(stage: str) -> None:
+        if not _STAGE_RE.match(stage):
+            raise BadInput(f"invalid stage name {stage!r}")
+
+    def path(self, stage: str, key: str) -> Path:
+        """Folder of entry ``stage/key`` (validates both names)."""
+        self._check_stage(stage)
+        if not _KEY_RE.match(key):
+            raise BadInput(f"invalid cache key {key!r} (expected lowercase hex)")
+        return self.root / stage / key
+
+    def _check(self, stage: str, key: str, deep: bool = True) -> tuple[Entry | None, str]:
+        """(entry, "cached") if valid, else (None, reason)."""
+        path = self.path(stage, key)
+        if not path.is_dir():
+            return None, "no cache entry"
+        meta_path = path / META
+        if not meta_path.is_file():
+            return None, f"cache entry incomplete ({META} missing)"
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            return None, f"cache entry corrupt ({META} unreadable: {type(exc).__name__})"
+        if not isinstance(meta, dict):
+            return None, f"cache entry corrupt ({META} is not an object)"
+        if meta.get("complete") is not True:
+            return None, "cache entry incomplete (not marked complete)"
+        if meta.get("stage") != stage or meta.get("key") != key:
+            owner = f"{meta.get('stage')}/{meta.get('key')}"
+            return None, f"cache entry corrupt ({META} belongs to {owner})"
+        files = meta.get("files")
+        if not isinstance(files, dict):
+            return None, f"cache entry corrupt ({META} has no file list)"
+        root = path.resolve()
+        for name, rec in sorted(files.items()):
+            fp = path / name
+            if not isinstance(rec, dict) or not isinstance(rec.get("size"), int):
+                return None, f"cache entry corrupt (bad record for file {name})"
+            if ".." in PurePath(name).parts or not fp.resolve().is_relative_to(root):
+                return None, f"cache entry corrupt (file {name} outside the entry)"
+            try:
+                size = fp.stat().st_size
+            except OSError:
+                return None, f"file {name} missing"
+            if size != rec["size"]:
+                return None, f"file {name} changed (size {size} B, recorded {rec['size']} B)"
+            digest = rec.get("sha256")
+            if deep and digest and size < self.hash_limit:
+                try:
+                    actual = _sha256(fp)
+                except OSError as exc:
+                    return None, f"file {name} unreadable ({exc.strerror})"
+                if actual != digest:
+                    return None, (
+                        f"file {name} changed (sha256 {actual[:12]}…, recorded {digest[:12]}…)"
+                    )
+        return Entry(stage, key, path, meta), "cached"
+
+    def lookup(self, stage: str, key: str) -> Entry | None:
+        """The entry if it is complete and valid, else None (see :meth:`why`)."""
+        return self._check(stage, key)[0]
+
+    def why(self, stage: str, key: str) -> str:
+        """"cached" for a valid entry, otherwise why the stage must run."""
+        return self._check(stage, key)[1]
+
+    def require(self, stage: str, key: str) -> Entry:
+        """The entry, or :class:`MissingArtifact` / :class:`CorruptArtifact` (an input)."""
+        entry, reason = self._check(stage, key)
+        if entry is not None:
+            return entry
+        if reason == "no cache entry":
+            raise MissingArtifact(f"missing artifact {stage}/{key} under {self.root}")
+        raise CorruptArtifact(f"artifact {stage}/{key} is invalid: {reason}")
+
+    def remove(self, stage: str, key: str) -> bool:
+        """Delete entry ``stage/key`` (valid or not) atomically; True if something was there."""
+        path = self.path(stage, key)
+        if not path.exists():
+            return False
+        trash = path.parent / _tmp_name(key)
+        try:
+            os.rename(path, trash)
+        except FileNotFoundError:
+            return False
+        if trash.is_dir() and not trash.is_symlink():
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            trash.unlink(missing_ok=True)
+        return True
+
+    # ---- writing
+
+    def write(
+        self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
+    ) -> Entry:
+        """Run ``writer(tmp_dir)`` and publish its files as entry ``stage/key`` atomically.
+
+        Always calls the writer (use :meth:`run` to skip on a hit). If the writer raises
+        (also KeyboardInterrupt), the temporary folder is removed and the exception
+        propagates. If a valid entry appeared meanwhile it is kept and ours discarded;
+        an invalid one is replaced.
+        """
+        final = self.path(stage, key)
+        stage_dir = final.parent
+        stage_dir.mkdir(parents=True, exist_ok=True)
+        self.cleanup_stale(stage)
+        tmp = stage_dir / _tmp_name(key)
+        tmp.mkdir()
+        try:
+            t0 = time.perf_counter()
+            result = writer(tmp)
+            t_write = time.perf_counter() - t0
+            extra, timings = self._result_parts(result)
+            if (tmp / META).exists():
+                raise ValueError(f"the writer of stage {stage!r} must not create {META}")
+            t1 = time.perf_counter()
+            files = self._record_files(tmp)
+            timings = {"write_s": t_write, **timings, "hash_s": time.perf_counter() - t1}
+            doc = self._meta(stage, key, dict(meta or {}), extra, timings, files)
+            with open(tmp / META, "w", encoding="utf-8") as f:
+                json.dump(doc, f, indent=2, sort_keys=True, default=_json_default)
+                f.write("\n")
+                f.flush()
+                os.fsync(f.fileno())
+            _fsync_dir(tmp)
+            return self._publish(stage, key, tmp, final, doc)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    def run(
+        self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
+    ) -> RunResult:
+        """Return the cached entry (writer not called) or write it; says why it ran."""
+        entry, reason = self._check(stage, key)
+        if entry is not None:
+            return RunResult(entry, True, reason)
+        return RunResult(self.write(stage, key, writer, meta), False, reason)
+
+    @staticmethod
+    def _result_parts(result: Any) -> tuple[dict[str, Any], dict[str, float]]:
+        if result is None:
+            return {}, {}
+        if isinstance(result, WriteResult):
+            return dict(result.meta), dict(result.timings)
+        if isinstance(result, Mapping):
+            extra = dict(result)
+            timings = extra.pop("timings", None) or {}
+            return extra, dict(timings)
+        kind = type(result).__name__
+        raise TypeError(f"a writer must return WriteResult, dict or None, not {kind}")
+
+    def _record_files(self, tmp: Path) -> dict[str, dict[str, Any]]:
+        files: dict[str, dict[str, Any]] = {}
+        for dirpath, dirnames, names in os.walk(tmp):
+            dirnames.sort()
+            for n in sorted(names):
+                p = Path(dirpath) / n
+                if p.is_symlink():
+                    raise ValueError(f"artifacts must be self-contained; {n!r} is a symlink")
+                size, digest = _hash_and_sync(p, self.hash_limit)
+                files[p.relative_to(tmp).as_posix()] = {"size": size, "sha256": digest}
+            if Path(dirpath) != tmp:
+                _fsync_dir(Path(dirpath))
+        return files
+
+    @staticmethod
+    def _meta(
+        stage: str, key: str, meta: dict[str, Any], extra: dict[str, Any],
+        timings: dict[str, float], files: dict[str, dict[str, Any]],
+    ) -> dict[str, Any]:
+        return {
+            "config": {},
+            "inputs": [],
+            **meta,
+            **extra,
+            "format": FORMAT,
+            "stage": stage,
+            "key": key,
+            "packages": package_versions(),
+            "git_commit": git_commit(),
+            "timings": {**(meta.get("timings") or {}), **timings},
+            "created": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "files": files,
+            "complete": True,
+        }
+
+    def _publish(
+        self, stage: str, key: str, tmp: Path, final: Path, doc: dict[str, Any]
+    ) -> Entry:
+        """Rename ``tmp`` to ``final``; keep a valid entry already there, replace an invalid one."""
+        for _ in range(5):
+            try:
+                os.rename(tmp, final)  # atomic; fails if final is a non-empty folder
+            except OSError:
+                existing = self.lookup(stage, key)
+                if existing is not None:
+                    return existing  # someone else finished first; ours is discarded
+                if final.exists():
+                    self.remove(stage, key)  # invalid: move aside, then retry
+                continue
+            _fsync_dir(final.parent)
+            return Entry(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
+        raise CorruptArtifact(f"could not publish artifact {stage}/{key}: {final} keeps changing")
+
+    # ---- listing and cleanup
+
+    def _stage_dirs(self, stage: str | None) -> list[Path]:
+        if stage is not None:
+            self._check_stage(stage)
+            d = self.root / stage
+            return [d] if d.is_dir() else []
+        if not self.root.is_dir():
+            return []
+        return sorted(p for p in self.root.iterdir() if p.is_dir() and _STAGE_RE.match(p.name))
+
+    def _tmp_state(self, path: Path) -> tuple[bool, str]:
+        """(stale, description) of a temporary folder."""
+        parsed = _parse_tmp(path.name)
+        if parsed is not None and parsed[1] == _host_tag():
+            pid, start = parsed[2], parsed[3]
+            if _pid_alive(pid, start):
+                return False, f"write in progress (pid {pid})"
+            return True, f"abandoned temporary folder (writer pid {pid} is gone)"
+        try:
+            age = time.time() - path.stat().st_mtime
+        except OSError:
+            return True, "vanished temporary folder"
+        if age > self.stale_after:
+            return True, f"abandoned temporary folder ({age:.0f} s old)"
+        return False, "temporary folder (owner unknown)"
+
+    def cleanup_stale(self, stage: str | None = None) -> list[Path]:
+        """Remove temporary folders of dead or long-gone writers; returns what was removed."""
+        removed: list[Path] = []
+        for d in self._stage_dirs(stage):
+            for p in sorted(d.glob(TMP_PREFIX + "*")):
+                if p.is_dir() and self._tmp_state(p)[0]:
+                    shutil.rmtree(p, ignore_errors=True)
+                    removed.append(p)
+        return removed
+
+    def list(self, stage: str | None = None, *, deep: bool = True) -> list[EntryInfo]:
+        """Every entry (valid or not) and temporary folder, for ``raico ls``.
+
+        ``deep=False`` checks sizes only (no sha256), which is faster on big caches.
+        """
+        rows: list[EntryInfo] = []
+        for d in self._stage_dirs(stage):
+            for p in sorted(d.iterdir()):
+                if not p.is_dir():
+                    continue
+                if p.name.startswith(TMP_PREFIX):
+                    parsed = _parse_tmp(p.name)
+                    _, desc = self._tmp_state(p)
+                    rows.append(EntryInfo(d.name, parsed[0] if parsed else "?", p, False, desc,
+                                          None, _dir_size(p)))
+                elif _KEY_RE.match(p.name):
+                    entry, reason = self._check(d.name, p.name, deep=deep)
+                    created = entry.meta.get("created") if entry else None
+                    rows.append(EntryInfo(d.name, p.name, p, entry is not None, reason,
+                                          created, _dir_size(p)))
+        return rows

@@ -1,0 +1,208 @@
+"""Discrete-time dynamics models with one interface (SPEC §4).
+
+Contract (shared by every model and every solver):
+
+- state ``x = (q, qdot)`` of size ``n_x = 2 * n_q`` (planning coordinates, rad and rad/s),
+  control ``u`` of size ``n_u`` (joint accelerations in rad/s^2 for pseudo-dynamics,
+  joint torques in N m for analytic and learned models);
+- one step of ``dt`` seconds: ``x_{t+1} = f(x_t, u_t)``;
+- linearization around ``(x, u)``: ``f(x', u') ~ A x' + a + B u'`` with
+  ``a = f(x, u) - A x - B u`` (so the affine model is exact at the point);
+- along a trajectory: ``X`` of shape ``(T, n_x)`` and ``U`` of shape ``(T, n_u)`` give
+  ``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)``, step ``t`` linearized at
+  ``(X[t], U[t])``.
+
+Discretization of the analytic models is semi-implicit (symplectic) Euler,
+``qdot' = qdot + dt * qddot(q, qdot, u)``, ``q' = q + dt * qdot'``: with ``qddot = u``
+it is exactly the thesis's backward-Euler pseudo-dynamics (appendix C.2), so both
+models share one time convention.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Dynamics(Protocol):
+    """What every dynamics model offers (see the module docstring for shapes)."""
+
+    n_x: int
+    n_u: int
+    dt: float
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Next state ``(n_x,)`` from state ``(n_x,)`` and control ``(n_u,)``."""
+        ...
+
+    def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A (n_x, n_x), a (n_x,), B (n_x, n_u))`` at ``(x, u)``."""
+        ...
+
+    def linearize_trajectory(
+        self, X: np.ndarray, U: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A (T, n_x, n_x), a (T, n_x), B (T, n_x, n_u))`` along ``X (T, n_x)``, ``U (T, n_u)``."""
+        ...
+
+
+def rollout(dyn: Dynamics, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """States ``(T+1, n_x)`` from ``x0`` under the open-loop controls ``U (T, n_u)``."""
+    X = np.empty((U.shape[0] + 1, dyn.n_x))
+    X[0] = x0
+    for t in range(U.shape[0]):
+        X[t + 1] = dyn.step(X[t], U[t])
+    return X
+
+
+class _TrajectoryByPoints:
+    """Mixin: linearize a trajectory point by point (models override when they batch)."""
+
+    def linearize_trajectory(self, X: np.ndarray, U: np.ndarray):
+        parts = [self.linearize(x, u) for x, u in zip(X, U)]  # type: ignore[attr-defined]
+        return (np.stack([p[0] for p in parts]), np.stack([p[1] for p in parts]),
+                np.stack([p[2] for p in parts]))
+
+
+@dataclass
+class LinearDynamics(_TrajectoryByPoints):
+    """Time-invariant affine model ``x' = A x + a + B u`` (LQ tests, references)."""
+
+    A: np.ndarray
+    a: np.ndarray
+    B: np.ndarray
+    dt: float = 1.0
+
+    @property
+    def n_x(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def n_u(self) -> int:
+        return self.B.shape[1]
+
+    def step(self, x, u):
+        return self.A @ x + self.a + self.B @ u
+
+    def linearize(self, x, u):
+        return self.A.copy(), self.a.copy(), self.B.copy()
+
+    def linearize_trajectory(self, X, U):
+        T = X.shape[0]
+        return (np.broadcast_to(self.A, (T, *self.A.shape)).copy(),
+                np.broadcast_to(self.a, (T, *self.a.shape)).copy(),
+                np.broadcast_to(self.B, (T, *self.B.shape)).copy())
+
+
+class PseudoDynamics(LinearDynamics):
+    """Thesis pseudo-dynamics: controls are joint accelerations, backward Euler (appendix C.2).
+
+    ``A = [[I, dt I], [0, I]]``, ``B = [[dt^2 I], [dt I]]``, ``a = 0``.
+    """
+
+    def __init__(self, n_q: int, dt: float):
+        I = np.eye(n_q)
+        Z = np.zeros((n_q, n_q))
+        A = np.block([[I, dt * I], [Z, I]])
+        B = np.vstack([dt * dt * I, dt * I])
+        super().__init__(A=A, a=np.zeros(2 * n_q), B=B, dt=dt)
+        self.n_q = n_q
+
+
+class AnalyticDynamics(_TrajectoryByPoints):
+    """Drake forward dynamics of a robot, semi-implicit Euler with step ``dt``; controls are torques.
+
+    Coupled joints (Nao) use the reduced model ``M_r = P^T M P``, ``h_r = P^T h``:
+    ``qddot = M_r^-1 (u - h_r(q, qdot))`` with ``h = C qdot - tau_g + D qdot`` (joint damping D; gravity and damping come from
+    Drake's force elements).
+    Derivatives are exact: with ``ID(q, v, a) = M_r(q) a + h_r(q, v)`` differentiated by
+    Drake's AutoDiffXd at ``a = qddot``, ``d qddot/d(q, v) = -M_r^-1 d ID/d(q, v)`` and
+    ``d qddot/d u = M_r^-1``.
+    """
+
+    def __init__(self, robot, dt: float):
+        from pydrake.autodiffutils import AutoDiffXd  # noqa: F401  (registers the scalar type)
+        from pydrake.multibody.tree import MultibodyForces_
+
+        self.robot = robot
+        self.dt = float(dt)
+        self.n_q = robot.n_q
+        self.n_x = 2 * robot.n_q
+        self.n_u = robot.n_q
+        self.P = robot.P
+        plant = robot.plant
+        self._plant = plant
+        self._ctx = plant.CreateDefaultContext()
+        self._plant_ad = plant.ToAutoDiffXd()
+        self._ctx_ad = self._plant_ad.CreateDefaultContext()
+        self._forces = MultibodyForces_[float](plant)
+        self._forces_ad = MultibodyForces_[AutoDiffXd](self._plant_ad)
+        self._vdot0 = np.zeros(plant.num_velocities())
+
+    # -- float evaluation -------------------------------------------------------------
+    def _h_and_Mr(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        plant, ctx, P = self._plant, self._ctx, self.P
+        plant.SetPositions(ctx, P @ q)
+        plant.SetVelocities(ctx, P @ v)
+        plant.CalcForceElementsContribution(ctx, self._forces)
+        h = plant.CalcInverseDynamics(ctx, self._vdot0, self._forces)
+        M = plant.CalcMassMatrix(ctx)
+        return P.T @ h, P.T @ M @ P
+
+    def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Joint accelerations ``(n_q,)`` (rad/s^2) for torques ``u (n_q,)`` (N m)."""
+        h, Mr = self._h_and_Mr(q, v)
+        return np.linalg.solve(Mr, u - h)
+
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Torques ``(n_q,)`` that produce accelerations ``a`` (computed torque)."""
+        h, Mr = self._h_and_Mr(q, v)
+        return Mr @ a + h
+
+    def step(self, x, u):
+        n = self.n_q
+        q, v = x[:n], x[n:]
+        v1 = v + self.dt * self.qddot(q, v, u)
+        return np.concatenate([q + self.dt * v1, v1])
+
+    # -- derivatives ------------------------------------------------------------------
+    def qddot_derivatives(self, q, v, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``qddot``, ``d/dq``, ``d/dv`` ``(n_q, n_q)`` and ``d/du`` ``(n_q, n_q)``."""
+        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+        h, Mr = self._h_and_Mr(q, v)
+        Mr_inv = np.linalg.inv(Mr)
+        a = Mr_inv @ (u - h)
+        n, P = self.n_q, self.P
+        qv = InitializeAutoDiff(np.concatenate([q, v])).reshape(-1)
+        plant, ctx = self._plant_ad, self._ctx_ad
+        plant.SetPositions(ctx, P @ qv[:n])
+        plant.SetVelocities(ctx, P @ qv[n:])
+        plant.CalcForceElementsContribution(ctx, self._forces_ad)
+        tau = plant.CalcInverseDynamics(ctx, P @ a, self._forces_ad)
+        dID = ExtractGradient(P.T @ tau)  # (n, 2n)
+        dqv = -Mr_inv @ dID
+        return a, dqv[:, :n], dqv[:, n:], Mr_inv
+
+    def linearize(self, x, u):
+        n, dt = self.n_q, self.dt
+        a, Fq, Fv, Fu = self.qddot_derivatives(x[:n], x[n:], u)
+        I = np.eye(n)
+        dv_dx = dt * np.hstack([Fq, Fv]) + np.hstack([np.zeros((n, n)), I])
+        dv_du = dt * Fu
+        dq_dx = np.hstack([I, np.zeros((n, n))]) + dt * dv_dx
+        A = np.vstack([dq_dx, dv_dx])
+        B = np.vstack([dt * dv_du, dv_du])
+        return A, self.step(x, u) - A @ x - B @ u, B
+
+
+def make_dynamics(kind: str, robot, dt: float) -> Dynamics:
+    """``pseudo`` (controls = accelerations) or ``analytic`` (controls = torques)."""
+    if kind == "pseudo":
+        return PseudoDynamics(robot.n_q, dt)
+    if kind == "analytic":
+        return AnalyticDynamics(robot, dt)
+    raise ValueError(f"unknown dynamics '{kind}': choose one of pseudo, analytic")

@@ -1,0 +1,155 @@
+"""Task maps phi(q) with Jacobians (SPEC §5).
+
+Contract: a task map takes joint positions ``q (n_q,)`` in planning coordinates (rad)
+and returns a task value ``(dim,)`` (metres or radians) and its Jacobian
+``(dim, n_q)``. ``values_and_jacobians(Q)`` does the same for ``Q (K, n_q)`` and
+returns ``(K, dim)`` and ``(K, dim, n_q)``. Task maps know nothing of time or costs.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class TaskMap(Protocol):
+    name: str
+    dim: int
+
+    def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``phi(q) (dim,)`` and ``d phi / d q (dim, n_q)``."""
+        ...
+
+    def values_and_jacobians(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Batched: ``(K, dim)`` and ``(K, dim, n_q)`` for ``Q (K, n_q)``."""
+        ...
+
+
+class _BatchByPoints:
+    def values_and_jacobians(self, Q: np.ndarray):
+        parts = [self.value_and_jacobian(q) for q in Q]  # type: ignore[attr-defined]
+        return np.stack([p[0] for p in parts]), np.stack([p[1] for p in parts])
+
+    def value(self, q: np.ndarray) -> np.ndarray:
+        return self.value_and_jacobian(q)[0]  # type: ignore[attr-defined]
+
+
+class JointPositions(_BatchByPoints):
+    """Selected joint positions: ``phi(q) = S q`` (a joint-space goal)."""
+
+    def __init__(self, n_q: int, indices: list[int] | None = None, name: str = "joints"):
+        idx = list(range(n_q)) if indices is None else list(indices)
+        self.S = np.eye(n_q)[idx]
+        self.dim = len(idx)
+        self.name = name
+
+    def value_and_jacobian(self, q):
+        return self.S @ q, self.S.copy()
+
+    def values_and_jacobians(self, Q):
+        K = Q.shape[0]
+        return Q @ self.S.T, np.broadcast_to(self.S, (K, *self.S.shape)).copy()
+
+
+class _DrakeMap(_BatchByPoints):
+    """Base for maps evaluated on a robot's plant (planning coordinates mapped by ``robot.P``)."""
+
+    def __init__(self, robot, name: str):
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        self.robot = robot
+        self.name = name
+        self._plant = robot.plant
+        self._ctx = robot.plant.CreateDefaultContext()
+        self._world = robot.plant.world_frame()
+        self._wrt = JacobianWrtVariable.kQDot  # revolute joints only: qdot == v
+
+    def _set(self, q: np.ndarray):
+        self._plant.SetPositions(self._ctx, self.robot.P @ q)
+        return self._ctx
+
+
+class FramePoints(_DrakeMap):
+    """World positions (m) of points fixed in a frame, stacked: ``(3 k,)``; Jacobian ``(3 k, n_q)``.
+
+    One point at the frame origin is an end-effector position; ``axes`` keeps some coordinates
+    (e.g. ``(1, 2)`` for y and z). Three points on a sole pin its whole pose.
+    """
+
+    def __init__(self, robot, frame: str, points=None, axes=(0, 1, 2), name: str | None = None):
+        super().__init__(robot, name or f"{frame}_position")
+        self.frame = robot.plant.GetFrameByName(frame)
+        self.points = np.zeros((1, 3)) if points is None else np.atleast_2d(points).astype(float)
+        rows = [3 * k + a for k in range(len(self.points)) for a in axes]
+        self.rows = np.array(rows)
+        self.dim = len(rows)
+
+    def value_and_jacobian(self, q):
+        ctx = self._set(q)
+        X = self.frame.CalcPoseInWorld(ctx)
+        p = (X.rotation().matrix() @ self.points.T).T + X.translation()
+        J = self._plant.CalcJacobianTranslationalVelocity(
+            ctx, self._wrt, self.frame, self.points.T, self._world, self._world)
+        # Drake stacks point k's x, y, z at rows 3k .. 3k+2
+        return p.reshape(-1)[self.rows], (J @ self.robot.P)[self.rows]
+
+
+def EndEffectorPosition(robot, frame: str, axes=(0, 1, 2), name: str | None = None) -> FramePoints:
+    """Position (m) of a frame's origin in the world, coordinates ``axes``."""
+    return FramePoints(robot, frame, axes=axes, name=name or f"{frame}_position")
+
+
+class RollAngle(_DrakeMap):
+    """The end effector's roll (rad): rotation about its pointing axis x_E, measured from "z_E up".
+
+    ``roll = atan2(y_E . z_W, z_E . z_W)``; defined wherever x_E is not vertical. Its Jacobian
+    follows from the angular-velocity Jacobian ``J_w``: ``d(e . z_W) = J_w . (e x z_W)``.
+    """
+
+    dim = 1
+
+    def __init__(self, robot, frame: str, name: str = "roll"):
+        super().__init__(robot, name)
+        self.frame = robot.plant.GetFrameByName(frame)
+
+    def value_and_jacobian(self, q):
+        ctx = self._set(q)
+        R = self.frame.CalcPoseInWorld(ctx).rotation().matrix()
+        y, z, up = R[:, 1], R[:, 2], np.array([0.0, 0.0, 1.0])
+        a, b = y @ up, z @ up
+        Jw = self._plant.CalcJacobianAngularVelocity(
+            ctx, self._wrt, self.frame, self._world, self._world) @ self.robot.P
+        da = np.cross(y, up) @ Jw
+        db = np.cross(z, up) @ Jw
+        return np.array([np.arctan2(a, b)]), ((b * da - a * db) / (a * a + b * b))[None, :]
+
+
+class CenterOfMass(_DrakeMap):
+    """Center of gravity (m) in the world (Drake's CalcCenterOfMassPositionInWorld), ``axes``."""
+
+    def __init__(self, robot, axes=(0, 1, 2), name: str = "cog"):
+        super().__init__(robot, name)
+        self.axes = np.array(axes)
+        self.dim = len(self.axes)
+
+    def value_and_jacobian(self, q):
+        ctx = self._set(q)
+        c = self._plant.CalcCenterOfMassPositionInWorld(ctx)
+        J = self._plant.CalcJacobianCenterOfMassTranslationalVelocity(
+            ctx, self._wrt, self._world, self._world) @ self.robot.P
+        return c[self.axes], J[self.axes]
+
+
+class Stack(_BatchByPoints):
+    """Several task maps side by side: values concatenated, Jacobians stacked."""
+
+    def __init__(self, maps: list, name: str = "stack"):
+        self.maps = list(maps)
+        self.dim = sum(m.dim for m in self.maps)
+        self.name = name
+
+    def value_and_jacobian(self, q):
+        parts = [m.value_and_jacobian(q) for m in self.maps]
+        return np.concatenate([p[0] for p in parts]), np.vstack([p[1] for p in parts])

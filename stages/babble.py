@@ -1,0 +1,168 @@
+"""Motor babbling (thesis §4.1, SPEC §7): random desired trajectories tracked by a PD controller.
+
+Each episode starts at rest in the robot's default posture (the pendulum: hanging down, the
+stable equilibrium). A random desired trajectory (a clamped cubic spline through random knots
+around the start posture, inside the joint limits) is tracked by
+``u = clip(Kp (q_des - q) + Kd (qdot_des - qdot), -u_max, u_max)`` with ``u_max`` the smaller
+of 10 N m and each joint's effort limit. Drake's Simulator integrates the plant (continuous
+time) with its ``runge_kutta5`` scheme at a fixed step of ``dt / substeps`` (Drake 1.51 has no
+RK4). Every ``dt`` the
+tuple ``(q, qdot, qddot, u)`` is sampled; ``qddot`` is the plant's own time derivative at
+that instant.
+
+Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
+``K = round(duration / dt) + 1`` samples per episode; ``t`` is ``(K,)`` in seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from plants.robots import PLANTS, load_robot
+
+CODE_VERSION = "babble-1"
+
+
+@dataclass(frozen=True)
+class BabbleConfig:
+    """Declared parameters of the babble stage (all part of its cache key)."""
+
+    plant: str
+    episodes: int = 5
+    seed: int = 0
+    duration: float = 1.0  # s per episode
+    dt: float = 0.002  # s between samples
+    kp: float = 50.0
+    kd: float = 5.0
+    amplitude: float = 0.6  # rad, spread of the random knots around the start posture
+    knots: int = 4  # random knots per episode (after the start)
+    integrator: str = "runge_kutta5"
+    substeps: int = 2  # fixed integrator steps per sample
+
+    def validate(self) -> None:
+        if self.plant not in PLANTS:
+            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
+        checks = [(self.episodes >= 1, "episodes must be >= 1"),
+                  (self.episodes <= 10000, "episodes must be <= 10000"),
+                  (0 < self.dt <= 0.1, "dt must be in (0, 0.1] s"),
+                  (self.dt <= self.duration <= 600, "duration must be in [dt, 600] s"),
+                  (self.kp >= 0 and self.kd >= 0, "kp and kd must be >= 0"),
+                  (0 <= self.amplitude <= 3.2, "amplitude must be in [0, 3.2] rad"),
+                  (1 <= self.knots <= 100, "knots must be in [1, 100]"),
+                  (1 <= self.substeps <= 1000, "substeps must be in [1, 1000]")]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class BabbleData:
+    """Sampled tuples; arrays ``(episodes, K, n_q)``, ``t (K,)`` s, plus the desired trajectories."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qdot: np.ndarray
+    qddot: np.ndarray
+    u: np.ndarray
+    q_des: np.ndarray
+    joint_names: tuple[str, ...]
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"t": self.t, "q": self.q, "qdot": self.qdot, "qddot": self.qddot, "u": self.u,
+                "q_des": self.q_des, "joint_names": np.array(self.joint_names)}
+
+    def metrics(self) -> dict:
+        return {"episodes": int(self.q.shape[0]), "samples": int(self.q.shape[0] * self.q.shape[1]),
+                "max_abs_u": float(np.abs(self.u).max()),
+                "rms_tracking_error": float(np.sqrt(np.mean((self.q - self.q_des) ** 2)))}
+
+
+def desired_trajectory(rng: np.random.Generator, q0: np.ndarray, lower: np.ndarray,
+                       upper: np.ndarray, cfg: BabbleConfig) -> CubicSpline:
+    """A clamped cubic spline ``q_des(t)`` from ``q0`` at rest through random knots (rad)."""
+    times = np.linspace(0.0, cfg.duration, cfg.knots + 1)
+    knots = q0 + rng.uniform(-cfg.amplitude, cfg.amplitude, size=(cfg.knots, q0.size))
+    margin = 0.05 * (upper - lower)
+    knots = np.clip(knots, lower + margin, upper - margin)
+    return CubicSpline(times, np.vstack([q0, knots]), bc_type="clamped")
+
+
+def _simulator(robot, cfg: BabbleConfig):
+    """Diagram: plant (+ scene graph) with a PD LeafSystem whose desired trajectory is settable."""
+    from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+    from pydrake.systems.framework import BasicVector, LeafSystem
+
+    plant, P = robot.plant, robot.P
+    n_plant = plant.num_positions()
+    pinv = np.linalg.pinv(P)
+    u_max = P @ robot.babble_torque_limit()  # per plant joint (coupled joints share the motor limit)
+
+    class PD(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.spline = None
+            self.state_port = self.DeclareVectorInputPort("x", 2 * n_plant)
+            self.DeclareVectorOutputPort("u", BasicVector(n_plant), self._calc)
+
+        def _calc(self, context, output):
+            x = self.state_port.Eval(context)
+            t = context.get_time()
+            qd, vd = P @ self.spline(t), P @ self.spline(t, 1)
+            tau = cfg.kp * (qd - x[:n_plant]) + cfg.kd * (vd - x[n_plant:])
+            output.SetFromVector(robot.actuation(np.clip(tau, -u_max, u_max)))
+
+    builder = robot.builder
+    pd = builder.AddSystem(PD())
+    builder.Connect(plant.get_state_output_port(), pd.get_input_port(0))
+    builder.Connect(pd.get_output_port(0), plant.get_actuation_input_port())
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    integrator = ResetIntegratorFromFlags(sim, cfg.integrator, cfg.dt)
+    integrator.set_fixed_step_mode(True)
+    integrator.set_maximum_step_size(cfg.dt / cfg.substeps)
+    return sim, diagram, pd, pinv
+
+
+def run(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -> BabbleData:
+    """Simulate ``cfg.episodes`` babbling episodes on the Drake plant; see the module docstring."""
+    cfg.validate()
+    robot = load_robot(cfg.plant)
+    sim, diagram, pd, pinv = _simulator(robot, cfg)
+    plant = robot.plant
+    root = sim.get_mutable_context()
+    pctx = plant.GetMyMutableContextFromRoot(root)
+    pd_ctx = pd.GetMyContextFromRoot(root)
+    n_plant = plant.num_positions()
+    K = int(round(cfg.duration / cfg.dt)) + 1
+    t = np.arange(K) * cfg.dt
+    rng = np.random.default_rng(cfg.seed)
+    E, n = cfg.episodes, robot.n_q
+    out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
+    q0 = robot.default_q
+    for e in range(E):
+        pd.spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        root.SetTime(0.0)
+        plant.SetPositions(pctx, robot.to_plant_q(q0))
+        plant.SetVelocities(pctx, np.zeros(n_plant))
+        sim.Initialize()
+        for k in range(K):
+            if k > 0:
+                sim.AdvanceTo(t[k])
+            x = plant.GetPositionsAndVelocities(pctx)
+            tau = robot.B_act @ pd.get_output_port(0).Eval(pd_ctx)
+            xdot = plant.EvalTimeDerivatives(pctx).CopyToVector()
+            out["q"][e, k] = pinv @ x[:n_plant]
+            out["qdot"][e, k] = pinv @ x[n_plant:]
+            out["qddot"][e, k] = pinv @ xdot[n_plant:]
+            out["u"][e, k] = robot.P.T @ tau
+            out["q_des"][e, k] = pd.spline(t[k])
+        if progress:
+            progress(e + 1, E)
+    return BabbleData(t=t, joint_names=robot.joint_names, **out)

@@ -1,0 +1,352 @@
+"""AICO and R-AICO: approximate inference control with Gaussian messages (SPEC §6).
+
+One implementation: R-AICO is AICO with ``alpha > 0`` (thesis §3.5, Algorithm 1).
+
+Model per iteration (shapes: ``n = n_x``, ``m = n_u``):
+
+- dynamics linearized ``x_{t+1} ~ A_t x_t + a_t + B_t u_t`` with process noise ``Q = q I``;
+- task messages ``N[x_t | r_t, R_t]`` (cost ``1/2 x^T R x - r^T x``), plus the R-AICO term
+  ``alpha ||x_t - x_t^[n-1]||^2`` (``R += 2 alpha I``, ``r += 2 alpha x_t^[n-1]``) at every
+  step, ``x^[n-1]`` being the trajectory the iteration started from;
+- control prior ``N[u_t | h_t, H_t]`` from the control terms at the current controls, so
+  with controls marginalized ``x_{t+1} | x_t ~ N(A x + a + B H^-1 h, Qbar)`` with
+  ``Qbar = Q + B H^-1 B^T``.
+
+Messages (SPEC §6): forward (moment form ``s_t, S_t``; stored as precision ``S_t^-1`` and
+``S_t^-1 s_t``), backward in canonical form ``V_t^-1, V_t^-1 v_t`` (no inverse of ``A``,
+``V_T^-1 = 0``), belief ``B_t = S_t^-1 + V_t^-1 + R_t``, ``b_t = B_t^-1 (...)``; start
+``S_0 = start_variance I`` around ``x0``. With ``P' = V_{t+1}^-1 + R_{t+1}`` (precision)
+the backward step uses ``V* = (Q + P'^-1)^-1 = (I + q P')^-1 P'`` and
+``M = B^T V* B + H``; by Woodbury ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*``, so the
+message and the controller (thesis eq. 3.6, appendix D)
+``o_t = M^-1 (B^T V* (m' - a_t) + h_t)``, ``O_t = -M^-1 B^T V* A_t`` share one
+factorization and never invert a possibly singular ``P'``.
+
+Algorithm 1: the dynamics and the task messages are linearized along the whole trajectory
+at once at the start of an iteration; during the forward (t = 1..T) and backward
+(t = T-1..0) sweeps a time step is relinearized at its belief and repeated while
+``||b_t - x_t|| > theta`` (at most ``max_repeats`` times; the point moves by
+``belief_rate (b_t - x_t)``, plain AICO's learning rate). After the sweeps the controller
+is rolled out on the true planning dynamics (``dynamics.step``) to give the next
+trajectory and the reported cost.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import lapack
+
+from plants.dynamics import rollout
+from stages.plan.problem import (
+    Callback, IterationRecord, OptionsBase, Problem, Result, check_range,
+    controller_rollout, is_diverged,
+)
+
+
+@dataclass(frozen=True)
+class AICOOptions(OptionsBase):
+    """Options of AICO / R-AICO (frozen; ``from_dict`` rejects unknown keys).
+
+    Attributes:
+        iterations: maximum number of iterations (>= 1).
+        alpha: R-AICO regularization ``alpha^[1]`` (>= 0; 0 is plain AICO), per (state unit)^2.
+        gamma: ``alpha^[n] = alpha^[n-1] gamma`` (> 0).
+        theta: relinearization threshold on ``||b_t - x_t||`` (state units; ``inf``: never).
+        max_repeats: cap on the repeats of one time step within a sweep (>= 0).
+        belief_rate: learning rate on the belief update ``x_t += rate (b_t - x_t)`` (0, 1].
+        process_noise: ``q`` in ``Q = q I`` (> 0).
+        start_variance: ``S_0 = start_variance I`` (tight prior around ``x0``, > 0).
+        tol: converged when the relative cost change of two iterations is below ``tol``.
+        divergence_factor: diverged when the cost exceeds this times the initial cost.
+    """
+
+    iterations: int = 100
+    alpha: float = 0.0
+    gamma: float = 1.0
+    theta: float = 0.1
+    max_repeats: int = 3
+    belief_rate: float = 1.0
+    process_noise: float = 1e-9
+    start_variance: float = 1e-10
+    tol: float = 1e-9
+    divergence_factor: float = 1e6
+
+    def validate(self) -> None:
+        check_range("iterations", self.iterations, lo=1, integer=True)
+        check_range("alpha", self.alpha, lo=0.0)
+        check_range("gamma", self.gamma, lo=0.0, lo_open=True)
+        check_range("theta", self.theta, lo=0.0, lo_open=True)
+        check_range("max_repeats", self.max_repeats, lo=0, integer=True)
+        check_range("belief_rate", self.belief_rate, lo=0.0, hi=1.0, lo_open=True)
+        check_range("process_noise", self.process_noise, lo=0.0, lo_open=True)
+        check_range("start_variance", self.start_variance, lo=0.0, lo_open=True)
+        check_range("tol", self.tol, lo=0.0)
+        check_range("divergence_factor", self.divergence_factor, lo=1.0, lo_open=True)
+        if not math.isfinite(self.alpha) or not math.isfinite(self.gamma):
+            raise ValueError("options alpha and gamma must be finite")
+
+
+class NumericalError(RuntimeError):
+    """A factorization failed or a message became non-finite."""
+
+
+# -- small dense linear algebra with little call overhead ---------------------------------
+def _chol(M: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of the symmetric positive-definite ``M``."""
+    c, info = lapack.dpotrf(M, lower=1)
+    if info != 0:
+        raise NumericalError(f"Cholesky failed (info={info})")
+    return c
+
+
+def _inv_spd(M: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive-definite matrix (Cholesky, triangular inverse)."""
+    Li, info = lapack.dtrtri(_chol(M), lower=1)
+    if info != 0:
+        raise NumericalError(f"triangular inverse failed (info={info})")
+    return Li.T @ Li
+
+
+def _solve_chol(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``M^-1 b`` from the lower Cholesky factor ``L`` of ``M``; ``b (k,)`` or ``(k, r)``."""
+    x, info = lapack.dpotrs(L, b, lower=1)
+    if info != 0:
+        raise NumericalError(f"Cholesky solve failed (info={info})")
+    return x
+
+
+def _sym(M: np.ndarray) -> np.ndarray:
+    return 0.5 * (M + M.T)
+
+
+class _Sweeps:
+    """Message state and per-step updates of one AICO run (arrays indexed by time)."""
+
+    def __init__(self, problem: Problem, opts: AICOOptions):
+        self.p = problem
+        self.o = opts
+        T, n, m = problem.T, problem.n_x, problem.n_u
+        self.T, self.n, self.m = T, n, m
+        self.q = opts.process_noise
+        self.I = np.eye(n)
+        # forward messages as precision S^-1 (T+1, n, n) and S^-1 s (T+1, n)
+        self.Sinv = np.zeros((T + 1, n, n))
+        self.sv = np.zeros((T + 1, n))
+        self.Sinv[0] = self.I / opts.start_variance
+        self.sv[0] = problem.x0 / opts.start_variance
+        # backward messages V^-1 (T+1, n, n), V^-1 v (T+1, n); V_T^-1 = 0 (end)
+        self.Vinv = np.zeros((T + 1, n, n))
+        self.vv = np.zeros((T + 1, n))
+        self.b = np.tile(problem.x0, (T + 1, 1))
+        self.o_ = np.zeros((T, m))
+        self.O_ = np.zeros((T, m, n))
+        self.repeats = 0
+
+    # -- linearization -----------------------------------------------------------------
+    def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray,
+                      alpha: float) -> None:
+        """Dynamics, control and task messages along ``X (T+1, n)``, ``U (T, m)`` at once."""
+        p = self.p
+        self.X = X.copy()
+        self.U = U
+        self.Xprev = Xprev
+        self.alpha = alpha
+        self.A, self.a, self.B = (np.asarray(z, dtype=float) for z in
+                                  p.dynamics.linearize_trajectory(X[:-1], U))
+        self.H, self.h = p.quadratize_controls(U)
+        try:
+            self.Hinv = np.linalg.inv(self.H)
+            np.linalg.cholesky(self.H)
+        except np.linalg.LinAlgError as e:
+            raise NumericalError("control Hessian H_t is not positive definite") from e
+        self._update_marginals(slice(None))
+        R, r = p.quadratize_states(X)
+        self.R = R + 2.0 * alpha * self.I
+        self.r = r + 2.0 * alpha * Xprev
+        self._check_finite(self.A, self.a, self.B, self.R, self.r)
+
+    def _update_marginals(self, sl) -> None:
+        """``Qbar = q I + B H^-1 B^T`` and ``a_eff = a + B H^-1 h`` at steps ``sl``."""
+        B, Hinv = self.B[sl], self.Hinv[sl]
+        BHi = B @ Hinv
+        if isinstance(sl, slice):
+            self.Qbar = BHi @ np.swapaxes(B, -1, -2) + self.q * self.I
+            self.a_eff = self.a + np.einsum("tij,tj->ti", BHi, self.h)
+        else:
+            self.Qbar[sl] = BHi @ B.T + self.q * self.I
+            self.a_eff[sl] = self.a[sl] + BHi @ self.h[sl]
+
+    def relinearize(self, t: int) -> None:
+        """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
+        p, x = self.p, self.X[t]
+        if t < self.T:
+            A, a, B = p.dynamics.linearize(x, self.U[t])
+            self.A[t], self.a[t], self.B[t] = A, a, B
+            self._update_marginals(t)
+        R, r = p.quadratize_states(x[None, :], np.array([t]))
+        self.R[t] = R[0] + 2.0 * self.alpha * self.I
+        self.r[t] = r[0] + 2.0 * self.alpha * self.Xprev[t]
+        self._check_finite(self.A[min(t, self.T - 1)], self.R[t], self.r[t])
+        self.repeats += 1
+
+    @staticmethod
+    def _check_finite(*arrs: np.ndarray) -> None:
+        for z in arrs:
+            if not np.all(np.isfinite(z)):
+                raise NumericalError("non-finite linearization or task message")
+
+    # -- messages -----------------------------------------------------------------------
+    def forward(self, t: int) -> None:
+        """Forward message at ``t >= 1`` from step ``t-1``."""
+        A = self.A[t - 1]
+        L = _chol(self.Sinv[t - 1] + self.R[t - 1])
+        Li, info = lapack.dtrtri(L, lower=1)
+        W = Li @ A.T                                   # P^-1 = Li^T Li
+        mean = Li.T @ (Li @ (self.sv[t - 1] + self.r[t - 1]))
+        S = W.T @ W + self.Qbar[t - 1]
+        s = A @ mean + self.a_eff[t - 1]
+        Sinv = _inv_spd(S)
+        self.Sinv[t] = Sinv
+        self.sv[t] = Sinv @ s
+
+    def backward(self, t: int) -> None:
+        """Backward message ``V_t^-1, V_t^-1 v_t`` and the controller at ``t <= T-1``."""
+        n, A, B, a = self.n, self.A[t], self.B[t], self.a[t]
+        Pp = self.Vinv[t + 1] + self.R[t + 1]
+        rhs = np.empty((n, n + 1))
+        rhs[:, :n] = Pp
+        rhs[:, n] = self.vv[t + 1] + self.r[t + 1]
+        Z = _solve_chol(_chol(self.I + self.q * Pp), rhs)
+        Vs = _sym(Z[:, :n])                          # V* = (Q + P'^-1)^-1
+        pq = Z[:, n]                                 # V* m'
+        VB = Vs @ B
+        LM = _chol(B.T @ VB + self.H[t])             # M = B^T V* B + H
+        BtVA = VB.T @ A
+        y = pq - Vs @ self.a_eff[t]
+        rhs_m = np.empty((self.m, n + 2))
+        rhs_m[:, :n] = BtVA
+        rhs_m[:, n] = B.T @ pq - VB.T @ a + self.h[t]
+        rhs_m[:, n + 1] = B.T @ y
+        Zm = _solve_chol(LM, rhs_m)
+        O = -Zm[:, :n]
+        self.O_[t] = O
+        self.o_[t] = Zm[:, n]
+        self.Vinv[t] = _sym(A.T @ (Vs @ A) + BtVA.T @ O)
+        self.vv[t] = A.T @ y - BtVA.T @ Zm[:, n + 1]
+
+    def belief(self, t: int) -> np.ndarray:
+        """Belief mean ``b_t (n,)``."""
+        L = _chol(self.Sinv[t] + self.Vinv[t] + self.R[t])
+        b = _solve_chol(L, self.sv[t] + self.vv[t] + self.r[t])
+        self.b[t] = b
+        return b
+
+    def settle(self, t: int, redo=None) -> None:
+        """Algorithm 1 at step ``t`` (message already updated): while the belief is more than
+        ``theta`` from the linearization point, move the point towards it, relinearize step
+        ``t``, redo the message ``redo(t)`` if it depends on step ``t``, and repeat."""
+        o = self.o
+        for _ in range(o.max_repeats):
+            b = self.belief(t)
+            if not np.linalg.norm(b - self.X[t]) > o.theta:
+                return
+            self.X[t] += o.belief_rate * (b - self.X[t])
+            self.relinearize(t)
+            if redo is not None:
+                redo(t)
+        self.belief(t)
+
+    def sweep(self) -> None:
+        """One forward (t = 1..T) and one backward (t = T-1..0) sweep."""
+        for t in range(1, self.T + 1):
+            self.forward(t)
+            self.settle(t)            # the forward message at t does not depend on step t
+        for t in range(self.T - 1, -1, -1):
+            self.backward(t)
+            self.settle(t, self.backward)
+        if not (np.all(np.isfinite(self.o_)) and np.all(np.isfinite(self.O_))):
+            raise NumericalError("non-finite controller")
+
+
+def aico(problem: Problem, options: AICOOptions | None = None, *,
+         X_init: np.ndarray | None = None, U_init: np.ndarray | None = None,
+         callback: Callback | None = None) -> Result:
+    """Plan with AICO (``alpha = 0``) or R-AICO (``alpha > 0``).
+
+    Args:
+        problem: the planning problem (needs a positive-definite control cost).
+        options: ``AICOOptions`` (defaults if ``None``).
+        X_init: initial trajectory ``(T+1, n_x)`` to linearize at (default: ``x0`` at every
+            step, thesis §3.4; if only ``U_init`` is given, its rollout).
+        U_init: initial controls ``(T, n_u)`` (default zeros).
+        callback: called after each iteration with ``(record, X, U)``.
+
+    Returns:
+        ``Result``; a run whose cost becomes non-finite or explodes, or whose messages
+        fail numerically, ends with status ``"diverged"`` (no exception).
+    """
+    opts = options or AICOOptions()
+    T, n_u = problem.T, problem.n_u
+    U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
+    with np.errstate(all="ignore"):
+        X0_roll = rollout(problem.dynamics, problem.x0, U)
+    initial_cost = problem.cost(X0_roll, U)
+    if X_init is None:
+        X = np.tile(problem.x0, (T + 1, 1)) if U_init is None else X0_roll
+    else:
+        X = np.array(X_init, dtype=float)
+    _check_control_cost(problem)
+    sw = _Sweeps(problem, opts)
+    history: list[IterationRecord] = []
+    best = (X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))  # last finite (X, U, o, O)
+    status, message = "max-iterations", f"reached {opts.iterations} iterations"
+    alpha = float(opts.alpha)
+    start = time.perf_counter()
+    reference = initial_cost
+    for it in range(1, opts.iterations + 1):
+        t0 = time.perf_counter()
+        sw.repeats = 0
+        try:
+            with np.errstate(all="ignore"):
+                sw.linearize_all(X, U, X, alpha)
+                sw.sweep()
+            Xn, Un = controller_rollout(problem.dynamics, problem.x0, sw.o_, sw.O_)
+            cost = problem.cost(Xn, Un)
+            err = None
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as e:
+            cost, err = math.inf, f"{type(e).__name__}: {e}"
+        now = time.perf_counter()
+        rec = IterationRecord(it, cost, now - t0, now - start, alpha, 0.0, sw.repeats)
+        history.append(rec)
+        if it == 1 and not (math.isfinite(reference) and reference > 0):
+            reference = cost
+        if err is not None or is_diverged(cost, reference, opts.divergence_factor):
+            status = "diverged"
+            message = (f"iteration {it}: " + (err or f"cost {cost:.3g} not finite or above "
+                       f"{opts.divergence_factor:g} x initial cost {reference:.3g}"))
+            break
+        X, U = Xn, Un
+        best = (X, U, sw.o_.copy(), sw.O_.copy())
+        if callback is not None:
+            callback(rec, X, U)
+        if it > 1 and abs(history[-2].cost - cost) <= opts.tol * max(abs(history[-2].cost),
+                                                                     1e-300):
+            status, message = "converged", f"relative cost change below tol={opts.tol:g}"
+            break
+        alpha *= opts.gamma
+    X, U, o, O = best
+    return Result(X=X, U=U, o=o, O=O, status=status, history=history,
+                  iterations=len(history), message=message, initial_cost=initial_cost,
+                  beliefs=sw.b.copy(), solver="raico" if opts.alpha > 0 else "aico")
+
+
+def _check_control_cost(problem: Problem) -> None:
+    """AICO marginalizes the controls: their cost Hessian must be positive definite."""
+    _, luu = problem.control_derivatives(np.zeros((1, problem.n_u)))
+    if np.any(np.linalg.eigvalsh(luu[0]) <= 0):
+        raise ValueError("AICO needs a positive-definite control cost (add a ControlCost "
+                         "with weight > 0)")

@@ -1,0 +1,276 @@
+"""Named, weighted cost terms with vectorized values and Gauss-Newton models (SPEC §5).
+
+Every term has a ``name`` and a ``weight`` (weight 0 switches it off; ``Problem.without``
+removes it). Conventions (see ``stages.plan.problem``):
+
+- state terms act on rows ``X (K, n_x)`` at time steps ``idx (K,)`` (default ``0..K-1``)
+  and only at their ``times`` (``None``: every step); ``value`` gives ``(K,)`` per-time
+  costs, ``derivatives`` the gradient ``l_x (K, n_x)`` and Gauss-Newton Hessian
+  ``l_xx (K, n_x, n_x)``, ``quadratize`` the task message ``R = l_xx``,
+  ``r = l_xx x - l_x`` (cost ``1/2 x^T R x - r^T x``);
+- control terms act on ``U (K, n_u)`` at every step: ``value (K,)``,
+  ``derivatives -> l_u (K, n_u), l_uu (K, n_u, n_u)``, ``quadratize -> H = l_uu,
+  h = l_uu u - l_u``. State-control cross terms are zero.
+
+For a via-point ``w (x* - phi(q))^T C (x* - phi(q))`` linearized at ``q0`` this gives
+``R = 2 w J^T C J`` and ``r = 2 w J^T C (x* - phi(q0) + J q0)`` on the ``q`` block (the
+velocity block is zero).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plants.taskmaps import TaskMap
+
+
+def _diag_or_matrix(precision, dim: int, what: str) -> np.ndarray:
+    """A symmetric ``(dim, dim)`` precision from ``None`` (identity), a diagonal or a matrix."""
+    if precision is None:
+        return np.eye(dim)
+    P = np.asarray(precision, dtype=float)
+    if P.ndim == 1:
+        if P.shape != (dim,):
+            raise ValueError(f"{what}: precision has shape {P.shape}, expected ({dim},)")
+        P = np.diag(P)
+    if P.shape != (dim, dim):
+        raise ValueError(f"{what}: precision has shape {P.shape}, expected ({dim}, {dim})")
+    if not np.all(np.isfinite(P)):
+        raise ValueError(f"{what}: precision must be finite")
+    return 0.5 * (P + P.T)
+
+
+def _check_weight(weight: float, what: str) -> float:
+    w = float(weight)
+    if not np.isfinite(w) or w < 0:
+        raise ValueError(f"{what}: weight must be finite and >= 0, got {weight}")
+    return w
+
+
+class StateTerm:
+    """Base class of state terms: subclasses implement ``_value`` and ``_derivs`` on active rows."""
+
+    name: str
+    weight: float
+    times: np.ndarray | None
+
+    def _set_times(self, times) -> None:
+        if times is None:
+            self.times = None
+        else:
+            t = np.unique(np.asarray(list(times), dtype=int).reshape(-1))
+            self.times = t
+
+    def active(self, idx: np.ndarray) -> np.ndarray:
+        """Boolean mask ``(K,)``: which time steps ``idx`` this term costs."""
+        if self.times is None:
+            return np.ones(len(idx), dtype=bool)
+        return np.isin(idx, self.times)
+
+    @staticmethod
+    def _idx(X: np.ndarray, idx) -> np.ndarray:
+        return np.arange(X.shape[0]) if idx is None else np.asarray(idx).reshape(-1)
+
+    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
+        """Per-time costs ``(K,)`` of rows ``X (K, n_x)`` at time steps ``idx``."""
+        X = np.atleast_2d(X)
+        idx = self._idx(X, idx)
+        out = np.zeros(X.shape[0])
+        m = self.active(idx)
+        if self.weight != 0 and m.any():
+            out[m] = self._value(X[m], idx[m])
+        return out
+
+    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient ``(K, n_x)`` and Gauss-Newton Hessian ``(K, n_x, n_x)``."""
+        X = np.atleast_2d(X)
+        lx = np.zeros(X.shape)
+        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        self.add_derivatives(X, self._idx(X, idx), lx, lxx)
+        return lx, lxx
+
+    def add_derivatives(self, X: np.ndarray, idx: np.ndarray, lx: np.ndarray,
+                        lxx: np.ndarray) -> None:
+        """Add this term's gradient and GN Hessian into ``lx (K, n_x)``, ``lxx (K, n_x, n_x)``."""
+        m = self.active(idx)
+        if self.weight == 0 or not m.any():
+            return
+        g, H = self._derivs(X[m], idx[m])
+        if m.all():
+            lx += g
+            lxx += H
+        else:
+            lx[m] += g
+            lxx[m] += H
+
+    def quadratize(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """Task message ``R (K, n_x, n_x)``, ``r (K, n_x)`` of ``1/2 x^T R x - r^T x`` at ``X``."""
+        X = np.atleast_2d(X)
+        lx, lxx = self.derivatives(X, idx)
+        return lxx, np.einsum("kij,kj->ki", lxx, X) - lx
+
+    def _value(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _derivs(self, X: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+
+class ViaPoint(StateTerm):
+    """Task-space via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at the listed steps.
+
+    Args:
+        taskmap: ``phi`` (``plants.taskmaps.TaskMap``) on ``q = x[:n_q]``, ``n_q = n_x / 2``.
+        target: ``x* (dim,)`` in the task map's units (m or rad).
+        times: step indices in ``[0, T]``; ``None`` means every step.
+        weight: ``w`` (thesis eq. 3.7: 1e4).
+        precision: diagonal of ``C (dim,)`` (default ones) or a full ``(dim, dim)`` matrix.
+        name: unique name of the term.
+    """
+
+    def __init__(self, taskmap: TaskMap, target, times, weight: float = 1e4,
+                 precision=None, name: str | None = None):
+        self.taskmap = taskmap
+        self.target = np.asarray(target, dtype=float).reshape(-1)
+        if self.target.shape != (taskmap.dim,):
+            raise ValueError(f"ViaPoint target has shape {self.target.shape}, "
+                             f"task map {taskmap.name!r} has dim {taskmap.dim}")
+        self.name = name or f"via_{taskmap.name}"
+        self.weight = _check_weight(weight, self.name)
+        self.C = _diag_or_matrix(precision, taskmap.dim, self.name)
+        self._set_times(times)
+
+    def _errors(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        n_q = X.shape[1] // 2
+        phi, J = self.taskmap.values_and_jacobians(X[:, :n_q])
+        return self.target - phi, J, n_q
+
+    def _value(self, X, idx):
+        e, _, _ = self._errors(X)
+        return self.weight * np.einsum("ki,ij,kj->k", e, self.C, e)
+
+    def _derivs(self, X, idx):
+        e, J, n_q = self._errors(X)
+        CJ = np.einsum("ij,kjq->kiq", self.C, J)  # (K, dim, n_q)
+        lx = np.zeros(X.shape)
+        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        lx[:, :n_q] = -2.0 * self.weight * np.einsum("kiq,ki->kq", CJ, e)
+        lxx[:, :n_q, :n_q] = 2.0 * self.weight * np.einsum("kip,kiq->kpq", J, CJ)
+        return lx, lxx
+
+
+class StateTarget(StateTerm):
+    """Quadratic cost on the full state ``w (x_t - x*)^T C (x_t - x*)`` at the listed steps.
+
+    Args:
+        target: ``x* (n_x,)`` (rad, rad/s).
+        times: step indices in ``[0, T]``; ``None`` means every step.
+        weight: ``w``.
+        precision: diagonal ``(n_x,)`` (default ones) or full ``(n_x, n_x)`` PSD matrix ``C``.
+        name: unique name of the term.
+    """
+
+    def __init__(self, target, times=None, weight: float = 1.0, precision=None,
+                 name: str = "state_target"):
+        self.target = np.asarray(target, dtype=float).reshape(-1)
+        self.name = name
+        self.weight = _check_weight(weight, name)
+        self.C = _diag_or_matrix(precision, self.target.shape[0], name)
+        self._set_times(times)
+
+    def _value(self, X, idx):
+        e = X - self.target
+        return self.weight * np.einsum("ki,ij,kj->k", e, self.C, e)
+
+    def _derivs(self, X, idx):
+        e = X - self.target
+        lx = 2.0 * self.weight * e @ self.C
+        lxx = np.broadcast_to(2.0 * self.weight * self.C, (X.shape[0], *self.C.shape))
+        return lx, lxx
+
+
+class ControlTerm:
+    """Base class of control terms (time-invariant, every step ``t = 0..T-1``)."""
+
+    name: str
+    weight: float
+
+    def value(self, U: np.ndarray) -> np.ndarray:
+        """Per-time costs ``(K,)`` of ``U (K, n_u)``."""
+        raise NotImplementedError
+
+    def derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient ``l_u (K, n_u)`` and Gauss-Newton Hessian ``l_uu (K, n_u, n_u)``."""
+        raise NotImplementedError
+
+    def quadratize(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Control message ``H (K, n_u, n_u)``, ``h (K, n_u)`` of ``1/2 u^T H u - h^T u``."""
+        U = np.atleast_2d(U)
+        lu, luu = self.derivatives(U)
+        return luu, np.einsum("kij,kj->ki", luu, U) - lu
+
+
+class ControlCost(ControlTerm):
+    """Control effort ``w_u (u_t - u*)^T (u_t - u*)`` (``u* = 0`` by default): ``H = 2 w_u I``.
+
+    Args:
+        weight: ``w_u`` (thesis eq. 3.7: 1e-2), per (control unit)^2.
+        target: optional ``u* (n_u,)`` (then ``h = 2 w_u u*``).
+        name: unique name of the term.
+    """
+
+    def __init__(self, weight: float = 1e-2, target=None, name: str = "control"):
+        self.name = name
+        self.weight = _check_weight(weight, name)
+        self.target = None if target is None else np.asarray(target, dtype=float).reshape(-1)
+
+    def _err(self, U: np.ndarray) -> np.ndarray:
+        U = np.atleast_2d(U)
+        return U if self.target is None else U - self.target
+
+    def value(self, U):
+        e = self._err(U)
+        return self.weight * np.einsum("ki,ki->k", e, e)
+
+    def derivatives(self, U):
+        e = self._err(U)
+        n_u = e.shape[1]
+        luu = np.broadcast_to(2.0 * self.weight * np.eye(n_u), (e.shape[0], n_u, n_u)).copy()
+        return 2.0 * self.weight * e, luu
+
+
+class ControlLimit(ControlTerm):
+    """Soft control limits (thesis §4.1): ``w sum_i max(0, u_i - upper_i)^2 + max(0, lower_i - u_i)^2``.
+
+    Its Gauss-Newton model is exact on each side: ``l_uu = 2 w diag(active)``.
+
+    Args:
+        lower, upper: limits ``(n_u,)`` or scalars (control units, e.g. N m).
+        weight: ``w`` per (control unit)^2 of violation.
+        name: unique name of the term.
+    """
+
+    def __init__(self, lower, upper, weight: float = 1e4, name: str = "control_limit"):
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        if np.any(self.lower > self.upper):
+            raise ValueError(f"{name}: lower limit above upper limit")
+        self.name = name
+        self.weight = _check_weight(weight, name)
+
+    def _viol(self, U: np.ndarray) -> np.ndarray:
+        """Signed violation ``(K, n_u)``: ``u - upper`` above, ``u - lower`` below, else 0."""
+        U = np.atleast_2d(U)
+        return np.maximum(U - self.upper, 0.0) + np.minimum(U - self.lower, 0.0)
+
+    def value(self, U):
+        v = self._viol(U)
+        return self.weight * np.einsum("ki,ki->k", v, v)
+
+    def derivatives(self, U):
+        v = self._viol(U)
+        act = (v != 0).astype(float)
+        K, n_u = v.shape
+        luu = np.zeros((K, n_u, n_u))
+        luu[:, np.arange(n_u), np.arange(n_u)] = 2.0 * self.weight * act
+        return 2.0 * self.weight * v, luu

@@ -1,0 +1,302 @@
+"""The planning problem, the result every solver returns, and the options base (SPEC §5, §6).
+
+Contract (shared by every solver, trajax style):
+
+- horizon ``T`` steps; states ``X`` of shape ``(T+1, n_x)`` with ``X[0] = x0``; controls
+  ``U`` of shape ``(T, n_u)``; ``x_{t+1} = f(x_t, u_t)`` with ``f = problem.dynamics.step``.
+  ``x = (q, qdot)``, ``n_x = 2 n_q``; task maps act on ``q = x[:n_q]``.
+- cost: the plain sum of the terms' values, ``sum_t sum_i c_i(x_t) + sum_t sum_j c_j(u_t)``
+  (state terms at ``t = 0..T``, control terms at ``t = 0..T-1``), e.g.
+  ``w (x* - phi(q_t))^T C (x* - phi(q_t)) + w_u u_t^T u_t``. This is the cost every
+  solver reports.
+- quadratic (Gauss-Newton) models of a term use the convention of SPEC §6: a term is
+  ``1/2 x^T R x - r^T x`` (likelihood ``exp(-cost)``), so ``R = l_xx`` and
+  ``r = l_xx x0 - l_x`` at the linearization point ``x0``; the same for controls with
+  ``H = l_uu`` and ``h = l_uu u0 - l_u``.
+- the time-varying feedback controller of a result is ``u_t = o_t + O_t x_t`` with
+  ``o (T, n_u)`` and ``O (T, n_u, n_x)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from plants.dynamics import Dynamics
+
+STATUSES = ("converged", "max-iterations", "diverged")
+
+
+@dataclass
+class Problem:
+    """A finite-horizon optimal control problem.
+
+    Attributes:
+        dynamics: the planning model ``x_{t+1} = f(x_t, u_t)`` (``plants.dynamics.Dynamics``).
+        x0: initial state ``(n_x,)``.
+        T: horizon in steps (the movement lasts ``T * dynamics.dt`` seconds).
+        state_terms: costs on ``x_t`` (``stages.plan.costs`` state terms), ``t = 0..T``.
+        control_terms: costs on ``u_t`` (control terms), ``t = 0..T-1``.
+    """
+
+    dynamics: Dynamics
+    x0: np.ndarray
+    T: int
+    state_terms: list = field(default_factory=list)
+    control_terms: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.x0 = np.asarray(self.x0, dtype=float).reshape(-1)
+        if self.x0.shape != (self.dynamics.n_x,):
+            raise ValueError(f"x0 has shape {self.x0.shape}, expected ({self.dynamics.n_x},)")
+        if not np.all(np.isfinite(self.x0)):
+            raise ValueError("x0 must be finite")
+        if int(self.T) != self.T or self.T < 1:
+            raise ValueError(f"T must be an integer >= 1, got {self.T}")
+        self.T = int(self.T)
+        names = [t.name for t in self.state_terms + self.control_terms]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"cost term names must be unique, repeated: {dup}")
+        for term in self.state_terms:
+            times = getattr(term, "times", None)
+            if times is not None and len(times) and (min(times) < 0 or max(times) > self.T):
+                raise ValueError(f"term {term.name!r}: times must lie in [0, T={self.T}]")
+
+    # -- sizes ---------------------------------------------------------------
+    @property
+    def n_x(self) -> int:
+        return self.dynamics.n_x
+
+    @property
+    def n_u(self) -> int:
+        return self.dynamics.n_u
+
+    # -- terms ---------------------------------------------------------------
+    def term(self, name: str):
+        """The cost term called ``name``."""
+        for t in self.state_terms + self.control_terms:
+            if t.name == name:
+                return t
+        raise KeyError(f"no cost term {name!r}; terms: {self.term_names()}")
+
+    def term_names(self) -> list[str]:
+        return [t.name for t in self.state_terms + self.control_terms]
+
+    def without(self, *names: str) -> "Problem":
+        """A copy without the named terms (ablations)."""
+        for n in names:
+            self.term(n)
+        return dataclasses.replace(
+            self,
+            state_terms=[t for t in self.state_terms if t.name not in names],
+            control_terms=[t for t in self.control_terms if t.name not in names],
+        )
+
+    # -- costs ---------------------------------------------------------------
+    def cost_terms(self, X: np.ndarray, U: np.ndarray) -> dict[str, float]:
+        """Total value of each term along ``X (T+1, n_x)``, ``U (T, n_u)``."""
+        out = {t.name: float(np.sum(t.value(X))) for t in self.state_terms}
+        out.update({t.name: float(np.sum(t.value(U))) for t in self.control_terms})
+        return out
+
+    def cost(self, X: np.ndarray, U: np.ndarray) -> float:
+        """The reported cost: plain sum of all terms' values (``inf`` if not finite)."""
+        with np.errstate(all="ignore"):
+            c = sum(self.cost_terms(X, U).values(), 0.0)
+        return float(c) if math.isfinite(c) else math.inf
+
+    def state_derivatives(
+        self, X: np.ndarray, idx: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Summed ``l_x (K, n_x)`` and Gauss-Newton ``l_xx (K, n_x, n_x)`` at rows ``X (K, n_x)``.
+
+        ``idx (K,)`` are the time steps of the rows (default ``0..K-1``).
+        """
+        X = np.atleast_2d(X)
+        idx = np.arange(X.shape[0]) if idx is None else np.asarray(idx)
+        lx = np.zeros(X.shape)
+        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        for term in self.state_terms:
+            term.add_derivatives(X, idx, lx, lxx)
+        return lx, lxx
+
+    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Summed ``l_u (K, n_u)`` and Gauss-Newton ``l_uu (K, n_u, n_u)`` at ``U (K, n_u)``."""
+        U = np.atleast_2d(U)
+        lu = np.zeros(U.shape)
+        luu = np.zeros((U.shape[0], U.shape[1], U.shape[1]))
+        for term in self.control_terms:
+            g, h = term.derivatives(U)
+            lu += g
+            luu += h
+        return lu, luu
+
+    def quadratize_states(
+        self, X: np.ndarray, idx: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Task messages ``R (K, n_x, n_x)``, ``r (K, n_x)`` (``1/2 x^T R x - r^T x``) at ``X``."""
+        lx, lxx = self.state_derivatives(X, idx)
+        return lxx, np.einsum("kij,kj->ki", lxx, np.atleast_2d(X)) - lx
+
+    def quadratize_controls(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Control messages ``H (K, n_u, n_u)``, ``h (K, n_u)`` (``1/2 u^T H u - h^T u``) at ``U``."""
+        lu, luu = self.control_derivatives(U)
+        return luu, np.einsum("kij,kj->ki", luu, np.atleast_2d(U)) - lu
+
+
+@dataclass
+class IterationRecord:
+    """One solver iteration.
+
+    Attributes:
+        iteration: 1-based iteration number.
+        cost: cost of rolling the current controller out on the planning dynamics.
+        time_s: wall time of this iteration in seconds (linearization included).
+        elapsed_s: wall time since the solver started, seconds.
+        step: step-size parameter (R-AICO: alpha of this iteration; iLQG: accepted
+            line-search step, 0 if none was accepted).
+        mu: regularization (iLQG: mu after the iteration's update; AICO: 0).
+        repeats: AICO only: number of relinearization repeats in the sweeps.
+    """
+
+    iteration: int
+    cost: float
+    time_s: float
+    elapsed_s: float
+    step: float
+    mu: float = 0.0
+    repeats: int = 0
+
+
+@dataclass
+class Result:
+    """What every solver returns (shapes in the module docstring).
+
+    Attributes:
+        X: final trajectory ``(T+1, n_x)`` (rollout of the controller on the planning model).
+        U: its controls ``(T, n_u)``.
+        o: controller offsets ``(T, n_u)``; ``u_t = o_t + O_t x_t``.
+        O: controller gains ``(T, n_u, n_x)``.
+        status: one of ``"converged"``, ``"max-iterations"`` (stopped without meeting a
+            convergence test: iteration budget, or iLQG's regularization limit), ``"diverged"``.
+        history: one ``IterationRecord`` per iteration.
+        iterations: number of iterations run.
+        message: one human-readable line on why the solver stopped.
+        initial_cost: cost of the initial guess rolled out (zero controls unless warm-started).
+        beliefs: AICO only: belief means ``b_t (T+1, n_x)`` of the last sweep.
+        solver: name of the solver.
+    """
+
+    X: np.ndarray
+    U: np.ndarray
+    o: np.ndarray
+    O: np.ndarray
+    status: str
+    history: list[IterationRecord]
+    iterations: int
+    message: str
+    initial_cost: float = math.nan
+    beliefs: np.ndarray | None = None
+    solver: str = ""
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status {self.status!r} not in {STATUSES}")
+
+    @property
+    def cost(self) -> float:
+        """Cost of the last iteration (``initial_cost`` if none ran)."""
+        return self.history[-1].cost if self.history else self.initial_cost
+
+    @property
+    def costs(self) -> np.ndarray:
+        """Per-iteration costs ``(iterations,)``."""
+        return np.array([h.cost for h in self.history])
+
+
+def controller_rollout(
+    dynamics: Dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Roll ``u_t = o_t + O_t x_t`` out on ``dynamics`` from ``x0``: ``X (T+1, n_x)``, ``U (T, n_u)``.
+
+    Stops early (rest filled with NaN) as soon as a state is not finite.
+    """
+    T = o.shape[0]
+    X = np.full((T + 1, x0.shape[0]), np.nan)
+    U = np.full(o.shape, np.nan)
+    X[0] = x0
+    with np.errstate(all="ignore"):
+        for t in range(T):
+            U[t] = o[t] + O[t] @ X[t]
+            X[t + 1] = dynamics.step(X[t], U[t])
+            if not np.all(np.isfinite(X[t + 1])):
+                break
+    return X, U
+
+
+def is_diverged(cost: float, reference: float, factor: float) -> bool:
+    """``True`` if ``cost`` is not finite or exceeds ``factor * reference``."""
+    if not math.isfinite(cost):
+        return True
+    return reference > 0 and math.isfinite(reference) and cost > factor * reference
+
+
+class OptionsBase:
+    """Mixin for frozen option dataclasses: strict construction from a dict."""
+
+    def validate(self) -> None:  # overridden
+        pass
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None = None, **defaults: Any):
+        """Build options from ``d``; unknown keys raise ``ValueError`` naming the valid ones.
+
+        ``defaults`` (keyword arguments) are applied first and overridden by ``d``.
+        """
+        d = dict(d or {})
+        valid = cls.field_names()
+        unknown = sorted(set(d) - set(valid))
+        if unknown:
+            raise ValueError(
+                f"unknown {cls.__name__} option(s) {unknown}; valid options: {valid}"
+            )
+        return cls(**{**defaults, **d})
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {}
+        for k, v in dataclasses.asdict(self).items():  # type: ignore[call-overload]
+            out[k] = v.tolist() if isinstance(v, np.ndarray) else v
+        return out
+
+
+def check_range(name: str, value: Any, lo: float | None = None, hi: float | None = None,
+                lo_open: bool = False, integer: bool = False) -> None:
+    """Raise ``ValueError`` unless ``value`` is a finite number in the given range."""
+    ok_type = isinstance(value, (int, np.integer)) if integer else isinstance(
+        value, (int, float, np.integer, np.floating))
+    if isinstance(value, bool) or not ok_type:
+        kind = "an integer" if integer else "a number"
+        raise ValueError(f"option {name} must be {kind}, got {value!r}")
+    v = float(value)
+    if math.isnan(v):
+        raise ValueError(f"option {name} must not be NaN")
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise ValueError(f"option {name} must be {'>' if lo_open else '>='} {lo}, got {value}")
+    if hi is not None and v > hi:
+        raise ValueError(f"option {name} must be <= {hi}, got {value}")
+
+
+Callback = Callable[[IterationRecord, np.ndarray, np.ndarray], None]
+"""Per-iteration hook ``callback(record, X (T+1, n_x), U (T, n_u))`` (recording, progress)."""

@@ -1,0 +1,367 @@
+"""Tests of the artifact cache (pipeline/cache.py) and the error classes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline import cache as cache_mod
+from pipeline.cache import Cache, Entry, WriteResult, stage_key
+from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
+
+REPO = Path(__file__).resolve().parents[1]
+_REAL_GIT_COMMIT = cache_mod.git_commit
+KEY = stage_key("plan", "v1", {"T": 100, "alpha": 0.5}, ["aaaaaaaaaaaaaaaa"])
+
+
+@pytest.fixture(autouse=True)
+def _no_repo_git(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Keep tests from querying the project's git repository."""
+    monkeypatch.setattr(cache_mod, "git_commit", lambda path=None: "0" * 40)
+
+
+def write_npz(d: Path) -> dict:
+    np.savez(d / "data.npz", x=np.arange(10.0))
+    (d / "sub").mkdir()
+    (d / "sub" / "notes.txt").write_text("hello")
+    return {"timings": {"solve_s": 0.25}, "summary": {"cost": np.float64(1.5)}}
+
+
+# --------------------------------------------------------------------------- keys
+
+
+def test_key_is_stable_and_short() -> None:
+    k = stage_key("plan", "v1", {"T": 100, "alpha": 0.5}, ["aaaaaaaaaaaaaaaa"])
+    assert k == KEY and len(k) == 16 and int(k, 16) >= 0
+    # Fixed value: a change here invalidates every user's cache, so it must be deliberate.
+    assert stage_key("s", "v", {}, []) == "071282d1eee62f34"
+
+
+def test_key_ignores_order_and_number_spelling() -> None:
+    base = stage_key("fit", "v1", {"a": 1, "b": {"x": 2.0, "y": [1, 2]}}, [])
+    same = [
+        {"b": {"y": [1.0, 2.0], "x": 2}, "a": 1.0},
+        {"a": np.int64(1), "b": {"x": np.float32(2.0), "y": np.array([1, 2])}},
+        {"a": np.float64(1.0), "b": {"x": 2, "y": (1, 2)}},
+    ]
+    for cfg in same:
+        assert stage_key("fit", "v1", cfg, []) == base
+    assert stage_key("fit", "v1", {"a": -0.0}, []) == stage_key("fit", "v1", {"a": 0}, [])
+
+
+def test_key_changes_with_what_matters() -> None:
+    cfg = {"a": 1, "b": 0.5}
+    base = stage_key("fit", "v1", cfg, ["k1"])
+    others = {
+        stage_key("plan", "v1", cfg, ["k1"]),
+        stage_key("fit", "v2", cfg, ["k1"]),
+        stage_key("fit", "v1", {"a": 1, "b": 0.5000001}, ["k1"]),
+        stage_key("fit", "v1", {"a": 1, "b": 0.5, "c": None}, ["k1"]),
+        stage_key("fit", "v1", {"a": True, "b": 0.5}, ["k1"]),
+        stage_key("fit", "v1", cfg, ["k2"]),
+        stage_key("fit", "v1", cfg, ["k1", "k2"]),
+        stage_key("fit", "v1", cfg, []),
+        stage_key("fit", "v1", {"a": 1, "b": float("nan")}, ["k1"]),
+    }
+    assert base not in others and len(others) == 9
+
+
+def test_key_rejects_unhashable_values() -> None:
+    with pytest.raises(TypeError):
+        stage_key("fit", "v1", {"f": object()}, [])
+
+
+# --------------------------------------------------------------------------- write / lookup
+
+
+def test_write_then_lookup(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    assert c.lookup("plan", KEY) is None and c.why("plan", KEY) == "no cache entry"
+    e = c.write("plan", KEY, write_npz, {"config": {"T": 100}, "inputs": ["aaaaaaaaaaaaaaaa"]})
+    assert isinstance(e, Entry) and e.path == tmp_path / "plan" / KEY
+    assert sorted(os.listdir(tmp_path / "plan")) == [KEY]  # no tmp folder left
+    m = json.loads((e.path / "meta.json").read_text())
+    assert m["complete"] is True and m["stage"] == "plan" and m["key"] == KEY
+    assert m["config"] == {"T": 100} and m["inputs"] == ["aaaaaaaaaaaaaaaa"]
+    assert set(m["files"]) == {"data.npz", "sub/notes.txt"}
+    assert m["files"]["sub/notes.txt"] == {
+        "size": 5, "sha256": "2cf24dba5fb0a30e26e83b2ac5b9e29e1b161e5c1fa7425e73043362938b9824"}
+    assert m["timings"]["solve_s"] == 0.25 and "write_s" in m["timings"]
+    assert m["summary"] == {"cost": 1.5} and m["git_commit"] == "0" * 40
+    assert m["packages"]["numpy"] == np.__version__ and "drake" in m["packages"]
+    assert m["created"].endswith("Z")
+    got = c.lookup("plan", KEY)
+    assert got is not None and got.meta == e.meta and c.why("plan", KEY) == "cached"
+    assert np.load(got.file("data.npz"))["x"][3] == 3.0
+    with pytest.raises(MissingArtifact):
+        got.file("nope.npz")
+
+
+def test_write_result_dataclass(tmp_path: Path) -> None:
+    def w(d: Path) -> WriteResult:
+        (d / "a.txt").write_text("a")
+        return WriteResult(meta={"status": "diverged"}, timings={"plan_s": 1.0})
+
+    e = Cache(tmp_path).write("plan", KEY, w, {})
+    assert e.meta["status"] == "diverged" and e.meta["timings"]["plan_s"] == 1.0
+
+
+def test_hit_never_calls_writer(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    calls = 0
+
+    def w(d: Path) -> None:
+        nonlocal calls
+        calls += 1
+        (d / "x.txt").write_text("x")
+
+    r1 = c.run("plan", KEY, w)
+    assert (calls, r1.cached, r1.reason) == (1, False, "no cache entry")
+    r2 = c.run("plan", KEY, w)
+    r3 = c.run("plan", KEY, w)
+    assert calls == 1 and r2.cached and r3.cached and r2.reason == "cached"
+    assert r2.entry.path == r1.entry.path
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("boom"), KeyboardInterrupt()])
+def test_writer_failure_leaves_nothing(tmp_path: Path, exc: BaseException) -> None:
+    c = Cache(tmp_path)
+
+    def w(d: Path) -> None:
+        (d / "half.npz").write_bytes(b"x" * 1000)
+        raise exc
+
+    with pytest.raises(type(exc)):
+        c.write("plan", KEY, w, {})
+    assert os.listdir(tmp_path / "plan") == []
+    assert c.lookup("plan", KEY) is None and c.list() == []
+
+
+def test_writer_may_not_write_meta(tmp_path: Path) -> None:
+    with pytest.raises(ValueError):
+        Cache(tmp_path).write("plan", KEY, lambda d: (d / "meta.json").write_text("{}") and None)
+    assert os.listdir(tmp_path / "plan") == []
+
+
+def test_bad_names_rejected(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    for stage, key in [("../x", KEY), (".tmp", KEY), ("plan", "../../etc"), ("plan", "ABC")]:
+        with pytest.raises(BadInput):
+            c.lookup(stage, key)
+
+
+# --------------------------------------------------------------------------- corruption
+
+
+def _corrupt_truncate(e: Entry) -> None:
+    p = e.path / "data.npz"
+    p.write_bytes(p.read_bytes()[:-7])
+
+
+def _corrupt_same_size(e: Entry) -> None:
+    p = e.path / "sub" / "notes.txt"
+    p.write_text("HELLO")
+
+
+def _corrupt_delete_file(e: Entry) -> None:
+    (e.path / "data.npz").unlink()
+
+
+def _corrupt_delete_meta(e: Entry) -> None:
+    (e.path / "meta.json").unlink()
+
+
+def _corrupt_flip_complete(e: Entry) -> None:
+    m = json.loads((e.path / "meta.json").read_text())
+    m["complete"] = False
+    (e.path / "meta.json").write_text(json.dumps(m))
+
+
+def _corrupt_garble_meta(e: Entry) -> None:
+    (e.path / "meta.json").write_text('{"complete": tr')
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "reason"),
+    [
+        (_corrupt_truncate, "file data.npz changed (size"),
+        (_corrupt_same_size, "file sub/notes.txt changed (sha256"),
+        (_corrupt_delete_file, "file data.npz missing"),
+        (_corrupt_delete_meta, "cache entry incomplete (meta.json missing)"),
+        (_corrupt_flip_complete, "cache entry incomplete (not marked complete)"),
+        (_corrupt_garble_meta, "cache entry corrupt (meta.json unreadable"),
+    ],
+)
+def test_corrupt_entry_detected_and_recomputed(tmp_path: Path, corrupt, reason: str) -> None:
+    c = Cache(tmp_path)
+    e = c.write("plan", KEY, write_npz, {})
+    corrupt(e)
+    assert c.lookup("plan", KEY) is None
+    assert c.why("plan", KEY).startswith(reason), c.why("plan", KEY)
+    [info] = c.list()
+    assert not info.valid and info.reason.startswith(reason)
+    with pytest.raises(CorruptArtifact):
+        c.require("plan", KEY)
+    calls = []
+    r = c.run("plan", KEY, lambda d: calls.append(1) or write_npz(d))
+    assert calls == [1] and not r.cached and r.reason.startswith(reason)
+    assert c.why("plan", KEY) == "cached" and sorted(os.listdir(tmp_path / "plan")) == [KEY]
+
+
+def test_big_files_checked_by_size_only(tmp_path: Path) -> None:
+    c = Cache(tmp_path, hash_limit=100)
+
+    def w(d: Path) -> None:
+        (d / "big.bin").write_bytes(b"a" * 200)
+        (d / "small.bin").write_bytes(b"a" * 10)
+
+    e = c.write("plan", KEY, w)
+    assert e.meta["files"]["big.bin"]["sha256"] is None
+    assert e.meta["files"]["small.bin"]["sha256"] is not None
+    (e.path / "big.bin").write_bytes(b"b" * 200)  # same size: not detected (by design)
+    assert c.lookup("plan", KEY) is not None
+    (e.path / "big.bin").write_bytes(b"b" * 199)
+    assert c.why("plan", KEY).startswith("file big.bin changed (size")
+
+
+def test_require_missing(tmp_path: Path) -> None:
+    with pytest.raises(MissingArtifact) as ei:
+        Cache(tmp_path).require("fit", KEY)
+    assert isinstance(ei.value, RaicoError) and "\n" not in str(ei.value)
+
+
+# --------------------------------------------------------------------------- races
+
+
+def test_valid_entry_appearing_meanwhile_is_kept(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+
+    def other_process(d: Path) -> None:  # someone else publishes the same key first
+        (d / "x.txt").write_text("ours")
+        c.write("plan", KEY, lambda d2: (d2 / "x.txt").write_text("theirs") and None,
+                {"who": "theirs"})
+
+    e = c.write("plan", KEY, other_process, {"who": "ours"})
+    assert e.meta["who"] == "theirs" and (e.path / "x.txt").read_text() == "theirs"
+    assert sorted(os.listdir(tmp_path / "plan")) == [KEY]
+
+
+def test_invalid_entry_there_is_replaced(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    (tmp_path / "plan" / KEY).mkdir(parents=True)
+    (tmp_path / "plan" / KEY / "junk.npz").write_bytes(b"junk")
+    assert c.why("plan", KEY) == "cache entry incomplete (meta.json missing)"
+    e = c.write("plan", KEY, write_npz, {})
+    assert not (e.path / "junk.npz").exists() and c.lookup("plan", KEY) is not None
+    assert sorted(os.listdir(tmp_path / "plan")) == [KEY]
+
+
+def test_remove(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    c.write("plan", KEY, write_npz)
+    assert c.remove("plan", KEY) and not c.remove("plan", KEY)
+    assert os.listdir(tmp_path / "plan") == []
+
+
+# --------------------------------------------------------------------------- list / stale
+
+
+def test_list_skips_non_entries(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    (tmp_path / "README.md").write_text("x")
+    (tmp_path / "report" / "figures").mkdir(parents=True)
+    c.write("plan", KEY, write_npz, {})
+    c.write("fit", KEY, write_npz, {})
+    rows = c.list()
+    assert [(r.stage, r.key, r.valid) for r in rows] == [("fit", KEY, True), ("plan", KEY, True)]
+    assert rows[0].size > 0 and rows[0].created and rows[0].reason == "cached"
+    assert [r.stage for r in c.list("plan")] == ["plan"] and c.list("nostage") == []
+
+
+def test_old_tmp_without_owner_is_stale(tmp_path: Path) -> None:
+    c = Cache(tmp_path, stale_after=60)
+    fresh = tmp_path / "plan" / ".tmp-junk"
+    old = tmp_path / "plan" / ".tmp-old"
+    for p in (fresh, old):
+        p.mkdir(parents=True)
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    assert c.cleanup_stale() == [old] and fresh.exists()
+
+
+def test_live_writer_tmp_is_not_removed(tmp_path: Path) -> None:
+    c = Cache(tmp_path, stale_after=0)
+    seen: list[list[Path]] = []
+
+    def w(d: Path) -> None:
+        os.utime(d, (0, 0))  # looks ancient, but its writer (this process) is alive
+        seen.append(Cache(tmp_path, stale_after=0).cleanup_stale())
+        (d / "x.txt").write_text("x")
+
+    c.write("plan", KEY, w)
+    assert seen == [[]] and c.lookup("plan", KEY) is not None
+
+
+def test_sigkill_mid_write_leaves_no_entry(tmp_path: Path) -> None:
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        from pathlib import Path
+        from pipeline.cache import Cache
+        def writer(d):
+            (d / "data.npz").write_bytes(b"x" * 4096)
+            print("started", flush=True)
+            time.sleep(60)
+        Cache(Path({str(tmp_path)!r})).write("plan", {KEY!r}, writer, {{}})
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.strip() == "started", proc.stderr.read() if proc.poll() is not None else line
+        os.kill(proc.pid, signal.SIGKILL)
+        assert proc.wait(timeout=10) == -signal.SIGKILL
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+    c = Cache(tmp_path)
+    [tmp] = os.listdir(tmp_path / "plan")
+    assert tmp.startswith(".tmp-" + KEY)
+    assert c.lookup("plan", KEY) is None and c.why("plan", KEY) == "no cache entry"
+    rows = c.list()
+    assert not any(r.valid for r in rows)
+    assert [r.reason.startswith("abandoned") for r in rows] == [True]
+
+    calls = []
+    r = c.run("plan", KEY, lambda d: calls.append(1) or write_npz(d))
+    assert calls == [1] and not r.cached
+    assert sorted(os.listdir(tmp_path / "plan")) == [KEY]  # stale tmp cleaned by the write
+    assert [(x.key, x.valid) for x in c.list()] == [(KEY, True)]
+
+
+# --------------------------------------------------------------------------- provenance, errors
+
+
+def test_git_commit_tolerates_no_repo(tmp_path: Path) -> None:
+    assert _REAL_GIT_COMMIT(tmp_path) is None
+
+
+def test_errors_one_line() -> None:
+    err = BadInput("unknown plant 'foo'\n  choose one of: arm2, arm7")
+    assert str(err) == "unknown plant 'foo' choose one of: arm2, arm7"
+    assert isinstance(err, RaicoError) and err.exit_code != 0
+    assert issubclass(CorruptArtifact, RaicoError) and issubclass(MissingArtifact, RaicoError)
