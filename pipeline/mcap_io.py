@@ -28,7 +28,7 @@ from mcap.writer import Writer
 
 from pipeline.recording import body_poses
 
-__all__ = ["JOINT_STATES", "TF", "TASK_PREFIX", "read_trajectory_mcap", "write_trajectory_mcap"]
+__all__ = ["JOINT_STATES", "TASK_PREFIX", "TF", "read_trajectory_mcap", "write_trajectory_mcap"]
 
 JOINT_STATES = "/joint_states"
 TF = "/tf"
@@ -100,11 +100,9 @@ def _unfloats(x: Iterable[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in x], dtype=float)
 
 
-def _column(A: np.ndarray | None, K: int, name: str) -> np.ndarray | None:
-    if A is None:
-        return None
-    A = np.asarray(A, dtype=float).reshape(K, -1)
-    return A
+def _rows(A: np.ndarray | None, K: int) -> np.ndarray | None:
+    """``A`` as ``(K, d)`` floats (None stays None)."""
+    return None if A is None else np.asarray(A, dtype=float).reshape(K, -1)
 
 
 class _Channels:
@@ -166,8 +164,8 @@ def write_trajectory_mcap(
     ns = _ns(times)
     if len(ns) != K:
         raise ValueError(f"times has {len(ns)} samples but Q has {K}")
-    V, U = _column(V, K, "V"), _column(U, K, "U")
-    tasks = {k: _column(v, K, k) for k, v in (task_values or {}).items()}
+    V, U = _rows(V, K), _rows(U, K)
+    tasks = {k: _rows(v, K) for k, v in (task_values or {}).items()}
     bodies, T, R = body_poses(robot, Q)
     names = list(robot.joint_names)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import rerun as rr
@@ -39,10 +39,10 @@ __all__ = [
     "default_blueprint",
     "entity_name",
     "log_body_trajectory",
+    "log_joint_series",
     "log_points_path",
     "log_robot_geometry",
     "log_scalars",
-    "log_joint_series",
     "robot_eye",
     "rot_to_quat_xyzw",
 ]
@@ -120,7 +120,7 @@ class Recording:
         if name is not None:
             self.rec.send_recording_name(name)
         if self.properties:
-            values = {k: _property_value(v) for k, v in self.properties.items()}
+            values = {str(k): _property_value(v) for k, v in self.properties.items()}
             self.rec.send_property("raico", rr.AnyValues(**values))
             blob = json.dumps(self.properties, sort_keys=True, default=str)
             self.rec.send_property("raico_json", rr.AnyValues(json=blob))
@@ -135,7 +135,7 @@ class Recording:
             self.rec.disconnect()
             self._closed = True
 
-    def __enter__(self) -> Recording:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(

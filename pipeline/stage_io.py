@@ -1,0 +1,85 @@
+"""Each stage's files: data (.npz), recording.rrd, trajectory.mcap, run through the cache.
+
+The stage functions in ``stages/`` compute; the functions here give them a cache key, write
+their outputs into the cache's temporary folder and return the outcome.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cache import Cache, Entry
+from pipeline.errors import BadInput, MissingArtifact
+from pipeline.runner import Outcome, run_stage
+from pipeline.ui import Reporter
+
+RECORDING = "recording.rrd"
+MCAP = "trajectory.mcap"
+
+
+def find_entry(cache: Cache, ref: str, stage: str | None = None) -> Entry:
+    """A valid entry from ``STAGE/KEY`` or a bare ``KEY`` (searched in ``stage`` or everywhere)."""
+    if "/" in ref:
+        st, key = ref.split("/", 1)
+        return cache.require(st, key)
+    matches = [r for r in cache.list(stage) if r.key.startswith(ref)]
+    valid = [r for r in matches if r.valid]
+    if not valid:
+        if matches:
+            return cache.require(matches[0].stage, matches[0].key)  # raises with the reason
+        where = f"stage '{stage}'" if stage else "any stage"
+        raise MissingArtifact(f"no artifact with key '{ref}' in {where} under {cache.root}")
+    if len({(r.stage, r.key) for r in valid}) > 1:
+        raise BadInput(f"key prefix '{ref}' is ambiguous: give more characters or STAGE/KEY")
+    return cache.require(valid[0].stage, valid[0].key)
+
+
+def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
+
+
+def run_babble(cache: Cache, cfg, record: bool = True, reporter: Reporter | None = None) -> Outcome:
+    """Babble stage through the cache: ``data.npz`` (+ recording and MCAP of all episodes)."""
+    from stages import babble
+
+    reporter = reporter or Reporter(quiet=True)
+    config = {**cfg.to_dict(), "record": record}
+
+    def compute(tmp: Path) -> dict:
+        with reporter.progress(f"babble {cfg.plant}", cfg.episodes) as update:
+            data = babble.run(cfg, progress=update)
+        save_npz(tmp / "data.npz", data.arrays())
+        if record:
+            write_babble_recording(tmp, cfg, data)
+        return {"status": "ok", "metrics": data.metrics()}
+
+    return run_stage(cache, "babble", babble.CODE_VERSION, config, [], compute)
+
+
+def _episode_times(t: np.ndarray, episodes: int, gap: float) -> np.ndarray:
+    """Episodes laid end to end on one ``sim_time`` axis: ``(episodes * K,)`` s."""
+    span = t[-1] + gap
+    return (np.arange(episodes)[:, None] * span + t[None, :]).reshape(-1)
+
+
+def write_babble_recording(folder: Path, cfg, data) -> None:
+    from pipeline import recording as rec_mod
+    from pipeline.mcap_io import write_trajectory_mcap
+    from plants.robots import load_robot
+
+    robot = load_robot(cfg.plant)
+    E, K, n = data.q.shape
+    times = _episode_times(data.t, E, gap=data.t[1] - data.t[0])
+    Q = data.q.reshape(-1, n)
+    with rec_mod.Recording(folder / RECORDING, properties={"stage": "babble", **cfg.to_dict()},
+                           name=f"babble {cfg.plant}", time_series=["desired", "torque"],
+                           eye=rec_mod.robot_eye(robot)) as rec:
+        rec_mod.log_robot_geometry(rec, robot)
+        rec_mod.log_body_trajectory(rec, robot, times, Q)
+        rec_mod.log_joint_series(rec, robot.joint_names, times, data.q_des.reshape(-1, n), root="desired")
+        rec_mod.log_joint_series(rec, robot.joint_names, times, data.u.reshape(-1, n), root="torque")
+        rec_mod.log_scalars(rec, "episode_index", "sim_time", times, np.repeat(np.arange(E), K))
+    write_trajectory_mcap(folder / MCAP, robot, times, Q, data.qdot.reshape(-1, n), data.u.reshape(-1, n))

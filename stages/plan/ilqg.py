@@ -1,0 +1,286 @@
+"""iLQG baseline (Tassa, Erez, Todorov 2012, "Synthesis and stabilization of complex
+behaviors through online trajectory optimization"), as in SPEC §6.
+
+- derivatives: dynamics ``A_t, B_t`` along the trajectory (``linearize_trajectory``),
+  cost gradients and Gauss-Newton Hessians of the terms (``l_x, l_xx, l_u, l_uu``; the
+  cross term ``l_ux`` is zero);
+- backward pass with ``mu`` added to ``V_xx`` (state regularization):
+  ``Q_uu = l_uu + B^T (V_xx + mu I) B``, ``Q_ux = B^T (V_xx + mu I) A``, gains
+  ``k = -Q_uu^-1 Q_u``, ``K = -Q_uu^-1 Q_ux``; a non-positive-definite ``Q_uu``
+  increases ``mu`` and restarts the pass;
+- Levenberg-Marquardt schedule: increase ``Delta = max(Delta_0, Delta Delta_0)``,
+  ``mu = max(mu_min, mu Delta)``; decrease ``Delta = min(1/Delta_0, Delta/Delta_0)``,
+  ``mu = mu Delta`` (0 if that falls below ``mu_min``);
+- backtracking line search over ``alphas`` on the feed-forward term only,
+  ``u = u_bar + alpha k + K (x - x_bar)``; accept when actual / expected reduction > 0;
+- stop: relative cost change < ``tol_rel`` (converged), gradient
+  ``mean_t max_i |k_ti| / (|u_ti| + 1) < tol_grad`` with ``mu < 1e-5`` (converged), or
+  ``mu > mu_max`` (status ``"max-iterations"``: no descent step could be found).
+
+Control limits enter as the ``ControlLimit`` penalty term (no clamping / box QP).
+Initial controls are zero.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import lapack
+
+from plants.dynamics import rollout
+from stages.plan.problem import (
+    Callback, IterationRecord, OptionsBase, Problem, Result, check_range, is_diverged,
+)
+
+
+def _default_alphas() -> tuple[float, ...]:
+    return tuple(float(a) for a in 10.0 ** np.linspace(0.0, -3.0, 11))
+
+
+@dataclass(frozen=True)
+class ILQGOptions(OptionsBase):
+    """Options of iLQG (frozen; ``from_dict`` rejects unknown keys).
+
+    Attributes:
+        iterations: maximum number of iterations (>= 1).
+        mu0: initial regularization ``mu`` (>= 0).
+        delta0: ``Delta_0`` of the Levenberg-Marquardt schedule (> 1).
+        mu_min, mu_max: regularization limits.
+        alphas: line-search step sizes, tried in order (each in (0, 1]).
+        tol_rel: converged when the relative cost reduction of a step is below this.
+        tol_grad: converged when the normalized feed-forward gradient is below this.
+        divergence_factor: diverged when the cost exceeds this times the initial cost.
+    """
+
+    iterations: int = 100
+    mu0: float = 1.0
+    delta0: float = 2.0
+    mu_min: float = 1e-6
+    mu_max: float = 1e10
+    alphas: tuple = field(default_factory=_default_alphas)
+    tol_rel: float = 1e-7
+    tol_grad: float = 1e-4
+    divergence_factor: float = 1e6
+
+    def validate(self) -> None:
+        check_range("iterations", self.iterations, lo=1, integer=True)
+        check_range("mu0", self.mu0, lo=0.0)
+        check_range("delta0", self.delta0, lo=1.0, lo_open=True)
+        check_range("mu_min", self.mu_min, lo=0.0, lo_open=True)
+        check_range("mu_max", self.mu_max, lo=self.mu_min, lo_open=True)
+        check_range("tol_rel", self.tol_rel, lo=0.0)
+        check_range("tol_grad", self.tol_grad, lo=0.0)
+        check_range("divergence_factor", self.divergence_factor, lo=1.0, lo_open=True)
+        alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
+        if not alphas or any(not (0.0 < a <= 1.0) for a in alphas):
+            raise ValueError(f"option alphas must be a non-empty list in (0, 1], got {alphas}")
+        object.__setattr__(self, "alphas", alphas)
+
+
+class _NotPD(Exception):
+    """Q_uu was not positive definite at some step."""
+
+
+def _backward(A, B, lx, lxx, lu, luu, mu: float):
+    """Backward pass. Shapes: ``A (T,n,n)``, ``B (T,n,m)``, ``lx (T+1,n)``, ``lxx (T+1,n,n)``,
+    ``lu (T,m)``, ``luu (T,m,m)``. Returns ``k (T,m)``, ``K (T,m,n)``, ``dV (2,)``."""
+    T, n, m = B.shape
+    k = np.zeros((T, m))
+    K = np.zeros((T, m, n))
+    dV = np.zeros(2)
+    Vx, Vxx = lx[T].copy(), lxx[T].copy()
+    for t in range(T - 1, -1, -1):
+        At, Bt = A[t], B[t]
+        Qx = lx[t] + At.T @ Vx
+        Qu = lu[t] + Bt.T @ Vx
+        VA = Vxx @ At
+        Qxx = lxx[t] + At.T @ VA
+        BtV = Bt.T @ Vxx
+        Quu = luu[t] + BtV @ Bt
+        Qux = BtV @ At
+        BtVr = BtV + mu * Bt.T if mu else BtV
+        QuuF = luu[t] + BtVr @ Bt
+        Qux_r = Qux + mu * Bt.T @ At if mu else Qux
+        L, info = lapack.dpotrf(0.5 * (QuuF + QuuF.T), lower=1)
+        if info != 0 or not np.all(np.isfinite(L)):
+            raise _NotPD
+        rhs = np.empty((m, n + 1))
+        rhs[:, 0] = Qu
+        rhs[:, 1:] = Qux_r
+        sol, info = lapack.dpotrs(L, rhs, lower=1)
+        kt, Kt = -sol[:, 0], -sol[:, 1:]
+        k[t], K[t] = kt, Kt
+        dV += (kt @ Qu, 0.5 * kt @ Quu @ kt)
+        KtQuu = Kt.T @ Quu
+        Vx = Qx + KtQuu @ kt + Kt.T @ Qu + Qux.T @ kt
+        Vxx = Qxx + KtQuu @ Kt + Kt.T @ Qux + Qux.T @ Kt
+        Vxx = 0.5 * (Vxx + Vxx.T)
+    return k, K, dV
+
+
+def _forward(problem: Problem, X, U, k, K, alpha: float):
+    """Rollout of ``u = U + alpha k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost."""
+    dyn = problem.dynamics
+    Xn = np.full(X.shape, np.nan)
+    Un = np.full(U.shape, np.nan)
+    Xn[0] = problem.x0
+    with np.errstate(all="ignore"):
+        for t in range(U.shape[0]):
+            Un[t] = U[t] + alpha * k[t] + K[t] @ (Xn[t] - X[t])
+            Xn[t + 1] = dyn.step(Xn[t], Un[t])
+            if not np.all(np.isfinite(Xn[t + 1])):
+                return Xn, Un, math.inf
+    return Xn, Un, problem.cost(Xn, Un)
+
+
+class _LM:
+    """Levenberg-Marquardt schedule of ``mu`` (Tassa et al. 2012, Sec. II-F)."""
+
+    def __init__(self, o: ILQGOptions):
+        self.o, self.mu, self.delta = o, float(o.mu0), 1.0
+
+    def increase(self) -> None:
+        o = self.o
+        self.delta = max(o.delta0, self.delta * o.delta0)
+        self.mu = max(o.mu_min, self.mu * self.delta)
+
+    def decrease(self) -> None:
+        o = self.o
+        self.delta = min(1.0 / o.delta0, self.delta / o.delta0)
+        self.mu = self.mu * self.delta if self.mu * self.delta > o.mu_min else 0.0
+
+
+def ilqg(problem: Problem, options: ILQGOptions | None = None, *,
+         U_init: np.ndarray | None = None, callback: Callback | None = None) -> Result:
+    """Plan with iLQG from zero controls (or ``U_init (T, n_u)``).
+
+    Returns a ``Result``; the controller is ``u_t = U_t + K_t (x_t - X_t)``, i.e.
+    ``o_t = U_t - K_t X_t``, ``O_t = K_t``, with gains from a backward pass at the final
+    trajectory. A non-finite initial rollout ends with status ``"diverged"``.
+    """
+    opts = options or ILQGOptions()
+    T, n, m = problem.T, problem.n_x, problem.n_u
+    U = np.zeros((T, m)) if U_init is None else np.array(U_init, dtype=float)
+    with np.errstate(all="ignore"):
+        X = rollout(problem.dynamics, problem.x0, U)
+    J = problem.cost(X, U)
+    initial_cost = J
+    start = time.perf_counter()
+    history: list[IterationRecord] = []
+    K = np.zeros((T, m, n))
+    if not math.isfinite(J):
+        history.append(IterationRecord(1, math.inf, 0.0, 0.0, 0.0, float(opts.mu0)))
+        return _result(X, U, K, "diverged", history, "initial rollout is not finite",
+                       initial_cost)
+    lm = _LM(opts)
+    status, message = "max-iterations", f"reached {opts.iterations} iterations"
+    derivs = None
+    gains_at_final = False
+    for it in range(1, opts.iterations + 1):
+        t0 = time.perf_counter()
+        try:
+            if derivs is None:
+                derivs = _derivatives(problem, X, U)
+            k, K_new, dV, stop = _regularized_backward(derivs, lm)
+        except (ArithmeticError, ValueError, RuntimeError) as e:
+            history.append(IterationRecord(it, math.inf, time.perf_counter() - t0,
+                                           time.perf_counter() - start, 0.0, lm.mu))
+            status, message = "diverged", f"iteration {it}: {type(e).__name__}: {e}"
+            break
+        if stop:
+            history.append(IterationRecord(it, J, time.perf_counter() - t0,
+                                           time.perf_counter() - start, 0.0, lm.mu))
+            status, message = "max-iterations", f"mu > mu_max={opts.mu_max:g}: no descent step"
+            break
+        K, gains_at_final = K_new, True
+        gnorm = float(np.mean(np.max(np.abs(k) / (np.abs(U) + 1.0), axis=1)))
+        if gnorm < opts.tol_grad and lm.mu < 1e-5:
+            lm.decrease()
+            history.append(IterationRecord(it, J, time.perf_counter() - t0,
+                                           time.perf_counter() - start, 0.0, lm.mu))
+            status, message = "converged", f"gradient {gnorm:.2e} below tol_grad"
+            break
+        accepted, Xn, Un, Jn, alpha = _line_search(problem, X, U, J, k, K, dV, opts.alphas)
+        if accepted:
+            lm.decrease()
+            rel = (J - Jn) / max(abs(J), 1e-300)
+            X, U, J, derivs, gains_at_final = Xn, Un, Jn, None, False
+        else:
+            lm.increase()
+            alpha = 0.0
+        now = time.perf_counter()
+        rec = IterationRecord(it, J, now - t0, now - start, alpha, lm.mu)
+        history.append(rec)
+        if callback is not None:
+            callback(rec, X, U)
+        if is_diverged(J, initial_cost, opts.divergence_factor):
+            status, message = "diverged", f"iteration {it}: cost {J:.3g} exploded"
+            break
+        if accepted and rel < opts.tol_rel:
+            status, message = "converged", f"relative cost change {rel:.2e} below tol_rel"
+            break
+        if not accepted and lm.mu > opts.mu_max:
+            status, message = "max-iterations", f"mu > mu_max={opts.mu_max:g}: no descent step"
+            break
+    if not gains_at_final and status != "diverged":
+        K = _final_gains(problem, X, U, lm.mu, K)
+    return _result(X, U, K, status, history, message, initial_cost)
+
+
+def _derivatives(problem: Problem, X: np.ndarray, U: np.ndarray):
+    """``(A, B, l_x, l_xx, l_u, l_uu)`` along the trajectory (shapes as in ``_backward``)."""
+    A, _, B = problem.dynamics.linearize_trajectory(X[:-1], U)
+    lx, lxx = problem.state_derivatives(X)
+    lu, luu = problem.control_derivatives(U)
+    out = (np.asarray(A, float), np.asarray(B, float), lx, lxx, lu, luu)
+    if not all(np.all(np.isfinite(z)) for z in out):
+        raise FloatingPointError("non-finite derivatives")
+    return out
+
+
+def _regularized_backward(derivs, lm: _LM):
+    """Backward pass, raising ``mu`` until ``Q_uu`` is positive definite.
+
+    Returns ``(k, K, dV, stop)``; ``stop`` is True when ``mu`` exceeded ``mu_max``.
+    """
+    while True:
+        try:
+            k, K, dV = _backward(*derivs, lm.mu)
+            return k, K, dV, False
+        except _NotPD:
+            lm.increase()
+            if lm.mu > lm.o.mu_max:
+                return None, None, None, True
+
+
+def _line_search(problem, X, U, J, k, K, dV, alphas):
+    """Backtracking over ``alphas``; returns ``(accepted, X, U, J, alpha)``."""
+    for alpha in alphas:
+        Xn, Un, Jn = _forward(problem, X, U, k, K, alpha)
+        expected = -alpha * (dV[0] + alpha * dV[1])
+        actual = J - Jn
+        if not math.isfinite(Jn):
+            continue
+        z = actual / expected if expected > 0 else np.sign(actual)
+        if z > 0:
+            return True, Xn, Un, Jn, alpha
+    return False, X, U, J, 0.0
+
+
+def _final_gains(problem, X, U, mu, K_fallback):
+    """Feedback gains from one backward pass at the final trajectory."""
+    try:
+        derivs = _derivatives(problem, X, U)
+        return _backward(*derivs, mu)[1]
+    except (_NotPD, ArithmeticError, ValueError, RuntimeError):
+        return K_fallback
+
+
+def _result(X, U, K, status, history, message, initial_cost) -> Result:
+    o = U - np.einsum("tij,tj->ti", K, X[:-1])
+    return Result(X=X, U=U, o=o, O=K, status=status, history=history,
+                  iterations=len(history), message=message, initial_cost=initial_cost,
+                  solver="ilqg")

@@ -1,0 +1,84 @@
+"""Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)`` (SPEC §6).
+
+``SOLVERS[name]`` is a ``SolverSpec``: the solver function, its options class and the
+defaults the name implies ("raico" is AICO with ``alpha = 1`` unless given, and requires
+``alpha > 0``; "aico" requires ``alpha = 0``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from stages.plan.aico import AICOOptions, aico
+from stages.plan.ilqg import ILQGOptions, ilqg
+from stages.plan.problem import OptionsBase, Problem, Result
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """A registered solver: ``run(problem, options, **init) -> Result``."""
+
+    name: str
+    run: Callable[..., Result]
+    options_cls: type
+    defaults: dict[str, Any] = field(default_factory=dict)
+    check: Callable[[Any], None] | None = None
+
+    def options(self, d: dict[str, Any] | OptionsBase | None = None) -> OptionsBase:
+        """Validated options from a dict (unknown keys rejected) or an options object."""
+        if isinstance(d, OptionsBase):
+            if not isinstance(d, self.options_cls):
+                raise ValueError(f"solver {self.name!r} takes {self.options_cls.__name__}, "
+                                 f"got {type(d).__name__}")
+            opts = d
+        else:
+            opts = self.options_cls.from_dict(d, **self.defaults)
+        if self.check is not None:
+            self.check(opts)
+        return opts
+
+
+def _check_aico(o: AICOOptions) -> None:
+    if o.alpha != 0:
+        raise ValueError(f"solver 'aico' is plain AICO (alpha = 0), got alpha={o.alpha}; "
+                         "use solver 'raico' for alpha > 0")
+
+
+def _check_raico(o: AICOOptions) -> None:
+    if not o.alpha > 0:
+        raise ValueError(f"solver 'raico' needs alpha > 0, got alpha={o.alpha}; "
+                         "use solver 'aico' for alpha = 0")
+
+
+SOLVERS: dict[str, SolverSpec] = {
+    "aico": SolverSpec("aico", aico, AICOOptions, {"alpha": 0.0}, _check_aico),
+    "raico": SolverSpec("raico", aico, AICOOptions, {"alpha": 1.0}, _check_raico),
+    "ilqg": SolverSpec("ilqg", ilqg, ILQGOptions),
+}
+
+
+def make_options(solver_name: str, options: dict[str, Any] | OptionsBase | None = None):
+    """The validated options object of ``solver_name`` built from ``options``."""
+    return get_solver(solver_name).options(options)
+
+
+def get_solver(solver_name: str) -> SolverSpec:
+    """The registered solver called ``solver_name`` (``ValueError`` naming the valid ones)."""
+    try:
+        return SOLVERS[solver_name]
+    except KeyError:
+        raise ValueError(f"unknown solver {solver_name!r}; valid solvers: "
+                         f"{sorted(SOLVERS)}") from None
+
+
+def solve(problem: Problem, solver_name: str,
+          options: dict[str, Any] | OptionsBase | None = None, **init: Any) -> Result:
+    """Run ``solver_name`` on ``problem`` with options from a dict (or an options object).
+
+    ``init`` is passed to the solver (``U_init``, ``X_init`` for AICO, ``callback``).
+    """
+    spec = get_solver(solver_name)
+    result = spec.run(problem, spec.options(options), **init)
+    result.solver = solver_name
+    return result

@@ -1,0 +1,109 @@
+"""End-to-end CLI tests of babble, ls and show, through Typer's CliRunner and a real process."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from pipeline.cache import Cache
+
+runner = CliRunner()
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_help_lists_the_stages():
+    res = invoke("--help")
+    assert res.exit_code == 0
+    for cmd in ("babble", "ls", "show"):
+        assert cmd in res.output
+
+
+def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
+    res = invoke("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.strip().splitlines()[-1])
+    assert set(line) == {"stage", "key", "path", "cached", "status", "metrics"}
+    assert line["cached"] is False and line["stage"] == "babble"
+    folder = Path(line["path"])
+    assert folder == tmp_path / "babble" / line["key"]
+    for name in ("meta.json", "data.npz", "recording.rrd", "trajectory.mcap"):
+        assert (folder / name).is_file(), name
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["config"]["episodes"] == 3 and meta["packages"]["drake"] and "timings" in meta
+    data = np.load(folder / "data.npz")
+    assert data["q"].shape == (3, 501, 1) and data["u"].shape == data["qddot"].shape
+    assert np.abs(data["u"]).max() <= 10.0 + 1e-9
+    # same command again: served from the cache, the stage is not run (data file untouched)
+    mtime = (folder / "data.npz").stat().st_mtime_ns
+    res2 = invoke("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
+    line2 = json.loads(res2.stdout.strip().splitlines()[-1])
+    assert line2["cached"] is True and line2["key"] == line["key"]
+    assert (folder / "data.npz").stat().st_mtime_ns == mtime
+    assert "cached" in res2.stderr
+    ls = invoke("ls", "--artifacts", tmp_path)
+    assert line["key"] in ls.output
+    show = invoke("show", line["key"], "--artifacts", tmp_path)
+    assert show.exit_code == 0 and json.loads(show.output)["config"]["plant"] == "pendulum"
+
+
+def test_babble_data_are_consistent_with_the_plant(tmp_path):
+    """qddot recorded equals the pendulum's equation of motion at the recorded (q, qdot, u)."""
+    res = invoke("babble", "--plant", "pendulum", "--episodes", 1, "--no-record", "--json",
+                 "--artifacts", tmp_path)
+    d = np.load(Path(json.loads(res.stdout.splitlines()[-1])["path"]) / "data.npz")
+    q, v, a, u = d["q"][0, :, 0], d["qdot"][0, :, 0], d["qddot"][0, :, 0], d["u"][0, :, 0]
+    assert np.allclose(a, u - v - 9.81 * np.sin(q), rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--plant", "nope"], "pendulum, arm5, biorob, nao"),
+    (["--plant", "arm5", "--episodes", "0"], "episodes"),
+    (["--plant", "arm5", "--dt", "-1"], "dt"),
+])
+def test_bad_input_one_line_nonzero_nothing_written(tmp_path, args, needle):
+    res = invoke("babble", *args, "--artifacts", tmp_path)
+    assert res.exit_code != 0
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("raico: error:")
+    assert not (tmp_path / "babble").exists() or not any((tmp_path / "babble").iterdir())
+
+
+def test_console_script_usage_error_is_one_line(tmp_path):
+    exe = Path(sys.executable).with_name("raico")
+    p = subprocess.run([str(exe), "babble", "--artifacts", str(tmp_path)], capture_output=True, text=True)
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_sigkill_halfway_leaves_nothing_valid_and_next_run_completes(tmp_path):
+    exe = Path(sys.executable).with_name("raico")
+    cmd = [str(exe), "babble", "--plant", "arm5", "--episodes", "40", "--quiet", "--no-record",
+           "--artifacts", str(tmp_path)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and not list((tmp_path / "babble").glob(".tmp-*")):
+        time.sleep(0.05)
+    time.sleep(0.5)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert [e for e in Cache(tmp_path).list("babble") if e.valid] == []
+    ls = invoke("ls", "--artifacts", tmp_path)
+    assert ls.output.strip() == ""
+    small = [str(exe), "babble", "--plant", "arm5", "--episodes", "1", "--quiet", "--no-record", "--json",
+             "--artifacts", str(tmp_path)]
+    done = subprocess.run(small, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1])["status"] == "ok"
+    assert not list((tmp_path / "babble").glob(".tmp-*"))
+    assert len([e for e in Cache(tmp_path).list("babble") if e.valid]) == 1

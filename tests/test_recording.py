@@ -1,0 +1,205 @@
+"""Tests of the Rerun recordings (pipeline/recording.py) and MCAP rollouts (pipeline/mcap_io.py)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+from mcap.reader import make_reader
+from rerun.chunk import RrdReader
+
+from pipeline.mcap_io import read_trajectory_mcap, write_trajectory_mcap
+from pipeline.recording import (
+    Recording,
+    body_poses,
+    log_body_trajectory,
+    log_points_path,
+    log_robot_geometry,
+    log_scalars,
+    robot_eye,
+    rot_to_quat_xyzw,
+)
+from plants.robots import PLANTS, shared_robot
+
+K = 20
+_VENV_RERUN = Path(sys.executable).parent / "rerun"
+RERUN = str(_VENV_RERUN) if _VENV_RERUN.exists() else shutil.which("rerun")
+needs_cli = pytest.mark.skipif(RERUN is None, reason="rerun CLI not installed")
+
+
+def _trajectory(robot) -> tuple[np.ndarray, np.ndarray]:
+    """``K`` samples over 1 s around the default posture: times (K,), Q (K, n_q)."""
+    t = np.linspace(0.0, 1.0, K)
+    wiggle = 0.2 * np.sin(2 * np.pi * t)[:, None] * np.linspace(0.5, 1.0, robot.n_q)
+    return t, robot.default_q + wiggle
+
+
+def _chunks(path: Path) -> list:
+    return RrdReader(path).stream().to_chunks()
+
+
+def _rows(chunks: list, entity: str, timeline: str | None) -> int:
+    """Rows at ``entity`` on ``timeline`` (None: static rows)."""
+    return sum(c.num_rows for c in chunks if c.entity_path == entity
+               and (c.is_static if timeline is None else timeline in c.timeline_names))
+
+
+def _column(chunks: list, entity: str, component: str) -> list:
+    for c in chunks:
+        batch = c.to_record_batch()
+        if c.entity_path == entity and component in batch.schema.names:
+            return batch.column(component).to_pylist()
+    raise AssertionError(f"no {component} at {entity}")
+
+
+def _write(path: Path, robot) -> tuple[dict[str, list[str]], list[str]]:
+    t, Q = _trajectory(robot)
+    props = {"stage": "plan", "key": "0123abcd", "config": {"T": K, "alpha": [0.5, 1.0]}}
+    with Recording(path, properties=props, name=f"test {robot.name}",
+                   time_series=["task", "cost/**"], eye=robot_eye(robot)) as rec:
+        geometry = log_robot_geometry(rec, robot)
+        bodies = log_body_trajectory(rec, robot, t, Q)
+        log_scalars(rec, "cost/total", "iteration", np.arange(5), np.linspace(3, 1, 5))
+        log_scalars(rec, "task/ee", "sim_time", t, np.zeros((K, 3)), names=["x", "y", "z"])
+        log_points_path(rec, "world/via_points", np.zeros((3, 3)), (1.0, 0.0, 0.0))
+    return geometry, bodies
+
+
+@pytest.mark.parametrize("name", PLANTS)
+def test_recording_has_every_body_and_joint(tmp_path: Path, name: str) -> None:
+    robot = shared_robot(name)
+    path = tmp_path / f"{name}.rrd"
+    geometry, bodies = _write(path, robot)
+    assert path.stat().st_size > 0 and geometry
+    reader = RrdReader(path)
+    assert [s.application_id for s in reader.recordings()] == ["raico"]
+    assert len(reader.blueprints()) == 1
+    chunks = _chunks(path)
+    for body, geoms in geometry.items():
+        assert body in bodies
+        assert _rows(chunks, f"/world/robot/{body}", "sim_time") == K, body
+        for g in geoms:
+            assert _rows(chunks, f"/world/robot/{body}/{g}", None) >= 1, (body, g)
+    assert len(bodies) == robot.plant.num_bodies() - 1
+    for joint in robot.joint_names:
+        assert _rows(chunks, f"/joints/{joint}", "sim_time") == K
+    assert _rows(chunks, "/cost/total", "iteration") == 5
+    assert _rows(chunks, "/task/ee", "sim_time") == K
+    # the logged poses are Drake's (xyzw)
+    names, T, R = body_poses(robot, _trajectory(robot)[1])
+    j = len(names) - 1
+    trans = np.array(_column(chunks, f"/world/robot/{bodies[j]}", "Transform3D:translation"))
+    quat = np.array(_column(chunks, f"/world/robot/{bodies[j]}", "Transform3D:quaternion"))
+    np.testing.assert_allclose(trans.reshape(K, 3), T[:, j], atol=1e-6)
+    np.testing.assert_allclose(quat.reshape(K, 4), R[:, j], atol=1e-6)
+
+
+def test_recording_properties_and_capsule_offset(tmp_path: Path) -> None:
+    path = tmp_path / "arm5.rrd"
+    _write(path, shared_robot("arm5"))
+    chunks = _chunks(path)
+    props = _column(chunks, "/__properties/raico_json", "json")
+    assert json.loads(props[0][0])["key"] == "0123abcd"
+    assert _column(chunks, "/__properties/raico", "key") == [["0123abcd"]]
+    assert _column(chunks, "/__properties", "RecordingInfo:name") == [["test arm5"]]
+    # arm5 upper arm: capsule of length 0.5, centred in Drake, starting at z=0 in Rerun
+    length = _column(chunks, "/world/robot/upper_arm/upper_arm", "Capsules3D:lengths")[0][0]
+    shift = _column(chunks, "/world/robot/upper_arm/upper_arm", "Capsules3D:translations")[0][0]
+    assert length == pytest.approx(0.5)
+    np.testing.assert_allclose(shift, [0.0, 0.0, -0.25])
+
+
+def test_parallel_recordings_do_not_mix(tmp_path: Path) -> None:
+    a, b = Recording(tmp_path / "a.rrd"), Recording(tmp_path / "b.rrd")
+    log_scalars(a, "cost/a", "iteration", np.arange(3), np.ones(3))
+    log_scalars(b, "cost/b", "iteration", np.arange(4), np.ones(4))
+    a.close()
+    b.close()
+    assert rr.get_global_data_recording() is None
+    ents_a = {c.entity_path for c in _chunks(tmp_path / "a.rrd")}
+    ents_b = {c.entity_path for c in _chunks(tmp_path / "b.rrd")}
+    assert "/cost/a" in ents_a and "/cost/b" not in ents_a
+    assert "/cost/b" in ents_b and "/cost/a" not in ents_b
+
+
+def test_quaternions_match_drake() -> None:
+    from pydrake.math import RollPitchYaw, RotationMatrix
+
+    rng = np.random.default_rng(0)
+    rots = [RotationMatrix(RollPitchYaw(rng.uniform(-3, 3, 3))) for _ in range(50)]
+    q = rot_to_quat_xyzw(np.array([r.matrix() for r in rots]))
+    wxyz = np.array([r.ToQuaternion().wxyz() for r in rots])
+    drake_xyzw = np.concatenate([wxyz[:, 1:], wxyz[:, :1]], axis=1)
+    # same rotation: q and -q are equal
+    np.testing.assert_allclose(np.abs(np.sum(q * drake_xyzw, axis=1)), 1.0, atol=1e-9)
+
+
+@needs_cli
+def test_rrd_verify(tmp_path: Path) -> None:
+    path = tmp_path / "nao.rrd"
+    _write(path, shared_robot("nao"))
+    out = subprocess.run([RERUN, "rrd", "verify", str(path)], capture_output=True, text=True, check=False,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+
+
+def _rollout(robot) -> dict:
+    t, Q = _trajectory(robot)
+    V = np.gradient(Q, t, axis=0)
+    U = np.zeros_like(Q)
+    U[0, 0] = np.nan
+    tasks = {"ee": np.arange(3 * K, dtype=float).reshape(K, 3), "cost": np.ones(K)}
+    return {"times": t, "Q": Q, "V": V, "U": U, "task_values": tasks}
+
+
+def test_mcap_round_trip(tmp_path: Path) -> None:
+    robot = shared_robot("nao")
+    r = _rollout(robot)
+    path = write_trajectory_mcap(tmp_path / "trajectory.mcap", robot, **r)
+    with path.open("rb") as f:  # plain mcap reader: schemas and channels
+        summary = make_reader(f).get_summary()
+    schemas = {s.name: s.encoding for s in summary.schemas.values()}
+    assert set(schemas.values()) == {"jsonschema"}
+    assert {c.message_encoding for c in summary.channels.values()} == {"json"}
+    assert summary.statistics.message_count == 4 * K
+    d = read_trajectory_mcap(path)
+    assert d["topics"] == ["/joint_states", "/task/cost", "/task/ee", "/tf"]
+    assert d["metadata"]["raico"]["robot"] == "nao"
+    assert d["joint_names"] == list(robot.joint_names)
+    np.testing.assert_allclose(d["times"], r["times"], atol=1e-9)
+    np.testing.assert_allclose(d["position"], r["Q"])
+    np.testing.assert_allclose(d["velocity"], r["V"])
+    np.testing.assert_array_equal(np.isnan(d["effort"]), np.isnan(r["U"]))
+    np.testing.assert_allclose(d["task"]["ee"], r["task_values"]["ee"])
+    assert d["task"]["cost"].shape == (K, 1)
+    names, T, R = body_poses(robot, r["Q"])
+    assert d["bodies"] == names
+    np.testing.assert_allclose(d["translation"], T)
+    np.testing.assert_allclose(d["rotation"], R)
+
+
+def test_mcap_without_optional_channels(tmp_path: Path) -> None:
+    robot = shared_robot("pendulum")
+    t, Q = _trajectory(robot)
+    d = read_trajectory_mcap(write_trajectory_mcap(tmp_path / "p.mcap", robot, t, Q))
+    assert d["velocity"] is None and d["effort"] is None and d["task"] == {}
+    assert d["translation"].shape == (K, robot.plant.num_bodies() - 1, 3)
+
+
+@needs_cli
+def test_rerun_converts_mcap(tmp_path: Path) -> None:
+    robot = shared_robot("arm5")
+    src = write_trajectory_mcap(tmp_path / "trajectory.mcap", robot, **_rollout(robot))
+    dst = tmp_path / "trajectory.rrd"
+    out = subprocess.run([RERUN, "mcap", "convert", str(src), "-o", str(dst),
+                          "--application-id", "raico"],
+                         capture_output=True, text=True, check=False, timeout=60)
+    assert out.returncode == 0, out.stderr
+    entities = {c.entity_path for c in _chunks(dst)}
+    assert {"/joint_states", "/tf", "/task/ee"} <= entities
