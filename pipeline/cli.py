@@ -91,6 +91,32 @@ def babble(
     report(outcome, json_, reporter)
 
 
+@app.command()
+@handles_errors
+def plan(
+    plant: Annotated[str, typer.Option(help="pendulum, arm5, biorob or nao.")],
+    task: Annotated[str, typer.Option(help="reach, reach-roll (arm5), balance (nao), swing-up, ...")],
+    dynamics: Annotated[str, typer.Option(help="pseudo or analytic.")] = "pseudo",
+    solver: Annotated[str, typer.Option(help="aico, raico or ilqg.")] = "raico",
+    alpha: Annotated[float, typer.Option(help="R-AICO regularization alpha (raico only).")] = 1.0,
+    gamma: Annotated[float, typer.Option(help="alpha^[n] = alpha^[n-1] gamma (raico only).")] = 1.0,
+    iterations: Annotated[int, typer.Option(help="Maximum solver iterations.")] = 50,
+    q0_std: Annotated[float, typer.Option("--q0-std", help="Std of q0 around the default posture (rad).")] = 0.05,
+    seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
+    quiet: Quiet = False, json_: Json = False,
+):
+    """Plan a movement with AICO, R-AICO or iLQG; the artifact holds the feedback controller."""
+    from stages.plan.stage import PlanConfig
+
+    cfg = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, alpha=alpha,
+                     gamma=gamma, iterations=iterations, seed=seed, q0_std=q0_std)
+    _validate(cfg)
+    reporter = Reporter(quiet)
+    outcome = stage_io.run_plan(Cache(artifacts_root(artifacts)), cfg, record=not no_record,
+                                reporter=reporter)
+    report(outcome, json_, reporter)
+
+
 @app.command("ls")
 @handles_errors
 def ls(

@@ -83,3 +83,68 @@ def write_babble_recording(folder: Path, cfg, data) -> None:
         rec_mod.log_joint_series(rec, robot.joint_names, times, data.u.reshape(-1, n), root="torque")
         rec_mod.log_scalars(rec, "episode_index", "sim_time", times, np.repeat(np.arange(E), K))
     write_trajectory_mcap(folder / MCAP, robot, times, Q, data.qdot.reshape(-1, n), data.u.reshape(-1, n))
+
+
+def task_series(problem, X: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per via-point term: values ``(T+1, dim)`` along ``X``, its target ``(dim,)`` and active steps."""
+    n_q = problem.n_x // 2
+    out = {}
+    for term in problem.state_terms:
+        if hasattr(term, "taskmap") and np.all(np.isfinite(X)):
+            vals, _ = term.taskmap.values_and_jacobians(X[:, :n_q])
+            out[term.name] = (vals, term.target, np.flatnonzero(term.active(np.arange(X.shape[0]))))
+    return out
+
+
+def log_task_values(rec, problem, times: np.ndarray, X: np.ndarray, root: str = "task") -> dict:
+    """``task/<term>`` values on ``sim_time`` and ``task/<term>/target`` at the via-point times."""
+    from pipeline import recording as rec_mod
+
+    series = task_series(problem, X)
+    for name, (vals, target, steps) in series.items():
+        dims = [f"{name}[{i}]" for i in range(vals.shape[1])]
+        rec_mod.log_scalars(rec, f"{root}/{name}/value", "sim_time", times, vals, names=dims)
+        if steps.size <= 3:
+            rec_mod.log_scalars(rec, f"{root}/{name}/target", "sim_time", times[steps],
+                                np.tile(target, (steps.size, 1)), names=[d + "*" for d in dims])
+    return {name: v for name, (v, _, _) in series.items()}
+
+
+def run_plan(cache: Cache, cfg, record: bool = True, reporter: Reporter | None = None) -> Outcome:
+    """Plan stage through the cache: ``plan.npz`` (+ recording and MCAP of the planned motion)."""
+    from stages.plan import stage as plan
+
+    reporter = reporter or Reporter(quiet=True)
+    cfg = cfg.normalized()
+    config = {**cfg.to_dict(), "record": record}
+
+    def compute(tmp: Path) -> dict:
+        with reporter.progress(f"plan {cfg.plant} {cfg.task} {cfg.solver}", cfg.iterations) as update:
+            out = plan.run(cfg, progress=update)
+        save_npz(tmp / "plan.npz", out.arrays())
+        if record:
+            write_plan_recording(tmp, out)
+        return {"status": out.result.status, "metrics": out.metrics()}
+
+    return run_stage(cache, "plan", plan.CODE_VERSION, config, [], compute)
+
+
+def write_plan_recording(folder: Path, out) -> None:
+    from pipeline import recording as rec_mod
+    from pipeline.mcap_io import write_trajectory_mcap
+
+    robot, r, n = out.robot, out.result, out.robot.n_q
+    times = out.times
+    X = r.X if np.all(np.isfinite(r.X)) else np.nan_to_num(r.X, nan=0.0, posinf=0.0, neginf=0.0)
+    with rec_mod.Recording(folder / RECORDING, properties={"stage": "plan", **out.config.to_dict()},
+                           name=f"plan {out.config.plant} {out.config.task} {out.config.solver}",
+                           time_series=["task", "cost"], eye=rec_mod.robot_eye(robot)) as rec:
+        rec_mod.log_robot_geometry(rec, robot)
+        rec_mod.log_body_trajectory(rec, robot, times, X[:, :n])
+        if r.history:
+            it = np.array([h.iteration for h in r.history])
+            rec_mod.log_scalars(rec, "cost/total", "iteration", it, r.costs)
+        values = log_task_values(rec, out.problem, times, X)
+        rec_mod.log_joint_series(rec, robot.joint_names, times[:-1], r.U, root="control")
+    write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
+                          np.vstack([r.U, np.full((1, n), np.nan)]), task_values=values)

@@ -203,35 +203,49 @@ class _Sweeps:
     def forward(self, t: int) -> None:
         """Forward message at ``t >= 1`` from step ``t-1``."""
         A = self.A[t - 1]
-        L = _chol(self.Sinv[t - 1] + self.R[t - 1])
-        Li, info = lapack.dtrtri(L, lower=1)
-        W = Li @ A.T                                   # P^-1 = Li^T Li
-        mean = Li.T @ (Li @ (self.sv[t - 1] + self.r[t - 1]))
-        S = W.T @ W + self.Qbar[t - 1]
-        s = A @ mean + self.a_eff[t - 1]
-        Sinv = _inv_spd(S)
+        L = _chol(self.Sinv[t - 1] + self.R[t - 1])            # P = S^-1 + R
+        W, info = lapack.dtrtrs(L, A.T, lower=1)               # A P^-1 A^T = W^T W
+        if info != 0:
+            raise NumericalError(f"triangular solve failed (info={info})")
+        mean = _solve_chol(L, self.sv[t - 1] + self.r[t - 1])
+        Sinv = _inv_spd(W.T @ W + self.Qbar[t - 1])
         self.Sinv[t] = Sinv
-        self.sv[t] = Sinv @ s
+        self.sv[t] = Sinv @ (A @ mean + self.a_eff[t - 1])
+
+    def _vstar(self, Pp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'`` and ``V* m' = (I + q P')^-1 p'``.
+
+        Exact Cholesky solve, or the Neumann series when ``q trace(P') < 1e-5`` (truncation
+        error below ``(q lambda_max)^3 <= 1e-15`` relative).
+        """
+        q, n = self.q, self.n
+        s = q * float(np.trace(Pp))
+        if s < 1e-8:
+            PP = Pp @ Pp
+            return Pp - q * PP, pp - q * (Pp @ pp)
+        if s < 1e-5:
+            PP = Pp @ Pp
+            Pv = Pp @ pp
+            return Pp - q * PP + (q * q) * (PP @ Pp), pp - q * Pv + (q * q) * (Pp @ Pv)
+        rhs = np.empty((n, n + 1))
+        rhs[:, :n] = Pp
+        rhs[:, n] = pp
+        Z = _solve_chol(_chol(self.I + q * Pp), rhs)
+        return _sym(Z[:, :n]), Z[:, n]
 
     def backward(self, t: int) -> None:
         """Backward message ``V_t^-1, V_t^-1 v_t`` and the controller at ``t <= T-1``."""
-        n, A, B, a = self.n, self.A[t], self.B[t], self.a[t]
-        Pp = self.Vinv[t + 1] + self.R[t + 1]
-        rhs = np.empty((n, n + 1))
-        rhs[:, :n] = Pp
-        rhs[:, n] = self.vv[t + 1] + self.r[t + 1]
-        Z = _solve_chol(_chol(self.I + self.q * Pp), rhs)
-        Vs = _sym(Z[:, :n])                          # V* = (Q + P'^-1)^-1
-        pq = Z[:, n]                                 # V* m'
+        n, A, B = self.n, self.A[t], self.B[t]
+        Vs, pq = self._vstar(self.Vinv[t + 1] + self.R[t + 1], self.vv[t + 1] + self.r[t + 1])
         VB = Vs @ B
-        LM = _chol(B.T @ VB + self.H[t])             # M = B^T V* B + H
+        LM = _chol(B.T @ VB + self.H[t])                      # M = B^T V* B + H
         BtVA = VB.T @ A
         y = pq - Vs @ self.a_eff[t]
-        rhs_m = np.empty((self.m, n + 2))
-        rhs_m[:, :n] = BtVA
-        rhs_m[:, n] = B.T @ pq - VB.T @ a + self.h[t]
-        rhs_m[:, n + 1] = B.T @ y
-        Zm = _solve_chol(LM, rhs_m)
+        rhs = np.empty((self.m, n + 2))
+        rhs[:, :n] = BtVA
+        rhs[:, n] = B.T @ pq - VB.T @ self.a[t] + self.h[t]
+        rhs[:, n + 1] = B.T @ y
+        Zm = _solve_chol(LM, rhs)
         O = -Zm[:, :n]
         self.O_[t] = O
         self.o_[t] = Zm[:, n]
