@@ -117,6 +117,26 @@ def plan(
     report(outcome, json_, reporter)
 
 
+@app.command()
+@handles_errors
+def execute(
+    plan: Annotated[str, typer.Option("--plan", help="Key (or prefix) of a plan artifact.")],
+    x0_noise: Annotated[float, typer.Option("--x0-noise", help="Std of initial joint-angle noise (rad).")] = 0.0,
+    process_noise: Annotated[float, typer.Option("--process-noise", help="Std of torque noise per step (N m).")] = 0.0,
+    seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
+    quiet: Quiet = False, json_: Json = False,
+):
+    """Run a plan's feedback controller in closed loop with the Drake plant (Drake's Simulator)."""
+    from stages.execute import ExecuteConfig
+
+    cfg = ExecuteConfig(x0_noise=x0_noise, process_noise=process_noise, seed=seed)
+    _validate(cfg)
+    reporter = Reporter(quiet)
+    outcome = stage_io.run_execute(Cache(artifacts_root(artifacts)), plan, cfg,
+                                   record=not no_record, reporter=reporter)
+    report(outcome, json_, reporter)
+
+
 @app.command("ls")
 @handles_errors
 def ls(

@@ -148,3 +148,86 @@ def write_plan_recording(folder: Path, out) -> None:
         rec_mod.log_joint_series(rec, robot.joint_names, times[:-1], r.U, root="control")
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([r.U, np.full((1, n), np.nan)]), task_values=values)
+
+
+def load_npz(entry: Entry, name: str) -> dict[str, np.ndarray]:
+    from pipeline.errors import CorruptArtifact
+
+    try:
+        with np.load(entry.path / name, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except Exception as e:  # noqa: BLE001 - any unreadable file is a corrupt artifact
+        raise CorruptArtifact(f"cannot read {entry.stage}/{entry.key}/{name}: {e}") from None
+
+
+def run_execute(cache: Cache, plan_ref: str, cfg, record: bool = True,
+                reporter: Reporter | None = None) -> Outcome:
+    """Execute stage through the cache: ``rollout.npz`` (+ recording and MCAP)."""
+    from stages import execute
+
+    reporter = reporter or Reporter(quiet=True)
+    plan_entry = find_entry(cache, plan_ref, stage="plan")
+    if plan_entry.stage != "plan":
+        raise BadInput(f"{plan_ref} is a {plan_entry.stage} artifact, not a plan")
+    config = {**cfg.to_dict(), "record": record}
+
+    def compute(tmp: Path) -> dict:
+        plan = load_npz(plan_entry, "plan.npz")
+        pconf = plan_entry.meta["config"]
+        reporter.say(f"execute plan {plan_entry.key} ({pconf['plant']} {pconf['task']}) in Drake")
+        out = execute.run(cfg, pconf, plan)
+        save_npz(tmp / "rollout.npz", out.arrays())
+        if record:
+            write_execute_recording(tmp, out, pconf, cfg)
+        return {"status": out.metrics["status"], "metrics": out.metrics}
+
+    return run_stage(cache, "execute", execute.CODE_VERSION, config, [f"plan/{plan_entry.key}"], compute)
+
+
+def write_execute_recording(folder: Path, out, pconf: dict, cfg) -> None:
+    from pipeline import recording as rec_mod
+    from pipeline.mcap_io import write_trajectory_mcap
+    from plants.robots import load_robot
+    from stages.plan.stage import PlanConfig, build_problem
+
+    pcfg = PlanConfig(**{k: pconf[k] for k in PlanConfig.__dataclass_fields__})
+    _, _, problem, _ = build_problem(pcfg)
+    robot = load_robot(pcfg.plant)
+    n = robot.n_q
+    X = np.nan_to_num(out.X)
+    times = out.times
+    with rec_mod.Recording(folder / RECORDING, properties={"stage": "execute", "plan": pconf, **cfg.to_dict()},
+                           name=f"execute {pcfg.plant} {pcfg.task} {pcfg.solver}",
+                           time_series=["task", "torque", "error", "cog"],
+                           eye=rec_mod.robot_eye(robot)) as rec:
+        rec_mod.log_robot_geometry(rec, robot)
+        rec_mod.log_body_trajectory(rec, robot, times, X[:, :n])
+        values = log_task_values(rec, problem, times, X)
+        log_task_values(rec, problem, times, np.nan_to_num(out.X_plan), root="task_planned")
+        if len(out.tau):
+            rec_mod.log_joint_series(rec, robot.joint_names, times[:len(out.tau)], out.tau, root="torque")
+        err = np.linalg.norm(X[:, :n] - out.X_plan[:, :n], axis=1)
+        rec_mod.log_scalars(rec, "error/planned_vs_executed", "sim_time", times, err)
+        if out.cog is not None:
+            rec_mod.log_scalars(rec, "cog/margin", "sim_time", times, np.nan_to_num(out.cog_margin))
+            rec_mod.log_scalars(rec, "cog/xy", "sim_time", times, np.nan_to_num(out.cog[:, :2]),
+                                names=["cog x", "cog y"])
+            _log_support(rec, times, out)
+    write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
+                          np.vstack([out.tau, np.full((len(times) - len(out.tau), n), np.nan)]),
+                          task_values=values)
+
+
+def _log_support(rec, times: np.ndarray, out) -> None:
+    """Support polygon (line strip on the ground) and the CoG's ground projection per step."""
+    import rerun as rr
+
+    stream = rec.rec
+    for k, poly in enumerate(out.support or []):
+        stream.set_time("sim_time", duration=float(times[k]))
+        ring = np.vstack([poly, poly[:1]])
+        inside = out.cog_margin[k] > 0
+        stream.log("world/support_polygon", rr.LineStrips3D([np.c_[ring, np.zeros(len(ring))]],
+                                                             colors=[(40, 200, 80) if inside else (230, 50, 50)]))
+        stream.log("world/cog_ground", rr.Points3D([[*out.cog[k, :2], 0.0]], radii=0.008,
+                                                   colors=[(255, 220, 0)]))

@@ -43,7 +43,7 @@ from scipy.linalg import lapack
 from plants.dynamics import rollout
 from stages.plan.problem import (
     Callback, IterationRecord, OptionsBase, Problem, Result, check_range,
-    controller_rollout, is_diverged,
+    controller_rollout, is_diverged, single_threaded_blas,
 )
 
 
@@ -103,12 +103,12 @@ def _chol(M: np.ndarray) -> np.ndarray:
     return c
 
 
-def _inv_spd(M: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix (Cholesky, triangular inverse)."""
-    Li, info = lapack.dtrtri(_chol(M), lower=1)
+def _tri_inv(L: np.ndarray) -> np.ndarray:
+    """Inverse of a lower-triangular matrix."""
+    Li, info = lapack.dtrtri(L, lower=1)
     if info != 0:
         raise NumericalError(f"triangular inverse failed (info={info})")
-    return Li.T @ Li
+    return Li
 
 
 def _solve_chol(L: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -123,6 +123,11 @@ def _sym(M: np.ndarray) -> np.ndarray:
     return 0.5 * (M + M.T)
 
 
+def _is_constant(Z: np.ndarray) -> bool:
+    """Whether the stacked array ``Z (T, ...)`` holds the same entry at every step."""
+    return bool(np.array_equal(Z, np.broadcast_to(Z[0], Z.shape)))
+
+
 class _Sweeps:
     """Message state and per-step updates of one AICO run (arrays indexed by time)."""
 
@@ -133,6 +138,9 @@ class _Sweeps:
         self.T, self.n, self.m = T, n, m
         self.q = opts.process_noise
         self.I = np.eye(n)
+        # relinearization within the sweeps needs the beliefs, hence the forward messages;
+        # without it (theta = inf) the forward messages cannot change the controller.
+        self.relocate = math.isfinite(opts.theta) and opts.max_repeats > 0
         # forward messages as precision S^-1 (T+1, n, n) and S^-1 s (T+1, n)
         self.Sinv = np.zeros((T + 1, n, n))
         self.sv = np.zeros((T + 1, n))
@@ -141,7 +149,7 @@ class _Sweeps:
         # backward messages V^-1 (T+1, n, n), V^-1 v (T+1, n); V_T^-1 = 0 (end)
         self.Vinv = np.zeros((T + 1, n, n))
         self.vv = np.zeros((T + 1, n))
-        self.b = np.tile(problem.x0, (T + 1, 1))
+        self.b = np.full((T + 1, n), np.nan)
         self.o_ = np.zeros((T, m))
         self.O_ = np.zeros((T, m, n))
         self.repeats = 0
@@ -155,42 +163,55 @@ class _Sweeps:
         self.U = U
         self.Xprev = Xprev
         self.alpha = alpha
-        self.A, self.a, self.B = (np.asarray(z, dtype=float) for z in
-                                  p.dynamics.linearize_trajectory(X[:-1], U))
+        A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
+        self.A, self.a, self.B = (np.array(z, dtype=float) for z in (A, a, B))
         self.H, self.h = p.quadratize_controls(U)
+        self._check_finite(self.A, self.a, self.B, self.H, self.h)
+        self._control_marginals()
+        R, r = p.quadratize_states(X)
+        R += 2.0 * alpha * self.I
+        r += 2.0 * alpha * Xprev
+        self.R, self.r = R, r
+        self._check_finite(self.R, self.r)
+
+    def _control_marginals(self) -> None:
+        """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
+        T, n = self.T, self.n
         try:
-            self.Hinv = np.linalg.inv(self.H)
-            np.linalg.cholesky(self.H)
+            if _is_constant(self.H):
+                Hinv = np.linalg.inv(self.H[0])
+                np.linalg.cholesky(self.H[0])
+                self.Hinv = np.broadcast_to(Hinv, self.H.shape)
+            else:
+                self.Hinv = np.linalg.inv(self.H)
+                np.linalg.cholesky(self.H)
         except np.linalg.LinAlgError as e:
             raise NumericalError("control Hessian H_t is not positive definite") from e
-        self._update_marginals(slice(None))
-        R, r = p.quadratize_states(X)
-        self.R = R + 2.0 * alpha * self.I
-        self.r = r + 2.0 * alpha * Xprev
-        self._check_finite(self.A, self.a, self.B, self.R, self.r)
-
-    def _update_marginals(self, sl) -> None:
-        """``Qbar = q I + B H^-1 B^T`` and ``a_eff = a + B H^-1 h`` at steps ``sl``."""
-        B, Hinv = self.B[sl], self.Hinv[sl]
-        BHi = B @ Hinv
-        if isinstance(sl, slice):
-            self.Qbar = BHi @ np.swapaxes(B, -1, -2) + self.q * self.I
-            self.a_eff = self.a + np.einsum("tij,tj->ti", BHi, self.h)
+        self.Qbar = np.empty((T, n, n))
+        if _is_constant(self.B) and _is_constant(self.H):
+            BHi = self.B[0] @ self.Hinv[0]
+            self.Qbar[:] = BHi @ self.B[0].T + self.q * self.I
+            self.a_eff = self.a + self.h @ BHi.T
         else:
-            self.Qbar[sl] = BHi @ B.T + self.q * self.I
-            self.a_eff[sl] = self.a[sl] + BHi @ self.h[sl]
+            BHi = self.B @ self.Hinv
+            np.matmul(BHi, np.swapaxes(self.B, -1, -2), out=self.Qbar)
+            self.Qbar += self.q * self.I
+            self.a_eff = self.a + np.einsum("tij,tj->ti", BHi, self.h)
 
     def relinearize(self, t: int) -> None:
         """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
         p, x = self.p, self.X[t]
         if t < self.T:
             A, a, B = p.dynamics.linearize(x, self.U[t])
+            self._check_finite(A, a, B)
             self.A[t], self.a[t], self.B[t] = A, a, B
-            self._update_marginals(t)
+            BHi = self.B[t] @ self.Hinv[t]
+            self.Qbar[t] = BHi @ self.B[t].T + self.q * self.I
+            self.a_eff[t] = self.a[t] + BHi @ self.h[t]
         R, r = p.quadratize_states(x[None, :], np.array([t]))
+        self._check_finite(R, r)
         self.R[t] = R[0] + 2.0 * self.alpha * self.I
         self.r[t] = r[0] + 2.0 * self.alpha * self.Xprev[t]
-        self._check_finite(self.A[min(t, self.T - 1)], self.R[t], self.r[t])
         self.repeats += 1
 
     @staticmethod
@@ -208,30 +229,34 @@ class _Sweeps:
         if info != 0:
             raise NumericalError(f"triangular solve failed (info={info})")
         mean = _solve_chol(L, self.sv[t - 1] + self.r[t - 1])
-        Sinv = _inv_spd(W.T @ W + self.Qbar[t - 1])
+        Ci = _tri_inv(_chol(W.T @ W + self.Qbar[t - 1]))      # S_t = C C^T
+        Sinv = Ci.T @ Ci
         self.Sinv[t] = Sinv
         self.sv[t] = Sinv @ (A @ mean + self.a_eff[t - 1])
 
     def _vstar(self, Pp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'`` and ``V* m' = (I + q P')^-1 p'``.
 
-        Exact Cholesky solve, or the Neumann series when ``q trace(P') < 1e-5`` (truncation
-        error below ``(q lambda_max)^3 <= 1e-15`` relative).
+        With ``s = q ||P'||_F >= q lambda_max(P')``: the Neumann series
+        ``sum_k (-q)^k P'^(k+1)`` truncated after ``K <= 3`` terms when ``s^(K+1) <= 1e-16``
+        (relative truncation error), else a Cholesky factorization of the well-conditioned
+        ``I + q P'``.
         """
-        q, n = self.q, self.n
-        s = q * float(np.trace(Pp))
-        if s < 1e-8:
-            PP = Pp @ Pp
-            return Pp - q * PP, pp - q * (Pp @ pp)
-        if s < 1e-5:
-            PP = Pp @ Pp
-            Pv = Pp @ pp
-            return Pp - q * PP + (q * q) * (PP @ Pp), pp - q * Pv + (q * q) * (Pp @ Pv)
-        rhs = np.empty((n, n + 1))
-        rhs[:, :n] = Pp
-        rhs[:, n] = pp
-        Z = _solve_chol(_chol(self.I + q * Pp), rhs)
-        return _sym(Z[:, :n]), Z[:, n]
+        q = self.q
+        flat = Pp.reshape(-1)
+        s = q * math.sqrt(float(flat @ flat))
+        if s <= 1e-4:
+            K = 1 if s <= 1e-8 else (2 if s <= 10 ** (-16 / 3) else 3)
+            term, tv = Pp, pp
+            V, v = Pp, pp
+            for _ in range(K):
+                term = (-q) * (term @ Pp)
+                tv = (-q) * (Pp @ tv)
+                V = V + term
+                v = v + tv
+            return V, v
+        Ei = _tri_inv(_chol(self.I + q * Pp))
+        return _sym(Ei.T @ (Ei @ Pp)), Ei.T @ (Ei @ pp)
 
     def backward(self, t: int) -> None:
         """Backward message ``V_t^-1, V_t^-1 v_t`` and the controller at ``t <= T-1``."""
@@ -275,15 +300,30 @@ class _Sweeps:
         self.belief(t)
 
     def sweep(self) -> None:
-        """One forward (t = 1..T) and one backward (t = T-1..0) sweep."""
-        for t in range(1, self.T + 1):
-            self.forward(t)
-            self.settle(t)            # the forward message at t does not depend on step t
-        for t in range(self.T - 1, -1, -1):
-            self.backward(t)
-            self.settle(t, self.backward)
+        """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
+        without relinearization (``theta = inf``) only the backward sweep."""
+        if self.relocate:
+            for t in range(1, self.T + 1):
+                self.forward(t)
+                self.settle(t)        # the forward message at t does not depend on step t
+            for t in range(self.T - 1, -1, -1):
+                self.backward(t)
+                self.settle(t, self.backward)
+        else:
+            for t in range(self.T - 1, -1, -1):
+                self.backward(t)
         if not (np.all(np.isfinite(self.o_)) and np.all(np.isfinite(self.O_))):
             raise NumericalError("non-finite controller")
+
+    def beliefs(self) -> np.ndarray:
+        """Belief means ``(T+1, n)`` at the current linearization (``theta = inf`` mode:
+        computed once, with a forward sweep and no relinearization)."""
+        if not self.relocate:
+            for t in range(1, self.T + 1):
+                self.forward(t)
+            for t in range(self.T + 1):
+                self.belief(t)
+        return self.b.copy()
 
 
 def aico(problem: Problem, options: AICOOptions | None = None, *,
@@ -303,7 +343,11 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
         ``Result``; a run whose cost becomes non-finite or explodes, or whose messages
         fail numerically, ends with status ``"diverged"`` (no exception).
     """
-    opts = options or AICOOptions()
+    with single_threaded_blas():
+        return _aico(problem, options or AICOOptions(), X_init, U_init, callback)
+
+
+def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
     with np.errstate(all="ignore"):
@@ -353,9 +397,16 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
             break
         alpha *= opts.gamma
     X, U, o, O = best
+    beliefs = None
+    if status != "diverged":
+        try:
+            with np.errstate(all="ignore"):
+                beliefs = sw.beliefs()
+        except (NumericalError, ArithmeticError):
+            beliefs = None
     return Result(X=X, U=U, o=o, O=O, status=status, history=history,
                   iterations=len(history), message=message, initial_cost=initial_cost,
-                  beliefs=sw.b.copy(), solver="raico" if opts.alpha > 0 else "aico")
+                  beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico")
 
 
 def _check_control_cost(problem: Problem) -> None:

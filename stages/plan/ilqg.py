@@ -33,6 +33,7 @@ from scipy.linalg import lapack
 from plants.dynamics import rollout
 from stages.plan.problem import (
     Callback, IterationRecord, OptionsBase, Problem, Result, check_range, is_diverged,
+    single_threaded_blas,
 )
 
 
@@ -161,7 +162,11 @@ def ilqg(problem: Problem, options: ILQGOptions | None = None, *,
     ``o_t = U_t - K_t X_t``, ``O_t = K_t``, with gains from a backward pass at the final
     trajectory. A non-finite initial rollout ends with status ``"diverged"``.
     """
-    opts = options or ILQGOptions()
+    with single_threaded_blas():
+        return _ilqg(problem, options or ILQGOptions(), U_init, callback)
+
+
+def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
     T, n, m = problem.T, problem.n_x, problem.n_u
     U = np.zeros((T, m)) if U_init is None else np.array(U_init, dtype=float)
     with np.errstate(all="ignore"):

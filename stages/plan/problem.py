@@ -300,3 +300,18 @@ def check_range(name: str, value: Any, lo: float | None = None, hi: float | None
 
 Callback = Callable[[IterationRecord, np.ndarray, np.ndarray], None]
 """Per-iteration hook ``callback(record, X (T+1, n_x), U (T, n_u))`` (recording, progress)."""
+
+
+def single_threaded_blas():
+    """Context limiting BLAS/LAPACK to one thread while a solver runs.
+
+    The solvers issue many small (n <= 100) dense operations; a multithreaded BLAS gains
+    nothing on them and, on a loaded machine, spin-waiting threads slow them down by an
+    order of magnitude.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        import contextlib
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
