@@ -137,6 +137,35 @@ def execute(
     report(outcome, json_, reporter)
 
 
+@app.command()
+@handles_errors
+def reproduce(
+    figure: Annotated[Optional[list[str]], typer.Option("--figure", help="Experiment id (repeatable), e.g. fig3.2c.")] = None,
+    all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel worker processes.")] = 2,
+    artifacts: Artifacts = None, no_record: NoRecord = False, quiet: Quiet = False, json_: Json = False,
+):
+    """Run experiments over their initial states in parallel (cached per run), then write the
+    figure PNG and claims table of each, and the report artifacts/report/README.md."""
+    from pipeline import reproduce as repro
+    from pipeline.experiments import EXPERIMENTS
+
+    ids = list(EXPERIMENTS) if all_ else list(figure or [])
+    if not ids:
+        raise BadInput(f"give --figure ID or --all; experiments: {', '.join(EXPERIMENTS)}")
+    unknown = [i for i in ids if i not in EXPERIMENTS]
+    if unknown:
+        raise BadInput(f"unknown experiment '{unknown[0]}': choose one of {', '.join(EXPERIMENTS)}")
+    if not 1 <= jobs <= 64:
+        raise BadInput("jobs must be in [1, 64]")
+    reporter = Reporter(quiet)
+    cache = Cache(artifacts_root(artifacts))
+    for doc in repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record, reporter=reporter):
+        if json_:
+            typer.echo(json.dumps(doc, default=float))
+
+
 @app.command("ls")
 @handles_errors
 def ls(
