@@ -109,7 +109,7 @@ def claim_raico_converges(S, execs):
     R = _raico(S)
     best = min(s["final_cost_median"] for s in S.values())
     ok = all(s["diverged"] == 0 and s["final_cost_median"] <= 2 * best for s in R.values())
-    nums = "; ".join(f"{k}: final median {_fmt(s['final_cost_median'])} (final/first {_fmt(s['cost_ratio_median'])}), "
+    nums = "; ".join(f"{k}: final median {_fmt(s['final_cost_median'])} (final/initial {_fmt(s['cost_ratio_median'])}), "
                      f"diverged {s['diverged']}/{s['runs']}" for k, s in R.items())
     return ("R-AICO converges", "no R-AICO run diverges and each R-AICO variant's median final cost is within 2x "
             "of the lowest median final cost of any solver", f"{nums}; lowest {_fmt(best)}", ok)
@@ -202,7 +202,7 @@ def markdown_claims(rows: list[dict]) -> str:
 
 
 def markdown_summary(rows: list[dict]) -> str:
-    out = ["| variant | runs | diverged | converged (tol) | first-iteration cost | final cost | final/first | "
+    out = ["| variant | runs | diverged | converged (tol) | first-iteration cost | final cost | final/initial | "
            "largest via-point error | wall time (s) |", "|---|---|---|---|---|---|---|---|---|"]
     out += [f"| {r['label']} | {r['runs']} | {r['diverged']} | {r['converged']} | {_fmt(r['first_cost_median'])} | "
             f"{_fmt(r['final_cost_median'])} | {_fmt(r['cost_ratio_median'])} | {_fmt(r['max_via_error_median'])} | "

@@ -129,7 +129,14 @@ def _is_constant(Z: np.ndarray) -> bool:
 
 
 class _Sweeps:
-    """Message state and per-step updates of one AICO run (arrays indexed by time)."""
+    """Message state and per-step updates of one AICO run (arrays indexed by time).
+
+    Layout (to keep the per-step work in few dense operations): a message and its
+    linear term share one array, ``[P | p]`` of shape ``(n, n+1)``:
+    ``SA[t] = [S_t^-1 | S_t^-1 s_t]`` (forward), ``VA[t] = [V_t^-1 | V_t^-1 v_t]``
+    (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [B_t | A_t | a_t | a_eff_t]``
+    ``(n, m+n+2)`` with ``a_eff = a + B H^-1 h`` (mean drift of the control prior).
+    """
 
     def __init__(self, problem: Problem, opts: AICOOptions):
         self.p = problem
@@ -141,14 +148,10 @@ class _Sweeps:
         # relinearization within the sweeps needs the beliefs, hence the forward messages;
         # without it (theta = inf) the forward messages cannot change the controller.
         self.relocate = math.isfinite(opts.theta) and opts.max_repeats > 0
-        # forward messages as precision S^-1 (T+1, n, n) and S^-1 s (T+1, n)
-        self.Sinv = np.zeros((T + 1, n, n))
-        self.sv = np.zeros((T + 1, n))
-        self.Sinv[0] = self.I / opts.start_variance
-        self.sv[0] = problem.x0 / opts.start_variance
-        # backward messages V^-1 (T+1, n, n), V^-1 v (T+1, n); V_T^-1 = 0 (end)
-        self.Vinv = np.zeros((T + 1, n, n))
-        self.vv = np.zeros((T + 1, n))
+        self.SA = np.zeros((T + 1, n, n + 1))
+        self.SA[0, :, :n] = self.I / opts.start_variance
+        self.SA[0, :, n] = problem.x0 / opts.start_variance
+        self.VA = np.zeros((T + 1, n, n + 1))                  # V_T^-1 = 0 (end)
         self.b = np.full((T + 1, n), np.nan)
         self.o_ = np.zeros((T, m))
         self.O_ = np.zeros((T, m, n))
@@ -158,60 +161,70 @@ class _Sweeps:
     def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray,
                       alpha: float) -> None:
         """Dynamics, control and task messages along ``X (T+1, n)``, ``U (T, m)`` at once."""
-        p = self.p
+        p, T, n, m = self.p, self.T, self.n, self.m
         self.X = X.copy()
         self.U = U
         self.Xprev = Xprev
         self.alpha = alpha
         A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
-        self.A, self.a, self.B = (np.array(z, dtype=float) for z in (A, a, B))
         self.H, self.h = p.quadratize_controls(U)
-        self._check_finite(self.A, self.a, self.B, self.H, self.h)
+        C = np.empty((T, n, m + n + 2))
+        C[:, :, :m] = B
+        C[:, :, m:m + n] = A
+        C[:, :, m + n] = a
+        self.C = C
+        self._check_finite(C, self.H, self.h)
         self._control_marginals()
         R, r = p.quadratize_states(X)
-        R += 2.0 * alpha * self.I
-        r += 2.0 * alpha * Xprev
-        self.R, self.r = R, r
-        self._check_finite(self.R, self.r)
+        RA = np.empty((T + 1, n, n + 1))
+        RA[:, :, :n] = R
+        RA[:, :, n] = r
+        if alpha:
+            RA[:, :, :n] += 2.0 * alpha * self.I
+            RA[:, :, n] += 2.0 * alpha * Xprev
+        self.RA = RA
+        self._check_finite(RA)
 
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
-        T, n = self.T, self.n
+        T, n, m, C = self.T, self.n, self.m, self.C
+        B = C[:, :, :m]
+        const_H = _is_constant(self.H)
         try:
-            if _is_constant(self.H):
-                Hinv = np.linalg.inv(self.H[0])
+            if const_H:
                 np.linalg.cholesky(self.H[0])
-                self.Hinv = np.broadcast_to(Hinv, self.H.shape)
+                self.Hinv = np.broadcast_to(np.linalg.inv(self.H[0]), self.H.shape)
             else:
-                self.Hinv = np.linalg.inv(self.H)
                 np.linalg.cholesky(self.H)
+                self.Hinv = np.linalg.inv(self.H)
         except np.linalg.LinAlgError as e:
             raise NumericalError("control Hessian H_t is not positive definite") from e
         self.Qbar = np.empty((T, n, n))
-        if _is_constant(self.B) and _is_constant(self.H):
-            BHi = self.B[0] @ self.Hinv[0]
-            self.Qbar[:] = BHi @ self.B[0].T + self.q * self.I
-            self.a_eff = self.a + self.h @ BHi.T
+        if const_H and _is_constant(B):
+            BHi = B[0] @ self.Hinv[0]
+            self.Qbar[:] = BHi @ B[0].T + self.q * self.I
+            C[:, :, m + n + 1] = C[:, :, m + n] + self.h @ BHi.T
         else:
-            BHi = self.B @ self.Hinv
-            np.matmul(BHi, np.swapaxes(self.B, -1, -2), out=self.Qbar)
+            BHi = B @ self.Hinv
+            np.matmul(BHi, np.swapaxes(B, -1, -2), out=self.Qbar)
             self.Qbar += self.q * self.I
-            self.a_eff = self.a + np.einsum("tij,tj->ti", BHi, self.h)
+            C[:, :, m + n + 1] = C[:, :, m + n] + np.einsum("tij,tj->ti", BHi, self.h)
 
     def relinearize(self, t: int) -> None:
         """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
-        p, x = self.p, self.X[t]
+        p, x, n, m = self.p, self.X[t], self.n, self.m
         if t < self.T:
             A, a, B = p.dynamics.linearize(x, self.U[t])
             self._check_finite(A, a, B)
-            self.A[t], self.a[t], self.B[t] = A, a, B
-            BHi = self.B[t] @ self.Hinv[t]
-            self.Qbar[t] = BHi @ self.B[t].T + self.q * self.I
-            self.a_eff[t] = self.a[t] + BHi @ self.h[t]
+            Ct = self.C[t]
+            Ct[:, :m], Ct[:, m:m + n], Ct[:, m + n] = B, A, a
+            BHi = B @ self.Hinv[t]
+            self.Qbar[t] = BHi @ B.T + self.q * self.I
+            Ct[:, m + n + 1] = a + BHi @ self.h[t]
         R, r = p.quadratize_states(x[None, :], np.array([t]))
         self._check_finite(R, r)
-        self.R[t] = R[0] + 2.0 * self.alpha * self.I
-        self.r[t] = r[0] + 2.0 * self.alpha * self.Xprev[t]
+        self.RA[t, :, :n] = R[0] + 2.0 * self.alpha * self.I
+        self.RA[t, :, n] = r[0] + 2.0 * self.alpha * self.Xprev[t]
         self.repeats += 1
 
     @staticmethod
@@ -222,65 +235,77 @@ class _Sweeps:
 
     # -- messages -----------------------------------------------------------------------
     def forward(self, t: int) -> None:
-        """Forward message at ``t >= 1`` from step ``t-1``."""
-        A = self.A[t - 1]
-        L = _chol(self.Sinv[t - 1] + self.R[t - 1])            # P = S^-1 + R
-        W, info = lapack.dtrtrs(L, A.T, lower=1)               # A P^-1 A^T = W^T W
+        """Forward message ``[S_t^-1 | S_t^-1 s_t]`` at ``t >= 1`` from step ``t-1``:
+        ``P = S^-1 + R``, ``s_t = A P^-1 (S^-1 s + r) + a_eff``, ``S_t = A P^-1 A^T + Qbar``."""
+        n, m = self.n, self.m
+        Ct = self.C[t - 1]
+        Pa = self.SA[t - 1] + self.RA[t - 1]
+        L = _chol(Pa[:, :n])
+        rhs = np.empty((n, n + 1))
+        rhs[:, :n] = Ct[:, m:m + n].T
+        rhs[:, n] = Pa[:, n]
+        Y, info = lapack.dtrtrs(L, rhs, lower=1)              # L^-1 [A^T | p]
         if info != 0:
             raise NumericalError(f"triangular solve failed (info={info})")
-        mean = _solve_chol(L, self.sv[t - 1] + self.r[t - 1])
+        W = Y[:, :n]                                           # A P^-1 A^T = W^T W
         Ci = _tri_inv(_chol(W.T @ W + self.Qbar[t - 1]))      # S_t = C C^T
         Sinv = Ci.T @ Ci
-        self.Sinv[t] = Sinv
-        self.sv[t] = Sinv @ (A @ mean + self.a_eff[t - 1])
+        out = self.SA[t]
+        out[:, :n] = Sinv
+        out[:, n] = Sinv @ (W.T @ Y[:, n] + Ct[:, m + n + 1])
 
-    def _vstar(self, Pp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'`` and ``V* m' = (I + q P')^-1 p'``.
+    def _vstar(self, Pa: np.ndarray) -> np.ndarray:
+        """``[V* | V* m']`` from ``Pa = [P' | p']``: ``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'``.
 
-        With ``s = q ||P'||_F >= q lambda_max(P')``: the Neumann series
-        ``sum_k (-q)^k P'^(k+1)`` truncated after ``K <= 3`` terms when ``s^(K+1) <= 1e-16``
-        (relative truncation error), else a Cholesky factorization of the well-conditioned
-        ``I + q P'``.
+        With ``s = q ||[P' | p']||_F >= q lambda_max(P')``: the Neumann series
+        ``sum_k (-q P')^k [P' | p']`` truncated after ``K <= 3`` terms when
+        ``s^(K+1) <= 1e-16`` (relative truncation error), else a Cholesky factorization of
+        the well-conditioned ``I + q P'``.
         """
-        q = self.q
-        flat = Pp.reshape(-1)
+        q, n = self.q, self.n
+        flat = Pa.reshape(-1)
         s = q * math.sqrt(float(flat @ flat))
+        P = Pa[:, :n]
         if s <= 1e-4:
             K = 1 if s <= 1e-8 else (2 if s <= 10 ** (-16 / 3) else 3)
-            term, tv = Pp, pp
-            V, v = Pp, pp
+            term, out = Pa, Pa
             for _ in range(K):
-                term = (-q) * (term @ Pp)
-                tv = (-q) * (Pp @ tv)
-                V = V + term
-                v = v + tv
-            return V, v
-        Ei = _tri_inv(_chol(self.I + q * Pp))
-        return _sym(Ei.T @ (Ei @ Pp)), Ei.T @ (Ei @ pp)
+                term = (-q) * (P @ term)
+                out = out + term
+            return out
+        Ei = _tri_inv(_chol(self.I + q * P))
+        return Ei.T @ (Ei @ Pa)
 
     def backward(self, t: int) -> None:
-        """Backward message ``V_t^-1, V_t^-1 v_t`` and the controller at ``t <= T-1``."""
-        n, A, B = self.n, self.A[t], self.B[t]
-        Vs, pq = self._vstar(self.Vinv[t + 1] + self.R[t + 1], self.vv[t + 1] + self.r[t + 1])
-        VB = Vs @ B
-        LM = _chol(B.T @ VB + self.H[t])                      # M = B^T V* B + H
-        BtVA = VB.T @ A
-        y = pq - Vs @ self.a_eff[t]
-        rhs = np.empty((self.m, n + 2))
-        rhs[:, :n] = BtVA
-        rhs[:, n] = B.T @ pq - VB.T @ self.a[t] + self.h[t]
-        rhs[:, n + 1] = B.T @ y
+        """Backward message ``[V_t^-1 | V_t^-1 v_t]`` and the controller ``o_t, O_t``
+        (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}`` and
+        ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*``."""
+        n, m = self.n, self.m
+        Ct = self.C[t]
+        Va = self._vstar(self.VA[t + 1] + self.RA[t + 1])   # [V* | V* m']
+        Wk = Ct.T @ Va                                        # [C^T V* | C^T V* m']
+        F = Wk[:, :n] @ Ct                                    # C^T V* C
+        cp = Wk[:, n]                                         # C^T V* m'
+        LM = _chol(_sym(F[:m, :m]) + self.H[t])              # M = B^T V* B + H
+        rhs = np.empty((m, n + 2))
+        rhs[:, :n] = F[:m, m:m + n]                           # B^T V* A
+        rhs[:, n:] = cp[:m, None] - F[:m, m + n:]             # B^T V*(m' - a), B^T y
+        rhs[:, n] += self.h[t]
         Zm = _solve_chol(LM, rhs)
         O = -Zm[:, :n]
         self.O_[t] = O
         self.o_[t] = Zm[:, n]
-        self.Vinv[t] = _sym(A.T @ (Vs @ A) + BtVA.T @ O)
-        self.vv[t] = A.T @ y - BtVA.T @ Zm[:, n + 1]
+        BtVA = F[:m, m:m + n]
+        out = self.VA[t]
+        Vi = F[m:m + n, m:m + n] + BtVA.T @ O
+        out[:, :n] = 0.5 * (Vi + Vi.T)
+        out[:, n] = (cp[m:m + n] - F[m:m + n, m + n + 1]) - BtVA.T @ Zm[:, n + 1]
 
     def belief(self, t: int) -> np.ndarray:
-        """Belief mean ``b_t (n,)``."""
-        L = _chol(self.Sinv[t] + self.Vinv[t] + self.R[t])
-        b = _solve_chol(L, self.sv[t] + self.vv[t] + self.r[t])
+        """Belief mean ``b_t (n,)`` from ``B_t = S_t^-1 + V_t^-1 + R_t``."""
+        n = self.n
+        Ba = self.SA[t] + self.VA[t] + self.RA[t]
+        b = _solve_chol(_chol(Ba[:, :n]), Ba[:, n])
         self.b[t] = b
         return b
 

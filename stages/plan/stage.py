@@ -19,7 +19,7 @@ from stages.plan.problem import Problem, Result
 from stages.plan.solvers import SOLVERS, make_options, solve
 from stages.plan.tasks import TaskSpec, get_task
 
-CODE_VERSION = "plan-1"
+CODE_VERSION = "plan-2"
 DYNAMICS = ("pseudo", "analytic")
 
 
@@ -97,11 +97,14 @@ class PlanOutput:
                 "joint_names": np.array(self.robot.joint_names)}
 
     def metrics(self) -> dict:
+        """``initial_cost``: iteration 0, the initial trajectory (``x_t = x0``, ``u = 0``) rolled out;
+        ``first_iteration_cost``: after the first update; ``cost_ratio = final / initial``."""
         r = self.result
         costs = r.costs
         first = float(costs[0]) if costs.size else float("nan")
-        return {"initial_cost": float(r.initial_cost), "first_iteration_cost": first,
-                "final_cost": float(r.cost), "cost_ratio": float(r.cost / first) if first else None,
+        init = float(r.initial_cost)
+        return {"initial_cost": init, "first_iteration_cost": first,
+                "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
                 "iterations": int(r.iterations), "status": r.status,
                 "wall_time_s": float(sum(h.time_s for h in r.history)),
                 "via_point_errors": self.via_point_errors(), "message": r.message}
