@@ -134,8 +134,9 @@ class _Sweeps:
     Layout (to keep the per-step work in few dense operations): a message and its
     linear term share one array, ``[P | p]`` of shape ``(n, n+1)``:
     ``SA[t] = [S_t^-1 | S_t^-1 s_t]`` (forward), ``VA[t] = [V_t^-1 | V_t^-1 v_t]``
-    (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [B_t | A_t | a_t | a_eff_t]``
-    ``(n, m+n+2)`` with ``a_eff = a + B H^-1 h`` (mean drift of the control prior).
+    (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [[B_t, A_t, -a_t, -a_eff_t],
+    [0, 0, 1, 1]]`` ``(n+1, m+n+2)`` with ``a_eff = a + B H^-1 h`` (mean drift under the
+    control prior), so that ``[V* | V* m'] C[t] = [V* B | V* A | V*(m' - a) | V*(m' - a_eff)]``.
     """
 
     def __init__(self, problem: Problem, opts: AICOOptions):
@@ -168,10 +169,11 @@ class _Sweeps:
         self.alpha = alpha
         A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
         self.H, self.h = p.quadratize_controls(U)
-        C = np.empty((T, n, m + n + 2))
-        C[:, :, :m] = B
-        C[:, :, m:m + n] = A
-        C[:, :, m + n] = a
+        C = np.zeros((T, n + 1, m + n + 2))
+        C[:, :n, :m] = B
+        C[:, :n, m:m + n] = A
+        C[:, :n, m + n] = -a
+        C[:, n, m + n:] = 1.0
         self.C = C
         self._check_finite(C, self.H, self.h)
         self._control_marginals()
@@ -188,7 +190,7 @@ class _Sweeps:
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
         T, n, m, C = self.T, self.n, self.m, self.C
-        B = C[:, :, :m]
+        B = C[:, :n, :m]
         const_H = _is_constant(self.H)
         try:
             if const_H:
@@ -203,12 +205,12 @@ class _Sweeps:
         if const_H and _is_constant(B):
             BHi = B[0] @ self.Hinv[0]
             self.Qbar[:] = BHi @ B[0].T + self.q * self.I
-            C[:, :, m + n + 1] = C[:, :, m + n] + self.h @ BHi.T
+            C[:, :n, m + n + 1] = C[:, :n, m + n] - self.h @ BHi.T
         else:
             BHi = B @ self.Hinv
             np.matmul(BHi, np.swapaxes(B, -1, -2), out=self.Qbar)
             self.Qbar += self.q * self.I
-            C[:, :, m + n + 1] = C[:, :, m + n] + np.einsum("tij,tj->ti", BHi, self.h)
+            C[:, :n, m + n + 1] = C[:, :n, m + n] - np.einsum("tij,tj->ti", BHi, self.h)
 
     def relinearize(self, t: int) -> None:
         """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
@@ -217,10 +219,10 @@ class _Sweeps:
             A, a, B = p.dynamics.linearize(x, self.U[t])
             self._check_finite(A, a, B)
             Ct = self.C[t]
-            Ct[:, :m], Ct[:, m:m + n], Ct[:, m + n] = B, A, a
+            Ct[:n, :m], Ct[:n, m:m + n], Ct[:n, m + n] = B, A, -a
             BHi = B @ self.Hinv[t]
             self.Qbar[t] = BHi @ B.T + self.q * self.I
-            Ct[:, m + n + 1] = a + BHi @ self.h[t]
+            Ct[:n, m + n + 1] = -a - BHi @ self.h[t]
         R, r = p.quadratize_states(x[None, :], np.array([t]))
         self._check_finite(R, r)
         self.RA[t, :, :n] = R[0] + 2.0 * self.alpha * self.I
@@ -242,7 +244,7 @@ class _Sweeps:
         Pa = self.SA[t - 1] + self.RA[t - 1]
         L = _chol(Pa[:, :n])
         rhs = np.empty((n, n + 1))
-        rhs[:, :n] = Ct[:, m:m + n].T
+        rhs[:, :n] = Ct[:n, m:m + n].T
         rhs[:, n] = Pa[:, n]
         Y, info = lapack.dtrtrs(L, rhs, lower=1)              # L^-1 [A^T | p]
         if info != 0:
@@ -252,7 +254,7 @@ class _Sweeps:
         Sinv = Ci.T @ Ci
         out = self.SA[t]
         out[:, :n] = Sinv
-        out[:, n] = Sinv @ (W.T @ Y[:, n] + Ct[:, m + n + 1])
+        out[:, n] = Sinv @ (W.T @ Y[:, n] - Ct[:n, m + n + 1])
 
     def _vstar(self, Pa: np.ndarray) -> np.ndarray:
         """``[V* | V* m']`` from ``Pa = [P' | p']``: ``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'``.
@@ -278,28 +280,22 @@ class _Sweeps:
 
     def backward(self, t: int) -> None:
         """Backward message ``[V_t^-1 | V_t^-1 v_t]`` and the controller ``o_t, O_t``
-        (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}`` and
-        ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*``."""
+        (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}``, ``M = B^T V* B + H`` and
+        ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*`` (Woodbury)."""
         n, m = self.n, self.m
         Ct = self.C[t]
-        Va = self._vstar(self.VA[t + 1] + self.RA[t + 1])   # [V* | V* m']
-        Wk = Ct.T @ Va                                        # [C^T V* | C^T V* m']
-        F = Wk[:, :n] @ Ct                                    # C^T V* C
-        cp = Wk[:, n]                                         # C^T V* m'
-        LM = _chol(_sym(F[:m, :m]) + self.H[t])              # M = B^T V* B + H
-        rhs = np.empty((m, n + 2))
-        rhs[:, :n] = F[:m, m:m + n]                           # B^T V* A
-        rhs[:, n:] = cp[:m, None] - F[:m, m + n:]             # B^T V*(m' - a), B^T y
+        G = self._vstar(self.VA[t + 1] + self.RA[t + 1]) @ Ct   # [V*B | V*A | V*(m'-a) | y]
+        F = Ct[:n, :m + n].T @ G                                # [B A]^T G, (m+n, m+n+2)
+        LM = _chol(F[:m, :m] + self.H[t])
+        rhs = F[:m, m:]                                         # [B^T V* A | B^T V*(m'-a) | B^T y]
         rhs[:, n] += self.h[t]
-        Zm = _solve_chol(LM, rhs)
-        O = -Zm[:, :n]
-        self.O_[t] = O
+        Zm = _solve_chol(LM, rhs)                               # M^-1 rhs
+        self.O_[t] = -Zm[:, :n]
         self.o_[t] = Zm[:, n]
-        BtVA = F[:m, m:m + n]
+        Y = F[m:, m:] - F[:m, m:m + n].T @ Zm                   # [V_t^-1 | . | V_t^-1 v_t]
         out = self.VA[t]
-        Vi = F[m:m + n, m:m + n] + BtVA.T @ O
-        out[:, :n] = 0.5 * (Vi + Vi.T)
-        out[:, n] = (cp[m:m + n] - F[m:m + n, m + n + 1]) - BtVA.T @ Zm[:, n + 1]
+        out[:, :n] = 0.5 * (Y[:, :n] + Y[:, :n].T)
+        out[:, n] = Y[:, n + 1]
 
     def belief(self, t: int) -> np.ndarray:
         """Belief mean ``b_t (n,)`` from ``B_t = S_t^-1 + V_t^-1 + R_t``."""
@@ -314,11 +310,12 @@ class _Sweeps:
         ``theta`` from the linearization point, move the point towards it, relinearize step
         ``t``, redo the message ``redo(t)`` if it depends on step ``t``, and repeat."""
         o = self.o
+        x = self.X[t]
         for _ in range(o.max_repeats):
-            b = self.belief(t)
-            if not np.linalg.norm(b - self.X[t]) > o.theta:
+            d = self.belief(t) - x
+            if not math.sqrt(float(d @ d)) > o.theta:
                 return
-            self.X[t] += o.belief_rate * (b - self.X[t])
+            x += o.belief_rate * d
             self.relinearize(t)
             if redo is not None:
                 redo(t)

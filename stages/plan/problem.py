@@ -224,18 +224,18 @@ def controller_rollout(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Roll ``u_t = o_t + O_t x_t`` out on ``dynamics`` from ``x0``: ``X (T+1, n_x)``, ``U (T, n_u)``.
 
-    Stops early (rest filled with NaN) as soon as a state is not finite.
+    Non-finite states propagate (NaN) instead of raising; callers check the result.
     """
     T = o.shape[0]
-    X = np.full((T + 1, x0.shape[0]), np.nan)
-    U = np.full(o.shape, np.nan)
+    X = np.empty((T + 1, x0.shape[0]))
+    U = np.empty(o.shape)
     X[0] = x0
+    step = dynamics.step
     with np.errstate(all="ignore"):
         for t in range(T):
-            U[t] = o[t] + O[t] @ X[t]
-            X[t + 1] = dynamics.step(X[t], U[t])
-            if not np.all(np.isfinite(X[t + 1])):
-                break
+            u = o[t] + O[t] @ X[t]
+            U[t] = u
+            X[t + 1] = step(X[t], u)
     return X, U
 
 

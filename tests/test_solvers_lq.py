@@ -1,0 +1,177 @@
+"""Acceptance tests of the solvers on linear-quadratic problems (SPEC §6).
+
+The reference is computed here, independently of the solvers: the equality-constrained
+QP over (x_0..x_T, u_0..u_{T-1}) solved through its KKT system, and a textbook
+time-varying Riccati recursion for the feedback gains.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plants.dynamics import LinearDynamics
+from stages.plan.aico import AICOOptions, aico
+from stages.plan.costs import ControlCost, StateTarget
+from stages.plan.ilqg import ILQGOptions, ilqg
+from stages.plan.problem import Problem, controller_rollout
+
+N_X, N_U, T = 4, 2, 30
+
+
+def make_lq(seed: int = 0, running: float = 0.0) -> Problem:
+    """Random LQ problem: stable A with drift a, state targets at several times (diagonal
+    and full precisions), a control cost with a non-zero target (h != 0), and optionally a
+    running state cost of weight ``running`` at every step."""
+    rng = np.random.default_rng(seed)
+    A = np.eye(N_X) + 0.2 * rng.standard_normal((N_X, N_X))
+    A *= 0.98 / max(abs(np.linalg.eigvals(A)))
+    B = 0.5 * rng.standard_normal((N_X, N_U))
+    a = 0.05 * rng.standard_normal(N_X)
+    G = rng.standard_normal((N_X, N_X))
+    terms = [
+        StateTarget(rng.standard_normal(N_X), times=[8], weight=50.0, name="s8"),
+        StateTarget(rng.standard_normal(N_X), times=[15, 22], weight=20.0,
+                    precision=rng.uniform(0.5, 2.0, N_X), name="s15_22"),
+        StateTarget(rng.standard_normal(N_X), times=[T], weight=100.0,
+                    precision=G @ G.T / N_X + 0.1 * np.eye(N_X), name="sT"),
+    ]
+    if running:
+        terms.append(StateTarget(np.zeros(N_X), times=None, weight=running, name="run"))
+    controls = [ControlCost(0.1, target=0.3 * rng.standard_normal(N_U))]
+    return Problem(LinearDynamics(A=A, a=a, B=B), rng.standard_normal(N_X), T, terms, controls)
+
+
+def exact_solution(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Optimal ``X (T+1, n)``, ``U (T, m)`` from the KKT system of the QP
+    ``min sum 1/2 x^T R x - r^T x + 1/2 u^T H u - h^T u`` s.t. ``x_0 = x0``,
+    ``x_{t+1} = A x_t + a + B u_t`` (the terms are exactly quadratic)."""
+    n, m, dyn = pb.n_x, pb.n_u, pb.dynamics
+    R, r = pb.quadratize_states(np.zeros((T + 1, n)))
+    H, h = pb.quadratize_controls(np.zeros((T, m)))
+    nz = (T + 1) * n + T * m
+    off = (T + 1) * n
+    Hq, g = np.zeros((nz, nz)), np.zeros(nz)
+    for t in range(T + 1):
+        Hq[t * n:(t + 1) * n, t * n:(t + 1) * n] = R[t]
+        g[t * n:(t + 1) * n] = r[t]
+    for t in range(T):
+        s = slice(off + t * m, off + (t + 1) * m)
+        Hq[s, s], g[s] = H[t], h[t]
+    Ceq, d = np.zeros(((T + 1) * n, nz)), np.zeros((T + 1) * n)
+    Ceq[:n, :n], d[:n] = np.eye(n), pb.x0
+    for t in range(T):
+        rows = slice((t + 1) * n, (t + 2) * n)
+        Ceq[rows, (t + 1) * n:(t + 2) * n] = np.eye(n)
+        Ceq[rows, t * n:(t + 1) * n] = -dyn.A
+        Ceq[rows, off + t * m:off + (t + 1) * m] = -dyn.B
+        d[rows] = dyn.a
+    kkt = np.block([[Hq, Ceq.T], [Ceq, np.zeros((Ceq.shape[0], Ceq.shape[0]))]])
+    z = np.linalg.solve(kkt, np.concatenate([g, d]))
+    return z[:off].reshape(T + 1, n), z[off:nz].reshape(T, m)
+
+
+def riccati_gains(pb: Problem) -> np.ndarray:
+    """Time-varying LQR gains ``K (T, m, n)`` (``u_t = k_t + K_t x_t``) by the Riccati recursion."""
+    R, _ = pb.quadratize_states(np.zeros((T + 1, pb.n_x)))
+    H, _ = pb.quadratize_controls(np.zeros((T, pb.n_u)))
+    A, B = pb.dynamics.A, pb.dynamics.B
+    V = R[T]
+    K = np.zeros((T, pb.n_u, pb.n_x))
+    for t in range(T - 1, -1, -1):
+        K[t] = -np.linalg.solve(H[t] + B.T @ V @ B, B.T @ V @ A)
+        V = R[t] + A.T @ V @ A + A.T @ V @ B @ K[t]
+        V = 0.5 * (V + V.T)
+    return K
+
+
+@pytest.fixture(scope="module")
+def lq():
+    pb = make_lq()
+    X, U = exact_solution(pb)
+    return pb, X, U, riccati_gains(pb)
+
+
+def test_reference_is_the_optimum(lq):
+    """The oracle itself: feasible, and every perturbation of the controls costs more."""
+    pb, X, U, K = lq
+    assert np.allclose(controller_rollout(pb.dynamics, pb.x0, U, np.zeros((T, N_U, N_X)))[0], X)
+    J = pb.cost(X, U)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        dU = 1e-3 * rng.standard_normal(U.shape)
+        Xp, Up = controller_rollout(pb.dynamics, pb.x0, U + dU, np.zeros((T, N_U, N_X)))
+        assert pb.cost(Xp, Up) > J
+    # the gains really vary in time (a constant-gain bug could not pass the gain tests)
+    assert np.max(np.abs(K - K[0])) > 1e-2
+
+
+def test_ilqg_equals_exact_solution(lq):
+    pb, X, U, K = lq
+    res = ilqg(pb, ILQGOptions())
+    assert res.status == "converged", res.message
+    assert np.max(np.abs(res.X - X)) < 1e-8
+    assert np.max(np.abs(res.U - U)) < 1e-8
+    assert np.max(np.abs(res.O - K)) < 1e-8
+    # its controller reproduces the trajectory
+    Xc, Uc = controller_rollout(pb.dynamics, pb.x0, res.o, res.O)
+    assert np.max(np.abs(Xc - X)) < 1e-8
+    assert res.history and all(h.cost >= res.cost - 1e-12 for h in res.history)
+
+
+def test_aico_equals_exact_solution_in_one_iteration(lq):
+    pb, X, U, K = lq
+    res = aico(pb, AICOOptions(iterations=1, alpha=0.0, process_noise=1e-9))
+    assert res.iterations == 1 and res.status == "max-iterations"
+    assert np.max(np.abs(res.beliefs - X)) < 1e-5      # belief means
+    assert np.max(np.abs(res.O - K)) < 1e-5            # feedback gains (time-varying Riccati)
+    assert np.max(np.abs(res.X - X)) < 1e-5            # controller rolled out
+    assert np.max(np.abs(res.U - U)) < 1e-5
+    assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-7)
+
+
+def test_aico_without_relinearization_is_the_same(lq):
+    """theta = inf skips the forward sweep during iterations: same controller."""
+    pb, X, U, K = lq
+    a = aico(pb, AICOOptions(iterations=1, process_noise=1e-9))
+    b = aico(pb, AICOOptions(iterations=1, process_noise=1e-9, theta=float("inf")))
+    assert np.max(np.abs(a.O - b.O)) < 1e-10
+    assert np.max(np.abs(a.X - b.X)) < 1e-10
+    assert np.max(np.abs(b.beliefs - X)) < 1e-5
+
+
+def test_aico_gap_shrinks_with_process_noise(lq):
+    pb, X, U, K = lq
+    gaps = []
+    for q in (1e-3, 1e-5, 1e-7, 1e-9):
+        res = aico(pb, AICOOptions(iterations=1, process_noise=q))
+        gaps.append((np.max(np.abs(res.O - K)), np.max(np.abs(res.X - X)),
+                     np.max(np.abs(res.beliefs - X))))
+    gaps = np.array(gaps)
+    assert gaps[0].min() > 1e-4                         # Q really matters at 1e-3
+    for i in range(1, len(gaps)):
+        assert np.all(gaps[i, :2] < 0.05 * gaps[i - 1, :2]), gaps  # ~linear in Q
+        assert gaps[i, 2] < gaps[i - 1, 2], gaps
+
+
+@pytest.mark.parametrize("alpha", [1.0, 10.0])
+def test_raico_converges_to_exact_solution(alpha):
+    pb = make_lq(seed=2, running=5.0)
+    X, U = exact_solution(pb)
+    errs = []
+    res = aico(pb, AICOOptions(iterations=150, alpha=alpha, gamma=1.0, tol=0.0),
+               callback=lambda rec, Xn, Un: errs.append(np.max(np.abs(Xn - X))))
+    errs = np.array(errs)
+    assert errs[0] > 1e-3                               # the first step is regularized
+    assert np.all(np.diff(errs) <= 1e-8)                # steady approach (to the Q floor)
+    assert errs[-1] < 1e-6
+    assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-8)
+    assert np.max(np.abs(res.U - U)) < 1e-5
+
+
+def test_larger_alpha_takes_smaller_first_step():
+    pb = make_lq(seed=2, running=5.0)
+    X0 = np.tile(pb.x0, (T + 1, 1))
+    steps = [np.linalg.norm(aico(pb, AICOOptions(iterations=1, alpha=al)).X - X0)
+             for al in (0.0, 1.0, 10.0, 100.0)]
+    assert all(b < a for a, b in zip(steps, steps[1:])), steps
