@@ -110,6 +110,18 @@ def log_task_values(rec, problem, times: np.ndarray, X: np.ndarray, root: str = 
     return {name: v for name, (v, _, _) in series.items()}
 
 
+def log_task_paths(rec, problem, X: np.ndarray) -> None:
+    """3-D task maps (CoG, end effector): the path as a line in the 3D view, targets as dots."""
+    from pipeline import recording as rec_mod
+
+    for name, (vals, target, steps) in task_series(problem, X).items():
+        if vals.shape[1] != 3 or steps.size > 3:
+            continue
+        rec_mod.log_points_path(rec, f"world/paths/{name}", vals, color=(250, 200, 30), radius=0.003)
+        rec_mod.log_points_path(rec, f"world/targets/{name}", np.atleast_2d(target), color=(230, 40, 40),
+                                radius=0.012, line=False)
+
+
 def run_plan(cache: Cache, cfg, record: bool = True, reporter: Reporter | None = None) -> Outcome:
     """Plan stage through the cache: ``plan.npz`` (+ recording and MCAP of the planned motion)."""
     from stages.plan import stage as plan
@@ -145,6 +157,7 @@ def write_plan_recording(folder: Path, out) -> None:
             it = np.array([h.iteration for h in r.history])
             rec_mod.log_scalars(rec, "cost/total", "iteration", it, r.costs)
         values = log_task_values(rec, out.problem, times, X)
+        log_task_paths(rec, out.problem, X)
         rec_mod.log_joint_series(rec, robot.joint_names, times[:-1], r.U, root="control")
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([r.U, np.full((1, n), np.nan)]), task_values=values)

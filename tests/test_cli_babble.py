@@ -107,3 +107,27 @@ def test_sigkill_halfway_leaves_nothing_valid_and_next_run_completes(tmp_path):
     assert json.loads(done.stdout.splitlines()[-1])["status"] == "ok"
     assert not list((tmp_path / "babble").glob(".tmp-*"))
     assert len([e for e in Cache(tmp_path).list("babble") if e.valid]) == 1
+
+
+@pytest.mark.parametrize("plant", ["pendulum", "arm5", "biorob", "nao"])
+def test_babble_recording_has_a_world_transform_for_every_body(tmp_path, plant):
+    from rerun.chunk import RrdReader
+
+    from plants.robots import shared_robot
+
+    res = invoke("babble", "--plant", plant, "--episodes", 1, "--duration", 0.1, "--json", "--artifacts", tmp_path)
+    assert res.exit_code == 0, res.output
+    folder = Path(json.loads(res.stdout.strip().splitlines()[-1])["path"])
+    chunks = RrdReader(folder / "recording.rrd").stream().to_chunks()
+    timed = {c.entity_path for c in chunks if "sim_time" in c.timeline_names}
+    robot = shared_robot(plant)
+    from pipeline.recording import entity_name
+    from pydrake.multibody.tree import BodyIndex
+
+    bodies = [entity_name(robot.plant.get_body(BodyIndex(i)).name()) for i in range(1, robot.plant.num_bodies())]
+    assert len(bodies) == robot.plant.num_bodies() - 1 >= {"pendulum": 2, "arm5": 5, "biorob": 5, "nao": 31}[plant]
+    for b in bodies:
+        assert f"/world/robot/{b}" in timed, b
+    rows = sum(c.num_rows for c in chunks if c.entity_path == f"/world/robot/{bodies[-1]}"
+               and "sim_time" in c.timeline_names)
+    assert rows == 51  # 0.1 s at 2 ms, both ends
