@@ -40,6 +40,30 @@ class Outcome:
         return d
 
 
+def source_version(name: str, *packages: str) -> str:
+    """``name`` plus a hash of the source (``*.py``) and model files (``*.urdf``) of ``packages``.
+
+    The cache key includes it, so editing a solver or a model file invalidates the stages
+    that depend on it (and only those).
+    """
+    import hashlib
+    import importlib
+
+    h = hashlib.sha256()
+    for pkg in packages:
+        src = Path(importlib.import_module(pkg).__file__)
+        root = src.parent
+        if src.name != "__init__.py":  # a module: just its file
+            files = [src]
+        else:
+            files = sorted(p for pat in ("*.py", "*.urdf") for p in root.rglob(pat)
+                           if "__pycache__" not in p.parts)
+        for f in files:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return f"{name}+{h.hexdigest()[:12]}"
+
+
 def run_stage(
     cache: Cache,
     stage: str,

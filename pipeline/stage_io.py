@@ -12,7 +12,7 @@ import numpy as np
 
 from pipeline.cache import Cache, Entry
 from pipeline.errors import BadInput, MissingArtifact
-from pipeline.runner import Outcome, run_stage
+from pipeline.runner import Outcome, run_stage, source_version
 from pipeline.ui import Reporter
 
 RECORDING = "recording.rrd"
@@ -56,7 +56,8 @@ def run_babble(cache: Cache, cfg, record: bool = True, reporter: Reporter | None
             write_babble_recording(tmp, cfg, data)
         return {"status": "ok", "metrics": data.metrics()}
 
-    return run_stage(cache, "babble", babble.CODE_VERSION, config, [], compute)
+    version = source_version(babble.CODE_VERSION, "plants", "stages.babble")
+    return run_stage(cache, "babble", version, config, [], compute)
 
 
 def _episode_times(t: np.ndarray, episodes: int, gap: float) -> np.ndarray:
@@ -138,7 +139,8 @@ def run_plan(cache: Cache, cfg, record: bool = True, reporter: Reporter | None =
             write_plan_recording(tmp, out)
         return {"status": out.result.status, "metrics": out.metrics()}
 
-    return run_stage(cache, "plan", plan.CODE_VERSION, config, [], compute)
+    version = source_version(plan.CODE_VERSION, "plants", "stages.plan")
+    return run_stage(cache, "plan", version, config, [], compute)
 
 
 def write_plan_recording(folder: Path, out) -> None:
@@ -194,7 +196,8 @@ def run_execute(cache: Cache, plan_ref: str, cfg, record: bool = True,
             write_execute_recording(tmp, out, pconf, cfg)
         return {"status": out.metrics["status"], "metrics": out.metrics}
 
-    return run_stage(cache, "execute", execute.CODE_VERSION, config, [f"plan/{plan_entry.key}"], compute)
+    version = source_version(execute.CODE_VERSION, "plants", "stages.execute", "stages.plan")
+    return run_stage(cache, "execute", version, config, [f"plan/{plan_entry.key}"], compute)
 
 
 def write_execute_recording(folder: Path, out, pconf: dict, cfg) -> None:

@@ -1,0 +1,36 @@
+"""Stage runner: the code version hashes the stage's sources, so an edit invalidates the cache."""
+
+import sys
+
+from pipeline.cache import Cache
+from pipeline.runner import run_stage, source_version
+
+
+def test_source_version_follows_the_source(tmp_path, monkeypatch):
+    pkg = tmp_path / "fakestage"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("X = 1\n")
+    (pkg / "model.urdf").write_text("<robot/>")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    v1 = source_version("s-1", "fakestage")
+    assert v1 == source_version("s-1", "fakestage")
+    (pkg / "model.urdf").write_text("<robot name='x'/>")
+    v2 = source_version("s-1", "fakestage")
+    assert v2 != v1 and v2.startswith("s-1+")
+    sys.modules.pop("fakestage", None)
+
+
+def test_run_stage_hit_never_computes(tmp_path):
+    calls = []
+
+    def compute(tmp):
+        calls.append(1)
+        (tmp / "out.txt").write_text("x")
+        return {"status": "ok", "metrics": {"n": 1}}
+
+    cache = Cache(tmp_path)
+    a = run_stage(cache, "demo", "v1", {"a": 1}, [], compute)
+    b = run_stage(cache, "demo", "v1", {"a": 1}, [], compute)
+    c = run_stage(cache, "demo", "v2", {"a": 1}, [], compute)
+    assert (a.cached, b.cached, c.cached) == (False, True, False) and len(calls) == 2
+    assert b.metrics == {"n": 1} and a.key == b.key != c.key and a.reason == "no cache entry"
