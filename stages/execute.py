@@ -128,11 +128,11 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     return FeedbackController()
 
 
-def support_polygon(robot: Robot, ctx) -> np.ndarray:
-    """Convex hull ``(k, 2)`` (m, world xy) of both soles' outlines at the plant context."""
+def support_polygon(robot: Robot, ctx, soles=("l_sole", "r_sole")) -> np.ndarray:
+    """Convex hull ``(k, 2)`` (m, world xy) of the soles' outlines at the plant context."""
     pts = []
     outline = np.c_[robot.support_polygon, np.zeros(len(robot.support_polygon))]
-    for sole in ("l_sole", "r_sole"):
+    for sole in soles:
         X = robot.plant.GetFrameByName(sole).CalcPoseInWorld(ctx)
         pts.append((X.rotation().matrix() @ outline.T).T[:, :2] + X.translation()[:2])
     pts = np.vstack(pts)
@@ -172,6 +172,7 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
     nao = robot.name == "nao"
     cog = np.full((T + 1, 3), np.nan) if nao else None
     margin = np.full(T + 1, np.nan) if nao else None
+    stance = np.full(T + 1, np.nan) if nao else None
     polys = [] if nao else None
     sim.Initialize()
 
@@ -184,6 +185,7 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
             c = robot.plant.CalcCenterOfMassPositionInWorld(pctx)
             poly = support_polygon(robot, pctx)
             cog[k], margin[k] = c, signed_margin(poly, c[:2])
+            stance[k] = signed_margin(support_polygon(robot, pctx, ("l_sole",)), c[:2])
             polys.append(poly)
         return True
 
@@ -206,6 +208,9 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
     X_plan = plan["X"]
     metrics = _metrics(problem, X, X_plan, tau, n, cog, margin, robot, pcfg)
     metrics["torque_saturation"] = float(np.mean(saturated)) if saturated else 0.0
+    if nao:
+        metrics["cog_inside_stance_fraction"] = float(np.mean(stance > 0))
+        metrics["cog_min_stance_margin"] = float(np.nanmin(stance))
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=X_plan, metrics=metrics,
                          cog=cog, cog_margin=margin, support=polys)
 
