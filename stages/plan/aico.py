@@ -42,8 +42,15 @@ from scipy.linalg import lapack
 
 from plants.dynamics import rollout
 from stages.plan.problem import (
-    Callback, IterationRecord, OptionsBase, Problem, Result, check_range,
-    controller_rollout, is_diverged, single_threaded_blas,
+    Callback,
+    IterationRecord,
+    OptionsBase,
+    Problem,
+    Result,
+    check_range,
+    controller_rollout,
+    is_diverged,
+    single_threaded_blas,
 )
 
 
@@ -55,9 +62,13 @@ class AICOOptions(OptionsBase):
         iterations: maximum number of iterations (>= 1).
         alpha: R-AICO regularization ``alpha^[1]`` (>= 0; 0 is plain AICO), per (state unit)^2.
         gamma: ``alpha^[n] = alpha^[n-1] gamma`` (> 0).
-        theta: relinearization threshold on ``||b_t - x_t||`` (state units; ``inf``: never).
-        max_repeats: cap on the repeats of one time step within a sweep (>= 0).
-        belief_rate: learning rate on the belief update ``x_t += rate (b_t - x_t)`` (0, 1].
+        theta: relinearization threshold on ``||b_t - x_t||`` (state units; ``inf``: never
+            relinearize within the sweeps; then the forward sweep is skipped, as it cannot
+            change the controller, and run once at the end for the beliefs).
+        max_repeats: cap on the repeats of one time step within a sweep (>= 0); when it is
+            reached the step keeps its last linearization.
+        belief_rate: plain AICO's learning rate on the belief (state) update: a repeat moves
+            the linearization point ``x_t += rate (b_t - x_t)``, in (0, 1].
         process_noise: ``q`` in ``Q = q I`` (> 0).
         start_variance: ``S_0 = start_variance I`` (tight prior around ``x0``, > 0).
         tol: converged when the relative cost change of two iterations is below ``tol``.
@@ -134,9 +145,9 @@ class _Sweeps:
     Layout (to keep the per-step work in few dense operations): a message and its
     linear term share one array, ``[P | p]`` of shape ``(n, n+1)``:
     ``SA[t] = [S_t^-1 | S_t^-1 s_t]`` (forward), ``VA[t] = [V_t^-1 | V_t^-1 v_t]``
-    (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [[B_t, A_t, -a_t, -a_eff_t],
-    [0, 0, 1, 1]]`` ``(n+1, m+n+2)`` with ``a_eff = a + B H^-1 h`` (mean drift under the
-    control prior), so that ``[V* | V* m'] C[t] = [V* B | V* A | V*(m' - a) | V*(m' - a_eff)]``.
+    (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [[B_t, A_t, -a_t], [0, 0, 1]]``
+    ``(n+1, m+n+1)``, so that ``[V* | V* m'] C[t] = [V* B | V* A | V*(m' - a)]``;
+    ``a_eff[t] = a_t + B_t H_t^-1 h_t`` is the mean drift under the control prior.
     """
 
     def __init__(self, problem: Problem, opts: AICOOptions):
@@ -153,6 +164,12 @@ class _Sweeps:
         self.SA[0, :, :n] = self.I / opts.start_variance
         self.SA[0, :, n] = problem.x0 / opts.start_variance
         self.VA = np.zeros((T + 1, n, n + 1))                  # V_T^-1 = 0 (end)
+        # per-iteration linearization, buffers reused across iterations
+        self.C = np.zeros((T, n + 1, m + n + 1))
+        self.C[:, n, m + n] = 1.0
+        self.RA = np.empty((T + 1, n, n + 1))
+        self._lx = np.empty((T + 1, n))
+        self.Qbar = np.empty((T, n, n))
         self.b = np.full((T + 1, n), np.nan)
         self.o_ = np.zeros((T, m))
         self.O_ = np.zeros((T, m, n))
@@ -169,27 +186,27 @@ class _Sweeps:
         self.alpha = alpha
         A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
         self.H, self.h = p.quadratize_controls(U)
-        C = np.zeros((T, n + 1, m + n + 2))
+        C = self.C
         C[:, :n, :m] = B
         C[:, :n, m:m + n] = A
-        C[:, :n, m + n] = -a
-        C[:, n, m + n:] = 1.0
-        self.C = C
+        C[:, :n, m + n] = a
+        np.negative(C[:, :n, m + n], out=C[:, :n, m + n])
         self._check_finite(C, self.H, self.h)
         self._control_marginals()
-        R, r = p.quadratize_states(X)
-        RA = np.empty((T + 1, n, n + 1))
-        RA[:, :, :n] = R
-        RA[:, :, n] = r
+        RA, lx = self.RA, self._lx
+        R = RA[:, :, :n]
+        p.state_derivatives(X, out=(lx, R))                    # R = l_xx
+        np.einsum("kij,kj->ki", R, X, out=RA[:, :, n])
+        RA[:, :, n] -= lx                                       # r = l_xx x - l_x
         if alpha:
-            RA[:, :, :n] += 2.0 * alpha * self.I
+            diag = RA.reshape(T + 1, n * (n + 1))[:, ::n + 2]  # R[:, i, i] (a view)
+            diag += 2.0 * alpha
             RA[:, :, n] += 2.0 * alpha * Xprev
-        self.RA = RA
         self._check_finite(RA)
 
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
-        T, n, m, C = self.T, self.n, self.m, self.C
+        n, m, C = self.n, self.m, self.C
         B = C[:, :n, :m]
         const_H = _is_constant(self.H)
         try:
@@ -201,16 +218,15 @@ class _Sweeps:
                 self.Hinv = np.linalg.inv(self.H)
         except np.linalg.LinAlgError as e:
             raise NumericalError("control Hessian H_t is not positive definite") from e
-        self.Qbar = np.empty((T, n, n))
         if const_H and _is_constant(B):
             BHi = B[0] @ self.Hinv[0]
             self.Qbar[:] = BHi @ B[0].T + self.q * self.I
-            C[:, :n, m + n + 1] = C[:, :n, m + n] - self.h @ BHi.T
+            self.a_eff = self.h @ BHi.T - C[:, :n, m + n]
         else:
             BHi = B @ self.Hinv
             np.matmul(BHi, np.swapaxes(B, -1, -2), out=self.Qbar)
             self.Qbar += self.q * self.I
-            C[:, :n, m + n + 1] = C[:, :n, m + n] - np.einsum("tij,tj->ti", BHi, self.h)
+            self.a_eff = np.einsum("tij,tj->ti", BHi, self.h) - C[:, :n, m + n]
 
     def relinearize(self, t: int) -> None:
         """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
@@ -222,7 +238,7 @@ class _Sweeps:
             Ct[:n, :m], Ct[:n, m:m + n], Ct[:n, m + n] = B, A, -a
             BHi = B @ self.Hinv[t]
             self.Qbar[t] = BHi @ B.T + self.q * self.I
-            Ct[:n, m + n + 1] = -a - BHi @ self.h[t]
+            self.a_eff[t] = a + BHi @ self.h[t]
         R, r = p.quadratize_states(x[None, :], np.array([t]))
         self._check_finite(R, r)
         self.RA[t, :, :n] = R[0] + 2.0 * self.alpha * self.I
@@ -231,8 +247,9 @@ class _Sweeps:
 
     @staticmethod
     def _check_finite(*arrs: np.ndarray) -> None:
+        """Raise ``NumericalError`` on NaN or inf (or sums overflowing to them)."""
         for z in arrs:
-            if not np.all(np.isfinite(z)):
+            if not math.isfinite(float(np.sum(z))):
                 raise NumericalError("non-finite linearization or task message")
 
     # -- messages -----------------------------------------------------------------------
@@ -254,7 +271,7 @@ class _Sweeps:
         Sinv = Ci.T @ Ci
         out = self.SA[t]
         out[:, :n] = Sinv
-        out[:, n] = Sinv @ (W.T @ Y[:, n] - Ct[:n, m + n + 1])
+        out[:, n] = Sinv @ (W.T @ Y[:, n] + self.a_eff[t - 1])
 
     def _vstar(self, Pa: np.ndarray) -> np.ndarray:
         """``[V* | V* m']`` from ``Pa = [P' | p']``: ``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'``.
@@ -280,22 +297,27 @@ class _Sweeps:
 
     def backward(self, t: int) -> None:
         """Backward message ``[V_t^-1 | V_t^-1 v_t]`` and the controller ``o_t, O_t``
-        (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}``, ``M = B^T V* B + H`` and
-        ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*`` (Woodbury)."""
+        (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}`` and ``M = B^T V* B + H``.
+
+        By Woodbury ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*``, hence
+        ``V_t^-1 = A^T V* A - (B^T V* A)^T M^-1 B^T V* A = A^T V* A + (B^T V* A)^T O_t`` and
+        ``V_t^-1 v_t = A^T V*(m' - a_eff) - ... = A^T V*(m' - a) - (B^T V* A)^T o_t`` (the
+        ``h`` terms of ``a_eff`` and of ``o_t`` cancel exactly).
+        """
         n, m = self.n, self.m
         Ct = self.C[t]
-        G = self._vstar(self.VA[t + 1] + self.RA[t + 1]) @ Ct   # [V*B | V*A | V*(m'-a) | y]
-        F = Ct[:n, :m + n].T @ G                                # [B A]^T G, (m+n, m+n+2)
+        G = self._vstar(self.VA[t + 1] + self.RA[t + 1]) @ Ct   # [V*B | V*A | V*(m'-a)]
+        F = Ct[:n, :m + n].T @ G                                # [B A]^T G, (m+n, m+n+1)
         LM = _chol(F[:m, :m] + self.H[t])
-        rhs = F[:m, m:]                                         # [B^T V* A | B^T V*(m'-a) | B^T y]
+        rhs = F[:m, m:]                                         # [B^T V* A | B^T V*(m'-a)]
         rhs[:, n] += self.h[t]
-        Zm = _solve_chol(LM, rhs)                               # M^-1 rhs
+        Zm = _solve_chol(LM, rhs)                               # [-O_t | o_t]
         self.O_[t] = -Zm[:, :n]
         self.o_[t] = Zm[:, n]
-        Y = F[m:, m:] - F[:m, m:m + n].T @ Zm                   # [V_t^-1 | . | V_t^-1 v_t]
+        Y = F[m:, m:] - F[:m, m:m + n].T @ Zm                   # [V_t^-1 | V_t^-1 v_t]
         out = self.VA[t]
         out[:, :n] = 0.5 * (Y[:, :n] + Y[:, :n].T)
-        out[:, n] = Y[:, n + 1]
+        out[:, n] = Y[:, n]
 
     def belief(self, t: int) -> np.ndarray:
         """Belief mean ``b_t (n,)`` from ``B_t = S_t^-1 + V_t^-1 + R_t``."""
@@ -375,10 +397,14 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     with np.errstate(all="ignore"):
         X0_roll = rollout(problem.dynamics, problem.x0, U)
     initial_cost = problem.cost(X0_roll, U)
+    if U.shape != (T, n_u):
+        raise ValueError(f"U_init has shape {U.shape}, expected {(T, n_u)}")
     if X_init is None:
         X = np.tile(problem.x0, (T + 1, 1)) if U_init is None else X0_roll
     else:
         X = np.array(X_init, dtype=float)
+        if X.shape != (T + 1, problem.n_x) or not np.all(np.isfinite(X)):
+            raise ValueError(f"X_init must be finite with shape {(T + 1, problem.n_x)}")
     _check_control_cost(problem)
     sw = _Sweeps(problem, opts)
     history: list[IterationRecord] = []
@@ -390,15 +416,19 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     for it in range(1, opts.iterations + 1):
         t0 = time.perf_counter()
         sw.repeats = 0
+        cost, err = math.inf, None
         try:
             with np.errstate(all="ignore"):
                 sw.linearize_all(X, U, X, alpha)
                 sw.sweep()
-            Xn, Un = controller_rollout(problem.dynamics, problem.x0, sw.o_, sw.O_)
-            cost = problem.cost(Xn, Un)
-            err = None
-        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as e:
-            cost, err = math.inf, f"{type(e).__name__}: {e}"
+        except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
+            err = f"{type(e).__name__}: {e}"
+        else:
+            try:   # a model may raise on the exploding states of a diverging rollout
+                Xn, Un = controller_rollout(problem.dynamics, problem.x0, sw.o_, sw.O_)
+                cost = problem.cost(Xn, Un)
+            except (ArithmeticError, ValueError, RuntimeError) as e:
+                err = f"rollout failed: {type(e).__name__}: {e}"
         now = time.perf_counter()
         rec = IterationRecord(it, cost, now - t0, now - start, alpha, 0.0, sw.repeats)
         history.append(rec)

@@ -149,14 +149,36 @@ class ViaPoint(StateTerm):
         e, _, _ = self._errors(X)
         return self.weight * np.einsum("ki,ij,kj->k", e, self.C, e)
 
-    def _derivs(self, X, idx):
+    def _q_blocks(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Gradient ``(K, n_q)`` and GN Hessian ``(K, n_q, n_q)`` on the ``q`` block."""
         e, J, n_q = self._errors(X)
         CJ = np.einsum("ij,kjq->kiq", self.C, J)  # (K, dim, n_q)
+        g = (-2.0 * self.weight) * np.einsum("kiq,ki->kq", CJ, e)
+        H = (2.0 * self.weight) * np.einsum("kip,kiq->kpq", J, CJ)
+        return g, H, n_q
+
+    def _derivs(self, X, idx):
+        g, H, n_q = self._q_blocks(X)
         lx = np.zeros(X.shape)
         lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
-        lx[:, :n_q] = -2.0 * self.weight * np.einsum("kiq,ki->kq", CJ, e)
-        lxx[:, :n_q, :n_q] = 2.0 * self.weight * np.einsum("kip,kiq->kpq", J, CJ)
+        lx[:, :n_q] = g
+        lxx[:, :n_q, :n_q] = H
         return lx, lxx
+
+    def add_derivatives(self, X, idx, lx, lxx) -> None:
+        """As ``StateTerm.add_derivatives``, touching only the ``q`` blocks."""
+        m = self.active(idx)
+        if self.weight == 0 or not m.any():
+            return
+        if m.all():
+            g, H, n_q = self._q_blocks(X)
+            lx[:, :n_q] += g
+            lxx[:, :n_q, :n_q] += H
+        else:
+            rows = np.flatnonzero(m)
+            g, H, n_q = self._q_blocks(X[rows])
+            lx[rows, :n_q] += g
+            lxx[rows, :n_q, :n_q] += H
 
 
 class StateTarget(StateTerm):

@@ -32,7 +32,13 @@ from scipy.linalg import lapack
 
 from plants.dynamics import rollout
 from stages.plan.problem import (
-    Callback, IterationRecord, OptionsBase, Problem, Result, check_range, is_diverged,
+    Callback,
+    IterationRecord,
+    OptionsBase,
+    Problem,
+    Result,
+    check_range,
+    is_diverged,
     single_threaded_blas,
 )
 
@@ -128,12 +134,15 @@ def _forward(problem: Problem, X, U, k, K, alpha: float):
     Xn = np.full(X.shape, np.nan)
     Un = np.full(U.shape, np.nan)
     Xn[0] = problem.x0
-    with np.errstate(all="ignore"):
-        for t in range(U.shape[0]):
-            Un[t] = U[t] + alpha * k[t] + K[t] @ (Xn[t] - X[t])
-            Xn[t + 1] = dyn.step(Xn[t], Un[t])
-            if not np.all(np.isfinite(Xn[t + 1])):
-                return Xn, Un, math.inf
+    step = dyn.step
+    try:   # a model may raise on the exploding states of a bad step
+        with np.errstate(all="ignore"):
+            for t in range(U.shape[0]):
+                u = U[t] + alpha * k[t] + K[t] @ (Xn[t] - X[t])
+                Un[t] = u
+                Xn[t + 1] = step(Xn[t], u)
+    except (ArithmeticError, ValueError, RuntimeError):
+        return Xn, Un, math.inf
     return Xn, Un, problem.cost(Xn, Un)
 
 
@@ -169,9 +178,14 @@ def ilqg(problem: Problem, options: ILQGOptions | None = None, *,
 def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
     T, n, m = problem.T, problem.n_x, problem.n_u
     U = np.zeros((T, m)) if U_init is None else np.array(U_init, dtype=float)
-    with np.errstate(all="ignore"):
-        X = rollout(problem.dynamics, problem.x0, U)
-    J = problem.cost(X, U)
+    if U.shape != (T, m):
+        raise ValueError(f"U_init has shape {U.shape}, expected {(T, m)}")
+    try:
+        with np.errstate(all="ignore"):
+            X = rollout(problem.dynamics, problem.x0, U)
+        J = problem.cost(X, U)
+    except (ArithmeticError, ValueError, RuntimeError):
+        X, J = np.full((T + 1, n), np.nan), math.inf
     initial_cost = J
     start = time.perf_counter()
     history: list[IterationRecord] = []
@@ -190,22 +204,20 @@ def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
             if derivs is None:
                 derivs = _derivatives(problem, X, U)
             k, K_new, dV, stop = _regularized_backward(derivs, lm)
-        except (ArithmeticError, ValueError, RuntimeError) as e:
+        except (ArithmeticError, np.linalg.LinAlgError) as e:
             history.append(IterationRecord(it, math.inf, time.perf_counter() - t0,
                                            time.perf_counter() - start, 0.0, lm.mu))
             status, message = "diverged", f"iteration {it}: {type(e).__name__}: {e}"
             break
         if stop:
-            history.append(IterationRecord(it, J, time.perf_counter() - t0,
-                                           time.perf_counter() - start, 0.0, lm.mu))
+            _record(history, callback, it, J, t0, start, 0.0, lm.mu, X, U)
             status, message = "max-iterations", f"mu > mu_max={opts.mu_max:g}: no descent step"
             break
-        K, gains_at_final = K_new, True
+        K, gains_at_final = K_new, lm.mu == 0.0
         gnorm = float(np.mean(np.max(np.abs(k) / (np.abs(U) + 1.0), axis=1)))
         if gnorm < opts.tol_grad and lm.mu < 1e-5:
             lm.decrease()
-            history.append(IterationRecord(it, J, time.perf_counter() - t0,
-                                           time.perf_counter() - start, 0.0, lm.mu))
+            _record(history, callback, it, J, t0, start, 0.0, lm.mu, X, U)
             status, message = "converged", f"gradient {gnorm:.2e} below tol_grad"
             break
         accepted, Xn, Un, Jn, alpha = _line_search(problem, X, U, J, k, K, dV, opts.alphas)
@@ -216,11 +228,7 @@ def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
         else:
             lm.increase()
             alpha = 0.0
-        now = time.perf_counter()
-        rec = IterationRecord(it, J, now - t0, now - start, alpha, lm.mu)
-        history.append(rec)
-        if callback is not None:
-            callback(rec, X, U)
+        _record(history, callback, it, J, t0, start, alpha, lm.mu, X, U)
         if is_diverged(J, initial_cost, opts.divergence_factor):
             status, message = "diverged", f"iteration {it}: cost {J:.3g} exploded"
             break
@@ -233,6 +241,15 @@ def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
     if not gains_at_final and status != "diverged":
         K = _final_gains(problem, X, U, lm.mu, K)
     return _result(X, U, K, status, history, message, initial_cost)
+
+
+def _record(history, callback, it, J, t0, start, step, mu, X, U) -> None:
+    """Append one ``IterationRecord`` and call the callback with the current trajectory."""
+    now = time.perf_counter()
+    rec = IterationRecord(it, J, now - t0, now - start, step, mu)
+    history.append(rec)
+    if callback is not None:
+        callback(rec, X, U)
 
 
 def _derivatives(problem: Problem, X: np.ndarray, U: np.ndarray):
@@ -262,26 +279,41 @@ def _regularized_backward(derivs, lm: _LM):
 
 
 def _line_search(problem, X, U, J, k, K, dV, alphas):
-    """Backtracking over ``alphas``; returns ``(accepted, X, U, J, alpha)``."""
+    """Backtracking over ``alphas``; returns ``(accepted, X, U, J, alpha)``.
+
+    A step is accepted when actual / expected reduction > 0. When the expected reduction
+    is below the cost's rounding level (``64 eps |J|``) the ratio is noise: the step is
+    then accepted unless it raises the cost beyond that level.
+    """
+    floor = 64.0 * np.finfo(float).eps * max(abs(J), np.finfo(float).tiny)
     for alpha in alphas:
         Xn, Un, Jn = _forward(problem, X, U, k, K, alpha)
-        expected = -alpha * (dV[0] + alpha * dV[1])
-        actual = J - Jn
         if not math.isfinite(Jn):
             continue
-        z = actual / expected if expected > 0 else np.sign(actual)
-        if z > 0:
+        expected = -alpha * (dV[0] + alpha * dV[1])
+        actual = J - Jn
+        if expected <= floor:
+            if actual >= -floor:
+                return True, Xn, Un, Jn, alpha
+            continue
+        if actual / expected > 0:
             return True, Xn, Un, Jn, alpha
     return False, X, U, J, 0.0
 
 
 def _final_gains(problem, X, U, mu, K_fallback):
-    """Feedback gains from one backward pass at the final trajectory."""
+    """Feedback gains from one backward pass at the final trajectory, unregularized
+    (``mu = 0``) when ``Q_uu`` allows it, else with the current ``mu``."""
     try:
         derivs = _derivatives(problem, X, U)
-        return _backward(*derivs, mu)[1]
-    except (_NotPD, ArithmeticError, ValueError, RuntimeError):
+    except (ArithmeticError, np.linalg.LinAlgError):
         return K_fallback
+    for m in (0.0, mu):
+        try:
+            return _backward(*derivs, m)[1]
+        except _NotPD:
+            continue
+    return K_fallback
 
 
 def _result(X, U, K, status, history, message, initial_cost) -> Result:

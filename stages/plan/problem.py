@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from plants.dynamics import Dynamics
 STATUSES = ("converged", "max-iterations", "diverged")
 
 
-@dataclass
+@dataclass(eq=False)
 class Problem:
     """A finite-horizon optimal control problem.
 
@@ -87,7 +88,7 @@ class Problem:
     def term_names(self) -> list[str]:
         return [t.name for t in self.state_terms + self.control_terms]
 
-    def without(self, *names: str) -> "Problem":
+    def without(self, *names: str) -> Problem:
         """A copy without the named terms (ablations)."""
         for n in names:
             self.term(n)
@@ -111,16 +112,23 @@ class Problem:
         return float(c) if math.isfinite(c) else math.inf
 
     def state_derivatives(
-        self, X: np.ndarray, idx: np.ndarray | None = None
+        self, X: np.ndarray, idx: np.ndarray | None = None,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Summed ``l_x (K, n_x)`` and Gauss-Newton ``l_xx (K, n_x, n_x)`` at rows ``X (K, n_x)``.
 
-        ``idx (K,)`` are the time steps of the rows (default ``0..K-1``).
+        ``idx (K,)`` are the time steps of the rows (default ``0..K-1``); ``out`` optional
+        buffers ``(l_x, l_xx)`` of those shapes (may be views) to write into.
         """
         X = np.atleast_2d(X)
         idx = np.arange(X.shape[0]) if idx is None else np.asarray(idx)
-        lx = np.zeros(X.shape)
-        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        if out is None:
+            lx = np.zeros(X.shape)
+            lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        else:
+            lx, lxx = out
+            lx[...] = 0.0
+            lxx[...] = 0.0
         for term in self.state_terms:
             term.add_derivatives(X, idx, lx, lxx)
         return lx, lxx
@@ -173,7 +181,7 @@ class IterationRecord:
     repeats: int = 0
 
 
-@dataclass
+@dataclass(eq=False)
 class Result:
     """What every solver returns (shapes in the module docstring).
 

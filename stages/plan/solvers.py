@@ -7,8 +7,9 @@ defaults the name implies ("raico" is AICO with ``alpha = 1`` unless given, and 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from stages.plan.aico import AICOOptions, aico
 from stages.plan.ilqg import ILQGOptions, ilqg
@@ -29,7 +30,7 @@ class SolverSpec:
         """Validated options from a dict (unknown keys rejected) or an options object."""
         if isinstance(d, OptionsBase):
             if not isinstance(d, self.options_cls):
-                raise ValueError(f"solver {self.name!r} takes {self.options_cls.__name__}, "
+                raise TypeError(f"solver {self.name!r} takes {self.options_cls.__name__}, "
                                  f"got {type(d).__name__}")
             opts = d
         else:

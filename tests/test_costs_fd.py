@@ -1,0 +1,165 @@
+"""Finite-difference checks of every cost term's gradient and Gauss-Newton Hessian (SPEC §5)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plants.dynamics import PseudoDynamics
+from stages.plan.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
+from stages.plan.problem import Problem
+
+
+class PlanarArm:
+    """End-effector position (m) of a planar arm with revolute joints: a nonlinear task map."""
+
+    def __init__(self, lengths, name: str = "ee"):
+        self.l = np.asarray(lengths, dtype=float)
+        self.dim = 2
+        self.name = name
+
+    def values_and_jacobians(self, Q):
+        c = np.cumsum(Q, axis=1)
+        x, y = np.cos(c) * self.l, np.sin(c) * self.l
+        phi = np.stack([x.sum(1), y.sum(1)], axis=1)
+        Jx = -np.cumsum(y[:, ::-1], axis=1)[:, ::-1]
+        Jy = np.cumsum(x[:, ::-1], axis=1)[:, ::-1]
+        return phi, np.stack([Jx, Jy], axis=1)
+
+    def value_and_jacobian(self, q):
+        phi, J = self.values_and_jacobians(np.asarray(q)[None, :])
+        return phi[0], J[0]
+
+
+def fd_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """Central differences of ``f: (n,) -> (k,)`` at ``x``: ``(k, n)``."""
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = eps
+        cols.append((np.atleast_1d(f(x + e)) - np.atleast_1d(f(x - e))) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+RNG = np.random.default_rng(0)
+N_Q = 3
+N_X = 2 * N_Q
+ARM = PlanarArm([0.5, 0.4, 0.3])
+
+
+def test_planar_arm_jacobian_matches_fd():
+    q = RNG.standard_normal(N_Q)
+    _, J = ARM.value_and_jacobian(q)
+    assert np.allclose(J, fd_jacobian(lambda z: ARM.value_and_jacobian(z)[0], q), atol=1e-8)
+
+
+def _state_terms():
+    return [
+        ViaPoint(ARM, [0.3, 0.9], times=[2, 4], weight=1e4, precision=[1.0, 3.0], name="via"),
+        ViaPoint(ARM, [0.1, -0.2], times=None, weight=7.0, name="via_all"),
+        StateTarget(RNG.standard_normal(N_X), times=[1, 3], weight=2.0,
+                    precision=RNG.uniform(0.5, 2, N_X), name="target"),
+    ]
+
+
+@pytest.mark.parametrize("term", _state_terms(), ids=lambda t: t.name)
+def test_state_term_gradient_matches_fd(term):
+    X = RNG.standard_normal((6, N_X))
+    lx, lxx = term.derivatives(X)
+    assert lx.shape == (6, N_X) and lxx.shape == (6, N_X, N_X)
+    active = term.active(np.arange(6))
+    for t in range(6):
+        g = fd_jacobian(lambda x, t=t: term.value(x[None, :], [t]), X[t])[0]
+        assert np.allclose(lx[t], g, rtol=1e-6, atol=1e-6 * max(1.0, abs(g).max()))
+        if not active[t]:
+            assert not lx[t].any() and not lxx[t].any()
+        assert np.allclose(lxx[t], lxx[t].T)
+        assert np.all(np.linalg.eigvalsh(lxx[t]) >= -1e-9 * max(1.0, abs(lxx[t]).max()))
+
+
+def test_via_point_gauss_newton_hessian_and_message():
+    """``l_xx = 2 w J^T C J`` (J by finite differences), exact Hessian at a zero residual, and
+    the message ``R = 2 w J^T C J``, ``r = 2 w J^T C (x* - phi(q0) + J q0)`` on the q block."""
+    w, Cd = 1e4, np.array([1.0, 3.0])
+    x = RNG.standard_normal(N_X)
+    q = x[:N_Q]
+    target = np.array([0.3, 0.9])
+    term = ViaPoint(ARM, target, times=[0], weight=w, precision=Cd)
+    J = fd_jacobian(lambda z: ARM.value_and_jacobian(z)[0], q)
+    _, lxx = term.derivatives(x[None, :], [0])
+    GN = 2 * w * J.T @ np.diag(Cd) @ J
+    assert np.allclose(lxx[0][:N_Q, :N_Q], GN, rtol=1e-6, atol=1e-4)
+    assert not lxx[0][N_Q:].any() and not lxx[0][:, N_Q:].any()
+    R, r = term.quadratize(x[None, :], [0])
+    phi0 = ARM.value_and_jacobian(q)[0]
+    assert np.allclose(R[0][:N_Q, :N_Q], GN, rtol=1e-6, atol=1e-4)
+    r_expected = 2 * w * J.T @ np.diag(Cd) @ (target - phi0 + J @ q)
+    assert np.allclose(r[0][:N_Q], r_expected, rtol=1e-6, atol=1e-4)
+    assert not r[0][N_Q:].any()
+    # at a zero residual the Gauss-Newton Hessian is the exact Hessian
+    zero = ViaPoint(ARM, phi0, times=[0], weight=w, precision=Cd)
+    H_fd = fd_jacobian(lambda z: zero.derivatives(z[None, :], [0])[0][0], x, eps=1e-5)
+    assert np.allclose(zero.derivatives(x[None, :], [0])[1][0], H_fd, rtol=1e-5, atol=1e-3)
+
+
+def test_state_target_hessian_is_exact():
+    C = RNG.standard_normal((N_X, N_X))
+    term = StateTarget(RNG.standard_normal(N_X), weight=3.0, precision=C @ C.T)
+    x = RNG.standard_normal(N_X)
+    H_fd = fd_jacobian(lambda z: term.derivatives(z[None, :])[0][0], x)
+    assert np.allclose(term.derivatives(x[None, :])[1][0], H_fd, atol=1e-6)
+
+
+def _control_terms():
+    return [
+        ControlCost(1e-2, name="control"),
+        ControlCost(0.5, target=[0.3, -1.0], name="control_target"),
+        ControlLimit([-1.0, -2.0], [1.0, 0.5], weight=1e3, name="limit"),
+    ]
+
+
+@pytest.mark.parametrize("term", _control_terms(), ids=lambda t: t.name)
+def test_control_term_gradient_and_hessian_match_fd(term):
+    U = np.array([[0.2, 0.1], [1.7, -3.0], [-1.4, 0.9], [0.0, 0.0]])   # inside / outside
+    lu, luu = term.derivatives(U)
+    assert lu.shape == U.shape and luu.shape == (4, 2, 2)
+    for t in range(U.shape[0]):
+        g = fd_jacobian(lambda u: term.value(u[None, :]), U[t])[0]
+        assert np.allclose(lu[t], g, rtol=1e-6, atol=1e-6)
+        # piecewise quadratic: away from the kinks the Gauss-Newton Hessian is exact
+        H_fd = fd_jacobian(lambda u: term.derivatives(u[None, :])[0][0], U[t])
+        assert np.allclose(luu[t], H_fd, atol=1e-4)
+    H, h = term.quadratize(U)
+    assert np.allclose(np.einsum("kij,kj->ki", H, U) - h, lu)      # gradient of the model
+
+
+def test_control_limit_values():
+    lim = ControlLimit(-1.0, 2.0, weight=10.0)
+    U = np.array([[0.0], [3.0], [-1.5]])
+    assert np.allclose(lim.value(U), [0.0, 10.0, 2.5])
+    H, h = lim.quadratize(U)
+    assert np.allclose(H[:, 0, 0], [0.0, 20.0, 20.0])
+    assert np.allclose(h[:, 0], [0.0, 40.0, -20.0])          # 2 w * (violated limit)
+
+
+def test_problem_sums_terms_and_zero_weight_switches_off():
+    T = 5
+    dyn = PseudoDynamics(N_Q, 0.01)
+    terms = _state_terms()
+    pb = Problem(dyn, np.zeros(N_X), T, terms, [ControlCost(1e-2)])
+    X = RNG.standard_normal((T + 1, N_X))
+    U = RNG.standard_normal((T, N_Q))
+    by_term = pb.cost_terms(X, U)
+    assert set(by_term) == {"via", "via_all", "target", "control"}
+    assert pb.cost(X, U) == pytest.approx(sum(by_term.values()))
+    assert by_term["control"] == pytest.approx(1e-2 * np.sum(U * U))
+    lx, _ = pb.state_derivatives(X)
+    lx2 = sum(t.derivatives(X)[0] for t in terms)
+    assert np.allclose(lx, lx2)
+    assert pb.without("via").cost(X, U) == pytest.approx(pb.cost(X, U) - by_term["via"])
+    terms[0].weight = 0.0
+    assert pb.cost_terms(X, U)["via"] == 0.0
+    with pytest.raises(ValueError, match="unique"):
+        Problem(dyn, np.zeros(N_X), T, [terms[0], terms[0]], [])
+    with pytest.raises(ValueError, match="times"):
+        Problem(dyn, np.zeros(N_X), 3, [terms[0]], [])       # via-point at step 4 > T
