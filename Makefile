@@ -32,7 +32,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check pipeline plants stages tests bench
+	$(BIN)/ruff check pipeline plants stages tests bench scripts
 
 clean:
 	rm -rf $(VENV) .pytest_cache

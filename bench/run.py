@@ -62,6 +62,8 @@ CASES = [
     # name, target (s), function, args
     ("nao balance: 25 R-AICO iterations (T=300, 50-D)", 1.0, bench_solver_total,
      ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol": 0.0}, 3)),
+    ("nao balance: 25 R-AICO iterations, no relinearization in sweeps (theta=inf)", 1.0, bench_solver_total,
+     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol": 0.0, "theta": float("inf")}, 3)),
     ("nao balance: one iLQG iteration", None, bench_per_iteration,
      ("nao", "balance", "pseudo", "ilqg", {"iterations": 3}, 1)),
     ("arm5 analytic: one R-AICO iteration incl. linearization (T=1000)", 0.030, bench_per_iteration,

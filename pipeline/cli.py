@@ -13,7 +13,7 @@ import functools
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from typer._click import exceptions as click_exceptions  # typer 0.29 vendors click
@@ -29,7 +29,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="raico: probabilistic movement planning (AICO, R-AICO, iLQG) on Drake "
                        "plants, with cached stages and Rerun recordings.")
 
-Artifacts = Annotated[Optional[Path], typer.Option(
+Artifacts = Annotated[Path | None, typer.Option(
     "--artifacts", envvar="RAICO_ARTIFACTS", help="Cache folder (default ./artifacts).")]
 Seed = Annotated[int, typer.Option("--seed", help="Random seed.")]
 NoRecord = Annotated[bool, typer.Option("--no-record", help="Skip the .rrd recording and MCAP.")]
@@ -140,7 +140,7 @@ def execute(
 @app.command()
 @handles_errors
 def reproduce(
-    figure: Annotated[Optional[list[str]], typer.Option("--figure", help="Experiment id (repeatable), e.g. fig3.2c.")] = None,
+    figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable), e.g. fig3.2c.")] = None,
     all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
     quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel worker processes.")] = 2,
@@ -169,7 +169,7 @@ def reproduce(
 @app.command("ls")
 @handles_errors
 def ls(
-    stage: Annotated[Optional[str], typer.Argument(help="Only this stage.")] = None,
+    stage: Annotated[str | None, typer.Argument(help="Only this stage.")] = None,
     artifacts: Artifacts = None,
     all_: Annotated[bool, typer.Option("--all", help="Also list invalid entries.")] = False,
     json_: Json = False,

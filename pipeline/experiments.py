@@ -8,13 +8,11 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing as mp
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

@@ -16,7 +16,6 @@ from pipeline.cache import Cache
 from pipeline.experiments import Experiment, Variant, cost_curves, summarize
 
 
-
 def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path) -> None:
     """Mean and std of the cost per iteration (log scale), one line per solver variant;
     for the balancing figures also the CoG's lateral coordinate against its via-points."""

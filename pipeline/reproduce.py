@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from pipeline.cache import Cache
 from pipeline.experiments import EXPERIMENTS, run_experiment

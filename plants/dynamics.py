@@ -171,7 +171,7 @@ class AnalyticDynamics(_TrajectoryByPoints):
     # -- derivatives ------------------------------------------------------------------
     def qddot_derivatives(self, q, v, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``qddot``, ``d/dq``, ``d/dv`` ``(n_q, n_q)`` and ``d/du`` ``(n_q, n_q)``."""
-        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+        from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 
         h, Mr = self._h_and_Mr(q, v)
         Mr_inv = np.linalg.inv(Mr)

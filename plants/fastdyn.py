@@ -30,11 +30,9 @@ from __future__ import annotations
 
 import math
 import sys
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
-
-from plants.dynamics import AnalyticDynamics
 
 # Plants with more tree joints than this are not compiled (reading Drake's unshared expression
 # trees grows quickly with the depth and branching of the tree).
@@ -267,50 +265,84 @@ class _Graph:
     # -- code generation ----------------------------------------------------------------------
     def emit(self, name: str, n_inputs: int, outputs: list[int]) -> str:
         """Python source of ``name(xs, out)``: ``xs`` a sequence of the inputs (floats or
-        arrays), ``out[j] = output j`` for a preallocated ``out`` (list or array)."""
-        live = bytearray(len(self.nodes))
+        arrays), ``out[j] = output j`` for a preallocated ``out`` (list or array).
+
+        Intermediate values live in recycled local names (an array is released after its
+        last use, so a batched call keeps a few hundred ``(T,)`` arrays alive, not thousands).
+        """
+        nodes = self.nodes
+        live = bytearray(len(nodes))
         for o in outputs:
             live[o] = 1
-        for i in range(len(self.nodes) - 1, -1, -1):
+        for i in range(len(nodes) - 1, -1, -1):
             if live[i]:
-                n = self.nodes[i]
+                n = nodes[i]
                 if n[0] not in ("c", "x"):
                     live[n[1]] = 1
                     if n[0] in ("+", "-", "*", "/"):
                         live[n[2]] = 1
+        order = [i for i in range(len(nodes)) if live[i] and nodes[i][0] not in ("c", "x")]
+        last_use: dict[int, int] = {}
+        for i in order:
+            n = nodes[i]
+            last_use[n[1]] = i
+            if n[0] in ("+", "-", "*", "/"):
+                last_use[n[2]] = i
+        by_node: dict[int, list[int]] = {}
+        for j, o in enumerate(outputs):
+            by_node.setdefault(o, []).append(j)
+
+        reg: dict[int, str] = {}
+        free: list[str] = []
+        n_regs = 0
 
         def ref(j: int) -> str:
-            n = self.nodes[j]
+            n = nodes[j]
             if n[0] == "c":
                 return repr(n[1]) if n[1] >= 0 else f"({n[1]!r})"
             if n[0] == "x":
                 return f"x{n[1]}"
-            return f"t{j}"
+            return reg[j]
 
         lines = [f"def {name}(xs, out):"]
         if n_inputs:
             lines.append("    " + ", ".join(f"x{k}" for k in range(n_inputs)) + ", = xs")
-        for i, n in enumerate(self.nodes):
-            if not live[i] or n[0] in ("c", "x"):
-                continue
+        for o, js in by_node.items():  # outputs that are constants or inputs
+            if nodes[o][0] in ("c", "x"):
+                lines += [f"    out[{j}] = {ref(o)}" for j in js]
+        for i in order:
+            n = nodes[i]
             op = n[0]
             if op in ("+", "-", "*", "/"):
                 rhs = f"{ref(n[1])} {op} {ref(n[2])}"
+                operands = (n[1], n[2])
             elif op == "neg":
-                rhs = f"-{ref(n[1])}"
+                rhs, operands = f"-{ref(n[1])}", (n[1],)
             elif op == "pow":
-                rhs = f"{ref(n[1])} ** {n[2]!r}"
+                rhs, operands = f"{ref(n[1])} ** {n[2]!r}", (n[1],)
             else:
-                rhs = f"{op}({ref(n[1])})"
-            lines.append(f"    t{i} = {rhs}")
-        for j, o in enumerate(outputs):
-            lines.append(f"    out[{j}] = {ref(o)}")
+                rhs, operands = f"{op}({ref(n[1])})", (n[1],)
+            for o in set(operands):  # release operands used for the last time
+                if o in reg and last_use.get(o) == i and o not in by_node:
+                    free.append(reg.pop(o))
+            if free:
+                reg[i] = free.pop()
+            else:
+                reg[i] = f"r{n_regs}"
+                n_regs += 1
+            lines.append(f"    {reg[i]} = {rhs}")
+            if i in by_node:
+                lines += [f"    out[{j}] = {reg[i]}" for j in by_node[i]]
+                if i not in last_use:
+                    free.append(reg.pop(i))
+            elif i not in last_use:  # pragma: no cover - live nodes are used
+                free.append(reg.pop(i))
         lines.append("    return out")
         return "\n".join(lines) + "\n"
 
     def count_ops(self, outputs: list[int]) -> int:
         src = self.emit("_f", 0, outputs)
-        return sum(1 for line in src.splitlines() if line.startswith("    t"))
+        return sum(1 for line in src.splitlines() if line.startswith("    r"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -432,7 +464,7 @@ def _derive(plant) -> _Compiled:
 _CACHE: dict[int, _Compiled] = {}
 
 
-@lru_cache(maxsize=None)
+@cache
 def _compiled_for_name(name: str) -> _Compiled:
     from plants.robots import shared_robot
 

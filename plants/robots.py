@@ -13,7 +13,7 @@ the real robot). Torques map back with ``P.T``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -161,7 +161,7 @@ def load_robot(name: str, builder: DiagramBuilder | None = None) -> Robot:
     return _build(name, builder)
 
 
-@lru_cache(maxsize=None)
+@cache
 def shared_robot(name: str) -> Robot:
     """One robot per name and process for kinematics and dynamics queries (not for diagrams)."""
     return load_robot(name)

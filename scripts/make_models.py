@@ -179,10 +179,11 @@ def nao(facts: dict) -> str:
     for j in joints:
         children.setdefault(j["parent"], []).append(j)
     s = _header("nao")
-    radius = lambda n: (0.028 if any(k in n for k in ("Thigh", "Tibia", "Hip", "Pelvis", "Ankle"))
-                        else 0.018 if n not in ("Neck",) else 0.015)
+    def radius(n):
+        return (0.028 if any(k in n for k in ("Thigh", "Tibia", "Hip", "Pelvis", "Ankle"))
+                            else 0.018 if n not in ("Neck",) else 0.015)
     for name, l in links.items():
-        body = "  <link name=\"%s\">\n" % name
+        body = f"  <link name=\"{name}\">\n"
         if l["mass"] > 0:
             body += _inertial(l["mass"], l["com"], l["inertia"])
         vis = ""

@@ -16,8 +16,8 @@ Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.interpolate import CubicSpline

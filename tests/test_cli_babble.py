@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
 from pipeline.cache import Cache
+from pipeline.cli import app
 
 runner = CliRunner()
 
@@ -121,8 +121,9 @@ def test_babble_recording_has_a_world_transform_for_every_body(tmp_path, plant):
     chunks = RrdReader(folder / "recording.rrd").stream().to_chunks()
     timed = {c.entity_path for c in chunks if "sim_time" in c.timeline_names}
     robot = shared_robot(plant)
-    from pipeline.recording import entity_name
     from pydrake.multibody.tree import BodyIndex
+
+    from pipeline.recording import entity_name
 
     bodies = [entity_name(robot.plant.get_body(BodyIndex(i)).name()) for i in range(1, robot.plant.num_bodies())]
     assert len(bodies) == robot.plant.num_bodies() - 1 >= {"pendulum": 2, "arm5": 5, "biorob": 5, "nao": 31}[plant]

@@ -160,7 +160,7 @@ def test_task_map_jacobians_match_finite_differences(name):
     for m in _maps(r):
         val, J = m.value_and_jacobian(q)
         assert val.shape == (m.dim,) and J.shape == (m.dim, r.n_q)
-        assert np.allclose(J, fd_jacobian(lambda z: m.value_and_jacobian(z)[0], q), atol=1e-6), m.name
+        assert np.allclose(J, fd_jacobian(lambda z, m=m: m.value_and_jacobian(z)[0], q), atol=1e-6), m.name
         V, JJ = m.values_and_jacobians(np.stack([q, q]))
         assert np.allclose(V[1], val) and np.allclose(JJ[0], J)
 

@@ -7,8 +7,8 @@ std 0.05). Arrays follow the solver contract of ``stages.plan.problem``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -51,7 +51,7 @@ class PlanConfig:
             raise ValueError("q0-std must be in [0, 1] rad")
         make_options(self.solver, self.solver_options())
 
-    def normalized(self) -> "PlanConfig":
+    def normalized(self) -> PlanConfig:
         """alpha/gamma only mean something for R-AICO: fix them for the others (cache key)."""
         if self.solver == "aico":
             return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0})
