@@ -226,7 +226,7 @@ def main() -> None:
     except click_exceptions.UsageError as e:
         typer.echo(f"raico: error: {' '.join(e.format_message().split())}", err=True)
         sys.exit(2)
-    except (click_exceptions.Abort, typer.Abort, KeyboardInterrupt):
+    except (typer.Abort, KeyboardInterrupt):
         typer.echo("raico: error: interrupted", err=True)
         sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)

@@ -153,12 +153,18 @@ class AnalyticDynamics(_TrajectoryByPoints):
         return P.T @ h, P.T @ M @ P
 
     def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Joint accelerations ``(n_q,)`` (rad/s^2) for torques ``u (n_q,)`` (N m)."""
+        """Joint accelerations ``(n_q,)`` (rad/s^2) for torques ``u (n_q,)`` (N m).
+
+        Non-finite inputs give NaN (a diverging rollout stays a result; Drake would abort)."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(u))):
+            return np.full(self.n_q, np.nan)
         h, Mr = self._h_and_Mr(q, v)
         return np.linalg.solve(Mr, u - h)
 
     def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Torques ``(n_q,)`` that produce accelerations ``a`` (computed torque)."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            return np.full(self.n_q, np.nan)
         h, Mr = self._h_and_Mr(q, v)
         return Mr @ a + h
 
@@ -170,8 +176,12 @@ class AnalyticDynamics(_TrajectoryByPoints):
 
     # -- derivatives ------------------------------------------------------------------
     def qddot_derivatives(self, q, v, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``qddot``, ``d/dq``, ``d/dv`` ``(n_q, n_q)`` and ``d/du`` ``(n_q, n_q)``."""
+        """``qddot``, ``d/dq``, ``d/dv`` ``(n_q, n_q)`` and ``d/du`` ``(n_q, n_q)`` (NaN if not finite)."""
         from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
+
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(u))):
+            nan = np.full((self.n_q, self.n_q), np.nan)
+            return np.full(self.n_q, np.nan), nan, nan.copy(), nan.copy()
 
         h, Mr = self._h_and_Mr(q, v)
         Mr_inv = np.linalg.inv(Mr)

@@ -70,6 +70,15 @@ class _DrakeMap(_BatchByPoints):
         self._plant.SetPositions(self._ctx, self.robot.P @ q)
         return self._ctx
 
+    def values_and_jacobians(self, Q: np.ndarray):
+        """Batched; rows with non-finite ``q`` give NaN (Drake would abort on them)."""
+        ok = np.all(np.isfinite(Q), axis=1)
+        V = np.full((Q.shape[0], self.dim), np.nan)
+        J = np.full((Q.shape[0], self.dim, Q.shape[1]), np.nan)
+        for k in np.flatnonzero(ok):
+            V[k], J[k] = self.value_and_jacobian(Q[k])
+        return V, J
+
 
 class FramePoints(_DrakeMap):
     """World positions (m) of points fixed in a frame, stacked: ``(3 k,)``; Jacobian ``(3 k, n_q)``.

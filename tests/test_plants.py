@@ -171,3 +171,13 @@ def test_roll_angle_follows_the_wrist_roll_joint():
     q = r.default_q.copy()
     q[r.joint_names.index("wrist_roll")] = 0.4
     assert roll.value(q)[0] == pytest.approx(0.4, abs=1e-9)
+
+
+def test_non_finite_inputs_give_nan_not_an_abort():
+    r = shared_robot("arm5")
+    dyn = AnalyticDynamics(r, 0.002)
+    x = np.r_[r.default_q, np.zeros(5)]
+    assert np.all(np.isnan(dyn.step(x, np.full(5, np.nan))))
+    assert np.all(np.isnan(dyn.linearize(np.full(10, np.inf), np.zeros(5))[0]))
+    V, J = EndEffectorPosition(r, "ee").values_and_jacobians(np.stack([r.default_q, np.full(5, np.nan)]))
+    assert np.all(np.isfinite(V[0])) and np.all(np.isnan(V[1])) and np.all(np.isnan(J[1]))
