@@ -139,6 +139,19 @@ def execute(
 
 @app.command()
 @handles_errors
+def evaluate(
+    plan: Annotated[str, typer.Option("--plan", help="Key (or prefix) of a plan artifact.")],
+    rollout: Annotated[str | None, typer.Option("--rollout", help="Key of an execute artifact of that plan.")] = None,
+    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
+):
+    """Evaluate one run: final cost, via-point errors, iterations, wall time, planned-vs-executed RMSE."""
+    reporter = Reporter(quiet)
+    outcome = stage_io.run_evaluate(Cache(artifacts_root(artifacts)), plan, rollout, reporter=reporter)
+    report(outcome, json_, reporter)
+
+
+@app.command()
+@handles_errors
 def reproduce(
     figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable), e.g. fig3.2c.")] = None,
     all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,

@@ -247,3 +247,60 @@ def _log_support(rec, times: np.ndarray, out) -> None:
                                                              colors=[(40, 200, 80) if inside else (230, 50, 50)]))
         stream.log("world/cog_ground", rr.Points3D([[*out.cog[k, :2], 0.0]], radii=0.008,
                                                    colors=[(255, 220, 0)]))
+
+
+EVALUATE_VERSION = "evaluate-1"
+
+
+def run_evaluate(cache: Cache, plan_ref: str, rollout_ref: str | None = None,
+                 reporter: Reporter | None = None) -> Outcome:
+    """Evaluate one run (SPEC §8): final cost, via-point errors, iterations to converge, wall time
+    and, with a rollout, planned-vs-executed RMSE; writes ``evaluation.json`` and ``cost.png``."""
+    plan_entry = find_entry(cache, plan_ref, stage="plan")
+    inputs = [f"plan/{plan_entry.key}"]
+    rollout = None
+    if rollout_ref:
+        rollout = find_entry(cache, rollout_ref, stage="execute")
+        if rollout.meta.get("inputs") != inputs:
+            raise BadInput(f"rollout {rollout.key} was not executed from plan {plan_entry.key}")
+        inputs.append(f"execute/{rollout.key}")
+
+    def compute(tmp: Path) -> dict:
+        plan = load_npz(plan_entry, "plan.npz")
+        pm = plan_entry.meta.get("metrics", {})
+        costs = plan["costs"]
+        rel = np.abs(np.diff(costs)) / np.maximum(np.abs(costs[1:]), 1e-300)
+        to_converge = int(np.argmax(rel < 1e-3) + 2) if np.any(rel < 1e-3) else None
+        metrics = {"plan": plan_entry.key, "config": plan_entry.meta.get("config"),
+                   "status": plan_entry.meta.get("status"), "initial_cost": pm.get("initial_cost"),
+                   "final_cost": pm.get("final_cost"), "cost_ratio": pm.get("cost_ratio"),
+                   "iterations": pm.get("iterations"), "iterations_to_0.1%": to_converge,
+                   "wall_time_s": pm.get("wall_time_s"), "via_point_errors": pm.get("via_point_errors")}
+        if rollout is not None:
+            rm = rollout.meta.get("metrics", {})
+            metrics.update(rollout=rollout.key, executed_via_point_errors=rm.get("via_point_errors"),
+                           rmse_planned_executed=rm.get("rmse_planned_executed"),
+                           **{k: rm[k] for k in rm if k.startswith("cog_") or k == "torque_saturation"})
+        (tmp / "evaluation.json").write_text(__import__("json").dumps(metrics, indent=2, default=float))
+        _cost_png(tmp / "cost.png", costs, pm.get("initial_cost"), plan_entry.meta.get("config", {}))
+        return {"status": "ok", "metrics": metrics}
+
+    return run_stage(cache, "evaluate", EVALUATE_VERSION, {}, inputs, compute)
+
+
+def _cost_png(path: Path, costs: np.ndarray, initial: float | None, cfg: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    it = np.arange(0, len(costs) + 1)
+    ax.semilogy(it, np.r_[initial if initial else np.nan, costs], marker=".")
+    ax.set_xlabel("iteration (0 = initial trajectory)")
+    ax.set_ylabel("cost")
+    ax.set_title(f"{cfg.get('plant')} {cfg.get('task')} {cfg.get('solver')} ({cfg.get('dynamics')})", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -119,3 +119,17 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
     assert doc2["cached_runs"] == doc2["runs"] == 8
+
+
+def test_evaluate_plan_and_rollout(tmp_path):
+    p = run_json("plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 5,
+                 "--no-record", "--json", "--artifacts", tmp_path)
+    e = run_json("execute", "--plan", p["key"], "--no-record", "--json", "--artifacts", tmp_path)
+    ev = run_json("evaluate", "--plan", p["key"], "--rollout", e["key"], "--json", "--artifacts", tmp_path)
+    m = ev["metrics"]
+    assert m["final_cost"] == p["metrics"]["final_cost"] and m["rmse_planned_executed"] == e["metrics"]["rmse_planned_executed"]
+    assert (Path(ev["path"]) / "cost.png").is_file() and (Path(ev["path"]) / "evaluation.json").is_file()
+    other = run_json("plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 2,
+                     "--no-record", "--json", "--artifacts", tmp_path)
+    res = runner.invoke(app, ["evaluate", "--plan", other["key"], "--rollout", e["key"], "--artifacts", str(tmp_path)])
+    assert res.exit_code != 0 and "not executed from plan" in res.stderr
