@@ -213,6 +213,8 @@ def make_dynamics(kind: str, robot, dt: float) -> Dynamics:
     """``pseudo`` (controls = accelerations) or ``analytic`` (controls = torques)."""
     if kind == "pseudo":
         return PseudoDynamics(robot.n_q, dt)
-    if kind == "analytic":
-        return AnalyticDynamics(robot, dt)
+    if kind == "analytic":  # generated, verified code where the plant allows; else AutoDiffXd
+        from plants.fastdyn import make_fast_or_exact
+
+        return make_fast_or_exact(robot, dt)
     raise ValueError(f"unknown dynamics '{kind}': choose one of pseudo, analytic")

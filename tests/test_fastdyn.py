@@ -1,0 +1,223 @@
+"""FastAnalyticDynamics (compiled symbolic Drake dynamics) against AnalyticDynamics, Drake's
+time derivatives and finite differences: the verification of the fast route."""
+
+import numpy as np
+import pytest
+
+from plants.dynamics import AnalyticDynamics, rollout
+from plants.fastdyn import (
+    FastAnalyticDynamics,
+    _Graph,
+    compiled_dynamics,
+    cyclic_positions,
+    is_supported,
+    make_fast_or_exact,
+    self_check,
+)
+from plants.robots import shared_robot
+
+NAMES = ["pendulum", "arm5", "biorob"]
+DT = 0.01
+
+
+def fd_jacobian(f, x, eps=1e-6):
+    return np.stack([(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)], axis=-1)
+
+
+def random_states(robot, T, seed):
+    """Postures over a wide range (full turns on the first joints), brisk velocities, torques."""
+    rng = np.random.default_rng(seed)
+    n = robot.n_q
+    Q = robot.default_q + rng.uniform(-1.5, 1.5, (T, n))
+    X = np.concatenate([Q, 2.0 * rng.standard_normal((T, n))], axis=1)
+    U = 3.0 * rng.standard_normal((T, n))
+    return X, U
+
+
+def close(got, ref, rtol=1e-9):
+    """Relative agreement, scaled by the reference's largest entry."""
+    got, ref = np.asarray(got), np.asarray(ref)
+    assert got.shape == ref.shape
+    scale = max(float(np.max(np.abs(ref))), 1e-12)
+    err = float(np.max(np.abs(got - ref))) / scale
+    assert err <= rtol, f"relative error {err:.2e}"
+
+
+@pytest.fixture(scope="module", params=NAMES)
+def pair(request):
+    r = shared_robot(request.param)
+    return r, FastAnalyticDynamics(r, DT), AnalyticDynamics(r, DT)
+
+
+def test_interface_matches_analytic(pair):
+    r, fast, exact = pair
+    for attr in ("n_q", "n_x", "n_u", "dt"):
+        assert getattr(fast, attr) == getattr(exact, attr)
+    assert fast.robot is r and np.array_equal(fast.P, exact.P)
+
+
+def test_step_qddot_and_inverse_dynamics_equal_analytic(pair):
+    r, fast, exact = pair
+    X, U = random_states(r, 6, seed=1)
+    n = r.n_q
+    for x, u in zip(X, U):
+        q, v = x[:n], x[n:]
+        close(fast.qddot(q, v, u), exact.qddot(q, v, u))
+        close(fast.inverse_dynamics(q, v, u), exact.inverse_dynamics(q, v, u))
+        close(fast.step(x, u), exact.step(x, u), rtol=1e-12)
+        for got, ref in zip(fast.qddot_derivatives(q, v, u), exact.qddot_derivatives(q, v, u)):
+            close(got, ref)
+    close(fast.qddot_trajectory(X[:, :n], X[:, n:], U),
+          np.stack([exact.qddot(x[:n], x[n:], u) for x, u in zip(X, U)]))
+    close(fast.step_trajectory(X, U), np.stack([exact.step(x, u) for x, u in zip(X, U)]), 1e-12)
+
+
+def test_linearize_equals_analytic(pair):
+    r, fast, exact = pair
+    X, U = random_states(r, 5, seed=2)
+    for x, u in zip(X, U):
+        A, a, B = fast.linearize(x, u)
+        A0, a0, B0 = exact.linearize(x, u)
+        close(A, A0)
+        close(B, B0)
+        # the offset is a small difference of large terms: compare on the scale of the step
+        assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(x)) + np.max(np.abs(u)))
+        np.testing.assert_allclose(A @ x + a + B @ u, exact.step(x, u), rtol=0, atol=1e-12)
+
+
+def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
+    r, fast, exact = pair
+    X, U = random_states(r, 40, seed=3)
+    A, a, B = fast.linearize_trajectory(X, U)
+    A0, a0, B0 = exact.linearize_trajectory(X, U)
+    assert A.shape == (40, r.n_x, r.n_x) and a.shape == (40, r.n_x) and B.shape == (40, r.n_x, r.n_q)
+    close(A, A0)
+    close(B, B0)
+    assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(X)) + np.max(np.abs(U)))
+    # the batched path and the single-point path give the same numbers
+    for t in (0, 17, 39):
+        A1, a1, B1 = fast.linearize(X[t], U[t])
+        close(A[t], A1, 1e-13)
+        close(B[t], B1, 1e-13)
+        np.testing.assert_allclose(a[t], a1, rtol=0, atol=1e-14)
+
+
+def test_linearization_matches_central_differences_of_step(pair):
+    r, fast, _ = pair
+    X, U = random_states(r, 2, seed=4)
+    for x, u in zip(X, U):
+        A, a, B = fast.linearize(x, u)
+        np.testing.assert_allclose(A, fd_jacobian(lambda z, u=u: fast.step(z, u), x), rtol=0, atol=1e-6)
+        np.testing.assert_allclose(B, fd_jacobian(lambda w, x=x: fast.step(x, w), u), rtol=0, atol=1e-6)
+
+
+def test_qddot_matches_drake_time_derivatives(pair):
+    r, fast, _ = pair
+    X, U = random_states(r, 3, seed=5)
+    n = r.n_q
+    ctx = r.plant.CreateDefaultContext()
+    for x, u in zip(X, U):
+        r.plant.SetPositions(ctx, r.to_plant_q(x[:n]))
+        r.plant.SetVelocities(ctx, r.to_plant_q(x[n:]))
+        r.plant.get_actuation_input_port().FixValue(ctx, r.actuation(u))
+        xdot = r.plant.EvalTimeDerivatives(ctx).CopyToVector()
+        np.testing.assert_allclose(fast.qddot(x[:n], x[n:], u), xdot[n:], rtol=0, atol=1e-9)
+
+
+def test_rollout_equals_analytic(pair):
+    r, fast, exact = pair
+    X, U = random_states(r, 30, seed=6)
+    U = 0.3 * U
+    close(rollout(fast, X[0], U), rollout(exact, X[0], U), rtol=1e-10)
+
+
+def test_build_self_check_and_cache():
+    r = shared_robot("arm5")
+    code = compiled_dynamics(r)
+    assert compiled_dynamics(r) is code  # cached per plant name
+    assert self_check(r.plant, code, n_states=2, seed=7) <= 1e-10
+    # the base yaw is vertical: its angle was eliminated, and derivatives along it are exact 0
+    assert code.stats["cyclic_positions"] == [r.plant.GetJointByName("base_yaw").position_start()]
+    fast = FastAnalyticDynamics(r, DT)
+    X, U = random_states(r, 3, seed=8)
+    A, _, _ = fast.linearize_trajectory(X, U)
+    n = r.n_q
+    assert np.all(A[:, n:, 0] == 0) and np.all(A[:, :n, 0] == np.eye(n)[0])
+
+
+def test_cyclic_positions():
+    assert cyclic_positions(shared_robot("pendulum").plant) == []  # horizontal axis
+    assert cyclic_positions(shared_robot("biorob").plant) == [0]
+
+
+def test_fallback_for_the_nao():
+    nao = shared_robot("nao")
+    assert not is_supported(nao)
+    with pytest.raises(NotImplementedError):
+        FastAnalyticDynamics(nao, DT)
+    assert isinstance(make_fast_or_exact(nao, DT), AnalyticDynamics)
+    assert isinstance(make_fast_or_exact(shared_robot("arm5"), DT), FastAnalyticDynamics)
+
+
+def test_graph_simplifies_and_differentiates():
+    g = _Graph()
+    x, y = g.x(0), g.x(1)
+    assert g.add(x, g.zero) == x and g.mul(x, g.one) == x and g.mul(x, g.zero) == g.zero
+    assert g.sub(x, x) == g.zero and g.neg(g.neg(x)) == x
+    assert g.add(g.mul(x, y), g.mul(y, x)) == g.add(g.mul(y, x), g.mul(x, y))  # hash-consed
+    f = g.div(g.mul(g.unary("sin", x), g.pow(y, 3.0)), g.add(g.unary("cos", y), g.const(2.0)))
+    src = g.emit("f", [x, y], [f, g.diff(f, 0), g.diff(f, 1)])
+    ns = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
+    exec(src, ns)
+    p = np.array([0.7, -1.3])
+
+    def fn(z):
+        return np.sin(z[0]) * z[1] ** 3 / (np.cos(z[1]) + 2.0)
+
+    val, dx, dy = ns["f"](list(p), [0.0] * 3)
+    assert val == pytest.approx(fn(p), rel=1e-14)
+    np.testing.assert_allclose([dx, dy], fd_jacobian(fn, p), rtol=1e-8)
+
+
+def test_bad_shapes_are_refused():
+    fast = FastAnalyticDynamics(shared_robot("arm5"), DT)
+    with pytest.raises(ValueError):
+        fast.linearize_trajectory(np.zeros((3, 10)), np.zeros((4, 5)))
+
+
+def test_a_plant_with_other_parameters_gets_its_own_code(monkeypatch):
+    from plants import robots
+
+    code = compiled_dynamics(shared_robot("pendulum"))
+    assert FastAnalyticDynamics(robots.load_robot("pendulum"), DT)._code is code
+    monkeypatch.setitem(robots.REFLECTED_INERTIA, "pendulum", 0.2)  # a motor on the pendulum
+    other = robots.load_robot("pendulum")
+    fast = FastAnalyticDynamics(other, DT)
+    assert fast._code is not code
+    q, v, u = np.array([0.4]), np.array([1.0]), np.array([0.5])
+    close(fast.qddot(q, v, u), AnalyticDynamics(other, DT).qddot(q, v, u))
+    assert abs(fast.qddot(q, v, u)[0] - FastAnalyticDynamics(shared_robot("pendulum"), DT).qddot(
+        q, v, u)[0]) > 1e-3
+
+
+def test_coupled_joints_through_P_equal_analytic():
+    """A reduced model (two arm joints driven by one coordinate, as the Nao's hips) gives the
+    numbers of AnalyticDynamics on the same coupling map."""
+    from types import SimpleNamespace
+
+    arm = shared_robot("arm5")
+    P = np.zeros((5, 4))
+    P[[0, 1, 2, 3, 4], [0, 1, 2, 2, 3]] = 1.0  # elbow and wrist pitch move together
+    r = SimpleNamespace(name=arm.name, plant=arm.plant, P=P, n_q=4)
+    fast, exact = FastAnalyticDynamics(r, DT), AnalyticDynamics(r, DT)
+    rng = np.random.default_rng(9)
+    X = np.concatenate([rng.uniform(-1.5, 1.5, (6, 4)), rng.standard_normal((6, 4))], axis=1)
+    U = rng.standard_normal((6, 4))
+    A, a, B = fast.linearize_trajectory(X, U)
+    A0, a0, B0 = exact.linearize_trajectory(X, U)
+    close(A, A0)
+    close(B, B0)
+    assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(X)))
+    close(fast.step(X[0], U[0]), exact.step(X[0], U[0]), 1e-12)
+    for got, ref in zip(fast.linearize(X[1], U[1]), (A0[1], a0[1], B0[1])):
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(ref))))
