@@ -102,6 +102,7 @@ def plan(
     gamma: Annotated[float, typer.Option(help="alpha^[n] = alpha^[n-1] gamma (raico only).")] = 1.0,
     iterations: Annotated[int, typer.Option(help="Maximum solver iterations.")] = 50,
     q0_std: Annotated[float, typer.Option("--q0-std", help="Std of q0 around the default posture (rad).")] = 0.05,
+    relinearize: Annotated[bool, typer.Option(help="AICO: relinearize inside the sweeps (theta rule).")] = True,
     seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
     quiet: Quiet = False, json_: Json = False,
 ):
@@ -109,7 +110,7 @@ def plan(
     from stages.plan.stage import PlanConfig
 
     cfg = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, alpha=alpha,
-                     gamma=gamma, iterations=iterations, seed=seed, q0_std=q0_std)
+                     gamma=gamma, iterations=iterations, seed=seed, q0_std=q0_std, relinearize=relinearize)
     _validate(cfg)
     reporter = Reporter(quiet)
     outcome = stage_io.run_plan(Cache(artifacts_root(artifacts)), cfg, record=not no_record,

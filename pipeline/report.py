@@ -72,7 +72,7 @@ def _cog_panel(cache: Cache, exp: Experiment, plans: list[dict], ax) -> None:
         ys.append(y[:, 0])
         times = d["times"]
         if vias is None:
-            cfg = PlanConfig(**{k: entry.meta["config"][k] for k in PlanConfig.__dataclass_fields__})
+            cfg = PlanConfig.from_dict(entry.meta["config"])
             _, task, problem, _ = build_problem(cfg)
             vias = [(t.times[0] * task.dt, t.target[1]) for t in problem.state_terms if t.name.startswith("via_cog")]
     if ys:
@@ -104,9 +104,14 @@ def _raico(S: dict) -> dict:
     return {k: v for k, v in S.items() if k.startswith("R-AICO")}
 
 
+def _main(S: dict) -> dict:
+    """Variants of the thesis figure (ablations left out)."""
+    return {k: v for k, v in S.items() if "no sweep" not in k}
+
+
 def claim_raico_converges(S, execs):
     R = _raico(S)
-    best = min(s["final_cost_median"] for s in S.values())
+    best = min(s["final_cost_median"] for s in _main(S).values())
     ok = all(s["diverged"] == 0 and s["final_cost_median"] <= 2 * best for s in R.values())
     nums = "; ".join(f"{k}: final median {_fmt(s['final_cost_median'])} (final/initial {_fmt(s['cost_ratio_median'])}), "
                      f"diverged {s['diverged']}/{s['runs']}" for k, s in R.items())
@@ -126,6 +131,15 @@ def claim_aico_unstable(S, execs):
             f"{a['diverged']}/{a['runs']}; best R-AICO {_fmt(best)}", ok)
 
 
+def claim_aico_unstable_without_relinearization(S, execs):
+    a, best = S["AICO (no sweep relinearization)"], _best_raico(S)
+    ok = a["diverged"] > 0 or a["final_cost_median"] > 2 * best or a["final_cost_max"] > 2 * best
+    return ("ablation: AICO taking full Gauss-Newton steps (theta = inf) is unstable",
+            "it diverges in some run, or its median or worst final cost exceeds 2x the best R-AICO's median",
+            f"AICO without relinearization: final median {_fmt(a['final_cost_median'])}, worst "
+            f"{_fmt(a['final_cost_max'])}, diverged {a['diverged']}/{a['runs']}; best R-AICO {_fmt(best)}", ok)
+
+
 def claim_aico_fails(S, execs):
     a, best = S["AICO"], _best_raico(S)
     ok = a["diverged"] >= a["runs"] / 2 or a["final_cost_median"] > 10 * best
@@ -142,6 +156,7 @@ def claim_ilqg_stalls(S, execs):
 
 
 def claim_all_converge_aico_fastest(S, execs):
+    S = _main(S)
     best = min(s["final_cost_median"] for s in S.values())
     allok = all(s["diverged"] == 0 and s["final_cost_median"] <= 2 * best for s in S.values())
     aico_first = S["AICO"]["first_cost_median"]

@@ -206,7 +206,7 @@ def write_execute_recording(folder: Path, out, pconf: dict, cfg) -> None:
     from plants.robots import load_robot
     from stages.plan.stage import PlanConfig, build_problem
 
-    pcfg = PlanConfig(**{k: pconf[k] for k in PlanConfig.__dataclass_fields__})
+    pcfg = PlanConfig.from_dict(pconf)
     _, _, problem, _ = build_problem(pcfg)
     robot = load_robot(pcfg.plant)
     n = robot.n_q

@@ -151,7 +151,7 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
     cfg.validate()
-    pcfg = PlanConfig(**{k: plan_config[k] for k in PlanConfig.__dataclass_fields__})
+    pcfg = PlanConfig.from_dict(plan_config)
     _, task, problem, q0 = build_problem(pcfg)
     dt, T = task.dt, task.T
     robot = load_robot(pcfg.plant)

@@ -36,6 +36,7 @@ class PlanConfig:
     iterations: int = 50
     seed: int = 0
     q0_std: float = 0.05  # rad
+    relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -56,18 +57,26 @@ class PlanConfig:
         if self.solver == "aico":
             return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0})
         if self.solver == "ilqg":
-            return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0})
+            return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0, "relinearize": True})
         return self
 
     def solver_options(self) -> dict:
         if self.solver == "ilqg":
             return {"iterations": self.iterations}
-        if self.solver == "aico":
-            return {"iterations": self.iterations}
-        return {"iterations": self.iterations, "alpha": self.alpha, "gamma": self.gamma}
+        opts = {"iterations": self.iterations}
+        if not self.relinearize:
+            opts["theta"] = float("inf")
+        if self.solver == "raico":
+            opts.update(alpha=self.alpha, gamma=self.gamma)
+        return opts
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> PlanConfig:
+        """From a stored config (``meta.json``); keys it does not declare are ignored."""
+        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
 
 
 @dataclass
