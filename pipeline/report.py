@@ -35,7 +35,9 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path) -
         with np.errstate(all="ignore"):
             logc = np.log10(np.where(C > 0, C, np.nan))
             m, s = np.nanmean(logc, 0), np.nanstd(logc, 0)
-        line, = ax.plot(it, 10 ** m, label=f"{v.label} (n={C.shape[0]})")
+        n_div = sum(p["outcome"].status == "diverged" for p in plans if p["variant"] == v)
+        note = f", diverged {n_div}/{C.shape[0]}" if n_div else ""
+        line, = ax.plot(it, 10 ** m, label=f"{v.label} (n={C.shape[0]}{note})")
         ax.fill_between(it, 10 ** (m - s), 10 ** (m + s), color=line.get_color(), alpha=0.2)
     ax.set_yscale("log")
     ax.set_xlabel("iteration")
