@@ -65,7 +65,7 @@ def report(outcome: Outcome, as_json: bool, reporter: Reporter) -> None:
     what = "cached" if outcome.cached else f"ran ({outcome.reason})"
     reporter.say(f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{outcome.status}]")
     if as_json:
-        typer.echo(json.dumps(outcome.json_line(), default=float))
+        typer.echo(json.dumps(outcome.json_line(), default=float, allow_nan=False))
 
 
 @app.command()

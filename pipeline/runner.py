@@ -8,6 +8,7 @@ CLI prints: ``{"stage", "key", "path", "cached", "status", "metrics"}``.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable
@@ -36,9 +37,20 @@ class Outcome:
     reason: str = ""
 
     def json_line(self) -> dict[str, Any]:
+        """The ``--json`` line; non-finite numbers become ``null`` (strict JSON)."""
         d = asdict(self)
         d.pop("reason")
-        return d
+        return _finite(d)
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
 
 
 def source_version(name: str, *packages: str) -> str:

@@ -34,3 +34,13 @@ def test_run_stage_hit_never_computes(tmp_path):
     c = run_stage(cache, "demo", "v2", {"a": 1}, [], compute)
     assert (a.cached, b.cached, c.cached) == (False, True, False) and len(calls) == 2
     assert b.metrics == {"n": 1} and a.key == b.key != c.key and a.reason == "no cache entry"
+
+
+def test_json_line_is_strict_json():
+    import json
+
+    from pipeline.runner import Outcome
+
+    o = Outcome("plan", "k", "p", False, "diverged", {"final_cost": float("nan"), "e": {"a": float("inf")}})
+    text = json.dumps(o.json_line(), allow_nan=False)
+    assert json.loads(text)["metrics"] == {"final_cost": None, "e": {"a": None}}
