@@ -22,6 +22,7 @@ from pipeline import stage_io
 from pipeline.cache import Cache
 from pipeline.errors import BadInput, RaicoError
 from pipeline.runner import Outcome, artifacts_root
+from pipeline.runner import _finite as finite_json
 from pipeline.ui import Reporter
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -177,7 +178,7 @@ def reproduce(
     cache = Cache(artifacts_root(artifacts))
     for doc in repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record, reporter=reporter):
         if json_:
-            typer.echo(json.dumps(doc, default=float))
+            typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
 
 
 @app.command("ls")

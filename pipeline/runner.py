@@ -44,6 +44,7 @@ class Outcome:
 
 
 def _finite(obj: Any) -> Any:
+    """``obj`` with non-finite floats replaced by None, recursively."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
