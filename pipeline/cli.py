@@ -21,8 +21,7 @@ from typer._click import exceptions as click_exceptions  # typer 0.29 vendors cl
 from pipeline import stage_io
 from pipeline.cache import Cache
 from pipeline.errors import BadInput, RaicoError
-from pipeline.runner import Outcome, artifacts_root
-from pipeline.runner import _finite as finite_json
+from pipeline.runner import Outcome, artifacts_root, finite_json
 from pipeline.ui import Reporter
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,

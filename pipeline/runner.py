@@ -40,17 +40,17 @@ class Outcome:
         """The ``--json`` line; non-finite numbers become ``null`` (strict JSON)."""
         d = asdict(self)
         d.pop("reason")
-        return _finite(d)
+        return finite_json(d)
 
 
-def _finite(obj: Any) -> Any:
+def finite_json(obj: Any) -> Any:
     """``obj`` with non-finite floats replaced by None, recursively."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: finite_json(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
+        return [finite_json(v) for v in obj]
     return obj
 
 
