@@ -189,8 +189,8 @@ def run_execute(cache: Cache, plan_ref: str, cfg, record: bool = True,
     def compute(tmp: Path) -> dict:
         plan = load_npz(plan_entry, "plan.npz")
         pconf = plan_entry.meta["config"]
-        reporter.say(f"execute plan {plan_entry.key} ({pconf['plant']} {pconf['task']}) in Drake")
-        out = execute.run(cfg, pconf, plan)
+        with reporter.progress(f"execute {pconf['plant']} {pconf['task']} in Drake", len(plan["o"])) as update:
+            out = execute.run(cfg, pconf, plan, progress=update)
         save_npz(tmp / "rollout.npz", out.arrays())
         if record:
             write_execute_recording(tmp, out, pconf, cfg)

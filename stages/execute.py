@@ -19,6 +19,7 @@ polygon of both soles at every step.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -146,7 +147,8 @@ def signed_margin(poly: np.ndarray, p: np.ndarray) -> float:
     return float(-d.max())
 
 
-def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
+def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
+        progress: Callable[[int, int], None] | None = None) -> ExecuteOutput:
     """Execute the plan (arrays of the plan artifact) on the Drake plant in closed loop."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
@@ -203,6 +205,8 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict) -> ExecuteOutput:
         taus.append(robot.P.T @ ctrl.plant_torque(ctrl_ctx))
         saturated.append(bool(np.any(np.abs(ctrl.plant_torque(ctrl_ctx, clip=False)) > effort_plant + 1e-9)))
         ok = sample(k + 1)
+        if progress is not None and (k + 1) % 10 == 0:
+            progress(k + 1, T)
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     X_plan = plan["X"]
