@@ -54,7 +54,11 @@ class JointPositions(_BatchByPoints):
 
 
 class _DrakeMap(_BatchByPoints):
-    """Base for maps evaluated on a robot's plant (planning coordinates mapped by ``robot.P``)."""
+    """Base for maps evaluated on a robot's plant (planning coordinates mapped by ``robot.P``).
+
+    Subclasses implement ``_in_plant(qp)``: value and Jacobian in plant coordinates
+    ``qp = P q`` (so ``J = J_plant P``); a batch maps its coordinates in one product each way.
+    """
 
     def __init__(self, robot, name: str):
         from pydrake.multibody.tree import JacobianWrtVariable
@@ -66,17 +70,31 @@ class _DrakeMap(_BatchByPoints):
         self._world = robot.plant.world_frame()
         self._wrt = JacobianWrtVariable.kQDot  # revolute joints only: qdot == v
 
-    def _set(self, q: np.ndarray):
-        self._plant.SetPositions(self._ctx, self.robot.P @ q)
+    def _set_plant(self, qp: np.ndarray):
+        """The context at plant positions ``qp (m,)``."""
+        self._plant.SetPositions(self._ctx, qp)
         return self._ctx
 
+    def _in_plant(self, qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``phi (dim,)`` and ``d phi / d qp (dim, m)`` at plant positions ``qp (m,)``."""
+        raise NotImplementedError
+
+    def value_and_jacobian(self, q):
+        P = self.robot.P
+        v, Jp = self._in_plant(P @ q)
+        return v, Jp @ P
+
     def values_and_jacobians(self, Q: np.ndarray):
-        """Batched; rows with non-finite ``q`` give NaN (Drake would abort on them)."""
-        ok = np.all(np.isfinite(Q), axis=1)
+        """Batched (coordinates mapped once for all rows); rows with non-finite ``q`` give
+        NaN (Drake would abort on them)."""
+        P = self.robot.P
+        ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
         V = np.full((Q.shape[0], self.dim), np.nan)
         J = np.full((Q.shape[0], self.dim, Q.shape[1]), np.nan)
-        for k in np.flatnonzero(ok):
-            V[k], J[k] = self.value_and_jacobian(Q[k])
+        Jp = np.empty((ok.size, self.dim, P.shape[0]))
+        for i, qp in enumerate(Q[ok] @ P.T):
+            V[ok[i]], Jp[i] = self._in_plant(qp)
+        J[ok] = Jp @ P
         return V, J
 
 
@@ -94,15 +112,19 @@ class FramePoints(_DrakeMap):
         rows = [3 * k + a for k in range(len(self.points)) for a in axes]
         self.rows = np.array(rows)
         self.dim = len(rows)
+        self._points_T = np.ascontiguousarray(self.points.T)  # (3, k), as Drake takes them
+        self._all_rows = rows == list(range(3 * len(self.points)))
 
-    def value_and_jacobian(self, q):
-        ctx = self._set(q)
-        X = self.frame.CalcPoseInWorld(ctx)
-        p = (X.rotation().matrix() @ self.points.T).T + X.translation()
+    def _in_plant(self, qp):
+        ctx = self._set_plant(qp)
+        p = self._plant.CalcPointsPositions(ctx, self.frame, self._points_T, self._world)  # (3, k)
         J = self._plant.CalcJacobianTranslationalVelocity(
-            ctx, self._wrt, self.frame, self.points.T, self._world, self._world)
+            ctx, self._wrt, self.frame, self._points_T, self._world, self._world)
         # Drake stacks point k's x, y, z at rows 3k .. 3k+2
-        return p.reshape(-1)[self.rows], (J @ self.robot.P)[self.rows]
+        p = p.T.reshape(-1)
+        if self._all_rows:
+            return p, J
+        return p[self.rows], J[self.rows]
 
 
 def EndEffectorPosition(robot, frame: str, axes=(0, 1, 2), name: str | None = None) -> FramePoints:
@@ -123,13 +145,13 @@ class RollAngle(_DrakeMap):
         super().__init__(robot, name)
         self.frame = robot.plant.GetFrameByName(frame)
 
-    def value_and_jacobian(self, q):
-        ctx = self._set(q)
+    def _in_plant(self, qp):
+        ctx = self._set_plant(qp)
         R = self.frame.CalcPoseInWorld(ctx).rotation().matrix()
         y, z, up = R[:, 1], R[:, 2], np.array([0.0, 0.0, 1.0])
         a, b = y @ up, z @ up
         Jw = self._plant.CalcJacobianAngularVelocity(
-            ctx, self._wrt, self.frame, self._world, self._world) @ self.robot.P
+            ctx, self._wrt, self.frame, self._world, self._world)
         da = np.cross(y, up) @ Jw
         db = np.cross(z, up) @ Jw
         return np.array([np.arctan2(a, b)]), ((b * da - a * db) / (a * a + b * b))[None, :]
@@ -143,11 +165,11 @@ class CenterOfMass(_DrakeMap):
         self.axes = np.array(axes)
         self.dim = len(self.axes)
 
-    def value_and_jacobian(self, q):
-        ctx = self._set(q)
+    def _in_plant(self, qp):
+        ctx = self._set_plant(qp)
         c = self._plant.CalcCenterOfMassPositionInWorld(ctx)
         J = self._plant.CalcJacobianCenterOfMassTranslationalVelocity(
-            ctx, self._wrt, self._world, self._world) @ self.robot.P
+            ctx, self._wrt, self._world, self._world)
         return c[self.axes], J[self.axes]
 
 

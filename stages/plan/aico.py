@@ -29,6 +29,11 @@ at once at the start of an iteration; during the forward (t = 1..T) and backward
 ``belief_rate (b_t - x_t)``, plain AICO's learning rate). After the sweeps the controller
 is rolled out on the true planning dynamics (``dynamics.step``) to give the next
 trajectory and the reported cost.
+
+Speed without changing a number (beyond rounding): the sweeps redo only what a
+relinearization changes (see ``_Sweeps``), relinearizing a step evaluates only the terms
+that cost it, and the task maps evaluated for the cost of a rollout are reused by the next
+iteration's linearization at that trajectory (``ViaPoint``'s memo).
 """
 
 from __future__ import annotations
@@ -38,9 +43,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import lapack
+from scipy.linalg import blas, lapack
 
-from plants.dynamics import rollout
+from plants.dynamics import LinearDynamics, rollout
 from stages.plan.problem import (
     Callback,
     IterationRecord,
@@ -106,32 +111,29 @@ class NumericalError(RuntimeError):
 
 
 # -- small dense linear algebra with little call overhead ---------------------------------
-def _chol(M: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of the symmetric positive-definite ``M``."""
-    c, info = lapack.dpotrf(M, lower=1)
+def _chol(M: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """Lower Cholesky factor of the symmetric positive-definite ``M`` (``overwrite``: ``M``
+    is scratch and, if Fortran-ordered, is factorized in place)."""
+    c, info = lapack.dpotrf(M, lower=1, overwrite_a=overwrite)
     if info != 0:
         raise NumericalError(f"Cholesky failed (info={info})")
     return c
 
 
-def _tri_inv(L: np.ndarray) -> np.ndarray:
-    """Inverse of a lower-triangular matrix."""
-    Li, info = lapack.dtrtri(L, lower=1)
+def _tri_inv(L: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """Inverse of a lower-triangular matrix (``overwrite``: ``L`` is scratch)."""
+    Li, info = lapack.dtrtri(L, lower=1, overwrite_c=overwrite)
     if info != 0:
         raise NumericalError(f"triangular inverse failed (info={info})")
     return Li
 
 
-def _solve_chol(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``M^-1 b`` from the lower Cholesky factor ``L`` of ``M``; ``b (k,)`` or ``(k, r)``."""
-    x, info = lapack.dpotrs(L, b, lower=1)
-    if info != 0:
-        raise NumericalError(f"Cholesky solve failed (info={info})")
-    return x
-
-
-def _sym(M: np.ndarray) -> np.ndarray:
-    return 0.5 * (M + M.T)
+def _is_lti(dynamics) -> bool:
+    """Whether ``dynamics`` linearizes to the same ``A, a, B`` everywhere (a ``LinearDynamics``
+    that keeps its ``linearize``): then relinearizing never changes them."""
+    return (isinstance(dynamics, LinearDynamics)
+            and type(dynamics).linearize is LinearDynamics.linearize
+            and type(dynamics).linearize_trajectory is LinearDynamics.linearize_trajectory)
 
 
 def _is_constant(Z: np.ndarray) -> bool:
@@ -148,6 +150,20 @@ class _Sweeps:
     (backward), ``RA[t] = [R_t | r_t]`` (task); ``C[t] = [[B_t, A_t, -a_t], [0, 0, 1]]``
     ``(n+1, m+n+1)``, so that ``[V* | V* m'] C[t] = [V* B | V* A | V*(m' - a)]``;
     ``a_eff[t] = a_t + B_t H_t^-1 h_t`` is the mean drift under the control prior.
+
+    Work that cannot change a result is skipped (same numbers as recomputing it):
+
+    - relinearizing step ``t`` re-evaluates only what depends on ``x_t``: the dynamics unless
+      the model is linear time-invariant (``_is_lti``), the task message only if some term
+      costs step ``t`` (otherwise it is ``2 alpha I``, ``2 alpha x_t^[n-1]``);
+    - the belief at ``t`` is recomputed only if its inputs changed, and the backward message
+      is redone only if the dynamics at ``t`` changed, reusing ``[V* | V* m']`` (it depends
+      on step ``t + 1`` only);
+    - the dynamics of an LTI model are filled in once.
+
+    The per-step kernels write into preallocated buffers, fuse additions into BLAS calls
+    and use a triangular inverse and matrix products where OpenBLAS's small triangular
+    solves are slow (see ``forward``, ``_vstar``, ``backward``).
     """
 
     def __init__(self, problem: Problem, opts: AICOOptions):
@@ -157,23 +173,38 @@ class _Sweeps:
         self.T, self.n, self.m = T, n, m
         self.q = opts.process_noise
         self.I = np.eye(n)
+        self.qI = self.q * self.I
         # relinearization within the sweeps needs the beliefs, hence the forward messages;
         # without it (theta = inf) the forward messages cannot change the controller.
         self.relocate = math.isfinite(opts.theta) and opts.max_repeats > 0
+        self.lti = _is_lti(problem.dynamics)
+        self.active = problem.active_state_terms()             # terms costing each step
         self.SA = np.zeros((T + 1, n, n + 1))
         self.SA[0, :, :n] = self.I / opts.start_variance
         self.SA[0, :, n] = problem.x0 / opts.start_variance
         self.VA = np.zeros((T + 1, n, n + 1))                  # V_T^-1 = 0 (end)
-        # per-iteration linearization, buffers reused across iterations
-        self.C = np.zeros((T, n + 1, m + n + 1))
-        self.C[:, n, m + n] = 1.0
+        # per-iteration linearization, buffers reused across iterations; an LTI model has
+        # one C (and, with a constant control cost, one Qbar) shared by all steps (a
+        # read-only broadcast view), filled in once
+        if self.lti:
+            self._C0 = np.zeros((n + 1, m + n + 1))
+            self._C0[n, m + n] = 1.0
+            self.C = np.broadcast_to(self._C0, (T, n + 1, m + n + 1))
+        else:
+            self.C = np.zeros((T, n + 1, m + n + 1))
+            self.C[:, n, m + n] = 1.0
+        self._C_filled = False
+        self._Qbar = np.empty((T, n, n))
         self.RA = np.empty((T + 1, n, n + 1))
         self._lx = np.empty((T + 1, n))
-        self.Qbar = np.empty((T, n, n))
         self.b = np.full((T + 1, n), np.nan)
-        self.o_ = np.zeros((T, m))
-        self.O_ = np.zeros((T, m, n))
+        self.Z = np.zeros((T, m, n + 1))     # [-O_t | o_t] per step
         self.repeats = 0
+        # work buffers of the per-step kernels
+        self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
+        self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
+        self._Ba = np.empty((n, n + 1))      # [B_t | B_t b_t] of a belief
+        self._Y = np.empty((n, n))           # symmetrization
 
     # -- linearization -----------------------------------------------------------------
     def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray,
@@ -184,25 +215,33 @@ class _Sweeps:
         self.U = U
         self.Xprev = Xprev
         self.alpha = alpha
-        A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
         self.H, self.h = p.quadratize_controls(U)
-        C = self.C
-        C[:, :n, :m] = B
-        C[:, :n, m:m + n] = A
-        C[:, :n, m + n] = a
-        np.negative(C[:, :n, m + n], out=C[:, :n, m + n])
-        self._check_finite(C, self.H, self.h)
+        if self.lti:
+            if not self._C_filled:
+                A, a, B = p.dynamics.linearize(X[0], U[0])
+                self._C0[:n] = np.column_stack([B, A, -a])
+                self._check_finite(self._C0)
+                self._C_filled = True
+        else:
+            C = self.C
+            A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
+            C[:, :n, :m] = B
+            C[:, :n, m:m + n] = A
+            np.negative(a, out=C[:, :n, m + n])
+            self._check_finite(C)
+        self._check_finite(self.H, self.h)
         self._control_marginals()
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
         p.state_derivatives(X, out=(lx, R))                    # R = l_xx
-        np.einsum("kij,kj->ki", R, X, out=RA[:, :, n])
-        RA[:, :, n] -= lx                                       # r = l_xx x - l_x
+        np.matmul(R, X[:, :, None], out=RA[:, :, n:])          # r = l_xx x - l_x
+        RA[:, :, n] -= lx
         if alpha:
             diag = RA.reshape(T + 1, n * (n + 1))[:, ::n + 2]  # R[:, i, i] (a view)
             diag += 2.0 * alpha
             RA[:, :, n] += 2.0 * alpha * Xprev
         self._check_finite(RA)
+        self._2aI = 2.0 * alpha * self.I
 
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
@@ -218,68 +257,85 @@ class _Sweeps:
                 self.Hinv = np.linalg.inv(self.H)
         except np.linalg.LinAlgError as e:
             raise NumericalError("control Hessian H_t is not positive definite") from e
-        if const_H and _is_constant(B):
+        if const_H and (self.lti or _is_constant(B)):
             BHi = B[0] @ self.Hinv[0]
-            self.Qbar[:] = BHi @ B[0].T + self.q * self.I
+            Q0 = BHi @ B[0].T + self.qI
+            if self.lti:     # never relinearized: one shared matrix
+                self.Qbar = np.broadcast_to(Q0, self._Qbar.shape)
+            else:
+                self.Qbar = self._Qbar
+                self.Qbar[:] = Q0
             self.a_eff = self.h @ BHi.T - C[:, :n, m + n]
         else:
             BHi = B @ self.Hinv
+            self.Qbar = self._Qbar
             np.matmul(BHi, np.swapaxes(B, -1, -2), out=self.Qbar)
-            self.Qbar += self.q * self.I
+            self.Qbar += self.qI
             self.a_eff = np.einsum("tij,tj->ti", BHi, self.h) - C[:, :n, m + n]
 
-    def relinearize(self, t: int) -> None:
-        """Relinearize step ``t`` (dynamics if ``t < T``, task message) at ``self.X[t]``."""
-        p, x, n, m = self.p, self.X[t], self.n, self.m
-        if t < self.T:
-            A, a, B = p.dynamics.linearize(x, self.U[t])
-            self._check_finite(A, a, B)
+    def relinearize(self, t: int) -> tuple[bool, bool]:
+        """Relinearize step ``t`` at ``self.X[t]``: the dynamics (if ``t < T`` and they depend
+        on the state) and the task message (if a term costs step ``t``).
+
+        Returns whether ``(dynamics, task message)`` changed.
+        """
+        x, n, m = self.X[t], self.n, self.m
+        dyn = t < self.T and not self.lti
+        if dyn:
+            A, a, B = self.p.dynamics.linearize(x, self.U[t])
             Ct = self.C[t]
-            Ct[:n, :m], Ct[:n, m:m + n], Ct[:n, m + n] = B, A, -a
+            Ct[:n, :m], Ct[:n, m:m + n] = B, A
+            np.negative(a, out=Ct[:n, m + n])
+            self._check_finite(Ct)
             BHi = B @ self.Hinv[t]
-            self.Qbar[t] = BHi @ B.T + self.q * self.I
+            Qb = np.matmul(BHi, B.T, out=self.Qbar[t])
+            Qb += self.qI
             self.a_eff[t] = a + BHi @ self.h[t]
-        R, r = p.quadratize_states(x[None, :], np.array([t]))
-        self._check_finite(R, r)
-        self.RA[t, :, :n] = R[0] + 2.0 * self.alpha * self.I
-        self.RA[t, :, n] = r[0] + 2.0 * self.alpha * self.Xprev[t]
+        task = bool(self.active[t])
+        if task:
+            lx, lxx = self.p.point_state_derivatives(x, t, self.active[t])
+            out = self.RA[t]
+            np.add(lxx, self._2aI, out=out[:, :n])
+            out[:, n] = lxx @ x - lx + 2.0 * self.alpha * self.Xprev[t]
+            self._check_finite(out)
         self.repeats += 1
+        return dyn, task
 
     @staticmethod
     def _check_finite(*arrs: np.ndarray) -> None:
         """Raise ``NumericalError`` on NaN or inf (or sums overflowing to them)."""
         for z in arrs:
-            if not math.isfinite(float(np.sum(z))):
+            if not math.isfinite(z.sum()):
                 raise NumericalError("non-finite linearization or task message")
 
     # -- messages -----------------------------------------------------------------------
     def forward(self, t: int) -> None:
         """Forward message ``[S_t^-1 | S_t^-1 s_t]`` at ``t >= 1`` from step ``t-1``:
-        ``P = S^-1 + R``, ``s_t = A P^-1 (S^-1 s + r) + a_eff``, ``S_t = A P^-1 A^T + Qbar``."""
-        n, m = self.n, self.m
-        Ct = self.C[t - 1]
-        Pa = self.SA[t - 1] + self.RA[t - 1]
-        L = _chol(Pa[:, :n])
-        rhs = np.empty((n, n + 1))
-        rhs[:, :n] = Ct[:n, m:m + n].T
-        rhs[:, n] = Pa[:, n]
-        Y, info = lapack.dtrtrs(L, rhs, lower=1)              # L^-1 [A^T | p]
-        if info != 0:
-            raise NumericalError(f"triangular solve failed (info={info})")
-        W = Y[:, :n]                                           # A P^-1 A^T = W^T W
-        Ci = _tri_inv(_chol(W.T @ W + self.Qbar[t - 1]))      # S_t = C C^T
-        Sinv = Ci.T @ Ci
-        out = self.SA[t]
-        out[:, :n] = Sinv
-        out[:, n] = Sinv @ (W.T @ Y[:, n] + self.a_eff[t - 1])
+        ``P = S^-1 + R``, ``s_t = A P^-1 (S^-1 s + r) + a_eff``, ``S_t = A P^-1 A^T + Qbar``.
 
-    def _vstar(self, Pa: np.ndarray) -> np.ndarray:
+        With ``P = L L^T``: ``W^T = A L^-T`` (one right-sided triangular solve),
+        ``A P^-1 A^T = W^T W``, ``A P^-1 p = W^T (L^-1 p)``; ``S_t^-1 = L_S^-T L_S^-1`` from
+        ``S_t = L_S L_S^T``.
+        """
+        n, m = self.n, self.m
+        Pa = np.add(self.SA[t - 1], self.RA[t - 1], out=self._Pa)
+        L = _chol(Pa[:, :n])
+        WT = blas.dtrsm(1.0, L, self.C[t - 1, :n, m:m + n], side=1, lower=1, trans_a=1)
+        y = blas.dtrsv(L, Pa[:, n], lower=1)                  # L^-1 p
+        # S = W^T W + Qbar in one BLAS call, Fortran-ordered for LAPACK (Qbar^T = Qbar)
+        S = blas.dgemm(1.0, WT, WT, trans_b=1, beta=1.0, c=self.Qbar[t - 1].T)
+        Ci = _tri_inv(_chol(S, overwrite=True), overwrite=True)
+        out = self.SA[t]
+        Sinv = np.matmul(Ci.T, Ci, out=out[:, :n])
+        np.matmul(Sinv, WT @ y + self.a_eff[t - 1], out=out[:, n])
+
+    def _vstar(self, Pa: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``[V* | V* m']`` from ``Pa = [P' | p']``: ``V* = (q I + P'^-1)^-1 = (I + q P')^-1 P'``.
 
         With ``s = q ||[P' | p']||_F >= q lambda_max(P')``: the Neumann series
         ``sum_k (-q P')^k [P' | p']`` truncated after ``K <= 3`` terms when
         ``s^(K+1) <= 1e-16`` (relative truncation error), else a Cholesky factorization of
-        the well-conditioned ``I + q P'``.
+        the well-conditioned ``I + q P'``. ``out``: optional ``(n, n+1)`` result buffer.
         """
         q, n = self.q, self.n
         flat = Pa.reshape(-1)
@@ -287,61 +343,88 @@ class _Sweeps:
         P = Pa[:, :n]
         if s <= 1e-4:
             K = 1 if s <= 1e-8 else (2 if s <= 10 ** (-16 / 3) else 3)
-            term, out = Pa, Pa
+            # Horner: Y <- Pa - q P' Y, K times from Y = Pa; each step one BLAS call on the
+            # transposes, which are Fortran-ordered: Y^T <- Pa^T - q Y^T P'^T
+            PaT, PT = Pa.T, np.asfortranarray(P.T)
+            YT = PaT
             for _ in range(K):
-                term = (-q) * (P @ term)
-                out = out + term
+                YT = blas.dgemm(-q, YT, PT, beta=1.0, c=PaT)
+            if out is None:
+                return YT.T
+            out[...] = YT.T
             return out
         Ei = _tri_inv(_chol(self.I + q * P))
-        return Ei.T @ (Ei @ Pa)
+        res = Ei.T @ (Ei @ Pa)
+        if out is None:
+            return res
+        out[...] = res
+        return out
 
-    def backward(self, t: int) -> None:
+    def backward(self, t: int, reuse_vstar: bool = False) -> None:
         """Backward message ``[V_t^-1 | V_t^-1 v_t]`` and the controller ``o_t, O_t``
         (``t <= T-1``), with ``P' = V_{t+1}^-1 + R_{t+1}`` and ``M = B^T V* B + H``.
 
         By Woodbury ``(P'^-1 + Qbar)^-1 = V* - V* B M^-1 B^T V*``, hence
-        ``V_t^-1 = A^T V* A - (B^T V* A)^T M^-1 B^T V* A = A^T V* A + (B^T V* A)^T O_t`` and
+        ``V_t^-1 = A^T V* A - (B^T V* A)^T M^-1 B^T V* A`` and
         ``V_t^-1 v_t = A^T V*(m' - a_eff) - ... = A^T V*(m' - a) - (B^T V* A)^T o_t`` (the
-        ``h`` terms of ``a_eff`` and of ``o_t`` cancel exactly).
+        ``h`` terms of ``a_eff`` and of ``o_t`` cancel exactly). With ``M = L L^T`` and
+        ``K = L^-1 [B^T V* A | B^T V*(m' - a) + h]`` (an explicit ``L^-1``: small triangular
+        solves are slow in OpenBLAS): ``[-O_t | o_t] = L^-T K`` and
+        ``[V_t^-1 | V_t^-1 v_t] = [A^T V* A | A^T V*(m' - a)] - K[:, :n]^T K``.
+
+        ``reuse_vstar``: step ``t + 1`` is unchanged since the last call (a redo after
+        relinearizing step ``t``), so ``[V* | V* m']`` is reused.
         """
         n, m = self.n, self.m
+        if not reuse_vstar:
+            self._vstar(np.add(self.VA[t + 1], self.RA[t + 1], out=self._Pa), out=self._Vs)
         Ct = self.C[t]
-        G = self._vstar(self.VA[t + 1] + self.RA[t + 1]) @ Ct   # [V*B | V*A | V*(m'-a)]
-        F = Ct[:n, :m + n].T @ G                                # [B A]^T G, (m+n, m+n+1)
-        LM = _chol(F[:m, :m] + self.H[t])
-        rhs = F[:m, m:]                                         # [B^T V* A | B^T V*(m'-a)]
+        G = self._Vs @ Ct                                       # [V*B | V*A | V*(m'-a)]
+        FB = Ct[:n, :m].T @ G                                   # B^T G, (m, m+n+1)
+        FA = Ct[:n, m:m + n].T @ G[:, m:]                       # A^T [V*A | V*(m'-a)]
+        FB[:, :m] += self.H[t]
+        Li = _tri_inv(_chol(FB[:, :m]))
+        rhs = FB[:, m:]                                         # [B^T V* A | B^T V*(m'-a)]
         rhs[:, n] += self.h[t]
-        Zm = _solve_chol(LM, rhs)                               # [-O_t | o_t]
-        self.O_[t] = -Zm[:, :n]
-        self.o_[t] = Zm[:, n]
-        Y = F[m:, m:] - F[:m, m:m + n].T @ Zm                   # [V_t^-1 | V_t^-1 v_t]
+        K = Li @ rhs
+        np.matmul(Li.T, K, out=self.Z[t])                       # [-O_t | o_t]
+        FA -= K[:, :n].T @ K                                    # [V_t^-1 | V_t^-1 v_t]
         out = self.VA[t]
-        out[:, :n] = 0.5 * (Y[:, :n] + Y[:, :n].T)
-        out[:, n] = Y[:, n]
+        Y = np.add(FA[:, :n], FA[:, :n].T, out=self._Y)
+        np.multiply(Y, 0.5, out=out[:, :n])
+        out[:, n] = FA[:, n]
 
     def belief(self, t: int) -> np.ndarray:
         """Belief mean ``b_t (n,)`` from ``B_t = S_t^-1 + V_t^-1 + R_t``."""
         n = self.n
-        Ba = self.SA[t] + self.VA[t] + self.RA[t]
-        b = _solve_chol(_chol(Ba[:, :n]), Ba[:, n])
+        Ba = np.add(self.SA[t], self.VA[t], out=self._Ba)
+        Ba += self.RA[t]
+        _, b, info = lapack.dposv(Ba[:, :n], Ba[:, n], lower=1)
+        if info != 0:
+            raise NumericalError(f"Cholesky failed (info={info})")
         self.b[t] = b
         return b
 
-    def settle(self, t: int, redo=None) -> None:
+    def settle(self, t: int, backward: bool = False) -> None:
         """Algorithm 1 at step ``t`` (message already updated): while the belief is more than
         ``theta`` from the linearization point, move the point towards it, relinearize step
-        ``t``, redo the message ``redo(t)`` if it depends on step ``t``, and repeat."""
+        ``t``, redo the backward message (``backward``: in the backward sweep, where it
+        depends on the dynamics at ``t``), and repeat. The belief is recomputed only when
+        something it depends on changed (else it is the same)."""
         o = self.o
         x = self.X[t]
+        b = self.belief(t)
         for _ in range(o.max_repeats):
-            d = self.belief(t) - x
+            d = b - x
             if not math.sqrt(float(d @ d)) > o.theta:
                 return
             x += o.belief_rate * d
-            self.relinearize(t)
-            if redo is not None:
-                redo(t)
-        self.belief(t)
+            dyn, task = self.relinearize(t)
+            redo = backward and dyn
+            if redo:
+                self.backward(t, reuse_vstar=True)
+            if redo or task:
+                b = self.belief(t)
 
     def sweep(self) -> None:
         """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
@@ -352,12 +435,14 @@ class _Sweeps:
                 self.settle(t)        # the forward message at t does not depend on step t
             for t in range(self.T - 1, -1, -1):
                 self.backward(t)
-                self.settle(t, self.backward)
+                self.settle(t, backward=True)
         else:
             for t in range(self.T - 1, -1, -1):
                 self.backward(t)
-        if not (np.all(np.isfinite(self.o_)) and np.all(np.isfinite(self.O_))):
+        if not np.isfinite(self.Z).all():
             raise NumericalError("non-finite controller")
+        self.o_ = self.Z[:, :, self.n].copy()                 # (T, m)
+        self.O_ = -self.Z[:, :, :self.n]                       # (T, m, n)
 
     def beliefs(self) -> np.ndarray:
         """Belief means ``(T+1, n)`` at the current linearization (``theta = inf`` mode:

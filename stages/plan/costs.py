@@ -67,6 +67,13 @@ class StateTerm:
             return np.ones(len(idx), dtype=bool)
         return np.isin(idx, self.times)
 
+    def is_active_at(self, t: int) -> bool:
+        """Whether this term costs step ``t`` (``times`` is sorted and unique)."""
+        if self.times is None:
+            return True
+        i = int(np.searchsorted(self.times, t))
+        return i < len(self.times) and self.times[i] == t
+
     @staticmethod
     def _idx(X: np.ndarray, idx) -> np.ndarray:
         return np.arange(X.shape[0]) if idx is None else np.asarray(idx).reshape(-1)
@@ -109,6 +116,13 @@ class StateTerm:
         lx, lxx = self.derivatives(X, idx)
         return lxx, np.einsum("kij,kj->ki", lxx, X) - lx
 
+    def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray,
+                              lxx: np.ndarray) -> None:
+        """Add the gradient and GN Hessian at one state ``x (n_x,)`` of step ``t`` into
+        ``lx (n_x,)``, ``lxx (n_x, n_x)`` (the same as ``add_derivatives`` on one row; terms
+        override it to skip the batch bookkeeping)."""
+        self.add_derivatives(x[None, :], np.array([t]), lx[None, :], lxx[None, :, :])
+
     def _value(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
@@ -139,10 +153,27 @@ class ViaPoint(StateTerm):
         self.weight = _check_weight(weight, self.name)
         self.C = _diag_or_matrix(precision, taskmap.dim, self.name)
         self._set_times(times)
+        self._last = None  # (taskmap, Q, phi, J) of the last batch evaluated
+
+    def _map(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``phi (K, dim)`` and ``J (K, dim, n_q)`` at ``Q (K, n_q)``.
+
+        The last batch is remembered: a solver evaluates the cost of a rollout and then
+        linearizes at the same trajectory, so the (expensive, e.g. Drake) task map runs once
+        for both. Hits need bitwise-equal ``Q`` and the same task map; the arrays returned
+        are shared with the memo and must not be modified.
+        """
+        last = self._last
+        if (last is not None and last[0] is self.taskmap and last[1].shape == Q.shape
+                and np.array_equal(last[1], Q)):
+            return last[2], last[3]
+        phi, J = self.taskmap.values_and_jacobians(Q)
+        self._last = (self.taskmap, np.array(Q, dtype=float), phi, J)
+        return phi, J
 
     def _errors(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         n_q = X.shape[1] // 2
-        phi, J = self.taskmap.values_and_jacobians(X[:, :n_q])
+        phi, J = self._map(X[:, :n_q])
         return self.target - phi, J, n_q
 
     def _value(self, X, idx):
@@ -152,10 +183,20 @@ class ViaPoint(StateTerm):
     def _q_blocks(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """Gradient ``(K, n_q)`` and GN Hessian ``(K, n_q, n_q)`` on the ``q`` block."""
         e, J, n_q = self._errors(X)
-        CJ = np.einsum("ij,kjq->kiq", self.C, J)  # (K, dim, n_q)
-        g = (-2.0 * self.weight) * np.einsum("kiq,ki->kq", CJ, e)
-        H = (2.0 * self.weight) * np.einsum("kip,kiq->kpq", J, CJ)
+        CJ = np.matmul(self.C, J)                                    # (K, dim, n_q)
+        g = (-2.0 * self.weight) * np.matmul(e[:, None, :], CJ)[:, 0]  # -2w J^T C e
+        H = (2.0 * self.weight) * np.matmul(np.swapaxes(J, 1, 2), CJ)  # 2w J^T C J
         return g, H, n_q
+
+    def add_point_derivatives(self, x, t, lx, lxx) -> None:
+        """As ``StateTerm.add_point_derivatives``: one task-map evaluation, ``q`` blocks only."""
+        if self.weight == 0 or not self.is_active_at(t):
+            return
+        n_q = x.shape[0] // 2
+        phi, J = self.taskmap.value_and_jacobian(x[:n_q])
+        CJ = self.C @ J
+        lx[:n_q] -= (2.0 * self.weight) * ((self.target - phi) @ CJ)
+        lxx[:n_q, :n_q] += (2.0 * self.weight) * (J.T @ CJ)
 
     def _derivs(self, X, idx):
         g, H, n_q = self._q_blocks(X)

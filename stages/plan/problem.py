@@ -133,6 +133,33 @@ class Problem:
             term.add_derivatives(X, idx, lx, lxx)
         return lx, lxx
 
+    def active_state_terms(self) -> list[list]:
+        """For each step ``t = 0..T``: the state terms with nonzero weight that cost ``x_t``.
+
+        Where the list is empty the task message does not depend on ``x_t``.
+        """
+        steps = np.arange(self.T + 1)
+        out: list[list] = [[] for _ in steps]
+        for term in self.state_terms:
+            if term.weight == 0:
+                continue
+            for t in np.flatnonzero(term.active(steps)):
+                out[t].append(term)
+        return out
+
+    def point_state_derivatives(self, x: np.ndarray, t: int,
+                                terms: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Summed ``l_x (n_x,)`` and GN ``l_xx (n_x, n_x)`` at one state ``x (n_x,)`` of step ``t``.
+
+        ``terms``: the state terms to sum (default all; inactive ones add nothing), e.g.
+        ``active_state_terms()[t]`` to skip the others without asking them.
+        """
+        lx = np.zeros(x.shape[0])
+        lxx = np.zeros((x.shape[0], x.shape[0]))
+        for term in self.state_terms if terms is None else terms:
+            term.add_point_derivatives(x, t, lx, lxx)
+        return lx, lxx
+
     def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Summed ``l_u (K, n_u)`` and Gauss-Newton ``l_uu (K, n_u, n_u)`` at ``U (K, n_u)``."""
         U = np.atleast_2d(U)
