@@ -112,7 +112,17 @@ class PseudoDynamics(LinearDynamics):
         self.n_q = n_q
 
 
-class AnalyticDynamics(_TrajectoryByPoints):
+class SemiImplicitEuler:
+    """The analytic models' step: ``qdot' = qdot + dt qddot(q, qdot, u)``, ``q' = q + dt qdot'``."""
+
+    def step(self, x, u):
+        n = self.n_q  # type: ignore[attr-defined]
+        q, v = x[:n], x[n:]
+        v1 = v + self.dt * self.qddot(q, v, u)  # type: ignore[attr-defined]
+        return np.concatenate([q + self.dt * v1, v1])  # type: ignore[attr-defined]
+
+
+class AnalyticDynamics(SemiImplicitEuler, _TrajectoryByPoints):
     """Drake forward dynamics of a robot, semi-implicit Euler with step ``dt``; controls are torques.
 
     Coupled joints (Nao) use the reduced model ``M_r = P^T M P``, ``h_r = P^T h``:
@@ -167,12 +177,6 @@ class AnalyticDynamics(_TrajectoryByPoints):
             return np.full(self.n_q, np.nan)
         h, Mr = self._h_and_Mr(q, v)
         return Mr @ a + h
-
-    def step(self, x, u):
-        n = self.n_q
-        q, v = x[:n], x[n:]
-        v1 = v + self.dt * self.qddot(q, v, u)
-        return np.concatenate([q + self.dt * v1, v1])
 
     # -- derivatives ------------------------------------------------------------------
     def qddot_derivatives(self, q, v, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -45,7 +45,7 @@ import sys
 
 import numpy as np
 
-from plants.dynamics import AnalyticDynamics
+from plants.dynamics import AnalyticDynamics, SemiImplicitEuler
 
 # Plants with more tree joints than this are not compiled (reading Drake's unshared expression
 # trees grows quickly with the depth and branching of the tree).
@@ -683,7 +683,7 @@ def is_supported(robot) -> bool:
 # --------------------------------------------------------------------------------------------
 # The dynamics model
 # --------------------------------------------------------------------------------------------
-class FastAnalyticDynamics:
+class FastAnalyticDynamics(SemiImplicitEuler):
     """Drop-in for :class:`plants.dynamics.AnalyticDynamics` on the compiled symbolic dynamics.
 
     Same contract and numbers: semi-implicit Euler with step ``dt``, controls are torques,
@@ -804,12 +804,6 @@ class FastAnalyticDynamics:
         """Torques ``(n_q,)`` that produce accelerations ``a`` (computed torque)."""
         Mr, hr = self._mh_point(q, v)
         return Mr @ np.asarray(a, float) + hr
-
-    def step(self, x, u):
-        n = self.n_q
-        q, v = x[:n], x[n:]
-        v1 = v + self.dt * self.qddot(q, v, u)
-        return np.concatenate([q + self.dt * v1, v1])
 
     def qddot_derivatives(self, q, v, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``qddot``, ``d/dq``, ``d/dv`` ``(n_q, n_q)`` and ``d/du`` ``(n_q, n_q)``."""
