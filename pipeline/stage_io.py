@@ -203,12 +203,10 @@ def run_execute(cache: Cache, plan_ref: str, cfg, record: bool = True,
 def write_execute_recording(folder: Path, out, pconf: dict, cfg) -> None:
     from pipeline import recording as rec_mod
     from pipeline.mcap_io import write_trajectory_mcap
-    from plants.robots import load_robot
-    from stages.plan.stage import PlanConfig, build_problem
+    from stages.plan.stage import PlanConfig
 
     pcfg = PlanConfig.from_dict(pconf)
-    _, _, problem, _ = build_problem(pcfg)
-    robot = load_robot(pcfg.plant)
+    problem, robot = out.problem, out.robot
     n = robot.n_q
     X = np.nan_to_num(out.X)
     times = out.times

@@ -60,6 +60,8 @@ class ExecuteOutput:
     cog: np.ndarray | None = None  # (T+1, 3) Nao
     cog_margin: np.ndarray | None = None  # (T+1,) m, signed distance inside the support polygon
     support: list | None = None  # per step (k, 2) polygon vertices
+    problem: object = None  # the plan's problem (task terms for recordings)
+    robot: Robot | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
         d = {"times": self.times, "X": self.X, "U": self.U, "tau": self.tau, "X_plan": self.X_plan}
@@ -202,8 +204,9 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
             sim.AdvanceTo((k + 1) * dt)
         except RuntimeError:
             break
-        taus.append(robot.P.T @ ctrl.plant_torque(ctrl_ctx))
-        saturated.append(bool(np.any(np.abs(ctrl.plant_torque(ctrl_ctx, clip=False)) > effort_plant + 1e-9)))
+        wanted = ctrl.plant_torque(ctrl_ctx, clip=False)
+        saturated.append(bool(np.any(np.abs(wanted) > effort_plant + 1e-9)))
+        taus.append(robot.P.T @ (np.clip(wanted, -effort_plant, effort_plant) if cfg.clip_torques else wanted))
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
@@ -216,7 +219,7 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
         metrics["cog_inside_stance_fraction"] = float(np.mean(stance > 0))
         metrics["cog_min_stance_margin"] = float(np.nanmin(stance))
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=X_plan, metrics=metrics,
-                         cog=cog, cog_margin=margin, support=polys)
+                         cog=cog, cog_margin=margin, support=polys, problem=problem, robot=robot)
 
 
 def _metrics(problem, X, X_plan, tau, n, cog, margin, robot, pcfg) -> dict:

@@ -54,11 +54,10 @@ class PlanConfig:
 
     def normalized(self) -> PlanConfig:
         """alpha/gamma only mean something for R-AICO: fix them for the others (cache key)."""
-        if self.solver == "aico":
-            return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0})
-        if self.solver == "ilqg":
-            return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0, "relinearize": True})
-        return self
+        if self.solver == "raico":
+            return self
+        relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
+        return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0, "relinearize": relinearize})
 
     def solver_options(self) -> dict:
         if self.solver == "ilqg":
