@@ -7,20 +7,16 @@ Medians of ``reps`` runs (the machine is shared and noisy); one BLAS thread. Not
 
 from __future__ import annotations
 
-import os
+import argparse
+import statistics
+import time
 
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+import numpy as np
 
-import argparse  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from plants.dynamics import AnalyticDynamics  # noqa: E402
-from plants.fastdyn import FastAnalyticDynamics, compiled_dynamics  # noqa: E402
-from plants.robots import load_robot  # noqa: E402
+from plants.codegen.derive import compiled_dynamics
+from plants.dynamics import AnalyticDynamics
+from plants.fast_analytic import FastAnalyticDynamics
+from plants.robots import load_robot
 
 
 def _median_time(fn, reps: int) -> float:

@@ -21,7 +21,7 @@ from stages.plan.stage import PlanConfig, build_problem
 
 
 def _problem(plant: str, task: str, dynamics: str):
-    _, _, problem, _ = build_problem(PlanConfig(plant=plant, task=task, dynamics=dynamics, seed=0))
+    _, _, problem, _, _ = build_problem(PlanConfig(plant=plant, task=task, dynamics=dynamics, seed=0))
     return problem
 
 
@@ -61,9 +61,9 @@ def bench_linearization(reps: int) -> list[float]:
 CASES = [
     # name, target (s), function, args
     ("nao balance: 25 R-AICO iterations (T=300, 50-D)", 1.0, bench_solver_total,
-     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol": 0.0}, 3)),
+     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 3)),
     ("nao balance: 25 R-AICO iterations, no relinearization in sweeps (theta=inf)", 1.0, bench_solver_total,
-     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol": 0.0, "theta": float("inf")}, 3)),
+     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0, "theta": float("inf")}, 3)),
     ("nao balance: one iLQG iteration", None, bench_per_iteration,
      ("nao", "balance", "pseudo", "ilqg", {"iterations": 3}, 1)),
     ("arm5 analytic: one R-AICO iteration incl. linearization (T=1000)", 0.030, bench_per_iteration,

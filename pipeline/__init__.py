@@ -1,7 +1,3 @@
-"""Small dense linear algebra dominates here: one BLAS thread per process is faster than
-several (parallelism comes from worker processes). Set before numpy loads; users may override."""
+"""The CLI, the cache, the stage runner, recordings, experiments, report."""
 
-import os as _os
-
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
+import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -48,7 +48,9 @@ __all__ = [
 ]
 
 META = "meta.json"
-FORMAT = 1  # bump to invalidate every key (part of the hashed payload)
+DERIVED = "derived.json"
+META_SUM = "meta_sha256"
+FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
 TMP_PREFIX = ".tmp-"
 PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "rerun-sdk", "mcap", "typer")
@@ -123,6 +125,12 @@ def stage_key(
         "inputs": list(input_keys),
     }
     return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:16]
+
+
+def meta_checksum(meta: Mapping[str, Any]) -> str:
+    """sha256 of the canonical JSON of ``meta`` without its own checksum field."""
+    body = {k: v for k, v in meta.items() if k != META_SUM}
+    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
 
 
 # --------------------------------------------------------------------------- provenance
@@ -356,8 +364,8 @@ class Cache:
             raise BadInput(f"invalid cache key {key!r} (expected lowercase hex)")
         return self.root / stage / key
 
-    def _check(self, stage: str, key: str, deep: bool = True) -> tuple[Entry | None, str]:
-        """(entry, "cached") if valid, else (None, reason)."""
+    def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Entry | None, str]:
+        """(entry, "cached") if valid, else (None, reason); ``deep`` also re-hashes files."""
         path = self.path(stage, key)
         if not path.is_dir():
             return None, "no cache entry"
@@ -372,36 +380,47 @@ class Cache:
             return None, f"cache entry corrupt ({META} is not an object)"
         if meta.get("complete") is not True:
             return None, "cache entry incomplete (not marked complete)"
+        if meta.get(META_SUM) != meta_checksum(meta):
+            return None, f"cache entry corrupt ({META} was edited: its checksum does not match its content)"
         if meta.get("stage") != stage or meta.get("key") != key:
             owner = f"{meta.get('stage')}/{meta.get('key')}"
             return None, f"cache entry corrupt ({META} belongs to {owner})"
         files = meta.get("files")
         if not isinstance(files, dict):
             return None, f"cache entry corrupt ({META} has no file list)"
+        reason = self._check_files(path, files, deep)
+        if reason:
+            return None, reason
+        return Entry(stage, key, path, meta), "cached"
+
+    def _check_files(self, path: Path, files: Mapping[str, Any], deep: bool) -> str:
+        """"" if every recorded file has its size (and, with ``deep``, its sha256); else why not."""
         root = path.resolve()
         for name, rec in sorted(files.items()):
             fp = path / name
             if not isinstance(rec, dict) or not isinstance(rec.get("size"), int):
-                return None, f"cache entry corrupt (bad record for file {name})"
+                return f"cache entry corrupt (bad record for file {name})"
             if ".." in PurePath(name).parts or not fp.resolve().is_relative_to(root):
-                return None, f"cache entry corrupt (file {name} outside the entry)"
+                return f"cache entry corrupt (file {name} outside the entry)"
             try:
                 size = fp.stat().st_size
             except OSError:
-                return None, f"file {name} missing"
+                return f"file {name} missing"
             if size != rec["size"]:
-                return None, f"file {name} changed (size {size} B, recorded {rec['size']} B)"
+                return f"file {name} changed (size {size} B, recorded {rec['size']} B)"
             digest = rec.get("sha256")
             if deep and digest and size < self.hash_limit:
                 try:
                     actual = _sha256(fp)
                 except OSError as exc:
-                    return None, f"file {name} unreadable ({exc.strerror})"
+                    return f"file {name} unreadable ({exc.strerror})"
                 if actual != digest:
-                    return None, (
-                        f"file {name} changed (sha256 {actual[:12]}…, recorded {digest[:12]}…)"
-                    )
-        return Entry(stage, key, path, meta), "cached"
+                    return f"file {name} changed (sha256 {actual[:12]}…, recorded {digest[:12]}…)"
+        return ""
+
+    def verify(self, stage: str, key: str) -> str:
+        """Deep check (every file re-hashed): "cached" if valid, else the reason."""
+        return self._check(stage, key, deep=True)[1]
 
     def lookup(self, stage: str, key: str) -> Entry | None:
         """The entry if it is complete and valid, else None (see :meth:`why`)."""
@@ -517,7 +536,7 @@ class Cache:
         stage: str, key: str, meta: dict[str, Any], extra: dict[str, Any],
         timings: dict[str, float], files: dict[str, dict[str, Any]],
     ) -> dict[str, Any]:
-        return {
+        doc = {
             "config": {},
             "inputs": [],
             **meta,
@@ -532,6 +551,9 @@ class Cache:
             "files": files,
             "complete": True,
         }
+        doc = json.loads(json.dumps(doc, default=_json_default))  # what the file will hold
+        doc[META_SUM] = meta_checksum(doc)
+        return doc
 
     def _publish(
         self, stage: str, key: str, tmp: Path, final: Path, doc: dict[str, Any]
@@ -550,6 +572,47 @@ class Cache:
             _fsync_dir(final.parent)
             return Entry(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
         raise CorruptArtifact(f"could not publish artifact {stage}/{key}: {final} keeps changing")
+
+    # ---- derived files (recordings made from the stored data)
+
+    def derived(self, entry: Entry) -> dict[str, dict[str, Any]]:
+        """Name -> record of the derived files of ``entry`` that are intact (sizes checked)."""
+        try:
+            recs = json.loads((entry.path / DERIVED).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+        if not isinstance(recs, dict):
+            return {}
+        return {n: r for n, r in recs.items()
+                if not self._check_files(entry.path, {n: r}, deep=False)}
+
+    def write_derived(self, entry: Entry, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
+        """Run ``writer(tmp_dir)`` and move what it wrote into ``entry`` beside the data.
+
+        Each file is renamed into place (atomic per file), then ``derived.json`` is
+        replaced atomically; a failure leaves the entry's data untouched and no temporary
+        folder. Returns the records of the files written.
+        """
+        tmp = entry.path.parent / _tmp_name(entry.key)
+        tmp.mkdir()
+        try:
+            writer(tmp)
+            new = {}
+            for p in sorted(tmp.iterdir()):
+                if p.name in (META, DERIVED) or p.name in entry.meta.get("files", {}) or not p.is_file():
+                    raise ValueError(f"a derived file may not be called {p.name!r}")
+                size, digest = _hash_and_sync(p, self.hash_limit)
+                new[p.name] = {"size": size, "sha256": digest}
+            for name in new:
+                os.replace(tmp / name, entry.path / name)
+            recs = {**self.derived(entry), **new}
+            doc = tmp / DERIVED
+            doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+            os.replace(doc, entry.path / DERIVED)
+            _fsync_dir(entry.path)
+            return new
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
     # ---- listing and cleanup
 
@@ -588,10 +651,10 @@ class Cache:
                     removed.append(p)
         return removed
 
-    def list(self, stage: str | None = None, *, deep: bool = True) -> list[EntryInfo]:
+    def list(self, stage: str | None = None, *, deep: bool = False) -> list[EntryInfo]:
         """Every entry (valid or not) and temporary folder, for ``raico ls``.
 
-        ``deep=False`` checks sizes only (no sha256), which is faster on big caches.
+        ``deep=True`` also re-hashes every file (``raico ls --verify``).
         """
         rows: list[EntryInfo] = []
         for d in self._stage_dirs(stage):

@@ -9,18 +9,21 @@ non-zero (SPEC §12).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import inspect
 import json
 import sys
+import typing
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from typer._click import exceptions as click_exceptions  # typer 0.29 vendors click
 
-from pipeline import stage_io
+from pipeline import runner
 from pipeline.cache import Cache
-from pipeline.errors import BadInput, RaicoError
+from pipeline.errors import BadInput, MissingArtifact, RaicoError
 from pipeline.runner import Outcome, artifacts_root, finite_json
 from pipeline.ui import Reporter
 
@@ -31,10 +34,10 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 Artifacts = Annotated[Path | None, typer.Option(
     "--artifacts", envvar="RAICO_ARTIFACTS", help="Cache folder (default ./artifacts).")]
-Seed = Annotated[int, typer.Option("--seed", help="Random seed.")]
 NoRecord = Annotated[bool, typer.Option("--no-record", help="Skip the .rrd recording and MCAP.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON line with the outcome.")]
+SHARED_HELP = {"seed": "Random seed."}
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -63,92 +66,72 @@ def handles_errors(fn):
 def report(outcome: Outcome, as_json: bool, reporter: Reporter) -> None:
     """Say whether the stage ran (and why) or was cached; print the JSON line if asked."""
     what = "cached" if outcome.cached else f"ran ({outcome.reason})"
-    reporter.say(f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{outcome.status}]")
+    rec = f"; recording {outcome.recording}" if outcome.recording else ""
+    reporter.say(f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{outcome.status}]{rec}")
     if as_json:
         typer.echo(json.dumps(outcome.json_line(), default=float, allow_nan=False))
 
 
-@app.command()
-@handles_errors
-def babble(
-    plant: Annotated[str, typer.Option(help="pendulum, arm5, biorob or nao.")],
-    episodes: Annotated[int, typer.Option(help="Number of babbling episodes.")] = 5,
-    duration: Annotated[float, typer.Option(help="Seconds per episode.")] = 1.0,
-    dt: Annotated[float, typer.Option(help="Sample period (s).")] = 0.002,
-    amplitude: Annotated[float, typer.Option(help="Spread of the random knots (rad).")] = 0.6,
-    seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
-    quiet: Quiet = False, json_: Json = False,
-):
-    """Motor babbling: random desired trajectories tracked by a PD controller in Drake."""
-    from stages.babble import BabbleConfig
-
-    cfg = BabbleConfig(plant=plant, episodes=episodes, seed=seed, duration=duration, dt=dt,
-                       amplitude=amplitude)
-    _validate(cfg)
-    reporter = Reporter(quiet)
-    cache = Cache(artifacts_root(artifacts))
-    outcome = stage_io.run_babble(cache, cfg, record=not no_record, reporter=reporter)
-    report(outcome, json_, reporter)
+def _option(name: str, hint: Any, default: Any, help_text: str) -> inspect.Parameter:
+    """A Typer option parameter for config field ``name`` (``--kebab-name``)."""
+    origin = typing.get_origin(hint)
+    if origin is tuple:  # repeatable input: --data A --data B
+        hint, default = list[str] | None, None
+    required = default is inspect.Parameter.empty
+    opt = typer.Option(f"--{name.replace('_', '-')}", help=help_text, show_default=not required)
+    if hint is bool:
+        opt = typer.Option(f"--{name.replace('_', '-')}/--no-{name.replace('_', '-')}", help=help_text)
+    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
+                             annotation=Annotated[hint, opt])
 
 
-@app.command()
-@handles_errors
-def plan(
-    plant: Annotated[str, typer.Option(help="pendulum, arm5, biorob or nao.")],
-    task: Annotated[str, typer.Option(help="reach, reach-roll (arm5), balance (nao), swing-up, ...")],
-    dynamics: Annotated[str, typer.Option(help="pseudo or analytic.")] = "pseudo",
-    solver: Annotated[str, typer.Option(help="aico, raico or ilqg.")] = "raico",
-    alpha: Annotated[float, typer.Option(help="R-AICO regularization alpha (raico only).")] = 1.0,
-    gamma: Annotated[float, typer.Option(help="alpha^[n] = alpha^[n-1] gamma (raico only).")] = 1.0,
-    iterations: Annotated[int, typer.Option(help="Maximum solver iterations.")] = 50,
-    q0_std: Annotated[float, typer.Option("--q0-std", help="Std of q0 around the default posture (rad).")] = 0.05,
-    relinearize: Annotated[bool, typer.Option(help="AICO: relinearize inside the sweeps (theta rule).")] = True,
-    seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
-    quiet: Quiet = False, json_: Json = False,
-):
-    """Plan a movement with AICO, R-AICO or iLQG; the artifact holds the feedback controller."""
-    from stages.plan.stage import PlanConfig
+def stage_command(name: str) -> None:
+    """Register ``raico NAME``: one option per config field (defaults from the config class),
+    plus the shared ``--artifacts``, ``--no-record``, ``--quiet`` and ``--json``."""
+    from stages.registry import get_stage
 
-    cfg = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, alpha=alpha,
-                     gamma=gamma, iterations=iterations, seed=seed, q0_std=q0_std, relinearize=relinearize)
-    _validate(cfg)
-    reporter = Reporter(quiet)
-    outcome = stage_io.run_plan(Cache(artifacts_root(artifacts)), cfg, record=not no_record,
-                                reporter=reporter)
-    report(outcome, json_, reporter)
+    stage = get_stage(name)
+    cls = stage.config_cls
+    hints = typing.get_type_hints(cls)
+    helps = {**SHARED_HELP, **getattr(cls, "HELP", {})}
+    params = []
+    for f in dataclasses.fields(cls):
+        default = inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default
+        params.append(_option(f.name, hints[f.name], default, helps.get(f.name, "")))
+    shared = {"artifacts": (Artifacts, None), "no_record": (NoRecord, False), "quiet": (Quiet, False),
+              "json_": (Json, False)}
+    params += [inspect.Parameter(k, inspect.Parameter.KEYWORD_ONLY, default=d, annotation=a)
+               for k, (a, d) in shared.items()]
 
+    def command(**kw):
+        artifacts, no_record, quiet, as_json = (kw.pop(k) for k in ("artifacts", "no_record", "quiet", "json_"))
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
+        try:
+            cfg = cls(**values)
+            cfg.validate()
+        except (TypeError, ValueError) as e:
+            raise BadInput(str(e)) from None
+        reporter = Reporter(quiet)
+        outcome = runner.run(open_cache(artifacts), stage, cfg, record=not no_record, reporter=reporter)
+        report(outcome, as_json, reporter)
 
-@app.command()
-@handles_errors
-def execute(
-    plan: Annotated[str, typer.Option("--plan", help="Key (or prefix) of a plan artifact.")],
-    x0_noise: Annotated[float, typer.Option("--x0-noise", help="Std of initial joint-angle noise (rad).")] = 0.0,
-    process_noise: Annotated[float, typer.Option("--process-noise", help="Std of torque noise per step (N m).")] = 0.0,
-    seed: Seed = 0, artifacts: Artifacts = None, no_record: NoRecord = False,
-    quiet: Quiet = False, json_: Json = False,
-):
-    """Run a plan's feedback controller in closed loop with the Drake plant (Drake's Simulator)."""
-    from stages.execute import ExecuteConfig
-
-    cfg = ExecuteConfig(x0_noise=x0_noise, process_noise=process_noise, seed=seed)
-    _validate(cfg)
-    reporter = Reporter(quiet)
-    outcome = stage_io.run_execute(Cache(artifacts_root(artifacts)), plan, cfg,
-                                   record=not no_record, reporter=reporter)
-    report(outcome, json_, reporter)
+    command.__signature__ = inspect.Signature(params)
+    command.__annotations__ = {p.name: p.annotation for p in params}
+    command.__name__ = name
+    command.__doc__ = stage.description
+    app.command(name, help=stage.description)(handles_errors(command))
 
 
-@app.command()
-@handles_errors
-def evaluate(
-    plan: Annotated[str, typer.Option("--plan", help="Key (or prefix) of a plan artifact.")],
-    rollout: Annotated[str | None, typer.Option("--rollout", help="Key of an execute artifact of that plan.")] = None,
-    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
-):
-    """Evaluate one run: final cost, via-point errors, iterations, wall time, planned-vs-executed RMSE."""
-    reporter = Reporter(quiet)
-    outcome = stage_io.run_evaluate(Cache(artifacts_root(artifacts)), plan, rollout, reporter=reporter)
-    report(outcome, json_, reporter)
+def open_cache(artifacts: Path | None) -> Cache:
+    """The cache at ``--artifacts`` (or ``$RAICO_ARTIFACTS``, or ``./artifacts``)."""
+    root = artifacts_root(artifacts)
+    if str(artifacts) == "" or str(root).strip() == "":
+        raise BadInput("--artifacts: an empty path")
+    return Cache(root)
+
+
+for _name in ("babble", "plan", "execute", "evaluate"):
+    stage_command(_name)
 
 
 @app.command()
@@ -174,7 +157,7 @@ def reproduce(
     if not 1 <= jobs <= 64:
         raise BadInput("jobs must be in [1, 64]")
     reporter = Reporter(quiet)
-    cache = Cache(artifacts_root(artifacts))
+    cache = open_cache(artifacts)
     for doc in repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record, reporter=reporter):
         if json_:
             typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
@@ -183,14 +166,23 @@ def reproduce(
 @app.command("ls")
 @handles_errors
 def ls(
-    stage: Annotated[str | None, typer.Argument(help="Only this stage.")] = None,
+    stage: Annotated[str | None, typer.Argument(help="Only this stage (babble, plan, execute, evaluate).")] = None,
     artifacts: Artifacts = None,
     all_: Annotated[bool, typer.Option("--all", help="Also list invalid entries.")] = False,
+    verify: Annotated[bool, typer.Option("--verify", help="Deep check: re-hash every file of every entry.")] = False,
     json_: Json = False,
 ):
-    """List cached artifacts (valid ones; --all also shows invalid or partial entries)."""
-    cache = Cache(artifacts_root(artifacts))
-    rows = [r for r in cache.list(stage) if r.valid or all_]
+    """List cached artifacts (valid ones; --all also shows invalid or partial entries).
+
+    A plain listing checks each entry's own record and file sizes; --verify re-hashes every file."""
+    from stages.registry import stage_names
+
+    cache = open_cache(artifacts)
+    if stage is not None and stage not in stage_names():
+        raise BadInput(f"unknown stage '{stage}': choose one of {', '.join(stage_names())}")
+    if not cache.root.is_dir():
+        raise MissingArtifact(f"no artifacts folder {cache.root}")
+    rows = [r for r in cache.list(stage, deep=verify) if r.valid or all_]
     for r in rows:
         if json_:
             typer.echo(json.dumps({"stage": r.stage, "key": r.key, "path": str(r.path),
@@ -210,27 +202,23 @@ def show(
     open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
 ):
     """Print an artifact's meta.json and recording path, or open its recording in Rerun."""
-    cache = Cache(artifacts_root(artifacts))
-    entry = stage_io.find_entry(cache, ref)
+    cache = open_cache(artifacts)
+    entry = runner.find_entry(cache, ref)
     rrd = entry.path / "recording.rrd"
     if open_:
         import subprocess
 
-        if not rrd.exists():
-            raise BadInput(f"{ref} has no recording")
-        subprocess.run([str(Path(sys.executable).with_name("rerun")), str(rrd)], check=False)
+        rec = runner.ensure_recording(cache, entry)
+        if rec is None:
+            raise BadInput(f"{ref} is a {entry.stage} artifact, which has no recording")
+        res = subprocess.run([str(Path(sys.executable).with_name("rerun")), rec], check=False)
+        if res.returncode != 0:
+            raise RaicoError(f"the Rerun viewer could not open {rec} (exit {res.returncode})")
         return
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,
                            **{k: entry.meta.get(k) for k in ("stage", "key", "config", "inputs",
                                                              "status", "metrics", "timings")}},
                           indent=2, default=str))
-
-
-def _validate(cfg) -> None:
-    try:
-        cfg.validate()
-    except ValueError as e:
-        raise BadInput(str(e)) from None
 
 
 def main() -> None:

@@ -8,7 +8,6 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -87,68 +86,72 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
                       q0_std=0.05, relinearize=v.relinearize).normalized()
 
 
-def _plan_job(args) -> dict:
-    root, cfg, record = args
-    from pipeline import stage_io
+def _job(args) -> dict:
+    """One stage run in a worker process: ``(root, stage, config, record) -> Outcome fields``."""
+    root, stage, cfg, record = args
+    from pipeline import runner
 
-    out = stage_io.run_plan(Cache(root), cfg, record=record)
-    return out.__dict__
-
-
-def _execute_job(args) -> dict:
-    root, key, record = args
-    from pipeline import stage_io
-    from stages.execute import ExecuteConfig
-
-    return stage_io.run_execute(Cache(root), f"plan/{key}", ExecuteConfig(), record=record).__dict__
+    return runner.run(Cache(root), stage, cfg, record=record).__dict__
 
 
-def _map(fn, jobs: list, workers: int, progress: Callable[[int, int], None] | None) -> list:
-    if workers <= 1 or len(jobs) <= 1:
-        out = []
-        for i, j in enumerate(jobs):
-            out.append(fn(j))
-            if progress:
-                progress(i + 1, len(jobs))
-        return out
-    results = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-        futures = {pool.submit(fn, j): i for i, j in enumerate(jobs)}
-        from concurrent.futures import as_completed
+def _map(jobs: list, workers: int, progress: Callable[[int, int], None] | None) -> list[Outcome]:
+    """Run ``jobs`` (``(root, stage, config, record)``): cached ones looked up here, the others in
+    ``workers`` processes (none are started when everything is cached)."""
+    from pipeline import runner
 
-        for done, f in enumerate(as_completed(futures), 1):
-            results[futures[f]] = f.result()
+    results: list[Outcome | None] = [runner.lookup(Cache(j[0]), j[1], j[2], record=j[3]) for j in jobs]
+    todo = [i for i, r in enumerate(results) if r is None]
+    done = len(jobs) - len(todo)
+    if progress and done:
+        progress(done, len(jobs))
+    if workers <= 1 or len(todo) <= 1:
+        for i in todo:
+            results[i] = Outcome(**_job(jobs[i]))
+            done += 1
             if progress:
                 progress(done, len(jobs))
-    return results
+        return results  # type: ignore[return-value]
+    from concurrent.futures import as_completed
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = {pool.submit(_job, jobs[i]): i for i in todo}
+        for f in as_completed(futures):
+            results[futures[f]] = Outcome(**f.result())
+            done += 1
+            if progress:
+                progress(done, len(jobs))
+    return results  # type: ignore[return-value]
 
 
 def run_experiment(cache: Cache, exp: Experiment, quick: bool = False, workers: int = 2,
                    record: bool = True, progress=None) -> dict:
-    """All runs of ``exp`` (cached per run), then the figure and the claims table in ``out_dir``."""
+    """All runs of ``exp`` (cached per run): plans, then the executions of the chosen variants."""
+    from stages.execute import ExecuteConfig
+
     seeds = range(2 if quick else exp.seeds)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in exp.variants for s in seeds]
-    outs = _map(_plan_job, [(str(cache.root), cfg, record) for _, _, cfg in runs], workers, progress)
-    plans = [{"variant": v, "seed": s, "outcome": Outcome(**o)} for (v, s, _), o in zip(runs, outs)]
-    ex_jobs = [(str(cache.root), p["outcome"].key, record) for p in plans if p["variant"] in exp.execute]
-    ex_outs = _map(_execute_job, ex_jobs, workers, None)
-    executions = [Outcome(**o) for o in ex_outs]
+    root = str(cache.root)
+    outs = _map([(root, "plan", cfg, record) for _, _, cfg in runs], workers, progress)
+    plans = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, outs)]
+    ex_jobs = [(root, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), record)
+               for p in plans if p["variant"] in exp.execute]
+    executions = _map(ex_jobs, workers, None)
     return {"plans": plans, "executions": executions}
 
 
 # ----------------------------------------------------------------------------- analysis
-def cost_curves(cache: Cache, plans: list[dict], variant: Variant) -> np.ndarray:
-    """``(seeds, iterations)`` cost per iteration; runs that stopped early hold their last cost,
-    diverged runs are NaN after they diverged."""
-    from pipeline.stage_io import load_npz
+def cost_curves(cache: Cache, plans: list[dict], variant: Variant, what: str = "costs") -> np.ndarray:
+    """``(seeds, iterations)`` per-iteration ``what`` (``costs`` or ``elapsed`` wall time, s) of a
+    variant's runs; runs that stopped early hold their last value, diverged runs are NaN after
+    they diverged."""
+    from pipeline.runner import as_artifact
 
     curves = []
     for p in plans:
         if p["variant"] != variant:
             continue
-        entry = cache.require("plan", p["outcome"].key)
-        c = load_npz(entry, "plan.npz")["costs"].astype(float)
-        curves.append(c)
+        d = as_artifact(cache.require("plan", p["outcome"].key)).arrays("plan.npz")
+        curves.append(d[what].astype(float) if what in d else np.zeros(0))
     if not curves:
         return np.zeros((0, 0))
     n = max(len(c) for c in curves)
@@ -161,22 +164,8 @@ def cost_curves(cache: Cache, plans: list[dict], variant: Variant) -> np.ndarray
 
 
 def summarize(plans: list[dict], variant: Variant) -> dict:
-    ms = [p["outcome"].metrics for p in plans if p["variant"] == variant]
-    st = [p["outcome"].status for p in plans if p["variant"] == variant]
-    ratio = np.array([m.get("cost_ratio") if m.get("cost_ratio") is not None else np.nan for m in ms], float)
-    final = np.array([m.get("final_cost", np.nan) for m in ms], float)
-    first = np.array([m.get("first_iteration_cost", np.nan) for m in ms], float)
-    via = [max(m.get("via_point_errors", {}).get(k, 0.0) for k in m.get("via_point_errors", {}) if
-               not k.startswith("r_sole")) if m.get("via_point_errors") else np.nan for m in ms]
-    return {"label": variant.label, "runs": len(ms), "diverged": st.count("diverged"),
-            "converged": st.count("converged"), "final_cost_median": _med(final),
-            "first_cost_median": _med(first), "cost_ratio_median": _med(ratio),
-            "cost_ratio_max": float(np.nanmax(ratio)) if np.isfinite(ratio).any() else math.nan,
-            "final_cost_max": float(np.nanmax(final)) if np.isfinite(final).any() else math.inf,
-            "max_via_error_median": _med(np.array(via, float)),
-            "wall_time_median_s": _med(np.array([m.get("wall_time_s", np.nan) for m in ms], float))}
+    """The variant's summary (``stages.evaluate.summary``) over its runs."""
+    from stages.evaluate.summary import summarize as summary
 
-
-def _med(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.median(a)) if a.size else math.nan
+    return summary(variant.label, [{"status": p["outcome"].status, "metrics": p["outcome"].metrics}
+                                   for p in plans if p["variant"] == variant])

@@ -16,6 +16,8 @@ Discretization of the analytic models is semi-implicit (symplectic) Euler,
 ``qdot' = qdot + dt * qddot(q, qdot, u)``, ``q' = q + dt * qdot'``: with ``qddot = u``
 it is exactly the thesis's backward-Euler pseudo-dynamics (appendix C.2), so both
 models share one time convention.
+
+Models are built by name with :func:`plants.registry.make_dynamics`.
 """
 
 from __future__ import annotations
@@ -212,13 +214,3 @@ class AnalyticDynamics(SemiImplicitEuler, _TrajectoryByPoints):
         B = np.vstack([dt * dv_du, dv_du])
         return A, self.step(x, u) - A @ x - B @ u, B
 
-
-def make_dynamics(kind: str, robot, dt: float) -> Dynamics:
-    """``pseudo`` (controls = accelerations) or ``analytic`` (controls = torques)."""
-    if kind == "pseudo":
-        return PseudoDynamics(robot.n_q, dt)
-    if kind == "analytic":  # generated, verified code where the plant allows; else AutoDiffXd
-        from plants.fastdyn import make_fast_or_exact
-
-        return make_fast_or_exact(robot, dt)
-    raise ValueError(f"unknown dynamics '{kind}': choose one of pseudo, analytic")

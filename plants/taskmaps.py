@@ -8,7 +8,9 @@ returns ``(K, dim)`` and ``(K, dim, n_q)``. Task maps know nothing of time or co
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -184,3 +186,54 @@ class Stack(_BatchByPoints):
     def value_and_jacobian(self, q):
         parts = [m.value_and_jacobian(q) for m in self.maps]
         return np.concatenate([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+
+# --------------------------------------------------------------------------------------------
+# Examples: one or more configured instances of every task map class, checked against finite
+# differences by tests/test_derivatives.py (and turned into via-point examples in
+# stages.plan.costs). A new task map class registers an example here.
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TaskMapExample:
+    """``build(robot) -> TaskMap`` on the plants named in ``plants`` (``None``: every plant)."""
+
+    name: str
+    build: Callable[[Any], TaskMap]
+    plants: tuple[str, ...] | None = None
+
+    def applies_to(self, plant: str) -> bool:
+        return self.plants is None or plant in self.plants
+
+
+TASKMAP_EXAMPLES: dict[str, TaskMapExample] = {}
+
+
+def register_taskmap_example(name: str, build: Callable[[Any], TaskMap],
+                             plants: tuple[str, ...] | None = None) -> TaskMapExample:
+    """Register an example task map (unique ``name``)."""
+    if name in TASKMAP_EXAMPLES:
+        raise ValueError(f"task map example '{name}' is already registered")
+    TASKMAP_EXAMPLES[name] = TaskMapExample(name, build, plants)
+    return TASKMAP_EXAMPLES[name]
+
+
+def _first_end_effector(robot) -> str:
+    return next(iter(robot.end_effectors.values()))
+
+
+def _stack_example(robot) -> Stack:
+    ee = _first_end_effector(robot)
+    return Stack([EndEffectorPosition(robot, ee, axes=(0, 2)), CenterOfMass(robot, axes=(1,)),
+                  JointPositions(robot.n_q, [0])], name="stack")
+
+
+register_taskmap_example("joint_positions",
+                         lambda r: JointPositions(r.n_q, sorted({0, r.n_q - 1})))
+register_taskmap_example("ee_position", lambda r: EndEffectorPosition(r, _first_end_effector(r)))
+register_taskmap_example("ee_position_yz",
+                         lambda r: EndEffectorPosition(r, _first_end_effector(r), axes=(1, 2)))
+register_taskmap_example("frame_points", lambda r: FramePoints(
+    r, _first_end_effector(r), points=[[0, 0, 0], [0.1, 0, 0], [0, 0.05, 0.02]]))
+register_taskmap_example("roll", lambda r: RollAngle(r, _first_end_effector(r)))
+register_taskmap_example("center_of_mass", lambda r: CenterOfMass(r))
+register_taskmap_example("stack", _stack_example)

@@ -17,19 +17,26 @@ Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from plants.robots import PLANTS, load_robot
+from stages.base import Stage, StageConfig, StageOutput
 
-CODE_VERSION = "babble-1"
+DATA_FILE = "data.npz"
 
 
 @dataclass(frozen=True)
-class BabbleConfig:
-    """Declared parameters of the babble stage (all part of its cache key)."""
+class BabbleConfig(StageConfig):
+    """Declared parameters of the babble stage (all part of its cache key; defaults stated here only)."""
+
+    HELP = {"plant": "pendulum, arm5, biorob or nao.", "episodes": "Number of babbling episodes.",
+            "duration": "Seconds per episode.", "dt": "Sample period (s).", "kp": "PD stiffness (N m/rad).",
+            "kd": "PD damping (N m s/rad).", "amplitude": "Spread of the random knots (rad).",
+            "knots": "Random knots per episode.", "integrator": "Drake integrator scheme.",
+            "substeps": "Fixed integrator steps per sample."}
 
     plant: str
     episodes: int = 5
@@ -58,8 +65,6 @@ class BabbleConfig:
             if not ok:
                 raise ValueError(msg)
 
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass
@@ -130,7 +135,7 @@ def _simulator(robot, cfg: BabbleConfig):
     return sim, diagram, pd, pinv
 
 
-def run(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -> BabbleData:
+def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -> BabbleData:
     """Simulate ``cfg.episodes`` babbling episodes on the Drake plant; see the module docstring."""
     cfg.validate()
     robot = load_robot(cfg.plant)
@@ -166,3 +171,16 @@ def run(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -
         if progress:
             progress(e + 1, E)
     return BabbleData(t=t, joint_names=robot.joint_names, **out)
+
+
+def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, int], None] | None = None
+        ) -> StageOutput:
+    """The babble stage: ``data.npz`` with the sampled tuples of every episode."""
+    data = babble(cfg, progress)
+    return StageOutput(status="ok", metrics=data.metrics(), arrays={DATA_FILE: data.arrays()}, payload=data)
+
+
+STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run, sources=("plants", "stages.babble", "stages.base"),
+              data_files=(DATA_FILE,),
+              description="Motor babbling: random desired trajectories tracked by a PD controller in Drake.",
+              progress_total=lambda cfg: cfg.episodes)

@@ -20,20 +20,31 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull
 
 from plants.robots import Robot, load_robot
-from stages.plan.stage import PlanConfig, build_problem, via_point_errors
+from stages.base import Artifact, Stage, StageConfig, StageOutput
+from stages.evaluate.metrics import execution_metrics
+from stages.plan.stage import PLAN_FILE, PROBLEM_FILE, objective_from_description
 
-CODE_VERSION = "execute-1"
+ROLLOUT_FILE = "rollout.npz"
 MAX_STEP = 1e-3  # s, integrator step bound
 
 
 @dataclass(frozen=True)
-class ExecuteConfig:
+class ExecuteConfig(StageConfig):
+    """Declared parameters of the execute stage; ``plan`` is its input (a plan artifact)."""
+
+    INPUTS = ("plan",)
+    INPUT_STAGES = {"plan": "plan"}
+    HELP = {"plan": "Key (or prefix) of a plan artifact.", "x0_noise": "Std of initial joint-angle noise (rad).",
+            "process_noise": "Std of torque noise per planning step (N m).",
+            "clip_torques": "Clip the logged torques at the effort limits."}
+
+    plan: str | None = None  # key, key prefix or plan/KEY of the plan to execute
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
     process_noise: float = 0.0  # N m, std of torque noise per planning step
     seed: int = 0
@@ -44,9 +55,8 @@ class ExecuteConfig:
             raise ValueError("x0-noise must be in [0, 1] rad")
         if not 0 <= self.process_noise <= 100.0:
             raise ValueError("process-noise must be in [0, 100] N m")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+        if self.plan is None:
+            raise ValueError("execute needs --plan KEY")
 
 
 @dataclass
@@ -66,8 +76,17 @@ class ExecuteOutput:
     def arrays(self) -> dict[str, np.ndarray]:
         d = {"times": self.times, "X": self.X, "U": self.U, "tau": self.tau, "X_plan": self.X_plan}
         if self.cog is not None:
-            d.update(cog=self.cog, cog_margin=self.cog_margin)
+            d.update(cog=self.cog, cog_margin=self.cog_margin, support=padded_polygons(self.support or []))
         return d
+
+
+def padded_polygons(polys: list) -> np.ndarray:
+    """Polygons of different vertex counts as one ``(K, kmax, 2)`` array, NaN-padded (m)."""
+    kmax = max((len(p) for p in polys), default=0)
+    out = np.full((len(polys), kmax, 2), np.nan)
+    for k, p in enumerate(polys):
+        out[k, :len(p)] = p
+    return out
 
 
 def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng):
@@ -149,18 +168,18 @@ def signed_margin(poly: np.ndarray, p: np.ndarray) -> float:
     return float(-d.max())
 
 
-def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
-        progress: Callable[[int, int], None] | None = None) -> ExecuteOutput:
-    """Execute the plan (arrays of the plan artifact) on the Drake plant in closed loop."""
+def execute(cfg: ExecuteConfig, desc: dict, plan: dict,
+            progress: Callable[[int, int], None] | None = None) -> ExecuteOutput:
+    """Execute a plan (its arrays and stored problem description) on the Drake plant in closed loop."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
     cfg.validate()
-    pcfg = PlanConfig.from_dict(plan_config)
-    _, task, problem, q0 = build_problem(pcfg)
-    dt, T = task.dt, task.T
-    robot = load_robot(pcfg.plant)
+    problem = objective_from_description(desc)
+    dt, T = float(desc["dt"]), int(desc["T"])
+    q0 = np.asarray(desc["q0"], float)
+    robot = load_robot(desc["plant"])
     rng = np.random.default_rng(cfg.seed)
-    ctrl = robot.builder.AddSystem(_controller(robot, plan, pcfg.dynamics == "pseudo", cfg, dt, rng))
+    ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
     robot.builder.Connect(ctrl.get_output_port(0), robot.plant.get_actuation_input_port())
     sim = Simulator(robot.builder.Build())
@@ -213,7 +232,7 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     X_plan = plan["X"]
-    metrics = _metrics(problem, X, X_plan, tau, n, cog, margin, robot, pcfg)
+    metrics = execution_metrics(problem, X, X_plan, tau, cog, margin, robot)
     metrics["torque_saturation"] = float(np.mean(saturated)) if saturated else 0.0
     if nao:
         metrics["cog_inside_stance_fraction"] = float(np.mean(stance > 0))
@@ -222,22 +241,16 @@ def run(cfg: ExecuteConfig, plan_config: dict, plan: dict,
                          cog=cog, cog_margin=margin, support=polys, problem=problem, robot=robot)
 
 
-def _metrics(problem, X, X_plan, tau, n, cog, margin, robot, pcfg) -> dict:
-    finite = bool(np.all(np.isfinite(X)))
-    with np.errstate(invalid="ignore"):
-        rmse = float(np.sqrt(np.nanmean((X[:, :n] - X_plan[:, :n]) ** 2))) if finite else float("inf")
-    m = {"status": "ok" if finite else "failed",
-         "via_point_errors": via_point_errors(problem, X) if finite else {},
-         "rmse_planned_executed": rmse,
-         "max_abs_torque": float(np.nanmax(np.abs(tau))) if tau.size else 0.0}
-    if cog is not None:
-        inside = margin > 0
-        sole0 = robot.plant.GetFrameByName("r_sole")
-        ctx = robot.plant.CreateDefaultContext()
-        drift = []
-        for k in (0, len(X) - 1):
-            robot.plant.SetPositions(ctx, robot.to_plant_q(X[k, :n]))
-            drift.append(sole0.CalcPoseInWorld(ctx).translation())
-        m.update(cog_inside_fraction=float(np.mean(inside)), cog_min_margin=float(np.nanmin(margin)),
-                 r_sole_drift=float(np.linalg.norm(drift[1] - drift[0])))
-    return m
+def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int, int], None] | None = None
+        ) -> StageOutput:
+    """The execute stage: ``rollout.npz`` of the plan's controller run in Drake."""
+    plan = inputs["plan"]
+    out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress)
+    return StageOutput(status=out.metrics["status"], metrics=out.metrics, arrays={ROLLOUT_FILE: out.arrays()},
+                       payload=out)
+
+
+STAGE = Stage(name="execute", config_cls=ExecuteConfig, run=run,
+              sources=("plants", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"), data_files=(ROLLOUT_FILE,),
+              description="Run a plan's feedback controller in closed loop with the Drake plant (Drake's Simulator).",
+              progress_total=lambda cfg: 0)

@@ -1,4 +1,1 @@
-import os
-
-for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(var, "1")
+import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -184,7 +184,7 @@ CASES = {
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_optimized_sweeps_equal_the_reference(case):
     dynamics, limits, opts = CASES[case]
-    options = AICOOptions(tol=0.0, **opts)
+    options = AICOOptions(tol_rel=0.0, **opts)
     ref = Reference(make_problem(dynamics, limits), options).run()
     res = aico(make_problem(dynamics, limits), options)
     assert res.status == "max-iterations", res.message

@@ -43,7 +43,7 @@ def test_key_is_stable_and_short() -> None:
     k = stage_key("plan", "v1", {"T": 100, "alpha": 0.5}, ["aaaaaaaaaaaaaaaa"])
     assert k == KEY and len(k) == 16 and int(k, 16) >= 0
     # Fixed value: a change here invalidates every user's cache, so it must be deliberate.
-    assert stage_key("s", "v", {}, []) == "071282d1eee62f34"
+    assert stage_key("s", "v", {}, []) == "930a4c3542528e4a"  # FORMAT 2: meta carries its checksum
 
 
 def test_key_ignores_order_and_number_spelling() -> None:
@@ -190,15 +190,28 @@ def _corrupt_garble_meta(e: Entry) -> None:
     (e.path / "meta.json").write_text('{"complete": tr')
 
 
+def _corrupt_edit_metric(e: Entry) -> None:
+    m = json.loads((e.path / "meta.json").read_text())
+    m["metrics"] = {"final_cost": 2.0}
+    (e.path / "meta.json").write_text(json.dumps(m))
+
+
+def _corrupt_empty_file_list(e: Entry) -> None:
+    m = json.loads((e.path / "meta.json").read_text())
+    m["files"] = {}
+    (e.path / "meta.json").write_text(json.dumps(m))
+
+
 @pytest.mark.parametrize(
     ("corrupt", "reason"),
     [
         (_corrupt_truncate, "file data.npz changed (size"),
-        (_corrupt_same_size, "file sub/notes.txt changed (sha256"),
         (_corrupt_delete_file, "file data.npz missing"),
         (_corrupt_delete_meta, "cache entry incomplete (meta.json missing)"),
         (_corrupt_flip_complete, "cache entry incomplete (not marked complete)"),
         (_corrupt_garble_meta, "cache entry corrupt (meta.json unreadable"),
+        (_corrupt_edit_metric, "cache entry corrupt (meta.json was edited"),
+        (_corrupt_empty_file_list, "cache entry corrupt (meta.json was edited"),
     ],
 )
 def test_corrupt_entry_detected_and_recomputed(tmp_path: Path, corrupt, reason: str) -> None:
@@ -215,6 +228,33 @@ def test_corrupt_entry_detected_and_recomputed(tmp_path: Path, corrupt, reason: 
     r = c.run("plan", KEY, lambda d: calls.append(1) or write_npz(d))
     assert calls == [1] and not r.cached and r.reason.startswith(reason)
     assert c.why("plan", KEY) == "cached" and sorted(os.listdir(tmp_path / "plan")) == [KEY]
+
+
+def test_hit_checks_sizes_and_meta_verify_rehashes(tmp_path: Path) -> None:
+    """A same-size change of a data file passes the cheap hit check (by design) and is
+    found by the deep check of ``raico ls --verify``."""
+    c = Cache(tmp_path)
+    e = c.write("plan", KEY, write_npz, {})
+    _corrupt_same_size(e)
+    assert c.lookup("plan", KEY) is not None
+    assert c.verify("plan", KEY).startswith("file sub/notes.txt changed (sha256")
+    [info] = c.list(deep=True)
+    assert not info.valid and info.reason.startswith("file sub/notes.txt changed (sha256")
+
+
+def test_derived_files_beside_the_data(tmp_path: Path) -> None:
+    c = Cache(tmp_path)
+    e = c.write("plan", KEY, write_npz, {"metrics": {"x": 1}})
+    assert c.derived(e) == {}
+    rec = c.write_derived(e, lambda d: (d / "recording.rrd").write_bytes(b"r" * 10))
+    assert set(rec) == {"recording.rrd"} and rec["recording.rrd"]["size"] == 10
+    assert set(c.derived(e)) == {"recording.rrd"} and c.lookup("plan", KEY) is not None
+    (e.path / "recording.rrd").write_bytes(b"r" * 3)  # damaged: no longer counts, the entry stays valid
+    assert c.derived(e) == {} and c.lookup("plan", KEY) is not None
+    with pytest.raises(ValueError, match="may not be called 'data.npz'"):
+        c.write_derived(e, lambda d: (d / "data.npz").write_bytes(b"x"))
+    assert not [p for p in (tmp_path / "plan").iterdir() if p.name.startswith(".tmp-")]
+    assert c.lookup("plan", KEY) is not None
 
 
 def test_big_files_checked_by_size_only(tmp_path: Path) -> None:

@@ -33,7 +33,7 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
     res = invoke("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
     assert res.exit_code == 0, res.output
     line = json.loads(res.stdout.strip().splitlines()[-1])
-    assert set(line) == {"stage", "key", "path", "cached", "status", "metrics"}
+    assert set(line) == {"stage", "key", "path", "cached", "status", "metrics", "recording"}
     assert line["cached"] is False and line["stage"] == "babble"
     folder = Path(line["path"])
     assert folder == tmp_path / "babble" / line["key"]

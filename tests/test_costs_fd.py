@@ -1,4 +1,6 @@
-"""Finite-difference checks of every cost term's gradient and Gauss-Newton Hessian (SPEC §5)."""
+"""Cost terms (SPEC §5): the Gauss-Newton model and task message, inactive steps, control
+limits, the problem's sums. Every term class's gradient and Hessian against finite
+differences: ``tests/test_derivatives.py`` (``COST_TERM_EXAMPLES``)."""
 
 from __future__ import annotations
 
@@ -6,20 +8,10 @@ import numpy as np
 import pytest
 
 from plants.dynamics import PseudoDynamics
+from plants.numdiff import check_cost_term, check_taskmap, numdiff_jacobian
 from stages.plan.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
 from stages.plan.problem import Problem
 from tests.toys import PlanarArm
-
-
-def fd_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
-    """Central differences of ``f: (n,) -> (k,)`` at ``x``: ``(k, n)``."""
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e[i] = eps
-        cols.append((np.atleast_1d(f(x + e)) - np.atleast_1d(f(x - e))) / (2 * eps))
-    return np.stack(cols, axis=-1)
-
 
 RNG = np.random.default_rng(0)
 N_Q = 3
@@ -28,9 +20,8 @@ ARM = PlanarArm([0.5, 0.4, 0.3])
 
 
 def test_planar_arm_jacobian_matches_fd():
-    q = RNG.standard_normal(N_Q)
-    _, J = ARM.value_and_jacobian(q)
-    assert np.allclose(J, fd_jacobian(lambda z: ARM.value_and_jacobian(z)[0], q), atol=1e-8)
+    """The toy task map of the solver tests (not a registered example)."""
+    check_taskmap(ARM, RNG.standard_normal((2, N_Q)), atol=1e-8).assert_passed()
 
 
 def _state_terms():
@@ -43,18 +34,14 @@ def _state_terms():
 
 
 @pytest.mark.parametrize("term", _state_terms(), ids=lambda t: t.name)
-def test_state_term_gradient_matches_fd(term):
+def test_state_term_derivatives_on_the_toy_arm_and_zero_when_inactive(term):
     X = RNG.standard_normal((6, N_X))
+    idx = np.arange(6)
+    check_cost_term(lambda Z: term.value(Z, idx), lambda Z: term.derivatives(Z, idx), X).assert_passed()
     lx, lxx = term.derivatives(X)
     assert lx.shape == (6, N_X) and lxx.shape == (6, N_X, N_X)
-    active = term.active(np.arange(6))
-    for t in range(6):
-        g = fd_jacobian(lambda x, t=t: term.value(x[None, :], [t]), X[t])[0]
-        assert np.allclose(lx[t], g, rtol=1e-6, atol=1e-6 * max(1.0, abs(g).max()))
-        if not active[t]:
-            assert not lx[t].any() and not lxx[t].any()
-        assert np.allclose(lxx[t], lxx[t].T)
-        assert np.all(np.linalg.eigvalsh(lxx[t]) >= -1e-9 * max(1.0, abs(lxx[t]).max()))
+    inactive = ~term.active(idx)
+    assert not lx[inactive].any() and not lxx[inactive].any()
 
 
 def test_via_point_gauss_newton_hessian_and_message():
@@ -65,7 +52,7 @@ def test_via_point_gauss_newton_hessian_and_message():
     q = x[:N_Q]
     target = np.array([0.3, 0.9])
     term = ViaPoint(ARM, target, times=[0], weight=w, precision=Cd)
-    J = fd_jacobian(lambda z: ARM.value_and_jacobian(z)[0], q)
+    J = numdiff_jacobian(lambda z: ARM.value_and_jacobian(z)[0], q)
     _, lxx = term.derivatives(x[None, :], [0])
     GN = 2 * w * J.T @ np.diag(Cd) @ J
     assert np.allclose(lxx[0][:N_Q, :N_Q], GN, rtol=1e-6, atol=1e-4)
@@ -78,16 +65,8 @@ def test_via_point_gauss_newton_hessian_and_message():
     assert not r[0][N_Q:].any()
     # at a zero residual the Gauss-Newton Hessian is the exact Hessian
     zero = ViaPoint(ARM, phi0, times=[0], weight=w, precision=Cd)
-    H_fd = fd_jacobian(lambda z: zero.derivatives(z[None, :], [0])[0][0], x, eps=1e-5)
+    H_fd = numdiff_jacobian(lambda z: zero.derivatives(z[None, :], [0])[0][0], x, eps=1e-5)
     assert np.allclose(zero.derivatives(x[None, :], [0])[1][0], H_fd, rtol=1e-5, atol=1e-3)
-
-
-def test_state_target_hessian_is_exact():
-    C = RNG.standard_normal((N_X, N_X))
-    term = StateTarget(RNG.standard_normal(N_X), weight=3.0, precision=C @ C.T)
-    x = RNG.standard_normal(N_X)
-    H_fd = fd_jacobian(lambda z: term.derivatives(z[None, :])[0][0], x)
-    assert np.allclose(term.derivatives(x[None, :])[1][0], H_fd, atol=1e-6)
 
 
 def _control_terms():
@@ -99,16 +78,10 @@ def _control_terms():
 
 
 @pytest.mark.parametrize("term", _control_terms(), ids=lambda t: t.name)
-def test_control_term_gradient_and_hessian_match_fd(term):
+def test_control_term_quadratize_matches_derivatives(term):
     U = np.array([[0.2, 0.1], [1.7, -3.0], [-1.4, 0.9], [0.0, 0.0]])   # inside / outside
     lu, luu = term.derivatives(U)
     assert lu.shape == U.shape and luu.shape == (4, 2, 2)
-    for t in range(U.shape[0]):
-        g = fd_jacobian(lambda u: term.value(u[None, :]), U[t])[0]
-        assert np.allclose(lu[t], g, rtol=1e-6, atol=1e-6)
-        # piecewise quadratic: away from the kinks the Gauss-Newton Hessian is exact
-        H_fd = fd_jacobian(lambda u: term.derivatives(u[None, :])[0][0], U[t])
-        assert np.allclose(luu[t], H_fd, atol=1e-4)
     H, h = term.quadratize(U)
     assert np.allclose(np.einsum("kij,kj->ki", H, U) - h, lu)      # gradient of the model
 

@@ -1,27 +1,21 @@
-"""FastAnalyticDynamics (compiled symbolic Drake dynamics) against AnalyticDynamics, Drake's
-time derivatives and finite differences: the verification of the fast route."""
+"""FastAnalyticDynamics (plants.fast_analytic, code from plants.codegen) against
+AnalyticDynamics (AutoDiffXd) and Drake's time derivatives: the verification of the fast route.
+Its linearization against finite differences: ``tests/test_derivatives.py``."""
 
 import numpy as np
 import pytest
 
+from plants.codegen.derive import compiled_dynamics, is_supported, self_check
+from plants.codegen.drake_reader import cyclic_positions
+from plants.codegen.emit import emit
+from plants.codegen.graph import Graph
 from plants.dynamics import AnalyticDynamics, rollout
-from plants.fastdyn import (
-    FastAnalyticDynamics,
-    _Graph,
-    compiled_dynamics,
-    cyclic_positions,
-    is_supported,
-    make_fast_or_exact,
-    self_check,
-)
+from plants.fast_analytic import FastAnalyticDynamics, make_fast_or_exact
+from plants.numdiff import numdiff_jacobian
 from plants.robots import shared_robot
 
 NAMES = ["pendulum", "arm5", "biorob"]
 DT = 0.01
-
-
-def fd_jacobian(f, x, eps=1e-6):
-    return np.stack([(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)], axis=-1)
 
 
 def random_states(robot, T, seed):
@@ -102,15 +96,6 @@ def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
         np.testing.assert_allclose(a[t], a1, rtol=0, atol=1e-14)
 
 
-def test_linearization_matches_central_differences_of_step(pair):
-    r, fast, _ = pair
-    X, U = random_states(r, 2, seed=4)
-    for x, u in zip(X, U):
-        A, a, B = fast.linearize(x, u)
-        np.testing.assert_allclose(A, fd_jacobian(lambda z, u=u: fast.step(z, u), x), rtol=0, atol=1e-6)
-        np.testing.assert_allclose(B, fd_jacobian(lambda w, x=x: fast.step(x, w), u), rtol=0, atol=1e-6)
-
-
 def test_qddot_matches_drake_time_derivatives(pair):
     r, fast, _ = pair
     X, U = random_states(r, 3, seed=5)
@@ -160,13 +145,13 @@ def test_fallback_for_the_nao():
 
 
 def test_graph_simplifies_and_differentiates():
-    g = _Graph()
+    g = Graph()
     x, y = g.x(0), g.x(1)
     assert g.add(x, g.zero) == x and g.mul(x, g.one) == x and g.mul(x, g.zero) == g.zero
     assert g.sub(x, x) == g.zero and g.neg(g.neg(x)) == x
     assert g.add(g.mul(x, y), g.mul(y, x)) == g.add(g.mul(y, x), g.mul(x, y))  # hash-consed
     f = g.div(g.mul(g.unary("sin", x), g.pow(y, 3.0)), g.add(g.unary("cos", y), g.const(2.0)))
-    src = g.emit("f", [x, y], [f, g.diff(f, 0), g.diff(f, 1)])
+    src = emit(g, "f", [x, y], [f, g.diff(f, 0), g.diff(f, 1)])
     ns = {"sin": np.sin, "cos": np.cos, "sqrt": np.sqrt}
     exec(src, ns)
     p = np.array([0.7, -1.3])
@@ -176,7 +161,7 @@ def test_graph_simplifies_and_differentiates():
 
     val, dx, dy = ns["f"](list(p), [0.0] * 3)
     assert val == pytest.approx(fn(p), rel=1e-14)
-    np.testing.assert_allclose([dx, dy], fd_jacobian(fn, p), rtol=1e-8)
+    np.testing.assert_allclose([dx, dy], numdiff_jacobian(fn, p)[0], rtol=1e-8)
 
 
 def test_bad_shapes_are_refused():

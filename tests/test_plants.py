@@ -1,15 +1,18 @@
-"""Plants (SPEC §3), dynamics (§4) and task maps (§5) against facts and finite differences."""
+"""Plants (SPEC §3), dynamics (§4) and task maps (§5) against facts and Drake; the dynamics
+registry and the import graph of ``plants``. Derivatives against finite differences:
+``tests/test_derivatives.py`` (every registered model and task map)."""
+
+import ast
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from plants.dynamics import AnalyticDynamics, PseudoDynamics, make_dynamics
+from plants.dynamics import AnalyticDynamics, PseudoDynamics
+from plants.fast_analytic import FastAnalyticDynamics
+from plants.registry import DYNAMICS, DynamicsSpec, dynamics_names, make_dynamics, register_dynamics
 from plants.robots import PLANTS, load_robot, shared_robot
-from plants.taskmaps import CenterOfMass, EndEffectorPosition, FramePoints, JointPositions, RollAngle
-
-
-def fd_jacobian(f, x, eps=1e-6):
-    return np.stack([(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)], axis=-1)
+from plants.taskmaps import EndEffectorPosition, RollAngle
 
 
 def random_state(robot, seed=0):
@@ -92,35 +95,11 @@ def test_nao_reduced_model_keeps_the_coupling_in_drake():
     assert np.allclose(dyn.qddot(q, v, dyn.inverse_dynamics(q, v, a)), a, atol=1e-8)
 
 
-@pytest.mark.parametrize("name", PLANTS)
-@pytest.mark.parametrize("kind", ["pseudo", "analytic"])
-def test_linearization_matches_finite_differences(name, kind):
-    r = shared_robot(name)
-    dyn = make_dynamics(kind, r, 0.01)
-    q, v, u = random_state(r, 2)
-    x = np.concatenate([q, v])
-    A, a, B = dyn.linearize(x, u)
-    assert np.allclose(A, fd_jacobian(lambda z: dyn.step(z, u), x), atol=1e-6)
-    assert np.allclose(B, fd_jacobian(lambda w: dyn.step(x, w), u), atol=1e-6)
-    assert np.allclose(A @ x + a + B @ u, dyn.step(x, u), atol=1e-12)
-
-
 def test_pseudo_dynamics_matrices():
     d = PseudoDynamics(2, 0.1)
     A, a, B = d.linearize(np.zeros(4), np.zeros(2))
     assert np.allclose(A, [[1, 0, .1, 0], [0, 1, 0, .1], [0, 0, 1, 0], [0, 0, 0, 1]])
     assert np.allclose(B, [[.01, 0], [0, .01], [.1, 0], [0, .1]]) and not a.any()
-
-
-def test_linearize_trajectory_matches_pointwise():
-    r = shared_robot("arm5")
-    dyn = AnalyticDynamics(r, 0.002)
-    rng = np.random.default_rng(3)
-    X = np.concatenate([r.default_q + 0.1 * rng.standard_normal((4, 5)), rng.standard_normal((4, 5))], 1)
-    U = rng.standard_normal((4, 5))
-    A, a, B = dyn.linearize_trajectory(X, U)
-    A2, a2, B2 = dyn.linearize(X[2], U[2])
-    assert A.shape == (4, 10, 10) and np.allclose(A[2], A2) and np.allclose(a[2], a2) and np.allclose(B[2], B2)
 
 
 def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
@@ -146,25 +125,6 @@ def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
     assert abs(energy() - e0) < 1e-6 * max(1.0, abs(e0))
 
 
-def _maps(r):
-    ee = next(iter(r.end_effectors.values()))
-    return [EndEffectorPosition(r, ee), EndEffectorPosition(r, ee, axes=(1, 2)), RollAngle(r, ee),
-            CenterOfMass(r), JointPositions(r.n_q, [0]),
-            FramePoints(r, ee, points=[[0, 0, 0], [0.1, 0, 0], [0, 0.05, 0.02]])]
-
-
-@pytest.mark.parametrize("name", PLANTS)
-def test_task_map_jacobians_match_finite_differences(name):
-    r = shared_robot(name)
-    q, _, _ = random_state(r, 4)
-    for m in _maps(r):
-        val, J = m.value_and_jacobian(q)
-        assert val.shape == (m.dim,) and J.shape == (m.dim, r.n_q)
-        assert np.allclose(J, fd_jacobian(lambda z, m=m: m.value_and_jacobian(z)[0], q), atol=1e-6), m.name
-        V, JJ = m.values_and_jacobians(np.stack([q, q]))
-        assert np.allclose(V[1], val) and np.allclose(JJ[0], J)
-
-
 def test_roll_angle_follows_the_wrist_roll_joint():
     r = shared_robot("arm5")
     roll = RollAngle(r, "ee")
@@ -181,3 +141,77 @@ def test_non_finite_inputs_give_nan_not_an_abort():
     assert np.all(np.isnan(dyn.linearize(np.full(10, np.inf), np.zeros(5))[0]))
     V, J = EndEffectorPosition(r, "ee").values_and_jacobians(np.stack([r.default_q, np.full(5, np.nan)]))
     assert np.all(np.isfinite(V[0])) and np.all(np.isnan(V[1])) and np.all(np.isnan(J[1]))
+
+
+def test_registry_builds_the_registered_models():
+    assert {"pseudo", "analytic"} <= set(dynamics_names()) and list(DYNAMICS) == dynamics_names()
+    assert all(isinstance(s, DynamicsSpec) and s.name == k and s.description for k, s in DYNAMICS.items())
+    arm, nao = shared_robot("arm5"), shared_robot("nao")
+    pseudo = make_dynamics("pseudo", arm, 0.01)
+    assert isinstance(pseudo, PseudoDynamics) and pseudo.n_x == 10 and pseudo.dt == 0.01
+    assert isinstance(make_dynamics("analytic", arm, 0.01), FastAnalyticDynamics)
+    assert type(make_dynamics("analytic", nao, 0.01)) is AnalyticDynamics  # too big to compile
+
+
+def test_registry_refuses_bad_input(monkeypatch):
+    arm = shared_robot("arm5")
+    with pytest.raises(ValueError, match="unknown dynamics 'rigid': choose one of pseudo, analytic"):
+        make_dynamics("rigid", arm, 0.01)
+    with pytest.raises(ValueError, match="takes no params"):
+        make_dynamics("pseudo", arm, 0.01, params={"w": np.ones(2)})
+    with pytest.raises(ValueError, match="already registered"):
+        register_dynamics("pseudo", lambda r, dt, p: PseudoDynamics(r.n_q, dt), "again")
+    monkeypatch.setattr("plants.registry.DYNAMICS", dict(DYNAMICS))
+    seen = []
+    register_dynamics("fitted", lambda r, dt, p: seen.append(p) or PseudoDynamics(r.n_q, dt), "test",
+                      needs_params=True)
+    with pytest.raises(ValueError, match="needs params"):
+        make_dynamics("fitted", arm, 0.01)
+    assert isinstance(make_dynamics("fitted", arm, 0.01, {"w": np.ones(2)}), PseudoDynamics)
+    assert seen[0]["w"].shape == (2,)
+
+
+def _plants_imports() -> dict[str, set[str]]:
+    """``plants`` module -> the modules it imports (anywhere in the file, lazy imports too)."""
+    root = Path(__file__).resolve().parents[1]
+    graph = {}
+    for path in sorted((root / "plants").rglob("*.py")):
+        name = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                deps.add(node.module)
+            elif isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names}
+        graph[name] = deps
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle of ``graph`` (module -> imported modules) as a path, or ``None``."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(m: str, path: list[str]) -> list[str] | None:
+        if state.get(m) == 1:
+            return path + [m]
+        if state.get(m) == 2:
+            return None
+        state[m] = 1
+        for d in sorted(graph.get(m, ())):
+            found = visit(d, path + [m])
+            if found:
+                return found
+        state[m] = 2
+        return None
+
+    return next((c for c in (visit(m, []) for m in sorted(graph)) if c), None)
+
+
+def test_plants_has_no_import_cycle():
+    everything = _plants_imports()
+    assert not any(d.split(".")[0] in ("stages", "pipeline") for deps in everything.values() for d in deps)
+    graph = {m: {d for d in deps if d.startswith("plants.")} for m, deps in everything.items()}
+    assert not any(d in ("plants.registry", "plants.fast_analytic") or d.startswith("plants.codegen")
+                   for d in graph["plants.dynamics"])
+    assert _cycle(graph) is None, " -> ".join(_cycle(graph))
+    assert _cycle({"plants.a": {"plants.b"}, "plants.b": {"plants.a"}}) == ["plants.a", "plants.b", "plants.a"]

@@ -164,7 +164,7 @@ def test_raico_converges_to_exact_solution(alpha):
     pb = make_lq(seed=2, running=5.0)
     X, U = exact_solution(pb)
     errs = []
-    res = aico(pb, AICOOptions(iterations=150, alpha=alpha, gamma=1.0, tol=0.0),
+    res = aico(pb, AICOOptions(iterations=150, alpha=alpha, gamma=1.0, tol_rel=0.0),
                callback=lambda rec, Xn, Un: errs.append(np.max(np.abs(Xn - X))))
     errs = np.array(errs)
     assert errs[0] > 1e-3                               # the first step is regularized

@@ -39,22 +39,20 @@ iteration's linearization at that trajectory (``ViaPoint``'s memo).
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import blas, lapack
 
 from plants.dynamics import LinearDynamics, rollout
+from stages.plan.driver import Iterate, Status, Step, Stop, drive
 from stages.plan.problem import (
     Callback,
-    IterationRecord,
     OptionsBase,
     Problem,
     Result,
     check_range,
     controller_rollout,
-    is_diverged,
     single_threaded_blas,
 )
 
@@ -76,7 +74,7 @@ class AICOOptions(OptionsBase):
             the linearization point ``x_t += rate (b_t - x_t)``, in (0, 1].
         process_noise: ``q`` in ``Q = q I`` (> 0).
         start_variance: ``S_0 = start_variance I`` (tight prior around ``x0``, > 0).
-        tol: converged when the relative cost change of two iterations is below ``tol``.
+        tol_rel: converged when the relative cost change of two iterations is at most this.
         divergence_factor: diverged when the cost exceeds this times the initial cost.
     """
 
@@ -88,7 +86,7 @@ class AICOOptions(OptionsBase):
     belief_rate: float = 1.0
     process_noise: float = 1e-9
     start_variance: float = 1e-10
-    tol: float = 1e-9
+    tol_rel: float = 1e-9
     divergence_factor: float = 1e6
 
     def validate(self) -> None:
@@ -100,7 +98,7 @@ class AICOOptions(OptionsBase):
         check_range("belief_rate", self.belief_rate, lo=0.0, hi=1.0, lo_open=True)
         check_range("process_noise", self.process_noise, lo=0.0, lo_open=True)
         check_range("start_variance", self.start_variance, lo=0.0, lo_open=True)
-        check_range("tol", self.tol, lo=0.0)
+        check_range("tol_rel", self.tol_rel, lo=0.0)
         check_range("divergence_factor", self.divergence_factor, lo=1.0, lo_open=True)
         if not math.isfinite(self.alpha) or not math.isfinite(self.gamma):
             raise ValueError("options alpha and gamma must be finite")
@@ -492,58 +490,55 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
             raise ValueError(f"X_init must be finite with shape {(T + 1, problem.n_x)}")
     _check_control_cost(problem)
     sw = _Sweeps(problem, opts)
-    history: list[IterationRecord] = []
-    best = (X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))  # last finite (X, U, o, O)
-    status, message = "max-iterations", f"reached {opts.iterations} iterations"
-    alpha = float(opts.alpha)
-    start = time.perf_counter()
-    reference = initial_cost
-    for it in range(1, opts.iterations + 1):
-        t0 = time.perf_counter()
-        sw.repeats = 0
-        cost, err = math.inf, None
-        try:
-            with np.errstate(all="ignore"):
-                sw.linearize_all(X, U, X, alpha)
-                sw.sweep()
-        except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
-            err = f"{type(e).__name__}: {e}"
-        else:
-            try:   # a model may raise on the exploding states of a diverging rollout
-                Xn, Un = controller_rollout(problem.dynamics, problem.x0, sw.o_, sw.O_)
-                cost = problem.cost(Xn, Un)
-            except (ArithmeticError, ValueError, RuntimeError) as e:
-                err = f"rollout failed: {type(e).__name__}: {e}"
-        now = time.perf_counter()
-        rec = IterationRecord(it, cost, now - t0, now - start, alpha, 0.0, sw.repeats)
-        history.append(rec)
-        if it == 1 and not (math.isfinite(reference) and reference > 0):
-            reference = cost
-        if err is not None or is_diverged(cost, reference, opts.divergence_factor):
-            status = "diverged"
-            message = (f"iteration {it}: " + (err or f"cost {cost:.3g} not finite or above "
-                       f"{opts.divergence_factor:g} x initial cost {reference:.3g}"))
-            break
-        X, U = Xn, Un
-        best = (X, U, sw.o_.copy(), sw.O_.copy())
-        if callback is not None:
-            callback(rec, X, U)
-        if it > 1 and abs(history[-2].cost - cost) <= opts.tol * max(abs(history[-2].cost),
-                                                                     1e-300):
-            status, message = "converged", f"relative cost change below tol={opts.tol:g}"
-            break
-        alpha *= opts.gamma
-    X, U, o, O = best
+    start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
+    out = drive(_AICOStep(problem, sw, float(opts.alpha), opts.gamma), start, opts,
+                initial_cost=initial_cost, callback=callback)
+    last = out.last_finite
     beliefs = None
-    if status != "diverged":
+    if out.status is not Status.DIVERGED:
         try:
             with np.errstate(all="ignore"):
                 beliefs = sw.beliefs()
         except (NumericalError, ArithmeticError):
             beliefs = None
-    return Result(X=X, U=U, o=o, O=O, status=status, history=history,
-                  iterations=len(history), message=message, initial_cost=initial_cost,
+    return Result(X=last.X, U=last.U, o=last.o, O=last.O, status=out.status, history=out.history,
+                  iterations=len(out.history), message=out.message, initial_cost=initial_cost,
                   beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico")
+
+
+class _AICOStep:
+    """One AICO / R-AICO iteration (a ``driver.StepFn``): linearize at the current iterate,
+    sweep, roll the new controller out on the planning dynamics.
+
+    State: the sweeps ``sw`` and ``alpha`` (the regularization of the next iteration,
+    ``alpha^[n] = alpha^[1] gamma^(n-1)``).
+    """
+
+    def __init__(self, problem: Problem, sw: _Sweeps, alpha: float, gamma: float):
+        self.problem, self.sw, self.alpha, self.gamma = problem, sw, alpha, gamma
+
+    def __call__(self, it: int, cur: Iterate) -> Step:
+        sw, alpha = self.sw, self.alpha
+        self.alpha *= self.gamma
+        sw.repeats = 0
+        try:
+            with np.errstate(all="ignore"):
+                sw.linearize_all(cur.X, cur.U, cur.X, alpha)
+                sw.sweep()
+        except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
+            return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
+        try:   # a model may raise on the exploding states of a diverging rollout
+            Xn, Un = controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
+            cost = self.problem.cost(Xn, Un)
+        except (ArithmeticError, ValueError, RuntimeError) as e:
+            return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")
+        return Step(Iterate(Xn, Un, sw.o_.copy(), sw.O_.copy()), cost, step=alpha,
+                    repeats=sw.repeats)
+
+    def _failed(self, cur: Iterate, alpha: float, why: str) -> Step:
+        """A numerical failure: cost ``inf``, status diverged."""
+        return Step(cur, math.inf, step=alpha, repeats=self.sw.repeats, moved=False,
+                    stop=Stop(Status.DIVERGED, why))
 
 
 def _check_control_cost(problem: Problem) -> None:

@@ -19,9 +19,13 @@ velocity block is zero).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
-from plants.taskmaps import TaskMap
+from plants.taskmaps import TASKMAP_EXAMPLES, TaskMap, TaskMapExample
 
 
 def _diag_or_matrix(precision, dim: int, what: str) -> np.ndarray:
@@ -337,3 +341,79 @@ class ControlLimit(ControlTerm):
         luu = np.zeros((K, n_u, n_u))
         luu[:, np.arange(n_u), np.arange(n_u)] = 2.0 * self.weight * act
         return 2.0 * self.weight * v, luu
+
+
+# --------------------------------------------------------------------------------------------
+# Examples: a configured instance of every cost term class, checked against finite
+# differences by tests/test_derivatives.py (plants.numdiff.check_cost_term). Via-points are
+# made on every registered task map example. A new term class registers an example here.
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CostTermExample:
+    """``build(robot, q0) -> term`` (``q0 (n_q,)`` rad); ``kind`` is ``"state"`` or
+    ``"control"``; ``plants``: where it applies (``None``: every plant); ``exact_hessian``:
+    the Gauss-Newton Hessian is the exact one (quadratic terms, away from kinks)."""
+
+    name: str
+    build: Callable[[Any, np.ndarray], StateTerm | ControlTerm]
+    kind: str
+    plants: tuple[str, ...] | None = None
+    exact_hessian: bool = False
+
+    def applies_to(self, plant: str) -> bool:
+        return self.plants is None or plant in self.plants
+
+
+COST_TERM_EXAMPLES: dict[str, CostTermExample] = {}
+
+
+def register_cost_term_example(name: str, build: Callable[[Any, np.ndarray], StateTerm | ControlTerm],
+                               kind: str, plants: tuple[str, ...] | None = None,
+                               exact_hessian: bool = False) -> CostTermExample:
+    """Register an example cost term (unique ``name``; ``kind`` ``"state"`` or ``"control"``)."""
+    if kind not in ("state", "control"):
+        raise ValueError(f"cost term example '{name}': kind must be 'state' or 'control'")
+    if name in COST_TERM_EXAMPLES:
+        raise ValueError(f"cost term example '{name}' is already registered")
+    COST_TERM_EXAMPLES[name] = CostTermExample(name, build, kind, plants, exact_hessian)
+    return COST_TERM_EXAMPLES[name]
+
+
+EXAMPLE_TIMES = (1, 3)  # steps at which the example state terms are active
+
+
+def _via_point_example(taskmap_example: TaskMapExample):
+    """A via-point on the task map example, off its value at ``q0`` (non-zero residual)."""
+    def build(robot, q0: np.ndarray) -> ViaPoint:
+        tm = taskmap_example.build(robot)
+        phi0 = tm.value_and_jacobian(q0)[0]
+        offset = 0.1 * np.cos(np.arange(tm.dim) + 1.0)
+        return ViaPoint(tm, phi0 + offset, EXAMPLE_TIMES, 1e4,
+                        precision=np.linspace(1.0, 3.0, tm.dim), name=f"via_{taskmap_example.name}")
+    return build
+
+
+def _state_target_example(robot, q0: np.ndarray) -> StateTarget:
+    n_x = 2 * len(q0)
+    L = np.tril(np.cos(np.add.outer(np.arange(n_x), 2 * np.arange(n_x)))) + 2 * np.eye(n_x)
+    target = np.concatenate([q0 + 0.1, 0.2 * np.ones(len(q0))])
+    return StateTarget(target, EXAMPLE_TIMES, 3.0, precision=L @ L.T)
+
+
+def _register_via_point_examples() -> None:
+    for ex in TASKMAP_EXAMPLES.values():
+        register_cost_term_example(f"via_{ex.name}", _via_point_example(ex), "state", ex.plants)
+
+
+_register_via_point_examples()
+register_cost_term_example("state_target", _state_target_example, "state", exact_hessian=True)
+register_cost_term_example("control", lambda r, q0: ControlCost(1e-2), "control",
+                           exact_hessian=True)
+register_cost_term_example(
+    "control_target", lambda r, q0: ControlCost(0.5, target=np.linspace(-1.0, 1.0, len(q0)),
+                                                name="control_target"),
+    "control", exact_hessian=True)
+register_cost_term_example(
+    "control_limit", lambda r, q0: ControlLimit(-0.5 * np.ones(len(q0)), 0.7 * np.ones(len(q0)),
+                                                1e3),
+    "control", exact_hessian=True)

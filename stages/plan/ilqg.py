@@ -13,9 +13,11 @@ behaviors through online trajectory optimization"), as in SPEC §6.
   ``mu = mu Delta`` (0 if that falls below ``mu_min``);
 - backtracking line search over ``alphas`` on the feed-forward term only,
   ``u = u_bar + alpha k + K (x - x_bar)``; accept when actual / expected reduction > 0;
-- stop: relative cost change < ``tol_rel`` (converged), gradient
+- stop: relative cost reduction of an accepted step < ``tol_rel`` (converged; the test
+  ``cost_decrease_below`` of ``stages.plan.driver``, which runs the iterations), gradient
   ``mean_t max_i |k_ti| / (|u_ti| + 1) < tol_grad`` with ``mu < 1e-5`` (converged), or
-  ``mu > mu_max`` (status ``"max-iterations"``: no descent step could be found).
+  ``mu > mu_max`` (status ``"max-iterations"``: no descent step could be found); the last
+  two are the solver's own stop reasons (``_ILQGStep``).
 
 Control limits enter as the ``ControlLimit`` penalty term (no clamping / box QP).
 Initial controls are zero.
@@ -24,13 +26,13 @@ Initial controls are zero.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lapack
 
 from plants.dynamics import rollout
+from stages.plan.driver import Iterate, Status, Step, Stop, cost_decrease_below, drive
 from stages.plan.problem import (
     Callback,
     IterationRecord,
@@ -38,7 +40,6 @@ from stages.plan.problem import (
     Problem,
     Result,
     check_range,
-    is_diverged,
     single_threaded_blas,
 )
 
@@ -57,7 +58,7 @@ class ILQGOptions(OptionsBase):
         delta0: ``Delta_0`` of the Levenberg-Marquardt schedule (> 1).
         mu_min, mu_max: regularization limits.
         alphas: line-search step sizes, tried in order (each in (0, 1]).
-        tol_rel: converged when the relative cost reduction of a step is below this.
+        tol_rel: converged when an accepted step lowers the cost by less than this, relative.
         tol_grad: converged when the normalized feed-forward gradient is below this.
         divergence_factor: diverged when the cost exceeds this times the initial cost.
     """
@@ -186,70 +187,65 @@ def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
         J = problem.cost(X, U)
     except (ArithmeticError, ValueError, RuntimeError):
         X, J = np.full((T + 1, n), np.nan), math.inf
-    initial_cost = J
-    start = time.perf_counter()
-    history: list[IterationRecord] = []
-    K = np.zeros((T, m, n))
     if not math.isfinite(J):
-        history.append(IterationRecord(1, math.inf, 0.0, 0.0, 0.0, float(opts.mu0)))
-        return _result(X, U, K, "diverged", history, "initial rollout is not finite",
-                       initial_cost)
-    lm = _LM(opts)
-    status, message = "max-iterations", f"reached {opts.iterations} iterations"
-    derivs = None
-    gains_at_final = False
-    for it in range(1, opts.iterations + 1):
-        t0 = time.perf_counter()
+        history = [IterationRecord(1, math.inf, 0.0, 0.0, 0.0, float(opts.mu0))]
+        return _result(X, U, np.zeros((T, m, n)), Status.DIVERGED, history,
+                       "initial rollout is not finite", J)
+    st = _ILQGStep(problem, opts, J, np.zeros((T, m, n)))
+    out = drive(st, Iterate(X, U), opts, initial_cost=J, reference_cost=J,
+                test=cost_decrease_below, callback=callback)
+    X, U, K = out.last_finite.X, out.last_finite.U, st.K
+    if not st.gains_at_final and out.status is not Status.DIVERGED:
+        K = _final_gains(problem, X, U, st.lm.mu, K)
+    return _result(X, U, K, out.status, out.history, out.message, J)
+
+
+class _ILQGStep:
+    """One iLQG iteration (a ``driver.StepFn``): backward pass at the current trajectory
+    (``mu`` raised until ``Q_uu`` is positive definite), gradient test, line search.
+
+    State: the ``mu`` schedule ``lm``, the cost ``J`` of the current trajectory, its
+    derivatives (``None`` once it moved), the last gains ``K (T, n_u, n_x)`` and whether
+    they were computed unregularized at the current trajectory (``gains_at_final``).
+    Stop reasons: ``mu > mu_max`` (max-iterations), gradient below ``tol_grad`` with
+    ``mu < 1e-5`` (converged), a numerical failure (diverged).
+    """
+
+    def __init__(self, problem: Problem, opts: ILQGOptions, J: float, K: np.ndarray):
+        self.problem, self.o, self.J, self.K = problem, opts, J, K
+        self.lm = _LM(opts)
+        self.derivs = None
+        self.gains_at_final = False
+
+    def __call__(self, it: int, cur: Iterate) -> Step:
+        o, lm, J = self.o, self.lm, self.J
         try:
-            if derivs is None:
-                derivs = _derivatives(problem, X, U)
-            k, K_new, dV, stop = _regularized_backward(derivs, lm)
+            if self.derivs is None:
+                self.derivs = _derivatives(self.problem, cur.X, cur.U)
+            k, K_new, dV, stuck = _regularized_backward(self.derivs, lm)
         except (ArithmeticError, np.linalg.LinAlgError) as e:
-            history.append(IterationRecord(it, math.inf, time.perf_counter() - t0,
-                                           time.perf_counter() - start, 0.0, lm.mu))
-            status, message = "diverged", f"iteration {it}: {type(e).__name__}: {e}"
-            break
-        if stop:
-            _record(history, callback, it, J, t0, start, 0.0, lm.mu, X, U)
-            status, message = "max-iterations", f"mu > mu_max={opts.mu_max:g}: no descent step"
-            break
-        K, gains_at_final = K_new, lm.mu == 0.0
-        gnorm = float(np.mean(np.max(np.abs(k) / (np.abs(U) + 1.0), axis=1)))
-        if gnorm < opts.tol_grad and lm.mu < 1e-5:
+            return Step(cur, math.inf, mu=lm.mu, moved=False,
+                        stop=Stop(Status.DIVERGED, f"{type(e).__name__}: {e}"))
+        if stuck:
+            return Step(cur, J, mu=lm.mu, moved=False, stop=self._mu_limit())
+        self.K, self.gains_at_final = K_new, lm.mu == 0.0
+        gnorm = float(np.mean(np.max(np.abs(k) / (np.abs(cur.U) + 1.0), axis=1)))
+        if gnorm < o.tol_grad and lm.mu < 1e-5:
             lm.decrease()
-            _record(history, callback, it, J, t0, start, 0.0, lm.mu, X, U)
-            status, message = "converged", f"gradient {gnorm:.2e} below tol_grad"
-            break
-        accepted, Xn, Un, Jn, alpha = _line_search(problem, X, U, J, k, K, dV, opts.alphas)
-        if accepted:
-            lm.decrease()
-            rel = (J - Jn) / max(abs(J), 1e-300)
-            X, U, J, derivs, gains_at_final = Xn, Un, Jn, None, False
-        else:
+            return Step(cur, J, mu=lm.mu, moved=False,
+                        stop=Stop(Status.CONVERGED, f"gradient {gnorm:.2e} below tol_grad"))
+        accepted, Xn, Un, Jn, alpha = _line_search(self.problem, cur.X, cur.U, J, k, K_new,
+                                                   dV, o.alphas)
+        if not accepted:
             lm.increase()
-            alpha = 0.0
-        _record(history, callback, it, J, t0, start, alpha, lm.mu, X, U)
-        if is_diverged(J, initial_cost, opts.divergence_factor):
-            status, message = "diverged", f"iteration {it}: cost {J:.3g} exploded"
-            break
-        if accepted and rel < opts.tol_rel:
-            status, message = "converged", f"relative cost change {rel:.2e} below tol_rel"
-            break
-        if not accepted and lm.mu > opts.mu_max:
-            status, message = "max-iterations", f"mu > mu_max={opts.mu_max:g}: no descent step"
-            break
-    if not gains_at_final and status != "diverged":
-        K = _final_gains(problem, X, U, lm.mu, K)
-    return _result(X, U, K, status, history, message, initial_cost)
+            stop = self._mu_limit() if lm.mu > o.mu_max else None
+            return Step(cur, J, mu=lm.mu, moved=False, stop=stop)
+        lm.decrease()
+        self.J, self.derivs, self.gains_at_final = Jn, None, False
+        return Step(Iterate(Xn, Un), Jn, step=alpha, mu=lm.mu)
 
-
-def _record(history, callback, it, J, t0, start, step, mu, X, U) -> None:
-    """Append one ``IterationRecord`` and call the callback with the current trajectory."""
-    now = time.perf_counter()
-    rec = IterationRecord(it, J, now - t0, now - start, step, mu)
-    history.append(rec)
-    if callback is not None:
-        callback(rec, X, U)
+    def _mu_limit(self) -> Stop:
+        return Stop(Status.MAX_ITERATIONS, f"mu > mu_max={self.o.mu_max:g}: no descent step")
 
 
 def _derivatives(problem: Problem, X: np.ndarray, U: np.ndarray):
@@ -316,7 +312,7 @@ def _final_gains(problem, X, U, mu, K_fallback):
     return K_fallback
 
 
-def _result(X, U, K, status, history, message, initial_cost) -> Result:
+def _result(X, U, K, status: Status, history, message, initial_cost) -> Result:
     o = U - np.einsum("tij,tj->ti", K, X[:-1])
     return Result(X=X, U=U, o=o, O=K, status=status, history=history,
                   iterations=len(history), message=message, initial_cost=initial_cost,

@@ -23,13 +23,25 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
 from plants.dynamics import Dynamics
 
-STATUSES = ("converged", "max-iterations", "diverged")
+
+class Status(StrEnum):
+    """Why a solver stopped. A ``str`` (``StrEnum``: ``(str, Enum)`` whose ``str()`` and
+    ``format()`` give the value): equal to, and written (``str``, f-strings, JSON) as, its
+    value, e.g. ``Status.CONVERGED == "converged"``."""
+
+    CONVERGED = "converged"            # a convergence test was met
+    MAX_ITERATIONS = "max-iterations"  # iteration budget, or iLQG's regularization limit
+    DIVERGED = "diverged"              # cost not finite or exploded, or a numerical failure
+
+
+STATUSES = tuple(s.value for s in Status)
 
 
 @dataclass(eq=False)
@@ -217,8 +229,9 @@ class Result:
         U: its controls ``(T, n_u)``.
         o: controller offsets ``(T, n_u)``; ``u_t = o_t + O_t x_t``.
         O: controller gains ``(T, n_u, n_x)``.
-        status: one of ``"converged"``, ``"max-iterations"`` (stopped without meeting a
-            convergence test: iteration budget, or iLQG's regularization limit), ``"diverged"``.
+        status: a ``Status`` (a plain status string is converted): ``"converged"``,
+            ``"max-iterations"`` (stopped without meeting a convergence test: iteration budget,
+            or iLQG's regularization limit) or ``"diverged"``.
         history: one ``IterationRecord`` per iteration.
         iterations: number of iterations run.
         message: one human-readable line on why the solver stopped.
@@ -231,7 +244,7 @@ class Result:
     U: np.ndarray
     o: np.ndarray
     O: np.ndarray
-    status: str
+    status: Status
     history: list[IterationRecord]
     iterations: int
     message: str
@@ -242,6 +255,7 @@ class Result:
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
             raise ValueError(f"status {self.status!r} not in {STATUSES}")
+        self.status = Status(self.status)
 
     @property
     def cost(self) -> float:
@@ -272,13 +286,6 @@ def controller_rollout(
             U[t] = u
             X[t + 1] = step(X[t], u)
     return X, U
-
-
-def is_diverged(cost: float, reference: float, factor: float) -> bool:
-    """``True`` if ``cost`` is not finite or exceeds ``factor * reference``."""
-    if not math.isfinite(cost):
-        return True
-    return reference > 0 and math.isfinite(reference) and cost > factor * reference
 
 
 class OptionsBase:

@@ -1,31 +1,50 @@
 """The plan stage: plant + task + dynamics model + solver -> trajectory and feedback controller.
 
-``run(PlanConfig) -> PlanOutput``. The initial state is ``x0 = (q0, 0)`` with
+``STAGE`` runs ``plan(PlanConfig) -> PlanOutput`` and stores ``plan.npz`` and ``problem.json``
+(the objective as data, see ``stages.plan.objective``). The initial state is ``x0 = (q0, 0)`` with
 ``q0 = default posture + N(0, q0_std^2)`` drawn with ``seed`` (thesis: 10 initial states with
 std 0.05). Arrays follow the solver contract of ``stages.plan.problem``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from plants.dynamics import make_dynamics
+from plants.dynamics import PseudoDynamics
+from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
-from stages.plan.costs import ViaPoint
+from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
+from stages.evaluate.metrics import via_point_errors
+from stages.plan.objective import Objective, build_terms
 from stages.plan.problem import Problem, Result
 from stages.plan.solvers import SOLVERS, make_options, solve
-from stages.plan.tasks import TaskSpec, get_task
+from stages.plan.tasks import TASKS, TaskSpec, get_task
 
-CODE_VERSION = "plan-2"
-DYNAMICS = ("pseudo", "analytic")
+DYNAMICS = ("pseudo", "analytic", "learned")
+PLAN_FILE = "plan.npz"
+PROBLEM_FILE = "problem.json"
 
 
 @dataclass(frozen=True)
-class PlanConfig:
-    """Declared parameters of the plan stage (all part of its cache key)."""
+class PlanConfig(StageConfig):
+    """Declared parameters of the plan stage (defaults stated here only).
+
+    ``model``: the fit artifact whose GP the ``learned`` dynamics use (an input, so its key,
+    not the reference typed, is part of the cache key).
+    """
+
+    INPUTS = ("model",)
+    INPUT_STAGES = {"model": "fit"}
+    HELP = {"plant": "pendulum, arm5, biorob or nao.",
+            "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",
+            "dynamics": "pseudo (controls = accelerations), analytic (Drake, torques) or learned (GP of --model).",
+            "solver": "aico, raico or ilqg.", "alpha": "R-AICO regularization alpha (raico only).",
+            "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
+            "q0_std": "Std of q0 around the default posture (rad).",
+            "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
+            "model": "Key of a fit artifact (the GP of --dynamics learned)."}
 
     plant: str
     task: str
@@ -37,6 +56,7 @@ class PlanConfig:
     seed: int = 0
     q0_std: float = 0.05  # rad
     relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
+    model: str | None = None
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -44,6 +64,8 @@ class PlanConfig:
         get_task(self.plant, self.task)
         if self.dynamics not in DYNAMICS:
             raise ValueError(f"unknown dynamics '{self.dynamics}': choose one of {', '.join(DYNAMICS)}")
+        if (self.dynamics == "learned") != (self.model is not None):
+            raise ValueError("--model KEY goes with --dynamics learned, and only with it")
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver '{self.solver}': choose one of {', '.join(SOLVERS)}")
         if not 1 <= self.iterations <= 10000:
@@ -69,14 +91,6 @@ class PlanConfig:
             opts.update(alpha=self.alpha, gamma=self.gamma)
         return opts
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> PlanConfig:
-        """From a stored config (``meta.json``); keys it does not declare are ignored."""
-        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
-
 
 @dataclass
 class PlanOutput:
@@ -86,6 +100,7 @@ class PlanOutput:
     problem: Problem
     result: Result
     q0: np.ndarray
+    description: dict
 
     @property
     def times(self) -> np.ndarray:
@@ -100,6 +115,7 @@ class PlanOutput:
         r = self.result
         return {"X": r.X, "U": r.U, "o": r.o, "O": r.O, "costs": r.costs, "q0": self.q0,
                 "times": self.times, "wall_time": np.array([h.time_s for h in r.history]),
+                "elapsed": np.array([h.elapsed_s for h in r.history]),
                 "step": np.array([h.step for h in r.history]), "mu": np.array([h.mu for h in r.history]),
                 "beliefs": r.beliefs if r.beliefs is not None else np.zeros((0,)),
                 "joint_names": np.array(self.robot.joint_names)}
@@ -113,35 +129,9 @@ class PlanOutput:
         init = float(r.initial_cost)
         return {"initial_cost": init, "first_iteration_cost": first,
                 "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
-                "iterations": int(r.iterations), "status": r.status,
+                "iterations": int(r.iterations), "status": str(r.status),
                 "wall_time_s": float(sum(h.time_s for h in r.history)),
                 "via_point_errors": self.via_point_errors(), "message": r.message}
-
-
-def via_point_errors(problem: Problem, X: np.ndarray) -> dict[str, float]:
-    """``{"<term>@<t>": error}``: Euclidean task error over the dimensions that count.
-
-    Dimensions count whose precision is at least 1% of the largest (balance: the lateral
-    axis only). Terms held at every step (the Nao's right sole) report their largest error.
-    """
-    n_q = problem.n_x // 2
-    out: dict[str, float] = {}
-    for term in problem.state_terms:
-        if not isinstance(term, ViaPoint):
-            continue
-        w = np.diag(term.C)
-        keep = w >= 0.01 * w.max()
-        idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
-        if not np.all(np.isfinite(X[idx])):
-            errs = np.full(idx.size, np.inf)
-        else:
-            phi, _ = term.taskmap.values_and_jacobians(X[idx, :n_q])
-            errs = np.linalg.norm((term.target - phi)[:, keep], axis=1)
-        if idx.size > 3:
-            out[f"{term.name}@max"] = float(errs.max())
-        else:
-            out.update({f"{term.name}@{t}": float(e) for t, e in zip(idx, errs)})
-    return out
 
 
 def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
@@ -150,23 +140,60 @@ def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
     return robot.default_q + q0_std * rng.standard_normal(robot.n_q)
 
 
-def build_problem(cfg: PlanConfig) -> tuple[Robot, TaskSpec, Problem, np.ndarray]:
+def control_kind(dynamics) -> str:
+    """``acceleration`` for pseudo-dynamics, ``torque`` for the analytic and learned models."""
+    return "acceleration" if isinstance(dynamics, PseudoDynamics) else "torque"
+
+
+def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptions: list,
+                     model_key: str | None, kind: str) -> dict:
+    """The stored problem description (``problem.json``): enough to rebuild the objective."""
+    return {"plant": cfg.plant, "task": cfg.task, "dynamics": cfg.dynamics, "model": model_key,
+            "control_kind": kind, "dt": task.dt, "T": task.T, "q0": q0.tolist(),
+            "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
+
+
+def objective_from_description(desc: dict, robot: Robot | None = None) -> Objective:
+    """The planned objective rebuilt from a stored description (execute, evaluate, report)."""
+    robot = robot or shared_robot(desc["plant"])
+    return build_terms(robot, desc["terms"], int(desc["T"]), desc["control_kind"])
+
+
+def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
+    """Robot, task, problem, ``q0`` and the problem's description for ``cfg``."""
     robot = shared_robot(cfg.plant)
     task = get_task(cfg.plant, cfg.task)
     q0 = initial_posture(robot, cfg.q0_std, cfg.seed)
-    state_terms, control_terms = task.build(robot, q0, cfg.dynamics)
-    dyn = make_dynamics(cfg.dynamics, robot, task.dt)
+    params = model.arrays("model.npz") if model is not None else None
+    dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
+    kind = control_kind(dyn)
+    objective = build_terms(robot, task.build(robot, q0, task.T), task.T, kind)
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
-    return robot, task, Problem(dyn, x0, task.T, state_terms, control_terms), q0
+    problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms)
+    desc = describe_problem(cfg, task, q0, objective.descriptions, model.ref if model else None, kind)
+    return robot, task, problem, q0, desc
 
 
-def run(cfg: PlanConfig, progress: Callable[[int, int], None] | None = None) -> PlanOutput:
+def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception."""
     cfg.validate()
-    robot, task, problem, q0 = build_problem(cfg)
+    robot, task, problem, q0, desc = build_problem(cfg, model)
     callback = None
     if progress is not None:
         def callback(rec, *_):  # noqa: ANN001
             progress(rec.iteration, cfg.iterations)
     result = solve(problem, cfg.solver, cfg.solver_options(), callback=callback)
-    return PlanOutput(cfg, task, robot, problem, result, q0)
+    return PlanOutput(cfg, task, robot, problem, result, q0, desc)
+
+
+def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None = None) -> StageOutput:
+    """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``."""
+    out = plan(cfg.normalized(), (inputs or {}).get("model"), progress)
+    return StageOutput(status=str(out.result.status), metrics=out.metrics(), arrays={PLAN_FILE: out.arrays()},
+                       documents={PROBLEM_FILE: out.description}, payload=out)
+
+
+STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+              data_files=(PLAN_FILE, PROBLEM_FILE),
+              description="Plan a movement with AICO, R-AICO or iLQG; the artifact holds the feedback controller.",
+              progress_total=lambda cfg: cfg.iterations)

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from plants.robots import Robot
-from plants.taskmaps import CenterOfMass, EndEffectorPosition, FramePoints, RollAngle
-from stages.plan.costs import ControlCost, ControlLimit, ViaPoint
+from plants.taskmaps import CenterOfMass, FramePoints
+from stages.plan import objective as ob
 
 W_TASK = 1e4
 W_U = 1e-2
@@ -23,32 +23,39 @@ W_U = 1e-2
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """Horizon ``T`` steps of ``dt`` s and a builder ``(robot, q0, dynamics kind) -> (state, control terms)``."""
+    """Horizon ``T`` steps of ``dt`` s and a builder ``(robot, q0, T) -> term descriptions``.
+
+    The builder states the objective only (``stages.plan.objective``); via-point times are
+    fractions of ``T``, so the horizon is stated once, here.
+    """
 
     plant: str
     name: str
     T: int
     dt: float
-    build: Callable
+    build: Callable[[Robot, np.ndarray, int], list]
     description: str
 
 
 def _arm_reach(roll: bool):
-    def build(robot: Robot, q0: np.ndarray, dynamics: str):
-        ee = EndEffectorPosition(robot, "ee", name="ee")
-        terms = [ViaPoint(ee, [1.0, -0.4, 0.0], [500], W_TASK, name="via_x1"),
-                 ViaPoint(ee, [1.0, 0.0, 0.0], [1000], W_TASK, name="via_x2")]
+    def build(robot: Robot, q0: np.ndarray, T: int) -> list:
+        ee = ob.frame_points("ee", "ee")
+        terms = [ob.via("via_x1", ee, [1.0, -0.4, 0.0], [T // 2], W_TASK),
+                 ob.via("via_x2", ee, [1.0, 0.0, 0.0], [T], W_TASK)]
         if roll:
-            terms.append(ViaPoint(RollAngle(robot, "ee"), [np.pi / 2], [500, 1000], W_TASK, name="roll"))
-        return terms, [ControlCost(W_U)]
+            terms.append(ob.via("roll", ob.roll("ee"), [np.pi / 2], [T // 2, T], W_TASK))
+        return [*terms, ob.control(W_U)]
     return build
 
 
-def _sole_term(robot: Robot, q0: np.ndarray, T: int) -> ViaPoint:
+SOLE_POINTS = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.05, 0.0]])
+
+
+def _sole_term(robot: Robot, q0: np.ndarray, T: int) -> dict:
     """Right sole kept at its initial pose at every step (three points pin the pose)."""
-    pts = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.05, 0.0]])
-    sole = FramePoints(robot, "r_sole", points=pts, name="r_sole")
-    return ViaPoint(sole, sole.value(q0), list(range(1, T + 1)), W_TASK, name="r_sole")
+    target = FramePoints(robot, "r_sole", points=SOLE_POINTS).value(q0)
+    return ob.via("r_sole", ob.frame_points("r_sole", "r_sole", points=SOLE_POINTS), target, range(1, T + 1),
+                  W_TASK)
 
 
 def _torso_frame_point(robot: Robot, q0: np.ndarray, p_torso: np.ndarray) -> np.ndarray:
@@ -56,44 +63,37 @@ def _torso_frame_point(robot: Robot, q0: np.ndarray, p_torso: np.ndarray) -> np.
     return X.rotation().matrix() @ p_torso + X.translation()
 
 
-def _nao_reach(robot: Robot, q0: np.ndarray, dynamics: str):
-    T = NAO_REACH_T
+def _nao_reach(robot: Robot, q0: np.ndarray, T: int) -> list:
     # thesis x* = (0, 0.2, 0.06), y and z counted; read in the torso frame at t = 0 with the
     # thesis's lateral axis pointing to the robot's right (as in fig. 3.4): y = -0.2 here.
     target = _torso_frame_point(robot, q0, np.array([0.0, -0.2, 0.06]))[1:]
-    hand = EndEffectorPosition(robot, "r_gripper", axes=(1, 2), name="r_hand")
-    cog = CenterOfMass(robot)
-    terms = [ViaPoint(hand, target, [T], W_TASK, name="via_hand"),
-             ViaPoint(cog, cog.value(q0), [T], W_TASK, name="via_cog"),
-             _sole_term(robot, q0, T)]
-    return terms, [ControlCost(W_U)]
+    return [ob.via("via_hand", ob.frame_points("r_gripper", "r_hand", axes=(1, 2)), target, [T], W_TASK),
+            ob.via("via_cog", ob.cog(), CenterOfMass(robot).value(q0), [T], W_TASK),
+            _sole_term(robot, q0, T), ob.control(W_U)]
 
 
 def _nao_balance(offsets=(-0.1, 0.1, 0.0)):
-    def build(robot: Robot, q0: np.ndarray, dynamics: str):
-        cog = CenterOfMass(robot)
-        c0 = cog.value(q0)
+    def build(robot: Robot, q0: np.ndarray, T: int) -> list:
+        c0 = CenterOfMass(robot).value(q0)
         # weights 1e6 on the lateral axis (y: model frame x forward, y left), 10 on the others
         C = np.array([10.0, 1e6, 10.0])
-        terms = [ViaPoint(cog, c0 + np.array([0.0, dy, 0.0]), [100 * (i + 1)], 1.0, C, name=f"via_cog{i + 1}")
+        n = len(offsets)
+        terms = [ob.via(f"via_cog{i + 1}", ob.cog(), c0 + np.array([0.0, dy, 0.0]), [T * (i + 1) // n], 1.0, C)
                  for i, dy in enumerate(offsets)]
-        terms.append(_sole_term(robot, q0, 300))
-        return terms, [ControlCost(W_U)]
+        return [*terms, _sole_term(robot, q0, T), ob.control(W_U)]
     return build
 
 
-def _biorob_reach(robot: Robot, q0: np.ndarray, dynamics: str):
-    ee = EndEffectorPosition(robot, "ee", name="ee")
-    target = ee.value(q0) + np.array([0.5, 0.0, 0.5])
-    return [ViaPoint(ee, target, [500], W_TASK, name="via_ee")], [ControlCost(W_U)]
+def _biorob_reach(robot: Robot, q0: np.ndarray, T: int) -> list:
+    from plants.taskmaps import EndEffectorPosition
+
+    target = EndEffectorPosition(robot, "ee").value(q0) + np.array([0.5, 0.0, 0.5])
+    return [ob.via("via_ee", ob.frame_points("ee", "ee"), target, [T], W_TASK), ob.control(W_U)]
 
 
-def _pendulum_swing_up(robot: Robot, q0: np.ndarray, dynamics: str):
-    ee = EndEffectorPosition(robot, "ee", axes=(0, 2), name="ee_xz")
-    controls = [ControlCost(W_U)]
-    if dynamics != "pseudo":
-        controls.append(ControlLimit(-robot.effort, robot.effort, 1e4))
-    return [ViaPoint(ee, [0.0, 1.0], [PENDULUM_T], W_TASK, name="upright")], controls
+def _pendulum_swing_up(robot: Robot, q0: np.ndarray, T: int) -> list:
+    return [ob.via("upright", ob.frame_points("ee", "ee_xz", axes=(0, 2)), [0.0, 1.0], [T], W_TASK),
+            ob.control(W_U), ob.control_limit(-robot.effort, robot.effort, 1e4)]
 
 
 NAO_REACH_T = 100

@@ -1,0 +1,86 @@
+"""Learned dynamics (SPEC §4, §7): ``qddot = GP mean(q, qdot, u)`` with the analytic models' step.
+
+State ``x = (q, qdot)`` (rad, rad/s, ``n_x = 2 n_q``), control ``u`` (N m, ``n_u``), GP inputs
+``(q, qdot, u)`` of size ``d = n_x + n_u`` and outputs ``qddot`` (rad/s^2, ``n_q``). One step of
+``dt`` s is semi-implicit Euler, ``qdot' = qdot + dt qddot``, ``q' = q + dt qdot'``
+(``plants.dynamics.SemiImplicitEuler``). The linearization ``(A, a, B)`` uses the GP mean's
+analytic input gradients, so it is exact at the point (``a = f(x, u) - A x - B u``);
+``linearize_trajectory`` makes one GP call for all steps. ``predict_variance`` gives the GP's
+latent variance of each ``qddot`` and its gradients for the uncertainty cost (thesis eq. 4.3).
+Non-finite inputs give NaN outputs, never an exception.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from plants.dynamics import SemiImplicitEuler
+from plants.gp import GPModel
+
+
+class LearnedDynamics(SemiImplicitEuler):
+    """Dynamics model (``plants.dynamics.Dynamics``) whose accelerations are a GP's mean."""
+
+    def __init__(self, model: GPModel, n_q: int, dt: float):
+        if model.D != n_q or model.d <= 2 * n_q:
+            raise ValueError(f"GP with {model.d} inputs and {model.D} outputs does not fit a robot with {n_q} joints")
+        self.model = model
+        self.n_q = int(n_q)
+        self.n_x = 2 * self.n_q
+        self.n_u = model.d - self.n_x
+        self.dt = float(dt)
+
+    def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """GP mean accelerations ``(n_q,)`` (rad/s^2) at one state and control (NaN if not finite)."""
+        return self.model.predict_mean(np.concatenate([q, v, u])[None, :])[0]
+
+    def step_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Next states ``(T, n_x)`` for states ``X (T, n_x)`` and controls ``U (T, n_u)``."""
+        return self._euler(X, self.model.predict_mean(np.hstack([X, U])))
+
+    def _euler(self, X: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        n, dt = self.n_q, self.dt
+        v1 = X[:, n:] + dt * qdd
+        return np.hstack([X[:, :n] + dt * v1, v1])
+
+    def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A (n_x, n_x), a (n_x,), B (n_x, n_u))`` at ``(x, u)``."""
+        A, a, B = self.linearize_trajectory(np.asarray(x, float)[None, :], np.asarray(u, float)[None, :])
+        return A[0], a[0], B[0]
+
+    def linearize_trajectory(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)`` along ``X (T, n_x)``, ``U (T, n_u)`` (one GP call).
+
+        With ``F = d qddot / d(x, u)`` from the GP: ``dv'/dx = [0, I] + dt F_x``,
+        ``dq'/dx = [I, 0] + dt dv'/dx``, ``dv'/du = dt F_u``, ``dq'/du = dt dv'/du``."""
+        X, U = np.asarray(X, float), np.asarray(U, float)
+        n, nx, dt, T = self.n_q, self.n_x, self.dt, X.shape[0]
+        mean, F = self.model.mean_with_gradients(np.hstack([X, U]))  # (T, n), (T, n, nx + nu)
+        dv_dx = dt * F[:, :, :nx]
+        dv_dx[:, :, n:] += np.eye(n)
+        dv_du = dt * F[:, :, nx:]
+        A = np.empty((T, nx, nx))
+        A[:, n:] = dv_dx
+        A[:, :n] = dt * dv_dx
+        A[:, :n, :n] += np.eye(n)
+        B = np.concatenate([dt * dv_du, dv_du], axis=1)
+        a = self._euler(X, mean) - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U)
+        return A, a, B
+
+    def predict_variance(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """GP latent variance of ``qddot`` ``(T, n_q)`` ((rad/s^2)^2) and its gradients ``(T, n_q, n_x)``, ``(T, n_q, n_u)``."""
+        _, var, _, dvar = self.model.predict_with_gradients(np.hstack([np.asarray(X, float), np.asarray(U, float)]))
+        return var, dvar[:, :, :self.n_x], dvar[:, :, self.n_x:]
+
+
+def build_learned(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> LearnedDynamics:
+    """``LearnedDynamics`` of ``robot`` (anything with ``n_q``) from ``GPModel.to_arrays()`` output, step ``dt`` s.
+
+    Bad input (no params, inconsistent arrays, ``dt`` not positive) raises ``ValueError``."""
+    if params is None:
+        raise ValueError("learned dynamics need params (the arrays of a fitted GP)")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+    return LearnedDynamics(GPModel.from_arrays(params), robot.n_q, dt)

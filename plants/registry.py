@@ -1,0 +1,83 @@
+"""The dynamics models by name (SPEC §4): one place to register, list and build them.
+
+``make_dynamics(kind, robot, dt, params)`` builds a registered model; a model registers once
+with :func:`register_dynamics` (name, builder, one-line description, whether it needs fitted
+parameters). Built-ins: ``pseudo`` and ``analytic``. A new model (e.g. ``learned``, whose
+builder takes the GP's fitted arrays as ``params``) is added by one ``register_dynamics`` call
+at the end of this module; its own module must not import this one (no import cycle). Every
+registered model is checked against finite differences by ``tests/test_derivatives.py``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from plants.dynamics import Dynamics, PseudoDynamics
+from plants.fast_analytic import make_fast_or_exact
+from plants.learned import build_learned
+
+Builder = Callable[[Any, float, "Mapping[str, np.ndarray] | None"], Dynamics]
+
+
+@dataclass(frozen=True)
+class DynamicsSpec:
+    """A registered model: ``builder(robot, dt, params) -> Dynamics`` (``dt`` in s)."""
+
+    name: str
+    builder: Builder
+    description: str
+    needs_params: bool = False
+
+
+DYNAMICS: dict[str, DynamicsSpec] = {}
+
+
+def register_dynamics(name: str, builder: Builder, description: str,
+                      needs_params: bool = False) -> DynamicsSpec:
+    """Register ``builder`` under ``name`` (unique); ``needs_params``: it requires ``params``."""
+    if not name or name in DYNAMICS:
+        raise ValueError(f"dynamics name '{name}' is empty or already registered")
+    spec = DynamicsSpec(name, builder, description, needs_params)
+    DYNAMICS[name] = spec
+    return spec
+
+
+def dynamics_names() -> list[str]:
+    """Registered model names, in registration order."""
+    return list(DYNAMICS)
+
+
+def make_dynamics(kind: str, robot, dt: float,
+                  params: Mapping[str, Any] | None = None) -> Dynamics:
+    """The model ``kind`` for ``robot`` with step ``dt`` (s); ``params`` only for models that
+    need them (e.g. a learned model's fitted arrays). Bad input raises ``ValueError``."""
+    spec = DYNAMICS.get(kind)
+    if spec is None:
+        raise ValueError(f"unknown dynamics '{kind}': choose one of {', '.join(DYNAMICS)}")
+    if spec.needs_params and params is None:
+        raise ValueError(f"dynamics '{kind}' needs params (fitted model parameters)")
+    if not spec.needs_params and params is not None:
+        raise ValueError(f"dynamics '{kind}' takes no params")
+    return spec.builder(robot, dt, params)
+
+
+def _build_pseudo(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> Dynamics:
+    return PseudoDynamics(robot.n_q, dt)
+
+
+def _build_analytic(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> Dynamics:
+    return make_fast_or_exact(robot, dt)
+
+
+register_dynamics("pseudo", _build_pseudo,
+                  "thesis pseudo-dynamics: controls are joint accelerations, backward Euler")
+register_dynamics("analytic", _build_analytic,
+                  "Drake forward dynamics, semi-implicit Euler, controls are torques; generated "
+                  "code where the plant compiles, else AutoDiffXd")
+register_dynamics("learned", build_learned,
+                  "GP mean of qddot = f(q, qdot, u) (a fit artifact's model), semi-implicit Euler, "
+                  "controls are torques", needs_params=True)

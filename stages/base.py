@@ -1,0 +1,163 @@
+"""The Stage contract: what every pipeline stage declares, stated once (SPEC §2, §9).
+
+A stage is a plain object that knows nothing of the CLI or the cache:
+
+- ``name``: its folder under the artifacts root and its CLI command;
+- ``config_cls``: a frozen dataclass (subclass of :class:`StageConfig`) whose field
+  defaults are the stage's defaults (the CLI reads them from there, never repeats them);
+- ``sources``: the modules/packages whose source files make its code version (editing
+  them invalidates its cache entries);
+- ``inputs(config)``: the input artifacts the config names, as :class:`InputRef`;
+- ``run(config, inputs, progress) -> StageOutput``: the computation;
+- ``data_files``: the data files ``run`` returns (``.npz`` arrays or JSON documents).
+
+The pipeline (``pipeline/runner.py``) resolves the inputs, keys the run by
+``(name, code version, config without its input references, input keys)``, calls
+``run`` on a miss and publishes the files atomically. Recordings are derived from the
+stored data by the pipeline's recorder of the stage (``pipeline/recorders.py``), so a
+recording is never part of the data's key.
+
+Adding a stage: one module under ``stages/`` defining a ``Stage`` and one line in
+``stages/registry.py``; a recorder, if it records, in ``pipeline/recorders.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+Progress = Callable[[int, int], None]
+
+
+class StageConfig:
+    """Mixin for a stage's frozen config dataclass.
+
+    ``INPUTS`` names the fields that hold input-artifact references (a key, a key prefix
+    or ``STAGE/KEY``; a tuple of them for a repeatable input); ``INPUT_STAGES`` the stage
+    each must come from. Input fields are not part of the hashed config: the resolved
+    keys are.
+    """
+
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+    INPUT_STAGES: ClassVar[dict[str, str]] = {}
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` with one clear line on a bad value."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
+    def key_dict(self) -> dict[str, Any]:
+        """The config values that go into the cache key (input references left out)."""
+        return {k: v for k, v in self.to_dict().items() if k not in self.INPUTS}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]):
+        """From a stored config (``meta.json``): keys the class does not declare are ignored."""
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        return cls(**{k: _frozen(v) for k, v in d.items() if k in names})
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """Field name -> default value (fields without a default are left out)."""
+        out = {}
+        for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+            if f.default is not dataclasses.MISSING:
+                out[f.name] = f.default
+        return out
+
+
+def _frozen(v: Any) -> Any:
+    """Lists from JSON back to tuples, so stored configs rebuild frozen dataclasses."""
+    return tuple(_frozen(x) for x in v) if isinstance(v, list) else v
+
+
+@dataclass(frozen=True)
+class InputRef:
+    """An input artifact named by a config: ``role`` (the config field), the stage it must
+    come from, and the user's reference (key, prefix or ``STAGE/KEY``)."""
+
+    role: str
+    stage: str
+    ref: str
+
+
+@dataclass(frozen=True)
+class Artifact:
+    """A resolved input as a stage sees it: its stored config, status, metrics and files."""
+
+    stage: str
+    key: str
+    path: Path
+    config: dict[str, Any]
+    status: str
+    metrics: dict[str, Any]
+    inputs: tuple[str, ...] = ()
+
+    @property
+    def ref(self) -> str:
+        return f"{self.stage}/{self.key}"
+
+    def arrays(self, name: str) -> dict[str, np.ndarray]:
+        """The arrays of data file ``name`` (``.npz``; no pickles)."""
+        with np.load(self.path / name, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+
+    def document(self, name: str) -> Any:
+        """A JSON data file."""
+        return json.loads((self.path / name).read_text(encoding="utf-8"))
+
+
+@dataclass
+class StageOutput:
+    """What ``Stage.run`` returns: data files, a status and headline metrics.
+
+    ``arrays``: file name -> arrays (written as compressed ``.npz``); ``documents``:
+    file name -> JSON-able object; ``figures``: file name -> ``writer(path)`` for files
+    such as PNGs; ``payload``: in-memory objects a caller may use (never stored).
+    """
+
+    status: str
+    metrics: dict[str, Any]
+    arrays: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    documents: dict[str, Any] = field(default_factory=dict)
+    figures: dict[str, Callable[[Path], None]] = field(default_factory=dict)
+    payload: Any = None
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A pipeline stage (see the module docstring)."""
+
+    name: str
+    config_cls: type
+    run: Callable[..., StageOutput]
+    sources: tuple[str, ...]
+    data_files: tuple[str, ...]
+    description: str
+    progress_total: Callable[[Any], int] = lambda cfg: 0
+
+    def inputs(self, config: StageConfig) -> list[InputRef]:
+        """The input artifacts ``config`` names (an empty reference is an error)."""
+        refs: list[InputRef] = []
+        for role in config.INPUTS:
+            value = getattr(config, role)
+            if value is None:
+                continue
+            for ref in (value if isinstance(value, tuple) else (value,)):
+                if not isinstance(ref, str) or not ref.strip():
+                    raise ValueError(f"{role.replace('_', '-')}: an empty artifact reference")
+                refs.append(InputRef(role, config.INPUT_STAGES[role], ref.strip()))
+        return refs
+
+    def make_config(self, **values: Any) -> StageConfig:
+        """The config from keyword values, validated."""
+        cfg = self.config_cls(**values)
+        cfg.validate()
+        return cfg

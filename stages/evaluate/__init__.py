@@ -1,0 +1,1 @@
+"""Evaluation: per-run metrics, experiment summaries, the thesis's claims and the evaluate stage."""

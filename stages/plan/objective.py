@@ -1,0 +1,128 @@
+"""The objective as data: named, weighted cost terms described in plain JSON (SPEC §5).
+
+A task (``stages/plan/tasks.py``) builds a list of term descriptions from the robot, the
+initial posture and the horizon; :func:`build_terms` turns them into cost-term objects of
+``stages/plan/costs.py``. The plan artifact stores the descriptions (``problem.json``), so
+execute, evaluate and the report rebuild exactly the planned objective without re-running
+the task builder. The dynamics are not part of the objective: they come from the registry
+(``plants.registry``).
+
+Descriptions:
+
+- task maps: ``{"map": "frame_points", "frame", "points" (k x 3 or null), "axes", "name"}``,
+  ``{"map": "roll", "frame", "name"}``, ``{"map": "cog", "axes", "name"}``,
+  ``{"map": "joints", "indices" (or null), "name"}``;
+- terms: ``{"term": "via", "name", "map", "target", "times", "weight", "precision"}`` with
+  ``times`` a list of steps or ``{"from": a, "to": b}`` (every step a..b);
+  ``{"term": "control", "name", "weight"}``; ``{"term": "control_limit", "name",
+  "weight", "lower", "upper", "controls": "torque"}`` (a torque limit: dropped when the
+  dynamics' controls are accelerations).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
+from stages.plan.costs import ControlCost, ControlLimit, ViaPoint
+
+TermDesc = dict[str, Any]
+
+
+# ------------------------------------------------------------------ descriptions
+def frame_points(frame: str, name: str, axes=(0, 1, 2), points=None) -> dict:
+    """A frame's origin (or points fixed in it), coordinates ``axes`` (m)."""
+    pts = None if points is None else np.atleast_2d(points).astype(float).tolist()
+    return {"map": "frame_points", "frame": frame, "points": pts, "axes": list(axes), "name": name}
+
+
+def roll(frame: str, name: str = "roll") -> dict:
+    return {"map": "roll", "frame": frame, "name": name}
+
+
+def cog(axes=(0, 1, 2), name: str = "cog") -> dict:
+    return {"map": "cog", "axes": list(axes), "name": name}
+
+
+def via(name: str, taskmap: dict, target, times, weight: float, precision=None) -> TermDesc:
+    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``."""
+    if isinstance(times, range):
+        if times.step != 1:
+            raise ValueError("a via-point range must have step 1")
+        times = {"from": times.start, "to": times.stop - 1}
+    else:
+        times = [int(t) for t in times]
+    return {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
+            "times": times, "weight": float(weight),
+            "precision": None if precision is None else np.asarray(precision, float).tolist()}
+
+
+def control(weight: float, name: str = "control") -> TermDesc:
+    return {"term": "control", "name": name, "weight": float(weight)}
+
+
+def control_limit(lower, upper, weight: float, name: str = "control_limit") -> TermDesc:
+    """Penalty on torques outside ``[lower, upper]`` (N m); only for torque-controlled models."""
+    return {"term": "control_limit", "name": name, "weight": float(weight), "controls": "torque",
+            "lower": np.asarray(lower, float).tolist(), "upper": np.asarray(upper, float).tolist()}
+
+
+# ------------------------------------------------------------------ building
+def build_taskmap(robot, d: dict):
+    kind = d["map"]
+    if kind == "frame_points":
+        return FramePoints(robot, d["frame"], points=d.get("points"), axes=tuple(d["axes"]), name=d["name"])
+    if kind == "roll":
+        return RollAngle(robot, d["frame"], name=d["name"])
+    if kind == "cog":
+        return CenterOfMass(robot, axes=tuple(d["axes"]), name=d["name"])
+    if kind == "joints":
+        return JointPositions(robot.n_q, d.get("indices"), name=d["name"])
+    raise ValueError(f"unknown task map kind {kind!r}")
+
+
+def _times(t) -> list[int] | range:
+    return range(int(t["from"]), int(t["to"]) + 1) if isinstance(t, dict) else list(t)
+
+
+def build_term(robot, d: TermDesc):
+    """One cost-term object from its description."""
+    kind = d["term"]
+    if kind == "via":
+        return ViaPoint(build_taskmap(robot, d["map"]), d["target"], list(_times(d["times"])), d["weight"],
+                        d.get("precision"), name=d["name"])
+    if kind == "control":
+        return ControlCost(d["weight"], name=d["name"])
+    if kind == "control_limit":
+        return ControlLimit(d["lower"], d["upper"], d["weight"], name=d["name"])
+    raise ValueError(f"unknown cost term kind {kind!r}")
+
+
+@dataclass
+class Objective:
+    """Built cost terms of a horizon ``T``: state terms on ``x_t``, control terms on ``u_t``."""
+
+    T: int
+    state_terms: list
+    control_terms: list
+    descriptions: list[TermDesc]
+
+
+def applies(d: TermDesc, control_kind: str) -> bool:
+    """Whether term ``d`` applies to a model whose controls are ``control_kind``."""
+    return d.get("controls", control_kind) == control_kind
+
+
+def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str = "torque") -> Objective:
+    """The objective from term descriptions (terms that do not apply to the controls dropped)."""
+    state, controls, kept = [], [], []
+    for d in descriptions:
+        if not applies(d, control_kind):
+            continue
+        kept.append(d)
+        term = build_term(robot, d)
+        (state if d["term"] == "via" else controls).append(term)
+    return Objective(T, state, controls, kept)

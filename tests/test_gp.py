@@ -1,0 +1,213 @@
+"""GP posterior (plants.gp), fitting (stages.fit.gp_fit) and learned dynamics (plants.learned): small, fast."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+from plants.dynamics import Dynamics
+from plants.gp import NOISE_FLOOR, GPModel
+from plants.learned import LearnedDynamics, build_learned
+from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
+
+M_P, L_P, MU, G = 1.0, 1.0, 1.0, 9.81  # pendulum: q = 0 hanging down
+
+
+def pendulum_qddot(q, v, u):
+    """Analytic pendulum acceleration (rad/s^2)."""
+    return (u - MU * v - M_P * G * L_P * np.sin(q)) / (M_P * L_P**2)
+
+
+def pendulum_data(n: int, seed: int, shrink: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs ``(n, 3) = (q, qdot, u)`` on (``shrink`` times) the training region and targets ``(n, 1)``."""
+    rng = np.random.default_rng(seed)
+    X = shrink * rng.uniform([-1.5, -3.0, -10.0], [1.5, 3.0, 10.0], size=(n, 3))
+    return X, pendulum_qddot(X[:, 0], X[:, 1], X[:, 2])[:, None]
+
+
+def toy_data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two-joint toy: inputs ``(n, 6) = (q, qdot, u)``, smooth targets ``(n, 2)`` with different scales."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, 6)) * [1.0, 0.5, 2.0, 1.0, 5.0, 3.0] + [0.3, 0.0, 0.0, 0.0, 1.0, 0.0]
+    Y = np.stack([np.sin(X[:, 0]) * X[:, 2] + 0.3 * X[:, 4], 40.0 * np.cos(X[:, 1] + 0.2 * X[:, 3]) - 5.0 * X[:, 5]], 1)
+    return X, Y
+
+
+def toy_model(n: int = 50, seed: int = 0) -> GPModel:
+    """Toy GP with hand-set (scaled) hyperparameters, no fit."""
+    X, Y = toy_data(n, seed)
+    ell = np.array([[1.2, 1.5, 2.0, 3.0, 1.8, 2.5], [2.2, 0.9, 1.3, 1.1, 2.0, 1.6]])
+    return GPModel(X, Y, ell, sf2=np.array([1.5, 0.8]), sn2=np.array([1e-4, 3e-4]))
+
+
+@pytest.fixture(scope="module")
+def fitted_toy():
+    X, Y = toy_data(40, 1)
+    return fit_gp(X, Y, restarts=0, seed=0)
+
+
+@pytest.fixture(scope="module")
+def fitted_pendulum():
+    X, Y = pendulum_data(120, 2)
+    return fit_gp(X, Y, restarts=0, seed=0)
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+# -- agreement with scikit-learn -----------------------------------------------------------
+def test_predictions_equal_sklearn(fitted_toy):
+    model, info = fitted_toy
+    Xq, _ = toy_data(30, 7)
+    mean, var_noisy = model.predict(Xq, noisy=True)
+    _, var = model.predict(Xq)
+    Zq = model.scale_x(Xq)
+    for j in range(model.D):
+        kernel = (ConstantKernel(model.sf2[j], "fixed") * RBF(model.ell[j], "fixed")
+                  + WhiteKernel(model.sn2[j], "fixed"))
+        sk = GaussianProcessRegressor(kernel, alpha=0.0, optimizer=None, normalize_y=False).fit(model.Z, model.y[:, j])
+        m_sk, s_sk = sk.predict(Zq, return_std=True)  # std of a new observation: includes the white noise
+        scale = model.y_std[j]
+        assert np.max(np.abs(mean[:, j] - (model.y_mean[j] + scale * m_sk))) < 1e-8 * scale
+        assert np.max(np.abs(np.sqrt(var_noisy[:, j]) - scale * s_sk)) < 1e-8 * scale
+        assert np.allclose(var_noisy[:, j] - var[:, j], model.sn2[j] * scale**2, rtol=1e-12)
+        assert abs(model.log_marginal_likelihood()[j] - sk.log_marginal_likelihood_value_) < 1e-8 * abs(
+            sk.log_marginal_likelihood_value_)
+    assert np.allclose(info["log_marginal_likelihood"], info["log_marginal_likelihood_sklearn"], rtol=1e-8)
+
+
+def test_noise_floor_respected_on_noise_free_data(fitted_pendulum):
+    model, info = fitted_pendulum
+    assert np.all(np.asarray(info["sn2"]) >= NOISE_FLOOR * (1 - 1e-12))
+    assert np.all(model.sn2 >= NOISE_FLOOR)
+    assert np.all(model.sn2 < 1e-2)  # noise-free data: the fitted noise sits near the floor
+
+
+# -- gradients ------------------------------------------------------------------------------
+def test_gradients_match_central_differences():
+    model = toy_model()
+    Xq, _ = toy_data(6, 3)
+    mean, var, dmean, dvar = model.predict_with_gradients(Xq)
+    m0, v0 = model.predict(Xq)
+    assert np.allclose(mean, m0, rtol=1e-12) and np.allclose(var, v0, rtol=1e-12)
+    assert np.all(var > 0)
+    m1, dm1 = model.mean_with_gradients(Xq)
+    assert np.array_equal(dm1, dmean) and np.allclose(m1, mean, rtol=1e-14)
+    fd_m, fd_v = np.empty_like(dmean), np.empty_like(dvar)
+    for c in range(model.d):
+        h = 1e-5 * model.x_std[c]
+        E = np.zeros_like(Xq)
+        E[:, c] = h
+        (mp, vp), (mm, vm) = model.predict(Xq + E), model.predict(Xq - E)
+        fd_m[:, :, c], fd_v[:, :, c] = (mp - mm) / (2 * h), (vp - vm) / (2 * h)
+    for j in range(model.D):
+        assert _rel(dmean[:, j], fd_m[:, j]) < 1e-6
+        assert _rel(dvar[:, j], fd_v[:, j]) < 1e-6
+    assert np.max(np.abs(dvar)) > 0
+
+
+# -- incremental update ---------------------------------------------------------------------
+def test_incremental_update_equals_refit():
+    X, Y = toy_data(80, 5)
+    base = toy_model()
+    model = GPModel(X[:50], Y[:50], base.ell, base.sf2, base.sn2)
+    L_old = model.L.copy()
+    model.update(X[50:], Y[50:])
+    assert np.array_equal(model.L[:, :50, :50], L_old)  # the old block is extended, not refactorized
+    ref = refit_fixed(model, X, Y)
+    assert model.N == ref.N == 80
+    Xq, _ = toy_data(25, 9)
+    (m1, v1), (m2, v2) = model.predict(Xq), ref.predict(Xq)
+    for j in range(model.D):
+        assert _rel(m1[:, j], m2[:, j]) < 1e-8
+        assert _rel(v1[:, j], v2[:, j]) < 1e-8
+        assert _rel(model.L[j], ref.L[j]) < 1e-8
+    assert np.allclose(model.log_marginal_likelihood(), ref.log_marginal_likelihood(), rtol=1e-10)
+    with pytest.raises(ValueError):
+        model.update(X[:2], np.full((2, 2), np.nan))
+
+
+# -- learned dynamics -----------------------------------------------------------------------
+def test_learned_linearization_exact_and_batched():
+    dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
+    assert isinstance(dyn, Dynamics) and (dyn.n_x, dyn.n_u) == (4, 2)
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(5, 4)) * 0.7
+    U = rng.normal(size=(5, 2)) * 2.0
+    A, a, B = dyn.linearize_trajectory(X, U)
+    for t in range(5):
+        At, at, Bt = dyn.linearize(X[t], U[t])
+        assert np.allclose(At, A[t], rtol=1e-12, atol=1e-14) and np.allclose(Bt, B[t], rtol=1e-12, atol=1e-14)
+        assert np.allclose(at, a[t], rtol=1e-12, atol=1e-14)
+        x1 = dyn.step(X[t], U[t])
+        assert np.allclose(A[t] @ X[t] + a[t] + B[t] @ U[t], x1, rtol=1e-13, atol=1e-13)
+        fdA = np.stack([(dyn.step(X[t] + e, U[t]) - dyn.step(X[t] - e, U[t])) / 2e-6 for e in 1e-6 * np.eye(4)], 1)
+        fdB = np.stack([(dyn.step(X[t], U[t] + e) - dyn.step(X[t], U[t] - e)) / 2e-6 for e in 1e-6 * np.eye(2)], 1)
+        assert _rel(A[t], fdA) < 1e-6 and _rel(B[t], fdB) < 1e-6
+        assert np.max(np.abs(B[t])) > 1e-6
+    assert np.allclose(dyn.step_batch(X, U), np.stack([dyn.step(x, u) for x, u in zip(X, U)]), rtol=1e-13)
+    var, dvx, dvu = dyn.predict_variance(X, U)
+    _, v_ref, _, dv_ref = dyn.model.predict_with_gradients(np.hstack([X, U]))
+    assert var.shape == (5, 2) and np.array_equal(var, v_ref)
+    assert np.array_equal(dvx, dv_ref[:, :, :4]) and np.array_equal(dvu, dv_ref[:, :, 4:])
+
+
+def test_learned_nonfinite_inputs_give_nan():
+    dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
+    x = np.array([0.1, np.nan, 0.0, 0.2])
+    assert np.all(np.isnan(dyn.step(x, np.zeros(2))))
+    A, a, B = dyn.linearize_trajectory(np.vstack([x, np.zeros(4)]), np.array([[0.0, np.inf], [0.0, 0.0]]))
+    assert np.all(np.isnan(A[0])) and np.all(np.isnan(a[0])) and np.all(np.isnan(B[0]))
+    assert np.all(np.isfinite(A[1])) and np.all(np.isfinite(a[1]))
+    var, dvx, _ = dyn.predict_variance(x[None, :], np.zeros((1, 2)))
+    assert np.all(np.isnan(var)) and np.all(np.isnan(dvx))
+
+
+def test_learned_pendulum_predicts_true_acceleration(fitted_pendulum):
+    model, _ = fitted_pendulum
+    dyn = build_learned(SimpleNamespace(n_q=1), 0.002, model.to_arrays())
+    Xt, Yt = pendulum_data(200, 11, shrink=0.9)  # inside the training region
+    qdd = np.array([dyn.qddot(x[:1], x[1:2], x[2:]) for x in Xt])
+    nrmse = np.sqrt(np.mean((qdd - Yt) ** 2)) / Yt.std()
+    assert nrmse < 1e-3, nrmse
+    x, u = np.array([0.4, -1.0]), np.array([2.0])
+    A, a, B = dyn.linearize(x, u)
+    dt, c = 0.002, np.cos(0.4)
+    A_true = np.array([[1 - dt * dt * G * c, dt * (1 - dt * MU)], [-dt * G * c, 1 - dt * MU]])
+    assert np.allclose(A, A_true, atol=2e-3 * dt) and np.allclose(B[:, 0], [dt * dt, dt], rtol=1e-2)
+
+
+# -- storage ----------------------------------------------------------------------------------
+def test_to_from_arrays_round_trip(tmp_path):
+    model = toy_model()
+    model.update(*toy_data(10, 8))
+    np.savez(tmp_path / "gp.npz", **model.to_arrays())
+    with np.load(tmp_path / "gp.npz", allow_pickle=False) as f:
+        loaded = GPModel.from_arrays(dict(f))
+    Xq, _ = toy_data(20, 6)
+    for a, b in zip(model.predict_with_gradients(Xq), loaded.predict_with_gradients(Xq)):
+        assert np.array_equal(a, b)
+    compact = GPModel.from_arrays(model.to_arrays(include_factor=False))  # refactorized
+    assert _rel(compact.predict(Xq)[0], model.predict(Xq)[0]) < 1e-8
+
+
+# -- bounded cost -------------------------------------------------------------------------------
+def test_subsampling_cap_and_its_measured_cost():
+    X, Y = pendulum_data(260, 21)
+    idx = subsample_indices(X, 80)
+    assert len(idx) == 80 and np.all(np.diff(idx) > 0)
+    assert set(range(220, 260)) <= set(idx.tolist())  # the most recent half of the cap
+    assert np.array_equal(idx, subsample_indices(X, 80))  # deterministic
+    Xt, Yt = pendulum_data(100, 22, shrink=0.9)
+    cost = measure_cap_cost(X, Y, Xt, Yt, max_points=80)
+    assert cost["n_capped"] <= 80 and cost["n_full"] == 260
+    for key in ("rmse_capped", "rmse_full", "nrmse_capped", "rmse_ratio"):
+        assert np.all(np.isfinite(cost[key])), key
+    assert cost["nrmse_capped"][0] < 0.02 and cost["rmse_full"][0] <= 1.5 * cost["rmse_capped"][0]
+    model, info = fit_gp(X, Y, restarts=0, seed=0, max_points=80)
+    assert model.N == info["n_points"] == 80 and info["n_input"] == 260
