@@ -16,8 +16,8 @@ the synthetic biorob-like data (first output). Not a test: nothing here fails on
 from __future__ import annotations
 
 import argparse
-import os
 import json
+import os
 import statistics
 import time
 from collections.abc import Callable
