@@ -85,13 +85,10 @@ def _option(name: str, hint: Any, default: Any, help_text: str) -> inspect.Param
                              annotation=Annotated[hint, opt])
 
 
-def stage_command(name: str) -> None:
-    """Register ``raico NAME``: one option per config field (defaults from the config class),
-    plus the shared ``--artifacts``, ``--no-record``, ``--quiet`` and ``--json``."""
-    from stages.registry import get_stage
-
-    stage = get_stage(name)
-    cls = stage.config_cls
+def config_command(name: str, cls: type, description: str, action) -> None:
+    """Register ``raico NAME``: one option per field of the config class ``cls`` (defaults and help
+    from the class), plus the shared ``--artifacts``, ``--no-record``, ``--quiet`` and ``--json``.
+    ``action(cache, config, record, reporter) -> Outcome`` does the work."""
     hints = typing.get_type_hints(cls)
     helps = {**SHARED_HELP, **getattr(cls, "HELP", {})}
     params = []
@@ -112,14 +109,39 @@ def stage_command(name: str) -> None:
         except (TypeError, ValueError) as e:
             raise BadInput(str(e)) from None
         reporter = Reporter(quiet)
-        outcome = runner.run(open_cache(artifacts), stage, cfg, record=not no_record, reporter=reporter)
+        outcome = action(open_cache(artifacts), cfg, not no_record, reporter)
         report(outcome, as_json, reporter)
 
     command.__signature__ = inspect.Signature(params)
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__name__ = name
-    command.__doc__ = stage.description
-    app.command(name, help=stage.description)(handles_errors(command))
+    command.__doc__ = description
+    app.command(name, help=description)(handles_errors(command))
+
+
+def stage_command(name: str) -> None:
+    """``raico NAME`` for a registered stage: its config's fields, run through the cache."""
+    from stages.registry import get_stage
+
+    stage = get_stage(name)
+    config_command(name, stage.config_cls, stage.description,
+                   lambda cache, cfg, record, reporter: runner.run(cache, stage, cfg, record=record,
+                                                                  reporter=reporter))
+
+
+def learn_command() -> None:
+    """``raico learn``: the learning loop (babble, then fit, plan, execute per episode)."""
+    from stages.learn import LearnConfig
+
+    def action(cache, cfg, record, reporter):
+        from pipeline.learn import learn
+
+        with reporter.progress(f"learn {cfg.plant} {cfg.task}", cfg.episodes) as update:
+            return learn(cache, cfg, record=record, reporter=reporter, progress=update)
+
+    config_command("learn", LearnConfig, "Learn a GP forward model while planning: babble, then per episode "
+                   "fit, plan (R-AICO on the GP, uncertainty term) and execute in Drake; every run cached.",
+                   action)
 
 
 def open_cache(artifacts: Path | None) -> Cache:
@@ -130,8 +152,15 @@ def open_cache(artifacts: Path | None) -> Cache:
     return Cache(root)
 
 
-for _name in ("babble", "plan", "execute", "evaluate"):
-    stage_command(_name)
+def _register_commands() -> None:
+    from stages.registry import stage_names
+
+    for name in stage_names():
+        stage_command(name)
+    learn_command()
+
+
+_register_commands()
 
 
 @app.command()

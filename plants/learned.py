@@ -84,3 +84,16 @@ def build_learned(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> 
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt}")
     return LearnedDynamics(GPModel.from_arrays(params), robot.n_q, dt)
+
+
+def example_params(robot, n_points: int = 40, seed: int = 0) -> dict[str, np.ndarray]:
+    """A small GP over ``(q, qdot, u)`` of ``robot`` fitted to a smooth synthetic acceleration
+    (fixed hyperparameters, no optimization): valid ``params`` for tests and the harness."""
+    rng = np.random.default_rng(seed)
+    n = robot.n_q
+    q = robot.default_q + 0.3 * rng.standard_normal((n_points, n))
+    X = np.hstack([q, rng.standard_normal((n_points, n)), 2.0 * rng.standard_normal((n_points, n))])
+    Y = np.sin(q) + 0.3 * X[:, n:2 * n] * np.cos(X[:, 2 * n:]) + 0.5 * X[:, 2 * n:]
+    d = X.shape[1]
+    model = GPModel(X, Y, np.full((n, d), 2.0), np.ones(n), np.full(n, 1e-4))
+    return model.to_arrays()

@@ -18,7 +18,7 @@ import numpy as np
 
 from plants.dynamics import Dynamics, PseudoDynamics
 from plants.fast_analytic import make_fast_or_exact
-from plants.learned import build_learned
+from plants.learned import build_learned, example_params
 
 Builder = Callable[[Any, float, "Mapping[str, np.ndarray] | None"], Dynamics]
 
@@ -31,17 +31,22 @@ class DynamicsSpec:
     builder: Builder
     description: str
     needs_params: bool = False
+    example_params: Callable[[Any], Mapping[str, np.ndarray]] | None = None  # robot -> params (tests)
 
 
 DYNAMICS: dict[str, DynamicsSpec] = {}
 
 
-def register_dynamics(name: str, builder: Builder, description: str,
-                      needs_params: bool = False) -> DynamicsSpec:
-    """Register ``builder`` under ``name`` (unique); ``needs_params``: it requires ``params``."""
+def register_dynamics(name: str, builder: Builder, description: str, needs_params: bool = False,
+                      example_params: Callable[[Any], Mapping[str, np.ndarray]] | None = None) -> DynamicsSpec:
+    """Register ``builder`` under ``name`` (unique); ``needs_params``: it requires ``params``, and
+    ``example_params(robot)`` gives a small valid set (the derivative harness checks the model
+    with it the moment it is registered)."""
     if not name or name in DYNAMICS:
         raise ValueError(f"dynamics name '{name}' is empty or already registered")
-    spec = DynamicsSpec(name, builder, description, needs_params)
+    if needs_params and example_params is None:
+        raise ValueError(f"dynamics '{name}' needs params: register example_params too")
+    spec = DynamicsSpec(name, builder, description, needs_params, example_params)
     DYNAMICS[name] = spec
     return spec
 
@@ -80,4 +85,4 @@ register_dynamics("analytic", _build_analytic,
                   "code where the plant compiles, else AutoDiffXd")
 register_dynamics("learned", build_learned,
                   "GP mean of qddot = f(q, qdot, u) (a fit artifact's model), semi-implicit Euler, "
-                  "controls are torques", needs_params=True)
+                  "controls are torques", needs_params=True, example_params=example_params)

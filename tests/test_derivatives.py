@@ -53,16 +53,17 @@ def positions(robot, K: int = 3, seed: int = 4) -> np.ndarray:
 
 
 def _dynamics_cases() -> list:
-    skip = pytest.mark.skip(reason="needs fitted params")
-    return [pytest.param(kind, plant, id=f"{kind}-{plant}", marks=skip if spec.needs_params else ())
-            for kind, spec in DYNAMICS.items() for plant in PLANTS]
+    return [pytest.param(kind, plant, id=f"{kind}-{plant}") for kind in DYNAMICS for plant in PLANTS]
 
 
 @pytest.mark.parametrize("kind,plant", _dynamics_cases())
 def test_dynamics_linearization(kind, plant):
+    """Models that need fitted parameters are checked with their registered example set."""
     robot = shared_robot(plant)
+    spec = DYNAMICS[kind]
+    params = spec.example_params(robot) if spec.needs_params else None
     X, U = dynamics_points(robot)
-    check_dynamics(make_dynamics(kind, robot, DT), X, U).assert_passed()
+    check_dynamics(make_dynamics(kind, robot, DT, params), X, U).assert_passed()
 
 
 @pytest.mark.parametrize("name,plant", [(n, p) for n, ex in TASKMAP_EXAMPLES.items()
@@ -74,6 +75,18 @@ def test_taskmap_jacobian(name, plant):
 
 def _check_cost_example(term, kind: str, robot, exact_hessian: bool, seed: int = 5):
     rng = np.random.default_rng(seed)
+    if kind == "joint":  # state part at the nominal controls, control part at the nominal states
+        Q = positions(robot, K=4, seed=seed)
+        X = np.concatenate([Q, 0.5 * rng.standard_normal(Q.shape)], axis=1)
+        U = rng.standard_normal((4, robot.n_q))
+        term.set_nominal(np.vstack([X, X[-1:]]), U)
+        state = check_cost_term(lambda Z: term.value(Z), lambda Z: term.derivatives(Z), X,
+                                exact_hessian=exact_hessian, subject=term.name)
+        control = check_cost_term(term.control_value, term.control_derivatives, U, exact_hessian=exact_hessian,
+                                  what="u", subject=term.name)
+        for c in control.checks:
+            state.checks.append(c)
+        return state
     if kind == "state":
         Q = positions(robot, K=5, seed=seed)
         X = np.concatenate([Q, rng.standard_normal(Q.shape)], axis=1)
@@ -173,7 +186,8 @@ def test_every_cost_term_class_has_an_example():
     robot = shared_robot("arm5")
     built = {type(ex.build(robot, robot.default_q)) for ex in COST_TERM_EXAMPLES.values()
              if ex.applies_to("arm5")}
-    classes = _classes(costs_module, StateTerm) | _classes(costs_module, ControlTerm)
+    classes = (_classes(costs_module, StateTerm) | _classes(costs_module, ControlTerm)
+               | {costs_module.Uncertainty})
     assert classes <= built, f"cost term classes without an example: {classes - built}"
     via = {name for name in COST_TERM_EXAMPLES if name.startswith("via_")}
     assert via == {f"via_{name}" for name in TASKMAP_EXAMPLES}  # a via-point on every task map

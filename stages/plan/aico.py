@@ -213,6 +213,7 @@ class _Sweeps:
         self.U = U
         self.Xprev = Xprev
         self.alpha = alpha
+        p.set_nominal(X, U)
         self.H, self.h = p.quadratize_controls(U)
         if self.lti:
             if not self._C_filled:

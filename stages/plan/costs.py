@@ -343,6 +343,117 @@ class ControlLimit(ControlTerm):
         return 2.0 * self.weight * v, luu
 
 
+class Uncertainty:
+    """The model-uncertainty objective (thesis eq. 4.3, SPEC §7), a joint term on ``(x_t, u_t)``:
+
+    ``c_t = (sigma* - g(x_t, u_t))^T C_sigma (sigma* - g(x_t, u_t))``, ``C_sigma = w I``,
+    at every step ``t = 0..T-1``, with ``g`` the GP's latent predictive variance of each
+    output (joint acceleration) in standardized units: the variance divided by the training
+    outputs' variance, so ``g`` is near 0 where the model is sure and near the prior
+    variance (about 1) far from the data, and ``sigma*`` in {0, 0.2, 1} means the same on
+    every plant. Gauss-Newton models with ``J_x = dg/dx``, ``J_u = dg/du`` at the nominal
+    trajectory: the state part ``l_x = -2 w J_x^T e``, ``l_xx = 2 w J_x^T J_x`` (into ``R, r``)
+    at the nominal controls, the control part likewise (into ``H, h``) at the nominal states;
+    the cross terms ``d^2 c / dx du`` are dropped. ``model``: a dynamics model with
+    ``predict_variance(X, U) -> var (K, D), dvar/dx (K, D, n_x), dvar/du (K, D, n_u)`` and
+    ``model.model.y_std`` (``plants.learned.LearnedDynamics``).
+    """
+
+    def __init__(self, model, sigma_star: float, weight: float, T: int, name: str = "uncertainty"):
+        self.model = model
+        self.sigma_star = float(sigma_star)
+        self.name = name
+        self.weight = _check_weight(weight, name)
+        self.T = int(T)
+        self.times = np.arange(self.T)
+        self._scale = 1.0 / np.asarray(model.model.y_std, float) ** 2   # (D,)
+        self._X = self._U = None
+        self._memo = None
+
+    # -- the model ----------------------------------------------------------------------------
+    def variance(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Standardized ``g (K, D)`` and its Jacobians ``(K, D, n_x)``, ``(K, D, n_u)``."""
+        key = (X.shape, U.shape, X.tobytes(), U.tobytes())
+        if self._memo is None or self._memo[0] != key:
+            var, dx, du = self.model.predict_variance(X, U)
+            s = self._scale
+            self._memo = (key, (var * s, dx * s[:, None], du * s[:, None]))
+        return self._memo[1]
+
+    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The nominal trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the split models use."""
+        self._X, self._U = np.array(X[:self.T], float), np.array(U, float)
+
+    def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Per-step costs ``(K,)`` at ``X (K, n_x)``, ``U (K, n_u)``."""
+        if self.weight == 0:
+            return np.zeros(len(X))
+        g, _, _ = self.variance(np.atleast_2d(X), np.atleast_2d(U))
+        e = self.sigma_star - g
+        return self.weight * np.einsum("kd,kd->k", e, e)
+
+    def _gn(self, e: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = self.weight
+        return -2.0 * w * np.einsum("kdi,kd->ki", J, e), 2.0 * w * np.einsum("kdi,kdj->kij", J, J)
+
+    # -- the state part (as a state term) -----------------------------------------------------
+    def active(self, idx: np.ndarray) -> np.ndarray:
+        return np.asarray(idx) < self.T
+
+    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
+        """State-part view: costs at rows ``X`` with the nominal controls of steps ``idx``."""
+        X = np.atleast_2d(X)
+        idx = np.arange(len(X)) if idx is None else np.asarray(idx).reshape(-1)
+        out = np.zeros(len(X))
+        m = self.active(idx)
+        if self._U is not None and m.any():
+            out[m] = self.joint_value(X[m], self._U[idx[m]])
+        return out
+
+    def add_derivatives(self, X: np.ndarray, idx: np.ndarray, lx: np.ndarray, lxx: np.ndarray) -> None:
+        """Add the state part at rows ``X (K, n_x)`` of steps ``idx`` (nominal controls)."""
+        m = self.active(np.asarray(idx))
+        if self.weight == 0 or self._U is None or not m.any():
+            return
+        g, Jx, _ = self.variance(X[m], self._U[np.asarray(idx)[m]])
+        gx, Hx = self._gn(self.sigma_star - g, Jx)
+        lx[m] += gx
+        lxx[m] += Hx
+
+    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        X = np.atleast_2d(X)
+        lx, lxx = np.zeros(X.shape), np.zeros((len(X), X.shape[1], X.shape[1]))
+        self.add_derivatives(X, np.arange(len(X)) if idx is None else np.asarray(idx), lx, lxx)
+        return lx, lxx
+
+    def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray, lxx: np.ndarray) -> None:
+        if t < self.T:
+            g, G = np.zeros((1, x.size)), np.zeros((1, x.size, x.size))
+            self.add_derivatives(x[None], np.array([t]), g, G)
+            lx += g[0]
+            lxx += G[0]
+
+    # -- the control part --------------------------------------------------------------------
+    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``l_u (T, n_u)``, ``l_uu (T, n_u, n_u)`` at ``U`` with the nominal states."""
+        U = np.atleast_2d(U)
+        lu, luu = np.zeros(U.shape), np.zeros((len(U), U.shape[1], U.shape[1]))
+        self.add_control_derivatives(U, lu, luu)
+        return lu, luu
+
+    def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
+        if self.weight == 0 or self._X is None or len(U) != len(self._X):
+            return   # no nominal trajectory of this length (e.g. a probe at one control)
+        g, _, Ju = self.variance(self._X, U)
+        gu, Hu = self._gn(self.sigma_star - g, Ju)
+        lu += gu
+        luu += Hu
+
+    def control_value(self, U: np.ndarray) -> np.ndarray:
+        """Control-part view: costs at ``U (T, n_u)`` with the nominal states."""
+        return self.joint_value(self._X, np.atleast_2d(U))
+
+
 # --------------------------------------------------------------------------------------------
 # Examples: a configured instance of every cost term class, checked against finite
 # differences by tests/test_derivatives.py (plants.numdiff.check_cost_term). Via-points are
@@ -370,9 +481,10 @@ COST_TERM_EXAMPLES: dict[str, CostTermExample] = {}
 def register_cost_term_example(name: str, build: Callable[[Any, np.ndarray], StateTerm | ControlTerm],
                                kind: str, plants: tuple[str, ...] | None = None,
                                exact_hessian: bool = False) -> CostTermExample:
-    """Register an example cost term (unique ``name``; ``kind`` ``"state"`` or ``"control"``)."""
-    if kind not in ("state", "control"):
-        raise ValueError(f"cost term example '{name}': kind must be 'state' or 'control'")
+    """Register an example cost term (unique ``name``; ``kind`` ``"state"``, ``"control"`` or
+    ``"joint"`` for a term on ``(x_t, u_t)``)."""
+    if kind not in ("state", "control", "joint"):
+        raise ValueError(f"cost term example '{name}': kind must be 'state', 'control' or 'joint'")
     if name in COST_TERM_EXAMPLES:
         raise ValueError(f"cost term example '{name}' is already registered")
     COST_TERM_EXAMPLES[name] = CostTermExample(name, build, kind, plants, exact_hessian)
@@ -417,3 +529,14 @@ register_cost_term_example(
     "control_limit", lambda r, q0: ControlLimit(-0.5 * np.ones(len(q0)), 0.7 * np.ones(len(q0)),
                                                 1e3),
     "control", exact_hessian=True)
+
+
+def _uncertainty_example(robot, q0: np.ndarray) -> Uncertainty:
+    """The uncertainty term on a small GP (``plants.learned.example_params``), sigma* = 0.2."""
+    from plants.learned import build_learned, example_params
+
+    model = build_learned(robot, 0.01, example_params(robot))
+    return Uncertainty(model, 0.2, 1e-2, T=4)
+
+
+register_cost_term_example("uncertainty", _uncertainty_example, "joint")

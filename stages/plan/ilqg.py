@@ -251,6 +251,7 @@ class _ILQGStep:
 def _derivatives(problem: Problem, X: np.ndarray, U: np.ndarray):
     """``(A, B, l_x, l_xx, l_u, l_uu)`` along the trajectory (shapes as in ``_backward``)."""
     A, _, B = problem.dynamics.linearize_trajectory(X[:-1], U)
+    problem.set_nominal(X, U)
     lx, lxx = problem.state_derivatives(X)
     lu, luu = problem.control_derivatives(U)
     out = (np.asarray(A, float), np.asarray(B, float), lx, lxx, lu, luu)

@@ -64,6 +64,13 @@ def control(weight: float, name: str = "control") -> TermDesc:
     return {"term": "control", "name": name, "weight": float(weight)}
 
 
+def uncertainty(sigma_star: float, weight: float, name: str = "uncertainty") -> TermDesc:
+    """The GP-uncertainty term (thesis eq. 4.3) on ``(x_t, u_t)``: built with the learned model
+    by the plan stage (``stages.plan.costs.Uncertainty``), not by :func:`build_terms`."""
+    return {"term": "uncertainty", "name": name, "sigma_star": float(sigma_star), "weight": float(weight),
+            "controls": "torque"}
+
+
 def control_limit(lower, upper, weight: float, name: str = "control_limit") -> TermDesc:
     """Penalty on torques outside ``[lower, upper]`` (N m); only for torque-controlled models."""
     return {"term": "control_limit", "name": name, "weight": float(weight), "controls": "torque",
@@ -123,6 +130,8 @@ def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str =
         if not applies(d, control_kind):
             continue
         kept.append(d)
+        if d["term"] == "uncertainty":  # needs the learned model: the plan stage builds it
+            continue
         term = build_term(robot, d)
         (state if d["term"] == "via" else controls).append(term)
     return Objective(T, state, controls, kept)

@@ -54,6 +54,12 @@ class Problem:
         T: horizon in steps (the movement lasts ``T * dynamics.dt`` seconds).
         state_terms: costs on ``x_t`` (``stages.plan.costs`` state terms), ``t = 0..T``.
         control_terms: costs on ``u_t`` (control terms), ``t = 0..T-1``.
+        joint_terms: costs on ``(x_t, u_t)`` together, ``t = 0..T-1`` (the GP-uncertainty term).
+            Their value uses both; their quadratic models are split: the state part at the
+            nominal controls goes into the task messages ``R, r``, the control part at the
+            nominal states into ``H, h``, and the state-control cross terms are dropped
+            (SPEC §7). A solver sets the nominal trajectory with :meth:`set_nominal` before
+            it asks for derivatives.
     """
 
     dynamics: Dynamics
@@ -61,6 +67,7 @@ class Problem:
     T: int
     state_terms: list = field(default_factory=list)
     control_terms: list = field(default_factory=list)
+    joint_terms: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.x0 = np.asarray(self.x0, dtype=float).reshape(-1)
@@ -71,7 +78,7 @@ class Problem:
         if int(self.T) != self.T or self.T < 1:
             raise ValueError(f"T must be an integer >= 1, got {self.T}")
         self.T = int(self.T)
-        names = [t.name for t in self.state_terms + self.control_terms]
+        names = [t.name for t in self.all_terms()]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"cost term names must be unique, repeated: {dup}")
@@ -90,15 +97,23 @@ class Problem:
         return self.dynamics.n_u
 
     # -- terms ---------------------------------------------------------------
+    def all_terms(self) -> list:
+        return [*self.state_terms, *self.control_terms, *self.joint_terms]
+
     def term(self, name: str):
         """The cost term called ``name``."""
-        for t in self.state_terms + self.control_terms:
+        for t in self.all_terms():
             if t.name == name:
                 return t
         raise KeyError(f"no cost term {name!r}; terms: {self.term_names()}")
 
     def term_names(self) -> list[str]:
-        return [t.name for t in self.state_terms + self.control_terms]
+        return [t.name for t in self.all_terms()]
+
+    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the joint terms split their models at."""
+        for term in self.joint_terms:
+            term.set_nominal(X, U)
 
     def without(self, *names: str) -> Problem:
         """A copy without the named terms (ablations)."""
@@ -108,6 +123,7 @@ class Problem:
             self,
             state_terms=[t for t in self.state_terms if t.name not in names],
             control_terms=[t for t in self.control_terms if t.name not in names],
+            joint_terms=[t for t in self.joint_terms if t.name not in names],
         )
 
     # -- costs ---------------------------------------------------------------
@@ -115,6 +131,7 @@ class Problem:
         """Total value of each term along ``X (T+1, n_x)``, ``U (T, n_u)``."""
         out = {t.name: float(np.sum(t.value(X))) for t in self.state_terms}
         out.update({t.name: float(np.sum(t.value(U))) for t in self.control_terms})
+        out.update({t.name: float(np.sum(t.joint_value(X[:-1], U))) for t in self.joint_terms})
         return out
 
     def cost(self, X: np.ndarray, U: np.ndarray) -> float:
@@ -143,6 +160,8 @@ class Problem:
             lxx[...] = 0.0
         for term in self.state_terms:
             term.add_derivatives(X, idx, lx, lxx)
+        for term in self.joint_terms:
+            term.add_derivatives(X, idx, lx, lxx)
         return lx, lxx
 
     def active_state_terms(self) -> list[list]:
@@ -152,7 +171,7 @@ class Problem:
         """
         steps = np.arange(self.T + 1)
         out: list[list] = [[] for _ in steps]
-        for term in self.state_terms:
+        for term in self.state_terms + self.joint_terms:
             if term.weight == 0:
                 continue
             for t in np.flatnonzero(term.active(steps)):
@@ -168,7 +187,7 @@ class Problem:
         """
         lx = np.zeros(x.shape[0])
         lxx = np.zeros((x.shape[0], x.shape[0]))
-        for term in self.state_terms if terms is None else terms:
+        for term in self.state_terms + self.joint_terms if terms is None else terms:
             term.add_point_derivatives(x, t, lx, lxx)
         return lx, lxx
 
@@ -181,6 +200,8 @@ class Problem:
             g, h = term.derivatives(U)
             lu += g
             luu += h
+        for term in self.joint_terms:
+            term.add_control_derivatives(U, lu, luu)
         return lu, luu
 
     def quadratize_states(

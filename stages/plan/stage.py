@@ -17,7 +17,8 @@ from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import via_point_errors
-from stages.plan.objective import Objective, build_terms
+from stages.plan.costs import Uncertainty
+from stages.plan.objective import Objective, build_terms, uncertainty
 from stages.plan.problem import Problem, Result
 from stages.plan.solvers import SOLVERS, make_options, solve
 from stages.plan.tasks import TASKS, TaskSpec, get_task
@@ -35,8 +36,8 @@ class PlanConfig(StageConfig):
     not the reference typed, is part of the cache key).
     """
 
-    INPUTS = ("model",)
-    INPUT_STAGES = {"model": "fit"}
+    INPUTS = ("model", "warm_start")
+    INPUT_STAGES = {"model": "fit", "warm_start": "plan"}
     HELP = {"plant": "pendulum, arm5, biorob or nao.",
             "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",
             "dynamics": "pseudo (controls = accelerations), analytic (Drake, torques) or learned (GP of --model).",
@@ -44,7 +45,11 @@ class PlanConfig(StageConfig):
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
             "q0_std": "Std of q0 around the default posture (rad).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
-            "model": "Key of a fit artifact (the GP of --dynamics learned)."}
+            "model": "Key of a fit artifact (the GP of --dynamics learned).",
+            "warm_start": "Key of an earlier plan whose controls start this one (AICO/R-AICO, iLQG).",
+            "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance), "
+                          "or none (no uncertainty term); learned dynamics only.",
+            "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I."}
 
     plant: str
     task: str
@@ -57,6 +62,9 @@ class PlanConfig(StageConfig):
     q0_std: float = 0.05  # rad
     relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
     model: str | None = None
+    warm_start: str | None = None
+    sigma_star: str = "none"  # a number, or "none": no uncertainty term
+    sigma_weight: float = 1e-2
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -72,14 +80,37 @@ class PlanConfig(StageConfig):
             raise ValueError("iterations must be in [1, 10000]")
         if not 0 <= self.q0_std <= 1.0:
             raise ValueError("q0-std must be in [0, 1] rad")
+        if self.sigma is not None and self.dynamics != "learned":
+            raise ValueError("--sigma-star needs --dynamics learned (the GP's variance)")
+        if self.sigma is not None and not 0 <= self.sigma <= 100:
+            raise ValueError("sigma-star must be in [0, 100] or none")
+        if not (np.isfinite(self.sigma_weight) and 0 <= self.sigma_weight <= 1e8):
+            raise ValueError("sigma-weight must be in [0, 1e8]")
         make_options(self.solver, self.solver_options())
 
+    @property
+    def sigma(self) -> float | None:
+        """sigma* as a number, or None for "none"."""
+        text = str(self.sigma_star).strip().lower()
+        if text == "none":
+            return None
+        try:
+            return float(text)
+        except ValueError:
+            raise ValueError(f"sigma-star must be a number or none, got '{self.sigma_star}'") from None
+
     def normalized(self) -> PlanConfig:
-        """alpha/gamma only mean something for R-AICO: fix them for the others (cache key)."""
-        if self.solver == "raico":
-            return self
-        relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
-        return PlanConfig(**{**asdict(self), "alpha": 0.0, "gamma": 1.0, "relinearize": relinearize})
+        """One spelling per meaning (cache key): alpha/gamma only for R-AICO, sigma* as a
+        canonical number or "none", its weight only with it."""
+        d = asdict(self)
+        sigma = self.sigma
+        d["sigma_star"] = "none" if sigma is None else repr(sigma)
+        if sigma is None:
+            d["sigma_weight"] = 0.0
+        if self.solver != "raico":
+            relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
+            d.update(alpha=0.0, gamma=1.0, relinearize=relinearize)
+        return PlanConfig(**d)
 
     def solver_options(self) -> dict:
         if self.solver == "ilqg":
@@ -167,28 +198,44 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     params = model.arrays("model.npz") if model is not None else None
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
-    objective = build_terms(robot, task.build(robot, q0, task.T), task.T, kind)
+    terms = task.build(robot, q0, task.T)
+    if cfg.sigma is not None:
+        terms.append(uncertainty(cfg.sigma, cfg.sigma_weight))
+    objective = build_terms(robot, terms, task.T, kind)
+    joint = [Uncertainty(dyn, d["sigma_star"], d["weight"], task.T, name=d["name"])
+             for d in objective.descriptions if d["term"] == "uncertainty"]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
-    problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms)
+    problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
     desc = describe_problem(cfg, task, q0, objective.descriptions, model.ref if model else None, kind)
     return robot, task, problem, q0, desc
 
 
-def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None) -> PlanOutput:
-    """Plan; a diverging solver is a result (status ``diverged``), not an exception."""
+def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None,
+         warm_start: Artifact | None = None) -> PlanOutput:
+    """Plan; a diverging solver is a result (status ``diverged``), not an exception.
+
+    ``warm_start``: an earlier plan of the same horizon; its controls are the initial guess."""
     cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
+    init = {}
+    if warm_start is not None:
+        U0 = warm_start.arrays(PLAN_FILE)["U"]
+        if U0.shape != (problem.T, problem.n_u) or not np.all(np.isfinite(U0)):
+            raise ValueError(f"warm start {warm_start.key}: its controls do not fit this problem "
+                             f"(shape {U0.shape}, expected {(problem.T, problem.n_u)}, finite)")
+        init["U_init"] = U0
     callback = None
     if progress is not None:
         def callback(rec, *_):  # noqa: ANN001
             progress(rec.iteration, cfg.iterations)
-    result = solve(problem, cfg.solver, cfg.solver_options(), callback=callback)
+    result = solve(problem, cfg.solver, cfg.solver_options(), callback=callback, **init)
     return PlanOutput(cfg, task, robot, problem, result, q0, desc)
 
 
 def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None = None) -> StageOutput:
     """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``."""
-    out = plan(cfg.normalized(), (inputs or {}).get("model"), progress)
+    inputs = inputs or {}
+    out = plan(cfg.normalized(), inputs.get("model"), progress, inputs.get("warm_start"))
     return StageOutput(status=str(out.result.status), metrics=out.metrics(), arrays={PLAN_FILE: out.arrays()},
                        documents={PROBLEM_FILE: out.description}, payload=out)
 

@@ -1,0 +1,127 @@
+"""Model learning while planning (thesis §4, SPEC §7): the learn loop's config and its per-episode
+measurements.
+
+The loop itself (``pipeline/learn.py``) is a sequence of cached stage runs: babble once, then per
+episode ``fit`` (the GP, per the hyperparameter schedule), ``plan`` (R-AICO on the GP model with
+the uncertainty term, warm-started from the last plan) and ``execute`` (the plan's controller on
+the Drake plant in Drake's Simulator, never on the GP); the executed data feed the next fit. This
+module holds what is pure: the config and the measurements of an episode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plants.robots import PLANTS
+from stages.base import StageConfig
+from stages.plan.tasks import get_task
+
+MAX_EPISODES = 100
+
+
+@dataclass(frozen=True)
+class LearnConfig(StageConfig):
+    """Parameters of ``raico learn`` (defaults stated here only)."""
+
+    HELP = {"plant": "pendulum, arm5, biorob or nao.", "task": "Task of the plant (see raico plan --help).",
+            "episodes": "Planning-and-execution episodes after babbling.",
+            "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance) "
+                          "or none.",
+            "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
+            "schedule": "Hyperparameter schedule: every (re-optimize each episode) or batch-N (N >= 100 new points).",
+            "alpha": "R-AICO regularization alpha (0: plain AICO).",
+            "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model.",
+            "iterations": "Planner iterations per episode.", "max_points": "Cap on the GP's training set.",
+            "restarts": "Hyperparameter optimizer restarts.", "stride": "Use every stride-th executed step as data.",
+            "q0_std": "Std of q0 around the default posture (rad)."}
+
+    plant: str
+    task: str
+    episodes: int = 10
+    sigma_star: str = "none"
+    sigma_weight: float = 1e-2
+    schedule: str = "every"
+    alpha: float = 0.0
+    babble_points: int = 15
+    iterations: int = 20
+    max_points: int = 600
+    restarts: int = 1
+    stride: int = 5
+    q0_std: float = 0.0
+    seed: int = 0
+
+    def validate(self) -> None:
+        if self.plant not in PLANTS:
+            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
+        get_task(self.plant, self.task)
+        checks = [(1 <= self.episodes <= MAX_EPISODES, f"episodes must be in [1, {MAX_EPISODES}]"),
+                  (2 <= self.babble_points <= 100_000, "babble-points must be in [2, 100000]"),
+                  (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
+                  (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
+                  (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
+                  (1 <= self.stride <= 1000, "stride must be in [1, 1000]"),
+                  (0 <= self.alpha <= 1e6, "alpha must be in [0, 1e6]"),
+                  (0 <= self.q0_std <= 1.0, "q0-std must be in [0, 1] rad"),
+                  (0 <= self.sigma_weight <= 1e8, "sigma-weight must be in [0, 1e8]")]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+        parse_schedule(self.schedule)
+        self.plan_config(model="x", warm_start=None).validate()
+
+    @property
+    def solver(self) -> str:
+        return "raico" if self.alpha > 0 else "aico"
+
+    def plan_config(self, model: str, warm_start: str | None, seed: int | None = None):
+        """The plan stage's config of an episode."""
+        from stages.plan.stage import PlanConfig
+
+        return PlanConfig(plant=self.plant, task=self.task, dynamics="learned", solver=self.solver,
+                          alpha=self.alpha if self.alpha > 0 else 1.0, iterations=self.iterations,
+                          seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
+                          warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight)
+
+    def babble_config(self):
+        """Babbling that yields ``babble_points`` samples: one episode sampled every 20 ms."""
+        from stages.babble import BabbleConfig
+
+        dt = 0.02
+        return BabbleConfig(plant=self.plant, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * dt,
+                            dt=dt, knots=max(1, min(4, self.babble_points // 4)))
+
+
+def parse_schedule(schedule: str) -> int | None:
+    """``every`` -> None (re-optimize every episode); ``batch-N`` -> N (>= 100, SPEC §7)."""
+    if schedule == "every":
+        return None
+    if schedule.startswith("batch-") and schedule[6:].isdigit() and int(schedule[6:]) >= 100:
+        return int(schedule[6:])
+    raise ValueError(f"schedule must be 'every' or 'batch-N' with N >= 100, got '{schedule}'")
+
+
+def gp_prediction_error(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray) -> float:
+    """RMSE (rad/s^2) of the GP mean's ``qddot`` against the true ``qddot (K, n_q)`` at the executed
+    states ``X (K, n_x)`` and torques ``tau (K, n_q)``; non-finite rows are left out."""
+    ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(tau), axis=1) & np.all(np.isfinite(qddot), axis=1)
+    if not ok.any():
+        return float("inf")
+    pred = model.predict_mean(np.hstack([X[ok], tau[ok]]))
+    return float(np.sqrt(np.mean((pred - qddot[ok]) ** 2)))
+
+
+def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Drake's forward dynamics ``qddot (K, n_q)`` at states ``X (K, n_x)`` under torques ``tau``."""
+    from plants.registry import make_dynamics
+
+    dyn = make_dynamics("analytic", robot, dt)
+    n = robot.n_q
+    return np.array([dyn.qddot(x[:n], x[n:], u) for x, u in zip(X, tau)]).reshape(-1, n)
+
+
+def task_error(via_point_errors: dict) -> float:
+    """The largest via-point error of a run (m or rad); inf if none is finite."""
+    vals = [v for v in via_point_errors.values() if v is not None]
+    return float(max(vals)) if vals else float("inf")
