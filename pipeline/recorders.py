@@ -15,6 +15,7 @@ import numpy as np
 
 from pipeline import recording as rec_mod
 from pipeline.mcap_io import write_trajectory_mcap
+from pipeline.recorders_fit import record_fit
 
 RECORDING = "recording.rrd"
 MCAP = "trajectory.mcap"
@@ -166,4 +167,4 @@ def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, m
                                                    colors=[(255, 220, 0)]))
 
 
-RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute}
+RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit}

@@ -113,23 +113,26 @@ def run_stage(
 
 
 # ----------------------------------------------------------------------------- stages
-def find_entry(cache: Cache, ref: str, stage: str | None = None) -> Entry:
+def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Entry:
     """A valid entry from ``STAGE/KEY`` or a bare ``KEY`` or key prefix (searched in ``stage``,
-    or everywhere). An empty reference, an unknown one or an ambiguous prefix is an error."""
+    in each of a tuple of stages, or everywhere). An empty reference, an unknown one, one of
+    another stage or an ambiguous prefix is an error."""
     ref = (ref or "").strip()
     if not ref:
         raise BadInput("an empty artifact key")
+    stages = (stage,) if isinstance(stage, str) else stage
     if "/" in ref:
         st, key = ref.split("/", 1)
-        if stage is not None and st != stage:
-            raise BadInput(f"{ref} is a {st} artifact, not a {stage} artifact")
+        if stages is not None and st not in stages:
+            raise BadInput(f"{ref} is a {st} artifact, not a {' or '.join(stages)} artifact")
         return cache.require(st, key)
-    matches = [r for r in cache.list(stage) if r.key.startswith(ref)]
+    rows = [r for s in stages for r in cache.list(s)] if stages is not None else cache.list()
+    matches = [r for r in rows if r.key.startswith(ref)]
     valid = [r for r in matches if r.valid]
     if not valid:
         if matches:
             return cache.require(matches[0].stage, matches[0].key)  # raises with the reason
-        where = f"stage '{stage}'" if stage else "any stage"
+        where = " or ".join(f"stage '{s}'" for s in stages) if stages else "any stage"
         raise MissingArtifact(f"no artifact with key '{ref}' in {where} under {cache.root}")
     if len({(r.stage, r.key) for r in valid}) > 1:
         raise BadInput(f"key prefix '{ref}' is ambiguous: give more characters or STAGE/KEY")

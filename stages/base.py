@@ -40,12 +40,12 @@ class StageConfig:
 
     ``INPUTS`` names the fields that hold input-artifact references (a key, a key prefix
     or ``STAGE/KEY``; a tuple of them for a repeatable input); ``INPUT_STAGES`` the stage
-    each must come from. Input fields are not part of the hashed config: the resolved
-    keys are.
+    each must come from (or a tuple of stages it may come from, e.g. ``("babble",
+    "execute")``). Input fields are not part of the hashed config: the resolved keys are.
     """
 
     INPUTS: ClassVar[tuple[str, ...]] = ()
-    INPUT_STAGES: ClassVar[dict[str, str]] = {}
+    INPUT_STAGES: ClassVar[dict[str, str | tuple[str, ...]]] = {}
 
     def validate(self) -> None:
         """Raise ``ValueError`` with one clear line on a bad value."""
@@ -81,10 +81,11 @@ def _frozen(v: Any) -> Any:
 @dataclass(frozen=True)
 class InputRef:
     """An input artifact named by a config: ``role`` (the config field), the stage it must
-    come from, and the user's reference (key, prefix or ``STAGE/KEY``)."""
+    come from (or a tuple of stages it may come from), and the user's reference (key, prefix
+    or ``STAGE/KEY``)."""
 
     role: str
-    stage: str
+    stage: str | tuple[str, ...]
     ref: str
 
 

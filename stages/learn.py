@@ -19,6 +19,7 @@ from stages.base import StageConfig
 from stages.plan.tasks import get_task
 
 MAX_EPISODES = 100
+BABBLE_DT = 0.1  # s between babbling samples
 
 
 @dataclass(frozen=True)
@@ -85,12 +86,13 @@ class LearnConfig(StageConfig):
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight)
 
     def babble_config(self):
-        """Babbling that yields ``babble_points`` samples: one episode sampled every 20 ms."""
+        """Babbling that yields ``babble_points`` samples (thesis: 15 for the pendulum): one episode
+        of ``BABBLE_DT`` s per sample, so few samples still cover a spread of states and torques."""
         from stages.babble import BabbleConfig
 
-        dt = 0.02
-        return BabbleConfig(plant=self.plant, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * dt,
-                            dt=dt, knots=max(1, min(4, self.babble_points // 4)))
+        return BabbleConfig(plant=self.plant, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
+                            dt=BABBLE_DT, knots=max(1, min(8, self.babble_points // 3)),
+                            substeps=int(round(BABBLE_DT / 1e-3)), amplitude=1.0)
 
 
 def parse_schedule(schedule: str) -> int | None:

@@ -12,6 +12,7 @@ _MODULES = {
     "plan": "stages.plan.stage",
     "execute": "stages.execute",
     "evaluate": "stages.evaluate.stage",
+    "fit": "stages.fit.stage",
 }
 
 

@@ -1,0 +1,354 @@
+"""The fit stage (SPEC §7, thesis §4.2): a GP model of ``qddot = f(q, qdot, u)`` from babbled or executed data.
+
+Data. ``--data`` names babble and execute artifacts; the training set is every point of them
+(every ``stride``-th sample of each time segment), in the order given. A babble artifact
+contributes one time segment per episode with its sampled ``(q, qdot, u) -> qddot`` (Drake's
+own time derivative). An execute artifact contributes one segment: the executed states
+``X[k]`` with the torque ``tau[k]`` applied over planning step ``k``; its target is Drake's
+forward dynamics at that tuple, computed with the analytic model
+(``make_dynamics("analytic", ...)``, which *is* Drake's forward dynamics of the plant the
+simulator ran), so every training tuple is an exact sample of the plant's dynamics (for
+computed-torque plans the torque varies inside a step; the logged tuple is still exact). Rows
+with a non-finite value are skipped (a diverged rollout ends early). The execute artifact's
+plant and step come from its plan's ``problem.json``.
+
+Held-out data. The trailing ``holdout`` fraction of every segment (``round(holdout * K)``
+samples, at least one sample stays for training) is held out: never trained on, used for
+the held-out RMSE and the recording, where the held-out segments are laid end to end on one
+``sim_time`` axis.
+
+Hyperparameter schedule (SPEC §7, thesis "1:1" and ">100"). Without ``--prior`` the
+hyperparameters are optimized (``fit_gp``). With ``--prior`` (an earlier fit artifact whose
+data keys must all be among ``--data``; same plant, holdout and stride): ``every`` re-optimizes on all
+data; ``batch-N`` re-optimizes when the training points added since the prior's last
+optimization (counted before the cap) reach ``N``, else it adds the points of the data keys
+the prior did not have to the prior's GP at its hyperparameters (``GPModel.update``, the
+Cholesky factor extended). When the cap would be exceeded the prior's points plus the new
+ones are subsampled by ``subsample_indices`` and refactorized at the prior's hyperparameters
+(``refit_fixed``). The cap ``max_points`` applies to every path; ``n_dropped`` says how many
+training points it dropped.
+
+Files: ``model.npz`` (``GPModel.to_arrays()``, with the Cholesky factor: what
+``make_dynamics("learned", robot, dt, params)`` takes), ``heldout.npz`` (held-out inputs
+``X (M, d)``, targets ``Y (M, n_q)``, laid-out ``time (M,)`` s, ``segment (M,)``) and
+``fit.json`` (see :func:`fit_document`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from plants.gp import GPModel
+from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
+from stages.fit.gp_fit import fit_gp, refit_fixed, rmse, subsample_indices
+
+MODEL_FILE = "model.npz"
+HELDOUT_FILE = "heldout.npz"
+FIT_FILE = "fit.json"
+DATA_STAGES = ("babble", "execute")
+MIN_BATCH = 100  # SPEC §7: batch-N only with N >= 100
+_BATCH = re.compile(r"batch-(\d+)")
+
+
+@dataclass(frozen=True)
+class FitConfig(StageConfig):
+    """Declared parameters of the fit stage; ``data`` and ``prior`` are its inputs."""
+
+    INPUTS = ("data", "prior")
+    INPUT_STAGES = {"data": DATA_STAGES, "prior": "fit"}
+    HELP = {"data": "Key of a babble or execute artifact (repeatable: --data A --data B); all their points, in order.",
+            "prior": "Key of an earlier fit artifact whose data keys are all among --data (see --schedule).",
+            "schedule": "With --prior: 'every' re-optimizes the hyperparameters; 'batch-N' (N >= 100) only once "
+                        "N points were added since the prior's last optimization, else adds them at fixed ones.",
+            "restarts": "Random restarts of the likelihood optimizer (per output).",
+            "seed": "Seed of the optimizer's restarts.",
+            "max_points": "Cap on the training points (older ones subsampled, SPEC 7).",
+            "holdout": "Trailing fraction of every time segment held out for the error and the recording.",
+            "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all)."}
+
+    data: tuple[str, ...] = ()
+    prior: str | None = None
+    schedule: str = "every"
+    restarts: int = 2
+    seed: int = 0
+    max_points: int = 1000
+    holdout: float = 0.2
+    stride: int = 1
+
+    def validate(self) -> None:
+        if not self.data:
+            raise ValueError("fit needs --data KEY (a babble or execute artifact; repeatable)")
+        if len(self.data) > 1000:
+            raise ValueError("data: at most 1000 artifacts")
+        if any(not isinstance(d, str) or not d.strip() for d in self.data):
+            raise ValueError("data: an empty artifact reference")
+        if len({d.strip() for d in self.data}) != len(self.data):
+            raise ValueError("data: the same artifact given twice")
+        if self.prior is not None and not self.prior.strip():
+            raise ValueError("prior: an empty artifact reference")
+        batch_size(self.schedule)
+        checks = [(0 <= self.restarts <= 50, "restarts must be in [0, 50]"),
+                  (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
+                  (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
+                  (0.0 <= self.holdout <= 0.5, "holdout must be in [0, 0.5]"),
+                  (1 <= self.stride <= 1000, "stride must be in [1, 1000]")]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(msg)
+
+
+def batch_size(schedule: str) -> int | None:
+    """None for ``every``, ``N`` for ``batch-N`` (``ValueError`` unless ``N >= 100``)."""
+    if schedule == "every":
+        return None
+    m = _BATCH.fullmatch(schedule or "")
+    if m is None or not MIN_BATCH <= int(m.group(1)) <= 10**7:
+        raise ValueError(f"schedule must be 'every' or 'batch-N' with N in [{MIN_BATCH}, 1e7] (SPEC 7), "
+                         f"got '{schedule}'")
+    return int(m.group(1))
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class Segment:
+    """One time segment of one data artifact: inputs ``X (K, 2 n_q + n_u)`` = ``(q, qdot, u)``
+    (rad, rad/s, N m), targets ``Y (K, n_q)`` (rad/s^2), times ``t (K,)`` s."""
+
+    source: str
+    X: np.ndarray
+    Y: np.ndarray
+    t: np.ndarray
+
+
+@dataclass
+class DataSet:
+    """Training and held-out points of all data artifacts, in order (shapes as :class:`Segment`)."""
+
+    plant: str
+    joint_names: tuple[str, ...]
+    sources: tuple[str, ...]
+    X: np.ndarray  # (N, d) training inputs
+    Y: np.ndarray  # (N, n_q)
+    source: np.ndarray  # (N,) index into sources
+    X_test: np.ndarray  # (M, d)
+    Y_test: np.ndarray  # (M, n_q)
+    t_test: np.ndarray  # (M,) s, held-out segments laid end to end
+    seg_test: np.ndarray  # (M,) segment number
+
+
+def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    """Mask of rows finite in every ``(K, ...)`` array."""
+    return np.all(np.hstack([np.isfinite(a).reshape(len(a), -1) for a in arrays]), axis=1)
+
+
+def babble_segments(art: Artifact) -> tuple[str, list[Segment]]:
+    """The plant and one segment per episode of a babble artifact (``data.npz``)."""
+    d = art.arrays("data.npz")
+    segs = []
+    for e in range(d["q"].shape[0]):
+        X = np.hstack([d["q"][e], d["qdot"][e], d["u"][e]])
+        Y = d["qddot"][e]
+        ok = _finite_rows(X, Y)
+        segs.append(Segment(art.ref, X[ok], Y[ok], d["t"][ok]))
+    return str(art.config["plant"]), segs
+
+
+def plan_problem(art: Artifact) -> dict:
+    """``problem.json`` of the plan an execute artifact ran (the cache's ``<root>/plan/<key>/``)."""
+    refs = [r for r in art.inputs if r.startswith("plan/")]
+    path = art.path.parents[1] / "plan" / refs[0].split("/", 1)[1] / "problem.json" if refs else None
+    if path is None or not path.is_file():
+        raise ValueError(f"{art.ref}: the plan it executed is not in the cache")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def execute_segments(art: Artifact) -> tuple[str, list[Segment]]:
+    """The plant and the one segment of an execute artifact: ``(X[k], tau[k]) -> qddot`` by Drake's
+    forward dynamics (the analytic model), ``k < T``; non-finite rows skipped."""
+    from plants.registry import make_dynamics
+    from plants.robots import shared_robot
+
+    desc = plan_problem(art)
+    r = art.arrays("rollout.npz")
+    robot = shared_robot(desc["plant"])
+    n, tau = robot.n_q, r["tau"]
+    T = len(tau)
+    X = r["X"][:T]
+    dyn = make_dynamics("analytic", robot, float(desc["dt"]))
+    ok = _finite_rows(X, tau)
+    Y = np.full((T, n), np.nan)
+    for k in np.flatnonzero(ok):
+        Y[k] = dyn.qddot(X[k, :n], X[k, n:], tau[k])
+    ok &= _finite_rows(Y)
+    return str(desc["plant"]), [Segment(art.ref, np.hstack([X, tau])[ok], Y[ok], r["times"][:T][ok])]
+
+
+def split_count(K: int, holdout: float) -> int:
+    """Held-out samples at the end of a segment of ``K``: ``round(holdout K)``, leaving one for training."""
+    return max(0, min(K - 1, int(round(holdout * K))))
+
+
+def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1) -> DataSet:
+    """Training and held-out points of ``arts`` (babble or execute, all of the same plant), every
+    ``stride``-th sample of each segment."""
+    from plants.robots import shared_robot
+
+    plant_names, segs = set(), []
+    for art in arts:
+        plant, s = babble_segments(art) if art.stage == "babble" else execute_segments(art)
+        plant_names.add(plant)
+        k = stride if art.stage == "execute" else 1  # babbling keeps its own sampling rate
+        segs += [Segment(g.source, g.X[::k], g.Y[::k], g.t[::k]) for g in s]
+    if len(plant_names) != 1:
+        raise ValueError(f"data of different plants: {', '.join(sorted(plant_names))}")
+    plant = plant_names.pop()
+    sources = tuple(a.ref for a in arts)
+    tr, te, laid, seg_id, offset = [], [], [], [], 0.0
+    for i, s in enumerate(segs):
+        h = split_count(len(s.t), holdout)
+        cut = len(s.t) - h
+        tr.append((s.X[:cut], s.Y[:cut], np.full(cut, sources.index(s.source))))
+        if h:
+            t = s.t[cut:] - s.t[cut]
+            step = float(np.median(np.diff(s.t))) if len(s.t) > 1 else 0.0
+            laid.append(offset + t)
+            offset += float(t[-1]) + step
+            te.append((s.X[cut:], s.Y[cut:]))
+            seg_id.append(np.full(h, i))
+    X = np.vstack([a for a, _, _ in tr])
+    if len(X) == 0:
+        raise ValueError("the data artifacts hold no finite points")
+    d, n = X.shape[1], segs[0].Y.shape[1]
+    return DataSet(plant=plant, joint_names=tuple(shared_robot(plant).joint_names), sources=sources, X=X,
+                   Y=np.vstack([b for _, b, _ in tr]), source=np.concatenate([c for _, _, c in tr]),
+                   X_test=np.vstack([a for a, _ in te]) if te else np.zeros((0, d)),
+                   Y_test=np.vstack([b for _, b in te]) if te else np.zeros((0, n)),
+                   t_test=np.concatenate(laid) if laid else np.zeros(0),
+                   seg_test=np.concatenate(seg_id) if seg_id else np.zeros(0, int))
+
+
+# ----------------------------------------------------------------------------- fit
+@dataclass
+class FitResult:
+    """The model and how it was made (``mode``: ``optimized``, ``incremental`` or ``refactorized``,
+    the last = the prior's hyperparameters on a capped set, factorized anew)."""
+
+    model: GPModel
+    mode: str
+    fit_time_s: float
+    n_at_optimization: int  # training points (before the cap) at the last hyperparameter optimization
+    since_optimization: int  # training points added since then (before this fit)
+    warnings: list
+
+
+def check_prior(prior: Artifact, data: DataSet, cfg: FitConfig) -> dict:
+    """The prior's ``fit.json``, checked against this fit's data (same plant, holdout and stride;
+    its data keys among this fit's)."""
+    doc = prior.document(FIT_FILE)
+    if doc["plant"] != data.plant:
+        raise ValueError(f"prior {prior.ref} is a model of {doc['plant']}, the data are of {data.plant}")
+    if not math.isclose(float(doc["holdout"]), cfg.holdout) or int(doc["stride"]) != cfg.stride:
+        raise ValueError(f"prior {prior.ref} was fit with holdout {doc['holdout']} and stride {doc['stride']}: "
+                         "use the same")
+    missing = [k for k in doc["data_keys"] if k not in data.sources]
+    if missing:
+        raise ValueError(f"--data lacks {missing[0]}, a data artifact of prior {prior.ref}: give all of them")
+    return doc
+
+
+def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResult:
+    """Optimize the hyperparameters or update the prior's GP (rule in the module docstring)."""
+    n_train = len(data.X)
+    if prior is not None:
+        doc = check_prior(prior, data, cfg)
+        since = n_train - int(doc["n_train_at_optimization"])
+        N = batch_size(cfg.schedule)
+        if N is not None and since < N:
+            t0 = time.perf_counter()
+            model = GPModel.from_arrays(prior.arrays(MODEL_FILE))
+            new = ~np.isin(np.array(data.sources)[data.source], doc["data_keys"])
+            model, mode = _add_points(model, data.X[new], data.Y[new], cfg.max_points)
+            return FitResult(model, mode, time.perf_counter() - t0, int(doc["n_train_at_optimization"]),
+                             since, [])
+    else:
+        since = n_train
+    t0 = time.perf_counter()
+    model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points)
+    return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
+
+
+def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPModel, str]:
+    """``model`` plus ``X (n, d)``, ``Y (n, D)`` at fixed hyperparameters: the Cholesky factor
+    extended, or, past ``max_points``, the capped union factorized anew."""
+    if model.N + len(X) <= max_points:
+        return model.update(X, Y), "incremental"
+    Xa, Ya = np.vstack([model.X, X]), np.vstack([model.Y, Y])
+    kept = subsample_indices(Xa, max_points)
+    return refit_fixed(model, Xa[kept], Ya[kept]), "refactorized"
+
+
+def heldout_errors(model: GPModel, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out RMSE ``(D,)`` (rad/s^2) and RMSE over the held-out targets' std ``(D,)``; NaN without held-out points."""
+    if len(data.X_test) == 0:
+        nan = np.full(model.D, np.nan)
+        return nan, nan
+    e = rmse(model, data.X_test, data.Y_test)
+    return e, e / np.maximum(data.Y_test.std(axis=0), 1e-300)
+
+
+def fit_document(cfg: FitConfig, data: DataSet, res: FitResult, prior: Artifact | None) -> dict:
+    """``fit.json``: hyperparameters (standardized units) and log marginal likelihood per output,
+    timing, how the model was made, point counts, data keys, held-out errors."""
+    m, names = res.model, list(data.joint_names)
+    err, nerr = heldout_errors(m, data)
+    lml = m.log_marginal_likelihood()
+    return {
+        "plant": data.plant, "joint_names": names, "data_keys": list(data.sources),
+        "prior": prior.ref if prior else None, "schedule": cfg.schedule, "holdout": cfg.holdout,
+        "stride": cfg.stride,
+        "mode": res.mode, "optimized": res.mode == "optimized", "fit_time_s": res.fit_time_s,
+        "hyperparameters": {j: {"length_scales": m.ell[i].tolist(), "sf2": float(m.sf2[i]),
+                                "sn2": float(m.sn2[i])} for i, j in enumerate(names)},
+        "hyperparameter_units": "standardized inputs and outputs (plants.gp)",
+        "log_marginal_likelihood": {j: float(lml[i]) for i, j in enumerate(names)},
+        "n_points": m.N, "n_train": len(data.X), "n_dropped": len(data.X) - m.N, "n_heldout": len(data.X_test),
+        "n_train_at_optimization": res.n_at_optimization,
+        "points_since_optimization": res.since_optimization, "max_points": cfg.max_points,
+        "heldout_rmse": {j: float(err[i]) for i, j in enumerate(names)},
+        "heldout_rmse_overall": float(np.sqrt(np.mean(err**2))),
+        "heldout_nrmse": {j: float(nerr[i]) for i, j in enumerate(names)},
+        "warnings": res.warnings,
+    }
+
+
+def fit_metrics(doc: dict) -> dict:
+    """Headline metrics of a ``fit.json``."""
+    keys = ("n_points", "n_train", "n_dropped", "n_heldout", "optimized", "mode", "fit_time_s",
+            "points_since_optimization", "heldout_rmse", "heldout_rmse_overall")
+    return {**{k: doc[k] for k in keys}, "lml": doc["log_marginal_likelihood"]}
+
+
+def run(cfg: FitConfig, inputs: dict, progress: Progress | None = None) -> StageOutput:
+    """The fit stage: ``model.npz``, ``heldout.npz`` and ``fit.json`` (module docstring)."""
+    arts = tuple(inputs.get("data", ()))
+    if len({a.ref for a in arts}) != len(arts):
+        raise ValueError("data: the same artifact given twice")
+    data = load_data(arts, cfg.holdout, cfg.stride)
+    res = fit_model(cfg, data, inputs.get("prior"))
+    doc = fit_document(cfg, data, res, inputs.get("prior"))
+    heldout = {"X": data.X_test, "Y": data.Y_test, "time": data.t_test, "segment": data.seg_test}
+    return StageOutput(status="ok", metrics=fit_metrics(doc), arrays={MODEL_FILE: res.model.to_arrays(),
+                                                                     HELDOUT_FILE: heldout},
+                       documents={FIT_FILE: doc}, payload=res)
+
+
+STAGE = Stage(name="fit", config_cls=FitConfig, run=run, sources=("plants", "stages.fit", "stages.base"),
+              data_files=(MODEL_FILE, HELDOUT_FILE, FIT_FILE),
+              description="Fit a GP dynamics model (SE-ARD per joint) to babble/execute data; "
+                          "schedules every or batch-N with --prior.")
