@@ -223,5 +223,7 @@ def test_point_derivatives_and_memo_equal_the_batched_terms():
     np.testing.assert_array_equal(lxx2, lxx)
     X2 = X.copy()
     X2[5, 0] += 1e-3                                            # a changed row misses it
-    assert p.cost(X2, np.zeros((T, N_Q))) != c1
+    c2 = p.cost(X2, np.zeros((T, N_Q)))
+    assert c2 != c1 and c2 == fresh.cost(X2, np.zeros((T, N_Q)))
+    assert c1 == fresh.cost(X, np.zeros((T, N_Q)))
     np.testing.assert_array_equal(p.state_derivatives(X2)[0], fresh.state_derivatives(X2)[0])

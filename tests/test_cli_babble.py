@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +26,9 @@ def invoke(*args):
 def test_help_lists_the_stages():
     res = invoke("--help")
     assert res.exit_code == 0
-    for cmd in ("babble", "ls", "show"):
-        assert cmd in res.output
+    listed = [ln.split()[0] for ln in res.output.split("Commands:")[1].splitlines() if ln.startswith("  ")]
+    assert {"babble", "plan", "execute", "evaluate", "reproduce", "ls", "show"} <= set(listed)
+    assert sorted(listed) == sorted(c.name or c.callback.__name__ for c in app.registered_commands)
 
 
 def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
@@ -40,21 +42,37 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
     for name in ("meta.json", "data.npz", "recording.rrd", "trajectory.mcap"):
         assert (folder / name).is_file(), name
     meta = json.loads((folder / "meta.json").read_text())
-    assert meta["config"]["episodes"] == 3 and meta["packages"]["drake"] and "timings" in meta
+    assert meta["config"]["episodes"] == 3 and meta["config"]["plant"] == "pendulum"
+    assert meta["packages"]["drake"] == metadata.version("drake")
+    assert meta["status"] == line["status"] == "ok" and meta["metrics"] == line["metrics"]
     data = np.load(folder / "data.npz")
     assert data["q"].shape == (3, 501, 1) and data["u"].shape == data["qddot"].shape
     assert np.abs(data["u"]).max() <= 10.0 + 1e-9
+    # the metrics are the stored arrays': 3 episodes of 1 s at 2 ms (both ends), tracking error
+    m = line["metrics"]
+    assert (m["episodes"], m["samples"]) == (3, 3 * 501)
+    assert m["max_abs_u"] == np.abs(data["u"]).max()
+    assert m["rms_tracking_error"] == pytest.approx(np.sqrt(np.mean((data["q"] - data["q_des"]) ** 2)), rel=1e-12)
+    np.testing.assert_allclose(data["t"], np.arange(501) * 0.002, rtol=0, atol=1e-12)
     # same command again: served from the cache, the stage is not run (data file untouched)
     mtime = (folder / "data.npz").stat().st_mtime_ns
     res2 = invoke("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
     line2 = json.loads(res2.stdout.strip().splitlines()[-1])
     assert line2["cached"] is True and line2["key"] == line["key"]
     assert (folder / "data.npz").stat().st_mtime_ns == mtime
-    assert "cached" in res2.stderr
+    rec = folder / "recording.rrd"
+    assert f"babble {line['key']}: cached -> {folder} [ok]; recording {rec}" in res2.stderr.splitlines()
+    assert line2["metrics"] == line["metrics"] and line2["recording"] == line["recording"] == str(rec)
     ls = invoke("ls", "--artifacts", tmp_path)
-    assert line["key"] in ls.output
+    size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    assert ls.exit_code == 0 and ls.output.splitlines() == [
+        f"babble     {line['key']}  {meta['created']:20s} {size / 1e6:8.2f} MB  {folder}"]
     show = invoke("show", line["key"], "--artifacts", tmp_path)
-    assert show.exit_code == 0 and json.loads(show.output)["config"]["plant"] == "pendulum"
+    assert show.exit_code == 0
+    shown = json.loads(show.output)
+    assert shown["path"] == str(folder) and shown["recording"] == str(rec)
+    assert {k: shown[k] for k in ("stage", "key", "config", "status", "metrics", "timings")} == \
+        {k: meta[k] for k in ("stage", "key", "config", "status", "metrics", "timings")}
 
 
 def test_babble_data_are_consistent_with_the_plant(tmp_path):
@@ -66,23 +84,23 @@ def test_babble_data_are_consistent_with_the_plant(tmp_path):
     assert np.allclose(a, u - v - 9.81 * np.sin(q), rtol=1e-4, atol=1e-4)
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["--plant", "nope"], "pendulum, arm5, biorob, nao"),
-    (["--plant", "arm5", "--episodes", "0"], "episodes"),
-    (["--plant", "arm5", "--dt", "-1"], "dt"),
+@pytest.mark.parametrize("args, message", [
+    (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, arm5, biorob, nao"),
+    (["--plant", "arm5", "--episodes", "0"], "episodes must be >= 1"),
+    (["--plant", "arm5", "--dt", "-1"], "dt must be in (0, 0.1] s"),
 ])
-def test_bad_input_one_line_nonzero_nothing_written(tmp_path, args, needle):
+def test_bad_input_one_line_nonzero_nothing_written(tmp_path, args, message):
     res = invoke("babble", *args, "--artifacts", tmp_path)
-    assert res.exit_code != 0
+    assert res.exit_code == 2  # BadInput
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("raico: error:")
+    assert lines == [f"raico: error: {message}"]
     assert not (tmp_path / "babble").exists() or not any((tmp_path / "babble").iterdir())
 
 
 def test_console_script_usage_error_is_one_line(tmp_path):
     exe = Path(sys.executable).with_name("raico")
     p = subprocess.run([str(exe), "babble", "--artifacts", str(tmp_path)], capture_output=True, text=True)
-    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1
+    assert p.returncode == 2 and p.stderr.strip() == "raico: error: Missing option '--plant'."
 
 
 def test_sigkill_halfway_leaves_nothing_valid_and_next_run_completes(tmp_path):

@@ -41,7 +41,11 @@ def test_state_term_derivatives_on_the_toy_arm_and_zero_when_inactive(term):
     lx, lxx = term.derivatives(X)
     assert lx.shape == (6, N_X) and lxx.shape == (6, N_X, N_X)
     inactive = ~term.active(idx)
+    want = {"via": [False, False, True, False, True, False], "via_all": [True] * 6,
+            "target": [False, True, False, True, False, False]}[term.name]
+    assert (~inactive).tolist() == want
     assert not lx[inactive].any() and not lxx[inactive].any()
+    assert np.all(np.abs(lx[~inactive]).sum(1) > 0)  # active steps do contribute
 
 
 def test_via_point_gauss_newton_hessian_and_message():
@@ -77,12 +81,28 @@ def _control_terms():
     ]
 
 
+def _control_closed_form(name, U):
+    """``l_u``, ``l_uu`` of the terms of ``_control_terms`` by hand: ``w |u - target|^2`` and
+    ``w |u - clip(u, lower, upper)|^2``."""
+    eye = np.broadcast_to(np.eye(2), (len(U), 2, 2))
+    if name == "control":
+        return 2 * 1e-2 * U, 2 * 1e-2 * eye
+    if name == "control_target":
+        return 2 * 0.5 * (U - [0.3, -1.0]), 2 * 0.5 * eye
+    lo, hi = np.array([-1.0, -2.0]), np.array([1.0, 0.5])
+    outside = (U < lo) | (U > hi)
+    return 2e3 * (U - np.clip(U, lo, hi)), 2e3 * outside[:, :, None] * eye
+
+
 @pytest.mark.parametrize("term", _control_terms(), ids=lambda t: t.name)
 def test_control_term_quadratize_matches_derivatives(term):
     U = np.array([[0.2, 0.1], [1.7, -3.0], [-1.4, 0.9], [0.0, 0.0]])   # inside / outside
     lu, luu = term.derivatives(U)
-    assert lu.shape == U.shape and luu.shape == (4, 2, 2)
+    lu_want, luu_want = _control_closed_form(term.name, U)
+    np.testing.assert_allclose(lu, lu_want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(luu, luu_want, rtol=1e-12, atol=1e-12)
     H, h = term.quadratize(U)
+    np.testing.assert_allclose(H, luu_want, rtol=1e-12, atol=1e-12)   # exact for these terms
     assert np.allclose(np.einsum("kij,kj->ki", H, U) - h, lu)      # gradient of the model
 
 

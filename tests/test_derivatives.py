@@ -162,9 +162,15 @@ def test_checks_fail_on_wrong_derivatives():
 
 
 def test_numdiff_jacobian_shapes():
-    assert numdiff_jacobian(lambda x: x @ x, np.ones(3)).shape == (1, 3)
-    J = numdiff_jacobian(lambda x: np.outer(x, x), np.arange(3.0))
-    assert J.shape == (3, 3, 3) and J[1, 2, 2] == pytest.approx(1.0)
+    x = np.array([1.0, -2.0, 0.5])
+    np.testing.assert_allclose(numdiff_jacobian(lambda z: z @ z, x), [2 * x], rtol=1e-8)  # (1, 3)
+    x = np.arange(3.0)
+    J = numdiff_jacobian(lambda z: np.outer(z, z), x)
+    # d(x_i x_j)/dx_k = delta_ik x_j + delta_jk x_i
+    eye = np.eye(3)
+    want = np.einsum("ik,j->ijk", eye, x) + np.einsum("jk,i->ijk", eye, x)
+    assert J.shape == (3, 3, 3)
+    np.testing.assert_allclose(J, want, rtol=0, atol=1e-8)
 
 
 # -- every class has an example ------------------------------------------------------------------

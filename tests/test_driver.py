@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,13 +58,20 @@ def _run(step, opts=Opts(), **kw):
 
 def test_converges_at_the_expected_iteration():
     # relative changes: 0.5, 0.5, 5e-4 (<= 1e-3) -> converged at iteration 4
+    t0 = time.perf_counter()
     out, seen = _run(ScriptedStep([8.0, 4.0, 2.0, 1.999, 1.0, 1.0]))
+    wall = time.perf_counter() - t0
     assert out.status is Status.CONVERGED and out.status == "converged"
-    assert len(out.history) == 4 and "tol_rel=0.001" in out.message
+    assert len(out.history) == 4
+    assert out.message == "relative cost change 5.00e-04 below tol_rel=0.001"
     assert [h.iteration for h in out.history] == [1, 2, 3, 4]
     assert [h.cost for h in out.history] == [8.0, 4.0, 2.0, 1.999]
     assert [(h.step, h.mu, h.repeats) for h in out.history][-1] == (2.0, 4.0, 4)
-    assert all(h.time_s >= 0 and h.elapsed_s >= h.time_s for h in out.history)
+    # time per iteration, and since the start: elapsed covers the steps so far, within the call
+    elapsed = [h.elapsed_s for h in out.history]
+    assert all(h.time_s >= 0 for h in out.history) and elapsed == sorted(elapsed)
+    assert all(h.elapsed_s >= sum(g.time_s for g in out.history[:k + 1]) for k, h in enumerate(out.history))
+    assert elapsed[-1] <= wall
     assert seen == [(1, 1.0), (2, 2.0), (3, 3.0), (4, 4.0)]          # callback every time
     assert out.last_finite.X[0, 0] == 4.0
 
@@ -80,7 +88,7 @@ def test_nan_cost_diverges_and_keeps_the_last_finite_iterate():
     out, seen = _run(ScriptedStep([8.0, 4.0, math.nan, 1.0]))
     assert out.status is Status.DIVERGED and out.status == "diverged"
     assert len(out.history) == 3 and math.isnan(out.history[-1].cost)
-    assert out.message.startswith("iteration 3:")
+    assert out.message == "iteration 3: cost nan not finite or above 1e+06 x initial cost 100"
     assert out.last_finite.X[0, 0] == 2.0                            # iteration 2's iterate
     assert [i for i, _ in seen] == [1, 2]                            # no callback on divergence
 
@@ -88,12 +96,14 @@ def test_nan_cost_diverges_and_keeps_the_last_finite_iterate():
 def test_exploding_cost_diverges():
     out, _ = _run(ScriptedStep([50.0, 2e8, 1.0]), initial_cost=100.0)  # > 1e6 x 100
     assert out.status is Status.DIVERGED and len(out.history) == 2
+    assert out.message == "iteration 2: cost 2e+08 not finite or above 1e+06 x initial cost 100"
     assert out.last_finite.X[0, 0] == 1.0
 
 
 def test_without_a_positive_initial_cost_the_first_cost_is_the_reference():
     out, _ = _run(ScriptedStep([10.0, 1e8]), initial_cost=math.inf)
     assert out.status is Status.DIVERGED and len(out.history) == 2    # 1e8 > 1e6 x 10
+    assert out.message == "iteration 2: cost 1e+08 not finite or above 1e+06 x initial cost 10"
 
 
 def test_numerical_failure_reported_by_the_step_diverges_at_once():

@@ -128,8 +128,11 @@ def test_incremental_update_equals_refit():
         assert _rel(v1[:, j], v2[:, j]) < 1e-8
         assert _rel(model.L[j], ref.L[j]) < 1e-8
     assert np.allclose(model.log_marginal_likelihood(), ref.log_marginal_likelihood(), rtol=1e-10)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="^training data must be finite$"):
         model.update(X[:2], np.full((2, 2), np.nan))
+    with pytest.raises(ValueError, match=r"^update expects X_new \(n, 6\) and Y_new \(n, 2\), got \(2, 6\), \(2, 1\)$"):
+        model.update(X[:2], Y[:2, :1])
+    assert model.N == 80  # a refused update leaves the model as it was
 
 
 # -- learned dynamics -----------------------------------------------------------------------
@@ -205,9 +208,16 @@ def test_subsampling_cap_and_its_measured_cost():
     assert np.array_equal(idx, subsample_indices(X, 80))  # deterministic
     Xt, Yt = pendulum_data(100, 22, shrink=0.9)
     cost = measure_cap_cost(X, Y, Xt, Yt, max_points=80)
-    assert cost["n_capped"] <= 80 and cost["n_full"] == 260
-    for key in ("rmse_capped", "rmse_full", "nrmse_capped", "rmse_ratio"):
-        assert np.all(np.isfinite(cost[key])), key
-    assert cost["nrmse_capped"][0] < 0.02 and cost["rmse_full"][0] <= 1.5 * cost["rmse_capped"][0]
-    model, info = fit_gp(X, Y, restarts=0, seed=0, max_points=80)
+    assert cost["n_capped"] == 80 and cost["n_full"] == 260
+    model, info = fit_gp(X, Y, restarts=0, seed=0, max_points=80)  # the capped model, fit again
     assert model.N == info["n_points"] == 80 and info["n_input"] == 260
+    assert np.allclose(model.Z, model.scale_x(X[idx]), rtol=0, atol=1e-12)  # trained on the subsample
+    # the reported errors, recomputed from the two models' predictions on the test set
+    full = refit_fixed(model, X, Y)
+    rmse_capped = np.sqrt(np.mean((model.predict(Xt)[0] - Yt) ** 2, axis=0))
+    rmse_full = np.sqrt(np.mean((full.predict(Xt)[0] - Yt) ** 2, axis=0))
+    np.testing.assert_allclose(cost["rmse_capped"], rmse_capped, rtol=1e-9)
+    np.testing.assert_allclose(cost["rmse_full"], rmse_full, rtol=1e-9)
+    np.testing.assert_allclose(cost["nrmse_capped"], rmse_capped / Yt.std(0), rtol=1e-9)
+    np.testing.assert_allclose(cost["rmse_ratio"], rmse_capped / rmse_full, rtol=1e-9)
+    assert cost["nrmse_capped"][0] < 0.02 and cost["rmse_full"][0] <= 1.5 * cost["rmse_capped"][0]

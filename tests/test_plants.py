@@ -21,12 +21,25 @@ def random_state(robot, seed=0):
     return q, 0.5 * rng.standard_normal(robot.n_q), rng.standard_normal(robot.n_q)
 
 
+PLANNING_VIEWS = {  # n_q, plant positions, end effectors
+    "pendulum": (1, 1, {"ee"}),
+    "arm5": (5, 5, {"ee"}),
+    "biorob": (5, 5, {"ee"}),
+    "nao": (25, 26, {"r_hand", "l_hand", "r_sole", "l_sole", "head"}),
+}
+
+
 @pytest.mark.parametrize("name", PLANTS)
 def test_robot_has_planning_view(name):
     r = shared_robot(name)
+    assert (r.n_q, r.plant.num_positions(), set(r.end_effectors)) == PLANNING_VIEWS[name]
     assert r.P.shape == (r.plant.num_positions(), r.n_q)
-    assert len(r.joint_names) == r.n_q and np.all(r.lower < r.upper)
-    assert np.all(r.effort > 0) and r.end_effectors
+    # every plant joint follows exactly one planning coordinate
+    assert set(np.unique(r.P)) <= {0.0, 1.0} and np.all(r.P.sum(1) == 1)
+    q = np.random.default_rng(0).standard_normal(r.n_q)
+    np.testing.assert_array_equal(r.to_plant_q(q), r.P @ q)
+    assert len(set(r.joint_names)) == r.n_q and np.all(r.lower < r.upper)
+    assert r.effort.shape == (r.n_q,) and np.all(r.effort > 0)
     for frame in r.end_effectors.values():
         r.plant.GetFrameByName(frame)
 
@@ -155,20 +168,32 @@ def test_registry_builds_the_registered_models():
 
 def test_registry_refuses_bad_input(monkeypatch):
     arm = shared_robot("arm5")
-    with pytest.raises(ValueError, match="unknown dynamics 'rigid': choose one of pseudo, analytic"):
+    with pytest.raises(ValueError, match="^unknown dynamics 'rigid': choose one of pseudo, analytic"):
         make_dynamics("rigid", arm, 0.01)
-    with pytest.raises(ValueError, match="takes no params"):
+    with pytest.raises(ValueError, match="^dynamics 'pseudo' takes no params$"):
         make_dynamics("pseudo", arm, 0.01, params={"w": np.ones(2)})
-    with pytest.raises(ValueError, match="already registered"):
+    with pytest.raises(ValueError, match="^dynamics name 'pseudo' is empty or already registered$"):
         register_dynamics("pseudo", lambda r, dt, p: PseudoDynamics(r.n_q, dt), "again")
     monkeypatch.setattr("plants.registry.DYNAMICS", dict(DYNAMICS))
     seen = []
-    register_dynamics("fitted", lambda r, dt, p: seen.append(p) or PseudoDynamics(r.n_q, dt), "test",
-                      needs_params=True)
-    with pytest.raises(ValueError, match="needs params"):
+
+    def build(r, dt, p):
+        return seen.append(p) or PseudoDynamics(r.n_q, dt)
+
+    with pytest.raises(ValueError, match="^dynamics 'fitted' needs params: register example_params too$"):
+        register_dynamics("fitted", build, "test", needs_params=True)
+    assert "fitted" not in dynamics_names()
+    spec = register_dynamics("fitted", build, "test", needs_params=True,
+                             example_params=lambda r: {"w": np.ones(2)})
+    import plants.registry
+
+    assert spec is plants.registry.DYNAMICS["fitted"] and dynamics_names()[-1] == "fitted"
+    assert "fitted" not in DYNAMICS  # the test's copy of the registry, not the real one
+    with pytest.raises(ValueError, match=r"^dynamics 'fitted' needs params \(fitted model parameters\)$"):
         make_dynamics("fitted", arm, 0.01)
-    assert isinstance(make_dynamics("fitted", arm, 0.01, {"w": np.ones(2)}), PseudoDynamics)
-    assert seen[0]["w"].shape == (2,)
+    assert seen == []  # refused before the builder ran
+    assert isinstance(make_dynamics("fitted", arm, 0.01, spec.example_params(arm)), PseudoDynamics)
+    assert len(seen) == 1 and list(seen[0]) == ["w"] and np.array_equal(seen[0]["w"], np.ones(2))
 
 
 def _plants_imports() -> dict[str, set[str]]:

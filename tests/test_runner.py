@@ -1,5 +1,6 @@
 """Stage runner: the code version hashes the stage's sources, so an edit invalidates the cache."""
 
+import hashlib
 import sys
 
 from pipeline.cache import Cache
@@ -13,10 +14,21 @@ def test_source_version_follows_the_source(tmp_path, monkeypatch):
     (pkg / "model.urdf").write_text("<robot/>")
     monkeypatch.syspath_prepend(str(tmp_path))
     v1 = source_version("s-1", "fakestage")
-    assert v1 == source_version("s-1", "fakestage")
+
+    def expected(files):  # sha256 over (relative path, content) of the sources, in path order
+        h = hashlib.sha256()
+        for name, text in files:
+            h.update(name.encode())
+            h.update(text.encode())
+        return "s-1+" + h.hexdigest()[:12]
+
+    assert v1 == source_version("s-1", "fakestage") == expected([("__init__.py", "X = 1\n"),
+                                                                 ("model.urdf", "<robot/>")])
+    (pkg / "notes.txt").write_text("not a source")  # neither *.py nor *.urdf: no effect
+    assert source_version("s-1", "fakestage") == v1
     (pkg / "model.urdf").write_text("<robot name='x'/>")
     v2 = source_version("s-1", "fakestage")
-    assert v2 != v1 and v2.startswith("s-1+")
+    assert v2 == expected([("__init__.py", "X = 1\n"), ("model.urdf", "<robot name='x'/>")]) != v1
     sys.modules.pop("fakestage", None)
 
 
