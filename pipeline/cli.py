@@ -166,7 +166,8 @@ _register_commands()
 @app.command()
 @handles_errors
 def reproduce(
-    figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable), e.g. fig3.2c.")] = None,
+    figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable): fig3.2a, fig3.2b, fig3.2c, fig3.2d, fig3.3, fig3.4, "
+                                  "fig3.4-inside, fig4.1/4.2, fig4.3.")] = None,
     all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
     quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel worker processes.")] = 2,
@@ -175,14 +176,13 @@ def reproduce(
     """Run experiments over their initial states in parallel (cached per run), then write the
     figure PNG and claims table of each, and the report artifacts/report/README.md."""
     from pipeline import reproduce as repro
-    from pipeline.experiments import EXPERIMENTS
 
-    ids = list(EXPERIMENTS) if all_ else list(figure or [])
+    ids = list(repro.ALL_IDS) if all_ else list(figure or [])
     if not ids:
-        raise BadInput(f"give --figure ID or --all; experiments: {', '.join(EXPERIMENTS)}")
-    unknown = [i for i in ids if i not in EXPERIMENTS]
+        raise BadInput(f"give --figure ID or --all; experiments: {', '.join(repro.ALL_IDS)}")
+    unknown = [i for i in ids if i not in repro.ALL_IDS]
     if unknown:
-        raise BadInput(f"unknown experiment '{unknown[0]}': choose one of {', '.join(EXPERIMENTS)}")
+        raise BadInput(f"unknown experiment '{unknown[0]}': choose one of {', '.join(repro.ALL_IDS)}")
     if not 1 <= jobs <= 64:
         raise BadInput("jobs must be in [1, 64]")
     reporter = Reporter(quiet)

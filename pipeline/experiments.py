@@ -169,3 +169,124 @@ def summarize(plans: list[dict], variant: Variant) -> dict:
 
     return summary(variant.label, [{"status": p["outcome"].status, "metrics": p["outcome"].metrics}
                                    for p in plans if p["variant"] == variant])
+
+
+# ----------------------------------------------------------------------------- learning experiments
+@dataclass(frozen=True)
+class LearnSetting:
+    """One curve of a learning figure: a label, its ``LearnConfig`` overrides and its seeds."""
+
+    label: str
+    overrides: tuple[tuple[str, object], ...]
+    seeds: int = 2
+    quick: bool = False  # part of the --quick profile
+
+
+@dataclass(frozen=True)
+class LearnExperiment:
+    id: str
+    plant: str
+    task: str
+    description: str
+    settings: tuple[LearnSetting, ...]
+    base: tuple[tuple[str, object], ...]  # LearnConfig values shared by every setting
+    episodes: int
+    quick_episodes: int
+    claims: tuple[str, ...] = ()
+    notes: tuple[tuple[str, str], ...] = ()
+
+
+def _sigma_settings() -> tuple[LearnSetting, ...]:
+    out = []
+    for w in (1e-2, 1e2):
+        for sigma in ("0", "0.2", "1"):
+            seeds = 5 if (sigma, w) == ("0", 1e-2) else 2  # five seeds for the data-efficiency comparison
+            out.append(LearnSetting(f"sigma*={sigma}, w={w:g}", (("sigma_star", sigma), ("sigma_weight", w)), seeds,
+                                    quick=(sigma, w) in (("0", 1e-2), ("1", 1e2))))
+    out.append(LearnSetting("sigma*=none", (("sigma_star", "none"),), 2, quick=True))
+    return tuple(out)
+
+
+LEARN_EXPERIMENTS: dict[str, LearnExperiment] = {
+    "fig4.1/4.2": LearnExperiment(
+        "fig4.1/4.2", "pendulum", "swing-up",
+        "pendulum swing-up on a GP model learned while planning: sigma* in {0, 0.2, 1, none}, w in {1e-2, 1e2}",
+        _sigma_settings(), (("alpha", 0.0), ("babble_points", 15), ("iterations", 20), ("max_points", 600),
+                            ("restarts", 1), ("stride", 5)), episodes=10, quick_episodes=6,
+        claims=("gp_error_falls", "rmse_falls", "large_weight_explores", "swing_up_achieved", "pilco_efficiency"),
+        notes=(("pendulum learning horizon", "1.5 s at 2 ms (750 steps): the thesis's 300 ms cannot swing up under "
+                "+-10 N m; swing-up counted when the executed pendulum ends within 0.1 rad of upright"),
+               ("babbling", "15 samples, one every 0.1 s of PD tracking (Kp 50, Kd 5) of a random spline, "
+                "amplitude 1 rad"),
+               ("GP data", "every 5th executed step joins the training set; at most 600 points (recent half "
+                "plus farthest-point subsample of the rest)"),
+               ("uncertainty term", "g = GP latent variance in units of the training outputs' variance; "
+                "state-control cross terms dropped"))),
+    "fig4.3": LearnExperiment(
+        "fig4.3", "biorob", "reach",
+        "BioRob-like arm reaching x0 + (0.5, 0, 0.5) m in 1 s on a GP model: hyperparameter schedules every vs "
+        "batch-100, 20 evaluations warm-started",
+        (LearnSetting("every", (("schedule", "every"),), 1, quick=True),
+         LearnSetting("batch-100", (("schedule", "batch-100"),), 1, quick=True)),
+        (("alpha", 2.0), ("babble_points", 100), ("iterations", 10), ("max_points", 300), ("restarts", 0),
+         ("stride", 20), ("sigma_star", "none")), episodes=20, quick_episodes=3,
+        claims=("batch_cheaper", "reach_achieved"),
+        notes=(("biorob learning", "100 babbling samples (10 s); every 20th executed step joins the data (25 per "
+                "evaluation); at most 300 training points; no optimizer restarts; 10 R-AICO iterations per "
+                "evaluation, warm-started from the previous plan"),)),
+}
+
+
+def learn_config(exp: LearnExperiment, s: LearnSetting, seed: int, quick: bool):
+    from stages.learn import LearnConfig
+
+    return LearnConfig(plant=exp.plant, task=exp.task, **dict(exp.base), **dict(s.overrides), seed=seed,
+                       episodes=exp.quick_episodes if quick else exp.episodes)
+
+
+def _learn_job(args) -> dict:
+    root, cfg, record = args
+    from pipeline.learn import learn
+
+    return learn(Cache(root), cfg, record=record).__dict__
+
+
+def run_learn_experiment(cache: Cache, exp: LearnExperiment, quick: bool = False, workers: int = 2,
+                         record: bool = True, progress=None) -> dict:
+    """Every setting's learning loops (cached per loop, and per stage run inside)."""
+    from pipeline.learn import lookup
+
+    runs = [(s, k, learn_config(exp, s, k, quick)) for s in exp.settings if s.quick or not quick
+            for k in range(1 if quick else s.seeds)]
+    jobs = [(str(cache.root), cfg, record) for _, _, cfg in runs]
+    results: list = [lookup(cache, cfg, record=record) for _, _, cfg in runs]
+    todo = [i for i, r in enumerate(results) if r is None]
+    done = len(runs) - len(todo)
+    if progress:
+        progress(done, len(runs))
+    if workers <= 1 or len(todo) <= 1:
+        for i in todo:
+            results[i] = Outcome(**_learn_job(jobs[i]))
+            done += 1
+            if progress:
+                progress(done, len(runs))
+    else:
+        from concurrent.futures import as_completed
+
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+            futures = {pool.submit(_learn_job, jobs[i]): i for i in todo}
+            for f in as_completed(futures):
+                results[futures[f]] = Outcome(**f.result())
+                done += 1
+                if progress:
+                    progress(done, len(runs))
+    return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, results)]}
+
+
+def summarize_learns(learns: list[dict]) -> dict[str, dict]:
+    """Setting label -> ``stages.evaluate.summary.summarize_learn`` over its seeds."""
+    from stages.evaluate.summary import summarize_learn
+
+    labels = list(dict.fromkeys(x["setting"].label for x in learns))
+    return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
+            for lab in labels}

@@ -149,3 +149,139 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs]
     (out_dir / "claims.md").write_text("\n".join(md) + "\n")
     return doc
+
+
+# ----------------------------------------------------------------------------- learning figures
+def folder_name(fid: str) -> str:
+    """An experiment id as a folder name (``fig4.1/4.2`` -> ``fig4.1-4.2``)."""
+    return fid.replace("/", "-")
+
+
+def _learn_panel(ax, S: dict, labels: list[str], key: str, ylabel: str) -> None:
+    for lab in labels:
+        curve = np.array(S[lab][f"{key}_curve"], float)
+        if curve.size:
+            ax.plot(np.arange(1, curve.size + 1), curve, marker=".", label=f"{lab} (n={S[lab]['runs']})")
+    ax.set_yscale("log")
+    ax.set_xlabel("episode")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def write_learn_figure(exp, S: dict, path: Path) -> None:
+    """Thesis-style panels, median over seeds per episode: GP prediction error and planned-vs-
+    executed RMSE per setting (fig4.2: one row per weight); fit time per evaluation (fig4.3)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if exp.plant == "pendulum":
+        rows = [("w=0.01", "small weight w = 1e-2"), ("w=100", "large weight w = 1e2")]
+        fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), squeeze=False)
+        for r, (tag, title) in enumerate(rows):
+            labels = [lab for lab in S if tag in lab or lab == "sigma*=none"]
+            _learn_panel(axes[r, 0], S, labels, "gp_error", "GP prediction error (rad/s^2, RMSE)")
+            _learn_panel(axes[r, 1], S, labels, "rmse_planned_executed", "RMSE planned vs executed (rad)")
+            axes[r, 0].set_title(f"({'AC'[r]}) GP error, {title}", fontsize=9)
+            axes[r, 1].set_title(f"({'BD'[r]}) task RMSE, {title}", fontsize=9)
+    else:
+        fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), squeeze=False)
+        labels = list(S)
+        _learn_panel(axes[0, 0], S, labels, "gp_error", "GP prediction error (rad/s^2, RMSE)")
+        axes[0, 0].set_title("(B) GP prediction error per evaluation", fontsize=9)
+        _learn_panel(axes[0, 1], S, labels, "fit_time_s", "fit time (s)")
+        axes[0, 1].set_title("(C) fit time per evaluation", fontsize=9)
+        _learn_panel(axes[0, 2], S, labels, "task_error", "largest via-point error, executed (m)")
+        axes[0, 2].set_title("(D) task error of the executed motion", fontsize=9)
+        axes[0, 0].set_xlabel("evaluation")
+        axes[0, 1].set_xlabel("evaluation")
+        axes[0, 2].set_xlabel("evaluation")
+    fig.suptitle(f"{exp.id}: {exp.plant} {exp.task}, learned GP dynamics (lines: median over seeds)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: Path) -> str | None:
+    """The last episode of ``label``'s first seed: planned vs executed (pendulum angle; arm's
+    end-effector x and z against the target). Returns the run's learn key."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.runner import as_artifact
+    from plants.robots import shared_robot
+    from plants.taskmaps import EndEffectorPosition
+
+    run = next((x for x in learns if x["setting"].label == label), None)
+    if run is None:
+        return None
+    doc = as_artifact(cache.require("learn", run["outcome"].key)).document("episodes.json")
+    last = doc["episodes"][-1]
+    plan = as_artifact(cache.require("plan", last["plan"]))
+    P, R = plan.arrays("plan.npz"), as_artifact(cache.require("execute", last["execute"])).arrays("rollout.npz")
+    t = P["times"]
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    if exp.plant == "pendulum":
+        ax.plot(t, P["X"][:, 0], label="planned (GP model)")
+        ax.plot(R["times"], R["X"][:, 0], "--", label="executed (Drake)")
+        ax.axhline(np.pi, color="k", lw=0.8, label="upright (pi)")
+        ax.axhline(-np.pi, color="k", lw=0.8)
+        ax.set_ylabel("pendulum angle q (rad, 0 hanging)")
+    else:
+        robot = shared_robot(exp.plant)
+        ee = EndEffectorPosition(robot, "ee")
+        target = np.array(plan.document("problem.json")["terms"][0]["target"])
+        for lab, X, style in (("planned", P["X"], "-"), ("executed", R["X"], "--")):
+            good = np.all(np.isfinite(X), axis=1)
+            pts, _ = ee.values_and_jacobians(X[good, :robot.n_q])
+            for i, axis in ((0, "x"), (2, "z")):
+                ax.plot(t[good], pts[:, i], style, label=f"{lab} {axis}")
+        for i in (0, 2):
+            ax.plot(t[-1], target[i], "o", color="k")
+        ax.set_ylabel("end-effector position (m)")
+    ax.set_xlabel("time (s)")
+    ax.set_title(f"{exp.id}: {label}, seed {run['seed']}, episode {last['episode']}", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return run["outcome"].key
+
+
+def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
+    """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
+    from pipeline.experiments import summarize_learns
+    from stages.evaluate.claims import evaluate_claims
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    learns = result["learns"]
+    S = summarize_learns(learns)
+    write_learn_figure(exp, S, out_dir / "figure.png")
+    best = "sigma*=0, w=0.01" if exp.plant == "pendulum" else "every"
+    motion_key = write_learn_motion(cache, exp, learns, best, out_dir / "motion.png")
+    rows = evaluate_claims(exp.claims, S, [], exp.id)
+    runs = [{"setting": x["setting"].label, "seed": x["seed"], "key": x["outcome"].key,
+             "recording": x["outcome"].recording or str(Path(x["outcome"].path) / "recording.rrd"),
+             "first_success_episode": x["outcome"].metrics.get("first_success_episode")} for x in learns]
+    summary = [{k: v for k, v in s.items() if not k.endswith("_curve")} for s in S.values()]
+    doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary, "runs": runs,
+           "executions": [], "motion_run": motion_key}
+    (out_dir / "claims.json").write_text(json.dumps(doc, indent=2, default=float))
+    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", "![motion](motion.png)", "",
+          "## Claims", "", markdown_claims(rows), "", "## Settings (medians over seeds)", "",
+          "| setting | seeds | GP error first 3 -> last 3 (rad/s^2) | RMSE first 3 -> last 3 (rad) | achieved in the "
+          "last episode | executed s to first success | total fit time (s) | optimizations |",
+          "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {s['label']} | {s['runs']} | {_fmt(s['gp_error_first3'])} -> {_fmt(s['gp_error_last3'])} | "
+           f"{_fmt(s['rmse_planned_executed_first3'])} -> {_fmt(s['rmse_planned_executed_last3'])} | "
+           f"{s['achieved_last']}/{s['runs']} | {', '.join(_fmt(x) for x in s['seconds_to_success'])} | "
+           f"{_fmt(s['fit_time_s_total'])} | {s['optimizations']} |" for s in summary]
+    md += ["", "## Choices", ""] + [f"- {k}: {v}" for k, v in exp.notes]
+    md += ["", "## Recordings", ""] + [f"- {r['setting']} seed {r['seed']}: `{r['recording']}`" for r in runs]
+    (out_dir / "claims.md").write_text("\n".join(md) + "\n")
+    return doc

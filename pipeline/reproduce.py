@@ -8,9 +8,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from pipeline.cache import Cache
-from pipeline.experiments import EXPERIMENTS, run_experiment
-from pipeline.report import markdown_claims, write_experiment_report
+from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, run_experiment, run_learn_experiment
+from pipeline.report import folder_name, markdown_claims, write_experiment_report, write_learn_report
 from pipeline.ui import Reporter
+
+ALL_IDS = [*EXPERIMENTS, *LEARN_EXPERIMENTS]
 
 
 def report_dir(cache: Cache, quick: bool) -> Path:
@@ -23,17 +25,26 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)
     for fid in ids:
-        exp = EXPERIMENTS[fid]
         t0 = time.perf_counter()
-        n = len(exp.variants) * (2 if quick else exp.seeds)
-        with reporter.progress(f"{fid} ({n} plan runs)", n) as update:
-            result = run_experiment(cache, exp, quick=quick, workers=jobs, record=record, progress=update)
-        cached = sum(p["outcome"].cached for p in result["plans"])
-        doc = write_experiment_report(cache, exp, result, root / fid)
+        out = root / folder_name(fid)
+        if fid in LEARN_EXPERIMENTS:
+            lexp = LEARN_EXPERIMENTS[fid]
+            n = sum(1 if quick else s.seeds for s in lexp.settings if s.quick or not quick)
+            with reporter.progress(f"{fid} ({n} learning loops)", n) as update:
+                result = run_learn_experiment(cache, lexp, quick=quick, workers=jobs, record=record, progress=update)
+            cached = sum(x["outcome"].cached for x in result["learns"])
+            doc = write_learn_report(cache, lexp, result, out)
+        else:
+            exp = EXPERIMENTS[fid]
+            n = len(exp.variants) * (2 if quick else exp.seeds)
+            with reporter.progress(f"{fid} ({n} plan runs)", n) as update:
+                result = run_experiment(cache, exp, quick=quick, workers=jobs, record=record, progress=update)
+            cached = sum(p["outcome"].cached for p in result["plans"])
+            doc = write_experiment_report(cache, exp, result, out)
         elapsed = time.perf_counter() - t0
         verdicts = ", ".join(f"{r['claim']}: {r['verdict']}" for r in doc["claims"])
-        reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {root / fid}; {verdicts}")
-        yield {"stage": "reproduce", "figure": fid, "path": str(root / fid), "runs": n, "cached_runs": cached,
+        reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {out}; {verdicts}")
+        yield {"stage": "reproduce", "figure": fid, "path": str(out), "runs": n, "cached_runs": cached,
                "wall_time_s": elapsed, "claims": doc["claims"]}
     write_readme(root)
 
@@ -43,8 +54,8 @@ def write_readme(root: Path) -> None:
     from stages.plan.tasks import TASK_NOTES
 
     docs = []
-    for fid in EXPERIMENTS:
-        f = root / fid / "claims.json"
+    for fid in ALL_IDS:
+        f = root / folder_name(fid) / "claims.json"
         if f.exists():
             docs.append(json.loads(f.read_text()))
     rows = [r for d in docs for r in d["claims"]]
@@ -53,10 +64,14 @@ def write_readme(root: Path) -> None:
           "Every number below is measured by this run; verdicts follow the stated criteria.", "",
           "## Claims", "", markdown_claims(rows), "", "## Figures", ""]
     for d in docs:
-        md += [f"### {d['figure']}: {d['description']}", "", f"![{d['figure']}]({d['figure']}/figure.png)", "",
-               f"Details, run table and recordings: [{d['figure']}/claims.md]({d['figure']}/claims.md)", ""]
+        folder = folder_name(d["figure"])
+        md += [f"### {d['figure']}: {d['description']}", "", f"![{d['figure']}]({folder}/figure.png)", ""]
+        if (root / folder / "motion.png").exists():
+            md += [f"![{d['figure']} motion]({folder}/motion.png)", ""]
+        md += [f"Details, run table and recordings: [{folder}/claims.md]({folder}/claims.md)", ""]
     md += ["## Deviations and choices", "", "| item | choice |", "|---|---|"]
-    md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES}.items()]
+    notes = {k: v for e in LEARN_EXPERIMENTS.values() for k, v in e.notes}
+    md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
     root.mkdir(parents=True, exist_ok=True)
     (root / "README.md").write_text("\n".join(md) + "\n")
 

@@ -55,9 +55,68 @@ def test_claim_verdicts_on_synthetic_summaries(name, S, holds):
     assert claim and criterion and measured
 
 
+def L_(first=1.0, last=0.05, rmse_first=1.0, rmse_last=0.05, runs=2, achieved=2, secs=(5.0, 9.0),
+       fit_total=10.0, task_last=0.01, optimizations=(10, 10)):
+    """A synthetic learn-setting summary."""
+    return {"runs": runs, "gp_error_first3": first, "gp_error_last3": last, "rmse_planned_executed_first3": rmse_first,
+            "rmse_planned_executed_last3": rmse_last, "achieved_last": achieved, "seconds_to_success": list(secs),
+            "fit_time_s_total": fit_total, "task_error_last3": task_last, "optimizations": list(optimizations)}
+
+
+SMALL = {"sigma*=0, w=0.01": L_(), "sigma*=0.2, w=0.01": L_(), "sigma*=1, w=0.01": L_()}
+LEARN_CASES = [
+    ("gp_error_falls", SMALL, True),
+    ("gp_error_falls", {**SMALL, "sigma*=1, w=0.01": L_(last=0.2)}, False),
+    ("gp_error_falls", {"sigma*=0, w=100": L_()}, False),  # no small-weight runs: nothing shown
+    ("rmse_falls", SMALL, True),
+    ("rmse_falls", {**SMALL, "sigma*=0.2, w=0.01": L_(rmse_last=0.5)}, False),
+    ("large_weight_explores", {**SMALL, "sigma*=0.2, w=100": L_(last=0.2), "sigma*=1, w=100": L_(rmse_last=0.2)},
+     True),
+    ("large_weight_explores", {**SMALL, "sigma*=0.2, w=100": L_(last=0.2), "sigma*=1, w=100": L_(last=0.09)},
+     False),
+    ("swing_up_achieved", {"sigma*=0, w=0.01": L_()}, True),
+    ("swing_up_achieved", {"sigma*=0, w=0.01": L_(achieved=1)}, False),
+    ("pilco_efficiency", {"sigma*=0, w=0.01": L_(secs=(5.0, 9.0, 30.0))}, True),
+    ("pilco_efficiency", {"sigma*=0, w=0.01": L_(secs=(5.0, 30.0, math.inf))}, False),
+    ("batch_cheaper", {"every": L_(fit_total=100.0, last=1.0), "batch-100": L_(fit_total=40.0, last=1.5)}, True),
+    ("batch_cheaper", {"every": L_(fit_total=100.0, last=1.0), "batch-100": L_(fit_total=60.0, last=1.0)}, False),
+    ("batch_cheaper", {"every": L_(fit_total=100.0, last=1.0), "batch-100": L_(fit_total=10.0, last=3.0)}, False),
+    ("reach_achieved", {"every": L_(runs=1, achieved=1), "batch-100": L_(runs=1, achieved=1)}, True),
+    ("reach_achieved", {"every": L_(runs=1, achieved=1), "batch-100": L_(runs=1, achieved=0)}, False),
+]
+
+
+@pytest.mark.parametrize("name, L, holds", LEARN_CASES)
+def test_learning_claim_verdicts_on_synthetic_summaries(name, L, holds):
+    claim, criterion, measured, ok = CLAIMS[name](L, [])
+    assert ok is holds, (name, measured)
+
+
+def test_summarize_learn_curves_and_success_time():
+    from stages.evaluate.summary import seconds_to_success, summarize_learn
+
+    runs = [{"gp_error": [4.0, 2.0, 1.0, 0.5, 0.25], "rmse_planned_executed": [1, 1, 1, 1, 1],
+             "task_error": [1, 1, 0.05, 0.01, 0.01], "fit_time_s": [1, 1, 1, 1, 1], "plan_time_s": [2] * 5,
+             "achieved": [False, False, True, True, True], "optimized": [True, False, True, False, False],
+             "first_success_episode": 3, "executed_seconds": [1.5] * 5, "babble_seconds": 1.4},
+            {"gp_error": [8.0, 4.0, None, 1.0, 1.0], "rmse_planned_executed": [2, 2, 2, 2, 2],
+             "task_error": [1] * 5, "fit_time_s": [3] * 5, "plan_time_s": [2] * 5, "achieved": [False] * 5,
+             "optimized": [True] * 5, "first_success_episode": None, "executed_seconds": [1.5] * 5,
+             "babble_seconds": 1.4}]
+    s = summarize_learn("X", runs)
+    assert s["gp_error_first3"] == pytest.approx(np.median([7 / 3, 6.0]))  # None is left out of the mean
+    assert s["gp_error_last3"] == pytest.approx(np.median([0.5833333333, 1.0]))
+    assert s["fit_time_s_total"] == pytest.approx(10.0) and s["achieved_last"] == 1
+    assert s["seconds_to_success"] == [pytest.approx(1.4 + 4.5), math.inf] and s["optimizations"] == [2, 5]
+    assert seconds_to_success({"first_success_episode": 1, "executed_seconds": [2.0], "babble_seconds": 0.5}) == 2.5
+
+
 def test_every_claim_has_a_case_each_way():
     for name in CLAIMS:
         if name == "cog_support":
+            continue
+        if name in {n for n, _, _ in LEARN_CASES}:
+            assert {h for n, _, h in LEARN_CASES if n == name} == {True, False}, name
             continue
         verdicts = {h for n, _, h in CASES if n == name}
         assert verdicts == {True, False}, name

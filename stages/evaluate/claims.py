@@ -110,6 +110,105 @@ def claim_cog_support(S, execs):
             f"{_fmt(float(np.median(rm)))} rad", ok)
 
 
+
+
+# ----------------------------------------------------------------------------- learning (thesis §4)
+def _falls(s: dict, key: str, factor: float) -> bool:
+    return math.isfinite(s[f"{key}_first3"]) and s[f"{key}_last3"] <= factor * s[f"{key}_first3"]
+
+
+def _small_weight(L: dict) -> dict:
+    return {k: v for k, v in L.items() if "w=0.01" in k}
+
+
+def claim_gp_error_falls(L, execs):
+    S = _small_weight(L)
+    ok = bool(S) and all(_falls(s, "gp_error", 0.1) for s in S.values())
+    nums = "; ".join(f"{k}: {_fmt(s['gp_error_first3'])} -> {_fmt(s['gp_error_last3'])} rad/s^2" for k, s in S.items())
+    return ("the GP's prediction error falls towards zero for a small C_sigma (w = 1e-2)",
+            "for every sigma* with w = 1e-2: the median over seeds of the mean GP error on the executed motion in the "
+            "last three episodes is at most 10% of that in the first three", nums or "no runs", ok)
+
+
+def claim_rmse_falls(L, execs):
+    S = _small_weight(L)
+    ok = bool(S) and all(_falls(s, "rmse_planned_executed", 0.1) for s in S.values())
+    nums = "; ".join(f"{k}: {_fmt(s['rmse_planned_executed_first3'])} -> {_fmt(s['rmse_planned_executed_last3'])} rad"
+                     for k, s in S.items())
+    return ("the planned-vs-executed RMSE falls towards zero for a small C_sigma (w = 1e-2)",
+            "as above, for the RMSE between the planned and the executed joint trajectory", nums or "no runs", ok)
+
+
+def claim_large_weight_explores(L, execs):
+    pairs = []
+    for sigma in ("0.2", "1"):
+        big, small = L.get(f"sigma*={sigma}, w=100"), L.get(f"sigma*={sigma}, w=0.01")
+        if big and small:
+            pairs.append((sigma, big, small))
+    ok = bool(pairs) and all(b["gp_error_last3"] > 2 * s["gp_error_last3"]
+                             or b["rmse_planned_executed_last3"] > 2 * s["rmse_planned_executed_last3"]
+                             for _, b, s in pairs)
+    nums = "; ".join(f"sigma*={g}: GP error {_fmt(b['gp_error_last3'])} (w=100) vs {_fmt(s['gp_error_last3'])} "
+                     f"(w=0.01), RMSE {_fmt(b['rmse_planned_executed_last3'])} vs "
+                     f"{_fmt(s['rmse_planned_executed_last3'])}" for g, b, s in pairs)
+    return ("a large weight (w = 1e2) with sigma* in {0.2, 1} explores too much",
+            "for sigma* = 0.2 and 1, the last-three-episode GP error or RMSE with w = 100 exceeds twice that with "
+            "w = 0.01", nums or "no runs", ok)
+
+
+def claim_swing_up_achieved(L, execs):
+    s = L.get("sigma*=0, w=0.01")
+    if not s:
+        return ("the swing-up is achieved on the Drake pendulum", "", "no runs", False)
+    secs = [x for x in s["seconds_to_success"] if math.isfinite(x)]
+    ok = s["achieved_last"] == s["runs"]
+    return ("the swing-up is achieved on the Drake pendulum (sigma* = 0, w = 1e-2)",
+            "in the last episode of every seed the executed pendulum ends within 0.1 rad of upright",
+            f"achieved in the last episode: {s['achieved_last']}/{s['runs']} seeds; first success after "
+            f"{', '.join(_fmt(x) for x in s['seconds_to_success'])} s of executed motion (babbling included)"
+            + (f"; median {_fmt(float(np.median(secs)))} s" if secs else ""), ok)
+
+
+PILCO_SECONDS = 17.5  # Deisenroth & Rasmussen, ICML 2011: real cart-pole swing-up after 17.5 s of interaction
+PILCO_SOURCE = ("PILCO (Deisenroth and Rasmussen, ICML 2011) learned the cart-pole swing-up, its closest task, "
+                "from scratch with 17.5 s of interaction with the real system")
+
+
+def claim_pilco_efficiency(L, execs):
+    s = L.get("sigma*=0, w=0.01")
+    secs = s["seconds_to_success"] if s else []
+    fin = [x for x in secs if math.isfinite(x)]
+    med = float(np.median(secs)) if secs else math.inf
+    ok = bool(secs) and med <= PILCO_SECONDS
+    return ("data efficiency against PILCO: seconds of executed motion until the first swing-up",
+            f"median over seeds of raico's executed seconds (babbling included) until the first episode that "
+            f"ends within 0.1 rad of upright <= {PILCO_SECONDS} s ({PILCO_SOURCE})",
+            f"raico: {', '.join(_fmt(x) for x in secs)} s over {len(secs)} seeds ({len(fin)} succeeded), "
+            f"median {_fmt(med)} s; PILCO {PILCO_SECONDS} s", ok)
+
+
+def claim_batch_cheaper(L, execs):
+    e, b = L.get("every"), L.get("batch-100")
+    if not (e and b):
+        return ("batch-100 hyperparameter updates are much cheaper at similar error", "", "no runs", False)
+    cheaper = b["fit_time_s_total"] <= 0.5 * e["fit_time_s_total"]
+    similar = b["gp_error_last3"] <= 2 * e["gp_error_last3"]
+    return ("batch-100 hyperparameter updates cost much less time than every-evaluation updates at similar "
+            "prediction error", "total fit time of batch-100 at most half of every's, and its GP error over the "
+            "last three evaluations at most twice every's",
+            f"fit time {_fmt(b['fit_time_s_total'])} s (batch-100, {b['optimizations']} optimizations) vs "
+            f"{_fmt(e['fit_time_s_total'])} s (every, {e['optimizations']}); GP error {_fmt(b['gp_error_last3'])} vs "
+            f"{_fmt(e['gp_error_last3'])} rad/s^2", cheaper and similar)
+
+
+def claim_reach_achieved(L, execs):
+    got = {k: (s["achieved_last"], s["runs"], s["task_error_last3"]) for k, s in L.items()}
+    ok = bool(got) and all(a == n for a, n, _ in got.values())
+    return ("the learned-model planner reaches the target on the Drake robot",
+            "the last evaluation's execution reaches the target to 5 cm, for every schedule and seed",
+            "; ".join(f"{k}: {a}/{n}, task error over the last three {_fmt(e)} m" for k, (a, n, e) in got.items()), ok)
+
+
 CLAIMS = {k[len("claim_"):]: v for k, v in globals().items() if k.startswith("claim_")}
 
 

@@ -42,3 +42,44 @@ def summarize(label: str, runs: list[dict]) -> dict:
             "final_cost_max": float(np.nanmax(final)) if np.isfinite(final).any() else math.inf,
             "max_via_error_median": median(np.array([largest_via_error(m) for m in ms], float)),
             "wall_time_median_s": median(col("wall_time_s"))}
+
+
+def _curves(runs: list[dict], key: str) -> np.ndarray:
+    """``(runs, episodes)`` of a per-episode list in each run's learn metrics (NaN-padded; None -> NaN)."""
+    rows = [[math.nan if v is None else float(v) for v in (m.get(key) or [])] for m in runs]
+    n = max((len(r) for r in rows), default=0)
+    out = np.full((len(rows), n), math.nan)
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
+def seconds_to_success(m: dict) -> float:
+    """Executed seconds (babbling included) until the end of the first episode whose execution
+    achieved the task; inf if none did."""
+    first = m.get("first_success_episode")
+    if first is None:
+        return math.inf
+    return float(m.get("babble_seconds", 0.0)) + float(sum((m.get("executed_seconds") or [])[:first]))
+
+
+def summarize_learn(label: str, runs: list[dict]) -> dict:
+    """Summary of one learning setting over its seeds; ``runs`` are the learn outcomes' metrics.
+
+    ``*_first3`` / ``*_last3``: the median over seeds of the mean over the first / last three
+    episodes (fewer if the run is shorter)."""
+    out: dict = {"label": label, "runs": len(runs)}
+    for key in ("gp_error", "rmse_planned_executed", "task_error", "fit_time_s", "plan_time_s"):
+        C = _curves(runs, key)
+        k = min(3, C.shape[1]) if C.size else 0
+        with np.errstate(all="ignore"):
+            out[f"{key}_curve"] = [median(C[:, j]) for j in range(C.shape[1])]
+            out[f"{key}_first3"] = median(np.nanmean(C[:, :k], axis=1)) if k else math.nan
+            out[f"{key}_last3"] = median(np.nanmean(C[:, -k:], axis=1)) if k else math.nan
+            out[f"{key}_total"] = median(np.nansum(C, axis=1)) if C.size else math.nan
+    ach = _curves(runs, "achieved")
+    out["achieved_last"] = int(np.nansum(ach[:, -1])) if ach.size else 0
+    out["seconds_to_success"] = [seconds_to_success(m) for m in runs]
+    out["first_success_episode"] = [m.get("first_success_episode") for m in runs]
+    out["optimizations"] = [int(np.nansum(r)) for r in _curves(runs, "optimized")]
+    return out
