@@ -1,0 +1,35 @@
+"""One learning episode of fig4.3 (BioRob-like arm, learned GP dynamics), split into its stages.
+
+The learning loop's first episode after babbling, timed per stage from a fresh cache: fit (GP
+hyperparameters by maximum likelihood), plan (R-AICO on the GP model) and execute (Drake's
+Simulator). Wall seconds of each stage's compute, as the cache records them; one run (the fit
+dominates and is deterministic in cost), in a temporary folder.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+
+def bench_learn_episode() -> dict:
+    """``{"fit_s", "plan_s", "execute_s", "n_points"}`` of episode 1 of fig4.3's ``every`` setting."""
+    from pipeline.cache import Cache
+    from pipeline.experiments import LEARN_EXPERIMENTS, learn_config
+    from pipeline.learn import learn
+
+    exp = LEARN_EXPERIMENTS["fig4.3"]
+    cfg = learn_config(exp, exp.settings[0], 0, quick=True)
+    cfg = type(cfg)(**{**cfg.to_dict(), "episodes": 1})
+    with tempfile.TemporaryDirectory() as tmp:
+        out = learn(Cache(tmp), cfg, record=False)
+        doc = json.loads((Path(out.path) / "episodes.json").read_text())
+        ep = doc["episodes"][0]
+        t = {stage: json.loads((Path(tmp) / stage / ep[stage] / "meta.json").read_text())["timings"]["compute_s"]
+             for stage in ("fit", "plan", "execute")}
+    return {"fit_s": t["fit"], "plan_s": t["plan"], "execute_s": t["execute"], "n_points": ep["n_points"]}
+
+
+if __name__ == "__main__":
+    print(json.dumps(bench_learn_episode(), indent=2))
