@@ -76,6 +76,12 @@ class AICOOptions(OptionsBase):
         start_variance: ``S_0 = start_variance I`` (tight prior around ``x0``, > 0).
         tol_rel: converged when the relative cost change of two iterations is at most this.
         divergence_factor: diverged when the cost exceeds this times the initial cost.
+        schedule: ``"fixed"`` (thesis: ``alpha^[n] = alpha^[n-1] gamma`` whatever happens) or
+            ``"adaptive"`` (beyond the thesis, trust-region style: after an iteration that lowers
+            the cost ``alpha *= shrink`` (not below ``alpha_min``); after one that raises it the
+            iterate is rejected, the previous one kept and ``alpha *= grow`` (not above
+            ``alpha_max``) for the retry; ``gamma`` is not used). Each trial counts as an iteration.
+        shrink, grow, alpha_min, alpha_max: the adaptive schedule's factors and bounds.
     """
 
     iterations: int = 100
@@ -88,8 +94,21 @@ class AICOOptions(OptionsBase):
     start_variance: float = 1e-10
     tol_rel: float = 1e-9
     divergence_factor: float = 1e6
+    schedule: str = "fixed"
+    shrink: float = 0.3
+    grow: float = 4.0
+    alpha_min: float = 1e-4
+    alpha_max: float = 1e8
 
     def validate(self) -> None:
+        if self.schedule not in ("fixed", "adaptive"):
+            raise ValueError(f"option schedule must be 'fixed' or 'adaptive', got {self.schedule!r}")
+        check_range("shrink", self.shrink, lo=0.0, hi=1.0, lo_open=True)
+        check_range("grow", self.grow, lo=1.0, lo_open=True)
+        check_range("alpha_min", self.alpha_min, lo=0.0, lo_open=True)
+        check_range("alpha_max", self.alpha_max, lo=self.alpha_min)
+        if self.schedule == "adaptive" and not self.alpha > 0:
+            raise ValueError("the adaptive schedule needs alpha > 0 (R-AICO)")
         check_range("iterations", self.iterations, lo=1, integer=True)
         check_range("alpha", self.alpha, lo=0.0)
         check_range("gamma", self.gamma, lo=0.0, lo_open=True)
@@ -492,7 +511,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     _check_control_cost(problem)
     sw = _Sweeps(problem, opts)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
-    out = drive(_AICOStep(problem, sw, float(opts.alpha), opts.gamma), start, opts,
+    out = drive(_AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost), start, opts,
                 initial_cost=initial_cost, callback=callback)
     last = out.last_finite
     beliefs = None
@@ -515,10 +534,26 @@ class _AICOStep:
     ``alpha^[n] = alpha^[1] gamma^(n-1)``).
     """
 
-    def __init__(self, problem: Problem, sw: _Sweeps, alpha: float, gamma: float):
+    def __init__(self, problem: Problem, sw: _Sweeps, alpha: float, gamma: float,
+                 opts: AICOOptions | None = None, initial_cost: float = math.inf):
         self.problem, self.sw, self.alpha, self.gamma = problem, sw, alpha, gamma
+        self.opts = opts
+        self.adaptive = opts is not None and opts.schedule == "adaptive"
+        self.cur_cost = initial_cost   # cost of the iterate the next step starts from (adaptive)
 
     def __call__(self, it: int, cur: Iterate) -> Step:
+        step = self._trial(cur)
+        if not self.adaptive or step.stop is not None:
+            return step
+        o = self.opts
+        if step.cost <= self.cur_cost:   # accepted: take larger steps
+            self.alpha = max(o.alpha_min, step.step * o.shrink)
+            self.cur_cost = step.cost
+            return step
+        self.alpha = min(o.alpha_max, step.step * o.grow)   # rejected: keep the iterate, smaller step
+        return Step(cur, self.cur_cost, step=step.step, repeats=step.repeats, moved=False)
+
+    def _trial(self, cur: Iterate) -> Step:
         sw, alpha = self.sw, self.alpha
         self.alpha *= self.gamma
         sw.repeats = 0

@@ -49,7 +49,9 @@ class PlanConfig(StageConfig):
             "warm_start": "Key of an earlier plan whose controls start this one (AICO/R-AICO, iLQG).",
             "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance), "
                           "or none (no uncertainty term); learned dynamics only.",
-            "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I."}
+            "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
+            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
+                              "an iteration that lowers the cost, grows and retries after one that raises it)."}
 
     plant: str
     task: str
@@ -65,6 +67,7 @@ class PlanConfig(StageConfig):
     warm_start: str | None = None
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
+    alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -109,7 +112,9 @@ class PlanConfig(StageConfig):
             d["sigma_weight"] = 0.0
         if self.solver != "raico":
             relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
-            d.update(alpha=0.0, gamma=1.0, relinearize=relinearize)
+            d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
+        elif self.alpha_schedule == "adaptive":
+            d["gamma"] = 1.0  # not used by the adaptive schedule
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -119,7 +124,7 @@ class PlanConfig(StageConfig):
         if not self.relinearize:
             opts["theta"] = float("inf")
         if self.solver == "raico":
-            opts.update(alpha=self.alpha, gamma=self.gamma)
+            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.alpha_schedule)
         return opts
 
 
