@@ -3,32 +3,52 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+ANCHORS := $(VENV)/.anchors
+KERNEL := build/csweep.so
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install test test-fast reproduce reproduce-quick bench lint clean
+.PHONY: install anchors kernels test test-fast reproduce reproduce-quick bench lint clean
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml | $(KERNEL)
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# The AICO sweep kernel (stages/plan/csweep.c, loaded by stages/plan/kernels.py; the plants' generated
+# C is built on first use into ~/.cache/raico/kernels). Without gcc the numpy sweeps run.
+kernels: $(KERNEL)
+
+$(KERNEL): stages/plan/csweep.c
+	@mkdir -p build
+	gcc -O2 -fPIC -shared -fno-fast-math -ffp-contract=off -fno-strict-aliasing -o $@ $< -lm \
+		|| echo "kernels: no C compiler, the numpy sweeps run"
+
+# The crocoddyl baseline: the pinned list [tool.raico] anchors of pyproject.toml (why not an extra:
+# see there), without dependency resolution; about 15 s from an empty pip cache.
+anchors: $(ANCHORS)
+
+$(ANCHORS): $(STAMP) pyproject.toml
+	$(BIN)/pip install --quiet --no-deps $$($(BIN)/python -c 'import tomllib; print(" ".join(tomllib.load(open("pyproject.toml", "rb"))["tool"]["raico"]["anchors"]))')
+	$(BIN)/python -c "import crocoddyl, pinocchio"
+	touch $(ANCHORS)
+
+test: $(STAMP) $(ANCHORS)
 	$(BIN)/python -m pytest -q
 
-test-fast: $(STAMP)
+test-fast: $(STAMP) $(ANCHORS)
 	$(BIN)/python -m pytest -q -m "not slow"
 
-reproduce: $(STAMP)
+reproduce: $(STAMP) $(ANCHORS)
 	$(BIN)/raico reproduce --all --jobs $(JOBS) --artifacts $(ARTIFACTS)
 
-reproduce-quick: $(STAMP)
+reproduce-quick: $(STAMP) $(ANCHORS)
 	$(BIN)/raico reproduce --all --quick --jobs $(JOBS) --artifacts $(ARTIFACTS)
 
-bench: $(STAMP)
+bench: $(STAMP) $(ANCHORS)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import package_versions
+from pipeline.cache import package_versions, write_file_atomic
 from stages.plan.solvers import solve
 from stages.plan.stage import PlanConfig, build_problem
 
@@ -58,6 +58,30 @@ def bench_linearization(reps: int) -> list[float]:
     return out
 
 
+def bench_nao_linearization(route: str, reps: int) -> list[float]:
+    """The Nao's analytic dynamics linearized along a T = 300 trajectory (s): ``route`` "autodiff"
+    is ``AnalyticDynamics`` (Drake's AutoDiffXd, per point; what "analytic" builds for the Nao),
+    "tree" is ``TreeAnalyticDynamics`` (the tree kernels in C, checked against it)."""
+    from plants.dynamics import AnalyticDynamics
+    from plants.fast_analytic import TreeAnalyticDynamics
+    from plants.robots import shared_robot
+
+    robot = shared_robot("nao")
+    model = (AnalyticDynamics if route == "autodiff" else TreeAnalyticDynamics)(robot, 0.01)
+    rng = np.random.default_rng(0)
+    n, T = robot.n_q, 300
+    X = np.concatenate([robot.default_q + 0.1 * rng.standard_normal((T, n)),
+                        0.5 * rng.standard_normal((T, n))], axis=1)
+    U = rng.standard_normal((T, n))
+    model.linearize_trajectory(X[:2], U[:2])   # warm up (builds and loads the C once)
+    out = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        model.linearize_trajectory(X, U)
+        out.append(time.perf_counter() - t0)
+    return out
+
+
 CASES = [
     # name, target (s), function, args
     ("nao balance: 25 R-AICO iterations (T=300, 50-D)", 1.0, bench_solver_total,
@@ -71,6 +95,10 @@ CASES = [
     ("arm5 analytic: one iLQG iteration (T=1000)", None, bench_per_iteration,
      ("arm5", "reach-roll", "analytic", "ilqg", {"iterations": 3}, 1)),
     ("arm5 analytic: linearize the dynamics along T=1000", None, bench_linearization, (5,)),
+    ("nao analytic: linearize along T=300, AutoDiffXd (before; registry 'analytic')", None,
+     bench_nao_linearization, ("autodiff", 3)),
+    ("nao analytic: linearize along T=300, tree kernels in C (after)", None,
+     bench_nao_linearization, ("tree", 5)),
 ]
 
 
@@ -106,6 +134,81 @@ def model_learning_rows() -> list[dict]:
     return out
 
 
+# ----------------------------------------------------------------------------- crocoddyl baseline
+BASELINE_SOLVERS = (  # name, solver, options: one run each, side by side in one process
+    ("R-AICO a=1", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}),
+    ("iLQG", "ilqg", {"iterations": 25}),
+    ("crocoddyl FDDP (x0 held)", "fddp", {"iterations": 100}),
+    ("crocoddyl FDDP (rollout start)", "fddp-rollout", {"iterations": 100}),
+)
+
+
+def _cost_at(res, t: float) -> float:
+    """Cost of the last iteration finished by wall time ``t`` (s; ``initial_cost`` before any)."""
+    done = [h.cost for h in res.history if h.elapsed_s <= t]
+    return done[-1] if done else res.initial_cost
+
+
+def _time_to(res, cost: float) -> float | None:
+    """Wall time (s) at which the run first reached ``cost`` or less (``None``: never)."""
+    return next((h.elapsed_s for h in res.history if h.cost <= cost), None)
+
+
+def bench_baseline(task: str = "reach") -> dict:
+    """raico (R-AICO, iLQG) against crocoddyl FDDP on thesis fig3.2c (``task="reach"``): per-iteration
+    time, time to reach R-AICO's 25-iteration cost (+10 %), and cost at R-AICO's 25-iteration wall time,
+    with ratios. One run per solver (seed 0) in this process; iteration times are the solvers' own."""
+    from stages.plan.solvers import SOLVERS
+
+    if "fddp" not in SOLVERS:
+        return {"skipped": "crocoddyl not installed (make anchors)"}
+    results = {}
+    for label, solver, opts in BASELINE_SOLVERS:
+        results[label] = solve(_problem("arm5", task, "analytic"), solver, opts)
+    ref = results["R-AICO a=1"]
+    target = 1.1 * ref.cost
+    budget = ref.history[-1].elapsed_s
+    fddp = results["crocoddyl FDDP (x0 held)"]
+    fddp_it = statistics.median(h.time_s for h in fddp.history)
+    fddp_tt = _time_to(fddp, target)
+    rows = []
+    for label, res in results.items():
+        it = statistics.median(h.time_s for h in res.history)
+        tt = _time_to(res, target)
+        at = _cost_at(res, budget)
+        rows.append({"solver": label, "iterations": res.iterations, "final_cost": res.cost,
+                     "iteration_median_s": it, "iteration_ratio_to_fddp": it / fddp_it,
+                     "time_to_target_s": tt,
+                     "time_to_target_ratio_to_fddp": tt / fddp_tt if tt is not None and fddp_tt else None,
+                     "cost_at_budget": at, "cost_at_budget_ratio_to_raico": at / _cost_at(ref, budget),
+                     "wall_time_s": res.history[-1].elapsed_s})
+    return {"problem": f"fig3.2c: arm5 {task}, analytic, T=1000, seed 0", "target_cost": target,
+            "budget_s": budget, "rows": rows,
+            "note": "one run per solver in one process; iteration time = median over its iterations; the "
+                    "machine is shared (2 cores, other jobs): ratios are more telling than absolute times"}
+
+
+def print_baseline(b: dict) -> None:
+    if "rows" not in b:
+        print(f"crocoddyl baseline: {b.get('skipped')}")
+        return
+    print(f"\nraico vs crocoddyl FDDP on {b['problem']} (medians; shared, noisy machine)")
+    print(f"target cost {b['target_cost']:.4g} (R-AICO's 25-iteration cost + 10 %), equal wall time "
+          f"{b['budget_s']:.2f} s (R-AICO's 25 iterations); per-iteration target (SPEC 13): R-AICO <= FDDP")
+
+    def f(x, spec, suffix=""):
+        width = int(spec.split(".")[0])
+        return ("-" if x is None else format(x, spec) + suffix).rjust(width + len(suffix))
+
+    print(f"{'solver':32s} {'iters':>5s} {'final cost':>10s} {'s/iter':>8s} {'x FDDP':>7s} {'s to target':>11s} "
+          f"{'x FDDP':>7s} {'cost at equal time':>18s} {'x R-AICO':>8s}")
+    for r in b["rows"]:
+        print(f"{r['solver']:32s} {r['iterations']:5d} {r['final_cost']:10.4g} {r['iteration_median_s']:8.4f} "
+              f"{r['iteration_ratio_to_fddp']:6.2f}x {f(r['time_to_target_s'], '11.2f')} "
+              f"{f(r['time_to_target_ratio_to_fddp'], '6.2f', 'x')} {r['cost_at_budget']:18.4g} "
+              f"{r['cost_at_budget_ratio_to_raico']:7.2f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--artifacts", default="artifacts")
@@ -120,12 +223,14 @@ def main() -> None:
         ratio = f"{med / target:6.2f}x" if target else "      -"
         print(f"{name:68s} median {med:8.3f} s   target {tgt} s   {ratio}   (n={len(samples)})", flush=True)
     rows += model_learning_rows()
+    baseline = bench_baseline()
+    print_baseline(baseline)
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     doc = {"machine": {"python": platform.python_version(), "processor": platform.processor(),
                        "cpus": __import__("os").cpu_count()},
-           "packages": package_versions(), "results": rows}
-    (out / "results.json").write_text(json.dumps(doc, indent=2))
+           "packages": package_versions(), "results": rows, "crocoddyl_baseline": baseline}
+    write_file_atomic(out / "results.json", json.dumps(doc, indent=2))
     print(f"wrote {out / 'results.json'}")
 
 

@@ -10,6 +10,7 @@ and become visible in a single ``os.rename``; a folder is a valid entry only if 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import enum
 import hashlib
@@ -22,7 +23,7 @@ import shutil
 import socket
 import subprocess
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from functools import lru_cache
@@ -32,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact
+from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, StorageError, os_error_text
 
 __all__ = [
     "HASH_LIMIT",
@@ -41,10 +42,12 @@ __all__ = [
     "EntryInfo",
     "RunResult",
     "WriteResult",
+    "atomic_path",
     "canonical_json",
     "git_commit",
     "package_versions",
     "stage_key",
+    "write_file_atomic",
 ]
 
 META = "meta.json"
@@ -199,6 +202,7 @@ class EntryInfo:
     reason: str  # "cached" when valid
     created: str | None  # ISO 8601 UTC from meta.json
     size: int  # bytes on disk
+    meta: dict[str, Any] | None = field(default=None, compare=False, repr=False)  # of a valid entry
 
 
 @dataclass
@@ -318,6 +322,16 @@ def _parse_tmp(name: str) -> tuple[str, str, int, int] | None:
     return key, host, int(pid), int(start)
 
 
+def _os_text(err: OSError, tmp: Path | None, final: Path) -> str:
+    """:func:`~pipeline.errors.os_error_text` with paths in the temporary folder shown where they
+    would have been published (the user never sees ``.tmp-*`` names)."""
+    name = err.filename
+    if name is not None and tmp is not None and str(name).startswith(str(tmp)):
+        name = str(final) + str(name)[len(str(tmp)):]
+    where = name if name is not None else final
+    return os_error_text(OSError(err.errno, err.strerror or str(err), where))
+
+
 def _json_default(obj: Any) -> Any:
     """``json.dump`` fallback for meta values (numpy, paths, sets, enums, dataclasses)."""
     if isinstance(obj, np.generic):
@@ -333,6 +347,40 @@ def _json_default(obj: Any) -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
     raise TypeError(f"meta value of type {type(obj).__name__} is not JSON serializable")
+
+
+# --------------------------------------------------------------------------- files outside the cache
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix, so writers that go by the extension
+    work) to write to; on success it is fsynced and renamed over ``path`` in one step, on any
+    error removed. Readers see the old file or the new one, never a part."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+    try:
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError as e:  # name the file being written, not its temporary name
+        if e.filename is None or str(e.filename) == str(tmp):
+            raise OSError(e.errno, e.strerror or str(e), str(path)) from None
+        raise
+    finally:
+        if tmp.exists():
+            tmp.unlink(missing_ok=True)
+    _fsync_dir(path.parent)
+
+
+def write_file_atomic(path: str | Path, data: str | bytes) -> None:
+    """Write ``data`` (text as UTF-8) to ``path`` atomically (see :func:`atomic_path`)."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
 
 
 # --------------------------------------------------------------------------- cache
@@ -463,37 +511,49 @@ class Cache:
         """Run ``writer(tmp_dir)`` and publish its files as entry ``stage/key`` atomically.
 
         Always calls the writer (use :meth:`run` to skip on a hit). If the writer raises
-        (also KeyboardInterrupt), the temporary folder is removed and the exception
-        propagates. If a valid entry appeared meanwhile it is kept and ours discarded;
-        an invalid one is replaced.
+        (also KeyboardInterrupt or an interrupt), the temporary folder is removed and the
+        exception propagates; an ``OSError`` (read-only, full, not a folder) becomes a
+        :class:`~pipeline.errors.StorageError` naming the entry's path and the cause. If a
+        valid entry appeared meanwhile it is kept and ours discarded; an invalid one is replaced.
         """
         final = self.path(stage, key)
         stage_dir = final.parent
-        stage_dir.mkdir(parents=True, exist_ok=True)
-        self.cleanup_stale(stage)
         tmp = stage_dir / _tmp_name(key)
-        tmp.mkdir()
         try:
-            t0 = time.perf_counter()
-            result = writer(tmp)
-            t_write = time.perf_counter() - t0
-            extra, timings = self._result_parts(result)
-            if (tmp / META).exists():
-                raise ValueError(f"the writer of stage {stage!r} must not create {META}")
-            t1 = time.perf_counter()
-            files = self._record_files(tmp)
-            timings = {"write_s": t_write, **timings, "hash_s": time.perf_counter() - t1}
-            doc = self._meta(stage, key, dict(meta or {}), extra, timings, files)
-            with open(tmp / META, "w", encoding="utf-8") as f:
-                json.dump(doc, f, indent=2, sort_keys=True, default=_json_default)
-                f.write("\n")
-                f.flush()
-                os.fsync(f.fileno())
-            _fsync_dir(tmp)
-            return self._publish(stage, key, tmp, final, doc)
+            stage_dir.mkdir(parents=True, exist_ok=True)
+            self.cleanup_stale(stage)
+            tmp.mkdir()
+        except OSError as e:
+            raise StorageError(f"cannot write artifact {stage}/{key}: {_os_text(e, tmp, final)}") from None
+        try:
+            return self._write_into(stage, key, writer, meta, tmp, final)
+        except OSError as e:
+            raise StorageError(f"cannot write artifact {stage}/{key}: {_os_text(e, tmp, final)}; "
+                               f"nothing was cached") from None
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
+
+    def _write_into(self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None, tmp: Path,
+                    final: Path) -> Entry:
+        """The body of :meth:`write`: the writer's files, ``meta.json``, publication."""
+        t0 = time.perf_counter()
+        result = writer(tmp)
+        t_write = time.perf_counter() - t0
+        extra, timings = self._result_parts(result)
+        if (tmp / META).exists():
+            raise ValueError(f"the writer of stage {stage!r} must not create {META}")
+        t1 = time.perf_counter()
+        files = self._record_files(tmp)
+        timings = {"write_s": t_write, **timings, "hash_s": time.perf_counter() - t1}
+        doc = self._meta(stage, key, dict(meta or {}), extra, timings, files)
+        with open(tmp / META, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=2, sort_keys=True, default=_json_default)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        _fsync_dir(tmp)
+        return self._publish(stage, key, tmp, final, doc)
 
     def run(
         self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
@@ -594,25 +654,33 @@ class Cache:
         folder. Returns the records of the files written.
         """
         tmp = entry.path.parent / _tmp_name(entry.key)
-        tmp.mkdir()
         try:
-            writer(tmp)
-            new = {}
-            for p in sorted(tmp.iterdir()):
-                if p.name in (META, DERIVED) or p.name in entry.meta.get("files", {}) or not p.is_file():
-                    raise ValueError(f"a derived file may not be called {p.name!r}")
-                size, digest = _hash_and_sync(p, self.hash_limit)
-                new[p.name] = {"size": size, "sha256": digest}
-            for name in new:
-                os.replace(tmp / name, entry.path / name)
-            recs = {**self.derived(entry), **new}
-            doc = tmp / DERIVED
-            doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-            os.replace(doc, entry.path / DERIVED)
-            _fsync_dir(entry.path)
-            return new
+            tmp.mkdir()
+            return self._write_derived_from(entry, writer, tmp)
+        except OSError as e:
+            raise StorageError(f"cannot write the derived files (recording) of {entry.stage}/{entry.key}: "
+                               f"{_os_text(e, tmp, entry.path)}; its data stay cached and the next call "
+                               f"writes them") from None
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+    def _write_derived_from(self, entry: Entry, writer: Callable[[Path], None], tmp: Path
+                            ) -> dict[str, dict[str, Any]]:
+        writer(tmp)
+        new = {}
+        for p in sorted(tmp.iterdir()):
+            if p.name in (META, DERIVED) or p.name in entry.meta.get("files", {}) or not p.is_file():
+                raise ValueError(f"a derived file may not be called {p.name!r}")
+            size, digest = _hash_and_sync(p, self.hash_limit)
+            new[p.name] = {"size": size, "sha256": digest}
+        for name in new:
+            os.replace(tmp / name, entry.path / name)
+        recs = {**self.derived(entry), **new}
+        doc = tmp / DERIVED
+        doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        os.replace(doc, entry.path / DERIVED)
+        _fsync_dir(entry.path)
+        return new
 
     # ---- listing and cleanup
 
@@ -670,5 +738,5 @@ class Cache:
                     entry, reason = self._check(d.name, p.name, deep=deep)
                     created = entry.meta.get("created") if entry else None
                     rows.append(EntryInfo(d.name, p.name, p, entry is not None, reason,
-                                          created, _dir_size(p)))
+                                          created, _dir_size(p), entry.meta if entry else None))
         return rows

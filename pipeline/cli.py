@@ -7,13 +7,33 @@ Every stage command accepts the shared options ``--artifacts DIR`` (env
 non-zero (SPEC §12).
 """
 
+# ruff: noqa: E402  (the signal handlers below are installed before the slow imports)
 from __future__ import annotations
+
+import os
+import signal
+import sys
+
+
+def _exit_at_once(signum: int, frame) -> None:
+    """SIGINT/SIGTERM while the modules load: nothing is written yet and no child runs."""
+    os.write(2, f"raico: error: interrupted by {signal.Signals(signum).name}\n".encode())
+    os._exit(128 + signum)
+
+
+if os.path.basename(sys.argv[0]) == "raico" or __name__ == "__main__":
+    if "multiprocessing.spawn" in sys.modules:  # a pool worker of the CLI re-importing its main module
+        from pipeline.errors import die_with_parent
+
+        die_with_parent(os.environ.get("RAICO_PARENT_PID"))
+    else:  # the CLI itself: Ctrl-C during the imports is one line, too (main() installs the real handlers)
+        for _sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(_sig, _exit_at_once)
 
 import dataclasses
 import functools
 import inspect
 import json
-import sys
 import typing
 from pathlib import Path
 from typing import Annotated, Any
@@ -23,7 +43,16 @@ from typer._click import exceptions as click_exceptions  # typer 0.29 vendors cl
 
 from pipeline import runner
 from pipeline.cache import Cache
-from pipeline.errors import BadInput, MissingArtifact, RaicoError
+from pipeline.errors import (
+    BadInput,
+    Interrupted,
+    MissingArtifact,
+    RaicoError,
+    StorageError,
+    install_signal_handlers,
+    os_error_text,
+    stop_resource_tracker,
+)
 from pipeline.runner import Outcome, artifacts_root, finite_json
 from pipeline.ui import Reporter
 
@@ -32,7 +61,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="raico: probabilistic movement planning (AICO, R-AICO, iLQG) on Drake "
                        "plants, with cached stages and Rerun recordings.")
 
-Artifacts = Annotated[Path | None, typer.Option(
+Artifacts = Annotated[str | None, typer.Option(
     "--artifacts", envvar="RAICO_ARTIFACTS", help="Cache folder (default ./artifacts).")]
 NoRecord = Annotated[bool, typer.Option("--no-record", help="Skip the .rrd recording and MCAP.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")]
@@ -55,10 +84,16 @@ def handles_errors(fn):
             return fn(*args, **kwargs)
         except RaicoError as e:
             fail(str(e), e.exit_code)
+        except Interrupted as e:
+            fail(e.message(), e.exit_code)
+        except OSError as e:  # the file system said no: the path and the cause
+            fail(os_error_text(e), StorageError.exit_code)
+        except MemoryError:
+            fail("out of memory (the run was too large for this machine); nothing was cached", 1)
         except (ValueError, KeyError) as e:
             fail(str(e).strip("'\""), 2)
         except KeyboardInterrupt:
-            fail("interrupted; nothing was cached for the interrupted run", 130)
+            fail("interrupted by SIGINT; the interrupted run left no partial artifact", 130)
 
     return wrapper
 
@@ -144,12 +179,30 @@ def learn_command() -> None:
                    action)
 
 
-def open_cache(artifacts: Path | None) -> Cache:
-    """The cache at ``--artifacts`` (or ``$RAICO_ARTIFACTS``, or ``./artifacts``)."""
-    root = artifacts_root(artifacts)
-    if str(artifacts) == "" or str(root).strip() == "":
+def open_cache(artifacts: str | Path | None) -> Cache:
+    """The cache at ``--artifacts`` (or ``$RAICO_ARTIFACTS``, or ``./artifacts``).
+
+    An empty path, one that is a file or lies below a file is refused before any work; other
+    OS errors (read-only, unwritable, full disk) are reported where they happen."""
+    if artifacts is not None and not str(artifacts).strip():
         raise BadInput("--artifacts: an empty path")
+    root = artifacts_root(artifacts)
+    if not str(root).strip():
+        raise BadInput("--artifacts: an empty path")
+    check_folder(root, "artifacts folder")
     return Cache(root)
+
+
+def check_folder(path: Path, what: str) -> None:
+    """:class:`StorageError` if ``path`` exists as something other than a folder, or if one of its
+    parents is a file (it could never be created)."""
+    for p in (path, *path.parents):
+        try:
+            if p.exists() and not p.is_dir():
+                where = "is" if p == path else f"lies below {p}, which is"
+                raise StorageError(f"{what} {path} {where} a file, not a folder")
+        except OSError as e:
+            raise StorageError(f"{what} {path}: {os_error_text(e)}") from None
 
 
 def _register_commands() -> None:
@@ -192,35 +245,77 @@ def reproduce(
             typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
 
 
+def describe_entry(cache: Cache, info) -> dict:
+    """What a listing shows of an entry: plant, task, solver (or dynamics), status and headline
+    metric. An execution or evaluation takes plant, task and solver from its plan."""
+    meta = info.meta or {}
+    cfg = dict(meta.get("config") or {})
+    for ref in meta.get("inputs") or []:
+        if "plant" in cfg or not ref.startswith("plan/"):
+            continue
+        try:
+            cfg = {**json.loads((cache.root / ref / "meta.json").read_text()).get("config", {}), **cfg}
+        except (OSError, ValueError):
+            pass
+    m = meta.get("metrics") or {}
+    headline = {"plan": ("final_cost", m.get("final_cost")), "evaluate": ("final_cost", m.get("final_cost")),
+                "execute": ("rmse", m.get("rmse_planned_executed")),
+                "fit": ("heldout_rmse", m.get("heldout_rmse_overall")),
+                "babble": ("samples", m.get("samples")),
+                "learn": ("gp_error_last", (m.get("gp_error") or [None])[-1])}.get(info.stage, ("", None))
+    return {"plant": cfg.get("plant"), "task": cfg.get("task"),
+            "solver": cfg.get("solver") or cfg.get("schedule"), "dynamics": cfg.get("dynamics"),
+            "status": meta.get("status"), "metric": headline[0], "value": headline[1]}
+
+
 @app.command("ls")
 @handles_errors
 def ls(
-    stage: Annotated[str | None, typer.Argument(help="Only this stage (babble, plan, execute, evaluate).")] = None,
+    stage: Annotated[str | None, typer.Argument(help="Only this stage (babble, fit, plan, execute, evaluate, learn).")]
+    = None,
     artifacts: Artifacts = None,
+    plant: Annotated[str | None, typer.Option(help="Only entries of this plant.")] = None,
+    task: Annotated[str | None, typer.Option(help="Only entries of this task.")] = None,
+    solver: Annotated[str | None, typer.Option(help="Only entries of this solver (aico, raico, ilqg, ...).")] = None,
+    status: Annotated[str | None, typer.Option(help="Only entries with this status (ok, converged, diverged, ...).")]
+    = None,
     all_: Annotated[bool, typer.Option("--all", help="Also list invalid entries.")] = False,
     verify: Annotated[bool, typer.Option("--verify", help="Deep check: re-hash every file of every entry.")] = False,
     json_: Json = False,
 ):
-    """List cached artifacts (valid ones; --all also shows invalid or partial entries).
+    """List cached artifacts with plant, task, solver, status and headline metric, filtered by them
+    (valid ones; --all also shows invalid or partial entries).
 
     A plain listing checks each entry's own record and file sizes; --verify re-hashes every file."""
     from stages.registry import stage_names
 
     cache = open_cache(artifacts)
-    if stage is not None and stage not in stage_names():
-        raise BadInput(f"unknown stage '{stage}': choose one of {', '.join(stage_names())}")
+    known = [*stage_names(), "learn"]
+    if stage is not None and stage not in known:
+        raise BadInput(f"unknown stage '{stage}': choose one of {', '.join(known)}")
+    for name, value in (("plant", plant), ("task", task), ("solver", solver), ("status", status)):
+        if value is not None and not value.strip():
+            raise BadInput(f"--{name}: an empty value")
     if not cache.root.is_dir():
         raise MissingArtifact(f"no artifacts folder {cache.root}")
-    rows = [r for r in cache.list(stage, deep=verify) if r.valid or all_]
-    for r in rows:
+    wanted = {"plant": plant, "task": task, "solver": solver, "status": status}
+    for r in cache.list(stage, deep=verify):
+        if not (r.valid or all_):
+            continue
+        d = describe_entry(cache, r)
+        if any(v is not None and d[k] != v for k, v in wanted.items()):
+            continue
         if json_:
-            typer.echo(json.dumps({"stage": r.stage, "key": r.key, "path": str(r.path),
-                                   "valid": r.valid, "reason": r.reason, "created": r.created,
-                                   "size": r.size}))
+            typer.echo(json.dumps(finite_json({"stage": r.stage, "key": r.key, "path": str(r.path),
+                                               "valid": r.valid, "reason": r.reason, "created": r.created,
+                                               "size": r.size, **d})))
         else:
             flag = "" if r.valid else f"  INVALID: {r.reason}"
-            typer.echo(f"{r.stage:10s} {r.key}  {r.created or '-':20s} {r.size / 1e6:8.2f} MB  "
-                       f"{r.path}{flag}")
+            what = " ".join(str(d[k]) for k in ("plant", "task", "solver", "dynamics") if d[k]) or "-"
+            val = d["value"]
+            metric = f"{d['metric']}={val:.4g}" if isinstance(val, (int, float)) else "-"
+            typer.echo(f"{r.stage:9s} {r.key}  {what:40s} {str(d['status'] or '-'):15s} {metric:24s} "
+                       f"{r.created or '-':20s} {r.size / 1e6:8.2f} MB  {r.path}{flag}")
 
 
 @app.command()
@@ -235,14 +330,10 @@ def show(
     entry = runner.find_entry(cache, ref)
     rrd = entry.path / "recording.rrd"
     if open_:
-        import subprocess
-
         rec = runner.ensure_recording(cache, entry)
         if rec is None:
             raise BadInput(f"{ref} is a {entry.stage} artifact, which has no recording")
-        res = subprocess.run([str(Path(sys.executable).with_name("rerun")), rec], check=False)
-        if res.returncode != 0:
-            raise RaicoError(f"the Rerun viewer could not open {rec} (exit {res.returncode})")
+        open_viewer(rec)
         return
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,
                            **{k: entry.meta.get(k) for k in ("stage", "key", "config", "inputs",
@@ -250,16 +341,46 @@ def show(
                           indent=2, default=str))
 
 
+def open_viewer(rec: str) -> None:
+    """Run the Rerun viewer on ``rec`` until it is closed; an error if it cannot start (no display,
+    no viewer binary, the viewer failing), with the viewer's own error line."""
+    import subprocess
+    import tempfile
+
+    if sys.platform.startswith("linux") and not any(
+            os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
+        raise RaicoError(f"cannot open the Rerun viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset); "
+                         f"copy the recording and run `rerun {rec}` where there is one")
+    exe = Path(sys.executable).with_name("rerun")
+    with tempfile.TemporaryFile("w+") as log:
+        try:
+            res = subprocess.run([str(exe), rec], stdout=subprocess.DEVNULL, stderr=log, check=False)
+        except OSError as e:
+            raise StorageError(f"cannot start the Rerun viewer: {os_error_text(e, exe)}") from None
+        log.seek(0)
+        lines = [ln.strip() for ln in log.read().splitlines() if ln.strip()]
+    if res.returncode != 0:
+        why = next((ln for ln in reversed(lines) if "error" in ln.lower()), lines[-1] if lines else "")
+        raise RaicoError(f"the Rerun viewer could not open {rec} (exit {res.returncode}){': ' + why if why else ''}")
+
+
 def main() -> None:
-    """Console entry point: usage errors become one line on stderr, too."""
+    """Console entry point: usage errors, faults and SIGINT/SIGTERM become one line on stderr;
+    interrupts exit 130 / 143 after the temporary folders are removed and the workers stopped."""
+    install_signal_handlers()
+    os.environ["RAICO_PARENT_PID"] = str(os.getpid())  # pool workers die with this process
+    message = None
     try:
         code = app(standalone_mode=False)
     except click_exceptions.UsageError as e:
-        typer.echo(f"raico: error: {' '.join(e.format_message().split())}", err=True)
-        sys.exit(2)
+        message, code = " ".join(e.format_message().split()), 2
+    except Interrupted as e:
+        message, code = e.message(), e.exit_code
     except (typer.Abort, KeyboardInterrupt):
-        typer.echo("raico: error: interrupted", err=True)
-        sys.exit(130)
+        message, code = "interrupted by SIGINT", 130
+    if message is not None:
+        typer.echo(f"raico: error: {message}", err=True)
+    stop_resource_tracker()
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -33,3 +33,137 @@ class CorruptArtifact(RaicoError):
     """An artifact exists but is partial, unreadable or does not match its recorded hash."""
 
     exit_code = 4
+
+
+class StorageError(RaicoError):
+    """The file system refused an operation (a path that is a file or lies below one, a
+    read-only or unwritable folder, a full disk); the message names the path and the cause."""
+
+    exit_code = 5
+
+
+def os_error_text(err: OSError, path: object = None) -> str:
+    """``PATH: cause`` of an OS error, one line (``path`` if the error names none)."""
+    where = err.filename if err.filename is not None else path
+    cause = err.strerror or str(err) or type(err).__name__
+    if err.filename2 is not None:
+        where = f"{where} -> {err.filename2}"
+    cause = cause[:1].lower() + cause[1:]
+    return f"{where}: {cause}" if where is not None else cause
+
+
+# ----------------------------------------------------------------------------- signals
+class Interrupted(BaseException):  # noqa: N818  (like KeyboardInterrupt: not an Exception)
+    """SIGINT or SIGTERM arrived. Raised in the main thread by :func:`install_signal_handlers`'s
+    handler, so ``finally`` blocks remove temporary folders and stop worker processes on the
+    way out; the CLI prints one line and exits ``128 + signum`` (130, 143).
+
+    It is not an ``Exception`` (nothing catches it by accident) and not a
+    ``KeyboardInterrupt`` (click would print a blank line for those). ``finished`` counts the
+    runs that finished (and are cached) before the interrupt, where a sweep knows it."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+        self.finished: int | None = None
+        self.scheduled: int | None = None
+        self.note: str | None = None  # what the interrupted run did keep, where that is known
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+    @property
+    def signame(self) -> str:
+        import signal
+
+        try:
+            return signal.Signals(self.signum).name
+        except ValueError:
+            return f"signal {self.signum}"
+
+    def message(self) -> str:
+        """The one line the CLI prints."""
+        text = f"interrupted by {self.signame}"
+        if self.note is not None:
+            return f"{text}; {self.note}"
+        if self.finished is None:
+            return f"{text}; the interrupted run left no partial artifact"
+        of = f" of {self.scheduled}" if self.scheduled is not None else ""
+        return (f"{text}; {self.finished}{of} runs had finished and are cached (the next call reuses them); "
+                f"the interrupted runs left no partial artifact")
+
+    def __str__(self) -> str:
+        return self.message()
+
+
+def install_signal_handlers() -> None:
+    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread; a second signal while
+    the first unwinds exits at once (``128 + signum``) with one line on stderr."""
+    import os
+    import signal
+
+    state: dict[str, int] = {}
+
+    def handler(signum, frame):
+        if "first" in state:
+            os.write(2, f"raico: error: interrupted by {signal.Signals(signum).name} again; "
+                        f"stopped without cleaning up\n".encode())
+            os._exit(128 + signum)
+        state["first"] = signum
+        raise Interrupted(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+
+
+def die_with_parent(parent_pid: int | str | None) -> None:
+    """Make this worker process die with its parent ``parent_pid``, also when the parent is
+    SIGKILLed: Linux's ``PR_SET_PDEATHSIG`` (SIGKILL when the parent exits), elsewhere a daemon
+    thread polling the parent's pid. Exits at once if the parent is already gone."""
+    import os
+    import signal
+    import sys
+    import threading
+    import time
+
+    try:
+        ppid = int(parent_pid)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        try:
+            ok = ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            ok = False
+        if os.getppid() != ppid:  # the parent died before we asked
+            os._exit(1)
+        if ok:
+            return
+
+    def watch() -> None:
+        while os.getppid() == ppid:
+            time.sleep(0.25)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="raico-parent-watch", daemon=True).start()
+
+
+def stop_resource_tracker() -> None:
+    """Close multiprocessing's resource tracker (a child started with the first worker pool) and
+    reap it, so no child of this process outlives it, not even as a zombie."""
+    import gc
+    import sys
+
+    rt = sys.modules.get("multiprocessing.resource_tracker")
+    tracker = getattr(rt, "_resource_tracker", None)
+    if tracker is None or getattr(tracker, "_pid", None) is None:
+        return
+    gc.collect()  # the pools' queues: their semaphores are unregistered before the tracker stops
+    try:
+        tracker._stop()
+    except Exception:  # noqa: BLE001  (private API; at worst the tracker exits with this process)
+        pass

@@ -168,6 +168,16 @@ def write_trajectory_mcap(
     tasks = {k: _rows(v, K) for k, v in (task_values or {}).items()}
     bodies, T, R = body_poses(robot, Q)
     names = list(robot.joint_names)
+    try:
+        _write_mcap(path, robot, names, bodies, T, R, ns, Q, V, U, tasks)
+    except OSError as e:  # a full disk, a read-only folder: the path and the cause (the writer's errors name none)
+        raise OSError(e.errno, e.strerror or str(e), str(e.filename or path)) from None
+    return path
+
+
+def _write_mcap(path: Path, robot: Any, names: list[str], bodies: list[str], T, R, ns, Q, V, U,
+                tasks: Mapping[str, np.ndarray | None]) -> None:
+    K = len(Q)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as f:
         writer = Writer(f)
@@ -184,7 +194,6 @@ def write_trajectory_mcap(
                 ch.write(TASK_PREFIX + name, "raico.TaskValue", k, t,
                          {"timestamp": _stamp(t), "name": name, "value": _floats(val[k])})
         writer.finish()
-    return path
 
 
 def read_trajectory_mcap(path: str | Path) -> dict[str, Any]:

@@ -18,19 +18,25 @@ Drake's are centred on their frame, so they are shifted by -length/2 along z.
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
-import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
-from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Role, Sphere
-from pydrake.multibody.tree import BodyIndex
-from scipy.spatial.transform import Rotation
+# Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
+# the failure reaches the user as one line from the CLI instead. RUST_LOG is read when rerun loads.
+os.environ.setdefault("RUST_LOG", "off")
+
+import numpy as np  # noqa: E402
+import rerun as rr  # noqa: E402
+import rerun.blueprint as rrb  # noqa: E402
+from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Role, Sphere  # noqa: E402
+from pydrake.multibody.tree import BodyIndex  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
 __all__ = [
     "SEQUENCE_TIMELINES",
@@ -115,7 +121,10 @@ class Recording:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        self.rec.save(self.path, default_blueprint=default_blueprint(time_series, eye))
+        try:
+            self.rec.save(self.path, default_blueprint=default_blueprint(time_series, eye))
+        except RuntimeError as e:  # Rerun's "Failed to create file: ... (os error N)"
+            raise _os_error(e, self.path) from None
         self.properties = dict(properties or {})
         if name is not None:
             self.rec.send_recording_name(name)
@@ -129,11 +138,17 @@ class Recording:
         self._closed = False
 
     def close(self) -> None:
-        """Flush everything to the file and close it (idempotent)."""
+        """Flush everything to the file and close it (idempotent). ``OSError`` naming the file if
+        Rerun's file writer failed (full disk, ...): then the stream is left as it is, since
+        disconnecting a stream whose writer died blocks forever (rerun 0.41)."""
         if not self._closed:
-            self.rec.flush()
-            self.rec.disconnect()
             self._closed = True
+            try:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            except RuntimeError as e:  # "File-writer thread shut down prematurely", or the timeout
+                raise _os_error(e, self.path) from None
+            self.rec.disconnect()
+            _check_complete(self.path)
 
     def __enter__(self) -> Self:
         return self
@@ -144,7 +159,63 @@ class Recording:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.close()
+        if exc_type is None:
+            self.close()
+            return
+        try:  # already failing: that error is the one to report
+            self.close()
+        except OSError:
+            pass
+
+
+FLUSH_TIMEOUT_S = 600.0  # a flush ends as soon as the file is written (or its writer failed)
+RRD_MAGIC, RRD_FOOTER = b"RRF2", b"RRF2FOOT"  # rerun 0.41's .rrd: header magic, footer magic + u32 version
+
+
+def _check_complete(path: Path) -> None:
+    """``OSError`` if Rerun's writer left ``path`` without its footer. When the last write fails
+    (file size limit, full disk) inside ``disconnect``, Rerun only logs it: a truncated file
+    would otherwise pass as a recording."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(RRD_MAGIC))
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - len(RRD_FOOTER) - 4))
+            tail = f.read()
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None
+    if head == RRD_MAGIC and not (len(tail) == len(RRD_FOOTER) + 4 and tail.startswith(RRD_FOOTER)):
+        code = _likely_errno(path)
+        raise OSError(code or errno.EIO, os.strerror(code) if code else "Rerun's file writer did not finish the file",
+                      str(path))
+
+
+def _os_error(err: RuntimeError, path: Path) -> OSError:
+    """Rerun's ``RuntimeError`` as an ``OSError`` for ``path``: its ``(os error N)`` if it names one,
+    else what the folder says (full, read-only, too large a file)."""
+    m = re.search(r"os error (\d+)", str(err))
+    code = int(m.group(1)) if m else _likely_errno(path)
+    if code is not None:
+        return OSError(code, os.strerror(code), str(path))
+    return OSError(errno.EIO, f"Rerun's file writer failed ({' '.join(str(err).split())})", str(path))
+
+
+def _likely_errno(path: Path) -> int | None:
+    """Why writes to ``path`` fail, as far as the file system says: full, read-only, file too large."""
+    try:
+        st = os.statvfs(path.parent)
+        if st.f_bavail == 0 or (st.f_files > 0 and st.f_favail == 0):
+            return errno.ENOSPC
+        if st.f_flag & os.ST_RDONLY:
+            return errno.EROFS
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        if limit != resource.RLIM_INFINITY and path.exists() and path.stat().st_size >= limit:
+            return errno.EFBIG
+    except (OSError, ImportError, ValueError):
+        return None
+    return None
 
 
 def _stream(rec: Recording | rr.RecordingStream) -> rr.RecordingStream:

@@ -7,7 +7,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from pipeline.cache import Cache
+from pipeline.cache import Cache, write_file_atomic
+from pipeline.errors import Interrupted
 from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, run_experiment, run_learn_experiment
 from pipeline.report import folder_name, markdown_claims, write_experiment_report, write_learn_report
 from pipeline.ui import Reporter
@@ -21,7 +22,20 @@ def report_dir(cache: Cache, quick: bool) -> Path:
 
 def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, record: bool = True,
               reporter: Reporter | None = None) -> Iterator[dict]:
-    """Run each experiment and write its report; then (re)write the report README."""
+    """Run each experiment and write its report; then (re)write the report README.
+
+    An interrupt (:class:`~pipeline.errors.Interrupted`) stops at once and learns how many runs
+    of this call had finished (each is cached, so the next call starts from there)."""
+    finished: list[int] = []  # runs of each figure whose runs all finished
+    try:
+        yield from _reproduce(cache, ids, quick, jobs, record, reporter, finished)
+    except Interrupted as e:
+        e.finished, e.scheduled = sum(finished) + (e.finished or 0), None
+        raise
+
+
+def _reproduce(cache: Cache, ids: list[str], quick: bool, jobs: int, record: bool, reporter: Reporter | None,
+               finished: list[int]) -> Iterator[dict]:
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)
     for fid in ids:
@@ -32,32 +46,89 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
             n = sum(1 if quick else s.seeds for s in lexp.settings if s.quick or not quick)
             with reporter.progress(f"{fid} ({n} learning loops)", n) as update:
                 result = run_learn_experiment(cache, lexp, quick=quick, workers=jobs, record=record, progress=update)
+            finished.append(len(_outcomes(result)))
             cached = sum(x["outcome"].cached for x in result["learns"])
-            doc = write_learn_report(cache, lexp, result, out)
+            doc = _cached_report(out, _report_key(fid, result)) or write_learn_report(cache, lexp, result, out)
         else:
             exp = EXPERIMENTS[fid]
             n = len(exp.variants) * (2 if quick else exp.seeds)
             with reporter.progress(f"{fid} ({n} plan runs)", n) as update:
                 result = run_experiment(cache, exp, quick=quick, workers=jobs, record=record, progress=update)
+            finished.append(len(_outcomes(result)))
             cached = sum(p["outcome"].cached for p in result["plans"])
-            doc = write_experiment_report(cache, exp, result, out)
+            doc = _cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
+        _stamp_report(out, _report_key(fid, result))
         elapsed = time.perf_counter() - t0
         verdicts = ", ".join(f"{r['claim']}: {r['verdict']}" for r in doc["claims"])
         reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {out}; {verdicts}")
         yield {"stage": "reproduce", "figure": fid, "path": str(out), "runs": n, "cached_runs": cached,
                "wall_time_s": elapsed, "claims": doc["claims"]}
-    write_readme(root)
+    write_readme(root, reporter)
 
 
-def write_readme(root: Path) -> None:
-    """The report: every figure written so far, its claims table, deviations and recordings."""
+REPORT_STAMP = "report_key.txt"
+
+
+def _report_key(fid: str, result: dict) -> str:
+    """What a figure's report is made from: the report code and every run's key (input-addressed,
+    like a stage: the same runs and code give the same report)."""
+    import hashlib
+
+    from pipeline.runner import source_version
+
+    keys = sorted(o.key for o in _outcomes(result))
+    code = source_version("report", "pipeline.report", "pipeline.reproduce", "pipeline.experiments", "stages.evaluate")
+    return hashlib.sha256(json.dumps([fid, code, keys]).encode()).hexdigest()[:16]
+
+
+def _outcomes(result: dict) -> list:
+    return ([p["outcome"] for p in result.get("plans", [])] + list(result.get("executions", []))
+            + [x["outcome"] for x in result.get("learns", [])])
+
+
+def _cached_report(out: Path, key: str) -> dict | None:
+    """The figure's ``claims.json`` if it was written from the same runs and code, else None."""
+    try:
+        if (out / REPORT_STAMP).read_text().strip() != key or not (out / "figure.png").is_file():
+            return None
+        return _read_claims(out / "claims.json")
+    except (OSError, ValueError):
+        return None
+
+
+def _stamp_report(out: Path, key: str) -> None:
+    write_file_atomic(out / REPORT_STAMP, key + "\n")
+
+
+def _read_claims(path: Path) -> dict:
+    """A figure's ``claims.json``; ``ValueError`` saying what is wrong if it is damaged."""
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"unreadable ({e})") from None
+    except ValueError as e:
+        raise ValueError(f"not valid JSON ({e})") from None
+    if not (isinstance(doc, dict) and isinstance(doc.get("figure"), str) and isinstance(doc.get("claims"), list)
+            and all(isinstance(r, dict) for r in doc["claims"])):
+        raise ValueError("not a claims document")
+    return doc
+
+
+def write_readme(root: Path, reporter: Reporter | None = None) -> None:
+    """The report: every figure written so far, its claims table, deviations and recordings. A
+    damaged figure report is left out with a warning (running that figure again rebuilds it)."""
     from stages.plan.tasks import TASK_NOTES
 
+    reporter = reporter or Reporter(quiet=True)
     docs = []
     for fid in ALL_IDS:
         f = root / folder_name(fid) / "claims.json"
         if f.exists():
-            docs.append(json.loads(f.read_text()))
+            try:
+                docs.append(_read_claims(f))
+            except ValueError as e:
+                reporter.say(f"raico: warning: {f} is damaged ({e}); left out of the report README; "
+                             f"`raico reproduce --figure {fid}` rebuilds it")
     rows = [r for d in docs for r in d["claims"]]
     md = ["# raico reproduction report", "",
           "Thesis: M. Mindt, *Probabilistic Inference for Movement Planning in Humanoids* (TU Darmstadt 2014).",
@@ -73,7 +144,7 @@ def write_readme(root: Path) -> None:
     notes = {k: v for e in LEARN_EXPERIMENTS.values() for k, v in e.notes}
     md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
     root.mkdir(parents=True, exist_ok=True)
-    (root / "README.md").write_text("\n".join(md) + "\n")
+    write_file_atomic(root / "README.md", "\n".join(md) + "\n")
 
 
 DEVIATIONS = {

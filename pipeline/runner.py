@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache import Cache, Entry, stage_key
-from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact
+from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact
 
 DEFAULT_ARTIFACTS = "artifacts"
 
@@ -251,7 +251,12 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
 
     outcome = run_stage(cache, stage.name, version, key_config, input_keys, compute)
     if record:
-        outcome.recording = ensure_recording(cache, cache.require(stage.name, outcome.key))
+        try:
+            outcome.recording = ensure_recording(cache, cache.require(stage.name, outcome.key))
+        except Interrupted as e:
+            e.note = e.note or (f"{stage.name} {outcome.key} is cached, its recording was not written "
+                                f"(the next call writes it)")
+            raise
     return outcome
 
 

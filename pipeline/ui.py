@@ -23,7 +23,7 @@ class Reporter:
     @contextlib.contextmanager
     def progress(self, description: str, total: int) -> Iterator[Callable[[int, int], None]]:
         """Yields ``update(done, total)``; the bar appears only for work longer than ~1 s."""
-        if self.quiet:
+        if self.quiet or not self.console.is_terminal:  # a bar cannot redraw in a pipe or file: none there
             yield lambda done, total: None
             return
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),

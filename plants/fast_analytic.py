@@ -14,14 +14,350 @@ computed in a first pass (``M``, ``h``, ``dh/dv``, ...), the rest after the solv
 
 Plants that are too big to read (the 26-joint Nao) or that use unsupported joints raise
 ``NotImplementedError``; :func:`make_fast_or_exact` then returns ``AnalyticDynamics``.
+
+Compiled route (speed only): the generated functions are also emitted as C
+(:mod:`plants.codegen.c_backend`), built once per plant with ``gcc`` and called through ``ctypes``
+for single points (``step``, ``linearize``), trajectories (``linearize_trajectory``) and closed-loop
+rollouts (``controller_rollout``); the AICO sweep kernel calls ``dyn_linearize`` directly
+(:meth:`FastAnalyticDynamics.c_linearizer`). The C driver below is the numpy code of this module
+line by line (the generated part is operation for operation the same; ``M_r`` is inverted by LU
+with partial pivoting like ``np.linalg.inv``). Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
+code runs.
+
+:class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
+kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its forward-mode derivatives in C): exact
+derivatives for the Nao, whose symbolic equations are too large to generate. The registry's
+``analytic`` model of the Nao is still ``AnalyticDynamics`` (tests pin that fallback);
+``TreeAnalyticDynamics(robot, dt)`` is the faster exact route, checked against it in
+``tests/test_kernels.py`` and timed by ``make bench``.
 """
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
+from plants.codegen import c_backend
 from plants.codegen.derive import compiled_dynamics
 from plants.dynamics import AnalyticDynamics, SemiImplicitEuler
+
+_DRIVER_C = r"""
+/* ---- driver (plants/fast_analytic.py): the AnalyticDynamics formulas on the generated code ---- */
+typedef struct {
+    int n;               /* planning dofs n_q */
+    int identity;        /* P is the identity */
+    double dt;
+    const double *P;     /* (MP, n) row-major */
+} dyn_ctx;
+
+/* plant <- planning: out (MP) = P z (n) */
+static void to_plant(const dyn_ctx *c, const double *z, double *out)
+{
+    if (c->identity) { memcpy(out, z, sizeof(double) * MP); return; }
+    for (int i = 0; i < MP; i++) {
+        double s = 0.0;
+        for (int j = 0; j < c->n; j++) s += c->P[i * c->n + j] * z[j];
+        out[i] = s;
+    }
+}
+
+/* M_r = P^T M P (n x n), h_r = P^T h (n) from the plant's M (MP x MP), h (MP) */
+static void reduce_mh(const dyn_ctx *c, const double *M, const double *h, double *Mr, double *hr)
+{
+    int n = c->n;
+    if (c->identity) { memcpy(Mr, M, sizeof(double) * MP * MP); memcpy(hr, h, sizeof(double) * MP); return; }
+    double MP_[MP * MP];   /* M P (MP x n) */
+    for (int i = 0; i < MP; i++)
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int k = 0; k < MP; k++) s += M[i * MP + k] * c->P[k * n + j];
+            MP_[i * n + j] = s;
+        }
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int k = 0; k < MP; k++) s += c->P[k * n + i] * MP_[k * n + j];
+            Mr[i * n + j] = s;
+        }
+        double s = 0.0;
+        for (int k = 0; k < MP; k++) s += c->P[k * n + i] * h[k];
+        hr[i] = s;
+    }
+}
+
+/* LU with partial pivoting of the n x n matrix a (overwritten); piv (n). */
+static void lu(int n, double *a, int *piv)
+{
+    for (int k = 0; k < n; k++) {
+        int p = k;
+        double best = fabs(a[k * n + k]);
+        for (int i = k + 1; i < n; i++) if (fabs(a[i * n + k]) > best) { best = fabs(a[i * n + k]); p = i; }
+        piv[k] = p;
+        if (p != k) for (int j = 0; j < n; j++) { double t = a[k * n + j]; a[k * n + j] = a[p * n + j]; a[p * n + j] = t; }
+        double d = a[k * n + k];
+        for (int i = k + 1; i < n; i++) {
+            double l = a[i * n + k] / d;
+            a[i * n + k] = l;
+            for (int j = k + 1; j < n; j++) a[i * n + j] -= l * a[k * n + j];
+        }
+    }
+}
+
+/* solve (LU from lu) x = b in place */
+static void lu_solve(int n, const double *a, const int *piv, double *b)
+{
+    for (int k = 0; k < n; k++) if (piv[k] != k) { double t = b[k]; b[k] = b[piv[k]]; b[piv[k]] = t; }
+    for (int i = 0; i < n; i++) { double s = b[i]; for (int j = 0; j < i; j++) s -= a[i * n + j] * b[j]; b[i] = s; }
+    for (int i = n - 1; i >= 0; i--) { double s = b[i]; for (int j = i + 1; j < n; j++) s -= a[i * n + j] * b[j]; b[i] = s / a[i * n + i]; }
+}
+
+/* inverse (n x n) of a (destroyed) */
+static void inverse(int n, double *a, double *inv)
+{
+    int piv[MP];
+    double col[MP];
+    lu(n, a, piv);
+    for (int j = 0; j < n; j++) {
+        for (int i = 0; i < n; i++) col[i] = (i == j) ? 1.0 : 0.0;
+        lu_solve(n, a, piv, col);
+        for (int i = 0; i < n; i++) inv[i * n + j] = col[i];
+    }
+}
+
+/* qddot (n) at x = (q, v), u: M_r^-1 (u - h_r) */
+int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr);
+int dyn_qddot(const dyn_ctx *c, const double *x, const double *u, double *qdd)
+{
+    int n = c->n, piv[MP];
+    double Mr[MP * MP], hr[MP];
+    dyn_mh(c, x, Mr, hr);
+    for (int i = 0; i < n; i++) qdd[i] = u[i] - hr[i];
+    lu(n, Mr, piv);
+    lu_solve(n, Mr, piv, qdd);
+    return 0;
+}
+
+/* one semi-implicit Euler step: xn (2n) */
+int dyn_step(const dyn_ctx *c, const double *x, const double *u, double *xn)
+{
+    int n = c->n;
+    double qdd[MP];
+    dyn_qddot(c, x, u, qdd);
+    for (int i = 0; i < n; i++) {
+        double v1 = x[n + i] + c->dt * qdd[i];
+        xn[n + i] = v1;
+        xn[i] = x[i] + c->dt * v1;
+    }
+    return 0;
+}
+
+/* M_r (n x n), h_r (n) at x = (q, v) */
+int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr)
+{
+    double xs[2 * MP], out[MP * MP + MP];
+    to_plant(c, x, xs);
+    to_plant(c, x + c->n, xs + MP);
+    gen_mh(xs, out);
+    reduce_mh(c, out, out + MP * MP, Mr, hr);
+    return 0;
+}
+
+/* qddot a (n), d qddot / d(q, v) F (n x 2n), M_r^-1 Mi (n x n) at (x, u) */
+int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *a, double *F, double *Mi)
+{
+    int n = c->n, N = 2 * n;
+    double xs[2 * MP], out[MP * MP + MP], carry[NCARRY > 0 ? NCARRY : 1], Mr[MP * MP], hr[MP];
+    double ys[MP + (NCARRY > 0 ? NCARRY : 1)], D[2 * MP * MP], Dr[MP * 2 * MP];
+    to_plant(c, x, xs);
+    to_plant(c, x + n, xs + MP);
+    gen_first(xs, out, carry);
+    reduce_mh(c, out, out + MP * MP, Mr, hr);
+    inverse(n, Mr, Mi);
+    for (int i = 0; i < n; i++) {
+        double s = 0.0;
+        for (int j = 0; j < n; j++) s += Mi[i * n + j] * (u[j] - hr[j]);
+        a[i] = s;
+    }
+    to_plant(c, a, ys);
+    for (int k = 0; k < NCARRY; k++) ys[MP + k] = carry[k];
+    gen_second(ys, D);
+    /* D_r = [P^T Dq P, P^T Dv P] (n x 2n) */
+    if (c->identity) memcpy(Dr, D, sizeof(double) * 2 * MP * MP);
+    else {
+        for (int i = 0; i < n; i++)
+            for (int half = 0; half < 2; half++)
+                for (int j = 0; j < n; j++) {
+                    double s = 0.0;
+                    for (int k = 0; k < MP; k++) {
+                        double pk = c->P[k * n + i];
+                        if (pk == 0.0) continue;
+                        for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
+                    }
+                    Dr[i * N + half * n + j] = s;
+                }
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < N; j++) {
+            double s = 0.0;
+            for (int k = 0; k < n; k++) s += Mi[i * n + k] * Dr[k * N + j];
+            F[i * N + j] = -s;
+        }
+    return 0;
+}
+
+/* A (2n x 2n), aff (2n), B (2n x n) of the step at (x, u) (AnalyticDynamics.linearize) */
+int dyn_linearize(const void *cv, const double *x, const double *u, double *A, double *aff, double *B)
+{
+    const dyn_ctx *c = (const dyn_ctx *)cv;
+    int n = c->n, N = 2 * n;
+    double dt = c->dt;
+    double Mi[MP * MP], a[MP], F[MP * 2 * MP];
+    dyn_derivatives(c, x, u, a, F, Mi);
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < N; j++) A[(n + i) * N + j] = F[i * N + j] * dt;
+        A[(n + i) * N + n + i] += 1.0;
+    }
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < N; j++) A[i * N + j] = A[(n + i) * N + j] * dt;
+        A[i * N + i] += 1.0;
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double b = Mi[i * n + j] * dt;
+            B[(n + i) * n + j] = b;
+            B[i * n + j] = b * dt;
+        }
+    for (int i = 0; i < n; i++) {
+        double s = a[i], fx = 0.0, mu = 0.0;
+        for (int j = 0; j < N; j++) fx += F[i * N + j] * x[j];
+        for (int j = 0; j < n; j++) mu += Mi[i * n + j] * u[j];
+        s = s - fx - mu;
+        aff[i] = (dt * dt) * s;
+        aff[n + i] = dt * s;
+    }
+    return 0;
+}
+
+int dyn_linearize_batch(const dyn_ctx *c, int T, const double *X, const double *U, double *A, double *aff, double *B)
+{
+    int n = c->n, N = 2 * n;
+    for (int t = 0; t < T; t++)
+        dyn_linearize(c, X + (long)t * N, U + (long)t * n, A + (long)t * N * N, aff + (long)t * N, B + (long)t * N * n);
+    return 0;
+}
+
+/* X (T+1, 2n), U (T, n) of u_t = o_t + O_t x_t rolled out from x0 */
+int dyn_controller_rollout(const dyn_ctx *c, int T, const double *x0, const double *o, const double *O, double *X, double *U)
+{
+    int n = c->n, N = 2 * n;
+    memcpy(X, x0, sizeof(double) * N);
+    for (int t = 0; t < T; t++) {
+        const double *x = X + (long)t * N;
+        double *u = U + (long)t * n;
+        for (int i = 0; i < n; i++) {
+            double s = 0.0;
+            const double *row = O + ((long)t * n + i) * N;
+            for (int j = 0; j < N; j++) s += row[j] * x[j];
+            u[i] = o[(long)t * n + i] + s;
+        }
+        dyn_step(c, x, u, X + (long)(t + 1) * N);
+    }
+    return 0;
+}
+
+/* the function pointer the AICO sweep kernel calls */
+void *dyn_linearize_address(void) { return (void *)&dyn_linearize; }
+"""
+
+
+class _DynCtx(ctypes.Structure):
+    _fields_ = [("n", ctypes.c_int), ("identity", ctypes.c_int), ("dt", ctypes.c_double),
+                ("P", ctypes.POINTER(ctypes.c_double))]
+
+
+_P = ctypes.POINTER(ctypes.c_double)
+
+
+class _CompiledStep:
+    """The C twin of a :class:`FastAnalyticDynamics` (one library per generated plant code).
+
+    Single points go through preallocated buffers whose addresses are computed once (``ctypes``
+    argument conversion costs more than the C code)."""
+
+    def __init__(self, code, n: int, dt: float, P: np.ndarray, identity: bool, name: str):
+        header = (f"#include <math.h>\n#include <string.h>\n#define MP {code.m}\n"
+                  f"#define NCARRY {code.n_carry}\n")
+        lib = c_backend.load_library(header + code.c_source + _DRIVER_C, f"dyn_{name}")
+        self.lib = lib
+        self.n = n
+        N = 2 * n
+        self._P = np.ascontiguousarray(P, dtype=float)
+        self.ctx = _DynCtx(n, int(identity), float(dt), self._P.ctypes.data_as(_P))
+        vp, i = ctypes.c_void_p, ctypes.c_int
+        for f, args in (("dyn_step", [vp] * 4), ("dyn_linearize", [vp] * 6),
+                        ("dyn_linearize_batch", [vp, i] + [vp] * 5),
+                        ("dyn_controller_rollout", [vp, i] + [vp] * 5), ("dyn_qddot", [vp] * 4),
+                        ("dyn_mh", [vp] * 4), ("dyn_derivatives", [vp] * 6)):
+            getattr(lib, f).restype = ctypes.c_int
+            getattr(lib, f).argtypes = args
+        lib.dyn_linearize_address.restype = ctypes.c_void_p
+        self.lin_address = lib.dyn_linearize_address()
+        self.ctx_address = ctypes.addressof(self.ctx)
+        # point buffers: x, u, next state, A, a, B
+        self._x, self._u, self._xn = np.empty(N), np.empty(n), np.empty(N)
+        self._A, self._a, self._B = np.empty((N, N)), np.empty(N), np.empty((N, n))
+        self._addr = [b.ctypes.data for b in (self._x, self._u, self._xn, self._A, self._a, self._B)]
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        self._x[:] = x
+        self._u[:] = u
+        ax, au, axn = self._addr[:3]
+        self.lib.dyn_step(self.ctx_address, ax, au, axn)
+        return self._xn.copy()
+
+    def linearize(self, x: np.ndarray, u: np.ndarray):
+        self._x[:] = x
+        self._u[:] = u
+        ax, au, _, aA, aa, aB = self._addr
+        self.lib.dyn_linearize(self.ctx_address, ax, au, aA, aa, aB)
+        return self._A.copy(), self._a.copy(), self._B.copy()
+
+    def mh(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``M_r (n, n)``, ``h_r (n,)`` at ``x = (q, v)``."""
+        self._x[:] = x
+        Mr, hr = np.empty((self.n, self.n)), np.empty(self.n)
+        self.lib.dyn_mh(self.ctx_address, self._addr[0], Mr.ctypes.data, hr.ctypes.data)
+        return Mr, hr
+
+    def derivatives(self, x: np.ndarray, u: np.ndarray):
+        """``qddot (n,)``, ``d qddot/d(q, v) (n, 2n)``, ``M_r^-1 (n, n)``."""
+        n = self.n
+        self._x[:] = x
+        self._u[:] = u
+        a, F, Mi = np.empty(n), np.empty((n, 2 * n)), np.empty((n, n))
+        self.lib.dyn_derivatives(self.ctx_address, self._addr[0], self._addr[1], a.ctypes.data,
+                                 F.ctypes.data, Mi.ctypes.data)
+        return a, F, Mi
+
+    def linearize_trajectory(self, X: np.ndarray, U: np.ndarray):
+        N, n, T = 2 * self.n, self.n, X.shape[0]
+        X = np.ascontiguousarray(X, dtype=float)
+        U = np.ascontiguousarray(U, dtype=float)
+        A, a, B = np.empty((T, N, N)), np.empty((T, N)), np.empty((T, N, n))
+        self.lib.dyn_linearize_batch(self.ctx_address, T, X.ctypes.data, U.ctypes.data,
+                                     A.ctypes.data, a.ctypes.data, B.ctypes.data)
+        return A, a, B
+
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
+        T, N, n = o.shape[0], 2 * self.n, self.n
+        x0 = np.ascontiguousarray(x0, dtype=float)
+        o = np.ascontiguousarray(o, dtype=float)
+        O = np.ascontiguousarray(O, dtype=float)
+        X, U = np.empty((T + 1, N)), np.empty((T, n))
+        self.lib.dyn_controller_rollout(self.ctx_address, T, x0.ctypes.data, o.ctypes.data,
+                                        O.ctypes.data, X.ctypes.data, U.ctypes.data)
+        return X, U
 
 
 class FastAnalyticDynamics(SemiImplicitEuler):
@@ -48,6 +384,28 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         if self.P.shape != (m, self.n_q):
             raise ValueError(f"P has shape {self.P.shape}, the plant has {m} positions")
         self._identity = m == self.n_q and np.array_equal(self.P, np.eye(m))
+        self._c: _CompiledStep | None | bool = None   # built on first use; False: unavailable
+
+    # -- the compiled twin ----------------------------------------------------------------------
+    def _compiled(self) -> _CompiledStep | None:
+        if self._c is None:
+            try:
+                self._c = _CompiledStep(self._code, self.n_q, self.dt, self.P, self._identity,
+                                        getattr(self.robot, "name", "plant"))
+            except (c_backend.CompileUnavailable, OSError):
+                self._c = False
+        return self._c or None
+
+    def c_linearizer(self) -> tuple[int, int, object] | None:
+        """``(address of dyn_linearize, address of its context, keep-alive)`` for compiled
+        callers (the AICO sweep kernel), or ``None`` without the compiled route."""
+        c = self._compiled()
+        return None if c is None else (c.lin_address, c.ctx_address, c)
+
+    def __getstate__(self):  # the ctypes handle does not pickle; rebuilt on first use
+        d = dict(self.__dict__)
+        d["_c"] = None
+        return d
 
     # -- coordinates --------------------------------------------------------------------------
     def _plant(self, z: np.ndarray) -> np.ndarray:
@@ -69,6 +427,9 @@ class FastAnalyticDynamics(SemiImplicitEuler):
 
     # -- single points (generated code on Python floats) --------------------------------------
     def _mh_point(self, q, v):
+        c = self._compiled()
+        if c is not None:
+            return c.mh(np.concatenate([np.asarray(q, float), np.asarray(v, float)]))
         m, mm = self._code.m, self._code.m * self._code.m
         qp, vp = self._plant(np.asarray(q, float)), self._plant(np.asarray(v, float))
         out = self._code.sca["mh"]([*qp.tolist(), *vp.tolist()], [0.0] * (mm + m))
@@ -76,6 +437,9 @@ class FastAnalyticDynamics(SemiImplicitEuler):
 
     def _derivatives_point(self, q, v, u):
         """``a (n,)``, ``dqddot/d(q, v) (n, 2n)``, ``M_r^-1 (n, n)``."""
+        c = self._compiled()
+        if c is not None:
+            return c.derivatives(np.concatenate([np.asarray(q, float), np.asarray(v, float)]), u)
         code = self._code
         m, mm = code.m, code.m * code.m
         qp, vp = self._plant(np.asarray(q, float)), self._plant(np.asarray(v, float))
@@ -152,8 +516,33 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         a, F, Mr_inv = self._derivatives_point(q, v, u)
         return a, F[:, :self.n_q], F[:, self.n_q:], Mr_inv
 
+    def step(self, x, u):
+        """One semi-implicit Euler step ``(n_x,)`` (compiled when available)."""
+        c = self._compiled()
+        if c is not None:
+            return c.step(x, u)
+        return super().step(x, u)
+
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0`` (the same as
+        :func:`stages.plan.problem.controller_rollout` on this model; compiled when available)."""
+        c = self._compiled()
+        if c is not None:
+            return c.controller_rollout(x0, o, O)
+        T = o.shape[0]
+        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
+        X[0] = x0
+        with np.errstate(all="ignore"):
+            for t in range(T):
+                U[t] = o[t] + O[t] @ X[t]
+                X[t + 1] = self.step(X[t], U[t])
+        return X, U
+
     def linearize(self, x, u):
         x, u = np.asarray(x, float), np.asarray(u, float)
+        c = self._compiled()
+        if c is not None:
+            return c.linearize(x, u)
         n = self.n_q
         a, F, Mr_inv = self._derivatives_point(x[:n], x[n:], u)
         return self._assemble(x, u, a, F, Mr_inv)
@@ -162,6 +551,9 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         """``(A (T, n_x, n_x), a (T, n_x), B (T, n_x, n_u))`` along ``X (T, n_x)``, ``U (T, n_u)``,
         every time step in the same numpy operations."""
         X, U = self._check_batch(X, U)
+        c = self._compiled()
+        if c is not None:
+            return c.linearize_trajectory(X, U)
         n = self.n_q
         a, F, Mr_inv = self._derivatives_batch(X[:, :n], X[:, n:], U)
         return self._assemble(X, U, a, F, Mr_inv)
@@ -187,9 +579,72 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         return X, U
 
 
+class _TreeCode:
+    """The tree kernels (:mod:`plants.codegen.rbd`) in the place of the generated code: the same
+    three functions ``gen_mh``, ``gen_first``, ``gen_second`` for the C driver (C only)."""
+
+    def __init__(self, kernels):
+        self.kernels = kernels
+        self.m = kernels.m
+        self.n_carry = 2 * kernels.m
+        from plants.codegen.rbd import tree_source
+
+        self.c_source = tree_source(kernels.tree, header=False)
+
+
+class TreeAnalyticDynamics(FastAnalyticDynamics):
+    """:class:`FastAnalyticDynamics` on the plant's kinematic tree instead of generated symbolic
+    code: for plants too large for :mod:`plants.codegen.derive` (the 26-joint Nao). ``M`` from
+    the body Jacobians, ``ID`` by Newton-Euler, ``dID/d(q, v)`` by forward-mode differentiation of
+    it, all in C (:mod:`plants.codegen.rbd`, checked against Drake's AutoDiffXd when built), with
+    the formulas of :class:`plants.dynamics.AnalyticDynamics` on top (the driver of this module).
+    Needs the compiled route: raises ``NotImplementedError`` without it.
+    """
+
+    def __init__(self, robot, dt: float):
+        from plants.codegen.rbd import tree_kernels
+
+        self.robot = robot
+        self.dt = float(dt)
+        self.n_q = robot.n_q
+        self.n_x = 2 * robot.n_q
+        self.n_u = robot.n_q
+        self.P = np.asarray(robot.P, float)
+        self._code = _TreeCode(tree_kernels(robot))
+        m = self._code.m
+        if self.P.shape != (m, self.n_q):
+            raise ValueError(f"P has shape {self.P.shape}, the plant has {m} positions")
+        self._identity = m == self.n_q and np.array_equal(self.P, np.eye(m))
+        self._c = None
+        if self._compiled() is None:
+            raise NotImplementedError(f"{robot.name}: the tree route needs a C compiler")
+
+    def _compiled(self) -> _CompiledStep | None:
+        if self._c is None:
+            try:
+                self._c = _CompiledStep(self._code, self.n_q, self.dt, self.P, self._identity,
+                                        "tree_" + getattr(self.robot, "name", "plant"))
+            except (c_backend.CompileUnavailable, OSError):
+                self._c = False
+        return self._c or None
+
+    def qddot_trajectory(self, Q: np.ndarray, V: np.ndarray, U: np.ndarray) -> np.ndarray:
+        return np.stack([self.qddot(q, v, u) for q, v, u in zip(Q, V, U)])
+
+    def step_trajectory(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        X, U = self._check_batch(X, U)
+        return np.stack([self.step(x, u) for x, u in zip(X, U)])
+
+
 def make_fast_or_exact(robot, dt: float) -> FastAnalyticDynamics | AnalyticDynamics:
-    """:class:`FastAnalyticDynamics` when the robot's plant compiles, else ``AnalyticDynamics``."""
+    """:class:`FastAnalyticDynamics` when the robot's plant compiles symbolically; else the
+    compiled kinematic-tree model :class:`TreeAnalyticDynamics` (the Nao); else, without a C
+    compiler, ``AnalyticDynamics`` (AutoDiffXd)."""
     try:
         return FastAnalyticDynamics(robot, dt)
+    except NotImplementedError:
+        pass
+    try:
+        return TreeAnalyticDynamics(robot, dt)
     except NotImplementedError:
         return AnalyticDynamics(robot, dt)

@@ -113,9 +113,13 @@ class Robot:
         return ctx
 
 
-def _build(name: str, builder: DiagramBuilder | None) -> Robot:
+def _build(name: str, builder: DiagramBuilder | None, time_step: float = 0.0) -> Robot:
     builder = builder or DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
+    if time_step > 0:  # discrete: Drake's SAP solver enforces the joint position limits
+        from pydrake.multibody.plant import DiscreteContactApproximation
+
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
     Parser(plant).AddModels(str(MODELS / f"{name}.urdf"))
     if name == "nao":
         # stance sole welded to the world: Drake builds the reversed tree
@@ -154,11 +158,15 @@ def _effort(plant: MultibodyPlant, joint) -> float:
     return np.inf
 
 
-def load_robot(name: str, builder: DiagramBuilder | None = None) -> Robot:
-    """A fresh robot (its own plant and scene graph, optionally inside ``builder``)."""
+def load_robot(name: str, builder: DiagramBuilder | None = None, time_step: float = 0.0) -> Robot:
+    """A fresh robot (its own plant and scene graph, optionally inside ``builder``).
+
+    ``time_step`` 0 (the default, used for planning): a continuous-time plant, joint limits
+    not enforced. ``time_step > 0``: a discrete plant (SAP) that enforces the joint position
+    limits (the arms' execution model)."""
     if name not in PLANTS:
         raise ValueError(f"unknown plant '{name}': choose one of {', '.join(PLANTS)}")
-    return _build(name, builder)
+    return _build(name, builder, time_step)
 
 
 @cache

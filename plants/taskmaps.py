@@ -60,7 +60,14 @@ class _DrakeMap(_BatchByPoints):
 
     Subclasses implement ``_in_plant(qp)``: value and Jacobian in plant coordinates
     ``qp = P q`` (so ``J = J_plant P``); a batch maps its coordinates in one product each way.
+
+    Speed: where the plant's kinematic tree compiles (:func:`plants.codegen.rbd.tree_kernels`,
+    checked against Drake when built) the forward kinematics and Jacobians run in C
+    (``_compiled_in_plant``), the same quantities as Drake's calls up to rounding; otherwise, or
+    for non-finite positions, Drake's calls.
     """
+
+    _kernels = None   # per instance: the tree kernels, or False where they are unavailable
 
     def __init__(self, robot, name: str):
         from pydrake.multibody.tree import JacobianWrtVariable
@@ -81,9 +88,31 @@ class _DrakeMap(_BatchByPoints):
         """``phi (dim,)`` and ``d phi / d qp (dim, m)`` at plant positions ``qp (m,)``."""
         raise NotImplementedError
 
+    def _tree(self):
+        """The compiled tree kernels of the robot, or ``None``."""
+        k = self._kernels
+        if k is None:
+            from plants.codegen.rbd import tree_kernels
+
+            try:
+                k = tree_kernels(self.robot)
+            except (NotImplementedError, AttributeError):
+                k = False
+            self._kernels = k
+        return k or None
+
+    def _compiled_in_plant(self, kernels, qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _eval_plant(self, qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k = self._tree()
+        if k is not None and np.all(np.isfinite(qp)):
+            return self._compiled_in_plant(k, qp)
+        return self._in_plant(qp)
+
     def value_and_jacobian(self, q):
         P = self.robot.P
-        v, Jp = self._in_plant(P @ q)
+        v, Jp = self._eval_plant(P @ q)
         return v, Jp @ P
 
     def values_and_jacobians(self, Q: np.ndarray):
@@ -93,11 +122,21 @@ class _DrakeMap(_BatchByPoints):
         ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
         V = np.full((Q.shape[0], self.dim), np.nan)
         J = np.full((Q.shape[0], self.dim, Q.shape[1]), np.nan)
-        Jp = np.empty((ok.size, self.dim, P.shape[0]))
-        for i, qp in enumerate(Q[ok] @ P.T):
-            V[ok[i]], Jp[i] = self._in_plant(qp)
+        k = self._tree()
+        if k is not None:
+            V[ok], Jp = self._compiled_batch(k, Q[ok] @ P.T)
+        else:
+            Jp = np.empty((ok.size, self.dim, P.shape[0]))
+            for i, qp in enumerate(Q[ok] @ P.T):
+                V[ok[i]], Jp[i] = self._in_plant(qp)
         J[ok] = Jp @ P
         return V, J
+
+    def _compiled_batch(self, kernels, Qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values ``(K, dim)`` and plant Jacobians ``(K, dim, m)`` at the rows of ``Qp``."""
+        out = [self._compiled_in_plant(kernels, qp) for qp in Qp]
+        return (np.array([o[0] for o in out]).reshape(len(Qp), self.dim),
+                np.array([o[1] for o in out]).reshape(len(Qp), self.dim, -1))
 
 
 class FramePoints(_DrakeMap):
@@ -116,6 +155,26 @@ class FramePoints(_DrakeMap):
         self.dim = len(rows)
         self._points_T = np.ascontiguousarray(self.points.T)  # (3, k), as Drake takes them
         self._all_rows = rows == list(range(3 * len(self.points)))
+        self._body_name = self.frame.body().name()
+        X_BF = self.frame.GetFixedPoseInBodyFrame()
+        self._R_BF = np.ascontiguousarray(X_BF.rotation().matrix())
+        self._p_BF = np.ascontiguousarray(X_BF.translation())
+
+    def _compiled_in_plant(self, kernels, qp):
+        pos, J = kernels.frame_points(qp, kernels.tree.body(self._body_name), self._R_BF,
+                                      self._p_BF, self.points)
+        p = pos.reshape(-1)
+        if self._all_rows:
+            return p, J
+        return p[self.rows], J[self.rows]
+
+    def _compiled_batch(self, kernels, Qp):
+        pos, J = kernels.frame_points_batch(Qp, kernels.tree.body(self._body_name), self._R_BF,
+                                            self._p_BF, self.points)
+        p = pos.reshape(len(Qp), -1)
+        if self._all_rows:
+            return p, J
+        return p[:, self.rows], J[:, self.rows]
 
     def _in_plant(self, qp):
         ctx = self._set_plant(qp)
@@ -146,14 +205,29 @@ class RollAngle(_DrakeMap):
     def __init__(self, robot, frame: str, name: str = "roll"):
         super().__init__(robot, name)
         self.frame = robot.plant.GetFrameByName(frame)
+        self._body_name = self.frame.body().name()
+        self._R_BF = np.ascontiguousarray(self.frame.GetFixedPoseInBodyFrame().rotation().matrix())
 
     def _in_plant(self, qp):
         ctx = self._set_plant(qp)
         R = self.frame.CalcPoseInWorld(ctx).rotation().matrix()
-        y, z, up = R[:, 1], R[:, 2], np.array([0.0, 0.0, 1.0])
-        a, b = y @ up, z @ up
         Jw = self._plant.CalcJacobianAngularVelocity(
             ctx, self._wrt, self.frame, self._world, self._world)
+        return self._roll(R, Jw)
+
+    def _compiled_in_plant(self, kernels, qp):
+        R, Jw = kernels.frame_rotation(qp, kernels.tree.body(self._body_name), self._R_BF)
+        return self._roll(R, Jw)
+
+    def _compiled_batch(self, kernels, Qp):
+        R, Jw = kernels.frame_rotation_batch(Qp, kernels.tree.body(self._body_name), self._R_BF)
+        out = [self._roll(Rk, Jk) for Rk, Jk in zip(R, Jw)]
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+    @staticmethod
+    def _roll(R, Jw):
+        y, z, up = R[:, 1], R[:, 2], np.array([0.0, 0.0, 1.0])
+        a, b = y @ up, z @ up
         da = np.cross(y, up) @ Jw
         db = np.cross(z, up) @ Jw
         return np.array([np.arctan2(a, b)]), ((b * da - a * db) / (a * a + b * b))[None, :]
@@ -173,6 +247,14 @@ class CenterOfMass(_DrakeMap):
         J = self._plant.CalcJacobianCenterOfMassTranslationalVelocity(
             ctx, self._wrt, self._world, self._world)
         return c[self.axes], J[self.axes]
+
+    def _compiled_in_plant(self, kernels, qp):
+        c, J = kernels.com(qp)
+        return c[self.axes], J[self.axes]
+
+    def _compiled_batch(self, kernels, Qp):
+        c, J = kernels.com_batch(Qp)
+        return c[:, self.axes], J[:, self.axes]
 
 
 class Stack(_BatchByPoints):

@@ -16,6 +16,7 @@ Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -55,8 +56,17 @@ class BabbleConfig(StageConfig):
             raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
         checks = [(self.episodes >= 1, "episodes must be >= 1"),
                   (self.episodes <= 10000, "episodes must be <= 10000"),
+                  (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
                   (0 < self.dt <= 0.1, "dt must be in (0, 0.1] s"),
                   (self.dt <= self.duration <= 600, "duration must be in [dt, 600] s"),
+                  (self.samples <= MAX_SAMPLES, f"duration / dt gives {self.samples:.3g} samples per episode; "
+                                                f"at most {MAX_SAMPLES:,} (raise dt or shorten the duration)"),
+                  (self.episodes * self.samples <= MAX_TOTAL_SAMPLES,
+                   f"episodes x samples per episode = {self.episodes * self.samples:.3g}; at most "
+                   f"{MAX_TOTAL_SAMPLES:,} samples in one run"),
+                  (self.episodes * self.samples * self.substeps <= MAX_STEPS,
+                   f"episodes x samples x substeps = {self.episodes * self.samples * self.substeps:.3g} "
+                   f"integrator steps; at most {MAX_STEPS:,}"),
                   (self.kp >= 0 and self.kd >= 0, "kp and kd must be >= 0"),
                   (0 <= self.amplitude <= 3.2, "amplitude must be in [0, 3.2] rad"),
                   (1 <= self.knots <= 100, "knots must be in [1, 100]"),
@@ -65,6 +75,17 @@ class BabbleConfig(StageConfig):
             if not ok:
                 raise ValueError(msg)
 
+    @property
+    def samples(self) -> float:
+        """Samples per episode, ``round(duration / dt) + 1`` (a float: checked before it is an allocation)."""
+        if not (self.dt > 0 and math.isfinite(self.duration / self.dt)):
+            return math.inf
+        return float(round(self.duration / self.dt) + 1)
+
+
+MAX_SAMPLES = 1_000_000  # per episode (the arrays are episodes x samples x joints)
+MAX_TOTAL_SAMPLES = 2_000_000  # per run: the Nao's six arrays then take 2.4 GB
+MAX_STEPS = 200_000_000  # integrator steps per run
 
 
 @dataclass

@@ -105,10 +105,10 @@ class Artifact:
     def ref(self) -> str:
         return f"{self.stage}/{self.key}"
 
-    def arrays(self, name: str) -> dict[str, np.ndarray]:
-        """The arrays of data file ``name`` (``.npz``; no pickles)."""
+    def arrays(self, name: str, keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """The arrays of data file ``name`` (``.npz``; no pickles); only ``keys`` if given."""
         with np.load(self.path / name, allow_pickle=False) as f:
-            return {k: f[k] for k in f.files}
+            return {k: f[k] for k in f.files if keys is None or k in keys}
 
     def document(self, name: str) -> Any:
         """A JSON data file."""

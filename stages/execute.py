@@ -1,37 +1,65 @@
-"""The execute stage (SPEC §8): a plan's feedback controller in closed loop with the Drake plant.
+"""The execute stage (SPEC §8, §14): a plan executed on a Drake plant in Drake's Simulator.
 
-The controller ``u_k = o_k + O_k x_k`` is a Drake LeafSystem with a periodic discrete
-update every planning step ``dt`` (zero-order hold of ``u_k``). Plans on the analytic model
-command torques directly; pseudo-dynamics plans command accelerations, turned into torques by
-computed torque, evaluated continuously (an inner loop at the integrator rate; inverse
-dynamics of the full plant: for the Nao all 26 tree joints follow ``P @ u``, so the coupled
-hip joints move together). Drake's plant saturates actuation at the effort limits by
-itself, so ``clip_torques`` only changes what is logged; ``torque_saturation`` reports the
-fraction of steps at which some joint asked for more than its limit. Optional initial-state noise (rad) and
-process noise (torque, N m, per step); torques are clipped at the joint effort limits.
-Drake's Simulator integrates with ``runge_kutta5`` at a fixed step of at most 1 ms.
+Execution models:
 
-Outputs: executed states ``X (T+1, n_x)``, applied planning controls ``U (T, n_u)`` and
-torques ``tau (T, n_q)`` (sampled at the end of each step) in planning coordinates; for the Nao, the CoG against the support
-polygon of both soles at every step.
+- **Nao: the free-standing robot** (``plants.free_nao``): floating base, compliant sole boxes on
+  a rigid ground with friction, a discrete plant (1 ms, SAP) that enforces joint position and
+  effort limits. The plan (made on the fixed-base model) is tracked joint by joint: Drake's
+  PD-controlled actuators (``KP``, ``KD`` of ``plants.free_nao``) around the planned joint
+  trajectory (positions linearly interpolated inside a planning step, the step's velocity
+  ``v_{k+1}`` of the semi-implicit Euler plan) plus a feed-forward held for the planning step:
+  the plan's inverse-dynamics torques on the fixed-base model, ``ID(q_k, v_k, u_k)`` for
+  acceleration plans (the planned torques ``u_k`` for torque plans). The total is clamped at
+  the effort limits by the plant; the desired positions are clipped to the joint range. The
+  robot starts at rest at the plan's ``x0`` joint angles (plus noise, clipped to the joint
+  range) with the left sole flat on the ground at the fixed-base model's pose (the world
+  frame); when the plan's posture puts the right sole under the ground, the rigid robot is
+  first tipped onto its lowest sole corners (``FreeNao.standing_positions``, the tilt is the
+  metric ``start_tilt``); a posture that finds no rest within ``MAX_TIP`` cannot stand on flat
+  ground and counts as fallen at t = 0. The simulation runs to the end of the horizon (a fallen robot lies
+  on the ground).
+- **arm5, biorob**: the fixed-base arm as a discrete plant (1 ms, SAP: joint position limits
+  enforced) driven by the plan's own feedback controller ``u_k = o_k + O_k x_k`` (a LeafSystem,
+  zero-order hold per planning step; pseudo-dynamics plans through computed torque evaluated at
+  every plant step). Effort limits: Drake clamps the actuation.
+- **pendulum**: the thesis's ideal point mass, continuous plant, the plan's controller as for the
+  arms, Drake's ``runge_kutta5`` at a fixed step of at most 1 ms (its +-100 rad joint range is
+  no physical limit; its +-10 N m bound is the swing-up task's control limit: saturation is
+  reported, ``torque_saturation``, but is no ``limits`` status).
+
+Noise (``--x0-noise`` rad on the initial joint angles, clipped to the joint limits;
+``--process-noise`` N m, a torque drawn per planning step and joint actuator) acts on every
+model. A plan whose status is ``diverged`` is executed and marked ``diverged`` (never a success;
+its data may still serve a model learner); a plan whose trajectory or controller is not finite
+is not executed (status ``diverged``, the rollout all NaN). The status of an execution (``ok``, ``limits``,
+``tracking-lost``, ``fell``, ``diverged``) follows the stated thresholds of
+``stages.evaluate.metrics``.
+
+Outputs (``rollout.npz``): executed states ``X (T+1, n_x)`` in planning coordinates, the plan's
+``X_plan``, applied planning controls ``U (T, n_u)`` (the Nao: the feed-forward's planning
+controls), applied torques ``tau (T, n_q)`` (sampled at the end of each step) and
+``effort_at_limit (T, n_q)`` (per planning joint: an actuator of it at its effort limit); for the Nao also the free plant's positions ``q_free``, the CoG, the
+sole corners and the soles' contact forces, every contact point, the contact polygon and the
+CoG's margin against it, the torso's pose and the planned torso and sole corners.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from plants.robots import Robot, load_robot
 from stages.base import Artifact, Stage, StageConfig, StageOutput
-from stages.evaluate.metrics import execution_metrics
+from stages.evaluate.metrics import execution_metrics, padded_polygons, support_polygons, via_point_errors
 from stages.plan.stage import PLAN_FILE, PROBLEM_FILE, objective_from_description
 
 ROLLOUT_FILE = "rollout.npz"
-MAX_STEP = 1e-3  # s, integrator step bound
+MAX_STEP = 1e-3  # s, integrator step bound (continuous pendulum)
+ARM_TIME_STEP = 1e-3  # s, discrete arm plants
+DISCRETE = ("arm5", "biorob")
 
 
 @dataclass(frozen=True)
@@ -41,8 +69,8 @@ class ExecuteConfig(StageConfig):
     INPUTS = ("plan",)
     INPUT_STAGES = {"plan": "plan"}
     HELP = {"plan": "Key (or prefix) of a plan artifact.", "x0_noise": "Std of initial joint-angle noise (rad).",
-            "process_noise": "Std of torque noise per planning step (N m).",
-            "clip_torques": "Clip the logged torques at the effort limits."}
+            "process_noise": "Std of torque noise per planning step and joint (N m).",
+            "clip_torques": "Clip the logged torques at the effort limits (arms, pendulum)."}
 
     plan: str | None = None  # key, key prefix or plan/KEY of the plan to execute
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
@@ -57,6 +85,8 @@ class ExecuteConfig(StageConfig):
             raise ValueError("process-noise must be in [0, 100] N m")
         if self.plan is None:
             raise ValueError("execute needs --plan KEY")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError("seed must be in [0, 2^32 - 1]")
 
 
 @dataclass
@@ -67,28 +97,28 @@ class ExecuteOutput:
     tau: np.ndarray  # (T, n_q) applied torques, N m
     X_plan: np.ndarray
     metrics: dict
-    cog: np.ndarray | None = None  # (T+1, 3) Nao
-    cog_margin: np.ndarray | None = None  # (T+1,) m, signed distance inside the support polygon
-    support: list | None = None  # per step (k, 2) polygon vertices
+    effort_at_limit: np.ndarray = None  # (T, n_q) bool
+    nao: dict = field(default_factory=dict)  # free-standing Nao arrays (see the module docstring)
     problem: object = None  # the plan's problem (task terms for recordings)
     robot: Robot | None = None
 
+    @property
+    def cog(self):
+        return self.nao.get("cog")
+
+    @property
+    def cog_margin(self):
+        return self.nao.get("cog_margin")
+
     def arrays(self) -> dict[str, np.ndarray]:
-        d = {"times": self.times, "X": self.X, "U": self.U, "tau": self.tau, "X_plan": self.X_plan}
-        if self.cog is not None:
-            d.update(cog=self.cog, cog_margin=self.cog_margin, support=padded_polygons(self.support or []))
+        d = {"times": self.times, "X": self.X, "U": self.U, "tau": self.tau, "X_plan": self.X_plan,
+             "effort_at_limit": np.asarray(self.effort_at_limit if self.effort_at_limit is not None
+                                           else np.zeros((0, self.X.shape[1] // 2)), bool)}
+        d.update(self.nao)
         return d
 
 
-def padded_polygons(polys: list) -> np.ndarray:
-    """Polygons of different vertex counts as one ``(K, kmax, 2)`` array, NaN-padded (m)."""
-    kmax = max((len(p) for p in polys), default=0)
-    out = np.full((len(polys), kmax, 2), np.nan)
-    for k, p in enumerate(polys):
-        out[k, :len(p)] = p
-    return out
-
-
+# ----------------------------------------------------------------------------- plan's controller (arms)
 def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng):
     """LeafSystem: plant state in, held actuation out; logs the commanded controls."""
     from pydrake.multibody.tree import MultibodyForces_
@@ -108,8 +138,8 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
         """Holds ``u_k = o_k + O_k x_k`` for a planning step (periodic discrete update, ZOH).
 
         Torque output: analytic plans apply the held torque; pseudo plans hold the planned
-        acceleration and evaluate computed torque continuously (inner loop at the integrator
-        rate), as a torque-controlled robot would.
+        acceleration and evaluate computed torque at every plant step (inner loop), as a
+        torque-controlled robot would.
         """
 
         def __init__(self):
@@ -150,66 +180,42 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     return FeedbackController()
 
 
-def support_polygon(robot: Robot, ctx, soles=("l_sole", "r_sole")) -> np.ndarray:
-    """Convex hull ``(k, 2)`` (m, world xy) of the soles' outlines at the plant context."""
-    pts = []
-    outline = np.c_[robot.support_polygon, np.zeros(len(robot.support_polygon))]
-    for sole in soles:
-        X = robot.plant.GetFrameByName(sole).CalcPoseInWorld(ctx)
-        pts.append((X.rotation().matrix() @ outline.T).T[:, :2] + X.translation()[:2])
-    pts = np.vstack(pts)
-    return pts[ConvexHull(pts).vertices]
+def _initial_q(desc: dict, robot: Robot, cfg: ExecuteConfig, rng) -> np.ndarray:
+    """The plan's ``q0`` plus ``x0_noise``, clipped to the joint limits (rad): the robot cannot
+    start outside its joint range."""
+    q0 = np.asarray(desc["q0"], float)
+    q = q0 + cfg.x0_noise * rng.standard_normal(q0.size) if cfg.x0_noise > 0 else q0.copy()
+    return np.clip(q, robot.lower, robot.upper)
 
 
-def signed_margin(poly: np.ndarray, p: np.ndarray) -> float:
-    """Distance (m) of ``p (2,)`` to the boundary of convex ``poly``: > 0 inside, < 0 outside."""
-    hull = ConvexHull(poly)
-    d = hull.equations[:, :2] @ p + hull.equations[:, 2]  # outward normals: d <= 0 inside
-    return float(-d.max())
-
-
-def execute(cfg: ExecuteConfig, desc: dict, plan: dict,
-            progress: Callable[[int, int], None] | None = None) -> ExecuteOutput:
-    """Execute a plan (its arrays and stored problem description) on the Drake plant in closed loop."""
+def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress) -> ExecuteOutput:
+    """A fixed-base plant (arms: discrete with limits; pendulum: continuous) with the plan's controller."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
-    cfg.validate()
-    problem = objective_from_description(desc)
     dt, T = float(desc["dt"]), int(desc["T"])
-    q0 = np.asarray(desc["q0"], float)
-    robot = load_robot(desc["plant"])
-    rng = np.random.default_rng(cfg.seed)
+    name = desc["plant"]
+    robot = load_robot(name, time_step=ARM_TIME_STEP if name in DISCRETE else 0.0)
+    q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
     robot.builder.Connect(ctrl.get_output_port(0), robot.plant.get_actuation_input_port())
     sim = Simulator(robot.builder.Build())
-    integ = ResetIntegratorFromFlags(sim, "runge_kutta5", dt / math.ceil(dt / MAX_STEP - 1e-9))
-    integ.set_fixed_step_mode(True)
+    if name not in DISCRETE:
+        integ = ResetIntegratorFromFlags(sim, "runge_kutta5", dt / math.ceil(dt / MAX_STEP - 1e-9))
+        integ.set_fixed_step_mode(True)
     pctx = robot.plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
-    q_start = q0 + cfg.x0_noise * rng.standard_normal(q0.size)
     robot.plant.SetPositions(pctx, robot.to_plant_q(q_start))
     robot.plant.SetVelocities(pctx, np.zeros(robot.plant.num_velocities()))
     Pinv = np.linalg.pinv(robot.P)
-    n = robot.n_q
+    n, n_p = robot.n_q, robot.plant.num_positions()
     X = np.full((T + 1, 2 * n), np.nan)
-    nao = robot.name == "nao"
-    cog = np.full((T + 1, 3), np.nan) if nao else None
-    margin = np.full(T + 1, np.nan) if nao else None
-    stance = np.full(T + 1, np.nan) if nao else None
-    polys = [] if nao else None
     sim.Initialize()
 
     def sample(k: int) -> bool:
         xp = robot.plant.GetPositionsAndVelocities(pctx)
         if not np.all(np.isfinite(xp)):
             return False
-        X[k] = np.concatenate([Pinv @ xp[:robot.plant.num_positions()], Pinv @ xp[robot.plant.num_positions():]])
-        if nao:
-            c = robot.plant.CalcCenterOfMassPositionInWorld(pctx)
-            poly = support_polygon(robot, pctx)
-            cog[k], margin[k] = c, signed_margin(poly, c[:2])
-            stance[k] = signed_margin(support_polygon(robot, pctx, ("l_sole",)), c[:2])
-            polys.append(poly)
+        X[k] = np.concatenate([Pinv @ xp[:n_p], Pinv @ xp[n_p:]])
         return True
 
     ctrl_ctx = ctrl.GetMyContextFromRoot(sim.get_context())
@@ -224,33 +230,225 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict,
         except RuntimeError:
             break
         wanted = ctrl.plant_torque(ctrl_ctx, clip=False)
-        saturated.append(bool(np.any(np.abs(wanted) > effort_plant + 1e-9)))
+        saturated.append(robot.P.T @ (np.abs(wanted) > effort_plant + 1e-9) > 0)
         taus.append(robot.P.T @ (np.clip(wanted, -effort_plant, effort_plant) if cfg.clip_torques else wanted))
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
-    X_plan = plan["X"]
-    metrics = execution_metrics(problem, X, X_plan, tau, cog, margin, robot)
-    metrics["torque_saturation"] = float(np.mean(saturated)) if saturated else 0.0
-    if nao:
-        metrics["cog_inside_stance_fraction"] = float(np.mean(stance > 0))
-        metrics["cog_min_stance_margin"] = float(np.nanmin(stance))
-    return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=X_plan, metrics=metrics,
-                         cog=cog, cog_margin=margin, support=polys, problem=problem, robot=robot)
+    sat = np.array(saturated, bool).reshape(-1, n)
+    metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=name != "pendulum")
+    return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
+                         effort_at_limit=sat, problem=problem, robot=robot)
+
+
+# ----------------------------------------------------------------------------- free-standing Nao
+def feedforward(robot: Robot, X_plan: np.ndarray, U_plan: np.ndarray, control_kind: str) -> np.ndarray:
+    """Feed-forward generalized forces ``(T, n_plant)`` (fixed-base plant velocity order, N m):
+    inverse dynamics of the fixed-base model along the plan (acceleration plans) or the planned
+    torques shared among coupled joints (torque plans)."""
+    from pydrake.multibody.tree import MultibodyForces_
+
+    P, n = robot.P, robot.n_q
+    if control_kind != "acceleration":
+        split = P / np.maximum(P.sum(axis=0), 1.0)
+        return U_plan @ split.T
+    plant = robot.plant
+    ctx = plant.CreateDefaultContext()
+    forces = MultibodyForces_[float](plant)
+    out = np.empty((len(U_plan), plant.num_velocities()))
+    for k, u in enumerate(U_plan):
+        plant.SetPositions(ctx, P @ X_plan[k, :n])
+        plant.SetVelocities(ctx, P @ X_plan[k, n:])
+        plant.CalcForceElementsContribution(ctx, forces)
+        out[k] = plant.CalcInverseDynamics(ctx, P @ u, forces)
+    return out
+
+
+def planned_stance(robot: Robot, X_plan: np.ndarray) -> dict[str, np.ndarray]:
+    """The plan on the fixed-base model (left sole at the world origin): torso height and z axis,
+    sole corner positions ``(T+1, 2, 4, 3)``."""
+    from plants.free_nao import SOLES, sole_corners_local
+
+    plant, n = robot.plant, robot.n_q
+    ctx = plant.CreateDefaultContext()
+    torso = plant.GetBodyByName("torso")
+    K = len(X_plan)
+    out = {"torso_height_plan": np.full(K, np.nan), "torso_z_plan": np.full((K, 3), np.nan),
+           "corners_plan": np.full((K, 2, 4, 3), np.nan)}
+    local = sole_corners_local()
+    for k in range(K):
+        if not np.all(np.isfinite(X_plan[k])):
+            continue
+        plant.SetPositions(ctx, robot.to_plant_q(X_plan[k, :n]))
+        Xt = plant.EvalBodyPoseInWorld(ctx, torso)
+        out["torso_height_plan"][k] = Xt.translation()[2]
+        out["torso_z_plan"][k] = Xt.rotation().matrix()[:, 2]
+        for s, name in enumerate(SOLES):
+            Xs = plant.GetFrameByName(name).CalcPoseInWorld(ctx)
+            out["corners_plan"][k, s] = local @ Xs.rotation().matrix().T + Xs.translation()
+    return out
+
+
+def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress) -> ExecuteOutput:
+    """The plan tracked on the free-standing Nao (see the module docstring)."""
+    from pydrake.systems.analysis import Simulator
+
+    from plants.free_nao import MAX_TIP, TIME_STEP, load_free_nao
+
+    dt, T = float(desc["dt"]), int(desc["T"])
+    sub = int(round(dt / TIME_STEP))
+    if abs(sub * TIME_STEP - dt) > 1e-9 or sub < 1:
+        raise ValueError(f"the Nao's planning step {dt} s is not a multiple of the plant step {TIME_STEP} s")
+    free = load_free_nao()
+    fixed, plant = free.fixed, free.plant
+    n = fixed.n_q
+    X_plan, U_plan = np.asarray(plan["X"], float), np.asarray(plan["U"], float)
+    ff = feedforward(fixed, X_plan, U_plan, desc["control_kind"])[:, free.act_fixed_idx]  # (T, n_act)
+    q_start = _initial_q(desc, fixed, cfg, rng)
+    qp0, tilt = free.standing_positions(q_start)
+    sim = Simulator(free.builder.Build())
+    pctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
+    plant.SetPositions(pctx, qp0)
+    plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
+    n_act = len(free.effort)
+    desired_port = plant.get_desired_state_input_port(free.model)
+    actuation_port = plant.get_actuation_input_port()
+
+    def set_desired(xd):
+        desired_port.FixValue(pctx, xd)
+
+    def set_actuation(u):
+        actuation_port.FixValue(pctx, u)
+
+    set_desired(np.concatenate([free.A @ np.clip(X_plan[0, :n], fixed.lower, fixed.upper), free.A @ X_plan[0, n:]]))
+    set_actuation(ff[0])
+    sim.Initialize()
+
+    K = T + 1
+    X = np.full((K, 2 * n), np.nan)
+    q_free = np.full((K, plant.num_positions()), np.nan)
+    cog = np.full((K, 3), np.nan)
+    corners = np.full((K, 2, 4, 3), np.nan)
+    force = np.full((K, 2), np.nan)
+    torso_p, torso_z = np.full((K, 3), np.nan), np.full((K, 3), np.nan)
+    points: list[np.ndarray] = []
+    applied = np.full((T, n_act), np.nan)
+    U_log = np.full((T, n), np.nan)
+
+    def sample(k: int) -> bool:
+        qp, vp = plant.GetPositions(pctx), plant.GetVelocities(pctx)
+        if not (np.all(np.isfinite(qp)) and np.all(np.isfinite(vp))):
+            return False
+        X[k] = np.concatenate([free.planning_q(qp), free.planning_v(vp)])
+        q_free[k] = qp
+        cog[k] = plant.CalcCenterOfMassPositionInWorld(pctx)
+        corners[k] = free.sole_corners(pctx)
+        # contact results exist after the first plant step; at t = 0 the force is unknown (NaN)
+        f, pts = free.contacts(pctx) if k > 0 else (np.full(2, np.nan), np.zeros((0, 3)))
+        force[k] = f
+        points.append(pts)
+        Xt = free.torso_pose(pctx)
+        torso_p[k], torso_z[k] = Xt.translation(), Xt.rotation().matrix()[:, 2]
+        return True
+
+    ok = sample(0)
+    Aq = free.A
+    for k in range(T):
+        if not ok:
+            break
+        w = cfg.process_noise * rng.standard_normal(n_act) if cfg.process_noise > 0 else np.zeros(n_act)
+        set_actuation(ff[k] + w)
+        U_log[k] = (ff[k] + w) @ Aq  # planning coordinates
+        q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
+        try:
+            for s in range(sub):
+                a = s / sub
+                q_d = np.clip((1 - a) * q_a + a * q_b, fixed.lower, fixed.upper)  # never past a limit
+                set_desired(np.concatenate([Aq @ q_d, Aq @ v_b]))
+                sim.AdvanceTo(k * dt + (s + 1) * TIME_STEP)
+        except RuntimeError:
+            ok = False
+            break
+        applied[k] = plant.get_net_actuation_output_port().Eval(pctx)[:n_act]
+        ok = sample(k + 1)
+        if progress is not None and (k + 1) % 10 == 0:
+            progress(k + 1, T)
+    at_limit = (np.abs(applied) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q) per planning joint
+    tau = applied @ free.A  # planning coordinates (the coupled hip: the sum of its two joints)
+    polys, margin = support_polygons(corners, force, cog)
+    planned = planned_stance(fixed, X_plan)
+    nao = {"q_free": q_free, "cog": cog, "cog_margin": margin, "support": padded_polygons(polys),
+           "corners": corners, "sole_force": force, "contact_points": _padded_points(points, K),
+           "torso_p": torso_p, "torso_z": torso_z, "torso_height_plan": planned["torso_height_plan"],
+           "torso_z_plan": planned["torso_z_plan"], "corners_plan": planned["corners_plan"],
+           "start_tilt": np.array(tilt), "start_stands": np.array(tilt < MAX_TIP - 1e-9)}
+    metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
+                                nao={**nao, "torso_height": torso_p[:, 2]})
+    metrics["start_tilt"] = tilt
+    return ExecuteOutput(times=np.arange(K) * dt, X=X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
+                         effort_at_limit=at_limit, nao=nao, problem=problem, robot=fixed)
+
+
+def _padded_points(points: list[np.ndarray], K: int) -> np.ndarray:
+    """Per-sample contact points as one ``(K, kmax, 3)`` array, NaN-padded (m)."""
+    kmax = max([len(p) for p in points] + [1])
+    out = np.full((K, kmax, 3), np.nan)
+    for k, p in enumerate(points):
+        out[k, :len(p)] = p
+    return out
+
+
+# ----------------------------------------------------------------------------- stage
+def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput:
+    """A diverged plan: nothing is simulated; the execution's status is ``diverged``."""
+    T, dt = int(desc["T"]), float(desc["dt"])
+    n = len(desc["q0"])
+    X = np.full((T + 1, 2 * n), np.nan)
+    metrics = {"status": "diverged", "failure_time": 0.0, "reason": reason,
+               "via_point_errors": via_point_errors(problem, X), "rmse_planned_executed": float("inf"),
+               "max_tracking_error": float("inf"), "max_abs_torque": 0.0, "torque_saturation": 0.0,
+               "position_limit_fraction": 0.0, "limits_fraction": 0.0}
+    if desc["plant"] == "nao":
+        metrics.update(stood=False, cog_inside_fraction=0.0, cog_min_margin=float("nan"))
+    return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=np.full((T, n), np.nan), tau=np.full((T, n), np.nan),
+                         X_plan=np.asarray(plan["X"]), metrics=metrics, effort_at_limit=np.zeros((T, n), bool),
+                         problem=problem)
+
+
+def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int, int], None] | None = None,
+            plan_status: str | None = None) -> ExecuteOutput:
+    """Execute a plan (its arrays, stored problem description and status) in Drake (module docstring)."""
+    cfg.validate()
+    problem = objective_from_description(desc)
+    nao = desc["plant"] == "nao"
+    needed = ("X", "U") if nao else ("X", "o", "O")
+    if not all(np.all(np.isfinite(plan[k])) for k in needed):
+        return _not_executed(desc, plan, problem, "the plan is not finite: not executed")
+    rng = np.random.default_rng(cfg.seed)
+    out = (_execute_free_nao if nao else _execute_fixed)(cfg, desc, plan, problem, rng, progress)
+    if plan_status == "diverged":  # executed (its data may still be of use), never reported as a success
+        out.metrics.update(status="diverged", failure_time=0.0,
+                           reason=f"the plan diverged (executed: {out.metrics['reason']})")
+        if nao:
+            out.metrics["stood"] = False
+    return out
 
 
 def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int, int], None] | None = None
         ) -> StageOutput:
-    """The execute stage: ``rollout.npz`` of the plan's controller run in Drake."""
+    """The execute stage: ``rollout.npz`` of the plan executed in Drake."""
     plan = inputs["plan"]
-    out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress)
+    out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress, plan_status=plan.status)
     return StageOutput(status=out.metrics["status"], metrics=out.metrics, arrays={ROLLOUT_FILE: out.arrays()},
                        payload=out)
 
 
 STAGE = Stage(name="execute", config_cls=ExecuteConfig, run=run,
-              sources=("plants", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"), data_files=(ROLLOUT_FILE,),
-              description="Run a plan's feedback controller in closed loop with the Drake plant (Drake's Simulator).",
+              sources=("plants", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+              data_files=(ROLLOUT_FILE,),
+              description="Execute a plan in Drake's Simulator: the free-standing Nao (joint PD + inverse-dynamics "
+                          "feed-forward) or the arm with the plan's feedback controller; status ok, limits, "
+                          "tracking-lost, fell or diverged.",
               progress_total=lambda cfg: 0)

@@ -58,6 +58,7 @@ class LearnConfig(StageConfig):
             raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
         get_task(self.plant, self.task)
         checks = [(1 <= self.episodes <= MAX_EPISODES, f"episodes must be in [1, {MAX_EPISODES}]"),
+                  (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
                   (2 <= self.babble_points <= 100_000, "babble-points must be in [2, 100000]"),
                   (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),

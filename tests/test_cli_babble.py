@@ -65,8 +65,12 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
     assert line2["metrics"] == line["metrics"] and line2["recording"] == line["recording"] == str(rec)
     ls = invoke("ls", "--artifacts", tmp_path)
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    samples = f"samples={line['metrics']['samples']:.4g}"
     assert ls.exit_code == 0 and ls.output.splitlines() == [
-        f"babble     {line['key']}  {meta['created']:20s} {size / 1e6:8.2f} MB  {folder}"]
+        f"babble    {line['key']}  {'pendulum':40s} {'ok':15s} {samples:24s} {meta['created']:20s} "
+        f"{size / 1e6:8.2f} MB  {folder}"]
+    assert invoke("ls", "--plant", "arm5", "--artifacts", tmp_path).output == ""
+    assert invoke("ls", "babble", "--plant", "pendulum", "--artifacts", tmp_path).output == ls.output
     show = invoke("show", line["key"], "--artifacts", tmp_path)
     assert show.exit_code == 0
     shown = json.loads(show.output)

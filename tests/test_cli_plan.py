@@ -114,6 +114,13 @@ def test_nao_balance_plan_and_execute_reports_cog(tmp_path):
                     "--iterations", 3, "--no-record", "--json", "--artifacts", tmp_path)
     assert line["metrics"]["final_cost"] < line["metrics"]["initial_cost"]
     ex = run_json("execute", "--plan", line["key"], "--no-record", "--json", "--artifacts", tmp_path)
+    # finding runs: by plant and task (an execution takes them from its plan)
+    rows = [json.loads(x) for x in runner.invoke(app, ["ls", "--plant", "nao", "--task", "balance", "--json",
+                                                       "--artifacts", str(tmp_path)]).stdout.splitlines()]
+    assert [(r["stage"], r["key"], r["solver"]) for r in rows] == [("execute", ex["key"], "raico"),
+                                                                   ("plan", line["key"], "raico")]
+    assert rows[1]["value"] == line["metrics"]["final_cost"] and rows[1]["metric"] == "final_cost"
+    assert runner.invoke(app, ["ls", "plan", "--task", "reach", "--artifacts", str(tmp_path)]).stdout == ""
     em = ex["metrics"]
     r = np.load(Path(ex["path"]) / "rollout.npz")
     assert em["cog_inside_fraction"] == pytest.approx(np.mean(r["cog_margin"] > 0))
@@ -139,7 +146,7 @@ def test_nao_balance_plan_and_execute_reports_cog(tmp_path):
     assert em["max_abs_torque"] == np.abs(r["tau"]).max()
 
 
-MORE = r"(, [\w.-]+)*"  # registries may grow: names after the listed ones
+MORE = r"(, [\w./-]+)*"  # registries may grow: names after the listed ones
 
 
 @pytest.mark.parametrize("args, code, pattern", [

@@ -212,7 +212,10 @@ def test_options_validate_ranges(cls, bad, message):
 
 
 def test_solver_registry(arm_problem):
-    assert set(SOLVERS) == {"aico", "raico", "ilqg"}
+    from stages.plan.crocoddyl_model import AVAILABLE  # the crocoddyl baseline registers where installed
+
+    baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule"} if AVAILABLE else set()
+    assert set(SOLVERS) == {"aico", "raico", "ilqg"} | baseline
     assert make_options("raico").alpha == 1.0 and make_options("aico").alpha == 0.0
     assert make_options("ilqg", {"mu0": 0.5}).mu0 == 0.5
     assert make_options("ilqg").alphas == pytest.approx(tuple(10 ** np.linspace(0, -3, 11)))

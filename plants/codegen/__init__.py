@@ -7,8 +7,14 @@
 - :mod:`plants.codegen.drake_reader`: Drake's symbolic inverse dynamics and mass matrix read
   into the DAG, and the cyclic (vertical-axis) joints;
 - :mod:`plants.codegen.derive`: derivation per plant with a build-time self-check against
-  Drake, cached per plant name.
+  Drake, cached per plant name;
+- :mod:`plants.codegen.c_backend`: the same code as C (gcc, a disk cache keyed by the source,
+  ``ctypes``) and scipy's BLAS/LAPACK addresses for compiled kernels;
+- :mod:`plants.codegen.rbd`: the kinematic tree read from Drake, compiled: forward kinematics,
+  Jacobians, mass matrix, Newton-Euler inverse dynamics and its derivatives, task messages
+  (for plants too large for the symbolic route, and for the task maps).
 
-The model built on it is :class:`plants.fast_analytic.FastAnalyticDynamics`. This package
-imports nothing from the rest of ``plants``.
+The models built on it are :class:`plants.fast_analytic.FastAnalyticDynamics` and
+:class:`plants.fast_analytic.TreeAnalyticDynamics`. This package imports nothing from the rest
+of ``plants``.
 """

@@ -27,6 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from plants.codegen.c_backend import emit_c
 from plants.codegen.drake_reader import cyclic_positions, read_equations
 from plants.codegen.emit import compile_source, emit, live_ops
 from plants.codegen.graph import BINARY, Graph, Unsupported
@@ -47,12 +48,16 @@ class CompiledDynamics:
     - ``second(xs, out)``: ``xs = (a, *carry)``; ``out[i*2m + k] = dID_i/d(q, v)_k``.
 
     ``vec[name]`` runs on rows of ``(., T)`` arrays, ``sca[name]`` on lists of Python floats.
+    ``c_source``: the same three functions in C (:func:`plants.codegen.c_backend.emit_c`, same
+    operations in the same order), compiled on demand by :mod:`plants.fast_analytic`.
     """
 
-    def __init__(self, m: int, n_carry: int, sources: dict[str, str], stats: dict):
+    def __init__(self, m: int, n_carry: int, sources: dict[str, str], stats: dict,
+                 c_source: str = ""):
         self.m = m
         self.n_carry = n_carry
         self.source = sources
+        self.c_source = c_source
         self.stats = stats
         self.vec: dict[str, Callable] = {}
         self.sca: dict[str, Callable] = {}
@@ -134,11 +139,19 @@ def _generate(g: Graph, m: int, m_nodes: list[int], h_nodes: list[int],
                                *(f"carry[{j}]" for j in range(len(carry)))]),
         "second": emit(g, "second", a_nodes + carry, did_nodes),
     }
+    c_source = "".join([
+        emit_c(g, "gen_mh", qv_nodes, m_nodes + h_nodes),
+        emit_c(g, "gen_first", qv_nodes, m_nodes + h_nodes + carry,
+               params="const double *xs, double *out, double *carry",
+               targets=[*(f"out[{j}]" for j in range(mm + m)),
+                        *(f"carry[{j}]" for j in range(len(carry)))]),
+        emit_c(g, "gen_second", a_nodes + carry, did_nodes),
+    ])
     stats = {"carried": len(carry),
              "ops_mh": len(live_ops(g, qv_nodes, m_nodes + h_nodes)),
              "ops_first": len(live_ops(g, qv_nodes, m_nodes + h_nodes + carry)),
              "ops_second": len(live_ops(g, a_nodes + carry, did_nodes))}
-    return CompiledDynamics(m, len(carry), sources, stats)
+    return CompiledDynamics(m, len(carry), sources, stats, c_source)
 
 
 def self_check(plant, compiled: CompiledDynamics, n_states: int = 3, seed: int = 0) -> float:

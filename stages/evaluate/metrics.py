@@ -1,6 +1,29 @@
 """Evaluation metrics of one run, shared by the plan, execute and evaluate stages (SPEC §8).
 
-Via-point errors of a trajectory against its objective; execution metrics of a rollout.
+Via-point errors of a trajectory against its objective; execution metrics of a rollout:
+its status, tracking, limits and, for the free-standing Nao, the CoG against the support
+polygon of the sole corners that are in contact.
+
+Execution status (SPEC §12, §14), first that applies:
+
+- ``diverged``: a non-finite state, or the simulator failed (the execute stage also marks the
+  execution of a diverged plan so, and does not execute a plan that is not finite);
+- ``fell`` (Nao): at some sample the torso is more than ``FALL_TORSO_DROP`` below its
+  planned height, or its z axis is more than ``FALL_TORSO_TILT`` from the planned torso's
+  z axis, or a sole lifts: its lowest corner rises more than ``FOOT_LIFT`` above the planned
+  lowest corner's height (clipped at the ground; both soles stay on the ground in every Nao
+  task; a foot rocking on an edge keeps that edge down and is judged by the torso). Planned values:
+  the fixed-base model along the plan (left sole at the world origin, as on the free robot
+  at the start). A plan whose initial posture cannot stand on flat ground (its soles not
+  level: ``plants.free_nao``) has fallen at t = 0;
+- ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` at
+  some sample;
+- ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
+  limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than
+  ``LIMIT_TOL`` elsewhere) or some actuator is at its effort limit (the controller asks for
+  more than the motor gives; not for the pendulum, the thesis's ideal point mass, whose
+  +-10 N m bound is its swing-up task's control limit, there to be used);
+- ``ok``: none of these.
 """
 
 from __future__ import annotations
@@ -9,12 +32,26 @@ import numpy as np
 
 from stages.plan.costs import ViaPoint
 
+FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
+FALL_TORSO_TILT = 0.5  # rad, angle between the executed and the planned torso z axes
+FOOT_LIFT = 0.01  # m, a sole's lowest corner above its planned height
+TRACKING_LOST = 0.5  # rad, largest planned-vs-executed joint error
+LIMITS_SHARE = 0.2  # share of the samples with a joint at a position limit or an actuator at its effort limit
+LIMIT_TOL = 0.01  # rad, a joint within this of a position limit is at it
+CONTACT_TOL = 1e-3  # m, a sole corner this close to the ground (or below) is in contact ...
+CONTACT_FORCE = 1e-3  # N, ... when Drake reports at least this normal force on its sole
+STATUSES = ("ok", "limits", "tracking-lost", "fell", "diverged")
+THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_TORSO_TILT,
+              "foot_lift_m": FOOT_LIFT, "tracking_lost_rad": TRACKING_LOST, "limits_share": LIMITS_SHARE,
+              "limit_tol_rad": LIMIT_TOL, "contact_tol_m": CONTACT_TOL}
+
 
 def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
     """``{"<term>@<t>": error}``: Euclidean task error over the dimensions that count.
 
     Dimensions count whose precision is at least 1% of the largest (balance: the lateral
     axis only). Terms held at every step (the Nao's right sole) report their largest error.
+    A step whose state is not finite has error ``inf``.
     """
     n_q = X.shape[1] // 2
     out: dict[str, float] = {}
@@ -24,11 +61,11 @@ def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
         w = np.diag(term.C)
         keep = w >= 0.01 * w.max()
         idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
-        if not np.all(np.isfinite(X[idx])):
-            errs = np.full(idx.size, np.inf)
-        else:
-            phi, _ = term.taskmap.values_and_jacobians(X[idx, :n_q])
-            errs = np.linalg.norm((term.target - phi)[:, keep], axis=1)
+        errs = np.full(idx.size, np.inf)
+        good = np.all(np.isfinite(X[idx]), axis=1)
+        if good.any():
+            phi, _ = term.taskmap.values_and_jacobians(X[idx[good], :n_q])
+            errs[good] = np.linalg.norm((term.target - phi)[:, keep], axis=1)
         if idx.size > 3:
             out[f"{term.name}@max"] = float(errs.max())
         else:
@@ -36,27 +73,216 @@ def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
     return out
 
 
-def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, cog: np.ndarray | None,
-                      margin: np.ndarray | None, robot) -> dict:
-    """Metrics of one execution: status, via-point errors of the executed ``X (T+1, n_x)``,
-    planned-vs-executed RMSE (rad), largest torque (N m); for the Nao the CoG against the
-    support polygon (``margin (T+1,)`` m, > 0 inside) and the right sole's drift (m)."""
-    n = X.shape[1] // 2
-    finite = bool(np.all(np.isfinite(X)))
+# ----------------------------------------------------------------------------- support polygon
+def contact_polygon(corners: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """The support polygon ``(k, 2)`` (m, world xy, convex hull, k <= 8) of the sole corners in
+    contact: corners ``(2, 4, 3)`` at most ``CONTACT_TOL`` above the ground whose sole carries
+    at least ``CONTACT_FORCE`` (``force (2,)`` N, Drake's contact results; NaN: no results yet,
+    at t = 0, where the height decides). Fewer than three points in contact give a segment, a
+    point or nothing."""
+    pts = [corners[s, c, :2] for s in range(corners.shape[0]) for c in range(corners.shape[1])
+           if not force[s] < CONTACT_FORCE and corners[s, c, 2] <= CONTACT_TOL]
+    if len(pts) < 3:
+        return np.array(pts).reshape(-1, 2)
+    pts = np.array(pts)
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return pts[ConvexHull(pts).vertices]
+    except QhullError:  # collinear corners: the extreme two
+        d = pts - pts.mean(0)
+        axis = np.linalg.svd(d)[2][0]
+        s = d @ axis
+        return pts[[int(np.argmin(s)), int(np.argmax(s))]]
+
+
+def signed_margin(poly: np.ndarray, p: np.ndarray) -> float:
+    """Distance (m) of ``p (2,)`` to the boundary of convex ``poly (k, 2)``: > 0 inside, < 0 outside.
+    A segment or a point has no inside: minus the distance to it. No polygon: NaN."""
+    poly = np.asarray(poly, float).reshape(-1, 2)
+    if len(poly) == 0:
+        return float("nan")
+    if len(poly) < 3:
+        a, b = poly[0], poly[-1]
+        ab = b - a
+        t = 0.0 if not ab.any() else float(np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0))
+        return -float(np.linalg.norm(p - (a + t * ab)))
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(poly)
+    d = hull.equations[:, :2] @ p + hull.equations[:, 2]  # outward normals: d <= 0 inside
+    if d.max() <= 0:
+        return float(-d.max())
+    # outside: the distance to the nearest edge
+    V = poly[hull.vertices]
+    dist = [-signed_margin(np.array([V[i], V[(i + 1) % len(V)]]), p) for i in range(len(V))]
+    return -float(min(dist))
+
+
+def padded_polygons(polys: list) -> np.ndarray:
+    """Polygons of different vertex counts as one ``(K, kmax, 2)`` array, NaN-padded (m)."""
+    kmax = max((len(p) for p in polys), default=0)
+    out = np.full((len(polys), max(kmax, 1), 2), np.nan)
+    for k, p in enumerate(polys):
+        out[k, :len(p)] = p
+    return out
+
+
+def support_polygons(corners: np.ndarray, force: np.ndarray, cog: np.ndarray) -> tuple[list, np.ndarray]:
+    """Per sample: the contact polygon and the CoG's signed margin against it (NaN when not finite)."""
+    polys, margin = [], np.full(len(corners), np.nan)
+    for k in range(len(corners)):
+        if not (np.all(np.isfinite(corners[k])) and np.all(np.isfinite(cog[k]))):
+            polys.append(np.zeros((0, 2)))
+            continue
+        poly = contact_polygon(corners[k], force[k])
+        polys.append(poly)
+        margin[k] = signed_margin(poly, cog[k, :2])
+    return polys, margin
+
+
+# ----------------------------------------------------------------------------- status
+def first_true(flags: np.ndarray) -> int | None:
+    hits = np.flatnonzero(np.asarray(flags, bool))
+    return int(hits[0]) if hits.size else None
+
+
+def fall_flags(torso_height: np.ndarray, torso_height_plan: np.ndarray, torso_z: np.ndarray,
+               torso_z_plan: np.ndarray, corner_height: np.ndarray, corner_height_plan: np.ndarray) -> dict:
+    """Per-sample fall conditions ``(K,)`` bool: torso dropped, torso tilted, a foot lifted
+    (heights m, torso z axes ``(K, 3)``, sole corner heights ``(K, 2, 4)``). A foot lifts when
+    its lowest corner rises more than ``FOOT_LIFT`` above the plan's lowest corner of that sole;
+    a planned height below the ground counts as on the ground (0)."""
+    lowest_plan = np.maximum(corner_height_plan.min(axis=2), 0.0)
     with np.errstate(invalid="ignore"):
-        rmse = float(np.sqrt(np.nanmean((X[:, :n] - X_plan[:, :n]) ** 2))) if finite else float("inf")
-    m = {"status": "ok" if finite else "failed",
-         "via_point_errors": via_point_errors(problem, X) if finite else {},
+        cos = np.clip(np.sum(torso_z * torso_z_plan, axis=1), -1.0, 1.0)
+        return {"torso_dropped": torso_height < torso_height_plan - FALL_TORSO_DROP,
+                "torso_tilted": np.arccos(cos) > FALL_TORSO_TILT,
+                "foot_lifted": np.any(corner_height.min(axis=2) - lowest_plan > FOOT_LIFT, axis=1)}
+
+
+def position_limit_joints(Q: np.ndarray, Q_plan: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``(K, n)``: joint held at a position limit: within ``LIMIT_TOL`` of it (or past it) while
+    the plan wants it more than ``LIMIT_TOL`` elsewhere (inside or beyond the limit)."""
+    with np.errstate(invalid="ignore"):
+        at = (Q >= upper - LIMIT_TOL) | (Q <= lower + LIMIT_TOL)
+        return at & (np.abs(Q_plan - Q) > LIMIT_TOL)
+
+
+def position_limit_flags(Q: np.ndarray, Q_plan: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``(K,)``: some joint held at a position limit (``position_limit_joints``)."""
+    return np.any(position_limit_joints(Q, Q_plan, lower, upper), axis=1)
+
+
+def execution_status(finite: np.ndarray, fell: np.ndarray | None, tracking_error: np.ndarray,
+                     at_limit: np.ndarray, dt: float) -> tuple[str, float | None, str]:
+    """``(status, failure time s or None, reason)`` from per-sample flags ``(K,)`` (see the module
+    docstring); ``at_limit`` has one flag per sample, limits are judged on its share."""
+    bad = first_true(~np.asarray(finite, bool))
+    if bad is not None:
+        return "diverged", bad * dt, f"non-finite state at t = {bad * dt:.3g} s"
+    if fell is not None:
+        k = first_true(fell)
+        if k is not None:
+            return "fell", k * dt, f"fell at t = {k * dt:.3g} s"
+    k = first_true(np.asarray(tracking_error) > TRACKING_LOST)
+    if k is not None:
+        return ("tracking-lost", k * dt, f"joint error above {TRACKING_LOST} rad at t = {k * dt:.3g} s")
+    share = float(np.mean(at_limit)) if len(at_limit) else 0.0
+    if share > LIMITS_SHARE:
+        k = first_true(at_limit)
+        return "limits", k * dt, f"at a joint or effort limit in {share:.0%} of the samples (> {LIMITS_SHARE:.0%})"
+    return "ok", None, "ok"
+
+
+def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, robot, dt: float,
+                      effort_at_limit: np.ndarray, nao: dict | None = None, effort_is_limit: bool = True) -> dict:
+    """Metrics of one execution (``X (T+1, n_x)`` executed, ``tau (T, n_q)`` applied torques N m,
+    ``effort_at_limit (T, n_q)`` per joint, or ``(T,)``): status (module docstring), via-point errors, planned-vs-executed
+    RMSE and largest error (rad), largest torque (N m), limit shares; for the free-standing Nao
+    (``nao``: per-sample ``cog``, ``corners``, ``sole_force``, torso and planned values) the CoG
+    against the contact polygon, the feet's drift and whether it stood. ``effort_is_limit`` False:
+    effort saturation is reported (``torque_saturation``) but does not count towards ``limits``
+    (the pendulum, whose torque bound is its task's control limit)."""
+    n = X.shape[1] // 2
+    K = len(X)
+    finite = np.all(np.isfinite(X), axis=1)
+    Q, Qp = X[:, :n], X_plan[:, :n]
+    with np.errstate(invalid="ignore"):
+        err = np.nanmax(np.abs(Q - Qp), axis=1) if finite.any() else np.full(K, np.inf)
+        rmse = float(np.sqrt(np.mean((Q - Qp) ** 2))) if finite.all() else float("inf")
+    pos_lim = position_limit_flags(Q, Qp, robot.lower, robot.upper)
+    e = np.asarray(effort_at_limit, bool).reshape(len(effort_at_limit), -1)[:K - 1]
+    eff_j = np.zeros((K, e.shape[1]), bool)  # sample k + 1 ends step k
+    eff_j[1:1 + len(e)] = e
+    eff = eff_j.any(axis=1)
+    pos_j = position_limit_joints(Q, Qp, robot.lower, robot.upper)
+    at_limit = pos_lim | eff if effort_is_limit else pos_lim
+    fell = None
+    m: dict = {}
+    if nao is not None:
+        flags = fall_flags(nao["torso_height"], nao["torso_height_plan"], nao["torso_z"], nao["torso_z_plan"],
+                           nao["corners"][..., 2], nao["corners_plan"][..., 2])
+        flags["initial_posture_does_not_stand"] = np.arange(K) == (0 if not bool(nao.get("start_stands", True))
+                                                                     else -1)
+        fell = flags["torso_dropped"] | flags["torso_tilted"] | flags["foot_lifted"] | \
+            flags["initial_posture_does_not_stand"]
+        m["fall_conditions"] = {k: first_true(v) * dt if first_true(v) is not None else None for k, v in flags.items()}
+    status, t_fail, reason = execution_status(finite, fell, err, at_limit, dt)
+    limited = {}
+    for i, name in enumerate(robot.joint_names):
+        shares = {"position": float(np.mean(pos_j[:, i]))}
+        if effort_is_limit and eff_j.shape[1] == len(robot.joint_names):
+            shares["effort"] = float(np.mean(eff_j[:, i]))
+        if any(v > 0 for v in shares.values()):
+            limited[name] = shares
+    if status == "limits":
+        worst = sorted(limited.items(), key=lambda kv: -max(kv[1].values()))[:3]
+        reason += ": " + ", ".join(f"{j} " + " and ".join(f"{k} {v:.0%}" for k, v in sh.items() if v > 0)
+                                   for j, sh in worst)
+    if status == "fell":
+        why = [k.replace("_", " ") for k, t in m["fall_conditions"].items() if t == t_fail]
+        reason = f"{reason}: {', '.join(why)}"
+    m = {"status": status, "failure_time": t_fail, "reason": reason,
+         "via_point_errors": via_point_errors(problem, X),
          "rmse_planned_executed": rmse,
-         "max_abs_torque": float(np.nanmax(np.abs(tau))) if tau.size else 0.0}
-    if cog is not None:
-        inside = margin > 0
-        sole0 = robot.plant.GetFrameByName("r_sole")
-        ctx = robot.plant.CreateDefaultContext()
-        drift = []
-        for k in (0, len(X) - 1):
-            robot.plant.SetPositions(ctx, robot.to_plant_q(X[k, :n]))
-            drift.append(sole0.CalcPoseInWorld(ctx).translation())
-        m.update(cog_inside_fraction=float(np.mean(inside)), cog_min_margin=float(np.nanmin(margin)),
-                 r_sole_drift=float(np.linalg.norm(drift[1] - drift[0])))
+         "max_tracking_error": float(np.max(err)) if finite.all() else float("inf"),
+         "max_abs_torque": float(np.nanmax(np.abs(tau))) if tau.size else 0.0,
+         "torque_saturation": float(np.mean(e.any(axis=1))) if len(e) else 0.0,
+         "position_limit_fraction": float(np.mean(pos_lim)),
+         "limits_fraction": float(np.mean(at_limit)),
+         "limited_joints": limited,
+         "thresholds": dict(THRESHOLDS), **m}
+    if nao is not None:
+        margin = nao["cog_margin"]
+        with np.errstate(invalid="ignore"):
+            inside = margin > 0
+        m.update(stood=status != "fell" and status != "diverged",
+                 cog_inside_fraction=float(np.mean(inside)),
+                 cog_min_margin=float(np.nanmin(margin)) if np.isfinite(margin).any() else float("nan"),
+                 r_sole_drift=_relative_sole_drift(robot, X),
+                 sole_world_drift=_world_drift(nao["corners"]))
     return m
+
+
+def _relative_sole_drift(robot, X: np.ndarray) -> float:
+    """How far (m) the right sole moved relative to the left sole, start to end (fixed-base
+    kinematics of the executed joint angles: the left sole is the fixed model's world frame)."""
+    n = X.shape[1] // 2
+    if not np.all(np.isfinite(X[[0, -1]])):
+        return float("inf")
+    sole = robot.plant.GetFrameByName("r_sole")
+    ctx = robot.plant.CreateDefaultContext()
+    ends = []
+    for k in (0, len(X) - 1):
+        robot.plant.SetPositions(ctx, robot.to_plant_q(X[k, :n]))
+        ends.append(sole.CalcPoseInWorld(ctx).translation())
+    return float(np.linalg.norm(ends[1] - ends[0]))
+
+
+def _world_drift(corners: np.ndarray) -> list[float]:
+    """Per sole (left, right): how far (m) its centre moved on the ground, start to end."""
+    c = corners.mean(axis=2)  # (K, 2, 3)
+    if not np.all(np.isfinite(c[[0, -1]])):
+        return [float("inf")] * 2
+    return [float(np.linalg.norm(c[-1, s] - c[0, s])) for s in range(c.shape[1])]

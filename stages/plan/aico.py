@@ -33,11 +33,17 @@ trajectory and the reported cost.
 Speed without changing a number (beyond rounding): the sweeps redo only what a
 relinearization changes (see ``_Sweeps``), relinearizing a step evaluates only the terms
 that cost it, and the task maps evaluated for the cost of a rollout are reused by the next
-iteration's linearization at that trajectory (``ViaPoint``'s memo).
+iteration's linearization at that trajectory (``ViaPoint``'s memo). Where a C compiler is
+available the sweeps, with their relinearizations, run in compiled code (``stages/plan/csweep.c``
+via :mod:`stages.plan.kernels`: the same steps, repeats and formulas, the numbers equal to
+rounding); the dynamics and the task messages are linearized there too where the model and the
+terms have compiled counterparts (``FastAnalyticDynamics``, the tree task maps), else the
+kernel asks Python for them, step by step.
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
@@ -45,6 +51,7 @@ import numpy as np
 from scipy.linalg import blas, lapack
 
 from plants.dynamics import LinearDynamics, rollout
+from stages.plan import kernels
 from stages.plan.driver import Iterate, Status, Step, Stop, drive
 from stages.plan.problem import (
     Callback,
@@ -181,7 +188,15 @@ class _Sweeps:
     The per-step kernels write into preallocated buffers, fuse additions into BLAS calls
     and use a triangular inverse and matrix products where OpenBLAS's small triangular
     solves are slow (see ``forward``, ``_vstar``, ``backward``).
+
+    Compiled sweeps (``compiled = True`` and :func:`stages.plan.kernels.library` available): the
+    same sweeps, settles and relinearizations run in C (``stages/plan/csweep.c``), which calls
+    the dynamics' compiled linearization where the model has one (``c_linearizer``) and returns
+    to Python only for what has none (a task term costing the step, other models' dynamics),
+    see ``_sweep_compiled``. This numpy code is the fallback and the reference of the kernel.
     """
+
+    compiled = True      # use the C kernel when it is available (tests switch it off)
 
     def __init__(self, problem: Problem, opts: AICOOptions):
         self.p = problem
@@ -217,6 +232,9 @@ class _Sweeps:
         self.b = np.full((T + 1, n), np.nan)
         self.Z = np.zeros((T, m, n + 1))     # [-O_t | o_t] per step
         self.repeats = 0
+        self._active_flags = np.array([bool(a) for a in self.active], dtype=np.uint8)
+        self._kstate = None
+        self._ctask = None        # compiled task messages (kernels.compile_task_set), on first use
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
         self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
@@ -297,27 +315,36 @@ class _Sweeps:
 
         Returns whether ``(dynamics, task message)`` changed.
         """
-        x, n, m = self.X[t], self.n, self.m
         dyn = t < self.T and not self.lti
         if dyn:
-            A, a, B = self.p.dynamics.linearize(x, self.U[t])
-            Ct = self.C[t]
-            Ct[:n, :m], Ct[:n, m:m + n] = B, A
-            np.negative(a, out=Ct[:n, m + n])
-            self._check_finite(Ct)
-            BHi = B @ self.Hinv[t]
-            Qb = np.matmul(BHi, B.T, out=self.Qbar[t])
-            Qb += self.qI
-            self.a_eff[t] = a + BHi @ self.h[t]
+            self._relinearize_dynamics(t)
         task = bool(self.active[t])
         if task:
-            lx, lxx = self.p.point_state_derivatives(x, t, self.active[t])
-            out = self.RA[t]
-            np.add(lxx, self._2aI, out=out[:, :n])
-            out[:, n] = lxx @ x - lx + 2.0 * self.alpha * self.Xprev[t]
-            self._check_finite(out)
+            self._relinearize_task(t)
         self.repeats += 1
         return dyn, task
+
+    def _relinearize_dynamics(self, t: int) -> None:
+        """``C[t]``, ``Qbar[t]``, ``a_eff[t]`` at ``(X[t], U[t])``."""
+        n, m = self.n, self.m
+        A, a, B = self.p.dynamics.linearize(self.X[t], self.U[t])
+        Ct = self.C[t]
+        Ct[:n, :m], Ct[:n, m:m + n] = B, A
+        np.negative(a, out=Ct[:n, m + n])
+        self._check_finite(Ct)
+        BHi = B @ self.Hinv[t]
+        Qb = np.matmul(BHi, B.T, out=self.Qbar[t])
+        Qb += self.qI
+        self.a_eff[t] = a + BHi @ self.h[t]
+
+    def _relinearize_task(self, t: int) -> None:
+        """The task message ``RA[t]`` at ``X[t]`` (only the terms that cost step ``t``)."""
+        x, n = self.X[t], self.n
+        lx, lxx = self.p.point_state_derivatives(x, t, self.active[t])
+        out = self.RA[t]
+        np.add(lxx, self._2aI, out=out[:, :n])
+        out[:, n] = lxx @ x - lx + 2.0 * self.alpha * self.Xprev[t]
+        self._check_finite(out)
 
     @staticmethod
     def _check_finite(*arrs: np.ndarray) -> None:
@@ -447,7 +474,10 @@ class _Sweeps:
     def sweep(self) -> None:
         """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
         without relinearization (``theta = inf``) only the backward sweep."""
-        if self.relocate:
+        lib = kernels.library() if self.compiled else None
+        if lib is not None:
+            self._sweep_compiled(lib)
+        elif self.relocate:
             for t in range(1, self.T + 1):
                 self.forward(t)
                 self.settle(t)        # the forward message at t does not depend on step t
@@ -465,12 +495,121 @@ class _Sweeps:
     def beliefs(self) -> np.ndarray:
         """Belief means ``(T+1, n)`` at the current linearization (``theta = inf`` mode:
         computed once, with a forward sweep and no relinearization)."""
-        if not self.relocate:
+        lib = kernels.library() if self.compiled else None
+        if not self.relocate and lib is not None:
+            st = self._kernel_state(lib)
+            self._kernel_check(st, lib.sweep_beliefs(ctypes.byref(st)))
+        elif not self.relocate:
             for t in range(1, self.T + 1):
                 self.forward(t)
             for t in range(self.T + 1):
                 self.belief(t)
         return self.b.copy()
+
+    # -- the compiled sweeps -------------------------------------------------------------------
+    @staticmethod
+    def _addr(Z: np.ndarray, inner: int) -> tuple[int, int]:
+        """Data address of ``Z (T, ...)`` and its step stride in doubles (0 for a broadcast
+        view); the trailing block must be C-contiguous (``inner`` doubles)."""
+        assert Z.dtype == np.float64 and Z[0].flags.c_contiguous and Z[0].size == inner
+        return Z.__array_interface__["data"][0], Z.strides[0] // 8
+
+    def _kernel_state(self, lib) -> kernels.SweepState:
+        """The kernel's view of this iteration's arrays (rebuilt per sweep: ``linearize_all``
+        replaces some of them)."""
+        T, n, m, o = self.T, self.n, self.m, self.o
+        st = kernels.SweepState()
+        st.T, st.n, st.m = T, n, m
+        st.relocate, st.max_repeats = int(self.relocate), o.max_repeats
+        st.q, st.theta, st.rate = self.q, o.theta, o.belief_rate
+        if self.a_eff.dtype != np.float64 or not self.a_eff.flags.c_contiguous:
+            self.a_eff = np.ascontiguousarray(self.a_eff, dtype=float)
+        keep = [self.H, self.h]
+        for name in ("SA", "VA", "RA", "a_eff", "X", "U", "b", "Z"):
+            Z = getattr(self, name)
+            if not Z.flags.c_contiguous or Z.dtype != np.float64:
+                if name not in ("U",):
+                    raise AssertionError(f"{name} must be C-contiguous float64")
+                Z = np.ascontiguousarray(Z, dtype=float)
+                keep.append(Z)
+            setattr(st, name, Z.__array_interface__["data"][0])
+        h = np.ascontiguousarray(self.h, dtype=float)
+        keep.append(h)
+        st.h = h.__array_interface__["data"][0]
+        st.C, st.C_s = self._addr(self.C, (n + 1) * (m + n + 1))
+        st.Qbar, st.Qbar_s = self._addr(self.Qbar, n * n)
+        H = self.H if self.H[0].flags.c_contiguous else np.ascontiguousarray(self.H)
+        Hinv = self.Hinv if self.Hinv[0].flags.c_contiguous else np.ascontiguousarray(self.Hinv)
+        keep += [H, Hinv]
+        st.H, st.H_s = self._addr(H, m * m)
+        st.Hinv, st.Hinv_s = self._addr(Hinv, m * m)
+        st.active = self._active_flags.ctypes.data
+        lin = None
+        if self.lti:
+            st.dyn_mode = kernels.DYN_NONE
+        else:
+            getter = getattr(self.p.dynamics, "c_linearizer", None)
+            lin = getter() if getter is not None else None
+            st.dyn_mode = kernels.DYN_PY if lin is None else kernels.DYN_C
+            if lin is not None:
+                st.lin_fn, st.lin_ctx = lin[0], lin[1]
+        if self._ctask is None:
+            self._ctask = kernels.compile_task_set(self.p) or False
+        if self._ctask:
+            st.task_fn, st.task_ctx = self._ctask[0], self._ctask[1]
+        st.alpha = self.alpha
+        Xprev = np.ascontiguousarray(self.Xprev, dtype=float)
+        keep.append(Xprev)
+        st.Xprev = Xprev.ctypes.data
+        work = np.empty(lib.sweep_work_size(n, m))
+        iwork = np.empty(lib.sweep_iwork_size(n, m), dtype=np.intc)
+        st.w, st.iw, st.sp_state = work.ctypes.data, iwork.ctypes.data, 0
+        self._kstate = (st, work, iwork, keep, lin)       # keep everything the kernel points to alive
+        return st
+
+    def _kernel_check(self, st: kernels.SweepState, rc: int) -> None:
+        if rc == kernels.ERR_CHOL:
+            raise NumericalError(f"Cholesky failed (info={st.err_info})")
+        if rc == kernels.ERR_LIN:
+            raise NumericalError("non-finite linearization or task message")
+
+    def _sweep_compiled(self, lib) -> None:
+        """``sweep`` in C: the kernel returns to Python only for relinearizations it cannot do
+        (bit ``NEED_DYN``: the model's dynamics; ``NEED_TASK``: the task terms of step ``t``),
+        with the point of step ``t`` already moved; then it resumes where it stopped."""
+        st = self._kernel_state(lib)
+        st.phase, st.t = (kernels.PH_FWD, 1) if self.relocate else (kernels.PH_BWD, self.T - 1)
+        st.sub = st.repeats = 0
+        run, ref = lib.sweep_run, ctypes.byref(st)
+        while True:
+            rc = run(ref)
+            if rc <= 0:
+                break
+            t = st.t
+            if rc & kernels.NEED_DYN:
+                self._relinearize_dynamics(t)
+            if rc & kernels.NEED_TASK:
+                self._relinearize_task(t)
+        self._kernel_check(st, rc)
+        self.repeats += st.repeats
+
+
+def _controller_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
+    """``controller_rollout`` compiled where possible (same formulas): the model's own
+    (``FastAnalyticDynamics``), a C loop for a time-invariant ``LinearDynamics`` whose ``step``
+    is the affine map, else the generic Python loop."""
+    own = getattr(dynamics, "controller_rollout", None)
+    if own is not None:
+        return own(x0, o, O)
+    lib = kernels.library() if _Sweeps.compiled else None
+    if lib is not None and _is_lti(dynamics) and type(dynamics).step is LinearDynamics.step:
+        T, m, n = o.shape[0], o.shape[1], x0.shape[0]
+        A, a, B = (np.ascontiguousarray(z, dtype=float) for z in (dynamics.A, dynamics.a, dynamics.B))
+        x0, o, O = (np.ascontiguousarray(z, dtype=float) for z in (x0, o, O))
+        X, U = np.empty((T + 1, n)), np.empty((T, m))
+        lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
+        return X, U
+    return controller_rollout(dynamics, x0, o, O)
 
 
 def aico(problem: Problem, options: AICOOptions | None = None, *,
@@ -564,7 +703,7 @@ class _AICOStep:
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
+            Xn, Un = _controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")

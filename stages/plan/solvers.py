@@ -1,4 +1,5 @@
-"""Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)`` (SPEC §6).
+"""Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)`` (SPEC §6); with
+crocoddyl installed also ``"fddp"`` and ``"fddp-rollout"`` (the baseline of SPEC §14).
 
 ``SOLVERS[name]`` is a ``SolverSpec``: the solver function, its options class and the
 defaults the name implies ("raico" is AICO with ``alpha = 1`` unless given, and requires
@@ -57,6 +58,38 @@ SOLVERS: dict[str, SolverSpec] = {
     "raico": SolverSpec("raico", aico, AICOOptions, {"alpha": 1.0}, _check_raico),
     "ilqg": SolverSpec("ilqg", ilqg, ILQGOptions),
 }
+
+
+def _register_crocoddyl() -> None:
+    """The crocoddyl baseline (``stages.plan.crocoddyl_model``), only where crocoddyl imports:
+    ``fddp`` starts from ``x0`` held at every node (R-AICO's start), ``fddp-rollout`` from the
+    zero-torque rollout; ``fddp-rollout-accept-any`` and ``fddp-rollout-ilqg-schedule`` are the ablations with
+    iLQG's acceptance rule and its regularization schedule."""
+    from stages.plan import crocoddyl_model as cm
+
+    if not cm.AVAILABLE:
+        return
+
+    def check(start: str):
+        def _check(o) -> None:
+            if o.start != start:
+                raise ValueError(f"solver starts from '{start}', got start={o.start!r}")
+        return _check
+
+    SOLVERS["fddp"] = SolverSpec("fddp", cm.fddp, cm.FDDPOptions, {"start": "held"}, check("held"))
+    SOLVERS["fddp-rollout"] = SolverSpec("fddp-rollout", cm.fddp, cm.FDDPOptions, {"start": "rollout"},
+                                         check("rollout"))
+    # ablation (why iLQG stalls): FDDP accepting any step that lowers the cost, iLQG's rule
+    SOLVERS["fddp-rollout-accept-any"] = SolverSpec(
+        "fddp-rollout-accept-any", cm.fddp, cm.FDDPOptions,
+        {"start": "rollout", "th_accept": cm.ACCEPT_ANY}, check("rollout"))
+    # ablation: FDDP with iLQG's regularization schedule (lower it after every accepted step)
+    SOLVERS["fddp-rollout-ilqg-schedule"] = SolverSpec(
+        "fddp-rollout-ilqg-schedule", cm.fddp, cm.FDDPOptions, {"start": "rollout", **cm.ILQG_SCHEDULE},
+        check("rollout"))
+
+
+_register_crocoddyl()
 
 
 def make_options(solver_name: str, options: dict[str, Any] | OptionsBase | None = None):

@@ -81,6 +81,8 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown solver '{self.solver}': choose one of {', '.join(SOLVERS)}")
         if not 1 <= self.iterations <= 10000:
             raise ValueError("iterations must be in [1, 10000]")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError("seed must be in [0, 2^32 - 1]")
         if not 0 <= self.q0_std <= 1.0:
             raise ValueError("q0-std must be in [0, 1] rad")
         if self.sigma is not None and self.dynamics != "learned":
@@ -171,9 +173,10 @@ class PlanOutput:
 
 
 def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
-    """``q0 = default + N(0, q0_std^2)`` (rad)."""
+    """``q0 = default + N(0, q0_std^2)`` (rad), clipped to the joint limits (a robot cannot start
+    outside them; the Nao's hands default to their lower limit)."""
     rng = np.random.default_rng(seed)
-    return robot.default_q + q0_std * rng.standard_normal(robot.n_q)
+    return np.clip(robot.default_q + q0_std * rng.standard_normal(robot.n_q), robot.lower, robot.upper)
 
 
 def control_kind(dynamics) -> str:

@@ -1,0 +1,170 @@
+"""Compiled C for the hot loops: a small gcc build cache, BLAS/LAPACK pointers, C from the graph.
+
+- :func:`build_library`: C source -> shared library with the system's ``gcc``, cached on disk by a
+  hash of the source and the flags (``RAICO_KERNEL_DIR``, default ``~/.cache/raico/kernels``),
+  written atomically (parallel processes may build the same library); loaded with ``ctypes``.
+  ``RAICO_NO_C=1`` (or no ``gcc``) disables every compiled path: the callers fall back to their
+  numpy code, which computes the same numbers.
+- :func:`blas_table`: addresses of scipy's BLAS/LAPACK routines (``scipy.linalg.cython_blas`` /
+  ``cython_lapack``, Fortran calling convention, 32-bit integers), handed to the C code at run
+  time, so nothing links against a BLAS at build time and the C code uses the very OpenBLAS that
+  scipy uses.
+- :func:`emit_c`: the C twin of :func:`plants.codegen.emit.emit` (same operations in the same
+  order, IEEE double, no FMA contraction: the numbers equal the Python float evaluation).
+
+Flags: ``-O2 -fno-fast-math -ffp-contract=off`` (no reassociation, no fused multiply-add), so the
+compiled arithmetic is the one written; ``-mavx2`` where the CPU has it (the flags are part of the
+cache key).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from plants.codegen.graph import BINARY, Graph
+
+
+def _isa_flags() -> tuple[str, ...]:
+    """``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
+    contraction stays off, so the numbers do not depend on it)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return ("-mavx2",) if " avx2" in f.read(200_000) else ()
+    except OSError:  # pragma: no cover - not Linux
+        return ()
+
+
+CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing",
+          *_isa_flags())
+_LIBS: dict[str, ctypes.CDLL] = {}
+
+
+class CompileUnavailable(RuntimeError):
+    """No compiled path (``RAICO_NO_C`` set, no ``gcc``, or the build failed)."""
+
+
+def enabled() -> bool:
+    """Whether compiled kernels may be used (``RAICO_NO_C`` unset and ``gcc`` on the path)."""
+    return os.environ.get("RAICO_NO_C", "") in ("", "0") and shutil.which("gcc") is not None
+
+
+def kernel_dir() -> Path:
+    d = os.environ.get("RAICO_KERNEL_DIR")
+    return Path(d) if d else Path.home() / ".cache" / "raico" / "kernels"
+
+
+def library_path(source: str, name: str, directory: Path | None = None) -> Path:
+    """Where the library of ``source`` is (or will be) cached."""
+    key = hashlib.sha256((" ".join(CFLAGS) + "\n" + source).encode()).hexdigest()[:20]
+    return (directory or kernel_dir()) / f"{name}-{key}.so"
+
+
+def build_library(source: str, name: str, directory: Path | None = None) -> Path:
+    """Compile ``source`` (once per content) and return the library's path."""
+    if not enabled():
+        raise CompileUnavailable("compiled kernels disabled (RAICO_NO_C) or no gcc")
+    path = library_path(source, name, directory)
+    if path.exists():
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        src = Path(tmp) / f"{name}.c"
+        src.write_text(source)
+        out = Path(tmp) / f"{name}.so"
+        proc = subprocess.run(["gcc", *CFLAGS, "-o", str(out), str(src), "-lm"],
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise CompileUnavailable(f"gcc failed on {name}: {proc.stderr[-2000:]}")
+        os.replace(out, path)  # atomic: a parallel build of the same source writes the same file
+    return path
+
+
+def load_library(source: str, name: str, directory: Path | None = None) -> ctypes.CDLL:
+    """``ctypes`` handle of the compiled ``source`` (kept for the process)."""
+    path = build_library(source, name, directory)
+    lib = _LIBS.get(str(path))
+    if lib is None:
+        lib = _LIBS[str(path)] = ctypes.CDLL(str(path))
+    return lib
+
+
+# -- BLAS / LAPACK from scipy -------------------------------------------------------------------
+BLAS_NAMES = ("dgemm", "dsyrk", "dtrsm", "dtrsv", "dgemv", "dsymv")
+LAPACK_NAMES = ("dpotrf", "dpotri", "dpotrs", "dposv")
+
+
+def _capsule_pointer(capsule) -> int:
+    get_name = ctypes.pythonapi.PyCapsule_GetName
+    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+    get_ptr = ctypes.pythonapi.PyCapsule_GetPointer
+    get_ptr.restype, get_ptr.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+    return get_ptr(capsule, get_name(capsule))
+
+
+def blas_table() -> list[int]:
+    """Addresses of ``BLAS_NAMES + LAPACK_NAMES`` in that order (scipy's LP64 OpenBLAS)."""
+    import scipy.linalg.cython_blas as cb
+    import scipy.linalg.cython_lapack as cl
+
+    return ([_capsule_pointer(cb.__pyx_capi__[k]) for k in BLAS_NAMES]
+            + [_capsule_pointer(cl.__pyx_capi__[k]) for k in LAPACK_NAMES])
+
+
+# -- C from the graph ---------------------------------------------------------------------------
+def _c_const(c: float) -> str:
+    r = repr(float(c))
+    if r in ("inf", "-inf", "nan"):  # pragma: no cover - Drake's equations have none
+        raise ValueError(f"constant {r} in the generated code")
+    if "e" not in r and "." not in r:
+        r += ".0"
+    return f"({r})" if c < 0 else r
+
+
+def emit_c(g: Graph, name: str, inputs: list[int], outputs: list[int],
+           targets: list[str] | None = None, params: str = "const double *xs, double *out") -> str:
+    """C source of ``static void name(<params>)``: node ``inputs[k]`` is ``xs[k]``; node
+    ``outputs[j]`` goes to ``targets[j]`` (default ``out[j]``). One ``const double`` per operation
+    (SSA; the compiler allocates registers), operations in the order of :func:`emit.emit`."""
+    from plants.codegen.emit import live_ops
+
+    nodes = g.nodes
+    targets = [f"out[{j}]" for j in range(len(outputs))] if targets is None else targets
+    order = live_ops(g, inputs, outputs)
+    in_name = {node: f"xs[{k}]" for k, node in enumerate(inputs)}
+
+    def ref(j: int) -> str:
+        if j in in_name:
+            return in_name[j]
+        n = nodes[j]
+        if n[0] == "c":
+            return _c_const(n[1])
+        return f"r{j}"
+
+    lines = [f"static void {name}({params})", "{"]
+    writes: dict[int, list[str]] = {}
+    for t, o in zip(targets, outputs):
+        writes.setdefault(o, []).append(t)
+    for o, js in writes.items():
+        if o in in_name or nodes[o][0] == "c":
+            lines += [f"    {t} = {ref(o)};" for t in js]
+    for i in order:
+        n = nodes[i]
+        op = n[0]
+        if op in BINARY:
+            rhs = f"{ref(n[1])} {op} {ref(n[2])}"
+        elif op == "neg":
+            rhs = f"-{ref(n[1])}"
+        elif op == "pow":
+            rhs = f"pow({ref(n[1])}, {_c_const(n[2])})"
+        else:
+            rhs = f"{op}({ref(n[1])})"
+        lines.append(f"    const double r{i} = {rhs};")
+        lines += [f"    {t} = r{i};" for t in writes.get(i, ())]
+    lines.append("}")
+    return "\n".join(lines) + "\n"

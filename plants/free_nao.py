@@ -1,0 +1,311 @@
+"""The free-standing Nao: the execution model of the Nao figures (issue 9, SPEC §14).
+
+The plans are made on the thesis's fixed-base Nao (left sole welded to the world,
+``plants.robots``); they are executed on this model, a robot that stands on its own feet:
+
+- the same URDF (``models/nao.urdf``) with a floating base (Drake's quaternion floating
+  joint on ``base_link``/``torso``);
+- a DISCRETE ``MultibodyPlant`` (step ``TIME_STEP``) with Drake's SAP solver in its
+  ``lagged`` approximation (``DISCRETE_CONTACT_APPROXIMATION``) and the contact model
+  ``hydroelastic_with_fallback``: each sole is a compliant-hydroelastic box (the sole plate,
+  ``SOLE_BOX_SIZE`` at ``SOLE_BOX_CENTER`` in the sole frame, hydroelastic modulus
+  ``HYDROELASTIC_MODULUS``, Hunt-Crossley dissipation ``DISSIPATION``) on a rigid ground
+  (top face at z = 0) with Coulomb friction ``FRICTION``; collision spheres on the torso,
+  head, knees, elbows and hands (rigid, point contact) let a fallen robot lie on the floor.
+  The robot's geometries do not collide with each other, only with the ground;
+- joint position limits (from the URDF) enforced by the discrete plant (SAP limit
+  constraints); effort limits enforced by the plant: every joint actuator is PD-controlled
+  by Drake (implicit in SAP) and its total actuation ``Kp (q_d - q) + Kd (v_d - v) + u_ff``
+  is clamped at the actuator's effort limit;
+- reflected motor inertia as in the planning model (``REFLECTED_INERTIA``).
+
+Gains (every joint, both hip yaw-pitch joints included): ``KP`` N m/rad, ``KD`` N m s/rad.
+
+Coordinates: planning ``q (25,)`` -> the 26 tree joints by ``Robot.P`` (RHipYawPitch copies
+LHipYawPitch); the free plant's positions are the floating base's ``(qw, qx, qy, qz, x, y, z)``
+followed by the joints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cache
+
+import numpy as np
+
+from plants.robots import MODELS, NAO_SOLE_POLYGON, REFLECTED_INERTIA, Robot, shared_robot
+
+TIME_STEP = 1e-3  # s, discrete plant step
+CONTACT_MODEL = "hydroelastic_with_fallback"
+DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
+HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
+DISSIPATION = 5.0  # s/m, Hunt-Crossley
+FRICTION = 0.8  # static and dynamic Coulomb friction, soles and bumpers on the ground
+BUMPER_STIFFNESS = 2e4  # N/m, point-contact stiffness of the fall bumpers
+KP = 50.0  # N m/rad, joint PD stiffness
+KD = 1.0  # N m s/rad, joint PD damping
+SOLE_BOX_SIZE = (0.16, 0.088, 0.02)  # m, the sole plate (same as the illustration geometry)
+SOLE_BOX_CENTER = (0.025, 0.0, 0.01)  # m, in the sole frame: the box's bottom face is the sole (z = 0)
+SOLES = ("l_sole", "r_sole")
+# Spheres (body, centre in the body frame m, radius m) that let a fallen robot lie on the ground.
+BUMPERS = (
+    ("torso", (0.0, 0.05, 0.1), 0.04), ("torso", (0.0, -0.05, 0.1), 0.04),
+    ("torso", (0.0, 0.05, -0.05), 0.04), ("torso", (0.0, -0.05, -0.05), 0.04),
+    ("Head", (0.0, 0.0, 0.055), 0.062),
+    ("LTibia", (0.0, 0.0, 0.0), 0.03), ("RTibia", (0.0, 0.0, 0.0), 0.03),
+    ("LForeArm", (0.0, 0.0, 0.0), 0.025), ("RForeArm", (0.0, 0.0, 0.0), 0.025),
+    ("l_wrist", (0.04, 0.0, 0.0), 0.025), ("r_wrist", (0.04, 0.0, 0.0), 0.025),
+)
+
+
+def sole_corners_local() -> np.ndarray:
+    """The four corners ``(4, 3)`` of a sole in its sole frame (m, z = 0: the contact face)."""
+    return np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))]
+
+
+MAX_TIP = 0.5  # rad: a posture that finds no rest within this tilt cannot stand on flat ground
+
+
+def _tip(C: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Roll and pitch (rad) at which the rigid point set ``C (k, 3)`` with centre of mass
+    ``c (3,)`` comes to rest when tipped about the origin from zero: a local minimum of the CoG
+    height above the lowest point, by a compass search (8 directions, halving steps)."""
+
+    def height(x):
+        cr, sr, cp, sp = np.cos(x[0]), np.sin(x[0]), np.cos(x[1]), np.sin(x[1])
+        row = np.array([-sp, sr * cp, cr * cp])  # z row of R = Ry(pitch) Rx(roll)
+        return c @ row - (C @ row).min()
+
+    x, h, step = np.zeros(2), height(np.zeros(2)), 2e-3  # small steps: the descent cannot jump a ridge
+    dirs = np.array([[np.cos(a), np.sin(a)] for a in np.arange(8) * np.pi / 4])
+    while step > 1e-7:
+        trials = [np.clip(x + step * d, -MAX_TIP, MAX_TIP) for d in dirs]
+        hs = [height(t) for t in trials]
+        i = int(np.argmin(hs))
+        if hs[i] < h - 1e-12:
+            x, h = trials[i], hs[i]
+        else:
+            step /= 2
+    return x
+
+
+@dataclass
+class FreeNao:
+    """The free-standing Nao plant with the maps to and from the planning coordinates."""
+
+    plant: object
+    scene_graph: object
+    builder: object
+    model: object  # ModelInstanceIndex of the robot
+    fixed: Robot  # the planning (fixed-base) robot: joint names, P, limits, efforts
+    base: object  # the floating base body
+    A: np.ndarray  # (n_act, n_q): actuator values = A @ planning values (actuator order)
+    act_fixed_idx: np.ndarray  # (n_act,): each actuator's joint in the fixed plant's q (= v) order
+    joint_idx: np.ndarray  # (n_fixed_positions,): free-plant position index of each fixed-plant position
+    joint_vidx: np.ndarray  # (n_fixed_velocities,): free-plant velocity index of each fixed-plant velocity
+    effort: np.ndarray  # (n_act,) N m
+    sole_geometries: dict = field(default_factory=dict)  # GeometryId -> sole index (0 left, 1 right)
+    name: str = "nao"
+    _context: object = field(default=None, repr=False)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.fixed.joint_names
+
+    @property
+    def n_q(self) -> int:
+        return self.fixed.n_q
+
+    @property
+    def default_q(self) -> np.ndarray:
+        return self.fixed.default_q
+
+    @property
+    def context(self):
+        if self._context is None:
+            self._context = self.plant.CreateDefaultContext()
+        return self._context
+
+    def to_plant_q(self, Q: np.ndarray) -> np.ndarray:
+        """Free-plant positions pass through unchanged (``body_poses`` of the recorders take
+        the stored free-plant positions ``(K, n_positions)``)."""
+        return np.asarray(Q, float)
+
+    def free_positions(self, q: np.ndarray, base_q: np.ndarray) -> np.ndarray:
+        """Free-plant positions from planning ``q (n_q,)`` and the base's 7 positions."""
+        qp = np.zeros(self.plant.num_positions())
+        qp[self.joint_idx] = self.fixed.to_plant_q(q)
+        qp[self.base_positions] = base_q
+        return qp
+
+    @property
+    def base_positions(self) -> np.ndarray:
+        """Indices of the floating base's ``(qw, qx, qy, qz, x, y, z)`` in the free positions."""
+        start = self.base.floating_positions_start()
+        return np.arange(start, start + 7)
+
+    def planning_q(self, qp: np.ndarray) -> np.ndarray:
+        """Planning ``q (n_q,)`` from free-plant positions (least squares for the coupled hip)."""
+        return self.fixed.from_plant_q(np.asarray(qp)[..., self.joint_idx])
+
+    def planning_v(self, vp: np.ndarray) -> np.ndarray:
+        """Planning ``v (n_q,)`` from free-plant velocities."""
+        return self.fixed.from_plant_q(np.asarray(vp)[..., self.joint_vidx])
+
+    def standing_positions(self, q: np.ndarray) -> tuple[np.ndarray, float]:
+        """Free-plant positions of a robot at rest on the ground with joints at planning ``q``.
+
+        First the left sole flat on the ground at the fixed-base model's pose (the world frame).
+        When the other sole then reaches under the ground (the plan's posture has the feet at
+        different heights), the robot, rigid at ``q``, is tipped about the world origin onto its
+        lowest sole corners: the roll and pitch that locally minimize the CoG height over the
+        lowest corner, found by a pattern search from zero (quasi-static tipping: the CoG ends
+        over the corners it rests on; at most ``MAX_TIP`` rad); then it is moved up or down so
+        that its lowest corner is at z = 0. Returns the positions and the tilt applied (rad, 0 for a flat stance)."""
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        plant, ctx = self.plant, self.context
+        identity = np.r_[1.0, 0, 0, 0, 0, 0, 0]
+        plant.SetPositions(ctx, self.free_positions(q, identity))
+        X_WS = plant.GetFrameByName("l_sole").CalcPoseInWorld(ctx)
+        X_WB = plant.EvalBodyPoseInWorld(ctx, self.base)
+        plant.SetFreeBodyPose(ctx, self.base, X_WS.inverse() @ X_WB)
+        C = self.sole_corners(ctx).reshape(-1, 3)
+        c = plant.CalcCenterOfMassPositionInWorld(ctx)
+        rpy = np.zeros(3)
+        if C[:, 2].min() < -1e-9:
+            rpy[:2] = _tip(C, c)
+        R = RollPitchYaw(rpy).ToRotationMatrix()
+        X_WB = RigidTransform(R, np.zeros(3)) @ plant.EvalBodyPoseInWorld(ctx, self.base)
+        plant.SetFreeBodyPose(ctx, self.base, X_WB)
+        dz = -float(self.sole_corners(ctx)[..., 2].min())
+        plant.SetFreeBodyPose(ctx, self.base, RigidTransform([0.0, 0.0, dz]) @ X_WB)
+        tilt = float(np.arccos(np.clip((np.trace(R.matrix()) - 1) / 2, -1.0, 1.0)))
+        return plant.GetPositions(ctx).copy(), tilt
+
+    def sole_corners(self, ctx) -> np.ndarray:
+        """World positions ``(2, 4, 3)`` (m) of the left and right sole corners."""
+        local = sole_corners_local()
+        out = np.empty((2, 4, 3))
+        for i, s in enumerate(SOLES):
+            X = self.plant.GetFrameByName(s).CalcPoseInWorld(ctx)
+            out[i] = local @ X.rotation().matrix().T + X.translation()
+        return out
+
+    def contacts(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+        """From Drake's contact results (of the last plant step): the normal force ``(2,)`` N from
+        the ground on the left and right sole, and every contact point ``(k, 3)`` m (centroids of
+        the soles' hydroelastic contact surfaces, point contacts of the bumpers)."""
+        results = self.plant.get_contact_results_output_port().Eval(ctx)
+        force = np.zeros(2)
+        points = []
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            s = info.contact_surface()
+            for gid in (s.id_M(), s.id_N()):
+                if gid in self.sole_geometries:
+                    force[self.sole_geometries[gid]] += abs(info.F_Ac_W().translational()[2])
+            points.append(np.asarray(s.centroid()))
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            pair = info.point_pair()
+            for gid in (pair.id_A, pair.id_B):
+                if gid in self.sole_geometries:
+                    force[self.sole_geometries[gid]] += abs(info.contact_force()[2])
+            points.append(np.asarray(info.contact_point()))
+        return force, (np.array(points) if points else np.zeros((0, 3)))
+
+    def torso_pose(self, ctx):
+        return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
+
+
+def load_free_nao(builder=None, time_step: float = TIME_STEP) -> FreeNao:
+    """A fresh free-standing Nao (its own plant and scene graph, optionally inside ``builder``)."""
+    from pydrake.geometry import (
+        AddCompliantHydroelasticProperties,
+        AddContactMaterial,
+        AddRigidHydroelasticProperties,
+        Box,
+        CollisionFilterDeclaration,
+        GeometrySet,
+        ProximityProperties,
+        Sphere,
+    )
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import (
+        AddMultibodyPlantSceneGraph,
+        ContactModel,
+        CoulombFriction,
+        DiscreteContactApproximation,
+    )
+    from pydrake.multibody.tree import PdControllerGains
+    from pydrake.systems.framework import DiagramBuilder
+
+    if time_step <= 0:
+        raise ValueError("the free-standing Nao is a discrete plant: time_step must be > 0")
+    builder = builder or DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
+    plant.set_contact_model(ContactModel.kHydroelasticWithFallback)
+    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+    model, = Parser(plant).AddModels(str(MODELS / "nao.urdf"))
+    for i in plant.GetJointActuatorIndices():
+        act = plant.get_joint_actuator(i)
+        act.set_default_gear_ratio(1.0)
+        act.set_default_rotor_inertia(REFLECTED_INERTIA["nao"])
+        act.set_controller_gains(PdControllerGains(p=KP, d=KD))
+    friction = CoulombFriction(FRICTION, FRICTION)
+    sole_props = ProximityProperties()
+    AddCompliantHydroelasticProperties(0.02, HYDROELASTIC_MODULUS, sole_props)
+    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+                       properties=sole_props)
+    robot_geoms = []
+    soles = {}
+    for k, s in enumerate(SOLES):
+        gid = plant.RegisterCollisionGeometry(plant.GetBodyByName(s), RigidTransform(list(SOLE_BOX_CENTER)),
+                                              Box(*SOLE_BOX_SIZE), f"{s}_box", sole_props)
+        robot_geoms.append(gid)
+        soles[gid] = k
+    bumper_props = ProximityProperties()
+    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+                       properties=bumper_props)
+    for j, (body, centre, r) in enumerate(BUMPERS):
+        robot_geoms.append(plant.RegisterCollisionGeometry(plant.GetBodyByName(body), RigidTransform(list(centre)),
+                                                           Sphere(r), f"bumper_{j}_{body}", bumper_props))
+    ground_props = ProximityProperties()
+    AddRigidHydroelasticProperties(ground_props)
+    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+                       properties=ground_props)
+    # the ground: a large rigid box whose top face is z = 0 (a box, not a half space, so that
+    # Drake's deformable-contact check has nothing to warn about)
+    ground = RigidTransform([0.0, 0.0, -0.5])
+    plant.RegisterCollisionGeometry(plant.world_body(), ground, Box(20.0, 20.0, 1.0), "ground", ground_props)
+    plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.001]), Box(1.0, 1.0, 0.002),
+                                 "floor", np.array([0.75, 0.75, 0.72, 1.0]))
+    plant.Finalize()
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
+
+    fixed = shared_robot("nao")
+    fp = fixed.plant
+    joint_idx = np.empty(fp.num_positions(), dtype=int)
+    joint_vidx = np.empty(fp.num_velocities(), dtype=int)
+    col = {}
+    for jf in (fp.get_joint(i) for i in fp.GetJointIndices()):
+        if jf.num_positions() == 1:
+            free = plant.GetJointByName(jf.name())
+            joint_idx[jf.position_start()] = free.position_start()
+            joint_vidx[jf.velocity_start()] = free.velocity_start()
+            col[jf.name()] = jf.position_start()
+    acts = [plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices(model)]
+    act_fixed_idx = np.array([col[a.joint().name()] for a in acts])
+    effort = np.array([a.effort_limit() for a in acts])
+    bases = [plant.get_body(b) for b in plant.GetFloatingBaseBodies()]
+    return FreeNao(plant=plant, scene_graph=scene_graph, builder=builder, model=model, fixed=fixed, base=bases[0],
+                   A=fixed.P[act_fixed_idx], act_fixed_idx=act_fixed_idx, joint_idx=joint_idx, joint_vidx=joint_vidx, effort=effort, sole_geometries=soles)
+
+
+@cache
+def shared_free_nao() -> FreeNao:
+    """One free-standing Nao per process for kinematics queries and recordings (not for diagrams)."""
+    return load_free_nao()

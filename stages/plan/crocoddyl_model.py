@@ -1,0 +1,547 @@
+"""crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems (SPEC §14, issue 8).
+
+:func:`build` turns a raico :class:`~stages.plan.problem.Problem` (analytic dynamics; the
+objective of ``problem.json``, see :func:`from_description`) into a crocoddyl
+``ShootingProblem`` of the same model, integrator and cost:
+
+- the model: the project's URDF, copied to a temporary folder with a ``<link name="world"/>``
+  added and the visual elements dropped (urdfdom refuses the file as written), loaded into
+  pinocchio; the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own
+  armature as well: that would count it twice); joint damping (the pendulum's viscous
+  friction, which pinocchio's ``aba`` ignores) enters through an actuation model
+  ``tau = u - D qdot``;
+- the integrator: ``IntegratedActionModelEuler`` over ``DifferentialActionModelFreeFwdDynamics``,
+  i.e. semi-implicit Euler, raico's analytic step;
+- the cost: crocoddyl's quadratic cost is ``1/2 weight ||r||^2`` and a running node's cost is
+  multiplied by ``dt``, so a raico term ``w ||r||_C^2`` becomes weight ``2 w / dt`` on a running
+  node (``t < T``: control cost, control limits, via-points before the end) and ``2 w`` on the
+  terminal node. Via-points on a frame's origin use ``ResidualModelFrameTranslation`` with the
+  precision ``C`` (diagonal) as activation weights (0 on coordinates the task map leaves out);
+  the roll angle ``atan2(y_E . z_W, z_E . z_W)`` is a Python residual with raico's Jacobian;
+  the centre of gravity ``ResidualModelCoMPosition``; control limits the quadratic barrier of
+  ``ActivationModelQuadraticBarrier`` (raico's soft limit), and BoxFDDP's hard bounds on top.
+
+What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueError``):
+
+- the thesis's pseudo-dynamics (controls are accelerations): crocoddyl's forward-dynamics
+  action models take torques; there is no built-in double integrator on a multibody state;
+- the Nao: its stance sole is welded to the world (Drake re-roots the tree at ``l_sole``,
+  pinocchio's URDF tree is rooted at the torso) and RHipYawPitch copies LHipYawPitch (one motor):
+  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling;
+- via-points on points other than a frame's origin, non-diagonal precisions, the learned
+  model and its uncertainty term.
+
+:func:`fddp` solves with FDDP (BoxFDDP where control limits exist) from ``x0`` held at every
+node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start) or
+from the zero-torque rollout (``start="rollout"``, feasible), and returns a raico ``Result``:
+the controller ``u = U_t - K_t (x - X_t)`` from crocoddyl's gains, i.e. ``o_t = U_t + K_t X_t``,
+``O_t = -K_t``; the trajectory is that controller rolled out on raico's planning model; the
+history holds per iteration the cost of rolling the iterate's controller out on the planning
+dynamics (crocoddyl's own cost once the iterate is feasible; a feedback rollout through
+crocoddyl's models while gaps remain), the iteration's wall time (that bookkeeping excluded)
+and the step length and regularization. Registered as solvers ``fddp`` and ``fddp-rollout``
+in ``stages.plan.solvers`` when crocoddyl imports (``pip`` extra, see the README).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from stages.plan.problem import (
+    Callback,
+    IterationRecord,
+    OptionsBase,
+    Problem,
+    Result,
+    Status,
+    check_range,
+    controller_rollout,
+)
+
+try:  # the optional baseline: ``make anchors`` (every make target that needs it runs it)
+    with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import crocoddyl
+        import pinocchio as pin
+
+    AVAILABLE = True
+    UNAVAILABLE_REASON = ""
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    crocoddyl = pin = None
+    AVAILABLE = False
+    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make anchors` installs the "
+                          "pinned pair into .venv")
+
+STARTS = ("held", "rollout")
+ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's actual/expected > 0)
+# iLQG's regularization schedule in crocoddyl's terms: lower the regularization after every accepted
+# step (whatever its length), raise it only when the line search reaches its last step 2^-9
+ILQG_SCHEDULE = {"th_step_dec": 1e-12, "th_step_inc": 0.002}
+
+
+class NotExpressible(ValueError):
+    """A raico problem crocoddyl cannot express exactly (the message says what and why)."""
+
+
+# ----------------------------------------------------------------------------- the model
+def _require() -> None:
+    if not AVAILABLE:
+        raise RuntimeError(UNAVAILABLE_REASON)
+
+
+def urdf_for_pinocchio(name: str, folder: Path) -> Path:
+    """The project's ``plants/models/NAME.urdf`` with a ``<link name="world"/>`` and no visuals,
+    written to ``folder`` (urdfdom refuses the original: its fixed joint names a ``world`` link
+    that the file does not declare)."""
+    from plants.robots import MODELS
+
+    text = (MODELS / f"{name}.urdf").read_text()
+    text = re.sub(r"<visual\b.*?</visual>", "", text, flags=re.S)
+    text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+    if '<link name="world"' not in text:
+        text = re.sub(r"(<robot\b[^>]*>)", r'\1\n  <link name="world"/>', text, count=1)
+    path = folder / f"{name}.urdf"
+    path.write_text(text)
+    return path
+
+
+@cache
+def pinocchio_model(name: str):
+    """The pinocchio model of plant ``name`` (reflected inertia in ``armature``); its joints must
+    be raico's planning joints in the same order (``NotExpressible`` otherwise)."""
+    _require()
+    from plants.robots import REFLECTED_INERTIA, shared_robot
+
+    if name == "nao":
+        raise NotExpressible(
+            "crocoddyl cannot express the Nao exactly: its left sole is welded to the world (Drake re-roots "
+            "the tree there, pinocchio's URDF tree starts at the torso) and RHipYawPitch is coupled to "
+            "LHipYawPitch (one motor), which pinocchio's free forward dynamics does not model")
+    robot = shared_robot(name)
+    with tempfile.TemporaryDirectory(prefix="raico-urdf-") as d:
+        model = pin.buildModelFromUrdf(str(urdf_for_pinocchio(name, Path(d))))
+    names = tuple(model.names[i] for i in range(1, model.njoints))
+    if names != tuple(robot.joint_names) or model.nq != robot.n_q or model.nv != robot.n_q \
+            or not np.array_equal(robot.P, np.eye(robot.n_q)):
+        raise NotExpressible(f"crocoddyl: the pinocchio joints {names} of {name} are not raico's planning "
+                             f"joints {robot.joint_names}")
+    model.armature[:] = REFLECTED_INERTIA[name]
+    return model
+
+
+def _plant_name(problem: Problem) -> str:
+    from plants.dynamics import PseudoDynamics
+
+    dyn = problem.dynamics
+    if isinstance(dyn, PseudoDynamics):
+        raise NotExpressible(
+            "solver fddp: crocoddyl cannot express the pseudo-dynamics exactly (controls are accelerations; "
+            "its forward-dynamics models take torques): use --dynamics analytic")
+    robot = getattr(dyn, "robot", None)
+    if robot is None or type(dyn).__name__ not in ("FastAnalyticDynamics", "AnalyticDynamics"):
+        raise NotExpressible(f"solver fddp: crocoddyl can express only the analytic dynamics, not "
+                             f"{type(dyn).__name__}")
+    return robot.name
+
+
+def _assign(target: np.ndarray, value: np.ndarray) -> None:
+    """Write ``value`` into a crocoddyl data matrix in place (eigenpy maps a 1 x n matrix to ``(n,)``)."""
+    target[...] = np.reshape(value, np.shape(target))
+
+
+if AVAILABLE:
+    class _DampedActuation(crocoddyl.ActuationModelAbstract):
+        """Full actuation with viscous joint damping: ``tau = u - D qdot`` (Drake's joint damping)."""
+
+        def __init__(self, state, damping: np.ndarray):
+            crocoddyl.ActuationModelAbstract.__init__(self, state, state.nv)
+            self.D = np.asarray(damping, float)
+            self.nq = state.nq
+
+        def calc(self, data, x, u=None):
+            v = np.asarray(x)[self.nq:]
+            data.tau[:] = (np.zeros(self.nu) if u is None else np.asarray(u)) - self.D * v
+
+        def calcDiff(self, data, x, u=None):
+            nv = self.state.nv
+            dx = np.zeros((nv, self.state.ndx))
+            dx[:, nv:] = -np.diag(self.D)
+            _assign(data.dtau_dx, dx)
+            _assign(data.dtau_du, np.eye(nv))
+
+        def commands(self, data, x, tau):
+            data.u[:] = np.asarray(tau) + self.D * np.asarray(x)[self.nq:]
+
+        def torqueTransform(self, data, x, u):
+            _assign(data.Mtau, np.eye(self.nu))
+
+    class _RollResidual(crocoddyl.ResidualModelAbstract):
+        """raico's roll angle minus its target: ``atan2(y_E . z_W, z_E . z_W) - target`` (rad).
+
+        Jacobian as ``plants.taskmaps.RollAngle``: ``d(e . z_W) = J_w . (e x z_W)`` with the
+        world-frame angular-velocity Jacobian ``J_w`` of the frame."""
+
+        def __init__(self, state, frame_id: int, target: float, nu: int):
+            crocoddyl.ResidualModelAbstract.__init__(self, state, 1, nu, True, False, False)
+            self.fid, self.target, self.pmodel = frame_id, float(target), state.pinocchio
+
+        def _kin(self, data, x):
+            q = np.asarray(x)[:self.state.nq]
+            pin.forwardKinematics(self.pmodel, data.pdata, q)
+            R = pin.updateFramePlacement(self.pmodel, data.pdata, self.fid).rotation
+            return q, R[:, 1], R[:, 2]
+
+        def calc(self, data, x, u=None):
+            _, y, z = self._kin(data, x)
+            data.r[:] = [math.atan2(y[2], z[2]) - self.target]
+
+        def calcDiff(self, data, x, u=None):
+            q, y, z = self._kin(data, x)
+            up = np.array([0.0, 0.0, 1.0])
+            Jw = pin.computeFrameJacobian(self.pmodel, data.pdata, q, self.fid, pin.LOCAL_WORLD_ALIGNED)[3:]
+            a, b = y[2], z[2]
+            da, db = np.cross(y, up) @ Jw, np.cross(z, up) @ Jw
+            Rx = np.zeros((1, self.state.ndx))
+            Rx[0, :self.state.nv] = (b * da - a * db) / (a * a + b * b)
+            _assign(data.Rx, Rx)
+
+        def createData(self, collector):
+            return _RollData(self, collector)
+
+    class _RollData(crocoddyl.ResidualDataAbstract):
+        def __init__(self, model, collector):
+            crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
+            self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
+
+
+def _weights(rows: np.ndarray, C: np.ndarray, dim: int, what: str) -> np.ndarray:
+    """Activation weights ``(dim,)``: the diagonal of ``C`` at ``rows``, 0 elsewhere."""
+    if not np.allclose(C, np.diag(np.diag(C))):
+        raise NotExpressible(f"crocoddyl: term {what!r} has a non-diagonal precision")
+    w = np.zeros(dim)
+    w[rows] = np.diag(C)
+    return w
+
+
+def _state_cost(term, state, nu: int, pmodel):
+    """``(residual, activation, weight per unit raico weight)`` of a raico state term."""
+    from plants.taskmaps import CenterOfMass, FramePoints, RollAngle
+    from stages.plan.costs import StateTarget, ViaPoint
+
+    if isinstance(term, StateTarget):
+        return (crocoddyl.ResidualModelState(state, term.target, nu),
+                crocoddyl.ActivationModelWeightedQuad(_weights(np.arange(state.nx), term.C, state.nx, term.name)))
+    if not isinstance(term, ViaPoint):
+        raise NotExpressible(f"crocoddyl: no equivalent of the cost term {term.name!r} ({type(term).__name__})")
+    tm = term.taskmap
+    if isinstance(tm, FramePoints):
+        if tm.points.shape != (1, 3) or np.any(tm.points != 0):
+            raise NotExpressible(f"crocoddyl: via-point {term.name!r} is on points off the frame's origin")
+        ref = np.zeros(3)
+        ref[tm.rows] = term.target
+        fid = pmodel.getFrameId(tm.frame.name())
+        return (crocoddyl.ResidualModelFrameTranslation(state, fid, ref, nu),
+                crocoddyl.ActivationModelWeightedQuad(_weights(tm.rows, term.C, 3, term.name)))
+    if isinstance(tm, RollAngle):
+        fid = pmodel.getFrameId(tm.frame.name())
+        return (_RollResidual(state, fid, float(term.target[0]), nu),
+                crocoddyl.ActivationModelWeightedQuad(_weights(np.arange(1), term.C, 1, term.name)))
+    if isinstance(tm, CenterOfMass):
+        ref = np.zeros(3)
+        ref[tm.axes] = term.target
+        return (crocoddyl.ResidualModelCoMPosition(state, ref, nu),
+                crocoddyl.ActivationModelWeightedQuad(_weights(tm.axes, term.C, 3, term.name)))
+    raise NotExpressible(f"crocoddyl: no equivalent of the task map {tm.name!r} ({type(tm).__name__})")
+
+
+def _control_cost(term, state, nu: int):
+    from stages.plan.costs import ControlCost, ControlLimit
+
+    if isinstance(term, ControlCost):
+        ref = np.zeros(nu) if term.target is None else term.target
+        return crocoddyl.ResidualModelControl(state, ref), crocoddyl.ActivationModelQuad(nu)
+    if isinstance(term, ControlLimit):
+        lo = np.broadcast_to(term.lower, (nu,)).astype(float)
+        hi = np.broadcast_to(term.upper, (nu,)).astype(float)
+        return (crocoddyl.ResidualModelControl(state, nu),
+                crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lo, hi)))
+    raise NotExpressible(f"crocoddyl: no equivalent of the control term {term.name!r} ({type(term).__name__})")
+
+
+@dataclass
+class CrocoddylProblem:
+    """A raico problem in crocoddyl: the ``ShootingProblem`` and what built it.
+
+    ``bounds``: ``(lower, upper)`` torque limits (N m) of the problem's control-limit terms
+    (hard bounds for BoxFDDP), or ``None``."""
+
+    shooting: object
+    state: object
+    pmodel: object
+    T: int
+    dt: float
+    x0: np.ndarray
+    bounds: tuple[np.ndarray, np.ndarray] | None
+
+    def __post_init__(self) -> None:
+        # evaluation datas of their own (one per distinct node model): the solver's datas hold its
+        # linearization and gaps and must not be touched between its iterations
+        sp = self.shooting
+        models = {id(m): m for m in [*sp.runningModels, sp.terminalModel]}
+        self._datas = {k: m.createData() for k, m in models.items()}
+
+    def _nodes(self):
+        sp = self.shooting
+        return [(m, self._datas[id(m)]) for m in sp.runningModels]
+
+    def _terminal(self):
+        m = self.shooting.terminalModel
+        return m, self._datas[id(m)]
+
+    def rollout(self, U: np.ndarray) -> np.ndarray:
+        """States ``(T+1, n_x)`` of the open-loop controls ``U (T, n_u)``."""
+        return np.array(self.shooting.rollout([np.asarray(u, float) for u in U]))
+
+    def cost(self, X: np.ndarray, U: np.ndarray) -> float:
+        """The problem's cost of ``X (T+1, n_x)``, ``U (T, n_u)`` evaluated by crocoddyl."""
+        total = 0.0
+        for (m, d), x, u in zip(self._nodes(), X[:-1], U):
+            m.calc(d, np.asarray(x, float), np.asarray(u, float))
+            total += d.cost
+        m, d = self._terminal()
+        m.calc(d, np.asarray(X[-1], float))
+        return float(total + d.cost)
+
+    def feedback_rollout(self, xs, us, K) -> tuple[np.ndarray, np.ndarray, float]:
+        """Roll ``u = us_t - K_t (x - xs_t)`` out from ``x0`` through crocoddyl's models:
+        ``X (T+1, n_x)``, ``U (T, n_u)`` and the cost (``inf`` if not finite)."""
+        X = np.empty((self.T + 1, self.x0.size))
+        U = np.empty((self.T, len(us[0])))
+        X[0] = self.x0
+        total = 0.0
+        with np.errstate(all="ignore"):
+            for t, (m, d) in enumerate(self._nodes()):
+                u = np.asarray(us[t]) - np.asarray(K[t]) @ (X[t] - np.asarray(xs[t]))
+                if not np.all(np.isfinite(u)) or not np.all(np.isfinite(X[t])):
+                    return X, U, math.inf
+                U[t] = u
+                m.calc(d, X[t], u)
+                total += d.cost
+                X[t + 1] = d.xnext
+            m, d = self._terminal()
+            m.calc(d, X[-1])
+        total += d.cost
+        return X, U, float(total) if math.isfinite(total) else math.inf
+
+
+def build(problem: Problem) -> CrocoddylProblem:
+    """The crocoddyl problem of a raico ``problem`` (analytic dynamics; ``NotExpressible`` for
+    what crocoddyl cannot express exactly, see the module docstring)."""
+    _require()
+    name = _plant_name(problem)
+    if problem.joint_terms:
+        raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
+    pmodel = pinocchio_model(name)
+    state = crocoddyl.StateMultibody(pmodel)
+    damping = np.asarray(pmodel.damping, float)
+    actuation = (_DampedActuation(state, damping) if np.any(damping != 0)
+                 else crocoddyl.ActuationModelFull(state))
+    nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
+    state_costs = [(t, *_state_cost(t, state, nu, pmodel)) for t in problem.state_terms if t.weight != 0]
+    control_costs = [(t, *_control_cost(t, state, nu)) for t in problem.control_terms if t.weight != 0]
+    from stages.plan.costs import ControlLimit
+
+    limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
+    bounds = None
+    if limits:
+        bounds = (np.max([np.broadcast_to(t.lower, (nu,)) for t in limits], axis=0),
+                  np.min([np.broadcast_to(t.upper, (nu,)) for t in limits], axis=0))
+
+    def node_model(active: tuple[int, ...], terminal: bool):
+        costs = crocoddyl.CostModelSum(state, nu)
+        scale = 1.0 if terminal else 1.0 / dt
+        for i in active:
+            term, res, act = state_costs[i]
+            costs.addCost(term.name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
+        if not terminal:
+            for term, res, act in control_costs:
+                costs.addCost(term.name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
+        dam = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+        if bounds is not None and not terminal:
+            dam.u_lb, dam.u_ub = bounds[0].copy(), bounds[1].copy()
+        return crocoddyl.IntegratedActionModelEuler(dam, 0.0 if terminal else dt)
+
+    def active_at(t: int) -> tuple[int, ...]:
+        return tuple(i for i, (term, _, _) in enumerate(state_costs) if term.is_active_at(t))
+
+    by_set: dict = {}
+    running = []
+    for t in range(T):  # one model per distinct set of active terms, shared by its nodes
+        key = active_at(t)
+        if key not in by_set:
+            by_set[key] = node_model(key, False)
+        running.append(by_set[key])
+    terminal = node_model(active_at(T), True)
+    shooting = crocoddyl.ShootingProblem(np.asarray(problem.x0, float), running, terminal)
+    return CrocoddylProblem(shooting, state, pmodel, T, dt, np.asarray(problem.x0, float).copy(), bounds)
+
+
+def from_description(desc: dict):
+    """raico ``Problem`` and its ``CrocoddylProblem`` from a stored ``problem.json`` description."""
+    from plants.registry import make_dynamics
+    from plants.robots import shared_robot
+    from stages.plan.stage import objective_from_description
+
+    if desc.get("dynamics") != "analytic":
+        raise NotExpressible(f"crocoddyl: only the analytic dynamics can be expressed, not {desc.get('dynamics')!r}")
+    robot = shared_robot(desc["plant"])
+    obj = objective_from_description(desc, robot)
+    dyn = make_dynamics("analytic", robot, float(desc["dt"]))
+    problem = Problem(dyn, np.asarray(desc["x0"], float), int(desc["T"]), obj.state_terms, obj.control_terms)
+    return problem, build(problem)
+
+
+# ----------------------------------------------------------------------------- the solver
+@dataclass(frozen=True)
+class FDDPOptions(OptionsBase):
+    """Options of the crocoddyl baseline (frozen; ``from_dict`` rejects unknown keys).
+
+    Attributes:
+        iterations: maximum FDDP iterations (>= 1).
+        start: ``"held"`` (``x0`` at every node, zero controls: infeasible, R-AICO's start) or
+            ``"rollout"`` (the zero-torque rollout, feasible).
+        th_stop: crocoddyl's stopping threshold (expected improvement), its default 1e-9.
+        reg_init: initial regularization (``None``: crocoddyl's default, 1e-9).
+        box: ``"auto"`` (BoxFDDP where the problem has control limits, else FDDP), ``"yes"``, ``"no"``.
+        th_accept: crocoddyl's acceptance ratio ``th_acceptStep`` (actual / expected), default 0.1.
+        alphas: line-search step lengths (``None``: crocoddyl's ``2^-k``, k = 0..9).
+        th_step_dec, th_step_inc: crocoddyl lowers the regularization after a step at least
+            ``th_step_dec`` long (default 0.5) and raises it after one at most ``th_step_inc``
+            long (default 0.01).
+    """
+
+    iterations: int = 150
+    start: str = "held"
+    th_stop: float = 1e-9
+    reg_init: float | None = None
+    box: str = "auto"
+    th_accept: float = 0.1
+    alphas: tuple | None = None
+    th_step_dec: float = 0.5
+    th_step_inc: float = 0.01
+
+    def validate(self) -> None:
+        check_range("iterations", self.iterations, lo=1, integer=True)
+        if self.start not in STARTS:
+            raise ValueError(f"option start must be one of {STARTS}, got {self.start!r}")
+        check_range("th_stop", self.th_stop, lo=0.0)
+        if self.reg_init is not None:
+            check_range("reg_init", self.reg_init, lo=0.0)
+        if self.box not in ("auto", "yes", "no"):
+            raise ValueError(f"option box must be auto, yes or no, got {self.box!r}")
+        check_range("th_accept", self.th_accept, lo=0.0, hi=1.0)
+        check_range("th_step_dec", self.th_step_dec, lo=0.0, hi=1.0, lo_open=True)
+        check_range("th_step_inc", self.th_step_inc, lo=0.0, hi=1.0, lo_open=True)
+        if self.alphas is not None:
+            a = tuple(float(x) for x in np.atleast_1d(np.asarray(self.alphas, float)))
+            if not a or any(not 0.0 < x <= 1.0 for x in a):
+                raise ValueError(f"option alphas must be a non-empty list in (0, 1], got {a}")
+            object.__setattr__(self, "alphas", a)
+
+
+if AVAILABLE:
+    class _Recorder(crocoddyl.CallbackAbstract):
+        """Per-iteration record: cost of the iterate's controller rolled out, wall times with this
+        bookkeeping excluded."""
+
+        def __init__(self, cp: CrocoddylProblem, callback: Callback | None):
+            crocoddyl.CallbackAbstract.__init__(self)
+            self.cp, self.callback = cp, callback
+            self.history: list[IterationRecord] = []
+            self.t_last = self.t_start = time.perf_counter()
+            self.elapsed = 0.0
+
+        def __call__(self, solver, *args):
+            now = time.perf_counter()
+            dt = now - self.t_last
+            self.elapsed += dt
+            if solver.isFeasible:
+                cost, X, U = float(solver.cost), None, None
+            else:
+                X, U, cost = self.cp.feedback_rollout(solver.xs, solver.us, solver.K)
+            rec = IterationRecord(len(self.history) + 1, cost if math.isfinite(cost) else math.inf,
+                                  dt, self.elapsed, float(solver.stepLength), float(solver.preg))
+            self.history.append(rec)
+            if self.callback is not None and math.isfinite(cost):
+                if X is None:
+                    X, U = np.array(solver.xs), np.array(solver.us)
+                self.callback(rec, X, U)
+            self.t_last = time.perf_counter()
+
+
+def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.ndarray | None = None,
+         callback: Callback | None = None, croc: CrocoddylProblem | None = None) -> Result:
+    """Solve ``problem`` with crocoddyl's FDDP (BoxFDDP with control limits); see the module
+    docstring. ``U_init``: warm-start controls (their rollout is the start); ``croc``: a
+    prebuilt ``build(problem)``. Raises ``NotExpressible`` for problems crocoddyl cannot express."""
+    _require()
+    o = options or FDDPOptions()
+    cp = croc if croc is not None else build(problem)
+    T, n_u = problem.T, problem.n_u
+    U0 = np.zeros((T, n_u)) if U_init is None else np.array(U_init, float)
+    if U0.shape != (T, n_u):
+        raise ValueError(f"U_init has shape {U0.shape}, expected {(T, n_u)}")
+    X_roll = cp.rollout(U0)
+    initial_cost = problem.cost(X_roll, U0)
+    box = o.box == "yes" or (o.box == "auto" and cp.bounds is not None)
+    solver = (crocoddyl.SolverBoxFDDP if box else crocoddyl.SolverFDDP)(cp.shooting)
+    solver.th_stop = o.th_stop
+    solver.th_acceptStep = o.th_accept
+    solver.th_stepDec, solver.th_stepInc = o.th_step_dec, o.th_step_inc
+    if o.alphas is not None:
+        solver.alphas = list(o.alphas)
+    rec = _Recorder(cp, callback)
+    solver.setCallbacks([rec])
+    if o.start == "held" and U_init is None:
+        xs, feasible = [cp.x0.copy() for _ in range(T + 1)], False
+    else:
+        xs, feasible = list(X_roll), True
+    us = list(U0)
+    args = (xs, us, int(o.iterations), feasible) + (() if o.reg_init is None else (float(o.reg_init),))
+    rec.t_last = rec.t_start = time.perf_counter()
+    try:
+        converged = bool(solver.solve(*args))
+    except (ArithmeticError, RuntimeError, ValueError) as e:
+        return _result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
+                       initial_cost, solver)
+    costs = [h.cost for h in rec.history]
+    if not all(math.isfinite(c) for c in costs[-1:]):
+        return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver)
+    status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
+    msg = (f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: "
+           + ("stopping criterion below th_stop" if converged else f"reached {len(rec.history)} iterations"))
+    return _result(problem, solver, rec.history, status, msg, initial_cost, solver)
+
+
+def _result(problem: Problem, solved, history, status, message, initial_cost, solver) -> Result:
+    T, n_x, n_u = problem.T, problem.n_x, problem.n_u
+    if solved is None:
+        X = np.full((T + 1, n_x), np.nan)
+        U, K = np.zeros((T, n_u)), np.zeros((T, n_u, n_x))
+    else:
+        X, U, K = np.array(solver.xs), np.array(solver.us), np.array(solver.K).reshape(T, n_u, n_x)
+    o = U + np.einsum("tij,tj->ti", K, X[:-1])
+    O = -K
+    if solved is not None:  # the controller rolled out on raico's planning model
+        X, U = controller_rollout(problem.dynamics, problem.x0, o, O)
+    return Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
+                  message=message, initial_cost=initial_cost, solver="fddp")

@@ -1,0 +1,180 @@
+"""The AICO sweeps compiled: ``csweep.c`` loaded with ``ctypes`` (speed only, Algorithm 1 unchanged).
+
+``csweep.c`` is ``stages.plan.aico._Sweeps``'s forward / backward / belief / settle code in C,
+calling scipy's BLAS and LAPACK through their addresses (:func:`plants.codegen.c_backend.blas_table`).
+``make install`` builds it (target ``kernels``: ``build/csweep.so``); without that build the
+library is compiled on first use into the kernel cache (:mod:`plants.codegen.c_backend`). Without a
+compiler, or with ``RAICO_NO_C=1``, :func:`library` is ``None`` and ``_Sweeps`` runs its numpy code.
+
+``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields).
+"""
+
+from __future__ import annotations
+
+import ctypes
+from pathlib import Path
+
+from plants.codegen import c_backend
+
+SOURCE = Path(__file__).with_name("csweep.c")
+PREBUILT = Path(__file__).resolve().parents[2] / "build" / "csweep.so"   # make kernels
+
+# sweep_t.phase / dyn_mode values and sweep_run's error codes
+PH_FWD, PH_BWD = 0, 1
+DYN_NONE, DYN_C, DYN_PY = 0, 1, 2
+ERR_CHOL, ERR_LIN = -1, -2
+NEED_DYN, NEED_TASK = 1, 2
+
+_L, _D, _V = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
+
+
+class SweepState(ctypes.Structure):
+    _fields_ = [
+        *((k, _L) for k in ("T", "n", "m", "relocate", "max_repeats", "dyn_mode")),
+        *((k, _D) for k in ("q", "theta", "rate", "start_unused")),
+        *((k, _V) for k in ("SA", "VA", "RA", "C", "Qbar", "a_eff", "H", "h", "Hinv", "X", "U",
+                            "b", "Z")),
+        *((k, _L) for k in ("C_s", "Qbar_s", "H_s", "Hinv_s")),
+        ("active", _V), ("lin_fn", _V), ("lin_ctx", _V), ("w", _V), ("iw", _V), ("sp_state", _L),
+        ("task_fn", _V), ("task_ctx", _V), ("alpha", _D), ("Xprev", _V),
+        *((k, _L) for k in ("phase", "t", "r", "sub", "dyn_flag", "task_flag", "repeats",
+                            "err_info", "err_code")),
+    ]
+
+
+_LIB: ctypes.CDLL | None | bool = None
+
+
+def _load() -> ctypes.CDLL:
+    source = SOURCE.read_text()
+    if (c_backend.enabled() and PREBUILT.exists()
+            and PREBUILT.stat().st_mtime >= SOURCE.stat().st_mtime):
+        lib = ctypes.CDLL(str(PREBUILT))
+    else:
+        lib = c_backend.load_library(source, "csweep")
+    table = c_backend.blas_table()
+    lib.sweep_set_blas.argtypes = [ctypes.POINTER(ctypes.c_void_p)]
+    lib.sweep_set_blas.restype = None
+    lib.sweep_set_blas((ctypes.c_void_p * len(table))(*table))
+    for f in ("sweep_work_size", "sweep_iwork_size"):
+        getattr(lib, f).argtypes = [_L, _L]
+        getattr(lib, f).restype = _L
+    lib.lti_rollout.argtypes = [_L, _L, _L] + [_V] * 8
+    lib.lti_rollout.restype = None
+    for f in ("sweep_run", "sweep_beliefs"):
+        getattr(lib, f).argtypes = [ctypes.POINTER(SweepState)]
+        getattr(lib, f).restype = ctypes.c_int
+    return lib
+
+
+def library() -> ctypes.CDLL | None:
+    """The compiled sweep kernel, or ``None`` (no compiler, ``RAICO_NO_C=1``, build failed)."""
+    global _LIB
+    if _LIB is None:
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            _LIB = _load()
+        except (c_backend.CompileUnavailable, OSError):
+            _LIB = False
+    return _LIB or None
+
+
+def reset() -> None:
+    """Forget the loaded kernel (tests toggling ``RAICO_NO_C``)."""
+    global _LIB
+    _LIB = None
+
+
+if __name__ == "__main__":  # python -m stages.plan.kernels: build (or find) the kernel
+    lib = library()
+    print("csweep:", "compiled" if lib is not None else "unavailable (numpy fallback)")
+
+
+# -- compiled task messages -------------------------------------------------------------------------
+class _VTerm(ctypes.Structure):
+    _fields_ = [("kind", _L), ("body", _L), ("npts", _L), ("dim", _L), ("R_BF", _V), ("p_BF", _V),
+                ("pts", _V), ("rows", _V), ("S", _V), ("target", _V), ("C", _V), ("weight", _D),
+                ("active", _V)]
+
+
+class _TaskSet(ctypes.Structure):
+    _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("P", _V), ("terms", _V)]
+
+
+def compile_task_set(problem):
+    """The state terms of ``problem`` as a compiled task-message evaluator (``taskset_eval`` of
+    :mod:`plants.codegen.rbd`): ``(function address, context address, keep-alive)``, or ``None``
+    when some term with a nonzero weight has no compiled counterpart (then the sweeps ask Python).
+
+    Compiled: ``ViaPoint`` on ``FramePoints``, ``CenterOfMass``, ``RollAngle`` (one robot whose
+    tree kernels exist) or ``JointPositions``; ``StateTarget``. Joint terms (the GP uncertainty)
+    are not.
+    """
+    import numpy as np
+
+    from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
+    from stages.plan.costs import StateTarget, ViaPoint
+
+    if any(t.weight != 0 for t in problem.joint_terms):
+        return None
+    T, nx = problem.T, problem.n_x
+    nq = nx // 2
+    keep, terms, kern, robot = [], [], None, None
+
+    def arr(a, dtype=float):
+        a = np.ascontiguousarray(a, dtype=dtype)
+        keep.append(a)
+        return a.ctypes.data
+
+    steps = np.arange(T + 1)
+    for term in problem.state_terms:
+        if term.weight == 0:
+            continue
+        vt = _VTerm()
+        vt.weight = float(term.weight)
+        vt.active = arr(term.active(steps), np.uint8)
+        if isinstance(term, StateTarget):
+            vt.kind, vt.dim = 4, nx
+            vt.target, vt.C = arr(term.target), arr(term.C)
+            terms.append(vt)
+            continue
+        if type(term) is not ViaPoint:
+            return None
+        tm = term.taskmap
+        vt.dim = tm.dim
+        vt.target, vt.C = arr(term.target), arr(term.C)
+        if type(tm) is JointPositions:
+            vt.kind, vt.S = 3, arr(tm.S)
+            terms.append(vt)
+            continue
+        if type(tm) not in (FramePoints, CenterOfMass, RollAngle):
+            return None
+        k = tm._tree()
+        if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
+            return None
+        kern, robot = k, tm.robot
+        if type(tm) is FramePoints:
+            vt.kind, vt.npts = 0, len(tm.points)
+            vt.body = k.tree.body(tm._body_name)
+            vt.R_BF, vt.p_BF, vt.pts = arr(tm._R_BF), arr(tm._p_BF), arr(tm.points)
+            vt.rows = arr(tm.rows, np.int64)
+        elif type(tm) is CenterOfMass:
+            vt.kind, vt.rows = 1, arr(tm.axes, np.int64)
+        else:
+            vt.kind, vt.body = 2, k.tree.body(tm._body_name)
+            vt.R_BF, vt.rows = arr(tm._R_BF), arr([0], np.int64)
+        terms.append(vt)
+    if kern is None:
+        return None    # the evaluator lives in a robot's tree library
+    P = np.asarray(robot.P, float)
+    if P.shape != (kern.m, nq):
+        return None
+    ts = _TaskSet()
+    ts.nq, ts.nx, ts.nterms = nq, nx, len(terms)
+    ts.identity = int(kern.m == nq and np.array_equal(P, np.eye(nq)))
+    ts.P = arr(P)
+    term_arr = (_VTerm * max(len(terms), 1))(*terms)
+    ts.terms = ctypes.addressof(term_arr)
+    keep += [term_arr, ts, kern]
+    return kern.taskset_eval_address, ctypes.addressof(ts), keep

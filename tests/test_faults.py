@@ -1,0 +1,638 @@
+"""Faults and bad input (SPEC §12, issue 10): signals and child processes, tamper-evident entries,
+atomic report files, OS errors as one line, bounded inputs, SIGKILL / corruption / concurrency per
+stage. Real processes where the fault is about processes; injected OS errors where the machine
+cannot produce them on demand (a full disk, a read-only folder for root).
+
+Module level imports stay light: pool workers of ``test_sweep_*`` import this module."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+RAICO = str(Path(sys.executable).with_name("raico"))
+ERROR = re.compile(r"raico: error: \S.*")
+
+
+def lines(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.strip()]
+
+
+def one_error_line(text: str) -> str:
+    """The single non-empty line of ``text``, which must be a ``raico: error:`` line."""
+    ls = lines(text)
+    assert len(ls) == 1 and ERROR.fullmatch(ls[0]), text
+    return ls[0]
+
+
+def children(pid: int) -> list[int]:
+    """Pids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                st = (p / "stat").read_text()
+            except OSError:
+                continue
+            if int(st[st.rfind(")") + 2:].split()[1]) == pid:
+                out.append(int(p.name))
+    return out
+
+
+def running(pid: int) -> bool:
+    """True if ``pid`` exists and is not a zombie (a zombie runs nothing; init reaps it)."""
+    try:
+        st = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return st[st.rfind(")") + 2] not in "ZX"
+
+
+def tmp_folders(root: Path) -> list[Path]:
+    return sorted(root.rglob(".tmp-*")) + sorted(root.rglob(".*.tmp*"))
+
+
+def valid_entries(root: Path, stage: str | None = None) -> list:
+    from pipeline.cache import Cache
+
+    return [r for r in Cache(root).list(stage) if r.valid]
+
+
+def cli(*args, env: dict | None = None):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    return CliRunner().invoke(app, [str(a) for a in args], env=env)
+
+
+linux_only = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+
+
+# ============================================================================= 1. signals, children
+def _wait_for(cond, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def test_sigint_during_imports_is_one_line(tmp_path):
+    proc = subprocess.Popen([RAICO, "babble", "--plant", "pendulum", "--artifacts", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.4)  # python is loading the modules (typer, numpy, drake): no traceback from there
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert one_error_line(err).startswith("raico: error: interrupted by SIGINT")
+    assert not (tmp_path / "babble").exists() or not list((tmp_path / "babble").iterdir())
+
+
+@linux_only
+def test_sigterm_reproduce_exits_143_and_no_child_remains(tmp_path):
+    """The acceptance check: ``kill -TERM`` on a running ``raico reproduce --figure fig3.2a --quick``."""
+    proc = subprocess.Popen([RAICO, "reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "2",
+                             "--artifacts", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen: set[int] = set()
+
+    def computing() -> bool:  # both workers started and one of them writes a plan
+        seen.update(children(proc.pid))
+        return (len(seen) >= 3 and bool(list((tmp_path / "plan").glob(".tmp-*")))) or proc.poll() is not None
+
+    _wait_for(computing, 120, "the workers")
+    assert proc.poll() is None, "reproduce ended before it could be interrupted"
+    seen.update(children(proc.pid))  # resource tracker + 2 workers
+    t0 = time.monotonic()
+    proc.terminate()
+    out, err = proc.communicate(timeout=30)
+    elapsed = time.monotonic() - t0
+    assert proc.returncode == 143, err
+    line = one_error_line(err)
+    assert re.fullmatch(r"raico: error: interrupted by SIGTERM; \d+ runs had finished and are cached \(the next "
+                        r"call reuses them\); the interrupted runs left no partial artifact", line), line
+    assert elapsed < 10, elapsed
+    time.sleep(1.0)
+    assert [p for p in seen if running(p)] == []
+    assert tmp_folders(tmp_path) == []
+    n = int(re.search(r"(\d+) runs had finished", line).group(1))
+    assert len(valid_entries(tmp_path, "plan")) >= n
+
+
+def _sleep_job(args):
+    """A pool job for the sweep tests: mark that it runs (its pid), then sleep."""
+    marker, seconds = args
+    Path(marker).write_text(str(os.getpid()))
+    time.sleep(seconds)
+    return {}
+
+
+SWEEP_PARENT = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    from pipeline import experiments
+    from pipeline.errors import Interrupted, install_signal_handlers, stop_resource_tracker
+    from tests.test_faults import _sleep_job
+
+    install_signal_handlers()
+    root = Path(sys.argv[1])
+    jobs = [(str(root / f"job{i}"), 60) for i in range(4)]
+    results = [None] * len(jobs)
+    try:
+        experiments._sweep(_sleep_job, jobs, results, 2, None, str(root))
+    except Interrupted as e:
+        msg, code = e.message(), e.exit_code
+        del e
+        print("raico: error: " + msg, file=sys.stderr)
+        stop_resource_tracker()
+        sys.exit(code)
+""")
+
+
+@linux_only
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
+def test_sweep_workers_die_with_the_parent(tmp_path, sig):
+    """Ctrl-C sent to the parent only stops the sweep at once (workers terminated and reaped,
+    one line saying how many runs finished); SIGKILL of the parent takes its workers along
+    (``PR_SET_PDEATHSIG``), and the resource tracker with them."""
+    proc = subprocess.Popen([sys.executable, "-c", SWEEP_PARENT, str(tmp_path)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(lambda: len(list(tmp_path.glob("job*"))) >= 2 or proc.poll() is not None, 60, "the jobs")
+    assert proc.poll() is None, proc.stderr.read()
+    kids = children(proc.pid)
+    workers = {int(p.read_text()) for p in tmp_path.glob("job*")}
+    assert workers <= set(kids) and len(kids) == 3  # 2 workers + multiprocessing's resource tracker
+    t0 = time.monotonic()
+    os.kill(proc.pid, sig)
+    out, err = proc.communicate(timeout=30)
+    if sig == signal.SIGINT:
+        assert proc.returncode == 130 and time.monotonic() - t0 < 5
+        assert one_error_line(err) == ("raico: error: interrupted by SIGINT; 0 of 4 runs had finished and are "
+                                       "cached (the next call reuses them); the interrupted runs left no "
+                                       "partial artifact")
+        assert [p for p in kids if Path(f"/proc/{p}").exists()] == []  # reaped, not even zombies
+    else:
+        assert proc.returncode == -signal.SIGKILL and err == ""
+        _wait_for(lambda: not any(running(p) for p in kids), 1.0, "the workers to die with their parent")
+
+
+# ============================================================================= 2. atomic files, damaged report
+def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypatch):
+    from pipeline.cache import atomic_path, write_file_atomic
+
+    target = tmp_path / "claims.json"
+    write_file_atomic(target, '{"old": 1}\n')
+    with pytest.raises(OSError) as info, atomic_path(target) as tmp:
+        tmp.write_text('{"new": ')  # half written, then the disk fills
+        raise OSError(errno.ENOSPC, "No space left on device")
+    assert info.value.filename == str(target) and info.value.errno == errno.ENOSPC
+    assert target.read_text() == '{"old": 1}\n' and sorted(p.name for p in tmp_path.iterdir()) == ["claims.json"]
+    write_file_atomic(target, b"\x00new")
+    assert target.read_bytes() == b"\x00new" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_damaged_report_file_is_skipped_with_a_warning_and_rebuilt(tmp_path):
+    from pipeline.reproduce import _cached_report, write_readme
+    from pipeline.ui import Reporter
+
+    root = tmp_path / "report-quick"
+    good = {"figure": "fig3.2a", "description": "arm", "claims": [
+        {"figure": "fig3.2a", "claim": "R-AICO converges", "criterion": "c", "measured": "m", "verdict": "holds"}]}
+    (root / "fig3.2a").mkdir(parents=True)
+    (root / "fig3.2a" / "claims.json").write_text(json.dumps(good))
+    (root / "fig3.2b").mkdir()
+    (root / "fig3.2b" / "claims.json").write_text('{"figure": "fig3.2b", "claims": [{"claim": "R-AICO conv')
+
+    class Collect(Reporter):
+        said: list[str] = []
+
+        def say(self, message: str) -> None:
+            self.said.append(message)
+
+    rep = Collect(quiet=True)
+    write_readme(root, rep)
+    readme = (root / "README.md").read_text()
+    assert "### fig3.2a: arm" in readme and "fig3.2b" not in readme.split("## Deviations")[0]
+    assert len(rep.said) == 1 and rep.said[0].startswith(f"raico: warning: {root / 'fig3.2b' / 'claims.json'} "
+                                                         "is damaged (not valid JSON")
+    assert rep.said[0].endswith("`raico reproduce --figure fig3.2b` rebuilds it")
+    # the figure's own run does not trust it either: rebuilt, whatever its stamp says
+    (root / "fig3.2b" / "figure.png").write_bytes(b"png")
+    (root / "fig3.2b" / "report_key.txt").write_text("k\n")
+    assert _cached_report(root / "fig3.2b", "k") is None
+    (root / "fig3.2b" / "claims.json").write_text(json.dumps({**good, "figure": "fig3.2b"}))
+    assert _cached_report(root / "fig3.2b", "k")["figure"] == "fig3.2b"
+
+
+# ============================================================================= 3. OS errors
+@pytest.mark.parametrize("where, message", [
+    ("file/below", "artifacts folder {tmp}/file/below lies below {tmp}/file, which is a file, not a folder"),
+    ("file/below/deeper", "artifacts folder {tmp}/file/below/deeper lies below {tmp}/file, which is a file, "
+                          "not a folder"),
+])
+def test_artifacts_below_a_file(tmp_path, where, message):
+    (tmp_path / "file").write_text("x")
+    res = cli("babble", "--plant", "pendulum", "--artifacts", tmp_path / where)
+    assert res.exit_code == 5
+    assert one_error_line(res.stderr) == "raico: error: " + message.replace("{tmp}", str(tmp_path))
+
+
+@pytest.mark.parametrize("err", [errno.EROFS, errno.EACCES, errno.ENOSPC])
+def test_unwritable_artifacts_folder_is_one_line(tmp_path, monkeypatch, err):
+    """Read-only, unwritable or full at the first folder the cache makes (injected: root writes anyway)."""
+    real = Path.mkdir
+
+    def mkdir(self, *a, **k):
+        if str(self).startswith(str(tmp_path / "a")):
+            raise OSError(err, os.strerror(err), str(self))
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--artifacts", tmp_path / "a")
+    assert res.exit_code == 5
+    cause = os.strerror(err)
+    assert one_error_line(res.stderr) == (f"raico: error: cannot write artifact babble/{_babble_key()}: "
+                                          f"{tmp_path / 'a' / 'babble'}: {cause[0].lower() + cause[1:]}")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_artifacts_folder_real(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--artifacts", ro)
+    assert res.exit_code == 5 and "permission denied" in one_error_line(res.stderr)
+
+
+def _babble_key() -> str:
+    from pipeline import runner
+    from stages.babble import BabbleConfig
+
+    return runner._prepare(None, "babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2))[-1]
+
+
+def test_full_disk_in_numpy_writer_publishes_nothing(tmp_path, monkeypatch):
+    import numpy as np
+
+    real = np.savez_compressed
+
+    def full(f, **arrays):
+        real(f, **arrays)
+        raise OSError(errno.ENOSPC, "No space left on device")  # like zipfile's write: no file name
+
+    monkeypatch.setattr(np, "savez_compressed", full)
+    res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--artifacts", tmp_path)
+    assert res.exit_code == 5
+    key = _babble_key()
+    assert one_error_line(res.stderr) == (f"raico: error: cannot write artifact babble/{key}: "
+                                          f"{tmp_path / 'babble' / key}: no space left on device; nothing was cached")
+    assert tmp_folders(tmp_path) == [] and valid_entries(tmp_path) == []
+
+
+def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
+    import pipeline.mcap_io as mcap_io
+
+    class FullWriter(mcap_io.Writer):
+        def finish(self):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(mcap_io, "Writer", FullWriter)
+    res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--artifacts", tmp_path)
+    assert res.exit_code == 5
+    key = _babble_key()
+    assert one_error_line(res.stderr) == (
+        f"raico: error: cannot write the derived files (recording) of babble/{key}: "
+        f"{tmp_path / 'babble' / key / 'trajectory.mcap'}: no space left on device; its data stay cached and "
+        f"the next call writes them")
+    assert tmp_folders(tmp_path) == [] and [r.key for r in valid_entries(tmp_path)] == [key]
+    assert not (tmp_path / "babble" / key / "recording.rrd").exists()  # derived files move in together
+
+
+# ============================================================================= 4. bounds, empty strings
+@pytest.mark.parametrize("args, code, message", [
+    (["babble", "--plant", "pendulum", "--dt", "1e-12"], 2,
+     "duration / dt gives 1e+12 samples per episode; at most 1,000,000 (raise dt or shorten the duration)"),
+    (["babble", "--plant", "nao", "--episodes", "10000"], 2,
+     "episodes x samples per episode = 5.01e+06; at most 2,000,000 samples in one run"),
+    (["babble", "--plant", "pendulum", "--episodes", "10001"], 2, "episodes must be <= 10000"),
+    (["babble", "--plant", "pendulum", "--seed", "-1"], 2, "seed must be in [0, 2^32 - 1]"),
+    (["babble", "--plant", ""], 2, "unknown plant '': choose one of pendulum, arm5, biorob, nao"),
+    (["babble", "--plant", "pendulum", "--artifacts", ""], 2, "--artifacts: an empty path"),
+    (["plan", "--plant", "arm5", "--task", "reach", "--iterations", "10001"], 2, "iterations must be in [1, 10000]"),
+    (["plan", "--plant", "arm5", "--task", "reach", "--seed", str(2**32)], 2, "seed must be in [0, 2^32 - 1]"),
+    (["execute", "--plan", " "], 2, "plan: an empty artifact reference"),
+    (["evaluate", "--plan", ""], 2, "plan: an empty artifact reference"),
+    (["fit", "--data", ""], 2, "data: an empty artifact reference"),
+    (["fit", "--data", "x", "--max-points", "5001"], 2, "max-points must be in [10, 5000]"),
+    (["learn", "--plant", "pendulum", "--task", "swing-up", "--episodes", "101"], 2, "episodes must be in [1, 100]"),
+    (["learn", "--plant", "pendulum", "--task", "swing-up", "--babble-points", "100001"], 2,
+     "babble-points must be in [2, 100000]"),
+    (["reproduce", "--figure", "fig3.2a", "--jobs", "65"], 2, "jobs must be in [1, 64]"),
+    (["reproduce", "--figure", ""], 2, "unknown experiment '': choose one of fig3.2a"),
+    (["ls", ""], 2, "unknown stage '': choose one of babble, plan"),
+    (["ls", "plann"], 2, "unknown stage 'plann': choose one of babble, plan"),
+    (["show", ""], 2, "an empty artifact key"),
+    (["show", " "], 2, "an empty artifact key"),
+])
+def test_bounds_and_empty_strings_refused_before_work(tmp_path, args, code, message):
+    import pipeline.cli  # noqa: F401  (loaded before the clock starts)
+
+    t0 = time.monotonic()
+    if "--artifacts" not in args:
+        args = [*args, "--artifacts", str(tmp_path)]
+    res = cli(*args)
+    assert res.exit_code == code
+    assert one_error_line(res.stderr).startswith("raico: error: " + message)
+    assert time.monotonic() - t0 < 5 and tmp_folders(tmp_path) == [] and valid_entries(tmp_path) == []
+
+
+def test_ls_missing_folder_is_an_error(tmp_path):
+    res = cli("ls", "--artifacts", tmp_path / "nope")
+    assert res.exit_code == 3 and one_error_line(res.stderr) == f"raico: error: no artifacts folder {tmp_path / 'nope'}"
+
+
+def test_show_open_without_a_display_is_an_error(tmp_path):
+    res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--json", "--artifacts", tmp_path)
+    key = json.loads(res.stdout.splitlines()[-1])["key"]
+    env = {"DISPLAY": "", "WAYLAND_DISPLAY": "", "WAYLAND_SOCKET": ""}
+    res = cli("show", key, "--open", "--artifacts", tmp_path, env=env)
+    assert res.exit_code == 1
+    assert one_error_line(res.stderr) == (
+        "raico: error: cannot open the Rerun viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset); copy "
+        f"the recording and run `rerun {tmp_path / 'babble' / key / 'recording.rrd'}` where there is one")
+
+
+# ============================================================================= one helper process: CLI runs (1, 3) and every stage (5)
+HELPER = textwrap.dedent("""
+    # One process imports the CLI and Drake once, then forks: each fork is a fresh `raico` run
+    # (pipeline.cli.main with its argv) or a stage run, killed or raced as the test asks.
+    import json, os, resource, signal, sys, time
+    from pathlib import Path
+    import plants._threads  # noqa: F401
+    from pipeline import cli, runner
+    from pipeline.cache import Cache
+    from pipeline.learn import learn
+    from stages.babble import BabbleConfig
+    from stages.evaluate.stage import EvaluateConfig
+    from stages.execute import ExecuteConfig
+    from stages.fit.stage import FitConfig
+    from stages.learn import LearnConfig
+    from stages.plan.stage import PlanConfig
+
+    root = Path(sys.argv[1])
+    cache = Cache(root / "matrix")
+    report = {}
+
+    def raico(name, argv, rlimit=None, signal_when=None):
+        # `raico ARGV` in a fork (stdout/stderr to files); SIGTERM once signal_when() holds
+        out, err = root / f"{name}.out", root / f"{name}.err"
+        pid = os.fork()
+        if pid == 0:
+            code = 70
+            try:
+                os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT), 1)
+                os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT), 2)
+                if rlimit:
+                    resource.setrlimit(resource.RLIMIT_FSIZE, (rlimit, rlimit))
+                sys.argv = ["raico", *argv]
+                cli.main()
+            except SystemExit as e:
+                code = e.code if isinstance(e.code, int) else 0
+            finally:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(code)
+        killed, status = False, None
+        deadline = time.monotonic() + 60
+        while signal_when is not None and time.monotonic() < deadline:
+            done, st = os.waitpid(pid, os.WNOHANG)
+            if done:
+                status = st
+                break
+            if signal_when():
+                time.sleep(0.3)
+                os.kill(pid, signal.SIGTERM)
+                killed = True
+                break
+            time.sleep(0.05)
+        if status is None:
+            status = os.waitpid(pid, 0)[1]
+        report[name] = {"rc": os.waitstatus_to_exitcode(status), "stdout": out.read_text(), "stderr": err.read_text(),
+                        "killed": killed}
+
+    def go(stage, cfg):
+        if stage == "learn":
+            return learn(cache, cfg, record=False)
+        return runner.run(cache, stage, cfg, record=False)
+
+    def forked(stage, cfg, pause_at_publish):
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(r)
+            if pause_at_publish:
+                real = Cache._publish
+                def publish(self, st, *a, **k):
+                    if st == stage:
+                        os.write(w, b"1")
+                        time.sleep(120)
+                    return real(self, st, *a, **k)
+                Cache._publish = publish
+            try:
+                out = go(stage, cfg)
+                os.write(w, json.dumps([out.key, out.cached]).encode())
+            finally:
+                os._exit(0)
+        os.close(w)
+        return pid, r
+
+    def stable(m):
+        return {k: v for k, v in m.items() if "time" not in k and not k.endswith("_s")}
+
+    def check(stage, cfg):
+        # SIGKILL just before the entry is published (its temporary folder then holds every file,
+        # meta.json included), then the same run again
+        pid, r = forked(stage, cfg, True)
+        ready = os.read(r, 1)
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        os.close(r)
+        tmps = [p.name for p in (cache.root / stage).glob(".tmp-*")]
+        valid_after_kill = [x.key for x in cache.list(stage) if x.valid]
+        out = go(stage, cfg)
+        again = go(stage, cfg)
+        report[stage] = {"ready": ready == b"1", "tmp_after_kill": len(tmps), "valid_after_kill": valid_after_kill,
+                         "rerun_cached": out.cached, "reason": out.reason, "key": out.key, "again_cached": again.cached,
+                         "tmp_after_rerun": len(list((cache.root / stage).glob(".tmp-*"))),
+                         "metrics_equal": stable(again.metrics) == stable(out.metrics)}
+        return out
+
+    def race(stage, cfg):
+        # two identical runs at once
+        kids = [forked(stage, cfg, False) for _ in range(2)]
+        outs = []
+        for pid, r in kids:
+            data = b""
+            while chunk := os.read(r, 4096):
+                data += chunk
+            _, status = os.waitpid(pid, 0)
+            outs.append((status, json.loads(data or b"null")))
+        keys = {o[1][0] for o in outs if o[1]}
+        valid = [x.key for x in cache.list(stage) if x.valid and x.key in keys]
+        report[stage + "-race"] = {"statuses": [o[0] for o in outs], "keys": len(keys), "valid": len(valid),
+                                   "tmp": len(list((cache.root / stage).glob(".tmp-*")))}
+
+    (root / "hostname").write_text("x\\n")
+    raico("file", ["plan", "--plant", "arm5", "--task", "reach", "--artifacts", str(root / "hostname")])
+    raico("efbig", ["babble", "--plant", "pendulum", "--episodes", "1", "--duration", "0.2",
+                    "--artifacts", str(root / "efbig")], rlimit=60_000)
+    raico("sigterm", ["babble", "--plant", "arm5", "--episodes", "40", "--no-record", "--artifacts",
+                      str(root / "sigterm")], signal_when=lambda: list((root / "sigterm" / "babble").glob(".tmp-*")))
+    b = check("babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2))
+    f = check("fit", FitConfig(data=(b.key,), restarts=0, max_points=50))
+    p = check("plan", PlanConfig(plant="pendulum", task="swing-up", solver="ilqg", iterations=1))
+    e = check("execute", ExecuteConfig(plan=p.key))
+    check("evaluate", EvaluateConfig(plan=p.key, rollout=e.key))
+    check("learn", LearnConfig(plant="pendulum", task="swing-up", episodes=1, babble_points=5, iterations=1,
+                               restarts=0, max_points=20))
+    race("babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2, seed=7))
+    race("plan", PlanConfig(plant="pendulum", task="swing-up", solver="ilqg", iterations=1, seed=7))
+    print(json.dumps({"report": report, "keys": {"babble": b.key, "fit": f.key, "plan": p.key, "execute": e.key}}))
+""")
+
+STAGES = ("babble", "fit", "plan", "execute", "evaluate", "learn")
+
+
+@pytest.fixture(scope="module")
+def helper(tmp_path_factory):
+    """Runs :data:`HELPER` once: its report (per check) and its folder, whose ``matrix`` cache then
+    holds a valid chain babble -> fit, plan -> execute -> evaluate, and a learn loop."""
+    if not hasattr(os, "fork"):
+        pytest.skip("needs fork")
+    root = tmp_path_factory.mktemp("faults")
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}  # Rerun's own logging: as a user has it
+    p = subprocess.run([sys.executable, "-c", HELPER, str(root)], cwd=REPO, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout.splitlines()[-1])
+    return root, doc["report"], doc["keys"]
+
+
+def test_artifacts_path_that_is_a_file_is_one_line(helper):
+    """The acceptance check ``raico plan --plant arm5 --task reach --artifacts /etc/hostname``."""
+    root, report, _ = helper
+    r = report["file"]
+    assert r["rc"] == 5 and r["stdout"] == ""
+    assert r["stderr"] == f"raico: error: artifacts folder {root / 'hostname'} is a file, not a folder\n"
+
+
+def test_rerun_file_writer_failure_is_one_line_without_rerun_noise(helper):
+    """Rerun's own writer fails (the file passes RLIMIT_FSIZE; Python ignores SIGXFSZ, so writes get
+    EFBIG): one line, none of Rerun's coloured log lines, no hang, no truncated recording passed off
+    as one, the data entry intact, no temporary folder."""
+    root, report, _ = helper
+    r = report["efbig"]
+    assert r["rc"] == 5, r
+    key = re.search(r"babble/([0-9a-f]{16})", r["stderr"]).group(1)
+    assert one_error_line(r["stderr"]) == (
+        f"raico: error: cannot write the derived files (recording) of babble/{key}: "
+        f"{root / 'efbig' / 'babble' / key / 'recording.rrd'}: file too large; its data stay cached and the next "
+        f"call writes them")
+    assert tmp_folders(root / "efbig") == [] and [r.key for r in valid_entries(root / "efbig")] == [key]
+    assert sorted(p.name for p in (root / "efbig" / "babble" / key).iterdir()) == ["data.npz", "meta.json"]
+
+
+def test_sigterm_mid_stage_one_line_no_temp_folder(helper):
+    root, report, _ = helper
+    r = report["sigterm"]
+    assert r["killed"] and r["rc"] == 143, r
+    assert one_error_line(r["stderr"]) == ("raico: error: interrupted by SIGTERM; the interrupted run left no "
+                                           "partial artifact")
+    assert tmp_folders(root / "sigterm") == [] and valid_entries(root / "sigterm") == []
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_sigkill_before_publish_leaves_nothing_valid_and_the_rerun_completes(helper, stage):
+    _, report, _ = helper
+    r = report[stage]
+    assert r["ready"] and r["tmp_after_kill"] == 1  # killed with every file in its temporary folder
+    assert r["key"] not in r["valid_after_kill"]
+    assert r["rerun_cached"] is False and r["reason"] == "no cache entry" and r["tmp_after_rerun"] == 0
+    assert r["again_cached"] is True and r["metrics_equal"]
+
+
+@pytest.mark.parametrize("stage", ["babble", "plan"])
+def test_two_identical_concurrent_runs_leave_one_valid_entry(helper, stage):
+    _, report, _ = helper
+    assert report[stage + "-race"] == {"statuses": [0, 0], "keys": 1, "valid": 1, "tmp": 0}
+
+
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def _edit_number(meta: Path) -> None:
+    text = meta.read_text()
+    new = re.sub(r'("compute_s": )(\d)', lambda m: m[1] + str((int(m[2]) + 1) % 10), text, count=1)
+    assert new != text
+    meta.write_text(new)
+
+
+CORRUPTIONS = {
+    "truncated data file": (lambda e, data: _truncate(e / data), r"file {data} changed \(size \d+ B, recorded \d+ B\)"),
+    "deleted data file": (lambda e, data: (e / data).unlink(), "file {data} missing"),
+    "edited meta.json": (lambda e, data: _edit_number(e / "meta.json"),
+                         r"cache entry corrupt \(meta\.json was edited: its checksum does not match its content\)"),
+    "emptied file list": (lambda e, data: (e / "meta.json").write_text(
+        json.dumps({**json.loads((e / "meta.json").read_text()), "files": {}})),
+        r"cache entry corrupt \(meta\.json was edited: its checksum does not match its content\)"),
+    "truncated meta.json": (lambda e, data: _truncate(e / "meta.json"),
+                            r"cache entry corrupt \(meta\.json unreadable: JSONDecodeError\)"),
+}
+DATA = {"babble": "data.npz", "fit": "model.npz", "plan": "plan.npz", "execute": "rollout.npz",
+        "evaluate": "evaluation.json"}
+CASES = [("babble", "truncated data file"), ("fit", "emptied file list"), ("plan", "edited meta.json"),
+         ("execute", "truncated meta.json"), ("evaluate", "deleted data file")]  # every stage, every kind
+
+
+@pytest.mark.parametrize("stage, kind", CASES)
+def test_corrupted_entry_is_detected_said_and_recomputed(helper, stage, kind):
+    from pipeline import runner
+    from pipeline.cache import Cache
+    from stages.babble import BabbleConfig
+    from stages.evaluate.stage import EvaluateConfig
+    from stages.execute import ExecuteConfig
+    from stages.fit.stage import FitConfig
+    from stages.plan.stage import PlanConfig
+
+    root, _, keys = helper
+    root = root / "matrix"
+    cfg = {"babble": BabbleConfig(plant="pendulum", episodes=1, duration=0.2),
+           "fit": FitConfig(data=(keys["babble"],), restarts=0, max_points=50),
+           "plan": PlanConfig(plant="pendulum", task="swing-up", solver="ilqg", iterations=1),
+           "execute": ExecuteConfig(plan=keys["plan"]),
+           "evaluate": EvaluateConfig(plan=keys["plan"], rollout=keys["execute"])}[stage]
+    cache = Cache(root)
+    before = runner.run(cache, stage, cfg, record=False)  # cached by the helper (unless the code changed since)
+    entry = Path(before.path)
+    data = DATA[stage]
+    assert (entry / data).is_file(), sorted(p.name for p in entry.iterdir())
+    corrupt, reason = CORRUPTIONS[kind]
+    corrupt(entry, data)
+    assert cache.lookup(stage, before.key) is None
+    after = runner.run(cache, stage, cfg, record=False)
+    assert not after.cached and re.fullmatch(reason.replace("{data}", re.escape(data)), after.reason), after.reason
+    assert after.key == before.key and after.status == before.status
+    stable = lambda m: {k: v for k, v in m.items() if "time" not in k and not k.endswith("_s")}  # noqa: E731
+    assert stable(after.metrics) == stable(before.metrics)
+    assert runner.run(cache, stage, cfg, record=False).cached and tmp_folders(root) == []

@@ -1,0 +1,202 @@
+"""The compiled kernels (speed only) against the numpy / Drake code they replace.
+
+- the AICO sweep kernel (``stages/plan/csweep.c``) against ``_Sweeps``'s numpy code, on every
+  route it takes: dynamics linearized in Python (``NEED_DYN``), compiled (``dyn_linearize``) or
+  never (LTI, sparse shared ``C``); task messages from Python (``NEED_TASK``) or compiled
+  (``taskset_eval``); theta = inf;
+- the generated dynamics in C (``FastAnalyticDynamics``) against the same generated code run by
+  Python, and the tree dynamics (``TreeAnalyticDynamics``, the Nao's route) against Drake's
+  AutoDiffXd (``AnalyticDynamics``) and finite differences;
+- the tree kernels (forward kinematics, Jacobians, mass matrix, inverse dynamics and its
+  derivatives) against Drake; the compiled task maps and task messages against Drake's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plants.codegen import c_backend, rbd
+from plants.dynamics import AnalyticDynamics
+from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
+from plants.numdiff import check_dynamics
+from plants.robots import PLANTS, shared_robot
+from plants.taskmaps import TASKMAP_EXAMPLES
+from stages.plan import kernels
+from stages.plan.aico import AICOOptions, _Sweeps, aico
+from stages.plan.stage import PlanConfig, build_problem
+from tests.test_aico_speed_equivalence import make_problem
+
+pytestmark = pytest.mark.skipif(kernels.library() is None,
+                                reason="no C compiler (or RAICO_NO_C): the numpy code runs")
+
+
+def _plan_problem(plant: str, task: str, dynamics: str, T: int | None = None):
+    problem = build_problem(PlanConfig(plant=plant, task=task, dynamics=dynamics, seed=0))[2]
+    return problem
+
+
+def _both(make, options: AICOOptions, monkeypatch):
+    """The same run with the compiled sweeps and with the numpy sweeps."""
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), options)
+    return out[True], out[False]
+
+
+def _assert_same(a, b, rtol: float = 1e-9):
+    assert a.status == b.status and a.iterations == b.iterations, (a.message, b.message)
+    assert [h.repeats for h in a.history] == [h.repeats for h in b.history]
+    np.testing.assert_allclose(a.costs, b.costs, rtol=rtol)
+    for key in ("X", "U", "o", "O", "beliefs"):
+        x, y = getattr(a, key), getattr(b, key)
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-8 * max(np.abs(y).max(), 1.0), err_msg=key)
+
+
+@pytest.mark.parametrize("dynamics,limits,opts", [
+    ("pendulums", False, dict(alpha=1.0, iterations=4)),                  # Python dynamics + tasks
+    ("pendulums", True, dict(alpha=0.5, gamma=0.8, iterations=3, theta=0.02)),
+    ("pendulums", False, dict(alpha=1.0, iterations=3, theta=math.inf)),  # backward sweep only
+    ("pseudo", False, dict(alpha=1.0, iterations=4, theta=0.02)),         # LTI: sparse shared C
+], ids=["python-dynamics", "limits", "theta-inf", "lti"])
+def test_compiled_sweeps_equal_numpy_sweeps(dynamics, limits, opts, monkeypatch):
+    a, b = _both(lambda: make_problem(dynamics, limits), AICOOptions(tol_rel=0.0, **opts), monkeypatch)
+    _assert_same(a, b)
+    if math.isfinite(opts.get("theta", 0.1)):
+        assert sum(h.repeats for h in a.history) > 0
+
+
+@pytest.mark.parametrize("plant,task,dynamics", [
+    ("arm5", "reach-roll", "analytic"),   # compiled dynamics and task messages (Drake maps in C)
+    ("nao", "balance", "pseudo"),         # n = 50, LTI, a task term at every step
+])
+def test_compiled_sweeps_on_the_plans(plant, task, dynamics, monkeypatch):
+    assert kernels.compile_task_set(_plan_problem(plant, task, dynamics)) is not None
+    a, b = _both(lambda: _plan_problem(plant, task, dynamics),
+                 AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0), monkeypatch)
+    _assert_same(a, b)
+    assert sum(h.repeats for h in a.history) > 0
+
+
+@pytest.mark.parametrize("plant,task,dynamics", [
+    ("arm5", "reach-roll", "analytic"), ("nao", "balance", "pseudo"), ("nao", "reach", "pseudo"),
+    ("biorob", "reach", "analytic"), ("pendulum", "swing-up", "analytic")])
+def test_compiled_task_messages_equal_the_terms(plant, task, dynamics):
+    problem = _plan_problem(plant, task, dynamics)
+    fn, ctx, keep = kernels.compile_task_set(problem)
+    import ctypes
+
+    evaluate = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p,
+                                ctypes.c_void_p, ctypes.c_void_p)(fn)
+    rng = np.random.default_rng(0)
+    active = problem.active_state_terms()
+    n = problem.n_x
+    steps = [t for t in range(problem.T + 1) if active[t]][:3] + [problem.T]
+    for t in steps:
+        x = problem.x0 + 0.2 * rng.standard_normal(n)
+        lx, lxx = np.empty(n), np.empty((n, n))
+        evaluate(ctx, t, x.ctypes.data, lx.ctypes.data, lxx.ctypes.data)
+        g, G = problem.point_state_derivatives(x, t, active[t])
+        scale = max(np.abs(G).max(), 1.0)
+        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * max(np.abs(g).max(), 1.0))
+        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * scale)
+
+
+def test_fallback_without_the_kernel(monkeypatch):
+    """No compiler: the numpy sweeps run (and give the compiled numbers)."""
+    a = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    monkeypatch.setattr(kernels, "library", lambda: None)
+    b = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    _assert_same(a, b)
+
+
+# -- dynamics ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("plant", ["pendulum", "arm5", "biorob"])
+def test_generated_dynamics_in_c_equal_python(plant):
+    robot = shared_robot(plant)
+    fast, slow = FastAnalyticDynamics(robot, 0.01), FastAnalyticDynamics(robot, 0.01)
+    slow._c = False                                  # the generated Python code
+    assert fast._compiled() is not None
+    rng = np.random.default_rng(1)
+    n = robot.n_q
+    X = np.concatenate([robot.default_q + rng.uniform(-1.5, 1.5, (6, n)), rng.standard_normal((6, n))], 1)
+    U = 3.0 * rng.standard_normal((6, n))
+    for x, u in zip(X, U):
+        for got, ref in zip(fast.linearize(x, u), slow.linearize(x, u)):
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * max(np.abs(ref).max(), 1.0))
+        np.testing.assert_allclose(fast.step(x, u), slow.step(x, u), rtol=0, atol=1e-13)
+    for got, ref in zip(fast.linearize_trajectory(X, U), slow.linearize_trajectory(X, U)):
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * max(np.abs(ref).max(), 1.0))
+    O = 0.1 * rng.standard_normal((6, n, 2 * n))
+    for got, ref in zip(fast.controller_rollout(X[0], U, O), slow.controller_rollout(X[0], U, O)):
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * max(np.abs(ref).max(), 1.0))
+
+
+@pytest.mark.parametrize("plant", PLANTS)
+def test_tree_kernels_equal_drake(plant):
+    robot = shared_robot(plant)
+    k = rbd.tree_kernels(robot)
+    assert rbd.self_check(robot.plant, k, n_states=4, seed=11) <= 1e-10
+
+
+def test_tree_dynamics_of_the_nao_equal_autodiff():
+    nao = shared_robot("nao")
+    fast, exact = TreeAnalyticDynamics(nao, 0.01), AnalyticDynamics(nao, 0.01)
+    rng = np.random.default_rng(2)
+    n = nao.n_q
+    X = np.concatenate([nao.default_q + 0.5 * rng.standard_normal((3, n)), rng.standard_normal((3, n))], 1)
+    U = rng.standard_normal((3, n))
+    for x, u in zip(X, U):
+        A, a, B = fast.linearize(x, u)
+        A0, a0, B0 = exact.linearize(x, u)
+        np.testing.assert_allclose(A, A0, rtol=0, atol=1e-10 * np.abs(A0).max())
+        np.testing.assert_allclose(B, B0, rtol=0, atol=1e-10 * np.abs(B0).max())
+        assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.abs(x).max() + np.abs(u).max())
+        np.testing.assert_allclose(fast.step(x, u), exact.step(x, u), rtol=0, atol=1e-12)
+        q, v = x[:n], x[n:]
+        for got, ref in zip(fast.qddot_derivatives(q, v, u), exact.qddot_derivatives(q, v, u)):
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(np.abs(ref).max(), 1.0))
+        np.testing.assert_allclose(fast.inverse_dynamics(q, v, u), exact.inverse_dynamics(q, v, u),
+                                   rtol=0, atol=1e-11)
+    check_dynamics(fast, X[:2], U[:2]).assert_passed()   # and against finite differences
+
+
+@pytest.mark.parametrize("name,plant", [(n, p) for n, ex in TASKMAP_EXAMPLES.items()
+                                        for p in PLANTS if ex.applies_to(p)])
+def test_compiled_task_maps_equal_drake(name, plant):
+    robot = shared_robot(plant)
+    tm = TASKMAP_EXAMPLES[name].build(robot)
+    maps = getattr(tm, "maps", [tm])
+    rng = np.random.default_rng(3)
+    Q = robot.default_q + 0.3 * rng.standard_normal((3, robot.n_q))
+    for m in maps:
+        if not hasattr(m, "_in_plant"):
+            continue
+        assert m._tree() is not None
+        for q in Q:
+            qp = robot.P @ q
+            for got, ref in zip(m._compiled_in_plant(m._tree(), qp), m._in_plant(qp)):
+                np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+        V, J = m.values_and_jacobians(Q)
+        for i, q in enumerate(Q):
+            v, Jd = m._in_plant(robot.P @ q)
+            np.testing.assert_allclose(V[i], v, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(J[i], Jd @ robot.P, rtol=0, atol=1e-12)
+
+
+def test_emitted_c_is_the_python_arithmetic():
+    """The generated C evaluates the very operations of the generated Python (bitwise here:
+    same libm, no contraction)."""
+    from plants.codegen.derive import compiled_dynamics
+
+    code = compiled_dynamics(shared_robot("arm5"))
+    fast = FastAnalyticDynamics(shared_robot("arm5"), 0.01)
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal(10)
+    Mr, hr = fast._compiled().mh(x)
+    out = code.sca["mh"]([*x.tolist()], [0.0] * 30)
+    assert np.array_equal(Mr.reshape(-1), np.array(out[:25])) and np.array_equal(hr, np.array(out[25:]))
+    assert "-ffp-contract=off" in c_backend.CFLAGS
