@@ -59,6 +59,7 @@ def _reproduce(cache: Cache, ids: list[str], quick: bool, jobs: int, record: boo
             doc = _cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
         _stamp_report(out, _report_key(fid, result))
         elapsed = time.perf_counter() - t0
+        _record_timing(root, fid, n, cached, elapsed)
         verdicts = ", ".join(f"{r['claim']}: {r['verdict']}" for r in doc["claims"])
         reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {out}; {verdicts}")
         yield {"stage": "reproduce", "figure": fid, "path": str(out), "runs": n, "cached_runs": cached,
@@ -67,6 +68,21 @@ def _reproduce(cache: Cache, ids: list[str], quick: bool, jobs: int, record: boo
 
 
 REPORT_STAMP = "report_key.txt"
+TIMINGS = "timings.json"
+
+
+def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float) -> None:
+    """Wall time of this call's work on a figure (``timings.json``; the report shows it)."""
+    path = root / TIMINGS
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        doc = {}
+    doc[fid] = {"runs": runs, "cached_runs": cached, "wall_time_s": round(elapsed, 2),
+                "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "load_average_1min": round(__import__("os").getloadavg()[0], 2)}
+    root.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(path, json.dumps(doc, indent=2) + "\n")
 
 
 def _report_key(fid: str, result: dict) -> str:
@@ -140,6 +156,17 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         if (root / folder / "motion.png").exists():
             md += [f"![{d['figure']} motion]({folder}/motion.png)", ""]
         md += [f"Details, run table and recordings: [{folder}/claims.md]({folder}/claims.md)", ""]
+    try:
+        timings = json.loads((root / TIMINGS).read_text())
+    except (OSError, ValueError):
+        timings = {}
+    if timings:
+        md += ["## Wall time per figure (latest call that ran it)", "",
+               "| figure | runs | of them cached | wall time (s) | load average (1 min) | when (UTC) |",
+               "|---|---|---|---|---|---|"]
+        md += [f"| {f} | {t['runs']} | {t['cached_runs']} | {t['wall_time_s']} | {t['load_average_1min']} | "
+               f"{t['when']} |" for f, t in timings.items()]
+        md += [""]
     md += ["## Deviations and choices", "", "| item | choice |", "|---|---|"]
     notes = {k: v for e in LEARN_EXPERIMENTS.values() for k, v in e.notes}
     md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
