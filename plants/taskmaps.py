@@ -123,6 +123,8 @@ class _DrakeMap(_BatchByPoints):
         V = np.full((Q.shape[0], self.dim), np.nan)
         J = np.full((Q.shape[0], self.dim, Q.shape[1]), np.nan)
         k = self._tree()
+        if ok.size == 0:  # nothing finite: all NaN (a diverged trajectory)
+            return V, J
         if k is not None:
             V[ok], Jp = self._compiled_batch(k, Q[ok] @ P.T)
         else:
@@ -268,6 +270,11 @@ class Stack(_BatchByPoints):
     def value_and_jacobian(self, q):
         parts = [m.value_and_jacobian(q) for m in self.maps]
         return np.concatenate([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+    def values_and_jacobians(self, Q):
+        """Batched through each map's own batch (so non-finite rows give NaN there too)."""
+        parts = [m.values_and_jacobians(Q) for m in self.maps]
+        return np.concatenate([p[0] for p in parts], axis=1), np.concatenate([p[1] for p in parts], axis=1)
 
 
 # --------------------------------------------------------------------------------------------

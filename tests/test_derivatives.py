@@ -199,3 +199,15 @@ def test_every_cost_term_class_has_an_example():
     assert via == {f"via_{name}" for name in TASKMAP_EXAMPLES}  # a via-point on every task map
     assert all(isinstance(COST_TERM_EXAMPLES[name].build(robot, robot.default_q), ViaPoint)
                for name in via if COST_TERM_EXAMPLES[name].applies_to("arm5"))
+
+
+@pytest.mark.parametrize("name", sorted(TASKMAP_EXAMPLES))
+def test_taskmap_batch_of_non_finite_rows_is_nan(name):
+    """A diverged trajectory (no finite row) gives NaN values and Jacobians, not an error."""
+    robot = shared_robot("arm5")
+    ex = TASKMAP_EXAMPLES[name]
+    if not ex.applies_to("arm5"):
+        pytest.skip("not an arm5 task map")
+    tm = ex.build(robot)
+    V, J = tm.values_and_jacobians(np.full((3, robot.n_q), np.nan))
+    assert V.shape == (3, tm.dim) and J.shape == (3, tm.dim, robot.n_q) and np.isnan(V).all()
