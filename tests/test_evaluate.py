@@ -18,9 +18,9 @@ from stages.evaluate.stage import iterations_to
 from stages.evaluate.summary import largest_via_error, summarize
 
 
-def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, worst=None):
+def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, worst=None, converged=0):
     """A synthetic summary row."""
-    return {"label": label, "runs": runs, "diverged": diverged, "converged": 0, "final_cost_median": final,
+    return {"label": label, "runs": runs, "diverged": diverged, "converged": converged, "final_cost_median": final,
             "first_cost_median": first if first is not None else 10 * final, "cost_ratio_median": ratio,
             "cost_ratio_max": ratio, "final_cost_max": worst if worst is not None else final,
             "max_via_error_median": via, "wall_time_median_s": 1.0}
@@ -35,7 +35,9 @@ def table(**rows):
 
 CASES = [
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150), True),
-    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=300), False),
+    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10={"final": 300, "via": 0.05}), False),
+    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10={"final": 300, "via": 0.05, "converged": 10}), True),
+    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10={"final": 300, "via": 0.05, "converged": 9}), False),
     ("raico_converges", table(ilqg=100, aico=100, r1={"final": 100, "diverged": 1}, r10=100), False),
     ("aico_unstable", table(ilqg=100, aico={"final": 100, "diverged": 2}, r1=100), True),
     ("aico_unstable", table(ilqg=100, aico=300, r1=100), True),
