@@ -16,6 +16,14 @@ from pipeline.cache import Cache, atomic_path, write_file_atomic
 from pipeline.experiments import BASELINE_LABELS, Experiment, cost_curves, summarize
 
 
+def save_figure(fig, path: Path, dpi: int = 100) -> None:
+    """Write ``fig`` to ``path`` atomically and release it."""
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
+    plt.close(fig)
+
 def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, executions: list | None = None) -> None:
     """Mean and std of the cost per iteration (log scale), one line per solver variant;
     for the balancing figures also the executed CoG's lateral coordinate against its via-points."""
@@ -52,9 +60,7 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     if wall:
         _wall_time_panel(cache, exp, plans, axes[0, n - 1])
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _wall_time_panel(cache: Cache, exp: Experiment, plans: list[dict], ax) -> None:
@@ -193,9 +199,7 @@ def write_noise_figure(exp: Experiment, rows: list[dict], path: Path) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[list[str], list[dict]]:
@@ -338,9 +342,7 @@ def write_learn_figure(exp, S: dict, path: Path) -> None:
         axes[0, 2].set_xlabel("evaluation")
     fig.suptitle(f"{exp.id}: {exp.plant} {exp.task}, learned GP dynamics (lines: median over seeds)", fontsize=10)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: Path) -> str | None:
@@ -387,9 +389,7 @@ def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: 
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return run["outcome"].key
 
 

@@ -372,14 +372,17 @@ class FastAnalyticDynamics(SemiImplicitEuler):
     :func:`plants.codegen.derive.derive`).
     """
 
-    def __init__(self, robot, dt: float):
+    _KERNEL_PREFIX = ""  # name prefix of the compiled step's library
+
+    def __init__(self, robot, dt: float, code=None):
+        """``code``: the dynamics code (default: generated from the plant's symbolic model)."""
         self.robot = robot
         self.dt = float(dt)
         self.n_q = robot.n_q
         self.n_x = 2 * robot.n_q
         self.n_u = robot.n_q
         self.P = np.asarray(robot.P, float)
-        self._code = compiled_dynamics(robot)
+        self._code = compiled_dynamics(robot) if code is None else code
         m = self._code.m
         if self.P.shape != (m, self.n_q):
             raise ValueError(f"P has shape {self.P.shape}, the plant has {m} positions")
@@ -391,7 +394,7 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         if self._c is None:
             try:
                 self._c = _CompiledStep(self._code, self.n_q, self.dt, self.P, self._identity,
-                                        getattr(self.robot, "name", "plant"))
+                                        self._KERNEL_PREFIX + getattr(self.robot, "name", "plant"))
             except (c_backend.CompileUnavailable, OSError):
                 self._c = False
         return self._c or None
@@ -601,32 +604,14 @@ class TreeAnalyticDynamics(FastAnalyticDynamics):
     Needs the compiled route: raises ``NotImplementedError`` without it.
     """
 
+    _KERNEL_PREFIX = "tree_"
+
     def __init__(self, robot, dt: float):
         from plants.codegen.rbd import tree_kernels
 
-        self.robot = robot
-        self.dt = float(dt)
-        self.n_q = robot.n_q
-        self.n_x = 2 * robot.n_q
-        self.n_u = robot.n_q
-        self.P = np.asarray(robot.P, float)
-        self._code = _TreeCode(tree_kernels(robot))
-        m = self._code.m
-        if self.P.shape != (m, self.n_q):
-            raise ValueError(f"P has shape {self.P.shape}, the plant has {m} positions")
-        self._identity = m == self.n_q and np.array_equal(self.P, np.eye(m))
-        self._c = None
+        super().__init__(robot, dt, code=_TreeCode(tree_kernels(robot)))
         if self._compiled() is None:
             raise NotImplementedError(f"{robot.name}: the tree route needs a C compiler")
-
-    def _compiled(self) -> _CompiledStep | None:
-        if self._c is None:
-            try:
-                self._c = _CompiledStep(self._code, self.n_q, self.dt, self.P, self._identity,
-                                        "tree_" + getattr(self.robot, "name", "plant"))
-            except (c_backend.CompileUnavailable, OSError):
-                self._c = False
-        return self._c or None
 
     def qddot_trajectory(self, Q: np.ndarray, V: np.ndarray, U: np.ndarray) -> np.ndarray:
         return np.stack([self.qddot(q, v, u) for q, v, u in zip(Q, V, U)])
