@@ -1,16 +1,22 @@
-"""GP hyperparameter fitting (SPEC §7, thesis §4.2): scikit-learn's optimizer, posterior in ``plants.gp``.
+"""GP hyperparameter fitting (SPEC §7, thesis §4.2): type-II maximum likelihood, posterior in ``plants.gp``.
 
-Per output dimension, the log marginal likelihood of
-``ConstantKernel * RBF(length_scale=ones(d)) + WhiteKernel`` is maximized by sklearn's
-``GaussianProcessRegressor`` (L-BFGS-B, ``n_restarts_optimizer`` random restarts drawn from the
-bounds with ``random_state=seed``) on the standardized data of ``plants.gp`` (inputs per
-dimension, outputs per output), with ``alpha=0`` and the noise bounded below by
-``noise_floor`` (so sklearn's likelihood and ``GPModel``'s posterior use the same
-``K + sn2 I``, nothing else on the diagonal). Bounds (standardized units): length-scales
-``[1e-2, 1e3]``, ``sf2`` in ``[1e-3, 1e3]``, ``sn2`` in ``[noise_floor, 1]``; ``sf2 <= 1e3`` and
-``sn2 >= 1e-6`` keep ``cond(K + sn2 I) <= 1 + 1e9 N`` (nearly linear dependencies, e.g. the
-pendulum's on ``qdot`` and ``u``, push ``sf2`` and the length-scales to their upper bounds; the
-fit then records sklearn's bound warnings in ``info["warnings"]``). The fitted parameters build a
+Per output dimension, the log marginal likelihood of the kernel
+``sf2 * exp(-|z - z'|^2_ell / 2) + sn2 * delta`` (scikit-learn's
+``ConstantKernel * RBF(length_scale=ones(d)) + WhiteKernel``, :func:`make_kernel`) is maximized
+over ``theta = log(sf2, ell_1..ell_d, sn2)`` (sklearn's order) by L-BFGS-B with the analytic
+gradient (:func:`lml_and_gradient`; equal to sklearn's ``log_marginal_likelihood(theta,
+eval_gradient=True)``, tested, at about half its cost: the inverse comes from one ``potrs``
+against the identity), on the standardized data of ``plants.gp`` (inputs per dimension,
+outputs per output). Starts: the kernel's initial point (or ``start``, a previous model's
+hyperparameters: the learning loop's warm start), then ``restarts`` random points drawn
+uniformly in the log bounds (``numpy.random.RandomState(seed)``, as sklearn's
+``n_restarts_optimizer``); the best likelihood wins. The noise is bounded below by
+``noise_floor`` (so the likelihood and ``GPModel``'s posterior use the same ``K + sn2 I``,
+nothing else on the diagonal). Bounds (standardized units): length-scales ``[1e-2, 1e3]``,
+``sf2`` in ``[1e-3, 1e3]``, ``sn2`` in ``[noise_floor, 1]``; ``sf2 <= 1e3`` and ``sn2 >= 1e-6``
+keep ``cond(K + sn2 I) <= 1 + 1e9 N`` (nearly linear dependencies, e.g. the pendulum's on
+``qdot`` and ``u``, push ``sf2`` and the length-scales to their upper bounds; the fit then
+records which parameter ended at a bound in ``info["warnings"]``). The fitted parameters build a
 ``GPModel``.
 
 Bounded cost (``max_points``): when a training set exceeds the cap, ``subsample_indices`` keeps
@@ -28,11 +34,10 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 
 import numpy as np
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from scipy.linalg import lapack
+from scipy.optimize import minimize
 
 from plants.gp import NOISE_FLOOR, GPModel, column_std
 
@@ -42,25 +47,105 @@ NOISE_MAX = 1.0  # upper bound of sn2, standardized output units
 
 
 def make_kernel(d: int, noise_floor: float = NOISE_FLOOR):
-    """sklearn kernel ``ConstantKernel * RBF(ones(d)) + WhiteKernel`` with this module's bounds."""
+    """sklearn kernel ``ConstantKernel * RBF(ones(d)) + WhiteKernel`` with this module's bounds (the
+    reference the own likelihood is tested against)."""
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
     return (ConstantKernel(1.0, SIGNAL_BOUNDS) * RBF(length_scale=np.ones(d), length_scale_bounds=LENGTH_SCALE_BOUNDS)
             + WhiteKernel(noise_level=max(1e-3, noise_floor), noise_level_bounds=(noise_floor, NOISE_MAX)))
 
 
-def kernel_params(kernel) -> tuple[np.ndarray, float, float]:
-    """``(length_scales (d,), sf2, sn2)`` of a fitted ``make_kernel`` kernel."""
-    return (np.atleast_1d(np.asarray(kernel.k1.k2.length_scale, float)),
-            float(kernel.k1.k1.constant_value), float(kernel.k2.noise_level))
+def log_bounds(d: int, noise_floor: float = NOISE_FLOOR) -> np.ndarray:
+    """``(d + 2, 2)`` bounds of ``theta = log(sf2, ell_1..ell_d, sn2)``."""
+    return np.log(np.array([SIGNAL_BOUNDS, *[LENGTH_SCALE_BOUNDS] * d, (noise_floor, NOISE_MAX)], float))
+
+
+def initial_theta(d: int, noise_floor: float = NOISE_FLOOR) -> np.ndarray:
+    """The kernel's initial point ``log(1, ones(d), max(1e-3, noise_floor))`` ``(d + 2,)``."""
+    return np.log(np.array([1.0, *[1.0] * d, max(1e-3, noise_floor)]))
+
+
+def lml_and_gradient(theta: np.ndarray, Z: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+    """Log marginal likelihood of ``y (N,)`` at inputs ``Z (N, d)`` and its gradient ``(d + 2,)``
+    with respect to ``theta = log(sf2, ell_1..ell_d, sn2)``; ``(-inf, 0)`` when ``K + sn2 I`` is not
+    positive definite in floating point.
+
+    ``dL/dtheta_k = tr(W dK/dtheta_k) / 2`` with ``W = a a^T - K^-1``, ``a = K^-1 y``:
+    ``dK/dlog sf2 = K_se``, ``dK/dlog ell_i = K_se (z_i - z_i')^2 / ell_i^2``,
+    ``dK/dlog sn2 = sn2 I``."""
+    theta = np.asarray(theta, float)
+    N, d = Z.shape
+    sf2, ell, sn2 = math.exp(theta[0]), np.exp(theta[1:-1]), math.exp(theta[-1])
+    Q = Z / ell
+    qq = (Q * Q).sum(1)
+    S = Q @ Q.T
+    S *= 2.0
+    S -= qq[:, None]
+    S -= qq[None, :]
+    np.minimum(S, 0.0, out=S)
+    S *= 0.5
+    Kse = np.exp(S, out=S)
+    Kse *= sf2
+    K = Kse.copy()
+    K.flat[::N + 1] += sn2
+    L, info = lapack.dpotrf(K, lower=1, clean=1, overwrite_a=1)
+    if info != 0:
+        return -math.inf, np.zeros_like(theta)
+    a, _ = lapack.dpotrs(L, y, lower=1)
+    lml = -0.5 * float(y @ a) - float(np.log(np.diagonal(L)).sum()) - 0.5 * N * math.log(2.0 * math.pi)
+    W, _ = lapack.dpotrs(L, np.eye(N), lower=1)  # K^-1
+    np.negative(W, out=W)
+    W += np.outer(a, a)
+    grad = np.empty_like(theta)
+    grad[-1] = 0.5 * sn2 * float(np.trace(W))
+    W *= Kse  # W o K_se
+    r = W.sum(1)
+    grad[0] = 0.5 * float(r.sum())
+    WQ = W @ Q  # sum_jk (W o K_se)_jk (q_j - q_k)^2 = 2 q^T diag(r) q - 2 q^T (W o K_se) q, per column
+    grad[1:-1] = ((Q * Q) * r[:, None]).sum(0) - (Q * WQ).sum(0)
+    return lml, grad
+
+
+def maximize_lml(Z: np.ndarray, y: np.ndarray, starts: list[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, float]:
+    """L-BFGS-B (scipy, analytic gradient) from every start in ``starts``; the best ``(theta, lml)``."""
+    best, best_lml = None, -math.inf
+
+    def objective(theta):
+        lml, g = lml_and_gradient(theta, Z, y)
+        if not math.isfinite(lml):
+            return 1e25, np.zeros_like(theta)
+        return -lml, -g
+
+    for th0 in starts:
+        res = minimize(objective, np.clip(th0, bounds[:, 0], bounds[:, 1]), jac=True, method="L-BFGS-B",
+                       bounds=bounds)
+        lml = -float(res.fun)
+        if best is None or lml > best_lml:
+            best, best_lml = np.asarray(res.x, float), lml
+    return best, best_lml
+
+
+def _at_bounds(theta: np.ndarray, bounds: np.ndarray, j: int) -> list[str]:
+    names = ["sf2", *[f"length_scale[{i}]" for i in range(len(theta) - 2)], "sn2"]
+    out = []
+    for name, th, (lo, hi) in zip(names, theta, bounds):
+        for side, b in (("lower", lo), ("upper", hi)):
+            if np.isclose(th, b):
+                out.append(f"output {j}: {name} = {math.exp(th):.3g} is at its {side} bound {math.exp(b):.3g}")
+    return out
 
 
 def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
-           noise_floor: float = NOISE_FLOOR, max_points: int | None = None) -> tuple[GPModel, dict]:
+           noise_floor: float = NOISE_FLOOR, max_points: int | None = None,
+           start: GPModel | None = None) -> tuple[GPModel, dict]:
     """Fit one GP per output of ``Y (N, D)`` on inputs ``X (N, d)`` (physical units) -> ``(GPModel, info)``.
 
-    ``max_points`` caps the training set (``subsample_indices``). ``info``: ``fit_time_s`` (D,),
-    ``log_marginal_likelihood`` (D,, scaled units), ``length_scales`` (D, d, standardized input
-    units), ``sf2`` and ``sn2`` (D,, standardized output units), ``n_points``, ``n_input``,
-    ``kept`` (indices into ``X``) and sklearn's warnings (e.g. a parameter at its bound)."""
+    ``max_points`` caps the training set (``subsample_indices``). ``start``: a model of the same
+    input and output dimensions whose hyperparameters are the first start (warm start), else the
+    kernel's initial point. ``info``: ``fit_time_s`` (D,), ``log_marginal_likelihood`` (D,,
+    scaled units), ``length_scales`` (D, d, standardized input units), ``sf2`` and ``sn2`` (D,,
+    standardized output units), ``n_points``, ``n_input``, ``kept`` (indices into ``X``),
+    ``warm_start`` and the parameters that ended at a bound (``warnings``)."""
     X, Y = _check_xy(X, Y)
     n_input = X.shape[0]
     kept = np.arange(n_input)
@@ -70,24 +155,25 @@ def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
     x_mean, x_std, y_mean, y_std = X.mean(0), column_std(X), Y.mean(0), column_std(Y)
     Z, y = (X - x_mean) / x_std, (Y - y_mean) / y_std
     D, d = Y.shape[1], X.shape[1]
-    ell, sf2, sn2, times, lml_sk, messages = np.empty((D, d)), np.empty(D), np.empty(D), [], [], []
+    if start is not None and (start.d != d or start.D != D):
+        raise ValueError(f"start model has {start.d} inputs and {start.D} outputs, the data {d} and {D}")
+    bounds = log_bounds(d, noise_floor)
+    ell, sf2, sn2, times, messages = np.empty((D, d)), np.empty(D), np.empty(D), [], []
     for j in range(D):
-        gpr = GaussianProcessRegressor(kernel=make_kernel(d, noise_floor), alpha=0.0, normalize_y=False,
-                                       n_restarts_optimizer=restarts, random_state=seed)
+        rng = np.random.RandomState(seed)
+        first = (np.log(np.concatenate([[start.sf2[j]], start.ell[j], [max(start.sn2[j], noise_floor)]]))
+                 if start is not None else initial_theta(d, noise_floor))
+        starts = [first] + [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(restarts)]
         t0 = time.perf_counter()
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            gpr.fit(Z, y[:, j])
+        theta, _ = maximize_lml(Z, np.ascontiguousarray(y[:, j]), starts, bounds)
         times.append(time.perf_counter() - t0)
-        messages += sorted({f"output {j}: {w.message}" for w in caught})
-        ell[j], sf2[j], sn2[j] = kernel_params(gpr.kernel_)
-        lml_sk.append(float(gpr.log_marginal_likelihood_value_))
+        messages += _at_bounds(theta, bounds, j)
+        sf2[j], ell[j], sn2[j] = math.exp(theta[0]), np.exp(theta[1:-1]), math.exp(theta[-1])
     model = GPModel(X, Y, ell, sf2, sn2, x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
                     noise_floor=noise_floor)
     info = {"fit_time_s": times, "log_marginal_likelihood": model.log_marginal_likelihood().tolist(),
-            "log_marginal_likelihood_sklearn": lml_sk, "length_scales": ell.tolist(), "sf2": sf2.tolist(),
-            "sn2": sn2.tolist(), "n_points": int(X.shape[0]), "n_input": int(n_input),
-            "kept": kept.tolist(), "warnings": messages}
+            "length_scales": ell.tolist(), "sf2": sf2.tolist(), "sn2": sn2.tolist(), "n_points": int(X.shape[0]),
+            "n_input": int(n_input), "kept": kept.tolist(), "warm_start": start is not None, "warnings": messages}
     return model, info
 
 

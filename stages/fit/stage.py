@@ -20,7 +20,8 @@ the held-out RMSE and the recording, where the held-out segments are laid end to
 Hyperparameter schedule (SPEC §7, thesis "1:1" and ">100"). Without ``--prior`` the
 hyperparameters are optimized (``fit_gp``). With ``--prior`` (an earlier fit artifact whose
 data keys must all be among ``--data``; same plant, holdout and stride): ``every`` re-optimizes on all
-data; ``batch-N`` re-optimizes when the training points added since the prior's last
+data, starting the optimizer at the prior's hyperparameters (then ``restarts`` random
+starts); ``batch-N`` re-optimizes (also warm-started) when the training points added since the prior's last
 optimization (counted before the cap) reach ``N``, else it adds the points of the data keys
 the prior did not have to the prior's GP at its hyperparameters (``GPModel.update``, the
 Cholesky factor extended). When the cap would be exceeded the prior's points plus the new
@@ -278,8 +279,10 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
                              since, [])
     else:
         since = n_train
+    start = GPModel.from_arrays(prior.arrays(MODEL_FILE)) if prior is not None else None
     t0 = time.perf_counter()
-    model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points)
+    model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
+                         start=start)
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
 
 
