@@ -594,7 +594,7 @@ class _Sweeps:
         self.repeats += st.repeats
 
 
-def _controller_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
+def compiled_controller_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
     """``controller_rollout`` compiled where possible (same formulas): the model's own
     (``FastAnalyticDynamics``), a C loop for a time-invariant ``LinearDynamics`` whose ``step``
     is the affine map, else the generic Python loop."""
@@ -703,7 +703,7 @@ class _AICOStep:
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = _controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
+            Xn, Un = compiled_controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")

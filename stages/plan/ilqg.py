@@ -32,6 +32,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from plants.dynamics import rollout
+from stages.plan.aico import compiled_controller_rollout
 from stages.plan.driver import Iterate, Status, Step, Stop, cost_decrease_below, drive
 from stages.plan.problem import (
     Callback,
@@ -130,21 +131,19 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float):
 
 
 def _forward(problem: Problem, X, U, k, K, alpha: float):
-    """Rollout of ``u = U + alpha k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost."""
-    dyn = problem.dynamics
-    Xn = np.full(X.shape, np.nan)
-    Un = np.full(U.shape, np.nan)
-    Xn[0] = problem.x0
-    step = dyn.step
+    """Rollout of ``u = U + alpha k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost.
+
+    Written as ``u_t = o_t + K_t x_t`` with ``o_t = U_t + alpha k_t - K_t X_t`` and rolled out by
+    ``compiled_controller_rollout`` (the model's compiled loop where it has one)."""
+    o = U + alpha * k - np.einsum("tij,tj->ti", K, X[:-1])
     try:   # a model may raise on the exploding states of a bad step
         with np.errstate(all="ignore"):
-            for t in range(U.shape[0]):
-                u = U[t] + alpha * k[t] + K[t] @ (Xn[t] - X[t])
-                Un[t] = u
-                Xn[t + 1] = step(Xn[t], u)
+            Xn, Un = compiled_controller_rollout(problem.dynamics, problem.x0, o, K)
+            if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Un))):
+                return Xn, Un, math.inf
+            return Xn, Un, problem.cost(Xn, Un)
     except (ArithmeticError, ValueError, RuntimeError):
-        return Xn, Un, math.inf
-    return Xn, Un, problem.cost(Xn, Un)
+        return np.full(X.shape, np.nan), np.full(U.shape, np.nan), math.inf
 
 
 class _LM:
