@@ -18,18 +18,18 @@ from stages.evaluate.stage import iterations_to
 from stages.evaluate.summary import largest_via_error, summarize
 
 
-def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, worst=None, converged=0):
+def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, worst=None, converged=0, wall=1.0):
     """A synthetic summary row."""
     return {"label": label, "runs": runs, "diverged": diverged, "converged": converged, "final_cost_median": final,
             "first_cost_median": first if first is not None else 10 * final, "cost_ratio_median": ratio,
             "cost_ratio_max": ratio, "final_cost_max": worst if worst is not None else final,
-            "max_via_error_median": via, "wall_time_median_s": 1.0}
+            "max_via_error_median": via, "wall_time_median_s": wall}
 
 
 def table(**rows):
     names = {"ilqg": "iLQG", "aico": "AICO", "r1": "R-AICO a=1", "r10": "R-AICO a=10",
              "abl": "AICO (no sweep relinearization)", "fh": FDDP_HELD, "fr": FDDP_ROLLOUT, "fa": FDDP_ACCEPT_ANY,
-             "fs": FDDP_ILQG_SCHEDULE}
+             "fs": FDDP_ILQG_SCHEDULE, "ad": "R-AICO adaptive (a0=1)"}
     return {names[k]: S_(names[k], **v) if isinstance(v, dict) else S_(names[k], v) for k, v in rows.items()}
 
 
@@ -51,7 +51,14 @@ CASES = [
     ("ilqg_stalls", table(ilqg=199, r1=100), False),
     ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50}, aico={"final": 100, "first": 20}), True),
     ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 10}, aico={"final": 100, "first": 20}), False),
-    ("all_converge_aico_fastest", table(ilqg={"final": 300, "first": 50}, aico={"final": 100, "first": 20}), False),
+    # "converge" means converged (test met, or via-points reached), not "close to the best cost"
+    ("all_converge_aico_fastest", table(ilqg={"final": 300, "first": 50}, aico={"final": 100, "first": 20}), True),
+    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "via": 0.05},
+                                        aico={"final": 100, "first": 20}), False),
+    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "via": 0.05, "converged": 10},
+                                        aico={"final": 100, "first": 20}), True),
+    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "diverged": 1},
+                                        aico={"final": 100, "first": 20}), False),
     ("raico_reaches_aico_not", table(r1={"final": 1, "via": 0.005}, aico={"final": 1, "via": 0.05}), True),
     ("raico_reaches_aico_not", table(r1={"final": 1, "via": 0.005}, aico={"final": 1, "via": 0.005}), False),
     ("raico_reaches_aico_not", table(r1={"final": 1, "via": 0.02}, aico={"final": 1, "via": 0.05}), False),
@@ -60,6 +67,15 @@ CASES = [
     ("raico_reaches_fddp", table(r1=109, r10=300, fh=100, fr=20), True),
     ("raico_reaches_fddp", table(r1=120, r10=300, fh=100, fr=20), False),
     ("raico_reaches_fddp", table(r1={"final": 50, "diverged": 1}, fh=math.nan), False),
+    # adaptive R-AICO against FDDP from the same start: cost within 10 % and no more wall time
+    ("adaptive_reaches_fddp", table(ad={"final": 105, "wall": 2.0}, fh={"final": 100, "wall": 3.0}, fr=20), True),
+    ("adaptive_reaches_fddp", table(ad={"final": 120, "wall": 2.0}, fh={"final": 100, "wall": 3.0}), False),
+    ("adaptive_reaches_fddp", table(ad={"final": 90, "wall": 4.0}, fh={"final": 100, "wall": 3.0}), False),
+    ("adaptive_reaches_fddp", table(ad={"final": 90, "wall": 2.0, "diverged": 1}, fh={"final": 100, "wall": 3.0}),
+     False),
+    ("adaptive_reaches_fddp", table(r1=100, fh=100), False),
+    # the adaptive variant is beyond the thesis: not one of the thesis claims' R-AICO variants
+    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150, ad={"final": 300, "via": 0.05}), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=45, fs=3000), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=300, fs=40), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=45, fs=59), False),
@@ -206,3 +222,25 @@ def test_iterations_to_relative_change():
     assert iterations_to(np.array([100.0, 50.0, 49.99, 49.98])) == 3
     assert iterations_to(np.array([100.0, 50.0, 25.0])) is None
     assert iterations_to(np.array([1.0])) is None
+
+
+def test_identical_variants_of_two_figures():
+    from stages.evaluate.summary import identical_variants, relative_difference
+
+    c = table(ilqg=2400, aico={"final": math.nan, "diverged": 10, "via": 0.46}, r1=473.5, r10=788.5)
+    d = {k: dict(v) for k, v in c.items()}
+    d["iLQG"]["final_cost_median"] = 3880.0
+    d["AICO"]["max_via_error_median"] = 1.56
+    d["R-AICO a=1"].update(first_cost_median=1090.0, wall_time_median_s=0.7)  # the path there may differ
+    d["R-AICO a=10"]["final_cost_median"] = 788.5 * (1 + 5e-4)
+    assert identical_variants(c, d) == [("R-AICO a=1", 0.0)]  # identical -> listed
+    assert [lab for lab, _ in identical_variants(c, d, rtol=1e-3)] == ["R-AICO a=1", "R-AICO a=10"]
+    assert identical_variants(c, d, rtol=1e-3)[1][1] == pytest.approx(5e-4, rel=1e-3)
+    assert identical_variants(list(c.values()), list(d.values())) == [("R-AICO a=1", 0.0)]  # rows as lists
+    d["R-AICO a=1"]["diverged"] = 1  # different -> not listed
+    assert identical_variants(c, d) == []
+    # a label in one figure only, or rows without the result keys, are not compared
+    assert identical_variants(table(r1=1.0), table(r10=1.0)) == []
+    assert identical_variants({"every": {"label": "every"}}, {"every": {"label": "every"}}) == []
+    assert relative_difference(math.nan, None) == 0 and relative_difference(math.inf, math.inf) == 0
+    assert relative_difference(1.0, math.inf) == math.inf and relative_difference(2.0, 1.0) == 0.5
