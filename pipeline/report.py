@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cache import Cache, atomic_path, write_file_atomic
-from pipeline.experiments import BASELINE_LABELS, Experiment, cost_curves, summarize
+from pipeline.experiments import BASELINE_LABELS, EXPERIMENTS, Experiment, cost_curves, summarize
+from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
 
 def save_figure(fig, path: Path, dpi: int = 100) -> None:
@@ -24,101 +25,336 @@ def save_figure(fig, path: Path, dpi: int = 100) -> None:
         fig.savefig(tmp, dpi=dpi)
     plt.close(fig)
 
-def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, executions: list | None = None) -> None:
-    """Mean and std of the cost per iteration (log scale), one line per solver variant;
-    for the balancing figures also the executed CoG's lateral coordinate against its via-points."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+# ----------------------------------------------------------------------------- colours
+# One colour per solver variant in every figure, keyed by the variant's label (pipeline.experiments.Variant.label).
+SOLVER_COLORS: dict[str, str] = {
+    "iLQG": "tab:blue",
+    "AICO": "tab:orange",
+    "AICO (no sweep relinearization)": "tab:brown",
+    "R-AICO a=1": "tab:green",
+    "R-AICO a=10": "tab:red",
+    FDDP_HELD: "tab:purple",
+    FDDP_ROLLOUT: "tab:pink",
+    FDDP_ACCEPT_ANY: "tab:gray",
+    FDDP_ILQG_SCHEDULE: "tab:olive",
+}
+SOLVER_COLOR_PREFIXES: tuple[tuple[str, str], ...] = (("R-AICO adaptive", "tab:cyan"),)
+# labels of neither table: a colour from these, chosen by a hash of the label (the same in every figure unless
+# it is taken there already, then the next free one)
+FALLBACK_COLORS = ("#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#e6550d", "#31a354",
+                   "#756bb1", "#636363", "#9c9ede", "#bd9e39")
 
-    cog = exp.plant == "nao" and exp.task.startswith("balance")
-    wall = any(v.solver in BASELINE_LABELS for v in exp.variants)  # the crocoddyl baseline: cost vs wall time
-    n = 1 + cog + wall
-    fig, axes = plt.subplots(1, n, figsize=(6 if n == 1 else 5.5 * n, 4.2), squeeze=False)
-    ax = axes[0, 0]
+
+def _fallback_index(label: str) -> int:
+    import zlib
+
+    return zlib.crc32(label.encode("utf-8")) % len(FALLBACK_COLORS)
+
+
+def solver_color(label: str) -> str:
+    """The colour of a solver variant: ``SOLVER_COLORS``, else the first matching prefix of
+    ``SOLVER_COLOR_PREFIXES``, else a ``FALLBACK_COLORS`` entry chosen by a hash of the label."""
+    if label in SOLVER_COLORS:
+        return SOLVER_COLORS[label]
+    for prefix, color in SOLVER_COLOR_PREFIXES:
+        if label.startswith(prefix):
+            return color
+    return FALLBACK_COLORS[_fallback_index(label)]
+
+
+def figure_colors(labels) -> dict[str, str]:
+    """``solver_color`` of each label of one figure, distinct within it: the labels of ``SOLVER_COLORS``
+    keep theirs; another label whose colour is taken already (two labels sharing a prefix, a hash
+    collision) gets the next free fallback colour (labels taken in sorted order: deterministic)."""
+    labels = list(dict.fromkeys(labels))
+    out = {lab: SOLVER_COLORS[lab] for lab in labels if lab in SOLVER_COLORS}
+    taken = set(out.values())
+    for lab in sorted(lab for lab in labels if lab not in out):
+        color = solver_color(lab)
+        if color in taken:
+            i = _fallback_index(lab)
+            free = [c for k in range(len(FALLBACK_COLORS)) if (c := FALLBACK_COLORS[(i + k) % len(FALLBACK_COLORS)])
+                    not in taken]
+            color = free[0] if free else color
+        out[lab] = color
+        taken.add(color)
+    return {lab: out[lab] for lab in labels}
+
+
+# ----------------------------------------------------------------------------- what the cost panels draw
+def median_band(C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per column of ``C`` (runs x iterations, or x times): the median and the 25th and 75th
+    percentiles over the runs with a finite value there (NaN where none has one).
+
+    The median is ``stages.evaluate.summary.median``, the tables' statistic: on ``cost_curves``
+    (runs that stopped early hold their last cost, diverged runs drop out once they diverge) the
+    last point is the table's median final cost."""
+    from stages.evaluate.summary import median
+
+    C = np.asarray(C, float)
+    n = C.shape[1] if C.ndim == 2 else 0
+    m, lo, hi = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    for j in range(n):
+        col = C[:, j][np.isfinite(C[:, j])]
+        if col.size:
+            m[j] = median(col)
+            lo[j], hi[j] = np.percentile(col, [25, 75])
+    return m, lo, hi
+
+
+def diverged_path(costs: np.ndarray, initial_cost: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """A diverged run up to its last iterate before the divergence: iterations ``0 .. k-1`` (the run
+    diverged in iteration ``k = iterations``; 0 is the initial guess rolled out, cost
+    ``initial_cost``) and their costs; non-finite entries left out."""
+    k = max(int(iterations), 1)
+    c = np.asarray(costs, float)
+    y = np.concatenate([[np.nan if initial_cost is None else float(initial_cost)], c[:k - 1]])
+    it = np.arange(y.size)
+    ok = np.isfinite(y) & (y > 0)
+    return it[ok], y[ok]
+
+
+def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[dict]:
+    """What the cost-per-iteration panel draws, one dict per variant with runs: ``label``, ``color``,
+    ``runs``, ``iterations`` (1..n), ``median``/``q25``/``q75`` (``median_band`` of ``cost_curves``)
+    and ``diverged``: a ``diverged_path`` per diverged run."""
+    colors = figure_colors(v.label for v in exp.variants)
+    out = []
     for v in exp.variants:
+        runs = [p for p in plans if p["variant"] == v]
         C = cost_curves(cache, plans, v)
         if C.size == 0:
             continue
-        it = np.arange(1, C.shape[1] + 1)
-        with np.errstate(all="ignore"):
-            logc = np.log10(np.where(C > 0, C, np.nan))
-            m, s = np.nanmean(logc, 0), np.nanstd(logc, 0)
-        n_div = sum(p["outcome"].status == "diverged" for p in plans if p["variant"] == v)
-        note = f", diverged {n_div}/{C.shape[0]}" if n_div else ""
-        line, = ax.plot(it, 10 ** m, label=f"{v.label} (n={C.shape[0]}{note})")
-        ax.fill_between(it, 10 ** (m - s), 10 ** (m + s), color=line.get_color(), alpha=0.2)
-    ax.set_yscale("log")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("cost (rollout on the planning model)")
-    ax.set_title(f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics})")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    if cog:
-        _cog_panel(cache, exp, executions or [], axes[0, 1])
-    if wall:
-        _wall_time_panel(cache, exp, plans, axes[0, n - 1])
-    fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+        m, lo, hi = median_band(C)
+        div = [diverged_path(C[i], p["outcome"].metrics.get("initial_cost"),
+                             p["outcome"].metrics.get("iterations") or C.shape[1])
+               for i, p in enumerate(runs) if p["outcome"].status == "diverged"]
+        out.append({"label": v.label, "color": colors[v.label], "runs": C.shape[0],
+                    "iterations": np.arange(1, C.shape[1] + 1), "median": m, "q25": lo, "q75": hi, "diverged": div})
+    return out
 
 
-def _wall_time_panel(cache: Cache, exp: Experiment, plans: list[dict], ax) -> None:
-    """Cost against wall time: per run the cost of the last iteration finished by time t (a step
-    function of the run's ``elapsed``), median over runs on a common log-spaced time grid. The
-    cost axis spans the medians' lowest value to ten times the highest first-iteration median."""
-    import matplotlib.ticker
+def cost_at_times(C: np.ndarray, E: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``(runs, times)``: per run the cost of its last iteration finished by each time of ``grid``
+    (``E``: each iteration's end, s since the run started); NaN before its first."""
+    at = np.full((C.shape[0], grid.size), np.nan)
+    for i in range(C.shape[0]):
+        e = np.where(np.isfinite(E[i]), E[i], np.inf)
+        k = np.searchsorted(e, grid, side="right") - 1
+        ok = k >= 0
+        at[i, ok] = C[i, k[ok]]
+    return at
 
+
+def wall_panel_data(cache: Cache, exp: Experiment, plans: list[dict], points: int = 300) -> list[dict]:
+    """What the cost-against-wall-time panel draws, per variant: ``label``, ``color``, ``runs``,
+    ``times`` (a log-spaced grid common to the figure), ``median``/``q25``/``q75`` of
+    ``cost_at_times`` (NaN where fewer than half the runs have finished an iteration, or have a finite
+    cost) and ``diverged``: per diverged run its iterations' end times and costs up to the last
+    iterate before the divergence."""
+    colors = figure_colors(v.label for v in exp.variants)
     curves = [(v, cost_curves(cache, plans, v), cost_curves(cache, plans, v, "elapsed")) for v in exp.variants]
     ends = [E[np.isfinite(E)] for _, _, E in curves if E.size]
     ends = np.concatenate(ends) if ends else np.zeros(0)
     ends = ends[ends > 0]
     if ends.size == 0:
-        return
-    grid = np.geomspace(ends.min(), ends.max(), 300)
-    lo, hi = np.inf, -np.inf  # log10 range shown: the medians' lowest value, their highest first value
+        return []
+    grid = np.geomspace(ends.min(), ends.max(), points)
+    out = []
     for v, C, E in curves:
         if C.size == 0 or E.shape != C.shape:
             continue
-        at = np.full((C.shape[0], grid.size), np.nan)
-        for i in range(C.shape[0]):
-            e = np.where(np.isfinite(E[i]), E[i], np.inf)
-            k = np.searchsorted(e, grid, side="right") - 1   # last iteration finished by each time
-            ok = k >= 0
-            at[i, ok] = C[i, k[ok]]
-        with np.errstate(all="ignore"):
-            logc = np.log10(np.where(at > 0, at, np.nan))
-        logc[~np.isfinite(logc)] = np.nan
-        good = np.sum(np.isfinite(logc), 0) * 2 > C.shape[0]  # more than half the runs have a cost
-        m = np.full(grid.size, np.nan)
-        if good.any():
-            m[good] = np.nanmedian(logc[:, good], 0)
-        ax.plot(grid, 10 ** m, label=f"{v.label} (median of {C.shape[0]})")
+        at = cost_at_times(C, E, grid)
+        m, lo, hi = median_band(at)
+        few = np.sum(np.isfinite(at), 0) * 2 <= C.shape[0]
+        m[few], lo[few], hi[few] = np.nan, np.nan, np.nan
+        runs = [p for p in plans if p["variant"] == v]
+        div = []
+        for i, p in enumerate(runs):
+            if p["outcome"].status == "diverged":
+                k = max(int(p["outcome"].metrics.get("iterations") or C.shape[1]), 1)
+                t, y = E[i, :k - 1], C[i, :k - 1]
+                ok = np.isfinite(t) & np.isfinite(y) & (t > 0) & (y > 0)
+                div.append((t[ok], y[ok]))
+        out.append({"label": v.label, "color": colors[v.label], "runs": C.shape[0], "times": grid, "median": m,
+                    "q25": lo, "q75": hi, "diverged": div})
+    return out
+
+
+TIME_PER_ITERATION_RATIO = 2.0  # the wall-time panel is drawn where variants differ more than this
+
+
+def time_per_iteration(cache: Cache, exp: Experiment, plans: list[dict]) -> dict[str, float]:
+    """Per variant the median over its runs of the wall time per iteration (s): a run's last
+    iteration's end over its number of iterations."""
+    out = {}
+    for v in exp.variants:
+        per = []
+        for p in plans:
+            if p["variant"] != v:
+                continue
+            n = int(p["outcome"].metrics.get("iterations") or 0)
+            t = p["outcome"].metrics.get("wall_time_s")
+            if n > 0 and t is not None and math.isfinite(t):
+                per.append(t / n)
+        if per:
+            out[v.label] = float(np.median(per))
+    return out
+
+
+def wants_wall_panel(exp: Experiment, per_iteration: dict[str, float]) -> bool:
+    """Cost against wall time where it says something cost per iteration does not: with the crocoddyl
+    baseline, or where the variants' median time per iteration differs more than
+    ``TIME_PER_ITERATION_RATIO``-fold."""
+    if any(v.solver in BASELINE_LABELS for v in exp.variants):
+        return True
+    t = [x for x in per_iteration.values() if x > 0]
+    return len(t) > 1 and max(t) > TIME_PER_ITERATION_RATIO * min(t)
+
+
+# ----------------------------------------------------------------------------- the experiment figure
+def _log_limits(values: list[np.ndarray], pad: float = 0.25) -> tuple[float, float] | None:
+    v = np.concatenate([np.ravel(np.asarray(x, float)) for x in values]) if values else np.zeros(0)
+    v = v[np.isfinite(v) & (v > 0)]
+    if v.size == 0:
+        return None
+    return 10 ** (np.log10(v.min()) - pad), 10 ** (np.log10(v.max()) + pad)
+
+
+def _runs_phrase(rows: list[dict]) -> str:
+    ns = sorted({r["runs"] for r in rows})
+    return f"{ns[0]} runs" if len(ns) == 1 else "the runs of each variant"
+
+
+def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, executions: list | None = None) -> None:
+    """The experiment's figure: cost per iteration (median and interquartile range over the runs,
+    log scale; diverged runs thin, to their last iterate before the divergence, marked x); cost
+    against wall time where the variants' time per iteration differs (``wants_wall_panel``); for
+    executed Nao plans the executed CoG and the executed via-point errors. One colour per variant
+    (``figure_colors``), one legend below the panels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    executions = executions or []
+    rows = cost_panel_data(cache, exp, plans)
+    per_it = time_per_iteration(cache, exp, plans)
+    panels = ["cost"] + (["wall"] if wants_wall_panel(exp, per_it) else [])
+    if executions and exp.plant == "nao":
+        panels += ["cog", "executed"]
+    n = len(panels)
+    shape = (2, 2) if n == 4 else (1, n)
+    fig, axes = plt.subplots(*shape, figsize=(5.6 * shape[1], 4.3 * shape[0] + 0.9), squeeze=False,
+                             layout="constrained")
+    ax_of = dict(zip(panels, axes.ravel()))
+
+    _cost_panel(ax_of["cost"], exp, rows)
+    if "wall" in ax_of:
+        _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
+    if "cog" in ax_of:
+        _cog_panel(cache, exp, executions, ax_of["cog"])
+        _executed_panel(cache, exp, plans, executions, ax_of["executed"])
+
+    handles = []
+    for r in rows:
+        d = len(r["diverged"])
+        text = f"{r['label']}: {r['runs']} runs" + (f", {d} diverged" if d else "")
+        handles.append(Line2D([], [], color=r["color"], lw=2, label=text))
+    if any(r["diverged"] for r in rows):
+        handles.append(Line2D([], [], color="k", lw=0.8, marker="x", markersize=7,
+                              label="thin: a diverged run up to its last iterate before the divergence (x)"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 3 if n > 1 else 2), fontsize=8,
+               frameon=False)
+    save_figure(fig, path, dpi=110)
+
+
+def _cost_panel(ax, exp: Experiment, rows: list[dict]) -> None:
+    drawn = []
+    zero = False
+    for r in rows:
+        it, m, lo, hi, c = r["iterations"], r["median"], r["q25"], r["q75"], r["color"]
+        ax.fill_between(it, lo, hi, color=c, alpha=0.18, lw=0)
+        ax.plot(it, m, color=c, lw=1.8)
+        drawn += [m, lo, hi]
+        ends = []
+        for x, y in r["diverged"]:
+            if y.size:
+                ax.plot(x, y, color=c, lw=0.7, alpha=0.8)
+                ax.plot(x[-1], y[-1], "x", color=c, markersize=7, mew=1.5)
+                drawn.append(y)
+                ends.append((x[-1], y[-1]))
+                zero = zero or x[0] == 0
+        if ends and len(r["diverged"]) == r["runs"]:  # no median line: say whose crosses these are
+            x, y = max(e[0] for e in ends), float(np.exp(np.mean(np.log([e[1] for e in ends]))))
+            ax.annotate(f"{r['label']}: {len(ends)}/{r['runs']} diverged", (x, y), xytext=(8, 0),
+                        textcoords="offset points", va="center", fontsize=8, color=c,
+                        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+    ax.set_yscale("log")
+    lim = _log_limits(drawn)
+    if lim:
+        ax.set_ylim(*lim)
+    n_it = max((r["iterations"].size for r in rows), default=1)
+    ax.set_xlim(left=-max(1.0, 0.03 * n_it) if zero else 0.5)
+    ax.set_xlabel("iteration" + (" (0: the initial guess rolled out)" if zero else ""))
+    ax.set_ylabel("cost (rollout on the planning model)")
+    ax.set_title(f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics})\ncost per iteration: median and interquartile "
+                 f"range (25-75 %) over {_runs_phrase(rows)}", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+
+
+def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> None:
+    """Cost against wall time: per run the cost of the last iteration finished by time t, median and
+    interquartile range over the runs on a common log-spaced time grid (where more than half the
+    runs have finished an iteration). The cost axis spans the band's lowest value to ten times the
+    highest first median (FDDP's infeasible first iterates, x0 held, may spike far above)."""
+    import matplotlib.ticker
+
+    lo_all, hi_first = [], []
+    for r in rows:
+        t, m, c = r["times"], r["median"], r["color"]
+        ax.fill_between(t, r["q25"], r["q75"], color=c, alpha=0.18, lw=0)
+        ax.plot(t, m, color=c, lw=1.6)
         if np.isfinite(m).any():
-            first = m[np.isfinite(m)][0]
-            lo, hi = min(lo, np.nanmin(m)), max(hi, first)
+            lo_all.append(np.nanmin(r["q25"]))
+            hi_first.append(m[np.isfinite(m)][0])
+        for x, y in r["diverged"]:
+            if y.size:
+                ax.plot(x, y, color=c, lw=0.7, alpha=0.8)
+                ax.plot(x[-1], y[-1], "x", color=c, markersize=7, mew=1.5)
+                lo_all.append(np.nanmin(y))
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    if np.isfinite(lo) and np.isfinite(hi):  # FDDP's infeasible first iterates (x0 held) may spike far above
-        ax.set_ylim(10 ** (lo - 0.3), 10 ** (hi + 1.0))
+    if lo_all and hi_first:  # up to the band's top, at most ten times the highest first median
+        top = min(max(np.nanmax(r["q75"]) for r in rows if np.isfinite(r["q75"]).any()), 10 * max(hi_first))
+        ax.set_ylim(10 ** (np.log10(min(lo_all)) - 0.25), 10 ** (np.log10(top) + 0.25))
     ax.set_xlabel("wall time (s, solver's own clock; shared 2-core machine)")
     ax.set_ylabel("cost (rollout on the planning model)")
-    ax.set_title("cost against wall time")
+    ts = [x for x in per_iteration.values() if x > 0]
+    spread = f"; time per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
+    ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}",
+                 fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
 
 
-STATUS_COLORS = {"ok": "tab:green", "limits": "tab:orange", "tracking-lost": "tab:purple", "fell": "tab:red",
-                 "diverged": "k"}
+STATUS_STYLES = {"ok": "-", "limits": "-.", "tracking-lost": ":", "fell": "--", "diverged": (0, (1, 3))}
+
+
+def _executed_label(exp: Experiment) -> str:
+    return exp.execute[0].label if exp.execute else "R-AICO a=1"
 
 
 def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
-    """The executed CoG's lateral coordinate of every executed run (free-standing Nao), coloured by
-    the run's status, against that run's via-points (its plan's targets: dots in the same colour);
-    a cross marks the moment a run failed."""
+    """The executed CoG's lateral coordinate of every executed run (free-standing Nao), in the
+    executed variant's colour, line style by the run's status, against that run's via-points (its
+    plan's CoG targets: dots); a cross marks the moment a run failed."""
     from pipeline.runner import as_artifact
 
+    label = _executed_label(exp)
+    color = solver_color(label)
     counts: dict[str, int] = {}
     for e in executions:
         art = as_artifact(cache.require("execute", e.key))
@@ -127,28 +363,77 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
             continue
         plan = as_artifact(cache.require("plan", art.inputs[0].split("/", 1)[1]))
         desc = plan.document("problem.json")
-        color = STATUS_COLORS.get(e.status, "tab:gray")
-        label = None if e.status in counts else e.status
+        style = STATUS_STYLES.get(e.status, ":")
         counts[e.status] = counts.get(e.status, 0) + 1
         t, y = d["times"], d["cog"][:, 1]
-        ax.plot(t, y, color=color, lw=0.9, alpha=0.8, label=label)
+        ax.plot(t, y, color=color, ls=style, lw=1.0, alpha=0.85)
         for term in desc["terms"]:
             if term["name"].startswith("via_cog"):
-                ax.plot(term["times"][0] * desc["dt"], term["target"][1], "o", color=color, markersize=6,
-                        markeredgecolor="k", markeredgewidth=0.5)
+                ax.plot(term["times"][0] * desc["dt"], term["target"][1], "o", color=color, markersize=5,
+                        markeredgecolor="k", markeredgewidth=0.5, alpha=0.8)
         t_fail = e.metrics.get("failure_time")
-        if e.status != "ok" and t_fail is not None and np.isfinite(y[int(round(t_fail / desc["dt"]))]):
-            k = int(round(t_fail / desc["dt"]))
-            ax.plot(t[k], y[k], "x", color=color, markersize=8)
+        if e.status != "ok" and t_fail is not None:
+            k = min(int(round(t_fail / desc["dt"])), len(y) - 1)
+            if np.isfinite(y[k]):
+                ax.plot(t[k], y[k], "x", color="k", markersize=7, mew=1.2)
     if not counts:
         ax.text(0.5, 0.5, "no executions", ha="center", va="center", transform=ax.transAxes)
+    else:
+        from matplotlib.lines import Line2D
+
+        ax.legend(handles=[Line2D([], [], color=color, ls=STATUS_STYLES.get(s, ":"), label=f"{s} ({k})")
+                           for s, k in counts.items()], fontsize=8, title="status (runs)", title_fontsize=8)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("executed CoG lateral coordinate y (m, left +)")
-    n = sum(counts.values())
-    ax.set_title(f"executed CoG, free-standing Nao, R-AICO a=1 ({n} runs)\ndots: each run's via-points, x: its "
-                 "moment of failure", fontsize=9)
+    ax.set_title(f"executed CoG, free-standing Nao, {label} ({sum(counts.values())} runs)\ndots: each run's "
+                 "CoG via-points, x: its moment of failure", fontsize=9)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, title="status", title_fontsize=8)
+
+
+def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions: list, ax) -> None:
+    """Per executed run its largest via-point error (the held right sole left out), planned (open
+    circle) and executed (filled: status ok; cross: any other status), against the tolerance of the
+    claim "executed_reaches"."""
+    from pipeline.runner import as_artifact
+    from stages.evaluate.claims import EXECUTED_VIA_TOL
+    from stages.evaluate.summary import largest_via_error
+
+    label = _executed_label(exp)
+    color = solver_color(label)
+    seed_of = {p["outcome"].key: (p["seed"], p["outcome"].metrics) for p in plans}
+    pts, achieved = [], 0
+    for i, e in enumerate(executions):
+        key = as_artifact(cache.require("execute", e.key)).inputs[0].split("/", 1)[1]
+        seed, pm = seed_of.get(key, (i, {}))
+        pts.append((seed, largest_via_error(pm), largest_via_error(e.metrics), e.status))
+    if not pts:
+        ax.text(0.5, 0.5, "no executions", ha="center", va="center", transform=ax.transAxes)
+        return
+    finite = [v for _, a, b, _ in pts for v in (a, b) if math.isfinite(v) and v > 0]
+    top = max(finite + [EXECUTED_VIA_TOL]) * 3
+    for seed, planned, executed, status in pts:
+        if math.isfinite(planned):
+            ax.plot(seed, planned, "o", mfc="none", mec=color, markersize=7)
+        ok = status == "ok"
+        y = executed if math.isfinite(executed) else top
+        ax.plot(seed, y, "o" if ok else "x", color=color if ok else "k", markersize=6 if ok else 7, mew=1.5)
+        achieved += ok and executed <= EXECUTED_VIA_TOL
+    ax.axhline(EXECUTED_VIA_TOL, color="k", ls="--", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("run (initial-state seed)")
+    ax.set_xticks(sorted({p[0] for p in pts}))
+    ax.set_ylabel("largest via-point error (m)")
+    from matplotlib.lines import Line2D
+
+    ax.legend(handles=[Line2D([], [], ls="", marker="o", mfc="none", mec=color, label="planned"),
+                       Line2D([], [], ls="", marker="o", color=color, label="executed, status ok"),
+                       Line2D([], [], ls="", marker="x", color="k", mew=1.5, label="executed, other status"),
+                       Line2D([], [], color="k", ls="--", lw=0.8,
+                              label=f"the claim's tolerance ({EXECUTED_VIA_TOL * 100:g} cm)")],
+              fontsize=8, loc="best")
+    ax.set_title(f"executed vs planned via-point error, {label}\nachieved (status ok and <= "
+                 f"{EXECUTED_VIA_TOL * 100:g} cm): {achieved}/{len(pts)} runs", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
 
 
 # ----------------------------------------------------------------------------- robustness under noise
@@ -186,7 +471,8 @@ def write_noise_figure(exp: Experiment, rows: list[dict], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     x = np.arange(len(rows))
-    ax.plot(x, [r["success_rate"] for r in rows], "o-", label=f"{NOISE_SWEEPS[exp.id].label} plans")
+    label = NOISE_SWEEPS[exp.id].label
+    ax.plot(x, [r["success_rate"] for r in rows], "o-", color=solver_color(label), label=f"{label} plans")
     for i, r in enumerate(rows):
         ax.annotate(f"{r['ok']}/{r['runs']}", (x[i], r["success_rate"]), textcoords="offset points", xytext=(6, 6),
                     fontsize=8)
@@ -231,8 +517,37 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list) -> list[d
     return evaluate_claims(exp.claims, S, [e.metrics for e in executions], exp.id)
 
 
-def summary_table(exp: Experiment, plans: list[dict]) -> list[dict]:
-    return [summarize(plans, v) for v in exp.variants]
+def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
+    """Per cost term of the variant's problem, the median over its runs with a finite final cost of
+    the term's value on the final plan (the objective rebuilt from the run's ``problem.json``; terms
+    that need a learned model left out). Their sum is the run's final cost."""
+    from pipeline.runner import as_artifact
+    from stages.evaluate.summary import median
+    from stages.plan.stage import objective_from_description
+
+    values: dict[str, list[float]] = {}
+    for p in plans:
+        fc = p["outcome"].metrics.get("final_cost")
+        if p["variant"] != variant or fc is None or not math.isfinite(fc):
+            continue
+        art = as_artifact(cache.require("plan", p["outcome"].key))
+        P, desc = art.arrays("plan.npz", ("X", "U")), art.document("problem.json")
+        obj = objective_from_description(desc)
+        with np.errstate(all="ignore"):
+            for t in obj.state_terms:
+                values.setdefault(t.name, []).append(float(np.sum(t.value(P["X"]))))
+            for t in obj.control_terms:
+                values.setdefault(t.name, []).append(float(np.sum(t.value(P["U"]))))
+    return {k: median(np.array(v)) for k, v in values.items()}
+
+
+def summary_table(exp: Experiment, plans: list[dict], cache: Cache | None = None) -> list[dict]:
+    """The variants' summaries; with ``cache`` each also holds ``term_medians``."""
+    rows = [summarize(plans, v) for v in exp.variants]
+    if cache is not None:
+        for row, v in zip(rows, exp.variants):
+            row["term_medians"] = term_medians(cache, plans, v)
+    return rows
 
 
 def markdown_claims(rows: list[dict]) -> str:
@@ -256,12 +571,19 @@ def markdown_summary(rows: list[dict]) -> str:
     return "\n".join(out) + "\n\n(medians over the runs)"
 
 
+FIGURE_CAPTION = ("Cost panels: the line is the median, the band the interquartile range (25-75 %) over the runs "
+                  "with a finite cost at that iteration (against wall time: where more than half the runs have "
+                  "finished an iteration); runs that stopped early hold their last cost, so a line's last point is "
+                  "the table's median final cost. Thin lines ending in x: diverged runs up to their last iterate "
+                  "before the divergence. One colour per solver variant in every figure.")
+
+
 def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
     rows = claims_table(exp, result["plans"], result["executions"])
-    summary = summary_table(exp, result["plans"])
+    summary = summary_table(exp, result["plans"], cache)
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,
              "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd")}
             for p in result["plans"]]
@@ -271,7 +593,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
-    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", "## Claims", "",
+    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
     if execs:
         nao = exp.plant == "nao"
@@ -291,6 +613,92 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")
     return doc
+
+
+# ----------------------------------------------------------------------------- the same results in two figures
+IDENTICAL_RTOL = 1e-3  # "the same" as the tables show them (3 significant digits)
+RESULT_WORDS = "final cost, worst final cost, largest via-point error, divergences and convergences"
+# Why a pair of figures gives the same results, found by measurement on the runs (the numbers the remark
+# quotes are read from the figures' claims.json each time the README is written).
+IDENTICAL_REASONS = {
+    ("fig3.2c", "fig3.2d"): (
+        "the roll about the hand's own axis is turned by the wrist_roll joint alone, which leaves the end "
+        "effector's position (the reach) where it is, so R-AICO meets the roll target pi/2 at both via-points "
+        "almost exactly (the roll term above) on the same reaching motion. On the analytic model the control is "
+        "the joint torque, and turning the hand about its own axis takes next to none: the hand's inertia about "
+        "that axis is 6.25e-5 kg m^2 (plus the reflected motor inertia, 5e-3 kg m^2) and its centre of mass lies "
+        "on the axis, so gravity does not load the joint; the control term rises by the amount above. The term is "
+        "active: the start posture's roll is its wrist_roll angle, about 0 rad (default 0 plus N(0, 0.05^2)), "
+        "not pi/2. iLQG's and FDDP's results differ between the two figures although the roll term is small on "
+        "their final plans too (fig3.2d/claims.json, term_medians): they reach other solutions of the changed "
+        "problem (their via-point and control terms differ). On the pseudo-dynamics the same turn is not free "
+        "(controls are accelerations, weighted alike on every joint)"),
+}
+# the same comparison on the pseudo-dynamics, quoted after the reason: (figure without, figure with the term)
+IDENTICAL_CONTRASTS = {("fig3.2c", "fig3.2d"): ("fig3.2a", "fig3.2b")}
+
+
+def _term(doc: dict, label: str, term: str) -> float | None:
+    row = next((r for r in doc.get("summary", []) if r.get("label") == label), None)
+    return None if row is None else (row.get("term_medians") or {}).get(term)
+
+
+def _change(x: float | None, y: float | None, label: str) -> str:
+    if x is None or y is None or not (math.isfinite(x) and math.isfinite(y)):
+        return f"{_fmt(x)} -> {_fmt(y)} ({label})"
+    return f"{x:.4g} -> {y:.4g} ({label}, {y - x:+.3g})"
+
+
+def identical_results_remarks(docs: list[dict], rtol: float = IDENTICAL_RTOL) -> dict[str, list[str]]:
+    """Markdown remarks on pairs of figures (claims.json documents of the planning experiments, in
+    order) that give the same results for some variants (``stages.evaluate.summary.identical_variants``
+    on their summaries, relative ``rtol``): figure id of the pair's second figure -> its lines. Each
+    remark names the variants, the largest relative difference, the terms by which the two problems
+    differ and their measured medians on the final plans, and the reason where it is known."""
+    from stages.evaluate.summary import identical_variants
+
+    plan_docs = [d for d in docs if d.get("figure") in EXPERIMENTS and d.get("summary")]
+    by_id = {d["figure"]: d for d in docs}
+    out: dict[str, list[str]] = {}
+    for i, a in enumerate(plan_docs):
+        for b in plan_docs[i + 1:]:
+            same = identical_variants(a["summary"], b["summary"], rtol)
+            if not same:
+                continue
+            labels = [lab for lab, _ in same]
+            fa, fb = a["figure"], b["figure"]
+            text = (f"**{fa} and {fb} give the same results for {', '.join(labels)}**: {RESULT_WORDS} agree to a "
+                    f"relative {max(d for _, d in same):.2g} (the tables show 3 significant digits).")
+            ta = set(next(r for r in a["summary"] if r["label"] == labels[0]).get("term_medians") or {})
+            tb = set(next(r for r in b["summary"] if r["label"] == labels[0]).get("term_medians") or {})
+            extra = [(t, fb) for t in sorted(tb - ta)] + [(t, fa) for t in sorted(ta - tb)]
+            if extra:
+                text += (f" The problems differ by the term{'s' if len(extra) > 1 else ''} "
+                         + ", ".join(f"{t} ({f} only)" for t, f in extra) + ".")
+                parts = []
+                for t, f in extra:
+                    vals = [(lab, _term(by_id[f], lab, t)) for lab in labels]
+                    parts.append(f"{t} costs " + ", ".join(f"{_fmt(v)} ({lab})" for lab, v in vals if v is not None))
+                for t in sorted(ta & tb):
+                    vals = [(lab, _term(a, lab, t), _term(b, lab, t)) for lab in labels]
+                    parts.append(f"{t} " + ", ".join(_change(x, y, lab) for lab, x, y in vals))
+                text += (f" Measured on the final plans (median over the runs, {fa} -> {fb} where both have the "
+                         f"term): " + "; ".join(parts) + ".")
+            reason = IDENTICAL_REASONS.get((fa, fb))
+            if reason:
+                text += f" Why: {reason}"
+                ca, cb = IDENTICAL_CONTRASTS.get((fa, fb), (None, None))
+                if ca in by_id and cb in by_id:
+                    vals = [(lab, _term(by_id[ca], lab, "control"), _term(by_id[cb], lab, "control")) for lab in labels]
+                    vals = [(lab, x, y) for lab, x, y in vals if x is not None and y is not None]
+                    if vals:
+                        text += (f": {ca} -> {cb} raises the control term " +
+                                 ", ".join(_change(x, y, lab) for lab, x, y in vals))
+                text += "."
+            else:
+                text += " Why: not examined."
+            out.setdefault(fb, []).append(text)
+    return out
 
 
 # ----------------------------------------------------------------------------- learning figures

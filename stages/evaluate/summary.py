@@ -83,3 +83,39 @@ def summarize_learn(label: str, runs: list[dict]) -> dict:
     out["first_success_episode"] = [m.get("first_success_episode") for m in runs]
     out["optimizations"] = [int(np.nansum(r)) for r in _curves(runs, "optimized")]
     return out
+
+
+# ----------------------------------------------------------------------------- the same results in two figures
+# What a variant's runs achieved (its path there, the first-iteration cost and the wall time, left out: the first
+# depends on the problem's terms at the start, the second is a measurement that never repeats).
+RESULT_KEYS = ("runs", "diverged", "converged", "final_cost_median", "final_cost_max", "max_via_error_median")
+
+
+def relative_difference(a: float | None, b: float | None) -> float:
+    """``|a - b| / max(|a|, |b|)``: 0 when both are equal (also both NaN or None, or the same infinity),
+    ``inf`` when only one is finite or they are opposite infinities."""
+    a = math.nan if a is None else float(a)
+    b = math.nan if b is None else float(b)
+    if a == b or (math.isnan(a) and math.isnan(b)):
+        return 0.0
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return math.inf
+    return abs(a - b) / max(abs(a), abs(b))
+
+
+def identical_variants(A, B, rtol: float = 1e-12, keys: tuple[str, ...] = RESULT_KEYS) -> list[tuple[str, float]]:
+    """The variants of two figures whose summaries (:func:`summarize` rows, as a list or as a dict
+    label -> row) agree on every one of ``keys`` to the relative ``rtol``: ``(label, largest relative
+    difference)`` each, in ``A``'s order; labels found in only one figure, or rows lacking one of
+    ``keys``, are skipped."""
+    rows_a = A if isinstance(A, dict) else {r["label"]: r for r in A}
+    rows_b = B if isinstance(B, dict) else {r["label"]: r for r in B}
+    out = []
+    for label, a in rows_a.items():
+        b = rows_b.get(label)
+        if b is None or any(k not in a or k not in b for k in keys):
+            continue
+        diff = max((relative_difference(a.get(k), b.get(k)) for k in keys), default=0.0)
+        if diff <= rtol:
+            out.append((label, diff))
+    return out

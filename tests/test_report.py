@@ -1,0 +1,205 @@
+"""The report's figures as data: what the cost panels draw equals the tables' medians, diverged runs
+are drawn to their last iterate, one colour per solver in every figure, the wall-time panel where
+the data asks for it, and the remark on figures that give the same results."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import pipeline.runner
+from pipeline.experiments import EXPERIMENTS, Experiment, Variant, summarize
+from pipeline.report import (
+    FALLBACK_COLORS,
+    SOLVER_COLORS,
+    cost_at_times,
+    cost_panel_data,
+    diverged_path,
+    figure_colors,
+    identical_results_remarks,
+    median_band,
+    solver_color,
+    wall_panel_data,
+    wants_wall_panel,
+    write_figure,
+)
+
+
+class FakeCache:
+    """``cache.require`` hands the key through; ``as_artifact`` (patched) serves the run's arrays."""
+
+    def require(self, stage, key):
+        return key
+
+
+@pytest.fixture
+def runs(monkeypatch):
+    """Register synthetic plan runs: ``add(variant, seed, costs, status, elapsed=None)`` -> plan dict."""
+    arrays: dict[str, dict] = {}
+
+    class Art:
+        def __init__(self, key):
+            self.key = key
+
+        def arrays(self, name, keys=None):
+            d = arrays[self.key]
+            return {k: v for k, v in d.items() if keys is None or k in keys}
+
+    monkeypatch.setattr(pipeline.runner, "as_artifact", lambda entry: Art(entry))
+
+    def add(variant, seed, costs, status="max-iterations", elapsed=None, initial=1e4):
+        key = f"{variant.label}/{seed}"
+        costs = np.asarray(costs, float)
+        elapsed = np.cumsum(np.full(costs.size, 0.01)) if elapsed is None else np.asarray(elapsed, float)
+        arrays[key] = {"costs": costs, "elapsed": elapsed}
+        metrics = {"final_cost": float(costs[-1]) if costs.size else initial, "initial_cost": initial,
+                   "first_iteration_cost": float(costs[0]), "cost_ratio": float(costs[-1]) / initial,
+                   "iterations": int(costs.size), "wall_time_s": float(elapsed[-1])}
+        return {"variant": variant, "seed": seed,
+                "outcome": SimpleNamespace(key=key, status=status, metrics=metrics)}
+
+    return add
+
+
+ILQG, AICO, R1 = Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)
+EXP = Experiment("figT", "arm5", "reach", "pseudo", (ILQG, AICO, R1), 6, 2, "synthetic")
+
+
+def synthetic_plans(add):
+    """iLQG: runs that stopped early (converged) and one that diverged in iteration 4; AICO: all
+    diverged in iteration 1; R-AICO: an even number of runs over the full budget."""
+    rng = np.random.default_rng(0)
+    plans = []
+    for s in range(5):
+        n = 6 - s % 3  # 6, 5, 4 iterations: the shorter ones converged
+        c = np.sort(rng.uniform(10, 1000, n))[::-1]
+        plans.append(add(ILQG, s, c, "converged" if n < 6 else "max-iterations"))
+    plans.append(add(ILQG, 5, [500.0, 300.0, 200.0, math.inf], "diverged"))
+    plans += [add(AICO, s, [math.inf], "diverged", initial=2e4 + s) for s in range(3)]
+    plans += [add(R1, s, np.geomspace(1000 + 100 * s, 50 + 7 * s, 6), elapsed=np.arange(1, 7) * 0.05)
+              for s in range(4)]  # five times iLQG's time per iteration
+    return plans
+
+
+def test_median_line_ends_at_the_tables_median_final_cost(runs):
+    plans = synthetic_plans(runs)
+    rows = {r["label"]: r for r in cost_panel_data(FakeCache(), EXP, plans)}
+    for v in (ILQG, R1):
+        r, table = rows[v.label], summarize(plans, v)
+        assert r["median"][-1] == table["final_cost_median"]  # the same statistic, exactly
+        assert r["runs"] == table["runs"]
+    # R-AICO: four finite runs, the median averages the middle two; the band is the 25-75 % range
+    finals = np.array([np.geomspace(1000 + 100 * s, 50 + 7 * s, 6)[-1] for s in range(4)])
+    r = rows[R1.label]
+    assert r["median"][-1] == pytest.approx(np.mean(np.sort(finals)[1:3]))
+    assert (r["q25"][-1], r["q75"][-1]) == pytest.approx(tuple(np.percentile(finals, [25, 75])))
+    assert np.all(r["q25"] <= r["median"]) and np.all(r["median"] <= r["q75"])
+    # the band is of the costs, not of their logarithm: every value lies within the runs' range
+    C = np.array([np.geomspace(1000 + 100 * s, 50 + 7 * s, 6) for s in range(4)])
+    assert np.all(r["q25"] >= C.min(0)) and np.all(r["q75"] <= C.max(0))
+    # AICO diverged everywhere: no median, its runs drawn to the initial guess (iteration 0)
+    a = rows[AICO.label]
+    assert np.all(np.isnan(a["median"])) and len(a["diverged"]) == 3
+    assert [(list(x), list(y)) for x, y in a["diverged"]] == [([0], [2e4 + s]) for s in range(3)]
+
+
+def test_median_band_on_columns_with_missing_runs():
+    C = np.array([[4.0, 2.0, np.nan], [6.0, np.inf, np.nan], [8.0, 3.0, np.nan]])
+    m, lo, hi = median_band(C)
+    assert list(m[:2]) == [6.0, 2.5] and np.isnan(m[2]) and np.isnan(lo[2]) and np.isnan(hi[2])
+    assert (lo[0], hi[0]) == (5.0, 7.0)
+
+
+def test_diverged_run_is_drawn_to_its_last_iterate_before_the_divergence(runs):
+    assert [list(a) for a in diverged_path([500.0, 300.0, 200.0, math.inf], 1e4, 4)] == [[0, 1, 2, 3],
+                                                                                      [1e4, 500, 300, 200]]
+    # a divergence by size (finite, far above the start) is not drawn either
+    assert [list(a) for a in diverged_path([500.0, 1e12], 1e4, 2)] == [[0, 1], [1e4, 500]]
+    assert [list(a) for a in diverged_path([math.inf], 2e4, 1)] == [[0], [2e4]]
+    plans = synthetic_plans(runs)
+    r = next(r for r in cost_panel_data(FakeCache(), EXP, plans) if r["label"] == "iLQG")
+    assert len(r["diverged"]) == 1 and list(r["diverged"][0][1]) == [1e4, 500, 300, 200]
+
+
+def test_wall_time_band_ends_at_the_tables_median(runs):
+    plans = synthetic_plans(runs)
+    rows = {r["label"]: r for r in wall_panel_data(FakeCache(), EXP, plans, points=50)}
+    for v in (ILQG, R1):
+        assert rows[v.label]["median"][-1] == summarize(plans, v)["final_cost_median"]
+    assert np.all(np.isnan(rows["AICO"]["median"]))
+    # the diverged iLQG run: its iterations before the divergence, against their end times
+    t, y = rows["iLQG"]["diverged"][0]
+    assert list(y) == [500, 300, 200] and list(t) == pytest.approx([0.01, 0.02, 0.03])
+    at = cost_at_times(np.array([[5.0, 3.0]]), np.array([[1.0, 2.0]]), np.array([0.5, 1.0, 1.5, 2.5]))
+    assert np.isnan(at[0, 0]) and list(at[0, 1:]) == [5.0, 5.0, 3.0]
+
+
+def test_wall_time_panel_where_the_data_asks_for_it():
+    fddp = Experiment("f", "arm5", "reach", "analytic", (R1, Variant("fddp")), 6, 2, "")
+    assert wants_wall_panel(fddp, {})  # the crocoddyl baseline: always
+    assert wants_wall_panel(EXP, {"iLQG": 0.2, "R-AICO a=1": 0.025})
+    assert not wants_wall_panel(EXP, {"iLQG": 0.03, "AICO": 0.029, "R-AICO a=1": 0.02})
+    assert not wants_wall_panel(EXP, {"iLQG": 0.03})
+
+
+def test_one_colour_per_solver_across_all_figures():
+    seen: dict[str, str] = {}
+    for exp in EXPERIMENTS.values():
+        labels = [v.label for v in exp.variants]
+        colors = figure_colors(labels)
+        assert len(set(colors.values())) == len(labels), exp.id  # distinct within the figure
+        for lab, c in colors.items():
+            assert seen.setdefault(lab, c) == c, lab  # the same in every figure
+            assert c == solver_color(lab)
+    # the thesis's solvers, the ablation, the adaptive schedule and the crocoddyl baseline are named
+    for lab in ("iLQG", "AICO", "AICO (no sweep relinearization)", "R-AICO a=1", "R-AICO a=10"):
+        assert lab in SOLVER_COLORS
+    assert solver_color("R-AICO adaptive (a0=1)") == solver_color("R-AICO adaptive (a0=10)") == "tab:cyan"
+    assert solver_color("R-AICO adaptive (a0=1)") not in SOLVER_COLORS.values()
+
+
+def test_unknown_labels_get_a_deterministic_distinct_colour():
+    c = solver_color("some new solver")
+    assert c in FALLBACK_COLORS and c == solver_color("some new solver")
+    # two labels that would share a colour (a prefix) are told apart within a figure, deterministically
+    labels = ["iLQG", "R-AICO adaptive (a0=1)", "R-AICO adaptive (a0=10)", "some new solver"]
+    colors = figure_colors(labels)
+    assert len(set(colors.values())) == 4 and colors == figure_colors(list(reversed(labels)))
+    assert colors["iLQG"] == SOLVER_COLORS["iLQG"]
+
+
+def row(label, final, via=0.05, terms=None, first=1000.0, wall=1.0):
+    return {"label": label, "runs": 10, "diverged": 0, "converged": 0, "final_cost_median": final,
+            "first_cost_median": first, "cost_ratio_median": final / first, "cost_ratio_max": final / first,
+            "final_cost_max": 1.02 * final, "max_via_error_median": via, "wall_time_median_s": wall,
+            "term_medians": terms or {}}
+
+
+def test_identical_results_are_remarked_with_the_measured_terms():
+    c = {"figure": "fig3.2c", "summary": [row("iLQG", 2400.0), row("R-AICO a=1", 473.5, terms={"control": 445.5})]}
+    d = {"figure": "fig3.2d", "summary": [row("iLQG", 3880.0),
+                                          row("R-AICO a=1", 473.6, first=1090.0, wall=0.7,
+                                              terms={"control": 445.6, "roll": 2.2e-6})]}
+    remarks = identical_results_remarks([c, d])
+    assert list(remarks) == ["fig3.2d"] and len(remarks["fig3.2d"]) == 1
+    text = remarks["fig3.2d"][0]
+    assert "fig3.2c and fig3.2d give the same results for R-AICO a=1**" in text and "iLQG" not in text.split("**")[1]
+    assert "roll (fig3.2d only)" in text and "roll costs 2.2e-06 (R-AICO a=1)" in text
+    assert "control 445.5 -> 445.6 (R-AICO a=1, +0.1)" in text and "wrist_roll" in text  # the measured reason
+    # to the tables' precision only: a stricter tolerance, or results that differ, give no remark
+    assert identical_results_remarks([c, d], rtol=1e-12) == {}
+    d["summary"][1]["max_via_error_median"] = 0.06
+    assert identical_results_remarks([c, d]) == {}
+    # learning figures (other summaries) and figures without a summary are not compared
+    assert identical_results_remarks([{"figure": "fig4.3", "summary": [{"label": "every"}]},
+                                      {"figure": "fig4.1/4.2", "summary": [{"label": "every"}]}]) == {}
+
+
+def test_figure_renders_from_the_panels_data(runs, tmp_path):
+    import matplotlib.image as mpimg
+
+    plans = synthetic_plans(runs)
+    write_figure(FakeCache(), EXP, plans, tmp_path / "figure.png")
+    img = mpimg.imread(tmp_path / "figure.png")
+    assert img.shape[1] > 1000 and img[..., :3].std() > 0.05  # two panels (time per iteration differs), not blank
