@@ -5,10 +5,42 @@ its inputs', e.g. the plan of an execution) and writes the recording files into 
 the cache moves them beside the data (``Cache.write_derived``). Because recordings are made
 from the data, a run first made with ``--no-record`` gets its recording later without
 recomputing, and the recording is never part of the data's cache key.
+
+Each stage has its own blueprint (``pipeline.recording.stage_blueprint``): the robot on the
+left, the plots that matter on the right, on ``sim_time``, where the file opens; and its own
+application id per stage, plant and task (``pipeline.recording.application_id``), since a viewer
+shows every recording of one application id in one layout.
+
+Plan recordings:
+
+- ``task/<name>``: one entity per task map, its components named (``x``, ``y``, ``z``; a roll
+  angle ``roll (unwrapped)``); terms on the same map share it (the arm's ``via_x1`` and
+  ``via_x2`` -> ``task/ee``, the Nao's three CoG via-points -> ``task/cog``), otherwise it is
+  named after its term. ``task/<name>/target``: the via-point targets as markers at their steps.
+  A term held over many steps (the Nao's right sole) plots ``task/<name>/deviation``: the largest
+  distance of its points from their targets (m); ``value`` then holds the first point only.
+  Angles (roll) are unwrapped along time and shifted by a multiple of 2 pi so that the first
+  via-point step keeps the wrapped value the cost saw; the MCAP keeps the raw values.
+- ``cost/total``: the cost per iteration on the ``iteration`` timeline, and
+  ``cost/log10_per_iteration``: the same (iteration 0: the initial trajectory) as a static bar
+  chart of log10(cost), which every timeline shows: a time series of data on ``iteration`` is
+  empty while ``sim_time`` is active (Rerun 0.41 has no per-view timeline, and a visible time range
+  on ``iteration`` does not help). The cost views are tabs under the robot: the bar chart first.
+- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recording``). The plan stores
+  only the final iterate's trajectory, so the ``iteration`` timeline shows the robot at the plan's
+  final pose from iteration 0 on (``log_robot_pose``) with the static paths of the final plan,
+  instead of every body at the world origin.
+- ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
+
+Execute recordings plot ``task/<name>/value`` (executed) against ``task/<name>/planned`` and the
+targets in one view per task map, the tracking error, the joints and torques by limb, the
+status and the events; babble and fit recordings follow the same layout.
 """
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +51,9 @@ from pipeline.recorders_fit import record_fit
 
 RECORDING = "recording.rrd"
 MCAP = "trajectory.mcap"
+XYZ_COLORS = {"x": (235, 90, 80), "y": (95, 195, 95), "z": (80, 145, 245)}
+ANGLE_COLOR = (240, 175, 40)
+COST_COLOR = (240, 175, 40)
 
 
 def _input(inputs: list, stage: str):
@@ -32,7 +67,8 @@ def _episode_times(t: np.ndarray, episodes: int, gap: float) -> np.ndarray:
 
 
 def record_babble(folder: Path, art, inputs: list) -> None:
-    """Every babbling episode laid end to end on ``sim_time``: robot, desired and torque series."""
+    """Every babbling episode laid end to end on ``sim_time``: robot (at most ``MAX_POSES`` poses
+    per episode), joints, desired joints and torques by limb."""
     from plants.robots import shared_robot
 
     cfg = art.config
@@ -42,19 +78,28 @@ def record_babble(folder: Path, art, inputs: list) -> None:
     E, K, n = q.shape
     times = _episode_times(t, E, gap=t[1] - t[0])
     Q = q.reshape(-1, n)
-    with rec_mod.Recording(folder / RECORDING, properties={"stage": "babble", "key": art.key, **cfg},
-                           name=f"babble {cfg['plant']}", time_series=["desired", "torque"],
-                           eye=rec_mod.robot_eye(robot)) as rec:
+    poses = (np.arange(E)[:, None] * K + rec_mod.pose_indices(K, rec_mod.n_bodies(robot))[None, :]).reshape(-1)
+    sel = rec_mod.plot_indices(E * K)
+    groups = rec_mod.joint_groups(robot.joint_names)
+    eye = rec_mod.robot_eye(robot, Q[poses])
+    plots = [rec_mod.group_views(r, groups, title) for r, title in
+             (("joints", "joints (rad)"), ("desired", "desired joints (rad)"), ("torque", "torque (N m)"))]
+    blueprint = rec_mod.stage_blueprint(eye, plots)
+    with rec_mod.Recording(folder / RECORDING, rec_mod.application_id("babble", cfg["plant"]),
+                           properties={"stage": "babble", "key": art.key, **cfg},
+                           name=f"babble {cfg['plant']}", blueprint=blueprint) as rec:
         rec_mod.log_robot_geometry(rec, robot)
-        rec_mod.log_body_trajectory(rec, robot, times, Q)
-        rec_mod.log_joint_series(rec, robot.joint_names, times, data["q_des"].reshape(-1, n), root="desired")
-        rec_mod.log_joint_series(rec, robot.joint_names, times, u.reshape(-1, n), root="torque")
-        rec_mod.log_scalars(rec, "episode_index", "sim_time", times, np.repeat(np.arange(E), K))
+        rec_mod.log_body_trajectory(rec, robot, times, Q, poses=poses)
+        rec_mod.log_joint_series(rec, robot.joint_names, times[sel], data["q_des"].reshape(-1, n)[sel],
+                                 root="desired", continuous=rec_mod.continuous_joints(robot))
+        rec_mod.log_joint_series(rec, robot.joint_names, times[sel], u.reshape(-1, n)[sel], root="torque")
+        rec_mod.log_scalars(rec, "episode_index", "sim_time", times[sel], np.repeat(np.arange(E), K)[sel])
     write_trajectory_mcap(folder / MCAP, robot, times, Q, qdot.reshape(-1, n), u.reshape(-1, n))
 
 
 def record_plan(folder: Path, art, inputs: list) -> None:
-    """The planned motion, task values against their via-points, controls and cost per iteration."""
+    """The planned motion, task values against their via-points, controls and cost per iteration
+    (see the module docstring)."""
     from plants.robots import shared_robot
     from stages.plan.stage import objective_from_description
 
@@ -66,18 +111,65 @@ def record_plan(folder: Path, art, inputs: list) -> None:
     n, times, costs = robot.n_q, d["times"], d["costs"]
     X = d["X"] if np.all(np.isfinite(d["X"])) else np.nan_to_num(d["X"], nan=0.0, posinf=0.0, neginf=0.0)
     U = d["U"]
-    with rec_mod.Recording(folder / RECORDING, properties={"stage": "plan", "key": art.key, **cfg},
-                           name=f"plan {cfg['plant']} {cfg['task']} {cfg['solver']}",
-                           time_series=["task", "cost"], eye=rec_mod.robot_eye(robot)) as rec:
+    plots = task_plots(objective, X, robot.joint_names)
+    vias = sorted({s for tp in plots for s, _ in tp.targets})
+    eye = rec_mod.robot_eye(robot, X[:, :n])
+    groups = rec_mod.joint_groups(robot.joint_names)
+    views = [*task_views(plots), rec_mod.group_views("joints", groups, "joints (rad)"),
+             rec_mod.group_views("control", groups, "control (" + _control_unit(desc) + ")")]
+    blueprint = rec_mod.stage_blueprint(eye, views, [cost_views()])
+    metrics = art.metrics or {}
+    with rec_mod.Recording(folder / RECORDING, rec_mod.application_id("plan", cfg["plant"], cfg["task"]),
+                           properties={"stage": "plan", "key": art.key, **cfg},
+                           name=f"plan {cfg['plant']} {cfg['task']} {cfg['solver']}", blueprint=blueprint) as rec:
         rec_mod.log_robot_geometry(rec, robot)
-        rec_mod.log_body_trajectory(rec, robot, times, X[:, :n])
-        if costs.size:
-            rec_mod.log_scalars(rec, "cost/total", "iteration", np.arange(1, costs.size + 1), costs)
-        values = log_task_values(rec, objective, times, X)
-        log_task_paths(rec, objective, X)
-        rec_mod.log_joint_series(rec, robot.joint_names, times[:-1], U, root="control")
+        rec_mod.log_body_trajectory(rec, robot, times, X[:, :n], keep=vias)
+        rec_mod.log_robot_pose(rec, robot, X[-1, :n], "iteration", 0)
+        log_costs(rec, costs, metrics.get("initial_cost"))
+        sel = rec_mod.plot_indices(len(times), vias)
+        log_task_plots(rec, plots, times, sel)
+        log_task_paths(rec, objective, X, plots)
+        sel_u = rec_mod.plot_indices(len(U), vias)
+        rec_mod.log_joint_series(rec, robot.joint_names, times[:-1][sel_u], U[sel_u], root="control")
+    values = {term: tp.raw for tp in plots for term in tp.terms}
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([U, np.full((1, n), np.nan)]), task_values=values)
+
+
+def _control_unit(desc: dict) -> str:
+    return "rad/s^2" if desc.get("control_kind") == "acceleration" else "N m"
+
+
+def cost_views():
+    """Tabs under the robot: the static bar chart of log10(cost) per iteration (every timeline shows
+    it) and the cost on the ``iteration`` timeline."""
+    import rerun.blueprint as rrb
+
+    return rrb.Tabs(
+        rrb.BarChartView(origin="/cost", contents="/cost/log10_per_iteration", name="log10 cost per iteration",
+                         plot_legend=rrb.PlotLegend(visible=False)),
+        rrb.TimeSeriesView(origin="/cost", contents="/cost/total", name="cost (iteration timeline)"),
+        name="cost", active_tab=0)
+
+
+def log_costs(rec, costs: np.ndarray, initial: float | None = None) -> None:
+    """``cost/total`` on ``iteration`` (1, 2, ...) and ``cost/log10_per_iteration``, a static bar
+    chart of log10(cost) against the iteration (0: ``initial``, the initial trajectory's cost, if
+    known); non-finite costs get no bar."""
+    import rerun as rr
+
+    costs = np.asarray(costs, dtype=float)
+    its = np.arange(1, costs.size + 1)
+    if costs.size:
+        rec_mod.log_scalars(rec, "cost/total", "iteration", its, costs, names=["cost"], colors=[COST_COLOR])
+    if initial is not None and np.isfinite(initial):
+        its, costs = np.r_[0, its], np.r_[float(initial), costs]
+    with np.errstate(all="ignore"):
+        bars = np.log10(costs)
+    good = np.isfinite(bars)
+    if good.any():
+        rec.rec.log("cost/log10_per_iteration", rr.BarChart(bars[good], abscissa=its[good].astype(float),
+                                                           color=COST_COLOR), static=True)
 
 
 def record_execute(folder: Path, art, inputs: list) -> None:
@@ -97,56 +189,66 @@ def record_execute(folder: Path, art, inputs: list) -> None:
     n = robot.n_q
     X, X_plan, tau, times = np.nan_to_num(d["X"]), d["X_plan"], d["tau"], d["times"]
     free = "q_free" in d
-    series = ["task", "torque", "error", *(["cog"] if free else [])]
-    eye = rec_mod.robot_eye(robot)
-    with rec_mod.Recording(folder / RECORDING, properties={"stage": "execute", "key": art.key, "plan": pconf,
-                                                            **art.config},
+    plots = task_plots(objective, X, robot.joint_names)
+    planned = task_plots(objective, np.nan_to_num(X_plan), robot.joint_names)
+    vias = sorted({s for tp in plots for s, _ in tp.targets})
+    eye = rec_mod.robot_eye(robot, X[:, :n])
+    with rec_mod.Recording(folder / RECORDING, rec_mod.application_id("execute", pconf["plant"], pconf["task"]),
+                           properties={"stage": "execute", "key": art.key, "plan": pconf, **art.config},
                            name=f"execute {pconf['plant']} {pconf['task']} {pconf['solver']}",
-                           time_series=series, eye=eye) as rec:
-        rec.rec.send_blueprint(_execute_blueprint(series, eye), make_active=True, make_default=True)
+                           blueprint=_execute_blueprint(plots, robot.joint_names, eye, free)) as rec:
+        sel = rec_mod.plot_indices(len(times), vias)
         if free:  # the free-standing Nao: its own plant (floating base, floor) and stored positions
             from plants.free_nao import shared_free_nao
 
             nao = shared_free_nao()
+            poses = rec_mod.pose_indices(len(times), rec_mod.n_bodies(nao), vias)
             rec_mod.log_robot_geometry(rec, nao)
-            rec_mod.log_body_trajectory(rec, nao, times, _hold_last_finite(d["q_free"]), joints=False)
-            rec_mod.log_joint_series(rec, robot.joint_names, times, X[:, :n])
+            rec_mod.log_body_trajectory(rec, nao, times, _hold_last_finite(d["q_free"]), joints=False, poses=poses)
+            rec_mod.log_joint_series(rec, robot.joint_names, times[sel], X[sel, :n],
+                                     continuous=rec_mod.continuous_joints(robot))
         else:
             rec_mod.log_robot_geometry(rec, robot)
-            rec_mod.log_body_trajectory(rec, robot, times, X[:, :n])
-        values = log_task_values(rec, objective, times, X)
-        log_task_values(rec, objective, times, np.nan_to_num(X_plan), root="task_planned")
+            rec_mod.log_body_trajectory(rec, robot, times, X[:, :n], keep=vias)
+        log_task_plots(rec, plots, times, sel)
+        log_task_plots(rec, planned, times, sel, series="planned", targets=False)
+        if not free:  # the free Nao stands elsewhere in its world than the fixed model the tasks are in
+            log_task_paths(rec, objective, X, plots)
+            log_task_paths(rec, objective, X_plan, planned, label="planned")
         if len(tau):
-            rec_mod.log_joint_series(rec, robot.joint_names, times[:len(tau)], tau, root="torque")
+            sel_u = rec_mod.plot_indices(len(tau), vias)
+            rec_mod.log_joint_series(rec, robot.joint_names, times[:len(tau)][sel_u], tau[sel_u], root="torque")
         err = np.linalg.norm(X[:, :n] - X_plan[:, :n], axis=1)
-        rec_mod.log_scalars(rec, "error/planned_vs_executed", "sim_time", times, err)
+        rec_mod.log_scalars(rec, "error/planned_vs_executed", "sim_time", times[sel], err[sel],
+                            names=["|q - q_plan| (rad)"])
         if free:
             cog, margin = d["cog"], d["cog_margin"]
-            rec_mod.log_scalars(rec, "cog/margin", "sim_time", times, np.nan_to_num(margin))
-            rec_mod.log_scalars(rec, "cog/xy", "sim_time", times, np.nan_to_num(cog[:, :2]), names=["cog x", "cog y"])
-            _log_support(rec, times, d["support"], cog, margin, d["contact_points"])
+            rec_mod.log_scalars(rec, "cog/margin", "sim_time", times[sel], np.nan_to_num(margin)[sel],
+                                names=["CoG margin in the support polygon (m)"])
+            rec_mod.log_scalars(rec, "cog/xy", "sim_time", times[sel], np.nan_to_num(cog[:, :2])[sel],
+                                names=["cog x", "cog y"], colors=[XYZ_COLORS["x"], XYZ_COLORS["y"]])
+            _log_support(rec, times, d["support"], cog, margin, d["contact_points"], poses)
         _log_status(rec, art, times)
+    values = {term: tp.raw for tp in plots for term in tp.terms}
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([tau, np.full((len(times) - len(tau), n), np.nan)]), task_values=values)
 
 
-def _execute_blueprint(time_series: list[str], eye):
-    """The default layout (3D view beside the time series) with the status text and the event log."""
+def _execute_blueprint(plots: list, joint_names, eye, free: bool):
+    """The robot above the status text and the event log; on the right the task views (executed
+    against planned), the tracking error (and the CoG's margin for the free Nao), joints and torques
+    by limb."""
     import rerun.blueprint as rrb
 
-    plots = [rrb.TimeSeriesView(origin=f"/{r}", name=r) for r in ["joints", *time_series]]
-    controls = rrb.EyeControls3D(position=list(map(float, eye[0])), look_target=list(map(float, eye[1])),
-                                 eye_up=[0.0, 0.0, 1.0])
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="/world", contents="/world/**", name="robot", eye_controls=controls),
-            rrb.Vertical(rrb.TextDocumentView(origin="/status", name="status"),
-                         rrb.TextLogView(origin="/events", name="events"), *plots,
-                         row_shares=[1, 1, *[2] * len(plots)]),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
+    groups = rec_mod.joint_groups(joint_names)
+    error = rrb.TimeSeriesView(origin="/error", name="tracking error (rad)")
+    views = [*task_views(plots, planned=True), error,
+             *([rrb.TimeSeriesView(origin="/cog", name="CoG (m)")] if free else []),
+             rec_mod.group_views("joints", groups, "joints (rad)"),
+             rec_mod.group_views("torque", groups, "torque (N m)")]
+    below = [rrb.Horizontal(rrb.TextDocumentView(origin="/status", name="status"),
+                            rrb.TextLogView(origin="/events", name="events"))]
+    return rec_mod.stage_blueprint(eye, views, below)
 
 
 def _hold_last_finite(Q: np.ndarray) -> np.ndarray:
@@ -202,38 +304,163 @@ def task_series(problem, X: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarra
     return out
 
 
+HELD_STEPS = 3  # a term active at more steps is "held": its plot is the deviation, not the targets
+
+
+@dataclass
+class TaskPlot:
+    """What is plotted of one task map: at ``task/<entity>``, ``values (K, d)`` named ``names`` (the
+    map's plotted components; ``raw (K, dim)``: every component, as the cost sees them), the
+    ``targets`` ``[(step, (d,))]`` of its via-point terms, and for terms held over many steps the
+    ``deviation (K,)`` (largest distance of a point from its target). ``unit``: m or rad."""
+
+    entity: str
+    terms: list[str]
+    raw: np.ndarray
+    values: np.ndarray
+    names: list[str]
+    unit: str
+    colors: list | None = None
+    targets: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    deviation: np.ndarray | None = None
+
+
+def _map_components(m: dict | None, dim: int, name: str, joint_names) -> tuple[list[str], int, str, bool]:
+    """(component names, coordinates per point, unit, angle?) of a task-map description."""
+    kind = (m or {}).get("map")
+    if kind in ("frame_points", "cog"):
+        axes = [("x", "y", "z")[a] for a in m.get("axes", (0, 1, 2))]
+        return axes, len(axes), "m", False
+    if kind == "roll":
+        return [f"{name} (unwrapped)"], 1, "rad", True
+    if kind == "joints":
+        idx = m.get("indices") or range(len(joint_names))
+        return [joint_names[i] for i in idx], dim, "rad", False
+    return [f"{name}[{i}]" for i in range(dim)], dim, "", False
+
+
+def task_plots(problem, X: np.ndarray, joint_names=()) -> list[TaskPlot]:
+    """The via-point terms of ``problem`` grouped by task map (terms on the same map share a plot,
+    named after the map; a map of one term is named after the term), evaluated along ``X``.
+    Nothing if ``X`` is not finite."""
+    if not np.all(np.isfinite(X)):
+        return []
+    n_q, K = X.shape[1] // 2, X.shape[0]
+    descs = {d["name"]: d for d in getattr(problem, "descriptions", []) if d.get("term") == "via"}
+    groups: dict[str, tuple[dict | None, list]] = {}
+    for term in problem.state_terms:
+        if hasattr(term, "taskmap"):
+            m = descs.get(term.name, {}).get("map")
+            key = json.dumps(m, sort_keys=True) if m else f"term:{term.name}"
+            groups.setdefault(key, (m, []))[1].append(term)
+    out = []
+    for m, terms in groups.values():
+        name = terms[0].name if len(terms) == 1 else (m or {}).get("name", terms[0].name)
+        raw, _ = terms[0].taskmap.values_and_jacobians(X[:, :n_q])
+        raw = np.asarray(raw, dtype=float).reshape(K, -1)
+        names, per_point, unit, angle = _map_components(m, raw.shape[1], name, list(joint_names))
+        targets, deviation = [], None
+        for term in terms:
+            steps = np.flatnonzero(term.active(np.arange(K)))
+            if steps.size <= HELD_STEPS:
+                targets += [(int(s), term.target[:len(names)]) for s in steps]
+            else:
+                diff = (raw - term.target).reshape(K, -1, per_point)
+                dev = np.linalg.norm(diff, axis=2).max(axis=1)
+                deviation = dev if deviation is None else np.maximum(deviation, dev)
+        targets.sort(key=lambda st: st[0])
+        values = raw[:, :len(names)].copy()
+        if angle:
+            ref = targets[0][0] if targets else 0
+            values = np.column_stack([rec_mod.unwrap(values[:, i], ref) for i in range(values.shape[1])])
+        colors = [XYZ_COLORS[c] for c in names] if all(c in XYZ_COLORS for c in names) else \
+            [ANGLE_COLOR] if angle else None
+        out.append(TaskPlot(rec_mod.entity_name(name), [t.name for t in terms], raw, values, names, unit, colors,
+                            targets, deviation))
+    return out
+
+
+def _faded(colors: list | None) -> list | None:
+    return None if colors is None else [tuple(int(0.45 * c + 0.55 * 150) for c in rgb) for rgb in colors]
+
+
+def log_task_plots(rec, plots: list[TaskPlot], times: np.ndarray, sel: np.ndarray | None = None,
+                   root: str = "task", series: str = "value", targets: bool = True) -> None:
+    """``root/<entity>/<series>`` (at the samples ``sel``), ``.../target`` markers at the via-point
+    steps and ``.../deviation`` (``deviation_<series>`` unless ``series`` is ``value``) for the
+    plots of :func:`task_plots`. The ``planned`` series is drawn paler and thinner."""
+    sel = np.arange(len(times)) if sel is None else sel
+    plain = series == "value"
+    for tp in plots:
+        base = f"{root}/{tp.entity}"
+        suffix = "" if plain else f" ({series})"
+        rec_mod.log_scalars(rec, f"{base}/{series}", "sim_time", times[sel], tp.values[sel],
+                            names=[n + suffix for n in tp.names], colors=tp.colors if plain else _faded(tp.colors),
+                            widths=None if plain else 1.0)
+        if targets and tp.targets:
+            steps = np.array([s for s, _ in tp.targets])
+            rec_mod.log_scalars(rec, f"{base}/target", "sim_time", times[steps],
+                                np.array([t for _, t in tp.targets]), names=[n + "*" for n in tp.names],
+                                colors=tp.colors, points=True)
+        if tp.deviation is not None:
+            rec_mod.log_scalars(rec, f"{base}/deviation" + ("" if plain else f"_{series}"), "sim_time", times[sel],
+                                tp.deviation[sel], names=[f"deviation from target{suffix} ({tp.unit})"],
+                                colors=None if plain else [(150, 150, 150)], widths=None if plain else 1.0)
+
+
+def task_views(plots: list[TaskPlot], root: str = "task", planned: bool = False) -> list:
+    """One time series view per task map: values and targets, or the deviation of a held term
+    (``planned``: also the planned series)."""
+    import rerun.blueprint as rrb
+
+    views = []
+    for tp in plots:
+        base = f"/{root}/{tp.entity}"
+        if tp.deviation is not None and not tp.targets:
+            contents = [f"{base}/deviation", *([f"{base}/deviation_planned"] if planned else [])]
+            title = f"{tp.entity}: deviation ({tp.unit})"
+        else:
+            contents = [f"{base}/value", f"{base}/target", *([f"{base}/planned"] if planned else [])]
+            title = f"{tp.entity} ({tp.unit})" if tp.unit else tp.entity
+        views.append(rrb.TimeSeriesView(origin=base, contents=contents, name=title))
+    return views
+
+
 def log_task_values(rec, problem, times: np.ndarray, X: np.ndarray, root: str = "task") -> dict:
-    """``task/<term>`` values on ``sim_time`` and ``task/<term>/target`` at the via-point times."""
-    series = task_series(problem, X)
-    for name, (vals, target, steps) in series.items():
-        dims = [f"{name}[{i}]" for i in range(vals.shape[1])]
-        rec_mod.log_scalars(rec, f"{root}/{name}/value", "sim_time", times, vals, names=dims)
-        if steps.size <= 3:
-            rec_mod.log_scalars(rec, f"{root}/{name}/target", "sim_time", times[steps],
-                                np.tile(target, (steps.size, 1)), names=[d + "*" for d in dims])
-    return {name: v for name, (v, _, _) in series.items()}
+    """``root/<map>/value`` on ``sim_time``, ``.../target`` markers at the via-point times (see
+    :func:`task_plots`); returns the values per term ``{term: (K, dim)}``."""
+    plots = task_plots(problem, X)
+    log_task_plots(rec, plots, times, root=root)
+    return {term: tp.raw for tp in plots for term in tp.terms}
 
 
-def log_task_paths(rec, problem, X: np.ndarray) -> None:
-    """3-D task maps (CoG, end effector): the path as a line in the 3D view, targets as dots."""
-    for name, (vals, target, steps) in task_series(problem, X).items():
-        if vals.shape[1] != 3 or steps.size > 3:
+def log_task_paths(rec, problem, X: np.ndarray, plots: list[TaskPlot] | None = None, label: str = "") -> None:
+    """3-D task maps of one point with via-points (CoG, end effector): the path as a static line in
+    the 3D view (``world/paths/<map>``; with a ``label`` ``world/paths/<map>_<label>``, pale blue),
+    the targets as dots (``world/targets/<map>``)."""
+    for tp in task_plots(problem, X) if plots is None else plots:
+        if tp.raw.shape[1] != 3 or not tp.targets:
             continue
-        rec_mod.log_points_path(rec, f"world/paths/{name}", vals, color=(250, 200, 30), radius=0.003)
-        rec_mod.log_points_path(rec, f"world/targets/{name}", np.atleast_2d(target), color=(230, 40, 40),
-                                radius=0.012, line=False)
+        name = f"{tp.entity}_{label}" if label else tp.entity
+        rec_mod.log_points_path(rec, f"world/paths/{name}", tp.raw, color=(140, 180, 240) if label else (250, 200, 30),
+                                radius=0.003)
+        if not label:
+            rec_mod.log_points_path(rec, f"world/targets/{tp.entity}", np.array([t for _, t in tp.targets]),
+                                    color=(230, 40, 40), radius=0.012, line=False)
 
 
 def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, margin: np.ndarray,
-                 contacts: np.ndarray) -> None:
+                 contacts: np.ndarray, steps: np.ndarray | None = None) -> None:
     """Per step: the support polygon of the sole corners in contact (a line strip on the ground,
     green while the CoG projection is inside, red outside; a segment or a point when fewer corners
     touch; cleared when none do), the contact points, and the CoG's ground projection (a large
-    marker joined to the CoG by a vertical line)."""
+    marker joined to the CoG by a vertical line); at the ``steps`` (default: all) where the robot's
+    pose is logged."""
     import rerun as rr
 
     stream = rec.rec
-    for k, poly in enumerate(support):
+    for k in (range(len(support)) if steps is None else steps):
+        poly = support[k]
         stream.set_time("sim_time", duration=float(times[k]))
         poly = poly[np.all(np.isfinite(poly), axis=1)]
         inside = bool(margin[k] > 0)

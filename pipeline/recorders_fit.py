@@ -3,10 +3,11 @@
 The held-out segments (``heldout.npz``) are laid end to end on ``sim_time``. Per joint, four
 scalar series under ``fit/<joint>/``: ``mean`` (GP predictive mean of qddot, rad/s^2),
 ``upper`` and ``lower`` (mean +- 2 predictive std, the noise included: where a new
-measurement should fall) and ``measured`` (the held-out target); each joint gets its own plot.
-The robot moves through the held-out states in the 3D view. ``fit/summary`` (static text) and
-the recording properties hold the config, the key, the training points' count (used and
-dropped by the cap) and how the hyperparameters were obtained.
+measurement should fall) and ``measured`` (the held-out target); each joint gets its own plot
+(the Nao's in a tab per limb, ``pipeline.recording.joint_groups``). The robot moves through the
+held-out states in the 3D view (poses decimated as in ``pipeline.recording``), above
+``fit/summary`` (static text); that and the recording properties hold the config, the key, the
+training points' count (used and dropped by the cap) and how the hyperparameters were obtained.
 """
 
 from __future__ import annotations
@@ -52,13 +53,37 @@ def record_fit(folder: Path, art, inputs: list) -> None:
     times, X, Y = h["time"], h["X"], h["Y"]
     props = {"stage": "fit", "key": art.key, **art.config, "n_points": doc["n_points"],
              "n_dropped": doc["n_dropped"], "mode": doc["mode"]}
-    with rec_mod.Recording(folder / RECORDING, properties=props, name=f"fit {doc['plant']} ({doc['mode']})",
-                           time_series=[f"fit/{j}" for j in joints], eye=rec_mod.robot_eye(robot)) as rec:
+    eye = rec_mod.robot_eye(robot, X[:, :robot.n_q] if len(times) else None)
+    with rec_mod.Recording(folder / RECORDING, rec_mod.application_id("fit", doc["plant"]), properties=props,
+                           name=f"fit {doc['plant']} ({doc['mode']})", blueprint=fit_blueprint(joints, eye)) as rec:
         rec.rec.log("fit/summary", rr.TextDocument(summary_text(doc), media_type="text/markdown"), static=True)
         rec_mod.log_robot_geometry(rec, robot)
         if len(times):
-            rec_mod.log_body_trajectory(rec, robot, times, X[:, :robot.n_q])
+            rec_mod.log_body_trajectory(rec, robot, times, X[:, :robot.n_q], joints=False)
             mean, lower, upper = predicted_band(model, X)
+            sel = rec_mod.plot_indices(len(times))
             for i, j in enumerate(joints):
                 for name, values in (("mean", mean), ("upper", upper), ("lower", lower), ("measured", Y)):
-                    rec_mod.log_scalars(rec, f"fit/{j}/{name}", "sim_time", times, values[:, i])
+                    rec_mod.log_scalars(rec, f"fit/{j}/{name}", "sim_time", times[sel], values[sel, i],
+                                        names=[f"{j} {name}"], colors=[BAND_COLORS[name]])
+
+
+BAND_COLORS = {"mean": (80, 145, 245), "upper": (120, 120, 150), "lower": (120, 120, 150),
+               "measured": (240, 175, 40)}
+
+
+def fit_blueprint(joints: list[str], eye):
+    """The robot above the summary; per joint a plot of ``fit/<joint>`` (a tab per limb if the
+    joints have limbs)."""
+    import rerun.blueprint as rrb
+
+    def view(j: str):
+        return rrb.TimeSeriesView(origin=f"/fit/{j}", name=f"{j}: qddot (rad/s^2)")
+
+    groups = rec_mod.joint_groups(joints)
+    if "" in groups:
+        plots = [view(j) for j in joints]
+    else:
+        plots = [rrb.Tabs(*[rrb.Vertical(*[view(joints[i]) for i in idx], name=g) for g, idx in groups.items()],
+                          active_tab=0)]
+    return rec_mod.stage_blueprint(eye, plots, [rrb.TextDocumentView(origin="/fit/summary", name="summary")])

@@ -17,14 +17,21 @@ from rerun.chunk import RrdReader
 
 from pipeline.mcap_io import read_trajectory_mcap, write_trajectory_mcap
 from pipeline.recording import (
+    MAX_POSES,
     Recording,
     body_poses,
+    continuous_joints,
+    decimate,
+    joint_groups,
     log_body_trajectory,
     log_points_path,
     log_robot_geometry,
     log_scalars,
+    plot_indices,
+    pose_indices,
     robot_eye,
     rot_to_quat_xyzw,
+    unwrap,
 )
 from plants.robots import PLANTS, shared_robot
 
@@ -95,8 +102,15 @@ def test_recording_has_every_body_and_joint(tmp_path: Path, name: str) -> None:
         for g in geoms:
             assert _rows(chunks, f"/world/robot/{body}/{g}", None) == 1, (body, g)
     assert len(bodies) == robot.plant.num_bodies() - 1
-    for joint in robot.joint_names:
-        assert _rows(chunks, f"/joints/{joint}", "sim_time") == K
+    # one entity per limb (the Nao) or for all joints, its series named after the joints
+    continuous = continuous_joints(robot)
+    named = [j + (" (unwrapped)" if c else "") for j, c in zip(robot.joint_names, continuous, strict=True)]
+    groups = joint_groups(robot.joint_names)
+    assert sorted(i for idx in groups.values() for i in idx) == list(range(robot.n_q))
+    for group, idx in groups.items():
+        entity = f"/joints/{group}" if group else "/joints"
+        assert _rows(chunks, entity, "sim_time") == K
+        assert _column(chunks, entity, "SeriesLines:names")[0] == [named[i] for i in idx]
     assert _rows(chunks, "/cost/total", "iteration") == 5
     assert _rows(chunks, "/task/ee", "sim_time") == K
     # the logged poses are Drake's (xyzw)
@@ -106,6 +120,45 @@ def test_recording_has_every_body_and_joint(tmp_path: Path, name: str) -> None:
     quat = np.array(_column(chunks, f"/world/robot/{bodies[j]}", "Transform3D:quaternion"))
     np.testing.assert_allclose(trans.reshape(K, 3), T[:, j], atol=1e-6)
     np.testing.assert_allclose(quat.reshape(K, 4), R[:, j], atol=1e-6)
+
+
+def test_joint_groups_by_limb() -> None:
+    groups = joint_groups(shared_robot("nao").joint_names)
+    assert list(groups) == ["head", "left_arm", "right_arm", "left_leg", "right_leg"]
+    names = shared_robot("nao").joint_names
+    assert [names[i] for i in groups["left_arm"]] == ["LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll",
+                                                      "LWristYaw", "LHand"]
+    assert [names[i] for i in groups["right_leg"]] == ["RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch",
+                                                       "RAnkleRoll"]
+    assert [len(v) for v in groups.values()] == [2, 6, 6, 6, 5]
+    assert joint_groups(shared_robot("arm5").joint_names) == {"": [0, 1, 2, 3, 4]}
+    assert joint_groups(["HeadYaw", "theta"]) == {"": [0, 1]}  # a name without a limb: no groups
+
+
+def test_decimation_rule() -> None:
+    idx = decimate(1001, MAX_POSES, keep=[333, 500])
+    assert idx[0] == 0 and idx[-1] == 1000 and {333, 500} <= set(idx) and len(idx) <= MAX_POSES + 3
+    assert np.all(np.diff(idx) > 0) and np.diff(idx).max() <= 6
+    np.testing.assert_array_equal(decimate(150, MAX_POSES), np.arange(150))
+    # the pendulum's swing-up (751 samples, 3 bodies) at full rate; the arm's 1001 x 7 and the Nao's 301 x 31 not
+    assert len(pose_indices(751, 3)) == 751
+    assert len(pose_indices(1001, 7)) <= MAX_POSES + 1 and len(pose_indices(301, 31)) <= MAX_POSES + 1
+    assert len(plot_indices(1001)) == 1001 and len(plot_indices(10_001)) <= 2001
+
+
+def test_unwrap_angles() -> None:
+    true = np.linspace(2.0, 4.5, 50)  # through +pi: the wrapped trace jumps by -2 pi
+    wrapped = np.angle(np.exp(1j * true))
+    assert np.abs(np.diff(wrapped)).max() > 6
+    np.testing.assert_allclose(unwrap(wrapped), true, atol=1e-12)
+    # shifted so that the reference sample keeps its (wrapped) value
+    out = unwrap(wrapped, reference=49)
+    assert out[49] == pytest.approx(wrapped[49]) and np.abs(np.diff(out)).max() < 0.1
+    gap = wrapped.copy()
+    gap[10] = np.nan
+    assert np.isnan(unwrap(gap)[10]) and np.abs(np.diff(np.delete(unwrap(gap), 10))).max() < 0.2
+    assert continuous_joints(shared_robot("pendulum")).tolist() == [True]
+    assert not continuous_joints(shared_robot("arm5")).any() and not continuous_joints(shared_robot("nao")).any()
 
 
 def test_recording_properties_and_capsule_offset(tmp_path: Path) -> None:
@@ -215,3 +268,85 @@ def test_rerun_converts_mcap(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     entities = {c.entity_path for c in _chunks(dst)}
     assert {"/joint_states", "/tf", "/task/ee"} <= entities
+
+
+def _blueprint(path: Path) -> tuple[dict[str, str], str | None]:
+    """View name -> view class of the file's blueprint, and the timeline its time panel selects."""
+    reader = RrdReader(path)
+    views, timeline = {}, None
+    for c in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = c.to_record_batch()
+        cols = batch.schema.names
+        if "ViewBlueprint:display_name" in cols:
+            views[batch.column("ViewBlueprint:display_name").to_pylist()[0][0]] = \
+                batch.column("ViewBlueprint:class_identifier").to_pylist()[0][0]
+        if "TimePanelBlueprint:timeline" in cols:
+            timeline = batch.column("TimePanelBlueprint:timeline").to_pylist()[0][0]
+    return views, timeline
+
+
+def _plan(tmp_path: Path, *args) -> Path:
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    res = CliRunner().invoke(app, ["plan", *map(str, args), "--solver", "raico", "--alpha", "1", "--iterations", "2",
+                                   "--json", "--quiet", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    return Path(json.loads(res.stdout.strip().splitlines()[-1])["recording"])
+
+
+def _names(chunks: list) -> dict[str, list[str]]:
+    """Entity -> the names of its series (lines or points)."""
+    out = {}
+    for c in chunks:
+        batch = c.to_record_batch()
+        for col in ("SeriesLines:names", "SeriesPoints:names"):
+            if c.is_static and col in batch.schema.names:
+                out[c.entity_path] = batch.column(col).to_pylist()[0]
+    return out
+
+
+def test_nao_plan_recording_layout(tmp_path: Path) -> None:
+    """Grouped legends, a decimated motion, the cost on every timeline and a pose on ``iteration``."""
+    rrd = _plan(tmp_path, "--plant", "nao", "--task", "balance", "--dynamics", "pseudo")
+    chunks = _chunks(rrd)
+    names = _names(chunks)
+    # no x[i] legends: vectors are named entities, the joints and controls grouped by limb
+    assert not [n for ns in names.values() for n in ns if "[" in n]
+    assert names["/task/cog/value"] == ["x", "y", "z"] and names["/task/cog/target"] == ["x*", "y*", "z*"]
+    assert _rows(chunks, "/task/cog/target", "sim_time") == 3  # the three CoG via-points share the cog map
+    assert names["/task/r_sole/value"] == ["x", "y", "z"] and _rows(chunks, "/task/r_sole/deviation", "sim_time") == 301
+    assert len(names["/joints/left_leg"]) == 6 and len(names["/control/right_arm"]) == 6
+    assert sum(len(names[f"/joints/{g}"]) for g in ("head", "left_arm", "right_arm", "left_leg", "right_leg")) == 25
+    # 301 samples x 31 bodies: decimated poses (the last and the via-point steps kept), plots at full rate
+    rows = _rows(chunks, "/world/robot/torso", "sim_time")
+    assert 100 <= rows <= MAX_POSES + 4
+    assert _rows(chunks, "/joints/left_leg", "sim_time") == 301
+    # the cost per iteration: a time series on iteration and a static bar chart (iteration 0: the initial cost)
+    assert _rows(chunks, "/cost/total", "iteration") == 2
+    bars = _column(chunks, "/cost/log10_per_iteration", "BarChart:abscissa")
+    assert bars[0][0]["buffer"] == [0.0, 1.0, 2.0]
+    # every body has a pose on the iteration timeline (no collapse to the world origin)
+    robot = shared_robot("nao")
+    ents = [c.entity_path for c in chunks if "iteration" in c.timeline_names and c.entity_path.startswith("/world")]
+    assert len(ents) == robot.plant.num_bodies() - 1
+    views, timeline = _blueprint(rrd)
+    assert timeline == "sim_time"
+    # an application id per layout: a viewer keeps one active blueprint per application id
+    assert [s.application_id for s in RrdReader(rrd).recordings()] == ["raico-plan-nao-balance"]
+    assert views["robot"] == "3D" and views["log10 cost per iteration"] == "BarChart"
+    assert views["cog (m)"] == "TimeSeries" and views["r_sole: deviation (m)"] == "TimeSeries"
+    assert {"joints: head", "joints: left_leg", "control: right_leg"} <= set(views)
+
+
+def test_arm_plan_recording_unwraps_the_roll(tmp_path: Path) -> None:
+    rrd = _plan(tmp_path, "--plant", "arm5", "--task", "reach-roll", "--dynamics", "analytic")
+    chunks = _chunks(rrd)
+    names = _names(chunks)
+    assert names["/task/roll/value"] == ["roll (unwrapped)"] and names["/task/ee/value"] == ["x", "y", "z"]
+    assert _rows(chunks, "/task/ee/target", "sim_time") == 2 and _rows(chunks, "/task/roll/target", "sim_time") == 2
+    roll = np.concatenate([np.asarray(v).ravel() for v in _column(chunks, "/task/roll/value", "Scalars:scalars")])
+    assert len(roll) == 1001 and np.abs(np.diff(roll)).max() < 1.0
+    assert 150 <= _rows(chunks, "/world/robot/hand", "sim_time") <= MAX_POSES + 3  # 1001 samples: decimated
+    assert {c.entity_path for c in chunks if c.is_static} >= {"/world/paths/ee", "/world/targets/ee"}

@@ -1,70 +1,85 @@
-"""The Rerun viewer renders one recording per plant headless (SPEC §9): the robot is in frame.
+"""The Rerun viewer renders recordings headless (SPEC §9, pipeline/screenshots.py): one babble recording
+per plant shows the robot in frame; a plan recording opens on ``sim_time`` with its cost view drawn, and
+shows the robot in the same pose on the ``iteration`` timeline as at the end of the motion.
 
 Needs a Vulkan driver for the software renderer (`.ci/run` installs Debian's mesa-vulkan-drivers);
 skipped, with the reason, where none is installed.
 """
 
-import glob
 import json
-import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from pipeline.screenshots import (
+    content_mask,
+    read_png,
+    render_screenshot,
+    renderer_unavailable,
+    report_screenshots,
+    robot_mask,
+)
 
-RERUN = Path(sys.executable).with_name("rerun")
-HAS_VULKAN = bool(glob.glob("/usr/share/vulkan/icd.d/*.json"))
-
-
-def _robot_mask(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    import matplotlib.image as mpimg
-
-    img = mpimg.imread(path)[..., :3]
-    H, W = img.shape[:2]
-    view = img[int(0.12 * H):int(0.92 * H), int(0.02 * W):int(0.56 * W)]  # inside the 3D view (left), below its title
-    bright, sat = view.max(axis=2), view.max(axis=2) - view.min(axis=2)
-    return (sat > 0.25) | (bright > 0.55), view  # coloured or light bodies; the grid is dim grey on black
+UNAVAILABLE = renderer_unavailable()
+needs_renderer = pytest.mark.skipif(UNAVAILABLE is not None, reason=str(UNAVAILABLE))
 
 
-def screenshot_robot_pixels(rrd: str, shot: Path, tries: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Open ``rrd`` in a headless viewer and screenshot it once the data has loaded (a screenshot
-    taken before shows an empty scene: retry until robot pixels appear, or give up)."""
-    import socket
-    import time
-
-    from rerun.experimental import ViewerClient
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    os.environ.setdefault("WGPU_BACKEND", "vulkan")
-    viewer = ViewerClient.spawn(headless=True, port=port, executable_path=str(RERUN), hide_welcome_screen=True)
-    try:
-        viewer.open(rrd)
-        for _ in range(tries):
-            viewer.save_screenshot(str(shot))
-            robot, view = _robot_mask(shot)
-            if robot.mean() > 0.002:
-                break
-            time.sleep(1.0)
-        return robot, view
-    finally:
-        viewer.quit()
+def _run(*args) -> dict:
+    res = CliRunner().invoke(app, [*map(str, args), "--json", "--quiet"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.skipif(not HAS_VULKAN, reason="no Vulkan driver (apt-get install mesa-vulkan-drivers)")
+def _assert_in_frame(robot: np.ndarray) -> None:
+    rows, cols = np.nonzero(robot)
+    assert robot.mean() > 3e-4, f"no robot in the 3D view ({robot.mean():.5f} of its pixels)"
+    # in frame: the robot's pixels do not hug the view's border
+    assert rows.min() > 0 and cols.min() > 0 and rows.max() < robot.shape[0] - 1 and cols.max() < robot.shape[1] - 1
+
+
+@needs_renderer
 @pytest.mark.parametrize("plant", ["pendulum", "arm5", "biorob", "nao"])
 def test_viewer_renders_the_robot(tmp_path, plant):
-    res = CliRunner().invoke(app, ["babble", "--plant", plant, "--episodes", "1", "--duration", "0.2", "--json",
-                                   "--quiet", "--artifacts", str(tmp_path)])
-    assert res.exit_code == 0, res.output
-    rrd = json.loads(res.stdout.strip().splitlines()[-1])["recording"]
-    robot, view = screenshot_robot_pixels(rrd, tmp_path / "shot.png")
-    rows, cols = np.nonzero(robot)
-    assert robot.mean() > 0.002, f"no robot in the 3D view ({robot.mean():.4f} of its pixels)"
-    # in frame: the robot's pixels do not hug the view's border
-    assert rows.min() > 0 and cols.min() > 0 and rows.max() < view.shape[0] - 1 and cols.max() < view.shape[1] - 1
+    line = _run("babble", "--plant", plant, "--episodes", 1, "--duration", 0.2, "--artifacts", tmp_path)
+    shot, view = tmp_path / "shot.png", tmp_path / "robot.png"
+    render_screenshot(line["recording"], shot, views={"robot": view})
+    assert shot.exists() and read_png(shot).shape == (1080, 1920, 3)
+    _assert_in_frame(robot_mask(read_png(view)))
+
+
+@needs_renderer
+def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
+    line = _run("plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 3,
+                "--artifacts", tmp_path)
+    rrd = line["recording"]
+    cost = "log10 cost per iteration"
+    # as opened: sim_time, the cost bars drawn (coloured pixels in the cost view), the robot in frame
+    render_screenshot(rrd, tmp_path / "open.png", views={"robot": tmp_path / "robot.png", cost: tmp_path / "cost.png"})
+    bars = content_mask(read_png(tmp_path / "cost.png"))
+    assert bars.mean() > 0.05, f"cost view nearly empty ({bars.mean():.3f} of its pixels coloured)"
+    _assert_in_frame(robot_mask(read_png(tmp_path / "robot.png")))
+    # the iteration timeline shows the plan's final pose, as sim_time does at the end of the motion (1.5 s)
+    render_screenshot(rrd, tmp_path / "end.png", timeline="sim_time", time=1.5, views={"robot": tmp_path / "r_end.png"})
+    render_screenshot(rrd, tmp_path / "it.png", timeline="iteration", time=2, views={"robot": tmp_path / "r_it.png"})
+    end, it = robot_mask(read_png(tmp_path / "r_end.png")), robot_mask(read_png(tmp_path / "r_it.png"))
+    overlap = (end & it).sum() / max((end | it).sum(), 1)
+    assert it.mean() > 3e-4 and overlap > 0.8, f"the robot on the iteration timeline is not at its final pose " \
+                                                f"(IoU {overlap:.2f} with the end of sim_time)"
+    # the report's screenshots: the latest plan of each plant in the cache
+    from pipeline.cache import Cache
+
+    shots = report_screenshots(Cache(tmp_path), tmp_path / "report")
+    assert [p.name for _, p in shots] == ["plan-pendulum.png"] and shots[0][1].exists()
+    assert "pendulum swing-up ilqg" in shots[0][0]
+
+
+def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
+    from pipeline import screenshots
+    from pipeline.cache import Cache
+
+    assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []
+    monkeypatch.setattr(screenshots, "renderer_unavailable", lambda: "no Vulkan driver")
+    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache: {"arm5": object()})
+    assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []

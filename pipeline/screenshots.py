@@ -1,0 +1,217 @@
+"""Screenshots of recordings as the Rerun viewer shows them (SPEC §9), rendered headless.
+
+:func:`render_screenshot` opens one ``.rrd`` in a headless native viewer (``rerun``, rendering
+with a Vulkan driver: Mesa's software ``lavapipe`` is enough, ``apt-get install
+mesa-vulkan-drivers``) with the recording's default blueprint, waits until the data has loaded
+and is drawn, and saves the whole window (1920 x 1080) as a PNG, and, on request, single views
+by name. "Drawn" means: the view named ``robot`` (every recording's 3D view) shows coloured or
+light pixels; a screenshot taken before shows an empty scene, so it retries for a while.
+
+:func:`report_screenshots` renders the most recent plan recording of each plant in a cache, for
+the report; it returns ``[]`` (and raises nothing) where no renderer is available.
+"""
+
+from __future__ import annotations
+
+import glob
+import io
+import os
+import shutil
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["content_mask", "read_png", "render_screenshot", "renderer_unavailable", "report_screenshots", "robot_mask"]
+
+ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.recording)
+VULKAN_ICDS = "/usr/share/vulkan/icd.d/*.json"
+TOAST_S = 4.0  # a new viewer shows a notification ("Listening for gRPC connections") for about 3 s
+ROBOT_PIXELS = 3e-4  # share of a 3D view's pixels showing bodies once drawn (an empty view: 0; the pendulum: 1e-3)
+
+
+def _rerun_executable() -> str | None:
+    venv = Path(sys.executable).with_name("rerun")
+    return str(venv) if venv.exists() else shutil.which("rerun")
+
+
+def renderer_unavailable() -> str | None:
+    """Why recordings cannot be rendered here, or None if they can (a ``rerun`` executable and a
+    Vulkan driver are installed)."""
+    if _rerun_executable() is None:
+        return "the rerun executable is not installed"
+    if not glob.glob(VULKAN_ICDS) and "VK_ICD_FILENAMES" not in os.environ:
+        return "no Vulkan driver (apt-get install mesa-vulkan-drivers)"
+    return None
+
+
+def read_png(png: bytes | str | Path) -> np.ndarray:
+    """RGB floats in [0, 1], ``(H, W, 3)``."""
+    from PIL import Image
+
+    src = io.BytesIO(png) if isinstance(png, bytes) else png
+    with Image.open(src) as im:
+        return np.asarray(im.convert("RGB"), dtype=float) / 255.0
+
+
+def robot_mask(img: np.ndarray) -> np.ndarray:
+    """Pixels of a 3D view's screenshot ``(H, W, 3)`` that show a body: coloured or light (the
+    grid and the background are dim grey on black)."""
+    bright = img.max(axis=2)
+    sat = bright - img.min(axis=2)
+    return (sat > 0.25) | (bright > 0.55)
+
+
+def content_mask(img: np.ndarray) -> np.ndarray:
+    """Pixels of a plot view's screenshot ``(H, W, 3)`` drawn in colour (lines, bars, markers):
+    the axes, the grid and the text are grey."""
+    return (img.max(axis=2) - img.min(axis=2)) > 0.2
+
+
+@dataclass
+class _Viewer:
+    client: Any  # rerun.experimental.ViewerClient
+    started: float  # time.monotonic() at its start
+
+
+@contextmanager
+def _viewer() -> Iterator[_Viewer]:
+    """A headless viewer on a free local port (quit on exit)."""
+    os.environ.setdefault("RUST_LOG", "off")  # the viewer's own log lines
+    os.environ.setdefault("WGPU_BACKEND", "vulkan")
+    from rerun.experimental import ViewerClient
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    viewer = ViewerClient.spawn(headless=True, port=port, executable_path=_rerun_executable(),
+                                hide_welcome_screen=True)
+    try:
+        yield _Viewer(viewer, time.monotonic())
+    finally:
+        viewer.quit()
+
+
+def _robot_drawn(viewer: Any, views: Mapping[str, str]) -> bool:
+    if ROBOT_VIEW not in views:
+        return True
+    return robot_mask(read_png(viewer.take_screenshot(views[ROBOT_VIEW]))).mean() > ROBOT_PIXELS
+
+
+def _shoot(v: _Viewer, rrd: Path, png: Path, views: Mapping[str, str | Path], timeline: str | None,
+           time_value: float | int | None, ready: Callable[[Any, Mapping[str, str]], bool],
+           timeout_s: float) -> Path:
+    """Open ``rrd``, wait until ``ready`` (at most ``timeout_s``), save the window and the ``views``."""
+    viewer = v.client
+    viewer.open(str(rrd))
+    try:
+        # the file's own layout, not the one of an earlier recording of the same application
+        viewer.run_command("recording.reset_blueprint_to_default")
+        if timeline is not None:
+            if isinstance(time_value, float):
+                viewer.set_time(timeline, duration=time_value, play_state="paused")
+            elif time_value is not None:
+                viewer.set_time(timeline, sequence=int(time_value), play_state="paused")
+            else:
+                viewer.set_time(timeline, play_state="paused")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            state = viewer.get_state()
+            ids = {v.name: v.view_id for v in state.views if v.name}
+            if (not state.loading and ids and ready(viewer, ids)) or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        time.sleep(0.3)  # one more frame: plots finish laying out their axes
+        time.sleep(max(0.0, v.started + TOAST_S - time.monotonic()))  # the start notification gone
+        png.parent.mkdir(parents=True, exist_ok=True)
+        viewer.save_screenshot(str(png.resolve()))
+        for name, out in views.items():
+            if name in ids:
+                Path(out).parent.mkdir(parents=True, exist_ok=True)
+                try:
+                    viewer.save_screenshot(str(Path(out).resolve()), view_id=ids[name])
+                except ConnectionError:  # a view that is not on screen (a tab behind another): no file
+                    continue
+    finally:
+        viewer.close("all")
+    return png
+
+
+def render_screenshot(
+    rrd_path: str | Path,
+    png_path: str | Path,
+    *,
+    views: Mapping[str, str | Path] | None = None,
+    timeline: str | None = None,
+    time: float | int | None = None,
+    ready: Callable[[Any, Mapping[str, str]], bool] | None = None,
+    timeout_s: float = 30.0,
+) -> Path:
+    """Render ``rrd_path`` in a headless Rerun viewer with its default blueprint and save the window
+    as ``png_path`` (1920 x 1080); ``views`` ``{view name: png path}`` also saves single views.
+
+    ``timeline`` (and ``time``: s on a duration timeline as a float, a sequence number as an int)
+    moves the time cursor first; without it the viewer shows what a user sees on opening the file.
+    ``ready(viewer, {view name: view id})`` says when the data is drawn (default: the ``robot`` view
+    shows a body); after ``timeout_s`` the screenshot is taken anyway. Raises the viewer's error if
+    it cannot start (see :func:`renderer_unavailable`). Takes about 5 s (the viewer's start).
+    """
+    with _viewer() as viewer:
+        return _shoot(viewer, Path(rrd_path), Path(png_path), views or {}, timeline, time,
+                      ready or _robot_drawn, timeout_s)
+
+
+def _latest_plans(cache: Any) -> dict[str, Any]:
+    """Plant -> the most recent valid plan entry that has a recording (``EntryInfo``)."""
+    from pipeline.recorders import RECORDING
+
+    latest: dict[str, Any] = {}
+    for info in cache.list("plan"):
+        if not info.valid or info.meta is None or not (info.path / RECORDING).is_file():
+            continue
+        plant = (info.meta.get("config") or {}).get("plant")
+        if plant is None:
+            continue
+        best = latest.get(plant)
+        if best is None or (info.created or "") > (best.created or ""):
+            latest[plant] = info
+    return latest
+
+
+def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]]:
+    """One screenshot per plant of the cache in ``out_dir`` (``plan-<plant>.png``): the recording of
+    its most recent plan that has one, as the viewer opens it. Returns ``[(caption, path)]`` sorted
+    by plant; ``[]`` where no renderer is available (:func:`renderer_unavailable`, or the viewer does
+    not start); a recording that fails to render is left out. Nothing raises."""
+    out_dir = Path(out_dir)
+    try:
+        plans = _latest_plans(cache)
+    except Exception:  # noqa: BLE001 - an unreadable cache: no screenshots
+        return []
+    if not plans or renderer_unavailable() is not None:
+        return []
+    from pipeline.recorders import RECORDING
+
+    shots: list[tuple[str, Path]] = []
+    try:
+        with _viewer() as viewer:
+            for plant in sorted(plans):
+                info = plans[plant]
+                cfg = info.meta.get("config") or {}
+                png = out_dir / f"plan-{plant}.png"
+                try:
+                    _shoot(viewer, info.path / RECORDING, png, {}, None, None, _robot_drawn, 30.0)
+                except Exception:  # noqa: BLE001 - one recording the viewer cannot show: leave it out
+                    continue
+                caption = (f"plan {plant} {cfg.get('task', '')} {cfg.get('solver', '')} ({info.key[:8]}), "
+                           f"as the Rerun viewer opens its recording")
+                shots.append((" ".join(caption.split()), png))
+    except Exception:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...)
+        return shots
+    return shots
