@@ -163,8 +163,10 @@ def _ensure_learn_recording(cache: Cache, out: Outcome, robot) -> str | None:
 
 
 def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
-    """Per episode on the ``episode`` timeline: the errors, times and training points; the planned
-    and executed end-effector paths and the GP's predicted variance along the executed motion."""
+    """Per episode on the ``episode`` timeline: the errors, times and training points; the robot at
+    the episode's executed final pose (the last finite state of the execution; the plan's final
+    pose if none is finite), the planned and executed end-effector paths (logged on ``episode``,
+    so each episode shows its own) and the GP's predicted variance along the executed motion."""
     import json
 
     from pipeline import recording as rec_mod
@@ -192,12 +194,16 @@ def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
             stream.set_time("episode", sequence=int(e["episode"]))
             Xe = roll["X"]
             ok = np.all(np.isfinite(Xe), axis=1)
+            final = Xe[ok][-1, :n] if ok.any() else plan["X"][-1, :n]
+            if np.all(np.isfinite(final)):
+                rec_mod.log_robot_pose(rec, robot, final, "episode", int(e["episode"]))
             if ee is not None:
                 for label, X, color in (("planned", plan["X"], (80, 160, 255)), ("executed", Xe, (250, 120, 30))):
                     good = np.all(np.isfinite(X), axis=1)
                     if good.sum() > 1:
                         pts, _ = ee.values_and_jacobians(X[good, :n])
-                        rec_mod.log_points_path(rec, f"world/paths/{label}", pts, color=color, radius=0.004)
+                        rec_mod.log_points_path(rec, f"world/paths/{label}", pts, color=color, radius=0.004,
+                                                static=False)
             K = min(len(roll["tau"]), int(ok[:-1].sum()))
             if K:
                 _, var = model.predict(np.hstack([Xe[:K], roll["tau"][:K]]))

@@ -26,10 +26,20 @@ Plan recordings:
   chart of log10(cost), which every timeline shows: a time series of data on ``iteration`` is
   empty while ``sim_time`` is active (Rerun 0.41 has no per-view timeline, and a visible time range
   on ``iteration`` does not help). The cost views are tabs under the robot: the bar chart first.
-- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recording``). The plan stores
-  only the final iterate's trajectory, so the ``iteration`` timeline shows the robot at the plan's
-  final pose from iteration 0 on (``log_robot_pose``) with the static paths of the final plan,
-  instead of every body at the world origin.
+- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recording``), with the final
+  plan's paths as static lines (``world/paths/<map>``, yellow) and the targets as static dots.
+- The ``iteration`` timeline shows each iteration's own trajectory, read from the plan's
+  ``X_iterations`` (every iterate decimated in time to the steps ``t_iterations``; iteration 0 is
+  the initial guess rolled out): at iteration ``i`` the robot stands at iterate ``i``'s pose at the
+  last via-point step (the final step if there is none) and ``world/iterations/<map>`` holds its
+  paths as LineStrips3D on ``iteration``: every one-point task map with via-points in all three
+  coordinates (the arm's and the pendulum's end effector ``ee``, the Nao's ``cog``), plus the
+  hands ``l_gripper`` and ``r_gripper`` of a robot that has them (the Nao). The static final path
+  stays visible beside it, so an iterate is seen against the plan. An iteration that diverged
+  (a NaN row) logs nothing: the last finite iterate stays on screen; at most
+  ``MAX_ITERATION_FRAMES`` iterations are drawn (every s-th one and the last). Nothing of this is
+  on ``sim_time``. A plan stored before ``X_iterations`` existed shows its final pose on
+  ``iteration`` instead.
 - ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
 
 Execute recordings plot ``task/<name>/value`` (executed) against ``task/<name>/planned`` and the
@@ -124,7 +134,11 @@ def record_plan(folder: Path, art, inputs: list) -> None:
                            name=f"plan {cfg['plant']} {cfg['task']} {cfg['solver']}", blueprint=blueprint) as rec:
         rec_mod.log_robot_geometry(rec, robot)
         rec_mod.log_body_trajectory(rec, robot, times, X[:, :n], keep=vias)
-        rec_mod.log_robot_pose(rec, robot, X[-1, :n], "iteration", 0)
+        if d.get("X_iterations") is not None and np.ndim(d["X_iterations"]) == 3 and len(d["X_iterations"]):
+            log_iterations(rec, robot, objective, d["X_iterations"], d["t_iterations"],
+                           vias[-1] if vias else len(times) - 1, d["q0"])
+        else:  # a plan stored before X_iterations: its final pose
+            rec_mod.log_robot_pose(rec, robot, X[-1, :n], "iteration", 0)
         log_costs(rec, costs, metrics.get("initial_cost"))
         sel = rec_mod.plot_indices(len(times), vias)
         log_task_plots(rec, plots, times, sel)
@@ -134,6 +148,67 @@ def record_plan(folder: Path, art, inputs: list) -> None:
     values = {term: tp.raw for tp in plots for term in tp.terms}
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([U, np.full((1, n), np.nan)]), task_values=values)
+
+
+MAX_ITERATION_FRAMES = 200  # iterations drawn on the ``iteration`` timeline (every s-th one and the last)
+ITERATION_COLORS = ((230, 60, 210), (40, 190, 230), (140, 100, 250), (60, 200, 120))
+
+
+def iteration_path_maps(robot, objective) -> dict:
+    """``{name: task map}`` of the 3-D paths drawn per iteration: every one-point task map with
+    via-points (a term active at no more than ``HELD_STEPS`` steps), in all three coordinates
+    even where the cost uses fewer (the pendulum's ``ee_xz`` -> ``ee``), named after its frame
+    (``cog`` for the centre of gravity), plus the hands ``l_gripper``/``r_gripper`` of a robot that
+    has them (the Nao)."""
+    from plants.taskmaps import CenterOfMass, FramePoints
+
+    out: dict = {}
+    for term in objective.state_terms:
+        tm, times = getattr(term, "taskmap", None), getattr(term, "times", None)
+        if tm is None or times is None or not 0 < len(times) <= HELD_STEPS:
+            continue
+        if isinstance(tm, CenterOfMass):
+            out.setdefault("cog", CenterOfMass(robot))
+        elif isinstance(tm, FramePoints) and len(tm.points) == 1:
+            name = rec_mod.entity_name(tm.frame.name())
+            if name not in out:
+                out[name] = FramePoints(robot, tm.frame.name(), points=tm.points)
+    for hand in ("l_gripper", "r_gripper"):
+        if hand not in out and robot.plant.HasFrameNamed(hand):
+            out[hand] = FramePoints(robot, hand)
+    return out
+
+
+def log_iterations(rec, robot, objective, X_iterations: np.ndarray, steps: np.ndarray, pose_step: int,
+                   q0: np.ndarray | None = None) -> None:
+    """Each iteration's trajectory on the ``iteration`` timeline (see the module docstring):
+    ``X_iterations (iterations + 1, K, n_x)`` at the steps ``steps (K,)``; the robot at the kept
+    step ``pose_step`` (or the last kept step before it) and the paths of :func:`iteration_path_maps`
+    as ``world/iterations/<name>``. Rows that are not finite log nothing (iteration 0 then shows
+    the robot at ``q0``)."""
+    Xi = np.asarray(X_iterations, dtype=float)
+    steps = np.asarray(steps, dtype=np.int64)
+    n = robot.n_q
+    its = rec_mod.decimate(len(Xi), MAX_ITERATION_FRAMES)
+    Q = Xi[its][:, :, :n]  # (N, K, n_q)
+    k = max(int(np.searchsorted(steps, pose_step, side="right")) - 1, 0)
+    good = np.all(np.isfinite(Q[:, k]), axis=1)
+    poses, at = Q[good, k], its[good]
+    if not good[0] and q0 is not None:  # iteration 0 not finite: the robot at its start
+        poses, at = np.vstack([np.asarray(q0, float)[None], poses]), np.r_[0, at]
+    if len(at):
+        rec_mod.log_robot_pose(rec, robot, poses, "iteration", at)
+    flat = Q.reshape(-1, n)
+    ok = np.all(np.isfinite(flat), axis=1)
+    for j, (name, tm) in enumerate(iteration_path_maps(robot, objective).items()):
+        P = np.full((len(flat), 3), np.nan)
+        if ok.any():
+            P[ok] = np.asarray(tm.values_and_jacobians(flat[ok])[0], float).reshape(-1, 3)
+        P = P.reshape(len(its), len(steps), 3)
+        drawn = np.all(np.isfinite(P), axis=2).sum(axis=1) >= 2
+        if drawn.any():
+            rec_mod.log_path_series(rec, f"world/iterations/{name}", "iteration", its[drawn], P[drawn],
+                                    color=ITERATION_COLORS[j % len(ITERATION_COLORS)], radius=0.004)
 
 
 def _control_unit(desc: dict) -> str:

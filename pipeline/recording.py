@@ -70,6 +70,7 @@ __all__ = [
     "joint_groups",
     "log_body_trajectory",
     "log_joint_series",
+    "log_path_series",
     "log_points_path",
     "log_robot_geometry",
     "log_robot_pose",
@@ -514,15 +515,20 @@ def log_robot_pose(
     robot: Any,
     q: np.ndarray,
     timeline: str,
-    time: float | int,
+    time: float | int | np.ndarray,
     prefix: str = ROBOT_PREFIX,
 ) -> None:
-    """The robot at planning ``q (n_q,)`` from ``time`` on ``timeline`` (one Transform3D per body):
-    a pose for a timeline that has no motion of its own (a plan's ``iteration``), where the
-    bodies would otherwise sit at the world origin."""
+    """The robot at planning ``q (n_q,)`` from ``time`` on ``timeline`` (one Transform3D per body),
+    or at each row of ``q (K, n_q)`` from the matching ``time (K,)``: poses on a timeline that has
+    no motion of its own (a plan's ``iteration``, the learn loop's ``episode``), where the bodies
+    would otherwise sit at the world origin."""
     stream = _stream(rec)
-    names, T, R = body_poses(robot, np.atleast_2d(q))
-    index = [_time_column(timeline, np.array([time]))]
+    Q = np.atleast_2d(np.asarray(q, dtype=float))
+    times = np.atleast_1d(np.asarray(time))
+    if len(times) != len(Q):
+        raise ValueError(f"{len(times)} times but {len(Q)} poses")
+    names, T, R = body_poses(robot, Q)
+    index = [_time_column(timeline, times)]
     for j, n in enumerate(names):
         stream.send_columns(f"{prefix}/{entity_name(n)}", indexes=index,
                             columns=rr.Transform3D.columns(translation=T[:, j], quaternion=R[:, j]))
@@ -645,6 +651,13 @@ def log_scalars(
         stream.log(entity, rr.SeriesLines(**kw), static=True)
 
 
+def _color_u8(color: Sequence[float] | np.ndarray) -> np.ndarray:
+    """RGB(A) as uint8 (floats in [0, 1] scaled by 255)."""
+    c = np.asarray(color, dtype=float)
+    c = np.round(c * 255) if c.max(initial=0) <= 1.0 else c
+    return c.astype(np.uint8)
+
+
 def log_points_path(
     rec: Recording | rr.RecordingStream,
     entity: str,
@@ -653,9 +666,11 @@ def log_points_path(
     radius: float = 0.006,
     line: bool = True,
     max_points: int = 500,
+    static: bool = True,
 ) -> None:
-    """Static 3D points ``P (K, 3)`` (m, non-finite rows dropped), joined by a line strip when
-    ``line``; a long path keeps at most about ``max_points`` of its points (:func:`decimate`).
+    """3D points ``P (K, 3)`` (m, non-finite rows dropped), joined by a line strip when ``line``;
+    a long path keeps at most about ``max_points`` of its points (:func:`decimate`). Static, or
+    with ``static=False`` at the stream's current time (the caller's ``set_time``, e.g. an episode).
 
     ``color``: RGB(A), uint8 0-255 or floats in [0, 1].
     """
@@ -663,9 +678,27 @@ def log_points_path(
     P = np.asarray(P, dtype=float).reshape(-1, 3)
     P = P[np.all(np.isfinite(P), axis=1)]
     P = P[decimate(len(P), max_points)]
-    c = np.asarray(color, dtype=float)
-    c = np.round(c * 255) if c.max(initial=0) <= 1.0 else c
-    c = c.astype(np.uint8)
-    stream.log(entity, rr.Points3D(P, colors=[c], radii=[radius]), static=True)
+    c = _color_u8(color)
+    stream.log(entity, rr.Points3D(P, colors=[c], radii=[radius]), static=static)
     if line and len(P) > 1:
-        stream.log(entity, rr.LineStrips3D([P], colors=[c], radii=[radius / 2]), static=True)
+        stream.log(entity, rr.LineStrips3D([P], colors=[c], radii=[radius / 2]), static=static)
+
+
+def log_path_series(
+    rec: Recording | rr.RecordingStream,
+    entity: str,
+    timeline: str,
+    times: np.ndarray,
+    paths: np.ndarray,
+    color: Sequence[float] | np.ndarray = (30, 120, 220),
+    radius: float = 0.004,
+) -> None:
+    """One path per time: ``paths (N, K, 3)`` (m) as a LineStrips3D at ``entity`` on ``timeline``
+    at ``times (N,)`` (``send_columns``; non-finite points dropped), so each time shows its own
+    path (a plan's iterations)."""
+    paths = np.asarray(paths, dtype=float).reshape(len(times), -1, 3)
+    strips = [p[np.all(np.isfinite(p), axis=1)] for p in paths]
+    c = _color_u8(color)
+    _stream(rec).send_columns(entity, indexes=[_time_column(timeline, np.asarray(times))],
+                              columns=rr.LineStrips3D.columns(strips=strips, colors=[c] * len(strips),
+                                                              radii=[radius] * len(strips)))

@@ -107,6 +107,42 @@ def test_plan_recording_has_costs_robot_and_task(tmp_path):
     assert rows("/world/robot/rod", "sim_time") == 751  # T + 1 planned states of the swing-up
     assert rows("/task/upright/value", "sim_time") == 751
     assert rows("/task/upright/target", "sim_time") == 1
+    # every iteration's trajectory, decimated in time: row 0 the initial rollout, the last the plan
+    d = np.load(Path(line["path"]) / "plan.npz")
+    Xi, steps = d["X_iterations"], d["t_iterations"]
+    assert Xi.dtype == np.float32 and Xi.shape == (4, len(steps), 2) and len(steps) <= 60
+    assert steps[0] == 0 and steps[-1] == 750 and np.all(np.diff(steps) > 0)
+    assert np.all(np.isfinite(Xi))
+    np.testing.assert_allclose(Xi[0], np.tile(np.r_[d["q0"], 0.0], (len(steps), 1)), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(Xi[-1], d["X"][steps], rtol=1e-6, atol=1e-6)
+    # on the iteration timeline: per iteration (0 = the initial trajectory) the robot and its path
+    assert rows("/world/iterations/ee", "iteration") == 4 and rows("/world/robot/rod", "iteration") == 4
+    assert rows("/world/iterations/ee", "sim_time") == 0
+
+
+SOLVER_NAMES = ["aico", "raico", "ilqg", "fddp-rollout"]
+
+
+@pytest.mark.parametrize("solver", SOLVER_NAMES)
+def test_every_solver_stores_its_iterates(solver):
+    """``X_iterations``: the initial rollout (zero torques, the analytic pendulum falls a little from
+    its noisy q0), then each iteration's trajectory as the solver reported it, the last the plan."""
+    from plants.dynamics import rollout
+    from stages.plan.solvers import SOLVERS
+    from stages.plan.stage import PlanConfig, plan
+
+    if solver not in SOLVERS:
+        pytest.skip("crocoddyl not installed")
+    extra = {"alpha": 0.0} if solver == "aico" else {}
+    out = plan(PlanConfig(plant="pendulum", task="swing-up", dynamics="analytic", solver=solver, iterations=2,
+                          **extra).normalized())
+    a, r, pb = out.arrays(), out.result, out.problem
+    Xi, steps = a["X_iterations"], a["t_iterations"]
+    assert Xi.shape == (r.iterations + 1, len(steps), pb.n_x) == (3, len(steps), 2) and Xi.dtype == np.float32
+    X0 = rollout(pb.dynamics, pb.x0, np.zeros((pb.T, pb.n_u)))
+    np.testing.assert_allclose(Xi[0], X0[steps], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(Xi[-1], a["X"][steps], rtol=1e-6, atol=1e-6)
+    assert np.abs(Xi[1] - Xi[0]).max() > 1e-5  # the first iterate moved
 
 
 def test_nao_balance_plan_and_execute_reports_cog(tmp_path):

@@ -48,8 +48,14 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
 
     rrd = Path(two["recording"])
     chunks = RrdReader(rrd).stream().to_chunks()
-    rows = sum(c.num_rows for c in chunks if c.entity_path == "/learn/gp_error" and "episode" in c.timeline_names)
-    assert rows == 2
+    def rows(entity, timeline):
+        return sum(c.num_rows for c in chunks if c.entity_path == entity and timeline in c.timeline_names)
+
+    assert rows("/learn/gp_error", "episode") == 2
+    # per episode the robot at its executed final pose and that episode's paths (not static: each episode its own)
+    assert rows("/world/robot/rod", "episode") == 2
+    assert rows("/world/paths/executed", "episode") >= 2 and rows("/world/paths/planned", "episode") >= 2
+    assert not [c for c in chunks if c.is_static and c.entity_path.startswith("/world/paths")]
 
     # one more episode: the first two are cache hits (same configs), only the third runs
     three, err = learn_json(tmp_path, "--episodes", 3)

@@ -327,10 +327,15 @@ def test_nao_plan_recording_layout(tmp_path: Path) -> None:
     assert _rows(chunks, "/cost/total", "iteration") == 2
     bars = _column(chunks, "/cost/log10_per_iteration", "BarChart:abscissa")
     assert bars[0][0]["buffer"] == [0.0, 1.0, 2.0]
-    # every body has a pose on the iteration timeline (no collapse to the world origin)
+    # every body has a pose per iteration on the iteration timeline (no collapse to the world origin), and
+    # each iteration (0: the initial trajectory) draws its CoG and hand paths
     robot = shared_robot("nao")
-    ents = [c.entity_path for c in chunks if "iteration" in c.timeline_names and c.entity_path.startswith("/world")]
-    assert len(ents) == robot.plant.num_bodies() - 1
+    on_iteration = {c.entity_path for c in chunks if "iteration" in c.timeline_names}
+    bodies = {e for e in on_iteration if e.startswith("/world/robot/")}
+    assert len(bodies) == robot.plant.num_bodies() - 1 and _rows(chunks, "/world/robot/torso", "iteration") == 3
+    assert {e for e in on_iteration if e.startswith("/world/iterations/")} == {
+        "/world/iterations/cog", "/world/iterations/l_gripper", "/world/iterations/r_gripper"}
+    assert all(_rows(chunks, f"/world/iterations/{p}", "iteration") == 3 for p in ("cog", "l_gripper", "r_gripper"))
     views, timeline = _blueprint(rrd)
     assert timeline == "sim_time"
     # an application id per layout: a viewer keeps one active blueprint per application id
@@ -350,3 +355,4 @@ def test_arm_plan_recording_unwraps_the_roll(tmp_path: Path) -> None:
     assert len(roll) == 1001 and np.abs(np.diff(roll)).max() < 1.0
     assert 150 <= _rows(chunks, "/world/robot/hand", "sim_time") <= MAX_POSES + 3  # 1001 samples: decimated
     assert {c.entity_path for c in chunks if c.is_static} >= {"/world/paths/ee", "/world/targets/ee"}
+    assert _rows(chunks, "/world/iterations/ee", "iteration") == 3  # the initial trajectory and 2 iterations

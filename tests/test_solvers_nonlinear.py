@@ -165,6 +165,29 @@ def test_exploding_cost_ends_with_status_diverged(solver):
     assert np.all(np.isfinite(res.X))                           # last good trajectory
 
 
+class FailingLaterDynamics(PseudoDynamics):
+    """The pseudo-dynamics until ``limit`` steps have been taken, NaN after: AICO's initial rollout
+    and first ``k`` iterations' rollouts run, iteration ``k + 1`` diverges."""
+
+    def __init__(self, n_q, dt, limit):
+        super().__init__(n_q, dt)
+        self.limit, self.calls = limit, 0
+
+    def step(self, x, u):
+        self.calls += 1
+        return super().step(x, u) if self.calls <= self.limit else np.full(self.n_x, np.nan)
+
+
+def test_iterates_of_a_diverging_run_are_finite_up_to_the_divergence():
+    pb = make_arm_problem(dynamics=FailingLaterDynamics(N_Q, DT, limit=3 * T))
+    res = solve(pb, "raico", {"iterations": 5})
+    assert res.status == "diverged" and len(res.history) == 3, res.message
+    Xi, steps = res.X_iterations, res.t_iterations
+    assert Xi.shape == (4, len(steps), 2 * N_Q) and steps[0] == 0 and steps[-1] == T and T // 2 in steps
+    assert np.all(np.isfinite(Xi[:3])) and np.all(np.isnan(Xi[3]))   # iteration 3 diverged: NaN
+    np.testing.assert_allclose(Xi[2], res.X[steps], rtol=1e-6, atol=1e-6)  # the last finite iterate
+
+
 def test_ilqg_stalls_instead_of_diverging_on_a_mismatched_model():
     pb = make_arm_problem(dynamics=MismatchedDynamics(N_Q, DT))
     res = ilqg(pb, ILQGOptions(iterations=100))

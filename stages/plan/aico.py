@@ -662,7 +662,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
             beliefs = None
     return Result(X=last.X, U=last.U, o=last.o, O=last.O, status=out.status, history=out.history,
                   iterations=len(out.history), message=out.message, initial_cost=initial_cost,
-                  beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico")
+                  beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico", X_initial=X0_roll)
 
 
 class _AICOStep:

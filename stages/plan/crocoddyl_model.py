@@ -522,17 +522,18 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
         converged = bool(solver.solve(*args))
     except (ArithmeticError, RuntimeError, ValueError) as e:
         return _result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
-                       initial_cost, solver)
+                       initial_cost, solver, X_roll)
     costs = [h.cost for h in rec.history]
     if not all(math.isfinite(c) for c in costs[-1:]):
-        return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver)
+        return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
+                       X_roll)
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     msg = (f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: "
            + ("stopping criterion below th_stop" if converged else f"reached {len(rec.history)} iterations"))
-    return _result(problem, solver, rec.history, status, msg, initial_cost, solver)
+    return _result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll)
 
 
-def _result(problem: Problem, solved, history, status, message, initial_cost, solver) -> Result:
+def _result(problem: Problem, solved, history, status, message, initial_cost, solver, X_initial=None) -> Result:
     T, n_x, n_u = problem.T, problem.n_x, problem.n_u
     if solved is None:
         X = np.full((T + 1, n_x), np.nan)
@@ -544,4 +545,4 @@ def _result(problem: Problem, solved, history, status, message, initial_cost, so
     if solved is not None:  # the controller rolled out on raico's planning model
         X, U = controller_rollout(problem.dynamics, problem.x0, o, O)
     return Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
-                  message=message, initial_cost=initial_cost, solver="fddp")
+                  message=message, initial_cost=initial_cost, solver="fddp", X_initial=X_initial)

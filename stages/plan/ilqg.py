@@ -189,14 +189,15 @@ def _ilqg(problem: Problem, opts: ILQGOptions, U_init, callback) -> Result:
     if not math.isfinite(J):
         history = [IterationRecord(1, math.inf, 0.0, 0.0, 0.0, float(opts.mu0))]
         return _result(X, U, np.zeros((T, m, n)), Status.DIVERGED, history,
-                       "initial rollout is not finite", J)
+                       "initial rollout is not finite", J, X)
     st = _ILQGStep(problem, opts, J, np.zeros((T, m, n)))
     out = drive(st, Iterate(X, U), opts, initial_cost=J, reference_cost=J,
                 test=cost_decrease_below, callback=callback)
+    X0 = X
     X, U, K = out.last_finite.X, out.last_finite.U, st.K
     if not st.gains_at_final and out.status is not Status.DIVERGED:
         K = _final_gains(problem, X, U, st.lm.mu, K)
-    return _result(X, U, K, out.status, out.history, out.message, J)
+    return _result(X, U, K, out.status, out.history, out.message, J, X0)
 
 
 class _ILQGStep:
@@ -312,8 +313,8 @@ def _final_gains(problem, X, U, mu, K_fallback):
     return K_fallback
 
 
-def _result(X, U, K, status: Status, history, message, initial_cost) -> Result:
+def _result(X, U, K, status: Status, history, message, initial_cost, X_initial=None) -> Result:
     o = U - np.einsum("tij,tj->ti", K, X[:-1])
     return Result(X=X, U=U, o=o, O=K, status=status, history=history,
                   iterations=len(history), message=message, initial_cost=initial_cost,
-                  solver="ilqg")
+                  solver="ilqg", X_initial=X_initial)

@@ -259,6 +259,12 @@ class Result:
         initial_cost: cost of the initial guess rolled out (zero controls unless warm-started).
         beliefs: AICO only: belief means ``b_t (T+1, n_x)`` of the last sweep.
         solver: name of the solver.
+        X_initial: the initial guess rolled out ``(T+1, n_x)`` (the trajectory whose cost is
+            ``initial_cost``; ``None`` if the solver does not report it).
+        X_iterations: every iteration's states at the steps ``t_iterations``,
+            ``(iterations + 1, K, n_x)`` float32 (a display copy, ``IterateHistory``); filled
+            by ``stages.plan.solvers.solve``, ``None`` otherwise.
+        t_iterations: the steps kept ``(K,)`` (``iterate_steps``).
     """
 
     X: np.ndarray
@@ -272,6 +278,9 @@ class Result:
     initial_cost: float = math.nan
     beliefs: np.ndarray | None = None
     solver: str = ""
+    X_initial: np.ndarray | None = None
+    X_iterations: np.ndarray | None = None
+    t_iterations: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -363,6 +372,56 @@ def check_range(name: str, value: Any, lo: float | None = None, hi: float | None
 
 Callback = Callable[[IterationRecord, np.ndarray, np.ndarray], None]
 """Per-iteration hook ``callback(record, X (T+1, n_x), U (T, n_u))`` (recording, progress)."""
+
+ITERATE_SAMPLES = 50  # steps kept per iterate: every ceil(T / 50)-th one (plus the last and via-points)
+VIA_POINT_STEPS = 10  # a state term active at more steps is a running cost, not a via-point
+
+
+def iterate_steps(problem: Problem, samples: int = ITERATE_SAMPLES) -> np.ndarray:
+    """The steps ``(K,)`` kept of each iterate's trajectory (``IterateHistory``): every n-th step
+    from 0 (``n = ceil(T / samples)``), the last step ``T`` and every via-point step of the
+    objective (the times of state terms active at no more than ``VIA_POINT_STEPS`` steps; a term
+    held over many steps, the Nao's right sole, adds none). ``K <= samples + 1 + via-points``."""
+    T = problem.T
+    every = max(1, -(-T // max(int(samples), 1)))
+    vias = [int(t) for term in problem.state_terms
+            if getattr(term, "times", None) is not None and 0 < len(term.times) <= VIA_POINT_STEPS
+            for t in term.times]
+    return np.unique(np.r_[np.arange(0, T + 1, every), T, vias].astype(np.int64))
+
+
+class IterateHistory:
+    """Every iteration's trajectory at the steps ``steps`` (a ``Callback``): row 0 the initial
+    trajectory (``start``), row ``i`` the iterate of iteration ``i`` as the solver reports it
+    through its callback. A display copy in float32 (about 7 significant digits, enough to draw;
+    the plan's own ``X`` stays float64). Iterations that report nothing (they diverged) stay NaN.
+    """
+
+    def __init__(self, steps: np.ndarray, start: np.ndarray | None = None):
+        self.steps = np.asarray(steps, dtype=np.int64)
+        self.rows: dict[int, np.ndarray] = {}
+        if start is not None:
+            self.rows[0] = self._keep(start)
+
+    def _keep(self, X: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            x = np.asarray(X, dtype=float)[self.steps].astype(np.float32)
+        return np.where(np.isfinite(x), x, np.float32(np.nan))
+
+    def __call__(self, record: IterationRecord, X: np.ndarray, U: np.ndarray) -> None:
+        self.rows[int(record.iteration)] = self._keep(X)
+
+    def set(self, iteration: int, X: np.ndarray) -> None:
+        """Row ``iteration`` from a full trajectory ``X (T+1, n_x)``."""
+        self.rows[int(iteration)] = self._keep(X)
+
+    def array(self, iterations: int, n_x: int) -> np.ndarray:
+        """``(iterations + 1, K, n_x)`` float32, NaN where nothing was reported."""
+        out = np.full((iterations + 1, len(self.steps), n_x), np.nan, dtype=np.float32)
+        for i, row in self.rows.items():
+            if 0 <= i <= iterations:
+                out[i] = row
+        return out
 
 
 def single_threaded_blas():

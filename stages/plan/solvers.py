@@ -14,7 +14,7 @@ from typing import Any
 
 from stages.plan.aico import AICOOptions, aico
 from stages.plan.ilqg import ILQGOptions, ilqg
-from stages.plan.problem import OptionsBase, Problem, Result
+from stages.plan.problem import IterateHistory, OptionsBase, Problem, Result, iterate_steps
 
 
 @dataclass(frozen=True)
@@ -111,8 +111,30 @@ def solve(problem: Problem, solver_name: str,
     """Run ``solver_name`` on ``problem`` with options from a dict (or an options object).
 
     ``init`` is passed to the solver (``U_init``, ``X_init`` for AICO, ``callback``).
+
+    The result's ``X_iterations (iterations + 1, K, n_x)`` (float32) holds every iteration's
+    trajectory at the steps ``t_iterations = iterate_steps(problem)``, collected through the
+    solver's callback (``IterateHistory``, called before the caller's ``callback``): row 0 the
+    initial guess rolled out (``X_initial``, whose cost is ``initial_cost``), row ``i`` the iterate
+    of iteration ``i``; iterations that diverged report nothing and stay NaN. The last row of a
+    run whose last iteration did not diverge is the result's ``X`` itself (FDDP: its controller
+    rolled out on the planning model, as the plan stores it, rather than crocoddyl's iterate).
     """
     spec = get_solver(solver_name)
-    result = spec.run(problem, spec.options(options), **init)
+    history = IterateHistory(iterate_steps(problem))
+    user = init.get("callback")
+
+    def callback(record, X, U) -> None:  # noqa: ANN001
+        history(record, X, U)
+        if user is not None:
+            user(record, X, U)
+
+    result = spec.run(problem, spec.options(options), **{**init, "callback": callback})
     result.solver = solver_name
+    if result.X_initial is not None:
+        history.set(0, result.X_initial)
+    if result.history and result.history[-1].iteration in history.rows:
+        history.set(result.history[-1].iteration, result.X)
+    result.X_iterations = history.array(result.iterations, problem.n_x)
+    result.t_iterations = history.steps
     return result

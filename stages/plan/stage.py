@@ -150,13 +150,20 @@ class PlanOutput:
         return via_point_errors(self.problem, self.result.X if X is None else X)
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """``plan.npz``: the plan (``X``, ``U``, controller ``o``, ``O``), its history per iteration
+        (``costs``, wall times, ``step``, ``mu``) and every iteration's trajectory decimated in time,
+        ``X_iterations (iterations + 1, K, n_x)`` float32 (a display copy; row 0 the initial
+        trajectory, NaN rows for iterations that diverged) at the steps ``t_iterations (K,)``
+        (``stages.plan.problem.iterate_steps``)."""
         r = self.result
+        iterates = {} if r.X_iterations is None else {"X_iterations": r.X_iterations,
+                                                       "t_iterations": r.t_iterations}
         return {"X": r.X, "U": r.U, "o": r.o, "O": r.O, "costs": r.costs, "q0": self.q0,
                 "times": self.times, "wall_time": np.array([h.time_s for h in r.history]),
                 "elapsed": np.array([h.elapsed_s for h in r.history]),
                 "step": np.array([h.step for h in r.history]), "mu": np.array([h.mu for h in r.history]),
                 "beliefs": r.beliefs if r.beliefs is not None else np.zeros((0,)),
-                "joint_names": np.array(self.robot.joint_names)}
+                "joint_names": np.array(self.robot.joint_names), **iterates}
 
     def metrics(self) -> dict:
         """``initial_cost``: iteration 0, the initial trajectory (``x_t = x0``, ``u = 0``) rolled out;
