@@ -15,7 +15,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml | $(KERNEL)
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,ray]'
 	touch $(STAMP)
 
 # The AICO sweep kernel (stages/plan/csweep.c, loaded by stages/plan/kernels.py; the plants' generated

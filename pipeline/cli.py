@@ -223,12 +223,25 @@ def reproduce(
                                   "fig3.4-inside, fig4.1/4.2, fig4.3.")] = None,
     all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
     quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel worker processes.")] = 2,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers: processes, or the CPUs of a local "
+                                      "Ray instance.")] = 2,
+    executor: Annotated[str, typer.Option("--executor", help="Where the runs execute: serial (this process), "
+                                          "process (one pool of --jobs worker processes; --jobs 1 runs here) or "
+                                          "ray (a local Ray instance with --jobs CPUs, or the cluster at "
+                                          "--address).")] = "process",
+    address: Annotated[str | None, typer.Option("--address", help="Ray cluster to run on (HOST:PORT of its head, "
+                                                "or auto); goes with --executor ray.")] = None,
     artifacts: Artifacts = None, no_record: NoRecord = False, quiet: Quiet = False, json_: Json = False,
 ):
     """Run experiments over their initial states in parallel (cached per run), then write the
-    figure PNG and claims table of each, and the report artifacts/report/README.md."""
+    figure PNG and claims table of each, and the report artifacts/report/README.md.
+
+    All requested figures share the workers (longest work first); each figure's report is written as
+    soon as its runs are done. Progress: a bar per figure on a terminal, else one line per finished run."""
+    import contextlib
+
     from pipeline import reproduce as repro
+    from pipeline.executors import make_executor
 
     ids = list(repro.ALL_IDS) if all_ else list(figure or [])
     if not ids:
@@ -238,11 +251,14 @@ def reproduce(
         raise BadInput(f"unknown experiment '{unknown[0]}': choose one of {', '.join(repro.ALL_IDS)}")
     if not 1 <= jobs <= 64:
         raise BadInput("jobs must be in [1, 64]")
+    pool = make_executor(executor, jobs, address)  # checks the name, the address and that Ray is there
     reporter = Reporter(quiet)
     cache = open_cache(artifacts)
-    for doc in repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record, reporter=reporter):
-        if json_:
-            typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
+    with contextlib.closing(repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record,
+                                            reporter=reporter, executor=pool)) as docs:  # closed: workers stopped
+        for doc in docs:
+            if json_:
+                typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
 
 
 def describe_entry(cache: Cache, info) -> dict:

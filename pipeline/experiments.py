@@ -8,16 +8,13 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing as mp
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.cache import Cache
-from pipeline.errors import Interrupted
+from pipeline.executors import Batch, Executor, Job, make_executor, run_flow
 from pipeline.runner import Outcome
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
@@ -29,13 +26,21 @@ class Variant:
     relinearize: bool = True  # AICO only: False is the ablation without sweep relinearization
     iterations: int | None = None  # own budget (the crocoddyl baseline), else the experiment's
     quick_iterations: int | None = None
+    schedule: str = "fixed"  # R-AICO's alpha schedule: the thesis's fixed one, or "adaptive" (beyond the thesis)
+    seeds: int | None = None  # own number of initial states (ablations), else the experiment's
 
     @property
     def label(self) -> str:
         if self.solver in BASELINE_LABELS:
             return BASELINE_LABELS[self.solver]
+        if self.solver == "raico" and self.schedule == "adaptive":
+            return f"R-AICO adaptive (a0={self.alpha:g})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}")
         return base if self.relinearize else f"{base} (no sweep relinearization)"
+
+    def seed_count(self, exp_seeds: int, quick: bool) -> int:
+        """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
+        return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
 
 
 # The crocoddyl baseline (issue 8; only where crocoddyl is installed: `make anchors`). FDDP runs
@@ -54,9 +59,16 @@ FDDP_ITERATIONS, FDDP_QUICK_ITERATIONS = 100, 12
 FDDP_VARIANTS = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS)
                       for s in ("fddp", "fddp-rollout")) if _baseline_available() else ()
 # ablations (fig3.2c), FDDP from the rollout start with one rule of iLQG's: accept any step that lowers
-# the cost (actual/expected > 0, crocoddyl: > 0.1); lower the regularization after every accepted step
-FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS)
+# the cost (actual/expected > 0, crocoddyl: > 0.1); lower the regularization after every accepted step.
+# On the first ABLATION_SEEDS initial states (what they explain, a stall by a factor, shows on each).
+ABLATION_SEEDS = 3
+FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
+                              seeds=ABLATION_SEEDS)
                       for s in ("fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule")) if FDDP_VARIANTS else ()
+# Beyond the thesis (issue 8): R-AICO with the adaptive alpha schedule, FDDP's iteration budget
+ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
+                   schedule="adaptive")
+ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
 FDDP_CLAIMS = ("raico_reaches_fddp",) if FDDP_VARIANTS else ()
 
 
@@ -84,13 +96,14 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo", (*ARM_VARIANTS, ABLATION), 40, 6,
                           "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
                           claims=("raico_converges", "aico_unstable", "aico_unstable_without_relinearization")),
-    "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic", (*ARM_VARIANTS, *FDDP_VARIANTS, *FDDP_ABLATION),
+    "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
+                          (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS, *FDDP_ABLATION),
                           25, 4, "as a, analytic Drake dynamics (controls = torques)",
-                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
+                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS,
                                   *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()))),
-    "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic", (*ARM_VARIANTS, *FDDP_VARIANTS), 25, 4,
-                          "as b, analytic Drake dynamics",
-                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS)),
+    "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic", (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS),
+                          25, 4, "as b, analytic Drake dynamics",
+                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)), 25, 5,
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
@@ -115,7 +128,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
                       alpha=v.alpha if v.solver == "raico" else 1.0, gamma=1.0,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
-                      q0_std=0.05, relinearize=v.relinearize).normalized()
+                      q0_std=0.05, relinearize=v.relinearize, alpha_schedule=v.schedule).normalized()
 
 
 def _job(args) -> dict:
@@ -124,6 +137,24 @@ def _job(args) -> dict:
     from pipeline import runner
 
     return runner.run(Cache(root), stage, cfg, record=record).__dict__
+
+
+def _stage_job(cache: Cache, stage: str, cfg, record: bool, label: str = "") -> Job:
+    """A stage run for the scheduler: looked up here (a cached run is never submitted), else ``_job``."""
+    from pipeline import runner
+
+    return Job(_job, (str(cache.root), stage, cfg, record), label,
+               lambda: runner.lookup(cache, stage, cfg, record=record))
+
+
+def _outcomes(values: list) -> list[Outcome]:
+    """Scheduler results as outcomes: a lookup gives an ``Outcome``, a worker its fields."""
+    return [v if isinstance(v, Outcome) else Outcome(**v) for v in values]
+
+
+def _progress_events(progress: Callable[[int, int], None] | None):
+    """``progress(done, total)`` of each batch, as a scheduler progress callback."""
+    return (lambda ev: progress(ev.done, ev.total)) if progress else None
 
 
 def _map(jobs: list, workers: int, progress: Callable[[int, int], None] | None) -> list[Outcome]:
@@ -136,151 +167,58 @@ def _map(jobs: list, workers: int, progress: Callable[[int, int], None] | None) 
     return results  # type: ignore[return-value]
 
 
-# ----------------------------------------------------------------------------- worker pool
-def _worker_init(parent_pid: int) -> None:
-    """Pool worker set-up: die with the parent (also on SIGKILL); Ctrl-C is the parent's to handle
-    (the terminal sends it to the whole process group), SIGTERM from the parent ends the worker."""
-    import signal
-
-    from pipeline.errors import die_with_parent
-
-    die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-
-
-@contextlib.contextmanager
-def _sigint_blocked():
-    """SIGINT blocked in this thread while workers are spawned, so they start with it blocked
-    (a Ctrl-C during their imports is not theirs); a pending one is delivered afterwards."""
-    import signal
-    import threading
-
-    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
-TRACKER_WARNING = "ignore:resource_tracker:UserWarning"
-
-
-def _quiet_resource_tracker() -> None:
-    """multiprocessing's resource tracker (a helper process started with the first pool) warns about
-    "leaked semaphores" on stderr when this process was SIGKILLed; it gets this process's ``-W``
-    options, so the warning is filtered there (it unlinks them all the same)."""
-    import sys
-
-    if TRACKER_WARNING not in sys.warnoptions:
-        sys.warnoptions.append(TRACKER_WARNING)
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Stop at once: runs not started are cancelled, the workers get SIGTERM (SIGKILL after 1 s)
-    and are reaped, the pool's manager thread is joined."""
-    import time
-
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    manager = getattr(pool, "_executor_manager_thread", None)
-    # the pool's own thread cancels what has not started (cancelling futures here races with it
-    # marking them broken once the workers are gone: InvalidStateError in that thread)
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.terminate()
-    deadline = time.monotonic() + 1.0
-    for p in procs:
-        p.join(max(0.0, deadline - time.monotonic()))
-    for p in procs:
-        if p.is_alive():
-            p.kill()
-            p.join(5.0)
-    if manager is not None:
-        manager.join(10.0)
-
-
-def _sweep(fn, jobs: list, results: list, workers: int, progress, root) -> None:
-    """Fill the ``None`` entries of ``results`` with ``Outcome(**fn(jobs[i]))``: here if ``workers``
-    is 1 (or one job is left), else in a pool of ``workers`` spawned processes.
+def _sweep(fn, jobs: list, results: list, workers: int, progress, root, executor: Executor | None = None) -> None:
+    """Fill the ``None`` entries of ``results`` with ``Outcome(**fn(jobs[i]))``: on ``executor``, by
+    default here if ``workers`` is 1 (or one job is left), else in a pool of ``workers`` spawned
+    processes.
 
     On any exception (an interrupt, a failed run) scheduling stops at once: pending runs are
     cancelled, workers terminated and reaped, their temporary folders removed; an
     :class:`~pipeline.errors.Interrupted` learns how many runs had finished (and are cached)."""
-    import os
+    todo = sum(r is None for r in results)
+    if executor is None:
+        executor = make_executor("process", workers if todo > 1 else 1)
 
-    from pipeline.errors import RaicoError
+    def flow():
+        values = yield Batch("run", [Job(fn, j, lookup=(lambda r=r: r)) for j, r in zip(jobs, results)])
+        results[:] = _outcomes(values)
 
-    todo = [i for i, r in enumerate(results) if r is None]
-    done = len(results) - len(todo)
-    if progress and done:
-        progress(done, len(results))
+    run_flow(executor, flow(), _progress_events(progress), _cleanup(root), scheduled=len(results))
 
-    def finished(i: int, fields: dict) -> None:
-        nonlocal done
-        results[i] = Outcome(**fields)
-        done += 1
-        if progress:
-            progress(done, len(results))
 
-    try:
-        if workers <= 1 or len(todo) <= 1:
-            for i in todo:
-                finished(i, fn(jobs[i]))
-            return
-        from concurrent.futures import as_completed
-        from concurrent.futures.process import BrokenProcessPool
+def _cleanup(root) -> Callable[[], object] | None:
+    """After an abort: remove the killed workers' temporary folders under ``root``."""
+    return (lambda: Cache(root).cleanup_stale()) if root is not None else None
 
-        _quiet_resource_tracker()
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=mp.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(os.getpid(),))
-        futures: dict = {}
-        try:
-            with _sigint_blocked():
-                for i in todo:
-                    futures[pool.submit(fn, jobs[i])] = i
-            for f in as_completed(futures):
-                try:
-                    fields = f.result()
-                except BrokenProcessPool:
-                    raise RaicoError("a worker process died (killed, or out of memory); the runs that "
-                                     "finished are cached") from None
-                finished(futures[f], fields)
-        except BaseException:
-            _stop_pool(pool)
-            if root is not None:
-                Cache(root).cleanup_stale()  # the killed workers' temporary folders
-            raise
-        pool.shutdown(wait=True)
-    except Interrupted as e:  # a sweep says how many of its runs are kept (not what one of them kept)
-        e.finished, e.scheduled, e.note = (e.finished or 0) + done, (e.scheduled or 0) + len(results), None
-        raise
+
+def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
+    """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
+    that depend on them (the executions of the chosen variants and the noise sweep). Returns
+    ``{"plans", "executions", "noise"}``."""
+    from stages.execute import ExecuteConfig
+
+    runs = [(v, s, plan_config(exp, v, s, quick)) for v in exp.variants for s in range(v.seed_count(exp.seeds, quick))]
+    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record, f"{v.label} seed {s}") for v, s, cfg in runs])
+    plans = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
+    ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), record,
+                          f"{p['variant'].label} seed {p['seed']}") for p in plans if p["variant"] in exp.execute]
+    noise = noise_runs(exp, plans, quick)
+    noise_jobs = [_stage_job(cache, "execute", r["config"], record,
+                             f"{NOISE_SWEEPS[exp.id].label} seed {r['plan_seed']}, noise x0 {r['level'][0]:g} rad, "
+                             f"process {r['level'][1]:g} N m") for r in noise]
+    jobs = ex_jobs + noise_jobs  # a Nao figure's executions are its sweep's level 0: each runs once
+    outs = _outcomes((yield Batch("execute", jobs)) if jobs else [])
+    return {"plans": plans, "executions": outs[:len(ex_jobs)],
+            "noise": [{**{k: v for k, v in r.items() if k != "config"}, "outcome": o}
+                      for r, o in zip(noise, outs[len(ex_jobs):])]}
 
 
 def run_experiment(cache: Cache, exp: Experiment, quick: bool = False, workers: int = 2,
-                   record: bool = True, progress=None) -> dict:
-    """All runs of ``exp`` (cached per run): plans, then the executions of the chosen variants."""
-    from stages.execute import ExecuteConfig
-
-    seeds = range(2 if quick else exp.seeds)
-    runs = [(v, s, plan_config(exp, v, s, quick)) for v in exp.variants for s in seeds]
-    root = str(cache.root)
-    outs = _map([(root, "plan", cfg, record) for _, _, cfg in runs], workers, progress)
-    plans = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, outs)]
-    ex_jobs = [(root, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), record)
-               for p in plans if p["variant"] in exp.execute]
-    try:
-        executions = _map(ex_jobs, workers, None)
-        noise = run_noise_sweep(cache, exp, plans, quick, workers, record)
-    except Interrupted as e:  # every plan run had finished
-        e.finished, e.scheduled = (e.finished or 0) + len(plans), (e.scheduled or 0) + len(plans)
-        raise
-    return {"plans": plans, "executions": executions, "noise": noise}
+                   record: bool = True, progress=None, executor: Executor | None = None) -> dict:
+    """All runs of ``exp`` (cached per run): plans, then the executions of the chosen variants.
+    ``progress(done, total)`` follows each batch (the plans, then the executions)."""
+    return run_flow(executor or make_executor("process", workers), experiment_flow(cache, exp, quick, record),
+                    _progress_events(progress), _cleanup(cache.root))
 
 
 # ----------------------------------------------------------------------------- robustness under noise (issue 9)
@@ -391,14 +329,14 @@ LEARN_EXPERIMENTS: dict[str, LearnExperiment] = {
     "fig4.1/4.2": LearnExperiment(
         "fig4.1/4.2", "pendulum", "swing-up",
         "pendulum swing-up on a GP model learned while planning: sigma* in {0, 0.2, 1, none}, w in {1e-2, 1e2}",
-        _sigma_settings(), (("alpha", 0.0), ("babble_points", 15), ("iterations", 20), ("max_points", 600),
+        _sigma_settings(), (("alpha", 0.0), ("babble_points", 15), ("iterations", 20), ("max_points", 300),
                             ("restarts", 1), ("stride", 5)), episodes=10, quick_episodes=6,
         claims=("gp_error_falls", "rmse_falls", "large_weight_explores", "swing_up_achieved", "pilco_efficiency"),
         notes=(("pendulum learning horizon", "1.5 s at 2 ms (750 steps): the thesis's 300 ms cannot swing up under "
                 "+-10 N m; swing-up counted when the executed pendulum ends within 0.1 rad of upright"),
                ("babbling", "15 samples, one every 0.1 s of PD tracking (Kp 50, Kd 5) of a random spline, "
                 "amplitude 1 rad"),
-               ("GP data", "every 5th executed step joins the training set; at most 600 points (recent half "
+               ("GP data", "every 5th executed step joins the training set; at most 300 points (recent half "
                 "plus farthest-point subsample of the rest)"),
                ("uncertainty term", "g = GP latent variance in units of the training outputs' variance; "
                 "state-control cross terms dropped"))),
@@ -431,19 +369,24 @@ def _learn_job(args) -> dict:
     return learn(Cache(root), cfg, record=record).__dict__
 
 
-def run_learn_experiment(cache: Cache, exp: LearnExperiment, quick: bool = False, workers: int = 2,
-                         record: bool = True, progress=None) -> dict:
-    """Every setting's learning loops (cached per loop, and per stage run inside)."""
+def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: bool = True):
+    """Every setting's learning loops of ``exp`` as a scheduler flow (one job per loop, each a long
+    sequential chain of stage runs). Returns ``{"learns"}``."""
     from pipeline.learn import lookup
 
     runs = [(s, k, learn_config(exp, s, k, quick)) for s in exp.settings if s.quick or not quick
             for k in range(1 if quick else s.seeds)]
-    jobs = [(str(cache.root), cfg, record) for _, _, cfg in runs]
-    results: list = [lookup(cache, cfg, record=record) for _, _, cfg in runs]
-    if progress:
-        progress(sum(r is not None for r in results), len(runs))
-    _sweep(_learn_job, jobs, results, workers, progress, str(cache.root))
-    return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, results)]}
+    jobs = [Job(_learn_job, (str(cache.root), cfg, record), f"{s.label} seed {k}",
+                lambda cfg=cfg: lookup(cache, cfg, record=record)) for s, k, cfg in runs]
+    outs = _outcomes((yield Batch("learn", jobs)))
+    return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
+
+
+def run_learn_experiment(cache: Cache, exp: LearnExperiment, quick: bool = False, workers: int = 2,
+                         record: bool = True, progress=None, executor: Executor | None = None) -> dict:
+    """Every setting's learning loops (cached per loop, and per stage run inside)."""
+    return run_flow(executor or make_executor("process", workers), learn_flow(cache, exp, quick, record),
+                    _progress_events(progress), _cleanup(cache.root))
 
 
 def summarize_learns(learns: list[dict]) -> dict[str, dict]:

@@ -34,7 +34,6 @@ decimated motion still plays through.
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import re
@@ -210,10 +209,10 @@ class Recording:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        try:
-            self.rec.save(self.path)
-        except RuntimeError as e:  # Rerun's "Failed to create file: ... (os error N)"
-            raise _os_error(e, self.path) from None
+        # Recorded into memory and written to the file by Python at close: Rerun's own file writer
+        # hangs in flush/disconnect on and off when its writes fail (EFBIG, ENOSPC; rerun 0.41),
+        # while a Python write fails at once with the OSError that names the cause.
+        self._mem = self.rec.memory_recording()
         # active as well as default: a viewer keeps one active blueprint per application id, which a
         # default blueprint does not replace (see application_id)
         self.rec.send_blueprint(default_blueprint(time_series, eye) if blueprint is None else blueprint,
@@ -231,17 +230,21 @@ class Recording:
         self._closed = False
 
     def close(self) -> None:
-        """Flush everything to the file and close it (idempotent). ``OSError`` naming the file if
-        Rerun's file writer failed (full disk, ...): then the stream is left as it is, since
-        disconnecting a stream whose writer died blocks forever (rerun 0.41)."""
+        """Flush everything and write the file (idempotent). ``OSError`` naming the file if it
+        cannot be written (full disk, file size limit, ...); a partial file is removed."""
         if not self._closed:
             self._closed = True
-            try:
-                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-            except RuntimeError as e:  # "File-writer thread shut down prematurely", or the timeout
-                raise _os_error(e, self.path) from None
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            # the stream as recorded; what the memory sink adds on disconnect is a second stream
+            # (its own header, an empty footer), which readers would take for a damaged file
+            data = self._mem.drain_as_bytes()
             self.rec.disconnect()
-            _check_complete(self.path)
+            try:
+                with open(self.path, "wb") as f:
+                    f.write(data)
+            except OSError as e:
+                self.path.unlink(missing_ok=True)
+                raise OSError(e.errno, e.strerror, str(self.path)) from None
 
     def __enter__(self) -> Self:
         return self
@@ -261,54 +264,7 @@ class Recording:
             pass
 
 
-FLUSH_TIMEOUT_S = 600.0  # a flush ends as soon as the file is written (or its writer failed)
-RRD_MAGIC, RRD_FOOTER = b"RRF2", b"RRF2FOOT"  # rerun 0.41's .rrd: header magic, footer magic + u32 version
-
-
-def _check_complete(path: Path) -> None:
-    """``OSError`` if Rerun's writer left ``path`` without its footer. When the last write fails
-    (file size limit, full disk) inside ``disconnect``, Rerun only logs it: a truncated file
-    would otherwise pass as a recording."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(len(RRD_MAGIC))
-            size = f.seek(0, os.SEEK_END)
-            f.seek(max(0, size - len(RRD_FOOTER) - 4))
-            tail = f.read()
-    except OSError as e:
-        raise OSError(e.errno, e.strerror, str(path)) from None
-    if head == RRD_MAGIC and not (len(tail) == len(RRD_FOOTER) + 4 and tail.startswith(RRD_FOOTER)):
-        code = _likely_errno(path)
-        raise OSError(code or errno.EIO, os.strerror(code) if code else "Rerun's file writer did not finish the file",
-                      str(path))
-
-
-def _os_error(err: RuntimeError, path: Path) -> OSError:
-    """Rerun's ``RuntimeError`` as an ``OSError`` for ``path``: its ``(os error N)`` if it names one,
-    else what the folder says (full, read-only, too large a file)."""
-    m = re.search(r"os error (\d+)", str(err))
-    code = int(m.group(1)) if m else _likely_errno(path)
-    if code is not None:
-        return OSError(code, os.strerror(code), str(path))
-    return OSError(errno.EIO, f"Rerun's file writer failed ({' '.join(str(err).split())})", str(path))
-
-
-def _likely_errno(path: Path) -> int | None:
-    """Why writes to ``path`` fail, as far as the file system says: full, read-only, file too large."""
-    try:
-        st = os.statvfs(path.parent)
-        if st.f_bavail == 0 or (st.f_files > 0 and st.f_favail == 0):
-            return errno.ENOSPC
-        if st.f_flag & os.ST_RDONLY:
-            return errno.EROFS
-        import resource
-
-        limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-        if limit != resource.RLIM_INFINITY and path.exists() and path.stat().st_size >= limit:
-            return errno.EFBIG
-    except (OSError, ImportError, ValueError):
-        return None
-    return None
+FLUSH_TIMEOUT_S = 600.0  # a flush into memory ends as soon as every message is encoded
 
 
 def _stream(rec: Recording | rr.RecordingStream) -> rr.RecordingStream:

@@ -9,9 +9,10 @@ from pathlib import Path
 
 from pipeline.cache import Cache, write_file_atomic
 from pipeline.errors import Interrupted
-from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, run_experiment, run_learn_experiment
+from pipeline.executors import Executor, Scheduler, make_executor
+from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
 from pipeline.report import folder_name, markdown_claims, write_experiment_report, write_learn_report
-from pipeline.ui import Reporter
+from pipeline.ui import Board, Reporter
 
 ALL_IDS = [*EXPERIMENTS, *LEARN_EXPERIMENTS]
 
@@ -20,51 +21,79 @@ def report_dir(cache: Cache, quick: bool) -> Path:
     return cache.root / ("report-quick" if quick else "report")
 
 
+# Longest work first (wall times of `make reproduce`): the learning loops are long sequential chains, so they
+# start first, then the plan figures, largest first. A figure's executions (ready when its plans are done) go
+# ahead of the plans of figures after it. Ids not listed come last, in the order given.
+WORK_ORDER = ("fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2d", "fig3.4", "fig3.4-inside", "fig3.2b", "fig3.2a", "fig3.3")
+
+
+def work_order(ids: list[str]) -> list[str]:
+    """``ids`` (each once) in the order their work is scheduled."""
+    ids = list(dict.fromkeys(ids))
+    return sorted(ids, key=lambda f: (WORK_ORDER.index(f) if f in WORK_ORDER else len(WORK_ORDER), ids.index(f)))
+
+
 def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, record: bool = True,
-              reporter: Reporter | None = None) -> Iterator[dict]:
-    """Run each experiment and write its report; then (re)write the report README.
+              reporter: Reporter | None = None, executor: str | Executor = "process",
+              address: str | None = None) -> Iterator[dict]:
+    """Run the experiments ``ids`` on one executor (``pipeline.executors``: ``serial``, ``process``
+    with ``jobs`` workers, or ``ray``; or an :class:`Executor`), all figures at once, longest work
+    first; write each figure's report as soon as its runs are done (yielding its summary), then
+    (re)write the report README.
 
     An interrupt (:class:`~pipeline.errors.Interrupted`) stops at once and learns how many runs
     of this call had finished (each is cached, so the next call starts from there)."""
-    finished: list[int] = []  # runs of each figure whose runs all finished
-    try:
-        yield from _reproduce(cache, ids, quick, jobs, record, reporter, finished)
-    except Interrupted as e:
-        e.finished, e.scheduled = sum(finished) + (e.finished or 0), None
-        raise
-
-
-def _reproduce(cache: Cache, ids: list[str], quick: bool, jobs: int, record: bool, reporter: Reporter | None,
-               finished: list[int]) -> Iterator[dict]:
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)
-    for fid in ids:
-        t0 = time.perf_counter()
-        out = root / folder_name(fid)
-        if fid in LEARN_EXPERIMENTS:
-            lexp = LEARN_EXPERIMENTS[fid]
-            n = sum(1 if quick else s.seeds for s in lexp.settings if s.quick or not quick)
-            with reporter.progress(f"{fid} ({n} learning loops)", n) as update:
-                result = run_learn_experiment(cache, lexp, quick=quick, workers=jobs, record=record, progress=update)
-            finished.append(len(_outcomes(result)))
-            cached = sum(x["outcome"].cached for x in result["learns"])
-            doc = _cached_report(out, _report_key(fid, result)) or write_learn_report(cache, lexp, result, out)
-        else:
-            exp = EXPERIMENTS[fid]
-            n = len(exp.variants) * (2 if quick else exp.seeds)
-            with reporter.progress(f"{fid} ({n} plan runs)", n) as update:
-                result = run_experiment(cache, exp, quick=quick, workers=jobs, record=record, progress=update)
-            finished.append(len(_outcomes(result)))
-            cached = sum(p["outcome"].cached for p in result["plans"])
-            doc = _cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
-        _stamp_report(out, _report_key(fid, result))
-        elapsed = time.perf_counter() - t0
-        _record_timing(root, fid, n, cached, elapsed)
-        verdicts = ", ".join(f"{r['claim']}: {r['verdict']}" for r in doc["claims"])
-        reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {out}; {verdicts}")
-        yield {"stage": "reproduce", "figure": fid, "path": str(out), "runs": n, "cached_runs": cached,
-               "wall_time_s": elapsed, "claims": doc["claims"]}
+    ex = executor if isinstance(executor, Executor) else make_executor(executor, jobs, address)
+    with ex, reporter.board() as board, Scheduler(ex, _progress(board), cache.cleanup_stale) as sched:
+        try:
+            for rank, fid in enumerate(work_order(ids)):
+                flow = (learn_flow(cache, LEARN_EXPERIMENTS[fid], quick, record) if fid in LEARN_EXPERIMENTS
+                        else experiment_flow(cache, EXPERIMENTS[fid], quick, record))
+                sched.add(fid, flow, priority=rank)
+            for fid, result in sched.run():
+                board.remove(fid)
+                yield _figure_done(cache, fid, result, quick, reporter, sched.started(fid))
+        except Interrupted as e:
+            e.finished, e.scheduled, e.note = sched.finished, None, None
+            raise
     write_readme(root, reporter)
+
+
+def _progress(board: Board):
+    """Scheduler events -> the board: a bar per figure, or one line per finished run."""
+
+    def show(ev) -> None:
+        line = None
+        if ev.label is not None:
+            line = f"raico: {ev.flow} {ev.kind} {ev.done}/{ev.total} done ({ev.label}, {ev.seconds:.1f} s)"
+        board.update(ev.flow, f"{ev.flow} ({ev.total} {ev.kind} runs)", ev.done, ev.total, line)
+
+    return show
+
+
+def _figure_done(cache: Cache, fid: str, result: dict, quick: bool, reporter: Reporter, t0: float) -> dict:
+    """Write the figure's report (unless it is cached), its timing and its line; its summary."""
+    root = report_dir(cache, quick)
+    out = root / folder_name(fid)
+    if fid in LEARN_EXPERIMENTS:
+        lexp = LEARN_EXPERIMENTS[fid]
+        n = sum(1 if quick else s.seeds for s in lexp.settings if s.quick or not quick)
+        cached = sum(x["outcome"].cached for x in result["learns"])
+        doc = _cached_report(out, _report_key(fid, result)) or write_learn_report(cache, lexp, result, out)
+    else:
+        exp = EXPERIMENTS[fid]
+        n = sum(v.seed_count(exp.seeds, quick) for v in exp.variants)
+        cached = sum(p["outcome"].cached for p in result["plans"])
+        doc = _cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
+    _stamp_report(out, _report_key(fid, result))
+    elapsed = time.perf_counter() - t0
+    _record_timing(root, fid, n, cached, elapsed)
+    verdicts = ", ".join(f"{r['claim']}: {r['verdict']}" for r in doc["claims"])
+    reporter.say(f"{fid}: {n} runs ({cached} cached) in {elapsed:.1f} s -> {out}; {verdicts}")
+    return {"stage": "reproduce", "figure": fid, "path": str(out), "runs": n, "cached_runs": cached,
+            "wall_time_s": elapsed, "claims": doc["claims"]}
 
 
 REPORT_STAMP = "report_key.txt"
@@ -72,7 +101,8 @@ TIMINGS = "timings.json"
 
 
 def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float) -> None:
-    """Wall time of this call's work on a figure (``timings.json``; the report shows it)."""
+    """Wall time of this call's work on a figure (``timings.json``; the report shows it): from its first
+    run handed to a worker to its report written (figures run at the same time share the workers)."""
     path = root / TIMINGS
     try:
         doc = json.loads(path.read_text())
@@ -81,6 +111,8 @@ def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float)
     doc[fid] = {"runs": runs, "cached_runs": cached, "wall_time_s": round(elapsed, 2),
                 "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "load_average_1min": round(__import__("os").getloadavg()[0], 2)}
+    rank = {f: i for i, f in enumerate(ALL_IDS)}  # the report's order, whatever order figures finish in
+    doc = dict(sorted(doc.items(), key=lambda kv: rank.get(kv[0], len(rank))))
     root.mkdir(parents=True, exist_ok=True)
     write_file_atomic(path, json.dumps(doc, indent=2) + "\n")
 
@@ -133,6 +165,7 @@ def _read_claims(path: Path) -> dict:
 def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     """The report: every figure written so far, its claims table, deviations and recordings. A
     damaged figure report is left out with a warning (running that figure again rebuilds it)."""
+    from pipeline.report import FIGURE_CAPTION, identical_results_remarks
     from stages.plan.tasks import TASK_NOTES
 
     reporter = reporter or Reporter(quiet=True)
@@ -149,10 +182,12 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     md = ["# raico reproduction report", "",
           "Thesis: M. Mindt, *Probabilistic Inference for Movement Planning in Humanoids* (TU Darmstadt 2014).",
           "Every number below is measured by this run; verdicts follow the stated criteria.", "",
-          "## Claims", "", markdown_claims(rows), "", "## Figures", ""]
+          "## Claims", "", markdown_claims(rows), "", "## Figures", "", FIGURE_CAPTION, ""]
+    remarks = identical_results_remarks(docs)
     for d in docs:
         folder = folder_name(d["figure"])
         md += [f"### {d['figure']}: {d['description']}", "", f"![{d['figure']}]({folder}/figure.png)", ""]
+        md += [line for r in remarks.get(d["figure"], []) for line in (r, "")]
         if (root / folder / "motion.png").exists():
             md += [f"![{d['figure']} motion]({folder}/motion.png)", ""]
         md += [f"Details, run table and recordings: [{folder}/claims.md]({folder}/claims.md)", ""]
@@ -167,11 +202,26 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         md += [f"| {f} | {t['runs']} | {t['cached_runs']} | {t['wall_time_s']} | {t['load_average_1min']} | "
                f"{t['when']} |" for f, t in timings.items()]
         md += [""]
+    shots = _screenshots(root)
+    if shots:
+        md += ["## Recordings as the Rerun viewer opens them", "",
+               "Rendered headless by the native viewer (`pipeline/screenshots.py`); open any run's "
+               "`recording.rrd` with `raico show KEY --open`.", ""]
+        md += [line for caption, png in shots for line in (f"![{caption}]({png.relative_to(root)})", "",
+                                                            f"*{caption}*", "")]
     md += ["## Deviations and choices", "", "| item | choice |", "|---|---|"]
     notes = {k: v for e in LEARN_EXPERIMENTS.values() for k, v in e.notes}
     md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
     root.mkdir(parents=True, exist_ok=True)
     write_file_atomic(root / "README.md", "\n".join(md) + "\n")
+
+
+def _screenshots(root: Path) -> list:
+    """The report's screenshots (one plan recording per plant of the cache ``root`` belongs to),
+    rendered once per plan and reused; none where no renderer is available."""
+    from pipeline.screenshots import report_screenshots
+
+    return report_screenshots(Cache(root.parent), root / "screenshots")
 
 
 DEVIATIONS = {
@@ -185,5 +235,11 @@ DEVIATIONS = {
     "Nao coupled hip": "25 planning joints, RHipYawPitch = LHipYawPitch in the 26-joint tree",
     "Nao execution": "computed torque on all 26 joints; Drake saturates actuation at the effort limits",
     "theta (AICO repeat rule)": "0.1 (state units), at most 3 repeats per step",
-    "iterations": "40 (arm pseudo), 25 (arm analytic, Nao); --quick: 2 seeds, 4-6 iterations",
+    "iterations": "40 (arm pseudo), 25 (arm analytic, Nao); beyond the thesis: crocoddyl FDDP and the adaptive "
+                  "R-AICO 100 (fig3.2c/d), the FDDP ablations on the first 3 initial states; --quick: 2 seeds, "
+                  "4-12 iterations",
+    "GP hyperparameters": "type-II maximum likelihood by L-BFGS-B with the analytic gradient (sklearn's kernel and "
+                          "bounds, own likelihood: the same values, about half the cost); in a learning loop every "
+                          "later fit starts at the previous one's hyperparameters, then the configured random "
+                          "restarts",
 }

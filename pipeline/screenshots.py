@@ -185,33 +185,44 @@ def _latest_plans(cache: Any) -> dict[str, Any]:
 
 
 def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]]:
-    """One screenshot per plant of the cache in ``out_dir`` (``plan-<plant>.png``): the recording of
-    its most recent plan that has one, as the viewer opens it. Returns ``[(caption, path)]`` sorted
-    by plant; ``[]`` where no renderer is available (:func:`renderer_unavailable`, or the viewer does
+    """One screenshot per plant of the cache in ``out_dir`` (``plan-<plant>-<key>.png``): the
+    recording of its most recent plan that has one, as the viewer opens it. A screenshot already
+    there for that plan is reused (a recording is derived from its plan's data: the same key, the
+    same picture), older ones of the plant are removed. Returns ``[(caption, path)]`` sorted by
+    plant; ``[]`` where no renderer is available (:func:`renderer_unavailable`, or the viewer does
     not start); a recording that fails to render is left out. Nothing raises."""
     out_dir = Path(out_dir)
     try:
         plans = _latest_plans(cache)
     except Exception:  # noqa: BLE001 - an unreadable cache: no screenshots
         return []
-    if not plans or renderer_unavailable() is not None:
+    if not plans:
         return []
     from pipeline.recorders import RECORDING
 
-    shots: list[tuple[str, Path]] = []
-    try:
-        with _viewer() as viewer:
-            for plant in sorted(plans):
-                info = plans[plant]
-                cfg = info.meta.get("config") or {}
-                png = out_dir / f"plan-{plant}.png"
-                try:
-                    _shoot(viewer, info.path / RECORDING, png, {}, None, None, _robot_drawn, 30.0)
-                except Exception:  # noqa: BLE001 - one recording the viewer cannot show: leave it out
-                    continue
-                caption = (f"plan {plant} {cfg.get('task', '')} {cfg.get('solver', '')} ({info.key[:8]}), "
-                           f"as the Rerun viewer opens its recording")
-                shots.append((" ".join(caption.split()), png))
-    except Exception:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...)
-        return shots
-    return shots
+    def png_of(plant: str) -> Path:
+        return out_dir / f"plan-{plant}-{plans[plant].key}.png"
+
+    def caption(plant: str) -> str:
+        info = plans[plant]
+        cfg = info.meta.get("config") or {}
+        text = (f"plan {plant} {cfg.get('task', '')} {cfg.get('solver', '')} ({info.key}), "
+                f"as the Rerun viewer opens its recording")
+        return " ".join(text.split())
+
+    todo = [p for p in sorted(plans) if not png_of(p).is_file()]
+    if todo and renderer_unavailable() is None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            with _viewer() as viewer:
+                for plant in todo:
+                    for old in out_dir.glob(f"plan-{plant}-*.png"):
+                        old.unlink(missing_ok=True)
+                    try:
+                        _shoot(viewer, plans[plant].path / RECORDING, png_of(plant), {}, None, None, _robot_drawn,
+                               30.0)
+                    except Exception:  # noqa: BLE001 - one recording the viewer cannot show: leave it out
+                        continue
+        except Exception:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...)
+            pass
+    return [(caption(p), png_of(p)) for p in sorted(plans) if png_of(p).is_file()]

@@ -60,9 +60,11 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     bars = content_mask(read_png(tmp_path / "cost.png"))
     assert bars.mean() > 0.05, f"cost view nearly empty ({bars.mean():.3f} of its pixels coloured)"
     _assert_in_frame(robot_mask(read_png(tmp_path / "robot.png")))
-    # the iteration timeline shows the plan's final pose, as sim_time does at the end of the motion (1.5 s)
+    # the iteration timeline at the last iteration shows the plan's final pose, as sim_time does at the end
+    # of the motion (1.5 s)
+    last = int(line["metrics"]["iterations"])
     render_screenshot(rrd, tmp_path / "end.png", timeline="sim_time", time=1.5, views={"robot": tmp_path / "r_end.png"})
-    render_screenshot(rrd, tmp_path / "it.png", timeline="iteration", time=2, views={"robot": tmp_path / "r_it.png"})
+    render_screenshot(rrd, tmp_path / "it.png", timeline="iteration", time=last, views={"robot": tmp_path / "r_it.png"})
     end, it = robot_mask(read_png(tmp_path / "r_end.png")), robot_mask(read_png(tmp_path / "r_it.png"))
     overlap = (end & it).sum() / max((end | it).sum(), 1)
     assert it.mean() > 3e-4 and overlap > 0.8, f"the robot on the iteration timeline is not at its final pose " \
@@ -71,8 +73,22 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     from pipeline.cache import Cache
 
     shots = report_screenshots(Cache(tmp_path), tmp_path / "report")
-    assert [p.name for _, p in shots] == ["plan-pendulum.png"] and shots[0][1].exists()
+    key = next(iter(Cache(tmp_path).list("plan"))).key
+    assert [p.name for _, p in shots] == [f"plan-pendulum-{key}.png"] and shots[0][1].exists()
     assert "pendulum swing-up ilqg" in shots[0][0]
+    # the same plan again: the picture is reused, no viewer is started
+    from pipeline import screenshots
+
+    def no_viewer():
+        raise AssertionError("a viewer was started for a plan that has its screenshot")
+
+    before = shots[0][1].stat().st_mtime_ns
+    import pytest
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(screenshots, "_viewer", no_viewer)
+        again = report_screenshots(Cache(tmp_path), tmp_path / "report")
+    assert again == shots and shots[0][1].stat().st_mtime_ns == before
 
 
 def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
@@ -81,5 +97,8 @@ def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
 
     assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []
     monkeypatch.setattr(screenshots, "renderer_unavailable", lambda: "no Vulkan driver")
-    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache: {"arm5": object()})
+    from types import SimpleNamespace
+
+    plan = SimpleNamespace(key="0123456789abcdef", path=tmp_path, meta={"config": {}})
+    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache: {"arm5": plan})
     assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []

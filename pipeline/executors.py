@@ -1,0 +1,544 @@
+"""Where the runs of ``raico reproduce`` execute, and the scheduler that keeps those workers busy.
+
+An :class:`Executor` runs picklable job functions ``fn(arg)`` (module-level functions, so a
+spawned process or a Ray worker imports them by name): ``submit`` returns a
+``concurrent.futures.Future``, ``wait`` blocks until some are done, ``result`` gives a done
+future's value (or raises its error as raico's own), ``shutdown(cancel=True)`` stops everything
+at once. Three of them (``make_executor``):
+
+- ``serial``: in this process, one job at a time (in the main thread, so Ctrl-C interrupts it);
+- ``process``: one pool of spawned worker processes for the executor's whole life (the default;
+  started on the first submit, so nothing starts when every run is cached). Workers die with the
+  parent, ignore SIGINT (Ctrl-C is the parent's), end on SIGTERM, and keep their per-process
+  caches (compiled dynamics, shared robots) from one job to the next;
+- ``ray``: Ray tasks on a local instance with ``--jobs`` CPUs, or on the cluster at ``address``.
+
+:class:`Scheduler` runs *flows* on one executor: a flow is a generator that yields a
+:class:`Batch` of jobs and receives their results (in the batch's order), so a figure is written
+as plain sequential code (plans, then the executions that depend on them) while many figures share
+the workers. Jobs wait in a priority queue in this process (lower priority value first, then in the
+order they were yielded); at most ``executor.slots`` are handed to the executor, so work that
+becomes ready late (a figure's executions) still goes ahead of lower-priority work. A job's
+``lookup`` (a cached run) is answered here and never submitted; identical jobs run once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import itertools
+import multiprocessing as mp
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline.errors import BadInput, Interrupted, RaicoError
+
+EXECUTORS = ("serial", "process", "ray")
+WORKER_DIED = "a worker process died (killed, or out of memory); the runs that finished are cached"
+
+
+def timed(call: tuple[Callable[[Any], Any], Any]) -> tuple[float, Any]:
+    """``(wall seconds, fn(arg))`` of ``call = (fn, arg)``: what the scheduler submits."""
+    fn, arg = call
+    t0 = time.perf_counter()
+    value = fn(arg)
+    return time.perf_counter() - t0, value
+
+
+class Executor:
+    """Runs ``fn(arg)`` somewhere; a context manager (an exception on the way out cancels everything)."""
+
+    name = "executor"
+    slots = 1  # jobs that run at once
+
+    def submit(self, fn: Callable[[Any], Any], arg: Any) -> Future:
+        raise NotImplementedError
+
+    def wait(self, futures: list[Future]) -> set[Future]:
+        """Block until at least one of ``futures`` is done; the done ones."""
+        return wait_futures(futures, return_when=FIRST_COMPLETED).done
+
+    def result(self, future: Future) -> Any:
+        """The value of a done future; its job's exception is raised as the job raised it."""
+        return future.result()
+
+    def shutdown(self, cancel: bool = False) -> None:
+        """Release the workers: after the running jobs, or (``cancel``) at once, killing them."""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.shutdown(cancel=exc_type is not None)
+
+
+class SerialExecutor(Executor):
+    """In this process: a submitted job runs when :meth:`wait` is called, in submission order."""
+
+    name = "serial"
+
+    def __init__(self) -> None:
+        self._queue: deque[tuple[Future, Callable, Any]] = deque()
+
+    def submit(self, fn, arg) -> Future:
+        future: Future = Future()
+        self._queue.append((future, fn, arg))
+        return future
+
+    def wait(self, futures: list[Future]) -> set[Future]:
+        wanted = set(futures)
+        done = {f for f in wanted if f.done()}
+        while not done and self._queue:
+            future, fn, arg = self._queue.popleft()
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(arg))
+                except Exception as e:  # noqa: BLE001  (an interrupt is not an Exception: it propagates)
+                    future.set_exception(e)
+            if future in wanted:
+                done.add(future)
+        return done
+
+    def shutdown(self, cancel: bool = False) -> None:
+        while self._queue:
+            self._queue.popleft()[0].cancel()
+
+
+# ----------------------------------------------------------------------------- process pool
+def _worker_init(parent_pid: int) -> None:
+    """Pool worker set-up: die with the parent (also on SIGKILL); Ctrl-C is the parent's to handle
+    (the terminal sends it to the whole process group), SIGTERM from the parent ends the worker."""
+    import signal
+
+    from pipeline.errors import die_with_parent
+
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def _sigint_blocked():
+    """SIGINT blocked in this thread while workers are spawned, so they start with it blocked
+    (a Ctrl-C during their imports is not theirs); a pending one is delivered afterwards."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+TRACKER_WARNING = "ignore:resource_tracker:UserWarning"
+
+
+def _quiet_resource_tracker() -> None:
+    """multiprocessing's resource tracker (a helper process started with the first pool) warns about
+    "leaked semaphores" on stderr when this process was SIGKILLed; it gets this process's ``-W``
+    options, so the warning is filtered there (it unlinks them all the same)."""
+    import sys
+
+    if TRACKER_WARNING not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_WARNING)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Stop at once: runs not started are cancelled, the workers get SIGTERM (SIGKILL after 1 s)
+    and are reaped, the pool's manager thread is joined."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
+    # the pool's own thread cancels what has not started (cancelling futures here races with it
+    # marking them broken once the workers are gone: InvalidStateError in that thread)
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + 1.0
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            p.kill()
+            p.join(5.0)
+    if manager is not None:
+        manager.join(10.0)
+
+
+class ProcessExecutor(Executor):
+    """One pool of ``workers`` spawned processes, started on the first submit (a worker is spawned
+    per submit until there are ``workers``) and kept until :meth:`shutdown`."""
+
+    name = "process"
+
+    def __init__(self, workers: int) -> None:
+        self.slots = workers
+        self._pool: ProcessPoolExecutor | None = None
+
+    def submit(self, fn, arg) -> Future:
+        import os
+
+        if self._pool is None:
+            _quiet_resource_tracker()
+            self._pool = ProcessPoolExecutor(max_workers=self.slots, mp_context=mp.get_context("spawn"),
+                                             initializer=_worker_init, initargs=(os.getpid(),))
+        with _sigint_blocked():  # workers are spawned here
+            return self._pool.submit(fn, arg)
+
+    def result(self, future: Future) -> Any:
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return future.result()
+        except BrokenProcessPool:
+            raise RaicoError(WORKER_DIED) from None
+
+    def shutdown(self, cancel: bool = False) -> None:
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        if cancel:
+            _stop_pool(pool)
+        else:
+            pool.shutdown(wait=True)
+
+
+# ----------------------------------------------------------------------------- ray
+def _ray_call(fn, arg):
+    """The one Ray task: ``fn(arg)`` in a Ray worker."""
+    return fn(arg)
+
+
+class RayExecutor(Executor):
+    """Ray tasks (one CPU each, no retries): on the Ray instance this process is already connected
+    to, else on the cluster at ``address``, else on a local instance with ``workers`` CPUs; connected
+    on the first submit. ``shutdown`` disconnects (stopping a local instance) only if it connected."""
+
+    name = "ray"
+
+    def __init__(self, workers: int, address: str | None = None) -> None:
+        self.workers, self.address = workers, address
+        self._remote = None
+        self._slots: int | None = None
+        self._connected_here = False
+        self._refs: dict[Future, Any] = {}
+
+    @property
+    def slots(self) -> int:  # the cluster's CPUs
+        self._connect()
+        return self._slots or self.workers
+
+    def _connect(self) -> None:
+        if self._remote is not None:
+            return
+        import logging
+        import os
+        import signal
+        import threading
+
+        import ray
+
+        if not ray.is_initialized():
+            main = threading.current_thread() is threading.main_thread()
+            handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+            kwargs: dict[str, Any] = {"logging_level": logging.ERROR}
+            os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # no C++ warning lines on stderr
+            if self.address is None:
+                kwargs.update(num_cpus=self.workers, include_dashboard=False)
+            else:
+                _check_reachable(self.address)
+                _token_auth_like_ray_start()
+            try:
+                ray.init(address=self.address or "local", **kwargs)  # "local": a new instance, even if
+                # `ray start` left its address behind (plain ray.init() would connect to that cluster)
+            except SystemExit:  # ray.init's own SIGTERM handler (in place while it starts)
+                raise Interrupted(signal.SIGTERM) from None
+            except (ConnectionError, RuntimeError, ValueError) as e:
+                where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
+                hint = ("" if self.address is None or os.environ.get("RAY_AUTH_MODE") else
+                        " (a cluster with token authentication needs RAY_AUTH_MODE=token and its token here)")
+                raise RaicoError(f"cannot start or reach {where}: {e}{hint}") from None
+            finally:
+                for s, h in handlers.items():  # ray.init replaces the SIGTERM handler with sys.exit
+                    signal.signal(s, h)
+            self._connected_here = True
+        self._remote = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
+        self._slots = max(1, int(ray.cluster_resources().get("CPU", self.workers)))
+
+    def submit(self, fn, arg) -> Future:
+        self._connect()
+        ref = self._remote.remote(fn, arg)
+        future = ref.future()
+        self._refs[future] = ref
+        return future
+
+    def result(self, future: Future) -> Any:
+        import ray.exceptions as rex
+
+        self._refs.pop(future, None)
+        try:
+            return future.result()
+        except rex.RayTaskError as e:  # the job's own exception, as it raised it
+            cause = getattr(e, "cause", None)
+            if isinstance(cause, BaseException):
+                raise cause from None
+            raise RaicoError(f"a Ray task failed: {str(e).splitlines()[-1] if str(e) else type(e).__name__}") from None
+        except (rex.WorkerCrashedError, rex.NodeDiedError, rex.OutOfMemoryError):
+            raise RaicoError(WORKER_DIED) from None
+
+    def shutdown(self, cancel: bool = False) -> None:
+        if self._remote is None:
+            return
+        import ray
+
+        refs = list(self._refs.values())
+        self._refs.clear()
+        if cancel and refs:
+            for ref in refs:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)  # kills the worker that runs it
+            with contextlib.suppress(Exception):  # until the killed workers are gone
+                ray.wait(refs, num_returns=len(refs), timeout=10.0)
+        self._remote = None
+        if self._connected_here:
+            self._connected_here = False
+            ray.shutdown()
+
+
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """A ``HOST:PORT`` Ray address must accept a connection: ``ray.init`` would retry an unreachable
+    one for minutes, deaf to signals while it waits in Ray's C++ client. ``auto`` and ``ray://``
+    addresses are Ray's to resolve."""
+    import socket
+
+    if address == "auto" or "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise RaicoError(f"cannot reach the Ray cluster at {address}: {e.strerror or e}") from None
+
+
+def _token_auth_like_ray_start() -> None:
+    """Use token authentication if a Ray token is configured here and ``RAY_AUTH_MODE`` is unset,
+    as ``ray start`` does (Ray 2.60's own check; a head started with a token requires it)."""
+    try:
+        from ray._private.authentication.authentication_token_setup import (
+            maybe_enable_token_auth_if_token_available,
+        )
+    except ImportError:  # another Ray version: RAY_AUTH_MODE decides
+        return
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+
+
+def make_executor(name: str, jobs: int, address: str | None = None) -> Executor:
+    """``serial``, ``process`` (``jobs`` workers; ``jobs == 1`` runs in this process) or ``ray``."""
+    if name not in EXECUTORS:
+        raise BadInput(f"unknown executor '{name}': choose one of {', '.join(EXECUTORS)}")
+    if address is not None and name != "ray":
+        raise BadInput("--address goes with --executor ray")
+    if name == "ray":
+        import importlib.util
+
+        if address is not None and not address.strip():
+            raise BadInput("--address: an empty address")
+        host, _, port = (address or "").rpartition(":")
+        if address is not None and address != "auto" and "://" not in address and not (host and port.isdigit()):
+            raise BadInput(f"--address {address}: give HOST:PORT of the Ray head (its GCS port, 6379 by default), "
+                           f"or auto")
+        if importlib.util.find_spec("ray") is None:
+            raise BadInput("--executor ray needs Ray: pip install -e '.[ray]'")
+        return RayExecutor(jobs, address)
+    if name == "serial" or jobs <= 1:
+        return SerialExecutor()
+    return ProcessExecutor(jobs)
+
+
+# ----------------------------------------------------------------------------- scheduler
+@dataclass
+class Job:
+    """One run: ``fn(arg)`` in a worker, unless ``lookup()`` (here) finds its result cached."""
+
+    fn: Callable[[Any], Any]
+    arg: Any
+    label: str = ""
+    lookup: Callable[[], Any] | None = None
+
+
+@dataclass
+class Batch:
+    """What a flow yields: jobs of one kind (``plan``, ``execute``, ...); it receives their results."""
+
+    kind: str
+    jobs: list[Job]
+
+
+@dataclass
+class Event:
+    """Progress of a flow's batch: ``done`` of ``total``; ``label`` and ``seconds`` of the run that
+    just finished (None when the batch starts, its cached runs counted)."""
+
+    flow: str
+    kind: str
+    done: int
+    total: int
+    label: str | None = None
+    seconds: float | None = None
+
+
+class _Flow:
+    def __init__(self, name: str, gen, priority: float):
+        self.name, self.gen, self.priority = name, gen, priority
+        self.batch: Batch | None = None
+        self.results: list = []
+        self.done = 0
+        self.added = time.perf_counter()
+        self.started: float | None = None  # when its first job was handed to the executor
+
+
+class Scheduler:
+    """Runs flows on one executor; see the module's docstring. A context manager: an exception
+    inside (an interrupt, a failed run) cancels the executor's work at once, then ``on_abort()``
+    (removing the killed workers' temporary folders)."""
+
+    def __init__(self, executor: Executor, progress: Callable[[Event], None] | None = None,
+                 on_abort: Callable[[], Any] | None = None) -> None:
+        self.executor, self.progress, self.on_abort = executor, progress, on_abort
+        self.finished = 0  # runs finished in this call, cached ones included
+        self._seq = itertools.count()
+        self._ready: list = []  # heap of (priority, seq, key, job)
+        self._waiting: dict[Any, list[tuple[_Flow, int]]] = {}  # job key -> the batch slots it fills
+        self._inflight: dict[Future, tuple[int, Any, Job]] = {}
+        self._flows: dict[str, _Flow] = {}
+        self._open = 0
+        self._completed: deque[tuple[str, Any]] = deque()
+
+    def __enter__(self) -> Scheduler:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.abort()
+
+    def abort(self) -> None:
+        """Stop at once: nothing more is submitted, the executor's jobs are cancelled and killed."""
+        self._ready.clear()
+        self._inflight.clear()
+        self.executor.shutdown(cancel=True)
+        if self.on_abort is not None:
+            self.on_abort()
+
+    def add(self, name: str, flow, priority: float = 0) -> None:
+        """Start ``flow`` (a generator of batches): its first batch's lookups run now."""
+        if name in self._flows:
+            raise ValueError(f"flow {name} was added twice")
+        f = self._flows[name] = _Flow(name, flow, priority)
+        self._open += 1
+        self._step(f, None)
+
+    def started(self, name: str) -> float:
+        """``time.perf_counter()`` when the flow's first job was submitted (if all were cached: when
+        the flow was added)."""
+        flow = self._flows[name]
+        return flow.started if flow.started is not None else flow.added
+
+    def run(self) -> Iterator[tuple[str, Any]]:
+        """``(name, value)`` of each flow as it returns, until all have."""
+        while True:
+            self._dispatch()  # before the caller works on a completed flow (workers stay busy meanwhile)
+            while self._completed:
+                yield self._completed.popleft()
+            if not self._open:
+                return
+            self._dispatch()
+            if not self._inflight:
+                raise RuntimeError("scheduler: flows wait but no job is ready")  # a flow bug
+            done = self.executor.wait(list(self._inflight))
+            for future in sorted(done, key=lambda f: self._inflight[f][0]):
+                _, key, job = self._inflight.pop(future)
+                seconds, value = self.executor.result(future)
+                self._finish(key, job, value, seconds)
+
+    # -- internals
+    def _step(self, flow: _Flow, value) -> None:
+        """Send ``value`` (the last batch's results) into ``flow``; queue its next batch."""
+        try:
+            batch = flow.gen.send(value)
+        except StopIteration as stop:
+            self._open -= 1
+            self._completed.append((flow.name, stop.value))
+            return
+        flow.batch, flow.results, flow.done = batch, [None] * len(batch.jobs), 0
+        for i, job in enumerate(batch.jobs):
+            cached = job.lookup() if job.lookup is not None else None
+            if cached is not None:
+                flow.results[i] = cached
+                flow.done += 1
+                self.finished += 1
+                continue
+            key = _job_key(job)
+            if key in self._waiting:  # the same run is already queued or running: it fills both
+                self._waiting[key].append((flow, i))
+                continue
+            self._waiting[key] = [(flow, i)]
+            heapq.heappush(self._ready, (flow.priority, next(self._seq), key, job))
+        if self.progress:
+            self.progress(Event(flow.name, batch.kind, flow.done, len(batch.jobs)))
+        if flow.done == len(batch.jobs):
+            self._step(flow, flow.results)
+
+    def _dispatch(self) -> None:
+        while self._ready and len(self._inflight) < self.executor.slots:
+            _, seq, key, job = heapq.heappop(self._ready)
+            now = time.perf_counter()
+            for flow, _ in self._waiting[key]:
+                flow.started = flow.started or now
+            self._inflight[self.executor.submit(timed, (job.fn, job.arg))] = (seq, key, job)
+
+    def _finish(self, key, job: Job, value, seconds: float) -> None:
+        complete = []
+        for flow, i in self._waiting.pop(key):
+            flow.results[i] = value
+            flow.done += 1
+            self.finished += 1
+            if self.progress:
+                self.progress(Event(flow.name, flow.batch.kind, flow.done, len(flow.results), job.label, seconds))
+            if flow.done == len(flow.results) and flow not in complete:
+                complete.append(flow)
+        for flow in complete:
+            self._step(flow, flow.results)
+
+
+def _job_key(job: Job) -> Any:
+    """Identical jobs (same function, equal argument) share one run; unhashable ones never do."""
+    try:
+        key = (job.fn, job.arg)
+        hash(key)
+        return key
+    except TypeError:
+        return object()
+
+
+def run_flow(executor: Executor, flow, progress: Callable[[Event], None] | None = None,
+             on_abort: Callable[[], Any] | None = None, scheduled: int | None = None) -> Any:
+    """Run one flow to its end on ``executor`` (shut down afterwards); an interrupt learns how
+    many runs had finished (of ``scheduled``)."""
+    with executor, Scheduler(executor, progress, on_abort) as sched:
+        try:
+            sched.add("flow", flow)
+            return next(value for _, value in sched.run())
+        except Interrupted as e:  # says how many runs are kept (not what one of them kept)
+            e.finished, e.scheduled, e.note = sched.finished, scheduled, None
+            raise

@@ -1,0 +1,212 @@
+"""Executors and the scheduler of ``raico reproduce`` (``pipeline/executors.py``): serial, process and
+Ray give the same results; a failed job stops the rest; a real figure on a local Ray instance equals
+the process pool's; one progress line per finished run in a log.
+
+Module level imports stay light: pool and Ray workers import this module for its job functions."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+EXECUTORS = ["serial", "process", "ray"]
+
+
+# ----------------------------------------------------------------------------- job functions (run in workers)
+def _square(x: int) -> int:
+    return x * x
+
+
+def _add(args: tuple[int, int]) -> int:
+    return args[0] + args[1]
+
+
+def _never(x):
+    raise AssertionError("a job answered by its lookup was submitted")
+
+
+def _fail_or_sleep(args: tuple[str, int, bool]) -> int:
+    """Job 0 fails (once job 1 has started, if ``wait``); the others mark that they started, then sleep."""
+    folder, i, wait = args
+    if i == 0:
+        deadline = time.monotonic() + 20
+        while wait and not Path(folder, "started1").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        raise ValueError("job 0 failed")
+    Path(folder, f"started{i}").write_text("")
+    time.sleep(30)
+    return i
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def ray_instance():
+    """One local Ray instance with 2 CPUs for this module (the executor uses it, and leaves it running)."""
+    import signal
+
+    ray = pytest.importorskip("ray")
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="ERROR")
+    for s, h in handlers.items():
+        signal.signal(s, h)
+    yield ray
+    ray.shutdown()
+
+
+def executor(name: str, request):
+    from pipeline.executors import make_executor
+
+    if name == "ray":
+        request.getfixturevalue("ray_instance")
+    return make_executor(name, 2)
+
+
+# ----------------------------------------------------------------------------- executors and scheduler
+def _flow(n: int, cached: dict[int, int]):
+    """Squares (some answered by a lookup), then sums of neighbours that depend on them."""
+    from pipeline.executors import Batch, Job
+
+    squares = yield Batch("square", [Job(_never, i, f"{i}^2", lambda i=i: cached[i]) if i in cached
+                                     else Job(_square, i, f"{i}^2") for i in range(n)])
+    sums = yield Batch("sum", [Job(_add, (a, b), f"{a}+{b}") for a, b in zip(squares, squares[1:])]
+                       + [Job(_add, (squares[0], squares[1]), "again")])  # identical to the first: one run
+    return squares, sums
+
+
+@pytest.mark.parametrize("name", EXECUTORS)
+def test_executors_give_the_same_results(name, request):
+    from pipeline.executors import Scheduler
+
+    events = []
+    with executor(name, request) as ex, Scheduler(ex, events.append) as sched:
+        sched.add("a", _flow(6, {2: 4, 5: 25}), priority=1)
+        sched.add("b", _flow(3, {}), priority=0)
+        out = dict(sched.run())
+        assert sched.finished == 6 + 6 + 3 + 3
+    squares = [i * i for i in range(6)]
+    assert out["a"] == (squares, [a + b for a, b in zip(squares, squares[1:])] + [1])
+    assert out["b"] == ([0, 1, 4], [1, 5, 1])
+    a_squares = [e for e in events if (e.flow, e.kind) == ("a", "square")]
+    assert (a_squares[0].done, a_squares[0].label) == (2, None)  # the batch starts with its 2 cached runs
+    assert sorted(e.done for e in a_squares[1:]) == [3, 4, 5, 6] and all(e.seconds >= 0 for e in a_squares[1:])
+    a_sums = [e.label for e in events if (e.flow, e.kind) == ("a", "sum")]  # "again" ran once, as "0+1"
+    assert a_sums[0] is None and sorted(a_sums[1:]) == ["0+1", "0+1", "1+4", "16+25", "4+9", "9+16"]
+
+
+@pytest.mark.parametrize("name", EXECUTORS)
+def test_a_failing_job_stops_the_rest(name, request, tmp_path):
+    from pipeline.executors import Batch, Job, run_flow
+
+    def flow():
+        yield Batch("run", [Job(_fail_or_sleep, (str(tmp_path), i, name != "serial")) for i in range(6)])
+
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match="^job 0 failed$"):
+        run_flow(executor(name, request), flow())
+    assert time.monotonic() - t0 < 30
+    started = sorted(p.name for p in tmp_path.iterdir())
+    assert started == ([] if name == "serial" else ["started1"])  # 2 slots: job 1 ran, was killed; none after
+
+
+def test_bad_executor_values_are_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    for args, message in ((["--executor", "threads"], "unknown executor 'threads': choose one of serial, process, ray"),
+                          (["--address", "head:6379"], "--address goes with --executor ray"),
+                          (["--executor", "ray", "--address", " "], "--address: an empty address"),
+                          (["--executor", "ray", "--address", "head"], "--address head: give HOST:PORT of the Ray "
+                                                                       "head (its GCS port, 6379 by default), or auto")):
+        res = CliRunner().invoke(app, ["reproduce", "--figure", "fig3.2a", *args, "--artifacts", str(tmp_path)])
+        assert res.exit_code == 2 and res.stderr.strip() == f"raico: error: {message}", res.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_unreachable_ray_address_is_one_error_at_once():
+    from pipeline.errors import RaicoError
+    from pipeline.executors import _check_reachable
+
+    t0 = time.monotonic()
+    with pytest.raises(RaicoError, match=r"^cannot reach the Ray cluster at 127\.0\.0\.1:1: "):
+        _check_reachable("127.0.0.1:1")  # ray.init would retry for minutes, deaf to Ctrl-C
+    assert time.monotonic() - t0 < 10
+
+
+def test_reproduce_help_lists_every_experiment_and_executor():
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from pipeline.reproduce import ALL_IDS
+
+    text = " ".join(CliRunner().invoke(app, ["reproduce", "--help"]).output.split())
+    assert all(i in text for i in ALL_IDS) and all(e in text for e in ("serial", "process", "ray", "--address"))
+
+
+def test_work_order_is_longest_first():
+    from pipeline.reproduce import ALL_IDS, work_order
+
+    order = work_order(["fig3.2a", "fig4.1/4.2", "fig3.2c", "fig3.2a", "fig4.3"])
+    assert order == ["fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2a"] and sorted(work_order(ALL_IDS)) == sorted(ALL_IDS)
+
+
+# ----------------------------------------------------------------------------- a real figure on Ray
+PROGRESS = re.compile(r"raico: fig3\.2a plan (\d+)/8 done \((iLQG|AICO|R-AICO a=1|R-AICO a=10) seed [01], "
+                      r"\d+\.\d s\)")
+
+
+def _reproduce(root: Path, *args: str):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    res = CliRunner().invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--no-record", "--json",
+                                   "--artifacts", str(root), *args])
+    assert res.exit_code == 0, res.output
+    return res
+
+
+def _untimed(obj):
+    """``obj`` without its wall times (``wall_time_s``, ``wall_time_median_s``: they differ run to run)."""
+    if isinstance(obj, dict):
+        return {k: _untimed(v) for k, v in obj.items() if not k.startswith("wall_time")}
+    if isinstance(obj, list):
+        return [_untimed(v) for v in obj]
+    return obj
+
+
+def _claims(root: Path) -> dict:
+    """The figure's claims.json, its paths relative to ``root``."""
+    return _untimed(json.loads((root / "report-quick" / "fig3.2a" / "claims.json").read_text()
+                               .replace(str(root), "ROOT")))
+
+
+def _plans(root: Path) -> dict[str, dict]:
+    """Key -> (status, metrics) of every cached plan under ``root``."""
+    out = {}
+    for p in sorted((root / "plan").iterdir()):
+        if not p.name.startswith("."):
+            meta = json.loads((p / "meta.json").read_text())
+            out[p.name] = {"status": meta["status"], "metrics": _untimed(meta["metrics"])}
+    return out
+
+
+def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_instance, tmp_path):
+    by_process = _reproduce(tmp_path / "process", "--executor", "process", "--jobs", "2")
+    lines = [ln for ln in by_process.stderr.splitlines() if ln.strip()]
+    progress = [ln for ln in lines if PROGRESS.fullmatch(ln)]
+    assert sorted(int(PROGRESS.fullmatch(ln).group(1)) for ln in progress) == list(range(1, 9)), lines
+    assert len(lines) == 9 and lines[-1].startswith("fig3.2a: 8 runs (0 cached) in ")  # and nothing else
+    by_ray = _reproduce(tmp_path / "ray", "--executor", "ray", "--quiet")
+    assert by_ray.stderr == ""  # --quiet: no progress lines
+    plans = _plans(tmp_path / "process")
+    assert len(plans) == 8 and _plans(tmp_path / "ray") == plans
+    assert _claims(tmp_path / "ray") == _claims(tmp_path / "process")
+    again = _reproduce(tmp_path / "ray", "--executor", "ray")  # cached: nothing submitted, no progress line
+    assert json.loads(again.stdout.splitlines()[-1])["cached_runs"] == 8
+    assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith("fig3.2a: 8 runs (8 cached)")
+    assert not any(PROGRESS.fullmatch(ln) for ln in again.stderr.splitlines())
