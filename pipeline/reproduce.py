@@ -102,12 +102,15 @@ TIMINGS = "timings.json"
 
 def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float) -> None:
     """Wall time of this call's work on a figure (``timings.json``; the report shows it): from its first
-    run handed to a worker to its report written (figures run at the same time share the workers)."""
+    run handed to a worker to its report written (figures run at the same time share the workers). A
+    call that found every run cached leaves the entry of the call that computed them."""
     path = root / TIMINGS
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
         doc = {}
+    if runs and cached == runs and fid in doc:  # served from the cache: keep the call that computed it
+        return
     doc[fid] = {"runs": runs, "cached_runs": cached, "wall_time_s": round(elapsed, 2),
                 "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "load_average_1min": round(__import__("os").getloadavg()[0], 2)}

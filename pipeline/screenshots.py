@@ -84,6 +84,10 @@ class _Viewer:
 def _viewer() -> Iterator[_Viewer]:
     """A headless viewer on a free local port (quit on exit)."""
     os.environ.setdefault("RUST_LOG", "off")  # the viewer's own log lines
+    if not os.environ.get("XDG_RUNTIME_DIR"):  # else the viewer's window layer complains on stderr
+        import tempfile
+
+        os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="raico-xdg-")
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
     from rerun.experimental import ViewerClient
 

@@ -30,12 +30,12 @@ def results_block(report: Path) -> str:
     t = report / "timings.json"
     if t.exists():
         tim = json.loads(t.read_text())
-        total = sum(v["wall_time_s"] for v in tim.values())
-        out += ["", "Wall time per figure of the latest `make reproduce` (load average of the machine at the time):",
+        out += ["", "Wall time per figure of the latest `make reproduce` (load average of the machine at the time; "
+                "figures run at the same time on the shared workers, from a figure's first run handed to a worker "
+                "to its report written, so the times overlap and do not add up):",
                 "", "| figure | runs (cached) | wall time (s) | load (1 min) |", "|---|---|---|---|"]
         out += [f"| {f} | {v['runs']} ({v['cached_runs']}) | {v['wall_time_s']} | {v['load_average_1min']} |"
                 for f, v in tim.items()]
-        out += [f"| total | | {total:.0f} | |"]
     return "\n".join(out)
 
 
