@@ -157,29 +157,15 @@ def _generate(g: Graph, m: int, m_nodes: list[int], h_nodes: list[int],
 def self_check(plant, compiled: CompiledDynamics, n_states: int = 3, seed: int = 0) -> float:
     """Largest relative difference of the generated ``M``, ``h``, ``dID/d(q, v)`` from Drake's
     float and AutoDiffXd evaluation at random states (angles over a full turn)."""
-    from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, InitializeAutoDiff
-    from pydrake.multibody.tree import MultibodyForces_
+    from plants.codegen.reference import DrakeReference
 
     m = compiled.m
     rng = np.random.default_rng(seed)
-    ctx = plant.CreateDefaultContext()
-    forces = MultibodyForces_[float](plant)
-    plant_ad = plant.ToAutoDiffXd()
-    ctx_ad = plant_ad.CreateDefaultContext()
-    forces_ad = MultibodyForces_[AutoDiffXd](plant_ad)
+    drake = DrakeReference(plant)
     worst = 0.0
     for _ in range(n_states):
         q, v, a = rng.uniform(-np.pi, np.pi, m), rng.standard_normal(m), rng.standard_normal(m)
-        plant.SetPositions(ctx, q)
-        plant.SetVelocities(ctx, v)
-        plant.CalcForceElementsContribution(ctx, forces)
-        h_ref = plant.CalcInverseDynamics(ctx, np.zeros(m), forces)
-        M_ref = plant.CalcMassMatrix(ctx)
-        qv = InitializeAutoDiff(np.concatenate([q, v])).reshape(-1)
-        plant_ad.SetPositions(ctx_ad, qv[:m])
-        plant_ad.SetVelocities(ctx_ad, qv[m:])
-        plant_ad.CalcForceElementsContribution(ctx_ad, forces_ad)
-        D_ref = ExtractGradient(plant_ad.CalcInverseDynamics(ctx_ad, a, forces_ad))
+        M_ref, _, h_ref, D_ref = drake.evaluate(q, v, a)
         M, h, D = compiled.evaluate(q, v, a)
         for got, ref in ((M, M_ref), (h, h_ref), (D, D_ref)):
             scale = max(np.max(np.abs(ref)), 1e-12)

@@ -845,16 +845,12 @@ class TreeKernels:
 def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) -> float:
     """Largest relative difference of ``M``, ``h``, ``dID/d(q, v)``, a frame's pose and the centre
     of mass from Drake's own evaluation (float and AutoDiffXd) at random states."""
-    from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, InitializeAutoDiff
-    from pydrake.multibody.tree import MultibodyForces_
+    from plants.codegen.reference import DrakeReference
 
     m = kernels.m
     rng = np.random.default_rng(seed)
-    ctx = plant.CreateDefaultContext()
-    forces = MultibodyForces_[float](plant)
-    plant_ad = plant.ToAutoDiffXd()
-    ctx_ad = plant_ad.CreateDefaultContext()
-    forces_ad = MultibodyForces_[AutoDiffXd](plant_ad)
+    drake = DrakeReference(plant)
+    ctx = drake.ctx
     worst = 0.0
 
     def rel(got, ref):
@@ -863,16 +859,7 @@ def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) ->
     tree = kernels.tree
     for _ in range(n_states):
         q, v, a = rng.uniform(-np.pi, np.pi, m), rng.standard_normal(m), rng.standard_normal(m)
-        plant.SetPositions(ctx, q)
-        plant.SetVelocities(ctx, v)
-        plant.CalcForceElementsContribution(ctx, forces)
-        tau_ref = plant.CalcInverseDynamics(ctx, a, forces)
-        M_ref = plant.CalcMassMatrix(ctx)
-        qv = InitializeAutoDiff(np.concatenate([q, v])).reshape(-1)
-        plant_ad.SetPositions(ctx_ad, qv[:m])
-        plant_ad.SetVelocities(ctx_ad, qv[m:])
-        plant_ad.CalcForceElementsContribution(ctx_ad, forces_ad)
-        D_ref = ExtractGradient(plant_ad.CalcInverseDynamics(ctx_ad, a, forces_ad))
+        M_ref, tau_ref, _, D_ref = drake.evaluate(q, v, a)
         worst = max(worst, rel(kernels.mass_matrix(q), M_ref),
                     rel(kernels.inverse_dynamics(q, v, a), tau_ref),
                     rel(kernels.id_derivatives(q, v, a), D_ref))
