@@ -157,16 +157,6 @@ def _progress_events(progress: Callable[[int, int], None] | None):
     return (lambda ev: progress(ev.done, ev.total)) if progress else None
 
 
-def _map(jobs: list, workers: int, progress: Callable[[int, int], None] | None) -> list[Outcome]:
-    """Run ``jobs`` (``(root, stage, config, record)``): cached ones looked up here, the others in
-    ``workers`` processes (none are started when everything is cached)."""
-    from pipeline import runner
-
-    results: list[Outcome | None] = [runner.lookup(Cache(j[0]), j[1], j[2], record=j[3]) for j in jobs]
-    _sweep(_job, jobs, results, workers, progress, jobs[0][0] if jobs else None)
-    return results  # type: ignore[return-value]
-
-
 def _sweep(fn, jobs: list, results: list, workers: int, progress, root, executor: Executor | None = None) -> None:
     """Fill the ``None`` entries of ``results`` with ``Outcome(**fn(jobs[i]))``: on ``executor``, by
     default here if ``workers`` is 1 (or one job is left), else in a pool of ``workers`` spawned
@@ -247,14 +237,6 @@ def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
                         "config": ExecuteConfig(plan=f"plan/{p['outcome'].key}", x0_noise=level[0],
                                                 process_noise=level[1], seed=seed)})
     return out
-
-
-def run_noise_sweep(cache: Cache, exp: Experiment, plans: list[dict], quick: bool = False, workers: int = 2,
-                    record: bool = True) -> list[dict]:
-    """Execute the sweep (cached execute runs): ``noise_runs`` entries with their ``outcome``."""
-    runs = noise_runs(exp, plans, quick)
-    outs = _map([(str(cache.root), "execute", r["config"], record) for r in runs], workers, None) if runs else []
-    return [{**{k: v for k, v in r.items() if k != "config"}, "outcome": o} for r, o in zip(runs, outs)]
 
 
 # ----------------------------------------------------------------------------- analysis

@@ -438,7 +438,7 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
 
 # ----------------------------------------------------------------------------- robustness under noise
 def noise_summary(noise: list[dict]) -> list[dict]:
-    """Per noise level of the sweep (``pipeline.experiments.run_noise_sweep``): runs, status counts,
+    """Per noise level of the sweep (``pipeline.experiments.noise_runs``, run by ``experiment_flow``): runs, status counts,
     success rate (share with status ok) and the spread of the largest executed via-point error."""
     from stages.evaluate.summary import largest_via_error
 
