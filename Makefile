@@ -24,7 +24,8 @@ kernels: $(KERNEL)
 
 $(KERNEL): stages/plan/csweep.c
 	@mkdir -p build
-	gcc -O2 -fPIC -shared -fno-fast-math -ffp-contract=off -fno-strict-aliasing -o $@ $< -lm \
+	gcc -O3 -fPIC -shared -fno-fast-math -ffp-contract=fast -fno-strict-aliasing \
+		$$(grep -q ' avx2' /proc/cpuinfo && grep -q ' fma' /proc/cpuinfo && echo -mavx2 -mfma) -o $@ $< -lm \
 		|| echo "kernels: no C compiler, the numpy sweeps run"
 
 # The crocoddyl baseline: the pinned list [tool.raico] anchors of pyproject.toml (why not an extra:

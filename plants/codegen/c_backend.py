@@ -30,6 +30,21 @@ from pathlib import Path
 from plants.codegen.graph import BINARY, Graph
 
 
+def _cpu_flags() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return f.read(200_000)
+    except OSError:  # pragma: no cover - not Linux
+        return ""
+
+
+def fma_flags() -> tuple[str, ...]:
+    """``-mfma`` where the CPU has it (and AVX2): for code whose results may depend on contraction
+    (the sweep kernel, compared with numpy to a tolerance, never bit for bit)."""
+    info = _cpu_flags()
+    return ("-mfma",) if " fma" in info and " avx2" in info else ()
+
+
 def _isa_flags() -> tuple[str, ...]:
     """``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
     contraction stays off, so the numbers do not depend on it)."""
@@ -59,17 +74,19 @@ def kernel_dir() -> Path:
     return Path(d) if d else Path.home() / ".cache" / "raico" / "kernels"
 
 
-def library_path(source: str, name: str, directory: Path | None = None) -> Path:
-    """Where the library of ``source`` is (or will be) cached."""
-    key = hashlib.sha256((" ".join(CFLAGS) + "\n" + source).encode()).hexdigest()[:20]
+def library_path(source: str, name: str, directory: Path | None = None,
+                 flags: tuple[str, ...] = CFLAGS) -> Path:
+    """Where the library of ``source`` built with ``flags`` is (or will be) cached."""
+    key = hashlib.sha256((" ".join(flags) + "\n" + source).encode()).hexdigest()[:20]
     return (directory or kernel_dir()) / f"{name}-{key}.so"
 
 
-def build_library(source: str, name: str, directory: Path | None = None) -> Path:
-    """Compile ``source`` (once per content) and return the library's path."""
+def build_library(source: str, name: str, directory: Path | None = None,
+                  flags: tuple[str, ...] = CFLAGS) -> Path:
+    """Compile ``source`` with ``flags`` (once per content and flags) and return the library's path."""
     if not enabled():
         raise CompileUnavailable("compiled kernels disabled (RAICO_NO_C) or no gcc")
-    path = library_path(source, name, directory)
+    path = library_path(source, name, directory, flags)
     if path.exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -77,7 +94,7 @@ def build_library(source: str, name: str, directory: Path | None = None) -> Path
         src = Path(tmp) / f"{name}.c"
         src.write_text(source)
         out = Path(tmp) / f"{name}.so"
-        proc = subprocess.run(["gcc", *CFLAGS, "-o", str(out), str(src), "-lm"],
+        proc = subprocess.run(["gcc", *flags, "-o", str(out), str(src), "-lm"],
                               capture_output=True, text=True)
         if proc.returncode != 0:
             raise CompileUnavailable(f"gcc failed on {name}: {proc.stderr[-2000:]}")
@@ -85,9 +102,10 @@ def build_library(source: str, name: str, directory: Path | None = None) -> Path
     return path
 
 
-def load_library(source: str, name: str, directory: Path | None = None) -> ctypes.CDLL:
+def load_library(source: str, name: str, directory: Path | None = None,
+                 flags: tuple[str, ...] = CFLAGS) -> ctypes.CDLL:
     """``ctypes`` handle of the compiled ``source`` (kept for the process)."""
-    path = build_library(source, name, directory)
+    path = build_library(source, name, directory, flags)
     lib = _LIBS.get(str(path))
     if lib is None:
         lib = _LIBS[str(path)] = ctypes.CDLL(str(path))

@@ -1,8 +1,10 @@
 /* AICO / R-AICO sweeps of stages/plan/aico.py (_Sweeps) in C: the same formulas, the same order of
  * steps, relinearizations and repeats (thesis Algorithm 1), without per-step Python overhead.
  *
- * Arrays are numpy's, row-major; BLAS/LAPACK (scipy's, passed in as addresses) see a row-major
- * (r x c) block as its column-major transpose (c x r). The message layout is _Sweeps's:
+ * Arrays are numpy's, row-major. The dense algebra is the small loops below (Cholesky factors,
+ * triangular solves, products) and, from BIG state dimensions on, scipy's BLAS for the n x n
+ * products (passed in as addresses; BLAS sees a row-major (r x c) block as its column-major
+ * transpose (c x r)). The message layout is _Sweeps's:
  * SA[t], VA[t], RA[t] = [P | p] (n x (n+1)), C[t] = [[B, A, -a], [0, 0, 1]] ((n+1) x (m+n+1)),
  * Z[t] = [-O_t | o_t] (m x (n+1)).
  *
@@ -10,7 +12,8 @@
  * the dynamics have no compiled linearization) sweep_run returns a request (bit 1: dynamics,
  * bit 2: task message) with the step's point already moved; the caller fills C[t], Qbar[t],
  * a_eff[t] and/or RA[t] and calls sweep_run again, which continues where it stopped.
- * Build: gcc -O2 -fPIC -shared -ffp-contract=off (see Makefile target `kernels`).
+ * Build: gcc -O3 with fused multiply-adds where the CPU has them (kernels.FLAGS, Makefile target
+ * `kernels`); the results equal the numpy code's to rounding (tests/test_kernels.py), not bit for bit.
  */
 #include <math.h>
 #include <string.h>
@@ -124,83 +127,288 @@ static work_t layout(const sweep_t *s)
     return w;
 }
 
-static const double ONE = 1.0, ZERO = 0.0, MONE = -1.0;
-static const int I1 = 1;
+static const double ONE = 1.0, ZERO = 0.0;
 
-/* forward message [S_t^-1 | S_t^-1 s_t] at t >= 1 (_Sweeps.forward) */
+/* -- small dense kernels (row-major) ----------------------------------------------------------
+ * OpenBLAS calls cost about 0.3-0.5 us each and its small-size LAPACK (dpotf2, dpotri) runs at
+ * level-2 speed: below BIG rows, and for every factorization and vector solve, these loops (built
+ * with -O3 and FMA, see kernels.py) are faster; from BIG on the n x n products (trsm, syrk, gemm)
+ * go to BLAS. Measured: stages/plan/kernels.py docstring. A Cholesky factor R is upper, row-major,
+ * A = R^T R; only A's upper triangle is read. */
+#define BIG 32
+
+static int chol_u(int n, double *A, int ld)
+{
+    for (int k = 0; k < n; k++) {
+        double *rk = A + (long)k * ld;
+        double d = rk[k];
+        if (!(d > 0.0)) return k + 1;
+        d = sqrt(d);
+        rk[k] = d;
+        double inv = 1.0 / d;
+        for (int j = k + 1; j < n; j++) rk[j] *= inv;
+        for (int i = k + 1; i < n; i++) {
+            double *ri = A + (long)i * ld;
+            double f = rk[i];
+            for (int j = i; j < n; j++) ri[j] -= f * rk[j];
+        }
+    }
+    return 0;
+}
+
+/* B (n x c, ld ldb) <- R^-T B */
+static void solve_rt(int n, const double *R, int ld, double *B, int ldb, int c)
+{
+    for (int k = 0; k < n; k++) {
+        double *bk = B + (long)k * ldb;
+        const double *rk = R + (long)k * ld;
+        double inv = 1.0 / rk[k];
+        for (int j = 0; j < c; j++) bk[j] *= inv;
+        for (int i = k + 1; i < n; i++) {
+            double f = rk[i];
+            double *bi = B + (long)i * ldb;
+            for (int j = 0; j < c; j++) bi[j] -= f * bk[j];
+        }
+    }
+}
+
+/* B (n x c, ld ldb) <- R^-1 B */
+static void solve_r(int n, const double *R, int ld, double *B, int ldb, int c)
+{
+    for (int i = n - 1; i >= 0; i--) {
+        double *bi = B + (long)i * ldb;
+        const double *ri = R + (long)i * ld;
+        for (int k = i + 1; k < n; k++) {
+            double f = ri[k];
+            const double *bk = B + (long)k * ldb;
+            for (int j = 0; j < c; j++) bi[j] -= f * bk[j];
+        }
+        double inv = 1.0 / ri[i];
+        for (int j = 0; j < c; j++) bi[j] *= inv;
+    }
+}
+
+/* b (n, stride 1) <- R^-T b, then R^-1 b if both */
+static void trsv_rt(int n, const double *R, int ld, double *b)
+{
+    for (int k = 0; k < n; k++) {
+        const double *rk = R + (long)k * ld;
+        double v = b[k] / rk[k];
+        b[k] = v;
+        for (int i = k + 1; i < n; i++) b[i] -= rk[i] * v;
+    }
+}
+
+static void trsv_r(int n, const double *R, int ld, double *b)
+{
+    for (int i = n - 1; i >= 0; i--) {
+        const double *ri = R + (long)i * ld;
+        double v = b[i];
+        for (int k = i + 1; k < n; k++) v -= ri[k] * b[k];
+        b[i] = v / ri[i];
+    }
+}
+
+/* upper triangle of C (n x n) += alpha W^T W, W (r x n) */
+static void syrk_tn(int r, int n, double alpha, const double *W, int ldw, double *C, int ldc)
+{
+    for (int k = 0; k < r; k++) {
+        const double *wk = W + (long)k * ldw;
+        for (int i = 0; i < n; i++) {
+            double f = alpha * wk[i];
+            double *ci = C + (long)i * ldc;
+            for (int j = i; j < n; j++) ci[j] += f * wk[j];
+        }
+    }
+}
+
+/* C (a x c) += alpha A^T B, A (r x a), B (r x c) */
+static void gemm_tn(int r, int a, int c, double alpha, const double *A, int lda, const double *B, int ldb,
+                    double *C, int ldc)
+{
+    for (int k = 0; k < r; k++) {
+        const double *ak = A + (long)k * lda, *bk = B + (long)k * ldb;
+        for (int i = 0; i < a; i++) {
+            double f = alpha * ak[i];
+            double *ci = C + (long)i * ldc;
+            for (int j = 0; j < c; j++) ci[j] += f * bk[j];
+        }
+    }
+}
+
+/* C (a x c) += alpha A B, A (a x r), B (r x c) */
+static void gemm_nn(int a, int r, int c, double alpha, const double *A, int lda, const double *B, int ldb,
+                    double *C, int ldc)
+{
+    for (int i = 0; i < a; i++) {
+        const double *ai = A + (long)i * lda;
+        double *ci = C + (long)i * ldc;
+        for (int k = 0; k < r; k++) {
+            double f = alpha * ai[k];
+            const double *bk = B + (long)k * ldb;
+            for (int j = 0; j < c; j++) ci[j] += f * bk[j];
+        }
+    }
+}
+
+static void zero(double *A, int rows, int cols, int ld)
+{
+    for (int i = 0; i < rows; i++) memset(A + (long)i * ld, 0, sizeof(double) * cols);
+}
+
+/* out (n x n, ld ldo, full) = A^-1 = R^-1 R^-T from A = R^T R; Y: n * n work */
+static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, double *Y)
+{
+    /* Y = R^-T (lower, row-major): row i from R^T Y = I */
+    for (int i = 0; i < n; i++) {
+        double *yi = Y + (long)i * n;
+        for (int j = 0; j < i; j++) yi[j] = 0.0;
+        for (int k = 0; k < i; k++) {
+            double f = R[(long)k * ld + i];
+            const double *yk = Y + (long)k * n;
+            for (int j = 0; j <= k; j++) yi[j] -= f * yk[j];
+        }
+        double inv = 1.0 / R[(long)i * ld + i];
+        for (int j = 0; j < i; j++) yi[j] *= inv;
+        yi[i] = inv;
+    }
+    /* out = Y^T Y = sum_k Y[k]^T Y[k] (upper), then mirrored */
+    for (int i = 0; i < n; i++) memset(out + (long)i * ldo + i, 0, sizeof(double) * (n - i));
+    for (int k = 0; k < n; k++) {
+        const double *yk = Y + (long)k * n;
+        for (int i = 0; i <= k; i++) {
+            double f = yk[i];
+            double *oi = out + (long)i * ldo;
+            for (int j = i; j <= k; j++) oi[j] += f * yk[j];
+        }
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) out[(long)j * ldo + i] = out[(long)i * ldo + j];
+}
+
+/* forward message [S_t^-1 | S_t^-1 s_t] at t >= 1 (_Sweeps.forward): P = R^T R,
+ * W = R^-T A^T, S = W^T W + Qbar = V^T V, S^-1 = V^-1 V^-T, s_t = W^T R^-T p + a_eff */
 static int forward(sweep_t *s, work_t *w, long t)
 {
-    int n = (int)s->n, m = (int)s->m, N1 = n + 1, K = m + n + 1, info = 0;
+    int n = (int)s->n, m = (int)s->m, N1 = n + 1, K = m + n + 1, info;
     long nn1 = (long)n * N1;
     const double *SA0 = s->SA + (t - 1) * nn1, *RA0 = s->RA + (t - 1) * nn1;
     const double *Ct = s->C + (t - 1) * s->C_s;
     double *Pa = w->Pa, *W = w->W, *S = w->S, *y = w->y, *tmp = w->tmp;
     for (long i = 0; i < nn1; i++) Pa[i] = SA0[i] + RA0[i];
-    /* P = L L^T: column-major view of Pa's leading block (ld n+1), upper = U = L^T */
-    dpotrf_("U", &n, Pa, &N1, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
-    /* W (column-major, n x n) = A^T, then L^-1 A^T: the row-major buffer then holds W^T = A L^-T */
+    if ((info = chol_u(n, Pa, N1)) != 0) { s->err_info = info; return ERR_CHOL; }
     for (int i = 0; i < n; i++)
-        for (int j = 0; j < n; j++) W[i + j * n] = Ct[(long)j * K + m + i];
-    dtrsm_("L", "U", "T", "N", &n, &n, &ONE, Pa, &N1, W, &n);
-    /* y = L^-1 p */
+        for (int j = 0; j < n; j++) W[(long)i * n + j] = Ct[(long)j * K + m + i];
+    /* BLAS sees W as W^T (= A) and R's storage as R^T (lower): W^T R = A */
+    if (n >= BIG) dtrsm_("R", "L", "T", "N", &n, &n, &ONE, Pa, &N1, W, &n);
+    else solve_rt(n, Pa, N1, W, n, n);
     for (int i = 0; i < n; i++) y[i] = Pa[(long)i * N1 + n];
-    dtrsv_("U", "T", "N", &n, Pa, &N1, y, &I1);
-    /* S = W^T W + Qbar (upper), S^-1 from its Cholesky factor */
+    trsv_rt(n, Pa, N1, y);
     const double *Qb = s->Qbar + (t - 1) * s->Qbar_s;
     memcpy(S, Qb, sizeof(double) * n * n);
-    dsyrk_("U", "T", &n, &n, &ONE, W, &n, &ONE, S, &n);
-    dpotrf_("U", &n, S, &n, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
-    dpotri_("U", &n, S, &n, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
+    if (n >= BIG) dsyrk_("L", "N", &n, &n, &ONE, W, &n, &ONE, S, &n);   /* row-major upper */
+    else syrk_tn(n, n, 1.0, W, n, S, n);
+    if ((info = chol_u(n, S, n)) != 0) { s->err_info = info; return ERR_CHOL; }
     double *out = s->SA + t * nn1;
-    for (int j = 0; j < n; j++)
-        for (int i = 0; i <= j; i++) {
-            double v = S[i + (long)j * n];
-            out[(long)i * N1 + j] = v;
-            out[(long)j * N1 + i] = v;
-        }
-    /* s_t = A P^-1 p + a_eff = W^T y + a_eff; S^-1 s_t into the last column */
-    dgemv_("T", &n, &n, &ONE, W, &n, y, &I1, &ZERO, tmp, &I1);
+    if (n >= BIG) {
+        /* Y = R_S^-T (row-major), S^-1 = Y^T Y; BLAS sees Y as Y^T */
+        double *Y = w->Y0;
+        memset(Y, 0, sizeof(double) * n * n);
+        for (int i = 0; i < n; i++) Y[(long)i * n + i] = 1.0;
+        dtrsm_("R", "L", "T", "N", &n, &n, &ONE, S, &n, Y, &n);
+        dsyrk_("L", "N", &n, &n, &ONE, Y, &n, &ZERO, out, &N1);
+        for (int i = 0; i < n; i++)
+            for (int j = i + 1; j < n; j++) out[(long)j * N1 + i] = out[(long)i * N1 + j];
+    } else spd_inverse(n, S, n, out, N1, w->Y0);
     const double *ae = s->a_eff + (t - 1) * n;
-    for (int i = 0; i < n; i++) tmp[i] += ae[i];
-    dsymv_("U", &n, &ONE, S, &n, tmp, &I1, &ZERO, out + n, &N1);
+    for (int j = 0; j < n; j++) tmp[j] = 0.0;
+    for (int i = 0; i < n; i++) {
+        double f = y[i];
+        const double *wi = W + (long)i * n;
+        for (int j = 0; j < n; j++) tmp[j] += f * wi[j];
+    }
+    for (int j = 0; j < n; j++) tmp[j] += ae[j];
+    for (int i = 0; i < n; i++) {
+        const double *oi = out + (long)i * N1;
+        double v = 0.0;
+        for (int j = 0; j < n; j++) v += oi[j] * tmp[j];
+        out[(long)i * N1 + n] = v;
+    }
+    return 0;
+}
+
+/* The truncated series of vstar for large n with symmetric products: the block
+ * sum_{k<=K} (-q)^k P'^(k+1) from S2 = P'^2 (one syrk): P' - q S2 + q^2 P' S2 - q^3 S2 S2, and the
+ * column sum_{k<=K} (-q)^k P'^k p' by matrix-vector products (P' symmetric). */
+static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int K)
+{
+    int n = (int)s->n, N1 = n + 1;
+    double q = s->q, *S2 = w->Y0, *S4 = w->Y1, *u = w->tmp, *u2 = w->rhs;
+    /* BLAS sees Pa's block as P'^T = P': S2 (row-major upper) = P' P' */
+    dsyrk_("L", "N", &n, &n, &ONE, Pa, &N1, &ZERO, S2, &n);
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) S2[(long)j * n + i] = S2[(long)i * n + j];
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) Vs[(long)i * N1 + j] = Pa[(long)i * N1 + j] - q * S2[(long)i * n + j];
+    if (K >= 2) {
+        double q2 = q * q;
+        dgemm_("N", "N", &n, &n, &n, &q2, S2, &n, Pa, &N1, &ONE, Vs, &N1);   /* += q^2 P' S2 */
+    }
+    if (K >= 3) {
+        double mq3 = -q * q * q;
+        dsyrk_("L", "N", &n, &n, &mq3, S2, &n, &ZERO, S4, &n);
+        for (int i = 0; i < n; i++)
+            for (int j = i; j < n; j++) {
+                double v = S4[(long)i * n + j];
+                Vs[(long)i * N1 + j] += v;
+                if (j != i) Vs[(long)j * N1 + i] += v;
+            }
+    }
+    /* column: v = p' - q P' p' + q^2 P'^2 p' - q^3 P'^3 p' (K terms) */
+    double c = 1.0;
+    for (int i = 0; i < n; i++) { u[i] = Pa[(long)i * N1 + n]; Vs[(long)i * N1 + n] = u[i]; }
+    for (int k = 1; k <= K; k++) {
+        c *= -q;
+        for (int i = 0; i < n; i++) {
+            const double *pi = Pa + (long)i * N1;
+            double v = 0.0;
+            for (int j = 0; j < n; j++) v += pi[j] * u[j];
+            u2[i] = v;
+        }
+        for (int i = 0; i < n; i++) { u[i] = u2[i]; Vs[(long)i * N1 + n] += c * u[i]; }
+    }
     return 0;
 }
 
 /* [V* | V* m'] from Pa = [P' | p'] into Vs (_Sweeps._vstar) */
 static int vstar(sweep_t *s, work_t *w, const double *Pa, double *Vs)
 {
-    int n = (int)s->n, N1 = n + 1, info = 0;
+    int n = (int)s->n, N1 = n + 1, info;
     long nn1 = (long)n * N1;
     double q = s->q, ss = 0.0;
     for (long i = 0; i < nn1; i++) ss += Pa[i] * Pa[i];
     double sc = q * sqrt(ss);
     if (sc <= 1e-4) {
         int K = sc <= 1e-8 ? 1 : (sc <= pow(10.0, -16.0 / 3.0) ? 2 : 3);
-        /* column-major Y^T ((n+1) x n, ld n+1) <- Pa^T - q Y^T P'  (P' symmetric) */
+        if (n >= BIG) return vstar_series(s, w, Pa, Vs, K);
+        /* Horner: Y <- Pa - q P' Y, K times from Y = Pa */
         const double *Y = Pa;
-        double mq = -q;
         for (int k = 0; k < K; k++) {
             double *Yn = (k == K - 1) ? Vs : ((k % 2 == 0) ? w->Y0 : w->Y1);
             memcpy(Yn, Pa, sizeof(double) * nn1);
-            dgemm_("N", "N", &N1, &n, &n, &mq, Y, &N1, Pa, &N1, &ONE, Yn, &N1);
+            gemm_nn(n, n, N1, -q, Pa, N1, Y, N1, Yn, N1);
             Y = Yn;
         }
         return 0;
     }
-    /* (I + q P') X = [P' | p'] by Cholesky */
-    double *E = w->E + 0, *R = w->Y0;   /* E: n x n column-major, R: n x (n+1) column-major */
-    for (int j = 0; j < n; j++)
-        for (int i = 0; i < n; i++) E[i + (long)j * n] = q * Pa[(long)j * N1 + i] + (i == j ? 1.0 : 0.0);
-    for (int j = 0; j < N1; j++)
-        for (int i = 0; i < n; i++) R[i + (long)j * n] = Pa[(long)i * N1 + j];
-    dpotrf_("U", &n, E, &n, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
-    dpotrs_("U", &n, &N1, E, &n, R, &n, &info);
-    for (int j = 0; j < N1; j++)
-        for (int i = 0; i < n; i++) Vs[(long)i * N1 + j] = R[i + (long)j * n];
+    /* (I + q P') V = [P' | p'] by Cholesky */
+    double *E = w->E;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) E[(long)i * n + j] = q * Pa[(long)i * N1 + j] + (i == j ? 1.0 : 0.0);
+    if ((info = chol_u(n, E, n)) != 0) { s->err_info = info; return ERR_CHOL; }
+    memcpy(Vs, Pa, sizeof(double) * nn1);
+    solve_rt(n, E, n, Vs, N1, N1);
+    solve_r(n, E, n, Vs, N1, N1);
     return 0;
 }
 
@@ -257,10 +465,12 @@ static void mul_sparse_CT(const sweep_t *s, int c0, int c1, const double *Y, int
     }
 }
 
-/* backward message [V_t^-1 | V_t^-1 v_t] and controller Z[t] (_Sweeps.backward) */
+/* backward message [V_t^-1 | V_t^-1 v_t] and controller Z[t] (_Sweeps.backward):
+ * G = V* C, M = B^T V* B + H = R^T R, Kmat = R^-T [B^T V* A | B^T V*(m' - a) + h], Z = R^-1 Kmat,
+ * V_t^-1 = sym(A^T V* A) - Kmat[:, :n]^T Kmat[:, :n], V_t^-1 v_t = A^T V*(m' - a) - Kmat[:, :n]^T Kmat[:, n] */
 static int backward(sweep_t *s, work_t *w, long t, int reuse)
 {
-    int n = (int)s->n, m = (int)s->m, N1 = n + 1, K = m + n + 1, info = 0;
+    int n = (int)s->n, m = (int)s->m, N1 = n + 1, K = m + n + 1, info;
     long nn1 = (long)n * N1;
     int rc;
     if (!reuse) {
@@ -269,39 +479,57 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
         if ((rc = vstar(s, w, w->Pa, w->Vs)) != 0) return rc;
     }
     const double *Ct = s->C + t * s->C_s;
-    double *G = w->G, *FB = w->FB, *FA = w->FA;
+    double *G = w->G, *FB = w->FB, *FA = w->FA, *KK = w->W, *kc = w->tmp;
     if (sparse_ready(s)) {
         mul_sparse_C(s, n, w->Vs, N1, 0, K, G, K);
         mul_sparse_CT(s, 0, m, G, K, K, FB, K);
         mul_sparse_CT(s, m, m + n, G + m, K, N1, FA, N1);
-    } else {
+    } else if (n >= BIG) {
         /* G = Vs Ct (n x K): column-major G^T = Ct^T Vs^T */
         dgemm_("N", "N", &K, &n, &N1, &ONE, Ct, &K, w->Vs, &N1, &ZERO, G, &K);
         /* FB = B^T G (m x K): FB^T = G^T B */
         dgemm_("N", "T", &K, &m, &n, &ONE, G, &K, Ct, &K, &ZERO, FB, &K);
         /* FA = A^T G[:, m:] (n x (n+1)): FA^T = G[:, m:]^T A */
         dgemm_("N", "T", &N1, &n, &n, &ONE, G + m, &K, Ct + m, &K, &ZERO, FA, &N1);
+    } else {
+        zero(G, n, K, K);
+        gemm_nn(n, N1, K, 1.0, w->Vs, N1, Ct, K, G, K);
+        zero(FB, m, K, K);
+        gemm_tn(n, m, K, 1.0, Ct, K, G, K, FB, K);
+        zero(FA, n, N1, N1);
+        gemm_tn(n, n, N1, 1.0, Ct + m, K, G + m, K, FA, N1);
     }
     const double *Ht = s->H + t * s->H_s, *ht = s->h + t * m;
     for (int i = 0; i < m; i++) {
         for (int j = 0; j < m; j++) FB[(long)i * K + j] += Ht[i * m + j];
         FB[(long)i * K + m + n] += ht[i];
     }
-    /* M = FB[:, :m] = L L^T; K^T = rhs^T L^-T in place (rows m.. of the column-major FB) */
-    dpotrf_("U", &m, FB, &K, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
-    dtrsm_("R", "U", "N", "N", &N1, &m, &ONE, FB, &K, FB + m, &K);
-    /* Z = L^-T K: Z^T = K^T L^-1 */
+    if ((info = chol_u(m, FB, K)) != 0) { s->err_info = info; return ERR_CHOL; }
+    double *Kmat = FB + m;                                   /* m x (n+1), ld K */
+    solve_rt(m, FB, K, Kmat, K, N1);
     double *Zt = s->Z + t * (long)m * N1;
-    for (int j = 0; j < m; j++)
-        for (int i = 0; i < N1; i++) Zt[i + (long)j * N1] = FB[m + i + (long)j * K];
-    dtrsm_("R", "U", "T", "N", &N1, &m, &ONE, FB, &K, Zt, &N1);
-    /* FA -= K[:, :n]^T K: FA^T -= K^T K[:, :n] */
-    dgemm_("N", "T", &N1, &n, &m, &MONE, FB + m, &K, FB + m, &K, &ONE, FA, &N1);
+    for (int i = 0; i < m; i++) memcpy(Zt + (long)i * N1, Kmat + (long)i * K, sizeof(double) * N1);
+    solve_r(m, FB, K, Zt, N1, N1);
+    /* KK (upper) = Kmat[:, :n]^T Kmat[:, :n]; BLAS sees Kmat as Kmat^T */
+    if (n >= BIG) dsyrk_("L", "N", &n, &m, &ONE, Kmat, &K, &ZERO, KK, &n);
+    else {
+        for (int i = 0; i < n; i++) memset(KK + (long)i * n + i, 0, sizeof(double) * (n - i));
+        syrk_tn(m, n, 1.0, Kmat, K, KK, n);
+    }
+    for (int i = 0; i < n; i++) kc[i] = 0.0;
+    for (int k = 0; k < m; k++) {
+        const double *kk = Kmat + (long)k * K;
+        double f = kk[n];
+        for (int i = 0; i < n; i++) kc[i] += f * kk[i];
+    }
     double *out = s->VA + t * nn1;
     for (int i = 0; i < n; i++) {
-        for (int j = 0; j < n; j++) out[(long)i * N1 + j] = 0.5 * (FA[(long)i * N1 + j] + FA[(long)j * N1 + i]);
-        out[(long)i * N1 + n] = FA[(long)i * N1 + n];
+        for (int j = i; j < n; j++) {
+            double v = 0.5 * (FA[(long)i * N1 + j] + FA[(long)j * N1 + i]) - KK[(long)i * n + j];
+            out[(long)i * N1 + j] = v;
+            out[(long)j * N1 + i] = v;
+        }
+        out[(long)i * N1 + n] = FA[(long)i * N1 + n] - kc[i];
     }
     return 0;
 }
@@ -309,14 +537,15 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
 /* belief mean b_t (_Sweeps.belief) */
 static int belief(sweep_t *s, work_t *w, long t)
 {
-    int n = (int)s->n, N1 = n + 1, info = 0;
+    int n = (int)s->n, N1 = n + 1, info;
     long nn1 = (long)n * N1;
     const double *a = s->SA + t * nn1, *v = s->VA + t * nn1, *r = s->RA + t * nn1;
     double *Ba = w->Ba, *b = s->b + t * n;
     for (long i = 0; i < nn1; i++) Ba[i] = a[i] + v[i] + r[i];
     for (int i = 0; i < n; i++) b[i] = Ba[(long)i * N1 + n];
-    dposv_("U", &n, &I1, Ba, &N1, b, &n, &info);
-    if (info != 0) { s->err_info = info; return ERR_CHOL; }
+    if ((info = chol_u(n, Ba, N1)) != 0) { s->err_info = info; return ERR_CHOL; }
+    trsv_rt(n, Ba, N1, b);
+    trsv_r(n, Ba, N1, b);
     return 0;
 }
 
