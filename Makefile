@@ -24,7 +24,7 @@ kernels: $(KERNEL)
 
 $(KERNEL): stages/plan/csweep.c
 	@mkdir -p build
-	gcc -O3 -fPIC -shared -fno-fast-math -ffp-contract=fast -fno-strict-aliasing \
+	gcc -O3 -fPIC -shared -fno-fast-math -ffp-contract=fast -fopenmp-simd -fno-strict-aliasing \
 		$$(grep -q ' avx2' /proc/cpuinfo && grep -q ' fma' /proc/cpuinfo && echo -mavx2 -mfma) -o $@ $< -lm \
 		|| echo "kernels: no C compiler, the numpy sweeps run"
 

@@ -236,6 +236,7 @@ static void trsv_r(int n, const double *R, int ld, double *b)
     for (int i = n - 1; i >= 0; i--) {
         const double *ri = R + (long)i * ld;
         double v = b[i];
+        #pragma omp simd reduction(-:v)
         for (int k = i + 1; k < n; k++) v -= ri[k] * b[k];
         b[i] = v / ri[i];
     }
@@ -392,6 +393,7 @@ static int forward(sweep_t *s, work_t *w, long t)
         for (int i = 0; i < n; i++) {
             const double *xi = X + (long)i * n;
             double v = 0.0;
+            #pragma omp simd reduction(+:v)
             for (int j = 0; j < n; j++) v += xi[j] * Pa[(long)j * N1 + n];
             u[i] = v;
         }
@@ -421,6 +423,7 @@ static int forward(sweep_t *s, work_t *w, long t)
     for (int i = 0; i < n; i++) {
         const double *oi = out + (long)i * N1;
         double v = 0.0;
+        #pragma omp simd reduction(+:v)
         for (int j = 0; j < n; j++) v += oi[j] * tmp[j];
         out[(long)i * N1 + n] = v;
     }
@@ -428,7 +431,7 @@ static int forward(sweep_t *s, work_t *w, long t)
 }
 
 /* The truncated series of vstar for large n with symmetric products: the block
- * sum_{k<=K} (-q)^k P'^(k+1) from S2 = P'^2 (one syrk): P' - q S2 + q^2 P' S2 - q^3 S2 S2, and the
+ * sum_{k<=K} (-q)^k P'^(k+1) from S2 = P'^2 (one syrk): P' - q S2 + q^2 (P' - q S2) S2, and the
  * column sum_{k<=K} (-q)^k P'^k p' by matrix-vector products (P' symmetric). */
 static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int K)
 {
@@ -441,18 +444,16 @@ static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) Vs[(long)i * N1 + j] = Pa[(long)i * N1 + j] - q * S2[(long)i * n + j];
     if (K >= 2) {
-        double q2 = q * q;
-        dgemm_("N", "N", &n, &n, &n, &q2, S2, &n, Pa, &N1, &ONE, Vs, &N1);   /* += q^2 P' S2 */
-    }
-    if (K >= 3) {
-        double mq3 = -q * q * q;
-        dsyrk_("L", "N", &n, &n, &mq3, S2, &n, &ZERO, S4, &n);
-        for (int i = 0; i < n; i++)
-            for (int j = i; j < n; j++) {
-                double v = S4[(long)i * n + j];
-                Vs[(long)i * N1 + j] += v;
-                if (j != i) Vs[(long)j * N1 + i] += v;
-            }
+        /* K = 2: += q^2 P' S2; K = 3: += q^2 (P' - q S2) S2 (the q^3 term in the same product) */
+        double q2 = q * q, *Y = S4;
+        int ldy = N1;
+        const double *Yp = Pa;
+        if (K >= 3) {
+            for (int i = 0; i < n; i++) memcpy(Y + (long)i * n, Vs + (long)i * N1, sizeof(double) * n);
+            Yp = Y;
+            ldy = n;
+        }
+        dgemm_("N", "N", &n, &n, &n, &q2, S2, &n, Yp, &ldy, &ONE, Vs, &N1);
     }
     /* column: v = p' - q P' p' + q^2 P'^2 p' - q^3 P'^3 p' (K terms) */
     double c = 1.0;
@@ -462,6 +463,7 @@ static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int
         for (int i = 0; i < n; i++) {
             const double *pi = Pa + (long)i * N1;
             double v = 0.0;
+            #pragma omp simd reduction(+:v)
             for (int j = 0; j < n; j++) v += pi[j] * u[j];
             u2[i] = v;
         }
@@ -476,6 +478,7 @@ static int vstar(sweep_t *s, work_t *w, const double *Pa, double *Vs)
     int n = (int)s->n, N1 = n + 1, info;
     long nn1 = (long)n * N1;
     double q = s->q, ss = 0.0;
+    #pragma omp simd reduction(+:ss)
     for (long i = 0; i < nn1; i++) ss += Pa[i] * Pa[i];
     double sc = q * sqrt(ss);
     if (sc <= 1e-4) {
@@ -651,6 +654,7 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
         for (int j = 0; j < n; j++) Ct[(long)i * K + m + j] = A[(long)i * n + j];
         Ct[(long)i * K + m + n] = -a[i];
     }
+    #pragma omp simd reduction(+:sum)
     for (long i = 0; i < (long)(n + 1) * K; i++) sum += Ct[i];
     if (!isfinite(sum)) return ERR_LIN;
     const double *Hi = s->Hinv + t * s->Hinv_s, *ht = s->h + t * m;
@@ -689,6 +693,7 @@ static int relin_task(sweep_t *s, work_t *w, long t)
         }
         out[i * N1 + n] = v - lx[i] + a2 * xp[i];
     }
+    #pragma omp simd reduction(+:sum)
     for (long i = 0; i < n * N1; i++) sum += out[i];
     return isfinite(sum) ? 0 : ERR_LIN;
 }
@@ -778,11 +783,13 @@ void lti_rollout(long T, long n, long m, const double *A, const double *a, const
         for (long i = 0; i < m; i++) {
             const double *row = O + (t * m + i) * n;
             double v = 0.0;
+            #pragma omp simd reduction(+:v)
             for (long j = 0; j < n; j++) v += row[j] * x[j];
             u[i] = o[t * m + i] + v;
         }
         for (long i = 0; i < n; i++) {
             double v = 0.0, w = 0.0;
+            #pragma omp simd reduction(+:v)
             for (long j = 0; j < n; j++) v += A[i * n + j] * x[j];
             for (long j = 0; j < m; j++) w += B[i * m + j] * u[j];
             xn[i] = v + a[i] + w;
