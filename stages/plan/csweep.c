@@ -92,11 +92,11 @@ long sweep_iwork_size(long n, long m) { return 3 * (n + 1) * (m + n + 1) + 2 * (
 long sweep_work_size(long n, long m)
 {
     long N1 = n + 1, K = m + n + 1;
-    return 8 * n * N1 + 3 * n * n + n * K + m * K + 5 * n + n * m * 3 + 64;
+    return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3 + 64;
 }
 
 /* work layout */
-typedef struct { double *Pa, *Vs, *Ba, *Y0, *Y1, *FA, *W, *S, *G, *FB, *y, *tmp, *rhs, *Ad, *ad, *Bd, *BHi, *E, *lx, *lxx; } work_t;
+typedef struct { double *Pa, *Vs, *Ba, *Y0, *Y1, *FA, *W, *S, *G, *GT, *FB, *y, *tmp, *rhs, *Ad, *ad, *Bd, *BHi, *E, *lx, *lxx; } work_t;
 
 static work_t layout(const sweep_t *s)
 {
@@ -113,6 +113,7 @@ static work_t layout(const sweep_t *s)
     w.W = p; p += n * n;
     w.S = p; p += n * n;
     w.G = p; p += n * K;
+    w.GT = p; p += n * K;
     w.FB = p; p += m * K;
     w.y = p; p += n;
     w.tmp = p; p += n;
@@ -524,20 +525,27 @@ static int sparse_ready(sweep_t *s)
     return s->sp_state == 1;
 }
 
-/* out (r x K, ld ldo, row-major) = X (r x (n+1), ld ldx, row-major) C, C sparse */
-static void mul_sparse_C(const sweep_t *s, int r, const double *X, int ldx, int col0, int col1, double *out, int ldo)
+/* G (n x K, row-major) = Vs (n x (n+1)) C, C sparse: column j of G is the sum over the nonzeros
+ * C[k][j] of C[k][j] times column k of Vs; columns of Vs are rows of Vs^T, so G^T is built by row
+ * updates (vectorized) from Vs^T and transposed back. VsT: (n+1) x n work, GT: K x n work. */
+static void mul_sparse_C(const sweep_t *s, const double *Vs, double *G, double *VsT, double *GT)
 {
-    int K = (int)(s->m + s->n + 1);
+    int n = (int)s->n, N1 = n + 1, K = (int)(s->m + s->n + 1);
     const int *start = s->iw, *rows = s->iw + K + 1;
-    for (int i = 0; i < r; i++) {
-        const double *xi = X + (long)i * ldx;
-        double *oi = out + (long)i * ldo;
-        for (int j = col0; j < col1; j++) {
-            double v = 0.0;
-            for (int k = start[j]; k < start[j + 1]; k++) v += xi[rows[k]] * s->C[(long)rows[k] * K + j];
-            oi[j - col0] = v;
+    for (int i = 0; i < n; i++)
+        for (int k = 0; k < N1; k++) VsT[(long)k * n + i] = Vs[(long)i * N1 + k];
+    zero(GT, K, n, n);
+    for (int j = 0; j < K; j++) {
+        double *gj = GT + (long)j * n;
+        for (int p = start[j]; p < start[j + 1]; p++) {
+            int k = rows[p];
+            double c = s->C[(long)k * K + j];
+            const double *vk = VsT + (long)k * n;
+            for (int i = 0; i < n; i++) gj[i] += c * vk[i];
         }
     }
+    for (int j = 0; j < K; j++)
+        for (int i = 0; i < n; i++) G[(long)i * K + j] = GT[(long)j * n + i];
 }
 
 /* out (cols c0..c1 of C)^T Y: out ((c1-c0) x ny, ld ldo) = C[:n, c0:c1]^T Y (Y: n x ny, ld ldy) */
@@ -574,7 +582,7 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
     const double *Ct = s->C + t * s->C_s;
     double *G = w->G, *FB = w->FB, *FA = w->FA, *KK = w->W, *kc = w->tmp;
     if (sparse_ready(s)) {
-        mul_sparse_C(s, n, w->Vs, N1, 0, K, G, K);
+        mul_sparse_C(s, w->Vs, G, w->E, w->GT);
         mul_sparse_CT(s, 0, m, G, K, K, FB, K);
         mul_sparse_CT(s, m, m + n, G + m, K, N1, FA, N1);
     } else if (n >= BIG) {
