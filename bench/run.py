@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import time
@@ -33,6 +34,33 @@ def bench_solver_total(plant, task, dynamics, solver, options, reps) -> list[flo
         t0 = time.perf_counter()
         solve(problem, solver, options)
         times.append(time.perf_counter() - t0)
+    return times
+
+
+def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[float]:
+    """Wall time (s) of whole solver runs spent inside the sweeps (``_Sweeps.sweep``: the compiled
+    kernel and its Python driver), the rest being linearization, rollouts and costs in Python."""
+    from stages.plan.aico import _Sweeps
+
+    times, inner = [], [0.0]
+    original = _Sweeps.sweep
+
+    def timed(self):
+        t0 = time.perf_counter()
+        try:
+            return original(self)
+        finally:
+            inner[0] += time.perf_counter() - t0
+
+    _Sweeps.sweep = timed
+    try:
+        for _ in range(reps):
+            problem = _problem(plant, task, dynamics)
+            inner[0] = 0.0
+            solve(problem, solver, options)
+            times.append(inner[0])
+    finally:
+        _Sweeps.sweep = original
     return times
 
 
@@ -85,13 +113,15 @@ def bench_nao_linearization(route: str, reps: int) -> list[float]:
 CASES = [
     # name, target (s), function, args
     ("nao balance: 25 R-AICO iterations (T=300, 50-D)", 1.0, bench_solver_total,
-     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 3)),
+     ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 5)),
+    ("nao balance: of which in the sweeps (forward, backward, beliefs, relinearizations)", None,
+     bench_sweep_share, ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 3)),
     ("nao balance: 25 R-AICO iterations, no relinearization in sweeps (theta=inf)", 1.0, bench_solver_total,
      ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0, "theta": float("inf")}, 3)),
     ("nao balance: one iLQG iteration", None, bench_per_iteration,
      ("nao", "balance", "pseudo", "ilqg", {"iterations": 3}, 1)),
     ("arm5 analytic: one R-AICO iteration incl. linearization (T=1000)", 0.030, bench_per_iteration,
-     ("arm5", "reach-roll", "analytic", "raico", {"iterations": 3, "alpha": 1.0}, 1)),
+     ("arm5", "reach-roll", "analytic", "raico", {"iterations": 3, "alpha": 1.0}, 3)),
     ("arm5 analytic: one iLQG iteration (T=1000)", None, bench_per_iteration,
      ("arm5", "reach-roll", "analytic", "ilqg", {"iterations": 3}, 1)),
     ("arm5 analytic: linearize the dynamics along T=1000", None, bench_linearization, (5,)),
@@ -213,6 +243,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--artifacts", default="artifacts")
     args = ap.parse_args()
+    load_start = os.getloadavg()[0]
     rows = []
     for name, target, fn, fargs in CASES:
         samples = fn(*fargs)
@@ -228,7 +259,8 @@ def main() -> None:
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     doc = {"machine": {"python": platform.python_version(), "processor": platform.processor(),
-                       "cpus": __import__("os").cpu_count()},
+                       "cpus": os.cpu_count(), "load_average_1min_start": load_start,
+                       "load_average_1min_end": os.getloadavg()[0]},
            "packages": package_versions(), "results": rows, "crocoddyl_baseline": baseline}
     write_file_atomic(out / "results.json", json.dumps(doc, indent=2))
     print(f"wrote {out / 'results.json'}")
