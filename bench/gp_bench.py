@@ -1,16 +1,38 @@
 """GP timings of SPEC §13 (prints a dict): mean, variance and all input gradients along a trajectory,
 the incremental update against a full refactorization, and what the training-set cap costs.
 
-    .venv/bin/python -m bench.gp_bench [--repeats 5]
+    .venv/bin/python -m bench.gp_bench [--repeats 5] [--no-cap-cost]
 
 BioRob-like sizes: ``N = 1000`` training points, ``M = 500`` query points along a smooth
 trajectory, ``d = 15`` inputs (5 joints: q, qdot, u), ``D = 5`` outputs. Hyperparameters are set,
-not fitted (the cost does not depend on their values). One BLAS thread; medians of ``repeats``
-runs, wall time and process CPU time (the machine may be shared: CPU time is the better
-single-core figure then). ``cap_cost``: held-out RMSE of ``fit_gp(..., max_points=500)`` against
-the exact GP on all 2000 points at the same hyperparameters (``stages.fit.gp_fit.measure_cap_cost``)
-on pendulum trajectories (time-ordered, analytic pendulum, semi-implicit Euler at 10 ms) and on
-the synthetic biorob-like data (first output). Not a test: nothing here fails on a slow machine.
+not fitted (the cost does not depend on their values). Medians of ``repeats`` runs, wall time and
+process CPU time (the machine may be shared: CPU time is the better single-core figure then).
+
+``mean_var_all_gradients_ms_per_output`` (the SPEC §13 figure, target 20 ms): one
+``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their
+gradients with respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread
+(the project's policy per process, ``plants/_threads.py``). Its bulk is two triangular solves per
+output with ``M`` right-hand sides against the ``N x N`` Cholesky factor, ``2 M N^2 = 1e9`` flops
+(OpenBLAS ``dtrsm`` runs them at ~39 GFLOP/s on one core of the 2-vCPU AMD EPYC (AVX2) VM this
+was tuned on: ~25 ms), then the ``exp`` of the ``(M, N)`` cross-kernel (~3 ms; numpy has no SIMD
+float64 ``exp`` without AVX-512): ~30 ms per output is the floor of the exact computation there.
+``..._2threads``: the same call under ``threadpool_limits(2)``, for information (the headline stays
+at one thread). On that VM it was slower than one thread (40-64 ms against 31-46, the spread is
+the host's): the small matmuls (kernel, gradients) and the ``exp`` between the solves slow down
+with two BLAS threads. ``..._2threads_solves_only``: one BLAS thread except two inside the two
+``dtrsm`` calls (a bench-only patch, ``_solves_on_threads``): 20-30 ms there, about 10 ms less
+than one thread in the same runs, the only configuration that came near the target.
+An explicit cached ``(K + sn2 I)^-1`` (one ``dgemm`` instead of the two solves) was measured and
+rejected: the same ``2 M N^2`` flops, ~10 % faster, but on fitted models (noise at the floor,
+``cond(K) ~ 1e8..3e11``) its variance near the data is off by ~5e-6 ``sf2`` (relative errors
+~1e5, negative variances), against <= 4e-13 ``sf2`` for the triangular solves.
+
+``mean_and_gradient_ms_per_output``: ``mean_with_gradients``; ``mean_and_variance_ms_per_output``:
+``predict`` (one triangular solve per output). ``cap_cost``: held-out RMSE of
+``fit_gp(..., max_points=500)`` against the exact GP on all 2000 points at the same
+hyperparameters (``stages.fit.gp_fit.measure_cap_cost``) on pendulum trajectories (time-ordered,
+analytic pendulum, semi-implicit Euler at 10 ms) and on the synthetic biorob-like data (first
+output). Not a test: nothing here fails on a slow machine.
 """
 
 from __future__ import annotations
@@ -20,10 +42,11 @@ import json
 import os
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController, threadpool_limits
 
 from plants.gp import GPModel
 from stages.fit.gp_fit import measure_cap_cost
@@ -88,8 +111,28 @@ def _median_ms(fn: Callable[[], object], repeats: int, setup: Callable[[], objec
     return statistics.median(wall), statistics.median(cpu)
 
 
+@contextmanager
+def _solves_on_threads(model: GPModel, n: int) -> Iterator[None]:
+    """Within: ``model``'s two triangular solves (``_solve_fwd``, ``_solve_bwd``) run on ``n`` BLAS
+    threads, everything else on what the caller set (a bench-only instance patch, undone on exit)."""
+    ctl = ThreadpoolController()
+
+    def on_threads(fn: Callable) -> Callable:
+        def wrapped(*args):
+            with ctl.limit(limits=n, user_api="blas"):
+                return fn(*args)
+        return wrapped
+
+    model._solve_fwd, model._solve_bwd = on_threads(model._solve_fwd), on_threads(model._solve_bwd)
+    try:
+        yield
+    finally:
+        del model._solve_fwd, model._solve_bwd
+
+
 def bench_gp(repeats: int = 5, cap_cost: bool = True) -> dict:
-    """Timings (ms, medians of ``repeats``) of the GP posterior at ``N = 1000``, ``M = 500``, ``d = 15``, ``D = 5``.
+    """Timings (ms, medians of ``repeats``) of the GP posterior at ``N = 1000``, ``M = 500``, ``d = 15``, ``D = 5``
+    (one BLAS thread; ``..._2threads`` with two, ``..._2threads_solves_only`` with two in the triangular solves only).
 
     With ``cap_cost`` (about 10 s more) also ``bench_cap_cost()``."""
     rng = np.random.default_rng(0)
@@ -107,11 +150,20 @@ def bench_gp(repeats: int = 5, cap_cost: bool = True) -> dict:
         refit = _median_ms(lambda: GPModel(X, Y, model.ell, model.sf2, model.sn2, x_mean=model.x_mean,
                                             x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std), repeats)
         cap = bench_cap_cost() if cap_cost else None
+    with threadpool_limits(2):
+        model.predict_with_gradients(Xq)  # warm up the second BLAS thread
+        full2 = _median_ms(lambda: model.predict_with_gradients(Xq), repeats)
+    with threadpool_limits(1), _solves_on_threads(model, 2):
+        model.predict_with_gradients(Xq)
+        full2s = _median_ms(lambda: model.predict_with_gradients(Xq), repeats)
     return {
         "sizes": {"N": N, "M": M, "d": model.d, "D": D, "n_new": N_NEW},
         "mean_var_all_gradients_ms_per_output": full[0] / D,
         "mean_var_all_gradients_cpu_ms_per_output": full[1] / D,
         "target_ms_per_output": TARGET_MS_PER_OUTPUT,
+        "mean_var_all_gradients_ms_per_output_2threads": full2[0] / D,
+        "mean_var_all_gradients_cpu_ms_per_output_2threads": full2[1] / D,  # CPU time of both threads
+        "mean_var_all_gradients_ms_per_output_2threads_solves_only": full2s[0] / D,
         "mean_and_gradient_ms_per_output": mean_grad[0] / D,
         "mean_and_variance_ms_per_output": mean_var[0] / D,
         "update_100_ms": upd[0], "update_100_cpu_ms": upd[1],

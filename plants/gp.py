@@ -36,6 +36,7 @@ from collections.abc import Mapping
 
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
+from scipy.linalg.blas import dtrsm
 from scipy.spatial.distance import cdist
 
 NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the module docstring)
@@ -54,13 +55,24 @@ def se_kernel(A: np.ndarray, B: np.ndarray, ell: np.ndarray, sf2: float) -> np.n
 
 
 def _se_kernel_fast(P: np.ndarray, Q: np.ndarray, qq: np.ndarray, sf2: float) -> np.ndarray:
-    """SE kernel ``(M, N)`` of pre-divided inputs ``P = Zq/ell``, ``Q = Z/ell`` (``qq = |Q|^2``) by one matmul."""
-    S = P @ Q.T
-    S *= 2.0
-    S -= (P * P).sum(1)[:, None]
-    S -= qq[None, :]
-    np.minimum(S, 0.0, out=S)  # S = -|p - q|^2
-    S *= 0.5
+    """SE kernel ``(M, N)`` (C order) of pre-divided inputs ``P = Zq/ell``, ``Q = Z/ell`` (``qq = |Q|^2``).
+
+    The exponent ``-|p - q|^2 / 2 = p.q - |p|^2/2 - |q|^2/2`` comes out of one matmul of the
+    augmented ``[P, -|p|^2/2, 1]`` and ``[Q, 1, -|q|^2/2]``, then a clamp at 0, an in-place ``exp``
+    and the factor ``sf2``: four passes over the ``(M, N)`` array. (Folding ``log sf2`` into the
+    exponent would save one pass but costs ~10 ulp of kernel accuracy at ``sf2 = 1e3``, which the
+    ill-conditioned ``K`` of fitted models amplifies.)"""
+    M, d = P.shape
+    Pa = np.empty((M, d + 2))
+    Pa[:, :d] = P
+    Pa[:, d] = -0.5 * (P * P).sum(1)
+    Pa[:, d + 1] = 1.0
+    Qa = np.empty((d + 2, Q.shape[0]))
+    Qa[:d] = Q.T
+    Qa[d] = 1.0
+    Qa[d + 1] = -0.5 * qq
+    S = Pa @ Qa
+    np.minimum(S, 0.0, out=S)
     np.exp(S, out=S)
     S *= sf2
     return S
@@ -208,10 +220,27 @@ class GPModel:
         Q = self.Z / ell
         return _se_kernel_fast(Zq / ell, Q, (Q * Q).sum(1), self.sf2[j])
 
-    def _var_s(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Scaled latent variance ``(M,)`` and ``V = L^-1 k* (N, M)``."""
-        V = solve_triangular(self.L[j], Ks.T, lower=True, check_finite=False)
-        return np.maximum(self.sf2[j] - np.einsum("nm,nm->m", V, V), 0.0), V
+    def _solve_fwd(self, j: int, Ks: np.ndarray, *, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled latent variance ``(M,)`` (not clipped) and ``Vt = (L^-1 k*)^T`` ``(M, N)``, C order.
+
+        One BLAS ``dtrsm`` in place on ``Ks (M, N)`` (C order, i.e. ``Ks^T`` in Fortran order), on
+        a copy unless ``overwrite``; ``var = sf2 - |L^-1 k*|^2``, a sum of squares (accurate also
+        for an ill-conditioned ``K``, unlike an explicit inverse)."""
+        # L.T is L^T in Fortran order (no copy), op(L^T) = L; Ks.T is Fortran order, solved in place
+        B = Ks.T if overwrite else Ks.T.copy(order="F")
+        Vt = dtrsm(1.0, self.L[j].T, B, lower=0, trans_a=1, overwrite_b=1).T
+        return self.sf2[j] - np.einsum("mn,mn->m", Vt, Vt), Vt
+
+    def _solve_bwd(self, j: int, Vt: np.ndarray) -> np.ndarray:
+        """``((K + sn2 I)^-1 k*)^T = (L^-T L^-1 k*)^T`` ``(M, N)`` in place on ``Vt`` from ``_solve_fwd``."""
+        return dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
+
+    def _mean_grad(self, j: int, Ks: np.ndarray, Zq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled mean ``(M,)`` and its gradient ``(M, d)``: ``sum_i alpha_i k_i Lambda^-1 (z_i - z*)``
+        as ``(Ks (alpha Z) - z* (Ks alpha)) / ell^2`` (one ``(M, N) x (N, d)`` matmul, no ``(M, N)`` temporary)."""
+        a = self.alpha[j]
+        m = Ks @ a
+        return m, (Ks @ (a[:, None] * self.Z) - Zq * m[:, None]) / self.ell[j] ** 2
 
     def predict(self, Xq: np.ndarray, *, noisy: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(M, D)`` and latent variance ``(M, D)`` at physical inputs ``Xq (M, d)``, physical units.
@@ -219,10 +248,10 @@ class GPModel:
         ``noisy=True`` adds the noise variance ``sn2 y_std^2`` (the variance of a new observation)."""
         Zq, ok = self._query(Xq)
         mean, var = _nan((len(ok), self.D)), _nan((len(ok), self.D))
-        for j in range(self.D):
+        for j in range(self.D if len(Zq) else 0):
             Ks = self._kstar(j, Zq)
-            v, _ = self._var_s(j, Ks)
             mean[ok, j] = Ks @ self.alpha[j]
+            v = np.maximum(self._solve_fwd(j, Ks, overwrite=True)[0], 0.0)  # Ks is not needed after this
             var[ok, j] = v + self.sn2[j] if noisy else v
         return mean * self.y_std + self.y_mean, var * self.y_std**2
 
@@ -230,7 +259,7 @@ class GPModel:
         """Mean ``(M, D)`` at physical inputs ``Xq (M, d)`` (physical units), ``O(D M N d)``."""
         Zq, ok = self._query(Xq)
         mean = _nan((len(ok), self.D))
-        for j in range(self.D):
+        for j in range(self.D if len(Zq) else 0):
             mean[ok, j] = self._kstar(j, Zq) @ self.alpha[j]
         return mean * self.y_std + self.y_mean
 
@@ -240,10 +269,8 @@ class GPModel:
         ``dm/dx* = sum_i alpha_i k(x_i, x*) Lambda^-1 (x_i - x*)`` (thesis eq. 4.1 without its factor -2)."""
         Zq, ok = self._query(Xq)
         mean, dmean = _nan((len(ok), self.D)), _nan((len(ok), self.D, self.d))
-        for j in range(self.D):
-            Ks = self._kstar(j, Zq)
-            mean[ok, j] = Ks @ self.alpha[j]
-            dmean[ok, j] = self._weighted_grad(j, Ks * self.alpha[j], Zq)
+        for j in range(self.D if len(Zq) else 0):
+            mean[ok, j], dmean[ok, j] = self._mean_grad(j, self._kstar(j, Zq), Zq)
         scale = self.y_std[:, None] / self.x_std[None, :]
         return mean * self.y_std + self.y_mean, dmean * scale
 
@@ -251,28 +278,29 @@ class GPModel:
         """Mean ``(M, D)``, latent variance ``(M, D)``, ``dmean (M, D, d)``, ``dvar (M, D, d)`` (physical units).
 
         ``dvar/dx* = -2 (dk*/dx*)^T (K + sn2 I)^-1 k*`` (thesis eq. 4.2). Cost per output: two
-        triangular solves with ``M`` right-hand sides (``2 M N^2`` flops) and three ``(M, N)`` x
-        ``(N, d)`` matmuls."""
+        in-place triangular solves (BLAS ``dtrsm``) with ``M`` right-hand sides against the
+        Cholesky factor (``2 M N^2`` flops, the bulk), one ``exp`` of the ``(M, N)`` cross-kernel,
+        matmuls ``(M, d + 2) x (d + 2, N)`` (kernel) and ``(M, N) x (N, <= d + 1)`` (mean, its
+        gradient, the variance gradient). No explicit inverse: with the noise floor,
+        ``cond(K + sn2 I)`` reaches ``1e11`` on fitted models and ``k*^T K^-1 k*`` from an explicit
+        ``K^-1`` then loses the variance near the data entirely (``bench/gp_bench.py`` docstring)."""
         Zq, ok = self._query(Xq)
         M, D, d = len(ok), self.D, self.d
         mean, var = _nan((M, D)), _nan((M, D))
         dmean, dvar = _nan((M, D, d)), _nan((M, D, d))
-        for j in range(D):
+        Z1 = np.hstack([self.Z, np.ones((self.N, 1))])
+        for j in range(D if len(Zq) else 0):
             Ks = self._kstar(j, Zq)
-            mean[ok, j] = Ks @ self.alpha[j]
-            dmean[ok, j] = self._weighted_grad(j, Ks * self.alpha[j], Zq)
-            v, V = self._var_s(j, Ks)
-            var[ok, j] = v
-            Bt = solve_triangular(self.L[j], V, lower=True, trans="T", check_finite=False)  # (N, M) = Kinv k*
-            Ks *= Bt.T
-            dvar[ok, j] = -2.0 * self._weighted_grad(j, Ks, Zq)
+            mean[ok, j], dmean[ok, j] = self._mean_grad(j, Ks, Zq)
+            v, Vt = self._solve_fwd(j, Ks)
+            var[ok, j] = np.maximum(v, 0.0)
+            W = self._solve_bwd(j, Vt)
+            W *= Ks  # W[m, i] = k*_i(x_m) ((K + sn2 I)^-1 k*(x_m))_i
+            G = W @ Z1  # (M, d + 1): sum_i W z_i and sum_i W
+            dvar[ok, j] = -2.0 * (G[:, :d] - Zq * G[:, d:]) / self.ell[j] ** 2
         scale = self.y_std[:, None] / self.x_std[None, :]
         return (mean * self.y_std + self.y_mean, var * self.y_std**2,
                 dmean * scale, dvar * (scale * self.y_std[:, None]))
-
-    def _weighted_grad(self, j: int, W: np.ndarray, Zq: np.ndarray) -> np.ndarray:
-        """``sum_i W[m, i] Lambda^-1 (z_i - z*_m)`` ``(M, d)`` for weights ``W (M, N)`` (scaled units)."""
-        return (W @ self.Z - Zq * W.sum(1)[:, None]) / self.ell[j] ** 2
 
     # -- storage -------------------------------------------------------------------------
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
