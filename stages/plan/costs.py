@@ -64,12 +64,20 @@ class StateTerm:
         else:
             t = np.unique(np.asarray(list(times), dtype=int).reshape(-1))
             self.times = t
+        self._active_last = None
 
     def active(self, idx: np.ndarray) -> np.ndarray:
-        """Boolean mask ``(K,)``: which time steps ``idx`` this term costs."""
+        """Boolean mask ``(K,)``: which time steps ``idx`` this term costs (read-only: the mask of
+        the last ``idx`` is remembered, as solvers ask for the same steps every iteration)."""
         if self.times is None:
             return np.ones(len(idx), dtype=bool)
-        return np.isin(idx, self.times)
+        last = getattr(self, "_active_last", None)
+        if last is not None and last[0].shape == np.shape(idx) and np.array_equal(last[0], idx):
+            return last[1]
+        m = np.isin(idx, self.times)
+        m.flags.writeable = False
+        self._active_last = (np.array(idx, copy=True), m)
+        return m
 
     def is_active_at(self, t: int) -> bool:
         """Whether this term costs step ``t`` (``times`` is sorted and unique)."""

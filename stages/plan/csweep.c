@@ -386,7 +386,11 @@ static int forward(sweep_t *s, work_t *w, long t)
     const double *Ct = s->C + (t - 1) * s->C_s;
     const double *Qb = s->Qbar + (t - 1) * s->Qbar_s, *ae = s->a_eff + (t - 1) * n;
     double *Pa = w->Pa, *W = w->W, *S = w->S, *y = w->y, *tmp = w->tmp;
-    for (long i = 0; i < nn1; i++) Pa[i] = SA0[i] + RA0[i];
+    /* the factor and the solves read [upper triangle | column n] of P only */
+    for (int i = 0; i < n; i++) {
+        long o = (long)i * N1;
+        for (int j = i; j < N1; j++) Pa[o + j] = SA0[o + j] + RA0[o + j];
+    }
     if ((info = chol_u(n, Pa, N1)) != 0) { s->err_info = info; return ERR_CHOL; }
     if (sparse_ready(s)) {
         double *X = w->Y1, *u = w->rhs;
@@ -642,8 +646,12 @@ static int belief(sweep_t *s, work_t *w, long t)
     long nn1 = (long)n * N1;
     const double *a = s->SA + t * nn1, *v = s->VA + t * nn1, *r = s->RA + t * nn1;
     double *Ba = w->Ba, *b = s->b + t * n;
-    for (long i = 0; i < nn1; i++) Ba[i] = a[i] + v[i] + r[i];
-    for (int i = 0; i < n; i++) b[i] = Ba[(long)i * N1 + n];
+    /* the factorization reads the upper triangle only: [upper | column n] of S^-1 + V^-1 + R */
+    for (int i = 0; i < n; i++) {
+        long o = (long)i * N1;
+        for (int j = i; j < N1; j++) Ba[o + j] = a[o + j] + v[o + j] + r[o + j];
+        b[i] = Ba[o + n];
+    }
     if ((info = chol_u(n, Ba, N1)) != 0) { s->err_info = info; return ERR_CHOL; }
     trsv_rt(n, Ba, N1, b);
     trsv_r(n, Ba, N1, b);
