@@ -40,6 +40,57 @@ from scipy.linalg.blas import dtrsm
 from scipy.spatial.distance import cdist
 
 NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the module docstring)
+
+# One query point, every output: the GP mean and its input gradient in C (no per-output numpy
+# calls: a planner's relinearization inside the sweeps asks for one point at a time). The same
+# formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
+# agree to rounding (tests/test_gp.py).
+_POINT_C = r"""
+#include <math.h>
+/* Zs (D, N, d): training inputs divided by each output's length-scales; alpha (D, N); sf2 (D,);
+ * inv_ell (D, d); z (d,) scaled query. out_m (D,), out_g (D, d): scaled mean and gradient. */
+void gp_point(long N, long d, long D, const double *Zs, const double *alpha, const double *sf2,
+              const double *inv_ell, const double *z, double *out_m, double *out_g)
+{
+    double zs[256], g[256];
+    for (long j = 0; j < D; j++) {
+        const double *Zj = Zs + j * N * d, *aj = alpha + j * N, *ie = inv_ell + j * d;
+        for (long k = 0; k < d; k++) { zs[k] = z[k] * ie[k]; g[k] = 0.0; }
+        double m = 0.0;
+        for (long i = 0; i < N; i++) {
+            const double *zi = Zj + i * d;
+            double s = 0.0;
+            for (long k = 0; k < d; k++) { double e = zi[k] - zs[k]; s += e * e; }
+            double w = aj[i] * sf2[j] * exp(-0.5 * s);
+            m += w;
+            for (long k = 0; k < d; k++) g[k] += w * (zi[k] - zs[k]);
+        }
+        out_m[j] = m;
+        for (long k = 0; k < d; k++) out_g[j * d + k] = g[k] * ie[k];
+    }
+}
+"""
+_POINT_LIB: object = None
+
+
+def _point_lib():
+    """The compiled ``gp_point`` (``None`` without a C compiler or with ``RAICO_NO_C``)."""
+    global _POINT_LIB
+    if _POINT_LIB is None:
+        import ctypes
+
+        from plants.codegen import c_backend
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(_POINT_C, "gp_point", flags=(*c_backend.CFLAGS, "-O3"))
+            lib.gp_point.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 7
+            lib.gp_point.restype = None
+            _POINT_LIB = lib
+        except (c_backend.CompileUnavailable, OSError):
+            _POINT_LIB = False
+    return _POINT_LIB or None
+
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
@@ -273,6 +324,34 @@ class GPModel:
             mean[ok, j], dmean[ok, j] = self._mean_grad(j, self._kstar(j, Zq), Zq)
         scale = self.y_std[:, None] / self.x_std[None, :]
         return mean * self.y_std + self.y_mean, dmean * scale
+
+    def point_mean_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``(D,)`` and its input gradient ``(D, d)`` at one physical input ``x (d,)`` (physical
+        units): ``mean_with_gradients`` for one point, every output in one compiled call (numpy
+        where no C compiler is available). NaN where ``x`` is not finite."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        if x.shape != (self.d,):
+            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            return np.full(self.D, np.nan), np.full((self.D, self.d), np.nan)
+        lib = _point_lib() if self.d <= 256 else None
+        if lib is None:
+            m, g = self.mean_with_gradients(x[None, :])
+            return m[0], g[0]
+        key = (self.Z, self.alpha, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std)
+        pc = getattr(self, "_point_cache", None)
+        if pc is None or not all(a is b for a, b in zip(pc[0], key)):
+            Zs = np.ascontiguousarray(self.Z[None, :, :] / self.ell[:, None, :])
+            keep = (Zs, np.ascontiguousarray(self.alpha), np.ascontiguousarray(self.sf2),
+                    np.ascontiguousarray(1.0 / self.ell))
+            z, m, g = np.empty(self.d), np.empty(self.D), np.empty((self.D, self.d))
+            ptrs = [a.ctypes.data for a in (*keep, z, m, g)]
+            pc = self._point_cache = (key, keep, z, m, g, ptrs, self.y_std[:, None] / self.x_std[None, :])
+        _, _, z, m, g, ptrs, gscale = pc
+        np.subtract(x, self.x_mean, out=z)
+        z /= self.x_std
+        lib.gp_point(self.N, self.d, self.D, *ptrs)
+        return m * self.y_std + self.y_mean, g * gscale
 
     def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Mean ``(M, D)``, latent variance ``(M, D)``, ``dmean (M, D, d)``, ``dvar (M, D, d)`` (physical units).

@@ -31,10 +31,12 @@ class LearnedDynamics(SemiImplicitEuler):
         self.n_x = 2 * self.n_q
         self.n_u = model.d - self.n_x
         self.dt = float(dt)
+        self._I = np.eye(self.n_q)
 
     def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """GP mean accelerations ``(n_q,)`` (rad/s^2) at one state and control (NaN if not finite)."""
-        return self.model.predict_mean(np.concatenate([q, v, u])[None, :])[0]
+        """GP mean accelerations ``(n_q,)`` (rad/s^2) at one state and control (NaN if not finite);
+        the compiled one-point path (rollouts step one point at a time)."""
+        return self.model.point_mean_with_gradients(np.concatenate([q, v, u]))[0]
 
     def step_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Next states ``(T, n_x)`` for states ``X (T, n_x)`` and controls ``U (T, n_u)``."""
@@ -46,9 +48,25 @@ class LearnedDynamics(SemiImplicitEuler):
         return np.hstack([X[:, :n] + dt * v1, v1])
 
     def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(A (n_x, n_x), a (n_x,), B (n_x, n_u))`` at ``(x, u)``."""
-        A, a, B = self.linearize_trajectory(np.asarray(x, float)[None, :], np.asarray(u, float)[None, :])
-        return A[0], a[0], B[0]
+        """``(A (n_x, n_x), a (n_x,), B (n_x, n_u))`` at ``(x, u)``: ``linearize_trajectory`` for one
+        point, the GP's mean and gradient in one compiled call (``GPModel.point_mean_with_gradients``;
+        the sweeps relinearize one point at a time)."""
+        x, u = np.asarray(x, float).reshape(-1), np.asarray(u, float).reshape(-1)
+        n, nx, dt = self.n_q, self.n_x, self.dt
+        mean, F = self.model.point_mean_with_gradients(np.concatenate([x, u]))   # (n,), (n, nx + nu)
+        A = np.empty((nx, nx))
+        np.multiply(F[:, :nx], dt, out=A[n:])                 # dv'/dx = [0, I] + dt F_x
+        A[n:, n:] += self._I
+        np.multiply(A[n:], dt, out=A[:n])                     # dq'/dx = [I, 0] + dt dv'/dx
+        A[:n, :n] += self._I
+        B = np.empty((nx, self.n_u))
+        np.multiply(F[:, nx:], dt, out=B[n:])                 # dv'/du = dt F_u
+        np.multiply(B[n:], dt, out=B[:n])
+        v1 = x[n:] + dt * mean
+        a = np.concatenate([x[:n] + dt * v1, v1])
+        a -= A @ x
+        a -= B @ u
+        return A, a, B
 
     def linearize_trajectory(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)`` along ``X (T, n_x)``, ``U (T, n_u)`` (one GP call).

@@ -312,6 +312,31 @@ def test_learned_linearization_exact_and_batched():
     assert np.array_equal(dvx, dv_ref[:, :, :4]) and np.array_equal(dvu, dv_ref[:, :, 4:])
 
 
+def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkeypatch):
+    """The compiled one-point path (what the sweeps' relinearizations call) against
+    ``mean_with_gradients``; after ``update()`` a cached copy of the old training set would fail."""
+    import plants.gp as gp
+
+    model = toy_model()
+    rng = np.random.default_rng(7)
+    Q = rng.normal(size=(6, model.d))
+    for step in range(2):
+        m_ref, g_ref = model.mean_with_gradients(Q)
+        for x, mr, gr in zip(Q, m_ref, g_ref):
+            m, g = model.point_mean_with_gradients(x)
+            assert np.allclose(m, mr, rtol=1e-12, atol=1e-13 * np.abs(m_ref).max())
+            assert np.allclose(g, gr, rtol=1e-11, atol=1e-12 * np.abs(g_ref).max())
+        if step == 0:
+            Xn = rng.normal(size=(5, model.d))
+            model.update(Xn, np.sin(Xn[:, :model.D]))
+    m, g = model.point_mean_with_gradients(np.full(model.d, np.nan))
+    assert np.all(np.isnan(m)) and np.all(np.isnan(g))
+    monkeypatch.setattr(gp, "_POINT_LIB", False)          # no compiler: the numpy path, same numbers
+    m2, g2 = model.point_mean_with_gradients(Q[0])
+    m_ref, g_ref = model.mean_with_gradients(Q[:1])
+    assert np.array_equal(m2, m_ref[0]) and np.array_equal(g2, g_ref[0])
+
+
 def test_learned_nonfinite_inputs_give_nan():
     dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
     x = np.array([0.1, np.nan, 0.0, 0.2])
