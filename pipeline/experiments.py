@@ -326,8 +326,10 @@ LEARN_EXPERIMENTS: dict[str, LearnExperiment] = {
         "fig4.3", "biorob", "reach",
         "BioRob-like arm reaching x0 + (0.5, 0, 0.5) m in 1 s on a GP model: hyperparameter schedules every vs "
         "batch-100, 20 evaluations warm-started",
-        (LearnSetting("every", (("schedule", "every"),), 1, quick=True),
-         LearnSetting("batch-100", (("schedule", "batch-100"),), 1, quick=True)),
+        # 3 seeds each: on one seed the schedule claim's verdict flipped with rounding-level changes
+        # of the planner (GP errors 566/572, 614/135, 256/173 rad/s^2 for batch-100/every)
+        (LearnSetting("every", (("schedule", "every"),), 3, quick=True),
+         LearnSetting("batch-100", (("schedule", "batch-100"),), 3, quick=True)),
         (("alpha", 2.0), ("babble_points", 100), ("iterations", 10), ("max_points", 300), ("restarts", 0),
          ("stride", 20), ("sigma_star", "none")), episodes=20, quick_episodes=3,
         claims=("batch_cheaper", "reach_achieved"),
