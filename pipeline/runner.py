@@ -62,7 +62,8 @@ def finite_json(obj: Any) -> Any:
 
 
 def source_version(name: str, *packages: str) -> str:
-    """``name`` plus a hash of the source (``*.py``) and model files (``*.urdf``) of ``packages``.
+    """``name`` plus a hash of the source (``*.py``, ``*.c``: the compiled kernels) and model files
+    (``*.urdf``) of ``packages``.
 
     The cache key includes it, so editing a solver or a model file invalidates the stages
     that depend on it (and only those).
@@ -77,7 +78,7 @@ def source_version(name: str, *packages: str) -> str:
         if src.name != "__init__.py":  # a module: just its file
             files = [src]
         else:
-            files = sorted(p for pat in ("*.py", "*.urdf") for p in root.rglob(pat)
+            files = sorted(p for pat in ("*.py", "*.c", "*.urdf") for p in root.rglob(pat)
                            if "__pycache__" not in p.parts)
         for f in files:
             h.update(str(f.relative_to(root)).encode())

@@ -32,6 +32,20 @@ def test_source_version_follows_the_source(tmp_path, monkeypatch):
     sys.modules.pop("fakestage", None)
 
 
+def test_source_version_follows_a_compiled_kernel(tmp_path, monkeypatch):
+    """A C kernel shipped in a stage's package (stages/plan/csweep.c) is code: editing it
+    invalidates the cache like editing the Python."""
+    pkg = tmp_path / "fakekernel"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("X = 1\n")
+    (pkg / "sweep.c").write_text("int f(void) { return 1; }\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    v1 = source_version("s-1", "fakekernel")
+    (pkg / "sweep.c").write_text("int f(void) { return 2; }\n")
+    assert source_version("s-1", "fakekernel") != v1
+    sys.modules.pop("fakekernel", None)
+
+
 def test_run_stage_hit_never_computes(tmp_path):
     calls = []
 
