@@ -5,8 +5,8 @@
   written atomically (parallel processes may build the same library); loaded with ``ctypes``.
   ``RAICO_NO_C=1`` (or no ``gcc``) disables every compiled path: the callers fall back to their
   numpy code, which computes the same numbers.
-- :func:`blas_table`: addresses of scipy's BLAS/LAPACK routines (``scipy.linalg.cython_blas`` /
-  ``cython_lapack``, Fortran calling convention, 32-bit integers), handed to the C code at run
+- :func:`blas_table`: addresses of scipy's BLAS routines (``scipy.linalg.cython_blas`` /
+  Fortran calling convention, 32-bit integers), handed to the C code at run
   time, so nothing links against a BLAS at build time and the C code uses the very OpenBLAS that
   scipy uses.
 - :func:`emit_c`: the C twin of :func:`plants.codegen.emit.emit` (same operations in the same
@@ -48,11 +48,7 @@ def fma_flags() -> tuple[str, ...]:
 def _isa_flags() -> tuple[str, ...]:
     """``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
     contraction stays off, so the numbers do not depend on it)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return ("-mavx2",) if " avx2" in f.read(200_000) else ()
-    except OSError:  # pragma: no cover - not Linux
-        return ()
+    return ("-mavx2",) if " avx2" in _cpu_flags() else ()
 
 
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing",
@@ -112,9 +108,8 @@ def load_library(source: str, name: str, directory: Path | None = None,
     return lib
 
 
-# -- BLAS / LAPACK from scipy -------------------------------------------------------------------
-BLAS_NAMES = ("dgemm", "dsyrk", "dtrsm", "dtrsv", "dgemv", "dsymv")
-LAPACK_NAMES = ("dpotrf", "dpotri", "dpotrs", "dposv")
+# -- BLAS from scipy ----------------------------------------------------------------------------
+BLAS_NAMES = ("dgemm", "dsyrk", "dtrsm")   # what the sweep kernel calls (its n x n products)
 
 
 def _capsule_pointer(capsule) -> int:
@@ -126,12 +121,10 @@ def _capsule_pointer(capsule) -> int:
 
 
 def blas_table() -> list[int]:
-    """Addresses of ``BLAS_NAMES + LAPACK_NAMES`` in that order (scipy's LP64 OpenBLAS)."""
+    """Addresses of ``BLAS_NAMES`` in that order (scipy's LP64 OpenBLAS)."""
     import scipy.linalg.cython_blas as cb
-    import scipy.linalg.cython_lapack as cl
 
-    return ([_capsule_pointer(cb.__pyx_capi__[k]) for k in BLAS_NAMES]
-            + [_capsule_pointer(cl.__pyx_capi__[k]) for k in LAPACK_NAMES])
+    return [_capsule_pointer(cb.__pyx_capi__[k]) for k in BLAS_NAMES]
 
 
 # -- C from the graph ---------------------------------------------------------------------------

@@ -24,38 +24,17 @@ typedef void (*dsyrk_t)(const char *, const char *, const int *, const int *, co
                         const int *, const double *, double *, const int *);
 typedef void (*dtrsm_t)(const char *, const char *, const char *, const char *, const int *, const int *,
                         const double *, const double *, const int *, double *, const int *);
-typedef void (*dtrsv_t)(const char *, const char *, const char *, const int *, const double *, const int *,
-                        double *, const int *);
-typedef void (*dgemv_t)(const char *, const int *, const int *, const double *, const double *, const int *,
-                        const double *, const int *, const double *, double *, const int *);
-typedef void (*dsymv_t)(const char *, const int *, const double *, const double *, const int *, const double *,
-                        const int *, const double *, double *, const int *);
-typedef void (*dpotrf_t)(const char *, const int *, double *, const int *, int *);
-typedef void (*dpotri_t)(const char *, const int *, double *, const int *, int *);
-typedef void (*dpotrs_t)(const char *, const int *, const int *, const double *, const int *, double *,
-                         const int *, int *);
-typedef void (*dposv_t)(const char *, const int *, const int *, double *, const int *, double *, const int *,
-                        int *);
 typedef int (*lin_t)(const void *, const double *, const double *, double *, double *, double *);
 typedef int (*task_t)(const void *, long, const double *, double *, double *);
 
 static dgemm_t dgemm_;
 static dsyrk_t dsyrk_;
 static dtrsm_t dtrsm_;
-static dtrsv_t dtrsv_;
-static dgemv_t dgemv_;
-static dsymv_t dsymv_;
-static dpotrf_t dpotrf_;
-static dpotri_t dpotri_;
-static dpotrs_t dpotrs_;
-static dposv_t dposv_;
 
-/* order of plants/codegen/c_backend.py: BLAS_NAMES + LAPACK_NAMES */
+/* order of plants/codegen/c_backend.py: BLAS_NAMES */
 void sweep_set_blas(void **f)
 {
-    dgemm_ = (dgemm_t)f[0]; dsyrk_ = (dsyrk_t)f[1]; dtrsm_ = (dtrsm_t)f[2]; dtrsv_ = (dtrsv_t)f[3];
-    dgemv_ = (dgemv_t)f[4]; dsymv_ = (dsymv_t)f[5];
-    dpotrf_ = (dpotrf_t)f[6]; dpotri_ = (dpotri_t)f[7]; dpotrs_ = (dpotrs_t)f[8]; dposv_ = (dposv_t)f[9];
+    dgemm_ = (dgemm_t)f[0]; dsyrk_ = (dsyrk_t)f[1]; dtrsm_ = (dtrsm_t)f[2];
 }
 
 enum { ERR_CHOL = -1, ERR_LIN = -2 };
@@ -109,7 +88,7 @@ static work_t layout(const sweep_t *s)
     w.Y0 = p; p += n * N1;
     w.Y1 = p; p += n * N1;
     w.FA = p; p += n * N1;
-    w.E = p; p += 2 * n * N1;   /* (n x (n+1)) column-major rhs, and I + q P' */
+    w.E = p; p += 2 * n * N1;   /* I + q P' (vstar), V*^T (mul_sparse_C); 2nd half: Ad */
     w.W = p; p += n * n;
     w.S = p; p += n * n;
     w.G = p; p += n * K;
@@ -338,40 +317,38 @@ static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, do
 
 static int sparse_ready(sweep_t *s);
 
-/* S (n x n) = A X A^T + Q and u_out (n) = A u + a_e for a sparse shared C (A = C[:n, m:m+n], listed
- * by columns), X symmetric (n x n): M = A X and S = A M^T (= A X A^T), both as row updates
- * (row i of A X gains A[i][j] times row j of X); Mt: n x n work. */
-static void sandwich_sparse(const sweep_t *s, const double *X, const double *Q, double *S, double *M,
-                            double *Mt, const double *u, const double *a_e, double *u_out)
+/* out (n x c, ld c) += A X for a sparse shared C (A = C[:n, m:m+n], listed by columns), X (n x c,
+ * ld c): row i of the result gains A[i][j] times row j of X (vectorized row updates). */
+static void add_sparse_A_rows(const sweep_t *s, const double *X, int c, double *out)
 {
     int n = (int)s->n, m = (int)s->m, K = m + n + 1;
     const int *start = s->iw, *rows = s->iw + K + 1;
-    zero(M, n, n, n);
-    for (int i = 0; i < n; i++) u_out[i] = a_e[i];
     for (int j = 0; j < n; j++) {
-        const double *xj = X + (long)j * n;
+        const double *xj = X + (long)j * c;
         for (int k = start[m + j]; k < start[m + j + 1]; k++) {
             int i = rows[k];
             if (i >= n) continue;
             double v = s->C[(long)i * K + m + j];
-            double *mi = M + (long)i * n;
-            for (int c = 0; c < n; c++) mi[c] += v * xj[c];
-            u_out[i] += v * u[j];
+            double *oi = out + (long)i * c;
+            for (int l = 0; l < c; l++) oi[l] += v * xj[l];
         }
     }
+}
+
+/* S (n x n) = A X A^T + Q and u_out (n) = A u + a_e for a sparse shared C, X symmetric (n x n):
+ * M = A X and S = A M^T (= A X A^T); M, Mt: n x n work. */
+static void sandwich_sparse(const sweep_t *s, const double *X, const double *Q, double *S, double *M,
+                            double *Mt, const double *u, const double *a_e, double *u_out)
+{
+    int n = (int)s->n;
+    zero(M, n, n, n);
+    add_sparse_A_rows(s, X, n, M);
+    memcpy(u_out, a_e, sizeof(double) * n);
+    add_sparse_A_rows(s, u, 1, u_out);
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) Mt[(long)j * n + i] = M[(long)i * n + j];
     memcpy(S, Q, sizeof(double) * n * n);
-    for (int j = 0; j < n; j++) {
-        const double *mj = Mt + (long)j * n;
-        for (int k = start[m + j]; k < start[m + j + 1]; k++) {
-            int i = rows[k];
-            if (i >= n) continue;
-            double v = s->C[(long)i * K + m + j];
-            double *si = S + (long)i * n;
-            for (int c = 0; c < n; c++) si[c] += v * mj[c];
-        }
-    }
+    add_sparse_A_rows(s, Mt, n, S);
 }
 
 /* forward message [S_t^-1 | S_t^-1 s_t] at t >= 1 (_Sweeps.forward). P = R^T R;

@@ -1,7 +1,8 @@
 """The AICO sweeps compiled: ``csweep.c`` loaded with ``ctypes`` (speed only, Algorithm 1 unchanged).
 
 ``csweep.c`` is ``stages.plan.aico._Sweeps``'s forward / backward / belief / settle code in C,
-calling scipy's BLAS and LAPACK through their addresses (:func:`plants.codegen.c_backend.blas_table`).
+with its own small dense loops and scipy's BLAS for the large products (addresses from
+:func:`plants.codegen.c_backend.blas_table`).
 ``make install`` builds it (target ``kernels``: ``build/csweep.so``); without that build the
 library is compiled on first use into the kernel cache (:mod:`plants.codegen.c_backend`). Without a
 compiler, or with ``RAICO_NO_C=1``, :func:`library` is ``None`` and ``_Sweeps`` runs its numpy code.
