@@ -113,6 +113,100 @@ def test_fallback_without_the_kernel(monkeypatch):
     _assert_same(a, b)
 
 
+# -- the dense kernels of the sweeps, by themselves ------------------------------------------------
+_SIZES = [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 25, 50]
+_PAD = 12345.0     # written around every operand: a kernel reading or writing outside its block fails
+
+
+def _dense_lib():
+    import ctypes
+
+    lib = kernels.library()
+    L, D, P = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
+    lib.k_chol_u.argtypes, lib.k_chol_u.restype = [L, P, L], ctypes.c_int
+    for f in ("k_solve_rt", "k_solve_r"):
+        getattr(lib, f).argtypes = [L, P, L, P, L, L]
+    lib.k_spd_inverse.argtypes = [L, P, L, P, L, P]
+    lib.k_gemm_nn.argtypes = lib.k_gemm_tn.argtypes = lib.k_gemm_nn_set.argtypes = [L, L, L, D, P, L, P, L,
+                                                                                     P, L]
+    lib.k_syrk_tn.argtypes = [L, L, D, P, L, P, L, L]
+    lib.k_transpose.argtypes = [L, L, P, L, P, L]
+    return lib
+
+
+def _padded(M: np.ndarray, extra: int = 3) -> np.ndarray:
+    """``M`` inside a larger row-major buffer (``extra`` more columns and one more row of _PAD)."""
+    r, c = M.shape
+    out = np.full((r + 1, c + extra), _PAD)
+    out[:r, :c] = M
+    return out
+
+
+def _spd(rng, n: int) -> np.ndarray:
+    G = rng.standard_normal((n, n))
+    return G.T @ G + 0.1 * np.eye(n)
+
+
+@pytest.mark.parametrize("n", _SIZES)
+def test_dense_cholesky_solves_and_inverse(n):
+    """Cholesky factor (upper, only the upper triangle read), R^-T B, R^-1 B and the SPD inverse
+    against numpy, on every edge shape of the register tiles, nothing touched outside the block."""
+    lib, rng = _dense_lib(), np.random.default_rng(n)
+    A = _spd(rng, n)
+    buf = _padded(np.triu(A) + np.tril(np.full((n, n), np.nan), -1))
+    ld = buf.shape[1]
+    assert lib.k_chol_u(n, buf.ctypes.data, ld) == 0
+    R = np.triu(buf[:n, :n])
+    np.testing.assert_allclose(R, np.linalg.cholesky(A).T, rtol=0, atol=1e-12 * np.abs(A).max())
+    assert (buf[:n, n:] == _PAD).all() and (buf[n] == _PAD).all()
+    for c in (1, 3, 4, 5, 8, 11, n + 1):
+        B = rng.standard_normal((n, c))
+        for f, ref in (("k_solve_rt", np.linalg.solve(R.T, B)), ("k_solve_r", np.linalg.solve(R, B))):
+            Bb = _padded(B)
+            getattr(lib, f)(n, buf.ctypes.data, ld, Bb.ctypes.data, Bb.shape[1], c)
+            np.testing.assert_allclose(Bb[:n, :c], ref, rtol=0, atol=1e-9 * max(np.abs(ref).max(), 1.0),
+                                       err_msg=f"{f} c={c}")
+            assert (Bb[:n, c:] == _PAD).all() and (Bb[n] == _PAD).all()
+    out, Y = _padded(np.full((n, n), np.nan)), np.full((n, n), np.nan)
+    lib.k_spd_inverse(n, buf.ctypes.data, ld, out.ctypes.data, out.shape[1], Y.ctypes.data)
+    Ainv = np.linalg.inv(A)
+    np.testing.assert_allclose(out[:n, :n], Ainv, rtol=0, atol=1e-9 * np.abs(Ainv).max())
+    assert (out[:n, :n] == out[:n, :n].T).all() and (out[:n, n:] == _PAD).all()
+    bad = _padded(-np.eye(n))
+    assert lib.k_chol_u(n, bad.ctypes.data, bad.shape[1]) == 1     # not positive definite: row 1
+
+
+@pytest.mark.parametrize("a,r,c", [(1, 1, 1), (3, 5, 2), (4, 4, 4), (5, 7, 9), (9, 3, 13),
+                                   (25, 50, 76), (50, 51, 51), (50, 25, 50), (13, 50, 8)])
+def test_dense_products_and_transpose(a, r, c):
+    """A B, A^T B, the upper triangle of W^T W and transposes against numpy, with alpha,
+    accumulated into C or setting it (C not read: NaN before), nothing touched outside the block."""
+    lib, rng = _dense_lib(), np.random.default_rng(a * 100 + r)
+    A, At, B, C0 = (rng.standard_normal(s) for s in ((a, r), (r, a), (r, c), (a, c)))
+    for f, X, ref in (("k_gemm_nn", A, C0 - 0.5 * A @ B), ("k_gemm_tn", At, C0 - 0.5 * At.T @ B)):
+        Xb, Bb, Cb = _padded(X), _padded(B), _padded(C0)
+        args = (a, r, c) if f == "k_gemm_nn" else (r, a, c)
+        getattr(lib, f)(*args, -0.5, Xb.ctypes.data, Xb.shape[1], Bb.ctypes.data, Bb.shape[1],
+                        Cb.ctypes.data, Cb.shape[1])
+        np.testing.assert_allclose(Cb[:a, :c], ref, rtol=0, atol=1e-12 * r, err_msg=f)
+        assert (Cb[:a, c:] == _PAD).all() and (Cb[a] == _PAD).all()
+    Xb, Bb, Cb = _padded(A), _padded(B), _padded(np.full((a, c), np.nan))
+    lib.k_gemm_nn_set(a, r, c, -0.5, Xb.ctypes.data, Xb.shape[1], Bb.ctypes.data, Bb.shape[1],
+                      Cb.ctypes.data, Cb.shape[1])
+    np.testing.assert_allclose(Cb[:a, :c], -0.5 * A @ B, rtol=0, atol=1e-12 * r)
+    W, S0 = rng.standard_normal((r, a)), rng.standard_normal((a, a))
+    iu = np.triu_indices(a)
+    for set_, before, ref in ((0, S0, S0 + 2.0 * W.T @ W), (1, np.full((a, a), np.nan), 2.0 * W.T @ W)):
+        Wb, Sb = _padded(W), _padded(before)
+        lib.k_syrk_tn(r, a, 2.0, Wb.ctypes.data, Wb.shape[1], Sb.ctypes.data, Sb.shape[1], set_)
+        np.testing.assert_allclose(Sb[:a, :a][iu], ref[iu], rtol=0, atol=1e-12 * r)
+        assert (Sb[:a, a:] == _PAD).all() and (Sb[a] == _PAD).all()
+    M = rng.standard_normal((a, c))
+    Mb, Tb = _padded(M), _padded(np.zeros((c, a)))
+    lib.k_transpose(a, c, Mb.ctypes.data, Mb.shape[1], Tb.ctypes.data, Tb.shape[1])
+    assert (Tb[:c, :a] == M.T).all() and (Tb[:c, a:] == _PAD).all() and (Tb[c] == _PAD).all()
+
+
 # -- dynamics ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("plant", ["pendulum", "arm5", "biorob"])
 def test_generated_dynamics_in_c_equal_python(plant):

@@ -1,14 +1,10 @@
-"""Compiled C for the hot loops: a small gcc build cache, BLAS/LAPACK pointers, C from the graph.
+"""Compiled C for the hot loops: a small gcc build cache and C from the graph.
 
 - :func:`build_library`: C source -> shared library with the system's ``gcc``, cached on disk by a
   hash of the source and the flags (``RAICO_KERNEL_DIR``, default ``~/.cache/raico/kernels``),
   written atomically (parallel processes may build the same library); loaded with ``ctypes``.
   ``RAICO_NO_C=1`` (or no ``gcc``) disables every compiled path: the callers fall back to their
   numpy code, which computes the same numbers.
-- :func:`blas_table`: addresses of scipy's BLAS routines (``scipy.linalg.cython_blas`` /
-  Fortran calling convention, 32-bit integers), handed to the C code at run
-  time, so nothing links against a BLAS at build time and the C code uses the very OpenBLAS that
-  scipy uses.
 - :func:`emit_c`: the C twin of :func:`plants.codegen.emit.emit` (same operations in the same
   order, IEEE double, no FMA contraction: the numbers equal the Python float evaluation).
 
@@ -106,25 +102,6 @@ def load_library(source: str, name: str, directory: Path | None = None,
     if lib is None:
         lib = _LIBS[str(path)] = ctypes.CDLL(str(path))
     return lib
-
-
-# -- BLAS from scipy ----------------------------------------------------------------------------
-BLAS_NAMES = ("dgemm", "dsyrk", "dtrsm")   # what the sweep kernel calls (its n x n products)
-
-
-def _capsule_pointer(capsule) -> int:
-    get_name = ctypes.pythonapi.PyCapsule_GetName
-    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    get_ptr = ctypes.pythonapi.PyCapsule_GetPointer
-    get_ptr.restype, get_ptr.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-    return get_ptr(capsule, get_name(capsule))
-
-
-def blas_table() -> list[int]:
-    """Addresses of ``BLAS_NAMES`` in that order (scipy's LP64 OpenBLAS)."""
-    import scipy.linalg.cython_blas as cb
-
-    return [_capsule_pointer(cb.__pyx_capi__[k]) for k in BLAS_NAMES]
 
 
 # -- C from the graph ---------------------------------------------------------------------------

@@ -1,10 +1,8 @@
 /* AICO / R-AICO sweeps of stages/plan/aico.py (_Sweeps) in C: the same formulas, the same order of
  * steps, relinearizations and repeats (thesis Algorithm 1), without per-step Python overhead.
  *
- * Arrays are numpy's, row-major. The dense algebra is the small loops below (Cholesky factors,
- * triangular solves, products) and, from BIG state dimensions on, scipy's BLAS for the n x n
- * products (passed in as addresses; BLAS sees a row-major (r x c) block as its column-major
- * transpose (c x r)). The message layout is _Sweeps's:
+ * Arrays are numpy's, row-major. The dense algebra (Cholesky factors, triangular solves, products)
+ * is the register-tiled loops below, no BLAS. The message layout is _Sweeps's:
  * SA[t], VA[t], RA[t] = [P | p] (n x (n+1)), C[t] = [[B, A, -a], [0, 0, 1]] ((n+1) x (m+n+1)),
  * Z[t] = [-O_t | o_t] (m x (n+1)).
  *
@@ -18,24 +16,8 @@
 #include <math.h>
 #include <string.h>
 
-typedef void (*dgemm_t)(const char *, const char *, const int *, const int *, const int *, const double *,
-                        const double *, const int *, const double *, const int *, const double *, double *, const int *);
-typedef void (*dsyrk_t)(const char *, const char *, const int *, const int *, const double *, const double *,
-                        const int *, const double *, double *, const int *);
-typedef void (*dtrsm_t)(const char *, const char *, const char *, const char *, const int *, const int *,
-                        const double *, const double *, const int *, double *, const int *);
 typedef int (*lin_t)(const void *, const double *, const double *, double *, double *, double *);
 typedef int (*task_t)(const void *, long, const double *, double *, double *);
-
-static dgemm_t dgemm_;
-static dsyrk_t dsyrk_;
-static dtrsm_t dtrsm_;
-
-/* order of plants/codegen/c_backend.py: BLAS_NAMES */
-void sweep_set_blas(void **f)
-{
-    dgemm_ = (dgemm_t)f[0]; dsyrk_ = (dsyrk_t)f[1]; dtrsm_ = (dtrsm_t)f[2];
-}
 
 enum { ERR_CHOL = -1, ERR_LIN = -2 };
 enum { PH_FWD = 0, PH_BWD = 1, PH_DONE = 2 };
@@ -107,96 +89,218 @@ static work_t layout(const sweep_t *s)
     return w;
 }
 
-static const double ONE = 1.0, ZERO = 0.0;
-
 /* -- small dense kernels (row-major) ----------------------------------------------------------
- * OpenBLAS calls cost about 0.3-0.5 us each and its small-size LAPACK (dpotf2, dpotri) runs at
- * level-2 speed: below BIG rows, and for every factorization and vector solve, these loops (built
- * with -O3 and FMA, see kernels.py) are faster; from BIG on the n x n products (trsm, syrk, gemm)
- * go to BLAS. Measured: stages/plan/kernels.py docstring. A Cholesky factor R is upper, row-major,
- * A = R^T R; only A's upper triangle is read. */
-#define BIG 32
+ * Every product, factorization and solve below is built on one register-tiled update (upd): a
+ * 4 x 8 block of the result kept in eight 4-wide vector accumulators over the whole inner
+ * dimension, with 4 x 4 and 4 x (1..3) edge tiles. For the sweeps' sizes (n <= ~100: everything
+ * in L1/L2) this beats OpenBLAS, whose calls cost 0.3-0.5 us each and whose small-size LAPACK
+ * runs at level-2 speed (measured at n = 50, cycles per call, this box: Cholesky 12.8k -> 8.6k
+ * (the previous rank-4 loops), SPD inverse 29k -> 16.7k, V* series (OpenBLAS syrk + gemm)
+ * 53.6k -> 36.0k, syrk 50 x 25 (OpenBLAS) 10.3k -> 5.3k). The vectors are GCC vector extensions:
+ * with -mavx2 -mfma one ymm register each, without them the compiler splits them.
+ * A Cholesky factor R is upper, row-major, A = R^T R; only A's upper triangle is read. */
+typedef double v4d __attribute__((vector_size(32)));
+static inline v4d ldv(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }
+static inline void stv(double *p, v4d v) { memcpy(p, &v, sizeof v); }
 
-/* one row k of the right-looking factorization, its update restricted to rows k+1..i_end-1 */
-static int chol_row(int n, double *A, int ld, int k, int i_end)
+/* tile of nr (<= 4) rows x 8 columns: c[r][j] += alpha sum_{k=kb}^{ke-1} X(r, k) y[k][j],
+ * X(r, k) = x[r xr + k xk] */
+static inline __attribute__((always_inline)) void mk8(int nr, int kb, int ke, const double *x, long xr, long xk,
+                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     int set)
 {
-    double *rk = A + (long)k * ld;
-    double d = rk[k];
-    if (!(d > 0.0)) return k + 1;
-    d = sqrt(d);
-    rk[k] = d;
-    double inv = 1.0 / d;
-    for (int j = k + 1; j < n; j++) rk[j] *= inv;
-    for (int i = k + 1; i < i_end; i++) {
-        double *ri = A + (long)i * ld;
-        double f = rk[i];
-        for (int j = i; j < n; j++) ri[j] -= f * rk[j];
+    v4d a0 = {0}, a1 = {0}, b0 = {0}, b1 = {0}, c0 = {0}, c1 = {0}, d0 = {0}, d1 = {0};
+    for (int k = kb; k < ke; k++) {
+        const double *yk = y + (long)k * ldy, *xk_ = x + (long)k * xk;
+        v4d y0 = ldv(yk), y1 = ldv(yk + 4);
+        double f = xk_[0];
+        a0 += f * y0; a1 += f * y1;
+        if (nr > 1) { f = xk_[xr]; b0 += f * y0; b1 += f * y1; }
+        if (nr > 2) { f = xk_[2 * xr]; c0 += f * y0; c1 += f * y1; }
+        if (nr > 3) { f = xk_[3 * xr]; d0 += f * y0; d1 += f * y1; }
     }
-    return 0;
+    if (set) {
+        stv(c, alpha * a0); stv(c + 4, alpha * a1);
+        if (nr > 1) { c += ldc; stv(c, alpha * b0); stv(c + 4, alpha * b1); }
+        if (nr > 2) { c += ldc; stv(c, alpha * c0); stv(c + 4, alpha * c1); }
+        if (nr > 3) { c += ldc; stv(c, alpha * d0); stv(c + 4, alpha * d1); }
+        return;
+    }
+    stv(c, ldv(c) + alpha * a0); stv(c + 4, ldv(c + 4) + alpha * a1);
+    if (nr > 1) { c += ldc; stv(c, ldv(c) + alpha * b0); stv(c + 4, ldv(c + 4) + alpha * b1); }
+    if (nr > 2) { c += ldc; stv(c, ldv(c) + alpha * c0); stv(c + 4, ldv(c + 4) + alpha * c1); }
+    if (nr > 3) { c += ldc; stv(c, ldv(c) + alpha * d0); stv(c + 4, ldv(c + 4) + alpha * d1); }
 }
 
-/* A = R^T R in place (R upper); blocks of 4 rows: the block factored, then the trailing matrix
- * updated with rank 4 at once (one load and store of each trailing entry per block; 1.4x the
- * rank-1 loop at n = 50). Returns 0 or the (1-based) row where A is not positive definite. */
+/* nr rows x 4 columns */
+static inline __attribute__((always_inline)) void mk4(int nr, int kb, int ke, const double *x, long xr, long xk,
+                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     int set)
+{
+    v4d a0 = {0}, b0 = {0}, c0 = {0}, d0 = {0};
+    for (int k = kb; k < ke; k++) {
+        const double *xk_ = x + (long)k * xk;
+        v4d y0 = ldv(y + (long)k * ldy);
+        a0 += xk_[0] * y0;
+        if (nr > 1) b0 += xk_[xr] * y0;
+        if (nr > 2) c0 += xk_[2 * xr] * y0;
+        if (nr > 3) d0 += xk_[3 * xr] * y0;
+    }
+    v4d z = {0};
+    stv(c, (set ? z : ldv(c)) + alpha * a0);
+    if (nr > 1) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * b0); }
+    if (nr > 2) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * c0); }
+    if (nr > 3) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * d0); }
+}
+
+/* 4 rows x nc (< 4) columns with X(r, k) contiguous in r (xr = 1): vectors across the rows */
+static inline __attribute__((always_inline)) void mke(int nc, int kb, int ke, const double *x, long xk,
+                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     int set)
+{
+    v4d a0 = {0}, a1 = {0}, a2 = {0};
+    for (int k = kb; k < ke; k++) {
+        v4d xv = ldv(x + (long)k * xk);
+        const double *yk = y + (long)k * ldy;
+        a0 += xv * yk[0];
+        if (nc > 1) a1 += xv * yk[1];
+        if (nc > 2) a2 += xv * yk[2];
+    }
+    for (int r = 0; r < 4; r++) {
+        double *cr = c + r * ldc;
+        cr[0] = (set ? 0.0 : cr[0]) + alpha * a0[r];
+        if (nc > 1) cr[1] = (set ? 0.0 : cr[1]) + alpha * a1[r];
+        if (nc > 2) cr[2] = (set ? 0.0 : cr[2]) + alpha * a2[r];
+    }
+}
+
+/* nr rows x nc (< 4) columns, scalar (the rare edge: fewer than 4 rows or X strided in r) */
+static void mks(int nr, int nc, int kb, int ke, const double *x, long xr, long xk,
+                const double *y, long ldy, double *c, long ldc, double alpha, int set)
+{
+    for (int r = 0; r < nr; r++)
+        for (int j = 0; j < nc; j++) {
+            double v = 0.0;
+            for (int k = kb; k < ke; k++) v += x[r * xr + (long)k * xk] * y[(long)k * ldy + j];
+            c[r * ldc + j] = (set ? 0.0 : c[r * ldc + j]) + alpha * v;
+        }
+}
+
+enum { UP_KCOL = 1, UP_KROW = 2, UP_UPPER = 4, UP_SET = 8 };
+
+/* C (R x Cn, ld ldc) += alpha sum_{k=kb}^{ke-1} X(r, k) Y[k][c], X(r, k) = X[r xr + k xk] (xr = 1,
+ * xk = ld: X^T of a row-major block; xr = ld, xk = 1: X itself), Y row-major (ld ldy).
+ * flags: UP_KCOL: a tile's k starts at its first column (Y lower triangular, zeros stored);
+ * UP_KROW: at its first row (X(r, k) = 0 for k < r); UP_UPPER: only tiles reaching the upper
+ * triangle (C's upper triangle wanted; the few lower entries of a tile across the diagonal get
+ * the same update); UP_SET: C = alpha X Y (C not read: no zeroing before). */
+static void upd(int R, int Cn, int kb, int ke, int flags, const double *X, long xr, long xk,
+                const double *Y, long ldy, double *C, long ldc, double alpha)
+{
+    int set = (flags & UP_SET) != 0;
+    for (int i0 = 0; i0 < R; i0 += 4) {
+        int nr = R - i0 < 4 ? R - i0 : 4;
+        const double *x = X + i0 * xr;
+        double *c = C + (long)i0 * ldc;
+        for (int j0 = (flags & UP_UPPER) ? i0 : 0; j0 < Cn;) {
+            int k0 = kb;
+            if ((flags & UP_KCOL) && j0 > k0) k0 = j0;
+            if ((flags & UP_KROW) && i0 > k0) k0 = i0;
+            int w = Cn - j0 >= 8 ? 8 : (Cn - j0 >= 4 ? 4 : Cn - j0);
+            const double *y = Y + j0;
+            double *cc = c + j0;
+            if (k0 >= ke && !set) { j0 += w; continue; }
+            if (k0 > ke) k0 = ke;
+            if (w == 8) {
+                switch (nr) {
+                case 4: mk8(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                case 3: mk8(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                case 2: mk8(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                default: mk8(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+                }
+            } else if (w == 4) {
+                switch (nr) {
+                case 4: mk4(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                case 3: mk4(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                case 2: mk4(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
+                default: mk4(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+                }
+            } else if (nr == 4 && xr == 1) {
+                switch (w) {
+                case 3: mke(3, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set); break;
+                case 2: mke(2, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set); break;
+                default: mke(1, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set);
+                }
+            } else mks(nr, w, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+            j0 += w;
+        }
+    }
+}
+
+/* A = R^T R in place (R upper), left-looking in blocks of 4 rows: the block's rows get the update
+ * from all rows above at once (upd), then the block is factored. Returns 0 or the (1-based) row
+ * where A is not positive definite. Only A's upper triangle is read; the strictly lower entries
+ * of the 4 x 4 diagonal blocks are overwritten with scratch values. */
 static int chol_u(int n, double *A, int ld)
 {
-    int k0 = 0, info;
-    for (; k0 + 4 <= n; k0 += 4) {
-        for (int k = k0; k < k0 + 4; k++)
-            if ((info = chol_row(n, A, ld, k, k0 + 4)) != 0) return info;
-        const double *r0 = A + (long)k0 * ld, *r1 = r0 + ld, *r2 = r1 + ld, *r3 = r2 + ld;
-        for (int i = k0 + 4; i < n; i++) {
+    for (int i0 = 0; i0 < n; i0 += 4) {
+        int nb = n - i0 < 4 ? n - i0 : 4;
+        double *ri0 = A + (long)i0 * ld;
+        if (i0) upd(nb, n - i0, 0, i0, 0, A + i0, 1, ld, A + i0, ld, ri0 + i0, ld, -1.0);
+        for (int i = i0; i < i0 + nb; i++) {
             double *ri = A + (long)i * ld;
-            double f0 = r0[i], f1 = r1[i], f2 = r2[i], f3 = r3[i];
-            for (int j = i; j < n; j++) ri[j] -= f0 * r0[j] + f1 * r1[j] + f2 * r2[j] + f3 * r3[j];
+            for (int p = i0; p < i; p++) {
+                const double *rp = A + (long)p * ld;
+                double f = rp[i];
+                for (int j = i; j < n; j++) ri[j] -= f * rp[j];
+            }
+            double d = ri[i];
+            if (!(d > 0.0)) return i + 1;
+            d = sqrt(d);
+            ri[i] = d;
+            double inv = 1.0 / d;
+            for (int j = i + 1; j < n; j++) ri[j] *= inv;
         }
     }
-    for (int k = k0; k < n; k++)
-        if ((info = chol_row(n, A, ld, k, n)) != 0) return info;
     return 0;
 }
 
-/* B (n x c, ld ldb) <- R^-T B: row i of the result from the rows above it, 4 at a time */
+/* B (n x c, ld ldb) <- R^-T B: blocks of 4 rows from the top, each updated from all rows above */
 static void solve_rt(int n, const double *R, int ld, double *B, int ldb, int c)
 {
-    for (int i = 0; i < n; i++) {
-        double *bi = B + (long)i * ldb;
-        int k = 0;
-        for (; k + 4 <= i; k += 4) {
-            const double *b0 = B + (long)k * ldb, *b1 = b0 + ldb, *b2 = b1 + ldb, *b3 = b2 + ldb;
-            double f0 = R[(long)k * ld + i], f1 = R[(long)(k + 1) * ld + i];
-            double f2 = R[(long)(k + 2) * ld + i], f3 = R[(long)(k + 3) * ld + i];
-            for (int j = 0; j < c; j++) bi[j] -= f0 * b0[j] + f1 * b1[j] + f2 * b2[j] + f3 * b3[j];
+    for (int i0 = 0; i0 < n; i0 += 4) {
+        int nb = n - i0 < 4 ? n - i0 : 4;
+        if (i0) upd(nb, c, 0, i0, 0, R + i0, 1, ld, B, ldb, B + (long)i0 * ldb, ldb, -1.0);
+        for (int i = i0; i < i0 + nb; i++) {
+            double *bi = B + (long)i * ldb;
+            for (int p = i0; p < i; p++) {
+                const double *bp = B + (long)p * ldb;
+                double f = R[(long)p * ld + i];
+                for (int j = 0; j < c; j++) bi[j] -= f * bp[j];
+            }
+            double inv = 1.0 / R[(long)i * ld + i];
+            for (int j = 0; j < c; j++) bi[j] *= inv;
         }
-        for (; k < i; k++) {
-            const double *bk = B + (long)k * ldb;
-            double f = R[(long)k * ld + i];
-            for (int j = 0; j < c; j++) bi[j] -= f * bk[j];
-        }
-        double inv = 1.0 / R[(long)i * ld + i];
-        for (int j = 0; j < c; j++) bi[j] *= inv;
     }
 }
 
-/* B (n x c, ld ldb) <- R^-1 B: row i from the rows below it, 4 at a time */
+/* B (n x c, ld ldb) <- R^-1 B: blocks of 4 rows from the bottom, each updated from all rows below */
 static void solve_r(int n, const double *R, int ld, double *B, int ldb, int c)
 {
-    for (int i = n - 1; i >= 0; i--) {
-        double *bi = B + (long)i * ldb;
-        const double *ri = R + (long)i * ld;
-        int k = i + 1;
-        for (; k + 4 <= n; k += 4) {
-            const double *b0 = B + (long)k * ldb, *b1 = b0 + ldb, *b2 = b1 + ldb, *b3 = b2 + ldb;
-            double f0 = ri[k], f1 = ri[k + 1], f2 = ri[k + 2], f3 = ri[k + 3];
-            for (int j = 0; j < c; j++) bi[j] -= f0 * b0[j] + f1 * b1[j] + f2 * b2[j] + f3 * b3[j];
+    for (int i0 = (n - 1) & ~3; i0 >= 0; i0 -= 4) {
+        int ie = n - i0 < 4 ? n : i0 + 4;
+        if (ie < n) upd(ie - i0, c, ie, n, 0, R + (long)i0 * ld, ld, 1, B, ldb, B + (long)i0 * ldb, ldb, -1.0);
+        for (int i = ie - 1; i >= i0; i--) {
+            double *bi = B + (long)i * ldb;
+            const double *ri = R + (long)i * ld;
+            for (int p = i + 1; p < ie; p++) {
+                const double *bp = B + (long)p * ldb;
+                double f = ri[p];
+                for (int j = 0; j < c; j++) bi[j] -= f * bp[j];
+            }
+            double inv = 1.0 / ri[i];
+            for (int j = 0; j < c; j++) bi[j] *= inv;
         }
-        for (; k < n; k++) {
-            double f = ri[k];
-            const double *bk = B + (long)k * ldb;
-            for (int j = 0; j < c; j++) bi[j] -= f * bk[j];
-        }
-        double inv = 1.0 / ri[i];
-        for (int j = 0; j < c; j++) bi[j] *= inv;
     }
 }
 
@@ -222,45 +326,59 @@ static void trsv_r(int n, const double *R, int ld, double *b)
     }
 }
 
-/* upper triangle of C (n x n) += alpha W^T W, W (r x n) */
-static void syrk_tn(int r, int n, double alpha, const double *W, int ldw, double *C, int ldc)
+/* upper triangle of C (n x n) += alpha W^T W, W (r x n) (see upd: UP_UPPER); set: C = alpha W^T W */
+static void syrk_tn(int r, int n, double alpha, const double *W, int ldw, double *C, int ldc, int set)
 {
-    for (int k = 0; k < r; k++) {
-        const double *wk = W + (long)k * ldw;
-        for (int i = 0; i < n; i++) {
-            double f = alpha * wk[i];
-            double *ci = C + (long)i * ldc;
-            for (int j = i; j < n; j++) ci[j] += f * wk[j];
-        }
-    }
+    upd(n, n, 0, r, UP_UPPER | (set ? UP_SET : 0), W, 1, ldw, W, ldw, C, ldc, alpha);
 }
 
-/* C (a x c) += alpha A^T B, A (r x a), B (r x c) */
+/* C (a x c) += alpha A^T B, A (r x a), B (r x c); set: C = alpha A^T B */
 static void gemm_tn(int r, int a, int c, double alpha, const double *A, int lda, const double *B, int ldb,
-                    double *C, int ldc)
+                    double *C, int ldc, int set)
 {
-    for (int k = 0; k < r; k++) {
-        const double *ak = A + (long)k * lda, *bk = B + (long)k * ldb;
-        for (int i = 0; i < a; i++) {
-            double f = alpha * ak[i];
-            double *ci = C + (long)i * ldc;
-            for (int j = 0; j < c; j++) ci[j] += f * bk[j];
-        }
-    }
+    upd(a, c, 0, r, set ? UP_SET : 0, A, 1, lda, B, ldb, C, ldc, alpha);
 }
 
-/* C (a x c) += alpha A B, A (a x r), B (r x c) */
+/* C (a x c) += alpha A B, A (a x r), B (r x c); set: C = alpha A B */
 static void gemm_nn(int a, int r, int c, double alpha, const double *A, int lda, const double *B, int ldb,
-                    double *C, int ldc)
+                    double *C, int ldc, int set)
 {
-    for (int i = 0; i < a; i++) {
-        const double *ai = A + (long)i * lda;
+    upd(a, c, 0, r, set ? UP_SET : 0, A, lda, 1, B, ldb, C, ldc, alpha);
+}
+
+/* dst (cols x rows, ld ldd) = src^T (src rows x cols, ld lds), in 4 x 4 blocks of vectors */
+typedef long v4l __attribute__((vector_size(32)));
+static inline void transpose4(const double *a, long lds, double *d, long ldd)
+{
+    const v4l lo = {0, 4, 2, 6}, hi = {1, 5, 3, 7}, f = {0, 1, 4, 5}, g = {2, 3, 6, 7};
+    v4d r0 = ldv(a), r1 = ldv(a + lds), r2 = ldv(a + 2 * lds), r3 = ldv(a + 3 * lds);
+    v4d t0 = __builtin_shuffle(r0, r1, lo), t1 = __builtin_shuffle(r0, r1, hi);
+    v4d t2 = __builtin_shuffle(r2, r3, lo), t3 = __builtin_shuffle(r2, r3, hi);
+    stv(d, __builtin_shuffle(t0, t2, f));
+    stv(d + ldd, __builtin_shuffle(t1, t3, f));
+    stv(d + 2 * ldd, __builtin_shuffle(t0, t2, g));
+    stv(d + 3 * ldd, __builtin_shuffle(t1, t3, g));
+}
+
+static void transpose(int rows, int cols, const double *src, long lds, double *dst, long ldd)
+{
+    int r4 = rows & ~3, c4 = cols & ~3;
+    for (int i = 0; i < r4; i += 4)
+        for (int j = 0; j < c4; j += 4) transpose4(src + (long)i * lds + j, lds, dst + (long)j * ldd + i, ldd);
+    for (int i = 0; i < rows; i++)
+        for (int j = (i < r4 ? c4 : 0); j < cols; j++) dst[(long)j * ldd + i] = src[(long)i * lds + j];
+}
+
+/* the strictly lower triangle of C (n x n) from its upper: 4 x 4 blocks transposed in registers,
+ * the diagonal blocks and the edge entry by entry */
+static void mirror_upper(int n, double *C, int ldc)
+{
+    int n4 = n & ~3;
+    for (int i = 0; i < n4; i += 4)
+        for (int j = i + 4; j < n4; j += 4) transpose4(C + (long)i * ldc + j, ldc, C + (long)j * ldc + i, ldc);
+    for (int i = 0; i < n; i++) {
         double *ci = C + (long)i * ldc;
-        for (int k = 0; k < r; k++) {
-            double f = alpha * ai[k];
-            const double *bk = B + (long)k * ldb;
-            for (int j = 0; j < c; j++) ci[j] += f * bk[j];
-        }
+        for (int j = (i < n4 ? i & ~3 : 0); j < i; j++) ci[j] = C[(long)j * ldc + i];
     }
 }
 
@@ -270,49 +388,31 @@ static void zero(double *A, int rows, int cols, int ld)
 }
 
 /* out (n x n, ld ldo, full) = A^-1 = R^-1 R^-T from A = R^T R; Y: n * n work.
- * Y = R^-T row by row (lower, rows zero-padded), then out = Y^T Y; both in blocks of 4 rows
- * (rank-4 updates: 1.7x BLAS trsm + syrk at n = 50, 2.3x at n = 25). */
+ * Y = R^-T (lower, zeros stored above) by blocks of 4 rows (its zeros skipped), then out = Y^T Y
+ * (upper tiles, k from the tile's first row or column, mirrored). */
 static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, double *Y)
 {
-    for (int i = 0; i < n; i++) {
-        double *yi = Y + (long)i * n;
-        memset(yi, 0, sizeof(double) * n);
-        yi[i] = 1.0;
-        int k = 0;
-        for (; k + 4 <= i; k += 4) {
-            const double *y0 = Y + (long)k * n, *y1 = y0 + n, *y2 = y1 + n, *y3 = y2 + n;
-            double f0 = R[(long)k * ld + i], f1 = R[(long)(k + 1) * ld + i];
-            double f2 = R[(long)(k + 2) * ld + i], f3 = R[(long)(k + 3) * ld + i];
-            for (int j = 0; j < k + 4; j++) yi[j] -= f0 * y0[j] + f1 * y1[j] + f2 * y2[j] + f3 * y3[j];
-        }
-        for (; k < i; k++) {
-            const double *yk = Y + (long)k * n;
-            double f = R[(long)k * ld + i];
-            for (int j = 0; j <= k; j++) yi[j] -= f * yk[j];
-        }
-        double inv = 1.0 / R[(long)i * ld + i];
-        for (int j = 0; j <= i; j++) yi[j] *= inv;
-    }
-    for (int i = 0; i < n; i++) memset(out + (long)i * ldo, 0, sizeof(double) * n);
-    int k = 0;
-    for (; k + 4 <= n; k += 4) {
-        const double *y0 = Y + (long)k * n, *y1 = y0 + n, *y2 = y1 + n, *y3 = y2 + n;
-        for (int a = 0; a < k + 4; a++) {
-            double f0 = y0[a], f1 = y1[a], f2 = y2[a], f3 = y3[a];
-            double *oa = out + (long)a * ldo;
-            for (int b = a; b < k + 4; b++) oa[b] += f0 * y0[b] + f1 * y1[b] + f2 * y2[b] + f3 * y3[b];
+    for (int i0 = 0; i0 < n; i0 += 4) {
+        int nb = n - i0 < 4 ? n - i0 : 4;
+        /* rows i0.. from the rows above: only columns < i0 (Y[p][j] = 0 for j > p); set, not added */
+        if (i0) upd(nb, i0, 0, i0, UP_KCOL | UP_SET, R + i0, 1, ld, Y, n, Y + (long)i0 * n, n, -1.0);
+        for (int i = i0; i < i0 + nb; i++) {
+            double *yi = Y + (long)i * n;
+            /* columns i0..: the unit row, zero up to 7 past the diagonal (the tiles read that far) */
+            int je = i + 8 < n ? i + 8 : n;
+            for (int j = i0; j < je; j++) yi[j] = 0.0;
+            yi[i] = 1.0;
+            for (int p = i0; p < i; p++) {
+                const double *yp = Y + (long)p * n;
+                double f = R[(long)p * ld + i];
+                for (int j = 0; j <= p; j++) yi[j] -= f * yp[j];
+            }
+            double inv = 1.0 / R[(long)i * ld + i];
+            for (int j = 0; j <= i; j++) yi[j] *= inv;
         }
     }
-    for (; k < n; k++) {
-        const double *yk = Y + (long)k * n;
-        for (int a = 0; a <= k; a++) {
-            double f = yk[a];
-            double *oa = out + (long)a * ldo;
-            for (int b = a; b <= k; b++) oa[b] += f * yk[b];
-        }
-    }
-    for (int i = 0; i < n; i++)
-        for (int j = i + 1; j < n; j++) out[(long)j * ldo + i] = out[(long)i * ldo + j];
+    upd(n, n, 0, n, UP_KCOL | UP_KROW | UP_UPPER | UP_SET, Y, 1, n, Y, n, out, ldo, 1.0);
+    mirror_upper(n, out, ldo);
 }
 
 static int sparse_ready(sweep_t *s);
@@ -345,8 +445,7 @@ static void sandwich_sparse(const sweep_t *s, const double *X, const double *Q, 
     add_sparse_A_rows(s, X, n, M);
     memcpy(u_out, a_e, sizeof(double) * n);
     add_sparse_A_rows(s, u, 1, u_out);
-    for (int i = 0; i < n; i++)
-        for (int j = 0; j < n; j++) Mt[(long)j * n + i] = M[(long)i * n + j];
+    transpose(n, n, M, n, Mt, n);
     memcpy(S, Q, sizeof(double) * n * n);
     add_sparse_A_rows(s, Mt, n, S);
 }
@@ -383,14 +482,11 @@ static int forward(sweep_t *s, work_t *w, long t)
     } else {
         for (int i = 0; i < n; i++)
             for (int j = 0; j < n; j++) W[(long)i * n + j] = Ct[(long)j * K + m + i];
-        /* BLAS sees W as W^T (= A) and R's storage as R^T (lower): W^T R = A */
-        if (n >= BIG) dtrsm_("R", "L", "T", "N", &n, &n, &ONE, Pa, &N1, W, &n);
-        else solve_rt(n, Pa, N1, W, n, n);
+        solve_rt(n, Pa, N1, W, n, n);
         for (int i = 0; i < n; i++) y[i] = Pa[(long)i * N1 + n];
         trsv_rt(n, Pa, N1, y);
         memcpy(S, Qb, sizeof(double) * n * n);
-        if (n >= BIG) dsyrk_("L", "N", &n, &n, &ONE, W, &n, &ONE, S, &n);   /* row-major upper */
-        else syrk_tn(n, n, 1.0, W, n, S, n);
+        syrk_tn(n, n, 1.0, W, n, S, n, 0);
         for (int j = 0; j < n; j++) tmp[j] = 0.0;
         for (int i = 0; i < n; i++) {
             double f = y[i];
@@ -412,30 +508,29 @@ static int forward(sweep_t *s, work_t *w, long t)
     return 0;
 }
 
-/* The truncated series of vstar for large n with symmetric products: the block
- * sum_{k<=K} (-q)^k P'^(k+1) from S2 = P'^2 (one syrk): P' - q S2 + q^2 (P' - q S2) S2, and the
- * column sum_{k<=K} (-q)^k P'^k p' by matrix-vector products (P' symmetric). */
+/* The truncated series of vstar with symmetric products (upper tiles only, mirrored): the block
+ * sum_{k<=K} (-q)^k P'^(k+1) from S2 = P'^2: P' - q S2 + q^2 (P' - q S2) S2 (K = 3; K = 2: the last
+ * product is P' S2), and the column sum_{k<=K} (-q)^k P'^k p' by matrix-vector products (P'
+ * symmetric). The same terms as Horner's Y <- Pa - q P' Y, K times, in n^3 instead of K n^3. */
 static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int K)
 {
     int n = (int)s->n, N1 = n + 1;
-    double q = s->q, *S2 = w->Y0, *S4 = w->Y1, *u = w->tmp, *u2 = w->rhs;
-    /* BLAS sees Pa's block as P'^T = P': S2 (row-major upper) = P' P' */
-    dsyrk_("L", "N", &n, &n, &ONE, Pa, &N1, &ZERO, S2, &n);
-    for (int i = 0; i < n; i++)
-        for (int j = i + 1; j < n; j++) S2[(long)j * n + i] = S2[(long)i * n + j];
+    double q = s->q, *S2 = w->Y0, *Y = w->Y1, *u = w->tmp, *u2 = w->rhs;
+    syrk_tn(n, n, 1.0, Pa, N1, S2, n, 1);                   /* P'^T P' = P'^2 */
+    mirror_upper(n, S2, n);
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) Vs[(long)i * N1 + j] = Pa[(long)i * N1 + j] - q * S2[(long)i * n + j];
     if (K >= 2) {
-        /* K = 2: += q^2 P' S2; K = 3: += q^2 (P' - q S2) S2 (the q^3 term in the same product) */
-        double q2 = q * q, *Y = S4;
-        int ldy = N1;
         const double *Yp = Pa;
+        int ldy = N1;
         if (K >= 3) {
             for (int i = 0; i < n; i++) memcpy(Y + (long)i * n, Vs + (long)i * N1, sizeof(double) * n);
             Yp = Y;
             ldy = n;
         }
-        dgemm_("N", "N", &n, &n, &n, &q2, S2, &n, Yp, &ldy, &ONE, Vs, &N1);
+        /* (P' - q S2) and S2 commute: the product is symmetric */
+        upd(n, n, 0, n, UP_UPPER, Yp, 1, ldy, S2, n, Vs, N1, q * q);
+        mirror_upper(n, Vs, N1);
     }
     /* column: v = p' - q P' p' + q^2 P'^2 p' - q^3 P'^3 p' (K terms) */
     double c = 1.0;
@@ -459,22 +554,18 @@ static int vstar(sweep_t *s, work_t *w, const double *Pa, double *Vs)
 {
     int n = (int)s->n, N1 = n + 1, info;
     long nn1 = (long)n * N1;
-    double q = s->q, ss = 0.0;
-    #pragma omp simd reduction(+:ss)
-    for (long i = 0; i < nn1; i++) ss += Pa[i] * Pa[i];
+    double q = s->q;
+    v4d acc[4] = {{0}};                     /* 4 independent vector sums (the FMA latency) */
+    long i = 0;
+    for (; i + 16 <= nn1; i += 16)
+        for (int k = 0; k < 4; k++) { v4d v = ldv(Pa + i + 4 * k); acc[k] += v * v; }
+    v4d a4 = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    double ss = (a4[0] + a4[1]) + (a4[2] + a4[3]);
+    for (; i < nn1; i++) ss += Pa[i] * Pa[i];
     double sc = q * sqrt(ss);
     if (sc <= 1e-4) {
         int K = sc <= 1e-8 ? 1 : (sc <= pow(10.0, -16.0 / 3.0) ? 2 : 3);
-        if (n >= BIG) return vstar_series(s, w, Pa, Vs, K);
-        /* Horner: Y <- Pa - q P' Y, K times from Y = Pa */
-        const double *Y = Pa;
-        for (int k = 0; k < K; k++) {
-            double *Yn = (k == K - 1) ? Vs : ((k % 2 == 0) ? w->Y0 : w->Y1);
-            memcpy(Yn, Pa, sizeof(double) * nn1);
-            gemm_nn(n, n, N1, -q, Pa, N1, Y, N1, Yn, N1);
-            Y = Yn;
-        }
-        return 0;
+        return vstar_series(s, w, Pa, Vs, K);
     }
     /* (I + q P') V = [P' | p'] by Cholesky */
     double *E = w->E;
@@ -513,8 +604,7 @@ static void mul_sparse_C(const sweep_t *s, const double *Vs, double *G, double *
 {
     int n = (int)s->n, N1 = n + 1, K = (int)(s->m + s->n + 1);
     const int *start = s->iw, *rows = s->iw + K + 1;
-    for (int i = 0; i < n; i++)
-        for (int k = 0; k < N1; k++) VsT[(long)k * n + i] = Vs[(long)i * N1 + k];
+    transpose(n, N1, Vs, N1, VsT, n);
     zero(GT, K, n, n);
     for (int j = 0; j < K; j++) {
         double *gj = GT + (long)j * n;
@@ -525,8 +615,7 @@ static void mul_sparse_C(const sweep_t *s, const double *Vs, double *G, double *
             for (int i = 0; i < n; i++) gj[i] += c * vk[i];
         }
     }
-    for (int j = 0; j < K; j++)
-        for (int i = 0; i < n; i++) G[(long)i * K + j] = GT[(long)j * n + i];
+    transpose(K, n, GT, n, G, K);
 }
 
 /* out (cols c0..c1 of C)^T Y: out ((c1-c0) x ny, ld ldo) = C[:n, c0:c1]^T Y (Y: n x ny, ld ldy) */
@@ -557,7 +646,8 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
     int rc;
     if (!reuse) {
         const double *V1 = s->VA + (t + 1) * nn1, *R1 = s->RA + (t + 1) * nn1;
-        for (long i = 0; i < nn1; i++) w->Pa[i] = V1[i] + R1[i];
+        double *Pa = w->Pa;
+        for (long i = 0; i < nn1; i++) Pa[i] = V1[i] + R1[i];
         if ((rc = vstar(s, w, w->Pa, w->Vs)) != 0) return rc;
     }
     const double *Ct = s->C + t * s->C_s;
@@ -566,20 +656,10 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
         mul_sparse_C(s, w->Vs, G, w->E, w->GT);
         mul_sparse_CT(s, 0, m, G, K, K, FB, K);
         mul_sparse_CT(s, m, m + n, G + m, K, N1, FA, N1);
-    } else if (n >= BIG) {
-        /* G = Vs Ct (n x K): column-major G^T = Ct^T Vs^T */
-        dgemm_("N", "N", &K, &n, &N1, &ONE, Ct, &K, w->Vs, &N1, &ZERO, G, &K);
-        /* FB = B^T G (m x K): FB^T = G^T B */
-        dgemm_("N", "T", &K, &m, &n, &ONE, G, &K, Ct, &K, &ZERO, FB, &K);
-        /* FA = A^T G[:, m:] (n x (n+1)): FA^T = G[:, m:]^T A */
-        dgemm_("N", "T", &N1, &n, &n, &ONE, G + m, &K, Ct + m, &K, &ZERO, FA, &N1);
     } else {
-        zero(G, n, K, K);
-        gemm_nn(n, N1, K, 1.0, w->Vs, N1, Ct, K, G, K);
-        zero(FB, m, K, K);
-        gemm_tn(n, m, K, 1.0, Ct, K, G, K, FB, K);
-        zero(FA, n, N1, N1);
-        gemm_tn(n, n, N1, 1.0, Ct + m, K, G + m, K, FA, N1);
+        gemm_nn(n, N1, K, 1.0, w->Vs, N1, Ct, K, G, K, 1);         /* G = V* C */
+        gemm_tn(n, m, K, 1.0, Ct, K, G, K, FB, K, 1);               /* B^T G */
+        gemm_tn(n, n, N1, 1.0, Ct + m, K, G + m, K, FA, N1, 1);     /* A^T G[:, m:] */
     }
     const double *Ht = s->H + t * s->H_s, *ht = s->h + t * m;
     for (int i = 0; i < m; i++) {
@@ -592,26 +672,24 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
     double *Zt = s->Z + t * (long)m * N1;
     for (int i = 0; i < m; i++) memcpy(Zt + (long)i * N1, Kmat + (long)i * K, sizeof(double) * N1);
     solve_r(m, FB, K, Zt, N1, N1);
-    /* KK (upper) = Kmat[:, :n]^T Kmat[:, :n]; BLAS sees Kmat as Kmat^T */
-    if (n >= BIG) dsyrk_("L", "N", &n, &m, &ONE, Kmat, &K, &ZERO, KK, &n);
-    else {
-        for (int i = 0; i < n; i++) memset(KK + (long)i * n + i, 0, sizeof(double) * (n - i));
-        syrk_tn(m, n, 1.0, Kmat, K, KK, n);
-    }
+    /* KK (upper) = Kmat[:, :n]^T Kmat[:, :n] */
+    syrk_tn(m, n, 1.0, Kmat, K, KK, n, 1);
     for (int i = 0; i < n; i++) kc[i] = 0.0;
     for (int k = 0; k < m; k++) {
         const double *kk = Kmat + (long)k * K;
         double f = kk[n];
         for (int i = 0; i < n; i++) kc[i] += f * kk[i];
     }
-    double *out = s->VA + t * nn1;
+    /* row by row from FA^T and KK mirrored (contiguous, vectorized); (i, j) and (j, i) get the
+     * same bits (the sum commutes) */
+    double *out = s->VA + t * nn1, *FAT = w->Y0;
+    transpose(n, n, FA, N1, FAT, n);
+    mirror_upper(n, KK, n);
     for (int i = 0; i < n; i++) {
-        for (int j = i; j < n; j++) {
-            double v = 0.5 * (FA[(long)i * N1 + j] + FA[(long)j * N1 + i]) - KK[(long)i * n + j];
-            out[(long)i * N1 + j] = v;
-            out[(long)j * N1 + i] = v;
-        }
-        out[(long)i * N1 + n] = FA[(long)i * N1 + n] - kc[i];
+        double *oi = out + (long)i * N1;
+        const double *fi = FA + (long)i * N1, *gi = FAT + (long)i * n, *ki = KK + (long)i * n;
+        for (int j = 0; j < n; j++) oi[j] = 0.5 * (fi[j] + gi[j]) - ki[j];
+        oi[n] = fi[n] - kc[i];
     }
     return 0;
 }
@@ -789,3 +867,25 @@ void lti_rollout(long T, long n, long m, const double *A, const double *a, const
         }
     }
 }
+
+/* the dense kernels by themselves, for tests/test_kernels.py (row-major, numpy's layout) */
+int k_chol_u(long n, double *A, long ld) { return chol_u((int)n, A, (int)ld); }
+void k_solve_rt(long n, const double *R, long ld, double *B, long ldb, long c)
+{ solve_rt((int)n, R, (int)ld, B, (int)ldb, (int)c); }
+void k_solve_r(long n, const double *R, long ld, double *B, long ldb, long c)
+{ solve_r((int)n, R, (int)ld, B, (int)ldb, (int)c); }
+void k_spd_inverse(long n, const double *R, long ld, double *out, long ldo, double *Y)
+{ spd_inverse((int)n, R, (int)ld, out, (int)ldo, Y); }
+void k_gemm_nn(long a, long r, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+               double *C, long ldc)
+{ gemm_nn((int)a, (int)r, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
+void k_gemm_tn(long r, long a, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+               double *C, long ldc)
+{ gemm_tn((int)r, (int)a, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
+void k_syrk_tn(long r, long n, double alpha, const double *W, long ldw, double *C, long ldc, long set)
+{ syrk_tn((int)r, (int)n, alpha, W, (int)ldw, C, (int)ldc, (int)set); }
+void k_gemm_nn_set(long a, long r, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+                   double *C, long ldc)
+{ gemm_nn((int)a, (int)r, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 1); }
+void k_transpose(long rows, long cols, const double *src, long lds, double *dst, long ldd)
+{ transpose((int)rows, (int)cols, src, lds, dst, ldd); }
