@@ -94,9 +94,11 @@ static work_t layout(const sweep_t *s)
  * 4 x 8 block of the result kept in eight 4-wide vector accumulators over the whole inner
  * dimension, with 4 x 4 and 4 x (1..3) edge tiles. For the sweeps' sizes (n <= ~100: everything
  * in L1/L2) this beats OpenBLAS, whose calls cost 0.3-0.5 us each and whose small-size LAPACK
- * runs at level-2 speed (measured at n = 50, cycles per call, this box: Cholesky 12.8k -> 8.6k
- * (the previous rank-4 loops), SPD inverse 29k -> 16.7k, V* series (OpenBLAS syrk + gemm)
- * 53.6k -> 36.0k, syrk 50 x 25 (OpenBLAS) 10.3k -> 5.3k). The vectors are GCC vector extensions:
+ * runs at level-2 speed. Measured at n = 50, cycles per call, hot cache, best of 2000, this box:
+ * Cholesky 12.8k -> 8.6k (the previous rank-4 loops), SPD inverse 29k -> 16.7k, V* series
+ * (OpenBLAS syrk + gemm) 53.6k -> 36.0k, syrk 50 x 25 (OpenBLAS) 10.3k -> 5.3k; in the sweeps,
+ * where each step's messages come from memory, the gain is smaller: the Nao balancing run (25
+ * iterations) took 0.76-0.81x the previous kernel's time, interleaved A/B. The vectors are GCC vector extensions:
  * with -mavx2 -mfma one ymm register each, without them the compiler splits them.
  * A Cholesky factor R is upper, row-major, A = R^T R; only A's upper triangle is read. */
 typedef double v4d __attribute__((vector_size(32)));
