@@ -229,6 +229,8 @@ class ViaPoint(StateTerm):
             lxx[:, :n_q, :n_q] += H
         else:
             rows = np.flatnonzero(m)
+            if rows[-1] - rows[0] + 1 == rows.size:   # one run of steps: views, no gathers
+                rows = slice(int(rows[0]), int(rows[-1]) + 1)
             g, H, n_q = self._q_blocks(X[rows])
             lx[rows, :n_q] += g
             lxx[rows, :n_q, :n_q] += H

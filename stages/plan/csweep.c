@@ -239,6 +239,59 @@ static void upd(int R, int Cn, int kb, int ke, int flags, const double *X, long 
     }
 }
 
+/* Rows i0..i0+3 of B (ld ldb), columns c0..c1-1 <- R_d^-T times them, R_d = R[i0:i0+4, i0:i0+4]
+ * (upper; inv: the inverses of its diagonal): forward substitution in one pass over the columns,
+ * 4 at a time in vectors (the same operations, in the same order, as row by row) */
+static void block4_rt(const double *R, int ld, int i0, const double *inv, double *B, long ldb, int c0, int c1)
+{
+    const double *r0 = R + (long)i0 * ld + i0, *r1 = r0 + ld, *r2 = r1 + ld;
+    double a01 = r0[1], a02 = r0[2], a03 = r0[3], a12 = r1[2], a13 = r1[3], a23 = r2[3];
+    double *b0 = B + (long)i0 * ldb, *b1 = b0 + ldb, *b2 = b1 + ldb, *b3 = b2 + ldb;
+    int j = c0;
+    for (; j + 4 <= c1; j += 4) {
+        v4d x0 = ldv(b0 + j) * inv[0];
+        v4d x1 = (ldv(b1 + j) - a01 * x0) * inv[1];
+        v4d x2 = (ldv(b2 + j) - a02 * x0 - a12 * x1) * inv[2];
+        v4d x3 = (ldv(b3 + j) - a03 * x0 - a13 * x1 - a23 * x2) * inv[3];
+        stv(b0 + j, x0); stv(b1 + j, x1); stv(b2 + j, x2); stv(b3 + j, x3);
+    }
+    for (; j < c1; j++) {
+        double x0 = b0[j] * inv[0];
+        double x1 = (b1[j] - a01 * x0) * inv[1];
+        double x2 = (b2[j] - a02 * x0 - a12 * x1) * inv[2];
+        double x3 = (b3[j] - a03 * x0 - a13 * x1 - a23 * x2) * inv[3];
+        b0[j] = x0; b1[j] = x1; b2[j] = x2; b3[j] = x3;
+    }
+}
+
+/* the same for R_d^-1 (backward substitution, rows from the bottom) */
+static void block4_r(const double *R, int ld, int i0, const double *inv, double *B, long ldb, int c0, int c1)
+{
+    const double *r0 = R + (long)i0 * ld + i0, *r1 = r0 + ld, *r2 = r1 + ld;
+    double a01 = r0[1], a02 = r0[2], a03 = r0[3], a12 = r1[2], a13 = r1[3], a23 = r2[3];
+    double *b0 = B + (long)i0 * ldb, *b1 = b0 + ldb, *b2 = b1 + ldb, *b3 = b2 + ldb;
+    int j = c0;
+    for (; j + 4 <= c1; j += 4) {
+        v4d x3 = ldv(b3 + j) * inv[3];
+        v4d x2 = (ldv(b2 + j) - a23 * x3) * inv[2];
+        v4d x1 = (ldv(b1 + j) - a12 * x2 - a13 * x3) * inv[1];
+        v4d x0 = (ldv(b0 + j) - a01 * x1 - a02 * x2 - a03 * x3) * inv[0];
+        stv(b0 + j, x0); stv(b1 + j, x1); stv(b2 + j, x2); stv(b3 + j, x3);
+    }
+    for (; j < c1; j++) {
+        double x3 = b3[j] * inv[3];
+        double x2 = (b2[j] - a23 * x3) * inv[2];
+        double x1 = (b1[j] - a12 * x2 - a13 * x3) * inv[1];
+        double x0 = (b0[j] - a01 * x1 - a02 * x2 - a03 * x3) * inv[0];
+        b0[j] = x0; b1[j] = x1; b2[j] = x2; b3[j] = x3;
+    }
+}
+
+static inline void diag4_inv(const double *R, int ld, int i0, double *inv)
+{
+    for (int k = 0; k < 4; k++) inv[k] = 1.0 / R[(long)(i0 + k) * ld + i0 + k];
+}
+
 /* A = R^T R in place (R upper), left-looking in blocks of 4 rows: the block's rows get the update
  * from all rows above at once (upd), then the block is factored. Returns 0 or the (1-based) row
  * where A is not positive definite. Only A's upper triangle is read; the strictly lower entries
@@ -249,19 +302,26 @@ static int chol_u(int n, double *A, int ld)
         int nb = n - i0 < 4 ? n - i0 : 4;
         double *ri0 = A + (long)i0 * ld;
         if (i0) upd(nb, n - i0, 0, i0, 0, A + i0, 1, ld, A + i0, ld, ri0 + i0, ld, -1.0);
-        for (int i = i0; i < i0 + nb; i++) {
+        /* the 4 x 4 diagonal block, then its rows right of it in one pass (block4_rt) */
+        int ie = nb == 4 ? i0 + 4 : n;
+        for (int i = i0; i < ie; i++) {
             double *ri = A + (long)i * ld;
             for (int p = i0; p < i; p++) {
                 const double *rp = A + (long)p * ld;
                 double f = rp[i];
-                for (int j = i; j < n; j++) ri[j] -= f * rp[j];
+                for (int j = i; j < (nb == 4 ? ie : n); j++) ri[j] -= f * rp[j];
             }
             double d = ri[i];
             if (!(d > 0.0)) return i + 1;
             d = sqrt(d);
             ri[i] = d;
             double inv = 1.0 / d;
-            for (int j = i + 1; j < n; j++) ri[j] *= inv;
+            for (int j = i + 1; j < (nb == 4 ? ie : n); j++) ri[j] *= inv;
+        }
+        if (nb == 4 && ie < n) {
+            double inv[4];
+            diag4_inv(A, ld, i0, inv);
+            block4_rt(A, ld, i0, inv, A, ld, ie, n);
         }
     }
     return 0;
@@ -273,6 +333,12 @@ static void solve_rt(int n, const double *R, int ld, double *B, int ldb, int c)
     for (int i0 = 0; i0 < n; i0 += 4) {
         int nb = n - i0 < 4 ? n - i0 : 4;
         if (i0) upd(nb, c, 0, i0, 0, R + i0, 1, ld, B, ldb, B + (long)i0 * ldb, ldb, -1.0);
+        if (nb == 4) {
+            double inv[4];
+            diag4_inv(R, ld, i0, inv);
+            block4_rt(R, ld, i0, inv, B, ldb, 0, c);
+            continue;
+        }
         for (int i = i0; i < i0 + nb; i++) {
             double *bi = B + (long)i * ldb;
             for (int p = i0; p < i; p++) {
@@ -292,6 +358,12 @@ static void solve_r(int n, const double *R, int ld, double *B, int ldb, int c)
     for (int i0 = (n - 1) & ~3; i0 >= 0; i0 -= 4) {
         int ie = n - i0 < 4 ? n : i0 + 4;
         if (ie < n) upd(ie - i0, c, ie, n, 0, R + (long)i0 * ld, ld, 1, B, ldb, B + (long)i0 * ldb, ldb, -1.0);
+        if (ie - i0 == 4) {
+            double inv[4];
+            diag4_inv(R, ld, i0, inv);
+            block4_r(R, ld, i0, inv, B, ldb, 0, c);
+            continue;
+        }
         for (int i = ie - 1; i >= i0; i--) {
             double *bi = B + (long)i * ldb;
             const double *ri = R + (long)i * ld;
@@ -398,6 +470,13 @@ static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, do
         int nb = n - i0 < 4 ? n - i0 : 4;
         /* rows i0.. from the rows above: only columns < i0 (Y[p][j] = 0 for j > p); set, not added */
         if (i0) upd(nb, i0, 0, i0, UP_KCOL | UP_SET, R + i0, 1, ld, Y, n, Y + (long)i0 * n, n, -1.0);
+        int j0 = 0;                 /* columns < j0 done by block4_rt */
+        if (nb == 4 && i0) {
+            double inv[4];
+            diag4_inv(R, ld, i0, inv);
+            block4_rt(R, ld, i0, inv, Y, n, 0, i0);
+            j0 = i0;
+        }
         for (int i = i0; i < i0 + nb; i++) {
             double *yi = Y + (long)i * n;
             /* columns i0..: the unit row, zero up to 7 past the diagonal (the tiles read that far) */
@@ -407,10 +486,10 @@ static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, do
             for (int p = i0; p < i; p++) {
                 const double *yp = Y + (long)p * n;
                 double f = R[(long)p * ld + i];
-                for (int j = 0; j <= p; j++) yi[j] -= f * yp[j];
+                for (int j = j0; j <= p; j++) yi[j] -= f * yp[j];
             }
             double inv = 1.0 / R[(long)i * ld + i];
-            for (int j = 0; j <= i; j++) yi[j] *= inv;
+            for (int j = j0; j <= i; j++) yi[j] *= inv;
         }
     }
     upd(n, n, 0, n, UP_KCOL | UP_KROW | UP_UPPER | UP_SET, Y, 1, n, Y, n, out, ldo, 1.0);
