@@ -679,20 +679,23 @@ static int sparse_ready(sweep_t *s)
 }
 
 /* G (n x K, row-major) = Vs (n x (n+1)) C, C sparse: column j of G is the sum over the nonzeros
- * C[k][j] of C[k][j] times column k of Vs; columns of Vs are rows of Vs^T, so G^T is built by row
- * updates (vectorized) from Vs^T and transposed back. VsT: (n+1) x n work, GT: K x n work. */
+ * C[k][j] of C[k][j] times column k of Vs, so G^T is built by row updates (vectorized) and
+ * transposed back. VsT: n work (column n of Vs), GT: K x n work. */
 static void mul_sparse_C(const sweep_t *s, const double *Vs, double *G, double *VsT, double *GT)
 {
     int n = (int)s->n, N1 = n + 1, K = (int)(s->m + s->n + 1);
     const int *start = s->iw, *rows = s->iw + K + 1;
-    transpose(n, N1, Vs, N1, VsT, n);
+    /* column k < n of Vs is its row k (V* symmetric: mirrored by the series, to rounding by the
+     * Cholesky route); column n (V* m') gathered once */
+    double *vn = VsT;
+    for (int i = 0; i < n; i++) vn[i] = Vs[(long)i * N1 + n];
     zero(GT, K, n, n);
     for (int j = 0; j < K; j++) {
         double *gj = GT + (long)j * n;
         for (int p = start[j]; p < start[j + 1]; p++) {
             int k = rows[p];
             double c = s->C[(long)k * K + j];
-            const double *vk = VsT + (long)k * n;
+            const double *vk = k < n ? Vs + (long)k * N1 : vn;
             for (int i = 0; i < n; i++) gj[i] += c * vk[i];
         }
     }
@@ -838,12 +841,15 @@ static int relin_task(sweep_t *s, work_t *w, long t)
     double *lx = w->lx, *lxx = w->lxx, *out = s->RA + t * n * N1, sum = 0.0, a2 = 2.0 * s->alpha;
     ((task_t)s->task_fn)(s->task_ctx, t, x, lx, lxx);
     for (long i = 0; i < n; i++) {
-        double v = 0.0;
+        const double *li = lxx + i * n;
+        double *oi = out + i * N1, v = 0.0;
+        #pragma omp simd reduction(+:v)
         for (long j = 0; j < n; j++) {
-            out[i * N1 + j] = lxx[i * n + j] + (i == j ? a2 : 0.0);
-            v += lxx[i * n + j] * x[j];
+            oi[j] = li[j];
+            v += li[j] * x[j];
         }
-        out[i * N1 + n] = v - lx[i] + a2 * xp[i];
+        oi[i] += a2;
+        oi[n] = v - lx[i] + a2 * xp[i];
     }
     #pragma omp simd reduction(+:sum)
     for (long i = 0; i < n * N1; i++) sum += out[i];
