@@ -61,7 +61,12 @@ def _assert_same(a, b, rtol: float = 1e-9):
     ("pendulums", True, dict(alpha=0.5, gamma=0.8, iterations=3, theta=0.02)),
     ("pendulums", False, dict(alpha=1.0, iterations=3, theta=math.inf)),  # backward sweep only
     ("pseudo", False, dict(alpha=1.0, iterations=4, theta=0.02)),         # LTI: sparse shared C
-], ids=["python-dynamics", "limits", "theta-inf", "lti"])
+    # V*: Cholesky (large q), Cholesky and 3-term series mixed, 1-term series (tiny q); the
+    # default q gives the 2- and 3-term series
+    ("pendulums", False, dict(alpha=1.0, iterations=3, process_noise=1e-2)),
+    ("pseudo", False, dict(alpha=1.0, iterations=3, theta=0.02, process_noise=1e-7)),
+    ("pendulums", False, dict(alpha=1.0, iterations=3, process_noise=1e-14)),
+], ids=["python-dynamics", "limits", "theta-inf", "lti", "vstar-cholesky", "vstar-mixed", "vstar-one-term"])
 def test_compiled_sweeps_equal_numpy_sweeps(dynamics, limits, opts, monkeypatch):
     a, b = _both(lambda: make_problem(dynamics, limits), AICOOptions(tol_rel=0.0, **opts), monkeypatch)
     _assert_same(a, b)
