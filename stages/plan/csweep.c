@@ -70,7 +70,7 @@ static work_t layout(const sweep_t *s)
     w.Y0 = p; p += n * N1;
     w.Y1 = p; p += n * N1;
     w.FA = p; p += n * N1;
-    w.E = p; p += 2 * n * N1;   /* I + q P' (vstar), V*^T (mul_sparse_C); 2nd half: Ad */
+    w.E = p; p += 2 * n * N1;   /* I + q P' (vstar), column n of V* (mul_sparse_C); 2nd half: Ad */
     w.W = p; p += n * n;
     w.S = p; p += n * n;
     w.G = p; p += n * K;
