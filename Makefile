@@ -22,6 +22,8 @@ $(STAMP): pyproject.toml | $(KERNEL)
 # C is built on first use into ~/.cache/raico/kernels). Without gcc the numpy sweeps run.
 kernels: $(KERNEL)
 
+# The flags are stages/plan/kernels.py's FLAGS (that list builds the kernel when this target has not
+# run); they are spelled out here because this target runs before the venv exists.
 $(KERNEL): stages/plan/csweep.c
 	@mkdir -p build
 	gcc -O3 -fPIC -shared -fno-fast-math -ffp-contract=fast -fopenmp-simd -fno-strict-aliasing \

@@ -7,12 +7,18 @@ from pipeline.cache import Cache
 from pipeline.runner import run_stage, source_version
 
 
-def test_source_version_follows_the_source(tmp_path, monkeypatch):
-    pkg = tmp_path / "fakestage"
+def _package(tmp_path, monkeypatch, name: str, files: dict[str, str]):
+    """A package ``name`` with ``files`` (name -> text) importable from ``tmp_path``."""
+    pkg = tmp_path / name
     pkg.mkdir()
-    (pkg / "__init__.py").write_text("X = 1\n")
-    (pkg / "model.urdf").write_text("<robot/>")
+    for fname, text in files.items():
+        (pkg / fname).write_text(text)
     monkeypatch.syspath_prepend(str(tmp_path))
+    return pkg
+
+
+def test_source_version_follows_the_source(tmp_path, monkeypatch):
+    pkg = _package(tmp_path, monkeypatch, "fakestage", {"__init__.py": "X = 1\n", "model.urdf": "<robot/>"})
     v1 = source_version("s-1", "fakestage")
 
     def expected(files):  # sha256 over (relative path, content) of the sources, in path order
@@ -35,11 +41,8 @@ def test_source_version_follows_the_source(tmp_path, monkeypatch):
 def test_source_version_follows_a_compiled_kernel(tmp_path, monkeypatch):
     """A C kernel shipped in a stage's package (stages/plan/csweep.c) is code: editing it
     invalidates the cache like editing the Python."""
-    pkg = tmp_path / "fakekernel"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("X = 1\n")
-    (pkg / "sweep.c").write_text("int f(void) { return 1; }\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
+    pkg = _package(tmp_path, monkeypatch, "fakekernel",
+                   {"__init__.py": "X = 1\n", "sweep.c": "int f(void) { return 1; }\n"})
     v1 = source_version("s-1", "fakekernel")
     (pkg / "sweep.c").write_text("int f(void) { return 2; }\n")
     assert source_version("s-1", "fakekernel") != v1
