@@ -28,11 +28,28 @@ def _learn_version() -> str:
     return runner.source_version("learn", "pipeline.learn", "stages.learn")
 
 
-def episode_measurements(cfg, robot, fit: Outcome, plan: Outcome, execution: Outcome, cache: Cache) -> dict:
-    """One episode's numbers: GP error on the executed motion, planned-vs-executed RMSE, task
-    error, whether the task was achieved in execution, wall times, training points."""
+def heldout_set(cache: Cache, heldout: Outcome) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The held-out babbling's ``X (K, n_x)``, ``tau (K, n_q)``, ``qddot (K, n_q)``."""
+    from stages.fit.stage import babble_segments
+
+    _, segs = babble_segments(as_artifact(cache.require("babble", heldout.key)))
+    XU = np.vstack([s.X for s in segs])
+    Y = np.vstack([s.Y for s in segs])
+    n = Y.shape[1]
+    if len(Y) == 0:
+        raise ValueError("the held-out babbling holds no finite point")
+    return XU[:, :2 * n], XU[:, 2 * n:], Y
+
+
+def episode_measurements(cfg, robot, fit: Outcome, plan: Outcome, execution: Outcome, cache: Cache,
+                         heldout: tuple | None = None) -> dict:
+    """One episode's numbers: GP error on the executed motion (a true prediction: the episode's
+    data join only the next fit) and on the fixed held-out babbling, per joint and normalized;
+    planned-vs-executed RMSE, task error planned and executed, whether the task was achieved in
+    execution, how much of the execution may join the data, wall times, training points."""
     from plants.gp import GPModel
-    from stages.learn import gp_prediction_error, task_error, true_accelerations
+    from stages.fit.stage import usable_steps
+    from stages.learn import gp_joint_errors, gp_prediction_error, task_error, true_accelerations
 
     fit_art = as_artifact(cache.require("fit", fit.key))
     model = GPModel.from_arrays(fit_art.arrays("model.npz"))
@@ -50,12 +67,23 @@ def episode_measurements(cfg, robot, fit: Outcome, plan: Outcome, execution: Out
     if cfg.plant == "pendulum":  # SPEC/issue: within 0.1 rad of upright at the end, on the Drake plant
         q_end = roll["X"][-1, 0]
         err = float(abs((q_end - np.pi + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")
-    return {"gp_error": gp_prediction_error(model, X, tau, qdd),
+    per_joint, per_joint_n = gp_joint_errors(model, X, tau, qdd)
+    held = {}
+    if heldout is not None:
+        hj, hn = gp_joint_errors(model, *heldout)
+        held = {"gp_error_heldout": gp_prediction_error(model, *heldout), "gp_error_heldout_joint": hj,
+                "gp_nrmse_heldout_joint": hn}
+    exec_art = as_artifact(cache.require("execute", execution.key))
+    data_steps = usable_steps(exec_art, dt, K)
+    return {"gp_error": gp_prediction_error(model, X, tau, qdd), "gp_error_joint": per_joint,
+            "gp_nrmse_joint": per_joint_n, **held,
+            "data_steps": int(data_steps), "data_truncated": bool(data_steps < K),
             "rmse_planned_executed": em.get("rmse_planned_executed"),
             "task_error": err, "achieved": bool(execution.status not in ("diverged", "fell") and err <= ACHIEVED_TOL[cfg.plant == "pendulum"]),
             "execution_status": execution.status, "plan_status": plan.status,
             "planned_task_error": task_error(pm.get("via_point_errors") or {}),
             "fit_time_s": fit.metrics.get("fit_time_s"), "plan_time_s": pm.get("wall_time_s"),
+            "execute_time_s": (cache.require("execute", execution.key).meta.get("timings") or {}).get("compute_s"),
             "n_points": fit.metrics.get("n_points"), "optimized": fit.metrics.get("optimized"),
             "executed_seconds": float(K * dt), "final_cost": pm.get("final_cost"),
             "fit": fit.key, "plan": plan.key, "execute": execution.key}
@@ -82,7 +110,7 @@ def lookup(cache: Cache, cfg, *, record: bool = True) -> Outcome | None:
     """The loop's outcome if it is cached (with its recording, if ``record``), else None."""
     from pipeline.recorders import RECORDING
 
-    _, _, key = learn_key(cfg)
+    _, _, key = learn_key(cfg.resolved())
     entry = cache.lookup("learn", key)
     if entry is None or (record and RECORDING not in cache.derived(entry)):
         return None
@@ -102,12 +130,14 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
 
     reporter = reporter or Reporter(quiet=True)
     cfg.validate()
+    cfg = cfg.resolved()
     robot = shared_robot(cfg.plant)
     key_config, version, _ = learn_key(cfg)
 
     def compute(tmp: Path) -> dict[str, Any]:
         t0 = time.perf_counter()
         babble = runner.run(cache, "babble", cfg.babble_config(), record=False)
+        held_out = heldout_set(cache, runner.run(cache, "babble", cfg.heldout_babble_config(), record=False))
         data, prior, warm = [f"babble/{babble.key}"], None, None
         episodes = []
         for k in range(1, cfg.episodes + 1):
@@ -119,9 +149,10 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
                               record=False)
             execution = runner.run(cache, "execute", ExecuteConfig(plan=f"plan/{plan.key}", seed=cfg.seed),
                                    record=False)
-            m = episode_measurements(cfg, robot, fit, plan, execution, cache)
+            m = episode_measurements(cfg, robot, fit, plan, execution, cache, held_out)
             episodes.append({"episode": k, **m})
-            reporter.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} rad/s^2, "
+            reporter.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} rad/s^2 "
+                         f"(held-out {m['gp_error_heldout']:.3g}), "
                          f"task error {m['task_error']:.3g}, RMSE {m['rmse_planned_executed']:.3g} "
                          f"[{execution.status}] ({'cached' if plan.cached and fit.cached else 'ran'})")
             if progress:
@@ -143,9 +174,12 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
 
 def summary(episodes: list[dict], wall: float) -> dict:
     """The ``--json`` metrics: per-episode lists and the first success."""
-    keys = ("gp_error", "rmse_planned_executed", "task_error", "achieved", "fit_time_s", "plan_time_s",
-            "n_points", "optimized", "execution_status", "executed_seconds")
-    out: dict[str, Any] = {k: [e[k] for e in episodes] for k in keys}
+    keys = ("gp_error", "gp_error_heldout", "gp_nrmse_joint", "gp_nrmse_heldout_joint", "rmse_planned_executed",
+            "task_error", "planned_task_error", "achieved", "fit_time_s", "plan_time_s", "execute_time_s",
+            "n_points", "optimized", "execution_status", "executed_seconds", "data_steps", "data_truncated")
+    out: dict[str, Any] = {k: [e.get(k) for e in episodes] for k in keys}
+    out["episodes_feeding_data"] = sum(1 for e in episodes if e.get("data_steps", 0) > 0)
+    out["episodes_truncated"] = sum(1 for e in episodes if e.get("data_truncated"))
     first = next((e["episode"] for e in episodes if e["achieved"]), None)
     out["first_success_episode"] = first
     out["episodes"] = len(episodes)
@@ -162,12 +196,45 @@ def _ensure_learn_recording(cache: Cache, out: Outcome, robot) -> str | None:
     return str(entry.path / RECORDING)
 
 
+LEARN_VIEWS = {  # view name -> entity root (the learn recording's plots, one quantity and unit each)
+    "GP error on the next execution, log10 (rad/s^2)": "gp_error_log10",
+    "GP error on held-out babbling, log10 (rad/s^2)": "gp_error_heldout_log10",
+    "distance to the target (m)": "distance",
+    "time per evaluation (s)": "time",
+    "training points": "points",
+    "largest |torque| per joint this episode (N m; bars in joint order)": "episode/torque",
+    "GP variance along the execution (of the data's)": "variance",
+}
+
+
+def learn_blueprint(eye):
+    """The learn recording's layout: the robot (framed on the last plan's motion) beside one view per
+    quantity, on the ``episode`` timeline (log10 where the values span decades)."""
+    import rerun.blueprint as rrb
+
+    from pipeline import recording as rec_mod
+
+    names = list(LEARN_VIEWS)
+    v = {name: rrb.TimeSeriesView(origin=f"/{root}", name=name) for name, root in LEARN_VIEWS.items()
+         if root != "episode/torque"}
+    bars = rrb.BarChartView(origin="/episode/torque", name=names[5])
+    gp = rrb.Tabs(v[names[0]], v[names[1]], name="GP error", active_tab=0)
+    other = rrb.Tabs(v[names[4]], v[names[6]], name="data", active_tab=0)
+    return rec_mod.stage_blueprint(eye, [gp, v[names[2]], v[names[3]], other], [bars], timeline="episode",
+                                   robot_share=2.5, play_state="following")
+
+
 def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
-    """Per episode on the ``episode`` timeline: the errors, times and training points; the robot at
-    the episode's executed final pose (the last finite state of the execution; the plan's final
-    pose if none is finite), the planned and executed end-effector paths (logged on ``episode``,
-    so each episode shows its own) and the GP's predicted variance along the executed motion."""
+    """Per episode on the ``episode`` timeline (the file opens on it, at the last episode): the GP
+    error per joint on the next execution and on the held-out babbling (log10), the distance to the
+    target executed and planned, the time per evaluation (fit, plan, execute), the training points,
+    the largest torque per joint and the GP's variance along the execution; in 3D the robot at the
+    episode's executed final pose (the last finite state; the plan's final pose if none is finite),
+    that episode's planned (blue) and executed (orange) end-effector paths (each episode replaces
+    the last) and the target. The camera frames the last episode's planned motion."""
     import json
+
+    import rerun as rr
 
     from pipeline import recording as rec_mod
     from plants.gp import GPModel
@@ -176,21 +243,40 @@ def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
     doc = json.loads((entry.path / EPISODES_FILE).read_text())
     eps = doc["episodes"]
     k = np.array([e["episode"] for e in eps])
+    n = robot.n_q
     ee = EndEffectorPosition(robot, "ee") if robot.plant.HasFrameNamed("ee") else None
+    last_plan = as_artifact(cache.require("plan", eps[-1]["plan"])).arrays("plan.npz")
+    eye = rec_mod.robot_eye(robot, last_plan["X"][:, :n])
     with rec_mod.Recording(folder / "recording.rrd", properties={"stage": "learn", "key": entry.key,
                                                                  **doc["config"]},
                            name=f"learn {doc['config']['plant']} {doc['config']['task']}",
-                           time_series=["learn", "variance"], eye=rec_mod.robot_eye(robot)) as rec:
+                           blueprint=learn_blueprint(eye)) as rec:
         rec_mod.log_robot_geometry(rec, robot)
-        for name in ("gp_error", "rmse_planned_executed", "task_error", "fit_time_s", "plan_time_s", "n_points"):
-            vals = np.array([np.nan if e[name] is None else float(e[name]) for e in eps])
-            rec_mod.log_scalars(rec, f"learn/{name}", "episode", k, vals)
+        joints = [rec_mod.entity_name(j) for j in robot.joint_names]
+
+        def series(key: str) -> np.ndarray:
+            return np.array([np.nan if e.get(key) is None else float(e[key]) for e in eps])
+
+        def per_joint(key: str) -> np.ndarray:
+            return np.array([e.get(key) or [np.nan] * n for e in eps], float).reshape(len(eps), n)
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rec_mod.log_scalars(rec, "gp_error_log10", "episode", k, np.log10(per_joint("gp_error_joint")), joints)
+            rec_mod.log_scalars(rec, "gp_error_heldout_log10", "episode", k,
+                                np.log10(per_joint("gp_error_heldout_joint")), joints)
+        for name, key in (("executed", "task_error"), ("planned", "planned_task_error")):
+            rec_mod.log_scalars(rec, f"distance/{name}", "episode", k, series(key))
+        for name in ("fit", "plan", "execute"):
+            rec_mod.log_scalars(rec, f"time/{name}", "episode", k, series(f"{name}_time_s"))
+        rec_mod.log_scalars(rec, "points/training", "episode", k, series("n_points"))
+        stride = int(doc["config"].get("stride") or 1)
+        rec_mod.log_scalars(rec, "points/added_from_this_execution", "episode", k, np.ceil(series("data_steps") / stride))
         stream = rec.rec
+        target = None
         for e in eps:
             plan = as_artifact(cache.require("plan", e["plan"])).arrays("plan.npz")
             roll = as_artifact(cache.require("execute", e["execute"])).arrays("rollout.npz")
             model = GPModel.from_arrays(as_artifact(cache.require("fit", e["fit"])).arrays("model.npz"))
-            n = robot.n_q
             stream.set_time("episode", sequence=int(e["episode"]))
             Xe = roll["X"]
             ok = np.all(np.isfinite(Xe), axis=1)
@@ -204,10 +290,25 @@ def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
                         pts, _ = ee.values_and_jacobians(X[good, :n])
                         rec_mod.log_points_path(rec, f"world/paths/{label}", pts, color=color, radius=0.004,
                                                 static=False)
+            tau = np.abs(np.asarray(roll["tau"], float))
+            tau = tau[np.all(np.isfinite(tau), axis=1)]
+            stream.log("episode/torque", rr.BarChart(tau.max(axis=0) if len(tau) else np.zeros(n)))
             K = min(len(roll["tau"]), int(ok[:-1].sum()))
             if K:
                 _, var = model.predict(np.hstack([Xe[:K], roll["tau"][:K]]))
                 var = var / np.asarray(model.y_std) ** 2
-                for j, name in enumerate(robot.joint_names):
-                    stream.log(f"variance/{rec_mod.entity_name(name)}",
-                               __import__("rerun").Scalars(float(np.mean(var[:, j]))))
+                for j, name in enumerate(joints):
+                    stream.log(f"variance/{name}", rr.Scalars(float(np.mean(var[:, j]))))
+            if target is None and ee is not None:
+                target = _task_target(cache, e["plan"])
+        if target is not None:
+            stream.log("world/target", rr.Points3D([target], colors=[(40, 200, 80)], radii=[0.02]), static=True)
+
+
+def _task_target(cache: Cache, plan_key: str) -> np.ndarray | None:
+    """The end-effector via-point target (m) of a plan's task, if its objective has one."""
+    doc = as_artifact(cache.require("plan", plan_key)).document("problem.json")
+    for t in doc.get("objective", doc.get("terms", [])):
+        if t.get("term") == "via" and len(t.get("target", [])) == 3:
+            return np.asarray(t["target"], float)
+    return None

@@ -134,11 +134,12 @@ def stage_blueprint(
     timeline: str | None = "sim_time",
     plot_shares: Sequence[float] | None = None,
     robot_share: float = 3.0,
+    play_state: str = "paused",
 ) -> rrb.Blueprint:
     """The ``robot`` 3D view (``eye``: its camera, see :func:`robot_eye`) above ``below_robot``
     (each 1 share against ``robot_share``) on the left (3/5 of the width), ``plots`` stacked on the
     right (``plot_shares``: their heights); the time panel collapsed on ``timeline`` (None: the
-    viewer picks one), the other panels collapsed."""
+    viewer picks one; ``play_state`` "following" opens at its last time), the other panels collapsed."""
     left: ViewLike = _robot_view(eye)
     if below_robot:
         left = rrb.Vertical(left, *below_robot, row_shares=[robot_share, *[1.0] * len(below_robot)])
@@ -149,7 +150,7 @@ def stage_blueprint(
     else:
         parts.append(left)
     if timeline is not None:
-        parts.append(rrb.TimePanel(state="collapsed", timeline=timeline, play_state="paused"))
+        parts.append(rrb.TimePanel(state="collapsed", timeline=timeline, play_state=play_state))
     return rrb.Blueprint(*parts, collapse_panels=True)
 
 

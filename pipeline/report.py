@@ -551,8 +551,9 @@ def summary_table(exp: Experiment, plans: list[dict], cache: Cache | None = None
 
 
 def markdown_claims(rows: list[dict]) -> str:
-    out = ["| figure | thesis claim | criterion | measured | verdict |", "|---|---|---|---|---|"]
-    out += [f"| {r['figure']} | {r['claim']} | {r['criterion']} | {r['measured']} | **{r['verdict']}** |" for r in rows]
+    out = ["| figure | claim | the thesis says | criterion | measured | verdict |", "|---|---|---|---|---|---|"]
+    out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
+            f"**{r['verdict']}** |" for r in rows]
     return "\n".join(out)
 
 
@@ -707,11 +708,16 @@ def folder_name(fid: str) -> str:
     return fid.replace("/", "-")
 
 
-def _learn_panel(ax, S: dict, labels: list[str], key: str, ylabel: str) -> None:
-    for lab in labels:
-        curve = np.array(S[lab][f"{key}_curve"], float)
+def _learn_panel(ax, S: dict, labels: list[str], key: str, ylabel: str, band: bool = False, tag: str = "",
+                 style: str = "-") -> None:
+    for i, lab in enumerate(labels):
+        curve = np.array(S[lab].get(f"{key}_curve", []), float)
         if curve.size:
-            ax.plot(np.arange(1, curve.size + 1), curve, marker=".", label=f"{lab} (n={S[lab]['runs']})")
+            x = np.arange(1, curve.size + 1)
+            line, = ax.plot(x, curve, style, marker=".", color=f"C{i}", label=f"{lab}{tag} (n={S[lab]['runs']})")
+            lohi = np.array(S[lab].get(f"{key}_band", []), float)
+            if band and lohi.shape == (curve.size, 2):
+                ax.fill_between(x, lohi[:, 0], lohi[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
     ax.set_yscale("log")
     ax.set_xlabel("episode")
     ax.set_ylabel(ylabel)
@@ -737,14 +743,22 @@ def write_learn_figure(exp, S: dict, path: Path) -> None:
             axes[r, 0].set_title(f"({'AC'[r]}) GP error, {title}", fontsize=9)
             axes[r, 1].set_title(f"({'BD'[r]}) task RMSE, {title}", fontsize=9)
     else:
-        fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), squeeze=False)
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), squeeze=False)
         labels = list(S)
-        _learn_panel(axes[0, 0], S, labels, "gp_error", "GP prediction error (rad/s^2, RMSE)")
-        axes[0, 0].set_title("(B) GP prediction error per evaluation", fontsize=9)
-        _learn_panel(axes[0, 1], S, labels, "fit_time_s", "fit time (s)")
-        axes[0, 1].set_title("(C) fit time per evaluation", fontsize=9)
-        _learn_panel(axes[0, 2], S, labels, "task_error", "largest via-point error, executed (m)")
-        axes[0, 2].set_title("(D) task error of the executed motion", fontsize=9)
+        _learn_panel(axes[0, 0], S, labels, "gp_error", "GP prediction error (rad/s^2, RMSE)", band=True,
+                     tag=": next execution")
+        _learn_panel(axes[0, 0], S, labels, "gp_error_heldout", "GP prediction error (rad/s^2, RMSE)", tag=": held-out",
+                     style="--")
+        axes[0, 0].set_title("(B) GP error on the next execution (band: seeds) and held-out babbling", fontsize=9)
+        _learn_panel(axes[0, 1], S, labels, "fit_time_s", "time per evaluation (s)", band=True, tag=": fit")
+        _learn_panel(axes[0, 1], S, labels, "plan_time_s", "time per evaluation (s)", tag=": plan", style="--")
+        _learn_panel(axes[0, 1], S, labels, "execute_time_s", "time per evaluation (s)", tag=": execute", style=":")
+        axes[0, 1].set_title("(C) time per evaluation: fit, plan, execute", fontsize=9)
+        _learn_panel(axes[0, 2], S, labels, "task_error", "distance to the target (m)", band=True, tag=": executed")
+        _learn_panel(axes[0, 2], S, labels, "planned_task_error", "distance to the target (m)", tag=": planned",
+                     style="--")
+        axes[0, 2].axhline(0.05, color="k", lw=0.8, ls=":")
+        axes[0, 2].set_title("(D) end effector to target, executed (band: seeds) and planned; 5 cm dotted", fontsize=9)
         axes[0, 0].set_xlabel("evaluation")
         axes[0, 1].set_xlabel("evaluation")
         axes[0, 2].set_xlabel("evaluation")

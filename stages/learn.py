@@ -20,6 +20,15 @@ from stages.plan.tasks import get_task
 
 MAX_EPISODES = 100
 BABBLE_DT = 0.1  # s between babbling samples
+BABBLE_KNOT_S = 0.25  # s between the random knots of the babbling spline (a 1 s reach's pace)
+
+
+def babble_knots(points: int) -> int:
+    """Random knots of a babbling episode of ``points`` samples: one every ``BABBLE_KNOT_S`` s, at
+    most one per three samples (the pendulum's 15 samples: 5 knots in 1.4 s; the BioRob's 100: 33
+    in 9.9 s; issue 17: 8 knots in 9.9 s moved the arm too slowly for the torques a reach needs)."""
+    duration = (points - 1) * BABBLE_DT
+    return max(1, min(points // 3, int(round(duration / BABBLE_KNOT_S))))
 
 
 @dataclass(frozen=True)
@@ -33,10 +42,13 @@ class LearnConfig(StageConfig):
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
             "schedule": "Hyperparameter schedule: every (re-optimize each episode) or batch-N (N >= 100 new points).",
             "alpha": "R-AICO regularization alpha (0: plain AICO).",
-            "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model.",
+            "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model (0: the plant's "
+                             "default, 15 for the pendulum as in the thesis, 100 for the arms).",
             "iterations": "Planner iterations per episode.", "max_points": "Cap on the GP's training set.",
-            "restarts": "Hyperparameter optimizer restarts.", "stride": "Use every stride-th executed step as data.",
-            "q0_std": "Std of q0 around the default posture (rad)."}
+            "restarts": "Hyperparameter optimizer restarts.", "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the "
+                                                           "pendulum, 20 for the arms).",
+            "q0_std": "Std of q0 around the default posture (rad).",
+            "warm_from": "Warm start of each episode's plan from the last plan: trajectory (thesis 4.5) or controls."}
 
     plant: str
     task: str
@@ -45,25 +57,38 @@ class LearnConfig(StageConfig):
     sigma_weight: float = 1e-2
     schedule: str = "every"
     alpha: float = 0.0
-    babble_points: int = 15
+    babble_points: int = 0  # 0: PLANT_DEFAULTS
     iterations: int = 20
-    max_points: int = 600
+    max_points: int = 2000
     restarts: int = 1
-    stride: int = 5
+    stride: int = 0  # 0: PLANT_DEFAULTS
     q0_std: float = 0.0
+    warm_from: str = "trajectory"
     seed: int = 0
+
+    def resolved(self) -> LearnConfig:
+        """The config with the plant's defaults in place of 0 (``PLANT_DEFAULTS``): one key per meaning."""
+        from dataclasses import replace
+
+        d = PLANT_DEFAULTS.get(self.plant, ARM_DEFAULTS)
+        return replace(self, babble_points=self.babble_points or d["babble_points"], stride=self.stride or d["stride"])
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
             raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
         get_task(self.plant, self.task)
+        if self.babble_points == 0 or self.stride == 0:
+            return self.resolved().validate()
+        if self.warm_from not in ("trajectory", "controls"):
+            raise ValueError(f"unknown warm-from '{self.warm_from}': choose trajectory or controls")
         checks = [(1 <= self.episodes <= MAX_EPISODES, f"episodes must be in [1, {MAX_EPISODES}]"),
                   (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
-                  (2 <= self.babble_points <= 100_000, "babble-points must be in [2, 100000]"),
+                  (2 <= self.babble_points <= 100_000, "babble-points must be 0 (the plant's default) or in "
+                                                        "[2, 100000]"),
                   (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
                   (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
-                  (1 <= self.stride <= 1000, "stride must be in [1, 1000]"),
+                  (1 <= self.stride <= 1000, "stride must be 0 (the plant's default) or in [1, 1000]"),
                   (0 <= self.alpha <= 1e6, "alpha must be in [0, 1e6]"),
                   (0 <= self.q0_std <= 1.0, "q0-std must be in [0, 1] rad"),
                   (0 <= self.sigma_weight <= 1e8, "sigma-weight must be in [0, 1e8]")]
@@ -84,7 +109,8 @@ class LearnConfig(StageConfig):
         return PlanConfig(plant=self.plant, task=self.task, dynamics="learned", solver=self.solver,
                           alpha=self.alpha if self.alpha > 0 else 1.0, iterations=self.iterations,
                           seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
-                          warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight)
+                          warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
+                          warm_from=self.warm_from)
 
     def babble_config(self):
         """Babbling that yields ``babble_points`` samples (thesis: 15 for the pendulum): one episode
@@ -92,8 +118,25 @@ class LearnConfig(StageConfig):
         from stages.babble import BabbleConfig
 
         return BabbleConfig(plant=self.plant, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
-                            dt=BABBLE_DT, knots=max(1, min(8, self.babble_points // 3)),
+                            dt=BABBLE_DT, knots=babble_knots(self.babble_points),
                             substeps=int(round(BABBLE_DT / 1e-3)), amplitude=1.0)
+
+
+    def heldout_babble_config(self):
+        """A fixed held-out set: babbling as :meth:`babble_config` with another seed (``HELDOUT_SEED``
+        added), never trained on; every episode's GP is scored on it (issue 17)."""
+        from dataclasses import replace
+
+        return replace(self.babble_config(), seed=(self.seed + HELDOUT_SEED) % 2**32)
+
+
+HELDOUT_SEED = 1_000_003  # seed offset of the held-out babbling
+# Per-plant defaults of the options whose 0 means "the plant's": the pendulum as in the thesis (§4.1: 15 babbling
+# points); a 5-joint arm needs more babbling to plan its first reach (issue 17: with 15 points every BioRob
+# execution of a 20-episode run lost tracking; with 100, the first reached 4 cm and the second 3 mm).
+ARM_DEFAULTS = {"babble_points": 100, "stride": 20}
+PLANT_DEFAULTS = {"pendulum": {"babble_points": 15, "stride": 5}, "arm5": ARM_DEFAULTS, "biorob": ARM_DEFAULTS,
+                  "nao": ARM_DEFAULTS}
 
 
 def parse_schedule(schedule: str) -> int | None:
@@ -113,6 +156,19 @@ def gp_prediction_error(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray
         return float("inf")
     pred = model.predict_mean(np.hstack([X[ok], tau[ok]]))
     return float(np.sqrt(np.mean((pred - qddot[ok]) ** 2)))
+
+
+def gp_joint_errors(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray) -> tuple[list, list]:
+    """Per joint: RMSE (rad/s^2) of the GP mean against ``qddot (K, n_q)`` and that RMSE over the
+    targets' std (normalized, so light joints with large accelerations do not hide the heavy
+    ones); NaN lists without finite rows."""
+    ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(tau), axis=1) & np.all(np.isfinite(qddot), axis=1)
+    n = qddot.shape[1]
+    if not ok.any():
+        return [float("nan")] * n, [float("nan")] * n
+    err = np.sqrt(np.mean((model.predict_mean(np.hstack([X[ok], tau[ok]])) - qddot[ok]) ** 2, axis=0))
+    std = qddot[ok].std(axis=0)
+    return err.tolist(), (err / np.maximum(std, 1e-12)).tolist()
 
 
 def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.ndarray:

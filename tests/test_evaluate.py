@@ -199,6 +199,8 @@ def test_execution_claims_count_statuses():
 def test_evaluate_claims_rows():
     rows = evaluate_claims(("ilqg_stalls",), table(ilqg=500, r1=100), [], "figX")
     assert rows == [{"figure": "figX", "claim": "iLQG stalls on the analytic model",
+                     "thesis": '§3.5: "iLQG ... cannot generate movement policies with low costs when using the '
+                               'analytic model"',
                      "criterion": "iLQG's median final cost exceeds 2x the best R-AICO's",
                      "measured": "iLQG final median 500; best R-AICO 100", "verdict": "holds"}]
 
@@ -244,3 +246,14 @@ def test_identical_variants_of_two_figures():
     assert identical_variants({"every": {"label": "every"}}, {"every": {"label": "every"}}) == []
     assert relative_difference(math.nan, None) == 0 and relative_difference(math.inf, math.inf) == 0
     assert relative_difference(1.0, math.inf) == math.inf and relative_difference(2.0, 1.0) == 0.5
+
+
+def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
+    """Each claim row names the thesis sentence it tests (quoted, with its section or figure) or says
+    it is raico's own test."""
+    from stages.evaluate.claims import BEYOND, CLAIMS, THESIS
+
+    assert set(THESIS) == set(CLAIMS)
+    for name, text in THESIS.items():
+        assert text.startswith(BEYOND) or ('"' in text and text[:4] in ("§3.4", "§3.5", "§3.6", "§4.4", "§4.5",
+                                                                        "Fig.")), name

@@ -146,3 +146,4 @@ def test_bad_input_one_line_nonzero(base, case):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.exit_code != 0 and len(lines) == 1 and lines[0].startswith("raico: error:"), res.stderr
     assert sorted((root / "fit").iterdir()) == before
+

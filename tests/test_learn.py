@@ -33,6 +33,11 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     two, _ = learn_json(tmp_path, "--episodes", 2)
     m = two["metrics"]
     assert m["episodes"] == 2 and len(m["gp_error"]) == len(m["task_error"]) == len(m["fit_time_s"]) == 2
+    # issue 17: the GP scored on a fixed held-out babbling set too (never trained on), per joint normalized;
+    # how much of each execution fed the data
+    assert all(0 < e < float("inf") for e in m["gp_error_heldout"])
+    assert len(m["gp_nrmse_joint"][0]) == len(m["gp_nrmse_heldout_joint"][0]) == 1
+    assert m["data_steps"] == [750, 750] and m["episodes_feeding_data"] == 2 and m["episodes_truncated"] == 0
     doc = as_artifact(Cache(tmp_path).require("learn", two["key"])).document("episodes.json")
     eps = doc["episodes"]
     # every episode's numbers come from its own cached fit, plan and execute runs
@@ -51,7 +56,11 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     def rows(entity, timeline):
         return sum(c.num_rows for c in chunks if c.entity_path == entity and timeline in c.timeline_names)
 
-    assert rows("/learn/gp_error", "episode") == 2
+    # one view per quantity (issue 17): GP error per joint (log10), distance planned and executed, times, points
+    assert rows("/gp_error_log10", "episode") == 2 and rows("/gp_error_heldout_log10", "episode") == 2
+    assert rows("/distance/executed", "episode") == rows("/distance/planned", "episode") == 2
+    assert rows("/time/fit", "episode") == rows("/time/execute", "episode") == 2
+    assert rows("/episode/torque", "episode") == 2
     # per episode the robot at its executed final pose and that episode's paths (not static: each episode its own)
     assert rows("/world/robot/rod", "episode") == 2
     assert rows("/world/paths/executed", "episode") >= 2 and rows("/world/paths/planned", "episode") >= 2
@@ -96,3 +105,81 @@ def test_killed_learn_resumes_without_recomputing_finished_episodes(tmp_path):
     after = {p.parent.name for p in (tmp_path / "execute").glob("[0-9a-f]*/meta.json")}
     assert done <= after and len(after) == 2
     assert {k: (tmp_path / "execute" / k / "meta.json").stat().st_mtime_ns for k in done} == before
+
+
+def test_babbling_pace_and_plant_defaults():
+    """Issue 17: one random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
+    the plant's default, resolved before the key (one cache entry per meaning)."""
+    from pipeline.learn import learn_key
+    from stages.learn import LearnConfig, babble_knots
+
+    assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
+    arm = LearnConfig(plant="biorob", task="reach").resolved()
+    assert (arm.babble_points, arm.stride) == (100, 20)
+    pend = LearnConfig(plant="pendulum", task="swing-up").resolved()
+    assert (pend.babble_points, pend.stride) == (15, 5)
+    explicit = LearnConfig(plant="biorob", task="reach", babble_points=100, stride=20)
+    assert learn_key(LearnConfig(plant="biorob", task="reach").resolved())[2] == learn_key(explicit)[2]
+    with pytest.raises(ValueError, match="warm-from"):
+        LearnConfig(plant="biorob", task="reach", warm_from="sideways").validate()
+
+
+def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypatch):
+    """Thesis §4.5 'initialized with the last planned trajectory': AICO/R-AICO linearize first at the
+    earlier plan's states (X_init) and controls; 'controls' rolls the controls out; iLQG always does."""
+    import numpy as np
+
+    from stages.base import Artifact
+    from stages.plan import stage as plan_stage
+    from stages.plan.stage import PlanConfig
+
+    first = plan_stage.plan(PlanConfig(plant="pendulum", task="swing-up", dynamics="analytic", iterations=2))
+    folder = tmp_path / "p"
+    folder.mkdir()
+    np.savez(folder / "plan.npz", **first.arrays())
+    warm = Artifact("plan", "1" * 16, folder, {}, "ok", {})
+    seen = {}
+    real = plan_stage.solve
+
+    def spy(problem, solver, options, callback=None, **init):
+        seen[solver] = init
+        return real(problem, solver, options, callback=callback, **init)
+
+    monkeypatch.setattr(plan_stage, "solve", spy)
+    cfg = PlanConfig(plant="pendulum", task="swing-up", dynamics="analytic", iterations=1, warm_start=warm.ref)
+    plan_stage.plan(cfg.normalized(), warm_start=warm)
+    assert np.array_equal(seen["raico"]["X_init"], first.arrays()["X"])
+    assert np.array_equal(seen["raico"]["U_init"], first.arrays()["U"])
+    from dataclasses import replace
+    plan_stage.plan(replace(cfg, warm_from="controls").normalized(), warm_start=warm)
+    assert "X_init" not in seen["raico"] and np.array_equal(seen["raico"]["U_init"], first.arrays()["U"])
+    plan_stage.plan(replace(cfg, solver="ilqg").normalized(), warm_start=warm)
+    assert "X_init" not in seen["ilqg"]
+    assert replace(cfg, solver="ilqg").normalized().warm_from == "controls"  # one key per meaning
+    assert replace(cfg, warm_start=None).normalized().warm_from == "controls"
+
+
+def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
+    """Issue 17: a BioRob planned on a GP of 15 babbling samples loses tracking; only the steps
+    before its failure time join the next fit (every 20th), flagged and counted."""
+    import math
+
+    from stages.base import Artifact
+    from stages.fit.stage import usable_steps
+
+    res = runner.invoke(app, ["learn", "--plant", "biorob", "--task", "reach", "--episodes", "2", "--babble-points",
+                              "15", "--iterations", "3", "--alpha", "2", "--restarts", "0", "--no-record", "--json",
+                              "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.stdout.strip().splitlines()[-1])["metrics"]
+    assert m["execution_status"][0] == "tracking-lost" and m["data_truncated"][0]
+    k = m["data_steps"][0]
+    assert 0 < k < 500 and m["episodes_truncated"] >= 1
+    assert m["n_points"][1] == m["n_points"][0] + math.ceil(k / 20)
+    # the rule itself: ok (and at-a-limit) executions give every step, failed ones the steps before the failure
+    def art(status, t):
+        return Artifact("execute", "0" * 16, tmp_path, {}, status, {"failure_time": t})
+    assert usable_steps(art("ok", None), 0.002, 750) == 750
+    assert usable_steps(art("limits", 0.5), 0.002, 750) == 750
+    assert usable_steps(art("tracking-lost", 0.5), 0.002, 750) == 250
+    assert usable_steps(art("diverged", 0.0), 0.002, 750) == 0

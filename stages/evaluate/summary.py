@@ -69,11 +69,14 @@ def summarize_learn(label: str, runs: list[dict]) -> dict:
     ``*_first3`` / ``*_last3``: the median over seeds of the mean over the first / last three
     episodes (fewer if the run is shorter)."""
     out: dict = {"label": label, "runs": len(runs)}
-    for key in ("gp_error", "rmse_planned_executed", "task_error", "fit_time_s", "plan_time_s"):
+    for key in ("gp_error", "gp_error_heldout", "rmse_planned_executed", "task_error", "planned_task_error",
+                "fit_time_s", "plan_time_s", "execute_time_s"):
         C = _curves(runs, key)
         k = min(3, C.shape[1]) if C.size else 0
         with np.errstate(all="ignore"):
             out[f"{key}_curve"] = [median(C[:, j]) for j in range(C.shape[1])]
+            out[f"{key}_band"] = [[float(np.nanmin(C[:, j])), float(np.nanmax(C[:, j]))]
+                                  if np.isfinite(C[:, j]).any() else [math.nan, math.nan] for j in range(C.shape[1])]
             out[f"{key}_first3"] = median(np.nanmean(C[:, :k], axis=1)) if k else math.nan
             out[f"{key}_last3"] = median(np.nanmean(C[:, -k:], axis=1)) if k else math.nan
             out[f"{key}_total"] = median(np.nansum(C, axis=1)) if C.size else math.nan
@@ -82,6 +85,10 @@ def summarize_learn(label: str, runs: list[dict]) -> dict:
     out["seconds_to_success"] = [seconds_to_success(m) for m in runs]
     out["first_success_episode"] = [m.get("first_success_episode") for m in runs]
     out["optimizations"] = [int(np.nansum(r)) for r in _curves(runs, "optimized")]
+    out["episodes_feeding_data"] = [m.get("episodes_feeding_data") for m in runs]
+    out["episodes_truncated"] = [m.get("episodes_truncated") for m in runs]
+    out["tracking_lost"] = int(sum(sum(1 for st in (m.get("execution_status") or []) if st == "tracking-lost")
+                                   for m in runs))
     return out
 
 

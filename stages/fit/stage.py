@@ -182,12 +182,25 @@ def execute_segments(art: Artifact) -> tuple[str, list[Segment]]:
     T = len(tau)
     X = r["X"][:T]
     dyn = make_dynamics("analytic", robot, float(desc["dt"]))
-    ok = _finite_rows(X, tau)
+    ok = _finite_rows(X, tau) & (np.arange(T) < usable_steps(art, float(desc["dt"]), T))
     Y = np.full((T, n), np.nan)
     for k in np.flatnonzero(ok):
         Y[k] = dyn.qddot(X[k, :n], X[k, n:], tau[k])
     ok &= _finite_rows(Y)
     return str(desc["plant"]), [Segment(art.ref, np.hstack([X, tau])[ok], Y[ok], r["times"][:T][ok])]
+
+
+FAILED = ("tracking-lost", "fell", "diverged")  # executions whose data end where they failed
+
+
+def usable_steps(art: Artifact, dt: float, T: int) -> int:
+    """Steps of an execution that may join the data: all ``T``, or those before its failure time
+    when it lost tracking, fell or diverged (past that point the robot no longer follows a plan: a
+    real robot's safety stop; its data would teach the model a runaway, issue 17)."""
+    t_fail = (art.metrics or {}).get("failure_time")
+    if art.status not in FAILED or t_fail is None:
+        return T
+    return max(0, min(T, int(math.floor(float(t_fail) / dt + 1e-9))))
 
 
 def split_count(K: int, holdout: float) -> int:

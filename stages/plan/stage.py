@@ -28,6 +28,9 @@ PLAN_FILE = "plan.npz"
 PROBLEM_FILE = "problem.json"
 
 
+WARM_FROM = ("trajectory", "controls")
+
+
 @dataclass(frozen=True)
 class PlanConfig(StageConfig):
     """Declared parameters of the plan stage (defaults stated here only).
@@ -46,7 +49,10 @@ class PlanConfig(StageConfig):
             "q0_std": "Std of q0 around the default posture (rad).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
             "model": "Key of a fit artifact (the GP of --dynamics learned).",
-            "warm_start": "Key of an earlier plan whose controls start this one (AICO/R-AICO, iLQG).",
+            "warm_start": "Key of an earlier plan that starts this one (AICO/R-AICO, iLQG; see --warm-from).",
+            "warm_from": "With --warm-start: trajectory (AICO/R-AICO linearize first at the earlier plan's states "
+                         "and controls; thesis 4.5: 'initialized with the last planned trajectory') or controls "
+                         "(its controls rolled out on this model). iLQG always rolls the controls out.",
             "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance), "
                           "or none (no uncertainty term); learned dynamics only.",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
@@ -68,6 +74,7 @@ class PlanConfig(StageConfig):
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
     alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
+    warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -91,6 +98,8 @@ class PlanConfig(StageConfig):
             raise ValueError("sigma-star must be in [0, 100] or none")
         if not (np.isfinite(self.sigma_weight) and 0 <= self.sigma_weight <= 1e8):
             raise ValueError("sigma-weight must be in [0, 1e8]")
+        if self.warm_from not in WARM_FROM:
+            raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         make_options(self.solver, self.solver_options())
 
     @property
@@ -117,6 +126,8 @@ class PlanConfig(StageConfig):
             d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
         elif self.alpha_schedule == "adaptive":
             d["gamma"] = 1.0  # not used by the adaptive schedule
+        if self.warm_start is None or self.solver == "ilqg":
+            d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -229,7 +240,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
          warm_start: Artifact | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception.
 
-    ``warm_start``: an earlier plan of the same horizon; its controls are the initial guess."""
+    ``warm_start``: an earlier plan of the same horizon: its controls are the initial guess, and with
+    ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
     cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
     init = {}
@@ -239,6 +251,11 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
             raise ValueError(f"warm start {warm_start.key}: its controls do not fit this problem "
                              f"(shape {U0.shape}, expected {(problem.T, problem.n_u)}, finite)")
         init["U_init"] = U0
+        if cfg.warm_from == "trajectory" and cfg.solver != "ilqg":
+            X0 = warm_start.arrays(PLAN_FILE)["X"]
+            if X0.shape != (problem.T + 1, problem.n_x) or not np.all(np.isfinite(X0)):
+                raise ValueError(f"warm start {warm_start.key}: its states do not fit this problem")
+            init["X_init"] = np.array(X0, dtype=float)
     callback = None
     if progress is not None:
         def callback(rec, *_):  # noqa: ANN001
