@@ -31,5 +31,25 @@ def bench_learn_episode() -> dict:
     return {"fit_s": t["fit"], "plan_s": t["plan"], "execute_s": t["execute"], "n_points": ep["n_points"]}
 
 
+def bench_learn_default(episodes: int = 20, seed: int = 0) -> dict:
+    """The whole ``raico learn --plant biorob --task reach --episodes 20 --alpha 2`` with every other
+    option at its default (issue 17: target 60 s), from a fresh cache: ``{"wall_s", "task_error_last",
+    "status_last", "n_points_last"}``."""
+    import time
+
+    from pipeline.cache import Cache
+    from pipeline.learn import learn
+    from stages.learn import LearnConfig
+
+    cfg = LearnConfig(plant="biorob", task="reach", episodes=episodes, alpha=2.0, seed=seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        out = learn(Cache(tmp), cfg, record=False)
+        wall = time.perf_counter() - t0
+    m = out.metrics
+    return {"wall_s": wall, "task_error_last": m["task_error"][-1], "status_last": m["execution_status"][-1],
+            "n_points_last": m["n_points"][-1]}
+
+
 if __name__ == "__main__":
     print(json.dumps(bench_learn_episode(), indent=2))

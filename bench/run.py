@@ -136,10 +136,13 @@ def model_learning_rows() -> list[dict]:
     """GP posterior along 500 steps with 1000 points (per output), incremental update vs refit,
     and one learn episode of fig4.3 split into fit, plan and execute (SPEC §13, issue 7)."""
     from bench.gp_bench import bench_gp
-    from bench.learn_bench import bench_learn_episode
+    from bench.learn_bench import bench_learn_default, bench_learn_episode
 
     gp = bench_gp(repeats=5, cap_cost=True)
     ep = bench_learn_episode()
+    whole = bench_learn_default()
+    print(f"raico learn biorob reach, 20 episodes, defaults: last executed distance {whole['task_error_last']:.4f} m "
+          f"[{whole['status_last']}], {whole['n_points_last']} GP points", flush=True)
     rows = [
         ("GP: mean, variance and all gradients, 500 steps, N=1000, per output (d=15)",
          gp["mean_var_all_gradients_ms_per_output"] / 1e3, gp["target_ms_per_output"] / 1e3),
@@ -150,6 +153,7 @@ def model_learning_rows() -> list[dict]:
         ("learn episode of fig4.3 (biorob): fit", ep["fit_s"], None),
         ("learn episode of fig4.3 (biorob): plan (10 R-AICO iterations on the GP)", ep["plan_s"], None),
         ("learn episode of fig4.3 (biorob): execute in Drake", ep["execute_s"], None),
+        ("raico learn --plant biorob --task reach --episodes 20 --alpha 2 (defaults, one run)", whole["wall_s"], 60.0),
     ]
     out = []
     for name, med, target in rows:

@@ -142,7 +142,8 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
         episodes = []
         for k in range(1, cfg.episodes + 1):
             fit = runner.run(cache, "fit", FitConfig(data=tuple(data), prior=prior, schedule=cfg.schedule,
-                                                     restarts=cfg.restarts, seed=cfg.seed,
+                                                     restarts=cfg.restarts if prior is None else cfg.refit_restarts,
+                                                     seed=cfg.seed,
                                                      max_points=cfg.max_points, stride=cfg.stride, holdout=0.0),
                              record=False)
             plan = runner.run(cache, "plan", cfg.plan_config(model=f"fit/{fit.key}", warm_start=warm),

@@ -37,30 +37,36 @@ class LearnConfig(StageConfig):
 
     HELP = {"plant": "pendulum, arm5, biorob or nao.", "task": "Task of the plant (see raico plan --help).",
             "episodes": "Planning-and-execution episodes after babbling.",
-            "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance) "
-                          "or none.",
+            "sigma_star": "Desired model uncertainty sigma* (GP predictive variance, see --sigma-units) or none.",
+            "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "
+                           "standardized (over the training outputs' variance).",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
             "schedule": "Hyperparameter schedule: every (re-optimize each episode) or batch-N (N >= 100 new points).",
             "alpha": "R-AICO regularization alpha (0: plain AICO).",
             "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model (0: the plant's "
                              "default, 15 for the pendulum as in the thesis, 100 for the arms).",
             "iterations": "Planner iterations per episode.", "max_points": "Cap on the GP's training set.",
-            "restarts": "Hyperparameter optimizer restarts.", "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the "
+            "restarts": "Seeded random restarts of the hyperparameter optimizer at the first fit (on the babbling).",
+            "refit_restarts": "Random restarts at the later fits (each starts at the previous fit's hyperparameters).", "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the "
                                                            "pendulum, 20 for the arms).",
             "q0_std": "Std of q0 around the default posture (rad).",
-            "warm_from": "Warm start of each episode's plan from the last plan: trajectory (thesis 4.5) or controls."}
+            "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
+                         "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
+                         "thesis 4.4)."}
 
     plant: str
     task: str
     episodes: int = 10
     sigma_star: str = "none"
     sigma_weight: float = 1e-2
+    sigma_units: str = "raw"
     schedule: str = "every"
     alpha: float = 0.0
     babble_points: int = 0  # 0: PLANT_DEFAULTS
     iterations: int = 20
     max_points: int = 2000
     restarts: int = 1
+    refit_restarts: int = 0
     stride: int = 0  # 0: PLANT_DEFAULTS
     q0_std: float = 0.0
     warm_from: str = "trajectory"
@@ -79,8 +85,8 @@ class LearnConfig(StageConfig):
         get_task(self.plant, self.task)
         if self.babble_points == 0 or self.stride == 0:
             return self.resolved().validate()
-        if self.warm_from not in ("trajectory", "controls"):
-            raise ValueError(f"unknown warm-from '{self.warm_from}': choose trajectory or controls")
+        if self.warm_from not in WARM_FROM:
+            raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         checks = [(1 <= self.episodes <= MAX_EPISODES, f"episodes must be in [1, {MAX_EPISODES}]"),
                   (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
                   (2 <= self.babble_points <= 100_000, "babble-points must be 0 (the plant's default) or in "
@@ -88,6 +94,7 @@ class LearnConfig(StageConfig):
                   (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
                   (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
+                  (0 <= self.refit_restarts <= 20, "refit-restarts must be in [0, 20]"),
                   (1 <= self.stride <= 1000, "stride must be 0 (the plant's default) or in [1, 1000]"),
                   (0 <= self.alpha <= 1e6, "alpha must be in [0, 1e6]"),
                   (0 <= self.q0_std <= 1.0, "q0-std must be in [0, 1] rad"),
@@ -103,14 +110,18 @@ class LearnConfig(StageConfig):
         return "raico" if self.alpha > 0 else "aico"
 
     def plan_config(self, model: str, warm_start: str | None, seed: int | None = None):
-        """The plan stage's config of an episode."""
+        """The plan stage's config of an episode (``warm_from`` none: no warm start)."""
         from stages.plan.stage import PlanConfig
+
+        if self.warm_from == "none":
+            warm_start = None
 
         return PlanConfig(plant=self.plant, task=self.task, dynamics="learned", solver=self.solver,
                           alpha=self.alpha if self.alpha > 0 else 1.0, iterations=self.iterations,
                           seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
-                          warm_from=self.warm_from)
+                          sigma_units=self.sigma_units,
+                          warm_from="trajectory" if self.warm_from == "none" else self.warm_from)
 
     def babble_config(self):
         """Babbling that yields ``babble_points`` samples (thesis: 15 for the pendulum): one episode
@@ -131,10 +142,12 @@ class LearnConfig(StageConfig):
 
 
 HELDOUT_SEED = 1_000_003  # seed offset of the held-out babbling
+WARM_FROM = ("trajectory", "controls", "none")
 # Per-plant defaults of the options whose 0 means "the plant's": the pendulum as in the thesis (§4.1: 15 babbling
-# points); a 5-joint arm needs more babbling to plan its first reach (issue 17: with 15 points every BioRob
-# execution of a 20-episode run lost tracking; with 100, the first reached 4 cm and the second 3 mm).
-ARM_DEFAULTS = {"babble_points": 100, "stride": 20}
+# points); a 5-joint arm needs more babbling to plan its first reach (issue 17, BioRob reach, 8 episodes: with 15
+# samples every execution lost tracking; with 100, 7 of 8 seeds reached 5 cm by their third episode, seed 11 never;
+# with 200, seeds 0, 1 and 11 reached 2 cm in their first episode).
+ARM_DEFAULTS = {"babble_points": 200, "stride": 20}
 PLANT_DEFAULTS = {"pendulum": {"babble_points": 15, "stride": 5}, "arm5": ARM_DEFAULTS, "biorob": ARM_DEFAULTS,
                   "nao": ARM_DEFAULTS}
 

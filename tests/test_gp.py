@@ -398,3 +398,29 @@ def test_subsampling_cap_and_its_measured_cost():
     np.testing.assert_allclose(cost["nrmse_capped"], rmse_capped / Yt.std(0), rtol=1e-9)
     np.testing.assert_allclose(cost["rmse_ratio"], rmse_capped / rmse_full, rtol=1e-9)
     assert cost["nrmse_capped"][0] < 0.02 and cost["rmse_full"][0] <= 1.5 * cost["rmse_capped"][0]
+
+
+def test_uncertainty_term_units_raw_is_the_predictive_variance():
+    """Thesis eq. 4.3: g = var(x*) in (rad/s^2)^2 ('raw'); 'standardized' divides by the training
+    outputs' variance. At sigma* = 0 the raw cost is the standardized one times y_std^4 per output."""
+    from plants.robots import shared_robot
+    from stages.plan.costs import Uncertainty
+    from stages.plan.costs import _uncertainty_example as example
+
+    robot = shared_robot("arm5")
+    raw, std = example(robot, robot.default_q, "raw"), example(robot, robot.default_q, "standardized")
+    rng = np.random.default_rng(0)
+    X = robot.default_q[None, :] + 0.1 * rng.standard_normal((4, robot.n_q))
+    X = np.hstack([X, 0.1 * rng.standard_normal((4, robot.n_q))])
+    U = 0.1 * rng.standard_normal((4, robot.n_q))
+    g_raw, Jx_raw, _ = raw.variance(X, U)
+    g_std, Jx_std, _ = std.variance(X, U)
+    y_std = np.asarray(raw.model.model.y_std)
+    assert np.allclose(g_raw, g_std * y_std**2) and np.allclose(Jx_raw, Jx_std * (y_std**2)[:, None])
+    var, _, _ = raw.model.predict_variance(X, U)
+    assert np.array_equal(g_raw, var)
+    zero_raw = Uncertainty(raw.model, 0.0, 1.0, T=4, units="raw").joint_value(X, U)
+    zero_std = Uncertainty(raw.model, 0.0, 1.0, T=4, units="standardized").joint_value(X, U)
+    assert np.allclose(zero_raw, ((g_std * y_std**2) ** 2).sum(axis=1)) and not np.allclose(zero_raw, zero_std)
+    with pytest.raises(ValueError, match="units"):
+        Uncertainty(raw.model, 0.0, 1.0, T=4, units="furlongs")

@@ -115,10 +115,10 @@ def test_babbling_pace_and_plant_defaults():
 
     assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
     arm = LearnConfig(plant="biorob", task="reach").resolved()
-    assert (arm.babble_points, arm.stride) == (100, 20)
+    assert (arm.babble_points, arm.stride) == (200, 20)
     pend = LearnConfig(plant="pendulum", task="swing-up").resolved()
     assert (pend.babble_points, pend.stride) == (15, 5)
-    explicit = LearnConfig(plant="biorob", task="reach", babble_points=100, stride=20)
+    explicit = LearnConfig(plant="biorob", task="reach", babble_points=200, stride=20)
     assert learn_key(LearnConfig(plant="biorob", task="reach").resolved())[2] == learn_key(explicit)[2]
     with pytest.raises(ValueError, match="warm-from"):
         LearnConfig(plant="biorob", task="reach", warm_from="sideways").validate()

@@ -353,15 +353,18 @@ class ControlLimit(ControlTerm):
         return 2.0 * self.weight * v, luu
 
 
+SIGMA_UNITS = ("raw", "standardized")  # the uncertainty term's g: (rad/s^2)^2, or over the data's variance
+
+
 class Uncertainty:
     """The model-uncertainty objective (thesis eq. 4.3, SPEC §7), a joint term on ``(x_t, u_t)``:
 
     ``c_t = (sigma* - g(x_t, u_t))^T C_sigma (sigma* - g(x_t, u_t))``, ``C_sigma = w I``,
     at every step ``t = 0..T-1``, with ``g`` the GP's latent predictive variance of each
-    output (joint acceleration) in standardized units: the variance divided by the training
-    outputs' variance, so ``g`` is near 0 where the model is sure and near the prior
-    variance (about 1) far from the data, and ``sigma*`` in {0, 0.2, 1} means the same on
-    every plant. Gauss-Newton models with ``J_x = dg/dx``, ``J_u = dg/du`` at the nominal
+    output (joint acceleration): ``units="raw"`` in (rad/s^2)^2 as the thesis's ``var(x*)``
+    (eq. 4.3), or ``units="standardized"``: the variance divided by the training outputs'
+    variance, so ``g`` is near 0 where the model is sure and near the prior variance (about 1)
+    far from the data, and ``sigma*`` means the same on every plant. Gauss-Newton models with ``J_x = dg/dx``, ``J_u = dg/du`` at the nominal
     trajectory: the state part ``l_x = -2 w J_x^T e``, ``l_xx = 2 w J_x^T J_x`` (into ``R, r``)
     at the nominal controls, the control part likewise (into ``H, h``) at the nominal states;
     the cross terms ``d^2 c / dx du`` are dropped. ``model``: a dynamics model with
@@ -369,20 +372,25 @@ class Uncertainty:
     ``model.model.y_std`` (``plants.learned.LearnedDynamics``).
     """
 
-    def __init__(self, model, sigma_star: float, weight: float, T: int, name: str = "uncertainty"):
+    def __init__(self, model, sigma_star: float, weight: float, T: int, name: str = "uncertainty",
+                 units: str = "standardized"):
+        if units not in SIGMA_UNITS:
+            raise ValueError(f"uncertainty units must be one of {', '.join(SIGMA_UNITS)}, got '{units}'")
         self.model = model
+        self.units = units
         self.sigma_star = float(sigma_star)
         self.name = name
         self.weight = _check_weight(weight, name)
         self.T = int(T)
         self.times = np.arange(self.T)
-        self._scale = 1.0 / np.asarray(model.model.y_std, float) ** 2   # (D,)
+        y_std = np.asarray(model.model.y_std, float)
+        self._scale = 1.0 / y_std ** 2 if units == "standardized" else np.ones_like(y_std)  # (D,)
         self._X = self._U = None
         self._memo = None
 
     # -- the model ----------------------------------------------------------------------------
     def variance(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Standardized ``g (K, D)`` and its Jacobians ``(K, D, n_x)``, ``(K, D, n_u)``."""
+        """``g (K, D)`` (in the term's units) and its Jacobians ``(K, D, n_x)``, ``(K, D, n_u)``."""
         key = (X.shape, U.shape, X.tobytes(), U.tobytes())
         if self._memo is None or self._memo[0] != key:
             var, dx, du = self.model.predict_variance(X, U)
@@ -541,12 +549,13 @@ register_cost_term_example(
     "control", exact_hessian=True)
 
 
-def _uncertainty_example(robot, q0: np.ndarray) -> Uncertainty:
+def _uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> Uncertainty:
     """The uncertainty term on a small GP (``plants.learned.example_params``), sigma* = 0.2."""
     from plants.learned import build_learned, example_params
 
     model = build_learned(robot, 0.01, example_params(robot))
-    return Uncertainty(model, 0.2, 1e-2, T=4)
+    return Uncertainty(model, 0.2, 1e-2, T=4, units=units)
 
 
 register_cost_term_example("uncertainty", _uncertainty_example, "joint")
+register_cost_term_example("uncertainty_raw", lambda r, q0: _uncertainty_example(r, q0, "raw"), "joint")

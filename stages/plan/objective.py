@@ -64,11 +64,16 @@ def control(weight: float, name: str = "control") -> TermDesc:
     return {"term": "control", "name": name, "weight": float(weight)}
 
 
-def uncertainty(sigma_star: float, weight: float, name: str = "uncertainty") -> TermDesc:
+def uncertainty(sigma_star: float, weight: float, name: str = "uncertainty", units: str = "raw") -> TermDesc:
     """The GP-uncertainty term (thesis eq. 4.3) on ``(x_t, u_t)``: built with the learned model
-    by the plan stage (``stages.plan.costs.Uncertainty``), not by :func:`build_terms`."""
-    return {"term": "uncertainty", "name": name, "sigma_star": float(sigma_star), "weight": float(weight),
-            "controls": "torque"}
+    by the plan stage (``stages.plan.costs.Uncertainty``), not by :func:`build_terms`. ``units``:
+    ``raw`` (the predictive variance in (rad/s^2)^2, as the thesis) or ``standardized`` (over the
+    training outputs' variance)."""
+    d = {"term": "uncertainty", "name": name, "sigma_star": float(sigma_star), "weight": float(weight),
+         "controls": "torque"}
+    if units != "standardized":  # descriptions of standardized terms keep their old form (and keys)
+        d["units"] = units
+    return d
 
 
 def control_limit(lower, upper, weight: float, name: str = "control_limit") -> TermDesc:

@@ -17,7 +17,7 @@ from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import via_point_errors
-from stages.plan.costs import Uncertainty
+from stages.plan.costs import SIGMA_UNITS, Uncertainty
 from stages.plan.objective import Objective, build_terms, uncertainty
 from stages.plan.problem import Problem, Result
 from stages.plan.solvers import SOLVERS, make_options, solve
@@ -53,8 +53,10 @@ class PlanConfig(StageConfig):
             "warm_from": "With --warm-start: trajectory (AICO/R-AICO linearize first at the earlier plan's states "
                          "and controls; thesis 4.5: 'initialized with the last planned trajectory') or controls "
                          "(its controls rolled out on this model). iLQG always rolls the controls out.",
-            "sigma_star": "Desired model uncertainty sigma* (GP variance in units of the data's variance), "
+            "sigma_star": "Desired model uncertainty sigma* (GP predictive variance, see --sigma-units), "
                           "or none (no uncertainty term); learned dynamics only.",
+            "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "
+                           "standardized (over the training outputs' variance).",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
                               "an iteration that lowers the cost, grows and retries after one that raises it)."}
@@ -73,6 +75,7 @@ class PlanConfig(StageConfig):
     warm_start: str | None = None
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
+    sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
     alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
 
@@ -98,6 +101,8 @@ class PlanConfig(StageConfig):
             raise ValueError("sigma-star must be in [0, 100] or none")
         if not (np.isfinite(self.sigma_weight) and 0 <= self.sigma_weight <= 1e8):
             raise ValueError("sigma-weight must be in [0, 1e8]")
+        if self.sigma_units not in SIGMA_UNITS:
+            raise ValueError(f"unknown sigma-units '{self.sigma_units}': choose one of {', '.join(SIGMA_UNITS)}")
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         make_options(self.solver, self.solver_options())
@@ -121,6 +126,7 @@ class PlanConfig(StageConfig):
         d["sigma_star"] = "none" if sigma is None else repr(sigma)
         if sigma is None:
             d["sigma_weight"] = 0.0
+            d["sigma_units"] = "raw"
         if self.solver != "raico":
             relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
             d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
@@ -226,9 +232,10 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
     if cfg.sigma is not None:
-        terms.append(uncertainty(cfg.sigma, cfg.sigma_weight))
+        terms.append(uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units))
     objective = build_terms(robot, terms, task.T, kind)
-    joint = [Uncertainty(dyn, d["sigma_star"], d["weight"], task.T, name=d["name"])
+    joint = [Uncertainty(dyn, d["sigma_star"], d["weight"], task.T, name=d["name"],
+                         units=d.get("units", "standardized"))
              for d in objective.descriptions if d["term"] == "uncertainty"]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
