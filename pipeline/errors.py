@@ -30,9 +30,22 @@ class MissingArtifact(RaicoError):
 
 
 class CorruptArtifact(RaicoError):
-    """An artifact exists but is partial, unreadable or does not match its recorded hash."""
+    """An artifact exists but is partial, unreadable or does not match its recorded hash.
+
+    ``ref`` (``STAGE/KEY``) names the entry where known and ``reason`` says what is wrong with it
+    (``file plan.npz changed (sha256 ...)``), so a caller can rebuild it; both survive pickling
+    (an error raised in a worker process)."""
 
     exit_code = 4
+
+    def __init__(self, *args: object, ref: str | None = None, reason: str | None = None) -> None:
+        super().__init__(*args)
+        self.ref, self.reason = ref, reason
+
+
+class UnreadableArtifact(CorruptArtifact):
+    """A data file of an entry that passed its check could not be loaded (damage its stamps did not
+    show, or a file written damaged): numpy's or zipfile's error, as one clean line."""
 
 
 class StorageError(RaicoError):
