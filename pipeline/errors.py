@@ -165,6 +165,34 @@ def die_with_parent(parent_pid: int | str | None) -> None:
     threading.Thread(target=watch, name="raico-parent-watch", daemon=True).start()
 
 
+def dies_with_this_process():
+    """A ``preexec_fn`` for :class:`subprocess.Popen`: the child is SIGKILLed by the kernel when the
+    thread that starts it ends, this process's SIGKILL included (Linux ``PR_SET_PDEATHSIG``; the
+    function is looked up here, so the forked child only calls it), and exits at once if this
+    process is already gone. None where there is no ``prctl``."""
+    import os
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+    pr_set_pdeathsig, sigkill = 1, int(signal.SIGKILL)
+
+    def preexec() -> None:
+        prctl(pr_set_pdeathsig, sigkill, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before we asked
+            os._exit(1)
+
+    return preexec
+
+
 def stop_resource_tracker() -> None:
     """Close multiprocessing's resource tracker (a child started with the first worker pool) and
     reap it, so no child of this process outlives it, not even as a zombie."""

@@ -185,7 +185,7 @@ def clean_error(e: BaseException) -> str:
         name = f"{type(e).__module__}.error"
     lines = str(e).strip().splitlines()
     text = lines[0] if lines else ""
-    for cut in (": b'", ': b"', " b'", ' b"'):
+    for cut in (": b'", ': b"', " b'", ' b"', ". "):  # the bytes numpy quotes; a second sentence
         text = text.split(cut)[0]
     text = "".join(c for c in text if c.isprintable() and c.isascii()).strip()
     if len(text) > 100:
@@ -304,7 +304,7 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
     recording = None
     if record and stage.name in RECORDERS:
         intact, damaged = cache.derived_check(entry)
-        if RECORDING not in intact:
+        if RECORDING not in intact or damaged:  # the recorder writes the .rrd and the .mcap together
             if damaged and cache.notify is not None:
                 cache.notify(f"{stage.name} {key}: recording damaged ({'; '.join(damaged.values())}); "
                              f"writing it again")
@@ -469,7 +469,8 @@ def ensure_recording(cache: Cache, entry: Entry) -> str | None:
     recorder = RECORDERS.get(entry.stage)
     if recorder is None:
         return None
-    if RECORDING not in cache.derived(entry):
+    intact, damaged = cache.derived_check(entry)
+    if RECORDING not in intact or damaged:  # written again together (the cache says which was damaged)
         inputs = [as_artifact(cache.require(*ref.split("/", 1))) for ref in entry.meta.get("inputs", [])]
         try:
             cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs))
