@@ -430,9 +430,9 @@ def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None =
     if ref in rebuilt:
         raise refuse("it was rebuilt once in this call already and is still damaged")
     st_name, key = ref.split("/", 1)
-    meta, meta_why = cache.stored_meta(st_name, key)
+    meta, _ = cache.stored_meta(st_name, key)
     if meta is None:
-        raise refuse(meta_why)
+        raise refuse("its config is in its meta.json, which is damaged or missing")
     if st_name not in stage_names():
         raise refuse(f"raico rebuilds stage runs ({', '.join(stage_names())}), not a {st_name} entry")
     stage = get_stage(st_name)
