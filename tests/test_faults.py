@@ -582,15 +582,17 @@ def _truncate(path: Path) -> None:
     path.write_bytes(data[: len(data) // 2])
 
 
-def _flip(path: Path) -> None:
+def _flip(path: Path, keep_mtime: bool = False) -> None:
     """A byte in the middle of ``path`` flipped in place, as a careful operator's fault run does it (the
-    size stays, the modification time moves)."""
-    n = path.stat().st_size
+    size stays, the modification time moves; with ``keep_mtime`` it is put back by ``os.utime``)."""
+    st = path.stat()
     with open(path, "r+b") as f:
-        f.seek(n // 2)
+        f.seek(st.st_size // 2)
         b = f.read(1)
-        f.seek(n // 2)
+        f.seek(st.st_size // 2)
         f.write(bytes([b[0] ^ 0xFF]))
+    if keep_mtime:
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
 
 
 def _edit_number(meta: Path) -> None:
@@ -604,6 +606,8 @@ CORRUPTIONS = {
     "truncated data file": (lambda e, data: _truncate(e / data), r"file {data} changed \(size \d+ B, recorded \d+ B\)"),
     "byte flipped in a data file (same size)": (lambda e, data: _flip(e / data),
                                                 r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
+    "byte flipped, mtime put back": (lambda e, data: _flip(e / data, keep_mtime=True),
+                                     r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
     "deleted data file": (lambda e, data: (e / data).unlink(), "file {data} missing"),
     "edited meta.json": (lambda e, data: _edit_number(e / "meta.json"),
                          r"cache entry corrupt \(meta\.json was edited: its checksum does not match its content\)"),
@@ -618,6 +622,7 @@ DATA = {"babble": "data.npz", "fit": "model.npz", "plan": "plan.npz", "execute":
 CASES = [("babble", "truncated data file"), ("fit", "emptied file list"), ("plan", "edited meta.json"),
          ("execute", "truncated meta.json"), ("evaluate", "deleted data file")]  # every stage, every kind
 CASES += [(stage, "byte flipped in a data file (same size)") for stage in DATA]  # issue 21: each stage's data file
+CASES += [("plan", "byte flipped, mtime put back")]  # size and mtime as recorded: the ctime still moved
 
 
 @pytest.mark.parametrize("stage, kind", CASES)
