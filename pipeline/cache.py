@@ -5,7 +5,15 @@ A stage's key hashes its name, code version, declared config and input keys
 (:func:`stage_key`). Writes go to ``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/``
 and become visible in a single ``os.rename``; a folder is a valid entry only if its
 ``meta.json`` says ``"complete": true`` and every recorded file still has its size
-(and sha256, for files under :data:`HASH_LIMIT`).
+and sha256 (files under :data:`HASH_LIMIT`; bigger ones: the size).
+
+Integrity on every hit without re-hashing (like DVC's state database): ``state.json`` beside
+``meta.json`` holds each file's *stamp* -- size, modification and status-change times (ns) and
+inode -- with the sha256 the file was verified against. A file whose stamp still matches is not
+read; any other (edited, copied, restored from a backup, or changed within the file system's clock
+tick of its stamp) is re-hashed once and its new stamp recorded. ``meta.json`` stays immutable
+(it carries its own checksum); ``state.json`` is only ever a cache of verified facts, so a lost,
+stale or damaged one costs a re-hash, never a wrong answer.
 """
 
 from __future__ import annotations
@@ -52,6 +60,7 @@ __all__ = [
 
 META = "meta.json"
 DERIVED = "derived.json"
+STATE = "state.json"  # stamps of verified files (see the module docstring); not part of the entry's record
 META_SUM = "meta_sha256"
 FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
@@ -228,8 +237,8 @@ Writer = Callable[[Path], "WriteResult | Mapping[str, Any] | None"]
 # --------------------------------------------------------------------------- helpers
 
 
-def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None]:
-    """Size and sha256 (None if size >= limit) of ``path``; fsyncs it on the way."""
+def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None, os.stat_result]:
+    """Size, sha256 (None if size >= limit) and stat of ``path``; fsyncs it on the way."""
     with open(path, "rb") as f:
         size = os.fstat(f.fileno()).st_size
         digest: str | None = None
@@ -239,7 +248,51 @@ def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None]:
                 h.update(chunk)
             digest = h.hexdigest()
         os.fsync(f.fileno())
-    return size, digest
+        st = os.fstat(f.fileno())
+    return size, digest, st
+
+
+def _stamp(st: os.stat_result, digest: str | None) -> list:
+    """A file's stamp: ``[size, mtime_ns, ctime_ns, inode, sha256 it was verified against]``.
+
+    ``ctime`` cannot be set from user space (``os.utime`` moves it to now), so a same-size edit
+    whose modification time was put back still changes the stamp."""
+    return [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, digest]
+
+
+def _trusted(stamp: Any, st: os.stat_result, digest: str | None, state_mtime_ns: int) -> bool:
+    """True if ``stamp`` (from the state file) vouches for the file ``st`` having ``digest``: same
+    size, times and inode, verified against the same digest, and last changed before the state file
+    was written (a change within the same clock tick as the stamp would keep the times: racy)."""
+    return (isinstance(stamp, list) and len(stamp) == 5 and stamp[4] == digest
+            and stamp[:4] == [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
+            and max(st.st_mtime_ns, st.st_ctime_ns) < state_mtime_ns)
+
+
+def _read_state(path: Path) -> tuple[dict[str, Any], int]:
+    """(name -> stamp, the state file's own mtime in ns) of entry folder ``path``; ({}, 0) if there
+    is none or it is unreadable (then every file is re-hashed once)."""
+    try:
+        with open(path / STATE, "rb") as f:
+            mtime = os.fstat(f.fileno()).st_mtime_ns
+            doc = json.loads(f.read())
+    except (OSError, ValueError):
+        return {}, 0
+    stamps = doc.get("stamps") if isinstance(doc, dict) else None
+    return (stamps, mtime) if isinstance(stamps, dict) else ({}, 0)
+
+
+def _write_state(path: Path, stamps: Mapping[str, Any]) -> None:
+    """Replace the state file of entry folder ``path`` (atomically; not synced: it is a cache, and a
+    lost one only costs a re-hash). A read-only cache keeps working without it."""
+    tmp = path / f".{STATE}.{secrets.token_hex(4)}.tmp"
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump({"stamps": dict(sorted(stamps.items()))}, f, separators=(",", ":"))
+        os.replace(tmp, path / STATE)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 def _sha256(path: Path) -> str:
@@ -390,13 +443,16 @@ class Cache:
     """Artifact cache rooted at ``root`` (see module docstring)."""
 
     def __init__(
-        self, root: Path | str, *, hash_limit: int = HASH_LIMIT, stale_after: float = 600.0
+        self, root: Path | str, *, hash_limit: int = HASH_LIMIT, stale_after: float = 600.0,
+        notify: Callable[[str], None] | None = None,
     ) -> None:
         """``stale_after``: age (s) after which a temporary folder whose owner cannot be
-        checked (other host, unparseable name) counts as abandoned."""
+        checked (other host, unparseable name) counts as abandoned. ``notify(line)`` hears of
+        repairs the cache makes on its own (a damaged recording written again)."""
         self.root = Path(root)
         self.hash_limit = hash_limit
         self.stale_after = stale_after
+        self.notify = notify
 
     # ---- paths and validation
 
@@ -413,8 +469,28 @@ class Cache:
         return self.root / stage / key
 
     def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Entry | None, str]:
-        """(entry, "cached") if valid, else (None, reason); ``deep`` also re-hashes files."""
+        """(entry, "cached") if valid, else (None, reason); ``deep`` re-hashes every file, else only
+        those whose stamps do not vouch for them."""
         path = self.path(stage, key)
+        meta, reason = self._read_meta(path, stage, key)
+        if meta is None:
+            return None, reason
+        files = meta["files"]
+        stamps, state_mtime = _read_state(path)
+        reason, fresh = self._check_files(path, files, deep, stamps, state_mtime)
+        if reason:
+            return None, reason
+        if fresh:
+            _write_state(path, {**stamps, **fresh})
+        return Entry(stage, key, path, meta), "cached"
+
+    def stored_meta(self, stage: str, key: str) -> tuple[dict[str, Any] | None, str]:
+        """(meta, "") if entry ``stage/key`` has an intact, complete ``meta.json`` (whatever the
+        state of its data files: what a rebuild needs), else (None, why not)."""
+        return self._read_meta(self.path(stage, key), stage, key)
+
+    @staticmethod
+    def _read_meta(path: Path, stage: str, key: str) -> tuple[dict[str, Any] | None, str]:
         if not path.is_dir():
             return None, "no cache entry"
         meta_path = path / META
@@ -433,38 +509,50 @@ class Cache:
         if meta.get("stage") != stage or meta.get("key") != key:
             owner = f"{meta.get('stage')}/{meta.get('key')}"
             return None, f"cache entry corrupt ({META} belongs to {owner})"
-        files = meta.get("files")
-        if not isinstance(files, dict):
+        if not isinstance(meta.get("files"), dict):
             return None, f"cache entry corrupt ({META} has no file list)"
-        reason = self._check_files(path, files, deep)
-        if reason:
-            return None, reason
-        return Entry(stage, key, path, meta), "cached"
+        return meta, ""
 
-    def _check_files(self, path: Path, files: Mapping[str, Any], deep: bool) -> str:
-        """"" if every recorded file has its size (and, with ``deep``, its sha256); else why not."""
+    def _check_files(self, path: Path, files: Mapping[str, Any], deep: bool,
+                     stamps: Mapping[str, Any] | None = None, state_mtime: int = 0) -> tuple[str, dict[str, list]]:
+        """("", fresh stamps) if every recorded file has its size and sha256, else (why not, {}).
+
+        A file whose stamp in ``stamps`` vouches for it is not read (unless ``deep``); any other is
+        re-hashed, and its new stamp returned. Files without a sha256 (at least :attr:`hash_limit`
+        bytes) are checked by size only."""
         root = path.resolve()
+        stamps = stamps or {}
+        fresh: dict[str, list] = {}
         for name, rec in sorted(files.items()):
             fp = path / name
             if not isinstance(rec, dict) or not isinstance(rec.get("size"), int):
-                return f"cache entry corrupt (bad record for file {name})"
+                return f"cache entry corrupt (bad record for file {name})", {}
             if ".." in PurePath(name).parts or not fp.resolve().is_relative_to(root):
-                return f"cache entry corrupt (file {name} outside the entry)"
+                return f"cache entry corrupt (file {name} outside the entry)", {}
             try:
-                size = fp.stat().st_size
+                st = fp.stat()
             except OSError:
-                return f"file {name} missing"
-            if size != rec["size"]:
-                return f"file {name} changed (size {size} B, recorded {rec['size']} B)"
+                return f"file {name} missing", {}
+            if st.st_size != rec["size"]:
+                return f"file {name} changed (size {st.st_size} B, recorded {rec['size']} B)", {}
             digest = rec.get("sha256")
-            if deep and digest and size < self.hash_limit:
-                try:
-                    actual = _sha256(fp)
-                except OSError as exc:
-                    return f"file {name} unreadable ({exc.strerror})"
-                if actual != digest:
-                    return f"file {name} changed (sha256 {actual[:12]}…, recorded {digest[:12]}…)"
-        return ""
+            if not digest or st.st_size >= self.hash_limit:
+                continue
+            if not deep and _trusted(stamps.get(name), st, digest, state_mtime):
+                continue
+            try:
+                actual = _sha256(fp)
+            except OSError as exc:
+                return f"file {name} unreadable ({exc.strerror})", {}
+            if actual != digest:
+                return f"file {name} changed (sha256 {actual[:12]}…, recorded {digest[:12]}…)", {}
+            fresh[name] = _stamp(st, digest)
+        return "", fresh
+
+    def check(self, stage: str, key: str) -> tuple[Entry | None, str]:
+        """(entry, "cached") if ``stage/key`` is valid, else (None, why not): :meth:`lookup` and
+        :meth:`why` in one check."""
+        return self._check(stage, key)
 
     def verify(self, stage: str, key: str) -> str:
         """Deep check (every file re-hashed): "cached" if valid, else the reason."""
@@ -479,13 +567,20 @@ class Cache:
         return self._check(stage, key)[1]
 
     def require(self, stage: str, key: str) -> Entry:
-        """The entry, or :class:`MissingArtifact` / :class:`CorruptArtifact` (an input)."""
+        """The entry, or :class:`MissingArtifact` / :class:`CorruptArtifact` (an input; its ``ref``
+        and ``reason`` say which entry and why)."""
         entry, reason = self._check(stage, key)
         if entry is not None:
             return entry
         if reason == "no cache entry":
             raise MissingArtifact(f"missing artifact {stage}/{key} under {self.root}")
-        raise CorruptArtifact(f"artifact {stage}/{key} is invalid: {reason}")
+        raise CorruptArtifact(f"artifact {stage}/{key} is invalid: {reason}", ref=f"{stage}/{key}", reason=reason)
+
+    def forget(self, stage: str, key: str) -> None:
+        """Drop the stamps of entry ``stage/key``: its next check re-hashes every file (after a
+        stage failed to read a file whose stamp looked intact)."""
+        with contextlib.suppress(OSError):
+            (self.path(stage, key) / STATE).unlink()
 
     def remove(self, stage: str, key: str) -> bool:
         """Delete entry ``stage/key`` (valid or not) atomically; True if something was there."""
@@ -541,10 +636,11 @@ class Cache:
         result = writer(tmp)
         t_write = time.perf_counter() - t0
         extra, timings = self._result_parts(result)
-        if (tmp / META).exists():
-            raise ValueError(f"the writer of stage {stage!r} must not create {META}")
+        for reserved in (META, STATE):
+            if (tmp / reserved).exists():
+                raise ValueError(f"the writer of stage {stage!r} must not create {reserved}")
         t1 = time.perf_counter()
-        files = self._record_files(tmp)
+        files, stamps = self._record_files(tmp)
         timings = {"write_s": t_write, **timings, "hash_s": time.perf_counter() - t1}
         doc = self._meta(stage, key, dict(meta or {}), extra, timings, files)
         with open(tmp / META, "w", encoding="utf-8") as f:
@@ -552,6 +648,7 @@ class Cache:
             f.write("\n")
             f.flush()
             os.fsync(f.fileno())
+        _write_state(tmp, stamps)  # the files as published (a rename of their folder keeps their stamps)
         _fsync_dir(tmp)
         return self._publish(stage, key, tmp, final, doc)
 
@@ -577,19 +674,23 @@ class Cache:
         kind = type(result).__name__
         raise TypeError(f"a writer must return WriteResult, dict or None, not {kind}")
 
-    def _record_files(self, tmp: Path) -> dict[str, dict[str, Any]]:
+    def _record_files(self, tmp: Path) -> tuple[dict[str, dict[str, Any]], dict[str, list]]:
+        """(name -> {size, sha256}, name -> stamp) of every file the writer left in ``tmp``."""
         files: dict[str, dict[str, Any]] = {}
+        stamps: dict[str, list] = {}
         for dirpath, dirnames, names in os.walk(tmp):
             dirnames.sort()
             for n in sorted(names):
                 p = Path(dirpath) / n
                 if p.is_symlink():
                     raise ValueError(f"artifacts must be self-contained; {n!r} is a symlink")
-                size, digest = _hash_and_sync(p, self.hash_limit)
-                files[p.relative_to(tmp).as_posix()] = {"size": size, "sha256": digest}
+                size, digest, st = _hash_and_sync(p, self.hash_limit)
+                name = p.relative_to(tmp).as_posix()
+                files[name] = {"size": size, "sha256": digest}
+                stamps[name] = _stamp(st, digest)
             if Path(dirpath) != tmp:
                 _fsync_dir(Path(dirpath))
-        return files
+        return files, stamps
 
     @staticmethod
     def _meta(
@@ -636,15 +737,35 @@ class Cache:
     # ---- derived files (recordings made from the stored data)
 
     def derived(self, entry: Entry) -> dict[str, dict[str, Any]]:
-        """Name -> record of the derived files of ``entry`` that are intact (sizes checked)."""
+        """Name -> record of the derived files of ``entry`` that are intact (checked like data
+        files: stamps, else sha256)."""
+        return self.derived_check(entry)[0]
+
+    def derived_check(self, entry: Entry) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+        """(name -> record of each intact derived file, name -> why each other recorded one is not:
+        ``recording.rrd changed (size ...)``, ``trajectory.mcap missing``)."""
         try:
             recs = json.loads((entry.path / DERIVED).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return {}
+        except FileNotFoundError:
+            return {}, {}
+        except (OSError, ValueError) as exc:
+            return {}, {DERIVED: f"{DERIVED} unreadable ({type(exc).__name__})"}
         if not isinstance(recs, dict):
-            return {}
-        return {n: r for n, r in recs.items()
-                if not self._check_files(entry.path, {n: r}, deep=False)}
+            return {}, {DERIVED: f"{DERIVED} is not an object"}
+        stamps, state_mtime = _read_state(entry.path)
+        good: dict[str, dict[str, Any]] = {}
+        bad: dict[str, str] = {}
+        fresh: dict[str, list] = {}
+        for n, r in recs.items():
+            reason, new = self._check_files(entry.path, {n: r}, False, stamps, state_mtime)
+            if reason:
+                bad[n] = reason.removeprefix("file ")
+            else:
+                good[n] = r
+                fresh.update(new)
+        if fresh:
+            _write_state(entry.path, {**stamps, **fresh})
+        return good, bad
 
     def write_derived(self, entry: Entry, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
         """Run ``writer(tmp_dir)`` and move what it wrote into ``entry`` beside the data.
@@ -653,10 +774,15 @@ class Cache:
         replaced atomically; a failure leaves the entry's data untouched and no temporary
         folder. Returns the records of the files written.
         """
+        damaged = self.derived_check(entry)[1]
         tmp = entry.path.parent / _tmp_name(entry.key)
         try:
             tmp.mkdir()
-            return self._write_derived_from(entry, writer, tmp)
+            new = self._write_derived_from(entry, writer, tmp)
+            repaired = [why for name, why in sorted(damaged.items()) if name in new or name == DERIVED]
+            if repaired and self.notify is not None:
+                self.notify(f"{entry.stage} {entry.key}: recording regenerated: {'; '.join(repaired)}")
+            return new
         except OSError as e:
             raise StorageError(f"cannot write the derived files (recording) of {entry.stage}/{entry.key}: "
                                f"{_os_text(e, tmp, entry.path)}; its data stay cached and the next call "
@@ -669,9 +795,9 @@ class Cache:
         writer(tmp)
         new = {}
         for p in sorted(tmp.iterdir()):
-            if p.name in (META, DERIVED) or p.name in entry.meta.get("files", {}) or not p.is_file():
+            if p.name in (META, DERIVED, STATE) or p.name in entry.meta.get("files", {}) or not p.is_file():
                 raise ValueError(f"a derived file may not be called {p.name!r}")
-            size, digest = _hash_and_sync(p, self.hash_limit)
+            size, digest, _ = _hash_and_sync(p, self.hash_limit)
             new[p.name] = {"size": size, "sha256": digest}
         for name in new:
             os.replace(tmp / name, entry.path / name)
@@ -680,6 +806,11 @@ class Cache:
         doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         os.replace(doc, entry.path / DERIVED)
         _fsync_dir(entry.path)
+        stamps, _ = _read_state(entry.path)
+        for name, rec in new.items():  # stamped where they now are (a rename moves a file's ctime)
+            with contextlib.suppress(OSError):
+                stamps[name] = _stamp((entry.path / name).stat(), rec["sha256"])
+        _write_state(entry.path, stamps)
         return new
 
     # ---- listing and cleanup

@@ -144,7 +144,9 @@ def config_command(name: str, cls: type, description: str, action) -> None:
         except (TypeError, ValueError) as e:
             raise BadInput(str(e)) from None
         reporter = Reporter(quiet)
-        outcome = action(open_cache(artifacts), cfg, not no_record, reporter)
+        cache = open_cache(artifacts)
+        cache.notify = reporter.say  # repairs it makes on its own (a damaged recording written again)
+        outcome = action(cache, cfg, not no_record, reporter)
         report(outcome, as_json, reporter)
 
     command.__signature__ = inspect.Signature(params)
@@ -254,6 +256,7 @@ def reproduce(
     pool = make_executor(executor, jobs, address)  # checks the name, the address and that Ray is there
     reporter = Reporter(quiet)
     cache = open_cache(artifacts)
+    cache.notify = reporter.say  # damaged entries and recordings found on the way
     with contextlib.closing(repro.reproduce(cache, ids, quick=quick, jobs=jobs, record=not no_record,
                                             reporter=reporter, executor=pool)) as docs:  # closed: workers stopped
         for doc in docs:
@@ -343,6 +346,7 @@ def show(
 ):
     """Print an artifact's meta.json and recording path, or open its recording in Rerun."""
     cache = open_cache(artifacts)
+    cache.notify = Reporter().say
     entry = runner.find_entry(cache, ref)
     rrd = entry.path / "recording.rrd"
     if open_:

@@ -30,9 +30,22 @@ class MissingArtifact(RaicoError):
 
 
 class CorruptArtifact(RaicoError):
-    """An artifact exists but is partial, unreadable or does not match its recorded hash."""
+    """An artifact exists but is partial, unreadable or does not match its recorded hash.
+
+    ``ref`` (``STAGE/KEY``) names the entry where known and ``reason`` says what is wrong with it
+    (``file plan.npz changed (sha256 ...)``), so a caller can rebuild it; both survive pickling
+    (an error raised in a worker process)."""
 
     exit_code = 4
+
+    def __init__(self, *args: object, ref: str | None = None, reason: str | None = None) -> None:
+        super().__init__(*args)
+        self.ref, self.reason = ref, reason
+
+
+class UnreadableArtifact(CorruptArtifact):
+    """A data file of an entry that passed its check could not be loaded (damage its stamps did not
+    show, or a file written damaged): numpy's or zipfile's error, as one clean line."""
 
 
 class StorageError(RaicoError):
@@ -150,6 +163,34 @@ def die_with_parent(parent_pid: int | str | None) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="raico-parent-watch", daemon=True).start()
+
+
+def dies_with_this_process():
+    """A ``preexec_fn`` for :class:`subprocess.Popen`: the child is SIGKILLed by the kernel when the
+    thread that starts it ends, this process's SIGKILL included (Linux ``PR_SET_PDEATHSIG``; the
+    function is looked up here, so the forked child only calls it), and exits at once if this
+    process is already gone. None where there is no ``prctl``."""
+    import os
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+    pr_set_pdeathsig, sigkill = 1, int(signal.SIGKILL)
+
+    def preexec() -> None:
+        prctl(pr_set_pdeathsig, sigkill, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before we asked
+            os._exit(1)
+
+    return preexec
 
 
 def stop_resource_tracker() -> None:

@@ -233,6 +233,7 @@ class RayExecutor(Executor):
         self._slots: int | None = None
         self._connected_here = False
         self._refs: dict[Future, Any] = {}
+        self._reaper = None  # of a local instance (see _start_reaper)
 
     @property
     def slots(self) -> int:  # the cluster's CPUs
@@ -254,22 +255,31 @@ class RayExecutor(Executor):
             handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
             kwargs: dict[str, Any] = {"logging_level": logging.ERROR}
             os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # no C++ warning lines on stderr
+            mark = None
             if self.address is None:
                 kwargs.update(num_cpus=self.workers, include_dashboard=False)
+                mark, self._reaper = _start_reaper()
             else:
                 _check_reachable(self.address)
                 _token_auth_like_ray_start()
             try:
+                if mark is not None:
+                    os.environ[RAY_OWNER] = mark.split("=", 1)[1]  # inherited by every process of the instance
                 ray.init(address=self.address or "local", **kwargs)  # "local": a new instance, even if
                 # `ray start` left its address behind (plain ray.init() would connect to that cluster)
-            except SystemExit:  # ray.init's own SIGTERM handler (in place while it starts)
-                raise Interrupted(signal.SIGTERM) from None
-            except (ConnectionError, RuntimeError, ValueError) as e:
+            except BaseException as e:
+                _stop_reaper(self._reaper)
+                self._reaper = None
+                if isinstance(e, SystemExit):  # ray.init's own SIGTERM handler (in place while it starts)
+                    raise Interrupted(signal.SIGTERM) from None
+                if not isinstance(e, (ConnectionError, RuntimeError, ValueError)):
+                    raise
                 where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
                 hint = ("" if self.address is None or os.environ.get("RAY_AUTH_MODE") else
                         " (a cluster with token authentication needs RAY_AUTH_MODE=token and its token here)")
                 raise RaicoError(f"cannot start or reach {where}: {e}{hint}") from None
             finally:
+                os.environ.pop(RAY_OWNER, None)
                 for s, h in handlers.items():  # ray.init replaces the SIGTERM handler with sys.exit
                     signal.signal(s, h)
             self._connected_here = True
@@ -313,7 +323,117 @@ class RayExecutor(Executor):
         self._remote = None
         if self._connected_here:
             self._connected_here = False
-            ray.shutdown()
+            try:
+                ray.shutdown()
+            finally:
+                _stop_reaper(self._reaper)
+                self._reaper = None
+
+
+# A local Ray instance's own processes (GCS, raylet, dashboard, monitors) are started by ray.init with
+# PR_SET_PDEATHSIG: they die with this process. The raylet's children (its agents, the workers) only
+# notice the raylet is gone after seconds, the agents (killed while the instance starts) after half a
+# minute. So a reaper -- a small process of its own, its output nowhere, immune to the terminal's
+# Ctrl-C -- watches the instance: it learns the processes below this process's children that carry
+# a mark in their environment (set while ray.init starts the instance), twice a second, and waits for
+# EOF on its stdin, the pipe from this process that the kernel closes however this process ends,
+# SIGKILL included. Then it SIGKILLs every process it learnt (unless its pid now names another process)
+# and every process with the mark (workers started since it last looked).
+RAY_OWNER = "RAICO_RAY_OWNER"
+REAPER = r"""
+import os, select, signal, sys, time
+owner, mark, me = sys.argv[1], sys.argv[2].encode(), str(os.getpid())
+
+def read(path):
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError:
+        return b""
+
+def started(pid):
+    st = read("/proc/%s/stat" % pid)
+    return st[st.rfind(b")") + 2:].split()[19] if st else b""
+
+def children(pid):
+    try:
+        tasks = os.listdir("/proc/%s/task" % pid)
+    except OSError:
+        return []
+    return [c.decode() for t in tasks for c in read("/proc/%s/task/%s/children" % (pid, t)).split()]
+
+def marked(pid):
+    return mark in read("/proc/%s/environ" % pid).split(b"\0")
+
+known = {}
+
+def learn(roots):
+    todo = list(roots)
+    while todo:
+        p = todo.pop()
+        if p == me:
+            continue
+        if p not in known:
+            t = started(p)
+            if not t:
+                continue
+            known[p] = t
+        todo += children(p)
+
+def kill(pid):
+    try:
+        os.kill(int(pid), signal.SIGKILL)
+    except OSError:
+        pass
+
+while True:
+    if select.select([0], [], [], 0.5)[0]:
+        if not os.read(0, 4096):
+            break
+    else:
+        learn(c for c in children(owner) if c in known or marked(c))
+learn(list(known))
+for _ in range(3):
+    for p, t in list(known.items()):
+        if started(p) == t:
+            kill(p)
+    for p in os.listdir("/proc"):
+        if p.isdigit() and p != me and marked(p):
+            kill(p)
+    time.sleep(0.2)
+"""
+
+
+def _start_reaper():
+    """(the mark ``NAME=VALUE`` for the instance's environment, the reaper) on Linux, else (None, None)."""
+    import os
+    import secrets
+    import subprocess
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None, None
+    mark = f"{RAY_OWNER}={os.getpid()}-{secrets.token_hex(4)}"
+    env = {k: v for k, v in os.environ.items() if k != RAY_OWNER}
+    reaper = subprocess.Popen([sys.executable, "-I", "-S", "-c", REAPER, str(os.getpid()), mark],
+                              stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                              start_new_session=True)
+    return mark, reaper
+
+
+def _stop_reaper(reaper) -> None:
+    """Close the reaper's pipe (it kills what the instance left, if anything) and reap it."""
+    import subprocess
+
+    if reaper is None:
+        return
+    with contextlib.suppress(OSError):
+        reaper.stdin.close()
+    try:
+        reaper.wait(5.0)
+    except subprocess.TimeoutExpired:
+        reaper.kill()
+        reaper.wait()
 
 
 def _check_reachable(address: str, timeout: float = 5.0) -> None:

@@ -11,18 +11,23 @@ outcome is what the CLI prints: ``{"stage", "key", "path", "cached", "status", "
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
 import os
+import struct
 import time
+import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pipeline.cache import Cache, Entry, stage_key
-from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact
+from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
+from stages.base import Artifact
 
 DEFAULT_ARTIFACTS = "artifacts"
 
@@ -140,13 +145,69 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     return cache.require(valid[0].stage, valid[0].key)
 
 
-def as_artifact(entry: Entry):
-    """The stage-side view of a cache entry (``stages.base.Artifact``)."""
-    from stages.base import Artifact
-
+def as_artifact(entry: Entry) -> CheckedArtifact:
+    """The stage-side view of a cache entry (a ``stages.base.Artifact`` whose loads check the data)."""
     m = entry.meta
-    return Artifact(stage=entry.stage, key=entry.key, path=entry.path, config=m.get("config", {}),
-                    status=m.get("status", "ok"), metrics=m.get("metrics", {}), inputs=tuple(m.get("inputs", ())))
+    return CheckedArtifact(stage=entry.stage, key=entry.key, path=entry.path, config=m.get("config", {}),
+                           status=m.get("status", "ok"), metrics=m.get("metrics", {}),
+                           inputs=tuple(m.get("inputs", ())))
+
+
+# what numpy, zipfile, zlib and json raise on a damaged file (a bad CRC, a garbled array header, a
+# truncated member, bytes that are not UTF-8); MemoryError: a damaged header asking for a huge array
+LOAD_ERRORS = (zipfile.BadZipFile, zlib.error, ValueError, EOFError, KeyError, struct.error, FileNotFoundError,
+               IsADirectoryError, MemoryError)
+
+
+class CheckedArtifact(Artifact):
+    """:class:`stages.base.Artifact` whose data loads turn a damaged file into one clean error naming
+    the entry (:class:`~pipeline.errors.UnreadableArtifact`, exit 4), never numpy's traceback or its
+    message with the file's bytes in it. Stages see the same interface."""
+
+    def arrays(self, name: str, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
+        try:
+            return super().arrays(name, keys)
+        except LOAD_ERRORS as e:
+            raise unreadable(self, name, e) from None
+
+    def document(self, name: str) -> Any:
+        try:
+            return super().document(name)
+        except LOAD_ERRORS as e:
+            raise unreadable(self, name, e) from None
+
+
+def clean_error(e: BaseException) -> str:
+    """``Type: message`` of a load error on one short printable line (numpy quotes the damaged header's
+    bytes: left out)."""
+    name = type(e).__name__
+    if name == "error":  # zlib.error
+        name = f"{type(e).__module__}.error"
+    lines = str(e).strip().splitlines()
+    text = lines[0] if lines else ""
+    for cut in (": b'", ': b"', " b'", ' b"', ". "):  # the bytes numpy quotes; a second sentence
+        text = text.split(cut)[0]
+    text = "".join(c for c in text if c.isprintable() and c.isascii()).strip()
+    if len(text) > 100:
+        text = text[:99] + "…"
+    return f"{name}: {text}" if text else name
+
+
+def unreadable(art: Artifact, name: str, e: BaseException) -> BaseException:
+    """The error for a file of ``art`` that could not be loaded: the entry is re-hashed; a mismatch
+    (damage its stamps did not show) also drops its stamps, so the next check finds it. A
+    ``MemoryError`` from a file that matches its hash is a real shortage, returned as it is."""
+    cache = Cache(art.path.parent.parent)
+    verdict = cache.verify(art.stage, art.key)
+    if verdict == "cached" and isinstance(e, MemoryError):
+        return e
+    what = f"{name} cannot be read ({clean_error(e)})"
+    if verdict == "cached":
+        reason = f"{what}, although it matches its recorded sha256 (it was written damaged)"
+    else:
+        cache.forget(art.stage, art.key)
+        reason = f"{what}: {verdict}"
+    return UnreadableArtifact(f"artifact {art.ref} is damaged: {reason}", ref=art.ref, reason=reason)
 
 
 @functools.cache
@@ -159,11 +220,23 @@ def code_version(stage) -> str:
     return _code_version(stage.name, tuple(stage.sources))
 
 
-def resolve_inputs(cache: Cache, stage, config) -> dict[str, Any]:
-    """Role -> Artifact (a tuple of them for a repeatable input) of the inputs ``config`` names."""
+Repair = Callable[[CorruptArtifact], Entry]
+
+
+def resolve_inputs(cache: Cache, stage, config, repair: Repair | None = None) -> dict[str, Any]:
+    """Role -> Artifact (a tuple of them for a repeatable input) of the inputs ``config`` names.
+
+    A damaged input is :class:`CorruptArtifact`, or, with ``repair``, what ``repair(error)`` makes
+    of it (:func:`rebuild`)."""
     out: dict[str, Any] = {}
     for ref in stage.inputs(config):
-        art = as_artifact(find_entry(cache, ref.ref, stage=ref.stage))
+        try:
+            entry = find_entry(cache, ref.ref, stage=ref.stage)
+        except CorruptArtifact as e:
+            if repair is None or e.ref is None:
+                raise
+            entry = repair(e)
+        art = as_artifact(entry)
         if isinstance(getattr(config, ref.role), tuple):
             out[ref.role] = (*out.get(ref.role, ()), art)
         else:
@@ -190,7 +263,7 @@ def _write_outputs(tmp: Path, out) -> None:
         writer(tmp / name)
 
 
-def _prepare(cache: Cache, stage, config):
+def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
     """(stage, config, inputs, input keys, key config, code version, key) of a run."""
     from stages.registry import get_stage
 
@@ -201,7 +274,7 @@ def _prepare(cache: Cache, stage, config):
         config.validate()
     except ValueError as e:
         raise BadInput(str(e)) from None
-    inputs = resolve_inputs(cache, stage, config)
+    inputs = resolve_inputs(cache, stage, config, repair)
     input_keys = _input_keys(inputs)
     version = code_version(stage)
     key_config = config.key_dict()
@@ -212,16 +285,29 @@ def _prepare(cache: Cache, stage, config):
 def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | None:
     """The outcome of a cached run (with its recording, if ``record``), or None if it must run.
 
-    Cheap (no stage code runs): lets a sweep skip worker processes for what is cached."""
+    Cheap (no stage code runs): lets a sweep skip worker processes for what is cached. A damaged
+    entry, input or recording is left to the run (which recomputes, rebuilds or writes it again);
+    ``cache.notify`` hears why."""
     from pipeline.recorders import RECORDERS, RECORDING
 
-    stage, config, _, _, _, _, key = _prepare(cache, stage, config)
-    entry = cache.lookup(stage.name, key)
+    try:
+        stage, config, _, _, _, _, key = _prepare(cache, stage, config)
+    except CorruptArtifact as e:  # a damaged input: the run rebuilds it (or says why it cannot)
+        if cache.notify is not None and e.ref is not None:
+            cache.notify(f"{e.ref.replace('/', ' ')}: damaged ({e.reason or e}); the run that reads it rebuilds it")
+        return None
+    entry, why = cache.check(stage.name, key)
     if entry is None:
+        if why != "no cache entry" and cache.notify is not None:
+            cache.notify(f"{stage.name} {key}: {why}; computing it again")
         return None
     recording = None
     if record and stage.name in RECORDERS:
-        if RECORDING not in cache.derived(entry):
+        intact, damaged = cache.derived_check(entry)
+        if RECORDING not in intact or damaged:  # the recorder writes the .rrd and the .mcap together
+            if damaged and cache.notify is not None:
+                cache.notify(f"{stage.name} {key}: recording damaged ({'; '.join(damaged.values())}); "
+                             f"writing it again")
             return None
         recording = str(entry.path / RECORDING)
     m = entry.meta
@@ -229,18 +315,52 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
                    metrics=m.get("metrics", {}), recording=recording, reason="cached")
 
 
-def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payload: dict | None = None
-        ) -> Outcome:
+def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payload: dict | None = None,
+        _rebuilt: set[str] | None = None) -> Outcome:
     """Run ``stage`` (a ``Stage`` or its name) with ``config`` through ``cache``.
 
     On a hit the stage is not called. With ``record``, the stage's recording is written
     from the stored data when the entry lacks one (fresh or cached). ``payload``, if given,
     receives the stage's in-memory output under ``"output"`` when it ran.
+
+    A damaged input is rebuilt first where it can be (:func:`rebuild`; the reporter says so), else
+    one :class:`CorruptArtifact` line; a cached entry of this run whose data turn out unreadable is
+    computed again. Each entry is rebuilt at most once per call.
     """
     from pipeline.ui import Reporter
 
     reporter = reporter or Reporter(quiet=True)
-    stage, config, inputs, input_keys, key_config, version, _ = _prepare(cache, stage, config)
+    rebuilt: set[str] = set() if _rebuilt is None else _rebuilt
+    name = stage.name if hasattr(stage, "name") else str(stage)
+
+    def repair(err: CorruptArtifact) -> Entry:
+        return rebuild(cache, err, reporter, consumer=name, _rebuilt=rebuilt)
+
+    own_damage: str | None = None
+    while True:
+        this: dict[str, str] = {}
+        try:
+            outcome = _run_once(cache, stage, config, record, reporter, payload, repair, this)
+        except UnreadableArtifact as e:  # data that passed their check but do not load
+            own = this.get("ref")
+            if e.ref == own and own_damage is None:
+                own_damage = e.reason or str(e)
+                cache.remove(*own.split("/", 1))  # damaged: computed again below
+                continue
+            if e.ref is None or e.ref == own:
+                raise
+            repair(e)  # an input: rebuilt (at most once), then the run again
+            continue
+        if own_damage is not None and not outcome.cached:
+            outcome.reason = own_damage
+        return outcome
+
+
+def _run_once(cache: Cache, stage, config, record: bool, reporter, payload: dict | None, repair: Repair,
+              this: dict[str, str]) -> Outcome:
+    """One attempt of :func:`run`; ``this["ref"]`` is the run's ``STAGE/KEY`` once it is known."""
+    stage, config, inputs, input_keys, key_config, version, key = _prepare(cache, stage, config, repair)
+    this["ref"] = f"{stage.name}/{key}"
 
     def compute(tmp: Path) -> dict[str, Any]:
         with reporter.progress(f"{stage.name} {_label(key_config)}", stage.progress_total(config)) as update:
@@ -261,6 +381,82 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
     return outcome
 
 
+def config_from_meta(stage, meta: dict[str, Any]):
+    """The config that made an entry, from its ``meta.json``: the stored (key) config plus the input
+    references, each given back to the one input field that accepts its stage; None if a reference
+    fits no field or several, or the values no longer make a config."""
+    cls = stage.config_cls
+    values = dict(meta.get("config") or {})
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    refs: dict[str, list[str]] = {}
+    for ref in meta.get("inputs") or []:
+        st = str(ref).split("/", 1)[0]
+        roles = [r for r in cls.INPUTS
+                 if st in ((cls.INPUT_STAGES[r],) if isinstance(cls.INPUT_STAGES[r], str) else cls.INPUT_STAGES[r])]
+        if len(roles) != 1:
+            return None
+        refs.setdefault(roles[0], []).append(str(ref))
+    for role, rs in refs.items():
+        if isinstance(fields[role].default, tuple):
+            values[role] = tuple(rs)
+        elif len(rs) == 1:
+            values[role] = rs[0]
+        else:
+            return None
+    try:
+        return cls.from_dict(values)
+    except (TypeError, ValueError):
+        return None
+
+
+def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None = None,
+            _rebuilt: set[str] | None = None) -> Entry:
+    """Compute the damaged entry ``err.ref`` again from its stored config (and inputs, rebuilt in turn
+    if need be), under the same key; the reporter says so in one line. Where that cannot be (its
+    ``meta.json`` is damaged too, it is not a stage run, or this code would give it another key), or
+    it was rebuilt already in this call, one :class:`CorruptArtifact` line saying why."""
+    from pipeline.ui import Reporter
+    from stages.registry import get_stage, stage_names
+
+    ref, why = err.ref, err.reason or str(err)
+    rebuilt = set() if _rebuilt is None else _rebuilt
+    if ref is None:
+        raise err
+
+    def refuse(cause: str):
+        return CorruptArtifact(f"artifact {ref} is damaged ({why}) and cannot be rebuilt: {cause}; run the command "
+                               f"that made it again", ref=ref, reason=why)
+
+    if ref in rebuilt:
+        raise refuse("it was rebuilt once in this call already and is still damaged")
+    st_name, key = ref.split("/", 1)
+    meta, _ = cache.stored_meta(st_name, key)
+    if meta is None:
+        raise refuse("its config is in its meta.json, which is damaged or missing")
+    if st_name not in stage_names():
+        raise refuse(f"raico rebuilds stage runs ({', '.join(stage_names())}), not a {st_name} entry")
+    stage = get_stage(st_name)
+    cfg = config_from_meta(stage, meta)
+    if cfg is None:
+        raise refuse(f"its {st_name} config is not one this version reads")
+    rebuilt.add(ref)
+
+    def repair(e: CorruptArtifact) -> Entry:
+        return rebuild(cache, e, reporter, consumer=st_name, _rebuilt=rebuilt)
+
+    try:
+        new_key = _prepare(cache, stage, cfg, repair)[-1]
+    except (BadInput, MissingArtifact) as e:
+        raise refuse(str(e)) from None
+    if new_key != key:
+        raise refuse(f"it was made by another version of the {st_name} code (this one gives key {new_key})")
+    cache.remove(st_name, key)
+    run(cache, stage, cfg, record=False, reporter=Reporter(quiet=True), _rebuilt=rebuilt)
+    of = f" (input of {consumer})" if consumer else ""
+    reporter.say(f"{st_name} {key}{of}: damaged ({why}); rebuilt from its stored config")
+    return cache.require(st_name, key)
+
+
 def _label(cfg: dict) -> str:
     return " ".join(str(cfg[k]) for k in ("plant", "task", "solver") if cfg.get(k))
 
@@ -273,7 +469,8 @@ def ensure_recording(cache: Cache, entry: Entry) -> str | None:
     recorder = RECORDERS.get(entry.stage)
     if recorder is None:
         return None
-    if RECORDING not in cache.derived(entry):
+    intact, damaged = cache.derived_check(entry)
+    if RECORDING not in intact or damaged:  # written again together (the cache says which was damaged)
         inputs = [as_artifact(cache.require(*ref.split("/", 1))) for ref in entry.meta.get("inputs", [])]
         try:
             cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs))

@@ -18,7 +18,9 @@ import io
 import os
 import shutil
 import socket
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -37,6 +39,20 @@ ROBOT_PIXELS = 3e-4  # share of a 3D view's pixels showing bodies once drawn (an
 
 
 def _rerun_executable() -> str | None:
+    """The viewer's own executable: the binary of the ``rerun_cli`` package (the ``rerun`` command
+    of a pip install is a Python launcher that runs that binary as its child: killing the launcher
+    would leave the viewer running), else ``rerun`` beside this Python or on the PATH."""
+    override = os.environ.get("RERUN_CLI_PATH")  # what the launcher honours, too
+    if override:
+        return override
+    try:
+        import rerun_cli
+    except ImportError:
+        pass
+    else:
+        binary = Path(rerun_cli.__file__).with_name("rerun")
+        if binary.is_file():
+            return str(binary)
     venv = Path(sys.executable).with_name("rerun")
     return str(venv) if venv.exists() else shutil.which("rerun")
 
@@ -80,26 +96,74 @@ class _Viewer:
     started: float  # time.monotonic() at its start
 
 
+START_TIMEOUT_S = 60.0  # the viewer listening on its port (it starts in about 1 s; a loaded machine is slower)
+
+
 @contextmanager
 def _viewer() -> Iterator[_Viewer]:
-    """A headless viewer on a free local port (quit on exit)."""
+    """A headless viewer on a free local port, stopped on exit.
+
+    Started here rather than by ``ViewerClient.spawn`` (which starts the pip launcher, whose child
+    the viewer is, inheriting this process's stdout and stderr): the binary itself, as a direct
+    child that the kernel kills with this process, SIGKILL included (``PR_SET_PDEATHSIG``), with
+    its output in a temporary file, never in the caller's pipes. Raises ``RuntimeError`` with the
+    viewer's last line if it does not start."""
     os.environ.setdefault("RUST_LOG", "off")  # the viewer's own log lines
     if not os.environ.get("XDG_RUNTIME_DIR"):  # else the viewer's window layer complains on stderr
-        import tempfile
-
         os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="raico-xdg-")
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
     from rerun.experimental import ViewerClient
 
+    from pipeline.errors import dies_with_this_process
+
+    exe = _rerun_executable()
+    if exe is None:
+        raise RuntimeError("the rerun executable is not installed")
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    viewer = ViewerClient.spawn(headless=True, port=port, executable_path=_rerun_executable(),
-                                hide_welcome_screen=True)
-    try:
-        yield _Viewer(viewer, time.monotonic())
-    finally:
-        viewer.quit()
+    # the arguments ViewerClient.spawn(headless=True, hide_welcome_screen=True) gives the viewer
+    cmd = [exe, f"--port={port}", "--memory-limit=75%", "--server-memory-limit=1GiB", "--expect-data-soon",
+           "--hide-welcome-screen", "--headless"]
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+                                env={**os.environ, "RERUN_APP_ONLY": "true"}, preexec_fn=dies_with_this_process())
+        try:
+            _wait_listening(proc, port, log)
+            yield _Viewer(ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy"), time.monotonic())
+        finally:
+            _stop(proc)
+
+
+def _wait_listening(proc: subprocess.Popen, port: int, log: Any) -> None:
+    """Until the viewer accepts connections on ``port``; ``RuntimeError`` if it exits first or takes
+    longer than :data:`START_TIMEOUT_S`."""
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while True:
+        if proc.poll() is not None:
+            log.seek(0)
+            lines = [ln.strip() for ln in log.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+            raise RuntimeError(f"the Rerun viewer exited at start (code {proc.returncode})"
+                               + (f": {lines[-1]}" if lines else ""))
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            return
+        except OSError:
+            pass
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the Rerun viewer did not start listening within {START_TIMEOUT_S:.0f} s")
+        time.sleep(0.1)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """SIGTERM, SIGKILL after 5 s; reaped either way."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def _robot_drawn(viewer: Any, views: Mapping[str, str]) -> bool:

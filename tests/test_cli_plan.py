@@ -214,16 +214,29 @@ def test_bad_input_is_one_line(tmp_path, args, code, pattern):
     assert len(lines) == 1 and re.fullmatch(pattern, lines[0]), res.stderr
 
 
-def test_execute_rejects_corrupt_plan(tmp_path):
+def test_execute_on_a_corrupt_plan_rebuilds_it_or_refuses(tmp_path):
+    """A damaged plan is rebuilt from its stored config first (one line says so); one whose meta.json
+    (its config) is damaged too cannot be: one CorruptArtifact line, exit 4, nothing executed."""
     line = run_json("plan", "--plant", "pendulum", "--task", "swing-up", "--iterations", 1, "--no-record",
                     "--json", "--artifacts", tmp_path)
+    key = line["key"]
     (Path(line["path"]) / "plan.npz").write_bytes(b"garbage")
-    res = runner.invoke(app, ["execute", "--plan", line["key"], "--artifacts", str(tmp_path)])
+    res = runner.invoke(app, ["execute", "--plan", key, "--no-record", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.stderr
+    rebuilt, ran = res.stderr.strip().splitlines()
+    assert re.fullmatch(rf"plan {key} \(input of execute\): damaged \(file plan\.npz changed \(size 7 B, recorded "
+                        r"\d+ B\)\); rebuilt from its stored config", rebuilt), rebuilt
+    assert ran.startswith("execute ") and ": ran (no cache entry)" in ran
+    np.load(Path(line["path"]) / "plan.npz")["X"]  # readable again
+    (Path(line["path"]) / "plan.npz").write_bytes(b"garbage")
+    (Path(line["path"]) / "meta.json").write_text("{")
+    res = runner.invoke(app, ["execute", "--plan", key, "--seed", "1", "--artifacts", str(tmp_path)])
     assert res.exit_code == 4 and len(res.stderr.strip().splitlines()) == 1  # CorruptArtifact
-    assert re.fullmatch(rf"raico: error: artifact plan/{line['key']} is invalid: file plan\.npz changed "
-                        r"\(size 7 B, recorded \d+ B\)", res.stderr.strip()), res.stderr
-    assert not (tmp_path / "execute").exists() or not [p for p in (tmp_path / "execute").iterdir()
-                                                        if not p.name.startswith(".")]
+    assert res.stderr.strip() == (
+        f"raico: error: artifact plan/{key} is damaged (cache entry corrupt (meta.json unreadable: JSONDecodeError)) "
+        f"and cannot be rebuilt: its config is in its meta.json, which is damaged or missing; run the command that "
+        f"made it again"), res.stderr
+    assert len([p for p in (tmp_path / "execute").iterdir() if not p.name.startswith(".")]) == 1
 
 
 def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):

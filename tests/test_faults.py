@@ -11,6 +11,7 @@ import errno
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -548,7 +549,7 @@ def test_rerun_file_writer_failure_is_one_line_without_rerun_noise(helper):
         f"{root / 'efbig' / 'babble' / key / 'recording.rrd'}: file too large; its data stay cached and the next "
         f"call writes them")
     assert tmp_folders(root / "efbig") == [] and [r.key for r in valid_entries(root / "efbig")] == [key]
-    assert sorted(p.name for p in (root / "efbig" / "babble" / key).iterdir()) == ["data.npz", "meta.json"]
+    assert sorted(p.name for p in (root / "efbig" / "babble" / key).iterdir()) == ["data.npz", "meta.json", "state.json"]
 
 
 def test_sigterm_mid_stage_one_line_no_temp_folder(helper):
@@ -581,6 +582,19 @@ def _truncate(path: Path) -> None:
     path.write_bytes(data[: len(data) // 2])
 
 
+def _flip(path: Path, keep_mtime: bool = False) -> None:
+    """A byte in the middle of ``path`` flipped in place, as a careful operator's fault run does it (the
+    size stays, the modification time moves; with ``keep_mtime`` it is put back by ``os.utime``)."""
+    st = path.stat()
+    with open(path, "r+b") as f:
+        f.seek(st.st_size // 2)
+        b = f.read(1)
+        f.seek(st.st_size // 2)
+        f.write(bytes([b[0] ^ 0xFF]))
+    if keep_mtime:
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+
+
 def _edit_number(meta: Path) -> None:
     text = meta.read_text()
     new = re.sub(r'("compute_s": )(\d)', lambda m: m[1] + str((int(m[2]) + 1) % 10), text, count=1)
@@ -590,6 +604,10 @@ def _edit_number(meta: Path) -> None:
 
 CORRUPTIONS = {
     "truncated data file": (lambda e, data: _truncate(e / data), r"file {data} changed \(size \d+ B, recorded \d+ B\)"),
+    "byte flipped in a data file (same size)": (lambda e, data: _flip(e / data),
+                                                r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
+    "byte flipped, mtime put back": (lambda e, data: _flip(e / data, keep_mtime=True),
+                                     r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
     "deleted data file": (lambda e, data: (e / data).unlink(), "file {data} missing"),
     "edited meta.json": (lambda e, data: _edit_number(e / "meta.json"),
                          r"cache entry corrupt \(meta\.json was edited: its checksum does not match its content\)"),
@@ -603,6 +621,8 @@ DATA = {"babble": "data.npz", "fit": "model.npz", "plan": "plan.npz", "execute":
         "evaluate": "evaluation.json"}
 CASES = [("babble", "truncated data file"), ("fit", "emptied file list"), ("plan", "edited meta.json"),
          ("execute", "truncated meta.json"), ("evaluate", "deleted data file")]  # every stage, every kind
+CASES += [(stage, "byte flipped in a data file (same size)") for stage in DATA]  # issue 21: each stage's data file
+CASES += [("plan", "byte flipped, mtime put back")]  # size and mtime as recorded: the ctime still moved
 
 
 @pytest.mark.parametrize("stage, kind", CASES)
@@ -636,3 +656,243 @@ def test_corrupted_entry_is_detected_said_and_recomputed(helper, stage, kind):
     stable = lambda m: {k: v for k, v in m.items() if "time" not in k and not k.endswith("_s")}  # noqa: E731
     assert stable(after.metrics) == stable(before.metrics)
     assert runner.run(cache, stage, cfg, record=False).cached and tmp_folders(root) == []
+
+
+# ============================================================================= 6. integrity of inputs, recordings (issue 21)
+SHA = r"\(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"
+
+
+def _matrix_copy(helper, tmp_path: Path) -> tuple[Path, dict]:
+    """A copy of the helper's cache (new inodes and times: every entry is re-hashed once) and its keys."""
+    root, _, keys = helper
+    dst = tmp_path / "a"
+    shutil.copytree(root / "matrix", dst, ignore=shutil.ignore_patterns(".tmp-*"))
+    return dst, keys
+
+
+def _restamp(entry: Path, name: str) -> None:
+    """Make the stamp of ``name`` vouch for its current (damaged) bytes: damage the stamps do not show
+    (size, times and inode kept, as below the file system), the residual case of a stat-based check."""
+    stamps = json.loads((entry / "state.json").read_text())["stamps"]
+    st = (entry / name).stat()
+    stamps[name][:4] = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
+    (entry / "state.json").write_text(json.dumps({"stamps": stamps}))
+    later = time.time_ns() + 10**9
+    os.utime(entry / "state.json", ns=(later, later))
+
+
+def _damage_header(path: Path) -> None:
+    """Garble the start of the first array in an ``.npz`` (same size): the first bytes of the zip
+    member's compressed data, which hold the array's header."""
+    import struct
+
+    data = path.read_bytes()
+    assert data[:4] == b"PK\x03\x04"
+    name_len, extra_len = struct.unpack("<HH", data[26:30])
+    start = 30 + name_len + extra_len
+    with open(path, "r+b") as f:
+        f.seek(start + 3)
+        f.write(bytes([data[start + 3] ^ 0xFF]))
+
+
+@pytest.mark.parametrize("command", ["execute", "evaluate"])
+def test_stage_on_a_damaged_plan_rebuilds_it_first(helper, tmp_path, command):
+    """``raico execute`` / ``evaluate`` on a plan whose data file had a byte flipped: the plan is rebuilt
+    from its stored config (one line says so, under its key), then the stage answers; no traceback."""
+    from pipeline.cache import Cache
+
+    a, keys = _matrix_copy(helper, tmp_path)
+    plan = keys["plan"]
+    _flip(a / "plan" / plan / "plan.npz")
+    args = ["--plan", plan] + (["--rollout", keys["execute"]] if command == "evaluate" else [])
+    res = cli(command, *args, "--no-record", "--artifacts", a)
+    assert res.exit_code == 0, res.stderr
+    rebuilt, answer = lines(res.stderr)
+    assert re.fullmatch(rf"plan {plan} \(input of {command}\): damaged \(file plan\.npz changed {SHA}\); rebuilt "
+                        r"from its stored config", rebuilt), rebuilt
+    assert answer.startswith(f"{command} ") and ": cached -> " in answer  # its own entry was intact
+    assert Cache(a).verify("plan", plan) == "cached" and tmp_folders(a) == []
+
+
+@pytest.mark.parametrize("damage", ["crc", "header"])
+def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage):
+    """Damage the stamps cannot show (stamped as intact) makes numpy fail when execute loads the plan
+    (``BadZipFile: Bad CRC-32``, or a garbled array header): one clean line naming the entry and the
+    cause -- no traceback, none of the file's bytes, not exit 2 -- and the plan rebuilt, then executed."""
+    from pipeline.cache import Cache
+
+    a, keys = _matrix_copy(helper, tmp_path)
+    plan = keys["plan"]
+    entry = a / "plan" / plan
+    assert Cache(a).lookup("plan", plan) is not None  # stamps recorded for the copy
+    (_flip if damage == "crc" else _damage_header)(entry / "plan.npz")
+    _restamp(entry, "plan.npz")
+    assert Cache(a).lookup("plan", plan) is not None  # served by a hit: the residual case
+    res = cli("execute", "--plan", plan, "--seed", 3, "--no-record", "--artifacts", a)  # not cached: reads it
+    assert res.exit_code == 0, res.stderr
+    rebuilt, answer = lines(res.stderr)
+    cause = (r"BadZipFile: Bad CRC-32 for file '\w+\.npy'" if damage == "crc" else
+             r"(?:BadZipFile|ValueError|zlib\.error|EOFError)(?:: [ -~]+)?")
+    assert re.fullmatch(rf"plan {plan} \(input of execute\): damaged \(plan\.npz cannot be read \({cause}\): file "
+                        rf"plan\.npz changed {SHA}\); rebuilt from its stored config", rebuilt), rebuilt
+    assert "\\x" not in rebuilt and "b'" not in rebuilt
+    assert answer.startswith("execute ") and ": ran (no cache entry)" in answer
+    assert Cache(a).verify("plan", plan) == "cached"
+
+
+def test_damaged_plan_that_cannot_be_rebuilt_is_one_line(helper, tmp_path, monkeypatch):
+    """Where raico cannot rebuild the input -- its meta.json (its config) damaged too, or the plan code
+    changed since (the same config would give another key) -- one line, exit 4, naming the entry."""
+    from pipeline import runner
+
+    a, keys = _matrix_copy(helper, tmp_path)
+    plan = keys["plan"]
+    _flip(a / "plan" / plan / "plan.npz")
+    real = runner.code_version
+    monkeypatch.setattr(runner, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
+    res = cli("execute", "--plan", plan, "--no-record", "--artifacts", a)
+    assert res.exit_code == 4
+    line = one_error_line(res.stderr)
+    assert re.fullmatch(rf"raico: error: artifact plan/{plan} is damaged \(file plan\.npz changed {SHA}\) and cannot "
+                        r"be rebuilt: it was made by another version of the plan code \(this one gives key "
+                        r"[0-9a-f]{16}\); run the command that made it again", line), line
+    monkeypatch.undo()
+    _edit_number(a / "plan" / plan / "meta.json")
+    res = cli("evaluate", "--plan", plan, "--rollout", keys["execute"], "--artifacts", a)
+    assert res.exit_code == 4
+    assert one_error_line(res.stderr) == (
+        f"raico: error: artifact plan/{plan} is damaged (cache entry corrupt (meta.json was edited: its checksum "
+        f"does not match its content)) and cannot be rebuilt: its config is in its meta.json, which is damaged or "
+        f"missing; run the command that made it again")
+    assert tmp_folders(a) == []
+
+
+def test_repaired_recording_says_so(tmp_path):
+    """A truncated, garbled (same size) or deleted recording.rrd / trajectory.mcap is written again from
+    the stored data on the next call, which says why in one line before its answer."""
+    args = ["plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 1,
+            "--artifacts", tmp_path]
+    res = cli(*args, "--json")
+    key = json.loads(res.stdout.splitlines()[-1])["key"]
+    entry = tmp_path / "plan" / key
+    for damage, why in (
+            (lambda: _truncate(entry / "recording.rrd"), r"recording\.rrd changed \(size \d+ B, recorded \d+ B\)"),
+            (lambda: _flip(entry / "recording.rrd"), rf"recording\.rrd changed {SHA}"),
+            (lambda: (entry / "trajectory.mcap").unlink(), r"trajectory\.mcap missing")):
+        damage()
+        res = cli(*args)
+        assert res.exit_code == 0, res.stderr
+        said, answer = lines(res.stderr)
+        assert re.fullmatch(rf"plan {key}: recording regenerated: {why}", said), said
+        assert answer.startswith(f"plan {key}: cached -> ")
+        assert lines(cli(*args).stderr)[0].startswith(f"plan {key}: cached -> ")  # repaired: nothing more to say
+
+
+def _descendants(pid: int) -> dict[int, str]:
+    """Pid -> command line of every process below ``pid`` (Linux /proc)."""
+    parent: dict[int, int] = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                st = (p / "stat").read_text()
+            except OSError:
+                continue
+            parent[int(p.name)] = int(st[st.rfind(")") + 2:].split()[1])
+    out, todo = {}, [pid]
+    while todo:
+        x = todo.pop()
+        for c, pp in parent.items():
+            if pp == x and c not in out:
+                try:
+                    out[c] = Path(f"/proc/{c}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                except OSError:
+                    out[c] = "?"
+                todo.append(c)
+    return out
+
+
+def _sigkill_and_time_the_pipes(proc: subprocess.Popen, seen: dict[int, str]) -> float:
+    """SIGKILL ``proc``; seconds until its stdout and stderr close (what ``subprocess.run(...,
+    capture_output=True)`` waits for), at most 30."""
+    import threading
+
+    done = threading.Event()
+    t = threading.Thread(target=lambda: (proc.communicate(), done.set()), daemon=True)
+    seen.update(_descendants(proc.pid))
+    t0 = time.monotonic()
+    proc.kill()
+    t.start()
+    done.wait(30)
+    return time.monotonic() - t0
+
+
+@linux_only
+def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp_path):
+    """The acceptance check of issue 21: ``raico reproduce --figure fig3.2a --quick`` SIGKILLed while its
+    workers compute, then (the next call, from the cache) while the headless viewer renders the report's
+    screenshots: each time the caller's pipes close within 2 s (the viewer's output never went to them)
+    and no process of the run is left running; the finished runs stay cached."""
+    from pipeline.screenshots import renderer_unavailable
+
+    cmd = [RAICO, "reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "2", "--artifacts", str(tmp_path)]
+    seen: dict[int, str] = {}
+    # 1. while the workers compute plans
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    _wait_for(lambda: bool(list((tmp_path / "plan").glob(".tmp-*"))) or proc.poll() is not None, 120, "a plan")
+    assert proc.poll() is None, "reproduce ended before it could be killed"
+    assert _sigkill_and_time_the_pipes(proc, seen) < 2.0
+    _wait_for(lambda: not [p for p in seen if running(p)], 5, f"the processes of the run to end: {seen}")
+    if renderer_unavailable() is not None:
+        pytest.skip(f"no screenshot step here: {renderer_unavailable()}")
+    # 2. while the viewer renders (the runs finish from where the killed call stopped)
+    seen.clear()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    _wait_for(lambda: any("rerun" in c for c in _descendants(proc.pid).values()) or proc.poll() is not None, 180,
+              "the viewer")
+    assert proc.poll() is None, proc.stderr.read()
+    time.sleep(1.0)  # the viewer loads the recording
+    elapsed = _sigkill_and_time_the_pipes(proc, seen)
+    assert any("rerun" in c for c in seen.values()), seen
+    assert elapsed < 2.0, elapsed
+    _wait_for(lambda: not [p for p in seen if running(p)], 5, f"the processes of the run to end: {seen}")
+    assert len(valid_entries(tmp_path, "plan")) == 8 and tmp_folders(tmp_path) == []  # data lost: 0
+
+
+REAPER_OWNER = textwrap.dedent("""
+    # Stands in for raico with a local Ray instance: a reaper, a marked child, and below it a process
+    # without the mark (like Ray's agents, whose process titles overwrite their environment)
+    import os, subprocess, sys, time
+    from pipeline.executors import RAY_OWNER, _start_reaper
+
+    mark, reaper = _start_reaper()
+    os.environ[RAY_OWNER] = mark.split("=", 1)[1]
+    child = subprocess.Popen([sys.executable, "-c",
+        "import subprocess, sys, time; g = subprocess.Popen(['sleep', '60'], env={}); print(g.pid, flush=True); "
+        "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    grandchild = child.stdout.readline().strip()
+    print(reaper.pid, child.pid, grandchild, flush=True)
+    time.sleep(60)
+""")
+
+
+@linux_only
+def test_ray_reaper_kills_the_instance_when_raico_is_sigkilled(tmp_path):
+    """What the reaper of a local Ray instance does when raico is SIGKILLed, without Ray: the processes
+    below raico that carry the instance's mark, and the processes below those (learnt while raico ran),
+    are SIGKILLed; another process is left alone; the reaper ends."""
+    bystander = subprocess.Popen(["sleep", "60"])
+    owner = subprocess.Popen([sys.executable, "-c", REAPER_OWNER], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        reaper, child, grandchild = (int(x) for x in owner.stdout.readline().split())
+        assert running(reaper) and running(child) and running(grandchild)
+        time.sleep(1.2)  # the reaper looks twice a second
+        owner.kill()
+        owner.wait()
+        _wait_for(lambda: not any(running(p) for p in (reaper, child, grandchild)), 3, "the reaper's work")
+        assert running(bystander.pid)
+    finally:
+        bystander.kill()
+        bystander.wait()
+        if owner.poll() is None:
+            owner.kill()
+            owner.wait()
