@@ -265,8 +265,9 @@ def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
             rec_mod.log_scalars(rec, "gp_error_log10", "episode", k, np.log10(per_joint("gp_error_joint")), joints)
             rec_mod.log_scalars(rec, "gp_error_heldout_log10", "episode", k,
                                 np.log10(per_joint("gp_error_heldout_joint")), joints)
-        for name, key in (("executed", "task_error"), ("planned", "planned_task_error")):
-            rec_mod.log_scalars(rec, f"distance/{name}", "episode", k, series(key))
+        executed = "executed" if doc["config"]["plant"] != "pendulum" else "executed_angle_from_upright_rad"
+        for name, key in ((executed, "task_error"), ("planned", "planned_task_error")):
+            rec_mod.log_scalars(rec, f"distance/{rec_mod.entity_name(name)}", "episode", k, series(key))
         for name in ("fit", "plan", "execute"):
             rec_mod.log_scalars(rec, f"time/{name}", "episode", k, series(f"{name}_time_s"))
         rec_mod.log_scalars(rec, "points/training", "episode", k, series("n_points"))

@@ -220,8 +220,9 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
 
 
 def _screenshots(root: Path) -> list:
-    """The report's screenshots (one plan recording per plant of the cache ``root`` belongs to),
-    rendered once per plan and reused; none where no renderer is available."""
+    """The report's screenshots (one plan recording per plant of the cache ``root`` belongs to, one
+    learn recording per learning plant), rendered once per entry and reused; none where no renderer is
+    available."""
     from pipeline.screenshots import report_screenshots
 
     return report_screenshots(Cache(root.parent), root / "screenshots")
@@ -242,7 +243,7 @@ DEVIATIONS = {
                   "R-AICO 100 (fig3.2c/d), the FDDP ablations on the first 3 initial states; --quick: 2 seeds, "
                   "4-12 iterations",
     "GP hyperparameters": "type-II maximum likelihood by L-BFGS-B with the analytic gradient (sklearn's kernel and "
-                          "bounds, own likelihood: the same values, about half the cost); in a learning loop every "
-                          "later fit starts at the previous one's hyperparameters, then the configured random "
-                          "restarts",
+                          "bounds, own likelihood: the same values, about half the cost); in a learning loop the "
+                          "first fit adds seeded random restarts, every later fit starts at the previous one's "
+                          "hyperparameters, then the configured refit restarts (fig4.1/4.2: 1, fig4.3: 0)",
 }

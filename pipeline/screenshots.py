@@ -7,8 +7,8 @@ and is drawn, and saves the whole window (1920 x 1080) as a PNG, and, on request
 by name. "Drawn" means: the view named ``robot`` (every recording's 3D view) shows coloured or
 light pixels; a screenshot taken before shows an empty scene, so it retries for a while.
 
-:func:`report_screenshots` renders the most recent plan recording of each plant in a cache, for
-the report; it returns ``[]`` (and raises nothing) where no renderer is available.
+:func:`report_screenshots` renders the most recent plan recording of each plant in a cache (and the
+most recent learn recording of each learning plant), for the report; it returns ``[]`` (and raises nothing) where no renderer is available.
 """
 
 from __future__ import annotations
@@ -235,12 +235,12 @@ def render_screenshot(
                       ready or _robot_drawn, timeout_s)
 
 
-def _latest_plans(cache: Any) -> dict[str, Any]:
-    """Plant -> the most recent valid plan entry that has a recording (``EntryInfo``)."""
+def _latest_plans(cache: Any, stage: str = "plan") -> dict[str, Any]:
+    """Plant -> the most recent valid ``stage`` entry (plan or learn) that has a recording (``EntryInfo``)."""
     from pipeline.recorders import RECORDING
 
     latest: dict[str, Any] = {}
-    for info in cache.list("plan"):
+    for info in cache.list(stage):
         if not info.valid or info.meta is None or not (info.path / RECORDING).is_file():
             continue
         plant = (info.meta.get("config") or {}).get("plant")
@@ -253,44 +253,46 @@ def _latest_plans(cache: Any) -> dict[str, Any]:
 
 
 def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]]:
-    """One screenshot per plant of the cache in ``out_dir`` (``plan-<plant>-<key>.png``): the
-    recording of its most recent plan that has one, as the viewer opens it. A screenshot already
-    there for that plan is reused (a recording is derived from its plan's data: the same key, the
-    same picture), older ones of the plant are removed. Returns ``[(caption, path)]`` sorted by
-    plant; ``[]`` where no renderer is available (:func:`renderer_unavailable`, or the viewer does
-    not start); a recording that fails to render is left out. Nothing raises."""
+    """One screenshot per plant and stage of the cache in ``out_dir`` (``plan-<plant>-<key>.png``, and
+    for the learning plants ``learn-<plant>-<key>.png``): the recording of its most recent plan (learn
+    loop) that has one, as the viewer opens it. A screenshot already there for that entry is reused (a
+    recording is derived from its entry's data: the same key, the same picture), older ones of the
+    plant are removed. Returns ``[(caption, path)]`` plans first, each sorted by plant; ``[]`` where no
+    renderer is available (:func:`renderer_unavailable`, or the viewer does not start); a recording
+    that fails to render is left out. Nothing raises."""
     out_dir = Path(out_dir)
     try:
-        plans = _latest_plans(cache)
+        found = {stage: _latest_plans(cache, stage) for stage in ("plan", "learn")}
     except Exception:  # noqa: BLE001 - an unreadable cache: no screenshots
         return []
-    if not plans:
+    items = [(stage, plant, info) for stage in ("plan", "learn") for plant, info in sorted(found[stage].items())]
+    if not items:
         return []
     from pipeline.recorders import RECORDING
 
-    def png_of(plant: str) -> Path:
-        return out_dir / f"plan-{plant}-{plans[plant].key}.png"
+    def png_of(stage: str, plant: str, info: Any) -> Path:
+        return out_dir / f"{stage}-{plant}-{info.key}.png"
 
-    def caption(plant: str) -> str:
-        info = plans[plant]
+    def caption(stage: str, plant: str, info: Any) -> str:
         cfg = info.meta.get("config") or {}
-        text = (f"plan {plant} {cfg.get('task', '')} {cfg.get('solver', '')} ({info.key}), "
+        what = cfg.get("solver", "") if stage == "plan" else f"{cfg.get('episodes', '')} episodes"
+        text = (f"{stage} {plant} {cfg.get('task', '')} {what} ({info.key}), "
                 f"as the Rerun viewer opens its recording")
         return " ".join(text.split())
 
-    todo = [p for p in sorted(plans) if not png_of(p).is_file()]
+    todo = [it for it in items if not png_of(*it).is_file()]
     if todo and renderer_unavailable() is None:
         out_dir.mkdir(parents=True, exist_ok=True)
         try:
             with _viewer() as viewer:
-                for plant in todo:
-                    for old in out_dir.glob(f"plan-{plant}-*.png"):
+                for stage, plant, info in todo:
+                    for old in out_dir.glob(f"{stage}-{plant}-*.png"):
                         old.unlink(missing_ok=True)
                     try:
-                        _shoot(viewer, plans[plant].path / RECORDING, png_of(plant), {}, None, None, _robot_drawn,
-                               30.0)
+                        _shoot(viewer, info.path / RECORDING, png_of(stage, plant, info), {}, None, None,
+                               _robot_drawn, 30.0)
                     except Exception:  # noqa: BLE001 - one recording the viewer cannot show: leave it out
                         continue
         except Exception:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...)
             pass
-    return [(caption(p), png_of(p)) for p in sorted(plans) if png_of(p).is_file()]
+    return [(caption(*it), png_of(*it)) for it in items if png_of(*it).is_file()]

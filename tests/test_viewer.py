@@ -100,5 +100,28 @@ def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
     from types import SimpleNamespace
 
     plan = SimpleNamespace(key="0123456789abcdef", path=tmp_path, meta={"config": {}})
-    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache: {"arm5": plan})
+    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache, stage="plan": {"arm5": plan})
     assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []
+
+
+@needs_renderer
+@pytest.mark.parametrize("plant, task, extra", [
+    ("pendulum", "swing-up", ["--iterations", 3, "--restarts", 0, "--stride", 25]),
+    ("biorob", "reach", ["--alpha", 2, "--iterations", 5, "--babble-points", 100, "--restarts", 0]),
+])
+def test_learn_recording_frames_the_robot_and_fills_its_views(tmp_path, plant, task, extra):
+    """Issue 17: a learn recording as opened (episode timeline, last episode): the robot in frame and
+    the GP error, distance and time views drawn; the report renders it too."""
+    line = _run("learn", "--plant", plant, "--task", task, "--episodes", 2, *extra, "--artifacts", tmp_path)
+    views = {"robot": tmp_path / "robot.png", "distance to the target (m)": tmp_path / "distance.png",
+             "time per evaluation (s)": tmp_path / "time.png",
+             "GP error on the next execution, log10 (rad/s^2)": tmp_path / "gp.png"}
+    render_screenshot(line["recording"], tmp_path / "learn.png", views=views)
+    _assert_in_frame(robot_mask(read_png(views["robot"])))
+    for name in list(views)[1:]:
+        drawn = content_mask(read_png(views[name])).mean()
+        assert drawn > 0.002, f"view {name!r} nearly empty ({drawn:.4f} of its pixels coloured)"
+    from pipeline.cache import Cache
+
+    shots = report_screenshots(Cache(tmp_path), tmp_path / "report")
+    assert f"learn-{plant}-{line['key']}.png" in [p.name for _, p in shots]
