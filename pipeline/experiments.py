@@ -92,18 +92,19 @@ ABLATION = Variant("aico", 0.0, relinearize=False)
 EXPERIMENTS: dict[str, Experiment] = {
     "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", ARM_VARIANTS, 40, 6,
                           "arm5, pseudo-dynamics, via-points (1,-0.4,0)@500 and (1,0,0)@1000",
-                          claims=("raico_converges", "all_converge_aico_fastest")),
+                          claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest")),
     "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo", (*ARM_VARIANTS, ABLATION), 40, 6,
                           "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
-                          claims=("raico_converges", "aico_unstable", "aico_unstable_without_relinearization")),
+                          claims=("raico_converges", "raico_decays_fast", "aico_unstable",
+                                  "aico_unstable_without_relinearization")),
     "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
                           (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS, *FDDP_ABLATION),
                           25, 4, "as a, analytic Drake dynamics (controls = torques)",
-                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS,
+                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS,
                                   *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()))),
     "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic", (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS),
                           25, 4, "as b, analytic Drake dynamics",
-                          claims=("raico_converges", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS)),
+                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)), 25, 5,
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
@@ -263,12 +264,24 @@ def cost_curves(cache: Cache, plans: list[dict], variant: Variant, what: str = "
     return out
 
 
-def summarize(plans: list[dict], variant: Variant) -> dict:
-    """The variant's summary (``stages.evaluate.summary``) over its runs."""
+def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -> dict:
+    """The variant's summary (``stages.evaluate.summary``) over its runs; with ``cache`` each run's
+    per-iteration costs (``plan.npz``) join its metrics as ``cost_history`` (the convergence claims'
+    cost curves)."""
     from stages.evaluate.summary import summarize as summary
 
-    return summary(variant.label, [{"status": p["outcome"].status, "metrics": p["outcome"].metrics}
-                                   for p in plans if p["variant"] == variant])
+    runs = []
+    for p in plans:
+        if p["variant"] != variant:
+            continue
+        m = dict(p["outcome"].metrics)
+        if cache is not None:
+            from pipeline.runner import as_artifact
+
+            c = as_artifact(cache.require("plan", p["outcome"].key)).arrays("plan.npz", ("costs",)).get("costs")
+            m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
+        runs.append({"status": p["outcome"].status, "metrics": m})
+    return summary(variant.label, runs)
 
 
 # ----------------------------------------------------------------------------- learning experiments

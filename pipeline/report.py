@@ -509,11 +509,12 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
 
 
 # ----------------------------------------------------------------------------- claims
-def claims_table(exp: Experiment, plans: list[dict], executions: list) -> list[dict]:
-    """The experiment's claims (``stages.evaluate.claims``) on its measured summaries."""
+def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Cache | None = None) -> list[dict]:
+    """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
+    the runs' cost curves too)."""
     from stages.evaluate.claims import evaluate_claims
 
-    S = {v.label: summarize(plans, v) for v in exp.variants}
+    S = {v.label: summarize(plans, v, cache) for v in exp.variants}
     return evaluate_claims(exp.claims, S, [e.metrics for e in executions], exp.id)
 
 
@@ -551,10 +552,23 @@ def summary_table(exp: Experiment, plans: list[dict], cache: Cache | None = None
 
 
 def markdown_claims(rows: list[dict]) -> str:
-    out = ["| figure | claim | the thesis says | criterion | measured | verdict |", "|---|---|---|---|---|---|"]
-    out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-            f"**{r['verdict']}** |" for r in rows]
-    return "\n".join(out)
+    """The claims table in two parts: the thesis's own claims first (each with the sentence it tests),
+    then the rows beyond the thesis (crocoddyl, adaptive R-AICO, free-standing executions, PILCO, ...)."""
+    from stages.evaluate.claims import BEYOND
+
+    def table(part: list[dict]) -> list[str]:
+        out = ["| figure | claim | the thesis says | criterion | measured | verdict |", "|---|---|---|---|---|---|"]
+        return out + [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
+                      f"**{r['verdict']}** |" for r in part]
+
+    beyond = [r for r in rows if str(r.get("thesis", "")).startswith(BEYOND)]
+    thesis = [r for r in rows if r not in beyond]
+    out: list[str] = []
+    for title, part in (("The thesis's claims", thesis), ("Beyond the thesis", beyond)):
+        if part:
+            held = sum(r["verdict"] == "holds" for r in part)
+            out += [f"### {title} ({held} of {len(part)} hold)", "", *table(part), ""]
+    return "\n".join(out).rstrip()
 
 
 def _fmt(x: float) -> str:
@@ -583,7 +597,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
-    rows = claims_table(exp, result["plans"], result["executions"])
+    rows = claims_table(exp, result["plans"], result["executions"], cache)
     summary = summary_table(exp, result["plans"], cache)
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,
              "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd")}

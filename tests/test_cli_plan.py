@@ -258,9 +258,12 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     runs = {}
     for r in claims["runs"]:
         meta = json.loads((Path(r["recording"]).parent / "meta.json").read_text())
-        runs.setdefault(r["variant"], []).append({"status": meta["status"], "metrics": meta["metrics"]})
+        costs = np.load(Path(r["recording"]).parent / "plan.npz")["costs"]  # the cost curves of the claims
+        metrics = {**meta["metrics"], "cost_history": [float(c) if np.isfinite(c) else None for c in costs]}
+        runs.setdefault(r["variant"], []).append({"status": meta["status"], "metrics": metrics})
     S = {label: summarize(label, rs) for label, rs in runs.items()}
-    assert claims["claims"] == evaluate_claims(("raico_converges", "all_converge_aico_fastest"), S, [], "fig3.2a")
+    assert claims["claims"] == evaluate_claims(("raico_converges", "raico_decays_fast", "all_converge_aico_fastest"),
+                                               S, [], "fig3.2a")
     assert all(Path(r["recording"]).is_file() for r in claims["runs"])
     assert (tmp_path / "report-quick" / "README.md").is_file()
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",

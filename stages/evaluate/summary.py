@@ -26,6 +26,26 @@ def largest_via_error(metrics: dict) -> float:
     return max(math.inf if v is None else v for v in errs.values())
 
 
+def median_curve(curves: list[np.ndarray]) -> list[float]:
+    """Elementwise median over runs of per-iteration cost curves; a run that stopped early (converged)
+    keeps its last cost for the later iterations."""
+    curves = [c for c in curves if c.size]
+    if not curves:
+        return []
+    n = max(c.size for c in curves)
+    padded = np.array([np.concatenate([c, np.full(n - c.size, c[-1])]) for c in curves])
+    return [median(padded[:, j]) for j in range(n)]
+
+
+def relative_change(curve: np.ndarray, k: int) -> float:
+    """``|c[-1] - c[-1-k]| / |c[-1]|``: how much a cost curve still moved over its last ``k``
+    iterations (NaN if it is shorter or not finite there)."""
+    c = np.asarray(curve, float)
+    if c.size <= k or not (np.isfinite(c[-1]) and np.isfinite(c[-1 - k])) or c[-1] == 0:
+        return math.nan
+    return float(abs(c[-1] - c[-1 - k]) / abs(c[-1]))
+
+
 def summarize(label: str, runs: list[dict]) -> dict:
     """Summary of one variant's runs; each run is ``{"status", "metrics"}``."""
     ms = [r["metrics"] for r in runs]
@@ -35,7 +55,11 @@ def summarize(label: str, runs: list[dict]) -> dict:
         return np.array([default if m.get(key) is None else m.get(key) for m in ms], float)
 
     ratio, final, first = col("cost_ratio"), col("final_cost"), col("first_iteration_cost")
+    curves = [np.array([math.nan if c is None else c for c in m.get("cost_history") or []], float)
+              for m, status in zip(ms, st) if status != "diverged"]
     return {"label": label, "runs": len(ms), "diverged": st.count("diverged"),
+            "cost_curve_median": median_curve(curves), "flat_last5_median": median(np.array(
+                [relative_change(c, 5) for c in curves], float)),
             "converged": st.count("converged"), "final_cost_median": median(final),
             "first_cost_median": median(first), "cost_ratio_median": median(ratio),
             "cost_ratio_max": float(np.nanmax(ratio)) if np.isfinite(ratio).any() else math.nan,
