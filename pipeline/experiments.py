@@ -28,14 +28,18 @@ class Variant:
     quick_iterations: int | None = None
     schedule: str = "fixed"  # R-AICO's alpha schedule: the thesis's fixed one, or "adaptive" (beyond the thesis)
     seeds: int | None = None  # own number of initial states (ablations), else the experiment's
+    gamma: float = 1.0  # R-AICO: alpha^[n] = alpha^[n-1] gamma (thesis §3.5; the thesis's figures use 1)
+    start: str = "held"  # AICO/R-AICO's first trajectory: x0 held (thesis) or the zero-control rollout
 
     @property
     def label(self) -> str:
         if self.solver in BASELINE_LABELS:
             return BASELINE_LABELS[self.solver]
+        extra = (f", gamma={self.gamma:g}" if self.gamma != 1.0 else "") + (
+            ", rollout start" if self.start == "rollout" else "")
         if self.solver == "raico" and self.schedule == "adaptive":
-            return f"R-AICO adaptive (a0={self.alpha:g})"
-        base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}")
+            return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
+        base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
         return base if self.relinearize else f"{base} (no sweep relinearization)"
 
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
@@ -69,6 +73,13 @@ FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FD
 ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                    schedule="adaptive")
 ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
+# Ablations (issue 18): R-AICO with a growing alpha (gamma = 2, thesis §3.5's Algorithm 1 allows it; its figures
+# use gamma = 1), and R-AICO (fixed and adaptive) started from the zero-control rollout, FDDP's other start
+GAMMA_ABLATION = Variant("raico", 1.0, gamma=2.0)
+ROLLOUT_VARIANTS = (Variant("raico", 1.0, start="rollout"),
+                    Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
+                            schedule="adaptive", start="rollout"))
+ROLLOUT_CLAIMS = ("rollout_start_reaches_fddp",) if FDDP_VARIANTS else ()
 FDDP_CLAIMS = ("raico_reaches_fddp",) if FDDP_VARIANTS else ()
 
 
@@ -90,21 +101,27 @@ class Experiment:
 ARM_VARIANTS = (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0))
 ABLATION = Variant("aico", 0.0, relinearize=False)
 EXPERIMENTS: dict[str, Experiment] = {
-    "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", ARM_VARIANTS, 40, 6,
+    "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", (*ARM_VARIANTS, GAMMA_ABLATION), 40, 6,
                           "arm5, pseudo-dynamics, via-points (1,-0.4,0)@500 and (1,0,0)@1000",
-                          claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest")),
-    "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo", (*ARM_VARIANTS, ABLATION), 40, 6,
-                          "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
+                          claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest",
+                                  "gamma_ablation")),
+    "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo", (*ARM_VARIANTS, ABLATION, GAMMA_ABLATION), 40,
+                          6, "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
                           claims=("raico_converges", "raico_decays_fast", "aico_unstable",
-                                  "aico_unstable_without_relinearization")),
+                                  "aico_unstable_without_relinearization", "gamma_ablation")),
     "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS, *FDDP_ABLATION),
+                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, *FDDP_VARIANTS, *FDDP_ABLATION,
+                           *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
                           25, 4, "as a, analytic Drake dynamics (controls = torques)",
-                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS,
-                                  *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()))),
-    "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic", (*ARM_VARIANTS, ADAPTIVE, *FDDP_VARIANTS),
+                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
+                                  *ADAPTIVE_CLAIMS, *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()),
+                                  "gamma_ablation", *ROLLOUT_CLAIMS)),
+    "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic",
+                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, *FDDP_VARIANTS,
+                           *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
                           25, 4, "as b, analytic Drake dynamics",
-                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS, *ADAPTIVE_CLAIMS)),
+                          claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
+                                  *ADAPTIVE_CLAIMS, "gamma_ablation", *ROLLOUT_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)), 25, 5,
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
@@ -126,7 +143,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
     return PlanConfig(plant=exp.plant, task=exp.task, dynamics=exp.dynamics, solver=v.solver,
-                      alpha=v.alpha if v.solver == "raico" else 1.0, gamma=1.0,
+                      alpha=v.alpha if v.solver == "raico" else 1.0, gamma=v.gamma, start=v.start,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
                       q0_std=0.05, relinearize=v.relinearize, alpha_schedule=v.schedule).normalized()

@@ -27,7 +27,7 @@ PLANTS = ("pendulum", "arm5", "biorob", "nao")
 BABBLE_TORQUE_LIMIT = 10.0  # N m (thesis §4.1)
 
 # Default postures (rad), by joint name; joints not named are 0.
-_ARM_DEFAULT = {"shoulder_pitch": -1.0, "elbow_pitch": 2.0, "wrist_pitch": -1.0}
+_ARM_DEFAULT: dict[str, float] = {}  # arm5's zero posture is the thesis's initial pose (end effector at (1, 0, 0) m)
 # Nao: standing with the torso leaned over the stance (left) leg: CoG above the left sole,
 # right sole flat on the ground beside it (right knee solved so its sole height is 0).
 _NAO_DEFAULT = {

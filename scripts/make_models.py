@@ -123,7 +123,7 @@ def serial_arm(name: str, links: list[dict], color: str) -> str:
         s += "  </link>\n"
         j = L["joint"]
         s += (f'  <joint name="{j}" type="revolute"><parent link="{parent}"/><child link="{L["name"]}"/>\n'
-              f'    <origin xyz="{_f(L["origin"])}" rpy="0 0 0"/><axis xyz="{_f(L["axis"])}"/>\n'
+              f'    <origin xyz="{_f(L["origin"])}" rpy="{_f(L.get("rpy", [0, 0, 0]))}"/><axis xyz="{_f(L["axis"])}"/>\n'
               f'    <limit lower="{L["lower"]}" upper="{L["upper"]}" effort="{L["effort"]}" velocity="10"/>\n'
               f'    <dynamics damping="0" friction="0"/>\n  </joint>\n'
               f'  <transmission type="SimpleTransmission" name="{j}_tr"><actuator name="{j}_motor"/>'
@@ -137,17 +137,24 @@ def serial_arm(name: str, links: list[dict], color: str) -> str:
 
 
 PI = math.pi
-ARM5 = [  # links along +x at q = 0; a light-weight arm with reach 1.25 m
+# arm5: a light-weight arm laid out as the real ones are (KUKA LWR, Schunk LWA): a roll axis between two pitch axes,
+# so the hand's roll is moved by several joints (issue 18: with the roll joint last, the roll about the hand's own axis
+# was that joint's angle whatever the others did, and the roll objective added nothing to the reach). Reach 1.25 m.
+# Its zero posture is the thesis's initial pose x2: the upper arm raised by ARM_BEND, the forearm lowered by as much,
+# the hand level, the end effector at (1, 0, 0) m (0.5 cos(A) + 0.5 cos(A) + 0.25 = 1). The bend is built into the
+# joint origins (rpy), so q = 0 is this posture and the thesis's q0 ~ N(0, 0.05^2) means what it says.
+ARM_BEND = math.acos(0.75)  # rad, about 0.723
+ARM5 = [
     dict(name="yaw_link", joint="base_yaw", axis=[0, 0, 1], origin=[0, 0, 0], length=0.0, mass=0.8,
          radius=0.06, effort=40, lower=-PI, upper=PI),
-    dict(name="upper_arm", joint="shoulder_pitch", axis=[0, 1, 0], origin=[0, 0, 0], length=0.5,
-         mass=0.8, radius=0.04, effort=40, lower=-PI, upper=PI),
-    dict(name="forearm", joint="elbow_pitch", axis=[0, 1, 0], origin=[0.5, 0, 0], length=0.5,
-         mass=0.6, radius=0.035, effort=40, lower=-PI, upper=PI),
-    dict(name="wrist", joint="wrist_pitch", axis=[0, 1, 0], origin=[0.5, 0, 0], length=0.15,
-         mass=0.3, radius=0.03, effort=10, lower=-PI, upper=PI),
-    dict(name="hand", joint="wrist_roll", axis=[1, 0, 0], origin=[0.15, 0, 0], length=0.10,
-         mass=0.2, radius=0.025, effort=10, lower=-PI, upper=PI),
+    dict(name="upper_arm", joint="shoulder_pitch", axis=[0, 1, 0], origin=[0, 0, 0], rpy=[0, -ARM_BEND, 0],
+         length=0.5, mass=0.8, radius=0.04, effort=40, lower=-PI, upper=PI),
+    dict(name="forearm", joint="elbow_pitch", axis=[0, 1, 0], origin=[0.5, 0, 0], rpy=[0, 2 * ARM_BEND, 0],
+         length=0.25, mass=0.35, radius=0.035, effort=40, lower=-PI, upper=PI),
+    dict(name="forearm_distal", joint="forearm_roll", axis=[1, 0, 0], origin=[0.25, 0, 0], length=0.25,
+         mass=0.25, radius=0.03, effort=20, lower=-PI, upper=PI),
+    dict(name="hand", joint="wrist_pitch", axis=[0, 1, 0], origin=[0.25, 0, 0], rpy=[0, -ARM_BEND, 0],
+         length=0.25, mass=0.5, com=0.4, radius=0.03, effort=10, lower=-PI, upper=PI),
 ]
 BIOROB = [  # public BioRob facts: 0.307 / 0.310 / 0.09 m; 1.5 / 1.35 / 0.53 / 0.35 kg, motors near the base
     dict(name="shoulder", joint="base_yaw", axis=[0, 0, 1], origin=[0, 0, 0], length=0.0, mass=1.5,

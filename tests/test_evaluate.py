@@ -35,7 +35,8 @@ def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, wor
 def table(**rows):
     names = {"ilqg": "iLQG", "aico": "AICO", "r1": "R-AICO a=1", "r10": "R-AICO a=10",
              "abl": "AICO (no sweep relinearization)", "fh": FDDP_HELD, "fr": FDDP_ROLLOUT, "fa": FDDP_ACCEPT_ANY,
-             "fs": FDDP_ILQG_SCHEDULE, "ad": "R-AICO adaptive (a0=1)"}
+             "fs": FDDP_ILQG_SCHEDULE, "ad": "R-AICO adaptive (a0=1)", "g2": "R-AICO a=1, gamma=2",
+             "ro": "R-AICO a=1, rollout start", "aro": "R-AICO adaptive (a0=1, rollout start)"}
     return {names[k]: S_(names[k], **v) if isinstance(v, dict) else S_(names[k], v) for k, v in rows.items()}
 
 
@@ -92,6 +93,17 @@ CASES = [
     ("adaptive_reaches_fddp", table(r1=100, fh=100), False),
     # the adaptive variant is beyond the thesis: not one of the thesis claims' R-AICO variants
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150, ad={"final": 300, "flat": 0.5}), True),
+    ("gamma_ablation", table(r1=120, g2=110, fh=100), True),
+    ("gamma_ablation", table(r1=120, g2={"final": 110, "flat": 0.05}, fh=100), False),
+    ("gamma_ablation", table(r1=120, g2={"final": 110, "diverged": 1}, fh=100), False),
+    # ablations are not the thesis's R-AICO: a diverging gamma=2 or rollout-start run does not fail "R-AICO converges"
+    ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150, g2={"final": 1e9, "diverged": 5},
+                              ro={"final": 1e9, "diverged": 5}), True),
+    ("rollout_start_reaches_fddp", table(ro=300, aro=45, fr=42), True),
+    ("rollout_start_reaches_fddp", table(ro=300, aro=60, fr=42), False),
+    ("rollout_start_reaches_fddp", table(ro={"final": 40, "diverged": 1}, aro=60, fr=42), False),
+    ("adaptive_reaches_fddp", table(ad={"final": 105, "wall": 2.0}, aro={"final": 500, "wall": 9.0},
+                                    fh={"final": 100, "wall": 3.0}), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=45, fs=3000), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=300, fs=40), True),
     ("ilqg_stall_ablation", table(ilqg=2000, fr=30, fa=45, fs=59), False),

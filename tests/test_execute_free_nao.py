@@ -99,11 +99,11 @@ def test_diverged_plan_is_not_reported_ok():
 
 
 def test_arm_execution_enforces_joint_limits_and_reports_them():
-    """A plan that turns the arm's wrist roll 0.3 rad past its upper limit (pi): the discrete plant
+    """A plan that turns the arm's forearm roll 0.3 rad past its upper limit (pi): the discrete plant
     stops it at the limit, the other joints follow the plan, and the execution says ``limits``."""
     arm = shared_robot("arm5")
     T, dt = 500, 0.002
-    j = arm.joint_names.index("wrist_roll")
+    j = arm.joint_names.index("forearm_roll")
     s = np.clip(np.arange(T + 1) / 350, 0, 1)
     Q = np.tile(arm.default_q, (T + 1, 1))
     Q[:, j] += (arm.upper[j] + 0.3 - arm.default_q[j]) * (3 * s ** 2 - 2 * s ** 3)
@@ -115,7 +115,7 @@ def test_arm_execution_enforces_joint_limits_and_reports_them():
     held = np.mean((out.X[:, j] >= arm.upper[j] - LIMIT_TOL) & (Q[:, j] - out.X[:, j] > LIMIT_TOL))
     assert m["status"] == "limits" and m["position_limit_fraction"] == pytest.approx(held) and held > 0.2
     assert m["reason"] == (f"at a joint or effort limit in {m['limits_fraction']:.0%} of the samples (> 20%): "
-                           f"wrist_roll position {held:.0%}")
-    assert set(m["limited_joints"]) == {"wrist_roll"}
+                           f"forearm_roll position {held:.0%}")
+    assert set(m["limited_joints"]) == {"forearm_roll"}
     others = [i for i in range(arm.n_q) if i != j]
     assert np.abs(out.X[:, others] - Q[:, others]).max() < 0.05

@@ -157,6 +157,14 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
     assert "X_init" not in seen["ilqg"]
     assert replace(cfg, solver="ilqg").normalized().warm_from == "controls"  # one key per meaning
     assert replace(cfg, warm_start=None).normalized().warm_from == "controls"
+    # issue 18: R-AICO from the zero-control rollout (FDDP's other start) instead of x0 held
+    plan_stage.plan(replace(cfg, warm_start=None, start="rollout").normalized())
+    assert "X_init" not in seen["raico"] and not seen["raico"]["U_init"].any()
+    plan_stage.plan(replace(cfg, warm_start=None).normalized())
+    assert seen["raico"] == {}  # the thesis's start: x0 held at every step
+    assert replace(cfg, solver="ilqg", warm_start=None, start="rollout").normalized().start == "held"
+    with pytest.raises(ValueError, match="start"):
+        replace(cfg, start="sideways").validate()
 
 
 def test_learn_takes_no_data_after_a_lost_execution(tmp_path):

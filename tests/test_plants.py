@@ -138,12 +138,21 @@ def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
     assert abs(energy() - e0) < 1e-6 * max(1.0, abs(e0))
 
 
-def test_roll_angle_follows_the_wrist_roll_joint():
+def test_roll_couples_with_the_reach():
+    """Issue 18: arm5's roll is no single joint's angle. With a roll axis between two pitch axes (forearm roll,
+    then wrist pitch) the hand's roll about its own axis moves with the shoulder, elbow, forearm roll and wrist,
+    and turning the forearm moves the end effector too; the zero posture is the thesis's initial pose x2."""
     r = shared_robot("arm5")
-    roll = RollAngle(r, "ee")
-    q = r.default_q.copy()
-    q[r.joint_names.index("wrist_roll")] = 0.4
-    assert roll.value(q)[0] == pytest.approx(0.4, abs=1e-9)
+    roll, ee = RollAngle(r, "ee"), EndEffectorPosition(r, "ee")
+    assert np.allclose(r.default_q, 0) and np.allclose(ee.value(r.default_q), [1.0, 0.0, 0.0], atol=1e-8)
+    assert roll.value(r.default_q)[0] == pytest.approx(0.0, abs=1e-9)
+    q = np.array([0.3, -0.7, 1.1, -0.2, 0.4])
+    V, J = roll.values_and_jacobians(q[None])
+    assert all(abs(V[0, 0] - q[i]) > 0.05 for i in range(5))  # not any joint's angle
+    assert np.sum(np.abs(J[0, 0]) > 1e-3) >= 4  # moved by four of the five joints
+    turned = np.zeros(5)
+    turned[r.joint_names.index("forearm_roll")] = 0.5
+    assert np.linalg.norm(ee.value(turned) - ee.value(r.default_q)) > 0.01  # the roll is not free of the reach
 
 
 def test_non_finite_inputs_give_nan_not_an_abort():

@@ -176,7 +176,10 @@ def row(label, final, via=0.05, terms=None, first=1000.0, wall=1.0):
             "term_medians": terms or {}}
 
 
-def test_identical_results_are_remarked_with_the_measured_terms():
+def test_identical_results_are_remarked_with_the_measured_terms(monkeypatch):
+    from pipeline import report
+
+    monkeypatch.setitem(report.IDENTICAL_REASONS, ("fig3.2c", "fig3.2d"), "the measured wrist_roll reason")
     c = {"figure": "fig3.2c", "summary": [row("iLQG", 2400.0), row("R-AICO a=1", 473.5, terms={"control": 445.5})]}
     d = {"figure": "fig3.2d", "summary": [row("iLQG", 3880.0),
                                           row("R-AICO a=1", 473.6, first=1090.0, wall=0.7,

@@ -29,6 +29,7 @@ PROBLEM_FILE = "problem.json"
 
 
 WARM_FROM = ("trajectory", "controls")
+STARTS = ("held", "rollout")
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,8 @@ class PlanConfig(StageConfig):
             "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "
                            "standardized (over the training outputs' variance).",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
+            "start": "AICO/R-AICO's first trajectory: held (x0 at every step, the thesis) or rollout (the zero-control "
+                     "rollout, where crocoddyl FDDP's rollout start begins); iLQG always rolls out.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
                               "an iteration that lowers the cost, grows and retries after one that raises it)."}
 
@@ -78,6 +81,7 @@ class PlanConfig(StageConfig):
     sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
     alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
+    start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -103,6 +107,8 @@ class PlanConfig(StageConfig):
             raise ValueError("sigma-weight must be in [0, 1e8]")
         if self.sigma_units not in SIGMA_UNITS:
             raise ValueError(f"unknown sigma-units '{self.sigma_units}': choose one of {', '.join(SIGMA_UNITS)}")
+        if self.start not in STARTS:
+            raise ValueError(f"unknown start '{self.start}': choose one of {', '.join(STARTS)}")
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         make_options(self.solver, self.solver_options())
@@ -134,6 +140,8 @@ class PlanConfig(StageConfig):
             d["gamma"] = 1.0  # not used by the adaptive schedule
         if self.warm_start is None or self.solver == "ilqg":
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
+        if self.warm_start is not None or self.solver not in ("aico", "raico"):
+            d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -252,6 +260,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
     init = {}
+    if cfg.start == "rollout" and warm_start is None and cfg.solver in ("aico", "raico"):
+        init["U_init"] = np.zeros((problem.T, problem.n_u))  # the first trajectory: the zero-control rollout
     if warm_start is not None:
         U0 = warm_start.arrays(PLAN_FILE)["U"]
         if U0.shape != (problem.T, problem.n_u) or not np.all(np.isfinite(U0)):

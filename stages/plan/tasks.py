@@ -120,7 +120,9 @@ TASK_NOTES = {
     "nao reach horizon": f"{NAO_REACH_T} steps of 10 ms, via-point at the last step (thesis gives none)",
     "nao balance weights": "w = 1 with C = diag(10, 1e6, 10) (thesis: C scaled by [1e6, 10, 10])",
     "nao right sole": "three points of the right sole held at their initial positions, w = 1e4, every step",
-    "arm5 roll": "roll = atan2(y_E . z_W, z_E . z_W) about the hand axis; target pi/2 at both via-points",
+    "arm5 roll": "roll = atan2(y_E . z_W, z_E . z_W) about the hand axis, moved by the shoulder, elbow, forearm roll "
+                 "and wrist (a roll axis between two pitch axes); target pi/2 at both via-points",
+    "arm5 start": "q0 ~ N(0, 0.05^2) about the zero posture, the thesis's initial pose x2 = (1, 0, 0) m",
     "pendulum horizon": f"{PENDULUM_T} steps of 2 ms (1.5 s): 300 ms cannot swing up under +-10 N m",
 }
 
