@@ -38,6 +38,9 @@ SOLVER_COLORS: dict[str, str] = {
     FDDP_ROLLOUT: "tab:pink",
     FDDP_ACCEPT_ANY: "tab:gray",
     FDDP_ILQG_SCHEDULE: "tab:olive",
+    "R-AICO a=1, gamma=2": "#31a354",
+    "R-AICO a=1, rollout start": "#637939",
+    "R-AICO adaptive (a0=1, rollout start)": "#3182bd",
 }
 SOLVER_COLOR_PREFIXES: tuple[tuple[str, str], ...] = (("R-AICO adaptive", "tab:cyan"),)
 # labels of neither table: a colour from these, chosen by a hash of the label (the same in every figure unless
