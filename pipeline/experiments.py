@@ -125,7 +125,7 @@ EXPERIMENTS: dict[str, Experiment] = {
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)), 25, 5,
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
                          execute=(Variant("raico", 1.0),),
-                         claims=("raico_reaches_aico_not", "cog_support", "executed_reaches")),
+                         claims=("raico_reaches_aico_not", "counterbalance", "cog_support", "executed_reaches")),
     "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0)),
                          25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
@@ -294,10 +294,37 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
         if cache is not None:
             from pipeline.runner import as_artifact
 
-            c = as_artifact(cache.require("plan", p["outcome"].key)).arrays("plan.npz", ("costs",)).get("costs")
+            art = as_artifact(cache.require("plan", p["outcome"].key))
+            c = art.arrays("plan.npz", ("costs",)).get("costs")
             m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
+            if art.config.get("plant") == "nao" and art.config.get("task") == "reach":
+                m.update(counterbalance(art.arrays("plan.npz", ("X",))["X"]))
         runs.append({"status": p["outcome"].status, "metrics": m})
     return summary(variant.label, runs)
+
+
+COUNTERBALANCE_JOINTS = ("HeadYaw", "HeadPitch", "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll")
+
+
+def counterbalance(X: np.ndarray) -> dict:
+    """How far a Nao plan moves what no objective names (thesis Fig. 3.3D: "To counter balance, the robot
+    moves its left hand and the head"): the largest excursion from the start of the head joints and of
+    the left arm's joints (rad), and of the left hand's position (m), over the plan ``X (T+1, n_x)``."""
+    from plants.robots import shared_robot
+    from plants.taskmaps import EndEffectorPosition
+
+    robot = shared_robot("nao")
+    n = robot.n_q
+    Q = np.asarray(X, float)[:, :n]
+    if not np.all(np.isfinite(Q)):
+        return {}
+    dq = np.abs(Q - Q[0])
+    idx = {j: robot.joint_names.index(j) for j in COUNTERBALANCE_JOINTS}
+    head = max(float(dq[:, idx[j]].max()) for j in COUNTERBALANCE_JOINTS if j.startswith("Head"))
+    arm = max(float(dq[:, idx[j]].max()) for j in COUNTERBALANCE_JOINTS if j.startswith("L"))
+    P, _ = EndEffectorPosition(robot, "l_gripper").values_and_jacobians(Q[::5])
+    hand = float(np.linalg.norm(P - P[0], axis=1).max())
+    return {"head_joint_excursion": head, "left_arm_joint_excursion": arm, "left_hand_excursion": hand}
 
 
 # ----------------------------------------------------------------------------- learning experiments

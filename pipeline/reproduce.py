@@ -236,6 +236,21 @@ DEVIATIONS = {
                             "(the thesis used finite differences)",
     "reflected inertia": "5e-3 kg m^2 per geared joint of arm5, biorob and Nao (keeps light links well posed)",
     "Nao stance": "left sole welded to the world; default posture leans the torso over the left leg",
+    "Nao start posture": "q0 ~ N(0, 0.05^2) about that leaning posture, not about the zero posture (the thesis's "
+                         "zero-mean Gaussian): on a welded left sole the Nao's zero posture (legs straight, arms "
+                         "forward) leaves the CoG between the feet, 5.5 cm short of the stance sole the balancing "
+                         "plans shift it over; the thesis's spread 0.05 rad is kept",
+    "arm5 start posture": "q0 ~ N(0, 0.05^2) about q = 0, which is the thesis's initial pose x2 = (1, 0, 0) m",
+    "reference optimum": "the convergence claims judge a final cost against the lowest median final cost any solver "
+                         "run in the same figure reaches (the thesis's solvers and ablations; on fig3.2c/d also "
+                         "crocoddyl FDDP and the adaptive R-AICO at 100 iterations), not a separate long run",
+    "convergence criteria": "'converges': the median run's cost moves <= 1 % over its last 5 iterations and ends "
+                            "within 1.5x the reference optimum; 'decay exponentially fast': a rho^k + b fitted to the "
+                            "first 10 iterations with rho <= 0.8 and R^2 >= 0.95; 'no low-cost solution': diverged, "
+                            "or above 2x the reference",
+    "not reproduced": "AICO with finite-difference linearizations (the thesis's, §3.4; raico's are exact), AICO with "
+                      "a learning rate on the beliefs or on the controller (Algorithm 1 lines 13 and 18), and "
+                      "appendix C's Euler / backward Euler / Heun comparison are not run",
     "Nao coupled hip": "25 planning joints, RHipYawPitch = LHipYawPitch in the 26-joint tree",
     "Nao execution": "computed torque on all 26 joints; Drake saturates actuation at the effort limits",
     "theta (AICO repeat rule)": "0.1 (state units), at most 3 repeats per step",

@@ -93,6 +93,12 @@ CASES = [
     ("adaptive_reaches_fddp", table(r1=100, fh=100), False),
     # the adaptive variant is beyond the thesis: not one of the thesis claims' R-AICO variants
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150, ad={"final": 300, "flat": 0.5}), True),
+    ("counterbalance", {"R-AICO a=1": {**S_("R-AICO a=1", 1.0), "left_hand_excursion_median": 0.03,
+                                       "head_joint_excursion_median": 0.2, "left_arm_joint_excursion_median": 0.3}},
+     True),
+    ("counterbalance", {"R-AICO a=1": {**S_("R-AICO a=1", 1.0), "left_hand_excursion_median": 0.003,
+                                       "head_joint_excursion_median": 0.2}}, False),
+    ("counterbalance", {"R-AICO a=1": S_("R-AICO a=1", 1.0)}, False),  # not measured: does not hold
     ("gamma_ablation", table(r1=120, g2=110, fh=100), True),
     ("gamma_ablation", table(r1=120, g2={"final": 110, "flat": 0.05}, fh=100), False),
     ("gamma_ablation", table(r1=120, g2={"final": 110, "diverged": 1}, fh=100), False),

@@ -294,6 +294,21 @@ def claim_raico_reaches_aico_not(S, execs):
             f"{_fmt(r['max_via_error_median'])} m, AICO {_fmt(a['max_via_error_median'])} m", ok)
 
 
+COUNTER_HAND = 0.01  # m: the left hand "moves" when it travels at least 1 cm (the reach's tolerance)
+COUNTER_HEAD = 0.05  # rad: the head "moves" when a head joint turns at least 0.05 rad (the start's spread)
+
+
+def claim_counterbalance(S, execs):
+    r = S.get("R-AICO a=1") or {}
+    hand, head = r.get("left_hand_excursion_median", math.nan), r.get("head_joint_excursion_median", math.nan)
+    arm = r.get("left_arm_joint_excursion_median", math.nan)
+    ok = math.isfinite(hand) and hand >= COUNTER_HAND and head >= COUNTER_HEAD
+    return ("to counterbalance, the robot moves its left hand and its head (no objective names them)",
+            f"median over the R-AICO a=1 plans: the left hand travels >= {COUNTER_HAND:g} m from its start and a head "
+            f"joint turns >= {COUNTER_HEAD:g} rad", f"left hand {_fmt(hand)} m (left-arm joints up to {_fmt(arm)} rad), "
+            f"head joints up to {_fmt(head)} rad", ok)
+
+
 def _stood_counts(execs: list[dict]) -> tuple[int, str]:
     """How many executions stood (status neither ``fell`` nor ``diverged``) and the status counts."""
     st = [str(e.get("status", "?")) for e in execs]
@@ -526,6 +541,8 @@ THESIS = {
     "raico_reaches_aico_not": "§3.6.1: \"AICO cannot infer movement solutions with low costs without "
                               "regularization\"; §3.6.2: \"The standard implementation of AICO was not able to "
                               "infer successful balancing solutions\"",
+    "counterbalance": "Fig. 3.3: \"To counter balance, the robot moves its left hand and the head, which is shown in "
+                      "(D)\"",
     "cog_support": BEYOND + " (the thesis plans on a welded foot and executes nothing)",
     "executed_reaches": BEYOND + " (the thesis plans on a welded foot and executes nothing)",
     "gp_error_falls": "§4.4: \"for small precision weights ... the model prediction error converges to zero\"; "

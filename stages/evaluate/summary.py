@@ -65,6 +65,8 @@ def summarize(label: str, runs: list[dict]) -> dict:
             "cost_ratio_max": float(np.nanmax(ratio)) if np.isfinite(ratio).any() else math.nan,
             "final_cost_max": float(np.nanmax(final)) if np.isfinite(final).any() else math.inf,
             "max_via_error_median": median(np.array([largest_via_error(m) for m in ms], float)),
+            **{f"{k}_median": median(col(k)) for k in ("head_joint_excursion", "left_arm_joint_excursion",
+                                                       "left_hand_excursion") if any(k in m for m in ms)},
             "wall_time_median_s": median(col("wall_time_s"))}
 
 
