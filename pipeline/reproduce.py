@@ -237,9 +237,9 @@ DEVIATIONS = {
     "reflected inertia": "5e-3 kg m^2 per geared joint of arm5, biorob and Nao (keeps light links well posed)",
     "Nao stance": "left sole welded to the world; default posture leans the torso over the left leg",
     "Nao start posture": "q0 ~ N(0, 0.05^2) about that leaning posture, not about the zero posture (the thesis's "
-                         "zero-mean Gaussian): on a welded left sole the Nao's zero posture (legs straight, arms "
-                         "forward) leaves the CoG between the feet, 5.5 cm short of the stance sole the balancing "
-                         "plans shift it over; the thesis's spread 0.05 rad is kept",
+                         "zero-mean Gaussian): the Nao's zero posture (legs straight, arms forward) puts its CoG "
+                         "between the feet rather than over the welded stance sole; kept as before (issue 19 "
+                         "builds standing start states), with the thesis's spread of 0.05 rad",
     "arm5 start posture": "q0 ~ N(0, 0.05^2) about q = 0, which is the thesis's initial pose x2 = (1, 0, 0) m",
     "reference optimum": "the convergence claims judge a final cost against the lowest median final cost any solver "
                          "run in the same figure reaches (the thesis's solvers and ablations; on fig3.2c/d also "
