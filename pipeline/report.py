@@ -757,7 +757,7 @@ def write_learn_figure(exp, S: dict, path: Path) -> None:
                      tag=": next execution")
         _learn_panel(axes[0, 0], S, labels, "gp_error_heldout", "GP prediction error (rad/s^2, RMSE)", tag=": held-out",
                      style="--")
-        axes[0, 0].set_title("(B) GP error on the next execution (band: seeds) and held-out babbling", fontsize=9)
+        axes[0, 0].set_title("(B) GP error: next execution (band: seeds), held-out (dashed)", fontsize=9)
         _learn_panel(axes[0, 1], S, labels, "fit_time_s", "time per evaluation (s)", band=True, tag=": fit")
         _learn_panel(axes[0, 1], S, labels, "plan_time_s", "time per evaluation (s)", tag=": plan", style="--")
         _learn_panel(axes[0, 1], S, labels, "execute_time_s", "time per evaluation (s)", tag=": execute", style=":")
@@ -766,7 +766,7 @@ def write_learn_figure(exp, S: dict, path: Path) -> None:
         _learn_panel(axes[0, 2], S, labels, "planned_task_error", "distance to the target (m)", tag=": planned",
                      style="--")
         axes[0, 2].axhline(0.05, color="k", lw=0.8, ls=":")
-        axes[0, 2].set_title("(D) end effector to target, executed (band: seeds) and planned; 5 cm dotted", fontsize=9)
+        axes[0, 2].set_title("(D) distance to target: executed (band), planned (dashed)", fontsize=9)
         axes[0, 0].set_xlabel("evaluation")
         axes[0, 1].set_xlabel("evaluation")
         axes[0, 2].set_xlabel("evaluation")
