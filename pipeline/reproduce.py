@@ -242,8 +242,9 @@ DEVIATIONS = {
                          "builds standing start states), with the thesis's spread of 0.05 rad",
     "arm5 start posture": "q0 ~ N(0, 0.05^2) about q = 0, which is the thesis's initial pose x2 = (1, 0, 0) m",
     "reference optimum": "the convergence claims judge a final cost against the lowest median final cost any solver "
-                         "run in the same figure reaches (the thesis's solvers and ablations; on fig3.2c/d also "
-                         "crocoddyl FDDP and the adaptive R-AICO at 100 iterations), not a separate long run",
+                         "run on all of the figure's initial states reaches (the thesis's solvers and ablations; on "
+                         "fig3.2c/d also crocoddyl FDDP and the adaptive R-AICO at 100 iterations), not a separate "
+                         "long run",
     "convergence criteria": "'converges': the median run's cost moves <= 1 % over its last 5 iterations and ends "
                             "within 1.5x the reference optimum; 'decay exponentially fast': a rho^k + b fitted to the "
                             "first 10 iterations with rho <= 0.8 and R^2 >= 0.95; 'no low-cost solution': diverged, "

@@ -58,6 +58,8 @@ CASES = [
     ("aico_unstable", table(ilqg=100, aico=110, r1=100), False),
     # the reference is the lowest cost of any solver: AICO at 2.5x R-AICO but at the reference is not "high"
     ("aico_unstable", table(aico=250, r1=250, fh=200), False),
+    # variants on fewer initial states (the FDDP rule ablations: 3) do not set the reference
+    ("aico_unstable", table(aico=250, r1=250, fh=200, fa={"final": 50, "runs": 3}), False),
     ("aico_unstable_without_relinearization", table(abl={"final": 100, "worst": 500}, r1=100), True),
     ("aico_unstable_without_relinearization", table(abl={"final": 100, "worst": 150}, r1=100), False),
     ("aico_fails", table(aico={"final": 100, "diverged": 5}, r1=100), True),
