@@ -69,11 +69,11 @@ CASES = [
     ("ilqg_stalls", table(ilqg=199, r1=100), False),
     ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50}, aico={"final": 100, "first": 20}), True),
     ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 10}, aico={"final": 100, "first": 20}), False),
-    # "converge" means converged (test met, or via-points reached), not "close to the best cost"
-    ("all_converge_aico_fastest", table(ilqg={"final": 300, "first": 50}, aico={"final": 100, "first": 20}), True),
-    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "via": 0.05},
+    # "converge" means converged: flat at the end and near the reference optimum; the old rules do not decide
+    ("all_converge_aico_fastest", table(ilqg={"final": 300, "first": 50}, aico={"final": 100, "first": 20}), False),
+    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "flat": 0.05},
                                         aico={"final": 100, "first": 20}), False),
-    ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "via": 0.05, "converged": 10},
+    ("all_converge_aico_fastest", table(ilqg={"final": 120, "first": 50, "via": 0.05},
                                         aico={"final": 100, "first": 20}), True),
     ("all_converge_aico_fastest", table(ilqg={"final": 100, "first": 50, "diverged": 1},
                                         aico={"final": 100, "first": 20}), False),
