@@ -250,3 +250,27 @@ def test_plants_has_no_import_cycle():
                    for d in graph["plants.dynamics"])
     assert _cycle(graph) is None, " -> ".join(_cycle(graph))
     assert _cycle({"plants.a": {"plants.b"}, "plants.b": {"plants.a"}}) == ["plants.a", "plants.b", "plants.a"]
+
+
+def test_biorob_actuator_facts_reach_drake():
+    """Issue 17: the BioRob-like arm's reflected motor inertia reaches Drake and no joint damping does. At
+    q = 0 (the arm stretched along +x) the wrist roll's axis is the hand's own axis, its centre of mass
+    lies on it and its inertia is diagonal, so 1 N m there accelerates the roll alone, by hand:
+    1 / (0.5 m r^2 + reflected inertia), rad/s^2, at any roll velocity (no damping)."""
+    from plants.robots import REFLECTED_INERTIA
+
+    r = shared_robot("biorob")
+    dyn = AnalyticDynamics(r, 0.002)
+    j = r.joint_names.index("wrist_roll")
+    u = np.zeros(r.n_q)
+    u[j] = 1.0
+    m, radius = 0.15, 0.02  # scripts/make_models.py: the hand
+    by_hand = 1.0 / (0.5 * m * radius**2 + REFLECTED_INERTIA["biorob"])
+    q, v = np.zeros(r.n_q), np.zeros(r.n_q)
+    g = dyn.qddot(q, v, np.zeros(r.n_q))  # gravity alone (the roll feels none)
+    acc = dyn.qddot(q, v, u) - g
+    assert acc[j] == pytest.approx(by_hand, rel=1e-9) and abs(g[j]) < 1e-9
+    assert np.allclose(np.delete(acc, j), 0.0, atol=1e-9)
+    v[j] = 3.0  # a spinning roll: no damping torque, no change in its acceleration
+    assert dyn.qddot(q, v, u)[j] == pytest.approx(acc[j] + g[j], rel=1e-9)
+    assert [r.plant.GetJointByName(n).default_damping() for n in r.joint_names] == [0.0] * r.n_q
