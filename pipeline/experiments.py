@@ -30,13 +30,15 @@ class Variant:
     seeds: int | None = None  # own number of initial states (ablations), else the experiment's
     gamma: float = 1.0  # R-AICO: alpha^[n] = alpha^[n-1] gamma (thesis §3.5; the thesis's figures use 1)
     start: str = "held"  # AICO/R-AICO's first trajectory: x0 held (thesis) or the zero-control rollout
+    dynamics: str | None = None  # own planning model (the finite-difference ablation), else the experiment's
 
     @property
     def label(self) -> str:
         if self.solver in BASELINE_LABELS:
             return BASELINE_LABELS[self.solver]
         extra = (f", gamma={self.gamma:g}" if self.gamma != 1.0 else "") + (
-            ", rollout start" if self.start == "rollout" else "")
+            ", rollout start" if self.start == "rollout" else "") + (
+            ", finite differences" if self.dynamics == "analytic-fd" else "")
         if self.solver == "raico" and self.schedule == "adaptive":
             return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
@@ -76,6 +78,8 @@ ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
 # Ablations (issue 18): R-AICO with a growing alpha (gamma = 2, thesis §3.5's Algorithm 1 allows it; its figures
 # use gamma = 1), and R-AICO (fixed and adaptive) started from the zero-control rollout, FDDP's other start
 GAMMA_ABLATION = Variant("raico", 1.0, gamma=2.0)
+# plain AICO with the thesis's finite-difference linearizations of the analytic model (§3.4) beside the exact ones
+FD_ABLATION = Variant("aico", dynamics="analytic-fd")
 ROLLOUT_VARIANTS = (Variant("raico", 1.0, start="rollout"),
                     Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                             schedule="adaptive", start="rollout"))
@@ -109,18 +113,18 @@ EXPERIMENTS: dict[str, Experiment] = {
                           claims=("raico_converges", "raico_decays_fast", "aico_unstable",
                                   "aico_unstable_without_relinearization", "gamma_ablation")),
     "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, *FDDP_VARIANTS, *FDDP_ABLATION,
+                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *FDDP_VARIANTS, *FDDP_ABLATION,
                            *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
                           25, 4, "as a, analytic Drake dynamics (controls = torques)",
                           claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
                                   *ADAPTIVE_CLAIMS, *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()),
-                                  "gamma_ablation", *ROLLOUT_CLAIMS)),
+                                  "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
     "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, *FDDP_VARIANTS,
+                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *FDDP_VARIANTS,
                            *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
                           25, 4, "as b, analytic Drake dynamics",
                           claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
-                                  *ADAPTIVE_CLAIMS, "gamma_ablation", *ROLLOUT_CLAIMS)),
+                                  *ADAPTIVE_CLAIMS, "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0)), 25, 5,
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
@@ -141,7 +145,7 @@ EXPERIMENTS: dict[str, Experiment] = {
 def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
-    return PlanConfig(plant=exp.plant, task=exp.task, dynamics=exp.dynamics, solver=v.solver,
+    return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
                       alpha=v.alpha if v.solver == "raico" else 1.0, gamma=v.gamma, start=v.start,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,

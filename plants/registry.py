@@ -83,6 +83,15 @@ register_dynamics("pseudo", _build_pseudo,
 register_dynamics("analytic", _build_analytic,
                   "Drake forward dynamics, semi-implicit Euler, controls are torques; generated "
                   "code where the plant compiles, else AutoDiffXd")
+def _build_analytic_fd(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> Dynamics:
+    from plants.numdiff import NumDiffDynamics
+
+    return NumDiffDynamics(make_fast_or_exact(robot, dt))
+
+
+register_dynamics("analytic-fd", _build_analytic_fd,
+                  "the analytic model linearized by central differences of its step (the thesis's §3.4: 'the "
+                  "linearizations are computed through finite differences'); an ablation, slow")
 register_dynamics("learned", build_learned,
                   "GP mean of qddot = f(q, qdot, u) (a fit artifact's model), semi-implicit Euler, "
                   "controls are torques", needs_params=True, example_params=example_params)
