@@ -191,7 +191,7 @@ MORE = r"(, [\w./-]+)*"  # registries may grow: names after the listed ones
     (["plan", "--plant", "arm5", "--task", "reach", "--solver", "sqp"], 2,
      r"unknown solver 'sqp': choose one of aico, raico, ilqg" + MORE),
     (["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "quantum"], 2,
-     r"unknown dynamics 'quantum': choose one of pseudo, analytic, learned" + MORE),
+     r"unknown dynamics 'quantum': choose one of pseudo, analytic, analytic-fd, learned" + MORE),
     (["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "learned"], 2,
      re.escape("--model KEY goes with --dynamics learned, and only with it")),
     (["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "learned", "--model", " "], 2,
