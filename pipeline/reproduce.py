@@ -233,7 +233,7 @@ DEVIATIONS = {
     "analytic discretization": "semi-implicit Euler at the planning step (equals the thesis's backward-Euler "
                                "pseudo-dynamics when controls are accelerations)",
     "analytic derivatives": "exact: AutoDiffXd of Drake's inverse dynamics, d qdd/d(q,v) = -M^-1 dID/d(q,v) "
-                            "(the thesis used finite differences)",
+                            "(the thesis used finite differences; the ablation 'AICO, finite differences' uses them)",
     "reflected inertia": "5e-3 kg m^2 per geared joint of arm5, biorob and Nao (keeps light links well posed)",
     "Nao stance": "left sole welded to the world; default posture leans the torso over the left leg",
     "Nao start posture": "q0 ~ N(0, 0.05^2) about that leaning posture, not about the zero posture (the thesis's "
@@ -249,9 +249,9 @@ DEVIATIONS = {
                             "within 1.5x the reference optimum; 'decay exponentially fast': a rho^k + b fitted to the "
                             "first 10 iterations with rho <= 0.8 and R^2 >= 0.95; 'no low-cost solution': diverged, "
                             "or above 2x the reference",
-    "not reproduced": "AICO with finite-difference linearizations (the thesis's, §3.4; raico's are exact), AICO with "
-                      "a learning rate on the beliefs or on the controller (Algorithm 1 lines 13 and 18), and "
-                      "appendix C's Euler / backward Euler / Heun comparison are not run",
+    "not reproduced": "AICO with a learning rate on the beliefs or on the controller (Algorithm 1 lines 13 and 18) "
+                      "and appendix C's Euler / backward Euler / Heun comparison are not run; AICO with the "
+                      "thesis's finite-difference linearizations runs as an ablation beside the exact ones (fig3.2c/d)",
     "Nao coupled hip": "25 planning joints, RHipYawPitch = LHipYawPitch in the 26-joint tree",
     "Nao execution": "computed torque on all 26 joints; Drake saturates actuation at the effort limits",
     "theta (AICO repeat rule)": "0.1 (state units), at most 3 repeats per step",
