@@ -562,11 +562,12 @@ THESIS = {
     "ilqg_stalls": "§3.5: \"iLQG ... cannot generate movement policies with low costs when using the analytic "
                    "model\"",
     "raico_reaches_fddp": BEYOND,
-    "gamma_ablation": "§3.5: \"we did not increase α and γ = 1\" (Algorithm 1 allows α^[n] = α^[n-1] γ); ablation",
+    "gamma_ablation": BEYOND + " (ablation; §3.5: \"we did not increase α and γ = 1\", Algorithm 1 allows "
+                               "α^[n] = α^[n-1] γ)",
     "rollout_start_reaches_fddp": BEYOND,
-    "fd_ablation": "§3.4: \"When we used the analytic forward dynamics model (where the linearizations are computed "
-                   "through finite differences) ... computing the messages in AICO became numerically unstable\"; "
-                   "ablation",
+    "fd_ablation": BEYOND + " (ablation; §3.4: \"When we used the analytic forward dynamics model (where the "
+                            "linearizations are computed through finite differences) ... computing the messages in "
+                            "AICO became numerically unstable\")",
     "adaptive_reaches_fddp": BEYOND,
     "ilqg_stall_ablation": BEYOND + " (ablation of \"iLQG ... cannot generate ... low costs\", §3.5)",
     "all_converge_aico_fastest": "§3.4: \"the inferred cost values converge fast for all algorithms, with the "
