@@ -38,7 +38,7 @@ SOLVER_COLORS: dict[str, str] = {
     FDDP_ROLLOUT: "tab:pink",
     FDDP_ACCEPT_ANY: "tab:gray",
     FDDP_ILQG_SCHEDULE: "tab:olive",
-    "R-AICO a=1, gamma=2": "#31a354",
+    "R-AICO a=1, gamma=2": "black",
     "AICO, finite differences": "#e6550d",
     "R-AICO a=1, rollout start": "#637939",
     "R-AICO adaptive (a0=1, rollout start)": "#3182bd",
