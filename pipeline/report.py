@@ -41,7 +41,7 @@ SOLVER_COLORS: dict[str, str] = {
     "R-AICO a=1, gamma=2": "black",
     "AICO, finite differences": "#e6550d",
     "R-AICO a=1, rollout start": "#637939",
-    "R-AICO adaptive (a0=1, rollout start)": "#3182bd",
+    "R-AICO adaptive (a0=1, rollout start)": "#8c6d31",
 }
 SOLVER_COLOR_PREFIXES: tuple[tuple[str, str], ...] = (("R-AICO adaptive", "tab:cyan"),)
 # labels of neither table: a colour from these, chosen by a hash of the label (the same in every figure unless
