@@ -1,0 +1,100 @@
+"""raico from Python: the CLI's stages as functions returning the same artifacts.
+
+Every function runs through the same cache as the CLI (``artifacts``, default ``./artifacts`` or
+``$RAICO_ARTIFACTS``), so a run made here is a cache hit for ``raico plan ...`` and the other way
+round. Keyword arguments are the stage's config fields (``raico <stage> --help`` lists them, with
+``-`` for ``_``); a bad value raises ``ValueError`` with the CLI's message.
+
+    from pipeline import api
+    p = api.plan(plant="arm5", task="reach", dynamics="analytic", iterations=25)
+    e = api.execute(plan=p.key)
+    X = api.arrays(e, "rollout.npz")["X"]            # executed states (T+1, n_x)
+    l = api.learn(plant="biorob", task="reach", episodes=20, alpha=2.0)
+    rows = api.reproduce(["fig3.2a"], quick=True)     # one summary per figure
+
+Each returns a :class:`pipeline.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
+``recording``: the ``.rrd`` to open in the Rerun viewer, or in a notebook with ``rerun-notebook``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.cache import Cache
+from pipeline.runner import Outcome
+
+__all__ = ["arrays", "babble", "evaluate", "execute", "fit", "learn", "plan", "reproduce", "run"]
+
+
+def _cache(artifacts: str | Path | None) -> Cache:
+    return Cache(Path(artifacts if artifacts is not None else os.environ.get("RAICO_ARTIFACTS", "artifacts")))
+
+
+def run(stage: str, artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """Run (or look up) one stage (``babble``, ``fit``, ``plan``, ``execute``, ``evaluate``) with
+    the config fields ``config``; the result is cached as by the CLI."""
+    from pipeline import runner
+    from stages.registry import get_stage
+
+    spec = get_stage(stage)
+    cfg = spec.config_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
+    cfg.validate()
+    return runner.run(_cache(artifacts), spec, cfg, record=record)
+
+
+def babble(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """Motor babbling in Drake (``raico babble``)."""
+    return run("babble", artifacts, record, **config)
+
+
+def fit(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """A GP dynamics model (``raico fit``; ``data`` a list of babble/execute keys)."""
+    return run("fit", artifacts, record, **config)
+
+
+def plan(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """A plan with AICO, R-AICO, iLQG or crocoddyl FDDP (``raico plan``)."""
+    return run("plan", artifacts, record, **config)
+
+
+def execute(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """A plan executed in Drake's Simulator (``raico execute``; ``plan`` a plan key)."""
+    return run("execute", artifacts, record, **config)
+
+
+def evaluate(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """One run's evaluation (``raico evaluate``)."""
+    return run("evaluate", artifacts, record, **config)
+
+
+def learn(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+    """The learning loop (``raico learn``): babble, then fit, plan and execute per episode."""
+    from pipeline.learn import learn as learn_loop
+    from stages.learn import LearnConfig
+
+    return learn_loop(_cache(artifacts), LearnConfig(**config), record=record)
+
+
+def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bool = False, jobs: int = 2,
+              record: bool = True, executor: str = "process") -> list[dict]:
+    """The named experiments (``raico reproduce --figure ...``): one summary per figure (its runs,
+    claims and report folder), the report README written as by the CLI."""
+    from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS
+    from pipeline.reproduce import reproduce as run_all
+
+    unknown = [f for f in figures if f not in EXPERIMENTS and f not in LEARN_EXPERIMENTS]
+    if not figures or unknown:
+        raise ValueError(f"unknown experiment '{(unknown or [''])[0]}': choose one of "
+                         f"{', '.join([*EXPERIMENTS, *LEARN_EXPERIMENTS])}")
+    return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
+                        executor=executor))
+
+
+def arrays(outcome: Outcome, name: str) -> dict[str, np.ndarray]:
+    """The arrays of an outcome's data file (``plan.npz``, ``rollout.npz``, ``data.npz``, ``model.npz``)."""
+    with np.load(Path(outcome.path) / name, allow_pickle=False) as f:
+        return {k: f[k] for k in f.files}
