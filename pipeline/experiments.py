@@ -31,6 +31,8 @@ class Variant:
     gamma: float = 1.0  # R-AICO: alpha^[n] = alpha^[n-1] gamma (thesis §3.5; the thesis's figures use 1)
     start: str = "held"  # AICO/R-AICO's first trajectory: x0 held (thesis) or the zero-control rollout
     dynamics: str | None = None  # own planning model (the finite-difference ablation), else the experiment's
+    belief_rate: float = 1.0  # AICO's learning rates (Algorithm 1 lines 13 and 18; 1: none)
+    controller_rate: float = 1.0
 
     @property
     def label(self) -> str:
@@ -38,7 +40,9 @@ class Variant:
             return BASELINE_LABELS[self.solver]
         extra = (f", gamma={self.gamma:g}" if self.gamma != 1.0 else "") + (
             ", rollout start" if self.start == "rollout" else "") + (
-            ", finite differences" if self.dynamics == "analytic-fd" else "")
+            ", finite differences" if self.dynamics == "analytic-fd" else "") + (
+            f", belief rate {self.belief_rate:g}" if self.belief_rate != 1.0 else "") + (
+            f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "")
         if self.solver == "raico" and self.schedule == "adaptive":
             return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
@@ -80,6 +84,9 @@ ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
 GAMMA_ABLATION = Variant("raico", 1.0, gamma=2.0)
 # plain AICO with the thesis's finite-difference linearizations of the analytic model (§3.4) beside the exact ones
 FD_ABLATION = Variant("aico", dynamics="analytic-fd")
+# plain AICO with the learning rates R-AICO replaces (thesis §3.5: on the state update, Algorithm 1 line 13, or on the
+# feedback controller, line 18; "neither implementation can guarantee convergence")
+RATE_ABLATIONS = (Variant("aico", belief_rate=0.5), Variant("aico", controller_rate=0.5))
 ROLLOUT_VARIANTS = (Variant("raico", 1.0, start="rollout"),
                     Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                             schedule="adaptive", start="rollout"))
@@ -108,17 +115,18 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", ARM_VARIANTS, 40, 6,
                           "arm5, pseudo-dynamics, via-points (1,-0.4,0)@500 and (1,0,0)@1000",
                           claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest")),
-    "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo", (*ARM_VARIANTS, ABLATION, GAMMA_ABLATION), 40,
+    "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo",
+                          (*ARM_VARIANTS, ABLATION, GAMMA_ABLATION, *RATE_ABLATIONS), 40,
                           6, "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
                           claims=("raico_converges", "raico_decays_fast", "aico_unstable",
-                                  "aico_unstable_without_relinearization", "gamma_ablation")),
+                                  "aico_unstable_without_relinearization", "gamma_ablation", "learning_rates_fail")),
     "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *FDDP_VARIANTS, *FDDP_ABLATION,
-                           *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
+                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *RATE_ABLATIONS, *FDDP_VARIANTS,
+                           *FDDP_ABLATION, *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
                           25, 4, "as a, analytic Drake dynamics (controls = torques)",
                           claims=("raico_converges", "raico_decays_fast", "aico_fails", "ilqg_stalls", *FDDP_CLAIMS,
                                   *ADAPTIVE_CLAIMS, *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()),
-                                  "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
+                                  "gamma_ablation", "fd_ablation", "learning_rates_fail", *ROLLOUT_CLAIMS)),
     "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic",
                           (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *FDDP_VARIANTS,
                            *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
@@ -147,6 +155,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
 
     return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
                       alpha=v.alpha if v.solver == "raico" else 1.0, gamma=v.gamma, start=v.start,
+                      belief_rate=v.belief_rate, controller_rate=v.controller_rate,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
                       q0_std=0.05, relinearize=v.relinearize, alpha_schedule=v.schedule).normalized()

@@ -40,6 +40,8 @@ SOLVER_COLORS: dict[str, str] = {
     FDDP_ILQG_SCHEDULE: "tab:olive",
     "R-AICO a=1, gamma=2": "black",
     "AICO, finite differences": "#e6550d",
+    "AICO, belief rate 0.5": "#9c9ede",
+    "AICO, controller rate 0.5": "#e7969c",
     "R-AICO a=1, rollout start": "#637939",
     "R-AICO adaptive (a0=1, rollout start)": "#8c6d31",
 }

@@ -37,7 +37,7 @@ def table(**rows):
              "abl": "AICO (no sweep relinearization)", "fh": FDDP_HELD, "fr": FDDP_ROLLOUT, "fa": FDDP_ACCEPT_ANY,
              "fs": FDDP_ILQG_SCHEDULE, "ad": "R-AICO adaptive (a0=1)", "g2": "R-AICO a=1, gamma=2",
              "ro": "R-AICO a=1, rollout start", "aro": "R-AICO adaptive (a0=1, rollout start)",
-             "fd": "AICO, finite differences"}
+             "fd": "AICO, finite differences", "br": "AICO, belief rate 0.5", "cr": "AICO, controller rate 0.5"}
     return {names[k]: S_(names[k], **v) if isinstance(v, dict) else S_(names[k], v) for k, v in rows.items()}
 
 
@@ -108,6 +108,9 @@ CASES = [
     # ablations are not the thesis's R-AICO: a diverging gamma=2 or rollout-start run does not fail "R-AICO converges"
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150, g2={"final": 1e9, "diverged": 5},
                               ro={"final": 1e9, "diverged": 5}), True),
+    ("learning_rates_fail", table(r1=100, br=500, cr={"final": 110, "flat": 0.2}), True),
+    ("learning_rates_fail", table(r1=100, br=500, cr=110), False),  # the controller rate converged
+    ("learning_rates_fail", table(r1=100, br=500), False),
     ("fd_ablation", table(aico={"final": math.nan, "diverged": 10}, fd={"final": math.nan, "diverged": 9}), True),
     ("fd_ablation", table(aico={"final": math.nan, "diverged": 10}, fd={"final": 100, "diverged": 0}), False),
     ("rollout_start_reaches_fddp", table(ro=300, aro=45, fr=42), True),

@@ -233,3 +233,20 @@ def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
     assert s.iterate is start and s.cost == 0.0 and not s.moved and step.alpha == pytest.approx(4.0)
     with pytest.raises(ValueError, match="the adaptive schedule needs alpha > 0"):
         AICOOptions(alpha=0.0, schedule="adaptive")
+
+
+def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
+    """Algorithm 1 line 18's learning rate: on an LQ problem plain AICO's new controller is the exact one
+    at once; blended with the previous one at rate 0.5 the controller approaches it geometrically."""
+    pb = make_lq(seed=2, running=5.0)
+    X, U = exact_solution(pb)
+    errs = []
+    res = aico(pb, AICOOptions(iterations=60, controller_rate=0.5, tol_rel=0.0),
+               callback=lambda rec, Xn, Un: errs.append(np.max(np.abs(Un - U))))
+    errs = np.array(errs)
+    # about half the way each iteration (the feedback gains blend too, so not exactly half)
+    assert errs[0] > 1e-3 and 0.4 * errs[0] < errs[1] < 0.6 * errs[0] and np.all(np.diff(errs) <= 1e-12)
+    assert errs[-1] < 1e-6
+    assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-8)
+    with pytest.raises(ValueError, match="controller_rate"):
+        AICOOptions(controller_rate=0.0).validate()

@@ -250,6 +250,25 @@ def claim_fd_ablation(S, execs):
             f"exact: diverged {a['diverged']}/{a['runs']}, final median {_fmt(a['final_cost_median'])}", ok)
 
 
+BELIEF_RATE = "AICO, belief rate 0.5"
+CONTROLLER_RATE = "AICO, controller rate 0.5"
+
+
+def claim_learning_rates_fail(S, execs):
+    ref = reference_cost(S)
+    vs = {k: S[k] for k in (BELIEF_RATE, CONTROLLER_RATE) if k in S}
+    if len(vs) < 2:
+        return ("plain AICO with a learning rate does not converge", "needs both variants", "no runs", False)
+    ok = math.isfinite(ref) and all(not _flat_and_low(v, ref) for v in vs.values())
+    nums = "; ".join(f"{k}: final median {_fmt(v['final_cost_median'])} ({_fmt(v['final_cost_median'] / ref)}x the "
+                     f"reference), moved {_fmt(v.get('flat_last5_median', math.nan))} over the last {FLAT_ITERS}, "
+                     f"diverged {v['diverged']}/{v['runs']}" for k, v in vs.items())
+    return ("plain AICO with a learning rate (0.5) on the belief update or on the controller does not converge",
+            f"neither variant converges by the 'R-AICO converges' rule (no run diverged, cost flat to {FLAT_TOL:.0%} "
+            f"over the last {FLAT_ITERS} iterations, median final cost within {LOW_COST:g}x the reference optimum)",
+            f"{nums}; reference optimum {_fmt(ref)}", ok)
+
+
 def claim_rollout_start_reaches_fddp(S, execs):
     f = S.get(FDDP_ROLLOUT)
     vs = {k: S[k] for k in (ROLLOUT, ADAPTIVE_ROLLOUT) if k in S}
@@ -565,6 +584,9 @@ THESIS = {
     "gamma_ablation": BEYOND + " (ablation; §3.5: \"we did not increase α and γ = 1\", Algorithm 1 allows "
                                "α^[n] = α^[n-1] γ)",
     "rollout_start_reaches_fddp": BEYOND,
+    "learning_rates_fail": "§3.5: \"the learning rate is either applied to the state update (in Line 13 in Algorithm 1) "
+                           "... or to the feedback controller (in Line 18 in Algorithm 1). However, neither "
+                           "implementation can guarantee convergence in nonlinear systems\"",
     "fd_ablation": BEYOND + " (ablation; §3.4: \"When we used the analytic forward dynamics model (where the "
                             "linearizations are computed through finite differences) ... computing the messages in "
                             "AICO became numerically unstable\")",

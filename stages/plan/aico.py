@@ -78,7 +78,10 @@ class AICOOptions(OptionsBase):
         max_repeats: cap on the repeats of one time step within a sweep (>= 0); when it is
             reached the step keeps its last linearization.
         belief_rate: plain AICO's learning rate on the belief (state) update: a repeat moves
-            the linearization point ``x_t += rate (b_t - x_t)``, in (0, 1].
+            the linearization point ``x_t += rate (b_t - x_t)``, in (0, 1] (Algorithm 1, line 13).
+        controller_rate: the other classic learning rate (Algorithm 1, line 18): the controller of
+            an iteration is ``(1 - rate)`` times the previous one plus ``rate`` times the new one,
+            ``o, O`` blended, in (0, 1] (1: the new controller, AICO and R-AICO as the thesis).
         process_noise: ``q`` in ``Q = q I`` (> 0).
         start_variance: ``S_0 = start_variance I`` (tight prior around ``x0``, > 0).
         tol_rel: converged when the relative cost change of two iterations is at most this.
@@ -97,6 +100,7 @@ class AICOOptions(OptionsBase):
     theta: float = 0.1
     max_repeats: int = 3
     belief_rate: float = 1.0
+    controller_rate: float = 1.0
     process_noise: float = 1e-9
     start_variance: float = 1e-10
     tol_rel: float = 1e-9
@@ -122,6 +126,7 @@ class AICOOptions(OptionsBase):
         check_range("theta", self.theta, lo=0.0, lo_open=True)
         check_range("max_repeats", self.max_repeats, lo=0, integer=True)
         check_range("belief_rate", self.belief_rate, lo=0.0, hi=1.0, lo_open=True)
+        check_range("controller_rate", self.controller_rate, lo=0.0, hi=1.0, lo_open=True)
         check_range("process_noise", self.process_noise, lo=0.0, lo_open=True)
         check_range("start_variance", self.start_variance, lo=0.0, lo_open=True)
         check_range("tol_rel", self.tol_rel, lo=0.0)
@@ -702,13 +707,17 @@ class _AICOStep:
                 sw.sweep()
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
+        o_new, O_new = sw.o_, sw.O_
+        eta = self.opts.controller_rate if self.opts is not None else 1.0
+        if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
+            o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = compiled_controller_rollout(self.problem.dynamics, self.problem.x0, sw.o_, sw.O_)
+            Xn, Un = compiled_controller_rollout(self.problem.dynamics, self.problem.x0, o_new, O_new)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")
         # o_ and O_ are new arrays every sweep (no copies needed: 3 MB per iteration on the Nao)
-        return Step(Iterate(Xn, Un, sw.o_, sw.O_), cost, step=alpha,
+        return Step(Iterate(Xn, Un, o_new, O_new), cost, step=alpha,
                     repeats=sw.repeats)
 
     def _failed(self, cur: Iterate, alpha: float, why: str) -> Step:

@@ -60,6 +60,9 @@ class PlanConfig(StageConfig):
             "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "
                            "standardized (over the training outputs' variance).",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
+            "belief_rate": "AICO/R-AICO: learning rate on the belief update (Algorithm 1 line 13), in (0, 1].",
+            "controller_rate": "AICO/R-AICO: learning rate on the controller (Algorithm 1 line 18): the new "
+                               "controller blended with the previous one, in (0, 1].",
             "start": "AICO/R-AICO's first trajectory: held (x0 at every step, the thesis) or rollout (the zero-control "
                      "rollout, where crocoddyl FDDP's rollout start begins); iLQG always rolls out.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
@@ -83,6 +86,8 @@ class PlanConfig(StageConfig):
     alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
     start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
+    belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
+    controller_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 18's learning rate (1: none)
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -143,6 +148,8 @@ class PlanConfig(StageConfig):
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
         if self.warm_start is not None or self.solver not in ("aico", "raico"):
             d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
+        if self.solver not in ("aico", "raico"):
+            d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -151,6 +158,10 @@ class PlanConfig(StageConfig):
         opts = {"iterations": self.iterations}
         if not self.relinearize:
             opts["theta"] = float("inf")
+        if self.belief_rate != 1.0:
+            opts["belief_rate"] = self.belief_rate
+        if self.controller_rate != 1.0:
+            opts["controller_rate"] = self.controller_rate
         if self.solver == "raico":
             opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.alpha_schedule)
         return opts
