@@ -308,10 +308,12 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
             from pipeline.runner import as_artifact
 
             art = as_artifact(cache.require("plan", p["outcome"].key))
-            c = art.arrays("plan.npz", ("costs",)).get("costs")
+            nao_reach = art.config.get("plant") == "nao" and art.config.get("task") == "reach"
+            d = art.arrays("plan.npz", ("costs", "X") if nao_reach else ("costs",))
+            c = d.get("costs")
             m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
-            if art.config.get("plant") == "nao" and art.config.get("task") == "reach":
-                m.update(counterbalance(art.arrays("plan.npz", ("X",))["X"]))
+            if nao_reach:
+                m.update(counterbalance(d["X"]))
         runs.append({"status": p["outcome"].status, "metrics": m})
     return summary(variant.label, runs)
 

@@ -73,8 +73,8 @@ def episode_measurements(cfg, robot, fit: Outcome, plan: Outcome, execution: Out
         hj, hn = gp_joint_errors(model, *heldout)
         held = {"gp_error_heldout": gp_prediction_error(model, *heldout), "gp_error_heldout_joint": hj,
                 "gp_nrmse_heldout_joint": hn}
-    exec_art = as_artifact(cache.require("execute", execution.key))
-    data_steps = usable_steps(exec_art, dt, K)
+    exec_entry = cache.require("execute", execution.key)
+    data_steps = usable_steps(as_artifact(exec_entry), dt, K)
     return {"gp_error": gp_prediction_error(model, X, tau, qdd), "gp_error_joint": per_joint,
             "gp_nrmse_joint": per_joint_n, **held,
             "data_steps": int(data_steps), "data_truncated": bool(data_steps < K),
@@ -83,7 +83,7 @@ def episode_measurements(cfg, robot, fit: Outcome, plan: Outcome, execution: Out
             "execution_status": execution.status, "plan_status": plan.status,
             "planned_task_error": task_error(pm.get("via_point_errors") or {}),
             "fit_time_s": fit.metrics.get("fit_time_s"), "plan_time_s": pm.get("wall_time_s"),
-            "execute_time_s": (cache.require("execute", execution.key).meta.get("timings") or {}).get("compute_s"),
+            "execute_time_s": (exec_entry.meta.get("timings") or {}).get("compute_s"),
             "n_points": fit.metrics.get("n_points"), "optimized": fit.metrics.get("optimized"),
             "executed_seconds": float(K * dt), "final_cost": pm.get("final_cost"),
             "fit": fit.key, "plan": plan.key, "execute": execution.key}
@@ -310,7 +310,7 @@ def record_learn(folder: Path, entry, cache: Cache, robot) -> None:
 def _task_target(cache: Cache, plan_key: str) -> np.ndarray | None:
     """The end-effector via-point target (m) of a plan's task, if its objective has one."""
     doc = as_artifact(cache.require("plan", plan_key)).document("problem.json")
-    for t in doc.get("objective", doc.get("terms", [])):
+    for t in doc.get("terms", []):
         if t.get("term") == "via" and len(t.get("target", [])) == 3:
             return np.asarray(t["target"], float)
     return None

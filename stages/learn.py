@@ -25,8 +25,8 @@ BABBLE_KNOT_S = 0.25  # s between the random knots of the babbling spline (a 1 s
 
 def babble_knots(points: int) -> int:
     """Random knots of a babbling episode of ``points`` samples: one every ``BABBLE_KNOT_S`` s, at
-    most one per three samples (the pendulum's 15 samples: 5 knots in 1.4 s; the BioRob's 100: 33
-    in 9.9 s; issue 17: 8 knots in 9.9 s moved the arm too slowly for the torques a reach needs)."""
+    most one per three samples (the pendulum's 15 samples: 5 knots in 1.4 s; the arms' 200: 66 in
+    19.9 s; issue 17: 8 knots in 9.9 s moved the arm too slowly for the torques a reach needs)."""
     duration = (points - 1) * BABBLE_DT
     return max(1, min(points // 3, int(round(duration / BABBLE_KNOT_S))))
 
@@ -44,11 +44,12 @@ class LearnConfig(StageConfig):
             "schedule": "Hyperparameter schedule: every (re-optimize each episode) or batch-N (N >= 100 new points).",
             "alpha": "R-AICO regularization alpha (0: plain AICO).",
             "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model (0: the plant's "
-                             "default, 15 for the pendulum as in the thesis, 100 for the arms).",
+                             "default, 15 for the pendulum as in the thesis, 200 for the arms).",
             "iterations": "Planner iterations per episode.", "max_points": "Cap on the GP's training set.",
             "restarts": "Seeded random restarts of the hyperparameter optimizer at the first fit (on the babbling).",
-            "refit_restarts": "Random restarts at the later fits (each starts at the previous fit's hyperparameters).", "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the "
-                                                           "pendulum, 20 for the arms).",
+            "refit_restarts": "Random restarts at the later fits (each starts at the previous fit's hyperparameters).",
+            "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the pendulum, 20 for "
+                      "the arms).",
             "q0_std": "Std of q0 around the default posture (rad).",
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "

@@ -21,6 +21,7 @@ import pytest
 from pipeline import cache as cache_mod
 from pipeline.cache import Cache, Entry, WriteResult, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
+from tests.damage import flip_byte
 
 REPO = Path(__file__).resolve().parents[1]
 _REAL_GIT_COMMIT = cache_mod.git_commit
@@ -266,19 +267,6 @@ def _settled(c: Cache, stage: str = "plan", key: str = KEY) -> Entry:
     return e
 
 
-def _flip(p: Path, keep_mtime: bool = False) -> None:
-    """Same-size damage in the middle of ``p`` (``keep_mtime``: its modification time put back)."""
-    st = p.stat()
-    with open(p, "r+b") as f:
-        f.seek(st.st_size // 2)
-        b = f.read(1)
-        f.seek(st.st_size // 2)
-        f.write(bytes([b[0] ^ 0xFF]))
-    if keep_mtime:
-        os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
-        assert p.stat().st_mtime_ns == st.st_mtime_ns and p.stat().st_size == st.st_size
-
-
 def test_clean_hit_reads_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A hit whose files all match their stamps (size, mtime, ctime, inode) is served after one stat
     per file: nothing is read or hashed."""
@@ -300,7 +288,7 @@ def test_same_size_change_is_found_on_the_hit(tmp_path: Path, name: str, keep_mt
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
     _settled(c)
-    _flip(tmp_path / "plan" / KEY / name, keep_mtime)
+    flip_byte(tmp_path / "plan" / KEY / name, keep_mtime)
     assert c.lookup("plan", KEY) is None
     assert re.fullmatch(rf"file {re.escape(name)} changed \(sha256 [0-9a-f]{{12}}…, recorded [0-9a-f]{{12}}…\)",
                         c.why("plan", KEY)), c.why("plan", KEY)
@@ -350,7 +338,7 @@ def test_damage_the_stamps_do_not_show_is_found_by_verify(tmp_path: Path) -> Non
     c.write("plan", KEY, write_npz, {})
     e = _settled(c)
     p = e.path / "sub" / "notes.txt"
-    _flip(p)
+    flip_byte(p)
     stamps = json.loads((e.path / "state.json").read_text())["stamps"]
     st = p.stat()
     stamps["sub/notes.txt"] = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, stamps["sub/notes.txt"][4]]
@@ -381,7 +369,7 @@ def test_derived_files_beside_the_data(tmp_path: Path) -> None:
     assert said == [f"plan {KEY}: recording regenerated: recording.rrd changed (size 3 B, recorded 10 B)"]
     time.sleep(0.05)
     assert set(c.derived(e)) == {"recording.rrd"}
-    _flip(e.path / "recording.rrd", keep_mtime=True)  # same size, same mtime: its stamp still differs
+    flip_byte(e.path / "recording.rrd", keep_mtime=True)  # same size, same mtime: its stamp still differs
     assert c.derived_check(e)[1]["recording.rrd"].startswith("recording.rrd changed (sha256")
     (e.path / "recording.rrd").unlink()
     assert c.derived_check(e)[1] == {"recording.rrd": "recording.rrd missing"}

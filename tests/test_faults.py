@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.damage import flip_byte, parents
+
 REPO = Path(__file__).resolve().parents[1]
 RAICO = str(Path(sys.executable).with_name("raico"))
 ERROR = re.compile(r"raico: error: \S.*")
@@ -39,16 +41,7 @@ def one_error_line(text: str) -> str:
 
 def children(pid: int) -> list[int]:
     """Pids whose parent is ``pid`` (Linux /proc)."""
-    out = []
-    for p in Path("/proc").iterdir():
-        if p.name.isdigit():
-            try:
-                st = (p / "stat").read_text()
-            except OSError:
-                continue
-            if int(st[st.rfind(")") + 2:].split()[1]) == pid:
-                out.append(int(p.name))
-    return out
+    return [c for c, pp in parents().items() if pp == pid]
 
 
 def running(pid: int) -> bool:
@@ -582,19 +575,6 @@ def _truncate(path: Path) -> None:
     path.write_bytes(data[: len(data) // 2])
 
 
-def _flip(path: Path, keep_mtime: bool = False) -> None:
-    """A byte in the middle of ``path`` flipped in place, as a careful operator's fault run does it (the
-    size stays, the modification time moves; with ``keep_mtime`` it is put back by ``os.utime``)."""
-    st = path.stat()
-    with open(path, "r+b") as f:
-        f.seek(st.st_size // 2)
-        b = f.read(1)
-        f.seek(st.st_size // 2)
-        f.write(bytes([b[0] ^ 0xFF]))
-    if keep_mtime:
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
-
-
 def _edit_number(meta: Path) -> None:
     text = meta.read_text()
     new = re.sub(r'("compute_s": )(\d)', lambda m: m[1] + str((int(m[2]) + 1) % 10), text, count=1)
@@ -604,9 +584,9 @@ def _edit_number(meta: Path) -> None:
 
 CORRUPTIONS = {
     "truncated data file": (lambda e, data: _truncate(e / data), r"file {data} changed \(size \d+ B, recorded \d+ B\)"),
-    "byte flipped in a data file (same size)": (lambda e, data: _flip(e / data),
+    "byte flipped in a data file (same size)": (lambda e, data: flip_byte(e / data),
                                                 r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
-    "byte flipped, mtime put back": (lambda e, data: _flip(e / data, keep_mtime=True),
+    "byte flipped, mtime put back": (lambda e, data: flip_byte(e / data, keep_mtime=True),
                                      r"file {data} changed \(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"),
     "deleted data file": (lambda e, data: (e / data).unlink(), "file {data} missing"),
     "edited meta.json": (lambda e, data: _edit_number(e / "meta.json"),
@@ -703,7 +683,7 @@ def test_stage_on_a_damaged_plan_rebuilds_it_first(helper, tmp_path, command):
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
-    _flip(a / "plan" / plan / "plan.npz")
+    flip_byte(a / "plan" / plan / "plan.npz")
     args = ["--plan", plan] + (["--rollout", keys["execute"]] if command == "evaluate" else [])
     res = cli(command, *args, "--no-record", "--artifacts", a)
     assert res.exit_code == 0, res.stderr
@@ -725,7 +705,7 @@ def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage)
     plan = keys["plan"]
     entry = a / "plan" / plan
     assert Cache(a).lookup("plan", plan) is not None  # stamps recorded for the copy
-    (_flip if damage == "crc" else _damage_header)(entry / "plan.npz")
+    (flip_byte if damage == "crc" else _damage_header)(entry / "plan.npz")
     _restamp(entry, "plan.npz")
     assert Cache(a).lookup("plan", plan) is not None  # served by a hit: the residual case
     res = cli("execute", "--plan", plan, "--seed", 3, "--no-record", "--artifacts", a)  # not cached: reads it
@@ -747,7 +727,7 @@ def test_damaged_plan_that_cannot_be_rebuilt_is_one_line(helper, tmp_path, monke
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
-    _flip(a / "plan" / plan / "plan.npz")
+    flip_byte(a / "plan" / plan / "plan.npz")
     real = runner.code_version
     monkeypatch.setattr(runner, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
     res = cli("execute", "--plan", plan, "--no-record", "--artifacts", a)
@@ -777,7 +757,7 @@ def test_repaired_recording_says_so(tmp_path):
     entry = tmp_path / "plan" / key
     for damage, why in (
             (lambda: _truncate(entry / "recording.rrd"), r"recording\.rrd changed \(size \d+ B, recorded \d+ B\)"),
-            (lambda: _flip(entry / "recording.rrd"), rf"recording\.rrd changed {SHA}"),
+            (lambda: flip_byte(entry / "recording.rrd"), rf"recording\.rrd changed {SHA}"),
             (lambda: (entry / "trajectory.mcap").unlink(), r"trajectory\.mcap missing")):
         damage()
         res = cli(*args)
@@ -790,14 +770,7 @@ def test_repaired_recording_says_so(tmp_path):
 
 def _descendants(pid: int) -> dict[int, str]:
     """Pid -> command line of every process below ``pid`` (Linux /proc)."""
-    parent: dict[int, int] = {}
-    for p in Path("/proc").iterdir():
-        if p.name.isdigit():
-            try:
-                st = (p / "stat").read_text()
-            except OSError:
-                continue
-            parent[int(p.name)] = int(st[st.rfind(")") + 2:].split()[1])
+    parent = parents()
     out, todo = {}, [pid]
     while todo:
         x = todo.pop()

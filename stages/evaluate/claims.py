@@ -37,15 +37,6 @@ def _main(S: dict) -> dict:
             if _thesis_variant(k) and not k.startswith(BASELINE) and not k.startswith(ADAPTIVE)}
 
 
-def _converged(s: dict) -> bool:
-    """A variant converged: no run diverged, and every run met the solver's convergence test or
-    the median of the runs' largest via-point error is at most ``CONVERGED_VIA_TOL``."""
-    return s["diverged"] == 0 and (s["converged"] == s["runs"] or s["max_via_error_median"] <= CONVERGED_VIA_TOL)
-
-
-CONVERGED_VIA_TOL = 0.01  # m (or rad): via-point error that counts as having reached the via-points
-
-
 FLAT_TOL = 0.01  # "converged": the median run's cost moved at most 1 % over its last FLAT_ITERS iterations
 FLAT_ITERS = 5
 LOW_COST = 1.5  # "a low cost": a median final cost within 1.5x of the reference optimum
@@ -64,6 +55,13 @@ def reference_cost(S: dict) -> float:
     vals = [s["final_cost_median"] for s in S.values()
             if s.get("runs", 0) == full and math.isfinite(s.get("final_cost_median", math.nan))]
     return min(vals) if vals else math.nan
+
+
+def _flat_and_low(s: dict, ref: float) -> bool:
+    """A variant converged (the 'R-AICO converges' rule): no run diverged, the median run's cost moved at most
+    ``FLAT_TOL`` over its last ``FLAT_ITERS`` iterations, and its median final cost is within ``LOW_COST`` of ``ref``."""
+    return (s["diverged"] == 0 and s.get("flat_last5_median", math.nan) <= FLAT_TOL
+            and s["final_cost_median"] <= LOW_COST * ref)
 
 
 def decay_fit(curve, n: int = DECAY_ITERS) -> tuple[float, float]:
@@ -112,9 +110,7 @@ def claim_raico_converges(S, execs):
     cost-change test; via-points to 1 cm) are reported beside it."""
     R = _raico(S)
     ref = reference_cost(S)
-    ok = bool(R) and math.isfinite(ref) and all(
-        s["diverged"] == 0 and s.get("flat_last5_median", math.nan) <= FLAT_TOL
-        and s["final_cost_median"] <= LOW_COST * ref for s in R.values())
+    ok = bool(R) and math.isfinite(ref) and all(_flat_and_low(s, ref) for s in R.values())
     nums = "; ".join(f"{k}: cost moved {_fmt(s.get('flat_last5_median', math.nan))} over the last {FLAT_ITERS} "
                      f"iterations, final median {_fmt(s['final_cost_median'])} ({_fmt(s['final_cost_median'] / ref)}x "
                      f"the reference), diverged {s['diverged']}/{s['runs']} (old rules: relative cost-change test "
@@ -222,8 +218,7 @@ def claim_gamma_ablation(S, execs):
     g, r, ref = S.get(GAMMA2), S.get("R-AICO a=1"), reference_cost(S)
     if not (g and r):
         return ("ablation: R-AICO with a growing alpha (gamma = 2)", "needs both variants", "no runs", False)
-    ok = (g["diverged"] == 0 and g.get("flat_last5_median", math.nan) <= FLAT_TOL
-          and g["final_cost_median"] <= LOW_COST * ref)
+    ok = math.isfinite(ref) and _flat_and_low(g, ref)
     return ("ablation: R-AICO with alpha doubled after every iteration (gamma = 2) converges",
             f"as 'R-AICO converges' for the gamma = 2 variant: no run diverged, its cost moved at most {FLAT_TOL:.0%} over "
             f"the last {FLAT_ITERS} iterations, final median within {LOW_COST:g}x the reference optimum",
@@ -304,13 +299,6 @@ def claim_ilqg_stall_ablation(S, execs):
             "least 2x above FDDP's own median final cost",
             f"FDDP (rollout start) final median {_fmt(a)}; {parts}; iLQG {_fmt(i['final_cost_median'])} after the "
             f"thesis's budget: {why}", ok)
-
-
-def _flat_and_low(s: dict, ref: float) -> bool:
-    """A variant converged (the 'R-AICO converges' rule): no run diverged, the median run's cost moved at most
-    ``FLAT_TOL`` over its last ``FLAT_ITERS`` iterations, and its median final cost is within ``LOW_COST`` of ``ref``."""
-    return (s["diverged"] == 0 and s.get("flat_last5_median", math.nan) <= FLAT_TOL
-            and s["final_cost_median"] <= LOW_COST * ref)
 
 
 def claim_all_converge_aico_fastest(S, execs):
