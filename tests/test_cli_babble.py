@@ -88,6 +88,23 @@ def test_babble_data_are_consistent_with_the_plant(tmp_path):
     assert np.allclose(a, u - v - 9.81 * np.sin(q), rtol=1e-4, atol=1e-4)
 
 
+def test_babble_torques_follow_the_saturated_pd_law():
+    """The Drake-native controller (TrajectorySource -> PidController -> Saturation) applies
+    ``clip(kp (q_des - q) + kd (qdot_des - qdot), -u_max, u_max)`` at every sample, on a multi-joint arm."""
+    from plants.robots import load_robot
+    from stages.babble import BabbleConfig, babble, desired_trajectory
+
+    cfg = BabbleConfig(plant="biorob", episodes=1, duration=2.0, dt=0.01, knots=8, substeps=10, amplitude=1.0)
+    d = babble(cfg)
+    robot = load_robot("biorob")
+    spline = desired_trajectory(np.random.default_rng(cfg.seed), robot.default_q, robot.lower, robot.upper, cfg)
+    assert np.allclose(d.q_des[0], spline(d.t), atol=1e-12)
+    tau = cfg.kp * (spline(d.t) - d.q[0]) + cfg.kd * (spline(d.t, 1) - d.qdot[0])
+    u_max = robot.babble_torque_limit()
+    assert np.allclose(d.u[0], np.clip(tau, -u_max, u_max), atol=1e-9)
+    assert np.abs(d.u[0]).max() > 0.1  # the arm was driven, not at rest
+
+
 @pytest.mark.parametrize("args, message", [
     (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, arm5, biorob, nao"),
     (["--plant", "arm5", "--episodes", "0"], "episodes must be >= 1"),
