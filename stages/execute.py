@@ -147,8 +147,11 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
             self.log_u: list[np.ndarray] = []
             self.state_port = self.DeclareVectorInputPort("x", 2 * n_plant)
             self.held = self.DeclareDiscreteState(2 * o.shape[1])  # (u, noise)
-            self.DeclareVectorOutputPort("tau", BasicVector(plant.num_actuators()), self._torque,
-                                         {self.all_sources_ticket()})
+            # A torque plan's output is a function of the held (u, noise) only: declared so, Drake
+            # caches it between updates (one Python call per step instead of one per integrator stage;
+            # the same numbers). Computed torque reads the plant state at every evaluation.
+            deps = {self.all_sources_ticket()} if pseudo else {self.xd_ticket()}
+            self.DeclareVectorOutputPort("tau", BasicVector(plant.num_actuators()), self._torque, deps)
             self.DeclarePeriodicDiscreteUpdateEvent(dt, 0.0, self._update)
 
         def _update(self, context, discrete_state):
