@@ -335,3 +335,31 @@ def test_summary_cost_curves_and_flatness():
             {"status": "diverged", "metrics": {"final_cost": None, "cost_history": [9.0, None]}}]
     s = summarize("x", runs)
     assert s["cost_curve_median"] == [3.0, 2.0, 1.0]  # diverged runs left out
+
+
+def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
+    """Every figure with a cost claim against the reference optimum carries the long-budget reference run
+    (adaptive R-AICO, 100 iterations): an ordinary plan run whose cache key is the problem's, so it is
+    computed once per figure and initial state, and a changed problem (task, dynamics, start spread) is a
+    new run, while the other variants of a figure do not touch it."""
+    from dataclasses import replace
+
+    from pipeline.cache import stage_key
+    from pipeline.experiments import EXPERIMENTS, REFERENCE, plan_config
+
+    def key(cfg):
+        return stage_key("plan", "v", cfg.normalized().key_dict(), [])
+
+    uses_ref = ("raico_converges", "aico_unstable", "aico_fails", "all_converge_aico_fastest",
+                "raico_reaches_aico_not", "gamma_ablation", "learning_rates_fail")
+    figs = [e for e in EXPERIMENTS.values() if set(e.claims) & set(uses_ref)]
+    assert {e.id for e in figs} >= {"fig3.2a", "fig3.2b", "fig3.2c", "fig3.2d", "fig3.3", "fig3.4"}
+    keys = {}
+    for e in figs:
+        assert REFERENCE in e.variants, e.id
+        cfg = plan_config(e, REFERENCE, 0, False)
+        assert cfg.iterations == 100 and cfg.alpha_schedule == "adaptive"
+        assert key(cfg) == key(plan_config(e, REFERENCE, 0, False))  # the same problem: one cached run
+        keys[e.id] = key(cfg)
+        assert key(replace(cfg, q0_std=0.1)) != keys[e.id] and key(replace(cfg, seed=1)) != keys[e.id]
+    assert len(set(keys.values())) == len(keys)  # a problem of its own per figure
