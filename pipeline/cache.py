@@ -65,7 +65,11 @@ META_SUM = "meta_sha256"
 FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
 TMP_PREFIX = ".tmp-"
-PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "rerun-sdk", "mcap", "typer")
+# Packages whose versions a stage's numbers depend on (issue 20 item 7): an entry made with other installed
+# versions of these is computed again by the next run, which says which versions differ (``raico ls --verify``
+# flags it). rerun-sdk governs the recordings only: a recording written by another version is written again.
+NUMERIC_PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "crocoddyl", "pin")
+PACKAGES = (*NUMERIC_PACKAGES, "rerun-sdk", "mcap", "typer")
 _STAGE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 _KEY_RE = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = 1 << 20
@@ -158,6 +162,16 @@ def package_versions() -> dict[str, str | None]:
         except metadata.PackageNotFoundError:
             out[name] = None
     return out
+
+
+def version_drift(meta: Mapping[str, Any]) -> str:
+    """"" if ``meta`` (an entry's record) was made with the installed versions of ``NUMERIC_PACKAGES``,
+    else which differ: ``made with numpy 2.3.5 (installed 2.4.6)``. A package the record does not name
+    (an entry older than the field) is not compared."""
+    made, now = meta.get("packages") or {}, package_versions()
+    diffs = [f"{p} {made[p]} (installed {now.get(p)})" for p in NUMERIC_PACKAGES
+             if p in made and made[p] != now.get(p)]
+    return f"made with {', '.join(diffs)}" if diffs else ""
 
 
 @lru_cache(maxsize=8)
@@ -550,9 +564,14 @@ class Cache:
         return "", fresh
 
     def check(self, stage: str, key: str) -> tuple[Entry | None, str]:
-        """(entry, "cached") if ``stage/key`` is valid, else (None, why not): :meth:`lookup` and
-        :meth:`why` in one check."""
-        return self._check(stage, key)
+        """(entry, "cached") if ``stage/key`` is valid and was made with the installed versions of
+        ``NUMERIC_PACKAGES``, else (None, why not): what a run asks before it computes."""
+        return self._check_current(stage, key)
+
+    def _check_current(self, stage: str, key: str) -> tuple[Entry | None, str]:
+        entry, reason = self._check(stage, key)
+        drift = version_drift(entry.meta) if entry is not None else ""
+        return (None, drift) if drift else (entry, reason)
 
     def verify(self, stage: str, key: str) -> str:
         """Deep check (every file re-hashed): "cached" if valid, else the reason."""
@@ -656,7 +675,7 @@ class Cache:
         self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
     ) -> RunResult:
         """Return the cached entry (writer not called) or write it; says why it ran."""
-        entry, reason = self._check(stage, key)
+        entry, reason = self._check_current(stage, key)
         if entry is not None:
             return RunResult(entry, True, reason)
         return RunResult(self.write(stage, key, writer, meta), False, reason)
@@ -719,12 +738,13 @@ class Cache:
     def _publish(
         self, stage: str, key: str, tmp: Path, final: Path, doc: dict[str, Any]
     ) -> Entry:
-        """Rename ``tmp`` to ``final``; keep a valid entry already there, replace an invalid one."""
+        """Rename ``tmp`` to ``final``; keep a valid, current entry already there, replace an invalid one
+        or one made with other package versions (:func:`version_drift`)."""
         for _ in range(5):
             try:
                 os.rename(tmp, final)  # atomic; fails if final is a non-empty folder
             except OSError:
-                existing = self.lookup(stage, key)
+                existing, _ = self._check_current(stage, key)
                 if existing is not None:
                     return existing  # someone else finished first; ours is discarded
                 if final.exists():
@@ -758,8 +778,11 @@ class Cache:
         fresh: dict[str, list] = {}
         for n, r in recs.items():
             reason, new = self._check_files(entry.path, {n: r}, False, stamps, state_mtime)
+            writer_version = r.get("rerun-sdk", None) if isinstance(r, dict) else None
             if reason:
                 bad[n] = reason.removeprefix("file ")
+            elif writer_version is not None and writer_version != package_versions()["rerun-sdk"]:
+                bad[n] = f"{n} written by rerun-sdk {writer_version} (installed {package_versions()['rerun-sdk']})"
             else:
                 good[n] = r
                 fresh.update(new)
@@ -798,7 +821,7 @@ class Cache:
             if p.name in (META, DERIVED, STATE) or p.name in entry.meta.get("files", {}) or not p.is_file():
                 raise ValueError(f"a derived file may not be called {p.name!r}")
             size, digest, _ = _hash_and_sync(p, self.hash_limit)
-            new[p.name] = {"size": size, "sha256": digest}
+            new[p.name] = {"size": size, "sha256": digest, "rerun-sdk": package_versions()["rerun-sdk"]}
         for name in new:
             os.replace(tmp / name, entry.path / name)
         recs = {**self.derived(entry), **new}
@@ -867,6 +890,8 @@ class Cache:
                                           None, _dir_size(p)))
                 elif _KEY_RE.match(p.name):
                     entry, reason = self._check(d.name, p.name, deep=deep)
+                    if entry is not None and deep and version_drift(entry.meta):
+                        reason = version_drift(entry.meta)  # valid data, stale for this installation
                     created = entry.meta.get("created") if entry else None
                     rows.append(EntryInfo(d.name, p.name, p, entry is not None, reason,
                                           created, _dir_size(p), entry.meta if entry else None))

@@ -329,7 +329,7 @@ def ls(
                                                "valid": r.valid, "reason": r.reason, "created": r.created,
                                                "size": r.size, **d})))
         else:
-            flag = "" if r.valid else f"  INVALID: {r.reason}"
+            flag = f"  INVALID: {r.reason}" if not r.valid else "" if r.reason == "cached" else f"  STALE: {r.reason}"
             what = " ".join(str(d[k]) for k in ("plant", "task", "solver", "dynamics") if d[k]) or "-"
             val = d["value"]
             metric = f"{d['metric']}={val:.4g}" if isinstance(val, (int, float)) else "-"

@@ -306,7 +306,7 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
         intact, damaged = cache.derived_check(entry)
         if RECORDING not in intact or damaged:  # the recorder writes the .rrd and the .mcap together
             if damaged and cache.notify is not None:
-                cache.notify(f"{stage.name} {key}: recording damaged ({'; '.join(damaged.values())}); "
+                cache.notify(f"{stage.name} {key}: recording damaged or out of date ({'; '.join(damaged.values())}); "
                              f"writing it again")
             return None
         recording = str(entry.path / RECORDING)

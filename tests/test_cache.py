@@ -535,3 +535,51 @@ def test_errors_one_line() -> None:
     assert codes == {"RaicoError": 1, "BadInput": 2, "MissingArtifact": 3, "CorruptArtifact": 4}
     assert issubclass(CorruptArtifact, RaicoError) and issubclass(MissingArtifact, RaicoError)
     assert str(MissingArtifact()) == "MissingArtifact"
+
+
+# --------------------------------------------------------------------------- package versions (issue 20 item 7)
+
+
+def _installed(monkeypatch: pytest.MonkeyPatch, **versions: str) -> None:
+    """Pretend other versions of some packages are installed from now on."""
+    real = dict(cache_mod.package_versions())
+    fake = {**real, **{k.replace("_", "-"): v for k, v in versions.items()}}
+    monkeypatch.setattr(cache_mod, "package_versions", lambda: fake)
+
+
+def test_entry_made_with_other_package_versions_is_computed_again(tmp_path: Path, monkeypatch) -> None:
+    """A hit must be made with the installed numeric packages: another numpy is a recompute that says why;
+    the entry stays a valid input (its data are what they are) and `ls --verify` flags it."""
+    c = Cache(tmp_path)
+    c.write("plan", KEY, write_npz, {})
+    made = cache_mod.package_versions()["numpy"]
+    assert c.run("plan", KEY, write_npz).cached
+    _installed(monkeypatch, numpy="0.0.test")
+    assert c.lookup("plan", KEY) is not None and c.require("plan", KEY)  # an input as it is
+    [info] = c.list(deep=True)
+    assert info.valid and info.reason == f"made with numpy {made} (installed 0.0.test)"
+    assert c.list()[0].reason == "cached"  # the cheap listing does not compare
+    calls = []
+    r = c.run("plan", KEY, lambda d: calls.append(1) or write_npz(d))
+    assert calls == [1] and not r.cached and r.reason == f"made with numpy {made} (installed 0.0.test)"
+    assert r.entry.meta["packages"]["numpy"] == "0.0.test"
+    assert c.run("plan", KEY, write_npz).cached  # the new entry is current
+
+
+def test_other_versions_of_packages_outside_the_numbers_keep_the_hit(tmp_path: Path, monkeypatch) -> None:
+    c = Cache(tmp_path)
+    c.write("plan", KEY, write_npz, {})
+    _installed(monkeypatch, typer="0.0.test", mcap="0.0.test")
+    assert c.run("plan", KEY, write_npz).cached
+
+
+def test_recording_written_by_another_rerun_is_written_again(tmp_path: Path, monkeypatch) -> None:
+    c = Cache(tmp_path)
+    e = c.write("plan", KEY, write_npz, {})
+    c.write_derived(e, lambda d: (d / "recording.rrd").write_bytes(b"rrd"))
+    assert c.derived_check(e) == ({"recording.rrd": c.derived(e)["recording.rrd"]}, {})
+    made = cache_mod.package_versions()["rerun-sdk"]
+    _installed(monkeypatch, rerun_sdk="0.0.test")
+    intact, bad = c.derived_check(e)
+    assert intact == {} and bad == {"recording.rrd": f"recording.rrd written by rerun-sdk {made} (installed 0.0.test)"}
+    assert c.run("plan", KEY, write_npz).cached  # the data stay a hit: only the recording is stale

@@ -828,7 +828,11 @@ def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp
     assert any("rerun" in c for c in seen.values()), seen
     assert elapsed < 2.0, elapsed
     _wait_for(lambda: not [p for p in seen if running(p)], 5, f"the processes of the run to end: {seen}")
-    assert len(valid_entries(tmp_path, "plan")) == 8 and tmp_folders(tmp_path) == []  # data lost: 0
+    from pipeline.experiments import EXPERIMENTS
+
+    exp = EXPERIMENTS["fig3.2a"]
+    runs = sum(v.seed_count(exp.seeds, True) for v in exp.variants)
+    assert len(valid_entries(tmp_path, "plan")) == runs and tmp_folders(tmp_path) == []  # data lost: 0
 
 
 REAPER_OWNER = textwrap.dedent("""
