@@ -309,6 +309,9 @@ def main() -> None:
         ratio = f"{med / target:6.2f}x" if target else "      -"
         print(f"{name:68s} median {med:8.3f} s   target {tgt} s   {ratio}   (n={len(samples)})", flush=True)
     rows += model_learning_rows()
+    from bench.scaling import run as scaling_rows
+
+    rows += scaling_rows(Path(args.artifacts) / "bench")  # and bench/scaling.png
     rows.append(cached_reproduce_row(Path(args.artifacts)))
     baseline = bench_baseline()
     print_baseline(baseline)

@@ -69,6 +69,15 @@ def bench_block(results: Path) -> str:
             rows.append(f"| {r['solver']} | {r['iterations']} | {r['final_cost']:.4g} | {_seconds(r['iteration_median_s'])} | "
                         f"{r['iteration_ratio_to_fddp']:.2f} | {_seconds(tt) if tt is not None else 'not reached'} | "
                         f"{f'{ttr:.2f}' if ttr is not None else ''} | {r['cost_at_budget']:.4g} |")
+    scaling = [r for r in doc.get("results", []) if "expected_exponent" in r]
+    if scaling:
+        rows += ["", "How cost grows with the work (`artifacts/bench/scaling.png`; exponent: slope of log time against "
+                 "log size, over all sizes and over the upper half):", "",
+                 "| sweep | sizes | times | exponent | upper half | expected |", "|---|---|---|---|---|---|"]
+        for r in scaling:
+            rows.append(f"| {r['benchmark'].removeprefix('scaling: ')} | {', '.join(str(s) for s in r['sizes'])} | "
+                        f"{', '.join(_seconds(t) for t in r['seconds'])} | {r['exponent']:.2f} | "
+                        f"{r['exponent_upper']:.2f} | {r['expected_exponent']:g} |")
     return head + "\n\n" + "\n".join(rows)
 
 
