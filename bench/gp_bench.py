@@ -149,13 +149,13 @@ def bench_sparse(model: GPModel, Xq: np.ndarray, repeats: int, X_test: np.ndarra
     e_test = np.sqrt(np.mean((model.predict_mean(X_test) - Y_test) ** 2, axis=0))
     out = {}
     for m in M_SPARSE:
-        def build():
+        def build(m: int = m) -> SparseGPModel:
             return SparseGPModel(model.X, model.Y, model.ell, model.sf2, model.sn2, inducing=m, x_mean=model.x_mean,
                                  x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std)
         build_ms = _median_ms(build, max(1, repeats // 2))[0]
         sp = build()
         sp.predict_with_gradients(Xq)
-        t = _median_ms(lambda: sp.predict_with_gradients(Xq), repeats)
+        t = _median_ms(lambda sp=sp: sp.predict_with_gradients(Xq), repeats)
         got = sp.predict_with_gradients(Xq)
         e_sp = np.sqrt(np.mean((sp.predict_mean(X_test) - Y_test) ** 2, axis=0))
         sd_e, sd_s = np.sqrt(exact[1]), np.sqrt(got[1])
