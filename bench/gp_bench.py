@@ -27,6 +27,13 @@ rejected: the same ``2 M N^2`` flops, ~10 % faster, but on fitted models (noise 
 ``cond(K) ~ 1e8..3e11``) its variance near the data is off by ~5e-6 ``sf2`` (relative errors
 ~1e5, negative variances), against <= 4e-13 ``sf2`` for the triangular solves.
 
+``sparse``: the same call on the sparse GP (FITC, ``plants.gp.SparseGPModel``) with ``M`` in
+``M_SPARSE`` inducing points chosen among the 1000 training inputs (greedy maximum variance), at the
+timing model's hyperparameters: four ``M x M`` triangular solves per output (``4 M^2`` flops per
+step) instead of two ``N x N`` (``2 N^2``), and its cost in accuracy against the exact GP (held-out
+RMSE ratio on 300 fresh points of the same synthetic function, mean and predictive-std differences
+along the trajectory), see :func:`bench_sparse`.
+
 ``mean_and_gradient_ms_per_output``: ``mean_with_gradients``; ``mean_and_variance_ms_per_output``:
 ``predict`` (one triangular solve per output). ``cap_cost``: held-out RMSE of
 ``fit_gp(..., max_points=500)`` against the exact GP on all 2000 points at the same
@@ -48,10 +55,11 @@ from contextlib import contextmanager
 import numpy as np
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
-from plants.gp import GPModel
+from plants.gp import GPModel, SparseGPModel
 from stages.fit.gp_fit import measure_cap_cost
 
 N, M, N_NEW, N_Q = 1000, 500, 100, 5
+M_SPARSE = (100, 200, 300)  # inducing points of the sparse GP rows
 TARGET_MS_PER_OUTPUT = 20.0
 
 
@@ -130,6 +138,36 @@ def _solves_on_threads(model: GPModel, n: int) -> Iterator[None]:
         del model._solve_fwd, model._solve_bwd
 
 
+def bench_sparse(model: GPModel, Xq: np.ndarray, repeats: int, X_test: np.ndarray, Y_test: np.ndarray) -> dict:
+    """The sparse GP (FITC, ``SparseGPModel``) on ``model``'s data, hyperparameters and scaling, per
+    inducing count in ``M_SPARSE``: ``predict_with_gradients`` at ``Xq`` per output (ms, one BLAS
+    thread as the caller set), the time to build it (selection + factorization, ms) and its error
+    against ``model``: held-out RMSE ratio (sparse / exact, per output) on ``X_test, Y_test``, and
+    along ``Xq`` the largest mean difference and predictive-std difference, both over the output's
+    training std ``y_std``, and the median ratio of the predictive stds."""
+    exact = model.predict_with_gradients(Xq)
+    e_test = np.sqrt(np.mean((model.predict_mean(X_test) - Y_test) ** 2, axis=0))
+    out = {}
+    for m in M_SPARSE:
+        def build(m: int = m) -> SparseGPModel:
+            return SparseGPModel(model.X, model.Y, model.ell, model.sf2, model.sn2, inducing=m, x_mean=model.x_mean,
+                                 x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std)
+        build_ms = _median_ms(build, max(1, repeats // 2))[0]
+        sp = build()
+        sp.predict_with_gradients(Xq)
+        t = _median_ms(lambda sp=sp: sp.predict_with_gradients(Xq), repeats)
+        got = sp.predict_with_gradients(Xq)
+        e_sp = np.sqrt(np.mean((sp.predict_mean(X_test) - Y_test) ** 2, axis=0))
+        sd_e, sd_s = np.sqrt(exact[1]), np.sqrt(got[1])
+        out[str(m)] = {"n_inducing": sp.M, "mean_var_all_gradients_ms_per_output": t[0] / model.D,
+                       "mean_var_all_gradients_cpu_ms_per_output": t[1] / model.D, "build_ms": build_ms,
+                       "heldout_rmse_ratio": (e_sp / e_test).tolist(),
+                       "trajectory_max_mean_diff_over_ystd": float(np.max(np.abs(got[0] - exact[0]) / model.y_std)),
+                       "trajectory_max_std_diff_over_ystd": float(np.max(np.abs(sd_s - sd_e) / model.y_std)),
+                       "trajectory_median_std_ratio": float(np.median(sd_s / sd_e))}
+    return out
+
+
 def bench_gp(repeats: int = 5, cap_cost: bool = True) -> dict:
     """Timings (ms, medians of ``repeats``) of the GP posterior at ``N = 1000``, ``M = 500``, ``d = 15``, ``D = 5``
     (one BLAS thread; ``..._2threads`` with two, ``..._2threads_solves_only`` with two in the triangular solves only).
@@ -149,6 +187,8 @@ def bench_gp(repeats: int = 5, cap_cost: bool = True) -> dict:
         upd = _median_ms(lambda m: m.update(X[N:], Y[N:]), repeats, setup=model.copy)
         refit = _median_ms(lambda: GPModel(X, Y, model.ell, model.sf2, model.sn2, x_mean=model.x_mean,
                                             x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std), repeats)
+        X_test, Y_test = _data(300, np.random.default_rng(7))
+        sparse = bench_sparse(model, Xq, repeats, X_test, Y_test)
         cap = bench_cap_cost() if cap_cost else None
     with threadpool_limits(2):
         model.predict_with_gradients(Xq)  # warm up the second BLAS thread
@@ -169,6 +209,7 @@ def bench_gp(repeats: int = 5, cap_cost: bool = True) -> dict:
         "update_100_ms": upd[0], "update_100_cpu_ms": upd[1],
         "refit_1100_ms": refit[0], "refit_1100_cpu_ms": refit[1],
         "refit_over_update": refit[0] / upd[0],
+        "sparse": sparse,
         "cap_cost": cap,
         "repeats": repeats, "cpus": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
     }

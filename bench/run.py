@@ -137,14 +137,18 @@ CASES = [
 ]
 
 
+SPARSE_M = 200  # inducing points of the sparse-GP rows (raico fit/learn --gp sparse's default --inducing)
+
+
 def model_learning_rows() -> list[dict]:
     """GP posterior along 500 steps with 1000 points (per output), incremental update vs refit,
     and one learn episode of fig4.3 split into fit, plan and execute (SPEC §13, issue 7)."""
     from bench.gp_bench import bench_gp
-    from bench.learn_bench import bench_learn_default, bench_learn_episode
+    from bench.learn_bench import bench_learn_default, bench_learn_episode, bench_learn_evaluation
 
     gp = bench_gp(repeats=5, cap_cost=True)
     ep = bench_learn_episode()
+    ev = {kind: bench_learn_evaluation(kind, SPARSE_M) for kind in ("exact", "sparse")}
     whole = bench_learn_default()
     print(f"raico learn biorob reach, 20 episodes, defaults: last executed distance {whole['task_error_last']:.4f} m "
           f"[{whole['status_last']}], {whole['n_points_last']} GP points", flush=True)
@@ -155,6 +159,10 @@ def model_learning_rows() -> list[dict]:
          gp["mean_and_gradient_ms_per_output"] / 1e3, None),
         ("GP: incremental update with 100 new points (fixed hyperparameters)", gp["update_100_ms"] / 1e3, None),
         ("GP: full refactorization at 1100 points (fixed hyperparameters)", gp["refit_1100_ms"] / 1e3, None),
+        (f"GP sparse (FITC, M={SPARSE_M} inducing): the same call at N=1000, per output",
+         gp["sparse"][str(SPARSE_M)]["mean_var_all_gradients_ms_per_output"] / 1e3, gp["target_ms_per_output"] / 1e3),
+        *[(f"fig4.3 evaluation (fit + plan + execute) at {ev[k]['n_points']} points, {k} GP"
+           + (f" (M={SPARSE_M})" if k == "sparse" else ""), ev[k]["total_s"], 1.0) for k in ("exact", "sparse")],
         ("learn episode of fig4.3 (biorob): fit", ep["fit_s"], None),
         ("learn episode of fig4.3 (biorob): plan (10 R-AICO iterations on the GP)", ep["plan_s"], None),
         ("learn episode of fig4.3 (biorob): execute in Drake", ep["execute_s"], None),
@@ -167,6 +175,17 @@ def model_learning_rows() -> list[dict]:
         tgt = f"{target:8.3f}" if target else "       -"
         ratio = f"{med / target:6.2f}x" if target else "      -"
         print(f"{name:68s} median {med:8.3f} s   target {tgt} s   {ratio}", flush=True)
+    sp = gp["sparse"]
+    out.append({"benchmark": "GP sparse vs exact at N=1000 (time per output, held-out RMSE ratio, trajectory "
+                             "mean/std differences over y_std)", "detail": sp})
+    out.append({"benchmark": "fig4.3 evaluation at 1000 points: fit/plan/execute split", "detail": ev})
+    for m, r in sp.items():
+        print(f"GP sparse M={m}: {r['mean_var_all_gradients_ms_per_output']:.1f} ms/output, held-out RMSE "
+              f"x{min(r['heldout_rmse_ratio']):.2f}-{max(r['heldout_rmse_ratio']):.2f} of the exact GP's, "
+              f"mean diff <= {r['trajectory_max_mean_diff_over_ystd']:.2g} y_std", flush=True)
+    for k, r in ev.items():
+        print(f"fig4.3 evaluation, {k}: fit {r['fit_s']:.2f} s ({r['fit_mode']}), plan {r['plan_s']:.2f} s, "
+              f"execute {r['execute_s']:.2f} s at {r['n_points']} points", flush=True)
     cap = gp.get("cap_cost") or {}
     out.append({"benchmark": "GP training-set cap: held-out RMSE capped vs all points", "detail": cap})
     print(f"GP cap cost (2000 -> 500 points): {json.dumps(cap, default=float)[:300]}", flush=True)

@@ -125,7 +125,6 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
     """Run (or resume) the learning loop of ``cfg`` (``stages.learn.LearnConfig``)."""
     from plants.robots import shared_robot
     from stages.execute import ExecuteConfig
-    from stages.fit.stage import FitConfig
     from stages.learn import BABBLE_DT
 
     reporter = reporter or Reporter(quiet=True)
@@ -141,11 +140,7 @@ def learn(cache: Cache, cfg, *, record: bool = True, reporter: Reporter | None =
         data, prior, warm = [f"babble/{babble.key}"], None, None
         episodes = []
         for k in range(1, cfg.episodes + 1):
-            fit = runner.run(cache, "fit", FitConfig(data=tuple(data), prior=prior, schedule=cfg.schedule,
-                                                     restarts=cfg.restarts if prior is None else cfg.refit_restarts,
-                                                     seed=cfg.seed,
-                                                     max_points=cfg.max_points, stride=cfg.stride, holdout=0.0),
-                             record=False)
+            fit = runner.run(cache, "fit", cfg.fit_config(tuple(data), prior), record=False)
             plan = runner.run(cache, "plan", cfg.plan_config(model=f"fit/{fit.key}", warm_start=warm),
                               record=False)
             execution = runner.run(cache, "execute", ExecuteConfig(plan=f"plan/{plan.key}", seed=cfg.seed),

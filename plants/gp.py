@@ -350,7 +350,7 @@ class GPModel:
         _, _, z, m, g, ptrs, gscale = pc
         np.subtract(x, self.x_mean, out=z)
         z /= self.x_std
-        lib.gp_point(self.N, self.d, self.D, *ptrs)
+        lib.gp_point(self.Z.shape[0], self.d, self.D, *ptrs)  # the sparse model's Z holds its inducing inputs
         return m * self.y_std + self.y_mean, g * gscale
 
     def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -396,7 +396,10 @@ class GPModel:
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPModel:
-        """Inverse of ``to_arrays`` (uses the stored factor when present, else refactorizes)."""
+        """Inverse of ``to_arrays`` (uses the stored factor when present, else refactorizes); the
+        arrays of a :class:`SparseGPModel` (they hold ``Z_train``) give a ``SparseGPModel``."""
+        if cls is GPModel and "Z_train" in arrays:
+            return SparseGPModel.from_arrays(arrays)
         missing = {"Z", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"} - set(arrays)
         if missing:
             raise ValueError(f"GP arrays lack {sorted(missing)}")
@@ -420,7 +423,264 @@ class GPModel:
 
     def copy(self) -> GPModel:
         """Deep copy."""
-        return GPModel.from_arrays(self.to_arrays())
+        return type(self).from_arrays(self.to_arrays())
+
+
+SELECT_TOL = 1e-12  # greedy inducing selection: smallest conditional prior variance (over sf2) of a new inducing point
+
+
+def select_inducing(Z: np.ndarray, ell: np.ndarray, sf2: np.ndarray, m: int, *, tol: float = SELECT_TOL) -> np.ndarray:
+    """Indices ``(<= m,)`` of ``Z (N, d)`` (scaled inputs) chosen as inducing inputs, in selection order.
+
+    Greedy maximum-variance selection (a pivoted Cholesky factorization of the prior kernel
+    matrices, shared by all ``D`` outputs; Fine & Scheinberg 2001, Burt et al. 2020): each step adds
+    the training input whose conditional prior variance given the inputs chosen so far, summed over
+    the outputs and each divided by its ``sf2``, is largest (ties: lowest index). A point is eligible
+    only while its conditional variance is above ``tol sf2`` in every output, so the Cholesky
+    pivots of every ``K_mm`` (in this order) are ``>= tol sf2`` and no jitter is needed; the
+    selection stops early, with fewer than ``m`` points, when no point is eligible (the rest are
+    then determined by the chosen ones to ``sqrt(tol)`` of their prior std). Deterministic, no seed.
+    ``ell (D, d)``, ``sf2 (D,)``; cost ``O(D N m (d + m))``."""
+    N = Z.shape[0]
+    D = ell.shape[0]
+    m = min(int(m), N)
+    Zs = Z[None, :, :] / ell[:, None, :]  # (D, N, d)
+    G = np.zeros((D, m, N))  # rows of the pivoted Cholesky factors of K / sf2
+    r = np.ones((D, N))  # conditional prior variance / sf2
+    chosen: list[int] = []
+    for k in range(m):
+        score = r.sum(0)
+        score[r.min(0) <= tol] = -np.inf
+        p = int(np.argmax(score))
+        if not np.isfinite(score[p]):
+            break
+        kc = np.exp(-0.5 * ((Zs - Zs[:, p:p + 1, :]) ** 2).sum(-1))  # (D, N) correlation with point p
+        if k:
+            kc -= np.matmul(G[:, None, :k, p], G[:, :k, :])[:, 0, :]
+        col = kc / np.sqrt(r[:, p])[:, None]
+        G[:, k] = col
+        r -= col * col
+        r[:, p] = 0.0
+        chosen.append(p)
+    return np.asarray(chosen, dtype=int)
+
+
+class SparseGPModel(GPModel):
+    """Sparse GP (FITC, Snelson & Ghahramani 2006; Quinonero-Candela & Rasmussen 2005) with ``M``
+    inducing inputs, one per output with the exact model's SE-ARD kernel, scaling and noise.
+
+    Inducing inputs ``U``: a subset of the training inputs (``select_inducing``) or given. With
+    ``Q_ab = K_aU K_UU^-1 K_Ub`` and ``Lam = diag(K_nn - Q_nn) + sn2 I`` (per output, scaled units):
+    mean ``m(z) = k_U(z)^T w`` with ``w = Sigma K_Un Lam^-1 y``, ``Sigma = (K_UU + K_Un Lam^-1 K_nU)^-1``;
+    latent variance ``sf2 - k_U^T K_UU^-1 k_U + k_U^T Sigma k_U``. Numerically: ``L_U = chol(K_UU)``
+    (no jitter: the selection bounds its pivots below by ``1e-12 sf2``, ``SELECT_TOL``; with the
+    fit's bounds ``sf2 <= 1e3``, ``sn2 >= 1e-6`` that is below 1e-3 of the noise variance),
+    ``A = L_U^-1 K_Un Lam^-1/2``, ``L_B = chol(I + A A^T)``; a prediction needs the triangular
+    solves ``V1 = L_U^-1 k_U``, ``V2 = L_B^-1 V1`` (variance ``sf2 - |V1|^2 + |V2|^2``) and, for the
+    variance gradient, ``L_U^-T (V1 - L_B^-T V2)``: four ``M x M`` solves per output instead of two
+    ``N x N``. With the inducing inputs equal to all training inputs this is the exact GP
+    (``Q_nn = K_nn``), tested.
+
+    Layout: as :class:`GPModel`, except ``Z (M, d)`` and ``alpha (D, M) = w`` are the inducing inputs
+    and weights (so the mean, its gradient and the compiled one-point path are ``GPModel``'s), the
+    training data are ``Z_train (N, d)`` and ``y (N, D)`` (scaled), ``L_U``, ``L_B (D, M, M)``,
+    ``lam (D, N)``. ``m_requested``: the inducing count asked for (``update`` selects again up to it).
+    """
+
+    def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
+                 *, inducing: int | np.ndarray, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
+                 y_mean: np.ndarray | None = None, y_std: np.ndarray | None = None,
+                 noise_floor: float = NOISE_FLOOR):
+        """Physical data ``X (N, d)``, ``Y (N, D)``, scaled hyperparameters as :class:`GPModel`;
+        ``inducing``: a count ``1 <= M <= N`` (greedy selection among the training inputs) or
+        physical inducing inputs ``(M, d)``."""
+        X, Y = _as_2d(X, "X"), _as_2d(Y, "Y")
+        if X.shape[0] != Y.shape[0]:
+            raise ValueError(f"X has {X.shape[0]} rows but Y has {Y.shape[0]}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise ValueError("training data must be finite")
+        self.x_mean = X.mean(0) if x_mean is None else np.asarray(x_mean, float).copy()
+        self.x_std = column_std(X) if x_std is None else np.asarray(x_std, float).copy()
+        self.y_mean = Y.mean(0) if y_mean is None else np.asarray(y_mean, float).copy()
+        self.y_std = column_std(Y) if y_std is None else np.asarray(y_std, float).copy()
+        D, d = Y.shape[1], X.shape[1]
+        self.noise_floor = float(noise_floor)
+        self.ell = np.broadcast_to(np.asarray(ell, float), (D, d)).copy()
+        self.sf2 = np.broadcast_to(np.asarray(sf2, float), (D,)).copy()
+        self.sn2 = np.maximum(np.broadcast_to(np.asarray(sn2, float), (D,)), self.noise_floor)
+        self.Z_train = self.scale_x(X)
+        self.y = (Y - self.y_mean) / self.y_std
+        if np.ndim(inducing) == 0:
+            M = int(inducing)
+            if not 1 <= M <= len(X):
+                raise ValueError(f"inducing points must be in [1, {len(X)}] (the training points), got {M}")
+            self.m_requested = M
+            self.Z = self.Z_train[select_inducing(self.Z_train, self.ell, self.sf2, M)]
+        else:
+            U = _as_2d(inducing, "inducing")
+            if U.shape[1] != d or len(U) == 0 or not np.all(np.isfinite(U)):
+                raise ValueError(f"inducing inputs must be finite, (M >= 1, {d}), got shape {U.shape}")
+            self.m_requested = len(U)
+            self.Z = self.scale_x(U)
+        self._factorize()
+
+    @property
+    def N(self) -> int:
+        """Number of training points."""
+        return self.Z_train.shape[0]
+
+    @property
+    def M(self) -> int:
+        """Number of inducing points."""
+        return self.Z.shape[0]
+
+    @property
+    def X(self) -> np.ndarray:
+        """Training inputs ``(N, d)`` in physical units."""
+        return self.Z_train * self.x_std + self.x_mean
+
+    @property
+    def U(self) -> np.ndarray:
+        """Inducing inputs ``(M, d)`` in physical units."""
+        return self.Z * self.x_std + self.x_mean
+
+    def kernel_matrix(self, j: int) -> np.ndarray:
+        """``K_UU`` ``(M, M)`` of output ``j`` (scaled units, no noise, no jitter)."""
+        return se_kernel(self.Z, self.Z, self.ell[j], self.sf2[j])
+
+    def _factorize(self) -> None:
+        """``L_U``, ``L_B``, ``lam`` and the weights ``alpha`` of every output (``O(D N M^2)``)."""
+        M, N, D = self.M, self.N, self.D
+        self.L_U, self.L_B = np.empty((D, M, M)), np.empty((D, M, M))
+        self.lam, self.alpha = np.empty((D, N)), np.empty((D, M))
+        self._lml = np.empty(D)
+        for j in range(D):
+            try:
+                LU = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
+            except np.linalg.LinAlgError:
+                raise ValueError(f"output {j}: the inducing inputs' kernel matrix is singular "
+                                 "(inducing inputs too close at these length-scales)") from None
+            A = solve_triangular(LU, se_kernel(self.Z, self.Z_train, self.ell[j], self.sf2[j]), lower=True,
+                                 check_finite=False)  # (M, N) L_U^-1 K_Un
+            lam = self.sn2[j] + np.maximum(self.sf2[j] - np.einsum("mn,mn->n", A, A), 0.0)
+            s = 1.0 / np.sqrt(lam)
+            A *= s
+            B = A @ A.T
+            B[np.diag_indices_from(B)] += 1.0
+            LB = cholesky(B, lower=True, check_finite=False)
+            ys = self.y[:, j] * s
+            c = solve_triangular(LB, A @ ys, lower=True, check_finite=False)
+            self.alpha[j] = solve_triangular(LU, solve_triangular(LB, c, lower=True, trans="T", check_finite=False),
+                                             lower=True, trans="T", check_finite=False)
+            self.L_U[j], self.L_B[j], self.lam[j] = LU, LB, lam
+            # FITC log marginal likelihood log N(y | 0, Q_nn + Lam) by Woodbury and the determinant lemma
+            self._lml[j] = (-0.5 * (ys @ ys - c @ c) - 0.5 * np.log(lam).sum() - np.log(np.diagonal(LB)).sum()
+                            - 0.5 * N * _LOG_2PI)
+
+    def log_marginal_likelihood(self) -> np.ndarray:
+        """FITC's approximate ``log p(y | theta)`` per output ``(D,)`` in scaled units (the exact
+        GP's when the inducing inputs are all training inputs)."""
+        return self._lml.copy()
+
+    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> SparseGPModel:
+        """Add data ``X_new (n, d)``, ``Y_new (n, D)`` (physical) at fixed hyperparameters and scaling,
+        in place: the inducing inputs are selected again among all training inputs (up to
+        ``m_requested``; the new data may lie where the old inducing inputs do not reach) and the
+        posterior is refactorized, ``O(D N M (d + M))``. Returns ``self``; unchanged on an error."""
+        Xn, Yn = _as_2d(X_new, "X_new"), _as_2d(Y_new, "Y_new")
+        if Xn.shape[0] != Yn.shape[0] or Xn.shape[1] != self.d or Yn.shape[1] != self.D:
+            raise ValueError(f"update expects X_new (n, {self.d}) and Y_new (n, {self.D}), got {Xn.shape}, {Yn.shape}")
+        if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Yn))):
+            raise ValueError("training data must be finite")
+        if Xn.shape[0] == 0:
+            return self
+        new = SparseGPModel(np.vstack([self.X, Xn]), np.vstack([self.Y, Yn]), self.ell, self.sf2, self.sn2,
+                            inducing=self.m_requested, x_mean=self.x_mean, x_std=self.x_std, y_mean=self.y_mean,
+                            y_std=self.y_std, noise_floor=self.noise_floor)
+        self.__dict__.update(new.__dict__)
+        return self
+
+    def _var_solves(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Scaled latent variance ``(T,)`` (not clipped), ``V1 = L_U^-1 k_U`` and ``V2 = L_B^-1 V1``, both ``(M, T)``."""
+        V1 = solve_triangular(self.L_U[j], Ks.T, lower=True, check_finite=False)
+        V2 = solve_triangular(self.L_B[j], V1, lower=True, check_finite=False)
+        return self.sf2[j] - np.einsum("mt,mt->t", V1, V1) + np.einsum("mt,mt->t", V2, V2), V1, V2
+
+    def predict(self, Xq: np.ndarray, *, noisy: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``(T, D)`` and latent variance ``(T, D)`` at physical inputs ``Xq (T, d)``, physical units
+        (``noisy=True`` adds ``sn2 y_std^2``)."""
+        Zq, ok = self._query(Xq)
+        mean, var = _nan((len(ok), self.D)), _nan((len(ok), self.D))
+        for j in range(self.D if len(Zq) else 0):
+            Ks = self._kstar(j, Zq)
+            mean[ok, j] = Ks @ self.alpha[j]
+            v = np.maximum(self._var_solves(j, Ks)[0], 0.0)
+            var[ok, j] = v + self.sn2[j] if noisy else v
+        return mean * self.y_std + self.y_mean, var * self.y_std**2
+
+    def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Mean ``(T, D)``, latent variance ``(T, D)``, ``dmean (T, D, d)``, ``dvar (T, D, d)`` (physical units).
+
+        ``dvar/dz = -2 (dk_U/dz)^T (K_UU^-1 - Sigma) k_U`` with ``(K_UU^-1 - Sigma) k_U = L_U^-T (V1 - L_B^-T V2)``."""
+        Zq, ok = self._query(Xq)
+        T, D, d = len(ok), self.D, self.d
+        mean, var = _nan((T, D)), _nan((T, D))
+        dmean, dvar = _nan((T, D, d)), _nan((T, D, d))
+        Z1 = np.hstack([self.Z, np.ones((self.M, 1))])
+        for j in range(D if len(Zq) else 0):
+            Ks = self._kstar(j, Zq)
+            mean[ok, j], dmean[ok, j] = self._mean_grad(j, Ks, Zq)
+            v, V1, V2 = self._var_solves(j, Ks)
+            var[ok, j] = np.maximum(v, 0.0)
+            V1 -= solve_triangular(self.L_B[j], V2, lower=True, trans="T", check_finite=False)
+            W = solve_triangular(self.L_U[j], V1, lower=True, trans="T", check_finite=False).T  # (T, M)
+            W *= Ks
+            G = W @ Z1
+            dvar[ok, j] = -2.0 * (G[:, :d] - Zq * G[:, d:]) / self.ell[j] ** 2
+        scale = self.y_std[:, None] / self.x_std[None, :]
+        return (mean * self.y_std + self.y_mean, var * self.y_std**2,
+                dmean * scale, dvar * (scale * self.y_std[:, None]))
+
+    def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
+        """Plain arrays for ``np.savez``: inducing inputs ``Z``, training data ``Z_train``, ``y``,
+        hyperparameters, scaling, ``m_requested``; with the factors ``L_U``, ``L_B``, ``lam``,
+        ``alpha`` and the likelihood ``lml`` unless told not to (``from_arrays`` then refactorizes
+        at the stored inducing inputs)."""
+        out = {"Z": self.Z, "Z_train": self.Z_train, "y": self.y, "ell": self.ell, "sf2": self.sf2,
+               "sn2": self.sn2, "x_mean": self.x_mean, "x_std": self.x_std, "y_mean": self.y_mean,
+               "y_std": self.y_std, "noise_floor": np.array(self.noise_floor),
+               "m_requested": np.array(self.m_requested)}
+        if include_factor:
+            out |= {"L_U": self.L_U, "L_B": self.L_B, "lam": self.lam, "alpha": self.alpha, "lml": self._lml}
+        return {k: np.array(v, copy=True) for k, v in out.items()}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> SparseGPModel:
+        """Inverse of ``to_arrays``."""
+        missing = {"Z", "Z_train", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"} - set(arrays)
+        if missing:
+            raise ValueError(f"sparse GP arrays lack {sorted(missing)}")
+        g = {k: np.asarray(arrays[k], float) for k in arrays}
+        self = cls.__new__(cls)
+        self.Z, self.Z_train, self.y = g["Z"].copy(), g["Z_train"].copy(), g["y"].copy()
+        self.ell, self.sf2, self.sn2 = g["ell"].copy(), g["sf2"].copy(), g["sn2"].copy()
+        self.x_mean, self.x_std = g["x_mean"].copy(), g["x_std"].copy()
+        self.y_mean, self.y_std = g["y_mean"].copy(), g["y_std"].copy()
+        self.noise_floor = float(g.get("noise_floor", NOISE_FLOOR))
+        self.m_requested = int(g.get("m_requested", len(self.Z)))
+        M, N, d, D = self.Z.shape[0], self.Z_train.shape[0], self.Z.shape[1], self.y.shape[1]
+        if (self.Z_train.shape[1] != d or self.y.shape[0] != N or self.ell.shape != (D, d)
+                or self.sf2.shape != (D,) or self.sn2.shape != (D,)):
+            raise ValueError("inconsistent sparse GP array shapes")
+        if all(k in g for k in ("L_U", "L_B", "lam", "alpha", "lml")):
+            if (g["L_U"].shape != (D, M, M) or g["L_B"].shape != (D, M, M) or g["lam"].shape != (D, N)
+                    or g["alpha"].shape != (D, M) or g["lml"].shape != (D,)):
+                raise ValueError("inconsistent sparse GP factor shapes")
+            self.L_U, self.L_B, self.lam = g["L_U"].copy(), g["L_B"].copy(), g["lam"].copy()
+            self.alpha, self._lml = g["alpha"].copy(), g["lml"].copy()
+        else:
+            self._factorize()
+        return self
 
 
 def _as_2d(A: np.ndarray, name: str) -> np.ndarray:

@@ -53,7 +53,9 @@ class LearnConfig(StageConfig):
             "q0_std": "Std of q0 around the default posture (rad).",
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
-                         "thesis 4.4)."}
+                         "thesis 4.4).",
+            "gp": "GP of every fit: exact or sparse (FITC with --inducing points, see raico fit --help).",
+            "inducing": "Inducing points of --gp sparse (at most --babble-points: the first fit has only the babbling)."}
 
     plant: str
     task: str
@@ -72,6 +74,8 @@ class LearnConfig(StageConfig):
     q0_std: float = 0.0
     warm_from: str = "trajectory"
     seed: int = 0
+    gp: str = "exact"
+    inducing: int = 200
 
     def resolved(self) -> LearnConfig:
         """The config with the plant's defaults in place of 0 (``PLANT_DEFAULTS``): one key per meaning."""
@@ -99,7 +103,14 @@ class LearnConfig(StageConfig):
                   (1 <= self.stride <= 1000, "stride must be 0 (the plant's default) or in [1, 1000]"),
                   (0 <= self.alpha <= 1e6, "alpha must be in [0, 1e6]"),
                   (0 <= self.q0_std <= 1.0, "q0-std must be in [0, 1] rad"),
-                  (0 <= self.sigma_weight <= 1e8, "sigma-weight must be in [0, 1e8]")]
+                  (0 <= self.sigma_weight <= 1e8, "sigma-weight must be in [0, 1e8]"),
+                  (self.gp in ("exact", "sparse"), f"gp must be exact or sparse, got '{self.gp}'"),
+                  (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
+                  (self.gp != "sparse" or self.inducing <= self.max_points,
+                   f"inducing ({self.inducing}) exceeds max-points ({self.max_points})"),
+                  (self.gp != "sparse" or self.inducing <= self.babble_points,
+                   f"inducing ({self.inducing}) exceeds babble-points ({self.babble_points}), the first fit's "
+                   "training points: give fewer inducing points or more babbling")]
         for ok, msg in checks:
             if not ok:
                 raise ValueError(msg)
@@ -123,6 +134,15 @@ class LearnConfig(StageConfig):
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
                           sigma_units=self.sigma_units,
                           warm_from="trajectory" if self.warm_from == "none" else self.warm_from)
+
+    def fit_config(self, data: tuple[str, ...], prior: str | None):
+        """The fit stage's config of an episode on the data keys ``data`` (after ``prior``, a fit key)."""
+        from stages.fit.stage import FitConfig
+
+        return FitConfig(data=data, prior=prior, schedule=self.schedule,
+                         restarts=self.restarts if prior is None else self.refit_restarts, seed=self.seed,
+                         max_points=self.max_points, stride=self.stride, holdout=0.0, gp=self.gp,
+                         inducing=self.inducing)
 
     def babble_config(self):
         """Babbling that yields ``babble_points`` samples (thesis: 15 for the pendulum): one episode

@@ -28,6 +28,11 @@ Bounded cost (``max_points``): when a training set exceeds the cap, ``subsample_
 
 which is deterministic and covers the older (babbling) region evenly. ``measure_cap_cost``
 reports what the cap costs in held-out RMSE.
+
+Sparse GP (``fit_sparse_gp``, ``raico fit/learn --gp sparse --inducing M``): the hyperparameters
+are this module's exact likelihood maximized on the ``M`` points ``subsample_indices`` keeps;
+the posterior is FITC on all (capped) points with ``M`` inducing inputs chosen by
+``plants.gp.select_inducing`` (greedy maximum variance).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize
 
-from plants.gp import NOISE_FLOOR, GPModel, column_std
+from plants.gp import NOISE_FLOOR, GPModel, SparseGPModel, column_std
 
 LENGTH_SCALE_BOUNDS = (1e-2, 1e3)  # standardized input units
 SIGNAL_BOUNDS = (1e-3, 1e3)  # sf2, standardized output units
@@ -154,7 +159,23 @@ def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
         X, Y = X[kept], Y[kept]
     x_mean, x_std, y_mean, y_std = X.mean(0), column_std(X), Y.mean(0), column_std(Y)
     Z, y = (X - x_mean) / x_std, (Y - y_mean) / y_std
-    D, d = Y.shape[1], X.shape[1]
+    ell, sf2, sn2, times, messages = optimize_hyperparameters(Z, y, restarts=restarts, seed=seed,
+                                                              noise_floor=noise_floor, start=start)
+    model = GPModel(X, Y, ell, sf2, sn2, x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
+                    noise_floor=noise_floor)
+    info = {"fit_time_s": times, "log_marginal_likelihood": model.log_marginal_likelihood().tolist(),
+            "length_scales": ell.tolist(), "sf2": sf2.tolist(), "sn2": sn2.tolist(), "n_points": int(X.shape[0]),
+            "n_input": int(n_input), "kept": kept.tolist(), "warm_start": start is not None, "warnings": messages}
+    return model, info
+
+
+def optimize_hyperparameters(Z: np.ndarray, y: np.ndarray, *, restarts: int, seed: int, noise_floor: float,
+                             start: GPModel | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list, list]:
+    """Type-II ML hyperparameters of each output of standardized ``y (N, D)`` on standardized
+    ``Z (N, d)``: ``(ell (D, d), sf2 (D,), sn2 (D,), fit times (s) per output, bound warnings)``.
+    Starts: ``start``'s hyperparameters (or the kernel's initial point), then ``restarts`` seeded
+    random points (module docstring)."""
+    D, d = y.shape[1], Z.shape[1]
     if start is not None and (start.d != d or start.D != D):
         raise ValueError(f"start model has {start.d} inputs and {start.D} outputs, the data {d} and {D}")
     bounds = log_bounds(d, noise_floor)
@@ -169,17 +190,52 @@ def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
         times.append(time.perf_counter() - t0)
         messages += _at_bounds(theta, bounds, j)
         sf2[j], ell[j], sn2[j] = math.exp(theta[0]), np.exp(theta[1:-1]), math.exp(theta[-1])
-    model = GPModel(X, Y, ell, sf2, sn2, x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
-                    noise_floor=noise_floor)
+    return ell, sf2, sn2, times, messages
+
+
+def fit_sparse_gp(X: np.ndarray, Y: np.ndarray, *, inducing: int, restarts: int = 2, seed: int = 0,
+                  noise_floor: float = NOISE_FLOOR, max_points: int | None = None,
+                  start: GPModel | None = None) -> tuple[SparseGPModel, dict]:
+    """A sparse GP (FITC, ``plants.gp.SparseGPModel``) on ``X (N, d)``, ``Y (N, D)`` (physical) with
+    ``inducing`` inducing points -> ``(SparseGPModel, info)``, ``info`` as :func:`fit_gp`'s plus
+    ``n_inducing`` and ``n_hyper`` (points the hyperparameters were optimized on).
+
+    The training set is capped as in :func:`fit_gp`; the scaling is that of the (capped) training
+    set. Hyperparameters: the exact GP's likelihood maximized (as :func:`fit_gp`, same starts) on
+    the ``min(N, inducing)`` points ``subsample_indices`` keeps (the most recent half, then
+    farthest-point among the older), so an optimizer step costs ``O(M^3)``, not ``O(N^3)``.
+    Inducing inputs: ``select_inducing`` (greedy maximum variance) among all training inputs at
+    those hyperparameters. ``ValueError`` when ``inducing`` is not in ``[1, N]``."""
+    X, Y = _check_xy(X, Y)
+    n_input = X.shape[0]
+    kept = np.arange(n_input)
+    if max_points is not None and n_input > max_points:
+        kept = subsample_indices(X, max_points)
+        X, Y = X[kept], Y[kept]
+    if not 1 <= inducing <= X.shape[0]:
+        raise ValueError(f"inducing points ({inducing}) must be in [1, {X.shape[0]}], the training points")
+    x_mean, x_std, y_mean, y_std = X.mean(0), column_std(X), Y.mean(0), column_std(Y)
+    sub = subsample_indices(X, inducing)
+    Z, y = (X[sub] - x_mean) / x_std, (Y[sub] - y_mean) / y_std
+    ell, sf2, sn2, times, messages = optimize_hyperparameters(Z, y, restarts=restarts, seed=seed,
+                                                              noise_floor=noise_floor, start=start)
+    model = SparseGPModel(X, Y, ell, sf2, sn2, inducing=inducing, x_mean=x_mean, x_std=x_std, y_mean=y_mean,
+                          y_std=y_std, noise_floor=noise_floor)
     info = {"fit_time_s": times, "log_marginal_likelihood": model.log_marginal_likelihood().tolist(),
             "length_scales": ell.tolist(), "sf2": sf2.tolist(), "sn2": sn2.tolist(), "n_points": int(X.shape[0]),
-            "n_input": int(n_input), "kept": kept.tolist(), "warm_start": start is not None, "warnings": messages}
+            "n_input": int(n_input), "kept": kept.tolist(), "warm_start": start is not None, "warnings": messages,
+            "n_inducing": model.M, "n_hyper": int(len(sub))}
     return model, info
 
 
 def refit_fixed(model: GPModel, X: np.ndarray, Y: np.ndarray) -> GPModel:
-    """A new ``GPModel`` on ``X (N, d)``, ``Y (N, D)`` with ``model``'s hyperparameters and scaling, factorized from scratch."""
+    """A new model of ``model``'s kind on ``X (N, d)``, ``Y (N, D)`` with its hyperparameters and scaling,
+    factorized from scratch (a sparse model selects its inducing inputs again, up to ``m_requested``)."""
     X, Y = _check_xy(X, Y)
+    if isinstance(model, SparseGPModel):
+        return SparseGPModel(X, Y, model.ell, model.sf2, model.sn2, inducing=min(model.m_requested, len(X)),
+                             x_mean=model.x_mean, x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std,
+                             noise_floor=model.noise_floor)
     return GPModel(X, Y, model.ell, model.sf2, model.sn2, x_mean=model.x_mean, x_std=model.x_std,
                    y_mean=model.y_mean, y_std=model.y_std, noise_floor=model.noise_floor)
 

@@ -29,6 +29,13 @@ ones are subsampled by ``subsample_indices`` and refactorized at the prior's hyp
 (``refit_fixed``). The cap ``max_points`` applies to every path; ``n_dropped`` says how many
 training points it dropped.
 
+GP kind (``--gp``). ``exact`` (default): ``plants.gp.GPModel``. ``sparse``: FITC with
+``--inducing M`` inducing inputs (``plants.gp.SparseGPModel``, ``stages.fit.gp_fit.fit_sparse_gp``):
+hyperparameters optimized on ``M`` of the training points, inducing inputs chosen among all
+training points by greedy maximum variance; its updates at fixed hyperparameters select the
+inducing inputs again and refactorize (mode ``refactorized``). A prior must be of the same kind.
+An empty held-out set when ``holdout > 0`` (segments too short) is an error.
+
 Files: ``model.npz`` (``GPModel.to_arrays()``, with the Cholesky factor: what
 ``make_dynamics("learned", robot, dt, params)`` takes), ``heldout.npz`` (held-out inputs
 ``X (M, d)``, targets ``Y (M, n_q)``, laid-out ``time (M,)`` s, ``segment (M,)``) and
@@ -45,9 +52,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants.gp import GPModel
+from plants.gp import GPModel, SparseGPModel
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
-from stages.fit.gp_fit import fit_gp, refit_fixed, rmse, subsample_indices
+from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse, subsample_indices
 
 MODEL_FILE = "model.npz"
 HELDOUT_FILE = "heldout.npz"
@@ -55,6 +62,7 @@ FIT_FILE = "fit.json"
 DATA_STAGES = ("babble", "execute")
 MIN_BATCH = 100  # SPEC §7: batch-N only with N >= 100
 _BATCH = re.compile(r"batch-(\d+)")
+GP_KINDS = ("exact", "sparse")
 
 
 @dataclass(frozen=True)
@@ -71,7 +79,10 @@ class FitConfig(StageConfig):
             "seed": "Seed of the optimizer's restarts.",
             "max_points": "Cap on the training points (older ones subsampled, SPEC 7).",
             "holdout": "Trailing fraction of every time segment held out for the error and the recording.",
-            "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all)."}
+            "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all).",
+            "gp": "exact (the full GP) or sparse (FITC with --inducing points chosen among the training inputs by "
+                  "greedy maximum variance; hyperparameters optimized on that many points).",
+            "inducing": "Inducing points of --gp sparse (1 to --max-points, and at most the training points)."}
 
     data: tuple[str, ...] = ()
     prior: str | None = None
@@ -81,6 +92,8 @@ class FitConfig(StageConfig):
     max_points: int = 1000
     holdout: float = 0.2
     stride: int = 1
+    gp: str = "exact"
+    inducing: int = 200
 
     def validate(self) -> None:
         if not self.data:
@@ -98,7 +111,11 @@ class FitConfig(StageConfig):
                   (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
                   (0.0 <= self.holdout <= 0.5, "holdout must be in [0, 0.5]"),
-                  (1 <= self.stride <= 1000, "stride must be in [1, 1000]")]
+                  (1 <= self.stride <= 1000, "stride must be in [1, 1000]"),
+                  (self.gp in GP_KINDS, f"gp must be one of {', '.join(GP_KINDS)}, got '{self.gp}'"),
+                  (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
+                  (self.gp != "sparse" or self.inducing <= self.max_points,
+                   f"inducing ({self.inducing}) exceeds max-points ({self.max_points})")]
         for ok, msg in checks:
             if not ok:
                 raise ValueError(msg)
@@ -270,6 +287,9 @@ def check_prior(prior: Artifact, data: DataSet, cfg: FitConfig) -> dict:
     if not math.isclose(float(doc["holdout"]), cfg.holdout) or int(doc["stride"]) != cfg.stride:
         raise ValueError(f"prior {prior.ref} was fit with holdout {doc['holdout']} and stride {doc['stride']}: "
                          "use the same")
+    if doc.get("gp", "exact") != cfg.gp:
+        raise ValueError(f"prior {prior.ref} is a {doc.get('gp', 'exact')} GP, this fit asks for --gp {cfg.gp}: "
+                         "use the same")
     missing = [k for k in doc["data_keys"] if k not in data.sources]
     if missing:
         raise ValueError(f"--data lacks {missing[0]}, a data artifact of prior {prior.ref}: give all of them")
@@ -294,14 +314,21 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
         since = n_train
     start = GPModel.from_arrays(prior.arrays(MODEL_FILE)) if prior is not None else None
     t0 = time.perf_counter()
-    model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
-                         start=start)
+    if cfg.gp == "sparse":
+        model, info = fit_sparse_gp(data.X, data.Y, inducing=cfg.inducing, restarts=cfg.restarts, seed=cfg.seed,
+                                    max_points=cfg.max_points, start=start)
+    else:
+        model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
+                             start=start)
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
 
 
 def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPModel, str]:
     """``model`` plus ``X (n, d)``, ``Y (n, D)`` at fixed hyperparameters: the Cholesky factor
-    extended, or, past ``max_points``, the capped union factorized anew."""
+    extended, or, past ``max_points``, the capped union factorized anew (a sparse GP: always
+    factorized anew, its inducing inputs selected again among all points, ``SparseGPModel.update``)."""
+    if isinstance(model, SparseGPModel) and model.N + len(X) <= max_points:
+        return model.update(X, Y), "refactorized"
     if model.N + len(X) <= max_points:
         return model.update(X, Y), "incremental"
     Xa, Ya = np.vstack([model.X, X]), np.vstack([model.Y, Y])
@@ -327,7 +354,8 @@ def fit_document(cfg: FitConfig, data: DataSet, res: FitResult, prior: Artifact 
     return {
         "plant": data.plant, "joint_names": names, "data_keys": list(data.sources),
         "prior": prior.ref if prior else None, "schedule": cfg.schedule, "holdout": cfg.holdout,
-        "stride": cfg.stride,
+        "stride": cfg.stride, "gp": cfg.gp,
+        "n_inducing": m.M if isinstance(m, SparseGPModel) else None,
         "mode": res.mode, "optimized": res.mode == "optimized", "fit_time_s": res.fit_time_s,
         "hyperparameters": {j: {"length_scales": m.ell[i].tolist(), "sf2": float(m.sf2[i]),
                                 "sn2": float(m.sn2[i])} for i, j in enumerate(names)},
@@ -356,6 +384,9 @@ def run(cfg: FitConfig, inputs: dict, progress: Progress | None = None) -> Stage
     if len({a.ref for a in arts}) != len(arts):
         raise ValueError("data: the same artifact given twice")
     data = load_data(arts, cfg.holdout, cfg.stride)
+    if cfg.holdout > 0 and len(data.X_test) == 0:
+        raise ValueError(f"holdout {cfg.holdout} leaves no held-out point (round(holdout x samples) is 0 in every "
+                         "segment): give a larger --holdout, or --holdout 0 for none")
     res = fit_model(cfg, data, inputs.get("prior"))
     doc = fit_document(cfg, data, res, inputs.get("prior"))
     heldout = {"X": data.X_test, "Y": data.Y_test, "time": data.t_test, "segment": data.seg_test}
