@@ -71,7 +71,7 @@ class BabbleConfig(StageConfig):
                    f"integrator steps; at most {MAX_STEPS:,}"),
                   (self.kp >= 0 and self.kd >= 0, "kp and kd must be >= 0"),
                   (0 <= self.amplitude <= 3.2, "amplitude must be in [0, 3.2] rad"),
-                  (1 <= self.knots <= 100, "knots must be in [1, 100]"),
+                  (1 <= self.knots <= MAX_KNOTS, f"knots must be in [1, {MAX_KNOTS:,}]"),
                   (1 <= self.substeps <= 1000, "substeps must be in [1, 1000]")]
         for ok, msg in checks:
             if not ok:
@@ -88,6 +88,7 @@ class BabbleConfig(StageConfig):
 MAX_SAMPLES = 1_000_000  # per episode (the arrays are episodes x samples x joints)
 MAX_TOTAL_SAMPLES = 2_000_000  # per run: the Nao's six arrays then take 2.4 GB
 MAX_STEPS = 200_000_000  # integrator steps per run
+MAX_KNOTS = 100_000  # random knots per episode (the learn loop: one per 0.25 s of babbling)
 
 
 @dataclass

@@ -114,6 +114,9 @@ def test_babbling_pace_and_plant_defaults():
     from stages.learn import LearnConfig, babble_knots
 
     assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
+    big = LearnConfig(plant="biorob", task="reach", babble_points=1000)  # a valid babbling run
+    assert babble_knots(1000) == 333  # 99.9 s at one knot per 0.25 s would be 400: one per three samples
+    big.babble_config().validate()
     arm = LearnConfig(plant="biorob", task="reach").resolved()
     assert (arm.babble_points, arm.stride) == (200, 20)
     pend = LearnConfig(plant="pendulum", task="swing-up").resolved()
