@@ -3,8 +3,7 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-ANCHORS := $(VENV)/.anchors
-KERNEL := build/csweep.so
+KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
@@ -12,46 +11,44 @@ JOBS ?= 2
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml | $(KERNEL)
+# One resolution by pip of everything, the crocoddyl baseline included (the [baseline] extra of
+# pyproject.toml), then `pip check`: an inconsistent environment stops the install here.
+$(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,ray]'
+	$(BIN)/pip install --quiet -e '.[test,ray,baseline]'
+	$(BIN)/pip check
 	touch $(STAMP)
 
-# The AICO sweep kernel (stages/plan/csweep.c, loaded by stages/plan/kernels.py; the plants' generated
-# C is built on first use into ~/.cache/raico/kernels). Without gcc the numpy sweeps run.
+# The crocoddyl baseline is the [baseline] extra, installed by `make install`; `anchors` stays as
+# a name for it (older instructions say `make install anchors`).
+anchors: install
+
+# The AICO sweep kernel (stages/plan/csweep.c, loaded by stages/plan/kernels.py; the plants'
+# generated C is built on first use). Built by the one build helper (plants/codegen/c_backend.py)
+# with stages/plan/kernels.py's FLAGS for this host's CPU into the kernel cache
+# (RAICO_KERNEL_DIR, default ~/.cache/raico/kernels; the flags are part of the file's key, so an
+# AVX2/FMA build is never loaded on a CPU without them). A failed build stops make; without gcc
+# it says so and the numpy sweeps run.
 kernels: $(KERNEL)
 
-# The flags are stages/plan/kernels.py's FLAGS (that list builds the kernel when this target has not
-# run); they are spelled out here because this target runs before the venv exists.
-$(KERNEL): stages/plan/csweep.c
-	@mkdir -p build
-	gcc -O3 -fPIC -shared -fno-fast-math -ffp-contract=fast -fopenmp-simd -fno-strict-aliasing \
-		$$(grep -q ' avx2' /proc/cpuinfo && grep -q ' fma' /proc/cpuinfo && echo -mavx2 -mfma) -o $@ $< -lm \
-		|| echo "kernels: no C compiler, the numpy sweeps run"
+$(KERNEL): stages/plan/csweep.c stages/plan/kernels.py plants/codegen/c_backend.py $(STAMP)
+	$(BIN)/python -m stages.plan.kernels
+	touch $(KERNEL)
 
-# The crocoddyl baseline: the pinned list [tool.raico] anchors of pyproject.toml (why not an extra:
-# see there), without dependency resolution; about 15 s from an empty pip cache.
-anchors: $(ANCHORS)
-
-$(ANCHORS): $(STAMP) pyproject.toml
-	$(BIN)/pip install --quiet --no-deps $$($(BIN)/python -c 'import tomllib; print(" ".join(tomllib.load(open("pyproject.toml", "rb"))["tool"]["raico"]["anchors"]))')
-	$(BIN)/python -c "import crocoddyl, pinocchio"
-	touch $(ANCHORS)
-
-test: $(STAMP) $(ANCHORS)
+test: $(STAMP) $(KERNEL)
 	$(BIN)/python -m pytest -q
 
-test-fast: $(STAMP) $(ANCHORS)
+test-fast: $(STAMP) $(KERNEL)
 	$(BIN)/python -m pytest -q -m "not slow"
 
-reproduce: $(STAMP) $(ANCHORS)
+reproduce: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --jobs $(JOBS) --artifacts $(ARTIFACTS)
 
-reproduce-quick: $(STAMP) $(ANCHORS)
+reproduce-quick: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --quick --jobs $(JOBS) --artifacts $(ARTIFACTS)
 
-bench: $(STAMP) $(ANCHORS)
+bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)

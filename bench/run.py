@@ -219,7 +219,7 @@ def bench_baseline(task: str = "reach") -> dict:
     from stages.plan.solvers import SOLVERS
 
     if "fddp" not in SOLVERS:
-        return {"skipped": "crocoddyl not installed (make anchors)"}
+        return {"skipped": "crocoddyl not installed (the extra raico[baseline]: make install)"}
     results = {}
     for label, solver, opts in BASELINE_SOLVERS:
         results[label] = solve(_problem("arm5", task, "analytic"), solver, opts)

@@ -14,6 +14,12 @@ import os
 import signal
 import sys
 
+# The raico command quiets Rerun's Rust-side log lines (e.g. its file writer's own coloured errors,
+# which the command reports as one line instead); a RUST_LOG the user set wins. Here, in the
+# command's module, not in the library modules: importing pipeline.recording or the stages leaves
+# RUST_LOG to the user. Set before Rerun loads (it reads RUST_LOG when it is imported).
+os.environ.setdefault("RUST_LOG", "off")
+
 
 def _exit_at_once(signum: int, frame) -> None:
     """SIGINT/SIGTERM while the modules load: nothing is written yet and no child runs."""
@@ -39,7 +45,6 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from typer._click import exceptions as click_exceptions  # typer 0.29 vendors click
 
 from pipeline import runner
 from pipeline.cache import Cache
@@ -392,8 +397,9 @@ def main() -> None:
     message = None
     try:
         code = app(standalone_mode=False)
-    except click_exceptions.UsageError as e:
-        message, code = " ".join(e.format_message().split()), 2
+    except typer.TyperException as e:  # typer's public base of its (vendored) click errors: usage errors exit 2
+        text = e.format_message() if hasattr(e, "format_message") else str(e)
+        message, code = " ".join(text.split()), e.exit_code
     except Interrupted as e:
         message, code = e.message(), e.exit_code
     except (typer.Abort, KeyboardInterrupt):

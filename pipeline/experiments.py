@@ -53,8 +53,9 @@ class Variant:
         return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
 
 
-# The crocoddyl baseline (issue 8; only where crocoddyl is installed: `make anchors`). FDDP runs
-# beyond the thesis's 25 iterations: it passes R-AICO only after 30-45.
+# The crocoddyl baseline (issue 8; only where crocoddyl is installed: the extra raico[baseline],
+# which `make install` installs). FDDP runs beyond the thesis's 25 iterations: it passes R-AICO
+# only after 30-45.
 BASELINE_LABELS = {"fddp": FDDP_HELD, "fddp-rollout": FDDP_ROLLOUT, "fddp-rollout-accept-any": FDDP_ACCEPT_ANY,
                    "fddp-rollout-ilqg-schedule": FDDP_ILQG_SCHEDULE}
 
@@ -236,14 +237,6 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     return {"plans": plans, "executions": outs[:len(ex_jobs)],
             "noise": [{**{k: v for k, v in r.items() if k != "config"}, "outcome": o}
                       for r, o in zip(noise, outs[len(ex_jobs):])]}
-
-
-def run_experiment(cache: Cache, exp: Experiment, quick: bool = False, workers: int = 2,
-                   record: bool = True, progress=None, executor: Executor | None = None) -> dict:
-    """All runs of ``exp`` (cached per run): plans, then the executions of the chosen variants.
-    ``progress(done, total)`` follows each batch (the plans, then the executions)."""
-    return run_flow(executor or make_executor("process", workers), experiment_flow(cache, exp, quick, record),
-                    _progress_events(progress), _cleanup(cache.root))
 
 
 # ----------------------------------------------------------------------------- robustness under noise (issue 9)
@@ -451,13 +444,6 @@ def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: 
                 lambda cfg=cfg: lookup(cache, cfg, record=record)) for s, k, cfg in runs]
     outs = _outcomes((yield Batch("learn", jobs)))
     return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
-
-
-def run_learn_experiment(cache: Cache, exp: LearnExperiment, quick: bool = False, workers: int = 2,
-                         record: bool = True, progress=None, executor: Executor | None = None) -> dict:
-    """Every setting's learning loops (cached per loop, and per stage run inside)."""
-    return run_flow(executor or make_executor("process", workers), learn_flow(cache, exp, quick, record),
-                    _progress_events(progress), _cleanup(cache.root))
 
 
 def summarize_learns(learns: list[dict]) -> dict[str, dict]:

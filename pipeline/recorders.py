@@ -368,17 +368,6 @@ def _log_status(rec, art, times: np.ndarray) -> None:
     stream.log("events", rr.TextLog(f"end: status {status}", level="INFO" if status == "ok" else "WARN"))
 
 
-def task_series(problem, X: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per via-point term: values ``(T+1, dim)`` along ``X``, its target ``(dim,)`` and active steps."""
-    n_q = X.shape[1] // 2
-    out = {}
-    for term in problem.state_terms:
-        if hasattr(term, "taskmap") and np.all(np.isfinite(X)):
-            vals, _ = term.taskmap.values_and_jacobians(X[:, :n_q])
-            out[term.name] = (vals, term.target, np.flatnonzero(term.active(np.arange(X.shape[0]))))
-    return out
-
-
 HELD_STEPS = 3  # a term active at more steps is "held": its plot is the deviation, not the targets
 
 
@@ -499,14 +488,6 @@ def task_views(plots: list[TaskPlot], root: str = "task", planned: bool = False)
             title = f"{tp.entity} ({tp.unit})" if tp.unit else tp.entity
         views.append(rrb.TimeSeriesView(origin=base, contents=contents, name=title))
     return views
-
-
-def log_task_values(rec, problem, times: np.ndarray, X: np.ndarray, root: str = "task") -> dict:
-    """``root/<map>/value`` on ``sim_time``, ``.../target`` markers at the via-point times (see
-    :func:`task_plots`); returns the values per term ``{term: (K, dim)}``."""
-    plots = task_plots(problem, X)
-    log_task_plots(rec, plots, times, root=root)
-    return {term: tp.raw for tp in plots for term in tp.terms}
 
 
 def log_task_paths(rec, problem, X: np.ndarray, plots: list[TaskPlot] | None = None, label: str = "") -> None:

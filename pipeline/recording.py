@@ -35,7 +35,6 @@ decimated motion still plays through.
 from __future__ import annotations
 
 import json
-import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -43,15 +42,14 @@ from types import TracebackType
 from typing import Any, Self
 
 # Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
-# the failure reaches the user as one line from the CLI instead. RUST_LOG is read when rerun loads.
-os.environ.setdefault("RUST_LOG", "off")
-
-import numpy as np  # noqa: E402
-import rerun as rr  # noqa: E402
-import rerun.blueprint as rrb  # noqa: E402
-from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Role, Sphere  # noqa: E402
-from pydrake.multibody.tree import BodyIndex  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
+# the raico command sets RUST_LOG=off unless the user set it (pipeline/cli.py); this module leaves
+# RUST_LOG to its importer.
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Role, Sphere
+from pydrake.multibody.tree import BodyIndex
+from scipy.spatial.transform import Rotation
 
 __all__ = [
     "MAX_PLOT_SAMPLES",

@@ -108,7 +108,6 @@ def _viewer() -> Iterator[_Viewer]:
     child that the kernel kills with this process, SIGKILL included (``PR_SET_PDEATHSIG``), with
     its output in a temporary file, never in the caller's pipes. Raises ``RuntimeError`` with the
     viewer's last line if it does not start."""
-    os.environ.setdefault("RUST_LOG", "off")  # the viewer's own log lines
     if not os.environ.get("XDG_RUNTIME_DIR"):  # else the viewer's window layer complains on stderr
         os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="raico-xdg-")
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
@@ -127,7 +126,7 @@ def _viewer() -> Iterator[_Viewer]:
            "--hide-welcome-screen", "--headless"]
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                env={**os.environ, "RERUN_APP_ONLY": "true"}, preexec_fn=dies_with_this_process())
+                                env={"RUST_LOG": "off", **os.environ, "RERUN_APP_ONLY": "true"}, preexec_fn=dies_with_this_process())
         try:
             _wait_listening(proc, port, log)
             yield _Viewer(ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy"), time.monotonic())

@@ -36,7 +36,6 @@ import numpy as np
 from plants.robots import MODELS, NAO_SOLE_POLYGON, REFLECTED_INERTIA, Robot, shared_robot
 
 TIME_STEP = 1e-3  # s, discrete plant step
-CONTACT_MODEL = "hydroelastic_with_fallback"
 DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
 HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
 DISSIPATION = 5.0  # s/m, Hunt-Crossley

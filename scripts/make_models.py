@@ -171,9 +171,6 @@ BIOROB = [  # public BioRob facts: 0.307 / 0.310 / 0.09 m; 1.5 / 1.35 / 0.53 / 0
 
 
 # ----------------------------------------------------------------------------- Nao
-NAO_COLORS = {"torso": "white", "Head": "white", "Neck": "grey"}
-
-
 def nao(facts: dict) -> str:
     """Nao H25 from the reference facts: links, inertias, joints, limits; primitive visuals.
 

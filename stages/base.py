@@ -156,9 +156,3 @@ class Stage:
                     raise ValueError(f"{role.replace('_', '-')}: an empty artifact reference")
                 refs.append(InputRef(role, config.INPUT_STAGES[role], ref.strip()))
         return refs
-
-    def make_config(self, **values: Any) -> StageConfig:
-        """The config from keyword values, validated."""
-        cfg = self.config_cls(**values)
-        cfg.validate()
-        return cfg

@@ -1,7 +1,8 @@
 """The crocoddyl baseline builds raico's problems exactly (issue 8): same rollouts, same costs.
 
-Skipped with a stated reason where crocoddyl is not installed (``make anchors`` installs it;
-``make test`` does).
+Skipped with a stated reason where crocoddyl is not installed (the extra
+``raico[baseline]``, which ``make install`` and so ``make test`` install; ``tests/test_install.py``
+fails when it is missing).
 """
 
 from __future__ import annotations

@@ -8,12 +8,21 @@
   Python, and the tree dynamics (``TreeAnalyticDynamics``, the Nao's route) against Drake's
   AutoDiffXd (``AnalyticDynamics``) and finite differences;
 - the tree kernels (forward kinematics, Jacobians, mass matrix, inverse dynamics and its
-  derivatives) against Drake; the compiled task maps and task messages against Drake's.
+  derivatives) against Drake; the compiled task maps and task messages against Drake's;
+- that the kernel cannot vanish silently (issue 20): no skip when the library is missing (a
+  missing kernel fails here), the aico runs of this file take the compiled path, a source that
+  gcc rejects raises, the source ships as package data, and the build flags match this CPU.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,8 +38,64 @@ from stages.plan.aico import AICOOptions, _Sweeps, aico
 from stages.plan.stage import PlanConfig, build_problem
 from tests.test_aico_speed_equivalence import make_problem
 
-pytestmark = pytest.mark.skipif(kernels.library() is None,
-                                reason="no C compiler (or RAICO_NO_C): the numpy code runs")
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _the_kernel():
+    """Every test here needs the compiled kernel: missing, it fails (never skips), saying why."""
+    if kernels.library() is None:
+        pytest.fail(f"the compiled sweep kernel is not available ({c_backend.why_unavailable()}): "
+                    "install gcc (with RAICO_NO_C set only the numpy code runs)")
+
+
+def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
+    """aico with the kernel available runs its sweeps in C (``_sweep_compiled``), not the numpy code."""
+    calls = []
+    real = _Sweeps._sweep_compiled
+    monkeypatch.setattr(_Sweeps, "_sweep_compiled", lambda self, lib: (calls.append(1), real(self, lib))[1])
+    aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    assert calls
+
+
+def test_a_broken_kernel_source_fails_loudly(tmp_path):
+    """gcc present and the source broken (a syntax error): the build raises CompileError (never the
+    silent numpy fallback), and so does ``python -m stages.plan.kernels`` (make kernels)."""
+    broken = kernels.SOURCE.read_text().replace("sweep_run(", "sweep_run((", 1)
+    with pytest.raises(c_backend.CompileError, match="gcc failed on csweep"):
+        c_backend.build_library(broken, "csweep", directory=tmp_path, flags=kernels.FLAGS)
+    assert not list(tmp_path.glob("*.so"))
+    # the build helper of make kernels, on a copy of the package whose csweep.c is broken
+    copy = tmp_path / "repo"
+    for pkg in ("plants", "stages"):
+        shutil.copytree(REPO / pkg, copy / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    (copy / "stages" / "plan" / "csweep.c").write_text(broken)
+    env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(copy)}
+    env.pop("RAICO_NO_C", None)
+    p = subprocess.run([sys.executable, "-m", "stages.plan.kernels"], cwd=copy, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode != 0 and "CompileError" in p.stderr, p.stderr[-2000:]
+
+
+def test_the_kernel_source_is_package_data():
+    """A wheel or non-editable install has ``stages/plan/csweep.c`` (pyproject's package data)."""
+    data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    assert "plan/csweep.c" in data["stages"]
+    assert (REPO / "stages" / "plan" / "csweep.c").exists()
+
+
+def test_the_kernel_flags_follow_this_cpu():
+    """-mavx2 / -mfma only where /proc/cpuinfo lists the CPU flags; they are part of the cached
+    library's key, so a build for another CPU is never the one loaded here."""
+    cpu = c_backend.cpu_features()
+    assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
+    assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
+    source = kernels.SOURCE.read_text()
+    here = c_backend.library_path(source, "csweep", flags=kernels.FLAGS)
+    portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma"))
+    assert c_backend.library_path(source, "csweep", flags=portable) != here
+    loaded = kernels.library()
+    assert Path(loaded._name) == here
 
 
 def _plan_problem(plant: str, task: str, dynamics: str, T: int | None = None):
@@ -111,7 +176,7 @@ def test_compiled_task_messages_equal_the_terms(plant, task, dynamics):
 
 
 def test_fallback_without_the_kernel(monkeypatch):
-    """No compiler: the numpy sweeps run (and give the compiled numbers)."""
+    """No compiler (or RAICO_NO_C): the numpy sweeps run (and give the compiled numbers)."""
     a = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
     monkeypatch.setattr(kernels, "library", lambda: None)
     b = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))

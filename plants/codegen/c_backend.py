@@ -4,13 +4,14 @@
   hash of the source and the flags (``RAICO_KERNEL_DIR``, default ``~/.cache/raico/kernels``),
   written atomically (parallel processes may build the same library); loaded with ``ctypes``.
   ``RAICO_NO_C=1`` (or no ``gcc``) disables every compiled path: the callers fall back to their
-  numpy code, which computes the same numbers.
+  numpy code, which computes the same numbers. Where ``gcc`` exists and fails, the build raises
+  :class:`CompileError` (never a silent fallback).
 - :func:`emit_c`: the C twin of :func:`plants.codegen.emit.emit` (same operations in the same
   order, IEEE double, no FMA contraction: the numbers equal the Python float evaluation).
 
 Flags: ``-O2 -fno-fast-math -ffp-contract=off`` (no reassociation, no fused multiply-add), so the
 compiled arithmetic is the one written; ``-mavx2`` where the CPU has it (the flags are part of the
-cache key).
+cache key: a library built for AVX2 is never the one loaded on a CPU without it, which builds its own).
 """
 
 from __future__ import annotations
@@ -34,17 +35,24 @@ def _cpu_flags() -> str:
         return ""
 
 
+def cpu_features() -> frozenset[str]:
+    """The CPU's feature flags (the ``flags`` line of ``/proc/cpuinfo``; empty elsewhere)."""
+    for line in _cpu_flags().splitlines():
+        if line.startswith("flags"):
+            return frozenset(line.split(":", 1)[1].split())
+    return frozenset()
+
+
 def fma_flags() -> tuple[str, ...]:
     """``-mfma`` where the CPU has it (and AVX2): for code whose results may depend on contraction
     (the sweep kernel, compared with numpy to a tolerance, never bit for bit)."""
-    info = _cpu_flags()
-    return ("-mfma",) if " fma" in info and " avx2" in info else ()
+    return ("-mfma",) if {"fma", "avx2"} <= cpu_features() else ()
 
 
 def _isa_flags() -> tuple[str, ...]:
     """``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
     contraction stays off, so the numbers do not depend on it)."""
-    return ("-mavx2",) if " avx2" in _cpu_flags() else ()
+    return ("-mavx2",) if "avx2" in cpu_features() else ()
 
 
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing",
@@ -53,12 +61,23 @@ _LIBS: dict[str, ctypes.CDLL] = {}
 
 
 class CompileUnavailable(RuntimeError):
-    """No compiled path (``RAICO_NO_C`` set, no ``gcc``, or the build failed)."""
+    """No compiled path: ``RAICO_NO_C`` set, or no ``gcc`` (the callers run their numpy code)."""
+
+
+class CompileError(RuntimeError):
+    """``gcc`` exists and failed on a source: a bug to see, not a reason to fall back."""
 
 
 def enabled() -> bool:
     """Whether compiled kernels may be used (``RAICO_NO_C`` unset and ``gcc`` on the path)."""
     return os.environ.get("RAICO_NO_C", "") in ("", "0") and shutil.which("gcc") is not None
+
+
+def why_unavailable() -> str:
+    """Why :func:`enabled` is false (for messages)."""
+    if os.environ.get("RAICO_NO_C", "") not in ("", "0"):
+        return "RAICO_NO_C is set"
+    return "no gcc on the path" if shutil.which("gcc") is None else "enabled"
 
 
 def kernel_dir() -> Path:
@@ -75,9 +94,10 @@ def library_path(source: str, name: str, directory: Path | None = None,
 
 def build_library(source: str, name: str, directory: Path | None = None,
                   flags: tuple[str, ...] = CFLAGS) -> Path:
-    """Compile ``source`` with ``flags`` (once per content and flags) and return the library's path."""
+    """Compile ``source`` with ``flags`` (once per content and flags) and return the library's path.
+    Raises :class:`CompileUnavailable` when compiling is off, :class:`CompileError` when gcc fails."""
     if not enabled():
-        raise CompileUnavailable("compiled kernels disabled (RAICO_NO_C) or no gcc")
+        raise CompileUnavailable(f"compiled kernels disabled ({why_unavailable()})")
     path = library_path(source, name, directory, flags)
     if path.exists():
         return path
@@ -89,7 +109,7 @@ def build_library(source: str, name: str, directory: Path | None = None,
         proc = subprocess.run(["gcc", *flags, "-o", str(out), str(src), "-lm"],
                               capture_output=True, text=True)
         if proc.returncode != 0:
-            raise CompileUnavailable(f"gcc failed on {name}: {proc.stderr[-2000:]}")
+            raise CompileError(f"gcc failed on {name} (flags {' '.join(flags)}):\n{proc.stderr[-2000:]}")
         os.replace(out, path)  # atomic: a parallel build of the same source writes the same file
     return path
 

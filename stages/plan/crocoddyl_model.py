@@ -1,7 +1,6 @@
 """crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems (SPEC §14, issue 8).
 
-:func:`build` turns a raico :class:`~stages.plan.problem.Problem` (analytic dynamics; the
-objective of ``problem.json``, see :func:`from_description`) into a crocoddyl
+:func:`build` turns a raico :class:`~stages.plan.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:
 
 - the model: the project's URDF, copied to a temporary folder with a ``<link name="world"/>``
@@ -67,7 +66,7 @@ from stages.plan.problem import (
     controller_rollout,
 )
 
-try:  # the optional baseline: ``make anchors`` (every make target that needs it runs it)
+try:  # the optional baseline: the extra ``raico[baseline]`` (``make install`` installs it)
     with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
         warnings.simplefilter("ignore", DeprecationWarning)
         import crocoddyl
@@ -78,8 +77,8 @@ try:  # the optional baseline: ``make anchors`` (every make target that needs it
 except ImportError as _e:  # pragma: no cover - depends on the environment
     crocoddyl = pin = None
     AVAILABLE = False
-    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make anchors` installs the "
-                          "pinned pair into .venv")
+    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make install` installs the "
+                          "pinned pair (the extra raico[baseline]) into .venv")
 
 STARTS = ("held", "rollout")
 ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's actual/expected > 0)
@@ -393,21 +392,6 @@ def build(problem: Problem) -> CrocoddylProblem:
     terminal = node_model(active_at(T), True)
     shooting = crocoddyl.ShootingProblem(np.asarray(problem.x0, float), running, terminal)
     return CrocoddylProblem(shooting, state, pmodel, T, dt, np.asarray(problem.x0, float).copy(), bounds)
-
-
-def from_description(desc: dict):
-    """raico ``Problem`` and its ``CrocoddylProblem`` from a stored ``problem.json`` description."""
-    from plants.registry import make_dynamics
-    from plants.robots import shared_robot
-    from stages.plan.stage import objective_from_description
-
-    if desc.get("dynamics") != "analytic":
-        raise NotExpressible(f"crocoddyl: only the analytic dynamics can be expressed, not {desc.get('dynamics')!r}")
-    robot = shared_robot(desc["plant"])
-    obj = objective_from_description(desc, robot)
-    dyn = make_dynamics("analytic", robot, float(desc["dt"]))
-    problem = Problem(dyn, np.asarray(desc["x0"], float), int(desc["T"]), obj.state_terms, obj.control_terms)
-    return problem, build(problem)
 
 
 # ----------------------------------------------------------------------------- the solver

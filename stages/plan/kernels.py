@@ -2,10 +2,16 @@
 
 ``csweep.c`` is ``stages.plan.aico._Sweeps``'s forward / backward / belief / settle code in C,
 with its own register-tiled dense loops (no BLAS: at the sweeps' sizes they beat OpenBLAS, see the
-measurements in ``csweep.c``).
-``make install`` builds it (target ``kernels``: ``build/csweep.so``); without that build the
-library is compiled on first use into the kernel cache (:mod:`plants.codegen.c_backend`). Without a
-compiler, or with ``RAICO_NO_C=1``, :func:`library` is ``None`` and ``_Sweeps`` runs its numpy code.
+measurements in ``csweep.c``). The source ships with the package (package data) and is compiled
+on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
+cache (``make kernels`` builds it ahead: ``python -m stages.plan.kernels``). :data:`FLAGS` follow
+this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both) and are part of the cached
+file's key, so a library built for AVX2/FMA is never loaded on a CPU without them: there the
+portable build is made and loaded.
+
+Only an explicit opt-out (``RAICO_NO_C=1``) or a machine without ``gcc`` gives :func:`library`
+``None`` (then ``_Sweeps`` runs its numpy code); a failed build where ``gcc`` exists raises
+:class:`plants.codegen.c_backend.CompileError`.
 
 ``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields).
 """
@@ -18,7 +24,6 @@ from pathlib import Path
 from plants.codegen import c_backend
 
 SOURCE = Path(__file__).with_name("csweep.c")
-PREBUILT = Path(__file__).resolve().parents[2] / "build" / "csweep.so"   # make kernels
 # -O3 vectorizes the small dense loops; contraction into fused multiply-adds and the vectorized
 # sums marked `omp simd` (-fopenmp-simd: the pragmas only, no OpenMP runtime) are allowed here (the
 # sweeps are compared with the numpy code to a tolerance, not bit for bit). Later flags win.
@@ -51,12 +56,7 @@ _LIB: ctypes.CDLL | None | bool = None
 
 
 def _load() -> ctypes.CDLL:
-    source = SOURCE.read_text()
-    if (c_backend.enabled() and PREBUILT.exists()
-            and PREBUILT.stat().st_mtime >= SOURCE.stat().st_mtime):
-        lib = ctypes.CDLL(str(PREBUILT))
-    else:
-        lib = c_backend.load_library(source, "csweep", flags=FLAGS)
+    lib = c_backend.load_library(SOURCE.read_text(), "csweep", flags=FLAGS)
     for f in ("sweep_work_size", "sweep_iwork_size"):
         getattr(lib, f).argtypes = [_L, _L]
         getattr(lib, f).restype = _L
@@ -69,27 +69,23 @@ def _load() -> ctypes.CDLL:
 
 
 def library() -> ctypes.CDLL | None:
-    """The compiled sweep kernel, or ``None`` (no compiler, ``RAICO_NO_C=1``, build failed)."""
+    """The compiled sweep kernel, or ``None`` (``RAICO_NO_C=1`` or no ``gcc``). A failed build
+    (``CompileError``) or a library that does not load (``OSError``) propagates."""
     global _LIB
     if _LIB is None:
         try:
             if not c_backend.enabled():
                 raise c_backend.CompileUnavailable("disabled")
             _LIB = _load()
-        except (c_backend.CompileUnavailable, OSError):
+        except c_backend.CompileUnavailable:
             _LIB = False
     return _LIB or None
 
 
-def reset() -> None:
-    """Forget the loaded kernel (tests toggling ``RAICO_NO_C``)."""
-    global _LIB
-    _LIB = None
-
-
-if __name__ == "__main__":  # python -m stages.plan.kernels: build (or find) the kernel
-    lib = library()
-    print("csweep:", "compiled" if lib is not None else "unavailable (numpy fallback)")
+if __name__ == "__main__":  # python -m stages.plan.kernels (make kernels): build (or find) the kernel
+    lib = library()   # a failed build raises: make stops
+    print("csweep:", f"compiled ({' '.join(FLAGS)})" if lib is not None
+          else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
 
 
 # -- compiled task messages -------------------------------------------------------------------------
