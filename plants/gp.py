@@ -44,32 +44,7 @@ NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the m
 # One query point, every output: the GP mean and its input gradient in C (no per-output numpy
 # calls: a planner's relinearization inside the sweeps asks for one point at a time). The same
 # formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
-# agree to rounding (tests/test_gp.py).
-_POINT_C = r"""
-#include <math.h>
-/* Zs (D, N, d): training inputs divided by each output's length-scales; alpha (D, N); sf2 (D,);
- * inv_ell (D, d); z (d,) scaled query. out_m (D,), out_g (D, d): scaled mean and gradient. */
-void gp_point(long N, long d, long D, const double *Zs, const double *alpha, const double *sf2,
-              const double *inv_ell, const double *z, double *out_m, double *out_g)
-{
-    double zs[256], g[256];
-    for (long j = 0; j < D; j++) {
-        const double *Zj = Zs + j * N * d, *aj = alpha + j * N, *ie = inv_ell + j * d;
-        for (long k = 0; k < d; k++) { zs[k] = z[k] * ie[k]; g[k] = 0.0; }
-        double m = 0.0;
-        for (long i = 0; i < N; i++) {
-            const double *zi = Zj + i * d;
-            double s = 0.0;
-            for (long k = 0; k < d; k++) { double e = zi[k] - zs[k]; s += e * e; }
-            double w = aj[i] * sf2[j] * exp(-0.5 * s);
-            m += w;
-            for (long k = 0; k < d; k++) g[k] += w * (zi[k] - zs[k]);
-        }
-        out_m[j] = m;
-        for (long k = 0; k < d; k++) out_g[j * d + k] = g[k] * ie[k];
-    }
-}
-"""
+# agree to rounding (tests/test_gp.py). The source: gp_point.c beside this module.
 _POINT_LIB: object = None
 
 
@@ -83,7 +58,8 @@ def _point_lib():
         try:
             if not c_backend.enabled():
                 raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(_POINT_C, "gp_point", flags=(*c_backend.CFLAGS, "-O3"))
+            lib = c_backend.load_library(c_backend.c_source(__file__, "gp_point.c"), "gp_point",
+                                         flags=(*c_backend.CFLAGS, "-O3"))
             lib.gp_point.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 7
             lib.gp_point.restype = None
             _POINT_LIB = lib

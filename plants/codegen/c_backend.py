@@ -55,6 +55,17 @@ def _isa_flags() -> tuple[str, ...]:
     return ("-mavx2",) if "avx2" in cpu_features() else ()
 
 
+def c_source(module_file: str, name: str) -> str:
+    """The text of the C file ``name`` beside the module ``module_file`` (``__file__``): every C source
+    lives in a ``.c`` file next to what loads it (package data of the ``plants`` package)."""
+    path = Path(module_file).resolve().with_name(name)
+    try:
+        return path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise CompileError(f"the C source {path} is missing or unreadable ({type(e).__name__}): "
+                           "reinstall raico (it ships its .c files as package data)") from None
+
+
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing",
           *_isa_flags())
 _LIBS: dict[str, ctypes.CDLL] = {}

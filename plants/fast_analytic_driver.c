@@ -1,0 +1,226 @@
+
+/* ---- driver (plants/fast_analytic.py): the AnalyticDynamics formulas on the generated code ---- */
+typedef struct {
+    int n;               /* planning dofs n_q */
+    int identity;        /* P is the identity */
+    double dt;
+    const double *P;     /* (MP, n) row-major */
+} dyn_ctx;
+
+/* plant <- planning: out (MP) = P z (n) */
+static void to_plant(const dyn_ctx *c, const double *z, double *out)
+{
+    if (c->identity) { memcpy(out, z, sizeof(double) * MP); return; }
+    for (int i = 0; i < MP; i++) {
+        double s = 0.0;
+        for (int j = 0; j < c->n; j++) s += c->P[i * c->n + j] * z[j];
+        out[i] = s;
+    }
+}
+
+/* M_r = P^T M P (n x n), h_r = P^T h (n) from the plant's M (MP x MP), h (MP) */
+static void reduce_mh(const dyn_ctx *c, const double *M, const double *h, double *Mr, double *hr)
+{
+    int n = c->n;
+    if (c->identity) { memcpy(Mr, M, sizeof(double) * MP * MP); memcpy(hr, h, sizeof(double) * MP); return; }
+    double MP_[MP * MP];   /* M P (MP x n) */
+    for (int i = 0; i < MP; i++)
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int k = 0; k < MP; k++) s += M[i * MP + k] * c->P[k * n + j];
+            MP_[i * n + j] = s;
+        }
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < n; j++) {
+            double s = 0.0;
+            for (int k = 0; k < MP; k++) s += c->P[k * n + i] * MP_[k * n + j];
+            Mr[i * n + j] = s;
+        }
+        double s = 0.0;
+        for (int k = 0; k < MP; k++) s += c->P[k * n + i] * h[k];
+        hr[i] = s;
+    }
+}
+
+/* LU with partial pivoting of the n x n matrix a (overwritten); piv (n). */
+static void lu(int n, double *a, int *piv)
+{
+    for (int k = 0; k < n; k++) {
+        int p = k;
+        double best = fabs(a[k * n + k]);
+        for (int i = k + 1; i < n; i++) if (fabs(a[i * n + k]) > best) { best = fabs(a[i * n + k]); p = i; }
+        piv[k] = p;
+        if (p != k) for (int j = 0; j < n; j++) { double t = a[k * n + j]; a[k * n + j] = a[p * n + j]; a[p * n + j] = t; }
+        double d = a[k * n + k];
+        for (int i = k + 1; i < n; i++) {
+            double l = a[i * n + k] / d;
+            a[i * n + k] = l;
+            for (int j = k + 1; j < n; j++) a[i * n + j] -= l * a[k * n + j];
+        }
+    }
+}
+
+/* solve (LU from lu) x = b in place */
+static void lu_solve(int n, const double *a, const int *piv, double *b)
+{
+    for (int k = 0; k < n; k++) if (piv[k] != k) { double t = b[k]; b[k] = b[piv[k]]; b[piv[k]] = t; }
+    for (int i = 0; i < n; i++) { double s = b[i]; for (int j = 0; j < i; j++) s -= a[i * n + j] * b[j]; b[i] = s; }
+    for (int i = n - 1; i >= 0; i--) { double s = b[i]; for (int j = i + 1; j < n; j++) s -= a[i * n + j] * b[j]; b[i] = s / a[i * n + i]; }
+}
+
+/* inverse (n x n) of a (destroyed) */
+static void inverse(int n, double *a, double *inv)
+{
+    int piv[MP];
+    double col[MP];
+    lu(n, a, piv);
+    for (int j = 0; j < n; j++) {
+        for (int i = 0; i < n; i++) col[i] = (i == j) ? 1.0 : 0.0;
+        lu_solve(n, a, piv, col);
+        for (int i = 0; i < n; i++) inv[i * n + j] = col[i];
+    }
+}
+
+/* qddot (n) at x = (q, v), u: M_r^-1 (u - h_r) */
+int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr);
+int dyn_qddot(const dyn_ctx *c, const double *x, const double *u, double *qdd)
+{
+    int n = c->n, piv[MP];
+    double Mr[MP * MP], hr[MP];
+    dyn_mh(c, x, Mr, hr);
+    for (int i = 0; i < n; i++) qdd[i] = u[i] - hr[i];
+    lu(n, Mr, piv);
+    lu_solve(n, Mr, piv, qdd);
+    return 0;
+}
+
+/* one semi-implicit Euler step: xn (2n) */
+int dyn_step(const dyn_ctx *c, const double *x, const double *u, double *xn)
+{
+    int n = c->n;
+    double qdd[MP];
+    dyn_qddot(c, x, u, qdd);
+    for (int i = 0; i < n; i++) {
+        double v1 = x[n + i] + c->dt * qdd[i];
+        xn[n + i] = v1;
+        xn[i] = x[i] + c->dt * v1;
+    }
+    return 0;
+}
+
+/* M_r (n x n), h_r (n) at x = (q, v) */
+int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr)
+{
+    double xs[2 * MP], out[MP * MP + MP];
+    to_plant(c, x, xs);
+    to_plant(c, x + c->n, xs + MP);
+    gen_mh(xs, out);
+    reduce_mh(c, out, out + MP * MP, Mr, hr);
+    return 0;
+}
+
+/* qddot a (n), d qddot / d(q, v) F (n x 2n), M_r^-1 Mi (n x n) at (x, u) */
+int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *a, double *F, double *Mi)
+{
+    int n = c->n, N = 2 * n;
+    double xs[2 * MP], out[MP * MP + MP], carry[NCARRY > 0 ? NCARRY : 1], Mr[MP * MP], hr[MP];
+    double ys[MP + (NCARRY > 0 ? NCARRY : 1)], D[2 * MP * MP], Dr[MP * 2 * MP];
+    to_plant(c, x, xs);
+    to_plant(c, x + n, xs + MP);
+    gen_first(xs, out, carry);
+    reduce_mh(c, out, out + MP * MP, Mr, hr);
+    inverse(n, Mr, Mi);
+    for (int i = 0; i < n; i++) {
+        double s = 0.0;
+        for (int j = 0; j < n; j++) s += Mi[i * n + j] * (u[j] - hr[j]);
+        a[i] = s;
+    }
+    to_plant(c, a, ys);
+    for (int k = 0; k < NCARRY; k++) ys[MP + k] = carry[k];
+    gen_second(ys, D);
+    /* D_r = [P^T Dq P, P^T Dv P] (n x 2n) */
+    if (c->identity) memcpy(Dr, D, sizeof(double) * 2 * MP * MP);
+    else {
+        for (int i = 0; i < n; i++)
+            for (int half = 0; half < 2; half++)
+                for (int j = 0; j < n; j++) {
+                    double s = 0.0;
+                    for (int k = 0; k < MP; k++) {
+                        double pk = c->P[k * n + i];
+                        if (pk == 0.0) continue;
+                        for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
+                    }
+                    Dr[i * N + half * n + j] = s;
+                }
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < N; j++) {
+            double s = 0.0;
+            for (int k = 0; k < n; k++) s += Mi[i * n + k] * Dr[k * N + j];
+            F[i * N + j] = -s;
+        }
+    return 0;
+}
+
+/* A (2n x 2n), aff (2n), B (2n x n) of the step at (x, u) (AnalyticDynamics.linearize) */
+int dyn_linearize(const void *cv, const double *x, const double *u, double *A, double *aff, double *B)
+{
+    const dyn_ctx *c = (const dyn_ctx *)cv;
+    int n = c->n, N = 2 * n;
+    double dt = c->dt;
+    double Mi[MP * MP], a[MP], F[MP * 2 * MP];
+    dyn_derivatives(c, x, u, a, F, Mi);
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < N; j++) A[(n + i) * N + j] = F[i * N + j] * dt;
+        A[(n + i) * N + n + i] += 1.0;
+    }
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < N; j++) A[i * N + j] = A[(n + i) * N + j] * dt;
+        A[i * N + i] += 1.0;
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double b = Mi[i * n + j] * dt;
+            B[(n + i) * n + j] = b;
+            B[i * n + j] = b * dt;
+        }
+    for (int i = 0; i < n; i++) {
+        double s = a[i], fx = 0.0, mu = 0.0;
+        for (int j = 0; j < N; j++) fx += F[i * N + j] * x[j];
+        for (int j = 0; j < n; j++) mu += Mi[i * n + j] * u[j];
+        s = s - fx - mu;
+        aff[i] = (dt * dt) * s;
+        aff[n + i] = dt * s;
+    }
+    return 0;
+}
+
+int dyn_linearize_batch(const dyn_ctx *c, int T, const double *X, const double *U, double *A, double *aff, double *B)
+{
+    int n = c->n, N = 2 * n;
+    for (int t = 0; t < T; t++)
+        dyn_linearize(c, X + (long)t * N, U + (long)t * n, A + (long)t * N * N, aff + (long)t * N, B + (long)t * N * n);
+    return 0;
+}
+
+/* X (T+1, 2n), U (T, n) of u_t = o_t + O_t x_t rolled out from x0 */
+int dyn_controller_rollout(const dyn_ctx *c, int T, const double *x0, const double *o, const double *O, double *X, double *U)
+{
+    int n = c->n, N = 2 * n;
+    memcpy(X, x0, sizeof(double) * N);
+    for (int t = 0; t < T; t++) {
+        const double *x = X + (long)t * N;
+        double *u = U + (long)t * n;
+        for (int i = 0; i < n; i++) {
+            double s = 0.0;
+            const double *row = O + ((long)t * n + i) * N;
+            for (int j = 0; j < N; j++) s += row[j] * x[j];
+            u[i] = o[(long)t * n + i] + s;
+        }
+        dyn_step(c, x, u, X + (long)(t + 1) * N);
+    }
+    return 0;
+}
+
+/* the function pointer the AICO sweep kernel calls */
+void *dyn_linearize_address(void) { return (void *)&dyn_linearize; }
