@@ -24,7 +24,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from plants.codegen.graph import BINARY, Graph
+from plants.codegen.graph import Graph
 
 
 def _cpu_flags() -> str:
@@ -149,41 +149,23 @@ def emit_c(g: Graph, name: str, inputs: list[int], outputs: list[int],
            targets: list[str] | None = None, params: str = "const double *xs, double *out") -> str:
     """C source of ``static void name(<params>)``: node ``inputs[k]`` is ``xs[k]``; node
     ``outputs[j]`` goes to ``targets[j]`` (default ``out[j]``). One ``const double`` per operation
-    (SSA; the compiler allocates registers), operations in the order of :func:`emit.emit`."""
-    from plants.codegen.emit import live_ops
+    (SSA; the compiler allocates registers), operations in the order of :func:`emit.emit` (the
+    same :func:`emit.walk`, printed as C)."""
+    from plants.codegen.emit import walk
 
-    nodes = g.nodes
     targets = [f"out[{j}]" for j in range(len(outputs))] if targets is None else targets
-    order = live_ops(g, inputs, outputs)
-    in_name = {node: f"xs[{k}]" for k, node in enumerate(inputs)}
+    w = walk(g, inputs, outputs, targets)
 
     def ref(j: int) -> str:
-        if j in in_name:
-            return in_name[j]
-        n = nodes[j]
-        if n[0] == "c":
-            return _c_const(n[1])
-        return f"r{j}"
+        if j in w.inputs:
+            return f"xs[{w.inputs[j]}]"
+        n = w.nodes[j]
+        return _c_const(n[1]) if n[0] == "c" else f"r{j}"
 
     lines = [f"static void {name}({params})", "{"]
-    writes: dict[int, list[str]] = {}
-    for t, o in zip(targets, outputs):
-        writes.setdefault(o, []).append(t)
-    for o, js in writes.items():
-        if o in in_name or nodes[o][0] == "c":
-            lines += [f"    {t} = {ref(o)};" for t in js]
-    for i in order:
-        n = nodes[i]
-        op = n[0]
-        if op in BINARY:
-            rhs = f"{ref(n[1])} {op} {ref(n[2])}"
-        elif op == "neg":
-            rhs = f"-{ref(n[1])}"
-        elif op == "pow":
-            rhs = f"pow({ref(n[1])}, {_c_const(n[2])})"
-        else:
-            rhs = f"{op}({ref(n[1])})"
-        lines.append(f"    const double r{i} = {rhs};")
-        lines += [f"    {t} = r{i};" for t in writes.get(i, ())]
+    lines += [f"    {t} = {ref(o)};" for o, t in w.direct_writes()]
+    for i in w.order:
+        lines.append(f"    const double r{i} = {w.expression(i, ref, lambda a, p: f'pow({a}, {_c_const(p)})')};")
+        lines += [f"    {t} = r{i};" for t in w.writes.get(i, ())]
     lines.append("}")
     return "\n".join(lines) + "\n"
