@@ -252,7 +252,8 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     plans, integ_plans = every[:n_main], every[n_main:]
     ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), record,
                           f"{p['variant'].label} seed {p['seed']}") for p in plans if p["variant"] in exp.execute]
-    integ_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), record,
+    # no recordings of the integrations (about 0.4 s each; `raico execute --plan KEY --open-loop` writes one from the cache)
+    integ_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), False,
                              f"{p['variant'].label} seed {p['seed']}, open loop") for p in integ_plans]
     noise = noise_runs(exp, plans, quick)
     noise_jobs = [_stage_job(cache, "execute", r["config"], record,

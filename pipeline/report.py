@@ -661,14 +661,14 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,
              "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd")}
             for p in result["plans"] + integ]
-    runs += [{"variant": f"{p['variant'].label}, Drake's open-loop integration", "seed": p["seed"],
-              "key": p["integration"].key, "status": p["integration"].status,
-              "recording": str(Path(p["integration"].path) / "recording.rrd")} for p in integ]
+    integ_runs = [{"variant": p["variant"].label, "seed": p["seed"], "plan": p["outcome"].key,
+                   "integration": p["integration"].key, "status": p["integration"].status} for p in integ]
     execs = [{"key": e.key, "recording": str(Path(e.path) / "recording.rrd"), **{
         k: v for k, v in e.metrics.items() if k != "via_point_errors"}} for e in result["executions"]]
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
-           "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows}
+           "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
+           "integrator_runs": integ_runs}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
@@ -689,7 +689,9 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     md += noise_md
     if integ_rows:
         md += ["## Pseudo-dynamics integrators (appendix C)", "", INTEGRATOR_TEXT, "", markdown_integrators(integ_rows),
-               ""]
+               "", "Drake's integrations (execute entries, not recorded; `raico execute --plan KEY --open-loop` "
+               "records one from the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['integration']}`"
+                                                          for r in integ_runs), ""]
     md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")
     return doc
