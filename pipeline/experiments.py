@@ -41,6 +41,7 @@ class Variant:
         extra = (f", gamma={self.gamma:g}" if self.gamma != 1.0 else "") + (
             ", rollout start" if self.start == "rollout" else "") + (
             ", finite differences" if self.dynamics == "analytic-fd" else "") + (
+            f", {INTEGRATOR_NAMES[self.dynamics]} pseudo-dynamics" if self.dynamics in INTEGRATOR_NAMES else "") + (
             f", belief rate {self.belief_rate:g}" if self.belief_rate != 1.0 else "") + (
             f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "")
         if self.solver == "raico" and self.schedule == "adaptive":
@@ -93,6 +94,14 @@ FD_ABLATION = Variant("aico", dynamics="analytic-fd")
 # plain AICO with the learning rates R-AICO replaces (thesis §3.5: on the state update, Algorithm 1 line 13, or on the
 # feedback controller, line 18; "neither implementation can guarantee convergence")
 RATE_ABLATIONS = (Variant("aico", belief_rate=0.5), Variant("aico", controller_rate=0.5))
+# Appendix C (issue 18, item 5): the three pseudo-dynamics integrators ("We compared all methods, and could not find any
+# significant difference in terms of accuracy"), R-AICO a=1 and plain AICO on fig3.2a's first INTEGRATOR_SEEDS initial
+# states (backward Euler is the figure's own runs of these seeds, served from the cache); each plan's controls are
+# also integrated open loop by Drake (execute --open-loop). Not in --quick.
+INTEGRATOR_NAMES = {"pseudo": "backward Euler", "pseudo-euler": "Euler", "pseudo-heun": "Heun"}
+INTEGRATOR_SEEDS = 5
+INTEGRATORS = tuple(Variant(solver, alpha, dynamics=d, seeds=INTEGRATOR_SEEDS)
+                    for solver, alpha in (("raico", 1.0), ("aico", 0.0)) for d in INTEGRATOR_NAMES)
 ROLLOUT_VARIANTS = (Variant("raico", 1.0, start="rollout"),
                     Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                             schedule="adaptive", start="rollout"))
@@ -113,6 +122,15 @@ class Experiment:
     seeds: int = 10
     execute: tuple[Variant, ...] = ()
     claims: tuple[str, ...] = field(default=())
+    integrators: tuple[Variant, ...] = ()  # appendix C's comparison: own table, not in the cost figure
+
+    def integrator_variants(self, quick: bool) -> tuple[Variant, ...]:
+        """The integrator comparison's variants (none with --quick)."""
+        return () if quick else self.integrators
+
+    def run_count(self, quick: bool) -> int:
+        """Plan runs of the figure (its variants and the integrator comparison's)."""
+        return sum(v.seed_count(self.seeds, quick) for v in (*self.variants, *self.integrator_variants(quick)))
 
 
 ARM_VARIANTS = (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0))
@@ -120,7 +138,8 @@ ABLATION = Variant("aico", 0.0, relinearize=False)
 EXPERIMENTS: dict[str, Experiment] = {
     "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", (*ARM_VARIANTS, REFERENCE), 40, 6,
                           "arm5, pseudo-dynamics, via-points (1,-0.4,0)@500 and (1,0,0)@1000",
-                          claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest")),
+                          claims=("raico_converges", "raico_decays_fast", "all_converge_aico_fastest",
+                                  "integrators_agree"), integrators=INTEGRATORS),
     "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo",
                           (*ARM_VARIANTS, ABLATION, GAMMA_ABLATION, *RATE_ABLATIONS, REFERENCE), 40,
                           6, "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
@@ -219,24 +238,34 @@ def _cleanup(root) -> Callable[[], object] | None:
 
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
     """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
-    that depend on them (the executions of the chosen variants and the noise sweep). Returns
-    ``{"plans", "executions", "noise"}``."""
+    that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
+    integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
+    "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""
     from stages.execute import ExecuteConfig
 
-    runs = [(v, s, plan_config(exp, v, s, quick)) for v in exp.variants for s in range(v.seed_count(exp.seeds, quick))]
+    integ = exp.integrator_variants(quick)
+    runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
+            for s in range(v.seed_count(exp.seeds, quick))]
     outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record, f"{v.label} seed {s}") for v, s, cfg in runs])
-    plans = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
+    every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
+    n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)
+    plans, integ_plans = every[:n_main], every[n_main:]
     ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), record,
                           f"{p['variant'].label} seed {p['seed']}") for p in plans if p["variant"] in exp.execute]
+    # no recordings of the integrations (about 0.4 s each; `raico execute --plan KEY --open-loop` writes one from the cache)
+    integ_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), False,
+                             f"{p['variant'].label} seed {p['seed']}, open loop") for p in integ_plans]
     noise = noise_runs(exp, plans, quick)
     noise_jobs = [_stage_job(cache, "execute", r["config"], record,
                              f"{NOISE_SWEEPS[exp.id].label} seed {r['plan_seed']}, noise x0 {r['level'][0]:g} rad, "
                              f"process {r['level'][1]:g} N m") for r in noise]
-    jobs = ex_jobs + noise_jobs  # a Nao figure's executions are its sweep's level 0: each runs once
+    jobs = ex_jobs + noise_jobs + integ_jobs  # a Nao figure's executions are its sweep's level 0: each runs once
     outs = _outcomes((yield Batch("execute", jobs)) if jobs else [])
-    return {"plans": plans, "executions": outs[:len(ex_jobs)],
+    n_ex, n_noise = len(ex_jobs), len(noise_jobs)
+    return {"plans": plans, "executions": outs[:n_ex],
             "noise": [{**{k: v for k, v in r.items() if k != "config"}, "outcome": o}
-                      for r, o in zip(noise, outs[len(ex_jobs):])]}
+                      for r, o in zip(noise, outs[n_ex:n_ex + n_noise])],
+            "integrators": [{**p, "integration": o} for p, o in zip(integ_plans, outs[n_ex + n_noise:])]}
 
 
 # ----------------------------------------------------------------------------- robustness under noise (issue 9)

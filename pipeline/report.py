@@ -515,13 +515,64 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
 
 
 # ----------------------------------------------------------------------------- claims
-def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Cache | None = None) -> list[dict]:
+def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Cache | None = None,
+                 integrators: list[dict] | None = None) -> list[dict]:
     """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
-    the runs' cost curves too)."""
+    the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
+    ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
     from stages.evaluate.claims import evaluate_claims
 
     S = {v.label: summarize(plans, v, cache) for v in exp.variants}
-    return evaluate_claims(exp.claims, S, [e.metrics for e in executions], exp.id)
+    S.update({r["label"]: r for r in integrator_table(exp, integrators or [], cache)})
+    names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
+    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id)
+
+
+def integrator_table(exp: Experiment, integrators: list[dict], cache: Cache | None = None) -> list[dict]:
+    """Per variant of the integrator comparison (appendix C) its plan summary and the medians of its plans'
+    open-loop Drake integrations (``integration_summary``), plus the per-via-point medians of plan and
+    integration (``via_plan``, ``via_drake``: term -> m)."""
+    from stages.evaluate.summary import integration_summary, median
+
+    rows = []
+    for v in exp.integrators:
+        runs = [p for p in integrators if p["variant"] == v]
+        if not runs:
+            continue
+        row = summarize(integrators, v, cache)
+        row.update(integration_summary([p["integration"].metrics for p in runs]))
+        for key, src in (("via_plan", lambda p: p["outcome"].metrics), ("via_drake", lambda p: p["integration"].metrics)):
+            errs = [src(p).get("via_point_errors") or {} for p in runs]
+            terms = list(dict.fromkeys(k for e in errs for k in e))
+            row[key] = {t: median(np.array([math.inf if e.get(t) is None else e[t] for e in errs], float))
+                        for t in terms}
+        rows.append(row)
+    return rows
+
+
+INTEGRATOR_TEXT = (
+    "Appendix C's three discretizations of the pseudo-dynamics qddot = u (A = [[1, tau], [0, 1]] per joint; B = [0; "
+    "tau] Euler, [tau^2; tau] backward Euler, raico's and the thesis's default, [tau^2/2; tau] Heun), each planned by "
+    "the same solver from the same initial states (backward Euler: the figure's own runs of those states). "
+    "**Drake's integration**: the plan's controls (joint accelerations) held over each planning step, open loop, on "
+    "Drake's continuous arm through computed torque (inverse dynamics at every derivative evaluation), integrated by "
+    "runge_kutta3 at a fixed 1 ms step (`execute --open-loop`). Under a held acceleration Drake's trajectory is "
+    "q + tau qdot + tau^2/2 u per step, which is Heun's model: its error is round-off; backward Euler's and Euler's "
+    "positions drift by tau/2 times the velocity change so far (opposite signs). The executions of raico "
+    "(`execute` without --open-loop) close the loop with the plan's feedback controller, which corrects such a drift.")
+
+
+def markdown_integrators(rows: list[dict]) -> str:
+    terms = list(dict.fromkeys(t for r in rows for t in r.get("via_plan", {})))
+    out = ["| variant | runs | diverged | final cost | " + " | ".join(f"{t} planned (m)" for t in terms)
+           + " | " + " | ".join(f"{t} Drake (m)" for t in terms) + " | RMS joint error vs Drake (rad), median (max) | "
+           "largest joint error vs Drake (rad) | wall time (s) |", "|" + "---|" * (7 + 2 * len(terms))]
+    out += [f"| {r['label']} | {r['runs']} | {r['diverged']} | {_fmt(r['final_cost_median'])} | "
+            + " | ".join(_fmt(r["via_plan"].get(t)) for t in terms) + " | "
+            + " | ".join(_fmt(r["via_drake"].get(t)) for t in terms)
+            + f" | {_fmt(r['integration_rmse_median'])} ({_fmt(r['integration_rmse_max'])}) | "
+            f"{_fmt(r['integration_max_error_median'])} | {_fmt(r['wall_time_median_s'])} |" for r in rows]
+    return "\n".join(out) + "\n\n(medians over the initial states)"
 
 
 def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
@@ -603,16 +654,21 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
-    rows = claims_table(exp, result["plans"], result["executions"], cache)
+    integ = result.get("integrators") or []
+    rows = claims_table(exp, result["plans"], result["executions"], cache, integ)
     summary = summary_table(exp, result["plans"], cache)
+    integ_rows = integrator_table(exp, integ, cache)
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,
              "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd")}
-            for p in result["plans"]]
+            for p in result["plans"] + integ]
+    integ_runs = [{"variant": p["variant"].label, "seed": p["seed"], "plan": p["outcome"].key,
+                   "integration": p["integration"].key, "status": p["integration"].status} for p in integ]
     execs = [{"key": e.key, "recording": str(Path(e.path) / "recording.rrd"), **{
         k: v for k, v in e.metrics.items() if k != "via_point_errors"}} for e in result["executions"]]
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
-           "runs": runs, "executions": execs, "noise": noise_rows}
+           "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
+           "integrator_runs": integ_runs}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
@@ -631,6 +687,11 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                    "thresholds: README, section Execution."]
         md += [""]
     md += noise_md
+    if integ_rows:
+        md += ["## Pseudo-dynamics integrators (appendix C)", "", INTEGRATOR_TEXT, "", markdown_integrators(integ_rows),
+               "", "Drake's integrations (execute entries, not recorded; `raico execute --plan KEY --open-loop` "
+               "records one from the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['integration']}`"
+                                                          for r in integ_runs), ""]
     md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")
     return doc

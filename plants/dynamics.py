@@ -99,19 +99,32 @@ class LinearDynamics(_TrajectoryByPoints):
                 np.broadcast_to(self.B, (T, *self.B.shape)).copy())
 
 
-class PseudoDynamics(LinearDynamics):
-    """Thesis pseudo-dynamics: controls are joint accelerations, backward Euler (appendix C.2).
+# Appendix C's three discretizations of qddot = u: A = [[I, dt I], [0, I]] for all; B's position block is
+# dt^2 times this coefficient (its velocity block is dt I). Backward Euler (C.2, q' = q + dt qdot') is the
+# thesis's choice and raico's default; Heun (C.3, q' = q + dt/2 (qdot + qdot')) is exact for an acceleration
+# held over the step; Euler (C.1, q' = q + dt qdot) leaves the position one step behind the control.
+PSEUDO_SCHEMES = {"backward-euler": 1.0, "euler": 0.0, "heun": 0.5}
 
-    ``A = [[I, dt I], [0, I]]``, ``B = [[dt^2 I], [dt I]]``, ``a = 0``.
+
+class PseudoDynamics(LinearDynamics):
+    """Thesis pseudo-dynamics: controls are joint accelerations (appendix C).
+
+    ``A = [[I, dt I], [0, I]]``, ``B = [[c dt^2 I], [dt I]]``, ``a = 0`` with ``c`` of
+    :data:`PSEUDO_SCHEMES`: 1 for backward Euler (C.2, the default and the thesis's), 0 for Euler
+    (C.1), 1/2 for Heun (C.3).
     """
 
-    def __init__(self, n_q: int, dt: float):
+    def __init__(self, n_q: int, dt: float, scheme: str = "backward-euler"):
+        if scheme not in PSEUDO_SCHEMES:
+            raise ValueError(f"unknown pseudo-dynamics scheme '{scheme}': choose one of {', '.join(PSEUDO_SCHEMES)}")
         I = np.eye(n_q)
         Z = np.zeros((n_q, n_q))
         A = np.block([[I, dt * I], [Z, I]])
-        B = np.vstack([dt * dt * I, dt * I])
+        c = PSEUDO_SCHEMES[scheme]
+        B = np.vstack([c * dt * dt * I, dt * I])  # c = 1: exactly the former dt * dt * I (1.0 * dt == dt)
         super().__init__(A=A, a=np.zeros(2 * n_q), B=B, dt=dt)
         self.n_q = n_q
+        self.scheme = scheme
 
 
 class SemiImplicitEuler:

@@ -2,7 +2,8 @@
 
 ``make_dynamics(kind, robot, dt, params)`` builds a registered model; a model registers once
 with :func:`register_dynamics` (name, builder, one-line description, whether it needs fitted
-parameters). Built-ins: ``pseudo`` and ``analytic``. A new model (e.g. ``learned``, whose
+parameters). Built-ins: ``pseudo`` (backward Euler; ``pseudo-euler`` and ``pseudo-heun``, appendix C's
+other two schemes) and ``analytic``. A new model (e.g. ``learned``, whose
 builder takes the GP's fitted arrays as ``params``) is added by one ``register_dynamics`` call
 at the end of this module; its own module must not import this one (no import cycle). Every
 registered model is checked against finite differences by ``tests/test_derivatives.py``.
@@ -95,3 +96,19 @@ register_dynamics("analytic-fd", _build_analytic_fd,
 register_dynamics("learned", build_learned,
                   "GP mean of qddot = f(q, qdot, u) (a fit artifact's model), semi-implicit Euler, "
                   "controls are torques", needs_params=True, example_params=example_params)
+
+
+def _pseudo_scheme(scheme: str) -> Builder:
+    def build(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> Dynamics:
+        return PseudoDynamics(robot.n_q, dt, scheme)
+
+    return build
+
+
+# appendix C's other two pseudo-dynamics ("We compared all methods, and could not find any significant difference in
+# terms of accuracy"): an ablation beside the backward Euler of "pseudo"
+register_dynamics("pseudo-euler", _pseudo_scheme("euler"),
+                  "pseudo-dynamics with Euler's method (appendix C.1: q' = q + dt qdot, B = [0; dt]); an ablation")
+register_dynamics("pseudo-heun", _pseudo_scheme("heun"),
+                  "pseudo-dynamics with Heun's method (appendix C.3: q' = q + dt/2 (qdot + qdot'), B = [dt^2/2; dt], "
+                  "exact for an acceleration held over the step); an ablation")

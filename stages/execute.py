@@ -26,6 +26,13 @@ Execution models:
   arms, Drake's ``runge_kutta5`` at a fixed step of at most 1 ms (its +-100 rad joint range is
   no physical limit; its +-10 N m bound is the swing-up task's control limit: saturation is
   reported, ``torque_saturation``, but is no ``limits`` status).
+- **open loop** (``--open-loop``, arms and pendulum; appendix C's integration check): the plan's
+  controls ``U`` held per planning step without feedback on the continuous plant (no joint
+  limits), ``runge_kutta3`` at a fixed step of at most 1 ms (half the cost of ``runge_kutta5``, the
+  same trajectory to 1e-15 rad on arm5's plans); pseudo-dynamics plans through computed torque at every
+  derivative evaluation, so Drake integrates ``qddot = u`` held over each step (Heun's
+  pseudo-dynamics, appendix C.3, is exact for it). ``X`` against ``X_plan`` is then the error of
+  the plan's own discretization.
 
 Noise (``--x0-noise`` rad on the initial joint angles, clipped to the joint limits;
 ``--process-noise`` N m, a torque drawn per planning step and joint actuator) acts on every
@@ -70,13 +77,17 @@ class ExecuteConfig(StageConfig):
     INPUT_STAGES = {"plan": "plan"}
     HELP = {"plan": "Key (or prefix) of a plan artifact.", "x0_noise": "Std of initial joint-angle noise (rad).",
             "process_noise": "Std of torque noise per planning step and joint (N m).",
-            "clip_torques": "Clip the logged torques at the effort limits (arms, pendulum)."}
+            "clip_torques": "Clip the logged torques at the effort limits (arms, pendulum).",
+            "open_loop": "Integration check (arms, pendulum; appendix C): the plan's controls U applied open loop (no "
+                         "feedback, no noise) to Drake's continuous plant (no joint limits), runge_kutta3 at a fixed "
+                         "step of at most 1 ms; how far Drake's integration of the planned controls is from the plan."}
 
     plan: str | None = None  # key, key prefix or plan/KEY of the plan to execute
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
     process_noise: float = 0.0  # N m, std of torque noise per planning step
     seed: int = 0
     clip_torques: bool = True
+    open_loop: bool = False  # the integration check of appendix C (see HELP)
 
     def validate(self) -> None:
         if not 0 <= self.x0_noise <= 1.0:
@@ -87,6 +98,8 @@ class ExecuteConfig(StageConfig):
             raise ValueError("execute needs --plan KEY")
         if not 0 <= self.seed < 2**32:
             raise ValueError("seed must be in [0, 2^32 - 1]")
+        if self.open_loop and (self.x0_noise > 0 or self.process_noise > 0):
+            raise ValueError("--open-loop integrates the plan's own controls: no x0-noise or process-noise")
 
 
 @dataclass
@@ -127,7 +140,11 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     plant, P = robot.plant, robot.P
     n_plant = plant.num_positions()
     Pinv = np.linalg.pinv(P)
-    o, O = plan["o"], plan["O"]
+    if cfg.open_loop:  # the planned controls themselves, no feedback
+        o = np.asarray(plan["U"], float)
+        O = np.zeros((*o.shape, 2 * robot.n_q))
+    else:
+        o, O = plan["o"], plan["O"]
     T = o.shape[0]
     effort = P @ robot.effort
     ctx_id = plant.CreateDefaultContext()
@@ -197,14 +214,16 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
 
     dt, T = float(desc["dt"]), int(desc["T"])
     name = desc["plant"]
-    robot = load_robot(name, time_step=ARM_TIME_STEP if name in DISCRETE else 0.0)
+    discrete = name in DISCRETE and not cfg.open_loop
+    robot = load_robot(name, time_step=ARM_TIME_STEP if discrete else 0.0)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
     robot.builder.Connect(ctrl.get_output_port(0), robot.plant.get_actuation_input_port())
     sim = Simulator(robot.builder.Build())
-    if name not in DISCRETE:
-        integ = ResetIntegratorFromFlags(sim, "runge_kutta5", dt / math.ceil(dt / MAX_STEP - 1e-9))
+    if not discrete:
+        integ = ResetIntegratorFromFlags(sim, "runge_kutta3" if cfg.open_loop else "runge_kutta5",
+                                         dt / math.ceil(dt / MAX_STEP - 1e-9))
         integ.set_fixed_step_mode(True)
     pctx = robot.plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
     robot.plant.SetPositions(pctx, robot.to_plant_q(q_start))
@@ -426,7 +445,9 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
     cfg.validate()
     problem = objective_from_description(desc)
     nao = desc["plant"] == "nao"
-    needed = ("X", "U") if nao else ("X", "o", "O")
+    if nao and cfg.open_loop:
+        raise ValueError("--open-loop is the arms' and the pendulum's integration check; the Nao stands on its feet")
+    needed = ("X", "U") if nao or cfg.open_loop else ("X", "o", "O")
     if not all(np.all(np.isfinite(plan[k])) for k in needed):
         return _not_executed(desc, plan, problem, "the plan is not finite: not executed")
     rng = np.random.default_rng(cfg.seed)

@@ -269,7 +269,9 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
-    assert doc2["cached_runs"] == doc2["runs"] == 8
+    from pipeline.experiments import EXPERIMENTS
+
+    assert doc2["cached_runs"] == doc2["runs"] == EXPERIMENTS["fig3.2a"].run_count(True)  # 10 with the reference run
 
 
 def test_evaluate_plan_and_rollout(tmp_path):

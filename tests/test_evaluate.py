@@ -41,7 +41,26 @@ def table(**rows):
     return {names[k]: S_(names[k], **v) if isinstance(v, dict) else S_(names[k], v) for k, v in rows.items()}
 
 
+def integ(costs=(16.0, 16.1, 16.05), vias=(0.0086, 0.0085, 0.00855), diverged=(0, 0, 0), solvers=("R-AICO a=1", "AICO")):
+    """Synthetic rows of the integrator comparison (appendix C): per solver, backward Euler, Euler and Heun with a
+    median final cost, a median via-point error of Drake's open-loop integration (m) and divergences."""
+    out = {}
+    for solver in solvers:
+        for name, c, v, d in zip(("backward Euler", "Euler", "Heun"), costs, vias, diverged):
+            label = f"{solver}, {name} pseudo-dynamics"
+            out[label] = {**S_(label, c, diverged=d, runs=5), "integration_via_error_median": v,
+                          "integration_rmse_median": 2e-4 if name != "Heun" else 1e-15}
+    return out
+
+
 CASES = [
+    # appendix C: no significant difference = costs within 10 %, Drake-integrated via-point medians within 1 mm
+    ("integrators_agree", integ(), True),
+    ("integrators_agree", integ(costs=(16.0, 18.0, 16.0)), False),  # Euler's cost 12.5 % higher
+    ("integrators_agree", integ(vias=(0.0086, 0.0099, 0.0085)), False),  # 1.4 mm apart
+    ("integrators_agree", integ(diverged=(0, 1, 0)), False),
+    ("integrators_agree", {k: v for k, v in integ().items() if "Heun" not in k}, False),  # Heun not run
+    ("integrators_agree", table(r1=100, aico=100), False),  # no comparison at all (--quick)
     # converged: flat at the end and within 1.5x the reference optimum (the lowest median of any solver)
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=150), True),
     ("raico_converges", table(ilqg=100, aico=100, r1=120, r10=160), False),  # 1.6x the reference
@@ -313,7 +332,7 @@ def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
     assert set(THESIS) == set(CLAIMS)
     for name, text in THESIS.items():
         assert text.startswith(BEYOND) or ('"' in text and text[:4] in ("§3.4", "§3.5", "§3.6", "§4.4", "§4.5",
-                                                                        "Fig.")), name
+                                                                        "Fig.", "Appe")), name
 
 
 def test_decay_fit_recovers_the_rate_and_flat_curves():
@@ -363,3 +382,18 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
         keys[e.id] = key(cfg)
         assert key(replace(cfg, q0_std=0.1)) != keys[e.id] and key(replace(cfg, seed=1)) != keys[e.id]
     assert len(set(keys.values())) == len(keys)  # a problem of its own per figure
+
+
+def test_integration_summary_and_integrator_groups():
+    from stages.evaluate.claims import integrator_groups
+    from stages.evaluate.summary import integration_summary
+
+    ms = [{"rmse_planned_executed": 1e-4, "max_tracking_error": 3e-4, "via_point_errors": {"a@1": 0.002, "b@2": 0.004}},
+          {"rmse_planned_executed": 3e-4, "max_tracking_error": 5e-4, "via_point_errors": {"a@1": 0.001, "b@2": 0.008}},
+          {"rmse_planned_executed": math.inf, "max_tracking_error": math.inf, "via_point_errors": {"a@1": None}}]
+    s = integration_summary(ms)
+    assert s["integration_runs"] == 3 and s["integration_rmse_median"] == pytest.approx(2e-4)
+    assert s["integration_rmse_max"] == math.inf  # a lost integration is not hidden in the maximum
+    assert s["integration_max_error_median"] == pytest.approx(4e-4) and s["integration_via_error_median"] == 0.006
+    g = integrator_groups({**integ(solvers=("AICO",)), "R-AICO a=1": {}, "AICO, finite differences": {}})
+    assert list(g) == ["AICO"] and list(g["AICO"]) == ["backward Euler", "Euler", "Heun"]

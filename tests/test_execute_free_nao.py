@@ -119,3 +119,33 @@ def test_arm_execution_enforces_joint_limits_and_reports_them():
     assert set(m["limited_joints"]) == {"forearm_roll"}
     others = [i for i in range(arm.n_q) if i != j]
     assert np.abs(out.X[:, others] - Q[:, others]).max() < 0.05
+
+
+def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
+    """Appendix C's integration check: the planned accelerations held per step, open loop, on Drake's continuous
+    arm through computed torque: Drake's trajectory is Heun's pseudo-dynamics rollout (exact for a held
+    acceleration) to round-off, and backward Euler's / Euler's drift by dt/2 times the velocity change."""
+    from plants.dynamics import PseudoDynamics, rollout
+
+    arm = shared_robot("arm5")
+    T, dt, n = 200, 0.002, arm.n_q
+    t = np.arange(T) * dt
+    U = np.stack([1.5 * np.sin(2 * np.pi * t / (T * dt) + k) for k in range(n)], axis=1)  # rad/s^2
+    x0 = np.r_[arm.default_q, np.zeros(n)]
+    errs = {}
+    for scheme in ("heun", "backward-euler", "euler"):
+        X = rollout(PseudoDynamics(n, dt, scheme), x0, U)
+        plan = {"X": X, "U": U, "o": np.full_like(U, np.nan), "O": np.full((T, n, 2 * n), np.nan)}
+        out = execute(ExecuteConfig(plan="p", open_loop=True), desc_for("arm5", arm.default_q, T, dt), plan)
+        assert out.metrics["status"] == "ok" and np.all(np.isfinite(out.X))
+        assert np.allclose(out.U, U)  # the planned controls themselves, no feedback (o, O not even finite)
+        errs[scheme] = np.abs(out.X[:, :n] - X[:, :n]).max(axis=0)
+    assert errs["heun"].max() < 1e-8
+    drift = dt / 2 * np.abs(U.sum(axis=0) * dt)  # |q_scheme - q_exact| at the end: dt/2 |v_T - v_0|
+    for scheme in ("backward-euler", "euler"):
+        assert errs[scheme].max() > 1e-5 and np.all(errs[scheme] >= drift - 1e-8)
+    with pytest.raises(ValueError, match="no x0-noise or process-noise"):
+        ExecuteConfig(plan="p", open_loop=True, x0_noise=0.01).validate()
+    with pytest.raises(ValueError, match="the Nao stands on its feet"):
+        execute(ExecuteConfig(plan="p", open_loop=True), desc_for("nao", shared_robot("nao").default_q, 2, 0.01),
+                {"X": np.zeros((3, 50)), "U": np.zeros((2, 25))})

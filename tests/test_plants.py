@@ -274,3 +274,27 @@ def test_biorob_actuator_facts_reach_drake():
     v[j] = 3.0  # a spinning roll: no damping torque, no change in its acceleration
     assert dyn.qddot(q, v, u)[j] == pytest.approx(acc[j] + g[j], rel=1e-9)
     assert [r.plant.GetJointByName(n).default_damping() for n in r.joint_names] == [0.0] * r.n_q
+
+
+def test_pseudo_dynamics_schemes_of_appendix_c():
+    """Euler (C.1), backward Euler (C.2, the default) and Heun (C.3) differ only in B's position block:
+    0, dt^2 and dt^2/2; Heun's step is the exact motion under an acceleration held over the step."""
+    from plants.dynamics import PSEUDO_SCHEMES
+
+    dt = 0.1
+    for scheme, top in (("euler", 0.0), ("backward-euler", dt * dt), ("heun", dt * dt / 2)):
+        A, a, B = PseudoDynamics(2, dt, scheme).linearize(np.zeros(4), np.zeros(2))
+        assert np.allclose(A, [[1, 0, .1, 0], [0, 1, 0, .1], [0, 0, 1, 0], [0, 0, 0, 1]]) and not a.any()
+        assert np.array_equal(B, np.vstack([top * np.eye(2), dt * np.eye(2)])), scheme
+    assert set(PSEUDO_SCHEMES) == {"euler", "backward-euler", "heun"}
+    # the default is bit for bit the former backward Euler
+    assert np.array_equal(PseudoDynamics(5, 0.002).B, np.vstack([0.002 * 0.002 * np.eye(5), 0.002 * np.eye(5)]))
+    x, u = np.array([0.3, -0.2, 1.0, 0.5]), np.array([2.0, -3.0])
+    exact = np.r_[x[:2] + dt * x[2:] + dt * dt / 2 * u, x[2:] + dt * u]  # q(t + dt) under qddot = u held
+    assert np.allclose(PseudoDynamics(2, dt, "heun").step(x, u), exact)
+    arm = shared_robot("arm5")
+    for name, scheme in (("pseudo", "backward-euler"), ("pseudo-euler", "euler"), ("pseudo-heun", "heun")):
+        d = make_dynamics(name, arm, 0.01)
+        assert isinstance(d, PseudoDynamics) and d.scheme == scheme
+    with pytest.raises(ValueError, match="^unknown pseudo-dynamics scheme 'rk4'"):
+        PseudoDynamics(2, dt, "rk4")

@@ -70,6 +70,19 @@ def summarize(label: str, runs: list[dict]) -> dict:
             "wall_time_median_s": median(col("wall_time_s"))}
 
 
+def integration_summary(metrics: list[dict]) -> dict:
+    """Medians over a variant's open-loop Drake integrations (``execute --open-loop``; their metrics): RMS and
+    largest joint-position error against the plan (rad), largest via-point error of Drake's trajectory (m)."""
+    def col(key: str) -> np.ndarray:
+        return np.array([math.nan if m.get(key) is None else m[key] for m in metrics], float)
+
+    rmse = col("rmse_planned_executed")
+    return {"integration_runs": len(metrics), "integration_rmse_median": median(rmse),
+            "integration_rmse_max": float(np.max(rmse)) if rmse.size else math.nan,
+            "integration_max_error_median": median(col("max_tracking_error")),
+            "integration_via_error_median": median(np.array([largest_via_error(m) for m in metrics], float))}
+
+
 def _curves(runs: list[dict], key: str) -> np.ndarray:
     """``(runs, episodes)`` of a per-episode list in each run's learn metrics (NaN-padded; None -> NaN)."""
     rows = [[math.nan if v is None else float(v) for v in (m.get(key) or [])] for m in runs]

@@ -23,7 +23,7 @@ from stages.plan.problem import Problem, Result
 from stages.plan.solvers import SOLVERS, make_options, solve
 from stages.plan.tasks import TASKS, TaskSpec, get_task
 
-DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned")
+DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
 PLAN_FILE = "plan.npz"
 PROBLEM_FILE = "problem.json"
 
@@ -44,8 +44,9 @@ class PlanConfig(StageConfig):
     INPUT_STAGES = {"model": "fit", "warm_start": "plan"}
     HELP = {"plant": "pendulum, arm5, biorob or nao.",
             "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",
-            "dynamics": "pseudo (controls = accelerations), analytic (Drake, torques), analytic-fd (the same, "
-                        "linearized by finite differences) or learned (GP of --model).",
+            "dynamics": "pseudo (controls = accelerations, backward Euler), analytic (Drake, torques), analytic-fd "
+                        "(the same, linearized by finite differences), learned (GP of --model), or pseudo-euler / "
+                        "pseudo-heun (appendix C's other pseudo-dynamics).",
             "solver": "aico, raico or ilqg.", "alpha": "R-AICO regularization alpha (raico only).",
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
             "q0_std": "Std of q0 around the default posture (rad).",
