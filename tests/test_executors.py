@@ -155,8 +155,17 @@ def test_work_order_is_longest_first():
 
 
 # ----------------------------------------------------------------------------- a real figure on Ray
-PROGRESS = re.compile(r"raico: fig3\.2a plan (\d+)/8 done \((iLQG|AICO|R-AICO a=1|R-AICO a=10) seed [01], "
-                      r"\d+\.\d s\)")
+def _quick_runs() -> int:
+    """fig3.2a's plan runs with --quick (two initial states per variant; the experiment says which)."""
+    from pipeline.experiments import EXPERIMENTS
+
+    exp = EXPERIMENTS["fig3.2a"]
+    return sum(v.seed_count(exp.seeds, True) for v in exp.variants)
+
+
+N = _quick_runs()
+PROGRESS = re.compile(rf"raico: fig3\.2a plan (\d+)/{N} done \((iLQG|AICO|R-AICO a=1|R-AICO a=10|R-AICO adaptive "
+                      r"\(a0=1\)) seed [01], \d+\.\d s\)")
 
 
 def _reproduce(root: Path, *args: str):
@@ -199,14 +208,14 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     by_process = _reproduce(tmp_path / "process", "--executor", "process", "--jobs", "2")
     lines = [ln for ln in by_process.stderr.splitlines() if ln.strip()]
     progress = [ln for ln in lines if PROGRESS.fullmatch(ln)]
-    assert sorted(int(PROGRESS.fullmatch(ln).group(1)) for ln in progress) == list(range(1, 9)), lines
-    assert len(lines) == 9 and lines[-1].startswith("fig3.2a: 8 runs (0 cached) in ")  # and nothing else
+    assert sorted(int(PROGRESS.fullmatch(ln).group(1)) for ln in progress) == list(range(1, N + 1)), lines
+    assert len(lines) == N + 1 and lines[-1].startswith(f"fig3.2a: {N} runs (0 cached) in ")  # and nothing else
     by_ray = _reproduce(tmp_path / "ray", "--executor", "ray", "--quiet")
     assert by_ray.stderr == ""  # --quiet: no progress lines
     plans = _plans(tmp_path / "process")
-    assert len(plans) == 8 and _plans(tmp_path / "ray") == plans
+    assert len(plans) == N and _plans(tmp_path / "ray") == plans
     assert _claims(tmp_path / "ray") == _claims(tmp_path / "process")
     again = _reproduce(tmp_path / "ray", "--executor", "ray")  # cached: nothing submitted, no progress line
-    assert json.loads(again.stdout.splitlines()[-1])["cached_runs"] == 8
-    assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith("fig3.2a: 8 runs (8 cached)")
+    assert json.loads(again.stdout.splitlines()[-1])["cached_runs"] == N
+    assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith(f"fig3.2a: {N} runs ({N} cached)")
     assert not any(PROGRESS.fullmatch(ln) for ln in again.stderr.splitlines())
