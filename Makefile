@@ -24,16 +24,16 @@ $(STAMP): pyproject.toml
 # a name for it (older instructions say `make install anchors`).
 anchors: install
 
-# The AICO sweep kernel (stages/plan/csweep.c, loaded by stages/plan/kernels.py; the plants'
+# The AICO sweep kernel (planning/csweep.c, loaded by planning/kernels.py; the plants'
 # generated C is built on first use). Built by the one build helper (plants/codegen/c_backend.py)
-# with stages/plan/kernels.py's FLAGS for this host's CPU into the kernel cache
+# with planning/kernels.py's FLAGS for this host's CPU into the kernel cache
 # (RAICO_KERNEL_DIR, default ~/.cache/raico/kernels; the flags are part of the file's key, so an
 # AVX2/FMA build is never loaded on a CPU without them). A failed build stops make; without gcc
 # it says so and the numpy sweeps run.
 kernels: $(KERNEL)
 
-$(KERNEL): stages/plan/csweep.c stages/plan/kernels.py plants/codegen/c_backend.py $(STAMP)
-	$(BIN)/python -m stages.plan.kernels
+$(KERNEL): planning/csweep.c planning/kernels.py plants/codegen/c_backend.py $(STAMP)
+	$(BIN)/python -m planning.kernels
 	touch $(KERNEL)
 
 test: $(STAMP) $(KERNEL)
@@ -52,7 +52,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check pipeline plants stages tests bench scripts
+	$(BIN)/ruff check pipeline plants planning stages tests bench scripts
 
 clean:
 	rm -rf $(VENV) .pytest_cache

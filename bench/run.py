@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cache import package_versions, write_file_atomic
-from stages.plan.solvers import solve
+from planning.solvers import solve
 from stages.plan.stage import PlanConfig, build_problem
 
 
@@ -40,7 +40,7 @@ def bench_solver_total(plant, task, dynamics, solver, options, reps) -> list[flo
 def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[float]:
     """Wall time (s) of whole solver runs spent inside the sweeps (``_Sweeps.sweep``: the compiled
     kernel and its Python driver), the rest being linearization, rollouts and costs in Python."""
-    from stages.plan.aico import _Sweeps
+    from planning.aico import _Sweeps
 
     times, inner = [], [0.0]
     original = _Sweeps.sweep
@@ -216,7 +216,7 @@ def bench_baseline(task: str = "reach") -> dict:
     """raico (R-AICO, iLQG) against crocoddyl FDDP on thesis fig3.2c (``task="reach"``): per-iteration
     time, time to reach R-AICO's 25-iteration cost (+10 %), and cost at R-AICO's 25-iteration wall time,
     with ratios. One run per solver (seed 0) in this process; iteration times are the solvers' own."""
-    from stages.plan.solvers import SOLVERS
+    from planning.solvers import SOLVERS
 
     if "fddp" not in SOLVERS:
         return {"skipped": "crocoddyl not installed (the extra raico[baseline]: make install)"}

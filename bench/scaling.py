@@ -42,9 +42,9 @@ ITERATIONS = 4
 
 def _problem(plant: str, task: str, dynamics: str, T: int):
     """The task's problem at horizon ``T`` (via-point times are fractions of ``T``; seed 0)."""
+    from planning.objective import build_terms
+    from planning.problem import Problem
     from plants.registry import make_dynamics
-    from stages.plan.objective import build_terms
-    from stages.plan.problem import Problem
     from stages.plan.stage import control_kind, initial_posture, shared_robot
     from stages.plan.tasks import get_task
 
@@ -59,7 +59,7 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
 
 def seconds_per_iteration(plant: str, task: str, dynamics: str, T: int, solver: str, reps: int = 2) -> float:
     """Median wall time (s) of one iteration of ``solver`` (``ITERATIONS`` iterations per run)."""
-    from stages.plan.solvers import solve
+    from planning.solvers import solve
     from stages.plan.stage import PlanConfig
 
     opts = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, iterations=ITERATIONS).solver_options()
@@ -103,7 +103,7 @@ def run(out_dir: Path | None = None) -> list[dict]:
     """The three sweeps as result rows (and ``scaling.png`` in ``out_dir``)."""
     from threadpoolctl import threadpool_limits
 
-    from stages.plan.crocoddyl_model import AVAILABLE
+    from planning.crocoddyl_model import AVAILABLE
 
     rows, curves = [], {}
     with threadpool_limits(1):

@@ -62,7 +62,7 @@ BASELINE_LABELS = {"fddp": FDDP_HELD, "fddp-rollout": FDDP_ROLLOUT, "fddp-rollou
 
 
 def _baseline_available() -> bool:
-    from stages.plan.crocoddyl_model import AVAILABLE
+    from planning.crocoddyl_model import AVAILABLE
 
     return AVAILABLE
 

@@ -110,8 +110,8 @@ def record_babble(folder: Path, art, inputs: list) -> None:
 def record_plan(folder: Path, art, inputs: list) -> None:
     """The planned motion, task values against their via-points, controls and cost per iteration
     (see the module docstring)."""
+    from planning.objective import objective_from_description
     from plants.robots import shared_robot
-    from stages.plan.stage import objective_from_description
 
     cfg = art.config
     d = art.arrays("plan.npz")
@@ -252,8 +252,8 @@ def record_execute(folder: Path, art, inputs: list) -> None:
     and a log entry at the moment of failure on ``sim_time``) and, for the free-standing Nao, the
     robot in the world, its contact points, the contact-based support polygon and the CoG's ground
     projection."""
+    from planning.objective import objective_from_description
     from plants.robots import shared_robot
-    from stages.plan.stage import objective_from_description
 
     plan = _input(inputs, "plan")
     desc = plan.document("problem.json")

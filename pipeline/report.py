@@ -580,8 +580,8 @@ def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
     the term's value on the final plan (the objective rebuilt from the run's ``problem.json``; terms
     that need a learned model left out). Their sum is the run's final cost."""
     from pipeline.runner import as_artifact
+    from planning.objective import objective_from_description
     from stages.evaluate.summary import median
-    from stages.plan.stage import objective_from_description
 
     values: dict[str, list[float]] = {}
     for p in plans:

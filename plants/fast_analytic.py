@@ -302,7 +302,7 @@ class FastAnalyticDynamics(SemiImplicitEuler):
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
         """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0`` (the same as
-        :func:`stages.plan.problem.controller_rollout` on this model; compiled when available)."""
+        :func:`planning.problem.controller_rollout` on this model; compiled when available)."""
         c = self._compiled()
         if c is not None:
             return c.controller_rollout(x0, o, O)

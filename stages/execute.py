@@ -58,10 +58,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planning.objective import objective_from_description
 from plants.robots import Robot, load_robot
 from stages.base import Artifact, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import execution_metrics, padded_polygons, support_polygons, via_point_errors
-from stages.plan.stage import PLAN_FILE, PROBLEM_FILE, objective_from_description
+from stages.plan.stage import PLAN_FILE, PROBLEM_FILE
 
 ROLLOUT_FILE = "rollout.npz"
 MAX_STEP = 1e-3  # s, integrator step bound (continuous pendulum)
@@ -470,7 +471,7 @@ def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int
 
 
 STAGE = Stage(name="execute", config_cls=ExecuteConfig, run=run,
-              sources=("plants", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+              sources=("plants", "planning", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"),
               data_files=(ROLLOUT_FILE,),
               description="Execute a plan in Drake's Simulator: the free-standing Nao (joint PD + inverse-dynamics "
                           "feed-forward) or the arm with the plan's feedback controller; status ok, limits, "

@@ -1,6 +1,6 @@
 """The optimized AICO / R-AICO sweeps equal a literal reference implementation (SPEC §6).
 
-``stages.plan.aico`` skips work that cannot change a result (relinearizing what does not
+``planning.aico`` skips work that cannot change a result (relinearizing what does not
 depend on the state, recomputing unchanged beliefs and backward messages, shared LTI
 matrices), batches task-map evaluations and uses fused BLAS/LAPACK kernels. ``Reference``
 below is Algorithm 1 written straight from the formulas, with dense ``np.linalg.solve``
@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
+from planning.aico import AICOOptions, aico
+from planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
+from planning.problem import Problem, controller_rollout
 from plants.dynamics import PseudoDynamics
-from stages.plan.aico import AICOOptions, aico
-from stages.plan.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
-from stages.plan.problem import Problem, controller_rollout
 from tests.toys import PlanarArm
 
 N_Q, T, DT = 3, 40, 0.02

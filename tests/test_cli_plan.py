@@ -26,11 +26,11 @@ def ee_positions(robot, Q):
 
 
 def test_plan_and_execute_arm5_pseudo(tmp_path):
+    from planning.aico import AICOOptions
+    from planning.objective import objective_from_description
+    from planning.problem import Problem
     from plants.dynamics import PseudoDynamics
     from plants.robots import shared_robot
-    from stages.plan.aico import AICOOptions
-    from stages.plan.problem import Problem
-    from stages.plan.stage import objective_from_description
 
     line = run_json("plan", "--plant", "arm5", "--task", "reach", "--solver", "raico", "--alpha", 1,
                     "--iterations", 8, "--json", "--artifacts", tmp_path)
@@ -127,8 +127,8 @@ SOLVER_NAMES = ["aico", "raico", "ilqg", "fddp-rollout"]
 def test_every_solver_stores_its_iterates(solver):
     """``X_iterations``: the initial rollout (zero torques, the analytic pendulum falls a little from
     its noisy q0), then each iteration's trajectory as the solver reported it, the last the plan."""
+    from planning.solvers import SOLVERS
     from plants.dynamics import rollout
-    from stages.plan.solvers import SOLVERS
     from stages.plan.stage import PlanConfig, plan
 
     if solver not in SOLVERS:

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
+from planning.problem import Problem
 from plants.dynamics import PseudoDynamics
 from plants.numdiff import check_cost_term, check_taskmap, numdiff_jacobian
-from stages.plan.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
-from stages.plan.problem import Problem
 from tests.toys import PlanarArm
 
 RNG = np.random.default_rng(0)

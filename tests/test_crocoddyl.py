@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.plan import crocoddyl_model as cm
+from planning import crocoddyl_model as cm
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
@@ -121,8 +121,8 @@ def test_what_crocoddyl_cannot_express_is_refused_with_the_reason():
 
 
 def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(built):
-    from stages.plan.problem import controller_rollout
-    from stages.plan.solvers import solve
+    from planning.problem import controller_rollout
+    from planning.solvers import solve
 
     problem, _ = built[("arm5", "reach")]
     for name in ("fddp", "fddp-rollout"):
@@ -141,7 +141,7 @@ def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(
 
 
 def test_options_are_strict():
-    from stages.plan.solvers import make_options
+    from planning.solvers import make_options
 
     with pytest.raises(ValueError, match="unknown FDDPOptions option"):
         make_options("fddp", {"alpha": 1.0})

@@ -3,7 +3,7 @@
 - every dynamics model in ``plants.registry.DYNAMICS`` on every plant (models that need fitted
   parameters are listed and skipped here; their own tests fit them);
 - every task map example in ``plants.taskmaps.TASKMAP_EXAMPLES`` on every plant it applies to;
-- every cost term example in ``stages.plan.costs.COST_TERM_EXAMPLES`` on every plant it applies to.
+- every cost term example in ``planning.costs.COST_TERM_EXAMPLES`` on every plant it applies to.
 
 A model, task map or cost term is checked the moment it is registered. The last tests show
 that each check can fail, and that every class has an example.
@@ -16,8 +16,9 @@ import inspect
 import numpy as np
 import pytest
 
+import planning.costs as costs_module
 import plants.taskmaps as taskmaps_module
-import stages.plan.costs as costs_module
+from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlTerm, StateTerm, ViaPoint
 from plants.dynamics import PseudoDynamics
 from plants.numdiff import (
     check_cost_term,
@@ -30,7 +31,6 @@ from plants.numdiff import (
 from plants.registry import DYNAMICS, make_dynamics
 from plants.robots import PLANTS, shared_robot
 from plants.taskmaps import TASKMAP_EXAMPLES, JointPositions
-from stages.plan.costs import COST_TERM_EXAMPLES, ControlCost, ControlTerm, StateTerm, ViaPoint
 
 DT = 0.01
 

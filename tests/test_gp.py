@@ -403,9 +403,9 @@ def test_subsampling_cap_and_its_measured_cost():
 def test_uncertainty_term_units_raw_is_the_predictive_variance():
     """Thesis eq. 4.3: g = var(x*) in (rad/s^2)^2 ('raw'); 'standardized' divides by the training
     outputs' variance. At sigma* = 0 the raw cost is the standardized one times y_std^4 per output."""
+    from planning.costs import Uncertainty
+    from planning.costs import _uncertainty_example as example
     from plants.robots import shared_robot
-    from stages.plan.costs import Uncertainty
-    from stages.plan.costs import _uncertainty_example as example
 
     robot = shared_robot("arm5")
     raw, std = example(robot, robot.default_q, "raw"), example(robot, robot.default_q, "standardized")

@@ -1,6 +1,6 @@
 """The compiled kernels (speed only) against the numpy / Drake code they replace.
 
-- the AICO sweep kernel (``stages/plan/csweep.c``) against ``_Sweeps``'s numpy code, on every
+- the AICO sweep kernel (``planning/csweep.c``) against ``_Sweeps``'s numpy code, on every
   route it takes: dynamics linearized in Python (``NEED_DYN``), compiled (``dyn_linearize``) or
   never (LTI, sparse shared ``C``); task messages from Python (``NEED_TASK``) or compiled
   (``taskset_eval``); theta = inf;
@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planning import kernels
+from planning.aico import AICOOptions, _Sweeps, aico
 from plants.codegen import c_backend, rbd
 from plants.dynamics import AnalyticDynamics
 from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
 from plants.numdiff import check_dynamics
 from plants.robots import PLANTS, shared_robot
 from plants.taskmaps import TASKMAP_EXAMPLES
-from stages.plan import kernels
-from stages.plan.aico import AICOOptions, _Sweeps, aico
 from stages.plan.stage import PlanConfig, build_problem
 from tests.test_aico_speed_equivalence import make_problem
 
@@ -60,28 +60,28 @@ def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
 
 def test_a_broken_kernel_source_fails_loudly(tmp_path):
     """gcc present and the source broken (a syntax error): the build raises CompileError (never the
-    silent numpy fallback), and so does ``python -m stages.plan.kernels`` (make kernels)."""
+    silent numpy fallback), and so does ``python -m planning.kernels`` (make kernels)."""
     broken = kernels.SOURCE.read_text().replace("sweep_run(", "sweep_run((", 1)
     with pytest.raises(c_backend.CompileError, match="gcc failed on csweep"):
         c_backend.build_library(broken, "csweep", directory=tmp_path, flags=kernels.FLAGS)
     assert not list(tmp_path.glob("*.so"))
     # the build helper of make kernels, on a copy of the package whose csweep.c is broken
     copy = tmp_path / "repo"
-    for pkg in ("plants", "stages"):
+    for pkg in ("plants", "planning"):
         shutil.copytree(REPO / pkg, copy / pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    (copy / "stages" / "plan" / "csweep.c").write_text(broken)
+    (copy / "planning" / "csweep.c").write_text(broken)
     env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(copy)}
     env.pop("RAICO_NO_C", None)
-    p = subprocess.run([sys.executable, "-m", "stages.plan.kernels"], cwd=copy, env=env,
+    p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=copy, env=env,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode != 0 and "CompileError" in p.stderr, p.stderr[-2000:]
 
 
 def test_the_kernel_source_is_package_data():
-    """A wheel or non-editable install has ``stages/plan/csweep.c`` (pyproject's package data)."""
+    """A wheel or non-editable install has ``planning/csweep.c`` (pyproject's package data)."""
     data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    assert "plan/csweep.c" in data["stages"]
-    assert (REPO / "stages" / "plan" / "csweep.c").exists()
+    assert "csweep.c" in data["planning"]
+    assert (REPO / "planning" / "csweep.c").exists()
 
 
 def test_the_kernel_flags_follow_this_cpu():

@@ -1,15 +1,16 @@
 """The layout (issue 20, item 1's acceptance): the floors hold and no module imports itself back.
 
-The imports of the packages ``plants``, ``stages`` and ``pipeline`` are read with ``ast`` (nothing
+The imports of the packages ``plants``, ``planning``, ``stages`` and ``pipeline`` are read with ``ast`` (nothing
 is imported), every ``import`` statement counted, the ones inside functions too (a lazy import
 still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out):
 
-- the floors: ``plants`` imports neither ``stages`` nor ``pipeline``; ``stages`` does not import
-  ``pipeline``;
+- the floors, ``pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
+  ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``;
+- no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl_model``);
 - no import cycle between modules;
 - no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
-  beyond :data:`KNOWN_PACKAGE_LOOPS`, the loops the planning library's move out of ``stages/plan``
-  (issue 20, item 1) removes; a loop that is gone must leave the list.
+  beyond :data:`KNOWN_PACKAGE_LOOPS` (none since the planner moved to ``planning``, issue 20 item 1);
+  a loop that is gone must leave the list.
 
 Run it alone: ``python -m pytest tests/test_layout.py``.
 """
@@ -22,16 +23,12 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("plants", "stages", "pipeline")
+PACKAGES = ("plants", "planning", "stages", "pipeline")
 # package -> the top-level packages it must not import
-FLOORS = {"plants": {"stages", "pipeline"}, "stages": {"pipeline"}}
-# Package-level loops that remain until issue 20, item 1 (the planner as a library on its own
-# floor below the stages) is done; each as the sorted packages of one strongly connected set.
-KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = {
-    # issue 20 item 1: stages/plan/stage.py imports stages/evaluate/metrics.py (via-point errors),
-    # which imports stages/plan/costs.py; via_point_errors moves beside the costs on the planning floor
-    ("stages.evaluate", "stages.plan"),
-}
+FLOORS = {"plants": {"planning", "stages", "pipeline"}, "planning": {"stages", "pipeline"}, "stages": {"pipeline"}}
+# Package-level loops allowed, each as the sorted packages of one strongly connected set (none left).
+KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = set()
+SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl_model")
 
 
 def _modules() -> dict[str, Path]:
@@ -194,10 +191,16 @@ def test_package_loops_only_the_known_ones():
     assert not gone, f"these loops are gone, remove them from KNOWN_PACKAGE_LOOPS: {gone}"
 
 
+def test_no_solver_imports_another():
+    """Solvers share the problem (its rollout, its options contract), never each other's code."""
+    bad = [f"{a} -> {b}" for a in SOLVERS for b in SOLVERS if a != b and b in GRAPH.get(a, set())]
+    assert not bad, f"a solver imports another: {bad}"
+
+
 def test_the_walk_sees_the_known_edges():
     """The walk itself: edges this layout is known to have (so an empty graph cannot pass)."""
-    assert "plants.codegen.c_backend" in GRAPH["stages.plan.kernels"]
-    assert "stages.plan.kernels" in GRAPH["stages.plan.aico"]       # a lazy or module-level import
+    assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
+    assert "planning.kernels" in GRAPH["planning.aico"]       # a lazy or module-level import
     assert "pipeline.cache" in GRAPH["pipeline.cli"]
     assert len(GRAPH) > 50
 
@@ -211,14 +214,14 @@ def test_c_lives_in_c_files_shipped_as_package_data():
 
     root = Path(__file__).resolve().parents[1]
     offenders = []
-    for py in [*root.glob("plants/**/*.py"), *root.glob("stages/**/*.py")]:
+    for py in [*root.glob("plants/**/*.py"), *root.glob("planning/**/*.py"), *root.glob("stages/**/*.py")]:
         for node in ast.walk(ast.parse(py.read_text())):
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.count("\n") > 10 and (
                     "#include" in node.value or ("{" in node.value and "double" in node.value and ";" in node.value)):
                 offenders.append(f"{py.relative_to(root)}:{node.lineno}")
     assert not offenders, f"C source inside Python strings: {offenders}"
     data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    c_files = [*root.glob("plants/**/*.c"), *root.glob("stages/**/*.c")]
+    c_files = [*root.glob("plants/**/*.c"), *root.glob("planning/**/*.c"), *root.glob("stages/**/*.c")]
     assert len(c_files) >= 4
     for c in c_files:
         pkg, rel = c.relative_to(root).parts[0], "/".join(c.relative_to(root).parts[1:])

@@ -39,7 +39,7 @@ def test_source_version_follows_the_source(tmp_path, monkeypatch):
 
 
 def test_source_version_follows_a_compiled_kernel(tmp_path, monkeypatch):
-    """A C kernel shipped in a stage's package (stages/plan/csweep.c) is code: editing it
+    """A C kernel shipped in a stage's package (planning/csweep.c) is code: editing it
     invalidates the cache like editing the Python."""
     pkg = _package(tmp_path, monkeypatch, "fakekernel",
                    {"__init__.py": "X = 1\n", "sweep.c": "int f(void) { return 1; }\n"})

@@ -12,11 +12,11 @@ import itertools
 import numpy as np
 import pytest
 
+from planning.aico import AICOOptions, aico
+from planning.costs import ControlCost, StateTarget
+from planning.ilqg import ILQGOptions, ilqg
+from planning.problem import Problem, controller_rollout
 from plants.dynamics import LinearDynamics
-from stages.plan.aico import AICOOptions, aico
-from stages.plan.costs import ControlCost, StateTarget
-from stages.plan.ilqg import ILQGOptions, ilqg
-from stages.plan.problem import Problem, controller_rollout
 
 N_X, N_U, T = 4, 2, 30
 
@@ -185,7 +185,7 @@ def test_larger_alpha_takes_smaller_first_step():
 @pytest.mark.parametrize("scale", [1e-2, 1e2, 1e4, 3e5, 1e8, 1e11])
 def test_vstar_all_regimes(scale):
     """``V* = (q I + P'^-1)^-1`` and ``V* m'`` in every branch (series and Cholesky)."""
-    from stages.plan.aico import _Sweeps
+    from planning.aico import _Sweeps
 
     sw = _Sweeps(make_lq(), AICOOptions(process_noise=1e-9))
     rng = np.random.default_rng(3)
@@ -222,8 +222,8 @@ def test_adaptive_raico_converges_faster_on_lq():
 
 def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
     """A trial that raises the cost is not taken: the iterate and its cost stay, alpha grows."""
-    from stages.plan.aico import _AICOStep, _Sweeps
-    from stages.plan.driver import Iterate
+    from planning.aico import _AICOStep, _Sweeps
+    from planning.driver import Iterate
 
     pb = make_lq(seed=2, running=5.0)
     opts = AICOOptions(alpha=1.0, schedule="adaptive")

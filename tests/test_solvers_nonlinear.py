@@ -13,12 +13,12 @@ import re
 import numpy as np
 import pytest
 
+from planning.aico import AICOOptions, aico
+from planning.costs import ControlCost, ControlLimit, ViaPoint
+from planning.ilqg import ILQGOptions, ilqg
+from planning.problem import Problem
+from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
-from stages.plan.aico import AICOOptions, aico
-from stages.plan.costs import ControlCost, ControlLimit, ViaPoint
-from stages.plan.ilqg import ILQGOptions, ilqg
-from stages.plan.problem import Problem
-from stages.plan.solvers import SOLVERS, make_options, solve
 from tests.toys import PlanarArm
 
 T, DT, N_Q = 100, 0.02, 3
@@ -235,7 +235,7 @@ def test_options_validate_ranges(cls, bad, message):
 
 
 def test_solver_registry(arm_problem):
-    from stages.plan.crocoddyl_model import AVAILABLE  # the crocoddyl baseline registers where installed
+    from planning.crocoddyl_model import AVAILABLE  # the crocoddyl baseline registers where installed
 
     baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule"} if AVAILABLE else set()
     assert set(SOLVERS) == {"aico", "raico", "ilqg"} | baseline

@@ -16,7 +16,7 @@ inertia, gravity) read from the Drake plant and baked into the C source:
   the joints between it and the world only (the others are zero), the forces summed towards the
   root all ``2 m``;
 - the task messages of via-points on these maps (``taskset_eval``, used by the AICO sweep
-  kernel, see :func:`stages.plan.kernels.compile_task_set`).
+  kernel, see :func:`planning.kernels.compile_task_set`).
 
 Supported: trees of revolute and weld joints (also traversed against the joint's parent/child
 direction, as Drake does when a foot is welded to the world), gravity as the only force element.

@@ -447,7 +447,7 @@ int tree_id_derivatives(const double *q, const double *v, const double *a, doubl
     gen_second(ys, D);
     return 0;
 }
-/* ---- compiled task messages (stages/plan/kernels.py: compile_task_set): the summed gradient
+/* ---- compiled task messages (planning/kernels.py: compile_task_set): the summed gradient
  * l_x and Gauss-Newton Hessian l_xx of via-point terms w (x* - phi(q))^T C (x* - phi(q)) and state
  * targets w (x - x*)^T C (x - x*) at one state, as ViaPoint / StateTarget.add_point_derivatives ---- */
 typedef struct {

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.plan.costs import ViaPoint
+from planning.costs import via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
 
 FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
 FALL_TORSO_TILT = 0.5  # rad, angle between the executed and the planned torso z axes
@@ -44,33 +44,6 @@ STATUSES = ("ok", "limits", "tracking-lost", "fell", "diverged")
 THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_TORSO_TILT,
               "foot_lift_m": FOOT_LIFT, "tracking_lost_rad": TRACKING_LOST, "limits_share": LIMITS_SHARE,
               "limit_tol_rad": LIMIT_TOL, "contact_tol_m": CONTACT_TOL}
-
-
-def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
-    """``{"<term>@<t>": error}``: Euclidean task error over the dimensions that count.
-
-    Dimensions count whose precision is at least 1% of the largest (balance: the lateral
-    axis only). Terms held at every step (the Nao's right sole) report their largest error.
-    A step whose state is not finite has error ``inf``.
-    """
-    n_q = X.shape[1] // 2
-    out: dict[str, float] = {}
-    for term in problem.state_terms:
-        if not isinstance(term, ViaPoint):
-            continue
-        w = np.diag(term.C)
-        keep = w >= 0.01 * w.max()
-        idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
-        errs = np.full(idx.size, np.inf)
-        good = np.all(np.isfinite(X[idx]), axis=1)
-        if good.any():
-            phi, _ = term.taskmap.values_and_jacobians(X[idx[good], :n_q])
-            errs[good] = np.linalg.norm((term.target - phi)[:, keep], axis=1)
-        if idx.size > 3:
-            out[f"{term.name}@max"] = float(errs.max())
-        else:
-            out.update({f"{term.name}@{t}": float(e) for t, e in zip(idx, errs)})
-    return out
 
 
 # ----------------------------------------------------------------------------- support polygon

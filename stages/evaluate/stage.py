@@ -90,7 +90,7 @@ def run(cfg: EvaluateConfig, inputs: dict[str, Artifact], progress=None) -> Stag
                        figures={COST_PNG: lambda p: cost_png(p, costs, metrics["initial_cost"], plan.config)})
 
 
-STAGE = Stage(name="evaluate", config_cls=EvaluateConfig, run=run, sources=("stages.evaluate", "stages.base"),
+STAGE = Stage(name="evaluate", config_cls=EvaluateConfig, run=run, sources=("planning", "stages.evaluate", "stages.base"),
               data_files=(EVALUATION_FILE, COST_PNG),
               description="Evaluate one run: final cost, via-point errors, iterations, wall time, "
                           "planned-vs-executed RMSE.")

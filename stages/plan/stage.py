@@ -1,9 +1,9 @@
 """The plan stage: plant + task + dynamics model + solver -> trajectory and feedback controller.
 
 ``STAGE`` runs ``plan(PlanConfig) -> PlanOutput`` and stores ``plan.npz`` and ``problem.json``
-(the objective as data, see ``stages.plan.objective``). The initial state is ``x0 = (q0, 0)`` with
+(the objective as data, see ``planning.objective``). The initial state is ``x0 = (q0, 0)`` with
 ``q0 = default posture + N(0, q0_std^2)`` drawn with ``seed`` (thesis: 10 initial states with
-std 0.05). Arrays follow the solver contract of ``stages.plan.problem``.
+std 0.05). Arrays follow the solver contract of ``planning.problem``.
 """
 
 from __future__ import annotations
@@ -12,15 +12,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from planning.costs import SIGMA_UNITS, Uncertainty, via_point_errors
+from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
+from planning.problem import Problem, Result
+from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
 from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
-from stages.evaluate.metrics import via_point_errors
-from stages.plan.costs import SIGMA_UNITS, Uncertainty
-from stages.plan.objective import Objective, build_terms, uncertainty
-from stages.plan.problem import Problem, Result
-from stages.plan.solvers import SOLVERS, make_options, solve
 from stages.plan.tasks import TASKS, TaskSpec, get_task
 
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
@@ -192,7 +191,7 @@ class PlanOutput:
         (``costs``, wall times, ``step``, ``mu``) and every iteration's trajectory decimated in time,
         ``X_iterations (iterations + 1, K, n_x)`` float32 (a display copy; row 0 the initial
         trajectory, NaN rows for iterations that diverged) at the steps ``t_iterations (K,)``
-        (``stages.plan.problem.iterate_steps``)."""
+        (``planning.problem.iterate_steps``)."""
         r = self.result
         iterates = {} if r.X_iterations is None else {"X_iterations": r.X_iterations,
                                                        "t_iterations": r.t_iterations}
@@ -235,12 +234,6 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
     return {"plant": cfg.plant, "task": cfg.task, "dynamics": cfg.dynamics, "model": model_key,
             "control_kind": kind, "dt": task.dt, "T": task.T, "q0": q0.tolist(),
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
-
-
-def objective_from_description(desc: dict, robot: Robot | None = None) -> Objective:
-    """The planned objective rebuilt from a stored description (execute, evaluate, report)."""
-    robot = robot or shared_robot(desc["plant"])
-    return build_terms(robot, desc["terms"], int(desc["T"]), desc["control_kind"])
 
 
 def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
@@ -302,7 +295,7 @@ def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None =
                        documents={PROBLEM_FILE: out.description}, payload=out)
 
 
-STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics"),
               data_files=(PLAN_FILE, PROBLEM_FILE),
               description="Plan a movement with AICO, R-AICO or iLQG; the artifact holds the feedback controller.",
               progress_total=lambda cfg: cfg.iterations)

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planning import objective as ob
 from plants.robots import Robot
 from plants.taskmaps import CenterOfMass, FramePoints
-from stages.plan import objective as ob
 
 W_TASK = 1e4
 W_U = 1e-2
@@ -25,7 +25,7 @@ W_U = 1e-2
 class TaskSpec:
     """Horizon ``T`` steps of ``dt`` s and a builder ``(robot, q0, T) -> term descriptions``.
 
-    The builder states the objective only (``stages.plan.objective``); via-point times are
+    The builder states the objective only (``planning.objective``); via-point times are
     fractions of ``T``, so the horizon is stated once, here.
     """
 

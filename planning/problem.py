@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from plants.dynamics import Dynamics
+from plants.dynamics import Dynamics, LinearDynamics
 
 
 class Status(StrEnum):
@@ -52,7 +52,7 @@ class Problem:
         dynamics: the planning model ``x_{t+1} = f(x_t, u_t)`` (``plants.dynamics.Dynamics``).
         x0: initial state ``(n_x,)``.
         T: horizon in steps (the movement lasts ``T * dynamics.dt`` seconds).
-        state_terms: costs on ``x_t`` (``stages.plan.costs`` state terms), ``t = 0..T``.
+        state_terms: costs on ``x_t`` (``planning.costs`` state terms), ``t = 0..T``.
         control_terms: costs on ``u_t`` (control terms), ``t = 0..T-1``.
         joint_terms: costs on ``(x_t, u_t)`` together, ``t = 0..T-1`` (the GP-uncertainty term).
             Their value uses both; their quadratic models are split: the state part at the
@@ -68,6 +68,30 @@ class Problem:
     state_terms: list = field(default_factory=list)
     control_terms: list = field(default_factory=list)
     joint_terms: list = field(default_factory=list)
+
+    def controller_rollout(self, o: np.ndarray, O: np.ndarray, *, kernel: bool = True
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """The problem's one rollout of ``u_t = o_t + O_t x_t`` from ``x0`` (every solver's line search
+        calls it): ``X (T+1, n_x)``, ``U (T, n_u)``, compiled where possible with the same formulas:
+        the model's own loop (``FastAnalyticDynamics``), the sweep kernel's C loop for a time-invariant
+        ``LinearDynamics`` whose ``step`` is the affine map (``kernel``: allowed), else
+        :func:`controller_rollout`, the reference Python loop."""
+        dynamics, x0 = self.dynamics, self.x0
+        own = getattr(dynamics, "controller_rollout", None)
+        if own is not None:
+            return own(x0, o, O)
+        if kernel and is_lti(dynamics) and type(dynamics).step is LinearDynamics.step:
+            from planning import kernels
+
+            lib = kernels.library()
+            if lib is not None:
+                T, m, n = o.shape[0], o.shape[1], x0.shape[0]
+                A, a, B = (np.ascontiguousarray(z, dtype=float) for z in (dynamics.A, dynamics.a, dynamics.B))
+                x0, o, O = (np.ascontiguousarray(z, dtype=float) for z in (x0, o, O))
+                X, U = np.empty((T + 1, n)), np.empty((T, m))
+                lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
+                return X, U
+        return controller_rollout(dynamics, x0, o, O)
 
     def __post_init__(self) -> None:
         self.x0 = np.asarray(self.x0, dtype=float).reshape(-1)
@@ -263,7 +287,7 @@ class Result:
             ``initial_cost``; ``None`` if the solver does not report it).
         X_iterations: every iteration's states at the steps ``t_iterations``,
             ``(iterations + 1, K, n_x)`` float32 (a display copy, ``IterateHistory``); filled
-            by ``stages.plan.solvers.solve``, ``None`` otherwise.
+            by ``planning.solvers.solve``, ``None`` otherwise.
         t_iterations: the steps kept ``(K,)`` (``iterate_steps``).
     """
 
@@ -296,6 +320,14 @@ class Result:
     def costs(self) -> np.ndarray:
         """Per-iteration costs ``(iterations,)``."""
         return np.array([h.cost for h in self.history])
+
+
+def is_lti(dynamics) -> bool:
+    """Whether ``dynamics`` linearizes to the same ``A, a, B`` everywhere (a ``LinearDynamics``
+    that keeps its ``linearize``): then relinearizing never changes them."""
+    return (isinstance(dynamics, LinearDynamics)
+            and type(dynamics).linearize is LinearDynamics.linearize
+            and type(dynamics).linearize_trajectory is LinearDynamics.linearize_trajectory)
 
 
 def controller_rollout(

@@ -2,7 +2,7 @@
 
 A task (``stages/plan/tasks.py``) builds a list of term descriptions from the robot, the
 initial posture and the horizon; :func:`build_terms` turns them into cost-term objects of
-``stages/plan/costs.py``. The plan artifact stores the descriptions (``problem.json``), so
+``planning/costs.py``. The plan artifact stores the descriptions (``problem.json``), so
 execute, evaluate and the report rebuild exactly the planned objective without re-running
 the task builder. The dynamics are not part of the objective: they come from the registry
 (``plants.registry``).
@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from planning.costs import ControlCost, ControlLimit, ViaPoint
+from plants.robots import Robot, shared_robot
 from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
-from stages.plan.costs import ControlCost, ControlLimit, ViaPoint
 
 TermDesc = dict[str, Any]
 
@@ -66,7 +67,7 @@ def control(weight: float, name: str = "control") -> TermDesc:
 
 def uncertainty(sigma_star: float, weight: float, name: str = "uncertainty", units: str = "raw") -> TermDesc:
     """The GP-uncertainty term (thesis eq. 4.3) on ``(x_t, u_t)``: built with the learned model
-    by the plan stage (``stages.plan.costs.Uncertainty``), not by :func:`build_terms`. ``units``:
+    by the plan stage (``planning.costs.Uncertainty``), not by :func:`build_terms`. ``units``:
     ``raw`` (the predictive variance in (rad/s^2)^2, as the thesis) or ``standardized`` (over the
     training outputs' variance)."""
     d = {"term": "uncertainty", "name": name, "sigma_star": float(sigma_star), "weight": float(weight),
@@ -140,3 +141,9 @@ def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str =
         term = build_term(robot, d)
         (state if d["term"] == "via" else controls).append(term)
     return Objective(T, state, controls, kept)
+
+
+def objective_from_description(desc: dict, robot: Robot | None = None) -> Objective:
+    """The planned objective rebuilt from a stored description (execute, evaluate, report)."""
+    robot = robot or shared_robot(desc["plant"])
+    return build_terms(robot, desc["terms"], int(desc["T"]), desc["control_kind"])

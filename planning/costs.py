@@ -1,7 +1,7 @@
 """Named, weighted cost terms with vectorized values and Gauss-Newton models (SPEC §5).
 
 Every term has a ``name`` and a ``weight`` (weight 0 switches it off; ``Problem.without``
-removes it). Conventions (see ``stages.plan.problem``):
+removes it). Conventions (see ``planning.problem``):
 
 - state terms act on rows ``X (K, n_x)`` at time steps ``idx (K,)`` (default ``0..K-1``)
   and only at their ``times`` (``None``: every step); ``value`` gives ``(K,)`` per-time
@@ -559,3 +559,30 @@ def _uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> 
 
 register_cost_term_example("uncertainty", _uncertainty_example, "joint")
 register_cost_term_example("uncertainty_raw", lambda r, q0: _uncertainty_example(r, q0, "raw"), "joint")
+
+
+def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
+    """``{"<term>@<t>": error}``: Euclidean task error over the dimensions that count.
+
+    Dimensions count whose precision is at least 1% of the largest (balance: the lateral
+    axis only). Terms held at every step (the Nao's right sole) report their largest error.
+    A step whose state is not finite has error ``inf``.
+    """
+    n_q = X.shape[1] // 2
+    out: dict[str, float] = {}
+    for term in problem.state_terms:
+        if not isinstance(term, ViaPoint):
+            continue
+        w = np.diag(term.C)
+        keep = w >= 0.01 * w.max()
+        idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
+        errs = np.full(idx.size, np.inf)
+        good = np.all(np.isfinite(X[idx]), axis=1)
+        if good.any():
+            phi, _ = term.taskmap.values_and_jacobians(X[idx[good], :n_q])
+            errs[good] = np.linalg.norm((term.target - phi)[:, keep], axis=1)
+        if idx.size > 3:
+            out[f"{term.name}@max"] = float(errs.max())
+        else:
+            out.update({f"{term.name}@{t}": float(e) for t, e in zip(idx, errs)})
+    return out

@@ -1,4 +1,4 @@
-/* AICO / R-AICO sweeps of stages/plan/aico.py (_Sweeps) in C: the same formulas, the same order of
+/* AICO / R-AICO sweeps of planning/aico.py (_Sweeps) in C: the same formulas, the same order of
  * steps, relinearizations and repeats (thesis Algorithm 1), without per-step Python overhead.
  *
  * Arrays are numpy's, row-major. The dense algebra (Cholesky factors, triangular solves, products)
@@ -930,7 +930,7 @@ int sweep_beliefs(sweep_t *s)
 }
 
 /* closed-loop rollout on a time-invariant affine model x' = A x + a + B u with u = o_t + O_t x
- * (stages.plan.problem.controller_rollout on LinearDynamics): X (T+1, n), U (T, m) */
+ * (planning.problem.controller_rollout on LinearDynamics): X (T+1, n), U (T, m) */
 void lti_rollout(long T, long n, long m, const double *A, const double *a, const double *B,
                  const double *x0, const double *o, const double *O, double *X, double *U)
 {

@@ -34,8 +34,8 @@ Speed without changing a number (beyond rounding): the sweeps redo only what a
 relinearization changes (see ``_Sweeps``), relinearizing a step evaluates only the terms
 that cost it, and the task maps evaluated for the cost of a rollout are reused by the next
 iteration's linearization at that trajectory (``ViaPoint``'s memo). Where a C compiler is
-available the sweeps, with their relinearizations, run in compiled code (``stages/plan/csweep.c``
-via :mod:`stages.plan.kernels`: the same steps, repeats and formulas, the numbers equal to
+available the sweeps, with their relinearizations, run in compiled code (``planning/csweep.c``
+via :mod:`planning.kernels`: the same steps, repeats and formulas, the numbers equal to
 rounding); the dynamics and the task messages are linearized there too where the model and the
 terms have compiled counterparts (``FastAnalyticDynamics``, the tree task maps), else the
 kernel asks Python for them, step by step.
@@ -50,18 +50,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import blas, lapack
 
-from plants.dynamics import LinearDynamics, rollout
-from stages.plan import kernels
-from stages.plan.driver import Iterate, Status, Step, Stop, drive
-from stages.plan.problem import (
+from planning import kernels
+from planning.driver import Iterate, Status, Step, Stop, drive
+from planning.problem import (
     Callback,
     OptionsBase,
     Problem,
     Result,
     check_range,
-    controller_rollout,
+    is_lti,
     single_threaded_blas,
 )
+from plants.dynamics import rollout
 
 
 @dataclass(frozen=True)
@@ -157,14 +157,6 @@ def _tri_inv(L: np.ndarray, overwrite: bool = False) -> np.ndarray:
     return Li
 
 
-def _is_lti(dynamics) -> bool:
-    """Whether ``dynamics`` linearizes to the same ``A, a, B`` everywhere (a ``LinearDynamics``
-    that keeps its ``linearize``): then relinearizing never changes them."""
-    return (isinstance(dynamics, LinearDynamics)
-            and type(dynamics).linearize is LinearDynamics.linearize
-            and type(dynamics).linearize_trajectory is LinearDynamics.linearize_trajectory)
-
-
 def _is_constant(Z: np.ndarray) -> bool:
     """Whether the stacked array ``Z (T, ...)`` holds the same entry at every step."""
     return bool(np.array_equal(Z, np.broadcast_to(Z[0], Z.shape)))
@@ -183,7 +175,7 @@ class _Sweeps:
     Work that cannot change a result is skipped (same numbers as recomputing it):
 
     - relinearizing step ``t`` re-evaluates only what depends on ``x_t``: the dynamics unless
-      the model is linear time-invariant (``_is_lti``), the task message only if some term
+      the model is linear time-invariant (``planning.problem.is_lti``), the task message only if some term
       costs step ``t`` (otherwise it is ``2 alpha I``, ``2 alpha x_t^[n-1]``);
     - the belief at ``t`` is recomputed only if its inputs changed, and the backward message
       is redone only if the dynamics at ``t`` changed, reusing ``[V* | V* m']`` (it depends
@@ -194,8 +186,8 @@ class _Sweeps:
     and use a triangular inverse and matrix products where OpenBLAS's small triangular
     solves are slow (see ``forward``, ``_vstar``, ``backward``).
 
-    Compiled sweeps (``compiled = True`` and :func:`stages.plan.kernels.library` available): the
-    same sweeps, settles and relinearizations run in C (``stages/plan/csweep.c``), which calls
+    Compiled sweeps (``compiled = True`` and :func:`planning.kernels.library` available): the
+    same sweeps, settles and relinearizations run in C (``planning/csweep.c``), which calls
     the dynamics' compiled linearization where the model has one (``c_linearizer``) and returns
     to Python only for what has none (a task term costing the step, other models' dynamics),
     see ``_sweep_compiled``. This numpy code is the fallback and the reference of the kernel.
@@ -214,7 +206,7 @@ class _Sweeps:
         # relinearization within the sweeps needs the beliefs, hence the forward messages;
         # without it (theta = inf) the forward messages cannot change the controller.
         self.relocate = math.isfinite(opts.theta) and opts.max_repeats > 0
-        self.lti = _is_lti(problem.dynamics)
+        self.lti = is_lti(problem.dynamics)
         self.active = problem.active_state_terms()             # terms costing each step
         self.SA = np.zeros((T + 1, n, n + 1))
         self.SA[0, :, :n] = self.I / opts.start_variance
@@ -599,24 +591,6 @@ class _Sweeps:
         self.repeats += st.repeats
 
 
-def compiled_controller_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
-    """``controller_rollout`` compiled where possible (same formulas): the model's own
-    (``FastAnalyticDynamics``), a C loop for a time-invariant ``LinearDynamics`` whose ``step``
-    is the affine map, else the generic Python loop."""
-    own = getattr(dynamics, "controller_rollout", None)
-    if own is not None:
-        return own(x0, o, O)
-    lib = kernels.library() if _Sweeps.compiled else None
-    if lib is not None and _is_lti(dynamics) and type(dynamics).step is LinearDynamics.step:
-        T, m, n = o.shape[0], o.shape[1], x0.shape[0]
-        A, a, B = (np.ascontiguousarray(z, dtype=float) for z in (dynamics.A, dynamics.a, dynamics.B))
-        x0, o, O = (np.ascontiguousarray(z, dtype=float) for z in (x0, o, O))
-        X, U = np.empty((T + 1, n)), np.empty((T, m))
-        lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
-        return X, U
-    return controller_rollout(dynamics, x0, o, O)
-
-
 def aico(problem: Problem, options: AICOOptions | None = None, *,
          X_init: np.ndarray | None = None, U_init: np.ndarray | None = None,
          callback: Callback | None = None) -> Result:
@@ -712,7 +686,7 @@ class _AICOStep:
         if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = compiled_controller_rollout(self.problem.dynamics, self.problem.x0, o_new, O_new)
+            Xn, Un = self.problem.controller_rollout(o_new, O_new, kernel=_Sweeps.compiled)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")

@@ -14,7 +14,7 @@ behaviors through online trajectory optimization"), as in SPEC §6.
 - backtracking line search over ``alphas`` on the feed-forward term only,
   ``u = u_bar + alpha k + K (x - x_bar)``; accept when actual / expected reduction > 0;
 - stop: relative cost reduction of an accepted step < ``tol_rel`` (converged; the test
-  ``cost_decrease_below`` of ``stages.plan.driver``, which runs the iterations), gradient
+  ``cost_decrease_below`` of ``planning.driver``, which runs the iterations), gradient
   ``mean_t max_i |k_ti| / (|u_ti| + 1) < tol_grad`` with ``mu < 1e-5`` (converged), or
   ``mu > mu_max`` (status ``"max-iterations"``: no descent step could be found); the last
   two are the solver's own stop reasons (``_ILQGStep``).
@@ -31,10 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import lapack
 
-from plants.dynamics import rollout
-from stages.plan.aico import compiled_controller_rollout
-from stages.plan.driver import Iterate, Status, Step, Stop, cost_decrease_below, drive
-from stages.plan.problem import (
+from planning.driver import Iterate, Status, Step, Stop, cost_decrease_below, drive
+from planning.problem import (
     Callback,
     IterationRecord,
     OptionsBase,
@@ -43,6 +41,7 @@ from stages.plan.problem import (
     check_range,
     single_threaded_blas,
 )
+from plants.dynamics import rollout
 
 
 def _default_alphas() -> tuple[float, ...]:
@@ -134,11 +133,11 @@ def _forward(problem: Problem, X, U, k, K, alpha: float):
     """Rollout of ``u = U + alpha k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost.
 
     Written as ``u_t = o_t + K_t x_t`` with ``o_t = U_t + alpha k_t - K_t X_t`` and rolled out by
-    ``compiled_controller_rollout`` (the model's compiled loop where it has one)."""
+    ``Problem.controller_rollout`` (the model's compiled loop where it has one)."""
     o = U + alpha * k - np.einsum("tij,tj->ti", K, X[:-1])
     try:   # a model may raise on the exploding states of a bad step
         with np.errstate(all="ignore"):
-            Xn, Un = compiled_controller_rollout(problem.dynamics, problem.x0, o, K)
+            Xn, Un = problem.controller_rollout(o, K)
             if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Un))):
                 return Xn, Un, math.inf
             return Xn, Un, problem.cost(Xn, Un)

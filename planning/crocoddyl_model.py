@@ -1,6 +1,6 @@
 """crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems (SPEC §14, issue 8).
 
-:func:`build` turns a raico :class:`~stages.plan.problem.Problem` (analytic dynamics) into a crocoddyl
+:func:`build` turns a raico :class:`~planning.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:
 
 - the model: the project's URDF, copied to a temporary folder with a ``<link name="world"/>``
@@ -39,7 +39,7 @@ history holds per iteration the cost of rolling the iterate's controller out on 
 dynamics (crocoddyl's own cost once the iterate is feasible; a feedback rollout through
 crocoddyl's models while gaps remain), the iteration's wall time (that bookkeeping excluded)
 and the step length and regularization. Registered as solvers ``fddp`` and ``fddp-rollout``
-in ``stages.plan.solvers`` when crocoddyl imports (``pip`` extra, see the README).
+in ``planning.solvers`` when crocoddyl imports (``pip`` extra, see the README).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.plan.problem import (
+from planning.problem import (
     Callback,
     IterationRecord,
     OptionsBase,
@@ -233,8 +233,8 @@ def _weights(rows: np.ndarray, C: np.ndarray, dim: int, what: str) -> np.ndarray
 
 def _state_cost(term, state, nu: int, pmodel):
     """``(residual, activation, weight per unit raico weight)`` of a raico state term."""
+    from planning.costs import StateTarget, ViaPoint
     from plants.taskmaps import CenterOfMass, FramePoints, RollAngle
-    from stages.plan.costs import StateTarget, ViaPoint
 
     if isinstance(term, StateTarget):
         return (crocoddyl.ResidualModelState(state, term.target, nu),
@@ -263,7 +263,7 @@ def _state_cost(term, state, nu: int, pmodel):
 
 
 def _control_cost(term, state, nu: int):
-    from stages.plan.costs import ControlCost, ControlLimit
+    from planning.costs import ControlCost, ControlLimit
 
     if isinstance(term, ControlCost):
         ref = np.zeros(nu) if term.target is None else term.target
@@ -357,7 +357,7 @@ def build(problem: Problem) -> CrocoddylProblem:
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
     state_costs = [(t, *_state_cost(t, state, nu, pmodel)) for t in problem.state_terms if t.weight != 0]
     control_costs = [(t, *_control_cost(t, state, nu)) for t in problem.control_terms if t.weight != 0]
-    from stages.plan.costs import ControlLimit
+    from planning.costs import ControlLimit
 
     limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
     bounds = None

@@ -32,7 +32,7 @@ from typing import Protocol
 
 import numpy as np
 
-from stages.plan.problem import Callback, IterationRecord, Status
+from planning.problem import Callback, IterationRecord, Status
 
 __all__ = ["ConvergenceTest", "Iterate", "LoopOptions", "Outcome", "Status", "Step", "StepFn",
            "Stop", "cost_change_within", "cost_decrease_below", "drive", "exploded",

@@ -12,9 +12,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from stages.plan.aico import AICOOptions, aico
-from stages.plan.ilqg import ILQGOptions, ilqg
-from stages.plan.problem import IterateHistory, OptionsBase, Problem, Result, iterate_steps
+from planning.aico import AICOOptions, aico
+from planning.ilqg import ILQGOptions, ilqg
+from planning.problem import IterateHistory, OptionsBase, Problem, Result, iterate_steps
 
 
 @dataclass(frozen=True)
@@ -61,11 +61,11 @@ SOLVERS: dict[str, SolverSpec] = {
 
 
 def _register_crocoddyl() -> None:
-    """The crocoddyl baseline (``stages.plan.crocoddyl_model``), only where crocoddyl imports:
+    """The crocoddyl baseline (``planning.crocoddyl_model``), only where crocoddyl imports:
     ``fddp`` starts from ``x0`` held at every node (R-AICO's start), ``fddp-rollout`` from the
     zero-torque rollout; ``fddp-rollout-accept-any`` and ``fddp-rollout-ilqg-schedule`` are the ablations with
     iLQG's acceptance rule and its regularization schedule."""
-    from stages.plan import crocoddyl_model as cm
+    from planning import crocoddyl_model as cm
 
     if not cm.AVAILABLE:
         return

@@ -1,10 +1,10 @@
 """The AICO sweeps compiled: ``csweep.c`` loaded with ``ctypes`` (speed only, Algorithm 1 unchanged).
 
-``csweep.c`` is ``stages.plan.aico._Sweeps``'s forward / backward / belief / settle code in C,
+``csweep.c`` is ``planning.aico._Sweeps``'s forward / backward / belief / settle code in C,
 with its own register-tiled dense loops (no BLAS: at the sweeps' sizes they beat OpenBLAS, see the
 measurements in ``csweep.c``). The source ships with the package (package data) and is compiled
 on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
-cache (``make kernels`` builds it ahead: ``python -m stages.plan.kernels``). :data:`FLAGS` follow
+cache (``make kernels`` builds it ahead: ``python -m planning.kernels``). :data:`FLAGS` follow
 this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both) and are part of the cached
 file's key, so a library built for AVX2/FMA is never loaded on a CPU without them: there the
 portable build is made and loaded.
@@ -82,7 +82,7 @@ def library() -> ctypes.CDLL | None:
     return _LIB or None
 
 
-if __name__ == "__main__":  # python -m stages.plan.kernels (make kernels): build (or find) the kernel
+if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (or find) the kernel
     lib = library()   # a failed build raises: make stops
     print("csweep:", f"compiled ({' '.join(FLAGS)})" if lib is not None
           else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
@@ -110,8 +110,8 @@ def compile_task_set(problem):
     """
     import numpy as np
 
+    from planning.costs import StateTarget, ViaPoint
     from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
-    from stages.plan.costs import StateTarget, ViaPoint
 
     if any(t.weight != 0 for t in problem.joint_terms):
         return None
