@@ -105,7 +105,8 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     if mode == "single":  # the right sole's four corners above ground to step T/3 - 1, lifted from T/3
         clear, lift = terms[2], terms[3]
         assert clear["times"] == {"from": 1, "to": 5} and lift["times"] == {"from": 6, "to": 20}
-        assert clear["b"] == [0.0] * 4 and lift["b"] == [-0.025] * 4 and lift["A"] == (-np.eye(4)).tolist()
+        assert np.allclose(clear["b"], 0.0, atol=1e-12) and lift["b"] == [-0.025] * 4
+        assert lift["A"] == clear["A"] == (-np.eye(4)).tolist()
     support = next(d for d in terms if d["name"] == "support")
     assert support["times"] == {"from": 1, "to": 20} and support["margin"] == MARGIN
 
@@ -184,6 +185,13 @@ def test_cli_balance_single_lifts_the_right_sole(tmp_path):
     margins = cog_margins(nao, X[1:], np.array(line["metrics"]["balance"]["polygon"]))
     assert margins.min() >= MARGIN - 1e-3
     assert "r_sole@max" not in line["metrics"]["via_point_errors"]  # released
+    # before the lift: above the ground, or above a start corner the perturbed posture has below it
+    desc = json.loads((Path(line["path"]) / "problem.json").read_text())
+    clear = next(t for t in desc["terms"] if t["name"] == "r_sole_clear")
+    z0 = sole_corners(nao, np.array(desc["q0"]), "r_sole")[:, 2]
+    assert z0.min() < 0 and np.allclose(clear["b"], -np.minimum(z0, 0.0), atol=1e-15)
+    assert np.all([sole_corners(nao, X[k, :nao.n_q], "r_sole")[:, 2] >= np.minimum(z0, 0.0) - 1e-3
+                   for k in range(1, 100)])
 
 
 @pytest.mark.parametrize("args, pattern", [

@@ -7,7 +7,8 @@ the support polygon is fixed in that frame for the whole movement:
   each sole frame; the right sole at its start pose, which the task's ``r_sole`` term holds at
   every step 1..T);
 - ``single`` (balance on the left foot): the left sole alone; the right sole's ``r_sole`` term
-  is dropped (its contact released), its four corners kept above the ground at every step and
+  is dropped (its contact released), its four corners kept above the ground (or above their start
+  heights where the perturbed start posture has them below it) until step ``T // 3 - 1`` and
   lifted at least ``LIFT`` from step ``T // 3`` on (a one-sided via-point held to the end).
 
 At every step 1..T the CoG's ground projection (quasi-static) is kept at least ``MARGIN``
@@ -192,9 +193,10 @@ def apply_balance(robot: Robot, q0: np.ndarray, T: int, terms: list, mode: str,
         sole = ob.frame_points("r_sole", "r_sole_heights", axes=(2,),
                                points=np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))])
         lift_from = max(T // 3, 1)
-        if lift_from > 1:
-            out.append(ob.inequality("r_sole_clear", sole, -np.eye(4), np.zeros(4), range(1, lift_from),
-                                     W_LIFT, lower=0.0))
+        if lift_from > 1:  # not below the ground, nor below a start corner that is (a perturbed start)
+            lower = np.minimum(sole_corners(robot, q0, "r_sole")[:, 2], 0.0)
+            out.append(ob.inequality("r_sole_clear", sole, -np.eye(4), -lower, range(1, lift_from),
+                                     W_LIFT, lower=lower.tolist()))
         out.append(ob.inequality("r_sole_lift", sole, -np.eye(4), -LIFT_BOUND * np.ones(4), range(lift_from, T + 1),
                                  W_LIFT, lower=LIFT_BOUND))
     return out, report
