@@ -199,9 +199,26 @@ def test_cli_balance_single_lifts_the_right_sole(tmp_path):
      r"unknown balance 'both': choose one of none, support, single"),
     (["--plant", "arm5", "--task", "reach", "--balance", "support"],
      re.escape("--balance support needs --plant nao (a support polygon of the soles)")),
+    (["--plant", "nao", "--task", "balance", "--balance", "single", "--balance-margin", "0.05"],
+     re.escape("balance-margin must be in [0, 0.04] m, got 0.05")),
 ])
 def test_bad_balance_option_is_one_line(tmp_path, args, pattern):
     res = _run("plan", *args, "--artifacts", tmp_path)
     assert res.exit_code == 2, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and re.fullmatch("raico: error: " + pattern, lines[0]), res.stderr
+
+
+def test_balance_margin_option_sets_the_term_and_the_moved_targets():
+    descs = {}
+    for margin in (0.01, 0.02):
+        _, _, _, _, desc = build_problem(PlanConfig(plant="nao", task="balance", balance="single", seed=0,
+                                                    balance_margin=margin))
+        descs[margin] = desc
+        poly = np.array(desc["balance"]["polygon"])
+        A, b = halfplanes(poly)
+        support = next(t for t in desc["terms"] if t["name"] == "support")
+        np.testing.assert_allclose(support["b"], b - margin, atol=1e-15)
+        for m in desc["balance"]["moved"]:
+            assert signed_distance(poly, np.array(m["planned"])) == pytest.approx(margin)
+    assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == MARGIN

@@ -18,7 +18,7 @@ from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import via_point_errors
-from stages.plan.balance import BALANCE_MODES, apply_balance, cog_margins
+from stages.plan.balance import BALANCE_MODES, MARGIN, apply_balance, cog_margins
 from stages.plan.costs import SIGMA_UNITS, Uncertainty
 from stages.plan.objective import Objective, build_terms, uncertainty
 from stages.plan.problem import Problem, Result
@@ -72,7 +72,8 @@ class PlanConfig(StageConfig):
             "balance": "Nao only: none (the task as stated), support (CoG ground projection kept 1.5 cm inside both "
                        "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
                        "CoG inside the left sole, right sole released and lifted >= 2 cm from T/3). CoG via-points "
-                       "outside the polygon are reported on stderr and planned at the nearest feasible point."}
+                       "outside the polygon are reported on stderr and planned at the nearest feasible point.",
+            "balance_margin": "With --balance: the CoG's least distance (m) inside every support-polygon edge."}
 
     plant: str
     task: str
@@ -95,6 +96,7 @@ class PlanConfig(StageConfig):
     belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
     controller_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 18's learning rate (1: none)
     balance: str = "none"  # Nao: "none", "support" (double support) or "single" (left foot), stages.plan.balance
+    balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -128,6 +130,8 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown balance '{self.balance}': choose one of {', '.join(BALANCE_MODES)}")
         if self.balance != "none" and self.plant != "nao":
             raise ValueError(f"--balance {self.balance} needs --plant nao (a support polygon of the soles)")
+        if not (isinstance(self.balance_margin, (int, float)) and 0 <= self.balance_margin <= 0.04):
+            raise ValueError(f"balance-margin must be in [0, 0.04] m, got {self.balance_margin}")
         make_options(self.solver, self.solver_options())
 
     @property
@@ -161,6 +165,8 @@ class PlanConfig(StageConfig):
             d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
         if self.solver not in ("aico", "raico"):
             d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
+        if self.balance == "none":
+            d["balance_margin"] = MARGIN  # no balance term: its margin means nothing
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -273,7 +279,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
-    terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance)
+    terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
     if cfg.sigma is not None:
         terms.append(uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units))
     objective = build_terms(robot, terms, task.T, kind)
