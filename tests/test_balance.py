@@ -168,6 +168,11 @@ def test_cli_balance_support_keeps_the_planned_cog_inside(tmp_path):
     obj = objective_from_description(desc)
     support = next(t for t in obj.state_terms if t.name == "support")
     assert isinstance(support, TaskInequality) and support.times.tolist() == list(range(1, 301))
+    # a cache hit says it again (never silently)
+    again = _run("plan", "--plant", "nao", "--task", "balance-inside", "--balance", "support", "--solver", "raico",
+                 "--alpha", 1, "--iterations", 6, "--no-record", "--json", "--artifacts", tmp_path)
+    assert again.exit_code == 0 and json.loads(again.stdout.strip().splitlines()[-1])["cached"]
+    assert [ln for ln in again.stderr.splitlines() if ln.startswith("balance ")] == notes
 
 
 def test_cli_balance_single_lifts_the_right_sole(tmp_path):
