@@ -17,8 +17,17 @@ from pipeline.cli import app
 from plants.robots import NAO_SOLE_POLYGON, shared_robot
 from plants.taskmaps import CenterOfMass, JointPositions
 from stages.plan import objective as ob
-from stages.plan.balance import (MARGIN, apply_balance, cog_margins, halfplanes, nearest_feasible, shrink,
-                                 signed_distance, sole_corners, support_polygon)
+from stages.plan.balance import (
+    MARGIN,
+    apply_balance,
+    cog_margins,
+    halfplanes,
+    nearest_feasible,
+    shrink,
+    signed_distance,
+    sole_corners,
+    support_polygon,
+)
 from stages.plan.costs import TaskInequality
 from stages.plan.stage import PlanConfig, build_problem, objective_from_description
 
