@@ -105,6 +105,9 @@ def handles_errors(fn):
 
 def report(outcome: Outcome, as_json: bool, reporter: Reporter) -> None:
     """Say whether the stage ran (and why) or was cached; print the JSON line if asked."""
+    note = (outcome.metrics.get("balance") or {}).get("note") if isinstance(outcome.metrics, dict) else None
+    if outcome.cached and note:  # a plan's moved via-points (stages.plan.balance): said again on a cache hit
+        print(note, file=sys.stderr, flush=True)
     what = "cached" if outcome.cached else f"ran ({outcome.reason})"
     rec = f"; recording {outcome.recording}" if outcome.recording else ""
     reporter.say(f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{outcome.status}]{rec}")

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from plants.taskmaps import TASKMAP_EXAMPLES, TaskMap, TaskMapExample
+from plants.taskmaps import TASKMAP_EXAMPLES, FramePoints, TaskMap, TaskMapExample
 
 
 def _diag_or_matrix(precision, dim: int, what: str) -> np.ndarray:
@@ -234,6 +234,88 @@ class ViaPoint(StateTerm):
             g, H, n_q = self._q_blocks(X[rows])
             lx[rows, :n_q] += g
             lxx[rows, :n_q, :n_q] += H
+
+
+class TaskInequality(StateTerm):
+    """One-sided task-space bounds, a squared-hinge penalty at the listed steps:
+    ``w sum_i max(0, a_i . phi(q_t) - b_i)^2`` (zero where ``A phi(q_t) <= b``).
+
+    ``a_i`` unit vectors make ``b_i - a_i . phi`` the signed distance (m) of ``phi`` to the
+    bound's line/plane (> 0 on the allowed side): a support polygon with a margin on the CoG's
+    ground projection (``stages.plan.balance``), or a height bound on sole points (``A = -I``).
+    Gradient ``l_q = 2 w J^T A^T h`` (``h = max(0, A phi - b)``, exact); Gauss-Newton Hessian
+    ``l_qq = 2 w J^T A_act^T A_act J`` over the violated rows (exact up to the task map's
+    curvature, as for a via-point); both zero on the velocity block.
+
+    Args:
+        taskmap: ``phi`` on ``q = x[:n_q]``.
+        A: ``(m, dim)`` bound directions (rows, in the task map's units).
+        b: ``(m,)`` offsets (m or rad).
+        times: step indices in ``[0, T]``; ``None`` means every step.
+        weight: ``w`` per (task unit)^2 of violation.
+        name: unique name of the term.
+    """
+
+    def __init__(self, taskmap: TaskMap, A, b, times, weight: float = 1e6, name: str | None = None):
+        self.taskmap = taskmap
+        self.A = np.atleast_2d(np.asarray(A, dtype=float))
+        self.b = np.asarray(b, dtype=float).reshape(-1)
+        self.name = name or f"bound_{taskmap.name}"
+        if self.A.shape != (self.b.shape[0], taskmap.dim):
+            raise ValueError(f"{self.name}: A has shape {self.A.shape}, expected ({self.b.shape[0]}, "
+                             f"{taskmap.dim}) for {self.b.shape[0]} bounds on task map {taskmap.name!r}")
+        if not (np.all(np.isfinite(self.A)) and np.all(np.isfinite(self.b))):
+            raise ValueError(f"{self.name}: A and b must be finite")
+        self.weight = _check_weight(weight, self.name)
+        self._set_times(times)
+        self._last = None
+
+    _map = ViaPoint._map  # the same memo of the last batch (a solver's cost then linearization)
+
+    def violations(self, Q: np.ndarray) -> np.ndarray:
+        """``h = max(0, A phi(q) - b)`` ``(K, m)`` at positions ``Q (K, n_q)`` (task units)."""
+        phi, _ = self._map(np.atleast_2d(Q))
+        return np.maximum(phi @ self.A.T - self.b, 0.0)
+
+    def _hinge(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """``h (K, m)``, ``A J (K, m, n_q)`` and ``n_q`` at rows ``X (K, n_x)``."""
+        n_q = X.shape[1] // 2
+        phi, J = self._map(X[:, :n_q])
+        h = np.maximum(phi @ self.A.T - self.b, 0.0)
+        return h, np.matmul(self.A, J), n_q
+
+    def _value(self, X, idx):
+        h, _, _ = self._hinge(X)
+        return self.weight * np.einsum("km,km->k", h, h)
+
+    def _q_blocks(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Gradient ``(K, n_q)`` and GN Hessian ``(K, n_q, n_q)`` on the ``q`` block."""
+        h, AJ, n_q = self._hinge(X)
+        g = (2.0 * self.weight) * np.einsum("km,kmi->ki", h, AJ)
+        AJa = AJ * (h > 0)[:, :, None]
+        H = (2.0 * self.weight) * np.matmul(np.swapaxes(AJa, 1, 2), AJa)
+        return g, H, n_q
+
+    def _derivs(self, X, idx):
+        g, H, n_q = self._q_blocks(X)
+        lx = np.zeros(X.shape)
+        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        lx[:, :n_q] = g
+        lxx[:, :n_q, :n_q] = H
+        return lx, lxx
+
+    def add_point_derivatives(self, x, t, lx, lxx) -> None:
+        """As ``StateTerm.add_point_derivatives``: one task-map evaluation, ``q`` blocks only."""
+        if self.weight == 0 or not self.is_active_at(t):
+            return
+        n_q = x.shape[0] // 2
+        phi, J = self.taskmap.value_and_jacobian(x[:n_q])
+        h = np.maximum(self.A @ phi - self.b, 0.0)
+        if not h.any():
+            return
+        AJ = self.A[h > 0] @ J
+        lx[:n_q] += (2.0 * self.weight) * (h[h > 0] @ AJ)
+        lxx[:n_q, :n_q] += (2.0 * self.weight) * (AJ.T @ AJ)
 
 
 class StateTarget(StateTerm):
@@ -537,6 +619,33 @@ def _register_via_point_examples() -> None:
 
 _register_via_point_examples()
 register_cost_term_example("state_target", _state_target_example, "state", exact_hessian=True)
+
+
+def _support_example(robot, q0: np.ndarray) -> TaskInequality:
+    """The CoG's ground projection inside a hexagon of radius 1 cm about its value at ``q0``, with a
+    2 mm margin: the example postures (0.1-0.3 rad off ``q0``) violate some edges, not others."""
+    from plants.taskmaps import CenterOfMass
+
+    tm = CenterOfMass(robot, axes=(0, 1), name="cog_xy")
+    c0 = tm.value(q0)
+    ang = np.pi / 6 + np.arange(6) * np.pi / 3
+    A = np.c_[np.cos(ang), np.sin(ang)]           # outward unit normals
+    b = A @ c0 + 0.01 * np.cos(np.pi / 6) - 0.002  # apothem less the margin
+    return TaskInequality(tm, A, b, EXAMPLE_TIMES, 1e6, name="support_polygon")
+
+
+def _lower_bound_example(robot, q0: np.ndarray) -> TaskInequality:
+    """Heights of three points of the first end effector bounded below, 0.25 m, -0.02 m and 0.03 m
+    off their values at ``q0`` (``A = -I``; the sole-lift bound of the single-support balance on
+    any plant): on every plant some example rows violate some bounds, not others."""
+    tm = FramePoints(robot, next(iter(robot.end_effectors.values())), points=[[0, 0, 0], [0.1, 0, 0], [0, 0.05, 0.02]],
+                     axes=(2,), name="ee_heights")
+    z0 = tm.value(q0)
+    return TaskInequality(tm, -np.eye(3), -(z0 + np.array([0.25, -0.02, 0.03])), EXAMPLE_TIMES, 1e6, name="lower_bound")
+
+
+register_cost_term_example("support_polygon", _support_example, "state")
+register_cost_term_example("lower_bound", _lower_bound_example, "state")
 register_cost_term_example("control", lambda r, q0: ControlCost(1e-2), "control",
                            exact_hessian=True)
 register_cost_term_example(

@@ -16,7 +16,9 @@ Descriptions:
   ``times`` a list of steps or ``{"from": a, "to": b}`` (every step a..b);
   ``{"term": "control", "name", "weight"}``; ``{"term": "control_limit", "name",
   "weight", "lower", "upper", "controls": "torque"}`` (a torque limit: dropped when the
-  dynamics' controls are accelerations).
+  dynamics' controls are accelerations); ``{"term": "inequality", "name", "map", "A", "b",
+  "times", "weight"}`` (one-sided bounds ``A phi <= b``, ``planning.costs.TaskInequality``;
+  further keys are information, e.g. a support polygon and its margin).
 """
 
 from __future__ import annotations
@@ -26,11 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from planning.costs import ControlCost, ControlLimit, ViaPoint
+from planning.costs import ControlCost, ControlLimit, TaskInequality, ViaPoint
 from plants.robots import Robot, shared_robot
 from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
 
 TermDesc = dict[str, Any]
+STATE_TERMS = ("via", "inequality")  # term kinds on x_t (the others are on u_t)
 
 
 # ------------------------------------------------------------------ descriptions
@@ -48,17 +51,30 @@ def cog(axes=(0, 1, 2), name: str = "cog") -> dict:
     return {"map": "cog", "axes": list(axes), "name": name}
 
 
-def via(name: str, taskmap: dict, target, times, weight: float, precision=None) -> TermDesc:
-    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``."""
+def _times_desc(times) -> list[int] | dict:
+    """Steps as stored: a list, or ``{"from": a, "to": b}`` for a range of step 1."""
     if isinstance(times, range):
         if times.step != 1:
             raise ValueError("a via-point range must have step 1")
-        times = {"from": times.start, "to": times.stop - 1}
-    else:
-        times = [int(t) for t in times]
+        return {"from": times.start, "to": times.stop - 1}
+    return [int(t) for t in times]
+
+
+def via(name: str, taskmap: dict, target, times, weight: float, precision=None) -> TermDesc:
+    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``."""
+    times = _times_desc(times)
     return {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
             "times": times, "weight": float(weight),
             "precision": None if precision is None else np.asarray(precision, float).tolist()}
+
+
+def inequality(name: str, taskmap: dict, A, b, times, weight: float, **info: Any) -> TermDesc:
+    """One-sided bounds ``A phi(q_t) <= b`` at ``times``, penalized by
+    ``w sum_i max(0, a_i . phi - b_i)^2``; ``info``: JSON-able facts kept with the term."""
+    A = np.atleast_2d(np.asarray(A, float))
+    return {"term": "inequality", "name": name, "map": taskmap, "A": A.tolist(),
+            "b": np.asarray(b, float).reshape(-1).tolist(), "times": _times_desc(times), "weight": float(weight),
+            **info}
 
 
 def control(weight: float, name: str = "control") -> TermDesc:
@@ -107,6 +123,9 @@ def build_term(robot, d: TermDesc):
     if kind == "via":
         return ViaPoint(build_taskmap(robot, d["map"]), d["target"], list(_times(d["times"])), d["weight"],
                         d.get("precision"), name=d["name"])
+    if kind == "inequality":
+        return TaskInequality(build_taskmap(robot, d["map"]), d["A"], d["b"], list(_times(d["times"])),
+                              d["weight"], name=d["name"])
     if kind == "control":
         return ControlCost(d["weight"], name=d["name"])
     if kind == "control_limit":
@@ -139,7 +158,7 @@ def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str =
         if d["term"] == "uncertainty":  # needs the learned model: the plan stage builds it
             continue
         term = build_term(robot, d)
-        (state if d["term"] == "via" else controls).append(term)
+        (state if d["term"] in STATE_TERMS else controls).append(term)
     return Objective(T, state, controls, kept)
 
 

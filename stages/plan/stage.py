@@ -8,6 +8,7 @@ std 0.05). Arrays follow the solver contract of ``planning.problem``.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -20,6 +21,7 @@ from plants.dynamics import PseudoDynamics
 from plants.registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
+from stages.plan.balance import BALANCE_MODES, MARGIN, apply_balance, cog_margins
 from stages.plan.tasks import TASKS, TaskSpec, get_task
 
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
@@ -66,7 +68,12 @@ class PlanConfig(StageConfig):
             "start": "AICO/R-AICO's first trajectory: held (x0 at every step, the thesis) or rollout (the zero-control "
                      "rollout, where crocoddyl FDDP's rollout start begins); iLQG always rolls out.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
-                              "an iteration that lowers the cost, grows and retries after one that raises it)."}
+                              "an iteration that lowers the cost, grows and retries after one that raises it).",
+            "balance": "Nao only: none (the task as stated), support (CoG ground projection kept 1.5 cm inside both "
+                       "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
+                       "CoG inside the left sole, right sole released and lifted >= 2 cm from T/3). CoG via-points "
+                       "outside the polygon are reported on stderr and planned at the nearest feasible point.",
+            "balance_margin": "With --balance: the CoG's least distance (m) inside every support-polygon edge."}
 
     plant: str
     task: str
@@ -88,6 +95,8 @@ class PlanConfig(StageConfig):
     start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
     belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
     controller_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 18's learning rate (1: none)
+    balance: str = "none"  # Nao: "none", "support" (double support) or "single" (left foot), stages.plan.balance
+    balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -117,6 +126,12 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown start '{self.start}': choose one of {', '.join(STARTS)}")
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
+        if self.balance not in BALANCE_MODES:
+            raise ValueError(f"unknown balance '{self.balance}': choose one of {', '.join(BALANCE_MODES)}")
+        if self.balance != "none" and self.plant != "nao":
+            raise ValueError(f"--balance {self.balance} needs --plant nao (a support polygon of the soles)")
+        if not (isinstance(self.balance_margin, (int, float)) and 0 <= self.balance_margin <= 0.04):
+            raise ValueError(f"balance-margin must be in [0, 0.04] m, got {self.balance_margin}")
         make_options(self.solver, self.solver_options())
 
     @property
@@ -150,6 +165,8 @@ class PlanConfig(StageConfig):
             d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
         if self.solver not in ("aico", "raico"):
             d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
+        if self.balance == "none":
+            d["balance_margin"] = MARGIN  # no balance term: its margin means nothing
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
@@ -209,11 +226,22 @@ class PlanOutput:
         costs = r.costs
         first = float(costs[0]) if costs.size else float("nan")
         init = float(r.initial_cost)
-        return {"initial_cost": init, "first_iteration_cost": first,
-                "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
-                "iterations": int(r.iterations), "status": str(r.status),
-                "wall_time_s": float(sum(h.time_s for h in r.history)),
-                "via_point_errors": self.via_point_errors(), "message": r.message}
+        out = {"initial_cost": init, "first_iteration_cost": first,
+               "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
+               "iterations": int(r.iterations), "status": str(r.status),
+               "wall_time_s": float(sum(h.time_s for h in r.history)),
+               "via_point_errors": self.via_point_errors(), "message": r.message}
+        if "balance" in self.description:  # only with --balance: other plans' metrics as before
+            out["balance"] = self.balance_metrics()
+        return out
+
+    def balance_metrics(self) -> dict:
+        """The balance objective's report (``stages.plan.balance``) and the planned CoG's smallest
+        static margin ``cog_min_margin`` (m, over steps 1..T) against its support polygon."""
+        b = dict(self.description["balance"])
+        margins = cog_margins(self.robot, self.result.X[1:], np.array(b["polygon"]))
+        b["cog_min_margin"] = float(np.nanmin(margins)) if np.isfinite(margins).any() else float("nan")
+        return b
 
 
 def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
@@ -245,6 +273,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
+    terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
     if cfg.sigma is not None:
         terms.append(uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units))
     objective = build_terms(robot, terms, task.T, kind)
@@ -254,6 +283,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
     desc = describe_problem(cfg, task, q0, objective.descriptions, model.ref if model else None, kind)
+    if balance is not None:
+        desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
 
 
@@ -265,6 +296,9 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
     cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
+    if "balance" in desc:  # say it before planning, never silently
+        if desc["balance"]["note"]:
+            print(desc["balance"]["note"], file=sys.stderr, flush=True)
     init = {}
     if cfg.start == "rollout" and warm_start is None and cfg.solver in ("aico", "raico"):
         init["U_init"] = np.zeros((problem.T, problem.n_u))  # the first trajectory: the zero-control rollout
