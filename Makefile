@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 # a name for it (older instructions say `make install anchors`).
 anchors: install
 
-# The AICO sweep kernel (planning/csweep.c, loaded by planning/kernels.py; the plants'
+# The AICO sweep kernel (planning/csweep.c on planning/dense.c, loaded by planning/kernels.py; the plants'
 # generated C is built on first use). Built by the one build helper (plants/codegen/c_backend.py)
 # with planning/kernels.py's FLAGS for this host's CPU into the kernel cache
 # (RAICO_KERNEL_DIR, default ~/.cache/raico/kernels; the flags are part of the file's key, so an
@@ -32,7 +32,7 @@ anchors: install
 # it says so and the numpy sweeps run.
 kernels: $(KERNEL)
 
-$(KERNEL): planning/csweep.c planning/kernels.py plants/codegen/c_backend.py $(STAMP)
+$(KERNEL): planning/csweep.c planning/dense.c planning/kernels.py plants/codegen/c_backend.py $(STAMP)
 	$(BIN)/python -m planning.kernels
 	touch $(KERNEL)
 

@@ -1,8 +1,10 @@
 """The AICO sweeps compiled: ``csweep.c`` loaded with ``ctypes`` (speed only, Algorithm 1 unchanged).
 
-``csweep.c`` is ``planning.aico._Sweeps``'s forward / backward / belief / settle code in C,
-with its own register-tiled dense loops (no BLAS: at the sweeps' sizes they beat OpenBLAS, see the
-measurements in ``csweep.c``). The source ships with the package (package data) and is compiled
+``csweep.c`` is ``planning.aico._Sweeps``'s forward / backward / belief / settle code in C, on
+the register-tiled dense linear algebra of ``dense.c`` (no BLAS: at the sweeps' sizes it beats
+OpenBLAS, see the measurements there; its entry points ``k_*`` are tested against numpy by
+tests/test_kernels.py). The two files are compiled as one translation unit (:data:`SOURCES`, in
+that order: the dense functions stay ``static`` and inline as before). The sources ship with the package (package data) and is compiled
 on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
 cache (``make kernels`` builds it ahead: ``python -m planning.kernels``). :data:`FLAGS` follow
 this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both) and are part of the cached
@@ -23,7 +25,12 @@ from pathlib import Path
 
 from plants.codegen import c_backend
 
-SOURCE = Path(__file__).with_name("csweep.c")
+SOURCES = (Path(__file__).with_name("dense.c"), Path(__file__).with_name("csweep.c"))
+
+
+def source_text() -> str:
+    """The kernel's one translation unit: ``dense.c`` then ``csweep.c``."""
+    return "".join(p.read_text() for p in SOURCES)
 # -O3 vectorizes the small dense loops; contraction into fused multiply-adds and the vectorized
 # sums marked `omp simd` (-fopenmp-simd: the pragmas only, no OpenMP runtime) are allowed here (the
 # sweeps are compared with the numpy code to a tolerance, not bit for bit). Later flags win.
@@ -56,7 +63,7 @@ _LIB: ctypes.CDLL | None | bool = None
 
 
 def _load() -> ctypes.CDLL:
-    lib = c_backend.load_library(SOURCE.read_text(), "csweep", flags=FLAGS)
+    lib = c_backend.load_library(source_text(), "csweep", flags=FLAGS)
     for f in ("sweep_work_size", "sweep_iwork_size"):
         getattr(lib, f).argtypes = [_L, _L]
         getattr(lib, f).restype = _L

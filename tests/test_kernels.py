@@ -61,7 +61,7 @@ def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
 def test_a_broken_kernel_source_fails_loudly(tmp_path):
     """gcc present and the source broken (a syntax error): the build raises CompileError (never the
     silent numpy fallback), and so does ``python -m planning.kernels`` (make kernels)."""
-    broken = kernels.SOURCE.read_text().replace("sweep_run(", "sweep_run((", 1)
+    broken = kernels.source_text().replace("sweep_run(", "sweep_run((", 1)
     with pytest.raises(c_backend.CompileError, match="gcc failed on csweep"):
         c_backend.build_library(broken, "csweep", directory=tmp_path, flags=kernels.FLAGS)
     assert not list(tmp_path.glob("*.so"))
@@ -69,7 +69,7 @@ def test_a_broken_kernel_source_fails_loudly(tmp_path):
     copy = tmp_path / "repo"
     for pkg in ("plants", "planning"):
         shutil.copytree(REPO / pkg, copy / pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    (copy / "planning" / "csweep.c").write_text(broken)
+    (copy / "planning" / "csweep.c").write_text(kernels.SOURCES[1].read_text().replace("sweep_run(", "sweep_run((", 1))
     env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(copy)}
     env.pop("RAICO_NO_C", None)
     p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=copy, env=env,
@@ -80,8 +80,11 @@ def test_a_broken_kernel_source_fails_loudly(tmp_path):
 def test_the_kernel_source_is_package_data():
     """A wheel or non-editable install has ``planning/csweep.c`` (pyproject's package data)."""
     data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    assert "csweep.c" in data["planning"]
-    assert (REPO / "planning" / "csweep.c").exists()
+    import fnmatch
+
+    for name in ("dense.c", "csweep.c"):
+        assert any(fnmatch.fnmatch(name, pat) for pat in data["planning"]), name
+        assert (REPO / "planning" / name).exists()
 
 
 def test_the_kernel_flags_follow_this_cpu():
@@ -90,7 +93,7 @@ def test_the_kernel_flags_follow_this_cpu():
     cpu = c_backend.cpu_features()
     assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
     assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
-    source = kernels.SOURCE.read_text()
+    source = kernels.source_text()
     here = c_backend.library_path(source, "csweep", flags=kernels.FLAGS)
     portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma"))
     assert c_backend.library_path(source, "csweep", flags=portable) != here
