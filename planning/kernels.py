@@ -21,6 +21,7 @@ Only an explicit opt-out (``RAICO_NO_C=1``) or a machine without ``gcc`` gives :
 from __future__ import annotations
 
 import ctypes
+from enum import IntEnum
 from pathlib import Path
 
 from plants.codegen import c_backend
@@ -96,6 +97,17 @@ if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (
 
 
 # -- compiled task messages -------------------------------------------------------------------------
+class MessageKind(IntEnum):
+    """What a compiled task term evaluates: ``enum message_kind`` of ``plants/codegen/rbd_kernels.c``
+    (the same values; tests/test_kernels.py reads the C enum and compares)."""
+
+    FRAME_POINTS = 0     # ViaPoint on FramePoints
+    CENTER_OF_MASS = 1   # ViaPoint on CenterOfMass
+    ROLL = 2             # ViaPoint on RollAngle
+    JOINTS = 3           # ViaPoint on JointPositions (phi = S q)
+    STATE_TARGET = 4     # StateTarget on the whole state
+
+
 class _VTerm(ctypes.Structure):
     _fields_ = [("kind", _L), ("body", _L), ("npts", _L), ("dim", _L), ("R_BF", _V), ("p_BF", _V),
                 ("pts", _V), ("rows", _V), ("S", _V), ("target", _V), ("C", _V), ("weight", _D),
@@ -139,7 +151,7 @@ def compile_task_set(problem):
         vt.weight = float(term.weight)
         vt.active = arr(term.active(steps), np.uint8)
         if isinstance(term, StateTarget):
-            vt.kind, vt.dim = 4, nx
+            vt.kind, vt.dim = MessageKind.STATE_TARGET, nx
             vt.target, vt.C = arr(term.target), arr(term.C)
             terms.append(vt)
             continue
@@ -149,25 +161,25 @@ def compile_task_set(problem):
         vt.dim = tm.dim
         vt.target, vt.C = arr(term.target), arr(term.C)
         if type(tm) is JointPositions:
-            vt.kind, vt.S = 3, arr(tm.S)
+            vt.kind, vt.S = MessageKind.JOINTS, arr(tm.S)
             terms.append(vt)
             continue
         if type(tm) not in (FramePoints, CenterOfMass, RollAngle):
             return None
-        k = tm._tree()
+        k = tm.tree_kernels()
         if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
             return None
         kern, robot = k, tm.robot
         if type(tm) is FramePoints:
-            vt.kind, vt.npts = 0, len(tm.points)
-            vt.body = k.tree.body(tm._body_name)
-            vt.R_BF, vt.p_BF, vt.pts = arr(tm._R_BF), arr(tm._p_BF), arr(tm.points)
+            vt.kind, vt.npts = MessageKind.FRAME_POINTS, len(tm.points)
+            vt.body = k.tree.body(tm.body_name)
+            vt.R_BF, vt.p_BF, vt.pts = arr(tm.frame_rotation), arr(tm.frame_offset), arr(tm.points)
             vt.rows = arr(tm.rows, np.int64)
         elif type(tm) is CenterOfMass:
-            vt.kind, vt.rows = 1, arr(tm.axes, np.int64)
+            vt.kind, vt.rows = MessageKind.CENTER_OF_MASS, arr(tm.axes, np.int64)
         else:
-            vt.kind, vt.body = 2, k.tree.body(tm._body_name)
-            vt.R_BF, vt.rows = arr(tm._R_BF), arr([0], np.int64)
+            vt.kind, vt.body = MessageKind.ROLL, k.tree.body(tm.body_name)
+            vt.R_BF, vt.rows = arr(tm.frame_rotation), arr([0], np.int64)
         terms.append(vt)
     if kern is None:
         return None    # the evaluator lives in a robot's tree library

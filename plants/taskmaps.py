@@ -88,8 +88,8 @@ class _DrakeMap(_BatchByPoints):
         """``phi (dim,)`` and ``d phi / d qp (dim, m)`` at plant positions ``qp (m,)``."""
         raise NotImplementedError
 
-    def _tree(self):
-        """The compiled tree kernels of the robot, or ``None``."""
+    def tree_kernels(self):
+        """The compiled tree kernels of the robot (``plants.codegen.rbd``), or ``None``."""
         k = self._kernels
         if k is None:
             from plants.codegen.rbd import tree_kernels
@@ -105,7 +105,7 @@ class _DrakeMap(_BatchByPoints):
         raise NotImplementedError
 
     def _eval_plant(self, qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        k = self._tree()
+        k = self.tree_kernels()
         if k is not None and np.all(np.isfinite(qp)):
             return self._compiled_in_plant(k, qp)
         return self._in_plant(qp)
@@ -122,7 +122,7 @@ class _DrakeMap(_BatchByPoints):
         ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
         V = np.full((Q.shape[0], self.dim), np.nan)
         J = np.full((Q.shape[0], self.dim, Q.shape[1]), np.nan)
-        k = self._tree()
+        k = self.tree_kernels()
         if ok.size == 0:  # nothing finite: all NaN (a diverged trajectory)
             return V, J
         if k is not None:
@@ -148,6 +148,21 @@ class FramePoints(_DrakeMap):
     (e.g. ``(1, 2)`` for y and z). Three points on a sole pin its whole pose.
     """
 
+
+    @property
+    def body_name(self) -> str:
+        """The body the frame is fixed to."""
+        return self._body_name
+
+    @property
+    def frame_rotation(self) -> np.ndarray:
+        """``R_BF (3, 3)``: the frame's orientation in its body."""
+        return self._R_BF
+
+    @property
+    def frame_offset(self) -> np.ndarray:
+        """``p_BF (3,)`` m: the frame's origin in its body."""
+        return self._p_BF
     def __init__(self, robot, frame: str, points=None, axes=(0, 1, 2), name: str | None = None):
         super().__init__(robot, name or f"{frame}_position")
         self.frame = robot.plant.GetFrameByName(frame)
@@ -204,6 +219,16 @@ class RollAngle(_DrakeMap):
 
     dim = 1
 
+
+    @property
+    def body_name(self) -> str:
+        """The body the frame is fixed to."""
+        return self._body_name
+
+    @property
+    def frame_rotation(self) -> np.ndarray:
+        """``R_BF (3, 3)``: the frame's orientation in its body."""
+        return self._R_BF
     def __init__(self, robot, frame: str, name: str = "roll"):
         super().__init__(robot, name)
         self.frame = robot.plant.GetFrameByName(frame)

@@ -342,10 +342,10 @@ def test_compiled_task_maps_equal_drake(name, plant):
     for m in maps:
         if not hasattr(m, "_in_plant"):
             continue
-        assert m._tree() is not None
+        assert m.tree_kernels() is not None
         for q in Q:
             qp = robot.P @ q
-            for got, ref in zip(m._compiled_in_plant(m._tree(), qp), m._in_plant(qp)):
+            for got, ref in zip(m._compiled_in_plant(m.tree_kernels(), qp), m._in_plant(qp)):
                 np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
         V, J = m.values_and_jacobians(Q)
         for i, q in enumerate(Q):
@@ -367,3 +367,15 @@ def test_emitted_c_is_the_python_arithmetic():
     out = code.sca["mh"]([*x.tolist()], [0.0] * 30)
     assert np.array_equal(Mr.reshape(-1), np.array(out[:25])) and np.array_equal(hr, np.array(out[25:]))
     assert "-ffp-contract=off" in c_backend.CFLAGS
+
+
+def test_message_kinds_are_named_alike_in_python_and_c():
+    """The compiled task terms are selected by named constants: planning.kernels.MessageKind mirrors
+    ``enum message_kind`` of plants/codegen/rbd_kernels.c value for value."""
+    import re
+
+    src = (REPO / "plants" / "codegen" / "rbd_kernels.c").read_text()
+    body = re.search(r"enum message_kind \{([^}]*)\}", src).group(1)
+    c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
+    assert c_enum == {k.name: int(k) for k in kernels.MessageKind}
+    assert not re.search(r"tm->kind == \d", src)  # no bare numbers where the kinds are tested

@@ -450,8 +450,11 @@ int tree_id_derivatives(const double *q, const double *v, const double *a, doubl
 /* ---- compiled task messages (planning/kernels.py: compile_task_set): the summed gradient
  * l_x and Gauss-Newton Hessian l_xx of via-point terms w (x* - phi(q))^T C (x* - phi(q)) and state
  * targets w (x - x*)^T C (x - x*) at one state, as ViaPoint / StateTarget.add_point_derivatives ---- */
+/* what a term evaluates (planning/kernels.py: MessageKind, the same values) */
+enum message_kind { MK_FRAME_POINTS = 0, MK_CENTER_OF_MASS = 1, MK_ROLL = 2, MK_JOINTS = 3, MK_STATE_TARGET = 4 };
+
 typedef struct {
-    long kind;               /* 0 frame points, 1 centre of mass, 2 roll, 3 joint selection, 4 state target */
+    long kind;               /* enum message_kind */
     long body, npts, dim;
     const double *R_BF, *p_BF, *pts;
     const long *rows;        /* rows of the map's full output kept (dim) */
@@ -483,7 +486,7 @@ int taskset_eval(const void *cv, long t, const double *x, double *lx, double *lx
         if (tm->weight == 0.0 || !tm->active[t]) continue;
         int dim = (int)tm->dim;
         double w2 = 2.0 * tm->weight;
-        if (tm->kind == 4) {   /* state target: lx = 2w C (x - x*), lxx = 2w C */
+        if (tm->kind == MK_STATE_TARGET) {   /* state target: lx = 2w C (x - x*), lxx = 2w C */
             for (int i = 0; i < nx; i++) e[i] = x[i] - tm->target[i];
             for (int j = 0; j < nx; j++) {
                 double v = 0.0;
@@ -494,15 +497,15 @@ int taskset_eval(const void *cv, long t, const double *x, double *lx, double *lx
             continue;
         }
         int nfull = 0;
-        if (tm->kind == 0) {
+        if (tm->kind == MK_FRAME_POINTS) {
             nfull = 3 * (int)tm->npts;
             double pos[TMAX];
             tree_frame_points(qp, (int)tm->body, tm->R_BF, tm->p_BF, (int)tm->npts, tm->pts, pos, Jf);
             memcpy(full, pos, sizeof(double) * nfull);
-        } else if (tm->kind == 1) {
+        } else if (tm->kind == MK_CENTER_OF_MASS) {
             nfull = 3;
             tree_com(qp, full, Jf);
-        } else if (tm->kind == 2) {
+        } else if (tm->kind == MK_ROLL) {
             double R[9], Jw[3 * MP];
             nfull = 1;
             tree_frame_rotation(qp, (int)tm->body, tm->R_BF, R, Jw);
@@ -513,7 +516,7 @@ int taskset_eval(const void *cv, long t, const double *x, double *lx, double *lx
                 Jf[j] = (b * da - a * db) / den;
             }
         }
-        if (tm->kind == 3) {   /* phi = S q, J = S (planning coordinates) */
+        if (tm->kind == MK_JOINTS) {   /* phi = S q, J = S (planning coordinates) */
             for (int r = 0; r < dim; r++) {
                 double v = 0.0;
                 for (int j = 0; j < nq; j++) v += tm->S[r * nq + j] * x[j];
