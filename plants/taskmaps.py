@@ -141,13 +141,8 @@ class _DrakeMap(_BatchByPoints):
                 np.array([o[1] for o in out]).reshape(len(Qp), self.dim, -1))
 
 
-class FramePoints(_DrakeMap):
-    """World positions (m) of points fixed in a frame, stacked: ``(3 k,)``; Jacobian ``(3 k, n_q)``.
-
-    One point at the frame origin is an end-effector position; ``axes`` keeps some coordinates
-    (e.g. ``(1, 2)`` for y and z). Three points on a sole pin its whole pose.
-    """
-
+class _OnFrame:
+    """A task map read at a frame fixed to a body: the data the compiled task messages need."""
 
     @property
     def body_name(self) -> str:
@@ -159,10 +154,14 @@ class FramePoints(_DrakeMap):
         """``R_BF (3, 3)``: the frame's orientation in its body."""
         return self._R_BF
 
-    @property
-    def frame_offset(self) -> np.ndarray:
-        """``p_BF (3,)`` m: the frame's origin in its body."""
-        return self._p_BF
+
+class FramePoints(_OnFrame, _DrakeMap):
+    """World positions (m) of points fixed in a frame, stacked: ``(3 k,)``; Jacobian ``(3 k, n_q)``.
+
+    One point at the frame origin is an end-effector position; ``axes`` keeps some coordinates
+    (e.g. ``(1, 2)`` for y and z). Three points on a sole pin its whole pose.
+    """
+
     def __init__(self, robot, frame: str, points=None, axes=(0, 1, 2), name: str | None = None):
         super().__init__(robot, name or f"{frame}_position")
         self.frame = robot.plant.GetFrameByName(frame)
@@ -176,6 +175,11 @@ class FramePoints(_DrakeMap):
         X_BF = self.frame.GetFixedPoseInBodyFrame()
         self._R_BF = np.ascontiguousarray(X_BF.rotation().matrix())
         self._p_BF = np.ascontiguousarray(X_BF.translation())
+
+    @property
+    def frame_offset(self) -> np.ndarray:
+        """``p_BF (3,)`` m: the frame's origin in its body."""
+        return self._p_BF
 
     def _compiled_in_plant(self, kernels, qp):
         pos, J = kernels.frame_points(qp, kernels.tree.body(self._body_name), self._R_BF,
@@ -210,7 +214,7 @@ def EndEffectorPosition(robot, frame: str, axes=(0, 1, 2), name: str | None = No
     return FramePoints(robot, frame, axes=axes, name=name or f"{frame}_position")
 
 
-class RollAngle(_DrakeMap):
+class RollAngle(_OnFrame, _DrakeMap):
     """The end effector's roll (rad): rotation about its pointing axis x_E, measured from "z_E up".
 
     ``roll = atan2(y_E . z_W, z_E . z_W)``; defined wherever x_E is not vertical. Its Jacobian
@@ -219,16 +223,6 @@ class RollAngle(_DrakeMap):
 
     dim = 1
 
-
-    @property
-    def body_name(self) -> str:
-        """The body the frame is fixed to."""
-        return self._body_name
-
-    @property
-    def frame_rotation(self) -> np.ndarray:
-        """``R_BF (3, 3)``: the frame's orientation in its body."""
-        return self._R_BF
     def __init__(self, robot, frame: str, name: str = "roll"):
         super().__init__(robot, name)
         self.frame = robot.plant.GetFrameByName(frame)
