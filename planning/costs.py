@@ -142,7 +142,20 @@ class StateTerm:
         raise NotImplementedError
 
 
-class ViaPoint(StateTerm):
+class _OnPositions(StateTerm):
+    """A state term of the joint positions only: its derivatives are the ``q`` blocks that
+    ``_q_blocks(X) -> (g (K, n_q), H (K, n_q, n_q), n_q)`` gives, zero elsewhere."""
+
+    def _derivs(self, X, idx):
+        g, H, n_q = self._q_blocks(X)
+        lx = np.zeros(X.shape)
+        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
+        lx[:, :n_q] = g
+        lxx[:, :n_q, :n_q] = H
+        return lx, lxx
+
+
+class ViaPoint(_OnPositions):
     """Task-space via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at the listed steps.
 
     Args:
@@ -210,13 +223,6 @@ class ViaPoint(StateTerm):
         lx[:n_q] -= (2.0 * self.weight) * ((self.target - phi) @ CJ)
         lxx[:n_q, :n_q] += (2.0 * self.weight) * (J.T @ CJ)
 
-    def _derivs(self, X, idx):
-        g, H, n_q = self._q_blocks(X)
-        lx = np.zeros(X.shape)
-        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
-        lx[:, :n_q] = g
-        lxx[:, :n_q, :n_q] = H
-        return lx, lxx
 
     def add_derivatives(self, X, idx, lx, lxx) -> None:
         """As ``StateTerm.add_derivatives``, touching only the ``q`` blocks."""
@@ -236,7 +242,7 @@ class ViaPoint(StateTerm):
             lxx[rows, :n_q, :n_q] += H
 
 
-class TaskInequality(StateTerm):
+class TaskInequality(_OnPositions):
     """One-sided task-space bounds, a squared-hinge penalty at the listed steps:
     ``w sum_i max(0, a_i . phi(q_t) - b_i)^2`` (zero where ``A phi(q_t) <= b``).
 
@@ -296,13 +302,6 @@ class TaskInequality(StateTerm):
         H = (2.0 * self.weight) * np.matmul(np.swapaxes(AJa, 1, 2), AJa)
         return g, H, n_q
 
-    def _derivs(self, X, idx):
-        g, H, n_q = self._q_blocks(X)
-        lx = np.zeros(X.shape)
-        lxx = np.zeros((X.shape[0], X.shape[1], X.shape[1]))
-        lx[:, :n_q] = g
-        lxx[:, :n_q, :n_q] = H
-        return lx, lxx
 
     def add_point_derivatives(self, x, t, lx, lxx) -> None:
         """As ``StateTerm.add_point_derivatives``: one task-map evaluation, ``q`` blocks only."""
