@@ -69,6 +69,23 @@ def bench_block(results: Path) -> str:
             rows.append(f"| {r['solver']} | {r['iterations']} | {r['final_cost']:.4g} | {_seconds(r['iteration_median_s'])} | "
                         f"{r['iteration_ratio_to_fddp']:.2f} | {_seconds(tt) if tt is not None else 'not reached'} | "
                         f"{f'{ttr:.2f}' if ttr is not None else ''} | {r['cost_at_budget']:.4g} |")
+    details = {r["benchmark"]: r["detail"] for r in doc.get("results", []) if "detail" in r}
+    sparse = next((d for name, d in details.items() if name.startswith("GP sparse vs exact")), None)
+    if sparse:
+        rows += ["", "The sparse GP against the exact GP at N = 1000 (same hyperparameters, the bench's synthetic "
+                 "15-input data):", "", "| inducing points M | time per output | held-out RMSE / exact GP's | "
+                 "largest mean difference along the trajectory (output std) |", "|---|---|---|---|"]
+        for m, r in sparse.items():
+            ratios = r.get("heldout_rmse_ratio") or []
+            rows.append(f"| {m} | {_seconds(r['mean_var_all_gradients_ms_per_output'] / 1e3)} | "
+                        f"{min(ratios):.2f}-{max(ratios):.2f} | {r['trajectory_max_mean_diff_over_ystd']:.2g} |")
+    evaluation = next((d for name, d in details.items() if name.startswith("fig4.3 evaluation at")), None)
+    if evaluation:
+        rows += ["", "One fig4.3 evaluation at 1000 training points, split:", "",
+                 "| GP | points | fit | plan | execute | the fit |", "|---|---|---|---|---|---|"]
+        for kind, r in evaluation.items():
+            rows.append(f"| {kind} | {r['n_points']} | {_seconds(r['fit_s'])} | {_seconds(r['plan_s'])} | "
+                        f"{_seconds(r['execute_s'])} | {r.get('fit_mode', '')} |")
     scaling = [r for r in doc.get("results", []) if "expected_exponent" in r]
     if scaling:
         rows += ["", "How cost grows with the work (`artifacts/bench/scaling.png`; exponent: slope of log time against "
