@@ -44,7 +44,8 @@ Plan recordings:
 
 Execute recordings plot ``task/<name>/value`` (executed) against ``task/<name>/planned`` and the
 targets in one view per task map, the tracking error, the joints and torques by limb, the
-status and the events; babble and fit recordings follow the same layout.
+status and the events; babble and fit recordings follow the same layout. Learn recordings
+(``pipeline/recorders_learn.py``) plot the loop's quantities per episode on ``episode``.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ import numpy as np
 from pipeline import recording as rec_mod
 from pipeline.mcap_io import write_trajectory_mcap
 from pipeline.recorders_fit import record_fit
+from pipeline.recorders_learn import record_learn
 
 RECORDING = "recording.rrd"
 MCAP = "trajectory.mcap"
@@ -539,4 +541,5 @@ def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, m
             stream.log("world/cog_line", rr.LineStrips3D([[cog[k], ground]], colors=[(255, 210, 0)], radii=0.002))
 
 
-RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit}
+RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit,
+             "learn": record_learn}

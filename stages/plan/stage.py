@@ -274,15 +274,14 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
-    if cfg.sigma is not None:
-        terms.append(uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units))
     objective = build_terms(robot, terms, task.T, kind)
-    joint = [Uncertainty(dyn, d["sigma_star"], d["weight"], task.T, name=d["name"],
-                         units=d.get("units", "standardized"))
-             for d in objective.descriptions if d["term"] == "uncertainty"]
+    descriptions, joint = objective.descriptions, []
+    if cfg.sigma is not None:  # the uncertainty term from the config's values (its description only stored)
+        joint = [Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units)]
+        descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
-    desc = describe_problem(cfg, task, q0, objective.descriptions, model.ref if model else None, kind)
+    desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
