@@ -8,7 +8,9 @@ A stage is a plain object that knows nothing of the CLI or the cache:
 - ``sources``: the modules/packages whose source files make its code version (editing
   them invalidates its cache entries);
 - ``inputs(config)``: the input artifacts the config names, as :class:`InputRef`;
-- ``run(config, inputs, progress) -> StageOutput``: the computation;
+- ``run(config, inputs, progress) -> StageOutput``: the computation, on a config the runner has
+  normalized (``config.normalized()``, if the class defines it: one spelling per meaning, so one
+  key) and validated (``config.validate()``) once, so ``run`` need not do either again;
 - ``data_files``: the data files ``run`` returns (``.npz`` arrays or JSON documents).
 
 The pipeline (``pipeline/runner.py``) resolves the inputs, keys the run by

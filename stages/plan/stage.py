@@ -291,9 +291,10 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
          warm_start: Artifact | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception.
 
-    ``warm_start``: an earlier plan of the same horizon: its controls are the initial guess, and with
+    ``cfg``: a valid config (the runner validates and normalizes it before the stage runs; the solver
+    checks its options again, as the planning library checks every caller's). ``warm_start``: an
+    earlier plan of the same horizon: its controls are the initial guess, and with
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
-    cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
@@ -321,9 +322,10 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
 
 
 def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None = None) -> StageOutput:
-    """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``."""
+    """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``; ``cfg``
+    normalized and validated by the runner."""
     inputs = inputs or {}
-    out = plan(cfg.normalized(), inputs.get("model"), progress, inputs.get("warm_start"))
+    out = plan(cfg, inputs.get("model"), progress, inputs.get("warm_start"))
     return StageOutput(status=str(out.result.status), metrics=out.metrics(), arrays={PLAN_FILE: out.arrays()},
                        documents={PROBLEM_FILE: out.description}, payload=out)
 
