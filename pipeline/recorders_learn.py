@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import recording as rec_mod
-from pipeline.cache import Cache
 from pipeline.artifacts import as_artifact
+from pipeline.cache import Cache
 
 LEARN_VIEWS = {  # view name -> entity root (the learn recording's plots, one quantity and unit each)
     "GP error on the next execution, log10 (rad/s^2)": "gp_error_log10",

@@ -27,8 +27,8 @@ def learn_json(tmp_path, *extra):
 def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     from rerun.chunk import RrdReader
 
-    from pipeline.cache import Cache
     from pipeline.artifacts import as_artifact
+    from pipeline.cache import Cache
 
     two, _ = learn_json(tmp_path, "--episodes", 2)
     m = two["metrics"]
