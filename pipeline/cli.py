@@ -16,7 +16,7 @@ import sys
 
 # The raico command quiets Rerun's Rust-side log lines (e.g. its file writer's own coloured errors,
 # which the command reports as one line instead); a RUST_LOG the user set wins. Here, in the
-# command's module, not in the library modules: importing pipeline.recording or the stages leaves
+# command's module, not in the library modules: importing pipeline.rerun_io or the stages leaves
 # RUST_LOG to the user. Set before Rerun loads (it reads RUST_LOG when it is imported).
 os.environ.setdefault("RUST_LOG", "off")
 

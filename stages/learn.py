@@ -219,7 +219,7 @@ def gp_joint_errors(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray) ->
 
 def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """Drake's forward dynamics ``qddot (K, n_q)`` at states ``X (K, n_x)`` under torques ``tau``."""
-    from plants.registry import make_dynamics
+    from plants.dynamics_registry import make_dynamics
 
     dyn = make_dynamics("analytic", robot, dt)
     n = robot.n_q

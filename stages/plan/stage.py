@@ -18,7 +18,7 @@ from planning.objective import Objective, build_terms, objective_from_descriptio
 from planning.problem import Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
-from plants.registry import make_dynamics
+from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, apply_balance, cog_margins

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import recording as rec_mod
+from pipeline import rerun_io as rec_mod
 from pipeline.artifacts import as_artifact
 from pipeline.cache import Cache
 
