@@ -179,7 +179,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
     return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
-                      alpha=v.alpha if v.solver == "raico" else 1.0, gamma=v.gamma, start=v.start,
+                      alpha=v.alpha, gamma=v.gamma, start=v.start,
                       belief_rate=v.belief_rate, controller_rate=v.controller_rate,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
