@@ -196,3 +196,32 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     assert usable_steps(art("limits", 0.5), 0.002, 750) == 750
     assert usable_steps(art("tracking-lost", 0.5), 0.002, 750) == 250
     assert usable_steps(art("diverged", 0.0), 0.002, 750) == 0
+
+
+def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypatch):
+    """Issue 20 item 2: ``learn`` is a registered stage (its recorder with the others); its code version
+    joins its steps', so editing the plan stage's code gives it another key; its steps are only the
+    stages it names."""
+    import dataclasses
+
+    from pipeline import runner
+    from pipeline.cache import Cache
+    from pipeline.recorders import RECORDERS
+    from pipeline.ui import Reporter
+    from stages.execute import ExecuteConfig
+    from stages.learn import LearnConfig
+    from stages.registry import get_stage, stage_names
+
+    stage = get_stage("learn")
+    assert "learn" in stage_names() and "learn" in RECORDERS
+    assert stage.step_stages == ("babble", "fit", "plan", "execute")
+    version = runner.code_version(stage)
+    assert all(runner.code_version(get_stage(s)) in version for s in stage.step_stages)
+    cache, cfg = Cache(tmp_path), LearnConfig(plant="pendulum", task="swing-up")
+    key = runner.run_key(cache, "learn", cfg)
+    real = runner._code_version
+    monkeypatch.setattr(runner, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
+    assert runner.run_key(cache, "learn", cfg) != key
+    only_babble = dataclasses.replace(stage, step_stages=("babble",))
+    with pytest.raises(ValueError, match="runs babble as steps, not execute"):
+        runner._steps(cache, only_babble, Reporter(quiet=True)).run("execute", ExecuteConfig(plan="x"))
