@@ -17,13 +17,13 @@ def bench_learn_episode() -> dict:
     """``{"fit_s", "plan_s", "execute_s", "n_points"}`` of episode 1 of fig4.3's ``every`` setting."""
     from pipeline.cache import Cache
     from pipeline.experiments import LEARN_EXPERIMENTS, learn_config
-    from pipeline.learn import learn
+    from pipeline.runner import run
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], 0, quick=True)
     cfg = type(cfg)(**{**cfg.to_dict(), "episodes": 1})
     with tempfile.TemporaryDirectory() as tmp:
-        out = learn(Cache(tmp), cfg, record=False)
+        out = run(Cache(tmp), "learn", cfg, record=False)
         doc = json.loads((Path(out.path) / "episodes.json").read_text())
         ep = doc["episodes"][0]
         t = {stage: json.loads((Path(tmp) / stage / ep[stage] / "meta.json").read_text())["timings"]["compute_s"]
@@ -38,13 +38,13 @@ def bench_learn_default(episodes: int = 20, seed: int = 0) -> dict:
     import time
 
     from pipeline.cache import Cache
-    from pipeline.learn import learn
+    from pipeline.runner import run
     from stages.learn import LearnConfig
 
     cfg = LearnConfig(plant="biorob", task="reach", episodes=episodes, alpha=2.0, seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        out = learn(Cache(tmp), cfg, record=False)
+        out = run(Cache(tmp), "learn", cfg, record=False)
         wall = time.perf_counter() - t0
     m = out.metrics
     return {"wall_s": wall, "task_error_last": m["task_error"][-1], "status_last": m["execution_status"][-1],
@@ -65,14 +65,14 @@ def bench_learn_evaluation(gp: str = "exact", inducing: int = 200, points: int =
     Returns ``{"fit_s", "plan_s", "execute_s", "total_s", "n_points", "gp", "n_inducing"}``."""
     from pipeline.cache import Cache
     from pipeline.experiments import LEARN_EXPERIMENTS, learn_config
-    from pipeline.learn import learn
+    from pipeline.runner import run
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], seed, quick=True)
     cfg = type(cfg)(**{**cfg.to_dict(), "episodes": max(1, points // 250), "babble_points": 250, "stride": 2,
                        "restarts": 0, "gp": gp, "inducing": inducing, "max_points": max(cfg.max_points, points)})
     with tempfile.TemporaryDirectory() as tmp:
-        out = learn(Cache(tmp), cfg, record=False)
+        out = run(Cache(tmp), "learn", cfg, record=False)
         ep = json.loads((Path(out.path) / "episodes.json").read_text())["episodes"][-1]
         t = {stage: json.loads((Path(tmp) / stage / ep[stage] / "meta.json").read_text())["timings"]["compute_s"]
              for stage in ("fit", "plan", "execute")}

@@ -44,7 +44,7 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
     """The task's problem at horizon ``T`` (via-point times are fractions of ``T``; seed 0)."""
     from planning.objective import build_terms
     from planning.problem import Problem
-    from plants.registry import make_dynamics
+    from plants.dynamics_registry import make_dynamics
     from stages.plan.stage import control_kind, initial_posture, shared_robot
     from stages.plan.tasks import get_task
 

@@ -35,7 +35,7 @@ def _cache(artifacts: str | Path | None) -> Cache:
 
 
 def run(stage: str, artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
-    """Run (or look up) one stage (``babble``, ``fit``, ``plan``, ``execute``, ``evaluate``) with
+    """Run (or look up) one stage (``babble``, ``fit``, ``plan``, ``execute``, ``evaluate``, ``learn``) with
     the config fields ``config``; the result is cached as by the CLI."""
     from pipeline import runner
     from stages.registry import get_stage
@@ -73,10 +73,7 @@ def evaluate(artifacts: str | Path | None = None, record: bool = True, **config:
 
 def learn(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
     """The learning loop (``raico learn``): babble, then fit, plan and execute per episode."""
-    from pipeline.learn import learn as learn_loop
-    from stages.learn import LearnConfig
-
-    return learn_loop(_cache(artifacts), LearnConfig(**config), record=record)
+    return run("learn", artifacts, record, **config)
 
 
 def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bool = False, jobs: int = 2,

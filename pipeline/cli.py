@@ -16,7 +16,7 @@ import sys
 
 # The raico command quiets Rerun's Rust-side log lines (e.g. its file writer's own coloured errors,
 # which the command reports as one line instead); a RUST_LOG the user set wins. Here, in the
-# command's module, not in the library modules: importing pipeline.recording or the stages leaves
+# command's module, not in the library modules: importing pipeline.rerun_io or the stages leaves
 # RUST_LOG to the user. Set before Rerun loads (it reads RUST_LOG when it is imported).
 os.environ.setdefault("RUST_LOG", "off")
 
@@ -174,21 +174,6 @@ def stage_command(name: str) -> None:
                                                                   reporter=reporter))
 
 
-def learn_command() -> None:
-    """``raico learn``: the learning loop (babble, then fit, plan, execute per episode)."""
-    from stages.learn import LearnConfig
-
-    def action(cache, cfg, record, reporter):
-        from pipeline.learn import learn
-
-        with reporter.progress(f"learn {cfg.plant} {cfg.task}", cfg.episodes) as update:
-            return learn(cache, cfg, record=record, reporter=reporter, progress=update)
-
-    config_command("learn", LearnConfig, "Learn a GP forward model while planning: babble, then per episode "
-                   "fit, plan (R-AICO on the GP, uncertainty term) and execute in Drake; every run cached.",
-                   action)
-
-
 def open_cache(artifacts: str | Path | None) -> Cache:
     """The cache at ``--artifacts`` (or ``$RAICO_ARTIFACTS``, or ``./artifacts``).
 
@@ -220,7 +205,6 @@ def _register_commands() -> None:
 
     for name in stage_names():
         stage_command(name)
-    learn_command()
 
 
 _register_commands()
@@ -317,7 +301,7 @@ def ls(
     from stages.registry import stage_names
 
     cache = open_cache(artifacts)
-    known = [*stage_names(), "learn"]
+    known = stage_names()
     if stage is not None and stage not in known:
         raise BadInput(f"unknown stage '{stage}': choose one of {', '.join(known)}")
     for name, value in (("plant", plant), ("task", task), ("solver", solver), ("status", status)):

@@ -179,7 +179,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
     return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
-                      alpha=v.alpha if v.solver == "raico" else 1.0, gamma=v.gamma, start=v.start,
+                      alpha=v.alpha, gamma=v.gamma, start=v.start,
                       belief_rate=v.belief_rate, controller_rate=v.controller_rate,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
@@ -301,7 +301,7 @@ def cost_curves(cache: Cache, plans: list[dict], variant: Variant, what: str = "
     """``(seeds, iterations)`` per-iteration ``what`` (``costs`` or ``elapsed`` wall time, s) of a
     variant's runs; runs that stopped early hold their last value, diverged runs are NaN after
     they diverged."""
-    from pipeline.runner import as_artifact
+    from pipeline.artifacts import as_artifact
 
     curves = []
     for p in plans:
@@ -332,7 +332,7 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
             continue
         m = dict(p["outcome"].metrics)
         if cache is not None:
-            from pipeline.runner import as_artifact
+            from pipeline.artifacts import as_artifact
 
             art = as_artifact(cache.require("plan", p["outcome"].key))
             nao_reach = art.config.get("plant") == "nao" and art.config.get("task") == "reach"
@@ -455,22 +455,12 @@ def learn_config(exp: LearnExperiment, s: LearnSetting, seed: int, quick: bool):
                        episodes=exp.quick_episodes if quick else exp.episodes)
 
 
-def _learn_job(args) -> dict:
-    root, cfg, record = args
-    from pipeline.learn import learn
-
-    return learn(Cache(root), cfg, record=record).__dict__
-
-
 def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: bool = True):
     """Every setting's learning loops of ``exp`` as a scheduler flow (one job per loop, each a long
     sequential chain of stage runs). Returns ``{"learns"}``."""
-    from pipeline.learn import lookup
-
     runs = [(s, k, learn_config(exp, s, k, quick)) for s in exp.settings if s.quick or not quick
             for k in range(1 if quick else s.seeds)]
-    jobs = [Job(_learn_job, (str(cache.root), cfg, record), f"{s.label} seed {k}",
-                lambda cfg=cfg: lookup(cache, cfg, record=record)) for s, k, cfg in runs]
+    jobs = [_stage_job(cache, "learn", cfg, record, f"{s.label} seed {k}") for s, k, cfg in runs]
     outs = _outcomes((yield Batch("learn", jobs)))
     return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
 

@@ -6,9 +6,9 @@ the cache moves them beside the data (``Cache.write_derived``). Because recordin
 from the data, a run first made with ``--no-record`` gets its recording later without
 recomputing, and the recording is never part of the data's cache key.
 
-Each stage has its own blueprint (``pipeline.recording.stage_blueprint``): the robot on the
+Each stage has its own blueprint (``pipeline.rerun_io.stage_blueprint``): the robot on the
 left, the plots that matter on the right, on ``sim_time``, where the file opens; and its own
-application id per stage, plant and task (``pipeline.recording.application_id``), since a viewer
+application id per stage, plant and task (``pipeline.rerun_io.application_id``), since a viewer
 shows every recording of one application id in one layout.
 
 Plan recordings:
@@ -26,7 +26,7 @@ Plan recordings:
   chart of log10(cost), which every timeline shows: a time series of data on ``iteration`` is
   empty while ``sim_time`` is active (Rerun 0.41 has no per-view timeline, and a visible time range
   on ``iteration`` does not help). The cost views are tabs under the robot: the bar chart first.
-- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recording``), with the final
+- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.rerun_io``), with the final
   plan's paths as static lines (``world/paths/<map>``, yellow) and the targets as static dots.
 - The ``iteration`` timeline shows each iteration's own trajectory, read from the plan's
   ``X_iterations`` (every iterate decimated in time to the steps ``t_iterations``; iteration 0 is
@@ -44,7 +44,8 @@ Plan recordings:
 
 Execute recordings plot ``task/<name>/value`` (executed) against ``task/<name>/planned`` and the
 targets in one view per task map, the tracking error, the joints and torques by limb, the
-status and the events; babble and fit recordings follow the same layout.
+status and the events; babble and fit recordings follow the same layout. Learn recordings
+(``pipeline/recorder_learn.py``) plot the loop's quantities per episode on ``episode``.
 """
 
 from __future__ import annotations
@@ -55,9 +56,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import recording as rec_mod
+from pipeline import rerun_io as rec_mod
 from pipeline.mcap_io import write_trajectory_mcap
-from pipeline.recorders_fit import record_fit
+from pipeline.recorder_fit import record_fit
+from pipeline.recorder_learn import record_learn
 
 RECORDING = "recording.rrd"
 MCAP = "trajectory.mcap"
@@ -539,4 +541,5 @@ def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, m
             stream.log("world/cog_line", rr.LineStrips3D([[cog[k], ground]], colors=[(255, 210, 0)], radii=0.002))
 
 
-RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit}
+RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit,
+             "learn": record_learn}

@@ -357,7 +357,7 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     """The executed CoG's lateral coordinate of every executed run (free-standing Nao), in the
     executed variant's colour, line style by the run's status, against that run's via-points (its
     plan's CoG targets: dots); a cross marks the moment a run failed."""
-    from pipeline.runner import as_artifact
+    from pipeline.artifacts import as_artifact
 
     label = _executed_label(exp)
     color = solver_color(label)
@@ -400,7 +400,7 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     """Per executed run its largest via-point error (the held right sole left out), planned (open
     circle) and executed (filled: status ok; cross: any other status), against the tolerance of the
     claim "executed_reaches"."""
-    from pipeline.runner import as_artifact
+    from pipeline.artifacts import as_artifact
     from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.evaluate.summary import largest_via_error
 
@@ -579,7 +579,7 @@ def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
     """Per cost term of the variant's problem, the median over its runs with a finite final cost of
     the term's value on the final plan (the objective rebuilt from the run's ``problem.json``; terms
     that need a learned model left out). Their sum is the run's final cost."""
-    from pipeline.runner import as_artifact
+    from pipeline.artifacts import as_artifact
     from planning.objective import objective_from_description
     from stages.evaluate.summary import median
 
@@ -847,7 +847,7 @@ def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.runner import as_artifact
+    from pipeline.artifacts import as_artifact
     from plants.robots import shared_robot
     from plants.taskmaps import EndEffectorPosition
 

@@ -16,15 +16,13 @@ import functools
 import json
 import math
 import os
-import struct
 import time
-import zipfile
-import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.artifacts import as_artifact
 from pipeline.cache import Cache, Entry, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
 from stages.base import Artifact
@@ -145,79 +143,18 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     return cache.require(valid[0].stage, valid[0].key)
 
 
-def as_artifact(entry: Entry) -> CheckedArtifact:
-    """The stage-side view of a cache entry (a ``stages.base.Artifact`` whose loads check the data)."""
-    m = entry.meta
-    return CheckedArtifact(stage=entry.stage, key=entry.key, path=entry.path, config=m.get("config", {}),
-                           status=m.get("status", "ok"), metrics=m.get("metrics", {}),
-                           inputs=tuple(m.get("inputs", ())))
-
-
-# what numpy, zipfile, zlib and json raise on a damaged file (a bad CRC, a garbled array header, a
-# truncated member, bytes that are not UTF-8); MemoryError: a damaged header asking for a huge array
-LOAD_ERRORS = (zipfile.BadZipFile, zlib.error, ValueError, EOFError, KeyError, struct.error, FileNotFoundError,
-               IsADirectoryError, MemoryError)
-
-
-class CheckedArtifact(Artifact):
-    """:class:`stages.base.Artifact` whose data loads turn a damaged file into one clean error naming
-    the entry (:class:`~pipeline.errors.UnreadableArtifact`, exit 4), never numpy's traceback or its
-    message with the file's bytes in it. Stages see the same interface."""
-
-    def arrays(self, name: str, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
-        try:
-            return super().arrays(name, keys)
-        except LOAD_ERRORS as e:
-            raise unreadable(self, name, e) from None
-
-    def document(self, name: str) -> Any:
-        try:
-            return super().document(name)
-        except LOAD_ERRORS as e:
-            raise unreadable(self, name, e) from None
-
-
-def clean_error(e: BaseException) -> str:
-    """``Type: message`` of a load error on one short printable line (numpy quotes the damaged header's
-    bytes: left out)."""
-    name = type(e).__name__
-    if name == "error":  # zlib.error
-        name = f"{type(e).__module__}.error"
-    lines = str(e).strip().splitlines()
-    text = lines[0] if lines else ""
-    for cut in (": b'", ': b"', " b'", ' b"', ". "):  # the bytes numpy quotes; a second sentence
-        text = text.split(cut)[0]
-    text = "".join(c for c in text if c.isprintable() and c.isascii()).strip()
-    if len(text) > 100:
-        text = text[:99] + "…"
-    return f"{name}: {text}" if text else name
-
-
-def unreadable(art: Artifact, name: str, e: BaseException) -> BaseException:
-    """The error for a file of ``art`` that could not be loaded: the entry is re-hashed; a mismatch
-    (damage its stamps did not show) also drops its stamps, so the next check finds it. A
-    ``MemoryError`` from a file that matches its hash is a real shortage, returned as it is."""
-    cache = Cache(art.path.parent.parent)
-    verdict = cache.verify(art.stage, art.key)
-    if verdict == "cached" and isinstance(e, MemoryError):
-        return e
-    what = f"{name} cannot be read ({clean_error(e)})"
-    if verdict == "cached":
-        reason = f"{what}, although it matches its recorded sha256 (it was written damaged)"
-    else:
-        cache.forget(art.stage, art.key)
-        reason = f"{what}: {verdict}"
-    return UnreadableArtifact(f"artifact {art.ref} is damaged: {reason}", ref=art.ref, reason=reason)
-
-
 @functools.cache
 def _code_version(name: str, sources: tuple[str, ...]) -> str:
     return source_version(name, *sources)
 
 
 def code_version(stage) -> str:
-    """The stage's name plus a hash of its source files (see :func:`source_version`), once per process."""
-    return _code_version(stage.name, tuple(stage.sources))
+    """The stage's name plus a hash of its source files (see :func:`source_version`), once per process;
+    a composite stage's joined with its steps' (``+``), so editing a step's code invalidates it too."""
+    from stages.registry import get_stage
+
+    own = _code_version(stage.name, tuple(stage.sources))
+    return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
 
 
 Repair = Callable[[CorruptArtifact], Entry]
@@ -280,6 +217,11 @@ def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
     key_config = config.key_dict()
     return stage, config, inputs, input_keys, key_config, version, stage_key(stage.name, version, key_config,
                                                                               input_keys)
+
+
+def run_key(cache: Cache, stage, config) -> str:
+    """The key a run of ``config`` has (normalized, validated, its inputs resolved in ``cache``)."""
+    return _prepare(cache, stage, config)[-1]
 
 
 def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | None:
@@ -362,9 +304,11 @@ def _run_once(cache: Cache, stage, config, record: bool, reporter, payload: dict
     stage, config, inputs, input_keys, key_config, version, key = _prepare(cache, stage, config, repair)
     this["ref"] = f"{stage.name}/{key}"
 
+    steps = {"steps": _steps(cache, stage, reporter)} if stage.step_stages else {}
+
     def compute(tmp: Path) -> dict[str, Any]:
         with reporter.progress(f"{stage.name} {_label(key_config)}", stage.progress_total(config)) as update:
-            out = stage.run(config, inputs, progress=update)
+            out = stage.run(config, inputs, progress=update, **steps)
         _write_outputs(tmp, out)
         if payload is not None:
             payload["output"] = out
@@ -379,6 +323,20 @@ def _run_once(cache: Cache, stage, config, record: bool, reporter, payload: dict
                                 f"(the next call writes it)")
             raise
     return outcome
+
+
+def _steps(cache: Cache, stage, reporter):
+    """The :class:`stages.base.Steps` of a composite stage: each step a cached run of one of its
+    ``step_stages`` (quiet, without recording: the composite records itself), as its stored artifact."""
+    from stages.base import Steps
+
+    def run_step(name: str, config) -> Artifact:
+        if name not in stage.step_stages:
+            raise ValueError(f"stage {stage.name} runs {', '.join(stage.step_stages)} as steps, not {name}")
+        out = run(cache, name, config, record=False)
+        return dataclasses.replace(as_artifact(cache.require(name, out.key)), cached=out.cached)
+
+    return Steps(run=run_step, say=reporter.say)
 
 
 def config_from_meta(stage, meta: dict[str, Any]):

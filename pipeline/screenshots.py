@@ -32,7 +32,7 @@ import numpy as np
 
 __all__ = ["content_mask", "read_png", "render_screenshot", "renderer_unavailable", "report_screenshots", "robot_mask"]
 
-ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.recording)
+ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.rerun_io)
 VULKAN_ICDS = "/usr/share/vulkan/icd.d/*.json"
 TOAST_S = 4.0  # a new viewer shows a notification ("Listening for gRPC connections") for about 3 s
 ROBOT_PIXELS = 3e-4  # share of a 3D view's pixels showing bodies once drawn (an empty view: 0; the pendulum: 1e-3)

@@ -407,7 +407,7 @@ class FDDPOptions(OptionsBase):
         reg_init: initial regularization (``None``: crocoddyl's default, 1e-9).
         box: ``"auto"`` (BoxFDDP where the problem has control limits, else FDDP), ``"yes"``, ``"no"``.
         th_accept: crocoddyl's acceptance ratio ``th_acceptStep`` (actual / expected), default 0.1.
-        alphas: line-search step lengths (``None``: crocoddyl's ``2^-k``, k = 0..9).
+        step_sizes: line-search step lengths (``None``: crocoddyl's ``2^-k``, k = 0..9).
         th_step_dec, th_step_inc: crocoddyl lowers the regularization after a step at least
             ``th_step_dec`` long (default 0.5) and raises it after one at most ``th_step_inc``
             long (default 0.01).
@@ -419,7 +419,7 @@ class FDDPOptions(OptionsBase):
     reg_init: float | None = None
     box: str = "auto"
     th_accept: float = 0.1
-    alphas: tuple | None = None
+    step_sizes: tuple | None = None
     th_step_dec: float = 0.5
     th_step_inc: float = 0.01
 
@@ -435,11 +435,11 @@ class FDDPOptions(OptionsBase):
         check_range("th_accept", self.th_accept, lo=0.0, hi=1.0)
         check_range("th_step_dec", self.th_step_dec, lo=0.0, hi=1.0, lo_open=True)
         check_range("th_step_inc", self.th_step_inc, lo=0.0, hi=1.0, lo_open=True)
-        if self.alphas is not None:
-            a = tuple(float(x) for x in np.atleast_1d(np.asarray(self.alphas, float)))
+        if self.step_sizes is not None:
+            a = tuple(float(x) for x in np.atleast_1d(np.asarray(self.step_sizes, float)))
             if not a or any(not 0.0 < x <= 1.0 for x in a):
-                raise ValueError(f"option alphas must be a non-empty list in (0, 1], got {a}")
-            object.__setattr__(self, "alphas", a)
+                raise ValueError(f"option step_sizes must be a non-empty list in (0, 1], got {a}")
+            object.__setattr__(self, "step_sizes", a)
 
 
 if AVAILABLE:
@@ -491,8 +491,8 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     solver.th_stop = o.th_stop
     solver.th_acceptStep = o.th_accept
     solver.th_stepDec, solver.th_stepInc = o.th_step_dec, o.th_step_inc
-    if o.alphas is not None:
-        solver.alphas = list(o.alphas)
+    if o.step_sizes is not None:
+        solver.alphas = list(o.step_sizes)  # crocoddyl's name
     rec = _Recorder(cp, callback)
     solver.setCallbacks([rec])
     if o.start == "held" and U_init is None:

@@ -23,10 +23,10 @@ typedef double v4d __attribute__((vector_size(32)));
 static inline v4d ldv(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }
 static inline void stv(double *p, v4d v) { memcpy(p, &v, sizeof v); }
 
-/* tile of nr (<= 4) rows x 8 columns: c[r][j] += alpha sum_{k=kb}^{ke-1} X(r, k) y[k][j],
+/* tile of nr (<= 4) rows x 8 columns: c[r][j] += scale sum_{k=kb}^{ke-1} X(r, k) y[k][j],
  * X(r, k) = x[r xr + k xk] */
 static inline __attribute__((always_inline)) void mk8(int nr, int kb, int ke, const double *x, long xr, long xk,
-                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     const double *y, long ldy, double *c, long ldc, double scale,
                                                      int set)
 {
     v4d a0 = {0}, a1 = {0}, b0 = {0}, b1 = {0}, c0 = {0}, c1 = {0}, d0 = {0}, d1 = {0};
@@ -40,21 +40,21 @@ static inline __attribute__((always_inline)) void mk8(int nr, int kb, int ke, co
         if (nr > 3) { f = xk_[3 * xr]; d0 += f * y0; d1 += f * y1; }
     }
     if (set) {
-        stv(c, alpha * a0); stv(c + 4, alpha * a1);
-        if (nr > 1) { c += ldc; stv(c, alpha * b0); stv(c + 4, alpha * b1); }
-        if (nr > 2) { c += ldc; stv(c, alpha * c0); stv(c + 4, alpha * c1); }
-        if (nr > 3) { c += ldc; stv(c, alpha * d0); stv(c + 4, alpha * d1); }
+        stv(c, scale * a0); stv(c + 4, scale * a1);
+        if (nr > 1) { c += ldc; stv(c, scale * b0); stv(c + 4, scale * b1); }
+        if (nr > 2) { c += ldc; stv(c, scale * c0); stv(c + 4, scale * c1); }
+        if (nr > 3) { c += ldc; stv(c, scale * d0); stv(c + 4, scale * d1); }
         return;
     }
-    stv(c, ldv(c) + alpha * a0); stv(c + 4, ldv(c + 4) + alpha * a1);
-    if (nr > 1) { c += ldc; stv(c, ldv(c) + alpha * b0); stv(c + 4, ldv(c + 4) + alpha * b1); }
-    if (nr > 2) { c += ldc; stv(c, ldv(c) + alpha * c0); stv(c + 4, ldv(c + 4) + alpha * c1); }
-    if (nr > 3) { c += ldc; stv(c, ldv(c) + alpha * d0); stv(c + 4, ldv(c + 4) + alpha * d1); }
+    stv(c, ldv(c) + scale * a0); stv(c + 4, ldv(c + 4) + scale * a1);
+    if (nr > 1) { c += ldc; stv(c, ldv(c) + scale * b0); stv(c + 4, ldv(c + 4) + scale * b1); }
+    if (nr > 2) { c += ldc; stv(c, ldv(c) + scale * c0); stv(c + 4, ldv(c + 4) + scale * c1); }
+    if (nr > 3) { c += ldc; stv(c, ldv(c) + scale * d0); stv(c + 4, ldv(c + 4) + scale * d1); }
 }
 
 /* nr rows x 4 columns */
 static inline __attribute__((always_inline)) void mk4(int nr, int kb, int ke, const double *x, long xr, long xk,
-                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     const double *y, long ldy, double *c, long ldc, double scale,
                                                      int set)
 {
     v4d a0 = {0}, b0 = {0}, c0 = {0}, d0 = {0};
@@ -67,15 +67,15 @@ static inline __attribute__((always_inline)) void mk4(int nr, int kb, int ke, co
         if (nr > 3) d0 += xk_[3 * xr] * y0;
     }
     v4d z = {0};
-    stv(c, (set ? z : ldv(c)) + alpha * a0);
-    if (nr > 1) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * b0); }
-    if (nr > 2) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * c0); }
-    if (nr > 3) { c += ldc; stv(c, (set ? z : ldv(c)) + alpha * d0); }
+    stv(c, (set ? z : ldv(c)) + scale * a0);
+    if (nr > 1) { c += ldc; stv(c, (set ? z : ldv(c)) + scale * b0); }
+    if (nr > 2) { c += ldc; stv(c, (set ? z : ldv(c)) + scale * c0); }
+    if (nr > 3) { c += ldc; stv(c, (set ? z : ldv(c)) + scale * d0); }
 }
 
 /* 4 rows x nc (< 4) columns with X(r, k) contiguous in r (xr = 1): vectors across the rows */
 static inline __attribute__((always_inline)) void mke(int nc, int kb, int ke, const double *x, long xk,
-                                                     const double *y, long ldy, double *c, long ldc, double alpha,
+                                                     const double *y, long ldy, double *c, long ldc, double scale,
                                                      int set)
 {
     v4d a0 = {0}, a1 = {0}, a2 = {0};
@@ -88,34 +88,34 @@ static inline __attribute__((always_inline)) void mke(int nc, int kb, int ke, co
     }
     for (int r = 0; r < 4; r++) {
         double *cr = c + r * ldc;
-        cr[0] = (set ? 0.0 : cr[0]) + alpha * a0[r];
-        if (nc > 1) cr[1] = (set ? 0.0 : cr[1]) + alpha * a1[r];
-        if (nc > 2) cr[2] = (set ? 0.0 : cr[2]) + alpha * a2[r];
+        cr[0] = (set ? 0.0 : cr[0]) + scale * a0[r];
+        if (nc > 1) cr[1] = (set ? 0.0 : cr[1]) + scale * a1[r];
+        if (nc > 2) cr[2] = (set ? 0.0 : cr[2]) + scale * a2[r];
     }
 }
 
 /* nr rows x nc (< 4) columns, scalar (the rare edge: fewer than 4 rows or X strided in r) */
 static void mks(int nr, int nc, int kb, int ke, const double *x, long xr, long xk,
-                const double *y, long ldy, double *c, long ldc, double alpha, int set)
+                const double *y, long ldy, double *c, long ldc, double scale, int set)
 {
     for (int r = 0; r < nr; r++)
         for (int j = 0; j < nc; j++) {
             double v = 0.0;
             for (int k = kb; k < ke; k++) v += x[r * xr + (long)k * xk] * y[(long)k * ldy + j];
-            c[r * ldc + j] = (set ? 0.0 : c[r * ldc + j]) + alpha * v;
+            c[r * ldc + j] = (set ? 0.0 : c[r * ldc + j]) + scale * v;
         }
 }
 
 enum { UP_KCOL = 1, UP_KROW = 2, UP_UPPER = 4, UP_SET = 8 };
 
-/* C (R x Cn, ld ldc) += alpha sum_{k=kb}^{ke-1} X(r, k) Y[k][c], X(r, k) = X[r xr + k xk] (xr = 1,
+/* C (R x Cn, ld ldc) += scale sum_{k=kb}^{ke-1} X(r, k) Y[k][c], X(r, k) = X[r xr + k xk] (xr = 1,
  * xk = ld: X^T of a row-major block; xr = ld, xk = 1: X itself), Y row-major (ld ldy).
  * flags: UP_KCOL: a tile's k starts at its first column (Y lower triangular, zeros stored);
  * UP_KROW: at its first row (X(r, k) = 0 for k < r); UP_UPPER: only tiles reaching the upper
  * triangle (C's upper triangle wanted; the few lower entries of a tile across the diagonal get
- * the same update); UP_SET: C = alpha X Y (C not read: no zeroing before). */
+ * the same update); UP_SET: C = scale X Y (C not read: no zeroing before). */
 static void upd(int R, int Cn, int kb, int ke, int flags, const double *X, long xr, long xk,
-                const double *Y, long ldy, double *C, long ldc, double alpha)
+                const double *Y, long ldy, double *C, long ldc, double scale)
 {
     int set = (flags & UP_SET) != 0;
     for (int i0 = 0; i0 < R; i0 += 4) {
@@ -133,25 +133,25 @@ static void upd(int R, int Cn, int kb, int ke, int flags, const double *X, long 
             if (k0 > ke) k0 = ke;
             if (w == 8) {
                 switch (nr) {
-                case 4: mk8(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                case 3: mk8(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                case 2: mk8(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                default: mk8(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+                case 4: mk8(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                case 3: mk8(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                case 2: mk8(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                default: mk8(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set);
                 }
             } else if (w == 4) {
                 switch (nr) {
-                case 4: mk4(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                case 3: mk4(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                case 2: mk4(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set); break;
-                default: mk4(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+                case 4: mk4(4, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                case 3: mk4(3, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                case 2: mk4(2, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set); break;
+                default: mk4(1, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set);
                 }
             } else if (nr == 4 && xr == 1) {
                 switch (w) {
-                case 3: mke(3, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set); break;
-                case 2: mke(2, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set); break;
-                default: mke(1, k0, ke, x, xk, y, ldy, cc, ldc, alpha, set);
+                case 3: mke(3, k0, ke, x, xk, y, ldy, cc, ldc, scale, set); break;
+                case 2: mke(2, k0, ke, x, xk, y, ldy, cc, ldc, scale, set); break;
+                default: mke(1, k0, ke, x, xk, y, ldy, cc, ldc, scale, set);
                 }
-            } else mks(nr, w, k0, ke, x, xr, xk, y, ldy, cc, ldc, alpha, set);
+            } else mks(nr, w, k0, ke, x, xr, xk, y, ldy, cc, ldc, scale, set);
             j0 += w;
         }
     }
@@ -318,24 +318,24 @@ static void trsv_r(int n, const double *R, int ld, double *b)
     }
 }
 
-/* upper triangle of C (n x n) += alpha W^T W, W (r x n) (see upd: UP_UPPER); set: C = alpha W^T W */
-static void syrk_tn(int r, int n, double alpha, const double *W, int ldw, double *C, int ldc, int set)
+/* upper triangle of C (n x n) += scale W^T W, W (r x n) (see upd: UP_UPPER); set: C = scale W^T W */
+static void syrk_tn(int r, int n, double scale, const double *W, int ldw, double *C, int ldc, int set)
 {
-    upd(n, n, 0, r, UP_UPPER | (set ? UP_SET : 0), W, 1, ldw, W, ldw, C, ldc, alpha);
+    upd(n, n, 0, r, UP_UPPER | (set ? UP_SET : 0), W, 1, ldw, W, ldw, C, ldc, scale);
 }
 
-/* C (a x c) += alpha A^T B, A (r x a), B (r x c); set: C = alpha A^T B */
-static void gemm_tn(int r, int a, int c, double alpha, const double *A, int lda, const double *B, int ldb,
+/* C (a x c) += scale A^T B, A (r x a), B (r x c); set: C = scale A^T B */
+static void gemm_tn(int r, int a, int c, double scale, const double *A, int lda, const double *B, int ldb,
                     double *C, int ldc, int set)
 {
-    upd(a, c, 0, r, set ? UP_SET : 0, A, 1, lda, B, ldb, C, ldc, alpha);
+    upd(a, c, 0, r, set ? UP_SET : 0, A, 1, lda, B, ldb, C, ldc, scale);
 }
 
-/* C (a x c) += alpha A B, A (a x r), B (r x c); set: C = alpha A B */
-static void gemm_nn(int a, int r, int c, double alpha, const double *A, int lda, const double *B, int ldb,
+/* C (a x c) += scale A B, A (a x r), B (r x c); set: C = scale A B */
+static void gemm_nn(int a, int r, int c, double scale, const double *A, int lda, const double *B, int ldb,
                     double *C, int ldc, int set)
 {
-    upd(a, c, 0, r, set ? UP_SET : 0, A, lda, 1, B, ldb, C, ldc, alpha);
+    upd(a, c, 0, r, set ? UP_SET : 0, A, lda, 1, B, ldb, C, ldc, scale);
 }
 
 /* dst (cols x rows, ld ldd) = src^T (src rows x cols, ld lds), in 4 x 4 blocks of vectors */
@@ -422,16 +422,16 @@ void k_solve_r(long n, const double *R, long ld, double *B, long ldb, long c)
 { solve_r((int)n, R, (int)ld, B, (int)ldb, (int)c); }
 void k_spd_inverse(long n, const double *R, long ld, double *out, long ldo, double *Y)
 { spd_inverse((int)n, R, (int)ld, out, (int)ldo, Y); }
-void k_gemm_nn(long a, long r, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+void k_gemm_nn(long a, long r, long c, double scale, const double *A, long lda, const double *B, long ldb,
                double *C, long ldc)
-{ gemm_nn((int)a, (int)r, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
-void k_gemm_tn(long r, long a, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+{ gemm_nn((int)a, (int)r, (int)c, scale, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
+void k_gemm_tn(long r, long a, long c, double scale, const double *A, long lda, const double *B, long ldb,
                double *C, long ldc)
-{ gemm_tn((int)r, (int)a, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
-void k_syrk_tn(long r, long n, double alpha, const double *W, long ldw, double *C, long ldc, long set)
-{ syrk_tn((int)r, (int)n, alpha, W, (int)ldw, C, (int)ldc, (int)set); }
-void k_gemm_nn_set(long a, long r, long c, double alpha, const double *A, long lda, const double *B, long ldb,
+{ gemm_tn((int)r, (int)a, (int)c, scale, A, (int)lda, B, (int)ldb, C, (int)ldc, 0); }
+void k_syrk_tn(long r, long n, double scale, const double *W, long ldw, double *C, long ldc, long set)
+{ syrk_tn((int)r, (int)n, scale, W, (int)ldw, C, (int)ldc, (int)set); }
+void k_gemm_nn_set(long a, long r, long c, double scale, const double *A, long lda, const double *B, long ldb,
                    double *C, long ldc)
-{ gemm_nn((int)a, (int)r, (int)c, alpha, A, (int)lda, B, (int)ldb, C, (int)ldc, 1); }
+{ gemm_nn((int)a, (int)r, (int)c, scale, A, (int)lda, B, (int)ldb, C, (int)ldc, 1); }
 void k_transpose(long rows, long cols, const double *src, long lds, double *dst, long ldd)
 { transpose((int)rows, (int)cols, src, lds, dst, ldd); }

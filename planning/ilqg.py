@@ -11,8 +11,8 @@ behaviors through online trajectory optimization"), as in SPEC §6.
 - Levenberg-Marquardt schedule: increase ``Delta = max(Delta_0, Delta Delta_0)``,
   ``mu = max(mu_min, mu Delta)``; decrease ``Delta = min(1/Delta_0, Delta/Delta_0)``,
   ``mu = mu Delta`` (0 if that falls below ``mu_min``);
-- backtracking line search over ``alphas`` on the feed-forward term only,
-  ``u = u_bar + alpha k + K (x - x_bar)``; accept when actual / expected reduction > 0;
+- backtracking line search over ``step_sizes`` on the feed-forward term only,
+  ``u = u_bar + step_size k + K (x - x_bar)``; accept when actual / expected reduction > 0;
 - stop: relative cost reduction of an accepted step < ``tol_rel`` (converged; the test
   ``cost_decrease_below`` of ``planning.driver``, which runs the iterations), gradient
   ``mean_t max_i |k_ti| / (|u_ti| + 1) < tol_grad`` with ``mu < 1e-5`` (converged), or
@@ -44,7 +44,7 @@ from planning.problem import (
 from plants.dynamics import rollout
 
 
-def _default_alphas() -> tuple[float, ...]:
+def _default_step_sizes() -> tuple[float, ...]:
     return tuple(float(a) for a in 10.0 ** np.linspace(0.0, -3.0, 11))
 
 
@@ -57,7 +57,7 @@ class ILQGOptions(OptionsBase):
         mu0: initial regularization ``mu`` (>= 0).
         delta0: ``Delta_0`` of the Levenberg-Marquardt schedule (> 1).
         mu_min, mu_max: regularization limits.
-        alphas: line-search step sizes, tried in order (each in (0, 1]).
+        step_sizes: line-search step sizes, tried in order (each in (0, 1]).
         tol_rel: converged when an accepted step lowers the cost by less than this, relative.
         tol_grad: converged when the normalized feed-forward gradient is below this.
         divergence_factor: diverged when the cost exceeds this times the initial cost.
@@ -68,7 +68,7 @@ class ILQGOptions(OptionsBase):
     delta0: float = 2.0
     mu_min: float = 1e-6
     mu_max: float = 1e10
-    alphas: tuple = field(default_factory=_default_alphas)
+    step_sizes: tuple = field(default_factory=_default_step_sizes)
     tol_rel: float = 1e-7
     tol_grad: float = 1e-4
     divergence_factor: float = 1e6
@@ -82,10 +82,10 @@ class ILQGOptions(OptionsBase):
         check_range("tol_rel", self.tol_rel, lo=0.0)
         check_range("tol_grad", self.tol_grad, lo=0.0)
         check_range("divergence_factor", self.divergence_factor, lo=1.0, lo_open=True)
-        alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
-        if not alphas or any(not (0.0 < a <= 1.0) for a in alphas):
-            raise ValueError(f"option alphas must be a non-empty list in (0, 1], got {alphas}")
-        object.__setattr__(self, "alphas", alphas)
+        step_sizes = tuple(float(a) for a in np.atleast_1d(np.asarray(self.step_sizes, dtype=float)))
+        if not step_sizes or any(not (0.0 < a <= 1.0) for a in step_sizes):
+            raise ValueError(f"option step_sizes must be a non-empty list in (0, 1], got {step_sizes}")
+        object.__setattr__(self, "step_sizes", step_sizes)
 
 
 class _NotPD(Exception):
@@ -129,12 +129,12 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float):
     return k, K, dV
 
 
-def _forward(problem: Problem, X, U, k, K, alpha: float):
-    """Rollout of ``u = U + alpha k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost.
+def _forward(problem: Problem, X, U, k, K, step_size: float):
+    """Rollout of ``u = U + step_size k + K (x - X)``: ``X (T+1, n)``, ``U (T, m)``, cost.
 
-    Written as ``u_t = o_t + K_t x_t`` with ``o_t = U_t + alpha k_t - K_t X_t`` and rolled out by
+    Written as ``u_t = o_t + K_t x_t`` with ``o_t = U_t + step_size k_t - K_t X_t`` and rolled out by
     ``Problem.controller_rollout`` (the model's compiled loop where it has one)."""
-    o = U + alpha * k - np.einsum("tij,tj->ti", K, X[:-1])
+    o = U + step_size * k - np.einsum("tij,tj->ti", K, X[:-1])
     try:   # a model may raise on the exploding states of a bad step
         with np.errstate(all="ignore"):
             Xn, Un = problem.controller_rollout(o, K)
@@ -233,15 +233,15 @@ class _ILQGStep:
             lm.decrease()
             return Step(cur, J, mu=lm.mu, moved=False,
                         stop=Stop(Status.CONVERGED, f"gradient {gnorm:.2e} below tol_grad"))
-        accepted, Xn, Un, Jn, alpha = _line_search(self.problem, cur.X, cur.U, J, k, K_new,
-                                                   dV, o.alphas)
+        accepted, Xn, Un, Jn, step_size = _line_search(self.problem, cur.X, cur.U, J, k, K_new,
+                                                   dV, o.step_sizes)
         if not accepted:
             lm.increase()
             stop = self._mu_limit() if lm.mu > o.mu_max else None
             return Step(cur, J, mu=lm.mu, moved=False, stop=stop)
         lm.decrease()
         self.J, self.derivs, self.gains_at_final = Jn, None, False
-        return Step(Iterate(Xn, Un), Jn, step=alpha, mu=lm.mu)
+        return Step(Iterate(Xn, Un), Jn, step=step_size, mu=lm.mu)
 
     def _mu_limit(self) -> Stop:
         return Stop(Status.MAX_ITERATIONS, f"mu > mu_max={self.o.mu_max:g}: no descent step")
@@ -274,26 +274,26 @@ def _regularized_backward(derivs, lm: _LM):
                 return None, None, None, True
 
 
-def _line_search(problem, X, U, J, k, K, dV, alphas):
-    """Backtracking over ``alphas``; returns ``(accepted, X, U, J, alpha)``.
+def _line_search(problem, X, U, J, k, K, dV, step_sizes):
+    """Backtracking over ``step_sizes``; returns ``(accepted, X, U, J, step_size)``.
 
     A step is accepted when actual / expected reduction > 0. When the expected reduction
     is below the cost's rounding level (``64 eps |J|``) the ratio is noise: the step is
     then accepted unless it raises the cost beyond that level.
     """
     floor = 64.0 * np.finfo(float).eps * max(abs(J), np.finfo(float).tiny)
-    for alpha in alphas:
-        Xn, Un, Jn = _forward(problem, X, U, k, K, alpha)
+    for step_size in step_sizes:
+        Xn, Un, Jn = _forward(problem, X, U, k, K, step_size)
         if not math.isfinite(Jn):
             continue
-        expected = -alpha * (dV[0] + alpha * dV[1])
+        expected = -step_size * (dV[0] + step_size * dV[1])
         actual = J - Jn
         if expected <= floor:
             if actual >= -floor:
-                return True, Xn, Un, Jn, alpha
+                return True, Xn, Un, Jn, step_size
             continue
         if actual / expected > 0:
-            return True, Xn, Un, Jn, alpha
+            return True, Xn, Un, Jn, step_size
     return False, X, U, J, 0.0
 
 

@@ -5,7 +5,7 @@ initial posture and the horizon; :func:`build_terms` turns them into cost-term o
 ``planning/costs.py``. The plan artifact stores the descriptions (``problem.json``), so
 execute, evaluate and the report rebuild exactly the planned objective without re-running
 the task builder. The dynamics are not part of the objective: they come from the registry
-(``plants.registry``).
+(``plants.dynamics_registry``).
 
 Descriptions:
 

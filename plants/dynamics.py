@@ -17,7 +17,7 @@ Discretization of the analytic models is semi-implicit (symplectic) Euler,
 it is exactly the thesis's backward-Euler pseudo-dynamics (appendix C.2), so both
 models share one time convention.
 
-Models are built by name with :func:`plants.registry.make_dynamics`.
+Models are built by name with :func:`plants.dynamics_registry.make_dynamics`.
 """
 
 from __future__ import annotations

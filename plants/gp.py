@@ -8,9 +8,9 @@ Pure numpy/scipy; hyperparameter fitting lives in ``stages.fit.gp_fit``.
 
 Scaling. Inputs are standardized per dimension, ``z = (x - x_mean) / x_std``; outputs per output,
 ``y = (Y - y_mean) / y_std`` (a constant dimension gets std 1). All hyperparameters (``ell``,
-``sf2``, ``sn2``), the training arrays ``Z``, ``y``, the Cholesky factor ``L`` and ``alpha``, and the
-log marginal likelihood are in these scaled units; the zero prior mean in scaled units is the
-training mean ``y_mean`` in physical units. Every prediction is returned in physical units
+``sf2``, ``sn2``), the training arrays ``Z``, ``y``, the Cholesky factor ``L``, the weights
+``weights`` (stored as ``alpha``) and the log marginal likelihood are in these scaled units; the
+zero prior mean in scaled units is the training mean ``y_mean`` in physical units. Every prediction is returned in physical units
 (``qddot`` in rad/s^2, variances in (rad/s^2)^2), gradients with respect to the physical input
 ``x`` by the chain rule: ``dm/dx = y_std * dm_s/dz / x_std``, ``dvar/dx = y_std^2 * dvar_s/dz / x_std``.
 The scaling is fixed when the model is built; ``update`` keeps it.
@@ -110,8 +110,8 @@ class GPModel:
 
     Attributes (scaled units): ``Z (N, d)`` training inputs, ``y (N, D)`` targets,
     ``ell (D, d)`` length-scales, ``sf2 (D,)``, ``sn2 (D,)``, ``L (D, N, N)`` lower Cholesky
-    factors of ``K + sn2 I``, ``alpha (D, N) = (K + sn2 I)^-1 y``; scaling ``x_mean, x_std (d,)``,
-    ``y_mean, y_std (D,)`` (physical units).
+    factors of ``K + sn2 I``, ``weights (D, N) = (K + sn2 I)^-1 y`` (``alpha`` in the stored arrays);
+    scaling ``x_mean, x_std (d,)``, ``y_mean, y_std (D,)`` (physical units).
     """
 
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
@@ -178,13 +178,13 @@ class GPModel:
         return K
 
     def _factorize(self) -> None:
-        """Cholesky factors and ``alpha`` of every output from scratch (``O(D N^3)``)."""
+        """Cholesky factors and ``weights`` of every output from scratch (``O(D N^3)``)."""
         N, D = self.N, self.D
         self.L = np.empty((D, N, N))
-        self.alpha = np.empty((D, N))
+        self.weights = np.empty((D, N))
         for j in range(D):
             self.L[j] = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
-            self.alpha[j] = self._solve(self.L[j], self.y[:, j])
+            self.weights[j] = self._solve(self.L[j], self.y[:, j])
 
     @staticmethod
     def _solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -196,7 +196,7 @@ class GPModel:
         """Add data ``X_new (n, d)``, ``Y_new (n, D)`` (physical) at fixed hyperparameters and scaling, in place.
 
         Exact block-Cholesky extension, the old block is not refactorized:
-        ``L21 = (L11^-1 K12)^T``, ``L22 = chol(K22 + sn2 I - L21 L21^T)``; ``alpha`` by two
+        ``L21 = (L11^-1 K12)^T``, ``L22 = chol(K22 + sn2 I - L21 L21^T)``; ``weights`` by two
         triangular solves. ``O(D (N^2 n + N n^2 + n^3))``. Returns ``self``; on an error
         (non-finite data, a failed Cholesky) the model is left unchanged."""
         Xn, Yn = _as_2d(X_new, "X_new"), _as_2d(Y_new, "Y_new")
@@ -212,7 +212,7 @@ class GPModel:
         Z = np.vstack([self.Z, Zn])
         y = np.vstack([self.y, yn])
         L = np.zeros((self.D, N + n, N + n))
-        alpha = np.empty((self.D, N + n))
+        weights = np.empty((self.D, N + n))
         for j in range(self.D):
             K12 = se_kernel(self.Z, Zn, self.ell[j], self.sf2[j])
             K22 = se_kernel(Zn, Zn, self.ell[j], self.sf2[j])
@@ -221,8 +221,8 @@ class GPModel:
             L[j, :N, :N] = self.L[j]
             L[j, N:, :N] = L21T.T
             L[j, N:, N:] = cholesky(K22 - L21T.T @ L21T, lower=True, check_finite=False)
-            alpha[j] = self._solve(L[j], y[:, j])
-        self.Z, self.y, self.L, self.alpha = Z, y, L, alpha
+            weights[j] = self._solve(L[j], y[:, j])
+        self.Z, self.y, self.L, self.weights = Z, y, L, weights
         return self
 
     def log_marginal_likelihood(self) -> np.ndarray:
@@ -230,7 +230,7 @@ class GPModel:
 
         In physical units subtract ``N log(y_std)``."""
         logdet = np.log(np.diagonal(self.L, axis1=1, axis2=2)).sum(1)
-        return -0.5 * np.einsum("nj,jn->j", self.y, self.alpha) - logdet - 0.5 * self.N * _LOG_2PI
+        return -0.5 * np.einsum("nj,jn->j", self.y, self.weights) - logdet - 0.5 * self.N * _LOG_2PI
 
     # -- prediction ----------------------------------------------------------------------
     def _query(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -263,9 +263,9 @@ class GPModel:
         return dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
 
     def _mean_grad(self, j: int, Ks: np.ndarray, Zq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Scaled mean ``(M,)`` and its gradient ``(M, d)``: ``sum_i alpha_i k_i Lambda^-1 (z_i - z*)``
-        as ``(Ks (alpha Z) - z* (Ks alpha)) / ell^2`` (one ``(M, N) x (N, d)`` matmul, no ``(M, N)`` temporary)."""
-        a = self.alpha[j]
+        """Scaled mean ``(M,)`` and its gradient ``(M, d)``: ``sum_i w_i k_i Lambda^-1 (z_i - z*)``
+        as ``(Ks (w Z) - z* (Ks w)) / ell^2`` (one ``(M, N) x (N, d)`` matmul, no ``(M, N)`` temporary)."""
+        a = self.weights[j]
         m = Ks @ a
         return m, (Ks @ (a[:, None] * self.Z) - Zq * m[:, None]) / self.ell[j] ** 2
 
@@ -277,7 +277,7 @@ class GPModel:
         mean, var = _nan((len(ok), self.D)), _nan((len(ok), self.D))
         for j in range(self.D if len(Zq) else 0):
             Ks = self._kstar(j, Zq)
-            mean[ok, j] = Ks @ self.alpha[j]
+            mean[ok, j] = Ks @ self.weights[j]
             v = np.maximum(self._solve_fwd(j, Ks, overwrite=True)[0], 0.0)  # Ks is not needed after this
             var[ok, j] = v + self.sn2[j] if noisy else v
         return mean * self.y_std + self.y_mean, var * self.y_std**2
@@ -287,13 +287,13 @@ class GPModel:
         Zq, ok = self._query(Xq)
         mean = _nan((len(ok), self.D))
         for j in range(self.D if len(Zq) else 0):
-            mean[ok, j] = self._kstar(j, Zq) @ self.alpha[j]
+            mean[ok, j] = self._kstar(j, Zq) @ self.weights[j]
         return mean * self.y_std + self.y_mean
 
     def mean_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(M, D)`` and its input gradient ``(M, D, d)`` (physical units), ``O(D M N d)``.
 
-        ``dm/dx* = sum_i alpha_i k(x_i, x*) Lambda^-1 (x_i - x*)`` (thesis eq. 4.1 without its factor -2)."""
+        ``dm/dx* = sum_i w_i k(x_i, x*) Lambda^-1 (x_i - x*)`` (thesis eq. 4.1 without its factor -2)."""
         Zq, ok = self._query(Xq)
         mean, dmean = _nan((len(ok), self.D)), _nan((len(ok), self.D, self.d))
         for j in range(self.D if len(Zq) else 0):
@@ -314,11 +314,11 @@ class GPModel:
         if lib is None:
             m, g = self.mean_with_gradients(x[None, :])
             return m[0], g[0]
-        key = (self.Z, self.alpha, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std)
+        key = (self.Z, self.weights, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std)
         pc = getattr(self, "_point_cache", None)
         if pc is None or not all(a is b for a, b in zip(pc[0], key)):
             Zs = np.ascontiguousarray(self.Z[None, :, :] / self.ell[:, None, :])
-            keep = (Zs, np.ascontiguousarray(self.alpha), np.ascontiguousarray(self.sf2),
+            keep = (Zs, np.ascontiguousarray(self.weights), np.ascontiguousarray(self.sf2),
                     np.ascontiguousarray(1.0 / self.ell))
             z, m, g = np.empty(self.d), np.empty(self.D), np.empty((self.D, self.d))
             ptrs = [a.ctypes.data for a in (*keep, z, m, g)]
@@ -359,7 +359,8 @@ class GPModel:
 
     # -- storage -------------------------------------------------------------------------
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
-        """Plain arrays for ``np.savez`` (no pickle); with the factor ``L`` and ``alpha`` unless told not to.
+        """Plain arrays for ``np.savez`` (no pickle); with the factor ``L`` and the weights (key
+        ``alpha``, the stored format's name) unless told not to.
 
         Without the factor (``D N^2`` doubles), ``from_arrays`` refactorizes: same predictions to
         rounding, not bit for bit."""
@@ -367,7 +368,7 @@ class GPModel:
                "x_mean": self.x_mean, "x_std": self.x_std, "y_mean": self.y_mean, "y_std": self.y_std,
                "noise_floor": np.array(self.noise_floor)}
         if include_factor:
-            out |= {"L": self.L, "alpha": self.alpha}
+            out |= {"L": self.L, "alpha": self.weights}
         return {k: np.array(v, copy=True) for k, v in out.items()}
 
     @classmethod
@@ -392,7 +393,7 @@ class GPModel:
         if "L" in g and "alpha" in g:
             if g["L"].shape != (D, N, N) or g["alpha"].shape != (D, N):
                 raise ValueError("inconsistent GP factor shapes")
-            self.L, self.alpha = g["L"].copy(), g["alpha"].copy()
+            self.L, self.weights = g["L"].copy(), g["alpha"].copy()
         else:
             self._factorize()
         return self
@@ -457,7 +458,7 @@ class SparseGPModel(GPModel):
     ``N x N``. With the inducing inputs equal to all training inputs this is the exact GP
     (``Q_nn = K_nn``), tested.
 
-    Layout: as :class:`GPModel`, except ``Z (M, d)`` and ``alpha (D, M) = w`` are the inducing inputs
+    Layout: as :class:`GPModel`, except ``Z (M, d)`` and ``weights (D, M)`` are the inducing inputs
     and weights (so the mean, its gradient and the compiled one-point path are ``GPModel``'s), the
     training data are ``Z_train (N, d)`` and ``y (N, D)`` (scaled), ``L_U``, ``L_B (D, M, M)``,
     ``lam (D, N)``. ``m_requested``: the inducing count asked for (``update`` selects again up to it).
@@ -525,10 +526,10 @@ class SparseGPModel(GPModel):
         return se_kernel(self.Z, self.Z, self.ell[j], self.sf2[j])
 
     def _factorize(self) -> None:
-        """``L_U``, ``L_B``, ``lam`` and the weights ``alpha`` of every output (``O(D N M^2)``)."""
+        """``L_U``, ``L_B``, ``lam`` and the weights ``weights`` of every output (``O(D N M^2)``)."""
         M, N, D = self.M, self.N, self.D
         self.L_U, self.L_B = np.empty((D, M, M)), np.empty((D, M, M))
-        self.lam, self.alpha = np.empty((D, N)), np.empty((D, M))
+        self.lam, self.weights = np.empty((D, N)), np.empty((D, M))
         self._lml = np.empty(D)
         for j in range(D):
             try:
@@ -546,7 +547,7 @@ class SparseGPModel(GPModel):
             LB = cholesky(B, lower=True, check_finite=False)
             ys = self.y[:, j] * s
             c = solve_triangular(LB, A @ ys, lower=True, check_finite=False)
-            self.alpha[j] = solve_triangular(LU, solve_triangular(LB, c, lower=True, trans="T", check_finite=False),
+            self.weights[j] = solve_triangular(LU, solve_triangular(LB, c, lower=True, trans="T", check_finite=False),
                                              lower=True, trans="T", check_finite=False)
             self.L_U[j], self.L_B[j], self.lam[j] = LU, LB, lam
             # FITC log marginal likelihood log N(y | 0, Q_nn + Lam) by Woodbury and the determinant lemma
@@ -589,7 +590,7 @@ class SparseGPModel(GPModel):
         mean, var = _nan((len(ok), self.D)), _nan((len(ok), self.D))
         for j in range(self.D if len(Zq) else 0):
             Ks = self._kstar(j, Zq)
-            mean[ok, j] = Ks @ self.alpha[j]
+            mean[ok, j] = Ks @ self.weights[j]
             v = np.maximum(self._var_solves(j, Ks)[0], 0.0)
             var[ok, j] = v + self.sn2[j] if noisy else v
         return mean * self.y_std + self.y_mean, var * self.y_std**2
@@ -620,14 +621,14 @@ class SparseGPModel(GPModel):
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
         """Plain arrays for ``np.savez``: inducing inputs ``Z``, training data ``Z_train``, ``y``,
         hyperparameters, scaling, ``m_requested``; with the factors ``L_U``, ``L_B``, ``lam``,
-        ``alpha`` and the likelihood ``lml`` unless told not to (``from_arrays`` then refactorizes
+        the weights and the likelihood ``lml`` unless told not to (``from_arrays`` then refactorizes
         at the stored inducing inputs)."""
         out = {"Z": self.Z, "Z_train": self.Z_train, "y": self.y, "ell": self.ell, "sf2": self.sf2,
                "sn2": self.sn2, "x_mean": self.x_mean, "x_std": self.x_std, "y_mean": self.y_mean,
                "y_std": self.y_std, "noise_floor": np.array(self.noise_floor),
                "m_requested": np.array(self.m_requested)}
         if include_factor:
-            out |= {"L_U": self.L_U, "L_B": self.L_B, "lam": self.lam, "alpha": self.alpha, "lml": self._lml}
+            out |= {"L_U": self.L_U, "L_B": self.L_B, "lam": self.lam, "alpha": self.weights, "lml": self._lml}
         return {k: np.array(v, copy=True) for k, v in out.items()}
 
     @classmethod
@@ -653,7 +654,7 @@ class SparseGPModel(GPModel):
                     or g["alpha"].shape != (D, M) or g["lml"].shape != (D,)):
                 raise ValueError("inconsistent sparse GP factor shapes")
             self.L_U, self.L_B, self.lam = g["L_U"].copy(), g["L_B"].copy(), g["lam"].copy()
-            self.alpha, self._lml = g["alpha"].copy(), g["lml"].copy()
+            self.weights, self._lml = g["alpha"].copy(), g["lml"].copy()
         else:
             self._factorize()
         return self

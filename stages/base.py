@@ -8,7 +8,9 @@ A stage is a plain object that knows nothing of the CLI or the cache:
 - ``sources``: the modules/packages whose source files make its code version (editing
   them invalidates its cache entries);
 - ``inputs(config)``: the input artifacts the config names, as :class:`InputRef`;
-- ``run(config, inputs, progress) -> StageOutput``: the computation;
+- ``run(config, inputs, progress) -> StageOutput``: the computation, on a config the runner has
+  normalized (``config.normalized()``, if the class defines it: one spelling per meaning, so one
+  key) and validated (``config.validate()``) once, so ``run`` need not do either again;
 - ``data_files``: the data files ``run`` returns (``.npz`` arrays or JSON documents).
 
 The pipeline (``pipeline/runner.py``) resolves the inputs, keys the run by
@@ -16,6 +18,16 @@ The pipeline (``pipeline/runner.py``) resolves the inputs, keys the run by
 ``run`` on a miss and publishes the files atomically. Recordings are derived from the
 stored data by the pipeline's recorder of the stage (``pipeline/recorders.py``), so a
 recording is never part of the data's key.
+
+A composite stage (``raico learn``) is a stage whose work is a sequence of other stages' runs
+(its *steps*), each cached on its own so that a killed run resumes where it stopped. It names the
+stages it runs in ``step_stages``; the runner then calls ``run(config, inputs, progress, steps=...)``
+with a :class:`Steps`, whose ``run(stage_name, config) -> Artifact`` runs one step through the
+cache (a hit is not computed again) and returns its stored artifact. The stage never sees the cache
+or the pipeline (it cannot import them: the floors); it reads its steps' artifacts as any stage
+reads its inputs. Its code version includes its steps' code versions, so editing a step's code
+invalidates the composite's entries too. The steps are not inputs: the composite's config decides
+them, so they are not part of its key.
 
 Adding a stage: one module under ``stages/`` defining a ``Stage`` and one line in
 ``stages/registry.py``; a recorder, if it records, in ``pipeline/recorders.py``.
@@ -100,6 +112,8 @@ class Artifact:
     status: str
     metrics: dict[str, Any]
     inputs: tuple[str, ...] = ()
+    timings: dict[str, Any] = field(default_factory=dict)  # the run's wall times (``compute_s``)
+    cached: bool = False  # a step of a composite stage: whether the run was a cache hit
 
     @property
     def ref(self) -> str:
@@ -133,6 +147,18 @@ class StageOutput:
 
 
 @dataclass(frozen=True)
+class Steps:
+    """What the runner gives a composite stage's ``run`` as ``steps`` (see the module docstring).
+
+    ``run(stage_name, config) -> Artifact``: one step, a cached run of a stage named in the
+    composite's ``step_stages`` (its ``cached`` field says whether it was a hit); ``say(line)``: one
+    line to the user (the CLI's stderr; nothing when quiet)."""
+
+    run: Callable[[str, Any], Artifact]
+    say: Callable[[str], None] = lambda line: None
+
+
+@dataclass(frozen=True)
 class Stage:
     """A pipeline stage (see the module docstring)."""
 
@@ -143,6 +169,7 @@ class Stage:
     data_files: tuple[str, ...]
     description: str
     progress_total: Callable[[Any], int] = lambda cfg: 0
+    step_stages: tuple[str, ...] = ()  # a composite stage: the stages its steps run (``run`` gets ``steps=``)
 
     def inputs(self, config: StageConfig) -> list[InputRef]:
         """The input artifacts ``config`` names (an empty reference is an error)."""

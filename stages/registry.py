@@ -13,6 +13,7 @@ _MODULES = {
     "execute": "stages.execute",
     "evaluate": "stages.evaluate.stage",
     "fit": "stages.fit.stage",
+    "learn": "stages.learn",  # composite: its steps are runs of babble, fit, plan and execute
 }
 
 

@@ -333,7 +333,7 @@ def test_damage_the_stamps_do_not_show_is_found_by_verify(tmp_path: Path) -> Non
     """The residual case (DVC's trade-off): damage that keeps size, times and inode -- only possible
     below the file system, simulated here by stamping the damaged file -- is served by a hit; the
     deep check of ``raico ls --verify`` finds it, and a stage that fails to load it says so
-    (``pipeline.runner.CheckedArtifact``)."""
+    (``pipeline.artifacts.CheckedArtifact``)."""
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
     e = _settled(c)

@@ -162,7 +162,7 @@ def test_babble_recording_has_a_world_transform_for_every_body(tmp_path, plant):
     robot = shared_robot(plant)
     from pydrake.multibody.tree import BodyIndex
 
-    from pipeline.recording import entity_name
+    from pipeline.rerun_io import entity_name
 
     bodies = [entity_name(robot.plant.get_body(BodyIndex(i)).name()) for i in range(1, robot.plant.num_bodies())]
     assert len(bodies) == robot.plant.num_bodies() - 1 >= {"pendulum": 2, "arm5": 5, "biorob": 5, "nao": 31}[plant]

@@ -1,6 +1,6 @@
 """Every registered derivative against finite differences (plants.numdiff), automatically:
 
-- every dynamics model in ``plants.registry.DYNAMICS`` on every plant (models that need fitted
+- every dynamics model in ``plants.dynamics_registry.DYNAMICS`` on every plant (models that need fitted
   parameters are listed and skipped here; their own tests fit them);
 - every task map example in ``plants.taskmaps.TASKMAP_EXAMPLES`` on every plant it applies to;
 - every cost term example in ``planning.costs.COST_TERM_EXAMPLES`` on every plant it applies to.
@@ -20,6 +20,7 @@ import planning.costs as costs_module
 import plants.taskmaps as taskmaps_module
 from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlTerm, StateTerm, ViaPoint
 from plants.dynamics import PseudoDynamics
+from plants.dynamics_registry import DYNAMICS, make_dynamics
 from plants.numdiff import (
     check_cost_term,
     check_dynamics,
@@ -28,7 +29,6 @@ from plants.numdiff import (
     compare,
     numdiff_jacobian,
 )
-from plants.registry import DYNAMICS, make_dynamics
 from plants.robots import PLANTS, shared_robot
 from plants.taskmaps import TASKMAP_EXAMPLES, JointPositions
 

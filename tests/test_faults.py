@@ -374,7 +374,6 @@ HELPER = textwrap.dedent("""
     import plants._threads  # noqa: F401
     from pipeline import cli, runner
     from pipeline.cache import Cache
-    from pipeline.learn import learn
     from stages.babble import BabbleConfig
     from stages.evaluate.stage import EvaluateConfig
     from stages.execute import ExecuteConfig
@@ -424,8 +423,6 @@ HELPER = textwrap.dedent("""
                         "killed": killed}
 
     def go(stage, cfg):
-        if stage == "learn":
-            return learn(cache, cfg, record=False)
         return runner.run(cache, stage, cfg, record=False)
 
     def forked(stage, cfg, pause_at_publish):

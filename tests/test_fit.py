@@ -76,7 +76,7 @@ def test_fit_heldout_error_recording_and_cache(base):
 
 
 def test_learned_model_of_the_fit_predicts_babbled_accelerations(base):
-    from plants.registry import make_dynamics
+    from plants.dynamics_registry import make_dynamics
     from plants.robots import shared_robot
 
     _, data, fit = base

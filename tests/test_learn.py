@@ -27,8 +27,8 @@ def learn_json(tmp_path, *extra):
 def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     from rerun.chunk import RrdReader
 
+    from pipeline.artifacts import as_artifact
     from pipeline.cache import Cache
-    from pipeline.runner import as_artifact
 
     two, _ = learn_json(tmp_path, "--episodes", 2)
     m = two["metrics"]
@@ -107,22 +107,24 @@ def test_killed_learn_resumes_without_recomputing_finished_episodes(tmp_path):
     assert {k: (tmp_path / "execute" / k / "meta.json").stat().st_mtime_ns for k in done} == before
 
 
-def test_babbling_pace_and_plant_defaults():
+def test_babbling_pace_and_plant_defaults(tmp_path):
     """Issue 17: one random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
     the plant's default, resolved before the key (one cache entry per meaning)."""
-    from pipeline.learn import learn_key
+    from pipeline.cache import Cache
+    from pipeline.runner import run_key
     from stages.learn import LearnConfig, babble_knots
 
     assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
     big = LearnConfig(plant="biorob", task="reach", babble_points=1000)  # a valid babbling run
     assert babble_knots(1000) == 333  # 99.9 s at one knot per 0.25 s would be 400: one per three samples
     big.babble_config().validate()
-    arm = LearnConfig(plant="biorob", task="reach").resolved()
+    arm = LearnConfig(plant="biorob", task="reach").normalized()
     assert (arm.babble_points, arm.stride) == (200, 20)
-    pend = LearnConfig(plant="pendulum", task="swing-up").resolved()
+    pend = LearnConfig(plant="pendulum", task="swing-up").normalized()
     assert (pend.babble_points, pend.stride) == (15, 5)
     explicit = LearnConfig(plant="biorob", task="reach", babble_points=200, stride=20)
-    assert learn_key(LearnConfig(plant="biorob", task="reach").resolved())[2] == learn_key(explicit)[2]
+    cache = Cache(tmp_path)
+    assert run_key(cache, "learn", LearnConfig(plant="biorob", task="reach")) == run_key(cache, "learn", explicit)
     with pytest.raises(ValueError, match="warm-from"):
         LearnConfig(plant="biorob", task="reach", warm_from="sideways").validate()
 
@@ -194,3 +196,32 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     assert usable_steps(art("limits", 0.5), 0.002, 750) == 750
     assert usable_steps(art("tracking-lost", 0.5), 0.002, 750) == 250
     assert usable_steps(art("diverged", 0.0), 0.002, 750) == 0
+
+
+def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypatch):
+    """Issue 20 item 2: ``learn`` is a registered stage (its recorder with the others); its code version
+    joins its steps', so editing the plan stage's code gives it another key; its steps are only the
+    stages it names."""
+    import dataclasses
+
+    from pipeline import runner
+    from pipeline.cache import Cache
+    from pipeline.recorders import RECORDERS
+    from pipeline.ui import Reporter
+    from stages.execute import ExecuteConfig
+    from stages.learn import LearnConfig
+    from stages.registry import get_stage, stage_names
+
+    stage = get_stage("learn")
+    assert "learn" in stage_names() and "learn" in RECORDERS
+    assert stage.step_stages == ("babble", "fit", "plan", "execute")
+    version = runner.code_version(stage)
+    assert all(runner.code_version(get_stage(s)) in version for s in stage.step_stages)
+    cache, cfg = Cache(tmp_path), LearnConfig(plant="pendulum", task="swing-up")
+    key = runner.run_key(cache, "learn", cfg)
+    real = runner._code_version
+    monkeypatch.setattr(runner, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
+    assert runner.run_key(cache, "learn", cfg) != key
+    only_babble = dataclasses.replace(stage, step_stages=("babble",))
+    with pytest.raises(ValueError, match="runs babble as steps, not execute"):
+        runner._steps(cache, only_babble, Reporter(quiet=True)).run("execute", ExecuteConfig(plan="x"))

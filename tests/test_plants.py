@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from plants.dynamics import AnalyticDynamics, PseudoDynamics
+from plants.dynamics_registry import DYNAMICS, DynamicsSpec, dynamics_names, make_dynamics, register_dynamics
 from plants.fast_analytic import FastAnalyticDynamics
-from plants.registry import DYNAMICS, DynamicsSpec, dynamics_names, make_dynamics, register_dynamics
 from plants.robots import PLANTS, load_robot, shared_robot
 from plants.taskmaps import EndEffectorPosition, RollAngle
 
@@ -184,7 +184,7 @@ def test_registry_refuses_bad_input(monkeypatch):
         make_dynamics("pseudo", arm, 0.01, params={"w": np.ones(2)})
     with pytest.raises(ValueError, match="^dynamics name 'pseudo' is empty or already registered$"):
         register_dynamics("pseudo", lambda r, dt, p: PseudoDynamics(r.n_q, dt), "again")
-    monkeypatch.setattr("plants.registry.DYNAMICS", dict(DYNAMICS))
+    monkeypatch.setattr("plants.dynamics_registry.DYNAMICS", dict(DYNAMICS))
     seen = []
 
     def build(r, dt, p):
@@ -195,9 +195,9 @@ def test_registry_refuses_bad_input(monkeypatch):
     assert "fitted" not in dynamics_names()
     spec = register_dynamics("fitted", build, "test", needs_params=True,
                              example_params=lambda r: {"w": np.ones(2)})
-    import plants.registry
+    import plants.dynamics_registry
 
-    assert spec is plants.registry.DYNAMICS["fitted"] and dynamics_names()[-1] == "fitted"
+    assert spec is plants.dynamics_registry.DYNAMICS["fitted"] and dynamics_names()[-1] == "fitted"
     assert "fitted" not in DYNAMICS  # the test's copy of the registry, not the real one
     with pytest.raises(ValueError, match=r"^dynamics 'fitted' needs params \(fitted model parameters\)$"):
         make_dynamics("fitted", arm, 0.01)
@@ -246,7 +246,7 @@ def test_plants_has_no_import_cycle():
     everything = _plants_imports()
     assert not any(d.split(".")[0] in ("stages", "pipeline") for deps in everything.values() for d in deps)
     graph = {m: {d for d in deps if d.startswith("plants.")} for m, deps in everything.items()}
-    assert not any(d in ("plants.registry", "plants.fast_analytic") or d.startswith("plants.codegen")
+    assert not any(d in ("plants.dynamics_registry", "plants.fast_analytic") or d.startswith("plants.codegen")
                    for d in graph["plants.dynamics"])
     assert _cycle(graph) is None, " -> ".join(_cycle(graph))
     assert _cycle({"plants.a": {"plants.b"}, "plants.b": {"plants.a"}}) == ["plants.a", "plants.b", "plants.a"]

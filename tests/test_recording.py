@@ -1,4 +1,4 @@
-"""Tests of the Rerun recordings (pipeline/recording.py) and MCAP rollouts (pipeline/mcap_io.py)."""
+"""Tests of the Rerun recordings (pipeline/rerun_io.py) and MCAP rollouts (pipeline/mcap_io.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from pydrake.multibody.tree import BodyIndex
 from rerun.chunk import RrdReader
 
 from pipeline.mcap_io import read_trajectory_mcap, write_trajectory_mcap
-from pipeline.recording import (
+from pipeline.rerun_io import (
     MAX_POSES,
     Recording,
     body_poses,

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import pipeline.runner
+import pipeline.artifacts
 from pipeline.experiments import EXPERIMENTS, Experiment, Variant, summarize
 from pipeline.report import (
     FALLBACK_COLORS,
@@ -46,7 +46,7 @@ def runs(monkeypatch):
             d = arrays[self.key]
             return {k: v for k, v in d.items() if keys is None or k in keys}
 
-    monkeypatch.setattr(pipeline.runner, "as_artifact", lambda entry: Art(entry))
+    monkeypatch.setattr(pipeline.artifacts, "as_artifact", lambda entry: Art(entry))
 
     def add(variant, seed, costs, status="max-iterations", elapsed=None, initial=1e4):
         key = f"{variant.label}/{seed}"

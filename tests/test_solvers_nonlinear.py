@@ -224,8 +224,8 @@ def test_options_reject_unknown_keys(cls):
     (AICOOptions, {"alpha": float("inf")}, "options alpha and gamma must be finite"),
     (ILQGOptions, {"delta0": 1.0}, "option delta0 must be > 1.0, got 1.0"),
     (ILQGOptions, {"mu0": -1.0}, "option mu0 must be >= 0.0, got -1.0"),
-    (ILQGOptions, {"alphas": [2.0]}, "option alphas must be a non-empty list in (0, 1], got (2.0,)"),
-    (ILQGOptions, {"alphas": []}, "option alphas must be a non-empty list in (0, 1], got ()"),
+    (ILQGOptions, {"step_sizes": [2.0]}, "option step_sizes must be a non-empty list in (0, 1], got (2.0,)"),
+    (ILQGOptions, {"step_sizes": []}, "option step_sizes must be a non-empty list in (0, 1], got ()"),
     (ILQGOptions, {"mu_max": 1e-9}, "option mu_max must be > 1e-06, got 1e-09"),
     (ILQGOptions, {"tol_rel": -1.0}, "option tol_rel must be >= 0.0, got -1.0"),
 ])
@@ -241,7 +241,7 @@ def test_solver_registry(arm_problem):
     assert set(SOLVERS) == {"aico", "raico", "ilqg"} | baseline
     assert make_options("raico").alpha == 1.0 and make_options("aico").alpha == 0.0
     assert make_options("ilqg", {"mu0": 0.5}).mu0 == 0.5
-    assert make_options("ilqg").alphas == pytest.approx(tuple(10 ** np.linspace(0, -3, 11)))
+    assert make_options("ilqg").step_sizes == pytest.approx(tuple(10 ** np.linspace(0, -3, 11)))
     with pytest.raises(ValueError, match="unknown solver"):
         solve(arm_problem, "ddp", {})
     with pytest.raises(ValueError, match="bogus"):

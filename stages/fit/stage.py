@@ -189,7 +189,7 @@ def plan_problem(art: Artifact) -> dict:
 def execute_segments(art: Artifact) -> tuple[str, list[Segment]]:
     """The plant and the one segment of an execute artifact: ``(X[k], tau[k]) -> qddot`` by Drake's
     forward dynamics (the analytic model), ``k < T``; non-finite rows skipped."""
-    from plants.registry import make_dynamics
+    from plants.dynamics_registry import make_dynamics
     from plants.robots import shared_robot
 
     desc = plan_problem(art)

@@ -18,7 +18,7 @@ from planning.objective import Objective, build_terms, objective_from_descriptio
 from planning.problem import Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
-from plants.registry import make_dynamics
+from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, apply_balance, cog_margins
@@ -274,15 +274,14 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
-    if cfg.sigma is not None:
-        terms.append(uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units))
     objective = build_terms(robot, terms, task.T, kind)
-    joint = [Uncertainty(dyn, d["sigma_star"], d["weight"], task.T, name=d["name"],
-                         units=d.get("units", "standardized"))
-             for d in objective.descriptions if d["term"] == "uncertainty"]
+    descriptions, joint = objective.descriptions, []
+    if cfg.sigma is not None:  # the uncertainty term from the config's values (its description only stored)
+        joint = [Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units)]
+        descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
-    desc = describe_problem(cfg, task, q0, objective.descriptions, model.ref if model else None, kind)
+    desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
@@ -292,9 +291,10 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
          warm_start: Artifact | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception.
 
-    ``warm_start``: an earlier plan of the same horizon: its controls are the initial guess, and with
+    ``cfg``: a valid config (the runner validates and normalizes it before the stage runs; the solver
+    checks its options again, as the planning library checks every caller's). ``warm_start``: an
+    earlier plan of the same horizon: its controls are the initial guess, and with
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
-    cfg.validate()
     robot, task, problem, q0, desc = build_problem(cfg, model)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
@@ -322,9 +322,10 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
 
 
 def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None = None) -> StageOutput:
-    """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``."""
+    """The plan stage: ``plan.npz`` (trajectory, controller, history) and ``problem.json``; ``cfg``
+    normalized and validated by the runner."""
     inputs = inputs or {}
-    out = plan(cfg.normalized(), inputs.get("model"), progress, inputs.get("warm_start"))
+    out = plan(cfg, inputs.get("model"), progress, inputs.get("warm_start"))
     return StageOutput(status=str(out.result.status), metrics=out.metrics(), arrays={PLAN_FILE: out.arrays()},
                        documents={PROBLEM_FILE: out.description}, payload=out)
 
