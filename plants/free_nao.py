@@ -62,6 +62,7 @@ def sole_corners_local() -> np.ndarray:
     return np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))]
 
 
+STANCE_MARGIN = 0.02  # m, the standing start's CoG margin inside the support polygon
 MAX_TIP = 0.5  # rad: a posture that finds no rest within this tilt cannot stand on flat ground
 
 
@@ -182,6 +183,77 @@ class FreeNao:
         tilt = float(np.arccos(np.clip((np.trace(R.matrix()) - 1) / 2, -1.0, 1.0)))
         return plant.GetPositions(ctx).copy(), tilt
 
+    def stance_positions(self, q: np.ndarray, margin: float = STANCE_MARGIN) -> tuple[np.ndarray, dict]:
+        """Free-plant positions of a double-support stance near planning ``q (n_q,)`` (rad).
+
+        Drake's ``InverseKinematics`` (SNOPT) finds the free-plant positions closest to ``q`` in the
+        joints (least squares over the 26 tree joints, the two hip yaw-pitch joints kept equal as
+        on the robot, the joint limits respected) such that the left sole lies flat at the world
+        origin (the fixed-base model's pose, so that the plan's world frame stays the robot's), the
+        right sole lies flat on the ground (z = 0, its z axis vertical; its x, y and yaw free), and
+        the CoG's ground projection is at least ``margin`` m inside the support polygon (the convex
+        hull of the eight sole corners with the right sole at its pose under ``q``, projected flat).
+        Returns the positions and ``{"projection_norm", "projection_max"}`` (rad: the joint-space
+        norm and largest absolute change in planning coordinates), ``"sole_height"`` (m, the largest
+        |z| of a sole corner), ``"cog_margin"`` (m, against the hull of the projected stance's
+        corners) and ``"solver"``. Raises ``ValueError`` when no stance is found.
+        """
+        from pydrake.math import RotationMatrix
+        from pydrake.multibody.inverse_kinematics import ComInPolyhedronConstraint, InverseKinematics
+        from pydrake.solvers import Solve
+        from scipy.spatial import ConvexHull
+
+        from stages.evaluate.metrics import signed_margin
+
+        plant = self.plant
+        q = np.asarray(q, float)
+        guess, _ = self.standing_positions(q)
+        # the support polygon: left sole at the origin, right sole where q puts it, laid flat
+        fp, fctx = self.fixed.plant, self.fixed.plant.CreateDefaultContext()
+        fp.SetPositions(fctx, self.fixed.to_plant_q(q))
+        X_LR = fp.GetFrameByName("l_sole").CalcPoseInWorld(fctx).inverse() @ \
+            fp.GetFrameByName("r_sole").CalcPoseInWorld(fctx)
+        yaw = float(np.arctan2(X_LR.rotation().matrix()[1, 0], X_LR.rotation().matrix()[0, 0]))
+        Rz = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+        local = sole_corners_local()[:, :2]
+        pts = np.vstack([local, local @ Rz.T + X_LR.translation()[:2]])
+        hull = ConvexHull(pts)
+        A = np.c_[hull.equations[:, :2], np.zeros(len(hull.equations))]  # a . p + b <= 0 inside
+        ub = -hull.equations[:, 2] - margin
+
+        ik = InverseKinematics(plant, with_joint_limits=True)
+        qv, prog = ik.q(), ik.get_mutable_prog()
+        world = plant.world_frame()
+        lsole, rsole = plant.GetFrameByName("l_sole"), plant.GetFrameByName("r_sole")
+        ik.AddPositionConstraint(lsole, np.zeros(3), world, np.zeros(3), np.zeros(3))
+        ik.AddOrientationConstraint(lsole, RotationMatrix(), world, RotationMatrix(), 0.0)
+        ik.AddPositionConstraint(rsole, np.zeros(3), world, [-1.0, -1.0, 0.0], [1.0, 1.0, 0.0])
+        ik.AddAngleBetweenVectorsConstraint(world, [0.0, 0.0, 1.0], rsole, [0.0, 0.0, 1.0], 0.0, 0.0)
+        com = ComInPolyhedronConstraint(plant, None, world, A, np.full(len(ub), -np.inf), ub, ik.context())
+        prog.AddConstraint(com, qv)
+        hl = plant.GetJointByName("LHipYawPitch").position_start()
+        hr = plant.GetJointByName("RHipYawPitch").position_start()
+        prog.AddLinearEqualityConstraint(qv[hl] - qv[hr] == 0)
+        target = self.free_positions(q, guess[self.base_positions])
+        W = np.zeros((plant.num_positions(), plant.num_positions()))
+        W[self.joint_idx, self.joint_idx] = 1.0
+        prog.AddQuadraticErrorCost(W, target, qv)
+        result = Solve(prog, guess)
+        if not result.is_success():
+            raise ValueError(f"no double-support stance found near the start posture ({result.get_solution_result()})")
+        qp = result.GetSolution(qv)
+        qp[self.base_positions[:4]] /= np.linalg.norm(qp[self.base_positions[:4]])
+        ctx = self.context
+        plant.SetPositions(ctx, qp)
+        corners = self.sole_corners(ctx)
+        c = plant.CalcCenterOfMassPositionInWorld(ctx)
+        poly = corners[..., :2].reshape(-1, 2)
+        poly = poly[ConvexHull(poly).vertices]
+        dq = self.planning_q(qp) - q
+        return qp, {"projection_norm": float(np.linalg.norm(dq)), "projection_max": float(np.abs(dq).max()),
+                    "sole_height": float(np.abs(corners[..., 2]).max()),
+                    "cog_margin": float(signed_margin(poly, c[:2])), "solver": result.get_solver_id().name()}
+
     def sole_corners(self, ctx) -> np.ndarray:
         """World positions ``(2, 4, 3)`` (m) of the left and right sole corners."""
         local = sole_corners_local()
@@ -218,8 +290,9 @@ class FreeNao:
         return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
 
 
-def load_free_nao(builder=None, time_step: float = TIME_STEP) -> FreeNao:
-    """A fresh free-standing Nao (its own plant and scene graph, optionally inside ``builder``)."""
+def load_free_nao(builder=None, time_step: float = TIME_STEP, pd: bool = True) -> FreeNao:
+    """A fresh free-standing Nao (its own plant and scene graph, optionally inside ``builder``).
+    ``pd`` False: the actuators have no PD gains (pure torque control, the stabilizer's plant)."""
     from pydrake.geometry import (
         AddCompliantHydroelasticProperties,
         AddContactMaterial,
@@ -252,7 +325,8 @@ def load_free_nao(builder=None, time_step: float = TIME_STEP) -> FreeNao:
         act = plant.get_joint_actuator(i)
         act.set_default_gear_ratio(1.0)
         act.set_default_rotor_inertia(REFLECTED_INERTIA["nao"])
-        act.set_controller_gains(PdControllerGains(p=KP, d=KD))
+        if pd:
+            act.set_controller_gains(PdControllerGains(p=KP, d=KD))
     friction = CoulombFriction(FRICTION, FRICTION)
     sole_props = ProximityProperties()
     AddCompliantHydroelasticProperties(0.02, HYDROELASTIC_MODULUS, sole_props)

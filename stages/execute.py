@@ -18,6 +18,20 @@ Execution models:
   metric ``start_tilt``); a posture that finds no rest within ``MAX_TIP`` cannot stand on flat
   ground and counts as fallen at t = 0. The simulation runs to the end of the horizon (a fallen robot lies
   on the ground).
+
+  Options (issue 19; the defaults are the behaviour above): ``start="standing"`` projects the start
+  posture (the plan's ``x0`` plus noise) to double support with Drake's inverse kinematics
+  (``FreeNao.stance_positions``: both soles flat on the ground, the CoG ``STANCE_MARGIN`` inside their
+  polygon, the least joint change); the metrics ``start_projection_norm`` and
+  ``start_projection_max`` (rad, planning coordinates) give its size, ``start_cog_margin`` (m) its
+  CoG margin. The reference tracked is then the plan shifted by that projection (a constant offset),
+  so that the plan's held right sole stays flat instead of being pulled back to the uneven feet of
+  the plan's start; ``X_plan`` of the rollout is that reference (``X_plan_unshifted`` the plan).
+  ``controller="wbc"`` replaces the joint PD and feed-forward by the whole-body stabilizer
+  (``stages.wbc``: a task-space inverse-dynamics QP every 2 ms with contact forces, friction cones
+  and torque limits; the plant has no PD actuators, process noise acts as a generalized force);
+  its corner forces, solve times and failed programs are in the rollout (``wbc_*``) and metrics
+  (``wbc_qp_failures``, ``wbc_qp_median_s``); ``U`` holds its torques.
 - **arm5, biorob**: the fixed-base arm as a discrete plant (1 ms, SAP: joint position limits
   enforced) driven by the plan's own feedback controller ``u_k = o_k + O_k x_k`` (a LeafSystem,
   zero-order hold per planning step; pseudo-dynamics plans through computed torque evaluated at
@@ -68,6 +82,8 @@ ROLLOUT_FILE = "rollout.npz"
 MAX_STEP = 1e-3  # s, integrator step bound (continuous pendulum)
 ARM_TIME_STEP = 1e-3  # s, discrete arm plants
 DISCRETE = ("arm5", "biorob")
+STARTS = ("plan", "standing")  # the Nao's start state (module docstring)
+CONTROLLERS = ("pd", "wbc")  # the Nao's controller (module docstring)
 
 
 @dataclass(frozen=True)
@@ -81,7 +97,11 @@ class ExecuteConfig(StageConfig):
             "clip_torques": "Clip the logged torques at the effort limits (arms, pendulum).",
             "open_loop": "Integration check (arms, pendulum; appendix C): the plan's controls U applied open loop (no "
                          "feedback, no noise) to Drake's continuous plant (no joint limits), runge_kutta3 at a fixed "
-                         "step of at most 1 ms; how far Drake's integration of the planned controls is from the plan."}
+                         "step of at most 1 ms; how far Drake's integration of the planned controls is from the plan.",
+            "start": "Nao start state: plan (the plan's x0 on the ground, tipped onto its lowest sole corners) or "
+                     "standing (projected to double support by inverse kinematics).",
+            "controller": "Nao controller: pd (joint PD + inverse-dynamics feed-forward) or wbc (the whole-body "
+                          "stabilizer, a task-space inverse-dynamics QP with contact)."}
 
     plan: str | None = None  # key, key prefix or plan/KEY of the plan to execute
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
@@ -89,8 +109,14 @@ class ExecuteConfig(StageConfig):
     seed: int = 0
     clip_torques: bool = True
     open_loop: bool = False  # the integration check of appendix C (see HELP)
+    start: str = "plan"  # Nao: "plan" or "standing" (STARTS)
+    controller: str = "pd"  # Nao: "pd" or "wbc" (CONTROLLERS)
 
     def validate(self) -> None:
+        if self.start not in STARTS:
+            raise ValueError(f"start must be one of {', '.join(STARTS)} (got {self.start!r})")
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)} (got {self.controller!r})")
         if not 0 <= self.x0_noise <= 1.0:
             raise ValueError("x0-noise must be in [0, 1] rad")
         if not 0 <= self.process_noise <= 100.0:
@@ -324,13 +350,31 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     sub = int(round(dt / TIME_STEP))
     if abs(sub * TIME_STEP - dt) > 1e-9 or sub < 1:
         raise ValueError(f"the Nao's planning step {dt} s is not a multiple of the plant step {TIME_STEP} s")
-    free = load_free_nao()
+    free = load_free_nao(pd=cfg.controller == "pd")  # the stabilizer commands torques only: no PD actuators
     fixed, plant = free.fixed, free.plant
     n = fixed.n_q
     X_plan, U_plan = np.asarray(plan["X"], float), np.asarray(plan["U"], float)
-    ff = feedforward(fixed, X_plan, U_plan, desc["control_kind"])[:, free.act_fixed_idx]  # (T, n_act)
     q_start = _initial_q(desc, fixed, cfg, rng)
-    qp0, tilt = free.standing_positions(q_start)
+    stance = {}
+    if cfg.start == "standing":
+        qp0, stance = free.stance_positions(q_start)
+        tilt = 0.0
+        # the reference: the plan shifted by the projection (constant over the horizon), so that the
+        # plan's held right sole stays flat on the ground (to first order) instead of being pulled back
+        # to the uneven pose of the plan's start
+        X_plan = X_plan.copy()
+        X_plan[:, :n] += free.planning_q(qp0) - q_start
+    else:
+        qp0, tilt = free.standing_positions(q_start)
+    ff = feedforward(fixed, X_plan, U_plan, desc["control_kind"])[:, free.act_fixed_idx]  # (T, n_act)
+    wbc = cfg.controller == "wbc"
+    if wbc:
+        from stages.wbc import make_stabilizer
+
+        stab = free.builder.AddSystem(make_stabilizer(free, X_plan, dt, X_task=np.asarray(plan["X"], float),
+                                                      frame_maps=_frame_tasks(problem)))
+        free.builder.Connect(plant.get_state_output_port(), stab.get_input_port(0))
+        free.builder.Connect(stab.get_output_port(0), plant.get_actuation_input_port())
     sim = Simulator(free.builder.Build())
     pctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
     plant.SetPositions(pctx, qp0)
@@ -338,15 +382,22 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     n_act = len(free.effort)
     desired_port = plant.get_desired_state_input_port(free.model)
     actuation_port = plant.get_actuation_input_port()
+    B = plant.MakeActuationMatrix()
 
     def set_desired(xd):
-        desired_port.FixValue(pctx, xd)
+        if not wbc:  # the stabilizer drives torques only: Drake's PD actuators stay off (port unconnected)
+            desired_port.FixValue(pctx, xd)
 
-    def set_actuation(u):
-        actuation_port.FixValue(pctx, u)
+    def set_actuation(u, w):
+        """Feed-forward ``u`` plus noise ``w`` (n_act,) N m; with the stabilizer, which owns the actuation
+        port and has no feed-forward, the noise acts as a generalized force on the joints."""
+        if wbc:
+            plant.get_applied_generalized_force_input_port().FixValue(pctx, B @ w)
+        else:
+            actuation_port.FixValue(pctx, u + w)
 
     set_desired(np.concatenate([free.A @ np.clip(X_plan[0, :n], fixed.lower, fixed.upper), free.A @ X_plan[0, n:]]))
-    set_actuation(ff[0])
+    set_actuation(ff[0], np.zeros(n_act))
     sim.Initialize()
 
     K = T + 1
@@ -382,7 +433,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         if not ok:
             break
         w = cfg.process_noise * rng.standard_normal(n_act) if cfg.process_noise > 0 else np.zeros(n_act)
-        set_actuation(ff[k] + w)
+        set_actuation(ff[k], w)
         U_log[k] = (ff[k] + w) @ Aq  # planning coordinates
         q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
         try:
@@ -395,6 +446,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
             ok = False
             break
         applied[k] = plant.get_net_actuation_output_port().Eval(pctx)[:n_act]
+        if wbc:  # the stabilizer's held torques plus the noise (planning coordinates)
+            U_log[k] = (applied[k] + w) @ Aq
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
@@ -407,11 +460,34 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
            "torso_p": torso_p, "torso_z": torso_z, "torso_height_plan": planned["torso_height_plan"],
            "torso_z_plan": planned["torso_z_plan"], "corners_plan": planned["corners_plan"],
            "start_tilt": np.array(tilt), "start_stands": np.array(tilt < MAX_TIP - 1e-9)}
+    if wbc:
+        nao["wbc_time"] = np.array([e[0] for e in stab.log])
+        nao["wbc_solve_s"] = np.array([e[1] for e in stab.log])
+        nao["wbc_corner_force"] = np.array([e[2] for e in stab.log]).reshape(-1, 8, 3)
     metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
                                 nao={**nao, "torso_height": torso_p[:, 2]})
     metrics["start_tilt"] = tilt
+    if stance:
+        nao["X_plan_unshifted"] = np.asarray(plan["X"], float)
+        metrics.update(start_projection_norm=stance["projection_norm"], start_projection_max=stance["projection_max"],
+                       start_cog_margin=stance["cog_margin"])
+    if stance:
+        metrics["start"] = "standing"
+    if wbc:
+        metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
+                       if len(stab.log) else float("nan"))
     return ExecuteOutput(times=np.arange(K) * dt, X=X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
                          effort_at_limit=at_limit, nao=nao, problem=problem, robot=fixed)
+
+
+def _frame_tasks(problem) -> list:
+    """The frame-point maps of the problem's via-points (``FramePoints``), the held right sole left
+    out (the stabilizer holds both soles by contact)."""
+    from planning.costs import ViaPoint
+    from plants.taskmaps import FramePoints
+
+    return [t.taskmap for t in problem.state_terms if isinstance(t, ViaPoint) and isinstance(t.taskmap, FramePoints)
+            and not t.name.startswith("r_sole")]
 
 
 def _padded_points(points: list[np.ndarray], K: int) -> np.ndarray:
@@ -471,7 +547,8 @@ def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int
 
 
 STAGE = Stage(name="execute", config_cls=ExecuteConfig, run=run,
-              sources=("plants", "planning", "stages.execute", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+              sources=("plants", "planning", "stages.execute", "stages.wbc", "stages.plan", "stages.base",
+                       "stages.evaluate.metrics"),
               data_files=(ROLLOUT_FILE,),
               description="Execute a plan in Drake's Simulator: the free-standing Nao (joint PD + inverse-dynamics "
                           "feed-forward) or the arm with the plan's feedback controller; status ok, limits, "

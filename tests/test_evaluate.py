@@ -240,7 +240,7 @@ def ex(status="ok", inside=1.0, margin=0.01, via=0.004, **kw):
             "via_point_errors": {"via_cog1@100": via, "r_sole@max": 0.5}, **kw}
 
 
-EXECUTION_CLAIMS = ("cog_support", "executed_reaches")
+EXECUTION_CLAIMS = ("cog_support", "executed_reaches", "stabilizer_stands")
 EXECUTION_CASES = [
     ("cog_support", [ex()] * 3, True),
     ("cog_support", [ex(), ex(), ex(inside=0.98, margin=-0.002)], False),  # one sample outside
@@ -253,7 +253,21 @@ EXECUTION_CASES = [
     ("executed_reaches", [ex(), ex(via=0.02)], False),  # standing but 2 cm off a via-point
     ("executed_reaches", [ex("diverged", via=math.inf)], False),
     ("executed_reaches", [], False),
+    ("stabilizer_stands", [ex(controller="wbc")] * 10, True),
+    ("stabilizer_stands", [ex(controller="wbc")] * 9 + [ex("fell", controller="wbc")], False),
+    ("stabilizer_stands", [ex(controller="wbc"), ex(via=0.011, controller="wbc")], False),  # 1.1 cm off
+    ("stabilizer_stands", [ex(controller="wbc"), ex("limits", controller="wbc")], False),  # stood, not ok
+    ("stabilizer_stands", [], False),
 ]
+
+
+def test_stabilizer_claim_judges_only_the_stabilizer_runs():
+    """The joint-PD runs of the figure are reported beside, not judged; no stabilizer run: no verdict."""
+    execs = [ex(controller="wbc")] * 2 + [ex("fell"), ex()]
+    _, _, measured, ok = CLAIMS["stabilizer_stands"]({}, execs)
+    assert ok and measured.startswith("achieved in 2/2 runs; stood 2/2 (statuses: ok 2)")
+    assert measured.endswith("joint PD beside it: stood 1/2, achieved 1/2")
+    assert CLAIMS["stabilizer_stands"]({}, [ex(), ex()])[2:] == ("no executions with the stabilizer", False)
 
 
 @pytest.mark.parametrize("name, execs, holds", EXECUTION_CASES)

@@ -1,0 +1,363 @@
+"""A whole-body stabilizer for the free-standing Nao (issue 19): task-space inverse dynamics.
+
+Every ``CONTROL_PERIOD`` one quadratic program is solved with Drake's ``MathematicalProgram`` and
+``ClarabelSolver`` (built once; its coefficients are updated in place each step). Decision variables
+``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations (floating base included)
+and the ground forces at the eight sole corners (world frame). The joint torques are an affine
+function of ``x`` through the equations of motion (not variables of their own: 26 fewer)::
+
+    M vdot + C(q, v) v - tau_g(q) = B u + sum_c J_c^T f_c
+
+Constraints (hard):
+
+- the floating base's six rows of the equations of motion: ``M_b vdot + h_b = J_b^T f``;
+- torques ``u = B^T (M vdot + h - J^T f)`` within the model's effort limits;
+- each corner force unilateral inside a linearized friction cone (four faces, ``|f_x|, |f_y| <= MU f_z``,
+  ``MU`` 0.5 below the simulated 0.8), at most ``FZ_MAX``; a corner more than ``CORNER_UP`` above the
+  ground carries none;
+- every loaded corner carries at least ``COP_SHARE`` of its sole's mean corner load (each sole's
+  centre of pressure kept off its edges).
+
+Cost (weight times squared acceleration error):
+
+- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down): each sole's spatial
+  acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
+- CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
+  CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
+  held ``COG_MARGIN`` inside the feet's support polygon (Dykstra projection) and its capture point
+  ``c + cdot / omega`` too (the reference velocity cut);
+- via-point frames ``W_FRAME`` (the hand of the reach task): their points along the plan as made;
+- joints ``W_JOINT``: ``vdot_j = a_r + KP (q_r - q) + KD (v_r - v)`` on the 26 tree joints (the
+  reference: the plan, shifted by the start-state projection when the start is ``standing``;
+  positions interpolated within a planning step, the step's velocity ``v_{k+1}`` and acceleration
+  ``(v_{k+1} - v_k) / dt``);
+- regularization ``W_REG |vdot|^2 + W_FORCE |f|^2``.
+
+Choices, each with its measured effect (fig3.4-inside and fig3.3 R-AICO plans, seed 0-3, standing
+start; the Nao holding its standing posture for 1 s):
+
+- Pure torque control with a zero-order hold: the plant is built without Drake's PD actuators (with
+  PD gains declared and the desired-state port left unconnected, the actuation input had no effect
+  on the joints in free fall). 2 ms or 1 ms periods gave the same standing test to 0.1 mm; 2 ms.
+- The soles as a heavy cost rather than an equality: with the equality (and lifted corners carrying
+  nothing) the program was infeasible in 680 and 1235 of 1500 updates of two runs; as a cost, none.
+- ``COP_SHARE``: without it the program put the right sole's load on its inner edge, the compliant
+  sole rolled (outer corners 1.1 mm up) and RAnkleRoll kept a 0.015 rad error while standing; with
+  0.1 the soles stay flat to 0.02 mm and the joints within 0.0005 rad. 0.5 made fig3.4-inside fall
+  at 1.0 s (the centre of pressure could not reach the heel region the plan's CoG needs), 0.2 at 2.4 s.
+- No least corner force: 1 N per corner forced 4 N onto the unloaded right sole, so the CoG could not
+  be stopped near the left sole's outer edge (fell at 2.5 s).
+- The CoG clamp: the fig3.4-inside plan moves the CoG to 2 mm from the left sole's outer edge; tracked
+  as planned, the robot tipped over that edge at 2.1-2.5 s in every setting tried.
+- ``W_COG`` 100 (with 10 the joint task pulled the CoG past its clamped reference); the CoG of the
+  plan as made instead of the joint reference's made fig3.4-inside fall in 3 of 3 seeds (the two
+  references disagree by the start projection, ~1 cm).
+- ``W_FRAME`` 1000: the reach's executed hand via-point error 1.3-1.9 cm with 10, 0.37-0.61 cm with
+  100, 0.14-0.26 cm with 1000 (seeds 0, 1).
+- Clarabel (interior point) rather than OSQP: exact solutions at about 2.4 ms a program on this
+  machine; OSQP was not compared.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+CONTROL_PERIOD = 2e-3  # s, one QP per period (zero-order hold in between)
+KP, KD = 100.0, 20.0  # 1/s^2, 1/s: joint acceleration PD around the plan
+KP_COG, KD_COG = 50.0, 14.0  # 1/s^2, 1/s: CoG acceleration PD around the planned CoG
+KP_CONTACT, KD_CONTACT = 100.0, 20.0  # 1/s^2, 1/s: sole pose and velocity feedback in the contact constraint
+W_JOINT, W_COG, W_FRAME, W_CONTACT, W_REG, W_FORCE = 1.0, 100.0, 1000.0, 1000.0, 1e-4, 1e-5
+KP_FRAME, KD_FRAME = 100.0, 20.0  # 1/s^2, 1/s: via-point frames (the hand) around the plan
+COG_FROM_JOINT_PLAN = True  # the CoG reference: the joint reference's CoG (True) or the plan's as made
+COG_MARGIN = 0.015  # m, the CoG reference is held this far inside the feet's support polygon
+MU = 0.5  # friction coefficient of the linearized cone (the simulated ground has 0.8)
+CORNER_UP = 2e-3  # m, a sole corner higher than this carries no force in the program (None: every corner may)
+COP_SHARE = 0.1  # each corner of a sole carries at least this share of the sole's mean corner load
+FZ_MIN = 0.0  # N, the least normal force on a corner in contact (see the docstring: 0)
+FZ_MAX = 200.0  # N, a bound on each corner's normal force (keeps the program bounded)
+
+
+def plan_cog(robot, X_plan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Planned CoG position, velocity and acceleration ``(K, 3)`` each (m, m/s, m/s^2) of the plan
+    ``X_plan (K, 2 n_q)`` on the fixed-base model (left sole at the world origin); the velocity at
+    sample ``k`` is ``J_com(q_k) v_k``, the acceleration a forward difference of it (zero at the end)."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+
+    plant, n = robot.plant, robot.n_q
+    ctx = plant.CreateDefaultContext()
+    world = plant.world_frame()
+    K = len(X_plan)
+    c, cd = np.empty((K, 3)), np.empty((K, 3))
+    for k in range(K):
+        plant.SetPositions(ctx, robot.to_plant_q(X_plan[k, :n]))
+        c[k] = plant.CalcCenterOfMassPositionInWorld(ctx)
+        J = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, JacobianWrtVariable.kV, world, world)
+        cd[k] = J @ (robot.P @ X_plan[k, n:])
+    cdd = np.zeros((K, 3))
+    cdd[:-1] = np.diff(cd, axis=0) / dt
+    return c, cd, cdd
+
+
+def plan_points(taskmap, X_plan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A task map's values along the plan ``X_plan (K, 2 n_q)``: positions, velocities ``J v`` and
+    forward-difference accelerations ``(K, dim)`` each (m, m/s, m/s^2)."""
+    n = X_plan.shape[1] // 2
+    phi, J = taskmap.values_and_jacobians(X_plan[:, :n])
+    phid = np.einsum("kij,kj->ki", J, X_plan[:, n:])
+    phidd = np.zeros_like(phid)
+    phidd[:-1] = np.diff(phid, axis=0) / dt
+    return phi, phid, phidd
+
+
+class Reference:
+    """The plan as a reference at any time ``t`` (s): joint positions, velocities and accelerations
+    of the free plant's tree joints ``(26,)`` each from ``X_joint (K, 2 n_q)``; the CoG's ``(3,)``
+    each and every frame task's ``(dim,)`` each from ``X_task`` (the plan as made: its CoG and
+    via-point frames are what the task asks for)."""
+
+    def __init__(self, free, X_joint: np.ndarray, X_task: np.ndarray, dt: float, frame_maps=()):
+        fixed = free.fixed
+        n = fixed.n_q
+        self.dt, self.T = dt, len(X_joint) - 1
+        Q = np.clip(X_joint[:, :n], fixed.lower, fixed.upper)
+        V = X_joint[:, n:]
+        A = np.zeros_like(V)
+        A[:-1] = np.diff(V, axis=0) / dt
+        P = fixed.P  # (n_tree, n_q)
+        self.Q, self.V, self.A = Q @ P.T, V @ P.T, A @ P.T
+        self.c, self.cd, self.cdd = plan_cog(fixed, X_joint if COG_FROM_JOINT_PLAN else X_task, dt)
+        self.frames = [plan_points(m, X_task, dt) for m in frame_maps]
+
+    def _pick(self, k: int, s: float, pos, vel, acc):
+        if k >= self.T:
+            return pos[-1], 0 * vel[-1], 0 * acc[-1]
+        return (1 - s) * pos[k] + s * pos[k + 1], vel[k + 1], acc[k]
+
+    def at(self, t: float) -> tuple:
+        """``(joints, cog, frames)``, each a ``(position, velocity, acceleration)`` triple (frames: a
+        list of them): inside step ``k`` the position is interpolated linearly from ``k`` to
+        ``k + 1``, the velocity is that of ``k + 1``, the acceleration ``(v_{k+1} - v_k)/dt``
+        (semi-implicit Euler). Past the horizon the plan's last state, at rest."""
+        k = int(np.floor(t / self.dt + 1e-9))
+        s = t / self.dt - k
+        return (self._pick(k, s, self.Q, self.V, self.A), self._pick(k, s, self.c, self.cd, self.cdd),
+                [self._pick(k, s, *f) for f in self.frames])
+
+
+def clamp_to_polygon(p: np.ndarray, A: np.ndarray, b: np.ndarray, iterations: int = 100) -> np.ndarray:
+    """The point of the convex polygon ``{x : A x <= b}`` (``A (m, 2)`` unit rows, ``b (m,)`` m)
+    nearest to ``p (2,)`` (m), by Dykstra's alternating projections; ``p`` itself when inside."""
+    if np.all(A @ p <= b + 1e-12):
+        return p
+    x = p.copy()
+    y = np.zeros((len(b), 2))
+    for _ in range(iterations):
+        for i in range(len(b)):
+            z = x + y[i]
+            viol = A[i] @ z - b[i]
+            x_new = z - max(viol, 0.0) * A[i]
+            y[i] = z - x_new
+            x = x_new
+    return x
+
+
+def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL_PERIOD, X_task=None,
+                    frame_maps=()):
+    """The stabilizer as a Drake ``LeafSystem``: input the free plant's state ``(nq + nv,)``, output
+    the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update). It tracks
+    the joints of ``X_plan (K, 2 n_q)``, and the CoG and the frame points of ``frame_maps``
+    (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
+    along the whole plan) of ``X_task`` (default ``X_plan``). Its
+    attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
+    ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram
+    from pydrake.systems.framework import BasicVector, LeafSystem
+
+    from plants.free_nao import SOLES, sole_corners_local
+
+    plant = free.plant
+    nq, nv = plant.num_positions(), plant.num_velocities()
+    B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
+    n_act = B.shape[1]
+    base_rows = np.flatnonzero(np.abs(B).sum(axis=1) == 0)  # the floating base's six velocities
+    jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
+    # tree joints in the reference's order (the fixed plant's velocity order) -> free velocity index
+    joint_v = free.joint_vidx
+    effort = free.effort
+    ctx = plant.CreateDefaultContext()
+    world = plant.world_frame()
+    frames = [plant.GetFrameByName(s) for s in SOLES]
+    corners = sole_corners_local().T  # (3, 4)
+    nc = 4 * len(frames)
+    nf = 3 * nc
+    nx = nv + nf
+    ref = Reference(free, X_plan, X_plan if X_task is None else X_task, dt, frame_maps)
+    tasks = [(plant.GetFrameByName(m.frame.name()), np.ascontiguousarray(m.points.T), m.rows) for m in frame_maps]
+
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(nx, "x")
+    cost = prog.AddQuadraticCost(np.eye(nx), np.zeros(nx), x, is_convex=True).evaluator()
+    n_eq = len(base_rows)
+    eq = prog.AddLinearEqualityConstraint(np.zeros((n_eq, nx)), np.zeros(n_eq), x).evaluator()
+    torque = prog.AddLinearConstraint(np.zeros((n_act, nx)), -effort, effort, x).evaluator()
+    # friction pyramid and unilateral contact (constant rows)
+    Fr = np.zeros((5 * nc, nx))
+    for c in range(nc):
+        i = nv + 3 * c
+        for r, (a, b) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
+            Fr[5 * c + r, i] = a
+            Fr[5 * c + r, i + 1] = b
+            Fr[5 * c + r, i + 2] = -MU
+        Fr[5 * c + 4, i + 2] = 1.0
+    lb = np.tile([-np.inf] * 4 + [FZ_MIN], nc)
+    ub = np.tile([0.0] * 4 + [FZ_MAX], nc)
+    friction = prog.AddLinearConstraint(Fr, lb, ub, x).evaluator()
+    # the centre of pressure of each sole kept off its edges: every corner carries at least COP_SHARE
+    # of its sole's mean corner load
+    Cp = np.zeros((nc, nx))
+    for c in range(nc):
+        s0 = 4 * (c // 4)
+        Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
+        Cp[c, nv + 3 * c + 2] += 1.0
+    cop = prog.AddLinearConstraint(Cp, np.zeros(nc), np.full(nc, np.inf), x).evaluator()
+    solver = ClarabelSolver()
+
+    class Stabilizer(LeafSystem):
+        """Task-space inverse dynamics (module docstring), one QP per ``period``."""
+
+        def __init__(self):
+            super().__init__()
+            self.log: list[tuple[float, float, np.ndarray, bool]] = []
+            self.failures = 0
+            self.state_port = self.DeclareVectorInputPort("x", nq + nv)
+            self.DeclareDiscreteState(n_act)
+            self.DeclareVectorOutputPort("u", BasicVector(n_act), self._output, {self.xd_ticket()})
+            self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+            self.last_f = np.zeros((nc, 3))
+
+        def _output(self, context, output):
+            output.SetFromVector(context.get_discrete_state_vector().CopyToVector())
+
+        def _update(self, context, discrete_state):
+            t0 = time.perf_counter()
+            xs = self.state_port.Eval(context)
+            u, f, ok = solve(context.get_time(), xs[:nq], xs[nq:])
+            if ok:
+                discrete_state.get_mutable_vector().SetFromVector(u)
+                self.last_f = f
+            else:
+                self.failures += 1
+            self.log.append((context.get_time(), time.perf_counter() - t0, f, ok))
+
+    failed: list = []  # (time s, Drake's solution result) of every failed program
+    support: list = []  # (A, b) of the support polygon shrunk by COG_MARGIN (world xy), at the first call
+    sole_ref: list = []  # the soles' poses at the first update, laid flat (roll, pitch 0) on the ground (z 0)
+
+    def sole_errors() -> np.ndarray:
+        """Each sole's pose error ``(12,)``: rotation (axis times angle, world) and translation (m) from
+        its reference pose to the current one (the plant context ``ctx`` is set)."""
+        from pydrake.math import RigidTransform, RollPitchYaw
+
+        poses = [fr.CalcPoseInWorld(ctx) for fr in frames]
+        if not sole_ref:
+            for X in poses:
+                yaw = RollPitchYaw(X.rotation()).yaw_angle()
+                sole_ref.append(RigidTransform(RollPitchYaw(0.0, 0.0, yaw), np.r_[X.translation()[:2], 0.0]))
+        out = []
+        for X, R in zip(poses, sole_ref):
+            aa = (X.rotation() @ R.rotation().inverse()).ToAngleAxis()
+            out.append(np.r_[aa.angle() * aa.axis(), X.translation() - R.translation()])
+        return np.concatenate(out)
+
+    def solve(t: float, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """One QP at time ``t`` and state ``(q, v)``: actuation ``(n_act,)`` N m, corner forces
+        ``(8, 3)`` N, success."""
+        plant.SetPositions(ctx, q)
+        plant.SetVelocities(ctx, v)
+        M = plant.CalcMassMatrix(ctx)
+        h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
+        Jc = np.vstack([plant.CalcJacobianTranslationalVelocity(ctx, JacobianWrtVariable.kV, fr, corners, world, world)
+                        for fr in frames])  # (3 nc, nv), rows (corner, xyz)
+        Js = np.vstack([plant.CalcJacobianSpatialVelocity(ctx, JacobianWrtVariable.kV, fr, np.zeros(3), world, world)
+                        for fr in frames])  # (12, nv)
+        bs = np.concatenate([plant.CalcBiasSpatialAcceleration(ctx, JacobianWrtVariable.kV, fr, np.zeros(3), world,
+                                                               world).get_coeffs() for fr in frames])
+        Jcom = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, JacobianWrtVariable.kV, world, world)
+        bcom = plant.CalcBiasCenterOfMassTranslationalAcceleration(ctx, JacobianWrtVariable.kV, world, world)
+        com = plant.CalcCenterOfMassPositionInWorld(ctx)
+        (q_r, v_r, a_r), (c_r, cd_r, cdd_r), frame_refs = ref.at(t)
+        sole_err = sole_errors()  # (sets the soles' reference poses at the first call)
+        if not support:
+            from scipy.spatial import ConvexHull
+
+            pts = np.vstack([(R.rotation().matrix() @ corners)[:2].T + R.translation()[:2] for R in sole_ref])
+            eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
+            support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
+        c_xy = clamp_to_polygon(c_r[:2], *support)
+        if np.any(c_xy != c_r[:2]):  # the planned CoG too near an edge of the feet: held at the margin
+            c_r, cd_r, cdd_r = np.r_[c_xy, c_r[2]], np.r_[0.0, 0.0, cd_r[2]], np.r_[0.0, 0.0, cdd_r[2]]
+        else:  # its capture point (c + cdot / omega) too: the planned CoG velocity cut so that it stays inside
+            omega = np.sqrt(9.81 / max(c_r[2], 0.05))
+            xi = clamp_to_polygon(c_r[:2] + cd_r[:2] / omega, *support)
+            if np.any(xi != c_r[:2] + cd_r[:2] / omega):
+                cd_r = np.r_[omega * (xi - c_r[:2]), cd_r[2]]
+                cdd_r = np.r_[0.0, 0.0, cdd_r[2]]
+        qj, vj = q[free.joint_idx], v[joint_v]
+        a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
+        a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
+        # cost 0.5 x'Hx + g'x
+        H = np.zeros((nx, nx))
+        g = np.zeros(nx)
+        H[joint_v, joint_v] += 2 * W_JOINT
+        g[joint_v] -= 2 * W_JOINT * a_joint
+        H[:nv, :nv] += 2 * W_COG * Jcom.T @ Jcom + 2 * W_REG * np.eye(nv)
+        g[:nv] += 2 * W_COG * Jcom.T @ (bcom - a_com)
+        H[nv:, nv:] += 2 * W_FORCE * np.eye(nf)
+        for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks, frame_refs):
+            Jp = plant.CalcJacobianTranslationalVelocity(ctx, JacobianWrtVariable.kV, fr, pts, world, world)[rows]
+            bp = plant.CalcBiasTranslationalAcceleration(ctx, JacobianWrtVariable.kV, fr, pts, world,
+                                                         world).T.reshape(-1)[rows]
+            p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
+            a_p = pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v)
+            H[:nv, :nv] += 2 * W_FRAME * Jp.T @ Jp
+            g[:nv] += 2 * W_FRAME * Jp.T @ (bp - a_p)
+        # the soles held (a heavy cost, not a constraint: a sole the compliant ground has let rise a
+        # little must not make the program infeasible)
+        a_sole = -bs - KD_CONTACT * (Js @ v) - KP_CONTACT * sole_err
+        H[:nv, :nv] += 2 * W_CONTACT * Js.T @ Js
+        g[:nv] -= 2 * W_CONTACT * Js.T @ a_sole
+        cost.UpdateCoefficients(H, g)
+        # equality: the floating base's dynamics (its six rows of the equations of motion)
+        Aeq = np.zeros((n_eq, nx))
+        Aeq[:, :nv] = M[base_rows]
+        Aeq[:, nv:] = -Jc[:, base_rows].T
+        eq.UpdateCoefficients(Aeq, -h[base_rows])
+        # torques: u = B^T (M vdot + h - Jc^T f)
+        At = np.hstack([M[jv], -Jc[:, jv].T])
+        torque.UpdateCoefficients(At, -effort - h[jv], effort - h[jv])
+        # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
+        if CORNER_UP is not None:
+            zc = np.concatenate([(fr.CalcPoseInWorld(ctx).rotation().matrix() @ corners)[2] +
+                                 fr.CalcPoseInWorld(ctx).translation()[2] for fr in frames])
+            ub_now = ub.copy()
+            up = zc > CORNER_UP
+            ub_now[4::5] = np.where(up, 0.0, FZ_MAX)
+            lb_now = lb.copy()
+            lb_now[4::5] = np.where(up, 0.0, FZ_MIN)
+            friction.UpdateCoefficients(Fr, lb_now, ub_now)
+            cop.UpdateCoefficients(Cp, np.where(up, -np.inf, 0.0), np.full(nc, np.inf))  # a lifted corner: no share
+        result = solver.Solve(prog)
+        if not result.is_success():
+            failed.append((t, str(result.get_solution_result())))
+            return np.zeros(n_act), np.full((nc, 3), np.nan), False
+        xs = result.GetSolution(x)
+        u = At @ xs + h[jv]
+        return np.clip(u, -effort, effort), xs[nv:].reshape(nc, 3), True
+
+    system = Stabilizer()
+    system.solve = solve
+    system.failed = failed
+    return system

@@ -1,0 +1,127 @@
+"""Start states that stand and the whole-body stabilizer (issue 19): the inverse-kinematics stance
+projection, a standing Nao under the stabilizer, the QP's contact forces, the CLI options
+(real Drake, small horizons)."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from plants.free_nao import STANCE_MARGIN, shared_free_nao
+from stages.evaluate.metrics import STATUSES, signed_margin
+from stages.execute import ExecuteConfig, execute
+from tests.test_execute_free_nao import desc_for, pseudo_plan
+
+NAO_MASS = 5.305354  # kg, as tests/test_execute_free_nao.py
+G = 9.81
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
+    """The thesis's spread (0.05 rad) on the standing posture puts the feet uneven; the projection
+    lays both soles flat on the ground (every corner within 1 mm of z = 0) with the CoG at least the
+    stance margin inside their polygon, and reports its size."""
+    free = shared_free_nao()
+    fixed = free.fixed
+    rng = np.random.default_rng(seed)
+    q = np.clip(fixed.default_q + 0.05 * rng.standard_normal(fixed.n_q), fixed.lower, fixed.upper)
+    uneven, _ = free.standing_positions(q)
+    free.plant.SetPositions(free.context, uneven)
+    assert np.ptp(free.sole_corners(free.context)[..., 2]) > 2e-3  # the spread lifts some corner by > 2 mm
+    qp, info = free.stance_positions(q)
+    ctx = free.context
+    free.plant.SetPositions(ctx, qp)
+    corners = free.sole_corners(ctx)
+    assert np.abs(corners[..., 2]).max() < 1e-3
+    assert np.abs(corners[0, :, :2] - np.array([[-0.055, -0.044], [0.105, -0.044], [0.105, 0.044],
+                                                [-0.055, 0.044]])).max() < 1e-3  # left sole at the origin
+    poly = corners[..., :2].reshape(-1, 2)
+    poly = poly[ConvexHull(poly).vertices]
+    c = free.plant.CalcCenterOfMassPositionInWorld(ctx)
+    assert signed_margin(poly, c[:2]) >= STANCE_MARGIN - 1e-4
+    assert info["cog_margin"] == pytest.approx(signed_margin(poly, c[:2]))
+    dq = free.planning_q(qp) - q
+    assert info["projection_norm"] == pytest.approx(np.linalg.norm(dq)) and 0 < info["projection_norm"] < 0.5
+    assert info["projection_max"] == pytest.approx(np.abs(dq).max())
+    # the coupled hip stays coupled, the joints within their limits
+    p = free.plant
+    assert qp[p.GetJointByName("LHipYawPitch").position_start()] == pytest.approx(
+        qp[p.GetJointByName("RHipYawPitch").position_start()], abs=1e-6)
+    qj = qp[free.joint_idx]
+    assert np.all(qj >= fixed.plant.GetPositionLowerLimits() - 1e-6)
+    assert np.all(qj <= fixed.plant.GetPositionUpperLimits() + 1e-6)
+
+
+def test_stabilizer_holds_a_standing_nao_for_two_seconds():
+    """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
+    2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
+    from stages.wbc import MU
+
+    nao = shared_free_nao().fixed
+    T, dt = 200, 0.01
+    Q = np.tile(nao.default_q, (T + 1, 1))
+    out = execute(ExecuteConfig(plan="hold", controller="wbc", start="standing"),
+                  desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt))
+    m, d = out.metrics, out.nao
+    assert (m["status"], m["stood"], m["wbc_qp_failures"]) == ("ok", True, 0)
+    weight = NAO_MASS * G
+    settled = d["sole_force"][10:].sum(axis=1)  # after 0.1 s
+    assert np.allclose(settled, weight, rtol=0.02)
+    assert np.abs(d["corners"][..., 2]).max() < 1e-3
+    assert np.abs(d["torso_p"] - d["torso_p"][0]).max() < 2e-3
+    assert m["max_tracking_error"] < 0.02 and m["cog_inside_fraction"] == 1.0
+    f = d["wbc_corner_force"]  # (updates, 8, 3) N, world frame
+    assert f.shape[1:] == (8, 3) and len(f) == pytest.approx(T * dt / 2e-3, abs=2)
+    assert np.allclose(f[..., 2].sum(axis=1), weight, rtol=0.02)
+    assert np.all(f[..., 2] >= -1e-6)
+    assert np.all(np.abs(f[..., :2]) <= MU * f[..., 2:3] + 1e-6)
+    assert m["start_projection_norm"] < 1e-3  # the standing posture is a stance already
+
+
+def test_default_execution_is_the_pd_baseline():
+    """The new options default to the old behaviour: no projection, no stabilizer metrics."""
+    cfg = ExecuteConfig(plan="p")
+    assert (cfg.start, cfg.controller) == ("plan", "pd")
+    nao = shared_free_nao().fixed
+    T, dt = 20, 0.01
+    out = execute(cfg, desc_for("nao", nao.default_q, T, dt), pseudo_plan(np.tile(nao.default_q, (T + 1, 1)), dt))
+    assert out.metrics["status"] == "ok"
+    assert not {"start_projection_norm", "wbc_qp_failures"} & set(out.metrics)
+    assert "wbc_corner_force" not in out.nao
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("controller", "mpc", "controller must be one of pd, wbc (got 'mpc')"),
+    ("start", "crouch", "start must be one of plan, standing (got 'crouch')"),
+])
+def test_bad_values_of_the_new_options(field, value, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        ExecuteConfig(plan="p", **{field: value}).validate()
+    res = CliRunner().invoke(app, ["execute", "--plan", "0123456789abcdef", f"--{field}", value])
+    assert res.exit_code != 0
+    err = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert err == [f"raico: error: {message}"], res.stderr
+
+
+def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
+    """`raico execute --controller wbc --start standing` end to end on a small R-AICO reach plan."""
+    runner = CliRunner()
+
+    def run_json(*args):
+        res = runner.invoke(app, [str(a) for a in args])
+        assert res.exit_code == 0, res.output
+        return json.loads(res.stdout.strip().splitlines()[-1])
+
+    plan = run_json("plan", "--plant", "nao", "--task", "reach", "--solver", "raico", "--iterations", 1,
+                    "--no-record", "--json", "--artifacts", tmp_path)
+    r = run_json("execute", "--plan", plan["key"], "--controller", "wbc", "--start", "standing", "--no-record",
+                 "--json", "--artifacts", tmp_path)
+    m = r["metrics"]
+    assert r["status"] == m["status"] and m["status"] in STATUSES
+    assert m["stood"] is True and m["wbc_qp_failures"] == 0
+    assert 0 < m["start_projection_norm"] < 0.5 and m["start_projection_max"] <= m["start_projection_norm"]
+    pd = run_json("execute", "--plan", plan["key"], "--no-record", "--json", "--artifacts", tmp_path)
+    assert pd["key"] != r["key"] and "wbc_qp_failures" not in pd["metrics"]
