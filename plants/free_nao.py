@@ -63,6 +63,7 @@ def sole_corners_local() -> np.ndarray:
 
 
 STANCE_MARGIN = 0.02  # m, the standing start's CoG margin inside the support polygon
+STANCE_COG_WEIGHT = 1e4  # 1/m^2 (joints: 1/rad^2): the stance's CoG ground projection held at the posture's
 MAX_TIP = 0.5  # rad: a posture that finds no rest within this tilt cannot stand on flat ground
 
 
@@ -191,7 +192,9 @@ class FreeNao:
         on the robot, the joint limits respected) such that the left sole lies flat at the world
         origin (the fixed-base model's pose, so that the plan's world frame stays the robot's), the
         right sole lies flat on the ground (z = 0, its z axis vertical; its x, y and yaw free), and
-        the CoG's ground projection is at least ``margin`` m inside the support polygon (the convex
+        the CoG's ground projection, held near where ``q`` puts it on the fixed-base model (a cost
+        ``STANCE_COG_WEIGHT``: the plan's CoG via-points stay where the plan has them), is at least
+        ``margin`` m inside the support polygon (the convex
         hull of the eight sole corners with the right sole at its pose under ``q``, projected flat).
         Returns the positions and ``{"projection_norm", "projection_max"}`` (rad: the joint-space
         norm and largest absolute change in planning coordinates), ``"sole_height"`` (m, the largest
@@ -199,7 +202,7 @@ class FreeNao:
         corners) and ``"solver"``. Raises ``ValueError`` when no stance is found.
         """
         from pydrake.math import RotationMatrix
-        from pydrake.multibody.inverse_kinematics import ComInPolyhedronConstraint, InverseKinematics
+        from pydrake.multibody.inverse_kinematics import ComPositionConstraint, InverseKinematics
         from pydrake.solvers import Solve
         from scipy.spatial import ConvexHull
 
@@ -229,8 +232,13 @@ class FreeNao:
         ik.AddOrientationConstraint(lsole, RotationMatrix(), world, RotationMatrix(), 0.0)
         ik.AddPositionConstraint(rsole, np.zeros(3), world, [-1.0, -1.0, 0.0], [1.0, 1.0, 0.0])
         ik.AddAngleBetweenVectorsConstraint(world, [0.0, 0.0, 1.0], rsole, [0.0, 0.0, 1.0], 0.0, 0.0)
-        com = ComInPolyhedronConstraint(plant, None, world, A, np.full(len(ub), -np.inf), ub, ik.context())
-        prog.AddConstraint(com, qv)
+        # the CoG r = com(q): inside the polygon (margin), its ground projection kept where q puts it on the
+        # fixed-base model (the plan's world frame: its CoG via-points stay the robot's), at a cost
+        r = prog.NewContinuousVariables(3, "com")
+        prog.AddConstraint(ComPositionConstraint(plant, None, world, ik.context()), np.r_[qv, r])
+        prog.AddLinearConstraint(A, np.full(len(ub), -np.inf), ub, r)
+        c_q = fp.CalcCenterOfMassPositionInWorld(fctx)
+        prog.AddQuadraticErrorCost(STANCE_COG_WEIGHT * np.eye(2), c_q[:2], r[:2])
         hl = plant.GetJointByName("LHipYawPitch").position_start()
         hr = plant.GetJointByName("RHipYawPitch").position_start()
         prog.AddLinearEqualityConstraint(qv[hl] - qv[hr] == 0)
@@ -238,7 +246,11 @@ class FreeNao:
         W = np.zeros((plant.num_positions(), plant.num_positions()))
         W[self.joint_idx, self.joint_idx] = 1.0
         prog.AddQuadraticErrorCost(W, target, qv)
-        result = Solve(prog, guess)
+        plant.SetPositions(self.context, guess)
+        x0 = np.zeros(prog.num_vars())
+        prog.SetDecisionVariableValueInVector(qv, guess, x0)
+        prog.SetDecisionVariableValueInVector(r, plant.CalcCenterOfMassPositionInWorld(self.context), x0)
+        result = Solve(prog, x0)
         if not result.is_success():
             raise ValueError(f"no double-support stance found near the start posture ({result.get_solution_result()})")
         qp = result.GetSolution(qv)

@@ -16,7 +16,10 @@ Constraints (hard):
   ``MU`` 0.5 below the simulated 0.8), at most ``FZ_MAX``; a corner more than ``CORNER_UP`` above the
   ground carries none;
 - every loaded corner carries at least ``COP_SHARE`` of its sole's mean corner load (each sole's
-  centre of pressure kept off its edges).
+  centre of pressure kept off its edges);
+- joint position limits as acceleration bounds: ``vdot_j <= KP_LIMIT (max(q_max - LIMIT_MARGIN, q_r) -
+  q_j) - KD_LIMIT v_j`` and the mirror bound at the lower limit (a reference at its limit, such as the
+  hands' 0, may be held there).
 
 Cost (weight times squared acceleration error):
 
@@ -51,9 +54,16 @@ start; the Nao holding its standing posture for 1 s):
   as planned, the robot tipped over that edge at 2.1-2.5 s in every setting tried.
 - ``W_COG`` 100 (with 10 the joint task pulled the CoG past its clamped reference); the CoG of the
   plan as made instead of the joint reference's made fig3.4-inside fall in 3 of 3 seeds (the two
-  references disagree by the start projection, ~1 cm).
+  references then disagreed by the start projection, ~1 cm; the projection now holds the CoG's
+  ground projection, which also brought fig3.3's executed CoG via-point errors from 1.25-1.5 cm to
+  0.2-0.9 cm on seeds 2, 3, 4, 8).
 - ``W_FRAME`` 1000: the reach's executed hand via-point error 1.3-1.9 cm with 10, 0.37-0.61 cm with
   100, 0.14-0.26 cm with 1000 (seeds 0, 1).
+- The joint-limit bounds: without them the program drove RAnkleRoll into its upper limit (the plan
+  itself asks for up to 0.44 rad, the limit is 0.398) and Drake's limit constraint pushed back with a
+  torque the program did not know: fig3.4-inside ended ``limits`` in 5 of 10 runs and fell in 4; with
+  them seeds 1, 6, 7 and 9 stand with status ok (their CoG via-points then 1.2-2.9 cm off: the
+  held ankle stops the CoG short of the plan's +3 cm), seed 0 still falls.
 - Clarabel (interior point) rather than OSQP: exact solutions at about 2.4 ms a program on this
   machine; OSQP was not compared.
 """
@@ -72,6 +82,8 @@ W_JOINT, W_COG, W_FRAME, W_CONTACT, W_REG, W_FORCE = 1.0, 100.0, 1000.0, 1000.0,
 KP_FRAME, KD_FRAME = 100.0, 20.0  # 1/s^2, 1/s: via-point frames (the hand) around the plan
 COG_FROM_JOINT_PLAN = True  # the CoG reference: the joint reference's CoG (True) or the plan's as made
 COG_MARGIN = 0.015  # m, the CoG reference is held this far inside the feet's support polygon
+LIMIT_MARGIN = 0.02  # rad, the joints are kept this far inside their position limits (None: no bounds)
+KP_LIMIT, KD_LIMIT = 400.0, 40.0  # 1/s^2, 1/s: the acceleration bound towards a limit
 MU = 0.5  # friction coefficient of the linearized cone (the simulated ground has 0.8)
 CORNER_UP = 2e-3  # m, a sole corner higher than this carries no force in the program (None: every corner may)
 COP_SHARE = 0.1  # each corner of a sole carries at least this share of the sole's mean corner load
@@ -223,6 +235,11 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
         Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
         Cp[c, nv + 3 * c + 2] += 1.0
     cop = prog.AddLinearConstraint(Cp, np.zeros(nc), np.full(nc, np.inf), x).evaluator()
+    # joint position limits as acceleration bounds (a PD towards a point LIMIT_MARGIN inside each limit)
+    lower_q = plant.GetPositionLowerLimits()[free.joint_idx]
+    upper_q = plant.GetPositionUpperLimits()[free.joint_idx]
+    limits = prog.AddBoundingBoxConstraint(np.full(len(joint_v), -np.inf), np.full(len(joint_v), np.inf),
+                                           x[joint_v]).evaluator()
     solver = ClarabelSolver()
 
     class Stabilizer(LeafSystem):
@@ -330,6 +347,11 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
         H[:nv, :nv] += 2 * W_CONTACT * Js.T @ Js
         g[:nv] -= 2 * W_CONTACT * Js.T @ a_sole
         cost.UpdateCoefficients(H, g)
+        if LIMIT_MARGIN is not None:
+            # towards a point LIMIT_MARGIN inside the limit, or the reference where it lies nearer the limit
+            a_hi = KP_LIMIT * (np.maximum(upper_q - LIMIT_MARGIN, q_r) - qj) - KD_LIMIT * vj
+            a_lo = KP_LIMIT * (np.minimum(lower_q + LIMIT_MARGIN, q_r) - qj) - KD_LIMIT * vj
+            limits.set_bounds(np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi))
         # equality: the floating base's dynamics (its six rows of the equations of motion)
         Aeq = np.zeros((n_eq, nx))
         Aeq[:, :nv] = M[base_rows]

@@ -42,6 +42,11 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
     poly = poly[ConvexHull(poly).vertices]
     c = free.plant.CalcCenterOfMassPositionInWorld(ctx)
     assert signed_margin(poly, c[:2]) >= STANCE_MARGIN - 1e-4
+    # the CoG's ground projection stays (to 5 mm) where the posture puts it on the fixed-base model,
+    # the plan's world frame: a CoG via-point of the plan is still one for the robot
+    from plants.taskmaps import CenterOfMass
+
+    assert np.linalg.norm(c[:2] - CenterOfMass(fixed).value_and_jacobian(q)[0][:2]) < 5e-3
     assert info["cog_margin"] == pytest.approx(signed_margin(poly, c[:2]))
     dq = free.planning_q(qp) - q
     assert info["projection_norm"] == pytest.approx(np.linalg.norm(dq)) and 0 < info["projection_norm"] < 0.5
