@@ -63,7 +63,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
 def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
     2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
-    from stages.wbc import MU
+    from stages.wbc import LIMIT_MARGIN, MU
 
     nao = shared_free_nao().fixed
     T, dt = 200, 0.01
@@ -77,7 +77,8 @@ def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     assert np.allclose(settled, weight, rtol=0.02)
     assert np.abs(d["corners"][..., 2]).max() < 1e-3
     assert np.abs(d["torso_p"] - d["torso_p"][0]).max() < 2e-3
-    assert m["max_tracking_error"] < 0.02 and m["cog_inside_fraction"] == 1.0
+    # the largest joint error: the hands, closed at their limit 0 in the posture, held LIMIT_MARGIN open
+    assert m["max_tracking_error"] < LIMIT_MARGIN + 1e-3 and m["cog_inside_fraction"] == 1.0
     f = d["wbc_corner_force"]  # (updates, 8, 3) N, world frame
     assert f.shape[1:] == (8, 3) and len(f) == pytest.approx(T * dt / 2e-3, abs=2)
     assert np.allclose(f[..., 2].sum(axis=1), weight, rtol=0.02)
