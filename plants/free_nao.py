@@ -206,7 +206,7 @@ class FreeNao:
         from pydrake.solvers import Solve
         from scipy.spatial import ConvexHull
 
-        from stages.evaluate.metrics import signed_margin
+        from plants.polygons import signed_margin
 
         plant = self.plant
         q = np.asarray(q, float)

@@ -16,19 +16,10 @@ from typer.testing import CliRunner
 from pipeline.cli import app
 from planning import objective as ob
 from planning.costs import TaskInequality
+from plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
 from plants.robots import NAO_SOLE_POLYGON, shared_robot
 from plants.taskmaps import CenterOfMass, JointPositions
-from stages.plan.balance import (
-    MARGIN,
-    apply_balance,
-    cog_margins,
-    halfplanes,
-    nearest_feasible,
-    shrink,
-    signed_distance,
-    sole_corners,
-    support_polygon,
-)
+from stages.plan.balance import MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
 from stages.plan.stage import PlanConfig, build_problem, objective_from_description
 
 runner = CliRunner()
@@ -69,9 +60,9 @@ def test_polygon_geometry_on_the_sole():
     A, b = halfplanes(SOLE)
     np.testing.assert_allclose(np.linalg.norm(A, axis=1), 1.0)
     assert np.all(b - A @ SOLE.mean(0) > 0)  # counter-clockwise: outward normals
-    assert signed_distance(SOLE, np.array([0.0, 0.0])) == pytest.approx(0.044)
-    assert signed_distance(SOLE, np.array([0.0, 0.1])) == pytest.approx(-0.056)
-    assert signed_distance(SOLE, np.array([0.125, 0.064])) == pytest.approx(-np.hypot(0.02, 0.02))
+    assert signed_margin(SOLE, np.array([0.0, 0.0])) == pytest.approx(0.044)
+    assert signed_margin(SOLE, np.array([0.0, 0.1])) == pytest.approx(-0.056)
+    assert signed_margin(SOLE, np.array([0.125, 0.064])) == pytest.approx(-np.hypot(0.02, 0.02))
     inner = shrink(SOLE, 0.015)
     np.testing.assert_allclose(np.sort(inner, axis=0), np.sort([[-0.04, -0.029], [0.09, -0.029], [0.09, 0.029],
                                                                  [-0.04, 0.029]], axis=0), atol=1e-12)
@@ -103,7 +94,7 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     assert (m.name, m.step) == ("via_cog", 10) and m.static_margin == pytest.approx(-0.05, abs=1e-9)
     assert terms[0]["requested_target"] == target.tolist()
     np.testing.assert_allclose(terms[0]["target"], [0.02, 0.044 - MARGIN, c0[2]], atol=1e-12)
-    assert signed_distance(poly, np.array(terms[0]["target"][:2])) == pytest.approx(MARGIN)
+    assert signed_margin(poly, np.array(terms[0]["target"][:2])) == pytest.approx(MARGIN)
     line = rep.line()
     assert "\n" not in line and "via_cog (step 10) is statically infeasible" in line
     assert "0.0500 m outside the support polygon" in line and "planned at (0.0200, 0.0290) m" in line
@@ -128,11 +119,11 @@ def test_fig34_via_point_static_margins_from_the_model():
         c = CenterOfMass(nao).value(q)
         for mode in ("support", "single"):
             poly = support_polygon(nao, q, mode)
-            assert signed_distance(poly, c[:2] + [0.0, 0.1]) == pytest.approx(want, abs=5e-4)
+            assert signed_margin(poly, c[:2] + [0.0, 0.1]) == pytest.approx(want, abs=5e-4)
     # the -0.1 m one is over the right foot: feasible in double support only
     c = CenterOfMass(nao).value(nao.default_q)
-    assert signed_distance(support_polygon(nao, nao.default_q, "support"), c[:2] - [0.0, 0.1]) > MARGIN
-    assert signed_distance(support_polygon(nao, nao.default_q, "single"), c[:2] - [0.0, 0.1]) < -0.05
+    assert signed_margin(support_polygon(nao, nao.default_q, "support"), c[:2] - [0.0, 0.1]) > MARGIN
+    assert signed_margin(support_polygon(nao, nao.default_q, "single"), c[:2] - [0.0, 0.1]) < -0.05
 
 
 def test_balance_none_leaves_the_task_as_it_is():
@@ -167,7 +158,7 @@ def test_cli_balance_support_keeps_the_planned_cog_inside(tmp_path):
     # the polygon is both soles' hull at the start posture
     q0 = np.array(desc["q0"])
     hull_pts = np.vstack([sole_corners(nao, q0, s)[:, :2] for s in ("l_sole", "r_sole")])
-    assert all(signed_distance(poly, p) > -1e-12 for p in hull_pts)
+    assert all(signed_margin(poly, p) > -1e-12 for p in hull_pts)
     margins = cog_margins(nao, d["X"][1:], poly)
     assert margins.min() >= MARGIN - 1e-3, margins.min()  # a soft penalty: to 1 mm
     assert m["balance"]["cog_min_margin"] == pytest.approx(margins.min(), rel=1e-12)
@@ -234,5 +225,5 @@ def test_balance_margin_option_sets_the_term_and_the_moved_targets():
         support = next(t for t in desc["terms"] if t["name"] == "support")
         np.testing.assert_allclose(support["b"], b - margin, atol=1e-15)
         for m in desc["balance"]["moved"]:
-            assert signed_distance(poly, np.array(m["planned"])) == pytest.approx(margin)
+            assert signed_margin(poly, np.array(m["planned"])) == pytest.approx(margin)
     assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == MARGIN

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from planning.costs import via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
+from plants.polygons import signed_margin  # noqa: F401  (re-exported)
 
 FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
 FALL_TORSO_TILT = 0.5  # rad, angle between the executed and the planned torso z axes
@@ -67,29 +68,6 @@ def contact_polygon(corners: np.ndarray, force: np.ndarray) -> np.ndarray:
         axis = np.linalg.svd(d)[2][0]
         s = d @ axis
         return pts[[int(np.argmin(s)), int(np.argmax(s))]]
-
-
-def signed_margin(poly: np.ndarray, p: np.ndarray) -> float:
-    """Distance (m) of ``p (2,)`` to the boundary of convex ``poly (k, 2)``: > 0 inside, < 0 outside.
-    A segment or a point has no inside: minus the distance to it. No polygon: NaN."""
-    poly = np.asarray(poly, float).reshape(-1, 2)
-    if len(poly) == 0:
-        return float("nan")
-    if len(poly) < 3:
-        a, b = poly[0], poly[-1]
-        ab = b - a
-        t = 0.0 if not ab.any() else float(np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0))
-        return -float(np.linalg.norm(p - (a + t * ab)))
-    from scipy.spatial import ConvexHull
-
-    hull = ConvexHull(poly)
-    d = hull.equations[:, :2] @ p + hull.equations[:, 2]  # outward normals: d <= 0 inside
-    if d.max() <= 0:
-        return float(-d.max())
-    # outside: the distance to the nearest edge
-    V = poly[hull.vertices]
-    dist = [-signed_margin(np.array([V[i], V[(i + 1) % len(V)]]), p) for i in range(len(V))]
-    return -float(min(dist))
 
 
 def padded_polygons(polys: list) -> np.ndarray:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning import objective as ob
+from plants.polygons import convex_hull, halfplanes, nearest_feasible, signed_margin
 from plants.robots import NAO_SOLE_POLYGON, Robot
 
 BALANCE_MODES = ("none", "support", "single")
@@ -42,63 +43,6 @@ def sole_corners(robot: Robot, q: np.ndarray, frame: str) -> np.ndarray:
     X = robot.plant.GetFrameByName(frame).CalcPoseInWorld(robot.set_state(q))
     local = np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))]
     return local @ X.rotation().matrix().T + X.translation()
-
-
-def convex_hull(points: np.ndarray) -> np.ndarray:
-    """Vertices ``(k, 2)`` of the convex hull of ``points (n, 2)``, counter-clockwise."""
-    from scipy.spatial import ConvexHull
-
-    pts = np.asarray(points, float).reshape(-1, 2)
-    return pts[ConvexHull(pts).vertices]  # 2-d hulls: counter-clockwise
-
-
-def halfplanes(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Edges of a convex counter-clockwise polygon ``(k, 2)`` as ``A p <= b``: unit outward normals
-    ``A (k, 2)`` and offsets ``b (k,)`` (m), so ``b - A p`` are the distances to the edges' lines."""
-    P = np.asarray(poly, float)
-    E = np.roll(P, -1, axis=0) - P
-    N = np.c_[E[:, 1], -E[:, 0]]
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
-    return N, np.einsum("ki,ki->k", N, P)
-
-
-def signed_distance(poly: np.ndarray, p: np.ndarray) -> float:
-    """Static margin (m) of ``p (2,)`` against convex ``poly (k, 2)``: the distance to the boundary,
-    > 0 inside, < 0 outside (minus the distance to the polygon)."""
-    A, b = halfplanes(poly)
-    d = b - A @ p
-    if d.min() >= 0:
-        return float(d.min())
-    return -float(min(np.linalg.norm(p - _nearest_on_segment(a, c, p))
-                      for a, c in zip(poly, np.roll(poly, -1, axis=0))))
-
-
-def _nearest_on_segment(a: np.ndarray, c: np.ndarray, p: np.ndarray) -> np.ndarray:
-    ac = c - a
-    t = float(np.clip((p - a) @ ac / (ac @ ac), 0.0, 1.0)) if ac.any() else 0.0
-    return a + t * ac
-
-
-def shrink(poly: np.ndarray, margin: float) -> np.ndarray:
-    """The polygon ``(k', 2)`` of the points at least ``margin`` (m) inside every edge of convex
-    ``poly`` (edges too short for the margin vanish); ``ValueError`` if nothing is left."""
-    from scipy.spatial import HalfspaceIntersection
-
-    A, b = halfplanes(poly)
-    centre = np.asarray(poly, float).mean(0)
-    if (b - A @ centre).min() <= margin:
-        raise ValueError(f"the support polygon has no point {margin} m inside every edge")
-    hs = HalfspaceIntersection(np.c_[A, -(b - margin)], centre)
-    return convex_hull(hs.intersections)
-
-
-def nearest_feasible(poly: np.ndarray, margin: float, p: np.ndarray) -> np.ndarray:
-    """The point ``(2,)`` nearest to ``p`` at least ``margin`` (m) inside ``poly`` (``p`` if it is)."""
-    inner = shrink(poly, margin)
-    if signed_distance(inner, p) >= 0:
-        return np.array(p, float)
-    cands = [_nearest_on_segment(a, c, p) for a, c in zip(inner, np.roll(inner, -1, axis=0))]
-    return min(cands, key=lambda z: float(np.linalg.norm(p - z)))
 
 
 def support_polygon(robot: Robot, q0: np.ndarray, mode: str) -> np.ndarray:
@@ -177,7 +121,7 @@ def apply_balance(robot: Robot, q0: np.ndarray, T: int, terms: list, mode: str,
             axes = list(d["map"]["axes"])
             target = np.array(d["target"], float)
             xy = target[[axes.index(0), axes.index(1)]]
-            m = signed_distance(poly, xy)
+            m = signed_margin(poly, xy)
             if m < margin:
                 new_xy = nearest_feasible(poly, margin, xy)
                 new = target.copy()
@@ -209,4 +153,4 @@ def cog_margins(robot: Robot, X: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
     n_q = X.shape[1] // 2
     C, _ = CenterOfMass(robot, axes=(0, 1)).values_and_jacobians(np.asarray(X, float)[:, :n_q])
-    return np.array([signed_distance(poly, c) if np.all(np.isfinite(c)) else np.nan for c in C])
+    return np.array([signed_margin(poly, c) if np.all(np.isfinite(c)) else np.nan for c in C])
