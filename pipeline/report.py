@@ -353,24 +353,35 @@ def _executed_label(exp: Experiment) -> str:
     return exp.execute[0].label if exp.execute else "R-AICO a=1"
 
 
+STABILIZER_COLOR = "tab:green"  # the stabilizer's executions (issue 19) beside the joint PD's
+
+
+def _group(e) -> tuple[str, str]:
+    """(name, colour) of an execution's controller in the execution panels."""
+    if e.metrics.get("controller", "pd") == "wbc":
+        return "stabilizer", STABILIZER_COLOR
+    return "joint PD", None
+
+
 def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     """The executed CoG's lateral coordinate of every executed run (free-standing Nao), in the
-    executed variant's colour, line style by the run's status, against that run's via-points (its
-    plan's CoG targets: dots); a cross marks the moment a run failed."""
+    executed variant's colour (the stabilizer's runs in green), line style by the run's status,
+    against that run's via-points (its plan's CoG targets: dots); a cross marks the moment a run failed."""
     from pipeline.artifacts import as_artifact
 
     label = _executed_label(exp)
-    color = solver_color(label)
-    counts: dict[str, int] = {}
+    counts: dict[tuple[str, str, str], int] = {}
     for e in executions:
         art = as_artifact(cache.require("execute", e.key))
         d = art.arrays("rollout.npz")
         if "cog" not in d:
             continue
+        group, gcolor = _group(e)
+        color = gcolor or solver_color(label)
         plan = as_artifact(cache.require("plan", art.inputs[0].split("/", 1)[1]))
         desc = plan.document("problem.json")
         style = STATUS_STYLES.get(e.status, ":")
-        counts[e.status] = counts.get(e.status, 0) + 1
+        counts[(group, color, e.status)] = counts.get((group, color, e.status), 0) + 1
         t, y = d["times"], d["cog"][:, 1]
         ax.plot(t, y, color=color, ls=style, lw=1.0, alpha=0.85)
         for term in desc["terms"]:
@@ -387,8 +398,9 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     else:
         from matplotlib.lines import Line2D
 
-        ax.legend(handles=[Line2D([], [], color=color, ls=STATUS_STYLES.get(s, ":"), label=f"{s} ({k})")
-                           for s, k in counts.items()], fontsize=8, title="status (runs)", title_fontsize=8)
+        ax.legend(handles=[Line2D([], [], color=c, ls=STATUS_STYLES.get(st, ":"), label=f"{g}: {st} ({k})")
+                           for (g, c, st), k in counts.items()], fontsize=8, title="controller: status (runs)",
+                  title_fontsize=8)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("executed CoG lateral coordinate y (m, left +)")
     ax.set_title(f"executed CoG, free-standing Nao, {label} ({sum(counts.values())} runs)\ndots: each run's "
@@ -407,38 +419,46 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     label = _executed_label(exp)
     color = solver_color(label)
     seed_of = {p["outcome"].key: (p["seed"], p["outcome"].metrics) for p in plans}
-    pts, achieved = [], 0
+    pts, achieved, runs = [], {}, {}
     for i, e in enumerate(executions):
         key = as_artifact(cache.require("execute", e.key)).inputs[0].split("/", 1)[1]
         seed, pm = seed_of.get(key, (i, {}))
-        pts.append((seed, largest_via_error(pm), largest_via_error(e.metrics), e.status))
+        group, gcolor = _group(e)
+        shift = 0.25 if group == "stabilizer" else 0.0  # the stabilizer's run beside the joint PD's of that seed
+        pts.append((seed + shift, largest_via_error(pm), largest_via_error(e.metrics), e.status, gcolor))
     if not pts:
         ax.text(0.5, 0.5, "no executions", ha="center", va="center", transform=ax.transAxes)
         return
-    finite = [v for _, a, b, _ in pts for v in (a, b) if math.isfinite(v) and v > 0]
+    finite = [v for _, a, b, _, _ in pts for v in (a, b) if math.isfinite(v) and v > 0]
     top = max(finite + [EXECUTED_VIA_TOL]) * 3
-    for seed, planned, executed, status in pts:
+    for seed, planned, executed, status, gcolor in pts:
+        c = gcolor or color
         if math.isfinite(planned):
-            ax.plot(seed, planned, "o", mfc="none", mec=color, markersize=7)
+            ax.plot(seed, planned, "o", mfc="none", mec=c, markersize=7)
         ok = status == "ok"
         y = executed if math.isfinite(executed) else top
-        ax.plot(seed, y, "o" if ok else "x", color=color if ok else "k", markersize=6 if ok else 7, mew=1.5)
-        achieved += ok and executed <= EXECUTED_VIA_TOL
+        ax.plot(seed, y, "o" if ok else "x", color=c if ok else "k", markersize=6 if ok else 7, mew=1.5)
+        g = "stabilizer" if gcolor else "joint PD"
+        runs[g] = runs.get(g, 0) + 1
+        achieved[g] = achieved.get(g, 0) + bool(ok and executed <= EXECUTED_VIA_TOL)
     ax.axhline(EXECUTED_VIA_TOL, color="k", ls="--", lw=0.8)
     ax.set_yscale("log")
     ax.set_xlabel("run (initial-state seed)")
-    ax.set_xticks(sorted({p[0] for p in pts}))
+    ax.set_xticks(sorted({int(p[0]) for p in pts}))
     ax.set_ylabel("largest via-point error (m)")
     from matplotlib.lines import Line2D
 
+    stab = [Line2D([], [], ls="", marker="o", color=STABILIZER_COLOR, label="executed by the stabilizer, status ok "
+                   "(right of its seed)")] if any(p[4] for p in pts) else []
     ax.legend(handles=[Line2D([], [], ls="", marker="o", mfc="none", mec=color, label="planned"),
-                       Line2D([], [], ls="", marker="o", color=color, label="executed, status ok"),
+                       Line2D([], [], ls="", marker="o", color=color, label="executed, status ok"), *stab,
                        Line2D([], [], ls="", marker="x", color="k", mew=1.5, label="executed, other status"),
                        Line2D([], [], color="k", ls="--", lw=0.8,
                               label=f"the claim's tolerance ({EXECUTED_VIA_TOL * 100:g} cm)")],
               fontsize=8, loc="best")
     ax.set_title(f"executed vs planned via-point error, {label}\nachieved (status ok and <= "
-                 f"{EXECUTED_VIA_TOL * 100:g} cm): {achieved}/{len(pts)} runs", fontsize=9)
+                 f"{EXECUTED_VIA_TOL * 100:g} cm): " + ", ".join(f"{g} {achieved[g]}/{n}" for g, n in runs.items()),
+                 fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
 
@@ -650,6 +670,12 @@ FIGURE_CAPTION = ("Cost panels: the line is the median, the band the interquarti
                   "before the divergence. One colour per solver variant in every figure.")
 
 
+def _controller(e: dict) -> str:
+    """An execution's controller and start, as the report names them."""
+    ctrl = "joint PD" if e.get("controller", "pd") == "pd" else "stabilizer (whole-body QP)"
+    return f"{ctrl}, {'standing start' if e.get('start') == 'standing' else 'plan start'}"
+
+
 def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -675,16 +701,23 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     if execs:
         nao = exp.plant == "nao"
         md += [f"## Executions in Drake (R-AICO a=1{', free-standing Nao' if nao else ''})", "",
-               "| execution | status | why | CoG inside the contact polygon | worst margin (m) | steps at an "
-               "effort limit | RMSE planned vs executed (rad) | recording |", "|---|---|---|---|---|---|---|---|"]
-        md += [f"| {e['key']} | **{e.get('status')}** | {e.get('reason', '')} | {_fmt(e.get('cog_inside_fraction'))} | "
-               f"{_fmt(e.get('cog_min_margin'))} | {_fmt(e.get('torque_saturation'))} | "
-               f"{_fmt(e.get('rmse_planned_executed'))} | `{e['recording']}` |" for e in execs]
+               "| execution | controller, start | status | why | CoG inside the contact polygon | worst margin (m) | "
+               "steps at an effort limit | RMSE planned vs executed (rad) | recording |",
+               "|---|---|---|---|---|---|---|---|---|"]
+        md += [f"| {e['key']} | {_controller(e)} | **{e.get('status')}** | {e.get('reason', '')} | "
+               f"{_fmt(e.get('cog_inside_fraction'))} | {_fmt(e.get('cog_min_margin'))} | "
+               f"{_fmt(e.get('torque_saturation'))} | {_fmt(e.get('rmse_planned_executed'))} | `{e['recording']}` |"
+               for e in execs]
         if nao:
-            stood = sum(e.get("status") not in ("fell", "diverged") for e in execs)
-            md += ["", f"Stood: {stood}/{len(execs)} runs. The CoG is judged against the convex hull of the sole "
+            parts = []
+            for ctrl in sorted({_controller(e) for e in execs}):
+                group = [e for e in execs if _controller(e) == ctrl]
+                stood = sum(e.get("status") not in ("fell", "diverged") for e in group)
+                parts.append(f"{ctrl}: {stood}/{len(group)}")
+            md += ["", f"Stood ({'; '.join(parts)}). The CoG is judged against the convex hull of the sole "
                    "corners in contact (Drake's contact forces, corners within 1 mm of the ground); statuses and "
-                   "thresholds: README, section Execution."]
+                   "thresholds: README, section Execution. The stabilizer (issue 19, beyond the thesis): "
+                   "`stages/wbc.py`, from the standing start (`plants/free_nao.py: stance_positions`)."]
         md += [""]
     md += noise_md
     if integ_rows:

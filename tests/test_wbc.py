@@ -131,3 +131,33 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     assert 0 < m["start_projection_norm"] < 0.5 and m["start_projection_max"] <= m["start_projection_norm"]
     pd = run_json("execute", "--plan", plan["key"], "--no-record", "--json", "--artifacts", tmp_path)
     assert pd["key"] != r["key"] and "wbc_qp_failures" not in pd["metrics"]
+
+
+def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
+    """Issue 19's pipeline side: a figure marked ``stabilized`` executes each executed variant's plan twice,
+    with the joint PD from the plan's start (the thesis rows) and with the stabilizer from the standing start;
+    the thesis-set execution claims read the PD runs only, the stabilizer's claim its own."""
+    from pipeline.cache import Cache
+    from pipeline.executors import Batch
+    from pipeline.experiments import EXPERIMENTS, STABILIZER, experiment_flow
+    from pipeline.runner import Outcome
+    from stages.evaluate.claims import claim_executed_reaches, claim_stabilizer_stands
+
+    for fid in ("fig3.3", "fig3.4-inside"):
+        exp = EXPERIMENTS[fid]
+        assert exp.stabilized and "stabilizer_stands" in exp.claims
+        flow = experiment_flow(Cache(tmp_path), exp, quick=True, record=False)
+        plans = next(flow)
+        assert isinstance(plans, Batch) and plans.kind == "plan"
+        fake = [Outcome("plan", f"{i:016x}", str(tmp_path), False, "converged") for i in range(len(plans.jobs))]
+        execs = flow.send(fake)
+        cfgs = [job.arg[2] for job in execs.jobs]
+        executed = sum(v.seed_count(exp.seeds, True) for v in exp.variants if v in exp.execute)
+        stab = [c for c in cfgs if (c.controller, c.start) == (STABILIZER["controller"], STABILIZER["start"])]
+        plain = [c for c in cfgs if (c.controller, c.start) == ("pd", "plan") and c.x0_noise == 0 and c.process_noise == 0]
+        assert len(stab) == executed and len(plain) >= executed
+        assert {c.plan for c in stab} <= {c.plan for c in plain}
+    pd = {"status": "fell", "via_point_errors": {"via_hand@100": 0.001}}
+    wbc = {"status": "ok", "controller": "wbc", "start": "standing", "via_point_errors": {"via_hand@100": 0.001}}
+    assert claim_executed_reaches({}, [pd, wbc])[3] is False       # the PD run fell: the stabilizer's does not count
+    assert claim_stabilizer_stands({}, [pd, wbc])[3] is True
