@@ -254,8 +254,7 @@ DEVIATIONS = {
                             "within 1.5x the reference optimum; 'decay exponentially fast': a rho^k + b fitted to the "
                             "first 10 iterations with rho <= 0.8 and R^2 >= 0.95; 'no low-cost solution': diverged, "
                             "or above 2x the reference",
-    "ablations of §3.4-3.5": "AICO with the thesis's finite-difference linearizations (fig3.2c/d, the first 3 initial "
-                             "states: about 13 s a run) and with a "
+    "ablations of §3.4-3.5": "AICO with the thesis's finite-difference linearizations (fig3.2c/d) and with a "
                              "learning rate of 0.5 on the belief update or on the controller (Algorithm 1 lines 13 "
                              "and 18; fig3.2b/c) run as ablations",
     "pseudo-dynamics integrators (appendix C)": "Euler, backward Euler (the default) and Heun pseudo-dynamics "
