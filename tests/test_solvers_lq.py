@@ -250,3 +250,28 @@ def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
     assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-8)
     with pytest.raises(ValueError, match="controller_rate"):
         AICOOptions(controller_rate=0.0).validate()
+
+
+def test_compiled_ilqg_backward_equals_numpy():
+    """planning/ilqg_backward.c computes iLQG's backward pass as the numpy code does (to rounding),
+    with and without regularization, and refuses a Q_uu that is not positive definite as numpy does."""
+    from planning.ilqg import _backward, _c_backward_lib, _NotPD
+
+    if _c_backward_lib() is None:
+        pytest.skip("no C compiler (RAICO_NO_C or no gcc)")
+    rng = np.random.default_rng(3)
+    for T, n, m in ((40, 4, 2), (200, 10, 5), (30, 24, 12)):
+        A = np.eye(n) + 0.05 * rng.normal(size=(T, n, n))
+        B = 0.1 * rng.normal(size=(T, n, m))
+        G, H = rng.normal(size=(T + 1, n, n)), rng.normal(size=(T, m, m))
+        args = (A, B, rng.normal(size=(T + 1, n)), G @ np.swapaxes(G, 1, 2) / n, rng.normal(size=(T, m)),
+                H @ np.swapaxes(H, 1, 2) / m + 0.1 * np.eye(m))
+        for mu in (0.0, 0.5):
+            for got, ref in zip(_backward(*args, mu), _backward(*args, mu, compiled=False)):
+                assert np.allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+        bad = list(args)
+        bad[5] = bad[5].copy()
+        bad[5][T // 2] = -np.eye(m)
+        for compiled in (True, False):
+            with pytest.raises(_NotPD):
+                _backward(*bad, 0.0, compiled=compiled)
