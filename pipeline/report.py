@@ -353,7 +353,7 @@ def _executed_label(exp: Experiment) -> str:
     return exp.execute[0].label if exp.execute else "R-AICO a=1"
 
 
-STABILIZER_COLOR = "tab:green"  # the stabilizer's executions (issue 19) beside the joint PD's
+STABILIZER_COLOR = "#7b4173"  # the stabilizer's executions (issue 19, plum) beside the joint PD's (the variant's colour)
 
 
 def _group(e) -> tuple[str, str]:
@@ -365,7 +365,7 @@ def _group(e) -> tuple[str, str]:
 
 def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     """The executed CoG's lateral coordinate of every executed run (free-standing Nao), in the
-    executed variant's colour (the stabilizer's runs in green), line style by the run's status,
+    executed variant's colour (the stabilizer's runs in plum), line style by the run's status,
     against that run's via-points (its plan's CoG targets: dots); a cross marks the moment a run failed."""
     from pipeline.artifacts import as_artifact
 
