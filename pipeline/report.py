@@ -356,11 +356,14 @@ def _executed_label(exp: Experiment) -> str:
 STABILIZER_COLOR = "#7b4173"  # the stabilizer's executions (issue 19, plum) beside the joint PD's (the variant's colour)
 
 
+def _stabilized(metrics: dict) -> bool:
+    """Whether an execution ran the whole-body stabilizer (its metrics say ``controller`` ``wbc``)."""
+    return metrics.get("controller", "pd") == "wbc"
+
+
 def _group(e) -> tuple[str, str]:
     """(name, colour) of an execution's controller in the execution panels."""
-    if e.metrics.get("controller", "pd") == "wbc":
-        return "stabilizer", STABILIZER_COLOR
-    return "joint PD", None
+    return ("stabilizer", STABILIZER_COLOR) if _stabilized(e.metrics) else ("joint PD", None)
 
 
 def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
@@ -672,7 +675,7 @@ FIGURE_CAPTION = ("Cost panels: the line is the median, the band the interquarti
 
 def _controller(e: dict) -> str:
     """An execution's controller and start, as the report names them."""
-    ctrl = "joint PD" if e.get("controller", "pd") == "pd" else "stabilizer (whole-body QP)"
+    ctrl = "stabilizer (whole-body QP)" if _stabilized(e) else "joint PD"
     return f"{ctrl}, {'standing start' if e.get('start') == 'standing' else 'plan start'}"
 
 

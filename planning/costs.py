@@ -146,6 +146,14 @@ class _OnPositions(StateTerm):
     """A state term of the joint positions only: its derivatives are the ``q`` blocks that
     ``_q_blocks(X) -> (g (K, n_q), H (K, n_q, n_q), n_q)`` gives, zero elsewhere."""
 
+    def _at_point(self, x: np.ndarray, t: int):
+        """``(n_q, phi, J)`` of the task map at the state ``x`` of step ``t``, or ``None`` where the
+        term adds nothing there (zero weight, inactive step)."""
+        if self.weight == 0 or not self.is_active_at(t):
+            return None
+        n_q = x.shape[0] // 2
+        return (n_q, *self.taskmap.value_and_jacobian(x[:n_q]))
+
     def _derivs(self, X, idx):
         g, H, n_q = self._q_blocks(X)
         lx = np.zeros(X.shape)
@@ -215,10 +223,10 @@ class ViaPoint(_OnPositions):
 
     def add_point_derivatives(self, x, t, lx, lxx) -> None:
         """As ``StateTerm.add_point_derivatives``: one task-map evaluation, ``q`` blocks only."""
-        if self.weight == 0 or not self.is_active_at(t):
+        point = self._at_point(x, t)
+        if point is None:
             return
-        n_q = x.shape[0] // 2
-        phi, J = self.taskmap.value_and_jacobian(x[:n_q])
+        n_q, phi, J = point
         CJ = self.C @ J
         lx[:n_q] -= (2.0 * self.weight) * ((self.target - phi) @ CJ)
         lxx[:n_q, :n_q] += (2.0 * self.weight) * (J.T @ CJ)
@@ -302,13 +310,12 @@ class TaskInequality(_OnPositions):
         H = (2.0 * self.weight) * np.matmul(np.swapaxes(AJa, 1, 2), AJa)
         return g, H, n_q
 
-
     def add_point_derivatives(self, x, t, lx, lxx) -> None:
         """As ``StateTerm.add_point_derivatives``: one task-map evaluation, ``q`` blocks only."""
-        if self.weight == 0 or not self.is_active_at(t):
+        point = self._at_point(x, t)
+        if point is None:
             return
-        n_q = x.shape[0] // 2
-        phi, J = self.taskmap.value_and_jacobian(x[:n_q])
+        n_q, phi, J = point
         h = np.maximum(self.A @ phi - self.b, 0.0)
         if not h.any():
             return

@@ -466,7 +466,7 @@ def claim_stabilizer_stands(S, execs):
     criterion = (f"every execution with the stabilizer stood and has status ok and its largest executed via-point "
                  f"error (the held right sole left out) is <= {EXECUTED_VIA_TOL} m")
     wbc = [e for e in execs if e.get("controller") == "wbc"]
-    pd = [e for e in execs if e.get("controller", "pd") == "pd"]
+    pd = _joint_pd(execs)
     if not wbc:
         return claim, criterion, "no executions with the stabilizer", False
     stood, counts = _stood_counts(wbc)

@@ -160,12 +160,7 @@ def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
     scaled units), ``length_scales`` (D, d, standardized input units), ``sf2`` and ``sn2`` (D,,
     standardized output units), ``n_points``, ``n_input``, ``kept`` (indices into ``X``),
     ``warm_start`` and the parameters that ended at a bound (``warnings``)."""
-    X, Y = _check_xy(X, Y)
-    n_input = X.shape[0]
-    kept = np.arange(n_input)
-    if max_points is not None and n_input > max_points:
-        kept = subsample_indices(X, max_points)
-        X, Y = X[kept], Y[kept]
+    X, Y, kept, n_input = _capped(X, Y, max_points)
     x_mean, x_std, y_mean, y_std = X.mean(0), column_std(X), Y.mean(0), column_std(Y)
     Z, y = (X - x_mean) / x_std, (Y - y_mean) / y_std
     ell, sf2, sn2, times, messages = optimize_hyperparameters(Z, y, restarts=restarts, seed=seed,
@@ -215,12 +210,7 @@ def fit_sparse_gp(X: np.ndarray, Y: np.ndarray, *, inducing: int, restarts: int 
     farthest-point among the older), so an optimizer step costs ``O(M^3)``, not ``O(N^3)``.
     Inducing inputs: ``select_inducing`` (greedy maximum variance) among all training inputs at
     those hyperparameters. ``ValueError`` when ``inducing`` is not in ``[1, N]``."""
-    X, Y = _check_xy(X, Y)
-    n_input = X.shape[0]
-    kept = np.arange(n_input)
-    if max_points is not None and n_input > max_points:
-        kept = subsample_indices(X, max_points)
-        X, Y = X[kept], Y[kept]
+    X, Y, kept, n_input = _capped(X, Y, max_points)
     if not 1 <= inducing <= X.shape[0]:
         raise ValueError(f"inducing points ({inducing}) must be in [1, {X.shape[0]}], the training points")
     x_mean, x_std, y_mean, y_std = X.mean(0), column_std(X), Y.mean(0), column_std(Y)
@@ -316,6 +306,19 @@ def measure_cap_cost(X: np.ndarray, Y: np.ndarray, X_test: np.ndarray, Y_test: n
         out[f"nrmse_{name}"] = (e / scale).tolist()
     out["rmse_ratio"] = (np.asarray(out["rmse_capped"]) / np.maximum(out["rmse_full"], 1e-300)).tolist()
     return out
+
+
+def _capped(X: np.ndarray, Y: np.ndarray, max_points: int | None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Checked ``X, Y`` capped at ``max_points`` rows (``subsample_indices``), the kept row indices and
+    the number of rows given."""
+    X, Y = _check_xy(X, Y)
+    n_input = X.shape[0]
+    kept = np.arange(n_input)
+    if max_points is not None and n_input > max_points:
+        kept = subsample_indices(X, max_points)
+        X, Y = X[kept], Y[kept]
+    return X, Y, kept, n_input
 
 
 def _check_xy(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
