@@ -533,7 +533,18 @@ class Uncertainty:
         return lx, lxx
 
     def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray, lxx: np.ndarray) -> None:
-        if t < self.T:
+        """The state part at one state ``x (n_x,)`` of step ``t`` (the sweeps' relinearization): the
+        model's compiled one-point variance where it has one (``point_variance``), else the batch path."""
+        point = getattr(self.model, "point_variance", None)
+        if point is not None and t < self.T:
+            if self.weight == 0 or self._U is None:
+                return
+            var, Jx, _ = point(x, self._U[t])
+            s = self._scale
+            gx, Hx = self._gn((self.sigma_star - var * s)[None], (Jx * s[:, None])[None])
+            lx += gx[0]
+            lxx += Hx[0]
+        elif t < self.T:
             g, G = np.zeros((1, x.size)), np.zeros((1, x.size, x.size))
             self.add_derivatives(x[None], np.array([t]), g, G)
             lx += g[0]

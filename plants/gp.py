@@ -61,7 +61,11 @@ def _point_lib():
             lib = c_backend.load_library(c_backend.c_source(__file__, "gp_point.c"), "gp_point",
                                          flags=(*c_backend.CFLAGS, "-O3"))
             lib.gp_point.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 7
-            lib.gp_point.restype = None
+            lib.gp_point_var.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 11
+            lib.gp_rollout.argtypes = ([ctypes.c_long] * 4 + [ctypes.c_void_p] * 8 + [ctypes.c_double]
+                                       + [ctypes.c_void_p] * 4)
+            for fn in (lib.gp_point, lib.gp_point_var, lib.gp_rollout):
+                fn.restype = None
             _POINT_LIB = lib
         except (c_backend.CompileUnavailable, OSError):
             _POINT_LIB = False
@@ -113,6 +117,8 @@ class GPModel:
     factors of ``K + sn2 I``, ``weights (D, N) = (K + sn2 I)^-1 y`` (``alpha`` in the stored arrays);
     scaling ``x_mean, x_std (d,)``, ``y_mean, y_std (D,)`` (physical units).
     """
+
+    _POINT_VARIANCE = True  # the compiled point variance applies (the exact GP's factor)
 
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                  *, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
@@ -314,20 +320,80 @@ class GPModel:
         if lib is None:
             m, g = self.mean_with_gradients(x[None, :])
             return m[0], g[0]
-        key = (self.Z, self.weights, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std)
+        pc = self._point_arrays()
+        z, m, g = pc["z"], pc["m"], pc["g"]
+        np.subtract(x, self.x_mean, out=z)
+        z /= self.x_std
+        lib.gp_point(self.Z.shape[0], self.d, self.D, *pc["ptrs"])  # the sparse model's Z holds its inducing inputs
+        return m * self.y_std + self.y_mean, g * pc["gscale"]
+
+    def _point_arrays(self) -> dict:
+        """The compiled point calls' contiguous inputs and output buffers, made once per model state
+        (rebuilt when ``update`` or a refit replaced an array): ``Zs (D, N, d)`` (inputs over each
+        output's length-scales), weights, ``sf2``, ``1 / ell``, the query ``z (d,)`` and the outputs."""
+        key = (self.Z, self.weights, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std,
+               getattr(self, "L", None))
         pc = getattr(self, "_point_cache", None)
-        if pc is None or not all(a is b for a, b in zip(pc[0], key)):
+        if pc is None or not all(a is b for a, b in zip(pc["key"], key)):
             Zs = np.ascontiguousarray(self.Z[None, :, :] / self.ell[:, None, :])
             keep = (Zs, np.ascontiguousarray(self.weights), np.ascontiguousarray(self.sf2),
                     np.ascontiguousarray(1.0 / self.ell))
             z, m, g = np.empty(self.d), np.empty(self.D), np.empty((self.D, self.d))
-            ptrs = [a.ctypes.data for a in (*keep, z, m, g)]
-            pc = self._point_cache = (key, keep, z, m, g, ptrs, self.y_std[:, None] / self.x_std[None, :])
-        _, _, z, m, g, ptrs, gscale = pc
+            pc = self._point_cache = {
+                "key": key, "keep": keep, "z": z, "m": m, "g": g,
+                "ptrs": [a.ctypes.data for a in (*keep, z, m, g)],
+                "gscale": self.y_std[:, None] / self.x_std[None, :]}
+        return pc
+
+    def point_predict_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``predict_with_gradients`` at one physical input ``x (d,)``: mean ``(D,)``, latent variance
+        ``(D,)``, ``dmean (D, d)``, ``dvar (D, d)`` (physical units), every output in one compiled call
+        (forward and back substitution against each Cholesky factor, ``2 N^2`` flops per output; the
+        planner's sweeps ask for one point at a time). The same formulas as the batch call; the
+        solves run in a different order than BLAS's, so the two agree to rounding (tests/test_gp.py).
+        numpy (the batch call on one row) without a C compiler. NaN where ``x`` is not finite."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        if x.shape != (self.d,):
+            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        lib = _point_lib() if self.d <= 256 and self._POINT_VARIANCE else None
+        if lib is None or not np.all(np.isfinite(x)):
+            m, v, dm, dv = self.predict_with_gradients(x[None, :])
+            return m[0], v[0], dm[0], dv[0]
+        pc = self._point_arrays()
+        if "var" not in pc:
+            pc["L"] = np.ascontiguousarray(self.L)
+            pc["var"], pc["gv"], pc["work"] = np.empty(self.D), np.empty((self.D, self.d)), np.empty(2 * self.N)
+            pc["ptrs_var"] = [*pc["ptrs"][:4], pc["L"].ctypes.data,
+                              *(pc[k].ctypes.data for k in ("z", "m", "g", "var", "gv", "work"))]
+        z = pc["z"]
         np.subtract(x, self.x_mean, out=z)
         z /= self.x_std
-        lib.gp_point(self.Z.shape[0], self.d, self.D, *ptrs)  # the sparse model's Z holds its inducing inputs
-        return m * self.y_std + self.y_mean, g * gscale
+        lib.gp_point_var(self.N, self.d, self.D, *pc["ptrs_var"])
+        gscale = pc["gscale"]
+        return (pc["m"] * self.y_std + self.y_mean, np.maximum(pc["var"], 0.0) * self.y_std ** 2,
+                pc["g"] * gscale, pc["gv"] * (gscale * self.y_std[:, None]))
+
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray, dt: float
+                           ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Compiled rollout of ``u_t = o_t + O_t x_t`` on ``qddot = mean(q, qdot, u)`` (the outputs
+        are ``n_q`` accelerations, the inputs ``(q, qdot, u)``) with semi-implicit Euler of step
+        ``dt`` s from ``x0``: ``X (T+1, 2 D)``, ``U (T, d - 2 D)``; the point mean's formulas, so
+        the same numbers as stepping ``point_mean_with_gradients`` up to the rounding of ``O_t x_t``.
+        ``None`` without a C compiler (the caller steps in Python)."""
+        lib = _point_lib() if self.d <= 256 else None
+        if lib is None:
+            return None
+        T, nx = o.shape[0], 2 * self.D
+        pc = self._point_arrays()
+        o, O = np.ascontiguousarray(o, dtype=float), np.ascontiguousarray(O, dtype=float)
+        if o.shape != (T, self.d - nx) or O.shape != (T, self.d - nx, nx) or np.shape(x0) != (nx,):
+            raise ValueError(f"rollout expects x0 ({nx},), o (T, {self.d - nx}), O (T, {self.d - nx}, {nx})")
+        X, U = np.empty((T + 1, nx)), np.empty((T, self.d - nx))
+        X[0] = x0
+        stats = [np.ascontiguousarray(a, dtype=float) for a in (self.x_mean, self.x_std, self.y_mean, self.y_std)]
+        lib.gp_rollout(T, self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *(a.ctypes.data for a in stats),
+                       float(dt), o.ctypes.data, O.ctypes.data, X.ctypes.data, U.ctypes.data)
+        return X, U
 
     def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Mean ``(M, D)``, latent variance ``(M, D)``, ``dmean (M, D, d)``, ``dvar (M, D, d)`` (physical units).
@@ -463,6 +529,8 @@ class SparseGPModel(GPModel):
     training data are ``Z_train (N, d)`` and ``y (N, D)`` (scaled), ``L_U``, ``L_B (D, M, M)``,
     ``lam (D, N)``. ``m_requested``: the inducing count asked for (``update`` selects again up to it).
     """
+
+    _POINT_VARIANCE = False  # FITC's variance is not the exact one: the batch call on one row
 
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                  *, inducing: int | np.ndarray, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,

@@ -87,6 +87,29 @@ class LearnedDynamics(SemiImplicitEuler):
         a = self._euler(X, mean) - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U)
         return A, a, B
 
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0``: the problem's rollout
+        (``planning.problem.Problem.controller_rollout``) in one compiled call
+        (``GPModel.controller_rollout``), else stepping ``step`` in Python. NaN propagates."""
+        x0 = np.asarray(x0, float).reshape(-1)
+        out = self.model.controller_rollout(x0, o, O, self.dt)
+        if out is not None:
+            return out
+        T = o.shape[0]
+        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
+        X[0] = x0
+        with np.errstate(all="ignore"):
+            for t in range(T):
+                U[t] = o[t] + O[t] @ X[t]
+                X[t + 1] = self.step(X[t], U[t])
+        return X, U
+
+    def point_variance(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``predict_variance`` at one state ``x (n_x,)`` and control ``u (n_u,)``: ``(n_q,)``,
+        ``(n_q, n_x)``, ``(n_q, n_u)`` (``GPModel.point_predict_with_gradients``, compiled)."""
+        _, var, _, dvar = self.model.point_predict_with_gradients(np.concatenate([x, u]))
+        return var, dvar[:, :self.n_x], dvar[:, self.n_x:]
+
     def predict_variance(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """GP latent variance of ``qddot`` ``(T, n_q)`` ((rad/s^2)^2) and its gradients ``(T, n_q, n_x)``, ``(T, n_q, n_u)``."""
         _, var, _, dvar = self.model.predict_with_gradients(np.hstack([np.asarray(X, float), np.asarray(U, float)]))

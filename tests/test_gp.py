@@ -337,6 +337,58 @@ def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkey
     assert np.array_equal(m2, m_ref[0]) and np.array_equal(g2, g_ref[0])
 
 
+def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
+    """The compiled one-point mean, variance and gradients (the uncertainty term's relinearization
+    in the sweeps) against ``predict_with_gradients``, also after ``update()`` (a cached copy of the
+    old factor would fail), NaN for a non-finite query, and the numpy path without a compiler."""
+    import plants.gp as gp
+
+    model = toy_model(n=80)
+    rng = np.random.default_rng(3)
+    Q = np.vstack([rng.normal(size=(5, model.d)), model.X[:2]])   # far from and on the data
+    for step in range(2):
+        ref = model.predict_with_gradients(Q)
+        for i, x in enumerate(Q):
+            for got, r in zip(model.point_predict_with_gradients(x), ref):
+                assert np.allclose(got, r[i], rtol=1e-10, atol=1e-11 * np.abs(r).max())
+        if step == 0:
+            Xn = rng.normal(size=(5, model.d))
+            model.update(Xn, np.sin(Xn[:, :model.D]))
+    assert all(np.all(np.isnan(a)) for a in model.point_predict_with_gradients(np.full(model.d, np.nan)))
+    monkeypatch.setattr(gp, "_POINT_LIB", False)
+    ref = model.predict_with_gradients(Q[:1])
+    for got, r in zip(model.point_predict_with_gradients(Q[0]), ref):
+        assert np.array_equal(got, r[0])
+
+
+def test_learned_controller_rollout_compiled_equals_python_steps(monkeypatch):
+    """``LearnedDynamics.controller_rollout`` (one compiled call) against stepping ``step`` in
+    Python (planning.problem.controller_rollout), also on the sparse GP, NaN propagated."""
+    import plants.gp as gp
+    from planning.problem import controller_rollout
+    from stages.fit.gp_fit import fit_sparse_gp
+
+    rng = np.random.default_rng(5)
+    X, Y = toy_data(120, 4)
+    sparse, _ = fit_sparse_gp(X, Y, inducing=30, restarts=0)
+    T = 60
+    o, O = 0.3 * rng.normal(size=(T, 2)), 0.05 * rng.normal(size=(T, 2, 4))
+    for model in (toy_model(), sparse):
+        dyn = LearnedDynamics(model, n_q=2, dt=0.01)
+        x0 = np.array([0.2, -0.1, 0.3, 0.0])
+        Xc, Uc = dyn.controller_rollout(x0, o, O)
+        Xp, Up = controller_rollout(dyn, x0, o, O)
+        assert np.allclose(Xc, Xp, rtol=1e-12, atol=1e-12) and np.allclose(Uc, Up, rtol=1e-12, atol=1e-12)
+        o_bad = o.copy()
+        o_bad[30, 0] = np.nan
+        Xn, _ = dyn.controller_rollout(x0, o_bad, O)
+        assert np.all(np.isfinite(Xn[:31])) and np.all(np.isnan(Xn[31:, 2:]))
+        monkeypatch.setattr(gp, "_POINT_LIB", False)      # no compiler: the Python steps
+        Xf, _ = dyn.controller_rollout(x0, o, O)
+        assert np.array_equal(Xf, controller_rollout(dyn, x0, o, O)[0]) and np.allclose(Xf, Xp, rtol=1e-8, atol=1e-10)
+        monkeypatch.undo()
+
+
 def test_learned_nonfinite_inputs_give_nan():
     dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
     x = np.array([0.1, np.nan, 0.0, 0.2])
