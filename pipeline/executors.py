@@ -110,10 +110,14 @@ class SerialExecutor(Executor):
 
 
 # ----------------------------------------------------------------------------- process pool
-def _worker_init(parent_pid: int) -> None:
+def _worker_init(parent_pid: int, threads: int = 1) -> None:
     """Pool worker set-up: die with the parent (also on SIGKILL); Ctrl-C is the parent's to handle
-    (the terminal sends it to the whole process group), SIGTERM from the parent ends the worker."""
+    (the terminal sends it to the whole process group), SIGTERM from the parent ends the worker;
+    ``threads``: the worker's share of the CPUs for per-output GP work (``RAICO_THREADS``)."""
+    import os
     import signal
+
+    os.environ["RAICO_THREADS"] = str(max(1, int(threads)))
 
     from pipeline.errors import die_with_parent
 
@@ -192,7 +196,8 @@ class ProcessExecutor(Executor):
         if self._pool is None:
             _quiet_resource_tracker()
             self._pool = ProcessPoolExecutor(max_workers=self.slots, mp_context=mp.get_context("spawn"),
-                                             initializer=_worker_init, initargs=(os.getpid(),))
+                                             initializer=_worker_init,
+                                             initargs=(os.getpid(), _share(self.slots)))
         with _sigint_blocked():  # workers are spawned here
             return self._pool.submit(fn, arg)
 
@@ -215,8 +220,19 @@ class ProcessExecutor(Executor):
 
 
 # ----------------------------------------------------------------------------- ray
+def _share(workers: int) -> int:
+    """Per-output GP threads of one of ``workers`` pool workers: this process's CPUs over the workers
+    (at least 1)."""
+    from plants._threads import output_threads
+
+    return max(1, output_threads() // max(1, workers))
+
+
 def _ray_call(fn, arg):
-    """The one Ray task: ``fn(arg)`` in a Ray worker."""
+    """The one Ray task: ``fn(arg)`` in a Ray worker (one CPU: one thread for per-output GP work)."""
+    import os
+
+    os.environ["RAICO_THREADS"] = "1"
     return fn(arg)
 
 

@@ -186,9 +186,11 @@ def plan_problem(art: Artifact) -> dict:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def execute_segments(art: Artifact) -> tuple[str, list[Segment]]:
+def execute_segments(art: Artifact, stride: int = 1) -> tuple[str, list[Segment]]:
     """The plant and the one segment of an execute artifact: ``(X[k], tau[k]) -> qddot`` by Drake's
-    forward dynamics (the analytic model), ``k < T``; non-finite rows skipped."""
+    forward dynamics (the analytic model), ``k < T``; non-finite rows skipped, then every
+    ``stride``-th row kept. The accelerations are computed only at the kept rows (all rows only if
+    one of them is not finite, so the selection is the same as computing everything first)."""
     from plants.dynamics_registry import make_dynamics
     from plants.robots import shared_robot
 
@@ -201,10 +203,14 @@ def execute_segments(art: Artifact) -> tuple[str, list[Segment]]:
     dyn = make_dynamics("analytic", robot, float(desc["dt"]))
     ok = _finite_rows(X, tau) & (np.arange(T) < usable_steps(art, float(desc["dt"]), T))
     Y = np.full((T, n), np.nan)
-    for k in np.flatnonzero(ok):
+    keep = np.flatnonzero(ok)[::stride]
+    for k in keep:
         Y[k] = dyn.qddot(X[k, :n], X[k, n:], tau[k])
-    ok &= _finite_rows(Y)
-    return str(desc["plant"]), [Segment(art.ref, np.hstack([X, tau])[ok], Y[ok], r["times"][:T][ok])]
+    if not np.all(np.isfinite(Y[keep])):
+        for k in np.flatnonzero(ok):   # a non-finite acceleration drops its row before the stride
+            Y[k] = dyn.qddot(X[k, :n], X[k, n:], tau[k])
+        keep = np.flatnonzero(ok & _finite_rows(Y))[::stride]
+    return str(desc["plant"]), [Segment(art.ref, np.hstack([X, tau])[keep], Y[keep], r["times"][:T][keep])]
 
 
 FAILED = ("tracking-lost", "fell", "diverged")  # executions whose data end where they failed
@@ -232,10 +238,10 @@ def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1) -> Da
 
     plant_names, segs = set(), []
     for art in arts:
-        plant, s = babble_segments(art) if art.stage == "babble" else execute_segments(art)
+        # babbling keeps its own sampling rate; an execution every ``stride``-th (finite) sample
+        plant, s = babble_segments(art) if art.stage == "babble" else execute_segments(art, stride)
         plant_names.add(plant)
-        k = stride if art.stage == "execute" else 1  # babbling keeps its own sampling rate
-        segs += [Segment(g.source, g.X[::k], g.Y[::k], g.t[::k]) for g in s]
+        segs += s
     if len(plant_names) != 1:
         raise ValueError(f"data of different plants: {', '.join(sorted(plant_names))}")
     plant = plant_names.pop()
