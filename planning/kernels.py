@@ -98,7 +98,7 @@ if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (
 
 # -- compiled task messages -------------------------------------------------------------------------
 class MessageKind(IntEnum):
-    """What a compiled task term evaluates: ``enum message_kind`` of ``plants/codegen/rbd_kernels.c``
+    """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
     (the same values; tests/test_kernels.py reads the C enum and compares)."""
 
     FRAME_POINTS = 0     # ViaPoint on FramePoints
@@ -115,13 +115,36 @@ class _VTerm(ctypes.Structure):
 
 
 class _TaskSet(ctypes.Structure):
-    _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("P", _V), ("terms", _V)]
+    _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("m", _L), ("P", _V), ("terms", _V),
+                ("frame_points", _V), ("com", _V), ("frame_rotation", _V)]
+
+
+TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
+_TASK_LIB: ctypes.CDLL | None | bool = None
+
+
+def task_library() -> ctypes.CDLL | None:
+    """The compiled task messages (``task_messages.c``, the tree libraries' flags: no contraction
+    into fused multiply-adds, the numbers of the former in-tree build), or ``None`` as
+    :func:`library`."""
+    global _TASK_LIB
+    if _TASK_LIB is None:
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(c_backend.c_source(__file__, "task_messages.c"), "task_messages")
+            lib.taskset_eval_address.restype = ctypes.c_void_p
+            _TASK_LIB = lib
+        except c_backend.CompileUnavailable:
+            _TASK_LIB = False
+    return _TASK_LIB or None
 
 
 def compile_task_set(problem):
     """The state terms of ``problem`` as a compiled task-message evaluator (``taskset_eval`` of
-    :mod:`plants.codegen.rbd`): ``(function address, context address, keep-alive)``, or ``None``
-    when some term with a nonzero weight has no compiled counterpart (then the sweeps ask Python).
+    ``task_messages.c``, calling the robot's tree library of :mod:`plants.codegen.rbd` for the
+    kinematics): ``(function address, context address, keep-alive)``, or ``None`` when some term
+    with a nonzero weight has no compiled counterpart (then the sweeps ask Python).
 
     Compiled: ``ViaPoint`` on ``FramePoints``, ``CenterOfMass``, ``RollAngle`` (one robot whose
     tree kernels exist) or ``JointPositions``; ``StateTarget``. Joint terms (the GP uncertainty)
@@ -182,15 +205,18 @@ def compile_task_set(problem):
             vt.R_BF, vt.rows = arr(tm.frame_rotation), arr([0], np.int64)
         terms.append(vt)
     if kern is None:
-        return None    # the evaluator lives in a robot's tree library
+        return None    # the kinematics live in a robot's tree library
+    lib = task_library()
     P = np.asarray(robot.P, float)
-    if P.shape != (kern.m, nq):
+    if lib is None or P.shape != (kern.m, nq) or kern.m > TASK_MAX_POSITIONS:
         return None
     ts = _TaskSet()
-    ts.nq, ts.nx, ts.nterms = nq, nx, len(terms)
+    ts.nq, ts.nx, ts.nterms, ts.m = nq, nx, len(terms), kern.m
+    ts.frame_points, ts.com, ts.frame_rotation = (kern.addresses[f] for f in (
+        "tree_frame_points", "tree_com", "tree_frame_rotation"))
     ts.identity = int(kern.m == nq and np.array_equal(P, np.eye(nq)))
     ts.P = arr(P)
     term_arr = (_VTerm * max(len(terms), 1))(*terms)
     ts.terms = ctypes.addressof(term_arr)
     keep += [term_arr, ts, kern]
-    return kern.taskset_eval_address, ctypes.addressof(ts), keep
+    return lib.taskset_eval_address(), ctypes.addressof(ts), keep

@@ -371,10 +371,11 @@ def test_emitted_c_is_the_python_arithmetic():
 
 def test_message_kinds_are_named_alike_in_python_and_c():
     """The compiled task terms are selected by named constants: planning.kernels.MessageKind mirrors
-    ``enum message_kind`` of plants/codegen/rbd_kernels.c value for value."""
+    ``enum message_kind`` of planning/task_messages.c value for value; the plants floor holds none of it."""
     import re
 
-    src = (REPO / "plants" / "codegen" / "rbd_kernels.c").read_text()
+    src = (REPO / "planning" / "task_messages.c").read_text()
+    assert "message_kind" not in (REPO / "plants" / "codegen" / "rbd_kernels.c").read_text()
     body = re.search(r"enum message_kind \{([^}]*)\}", src).group(1)
     c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
     assert c_enum == {k.name: int(k) for k in kernels.MessageKind}

@@ -15,8 +15,9 @@ inertia, gravity) read from the Drake plant and baked into the C source:
   code: a body's quantities carry the partial derivatives along the positions and velocities of
   the joints between it and the world only (the others are zero), the forces summed towards the
   root all ``2 m``;
-- the task messages of via-points on these maps (``taskset_eval``, used by the AICO sweep
-  kernel, see :func:`planning.kernels.compile_task_set`).
+- the C entry points of these maps (``TreeKernels.addresses``) through which the planning floor's
+  compiled task messages (``planning/task_messages.c``, :func:`planning.kernels.compile_task_set`)
+  evaluate them.
 
 Supported: trees of revolute and weld joints (also traversed against the joint's parent/child
 direction, as Drake does when a foot is welded to the world), gravity as the only force element.
@@ -204,9 +205,10 @@ class TreeKernels:
         for f, args in sigs.items():
             getattr(lib, f).argtypes = args
             getattr(lib, f).restype = ctypes.c_int
-        lib.taskset_eval_address.restype = ctypes.c_void_p
-        self.taskset_eval_address = lib.taskset_eval_address()
         self.lib = lib
+        # C entry points for compiled callers (planning/task_messages.c calls these three)
+        self.addresses = {f: ctypes.cast(getattr(lib, f), ctypes.c_void_p).value
+                          for f in ("tree_frame_points", "tree_com", "tree_frame_rotation")}
 
     @staticmethod
     def _a(x) -> np.ndarray:
