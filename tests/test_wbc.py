@@ -161,3 +161,32 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
     wbc = {"status": "ok", "controller": "wbc", "start": "standing", "via_point_errors": {"via_hand@100": 0.001}}
     assert claim_executed_reaches({}, [pd, wbc])[3] is False       # the PD run fell: the stabilizer's does not count
     assert claim_stabilizer_stands({}, [pd, wbc])[3] is True
+
+
+def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
+    """The stabilizer's CoG clamp against Dykstra's alternating projections run to convergence (an
+    independent method) on random polygons; a point inside comes back unchanged; a point beyond a
+    corner lands on the corner."""
+    from stages.wbc import clamp_to_polygon
+
+    def dykstra(p, A, b, iterations=2000):
+        x, y = p.copy(), np.zeros((len(b), 2))
+        for _ in range(iterations):
+            for i in range(len(b)):
+                z = x + y[i]
+                x_new = z - max(A[i] @ z - b[i], 0.0) * A[i]
+                y[i], x = z - x_new, x_new
+        return x
+
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        eq = ConvexHull(0.1 * rng.normal(size=(8, 2))).equations
+        A, b = eq[:, :2], -eq[:, 2] - 0.01
+        p = 0.2 * rng.normal(size=2)
+        got = clamp_to_polygon(p, A, b)
+        assert np.all(A @ got <= b + 1e-9)
+        assert np.allclose(got, p if np.all(A @ p <= b) else dykstra(p, A, b), atol=1e-12)
+    A, b = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]]), np.ones(4)   # the square |x|, |y| <= 1
+    assert np.array_equal(clamp_to_polygon(np.array([0.3, -0.2]), A, b), [0.3, -0.2])
+    assert np.allclose(clamp_to_polygon(np.array([3.0, 2.0]), A, b), [1.0, 1.0])
+    assert np.allclose(clamp_to_polygon(np.array([0.5, 4.0]), A, b), [0.5, 1.0])
