@@ -90,12 +90,6 @@ def library() -> ctypes.CDLL | None:
     return _LIB or None
 
 
-if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (or find) the kernel
-    lib = library()   # a failed build raises: make stops
-    print("csweep:", f"compiled ({' '.join(FLAGS)})" if lib is not None
-          else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
-
-
 # -- compiled task messages -------------------------------------------------------------------------
 class MessageKind(IntEnum):
     """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
@@ -220,3 +214,11 @@ def compile_task_set(problem):
     ts.terms = ctypes.addressof(term_arr)
     keep += [term_arr, ts, kern]
     return lib.taskset_eval_address(), ctypes.addressof(ts), keep
+
+
+if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (or find) the kernel
+    lib = library()   # a failed build raises: make stops
+    print("csweep:", f"compiled ({' '.join(FLAGS)})" if lib is not None
+          else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
+    print("task_messages:", "compiled" if task_library() is not None
+          else f"not built ({c_backend.why_unavailable()}): the sweeps ask Python for task messages")
