@@ -304,7 +304,13 @@ def record_execute(folder: Path, art, inputs: list) -> None:
                                 names=["CoG margin in the support polygon (m)"])
             rec_mod.log_scalars(rec, "cog/xy", "sim_time", times[sel], np.nan_to_num(cog[:, :2])[sel],
                                 names=["cog x", "cog y"], colors=[XYZ_COLORS["x"], XYZ_COLORS["y"]])
-            _log_support(rec, times, d["support"], cog, margin, d["contact_points"], poses)
+            zmp = d["zmp"] if "zmp" in d else np.full((len(times), 2), np.nan)
+            zmp_margin = d["zmp_margin"] if "zmp_margin" in d else np.full(len(times), np.nan)
+            rec_mod.log_scalars(rec, "cog/zmp_margin", "sim_time", times[sel], zmp_margin[sel],
+                                names=["ZMP margin in the support polygon (m)"], colors=[ZMP_COLOR])
+            rec_mod.log_scalars(rec, "contact/force", "sim_time", times[sel], d["sole_force"][sel],
+                                names=["left sole (N)", "right sole (N)"])
+            _log_support(rec, times, d["support"], cog, margin, d["contact_points"], poses, zmp)
         _log_status(rec, art, times)
     values = {term: tp.raw for tp in plots for term in tp.terms}
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
@@ -320,7 +326,8 @@ def _execute_blueprint(plots: list, joint_names, eye, free: bool):
     groups = rec_mod.joint_groups(joint_names)
     error = rrb.TimeSeriesView(origin="/error", name="tracking error (rad)")
     views = [*task_views(plots, planned=True), error,
-             *([rrb.TimeSeriesView(origin="/cog", name="CoG (m)")] if free else []),
+             *([rrb.TimeSeriesView(origin="/cog", name="CoG and ZMP (m)"),
+                rrb.TimeSeriesView(origin="/contact", name="ground force on the soles (N)")] if free else []),
              rec_mod.group_views("joints", groups, "joints (rad)"),
              rec_mod.group_views("torque", groups, "torque (N m)")]
     below = [rrb.Horizontal(rrb.TextDocumentView(origin="/status", name="status"),
@@ -507,13 +514,16 @@ def log_task_paths(rec, problem, X: np.ndarray, plots: list[TaskPlot] | None = N
                                     color=(230, 40, 40), radius=0.012, line=False)
 
 
+ZMP_COLOR = (200, 60, 200)  # the zero-moment point: magenta on the ground, its margin series alike
+
+
 def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, margin: np.ndarray,
-                 contacts: np.ndarray, steps: np.ndarray | None = None) -> None:
+                 contacts: np.ndarray, steps: np.ndarray | None = None, zmp: np.ndarray | None = None) -> None:
     """Per step: the support polygon of the sole corners in contact (a line strip on the ground,
     green while the CoG projection is inside, red outside; a segment or a point when fewer corners
-    touch; cleared when none do), the contact points, and the CoG's ground projection (a large
-    marker joined to the CoG by a vertical line); at the ``steps`` (default: all) where the robot's
-    pose is logged."""
+    touch; cleared when none do), the contact points, the CoG's ground projection (a large
+    marker joined to the CoG by a vertical line) and the zero-moment point (magenta, where there is a
+    ground force); at the ``steps`` (default: all) where the robot's pose is logged."""
     import rerun as rr
 
     stream = rec.rec
@@ -539,6 +549,9 @@ def _log_support(rec, times: np.ndarray, support: np.ndarray, cog: np.ndarray, m
             stream.log("world/cog_ground", rr.Points3D([ground], radii=0.014, colors=[(255, 210, 0)],
                                                        labels=["CoG"]))
             stream.log("world/cog_line", rr.LineStrips3D([[cog[k], ground]], colors=[(255, 210, 0)], radii=0.002))
+        if zmp is not None:
+            stream.log("world/zmp", rr.Points3D([[*zmp[k], 2e-3]], radii=0.01, colors=[ZMP_COLOR], labels=["ZMP"])
+                       if np.all(np.isfinite(zmp[k])) else rr.Clear(recursive=False))
 
 
 RECORDERS = {"babble": record_babble, "plan": record_plan, "execute": record_execute, "fit": record_fit,

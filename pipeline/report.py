@@ -411,6 +411,77 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     ax.grid(True, alpha=0.3)
 
 
+def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: Path) -> list[dict]:
+    """``balance.png`` (issue 19, beyond the thesis): per controller (joint PD, stabilizer) the executed
+    CoG's and zero-moment point's signed margins against the contact polygon over time, one line per
+    run (line style by status; below 0: outside, near 0: the feet about to tip), and the rows of its
+    table: per controller the runs, how many stood, the medians of the worst CoG and ZMP margins and of
+    the share of time the ZMP spent at the edge (``stages.evaluate.metrics.zmp_metrics``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from pipeline.artifacts import as_artifact
+    from stages.evaluate.metrics import ZMP_EDGE
+
+    groups: dict[str, list] = {}
+    for e in executions:
+        groups.setdefault(_group(e)[0], []).append(e)
+    names = [g for g in ("joint PD", "stabilizer") if g in groups]
+    fig, axes = plt.subplots(1, len(names), figsize=(5.6 * len(names), 4.2), squeeze=False, layout="constrained")
+    rows = []
+    for ax, name in zip(axes[0], names):
+        runs = groups[name]
+        for e in runs:
+            d = as_artifact(cache.require("execute", e.key)).arrays("rollout.npz")
+            style = STATUS_STYLES.get(e.status, ":")
+            ax.plot(d["times"], d["cog_margin"], color="#d4a000", ls=style, lw=1.0, alpha=0.8)
+            if "zmp_margin" in d:
+                ax.plot(d["times"], d["zmp_margin"], color="#c83cc8", ls=style, lw=1.0, alpha=0.8)
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.axhspan(0.0, ZMP_EDGE, color="tab:red", alpha=0.08)
+        stood = sum(e.status not in ("fell", "diverged") for e in runs)
+        ax.set_title(f"{exp.id}, {name}: {stood}/{len(runs)} stood", fontsize=9)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("margin inside the contact polygon (m)")
+        ax.grid(True, alpha=0.3)
+
+        def med(key: str) -> float:
+            v = np.array([e.metrics.get(key, math.nan) for e in runs], float)
+            v = v[np.isfinite(v)]
+            return float(np.median(v)) if v.size else math.nan
+
+        rows.append({"controller": name, "runs": len(runs), "stood": stood, "cog_min_margin": med("cog_min_margin"),
+                     "zmp_min_margin": med("zmp_min_margin"), "zmp_edge_fraction": med("zmp_edge_fraction")})
+    handles = [Line2D([], [], color="#d4a000", label="CoG (ground projection)"),
+               Line2D([], [], color="#c83cc8", label="ZMP (from the ground's contact wrench)"),
+               *[Line2D([], [], color="gray", ls=STATUS_STYLES.get(st, ":"), label=f"status {st}")
+                 for st in sorted({e.status for e in executions})]]
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.suptitle(f"red band: the ZMP within {ZMP_EDGE * 1000:g} mm of the polygon's edge (the feet tip)", fontsize=8)
+    save_figure(fig, path, dpi=100)
+    return rows
+
+
+def balance_section(cache: Cache, exp: Experiment, executions: list, out_dir: Path) -> tuple[list[str], list[dict]]:
+    """``balance.png`` and its markdown lines for an experiment with free-standing Nao executions."""
+    if exp.plant != "nao" or not executions:
+        return [], []
+    rows = write_balance_figure(cache, exp, executions, out_dir / "balance.png")
+    md = ["## Balance over time (beyond the thesis)", "",
+          "Each execution's CoG and zero-moment point against the polygon of the sole corners in contact (signed "
+          "margin, m, positive inside). The ZMP is where the ground's total contact wrench (Drake's contact "
+          "results) has no horizontal moment, on flat ground its centre of pressure: it cannot leave the polygon, "
+          "and sits on its edge when a foot tips.", "", "![balance](balance.png)", "",
+          "| controller | runs | stood | worst CoG margin (m, median) | worst ZMP margin (m, median) | share of "
+          "time with the ZMP at the edge (median) |", "|---|---|---|---|---|---|"]
+    md += [f"| {r['controller']} | {r['runs']} | {r['stood']} | {_fmt(r['cog_min_margin'])} | "
+           f"{_fmt(r['zmp_min_margin'])} | {_fmt(r['zmp_edge_fraction'])} |" for r in rows]
+    return md + [""], rows
+
+
 def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions: list, ax) -> None:
     """Per executed run its largest via-point error (the held right sole left out), planned (open
     circle) and executed (filled: status ok; cross: any other status), against the tolerance of the
@@ -695,9 +766,10 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     execs = [{"key": e.key, "recording": str(Path(e.path) / "recording.rrd"), **{
         k: v for k, v in e.metrics.items() if k != "via_point_errors"}} for e in result["executions"]]
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
+    balance_md, balance_rows = balance_section(cache, exp, result["executions"], out_dir)
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
-           "integrator_runs": integ_runs}
+           "integrator_runs": integ_runs, "balance": balance_rows}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
@@ -722,6 +794,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                    "thresholds: README, section Execution. The stabilizer (issue 19, beyond the thesis): "
                    "`stages/wbc.py`, from the standing start (`plants/free_nao.py: stance_positions`)."]
         md += [""]
+    md += balance_md
     md += noise_md
     if integ_rows:
         md += ["## Pseudo-dynamics integrators (appendix C)", "", INTEGRATOR_TEXT, "", markdown_integrators(integ_rows),

@@ -298,6 +298,32 @@ class FreeNao:
             points.append(np.asarray(info.contact_point()))
         return force, (np.array(points) if points else np.zeros((0, 3)))
 
+    def zmp(self, ctx) -> np.ndarray:
+        """The zero-moment point ``(2,)`` (m, world xy) of the ground's reaction on the robot (Drake's
+        contact results of the last plant step): the point of the ground plane z = 0 about which the
+        total contact wrench has no horizontal moment, ``p_x = -M_y / F_z``, ``p_y = M_x / F_z``
+        (moments about the world origin; on flat ground the centre of pressure). NaN without a
+        normal force. Each contact's wrench is taken as the one on the robot (normal force up)."""
+        results = self.plant.get_contact_results_output_port().Eval(ctx)
+        F, M = np.zeros(3), np.zeros(3)
+
+        def add(f: np.ndarray, m_about_p: np.ndarray, p: np.ndarray) -> None:
+            nonlocal F, M
+            sign = 1.0 if f[2] >= 0 else -1.0   # the wrench on the robot: the ground pushes up
+            F += sign * f
+            M += sign * (m_about_p + np.cross(p, f))
+
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            w = info.F_Ac_W()   # at the contact surface's centroid
+            add(np.asarray(w.translational()), np.asarray(w.rotational()), np.asarray(info.contact_surface().centroid()))
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            add(np.asarray(info.contact_force()), np.zeros(3), np.asarray(info.contact_point()))
+        if F[2] <= 1e-9:
+            return np.full(2, np.nan)
+        return np.array([-M[1] / F[2], M[0] / F[2]])
+
     def torso_pose(self, ctx):
         return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
 

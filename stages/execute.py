@@ -75,7 +75,13 @@ import numpy as np
 from planning.objective import objective_from_description
 from plants.robots import Robot, load_robot
 from stages.base import Artifact, Stage, StageConfig, StageOutput
-from stages.evaluate.metrics import execution_metrics, padded_polygons, support_polygons, via_point_errors
+from stages.evaluate.metrics import (
+    execution_metrics,
+    padded_polygons,
+    point_margins,
+    support_polygons,
+    via_point_errors,
+)
 from stages.plan.stage import PLAN_FILE, PROBLEM_FILE
 
 ROLLOUT_FILE = "rollout.npz"
@@ -406,6 +412,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     cog = np.full((K, 3), np.nan)
     corners = np.full((K, 2, 4, 3), np.nan)
     force = np.full((K, 2), np.nan)
+    zmp = np.full((K, 2), np.nan)
     torso_p, torso_z = np.full((K, 3), np.nan), np.full((K, 3), np.nan)
     points: list[np.ndarray] = []
     applied = np.full((T, n_act), np.nan)
@@ -421,6 +428,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         corners[k] = free.sole_corners(pctx)
         # contact results exist after the first plant step; at t = 0 the force is unknown (NaN)
         f, pts = free.contacts(pctx) if k > 0 else (np.full(2, np.nan), np.zeros((0, 3)))
+        zmp[k] = free.zmp(pctx) if k > 0 else np.nan
         force[k] = f
         points.append(pts)
         Xt = free.torso_pose(pctx)
@@ -454,9 +462,11 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     at_limit = (np.abs(applied) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q) per planning joint
     tau = applied @ free.A  # planning coordinates (the coupled hip: the sum of its two joints)
     polys, margin = support_polygons(corners, force, cog)
+    zmp_margin = point_margins(polys, zmp)
     planned = planned_stance(fixed, X_plan)
     nao = {"q_free": q_free, "cog": cog, "cog_margin": margin, "support": padded_polygons(polys),
            "corners": corners, "sole_force": force, "contact_points": _padded_points(points, K),
+           "zmp": zmp, "zmp_margin": zmp_margin,
            "torso_p": torso_p, "torso_z": torso_z, "torso_height_plan": planned["torso_height_plan"],
            "torso_z_plan": planned["torso_z_plan"], "corners_plan": planned["corners_plan"],
            "start_tilt": np.array(tilt), "start_stands": np.array(tilt < MAX_TIP - 1e-9)}

@@ -44,6 +44,8 @@ def test_execute_with_noise_on_the_free_nao(tmp_path):
     rows = {}
     for c in chunks:
         rows[c.entity_path] = rows.get(c.entity_path, 0) + c.num_rows
-    for entity in ("/world/support_polygon", "/world/contact_points", "/world/cog_ground", "/world/robot/torso"):
+    for entity in ("/world/support_polygon", "/world/contact_points", "/world/cog_ground", "/world/zmp",
+                   "/world/robot/torso"):
         assert rows.get(entity) == 101, entity
+    assert rows.get("/cog/zmp_margin", 0) > 0 and rows.get("/contact/force", 0) > 0
     assert rows["/status"] == 1 and rows["/events"] == (3 if runs[0]["status"] != "ok" else 2)

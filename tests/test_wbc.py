@@ -85,6 +85,12 @@ def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     assert np.all(f[..., 2] >= -1e-6)
     assert np.all(np.abs(f[..., :2]) <= MU * f[..., 2:3] + 1e-6)
     assert m["start_projection_norm"] < 1e-3  # the standing posture is a stance already
+    # standing still, the zero-moment point is the CoG's ground projection (to 2 mm, the hydroelastic
+    # soles' settling), inside the feet with the CoG's margin; none at t = 0 (no contact results yet)
+    zmp, cog = d["zmp"], d["cog"]
+    assert np.all(np.isnan(zmp[0])) and np.all(np.isfinite(zmp[10:]))
+    assert np.abs(zmp[10:] - cog[10:, :2]).max() < 2e-3
+    assert m["zmp_edge_fraction"] == 0.0 and abs(m["zmp_min_margin"] - m["cog_min_margin"]) < 3e-3
 
 
 def test_default_execution_is_the_pd_baseline():
@@ -131,6 +137,18 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     assert 0 < m["start_projection_norm"] < 0.5 and m["start_projection_max"] <= m["start_projection_norm"]
     pd = run_json("execute", "--plan", plan["key"], "--no-record", "--json", "--artifacts", tmp_path)
     assert pd["key"] != r["key"] and "wbc_qp_failures" not in pd["metrics"]
+    # the report's balance section: one panel and one table row per controller, from these two runs
+    from pipeline.cache import Cache
+    from pipeline.experiments import EXPERIMENTS
+    from pipeline.report import balance_section
+    from pipeline.runner import Outcome
+
+    outs = [Outcome("execute", x["key"], x["path"], True, x["status"], metrics=x["metrics"]) for x in (pd, r)]
+    md, rows = balance_section(Cache(tmp_path), EXPERIMENTS["fig3.3"], outs, tmp_path)
+    assert [(w["controller"], w["runs"], w["stood"]) for w in rows] == [("joint PD", 1, int(pd["metrics"]["stood"])),
+                                                                        ("stabilizer", 1, 1)]
+    assert rows[1]["zmp_min_margin"] == m["zmp_min_margin"] and (tmp_path / "balance.png").stat().st_size > 10_000
+    assert "![balance](balance.png)" in md
 
 
 def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
@@ -190,3 +208,15 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
     assert np.array_equal(clamp_to_polygon(np.array([0.3, -0.2]), A, b), [0.3, -0.2])
     assert np.allclose(clamp_to_polygon(np.array([3.0, 2.0]), A, b), [1.0, 1.0])
     assert np.allclose(clamp_to_polygon(np.array([0.5, 4.0]), A, b), [0.5, 1.0])
+
+
+def test_zmp_metrics_on_synthetic_margins():
+    """The ZMP criteria on margins whose answer is known: the samples without a ZMP left out."""
+    from stages.evaluate.metrics import ZMP_EDGE, point_margins, zmp_metrics
+
+    m = zmp_metrics(np.array([np.nan, 0.03, 0.02, ZMP_EDGE / 2, -0.01]))
+    assert m == {"zmp_min_margin": -0.01, "zmp_edge_fraction": 0.5}
+    assert np.isnan(zmp_metrics(np.full(3, np.nan))["zmp_min_margin"]) and zmp_metrics(None) == {}
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    out = point_margins([square, square, np.zeros((0, 2))], np.array([[0.5, 0.2], [1.5, 0.5], [0.5, 0.5]]))
+    assert np.allclose(out[:2], [0.2, -0.5]) and np.isnan(out[2])

@@ -92,6 +92,16 @@ def support_polygons(corners: np.ndarray, force: np.ndarray, cog: np.ndarray) ->
     return polys, margin
 
 
+def point_margins(polys: list, points: np.ndarray) -> np.ndarray:
+    """Signed margin ``(K,)`` (m, positive inside) of each ground point ``points (K, 2)`` against that
+    sample's contact polygon (``support_polygons``); NaN where the point is not finite or there is no polygon."""
+    out = np.full(len(points), np.nan)
+    for k, (poly, p) in enumerate(zip(polys, points)):
+        if len(poly) and np.all(np.isfinite(p)):
+            out[k] = signed_margin(poly, p)
+    return out
+
+
 # ----------------------------------------------------------------------------- status
 def first_true(flags: np.ndarray) -> int | None:
     hits = np.flatnonzero(np.asarray(flags, bool))
@@ -211,9 +221,26 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
         m.update(stood=status != "fell" and status != "diverged",
                  cog_inside_fraction=float(np.mean(inside)),
                  cog_min_margin=float(np.nanmin(margin)) if np.isfinite(margin).any() else float("nan"),
+                 **zmp_metrics(nao.get("zmp_margin")),
                  r_sole_drift=_relative_sole_drift(robot, X),
                  sole_world_drift=_world_drift(nao["corners"]))
     return m
+
+
+ZMP_EDGE = 0.005  # m: a ZMP closer than this to the contact polygon's edge counts as at the edge (tipping)
+
+
+def zmp_metrics(zmp_margin: np.ndarray | None) -> dict:
+    """The executed ZMP against the contact polygon, over the samples where it exists (a ground force;
+    none at t = 0): ``zmp_min_margin`` (m), ``zmp_edge_fraction`` (share of them within ``ZMP_EDGE`` of
+    the edge or outside: the feet about to tip). Empty without ZMP data."""
+    if zmp_margin is None:
+        return {}
+    zm = np.asarray(zmp_margin, float)
+    zm = zm[np.isfinite(zm)]
+    if not zm.size:
+        return {"zmp_min_margin": float("nan"), "zmp_edge_fraction": float("nan")}
+    return {"zmp_min_margin": float(zm.min()), "zmp_edge_fraction": float(np.mean(zm < ZMP_EDGE))}
 
 
 def _relative_sole_drift(robot, X: np.ndarray) -> float:
