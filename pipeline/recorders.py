@@ -422,7 +422,7 @@ def task_plots(problem, X: np.ndarray, joint_names=()) -> list[TaskPlot]:
     descs = {d["name"]: d for d in getattr(problem, "descriptions", []) if d.get("term") == "via"}
     groups: dict[str, tuple[dict | None, list]] = {}
     for term in problem.state_terms:
-        if hasattr(term, "taskmap"):
+        if hasattr(term, "taskmap") and hasattr(term, "target"):   # via-points (not the balance's inequalities)
             m = descs.get(term.name, {}).get("map")
             key = json.dumps(m, sort_keys=True) if m else f"term:{term.name}"
             groups.setdefault(key, (m, []))[1].append(term)

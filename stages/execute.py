@@ -79,6 +79,7 @@ from stages.evaluate.metrics import (
     execution_metrics,
     padded_polygons,
     point_margins,
+    single_support_lift,
     support_polygons,
     via_point_errors,
 )
@@ -378,7 +379,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         from stages.wbc import make_stabilizer
 
         stab = free.builder.AddSystem(make_stabilizer(free, X_plan, dt, X_task=np.asarray(plan["X"], float),
-                                                      frame_maps=_frame_tasks(problem)))
+                                                      frame_maps=_frame_tasks(problem),
+                                                      swing=_swing_task(desc, fixed)))
         free.builder.Connect(plant.get_state_output_port(), stab.get_input_port(0))
         free.builder.Connect(stab.get_output_port(0), plant.get_actuation_input_port())
     sim = Simulator(free.builder.Build())
@@ -464,6 +466,10 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     polys, margin = support_polygons(corners, force, cog)
     zmp_margin = point_margins(polys, zmp)
     planned = planned_stance(fixed, X_plan)
+    if _lift_step(desc) is not None and stance:
+        # single support: the swing sole's planned heights are those of the plan as made (what the stabilizer
+        # tracks once it releases that sole), not of the plan shifted by the start projection
+        planned["corners_plan"][:, 1] = planned_stance(fixed, np.asarray(plan["X"], float))["corners_plan"][:, 1]
     nao = {"q_free": q_free, "cog": cog, "cog_margin": margin, "support": padded_polygons(polys),
            "corners": corners, "sole_force": force, "contact_points": _padded_points(points, K),
            "zmp": zmp, "zmp_margin": zmp_margin,
@@ -486,8 +492,31 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     if wbc:
         metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
                        if len(stab.log) else float("nan"))
+    lift_from = _lift_step(desc)
+    if lift_from is not None:  # single support: how high the right sole was held from the plan's lift step on
+        metrics.update(single_support_lift(corners, lift_from),
+                       wbc_release_time=(stab.released[0] if wbc and stab.released else None))
     return ExecuteOutput(times=np.arange(K) * dt, X=X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
                          effort_at_limit=at_limit, nao=nao, problem=problem, robot=fixed)
+
+
+def _lift_step(desc: dict) -> int | None:
+    """The first step of the plan's right-sole lift (a ``--balance single`` plan), else None."""
+    if (desc.get("balance") or {}).get("mode") != "single":
+        return None
+    term = next((t for t in desc["terms"] if t["name"] == "r_sole_lift"), None)
+    return None if term is None else int(term["times"]["from"])
+
+
+def _swing_task(desc: dict, fixed):
+    """The right sole's corners (``FramePoints`` of the fixed model) the stabilizer tracks once it releases
+    that sole, for a single-support plan; None (both soles held) otherwise."""
+    if _lift_step(desc) is None:
+        return None
+    from plants.free_nao import sole_corners_local
+    from plants.taskmaps import FramePoints
+
+    return FramePoints(fixed, "r_sole", sole_corners_local(), name="r_sole_swing")
 
 
 def _frame_tasks(problem) -> list:

@@ -23,7 +23,7 @@ Constraints (hard):
 
 Cost (weight times squared acceleration error):
 
-- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down): each sole's spatial
+- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right one until its release): each sole's spatial
   acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
 - CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
   CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
@@ -67,7 +67,13 @@ start; the Nao holding its standing posture for 1 s):
   within 0.01 rad of its limit, so it does not count this), seed 0 still falls. Letting a joint go to
   its (clipped) reference at the limit instead turned 6 of these 9 into ``limits``.
 - Clarabel (interior point) rather than OSQP: exact solutions at 2.4-3.4 ms a program (median) on this
-  machine; OSQP was not compared.
+  machine; OSQP at eps 1e-7 took 11 ms a program (a fig3.4-inside run, the same fall at 1.76 s).
+  Clarabel's equilibration (a rescaling of the program) off: 2.17 -> 1.66 ms a program on a
+  fig3.4-single run, its executed numbers equal to 1e-8 relative.
+- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners carry
+  no force, it is no longer held) once the executed CoG's ground projection is ``RELEASE_MARGIN`` inside
+  the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG reference is clamped to the left
+  sole's polygon and the right sole's corners track the plan as made (the frame task's weight and gains).
 """
 
 from __future__ import annotations
@@ -91,6 +97,10 @@ CORNER_UP = 2e-3  # m, a sole corner higher than this carries no force in the pr
 COP_SHARE = 0.1  # each corner of a sole carries at least this share of the sole's mean corner load
 FZ_MIN = 0.0  # N, the least normal force on a corner in contact (see the docstring: 0)
 FZ_MAX = 200.0  # N, a bound on each corner's normal force (keeps the program bounded)
+# single support (a plan made with --balance single): the right sole is released once the CoG is over the
+# left sole, then tracks the plan's right-sole corners
+RELEASE_EARLIEST = 0.2  # s, not before (the start's settling)
+RELEASE_MARGIN = 0.01  # m, the executed CoG's ground projection this far inside the left sole
 
 
 def plan_cog(robot, X_plan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,7 +195,7 @@ def clamp_to_polygon(p: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL_PERIOD, X_task=None,
-                    frame_maps=()):
+                    frame_maps=(), swing=None):
     """The stabilizer as a Drake ``LeafSystem``: input the free plant's state ``(nq + nv,)``, output
     the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update). It tracks
     the joints of ``X_plan (K, 2 n_q)``, and the CoG and the frame points of ``frame_maps``
@@ -194,7 +204,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
     attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
     ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs."""
     from pydrake.multibody.tree import JacobianWrtVariable
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
     from pydrake.systems.framework import BasicVector, LeafSystem
 
     from plants.free_nao import SOLES, sole_corners_local
@@ -215,8 +225,12 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
     nc = 4 * len(frames)
     nf = 3 * nc
     nx = nv + nf
-    ref = Reference(free, X_plan, X_plan if X_task is None else X_task, dt, frame_maps)
-    tasks = [(plant.GetFrameByName(m.frame.name()), np.ascontiguousarray(m.points.T), m.rows) for m in frame_maps]
+    maps = [*frame_maps, *([swing] if swing is not None else [])]
+    ref = Reference(free, X_plan, X_plan if X_task is None else X_task, dt, maps)
+    tasks = [(plant.GetFrameByName(m.frame.name()), np.ascontiguousarray(m.points.T), m.rows) for m in maps]
+    n_tasks = len(frame_maps)  # the swing sole's task (last) joins once the sole is released
+    released: list[float] = []  # the time the right sole's contact was released (single support)
+    left_only: list = []  # (A, b) of the left sole shrunk by COG_MARGIN, and its unshrunk b
 
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(nx, "x")
@@ -250,6 +264,8 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
     limits = prog.AddBoundingBoxConstraint(np.full(len(joint_v), -np.inf), np.full(len(joint_v), np.inf),
                                            x[joint_v]).evaluator()
     solver = ClarabelSolver()
+    options = SolverOptions()
+    options.SetOption(ClarabelSolver.id(), "equilibrate_enable", False)  # see the module docstring
 
     class Stabilizer(LeafSystem):
         """Task-space inverse dynamics (module docstring), one QP per ``period``."""
@@ -263,6 +279,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
             self.DeclareVectorOutputPort("u", BasicVector(n_act), self._output, {self.xd_ticket()})
             self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
             self.last_f = np.zeros((nc, 3))
+            self.released = released   # [time of the right sole's release] in single support, else []
 
         def _output(self, context, output):
             output.SetFromVector(context.get_discrete_state_vector().CopyToVector())
@@ -322,12 +339,20 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
             pts = np.vstack([(R.rotation().matrix() @ corners)[:2].T + R.translation()[:2] for R in sole_ref])
             eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
             support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
-        c_xy = clamp_to_polygon(c_r[:2], *support)
+            R = sole_ref[0]
+            eqs = ConvexHull((R.rotation().matrix() @ corners)[:2].T + R.translation()[:2]).equations
+            left_only.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN, -eqs[:, 2]])
+        if swing is not None and not released and t >= RELEASE_EARLIEST - 1e-9:
+            if np.min(left_only[2] - left_only[0] @ com[:2]) >= RELEASE_MARGIN:  # the CoG is over the left sole
+                released.append(t)
+        single = bool(released)
+        polygon = (left_only[0], left_only[1]) if single else support
+        c_xy = clamp_to_polygon(c_r[:2], *polygon)
         if np.any(c_xy != c_r[:2]):  # the planned CoG too near an edge of the feet: held at the margin
             c_r, cd_r, cdd_r = np.r_[c_xy, c_r[2]], np.r_[0.0, 0.0, cd_r[2]], np.r_[0.0, 0.0, cdd_r[2]]
         else:  # its capture point (c + cdot / omega) too: the planned CoG velocity cut so that it stays inside
             omega = np.sqrt(9.81 / max(c_r[2], 0.05))
-            xi = clamp_to_polygon(c_r[:2] + cd_r[:2] / omega, *support)
+            xi = clamp_to_polygon(c_r[:2] + cd_r[:2] / omega, *polygon)
             if np.any(xi != c_r[:2] + cd_r[:2] / omega):
                 cd_r = np.r_[omega * (xi - c_r[:2]), cd_r[2]]
                 cdd_r = np.r_[0.0, 0.0, cdd_r[2]]
@@ -342,7 +367,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
         H[:nv, :nv] += 2 * W_COG * Jcom.T @ Jcom + 2 * W_REG * np.eye(nv)
         g[:nv] += 2 * W_COG * Jcom.T @ (bcom - a_com)
         H[nv:, nv:] += 2 * W_FORCE * np.eye(nf)
-        for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks, frame_refs):
+        for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks[:len(tasks) if single else n_tasks], frame_refs):
             Jp = plant.CalcJacobianTranslationalVelocity(ctx, JacobianWrtVariable.kV, fr, pts, world, world)[rows]
             bp = plant.CalcBiasTranslationalAcceleration(ctx, JacobianWrtVariable.kV, fr, pts, world,
                                                          world).T.reshape(-1)[rows]
@@ -352,9 +377,11 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
             g[:nv] += 2 * W_FRAME * Jp.T @ (bp - a_p)
         # the soles held (a heavy cost, not a constraint: a sole the compliant ground has let rise a
         # little must not make the program infeasible)
-        a_sole = -bs - KD_CONTACT * (Js @ v) - KP_CONTACT * sole_err
-        H[:nv, :nv] += 2 * W_CONTACT * Js.T @ Js
-        g[:nv] -= 2 * W_CONTACT * Js.T @ a_sole
+        held = slice(0, 6) if single else slice(0, 12)  # released: the left sole alone is held
+        Jh = Js[held]
+        a_sole = -bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held]
+        H[:nv, :nv] += 2 * W_CONTACT * Jh.T @ Jh
+        g[:nv] -= 2 * W_CONTACT * Jh.T @ a_sole
         cost.UpdateCoefficients(H, g)
         if LIMIT_MARGIN is not None:
             a_hi = KP_LIMIT * (upper_q - LIMIT_MARGIN - qj) - KD_LIMIT * vj
@@ -369,17 +396,19 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
         At = np.hstack([M[jv], -Jc[:, jv].T])
         torque.UpdateCoefficients(At, -effort - h[jv], effort - h[jv])
         # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
-        if CORNER_UP is not None:
+        if CORNER_UP is not None or single:
             zc = np.concatenate([(fr.CalcPoseInWorld(ctx).rotation().matrix() @ corners)[2] +
                                  fr.CalcPoseInWorld(ctx).translation()[2] for fr in frames])
             ub_now = ub.copy()
-            up = zc > CORNER_UP
+            up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
+            if single:
+                up[4:] = True   # the released right sole carries nothing
             ub_now[4::5] = np.where(up, 0.0, FZ_MAX)
             lb_now = lb.copy()
             lb_now[4::5] = np.where(up, 0.0, FZ_MIN)
             friction.UpdateCoefficients(Fr, lb_now, ub_now)
             cop.UpdateCoefficients(Cp, np.where(up, -np.inf, 0.0), np.full(nc, np.inf))  # a lifted corner: no share
-        result = solver.Solve(prog)
+        result = solver.Solve(prog, None, options)
         if not result.is_success():
             failed.append((t, str(result.get_solution_result())))
             return np.zeros(n_act), np.full((nc, 3), np.nan), False

@@ -3,6 +3,7 @@ projection, a standing Nao under the stabilizer, the QP's contact forces, the CL
 (real Drake, small horizons)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -220,3 +221,48 @@ def test_zmp_metrics_on_synthetic_margins():
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     out = point_margins([square, square, np.zeros((0, 2))], np.array([[0.5, 0.2], [1.5, 0.5], [0.5, 0.5]]))
     assert np.allclose(out[:2], [0.2, -0.5]) and np.isnan(out[2])
+
+
+def test_single_support_metric_and_claim_on_synthetic_runs():
+    """The lift metric and the single-support claim on inputs whose verdict is known."""
+    from stages.evaluate.claims import claim_single_support_stands
+    from stages.evaluate.metrics import LIFT, single_support_lift
+
+    corners = np.zeros((10, 2, 4, 3))
+    corners[5:, 1, :, 2] = [LIFT + 0.001, LIFT + 0.002, LIFT + 0.003, LIFT + 0.004]
+    assert single_support_lift(corners, 5) == {"r_sole_lift": LIFT + 0.001, "lifted": True}
+    assert single_support_lift(corners, 4)["lifted"] is False        # still on the ground at step 4
+    corners[7, 1, 0, 2] = np.nan
+    assert single_support_lift(corners, 5)["r_sole_lift"] == -np.inf
+    run = {"status": "ok", "controller": "wbc", "lifted": True, "r_sole_lift": 0.024,
+           "via_point_errors": {"via_cog1@100": 0.002}}
+    assert claim_single_support_stands({}, [run] * 3)[3] is True
+    assert claim_single_support_stands({}, [run, {**run, "lifted": False, "r_sole_lift": 0.019}])[3] is False
+    assert claim_single_support_stands({}, [run, {**run, "status": "fell"}])[3] is False
+    assert claim_single_support_stands({}, [{**run, "controller": "pd"}])[3] is False   # no stabilizer runs
+
+
+def test_stabilizer_balances_a_single_support_plan_on_the_left_foot(tmp_path):
+    """`raico plan --balance single` then `raico execute --controller wbc`: the stabilizer releases the right
+    sole once the CoG is over the left one (its ground force 0 from then on), the robot stands with status
+    ok and the right sole lifted at least 2 cm from the plan's lift step on."""
+    runner = CliRunner()
+
+    def run_json(*args):
+        res = runner.invoke(app, [str(a) for a in args])
+        assert res.exit_code == 0, res.output
+        return json.loads(res.stdout.strip().splitlines()[-1])
+
+    plan = run_json("plan", "--plant", "nao", "--task", "balance-inside", "--balance", "single", "--balance-margin",
+                    0.025, "--solver", "raico", "--alpha", 1, "--iterations", 25, "--seed", 1, "--no-record", "--json",
+                    "--artifacts", tmp_path)
+    r = run_json("execute", "--plan", plan["key"], "--controller", "wbc", "--start", "standing", "--no-record",
+                 "--json", "--artifacts", tmp_path)
+    m = r["metrics"]
+    assert (m["status"], m["wbc_qp_failures"], m["lifted"]) == ("ok", 0, True) and m["r_sole_lift"] >= 0.02
+    t_rel = m["wbc_release_time"]
+    assert t_rel is not None and t_rel >= 0.2 - 1e-9
+    d = np.load(Path(r["path"]) / "rollout.npz")
+    after = d["times"] > t_rel + 0.05
+    assert np.all(d["sole_force"][after, 1] == 0.0) and np.all(d["sole_force"][after, 0] > 0.9 * NAO_MASS * G)
+    assert m["zmp_edge_fraction"] == 0.0

@@ -480,6 +480,31 @@ def claim_stabilizer_stands(S, execs):
             f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", achieved == len(wbc))
 
 
+def claim_single_support_stands(S, execs):
+    """Issue 19: a single-support plan (``--balance single``) carried out by the stabilizer: every run stood,
+    has status ok and held the right sole at least ``LIFT`` high from the plan's lift step to the end."""
+    from stages.evaluate.metrics import LIFT
+    from stages.evaluate.summary import largest_via_error
+
+    claim = "the Nao balances on its left foot with the right foot lifted (stabilizer, free-standing)"
+    criterion = (f"every execution with the stabilizer stood, has status ok and held the right sole's lowest "
+                 f"corner >= {LIFT} m above the ground from the plan's lift step to the end")
+    wbc = [e for e in execs if e.get("controller") == "wbc"]
+    if not wbc:
+        return claim, criterion, "no executions with the stabilizer", False
+    stood, counts = _stood_counts(wbc)
+    lifts = np.array([e.get("r_sole_lift", math.nan) for e in wbc], float)
+    ok = sum(e.get("status") == "ok" and bool(e.get("lifted")) for e in wbc)
+    errs = [largest_via_error(e) for e in wbc]
+    pd = _joint_pd(execs)
+    base = f"; joint PD beside it: stood {_stood_counts(pd)[0]}/{len(pd)}" if pd else ""
+    return (claim, criterion,
+            f"stood with the foot lifted in {ok}/{len(wbc)} runs; stood {stood}/{len(wbc)} (statuses: {counts}); right "
+            f"sole's lowest corner from the lift step on: median {_fmt(float(np.nanmedian(lifts)))} m (min "
+            f"{_fmt(float(np.nanmin(lifts)) if np.isfinite(lifts).any() else math.nan)} m); largest executed CoG "
+            f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", ok == len(wbc))
+
+
 # ----------------------------------------------------------------------------- learning (thesis §4)
 def _falls(s: dict, key: str, factor: float) -> bool:
     return math.isfinite(s[f"{key}_first3"]) and s[f"{key}_last3"] <= factor * s[f"{key}_first3"]
@@ -680,6 +705,8 @@ THESIS = {
     "cog_support": BEYOND + " (the thesis plans on a welded foot and executes nothing)",
     "executed_reaches": BEYOND + " (the thesis plans on a welded foot and executes nothing)",
     "stabilizer_stands": BEYOND + " (issue 19: a whole-body stabilizer between plan and robot)",
+    "single_support_stands": BEYOND + " (issue 19; §3.6.2: \"In this task the humanoid has to balance on one foot "
+                             "by moving its center of gravity\": the thesis plans on a welded foot, both soles down)",
     "gp_error_falls": "§4.4: \"for small precision weights ... the model prediction error converges to zero\"; "
                       "Fig. 4.2: \"the prediction error of the Gaussian processes and the RMSE of the task "
                       "performance converges for all desired model uncertainty values with the weight w = 10^-2\"",

@@ -243,6 +243,20 @@ def zmp_metrics(zmp_margin: np.ndarray | None) -> dict:
     return {"zmp_min_margin": float(zm.min()), "zmp_edge_fraction": float(np.mean(zm < ZMP_EDGE))}
 
 
+LIFT = 0.02  # m, single support: the right sole's lowest corner at least this high (issue 19's target)
+
+
+def single_support_lift(corners: np.ndarray, lift_from: int) -> dict:
+    """Single support (a ``--balance single`` plan): ``r_sole_lift`` (m), the right sole's lowest corner
+    height, the least over the samples from the plan's lift step ``lift_from`` to the end (``corners``
+    ``(K, 2, 4, 3)`` world m; -inf where a sample is not finite), and ``lifted`` (at least ``LIFT``)."""
+    z = corners[lift_from:, 1, :, 2]
+    if not z.size:
+        return {"r_sole_lift": float("nan"), "lifted": False}
+    low = float(np.min(z)) if np.all(np.isfinite(z)) else float("-inf")
+    return {"r_sole_lift": low, "lifted": bool(low >= LIFT)}
+
+
 def _relative_sole_drift(robot, X: np.ndarray) -> float:
     """How far (m) the right sole moved relative to the left sole, start to end (fixed-base
     kinematics of the executed joint angles: the left sole is the fixed model's world frame)."""
