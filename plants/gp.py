@@ -66,6 +66,7 @@ def _point_lib():
                                        + [ctypes.c_void_p] * 4)
             for fn in (lib.gp_point, lib.gp_point_var, lib.gp_rollout):
                 fn.restype = None
+            lib.gp_linearize_address.restype = ctypes.c_void_p
             _POINT_LIB = lib
         except (c_backend.CompileUnavailable, OSError):
             _POINT_LIB = False
@@ -372,6 +373,26 @@ class GPModel:
         gscale = pc["gscale"]
         return (pc["m"] * self.y_std + self.y_mean, np.maximum(pc["var"], 0.0) * self.y_std ** 2,
                 pc["g"] * gscale, pc["gv"] * (gscale * self.y_std[:, None]))
+
+    def point_linearizer(self, dt: float) -> tuple[int, int, object] | None:
+        """``(address of gp_linearize, address of its context, keep-alive)``: the compiled linearization of
+        the dynamics ``qddot = mean(q, qdot, u)`` with semi-implicit Euler of step ``dt`` s at one state
+        (``plants.learned.LearnedDynamics.linearize``'s formulas; the AICO sweep kernel calls it), or
+        ``None`` without a C compiler."""
+        lib = _point_lib() if self.d <= 256 and self.D <= 128 else None
+        if lib is None:
+            return None
+        import ctypes
+
+        class GPDyn(ctypes.Structure):
+            _fields_ = [("N", ctypes.c_long), ("d", ctypes.c_long), ("D", ctypes.c_long),
+                        *((k, ctypes.c_void_p) for k in ("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std",
+                                                         "y_mean", "y_std")), ("dt", ctypes.c_double)]
+
+        pc = self._point_arrays()
+        stats = [np.ascontiguousarray(a, dtype=float) for a in (self.x_mean, self.x_std, self.y_mean, self.y_std)]
+        ctx = GPDyn(self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *(a.ctypes.data for a in stats), float(dt))
+        return lib.gp_linearize_address(), ctypes.addressof(ctx), (ctx, stats, pc, lib)
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray, dt: float
                            ) -> tuple[np.ndarray, np.ndarray] | None:

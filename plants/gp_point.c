@@ -113,3 +113,61 @@ void gp_rollout(long T, long N, long d, long D, const double *Zs, const double *
         }
     }
 }
+
+/* The learned dynamics' linearization at one state (plants/learned.py: LearnedDynamics.linearize, the
+ * AICO sweep kernel's compiled relinearization, planning/csweep.c lin_t): x (2 D,), u (d - 2 D,) ->
+ * A (2 D, 2 D), aff (2 D,), B (2 D, d - 2 D), row-major, with F = d qdd / d(x, u) from the GP mean:
+ * dv'/dx = [0, I] + dt F_x, dq'/dx = [I, 0] + dt dv'/dx, dv'/du = dt F_u, dq'/du = dt dv'/du,
+ * aff = f(x, u) - A x - B u. NaN everywhere (and -1) where the input is not finite. */
+typedef struct {
+    long N, d, D;
+    const double *Zs, *weights, *sf2, *inv_ell, *x_mean, *x_std, *y_mean, *y_std;
+    double dt;
+} gp_dyn_t;
+
+int gp_linearize(const void *cv, const double *x, const double *u, double *A, double *aff, double *B)
+{
+    const gp_dyn_t *c = (const gp_dyn_t *)cv;
+    long d = c->d, D = c->D, nx = 2 * D, nu = d - nx;
+    double z[256], m[128], g[128 * 256];
+    int finite = 1;
+    for (long k = 0; k < d; k++) {
+        double xk = k < nx ? x[k] : u[k - nx];
+        z[k] = (xk - c->x_mean[k]) / c->x_std[k];
+        if (!isfinite(z[k])) finite = 0;
+    }
+    if (!finite) {
+        for (long i = 0; i < nx * nx; i++) A[i] = NAN;
+        for (long i = 0; i < nx * nu; i++) B[i] = NAN;
+        for (long i = 0; i < nx; i++) aff[i] = NAN;
+        return -1;
+    }
+    gp_point(c->N, d, D, c->Zs, c->weights, c->sf2, c->inv_ell, z, m, g);
+    double dt = c->dt;
+    for (long i = 0; i < D; i++) {
+        double *Av = A + (D + i) * nx, *Aq = A + i * nx, *Bv = B + (D + i) * nu, *Bq = B + i * nu;
+        for (long k = 0; k < d; k++) {
+            double F = g[i * d + k] * (c->y_std[i] / c->x_std[k]);
+            if (k < nx) Av[k] = F * dt; else Bv[k - nx] = F * dt;
+        }
+        Av[D + i] += 1.0;
+        for (long k = 0; k < nx; k++) Aq[k] = Av[k] * dt;
+        Aq[i] += 1.0;
+        for (long k = 0; k < nu; k++) Bq[k] = Bv[k] * dt;
+        double mean = m[i] * c->y_std[i] + c->y_mean[i];
+        double v1 = x[D + i] + dt * mean;
+        aff[D + i] = v1;
+        aff[i] = x[i] + dt * v1;
+    }
+    for (long r = 0; r < nx; r++) {
+        double s = 0.0;
+        for (long k = 0; k < nx; k++) s += A[r * nx + k] * x[k];
+        aff[r] -= s;
+        s = 0.0;
+        for (long k = 0; k < nu; k++) s += B[r * nu + k] * u[k];
+        aff[r] -= s;
+    }
+    return 0;
+}
+
+void *gp_linearize_address(void) { return (void *)&gp_linearize; }

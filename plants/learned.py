@@ -104,6 +104,11 @@ class LearnedDynamics(SemiImplicitEuler):
                 X[t + 1] = self.step(X[t], U[t])
         return X, U
 
+    def c_linearizer(self) -> tuple[int, int, object] | None:
+        """``(function address, context address, keep-alive)`` of the compiled ``linearize`` (the AICO
+        sweep kernel relinearizes through it without Python), or ``None`` without a C compiler."""
+        return self.model.point_linearizer(self.dt)
+
     def point_variance(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``predict_variance`` at one state ``x (n_x,)`` and control ``u (n_u,)``: ``(n_q,)``,
         ``(n_q, n_x)``, ``(n_q, n_u)`` (``GPModel.point_predict_with_gradients``, compiled)."""

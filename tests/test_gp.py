@@ -495,3 +495,24 @@ def test_hyperparameter_fits_identical_on_one_or_two_threads(monkeypatch):
     monkeypatch.setenv("RAICO_THREADS", "two")
     with pytest.raises(ValueError, match="RAICO_THREADS must be a positive integer"):
         _threads.output_threads()
+
+
+def test_learned_compiled_linearizer_equals_linearize():
+    """The sweep kernel's compiled relinearization of the learned dynamics (``c_linearizer``) against
+    ``linearize``: A and B bit for bit, the affine term to rounding (the products A x, B u); NaN and an
+    error code for a non-finite state."""
+    import ctypes
+
+    fn, ctx, keep = LearnedDynamics(toy_model(), n_q=2, dt=0.01).c_linearizer()
+    dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
+    call = ctypes.CFUNCTYPE(ctypes.c_int, *[ctypes.c_void_p] * 6)(fn)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        x, u = rng.normal(size=4), rng.normal(size=2)
+        A, a, B = np.empty((4, 4)), np.empty(4), np.empty((4, 2))
+        assert call(ctx, x.ctypes.data, u.ctypes.data, A.ctypes.data, a.ctypes.data, B.ctypes.data) == 0
+        A2, a2, B2 = dyn.linearize(x, u)
+        assert np.array_equal(A, A2) and np.array_equal(B, B2) and np.allclose(a, a2, rtol=1e-13, atol=1e-13)
+    x[1] = np.nan
+    assert call(ctx, x.ctypes.data, u.ctypes.data, A.ctypes.data, a.ctypes.data, B.ctypes.data) == -1
+    assert np.all(np.isnan(A)) and np.all(np.isnan(a)) and np.all(np.isnan(B))
