@@ -442,6 +442,8 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
                 ax.plot(d["times"], d["zmp_margin"], color="#c83cc8", ls=style, lw=1.0, alpha=0.8)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.axhspan(0.0, ZMP_EDGE, color="tab:red", alpha=0.08)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(max(lo, -0.1), hi)   # a fall leaves the panel (its margins reach tens of cm)
         stood = sum(e.status not in ("fell", "diverged") for e in runs)
         ax.set_title(f"{exp.id}, {name}: {stood}/{len(runs)} stood", fontsize=9)
         ax.set_xlabel("time (s)")
@@ -473,8 +475,10 @@ def balance_section(cache: Cache, exp: Experiment, executions: list, out_dir: Pa
     md = ["## Balance over time (beyond the thesis)", "",
           "Each execution's CoG and zero-moment point against the polygon of the sole corners in contact (signed "
           "margin, m, positive inside). The ZMP is where the ground's total contact wrench (Drake's contact "
-          "results) has no horizontal moment, on flat ground its centre of pressure: it cannot leave the polygon, "
-          "and sits on its edge when a foot tips.", "", "![balance](balance.png)", "",
+          "results) has no horizontal moment, on flat ground its centre of pressure: it stays within the contact "
+          "patches, so it reaches the polygon's edge when a foot tips (a little beyond it where a corner still "
+          "touching is more than 1 mm up), and lies far outside once other bodies touch the ground (a fall). "
+          "Margins below -0.1 m leave the panels.", "", "![balance](balance.png)", "",
           "| controller | runs | stood | worst CoG margin (m, median) | worst ZMP margin (m, median) | share of "
           "time with the ZMP at the edge (median) |", "|---|---|---|---|---|---|"]
     md += [f"| {r['controller']} | {r['runs']} | {r['stood']} | {_fmt(r['cog_min_margin'])} | "
