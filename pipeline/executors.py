@@ -55,6 +55,9 @@ class Executor:
 
     name = "executor"
     slots = 1  # jobs that run at once
+    # jobs queued beyond the running ones (per slot): workers that run apart from this process start the next
+    # job at once while this process is busy (a figure's report is written here between waits)
+    queued_per_slot = 0
 
     def submit(self, fn: Callable[[Any], Any], arg: Any) -> Future:
         raise NotImplementedError
@@ -185,6 +188,7 @@ class ProcessExecutor(Executor):
     per submit until there are ``workers``) and kept until :meth:`shutdown`."""
 
     name = "process"
+    queued_per_slot = 1
 
     def __init__(self, workers: int) -> None:
         self.slots = workers
@@ -242,6 +246,7 @@ class RayExecutor(Executor):
     on the first submit. ``shutdown`` disconnects (stopping a local instance) only if it connected."""
 
     name = "ray"
+    queued_per_slot = 1
 
     def __init__(self, workers: int, address: str | None = None) -> None:
         self.workers, self.address = workers, address
@@ -636,7 +641,8 @@ class Scheduler:
             self._step(flow, flow.results)
 
     def _dispatch(self) -> None:
-        while self._ready and len(self._inflight) < self.executor.slots:
+        depth = self.executor.slots * (1 + self.executor.queued_per_slot)
+        while self._ready and len(self._inflight) < depth:
             _, seq, key, job = heapq.heappop(self._ready)
             now = time.perf_counter()
             for flow, _ in self._waiting[key]:

@@ -109,7 +109,11 @@ def test_a_failing_job_stops_the_rest(name, request, tmp_path):
         run_flow(executor(name, request), flow())
     assert time.monotonic() - t0 < 30
     started = sorted(p.name for p in tmp_path.iterdir())
-    assert started == ([] if name == "serial" else ["started1"])  # 2 slots: job 1 ran, was killed; none after
+    if name == "serial":
+        assert started == []
+    else:  # 2 slots and 2 queued: job 1 ran and was killed, job 2 (queued) may have started on the freed worker
+        # before the abort and was killed too; jobs 3-5 never started
+        assert started in (["started1"], ["started1", "started2"]), started
 
 
 def test_bad_executor_values_are_one_line(tmp_path):
