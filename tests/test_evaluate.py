@@ -240,7 +240,7 @@ def ex(status="ok", inside=1.0, margin=0.01, via=0.004, **kw):
             "via_point_errors": {"via_cog1@100": via, "r_sole@max": 0.5}, **kw}
 
 
-EXECUTION_CLAIMS = ("cog_support", "executed_reaches", "stabilizer_stands")
+EXECUTION_CLAIMS = ("cog_support", "executed_reaches", "stabilizer_stands", "single_support_stands")
 EXECUTION_CASES = [
     ("cog_support", [ex()] * 3, True),
     ("cog_support", [ex(), ex(), ex(inside=0.98, margin=-0.002)], False),  # one sample outside
@@ -258,6 +258,12 @@ EXECUTION_CASES = [
     ("stabilizer_stands", [ex(controller="wbc"), ex(via=0.011, controller="wbc")], False),  # 1.1 cm off
     ("stabilizer_stands", [ex(controller="wbc"), ex("limits", controller="wbc")], False),  # stood, not ok
     ("stabilizer_stands", [], False),
+    ("single_support_stands", [ex(controller="wbc", lifted=True, r_sole_lift=0.024)] * 10, True),
+    ("single_support_stands", [ex(controller="wbc", lifted=True, r_sole_lift=0.024)] * 9
+     + [ex(controller="wbc", lifted=False, r_sole_lift=0.019)], False),             # one foot 1.9 cm up
+    ("single_support_stands", [ex(controller="wbc", lifted=True, r_sole_lift=0.024),
+                               ex("fell", controller="wbc", lifted=True, r_sole_lift=0.03)], False),
+    ("single_support_stands", [], False),
 ]
 
 
