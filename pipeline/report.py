@@ -411,6 +411,13 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     ax.grid(True, alpha=0.3)
 
 
+def _finite_median(values: list) -> float:
+    """The median of the finite ``values`` (NaN if none)."""
+    v = np.array(values, float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else math.nan
+
+
 def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: Path) -> list[dict]:
     """``balance.png`` (issue 19, beyond the thesis): per controller (joint PD, stabilizer) the executed
     CoG's and zero-moment point's signed margins against the contact polygon over time, one line per
@@ -449,14 +456,9 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
         ax.set_xlabel("time (s)")
         ax.set_ylabel("margin inside the contact polygon (m)")
         ax.grid(True, alpha=0.3)
-
-        def med(key: str) -> float:
-            v = np.array([e.metrics.get(key, math.nan) for e in runs], float)
-            v = v[np.isfinite(v)]
-            return float(np.median(v)) if v.size else math.nan
-
-        rows.append({"controller": name, "runs": len(runs), "stood": stood, "cog_min_margin": med("cog_min_margin"),
-                     "zmp_min_margin": med("zmp_min_margin"), "zmp_edge_fraction": med("zmp_edge_fraction")})
+        rows.append({"controller": name, "runs": len(runs), "stood": stood,
+                     **{k: _finite_median([e.metrics.get(k, math.nan) for e in runs])
+                        for k in ("cog_min_margin", "zmp_min_margin", "zmp_edge_fraction")}})
     handles = [Line2D([], [], color="#d4a000", label="CoG (ground projection)"),
                Line2D([], [], color="#c83cc8", label="ZMP (from the ground's contact wrench)"),
                *[Line2D([], [], color="gray", ls=STATUS_STYLES.get(st, ":"), label=f"status {st}")

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from plants.dynamics import Dynamics, LinearDynamics
+from plants.dynamics import Dynamics, LinearDynamics, stepped_rollout
 
 
 class Status(StrEnum):
@@ -333,21 +333,12 @@ def is_lti(dynamics) -> bool:
 def controller_rollout(
     dynamics: Dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Roll ``u_t = o_t + O_t x_t`` out on ``dynamics`` from ``x0``: ``X (T+1, n_x)``, ``U (T, n_u)``.
+    """Roll ``u_t = o_t + O_t x_t`` out on ``dynamics`` from ``x0``: ``X (T+1, n_x)``, ``U (T, n_u)``
+    (``plants.dynamics.stepped_rollout``, the reference Python loop).
 
     Non-finite states propagate (NaN) instead of raising; callers check the result.
     """
-    T = o.shape[0]
-    X = np.empty((T + 1, x0.shape[0]))
-    U = np.empty(o.shape)
-    X[0] = x0
-    step = dynamics.step
-    with np.errstate(all="ignore"):
-        for t in range(T):
-            u = o[t] + O[t] @ X[t]
-            U[t] = u
-            X[t + 1] = step(X[t], u)
-    return X, U
+    return stepped_rollout(dynamics, x0, o, O)
 
 
 class OptionsBase:

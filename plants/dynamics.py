@@ -127,6 +127,24 @@ class PseudoDynamics(LinearDynamics):
         self.scheme = scheme
 
 
+def stepped_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll ``u_t = o_t + O_t x_t`` out on ``dynamics`` (its ``step``) from ``x0``: ``X (T+1, n_x)``,
+    ``U (T, n_u)``, one Python step at a time (the reference loop the compiled rollouts equal).
+
+    Non-finite states propagate (NaN) instead of raising; callers check the result.
+    """
+    T = o.shape[0]
+    X = np.empty((T + 1, np.shape(x0)[0]))
+    U = np.empty(o.shape)
+    X[0] = x0
+    step = dynamics.step
+    with np.errstate(all="ignore"):
+        for t in range(T):
+            U[t] = o[t] + O[t] @ X[t]
+            X[t + 1] = step(X[t], U[t])
+    return X, U
+
+
 class SemiImplicitEuler:
     """The analytic models' step: ``qdot' = qdot + dt qddot(q, qdot, u)``, ``q' = q + dt qdot'``."""
 

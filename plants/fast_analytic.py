@@ -40,7 +40,7 @@ import numpy as np
 
 from plants.codegen import c_backend
 from plants.codegen.derive import compiled_dynamics
-from plants.dynamics import AnalyticDynamics, SemiImplicitEuler
+from plants.dynamics import AnalyticDynamics, SemiImplicitEuler, stepped_rollout
 
 _DRIVER_C = c_backend.c_source(__file__, "fast_analytic_driver.c")  # the C beside this module
 
@@ -306,14 +306,7 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         c = self._compiled()
         if c is not None:
             return c.controller_rollout(x0, o, O)
-        T = o.shape[0]
-        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
-        X[0] = x0
-        with np.errstate(all="ignore"):
-            for t in range(T):
-                U[t] = o[t] + O[t] @ X[t]
-                X[t + 1] = self.step(X[t], U[t])
-        return X, U
+        return stepped_rollout(self, x0, o, O)
 
     def linearize(self, x, u):
         x, u = np.asarray(x, float), np.asarray(u, float)

@@ -72,6 +72,23 @@ def _point_lib():
             _POINT_LIB = False
     return _POINT_LIB or None
 
+_GP_DYN = None
+
+
+def _gp_dyn_struct():
+    """``gp_dyn_t`` of gp_point.c as a ``ctypes.Structure`` (made once)."""
+    global _GP_DYN
+    if _GP_DYN is None:
+        import ctypes
+
+        class GPDyn(ctypes.Structure):
+            _fields_ = [("N", ctypes.c_long), ("d", ctypes.c_long), ("D", ctypes.c_long),
+                        *((k, ctypes.c_void_p) for k in ("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std",
+                                                         "y_mean", "y_std")), ("dt", ctypes.c_double)]
+        _GP_DYN = GPDyn
+    return _GP_DYN
+
+
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
@@ -312,26 +329,31 @@ class GPModel:
         """Mean ``(D,)`` and its input gradient ``(D, d)`` at one physical input ``x (d,)`` (physical
         units): ``mean_with_gradients`` for one point, every output in one compiled call (numpy
         where no C compiler is available). NaN where ``x`` is not finite."""
-        x = np.asarray(x, dtype=float).reshape(-1)
-        if x.shape != (self.d,):
-            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        x = self._point_query(x)
         if not np.all(np.isfinite(x)):
             return np.full(self.D, np.nan), np.full((self.D, self.d), np.nan)
         lib = _point_lib() if self.d <= 256 else None
         if lib is None:
             m, g = self.mean_with_gradients(x[None, :])
             return m[0], g[0]
-        pc = self._point_arrays()
-        z, m, g = pc["z"], pc["m"], pc["g"]
-        np.subtract(x, self.x_mean, out=z)
-        z /= self.x_std
+        pc = self._point_arrays(x)
+        m, g = pc["m"], pc["g"]
         lib.gp_point(self.Z.shape[0], self.d, self.D, *pc["ptrs"])  # the sparse model's Z holds its inducing inputs
         return m * self.y_std + self.y_mean, g * pc["gscale"]
 
-    def _point_arrays(self) -> dict:
+    def _point_query(self, x: np.ndarray) -> np.ndarray:
+        """One physical query ``x (d,)`` as floats (a wrong length raises ``ValueError``)."""
+        x = np.asarray(x, dtype=float).reshape(-1)
+        if x.shape != (self.d,):
+            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        return x
+
+    def _point_arrays(self, x: np.ndarray | None = None) -> dict:
         """The compiled point calls' contiguous inputs and output buffers, made once per model state
         (rebuilt when ``update`` or a refit replaced an array): ``Zs (D, N, d)`` (inputs over each
-        output's length-scales), weights, ``sf2``, ``1 / ell``, the query ``z (d,)`` and the outputs."""
+        output's length-scales), weights, ``sf2``, ``1 / ell`` (``ptrs``, with the query ``z (d,)`` and
+        the outputs), the scaling ``x_mean, x_std, y_mean, y_std`` (``stat_ptrs``); with ``x`` (physical)
+        the query ``z`` set to its scaled value."""
         key = (self.Z, self.weights, self.ell, self.sf2, self.x_mean, self.x_std, self.y_mean, self.y_std,
                getattr(self, "L", None))
         pc = getattr(self, "_point_cache", None)
@@ -339,11 +361,17 @@ class GPModel:
             Zs = np.ascontiguousarray(self.Z[None, :, :] / self.ell[:, None, :])
             keep = (Zs, np.ascontiguousarray(self.weights), np.ascontiguousarray(self.sf2),
                     np.ascontiguousarray(1.0 / self.ell))
+            stats = tuple(np.ascontiguousarray(a, dtype=float) for a in (self.x_mean, self.x_std, self.y_mean,
+                                                                          self.y_std))
             z, m, g = np.empty(self.d), np.empty(self.D), np.empty((self.D, self.d))
             pc = self._point_cache = {
-                "key": key, "keep": keep, "z": z, "m": m, "g": g,
+                "key": key, "keep": keep, "stats": stats, "z": z, "m": m, "g": g,
                 "ptrs": [a.ctypes.data for a in (*keep, z, m, g)],
+                "stat_ptrs": [a.ctypes.data for a in stats],
                 "gscale": self.y_std[:, None] / self.x_std[None, :]}
+        if x is not None:
+            np.subtract(x, self.x_mean, out=pc["z"])
+            pc["z"] /= self.x_std
         return pc
 
     def point_predict_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -353,22 +381,17 @@ class GPModel:
         planner's sweeps ask for one point at a time). The same formulas as the batch call; the
         solves run in a different order than BLAS's, so the two agree to rounding (tests/test_gp.py).
         numpy (the batch call on one row) without a C compiler. NaN where ``x`` is not finite."""
-        x = np.asarray(x, dtype=float).reshape(-1)
-        if x.shape != (self.d,):
-            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        x = self._point_query(x)
         lib = _point_lib() if self.d <= 256 and self._POINT_VARIANCE else None
         if lib is None or not np.all(np.isfinite(x)):
             m, v, dm, dv = self.predict_with_gradients(x[None, :])
             return m[0], v[0], dm[0], dv[0]
-        pc = self._point_arrays()
+        pc = self._point_arrays(x)
         if "var" not in pc:
             pc["L"] = np.ascontiguousarray(self.L)
             pc["var"], pc["gv"], pc["work"] = np.empty(self.D), np.empty((self.D, self.d)), np.empty(2 * self.N)
             pc["ptrs_var"] = [*pc["ptrs"][:4], pc["L"].ctypes.data,
                               *(pc[k].ctypes.data for k in ("z", "m", "g", "var", "gv", "work"))]
-        z = pc["z"]
-        np.subtract(x, self.x_mean, out=z)
-        z /= self.x_std
         lib.gp_point_var(self.N, self.d, self.D, *pc["ptrs_var"])
         gscale = pc["gscale"]
         return (pc["m"] * self.y_std + self.y_mean, np.maximum(pc["var"], 0.0) * self.y_std ** 2,
@@ -384,15 +407,9 @@ class GPModel:
             return None
         import ctypes
 
-        class GPDyn(ctypes.Structure):
-            _fields_ = [("N", ctypes.c_long), ("d", ctypes.c_long), ("D", ctypes.c_long),
-                        *((k, ctypes.c_void_p) for k in ("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std",
-                                                         "y_mean", "y_std")), ("dt", ctypes.c_double)]
-
         pc = self._point_arrays()
-        stats = [np.ascontiguousarray(a, dtype=float) for a in (self.x_mean, self.x_std, self.y_mean, self.y_std)]
-        ctx = GPDyn(self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *(a.ctypes.data for a in stats), float(dt))
-        return lib.gp_linearize_address(), ctypes.addressof(ctx), (ctx, stats, pc, lib)
+        ctx = _gp_dyn_struct()(self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *pc["stat_ptrs"], float(dt))
+        return lib.gp_linearize_address(), ctypes.addressof(ctx), (ctx, pc, lib)
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray, dt: float
                            ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -411,8 +428,7 @@ class GPModel:
             raise ValueError(f"rollout expects x0 ({nx},), o (T, {self.d - nx}), O (T, {self.d - nx}, {nx})")
         X, U = np.empty((T + 1, nx)), np.empty((T, self.d - nx))
         X[0] = x0
-        stats = [np.ascontiguousarray(a, dtype=float) for a in (self.x_mean, self.x_std, self.y_mean, self.y_std)]
-        lib.gp_rollout(T, self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *(a.ctypes.data for a in stats),
+        lib.gp_rollout(T, self.Z.shape[0], self.d, self.D, *pc["ptrs"][:4], *pc["stat_ptrs"],
                        float(dt), o.ctypes.data, O.ctypes.data, X.ctypes.data, U.ctypes.data)
         return X, U
 

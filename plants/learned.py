@@ -16,7 +16,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from plants.dynamics import SemiImplicitEuler
+from plants.dynamics import SemiImplicitEuler, stepped_rollout
 from plants.gp import GPModel
 
 
@@ -95,14 +95,7 @@ class LearnedDynamics(SemiImplicitEuler):
         out = self.model.controller_rollout(x0, o, O, self.dt)
         if out is not None:
             return out
-        T = o.shape[0]
-        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
-        X[0] = x0
-        with np.errstate(all="ignore"):
-            for t in range(T):
-                U[t] = o[t] + O[t] @ X[t]
-                X[t + 1] = self.step(X[t], U[t])
-        return X, U
+        return stepped_rollout(self, x0, o, O)
 
     def c_linearizer(self) -> tuple[int, int, object] | None:
         """``(function address, context address, keep-alive)`` of the compiled ``linearize`` (the AICO

@@ -375,12 +375,13 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         qp0, tilt = free.standing_positions(q_start)
     ff = feedforward(fixed, X_plan, U_plan, desc["control_kind"])[:, free.act_fixed_idx]  # (T, n_act)
     wbc = cfg.controller == "wbc"
+    lift_from = _lift_step(desc)  # a single-support plan's lift step (None: both soles stay down)
     if wbc:
         from stages.wbc import make_stabilizer
 
         stab = free.builder.AddSystem(make_stabilizer(free, X_plan, dt, X_task=np.asarray(plan["X"], float),
                                                       frame_maps=_frame_tasks(problem),
-                                                      swing=_swing_task(desc, fixed)))
+                                                      swing=_swing_task(lift_from, fixed)))
         free.builder.Connect(plant.get_state_output_port(), stab.get_input_port(0))
         free.builder.Connect(stab.get_output_port(0), plant.get_actuation_input_port())
     sim = Simulator(free.builder.Build())
@@ -466,7 +467,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     polys, margin = support_polygons(corners, force, cog)
     zmp_margin = point_margins(polys, zmp)
     planned = planned_stance(fixed, X_plan)
-    if _lift_step(desc) is not None and stance:
+    if lift_from is not None and stance:
         # single support: the swing sole's planned heights are those of the plan as made (what the stabilizer
         # tracks once it releases that sole), not of the plan shifted by the start projection
         planned["corners_plan"][:, 1] = planned_stance(fixed, np.asarray(plan["X"], float))["corners_plan"][:, 1]
@@ -492,7 +493,6 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     if wbc:
         metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
                        if len(stab.log) else float("nan"))
-    lift_from = _lift_step(desc)
     if lift_from is not None:  # single support: how high the right sole was held from the plan's lift step on
         metrics.update(single_support_lift(corners, lift_from),
                        wbc_release_time=(stab.released[0] if wbc and stab.released else None))
@@ -508,10 +508,10 @@ def _lift_step(desc: dict) -> int | None:
     return None if term is None else int(term["times"]["from"])
 
 
-def _swing_task(desc: dict, fixed):
+def _swing_task(lift_from: int | None, fixed):
     """The right sole's corners (``FramePoints`` of the fixed model) the stabilizer tracks once it releases
     that sole, for a single-support plan; None (both soles held) otherwise."""
-    if _lift_step(desc) is None:
+    if lift_from is None:
         return None
     from plants.free_nao import sole_corners_local
     from plants.taskmaps import FramePoints
