@@ -214,7 +214,7 @@ _register_commands()
 @handles_errors
 def reproduce(
     figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable): fig3.2a, fig3.2b, fig3.2c, fig3.2d, fig3.3, fig3.4, "
-                                  "fig3.4-inside, fig3.4-single, fig4.1/4.2, fig4.3.")] = None,
+                                  "fig3.4-inside, fig3.4-support, fig3.4-single, fig4.1/4.2, fig4.3.")] = None,
     all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
     quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers: processes, or the CPUs of a local "

@@ -172,7 +172,7 @@ EXPERIMENTS: dict[str, Experiment] = {
                          "Nao, pseudo-dynamics: right hand to a target, CoG held",
                          execute=(Variant("raico", 1.0),), stabilized=True,
                          claims=("raico_reaches_aico_not", "counterbalance", "cog_support", "executed_reaches",
-                                 "stabilizer_stands")),
+                                 "stabilizer_stands", "stabilizer_stands_under_noise")),
     "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE),
                          25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
@@ -182,7 +182,8 @@ EXPERIMENTS: dict[str, Experiment] = {
                                 (Variant("aico"), Variant("raico", 1.0)), 25, 5,
                                 "variant of 3.4 whose CoG offsets stay over the feet",
                                 execute=(Variant("raico", 1.0),), stabilized=True,
-                                claims=("cog_support", "executed_reaches", "stabilizer_stands")),
+                                claims=("cog_support", "executed_reaches", "stabilizer_stands",
+                                        "stabilizer_stands_under_noise")),
     # beyond the thesis (issue 19): the thesis's "balance on one foot" (§3.6.2) on the free-standing Nao. The
     # balance-inside targets with the single-support objective (the left sole's polygon at every step, the right
     # sole lifted from step 100 on), executed by the stabilizer, which releases the right sole once the CoG is over
@@ -191,7 +192,16 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.4-single": Experiment("fig3.4-single", "nao", "balance-inside", "pseudo", (Variant("raico", 1.0),), 25, 5,
                                 "beyond the thesis: balance on the left foot, right foot lifted (--balance single)",
                                 execute=(Variant("raico", 1.0),), stabilized=True, execute_pd=False,
-                                balance="single", balance_margin=0.025, claims=("single_support_stands",)),
+                                balance="single", balance_margin=0.025,
+                                claims=("single_support_stands", "stabilizer_stands_under_noise")),
+    # beyond the thesis (issue 19): fig3.4-inside's targets with the support term (--balance support: the CoG's
+    # ground projection 1.5 cm inside both soles' polygon at every step, a via-point within that margin moved to the
+    # nearest feasible point before planning), executed both ways: fig3.4-inside is the same without the term
+    "fig3.4-support": Experiment("fig3.4-support", "nao", "balance-inside", "pseudo", (Variant("raico", 1.0),), 25, 5,
+                                 "beyond the thesis: fig3.4-inside with the support term (--balance support)",
+                                 execute=(Variant("raico", 1.0),), stabilized=True, balance="support",
+                                 claims=("cog_support", "executed_reaches", "stabilizer_stands",
+                                         "stabilizer_stands_under_noise")),
 }
 
 
@@ -282,8 +292,8 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
                              f"{p['variant'].label} seed {p['seed']}, open loop") for p in integ_plans]
     noise = noise_runs(exp, plans, quick)
     noise_jobs = [_stage_job(cache, "execute", r["config"], record,
-                             f"{NOISE_SWEEPS[exp.id].label} seed {r['plan_seed']}, noise x0 {r['level'][0]:g} rad, "
-                             f"process {r['level'][1]:g} N m") for r in noise]
+                             f"{r['label']} seed {r['plan_seed']}{', stabilizer' if r['controller'] == 'wbc' else ''}, "
+                             f"noise x0 {r['level'][0]:g} rad, process {r['level'][1]:g} N m") for r in noise]
     jobs = ex_jobs + noise_jobs + integ_jobs  # a Nao figure's executions are its sweep's level 0: each runs once
     outs = _outcomes((yield Batch("execute", jobs)) if jobs else [])
     n_ex, n_noise = len(ex_jobs), len(noise_jobs)
@@ -308,20 +318,28 @@ NOISE_SWEEPS = {fid: Variant("raico", 1.0) for fid in ("fig3.2c", "fig3.2d", "fi
 
 
 def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
-    """The sweep's executions of ``exp``: ``{"level", "plan_seed", "seed", "config"}`` each."""
+    """The sweep's executions of ``exp``: ``{"controller", "level", "plan_seed", "seed", "config"}`` each. The joint
+    PD's (the figures of ``NOISE_SWEEPS``): the swept variant's plans of the first ``NOISE_RUNS`` initial states at
+    every level; the stabilizer's (issue 19, a ``stabilized`` figure): every executed plan at every level (level 0 is
+    the figure's own execution with the stabilizer)."""
     from stages.execute import ExecuteConfig
 
-    variant = NOISE_SWEEPS.get(exp.id)
-    if variant is None:
-        return []
-    chosen = [p for p in plans if p["variant"] == variant and p["seed"] < (2 if quick else NOISE_RUNS)]
     out = []
-    for level in NOISE_LEVELS:
-        for p in chosen:
-            seed = p["seed"] if any(level) else 0
-            out.append({"level": level, "plan_seed": p["seed"], "seed": seed,
-                        "config": ExecuteConfig(plan=f"plan/{p['outcome'].key}", x0_noise=level[0],
-                                                process_noise=level[1], seed=seed)})
+
+    def add(controller: str, chosen: list[dict], extra: dict) -> None:
+        for level in NOISE_LEVELS:
+            for p in chosen:
+                seed = p["seed"] if any(level) else 0
+                out.append({"controller": controller, "level": level, "plan_seed": p["seed"], "seed": seed,
+                            "label": p["variant"].label,
+                            "config": ExecuteConfig(plan=f"plan/{p['outcome'].key}", x0_noise=level[0],
+                                                    process_noise=level[1], seed=seed, **extra)})
+
+    variant = NOISE_SWEEPS.get(exp.id)
+    if variant is not None and exp.execute_pd:
+        add("pd", [p for p in plans if p["variant"] == variant and p["seed"] < (2 if quick else NOISE_RUNS)], {})
+    if exp.stabilized:
+        add("wbc", [p for p in plans if p["variant"] in exp.execute], STABILIZER)
     return out
 
 

@@ -13,7 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cache import Cache, atomic_path, write_file_atomic
-from pipeline.experiments import BASELINE_LABELS, EXPERIMENTS, Experiment, cost_curves, summarize
+from pipeline.experiments import (
+    BASELINE_LABELS,
+    EXPERIMENTS,
+    NOISE_RUNS,
+    NOISE_SWEEPS,
+    Experiment,
+    cost_curves,
+    summarize,
+)
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
 
@@ -426,6 +434,9 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
     the share of time the ZMP spent at the edge (``stages.evaluate.metrics.zmp_metrics``)."""
     import matplotlib
 
+    from stages.evaluate.claims import EXECUTED_VIA_TOL
+    from stages.evaluate.summary import largest_via_error
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
@@ -456,7 +467,9 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
         ax.set_xlabel("time (s)")
         ax.set_ylabel("margin inside the contact polygon (m)")
         ax.grid(True, alpha=0.3)
-        rows.append({"controller": name, "runs": len(runs), "stood": stood,
+        achieved = sum(e.status == "ok" and largest_via_error(e.metrics) <= EXECUTED_VIA_TOL for e in runs)
+        rows.append({"controller": name, "runs": len(runs), "stood": stood, "ok": sum(e.status == "ok" for e in runs),
+                     "achieved": achieved,
                      **{k: _finite_median([e.metrics.get(k, math.nan) for e in runs])
                         for k in ("cog_min_margin", "zmp_min_margin", "zmp_edge_fraction")}})
     handles = [Line2D([], [], color="#d4a000", label="CoG (ground projection)"),
@@ -542,20 +555,93 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     ax.grid(True, which="both", alpha=0.3)
 
 
+# ----------------------------------------------------------------------------- standing, across the Nao figures
+STANDING_CONTROLLERS = {"joint PD": "pd", "stabilizer": "wbc"}
+
+
+def standing_rows(docs: list[dict]) -> list[dict]:
+    """Per Nao figure and controller (the figures' ``claims.json`` documents): the plan's balance option, runs,
+    stood, status ok and achieved (ok and every via-point within ``EXECUTED_VIA_TOL``) without noise, and
+    stood and ok under the noise sweep's noisy level, where it ran."""
+    out = []
+    for d in docs:
+        exp = EXPERIMENTS.get(d["figure"])
+        for b in d.get("balance") or []:
+            noisy = [r for r in d.get("noise") or [] if r.get("controller", "pd") == STANDING_CONTROLLERS.get(
+                b["controller"]) and (r["x0_noise"] or r["process_noise"])]
+            out.append({"figure": d["figure"], "balance": exp.balance if exp else "none", "controller": b["controller"],
+                        "runs": b["runs"], "stood": b["stood"], "ok": b.get("ok"), "achieved": b.get("achieved"),
+                        "noise": [{"x0_noise": r["x0_noise"], "process_noise": r["process_noise"], "runs": r["runs"],
+                                   "stood": r["stood"], "ok": r["ok"]} for r in noisy]})
+    return out
+
+
+def standing_section(docs: list[dict], root: Path) -> list[str]:
+    """The report README's section on the free-standing Nao (issue 19): ``standing.png`` (the share of runs
+    that stood and that achieved the task per figure and controller, and the share that stood under noise) and
+    its table; none without a Nao figure."""
+    rows = standing_rows(docs)
+    if not rows:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9.0, 3.8))
+    x = np.arange(len(rows))
+    share = lambda a, n: (a or 0) / n if n else math.nan  # noqa: E731
+    bars = [("stood", [share(r["stood"], r["runs"]) for r in rows], "tab:green"),
+            ("achieved (ok, via-points <= 1 cm)", [share(r["achieved"], r["runs"]) for r in rows], "tab:blue"),
+            ("stood under noise", [share(r["noise"][0]["stood"], r["noise"][0]["runs"]) if r["noise"] else math.nan
+                                   for r in rows], "tab:orange")]
+    for i, (label, values, color) in enumerate(bars):
+        ax.bar(x + (i - 1) * 0.26, np.nan_to_num(values, nan=0.0), 0.26, label=label, color=color)
+    ax.set_xticks(x, [f"{r['figure']}\n{r['controller']}" + (f"\n--balance {r['balance']}" if r["balance"] != "none"
+                                                              else "") for r in rows], fontsize=7)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("share of the runs")
+    ax.axhline(0.9, color="gray", lw=0.8, ls=":")
+    ax.legend(fontsize=7, loc="upper left", ncol=3)
+    ax.set_title("The free-standing Nao: R-AICO a=1 plans executed in Drake (dotted: 9 of 10)", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, root / "standing.png", dpi=100)
+
+    def noise_cell(r):
+        return "; ".join(f"x0 {n['x0_noise']:g} rad, process {n['process_noise']:g} N m: stood {n['stood']}/{n['runs']}"
+                         f", ok {n['ok']}/{n['runs']}" for n in r["noise"]) or "-"
+
+    md = ["## Standing on the free-standing Nao (beyond the thesis)", "",
+          "Every Nao figure's executed plans (R-AICO a=1) on the free-standing robot in Drake, with the thesis-style "
+          "joint PD from the plan's start and with the whole-body stabilizer from the standing start (issue 19); "
+          "fig3.4-inside and fig3.4-support are the same targets without and with the planner's support term. "
+          "Achieved: status ok and every executed via-point within 1 cm (the held right sole left out). Each "
+          "figure's claims.md has the runs and the CoG and ZMP over time.", "", "![standing](standing.png)", "",
+          "| figure | plan's balance term | controller | runs | stood | status ok | achieved | under noise |",
+          "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['figure']} | {r['balance']} | {r['controller']} | {r['runs']} | {r['stood']} | {r['ok']} | "
+           f"{r['achieved']} | {noise_cell(r)} |" for r in rows]
+    return md + [""]
+
+
 # ----------------------------------------------------------------------------- robustness under noise
+NOISE_CONTROLLERS = {"pd": "joint PD", "wbc": "stabilizer"}
+
+
 def noise_summary(noise: list[dict]) -> list[dict]:
-    """Per noise level of the sweep (``pipeline.experiments.noise_runs``, run by ``experiment_flow``): runs, status counts,
-    success rate (share with status ok) and the spread of the largest executed via-point error."""
+    """Per controller and noise level of the sweep (``pipeline.experiments.noise_runs``, run by ``experiment_flow``):
+    runs, status counts, success rate (share with status ok), stood, and the spread of the largest executed via-point
+    error."""
     from stages.evaluate.summary import largest_via_error
 
     rows = []
-    for level in dict.fromkeys(r["level"] for r in noise):
-        rs = [r for r in noise if r["level"] == level]
+    for controller, level in dict.fromkeys((r.get("controller", "pd"), r["level"]) for r in noise):
+        rs = [r for r in noise if r.get("controller", "pd") == controller and r["level"] == level]
         st = [r["outcome"].status for r in rs]
         errs = np.array([largest_via_error(r["outcome"].metrics) for r in rs], float)
         fin = errs[np.isfinite(errs)]
-        rows.append({"x0_noise": level[0], "process_noise": level[1], "runs": len(rs), "ok": st.count("ok"),
-                     "stood": sum(x not in ("fell", "diverged") for x in st),
+        rows.append({"controller": controller, "x0_noise": level[0], "process_noise": level[1], "runs": len(rs),
+                     "ok": st.count("ok"), "stood": sum(x not in ("fell", "diverged") for x in st),
                      "success_rate": st.count("ok") / len(rs) if rs else math.nan,
                      "statuses": {k: st.count(k) for k in dict.fromkeys(st)},
                      "via_error_median": float(np.median(errs)) if errs.size else math.nan,
@@ -567,29 +653,35 @@ def noise_summary(noise: list[dict]) -> list[dict]:
 
 
 def write_noise_figure(exp: Experiment, rows: list[dict], path: Path) -> None:
-    """Success rate (share of executions with status ok) against the noise level."""
+    """Success rate (share of executions with status ok) and, on the Nao, the share that stood, against the noise
+    level: one line each per controller."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.experiments import NOISE_SWEEPS
-
-    fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    x = np.arange(len(rows))
-    label = NOISE_SWEEPS[exp.id].label
-    ax.plot(x, [r["success_rate"] for r in rows], "o-", color=solver_color(label), label=f"{label} plans")
-    for i, r in enumerate(rows):
-        ax.annotate(f"{r['ok']}/{r['runs']}", (x[i], r["success_rate"]), textcoords="offset points", xytext=(6, 6),
-                    fontsize=8)
-    if exp.plant == "nao":
-        ax.plot(x, [r["stood"] / r["runs"] for r in rows], "s--", color="tab:gray", label="share that stood")
-    ax.set_xticks(x, [f"x0 {r['x0_noise']:g} rad\nprocess {r['process_noise']:g} N m" for r in rows], fontsize=8)
+    fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    levels = list(dict.fromkeys((r["x0_noise"], r["process_noise"]) for r in rows))
+    x_of = {lv: i for i, lv in enumerate(levels)}
+    colors = {"pd": "tab:blue", "wbc": "tab:green"}
+    for controller in dict.fromkeys(r["controller"] for r in rows):
+        rs = [r for r in rows if r["controller"] == controller]
+        x = [x_of[(r["x0_noise"], r["process_noise"])] + (0.04 if controller == "wbc" else 0.0) for r in rs]
+        name = NOISE_CONTROLLERS.get(controller, controller)
+        ax.plot(x, [r["success_rate"] for r in rs], "o-", color=colors.get(controller), label=f"{name}: status ok")
+        for xi, r in zip(x, rs):
+            ax.annotate(f"{r['ok']}/{r['runs']}", (xi, r["success_rate"]), textcoords="offset points",
+                        xytext=(6, -12 if controller == "wbc" else 6), fontsize=8, color=colors.get(controller))
+        if exp.plant == "nao":
+            ax.plot(x, [r["stood"] / r["runs"] for r in rs], "s--", color=colors.get(controller), alpha=0.5,
+                    label=f"{name}: stood")
+    ax.set_xticks(range(len(levels)), [f"x0 {a:g} rad\nprocess {b:g} N m" for a, b in levels], fontsize=8)
+    ax.set_xlim(-0.4, len(levels) - 0.6)
     ax.set_ylim(-0.05, 1.1)
-    ax.set_ylabel("success rate (status ok)")
+    ax.set_ylabel("share of the runs")
     ax.set_title(f"{exp.id}: executions under noise", fontsize=9)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     save_figure(fig, path, dpi=100)
 
@@ -598,17 +690,23 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
     """``noise.png`` and the markdown lines of the noise-robustness section (none without a sweep)."""
     if not noise:
         return [], []
-    from pipeline.experiments import NOISE_SWEEPS
-
     rows = noise_summary(noise)
     write_noise_figure(exp, rows, out_dir / "noise.png")
+    who = []
+    if any(r["controller"] == "pd" for r in rows):
+        who.append(f"joint PD: {NOISE_SWEEPS[exp.id].label}'s plans of the first {NOISE_RUNS} initial states, from the "
+                   "plan's start")
+    if any(r["controller"] == "wbc" for r in rows):
+        who.append("stabilizer (issue 19): every executed plan, from the standing start")
     md = ["## Robustness under noise (beyond the thesis)", "",
-          f"{NOISE_SWEEPS[exp.id].label}'s plans of the first initial states, each executed once per noise level "
-          "(initial joint-angle noise, rad; torque noise per planning step and joint, N m; plan i with execution seed "
-          "i); a run succeeds when its status is ok.", "", "![noise](noise.png)", "",
-          "| x0 noise (rad) | process noise (N m) | runs | success rate | stood | statuses | largest executed "
-          "via-point error: median (min-max) |", "|---|---|---|---|---|---|---|"]
-    md += [f"| {r['x0_noise']:g} | {r['process_noise']:g} | {r['runs']} | {_fmt(r['success_rate'])} | {r['stood']} | "
+          f"Each plan executed once per noise level ({'; '.join(who)}): initial joint-angle noise (rad) and torque "
+          "noise per planning step and joint (N m; added to the controller's torque, the sum clamped at the effort "
+          "limits); plan i with execution seed i. A run succeeds when its status is ok; it stood unless it fell or "
+          "diverged.", "", "![noise](noise.png)", "",
+          "| controller | x0 noise (rad) | process noise (N m) | runs | success rate | stood | statuses | largest "
+          "executed via-point error: median (min-max) |", "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {NOISE_CONTROLLERS.get(r['controller'], r['controller'])} | {r['x0_noise']:g} | {r['process_noise']:g} | "
+           f"{r['runs']} | {_fmt(r['success_rate'])} | {r['stood']} | "
            f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {_fmt(r['via_error_median'])} "
            f"({_fmt(r['via_error_min'])}-{_fmt(r['via_error_max'])}) |" for r in rows]
     return md + [""], rows
@@ -616,7 +714,7 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
 
 # ----------------------------------------------------------------------------- claims
 def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Cache | None = None,
-                 integrators: list[dict] | None = None) -> list[dict]:
+                 integrators: list[dict] | None = None, noise: list[dict] | None = None) -> list[dict]:
     """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
     the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
@@ -625,7 +723,8 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     S = {v.label: summarize(plans, v, cache) for v in exp.variants}
     S.update({r["label"]: r for r in integrator_table(exp, integrators or [], cache)})
     names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
-    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id)
+    noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
+    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy)
 
 
 def integrator_table(exp: Experiment, integrators: list[dict], cache: Cache | None = None) -> list[dict]:
@@ -761,7 +860,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
     integ = result.get("integrators") or []
-    rows = claims_table(exp, result["plans"], result["executions"], cache, integ)
+    rows = claims_table(exp, result["plans"], result["executions"], cache, integ, result.get("noise"))
     summary = summary_table(exp, result["plans"], cache)
     integ_rows = integrator_table(exp, integ, cache)
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,

@@ -25,8 +25,8 @@ def report_dir(cache: Cache, quick: bool) -> Path:
 # start first, then the plan figures, largest first, the Nao figures with their long stabilizer executions before
 # the arm's many short plans (which fill the gaps at the end). A figure's executions (ready when its plans are
 # done) go ahead of the plans of figures after it. Ids not listed come last, in the order given.
-WORK_ORDER = ("fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2d", "fig3.4", "fig3.4-inside", "fig3.4-single", "fig3.3",
-              "fig3.2b", "fig3.2a")
+WORK_ORDER = ("fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2d", "fig3.4", "fig3.4-inside", "fig3.4-support", "fig3.4-single",
+              "fig3.3", "fig3.2b", "fig3.2a")
 
 
 def work_order(ids: list[str]) -> list[str]:
@@ -171,7 +171,13 @@ def _read_claims(path: Path) -> dict:
 def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     """The report: every figure written so far, its claims table, deviations and recordings. A
     damaged figure report is left out with a warning (running that figure again rebuilds it)."""
-    from pipeline.report import FIGURE_CAPTION, INTEGRATOR_TEXT, identical_results_remarks, markdown_integrators
+    from pipeline.report import (
+        FIGURE_CAPTION,
+        INTEGRATOR_TEXT,
+        identical_results_remarks,
+        markdown_integrators,
+        standing_section,
+    )
     from stages.plan.tasks import TASK_NOTES
 
     reporter = reporter or Reporter(quiet=True)
@@ -189,6 +195,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
           "Thesis: M. Mindt, *Probabilistic Inference for Movement Planning in Humanoids* (TU Darmstadt 2014).",
           "Every number below is measured by this run; verdicts follow the stated criteria.", "",
           "## Claims", "", markdown_claims(rows), "", "## Figures", "", FIGURE_CAPTION, ""]
+    md += standing_section(docs, root)
     remarks = identical_results_remarks(docs)
     for d in docs:
         folder = folder_name(d["figure"])

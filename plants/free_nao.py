@@ -35,7 +35,7 @@ import numpy as np
 
 from plants.robots import MODELS, NAO_SOLE_POLYGON, REFLECTED_INERTIA, Robot, shared_robot
 
-TIME_STEP = 1e-3  # s, discrete plant step
+TIME_STEP = 2e-3  # s, discrete plant step (1 ms before issue 19's speed target; stages/wbc.py says what changed)
 DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
 HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
 DISSIPATION = 5.0  # s/m, Hunt-Crossley
@@ -328,7 +328,7 @@ class FreeNao:
         return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
 
 
-def load_free_nao(builder=None, time_step: float = TIME_STEP, pd: bool = True) -> FreeNao:
+def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True) -> FreeNao:
     """A fresh free-standing Nao (its own plant and scene graph, optionally inside ``builder``).
     ``pd`` False: the actuators have no PD gains (pure torque control, the stabilizer's plant)."""
     from pydrake.geometry import (
@@ -352,6 +352,7 @@ def load_free_nao(builder=None, time_step: float = TIME_STEP, pd: bool = True) -
     from pydrake.multibody.tree import PdControllerGains
     from pydrake.systems.framework import DiagramBuilder
 
+    time_step = TIME_STEP if time_step is None else time_step
     if time_step <= 0:
         raise ValueError("the free-standing Nao is a discrete plant: time_step must be > 0")
     builder = builder or DiagramBuilder()

@@ -3,7 +3,7 @@
 Execution models:
 
 - **Nao: the free-standing robot** (``plants.free_nao``): floating base, compliant sole boxes on
-  a rigid ground with friction, a discrete plant (1 ms, SAP) that enforces joint position and
+  a rigid ground with friction, a discrete plant (2 ms, SAP) that enforces joint position and
   effort limits. The plan (made on the fixed-base model) is tracked joint by joint: Drake's
   PD-controlled actuators (``KP``, ``KD`` of ``plants.free_nao``) around the planned joint
   trajectory (positions linearly interpolated inside a planning step, the step's velocity
@@ -29,9 +29,12 @@ Execution models:
   the plan's start; ``X_plan`` of the rollout is that reference (``X_plan_unshifted`` the plan).
   ``controller="wbc"`` replaces the joint PD and feed-forward by the whole-body stabilizer
   (``stages.wbc``: a task-space inverse-dynamics QP every 2 ms with contact forces, friction cones
-  and torque limits; the plant has no PD actuators, process noise acts as a generalized force);
+  and torque limits; the plant has no PD actuators; process noise is added to its held torques and the sum
+  clamped at the effort limits, as the plant clamps the PD's total);
   its corner forces, solve times and failed programs are in the rollout (``wbc_*``) and metrics
-  (``wbc_qp_failures``, ``wbc_qp_median_s``); ``U`` holds its torques.
+  (``wbc_qp_failures``, ``wbc_qp_fallbacks``: programs proxsuite left to Clarabel, ``wbc_qp_relaxed``: programs
+  solved again without the joint-limit bounds, ``wbc_qp_median_s``);
+  ``U`` holds its torques.
 - **arm5, biorob**: the fixed-base arm as a discrete plant (1 ms, SAP: joint position limits
   enforced) driven by the plan's own feedback controller ``u_k = o_k + O_k x_k`` (a LeafSystem,
   zero-order hold per planning step; pseudo-dynamics plans through computed torque evaluated at
@@ -386,12 +389,12 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         free.builder.Connect(stab.get_output_port(0), plant.get_actuation_input_port())
     sim = Simulator(free.builder.Build())
     pctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
+    sctx = stab.GetMyMutableContextFromRoot(sim.get_mutable_context()) if wbc else None
     plant.SetPositions(pctx, qp0)
     plant.SetVelocities(pctx, np.zeros(plant.num_velocities()))
     n_act = len(free.effort)
     desired_port = plant.get_desired_state_input_port(free.model)
     actuation_port = plant.get_actuation_input_port()
-    B = plant.MakeActuationMatrix()
 
     def set_desired(xd):
         if not wbc:  # the stabilizer drives torques only: Drake's PD actuators stay off (port unconnected)
@@ -399,9 +402,10 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
 
     def set_actuation(u, w):
         """Feed-forward ``u`` plus noise ``w`` (n_act,) N m; with the stabilizer, which owns the actuation
-        port and has no feed-forward, the noise acts as a generalized force on the joints."""
+        port and has no feed-forward, the noise is added to its held command (and the sum clamped at the
+        effort limits, as the plant clamps the PD's total)."""
         if wbc:
-            plant.get_applied_generalized_force_input_port().FixValue(pctx, B @ w)
+            stab.noise_port.FixValue(sctx, w)
         else:
             actuation_port.FixValue(pctx, u + w)
 
@@ -448,7 +452,9 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         U_log[k] = (ff[k] + w) @ Aq  # planning coordinates
         q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
         try:
-            for s in range(sub):
+            if wbc:  # the stabilizer updates itself (its own period): one advance per planning step
+                sim.AdvanceTo((k + 1) * dt)
+            for s in range(0 if wbc else sub):
                 a = s / sub
                 q_d = np.clip((1 - a) * q_a + a * q_b, fixed.lower, fixed.upper)  # never past a limit
                 set_desired(np.concatenate([Aq @ q_d, Aq @ v_b]))
@@ -457,8 +463,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
             ok = False
             break
         applied[k] = plant.get_net_actuation_output_port().Eval(pctx)[:n_act]
-        if wbc:  # the stabilizer's held torques plus the noise (planning coordinates)
-            U_log[k] = (applied[k] + w) @ Aq
+        if wbc:  # the stabilizer's held torques plus the noise, clamped (planning coordinates)
+            U_log[k] = applied[k] @ Aq
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
@@ -491,7 +497,9 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     if stance:
         metrics["start"] = "standing"
     if wbc:
-        metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
+        metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_fallbacks=stab.qp.fallbacks,
+                       wbc_qp_relaxed=len(stab.relaxed),
+                       wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
                        if len(stab.log) else float("nan"))
     if lift_from is not None:  # single support: how high the right sole was held from the plan's lift step on
         metrics.update(single_support_lift(corners, lift_from),

@@ -1,7 +1,8 @@
 """A whole-body stabilizer for the free-standing Nao (issue 19): task-space inverse dynamics.
 
-Every ``CONTROL_PERIOD`` one quadratic program is solved with Drake's ``MathematicalProgram`` and
-``ClarabelSolver`` (built once; its coefficients are updated in place each step). Decision variables
+Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP, warm-started
+from the previous step (:class:`ProxQP`; Clarabel, through Drake's ``MathematicalProgram``, takes the
+rare program it does not solve within its iteration cap). Decision variables
 ``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations (floating base included)
 and the ground forces at the eight sole corners (world frame). The joint torques are an affine
 function of ``x`` through the equations of motion (not variables of their own: 26 fewer)::
@@ -41,7 +42,10 @@ start; the Nao holding its standing posture for 1 s):
 
 - Pure torque control with a zero-order hold: the plant is built without Drake's PD actuators (with
   PD gains declared and the desired-state port left unconnected, the actuation input had no effect
-  on the joints in free fall). 2 ms or 1 ms periods gave the same standing test to 0.1 mm; 2 ms.
+  on the joints in free fall). Period 4 ms (250 Hz) on the 2 ms plant: against 2 ms on a 1 ms plant
+  (the settings before), the ten fig3.4-inside R-AICO plans gave the same statuses (9 stood, 1 fell
+  at 1.76 s) and CoG via-point errors within 0.5 mm of each other (2 ms on the 2 ms plant: within
+  2 mm), at a third of the time (a 3 s execution 2.4 s wall, the bench row; before, 7.9 s).
 - The soles as a heavy cost rather than an equality: with the equality (and lifted corners carrying
   nothing) the program was infeasible in 680 and 1235 of 1500 updates of two runs; as a cost, none.
 - ``COP_SHARE``: without it the program put the right sole's load on its inner edge, the compliant
@@ -66,10 +70,18 @@ start; the Nao holding its standing posture for 1 s):
   inside its limit, stops the CoG short of the plan's +3 cm; the ``limits`` status flags a joint
   within 0.01 rad of its limit, so it does not count this), seed 0 still falls. Letting a joint go to
   its (clipped) reference at the limit instead turned 6 of these 9 into ``limits``.
-- Clarabel (interior point) rather than OSQP: exact solutions at 2.4-3.4 ms a program (median) on this
-  machine; OSQP at eps 1e-7 took 11 ms a program (a fig3.4-inside run, the same fall at 1.76 s).
-  Clarabel's equilibration (a rescaling of the program) off: 2.17 -> 1.66 ms a program on a
-  fig3.4-single run, its executed numbers equal to 1e-8 relative.
+- The solver: proxsuite's PROXQP (``proxsuite`` 0.8.0, pip wheels that need nothing beyond numpy,
+  scipy and cmeel, all already in raico's set) warm-started: 0.3 ms a program against Clarabel's
+  1.7-1.8 ms (interior point, no warm start; OSQP at eps 1e-7 took 11 ms). Its accelerations agree
+  with Clarabel's to 1e-4 on the 1500 programs of a fig3.4-inside run (the corner forces are unique
+  only up to their 1e-5 regularization; the costs agree to 1e-3). Two measured safeguards: its
+  infeasibility tolerances at 1e-12 (at the default 1e-4 it called 9-22 feasible programs of a run
+  infeasible) and an iteration cap with Clarabel as the fallback (uncapped, one program of a falling
+  robot took it 5 million iterations); ``wbc_qp_fallbacks`` counts them.
+- A program that no solver solves (under process noise a joint pushed past its margin can ask more
+  acceleration than the torque limits give) is solved again without the joint-limit bounds, the
+  limits then left to the plant's (``wbc_qp_relaxed``); only one that still fails holds the previous
+  torque (``wbc_qp_failures``).
 - Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners carry
   no force, it is no longer held) once the executed CoG's ground projection is ``RELEASE_MARGIN`` inside
   the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG reference is clamped to the left
@@ -78,11 +90,14 @@ start; the Nao holding its standing posture for 1 s):
 
 from __future__ import annotations
 
+import atexit
 import time
+import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
-CONTROL_PERIOD = 2e-3  # s, one QP per period (zero-order hold in between)
+CONTROL_PERIOD = 4e-3  # s, one QP per period (zero-order hold in between)
 KP, KD = 100.0, 20.0  # 1/s^2, 1/s: joint acceleration PD around the plan
 KP_COG, KD_COG = 50.0, 14.0  # 1/s^2, 1/s: CoG acceleration PD around the planned CoG
 KP_CONTACT, KD_CONTACT = 100.0, 20.0  # 1/s^2, 1/s: sole pose and velocity feedback in the contact constraint
@@ -194,22 +209,154 @@ def clamp_to_polygon(p: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return C[np.argmin(((C - p) ** 2).sum(axis=1))]
 
 
-def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL_PERIOD, X_task=None,
+def rotation_log(R: np.ndarray) -> np.ndarray:
+    """The rotation vector ``(3,)`` (axis times angle, rad) of the rotation matrix ``R (3, 3)``."""
+    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # sin(angle) axis
+    c = min(max(0.5 * (np.trace(R) - 1.0), -1.0), 1.0)
+    s = np.linalg.norm(w)
+    angle = np.arctan2(s, c)
+    if s < 1e-12:
+        if c > 0:
+            return w  # the identity to first order
+        from pydrake.math import RotationMatrix  # a half turn: the axis from Drake's angle-axis
+
+        aa = RotationMatrix(R).ToAngleAxis()
+        return aa.angle() * aa.axis()
+    return (angle / s) * w
+
+
+@dataclass
+class QPData:
+    """One stabilizer program: minimize ``0.5 x'Hx + g'x`` subject to ``Aeq x = beq``, ``l <= C x <= u``
+    and ``lb <= x <= ub`` (``inf`` where unbounded); ``x (n,)``."""
+
+    H: np.ndarray
+    g: np.ndarray
+    Aeq: np.ndarray
+    beq: np.ndarray
+    C: np.ndarray
+    l: np.ndarray
+    u: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+
+
+_LIVE: weakref.WeakSet = weakref.WeakSet()  # every ProxQP alive, released at exit
+
+
+@atexit.register
+def _release_solvers() -> None:
+    for solver in list(_LIVE):
+        solver.release()
+
+
+class ProxQP:
+    """The stabilizer's QP solver: ``proxsuite``'s dense PROXQP (a primal-dual proximal augmented
+    Lagrangian method) with box constraints, warm-started from the previous control step's solution
+    and multipliers; converged to ``EPS`` (absolute, on the primal and dual residuals). A program it
+    does not solve within ``MAX_ITER`` outer (``MAX_ITER_IN`` inner) iterations goes to Clarabel
+    (Drake's interior-point solver, one persistent ``MathematicalProgram``): on a fig3.4-inside run,
+    one program of 1500 took proxsuite 5 million iterations (110 s) uncapped; ``fallbacks`` counts them."""
+
+    EPS = 1e-9
+    MAX_ITER, MAX_ITER_IN = 50, 50
+    BIG = 1e20  # proxsuite's stand-in for an infinite bound
+    INFEASIBLE = 1e-12
+
+    def __init__(self, n: int, n_eq: int, n_in: int):
+        import proxsuite
+
+        self._qp = proxsuite.proxqp.dense.QP(n, n_eq, n_in, True)
+        st = self._qp.settings
+        st.eps_abs, st.eps_rel, st.verbose = self.EPS, 0.0, False
+        st.max_iter, st.max_iter_in = self.MAX_ITER, self.MAX_ITER_IN
+        # infeasibility is declared only at these residuals: at the default 1e-4, proxsuite called 9-22 of 1500
+        # feasible programs of a fig3.4-inside run primal infeasible (Clarabel solved each; with 1e-12 so does this)
+        st.eps_primal_inf = st.eps_dual_inf = self.INFEASIBLE
+        self._warm = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
+        self._cold = proxsuite.proxqp.InitialGuess.NO_INITIAL_GUESS
+        self._solved = proxsuite.proxqp.QPSolverOutput.PROXQP_SOLVED
+        self._started = False
+        self._fallback = None
+        self.fallbacks = 0
+        _LIVE.add(self)
+
+    def release(self) -> None:
+        """Free proxsuite's solver (at exit: one still referenced by a Drake diagram would otherwise make
+        nanobind print leak warnings on stderr)."""
+        self._qp = None
+
+    def solve(self, d: QPData) -> tuple[np.ndarray, bool, str]:
+        """The minimizer ``(n,)``, success, and the status (proxsuite's, or Clarabel's after a fallback)."""
+        big = self.BIG
+        args = (d.H, d.g, d.Aeq, d.beq, d.C, np.maximum(d.l, -big), np.minimum(d.u, big),
+                np.maximum(d.lb, -big), np.minimum(d.ub, big))
+        if self._started:
+            self._qp.update(*args, update_preconditioner=True)
+        else:  # (a warm start before a first solve crashes proxsuite 0.8.0: the first one is cold)
+            self._qp.init(*args)
+            self._started = True
+        self._qp.solve()
+        status = self._qp.results.info.status
+        if status == self._solved:
+            self._qp.settings.initial_guess = self._warm
+            return np.array(self._qp.results.x), True, str(status)
+        self.fallbacks += 1
+        self._qp.settings.initial_guess = self._cold  # the next program starts afresh
+        if self._fallback is None:
+            self._fallback = ClarabelProgram(len(d.g), len(d.beq), len(d.l))
+        return self._fallback.solve(d)
+
+
+class ClarabelProgram:
+    """The same program by Drake's ``MathematicalProgram`` and ``ClarabelSolver`` (an interior-point
+    method), built once, its coefficients updated per solve: :class:`ProxQP`'s fallback and the tests'
+    independent check of it."""
+
+    def __init__(self, n: int, n_eq: int, n_in: int):
+        from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
+
+        self._prog = prog = MathematicalProgram()
+        self._x = x = prog.NewContinuousVariables(n, "x")
+        self._cost = prog.AddQuadraticCost(np.eye(n), np.zeros(n), x, is_convex=True).evaluator()
+        self._eq = prog.AddLinearEqualityConstraint(np.zeros((n_eq, n)), np.zeros(n_eq), x).evaluator()
+        self._in = prog.AddLinearConstraint(np.zeros((n_in, n)), np.full(n_in, -np.inf), np.full(n_in, np.inf),
+                                            x).evaluator()
+        self._box = prog.AddBoundingBoxConstraint(np.full(n, -np.inf), np.full(n, np.inf), x).evaluator()
+        self._solver = ClarabelSolver()
+        self._options = SolverOptions()
+        # Clarabel's equilibration off: 2.17 -> 1.66 ms a program, the same solutions to 1e-8
+        self._options.SetOption(ClarabelSolver.id(), "equilibrate_enable", False)
+
+    def solve(self, d: QPData) -> tuple[np.ndarray, bool, str]:
+        """The minimizer ``(n,)``, success, and Clarabel's status."""
+        self._cost.UpdateCoefficients(d.H, d.g)
+        self._eq.UpdateCoefficients(d.Aeq, d.beq)
+        self._in.UpdateCoefficients(d.C, d.l, d.u)
+        self._box.set_bounds(d.lb, d.ub)
+        result = self._solver.Solve(self._prog, None, self._options)
+        return result.GetSolution(self._x), result.is_success(), f"clarabel: {result.get_solution_result()}"
+
+
+def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = None, X_task=None,
                     frame_maps=(), swing=None):
     """The stabilizer as a Drake ``LeafSystem``: input the free plant's state ``(nq + nv,)``, output
-    the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update). It tracks
+    the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update) plus the torque
+    noise of its second input (if connected or fixed), clamped at the effort limits. It tracks
     the joints of ``X_plan (K, 2 n_q)``, and the CoG and the frame points of ``frame_maps``
     (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
     along the whole plan) of ``X_task`` (default ``X_plan``). Its
     attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
-    ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs."""
+    ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
+    ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests)."""
     from pydrake.multibody.tree import JacobianWrtVariable
-    from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
     from pydrake.systems.framework import BasicVector, LeafSystem
 
     from plants.free_nao import SOLES, sole_corners_local
 
+    period = CONTROL_PERIOD if period is None else period
     plant = free.plant
+    kV = JacobianWrtVariable.kV
     nq, nv = plant.num_positions(), plant.num_velocities()
     B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
     n_act = B.shape[1]
@@ -231,41 +378,33 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
     n_tasks = len(frame_maps)  # the swing sole's task (last) joins once the sole is released
     released: list[float] = []  # the time the right sole's contact was released (single support)
     left_only: list = []  # (A, b) of the left sole shrunk by COG_MARGIN, and its unshrunk b
-
-    prog = MathematicalProgram()
-    x = prog.NewContinuousVariables(nx, "x")
-    cost = prog.AddQuadraticCost(np.eye(nx), np.zeros(nx), x, is_convex=True).evaluator()
-    n_eq = len(base_rows)
-    eq = prog.AddLinearEqualityConstraint(np.zeros((n_eq, nx)), np.zeros(n_eq), x).evaluator()
-    torque = prog.AddLinearConstraint(np.zeros((n_act, nx)), -effort, effort, x).evaluator()
-    # friction pyramid and unilateral contact (constant rows)
-    Fr = np.zeros((5 * nc, nx))
+    # constant rows: the friction pyramid (four faces per corner, <= 0) and each sole's centre of pressure kept
+    # off its edges (every corner carries at least COP_SHARE of its sole's mean corner load, >= 0)
+    Fr = np.zeros((4 * nc, nx))
+    Cp = np.zeros((nc, nx))
     for c in range(nc):
         i = nv + 3 * c
         for r, (a, b) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
-            Fr[5 * c + r, i] = a
-            Fr[5 * c + r, i + 1] = b
-            Fr[5 * c + r, i + 2] = -MU
-        Fr[5 * c + 4, i + 2] = 1.0
-    lb = np.tile([-np.inf] * 4 + [FZ_MIN], nc)
-    ub = np.tile([0.0] * 4 + [FZ_MAX], nc)
-    friction = prog.AddLinearConstraint(Fr, lb, ub, x).evaluator()
-    # the centre of pressure of each sole kept off its edges: every corner carries at least COP_SHARE
-    # of its sole's mean corner load
-    Cp = np.zeros((nc, nx))
-    for c in range(nc):
+            Fr[4 * c + r, [i, i + 1, i + 2]] = (a, b, -MU)
         s0 = 4 * (c // 4)
         Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
         Cp[c, nv + 3 * c + 2] += 1.0
-    cop = prog.AddLinearConstraint(Cp, np.zeros(nc), np.full(nc, np.inf), x).evaluator()
-    # joint position limits as acceleration bounds (a PD towards a point LIMIT_MARGIN inside each limit)
+    n_eq, n_in = len(base_rows), n_act + len(Fr) + nc
+    C = np.zeros((n_in, nx))
+    C[n_act:n_act + len(Fr)] = Fr
+    C[n_act + len(Fr):] = Cp
+    l_in, u_in = np.full(n_in, -np.inf), np.full(n_in, np.inf)
+    u_in[n_act:n_act + len(Fr)] = 0.0
+    fz = nv + 3 * np.arange(nc) + 2  # the normal forces' indices in x
     lower_q = plant.GetPositionLowerLimits()[free.joint_idx]
     upper_q = plant.GetPositionUpperLimits()[free.joint_idx]
-    limits = prog.AddBoundingBoxConstraint(np.full(len(joint_v), -np.inf), np.full(len(joint_v), np.inf),
-                                           x[joint_v]).evaluator()
-    solver = ClarabelSolver()
-    options = SolverOptions()
-    options.SetOption(ClarabelSolver.id(), "equilibrate_enable", False)  # see the module docstring
+    solver = ProxQP(nx, n_eq, n_in)
+    H0 = np.zeros((nx, nx))  # the cost's constant Hessian: joint task, regularization of accelerations and forces
+    H0[:nv, :nv] = 2 * W_REG * np.eye(nv)
+    H0[joint_v, joint_v] += 2 * W_JOINT
+    H0[nv:, nv:] = 2 * W_FORCE * np.eye(nf)
+    w_cog, origin, inf_x = np.full(3, W_COG), np.zeros(3), np.full(nx, np.inf)
+    ones = np.ones(max([12, *(3 * len(m.points) for m in maps)]))  # task weights per row
 
     class Stabilizer(LeafSystem):
         """Task-space inverse dynamics (module docstring), one QP per ``period``."""
@@ -275,14 +414,21 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
             self.log: list[tuple[float, float, np.ndarray, bool]] = []
             self.failures = 0
             self.state_port = self.DeclareVectorInputPort("x", nq + nv)
+            # torque noise added to the held command (execution's process noise), the sum clamped at the effort
+            # limits as an actuator would (unconnected: none)
+            self.noise_port = self.DeclareVectorInputPort("w", n_act)
             self.DeclareDiscreteState(n_act)
-            self.DeclareVectorOutputPort("u", BasicVector(n_act), self._output, {self.xd_ticket()})
+            self.DeclareVectorOutputPort("u", BasicVector(n_act), self._output,
+                                         {self.xd_ticket(), self.noise_port.ticket()})
             self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
             self.last_f = np.zeros((nc, 3))
             self.released = released   # [time of the right sole's release] in single support, else []
 
         def _output(self, context, output):
-            output.SetFromVector(context.get_discrete_state_vector().CopyToVector())
+            u = context.get_discrete_state_vector().CopyToVector()
+            if self.noise_port.HasValue(context):
+                u = np.clip(u + self.noise_port.Eval(context), -effort, effort)
+            output.SetFromVector(u)
 
         def _update(self, context, discrete_state):
             t0 = time.perf_counter()
@@ -295,53 +441,63 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
                 self.failures += 1
             self.log.append((context.get_time(), time.perf_counter() - t0, f, ok))
 
-    failed: list = []  # (time s, Drake's solution result) of every failed program
+    failed: list = []  # (time s, the solver's status) of every failed program
+    relaxed: list = []  # times (s) of the programs solved again without the joint-limit bounds
     support: list = []  # (A, b) of the support polygon shrunk by COG_MARGIN (world xy), at the first call
-    sole_ref: list = []  # the soles' poses at the first update, laid flat (roll, pitch 0) on the ground (z 0)
+    sole_ref: list = []  # the soles' poses (R (3, 3), p (3,)) at the first update, laid flat on the ground
 
-    def sole_errors() -> np.ndarray:
-        """Each sole's pose error ``(12,)``: rotation (axis times angle, world) and translation (m) from
-        its reference pose to the current one (the plant context ``ctx`` is set)."""
-        from pydrake.math import RigidTransform, RollPitchYaw
+    def first_call(poses) -> None:
+        """The soles' reference poses (at the first update, laid flat: roll and pitch 0, z 0) and the
+        support polygons (both soles', the left sole's) shrunk by ``COG_MARGIN``."""
+        from pydrake.math import RollPitchYaw
+        from scipy.spatial import ConvexHull
 
-        poses = [fr.CalcPoseInWorld(ctx) for fr in frames]
-        if not sole_ref:
-            for X in poses:
-                yaw = RollPitchYaw(X.rotation()).yaw_angle()
-                sole_ref.append(RigidTransform(RollPitchYaw(0.0, 0.0, yaw), np.r_[X.translation()[:2], 0.0]))
-        out = []
-        for X, R in zip(poses, sole_ref):
-            aa = (X.rotation() @ R.rotation().inverse()).ToAngleAxis()
-            out.append(np.r_[aa.angle() * aa.axis(), X.translation() - R.translation()])
-        return np.concatenate(out)
+        for X in poses:
+            yaw = RollPitchYaw(X.rotation()).yaw_angle()
+            sole_ref.append((RollPitchYaw(0.0, 0.0, yaw).ToRotationMatrix().matrix(),
+                             np.r_[X.translation()[:2], 0.0]))
+        pts = np.vstack([(R @ corners)[:2].T + p[:2] for R, p in sole_ref])
+        eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
+        support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
+        R, p = sole_ref[0]
+        eqs = ConvexHull((R @ corners)[:2].T + p[:2]).equations
+        left_only.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN, -eqs[:, 2]])
 
-    def solve(t: float, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-        """One QP at time ``t`` and state ``(q, v)``: actuation ``(n_act,)`` N m, corner forces
-        ``(8, 3)`` N, success."""
+    def program(t: float, q: np.ndarray, v: np.ndarray) -> tuple[QPData, np.ndarray]:
+        """The program of one update at time ``t`` and state ``(q, v)``, and the torque map ``(At, h_j)``
+        (``u = At x + h_j``)."""
         plant.SetPositions(ctx, q)
         plant.SetVelocities(ctx, v)
         M = plant.CalcMassMatrix(ctx)
         h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
-        Jc = np.vstack([plant.CalcJacobianTranslationalVelocity(ctx, JacobianWrtVariable.kV, fr, corners, world, world)
-                        for fr in frames])  # (3 nc, nv), rows (corner, xyz)
-        Js = np.vstack([plant.CalcJacobianSpatialVelocity(ctx, JacobianWrtVariable.kV, fr, np.zeros(3), world, world)
-                        for fr in frames])  # (12, nv)
-        bs = np.concatenate([plant.CalcBiasSpatialAcceleration(ctx, JacobianWrtVariable.kV, fr, np.zeros(3), world,
-                                                               world).get_coeffs() for fr in frames])
-        Jcom = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, JacobianWrtVariable.kV, world, world)
-        bcom = plant.CalcBiasCenterOfMassTranslationalAcceleration(ctx, JacobianWrtVariable.kV, world, world)
+        poses = [fr.CalcPoseInWorld(ctx) for fr in frames]
+        if not sole_ref:
+            first_call(poses)
+        Js = np.vstack([plant.CalcJacobianSpatialVelocity(ctx, kV, fr, origin, world, world)
+                        for fr in frames])  # (12, nv): per sole (angular, translational) at its origin
+        bs = np.concatenate([plant.CalcBiasSpatialAcceleration(ctx, kV, fr, origin, world, world).get_coeffs()
+                             for fr in frames])
+        # each corner's translational Jacobian from its sole's spatial one: v_c = v_o + w x r = Jv - [r]x Jw
+        Jc = np.empty((nf, nv))
+        sole_err = np.empty(12)
+        zc = np.empty(nc)
+        for s_, X in enumerate(poses):
+            R, p = X.rotation().matrix(), X.translation()
+            r = R @ corners  # (3, 4) world offsets of the corners
+            zc[4 * s_:4 * s_ + 4] = r[2] + p[2]
+            Jw, Jv = Js[6 * s_:6 * s_ + 3], Js[6 * s_ + 3:6 * s_ + 6]
+            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (4, 1) each
+            Jc_s = Jc[12 * s_:12 * s_ + 12].reshape(4, 3, nv)          # (corner, xyz, nv), a view of Jc
+            Jc_s[:, 0] = Jv[0] - (ry * Jw[2] - rz * Jw[1])
+            Jc_s[:, 1] = Jv[1] - (rz * Jw[0] - rx * Jw[2])
+            Jc_s[:, 2] = Jv[2] - (rx * Jw[1] - ry * Jw[0])
+            R_ref, p_ref = sole_ref[s_]
+            sole_err[6 * s_:6 * s_ + 3] = rotation_log(R @ R_ref.T)
+            sole_err[6 * s_ + 3:6 * s_ + 6] = p - p_ref
+        Jcom = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, kV, world, world)
+        bcom = plant.CalcBiasCenterOfMassTranslationalAcceleration(ctx, kV, world, world)
         com = plant.CalcCenterOfMassPositionInWorld(ctx)
         (q_r, v_r, a_r), (c_r, cd_r, cdd_r), frame_refs = ref.at(t)
-        sole_err = sole_errors()  # (sets the soles' reference poses at the first call)
-        if not support:
-            from scipy.spatial import ConvexHull
-
-            pts = np.vstack([(R.rotation().matrix() @ corners)[:2].T + R.translation()[:2] for R in sole_ref])
-            eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
-            support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
-            R = sole_ref[0]
-            eqs = ConvexHull((R.rotation().matrix() @ corners)[:2].T + R.translation()[:2]).equations
-            left_only.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN, -eqs[:, 2]])
         if swing is not None and not released and t >= RELEASE_EARLIEST - 1e-9:
             if np.min(left_only[2] - left_only[0] @ com[:2]) >= RELEASE_MARGIN:  # the CoG is over the left sole
                 released.append(t)
@@ -359,64 +515,71 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float = CONTROL
         qj, vj = q[free.joint_idx], v[joint_v]
         a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
         a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
-        # cost 0.5 x'Hx + g'x
-        H = np.zeros((nx, nx))
-        g = np.zeros(nx)
-        H[joint_v, joint_v] += 2 * W_JOINT
-        g[joint_v] -= 2 * W_JOINT * a_joint
-        H[:nv, :nv] += 2 * W_COG * Jcom.T @ Jcom + 2 * W_REG * np.eye(nv)
-        g[:nv] += 2 * W_COG * Jcom.T @ (bcom - a_com)
-        H[nv:, nv:] += 2 * W_FORCE * np.eye(nf)
+        # cost 0.5 x'Hx + g'x: the acceleration tasks as one weighted least-squares ||W^(1/2) (J vdot - a)||^2
+        rows_J, rows_a, rows_w = [Jcom], [a_com - bcom], [w_cog]
         for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks[:len(tasks) if single else n_tasks], frame_refs):
-            Jp = plant.CalcJacobianTranslationalVelocity(ctx, JacobianWrtVariable.kV, fr, pts, world, world)[rows]
-            bp = plant.CalcBiasTranslationalAcceleration(ctx, JacobianWrtVariable.kV, fr, pts, world,
-                                                         world).T.reshape(-1)[rows]
+            Jp = plant.CalcJacobianTranslationalVelocity(ctx, kV, fr, pts, world, world)[rows]
+            bp = plant.CalcBiasTranslationalAcceleration(ctx, kV, fr, pts, world, world).T.reshape(-1)[rows]
             p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
-            a_p = pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v)
-            H[:nv, :nv] += 2 * W_FRAME * Jp.T @ Jp
-            g[:nv] += 2 * W_FRAME * Jp.T @ (bp - a_p)
+            rows_J.append(Jp)
+            rows_a.append(pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v) - bp)
+            rows_w.append(W_FRAME * ones[:len(Jp)])
         # the soles held (a heavy cost, not a constraint: a sole the compliant ground has let rise a
-        # little must not make the program infeasible)
-        held = slice(0, 6) if single else slice(0, 12)  # released: the left sole alone is held
+        # little must not make the program infeasible); released: the left sole alone
+        held = slice(0, 6) if single else slice(0, 12)
         Jh = Js[held]
-        a_sole = -bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held]
-        H[:nv, :nv] += 2 * W_CONTACT * Jh.T @ Jh
-        g[:nv] -= 2 * W_CONTACT * Jh.T @ a_sole
-        cost.UpdateCoefficients(H, g)
-        if LIMIT_MARGIN is not None:
+        rows_J.append(Jh)
+        rows_a.append(-bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held])
+        rows_w.append(W_CONTACT * ones[:Jh.shape[0]])
+        J, a, w = np.vstack(rows_J), np.concatenate(rows_a), np.concatenate(rows_w)
+        H = H0.copy()  # the constant part: joints, regularization
+        g = np.zeros(nx)
+        Jw_ = J * (2 * w)[:, None]
+        H[:nv, :nv] += J.T @ Jw_
+        g[:nv] = -Jw_.T @ a
+        g[joint_v] -= 2 * W_JOINT * a_joint
+        # equality: the floating base's dynamics (its six rows of the equations of motion)
+        Aeq = np.hstack([M[base_rows], -Jc[:, base_rows].T])
+        # torques: u = B^T (M vdot + h - Jc^T f) within the effort limits
+        At = np.hstack([M[jv], -Jc[:, jv].T])
+        Cm = C.copy()
+        Cm[:n_act] = At
+        l, u = l_in.copy(), u_in.copy()
+        l[:n_act], u[:n_act] = -effort - h[jv], effort - h[jv]
+        # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
+        up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
+        if single:
+            up[4:] = True   # the released right sole carries nothing
+        l[n_act + len(Fr):] = np.where(up, -np.inf, 0.0)  # a lifted corner: no share of its sole's load
+        lb, ub = -inf_x, inf_x.copy()
+        lb[fz], ub[fz] = FZ_MIN * ~up, np.where(up, 0.0, FZ_MAX)
+        if LIMIT_MARGIN is not None:  # joint position limits as acceleration bounds
             a_hi = KP_LIMIT * (upper_q - LIMIT_MARGIN - qj) - KD_LIMIT * vj
             a_lo = KP_LIMIT * (lower_q + LIMIT_MARGIN - qj) - KD_LIMIT * vj
-            limits.set_bounds(np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi))
-        # equality: the floating base's dynamics (its six rows of the equations of motion)
-        Aeq = np.zeros((n_eq, nx))
-        Aeq[:, :nv] = M[base_rows]
-        Aeq[:, nv:] = -Jc[:, base_rows].T
-        eq.UpdateCoefficients(Aeq, -h[base_rows])
-        # torques: u = B^T (M vdot + h - Jc^T f)
-        At = np.hstack([M[jv], -Jc[:, jv].T])
-        torque.UpdateCoefficients(At, -effort - h[jv], effort - h[jv])
-        # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
-        if CORNER_UP is not None or single:
-            zc = np.concatenate([(fr.CalcPoseInWorld(ctx).rotation().matrix() @ corners)[2] +
-                                 fr.CalcPoseInWorld(ctx).translation()[2] for fr in frames])
-            ub_now = ub.copy()
-            up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
-            if single:
-                up[4:] = True   # the released right sole carries nothing
-            ub_now[4::5] = np.where(up, 0.0, FZ_MAX)
-            lb_now = lb.copy()
-            lb_now[4::5] = np.where(up, 0.0, FZ_MIN)
-            friction.UpdateCoefficients(Fr, lb_now, ub_now)
-            cop.UpdateCoefficients(Cp, np.where(up, -np.inf, 0.0), np.full(nc, np.inf))  # a lifted corner: no share
-        result = solver.Solve(prog, None, options)
-        if not result.is_success():
-            failed.append((t, str(result.get_solution_result())))
+            lb[joint_v], ub[joint_v] = np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi)
+        return QPData(H, g, Aeq, -h[base_rows], Cm, l, u, lb, ub), (At, h[jv])
+
+    def solve(t: float, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """One QP at time ``t`` and state ``(q, v)``: actuation ``(n_act,)`` N m, corner forces
+        ``(8, 3)`` N, success."""
+        d, (At, hj) = program(t, q, v)
+        xs, ok, status = solver.solve(d)
+        if not ok and LIMIT_MARGIN is not None:
+            # the joint-limit acceleration bounds may ask more than the torques can give (a joint pushed past its
+            # margin by a disturbance): the program again without them, the limits left to the plant's
+            relaxed.append(t)
+            d.lb[joint_v], d.ub[joint_v] = -np.inf, np.inf
+            xs, ok, status = solver.solve(d)
+        if not ok:
+            failed.append((t, status))
             return np.zeros(n_act), np.full((nc, 3), np.nan), False
-        xs = result.GetSolution(x)
-        u = At @ xs + h[jv]
+        u = At @ xs + hj
         return np.clip(u, -effort, effort), xs[nv:].reshape(nc, 3), True
 
     system = Stabilizer()
     system.solve = solve
+    system.program = program
     system.failed = failed
+    system.relaxed = relaxed
+    system.qp = solver
     return system

@@ -240,7 +240,8 @@ def ex(status="ok", inside=1.0, margin=0.01, via=0.004, **kw):
             "via_point_errors": {"via_cog1@100": via, "r_sole@max": 0.5}, **kw}
 
 
-EXECUTION_CLAIMS = ("cog_support", "executed_reaches", "stabilizer_stands", "single_support_stands")
+EXECUTION_CLAIMS = ("cog_support", "executed_reaches", "stabilizer_stands", "single_support_stands",
+                    "stabilizer_stands_under_noise")
 EXECUTION_CASES = [
     ("cog_support", [ex()] * 3, True),
     ("cog_support", [ex(), ex(), ex(inside=0.98, margin=-0.002)], False),  # one sample outside
@@ -264,7 +265,27 @@ EXECUTION_CASES = [
     ("single_support_stands", [ex(controller="wbc", lifted=True, r_sole_lift=0.024),
                                ex("fell", controller="wbc", lifted=True, r_sole_lift=0.03)], False),
     ("single_support_stands", [], False),
+    # under noise: >= 9 of 10 stand (limits and tracking-lost stood; a fall or a divergence did not)
+    ("stabilizer_stands_under_noise", [ex(controller="wbc", noise_level=[0.02, 0.5])] * 8
+     + [ex("limits", controller="wbc", noise_level=[0.02, 0.5]), ex("fell", controller="wbc", noise_level=[0.02, 0.5])],
+     True),
+    ("stabilizer_stands_under_noise", [ex(controller="wbc", noise_level=[0.02, 0.5])] * 8
+     + [ex("fell", controller="wbc", noise_level=[0.02, 0.5])] * 2, False),
+    ("stabilizer_stands_under_noise", [ex(noise_level=[0.02, 0.5])] * 10, False),  # joint PD only: no verdict
+    ("stabilizer_stands_under_noise", [], False),
 ]
+
+
+def test_noise_claim_reads_the_noisy_runs_only():
+    """evaluate_claims hands the noise claim the sweep's noisy runs, every other claim the figure's own runs."""
+    from stages.evaluate.claims import evaluate_claims
+
+    own = [ex(controller="wbc")] * 3
+    noisy = [ex("fell", controller="wbc", noise_level=[0.02, 0.5])] * 3
+    rows = evaluate_claims(("stabilizer_stands", "stabilizer_stands_under_noise"), {}, own, "fig", noisy)
+    assert [r["verdict"] for r in rows] == ["holds", "does not hold"]
+    assert rows[1]["measured"].startswith("stood 0/3 (statuses: fell 3)")
+    assert "x0 0.02 rad, process 0.5 N m" in rows[1]["criterion"]
 
 
 def test_stabilizer_claim_judges_only_the_stabilizer_runs():

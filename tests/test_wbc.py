@@ -64,7 +64,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
 def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
     2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
-    from stages.wbc import LIMIT_MARGIN, MU
+    from stages.wbc import CONTROL_PERIOD, LIMIT_MARGIN, MU
 
     nao = shared_free_nao().fixed
     T, dt = 200, 0.01
@@ -72,7 +72,7 @@ def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     out = execute(ExecuteConfig(plan="hold", controller="wbc", start="standing"),
                   desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt))
     m, d = out.metrics, out.nao
-    assert (m["status"], m["stood"], m["wbc_qp_failures"]) == ("ok", True, 0)
+    assert (m["status"], m["stood"], m["wbc_qp_failures"], m["wbc_qp_fallbacks"]) == ("ok", True, 0, 0)
     weight = NAO_MASS * G
     settled = d["sole_force"][10:].sum(axis=1)  # after 0.1 s
     assert np.allclose(settled, weight, rtol=0.02)
@@ -81,7 +81,7 @@ def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     # the largest joint error: the hands, closed at their limit 0 in the posture, held LIMIT_MARGIN open
     assert m["max_tracking_error"] < LIMIT_MARGIN + 1e-3 and m["cog_inside_fraction"] == 1.0
     f = d["wbc_corner_force"]  # (updates, 8, 3) N, world frame
-    assert f.shape[1:] == (8, 3) and len(f) == pytest.approx(T * dt / 2e-3, abs=2)
+    assert f.shape[1:] == (8, 3) and len(f) == pytest.approx(T * dt / CONTROL_PERIOD, abs=2)
     assert np.allclose(f[..., 2].sum(axis=1), weight, rtol=0.02)
     assert np.all(f[..., 2] >= -1e-6)
     assert np.all(np.abs(f[..., :2]) <= MU * f[..., 2:3] + 1e-6)
@@ -172,9 +172,13 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
         execs = flow.send(fake)
         cfgs = [job.arg[2] for job in execs.jobs]
         executed = sum(v.seed_count(exp.seeds, True) for v in exp.variants if v in exp.execute)
-        stab = [c for c in cfgs if (c.controller, c.start) == (STABILIZER["controller"], STABILIZER["start"])]
+        stab = [c for c in cfgs if (c.controller, c.start) == (STABILIZER["controller"], STABILIZER["start"])
+                and c.x0_noise == 0 and c.process_noise == 0]
+        noisy = [c for c in cfgs if c.controller == STABILIZER["controller"] and (c.x0_noise or c.process_noise)]
+        assert len(noisy) == executed and {c.plan for c in noisy} == {c.plan for c in stab}  # the noise sweep
         plain = [c for c in cfgs if (c.controller, c.start) == ("pd", "plan") and c.x0_noise == 0 and c.process_noise == 0]
-        assert len(stab) == executed and len(plain) >= executed
+        # the sweep's level 0 is the figure's own execution: the same config (one cache entry, run once)
+        assert len(set(stab)) == executed and len(plain) >= executed
         assert {c.plan for c in stab} <= {c.plan for c in plain}
     pd = {"status": "fell", "via_point_errors": {"via_hand@100": 0.001}}
     wbc = {"status": "ok", "controller": "wbc", "start": "standing", "via_point_errors": {"via_hand@100": 0.001}}
@@ -266,3 +270,57 @@ def test_stabilizer_balances_a_single_support_plan_on_the_left_foot(tmp_path):
     after = d["times"] > t_rel + 0.05
     assert np.all(d["sole_force"][after, 1] == 0.0) and np.all(d["sole_force"][after, 0] > 0.9 * NAO_MASS * G)
     assert m["zmp_edge_fraction"] == 0.0
+
+
+def test_proxqp_solves_the_stabilizers_programs_as_clarabel_does():
+    """The stabilizer's solver (proxsuite, warm-started) against Drake's Clarabel (an interior-point method) on
+    the programs of a standing Nao and of a moving one (random joint velocities, a CoG reference off the
+    current CoG): the same accelerations (the forces are unique only up to the small force regularization,
+    so the check is on the cost and the constraints), every constraint met to 1e-7."""
+    from plants.free_nao import load_free_nao
+    from stages.wbc import ClarabelProgram, ProxQP, make_stabilizer
+
+    free = load_free_nao(pd=False)
+    fixed = free.fixed
+    T = 100
+    X = np.tile(np.r_[fixed.default_q, np.zeros(fixed.n_q)], (T + 1, 1))
+    step = 0.05 * np.random.default_rng(0).standard_normal(fixed.n_q)
+    X[:, :fixed.n_q] = np.clip(X[:, :fixed.n_q] + np.linspace(0, 1, T + 1)[:, None] * step, fixed.lower, fixed.upper)
+    stab = make_stabilizer(free, X, 0.01)
+    qp0, _ = free.stance_positions(fixed.default_q)
+    rng = np.random.default_rng(1)
+    nv = free.plant.num_velocities()
+    programs = [stab.program(0.0, qp0, np.zeros(nv))[0]]
+    for k in range(1, 6):
+        v = np.zeros(nv)
+        v[6:] = 0.3 * rng.standard_normal(nv - 6)
+        programs.append(stab.program(0.1 * k, qp0, v)[0])
+    prox = ProxQP(len(programs[0].g), len(programs[0].beq), len(programs[0].l))
+    clarabel = ClarabelProgram(len(programs[0].g), len(programs[0].beq), len(programs[0].l))
+    for d in programs:
+        x, ok, status = prox.solve(d)
+        y, ok_c, _ = clarabel.solve(d)
+        assert ok and ok_c and status.endswith("PROXQP_SOLVED")
+        cx, cy = (0.5 * z @ d.H @ z + d.g @ z for z in (x, y))
+        assert abs(cx - cy) <= 1e-6 * max(1.0, abs(cy))
+        assert np.abs(x[:nv] - y[:nv]).max() < 1e-3
+        assert np.abs(d.Aeq @ x - d.beq).max() < 1e-7
+        assert np.all(d.C @ x <= d.u + 1e-7) and np.all(d.C @ x >= d.l - 1e-7)
+        assert np.all(x <= d.ub + 1e-7) and np.all(x >= d.lb - 1e-7)
+    assert prox.fallbacks == 0
+
+
+def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
+    """Process noise under the stabilizer is added to its held torques and the sum clamped at the effort
+    limits (as the plant clamps the PD's total): the applied torques never exceed them, and they differ
+    from the noise-free run's."""
+    nao = shared_free_nao().fixed
+    T, dt = 30, 0.01
+    Q = np.tile(nao.default_q, (T + 1, 1))
+    runs = [execute(ExecuteConfig(plan="hold", controller="wbc", start="standing", process_noise=w, seed=3),
+                    desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt)) for w in (0.0, 0.5)]
+    free = shared_free_nao()
+    limit = np.abs(free.A).T @ free.effort  # per planning joint (the coupled hip: both actuators)
+    for out in runs:
+        assert np.all(np.abs(out.tau) <= limit + 1e-9)
+    assert runs[1].metrics["torque_saturation"] > 0 and not np.allclose(runs[0].U, runs[1].U)
