@@ -702,7 +702,8 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
           f"Each plan executed once per noise level ({'; '.join(who)}): initial joint-angle noise (rad) and torque "
           "noise per planning step and joint (N m; added to the controller's torque, the sum clamped at the effort "
           "limits); plan i with execution seed i. A run succeeds when its status is ok; it stood unless it fell or "
-          "diverged.", "", "![noise](noise.png)", "",
+          "diverged. The noisy runs are not recorded by `make reproduce` (their keys are in claims.json; `raico show "
+          "KEY --open` writes and opens a recording from the cache).", "", "![noise](noise.png)", "",
           "| controller | x0 noise (rad) | process noise (N m) | runs | success rate | stood | statuses | largest "
           "executed via-point error: median (min-max) |", "|---|---|---|---|---|---|---|---|"]
     md += [f"| {NOISE_CONTROLLERS.get(r['controller'], r['controller'])} | {r['x0_noise']:g} | {r['process_noise']:g} | "

@@ -386,6 +386,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
                                                       frame_maps=_frame_tasks(problem),
                                                       swing=_swing_task(lift_from, fixed)))
         free.builder.Connect(plant.get_state_output_port(), stab.get_input_port(0))
+        free.builder.Connect(plant.get_generalized_contact_forces_output_port(free.model), stab.contact_port)
         free.builder.Connect(stab.get_output_port(0), plant.get_actuation_input_port())
     sim = Simulator(free.builder.Build())
     pctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
@@ -497,7 +498,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     if stance:
         metrics["start"] = "standing"
     if wbc:
-        metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_fallbacks=stab.qp.fallbacks,
+        metrics.update(controller="wbc", wbc_qp_failures=stab.failures, wbc_qp_fallbacks=stab.qp.fallbacks, wbc_limp_time=stab.limp,
                        wbc_qp_relaxed=len(stab.relaxed),
                        wbc_qp_median_s=float(np.median(nao["wbc_solve_s"]))
                        if len(stab.log) else float("nan"))
