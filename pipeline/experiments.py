@@ -202,6 +202,7 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.4-support": Experiment("fig3.4-support", "nao", "balance-inside", "pseudo", (Variant("raico", 1.0),), 25, 5,
                                  "beyond the thesis: fig3.4-inside with the support term (--balance support)",
                                  execute=(Variant("raico", 1.0),), stabilized=True, balance="support",
+                                 balance_margin=0.025,
                                  claims=("cog_support", "executed_reaches", "stabilizer_stands",
                                          "stabilizer_stands_under_noise")),
 }

@@ -51,6 +51,11 @@ def cog(axes=(0, 1, 2), name: str = "cog") -> dict:
     return {"map": "cog", "axes": list(axes), "name": name}
 
 
+def joints(name: str = "joints", indices=None) -> dict:
+    """Joint positions (rad): all, or those at ``indices`` of the planning coordinates."""
+    return {"map": "joints", "indices": None if indices is None else [int(i) for i in indices], "name": name}
+
+
 def _times_desc(times) -> list[int] | dict:
     """Steps as stored: a list, or ``{"from": a, "to": b}`` for a range of step 1."""
     if isinstance(times, range):

@@ -100,10 +100,10 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     assert "0.0500 m outside the support polygon" in line and "planned at (0.0200, 0.0290) m" in line
     # the support term is at every step 1..T; single support drops the right sole's hold
     names = [d["name"] for d in terms]
-    assert names == (["via_cog", "support"] if mode == "support" else
-                     ["via_cog", "support", "r_sole_clear", "r_sole_lift"])
+    assert names == (["via_cog", "support", "joint_range"] if mode == "support" else
+                     ["via_cog", "support", "joint_range", "r_sole_clear", "r_sole_lift"])
     if mode == "single":  # the right sole's four corners above ground to step T/3 - 1, lifted from T/3
-        clear, lift = terms[2], terms[3]
+        clear, lift = terms[3], terms[4]
         assert clear["times"] == {"from": 1, "to": 5} and lift["times"] == {"from": 6, "to": 20}
         assert np.allclose(clear["b"], 0.0, atol=1e-12) and lift["b"] == [-0.025] * 4
         assert lift["A"] == clear["A"] == (-np.eye(4)).tolist()
@@ -131,7 +131,7 @@ def test_balance_none_leaves_the_task_as_it_is():
     _, _, pb, _, desc = build_problem(PlanConfig(**cfg))
     _, _, pb_s, _, desc_s = build_problem(PlanConfig(**cfg, balance="support"))
     assert "balance" not in desc and pb.term_names() == ["via_cog1", "via_cog2", "via_cog3", "r_sole", "control"]
-    assert pb_s.term_names() == ["via_cog1", "via_cog2", "via_cog3", "r_sole", "support", "control"]
+    assert pb_s.term_names() == ["via_cog1", "via_cog2", "via_cog3", "r_sole", "support", "joint_range", "control"]
     assert desc_s["terms"][:1] == desc["terms"][:1]  # the -0.1 m via-point is over the right foot: kept
 
 
@@ -229,3 +229,30 @@ def test_balance_margin_option_sets_the_term_and_the_moved_targets():
         for m in desc["balance"]["moved"]:
             assert signed_margin(poly, np.array(m["planned"])) == pytest.approx(margin)
     assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == MARGIN
+
+
+def test_joint_range_term_bounds_every_joint_inside_its_range():
+    """The balance objective's joint-range term: zero inside [lower + margin, upper - margin] at every step 1..T,
+    a squared hinge beyond it, its gradient against central finite differences."""
+    from planning.objective import build_term
+    from stages.plan.balance import JOINT_MARGIN, W_RANGE, apply_balance
+
+    nao = shared_robot("nao")
+    T = 4
+    terms, _ = apply_balance(nao, nao.default_q, T, [], "support")
+    term = build_term(nao, next(t for t in terms if t["name"] == "joint_range"))
+    n = nao.n_q
+    inside = np.clip(nao.default_q, nao.lower + JOINT_MARGIN + 1e-3, nao.upper - JOINT_MARGIN - 1e-3)  # off the kinks
+    assert term.value(np.r_[inside, np.zeros(n)][None], [1])[0] == 0.0
+    beyond = inside.copy()
+    i = nao.joint_names.index("RAnkleRoll")
+    beyond[i] = nao.upper[i]  # at the limit: JOINT_MARGIN past the bound
+    xb = np.r_[beyond, 0.1 * np.ones(n)]
+    assert term.value(xb[None], [1])[0] == pytest.approx(W_RANGE * JOINT_MARGIN ** 2)
+    assert term.value(xb[None], [0])[0] == 0.0  # not at step 0 (the start is given)
+    lx, _ = term.derivatives(xb[None], [1])
+    eps = 1e-7
+    fd = np.array([(term.value((xb + eps * e)[None], [1])[0] - term.value((xb - eps * e)[None], [1])[0]) / (2 * eps)
+                   for e in np.eye(2 * n)])
+    np.testing.assert_allclose(lx[0], fd, atol=1e-3)
+    assert np.count_nonzero(lx[0]) == 1 and lx[0, i] > 0

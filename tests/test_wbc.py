@@ -324,3 +324,50 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     for out in runs:
         assert np.all(np.abs(out.tau) <= limit + 1e-9)
     assert runs[1].metrics["torque_saturation"] > 0 and not np.allclose(runs[0].U, runs[1].U)
+
+
+def test_disturbance_observer_recovers_a_known_joint_torque():
+    """The stabilizer's observer on a state reached from the last one under a known joint torque disturbance ``w``
+    (besides its own command and the contact forces): its estimate is ``w`` exactly (to the fixed point's 1e-9),
+    none on a joint within its margin of a limit (the hands, closed at 0), and the next program's torque map
+    compensates it (``u = At x + h_j - w``, the torque bounds shifted by it)."""
+    from plants.free_nao import load_free_nao
+    from stages.wbc import LIMIT_MARGIN_OBS, make_stabilizer
+
+    free = load_free_nao(pd=False)
+    fixed, plant = free.fixed, free.plant
+    X = np.tile(np.r_[fixed.default_q, np.zeros(fixed.n_q)], (11, 1))
+    stab = make_stabilizer(free, X, 0.01)
+    q, _ = free.stance_positions(fixed.default_q)
+    nv = plant.num_velocities()
+    rng = np.random.default_rng(4)
+    B = plant.MakeActuationMatrix()
+    v_prev = 0.05 * rng.standard_normal(nv)
+    u_prev = 0.3 * rng.uniform(-1, 1, B.shape[1]) * free.effort
+    w = 0.5 * rng.uniform(-1, 1, B.shape[1]) * free.effort
+    tau_c = rng.standard_normal(nv)
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositions(ctx, q)
+    M = plant.CalcMassMatrix(ctx)
+    dt = 4e-3
+    v = v_prev.copy()
+    for _ in range(50):  # the implicit step M (v - v_prev)/dt = B (u + w) + tau_c - h(q, v), by fixed point
+        plant.SetVelocities(ctx, v)
+        h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
+        v = v_prev + dt * np.linalg.solve(M, B @ (u_prev + w) + tau_c - h)
+    plant.SetVelocities(ctx, v)
+    h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
+    jv = np.array([np.flatnonzero(B[:, a])[0] for a in range(B.shape[1])])  # each actuator's velocity
+    d, (At, hj) = stab.program(0.1, q, v, (v_prev, dt, tau_c, u_prev))
+    w_hat = h[jv] - hj
+    qj = q[jv + 1]  # joint positions: the floating base has 7 positions and 6 velocities
+    lower, upper = plant.GetPositionLowerLimits()[jv + 1], plant.GetPositionUpperLimits()[jv + 1]
+    near = (qj <= lower + LIMIT_MARGIN_OBS) | (qj >= upper - LIMIT_MARGIN_OBS)
+    assert near.any() and not near.all()
+    np.testing.assert_allclose(w_hat[~near], w[~near], atol=1e-9)
+    assert np.all(w_hat[near] == 0.0)
+    n_act = B.shape[1]
+    np.testing.assert_allclose(d.u[:n_act], free.effort - hj, atol=1e-12)
+    np.testing.assert_allclose(d.l[:n_act], -free.effort - hj, atol=1e-12)
+    _, (_, hj0) = stab.program(0.1, q, v)  # no observer: no compensation
+    np.testing.assert_allclose(hj0, h[jv], atol=1e-12)

@@ -13,7 +13,8 @@ the support polygon is fixed in that frame for the whole movement:
 
 At every step 1..T the CoG's ground projection (quasi-static) is kept at least ``MARGIN``
 inside every polygon edge by ``planning.costs.TaskInequality`` (squared hinge, weight
-``W_SUPPORT``). Before planning, every CoG via-point whose target's ground projection lies
+``W_SUPPORT``), and every joint ``JOINT_MARGIN`` inside its range (weight ``W_RANGE``): the free
+robot cannot go beyond a joint's limit to shift its CoG. Before planning, every CoG via-point whose target's ground projection lies
 outside the polygon shrunk by the margin is reported (its static margin from the model, m) and
 moved to the nearest point of the shrunk polygon; :class:`BalanceReport` says which, and the
 moved terms keep their ``requested_target`` in the description.
@@ -35,6 +36,8 @@ W_SUPPORT = 1e6  # per m^2 of margin violation (the balance task's lateral CoG w
 LIFT = 0.02  # m, the right sole's lowest corner above the ground in single support ...
 LIFT_BOUND = 0.025  # m, ... planned with 5 mm to spare (the bound is a soft penalty)
 W_LIFT = 1e6  # per m^2 below a height bound
+JOINT_MARGIN = 0.03  # rad, every joint planned this far inside its range ...
+W_RANGE = 1e5  # ... per rad^2 beyond it (the stabilizer keeps 0.02 rad: stages/wbc.py LIMIT_MARGIN)
 
 
 # ------------------------------------------------------------------ polygon geometry (world xy, m)
@@ -133,6 +136,12 @@ def apply_balance(robot: Robot, q0: np.ndarray, T: int, terms: list, mode: str,
     A, b = halfplanes(poly)
     out.append(ob.inequality("support", ob.cog(axes=(0, 1), name="cog_xy"), A, b - margin, range(1, T + 1),
                              W_SUPPORT, polygon=poly.tolist(), margin=margin, mode=mode))
+    # the joints inside their ranges: with both soles held, a CoG shift can ask more ankle roll than the joint has
+    # (measured: fig3.4-inside's plans ask RAnkleRoll up to 0.44 rad, its limit is 0.398); the free robot cannot
+    n = robot.n_q
+    out.append(ob.inequality("joint_range", ob.joints(), np.vstack([np.eye(n), -np.eye(n)]),
+                             np.r_[robot.upper - JOINT_MARGIN, -(robot.lower + JOINT_MARGIN)], range(1, T + 1),
+                             W_RANGE, margin=JOINT_MARGIN))
     if mode == "single":
         sole = ob.frame_points("r_sole", "r_sole_heights", axes=(2,),
                                points=np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))])
