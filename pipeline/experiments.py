@@ -49,6 +49,16 @@ class Variant:
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
         return base if self.relinearize else f"{base} (no sweep relinearization)"
 
+    @property
+    def recorded(self) -> bool:
+        """Whether ``make reproduce`` records this variant's plans: the thesis's solvers in the thesis's set-up
+        (iLQG, AICO, R-AICO with a fixed alpha); the ablations, baselines and long-budget references are recorded on
+        demand (``raico show KEY --open`` writes one from the cache): a plan recording takes 0.3-0.5 s, and these
+        are about 250 of the 800 plans."""
+        return (self.solver in ("ilqg", "aico", "raico") and self.relinearize and self.iterations is None
+                and self.schedule == "fixed" and self.seeds is None and self.gamma == 1.0 and self.start == "held"
+                and self.dynamics is None and self.belief_rate == 1.0 and self.controller_rate == 1.0)
+
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
         """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
         return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
@@ -280,7 +290,8 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     integ = exp.integrator_variants(quick)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
             for s in range(v.seed_count(exp.seeds, quick))]
-    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record, f"{v.label} seed {s}") for v, s, cfg in runs])
+    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record and v.recorded, f"{v.label} seed {s}")
+                                for v, s, cfg in runs])
     every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
     n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)
     plans, integ_plans = every[:n_main], every[n_main:]

@@ -902,7 +902,8 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     summary = summary_table(exp, result["plans"], cache)
     integ_rows = integrator_table(exp, integ, cache)
     runs = [{"variant": p["variant"].label, "seed": p["seed"], "key": p["outcome"].key,
-             "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd")}
+             "status": p["outcome"].status, "recording": str(Path(p["outcome"].path) / "recording.rrd"),
+             "recorded": (Path(p["outcome"].path) / "recording.rrd").exists()}
             for p in result["plans"] + integ]
     integ_runs = [{"variant": p["variant"].label, "seed": p["seed"], "plan": p["outcome"].key,
                    "integration": p["integration"].key, "status": p["integration"].status} for p in integ]
@@ -946,7 +947,13 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                "", "Drake's integrations (execute entries, not recorded; `raico execute --plan KEY --open-loop` "
                "records one from the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['integration']}`"
                                                           for r in integ_runs), ""]
-    md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs]
+    md += ["", "## Recordings", ""] + [f"- {r['variant']} seed {r['seed']}: `{r['recording']}`" for r in runs
+                                       if r["recorded"]]
+    unrecorded = [r for r in runs if not r["recorded"]]
+    if unrecorded:
+        md += ["", f"Not recorded by `make reproduce` ({len(unrecorded)} runs of the ablations, baselines, long-budget "
+               "references and the integrator comparison; `raico show KEY --open` writes and opens a recording from "
+               "the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['key']}`" for r in unrecorded)]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")
     return doc
 
