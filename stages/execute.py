@@ -69,6 +69,7 @@ CoG's margin against it, the torso's pose and the planned torso and sole corners
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -109,7 +110,8 @@ class ExecuteConfig(StageConfig):
                          "feedback, no noise) to Drake's continuous plant (no joint limits), runge_kutta3 at a fixed "
                          "step of at most 1 ms; how far Drake's integration of the planned controls is from the plan.",
             "start": "Nao start state: plan (the plan's x0 on the ground, tipped onto its lowest sole corners) or "
-                     "standing (projected to double support by inverse kinematics).",
+                     "standing (projected to double support by inverse kinematics); default: standing with "
+                     "--controller wbc, plan with the joint PD.",
             "controller": "Nao controller: pd (joint PD + inverse-dynamics feed-forward) or wbc (the whole-body "
                           "stabilizer, a task-space inverse-dynamics QP with contact)."}
 
@@ -119,11 +121,18 @@ class ExecuteConfig(StageConfig):
     seed: int = 0
     clip_torques: bool = True
     open_loop: bool = False  # the integration check of appendix C (see HELP)
-    start: str = "plan"  # Nao: "plan" or "standing" (STARTS)
+    start: str | None = None  # Nao: "plan" or "standing" (STARTS); None: standing with the stabilizer, else plan
     controller: str = "pd"  # Nao: "pd" or "wbc" (CONTROLLERS)
 
+    def normalized(self) -> ExecuteConfig:
+        """The start state spelled out: the standing start with the stabilizer (which needs both soles on the
+        ground), the plan's start with the joint PD (the thesis rows)."""
+        if self.start is not None:
+            return self
+        return dataclasses.replace(self, start="standing" if self.controller == "wbc" else "plan")
+
     def validate(self) -> None:
-        if self.start not in STARTS:
+        if self.start is not None and self.start not in STARTS:
             raise ValueError(f"start must be one of {', '.join(STARTS)} (got {self.start!r})")
         if self.controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {', '.join(CONTROLLERS)} (got {self.controller!r})")
@@ -567,6 +576,7 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
 def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int, int], None] | None = None,
             plan_status: str | None = None) -> ExecuteOutput:
     """Execute a plan (its arrays, stored problem description and status) in Drake (module docstring)."""
+    cfg = cfg.normalized()
     cfg.validate()
     problem = objective_from_description(desc)
     nao = desc["plant"] == "nao"

@@ -19,7 +19,7 @@ from planning.costs import TaskInequality
 from plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
 from plants.robots import NAO_SOLE_POLYGON, shared_robot
 from plants.taskmaps import CenterOfMass, JointPositions
-from stages.plan.balance import MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
+from stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
 from stages.plan.stage import PlanConfig, build_problem, objective_from_description
 
 runner = CliRunner()
@@ -97,7 +97,7 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     assert signed_margin(poly, np.array(terms[0]["target"][:2])) == pytest.approx(MARGIN)
     line = rep.line()
     assert "\n" not in line and "via_cog (step 10) is statically infeasible" in line
-    assert "0.0500 m outside the support polygon" in line and "planned at (0.0200, 0.0290) m" in line
+    assert "0.0500 m outside the support polygon" in line and f"planned at (0.0200, {0.044 - MARGIN:.4f}) m" in line
     # the support term is at every step 1..T; single support drops the right sole's hold
     names = [d["name"] for d in terms]
     assert names == (["via_cog", "support", "joint_range"] if mode == "support" else
@@ -228,7 +228,7 @@ def test_balance_margin_option_sets_the_term_and_the_moved_targets():
         np.testing.assert_allclose(support["b"], b - margin, atol=1e-15)
         for m in desc["balance"]["moved"]:
             assert signed_margin(poly, np.array(m["planned"])) == pytest.approx(margin)
-    assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == MARGIN
+    assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == NO_BALANCE_MARGIN
 
 
 def test_joint_range_term_bounds_every_joint_inside_its_range():

@@ -97,7 +97,12 @@ def test_stabilizer_holds_a_standing_nao_for_two_seconds():
 def test_default_execution_is_the_pd_baseline():
     """The new options default to the old behaviour: no projection, no stabilizer metrics."""
     cfg = ExecuteConfig(plan="p")
-    assert (cfg.start, cfg.controller) == ("plan", "pd")
+    assert (cfg.normalized().start, cfg.controller) == ("plan", "pd")
+    # the stabilizer starts standing unless told otherwise (it needs both soles on the ground); an explicit start stays
+    assert ExecuteConfig(plan="p", controller="wbc").normalized().start == "standing"
+    assert ExecuteConfig(plan="p", controller="wbc", start="plan").normalized().start == "plan"
+    assert ExecuteConfig(plan="p", controller="wbc").normalized() == ExecuteConfig(plan="p", controller="wbc",
+                                                                                  start="standing").normalized()
     nao = shared_free_nao().fixed
     T, dt = 20, 0.01
     out = execute(cfg, desc_for("nao", nao.default_q, T, dt), pseudo_plan(np.tile(nao.default_q, (T + 1, 1)), dt))
@@ -172,11 +177,11 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
         execs = flow.send(fake)
         cfgs = [job.arg[2] for job in execs.jobs]
         executed = sum(v.seed_count(exp.seeds, True) for v in exp.variants if v in exp.execute)
-        stab = [c for c in cfgs if (c.controller, c.start) == (STABILIZER["controller"], STABILIZER["start"])
+        stab = [c for c in cfgs if (c.controller, c.normalized().start) == (STABILIZER["controller"], STABILIZER["start"])
                 and c.x0_noise == 0 and c.process_noise == 0]
         noisy = [c for c in cfgs if c.controller == STABILIZER["controller"] and (c.x0_noise or c.process_noise)]
         assert len(noisy) == executed and {c.plan for c in noisy} == {c.plan for c in stab}  # the noise sweep
-        plain = [c for c in cfgs if (c.controller, c.start) == ("pd", "plan") and c.x0_noise == 0 and c.process_noise == 0]
+        plain = [c for c in cfgs if (c.controller, c.normalized().start) == ("pd", "plan") and c.x0_noise == 0 and c.process_noise == 0]
         # the sweep's level 0 is the figure's own execution: the same config (one cache entry, run once)
         assert len(set(stab)) == executed and len(plain) >= executed
         assert {c.plan for c in stab} <= {c.plan for c in plain}

@@ -21,7 +21,7 @@ from plants.dynamics import PseudoDynamics
 from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
-from stages.plan.balance import BALANCE_MODES, MARGIN, apply_balance, cog_margins
+from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
 from stages.plan.tasks import TASKS, TaskSpec, get_task
 
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
@@ -166,7 +166,7 @@ class PlanConfig(StageConfig):
         if self.solver not in ("aico", "raico"):
             d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
         if self.balance == "none":
-            d["balance_margin"] = MARGIN  # no balance term: its margin means nothing
+            d["balance_margin"] = NO_BALANCE_MARGIN  # no balance term: its margin means nothing
         return PlanConfig(**d)
 
     def solver_options(self) -> dict:
