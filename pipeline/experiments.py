@@ -55,9 +55,7 @@ class Variant:
         (iLQG, AICO, R-AICO with a fixed alpha); the ablations, baselines and long-budget references are recorded on
         demand (``raico show KEY --open`` writes one from the cache): a plan recording takes 0.3-0.5 s, and these
         are about 250 of the 800 plans."""
-        return (self.solver in ("ilqg", "aico", "raico") and self.relinearize and self.iterations is None
-                and self.schedule == "fixed" and self.seeds is None and self.gamma == 1.0 and self.start == "held"
-                and self.dynamics is None and self.belief_rate == 1.0 and self.controller_rate == 1.0)
+        return self.solver in ("ilqg", "aico", "raico") and self == Variant(self.solver, self.alpha)  # all else default
 
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
         """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
