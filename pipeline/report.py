@@ -592,6 +592,57 @@ def moved_section(exp: Experiment, plans: list[dict]) -> tuple[list[str], list[d
     return md, rows
 
 
+def missed_rows(executions: list) -> list[dict]:
+    """Per stabilizer execution that did not achieve the task (status ok and every via-point within
+    ``EXECUTED_VIA_TOL``, the held right sole left out): its status, the worst via-point and its error (m), that
+    via-point's target margin to the feet's polygon at the start (m, CoG via-points) and the joints its reference
+    takes past their range (rad): what the reference asked that the robot could not give."""
+    from stages.evaluate.claims import EXECUTED_VIA_TOL
+
+    rows = []
+    for e in executions:
+        m = e.metrics
+        if not _stabilized(m):
+            continue
+        errs = {k: v for k, v in (m.get("via_point_errors") or {}).items() if not k.startswith("r_sole")}
+        worst = max(errs, key=lambda k: errs[k], default=None)
+        if m.get("status") == "ok" and (worst is None or errs[worst] <= EXECUTED_VIA_TOL):
+            continue
+        rows.append({"key": e.key, "status": m.get("status"), "reason": m.get("reason"), "via_point": worst,
+                     "error": errs.get(worst, float("nan")),
+                     "target_margin": (m.get("cog_via_point_margins") or {}).get(worst, float("nan")),
+                     "beyond_limits": m.get("reference_beyond_limits") or {}})
+    return rows
+
+
+def missed_section(exp: Experiment, executions: list) -> tuple[list[str], list[dict]]:
+    """The markdown lines on the stabilizer's runs that missed (``missed_rows``); none if every run achieved."""
+    from stages.evaluate.claims import EXECUTED_VIA_TOL
+    from stages.wbc import COG_MARGIN, LIMIT_MARGIN
+
+    rows = missed_rows(executions)
+    runs = sum(_stabilized(e.metrics) for e in executions)
+    if not rows:
+        return [], []
+    near = sum(r["target_margin"] < COG_MARGIN for r in rows)
+    past = sum(bool(r["beyond_limits"]) for r in rows)
+    md = ["## Where the stabilizer missed (beyond the thesis)", "",
+          f"{len(rows)} of {runs} stabilizer runs did not achieve the task (status ok and every via-point within "
+          f"{EXECUTED_VIA_TOL * 100:g} cm). What their references asked that the free robot cannot give: in {near} "
+          f"the missed via-point's target lies less than the stabilizer's CoG margin ({COG_MARGIN * 100:g} cm, "
+          "`stages/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped) inside the feet's polygon at the "
+          f"start; in {past} the joint reference (the plan, shifted by the start projection) takes a joint past its "
+          f"range, where the stabilizer stops it {LIMIT_MARGIN:g} rad inside.", "",
+          "| execution | status | worst via-point | its error (m) | its target's margin to the feet's edge (m) | "
+          "reference past a joint's range (rad) |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        lim = ", ".join(f"{j} {v:.3f}" for j, v in sorted(r["beyond_limits"].items(), key=lambda kv: -kv[1])) or "none"
+        status = r["status"] if r["status"] == "ok" else f"{r['status']} ({r['reason']})"
+        md.append(f"| {r['key']} | {status} | {r['via_point']} | {_fmt(r['error'])} | {_fmt(r['target_margin'])} | "
+                  f"{lim} |")
+    return md + [""], rows
+
+
 # ----------------------------------------------------------------------------- standing, across the Nao figures
 STANDING_CONTROLLERS = {"joint PD": "pd", "stabilizer": "wbc"}
 
@@ -912,10 +963,12 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     balance_md, balance_rows = balance_section(cache, exp, result["executions"], out_dir)
     moved_md, moved_rows = moved_section(exp, result["plans"])
-    balance_md = moved_md + balance_md
+    missed_md, missed = missed_section(exp, result["executions"])
+    balance_md = moved_md + balance_md + missed_md
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
-           "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows}
+           "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows,
+           "stabilizer_missed": missed}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]

@@ -77,11 +77,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning.objective import objective_from_description
+from plants.polygons import convex_hull
 from plants.robots import Robot, load_robot
 from stages.base import Artifact, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import (
+    cog_via_point_margins,
     execution_metrics,
     padded_polygons,
+    plan_beyond_limits,
     point_margins,
     single_support_lift,
     support_polygons,
@@ -500,6 +503,11 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
                                 nao={**nao, "torso_height": torso_p[:, 2]})
     metrics["start_tilt"] = tilt
+    # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
+    # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
+    metrics["reference_beyond_limits"] = plan_beyond_limits(X_plan[:, :n], fixed.lower, fixed.upper, fixed.joint_names)
+    if np.all(np.isfinite(corners[0])):
+        metrics["cog_via_point_margins"] = cog_via_point_margins(problem, convex_hull(corners[0, :, :, :2].reshape(-1, 2)))
     if stance:
         nao["X_plan_unshifted"] = np.asarray(plan["X"], float)
         metrics.update(start_projection_norm=stance["projection_norm"], start_projection_max=stance["projection_max"],

@@ -256,3 +256,27 @@ def test_joint_range_term_bounds_every_joint_inside_its_range():
                    for e in np.eye(2 * n)])
     np.testing.assert_allclose(lx[0], fd, atol=1e-3)
     assert np.count_nonzero(lx[0]) == 1 and lx[0, i] > 0
+
+
+def test_cog_via_point_margins_against_the_feet():
+    """The fig3.4 problem's CoG via-point targets against the feet's polygon: the +0.1 m one 5.5 cm
+    outside (as the model says above), the -0.1 m one inside, keys as the via-point errors'."""
+    from stages.evaluate.metrics import cog_via_point_margins
+
+    nao, _, pb, q0, _ = build_problem(PlanConfig(plant="nao", task="balance", seed=0))
+    poly = support_polygon(nao, q0, "support")
+    margins = cog_via_point_margins(pb, poly)
+    assert list(margins) == ["via_cog1@100", "via_cog2@200", "via_cog3@300"]
+    c = CenterOfMass(nao).value(q0)
+    for name, dy in (("via_cog1@100", -0.1), ("via_cog2@200", 0.1), ("via_cog3@300", 0.0)):
+        assert margins[name] == pytest.approx(signed_margin(poly, c[:2] + [0.0, dy]), abs=1e-3)
+    assert margins["via_cog2@200"] < -0.05 < 0 < margins["via_cog1@100"]
+
+
+def test_plan_beyond_limits_names_only_the_joints_that_leave_their_range():
+    from stages.evaluate.metrics import plan_beyond_limits
+
+    lower, upper = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 1.0])
+    Q = np.array([[0.0, 0.0, 0.5], [1.2, 0.4, 0.0], [0.9, -0.7, 1.0]])
+    assert plan_beyond_limits(Q, lower, upper, ["a", "b", "c"]) == pytest.approx({"a": 0.2, "b": 0.2})
+    assert plan_beyond_limits(Q[:1], lower, upper, ["a", "b", "c"]) == {}

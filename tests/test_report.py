@@ -206,3 +206,32 @@ def test_figure_renders_from_the_panels_data(runs, tmp_path):
     write_figure(FakeCache(), EXP, plans, tmp_path / "figure.png")
     img = mpimg.imread(tmp_path / "figure.png")
     assert img.shape[1] > 1000 and img[..., :3].std() > 0.05  # two panels (time per iteration differs), not blank
+
+
+def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
+    """The stabilizer's runs that missed (status ok but a via-point beyond 1 cm, or another status) with the
+    reference's joints past their range and the target's margin; achieved and joint-PD runs left out."""
+    from types import SimpleNamespace
+
+    from pipeline.experiments import EXPERIMENTS
+    from pipeline.report import missed_rows, missed_section
+
+    def run(key, status, errs, ctrl="wbc", margins=None, beyond=None):
+        return SimpleNamespace(key=key, metrics={"status": status, "reason": status, "controller": ctrl,
+                                                 "via_point_errors": {"r_sole@max": 0.5, **errs},
+                                                 "cog_via_point_margins": margins or {},
+                                                 "reference_beyond_limits": beyond or {}})
+
+    runs = [run("achieved", "ok", {"via_cog2@200": 0.009}),
+            run("short", "ok", {"via_cog1@100": 0.001, "via_cog2@200": 0.017}, margins={"via_cog2@200": 0.005},
+                beyond={"RAnkleRoll": 0.04}),
+            run("fell", "fell", {"via_cog2@200": 0.002}),
+            run("pd", "fell", {"via_cog2@200": 0.3}, ctrl="pd")]
+    rows = missed_rows(runs)
+    assert [r["key"] for r in rows] == ["short", "fell"]
+    assert rows[0]["via_point"] == "via_cog2@200" and rows[0]["error"] == 0.017 and rows[0]["target_margin"] == 0.005
+    assert rows[0]["beyond_limits"] == {"RAnkleRoll": 0.04}
+    md, _ = missed_section(EXPERIMENTS["fig3.4-inside"], runs)
+    assert "2 of 3 stabilizer runs did not achieve" in md[2] and "in 1 the missed via-point's target" in md[2]
+    assert "RAnkleRoll 0.040" in md[-3] and md[-2].endswith("| none |")
+    assert missed_section(EXPERIMENTS["fig3.4-inside"], runs[:1]) == ([], [])

@@ -243,6 +243,32 @@ def zmp_metrics(zmp_margin: np.ndarray | None) -> dict:
     return {"zmp_min_margin": float(zm.min()), "zmp_edge_fraction": float(np.mean(zm < ZMP_EDGE))}
 
 
+def plan_beyond_limits(Q_plan: np.ndarray, lower: np.ndarray, upper: np.ndarray, names) -> dict[str, float]:
+    """The joints a plan ``Q_plan (K, n)`` (rad) takes past their position range, each with its largest
+    excess (rad): ``{name: excess}``, only the joints that leave their range (a plan made without joint
+    limits may ask for what the robot cannot do)."""
+    Q = np.asarray(Q_plan, float)
+    excess = np.max(np.maximum(Q - upper, lower - Q), axis=0)
+    return {names[i]: float(excess[i]) for i in np.flatnonzero(excess > 0)}
+
+
+def cog_via_point_margins(problem, poly: np.ndarray) -> dict[str, float]:
+    """Each CoG via-point's target ground projection against the support polygon ``poly (k, 2)`` (the feet
+    at the start): ``{"<term>@<t>": signed margin (m), > 0 inside}``; how near the plan's request lies to the
+    feet's edge (a stabilizer holds the CoG some margin inside)."""
+    from planning.costs import ViaPoint
+    from plants.taskmaps import CenterOfMass
+
+    out = {}
+    for term in problem.state_terms:
+        axes = list(getattr(term.taskmap, "axes", []))
+        if isinstance(term, ViaPoint) and isinstance(term.taskmap, CenterOfMass) and 0 in axes and 1 in axes:
+            xy = term.target[[axes.index(0), axes.index(1)]]
+            for t in np.flatnonzero(term.active(np.arange(problem.T + 1))):
+                out[f"{term.name}@{t}"] = signed_margin(poly, xy)
+    return out
+
+
 LIFT = 0.02  # m, single support: the right sole's lowest corner at least this high (issue 19's target)
 
 
