@@ -592,11 +592,24 @@ def moved_section(exp: Experiment, plans: list[dict]) -> tuple[list[str], list[d
     return md, rows
 
 
-def missed_rows(executions: list) -> list[dict]:
+def _missed_row(key: str, m: dict, noise: str) -> dict:
+    errs = {k: v for k, v in (m.get("via_point_errors") or {}).items() if not k.startswith("r_sole")}
+    worst = max(errs, key=lambda k: errs[k], default=None)
+    return {"key": key, "noise": noise, "status": m.get("status"), "reason": m.get("reason"), "via_point": worst,
+            "error": errs.get(worst, float("nan")),
+            "target_margin": (m.get("cog_via_point_margins") or {}).get(worst, float("nan")),
+            "reference_cog_margin": m.get("reference_cog_min_margin", float("nan")),
+            "reference_cog_time": m.get("reference_cog_min_margin_time"),
+            "beyond_limits": m.get("reference_beyond_limits") or {}}
+
+
+def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
     """Per stabilizer execution that did not achieve the task (status ok and every via-point within
-    ``EXECUTED_VIA_TOL``, the held right sole left out): its status, the worst via-point and its error (m), that
-    via-point's target margin to the feet's polygon at the start (m, CoG via-points) and the joints its reference
-    takes past their range (rad): what the reference asked that the robot could not give."""
+    ``EXECUTED_VIA_TOL``, the held right sole left out), and per noisy one (``noisy``: the noise sweep's entries,
+    ``outcome`` and ``level``) that did not stand: its status, the worst via-point and its error (m), that
+    via-point's target margin to the feet's polygon at the start (m, CoG via-points), the least margin of the joint
+    reference's CoG to that polygon (m) and when (s), and the joints the reference takes past their range (rad):
+    what the reference asked that the robot could not give."""
     from stages.evaluate.claims import EXECUTED_VIA_TOL
 
     rows = []
@@ -604,42 +617,46 @@ def missed_rows(executions: list) -> list[dict]:
         m = e.metrics
         if not _stabilized(m):
             continue
-        errs = {k: v for k, v in (m.get("via_point_errors") or {}).items() if not k.startswith("r_sole")}
-        worst = max(errs, key=lambda k: errs[k], default=None)
-        if m.get("status") == "ok" and (worst is None or errs[worst] <= EXECUTED_VIA_TOL):
-            continue
-        rows.append({"key": e.key, "status": m.get("status"), "reason": m.get("reason"), "via_point": worst,
-                     "error": errs.get(worst, float("nan")),
-                     "target_margin": (m.get("cog_via_point_margins") or {}).get(worst, float("nan")),
-                     "beyond_limits": m.get("reference_beyond_limits") or {}})
+        row = _missed_row(e.key, m, "none")
+        if m.get("status") != "ok" or row["via_point"] is not None and row["error"] > EXECUTED_VIA_TOL:
+            rows.append(row)
+    for r in noisy or []:
+        m = r["outcome"].metrics
+        if _stabilized(m) and any(r["level"]) and m.get("status") in ("fell", "diverged"):
+            x0, proc = r["level"]
+            rows.append(_missed_row(r["outcome"].key, m, f"x0 {x0:g} rad, {proc:g} N m"))
     return rows
 
 
-def missed_section(exp: Experiment, executions: list) -> tuple[list[str], list[dict]]:
+def missed_section(exp: Experiment, executions: list, noisy: list | None = None) -> tuple[list[str], list[dict]]:
     """The markdown lines on the stabilizer's runs that missed (``missed_rows``); none if every run achieved."""
     from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.wbc import COG_MARGIN, LIMIT_MARGIN
 
-    rows = missed_rows(executions)
-    runs = sum(_stabilized(e.metrics) for e in executions)
+    rows = missed_rows(executions, noisy)
     if not rows:
         return [], []
-    near = sum(r["target_margin"] < COG_MARGIN for r in rows)
+    quiet = [r for r in rows if r["noise"] == "none"]
+    runs = sum(_stabilized(e.metrics) for e in executions)
+    near = sum(r["target_margin"] < COG_MARGIN or r["reference_cog_margin"] < COG_MARGIN for r in rows)
     past = sum(bool(r["beyond_limits"]) for r in rows)
     md = ["## Where the stabilizer missed (beyond the thesis)", "",
-          f"{len(rows)} of {runs} stabilizer runs did not achieve the task (status ok and every via-point within "
-          f"{EXECUTED_VIA_TOL * 100:g} cm). What their references asked that the free robot cannot give: in {near} "
-          f"the missed via-point's target lies less than the stabilizer's CoG margin ({COG_MARGIN * 100:g} cm, "
-          "`stages/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped) inside the feet's polygon at the "
-          f"start; in {past} the joint reference (the plan, shifted by the start projection) takes a joint past its "
-          f"range, where the stabilizer stops it {LIMIT_MARGIN:g} rad inside.", "",
-          "| execution | status | worst via-point | its error (m) | its target's margin to the feet's edge (m) | "
-          "reference past a joint's range (rad) |", "|---|---|---|---|---|---|"]
+          f"{len(quiet)} of {runs} stabilizer runs without noise did not achieve the task (status ok and every "
+          f"via-point within {EXECUTED_VIA_TOL * 100:g} cm); {len(rows) - len(quiet)} runs under noise fell. What "
+          f"their references asked that the free robot cannot give: in {near} of these {len(rows)} the missed "
+          "via-point's target or the joint reference's CoG comes nearer to the feet's edge than the stabilizer's CoG "
+          f"margin ({COG_MARGIN * 100:g} cm, `stages/wbc.py: COG_MARGIN`: the CoG reference is held that far inside; "
+          f"tracked nearer the edge the robot tipped); in {past} the joint reference (the plan, shifted by the start "
+          f"projection) takes a joint past its range, where the stabilizer stops it {LIMIT_MARGIN:g} rad inside. "
+          "Margins against the feet's polygon at the start, positive inside.", "",
+          "| execution | noise | status | worst via-point | its error (m) | its target's margin (m) | the reference "
+          "CoG's least margin (m), at (s) | reference past a joint's range (rad) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lim = ", ".join(f"{j} {v:.3f}" for j, v in sorted(r["beyond_limits"].items(), key=lambda kv: -kv[1])) or "none"
         status = r["status"] if r["status"] == "ok" else f"{r['status']} ({r['reason']})"
-        md.append(f"| {r['key']} | {status} | {r['via_point']} | {_fmt(r['error'])} | {_fmt(r['target_margin'])} | "
-                  f"{lim} |")
+        at = "" if r["reference_cog_time"] is None else f", {r['reference_cog_time']:g}"
+        md.append(f"| {r['key']} | {r['noise']} | {status} | {r['via_point']} | {_fmt(r['error'])} | "
+                  f"{_fmt(r['target_margin'])} | {_fmt(r['reference_cog_margin'])}{at} | {lim} |")
     return md + [""], rows
 
 
@@ -963,7 +980,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     balance_md, balance_rows = balance_section(cache, exp, result["executions"], out_dir)
     moved_md, moved_rows = moved_section(exp, result["plans"])
-    missed_md, missed = missed_section(exp, result["executions"])
+    missed_md, missed = missed_section(exp, result["executions"], result.get("noise"))
     balance_md = moved_md + balance_md + missed_md
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,

@@ -507,7 +507,13 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
     metrics["reference_beyond_limits"] = plan_beyond_limits(X_plan[:, :n], fixed.lower, fixed.upper, fixed.joint_names)
     if np.all(np.isfinite(corners[0])):
-        metrics["cog_via_point_margins"] = cog_via_point_margins(problem, convex_hull(corners[0, :, :, :2].reshape(-1, 2)))
+        feet = convex_hull(corners[0, :, :, :2].reshape(-1, 2))
+        metrics["cog_via_point_margins"] = cog_via_point_margins(problem, feet)
+        from stages.wbc import plan_cog
+
+        ref_margin = point_margins([feet] * (T + 1), plan_cog(fixed, X_plan, dt)[0][:, :2])
+        k_min = int(np.nanargmin(ref_margin))
+        metrics.update(reference_cog_min_margin=float(ref_margin[k_min]), reference_cog_min_margin_time=k_min * dt)
     if stance:
         nao["X_plan_unshifted"] = np.asarray(plan["X"], float)
         metrics.update(start_projection_norm=stance["projection_norm"], start_projection_max=stance["projection_max"],

@@ -209,17 +209,19 @@ def test_figure_renders_from_the_panels_data(runs, tmp_path):
 
 
 def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
-    """The stabilizer's runs that missed (status ok but a via-point beyond 1 cm, or another status) with the
-    reference's joints past their range and the target's margin; achieved and joint-PD runs left out."""
+    """The stabilizer's runs that missed (status ok but a via-point beyond 1 cm, or another status) and the noisy
+    ones that fell, with the reference's joints past their range and the margins; achieved, joint-PD and noisy runs
+    that stood left out."""
     from types import SimpleNamespace
 
     from pipeline.experiments import EXPERIMENTS
     from pipeline.report import missed_rows, missed_section
 
-    def run(key, status, errs, ctrl="wbc", margins=None, beyond=None):
+    def run(key, status, errs, ctrl="wbc", margins=None, beyond=None, ref=0.03):
         return SimpleNamespace(key=key, metrics={"status": status, "reason": status, "controller": ctrl,
                                                  "via_point_errors": {"r_sole@max": 0.5, **errs},
                                                  "cog_via_point_margins": margins or {},
+                                                 "reference_cog_min_margin": ref, "reference_cog_min_margin_time": 2.2,
                                                  "reference_beyond_limits": beyond or {}})
 
     runs = [run("achieved", "ok", {"via_cog2@200": 0.009}),
@@ -227,11 +229,16 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
                 beyond={"RAnkleRoll": 0.04}),
             run("fell", "fell", {"via_cog2@200": 0.002}),
             run("pd", "fell", {"via_cog2@200": 0.3}, ctrl="pd")]
-    rows = missed_rows(runs)
-    assert [r["key"] for r in rows] == ["short", "fell"]
+    noisy = [{"outcome": run("noisy-fell", "fell", {"via_cog2@200": 0.1}, ref=0.001), "level": (0.02, 0.5)},
+             {"outcome": run("noisy-stood", "limits", {"via_cog2@200": 0.1}), "level": (0.02, 0.5)},
+             {"outcome": run("quiet", "fell", {"via_cog2@200": 0.1}), "level": (0.0, 0.0)}]
+    rows = missed_rows(runs, noisy)
+    assert [r["key"] for r in rows] == ["short", "fell", "noisy-fell"]
     assert rows[0]["via_point"] == "via_cog2@200" and rows[0]["error"] == 0.017 and rows[0]["target_margin"] == 0.005
-    assert rows[0]["beyond_limits"] == {"RAnkleRoll": 0.04}
-    md, _ = missed_section(EXPERIMENTS["fig3.4-inside"], runs)
-    assert "2 of 3 stabilizer runs did not achieve" in md[2] and "in 1 the missed via-point's target" in md[2]
-    assert "RAnkleRoll 0.040" in md[-3] and md[-2].endswith("| none |")
+    assert rows[0]["beyond_limits"] == {"RAnkleRoll": 0.04} and rows[2]["noise"] == "x0 0.02 rad, 0.5 N m"
+    md, _ = missed_section(EXPERIMENTS["fig3.4-inside"], runs, noisy)
+    assert "2 of 3 stabilizer runs without noise did not achieve" in md[2] and "1 runs under noise fell" in md[2]
+    assert "in 2 of these 3 the missed via-point's target or the joint reference's CoG" in md[2]
+    assert "in 1 the joint reference" in md[2]
+    assert "RAnkleRoll 0.040" in md[-4] and md[-3].endswith("| none |") and "| 0.001, 2.2 |" in md[-2]
     assert missed_section(EXPERIMENTS["fig3.4-inside"], runs[:1]) == ([], [])
