@@ -600,6 +600,7 @@ def _missed_row(key: str, m: dict, noise: str) -> dict:
             "target_margin": (m.get("cog_via_point_margins") or {}).get(worst, float("nan")),
             "reference_cog_margin": m.get("reference_cog_min_margin", float("nan")),
             "reference_cog_time": m.get("reference_cog_min_margin_time"),
+            "failure_time": m.get("failure_time"), "reference_cog_at_failure": m.get("reference_cog_margin_at_failure"),
             "beyond_limits": m.get("reference_beyond_limits") or {}}
 
 
@@ -637,24 +638,36 @@ def missed_section(exp: Experiment, executions: list, noisy: list | None = None)
     if not rows:
         return [], []
     quiet = [r for r in rows if r["noise"] == "none"]
-    runs = sum(_stabilized(e.metrics) for e in executions)
-    near = sum(r["target_margin"] < COG_MARGIN or r["reference_cog_margin"] < COG_MARGIN for r in rows)
-    past = sum(bool(r["beyond_limits"]) for r in rows)
+    stab = [e for e in executions if _stabilized(e.metrics)]
+    missed_keys = {r["key"] for r in quiet}
+    good = [e.metrics for e in stab if e.key not in missed_keys]
+
+    def span(values) -> str:
+        v = [x for x in values if x is not None and math.isfinite(x)]
+        return "n/a" if not v else f"{_fmt(min(v))} to {_fmt(max(v))} m"
+
+    target = [r["target_margin"] for r in rows]
+    good_target = [min((m.get("cog_via_point_margins") or {"": math.nan}).values()) for m in good]
     md = ["## Where the stabilizer missed (beyond the thesis)", "",
-          f"{len(quiet)} of {runs} stabilizer runs without noise did not achieve the task (status ok and every "
-          f"via-point within {EXECUTED_VIA_TOL * 100:g} cm); {len(rows) - len(quiet)} runs under noise fell. What "
-          f"their references asked that the free robot cannot give: in {near} of these {len(rows)} the missed "
-          "via-point's target or the joint reference's CoG comes nearer to the feet's edge than the stabilizer's CoG "
-          f"margin ({COG_MARGIN * 100:g} cm, `stages/wbc.py: COG_MARGIN`: the CoG reference is held that far inside; "
-          f"tracked nearer the edge the robot tipped); in {past} the joint reference (the plan, shifted by the start "
-          f"projection) takes a joint past its range, where the stabilizer stops it {LIMIT_MARGIN:g} rad inside. "
-          "Margins against the feet's polygon at the start, positive inside.", "",
+          f"{len(quiet)} of {len(stab)} stabilizer runs without noise did not achieve the task (status ok and every "
+          f"via-point within {EXECUTED_VIA_TOL * 100:g} cm); {len(rows) - len(quiet)} runs under noise fell. Against "
+          "the feet's polygon at the start (margins positive inside): the joint reference's CoG (the plan, shifted by "
+          f"the start projection) comes to {span(r['reference_cog_margin'] for r in rows)} of the edge in the runs "
+          f"below, to {span(m.get('reference_cog_min_margin') for m in good)} in the {len(good)} that achieved; the "
+          f"worst via-point's target lies {span(target)} inside the edge below, the achieved runs' nearest targets "
+          f"{span(good_target)}. The stabilizer holds its CoG reference {COG_MARGIN * 100:g} cm inside "
+          "(`stages/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped). The joint reference takes a joint "
+          f"past its range in {sum(bool(r['beyond_limits']) for r in rows)} of the {len(rows)} runs below and in "
+          f"{sum(bool(m.get('reference_beyond_limits')) for m in good)} of the {len(good)} that achieved (the "
+          f"stabilizer stops it {LIMIT_MARGIN:g} rad inside its range).", "",
           "| execution | noise | status | worst via-point | its error (m) | its target's margin (m) | the reference "
-          "CoG's least margin (m), at (s) | reference past a joint's range (rad) |", "|---|---|---|---|---|---|---|---|"]
+          "CoG's least margin (m), at (s) (and where the run failed) | reference past a joint's range (rad) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lim = ", ".join(f"{j} {v:.3f}" for j, v in sorted(r["beyond_limits"].items(), key=lambda kv: -kv[1])) or "none"
         status = r["status"] if r["status"] == "ok" else f"{r['status']} ({r['reason']})"
         at = "" if r["reference_cog_time"] is None else f", {r['reference_cog_time']:g}"
+        if r.get("reference_cog_at_failure") is not None:
+            at += f" (at the failure, {r['failure_time']:g} s: {_fmt(r['reference_cog_at_failure'])})"
         md.append(f"| {r['key']} | {r['noise']} | {status} | {r['via_point']} | {_fmt(r['error'])} | "
                   f"{_fmt(r['target_margin'])} | {_fmt(r['reference_cog_margin'])}{at} | {lim} |")
     return md + [""], rows

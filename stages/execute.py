@@ -514,6 +514,9 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         ref_margin = point_margins([feet] * (T + 1), plan_cog(fixed, X_plan, dt)[0][:, :2])
         k_min = int(np.nanargmin(ref_margin))
         metrics.update(reference_cog_min_margin=float(ref_margin[k_min]), reference_cog_min_margin_time=k_min * dt)
+        if metrics.get("failure_time") is not None:  # where the reference's CoG was when the run failed
+            k_fail = min(int(round(metrics["failure_time"] / dt)), T)
+            metrics["reference_cog_margin_at_failure"] = float(ref_margin[k_fail])
     if stance:
         nao["X_plan_unshifted"] = np.asarray(plan["X"], float)
         metrics.update(start_projection_norm=stance["projection_norm"], start_projection_max=stance["projection_max"],

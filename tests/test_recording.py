@@ -245,6 +245,31 @@ def test_mcap_round_trip(tmp_path: Path) -> None:
     np.testing.assert_allclose(d["rotation"], R)
 
 
+def test_mcap_messages_are_the_bytes_json_dumps_gives(tmp_path: Path) -> None:
+    """The messages formatted directly (floats in one pass of the json encoder) are byte for byte what
+    ``json.dumps(msg, separators=(",", ":"))`` writes for the same message as a dict (non-finite values as null)."""
+    from pipeline.mcap_io import _joint_state, _stamp, _transforms
+
+    robot = shared_robot("nao")
+    r = _rollout(robot)
+    r["V"][1, 2], r["V"][2, 0], r["task_values"]["ee"][3, 1] = np.inf, -np.inf, np.nan
+    r["Q"][4, 5] = -0.0
+    path = write_trajectory_mcap(tmp_path / "t.mcap", robot, **r)
+    names, T, R = body_poses(robot, r["Q"])
+    dumps = lambda m: json.dumps(m, separators=(",", ":"), allow_nan=False)  # noqa: E731
+    with path.open("rb") as f:
+        got = {}
+        for _, channel, message in make_reader(f).iter_messages():
+            got.setdefault(channel.topic, []).append(message.data.decode())
+    for k, ns in enumerate(message_times := [int(round(t * 1e9)) for t in r["times"]]):
+        assert got["/joint_states"][k] == dumps(_joint_state(list(robot.joint_names), ns, r["Q"][k], r["V"][k],
+                                                             r["U"][k]))
+        assert got["/tf"][k] == dumps(_transforms(names, ns, T[k], R[k]))
+        value = [float(v) if np.isfinite(v) else None for v in r["task_values"]["ee"][k]]
+        assert got["/task/ee"][k] == dumps({"timestamp": _stamp(ns), "name": "ee", "value": value})
+    assert len(message_times) == K and "null" in got["/joint_states"][1] and "-0.0" in got["/joint_states"][4]
+
+
 def test_mcap_without_optional_channels(tmp_path: Path) -> None:
     robot = shared_robot("pendulum")
     t, Q = _trajectory(robot)

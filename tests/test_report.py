@@ -229,7 +229,9 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
                 beyond={"RAnkleRoll": 0.04}),
             run("fell", "fell", {"via_cog2@200": 0.002}),
             run("pd", "fell", {"via_cog2@200": 0.3}, ctrl="pd")]
-    noisy = [{"outcome": run("noisy-fell", "fell", {"via_cog2@200": 0.1}, ref=0.001), "level": (0.02, 0.5)},
+    fell_noisy = run("noisy-fell", "fell", {"via_cog2@200": 0.1}, ref=0.001)
+    fell_noisy.metrics.update(failure_time=1.5, reference_cog_margin_at_failure=0.012)
+    noisy = [{"outcome": fell_noisy, "level": (0.02, 0.5)},
              {"outcome": run("noisy-stood", "limits", {"via_cog2@200": 0.1}), "level": (0.02, 0.5)},
              {"outcome": run("quiet", "fell", {"via_cog2@200": 0.1}), "level": (0.0, 0.0)}]
     rows = missed_rows(runs, noisy)
@@ -238,7 +240,7 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
     assert rows[0]["beyond_limits"] == {"RAnkleRoll": 0.04} and rows[2]["noise"] == "x0 0.02 rad, 0.5 N m"
     md, _ = missed_section(EXPERIMENTS["fig3.4-inside"], runs, noisy)
     assert "2 of 3 stabilizer runs without noise did not achieve" in md[2] and "1 runs under noise fell" in md[2]
-    assert "in 2 of these 3 the missed via-point's target or the joint reference's CoG" in md[2]
-    assert "in 1 the joint reference" in md[2]
-    assert "RAnkleRoll 0.040" in md[-4] and md[-3].endswith("| none |") and "| 0.001, 2.2 |" in md[-2]
+    assert "comes to 0.001 to 0.03 m of the edge in the runs below, to 0.03 to 0.03 m in the 1 that achieved" in md[2]
+    assert "past its range in 1 of the 3 runs below and in 0 of the 1 that achieved" in md[2]
+    assert "RAnkleRoll 0.040" in md[-4] and md[-3].endswith("| none |") and "| 0.001, 2.2 (at the failure, 1.5 s: 0.012) |" in md[-2]
     assert missed_section(EXPERIMENTS["fig3.4-inside"], runs[:1]) == ([], [])
