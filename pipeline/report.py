@@ -597,7 +597,7 @@ def _missed_row(key: str, m: dict, noise: str) -> dict:
     worst = max(errs, key=lambda k: errs[k], default=None)
     return {"key": key, "noise": noise, "status": m.get("status"), "reason": m.get("reason"), "via_point": worst,
             "error": errs.get(worst, float("nan")),
-            "target_margin": (m.get("cog_via_point_margins") or {}).get(worst, float("nan")),
+            "target_margin": min((m.get("cog_via_point_margins") or {"": float("nan")}).values()),
             "reference_cog_margin": m.get("reference_cog_min_margin", float("nan")),
             "reference_cog_time": m.get("reference_cog_min_margin_time"),
             "failure_time": m.get("failure_time"), "reference_cog_at_failure": m.get("reference_cog_margin_at_failure"),
@@ -607,8 +607,8 @@ def _missed_row(key: str, m: dict, noise: str) -> dict:
 def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
     """Per stabilizer execution that did not achieve the task (status ok and every via-point within
     ``EXECUTED_VIA_TOL``, the held right sole left out), and per noisy one (``noisy``: the noise sweep's entries,
-    ``outcome`` and ``level``) that did not stand: its status, the worst via-point and its error (m), that
-    via-point's target margin to the feet's polygon at the start (m, CoG via-points), the least margin of the joint
+    ``outcome`` and ``level``) that did not stand: its status, the worst via-point and its error (m), the nearest
+    CoG via-point target's margin to the feet's polygon at the start (m), the least margin of the joint
     reference's CoG to that polygon (m) and when (s), and the joints the reference takes past their range (rad):
     what the reference asked that the robot could not give."""
     from stages.evaluate.claims import EXECUTED_VIA_TOL
@@ -648,19 +648,20 @@ def missed_section(exp: Experiment, executions: list, noisy: list | None = None)
 
     target = [r["target_margin"] for r in rows]
     good_target = [min((m.get("cog_via_point_margins") or {"": math.nan}).values()) for m in good]
+    fell = len(rows) - len(quiet)
     md = ["## Where the stabilizer missed (beyond the thesis)", "",
           f"{len(quiet)} of {len(stab)} stabilizer runs without noise did not achieve the task (status ok and every "
-          f"via-point within {EXECUTED_VIA_TOL * 100:g} cm); {len(rows) - len(quiet)} runs under noise fell. Against "
+          f"via-point within {EXECUTED_VIA_TOL * 100:g} cm); {fell} run{'' if fell == 1 else 's'} under noise fell. Against "
           "the feet's polygon at the start (margins positive inside): the joint reference's CoG (the plan, shifted by "
           f"the start projection) comes to {span(r['reference_cog_margin'] for r in rows)} of the edge in the runs "
           f"below, to {span(m.get('reference_cog_min_margin') for m in good)} in the {len(good)} that achieved; the "
-          f"worst via-point's target lies {span(target)} inside the edge below, the achieved runs' nearest targets "
-          f"{span(good_target)}. The stabilizer holds its CoG reference {COG_MARGIN * 100:g} cm inside "
+          f"plan's nearest CoG via-point target to {span(target)} below, to {span(good_target)} in those that "
+          f"achieved. The stabilizer holds its CoG reference {COG_MARGIN * 100:g} cm inside "
           "(`stages/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped). The joint reference takes a joint "
           f"past its range in {sum(bool(r['beyond_limits']) for r in rows)} of the {len(rows)} runs below and in "
           f"{sum(bool(m.get('reference_beyond_limits')) for m in good)} of the {len(good)} that achieved (the "
           f"stabilizer stops it {LIMIT_MARGIN:g} rad inside its range).", "",
-          "| execution | noise | status | worst via-point | its error (m) | its target's margin (m) | the reference "
+          "| execution | noise | status | worst via-point | its error (m) | the nearest CoG target's margin (m) | the reference "
           "CoG's least margin (m), at (s) (and where the run failed) | reference past a joint's range (rad) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lim = ", ".join(f"{j} {v:.3f}" for j, v in sorted(r["beyond_limits"].items(), key=lambda kv: -kv[1])) or "none"
