@@ -18,6 +18,8 @@ from pipeline.executors import Batch, Executor, Job, make_executor, run_flow
 from pipeline.runner import Outcome
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
+RECORDED_SEEDS = 3  # make reproduce records the thesis solvers' plans of the first this many initial states
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -51,11 +53,16 @@ class Variant:
 
     @property
     def recorded(self) -> bool:
-        """Whether ``make reproduce`` records this variant's plans: the thesis's solvers in the thesis's set-up
-        (iLQG, AICO, R-AICO with a fixed alpha); the ablations, baselines and long-budget references are recorded on
-        demand (``raico show KEY --open`` writes one from the cache): a plan recording takes 0.3-0.5 s, and these
-        are about 250 of the 800 plans."""
+        """Whether ``make reproduce`` records this variant's plans (those of its first ``RECORDED_SEEDS`` initial
+        states): the thesis's solvers in the thesis's set-up (iLQG, AICO, R-AICO with a fixed alpha); the ablations,
+        baselines and long-budget references, and the other initial states, are recorded on demand (``raico show KEY
+        --open`` writes one from the cache): a plan recording takes 0.3-0.4 s, all of the thesis solvers' plans were
+        270 recordings, 1.5 minutes of CPU, an eighth of ``make reproduce``."""
         return self.solver in ("ilqg", "aico", "raico") and self == Variant(self.solver, self.alpha)  # all else default
+
+    def records(self, seed: int) -> bool:
+        """Whether ``make reproduce`` records this variant's plan of initial state ``seed`` (``recorded``)."""
+        return self.recorded and seed < RECORDED_SEEDS
 
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
         """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
@@ -290,7 +297,7 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     integ = exp.integrator_variants(quick)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
             for s in range(v.seed_count(exp.seeds, quick))]
-    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record and v.recorded, f"{v.label} seed {s}")
+    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record and v.records(s), f"{v.label} seed {s}")
                                 for v, s, cfg in runs])
     every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
     n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)

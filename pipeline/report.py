@@ -18,6 +18,7 @@ from pipeline.experiments import (
     EXPERIMENTS,
     NOISE_RUNS,
     NOISE_SWEEPS,
+    RECORDED_SEEDS,
     Experiment,
     cost_curves,
     summarize,
@@ -1036,9 +1037,9 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                                        if r["recorded"]]
     unrecorded = [r for r in runs if not r["recorded"]]
     if unrecorded:
-        md += ["", f"Not recorded by `make reproduce` ({len(unrecorded)} runs of the ablations, baselines, long-budget "
-               "references and the integrator comparison; `raico show KEY --open` writes and opens a recording from "
-               "the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['key']}`" for r in unrecorded)]
+        md += ["", f"Not recorded by `make reproduce` ({len(unrecorded)} runs: the thesis solvers' plans beyond the first "
+               f"{RECORDED_SEEDS} initial states, the ablations, baselines, long-budget references and the integrator "
+               "comparison; `raico show KEY --open` writes and opens a recording from the cache): " + ", ".join(f"{r['variant']} seed {r['seed']} `{r['key']}`" for r in unrecorded)]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")
     return doc
 

@@ -271,6 +271,11 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     recorded = {v.label for v in EXPERIMENTS["fig3.2a"].variants if v.recorded}
     assert recorded == {"iLQG", "AICO", "R-AICO a=1", "R-AICO a=10"}
     assert all(Path(r["recording"]).is_file() == r["recorded"] == (r["variant"] in recorded) for r in claims["runs"])
+    # beyond the first RECORDED_SEEDS initial states only on demand (--quick runs 2: all recorded)
+    from pipeline.experiments import RECORDED_SEEDS, Variant
+
+    assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
+    assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
     assert (tmp_path / "report-quick" / "README.md").is_file()
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
