@@ -991,7 +991,8 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
             for p in result["plans"] + integ]
     integ_runs = [{"variant": p["variant"].label, "seed": p["seed"], "plan": p["outcome"].key,
                    "integration": p["integration"].key, "status": p["integration"].status} for p in integ]
-    execs = [{"key": e.key, "recording": str(Path(e.path) / "recording.rrd"), **{
+    execs = [{"key": e.key, "recording": str(Path(e.path) / "recording.rrd"),
+              "recorded": (Path(e.path) / "recording.rrd").exists(), **{
         k: v for k, v in e.metrics.items() if k != "via_point_errors"}} for e in result["executions"]]
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     balance_md, balance_rows = balance_section(cache, exp, result["executions"], out_dir)
@@ -1013,7 +1014,8 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                "|---|---|---|---|---|---|---|---|---|"]
         md += [f"| {e['key']} | {_controller(e)} | **{e.get('status')}** | {e.get('reason', '')} | "
                f"{_fmt(e.get('cog_inside_fraction'))} | {_fmt(e.get('cog_min_margin'))} | "
-               f"{_fmt(e.get('torque_saturation'))} | {_fmt(e.get('rmse_planned_executed'))} | `{e['recording']}` |"
+               f"{_fmt(e.get('torque_saturation'))} | {_fmt(e.get('rmse_planned_executed'))} | "
+               + (f"`{e['recording']}`" if e["recorded"] else f"on demand: `raico show {e['key']} --open`") + " |"
                for e in execs]
         if nao:
             parts = []
