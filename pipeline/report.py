@@ -23,7 +23,7 @@ from pipeline.experiments import (
     cost_curves,
     summarize,
 )
-from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
+from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 
 
 def save_figure(fig, path: Path, dpi: int = 100) -> None:
@@ -435,8 +435,6 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
     the share of time the ZMP spent at the edge (``stages.evaluate.metrics.zmp_metrics``)."""
     import matplotlib
 
-    from stages.evaluate.claims import EXECUTED_VIA_TOL
-    from stages.evaluate.summary import largest_via_error
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -468,7 +466,7 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
         ax.set_xlabel("time (s)")
         ax.set_ylabel("margin inside the contact polygon (m)")
         ax.grid(True, alpha=0.3)
-        achieved = sum(e.status == "ok" and largest_via_error(e.metrics) <= EXECUTED_VIA_TOL for e in runs)
+        achieved = sum(executed_achieved(e.metrics) for e in runs)
         rows.append({"controller": name, "runs": len(runs), "stood": stood, "ok": sum(e.status == "ok" for e in runs),
                      "achieved": achieved,
                      **{k: _finite_median([e.metrics.get(k, math.nan) for e in runs])
@@ -593,12 +591,16 @@ def moved_section(exp: Experiment, plans: list[dict]) -> tuple[list[str], list[d
     return md, rows
 
 
+def _nearest_target_margin(m: dict) -> float:
+    """An execution's CoG via-point target nearest the feet's edge: its margin (m; NaN without one)."""
+    return min((m.get("cog_via_point_margins") or {"": math.nan}).values())
+
+
 def _missed_row(key: str, m: dict, noise: str) -> dict:
     errs = {k: v for k, v in (m.get("via_point_errors") or {}).items() if not k.startswith("r_sole")}
     worst = max(errs, key=lambda k: errs[k], default=None)
     return {"key": key, "noise": noise, "status": m.get("status"), "reason": m.get("reason"), "via_point": worst,
-            "error": errs.get(worst, float("nan")),
-            "target_margin": min((m.get("cog_via_point_margins") or {"": float("nan")}).values()),
+            "error": errs.get(worst, float("nan")), "target_margin": _nearest_target_margin(m),
             "reference_cog_margin": m.get("reference_cog_min_margin", float("nan")),
             "reference_cog_time": m.get("reference_cog_min_margin_time"),
             "failure_time": m.get("failure_time"), "reference_cog_at_failure": m.get("reference_cog_margin_at_failure"),
@@ -612,16 +614,8 @@ def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
     CoG via-point target's margin to the feet's polygon at the start (m), the least margin of the joint
     reference's CoG to that polygon (m) and when (s), and the joints the reference takes past their range (rad):
     what the reference asked that the robot could not give."""
-    from stages.evaluate.claims import EXECUTED_VIA_TOL
-
-    rows = []
-    for e in executions:
-        m = e.metrics
-        if not _stabilized(m):
-            continue
-        row = _missed_row(e.key, m, "none")
-        if m.get("status") != "ok" or row["via_point"] is not None and row["error"] > EXECUTED_VIA_TOL:
-            rows.append(row)
+    rows = [_missed_row(e.key, e.metrics, "none") for e in executions
+            if _stabilized(e.metrics) and not executed_achieved(e.metrics)]
     for r in noisy or []:
         m = r["outcome"].metrics
         if _stabilized(m) and any(r["level"]) and m.get("status") in ("fell", "diverged"):
@@ -640,15 +634,14 @@ def missed_section(exp: Experiment, executions: list, noisy: list | None = None)
         return [], []
     quiet = [r for r in rows if r["noise"] == "none"]
     stab = [e for e in executions if _stabilized(e.metrics)]
-    missed_keys = {r["key"] for r in quiet}
-    good = [e.metrics for e in stab if e.key not in missed_keys]
+    good = [e.metrics for e in stab if executed_achieved(e.metrics)]
 
     def span(values) -> str:
         v = [x for x in values if x is not None and math.isfinite(x)]
         return "n/a" if not v else f"{_fmt(min(v))} to {_fmt(max(v))} m"
 
     target = [r["target_margin"] for r in rows]
-    good_target = [min((m.get("cog_via_point_margins") or {"": math.nan}).values()) for m in good]
+    good_target = [_nearest_target_margin(m) for m in good]
     fell = len(rows) - len(quiet)
     md = ["## Where the stabilizer missed (beyond the thesis)", "",
           f"{len(quiet)} of {len(stab)} stabilizer runs without noise did not achieve the task (status ok and every "

@@ -90,6 +90,7 @@ from stages.evaluate.metrics import (
     support_polygons,
     via_point_errors,
 )
+from stages.plan.balance import cog_margins
 from stages.plan.stage import PLAN_FILE, PROBLEM_FILE
 
 ROLLOUT_FILE = "rollout.npz"
@@ -509,9 +510,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     if np.all(np.isfinite(corners[0])):
         feet = convex_hull(corners[0, :, :, :2].reshape(-1, 2))
         metrics["cog_via_point_margins"] = cog_via_point_margins(problem, feet)
-        from stages.wbc import plan_cog
-
-        ref_margin = point_margins([feet] * (T + 1), plan_cog(fixed, X_plan, dt)[0][:, :2])
+        ref_margin = cog_margins(fixed, X_plan, feet)
         k_min = int(np.nanargmin(ref_margin))
         metrics.update(reference_cog_min_margin=float(ref_margin[k_min]), reference_cog_min_margin_time=k_min * dt)
         if metrics.get("failure_time") is not None:  # where the reference's CoG was when the run failed

@@ -438,6 +438,14 @@ def claim_cog_support(S, execs):
 EXECUTED_VIA_TOL = 0.01  # m, as the planning claim's tolerance
 
 
+def executed_achieved(metrics: dict) -> bool:
+    """An execution achieved the task: status ``ok`` and its largest executed via-point error (the held right sole
+    left out) within ``EXECUTED_VIA_TOL``."""
+    from stages.evaluate.summary import largest_via_error
+
+    return metrics.get("status") == "ok" and largest_via_error(metrics) <= EXECUTED_VIA_TOL
+
+
 def claim_executed_reaches(S, execs):
     """The task achieved in execution: status ``ok`` (stood, tracked, within limits) and the via-points reached."""
     from stages.evaluate.summary import largest_via_error
@@ -450,7 +458,7 @@ def claim_executed_reaches(S, execs):
         return claim, criterion, "no executions", False
     stood, counts = _stood_counts(execs)
     errs = [largest_via_error(e) for e in execs]
-    achieved = sum(e.get("status") == "ok" and err <= EXECUTED_VIA_TOL for e, err in zip(execs, errs))
+    achieved = sum(map(executed_achieved, execs))
     ok = achieved == len(execs)
     return (claim, criterion,
             f"achieved in {achieved}/{len(execs)} runs; stood {stood}/{len(execs)} (statuses: {counts}); largest "
@@ -471,9 +479,9 @@ def claim_stabilizer_stands(S, execs):
         return claim, criterion, "no executions with the stabilizer", False
     stood, counts = _stood_counts(wbc)
     errs = [largest_via_error(e) for e in wbc]
-    achieved = sum(e.get("status") == "ok" and err <= EXECUTED_VIA_TOL for e, err in zip(wbc, errs))
+    achieved = sum(map(executed_achieved, wbc))
     base = (f"; joint PD beside it: stood {_stood_counts(pd)[0]}/{len(pd)}, achieved "
-            f"{sum(e.get('status') == 'ok' and largest_via_error(e) <= EXECUTED_VIA_TOL for e in pd)}/{len(pd)}"
+            f"{sum(map(executed_achieved, pd))}/{len(pd)}"
             if pd else "")
     return (claim, criterion,
             f"achieved in {achieved}/{len(wbc)} runs; stood {stood}/{len(wbc)} (statuses: {counts}); largest executed "
