@@ -133,7 +133,7 @@ class Artifact:
 class StageOutput:
     """What ``Stage.run`` returns: data files, a status and headline metrics.
 
-    ``arrays``: file name -> arrays (written as compressed ``.npz``); ``documents``:
+    ``arrays``: file name -> arrays (written as uncompressed ``.npz``: zlib cost a fifth of a learning loop for 40 % less disk); ``documents``:
     file name -> JSON-able object; ``figures``: file name -> ``writer(path)`` for files
     such as PNGs; ``payload``: in-memory objects a caller may use (never stored).
     """

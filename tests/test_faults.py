@@ -277,13 +277,13 @@ def _babble_key() -> str:
 def test_full_disk_in_numpy_writer_publishes_nothing(tmp_path, monkeypatch):
     import numpy as np
 
-    real = np.savez_compressed
+    real = np.savez
 
     def full(f, **arrays):
         real(f, **arrays)
         raise OSError(errno.ENOSPC, "No space left on device")  # like zipfile's write: no file name
 
-    monkeypatch.setattr(np, "savez_compressed", full)
+    monkeypatch.setattr(np, "savez", full)
     res = cli("babble", "--plant", "pendulum", "--episodes", 1, "--duration", 0.2, "--artifacts", tmp_path)
     assert res.exit_code == 5
     key = _babble_key()
@@ -660,7 +660,7 @@ def _restamp(entry: Path, name: str) -> None:
 
 def _damage_header(path: Path) -> None:
     """Garble the start of the first array in an ``.npz`` (same size): the first bytes of the zip
-    member's compressed data, which hold the array's header."""
+    member's data (stored uncompressed), which hold the array's header."""
     import struct
 
     data = path.read_bytes()
