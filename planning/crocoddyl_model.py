@@ -326,11 +326,12 @@ class CrocoddylProblem:
         X = np.empty((self.T + 1, self.x0.size))
         U = np.empty((self.T, len(us[0])))
         X[0] = self.x0
+        xs, us, K = np.array(xs), np.array(us), np.array(K)  # one conversion each, not one per step
         total = 0.0
         with np.errstate(all="ignore"):
             for t, (m, d) in enumerate(self._nodes()):
-                u = np.asarray(us[t]) - np.asarray(K[t]) @ (X[t] - np.asarray(xs[t]))
-                if not np.all(np.isfinite(u)) or not np.all(np.isfinite(X[t])):
+                u = us[t] - K[t] @ (X[t] - xs[t])
+                if not math.isfinite(u.sum() + X[t].sum()):  # a NaN or inf in u or x (or a sum past 1e308)
                     return X, U, math.inf
                 U[t] = u
                 m.calc(d, X[t], u)

@@ -72,6 +72,7 @@ class Robot:
     B_act: np.ndarray = None  # (n_plant, n_act) Drake actuation matrix: tau = B_act @ u_act
     support_polygon: np.ndarray | None = None  # (k, 2) in the stance sole frame, Nao only
     _context: object = field(default=None, repr=False)
+    _P_pinv: np.ndarray | None = field(default=None, repr=False)  # pinv(P), computed once
 
     @property
     def n_q(self) -> int:
@@ -94,7 +95,9 @@ class Robot:
 
     def from_plant_q(self, qp: np.ndarray) -> np.ndarray:
         """Plant positions -> planning coordinates (least squares for coupled joints)."""
-        return qp @ np.linalg.pinv(self.P).T
+        if self._P_pinv is None:
+            self._P_pinv = np.linalg.pinv(self.P)
+        return qp @ self._P_pinv.T
 
     def babble_torque_limit(self) -> np.ndarray:
         """Per planning joint: min(10 N m, effort limit)."""
