@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 from pipeline.cache import Cache, write_file_atomic
 from pipeline.errors import Interrupted
-from pipeline.executors import Executor, Scheduler, make_executor
+from pipeline.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
 from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
 from pipeline.report import folder_name, markdown_claims, write_experiment_report, write_learn_report
 from pipeline.ui import Board, Reporter
@@ -48,6 +49,7 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)
     ex = executor if isinstance(executor, Executor) else make_executor(executor, jobs, address)
+    t0, cpu0, done = time.perf_counter(), os.times(), []
     with ex, reporter.board() as board, Scheduler(ex, _progress(board), cache.cleanup_stale) as sched:
         try:
             for rank, fid in enumerate(work_order(ids)):
@@ -56,11 +58,50 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
                 sched.add(fid, flow, priority=rank)
             for fid, result in sched.run():
                 board.remove(fid)
-                yield _figure_done(cache, fid, result, quick, reporter, sched.started(fid))
+                done.append(_figure_done(cache, fid, result, quick, reporter, sched.started(fid)))
+                yield done[-1]
         except Interrupted as e:
             e.finished, e.scheduled, e.note = sched.finished, None, None
             raise
-    write_readme(root, reporter)
+    write_readme(root, reporter)  # (renders the screenshots; written again below with the call's time, cheaply)
+    # the executor is closed here: its worker processes have been waited for, so os.times counts their CPU
+    local = isinstance(ex, (SerialExecutor, ProcessExecutor))
+    cpu1 = os.times()
+    if _record_call(root, done, time.perf_counter() - t0, cpu_seconds(cpu0, cpu1) if local else None,
+                    cpu_seconds(cpu0, cpu1, children=False), jobs):
+        write_readme(root, reporter)
+
+
+CALL = "this call"  # timings.json's entry of the whole reproduce call (the figures' entries are keyed by id)
+
+
+def cpu_seconds(before: os.times_result, after: os.times_result, children: bool = True) -> float:
+    """User plus system CPU seconds between two ``os.times()`` of this process and (``children``) its
+    waited-for child processes."""
+    keys = ("user", "system") + (("children_user", "children_system") if children else ())
+    return sum(getattr(after, k) - getattr(before, k) for k in keys)
+
+
+def _record_call(root: Path, done: list[dict], wall: float, cpu: float | None, main_cpu: float, jobs: int) -> bool:
+    """The whole call's wall time and CPU (this process and its workers, ``None`` for a remote executor;
+    ``main_cpu``: this process alone: scheduling, figures, reports) into ``timings.json`` under
+    :data:`CALL` (True), unless every run was cached (then the call that computed them stays: False)."""
+    runs, cached = sum(d["runs"] for d in done), sum(d["cached_runs"] for d in done)
+    path = root / TIMINGS
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        doc = {}
+    if not done or (cached == runs and CALL in doc):
+        return False
+    doc[CALL] = {"figures": len(done), "runs": runs, "cached_runs": cached, "wall_time_s": round(wall, 1),
+                 "cpu_time_s": None if cpu is None else round(cpu, 1), "main_cpu_time_s": round(main_cpu, 1),
+                 "jobs": jobs,
+                 "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                 "load_average_1min": round(os.getloadavg()[0], 2)}
+    root.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(path, json.dumps(doc, indent=2) + "\n")
+    return True
 
 
 def _progress(board: Board):
@@ -115,7 +156,7 @@ def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float)
         return
     doc[fid] = {"runs": runs, "cached_runs": cached, "wall_time_s": round(elapsed, 2),
                 "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "load_average_1min": round(__import__("os").getloadavg()[0], 2)}
+                "load_average_1min": round(os.getloadavg()[0], 2)}
     rank = {f: i for i, f in enumerate(ALL_IDS)}  # the report's order, whatever order figures finish in
     doc = dict(sorted(doc.items(), key=lambda kv: rank.get(kv[0], len(rank))))
     root.mkdir(parents=True, exist_ok=True)
@@ -211,6 +252,9 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         timings = json.loads((root / TIMINGS).read_text())
     except (OSError, ValueError):
         timings = {}
+    call = timings.pop(CALL, None)
+    if call:
+        md += ["## The latest call that ran anything", "", call_line(call), ""]
     if timings:
         md += ["## Wall time per figure (latest call that ran it)", "",
                "| figure | runs | of them cached | wall time (s) | load average (1 min) | when (UTC) |",
@@ -230,6 +274,17 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
     root.mkdir(parents=True, exist_ok=True)
     write_file_atomic(root / "README.md", "\n".join(md) + "\n")
+
+
+def call_line(call: dict) -> str:
+    """One sentence on a whole reproduce call (``timings.json``'s :data:`CALL` entry)."""
+    cpu = (f", {call['cpu_time_s']} s of CPU (this process and its workers; {call['main_cpu_time_s']} s of it in "
+           "this process: scheduling, figures, reports)" if call.get("cpu_time_s") is not None
+           else " (CPU not counted: remote workers)")
+    return (f"{call['figures']} figure{'s' if call['figures'] != 1 else ''}, {call['runs']} runs ({call['cached_runs']} cached) with {call['jobs']} jobs: "
+            f"{call['wall_time_s']} s wall (the report README and its screenshots included){cpu}; finished "
+            f"{call['when']}, load average (1 min) "
+            f"{call['load_average_1min']}.")
 
 
 def _screenshots(root: Path) -> list:

@@ -14,6 +14,8 @@ import json
 import re
 from pathlib import Path
 
+from pipeline.reproduce import CALL, call_line
+
 
 def section(text: str, start: str) -> str:
     """The markdown of section ``start`` (a heading line) up to the next heading of its level."""
@@ -30,6 +32,9 @@ def results_block(report: Path) -> str:
     t = report / "timings.json"
     if t.exists():
         tim = json.loads(t.read_text())
+        call = tim.pop(CALL, None)
+        if call:
+            out += ["", f"The latest `make reproduce` that ran anything: {call_line(call)}"]
         out += ["", "Wall time per figure of the latest `make reproduce` (load average of the machine at the time; "
                 "figures run at the same time on the shared workers, from a figure's first run handed to a worker "
                 "to its report written, so the times overlap and do not add up):",

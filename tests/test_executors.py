@@ -198,6 +198,15 @@ def _claims(root: Path) -> dict:
                                .replace(str(root), "ROOT")))
 
 
+def _call(root: Path) -> dict:
+    """The whole reproduce call's timing (``timings.json``), checked against the report README's line."""
+    from pipeline.reproduce import CALL, call_line
+
+    call = json.loads((root / "report-quick" / "timings.json").read_text())[CALL]
+    assert call_line(call) in (root / "report-quick" / "README.md").read_text()
+    return call
+
+
 def _plans(root: Path) -> dict[str, dict]:
     """Key -> (status, metrics) of every cached plan under ``root``."""
     out = {}
@@ -214,7 +223,11 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     progress = [ln for ln in lines if PROGRESS.fullmatch(ln)]
     assert sorted(int(PROGRESS.fullmatch(ln).group(1)) for ln in progress) == list(range(1, N + 1)), lines
     assert len(lines) == N + 1 and lines[-1].startswith(f"fig3.2a: {N} runs (0 cached) in ")  # and nothing else
+    call = _call(tmp_path / "process")  # the whole call: wall time, and CPU of this process and its workers
+    assert (call["figures"], call["runs"], call["cached_runs"], call["jobs"]) == (1, N, 0, 2)
+    assert 0 < call["wall_time_s"] and call["cpu_time_s"] > 0.5  # the workers' planning, not only this process's
     by_ray = _reproduce(tmp_path / "ray", "--executor", "ray", "--quiet")
+    assert _call(tmp_path / "ray")["cpu_time_s"] is None  # Ray's workers are not this process's children
     assert by_ray.stderr == ""  # --quiet: no progress lines
     plans = _plans(tmp_path / "process")
     assert len(plans) == N and _plans(tmp_path / "ray") == plans
@@ -223,3 +236,4 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     assert json.loads(again.stdout.splitlines()[-1])["cached_runs"] == N
     assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith(f"fig3.2a: {N} runs ({N} cached)")
     assert not any(PROGRESS.fullmatch(ln) for ln in again.stderr.splitlines())
+    assert _call(tmp_path / "ray")["cached_runs"] == 0  # all cached: the call that computed them stays
