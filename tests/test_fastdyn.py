@@ -217,3 +217,39 @@ def test_coupled_joints_through_P_equal_analytic():
     close(fast.step(X[0], U[0]), exact.step(X[0], U[0]), 1e-12)
     for got, ref in zip(fast.linearize(X[1], U[1]), (A0[1], a0[1], B0[1])):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(ref))))
+
+
+def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypatch):
+    """A new process loads the derived code from the kernel cache (the same code a derivation gives);
+    a damaged file or one whose code disagrees with Drake is ignored and replaced by a new derivation."""
+    import json
+
+    from plants.codegen import derive as dv
+
+    monkeypatch.setenv("RAICO_KERNEL_DIR", str(tmp_path))
+    monkeypatch.setattr(dv, "_COMPILED", {})
+    r = shared_robot("biorob")
+    fresh = compiled_dynamics(r)
+    (path,) = tmp_path.glob("derived-biorob-*.json")
+    monkeypatch.setattr(dv, "_COMPILED", {})  # as in a new process
+    calls = []
+    monkeypatch.setattr(dv, "derive", lambda plant: calls.append(1) or fresh)
+    loaded = compiled_dynamics(r)
+    assert calls == [] and loaded is not fresh
+    assert loaded.source == fresh.source and loaded.c_source == fresh.c_source
+    assert self_check(r.plant, loaded, n_states=2, seed=3) <= 1e-10
+
+    doc = json.loads(path.read_text())
+    doc["c_source"] += " "  # damaged: the checksum no longer matches
+    path.write_text(json.dumps(doc))
+    monkeypatch.setattr(dv, "_COMPILED", {})
+    assert compiled_dynamics(r) is fresh and calls == [1]
+    # code that disagrees with Drake (a checksum that matches it): the self-check refuses it
+    doc = json.loads(path.read_text())
+    doc.pop("sha256")
+    doc["sources"]["first"] = doc["sources"]["first"].replace("    return out\n", "    out[0] += 1.0\n    return out\n")
+    doc["sha256"] = dv._digest(doc)
+    path.write_text(json.dumps(doc))
+    monkeypatch.setattr(dv, "_COMPILED", {})
+    assert dv._load_derived(r.plant, path) is None
+    assert compiled_dynamics(r) is fresh and calls == [1, 1]
