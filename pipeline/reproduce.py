@@ -281,10 +281,10 @@ def call_line(call: dict) -> str:
     cpu = (f", {call['cpu_time_s']} s of CPU (this process and its workers; {call['main_cpu_time_s']} s of it in "
            "this process: scheduling, figures, reports)" if call.get("cpu_time_s") is not None
            else " (CPU not counted: remote workers)")
-    return (f"{call['figures']} figure{'s' if call['figures'] != 1 else ''}, {call['runs']} runs ({call['cached_runs']} cached) with {call['jobs']} jobs: "
-            f"{call['wall_time_s']} s wall (the report README and its screenshots included){cpu}; finished "
-            f"{call['when']}, load average (1 min) "
-            f"{call['load_average_1min']}.")
+    figures = f"{call['figures']} figure{'s' if call['figures'] != 1 else ''}"
+    return (f"{figures}, {call['runs']} runs ({call['cached_runs']} cached) with {call['jobs']} jobs: "
+            f"{call['wall_time_s']} s wall (the report README and its screenshots included){cpu}; "
+            f"finished {call['when']}, load average (1 min) {call['load_average_1min']}.")
 
 
 def _screenshots(root: Path) -> list:

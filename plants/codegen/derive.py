@@ -220,6 +220,7 @@ def _digest(doc: dict) -> str:
 
 def _store_derived(code: CompiledDynamics, path) -> None:
     """Write the derived code to ``path`` atomically (best effort: a read-only cache only costs time)."""
+    import contextlib
     import json
     import os
     import tempfile
@@ -227,6 +228,7 @@ def _store_derived(code: CompiledDynamics, path) -> None:
     doc = {"m": code.m, "n_carry": code.n_carry, "sources": code.source, "stats": code.stats,
            "c_source": code.c_source}
     doc["sha256"] = _digest(doc)
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
@@ -234,7 +236,9 @@ def _store_derived(code: CompiledDynamics, path) -> None:
             json.dump(doc, f)
         os.replace(tmp, path)
     except OSError:
-        pass
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def compiled_dynamics(robot) -> CompiledDynamics:
