@@ -280,6 +280,29 @@ def _release_solvers() -> None:
         solver.release()
 
 
+def portable_proxsuite():
+    """``proxsuite`` with its portable build (``proxsuite_pywrap``, no AVX) loaded, not the AVX2/AVX-512 one its
+    package picks by CPU: the AVX2 build's results depend on where its work arrays lie in memory (measured: the
+    first program of two identical executions in one process solved 1.5e-12 apart, the identical inputs included;
+    the noisy fig3.4 executions' via-point errors then moved by up to 1.4 cm between reproduce runs, always the
+    same statuses), and each CPU's build rounds differently. The package chooses its build when first imported:
+    before that, its CPU probe is answered "no AVX" (every later import in the process gets the same build)."""
+    import sys
+    import types
+
+    if "proxsuite" not in sys.modules:
+        probe = types.ModuleType("proxsuite.instructionset")
+        probe.has_AVX2 = probe.has_AVX512F = lambda: False
+        sys.modules["proxsuite.instructionset"] = probe
+        try:
+            import proxsuite  # noqa: F401
+        finally:
+            del sys.modules["proxsuite.instructionset"]
+    import proxsuite
+
+    return proxsuite
+
+
 class ProxQP:
     """The stabilizer's QP solver: ``proxsuite``'s dense PROXQP (a primal-dual proximal augmented
     Lagrangian method) with box constraints, warm-started from the previous control step's solution
@@ -294,8 +317,7 @@ class ProxQP:
     INFEASIBLE = 1e-12
 
     def __init__(self, n: int, n_eq: int, n_in: int):
-        import proxsuite
-
+        proxsuite = portable_proxsuite()
         self._qp = proxsuite.proxqp.dense.QP(n, n_eq, n_in, True)
         st = self._qp.settings
         st.eps_abs, st.eps_rel, st.verbose = self.EPS, 0.0, False

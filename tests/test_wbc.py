@@ -380,3 +380,25 @@ def test_disturbance_observer_recovers_a_known_joint_torque():
     np.testing.assert_allclose(d.l[:n_act], -free.effort - hj, atol=1e-12)
     _, (_, hj0) = stab.program(0.1, q, v)  # no observer: no compensation
     np.testing.assert_allclose(hj0, h[jv], atol=1e-12)
+
+
+def test_stabilizer_execution_is_repeatable_in_one_process():
+    """The same noisy execution twice in one process gives the same numbers, bit for bit: the stabilizer
+    loads proxsuite's portable build (its AVX2 build's results depend on where its work arrays lie in
+    memory: two identical executions of a fig3.4 plan differed from the first program on)."""
+    from stages.wbc import portable_proxsuite
+
+    loaded = portable_proxsuite()
+    import proxsuite  # any later import in the process gets the same build
+
+    assert loaded is proxsuite and proxsuite._submodule.__name__ == "proxsuite.proxsuite_pywrap"
+    nao = shared_free_nao().fixed
+    T, dt = 100, 0.01
+    Q = np.tile(nao.default_q, (T + 1, 1))
+    cfg = ExecuteConfig(plan="hold", controller="wbc", start="standing", x0_noise=0.02, process_noise=0.5, seed=4)
+    runs = [execute(cfg, desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt)) for _ in range(3)]
+    for other in runs[1:]:
+        for key in ("X", "q_free", "wbc_corner_force"):
+            a, b = runs[0].arrays()[key], other.arrays()[key]
+            assert np.array_equal(a, b, equal_nan=True), key
+        assert other.metrics["wbc_qp_fallbacks"] == runs[0].metrics["wbc_qp_fallbacks"]
