@@ -22,6 +22,11 @@ RECORDED_SEEDS = 3  # make reproduce records the thesis solvers' plans, and the 
 #                     initial states (the others: `raico show KEY --open`)
 
 
+def recorded_seed(seed: int) -> bool:
+    """Whether ``make reproduce`` records the runs of initial state ``seed`` (the first ``RECORDED_SEEDS``)."""
+    return seed < RECORDED_SEEDS
+
+
 @dataclass(frozen=True)
 class Variant:
     solver: str
@@ -64,7 +69,7 @@ class Variant:
 
     def records(self, seed: int) -> bool:
         """Whether ``make reproduce`` records this variant's plan of initial state ``seed`` (``recorded``)."""
-        return self.recorded and seed < RECORDED_SEEDS
+        return self.recorded and recorded_seed(seed)
 
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
         """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
@@ -304,14 +309,12 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
     n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)
     plans, integ_plans = every[:n_main], every[n_main:]
-    def first(seed: int) -> bool:  # executions are recorded as their plans: the first RECORDED_SEEDS initial states
-        return record and seed < RECORDED_SEEDS
-
-    ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"), first(p["seed"]),
+    ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"),
+                          record and recorded_seed(p["seed"]),
                           f"{p['variant'].label} seed {p['seed']}")
                for p in plans if p["variant"] in exp.execute and exp.execute_pd]
     ex_jobs += [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", **STABILIZER),
-                           first(p["seed"]), f"{p['variant'].label} seed {p['seed']}, stabilizer")
+                           record and recorded_seed(p["seed"]), f"{p['variant'].label} seed {p['seed']}, stabilizer")
                 for p in plans if exp.stabilized and p["variant"] in exp.execute]
     # no recordings of the integrations (about 0.4 s each; `raico execute --plan KEY --open-loop` writes one from the cache)
     integ_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), False,
@@ -319,7 +322,8 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     noise = noise_runs(exp, plans, quick)
     # the sweep's noisy runs are not recorded here (a free-standing Nao's recording takes 0.6 s; `raico show KEY --open`
     # writes one from the cache); level 0 is the figure's own execution, recorded with it
-    noise_jobs = [_stage_job(cache, "execute", r["config"], first(r["plan_seed"]) and not any(r["level"]),
+    noise_jobs = [_stage_job(cache, "execute", r["config"],
+                             record and recorded_seed(r["plan_seed"]) and not any(r["level"]),
                              f"{r['label']} seed {r['plan_seed']}{', stabilizer' if r['controller'] == 'wbc' else ''}, "
                              f"noise x0 {r['level'][0]:g} rad, process {r['level'][1]:g} N m") for r in noise]
     jobs = ex_jobs + noise_jobs + integ_jobs  # a Nao figure's executions are its sweep's level 0: each runs once

@@ -435,7 +435,6 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
     the share of time the ZMP spent at the edge (``stages.evaluate.metrics.zmp_metrics``)."""
     import matplotlib
 
-
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
@@ -624,7 +623,7 @@ def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
     return rows
 
 
-def missed_section(exp: Experiment, executions: list, noisy: list | None = None) -> tuple[list[str], list[dict]]:
+def missed_section(executions: list, noisy: list | None = None) -> tuple[list[str], list[dict]]:
     """The markdown lines on the stabilizer's runs that missed (``missed_rows``); none if every run achieved."""
     from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.wbc import COG_MARGIN, LIMIT_MARGIN
@@ -990,7 +989,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     noise_md, noise_rows = noise_section(exp, result.get("noise") or [], out_dir)
     balance_md, balance_rows = balance_section(cache, exp, result["executions"], out_dir)
     moved_md, moved_rows = moved_section(exp, result["plans"])
-    missed_md, missed = missed_section(exp, result["executions"], result.get("noise"))
+    missed_md, missed = missed_section(result["executions"], result.get("noise"))
     balance_md = moved_md + balance_md + missed_md
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,

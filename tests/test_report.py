@@ -214,7 +214,6 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
     that stood left out."""
     from types import SimpleNamespace
 
-    from pipeline.experiments import EXPERIMENTS
     from pipeline.report import missed_rows, missed_section
 
     def run(key, status, errs, ctrl="wbc", margins=None, beyond=None, ref=0.03):
@@ -238,9 +237,9 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
     assert [r["key"] for r in rows] == ["short", "fell", "noisy-fell"]
     assert rows[0]["via_point"] == "via_cog2@200" and rows[0]["error"] == 0.017 and rows[0]["target_margin"] == 0.005
     assert rows[0]["beyond_limits"] == {"RAnkleRoll": 0.04} and rows[2]["noise"] == "x0 0.02 rad, 0.5 N m"
-    md, _ = missed_section(EXPERIMENTS["fig3.4-inside"], runs, noisy)
+    md, _ = missed_section(runs, noisy)
     assert "2 of 3 stabilizer runs without noise did not achieve" in md[2] and "; 1 run under noise fell" in md[2]
     assert "comes to 0.001 to 0.03 m of the edge in the runs below, to 0.03 to 0.03 m in the 1 that achieved" in md[2]
     assert "past its range in 1 of the 3 runs below and in 0 of the 1 that achieved" in md[2]
     assert "RAnkleRoll 0.040" in md[-4] and md[-3].endswith("| none |") and "| 0.001, 2.2 (at the failure, 1.5 s: 0.012) |" in md[-2]
-    assert missed_section(EXPERIMENTS["fig3.4-inside"], runs[:1]) == ([], [])
+    assert missed_section(runs[:1]) == ([], [])
