@@ -513,8 +513,15 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
         return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
                        X_roll)
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
-    msg = (f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: "
-           + ("stopping criterion below th_stop" if converged else f"reached {len(rec.history)} iterations"))
+    n = len(rec.history)
+    if converged:
+        why = "stopping criterion below th_stop"
+    elif n < o.iterations and float(solver.preg) >= float(solver.reg_max):
+        # crocoddyl's other stop: no step was accepted and its regularization reached reg_max
+        why = f"stopped after {n} of {o.iterations} iterations: its regularization reached reg_max {solver.reg_max:g}"
+    else:
+        why = f"reached {n} iterations"
+    msg = f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: {why}"
     return _result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll)
 
 

@@ -37,7 +37,7 @@ class Status(StrEnum):
     value, e.g. ``Status.CONVERGED == "converged"``."""
 
     CONVERGED = "converged"            # a convergence test was met
-    MAX_ITERATIONS = "max-iterations"  # iteration budget, or iLQG's regularization limit
+    MAX_ITERATIONS = "max-iterations"  # iteration budget, or a regularization limit (iLQG, crocoddyl FDDP)
     DIVERGED = "diverged"              # cost not finite or exploded, or a numerical failure
 
 

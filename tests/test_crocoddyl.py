@@ -155,3 +155,13 @@ def test_plan_stage_refuses_fddp_on_pseudo_dynamics_in_one_line():
 
     with pytest.raises(ValueError, match=r"^solver fddp: crocoddyl cannot express the pseudo-dynamics exactly"):
         plan(PlanConfig(plant="arm5", task="reach", dynamics="pseudo", solver="fddp", iterations=2))
+
+
+def test_an_fddp_run_stopped_by_its_regularization_limit_says_so():
+    """crocoddyl's FDDP also stops when no step is accepted and its regularization reaches reg_max
+    (fig3.2d's roll task from the rollout start, seed 5: 23 of 100 iterations); the message says why."""
+    from planning.solvers import solve
+
+    r = solve(_problem("arm5", "reach-roll", seed=5), "fddp-rollout", {"iterations": 100})
+    assert r.status == "max-iterations" and r.iterations < 100
+    assert f"stopped after {r.iterations} of 100 iterations: its regularization reached reg_max" in r.message
