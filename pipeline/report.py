@@ -788,9 +788,13 @@ def write_noise_figure(exp: Experiment, rows: list[dict], path: Path) -> None:
         if exp.plant == "nao":
             ax.plot(x, [r["stood"] / r["runs"] for r in rs], "s--", color=colors.get(controller), alpha=0.5,
                     label=f"{name}: stood")
+            for xi, r in zip(x, rs):
+                ax.annotate(f"stood {r['stood']}/{r['runs']}", (xi, r["stood"] / r["runs"]), textcoords="offset points",
+                            xytext=(-8, 8 if controller == "wbc" else 18), ha="right", fontsize=7,
+                            color=colors.get(controller), alpha=0.8)
     ax.set_xticks(range(len(levels)), [f"x0 {a:g} rad\nprocess {b:g} N m" for a, b in levels], fontsize=8)
     ax.set_xlim(-0.4, len(levels) - 0.6)
-    ax.set_ylim(-0.05, 1.1)
+    ax.set_ylim(-0.15, 1.15)
     ax.set_ylabel("share of the runs")
     ax.set_title(f"{exp.id}: executions under noise", fontsize=9)
     ax.grid(True, alpha=0.3)

@@ -29,7 +29,6 @@ followed by the joints.
 from __future__ import annotations
 
 import logging
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cache
 
@@ -330,19 +329,23 @@ class FreeNao:
         return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
 
 
-@contextmanager
-def _drake_warning_dropped(text: str):
-    """Drop Drake's log records that contain ``text`` (pydrake logs through Python's ``drake`` logger)."""
+class _DropDrakeMessage(logging.Filter):
+    """Drops the ``drake`` logger's records whose message contains ``text``."""
+
+    def __init__(self, text: str):
+        super().__init__()
+        self.text = text
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return self.text not in record.getMessage()
+
+
+def _drop_drake_message(text: str) -> None:
+    """Drop Drake's log records that contain ``text`` from now on, in this process (pydrake logs through
+    Python's ``drake`` logger); idempotent."""
     logger = logging.getLogger("drake")
-
-    def keep(record: logging.LogRecord) -> bool:
-        return text not in record.getMessage()
-
-    logger.addFilter(keep)
-    try:
-        yield
-    finally:
-        logger.removeFilter(keep)
+    if not any(isinstance(f, _DropDrakeMessage) and f.text == text for f in logger.filters):
+        logger.addFilter(_DropDrakeMessage(text))
 
 
 def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True) -> FreeNao:
@@ -409,9 +412,9 @@ def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True)
     # the ground: the rigid half space z <= 0. Drake clips the soles' pressure fields against a plane,
     # not a box's triangles: the same contact, about a quarter less compute for the Nao executions
     # (measured over a reproduce). Its one-line warning that a rigid half space has no deformable
-    # contact (raico has no deformable bodies) is dropped
-    with _drake_warning_dropped("half spaces are not currently supported for deformable contact"):
-        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground", ground_props)
+    # contact (raico has no deformable bodies; Drake logs it at the first contact query) is dropped
+    _drop_drake_message("half spaces are not currently supported for deformable contact")
+    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground", ground_props)
     plant.RegisterVisualGeometry(plant.world_body(), RigidTransform([0.0, 0.0, -0.001]), Box(1.0, 1.0, 0.002),
                                  "floor", np.array([0.75, 0.75, 0.72, 1.0]))
     plant.Finalize()

@@ -149,3 +149,25 @@ def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
     with pytest.raises(ValueError, match="the Nao stands on its feet"):
         execute(ExecuteConfig(plan="p", open_loop=True), desc_for("nao", shared_robot("nao").default_q, 2, 0.01),
                 {"X": np.zeros((3, 50)), "U": np.zeros((2, 25))})
+
+
+def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
+    """Drake warns once per process, at the first contact query, that a rigid half space has no deformable
+    contact (raico has no deformable bodies): a fresh process that builds and simulates the free Nao prints
+    nothing of it, while another Drake warning still gets through."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = ("import logging\n"
+              "from pydrake.systems.analysis import Simulator\n"
+              "from pydrake.systems.framework import DiagramBuilder\n"
+              "from plants.free_nao import load_free_nao\n"
+              "nao = load_free_nao(DiagramBuilder(), time_step=1e-3)\n"
+              "Simulator(nao.builder.Build()).AdvanceTo(0.01)\n"
+              "logging.getLogger('drake').warning('another drake warning')\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert run.returncode == 0, run.stderr
+    assert "half spaces" not in run.stderr
+    assert "another drake warning" in run.stderr
