@@ -62,8 +62,10 @@ is not executed (status ``diverged``, the rollout all NaN). The status of an exe
 Outputs (``rollout.npz``): executed states ``X (T+1, n_x)`` in planning coordinates, the plan's
 ``X_plan``, applied planning controls ``U (T, n_u)`` (the Nao: the feed-forward's planning
 controls), applied torques ``tau (T, n_q)`` (sampled at the end of each step) and
-``effort_at_limit (T, n_q)`` (per planning joint: an actuator of it at its effort limit); for the Nao also the free plant's positions ``q_free``, the CoG, the
-sole corners and the soles' contact forces, every contact point, the contact polygon and the
+``effort_at_limit (T, n_q)`` (per planning joint: the controller's command, without the process
+noise, asks an actuator of it for at least its effort limit); for the Nao also the free plant's positions ``q_free``, the CoG, the
+sole corners and the soles' contact forces, every contact point, the controller's command per
+actuator without the noise (``torque_asked (T, n_act)`` N m, unclamped), the contact polygon and the
 CoG's margin against it, the torso's pose and the planned torso and sole corners.
 """
 
@@ -230,8 +232,9 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
             self.log_u.append(u)
             discrete_state.get_mutable_vector().SetFromVector(np.concatenate([u, w]))
 
-        def plant_torque(self, context, clip: bool = True) -> np.ndarray:
-            """Generalized forces (plant velocity order, N m) at this instant."""
+        def plant_torque(self, context, clip: bool = True, noise: bool = True) -> np.ndarray:
+            """Generalized forces (plant velocity order, N m) at this instant; ``noise`` False: the
+            controller's own command (what it asks of the motors), without the process noise."""
             xp = self.state_port.Eval(context)
             uw = context.get_discrete_state_vector().CopyToVector()
             u, w = uw[:uw.size // 2], uw[uw.size // 2:]
@@ -241,7 +244,7 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
                 tau = plant.CalcInverseDynamics(ctx_id, P @ u, forces)
             else:
                 tau = split @ u
-            tau = tau + split @ w
+            tau = tau + split @ w if noise else tau
             return np.clip(tau, -effort, effort) if clip and cfg.clip_torques else tau
 
         def _torque(self, context, output):
@@ -291,7 +294,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
         return True
 
     ctrl_ctx = ctrl.GetMyContextFromRoot(sim.get_context())
-    taus, saturated = [], []
+    taus, saturated, clamped = [], [], []
     effort_plant = robot.P @ robot.effort
     ok = sample(0)
     for k in range(T):
@@ -301,8 +304,10 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
             sim.AdvanceTo((k + 1) * dt)
         except RuntimeError:
             break
-        wanted = ctrl.plant_torque(ctrl_ctx, clip=False)
-        saturated.append(robot.P.T @ (np.abs(wanted) > effort_plant + 1e-9) > 0)
+        wanted = ctrl.plant_torque(ctrl_ctx, clip=False)  # the command plus the process noise
+        asked = ctrl.plant_torque(ctrl_ctx, clip=False, noise=False)
+        saturated.append(robot.P.T @ (np.abs(asked) > effort_plant + 1e-9) > 0)
+        clamped.append(np.any(np.abs(wanted) > effort_plant + 1e-9))
         taus.append(robot.P.T @ (np.clip(wanted, -effort_plant, effort_plant) if cfg.clip_torques else wanted))
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
@@ -311,6 +316,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     tau = np.array(taus).reshape(-1, n)
     sat = np.array(saturated, bool).reshape(-1, n)
     metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=name != "pendulum")
+    metrics["effort_clamped_fraction"] = _share_of_samples(clamped, len(X))
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
                          effort_at_limit=sat, problem=problem, robot=robot)
 
@@ -367,7 +373,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     """The plan tracked on the free-standing Nao (see the module docstring)."""
     from pydrake.systems.analysis import Simulator
 
-    from plants.free_nao import MAX_TIP, TIME_STEP, load_free_nao
+    from plants.free_nao import KD, KP, MAX_TIP, TIME_STEP, load_free_nao
 
     dt, T = float(desc["dt"]), int(desc["T"])
     sub = int(round(dt / TIME_STEP))
@@ -437,6 +443,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     torso_p, torso_z = np.full((K, 3), np.nan), np.full((K, 3), np.nan)
     points: list[np.ndarray] = []
     applied = np.full((T, n_act), np.nan)
+    asked = np.full((T, n_act), np.nan)  # the controller's command without the process noise, unclamped
+    act_q, act_v = free.joint_idx[free.act_fixed_idx], free.joint_vidx[free.act_fixed_idx]
     U_log = np.full((T, n), np.nan)
 
     def sample(k: int) -> bool:
@@ -479,10 +487,16 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         applied[k] = plant.get_net_actuation_output_port().Eval(pctx)[:n_act]
         if wbc:  # the stabilizer's held torques plus the noise, clamped (planning coordinates)
             U_log[k] = applied[k] @ Aq
+            asked[k] = sctx.get_discrete_state_vector().CopyToVector()
+        else:  # the PD law at the step's end state (SAP's implicit PD evaluates it there) plus the feed-forward
+            asked[k] = (KP * (Aq @ q_d - plant.GetPositions(pctx)[act_q])
+                        + KD * (Aq @ v_b - plant.GetVelocities(pctx)[act_v]) + ff[k])
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
-    at_limit = (np.abs(applied) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q) per planning joint
+    # an actuator at its effort limit: the controller asks for at least what the motor gives (per planning joint);
+    # a motor that clamps the process noise is not the controller's limit (the share: effort_clamped_fraction)
+    at_limit = (np.abs(asked) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q)
     tau = applied @ free.A  # planning coordinates (the coupled hip: the sum of its two joints)
     polys, margin = support_polygons(corners, force, cog)
     zmp_margin = point_margins(polys, zmp)
@@ -493,7 +507,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         planned["corners_plan"][:, 1] = planned_stance(fixed, np.asarray(plan["X"], float))["corners_plan"][:, 1]
     nao = {"q_free": q_free, "cog": cog, "cog_margin": margin, "support": padded_polygons(polys),
            "corners": corners, "sole_force": force, "contact_points": _padded_points(points, K),
-           "zmp": zmp, "zmp_margin": zmp_margin,
+           "zmp": zmp, "zmp_margin": zmp_margin, "torque_asked": asked,
            "torso_p": torso_p, "torso_z": torso_z, "torso_height_plan": planned["torso_height_plan"],
            "torso_z_plan": planned["torso_z_plan"], "corners_plan": planned["corners_plan"],
            "start_tilt": np.array(tilt), "start_stands": np.array(tilt < MAX_TIP - 1e-9)}
@@ -504,6 +518,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
                                 nao={**nao, "torso_height": torso_p[:, 2]})
     metrics["start_tilt"] = tilt
+    metrics["effort_clamped_fraction"] = _share_of_samples(np.any(np.abs(applied) >= free.effort * (1 - 1e-9), axis=1),
+                                                           K)
     # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
     metrics["reference_beyond_limits"] = plan_beyond_limits(X_plan[:, :n], fixed.lower, fixed.upper, fixed.joint_names)
@@ -532,6 +548,11 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
                        wbc_release_time=(stab.released[0] if wbc and stab.released else None))
     return ExecuteOutput(times=np.arange(K) * dt, X=X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
                          effort_at_limit=at_limit, nao=nao, problem=problem, robot=fixed)
+
+
+def _share_of_samples(flags, K: int) -> float:
+    """The share of a run's ``K`` samples whose step (flag ``k`` ends at sample ``k + 1``) is flagged."""
+    return float(np.sum(np.asarray(flags, bool))) / K if K else 0.0
 
 
 def _lift_step(desc: dict) -> int | None:

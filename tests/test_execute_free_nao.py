@@ -52,6 +52,13 @@ def test_free_nao_stands_still_in_the_default_posture():
     assert np.abs(d["cog"] - d["cog"][0]).max() < 1e-3
     assert np.abs(d["corners"][..., 2]).max() < CONTACT_TOL
     assert m["max_tracking_error"] < 1e-3 and m["cog_inside_fraction"] == 1.0
+    # the controller's command (the PD law at each step's end state plus the feed-forward), clamped, is the
+    # torque Drake applied: what the limits status judges is what the motors were asked
+    from plants.free_nao import shared_free_nao
+
+    free = shared_free_nao()
+    np.testing.assert_allclose(np.clip(d["torque_asked"], -free.effort, free.effort) @ free.A, out.tau, atol=1e-6)
+    assert np.abs(out.tau).max() > 0.1 and m["effort_clamped_fraction"] == 0.0
     # the contact polygon: all eight sole corners (both feet), the CoG well inside
     assert np.isfinite(d["support"]).all(axis=2).sum(axis=1).min() >= 4
     assert m["cog_min_margin"] > 0.03
@@ -171,3 +178,20 @@ def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
     assert run.returncode == 0, run.stderr
     assert "half spaces" not in run.stderr
     assert "another drake warning" in run.stderr
+
+
+def test_a_motor_that_only_clamps_the_noise_is_not_the_controllers_limit():
+    """The arm holding its default posture under 15 N m of process noise: the 10 and 20 N m motors of the
+    wrist and forearm clamp the noise in most steps (the light wrist is thrown about: tracking is lost), while
+    the controller's own command stays inside every limit. The clamping is reported
+    (``effort_clamped_fraction``), not counted as the controller at a limit."""
+    arm = shared_robot("arm5")
+    T, dt = 100, 0.002
+    Q = np.tile(arm.default_q, (T + 1, 1))
+    desc, plan = desc_for("arm5", arm.default_q, T, dt), pseudo_plan(Q, dt)
+    quiet, noisy = (execute(ExecuteConfig(plan="p", process_noise=w, seed=2), desc, plan) for w in (0.0, 15.0))
+    assert quiet.metrics["effort_clamped_fraction"] == 0.0 and noisy.metrics["effort_clamped_fraction"] > 0.5
+    for out in (quiet, noisy):
+        assert not out.effort_at_limit.any()
+        assert not any("effort" in sh and sh["effort"] > 0 for sh in out.metrics["limited_joints"].values())
+    assert np.abs(noisy.tau).max(axis=0)[-1] == pytest.approx(arm.effort[-1])  # the wrist's motor did clamp

@@ -243,3 +243,22 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
     assert "past its range in 1 of the 3 runs below and in 0 of the 1 that achieved" in md[2]
     assert "RAnkleRoll 0.040" in md[-4] and md[-3].endswith("| none |") and "| 0.001, 2.2 (at the failure, 1.5 s: 0.012) |" in md[-2]
     assert missed_section(runs[:1]) == ([], [])
+
+
+def test_noise_section_counts_statuses_and_the_motors_clamping_the_noise(tmp_path):
+    """The noise table on synthetic runs: success rate, stood, and the median share of samples in which a
+    motor clamped the noise (reported beside the statuses, which judge the controller's own command)."""
+    from pipeline.report import noise_section
+
+    def run(status, clamped, seed):
+        m = {"status": status, "via_point_errors": {"v": 0.01 * (seed + 1)}, "effort_clamped_fraction": clamped}
+        return {"controller": "wbc", "level": (0.02, 0.5), "plan_seed": seed, "seed": seed,
+                "outcome": SimpleNamespace(key=f"k{seed}", status=status, metrics=m)}
+
+    noise = [run("ok", 0.2, 0), run("limits", 0.6, 1), run("fell", 0.5, 2)]
+    md, rows = noise_section(EXPERIMENTS["fig3.4-support"], noise, tmp_path)
+    (row,) = rows
+    assert (row["runs"], row["ok"], row["stood"], row["clamped_median"]) == (3, 1, 2, 0.5)
+    assert any(line.startswith("| stabilizer | 0.02 | 0.5 | 3 | 0.333 | 2 |") and line.endswith("| 50 % |")
+               for line in md), md
+    assert (tmp_path / "noise.png").stat().st_size > 0

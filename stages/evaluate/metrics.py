@@ -21,8 +21,10 @@ Execution status (SPEC §12, §14), first that applies:
 - ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
   limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than
   ``LIMIT_TOL`` elsewhere) or some actuator is at its effort limit (the controller asks for
-  more than the motor gives; not for the pendulum, the thesis's ideal point mass, whose
-  +-10 N m bound is its swing-up task's control limit, there to be used);
+  at least what the motor gives: its command without the process noise; a motor that only
+  clamps the noise is counted in ``effort_clamped_fraction``, not here; not for the pendulum,
+  the thesis's ideal point mass, whose +-10 N m bound is its swing-up task's control limit,
+  there to be used);
 - ``ok``: none of these.
 """
 
@@ -201,6 +203,10 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
         worst = sorted(limited.items(), key=lambda kv: -max(kv[1].values()))[:3]
         reason += ": " + ", ".join(f"{j} " + " and ".join(f"{k} {v:.0%}" for k, v in sh.items() if v > 0)
                                    for j, sh in worst)
+    if status == "tracking-lost":  # the joint that lost it
+        k = int(round(t_fail / dt))
+        j = int(np.nanargmax(np.abs(Q[k] - Qp[k])))
+        reason += f": {robot.joint_names[j]} {abs(Q[k, j] - Qp[k, j]):.2f} rad from its plan"
     if status == "fell":
         why = [k.replace("_", " ") for k, t in m["fall_conditions"].items() if t == t_fail]
         reason = f"{reason}: {', '.join(why)}"
