@@ -823,11 +823,12 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
           "noise per planning step and joint (N m; added to the controller's torque, the sum clamped at the effort "
           "limits); plan i with execution seed i. A run succeeds when its status is ok; it stood unless it fell or "
           "diverged. Its limits are the controller's: a motor that clamps only the noise (on the Nao a hand's 0.29 "
-          "N m, a wrist's 0.41 N m) is not at a limit of the controller (each run's `effort_clamped_fraction`). "
+          "N m, a wrist's 0.41 N m) is not at a limit of the controller; the last column counts the samples with any "
+          "motor clamped at its effort limit, the command plus the noise (each run's `effort_clamped_fraction`). "
           "The noisy runs are not recorded by `make reproduce` (their keys are in claims.json; `raico show "
           "KEY --open` writes and opens a recording from the cache).", "", "![noise](noise.png)", "",
           "| controller | x0 noise (rad) | process noise (N m) | runs | success rate | stood | statuses | largest "
-          "executed via-point error: median (min-max) | samples with a motor clamping the noise (median) |",
+          "executed via-point error: median (min-max) | samples with a motor clamped, command + noise (median) |",
           "|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {NOISE_CONTROLLERS.get(r['controller'], r['controller'])} | {r['x0_noise']:g} | {r['process_noise']:g} | "
            f"{r['runs']} | {_fmt(r['success_rate'])} | {r['stood']} | "

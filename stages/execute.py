@@ -487,15 +487,23 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         applied[k] = plant.get_net_actuation_output_port().Eval(pctx)[:n_act]
         if wbc:  # the stabilizer's held torques plus the noise, clamped (planning coordinates)
             U_log[k] = applied[k] @ Aq
-            asked[k] = sctx.get_discrete_state_vector().CopyToVector()
         else:  # the PD law at the step's end state (SAP's implicit PD evaluates it there) plus the feed-forward
             asked[k] = (KP * (Aq @ q_d - plant.GetPositions(pctx)[act_q])
                         + KD * (Aq @ v_b - plant.GetVelocities(pctx)[act_v]) + ff[k])
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
+    if wbc:  # the command the last plant step applied: Drake's discrete updates at one time are simultaneous, so a
+        # plant step starting at an update's time still applies the command held before it
+        t_cmd = np.array([c[0] for c in stab.commands])
+        u_cmd = np.array([c[1] for c in stab.commands]).reshape(-1, n_act)
+        for k in range(T):
+            i = int(np.searchsorted(t_cmd, (k + 1) * dt - TIME_STEP - 1e-9)) - 1
+            if np.isfinite(applied[k]).all() and i >= 0:
+                asked[k] = u_cmd[i]
     # an actuator at its effort limit: the controller asks for at least what the motor gives (per planning joint);
-    # a motor that clamps the process noise is not the controller's limit (the share: effort_clamped_fraction)
+    # a motor that clamps the process noise is not the controller's limit (effort_clamped_fraction: the share of
+    # samples with any motor clamped, the command plus the noise)
     at_limit = (np.abs(asked) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q)
     tau = applied @ free.A  # planning coordinates (the coupled hip: the sum of its two joints)
     polys, margin = support_polygons(corners, force, cog)

@@ -464,6 +464,8 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
         def __init__(self):
             super().__init__()
             self.log: list[tuple[float, float, np.ndarray, bool]] = []
+            # (update time s, the held command (n_act,) N m from then on, before the noise): every update
+            self.commands: list[tuple[float, np.ndarray]] = []
             self.failures = 0
             self.state_port = self.DeclareVectorInputPort("x", nq + nv)
             # torque noise added to the held command (execution's process noise), the sum clamped at the effort
@@ -497,6 +499,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
                 if self.limp is None:
                     self.limp = t
                 discrete_state.get_mutable_vector().SetFromVector(np.zeros(n_act))
+                self.commands.append((t, np.zeros(n_act)))
                 return
             obs = None
             if DISTURBANCE_OBSERVER and self.previous is not None and self.contact_port.HasValue(context):
@@ -510,6 +513,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
                 self.failures += 1
             self.previous = (t, v.copy(), context.get_discrete_state_vector().CopyToVector() if not ok else u)
             self.log.append((t, time.perf_counter() - t0, f, ok))
+            self.commands.append((t, discrete_state.get_vector().CopyToVector()))
 
     failed: list = []  # (time s, the solver's status) of every failed program
     observed: list = []  # the observer's disturbance estimate (n_act,) N m per update (zeros without it)

@@ -338,6 +338,8 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     # it asks for a whole limit is the execution at one (the limits status judges the controller's command)
     assert runs[0].metrics["effort_clamped_fraction"] == 0.0 and runs[1].metrics["effort_clamped_fraction"] > 0.5
     assert runs[0].metrics["status"] == "ok" and not runs[0].effort_at_limit.any()
+    # without noise the command the limits judge is the torque the plant applied in each sample's last step
+    np.testing.assert_allclose(runs[0].nao["torque_asked"] @ free.A, runs[0].tau, rtol=0, atol=1e-12)
     for out in runs:
         asked = out.nao["torque_asked"]
         assert np.all(np.abs(asked) <= free.effort + 1e-6)

@@ -22,7 +22,8 @@ Execution status (SPEC §12, §14), first that applies:
   limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than
   ``LIMIT_TOL`` elsewhere) or some actuator is at its effort limit (the controller asks for
   at least what the motor gives: its command without the process noise; a motor that only
-  clamps the noise is counted in ``effort_clamped_fraction``, not here; not for the pendulum,
+  clamps the noise is not; ``effort_clamped_fraction``: the share of samples with any motor
+  clamped, the command plus the noise; not for the pendulum,
   the thesis's ideal point mass, whose +-10 N m bound is its swing-up task's control limit,
   there to be used);
 - ``ok``: none of these.
