@@ -159,9 +159,10 @@ CASES = [
      bench_nao_linearization, ("autodiff", 3)),
     ("nao analytic: linearize along T=300, tree kernels in C (after)", None,
      bench_nao_linearization, ("tree", 5)),
-    # issue 19: real-time factor >= 1 for the stabilizer on the 2-core machine
+    # issue 19: real-time factor >= 1 for the stabilizer on the 2-core machine; 7 repetitions: on the shared
+    # machine the same execution took 2.0-3.6 s within one minute (idle, load 0.5)
     ("nao: one 3 s execution with the whole-body stabilizer (fig3.4-inside plan, standing start)", 3.0,
-     bench_stabilizer_execution, (3,)),
+     bench_stabilizer_execution, (7,)),
 ]
 
 
