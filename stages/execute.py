@@ -232,19 +232,24 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
             self.log_u.append(u)
             discrete_state.get_mutable_vector().SetFromVector(np.concatenate([u, w]))
 
-        def plant_torque(self, context, clip: bool = True, noise: bool = True) -> np.ndarray:
-            """Generalized forces (plant velocity order, N m) at this instant; ``noise`` False: the
-            controller's own command (what it asks of the motors), without the process noise."""
+        def commanded_torque(self, context) -> np.ndarray:
+            """The controller's own generalized forces (plant velocity order, N m) at this instant, without
+            the process noise, unclamped: what it asks of the motors."""
             xp = self.state_port.Eval(context)
-            uw = context.get_discrete_state_vector().CopyToVector()
-            u, w = uw[:uw.size // 2], uw[uw.size // 2:]
+            u = context.get_discrete_state_vector().CopyToVector()[:o.shape[1]]
             if pseudo:  # computed torque: all tree joints follow P @ u
                 plant.SetPositionsAndVelocities(ctx_id, xp)
                 plant.CalcForceElementsContribution(ctx_id, forces)
-                tau = plant.CalcInverseDynamics(ctx_id, P @ u, forces)
-            else:
-                tau = split @ u
-            tau = tau + split @ w if noise else tau
+                return plant.CalcInverseDynamics(ctx_id, P @ u, forces)
+            return split @ u
+
+        def noise_torque(self, context) -> np.ndarray:
+            """The held process noise as generalized forces (plant velocity order, N m)."""
+            return split @ context.get_discrete_state_vector().CopyToVector()[o.shape[1]:]
+
+        def plant_torque(self, context, clip: bool = True) -> np.ndarray:
+            """Generalized forces (plant velocity order, N m) at this instant: the command plus the noise."""
+            tau = self.commanded_torque(context) + self.noise_torque(context)
             return np.clip(tau, -effort, effort) if clip and cfg.clip_torques else tau
 
         def _torque(self, context, output):
@@ -304,8 +309,8 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
             sim.AdvanceTo((k + 1) * dt)
         except RuntimeError:
             break
-        wanted = ctrl.plant_torque(ctrl_ctx, clip=False)  # the command plus the process noise
-        asked = ctrl.plant_torque(ctrl_ctx, clip=False, noise=False)
+        asked = ctrl.commanded_torque(ctrl_ctx)
+        wanted = asked + ctrl.noise_torque(ctrl_ctx)  # the command plus the process noise
         saturated.append(robot.P.T @ (np.abs(asked) > effort_plant + 1e-9) > 0)
         clamped.append(np.any(np.abs(wanted) > effort_plant + 1e-9))
         taus.append(robot.P.T @ (np.clip(wanted, -effort_plant, effort_plant) if cfg.clip_torques else wanted))
@@ -315,8 +320,8 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     sat = np.array(saturated, bool).reshape(-1, n)
-    metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=name != "pendulum")
-    metrics["effort_clamped_fraction"] = _share_of_samples(clamped, len(X))
+    metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=name != "pendulum",
+                                effort_clamped=clamped)
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
                          effort_at_limit=sat, problem=problem, robot=robot)
 
@@ -497,10 +502,9 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         # plant step starting at an update's time still applies the command held before it
         t_cmd = np.array([c[0] for c in stab.commands])
         u_cmd = np.array([c[1] for c in stab.commands]).reshape(-1, n_act)
-        for k in range(T):
-            i = int(np.searchsorted(t_cmd, (k + 1) * dt - TIME_STEP - 1e-9)) - 1
-            if np.isfinite(applied[k]).all() and i >= 0:
-                asked[k] = u_cmd[i]
+        i = np.searchsorted(t_cmd, np.arange(1, T + 1) * dt - TIME_STEP - 1e-9) - 1  # (T,) the last update before
+        use = (i >= 0) & np.isfinite(applied).all(axis=1)
+        asked[use] = u_cmd[i[use]]
     # an actuator at its effort limit: the controller asks for at least what the motor gives (per planning joint);
     # a motor that clamps the process noise is not the controller's limit (effort_clamped_fraction: the share of
     # samples with any motor clamped, the command plus the noise)
@@ -524,10 +528,9 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         nao["wbc_solve_s"] = np.array([e[1] for e in stab.log])
         nao["wbc_corner_force"] = np.array([e[2] for e in stab.log]).reshape(-1, 8, 3)
     metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
-                                nao={**nao, "torso_height": torso_p[:, 2]})
+                                nao={**nao, "torso_height": torso_p[:, 2]},
+                                effort_clamped=np.any(np.abs(applied) >= free.effort * (1 - 1e-9), axis=1))
     metrics["start_tilt"] = tilt
-    metrics["effort_clamped_fraction"] = _share_of_samples(np.any(np.abs(applied) >= free.effort * (1 - 1e-9), axis=1),
-                                                           K)
     # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
     metrics["reference_beyond_limits"] = plan_beyond_limits(X_plan[:, :n], fixed.lower, fixed.upper, fixed.joint_names)
@@ -556,11 +559,6 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
                        wbc_release_time=(stab.released[0] if wbc and stab.released else None))
     return ExecuteOutput(times=np.arange(K) * dt, X=X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
                          effort_at_limit=at_limit, nao=nao, problem=problem, robot=fixed)
-
-
-def _share_of_samples(flags, K: int) -> float:
-    """The share of a run's ``K`` samples whose step (flag ``k`` ends at sample ``k + 1``) is flagged."""
-    return float(np.sum(np.asarray(flags, bool))) / K if K else 0.0
 
 
 def _lift_step(desc: dict) -> int | None:
@@ -610,6 +608,7 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
     metrics = {"status": "diverged", "failure_time": 0.0, "reason": reason,
                "via_point_errors": via_point_errors(problem, X), "rmse_planned_executed": float("inf"),
                "max_tracking_error": float("inf"), "max_abs_torque": 0.0, "torque_saturation": 0.0,
+               "effort_clamped_fraction": 0.0,
                "position_limit_fraction": 0.0, "limits_fraction": 0.0}
     if desc["plant"] == "nao":
         metrics.update(stood=False, cog_inside_fraction=0.0, cog_min_margin=float("nan"))

@@ -160,14 +160,16 @@ def execution_status(finite: np.ndarray, fell: np.ndarray | None, tracking_error
 
 
 def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, robot, dt: float,
-                      effort_at_limit: np.ndarray, nao: dict | None = None, effort_is_limit: bool = True) -> dict:
+                      effort_at_limit: np.ndarray, nao: dict | None = None, effort_is_limit: bool = True,
+                      effort_clamped: np.ndarray | None = None) -> dict:
     """Metrics of one execution (``X (T+1, n_x)`` executed, ``tau (T, n_q)`` applied torques N m,
     ``effort_at_limit (T, n_q)`` per joint, or ``(T,)``): status (module docstring), via-point errors, planned-vs-executed
     RMSE and largest error (rad), largest torque (N m), limit shares; for the free-standing Nao
     (``nao``: per-sample ``cog``, ``corners``, ``sole_force``, torso and planned values) the CoG
     against the contact polygon, the feet's drift and whether it stood. ``effort_is_limit`` False:
     effort saturation is reported (``torque_saturation``) but does not count towards ``limits``
-    (the pendulum, whose torque bound is its task's control limit)."""
+    (the pendulum, whose torque bound is its task's control limit). ``effort_clamped (T,)``: some motor clamped
+    the command plus the noise in step k (``effort_clamped_fraction``, per sample as the limit shares)."""
     n = X.shape[1] // 2
     K = len(X)
     finite = np.all(np.isfinite(X), axis=1)
@@ -217,6 +219,8 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
          "max_tracking_error": float(np.max(err)) if finite.all() else float("inf"),
          "max_abs_torque": float(np.nanmax(np.abs(tau))) if tau.size else 0.0,
          "torque_saturation": float(np.mean(e.any(axis=1))) if len(e) else 0.0,
+         "effort_clamped_fraction": (float(np.sum(np.asarray(effort_clamped, bool)[:K - 1])) / K
+                                     if effort_clamped is not None else 0.0),
          "position_limit_fraction": float(np.mean(pos_lim)),
          "limits_fraction": float(np.mean(at_limit)),
          "limited_joints": limited,
