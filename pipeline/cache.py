@@ -873,6 +873,11 @@ class Cache:
                     removed.append(p)
         return removed
 
+    def is_empty(self) -> bool:
+        """Whether no stage holds an entry (a key folder, valid or not): a run from here starts from an
+        empty cache. Stops at the first entry found."""
+        return not any(_KEY_RE.match(p.name) and p.is_dir() for d in self._stage_dirs(None) for p in d.iterdir())
+
     def list(self, stage: str | None = None, *, deep: bool = False) -> list[EntryInfo]:
         """Every entry (valid or not) and temporary folder, for ``raico ls``.
 

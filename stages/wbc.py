@@ -45,7 +45,11 @@ start; the Nao holding its standing posture for 1 s):
   on the joints in free fall). Period 4 ms (250 Hz) on the 2 ms plant: against 2 ms on a 1 ms plant
   (the settings before), the ten fig3.4-inside R-AICO plans gave the same statuses (9 stood, 1 fell
   at 1.76 s) and CoG via-point errors within 0.5 mm of each other (2 ms on the 2 ms plant: within
-  2 mm), at a third of the time (a 3 s execution 2.4 s wall, the bench row; before, 7.9 s).
+  2 mm), at a third of the time (a 3 s execution 2.4 s wall, the bench row; before, 7.9 s). Longer
+  periods, measured on the 70 stabilizer executions of a ``make reproduce`` (40 noise-free, 30 under the
+  noise sweep's noise): 6 ms kept every noise-free status but 8 of the 26 noisy runs that stood fell, for
+  14 % less time per execution; 10 ms (the Nao's own DCM cycle, which drives position-controlled motor
+  boards, not torques) made 33 of the 65 runs that stood fall, for 27 % less. The period stays 4 ms.
 - The soles as a heavy cost rather than an equality: with the equality (and lifted corners carrying
   nothing) the program was infeasible in 680 and 1235 of 1500 updates of two runs; as a cost, none.
 - ``COP_SHARE``: without it the program put the right sole's load on its inner edge, the compliant
@@ -94,6 +98,9 @@ start; the Nao holding its standing posture for 1 s):
   infeasibility tolerances at 1e-12 (at the default 1e-4 it called 9-22 feasible programs of a run
   infeasible) and an iteration cap with Clarabel as the fallback (uncapped, one program of a falling
   robot took it 5 million iterations); ``wbc_qp_fallbacks`` counts them.
+  Keeping the first program's preconditioner instead of updating it every program (``update_preconditioner``
+  False) cut the median update from 1.55 to 1.35 ms over the same 70 executions, every noise-free run within
+  1e-5 m of before, but one noisy fig3.4-support run that stood fell: it stays updated.
 - A program that no solver solves (under process noise a joint pushed past its margin can ask more
   acceleration than the torque limits give) is solved again without the joint-limit bounds, the
   limits then left to the plant's (``wbc_qp_relaxed``); only one that still fails holds the previous

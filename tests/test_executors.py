@@ -237,3 +237,33 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith(f"fig3.2a: {N} runs ({N} cached)")
     assert not any(PROGRESS.fullmatch(ln) for ln in again.stderr.splitlines())
     assert _call(tmp_path / "ray")["cached_runs"] == 0  # all cached: the call that computed them stays
+
+
+def test_call_line_compares_a_complete_call_with_the_reproduce_target():
+    """SPEC §13: a call over every figure from an empty cache is held against the 600 s target (met, or missed by
+    how much); any other call (some figures, a warm cache) gets no verdict."""
+    from pipeline.reproduce import REPRODUCE_TARGET_S, call_line
+
+    base = {"figures": 11, "runs": 569, "cached_runs": 6, "cpu_time_s": 1255.0, "main_cpu_time_s": 27.4,
+            "jobs": 2, "when": "2026-11-24T21:20:42Z", "load_average_1min": 1.89}
+    assert REPRODUCE_TARGET_S == 600.0
+    over = call_line({**base, "wall_time_s": 649.0, "from_empty_cache": True})
+    assert over.endswith("target of at most 600 s on the 2-core machine: missed by 49 s (8%).")
+    under = call_line({**base, "wall_time_s": 571.5, "from_empty_cache": True})
+    assert under.endswith(": met (28 s to spare).")
+    for call in ({**base, "wall_time_s": 649.0, "from_empty_cache": False}, {**base, "wall_time_s": 649.0}):
+        assert "target" not in call_line(call)
+
+
+def test_cache_is_empty_until_a_stage_holds_an_entry(tmp_path):
+    """``Cache.is_empty``: an empty or missing root, a report folder or stray files are empty; one key folder in
+    a stage is not."""
+    from pipeline.cache import Cache
+
+    assert Cache(tmp_path / "missing").is_empty()
+    (tmp_path / "report").mkdir()
+    (tmp_path / "plan").mkdir()
+    (tmp_path / "plan" / "notes.txt").write_text("x")
+    assert Cache(tmp_path).is_empty()
+    (tmp_path / "plan" / "0123456789abcdef").mkdir()
+    assert not Cache(tmp_path).is_empty()
