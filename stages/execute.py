@@ -508,7 +508,8 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
     # an actuator at its effort limit: the controller asks for at least what the motor gives (per planning joint);
     # a motor that clamps the process noise is not the controller's limit (effort_clamped_fraction: the share of
     # samples with any motor clamped, the command plus the noise)
-    at_limit = (np.abs(asked) >= free.effort * (1 - 1e-9)) @ free.A > 0  # (T, n_q)
+    at_effort = free.effort * (1 - 1e-9)  # N m per actuator: at its limit from here (rounding aside)
+    at_limit = (np.abs(asked) >= at_effort) @ free.A > 0  # (T, n_q)
     tau = applied @ free.A  # planning coordinates (the coupled hip: the sum of its two joints)
     polys, margin = support_polygons(corners, force, cog)
     zmp_margin = point_margins(polys, zmp)
@@ -529,7 +530,7 @@ def _execute_free_nao(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, 
         nao["wbc_corner_force"] = np.array([e[2] for e in stab.log]).reshape(-1, 8, 3)
     metrics = execution_metrics(problem, X, X_plan, tau, fixed, dt, at_limit,
                                 nao={**nao, "torso_height": torso_p[:, 2]},
-                                effort_clamped=np.any(np.abs(applied) >= free.effort * (1 - 1e-9), axis=1))
+                                effort_clamped=np.any(np.abs(applied) >= at_effort, axis=1))
     metrics["start_tilt"] = tilt
     # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
