@@ -7,7 +7,7 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast reproduce reproduce-quick bench lint clean
+.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick bench lint clean
 
 install: $(STAMP)
 
@@ -41,6 +41,14 @@ test: $(STAMP) $(KERNEL)
 
 test-fast: $(STAMP) $(KERNEL)
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# Every test that reaches compiled code (marked `compiled`) with every kernel, hand-written and generated,
+# built with AddressSanitizer and UBSan into its own folder and gcc's sanitizer runtimes preloaded into
+# Python (plants/codegen/sanitize.py): an out-of-bounds access or undefined behaviour aborts the run.
+SANITIZE_KERNELS ?= $(abspath $(VENV))/.kernels-sanitize
+
+test-sanitize: $(STAMP)
+	RAICO_KERNEL_DIR=$(SANITIZE_KERNELS) $(BIN)/python -m plants.codegen.sanitize
 
 reproduce: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --jobs $(JOBS) --artifacts $(ARTIFACTS)

@@ -41,6 +41,7 @@ from planning.problem import (
     check_range,
     single_threaded_blas,
 )
+from plants.codegen.c_backend import check_shapes
 from plants.dynamics import rollout
 
 
@@ -121,7 +122,11 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
     """Backward pass. Shapes: ``A (T,n,n)``, ``B (T,n,m)``, ``lx (T+1,n)``, ``lxx (T+1,n,n)``,
     ``lu (T,m)``, ``luu (T,m,m)``. Returns ``k (T,m)``, ``K (T,m,n)``, ``dV (2,)``; compiled
     (``ilqg_backward.c``, the same formulas, equal to rounding) where a C compiler is available."""
+    if np.ndim(B) != 3 or min(np.shape(B)) < 1:
+        raise ValueError(f"ilqg backward pass: B must have shape (T, n, m) with T, n, m >= 1, got {np.shape(B)}")
     T, n, m = B.shape
+    check_shapes("ilqg backward pass", A=(A, (T, n, n)), lx=(lx, (T + 1, n)), lxx=(lxx, (T + 1, n, n)),
+                 lu=(lu, (T, m)), luu=(luu, (T, m, m)))
     lib = _c_backward_lib() if compiled and n <= COMPILED_MAX_N else None
     if lib is not None:
         arrs = [np.ascontiguousarray(z, dtype=float) for z in (A, B, lx, lxx, lu, luu)]
@@ -129,7 +134,7 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
         rc = lib.ilqg_backward(T, n, m, *(z.ctypes.data for z in arrs), float(mu), k.ctypes.data, K.ctypes.data,
                                dV.ctypes.data)
         if rc < 0:
-            raise MemoryError("ilqg_backward: out of memory")
+            raise MemoryError(f"ilqg_backward: no work buffer for n = {n}, m = {m}")
         if rc > 0:
             raise _NotPD
         return k, K, dV

@@ -74,11 +74,18 @@ static void chol_solve(int m, int c, const double *L, double *X)
         }
 }
 
+/* Accepted shapes (planning/ilqg.py: _backward checks them before the call and raises ValueError):
+ * T >= 1, n >= 1, m >= 1, every array C-contiguous float64 of the shape above; any m relative to n
+ * (more controls than states included). Returns -1 when the work buffer cannot be allocated or a
+ * size is out of range. */
 int ilqg_backward(long T, long n_, long m_, const double *A, const double *B, const double *lx, const double *lxx,
                   const double *lu, const double *luu, double mu, double *k, double *K, double *dV)
 {
+    if (T < 1 || n_ < 1 || m_ < 1 || n_ > 4096 || m_ > 4096) return -1;
     int n = (int)n_, m = (int)m_;
-    size_t need = (size_t)(2 * n + m + 4 * n * n + 5 * m * n + 3 * m * m + m * (n + 1) + n * m + n);
+    /* Vx, Qx (n); Qu (m); Vxx, VA, Qxx, Vn (n n); BtV, Qux, BtVr, Quxr, Bt (m n); Quu, QuuF, S (m m);
+     * rhs (m (n + 1)); KtQuu (n m); tmp (m) */
+    size_t need = (size_t)(2 * n + m + 4 * n * n + 5 * m * n + 3 * m * m + m * (n + 1) + n * m + m);
     double *w = (double *)malloc(sizeof(double) * need);
     if (!w) return -1;
     double *Vx = w, *Qx = Vx + n, *Qu = Qx + n, *Vxx = Qu + m, *VA = Vxx + n * n, *Qxx = VA + n * n,

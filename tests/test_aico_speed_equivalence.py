@@ -22,6 +22,8 @@ from planning.problem import Problem, controller_rollout
 from plants.dynamics import PseudoDynamics
 from tests.toys import PlanarArm
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 N_Q, T, DT = 3, 40, 0.02
 
 

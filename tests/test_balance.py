@@ -22,6 +22,8 @@ from plants.taskmaps import CenterOfMass, JointPositions
 from stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
 from stages.plan.stage import PlanConfig, build_problem, objective_from_description
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 runner = CliRunner()
 SOLE = NAO_SOLE_POLYGON  # x in [-0.055, 0.105], y in [-0.044, 0.044] (m)
 

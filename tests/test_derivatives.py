@@ -32,6 +32,8 @@ from plants.numdiff import (
 from plants.robots import PLANTS, shared_robot
 from plants.taskmaps import TASKMAP_EXAMPLES, JointPositions
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 DT = 0.01
 
 

@@ -16,6 +16,8 @@ from plants.fast_analytic import FastAnalyticDynamics, make_fast_or_exact
 from plants.numdiff import numdiff_jacobian
 from plants.robots import shared_robot
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 NAMES = ["pendulum", "arm5", "biorob"]
 DT = 0.01
 

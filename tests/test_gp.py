@@ -15,6 +15,8 @@ from plants.gp import NOISE_FLOOR, GPModel
 from plants.learned import LearnedDynamics, build_learned
 from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 M_P, L_P, MU, G = 1.0, 1.0, 1.0, 9.81  # pendulum: q = 0 hanging down
 
 

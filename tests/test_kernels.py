@@ -38,6 +38,8 @@ from plants.taskmaps import TASKMAP_EXAMPLES
 from stages.plan.stage import PlanConfig, build_problem
 from tests.test_aico_speed_equivalence import make_problem
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 REPO = Path(__file__).resolve().parents[1]
 
 

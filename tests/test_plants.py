@@ -14,6 +14,8 @@ from plants.fast_analytic import FastAnalyticDynamics
 from plants.robots import PLANTS, load_robot, shared_robot
 from plants.taskmaps import EndEffectorPosition, RollAngle
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 
 def random_state(robot, seed=0):
     rng = np.random.default_rng(seed)

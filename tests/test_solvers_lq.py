@@ -18,6 +18,8 @@ from planning.ilqg import ILQGOptions, ilqg
 from planning.problem import Problem, controller_rollout
 from plants.dynamics import LinearDynamics
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 N_X, N_U, T = 4, 2, 30
 
 

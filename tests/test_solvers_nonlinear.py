@@ -21,6 +21,8 @@ from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
 from tests.toys import PlanarArm
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 T, DT, N_Q = 100, 0.02, 3
 
 

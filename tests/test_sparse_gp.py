@@ -16,6 +16,8 @@ from plants.learned import build_learned
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse
 from tests.test_gp import _rel, pendulum_data, toy_data, toy_model
 
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
 runner = CliRunner()
 
 

@@ -24,6 +24,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from plants.codegen.graph import Graph
 
 
@@ -70,6 +72,55 @@ CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fn
           *_isa_flags())
 _LIBS: dict[str, ctypes.CDLL] = {}
 
+# The sanitizer build (``RAICO_SANITIZE=1``, ``make test-sanitize``): every kernel, hand-written and
+# generated, compiled with AddressSanitizer and UBSan on top of its own flags (UB aborts, it is not
+# only reported), into its own folder. Python must start with both runtimes preloaded
+# (:func:`sanitizer_env`): a sanitized library dlopen'ed into a process without them cannot run.
+SANITIZE_FLAGS = ("-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer", "-g")
+
+
+def sanitizing() -> bool:
+    """Whether kernels are built with the sanitizers (``RAICO_SANITIZE`` set and not ``0``)."""
+    return os.environ.get("RAICO_SANITIZE", "") not in ("", "0")
+
+
+def sanitizer_runtimes() -> list[str]:
+    """Paths of gcc's AddressSanitizer and UBSan runtimes (``libasan.so``, ``libubsan.so``), in the
+    order they must be preloaded; empty when gcc does not have them."""
+    paths = []
+    for lib in ("libasan.so", "libubsan.so"):
+        try:
+            out = subprocess.run(["gcc", f"-print-file-name={lib}"], capture_output=True, text=True).stdout.strip()
+        except OSError:
+            return []
+        if not os.path.isabs(out) or not os.path.exists(out):
+            return []
+        paths.append(out)
+    return paths
+
+
+def sanitizer_env(base: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a Python process that runs the sanitized kernels: ``RAICO_SANITIZE=1``, the
+    runtimes in ``LD_PRELOAD``, leak detection off (CPython's allocations at exit are not leaks of
+    the kernels) and errors fatal. Raises :class:`CompileUnavailable` without the runtimes."""
+    runtimes = sanitizer_runtimes()
+    if not runtimes:
+        raise CompileUnavailable("gcc's libasan.so / libubsan.so are not installed")
+    env = dict(os.environ if base is None else base)
+    env["RAICO_SANITIZE"] = "1"
+    env["LD_PRELOAD"] = " ".join(runtimes)
+    env["ASAN_OPTIONS"] = "detect_leaks=0:abort_on_error=1:halt_on_error=1"
+    env["UBSAN_OPTIONS"] = "print_stacktrace=1:halt_on_error=1"
+    return env
+
+
+def _check_sanitizer_runtime() -> None:
+    """Refuse to load a sanitized library into a process that was not started with the runtimes."""
+    if "libasan" not in os.environ.get("LD_PRELOAD", ""):
+        raise CompileError("RAICO_SANITIZE is set but the sanitizer runtimes are not preloaded: start Python "
+                           "with LD_PRELOAD=\"$(gcc -print-file-name=libasan.so) $(gcc -print-file-name=libubsan.so)\" "
+                           "(make test-sanitize does)")
+
 
 class CompileUnavailable(RuntimeError):
     """No compiled path: ``RAICO_NO_C`` set, or no ``gcc`` (the callers run their numpy code)."""
@@ -92,14 +143,22 @@ def why_unavailable() -> str:
 
 
 def kernel_dir() -> Path:
+    """Where compiled kernels are kept: ``RAICO_KERNEL_DIR``, default ``~/.cache/raico/kernels``
+    (``kernels-sanitize`` for the sanitizer build, so the two never mix)."""
     d = os.environ.get("RAICO_KERNEL_DIR")
-    return Path(d) if d else Path.home() / ".cache" / "raico" / "kernels"
+    default = "kernels-sanitize" if sanitizing() else "kernels"
+    return Path(d) if d else Path.home() / ".cache" / "raico" / default
+
+
+def _flags(flags: tuple[str, ...]) -> tuple[str, ...]:
+    """``flags`` with the sanitizers' appended when :func:`sanitizing`."""
+    return (*flags, *SANITIZE_FLAGS) if sanitizing() else tuple(flags)
 
 
 def library_path(source: str, name: str, directory: Path | None = None,
                  flags: tuple[str, ...] = CFLAGS) -> Path:
     """Where the library of ``source`` built with ``flags`` is (or will be) cached."""
-    key = hashlib.sha256((" ".join(flags) + "\n" + source).encode()).hexdigest()[:20]
+    key = hashlib.sha256((" ".join(_flags(flags)) + "\n" + source).encode()).hexdigest()[:20]
     return (directory or kernel_dir()) / f"{name}-{key}.so"
 
 
@@ -117,6 +176,7 @@ def build_library(source: str, name: str, directory: Path | None = None,
         src = Path(tmp) / f"{name}.c"
         src.write_text(source)
         out = Path(tmp) / f"{name}.so"
+        flags = _flags(flags)
         proc = subprocess.run(["gcc", *flags, "-o", str(out), str(src), "-lm"],
                               capture_output=True, text=True)
         if proc.returncode != 0:
@@ -128,11 +188,24 @@ def build_library(source: str, name: str, directory: Path | None = None,
 def load_library(source: str, name: str, directory: Path | None = None,
                  flags: tuple[str, ...] = CFLAGS) -> ctypes.CDLL:
     """``ctypes`` handle of the compiled ``source`` (kept for the process)."""
+    if sanitizing():
+        _check_sanitizer_runtime()
     path = build_library(source, name, directory, flags)
     lib = _LIBS.get(str(path))
     if lib is None:
         lib = _LIBS[str(path)] = ctypes.CDLL(str(path))
     return lib
+
+
+def check_shapes(kernel: str, **arrays) -> None:
+    """Refuse a call into compiled code whose arrays do not have the shapes its C entry point accepts:
+    ``name=(array, expected_shape)`` pairs; raises ``ValueError`` naming the kernel, the array, the
+    shape given and the one expected (a C kernel reads and writes by the sizes it is passed, so a
+    wrong shape must stop here, never reach a buffer)."""
+    for name, (a, shape) in arrays.items():
+        got = tuple(np.shape(a))
+        if got != tuple(shape):
+            raise ValueError(f"{kernel}: {name} has shape {got}, expected {tuple(shape)}")
 
 
 # -- C from the graph ---------------------------------------------------------------------------
