@@ -61,6 +61,7 @@ from planning.problem import (
     is_lti,
     single_threaded_blas,
 )
+from plants.codegen.c_backend import check_shapes
 from plants.dynamics import rollout
 
 
@@ -515,6 +516,7 @@ class _Sweeps:
         """The kernel's view of this iteration's arrays (rebuilt per sweep: ``linearize_all``
         replaces some of them)."""
         T, n, m, o = self.T, self.n, self.m, self.o
+        self._check_kernel_shapes()
         st = kernels.SweepState()
         st.T, st.n, st.m = T, n, m
         st.relocate, st.max_repeats = int(self.relocate), o.max_repeats
@@ -563,6 +565,18 @@ class _Sweeps:
         st.w, st.iw, st.sp_state = work.ctypes.data, iwork.ctypes.data, 0
         self._kstate = (st, work, iwork, keep, lin)       # keep everything the kernel points to alive
         return st
+
+    def _check_kernel_shapes(self) -> None:
+        """The shapes ``sweep_t`` of csweep.c accepts (its layout comment): ``ValueError`` before any
+        call, never a read or write past an array (T >= 1, n >= 1, m >= 1)."""
+        T, n, m = self.T, self.n, self.m
+        if min(T, n, m) < 1:
+            raise ValueError(f"sweep_run: T, n, m must be >= 1, got {T}, {n}, {m}")
+        msg = {"SA": (T + 1, n, n + 1), "VA": (T + 1, n, n + 1), "RA": (T + 1, n, n + 1), "b": (T + 1, n),
+               "X": (T + 1, n), "Xprev": (T + 1, n), "U": (T, m), "Z": (T, m, n + 1), "a_eff": (T, n),
+               "C": (T, n + 1, m + n + 1), "Qbar": (T, n, n), "H": (T, m, m), "Hinv": (T, m, m), "h": (T, m),
+               "_active_flags": (T + 1,)}
+        check_shapes("sweep_run", **{k: (getattr(self, k), shape) for k, shape in msg.items()})
 
     def _kernel_check(self, st: kernels.SweepState, rc: int) -> None:
         if rc == kernels.ERR_CHOL:

@@ -48,13 +48,19 @@ typedef struct {
     long phase, t, r, sub, dyn_flag, task_flag, repeats, err_info, err_code;
 } sweep_t;
 
-/* work doubles needed for sizes n, m */
+/* Accepted shapes (planning/aico.py: _Sweeps._check_kernel_shapes checks them before every call and
+ * raises ValueError): T, n, m >= 1; SA, VA, RA (T+1, n, n+1); C (T, n+1, m+n+1) or one shared (stride
+ * 0); Qbar (T, n, n) or shared; H, Hinv (T, m, m) or shared; h (T, m); a_eff (T, n); X, Xprev, b
+ * (T+1, n); U (T, m); Z (T, m, n+1); active (T+1); w and iw of the sizes below. */
+
+/* work doubles needed for sizes n, m: exactly the sum of layout()'s blocks (no slack, so that the
+ * sanitizer build sees any access past them) */
 long sweep_iwork_size(long n, long m) { return 3 * (n + 1) * (m + n + 1) + 2 * (m + n + 2); }
 
 long sweep_work_size(long n, long m)
 {
     long N1 = n + 1, K = m + n + 1;
-    return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3 + 64;
+    return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3;
 }
 
 /* work layout */

@@ -414,7 +414,9 @@ static void spd_inverse(int n, const double *R, int ld, double *out, int ldo, do
     mirror_upper(n, out, ldo);
 }
 
-/* the dense kernels by themselves, for tests/test_kernels.py (row-major, numpy's layout) */
+/* the dense kernels by themselves, for the tests (row-major, numpy's layout). Accepted: every size
+ * >= 1, every leading dimension >= its matrix's row length (the tests pad each operand and check that
+ * nothing outside its block changes); Y of k_spd_inverse holds n x n doubles. */
 int k_chol_u(long n, double *A, long ld) { return chol_u((int)n, A, (int)ld); }
 void k_solve_rt(long n, const double *R, long ld, double *B, long ldb, long c)
 { solve_rt((int)n, R, (int)ld, B, (int)ldb, (int)c); }

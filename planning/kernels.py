@@ -114,6 +114,7 @@ class _TaskSet(ctypes.Structure):
 
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
+TASK_MAX_ROWS = 64        # TMAX of task_messages.c: rows of one task map's full output
 _TASK_LIB: ctypes.CDLL | None | bool = None
 
 
@@ -153,6 +154,8 @@ def compile_task_set(problem):
         return None
     T, nx = problem.T, problem.n_x
     nq = nx // 2
+    if nx != 2 * nq or not 1 <= nq <= TASK_MAX_POSITIONS:
+        return None    # outside the kernel's stack buffers: the Python messages
     keep, terms, kern, robot = [], [], None, None
 
     def arr(a, dtype=float):
@@ -169,6 +172,7 @@ def compile_task_set(problem):
         vt.active = arr(term.active(steps), np.uint8)
         if isinstance(term, StateTarget):
             vt.kind, vt.dim = MessageKind.STATE_TARGET, nx
+            c_backend.check_shapes("taskset_eval", target=(term.target, (nx,)), C=(term.C, (nx, nx)))
             vt.target, vt.C = arr(term.target), arr(term.C)
             terms.append(vt)
             continue
@@ -176,8 +180,12 @@ def compile_task_set(problem):
             return None
         tm = term.taskmap
         vt.dim = tm.dim
+        if not 1 <= tm.dim <= TASK_MAX_ROWS:
+            return None
+        c_backend.check_shapes("taskset_eval", target=(term.target, (tm.dim,)), C=(term.C, (tm.dim, tm.dim)))
         vt.target, vt.C = arr(term.target), arr(term.C)
         if type(tm) is JointPositions:
+            c_backend.check_shapes("taskset_eval", S=(tm.S, (tm.dim, nq)))
             vt.kind, vt.S = MessageKind.JOINTS, arr(tm.S)
             terms.append(vt)
             continue
@@ -187,6 +195,11 @@ def compile_task_set(problem):
         if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
             return None
         kern, robot = k, tm.robot
+        rows = {FramePoints: 3 * len(getattr(tm, "points", ())), CenterOfMass: 3, RollAngle: 1}[type(tm)]
+        kept = np.asarray(getattr(tm, "rows", None) if type(tm) is FramePoints else
+                          getattr(tm, "axes", None) if type(tm) is CenterOfMass else [0])
+        if rows > TASK_MAX_ROWS or kept.shape != (tm.dim,) or kept.min() < 0 or kept.max() >= rows:
+            return None
         if type(tm) is FramePoints:
             vt.kind, vt.npts = MessageKind.FRAME_POINTS, len(tm.points)
             vt.body = k.tree.body(tm.body_name)

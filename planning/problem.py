@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from plants.codegen.c_backend import check_shapes
 from plants.dynamics import Dynamics, LinearDynamics, stepped_rollout
 
 
@@ -85,9 +86,11 @@ class Problem:
 
             lib = kernels.library()
             if lib is not None:
-                T, m, n = o.shape[0], o.shape[1], x0.shape[0]
+                T, m, n = np.shape(o)[0], dynamics.n_u, x0.shape[0]
                 A, a, B = (np.ascontiguousarray(z, dtype=float) for z in (dynamics.A, dynamics.a, dynamics.B))
                 x0, o, O = (np.ascontiguousarray(z, dtype=float) for z in (x0, o, O))
+                check_shapes("lti_rollout", A=(A, (n, n)), a=(a, (n,)), B=(B, (n, m)), o=(o, (T, m)),
+                             O=(O, (T, m, n)))
                 X, U = np.empty((T + 1, n)), np.empty((T, m))
                 lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
                 return X, U

@@ -10,7 +10,12 @@
 enum message_kind { MK_FRAME_POINTS = 0, MK_CENTER_OF_MASS = 1, MK_ROLL = 2, MK_JOINTS = 3, MK_STATE_TARGET = 4 };
 
 #define TMAX 64      /* rows of one task map's output */
-#define MPMAX 64     /* plant positions (planning/kernels.py checks) */
+#define MPMAX 64     /* plant positions */
+/* Accepted shapes (planning/kernels.py: compile_task_set checks them and leaves any other problem to
+ * the Python task messages): plant positions 1 <= m <= MPMAX, planning positions 1 <= nq <= MPMAX with
+ * nx = 2 nq, P (m, nq); per term dim <= TMAX rows, a frame's 3 npts <= TMAX, rows[r] < the map's full
+ * output (3 npts, 3 or 1), S (dim, nq), target (dim or nx), C (dim x dim or nx x nx), active (T + 1);
+ * t in 0..T. */
 
 typedef int (*frame_points_fn)(const double *q, int b, const double *RBF, const double *pBF, int npts,
                                const double *pts, double *pos, double *J);
@@ -57,7 +62,7 @@ int taskset_eval(const void *cv, long t, const double *x, double *lx, double *lx
 {
     const taskset_t *ts = (const taskset_t *)cv;
     int nq = (int)ts->nq, nx = (int)ts->nx, MP = (int)ts->m;
-    double qp[MPMAX], full[TMAX], Jf[TMAX * MPMAX], phi[TMAX], J[TMAX * MPMAX], CJ[TMAX * MPMAX], e[TMAX];
+    double qp[MPMAX], full[TMAX], Jf[TMAX * MPMAX], phi[TMAX], J[TMAX * MPMAX], CJ[TMAX * MPMAX], e[2 * MPMAX];
     memset(lx, 0, sizeof(double) * nx);
     memset(lxx, 0, sizeof(double) * nx * nx);
     if (ts->identity) memcpy(qp, x, sizeof(double) * MP);

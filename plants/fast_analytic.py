@@ -60,6 +60,9 @@ class _CompiledStep:
     argument conversion costs more than the C code)."""
 
     def __init__(self, code, n: int, dt: float, P: np.ndarray, identity: bool, name: str):
+        if not 1 <= n <= code.m:   # the driver's work arrays are sized by the plant's positions
+            raise ValueError(f"dyn_{name}: {n} planning coordinates, the compiled driver takes 1 to {code.m}")
+        c_backend.check_shapes(f"dyn_{name}", P=(P, (code.m, n)))
         header = (f"#include <math.h>\n#include <string.h>\n#define MP {code.m}\n"
                   f"#define NCARRY {code.n_carry}\n")
         lib = c_backend.load_library(header + code.c_source + _DRIVER_C, f"dyn_{name}")
@@ -115,19 +118,21 @@ class _CompiledStep:
         return a, F, Mi
 
     def linearize_trajectory(self, X: np.ndarray, U: np.ndarray):
-        N, n, T = 2 * self.n, self.n, X.shape[0]
+        N, n, T = 2 * self.n, self.n, np.shape(X)[0]
         X = np.ascontiguousarray(X, dtype=float)
         U = np.ascontiguousarray(U, dtype=float)
+        c_backend.check_shapes("dyn_linearize_batch", X=(X, (T, N)), U=(U, (T, n)))
         A, a, B = np.empty((T, N, N)), np.empty((T, N)), np.empty((T, N, n))
         self.lib.dyn_linearize_batch(self.ctx_address, T, X.ctypes.data, U.ctypes.data,
                                      A.ctypes.data, a.ctypes.data, B.ctypes.data)
         return A, a, B
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray):
-        T, N, n = o.shape[0], 2 * self.n, self.n
+        T, N, n = np.shape(o)[0], 2 * self.n, self.n
         x0 = np.ascontiguousarray(x0, dtype=float)
         o = np.ascontiguousarray(o, dtype=float)
         O = np.ascontiguousarray(O, dtype=float)
+        c_backend.check_shapes("dyn_controller_rollout", x0=(x0, (N,)), o=(o, (T, n)), O=(O, (T, n, N)))
         X, U = np.empty((T + 1, N)), np.empty((T, n))
         self.lib.dyn_controller_rollout(self.ctx_address, T, x0.ctypes.data, o.ctypes.data,
                                         O.ctypes.data, X.ctypes.data, U.ctypes.data)

@@ -1,5 +1,9 @@
 
-/* ---- driver (plants/fast_analytic.py): the AnalyticDynamics formulas on the generated code ---- */
+/* ---- driver (plants/fast_analytic.py): the AnalyticDynamics formulas on the generated code ----
+ * Accepted shapes (plants/fast_analytic.py: _CompiledStep checks them before any call): 1 <= n <= MP
+ * planning coordinates (the work arrays below are sized by MP); x (2 n), u (n), A (2 n, 2 n),
+ * aff (2 n), B (2 n, n); the batches T >= 0 steps: X (T, 2 n), U (T, n), A (T, 2 n, 2 n), aff (T, 2 n),
+ * B (T, 2 n, n); the rollout x0 (2 n), o (T, n), O (T, n, 2 n), X (T + 1, 2 n), U (T, n). */
 typedef struct {
     int n;               /* planning dofs n_q */
     int identity;        /* P is the identity */

@@ -46,6 +46,10 @@ NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the m
 # formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
 # agree to rounding (tests/test_gp.py). The source: gp_point.c beside this module.
 _POINT_LIB: object = None
+# The point kernels' stack buffers (gp_point.c): at most this many inputs, and for the compiled
+# relinearization this many outputs; larger models run the numpy code.
+POINT_MAX_INPUTS = 256
+POINT_MAX_OUTPUTS = 128
 
 
 def _point_lib():
@@ -332,7 +336,7 @@ class GPModel:
         x = self._point_query(x)
         if not np.all(np.isfinite(x)):
             return np.full(self.D, np.nan), np.full((self.D, self.d), np.nan)
-        lib = _point_lib() if self.d <= 256 else None
+        lib = _point_lib() if self.d <= POINT_MAX_INPUTS else None
         if lib is None:
             m, g = self.mean_with_gradients(x[None, :])
             return m[0], g[0]
@@ -382,7 +386,7 @@ class GPModel:
         solves run in a different order than BLAS's, so the two agree to rounding (tests/test_gp.py).
         numpy (the batch call on one row) without a C compiler. NaN where ``x`` is not finite."""
         x = self._point_query(x)
-        lib = _point_lib() if self.d <= 256 and self._POINT_VARIANCE else None
+        lib = _point_lib() if self.d <= POINT_MAX_INPUTS and self._POINT_VARIANCE else None
         if lib is None or not np.all(np.isfinite(x)):
             m, v, dm, dv = self.predict_with_gradients(x[None, :])
             return m[0], v[0], dm[0], dv[0]
@@ -402,7 +406,8 @@ class GPModel:
         the dynamics ``qddot = mean(q, qdot, u)`` with semi-implicit Euler of step ``dt`` s at one state
         (``plants.learned.LearnedDynamics.linearize``'s formulas; the AICO sweep kernel calls it), or
         ``None`` without a C compiler."""
-        lib = _point_lib() if self.d <= 256 and self.D <= 128 else None
+        lib = (_point_lib() if self.d <= POINT_MAX_INPUTS and self.D <= POINT_MAX_OUTPUTS and self.d >= 2 * self.D
+               else None)
         if lib is None:
             return None
         import ctypes
@@ -418,7 +423,7 @@ class GPModel:
         ``dt`` s from ``x0``: ``X (T+1, 2 D)``, ``U (T, d - 2 D)``; the point mean's formulas, so
         the same numbers as stepping ``point_mean_with_gradients`` up to the rounding of ``O_t x_t``.
         ``None`` without a C compiler (the caller steps in Python)."""
-        lib = _point_lib() if self.d <= 256 else None
+        lib = _point_lib() if self.d <= POINT_MAX_INPUTS else None
         if lib is None:
             return None
         T, nx = o.shape[0], 2 * self.D

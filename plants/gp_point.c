@@ -1,7 +1,12 @@
 #include <math.h>
 /* One query point of independent SE-ARD GPs sharing their training inputs (plants/gp.py, scaled
  * units). Zs (D, N, d): training inputs divided by each output's length-scales; weights (D, N);
- * sf2 (D,); inv_ell (D, d); z (d,) scaled query. */
+ * sf2 (D,); inv_ell (D, d); z (d,) scaled query.
+ * Accepted shapes (plants/gp.py routes every other model to its numpy code): N >= 1 training (or
+ * inducing) points, 1 <= d <= 256 inputs (the stack buffers below), D >= 1 outputs, and for
+ * gp_linearize also D <= 128 and d >= 2 D (x has 2 D entries, u the other d - 2 D); L (D, N, N);
+ * work 2 N doubles; the rollout T >= 0: o (T, d - 2 D), O (T, d - 2 D, 2 D), X (T + 1, 2 D),
+ * U (T, d - 2 D). */
 
 /* Mean of output j at the query divided by its length-scales zs (d,); k (N,) receives the kernel
  * vector when not NULL; g (d,) accumulates sum_i w_i k_i (zs_i - zs) when not NULL. */

@@ -23,34 +23,36 @@ pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitize
 N_X, N_U, T = 4, 2, 30
 
 
-def make_lq(seed: int = 0, running: float = 0.0) -> Problem:
-    """Random LQ problem: stable A with drift a, state targets at several times (diagonal
-    and full precisions), a control cost with a non-zero target (h != 0), and optionally a
-    running state cost of weight ``running`` at every step."""
+def make_lq(seed: int = 0, running: float = 0.0, n: int = N_X, m: int = N_U, T: int = T) -> Problem:
+    """Random LQ problem with ``n`` states, ``m`` controls and horizon ``T``: stable A with drift a,
+    state targets at several times (diagonal and full precisions; at 8, 15 and 22 of 30 steps and
+    at T, scaled with T), a control cost with a non-zero target (h != 0), and optionally a running
+    state cost of weight ``running`` at every step."""
     rng = np.random.default_rng(seed)
-    A = np.eye(N_X) + 0.2 * rng.standard_normal((N_X, N_X))
+    A = np.eye(n) + 0.2 * rng.standard_normal((n, n))
     A *= 0.98 / max(abs(np.linalg.eigvals(A)))
-    B = 0.5 * rng.standard_normal((N_X, N_U))
-    a = 0.05 * rng.standard_normal(N_X)
-    G = rng.standard_normal((N_X, N_X))
+    B = 0.5 * rng.standard_normal((n, m))
+    a = 0.05 * rng.standard_normal(n)
+    G = rng.standard_normal((n, n))
+    at = [max(1, round(T * k / 30)) for k in (8, 15, 22)]
     terms = [
-        StateTarget(rng.standard_normal(N_X), times=[8], weight=50.0, name="s8"),
-        StateTarget(rng.standard_normal(N_X), times=[15, 22], weight=20.0,
-                    precision=rng.uniform(0.5, 2.0, N_X), name="s15_22"),
-        StateTarget(rng.standard_normal(N_X), times=[T], weight=100.0,
-                    precision=G @ G.T / N_X + 0.1 * np.eye(N_X), name="sT"),
+        StateTarget(rng.standard_normal(n), times=[at[0]], weight=50.0, name="s8"),
+        StateTarget(rng.standard_normal(n), times=sorted(set(at[1:])), weight=20.0,
+                    precision=rng.uniform(0.5, 2.0, n), name="s15_22"),
+        StateTarget(rng.standard_normal(n), times=[T], weight=100.0,
+                    precision=G @ G.T / n + 0.1 * np.eye(n), name="sT"),
     ]
     if running:
-        terms.append(StateTarget(np.zeros(N_X), times=None, weight=running, name="run"))
-    controls = [ControlCost(0.1, target=0.3 * rng.standard_normal(N_U))]
-    return Problem(LinearDynamics(A=A, a=a, B=B), rng.standard_normal(N_X), T, terms, controls)
+        terms.append(StateTarget(np.zeros(n), times=None, weight=running, name="run"))
+    controls = [ControlCost(0.1, target=0.3 * rng.standard_normal(m))]
+    return Problem(LinearDynamics(A=A, a=a, B=B), rng.standard_normal(n), T, terms, controls)
 
 
 def exact_solution(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
     """Optimal ``X (T+1, n)``, ``U (T, m)`` from the KKT system of the QP
     ``min sum 1/2 x^T R x - r^T x + 1/2 u^T H u - h^T u`` s.t. ``x_0 = x0``,
     ``x_{t+1} = A x_t + a + B u_t`` (the terms are exactly quadratic)."""
-    n, m, dyn = pb.n_x, pb.n_u, pb.dynamics
+    n, m, dyn, T = pb.n_x, pb.n_u, pb.dynamics, pb.T
     R, r = pb.quadratize_states(np.zeros((T + 1, n)))
     H, h = pb.quadratize_controls(np.zeros((T, m)))
     nz = (T + 1) * n + T * m
@@ -77,6 +79,7 @@ def exact_solution(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
 
 def riccati_gains(pb: Problem) -> np.ndarray:
     """Time-varying LQR gains ``K (T, m, n)`` (``u_t = k_t + K_t x_t``) by the Riccati recursion."""
+    T = pb.T
     R, _ = pb.quadratize_states(np.zeros((T + 1, pb.n_x)))
     H, _ = pb.quadratize_controls(np.zeros((T, pb.n_u)))
     A, B = pb.dynamics.A, pb.dynamics.B

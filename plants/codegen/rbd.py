@@ -214,11 +214,23 @@ class TreeKernels:
     def _a(x) -> np.ndarray:
         return np.ascontiguousarray(x, dtype=float)
 
+    def _check(self, kernel: str, body: int | None = None, **arrays) -> None:
+        """The shapes the C entry point accepts (``name=(array, shape)``) and a body index in range:
+        ``ValueError`` before the call, never a read or write past a buffer."""
+        if body is not None and not 0 <= int(body) < len(self.tree.names):
+            raise ValueError(f"{kernel}: body index {body} out of range (the tree has {len(self.tree.names)} bodies)")
+        c_backend.check_shapes(kernel, **arrays)
+
+    def _frame(self, kernel: str, R_BF, p_BF=None) -> None:
+        self._check(kernel, R_BF=(R_BF, (3, 3)), **({} if p_BF is None else {"p_BF": (p_BF, (3,))}))
+
     def frame_points(self, qp, body: int, R_BF, p_BF, points) -> tuple[np.ndarray, np.ndarray]:
         """World positions ``(k, 3)`` of ``points (k, 3)`` in frame F on ``body`` and the
         Jacobian ``(3 k, m)`` (point k's x, y, z at rows 3k..3k+2)."""
         qp, R_BF, p_BF, points = (self._a(z) for z in (qp, R_BF, p_BF, points))
-        k = points.shape[0]
+        k = points.shape[0] if points.ndim == 2 else -1
+        self._check("tree_frame_points", body, qp=(qp, (self.m,)), points=(points, (max(k, 0), 3)))
+        self._frame("tree_frame_points", R_BF, p_BF)
         pos, J = np.empty((k, 3)), np.empty((3 * k, self.m))
         self.lib.tree_frame_points(qp.ctypes.data, body, R_BF.ctypes.data, p_BF.ctypes.data, k,
                                    points.ctypes.data, pos.ctypes.data, J.ctypes.data)
@@ -227,7 +239,9 @@ class TreeKernels:
     def frame_points_batch(self, Qp, body: int, R_BF, p_BF, points):
         """:meth:`frame_points` at the rows of ``Qp (K, m)``: ``(K, k, 3)``, ``(K, 3 k, m)``."""
         Qp, R_BF, p_BF, points = (self._a(z) for z in (Qp, R_BF, p_BF, points))
-        K, k = Qp.shape[0], points.shape[0]
+        K, k = (Qp.shape[0] if Qp.ndim else 0), (points.shape[0] if points.ndim == 2 else 0)
+        self._check("tree_frame_points_batch", body, Qp=(Qp, (K, self.m)), points=(points, (k, 3)))
+        self._frame("tree_frame_points_batch", R_BF, p_BF)
         pos, J = np.empty((K, k, 3)), np.empty((K, 3 * k, self.m))
         self.lib.tree_frame_points_batch(K, Qp.ctypes.data, body, R_BF.ctypes.data, p_BF.ctypes.data,
                                          k, points.ctypes.data, pos.ctypes.data, J.ctypes.data)
@@ -235,14 +249,17 @@ class TreeKernels:
 
     def com_batch(self, Qp):
         Qp = self._a(Qp)
-        K = Qp.shape[0]
+        K = Qp.shape[0] if Qp.ndim else 0
+        self._check("tree_com_batch", Qp=(Qp, (K, self.m)))
         c, J = np.empty((K, 3)), np.empty((K, 3, self.m))
         self.lib.tree_com_batch(K, Qp.ctypes.data, c.ctypes.data, J.ctypes.data)
         return c, J
 
     def frame_rotation_batch(self, Qp, body: int, R_BF):
         Qp, R_BF = self._a(Qp), self._a(R_BF)
-        K = Qp.shape[0]
+        K = Qp.shape[0] if Qp.ndim else 0
+        self._check("tree_frame_rotation_batch", body, Qp=(Qp, (K, self.m)))
+        self._frame("tree_frame_rotation_batch", R_BF)
         R, Jw = np.empty((K, 3, 3)), np.empty((K, 3, self.m))
         self.lib.tree_frame_rotation_batch(K, Qp.ctypes.data, body, R_BF.ctypes.data, R.ctypes.data,
                                            Jw.ctypes.data)
@@ -250,6 +267,8 @@ class TreeKernels:
 
     def frame_rotation(self, qp, body: int, R_BF) -> tuple[np.ndarray, np.ndarray]:
         qp, R_BF = self._a(qp), self._a(R_BF)
+        self._check("tree_frame_rotation", body, qp=(qp, (self.m,)))
+        self._frame("tree_frame_rotation", R_BF)
         R, Jw = np.empty((3, 3)), np.empty((3, self.m))
         self.lib.tree_frame_rotation(qp.ctypes.data, body, R_BF.ctypes.data, R.ctypes.data,
                                      Jw.ctypes.data)
@@ -257,18 +276,21 @@ class TreeKernels:
 
     def com(self, qp) -> tuple[np.ndarray, np.ndarray]:
         qp = self._a(qp)
+        self._check("tree_com", qp=(qp, (self.m,)))
         c, J = np.empty(3), np.empty((3, self.m))
         self.lib.tree_com(qp.ctypes.data, c.ctypes.data, J.ctypes.data)
         return c, J
 
     def mass_matrix(self, qp) -> np.ndarray:
         qp = self._a(qp)
+        self._check("tree_mass_matrix", qp=(qp, (self.m,)))
         M = np.empty((self.m, self.m))
         self.lib.tree_mass_matrix(qp.ctypes.data, M.ctypes.data)
         return M
 
     def inverse_dynamics(self, qp, vp, ap) -> np.ndarray:
         qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
+        self._check("tree_inverse_dynamics", q=(qp, (self.m,)), v=(vp, (self.m,)), a=(ap, (self.m,)))
         tau = np.empty(self.m)
         self.lib.tree_inverse_dynamics(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, tau.ctypes.data)
         return tau
@@ -276,6 +298,7 @@ class TreeKernels:
     def id_derivatives(self, qp, vp, ap) -> np.ndarray:
         """``dID/d(q, v) (m, 2 m)``."""
         qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
+        self._check("tree_id_derivatives", q=(qp, (self.m,)), v=(vp, (self.m,)), a=(ap, (self.m,)))
         D = np.empty((self.m, 2 * self.m))
         self.lib.tree_id_derivatives(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, D.ctypes.data)
         return D

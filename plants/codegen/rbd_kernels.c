@@ -202,11 +202,16 @@ static void angular_jacobian(int b, const double *ax, double *J, int ld)
     }
 }
 
+/* Accepted shapes of the exported kernels (plants/codegen/rbd.py: TreeKernels checks them before
+ * every call and raises ValueError; a body out of range also returns -1 here): q, v, a (MP); a body
+ * 0 <= b < NB; R_BF (3 x 3), p_BF (3); npts >= 0 points pts (npts, 3); batches K >= 0 rows Q (K, MP). */
+
 /* world positions pos (3 npts) of points pts (npts, 3) of frame F (X_BF: R_BF (9), p_BF (3)) on
  * body b, and their Jacobian J (3 npts x MP) */
 int tree_frame_points(const double *q, int b, const double *RBF, const double *pBF, int npts,
                       const double *pts, double *pos, double *J)
 {
+    if (b < 0 || b >= NB || npts < 0) return -1;
     double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
     fk(q, R, p, ax, o);
     const double *Rb = R + 9 * b, *pb = p + 3 * b;
@@ -225,6 +230,7 @@ int tree_frame_points(const double *q, int b, const double *RBF, const double *p
 /* world rotation R_WF (9) of frame F (R_BF) on body b and the angular-velocity Jacobian Jw (3 x MP) */
 int tree_frame_rotation(const double *q, int b, const double *RBF, double *RWF, double *Jw)
 {
+    if (b < 0 || b >= NB) return -1;
     double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
     fk(q, R, p, ax, o);
     const double *Rb = R + 9 * b;
@@ -435,6 +441,7 @@ int tree_id_derivatives(const double *q, const double *v, const double *a, doubl
 int tree_frame_points_batch(int K, const double *Q, int b, const double *RBF, const double *pBF, int npts,
                             const double *pts, double *pos, double *J)
 {
+    if (b < 0 || b >= NB || npts < 0) return -1;
     for (int k = 0; k < K; k++)
         tree_frame_points(Q + (long)k * MP, b, RBF, pBF, npts, pts, pos + (long)k * 3 * npts, J + (long)k * 3 * npts * MP);
     return 0;
@@ -446,6 +453,7 @@ int tree_com_batch(int K, const double *Q, double *c, double *J)
 }
 int tree_frame_rotation_batch(int K, const double *Q, int b, const double *RBF, double *R, double *Jw)
 {
+    if (b < 0 || b >= NB) return -1;
     for (int k = 0; k < K; k++) tree_frame_rotation(Q + (long)k * MP, b, RBF, R + 9L * k, Jw + 3L * k * MP);
     return 0;
 }
