@@ -20,11 +20,10 @@ from hypothesis import strategies as st
 
 from planning import kernels
 from planning.aico import AICOOptions, _Sweeps, aico
-from planning.costs import StateTarget, ViaPoint
+from planning.costs import ViaPoint
 from planning.ilqg import ILQGOptions, _backward, ilqg
 from planning.problem import Problem, controller_rollout
 from plants.codegen import c_backend, rbd
-from plants.dynamics import LinearDynamics
 from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
 from plants.gp import GPModel, SparseGPModel
 from plants.learned import LearnedDynamics
@@ -211,13 +210,13 @@ def test_task_messages_at_the_largest_map_the_kernel_takes():
     _messages_equal(_nao_points_problem(21))
 
 
-def test_task_messages_beyond_the_kernels_limits_use_python():
-    """22 points (66 rows) do not fit the kernel's buffers: no compiled messages (the Python ones run)."""
+def test_task_messages_beyond_the_kernels_limits_use_python(monkeypatch):
+    """22 points (66 rows) do not fit the kernel's buffers: no compiled messages (the Python ones run);
+    nor does a robot with more positions than the kernel holds (the limit lowered below the Nao's 25)."""
+    assert kernels.compile_task_set(_nao_points_problem(21)) is not None
     assert kernels.compile_task_set(_nao_points_problem(22)) is None
-    # a state target on more states than the kernel holds
-    dyn = LinearDynamics(A=np.eye(130), a=np.zeros(130), B=np.eye(130)[:, :2])
-    pb = Problem(dyn, np.zeros(130), 3, [StateTarget(np.ones(130), times=[3], weight=1.0)], [])
-    assert kernels.compile_task_set(pb) is None
+    monkeypatch.setattr(kernels, "TASK_MAX_POSITIONS", 24)
+    assert kernels.compile_task_set(_nao_points_problem(1)) is None
 
 
 # -- the GP point kernels (gp_point.c) -----------------------------------------------------------
