@@ -14,6 +14,9 @@ round. Keyword arguments are the stage's config fields (``raico <stage> --help``
 
 Each returns a :class:`pipeline.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
 ``recording``: the ``.rrd`` to open in the Rerun viewer, or in a notebook with ``rerun-notebook``).
+Progress and outcome go to stderr as from the CLI (a bar on a terminal, one line per stage run or
+learning episode otherwise); ``quiet=True`` silences them. A keyword the stage does not have is a
+``TypeError`` that lists the valid ones.
 """
 
 from __future__ import annotations
@@ -34,50 +37,73 @@ def _cache(artifacts: str | Path | None) -> Cache:
     return Cache(Path(artifacts if artifacts is not None else os.environ.get("RAICO_ARTIFACTS", "artifacts")))
 
 
-def run(stage: str, artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def run(stage: str, artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+        **config: Any) -> Outcome:
     """Run (or look up) one stage (``babble``, ``fit``, ``plan``, ``execute``, ``evaluate``, ``learn``) with
     the config fields ``config``; the result is cached as by the CLI."""
+    import dataclasses
+
     from pipeline import runner
+    from pipeline.ui import Reporter
     from stages.registry import get_stage
 
     spec = get_stage(stage)
+    fields = [f for f in dataclasses.fields(spec.config_cls)]
+    names = [f.name for f in fields]
+    unknown = [k for k in config if k not in names]
+    missing = [f.name for f in fields if f.default is dataclasses.MISSING and f.name not in config]
+    if unknown or missing:
+        what = (f"unknown keyword {', '.join(map(repr, unknown))}" if unknown
+                else f"missing keyword {', '.join(map(repr, missing))}")
+        raise TypeError(f"{stage}(): {what}; its keywords are {', '.join(names)} (and artifacts, record, quiet)")
     cfg = spec.config_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
     cfg.validate()
-    return runner.run(_cache(artifacts), spec, cfg, record=record)
+    reporter = Reporter(quiet)
+    for name, why in (cfg.ignored() if hasattr(cfg, "ignored") else {}).items():
+        reporter.say(f"raico: note: {name}={getattr(cfg, name)!r} is ignored: it is {why} (not part of the cache key)")
+    outcome = runner.run(_cache(artifacts), spec, cfg, record=record, reporter=reporter)
+    reporter.say(runner.outcome_line(outcome))
+    return outcome
 
 
-def babble(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def babble(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+           **config: Any) -> Outcome:
     """Motor babbling in Drake (``raico babble``)."""
-    return run("babble", artifacts, record, **config)
+    return run("babble", artifacts, record, quiet, **config)
 
 
-def fit(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def fit(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+        **config: Any) -> Outcome:
     """A GP dynamics model (``raico fit``; ``data`` a list of babble/execute keys)."""
-    return run("fit", artifacts, record, **config)
+    return run("fit", artifacts, record, quiet, **config)
 
 
-def plan(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def plan(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+         **config: Any) -> Outcome:
     """A plan with AICO, R-AICO, iLQG or crocoddyl FDDP (``raico plan``)."""
-    return run("plan", artifacts, record, **config)
+    return run("plan", artifacts, record, quiet, **config)
 
 
-def execute(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def execute(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+            **config: Any) -> Outcome:
     """A plan executed in Drake's Simulator (``raico execute``; ``plan`` a plan key)."""
-    return run("execute", artifacts, record, **config)
+    return run("execute", artifacts, record, quiet, **config)
 
 
-def evaluate(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def evaluate(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+             **config: Any) -> Outcome:
     """One run's evaluation (``raico evaluate``)."""
-    return run("evaluate", artifacts, record, **config)
+    return run("evaluate", artifacts, record, quiet, **config)
 
 
-def learn(artifacts: str | Path | None = None, record: bool = True, **config: Any) -> Outcome:
+def learn(artifacts: str | Path | None = None, record: bool = True, quiet: bool = False,
+          **config: Any) -> Outcome:
     """The learning loop (``raico learn``): babble, then fit, plan and execute per episode."""
-    return run("learn", artifacts, record, **config)
+    return run("learn", artifacts, record, quiet, **config)
 
 
 def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bool = False, jobs: int = 2,
-              record: bool = True, executor: str = "process") -> list[dict]:
+              record: bool = True, executor: str = "process", quiet: bool = False) -> list[dict]:
     """The named experiments (``raico reproduce --figure ...``): one summary per figure (its runs,
     claims and report folder), the report README written as by the CLI."""
     from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS
@@ -87,8 +113,10 @@ def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bo
     if not figures or unknown:
         raise ValueError(f"unknown experiment '{(unknown or [''])[0]}': choose one of "
                          f"{', '.join([*EXPERIMENTS, *LEARN_EXPERIMENTS])}")
+    from pipeline.ui import Reporter
+
     return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
-                        executor=executor))
+                        executor=executor, reporter=Reporter(quiet)))
 
 
 def arrays(outcome: Outcome, name: str) -> dict[str, np.ndarray]:

@@ -45,9 +45,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from typer.core import TyperGroup
 
-from pipeline import runner
-from pipeline.cache import Cache
 from pipeline.errors import (
     BadInput,
     Interrupted,
@@ -58,10 +57,58 @@ from pipeline.errors import (
     os_error_text,
     stop_resource_tracker,
 )
-from pipeline.runner import Outcome, artifacts_root, finite_json
-from pipeline.ui import Reporter
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+if typing.TYPE_CHECKING:
+    from pipeline.cache import Cache
+    from pipeline.runner import Outcome
+    from pipeline.ui import Reporter
+
+
+class _LazyStageGroup(TyperGroup):
+    """The ``raico`` group with the stage commands built on first use: ``raico --help`` lists them from
+    the registry's names and one-line descriptions, so help, ``--version`` and usage errors start without
+    importing a stage (Drake, crocoddyl, scipy); ``raico plan ...`` imports the plan stage only."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        if not args and self.no_args_is_help and not ctx.resilient_parsing:  # plain `raico`: the help, exit 0
+            typer.echo(ctx.get_help())
+            ctx.exit(0)
+        return super().parse_args(ctx, args)
+
+    def list_commands(self, ctx) -> list[str]:
+        from stages.registry import stage_names
+
+        return [*stage_names(), *(c for c in super().list_commands(ctx) if c not in stage_names())]
+
+    def get_command(self, ctx, name: str):
+        from stages.registry import stage_names
+
+        if name in stage_names() and name not in self.commands:
+            self.commands[name] = _stage_click_command(name)
+        return super().get_command(ctx, name)
+
+    def format_commands(self, ctx, formatter) -> None:
+        from stages.registry import DESCRIPTIONS
+
+        names = self.list_commands(ctx)
+        limit = formatter.width - 6 - max(map(len, names))   # as click's own listing
+        rows = []
+        for name in names:
+            cmd = self.commands.get(name)
+            text = _short(DESCRIPTIONS[name], limit) if name in DESCRIPTIONS else cmd.get_short_help_str(limit)
+            rows.append((name, text))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def _short(text: str, limit: int = 70) -> str:
+    """Click's short help: the first sentence, cut at ``limit`` characters."""
+    first = text.split(". ")[0].split("; ")[0]
+    return first if len(first) <= limit else first[: limit - 3].rsplit(" ", 1)[0] + "..."
+
+
+app = typer.Typer(cls=_LazyStageGroup, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   rich_markup_mode=None,
                   help="raico: probabilistic movement planning (AICO, R-AICO, iLQG) on Drake "
                        "plants, with cached stages and Rerun recordings.")
@@ -71,6 +118,29 @@ Artifacts = Annotated[str | None, typer.Option(
 NoRecord = Annotated[bool, typer.Option("--no-record", help="Skip the .rrd recording and MCAP.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON line with the outcome.")]
+
+
+def version_text() -> str:
+    """``raico VERSION`` (the installed package's version)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"raico {version('raico')}"
+    except PackageNotFoundError:  # a source tree that was not installed
+        return "raico (not installed)"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(version_text())
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _global(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                  help="Print raico's version and exit.")] = False) -> None:
+    """raico: probabilistic movement planning (AICO, R-AICO, iLQG) on Drake plants, with cached stages and
+    Rerun recordings."""
 SHARED_HELP = {"seed": "Random seed."}
 
 
@@ -105,12 +175,12 @@ def handles_errors(fn):
 
 def report(outcome: Outcome, as_json: bool, reporter: Reporter) -> None:
     """Say whether the stage ran (and why) or was cached; print the JSON line if asked."""
+    from pipeline import runner
+
     note = (outcome.metrics.get("balance") or {}).get("note") if isinstance(outcome.metrics, dict) else None
     if outcome.cached and note:  # a plan's moved via-points (stages.plan.balance): said again on a cache hit
         print(note, file=sys.stderr, flush=True)
-    what = "cached" if outcome.cached else f"ran ({outcome.reason})"
-    rec = f"; recording {outcome.recording}" if outcome.recording else ""
-    reporter.say(f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{outcome.status}]{rec}")
+    reporter.say(runner.outcome_line(outcome))
     if as_json:
         typer.echo(json.dumps(outcome.json_line(), default=float, allow_nan=False))
 
@@ -128,7 +198,7 @@ def _option(name: str, hint: Any, default: Any, help_text: str) -> inspect.Param
                              annotation=Annotated[hint, opt])
 
 
-def config_command(name: str, cls: type, description: str, action) -> None:
+def config_command(name: str, cls: type, description: str, action, target: typer.Typer | None = None) -> None:
     """Register ``raico NAME``: one option per field of the config class ``cls`` (defaults and help
     from the class), plus the shared ``--artifacts``, ``--no-record``, ``--quiet`` and ``--json``.
     ``action(cache, config, record, reporter) -> Outcome`` does the work."""
@@ -144,6 +214,8 @@ def config_command(name: str, cls: type, description: str, action) -> None:
                for k, (a, d) in shared.items()]
 
     def command(**kw):
+        from pipeline.ui import Reporter
+
         artifacts, no_record, quiet, as_json = (kw.pop(k) for k in ("artifacts", "no_record", "quiet", "json_"))
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
         try:
@@ -152,6 +224,9 @@ def config_command(name: str, cls: type, description: str, action) -> None:
         except (TypeError, ValueError) as e:
             raise BadInput(str(e)) from None
         reporter = Reporter(quiet)
+        for field_name, why in (cfg.ignored() if hasattr(cfg, "ignored") else {}).items():
+            reporter.say(f"raico: note: --{field_name.replace('_', '-')} {getattr(cfg, field_name)} is ignored: "
+                         f"it is {why} (not part of the cache key)")
         cache = open_cache(artifacts)
         cache.notify = reporter.say  # repairs it makes on its own (a damaged recording written again)
         outcome = action(cache, cfg, not no_record, reporter)
@@ -161,17 +236,25 @@ def config_command(name: str, cls: type, description: str, action) -> None:
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__name__ = name
     command.__doc__ = description
-    app.command(name, help=description)(handles_errors(command))
+    (target or app).command(name, help=description)(handles_errors(command))
 
 
-def stage_command(name: str) -> None:
+def stage_command(name: str, target: typer.Typer | None = None) -> None:
     """``raico NAME`` for a registered stage: its config's fields, run through the cache."""
+    from pipeline import runner
     from stages.registry import get_stage
 
     stage = get_stage(name)
     config_command(name, stage.config_cls, stage.description,
                    lambda cache, cfg, record, reporter: runner.run(cache, stage, cfg, record=record,
-                                                                  reporter=reporter))
+                                                                  reporter=reporter), target)
+
+
+def _stage_click_command(name: str):
+    """The click command of stage ``name`` (built when the group first needs it)."""
+    one = typer.Typer(add_completion=False, pretty_exceptions_enable=False, rich_markup_mode=None)
+    stage_command(name, one)
+    return typer.main.get_command(one)
 
 
 def open_cache(artifacts: str | Path | None) -> Cache:
@@ -179,6 +262,8 @@ def open_cache(artifacts: str | Path | None) -> Cache:
 
     An empty path, one that is a file or lies below a file is refused before any work; other
     OS errors (read-only, unwritable, full disk) are reported where they happen."""
+    from pipeline.cache import Cache
+    from pipeline.runner import artifacts_root
     if artifacts is not None and not str(artifacts).strip():
         raise BadInput("--artifacts: an empty path")
     root = artifacts_root(artifacts)
@@ -198,16 +283,6 @@ def check_folder(path: Path, what: str) -> None:
                 raise StorageError(f"{what} {path} {where} a file, not a folder")
         except OSError as e:
             raise StorageError(f"{what} {path}: {os_error_text(e)}") from None
-
-
-def _register_commands() -> None:
-    from stages.registry import stage_names
-
-    for name in stage_names():
-        stage_command(name)
-
-
-_register_commands()
 
 
 @app.command()
@@ -236,6 +311,8 @@ def reproduce(
 
     from pipeline import reproduce as repro
     from pipeline.executors import make_executor
+    from pipeline.runner import finite_json
+    from pipeline.ui import Reporter
 
     ids = list(repro.ALL_IDS) if all_ else list(figure or [])
     if not ids:
@@ -298,6 +375,7 @@ def ls(
     (valid ones; --all also shows invalid or partial entries).
 
     A plain listing checks each entry's own record and file sizes; --verify re-hashes every file."""
+    from pipeline.runner import finite_json
     from stages.registry import stage_names
 
     cache = open_cache(artifacts)
@@ -337,6 +415,8 @@ def show(
     open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
 ):
     """Print an artifact's meta.json and recording path, or open its recording in Rerun."""
+    from pipeline import runner
+    from pipeline.ui import Reporter
     cache = open_cache(artifacts)
     cache.notify = Reporter().say
     entry = runner.find_entry(cache, ref)
@@ -344,7 +424,8 @@ def show(
     if open_:
         rec = runner.ensure_recording(cache, entry)
         if rec is None:
-            raise BadInput(f"{ref} is a {entry.stage} artifact, which has no recording")
+            raise BadInput(f"{ref} is {'an' if entry.stage[:1] in 'aeiou' else 'a'} {entry.stage} artifact, "
+                           "which has no recording")
         open_viewer(rec)
         return
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,

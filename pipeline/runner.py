@@ -53,6 +53,44 @@ class Outcome:
         return finite_json(d)
 
 
+# a plan whose final cost exceeds its first iteration's by more than this fraction is said to have risen
+COST_ROSE = 1e-6
+
+
+def outcome_notes(outcome: Outcome) -> list[str]:
+    """What the status alone does not say: whether an execution achieved its task (status ok and its
+    via-points reached, the report's tolerance) and whether a plan's cost rose over its iterations."""
+    m = outcome.metrics if isinstance(outcome.metrics, dict) else {}
+    notes = []
+    if outcome.stage == "execute" and m.get("via_point_errors"):
+        from stages.evaluate.claims import EXECUTED_VIA_TOL, executed_achieved
+        from stages.evaluate.summary import largest_via_error
+
+        err = largest_via_error(m)
+        verdict = "achieved" if executed_achieved({**m, "status": outcome.status}) else "missed"
+        rel = "<=" if err <= EXECUTED_VIA_TOL else ">"
+        notes.append(f"task {verdict}: largest via-point error {err:.3g} {rel} {EXECUTED_VIA_TOL:g}"
+                     + ("" if outcome.status == "ok" or verdict == "missed" else f", status {outcome.status}"))
+    achieved = m.get("achieved")
+    if outcome.stage == "learn" and isinstance(achieved, list) and achieved:
+        notes.append(f"task {'achieved' if achieved[-1] else 'missed'} in the last episode "
+                     f"({sum(map(bool, achieved))}/{len(achieved)} episodes achieved it)")
+    first, final = m.get("first_iteration_cost"), m.get("final_cost")
+    if (outcome.stage == "plan" and isinstance(first, (int, float)) and isinstance(final, (int, float))
+            and math.isfinite(first) and math.isfinite(final) and final > first * (1 + COST_ROSE) and first > 0):
+        notes.append(f"warning: the cost rose over the iterations, from {first:.4g} after the first to "
+                     f"{final:.4g} ({final / first:.3g}x)")
+    return notes
+
+
+def outcome_line(outcome: Outcome) -> str:
+    """One line per stage run: what ran (and why) or was cached, where, its status and notes."""
+    what = "cached" if outcome.cached else f"ran ({outcome.reason})"
+    rec = f"; recording {outcome.recording}" if outcome.recording else ""
+    status = "; ".join([str(outcome.status), *outcome_notes(outcome)])
+    return f"{outcome.stage} {outcome.key}: {what} -> {outcome.path} [{status}]{rec}"
+
+
 def finite_json(obj: Any) -> Any:
     """``obj`` with non-finite floats replaced by None, recursively."""
     if isinstance(obj, float):
@@ -117,6 +155,21 @@ def run_stage(
 
 
 # ----------------------------------------------------------------------------- stages
+# The command that makes an artifact of each stage (said when an input of that stage is missing).
+PRODUCERS = {"babble": "raico babble", "fit": "raico fit --data BABBLE_KEY", "plan": "raico plan",
+             "execute": "raico execute --plan PLAN_KEY", "evaluate": "raico evaluate --plan PLAN_KEY",
+             "learn": "raico learn"}
+
+
+def _a(word: str) -> str:
+    """``word`` with its indefinite article (an execute, a plan)."""
+    return f"{'an' if word[:1] in 'aeiou' else 'a'} {word}"
+
+
+def _producer_hint(stages: tuple[str, ...]) -> str:
+    return "; " + " or ".join(f"`{PRODUCERS[s]}` makes {_a(s)} artifact" for s in stages if s in PRODUCERS)
+
+
 def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Entry:
     """A valid entry from ``STAGE/KEY`` or a bare ``KEY`` or key prefix (searched in ``stage``,
     in each of a tuple of stages, or everywhere). An empty reference, an unknown one, one of
@@ -125,19 +178,32 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     if not ref:
         raise BadInput("an empty artifact key")
     stages = (stage,) if isinstance(stage, str) else stage
-    if "/" in ref:
-        st, key = ref.split("/", 1)
+    wanted = stages
+    if "/" in ref:   # STAGE/KEY or STAGE/PREFIX
+        st, ref = (p.strip() for p in ref.split("/", 1))
         if stages is not None and st not in stages:
-            raise BadInput(f"{ref} is a {st} artifact, not a {' or '.join(stages)} artifact")
-        return cache.require(st, key)
+            raise BadInput(f"{st}/{ref} is {_a(st)} artifact, not {_a(' or '.join(stages))} artifact"
+                           f"{_producer_hint(stages)}")
+        from stages.registry import stage_names
+
+        if st not in stage_names():
+            raise BadInput(f"unknown stage '{st}' in '{st}/{ref}': choose one of {', '.join(stage_names())}")
+        stages = (st,)
+        if not ref:
+            raise BadInput(f"an empty artifact key after '{st}/'")
     rows = [r for s in stages for r in cache.list(s)] if stages is not None else cache.list()
     matches = [r for r in rows if r.key.startswith(ref)]
     valid = [r for r in matches if r.valid]
     if not valid:
         if matches:
             return cache.require(matches[0].stage, matches[0].key)  # raises with the reason
+        elsewhere = [r for r in cache.list() if r.valid and r.key.startswith(ref)] if stages is not None else []
+        if elsewhere:
+            raise BadInput(f"'{ref}' is {_a(elsewhere[0].stage)} artifact, not {_a(' or '.join(stages))} artifact"
+                           f"{_producer_hint(wanted) if wanted else ''}")
         where = " or ".join(f"stage '{s}'" for s in stages) if stages else "any stage"
-        raise MissingArtifact(f"no artifact with key '{ref}' in {where} under {cache.root}")
+        raise MissingArtifact(f"no artifact with key '{ref}' in {where} under {cache.root}"
+                              f"{_producer_hint(wanted) if wanted else ''}")
     if len({(r.stage, r.key) for r in valid}) > 1:
         raise BadInput(f"key prefix '{ref}' is ambiguous: give more characters or STAGE/KEY")
     return cache.require(valid[0].stage, valid[0].key)
@@ -212,6 +278,12 @@ def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
     except ValueError as e:
         raise BadInput(str(e)) from None
     inputs = resolve_inputs(cache, stage, config, repair)
+    check = getattr(config, "check_inputs", None)
+    if check is not None:  # options that only some inputs accept (a Nao controller for an arm's plan)
+        try:
+            check(inputs)
+        except ValueError as e:
+            raise BadInput(str(e)) from None
     input_keys = _input_keys(inputs)
     version = code_version(stage)
     key_config = config.key_dict()

@@ -27,6 +27,7 @@ from scipy.interpolate import CubicSpline
 
 from plants.robots import PLANTS, load_robot
 from stages.base import Stage, StageConfig, StageOutput
+from stages.registry import DESCRIPTIONS
 
 DATA_FILE = "data.npz"
 
@@ -216,5 +217,5 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
 
 STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run, sources=("plants", "stages.babble", "stages.base"),
               data_files=(DATA_FILE,),
-              description="Motor babbling: random desired trajectories tracked by a PD controller in Drake.",
+              description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)

@@ -94,6 +94,7 @@ from stages.evaluate.metrics import (
 )
 from stages.plan.balance import cog_margins
 from stages.plan.stage import PLAN_FILE, PROBLEM_FILE
+from stages.registry import DESCRIPTIONS
 
 ROLLOUT_FILE = "rollout.npz"
 MAX_STEP = 1e-3  # s, integrator step bound (continuous pendulum)
@@ -121,7 +122,7 @@ class ExecuteConfig(StageConfig):
             "controller": "Nao controller: pd (joint PD + inverse-dynamics feed-forward) or wbc (the whole-body "
                           "stabilizer, a task-space inverse-dynamics QP with contact)."}
 
-    plan: str | None = None  # key, key prefix or plan/KEY of the plan to execute
+    plan: str  # key, key prefix or plan/KEY of the plan to execute (required)
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
     process_noise: float = 0.0  # N m, std of torque noise per planning step
     seed: int = 0
@@ -136,6 +137,17 @@ class ExecuteConfig(StageConfig):
         if self.start is not None:
             return self
         return dataclasses.replace(self, start="standing" if self.controller == "wbc" else "plan")
+
+    def check_inputs(self, inputs: dict) -> None:
+        """The Nao's options refused for another plant's plan (they would change the key, not the run)."""
+        plant = inputs["plan"].config.get("plant")
+        if plant == "nao":
+            return
+        if self.controller != "pd":
+            raise ValueError(f"--controller {self.controller} is for plans of the Nao; this plan is of {plant} "
+                             "(its executions use the computed-torque controller)")
+        if self.start not in (None, "plan"):
+            raise ValueError(f"--start {self.start} is for plans of the Nao; this plan is of {plant}")
 
     def validate(self) -> None:
         if self.start is not None and self.start not in STARTS:
@@ -653,7 +665,5 @@ STAGE = Stage(name="execute", config_cls=ExecuteConfig, run=run,
               sources=("plants", "planning", "stages.execute", "stages.wbc", "stages.plan", "stages.base",
                        "stages.evaluate.metrics"),
               data_files=(ROLLOUT_FILE,),
-              description="Execute a plan in Drake's Simulator: the free-standing Nao (joint PD + inverse-dynamics "
-                          "feed-forward) or the arm with the plan's feedback controller; status ok, limits, "
-                          "tracking-lost, fell or diverged.",
+              description=DESCRIPTIONS["execute"],
               progress_total=lambda cfg: 0)

@@ -27,6 +27,7 @@ import numpy as np
 from plants.robots import PLANTS
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput, Steps
 from stages.plan.tasks import get_task
+from stages.registry import DESCRIPTIONS
 
 EPISODES_FILE = "episodes.json"
 MAX_EPISODES = 100
@@ -256,7 +257,8 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
         steps.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} rad/s^2 "
                   f"(held-out {m['gp_error_heldout']:.3g}), "
                   f"task error {m['task_error']:.3g}, RMSE {m['rmse_planned_executed']:.3g} "
-                  f"[{execution.status}] ({'cached' if plan.cached and fit.cached else 'ran'})")
+                  f"[execution {execution.status}; task {'achieved' if m['achieved'] else 'missed'}] "
+                  f"({'cached' if plan.cached and fit.cached else 'ran'})")
         if progress:
             progress(k, cfg.episodes)
         data.append(execution.ref)
@@ -352,5 +354,4 @@ def summary(episodes: list[dict], wall: float) -> dict:
 STAGE = Stage(name="learn", config_cls=LearnConfig, run=run, sources=("stages.learn",),
               data_files=(EPISODES_FILE,), step_stages=("babble", "fit", "plan", "execute"),
               progress_total=lambda cfg: cfg.episodes,
-              description="Learn a GP forward model while planning: babble, then per episode fit, plan (R-AICO on "
-                          "the GP, uncertainty term) and execute in Drake; every run cached.")
+              description=DESCRIPTIONS["learn"])

@@ -17,6 +17,23 @@ _MODULES = {
 }
 
 
+# Each stage command's one-line help (the stage's ``description``): kept here, beside the names, so that
+# ``raico --help`` lists the commands without importing any stage (and Drake with it).
+DESCRIPTIONS = {
+    "babble": "Motor babbling: random desired trajectories tracked by a PD controller in Drake.",
+    "plan": "Plan a movement with AICO, R-AICO, iLQG or crocoddyl's FDDP; the artifact holds the feedback "
+            "controller.",
+    "execute": "Execute a plan in Drake's Simulator: an arm or the pendulum with the plan's feedback controller, "
+               "the free-standing Nao with the joint PD and feed-forward or the whole-body stabilizer "
+               "(--controller wbc); status ok, limits, tracking-lost, fell or diverged.",
+    "evaluate": "Evaluate one run: final cost, via-point errors, iterations, wall time, planned-vs-executed RMSE.",
+    "fit": "Fit a GP dynamics model (SE-ARD per joint) to babble/execute data; schedules every or batch-N with "
+           "--prior.",
+    "learn": "Learn a GP forward model while planning: babble, then per episode fit, plan (on the GP with its "
+             "uncertainty term: AICO, or R-AICO with --alpha > 0) and execute in Drake; every run cached.",
+}
+
+
 def stage_names() -> list[str]:
     return list(_MODULES)
 

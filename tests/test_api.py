@@ -38,3 +38,17 @@ def test_api_learn_and_bad_input(tmp_path):
         api.reproduce(["fig9"], tmp_path)
     with pytest.raises(ValueError, match="unknown stage 'dance'"):
         api.run("dance", tmp_path)
+
+
+def test_api_says_what_ran_unless_quiet_and_names_the_valid_keywords(tmp_path, capfd):
+    import re
+
+    api.plan(tmp_path, record=False, plant="arm5", task="reach", iterations=2)
+    err = capfd.readouterr().err
+    assert re.search(r"plan [0-9a-f]{16}: ran \(no cache entry\) -> .* \[", err), err
+    api.plan(tmp_path, record=False, quiet=True, plant="arm5", task="reach", iterations=2)
+    assert capfd.readouterr().err == ""
+    with pytest.raises(TypeError, match="unknown keyword 'iteratons'; its keywords are plant, task, .*iterations"):
+        api.plan(tmp_path, plant="arm5", task="reach", iteratons=2)
+    with pytest.raises(TypeError, match="missing keyword 'task'"):
+        api.plan(tmp_path, plant="arm5")

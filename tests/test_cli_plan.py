@@ -199,11 +199,12 @@ MORE = r"(, [\w./-]+)*"  # registries may grow: names after the listed ones
     (["execute", "--plan", ""], 2, re.escape("plan: an empty artifact reference")),
     (["ls", "plann"], 2, r"unknown stage 'plann': choose one of babble, plan, execute, evaluate" + MORE),
     (["plan", "--plant", "arm5", "--task", "reach", "--alpha", "-1"], 2,
-     re.escape("option alpha must be >= 0.0, got -1.0")),
+     re.escape("--alpha must be >= 0.0, got -1.0")),
     (["plan", "--plant", "arm5", "--task", "reach", "--iterations", "0"], 2,
      re.escape("iterations must be in [1, 10000]")),
     (["execute", "--plan", "0123456789abcdef"], 3,
-     re.escape("no artifact with key '0123456789abcdef' in stage 'plan' under ") + "{tmp}"),
+     re.escape("no artifact with key '0123456789abcdef' in stage 'plan' under ") + "{tmp}"
+     + re.escape("; `raico plan` makes a plan artifact")),
     (["reproduce", "--figure", "fig9"], 2, r"unknown experiment 'fig9': choose one of fig3\.2a" + MORE),
 ])
 def test_bad_input_is_one_line(tmp_path, args, code, pattern):

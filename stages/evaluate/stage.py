@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.base import Artifact, Stage, StageConfig, StageOutput
+from stages.registry import DESCRIPTIONS
 
 EVALUATION_FILE = "evaluation.json"
 COST_PNG = "cost.png"
@@ -92,5 +93,4 @@ def run(cfg: EvaluateConfig, inputs: dict[str, Artifact], progress=None) -> Stag
 
 STAGE = Stage(name="evaluate", config_cls=EvaluateConfig, run=run, sources=("planning", "stages.evaluate", "stages.base"),
               data_files=(EVALUATION_FILE, COST_PNG),
-              description="Evaluate one run: final cost, via-point errors, iterations, wall time, "
-                          "planned-vs-executed RMSE.")
+              description=DESCRIPTIONS["evaluate"])

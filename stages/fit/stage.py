@@ -55,6 +55,7 @@ import numpy as np
 from plants.gp import GPModel, SparseGPModel
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse, subsample_indices
+from stages.registry import DESCRIPTIONS
 
 MODEL_FILE = "model.npz"
 HELDOUT_FILE = "heldout.npz"
@@ -403,5 +404,4 @@ def run(cfg: FitConfig, inputs: dict, progress: Progress | None = None) -> Stage
 
 STAGE = Stage(name="fit", config_cls=FitConfig, run=run, sources=("plants", "stages.fit", "stages.base"),
               data_files=(MODEL_FILE, HELDOUT_FILE, FIT_FILE),
-              description="Fit a GP dynamics model (SE-ARD per joint) to babble/execute data; "
-                          "schedules every or batch-N with --prior.")
+              description=DESCRIPTIONS["fit"])

@@ -23,7 +23,11 @@ from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
 from stages.plan.tasks import TASKS, TaskSpec, get_task
+from stages.registry import DESCRIPTIONS
 
+# the solvers' option names and the plan options that set them (for error messages)
+SOLVER_OPTION_FLAGS = {"schedule": "alpha-schedule", "alpha": "alpha", "gamma": "gamma", "iterations": "iterations",
+                       "belief_rate": "belief-rate", "controller_rate": "controller-rate"}
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
 PLAN_FILE = "plan.npz"
 PROBLEM_FILE = "problem.json"
@@ -48,7 +52,9 @@ class PlanConfig(StageConfig):
             "dynamics": "pseudo (controls = accelerations, backward Euler), analytic (Drake, torques), analytic-fd "
                         "(the same, linearized by finite differences), learned (GP of --model), or pseudo-euler / "
                         "pseudo-heun (appendix C's other pseudo-dynamics).",
-            "solver": "aico, raico or ilqg.", "alpha": "R-AICO regularization alpha (raico only).",
+            "solver": "One of " + ", ".join(SOLVERS) + " (aico: AICO, raico: R-AICO, ilqg: iLQG; fddp...: crocoddyl's "
+                      "FDDP and its ablations, where crocoddyl is installed).",
+            "alpha": "R-AICO regularization alpha (raico only).",
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
             "q0_std": "Std of q0 around the default posture (rad).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
@@ -69,7 +75,8 @@ class PlanConfig(StageConfig):
                      "rollout, where crocoddyl FDDP's rollout start begins); iLQG always rolls out.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
                               "an iteration that lowers the cost, grows and retries after one that raises it).",
-            "balance": "Nao only: none (the task as stated), support (CoG ground projection kept 1.5 cm inside both "
+            "balance": f"Nao only: none (the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
+                       "(--balance-margin) inside both "
                        "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
                        "CoG inside the left sole, right sole released and lifted >= 2 cm from T/3). CoG via-points "
                        "outside the polygon are reported on stderr and planned at the nearest feasible point.",
@@ -132,7 +139,35 @@ class PlanConfig(StageConfig):
             raise ValueError(f"--balance {self.balance} needs --plant nao (a support polygon of the soles)")
         if not (isinstance(self.balance_margin, (int, float)) and 0 <= self.balance_margin <= 0.04):
             raise ValueError(f"balance-margin must be in [0, 0.04] m, got {self.balance_margin}")
-        make_options(self.solver, self.solver_options())
+        try:
+            make_options(self.solver, self.solver_options())
+        except ValueError as e:   # the solver's option names, said as the options the user typed
+            text = str(e)
+            for option, flag in SOLVER_OPTION_FLAGS.items():
+                text = text.replace(f"option {option} ", f"--{flag} ")
+            raise ValueError(text) from None
+
+    def ignored(self) -> dict[str, str]:
+        """Options given (not at their default) that this solver or set-up does not use: option name ->
+        why. They are dropped from the cache key (:meth:`normalized`); the CLI says so on stderr."""
+        d, out = PlanConfig.defaults(), {}
+
+        def note(names, why):
+            out.update({n: why for n in names if getattr(self, n) != d[n]})
+
+        if self.solver != "raico":
+            note(("alpha", "gamma", "alpha_schedule"), f"R-AICO's (--solver raico), not {self.solver}'s")
+        elif self.alpha_schedule == "adaptive":
+            note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
+        if self.solver not in ("aico", "raico"):
+            note(("relinearize", "belief_rate", "controller_rate", "start"), f"AICO's and R-AICO's, not {self.solver}'s")
+        if self.warm_start is None or self.solver == "ilqg":
+            note(("warm_from",), "for AICO/R-AICO with --warm-start")
+        if self.sigma is None:
+            note(("sigma_weight", "sigma_units"), "for --sigma-star")
+        if self.balance == "none":
+            note(("balance_margin",), "for --balance support or single")
+        return out
 
     @property
     def sigma(self) -> float | None:
@@ -332,5 +367,5 @@ def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None =
 
 STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics"),
               data_files=(PLAN_FILE, PROBLEM_FILE),
-              description="Plan a movement with AICO, R-AICO or iLQG; the artifact holds the feedback controller.",
+              description=DESCRIPTIONS["plan"],
               progress_total=lambda cfg: cfg.iterations)
