@@ -135,8 +135,26 @@ def bench_stabilizer_execution(reps: int) -> list[float]:
     return samples
 
 
+def bench_cli(args: tuple[str, ...], reps: int) -> list[float]:
+    """Wall time (s) of one ``raico ARGS`` process from start to exit (Python's start included; output
+    discarded; a non-zero exit is expected for a refused option)."""
+    import subprocess
+    import sys
+
+    raico = str(Path(sys.executable).with_name("raico"))
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        subprocess.run([raico, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
 CASES = [
     # name, target (s), function, args
+    ("raico --help (start-up: no stage is imported)", 0.5, bench_cli, (("--help",), 7)),
+    ("raico plan with a refused option (--solver foo): the plan stage imported, the option checked", 0.5,
+     bench_cli, (("plan", "--plant", "arm5", "--task", "reach", "--solver", "foo"), 7)),
     ("nao balance: 25 R-AICO iterations (T=300, 50-D)", 1.0, bench_solver_total,
      ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 5)),
     ("nao balance: of which in the sweeps (forward, backward, beliefs, relinearizations)", None,

@@ -15,12 +15,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
-from pydrake.multibody.tree import JointIndex
-from pydrake.systems.framework import DiagramBuilder
+
+if TYPE_CHECKING:   # Drake loads when a robot is built, not when the plant names are read
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
 
 MODELS = Path(__file__).resolve().parent / "models"
 PLANTS = ("pendulum", "arm5", "biorob", "nao")
@@ -117,6 +118,11 @@ class Robot:
 
 
 def _build(name: str, builder: DiagramBuilder | None, time_step: float = 0.0) -> Robot:
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.multibody.tree import JointIndex
+    from pydrake.systems.framework import DiagramBuilder
+
     builder = builder or DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     if time_step > 0:  # discrete: Drake's SAP solver enforces the joint position limits
