@@ -34,7 +34,7 @@ __all__ = ["content_mask", "read_png", "render_screenshot", "renderer_unavailabl
 
 ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.rerun_io)
 VULKAN_ICDS = "/usr/share/vulkan/icd.d/*.json"
-TOAST_S = 4.0  # a new viewer shows a notification ("Listening for gRPC connections") for about 3 s
+TOAST_S = 8.0  # a new viewer shows a notification ("Listening for gRPC connections") for 3 s, longer on a busy machine
 ROBOT_PIXELS = 3e-4  # share of a 3D view's pixels showing bodies once drawn (an empty view: 0; the pendulum: 1e-3)
 
 
