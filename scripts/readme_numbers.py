@@ -1,7 +1,8 @@
 """Regenerate the numbers in README.md from the latest report and benchmark output (never by hand).
 
 Replaces the text between ``<!-- results:begin -->`` / ``<!-- results:end -->`` with the claims
-table and per-figure wall times of ``artifacts/report/README.md`` / ``timings.json``, and between
+table and per-figure wall times of ``artifacts/report/README.md`` / ``timings.json``, between
+``<!-- headline:begin -->`` / ``<!-- headline:end -->`` with one sentence of the claims' counts, and between
 ``<!-- bench:begin -->`` / ``<!-- bench:end -->`` with the rows of ``artifacts/bench/results.json``.
 
     .venv/bin/python scripts/readme_numbers.py [--artifacts artifacts]
@@ -42,6 +43,23 @@ def results_block(report: Path) -> str:
         out += [f"| {f} | {v['runs']} ({v['cached_runs']}) | {v['wall_time_s']} | {v['load_average_1min']} |"
                 for f, v in tim.items()]
     return "\n".join(out)
+
+
+def headline_block(report: Path) -> str:
+    """One result first: how many of the thesis's claims (and of raico's own checks beyond it) hold in the
+    latest report, and that call's wall time."""
+    text = (report / "README.md").read_text()
+    counts = re.findall(r"^#+ (.*?) \((\d+) of (\d+) hold\)", text, re.M)
+    if not counts:
+        return ""
+    parts = [f"{name.strip()[:1].lower()}{name.strip()[1:]}: **{k} of {n} hold**" for name, k, n in counts]
+    out = "In the latest `make reproduce`: " + "; ".join(parts) + " (the tables and their reasons: Results below)."
+    t = report / "timings.json"
+    if t.exists():
+        call = json.loads(t.read_text()).get(CALL)
+        if call and call.get("wall_time_s") is not None:
+            out += f" That call took {call['wall_time_s']:.0f} s on the 2-core machine."
+    return out
 
 
 def _seconds(x: float) -> str:
@@ -119,6 +137,7 @@ def main() -> None:
     text = readme.read_text()
     if (root / "report" / "README.md").exists():
         text = replace(text, "results", results_block(root / "report"))
+        text = replace(text, "headline", headline_block(root / "report"))
     if (root / "bench" / "results.json").exists():
         text = replace(text, "bench", bench_block(root / "bench" / "results.json"))
     readme.write_text(text)
