@@ -1,7 +1,7 @@
 """Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)`` (SPEC §6); with
 crocoddyl installed also ``"fddp"`` and ``"fddp-rollout"`` (the baseline of SPEC §14).
 
-``SOLVERS[name]`` is a ``SolverSpec``: the solver function, its options class and the
+``SOLVERS[name]`` is a ``SolverSpec`` (crocoddyl's made on first use by ``get_solver``): the solver function, its options class and the
 defaults the name implies ("raico" is AICO with ``alpha = 1`` unless given, and requires
 ``alpha > 0``; "aico" requires ``alpha = 0``).
 """
@@ -53,22 +53,36 @@ def _check_raico(o: AICOOptions) -> None:
                          "use solver 'aico' for alpha = 0")
 
 
-SOLVERS: dict[str, SolverSpec] = {
+SOLVERS: dict[str, SolverSpec | None] = {   # None: made on first use (crocoddyl's)
     "aico": SolverSpec("aico", aico, AICOOptions, {"alpha": 0.0}, _check_aico),
     "raico": SolverSpec("raico", aico, AICOOptions, {"alpha": 1.0}, _check_raico),
     "ilqg": SolverSpec("ilqg", ilqg, ILQGOptions),
 }
 
 
+CROCODDYL_SOLVERS = ("fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule")
+
+
 def _register_crocoddyl() -> None:
-    """The crocoddyl baseline (``planning.crocoddyl_model``), only where crocoddyl imports:
-    ``fddp`` starts from ``x0`` held at every node (R-AICO's start), ``fddp-rollout`` from the
-    zero-torque rollout; ``fddp-rollout-accept-any`` and ``fddp-rollout-ilqg-schedule`` are the ablations with
-    iLQG's acceptance rule and its regularization schedule."""
+    """The crocoddyl baseline's names, where crocoddyl and pinocchio are installed: their specs are made
+    (and crocoddyl imported) when one is first asked for (:func:`get_solver`), so that listing or
+    checking a solver name loads neither."""
+    from importlib.util import find_spec
+
+    if find_spec("crocoddyl") is not None and find_spec("pinocchio") is not None:
+        SOLVERS.update(dict.fromkeys(CROCODDYL_SOLVERS))
+
+
+def _crocoddyl_specs() -> dict[str, SolverSpec]:
+    """The crocoddyl baseline (``planning.crocoddyl_model``): ``fddp`` starts from ``x0`` held at every
+    node (R-AICO's start), ``fddp-rollout`` from the zero-torque rollout; ``fddp-rollout-accept-any``
+    and ``fddp-rollout-ilqg-schedule`` are the ablations with iLQG's acceptance rule and its
+    regularization schedule."""
     from planning import crocoddyl_model as cm
 
     if not cm.AVAILABLE:
-        return
+        raise ValueError(f"crocoddyl's solvers cannot run here: {cm.UNAVAILABLE_REASON}")
+    specs: dict[str, SolverSpec] = {}
 
     def check(start: str):
         def _check(o) -> None:
@@ -76,17 +90,19 @@ def _register_crocoddyl() -> None:
                 raise ValueError(f"solver starts from '{start}', got start={o.start!r}")
         return _check
 
-    SOLVERS["fddp"] = SolverSpec("fddp", cm.fddp, cm.FDDPOptions, {"start": "held"}, check("held"))
-    SOLVERS["fddp-rollout"] = SolverSpec("fddp-rollout", cm.fddp, cm.FDDPOptions, {"start": "rollout"},
-                                         check("rollout"))
+    specs["fddp"] = SolverSpec("fddp", cm.fddp, cm.FDDPOptions, {"start": "held"}, check("held"))
+    specs["fddp-rollout"] = SolverSpec("fddp-rollout", cm.fddp, cm.FDDPOptions, {"start": "rollout"},
+                                       check("rollout"))
     # ablation (why iLQG stalls): FDDP accepting any step that lowers the cost, iLQG's rule
-    SOLVERS["fddp-rollout-accept-any"] = SolverSpec(
+    specs["fddp-rollout-accept-any"] = SolverSpec(
         "fddp-rollout-accept-any", cm.fddp, cm.FDDPOptions,
         {"start": "rollout", "th_accept": cm.ACCEPT_ANY}, check("rollout"))
     # ablation: FDDP with iLQG's regularization schedule (lower it after every accepted step)
-    SOLVERS["fddp-rollout-ilqg-schedule"] = SolverSpec(
+    specs["fddp-rollout-ilqg-schedule"] = SolverSpec(
         "fddp-rollout-ilqg-schedule", cm.fddp, cm.FDDPOptions, {"start": "rollout", **cm.ILQG_SCHEDULE},
         check("rollout"))
+    assert tuple(specs) == CROCODDYL_SOLVERS
+    return specs
 
 
 _register_crocoddyl()
@@ -99,11 +115,11 @@ def make_options(solver_name: str, options: dict[str, Any] | OptionsBase | None 
 
 def get_solver(solver_name: str) -> SolverSpec:
     """The registered solver called ``solver_name`` (``ValueError`` naming the valid ones)."""
-    try:
-        return SOLVERS[solver_name]
-    except KeyError:
-        raise ValueError(f"unknown solver {solver_name!r}; valid solvers: "
-                         f"{sorted(SOLVERS)}") from None
+    if solver_name not in SOLVERS:
+        raise ValueError(f"unknown solver {solver_name!r}; valid solvers: {sorted(SOLVERS)}")
+    if SOLVERS[solver_name] is None:    # a crocoddyl solver's first use: import it
+        SOLVERS.update(_crocoddyl_specs())
+    return SOLVERS[solver_name]
 
 
 def solve(problem: Problem, solver_name: str,

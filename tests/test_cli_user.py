@@ -171,3 +171,14 @@ def test_help_and_usage_errors_load_no_heavy_library(args):
     out = subprocess.run([sys.executable, "-c", _PROBE, *args], cwd=REPO, capture_output=True, text=True,
                          timeout=120)
     assert "HEAVY []" in out.stdout, out.stdout[-500:] + out.stderr[-500:]
+
+
+@pytest.mark.parametrize("args", [["plan", "--plant", "arm5", "--task", "reach", "--solver", "foo"],
+                                  ["execute", "--plan", "abc", "--controller", "foo"],
+                                  ["babble", "--plant", "crane"], ["learn", "--plant", "crane", "--task", "x"]])
+def test_a_refused_option_loads_neither_drake_nor_crocoddyl_nor_ray(args):
+    out = subprocess.run([sys.executable, "-c", _PROBE, *args], cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert "raico: error:" in out.stderr
+    heavy = re.search(r"HEAVY \[(.*)\]", out.stdout).group(1)
+    assert not {"'pydrake'", "'crocoddyl'", "'ray'"} & set(heavy.split(", ")), heavy
