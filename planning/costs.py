@@ -286,11 +286,6 @@ class TaskInequality(_OnPositions):
 
     _map = ViaPoint._map  # the same memo of the last batch (a solver's cost then linearization)
 
-    def violations(self, Q: np.ndarray) -> np.ndarray:
-        """``h = max(0, A phi(q) - b)`` ``(K, m)`` at positions ``Q (K, n_q)`` (task units)."""
-        phi, _ = self._map(np.atleast_2d(Q))
-        return np.maximum(phi @ self.A.T - self.b, 0.0)
-
     def _hinge(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """``h (K, m)``, ``A J (K, m, n_q)`` and ``n_q`` at rows ``X (K, n_x)``."""
         n_q = X.shape[1] // 2
