@@ -1,4 +1,4 @@
-"""Multi-output Gaussian-process posterior for learned dynamics (SPEC §7, thesis §4.2-4.3).
+"""Multi-output Gaussian-process posterior for learned dynamics (thesis §4.2-4.3).
 
 One independent GP per output dimension of ``qddot = f(q, qdot, u)``: inputs ``x = (q, qdot, u)``
 of size ``d = 2 D + F``, outputs ``D``. Zero prior mean (in scaled units, see below),

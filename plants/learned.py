@@ -1,4 +1,4 @@
-"""Learned dynamics (SPEC §4, §7): ``qddot = GP mean(q, qdot, u)`` with the analytic models' step.
+"""Learned dynamics: ``qddot = GP mean(q, qdot, u)`` with the analytic models' step.
 
 State ``x = (q, qdot)`` (rad, rad/s, ``n_x = 2 n_q``), control ``u`` (N m, ``n_u``), GP inputs
 ``(q, qdot, u)`` of size ``d = n_x + n_u`` and outputs ``qddot`` (rad/s^2, ``n_q``). One step of

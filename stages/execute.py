@@ -1,4 +1,4 @@
-"""The execute stage (SPEC §8, §14): a plan executed on a Drake plant in Drake's Simulator.
+"""The execute stage: a plan executed on a Drake plant in Drake's Simulator.
 
 Execution models:
 
@@ -19,7 +19,7 @@ Execution models:
   ground and counts as fallen at t = 0. The simulation runs to the end of the horizon (a fallen robot lies
   on the ground).
 
-  Options (issue 19; the defaults are the behaviour above): ``start="standing"`` projects the start
+  Options (the defaults are the behaviour above): ``start="standing"`` projects the start
   posture (the plan's ``x0`` plus noise) to double support with Drake's inverse kinematics
   (``FreeNao.stance_positions``: both soles flat on the ground, the CoG ``STANCE_MARGIN`` inside their
   polygon, the least joint change); the metrics ``start_projection_norm`` and

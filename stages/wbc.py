@@ -1,4 +1,4 @@
-"""A whole-body stabilizer for the free-standing Nao (issue 19): task-space inverse dynamics.
+"""A whole-body stabilizer for the free-standing Nao: task-space inverse dynamics.
 
 Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP, warm-started
 from the previous step (:class:`ProxQP`; Clarabel, through Drake's ``MathematicalProgram``, takes the

@@ -1,4 +1,4 @@
-"""Sparse GP (FITC, plants.gp.SparseGPModel; issue 17): against the exact GP, derivatives by central
+"""Sparse GP (FITC, plants.gp.SparseGPModel): against the exact GP, derivatives by central
 differences, storage, updates, and its options on raico fit / raico learn (bad input: one line)."""
 
 from __future__ import annotations

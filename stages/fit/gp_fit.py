@@ -1,4 +1,4 @@
-"""GP hyperparameter fitting (SPEC §7, thesis §4.2): type-II maximum likelihood, posterior in ``plants.gp``.
+"""GP hyperparameter fitting (thesis §4.2): type-II maximum likelihood, posterior in ``plants.gp``.
 
 Per output dimension, the log marginal likelihood of the kernel
 ``sf2 * exp(-|z - z'|^2_ell / 2) + sn2 * delta`` (scikit-learn's
