@@ -24,11 +24,11 @@ Constraints (hard):
 
 Cost (weight times squared acceleration error):
 
-- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right one until its release): each sole's spatial
-  acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
+- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right
+  one until its release): each sole's spatial acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
 - CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
   CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
-  held ``COG_MARGIN`` inside the feet's support polygon (Dykstra projection) and its capture point
+  held ``COG_MARGIN`` inside the feet's support polygon (:func:`clamp_to_polygon`) and its capture point
   ``c + cdot / omega`` too (the reference velocity cut);
 - via-point frames ``W_FRAME`` (the hand of the reach task): their points along the plan as made;
 - joints ``W_JOINT``: ``vdot_j = a_r + KP (q_r - q) + KD (v_r - v)`` on the 26 tree joints (the
@@ -37,89 +37,26 @@ Cost (weight times squared acceleration error):
   ``(v_{k+1} - v_k) / dt``);
 - regularization ``W_REG |vdot|^2 + W_FORCE |f|^2``.
 
-Choices, each with its measured effect (fig3.4-inside and fig3.3 R-AICO plans, seed 0-3, standing
-start; the Nao holding its standing posture for 1 s):
+Safeguards and modes:
 
-- Pure torque control with a zero-order hold: the plant is built without Drake's PD actuators (with
-  PD gains declared and the desired-state port left unconnected, the actuation input had no effect
-  on the joints in free fall). Period 4 ms (250 Hz) on the 2 ms plant: against 2 ms on a 1 ms plant
-  (the settings before), the ten fig3.4-inside R-AICO plans gave the same statuses (9 stood, 1 fell
-  at 1.76 s) and CoG via-point errors within 0.5 mm of each other (2 ms on the 2 ms plant: within
-  2 mm), at a third of the time (a 3 s execution 2.4 s wall, the bench row; before, 7.9 s). Longer
-  periods, measured on the 70 stabilizer executions of a ``make reproduce`` (40 noise-free, 30 under the
-  noise sweep's noise): 6 ms kept every noise-free status but 8 of the 26 noisy runs that stood fell, for
-  14 % less time per execution; 10 ms (the Nao's own DCM cycle, which drives position-controlled motor
-  boards, not torques) made 33 of the 65 runs that stood fall, for 27 % less. The period stays 4 ms.
-- The soles as a heavy cost rather than an equality: with the equality (and lifted corners carrying
-  nothing) the program was infeasible in 680 and 1235 of 1500 updates of two runs; as a cost, none.
-- ``COP_SHARE``: without it the program put the right sole's load on its inner edge, the compliant
-  sole rolled (outer corners 1.1 mm up) and RAnkleRoll kept a 0.015 rad error while standing; with
-  0.1 the soles stay flat to 0.02 mm and the joints within 0.0005 rad. 0.5 made fig3.4-inside fall
-  at 1.0 s (the centre of pressure could not reach the heel region the plan's CoG needs), 0.2 at 2.4 s.
-- No least corner force: 1 N per corner forced 4 N onto the unloaded right sole, so the CoG could not
-  be stopped near the left sole's outer edge (fell at 2.5 s).
-- The CoG clamp: the fig3.4-inside plan moves the CoG to 2 mm from the left sole's outer edge; tracked
-  as planned, the robot tipped over that edge at 2.1-2.5 s in every setting tried.
-- ``W_COG`` 1000, the CoG above the posture (with 10 the joint task pulled the CoG past its clamped
-  reference). With 100, fig3.4-inside's plans, which ask RAnkleRoll for 0.43-0.47 rad at their second
-  CoG via-point (its limit is 0.398, the bounds below stop it at 0.378), stopped the CoG 0.5-1.7 cm
-  short of that via-point, 1.3 cm also where the reference was not clamped (seed 3): the other joints
-  stayed with their references instead of making up for the ankle. With 1000 (the ten R-AICO a=1 plans of the
-  report of 11:15 UTC, standing start): reached to 1 cm 6 of 10 (100: 1 of 10), stood 9 of 10 (the
-  same seed 0 falls); under the noise sweep's noise 8 of 10 stood (100: 7); fig3.3, fig3.4-support
-  and fig3.4-single unchanged at 10 of 10 reaching (single: the right foot 2.44-2.53 cm up), under
-  noise fig3.3 10 of 10 and fig3.4-support 9 of 10 stood. 10000 reached 5 of 10; the joint weight 0.1
-  or softer joint gains (25, 10) did not keep seed 0 up. The CoG of the plan as made instead of the
-  joint reference's made fig3.4-inside fall in 3 of 3 seeds (the two references then disagreed by
-  the start projection, ~1 cm; the projection now holds the CoG's ground projection, which also
-  brought fig3.3's executed CoG via-point errors from 1.25-1.5 cm to 0.2-0.9 cm on seeds 2, 3, 4, 8);
-  with the projection as it is now (``W_COG`` 100) both give the same statuses (seed 0 falls either way)
-  and via-point errors within 0.6 mm on the other nine.
-- What did not help, measured on fig3.4-inside: a CoG margin of 1 cm (8 of 10 stood, 6 of 10 under
-  noise) or 2-2.5 cm (seed 0 still falls; 3.5 cm keeps it up, its via-point 1.9 cm off); a larger
-  ``COP_SHARE`` (0.2: 8 of 10 stood, 0.3: 5 of 10); a heavier sole hold (``W_CONTACT`` 1e4, 1e5);
-  ``CORNER_UP`` 0.2-0.5 mm; and, under initial-state noise, shifting the reference by the projection
-  from the plan's own start instead of the noisy one (the robot's start, noise included: 5 of 10
-  stood under noise instead of 8: the joint task rejecting the start noise keeps more runs up).
-- ``W_FRAME`` 1000: the reach's executed hand via-point error 1.3-1.9 cm with 10, 0.37-0.61 cm with
-  100, 0.14-0.26 cm with 1000 (seeds 0, 1).
-- The joint-limit bounds: without them the program drove RAnkleRoll into its upper limit (the plan
-  itself asks for up to 0.44 rad, the limit is 0.398) and Drake's limit constraint pushed back with a
-  torque the program did not know: fig3.4-inside ended ``limits`` in 5 of 10 runs and fell in 4; with
-  them 9 of 10 stand with status ok (their CoG via-points 0.7-2.9 cm off: the ankle, stopped 0.02 rad
-  inside its limit, stops the CoG short of the plan's +3 cm; the ``limits`` status flags a joint
-  within 0.01 rad of its limit, so it does not count this), seed 0 still falls. Letting a joint go to
-  its (clipped) reference at the limit instead turned 6 of these 9 into ``limits``.
-- The solver: proxsuite's PROXQP (``proxsuite`` 0.8.0, pip wheels that need nothing beyond numpy,
-  scipy and cmeel, all already in raico's set) warm-started: 0.3 ms a program against Clarabel's
-  1.7-1.8 ms (interior point, no warm start; OSQP at eps 1e-7 took 11 ms). Its accelerations agree
-  with Clarabel's to 1e-4 on the 1500 programs of a fig3.4-inside run (the corner forces are unique
-  only up to their 1e-5 regularization; the costs agree to 1e-3). Two measured safeguards: its
-  infeasibility tolerances at 1e-12 (at the default 1e-4 it called 9-22 feasible programs of a run
-  infeasible) and an iteration cap with Clarabel as the fallback (uncapped, one program of a falling
-  robot took it 5 million iterations); ``wbc_qp_fallbacks`` counts them.
-  Keeping the first program's preconditioner instead of updating it every program (``update_preconditioner``
-  False) cut the median update from 1.55 to 1.35 ms over the same 70 executions, every noise-free run within
-  1e-5 m of before, but one noisy fig3.4-support run that stood fell: it stays updated.
-- A program that no solver solves (under process noise a joint pushed past its margin can ask more
-  acceleration than the torque limits give) is solved again without the joint-limit bounds, the
-  limits then left to the plant's (``wbc_qp_relaxed``); only one that still fails holds the previous
-  torque (``wbc_qp_failures``).
-- A disturbance observer (``DISTURBANCE_OBSERVER``): at each update the joint torque the model does not
-  explain over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
-  plant's generalized contact forces of its last step, what the feet's force sensors give; none for a
-  joint within ``LIMIT_MARGIN_OBS`` of a limit, where the plant's limit force acts), clamped at the effort
-  limits and compensated by the next command (``u = At x + h_j - w``, the torque bounds shifted by it).
-  Under the noise sweep's process noise (0.5 N m per planning step and joint, 1.7 times a hand's 0.29 N m
-  effort limit) on the ten fig3.4-inside plans: 7 of 10 stood with it, 1 of 10 without; fig3.3: 10 and 9
-  of 10, its hand via-point errors 1-5 mm with it, 13-110 mm without. Without noise it changes nothing
-  measurable (the same statuses, CoG via-point errors within 0.3 mm).
-- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more programs
-  (the programs of a robot lying on the ground were the hardest, and useless); ``wbc_limp_time``.
-- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners carry
-  no force, it is no longer held) once the executed CoG's ground projection is ``RELEASE_MARGIN`` inside
-  the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG reference is clamped to the left
-  sole's polygon and the right sole's corners track the plan as made (the frame task's weight and gains).
+- ``proxsuite``'s portable build (:func:`portable_proxsuite`: bit-for-bit repeatable executions); a
+  program it does not solve within its iteration cap goes to Clarabel (``wbc_qp_fallbacks``); one
+  no solver solves is solved again without the joint-limit bounds that ask for an acceleration
+  (``wbc_qp_relaxed``); one that still fails holds the previous torque (``wbc_qp_failures``).
+- A disturbance observer (``DISTURBANCE_OBSERVER``): the joint torque the model does not explain
+  over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
+  plant's generalized contact forces of its last step; none for a joint within ``LIMIT_MARGIN_OBS``
+  of a limit), clamped at the effort limits and compensated by the next command
+  (``u = At x + h_j - w``, the torque bounds shifted by it).
+- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more
+  programs (``wbc_limp_time``).
+- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners
+  carry no force, it is no longer held) once the executed CoG's ground projection is
+  ``RELEASE_MARGIN`` inside the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG
+  reference is clamped to the left sole's polygon and the right sole's corners track the plan as
+  made (the frame task's weight and gains).
+
+Why each weight, gain, bound and solver setting is what it is (measured): ``docs/stabilizer.md``.
 """
 
 from __future__ import annotations
@@ -147,7 +84,7 @@ KP_LIMIT, KD_LIMIT = 400.0, 40.0  # 1/s^2, 1/s: the acceleration bound towards a
 MU = 0.5  # friction coefficient of the linearized cone (the simulated ground has 0.8)
 CORNER_UP = 2e-3  # m, a sole corner higher than this carries no force in the program (None: every corner may)
 COP_SHARE = 0.1  # each corner of a sole carries at least this share of the sole's mean corner load
-FZ_MIN = 0.0  # N, the least normal force on a corner in contact (see the docstring: 0)
+FZ_MIN = 0.0  # N, the least normal force on a corner in contact (docs/stabilizer.md: why 0)
 FZ_MAX = 200.0  # N, a bound on each corner's normal force (keeps the program bounded)
 # single support (a plan made with --balance single): the right sole is released once the CoG is over the
 # left sole, then tracks the plan's right-sole corners
