@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants.gp import GPModel, SparseGPModel
+from plants.gp import GPBase, GPModel, SparseGPModel
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse, subsample_indices
 
@@ -276,7 +276,7 @@ class FitResult:
     """The model and how it was made (``mode``: ``optimized``, ``incremental`` or ``refactorized``,
     the last = the prior's hyperparameters on a capped set, factorized anew)."""
 
-    model: GPModel
+    model: GPBase
     mode: str
     fit_time_s: float
     n_at_optimization: int  # training points (before the cap) at the last hyperparameter optimization
@@ -329,7 +329,7 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
 
 
-def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPModel, str]:
+def _add_points(model: GPBase, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPBase, str]:
     """``model`` plus ``X (n, d)``, ``Y (n, D)`` at fixed hyperparameters: the Cholesky factor
     extended, or, past ``max_points``, the capped union factorized anew (a sparse GP: always
     factorized anew, its inducing inputs selected again among all points, ``SparseGPModel.update``)."""
@@ -342,7 +342,7 @@ def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -
     return refit_fixed(model, Xa[kept], Ya[kept]), "refactorized"
 
 
-def heldout_errors(model: GPModel, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
+def heldout_errors(model: GPBase, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
     """Held-out RMSE ``(D,)`` (rad/s^2) and RMSE over the held-out targets' std ``(D,)``; NaN without held-out points."""
     if len(data.X_test) == 0:
         nan = np.full(model.D, np.nan)
