@@ -1,4 +1,4 @@
-"""GP timings of SPEC §13 (prints a dict): mean, variance and all input gradients along a trajectory,
+"""GP timings (prints a dict): mean, variance and all input gradients along a trajectory,
 the incremental update against a full refactorization, and what the training-set cap costs.
 
     .venv/bin/python -m bench.gp_bench [--repeats 5] [--no-cap-cost]
@@ -8,7 +8,7 @@ trajectory, ``d = 15`` inputs (5 joints: q, qdot, u), ``D = 5`` outputs. Hyperpa
 not fitted (the cost does not depend on their values). Medians of ``repeats`` runs, wall time and
 process CPU time (the machine may be shared: CPU time is the better single-core figure then).
 
-``mean_var_all_gradients_ms_per_output`` (the SPEC §13 figure, target 20 ms): one
+``mean_var_all_gradients_ms_per_output`` (the headline figure, target 20 ms): one
 ``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their
 gradients with respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread
 (the project's policy per process, ``plants/_threads.py``). Its bulk is two triangular solves per

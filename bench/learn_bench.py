@@ -33,7 +33,7 @@ def bench_learn_episode() -> dict:
 
 def bench_learn_default(episodes: int = 20, seed: int = 0) -> dict:
     """The whole ``raico learn --plant biorob --task reach --episodes 20 --alpha 2`` with every other
-    option at its default (issue 17: target 60 s), from a fresh cache: ``{"wall_s", "task_error_last",
+    option at its default (target 60 s), from a fresh cache: ``{"wall_s", "task_error_last",
     "status_last", "n_points_last"}``."""
     import time
 
@@ -52,8 +52,8 @@ def bench_learn_default(episodes: int = 20, seed: int = 0) -> dict:
 
 
 def bench_learn_evaluation(gp: str = "exact", inducing: int = 200, points: int = 1000, seed: int = 0) -> dict:
-    """One fig4.3 evaluation (fit + plan + execute) at ``points`` training points (SPEC §13, issue 17
-    target 1.0 s), with the exact or the sparse GP (``inducing`` points), from a fresh cache.
+    """One fig4.3 evaluation (fit + plan + execute) at ``points`` training points (target
+    1.0 s), with the exact or the sparse GP (``inducing`` points), from a fresh cache.
 
     fig4.3's ``every`` setting with 250 babbling points (the babbling allows at most 100 spline
     knots, i.e. about 250 points), every 2nd executed step as data (``stride`` 2: 250 points per

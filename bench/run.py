@@ -1,4 +1,4 @@
-"""Planner benchmarks of SPEC §13: ``make bench`` -> ``artifacts/bench/results.json`` and a table.
+"""Planner benchmarks and their time targets: ``make bench`` -> ``artifacts/bench/results.json`` and a table.
 
 Medians over several repetitions (the machine is shared and noisy); each row shows the target
 beside the measurement and their ratio. Not a test: nothing here fails on a slow machine.
@@ -111,7 +111,7 @@ def bench_nao_linearization(route: str, reps: int) -> list[float]:
 
 
 def bench_stabilizer_execution(reps: int) -> list[float]:
-    """Issue 19: one 3 s execution of a fig3.4-inside R-AICO plan (T = 300 steps of 10 ms) on the free-standing
+    """One 3 s execution of a fig3.4-inside R-AICO plan (T = 300 steps of 10 ms) on the free-standing
     Nao with the whole-body stabilizer from the standing start: the execute stage's whole computation (start
     projection, simulation with a program every control period, metrics), in a warm process (the first
     execution, which also imports and builds Drake's systems, is left out)."""
@@ -161,7 +161,7 @@ CASES = [
      bench_sweep_share, ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0}, 3)),
     ("nao balance: 25 R-AICO iterations, no relinearization in sweeps (theta=inf)", 1.0, bench_solver_total,
      ("nao", "balance", "pseudo", "raico", {"iterations": 25, "alpha": 1.0, "tol_rel": 0.0, "theta": float("inf")}, 3)),
-    # issue 18, thesis §3.6: "The computational time of the proposed planning algorithm is the same as for the
+    # thesis §3.6: "The computational time of the proposed planning algorithm is the same as for the
     # standard implementation of AICO ... the computation of the balancing movements in Figure 3.4 took less than
     # 50 seconds (which includes all 25 iterations" (Matlab, 2.4 GHz): the target is the thesis's 50 s
     ("nao balance: 25 plain AICO iterations (thesis: R-AICO costs the same; < 50 s in Matlab)", 50.0,
@@ -177,7 +177,7 @@ CASES = [
      bench_nao_linearization, ("autodiff", 3)),
     ("nao analytic: linearize along T=300, tree kernels in C (after)", None,
      bench_nao_linearization, ("tree", 5)),
-    # issue 19: real-time factor >= 1 for the stabilizer on the 2-core machine; 7 repetitions: on the shared
+    # real-time factor >= 1 for the stabilizer on the 2-core machine; 7 repetitions: on the shared
     # machine the same execution took 2.0-3.6 s within one minute (idle, load 0.5)
     ("nao: one 3 s execution with the whole-body stabilizer (fig3.4-inside plan, standing start)", 3.0,
      bench_stabilizer_execution, (7,)),
@@ -189,7 +189,7 @@ SPARSE_M = 200  # inducing points of the sparse-GP rows (raico fit/learn --gp sp
 
 def model_learning_rows() -> list[dict]:
     """GP posterior along 500 steps with 1000 points (per output), incremental update vs refit,
-    and one learn episode of fig4.3 split into fit, plan and execute (SPEC §13, issue 7)."""
+    and one learn episode of fig4.3 split into fit, plan and execute."""
     from bench.gp_bench import bench_gp
     from bench.learn_bench import bench_learn_default, bench_learn_episode, bench_learn_evaluation
 
@@ -299,7 +299,7 @@ def print_baseline(b: dict) -> None:
         return
     print(f"\nraico vs crocoddyl FDDP on {b['problem']} (medians; shared, noisy machine)")
     print(f"target cost {b['target_cost']:.4g} (R-AICO's 25-iteration cost + 10 %), equal wall time "
-          f"{b['budget_s']:.2f} s (R-AICO's 25 iterations); per-iteration target (SPEC 13): R-AICO <= FDDP")
+          f"{b['budget_s']:.2f} s (R-AICO's 25 iterations); per-iteration target: R-AICO <= FDDP")
 
     def f(x, spec, suffix=""):
         width = int(spec.split(".")[0])
@@ -319,7 +319,7 @@ class _NotCached(Exception):
 
 
 def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None = None, quick: bool = False) -> dict:
-    """``raico reproduce --all`` on a cache that holds every run (SPEC §13: <= 15 s): the whole command,
+    """``raico reproduce --all`` on a cache that holds every run (target: <= 15 s): the whole command,
     Python's start and the cache checks of every entry included (a stat per file; an entry published
     before stamps existed is re-hashed once, in the first sample). Skipped unless every run is cached
     (``make reproduce`` first): a probe whose executor refuses any job says so at the first one."""

@@ -1,4 +1,4 @@
-"""How cost grows with the work (issue 20 item 10): ``make bench`` -> rows in ``results.json`` and
+"""How cost grows with the work: ``make bench`` -> rows in ``results.json`` and
 ``artifacts/bench/scaling.png``.
 
     .venv/bin/python -m bench.scaling [--artifacts artifacts]

@@ -1,4 +1,4 @@
-"""Content-addressed artifact cache, in the style of DVC's run cache (SPEC §9).
+"""Content-addressed artifact cache, in the style of DVC's run cache.
 
 Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote.
 A stage's key hashes its name, code version, declared config and input keys
@@ -65,7 +65,7 @@ META_SUM = "meta_sha256"
 FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
 TMP_PREFIX = ".tmp-"
-# Packages whose versions a stage's numbers depend on (issue 20 item 7): an entry made with other installed
+# Packages whose versions a stage's numbers depend on: an entry made with other installed
 # versions of these is computed again by the next run, which says which versions differ (``raico ls --verify``
 # flags it). rerun-sdk governs the recordings only: a recording written by another version is written again.
 NUMERIC_PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "crocoddyl", "pin")

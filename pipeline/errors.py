@@ -1,4 +1,4 @@
-"""User-facing errors of the raico pipeline (SPEC §12).
+"""User-facing errors of the raico pipeline.
 
 Every error the CLI reports is a :class:`RaicoError`: ``str(err)`` is one clear line
 for stderr and ``err.exit_code`` is the non-zero process exit code.

@@ -1,4 +1,4 @@
-"""Rollouts as MCAP files (SPEC §9): ``trajectory.mcap`` beside a stage's ``recording.rrd``.
+"""Rollouts as MCAP files: ``trajectory.mcap`` beside a stage's ``recording.rrd``.
 
 JSON-encoded messages with ``jsonschema`` schemas, one message per sample, ``log_time``
 = ``publish_time`` = ``round(times * 1e9)`` ns:

@@ -1,4 +1,4 @@
-"""Recording of a fit artifact: the GP's prediction against the held-out data (SPEC §9).
+"""Recording of a fit artifact: the GP's prediction against the held-out data.
 
 The held-out segments (``heldout.npz``) are laid end to end on ``sim_time``. Per joint, four
 scalar series under ``fit/<joint>/``: ``mean`` (GP predictive mean of qddot, rad/s^2),

@@ -1,4 +1,4 @@
-"""Rerun recordings of stage runs (SPEC §9).
+"""Rerun recordings of stage runs.
 
 One ``.rrd`` per stage run, written by :class:`Recording` (its own
 ``rr.RecordingStream``, never the global one, so parallel workers don't mix) with

@@ -1,4 +1,4 @@
-"""Run a stage through the artifact cache: key, hit or compute, outcome (SPEC §9).
+"""Run a stage through the artifact cache: key, hit or compute, outcome.
 
 A stage run is ``(stage name, code version, declared config, input keys)``. On a hit the
 stage function is never called; otherwise the stage's ``run`` does the work and its files

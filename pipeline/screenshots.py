@@ -1,4 +1,4 @@
-"""Screenshots of recordings as the Rerun viewer shows them (SPEC §9), rendered headless.
+"""Screenshots of recordings as the Rerun viewer shows them, rendered headless.
 
 :func:`render_screenshot` opens one ``.rrd`` in a headless native viewer (``rerun``, rendering
 with a Vulkan driver: Mesa's software ``lavapipe`` is enough, ``apt-get install

@@ -1,4 +1,4 @@
-"""AICO and R-AICO: approximate inference control with Gaussian messages (SPEC §6).
+"""AICO and R-AICO: approximate inference control with Gaussian messages.
 
 One implementation: R-AICO is AICO with ``alpha > 0`` (thesis §3.5, Algorithm 1).
 
@@ -12,7 +12,7 @@ Model per iteration (shapes: ``n = n_x``, ``m = n_u``):
   with controls marginalized ``x_{t+1} | x_t ~ N(A x + a + B H^-1 h, Qbar)`` with
   ``Qbar = Q + B H^-1 B^T``.
 
-Messages (SPEC §6): forward (moment form ``s_t, S_t``; stored as precision ``S_t^-1`` and
+Messages: forward (moment form ``s_t, S_t``; stored as precision ``S_t^-1`` and
 ``S_t^-1 s_t``), backward in canonical form ``V_t^-1, V_t^-1 v_t`` (no inverse of ``A``,
 ``V_T^-1 = 0``), belief ``B_t = S_t^-1 + V_t^-1 + R_t``, ``b_t = B_t^-1 (...)``; start
 ``S_0 = start_variance I`` around ``x0``. With ``P' = V_{t+1}^-1 + R_{t+1}`` (precision)

@@ -1,4 +1,4 @@
-"""Named, weighted cost terms with vectorized values and Gauss-Newton models (SPEC §5).
+"""Named, weighted cost terms with vectorized values and Gauss-Newton models.
 
 Every term has a ``name`` and a ``weight`` (weight 0 switches it off; ``Problem.without``
 removes it). Conventions (see ``planning.problem``):
@@ -286,11 +286,6 @@ class TaskInequality(_OnPositions):
 
     _map = ViaPoint._map  # the same memo of the last batch (a solver's cost then linearization)
 
-    def violations(self, Q: np.ndarray) -> np.ndarray:
-        """``h = max(0, A phi(q) - b)`` ``(K, m)`` at positions ``Q (K, n_q)`` (task units)."""
-        phi, _ = self._map(np.atleast_2d(Q))
-        return np.maximum(phi @ self.A.T - self.b, 0.0)
-
     def _hinge(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """``h (K, m)``, ``A J (K, m, n_q)`` and ``n_q`` at rows ``X (K, n_x)``."""
         n_q = X.shape[1] // 2
@@ -445,7 +440,7 @@ SIGMA_UNITS = ("raw", "standardized")  # the uncertainty term's g: (rad/s^2)^2, 
 
 
 class Uncertainty:
-    """The model-uncertainty objective (thesis eq. 4.3, SPEC §7), a joint term on ``(x_t, u_t)``:
+    """The model-uncertainty objective (thesis eq. 4.3), a joint term on ``(x_t, u_t)``:
 
     ``c_t = (sigma* - g(x_t, u_t))^T C_sigma (sigma* - g(x_t, u_t))``, ``C_sigma = w I``,
     at every step ``t = 0..T-1``, with ``g`` the GP's latent predictive variance of each

@@ -1,4 +1,4 @@
-"""crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems (SPEC §14, issue 8).
+"""crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems.
 
 :func:`build` turns a raico :class:`~planning.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:

@@ -1,4 +1,4 @@
-"""The one iteration loop of every solver (SPEC §6), assembled from named pieces.
+"""The one iteration loop of every solver, assembled from named pieces.
 
 A solver (AICO / R-AICO, iLQG) supplies only its **step**: one iteration from the current
 ``Iterate`` to a ``Step`` (the new iterate, its cost, step size, ``mu``, repeats, whether

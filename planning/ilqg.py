@@ -1,5 +1,5 @@
 """iLQG baseline (Tassa, Erez, Todorov 2012, "Synthesis and stabilization of complex
-behaviors through online trajectory optimization"), as in SPEC §6.
+behaviors through online trajectory optimization").
 
 - derivatives: dynamics ``A_t, B_t`` along the trajectory (``linearize_trajectory``),
   cost gradients and Gauss-Newton Hessians of the terms (``l_x, l_xx, l_u, l_uu``; the

@@ -1,4 +1,4 @@
-"""The objective as data: named, weighted cost terms described in plain JSON (SPEC §5).
+"""The objective as data: named, weighted cost terms described in plain JSON.
 
 A task (``stages/plan/tasks.py``) builds a list of term descriptions from the robot, the
 initial posture and the horizon; :func:`build_terms` turns them into cost-term objects of

@@ -1,4 +1,4 @@
-"""The planning problem, the result every solver returns, and the options base (SPEC §5, §6).
+"""The planning problem, the result every solver returns, and the options base.
 
 Contract (shared by every solver, trajax style):
 
@@ -9,7 +9,7 @@ Contract (shared by every solver, trajax style):
   (state terms at ``t = 0..T``, control terms at ``t = 0..T-1``), e.g.
   ``w (x* - phi(q_t))^T C (x* - phi(q_t)) + w_u u_t^T u_t``. This is the cost every
   solver reports.
-- quadratic (Gauss-Newton) models of a term use the convention of SPEC §6: a term is
+- quadratic (Gauss-Newton) models of a term use one convention: a term is
   ``1/2 x^T R x - r^T x`` (likelihood ``exp(-cost)``), so ``R = l_xx`` and
   ``r = l_xx x0 - l_x`` at the linearization point ``x0``; the same for controls with
   ``H = l_uu`` and ``h = l_uu u0 - l_u``.
@@ -58,8 +58,8 @@ class Problem:
         joint_terms: costs on ``(x_t, u_t)`` together, ``t = 0..T-1`` (the GP-uncertainty term).
             Their value uses both; their quadratic models are split: the state part at the
             nominal controls goes into the task messages ``R, r``, the control part at the
-            nominal states into ``H, h``, and the state-control cross terms are dropped
-            (SPEC §7). A solver sets the nominal trajectory with :meth:`set_nominal` before
+            nominal states into ``H, h``, and the state-control cross terms are dropped.
+            A solver sets the nominal trajectory with :meth:`set_nominal` before
             it asks for derivatives.
     """
 

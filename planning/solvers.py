@@ -1,5 +1,5 @@
-"""Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)`` (SPEC §6); with
-crocoddyl installed also ``"fddp"`` and ``"fddp-rollout"`` (the baseline of SPEC §14).
+"""Solver registry: ``solve(problem, "aico" | "raico" | "ilqg", options_dict)``; with
+crocoddyl installed also ``"fddp"`` and ``"fddp-rollout"`` (the baseline the report compares with).
 
 ``SOLVERS[name]`` is a ``SolverSpec`` (crocoddyl's made on first use by ``get_solver``): the solver function, its options class and the
 defaults the name implies ("raico" is AICO with ``alpha = 1`` unless given, and requires

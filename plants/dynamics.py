@@ -1,4 +1,4 @@
-"""Discrete-time dynamics models with one interface (SPEC §4).
+"""Discrete-time dynamics models with one interface.
 
 Contract (shared by every model and every solver):
 

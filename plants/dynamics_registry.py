@@ -1,4 +1,4 @@
-"""The dynamics models by name (SPEC §4): one place to register, list and build them.
+"""The dynamics models by name: one place to register, list and build them.
 
 ``make_dynamics(kind, robot, dt, params)`` builds a registered model; a model registers once
 with :func:`register_dynamics` (name, builder, one-line description, whether it needs fitted

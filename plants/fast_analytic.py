@@ -1,4 +1,4 @@
-"""Fast analytic dynamics: Drake's own equations of motion compiled to vectorized numpy (SPEC §4).
+"""Fast analytic dynamics: Drake's own equations of motion compiled to vectorized numpy.
 
 ``FastAnalyticDynamics(robot, dt)`` is a drop-in for :class:`plants.dynamics.AnalyticDynamics`:
 same interface, same numbers up to rounding (~1e-15 relative), but ``linearize_trajectory`` is

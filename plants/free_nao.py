@@ -1,4 +1,4 @@
-"""The free-standing Nao: the execution model of the Nao figures (issue 9, SPEC §14).
+"""The free-standing Nao: the execution model of the Nao figures.
 
 The plans are made on the thesis's fixed-base Nao (left sole welded to the world,
 ``plants.robots``); they are executed on this model, a robot that stands on its own feet:
@@ -36,7 +36,7 @@ import numpy as np
 
 from plants.robots import MODELS, NAO_SOLE_POLYGON, REFLECTED_INERTIA, Robot, shared_robot
 
-TIME_STEP = 2e-3  # s, discrete plant step (1 ms before issue 19's speed target; stages/wbc.py says what changed)
+TIME_STEP = 2e-3  # s, discrete plant step (a 1 ms step with a 2 ms control period gave the same statuses at three times the cost: docs/stabilizer.md)
 DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
 HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
 DISSIPATION = 5.0  # s/m, Hunt-Crossley

@@ -1,4 +1,4 @@
-"""Multi-output Gaussian-process posterior for learned dynamics (SPEC §7, thesis §4.2-4.3).
+"""Multi-output Gaussian-process posterior for learned dynamics (thesis §4.2-4.3).
 
 One independent GP per output dimension of ``qddot = f(q, qdot, u)``: inputs ``x = (q, qdot, u)``
 of size ``d = 2 D + F``, outputs ``D``. Zero prior mean (in scaled units, see below),
@@ -131,25 +131,26 @@ def _se_kernel_fast(P: np.ndarray, Q: np.ndarray, qq: np.ndarray, sf2: float) ->
     return S
 
 
-class GPModel:
-    """Independent SE-ARD GPs, one per output, sharing the training inputs (scaled units inside).
+class GPBase:
+    """What the exact GP (:class:`GPModel`) and the sparse one (:class:`SparseGPModel`) do the same way:
+    independent SE-ARD GPs, one per output, whose mean is ``m(z) = k(z, Z)^T w`` over a set of
+    inputs ``Z`` (the training inputs of the exact GP, the inducing inputs of the sparse one).
 
-    Attributes (scaled units): ``Z (N, d)`` training inputs, ``y (N, D)`` targets,
-    ``ell (D, d)`` length-scales, ``sf2 (D,)``, ``sn2 (D,)``, ``L (D, N, N)`` lower Cholesky
-    factors of ``K + sn2 I``, ``weights (D, N) = (K + sn2 I)^-1 y`` (``alpha`` in the stored arrays);
-    scaling ``x_mean, x_std (d,)``, ``y_mean, y_std (D,)`` (physical units).
+    Held here: the scaling (``x_mean, x_std (d,)``, ``y_mean, y_std (D,)``, physical units), the
+    hyperparameters (scaled units: ``ell (D, d)``, ``sf2 (D,)``, ``sn2 (D,)``, clipped at
+    ``noise_floor``), the scaled targets ``y (N, D)``, the mean and its gradient (batch and one point,
+    compiled where a C compiler is available), the compiled linearization and rollout, and the loop of
+    the batch predictions. A subclass holds ``Z`` and ``weights (D, len(Z))`` and gives the latent
+    variance (``_latent_variance``) and the weights of its gradient (``_variance_weights``), its
+    factorization, update, likelihood and stored arrays.
     """
 
-    _POINT_VARIANCE = True  # the compiled point variance applies (the exact GP's factor)
-
-    def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
-                 *, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
-                 y_mean: np.ndarray | None = None, y_std: np.ndarray | None = None,
-                 noise_floor: float = NOISE_FLOOR):
-        """Build and factorize from physical data ``X (N, d)``, ``Y (N, D)`` and scaled hyperparameters.
-
-        The scaling defaults to the standardization of ``X`` and ``Y``; ``ell`` is ``(D, d)``
-        (or ``(d,)`` shared), ``sf2`` and ``sn2`` are ``(D,)`` or scalars."""
+    def _set_data(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
+                  x_mean: np.ndarray | None, x_std: np.ndarray | None, y_mean: np.ndarray | None,
+                  y_std: np.ndarray | None, noise_floor: float) -> np.ndarray:
+        """Check physical data ``X (N, d)``, ``Y (N, D)``; set the scaling (default: the standardization
+        of ``X`` and ``Y``), the hyperparameters (``ell`` ``(D, d)`` or ``(d,)`` shared, ``sf2`` and
+        ``sn2`` ``(D,)`` or scalars) and the scaled targets ``y``. Returns the scaled inputs ``(N, d)``."""
         X, Y = _as_2d(X, "X"), _as_2d(Y, "Y")
         if X.shape[0] != Y.shape[0]:
             raise ValueError(f"X has {X.shape[0]} rows but Y has {Y.shape[0]}")
@@ -164,16 +165,20 @@ class GPModel:
         self.ell = np.broadcast_to(np.asarray(ell, float), (D, d)).copy()
         self.sf2 = np.broadcast_to(np.asarray(sf2, float), (D,)).copy()
         self.sn2 = np.maximum(np.broadcast_to(np.asarray(sn2, float), (D,)), self.noise_floor)
-        self.Z = self.scale_x(X)
+        Z = self.scale_x(X)
         self.y = (Y - self.y_mean) / self.y_std
-        self._factorize()
+        return Z
+
+    def _new_data(self, X_new: np.ndarray, Y_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``update``'s data checked: ``X_new (n, d)``, ``Y_new (n, D)`` (physical), finite."""
+        Xn, Yn = _as_2d(X_new, "X_new"), _as_2d(Y_new, "Y_new")
+        if Xn.shape[0] != Yn.shape[0] or Xn.shape[1] != self.d or Yn.shape[1] != self.D:
+            raise ValueError(f"update expects X_new (n, {self.d}) and Y_new (n, {self.D}), got {Xn.shape}, {Yn.shape}")
+        if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Yn))):
+            raise ValueError("training data must be finite")
+        return Xn, Yn
 
     # -- shapes and scaling ------------------------------------------------------------
-    @property
-    def N(self) -> int:
-        """Number of training points."""
-        return self.Z.shape[0]
-
     @property
     def d(self) -> int:
         """Input dimension ``2 D + F``."""
@@ -185,11 +190,6 @@ class GPModel:
         return self.y.shape[1]
 
     @property
-    def X(self) -> np.ndarray:
-        """Training inputs ``(N, d)`` in physical units."""
-        return self.Z * self.x_std + self.x_mean
-
-    @property
     def Y(self) -> np.ndarray:
         """Training targets ``(N, D)`` in physical units."""
         return self.y * self.y_std + self.y_mean
@@ -198,67 +198,20 @@ class GPModel:
         """Physical inputs ``(M, d)`` -> standardized ``(M, d)``."""
         return (X - self.x_mean) / self.x_std
 
-    # -- factorization -----------------------------------------------------------------
-    def kernel_matrix(self, j: int) -> np.ndarray:
-        """``K + sn2 I`` ``(N, N)`` of output ``j`` (scaled units)."""
-        K = se_kernel(self.Z, self.Z, self.ell[j], self.sf2[j])
-        K[np.diag_indices_from(K)] += self.sn2[j]
-        return K
+    def unscale_x(self, Z: np.ndarray) -> np.ndarray:
+        """Standardized inputs ``(M, d)`` -> physical ``(M, d)``."""
+        return Z * self.x_std + self.x_mean
 
-    def _factorize(self) -> None:
-        """Cholesky factors and ``weights`` of every output from scratch (``O(D N^3)``)."""
-        N, D = self.N, self.D
-        self.L = np.empty((D, N, N))
-        self.weights = np.empty((D, N))
-        for j in range(D):
-            self.L[j] = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
-            self.weights[j] = self._solve(self.L[j], self.y[:, j])
+    # -- what a subclass gives -----------------------------------------------------------
+    def _latent_variance(self, j: int, Ks: np.ndarray) -> np.ndarray:
+        """Scaled latent variance ``(M,)`` of output ``j`` (not clipped) at the queries whose cross-kernel
+        with ``Z`` is ``Ks (M, len(Z))``; ``Ks`` may be overwritten."""
+        raise NotImplementedError
 
-    @staticmethod
-    def _solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """``(L L^T)^-1 b`` by two triangular solves."""
-        v = solve_triangular(L, b, lower=True, check_finite=False)
-        return solve_triangular(L, v, lower=True, trans="T", check_finite=False)
-
-    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> GPModel:
-        """Add data ``X_new (n, d)``, ``Y_new (n, D)`` (physical) at fixed hyperparameters and scaling, in place.
-
-        Exact block-Cholesky extension, the old block is not refactorized:
-        ``L21 = (L11^-1 K12)^T``, ``L22 = chol(K22 + sn2 I - L21 L21^T)``; ``weights`` by two
-        triangular solves. ``O(D (N^2 n + N n^2 + n^3))``. Returns ``self``; on an error
-        (non-finite data, a failed Cholesky) the model is left unchanged."""
-        Xn, Yn = _as_2d(X_new, "X_new"), _as_2d(Y_new, "Y_new")
-        if Xn.shape[0] != Yn.shape[0] or Xn.shape[1] != self.d or Yn.shape[1] != self.D:
-            raise ValueError(f"update expects X_new (n, {self.d}) and Y_new (n, {self.D}), got {Xn.shape}, {Yn.shape}")
-        if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Yn))):
-            raise ValueError("training data must be finite")
-        n = Xn.shape[0]
-        if n == 0:
-            return self
-        Zn, yn = self.scale_x(Xn), (Yn - self.y_mean) / self.y_std
-        N = self.N
-        Z = np.vstack([self.Z, Zn])
-        y = np.vstack([self.y, yn])
-        L = np.zeros((self.D, N + n, N + n))
-        weights = np.empty((self.D, N + n))
-        for j in range(self.D):
-            K12 = se_kernel(self.Z, Zn, self.ell[j], self.sf2[j])
-            K22 = se_kernel(Zn, Zn, self.ell[j], self.sf2[j])
-            K22[np.diag_indices_from(K22)] += self.sn2[j]
-            L21T = solve_triangular(self.L[j], K12, lower=True, check_finite=False)  # (N, n)
-            L[j, :N, :N] = self.L[j]
-            L[j, N:, :N] = L21T.T
-            L[j, N:, N:] = cholesky(K22 - L21T.T @ L21T, lower=True, check_finite=False)
-            weights[j] = self._solve(L[j], y[:, j])
-        self.Z, self.y, self.L, self.weights = Z, y, L, weights
-        return self
-
-    def log_marginal_likelihood(self) -> np.ndarray:
-        """``log p(y | theta)`` per output ``(D,)`` in scaled units (sklearn's ``log_marginal_likelihood_value_``).
-
-        In physical units subtract ``N log(y_std)``."""
-        logdet = np.log(np.diagonal(self.L, axis1=1, axis2=2)).sum(1)
-        return -0.5 * np.einsum("nj,jn->j", self.y, self.weights) - logdet - 0.5 * self.N * _LOG_2PI
+    def _variance_weights(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled latent variance ``(M,)`` (not clipped) and ``W (M, len(Z))``, the weights of the variance
+        gradient ``dvar/dz = -2 sum_i W_i k_i Lambda^-1 (z_i - z)`` (``Ks`` is left as it is)."""
+        raise NotImplementedError
 
     # -- prediction ----------------------------------------------------------------------
     def _query(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -270,25 +223,10 @@ class GPModel:
         return self.scale_x(Xq[ok]), ok
 
     def _kstar(self, j: int, Zq: np.ndarray) -> np.ndarray:
-        """Cross-kernel ``(M, N)`` between scaled queries and training inputs of output ``j``."""
+        """Cross-kernel ``(M, len(Z))`` between scaled queries and ``Z`` of output ``j``."""
         ell = self.ell[j]
         Q = self.Z / ell
         return _se_kernel_fast(Zq / ell, Q, (Q * Q).sum(1), self.sf2[j])
-
-    def _solve_fwd(self, j: int, Ks: np.ndarray, *, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Scaled latent variance ``(M,)`` (not clipped) and ``Vt = (L^-1 k*)^T`` ``(M, N)``, C order.
-
-        One BLAS ``dtrsm`` in place on ``Ks (M, N)`` (C order, i.e. ``Ks^T`` in Fortran order), on
-        a copy unless ``overwrite``; ``var = sf2 - |L^-1 k*|^2``, a sum of squares (accurate also
-        for an ill-conditioned ``K``, unlike an explicit inverse)."""
-        # L.T is L^T in Fortran order (no copy), op(L^T) = L; Ks.T is Fortran order, solved in place
-        B = Ks.T if overwrite else Ks.T.copy(order="F")
-        Vt = dtrsm(1.0, self.L[j].T, B, lower=0, trans_a=1, overwrite_b=1).T
-        return self.sf2[j] - np.einsum("mn,mn->m", Vt, Vt), Vt
-
-    def _solve_bwd(self, j: int, Vt: np.ndarray) -> np.ndarray:
-        """``((K + sn2 I)^-1 k*)^T = (L^-T L^-1 k*)^T`` ``(M, N)`` in place on ``Vt`` from ``_solve_fwd``."""
-        return dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
 
     def _mean_grad(self, j: int, Ks: np.ndarray, Zq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scaled mean ``(M,)`` and its gradient ``(M, d)``: ``sum_i w_i k_i Lambda^-1 (z_i - z*)``
@@ -306,7 +244,7 @@ class GPModel:
         for j in range(self.D if len(Zq) else 0):
             Ks = self._kstar(j, Zq)
             mean[ok, j] = Ks @ self.weights[j]
-            v = np.maximum(self._solve_fwd(j, Ks, overwrite=True)[0], 0.0)  # Ks is not needed after this
+            v = np.maximum(self._latent_variance(j, Ks), 0.0)  # Ks is not needed after this
             var[ok, j] = v + self.sn2[j] if noisy else v
         return mean * self.y_std + self.y_mean, var * self.y_std**2
 
@@ -329,6 +267,29 @@ class GPModel:
         scale = self.y_std[:, None] / self.x_std[None, :]
         return mean * self.y_std + self.y_mean, dmean * scale
 
+    def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Mean ``(M, D)``, latent variance ``(M, D)``, ``dmean (M, D, d)``, ``dvar (M, D, d)`` (physical
+        units). ``dvar/dx* = -2 (dk*/dx*)^T W`` (thesis eq. 4.2) with the subclass's weights
+        ``W`` (``_variance_weights``); one ``exp`` of the ``(M, N)`` cross-kernel and matmuls
+        ``(M, N) x (N, <= d + 1)`` for the mean, its gradient and the variance gradient."""
+        Zq, ok = self._query(Xq)
+        M, D, d = len(ok), self.D, self.d
+        mean, var = _nan((M, D)), _nan((M, D))
+        dmean, dvar = _nan((M, D, d)), _nan((M, D, d))
+        Z1 = np.hstack([self.Z, np.ones((self.Z.shape[0], 1))])
+        for j in range(D if len(Zq) else 0):
+            Ks = self._kstar(j, Zq)
+            mean[ok, j], dmean[ok, j] = self._mean_grad(j, Ks, Zq)
+            v, W = self._variance_weights(j, Ks)
+            var[ok, j] = np.maximum(v, 0.0)
+            W *= Ks  # W[m, i] = k*_i(x_m) W_i(x_m)
+            G = W @ Z1  # (M, d + 1): sum_i W z_i and sum_i W
+            dvar[ok, j] = -2.0 * (G[:, :d] - Zq * G[:, d:]) / self.ell[j] ** 2
+        scale = self.y_std[:, None] / self.x_std[None, :]
+        return (mean * self.y_std + self.y_mean, var * self.y_std**2,
+                dmean * scale, dvar * (scale * self.y_std[:, None]))
+
+    # -- one point, compiled ---------------------------------------------------------------
     def point_mean_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``(D,)`` and its input gradient ``(D, d)`` at one physical input ``x (d,)`` (physical
         units): ``mean_with_gradients`` for one point, every output in one compiled call (numpy
@@ -342,7 +303,7 @@ class GPModel:
             return m[0], g[0]
         pc = self._point_arrays(x)
         m, g = pc["m"], pc["g"]
-        lib.gp_point(self.Z.shape[0], self.d, self.D, *pc["ptrs"])  # the sparse model's Z holds its inducing inputs
+        lib.gp_point(self.Z.shape[0], self.d, self.D, *pc["ptrs"])
         return m * self.y_std + self.y_mean, g * pc["gscale"]
 
     def _point_query(self, x: np.ndarray) -> np.ndarray:
@@ -378,28 +339,22 @@ class GPModel:
             pc["z"] /= self.x_std
         return pc
 
+    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """``point_predict_with_gradients`` at a finite ``x (d,)`` by the compiled kernel, or ``None``
+        where there is none for this model (the batch call on one row then)."""
+        return None
+
     def point_predict_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``predict_with_gradients`` at one physical input ``x (d,)``: mean ``(D,)``, latent variance
-        ``(D,)``, ``dmean (D, d)``, ``dvar (D, d)`` (physical units), every output in one compiled call
-        (forward and back substitution against each Cholesky factor, ``2 N^2`` flops per output; the
-        planner's sweeps ask for one point at a time). The same formulas as the batch call; the
-        solves run in a different order than BLAS's, so the two agree to rounding (tests/test_gp.py).
-        numpy (the batch call on one row) without a C compiler. NaN where ``x`` is not finite."""
+        ``(D,)``, ``dmean (D, d)``, ``dvar (D, d)`` (physical units); compiled where the model has a
+        compiled variance (``_compiled_point_predict``), else the batch call on one row. NaN where
+        ``x`` is not finite."""
         x = self._point_query(x)
-        lib = _point_lib() if self.d <= POINT_MAX_INPUTS and self._POINT_VARIANCE else None
-        if lib is None or not np.all(np.isfinite(x)):
+        out = self._compiled_point_predict(x) if np.all(np.isfinite(x)) else None
+        if out is None:
             m, v, dm, dv = self.predict_with_gradients(x[None, :])
             return m[0], v[0], dm[0], dv[0]
-        pc = self._point_arrays(x)
-        if "var" not in pc:
-            pc["L"] = np.ascontiguousarray(self.L)
-            pc["var"], pc["gv"], pc["work"] = np.empty(self.D), np.empty((self.D, self.d)), np.empty(2 * self.N)
-            pc["ptrs_var"] = [*pc["ptrs"][:4], pc["L"].ctypes.data,
-                              *(pc[k].ctypes.data for k in ("z", "m", "g", "var", "gv", "work"))]
-        lib.gp_point_var(self.N, self.d, self.D, *pc["ptrs_var"])
-        gscale = pc["gscale"]
-        return (pc["m"] * self.y_std + self.y_mean, np.maximum(pc["var"], 0.0) * self.y_std ** 2,
-                pc["g"] * gscale, pc["gv"] * (gscale * self.y_std[:, None]))
+        return out
 
     def point_linearizer(self, dt: float) -> tuple[int, int, object] | None:
         """``(address of gp_linearize, address of its context, keep-alive)``: the compiled linearization of
@@ -437,33 +392,173 @@ class GPModel:
                        float(dt), o.ctypes.data, O.ctypes.data, X.ctypes.data, U.ctypes.data)
         return X, U
 
-    def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Mean ``(M, D)``, latent variance ``(M, D)``, ``dmean (M, D, d)``, ``dvar (M, D, d)`` (physical units).
+    # -- storage -------------------------------------------------------------------------
+    def _hyper_arrays(self) -> dict[str, np.ndarray]:
+        """The hyperparameters, the scaling and the noise floor as stored arrays."""
+        return {"ell": self.ell, "sf2": self.sf2, "sn2": self.sn2, "x_mean": self.x_mean, "x_std": self.x_std,
+                "y_mean": self.y_mean, "y_std": self.y_std, "noise_floor": np.array(self.noise_floor)}
 
-        ``dvar/dx* = -2 (dk*/dx*)^T (K + sn2 I)^-1 k*`` (thesis eq. 4.2). Cost per output: two
-        in-place triangular solves (BLAS ``dtrsm``) with ``M`` right-hand sides against the
-        Cholesky factor (``2 M N^2`` flops, the bulk), one ``exp`` of the ``(M, N)`` cross-kernel,
-        matmuls ``(M, d + 2) x (d + 2, N)`` (kernel) and ``(M, N) x (N, <= d + 1)`` (mean, its
-        gradient, the variance gradient). No explicit inverse: with the noise floor,
+    @staticmethod
+    def _stored(arrays: Mapping[str, np.ndarray], required: set[str], what: str) -> dict[str, np.ndarray]:
+        """``arrays`` as floats, checked to hold every ``required`` name (``what`` names the model)."""
+        missing = required - set(arrays)
+        if missing:
+            raise ValueError(f"{what} arrays lack {sorted(missing)}")
+        return {k: np.asarray(arrays[k], float) for k in arrays}
+
+    def _restore_hypers(self, g: Mapping[str, np.ndarray]) -> None:
+        """The hyperparameters, scaling, noise floor and scaled targets ``y`` from stored arrays ``g``."""
+        self.y = g["y"].copy()
+        self.ell, self.sf2, self.sn2 = g["ell"].copy(), g["sf2"].copy(), g["sn2"].copy()
+        self.x_mean, self.x_std = g["x_mean"].copy(), g["x_std"].copy()
+        self.y_mean, self.y_std = g["y_mean"].copy(), g["y_std"].copy()
+        self.noise_floor = float(g.get("noise_floor", NOISE_FLOOR))
+
+    def _hypers_consistent(self) -> bool:
+        """Whether ``ell (D, d)``, ``sf2 (D,)``, ``sn2 (D,)`` match ``Z`` and ``y``."""
+        D, d = self.y.shape[1], self.Z.shape[1]
+        return self.ell.shape == (D, d) and self.sf2.shape == (D,) and self.sn2.shape == (D,)
+
+    def copy(self) -> GPBase:
+        """Deep copy."""
+        return type(self).from_arrays(self.to_arrays())
+
+
+class GPModel(GPBase):
+    """The exact GP: independent SE-ARD GPs, one per output, sharing the training inputs (scaled units inside).
+
+    Attributes (scaled units): ``Z (N, d)`` training inputs, ``y (N, D)`` targets,
+    ``ell (D, d)`` length-scales, ``sf2 (D,)``, ``sn2 (D,)``, ``L (D, N, N)`` lower Cholesky
+    factors of ``K + sn2 I``, ``weights (D, N) = (K + sn2 I)^-1 y`` (``alpha`` in the stored arrays);
+    scaling ``x_mean, x_std (d,)``, ``y_mean, y_std (D,)`` (physical units).
+    """
+
+    def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
+                 *, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
+                 y_mean: np.ndarray | None = None, y_std: np.ndarray | None = None,
+                 noise_floor: float = NOISE_FLOOR):
+        """Build and factorize from physical data ``X (N, d)``, ``Y (N, D)`` and scaled hyperparameters.
+
+        The scaling defaults to the standardization of ``X`` and ``Y``; ``ell`` is ``(D, d)``
+        (or ``(d,)`` shared), ``sf2`` and ``sn2`` are ``(D,)`` or scalars."""
+        self.Z = self._set_data(X, Y, ell, sf2, sn2, x_mean, x_std, y_mean, y_std, noise_floor)
+        self._factorize()
+
+    @property
+    def N(self) -> int:
+        """Number of training points."""
+        return self.Z.shape[0]
+
+    @property
+    def X(self) -> np.ndarray:
+        """Training inputs ``(N, d)`` in physical units."""
+        return self.unscale_x(self.Z)
+
+    # -- factorization -----------------------------------------------------------------
+    def kernel_matrix(self, j: int) -> np.ndarray:
+        """``K + sn2 I`` ``(N, N)`` of output ``j`` (scaled units)."""
+        K = se_kernel(self.Z, self.Z, self.ell[j], self.sf2[j])
+        K[np.diag_indices_from(K)] += self.sn2[j]
+        return K
+
+    def _factorize(self) -> None:
+        """Cholesky factors and ``weights`` of every output from scratch (``O(D N^3)``)."""
+        N, D = self.N, self.D
+        self.L = np.empty((D, N, N))
+        self.weights = np.empty((D, N))
+        for j in range(D):
+            self.L[j] = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
+            self.weights[j] = self._solve(self.L[j], self.y[:, j])
+
+    @staticmethod
+    def _solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``(L L^T)^-1 b`` by two triangular solves."""
+        v = solve_triangular(L, b, lower=True, check_finite=False)
+        return solve_triangular(L, v, lower=True, trans="T", check_finite=False)
+
+    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> GPModel:
+        """Add data ``X_new (n, d)``, ``Y_new (n, D)`` (physical) at fixed hyperparameters and scaling, in place.
+
+        Exact block-Cholesky extension, the old block is not refactorized:
+        ``L21 = (L11^-1 K12)^T``, ``L22 = chol(K22 + sn2 I - L21 L21^T)``; ``weights`` by two
+        triangular solves. ``O(D (N^2 n + N n^2 + n^3))``. Returns ``self``; on an error
+        (non-finite data, a failed Cholesky) the model is left unchanged."""
+        Xn, Yn = self._new_data(X_new, Y_new)
+        n = Xn.shape[0]
+        if n == 0:
+            return self
+        Zn, yn = self.scale_x(Xn), (Yn - self.y_mean) / self.y_std
+        N = self.N
+        Z = np.vstack([self.Z, Zn])
+        y = np.vstack([self.y, yn])
+        L = np.zeros((self.D, N + n, N + n))
+        weights = np.empty((self.D, N + n))
+        for j in range(self.D):
+            K12 = se_kernel(self.Z, Zn, self.ell[j], self.sf2[j])
+            K22 = se_kernel(Zn, Zn, self.ell[j], self.sf2[j])
+            K22[np.diag_indices_from(K22)] += self.sn2[j]
+            L21T = solve_triangular(self.L[j], K12, lower=True, check_finite=False)  # (N, n)
+            L[j, :N, :N] = self.L[j]
+            L[j, N:, :N] = L21T.T
+            L[j, N:, N:] = cholesky(K22 - L21T.T @ L21T, lower=True, check_finite=False)
+            weights[j] = self._solve(L[j], y[:, j])
+        self.Z, self.y, self.L, self.weights = Z, y, L, weights
+        return self
+
+    def log_marginal_likelihood(self) -> np.ndarray:
+        """``log p(y | theta)`` per output ``(D,)`` in scaled units (sklearn's ``log_marginal_likelihood_value_``).
+
+        In physical units subtract ``N log(y_std)``."""
+        logdet = np.log(np.diagonal(self.L, axis1=1, axis2=2)).sum(1)
+        return -0.5 * np.einsum("nj,jn->j", self.y, self.weights) - logdet - 0.5 * self.N * _LOG_2PI
+
+    # -- the variance ----------------------------------------------------------------------
+    def _solve_fwd(self, j: int, Ks: np.ndarray, *, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled latent variance ``(M,)`` (not clipped) and ``Vt = (L^-1 k*)^T`` ``(M, N)``, C order.
+
+        One BLAS ``dtrsm`` in place on ``Ks (M, N)`` (C order, i.e. ``Ks^T`` in Fortran order), on
+        a copy unless ``overwrite``; ``var = sf2 - |L^-1 k*|^2``, a sum of squares (accurate also
+        for an ill-conditioned ``K``, unlike an explicit inverse)."""
+        # L.T is L^T in Fortran order (no copy), op(L^T) = L; Ks.T is Fortran order, solved in place
+        B = Ks.T if overwrite else Ks.T.copy(order="F")
+        Vt = dtrsm(1.0, self.L[j].T, B, lower=0, trans_a=1, overwrite_b=1).T
+        return self.sf2[j] - np.einsum("mn,mn->m", Vt, Vt), Vt
+
+    def _solve_bwd(self, j: int, Vt: np.ndarray) -> np.ndarray:
+        """``((K + sn2 I)^-1 k*)^T = (L^-T L^-1 k*)^T`` ``(M, N)`` in place on ``Vt`` from ``_solve_fwd``."""
+        return dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
+
+    def _latent_variance(self, j: int, Ks: np.ndarray) -> np.ndarray:
+        """``sf2 - k*^T (K + sn2 I)^-1 k*`` ``(M,)``, solved in place on ``Ks``."""
+        return self._solve_fwd(j, Ks, overwrite=True)[0]
+
+    def _variance_weights(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The variance ``(M,)`` and ``W = ((K + sn2 I)^-1 k*)^T`` ``(M, N)``: two in-place triangular
+        solves (BLAS ``dtrsm``) with ``M`` right-hand sides against the Cholesky factor (``2 M N^2``
+        flops, the bulk of ``predict_with_gradients``). No explicit inverse: with the noise floor,
         ``cond(K + sn2 I)`` reaches ``1e11`` on fitted models and ``k*^T K^-1 k*`` from an explicit
         ``K^-1`` then loses the variance near the data entirely (``bench/gp_bench.py`` docstring)."""
-        Zq, ok = self._query(Xq)
-        M, D, d = len(ok), self.D, self.d
-        mean, var = _nan((M, D)), _nan((M, D))
-        dmean, dvar = _nan((M, D, d)), _nan((M, D, d))
-        Z1 = np.hstack([self.Z, np.ones((self.N, 1))])
-        for j in range(D if len(Zq) else 0):
-            Ks = self._kstar(j, Zq)
-            mean[ok, j], dmean[ok, j] = self._mean_grad(j, Ks, Zq)
-            v, Vt = self._solve_fwd(j, Ks)
-            var[ok, j] = np.maximum(v, 0.0)
-            W = self._solve_bwd(j, Vt)
-            W *= Ks  # W[m, i] = k*_i(x_m) ((K + sn2 I)^-1 k*(x_m))_i
-            G = W @ Z1  # (M, d + 1): sum_i W z_i and sum_i W
-            dvar[ok, j] = -2.0 * (G[:, :d] - Zq * G[:, d:]) / self.ell[j] ** 2
-        scale = self.y_std[:, None] / self.x_std[None, :]
-        return (mean * self.y_std + self.y_mean, var * self.y_std**2,
-                dmean * scale, dvar * (scale * self.y_std[:, None]))
+        v, Vt = self._solve_fwd(j, Ks)
+        return v, self._solve_bwd(j, Vt)
+
+    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """One point, every output in one compiled call: forward and back substitution against each
+        Cholesky factor, ``2 N^2`` flops per output (the planner's sweeps ask for one point at a time).
+        The same formulas as the batch call; the solves run in a different order than BLAS's, so the
+        two agree to rounding (tests/test_gp.py). ``None`` without a C compiler."""
+        lib = _point_lib() if self.d <= POINT_MAX_INPUTS else None
+        if lib is None:
+            return None
+        pc = self._point_arrays(x)
+        if "var" not in pc:
+            pc["L"] = np.ascontiguousarray(self.L)
+            pc["var"], pc["gv"], pc["work"] = np.empty(self.D), np.empty((self.D, self.d)), np.empty(2 * self.N)
+            pc["ptrs_var"] = [*pc["ptrs"][:4], pc["L"].ctypes.data,
+                              *(pc[k].ctypes.data for k in ("z", "m", "g", "var", "gv", "work"))]
+        lib.gp_point_var(self.N, self.d, self.D, *pc["ptrs_var"])
+        gscale = pc["gscale"]
+        return (pc["m"] * self.y_std + self.y_mean, np.maximum(pc["var"], 0.0) * self.y_std ** 2,
+                pc["g"] * gscale, pc["gv"] * (gscale * self.y_std[:, None]))
 
     # -- storage -------------------------------------------------------------------------
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
@@ -472,31 +567,23 @@ class GPModel:
 
         Without the factor (``D N^2`` doubles), ``from_arrays`` refactorizes: same predictions to
         rounding, not bit for bit."""
-        out = {"Z": self.Z, "y": self.y, "ell": self.ell, "sf2": self.sf2, "sn2": self.sn2,
-               "x_mean": self.x_mean, "x_std": self.x_std, "y_mean": self.y_mean, "y_std": self.y_std,
-               "noise_floor": np.array(self.noise_floor)}
+        out = {"Z": self.Z, "y": self.y, **self._hyper_arrays()}
         if include_factor:
             out |= {"L": self.L, "alpha": self.weights}
         return {k: np.array(v, copy=True) for k, v in out.items()}
 
     @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPModel:
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPBase:
         """Inverse of ``to_arrays`` (uses the stored factor when present, else refactorizes); the
         arrays of a :class:`SparseGPModel` (they hold ``Z_train``) give a ``SparseGPModel``."""
         if cls is GPModel and "Z_train" in arrays:
             return SparseGPModel.from_arrays(arrays)
-        missing = {"Z", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"} - set(arrays)
-        if missing:
-            raise ValueError(f"GP arrays lack {sorted(missing)}")
-        g = {k: np.asarray(arrays[k], float) for k in arrays}
+        g = cls._stored(arrays, {"Z", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"}, "GP")
         self = cls.__new__(cls)
-        self.Z, self.y = g["Z"].copy(), g["y"].copy()
-        self.ell, self.sf2, self.sn2 = g["ell"].copy(), g["sf2"].copy(), g["sn2"].copy()
-        self.x_mean, self.x_std = g["x_mean"].copy(), g["x_std"].copy()
-        self.y_mean, self.y_std = g["y_mean"].copy(), g["y_std"].copy()
-        self.noise_floor = float(g.get("noise_floor", NOISE_FLOOR))
-        N, d, D = self.Z.shape[0], self.Z.shape[1], self.y.shape[1]
-        if self.y.shape[0] != N or self.ell.shape != (D, d) or self.sf2.shape != (D,) or self.sn2.shape != (D,):
+        self.Z = g["Z"].copy()
+        self._restore_hypers(g)
+        N, D = self.Z.shape[0], self.y.shape[1]
+        if self.y.shape[0] != N or not self._hypers_consistent():
             raise ValueError("inconsistent GP array shapes")
         if "L" in g and "alpha" in g:
             if g["L"].shape != (D, N, N) or g["alpha"].shape != (D, N):
@@ -505,10 +592,6 @@ class GPModel:
         else:
             self._factorize()
         return self
-
-    def copy(self) -> GPModel:
-        """Deep copy."""
-        return type(self).from_arrays(self.to_arrays())
 
 
 SELECT_TOL = 1e-12  # greedy inducing selection: smallest conditional prior variance (over sf2) of a new inducing point
@@ -550,7 +633,7 @@ def select_inducing(Z: np.ndarray, ell: np.ndarray, sf2: np.ndarray, m: int, *, 
     return np.asarray(chosen, dtype=int)
 
 
-class SparseGPModel(GPModel):
+class SparseGPModel(GPBase):
     """Sparse GP (FITC, Snelson & Ghahramani 2006; Quinonero-Candela & Rasmussen 2005) with ``M``
     inducing inputs, one per output with the exact model's SE-ARD kernel, scaling and noise.
 
@@ -566,13 +649,12 @@ class SparseGPModel(GPModel):
     ``N x N``. With the inducing inputs equal to all training inputs this is the exact GP
     (``Q_nn = K_nn``), tested.
 
-    Layout: as :class:`GPModel`, except ``Z (M, d)`` and ``weights (D, M)`` are the inducing inputs
-    and weights (so the mean, its gradient and the compiled one-point path are ``GPModel``'s), the
-    training data are ``Z_train (N, d)`` and ``y (N, D)`` (scaled), ``L_U``, ``L_B (D, M, M)``,
-    ``lam (D, N)``. ``m_requested``: the inducing count asked for (``update`` selects again up to it).
+    Layout: ``Z (M, d)`` and ``weights (D, M)`` are the inducing inputs and weights (so the mean, its
+    gradient and the compiled one-point path are :class:`GPBase`'s), the training data are
+    ``Z_train (N, d)`` and ``y (N, D)`` (scaled), ``L_U``, ``L_B (D, M, M)``, ``lam (D, N)``.
+    ``m_requested``: the inducing count asked for (``update`` selects again up to it). The compiled
+    one-point variance is the exact GP's: here the batch call on one row.
     """
-
-    _POINT_VARIANCE = False  # FITC's variance is not the exact one: the batch call on one row
 
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                  *, inducing: int | np.ndarray, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
@@ -581,26 +663,12 @@ class SparseGPModel(GPModel):
         """Physical data ``X (N, d)``, ``Y (N, D)``, scaled hyperparameters as :class:`GPModel`;
         ``inducing``: a count ``1 <= M <= N`` (greedy selection among the training inputs) or
         physical inducing inputs ``(M, d)``."""
-        X, Y = _as_2d(X, "X"), _as_2d(Y, "Y")
-        if X.shape[0] != Y.shape[0]:
-            raise ValueError(f"X has {X.shape[0]} rows but Y has {Y.shape[0]}")
-        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-            raise ValueError("training data must be finite")
-        self.x_mean = X.mean(0) if x_mean is None else np.asarray(x_mean, float).copy()
-        self.x_std = column_std(X) if x_std is None else np.asarray(x_std, float).copy()
-        self.y_mean = Y.mean(0) if y_mean is None else np.asarray(y_mean, float).copy()
-        self.y_std = column_std(Y) if y_std is None else np.asarray(y_std, float).copy()
-        D, d = Y.shape[1], X.shape[1]
-        self.noise_floor = float(noise_floor)
-        self.ell = np.broadcast_to(np.asarray(ell, float), (D, d)).copy()
-        self.sf2 = np.broadcast_to(np.asarray(sf2, float), (D,)).copy()
-        self.sn2 = np.maximum(np.broadcast_to(np.asarray(sn2, float), (D,)), self.noise_floor)
-        self.Z_train = self.scale_x(X)
-        self.y = (Y - self.y_mean) / self.y_std
+        self.Z_train = self._set_data(X, Y, ell, sf2, sn2, x_mean, x_std, y_mean, y_std, noise_floor)
+        N, d = self.Z_train.shape
         if np.ndim(inducing) == 0:
             M = int(inducing)
-            if not 1 <= M <= len(X):
-                raise ValueError(f"inducing points must be in [1, {len(X)}] (the training points), got {M}")
+            if not 1 <= M <= N:
+                raise ValueError(f"inducing points must be in [1, {N}] (the training points), got {M}")
             self.m_requested = M
             self.Z = self.Z_train[select_inducing(self.Z_train, self.ell, self.sf2, M)]
         else:
@@ -624,12 +692,12 @@ class SparseGPModel(GPModel):
     @property
     def X(self) -> np.ndarray:
         """Training inputs ``(N, d)`` in physical units."""
-        return self.Z_train * self.x_std + self.x_mean
+        return self.unscale_x(self.Z_train)
 
     @property
     def U(self) -> np.ndarray:
         """Inducing inputs ``(M, d)`` in physical units."""
-        return self.Z * self.x_std + self.x_mean
+        return self.unscale_x(self.Z)
 
     def kernel_matrix(self, j: int) -> np.ndarray:
         """``K_UU`` ``(M, M)`` of output ``j`` (scaled units, no noise, no jitter)."""
@@ -674,11 +742,7 @@ class SparseGPModel(GPModel):
         in place: the inducing inputs are selected again among all training inputs (up to
         ``m_requested``; the new data may lie where the old inducing inputs do not reach) and the
         posterior is refactorized, ``O(D N M (d + M))``. Returns ``self``; unchanged on an error."""
-        Xn, Yn = _as_2d(X_new, "X_new"), _as_2d(Y_new, "Y_new")
-        if Xn.shape[0] != Yn.shape[0] or Xn.shape[1] != self.d or Yn.shape[1] != self.D:
-            raise ValueError(f"update expects X_new (n, {self.d}) and Y_new (n, {self.D}), got {Xn.shape}, {Yn.shape}")
-        if not (np.all(np.isfinite(Xn)) and np.all(np.isfinite(Yn))):
-            raise ValueError("training data must be finite")
+        Xn, Yn = self._new_data(X_new, Y_new)
         if Xn.shape[0] == 0:
             return self
         new = SparseGPModel(np.vstack([self.X, Xn]), np.vstack([self.Y, Yn]), self.ell, self.sf2, self.sn2,
@@ -687,55 +751,30 @@ class SparseGPModel(GPModel):
         self.__dict__.update(new.__dict__)
         return self
 
+    # -- the variance ----------------------------------------------------------------------
     def _var_solves(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Scaled latent variance ``(T,)`` (not clipped), ``V1 = L_U^-1 k_U`` and ``V2 = L_B^-1 V1``, both ``(M, T)``."""
         V1 = solve_triangular(self.L_U[j], Ks.T, lower=True, check_finite=False)
         V2 = solve_triangular(self.L_B[j], V1, lower=True, check_finite=False)
         return self.sf2[j] - np.einsum("mt,mt->t", V1, V1) + np.einsum("mt,mt->t", V2, V2), V1, V2
 
-    def predict(self, Xq: np.ndarray, *, noisy: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Mean ``(T, D)`` and latent variance ``(T, D)`` at physical inputs ``Xq (T, d)``, physical units
-        (``noisy=True`` adds ``sn2 y_std^2``)."""
-        Zq, ok = self._query(Xq)
-        mean, var = _nan((len(ok), self.D)), _nan((len(ok), self.D))
-        for j in range(self.D if len(Zq) else 0):
-            Ks = self._kstar(j, Zq)
-            mean[ok, j] = Ks @ self.weights[j]
-            v = np.maximum(self._var_solves(j, Ks)[0], 0.0)
-            var[ok, j] = v + self.sn2[j] if noisy else v
-        return mean * self.y_std + self.y_mean, var * self.y_std**2
+    def _latent_variance(self, j: int, Ks: np.ndarray) -> np.ndarray:
+        """``sf2 - k_U^T K_UU^-1 k_U + k_U^T Sigma k_U`` ``(T,)``."""
+        return self._var_solves(j, Ks)[0]
 
-    def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Mean ``(T, D)``, latent variance ``(T, D)``, ``dmean (T, D, d)``, ``dvar (T, D, d)`` (physical units).
+    def _variance_weights(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The variance ``(T,)`` and ``W = ((K_UU^-1 - Sigma) k_U)^T = (L_U^-T (V1 - L_B^-T V2))^T`` ``(T, M)``."""
+        v, V1, V2 = self._var_solves(j, Ks)
+        V1 -= solve_triangular(self.L_B[j], V2, lower=True, trans="T", check_finite=False)
+        return v, solve_triangular(self.L_U[j], V1, lower=True, trans="T", check_finite=False).T
 
-        ``dvar/dz = -2 (dk_U/dz)^T (K_UU^-1 - Sigma) k_U`` with ``(K_UU^-1 - Sigma) k_U = L_U^-T (V1 - L_B^-T V2)``."""
-        Zq, ok = self._query(Xq)
-        T, D, d = len(ok), self.D, self.d
-        mean, var = _nan((T, D)), _nan((T, D))
-        dmean, dvar = _nan((T, D, d)), _nan((T, D, d))
-        Z1 = np.hstack([self.Z, np.ones((self.M, 1))])
-        for j in range(D if len(Zq) else 0):
-            Ks = self._kstar(j, Zq)
-            mean[ok, j], dmean[ok, j] = self._mean_grad(j, Ks, Zq)
-            v, V1, V2 = self._var_solves(j, Ks)
-            var[ok, j] = np.maximum(v, 0.0)
-            V1 -= solve_triangular(self.L_B[j], V2, lower=True, trans="T", check_finite=False)
-            W = solve_triangular(self.L_U[j], V1, lower=True, trans="T", check_finite=False).T  # (T, M)
-            W *= Ks
-            G = W @ Z1
-            dvar[ok, j] = -2.0 * (G[:, :d] - Zq * G[:, d:]) / self.ell[j] ** 2
-        scale = self.y_std[:, None] / self.x_std[None, :]
-        return (mean * self.y_std + self.y_mean, var * self.y_std**2,
-                dmean * scale, dvar * (scale * self.y_std[:, None]))
-
+    # -- storage -------------------------------------------------------------------------
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
         """Plain arrays for ``np.savez``: inducing inputs ``Z``, training data ``Z_train``, ``y``,
         hyperparameters, scaling, ``m_requested``; with the factors ``L_U``, ``L_B``, ``lam``,
         the weights and the likelihood ``lml`` unless told not to (``from_arrays`` then refactorizes
         at the stored inducing inputs)."""
-        out = {"Z": self.Z, "Z_train": self.Z_train, "y": self.y, "ell": self.ell, "sf2": self.sf2,
-               "sn2": self.sn2, "x_mean": self.x_mean, "x_std": self.x_std, "y_mean": self.y_mean,
-               "y_std": self.y_std, "noise_floor": np.array(self.noise_floor),
+        out = {"Z": self.Z, "Z_train": self.Z_train, "y": self.y, **self._hyper_arrays(),
                "m_requested": np.array(self.m_requested)}
         if include_factor:
             out |= {"L_U": self.L_U, "L_B": self.L_B, "lam": self.lam, "alpha": self.weights, "lml": self._lml}
@@ -744,20 +783,14 @@ class SparseGPModel(GPModel):
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> SparseGPModel:
         """Inverse of ``to_arrays``."""
-        missing = {"Z", "Z_train", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"} - set(arrays)
-        if missing:
-            raise ValueError(f"sparse GP arrays lack {sorted(missing)}")
-        g = {k: np.asarray(arrays[k], float) for k in arrays}
+        g = cls._stored(arrays, {"Z", "Z_train", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"},
+                        "sparse GP")
         self = cls.__new__(cls)
-        self.Z, self.Z_train, self.y = g["Z"].copy(), g["Z_train"].copy(), g["y"].copy()
-        self.ell, self.sf2, self.sn2 = g["ell"].copy(), g["sf2"].copy(), g["sn2"].copy()
-        self.x_mean, self.x_std = g["x_mean"].copy(), g["x_std"].copy()
-        self.y_mean, self.y_std = g["y_mean"].copy(), g["y_std"].copy()
-        self.noise_floor = float(g.get("noise_floor", NOISE_FLOOR))
+        self.Z, self.Z_train = g["Z"].copy(), g["Z_train"].copy()
+        self._restore_hypers(g)
         self.m_requested = int(g.get("m_requested", len(self.Z)))
         M, N, d, D = self.Z.shape[0], self.Z_train.shape[0], self.Z.shape[1], self.y.shape[1]
-        if (self.Z_train.shape[1] != d or self.y.shape[0] != N or self.ell.shape != (D, d)
-                or self.sf2.shape != (D,) or self.sn2.shape != (D,)):
+        if self.Z_train.shape[1] != d or self.y.shape[0] != N or not self._hypers_consistent():
             raise ValueError("inconsistent sparse GP array shapes")
         if all(k in g for k in ("L_U", "L_B", "lam", "alpha", "lml")):
             if (g["L_U"].shape != (D, M, M) or g["L_B"].shape != (D, M, M) or g["lam"].shape != (D, N)

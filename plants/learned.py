@@ -1,4 +1,4 @@
-"""Learned dynamics (SPEC §4, §7): ``qddot = GP mean(q, qdot, u)`` with the analytic models' step.
+"""Learned dynamics: ``qddot = GP mean(q, qdot, u)`` with the analytic models' step.
 
 State ``x = (q, qdot)`` (rad, rad/s, ``n_x = 2 n_q``), control ``u`` (N m, ``n_u``), GP inputs
 ``(q, qdot, u)`` of size ``d = n_x + n_u`` and outputs ``qddot`` (rad/s^2, ``n_q``). One step of
@@ -17,13 +17,13 @@ from collections.abc import Mapping
 import numpy as np
 
 from plants.dynamics import SemiImplicitEuler, stepped_rollout
-from plants.gp import GPModel
+from plants.gp import GPBase, GPModel
 
 
 class LearnedDynamics(SemiImplicitEuler):
     """Dynamics model (``plants.dynamics.Dynamics``) whose accelerations are a GP's mean."""
 
-    def __init__(self, model: GPModel, n_q: int, dt: float):
+    def __init__(self, model: GPBase, n_q: int, dt: float):
         if model.D != n_q or model.d <= 2 * n_q:
             raise ValueError(f"GP with {model.d} inputs and {model.D} outputs does not fit a robot with {n_q} joints")
         self.model = model
@@ -49,7 +49,7 @@ class LearnedDynamics(SemiImplicitEuler):
 
     def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A (n_x, n_x), a (n_x,), B (n_x, n_u))`` at ``(x, u)``: ``linearize_trajectory`` for one
-        point, the GP's mean and gradient in one compiled call (``GPModel.point_mean_with_gradients``;
+        point, the GP's mean and gradient in one compiled call (``GPBase.point_mean_with_gradients``;
         the sweeps relinearize one point at a time)."""
         x, u = np.asarray(x, float).reshape(-1), np.asarray(u, float).reshape(-1)
         n, nx, dt = self.n_q, self.n_x, self.dt
@@ -90,7 +90,7 @@ class LearnedDynamics(SemiImplicitEuler):
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0``: the problem's rollout
         (``planning.problem.Problem.controller_rollout``) in one compiled call
-        (``GPModel.controller_rollout``), else stepping ``step`` in Python. NaN propagates."""
+        (``GPBase.controller_rollout``), else stepping ``step`` in Python. NaN propagates."""
         x0 = np.asarray(x0, float).reshape(-1)
         out = self.model.controller_rollout(x0, o, O, self.dt)
         if out is not None:

@@ -1,6 +1,6 @@
 """One derivative harness: analytic derivatives against central finite differences.
 
-Finite differences are only an oracle here (SPEC §4); no planner uses them. The pieces:
+Finite differences are only an oracle here; no planner uses them. The pieces:
 
 - :func:`numdiff_jacobian` (one point) and :func:`numdiff_rows` (row-wise batches): central
   differences ``(f(x + eps e_j) - f(x - eps e_j)) / (2 eps)``;

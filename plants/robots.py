@@ -1,4 +1,4 @@
-"""The four robots as Drake MultibodyPlants (SPEC §3).
+"""The four robots as Drake MultibodyPlants.
 
 ``load_robot(name)`` gives a finalized continuous-time plant registered with a scene
 graph, the planning joints (names, limits, efforts, default posture), the map from

@@ -1,4 +1,4 @@
-"""Task maps phi(q) with Jacobians (SPEC §5).
+"""Task maps phi(q) with Jacobians.
 
 Contract: a task map takes joint positions ``q (n_q,)`` in planning coordinates (rad)
 and returns a task value ``(dim,)`` (metres or radians) and its Jacobian

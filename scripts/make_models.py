@@ -138,7 +138,7 @@ def serial_arm(name: str, links: list[dict], color: str) -> str:
 
 PI = math.pi
 # arm5: a light-weight arm laid out as the real ones are (KUKA LWR, Schunk LWA): a roll axis between two pitch axes,
-# so the hand's roll is moved by several joints (issue 18: with the roll joint last, the roll about the hand's own axis
+# so the hand's roll is moved by several joints (with the roll joint last, the roll about the hand's own axis
 # was that joint's angle whatever the others did, and the roll objective added nothing to the reach). Reach 1.25 m.
 # Its zero posture is the thesis's initial pose x2: the upper arm raised by ARM_BEND, the forearm lowered by as much,
 # the hand level, the end effector at (1, 0, 0) m (0.5 cos(A) + 0.5 cos(A) + 0.25 = 1). The bend is built into the

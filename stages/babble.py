@@ -1,4 +1,4 @@
-"""Motor babbling (thesis §4.1, SPEC §7): random desired trajectories tracked by a PD controller.
+"""Motor babbling (thesis §4.1): random desired trajectories tracked by a PD controller.
 
 Each episode starts at rest in the robot's default posture (the pendulum: hanging down, the
 stable equilibrium). A random desired trajectory (a clamped cubic spline through random knots

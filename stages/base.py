@@ -1,4 +1,4 @@
-"""The Stage contract: what every pipeline stage declares, stated once (SPEC §2, §9).
+"""The Stage contract: what every pipeline stage declares, stated once.
 
 A stage is a plain object that knows nothing of the CLI or the cache:
 

@@ -1,4 +1,4 @@
-"""Model learning while planning (thesis §4, SPEC §7): ``raico learn``, a composite stage.
+"""Model learning while planning (thesis §4): ``raico learn``, a composite stage.
 
 The loop is a sequence of cached stage runs (the steps, see ``stages/base.py``): babble once
 (and a fixed held-out babbling), then per episode ``fit`` (the GP, per the hyperparameter schedule,
@@ -38,7 +38,7 @@ BABBLE_KNOT_S = 0.25  # s between the random knots of the babbling spline (a 1 s
 def babble_knots(points: int) -> int:
     """Random knots of a babbling episode of ``points`` samples: one every ``BABBLE_KNOT_S`` s, at
     most one per three samples (the pendulum's 15 samples: 5 knots in 1.4 s; the arms' 200: 66 in
-    19.9 s; issue 17: 8 knots in 9.9 s moved the arm too slowly for the torques a reach needs)."""
+    19.9 s; 8 knots in 9.9 s moved the arm too slowly for the torques a reach needs)."""
     duration = (points - 1) * BABBLE_DT
     return max(1, min(points // 3, int(round(duration / BABBLE_KNOT_S))))
 
@@ -169,7 +169,7 @@ class LearnConfig(StageConfig):
 
     def heldout_babble_config(self):
         """A fixed held-out set: babbling as :meth:`babble_config` with another seed (``HELDOUT_SEED``
-        added), never trained on; every episode's GP is scored on it (issue 17)."""
+        added), never trained on; every episode's GP is scored on it."""
         from dataclasses import replace
 
         return replace(self.babble_config(), seed=(self.seed + HELDOUT_SEED) % 2**32)
@@ -178,7 +178,7 @@ class LearnConfig(StageConfig):
 HELDOUT_SEED = 1_000_003  # seed offset of the held-out babbling
 WARM_FROM = ("trajectory", "controls", "none")
 # Per-plant defaults of the options whose 0 means "the plant's": the pendulum as in the thesis (§4.1: 15 babbling
-# points); a 5-joint arm needs more babbling to plan its first reach (issue 17, BioRob reach, 8 episodes: with 15
+# points); a 5-joint arm needs more babbling to plan its first reach (BioRob reach, 8 episodes: with 15
 # samples every execution lost tracking; with 100, 7 of 8 seeds reached 5 cm by their third episode, seed 11 never;
 # with 200, seeds 0, 1 and 11 reached 2 cm in their first episode).
 ARM_DEFAULTS = {"babble_points": 200, "stride": 20}
@@ -187,7 +187,7 @@ PLANT_DEFAULTS = {"pendulum": {"babble_points": 15, "stride": 5}, "arm5": ARM_DE
 
 
 def parse_schedule(schedule: str) -> int | None:
-    """``every`` -> None (re-optimize every episode); ``batch-N`` -> N (>= 100, SPEC §7)."""
+    """``every`` -> None (re-optimize every episode); ``batch-N`` -> N (>= 100)."""
     if schedule == "every":
         return None
     if schedule.startswith("batch-") and schedule[6:].isdigit() and int(schedule[6:]) >= 100:
@@ -306,7 +306,7 @@ def episode_measurements(cfg: LearnConfig, robot, fit: Artifact, plan: Artifact,
         qdd[ok] = true_accelerations(robot, dt, X[ok], tau[ok])
     em, pm = execution.metrics, plan.metrics
     err = task_error(em.get("via_point_errors") or {})
-    if cfg.plant == "pendulum":  # SPEC/issue: within 0.1 rad of upright at the end, on the Drake plant
+    if cfg.plant == "pendulum":  # the task: within 0.1 rad of upright at the end, on the Drake plant
         q_end = roll["X"][-1, 0]
         err = float(abs((q_end - np.pi + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")
     per_joint, per_joint_n = gp_joint_errors(model, X, tau, qdd)

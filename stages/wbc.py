@@ -1,4 +1,4 @@
-"""A whole-body stabilizer for the free-standing Nao (issue 19): task-space inverse dynamics.
+"""A whole-body stabilizer for the free-standing Nao: task-space inverse dynamics.
 
 Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP, warm-started
 from the previous step (:class:`ProxQP`; Clarabel, through Drake's ``MathematicalProgram``, takes the
@@ -24,11 +24,11 @@ Constraints (hard):
 
 Cost (weight times squared acceleration error):
 
-- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right one until its release): each sole's spatial
-  acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
+- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right
+  one until its release): each sole's spatial acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
 - CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
   CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
-  held ``COG_MARGIN`` inside the feet's support polygon (Dykstra projection) and its capture point
+  held ``COG_MARGIN`` inside the feet's support polygon (:func:`clamp_to_polygon`) and its capture point
   ``c + cdot / omega`` too (the reference velocity cut);
 - via-point frames ``W_FRAME`` (the hand of the reach task): their points along the plan as made;
 - joints ``W_JOINT``: ``vdot_j = a_r + KP (q_r - q) + KD (v_r - v)`` on the 26 tree joints (the
@@ -37,89 +37,26 @@ Cost (weight times squared acceleration error):
   ``(v_{k+1} - v_k) / dt``);
 - regularization ``W_REG |vdot|^2 + W_FORCE |f|^2``.
 
-Choices, each with its measured effect (fig3.4-inside and fig3.3 R-AICO plans, seed 0-3, standing
-start; the Nao holding its standing posture for 1 s):
+Safeguards and modes:
 
-- Pure torque control with a zero-order hold: the plant is built without Drake's PD actuators (with
-  PD gains declared and the desired-state port left unconnected, the actuation input had no effect
-  on the joints in free fall). Period 4 ms (250 Hz) on the 2 ms plant: against 2 ms on a 1 ms plant
-  (the settings before), the ten fig3.4-inside R-AICO plans gave the same statuses (9 stood, 1 fell
-  at 1.76 s) and CoG via-point errors within 0.5 mm of each other (2 ms on the 2 ms plant: within
-  2 mm), at a third of the time (a 3 s execution 2.4 s wall, the bench row; before, 7.9 s). Longer
-  periods, measured on the 70 stabilizer executions of a ``make reproduce`` (40 noise-free, 30 under the
-  noise sweep's noise): 6 ms kept every noise-free status but 8 of the 26 noisy runs that stood fell, for
-  14 % less time per execution; 10 ms (the Nao's own DCM cycle, which drives position-controlled motor
-  boards, not torques) made 33 of the 65 runs that stood fall, for 27 % less. The period stays 4 ms.
-- The soles as a heavy cost rather than an equality: with the equality (and lifted corners carrying
-  nothing) the program was infeasible in 680 and 1235 of 1500 updates of two runs; as a cost, none.
-- ``COP_SHARE``: without it the program put the right sole's load on its inner edge, the compliant
-  sole rolled (outer corners 1.1 mm up) and RAnkleRoll kept a 0.015 rad error while standing; with
-  0.1 the soles stay flat to 0.02 mm and the joints within 0.0005 rad. 0.5 made fig3.4-inside fall
-  at 1.0 s (the centre of pressure could not reach the heel region the plan's CoG needs), 0.2 at 2.4 s.
-- No least corner force: 1 N per corner forced 4 N onto the unloaded right sole, so the CoG could not
-  be stopped near the left sole's outer edge (fell at 2.5 s).
-- The CoG clamp: the fig3.4-inside plan moves the CoG to 2 mm from the left sole's outer edge; tracked
-  as planned, the robot tipped over that edge at 2.1-2.5 s in every setting tried.
-- ``W_COG`` 1000, the CoG above the posture (with 10 the joint task pulled the CoG past its clamped
-  reference). With 100, fig3.4-inside's plans, which ask RAnkleRoll for 0.43-0.47 rad at their second
-  CoG via-point (its limit is 0.398, the bounds below stop it at 0.378), stopped the CoG 0.5-1.7 cm
-  short of that via-point, 1.3 cm also where the reference was not clamped (seed 3): the other joints
-  stayed with their references instead of making up for the ankle. With 1000 (the ten R-AICO a=1 plans of the
-  report of 11:15 UTC, standing start): reached to 1 cm 6 of 10 (100: 1 of 10), stood 9 of 10 (the
-  same seed 0 falls); under the noise sweep's noise 8 of 10 stood (100: 7); fig3.3, fig3.4-support
-  and fig3.4-single unchanged at 10 of 10 reaching (single: the right foot 2.44-2.53 cm up), under
-  noise fig3.3 10 of 10 and fig3.4-support 9 of 10 stood. 10000 reached 5 of 10; the joint weight 0.1
-  or softer joint gains (25, 10) did not keep seed 0 up. The CoG of the plan as made instead of the
-  joint reference's made fig3.4-inside fall in 3 of 3 seeds (the two references then disagreed by
-  the start projection, ~1 cm; the projection now holds the CoG's ground projection, which also
-  brought fig3.3's executed CoG via-point errors from 1.25-1.5 cm to 0.2-0.9 cm on seeds 2, 3, 4, 8);
-  with the projection as it is now (``W_COG`` 100) both give the same statuses (seed 0 falls either way)
-  and via-point errors within 0.6 mm on the other nine.
-- What did not help, measured on fig3.4-inside: a CoG margin of 1 cm (8 of 10 stood, 6 of 10 under
-  noise) or 2-2.5 cm (seed 0 still falls; 3.5 cm keeps it up, its via-point 1.9 cm off); a larger
-  ``COP_SHARE`` (0.2: 8 of 10 stood, 0.3: 5 of 10); a heavier sole hold (``W_CONTACT`` 1e4, 1e5);
-  ``CORNER_UP`` 0.2-0.5 mm; and, under initial-state noise, shifting the reference by the projection
-  from the plan's own start instead of the noisy one (the robot's start, noise included: 5 of 10
-  stood under noise instead of 8: the joint task rejecting the start noise keeps more runs up).
-- ``W_FRAME`` 1000: the reach's executed hand via-point error 1.3-1.9 cm with 10, 0.37-0.61 cm with
-  100, 0.14-0.26 cm with 1000 (seeds 0, 1).
-- The joint-limit bounds: without them the program drove RAnkleRoll into its upper limit (the plan
-  itself asks for up to 0.44 rad, the limit is 0.398) and Drake's limit constraint pushed back with a
-  torque the program did not know: fig3.4-inside ended ``limits`` in 5 of 10 runs and fell in 4; with
-  them 9 of 10 stand with status ok (their CoG via-points 0.7-2.9 cm off: the ankle, stopped 0.02 rad
-  inside its limit, stops the CoG short of the plan's +3 cm; the ``limits`` status flags a joint
-  within 0.01 rad of its limit, so it does not count this), seed 0 still falls. Letting a joint go to
-  its (clipped) reference at the limit instead turned 6 of these 9 into ``limits``.
-- The solver: proxsuite's PROXQP (``proxsuite`` 0.8.0, pip wheels that need nothing beyond numpy,
-  scipy and cmeel, all already in raico's set) warm-started: 0.3 ms a program against Clarabel's
-  1.7-1.8 ms (interior point, no warm start; OSQP at eps 1e-7 took 11 ms). Its accelerations agree
-  with Clarabel's to 1e-4 on the 1500 programs of a fig3.4-inside run (the corner forces are unique
-  only up to their 1e-5 regularization; the costs agree to 1e-3). Two measured safeguards: its
-  infeasibility tolerances at 1e-12 (at the default 1e-4 it called 9-22 feasible programs of a run
-  infeasible) and an iteration cap with Clarabel as the fallback (uncapped, one program of a falling
-  robot took it 5 million iterations); ``wbc_qp_fallbacks`` counts them.
-  Keeping the first program's preconditioner instead of updating it every program (``update_preconditioner``
-  False) cut the median update from 1.55 to 1.35 ms over the same 70 executions, every noise-free run within
-  1e-5 m of before, but one noisy fig3.4-support run that stood fell: it stays updated.
-- A program that no solver solves (under process noise a joint pushed past its margin can ask more
-  acceleration than the torque limits give) is solved again without the joint-limit bounds, the
-  limits then left to the plant's (``wbc_qp_relaxed``); only one that still fails holds the previous
-  torque (``wbc_qp_failures``).
-- A disturbance observer (``DISTURBANCE_OBSERVER``): at each update the joint torque the model does not
-  explain over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
-  plant's generalized contact forces of its last step, what the feet's force sensors give; none for a
-  joint within ``LIMIT_MARGIN_OBS`` of a limit, where the plant's limit force acts), clamped at the effort
-  limits and compensated by the next command (``u = At x + h_j - w``, the torque bounds shifted by it).
-  Under the noise sweep's process noise (0.5 N m per planning step and joint, 1.7 times a hand's 0.29 N m
-  effort limit) on the ten fig3.4-inside plans: 7 of 10 stood with it, 1 of 10 without; fig3.3: 10 and 9
-  of 10, its hand via-point errors 1-5 mm with it, 13-110 mm without. Without noise it changes nothing
-  measurable (the same statuses, CoG via-point errors within 0.3 mm).
-- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more programs
-  (the programs of a robot lying on the ground were the hardest, and useless); ``wbc_limp_time``.
-- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners carry
-  no force, it is no longer held) once the executed CoG's ground projection is ``RELEASE_MARGIN`` inside
-  the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG reference is clamped to the left
-  sole's polygon and the right sole's corners track the plan as made (the frame task's weight and gains).
+- ``proxsuite``'s portable build (:func:`portable_proxsuite`: bit-for-bit repeatable executions); a
+  program it does not solve within its iteration cap goes to Clarabel (``wbc_qp_fallbacks``); one
+  no solver solves is solved again without the joint-limit bounds that ask for an acceleration
+  (``wbc_qp_relaxed``); one that still fails holds the previous torque (``wbc_qp_failures``).
+- A disturbance observer (``DISTURBANCE_OBSERVER``): the joint torque the model does not explain
+  over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
+  plant's generalized contact forces of its last step; none for a joint within ``LIMIT_MARGIN_OBS``
+  of a limit), clamped at the effort limits and compensated by the next command
+  (``u = At x + h_j - w``, the torque bounds shifted by it).
+- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more
+  programs (``wbc_limp_time``).
+- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners
+  carry no force, it is no longer held) once the executed CoG's ground projection is
+  ``RELEASE_MARGIN`` inside the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG
+  reference is clamped to the left sole's polygon and the right sole's corners track the plan as
+  made (the frame task's weight and gains).
+
+Why each weight, gain, bound and solver setting is what it is (measured): ``docs/stabilizer.md``.
 """
 
 from __future__ import annotations
@@ -147,7 +84,7 @@ KP_LIMIT, KD_LIMIT = 400.0, 40.0  # 1/s^2, 1/s: the acceleration bound towards a
 MU = 0.5  # friction coefficient of the linearized cone (the simulated ground has 0.8)
 CORNER_UP = 2e-3  # m, a sole corner higher than this carries no force in the program (None: every corner may)
 COP_SHARE = 0.1  # each corner of a sole carries at least this share of the sole's mean corner load
-FZ_MIN = 0.0  # N, the least normal force on a corner in contact (see the docstring: 0)
+FZ_MIN = 0.0  # N, the least normal force on a corner in contact (docs/stabilizer.md: why 0)
 FZ_MAX = 200.0  # N, a bound on each corner's normal force (keeps the program bounded)
 # single support (a plan made with --balance single): the right sole is released once the CoG is over the
 # left sole, then tracks the plan's right-sole corners
@@ -397,48 +334,63 @@ class ClarabelProgram:
         return result.GetSolution(self._x), result.is_success(), f"clarabel: {result.get_solution_result()}"
 
 
-def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = None, X_task=None,
-                    frame_maps=(), swing=None):
-    """The stabilizer as a Drake ``LeafSystem``: input the free plant's state ``(nq + nv,)``, output
-    the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update) plus the torque
-    noise of its second input (if connected or fixed), clamped at the effort limits. It tracks
-    the joints of ``X_plan (K, 2 n_q)``, and the CoG and the frame points of ``frame_maps``
-    (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
-    along the whole plan) of ``X_task`` (default ``X_plan``). Its
-    attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
-    ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
-    ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests)."""
-    from pydrake.multibody.tree import JacobianWrtVariable
-    from pydrake.systems.framework import BasicVector, LeafSystem
+@dataclass
+class FreePlantLayout:
+    """What the stabilizer's programs need of the free plant, fixed for its life: the plant and one
+    context of it, the soles' frames and corners ``(3, 4)`` (m, sole frame), the sizes (``nq``, ``nv``,
+    ``n_act`` actuators, ``nc`` = 8 corners, ``nf = 3 nc`` forces, ``nx = nv + nf`` decision variables),
+    the floating base's six velocity rows ``base_rows``, each actuator's velocity ``jv (n_act,)``, the tree
+    joints' velocities in the reference's order ``joint_v (26,)``, each actuator's tree joint
+    ``act_joint (n_act,)``, the effort limits ``(n_act,)`` N m and the tree joints' position limits
+    ``lower_q, upper_q (26,)`` rad."""
 
-    from plants.free_nao import SOLES, sole_corners_local
+    plant: object
+    ctx: object
+    world: object
+    frames: list
+    corners: np.ndarray
+    joint_idx: np.ndarray
+    joint_v: np.ndarray
+    jv: np.ndarray
+    act_joint: np.ndarray
+    base_rows: np.ndarray
+    effort: np.ndarray
+    lower_q: np.ndarray
+    upper_q: np.ndarray
+    nq: int
+    nv: int
+    n_act: int
+    nc: int
+    nf: int
+    nx: int
 
-    period = CONTROL_PERIOD if period is None else period
-    plant = free.plant
-    kV = JacobianWrtVariable.kV
-    nq, nv = plant.num_positions(), plant.num_velocities()
-    B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
-    n_act = B.shape[1]
-    base_rows = np.flatnonzero(np.abs(B).sum(axis=1) == 0)  # the floating base's six velocities
-    jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
-    # tree joints in the reference's order (the fixed plant's velocity order) -> free velocity index
-    joint_v = free.joint_vidx
-    effort = free.effort
-    ctx = plant.CreateDefaultContext()
-    world = plant.world_frame()
-    frames = [plant.GetFrameByName(s) for s in SOLES]
-    corners = sole_corners_local().T  # (3, 4)
-    nc = 4 * len(frames)
-    nf = 3 * nc
-    nx = nv + nf
-    maps = [*frame_maps, *([swing] if swing is not None else [])]
-    ref = Reference(free, X_plan, X_plan if X_task is None else X_task, dt, maps)
-    tasks = [(plant.GetFrameByName(m.frame.name()), np.ascontiguousarray(m.points.T), m.rows) for m in maps]
-    n_tasks = len(frame_maps)  # the swing sole's task (last) joins once the sole is released
-    released: list[float] = []  # the time the right sole's contact was released (single support)
-    left_only: list = []  # (A, b) of the left sole shrunk by COG_MARGIN, and its unshrunk b
-    # constant rows: the friction pyramid (four faces per corner, <= 0) and each sole's centre of pressure kept
-    # off its edges (every corner carries at least COP_SHARE of its sole's mean corner load, >= 0)
+    @classmethod
+    def of(cls, free) -> FreePlantLayout:
+        """The layout of ``plants.free_nao.FreeNao`` ``free`` (its plant without PD actuators)."""
+        from plants.free_nao import SOLES, sole_corners_local
+
+        plant = free.plant
+        nv = plant.num_velocities()
+        B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
+        jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
+        frames = [plant.GetFrameByName(s) for s in SOLES]
+        nc = 4 * len(frames)
+        return cls(plant=plant, ctx=plant.CreateDefaultContext(), world=plant.world_frame(), frames=frames,
+                   corners=sole_corners_local().T, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
+                   act_joint=np.array([list(free.joint_vidx).index(j) for j in jv]),
+                   base_rows=np.flatnonzero(np.abs(B).sum(axis=1) == 0), effort=free.effort,
+                   lower_q=plant.GetPositionLowerLimits()[free.joint_idx],
+                   upper_q=plant.GetPositionUpperLimits()[free.joint_idx],
+                   nq=plant.num_positions(), nv=nv, n_act=B.shape[1], nc=nc, nf=3 * nc, nx=nv + 3 * nc)
+
+
+def contact_rows(lay: FreePlantLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The inequality rows every program shares, ``l <= C x <= u`` with ``C (n_act + 5 nc, nx)``: ``n_act``
+    torque rows (zero here: each program writes its torque map into them), the friction pyramid (four
+    faces per corner, ``<= 0``) and each sole's centre of pressure kept off its edges (every corner
+    carries at least ``COP_SHARE`` of its sole's mean corner load, ``>= 0``, its lower bound set per
+    program). Returns ``C``, ``l``, ``u`` and the number of friction rows."""
+    nv, nc, nx, n_act = lay.nv, lay.nc, lay.nx, lay.n_act
     Fr = np.zeros((4 * nc, nx))
     Cp = np.zeros((nc, nx))
     for c in range(nc):
@@ -448,22 +400,278 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
         s0 = 4 * (c // 4)
         Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
         Cp[c, nv + 3 * c + 2] += 1.0
-    n_eq, n_in = len(base_rows), n_act + len(Fr) + nc
+    n_in = n_act + len(Fr) + nc
     C = np.zeros((n_in, nx))
     C[n_act:n_act + len(Fr)] = Fr
     C[n_act + len(Fr):] = Cp
     l_in, u_in = np.full(n_in, -np.inf), np.full(n_in, np.inf)
     u_in[n_act:n_act + len(Fr)] = 0.0
-    fz = nv + 3 * np.arange(nc) + 2  # the normal forces' indices in x
-    lower_q = plant.GetPositionLowerLimits()[free.joint_idx]
-    upper_q = plant.GetPositionUpperLimits()[free.joint_idx]
-    solver = ProxQP(nx, n_eq, n_in)
-    H0 = np.zeros((nx, nx))  # the cost's constant Hessian: joint task, regularization of accelerations and forces
+    return C, l_in, u_in, len(Fr)
+
+
+def constant_hessian(lay: FreePlantLayout) -> np.ndarray:
+    """The cost's constant Hessian ``(nx, nx)``: the joint task and the regularization of the
+    accelerations and forces."""
+    nv = lay.nv
+    H0 = np.zeros((lay.nx, lay.nx))
     H0[:nv, :nv] = 2 * W_REG * np.eye(nv)
-    H0[joint_v, joint_v] += 2 * W_JOINT
-    H0[nv:, nv:] = 2 * W_FORCE * np.eye(nf)
-    w_cog, origin, inf_x = np.full(3, W_COG), np.zeros(3), np.full(nx, np.inf)
-    ones = np.ones(max([12, *(3 * len(m.points) for m in maps)]))  # task weights per row
+    H0[lay.joint_v, lay.joint_v] += 2 * W_JOINT
+    H0[nv:, nv:] = 2 * W_FORCE * np.eye(lay.nf)
+    return H0
+
+
+class StabilizerProgram:
+    """The stabilizer's programs (module docstring) along one plan: :meth:`program` builds the QP of one
+    update at a time and state, :meth:`solve` solves it. It keeps what the updates share: the soles'
+    reference poses and the support polygons (fixed at the first update), the single-support release
+    time, and logs of the failed (``failed``: time s, status) and relaxed programs (``relaxed``: times s)
+    and of the observer's estimates (``observed``: ``(n_act,)`` N m per update)."""
+
+    def __init__(self, free, X_plan: np.ndarray, dt: float, X_task=None, frame_maps=(), swing=None):
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        self.kV = JacobianWrtVariable.kV
+        self.lay = lay = FreePlantLayout.of(free)
+        plant = lay.plant
+        maps = [*frame_maps, *([swing] if swing is not None else [])]
+        self.ref = Reference(free, X_plan, X_plan if X_task is None else X_task, dt, maps)
+        # (frame, points (3, k) in it, rows kept) of each frame task
+        self.tasks = [(plant.GetFrameByName(m.frame.name()), np.ascontiguousarray(m.points.T), m.rows) for m in maps]
+        self.n_tasks = len(frame_maps)  # the swing sole's task (last) joins once the sole is released
+        self.swing = swing
+        self.released: list[float] = []  # the time the right sole's contact was released (single support)
+        self.left_only: list = []  # (A, b) of the left sole shrunk by COG_MARGIN, and its unshrunk b
+        self.support: list = []  # (A, b) of the support polygon shrunk by COG_MARGIN (world xy), at the first call
+        self.sole_ref: list = []  # the soles' poses (R (3, 3), p (3,)) at the first update, laid flat on the ground
+        self.failed: list = []  # (time s, the solver's status) of every failed program
+        self.observed: list = []  # the observer's disturbance estimate (n_act,) N m per update (zeros without it)
+        self.relaxed: list = []  # times (s) of the programs solved again without the joint-limit bounds
+        self.C, self.l_in, self.u_in, self.n_fr = contact_rows(lay)
+        self.fz = lay.nv + 3 * np.arange(lay.nc) + 2  # the normal forces' indices in x
+        self.solver = ProxQP(lay.nx, len(lay.base_rows), len(self.l_in))
+        self.H0 = constant_hessian(lay)
+        self.w_cog, self.origin, self.inf_x = np.full(3, W_COG), np.zeros(3), np.full(lay.nx, np.inf)
+        self.ones = np.ones(max([12, *(3 * len(m.points) for m in maps)]))  # task weights per row
+
+    def _first_call(self, poses) -> None:
+        """The soles' reference poses (at the first update, laid flat: roll and pitch 0, z 0) and the
+        support polygons (both soles', the left sole's) shrunk by ``COG_MARGIN``."""
+        from pydrake.math import RollPitchYaw
+        from scipy.spatial import ConvexHull
+
+        corners = self.lay.corners
+        for X in poses:
+            yaw = RollPitchYaw(X.rotation()).yaw_angle()
+            self.sole_ref.append((RollPitchYaw(0.0, 0.0, yaw).ToRotationMatrix().matrix(),
+                                  np.r_[X.translation()[:2], 0.0]))
+        pts = np.vstack([(R @ corners)[:2].T + p[:2] for R, p in self.sole_ref])
+        eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
+        self.support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
+        R, p = self.sole_ref[0]
+        eqs = ConvexHull((R @ corners)[:2].T + p[:2]).equations
+        self.left_only.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN, -eqs[:, 2]])
+
+    def _observed_torque(self, M: np.ndarray, h: np.ndarray, v: np.ndarray, qj: np.ndarray, obs) -> np.ndarray:
+        """The disturbance observer's estimate ``(n_act,)`` N m: the joint torque the model does not explain
+        over the last period, ``M (v - v_prev)/dt + h - tau_c - u_prev`` at the joints, clamped at the
+        effort limits; none for a joint within ``LIMIT_MARGIN_OBS`` of a limit (there the plant's limit
+        force acts, not a disturbance), and zeros without ``obs = (v_prev, dt, tau_c, u_prev)``."""
+        lay = self.lay
+        w_hat = np.zeros(lay.n_act)
+        if obs is not None and obs[1] > 0:
+            v_prev, dt_obs, tau_c, u_prev = obs
+            w_hat = np.clip((M @ ((v - v_prev) / dt_obs) + h - tau_c)[lay.jv] - u_prev, -lay.effort, lay.effort)
+            near = (qj <= lay.lower_q + LIMIT_MARGIN_OBS) | (qj >= lay.upper_q - LIMIT_MARGIN_OBS)
+            w_hat[near[lay.act_joint]] = 0.0
+        return w_hat
+
+    def _soles(self, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The soles at the context's state: their spatial Jacobians ``Js (12, nv)`` (per sole: angular,
+        translational, at its origin) and bias accelerations ``bs (12,)``, the corners' translational
+        Jacobians ``Jc (nf, nv)``, the soles' pose errors from their references ``(12,)`` (rotation
+        vector rad, position m) and the corners' heights ``zc (nc,)`` m."""
+        lay, kV = self.lay, self.kV
+        plant, ctx, world, origin, nv = lay.plant, lay.ctx, lay.world, self.origin, lay.nv
+        Js = np.vstack([plant.CalcJacobianSpatialVelocity(ctx, kV, fr, origin, world, world)
+                        for fr in lay.frames])  # (12, nv): per sole (angular, translational) at its origin
+        bs = np.concatenate([plant.CalcBiasSpatialAcceleration(ctx, kV, fr, origin, world, world).get_coeffs()
+                             for fr in lay.frames])
+        # each corner's translational Jacobian from its sole's spatial one: v_c = v_o + w x r = Jv - [r]x Jw
+        Jc = np.empty((lay.nf, nv))
+        sole_err = np.empty(12)
+        zc = np.empty(lay.nc)
+        for s_, X in enumerate(poses):
+            R, p = X.rotation().matrix(), X.translation()
+            r = R @ lay.corners  # (3, 4) world offsets of the corners
+            zc[4 * s_:4 * s_ + 4] = r[2] + p[2]
+            Jw, Jv = Js[6 * s_:6 * s_ + 3], Js[6 * s_ + 3:6 * s_ + 6]
+            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (4, 1) each
+            Jc_s = Jc[12 * s_:12 * s_ + 12].reshape(4, 3, nv)          # (corner, xyz, nv), a view of Jc
+            Jc_s[:, 0] = Jv[0] - (ry * Jw[2] - rz * Jw[1])
+            Jc_s[:, 1] = Jv[1] - (rz * Jw[0] - rx * Jw[2])
+            Jc_s[:, 2] = Jv[2] - (rx * Jw[1] - ry * Jw[0])
+            R_ref, p_ref = self.sole_ref[s_]
+            sole_err[6 * s_:6 * s_ + 3] = rotation_log(R @ R_ref.T)
+            sole_err[6 * s_ + 3:6 * s_ + 6] = p - p_ref
+        return Js, bs, Jc, sole_err, zc
+
+    def _single_support(self, t: float, com: np.ndarray) -> bool:
+        """Whether the right sole is released at time ``t`` s (single support), releasing it now if the
+        executed CoG ``com (3,)`` m is ``RELEASE_MARGIN`` inside the left sole and ``t`` is past
+        ``RELEASE_EARLIEST``."""
+        if self.swing is not None and not self.released and t >= RELEASE_EARLIEST - 1e-9:
+            A, _, b = self.left_only
+            if np.min(b - A @ com[:2]) >= RELEASE_MARGIN:  # the CoG is over the left sole
+                self.released.append(t)
+        return bool(self.released)
+
+    def _cog_reference(self, cog_ref: tuple, single: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The CoG reference ``(c, cdot, cddot)`` ``(3,)`` each (m, m/s, m/s^2) held inside the support
+        polygon (the left sole's in single support): a planned CoG too near an edge is held at the
+        margin, at rest in the plane; else its capture point ``c + cdot / omega`` is held inside by
+        cutting the planned velocity."""
+        c_r, cd_r, cdd_r = cog_ref
+        polygon = (self.left_only[0], self.left_only[1]) if single else self.support
+        c_xy = clamp_to_polygon(c_r[:2], *polygon)
+        if np.any(c_xy != c_r[:2]):
+            return np.r_[c_xy, c_r[2]], np.r_[0.0, 0.0, cd_r[2]], np.r_[0.0, 0.0, cdd_r[2]]
+        omega = np.sqrt(9.81 / max(c_r[2], 0.05))
+        xi = clamp_to_polygon(c_r[:2] + cd_r[:2] / omega, *polygon)
+        if np.any(xi != c_r[:2] + cd_r[:2] / omega):
+            cd_r = np.r_[omega * (xi - c_r[:2]), cd_r[2]]
+            cdd_r = np.r_[0.0, 0.0, cdd_r[2]]
+        return c_r, cd_r, cdd_r
+
+    def _task_rows(self, v: np.ndarray, cog_rows: tuple, frame_refs: list, Js: np.ndarray, bs: np.ndarray,
+                   sole_err: np.ndarray, single: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The acceleration tasks as one weighted least-squares ``||W^(1/2) (J vdot - a)||^2``: ``J (k, nv)``,
+        ``a (k,)``, ``w (k,)`` over the CoG's rows ``cog_rows = (J, a, w)``, the frame tasks' points
+        (the swing sole's once released) and the held soles (a heavy cost, not a constraint: a sole the
+        compliant ground has let rise a little must not make the program infeasible; released: the left
+        sole alone)."""
+        lay, kV = self.lay, self.kV
+        plant, ctx, world = lay.plant, lay.ctx, lay.world
+        rows_J, rows_a, rows_w = [cog_rows[0]], [cog_rows[1]], [cog_rows[2]]
+        tasks = self.tasks[:len(self.tasks) if single else self.n_tasks]
+        for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks, frame_refs):
+            Jp = plant.CalcJacobianTranslationalVelocity(ctx, kV, fr, pts, world, world)[rows]
+            bp = plant.CalcBiasTranslationalAcceleration(ctx, kV, fr, pts, world, world).T.reshape(-1)[rows]
+            p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
+            rows_J.append(Jp)
+            rows_a.append(pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v) - bp)
+            rows_w.append(W_FRAME * self.ones[:len(Jp)])
+        held = slice(0, 6) if single else slice(0, 12)
+        Jh = Js[held]
+        rows_J.append(Jh)
+        rows_a.append(-bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held])
+        rows_w.append(W_CONTACT * self.ones[:Jh.shape[0]])
+        return np.vstack(rows_J), np.concatenate(rows_a), np.concatenate(rows_w)
+
+    def _cost(self, J: np.ndarray, a: np.ndarray, w: np.ndarray, a_joint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cost ``0.5 x'Hx + g'x``: ``H (nx, nx)``, ``g (nx,)`` of the weighted acceleration tasks
+        ``(J, a, w)``, the joint task towards ``a_joint (26,)`` rad/s^2 and the regularization."""
+        nv = self.lay.nv
+        H = self.H0.copy()  # the constant part: joints, regularization
+        g = np.zeros(self.lay.nx)
+        Jw_ = J * (2 * w)[:, None]
+        H[:nv, :nv] += J.T @ Jw_
+        g[:nv] = -Jw_.T @ a
+        g[self.lay.joint_v] -= 2 * W_JOINT * a_joint
+        return H, g
+
+    def _bounds(self, M: np.ndarray, h: np.ndarray, Jc: np.ndarray, w_hat: np.ndarray, zc: np.ndarray,
+                qj: np.ndarray, vj: np.ndarray, single: bool) -> tuple:
+        """The constraints: the floating base's dynamics ``Aeq (6, nx)``; the rows ``C`` with the torque
+        map ``At (n_act, nx)`` (``u = At x + h_j``, ``h_j (n_act,)`` N m compensating the observed
+        disturbance) within the effort limits ``l, u``; the box ``lb, ub (nx,)``: a corner more than
+        ``CORNER_UP`` above the ground (or of the released right sole) carries no force, and the joint
+        position limits as acceleration bounds. Returns ``(Aeq, C, l, u, lb, ub, At, h_j)``."""
+        lay = self.lay
+        n_act, jv, effort, n_fr = lay.n_act, lay.jv, lay.effort, self.n_fr
+        Aeq = np.hstack([M[lay.base_rows], -Jc[:, lay.base_rows].T])
+        At = np.hstack([M[jv], -Jc[:, jv].T])  # torques u = B^T (M vdot + h - Jc^T f)
+        Cm = self.C.copy()
+        Cm[:n_act] = At
+        l, u = self.l_in.copy(), self.u_in.copy()
+        hj = h[jv] - w_hat  # the command compensates the observed disturbance: u = At x + h_j - w_hat
+        l[:n_act], u[:n_act] = -effort - hj, effort - hj
+        # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
+        up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
+        if single:
+            up[4:] = True   # the released right sole carries nothing
+        l[n_act + n_fr:] = np.where(up, -np.inf, 0.0)  # a lifted corner: no share of its sole's load
+        lb, ub = -self.inf_x, self.inf_x.copy()
+        lb[self.fz], ub[self.fz] = FZ_MIN * ~up, np.where(up, 0.0, FZ_MAX)
+        if LIMIT_MARGIN is not None:  # joint position limits as acceleration bounds
+            a_hi = KP_LIMIT * (lay.upper_q - LIMIT_MARGIN - qj) - KD_LIMIT * vj
+            a_lo = KP_LIMIT * (lay.lower_q + LIMIT_MARGIN - qj) - KD_LIMIT * vj
+            lb[lay.joint_v], ub[lay.joint_v] = np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi)
+        return Aeq, Cm, l, u, lb, ub, At, hj
+
+    def program(self, t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[QPData, tuple]:
+        """The program of one update at time ``t`` s and state ``(q (nq,), v (nv,))``, and the torque map
+        ``(At (n_act, nx), h_j (n_act,))`` (``u = At x + h_j``). ``obs``: the disturbance observer's data
+        ``(v_prev, dt, tau_contact, u_prev)`` (the last update's velocities and command, the time since,
+        the plant's generalized contact forces)."""
+        lay, kV = self.lay, self.kV
+        plant, ctx, world = lay.plant, lay.ctx, lay.world
+        plant.SetPositions(ctx, q)
+        plant.SetVelocities(ctx, v)
+        M = plant.CalcMassMatrix(ctx)
+        h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
+        qj, vj = q[lay.joint_idx], v[lay.joint_v]
+        w_hat = self._observed_torque(M, h, v, qj, obs)
+        self.observed.append(w_hat)
+        poses = [fr.CalcPoseInWorld(ctx) for fr in lay.frames]
+        if not self.sole_ref:
+            self._first_call(poses)
+        Js, bs, Jc, sole_err, zc = self._soles(poses)
+        Jcom = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, kV, world, world)
+        bcom = plant.CalcBiasCenterOfMassTranslationalAcceleration(ctx, kV, world, world)
+        com = plant.CalcCenterOfMassPositionInWorld(ctx)
+        (q_r, v_r, a_r), cog_ref, frame_refs = self.ref.at(t)
+        single = self._single_support(t, com)
+        c_r, cd_r, cdd_r = self._cog_reference(cog_ref, single)
+        a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
+        a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
+        J, a, w = self._task_rows(v, (Jcom, a_com - bcom, self.w_cog), frame_refs, Js, bs, sole_err, single)
+        H, g = self._cost(J, a, w, a_joint)
+        Aeq, Cm, l, u, lb, ub, At, hj = self._bounds(M, h, Jc, w_hat, zc, qj, vj, single)
+        return QPData(H, g, Aeq, -h[lay.base_rows], Cm, l, u, lb, ub), (At, hj)
+
+    def solve(self, t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """One QP at time ``t`` and state ``(q, v)`` (``obs``: the observer's data, see ``program``): actuation
+        ``(n_act,)`` N m, corner forces ``(8, 3)`` N, success."""
+        lay = self.lay
+        joint_v = lay.joint_v
+        d, (At, hj) = self.program(t, q, v, obs)
+        xs, ok, status = self.solver.solve(d)
+        if not ok and LIMIT_MARGIN is not None:
+            # a joint-limit bound that asks for an acceleration (a joint moving towards its limit) may ask more than
+            # the joint's torque can give (a hand whose 0.29 N m the noise saturates): the program again without
+            # such bounds (the limits then left to the plant's), without any if that does not suffice
+            self.relaxed.append(t)
+            lb, ub = d.lb[joint_v], d.ub[joint_v]
+            asking = (lb > 0) | (ub < 0)
+            d.lb[joint_v], d.ub[joint_v] = np.where(asking, -np.inf, lb), np.where(asking, np.inf, ub)
+            xs, ok, status = self.solver.solve(d)
+            if not ok:
+                d.lb[joint_v], d.ub[joint_v] = -np.inf, np.inf
+                xs, ok, status = self.solver.solve(d)
+        if not ok:
+            self.failed.append((t, status))
+            return np.zeros(lay.n_act), np.full((lay.nc, 3), np.nan), False
+        u = At @ xs + hj
+        return np.clip(u, -lay.effort, lay.effort), xs[lay.nv:].reshape(lay.nc, 3), True
+
+
+def _leaf_system(program: StabilizerProgram, period: float):
+    """The Drake ``LeafSystem`` around ``program``: one program every ``period`` s (discrete state: the held
+    command ``(n_act,)`` N m), its output the command plus the torque noise of its ``w`` input, clamped."""
+    from pydrake.systems.framework import BasicVector, LeafSystem
+
+    lay = program.lay
+    nq, nv, n_act, effort = lay.nq, lay.nv, lay.n_act, lay.effort
 
     class Stabilizer(LeafSystem):
         """Task-space inverse dynamics (module docstring), one QP per ``period``."""
@@ -487,8 +695,8 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
             self.DeclareVectorOutputPort("u", BasicVector(n_act), self._output,
                                          {self.xd_ticket(), self.noise_port.ticket()})
             self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
-            self.last_f = np.zeros((nc, 3))
-            self.released = released   # [time of the right sole's release] in single support, else []
+            self.last_f = np.zeros((lay.nc, 3))
+            self.released = program.released   # [time of the right sole's release] in single support, else []
 
         def _output(self, context, output):
             u = context.get_discrete_state_vector().CopyToVector()
@@ -496,15 +704,20 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
                 u = np.clip(u + self.noise_port.Eval(context), -effort, effort)
             output.SetFromVector(u)
 
+        def _fallen(self, t: float, xs: np.ndarray) -> bool:
+            """Whether the robot is (or was) found fallen: the torso more than ``LIMP_TILT`` from upright."""
+            qw, qx, qy, qz = xs[:4]  # the floating base's (the torso's) orientation
+            if self.limp is not None or 1.0 - 2.0 * (qx * qx + qy * qy) < np.cos(LIMP_TILT):
+                if self.limp is None:
+                    self.limp = t
+                return True
+            return False
+
         def _update(self, context, discrete_state):
             t0 = time.perf_counter()
             xs = self.state_port.Eval(context)
             t, v = context.get_time(), xs[nq:]
-            qw, qx, qy, qz = xs[:4]  # the floating base's (the torso's) orientation
-            if self.limp is not None or 1.0 - 2.0 * (qx * qx + qy * qy) < np.cos(LIMP_TILT):
-                # fallen: the torso more than LIMP_TILT from upright; the robot goes limp (no more programs)
-                if self.limp is None:
-                    self.limp = t
+            if self._fallen(t, xs):  # limp: zero torques, no more programs
                 discrete_state.get_mutable_vector().SetFromVector(np.zeros(n_act))
                 self.commands.append((t, np.zeros(n_act)))
                 return
@@ -512,7 +725,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
             if DISTURBANCE_OBSERVER and self.previous is not None and self.contact_port.HasValue(context):
                 t_prev, v_prev, u_prev = self.previous
                 obs = (v_prev, t - t_prev, self.contact_port.Eval(context), u_prev)
-            u, f, ok = solve(t, xs[:nq], v, obs)
+            u, f, ok = program.solve(t, xs[:nq], v, obs)
             if ok:
                 discrete_state.get_mutable_vector().SetFromVector(u)
                 self.last_f = f
@@ -522,166 +735,29 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
             self.log.append((t, time.perf_counter() - t0, f, ok))
             self.commands.append((t, discrete_state.get_vector().CopyToVector()))
 
-    failed: list = []  # (time s, the solver's status) of every failed program
-    observed: list = []  # the observer's disturbance estimate (n_act,) N m per update (zeros without it)
-    # each actuator's joint in the order of free.joint_idx (the tree joints' positions)
-    act_joint = np.array([list(free.joint_vidx).index(j) for j in jv])
-    relaxed: list = []  # times (s) of the programs solved again without the joint-limit bounds
-    support: list = []  # (A, b) of the support polygon shrunk by COG_MARGIN (world xy), at the first call
-    sole_ref: list = []  # the soles' poses (R (3, 3), p (3,)) at the first update, laid flat on the ground
+    return Stabilizer()
 
-    def first_call(poses) -> None:
-        """The soles' reference poses (at the first update, laid flat: roll and pitch 0, z 0) and the
-        support polygons (both soles', the left sole's) shrunk by ``COG_MARGIN``."""
-        from pydrake.math import RollPitchYaw
-        from scipy.spatial import ConvexHull
 
-        for X in poses:
-            yaw = RollPitchYaw(X.rotation()).yaw_angle()
-            sole_ref.append((RollPitchYaw(0.0, 0.0, yaw).ToRotationMatrix().matrix(),
-                             np.r_[X.translation()[:2], 0.0]))
-        pts = np.vstack([(R @ corners)[:2].T + p[:2] for R, p in sole_ref])
-        eqs = ConvexHull(pts).equations  # a . p + b <= 0 inside, |a| = 1
-        support.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN])
-        R, p = sole_ref[0]
-        eqs = ConvexHull((R @ corners)[:2].T + p[:2]).equations
-        left_only.extend([eqs[:, :2], -eqs[:, 2] - COG_MARGIN, -eqs[:, 2]])
-
-    def program(t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[QPData, np.ndarray]:
-        """The program of one update at time ``t`` and state ``(q, v)``, and the torque map ``(At, h_j)``
-        (``u = At x + h_j``). ``obs``: the disturbance observer's data ``(v_prev, dt, tau_contact, u_prev)``
-        (the last update's velocities and command, the time since, the plant's generalized contact forces)."""
-        plant.SetPositions(ctx, q)
-        plant.SetVelocities(ctx, v)
-        M = plant.CalcMassMatrix(ctx)
-        h = plant.CalcBiasTerm(ctx) - plant.CalcGravityGeneralizedForces(ctx)
-        qj, vj = q[free.joint_idx], v[joint_v]
-        w_hat = np.zeros(n_act)
-        if obs is not None and obs[1] > 0:
-            # the joint torque the model does not explain over the last period: M (v - v_prev)/dt + h - tau_c - u_prev;
-            # none for a joint within LIMIT_MARGIN of a limit (there the plant's limit force acts, not a disturbance)
-            v_prev, dt_obs, tau_c, u_prev = obs
-            w_hat = np.clip((M @ ((v - v_prev) / dt_obs) + h - tau_c)[jv] - u_prev, -effort, effort)
-            near = (qj <= lower_q + LIMIT_MARGIN_OBS) | (qj >= upper_q - LIMIT_MARGIN_OBS)
-            w_hat[near[act_joint]] = 0.0
-        observed.append(w_hat)
-        poses = [fr.CalcPoseInWorld(ctx) for fr in frames]
-        if not sole_ref:
-            first_call(poses)
-        Js = np.vstack([plant.CalcJacobianSpatialVelocity(ctx, kV, fr, origin, world, world)
-                        for fr in frames])  # (12, nv): per sole (angular, translational) at its origin
-        bs = np.concatenate([plant.CalcBiasSpatialAcceleration(ctx, kV, fr, origin, world, world).get_coeffs()
-                             for fr in frames])
-        # each corner's translational Jacobian from its sole's spatial one: v_c = v_o + w x r = Jv - [r]x Jw
-        Jc = np.empty((nf, nv))
-        sole_err = np.empty(12)
-        zc = np.empty(nc)
-        for s_, X in enumerate(poses):
-            R, p = X.rotation().matrix(), X.translation()
-            r = R @ corners  # (3, 4) world offsets of the corners
-            zc[4 * s_:4 * s_ + 4] = r[2] + p[2]
-            Jw, Jv = Js[6 * s_:6 * s_ + 3], Js[6 * s_ + 3:6 * s_ + 6]
-            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (4, 1) each
-            Jc_s = Jc[12 * s_:12 * s_ + 12].reshape(4, 3, nv)          # (corner, xyz, nv), a view of Jc
-            Jc_s[:, 0] = Jv[0] - (ry * Jw[2] - rz * Jw[1])
-            Jc_s[:, 1] = Jv[1] - (rz * Jw[0] - rx * Jw[2])
-            Jc_s[:, 2] = Jv[2] - (rx * Jw[1] - ry * Jw[0])
-            R_ref, p_ref = sole_ref[s_]
-            sole_err[6 * s_:6 * s_ + 3] = rotation_log(R @ R_ref.T)
-            sole_err[6 * s_ + 3:6 * s_ + 6] = p - p_ref
-        Jcom = plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, kV, world, world)
-        bcom = plant.CalcBiasCenterOfMassTranslationalAcceleration(ctx, kV, world, world)
-        com = plant.CalcCenterOfMassPositionInWorld(ctx)
-        (q_r, v_r, a_r), (c_r, cd_r, cdd_r), frame_refs = ref.at(t)
-        if swing is not None and not released and t >= RELEASE_EARLIEST - 1e-9:
-            if np.min(left_only[2] - left_only[0] @ com[:2]) >= RELEASE_MARGIN:  # the CoG is over the left sole
-                released.append(t)
-        single = bool(released)
-        polygon = (left_only[0], left_only[1]) if single else support
-        c_xy = clamp_to_polygon(c_r[:2], *polygon)
-        if np.any(c_xy != c_r[:2]):  # the planned CoG too near an edge of the feet: held at the margin
-            c_r, cd_r, cdd_r = np.r_[c_xy, c_r[2]], np.r_[0.0, 0.0, cd_r[2]], np.r_[0.0, 0.0, cdd_r[2]]
-        else:  # its capture point (c + cdot / omega) too: the planned CoG velocity cut so that it stays inside
-            omega = np.sqrt(9.81 / max(c_r[2], 0.05))
-            xi = clamp_to_polygon(c_r[:2] + cd_r[:2] / omega, *polygon)
-            if np.any(xi != c_r[:2] + cd_r[:2] / omega):
-                cd_r = np.r_[omega * (xi - c_r[:2]), cd_r[2]]
-                cdd_r = np.r_[0.0, 0.0, cdd_r[2]]
-        a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
-        a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
-        # cost 0.5 x'Hx + g'x: the acceleration tasks as one weighted least-squares ||W^(1/2) (J vdot - a)||^2
-        rows_J, rows_a, rows_w = [Jcom], [a_com - bcom], [w_cog]
-        for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks[:len(tasks) if single else n_tasks], frame_refs):
-            Jp = plant.CalcJacobianTranslationalVelocity(ctx, kV, fr, pts, world, world)[rows]
-            bp = plant.CalcBiasTranslationalAcceleration(ctx, kV, fr, pts, world, world).T.reshape(-1)[rows]
-            p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
-            rows_J.append(Jp)
-            rows_a.append(pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v) - bp)
-            rows_w.append(W_FRAME * ones[:len(Jp)])
-        # the soles held (a heavy cost, not a constraint: a sole the compliant ground has let rise a
-        # little must not make the program infeasible); released: the left sole alone
-        held = slice(0, 6) if single else slice(0, 12)
-        Jh = Js[held]
-        rows_J.append(Jh)
-        rows_a.append(-bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held])
-        rows_w.append(W_CONTACT * ones[:Jh.shape[0]])
-        J, a, w = np.vstack(rows_J), np.concatenate(rows_a), np.concatenate(rows_w)
-        H = H0.copy()  # the constant part: joints, regularization
-        g = np.zeros(nx)
-        Jw_ = J * (2 * w)[:, None]
-        H[:nv, :nv] += J.T @ Jw_
-        g[:nv] = -Jw_.T @ a
-        g[joint_v] -= 2 * W_JOINT * a_joint
-        # equality: the floating base's dynamics (its six rows of the equations of motion)
-        Aeq = np.hstack([M[base_rows], -Jc[:, base_rows].T])
-        # torques: u = B^T (M vdot + h - Jc^T f) within the effort limits
-        At = np.hstack([M[jv], -Jc[:, jv].T])
-        Cm = C.copy()
-        Cm[:n_act] = At
-        l, u = l_in.copy(), u_in.copy()
-        hj = h[jv] - w_hat  # the command compensates the observed disturbance: u = At x + h_j - w_hat
-        l[:n_act], u[:n_act] = -effort - hj, effort - hj
-        # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
-        up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
-        if single:
-            up[4:] = True   # the released right sole carries nothing
-        l[n_act + len(Fr):] = np.where(up, -np.inf, 0.0)  # a lifted corner: no share of its sole's load
-        lb, ub = -inf_x, inf_x.copy()
-        lb[fz], ub[fz] = FZ_MIN * ~up, np.where(up, 0.0, FZ_MAX)
-        if LIMIT_MARGIN is not None:  # joint position limits as acceleration bounds
-            a_hi = KP_LIMIT * (upper_q - LIMIT_MARGIN - qj) - KD_LIMIT * vj
-            a_lo = KP_LIMIT * (lower_q + LIMIT_MARGIN - qj) - KD_LIMIT * vj
-            lb[joint_v], ub[joint_v] = np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi)
-        return QPData(H, g, Aeq, -h[base_rows], Cm, l, u, lb, ub), (At, hj)
-
-    def solve(t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[np.ndarray, np.ndarray, bool]:
-        """One QP at time ``t`` and state ``(q, v)`` (``obs``: the observer's data, see ``program``): actuation
-        ``(n_act,)`` N m, corner forces ``(8, 3)`` N, success."""
-        d, (At, hj) = program(t, q, v, obs)
-        xs, ok, status = solver.solve(d)
-        if not ok and LIMIT_MARGIN is not None:
-            # a joint-limit bound that asks for an acceleration (a joint moving towards its limit) may ask more than
-            # the joint's torque can give (measured: a hand whose 0.29 N m the noise saturates): the program again
-            # without such bounds (the limits then left to the plant's), without any if that does not suffice
-            relaxed.append(t)
-            lb, ub = d.lb[joint_v], d.ub[joint_v]
-            asking = (lb > 0) | (ub < 0)
-            d.lb[joint_v], d.ub[joint_v] = np.where(asking, -np.inf, lb), np.where(asking, np.inf, ub)
-            xs, ok, status = solver.solve(d)
-            if not ok:
-                d.lb[joint_v], d.ub[joint_v] = -np.inf, np.inf
-                xs, ok, status = solver.solve(d)
-        if not ok:
-            failed.append((t, status))
-            return np.zeros(n_act), np.full((nc, 3), np.nan), False
-        u = At @ xs + hj
-        return np.clip(u, -effort, effort), xs[nv:].reshape(nc, 3), True
-
-    system = Stabilizer()
-    system.solve = solve
-    system.program = program
-    system.failed = failed
-    system.relaxed = relaxed
-    system.observed = observed
-    system.qp = solver
+def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = None, X_task=None,
+                    frame_maps=(), swing=None):
+    """The stabilizer as a Drake ``LeafSystem``: input the free plant's state ``(nq + nv,)``, output
+    the actuation ``(26,)`` N m held for ``period`` s (discrete state, periodic update) plus the torque
+    noise of its second input (if connected or fixed), clamped at the effort limits. It tracks
+    the joints of ``X_plan (K, 2 n_q)``, and the CoG and the frame points of ``frame_maps``
+    (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
+    along the whole plan) of ``X_task`` (default ``X_plan``); ``swing``: the right sole's corners
+    (``FramePoints``) tracked once that sole is released (single support), else None. Its
+    attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
+    ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
+    ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests), ``solve``, ``failed``,
+    ``relaxed``, ``observed`` and ``qp`` are :class:`StabilizerProgram`'s."""
+    period = CONTROL_PERIOD if period is None else period
+    program = StabilizerProgram(free, X_plan, dt, X_task, frame_maps, swing)
+    system = _leaf_system(program, period)
+    system.solve = program.solve
+    system.program = program.program
+    system.failed = program.failed
+    system.relaxed = program.relaxed
+    system.observed = program.observed
+    system.qp = program.solver
     return system

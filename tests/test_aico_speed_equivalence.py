@@ -1,4 +1,4 @@
-"""The optimized AICO / R-AICO sweeps equal a literal reference implementation (SPEC §6).
+"""The optimized AICO / R-AICO sweeps equal a literal reference implementation.
 
 ``planning.aico`` skips work that cannot change a result (relinearizing what does not
 depend on the state, recomputing unchanged beliefs and backward messages, shared LTI
@@ -71,7 +71,7 @@ def make_problem(dynamics: str = "pendulums", limits: bool = False) -> Problem:
 
 # -- the reference: Algorithm 1 from the formulas, nothing skipped --------------------------
 class Reference:
-    """AICO with dense solves (``n = n_x``, ``m = n_u``); messages in the SPEC §6 forms:
+    """AICO with dense solves (``n = n_x``, ``m = n_u``); messages in the moment forms of ``planning.aico``'s docstring:
     forward ``S^-1, S^-1 s``, backward ``V^-1, V^-1 v``, task ``R, r``."""
 
     def __init__(self, p: Problem, o: AICOOptions):

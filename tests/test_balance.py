@@ -1,4 +1,4 @@
-"""The balance-aware Nao objective (issue 19 item 2, ``stages.plan.balance``): the support term's
+"""The balance-aware Nao objective (``stages.plan.balance``): the support term's
 values, the polygon geometry, the infeasibility check of CoG via-points before planning, and
 ``raico plan --balance`` end to end. The term's derivatives against finite differences:
 ``tests/test_derivatives.py`` (the ``support_polygon`` and ``lower_bound`` examples)."""
@@ -115,7 +115,7 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
 
 def test_fig34_via_point_static_margins_from_the_model():
     """The thesis's +0.1 m CoG via-point (fig. 3.4): 5.5 cm beyond the stance sole's outer edge
-    with raico's posture, about 6 mm with the zero posture (issue 19)."""
+    with raico's posture, about 6 mm with the zero posture."""
     nao = shared_robot("nao")
     for q, want in ((nao.default_q, -0.0553), (np.zeros(nao.n_q), -0.0060)):
         c = CenterOfMass(nao).value(q)

@@ -537,7 +537,7 @@ def test_errors_one_line() -> None:
     assert str(MissingArtifact()) == "MissingArtifact"
 
 
-# --------------------------------------------------------------------------- package versions (issue 20 item 7)
+# --------------------------------------------------------------------------- package versions
 
 
 def _installed(monkeypatch: pytest.MonkeyPatch, **versions: str) -> None:

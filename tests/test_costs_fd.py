@@ -1,4 +1,4 @@
-"""Cost terms (SPEC §5): the Gauss-Newton model and task message, inactive steps, control
+"""Cost terms: the Gauss-Newton model and task message, inactive steps, control
 limits, the problem's sums. Every term class's gradient and Hessian against finite
 differences: ``tests/test_derivatives.py`` (``COST_TERM_EXAMPLES``)."""
 

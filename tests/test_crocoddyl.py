@@ -1,4 +1,4 @@
-"""The crocoddyl baseline builds raico's problems exactly (issue 8): same rollouts, same costs.
+"""The crocoddyl baseline builds raico's problems exactly: same rollouts, same costs.
 
 Skipped with a stated reason where crocoddyl is not installed (the extra
 ``raico[baseline]``, which ``make install`` and so ``make test`` install; ``tests/test_install.py``

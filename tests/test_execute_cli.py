@@ -1,4 +1,4 @@
-"""``raico execute`` with noise on the free-standing Nao (issue 9): seeds give different rollouts and
+"""``raico execute`` with noise on the free-standing Nao: seeds give different rollouts and
 a status each; the recording shows the status, contacts, support polygon and CoG marker."""
 
 import json

@@ -1,4 +1,4 @@
-"""Execution on the free-standing Nao and on the discrete arm (issue 9): standing, falling, limits,
+"""Execution on the free-standing Nao and on the discrete arm: standing, falling, limits,
 diverged plans, statuses (real Drake, small horizons)."""
 
 import math

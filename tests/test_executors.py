@@ -240,7 +240,7 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
 
 
 def test_call_line_compares_a_complete_call_with_the_reproduce_target():
-    """SPEC §13: a call over every figure from an empty cache is held against the 600 s target (met, or missed by
+    """A call over every figure from an empty cache is held against the 600 s target (met, or missed by
     how much); any other call (some figures, a warm cache) gets no verdict."""
     from pipeline.reproduce import REPRODUCE_TARGET_S, call_line
 

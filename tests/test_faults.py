@@ -1,4 +1,4 @@
-"""Faults and bad input (SPEC §12, issue 10): signals and child processes, tamper-evident entries,
+"""Faults and bad input: signals and child processes, tamper-evident entries,
 atomic report files, OS errors as one line, bounded inputs, SIGKILL / corruption / concurrency per
 stage. Real processes where the fault is about processes; injected OS errors where the machine
 cannot produce them on demand (a full disk, a read-only folder for root).
@@ -598,7 +598,7 @@ DATA = {"babble": "data.npz", "fit": "model.npz", "plan": "plan.npz", "execute":
         "evaluate": "evaluation.json"}
 CASES = [("babble", "truncated data file"), ("fit", "emptied file list"), ("plan", "edited meta.json"),
          ("execute", "truncated meta.json"), ("evaluate", "deleted data file")]  # every stage, every kind
-CASES += [(stage, "byte flipped in a data file (same size)") for stage in DATA]  # issue 21: each stage's data file
+CASES += [(stage, "byte flipped in a data file (same size)") for stage in DATA]  # each stage's data file
 CASES += [("plan", "byte flipped, mtime put back")]  # size and mtime as recorded: the ctime still moved
 
 
@@ -635,7 +635,7 @@ def test_corrupted_entry_is_detected_said_and_recomputed(helper, stage, kind):
     assert runner.run(cache, stage, cfg, record=False).cached and tmp_folders(root) == []
 
 
-# ============================================================================= 6. integrity of inputs, recordings (issue 21)
+# ============================================================================= 6. integrity of inputs, recordings
 SHA = r"\(sha256 [0-9a-f]{12}…, recorded [0-9a-f]{12}…\)"
 
 
@@ -798,7 +798,7 @@ def _sigkill_and_time_the_pipes(proc: subprocess.Popen, seen: dict[int, str]) ->
 
 @linux_only
 def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp_path):
-    """The acceptance check of issue 21: ``raico reproduce --figure fig3.2a --quick`` SIGKILLed while its
+    """``raico reproduce --figure fig3.2a --quick`` SIGKILLed while its
     workers compute, then (the next call, from the cache) while the headless viewer renders the report's
     screenshots: each time the caller's pipes close within 2 s (the viewer's output never went to them)
     and no process of the run is left running; the finished runs stay cached."""

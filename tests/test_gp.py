@@ -63,6 +63,20 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
 
 
+def central_differences(model, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean's and the latent variance's input gradients ``(M, D, d)`` at ``Xq (M, d)`` by central
+    differences of ``model.predict`` (step ``1e-5`` of each input's scale)."""
+    M, D, d = len(Xq), model.D, model.d
+    fd_m, fd_v = np.empty((M, D, d)), np.empty((M, D, d))
+    for c in range(d):
+        h = 1e-5 * model.x_std[c]
+        E = np.zeros_like(Xq)
+        E[:, c] = h
+        (mp, vp), (mm, vm) = model.predict(Xq + E), model.predict(Xq - E)
+        fd_m[:, :, c], fd_v[:, :, c] = (mp - mm) / (2 * h), (vp - vm) / (2 * h)
+    return fd_m, fd_v
+
+
 # -- agreement with scikit-learn -----------------------------------------------------------
 def test_predictions_equal_sklearn(fitted_toy):
     model, info = fitted_toy
@@ -169,13 +183,7 @@ def test_gradients_match_central_differences():
     assert np.all(var > 0)
     m1, dm1 = model.mean_with_gradients(Xq)
     assert np.array_equal(dm1, dmean) and np.allclose(m1, mean, rtol=1e-14)
-    fd_m, fd_v = np.empty_like(dmean), np.empty_like(dvar)
-    for c in range(model.d):
-        h = 1e-5 * model.x_std[c]
-        E = np.zeros_like(Xq)
-        E[:, c] = h
-        (mp, vp), (mm, vm) = model.predict(Xq + E), model.predict(Xq - E)
-        fd_m[:, :, c], fd_v[:, :, c] = (mp - mm) / (2 * h), (vp - vm) / (2 * h)
+    fd_m, fd_v = central_differences(model, Xq)
     for j in range(model.D):
         assert _rel(dmean[:, j], fd_m[:, j]) < 1e-6
         assert _rel(dvar[:, j], fd_v[:, j]) < 1e-6

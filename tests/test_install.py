@@ -1,4 +1,4 @@
-"""The environment is the one pyproject.toml describes (issue 20): ``pip check`` is clean (every
+"""The environment is the one pyproject.toml describes: ``pip check`` is clean (every
 installed package's declared requirements hold, crocoddyl's example-robot-data included), and the
 pinned dependencies and the crocoddyl baseline (the ``baseline`` extra, which ``make install``
 installs) are installed at their pinned versions. CI (``make test``) fails on an inconsistent

@@ -9,7 +9,7 @@
   AutoDiffXd (``AnalyticDynamics``) and finite differences;
 - the tree kernels (forward kinematics, Jacobians, mass matrix, inverse dynamics and its
   derivatives) against Drake; the compiled task maps and task messages against Drake's;
-- that the kernel cannot vanish silently (issue 20): no skip when the library is missing (a
+- that the kernel cannot vanish silently: no skip when the library is missing (a
   missing kernel fails here), the aico runs of this file take the compiled path, a source that
   gcc rejects raises, the source ships as package data, and the build flags match this CPU.
 """

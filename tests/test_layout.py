@@ -1,4 +1,4 @@
-"""The layout (issue 20, item 1's acceptance): the floors hold and no module imports itself back.
+"""The layout: the floors hold and no module imports itself back.
 
 The imports of the packages ``plants``, ``planning``, ``stages`` and ``pipeline`` are read with ``ast`` (nothing
 is imported), every ``import`` statement counted, the ones inside functions too (a lazy import
@@ -9,7 +9,7 @@ still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out)
 - no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl_model``);
 - no import cycle between modules;
 - no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
-  beyond :data:`KNOWN_PACKAGE_LOOPS` (none since the planner moved to ``planning``, issue 20 item 1);
+  beyond :data:`KNOWN_PACKAGE_LOOPS` (none since the planner moved to ``planning``);
   a loop that is gone must leave the list.
 
 Run it alone: ``python -m pytest tests/test_layout.py``.
@@ -209,7 +209,7 @@ C_FUNCTION = __import__("re").compile(r"\b(?:static\s+)?(?:void|int|double|long)
 
 
 def test_c_lives_in_c_files_shipped_as_package_data():
-    """Issue 20 item 3: no C source inside a Python string (C tooling and the duplicate checks see
+    """No C source inside a Python string (C tooling and the duplicate checks see
     every line); every .c file beside the module that compiles it is package data of its package."""
     import ast
     import fnmatch

@@ -37,7 +37,7 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     assert len(lines) == 2 and all(("task achieved]" in ln) != ("task missed]" in ln) for ln in lines), err
     assert all(("task achieved]" in ln) == a for ln, a in zip(lines, m["achieved"]))
     assert m["episodes"] == 2 and len(m["gp_error"]) == len(m["task_error"]) == len(m["fit_time_s"]) == 2
-    # issue 17: the GP scored on a fixed held-out babbling set too (never trained on), per joint normalized;
+    # the GP scored on a fixed held-out babbling set too (never trained on), per joint normalized;
     # how much of each execution fed the data
     assert all(0 < e < float("inf") for e in m["gp_error_heldout"])
     assert len(m["gp_nrmse_joint"][0]) == len(m["gp_nrmse_heldout_joint"][0]) == 1
@@ -60,7 +60,7 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     def rows(entity, timeline):
         return sum(c.num_rows for c in chunks if c.entity_path == entity and timeline in c.timeline_names)
 
-    # one view per quantity (issue 17): GP error per joint (log10), distance planned and executed, times, points
+    # one view per quantity: GP error per joint (log10), distance planned and executed, times, points
     assert rows("/gp_error_log10", "episode") == 2 and rows("/gp_error_heldout_log10", "episode") == 2
     assert rows("/distance/executed_angle_from_upright_rad", "episode") == rows("/distance/planned", "episode") == 2
     assert rows("/time/fit", "episode") == rows("/time/execute", "episode") == 2
@@ -112,7 +112,7 @@ def test_killed_learn_resumes_without_recomputing_finished_episodes(tmp_path):
 
 
 def test_babbling_pace_and_plant_defaults(tmp_path):
-    """Issue 17: one random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
+    """One random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
     the plant's default, resolved before the key (one cache entry per meaning)."""
     from pipeline.cache import Cache
     from pipeline.runner import run_key
@@ -166,7 +166,7 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
     assert "X_init" not in seen["ilqg"]
     assert replace(cfg, solver="ilqg").normalized().warm_from == "controls"  # one key per meaning
     assert replace(cfg, warm_start=None).normalized().warm_from == "controls"
-    # issue 18: R-AICO from the zero-control rollout (FDDP's other start) instead of x0 held
+    # R-AICO from the zero-control rollout (FDDP's other start) instead of x0 held
     plan_stage.plan(replace(cfg, warm_start=None, start="rollout").normalized())
     assert "X_init" not in seen["raico"] and not seen["raico"]["U_init"].any()
     plan_stage.plan(replace(cfg, warm_start=None).normalized())
@@ -177,7 +177,7 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
 
 
 def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
-    """Issue 17: a BioRob planned on a GP of 15 babbling samples loses tracking; only the steps
+    """A BioRob planned on a GP of 15 babbling samples loses tracking; only the steps
     before its failure time join the next fit (every 20th), flagged and counted."""
     import math
 
@@ -203,7 +203,7 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
 
 
 def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypatch):
-    """Issue 20 item 2: ``learn`` is a registered stage (its recorder with the others); its code version
+    """``learn`` is a registered stage (its recorder with the others); its code version
     joins its steps', so editing the plan stage's code gives it another key; its steps are only the
     stages it names."""
     import dataclasses

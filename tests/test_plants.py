@@ -1,4 +1,4 @@
-"""Plants (SPEC §3), dynamics (§4) and task maps (§5) against facts and Drake; the dynamics
+"""Plants, dynamics and task maps against facts and Drake; the dynamics
 registry and the import graph of ``plants``. Derivatives against finite differences:
 ``tests/test_derivatives.py`` (every registered model and task map)."""
 
@@ -141,7 +141,7 @@ def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
 
 
 def test_roll_couples_with_the_reach():
-    """Issue 18: arm5's roll is no single joint's angle. With a roll axis between two pitch axes (forearm roll,
+    """arm5's roll is no single joint's angle. With a roll axis between two pitch axes (forearm roll,
     then wrist pitch) the hand's roll about its own axis moves with the shoulder, elbow, forearm roll and wrist,
     and turning the forearm moves the end effector too; the zero posture is the thesis's initial pose x2."""
     r = shared_robot("arm5")
@@ -255,7 +255,7 @@ def test_plants_has_no_import_cycle():
 
 
 def test_biorob_actuator_facts_reach_drake():
-    """Issue 17: the BioRob-like arm's reflected motor inertia reaches Drake and no joint damping does. At
+    """The BioRob-like arm's reflected motor inertia reaches Drake and no joint damping does. At
     q = 0 (the arm stretched along +x) the wrist roll's axis is the hand's own axis, its centre of mass
     lies on it and its inertia is diagonal, so 1 N m there accelerates the roll alone, by hand:
     1 / (0.5 m r^2 + reflected inertia), rad/s^2, at any roll velocity (no damping)."""

@@ -1,4 +1,4 @@
-"""Acceptance tests of the solvers on linear-quadratic problems (SPEC §6).
+"""Acceptance tests of the solvers on linear-quadratic problems.
 
 The reference is computed here, independently of the solvers: the equality-constrained
 QP over (x_0..x_T, u_0..u_{T-1}) solved through its KKT system, and a textbook
@@ -115,7 +115,7 @@ def test_reference_is_the_optimum(lq):
 
 def test_ilqg_equals_exact_solution(lq):
     pb, X, U, K = lq
-    res = ilqg(pb, ILQGOptions())                       # SPEC stopping rules
+    res = ilqg(pb, ILQGOptions())                       # the default stopping rules
     assert res.status == "converged", res.message
     assert np.max(np.abs(res.X - X)) < 3e-8
     assert np.max(np.abs(res.U - U)) < 3e-8

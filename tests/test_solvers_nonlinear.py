@@ -1,4 +1,4 @@
-"""Solvers on a nonlinear problem, faults, and options (SPEC §6, §12).
+"""Solvers on a nonlinear problem, faults, and options.
 
 Plant: a 3-link planar arm under the thesis's pseudo-dynamics (controls are joint
 accelerations) with an end-effector via-point at mid-horizon and a return to the start

@@ -1,4 +1,4 @@
-"""Sparse GP (FITC, plants.gp.SparseGPModel; issue 17): against the exact GP, derivatives by central
+"""Sparse GP (FITC, plants.gp.SparseGPModel): against the exact GP, derivatives by central
 differences, storage, updates, and its options on raico fit / raico learn (bad input: one line)."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pipeline.cli import app
 from plants.gp import SELECT_TOL, GPModel, SparseGPModel, select_inducing
 from plants.learned import build_learned
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse
-from tests.test_gp import _rel, pendulum_data, toy_data, toy_model
+from tests.test_gp import _rel, central_differences, pendulum_data, toy_data, toy_model
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -74,13 +74,7 @@ def test_sparse_gradients_match_central_differences():
     assert _rel(mean, m0) < 1e-12 and _rel(var, v0) < 1e-12 and np.all(var > 0)
     m1, dm1 = model.mean_with_gradients(Xq)
     assert np.array_equal(dm1, dmean)
-    fd_m, fd_v = np.empty_like(dmean), np.empty_like(dvar)
-    for c in range(model.d):
-        h = 1e-5 * model.x_std[c]
-        E = np.zeros_like(Xq)
-        E[:, c] = h
-        (mp, vp), (mm, vm) = model.predict(Xq + E), model.predict(Xq - E)
-        fd_m[:, :, c], fd_v[:, :, c] = (mp - mm) / (2 * h), (vp - vm) / (2 * h)
+    fd_m, fd_v = central_differences(model, Xq)
     for j in range(model.D):
         assert _rel(dmean[:, j], fd_m[:, j]) < 1e-6 and _rel(dvar[:, j], fd_v[:, j]) < 1e-6
     assert np.max(np.abs(dvar)) > 0

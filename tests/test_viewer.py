@@ -1,4 +1,4 @@
-"""The Rerun viewer renders recordings headless (SPEC §9, pipeline/screenshots.py): one babble recording
+"""The Rerun viewer renders recordings headless (pipeline/screenshots.py): one babble recording
 per plant shows the robot in frame; a plan recording opens on ``sim_time`` with its cost view drawn, and
 shows the robot in the same pose on the ``iteration`` timeline as at the end of the motion.
 
@@ -110,7 +110,7 @@ def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
     ("biorob", "reach", ["--alpha", 2, "--iterations", 5, "--babble-points", 100, "--restarts", 0]),
 ])
 def test_learn_recording_frames_the_robot_and_fills_its_views(tmp_path, plant, task, extra):
-    """Issue 17: a learn recording as opened (episode timeline, last episode): the robot in frame and
+    """A learn recording as opened (episode timeline, last episode): the robot in frame and
     the GP error, distance and time views drawn; the report renders it too."""
     line = _run("learn", "--plant", plant, "--task", task, "--episodes", 2, *extra, "--artifacts", tmp_path)
     views = {"robot": tmp_path / "robot.png", "distance to the target (m)": tmp_path / "distance.png",

@@ -1,4 +1,4 @@
-"""Start states that stand and the whole-body stabilizer (issue 19): the inverse-kinematics stance
+"""Start states that stand and the whole-body stabilizer: the inverse-kinematics stance
 projection, a standing Nao under the stabilizer, the QP's contact forces, the CLI options
 (real Drake, small horizons)."""
 
@@ -158,7 +158,7 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
 
 
 def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
-    """Issue 19's pipeline side: a figure marked ``stabilized`` executes each executed variant's plan twice,
+    """A figure marked ``stabilized`` executes each executed variant's plan twice,
     with the joint PD from the plan's start (the thesis rows) and with the stabilizer from the standing start;
     the thesis-set execution claims read the PD runs only, the stabilizer's claim its own."""
     from pipeline.cache import Cache

@@ -1,4 +1,4 @@
-"""Drake's equations of motion compiled to vectorized numpy (the fast analytic route, SPEC §4).
+"""Drake's equations of motion compiled to vectorized numpy (the fast analytic route).
 
 - :mod:`plants.codegen.graph`: a hash-consed DAG of scalar operations, simplification and
   forward-mode derivatives;

@@ -1,10 +1,10 @@
-"""Evaluation metrics of one run, shared by the plan, execute and evaluate stages (SPEC §8).
+"""Evaluation metrics of one run, shared by the plan, execute and evaluate stages.
 
 Via-point errors of a trajectory against its objective; execution metrics of a rollout:
 its status, tracking, limits and, for the free-standing Nao, the CoG against the support
 polygon of the sole corners that are in contact.
 
-Execution status (SPEC §12, §14), first that applies:
+Execution status, first that applies:
 
 - ``diverged``: a non-finite state, or the simulator failed (the execute stage also marks the
   execution of a diverged plan so, and does not execute a plan that is not finite);
@@ -280,7 +280,7 @@ def cog_via_point_margins(problem, poly: np.ndarray) -> dict[str, float]:
     return out
 
 
-LIFT = 0.02  # m, single support: the right sole's lowest corner at least this high (issue 19's target)
+LIFT = 0.02  # m, single support: the right sole's lowest corner at least this high to count as lifted
 
 
 def single_support_lift(corners: np.ndarray, lift_from: int) -> dict:

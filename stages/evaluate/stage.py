@@ -1,4 +1,4 @@
-"""The evaluate stage (SPEC §8): one run's metrics from its plan and, optionally, its rollout.
+"""The evaluate stage: one run's metrics from its plan and, optionally, its rollout.
 
 ``evaluation.json``: final cost, via-point errors, iterations, iterations to a 0.1% relative
 cost change, wall time and, with a rollout, the executed via-point errors and the

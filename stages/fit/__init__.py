@@ -1,4 +1,4 @@
-"""Fit stage (SPEC §7): GP hyperparameters by maximum marginal likelihood (library part in ``gp_fit``)."""
+"""Fit stage: GP hyperparameters by maximum marginal likelihood (library part in ``gp_fit``)."""
 
 from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, rmse, subsample_indices
 

@@ -1,4 +1,4 @@
-"""GP hyperparameter fitting (SPEC §7, thesis §4.2): type-II maximum likelihood, posterior in ``plants.gp``.
+"""GP hyperparameter fitting (thesis §4.2): type-II maximum likelihood, posterior in ``plants.gp``.
 
 Per output dimension, the log marginal likelihood of the kernel
 ``sf2 * exp(-|z - z'|^2_ell / 2) + sn2 * delta`` (scikit-learn's
@@ -51,7 +51,7 @@ from scipy.linalg import lapack
 from scipy.optimize import minimize
 
 from plants._threads import map_outputs
-from plants.gp import NOISE_FLOOR, GPModel, SparseGPModel, column_std
+from plants.gp import NOISE_FLOOR, GPBase, GPModel, SparseGPModel, column_std
 
 LENGTH_SCALE_BOUNDS = (1e-2, 1e3)  # standardized input units
 SIGNAL_BOUNDS = (1e-3, 1e3)  # sf2, standardized output units
@@ -163,7 +163,7 @@ def _at_bounds(theta: np.ndarray, bounds: np.ndarray, j: int) -> list[str]:
 
 def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
            noise_floor: float = NOISE_FLOOR, max_points: int | None = None,
-           start: GPModel | None = None) -> tuple[GPModel, dict]:
+           start: GPBase | None = None) -> tuple[GPModel, dict]:
     """Fit one GP per output of ``Y (N, D)`` on inputs ``X (N, d)`` (physical units) -> ``(GPModel, info)``.
 
     ``max_points`` caps the training set (``subsample_indices``). ``start``: a model of the same
@@ -186,7 +186,7 @@ def fit_gp(X: np.ndarray, Y: np.ndarray, *, restarts: int = 2, seed: int = 0,
 
 
 def optimize_hyperparameters(Z: np.ndarray, y: np.ndarray, *, restarts: int, seed: int, noise_floor: float,
-                             start: GPModel | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list, list]:
+                             start: GPBase | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list, list]:
     """Type-II ML hyperparameters of each output of standardized ``y (N, D)`` on standardized
     ``Z (N, d)``: ``(ell (D, d), sf2 (D,), sn2 (D,), fit times (s) per output, bound warnings)``.
     Starts: ``start``'s hyperparameters (or the kernel's initial point), then ``restarts`` seeded
@@ -216,7 +216,7 @@ def optimize_hyperparameters(Z: np.ndarray, y: np.ndarray, *, restarts: int, see
 
 def fit_sparse_gp(X: np.ndarray, Y: np.ndarray, *, inducing: int, restarts: int = 2, seed: int = 0,
                   noise_floor: float = NOISE_FLOOR, max_points: int | None = None,
-                  start: GPModel | None = None) -> tuple[SparseGPModel, dict]:
+                  start: GPBase | None = None) -> tuple[SparseGPModel, dict]:
     """A sparse GP (FITC, ``plants.gp.SparseGPModel``) on ``X (N, d)``, ``Y (N, D)`` (physical) with
     ``inducing`` inducing points -> ``(SparseGPModel, info)``, ``info`` as :func:`fit_gp`'s plus
     ``n_inducing`` and ``n_hyper`` (points the hyperparameters were optimized on).
@@ -244,7 +244,7 @@ def fit_sparse_gp(X: np.ndarray, Y: np.ndarray, *, inducing: int, restarts: int 
     return model, info
 
 
-def refit_fixed(model: GPModel, X: np.ndarray, Y: np.ndarray) -> GPModel:
+def refit_fixed(model: GPBase, X: np.ndarray, Y: np.ndarray) -> GPBase:
     """A new model of ``model``'s kind on ``X (N, d)``, ``Y (N, D)`` with its hyperparameters and scaling,
     factorized from scratch (a sparse model selects its inducing inputs again, up to ``m_requested``)."""
     X, Y = _check_xy(X, Y)
@@ -285,7 +285,7 @@ def subsample_indices(X: np.ndarray, max_points: int, *, recent_fraction: float 
     return np.sort(np.concatenate([np.asarray(chosen, int), np.arange(n_old, N)]))
 
 
-def rmse(model: GPModel, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+def rmse(model: GPBase, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Root mean squared error ``(D,)`` of the GP mean on ``X (M, d)`` against ``Y (M, D)`` (physical units)."""
     mean, _ = model.predict(X)
     return np.sqrt(np.mean((mean - Y) ** 2, axis=0))

@@ -1,4 +1,4 @@
-"""The fit stage (SPEC §7, thesis §4.2): a GP model of ``qddot = f(q, qdot, u)`` from babbled or executed data.
+"""The fit stage (thesis §4.2): a GP model of ``qddot = f(q, qdot, u)`` from babbled or executed data.
 
 Data. ``--data`` names babble and execute artifacts; the training set is every point of them
 (every ``stride``-th sample of each time segment), in the order given. A babble artifact
@@ -17,7 +17,7 @@ samples, at least one sample stays for training) is held out: never trained on, 
 the held-out RMSE and the recording, where the held-out segments are laid end to end on one
 ``sim_time`` axis.
 
-Hyperparameter schedule (SPEC §7, thesis "1:1" and ">100"). Without ``--prior`` the
+Hyperparameter schedule (thesis "1:1" and ">100"). Without ``--prior`` the
 hyperparameters are optimized (``fit_gp``). With ``--prior`` (an earlier fit artifact whose
 data keys must all be among ``--data``; same plant, holdout and stride): ``every`` re-optimizes on all
 data, starting the optimizer at the prior's hyperparameters (then ``restarts`` random
@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants.gp import GPModel, SparseGPModel
+from plants.gp import GPBase, GPModel, SparseGPModel
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse, subsample_indices
 from stages.registry import DESCRIPTIONS
@@ -61,7 +61,7 @@ MODEL_FILE = "model.npz"
 HELDOUT_FILE = "heldout.npz"
 FIT_FILE = "fit.json"
 DATA_STAGES = ("babble", "execute")
-MIN_BATCH = 100  # SPEC §7: batch-N only with N >= 100
+MIN_BATCH = 100  # batch-N only with N >= 100 (the thesis's ">100")
 _BATCH = re.compile(r"batch-(\d+)")
 GP_KINDS = ("exact", "sparse")
 
@@ -78,7 +78,7 @@ class FitConfig(StageConfig):
                         "N points were added since the prior's last optimization, else adds them at fixed ones.",
             "restarts": "Random restarts of the likelihood optimizer (per output).",
             "seed": "Seed of the optimizer's restarts.",
-            "max_points": "Cap on the training points (older ones subsampled, SPEC 7).",
+            "max_points": "Cap on the training points (older ones subsampled).",
             "holdout": "Trailing fraction of every time segment held out for the error and the recording.",
             "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all).",
             "gp": "exact (the full GP) or sparse (FITC with --inducing points chosen among the training inputs by "
@@ -128,7 +128,7 @@ def batch_size(schedule: str) -> int | None:
         return None
     m = _BATCH.fullmatch(schedule or "")
     if m is None or not MIN_BATCH <= int(m.group(1)) <= 10**7:
-        raise ValueError(f"schedule must be 'every' or 'batch-N' with N in [{MIN_BATCH}, 1e7] (SPEC 7), "
+        raise ValueError(f"schedule must be 'every' or 'batch-N' with N in [{MIN_BATCH}, 1e7], "
                          f"got '{schedule}'")
     return int(m.group(1))
 
@@ -220,7 +220,7 @@ FAILED = ("tracking-lost", "fell", "diverged")  # executions whose data end wher
 def usable_steps(art: Artifact, dt: float, T: int) -> int:
     """Steps of an execution that may join the data: all ``T``, or those before its failure time
     when it lost tracking, fell or diverged (past that point the robot no longer follows a plan: a
-    real robot's safety stop; its data would teach the model a runaway, issue 17)."""
+    real robot's safety stop; its data would teach the model a runaway)."""
     t_fail = (art.metrics or {}).get("failure_time")
     if art.status not in FAILED or t_fail is None:
         return T
@@ -277,7 +277,7 @@ class FitResult:
     """The model and how it was made (``mode``: ``optimized``, ``incremental`` or ``refactorized``,
     the last = the prior's hyperparameters on a capped set, factorized anew)."""
 
-    model: GPModel
+    model: GPBase
     mode: str
     fit_time_s: float
     n_at_optimization: int  # training points (before the cap) at the last hyperparameter optimization
@@ -330,7 +330,7 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
 
 
-def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPModel, str]:
+def _add_points(model: GPBase, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPBase, str]:
     """``model`` plus ``X (n, d)``, ``Y (n, D)`` at fixed hyperparameters: the Cholesky factor
     extended, or, past ``max_points``, the capped union factorized anew (a sparse GP: always
     factorized anew, its inducing inputs selected again among all points, ``SparseGPModel.update``)."""
@@ -343,7 +343,7 @@ def _add_points(model: GPModel, X: np.ndarray, Y: np.ndarray, max_points: int) -
     return refit_fixed(model, Xa[kept], Ya[kept]), "refactorized"
 
 
-def heldout_errors(model: GPModel, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
+def heldout_errors(model: GPBase, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
     """Held-out RMSE ``(D,)`` (rad/s^2) and RMSE over the held-out targets' std ``(D,)``; NaN without held-out points."""
     if len(data.X_test) == 0:
         nan = np.full(model.D, np.nan)

@@ -1,4 +1,4 @@
-"""Balance-aware Nao objectives (SPEC §14, issue 19): the ``--balance`` task option.
+"""Balance-aware Nao objectives: the ``--balance`` task option.
 
 The planning model is welded at the left sole (world frame = left sole frame, ground z = 0), so
 the support polygon is fixed in that frame for the whole movement:

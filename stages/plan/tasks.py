@@ -1,4 +1,4 @@
-"""Named planning tasks (SPEC §10): plant + task name -> objective terms, horizon and step.
+"""Named planning tasks: plant + task name -> objective terms, horizon and step.
 
 Every task builds its terms from the robot's task maps at the initial posture ``q0``; the
 weights follow thesis eq. (3.7) (``w_task = 1e4``, ``w_u = 1e-2``) unless the experiment says
