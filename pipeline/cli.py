@@ -1,10 +1,10 @@
-"""The ``raico`` command line: thin Typer wrappers over the stages (SPEC §9).
+"""The ``raico`` command line: thin Typer wrappers over the stages.
 
 Every stage command accepts the shared options ``--artifacts DIR`` (env
 ``RAICO_ARTIFACTS``), ``--seed``, ``--no-record``, ``--quiet`` and ``--json``; with
 ``--json`` it prints one JSON line ``{"stage", "key", "path", "cached", "status",
 "metrics"}`` on stdout. Bad input prints one line ``raico: error: ...`` on stderr and exits
-non-zero (SPEC §12).
+non-zero, and nothing half-written is left behind.
 """
 
 # ruff: noqa: E402  (the signal handlers below are installed before the slow imports)
@@ -151,7 +151,7 @@ def fail(message: str, code: int = 2) -> None:
 
 
 def handles_errors(fn):
-    """Turn bad input and faults into one stderr line and an exit code (SPEC §12)."""
+    """Turn bad input and faults into one stderr line and an exit code."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -290,7 +290,7 @@ def check_folder(path: Path, what: str) -> None:
 def reproduce(
     figure: Annotated[list[str] | None, typer.Option("--figure", help="Experiment id (repeatable): fig3.2a, fig3.2b, fig3.2c, fig3.2d, fig3.3, fig3.4, "
                                   "fig3.4-inside, fig3.4-support, fig3.4-single, fig4.1/4.2, fig4.3.")] = None,
-    all_: Annotated[bool, typer.Option("--all", help="Every experiment of SPEC 10 that is implemented.")] = False,
+    all_: Annotated[bool, typer.Option("--all", help="Every experiment: the thesis's figures and raico's own.")] = False,
     quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers: processes, or the CPUs of a local "
                                       "Ray instance.")] = 2,

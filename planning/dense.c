@@ -1,4 +1,4 @@
-/* Dense linear algebra of the AICO sweep kernel (planning/csweep.c), in its own file (issue 20):
+/* Dense linear algebra of the AICO sweep kernel (planning/csweep.c), in its own file:
  * register-tiled products, Cholesky factors, triangular solves and the SPD inverse, row-major,
  * no BLAS. planning/kernels.py compiles this file and csweep.c as one translation unit (this file
  * first; the functions stay static, so the compiler inlines them as before); the k_* entry points
