@@ -48,7 +48,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import blas, lapack
 
 from planning import kernels
 from planning.driver import Iterate, Status, Step, Stop, drive
@@ -63,6 +62,9 @@ from planning.problem import (
 )
 from plants.codegen.c_backend import check_shapes
 from plants.dynamics import rollout
+from plants.lazy import LazyModule
+
+blas, lapack = LazyModule("scipy.linalg.blas"), LazyModule("scipy.linalg.lapack")  # imported at first use
 
 
 @dataclass(frozen=True)

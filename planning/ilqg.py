@@ -29,7 +29,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import lapack
 
 from planning.driver import Iterate, Status, Step, Stop, cost_decrease_below, drive
 from planning.problem import (
@@ -43,6 +42,9 @@ from planning.problem import (
 )
 from plants.codegen.c_backend import check_shapes
 from plants.dynamics import rollout
+from plants.lazy import LazyModule
+
+lapack = LazyModule("scipy.linalg.lapack")  # imported at first use
 
 
 def _default_step_sizes() -> tuple[float, ...]:

@@ -35,9 +35,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular
-from scipy.linalg.blas import dtrsm
-from scipy.spatial.distance import cdist
+
+from plants.lazy import LazyModule
+
+# scipy, imported at first use (see plants.lazy)
+_linalg, _blas, _distance = (LazyModule("scipy.linalg"), LazyModule("scipy.linalg.blas"),
+                             LazyModule("scipy.spatial.distance"))
 
 NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the module docstring)
 
@@ -104,7 +107,7 @@ def column_std(A: np.ndarray) -> np.ndarray:
 
 def se_kernel(A: np.ndarray, B: np.ndarray, ell: np.ndarray, sf2: float) -> np.ndarray:
     """Exact SE-ARD kernel matrix ``(n_A, n_B)`` (pairwise differences, as sklearn's ``RBF``)."""
-    return sf2 * np.exp(-0.5 * cdist(A / ell, B / ell, "sqeuclidean"))
+    return sf2 * np.exp(-0.5 * _distance.cdist(A / ell, B / ell, "sqeuclidean"))
 
 
 def _se_kernel_fast(P: np.ndarray, Q: np.ndarray, qq: np.ndarray, sf2: float) -> np.ndarray:
@@ -467,14 +470,14 @@ class GPModel(GPBase):
         self.L = np.empty((D, N, N))
         self.weights = np.empty((D, N))
         for j in range(D):
-            self.L[j] = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
+            self.L[j] = _linalg.cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
             self.weights[j] = self._solve(self.L[j], self.y[:, j])
 
     @staticmethod
     def _solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
         """``(L L^T)^-1 b`` by two triangular solves."""
-        v = solve_triangular(L, b, lower=True, check_finite=False)
-        return solve_triangular(L, v, lower=True, trans="T", check_finite=False)
+        v = _linalg.solve_triangular(L, b, lower=True, check_finite=False)
+        return _linalg.solve_triangular(L, v, lower=True, trans="T", check_finite=False)
 
     def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> GPModel:
         """Add data ``X_new (n, d)``, ``Y_new (n, D)`` (physical) at fixed hyperparameters and scaling, in place.
@@ -497,10 +500,10 @@ class GPModel(GPBase):
             K12 = se_kernel(self.Z, Zn, self.ell[j], self.sf2[j])
             K22 = se_kernel(Zn, Zn, self.ell[j], self.sf2[j])
             K22[np.diag_indices_from(K22)] += self.sn2[j]
-            L21T = solve_triangular(self.L[j], K12, lower=True, check_finite=False)  # (N, n)
+            L21T = _linalg.solve_triangular(self.L[j], K12, lower=True, check_finite=False)  # (N, n)
             L[j, :N, :N] = self.L[j]
             L[j, N:, :N] = L21T.T
-            L[j, N:, N:] = cholesky(K22 - L21T.T @ L21T, lower=True, check_finite=False)
+            L[j, N:, N:] = _linalg.cholesky(K22 - L21T.T @ L21T, lower=True, check_finite=False)
             weights[j] = self._solve(L[j], y[:, j])
         self.Z, self.y, self.L, self.weights = Z, y, L, weights
         return self
@@ -521,12 +524,12 @@ class GPModel(GPBase):
         for an ill-conditioned ``K``, unlike an explicit inverse)."""
         # L.T is L^T in Fortran order (no copy), op(L^T) = L; Ks.T is Fortran order, solved in place
         B = Ks.T if overwrite else Ks.T.copy(order="F")
-        Vt = dtrsm(1.0, self.L[j].T, B, lower=0, trans_a=1, overwrite_b=1).T
+        Vt = _blas.dtrsm(1.0, self.L[j].T, B, lower=0, trans_a=1, overwrite_b=1).T
         return self.sf2[j] - np.einsum("mn,mn->m", Vt, Vt), Vt
 
     def _solve_bwd(self, j: int, Vt: np.ndarray) -> np.ndarray:
         """``((K + sn2 I)^-1 k*)^T = (L^-T L^-1 k*)^T`` ``(M, N)`` in place on ``Vt`` from ``_solve_fwd``."""
-        return dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
+        return _blas.dtrsm(1.0, self.L[j].T, Vt.T, lower=0, trans_a=0, overwrite_b=1).T  # op(L^T) = L^T
 
     def _latent_variance(self, j: int, Ks: np.ndarray) -> np.ndarray:
         """``sf2 - k*^T (K + sn2 I)^-1 k*`` ``(M,)``, solved in place on ``Ks``."""
@@ -711,21 +714,21 @@ class SparseGPModel(GPBase):
         self._lml = np.empty(D)
         for j in range(D):
             try:
-                LU = cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
+                LU = _linalg.cholesky(self.kernel_matrix(j), lower=True, check_finite=False)
             except np.linalg.LinAlgError:
                 raise ValueError(f"output {j}: the inducing inputs' kernel matrix is singular "
                                  "(inducing inputs too close at these length-scales)") from None
-            A = solve_triangular(LU, se_kernel(self.Z, self.Z_train, self.ell[j], self.sf2[j]), lower=True,
+            A = _linalg.solve_triangular(LU, se_kernel(self.Z, self.Z_train, self.ell[j], self.sf2[j]), lower=True,
                                  check_finite=False)  # (M, N) L_U^-1 K_Un
             lam = self.sn2[j] + np.maximum(self.sf2[j] - np.einsum("mn,mn->n", A, A), 0.0)
             s = 1.0 / np.sqrt(lam)
             A *= s
             B = A @ A.T
             B[np.diag_indices_from(B)] += 1.0
-            LB = cholesky(B, lower=True, check_finite=False)
+            LB = _linalg.cholesky(B, lower=True, check_finite=False)
             ys = self.y[:, j] * s
-            c = solve_triangular(LB, A @ ys, lower=True, check_finite=False)
-            self.weights[j] = solve_triangular(LU, solve_triangular(LB, c, lower=True, trans="T", check_finite=False),
+            c = _linalg.solve_triangular(LB, A @ ys, lower=True, check_finite=False)
+            self.weights[j] = _linalg.solve_triangular(LU, _linalg.solve_triangular(LB, c, lower=True, trans="T", check_finite=False),
                                              lower=True, trans="T", check_finite=False)
             self.L_U[j], self.L_B[j], self.lam[j] = LU, LB, lam
             # FITC log marginal likelihood log N(y | 0, Q_nn + Lam) by Woodbury and the determinant lemma
@@ -754,8 +757,8 @@ class SparseGPModel(GPBase):
     # -- the variance ----------------------------------------------------------------------
     def _var_solves(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Scaled latent variance ``(T,)`` (not clipped), ``V1 = L_U^-1 k_U`` and ``V2 = L_B^-1 V1``, both ``(M, T)``."""
-        V1 = solve_triangular(self.L_U[j], Ks.T, lower=True, check_finite=False)
-        V2 = solve_triangular(self.L_B[j], V1, lower=True, check_finite=False)
+        V1 = _linalg.solve_triangular(self.L_U[j], Ks.T, lower=True, check_finite=False)
+        V2 = _linalg.solve_triangular(self.L_B[j], V1, lower=True, check_finite=False)
         return self.sf2[j] - np.einsum("mt,mt->t", V1, V1) + np.einsum("mt,mt->t", V2, V2), V1, V2
 
     def _latent_variance(self, j: int, Ks: np.ndarray) -> np.ndarray:
@@ -765,8 +768,8 @@ class SparseGPModel(GPBase):
     def _variance_weights(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The variance ``(T,)`` and ``W = ((K_UU^-1 - Sigma) k_U)^T = (L_U^-T (V1 - L_B^-T V2))^T`` ``(T, M)``."""
         v, V1, V2 = self._var_solves(j, Ks)
-        V1 -= solve_triangular(self.L_B[j], V2, lower=True, trans="T", check_finite=False)
-        return v, solve_triangular(self.L_U[j], V1, lower=True, trans="T", check_finite=False).T
+        V1 -= _linalg.solve_triangular(self.L_B[j], V2, lower=True, trans="T", check_finite=False)
+        return v, _linalg.solve_triangular(self.L_U[j], V1, lower=True, trans="T", check_finite=False).T
 
     # -- storage -------------------------------------------------------------------------
     def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
