@@ -54,6 +54,7 @@ from pipeline.errors import (
     RaicoError,
     StorageError,
     install_signal_handlers,
+    interrupt_in,
     os_error_text,
     stop_resource_tracker,
 )
@@ -169,6 +170,11 @@ def handles_errors(fn):
             fail(str(e).strip("'\""), 2)
         except KeyboardInterrupt:
             fail("interrupted by SIGINT; the interrupted run left no partial artifact", 130)
+        except Exception as e:  # a signal inside an import: the interrupt, not the import's error
+            signal_ = interrupt_in(e)
+            if signal_ is None:
+                raise
+            fail(signal_.message(), signal_.exit_code)
 
     return wrapper
 
@@ -331,6 +337,107 @@ def reproduce(
         for doc in docs:
             if json_:
                 typer.echo(json.dumps(finite_json(doc), default=float, allow_nan=False))
+
+
+exp_app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                      rich_markup_mode=None,
+                      help="Experiments written as files: variants over seeds, run through the cache, one runs table.")
+app.add_typer(exp_app, name="exp")
+
+
+@exp_app.command("run")
+@handles_errors
+def exp_run(
+    file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/expfile.py).")],
+    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Override or add a grid axis: KEY=A,B or "
+                                                   "KEY=range(N); seeds=range(N) sets the seeds.")] = None,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would run (variants, runs, cached, to "
+                                          "compute); run nothing.")] = False,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers.")] = 2,
+    executor: Annotated[str, typer.Option("--executor", help="serial, process (a pool of --jobs processes) or "
+                                          "ray (a local Ray instance).")] = "process",
+    record: Annotated[bool, typer.Option("--record", help="Write each run's recording (off by default: "
+                                         "`raico show KEY --open` writes one from the cache).")] = False,
+    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
+):
+    """Run an experiment file: every variant at every seed, each an ordinary cached stage run (a rerun
+    computes only what is missing); then write artifacts/exp/NAME/runs.csv and runs.json. Exit 1 if a
+    run failed (its row says why), after the others ran."""
+    from pipeline import expfile
+    from pipeline.executors import make_executor
+    from pipeline.ui import Reporter
+
+    exp = expfile.load(file, set_ or [])
+    expfile.validate(exp)
+    if not 1 <= jobs <= 64:
+        raise BadInput("--jobs must be in [1, 64]")
+    cache = open_cache(artifacts)
+    reporter = Reporter(quiet)
+    plan = expfile.dry_run(cache, exp)
+    summary = {"experiment": exp.name, "variants": len(exp.variants), "seeds": len(exp.seeds),
+               "runs": len(plan.runs), "cached": len(plan.runs) - plan.to_compute, "to_compute": plan.to_compute}
+    if dry_run:
+        for v in exp.variants:
+            typer.echo(f"{v.label}: {len(exp.seeds)} seeds")
+        reporter.say(f"exp {exp.name}: {summary['variants']} variants x {summary['seeds']} seeds = "
+                     f"{summary['runs']} runs, {summary['cached']} cached, {summary['to_compute']} to compute")
+        if json_:
+            typer.echo(json.dumps(summary))
+        return
+    pool = make_executor(executor, jobs if plan.to_compute > 1 else 1)
+    with reporter.board() as board:
+        def progress(done: int, total: int, label: str | None) -> None:
+            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
+            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+
+        rows = expfile.run(cache, exp, pool, record=record, progress=progress)
+    failed = [r for r in rows if r["status"] != "ok"]
+    out = expfile.table_dir(cache, exp.name)
+    reporter.say(f"exp {exp.name}: {len(rows)} runs ({summary['cached']} cached, {len(failed)} failed) -> "
+                 f"{out / 'runs.csv'}")
+    for r in failed[:5]:
+        reporter.say(f"  failed: {r['variant']} seed {r['seed']}: {r['error']}")
+    if json_:
+        typer.echo(json.dumps({**summary, "failed": len(failed), "table": str(out / "runs.csv")}))
+    if failed:
+        raise typer.Exit(1)
+
+
+@exp_app.command("show")
+@handles_errors
+def exp_show(
+    experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
+    where: Annotated[str | None, typer.Option("--where", help="Keep rows matching a condition on the table's "
+                                              "columns, e.g. \"alpha > 1 and solver == 'raico'\" (use "
+                                              "backticks around names with dots).")] = None,
+    sort: Annotated[str | None, typer.Option("--sort", help="Sort by this column.")] = None,
+    metric: Annotated[list[str] | None, typer.Option("--metric", "-m", help="Metric columns to show "
+                                                     "(repeatable; default: a few headline metrics).")] = None,
+    stat: Annotated[str, typer.Option("--stat", help="median (with the interquartile range) or mean (with a 95 %% "
+                                      "t-interval), over seeds.")] = "median",
+    no_group: Annotated[bool, typer.Option("--no-group", help="One row per run instead of per variant.")] = False,
+    only_changed: Annotated[bool, typer.Option("--only-changed", help="Leave out option columns that do not "
+                                               "vary.")] = False,
+    fmt: Annotated[str, typer.Option("--format", help="table, md, csv or json.")] = "table",
+    artifacts: Artifacts = None,
+):
+    """Show an experiment's runs table grouped over seeds: per variant n, failures k/n and each metric's
+    median and interquartile range (or mean and 95 % interval)."""
+    from pipeline import expfile
+
+    if fmt not in ("table", "md", "csv", "json"):
+        raise BadInput(f"--format {fmt}: choose one of table, md, csv, json")
+    if stat not in ("median", "mean"):
+        raise BadInput(f"--stat {stat}: choose median or mean")
+    cache = open_cache(artifacts)
+    df, swept = expfile.read_table(cache, experiment)
+    if metric:
+        missing = [m for m in metric if m not in df.columns]
+        if missing:
+            raise BadInput(f"--metric {missing[0]}: no such column; metrics: "
+                           + ", ".join(c for c in df.columns if c.count(".") >= 1))
+    out = expfile.summarize(df, swept, metric, stat, not no_group, where, sort, only_changed)
+    typer.echo(expfile.render(out, fmt))
 
 
 def describe_entry(cache: Cache, info) -> dict:

@@ -110,6 +110,19 @@ class Interrupted(BaseException):  # noqa: N818  (like KeyboardInterrupt: not an
         return self.message()
 
 
+def interrupt_in(error: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` behind ``error``, if a signal caused it: a SIGTERM that lands while an
+    extension module is being imported (Drake, scipy: imported when first used) surfaces as that
+    module's ``ImportError("initialization failed")``, the interrupt in its context."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, Interrupted):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or (None if error.__suppress_context__ else error.__context__)
+    return None
+
+
 def install_signal_handlers() -> None:
     """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread; a second signal while
     the first unwinds exits at once (``128 + signum``) with one line on stderr."""

@@ -182,3 +182,25 @@ def test_a_refused_option_loads_neither_drake_nor_crocoddyl_nor_ray(args):
     assert "raico: error:" in out.stderr
     heavy = re.search(r"HEAVY \[(.*)\]", out.stdout).group(1)
     assert not {"'pydrake'", "'crocoddyl'", "'ray'"} & set(heavy.split(", ")), heavy
+
+
+def test_a_signal_inside_an_import_is_the_interrupt():
+    """A SIGTERM that lands while an extension module initializes surfaces as its ImportError; the CLI
+    reports the interrupt (exit 143), not the import (tests/test_faults.py kills a babble run mid-stage)."""
+    from pipeline.errors import Interrupted, interrupt_in
+
+    try:
+        try:
+            raise Interrupted(15)
+        except Interrupted:
+            raise ImportError("initialization failed") from None
+    except ImportError as e:
+        assert interrupt_in(e) is None                   # `from None`: no interrupt behind it
+    try:
+        try:
+            raise Interrupted(15)
+        except Interrupted:
+            raise ImportError("initialization failed")  # noqa: B904 - as an extension module's init does
+    except ImportError as e:
+        assert interrupt_in(e).signum == 15
+    assert interrupt_in(ValueError("x")) is None

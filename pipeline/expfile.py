@@ -1,0 +1,596 @@
+"""Experiments a user writes: a TOML file of variants over seeds, run through the cache, one runs table.
+
+An experiment file (read with ``tomllib``)::
+
+    name = "alpha-on-the-arm"              # the table's folder: artifacts/exp/<name>/
+    description = "R-AICO's alpha against iLQG on the 5-joint arm"
+    stages = ["plan", "execute"]           # plan | plan, execute | plan, evaluate | plan, execute, evaluate
+                                           # | learn | babble
+    seeds = "range(10)"                    # or a list: the initial states, shared by every point
+    [base]                                 # options of the first stage (raico <stage> --help)
+    plant = "arm5"
+    task = "reach-roll"
+    dynamics = "analytic"
+    iterations = 25
+    [execute]                              # options of a later stage
+    clip_torques = true
+    [grid]                                 # the cartesian product of these lists ...
+    alpha = [0.1, 1.0, 10.0]
+    [zip]                                  # ... times these lists taken side by side (equal lengths)
+    [[point]]                              # and hand-listed variants, each on top of [base]
+    label = "ilqg"
+    solver = "ilqg"
+
+Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
+field: the plan's initial state), so comparisons pair by seed. A grid or point key ``execute.x0_noise``
+sets a later stage's option. Every key and value is checked by the stage's own config class before
+anything runs; an unknown key is refused with the valid ones listed.
+
+Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
+has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
+(bad combination, solver error) is a row with its error; the others go on. After a run the table
+``runs.csv`` and ``runs.json`` (one row per seed and variant: the swept options, the seed, each
+stage's key and status, scalar metrics, the cost curve's first, last and lowest values and the
+iterations to come within 1 % of its lowest, wall times and code version) is written under
+``artifacts/exp/<name>/``; :func:`summarize` groups it over seeds.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import itertools
+import json
+import math
+import re
+import tomllib
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import BadInput
+from pipeline.executors import Batch, Executor, Job, run_flow
+
+CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
+          ("babble",)}
+TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate")
+CURVE_TOL = 0.01   # iterations to come within 1 % of the run's lowest cost
+# a run counted as failed in the summaries: a stage raised, a solver diverged, the robot fell
+FAILED_STATUSES = ("error", "diverged", "fell")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of the experiment: its label and options per stage (first stage's under its name)."""
+
+    label: str
+    options: dict[str, dict[str, Any]]   # stage -> {option: value}
+    swept: dict[str, Any]                # the options that vary across the experiment (``stage.option`` for later stages)
+
+
+@dataclass(frozen=True)
+class Run:
+    variant: Variant
+    seed: int
+
+
+@dataclass
+class Experiment:
+    name: str
+    description: str
+    stages: tuple[str, ...]
+    seeds: tuple[int, ...]
+    base: dict[str, dict[str, Any]]
+    grid: dict[str, list]
+    zipped: dict[str, list]
+    points: list[dict[str, Any]]
+    path: Path | None = None
+
+    @property
+    def variants(self) -> list[Variant]:
+        return _variants(self)
+
+    @property
+    def runs(self) -> list[Run]:
+        return [Run(v, s) for v in self.variants for s in self.seeds]
+
+
+# ----------------------------------------------------------------------------- reading
+def _seeds(value: Any) -> tuple[int, ...]:
+    if isinstance(value, str):
+        m = re.fullmatch(r"\s*range\(\s*(\d+)\s*(?:,\s*(\d+)\s*)?\)\s*", value)
+        if not m:
+            raise BadInput(f"seeds: '{value}' is neither a list of integers nor range(N) / range(A, B)")
+        a, b = (0, int(m.group(1))) if m.group(2) is None else (int(m.group(1)), int(m.group(2)))
+        value = list(range(a, b))
+    if not isinstance(value, list) or not value or not all(isinstance(s, int) and s >= 0 for s in value):
+        raise BadInput("seeds: a non-empty list of integers >= 0, or range(N)")
+    if len(set(value)) != len(value):
+        raise BadInput("seeds: a seed is listed twice")
+    return tuple(value)
+
+
+def parse_override(text: str) -> tuple[str, list]:
+    """``-S key=a,b`` / ``-S key=range(3)``: a grid axis (values parsed as TOML scalars)."""
+    if "=" not in text:
+        raise BadInput(f"-S {text}: expected KEY=VALUE[,VALUE...]")
+    key, raw = (p.strip() for p in text.split("=", 1))
+    m = re.fullmatch(r"range\(\s*(\d+)\s*(?:,\s*(\d+)\s*)?\)", raw)
+    if m:
+        a, b = (0, int(m.group(1))) if m.group(2) is None else (int(m.group(1)), int(m.group(2)))
+        return key, list(range(a, b))
+    values = []
+    for item in raw.split(","):
+        item = item.strip()
+        try:
+            values.append(tomllib.loads(f"v = {item}")["v"])
+        except tomllib.TOMLDecodeError:
+            values.append(item)   # a bare word: a string
+    if not key or not values or any(v == "" for v in values):
+        raise BadInput(f"-S {text}: expected KEY=VALUE[,VALUE...]")
+    return key, values
+
+
+def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
+    """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
+    (:class:`BadInput` with one line on any problem) but not yet validated against the stages."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"no experiment file {path}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BadInput(f"cannot read the experiment file {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise BadInput(f"{path}: not valid TOML ({e})") from None
+    unknown = [k for k in doc if k not in TOP_KEYS]
+    if unknown:
+        raise BadInput(f"{path}: unknown key '{unknown[0]}': valid keys are {', '.join(TOP_KEYS)}")
+    name = doc.get("name") or path.stem
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise BadInput(f"{path}: name '{name}' must be letters, digits, '.', '_' or '-' (at most 64)")
+    stages = doc.get("stages", ["plan"])
+    stages = tuple([stages] if isinstance(stages, str) else stages)
+    if stages not in CHAINS:
+        raise BadInput(f"{path}: stages {list(stages)} is not one of "
+                       + "; ".join(", ".join(c) for c in sorted(CHAINS)))
+    grid, zipped = dict(doc.get("grid", {})), dict(doc.get("zip", {}))
+    seeds = _seeds(doc.get("seeds", [0]))
+    for text in overrides:
+        key, values = parse_override(text)
+        if key == "seeds":
+            seeds = _seeds(values)
+        else:
+            zipped.pop(key, None)
+            grid[key] = values
+    for table, what in ((grid, "grid"), (zipped, "zip")):
+        for k, v in table.items():
+            if not isinstance(v, list) or not v:
+                raise BadInput(f"{path}: [{what}] {k} must be a non-empty list of values")
+    if len({len(v) for v in zipped.values()}) > 1:
+        raise BadInput(f"{path}: the [zip] lists must have equal lengths, got "
+                       + ", ".join(f"{k} {len(v)}" for k, v in zipped.items()))
+    points = doc.get("point", [])
+    if not isinstance(points, list) or not all(isinstance(p, dict) for p in points):
+        raise BadInput(f"{path}: [[point]] entries must be tables")
+    labels = [p.get("label") for p in points]
+    if any(not isinstance(lb, str) or not lb for lb in labels) or len(set(labels)) != len(labels):
+        raise BadInput(f"{path}: every [[point]] needs a unique label")
+    base = {stages[0]: dict(doc.get("base", {}))}
+    for later in stages[1:]:
+        base[later] = dict(doc.get(later, {}))
+    for stage in ("execute", "evaluate"):
+        if stage in doc and stage not in stages[1:]:
+            raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
+    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path)
+
+
+# ----------------------------------------------------------------------------- variants and configs
+def _split(exp: Experiment, key: str) -> tuple[str, str]:
+    """``stage.option`` or ``option`` (the first stage's) -> (stage, option)."""
+    if "." in key:
+        stage, option = key.split(".", 1)
+        if stage not in exp.stages[1:]:
+            raise BadInput(f"'{key}': {stage} is not a later stage of this experiment ({', '.join(exp.stages)})")
+        return stage, option
+    return exp.stages[0], key
+
+
+def _variants(exp: Experiment) -> list[Variant]:
+    axes = list(exp.grid.items())
+    combos = [dict(zip([k for k, _ in axes], values)) for values in itertools.product(*[v for _, v in axes])]
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
+    zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
+    settings = [(None, {**c, **z}) for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
+    settings += [(p["label"], {k: v for k, v in p.items() if k != "label"}) for p in exp.points]
+    swept_keys = sorted({k for _, s in settings for k in s})
+    out = []
+    for label, setting in settings:
+        options = {st: dict(opts) for st, opts in exp.base.items()}
+        for key, value in setting.items():
+            stage, option = _split(exp, key)
+            options[stage][option] = value
+        swept = {k: _used_value(exp, options, k) for k in swept_keys}
+        label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
+        out.append(Variant(label, options, swept))
+    return out
+
+
+def _used_value(exp: Experiment, options: dict, key: str) -> Any:
+    """The value a variant's run uses for option ``key``: as given, else the stage's default, as the
+    config normalizes it (plain AICO's and iLQG's alpha is 0: they have none); None where the options
+    do not make a config (``validate`` then says why)."""
+    from stages.registry import get_stage
+
+    stage, option = _split(exp, key)
+    cls = get_stage(stage).config_cls
+    if stage != exp.stages[0]:
+        return options[stage].get(option, cls.defaults().get(option))
+    try:
+        cfg = cls(**{k.replace("-", "_"): v for k, v in options[stage].items()})
+        cfg = cfg.normalized() if hasattr(cfg, "normalized") else cfg
+    except (TypeError, ValueError):
+        return options[stage].get(option)
+    return getattr(cfg, option.replace("-", "_"), options[stage].get(option))
+
+
+def _config(stage: str, options: Mapping[str, Any], **inputs: Any):
+    """The stage's config from ``options`` (plus input references), validated: :class:`BadInput`
+    naming the option and listing the valid ones."""
+    from stages.registry import get_stage
+
+    cls = get_stage(stage).config_cls
+    fields = {f.name for f in dataclasses.fields(cls)}
+    values = {k.replace("-", "_"): tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    unknown = [k for k in values if k not in fields or k in cls.INPUTS]
+    if unknown:
+        valid = sorted(fields - set(cls.INPUTS) - {"seed"})
+        raise BadInput(f"{stage}: unknown option '{unknown[0]}': valid are {', '.join(valid)}")
+    try:
+        cfg = cls(**values, **inputs)
+        cfg.validate()
+    except (TypeError, ValueError) as e:
+        raise BadInput(f"{stage}: {e}") from None
+    return cfg
+
+
+def first_config(exp: Experiment, run: Run):
+    """The first stage's config of ``run`` (its seed set)."""
+    return _config(exp.stages[0], {**run.variant.options[exp.stages[0]], "seed": run.seed})
+
+
+def validate(exp: Experiment) -> None:
+    """Build every run's first-stage config and every later stage's options (with a stand-in input)
+    before anything runs: the first bad key or value is one :class:`BadInput` naming the variant."""
+    if not exp.runs:
+        raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
+    for v in exp.variants:
+        try:
+            first_config(exp, Run(v, exp.seeds[0]))
+            for stage in exp.stages[1:]:
+                _config(stage, v.options[stage], **{"plan": "0" * 16})
+        except BadInput as e:
+            raise BadInput(f"variant '{v.label}': {e}") from None
+        if "seed" in v.options[exp.stages[0]]:
+            raise BadInput(f"variant '{v.label}': set the seeds with seeds = [...], not an option 'seed'")
+
+
+# ----------------------------------------------------------------------------- running
+def _run_chain(args) -> dict:
+    """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
+    fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
+    root, stages, options, seed, record = args
+    from pipeline import runner
+    from pipeline.cache import Cache
+    from pipeline.errors import RaicoError
+
+    cache, out, refs = Cache(root), {}, {}
+    for stage in stages:
+        inputs = {}
+        if stage in ("execute", "evaluate"):
+            inputs["plan"] = refs["plan"]
+        if stage == "evaluate" and "execute" in refs:
+            inputs["rollout"] = refs["execute"]
+        opts = dict(options[stage])
+        if stage in ("plan", "execute", "learn", "babble"):
+            opts["seed"] = seed
+        try:
+            cfg = _config(stage, opts, **inputs)
+            outcome = runner.run(cache, stage, cfg, record=record)
+        except (RaicoError, ValueError, ArithmeticError) as e:
+            out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
+            break
+        out[stage] = dataclasses.asdict(outcome)
+        refs[stage] = f"{stage}/{outcome.key}"
+    return out
+
+
+def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
+    """The run's outcomes when every stage is cached (nothing to submit), else None."""
+    from pipeline import runner
+
+    out, refs = {}, {}
+    for stage in exp.stages:
+        inputs = {}
+        if stage in ("execute", "evaluate"):
+            inputs["plan"] = refs["plan"]
+        if stage == "evaluate" and "execute" in refs:
+            inputs["rollout"] = refs["execute"]
+        opts = {**run.variant.options[stage]}
+        if stage in ("plan", "execute", "learn", "babble"):
+            opts["seed"] = run.seed
+        try:
+            hit = runner.lookup(cache, stage, _config(stage, opts, **inputs), record=record)
+        except Exception:  # noqa: BLE001 - anything unusual: let the worker run it and say what happened
+            return None
+        if hit is None:
+            return None
+        out[stage] = dataclasses.asdict(hit)
+        refs[stage] = f"{stage}/{hit.key}"
+    return out
+
+
+@dataclass
+class Plan:
+    """What ``run`` would do: the runs and how many are cached."""
+
+    runs: list[Run]
+    cached: list[bool] = field(default_factory=list)
+
+    @property
+    def to_compute(self) -> int:
+        return sum(not c for c in self.cached)
+
+
+def dry_run(cache, exp: Experiment) -> Plan:
+    return Plan(exp.runs, [_lookup(cache, exp, r, record=False) is not None for r in exp.runs])
+
+
+def run(cache, exp: Experiment, executor: Executor, record: bool = False,
+        progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
+    """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
+    the runs table and returns its rows."""
+    runs = exp.runs
+
+    def flow():
+        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record),
+                    f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
+                for r in runs]
+        return (yield Batch("run", jobs))
+
+    events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
+    results = run_flow(executor, flow(), events, scheduled=len(runs))
+    rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
+    write_table(cache, exp, rows)
+    return rows
+
+
+# ----------------------------------------------------------------------------- the runs table
+def _flat(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    """Scalar metrics as columns: numbers, booleans and short strings; dicts of them as ``prefix.key``."""
+    if isinstance(value, bool) or isinstance(value, (int, float)) and not isinstance(value, bool):
+        out[prefix] = value
+    elif isinstance(value, str) and len(value) <= 80:
+        out[prefix] = value
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _flat(f"{prefix}.{k}", v, out)
+
+
+def _curve(cache, ref: str) -> dict[str, Any]:
+    """First, last and lowest cost of a plan's iterations and the iterations to within 1 % of the lowest."""
+    import numpy as np
+
+    try:
+        with np.load(cache.root / ref / "plan.npz", allow_pickle=False) as f:
+            costs = np.asarray(f["costs"], float)
+    except (OSError, KeyError, ValueError):
+        return {}
+    finite = costs[np.isfinite(costs)]
+    if not finite.size:
+        return {"cost.first": None, "cost.last": None, "cost.min": None, "cost.iterations_to_1pct": None}
+    low = float(finite.min())
+    within = np.nonzero(np.isfinite(costs) & (costs <= low + CURVE_TOL * abs(low)))[0]
+    return {"cost.first": float(costs[0]) if np.isfinite(costs[0]) else None, "cost.last": float(costs[-1])
+            if np.isfinite(costs[-1]) else None, "cost.min": low,
+            "cost.iterations_to_1pct": int(within[0]) + 1 if within.size else None}
+
+
+def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
+    """The runs table's row of one run: variant, swept options, seed, per stage key / status / metrics."""
+    row: dict[str, Any] = {"experiment": exp.name, "variant": run.variant.label, **run.variant.swept,
+                           "seed": run.seed}
+    status, error = "ok", ""
+    for stage in exp.stages:
+        res = result.get(stage)
+        if res is None:
+            row[f"{stage}.status"] = "not run"
+            continue
+        if "error" in res:
+            row[f"{stage}.status"], error, status = "error", f"{stage}: {res['error']}", "error"
+            continue
+        row[f"{stage}.key"], row[f"{stage}.status"] = res["key"], res["status"]
+        status = res["status"]
+        row[f"{stage}.cached"] = res["cached"]
+        metrics: dict[str, Any] = {}
+        for k, v in (res.get("metrics") or {}).items():
+            if k != "status":
+                _flat(f"{stage}.{k}", v, metrics)
+        row.update(metrics)
+        meta = _meta(cache, stage, res["key"])
+        row[f"{stage}.compute_s"] = (meta.get("timings") or {}).get("compute_s")
+        row[f"{stage}.code_version"] = meta.get("code_version")
+        if stage == "plan":
+            row.update({f"plan.{k}": v for k, v in _curve(cache, f"plan/{res['key']}").items()})
+    stage_status = [row.get(f"{s}.status") for s in exp.stages]
+    row["status"], row["error"] = status, error
+    row["failed"] = status == "error" or any(s in FAILED_STATUSES for s in stage_status)
+    return row
+
+
+def _meta(cache, stage: str, key: str) -> dict:
+    try:
+        return json.loads((cache.root / stage / key / "meta.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def table_dir(cache, name: str) -> Path:
+    return cache.root / "exp" / name
+
+
+def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
+    """``runs.csv`` and ``runs.json`` of the experiment (written atomically), with the file's text."""
+    from pipeline.cache import write_file_atomic
+
+    out = table_dir(cache, exp.name)
+    out.mkdir(parents=True, exist_ok=True)
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    buf = _csv_text(columns, rows)
+    write_file_atomic(out / "runs.csv", buf)
+    doc = {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
+           "file": str(exp.path) if exp.path else None,
+           "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
+           "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
+    write_file_atomic(out / "runs.json", json.dumps(doc, indent=1, default=_json_default, allow_nan=False))
+    return out
+
+
+def _json_default(x: Any) -> Any:
+    return None if isinstance(x, float) and not math.isfinite(x) else str(x)
+
+
+def _csv_text(columns: list[str], rows: list[dict]) -> str:
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    w.writeheader()
+    for row in rows:
+        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------- reading the table
+def read_table(cache, name_or_file: str):
+    """The runs table (a pandas ``DataFrame``) of an experiment by name or by its file, and the swept
+    option columns; :class:`BadInput` if it has not run."""
+    import pandas as pd
+
+    name = name_or_file
+    p = Path(name_or_file)
+    if p.suffix == ".toml" and p.exists():
+        name = load(p).name
+    path = table_dir(cache, name) / "runs.json"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"no runs table of experiment '{name}' under {cache.root / 'exp'}: "
+                       "`raico exp run FILE` makes it") from None
+    return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
+
+
+DEFAULT_METRICS = ("plan.final_cost", "plan.iterations", "plan.wall_time_s", "plan.cost.iterations_to_1pct",
+                   "execute.rmse_planned_executed", "learn.episodes")
+
+
+def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str = "median",
+              group: bool = True, where: str | None = None, sort: str | None = None,
+              only_changed: bool = False):
+    """The table a user reads: rows filtered by ``where`` (pandas query syntax), grouped over seeds by
+    variant (``stat``: median with interquartile range, or mean with a 95 % t-interval; n; failures
+    k/n), sorted by a column. Returns a ``DataFrame`` of strings and numbers."""
+    import numpy as np
+    import pandas as pd
+
+    if where:
+        try:
+            df = df.query(where, engine="python")
+        except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
+            names = ", ".join(map(str, df.columns))
+            raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+    metrics = [m for m in (metrics or DEFAULT_METRICS) if m in df.columns]
+    keys = ["variant", *[s for s in swept if s in df.columns]]
+    if only_changed:
+        keys = ["variant", *[k for k in keys[1:] if df[k].astype(str).nunique() > 1]]
+    if not group:
+        cols = [*keys, "seed", "status", "error", *metrics]
+        out = df[[c for c in cols if c in df.columns]]
+        return out.sort_values(sort) if sort else out
+    rows = []
+    for values, g in df.groupby(keys, sort=False, dropna=False):
+        values = values if isinstance(values, tuple) else (values,)
+        row: dict[str, Any] = dict(zip(keys, values))
+        row["n"] = len(g)
+        failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
+        row["failed"] = f"{failed}/{len(g)}"
+        for m in metrics:
+            x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
+            if not x.size:
+                row[m] = None
+                continue
+            if stat == "mean":
+                half = _t_half_width(x)
+                row[m] = float(x.mean())
+                row[f"{m} ±95%"] = half
+            else:
+                row[m] = float(np.median(x))
+                row[f"{m} IQR"] = float(np.subtract(*np.percentile(x, [75, 25])))
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    if sort:
+        if sort not in out.columns:
+            raise BadInput(f"--sort {sort}: no such column (columns: {', '.join(map(str, out.columns))})")
+        out = out.sort_values(sort)
+    return out
+
+
+def _t_half_width(x) -> float | None:
+    """Half-width of the 95 % t-interval of the mean of ``x`` (None below 2 values)."""
+    if len(x) < 2:
+        return None
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+
+
+SPREADS = (" IQR", " ±95%")
+
+
+def render(df, fmt: str) -> str:
+    """``table`` (aligned text), ``md``, ``csv`` or ``json``; in a table a metric's spread is written
+    beside it in its cell: ``median (IQR x)`` or ``mean ± half-width``."""
+    if fmt == "json":
+        return df.to_json(orient="records")
+    if fmt == "csv":
+        return df.to_csv(index=False)
+    head, cells = [], [[] for _ in range(len(df))]
+    cols = list(df.columns)
+    for c in cols:
+        if any(str(c).endswith(s) for s in SPREADS):
+            continue
+        spread = next((f"{c}{s}" for s in SPREADS if f"{c}{s}" in cols), None)
+        head.append(str(c) + ("" if spread is None else " (IQR)" if spread.endswith("IQR") else " (±95%)"))
+        for i, (v, w) in enumerate(zip(df[c], df[spread] if spread else [None] * len(df))):
+            cells[i].append(_cell(v) if spread is None or _cell(w) == "-" else
+                            f"{_cell(v)} ({_cell(w)})" if spread.endswith("IQR") else f"{_cell(v)} ± {_cell(w)}")
+    if fmt == "md":
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in cells])
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(head)]
+    fmt_row = "  ".join(f"{{:<{w}}}" for w in widths)
+    return "\n".join([fmt_row.format(*head), *(fmt_row.format(*r) for r in cells)])
+
+
+def _cell(v: Any) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def iter_labels(exp: Experiment) -> Iterator[str]:
+    yield from (v.label for v in exp.variants)

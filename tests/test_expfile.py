@@ -1,0 +1,197 @@
+"""Experiment files (pipeline/expfile.py, ``raico exp run`` / ``raico exp show``): variants over seeds as
+ordinary cached stage runs, one runs table, summaries over seeds; bad input refused before anything runs."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+from typer.testing import CliRunner
+
+from pipeline import expfile
+from pipeline.cli import app
+from pipeline.errors import BadInput
+
+runner = CliRunner()
+
+ARM = '''
+name = "alpha-arm"
+description = "R-AICO's alpha against iLQG"
+stages = ["plan", "execute"]
+seeds = "range(2)"
+[base]
+plant = "arm5"
+task = "reach"
+iterations = 4
+[grid]
+alpha = [0.5, 5.0]
+[[point]]
+label = "ilqg"
+solver = "ilqg"
+'''
+
+
+def write(tmp_path: Path, text: str, name: str = "exp.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_variants_are_the_grid_times_the_zip_plus_the_points(tmp_path):
+    exp = expfile.load(write(tmp_path, '''
+stages = ["plan"]
+seeds = [3, 5]
+[base]
+plant = "arm5"
+task = "reach"
+[grid]
+alpha = [1.0, 10.0]
+[zip]
+gamma = [1.0, 0.5]
+iterations = [5, 9]
+[[point]]
+label = "ilqg"
+solver = "ilqg"
+'''), ["seeds=range(3)"])
+    assert exp.seeds == (0, 1, 2) and exp.name == "exp"
+    labels = [v.label for v in exp.variants]
+    assert labels == ["alpha=1.0, gamma=1.0, iterations=5", "alpha=1.0, gamma=0.5, iterations=9",
+                      "alpha=10.0, gamma=1.0, iterations=5", "alpha=10.0, gamma=0.5, iterations=9", "ilqg"]
+    assert len(exp.runs) == 15
+    ilqg = exp.variants[-1]
+    assert ilqg.options["plan"] == {"plant": "arm5", "task": "reach", "solver": "ilqg"}
+    assert ilqg.swept["alpha"] == 0.0                      # what the run uses: iLQG has no alpha
+    cfg = expfile.first_config(exp, exp.runs[0])
+    assert (cfg.alpha, cfg.gamma, cfg.iterations, cfg.seed) == (1.0, 1.0, 5, 0)
+    expfile.validate(exp)
+
+
+def test_overrides_parse_values():
+    assert expfile.parse_override("alpha=0.1,1,10") == ("alpha", [0.1, 1, 10])
+    assert expfile.parse_override("solver=ilqg,raico") == ("solver", ["ilqg", "raico"])
+    assert expfile.parse_override("iterations=range(2, 4)") == ("iterations", [2, 3])
+    assert expfile.parse_override("relinearize=true") == ("relinearize", [True])
+    with pytest.raises(BadInput, match="expected KEY=VALUE"):
+        expfile.parse_override("alpha")
+
+
+@pytest.mark.parametrize("text,needle", [
+    ('colour = "red"\n[base]\nplant = "arm5"\ntask = "reach"', "unknown key 'colour': valid keys are name"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\nalpah = 1', "unknown option 'alpah': valid are alpha,"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[grid]\nalpha = [-1.0]', "--alpha must be >= 0.0"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[grid]\niterations = ["many"]', "iterations"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[grid]\nalpha = []', "[grid] alpha must be a non-empty list"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[zip]\nalpha = [1.0]\ngamma = [1.0, 2.0]', "equal lengths"),
+    ('seeds = [1, 1]\n[base]\nplant = "arm5"\ntask = "reach"', "a seed is listed twice"),
+    ('seeds = "many"\n[base]\nplant = "arm5"\ntask = "reach"', "neither a list of integers nor range"),
+    ('stages = ["execute"]\n[base]\nplant = "arm5"', "stages ['execute'] is not one of"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[execute]\nx0_noise = 0.1', "[execute] options, but execute"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[[point]]\nsolver = "ilqg"', "needs a unique label"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\n[grid]\n"execute.x0_noise" = [0.1]', "not a later stage"),
+    ('[base]\nplant = "arm5"\ntask = "reach"\nseed = 3', "set the seeds with seeds = [...]"),
+    ('[base\nplant = "arm5"', "not valid TOML"),
+])
+def test_bad_files_are_one_line_and_run_nothing(tmp_path, text, needle):
+    f = write(tmp_path, text)
+    res = invoke("exp", "run", f, "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 2, res.output
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: ") and needle in res.stderr, res.stderr
+    assert not (tmp_path / "arts" / "plan").exists()
+
+
+def test_run_twice_computes_nothing_and_a_new_value_computes_only_its_runs(tmp_path):
+    f = write(tmp_path, ARM)
+    arts = tmp_path / "arts"
+    dry = invoke("exp", "run", f, "--dry-run", "--json", "--artifacts", arts)
+    assert dry.exit_code == 0 and json.loads(dry.stdout.splitlines()[-1]) == {
+        "experiment": "alpha-arm", "variants": 3, "seeds": 2, "runs": 6, "cached": 0, "to_compute": 6}
+    assert not (arts / "plan").exists()
+    first = invoke("exp", "run", f, "--jobs", 1, "--json", "--artifacts", arts)
+    assert first.exit_code == 0, first.output
+    assert json.loads(first.stdout.splitlines()[-1])["cached"] == 0
+    plans = sorted(p.name for p in (arts / "plan").iterdir())
+    assert len(plans) == 6 and len(list((arts / "execute").iterdir())) == 6
+    again = invoke("exp", "run", f, "--json", "--artifacts", arts)
+    assert json.loads(again.stdout.splitlines()[-1])["cached"] == 6
+    assert sorted(p.name for p in (arts / "plan").iterdir()) == plans
+    more = invoke("exp", "run", f, "-S", "alpha=0.5,5.0,50.0", "--jobs", 1, "--json", "--artifacts", arts)
+    line = json.loads(more.stdout.splitlines()[-1])
+    assert (line["runs"], line["cached"]) == (8, 6) and len(list((arts / "plan").iterdir())) == 8
+    # each run is the same cached entry a plain `raico plan` with those options makes
+    cli = invoke("plan", "--plant", "arm5", "--task", "reach", "--iterations", 4, "--alpha", 50.0, "--seed", 1,
+                 "--no-record", "--json", "--artifacts", arts)
+    assert json.loads(cli.stdout.splitlines()[-1])["cached"]
+    table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv")
+    assert len(table) == 8 and set(table["seed"]) == {0, 1}
+    assert {"variant", "alpha", "solver", "plan.key", "plan.final_cost", "plan.cost.min", "execute.key",
+            "execute.rmse_planned_executed", "plan.code_version", "status", "failed"} <= set(table.columns)
+    row = table[(table["alpha"] == 50.0) & (table["seed"] == 1)].iloc[0]
+    meta = json.loads((arts / "plan" / row["plan.key"] / "meta.json").read_text())
+    assert row["plan.final_cost"] == pytest.approx(meta["metrics"]["final_cost"], rel=1e-12)
+    assert row["plan.cost.min"] <= row["plan.cost.first"]
+    show = invoke("exp", "show", "alpha-arm", "--format", "json", "--artifacts", arts)
+    groups = json.loads(show.stdout)
+    assert [g["variant"] for g in groups] == ["alpha=0.5", "alpha=5.0", "alpha=50.0", "ilqg"]
+    sel = table[table["variant"] == "alpha=5.0"]["plan.final_cost"].to_numpy()
+    assert groups[1]["plan.final_cost"] == pytest.approx(np.median(sel)) and groups[1]["n"] == 2
+    text = invoke("exp", "show", f, "--where", "solver == 'raico' and alpha < 10", "--sort", "plan.final_cost",
+                  "--artifacts", arts).stdout
+    assert "ilqg" not in text and "alpha=50.0" not in text and "plan.final_cost (IQR)" in text
+
+
+def test_a_failing_run_is_a_row_and_the_others_go_on(tmp_path):
+    f = write(tmp_path, ARM.replace('[[point]]\nlabel = "ilqg"\nsolver = "ilqg"\n', "")
+              + '[execute]\ncontroller = "pd"\n')
+    arts = tmp_path / "arts"
+    res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "-S", "alpha=0.5", "--jobs", 1,
+                 "--artifacts", arts)
+    assert res.exit_code == 1
+    assert "failed: alpha=0.5, execute.controller=wbc seed 0: execute: --controller wbc is for plans" in res.stderr
+    table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv")
+    ok, bad = table[table["execute.controller"] == "pd"], table[table["execute.controller"] == "wbc"]
+    assert len(ok) == len(bad) == 2 and (ok["status"] == "ok").all() and (bad["status"] == "error").all()
+    assert bad["plan.key"].notna().all() and bad["execute.key"].isna().all()
+    show = json.loads(invoke("exp", "show", "alpha-arm", "--format", "json", "--artifacts", arts).stdout)
+    assert {g["execute.controller"]: g["failed"] for g in show} == {"pd": "0/2", "wbc": "2/2"}
+
+
+def test_show_refuses_what_it_cannot_read(tmp_path):
+    arts = tmp_path / "arts"
+    res = invoke("exp", "show", "nothing", "--artifacts", arts)
+    assert res.exit_code == 2 and "`raico exp run FILE` makes it" in res.stderr
+    df = pd.DataFrame({"variant": ["a"], "seed": [0], "status": ["ok"], "failed": [False], "x": [1.0]})
+    with pytest.raises(BadInput, match="--where 'x >>> 2'"):
+        expfile.summarize(df, [], ["x"], where="x >>> 2")
+    with pytest.raises(BadInput, match="--where 'y > 2'.*columns: variant, seed"):
+        expfile.summarize(df, [], ["x"], where="y > 2")
+    with pytest.raises(BadInput, match="--sort z: no such column"):
+        expfile.summarize(df, [], ["x"], sort="z")
+
+
+def test_summaries_over_seeds_on_known_numbers():
+    x = np.array([1.0, 2.0, 4.0, 10.0])
+    df = pd.DataFrame({"variant": ["a"] * 4 + ["b"] * 2, "alpha": [1.0] * 4 + [2.0] * 2, "seed": [0, 1, 2, 3, 0, 1],
+                       "status": ["ok", "ok", "diverged", "ok", "ok", "error"],
+                       "failed": [False, False, True, False, False, True],
+                       "m": [*x, 5.0, math.nan]})
+    med = expfile.summarize(df, ["alpha"], ["m"]).set_index("variant")
+    assert med.loc["a", "m"] == 3.0 and med.loc["a", "m IQR"] == pytest.approx(np.subtract(*np.percentile(x, [75, 25])))
+    assert med.loc["a", "failed"] == "1/4" and med.loc["b", "failed"] == "1/2" and med.loc["b", "n"] == 2
+    mean = expfile.summarize(df, ["alpha"], ["m"], stat="mean").set_index("variant")
+    half = stats.t.ppf(0.975, 3) * x.std(ddof=1) / 2.0
+    assert mean.loc["a", "m"] == pytest.approx(4.25) and mean.loc["a", "m ±95%"] == pytest.approx(half)
+    assert mean.loc["b", "m ±95%"] is None or math.isnan(mean.loc["b", "m ±95%"])   # one value: no interval
+    flat = expfile.summarize(df, ["alpha"], ["m"], group=False)
+    assert len(flat) == 6 and list(flat.columns[:2]) == ["variant", "alpha"]
+    assert "alpha" not in expfile.summarize(df[df.alpha == 1.0], ["alpha"], ["m"], only_changed=True).columns
+    table = expfile.render(med.reset_index(), "table")
+    assert "m (IQR)" in table.splitlines()[0] and "3 (3.75)" in table
