@@ -454,7 +454,7 @@ def test_identical_variants_of_two_figures():
 def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
     """Each claim row names the thesis sentence it tests (quoted, with its section and the figures it is written
     about) or says it is raico's own test."""
-    from stages.evaluate.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS, Quote
+    from stages.evaluate.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS
 
     assert set(THESIS) == set(CLAIMS)
     for name, q in THESIS.items():

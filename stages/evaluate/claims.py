@@ -781,6 +781,13 @@ def claim_rmse_falls(L, execs):
             "zero: the planner's Euler step against Drake's integrator leaves a floor)", nums or "no runs", ok)
 
 
+def _converging(w: str, s: dict, conv: dict) -> str:
+    """The last three episodes of a setting's GP error and RMSE, and whether each converges (``conv``)."""
+    return "; ".join(f"{w} {name}: last three {_last3(_curve(s, key))} "
+                     f"({'converges' if conv[key] else 'does not converge'})"
+                     for key, name in (("gp_error", "GP error (rad/s^2)"), ("rmse_planned_executed", "RMSE (rad)")))
+
+
 def claim_large_weight_explores(L, execs):
     """Fig. 4.2, one row per sigma* in {0.2, 1}: with the large weight (w = 1e2) the GP error or the planned-vs-
     executed RMSE does not converge (``converges``), while with the small weight (w = 1e-2) both converge."""
@@ -793,13 +800,11 @@ def claim_large_weight_explores(L, execs):
                 for w, x in (("w=100", big), ("w=0.01", small))}
         ok = not all(conv["w=100"].values()) and all(conv["w=0.01"].values())
 
-        def said(w, x):
-            return "; ".join(f"{w} {name}: last three {_last3(_curve(x, key))} ({'converges' if conv[w][key] else 'does not converge'})"
-                             for key, name in (("gp_error", "GP error (rad/s^2)"), ("rmse_planned_executed", "RMSE (rad)")))
+        said = "; ".join(_converging(w, x, conv[w]) for w, x in (("w=100", big), ("w=0.01", small)))
         rows.append((f"sigma* = {sigma}: a large weight (w = 1e2) explores too much",
                      "with w = 100 the median over seeds of the GP error on the next execution or of the planned-vs-"
                      f"executed RMSE does not converge, while with w = 0.01 both converge (converges: {CONVERGES_TEXT})",
-                     f"{said('w=100', big)}; {said('w=0.01', small)}", ok, min(big["runs"], small["runs"])))
+                     said, ok, min(big["runs"], small["runs"])))
     return rows or [("a large weight explores too much", "needs w = 100 and w = 0.01 runs", "no runs", False)]
 
 
