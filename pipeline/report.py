@@ -162,9 +162,11 @@ def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[di
         div = [diverged_path(C[i], p["outcome"].metrics.get("initial_cost"),
                              p["outcome"].metrics.get("iterations") or C.shape[1])
                for i, p in enumerate(runs) if p["outcome"].status == "diverged"]
+        with np.errstate(all="ignore"):
+            low = np.array([np.min(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in C.T])
         out.append({"label": v.label, "color": colors[v.label], "runs": C.shape[0],
-                    "iterations": np.arange(1, C.shape[1] + 1), "mean": mean, "std": sd, "median": m, "q25": lo,
-                    "q75": hi, "diverged": div, "thesis": v.label in THESIS_SOLVERS and v.iterations is None})
+                    "iterations": np.arange(1, C.shape[1] + 1), "mean": mean, "std": sd, "lowest": low, "median": m,
+                    "q25": lo, "q75": hi, "diverged": div, "thesis": v.label in THESIS_SOLVERS and v.iterations is None})
     return out
 
 
@@ -304,7 +306,8 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
                 f"solvers at the figure's budget ({exp.iterations} iterations)")
     if "beyond" in ax_of:
         _cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
-                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=exp.iterations)
+                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=exp.iterations,
+                    stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
     if "wall" in ax_of:
         _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
     if "cog_plan" in ax_of:
@@ -327,19 +330,30 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     save_figure(fig, path, dpi=110)
 
 
-def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int | None = None) -> None:
-    """Cost per iteration: per variant the mean (line) and mean +- one standard deviation (band; where it reaches
-    below zero the band runs to the axis) over its runs, the median dashed, the diverged runs thin to their last
-    iterate; ``budget``: a dotted line at the thesis's budget."""
+def band(r: dict, stat: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(line, lower, upper)`` of a cost panel row: ``mean`` with mean +- one standard deviation (the lower edge
+    not below the lowest run's cost: on the log scale a mean - std <= 0 has no place), or ``median`` with the
+    interquartile range."""
+    if stat == "median":
+        return r["median"], r["q25"], r["q75"]
+    return r["mean"], np.fmax(r["mean"] - r["std"], r["lowest"]), r["mean"] + r["std"]
+
+
+def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int | None = None,
+                stat: str = "mean") -> None:
+    """Cost per iteration: per variant the mean (line) and mean +- one standard deviation (band, ``band``) over its
+    runs with the median dashed, or (``stat`` "median") the median and the interquartile range; the diverged runs
+    thin to their last iterate; ``budget``: a dotted line at the thesis's budget."""
     drawn = []
     zero = False
     for r in rows:
-        it, mean, sd, med, c = r["iterations"], r["mean"], r["std"], r["median"], r["color"]
-        lo = mean - sd
-        ax.fill_between(it, np.where(lo > 0, lo, 1e-300), mean + sd, color=c, alpha=0.16, lw=0)
-        ax.plot(it, mean, color=c, lw=1.8)
-        ax.plot(it, med, color=c, lw=0.9, ls="--")
-        drawn += [mean, med, np.where(lo > 0, lo, np.nan), mean + sd]
+        it, c = r["iterations"], r["color"]
+        line, lo, hi = band(r, stat)
+        ax.fill_between(it, lo, hi, color=c, alpha=0.16, lw=0)
+        ax.plot(it, line, color=c, lw=1.8)
+        if stat == "mean":
+            ax.plot(it, r["median"], color=c, lw=0.9, ls="--")
+        drawn += [line, lo, hi, r["median"]]
         ends = []
         for x, y in r["diverged"]:
             if y.size:
@@ -348,7 +362,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
                 drawn.append(y)
                 ends.append((x[-1], y[-1]))
                 zero = zero or x[0] == 0
-        if ends and len(r["diverged"]) == r["runs"]:  # no mean line: say whose crosses these are
+        if ends and len(r["diverged"]) == r["runs"]:  # no line: say whose crosses these are
             x, y = max(e[0] for e in ends), float(np.exp(np.mean(np.log([e[1] for e in ends]))))
             ax.annotate(f"{r['label']}: {len(ends)}/{r['runs']} diverged", (x, y), xytext=(8, 0),
                         textcoords="offset points", va="center", fontsize=8, color=c,
@@ -365,8 +379,9 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
                     xytext=(3, -12), textcoords="offset points", fontsize=7)
     ax.set_xlabel("iteration" + (" (0: the initial guess rolled out)" if zero else ""))
     ax.set_ylabel("cost (rollout on the planning model)")
-    ax.set_title(f"{title}\ncost per iteration: mean and standard deviation over {_runs_phrase(rows)} (median dashed)",
-                 fontsize=9)
+    what = ("mean and standard deviation" if stat == "mean" else "median and interquartile range (25-75 %)")
+    ax.set_title(f"{title}\ncost per iteration: {what} over {_runs_phrase(rows)}"
+                 + (" (median dashed)" if stat == "mean" else ""), fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
 
@@ -449,8 +464,8 @@ def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> N
     ax.set_xlabel("wall time (s, solver's own clock; shared 2-core machine)")
     ax.set_ylabel("cost (rollout on the planning model)")
     ts = [x for x in per_iteration.values() if x > 0]
-    spread = f"; time per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
-    ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}",
+    spread = f"\ntime per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
+    ax.set_title(f"cost against wall time: median and interquartile range of the cost reached by each time{spread}",
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -1037,11 +1052,11 @@ def markdown_claims(rows: list[dict]) -> str:
     and the figure it is written about, the runs it reads, the set-up deviations that can drive its verdict and,
     where it does not hold, why), then the rows beyond the thesis (crocoddyl, adaptive R-AICO, long budgets,
     ablations, free-standing executions, PILCO, ...)."""
-    from stages.evaluate.claims import BEYOND
+    from stages.evaluate.claims import BEYOND, CANNOT
 
     def verdict(r: dict) -> str:
         why = r.get("why") or ""
-        return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] != "holds" and why else "")
+        return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] == "does not hold" and why else "")
 
     thesis_head = ["| figure | claim | the thesis says (section, about which figure) | criterion | measured | runs "
                    "(initial states or seeds) | set-up deviations that can drive the verdict | verdict (if it does "
@@ -1053,7 +1068,9 @@ def markdown_claims(rows: list[dict]) -> str:
     out: list[str] = []
     if thesis:
         held = sum(r["verdict"] == "holds" for r in thesis)
-        out += [f"### The thesis's claims ({held} of {len(thesis)} hold)", "", *thesis_head]
+        untested = sum(r["verdict"] == CANNOT for r in thesis)
+        out += [f"### The thesis's claims ({held} of {len(thesis)} hold"
+                + (f", {untested} cannot be tested" if untested else "") + ")", "", *thesis_head]
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
                 f"{r.get('seeds', '')} | {r.get('setup', '')} | {verdict(r)} |" for r in thesis]
         out += [""]
@@ -1087,15 +1104,16 @@ def markdown_summary(rows: list[dict]) -> str:
     return "\n".join(out) + "\n\n(medians over the runs)"
 
 
-FIGURE_CAPTION = ("Cost per iteration, as the thesis draws it: the solid line is the mean, the band the mean +- one "
-                  "standard deviation over the runs with a finite cost at that iteration (where it reaches below zero, "
-                  "the band runs to the axis of the log scale); the dashed line is the median. Runs that stopped "
-                  "early hold their last cost, so a dashed line's last point is the table's median final cost. The "
-                  "left panel holds the thesis's solvers at the figure's budget, the next one the variants beyond the "
-                  "thesis (long budgets, crocoddyl FDDP, ablations). Against wall time: median and interquartile "
-                  "range (25-75 %) of the cost reached by each time, where more than half the runs have finished an "
-                  "iteration. Thin lines ending in x: diverged runs up to their last iterate before the divergence. "
-                  "One colour per solver variant in every figure.")
+FIGURE_CAPTION = ("Cost per iteration, as the thesis draws it: the left panel holds the thesis's solvers at the "
+                  "figure's budget, the solid line the mean, the band the mean +- one standard deviation over the runs "
+                  "with a finite cost at that iteration (its lower edge not below the lowest run, where mean - std "
+                  "has no place on the log scale), the dashed line the median. Runs that stopped early hold their "
+                  "last cost, so a dashed line's last point is the table's median final cost. The next panel holds "
+                  "the variants beyond the thesis (long budgets, crocoddyl FDDP, ablations): median and interquartile "
+                  "range (25-75 %), robust to FDDP's infeasible first iterates. Against wall time: median and "
+                  "interquartile range of the cost reached by each time, where more than half the runs have "
+                  "finished an iteration. Thin lines ending in x: diverged runs up to their last iterate before the "
+                  "divergence. One colour per solver variant in every figure.")
 
 
 def _controller(e: dict) -> str:

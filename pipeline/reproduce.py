@@ -356,10 +356,10 @@ DEVIATIONS = {
                             "solution': a run diverged, above 2x that best, or the via-points missed; 'decay "
                             "exponentially fast': a rho^k + b fitted to the figure's whole budget, b never crossed by "
                             "the curve, with rho <= 0.8 and R^2 >= 0.95, per alpha",
-    "figures": "cost panels show the mean and standard deviation over the initial states, as the thesis's figures do "
-               "(the band: mean +- one standard deviation, cut at the axis where it reaches below zero on the log "
-               "scale), with the median dashed; a diverged run leaves the mean and standard deviation from its "
-               "divergence on, and is drawn thin up to its last iterate",
+    "figures": "the thesis's solvers' cost panels show the mean and standard deviation over the initial states, as "
+               "the thesis's figures do (the band's lower edge not below the lowest run), with the median dashed; "
+               "the panels beyond the thesis and against wall time show the median and interquartile range; a "
+               "diverged run leaves the statistics from its divergence on and is drawn thin up to its last iterate",
     "ablations of §3.4-3.5": "AICO with the thesis's finite-difference linearizations (fig3.2c/d) and with a "
                              "learning rate of 0.5 on the belief update or on the controller (Algorithm 1 lines 13 "
                              "and 18; fig3.2b/c) run as ablations",

@@ -558,3 +558,18 @@ def test_integration_summary_and_integrator_groups():
     assert s["integration_max_error_median"] == pytest.approx(4e-4) and s["integration_via_error_median"] == 0.006
     g = integrator_groups({**integ(solvers=("AICO",)), "R-AICO a=1": {}, "AICO, finite differences": {}})
     assert list(g) == ["AICO"] and list(g["AICO"]) == ["backward Euler", "Euler", "Heun"]
+
+
+def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
+    """Settings that all end equally near the upright (within 1 mrad) cannot be ranked: the row says so instead of
+    a verdict, and a row that does not hold carries its recorded reason."""
+    from stages.evaluate.claims import CANNOT, why_not
+
+    L = {"sigma*=0, w=0.01": L_(task_by_seed=[0.0971, 0.09712]), "sigma*=none": L_(task_by_seed=[0.09711, 0.0971])}
+    assert CLAIMS["best_with_sigma_zero"](L, [])[3] is None
+    (row,) = evaluate_claims(("best_with_sigma_zero",), L, [], "fig4.1/4.2")
+    assert row["verdict"] == CANNOT and row["why"] == "" and "a tie in 2/2" in row["measured"]
+    L["sigma*=none"] = L_(task_by_seed=[0.0971, 0.05])  # seed 1: the other setting 47 mrad nearer
+    assert CLAIMS["best_with_sigma_zero"](L, [])[3] is False
+    assert why_not("raico_converged_25", "R-AICO a=10 converged after 25 iterations").startswith("the method's")
+    assert why_not("raico_converged_25", "R-AICO a=1 converged after 25 iterations") == "not examined"
