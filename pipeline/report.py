@@ -465,7 +465,7 @@ def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> N
     ax.set_ylabel("cost (rollout on the planning model)")
     ts = [x for x in per_iteration.values() if x > 0]
     spread = f"\ntime per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
-    ax.set_title(f"cost against wall time: median and interquartile range of the cost reached by each time{spread}",
+    ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}",
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -649,6 +649,8 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
         achieved[g] = achieved.get(g, 0) + bool(ok and executed <= EXECUTED_VIA_TOL)
     ax.axhline(EXECUTED_VIA_TOL, color="k", ls="--", lw=0.8)
     ax.set_yscale("log")
+    lo = min(finite + [EXECUTED_VIA_TOL]) / 2
+    ax.set_ylim(lo, top * (top / lo) ** 0.6)  # the upper part of the panel left free for the legend
     ax.set_xlabel("run (initial-state seed)")
     ax.set_xticks(sorted({int(p[0]) for p in pts}))
     ax.set_ylabel("largest via-point error (m)")
@@ -1394,8 +1396,9 @@ def heldout_sentence(label: str, s: dict) -> str | None:
     first, last = float(np.mean(c[:3])), float(np.mean(c[-3:]))
     ratio = last / first if first > 0 else math.nan
     if 1 / LEVEL <= ratio <= LEVEL:
-        trend = (f"stays near its level and never falls below {_fmt(float(c.min()))}" if c.min() >= first / LEVEL
-                 else "stays near its level")
+        trend = ("stays near its level and does not fall towards zero (every evaluation within a factor "
+                 f"{LEVEL:g} of the first three's mean)" if first / LEVEL <= c.min() and c.max() <= first * LEVEL
+                 else "ends near its first level")
     else:
         trend = "falls" if ratio < 1 / LEVEL else "rises"
     nxt = s.get("gp_error_first3"), s.get("gp_error_last3")
