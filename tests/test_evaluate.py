@@ -573,3 +573,10 @@ def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
     assert CLAIMS["best_with_sigma_zero"](L, [])[3] is False
     assert why_not("raico_converged_25", "R-AICO a=10 converged after 25 iterations").startswith("the method's")
     assert why_not("raico_converged_25", "R-AICO a=1 converged after 25 iterations") == "not examined"
+
+
+def test_figure_names_as_the_thesis_names_its_panels():
+    from stages.evaluate.claims import figure_names
+
+    assert figure_names(["fig3.2c", "fig3.2d"]) == "Fig. 3.2C,D"
+    assert figure_names(["fig3.4"]) == "Fig. 3.4" and figure_names(["fig4.1/4.2"]) == "Fig. 4.1/4.2"

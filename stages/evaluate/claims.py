@@ -949,7 +949,7 @@ def figure_names(ids) -> str:
     """Experiment ids as the thesis names its figures: ``fig3.2c``, ``fig3.2d`` -> ``Fig. 3.2C,D``."""
     by: dict[str, list[str]] = {}
     for f in ids:
-        num = f[3:].split("/")[0]
+        num = f[3:]  # "4.1/4.2": the pendulum's two figures, one experiment
         head, panel = (num[:-1], num[-1].upper()) if num[-1].isalpha() else (num, "")
         by.setdefault(head, []).append(panel)
     return "; ".join(f"Fig. {h}{','.join(p for p in ps if p)}" for h, ps in by.items())
