@@ -343,7 +343,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
                 stat: str = "mean") -> None:
     """Cost per iteration: per variant the mean (line) and mean +- one standard deviation (band, ``band``) over its
     runs with the median dashed, or (``stat`` "median") the median and the interquartile range; the diverged runs
-    thin to their last iterate; ``budget``: a dotted line at the thesis's budget."""
+    thin to their last iterate; ``budget``: a dotted line at the thesis's solvers' budget on the figure."""
     drawn = []
     zero = False
     for r in rows:
@@ -375,7 +375,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
     ax.set_xlim(left=-max(1.0, 0.03 * n_it) if zero else 0.5, right=n_it + 0.5)
     if budget is not None and budget < n_it:
         ax.axvline(budget, color="k", lw=0.8, ls=":")
-        ax.annotate(f"the thesis's budget ({budget})", (budget, 1), xycoords=("data", "axes fraction"),
+        ax.annotate(f"the thesis's solvers' budget ({budget})", (budget, 1), xycoords=("data", "axes fraction"),
                     xytext=(3, -12), textcoords="offset points", fontsize=7)
     ax.set_xlabel("iteration" + (" (0: the initial guess rolled out)" if zero else ""))
     ax.set_ylabel("cost (rollout on the planning model)")
@@ -1097,7 +1097,7 @@ def _fmt(x: float) -> str:
 
 
 def markdown_summary(rows: list[dict]) -> str:
-    out = ["| variant | runs | diverged | stopped by the solver's own test (relative cost change) | first-iteration "
+    out = ["| variant | runs | diverged | stopped by the solver's own convergence test (status converged; no claim's rule) | first-iteration "
            "cost | final cost | final/initial | "
            "largest via-point error | wall time (s) |", "|---|---|---|---|---|---|---|---|---|"]
     out += [f"| {r['label']} | {r['runs']} | {r['diverged']} | {r['converged']} | {_fmt(r['first_cost_median'])} | "
