@@ -1396,14 +1396,14 @@ def heldout_sentence(label: str, s: dict) -> str | None:
     first, last = float(np.mean(c[:3])), float(np.mean(c[-3:]))
     ratio = last / first if first > 0 else math.nan
     if 1 / LEVEL <= ratio <= LEVEL:
-        trend = ("stays near its level and does not fall towards zero (every evaluation within a factor "
+        trend = ("stays near its level and does not fall towards zero (every episode within a factor "
                  f"{LEVEL:g} of the first three's mean)" if first / LEVEL <= c.min() and c.max() <= first * LEVEL
                  else "ends near its first level")
     else:
         trend = "falls" if ratio < 1 / LEVEL else "rises"
     nxt = s.get("gp_error_first3"), s.get("gp_error_last3")
     return (f"{label}: the GP error on the held-out babbling data {trend}: {_fmt(first)} rad/s^2 over the first three "
-            f"evaluations, {_fmt(last)} over the last three (x{_fmt(ratio)}; lowest {_fmt(float(c.min()))}, highest "
+            f"episodes, {_fmt(last)} over the last three (x{_fmt(ratio)}; lowest {_fmt(float(c.min()))}, highest "
             f"{_fmt(float(c.max()))}; median over seeds), while the error on the next execution goes from "
             f"{_fmt(nxt[0])} to {_fmt(nxt[1])}.")
 
@@ -1437,7 +1437,7 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
              "first_success_episode": x["outcome"].metrics.get("first_success_episode")} for x in learns]
     summary = [{k: v for k, v in s.items() if not k.endswith("_curve")} for s in S.values()]
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary, "runs": runs,
-           "executions": [], "motion_run": motion_key}
+           "executions": [], "motion_run": motion_key, "findings": learn_findings(S)}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", "![motion](motion.png)", "",
           "## Claims", "", markdown_claims(rows), "", "## Settings (medians over seeds)", "",
@@ -1448,7 +1448,7 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
            f"{_fmt(s['rmse_planned_executed_first3'])} -> {_fmt(s['rmse_planned_executed_last3'])} | "
            f"{s['achieved_last']}/{s['runs']} | {', '.join(_fmt(x) for x in s['seconds_to_success'])} | "
            f"{_fmt(s['fit_time_s_total'])} | {s['optimizations']} |" for s in summary]
-    findings = learn_findings(S)
+    findings = doc["findings"]
     if findings:
         md += ["", "## What the curves say", ""] + [f"- {line}" for line in findings]
     md += ["", "## Choices", ""] + [f"- {k}: {v}" for k, v in exp.notes]

@@ -249,6 +249,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         md += [line for r in remarks.get(d["figure"], []) for line in (r, "")]
         if (root / folder / "motion.png").exists():
             md += [f"![{d['figure']} motion]({folder}/motion.png)", ""]
+        md += [f"- {line}" for line in d.get("findings") or []] + ([""] if d.get("findings") else [])
         if d.get("integrators"):
             md += [f"**Pseudo-dynamics integrators (appendix C).** {INTEGRATOR_TEXT}", "",
                    markdown_integrators(d["integrators"]), ""]
