@@ -118,6 +118,19 @@ def median_band(C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return m, lo, hi
 
 
+def mean_std(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column of ``C`` (runs x iterations): the mean and the standard deviation over the runs with a finite
+    value there (the thesis's statistic for its cost figures; NaN where none has one)."""
+    C = np.asarray(C, float)
+    n = C.shape[1] if C.ndim == 2 else 0
+    m, sd = np.full(n, np.nan), np.full(n, np.nan)
+    for j in range(n):
+        col = C[:, j][np.isfinite(C[:, j])]
+        if col.size:
+            m[j], sd[j] = float(np.mean(col)), float(np.std(col))
+    return m, sd
+
+
 def diverged_path(costs: np.ndarray, initial_cost: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """A diverged run up to its last iterate before the divergence: iterations ``0 .. k-1`` (the run
     diverged in iteration ``k = iterations``; 0 is the initial guess rolled out, cost
@@ -132,8 +145,11 @@ def diverged_path(costs: np.ndarray, initial_cost: float | None, iterations: int
 
 def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[dict]:
     """What the cost-per-iteration panel draws, one dict per variant with runs: ``label``, ``color``,
-    ``runs``, ``iterations`` (1..n), ``median``/``q25``/``q75`` (``median_band`` of ``cost_curves``)
-    and ``diverged``: a ``diverged_path`` per diverged run."""
+    ``runs``, ``iterations`` (1..n), ``mean``/``std`` (``mean_std`` of ``cost_curves``), ``median``/``q25``/``q75``
+    (``median_band``), ``thesis`` (one of the thesis's solvers at the figure's budget) and ``diverged``: a
+    ``diverged_path`` per diverged run."""
+    from stages.evaluate.claims import THESIS_SOLVERS
+
     colors = figure_colors(v.label for v in exp.variants)
     out = []
     for v in exp.variants:
@@ -142,11 +158,15 @@ def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[di
         if C.size == 0:
             continue
         m, lo, hi = median_band(C)
+        mean, sd = mean_std(C)
         div = [diverged_path(C[i], p["outcome"].metrics.get("initial_cost"),
                              p["outcome"].metrics.get("iterations") or C.shape[1])
                for i, p in enumerate(runs) if p["outcome"].status == "diverged"]
+        with np.errstate(all="ignore"):
+            low = np.array([np.min(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in C.T])
         out.append({"label": v.label, "color": colors[v.label], "runs": C.shape[0],
-                    "iterations": np.arange(1, C.shape[1] + 1), "median": m, "q25": lo, "q75": hi, "diverged": div})
+                    "iterations": np.arange(1, C.shape[1] + 1), "mean": mean, "std": sd, "lowest": low, "median": m,
+                    "q25": lo, "q75": hi, "diverged": div, "thesis": v.label in THESIS_SOLVERS and v.iterations is None})
     return out
 
 
@@ -242,12 +262,27 @@ def _runs_phrase(rows: list[dict]) -> str:
     return f"{ns[0]} runs" if len(ns) == 1 else "the runs of each variant"
 
 
+def figure_panels(exp: Experiment, rows: list[dict], wall: bool, executed: bool) -> list[str]:
+    """The panels of an experiment's figure, in order: the thesis's solvers at the figure's budget (``cost``), the
+    variants beyond the thesis (``beyond``: long budgets, crocoddyl, ablations) where the figure has any, cost
+    against wall time (``wall``), on the balancing Nao the planned CoG against its via-points as the thesis's Fig.
+    3.4C (``cog_plan``), and the free-standing executions (``cog``, ``executed``: beyond the thesis)."""
+    panels = ["cost"] + (["beyond"] if any(not r["thesis"] for r in rows) else []) + (["wall"] if wall else [])
+    if exp.plant == "nao" and exp.task == "balance":
+        panels.append("cog_plan")
+    if executed and exp.plant == "nao":
+        panels += ["cog", "executed"]
+    return panels
+
+
 def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, executions: list | None = None) -> None:
-    """The experiment's figure: cost per iteration (median and interquartile range over the runs,
-    log scale; diverged runs thin, to their last iterate before the divergence, marked x); cost
-    against wall time where the variants' time per iteration differs (``wants_wall_panel``); for
-    executed Nao plans the executed CoG and the executed via-point errors. One colour per variant
-    (``figure_colors``), one legend below the panels."""
+    """The experiment's figure: cost per iteration as the thesis draws it (mean and standard deviation over the
+    initial states, log scale; the median dashed; diverged runs thin, to their last iterate before the divergence,
+    marked x), the thesis's solvers at the figure's budget in one panel and the variants beyond the thesis in
+    another; cost against wall time where the variants' time per iteration differs (``wants_wall_panel``); on the
+    balancing Nao the planned CoG against its via-points (Fig. 3.4C); for executed Nao plans the executed CoG and
+    the executed via-point errors (beyond the thesis). One colour per variant (``figure_colors``), one legend below
+    the panels."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -257,18 +292,26 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     executions = executions or []
     rows = cost_panel_data(cache, exp, plans)
     per_it = time_per_iteration(cache, exp, plans)
-    panels = ["cost"] + (["wall"] if wants_wall_panel(exp, per_it) else [])
-    if executions and exp.plant == "nao":
-        panels += ["cog", "executed"]
+    panels = figure_panels(exp, rows, wants_wall_panel(exp, per_it), bool(executions))
     n = len(panels)
-    shape = (2, 2) if n == 4 else (1, n)
+    shape = (1, n) if n <= 3 else (2, 2) if n == 4 else (2, 3)
     fig, axes = plt.subplots(*shape, figsize=(5.6 * shape[1], 4.3 * shape[0] + 0.9), squeeze=False,
                              layout="constrained")
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
     ax_of = dict(zip(panels, axes.ravel()))
 
-    _cost_panel(ax_of["cost"], exp, rows)
+    thesis = [r for r in rows if r["thesis"]]
+    _cost_panel(ax_of["cost"], exp, thesis, f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics}), the thesis's "
+                f"solvers at the figure's budget ({exp.iterations} iterations)")
+    if "beyond" in ax_of:
+        _cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
+                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=exp.iterations,
+                    stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
     if "wall" in ax_of:
         _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
+    if "cog_plan" in ax_of:
+        _planned_cog_panel(cache, exp, plans, ax_of["cog_plan"])
     if "cog" in ax_of:
         _cog_panel(cache, exp, executions, ax_of["cog"])
         _executed_panel(cache, exp, plans, executions, ax_of["executed"])
@@ -278,6 +321,7 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
         d = len(r["diverged"])
         text = f"{r['label']}: {r['runs']} runs" + (f", {d} diverged" if d else "")
         handles.append(Line2D([], [], color=r["color"], lw=2, label=text))
+    handles.append(Line2D([], [], color="k", lw=0.9, ls="--", label="dashed: the median over the runs"))
     if any(r["diverged"] for r in rows):
         handles.append(Line2D([], [], color="k", lw=0.8, marker="x", markersize=7,
                               label="thin: a diverged run up to its last iterate before the divergence (x)"))
@@ -286,14 +330,30 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     save_figure(fig, path, dpi=110)
 
 
-def _cost_panel(ax, exp: Experiment, rows: list[dict]) -> None:
+def band(r: dict, stat: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(line, lower, upper)`` of a cost panel row: ``mean`` with mean +- one standard deviation (the lower edge
+    not below the lowest run's cost: on the log scale a mean - std <= 0 has no place), or ``median`` with the
+    interquartile range."""
+    if stat == "median":
+        return r["median"], r["q25"], r["q75"]
+    return r["mean"], np.fmax(r["mean"] - r["std"], r["lowest"]), r["mean"] + r["std"]
+
+
+def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int | None = None,
+                stat: str = "mean") -> None:
+    """Cost per iteration: per variant the mean (line) and mean +- one standard deviation (band, ``band``) over its
+    runs with the median dashed, or (``stat`` "median") the median and the interquartile range; the diverged runs
+    thin to their last iterate; ``budget``: a dotted line at the thesis's solvers' budget on the figure."""
     drawn = []
     zero = False
     for r in rows:
-        it, m, lo, hi, c = r["iterations"], r["median"], r["q25"], r["q75"], r["color"]
-        ax.fill_between(it, lo, hi, color=c, alpha=0.18, lw=0)
-        ax.plot(it, m, color=c, lw=1.8)
-        drawn += [m, lo, hi]
+        it, c = r["iterations"], r["color"]
+        line, lo, hi = band(r, stat)
+        ax.fill_between(it, lo, hi, color=c, alpha=0.16, lw=0)
+        ax.plot(it, line, color=c, lw=1.8)
+        if stat == "mean":
+            ax.plot(it, r["median"], color=c, lw=0.9, ls="--")
+        drawn += [line, lo, hi, r["median"]]
         ends = []
         for x, y in r["diverged"]:
             if y.size:
@@ -302,7 +362,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict]) -> None:
                 drawn.append(y)
                 ends.append((x[-1], y[-1]))
                 zero = zero or x[0] == 0
-        if ends and len(r["diverged"]) == r["runs"]:  # no median line: say whose crosses these are
+        if ends and len(r["diverged"]) == r["runs"]:  # no line: say whose crosses these are
             x, y = max(e[0] for e in ends), float(np.exp(np.mean(np.log([e[1] for e in ends]))))
             ax.annotate(f"{r['label']}: {len(ends)}/{r['runs']} diverged", (x, y), xytext=(8, 0),
                         textcoords="offset points", va="center", fontsize=8, color=c,
@@ -312,12 +372,67 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict]) -> None:
     if lim:
         ax.set_ylim(*lim)
     n_it = max((r["iterations"].size for r in rows), default=1)
-    ax.set_xlim(left=-max(1.0, 0.03 * n_it) if zero else 0.5)
+    ax.set_xlim(left=-max(1.0, 0.03 * n_it) if zero else 0.5, right=n_it + 0.5)
+    if budget is not None and budget < n_it:
+        ax.axvline(budget, color="k", lw=0.8, ls=":")
+        ax.annotate(f"the thesis's solvers' budget ({budget})", (budget, 1), xycoords=("data", "axes fraction"),
+                    xytext=(3, -12), textcoords="offset points", fontsize=7)
     ax.set_xlabel("iteration" + (" (0: the initial guess rolled out)" if zero else ""))
     ax.set_ylabel("cost (rollout on the planning model)")
-    ax.set_title(f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics})\ncost per iteration: median and interquartile "
-                 f"range (25-75 %) over {_runs_phrase(rows)}", fontsize=9)
+    what = ("mean and standard deviation" if stat == "mean" else "median and interquartile range (25-75 %)")
+    ax.set_title(f"{title}\ncost per iteration: {what} over {_runs_phrase(rows)}"
+                 + (" (median dashed)" if stat == "mean" else ""), fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
+
+
+def planned_cog(cache: Cache, plans: list[dict], label: str) -> list[dict]:
+    """Per plan of variant ``label`` the planned CoG's lateral coordinate (m, Drake's CoG of the planned joint
+    positions) and its CoG via-points: ``{"times", "y", "via": [(t, target y)]}``."""
+    from pipeline.artifacts import as_artifact
+    from plants.robots import shared_robot
+    from plants.taskmaps import CenterOfMass
+
+    out = []
+    for p in plans:
+        if p["variant"].label != label:
+            continue
+        art = as_artifact(cache.require("plan", p["outcome"].key))
+        X, desc = art.arrays("plan.npz", ("X",))["X"], art.document("problem.json")
+        robot = shared_robot(desc.get("plant", "nao"))
+        good = np.all(np.isfinite(X), axis=1)
+        if not good.any():
+            continue
+        y = np.full(X.shape[0], np.nan)
+        y[good] = CenterOfMass(robot, axes=(1,)).values_and_jacobians(X[good, :robot.n_q])[0][:, 0]
+        via = [(term["times"][0] * desc["dt"], term["target"][1]) for term in desc["terms"]
+               if term["name"].startswith("via_cog")]
+        out.append({"times": np.arange(X.shape[0]) * desc["dt"], "y": y, "via": via})
+    return out
+
+
+def _planned_cog_panel(cache: Cache, exp: Experiment, plans: list[dict], ax, label: str = "R-AICO a=1") -> None:
+    """The thesis's Fig. 3.4C: the planned CoG's lateral coordinate of ``label``'s plans (mean and standard
+    deviation over the initial states, each plan thin) against its via-points (large dots)."""
+    runs = planned_cog(cache, plans, label)
+    color = solver_color(label)
+    if not runs:
+        ax.text(0.5, 0.5, "no plans", ha="center", va="center", transform=ax.transAxes)
+        return
+    t = runs[0]["times"]
+    Y = np.array([r["y"] for r in runs if r["y"].shape == t.shape])
+    for y in Y:
+        ax.plot(t, y, color=color, lw=0.5, alpha=0.35)
+    mean, sd = mean_std(Y)
+    ax.fill_between(t, mean - sd, mean + sd, color=color, alpha=0.2, lw=0)
+    ax.plot(t, mean, color=color, lw=1.8)
+    for r in runs:
+        for tv, yv in r["via"]:
+            ax.plot(tv, yv, "o", color="k", markersize=8, mfc="none", mew=1.2)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("planned CoG lateral coordinate y (m, left +)")
+    ax.set_title(f"planned CoG, {label} ({len(Y)} plans; Fig. 3.4C): mean and standard deviation,\neach plan thin; "
+                 "circles: its CoG via-points", fontsize=9)
+    ax.grid(True, alpha=0.3)
 
 
 def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> None:
@@ -349,7 +464,7 @@ def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> N
     ax.set_xlabel("wall time (s, solver's own clock; shared 2-core machine)")
     ax.set_ylabel("cost (rollout on the planning model)")
     ts = [x for x in per_iteration.values() if x > 0]
-    spread = f"; time per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
+    spread = f"\ntime per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
     ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}",
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
@@ -415,8 +530,8 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
                   title_fontsize=8)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("executed CoG lateral coordinate y (m, left +)")
-    ax.set_title(f"executed CoG, free-standing Nao, {label} ({sum(counts.values())} runs)\ndots: each run's "
-                 "CoG via-points, x: its moment of failure", fontsize=9)
+    ax.set_title(f"beyond the thesis: executed CoG, free-standing Nao, {label} ({sum(counts.values())} runs)\n"
+                 "dots: each run's CoG via-points, x: its moment of failure", fontsize=9)
     ax.grid(True, alpha=0.3)
 
 
@@ -495,7 +610,7 @@ def balance_section(cache: Cache, exp: Experiment, executions: list, out_dir: Pa
           "| controller | runs | stood | worst CoG margin (m, median) | worst ZMP margin (m, median) | share of "
           "time with the ZMP at the edge (median) |", "|---|---|---|---|---|---|"]
     md += [f"| {r['controller']} | {r['runs']} | {r['stood']} | {_fmt(r['cog_min_margin'])} | "
-           f"{_fmt(r['zmp_min_margin'])} | {_fmt(r['zmp_edge_fraction'])} |" for r in rows]
+           f"{_fmt(r['zmp_min_margin'])} | {_share(r['zmp_edge_fraction'])} |" for r in rows]
     return md + [""], rows
 
 
@@ -534,6 +649,8 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
         achieved[g] = achieved.get(g, 0) + bool(ok and executed <= EXECUTED_VIA_TOL)
     ax.axhline(EXECUTED_VIA_TOL, color="k", ls="--", lw=0.8)
     ax.set_yscale("log")
+    lo = min(finite + [EXECUTED_VIA_TOL]) / 2
+    ax.set_ylim(lo, top * (top / lo) ** 0.6)  # the upper part of the panel left free for the legend
     ax.set_xlabel("run (initial-state seed)")
     ax.set_xticks(sorted({int(p[0]) for p in pts}))
     ax.set_ylabel("largest via-point error (m)")
@@ -547,7 +664,7 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
                        Line2D([], [], color="k", ls="--", lw=0.8,
                               label=f"the claim's tolerance ({EXECUTED_VIA_TOL * 100:g} cm)")],
               fontsize=8, loc="best")
-    ax.set_title(f"executed vs planned via-point error, {label}\nachieved (status ok and <= "
+    ax.set_title(f"beyond the thesis: executed vs planned via-point error, {label}\nachieved (status ok and <= "
                  f"{EXECUTED_VIA_TOL * 100:g} cm): " + ", ".join(f"{g} {achieved[g]}/{n}" for g, n in runs.items()),
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
@@ -831,7 +948,7 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
           "executed via-point error: median (min-max) | samples with a motor clamped, command + noise (median) |",
           "|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {NOISE_CONTROLLERS.get(r['controller'], r['controller'])} | {r['x0_noise']:g} | {r['process_noise']:g} | "
-           f"{r['runs']} | {_fmt(r['success_rate'])} | {r['stood']} | "
+           f"{r['runs']} | {_share(r['success_rate'])} | {r['stood']} | "
            f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {_fmt(r['via_error_median'])} "
            f"({_fmt(r['via_error_min'])}-{_fmt(r['via_error_max'])}) | {_share(r['clamped_median'])} |" for r in rows]
     return md + [""], rows
@@ -933,22 +1050,38 @@ def summary_table(exp: Experiment, plans: list[dict], cache: Cache | None = None
 
 
 def markdown_claims(rows: list[dict]) -> str:
-    """The claims table in two parts: the thesis's own claims first (each with the sentence it tests),
-    then the rows beyond the thesis (crocoddyl, adaptive R-AICO, free-standing executions, PILCO, ...)."""
-    from stages.evaluate.claims import BEYOND
+    """The claims table in two parts: the thesis's own claims first (each with the sentence it tests, its section
+    and the figure it is written about, the runs it reads, the set-up deviations that can drive its verdict and,
+    where it does not hold, why), then the rows beyond the thesis (crocoddyl, adaptive R-AICO, long budgets,
+    ablations, free-standing executions, PILCO, ...)."""
+    from stages.evaluate.claims import BEYOND, CANNOT
 
-    def table(part: list[dict]) -> list[str]:
-        out = ["| figure | claim | the thesis says | criterion | measured | verdict |", "|---|---|---|---|---|---|"]
-        return out + [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                      f"**{r['verdict']}** |" for r in part]
+    def verdict(r: dict) -> str:
+        why = r.get("why") or ""
+        return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] == "does not hold" and why else "")
 
+    thesis_head = ["| figure | claim | the thesis says (section, about which figure) | criterion | measured | runs "
+                   "(initial states or seeds) | set-up deviations that can drive the verdict | verdict (if it does "
+                   "not hold: why) |", "|---|---|---|---|---|---|---|---|"]
+    beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | verdict |",
+                   "|---|---|---|---|---|---|---|"]
     beyond = [r for r in rows if str(r.get("thesis", "")).startswith(BEYOND)]
     thesis = [r for r in rows if r not in beyond]
     out: list[str] = []
-    for title, part in (("The thesis's claims", thesis), ("Beyond the thesis", beyond)):
-        if part:
-            held = sum(r["verdict"] == "holds" for r in part)
-            out += [f"### {title} ({held} of {len(part)} hold)", "", *table(part), ""]
+    if thesis:
+        held = sum(r["verdict"] == "holds" for r in thesis)
+        untested = sum(r["verdict"] == CANNOT for r in thesis)
+        out += [f"### The thesis's claims ({held} of {len(thesis)} hold"
+                + (f", {untested} cannot be tested" if untested else "") + ")", "", *thesis_head]
+        out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
+                f"{r.get('seeds', '')} | {r.get('setup', '')} | {verdict(r)} |" for r in thesis]
+        out += [""]
+    if beyond:
+        held = sum(r["verdict"] == "holds" for r in beyond)
+        out += [f"### Beyond the thesis ({held} of {len(beyond)} hold)", "", *beyond_head]
+        out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
+                f"{r.get('seeds', '')} | **{r['verdict']}** |" for r in beyond]
+        out += [""]
     return "\n".join(out).rstrip()
 
 
@@ -964,7 +1097,8 @@ def _fmt(x: float) -> str:
 
 
 def markdown_summary(rows: list[dict]) -> str:
-    out = ["| variant | runs | diverged | converged (tol) | first-iteration cost | final cost | final/initial | "
+    out = ["| variant | runs | diverged | stopped by the solver's own convergence test (status converged; no claim's rule) | first-iteration "
+           "cost | final cost | final/initial | "
            "largest via-point error | wall time (s) |", "|---|---|---|---|---|---|---|---|---|"]
     out += [f"| {r['label']} | {r['runs']} | {r['diverged']} | {r['converged']} | {_fmt(r['first_cost_median'])} | "
             f"{_fmt(r['final_cost_median'])} | {_fmt(r['cost_ratio_median'])} | {_fmt(r['max_via_error_median'])} | "
@@ -972,11 +1106,16 @@ def markdown_summary(rows: list[dict]) -> str:
     return "\n".join(out) + "\n\n(medians over the runs)"
 
 
-FIGURE_CAPTION = ("Cost panels: the line is the median, the band the interquartile range (25-75 %) over the runs "
-                  "with a finite cost at that iteration (against wall time: where more than half the runs have "
-                  "finished an iteration); runs that stopped early hold their last cost, so a line's last point is "
-                  "the table's median final cost. Thin lines ending in x: diverged runs up to their last iterate "
-                  "before the divergence. One colour per solver variant in every figure.")
+FIGURE_CAPTION = ("Cost per iteration, as the thesis draws it: the left panel holds the thesis's solvers at the "
+                  "figure's budget, the solid line the mean, the band the mean +- one standard deviation over the runs "
+                  "with a finite cost at that iteration (its lower edge not below the lowest run, where mean - std "
+                  "has no place on the log scale), the dashed line the median. Runs that stopped early hold their "
+                  "last cost, so a dashed line's last point is the table's median final cost. The next panel holds "
+                  "the variants beyond the thesis (long budgets, crocoddyl FDDP, ablations): median and interquartile "
+                  "range (25-75 %), robust to FDDP's infeasible first iterates. Against wall time: median and "
+                  "interquartile range of the cost reached by each time, where more than half the runs have "
+                  "finished an iteration. Thin lines ending in x: diverged runs up to their last iterate before the "
+                  "divergence. One colour per solver variant in every figure.")
 
 
 def _controller(e: dict) -> str:
@@ -1021,8 +1160,8 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                "steps at an effort limit | RMSE planned vs executed (rad) | recording |",
                "|---|---|---|---|---|---|---|---|---|"]
         md += [f"| {e['key']} | {_controller(e)} | **{e.get('status')}** | {e.get('reason', '')} | "
-               f"{_fmt(e.get('cog_inside_fraction'))} | {_fmt(e.get('cog_min_margin'))} | "
-               f"{_fmt(e.get('torque_saturation'))} | {_fmt(e.get('rmse_planned_executed'))} | "
+               f"{_share(e.get('cog_inside_fraction'))} | {_fmt(e.get('cog_min_margin'))} | "
+               f"{_share(e.get('torque_saturation'))} | {_fmt(e.get('rmse_planned_executed'))} | "
                + (f"`{e['recording']}`" if e["recorded"] else f"on demand: `raico show {e['key']} --open`") + " |"
                for e in execs]
         if nao:
@@ -1244,6 +1383,43 @@ def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: 
     return run["outcome"].key
 
 
+LEVEL = 2.0  # a curve "stays near its level" when its last three values' mean is within a factor 2 of its first three's
+
+
+def heldout_sentence(label: str, s: dict) -> str | None:
+    """What setting ``label``'s held-out GP error does over the episodes (``summarize_learn``'s
+    ``gp_error_heldout_curve``, median over seeds), with the numbers; None without one."""
+    c = np.array(s.get("gp_error_heldout_curve") or [], float)
+    c = c[np.isfinite(c)]
+    if c.size < 6:
+        return None
+    first, last = float(np.mean(c[:3])), float(np.mean(c[-3:]))
+    ratio = last / first if first > 0 else math.nan
+    if 1 / LEVEL <= ratio <= LEVEL:
+        trend = ("stays near its level and does not fall towards zero (every episode within a factor "
+                 f"{LEVEL:g} of the first three's mean)" if first / LEVEL <= c.min() and c.max() <= first * LEVEL
+                 else "ends near its first level")
+    else:
+        trend = "falls" if ratio < 1 / LEVEL else "rises"
+    nxt = s.get("gp_error_first3"), s.get("gp_error_last3")
+    return (f"{label}: the GP error on the held-out babbling data {trend}: {_fmt(first)} rad/s^2 over the first three "
+            f"episodes, {_fmt(last)} over the last three (x{_fmt(ratio)}; lowest {_fmt(float(c.min()))}, highest "
+            f"{_fmt(float(c.max()))}; median over seeds), while the error on the next execution goes from "
+            f"{_fmt(nxt[0])} to {_fmt(nxt[1])}.")
+
+
+def learn_findings(S: dict) -> list[str]:
+    """Sentences on a learning figure's curves, from the numbers: the held-out GP error of each setting and, for
+    the hyperparameter schedules, the measured ratio of their fit times."""
+    out = [x for lab, s in S.items() if (x := heldout_sentence(lab, s))]
+    e, b = S.get("every"), S.get("batch-100")
+    if e and b and b.get("fit_time_s_total"):
+        out.append(f"Fit time over the whole loop (median over seeds): every {_fmt(e['fit_time_s_total'])} s, batch-100 "
+                   f"{_fmt(b['fit_time_s_total'])} s: 'every' takes {_fmt(e['fit_time_s_total'] / b['fit_time_s_total'])}"
+                   "x as long.")
+    return out
+
+
 def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
     from pipeline.experiments import summarize_learns
@@ -1261,7 +1437,7 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
              "first_success_episode": x["outcome"].metrics.get("first_success_episode")} for x in learns]
     summary = [{k: v for k, v in s.items() if not k.endswith("_curve")} for s in S.values()]
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary, "runs": runs,
-           "executions": [], "motion_run": motion_key}
+           "executions": [], "motion_run": motion_key, "findings": learn_findings(S)}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", "![motion](motion.png)", "",
           "## Claims", "", markdown_claims(rows), "", "## Settings (medians over seeds)", "",
@@ -1272,6 +1448,9 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
            f"{_fmt(s['rmse_planned_executed_first3'])} -> {_fmt(s['rmse_planned_executed_last3'])} | "
            f"{s['achieved_last']}/{s['runs']} | {', '.join(_fmt(x) for x in s['seconds_to_success'])} | "
            f"{_fmt(s['fit_time_s_total'])} | {s['optimizations']} |" for s in summary]
+    findings = doc["findings"]
+    if findings:
+        md += ["", "## What the curves say", ""] + [f"- {line}" for line in findings]
     md += ["", "## Choices", ""] + [f"- {k}: {v}" for k, v in exp.notes]
     md += ["", "## Recordings", ""] + [f"- {r['setting']} seed {r['seed']}: `{r['recording']}`" for r in runs]
     write_file_atomic(out_dir / "claims.md", "\n".join(md) + "\n")

@@ -259,6 +259,56 @@ def test_noise_section_counts_statuses_and_the_motors_clamping_the_noise(tmp_pat
     md, rows = noise_section(EXPERIMENTS["fig3.4-support"], noise, tmp_path)
     (row,) = rows
     assert (row["runs"], row["ok"], row["stood"], row["clamped_median"]) == (3, 1, 2, 0.5)
-    assert any(line.startswith("| stabilizer | 0.02 | 0.5 | 3 | 0.333 | 2 |") and line.endswith("| 50 % |")
+    assert any(line.startswith("| stabilizer | 0.02 | 0.5 | 3 | 33 % | 2 |") and line.endswith("| 50 % |")
                for line in md), md
     assert (tmp_path / "noise.png").stat().st_size > 0
+
+
+def test_cost_panels_draw_mean_and_standard_deviation_and_split_the_thesis_solvers(runs):
+    """The thesis draws mean and standard deviation over the initial states: the panel data carries both (median
+    beside); the thesis's solvers at the figure's budget go in one panel, long-budget and other variants in another."""
+    from pipeline.experiments import REFERENCE
+    from pipeline.report import figure_panels, mean_std
+
+    m, sd = mean_std(np.array([[1.0, 4.0], [3.0, np.inf], [5.0, 8.0]]))
+    assert list(m) == [3.0, 6.0] and sd[0] == pytest.approx(np.std([1.0, 3.0, 5.0])) and sd[1] == 2.0
+    exp = Experiment("figT", "arm5", "reach", "pseudo", (ILQG, AICO, R1, REFERENCE), 6, 2, "synthetic")
+    plans = synthetic_plans(runs) + [runs(REFERENCE, s, np.geomspace(900, 40, 12)) for s in range(3)]
+    rows = {r["label"]: r for r in cost_panel_data(FakeCache(), exp, plans)}
+    assert [lab for lab, r in rows.items() if r["thesis"]] == ["iLQG", "AICO", "R-AICO a=1"]
+    assert not rows[REFERENCE.label]["thesis"]
+    C = np.array([np.geomspace(1000 + 100 * s, 50 + 7 * s, 6) for s in range(4)])
+    assert rows["R-AICO a=1"]["mean"] == pytest.approx(C.mean(0)) and rows["R-AICO a=1"]["std"] == pytest.approx(C.std(0))
+    assert figure_panels(exp, list(rows.values()), False, False) == ["cost", "beyond"]
+    assert figure_panels(EXP, [r for r in rows.values() if r["thesis"]], True, False) == ["cost", "wall"]
+    nao = Experiment("f", "nao", "balance", "pseudo", (R1,), 6, 2, "")
+    assert figure_panels(nao, [rows["R-AICO a=1"]], False, True) == ["cost", "cog_plan", "cog", "executed"]
+
+
+def test_heldout_sentence_says_what_the_curve_does():
+    from pipeline.report import heldout_sentence, learn_findings
+
+    flat = {"gp_error_heldout_curve": [8.1, 7.9, 8.0, 8.2, 7.7, 8.3, 8.0, 7.9], "gp_error_first3": 600.0,
+            "gp_error_last3": 0.008}
+    text = heldout_sentence("every", flat)
+    assert "stays near its level and does not fall towards zero" in text and "8 rad/s^2 over the first three" in text
+    assert "lowest 7.7, highest 8.3" in text
+    falling = dict(flat, gp_error_heldout_curve=[8.0, 8.0, 8.0, 4.0, 2.0, 1.0, 1.0, 1.0])
+    assert "held-out babbling data falls" in heldout_sentence("every", falling)
+    assert heldout_sentence("every", {"gp_error_heldout_curve": [1.0, 2.0]}) is None
+    lines = learn_findings({"every": {**flat, "fit_time_s_total": 26.4}, "batch-100": {"fit_time_s_total": 8.8}})
+    assert lines[-1].endswith("'every' takes 3x as long.")
+
+
+def test_claims_table_names_section_figure_runs_setup_and_why():
+    from pipeline.report import markdown_claims
+    from stages.evaluate.claims import evaluate_claims
+    from tests.test_evaluate import table
+
+    rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
+                           "fig3.2c")
+    md = markdown_claims(rows)
+    thesis, beyond = md.split("### Beyond the thesis")
+    assert "### The thesis's claims (0 of 1 hold)" in thesis and "(about Fig. 3.2C,D)" in thesis
+    assert "| 10 | arm5 is raico's own light-weight arm" in thesis and "**does not hold** (" in thesis
+    assert "(1 of 1 hold)" in beyond and "within the figure's budget (25 iterations)" in beyond

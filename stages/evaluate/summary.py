@@ -65,6 +65,9 @@ def summarize(label: str, runs: list[dict]) -> dict:
             "cost_ratio_max": float(np.nanmax(ratio)) if np.isfinite(ratio).any() else math.nan,
             "final_cost_max": float(np.nanmax(final)) if np.isfinite(final).any() else math.inf,
             "max_via_error_median": median(np.array([largest_via_error(m) for m in ms], float)),
+            # per run, in the order given (the initial states' seeds): for comparisons paired by seed
+            "final_costs": [math.inf if s == "diverged" else float(x) for x, s in zip(final, st)],
+            "via_errors": [math.inf if s == "diverged" else largest_via_error(m) for m, s in zip(ms, st)],
             **{f"{k}_median": median(col(k)) for k in ("head_joint_excursion", "left_arm_joint_excursion",
                                                        "left_hand_excursion") if any(k in m for m in ms)},
             "wall_time_median_s": median(col("wall_time_s"))}
@@ -119,6 +122,9 @@ def summarize_learn(label: str, runs: list[dict]) -> dict:
             out[f"{key}_first3"] = median(np.nanmean(C[:, :k], axis=1)) if k else math.nan
             out[f"{key}_last3"] = median(np.nanmean(C[:, -k:], axis=1)) if k else math.nan
             out[f"{key}_total"] = median(np.nansum(C, axis=1)) if C.size else math.nan
+    last = _curves(runs, "task_error")
+    # per seed (in the order given) the last episode's executed task error: for comparisons paired by seed
+    out["task_error_last_by_seed"] = [float(r[np.isfinite(r)][-1]) if np.isfinite(r).any() else math.nan for r in last]
     ach = _curves(runs, "achieved")
     out["achieved_last"] = int(np.nansum(ach[:, -1])) if ach.size else 0
     out["seconds_to_success"] = [seconds_to_success(m) for m in runs]
