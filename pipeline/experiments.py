@@ -1,4 +1,4 @@
-"""Experiments of SPEC §10 (thesis figs. 3.2-3.4): definitions, the parallel sweep, figure, claims.
+"""The thesis's experiments (figs. 3.2-3.4) and raico's own beside them: definitions, the parallel sweep, figure, claims.
 
 An experiment is a set of plan runs: every solver variant on every initial state
 ``q0 = default + N(0, 0.05^2)`` (seeds 0..9). Each run is a cached plan artifact, so a second
@@ -8,13 +8,12 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.cache import Cache
-from pipeline.executors import Batch, Executor, Job, make_executor, run_flow
+from pipeline.executors import Batch, Job
 from pipeline.runner import Outcome
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
@@ -76,7 +75,7 @@ class Variant:
         return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
 
 
-# The crocoddyl baseline (issue 8; only where crocoddyl is installed: the extra raico[baseline],
+# The crocoddyl baseline (only where crocoddyl is installed: the extra raico[baseline],
 # which `make install` installs). FDDP runs beyond the thesis's 25 iterations: it passes R-AICO
 # only after 30-45.
 BASELINE_LABELS = {"fddp": FDDP_HELD, "fddp-rollout": FDDP_ROLLOUT, "fddp-rollout-accept-any": FDDP_ACCEPT_ANY,
@@ -99,16 +98,16 @@ ABLATION_SEEDS = 3
 FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                               seeds=ABLATION_SEEDS)
                       for s in ("fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule")) if FDDP_VARIANTS else ()
-# Beyond the thesis (issue 8): R-AICO with the adaptive alpha schedule, FDDP's iteration budget
+# Beyond the thesis R-AICO with the adaptive alpha schedule, FDDP's iteration budget
 ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                    schedule="adaptive")
 ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
-# The reference optimum of a figure (issue 18; stages.evaluate.claims.reference_cost): the lowest median final cost
+# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost
 # any solver reaches on the figure's initial states, including long-budget runs, cached as ordinary plan runs (their
 # keys are the problem's: a changed task, plant, start or cost gives a new run). The adaptive R-AICO at FDDP's
 # budget runs on every problem raico has; crocoddyl FDDP (100 iterations) joins it on the analytic arm.
 REFERENCE = ADAPTIVE
-# Ablations (issue 18): R-AICO with a growing alpha (gamma = 2, thesis §3.5's Algorithm 1 allows it; its figures
+# Ablations R-AICO with a growing alpha (gamma = 2, thesis §3.5's Algorithm 1 allows it; its figures
 # use gamma = 1), and R-AICO (fixed and adaptive) started from the zero-control rollout, FDDP's other start
 GAMMA_ABLATION = Variant("raico", 1.0, gamma=2.0)
 # plain AICO with the thesis's finite-difference linearizations of the analytic model (§3.4) beside the exact ones
@@ -116,7 +115,7 @@ FD_ABLATION = Variant("aico", dynamics="analytic-fd")
 # plain AICO with the learning rates R-AICO replaces (thesis §3.5: on the state update, Algorithm 1 line 13, or on the
 # feedback controller, line 18; "neither implementation can guarantee convergence")
 RATE_ABLATIONS = (Variant("aico", belief_rate=0.5), Variant("aico", controller_rate=0.5))
-# Appendix C (issue 18, item 5): the three pseudo-dynamics integrators ("We compared all methods, and could not find any
+# Appendix C the three pseudo-dynamics integrators ("We compared all methods, and could not find any
 # significant difference in terms of accuracy"), R-AICO a=1 and plain AICO on fig3.2a's first INTEGRATOR_SEEDS initial
 # states (backward Euler is the figure's own runs of these seeds, served from the cache); each plan's controls are
 # also integrated open loop by Drake (execute --open-loop). Not in --quick.
@@ -145,16 +144,16 @@ class Experiment:
     execute: tuple[Variant, ...] = ()
     claims: tuple[str, ...] = field(default=())
     integrators: tuple[Variant, ...] = ()  # appendix C's comparison: own table, not in the cost figure
-    # beyond the thesis (issue 19): the executed variants' plans also carried out by the whole-body stabilizer
+    # beyond the thesis the executed variants' plans also carried out by the whole-body stabilizer
     # from a standing start (ExecuteConfig controller=wbc, start=standing), beside the joint PD of the thesis rows
     stabilized: bool = False
-    # the plan's balance option (issue 19, stages/plan/balance.py) and its margin (m); "none" for the thesis's figures
+    # the plan's balance option (stages/plan/balance.py) and its margin (m); "none" for the thesis's figures
     balance: str = "none"
     balance_margin: float = 0.015
     # the executed variants' plans carried out by the joint PD from the plan's start (the thesis rows); False: only
     # the stabilizer's executions (a figure beyond the thesis whose plans a welded-foot PD cannot carry out)
     execute_pd: bool = True
-    # the stabilizer's noise sweep (issue 19): every executed plan at every noise level (stabilized figures)
+    # the stabilizer's noise sweep every executed plan at every noise level (stabilized figures)
     noise_wbc: bool = True
 
     def integrator_variants(self, quick: bool) -> tuple[Variant, ...]:
@@ -208,7 +207,7 @@ EXPERIMENTS: dict[str, Experiment] = {
                                 execute=(Variant("raico", 1.0),), stabilized=True,
                                 claims=("cog_support", "executed_reaches", "stabilizer_stands",
                                         "stabilizer_stands_under_noise")),
-    # beyond the thesis (issue 19): the thesis's "balance on one foot" (§3.6.2) on the free-standing Nao. The
+    # beyond the thesis the thesis's "balance on one foot" (§3.6.2) on the free-standing Nao. The
     # balance-inside targets with the single-support objective (the left sole's polygon at every step, the right
     # sole lifted from step 100 on), executed by the stabilizer, which releases the right sole once the CoG is over
     # the left one. Margin 2.5 cm: with 1.5 cm (the double-support default) the CoG decelerating into via-points at
@@ -218,7 +217,7 @@ EXPERIMENTS: dict[str, Experiment] = {
                                 execute=(Variant("raico", 1.0),), stabilized=True, execute_pd=False,
                                 balance="single", balance_margin=0.025, noise_wbc=False,
                                 claims=("single_support_stands",)),
-    # beyond the thesis (issue 19): fig3.4-inside's targets with the support term (--balance support: the CoG's
+    # beyond the thesis fig3.4-inside's targets with the support term (--balance support: the CoG's
     # ground projection 2.5 cm inside both soles' polygon and every joint inside its range at every step, a via-point
     # within that margin moved to the nearest feasible point before planning), executed both ways: fig3.4-inside is
     # the same without the term. Margin 2.5 cm as fig3.4-single's: with 1.5 cm seed 0 (its torso leaning back) tipped
@@ -265,35 +264,6 @@ def _outcomes(values: list) -> list[Outcome]:
     return [v if isinstance(v, Outcome) else Outcome(**v) for v in values]
 
 
-def _progress_events(progress: Callable[[int, int], None] | None):
-    """``progress(done, total)`` of each batch, as a scheduler progress callback."""
-    return (lambda ev: progress(ev.done, ev.total)) if progress else None
-
-
-def _sweep(fn, jobs: list, results: list, workers: int, progress, root, executor: Executor | None = None) -> None:
-    """Fill the ``None`` entries of ``results`` with ``Outcome(**fn(jobs[i]))``: on ``executor``, by
-    default here if ``workers`` is 1 (or one job is left), else in a pool of ``workers`` spawned
-    processes.
-
-    On any exception (an interrupt, a failed run) scheduling stops at once: pending runs are
-    cancelled, workers terminated and reaped, their temporary folders removed; an
-    :class:`~pipeline.errors.Interrupted` learns how many runs had finished (and are cached)."""
-    todo = sum(r is None for r in results)
-    if executor is None:
-        executor = make_executor("process", workers if todo > 1 else 1)
-
-    def flow():
-        values = yield Batch("run", [Job(fn, j, lookup=(lambda r=r: r)) for j, r in zip(jobs, results)])
-        results[:] = _outcomes(values)
-
-    run_flow(executor, flow(), _progress_events(progress), _cleanup(root), scheduled=len(results))
-
-
-def _cleanup(root) -> Callable[[], object] | None:
-    """After an abort: remove the killed workers' temporary folders under ``root``."""
-    return (lambda: Cache(root).cleanup_stale()) if root is not None else None
-
-
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
     """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
@@ -335,11 +305,11 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
             "integrators": [{**p, "integration": o} for p, o in zip(integ_plans, outs[n_ex + n_noise:])]}
 
 
-# the stabilized executions' settings (issue 19): the whole-body QP from the standing start
+# the stabilized executions' settings the whole-body QP from the standing start
 STABILIZER = {"controller": "wbc", "start": "standing"}
 
 
-# ----------------------------------------------------------------------------- robustness under noise (issue 9)
+# ----------------------------------------------------------------------------- robustness under noise
 # The swept variant's plans of the first NOISE_RUNS initial states are executed at every noise
 # level: (x0 noise rad, process noise N m per planning step and joint). Plan i runs with execution
 # seed i (level 0 is deterministic: seed 0, the figure's own execution for the Nao). Success:
@@ -352,7 +322,7 @@ NOISE_SWEEPS = {fid: Variant("raico", 1.0) for fid in ("fig3.2c", "fig3.2d", "fi
 def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
     """The sweep's executions of ``exp``: ``{"controller", "level", "plan_seed", "seed", "config"}`` each. The joint
     PD's (the figures of ``NOISE_SWEEPS``): the swept variant's plans of the first ``NOISE_RUNS`` initial states at
-    every level; the stabilizer's (issue 19, a ``stabilized`` figure): every executed plan at every level (level 0 is
+    every level; the stabilizer's (a ``stabilized`` figure): every executed plan at every level (level 0 is
     the figure's own execution with the stabilizer)."""
     from stages.execute import ExecuteConfig
 

@@ -1,4 +1,4 @@
-"""Figures in the thesis's style and claims tables (SPEC §8 evaluate, §10), measured and honest.
+"""Figures in the thesis's style and claims tables, measured and honest.
 
 Every claim is checked by a stated criterion on the measured numbers; the verdict is
 ``holds`` or ``does not hold`` and the numbers that decided it go into the table.
@@ -477,7 +477,7 @@ def _executed_label(exp: Experiment) -> str:
     return exp.execute[0].label if exp.execute else "R-AICO a=1"
 
 
-STABILIZER_COLOR = "#7b4173"  # the stabilizer's executions (issue 19, plum) beside the joint PD's (the variant's colour)
+STABILIZER_COLOR = "#7b4173"  # the stabilizer's executions (plum) beside the joint PD's (the variant's colour)
 
 
 def _stabilized(metrics: dict) -> bool:
@@ -543,7 +543,7 @@ def _finite_median(values: list) -> float:
 
 
 def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: Path) -> list[dict]:
-    """``balance.png`` (issue 19, beyond the thesis): per controller (joint PD, stabilizer) the executed
+    """``balance.png`` (beyond the thesis): per controller (joint PD, stabilizer) the executed
     CoG's and zero-moment point's signed margins against the contact polygon over time, one line per
     run (line style by status; below 0: outside, near 0: the feet about to tip), and the rows of its
     table: per controller the runs, how many stood, the medians of the worst CoG and ZMP margins and of
@@ -671,7 +671,7 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
 
 
 def moved_via_points(plans: list[dict]) -> list[dict]:
-    """Per CoG via-point the support term moved before planning (``--balance``, issue 19): the plans where it moved,
+    """Per CoG via-point the support term moved before planning (``--balance``): the plans where it moved,
     the requested target's static margin (m, < 0 outside the support polygon) and how far it moved (m)."""
     by: dict[str, list[dict]] = {}
     for p in plans:
@@ -806,7 +806,7 @@ def standing_rows(docs: list[dict]) -> list[dict]:
 
 
 def standing_section(docs: list[dict], root: Path) -> list[str]:
-    """The report README's section on the free-standing Nao (issue 19): ``standing.png`` (the share of runs
+    """The report README's section on the free-standing Nao ``standing.png`` (the share of runs
     that stood and that achieved the task per figure and controller, and the share that stood under noise) and
     its table; none without a Nao figure."""
     rows = standing_rows(docs)
@@ -843,7 +843,7 @@ def standing_section(docs: list[dict], root: Path) -> list[str]:
 
     md = ["## Standing on the free-standing Nao (beyond the thesis)", "",
           "Every Nao figure's executed plans (R-AICO a=1) on the free-standing robot in Drake, with the thesis-style "
-          "joint PD from the plan's start and with the whole-body stabilizer from the standing start (issue 19); "
+          "joint PD from the plan's start and with the whole-body stabilizer from the standing start; "
           "fig3.4-inside and fig3.4-support are the same targets without and with the planner's support term. "
           "Achieved: status ok and every executed via-point within 1 cm (the held right sole left out). Each "
           "figure's claims.md has the runs and the CoG and ZMP over time.", "", "![standing](standing.png)", "",
@@ -934,7 +934,7 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
         who.append(f"joint PD: {NOISE_SWEEPS[exp.id].label}'s plans of the first {NOISE_RUNS} initial states, from the "
                    "plan's start")
     if any(r["controller"] == "wbc" for r in rows):
-        who.append("stabilizer (issue 19): every executed plan, from the standing start")
+        who.append("stabilizer every executed plan, from the standing start")
     md = ["## Robustness under noise (beyond the thesis)", "",
           f"Each plan executed once per noise level ({'; '.join(who)}): initial joint-angle noise (rad) and torque "
           "noise per planning step and joint (N m; added to the controller's torque, the sum clamped at the effort "
@@ -1049,7 +1049,10 @@ def summary_table(exp: Experiment, plans: list[dict], cache: Cache | None = None
     return rows
 
 
-def markdown_claims(rows: list[dict]) -> str:
+SMOKE = "smoke test: not meaningful at 2 seeds and a few iterations"
+
+
+def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
     """The claims table in two parts: the thesis's own claims first (each with the sentence it tests, its section
     and the figure it is written about, the runs it reads, the set-up deviations that can drive its verdict and,
     where it does not hold, why), then the rows beyond the thesis (crocoddyl, adaptive R-AICO, long budgets,
@@ -1057,6 +1060,8 @@ def markdown_claims(rows: list[dict]) -> str:
     from stages.evaluate.claims import BEYOND, CANNOT
 
     def verdict(r: dict) -> str:
+        if smoke:   # --quick: the verdict as computed, marked as not a finding
+            return f"{r['verdict']} ({SMOKE})"
         why = r.get("why") or ""
         return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] == "does not hold" and why else "")
 
@@ -1080,7 +1085,7 @@ def markdown_claims(rows: list[dict]) -> str:
         held = sum(r["verdict"] == "holds" for r in beyond)
         out += [f"### Beyond the thesis ({held} of {len(beyond)} hold)", "", *beyond_head]
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | **{r['verdict']}** |" for r in beyond]
+                f"{r.get('seeds', '')} | {verdict(r) if smoke else '**' + r['verdict'] + '**'} |" for r in beyond]
         out += [""]
     return "\n".join(out).rstrip()
 
@@ -1172,7 +1177,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
                 parts.append(f"{ctrl}: {stood}/{len(group)}")
             md += ["", f"Stood ({'; '.join(parts)}). The CoG is judged against the convex hull of the sole "
                    "corners in contact (Drake's contact forces, corners within 1 mm of the ground); statuses and "
-                   "thresholds: README, section Execution. The stabilizer (issue 19, beyond the thesis): "
+                   "thresholds: README, section Execution. The stabilizer (beyond the thesis): "
                    "`stages/wbc.py`, from the standing start (`plants/free_nao.py: stance_positions`)."]
         md += [""]
     md += balance_md
@@ -1196,15 +1201,6 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
 # ----------------------------------------------------------------------------- the same results in two figures
 IDENTICAL_RTOL = 1e-3  # "the same" as the tables show them (3 significant digits)
 RESULT_WORDS = "final cost, worst final cost, largest via-point error, divergences and convergences"
-# Why a pair of figures gives the same results, found by measurement on the runs (the numbers the remark
-# quotes are read from the figures' claims.json each time the README is written).
-IDENTICAL_REASONS: dict[tuple[str, str], str] = {
-    # fig3.2c/fig3.2d gave the same results with the earlier arm5, whose roll joint came last (the roll about the
-    # hand's axis was that joint's angle, and turned the hand for almost no torque); arm5's roll now couples with
-    # the reach (issue 18), and a reason is recorded here again only where a new pair is measured to agree.
-}
-# the same comparison on the pseudo-dynamics, quoted after the reason: (figure without, figure with the term)
-IDENTICAL_CONTRASTS = {("fig3.2c", "fig3.2d"): ("fig3.2a", "fig3.2b")}
 
 
 def _term(doc: dict, label: str, term: str) -> float | None:
@@ -1223,7 +1219,7 @@ def identical_results_remarks(docs: list[dict], rtol: float = IDENTICAL_RTOL) ->
     order) that give the same results for some variants (``stages.evaluate.summary.identical_variants``
     on their summaries, relative ``rtol``): figure id of the pair's second figure -> its lines. Each
     remark names the variants, the largest relative difference, the terms by which the two problems
-    differ and their measured medians on the final plans, and the reason where it is known."""
+    differ and their measured medians on the final plans."""
     from stages.evaluate.summary import identical_variants
 
     plan_docs = [d for d in docs if d.get("figure") in EXPERIMENTS and d.get("summary")]
@@ -1253,19 +1249,7 @@ def identical_results_remarks(docs: list[dict], rtol: float = IDENTICAL_RTOL) ->
                     parts.append(f"{t} " + ", ".join(_change(x, y, lab) for lab, x, y in vals))
                 text += (f" Measured on the final plans (median over the runs, {fa} -> {fb} where both have the "
                          f"term): " + "; ".join(parts) + ".")
-            reason = IDENTICAL_REASONS.get((fa, fb))
-            if reason:
-                text += f" Why: {reason}"
-                ca, cb = IDENTICAL_CONTRASTS.get((fa, fb), (None, None))
-                if ca in by_id and cb in by_id:
-                    vals = [(lab, _term(by_id[ca], lab, "control"), _term(by_id[cb], lab, "control")) for lab in labels]
-                    vals = [(lab, x, y) for lab, x, y in vals if x is not None and y is not None]
-                    if vals:
-                        text += (f": {ca} -> {cb} raises the control term " +
-                                 ", ".join(_change(x, y, lab) for lab, x, y in vals))
-                text += "."
-            else:
-                text += " Why: not examined."
+            text += " Why: not examined."   # the remark says what agrees; a reason needs a measurement
             out.setdefault(fb, []).append(text)
     return out
 

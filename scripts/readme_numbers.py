@@ -49,10 +49,10 @@ def headline_block(report: Path) -> str:
     """One result first: how many of the thesis's claims (and of raico's own checks beyond it) hold in the
     latest report, and that call's wall time."""
     text = (report / "README.md").read_text()
-    counts = re.findall(r"^#+ (.*?) \((\d+) of (\d+) hold\)", text, re.M)
+    counts = re.findall(r"^#+ (.*?) \((\d+) of (\d+) hold([^)]*)\)", text, re.M)
     if not counts:
         return ""
-    parts = [f"{name.strip()[:1].lower()}{name.strip()[1:]}: **{k} of {n} hold**" for name, k, n in counts]
+    parts = [f"{name.strip()[:1].lower()}{name.strip()[1:]}: **{k} of {n} hold**{rest}" for name, k, n, rest in counts]
     out = "In the latest `make reproduce`: " + "; ".join(parts) + " (the tables and their reasons: Results below)."
     t = report / "timings.json"
     if t.exists():

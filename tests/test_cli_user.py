@@ -204,3 +204,22 @@ def test_a_signal_inside_an_import_is_the_interrupt():
     except ImportError as e:
         assert interrupt_in(e).signum == 15
     assert interrupt_in(ValueError("x")) is None
+
+
+def test_the_quick_report_is_labelled_a_smoke_test():
+    from pipeline.report import SMOKE, markdown_claims
+
+    rows = [{"figure": "fig3.2a", "claim": "c", "thesis": '§3.5: "x" (Fig. 3.2A)', "criterion": "k", "measured": "m",
+             "verdict": "does not hold", "why": "because"}]
+    real, smoke = markdown_claims(rows), markdown_claims(rows, smoke=True)
+    assert "**does not hold** (because)" in real and SMOKE not in real
+    assert f"does not hold ({SMOKE})" in smoke and "**" not in smoke.split("\n")[-1]
+
+
+def test_the_call_line_counts_jobs_in_english():
+    from pipeline.reproduce import call_line
+
+    call = {"figures": 1, "runs": 10, "cached_runs": 0, "jobs": 1, "wall_time_s": 3.0, "cpu_time_s": 2.0,
+            "main_cpu_time_s": 1.0, "when": "now", "load_average_1min": 0.5}
+    assert "1 figure, 10 runs (0 cached) with 1 job:" in call_line(call)
+    assert "with 2 jobs:" in call_line({**call, "jobs": 2})

@@ -134,16 +134,18 @@ def _sleep_job(args):
 SWEEP_PARENT = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from pipeline import experiments
     from pipeline.errors import Interrupted, install_signal_handlers, stop_resource_tracker
+    from pipeline.executors import Batch, Job, make_executor, run_flow
     from tests.test_faults import _sleep_job
 
     install_signal_handlers()
     root = Path(sys.argv[1])
     jobs = [(str(root / f"job{i}"), 60) for i in range(4)]
-    results = [None] * len(jobs)
+    def flow():
+        return (yield Batch("run", [Job(_sleep_job, j) for j in jobs]))
+
     try:
-        experiments._sweep(_sleep_job, jobs, results, 2, None, str(root))
+        run_flow(make_executor("process", 2), flow(), scheduled=len(jobs))
     except Interrupted as e:
         msg, code = e.message(), e.exit_code
         del e

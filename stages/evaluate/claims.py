@@ -592,7 +592,7 @@ def _stood_counts(execs: list[dict]) -> tuple[int, str]:
 
 def _joint_pd(execs: list[dict]) -> list[dict]:
     """The executions with the joint PD controller (the execution rows of the thesis's set-up); the
-    stabilizer's (issue 19) have their own claim."""
+    stabilizer's have their own claim."""
     return [e for e in execs if e.get("controller", "pd") == "pd"]
 
 
@@ -667,7 +667,7 @@ def claim_stabilizer_stands(S, execs):
             f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", achieved == len(wbc))
 
 
-NOISE_STOOD = 0.9  # issue 19: ">= 9/10 stand" under noise
+NOISE_STOOD = 0.9  # ">= 9/10 stand" under noise
 
 
 def claim_stabilizer_stands_under_noise(S, execs):
@@ -717,10 +717,6 @@ def claim_single_support_stands(S, execs):
 
 
 # ----------------------------------------------------------------------------- learning (thesis §4)
-def _falls(s: dict, key: str, factor: float) -> bool:
-    return math.isfinite(s[f"{key}_first3"]) and s[f"{key}_last3"] <= factor * s[f"{key}_first3"]
-
-
 def _small_weight(L: dict) -> dict:
     return {k: v for k, v in L.items() if "w=0.01" in k}
 
