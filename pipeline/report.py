@@ -819,13 +819,17 @@ def standing_section(docs: list[dict], root: Path) -> list[str]:
 
     fig, ax = plt.subplots(figsize=(9.0, 3.8))
     x = np.arange(len(rows))
-    share = lambda a, n: (a or 0) / n if n else math.nan  # noqa: E731
-    bars = [("stood", [share(r["stood"], r["runs"]) for r in rows], "tab:green"),
-            ("achieved (ok, via-points <= 1 cm)", [share(r["achieved"], r["runs"]) for r in rows], "tab:blue"),
-            ("stood under noise", [share(r["noise"][0]["stood"], r["noise"][0]["runs"]) if r["noise"] else math.nan
+    bars = [("stood", [(r["stood"], r["runs"]) for r in rows], "tab:green"),
+            ("achieved (ok, via-points <= 1 cm)", [(r["achieved"], r["runs"]) for r in rows], "tab:blue"),
+            ("stood under noise", [(r["noise"][0]["stood"], r["noise"][0]["runs"]) if r["noise"] else (None, 0)
                                    for r in rows], "tab:orange")]
-    for i, (label, values, color) in enumerate(bars):
-        ax.bar(x + (i - 1) * 0.26, np.nan_to_num(values, nan=0.0), 0.26, label=label, color=color)
+    for i, (label, counts, color) in enumerate(bars):
+        xs = x + (i - 1) * 0.26
+        values = [(a or 0) / n if n else 0.0 for a, n in counts]
+        ax.bar(xs, values, 0.26, label=label, color=color)
+        for xi, v, (a, n) in zip(xs, values, counts):   # the count on each bar: 0/10 is a result, "not run" is not
+            ax.text(xi, v + 0.02, f"{a or 0}/{n}" if n else "not run", ha="center", va="bottom", fontsize=5.5,
+                    rotation=90 if not n else 0)
     ax.set_xticks(x, [f"{r['figure']}\n{r['controller']}" + (f"\n--balance {r['balance']}" if r["balance"] != "none"
                                                               else "") for r in rows], fontsize=7)
     ax.set_ylim(0, 1.2)  # room above the bars for the legend
@@ -1309,12 +1313,16 @@ def write_learn_figure(exp, S: dict, path: Path) -> None:
         _learn_panel(axes[0, 2], S, labels, "task_error", "distance to the target (m)", band=True, tag=": executed")
         _learn_panel(axes[0, 2], S, labels, "planned_task_error", "distance to the target (m)", tag=": planned",
                      style="--")
-        axes[0, 2].axhline(0.05, color="k", lw=0.8, ls=":")
+        axes[0, 2].axhline(0.05, color="k", lw=0.8, ls=":", label="achieved below 5 cm")
+        axes[0, 2].legend(fontsize=6)
         axes[0, 2].set_title("(D) distance to target: executed (band), planned (dashed)", fontsize=9)
         axes[0, 0].set_xlabel("evaluation")
         axes[0, 1].set_xlabel("evaluation")
         axes[0, 2].set_xlabel("evaluation")
-    fig.suptitle(f"{exp.id}: {exp.plant} {exp.task}, learned GP dynamics (lines: median over seeds)", fontsize=10)
+    letters = ("; panels lettered as the thesis's Fig. 4.3, whose (A), snapshots of the movement, is the motion "
+               "figure below" if exp.plant != "pendulum" else "")
+    fig.suptitle(f"{exp.id}: {exp.plant} {exp.task}, learned GP dynamics (lines: median over seeds{letters})",
+                 fontsize=10)
     fig.tight_layout()
     save_figure(fig, path, dpi=100)
 
