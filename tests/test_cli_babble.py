@@ -30,7 +30,8 @@ def test_help_lists_the_stages():
     assert {"babble", "plan", "execute", "evaluate", "reproduce", "ls", "show"} <= set(listed)
     from stages.registry import stage_names
 
-    assert sorted(listed) == sorted([*stage_names(), *(c.name or c.callback.__name__ for c in app.registered_commands)])
+    assert sorted(listed) == sorted([*stage_names(), *(c.name or c.callback.__name__ for c in app.registered_commands),
+                                     *(g.name for g in app.registered_groups)])
 
 
 def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
