@@ -362,7 +362,7 @@ def exp_run(
 ):
     """Run an experiment file: every variant at every seed, each an ordinary cached stage run (a rerun
     computes only what is missing); then write artifacts/exp/NAME/runs.csv and runs.json. Exit 1 if a
-    run failed (its row says why), after the others ran."""
+    run raised an error (its row says why), after the others ran; a diverged solver is a result."""
     from pipeline import expfile
     from pipeline.executors import make_executor
     from pipeline.ui import Reporter
@@ -391,15 +391,17 @@ def exp_run(
             board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
 
         rows = expfile.run(cache, exp, pool, record=record, progress=progress)
-    failed = [r for r in rows if r["status"] != "ok"]
+    errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
+    failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     out = expfile.table_dir(cache, exp.name)
-    reporter.say(f"exp {exp.name}: {len(rows)} runs ({summary['cached']} cached, {len(failed)} failed) -> "
-                 f"{out / 'runs.csv'}")
-    for r in failed[:5]:
-        reporter.say(f"  failed: {r['variant']} seed {r['seed']}: {r['error']}")
+    reporter.say(f"exp {exp.name}: {len(rows)} runs ({summary['cached']} cached; {len(failed)} failed, of them "
+                 f"{len(errors)} with an error) -> {out / 'runs.csv'}")
+    for r in errors[:5]:
+        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     if json_:
-        typer.echo(json.dumps({**summary, "failed": len(failed), "table": str(out / "runs.csv")}))
-    if failed:
+        typer.echo(json.dumps({**summary, "failed": len(failed), "errors": len(errors),
+                               "table": str(out / "runs.csv")}))
+    if errors:
         raise typer.Exit(1)
 
 

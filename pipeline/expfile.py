@@ -454,12 +454,15 @@ def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
            "file": str(exp.path) if exp.path else None,
            "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
            "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
-    write_file_atomic(out / "runs.json", json.dumps(doc, indent=1, default=_json_default, allow_nan=False))
+    from pipeline.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
+
+    write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
+                                                    allow_nan=False))
     return out
 
 
 def _json_default(x: Any) -> Any:
-    return None if isinstance(x, float) and not math.isfinite(x) else str(x)
+    return str(x)
 
 
 def _csv_text(columns: list[str], rows: list[dict]) -> str:

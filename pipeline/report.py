@@ -346,6 +346,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
     thin to their last iterate; ``budget``: a dotted line at the thesis's solvers' budget on the figure."""
     drawn = []
     zero = False
+    labelled = 0   # labels of variants that diverged in every run, stacked so that none hides another
     for r in rows:
         it, c = r["iterations"], r["color"]
         line, lo, hi = band(r, stat)
@@ -364,9 +365,10 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
                 zero = zero or x[0] == 0
         if ends and len(r["diverged"]) == r["runs"]:  # no line: say whose crosses these are
             x, y = max(e[0] for e in ends), float(np.exp(np.mean(np.log([e[1] for e in ends]))))
-            ax.annotate(f"{r['label']}: {len(ends)}/{r['runs']} diverged", (x, y), xytext=(8, 0),
+            ax.annotate(f"{r['label']}: {len(ends)}/{r['runs']} diverged", (x, y), xytext=(8, -11 * labelled),
                         textcoords="offset points", va="center", fontsize=8, color=c,
                         bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+            labelled += 1
     ax.set_yscale("log")
     lim = _log_limits(drawn)
     if lim:

@@ -155,7 +155,8 @@ def test_a_failing_run_is_a_row_and_the_others_go_on(tmp_path):
     res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "-S", "alpha=0.5", "--jobs", 1,
                  "--artifacts", arts)
     assert res.exit_code == 1
-    assert "failed: alpha=0.5, execute.controller=wbc seed 0: execute: --controller wbc is for plans" in res.stderr
+    assert "error: alpha=0.5, execute.controller=wbc seed 0: execute: --controller wbc is for plans" in res.stderr
+    assert "4 runs (0 cached; 2 failed, of them 2 with an error)" in res.stderr
     table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv")
     ok, bad = table[table["execute.controller"] == "pd"], table[table["execute.controller"] == "wbc"]
     assert len(ok) == len(bad) == 2 and (ok["status"] == "ok").all() and (bad["status"] == "error").all()
@@ -195,3 +196,15 @@ def test_summaries_over_seeds_on_known_numbers():
     assert "alpha" not in expfile.summarize(df[df.alpha == 1.0], ["alpha"], ["m"], only_changed=True).columns
     table = expfile.render(med.reset_index(), "table")
     assert "m (IQR)" in table.splitlines()[0] and "3 (3.75)" in table
+
+
+def test_the_table_takes_non_finite_metrics(tmp_path):
+    """A diverged run's inf cost is null in runs.json (strict JSON) and empty in runs.csv."""
+    from pipeline.cache import Cache
+
+    exp = expfile.load(write(tmp_path, '[base]\nplant = "arm5"\ntask = "reach"\n'))
+    row = {"experiment": exp.name, "variant": "base", "seed": 0, "plan.final_cost": math.inf, "status": "diverged",
+           "failed": True}
+    out = expfile.write_table(Cache(tmp_path / "arts"), exp, [row])
+    assert json.loads((out / "runs.json").read_text())["rows"][0]["plan.final_cost"] is None
+    assert pd.read_csv(out / "runs.csv")["plan.final_cost"].iloc[0] in ("inf", math.inf)
