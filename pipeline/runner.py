@@ -155,6 +155,7 @@ def run_stage(
 
 
 # ----------------------------------------------------------------------------- stages
+KEY_LENGTH = 16   # hex digits of a cache key (stage_key)
 # The command that makes an artifact of each stage (said when an input of that stage is missing).
 PRODUCERS = {"babble": "raico babble", "fit": "raico fit --data BABBLE_KEY", "plan": "raico plan",
              "execute": "raico execute --plan PLAN_KEY", "evaluate": "raico evaluate --plan PLAN_KEY",
@@ -191,6 +192,8 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
         stages = (st,)
         if not ref:
             raise BadInput(f"an empty artifact key after '{st}/'")
+        if len(ref) == KEY_LENGTH:   # a whole key (what the pipeline itself passes): its entry, no listing
+            return cache.require(st, ref)
     rows = [r for s in stages for r in cache.list(s)] if stages is not None else cache.list()
     matches = [r for r in rows if r.key.startswith(ref)]
     valid = [r for r in matches if r.valid]

@@ -223,3 +223,16 @@ def test_the_call_line_counts_jobs_in_english():
             "main_cpu_time_s": 1.0, "when": "now", "load_average_1min": 0.5}
     assert "1 figure, 10 runs (0 cached) with 1 job:" in call_line(call)
     assert "with 2 jobs:" in call_line({**call, "jobs": 2})
+
+
+def test_a_whole_stage_slash_key_is_found_without_listing_the_stage(tmp_path, monkeypatch):
+    """The pipeline names inputs as STAGE/KEY: resolving one must not check every entry of the stage
+    (a reproduce resolves hundreds; listing made a cached reproduce 25 times slower)."""
+    from pipeline.cache import Cache
+    from pipeline.errors import MissingArtifact
+    from pipeline.runner import find_entry
+
+    cache = Cache(tmp_path)
+    monkeypatch.setattr(Cache, "list", lambda *a, **k: pytest.fail("listed the stage"))
+    with pytest.raises(MissingArtifact):
+        find_entry(cache, "plan/0123456789abcdef", stage="plan")
