@@ -442,6 +442,26 @@ def exp_show(
     typer.echo(expfile.render(out, fmt))
 
 
+@exp_app.command("diff")
+@handles_errors
+def exp_diff(
+    experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
+    a: Annotated[str, typer.Argument(help="A variant's label (as exp show lists it).")],
+    b: Annotated[str, typer.Argument(help="Another variant's label: B - A is reported.")],
+    metric: Annotated[str, typer.Option("--metric", "-m", help="The column compared.")] = "plan.final_cost",
+    fmt: Annotated[str, typer.Option("--format", help="table or json.")] = "table",
+    artifacts: Artifacts = None,
+):
+    """Two variants of an experiment, paired by seed: per-seed differences of a metric, their median, the
+    mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test)."""
+    from pipeline import expfile
+
+    if fmt not in ("table", "json"):
+        raise BadInput(f"--format {fmt}: choose table or json")
+    df, _ = expfile.read_table(open_cache(artifacts), experiment)
+    typer.echo(expfile.render_paired(expfile.paired(df, a, b, metric), fmt))
+
+
 def describe_entry(cache: Cache, info) -> dict:
     """What a listing shows of an entry: plant, task, solver (or dynamics), status and headline
     metric. An execution or evaluation takes plant, task and solver from its plan."""

@@ -597,3 +597,66 @@ def _cell(v: Any) -> str:
 
 def iter_labels(exp: Experiment) -> Iterator[str]:
     yield from (v.label for v in exp.variants)
+
+
+# ----------------------------------------------------------------------------- two variants, paired by seed
+MIN_PAIRS_FOR_TEST = 6   # below this many seeds the signed-rank test cannot reach p < 0.05 (two-sided): none
+
+
+@dataclass
+class Paired:
+    """``metric`` of variant ``b`` minus variant ``a``, seed by seed."""
+
+    metric: str
+    a: str
+    b: str
+    seeds: list[int]
+    differences: list[float]
+    median: float | None
+    interval: tuple[float, float] | None      # 95 % t-interval of the mean difference
+    p_value: float | None                     # Wilcoxon signed-rank, two-sided; None below MIN_PAIRS_FOR_TEST
+    note: str
+
+
+def paired(df, a: str, b: str, metric: str) -> Paired:
+    """Variant ``b`` against variant ``a`` on ``metric``, paired by seed (seeds where both have a finite
+    value). :class:`BadInput` if a variant or the metric is not in the table."""
+    import numpy as np
+    import pandas as pd
+
+    labels = list(dict.fromkeys(df["variant"]))
+    for v in (a, b):
+        if v not in labels:
+            raise BadInput(f"no variant '{v}' in the table: variants are {', '.join(map(repr, labels))}")
+    if metric not in df.columns:
+        raise BadInput(f"no column '{metric}': metrics are " + ", ".join(c for c in df.columns if "." in c))
+    va = df[df["variant"] == a].set_index("seed")[metric].apply(pd.to_numeric, errors="coerce")
+    vb = df[df["variant"] == b].set_index("seed")[metric].apply(pd.to_numeric, errors="coerce")
+    both = sorted(s for s in set(va.index) & set(vb.index) if np.isfinite(va[s]) and np.isfinite(vb[s]))
+    d = np.array([vb[s] - va[s] for s in both], float)
+    if not d.size:
+        return Paired(metric, a, b, [], [], None, None, None, "no seed where both variants have a value")
+    half = _t_half_width(d)
+    interval = None if half is None else (float(d.mean() - half), float(d.mean() + half))
+    p, note = None, f"{d.size} seeds paired"
+    if d.size < MIN_PAIRS_FOR_TEST:
+        note += f"; not enough seeds for a signed-rank test (at least {MIN_PAIRS_FOR_TEST})"
+    elif np.all(d == 0):
+        p, note = 1.0, note + "; every difference is 0"
+    else:
+        from scipy import stats
+
+        p = float(stats.wilcoxon(d).pvalue)
+    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+
+
+def render_paired(r: Paired, fmt: str = "table") -> str:
+    if fmt == "json":
+        return json.dumps(dataclasses.asdict(r))
+    lines = [f"{r.metric}: {r.b} - {r.a}, paired by seed ({r.note})"]
+    lines += [f"  seed {s}: {_cell(x)}" for s, x in zip(r.seeds, r.differences)]
+    if r.median is not None:
+        ci = "-" if r.interval is None else f"[{_cell(r.interval[0])}, {_cell(r.interval[1])}]"
+        p = "-" if r.p_value is None else f"{r.p_value:.3g}"
+        lines += [f"  median difference {_cell(r.median)}; mean's 95 % interval {ci}; signed-rank p {p}"]
+    return "\n".join(lines)

@@ -208,3 +208,35 @@ def test_the_table_takes_non_finite_metrics(tmp_path):
     out = expfile.write_table(Cache(tmp_path / "arts"), exp, [row])
     assert json.loads((out / "runs.json").read_text())["rows"][0]["plan.final_cost"] is None
     assert pd.read_csv(out / "runs.csv")["plan.final_cost"].iloc[0] in ("inf", math.inf)
+
+
+def test_two_variants_paired_by_seed_on_known_numbers():
+    df = pd.DataFrame({"variant": ["a"] * 7 + ["b"] * 7, "seed": list(range(7)) * 2,
+                       "m": [10.0, 10, 10, 10, 10, 10, 10, 11, 12, 13, 14, 15, 16, math.nan]})
+    r = expfile.paired(df, "a", "b", "m")
+    assert r.seeds == [0, 1, 2, 3, 4, 5] and r.differences == [1, 2, 3, 4, 5, 6]    # seed 6: b has no value
+    assert r.median == 3.5 and r.p_value == pytest.approx(0.03125)                  # exact: 2 / 2^6
+    half = stats.t.ppf(0.975, 5) * np.std([1, 2, 3, 4, 5, 6], ddof=1) / math.sqrt(6)
+    assert r.interval == pytest.approx((3.5 - half, 3.5 + half))
+    few = expfile.paired(df[df.seed < 3], "a", "b", "m")
+    assert few.p_value is None and "not enough seeds for a signed-rank test (at least 6)" in few.note
+    assert expfile.paired(df, "a", "a", "m").p_value == 1.0
+    with pytest.raises(BadInput, match="no variant 'c' in the table: variants are 'a', 'b'"):
+        expfile.paired(df, "a", "c", "m")
+    with pytest.raises(BadInput, match="no column 'z'"):
+        expfile.paired(df, "a", "b", "z")
+    text = expfile.render_paired(r)
+    assert text.startswith("m: b - a, paired by seed (6 seeds paired)") and "signed-rank p 0.0312" in text
+
+
+def test_exp_diff_from_the_command_line(tmp_path):
+    f = write(tmp_path, ARM.replace('seeds = "range(2)"', 'seeds = [0, 1]'))
+    arts = tmp_path / "arts"
+    assert invoke("exp", "run", f, "-S", "alpha=0.5", "--jobs", 1, "--artifacts", arts).exit_code == 0
+    res = invoke("exp", "diff", "alpha-arm", "alpha=0.5", "ilqg", "--format", "json", "--artifacts", arts)
+    doc = json.loads(res.stdout)
+    table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv").set_index(["variant", "seed"])
+    want = [table.loc[("ilqg", s), "plan.final_cost"] - table.loc[("alpha=0.5", s), "plan.final_cost"] for s in (0, 1)]
+    assert doc["seeds"] == [0, 1] and doc["differences"] == pytest.approx(want) and doc["p_value"] is None
+    bad = invoke("exp", "diff", "alpha-arm", "alpha=0.5", "nope", "--artifacts", arts)
+    assert bad.exit_code == 2 and "no variant 'nope'" in bad.stderr
