@@ -373,10 +373,14 @@ def exp_run(
         raise BadInput("--jobs must be in [1, 64]")
     cache = open_cache(artifacts)
     reporter = Reporter(quiet)
-    plan = expfile.dry_run(cache, exp)
-    summary = {"experiment": exp.name, "variants": len(exp.variants), "seeds": len(exp.seeds),
-               "runs": len(plan.runs), "cached": len(plan.runs) - plan.to_compute, "to_compute": plan.to_compute}
+    def summary_of(cached: int) -> dict:
+        runs = len(exp.runs)
+        return {"experiment": exp.name, "variants": len(exp.variants), "seeds": len(exp.seeds), "runs": runs,
+                "cached": cached, "to_compute": runs - cached}
+
     if dry_run:
+        plan = expfile.dry_run(cache, exp)
+        summary = summary_of(len(plan.runs) - plan.to_compute)
         for v in exp.variants:
             typer.echo(f"{v.label}: {len(exp.seeds)} seeds")
         reporter.say(f"exp {exp.name}: {summary['variants']} variants x {summary['seeds']} seeds = "
@@ -384,13 +388,14 @@ def exp_run(
         if json_:
             typer.echo(json.dumps(summary))
         return
-    pool = make_executor(executor, jobs if plan.to_compute > 1 else 1)
+    pool = make_executor(executor, jobs)   # its workers start at the first run that is not cached
     with reporter.board() as board:
         def progress(done: int, total: int, label: str | None) -> None:
             line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
             board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
 
         rows = expfile.run(cache, exp, pool, record=record, progress=progress)
+    summary = summary_of(sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows))
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     out = expfile.table_dir(cache, exp.name)

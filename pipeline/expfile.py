@@ -39,12 +39,13 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import itertools
 import json
 import math
 import re
 import tomllib
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -88,7 +89,7 @@ class Experiment:
     points: list[dict[str, Any]]
     path: Path | None = None
 
-    @property
+    @functools.cached_property
     def variants(self) -> list[Variant]:
         return _variants(self)
 
@@ -278,6 +279,21 @@ def validate(exp: Experiment) -> None:
 
 
 # ----------------------------------------------------------------------------- running
+SEEDED = ("plan", "execute", "learn", "babble")   # stages whose ``seed`` is the run's seed
+
+
+def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapping[str, str]):
+    """A stage's config in a run's chain: its options, the run's seed, and the earlier stages' artifacts
+    as its inputs (execute and evaluate read the plan; evaluate also the execution)."""
+    inputs = {}
+    if stage in ("execute", "evaluate"):
+        inputs["plan"] = refs["plan"]
+    if stage == "evaluate" and "execute" in refs:
+        inputs["rollout"] = refs["execute"]
+    opts = {**options[stage], **({"seed": seed} if stage in SEEDED else {})}
+    return _config(stage, opts, **inputs)
+
+
 def _run_chain(args) -> dict:
     """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
     fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
@@ -288,17 +304,8 @@ def _run_chain(args) -> dict:
 
     cache, out, refs = Cache(root), {}, {}
     for stage in stages:
-        inputs = {}
-        if stage in ("execute", "evaluate"):
-            inputs["plan"] = refs["plan"]
-        if stage == "evaluate" and "execute" in refs:
-            inputs["rollout"] = refs["execute"]
-        opts = dict(options[stage])
-        if stage in ("plan", "execute", "learn", "babble"):
-            opts["seed"] = seed
         try:
-            cfg = _config(stage, opts, **inputs)
-            outcome = runner.run(cache, stage, cfg, record=record)
+            outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
         except (RaicoError, ValueError, ArithmeticError) as e:
             out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
             break
@@ -313,16 +320,9 @@ def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
 
     out, refs = {}, {}
     for stage in exp.stages:
-        inputs = {}
-        if stage in ("execute", "evaluate"):
-            inputs["plan"] = refs["plan"]
-        if stage == "evaluate" and "execute" in refs:
-            inputs["rollout"] = refs["execute"]
-        opts = {**run.variant.options[stage]}
-        if stage in ("plan", "execute", "learn", "babble"):
-            opts["seed"] = run.seed
         try:
-            hit = runner.lookup(cache, stage, _config(stage, opts, **inputs), record=record)
+            hit = runner.lookup(cache, stage, _chain_config(stage, run.variant.options, run.seed, refs),
+                                record=record)
         except Exception:  # noqa: BLE001 - anything unusual: let the worker run it and say what happened
             return None
         if hit is None:
@@ -594,9 +594,6 @@ def _cell(v: Any) -> str:
         return f"{v:.4g}"
     return str(v)
 
-
-def iter_labels(exp: Experiment) -> Iterator[str]:
-    yield from (v.label for v in exp.variants)
 
 
 # ----------------------------------------------------------------------------- two variants, paired by seed

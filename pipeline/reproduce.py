@@ -18,8 +18,11 @@ from pipeline.ui import Board, Reporter
 ALL_IDS = [*EXPERIMENTS, *LEARN_EXPERIMENTS]
 
 
+QUICK_REPORT = "report-quick"   # the smoke test's report folder (--quick), beside the real one
+
+
 def report_dir(cache: Cache, quick: bool) -> Path:
-    return cache.root / ("report-quick" if quick else "report")
+    return cache.root / (QUICK_REPORT if quick else "report")
 
 
 # Longest work first (wall times of `make reproduce`): the learning loops are long sequential chains, so they
@@ -239,7 +242,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
                 reporter.say(f"raico: warning: {f} is damaged ({e}); left out of the report README; "
                              f"`raico reproduce --figure {fid}` rebuilds it")
     rows = [r for d in docs for r in d["claims"]]
-    quick = root.name == report_dir(Cache(root.parent), True).name
+    quick = root.name == QUICK_REPORT
     smoke = (["**A smoke test** (`--quick`: 2 seeds and a few iterations per figure): it checks that every "
               "figure runs end to end. Its verdicts are not meaningful at this size; `make reproduce` gives the "
               "real ones.", ""] if quick else [])
