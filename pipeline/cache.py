@@ -71,6 +71,7 @@ TMP_PREFIX = ".tmp-"
 NUMERIC_PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "crocoddyl", "pin")
 PACKAGES = (*NUMERIC_PACKAGES, "rerun-sdk", "mcap", "typer")
 _STAGE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+KEY_LENGTH = 16  # hex digits of a stage run's key (stage_key)
 _KEY_RE = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = 1 << 20
 
@@ -140,7 +141,7 @@ def stage_key(
         "config": config,
         "inputs": list(input_keys),
     }
-    return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:16]
+    return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:KEY_LENGTH]
 
 
 def meta_checksum(meta: Mapping[str, Any]) -> str:

@@ -558,8 +558,7 @@ def show(
     if open_:
         rec = runner.ensure_recording(cache, entry)
         if rec is None:
-            raise BadInput(f"{ref} is {'an' if entry.stage[:1] in 'aeiou' else 'a'} {entry.stage} artifact, "
-                           "which has no recording")
+            raise BadInput(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
         open_viewer(rec)
         return
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,

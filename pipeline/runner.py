@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.artifacts import as_artifact
-from pipeline.cache import Cache, Entry, stage_key
+from pipeline.cache import KEY_LENGTH, Cache, Entry, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
 from stages.base import Artifact
 
@@ -155,20 +155,19 @@ def run_stage(
 
 
 # ----------------------------------------------------------------------------- stages
-KEY_LENGTH = 16   # hex digits of a cache key (stage_key)
 # The command that makes an artifact of each stage (said when an input of that stage is missing).
 PRODUCERS = {"babble": "raico babble", "fit": "raico fit --data BABBLE_KEY", "plan": "raico plan",
              "execute": "raico execute --plan PLAN_KEY", "evaluate": "raico evaluate --plan PLAN_KEY",
              "learn": "raico learn"}
 
 
-def _a(word: str) -> str:
+def with_article(word: str) -> str:
     """``word`` with its indefinite article (an execute, a plan)."""
     return f"{'an' if word[:1] in 'aeiou' else 'a'} {word}"
 
 
 def _producer_hint(stages: tuple[str, ...]) -> str:
-    return "; " + " or ".join(f"`{PRODUCERS[s]}` makes {_a(s)} artifact" for s in stages if s in PRODUCERS)
+    return "; " + " or ".join(f"`{PRODUCERS[s]}` makes {with_article(s)} artifact" for s in stages if s in PRODUCERS)
 
 
 def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Entry:
@@ -183,7 +182,7 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     if "/" in ref:   # STAGE/KEY or STAGE/PREFIX
         st, ref = (p.strip() for p in ref.split("/", 1))
         if stages is not None and st not in stages:
-            raise BadInput(f"{st}/{ref} is {_a(st)} artifact, not {_a(' or '.join(stages))} artifact"
+            raise BadInput(f"{st}/{ref} is {with_article(st)} artifact, not {with_article(' or '.join(stages))} artifact"
                            f"{_producer_hint(stages)}")
         from stages.registry import stage_names
 
@@ -202,7 +201,7 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
             return cache.require(matches[0].stage, matches[0].key)  # raises with the reason
         elsewhere = [r for r in cache.list() if r.valid and r.key.startswith(ref)] if stages is not None else []
         if elsewhere:
-            raise BadInput(f"'{ref}' is {_a(elsewhere[0].stage)} artifact, not {_a(' or '.join(stages))} artifact"
+            raise BadInput(f"'{ref}' is {with_article(elsewhere[0].stage)} artifact, not {with_article(' or '.join(stages))} artifact"
                            f"{_producer_hint(wanted) if wanted else ''}")
         where = " or ".join(f"stage '{s}'" for s in stages) if stages else "any stage"
         raise MissingArtifact(f"no artifact with key '{ref}' in {where} under {cache.root}"

@@ -195,10 +195,10 @@ def compile_task_set(problem):
         if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
             return None
         kern, robot = k, tm.robot
-        rows = {FramePoints: 3 * len(getattr(tm, "points", ())), CenterOfMass: 3, RollAngle: 1}[type(tm)]
-        kept = np.asarray(getattr(tm, "rows", None) if type(tm) is FramePoints else
-                          getattr(tm, "axes", None) if type(tm) is CenterOfMass else [0])
-        if rows > TASK_MAX_ROWS or kept.shape != (tm.dim,) or kept.min() < 0 or kept.max() >= rows:
+        # the map's full output (rows) and the rows the term keeps, within the kernel's buffers
+        rows, kept = ((3 * len(tm.points), tm.rows) if type(tm) is FramePoints else
+                      (3, tm.axes) if type(tm) is CenterOfMass else (1, np.array([0])))
+        if rows > TASK_MAX_ROWS or np.shape(kept) != (tm.dim,) or min(kept) < 0 or max(kept) >= rows:
             return None
         if type(tm) is FramePoints:
             vt.kind, vt.npts = MessageKind.FRAME_POINTS, len(tm.points)
