@@ -113,12 +113,12 @@ def record_plan(folder: Path, art, inputs: list) -> None:
     """The planned motion, task values against their via-points, controls and cost per iteration
     (see the module docstring)."""
     from planning.objective import objective_from_description
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     cfg = art.config
     d = art.arrays("plan.npz")
     desc = art.document("problem.json")
-    robot = shared_robot(desc["plant"])
+    robot = robot_for(desc)
     objective = objective_from_description(desc, robot)
     n, times, costs = robot.n_q, d["times"], d["costs"]
     X = d["X"] if np.all(np.isfinite(d["X"])) else np.nan_to_num(d["X"], nan=0.0, posinf=0.0, neginf=0.0)
@@ -255,13 +255,13 @@ def record_execute(folder: Path, art, inputs: list) -> None:
     robot in the world, its contact points, the contact-based support polygon and the CoG's ground
     projection."""
     from planning.objective import objective_from_description
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     plan = _input(inputs, "plan")
     desc = plan.document("problem.json")
     pconf = plan.config
     d = art.arrays("rollout.npz")
-    robot = shared_robot(desc["plant"])
+    robot = robot_for(desc)
     objective = objective_from_description(desc, robot)
     n = robot.n_q
     X, X_plan, tau, times = np.nan_to_num(d["X"]), d["X_plan"], d["tau"], d["times"]

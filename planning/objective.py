@@ -14,7 +14,8 @@ Descriptions:
   ``{"map": "joints", "indices" (or null), "name"}``;
 - terms: ``{"term": "via", "name", "map", "target", "times", "weight", "precision"}`` with
   ``times`` a list of steps or ``{"from": a, "to": b}`` (every step a..b);
-  ``{"term": "control", "name", "weight"}``; ``{"term": "control_limit", "name",
+  ``{"term": "state", "name", "target" (n_x), "times", "weight", "precision"}``;
+  ``{"term": "control", "name", "weight"}`` (optionally ``"target"``); ``{"term": "control_limit", "name",
   "weight", "lower", "upper", "controls": "torque"}`` (a torque limit: dropped when the
   dynamics' controls are accelerations); ``{"term": "inequality", "name", "map", "A", "b",
   "times", "weight"}`` (one-sided bounds ``A phi <= b``, ``planning.costs.TaskInequality``;
@@ -28,12 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from planning.costs import ControlCost, ControlLimit, TaskInequality, ViaPoint
-from plants.robots import Robot, shared_robot
+from planning.costs import ControlCost, ControlLimit, StateTarget, TaskInequality, ViaPoint
+from plants.model_file import robot_for
+from plants.robots import Robot
 from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
 
 TermDesc = dict[str, Any]
-STATE_TERMS = ("via", "inequality")  # term kinds on x_t (the others are on u_t)
+STATE_TERMS = ("via", "inequality", "state")  # term kinds on x_t (the others are on u_t)
 
 
 # ------------------------------------------------------------------ descriptions
@@ -86,6 +88,13 @@ def control(weight: float, name: str = "control") -> TermDesc:
     return {"term": "control", "name": name, "weight": float(weight)}
 
 
+def state(name: str, target, times, weight: float, precision=None) -> TermDesc:
+    """State target ``w (x_t - x*)^T C (x_t - x*)`` at ``times`` (positions and velocities)."""
+    return {"term": "state", "name": name, "target": np.asarray(target, float).reshape(-1).tolist(),
+            "times": _times_desc(times), "weight": float(weight),
+            "precision": None if precision is None else np.asarray(precision, float).tolist()}
+
+
 def uncertainty(sigma_star: float, weight: float, name: str = "uncertainty", units: str = "raw") -> TermDesc:
     """The GP-uncertainty term (thesis eq. 4.3) on ``(x_t, u_t)``: built with the learned model
     by the plan stage (``planning.costs.Uncertainty``), not by :func:`build_terms`. ``units``:
@@ -131,8 +140,10 @@ def build_term(robot, d: TermDesc):
     if kind == "inequality":
         return TaskInequality(build_taskmap(robot, d["map"]), d["A"], d["b"], list(_times(d["times"])),
                               d["weight"], name=d["name"])
+    if kind == "state":
+        return StateTarget(d["target"], list(_times(d["times"])), d["weight"], d.get("precision"), name=d["name"])
     if kind == "control":
-        return ControlCost(d["weight"], name=d["name"])
+        return ControlCost(d["weight"], target=d.get("target"), name=d["name"])
     if kind == "control_limit":
         return ControlLimit(d["lower"], d["upper"], d["weight"], name=d["name"])
     raise ValueError(f"unknown cost term kind {kind!r}")
@@ -169,5 +180,5 @@ def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str =
 
 def objective_from_description(desc: dict, robot: Robot | None = None) -> Objective:
     """The planned objective rebuilt from a stored description (execute, evaluate, report)."""
-    robot = robot or shared_robot(desc["plant"])
+    robot = robot or robot_for(desc)
     return build_terms(robot, desc["terms"], int(desc["T"]), desc["control_kind"])

@@ -72,6 +72,8 @@ class Robot:
     end_effectors: dict[str, str]
     B_act: np.ndarray = None  # (n_plant, n_act) Drake actuation matrix: tau = B_act @ u_act
     support_polygon: np.ndarray | None = None  # (k, 2) in the stance sole frame, Nao only
+    spec: object = None  # plants.model_file.RobotSpec of a robot loaded from a user's model file
+    load_report: list = field(default_factory=list)  # what loading the model file changed (one line each)
     _context: object = field(default=None, repr=False)
     _P_pinv: np.ndarray | None = field(default=None, repr=False)  # pinv(P), computed once
 
@@ -182,3 +184,4 @@ def load_robot(name: str, builder: DiagramBuilder | None = None, time_step: floa
 def shared_robot(name: str) -> Robot:
     """One robot per name and process for kinematics and dynamics queries (not for diagrams)."""
     return load_robot(name)
+

@@ -79,8 +79,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning.objective import objective_from_description
+from plants.model_file import load_robot_for
 from plants.polygons import convex_hull
-from plants.robots import Robot, load_robot
+from plants.robots import Robot
 from stages.base import Artifact, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import (
     cog_via_point_margins,
@@ -284,8 +285,9 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
 
     dt, T = float(desc["dt"]), int(desc["T"])
     name = desc["plant"]
-    discrete = name in DISCRETE and not cfg.open_loop
-    robot = load_robot(name, time_step=ARM_TIME_STEP if discrete else 0.0)
+    # a model file's robot executes as the arms do: a discrete plant that enforces its joint limits
+    discrete = (name in DISCRETE or "robot" in desc) and not cfg.open_loop
+    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))

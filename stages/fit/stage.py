@@ -193,11 +193,11 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[str, list[Segment]
     ``stride``-th row kept. The accelerations are computed only at the kept rows (all rows only if
     one of them is not finite, so the selection is the same as computing everything first)."""
     from plants.dynamics_registry import make_dynamics
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     desc = plan_problem(art)
     r = art.arrays("rollout.npz")
-    robot = shared_robot(desc["plant"])
+    robot = robot_for(desc)
     n, tau = robot.n_q, r["tau"]
     T = len(tau)
     X = r["X"][:T]

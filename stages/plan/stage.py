@@ -8,6 +8,7 @@ std 0.05). Arrays follow the solver contract of ``planning.problem``.
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import asdict, dataclass
 
@@ -22,7 +23,8 @@ from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Robot, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
-from stages.plan.tasks import TASKS, TaskSpec, get_task
+from stages.plan.problem_file import INTEGRATORS, ProblemFile, read_problem
+from stages.plan.tasks import TASKS, TaskSpec, get_task, task_from_problem
 from stages.registry import DESCRIPTIONS
 
 # the solvers' option names and the plan options that set them (for error messages)
@@ -33,6 +35,8 @@ PLAN_FILE = "plan.npz"
 PROBLEM_FILE = "problem.json"
 
 
+Q0_STD = 0.05  # rad, the thesis's spread of the initial states
+INTEGRATOR_DYNAMICS = tuple(n for m in INTEGRATORS.values() for n in m.values())
 WARM_FROM = ("trajectory", "controls")
 STARTS = ("held", "rollout")
 
@@ -47,16 +51,19 @@ class PlanConfig(StageConfig):
 
     INPUTS = ("model", "warm_start")
     INPUT_STAGES = {"model": "fit", "warm_start": "plan"}
-    HELP = {"plant": "pendulum, arm5, biorob or nao.",
+    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+            "problem": "A problem file (TOML): robot (a built-in plant or a URDF/SDF/MJCF model file), horizon, "
+                       "dynamics and named cost terms; replaces --plant and --task.",
             "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",
-            "dynamics": "pseudo (controls = accelerations, backward Euler), analytic (Drake, torques), analytic-fd "
+            "dynamics": "Default: the task's or the problem file's. pseudo (controls = accelerations, backward Euler), analytic (Drake, torques), analytic-fd "
                         "(the same, linearized by finite differences), learned (GP of --model), or pseudo-euler / "
                         "pseudo-heun (appendix C's other pseudo-dynamics).",
             "solver": "One of " + ", ".join(SOLVERS) + " (aico: AICO, raico: R-AICO, ilqg: iLQG; fddp...: crocoddyl's "
                       "FDDP and its ablations, where crocoddyl is installed).",
             "alpha": "R-AICO regularization alpha (raico only).",
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
-            "q0_std": "Std of q0 around the default posture (rad).",
+            "q0_std": "Std of q0 around the default posture (rad); default 0.05 for the built-in tasks (the "
+                      "thesis's), 0 for a problem file (its start posture exactly).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
             "model": "Key of a fit artifact (the GP of --dynamics learned).",
             "warm_start": "Key of an earlier plan that starts this one (AICO/R-AICO, iLQG; see --warm-from).",
@@ -82,15 +89,16 @@ class PlanConfig(StageConfig):
                        "outside the polygon are reported on stderr and planned at the nearest feasible point.",
             "balance_margin": "With --balance: the CoG's least distance (m) inside every support-polygon edge."}
 
-    plant: str
-    task: str
-    dynamics: str = "pseudo"
+    plant: str = ""
+    task: str = ""
+    problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
+    dynamics: str = ""  # "": the task's or the problem file's
     solver: str = "raico"
     alpha: float = 1.0  # R-AICO only
     gamma: float = 1.0  # R-AICO only
     iterations: int = 50
     seed: int = 0
-    q0_std: float = 0.05  # rad
+    q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
     relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
     model: str | None = None
     warm_start: str | None = None
@@ -106,10 +114,21 @@ class PlanConfig(StageConfig):
     balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
     def validate(self) -> None:
-        if self.plant not in PLANTS:
-            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
-        get_task(self.plant, self.task)
-        if self.dynamics not in DYNAMICS:
+        if self.problem is not None:
+            pf = self.problem_file()
+            if pf.plant is None and (self.dynamics == "learned" or self.balance != "none"):
+                raise ValueError("--dynamics learned and --balance need a built-in plant (the GP is fitted to its "
+                                 "babbling, the support polygon is the Nao's)")
+            if self.dynamics not in ("", *INTEGRATOR_DYNAMICS, "analytic-fd", "learned"):
+                raise ValueError(f"unknown dynamics '{self.dynamics}': choose one of {', '.join(DYNAMICS)}")
+            check_problem(self)
+        else:
+            if not self.plant:
+                raise ValueError("give --plant and --task, or --problem FILE")
+            if self.plant not in PLANTS:
+                raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
+            get_task(self.plant, self.task)
+        if self.dynamics not in ("", *DYNAMICS):
             raise ValueError(f"unknown dynamics '{self.dynamics}': choose one of {', '.join(DYNAMICS)}")
         if (self.dynamics == "learned") != (self.model is not None):
             raise ValueError("--model KEY goes with --dynamics learned, and only with it")
@@ -119,7 +138,7 @@ class PlanConfig(StageConfig):
             raise ValueError("iterations must be in [1, 10000]")
         if not 0 <= self.seed < 2**32:
             raise ValueError("seed must be in [0, 2^32 - 1]")
-        if not 0 <= self.q0_std <= 1.0:
+        if self.q0_std is not None and not 0 <= self.q0_std <= 1.0:
             raise ValueError("q0-std must be in [0, 1] rad")
         if self.sigma is not None and self.dynamics != "learned":
             raise ValueError("--sigma-star needs --dynamics learned (the GP's variance)")
@@ -135,7 +154,7 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         if self.balance not in BALANCE_MODES:
             raise ValueError(f"unknown balance '{self.balance}': choose one of {', '.join(BALANCE_MODES)}")
-        if self.balance != "none" and self.plant != "nao":
+        if self.balance != "none" and self.robot_name() != "nao":
             raise ValueError(f"--balance {self.balance} needs --plant nao (a support polygon of the soles)")
         if not (isinstance(self.balance_margin, (int, float)) and 0 <= self.balance_margin <= 0.04):
             raise ValueError(f"balance-margin must be in [0, 0.04] m, got {self.balance_margin}")
@@ -180,10 +199,42 @@ class PlanConfig(StageConfig):
         except ValueError:
             raise ValueError(f"sigma-star must be a number or none, got '{self.sigma_star}'") from None
 
+    def problem_file(self) -> ProblemFile:
+        """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
+        text = str(self.problem)
+        if text.lstrip().startswith("{"):
+            return ProblemFile(json.loads(text))
+        return read_problem(text)
+
+    def robot_name(self) -> str:
+        """The built-in plant's name ("" for a model file's robot)."""
+        if self.problem is None:
+            return self.plant
+        return self.problem_file().plant or ""
+
     def normalized(self) -> PlanConfig:
-        """One spelling per meaning (cache key): alpha/gamma only for R-AICO, sigma* as a
+        """One spelling per meaning (cache key): a problem file as its canonical content, the
+        dynamics as the task states them unless given, alpha/gamma only for R-AICO, sigma* as a
         canonical number or "none", its weight only with it."""
         d = asdict(self)
+        if self.problem is not None:
+            try:
+                pf = self.problem_file()
+            except ValueError:
+                return self  # validate() says what is wrong
+            d.update(problem=pf.canonical(), plant=pf.plant or pf.robot_label, task=pf.name)
+            if not self.dynamics:
+                d["dynamics"] = pf.dynamics
+            if self.q0_std is None:
+                d["q0_std"] = 0.0
+        else:
+            if not self.dynamics:
+                try:
+                    d["dynamics"] = get_task(self.plant, self.task).dynamics
+                except ValueError:
+                    return self
+            if self.q0_std is None:
+                d["q0_std"] = Q0_STD
         sigma = self.sigma
         d["sigma_star"] = "none" if sigma is None else repr(sigma)
         if sigma is None:
@@ -281,9 +332,11 @@ class PlanOutput:
 
 def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
     """``q0 = default + N(0, q0_std^2)`` (rad), clipped to the joint limits (a robot cannot start
-    outside them; the Nao's hands default to their lower limit)."""
+    outside them; the Nao's hands default to their lower limit), widened to hold the default
+    posture where a model file's start posture lies outside them."""
     rng = np.random.default_rng(seed)
-    return np.clip(robot.default_q + q0_std * rng.standard_normal(robot.n_q), robot.lower, robot.upper)
+    lower, upper = np.minimum(robot.lower, robot.default_q), np.maximum(robot.upper, robot.default_q)
+    return np.clip(robot.default_q + q0_std * rng.standard_normal(robot.n_q), lower, upper)
 
 
 def control_kind(dynamics) -> str:
@@ -299,11 +352,33 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
 
 
+def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
+    """The robot and the task of ``cfg``: a built-in plant's shipped task, or a problem file's."""
+    if cfg.problem is None:
+        return shared_robot(cfg.plant), get_task(cfg.plant, cfg.task)
+    pf = cfg.problem_file()
+    if pf.plant is not None:
+        return shared_robot(pf.plant), task_from_problem(pf)
+    from plants.model_file import ModelError, shared_model
+
+    try:
+        robot = shared_model(pf.robot_spec())
+    except ModelError as e:
+        raise ValueError(str(e)) from None
+    return robot, task_from_problem(pf)
+
+
+def check_problem(cfg: PlanConfig) -> None:
+    """A problem file's robot loads and its terms build at the start posture (``ValueError``
+    otherwise): bad frames, joints and shapes are refused before anything runs."""
+    robot, task = robot_and_task(cfg)
+    task.build(robot, robot.default_q.copy(), task.T)
+
+
 def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
     """Robot, task, problem, ``q0`` and the problem's description for ``cfg``."""
-    robot = shared_robot(cfg.plant)
-    task = get_task(cfg.plant, cfg.task)
-    q0 = initial_posture(robot, cfg.q0_std, cfg.seed)
+    robot, task = robot_and_task(cfg)
+    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed)
     params = model.arrays("model.npz") if model is not None else None
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
@@ -317,6 +392,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
+    if robot.spec is not None:  # a model file's robot: execute, evaluate and the recordings rebuild it
+        desc.update(plant=robot.name, robot=robot.spec.to_dict())
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc

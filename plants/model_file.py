@@ -1,0 +1,588 @@
+"""A robot from its model file (URDF, SDF or MJCF): loaded into Drake, repaired, reported.
+
+``load_model(spec)`` gives the same :class:`plants.robots.Robot` as the built-in plants: a
+finalized plant registered with a scene graph, its planning joints (every 1-DOF joint that is not
+locked, in the plant's position order, so ``P`` is the identity), limits and efforts from the file
+(overridable), a start posture and a short load report that says what the load changed.
+
+The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem file):
+
+- ``file``: a path (relative to the problem file) or a ``package://`` URI;
+- ``packages``: ``name -> folder`` for ``package://`` URIs; the installed example-robot-data
+  (shipped with crocoddyl) is found by itself, and a package the map does not name is looked for
+  in the model file's parent folders (a folder of that name, or one whose ``package.xml`` names it);
+- ``weld``: a frame welded to the world. A robot whose root is free in the file (a humanoid) stands
+  on that frame, as the Nao stands on its left sole; a floating arm without ``weld`` gets its root
+  welded at the world origin (a fixed base);
+- ``locked``: joint values (rad or m) at which joints become welds (grippers);
+- ``start``: joint values by name, or the name of a posture of the robot's SRDF (``srdf``);
+  joints not named start at 0;
+- ``armature``: reflected motor inertia on every planning joint (kg m^2), a number or by joint;
+- ``limits``: ``joint -> {lower, upper, effort}`` overrides of the file's limits.
+
+Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
+``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
+replaced by one actuator per planning joint with the file's effort limit (0 or none: unlimited);
+``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes,
+and planning does not use contact); a visual whose mesh file does not exist dropped; relative mesh
+paths made absolute; duplicate top-level materials dropped; a robot without a name named after its
+file. Unsupported content is one clear ``ModelError``: a floating joint inside the tree, a joint
+type the planning coordinates cannot hold (ball, planar, universal), a kinematic loop.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import sysconfig
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from plants.robots import Robot
+
+FORMATS = {".urdf": "urdf", ".sdf": "sdf", ".xml": "mjcf"}
+ONE_DOF_JOINTS = ("revolute", "prismatic")  # Drake's names (a URDF "continuous" joint is a revolute one)
+
+
+class ModelError(ValueError):
+    """A model file that cannot be loaded as stated (one line: what, where, what to do)."""
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """A robot stated by its model file (see the module docstring). Paths are absolute."""
+
+    file: str
+    packages: tuple[tuple[str, str], ...] = ()
+    weld: str | None = None
+    locked: tuple[tuple[str, float], ...] = ()
+    start: str | tuple[tuple[str, float], ...] = ()
+    srdf: str | None = None
+    armature: float | tuple[tuple[str, float], ...] = 0.0
+    limits: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+
+    def to_dict(self) -> dict:
+        """JSON form (stored with a plan; :meth:`from_dict` inverts it)."""
+        return {"file": self.file, "packages": dict(self.packages), "weld": self.weld, "locked": dict(self.locked),
+                "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
+                "armature": self.armature if isinstance(self.armature, float) else dict(self.armature),
+                "limits": {j: dict(v) for j, v in self.limits}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RobotSpec:
+        def items(m):
+            return tuple(sorted((str(k), float(v)) for k, v in (m or {}).items()))
+
+        start = d.get("start") or {}
+        armature = d.get("armature", 0.0)
+        return cls(file=str(d["file"]), packages=tuple(sorted((str(k), str(v)) for k, v in
+                                                              (d.get("packages") or {}).items())),
+                   weld=d.get("weld"), locked=items(d.get("locked")),
+                   start=start if isinstance(start, str) else items(start), srdf=d.get("srdf"),
+                   armature=float(armature) if isinstance(armature, (int, float)) else items(armature),
+                   limits=tuple(sorted((str(j), items(v)) for j, v in (d.get("limits") or {}).items())))
+
+
+# ------------------------------------------------------------------ packages
+def example_robot_data() -> Path | None:
+    """The installed example-robot-data share folder (``<site-packages>/cmeel.prefix/share/...``)."""
+    for key in ("purelib", "platlib"):
+        p = Path(sysconfig.get_paths()[key]) / "cmeel.prefix" / "share" / "example-robot-data"
+        if p.is_dir():
+            return p
+    return None
+
+
+def _package_xml_name(folder: Path) -> str | None:
+    f = folder / "package.xml"
+    if not f.is_file():
+        return None
+    try:
+        node = ET.parse(f).getroot().find("name")
+    except ET.ParseError:
+        return None
+    return None if node is None or node.text is None else node.text.strip()
+
+
+class Packages:
+    """``package://NAME/rest`` -> a file: the spec's map, example-robot-data, then the model
+    file's parent folders (a folder named NAME, or one whose package.xml says NAME)."""
+
+    def __init__(self, given: dict[str, str], model: Path):
+        self.paths: dict[str, Path] = {k: Path(v) for k, v in given.items()}
+        erd = example_robot_data()
+        if erd is not None:
+            for name in ("example-robot-data", "example_robot_data"):
+                self.paths.setdefault(name, erd)
+        self.model = model
+        self.searched: dict[str, list[str]] = {}
+
+    def folder(self, name: str) -> Path:
+        if name in self.paths:
+            return self.paths[name]
+        tried = []
+        for parent in [self.model.parent, *self.model.parents]:
+            for cand in (parent, parent / name):
+                tried.append(str(cand))
+                if cand.is_dir() and (cand.name == name or _package_xml_name(cand) == name):
+                    self.paths[name] = cand
+                    return cand
+        raise ModelError(f"package '{name}' cannot be resolved: not in the robot's packages "
+                         f"({', '.join(sorted(self.paths)) or 'none given'}); searched {', '.join(tried[:6])}"
+                         f"{' ...' if len(tried) > 6 else ''}; add it as packages.{name} = \"<folder>\"")
+
+    def resolve(self, uri: str, base: Path) -> Path:
+        """A mesh or model URI as a path (``package://``, ``file://``, relative to ``base``)."""
+        if uri.startswith("package://"):
+            rest = uri[len("package://"):].lstrip("/")
+            name, _, sub = rest.partition("/")
+            return self.folder(name) / sub
+        if uri.startswith("file://"):
+            return Path(uri[len("file://"):])
+        p = Path(uri)
+        return p if p.is_absolute() else base / p
+
+    def used(self) -> dict[str, str]:
+        return {k: str(v) for k, v in self.paths.items()}
+
+
+def resolve_model_file(file: str, base: Path, packages: dict[str, str]) -> Path:
+    """The model file's path (a ``package://`` URI through :class:`Packages`); missing: ``ModelError``."""
+    pk = Packages(packages, base / "model")
+    path = pk.resolve(file, base).resolve()
+    if not path.is_file():
+        raise ModelError(f"robot file not found: {path}")
+    if path.suffix.lower() not in FORMATS:
+        raise ModelError(f"robot file {path.name}: unknown format '{path.suffix}': choose one of "
+                         f"{', '.join(FORMATS)} (URDF, SDF, MJCF)")
+    return path
+
+
+# ------------------------------------------------------------------ URDF repairs
+def _rpy_matrix(rpy) -> np.ndarray:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _matrix_rpy(R: np.ndarray) -> tuple[float, float, float]:
+    p = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
+    return math.atan2(R[2, 1], R[2, 2]), p, math.atan2(R[1, 0], R[0, 0])
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+def _floats(text: str | None, n: int, default: float = 0.0) -> np.ndarray:
+    if not text:
+        return np.full(n, default)
+    return np.array([float(s) for s in text.split()], float)
+
+
+def _lock_joint(joint: ET.Element, value: float) -> None:
+    """A revolute/prismatic joint turned into a fixed one at ``value`` (its origin composed)."""
+    kind = joint.get("type")
+    origin = joint.find("origin")
+    if origin is None:
+        origin = ET.SubElement(joint, "origin")
+    xyz, rpy = _floats(origin.get("xyz"), 3), _floats(origin.get("rpy"), 3)
+    axis_el = joint.find("axis")
+    axis = _floats(axis_el.get("xyz") if axis_el is not None else None, 3) if axis_el is not None \
+        else np.array([1.0, 0.0, 0.0])
+    R = _rpy_matrix(rpy)
+    if kind in ("revolute", "continuous"):
+        R = R @ _axis_angle(axis, value)
+    elif kind == "prismatic":
+        xyz = xyz + R @ (axis / np.linalg.norm(axis) * value)
+    origin.set("xyz", " ".join(repr(float(v)) for v in xyz))
+    origin.set("rpy", " ".join(repr(float(v)) for v in _matrix_rpy(R)))
+    joint.set("type", "fixed")
+    for tag in ("axis", "limit", "dynamics", "mimic", "safety_controller", "calibration"):
+        for el in joint.findall(tag):
+            joint.remove(el)
+
+
+def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, float]) -> tuple[str, list[str]]:
+    """The URDF as Drake can load it, and the report of what changed (see the module docstring)."""
+    notes: list[str] = []
+    n = text.count("package:///")
+    if n:
+        text = text.replace("package:///", "package://")
+        notes.append(f"'package:///' rewritten to 'package://' ({n} URIs)")
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise ModelError(f"{path.name}: not valid XML: {e}") from None
+    if root.tag != "robot":
+        raise ModelError(f"{path.name}: a URDF's root element is <robot>, found <{root.tag}>")
+    if not root.get("name"):
+        root.set("name", path.stem)
+        notes.append(f"the robot has no name: named '{path.stem}'")
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    mimics = [j.get("name") for j in joints.values() if j.find("mimic") is not None]
+    for j in joints.values():
+        for el in j.findall("mimic"):
+            j.remove(el)
+    if mimics:
+        notes.append(f"<mimic> dropped on {len(mimics)} joints ({_names(mimics)}): they move independently")
+    unknown = sorted(set(locked) - set(joints))
+    if unknown:
+        raise ModelError(f"locked joint '{unknown[0]}' is not in {path.name}: closest "
+                         f"{_closest(unknown[0], joints)}")
+    for name, value in locked.items():
+        if joints[name].get("type") not in ("revolute", "continuous", "prismatic"):
+            raise ModelError(f"locked joint '{name}' is a {joints[name].get('type')} joint: only revolute, "
+                             "continuous and prismatic joints can be locked")
+        _lock_joint(joints[name], value)
+    if locked:
+        notes.append(f"{len(locked)} joints locked as welds ({_names([f'{k}={v:g}' for k, v in locked.items()])})")
+    trans = root.findall("transmission")
+    for t in trans:
+        root.remove(t)
+    if trans:
+        notes.append(f"{len(trans)} transmissions replaced by one actuator per planning joint")
+    ncol = 0
+    for link in root.findall("link"):
+        for c in link.findall("collision"):
+            link.remove(c)
+            ncol += 1
+    if ncol:
+        notes.append(f"{ncol} <collision> elements dropped (planning uses no contact geometry)")
+    missing, seen_mat, dup = [], set(), 0
+    for m in root.findall("material"):
+        name = m.get("name")
+        if name in seen_mat:
+            root.remove(m)
+            dup += 1
+        seen_mat.add(name)
+    for m in root.findall("link/visual/material"):  # a second definition of a name becomes a reference
+        name = m.get("name")
+        if name in seen_mat and len(m):
+            for child in list(m):
+                m.remove(child)
+            dup += 1
+        if len(m):
+            seen_mat.add(name)
+    if dup:
+        notes.append(f"{dup} repeated material definitions dropped (the first one kept)")
+    for link in root.findall("link"):
+        for vis in link.findall("visual"):
+            mesh = vis.find("geometry/mesh")
+            if mesh is None or mesh.get("filename") is None:
+                continue
+            uri = mesh.get("filename")
+            f = packages.resolve(uri, path.parent)
+            if not f.is_file():
+                link.remove(vis)
+                missing.append(uri)
+            elif not uri.startswith("package://"):
+                mesh.set("filename", str(f.resolve()))
+    if missing:
+        notes.append(f"{len(missing)} visuals dropped: mesh file missing ({_names(missing, 2)})")
+    return ET.tostring(root, encoding="unicode"), notes
+
+
+def _names(items: list[str], k: int = 3) -> str:
+    return ", ".join(items[:k]) + (f" and {len(items) - k} more" if len(items) > k else "")
+
+
+def _closest(name: str, choices) -> str:
+    import difflib
+
+    near = difflib.get_close_matches(name, list(choices), n=3, cutoff=0.3)
+    return ", ".join(near) if near else ", ".join(sorted(choices)[:5])
+
+
+# ------------------------------------------------------------------ SRDF
+def srdf_postures(srdf: Path) -> dict[str, dict[str, float]]:
+    """The named postures (``<group_state>``) of an SRDF: name -> joint values."""
+    try:
+        root = ET.parse(srdf).getroot()
+    except (OSError, ET.ParseError) as e:
+        raise ModelError(f"SRDF {srdf}: cannot be read ({e})") from None
+    out: dict[str, dict[str, float]] = {}
+    for gs in root.findall("group_state"):
+        vals = out.setdefault(gs.get("name"), {})
+        for j in gs.findall("joint"):
+            v = j.get("value")
+            if v is not None and len(v.split()) == 1:
+                vals[j.get("name")] = float(v)
+    return out
+
+
+def default_srdf(model: Path) -> Path | None:
+    """``<pkg>/srdf/<stem>.srdf`` beside a ``<pkg>/{robots,urdf}/<stem>.urdf`` (example-robot-data's layout)."""
+    for cand in (model.parent.parent / "srdf" / f"{model.stem}.srdf", model.with_suffix(".srdf")):
+        if cand.is_file():
+            return cand
+    folder = model.parent.parent / "srdf"  # talos_reduced.urdf -> talos.srdf
+    found = sorted(folder.glob("*.srdf")) if folder.is_dir() else []
+    found = [f for f in found if model.stem.startswith(f.stem)]
+    return max(found, key=lambda f: len(f.stem)) if found else None
+
+
+# ------------------------------------------------------------------ loading
+@dataclass
+class Loaded:
+    """A parsed, finalized model with its planning view and the load report."""
+
+    robot: Robot
+    report: list[str] = field(default_factory=list)
+
+
+def spec_digest(spec: RobotSpec, text: str) -> str:
+    """Identity of a loaded model: the repaired file's text and the spec (12 hex)."""
+    doc = json.dumps({"text": text, "spec": spec.to_dict()}, sort_keys=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:12]
+
+
+def _model_text(spec: RobotSpec) -> tuple[Path, str, str, list[str], Packages]:
+    path = Path(spec.file)
+    if not path.is_file():
+        raise ModelError(f"robot file not found: {path}")
+    fmt = FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise ModelError(f"robot file {path.name}: unknown format '{path.suffix}': choose one of "
+                         f"{', '.join(FORMATS)} (URDF, SDF, MJCF)")
+    packages = Packages(dict(spec.packages), path)
+    text = path.read_text(errors="replace")
+    notes: list[str] = []
+    if fmt == "urdf":
+        text, notes = repair_urdf(text, path, packages, dict(spec.locked))
+    elif spec.locked:
+        raise ModelError(f"locked joints are supported for URDF files, not {fmt.upper()} ({path.name})")
+    return path, fmt, text, notes, packages
+
+
+def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
+    """A fresh :class:`~plants.robots.Robot` from ``spec`` (its report in ``robot.load_report``)."""
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.multibody.tree import JointIndex
+    from pydrake.systems.framework import DiagramBuilder
+
+    from plants.robots import Robot
+
+    path, fmt, text, notes, packages = _model_text(spec)
+    builder = builder or DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
+    if time_step > 0:
+        from pydrake.multibody.plant import DiscreteContactApproximation
+
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+    parser = Parser(plant)
+    pm = parser.package_map()
+    for name in _package_names(text):
+        folder = packages.folder(name)
+        if not pm.Contains(name):
+            pm.Add(name, str(folder))
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    drake_log.setLevel(logging.ERROR)  # Drake's warnings on tags it ignores (safety_controller, ...)
+    try:
+        if fmt == "urdf":
+            models = parser.AddModelsFromString(text, "urdf")
+        else:
+            models = parser.AddModels(str(path))
+    except RuntimeError as e:
+        raise ModelError(f"{path.name}: Drake cannot parse it: {_first_line(e)}") from None
+    finally:
+        drake_log.setLevel(level)
+    notes.extend(_weld_base(plant, models, spec.weld, path))
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+    for j in joints:
+        kind = j.type_name()
+        if kind not in (*ONE_DOF_JOINTS, "weld", "quaternion_floating", "rpy_floating"):
+            raise ModelError(f"{path.name}: joint '{j.name()}' is a {kind} joint, which the planning coordinates "
+                             "cannot hold (revolute, continuous, prismatic and fixed joints only)")
+        if kind in ("quaternion_floating", "rpy_floating"):
+            raise ModelError(f"{path.name}: joint '{j.name()}' is a floating joint inside the tree: weld a frame "
+                             "to the world (weld = \"<frame>\")")
+    planning = [j for j in joints if j.type_name() in ONE_DOF_JOINTS]
+    if not planning:
+        raise ModelError(f"{path.name}: no revolute, continuous or prismatic joint to plan for")
+    limits = {j: dict(v) for j, v in spec.limits}
+    names = [j.name() for j in planning]
+    for j in limits:
+        if j not in names:
+            raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {_closest(j, names)}")
+    armature = _per_joint(spec.armature, names, "armature")
+    unlimited = []
+    for j, arm in zip(planning, armature):
+        effort = _file_effort(text, fmt, j.name())
+        effort = limits.get(j.name(), {}).get("effort", effort)
+        if not effort or effort <= 0 or not math.isfinite(effort):
+            unlimited.append(j.name())
+            effort = math.inf
+        act = plant.AddJointActuator(f"{j.name()}_actuator", j, effort)
+        act.set_default_gear_ratio(1.0)
+        act.set_default_rotor_inertia(arm)
+    if unlimited:
+        notes.append(f"effort limit 0 or missing on {len(unlimited)} joints ({_names(unlimited)}): unlimited")
+    try:
+        plant.Finalize()
+    except RuntimeError as e:
+        raise ModelError(f"{path.name}: Drake cannot build the plant: {_first_line(e)}") from None
+    order = np.argsort([j.position_start() for j in planning])
+    planning, names = [planning[i] for i in order], [names[i] for i in order]
+    n = plant.num_positions()
+    if n != len(planning) or plant.num_velocities() != n:
+        raise ModelError(f"{path.name}: {n} positions for {len(planning)} planning joints")
+    P = np.eye(n)
+    lower = np.array([j.position_lower_limits()[0] for j in planning])
+    upper = np.array([j.position_upper_limits()[0] for j in planning])
+    effort = np.array([_effort_of(plant, j) for j in planning])
+    for k, name in enumerate(names):
+        lower[k] = limits.get(name, {}).get("lower", lower[k])
+        upper[k] = limits.get(name, {}).get("upper", upper[k])
+    default = _start_posture(spec, path, names, lower, upper, notes)
+    robot = Robot(name=f"{path.stem}-{spec_digest(spec, text)}", plant=plant, scene_graph=scene_graph,
+                  builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper, effort=effort,
+                  default_q=default, end_effectors={}, B_act=plant.MakeActuationMatrix())
+    robot.load_report = notes
+    robot.spec = spec
+    return robot
+
+
+def _package_names(text: str) -> list[str]:
+    import re
+
+    return sorted(set(re.findall(r"package://([^/\"'\s]+)/", text)))
+
+
+def _first_line(e: Exception) -> str:
+    lines = [s for s in str(e).splitlines() if s.strip()]
+    return lines[0] if lines else type(e).__name__
+
+
+def _weld_base(plant, models, weld: str | None, path: Path) -> list[str]:
+    """Weld ``weld`` (or a free root body) to the world; the report's line."""
+    world = plant.world_body()
+    roots = [b for b in (plant.get_body(i) for m in models for i in plant.GetBodyIndices(m))
+             if not _has_joint(plant, b)]
+    if weld is not None:
+        if not plant.HasFrameNamed(weld):
+            frames = [plant.get_frame(i).name() for i in range(plant.num_frames())] \
+                if hasattr(plant, "num_frames") else []
+            raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest {_closest(weld, frames)}")
+        frame = plant.GetFrameByName(weld)
+        X = frame.GetFixedPoseInBodyFrame().inverse() if frame.body().index() != world.index() else None
+        from pydrake.math import RigidTransform
+
+        plant.WeldFrames(plant.world_frame(), frame, RigidTransform())
+        _ = X
+        return [f"frame '{weld}' welded to the world" + (" (the root is free in the file)" if roots else "")]
+    if len(roots) > 1:
+        raise ModelError(f"{path.name}: {len(roots)} bodies are free ({_names([b.name() for b in roots])}): "
+                         "weld one frame to the world (weld = \"<frame>\")")
+    if roots:
+        plant.WeldFrames(plant.world_frame(), roots[0].body_frame())
+        return [f"root '{roots[0].name()}' welded to the world at its origin (it is free in the file)"]
+    return []
+
+
+def _has_joint(plant, body) -> bool:
+    from pydrake.multibody.tree import JointIndex
+
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        if j.child_body().index() == body.index():
+            return True
+    return False
+
+
+def _file_effort(text: str, fmt: str, joint: str) -> float | None:
+    if fmt != "urdf":
+        return None
+    root = ET.fromstring(text)
+    for j in root.findall("joint"):
+        if j.get("name") == joint:
+            lim = j.find("limit")
+            if lim is not None and lim.get("effort") is not None:
+                return float(lim.get("effort"))
+    return None
+
+
+def _effort_of(plant, joint) -> float:
+    for i in plant.GetJointActuatorIndices():
+        act = plant.get_joint_actuator(i)
+        if act.joint().index() == joint.index():
+            return float(act.effort_limit())
+    return math.inf
+
+
+def _per_joint(value, names: list[str], what: str) -> np.ndarray:
+    if isinstance(value, (int, float)):
+        if value < 0:
+            raise ModelError(f"{what} must be >= 0, got {value}")
+        return np.full(len(names), float(value))
+    d = dict(value)
+    for k, v in d.items():
+        if k not in names:
+            raise ModelError(f"{what}: joint '{k}' is not a planning joint: closest {_closest(k, names)}")
+        if v < 0:
+            raise ModelError(f"{what} of '{k}' must be >= 0, got {v}")
+    return np.array([d.get(n, 0.0) for n in names])
+
+
+def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, notes: list[str]) -> np.ndarray:
+    if isinstance(spec.start, str):
+        srdf = Path(spec.srdf) if spec.srdf else default_srdf(path)
+        if srdf is None:
+            raise ModelError(f"start posture '{spec.start}' needs an SRDF: none found beside {path.name}; "
+                             "set srdf = \"<file>\"")
+        postures = srdf_postures(srdf)
+        if spec.start not in postures:
+            raise ModelError(f"start posture '{spec.start}' is not in {srdf.name}: choose one of "
+                             f"{', '.join(sorted(postures)) or '(none)'}")
+        values = postures[spec.start]
+        values = {k: v for k, v in values.items() if k in names}
+    else:
+        values = dict(spec.start)
+        for k in values:
+            if k not in names:
+                raise ModelError(f"start: joint '{k}' is not a planning joint of {path.name}: closest "
+                                 f"{_closest(k, names)}")
+    q = np.array([values.get(n, 0.0) for n in names])
+    outside = [n for n, v, lo, hi in zip(names, q, lower, upper) if not lo <= v <= hi]
+    if outside:  # kept as stated (crocoddyl's Kinova starts so); plans start there
+        notes.append(f"start posture outside the file's joint limits on {_names(outside)} (kept)")
+    return q
+
+
+@cache
+def shared_model(spec: RobotSpec) -> Robot:
+    """One robot per spec and process for kinematics and dynamics queries (not for diagrams)."""
+    return load_model(spec)
+
+
+def robot_for(desc: dict) -> Robot:
+    """The shared robot of a stored plan description (``problem.json``): a built-in plant by name,
+    or a model file's robot by its spec (``desc["robot"]``)."""
+    from plants.robots import shared_robot
+
+    spec = desc.get("robot")
+    return shared_robot(desc["plant"]) if spec is None else shared_model(RobotSpec.from_dict(spec))
+
+
+def load_robot_for(desc: dict, builder=None, time_step: float = 0.0) -> Robot:
+    """A fresh robot (its own plant) of a stored plan description, as ``plants.robots.load_robot``."""
+    from plants.robots import load_robot
+
+    spec = desc.get("robot")
+    if spec is None:
+        return load_robot(desc["plant"], builder, time_step)
+    return load_model(RobotSpec.from_dict(spec), builder, time_step)

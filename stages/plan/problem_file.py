@@ -1,0 +1,490 @@
+"""Problem files: a robot, a horizon, dynamics and named cost terms, written in TOML.
+
+A problem file states a planning problem the way the field does (crocoddyl's action models,
+EXOTica's task maps): a robot (a built-in plant, or a model file, :mod:`plants.model_file`), the
+horizon ``T`` steps of ``dt`` seconds, the dynamics model and its integrator, and cost terms, each a
+task map with a target, a weight and the steps it applies at::
+
+    name = "kinova-reach"
+    [robot]
+    file = "package://example-robot-data/robots/kinova_description/robots/kinova.urdf"
+    start = "arm_up"                  # an SRDF posture, or {joint = value, ...}
+    [horizon]
+    T = 100
+    dt = 0.01
+    [dynamics]
+    model = "analytic"                # or "pseudo" (controls are accelerations)
+    [costs]
+    convention = "crocoddyl"          # weight/2 ||r||^2, times dt on steps before T
+    [costs.goal]
+    type = "frame_placement"
+    frame = "j2s6s200_end_effector"
+    position = [0.6, 0.2, 0.5]
+    times = "running"                 # steps 0..T-1; "last": T; "all": 1..T; or a list of steps
+    weight = 1.0
+
+Cost term types (``type``) and their keys:
+
+- ``frame_position``: ``frame``, ``target`` (3, or one per ``axes``), optional ``axes``,
+  ``points`` (points fixed in the frame, k x 3; the target then k x dim), ``precision``;
+- ``frame_orientation``: ``frame`` and ``rotation`` (3 x 3) or ``rpy`` (rad): the rotation vector
+  of ``R*^T R(q)``; or ``angle = "roll"`` with a scalar ``target`` (the thesis's roll about the
+  hand axis, ``atan2(y_E . z_W, z_E . z_W)``);
+- ``frame_placement``: ``frame``, ``position`` and ``rotation``/``rpy``: ``log6(M*^-1 M(q))``, as
+  crocoddyl's frame-placement residual;
+- ``com``: ``target`` (3, or one per ``axes``), ``precision``;
+- ``posture``: ``joints`` (names; default all), ``target`` (values or ``"start"``);
+- ``state``: ``target`` (``2 n`` values or ``"start"``: the start posture at rest), ``precision``;
+- ``control``: ``weight``, optional ``target`` (n values);
+- ``control_limit``: ``lower``/``upper`` (default: the model's effort limits), soft, torques only;
+- ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
+
+Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
+"start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
+F's pose at ``q0`` (before ``axes`` selects coordinates). ``times``: a list of steps in ``[0, T]``,
+``"last"`` (``[T]``), ``"all"`` (``1..T``) or ``"running"`` (``0..T-1``). Weights: with the
+``raico`` convention (default) a term costs ``w ||r||_C^2`` at each of its steps (thesis eq. 3.7);
+with ``crocoddyl`` it costs ``w/2 ||r||^2``, times ``dt`` on steps before ``T``, so crocoddyl's
+problems are written with crocoddyl's numbers.
+
+Unknown keys, names, shapes, negative weights and steps past ``T`` are refused
+(``ValueError``, one line with the valid choices).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planning import objective as ob
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "problems"
+TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs"}
+ROBOT_KEYS = {"plant", "file", "packages", "weld", "locked", "start", "srdf", "armature", "limits"}
+HORIZON_KEYS = {"T", "dt"}
+DYNAMICS_KEYS = {"model", "integrator"}
+# dynamics model -> integrator -> raico's dynamics name (plants.dynamics_registry)
+INTEGRATORS = {"pseudo": {"backward-euler": "pseudo", "euler": "pseudo-euler", "heun": "pseudo-heun"},
+               "analytic": {"semi-implicit-euler": "analytic"}}
+CONVENTIONS = ("raico", "crocoddyl")
+TIMES = ("last", "all", "running")
+COMMON = {"type", "weight", "times"}
+TERM_KEYS = {
+    "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame"},
+    "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision"},
+    "frame_placement": COMMON | {"frame", "position", "rotation", "rpy", "precision"},
+    "com": COMMON | {"target", "axes", "precision", "relative"},
+    "posture": COMMON | {"joints", "target", "precision", "relative"},
+    "state": COMMON | {"target", "precision"},
+    "control": {"type", "weight", "target"},
+    "control_limit": {"type", "weight", "lower", "upper"},
+    "joint_limit": COMMON | {"joints", "lower", "upper"},
+}
+ANGLES = ("roll",)
+
+
+def _refuse_unknown(keys, valid, where: str) -> None:
+    unknown = sorted(set(keys) - set(valid))
+    if unknown:
+        raise ValueError(f"{where}: unknown key '{unknown[0]}': valid keys are {', '.join(sorted(valid))}")
+
+
+@dataclass(frozen=True)
+class ProblemFile:
+    """A parsed problem file: ``doc`` is its canonical content (JSON-able, the cache key's part)."""
+
+    doc: dict
+
+    @property
+    def name(self) -> str:
+        return self.doc["name"]
+
+    @property
+    def T(self) -> int:
+        return int(self.doc["horizon"]["T"])
+
+    @property
+    def dt(self) -> float:
+        return float(self.doc["horizon"]["dt"])
+
+    @property
+    def dynamics(self) -> str:
+        d = self.doc["dynamics"]
+        return INTEGRATORS[d["model"]][d["integrator"]]
+
+    @property
+    def plant(self) -> str | None:
+        return self.doc["robot"].get("plant")
+
+    @property
+    def robot_label(self) -> str:
+        """A short name of the robot for tables: the built-in plant, or the model file's stem."""
+        return self.plant or Path(self.doc["robot"]["file"]).stem
+
+    def robot_spec(self):
+        """The :class:`plants.model_file.RobotSpec` of a model-file robot (None for a built-in plant)."""
+        if self.plant is not None:
+            return None
+        from plants.model_file import RobotSpec
+
+        return RobotSpec.from_dict(self.doc["robot"])
+
+    def canonical(self) -> str:
+        return json.dumps(self.doc, sort_keys=True, separators=(",", ":"))
+
+    def digest(self) -> str:
+        return hashlib.sha256(self.canonical().encode()).hexdigest()[:16]
+
+
+# ------------------------------------------------------------------ reading
+def read_problem(path: str | Path) -> ProblemFile:
+    """Parse and check a problem file (``ValueError`` with one line on any fault)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"problem file not found: {path}")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"problem file {path.name}: not valid TOML: {e}") from None
+    return ProblemFile(normalize(raw, path.resolve().parent, path.stem))
+
+
+def normalize(raw: dict, base: Path, default_name: str) -> dict:
+    """The canonical content of a problem file (paths resolved, defaults filled, keys checked)."""
+    _refuse_unknown(raw, TOP_KEYS, "problem file")
+    for key in ("robot", "horizon", "costs"):
+        if not isinstance(raw.get(key), dict):
+            raise ValueError(f"problem file: missing table [{key}]")
+    doc: dict[str, Any] = {"name": str(raw.get("name", default_name)),
+                           "description": str(raw.get("description", ""))}
+    doc["robot"] = _robot(raw["robot"], base)
+    h = raw["horizon"]
+    _refuse_unknown(h, HORIZON_KEYS, "[horizon]")
+    T, dt = h.get("T"), h.get("dt")
+    if not isinstance(T, int) or not 1 <= T <= 100000:
+        raise ValueError(f"[horizon] T must be an integer in [1, 100000], got {T!r}")
+    if not isinstance(dt, (int, float)) or not 0 < dt <= 1.0:
+        raise ValueError(f"[horizon] dt must be in (0, 1] s, got {dt!r}")
+    doc["horizon"] = {"T": T, "dt": float(dt)}
+    d = raw.get("dynamics", {})
+    _refuse_unknown(d, DYNAMICS_KEYS, "[dynamics]")
+    model = d.get("model", "pseudo")
+    if model not in INTEGRATORS:
+        raise ValueError(f"[dynamics] unknown model '{model}': choose one of {', '.join(INTEGRATORS)}")
+    integ = d.get("integrator", next(iter(INTEGRATORS[model])))
+    if integ not in INTEGRATORS[model]:
+        raise ValueError(f"[dynamics] unknown integrator '{integ}' for {model}: choose one of "
+                         f"{', '.join(INTEGRATORS[model])}")
+    doc["dynamics"] = {"model": model, "integrator": integ}
+    costs = dict(raw["costs"])
+    convention = costs.pop("convention", "raico")
+    if convention not in CONVENTIONS:
+        raise ValueError(f"[costs] unknown convention '{convention}': choose one of {', '.join(CONVENTIONS)}")
+    if not costs:
+        raise ValueError("[costs]: no cost term (add [costs.NAME] with a type)")
+    terms = {}
+    for name, term in costs.items():
+        if not isinstance(term, dict):
+            raise ValueError(f"[costs] '{name}' must be a table [costs.{name}] with a type")
+        terms[name] = _term(name, term, T)
+    doc["costs"] = {"convention": convention, "terms": terms}
+    return doc
+
+
+def _robot(r: dict, base: Path) -> dict:
+    _refuse_unknown(r, ROBOT_KEYS, "[robot]")
+    if ("plant" in r) == ("file" in r):
+        raise ValueError("[robot]: give either plant (a built-in: pendulum, arm5, biorob, nao) or file (a model file)")
+    if "plant" in r:
+        from plants.robots import PLANTS
+
+        if r["plant"] not in PLANTS:
+            raise ValueError(f"[robot] unknown plant '{r['plant']}': choose one of {', '.join(PLANTS)}")
+        extra = sorted(set(r) - {"plant"})
+        if extra:
+            raise ValueError(f"[robot] '{extra[0]}' goes with file, not with a built-in plant")
+        return {"plant": r["plant"]}
+    from plants.model_file import default_srdf, resolve_model_file
+
+    packages = {str(k): str((base / v).resolve()) for k, v in (r.get("packages") or {}).items()}
+    path = resolve_model_file(str(r["file"]), base, packages)
+    out: dict[str, Any] = {"file": str(path), "packages": packages, "weld": r.get("weld"),
+                           "sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
+    for key in ("locked", "limits", "packages"):
+        if key in r and not isinstance(r[key], dict):
+            raise ValueError(f"[robot] {key} must be a table")
+    out["locked"] = {k: _number(v, f"[robot] locked.{k}") for k, v in (r.get("locked") or {}).items()}
+    start = r.get("start", {})
+    if isinstance(start, str):
+        out["start"] = start
+        srdf = r.get("srdf")
+        srdf_path = (base / srdf).resolve() if srdf else default_srdf(path)
+        out["srdf"] = None if srdf_path is None else str(srdf_path)
+        if srdf and not srdf_path.is_file():
+            raise ValueError(f"[robot] srdf not found: {srdf_path}")
+    elif isinstance(start, dict):
+        out["start"] = {k: _number(v, f"[robot] start.{k}") for k, v in start.items()}
+        out["srdf"] = None
+    else:
+        raise ValueError("[robot] start must be an SRDF posture name or a table {joint = value}")
+    arm = r.get("armature", 0.0)
+    if isinstance(arm, dict):
+        out["armature"] = {k: _nonneg(v, f"[robot] armature.{k}") for k, v in arm.items()}
+    else:
+        out["armature"] = _nonneg(arm, "[robot] armature")
+    limits = {}
+    for j, lim in (r.get("limits") or {}).items():
+        if not isinstance(lim, dict):
+            raise ValueError(f"[robot] limits.{j} must be a table {{lower, upper, effort}}")
+        _refuse_unknown(lim, {"lower", "upper", "effort"}, f"[robot] limits.{j}")
+        limits[j] = {k: _number(v, f"[robot] limits.{j}.{k}") for k, v in lim.items()}
+    out["limits"] = limits
+    return out
+
+
+def _number(v, what: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _nonneg(v, what: str) -> float:
+    x = _number(v, what)
+    if x < 0:
+        raise ValueError(f"{what} must be >= 0, got {v!r}")
+    return x
+
+
+def _vector(v, what: str, n: int | None = None) -> list:
+    a = np.asarray(v, dtype=float) if isinstance(v, list) else None
+    if a is None or a.ndim != 1 or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} must be a list of numbers, got {v!r}")
+    if n is not None and a.size != n:
+        raise ValueError(f"{what} has {a.size} values, expected {n}")
+    return a.tolist()
+
+
+def _times(v, T: int, name: str):
+    if v is None:
+        raise ValueError(f"[costs.{name}] needs times: a list of steps in [0, {T}], or one of {', '.join(TIMES)}")
+    if isinstance(v, str):
+        if v not in TIMES:
+            raise ValueError(f"[costs.{name}] unknown times '{v}': choose one of {', '.join(TIMES)} or a list of steps")
+        return v
+    if not isinstance(v, list) or not v or not all(isinstance(t, int) and not isinstance(t, bool) for t in v):
+        raise ValueError(f"[costs.{name}] times must be a non-empty list of integer steps or one of {', '.join(TIMES)}")
+    bad = [t for t in v if not 0 <= t <= T]
+    if bad:
+        raise ValueError(f"[costs.{name}] step {bad[0]} is past the horizon: steps are in [0, T = {T}]")
+    return sorted(set(v))
+
+
+def _term(name: str, t: dict, T: int) -> dict:
+    kind = t.get("type")
+    if kind not in TERM_KEYS:
+        raise ValueError(f"[costs.{name}] unknown type {kind!r}: choose one of {', '.join(TERM_KEYS)}")
+    _refuse_unknown(t, TERM_KEYS[kind], f"[costs.{name}] ({kind})")
+    if "weight" not in t:
+        raise ValueError(f"[costs.{name}] needs a weight")
+    out = dict(t)
+    out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
+    if "times" in TERM_KEYS[kind]:
+        out["times"] = _times(t.get("times"), T, name)
+    for key in ("frame", "in_frame", "angle", "relative"):
+        if key in t and not isinstance(t[key], str):
+            raise ValueError(f"[costs.{name}] {key} must be a string")
+    if kind in ("frame_position", "frame_orientation", "frame_placement") and "frame" not in t:
+        raise ValueError(f"[costs.{name}] needs a frame")
+    if "relative" in t and t["relative"] != "start":
+        raise ValueError(f"[costs.{name}] relative must be \"start\"")
+    if "angle" in t and t["angle"] not in ANGLES:
+        raise ValueError(f"[costs.{name}] unknown angle '{t['angle']}': choose one of {', '.join(ANGLES)}")
+    if kind == "frame_orientation" and "angle" not in t and ("rotation" in t) == ("rpy" in t):
+        raise ValueError(f"[costs.{name}] needs rotation (3 x 3) or rpy (3), or angle = \"roll\" with a target")
+    if kind == "frame_placement" and "position" not in t:
+        raise ValueError(f"[costs.{name}] needs a position (3)")
+    return out
+
+
+# ------------------------------------------------------------------ building
+def _steps(times, T: int):
+    if times == "last":
+        return [T]
+    if times == "all":
+        return range(1, T + 1)
+    if times == "running":
+        return range(0, T)
+    return list(times)
+
+
+def _scale(convention: str, times, T: int, dt: float) -> list[tuple[Any, float]]:
+    """(steps, weight factor) pieces: crocoddyl's running nodes cost ``dt/2``, its terminal one ``1/2``."""
+    steps = _steps(times, T)
+    if convention == "raico":
+        return [(steps, 1.0)]
+    steps = list(steps)
+    running = [s for s in steps if s < T]
+    pieces = []
+    if running:
+        pieces.append((running if times != "running" else range(0, T), 0.5 * dt))
+    if T in steps:
+        pieces.append(([T], 0.5))
+    return pieces
+
+
+def _rotation(t: dict, name: str) -> np.ndarray:
+    if "rotation" in t:
+        R = np.asarray(t["rotation"], dtype=float)
+        if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise ValueError(f"[costs.{name}] rotation must be a 3 x 3 rotation matrix")
+        return R
+    if "rpy" in t:
+        from plants.model_file import _rpy_matrix
+
+        return _rpy_matrix(_vector(t["rpy"], f"[costs.{name}] rpy", 3))
+    return np.eye(3)
+
+
+def _check_frame(robot, frame: str, name: str) -> None:
+    if not robot.plant.HasFrameNamed(frame):
+        from plants.model_file import _closest
+
+        frames = sorted({robot.plant.get_frame(i).name() for i in _frame_indices(robot.plant)})
+        raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {_closest(frame, frames)}")
+
+
+def _frame_indices(plant):
+    from pydrake.multibody.tree import FrameIndex
+
+    return [FrameIndex(i) for i in range(plant.num_frames())]
+
+
+def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
+    """The term descriptions (:mod:`planning.objective`) of ``problem`` at start posture ``q0``."""
+    doc = problem.doc["costs"]
+    convention, dt = doc["convention"], problem.dt
+    out = []
+    for name, t in doc["terms"].items():
+        kind = t["type"]
+        if kind == "control":
+            w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
+            d = ob.control(w, name)
+            if "target" in t:
+                d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
+            out.append(d)
+            continue
+        if kind == "control_limit":
+            w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
+            lo = _vector(t["lower"], f"[costs.{name}] lower", robot.n_q) if "lower" in t else (-robot.effort).tolist()
+            hi = _vector(t["upper"], f"[costs.{name}] upper", robot.n_q) if "upper" in t else robot.effort.tolist()
+            out.append(ob.control_limit(lo, hi, w, name))
+            continue
+        pieces = _scale(convention, t["times"], T, dt)
+        for k, (steps, factor) in enumerate(pieces):
+            suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
+            out.append(_state_term(f"{name}{suffix}", t, robot, q0, steps, t["weight"] * factor))
+    return out
+
+
+def _target(t: dict, name: str, value_at_start: np.ndarray) -> np.ndarray:
+    dim = value_at_start.size
+    target = t.get("target")
+    if target is None or target == "start":
+        base = value_at_start if target == "start" else np.zeros(dim)
+        return base.copy()
+    try:
+        x = np.asarray(target, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"[costs.{name}] target must be numbers or \"start\", got {target!r}") from None
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"[costs.{name}] target must be finite")
+    if x.size != dim:
+        raise ValueError(f"[costs.{name}] target has {x.size} values, expected {dim}")
+    return value_at_start + x if t.get("relative") == "start" else x
+
+
+def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float) -> dict:
+    from plants.taskmaps import CenterOfMass, FramePoints
+
+    kind = t["type"]
+    precision = t.get("precision")
+    if kind == "frame_position":
+        _check_frame(robot, t["frame"], name)
+        axes = tuple(t.get("axes", (0, 1, 2)))
+        if not axes or any(a not in (0, 1, 2) for a in axes):
+            raise ValueError(f"[costs.{name}] axes must be a list of 0, 1, 2")
+        points = t.get("points")
+        if "in_frame" in t:
+            _check_frame(robot, t["in_frame"], name)
+            p = np.asarray(_vector(t.get("target"), f"[costs.{name}] target", 3))
+            X = robot.plant.GetFrameByName(t["in_frame"]).CalcPoseInWorld(robot.set_state(q0))
+            target = (X.rotation().matrix() @ p + X.translation())[list(axes)]
+        else:
+            at_start = FramePoints(robot, t["frame"], points=points).value(q0)
+            at_start = at_start.reshape(-1, 3)[:, list(axes)].reshape(-1) if points is not None \
+                else at_start[list(axes)]
+            target = _target(t, name, at_start)
+        m = ob.frame_points(t["frame"], name, axes=axes, points=points)
+        return ob.via(name, m, target, steps, weight, precision)
+    if kind == "frame_orientation":
+        _check_frame(robot, t["frame"], name)
+        if "angle" in t:
+            return ob.via(name, ob.roll(t["frame"], name), [_number(t.get("target"), f"[costs.{name}] target")],
+                          steps, weight, precision)
+        return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name), name), np.zeros(3), steps, weight,
+                      precision)
+    if kind == "frame_placement":
+        _check_frame(robot, t["frame"], name)
+        p = _vector(t["position"], f"[costs.{name}] position", 3)
+        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name), p, name), np.zeros(6), steps,
+                      weight, precision)
+    if kind == "com":
+        axes = tuple(t.get("axes", (0, 1, 2)))
+        at_start = CenterOfMass(robot).value(q0)[list(axes)]
+        return ob.via(name, ob.cog(axes, name), _target(t, name, at_start), steps, weight, precision)
+    if kind == "posture":
+        idx = _joint_indices(robot, t.get("joints"), name)
+        return ob.via(name, ob.joints(name, idx), _target(t, name, q0[idx]), steps, weight, precision)
+    if kind == "state":
+        x0 = np.concatenate([q0, np.zeros(robot.n_q)])
+        target = x0 if t.get("target", "start") == "start" else \
+            np.asarray(_vector(t["target"], f"[costs.{name}] target", 2 * robot.n_q))
+        return ob.state(name, target, steps, weight, precision)
+    if kind == "joint_limit":
+        idx = _joint_indices(robot, t.get("joints"), name)
+        lo = np.asarray(_vector(t["lower"], f"[costs.{name}] lower", len(idx))) if "lower" in t else robot.lower[idx]
+        hi = np.asarray(_vector(t["upper"], f"[costs.{name}] upper", len(idx))) if "upper" in t else robot.upper[idx]
+        keep = np.isfinite(lo) | np.isfinite(hi)
+        A = np.vstack([np.eye(len(idx)), -np.eye(len(idx))])
+        b = np.concatenate([np.where(np.isfinite(hi), hi, 1e9), np.where(np.isfinite(lo), -lo, 1e9)])
+        rows = np.concatenate([keep, keep])
+        return ob.inequality(name, ob.joints(name, idx), A[rows], b[rows], steps, weight)
+    raise ValueError(f"[costs.{name}] unknown type {kind!r}")
+
+
+def _joint_indices(robot, joints, name: str) -> list[int]:
+    if joints is None:
+        return list(range(robot.n_q))
+    if not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
+        raise ValueError(f"[costs.{name}] joints must be a list of joint names")
+    from plants.model_file import _closest
+
+    out = []
+    for j in joints:
+        if j not in robot.joint_names:
+            raise ValueError(f"[costs.{name}] joint '{j}' is not a planning joint: closest "
+                             f"{_closest(j, robot.joint_names)}")
+        out.append(robot.joint_names.index(j))
+    return out
+
+
+def shipped(plant: str, task: str) -> Path:
+    return SHIPPED / f"{plant}_{task}.toml"
