@@ -11,7 +11,10 @@ Descriptions:
 
 - task maps: ``{"map": "frame_points", "frame", "points" (k x 3 or null), "axes", "name"}``,
   ``{"map": "roll", "frame", "name"}``, ``{"map": "cog", "axes", "name"}``,
-  ``{"map": "joints", "indices" (or null), "name"}``;
+  ``{"map": "joints", "indices" (or null), "name"}``, ``{"map": "frame_rotation", "frame",
+  "rotation" (3 x 3), "name"}`` (the error ``log3(R^T R_WF)``, rad) and ``{"map": "frame_placement",
+  "frame", "rotation" (3 x 3), "translation" (3), "name"}`` (the error ``log6(M^-1 M_WF)``, linear
+  part first): the via-point target of these two is ``zeros(3)``, ``zeros(6)``;
 - terms: ``{"term": "via", "name", "map", "target", "times", "weight", "precision"}`` with
   ``times`` a list of steps or ``{"from": a, "to": b}`` (every step a..b);
   ``{"term": "state", "name", "target" (n_x), "times", "weight", "precision"}``;
@@ -32,7 +35,14 @@ import numpy as np
 from planning.costs import ControlCost, ControlLimit, StateTarget, TaskInequality, ViaPoint
 from plants.model_file import robot_for
 from plants.robots import Robot
-from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
+from plants.taskmaps import (
+    CenterOfMass,
+    FramePlacementError,
+    FramePoints,
+    FrameRotationError,
+    JointPositions,
+    RollAngle,
+)
 
 TermDesc = dict[str, Any]
 STATE_TERMS = ("via", "inequality", "state")  # term kinds on x_t (the others are on u_t)
@@ -56,6 +66,23 @@ def cog(axes=(0, 1, 2), name: str = "cog") -> dict:
 def joints(name: str = "joints", indices=None) -> dict:
     """Joint positions (rad): all, or those at ``indices`` of the planning coordinates."""
     return {"map": "joints", "indices": None if indices is None else [int(i) for i in indices], "name": name}
+
+
+def frame_rotation(frame: str, rotation, name: str) -> dict:
+    """A frame's orientation error from ``rotation`` (``R_WT (3, 3)``, world): ``log3(R_WT^T R_WF)``
+    (rad, 3 rows; :class:`plants.taskmaps.FrameRotationError`); its via target is ``zeros(3)``."""
+    R = np.asarray(rotation, float).reshape(3, 3)
+    return {"map": "frame_rotation", "frame": frame, "rotation": R.tolist(), "name": name}
+
+
+def frame_placement(frame: str, rotation, translation, name: str) -> dict:
+    """A frame's pose error from the pose ``(rotation (3, 3), translation (3,))`` (world):
+    ``log6(M^-1 M_WF)`` (6 rows: m, then rad; :class:`plants.taskmaps.FramePlacementError`); its
+    via target is ``zeros(6)``."""
+    R = np.asarray(rotation, float).reshape(3, 3)
+    p = np.asarray(translation, float).reshape(3)
+    return {"map": "frame_placement", "frame": frame, "rotation": R.tolist(), "translation": p.tolist(),
+            "name": name}
 
 
 def _times_desc(times) -> list[int] | dict:
@@ -124,6 +151,10 @@ def build_taskmap(robot, d: dict):
         return CenterOfMass(robot, axes=tuple(d["axes"]), name=d["name"])
     if kind == "joints":
         return JointPositions(robot.n_q, d.get("indices"), name=d["name"])
+    if kind == "frame_rotation":
+        return FrameRotationError(robot, d["frame"], d["rotation"], name=d["name"])
+    if kind == "frame_placement":
+        return FramePlacementError(robot, d["frame"], d["rotation"], d["translation"], name=d["name"])
     raise ValueError(f"unknown task map kind {kind!r}")
 
 

@@ -278,6 +278,244 @@ class CenterOfMass(_DrakeMap):
         return c[:, self.axes], J[:, self.axes]
 
 
+# --------------------------------------------------------------------------------------------
+# SO(3) / SE(3) logarithms and their Jacobians (Pinocchio's formulas, numpy)
+# --------------------------------------------------------------------------------------------
+_EPS = float(np.finfo(float).eps)
+_PREC2 = _EPS ** (1.0 / 3.0)   # Pinocchio's TaylorSeriesExpansion<double>::precision<2>() (6.1e-6)
+_PREC3 = _EPS ** (1.0 / 4.0)   # ... precision<3>() (1.2e-4)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x (3, 3)``: ``[v]x w = v x w``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _unskew(M: np.ndarray) -> np.ndarray:
+    """The vector of the antisymmetric part of ``M (3, 3)``: ``(M - M^T) / 2 = [v]x``."""
+    return 0.5 * np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+
+
+def _renormalized(R: np.ndarray) -> np.ndarray:
+    """``R`` projected back onto a rotation (columns made orthonormal, as Pinocchio's
+    ``renormalize_rotation_matrix``)."""
+    c0 = R[:, 0] / np.linalg.norm(R[:, 0])
+    c1 = R[:, 1] / np.linalg.norm(R[:, 1])
+    c2 = np.cross(c0, c1)
+    return np.column_stack([np.cross(c1, c2), c1, c2])
+
+
+def log3_angle(R) -> tuple[float, np.ndarray]:
+    """``(theta, r)``: the rotation vector ``r = theta a (3,)`` of ``R (3, 3)`` (``exp([r]x) = R``,
+    ``theta = |r|`` in ``[0, pi]``), computed as Pinocchio's ``log3``: ``theta r / (2 sin theta)``
+    from the antisymmetric part, its Taylor expansion below ``theta = 6e-6``, and within ``1 - cos
+    theta < 6e-6`` of ``pi`` (where ``sin theta`` vanishes) the axis from the quaternion of ``R``'s
+    largest diagonal entry. At ``theta = pi`` the sign of ``r`` is that of Pinocchio's rule:
+    ``log3`` jumps from ``r`` to ``-r`` there."""
+    Rn = _renormalized(np.asarray(R, float))
+    tr = float(np.trace(Rn))
+    cos_value = (tr - 1.0) / 2.0
+    if cos_value >= -1.0 + _PREC2:
+        if tr <= 3.0 - _PREC2:
+            theta = float(np.arccos(cos_value))
+        else:  # acos near 0 is inaccurate: 2 (1 - cos theta) = theta^2 + O(theta^4)
+            theta = float(np.sqrt(2.0 * (1.0 - cos_value) + _EPS * _EPS))
+        a = _unskew(Rn)   # sin(theta) * axis
+        if theta >= _PREC2:
+            t = theta / np.sin(theta)
+        else:
+            n2 = float(a @ a)
+            t = 1.0 + n2 / 6.0 + n2 * n2 * 3.0 / 40.0
+        return theta, t * a
+    # near pi: the axis from the quaternion (w, x) of R (4 x_i^2 = 2 R_ii - tr + 1), largest entry first
+    val = 2.0 * np.diag(Rn) - tr + 1.0
+    if val[0] >= val[1]:
+        i0 = 0 if val[0] >= val[2] else 2
+    else:
+        i0 = 1 if val[1] >= val[2] else 2
+    i1, i2 = (i0 + 1) % 3, (i0 + 2) % 3
+    s = np.sqrt(val[i0] + _EPS + _EPS * _EPS) * (1.0 if Rn[i2, i1] >= Rn[i1, i2] else -1.0)
+    axis = np.empty(3)
+    axis[i0] = s / 2.0
+    axis[i1] = (Rn[i1, i0] + Rn[i0, i1]) / (2.0 * s)
+    axis[i2] = (Rn[i2, i0] + Rn[i0, i2]) / (2.0 * s)
+    w = (Rn[i2, i1] - Rn[i1, i2]) / (2.0 * s)
+    norm = float(np.linalg.norm(axis))
+    theta = 2.0 * float(np.arctan2(norm, w))
+    return theta, theta * axis / norm
+
+
+def log3(R) -> np.ndarray:
+    """The rotation vector ``(3,)`` of ``R (3, 3)`` (rad; Pinocchio's ``pin.log3``): see
+    :func:`log3_angle`."""
+    return log3_angle(R)[1]
+
+
+def _jlog3(theta: float, r: np.ndarray) -> np.ndarray:
+    """:func:`Jlog3` from ``theta`` and ``r = log3(R)`` (Taylor expansion below ``theta = 1.2e-4``)."""
+    if theta < _PREC3:
+        alpha = 1.0 / 12.0 + theta * theta / 720.0
+        diag = 0.5 * (2.0 - theta * theta / 6.0)
+    else:
+        st_1mct = np.sin(theta) / (1.0 - np.cos(theta))   # cot(theta / 2)
+        alpha = 1.0 / (theta * theta) - st_1mct / (2.0 * theta)
+        diag = 0.5 * theta * st_1mct
+    return alpha * np.outer(r, r) + diag * np.eye(3) + _skew(0.5 * r)
+
+
+def Jlog3(R) -> np.ndarray:
+    """``d log3(R exp([d]x)) / d d`` at ``d = 0`` ``(3, 3)`` (Pinocchio's ``pin.Jlog3``: the inverse
+    of the right Jacobian of ``exp``): ``I + [r]x / 2 + (1 / theta^2 - cot(theta / 2) / (2 theta))
+    [r]x^2``, ``r = log3(R)``. A body-frame (LOCAL) angular velocity ``w`` moves ``log3(R)`` by
+    ``Jlog3(R) w``."""
+    return _jlog3(*log3_angle(R))
+
+
+def _log6_parts(R: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(theta, w, log6 (6,))`` of the pose ``(R, p)``."""
+    a = _unskew(R)
+    t2 = float(a @ a)   # sin(theta)^2 (Pinocchio's argument of the expansions near 0)
+    theta, w = log3_angle(R)
+    if np.trace(R) >= 3.0 - _PREC2:
+        alpha = 1.0 - t2 / 12.0 - t2 * t2 / 720.0
+        beta = 1.0 / 12.0 + t2 / 720.0
+    else:
+        st, ct = np.sin(theta), np.cos(theta)
+        alpha = theta * st / (2.0 * (1.0 - ct))
+        beta = 1.0 / (theta * theta) - st / (2.0 * theta * (1.0 - ct))
+    lin = alpha * p - 0.5 * np.cross(w, p) + (beta * (w @ p)) * w
+    return theta, w, np.concatenate([lin, w])
+
+
+def log6(R, p) -> np.ndarray:
+    """The twist ``(6,)``, linear part first, of the pose ``M = (R (3, 3), p (3,))``: ``exp6`` of it
+    is ``M`` (Pinocchio's ``pin.log6(M).vector``): angular part ``w = log3(R)``, linear part
+    ``V(w)^-1 p`` with ``V`` the left Jacobian of ``exp`` on SO(3)."""
+    return _log6_parts(np.asarray(R, float), np.asarray(p, float))[2]
+
+
+def _jlog6(theta: float, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """:func:`Jlog6` from ``theta``, ``w = log3(R)`` and ``p``."""
+    A = _jlog3(theta, w)
+    t2 = theta * theta
+    if theta < _PREC3:
+        beta = 1.0 / 12.0 + t2 / 720.0
+        beta_dot_over_theta = 1.0 / 360.0
+    else:
+        tinv = 1.0 / theta
+        t2inv = tinv * tinv
+        st, ct = np.sin(theta), np.cos(theta)
+        inv_2_2ct = 1.0 / (2.0 * (1.0 - ct))
+        beta = t2inv - st * tinv * inv_2_2ct
+        beta_dot_over_theta = -2.0 * t2inv * t2inv + (1.0 + st * tinv) * t2inv * inv_2_2ct
+    wTp = float(w @ p)
+    v = (beta_dot_over_theta * wTp) * w - (t2 * beta_dot_over_theta + 2.0 * beta) * p
+    C = np.outer(v, w) + beta * np.outer(w, p) + (wTp * beta) * np.eye(3) + _skew(0.5 * p)
+    J = np.zeros((6, 6))
+    J[:3, :3] = J[3:, 3:] = A
+    J[:3, 3:] = C @ A
+    return J
+
+
+def Jlog6(R, p) -> np.ndarray:
+    """``d log6(M exp6(d)) / d d`` at ``d = 0`` ``(6, 6)``, twists linear part first (Pinocchio's
+    ``pin.Jlog6``): ``[[Jlog3, C Jlog3], [0, Jlog3]]``. A body-frame (LOCAL) spatial velocity
+    ``(v, w)`` of ``M`` moves ``log6(M)`` by ``Jlog6(M) (v, w)``."""
+    R, p = np.asarray(R, float), np.asarray(p, float)
+    theta, w = log3_angle(R)
+    return _jlog6(theta, w, p)
+
+
+class _FramePose(_OnFrame, _DrakeMap):
+    """Base of the maps on a frame's pose ``(R_WF, p_WF)`` and its LOCAL Jacobian (the frame's
+    velocity ``(v, w)`` expressed in F, linear rows first, as Pinocchio's ``LOCAL`` frame
+    Jacobian). Subclasses implement ``_residual(R, p, Jv, Jw)`` on the world pose and the world
+    Jacobians ``Jv`` (of the origin), ``Jw`` (angular), ``(3, m)`` each."""
+
+    _needs_translation = True
+
+    def __init__(self, robot, frame: str, name: str):
+        super().__init__(robot, name)
+        self.frame = robot.plant.GetFrameByName(frame)
+        self._body_name = self.frame.body().name()
+        X_BF = self.frame.GetFixedPoseInBodyFrame()
+        self._R_BF = np.ascontiguousarray(X_BF.rotation().matrix())
+        self._p_BF = np.ascontiguousarray(X_BF.translation())
+        self._origin = np.zeros((1, 3))
+
+    def _residual(self, R, p, Jv, Jw) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _in_plant(self, qp):
+        ctx = self._set_plant(qp)
+        X = self._plant.CalcRelativeTransform(ctx, self._world, self.frame)
+        J = self._plant.CalcJacobianSpatialVelocity(ctx, self._wrt, self.frame, np.zeros(3),
+                                                    self._world, self._world)   # (6, m): w, v
+        return self._residual(X.rotation().matrix(), X.translation(), J[3:], J[:3])
+
+    def _compiled_in_plant(self, kernels, qp):
+        b = kernels.tree.body(self._body_name)
+        R, Jw = kernels.frame_rotation(qp, b, self._R_BF)
+        if not self._needs_translation:
+            return self._residual(R, None, None, Jw)
+        pos, Jv = kernels.frame_points(qp, b, self._R_BF, self._p_BF, self._origin)
+        return self._residual(R, pos[0], Jv, Jw)
+
+    def _compiled_batch(self, kernels, Qp):
+        b = kernels.tree.body(self._body_name)
+        R, Jw = kernels.frame_rotation_batch(Qp, b, self._R_BF)
+        if self._needs_translation:
+            pos, Jv = kernels.frame_points_batch(Qp, b, self._R_BF, self._p_BF, self._origin)
+            out = [self._residual(R[k], pos[k, 0], Jv[k], Jw[k]) for k in range(len(Qp))]
+        else:
+            out = [self._residual(R[k], None, None, Jw[k]) for k in range(len(Qp))]
+        return (np.array([o[0] for o in out]).reshape(len(Qp), self.dim),
+                np.array([o[1] for o in out]).reshape(len(Qp), self.dim, -1))
+
+
+class FrameRotationError(_FramePose):
+    """A frame's orientation error (rad) from a target ``R_target = R_WT``: the rotation vector
+    ``r = log3(R_target^T R_WF(q)) (3,)`` (the rotation from T to F, in T's and F's axes), with
+    ``J = Jlog3(R_target^T R_WF) J_w^F (3, n_q)``, ``J_w^F = R_WF^T J_w`` the frame's angular
+    velocity Jacobian expressed in F (crocoddyl's ``ResidualModelFrameRotation``). Its via-point
+    target is ``zeros(3)``. ``r`` is smooth while the error angle ``|r|`` stays below pi (at pi it
+    jumps to ``-r``)."""
+
+    dim = 3
+    _needs_translation = False
+
+    def __init__(self, robot, frame: str, R_target, name: str | None = None):
+        super().__init__(robot, frame, name or f"{frame}_rotation")
+        self.R_target = np.array(R_target, float).reshape(3, 3)
+
+    def _residual(self, R, p, Jv, Jw):
+        theta, r = log3_angle(self.R_target.T @ R)
+        return r, _jlog3(theta, r) @ (R.T @ Jw)
+
+
+class FramePlacementError(_FramePose):
+    """A frame's pose error from a target pose ``M_target = (R_target, p_target)`` (world): the
+    twist ``r = log6(M_target^-1 M_WF(q)) (6,)``, linear part (m) first, then angular (rad), with
+    ``J = Jlog6(M_target^-1 M_WF) J^F (6, n_q)``, ``J^F = [R_WF^T J_v; R_WF^T J_w]`` the frame's
+    LOCAL Jacobian (Pinocchio's ``LOCAL``, linear rows first; crocoddyl's
+    ``ResidualModelFramePlacement``). Its via-point target is ``zeros(6)``; smooth while the
+    rotation error stays below pi."""
+
+    dim = 6
+
+    def __init__(self, robot, frame: str, R_target, p_target, name: str | None = None):
+        super().__init__(robot, frame, name or f"{frame}_placement")
+        self.R_target = np.array(R_target, float).reshape(3, 3)
+        self.p_target = np.array(p_target, float).reshape(3)
+
+    def _residual(self, R, p, Jv, Jw):
+        Rt = self.R_target
+        R_rel, p_rel = Rt.T @ R, Rt.T @ (p - self.p_target)
+        theta, w, r = _log6_parts(R_rel, p_rel)
+        J_local = np.vstack([R.T @ Jv, R.T @ Jw])
+        return r, _jlog6(theta, w, p_rel) @ J_local
+
+
 class Stack(_BatchByPoints):
     """Several task maps side by side: values concatenated, Jacobians stacked."""
 
@@ -345,3 +583,29 @@ register_taskmap_example("frame_points", lambda r: FramePoints(
 register_taskmap_example("roll", lambda r: RollAngle(r, _first_end_effector(r)))
 register_taskmap_example("center_of_mass", lambda r: CenterOfMass(r))
 register_taskmap_example("stack", _stack_example)
+
+def _frame_pose_target(robot, frame: str) -> tuple[np.ndarray, np.ndarray]:
+    """A target pose near the frame's pose at the default posture: rotated by 0.5 rad about
+    ``(1, -2, 3)`` and moved by ``(0.05, -0.03, 0.08)`` m (non-zero errors, far from pi)."""
+    plant = robot.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositions(ctx, robot.P @ robot.default_q)
+    X = plant.CalcRelativeTransform(ctx, plant.world_frame(), plant.GetFrameByName(frame))
+    a = np.array([1.0, -2.0, 3.0]) / np.sqrt(14.0)
+    K = _skew(a)
+    turn = np.eye(3) + np.sin(0.5) * K + (1.0 - np.cos(0.5)) * K @ K
+    return X.rotation().matrix() @ turn, X.translation() + np.array([0.05, -0.03, 0.08])
+
+
+def _frame_rotation_example(robot) -> FrameRotationError:
+    ee = _first_end_effector(robot)
+    return FrameRotationError(robot, ee, _frame_pose_target(robot, ee)[0])
+
+
+def _frame_placement_example(robot) -> FramePlacementError:
+    ee = _first_end_effector(robot)
+    return FramePlacementError(robot, ee, *_frame_pose_target(robot, ee))
+
+
+register_taskmap_example("frame_rotation", _frame_rotation_example)
+register_taskmap_example("frame_placement", _frame_placement_example)
