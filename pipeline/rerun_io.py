@@ -34,8 +34,10 @@ decimated motion still plays through.
 
 from __future__ import annotations
 
+import functools
 import json
 import re
+import sys
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -47,7 +49,7 @@ from typing import Any, Self
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Role, Sphere
+from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Mesh, Role, Sphere
 from pydrake.multibody.tree import BodyIndex
 from scipy.spatial.transform import Rotation
 
@@ -296,7 +298,48 @@ def _primitive(shape: Any, color: np.ndarray) -> Any | None:
                              translations=[[0.0, 0.0, -length / 2]], **kw)
     if isinstance(shape, Cylinder):  # centred in both
         return rr.Cylinders3D(lengths=[shape.length()], radii=[shape.radius()], **kw)
+    if isinstance(shape, Mesh):
+        return _mesh(shape, color)
     return None
+
+
+MESH_FACES_MAX = 20000  # triangles per visual mesh in a recording (finer meshes decimated by face sampling)
+
+
+def _mesh(shape: Any, color: np.ndarray) -> Any | None:
+    """A visual mesh as ``Mesh3D`` (any format trimesh reads: STL, OBJ, COLLADA ``.dae`` that Rerun
+    cannot read), scaled as the model says; None (with one line on stderr) if it cannot be read."""
+    path = Path(str(shape.source().path())) if shape.source().is_path() else None
+    if path is None:
+        return None
+    mesh = _read_mesh(str(path))
+    if mesh is None:
+        return None
+    vertices, faces = mesh
+    return rr.Mesh3D(vertex_positions=vertices * np.asarray(shape.scale3(), float), triangle_indices=faces,
+                     albedo_factor=color)
+
+
+@functools.cache
+def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray] | None:
+    import logging
+
+    import trimesh
+
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    try:
+        m = trimesh.load(path, force="mesh", process=False)
+        vertices, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.uint32)
+    except Exception as e:  # noqa: BLE001 - any reader failure: the visual is skipped, said once
+        print(f"raico: note: visual mesh {Path(path).name} cannot be read ({type(e).__name__}): not drawn",
+              file=sys.stderr)
+        return None
+    if faces.size == 0:
+        print(f"raico: note: visual mesh {Path(path).name} has no triangles: not drawn", file=sys.stderr)
+        return None
+    if len(faces) > MESH_FACES_MAX:
+        faces = faces[np.linspace(0, len(faces) - 1, MESH_FACES_MAX).astype(int)]
+    return vertices, faces
 
 
 def _bodies(plant: Any) -> list[Any]:
@@ -310,7 +353,7 @@ def log_robot_geometry(
 
     Each geometry gets a static Transform3D: its pose in the body frame (m, xyzw).
     Returns ``{body entity name: [geometry entity names]}`` (bodies with geometry only).
-    Unsupported shapes (meshes, half spaces) are skipped.
+    Meshes are drawn as triangle meshes (``_mesh``); half spaces are skipped.
     """
     stream, plant = _stream(rec), robot.plant
     inspector = robot.scene_graph.model_inspector()

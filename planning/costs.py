@@ -687,12 +687,14 @@ def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
 
     Dimensions count whose precision is at least 1% of the largest (balance: the lateral
     axis only). Terms held at every step (the Nao's right sole) report their largest error.
-    A step whose state is not finite has error ``inf``.
+    A step whose state is not finite has error ``inf``. A term that also costs step 0 (where
+    ``x0`` is given: a running cost in crocoddyl's sense, e.g. a goal pulled towards on every node)
+    is not a via-point and is left out.
     """
     n_q = X.shape[1] // 2
     out: dict[str, float] = {}
     for term in problem.state_terms:
-        if not isinstance(term, ViaPoint):
+        if not isinstance(term, ViaPoint) or term.is_active_at(0):
             continue
         w = np.diag(term.C)
         keep = w >= 0.01 * w.max()
