@@ -102,6 +102,11 @@ class Robot:
             self._P_pinv = np.linalg.pinv(self.P)
         return qp @ self._P_pinv.T
 
+    def plant_effort(self) -> np.ndarray:
+        """Effort limits ``(n_plant,)`` (N m) of the plant's joints (a coupled joint: its motor's);
+        unlimited joints are ``inf``."""
+        return np.array([self.effort[row != 0][0] if np.any(row != 0) else np.inf for row in self.P])
+
     def babble_torque_limit(self) -> np.ndarray:
         """Per planning joint: min(10 N m, effort limit)."""
         return np.minimum(BABBLE_TORQUE_LIMIT, self.effort)

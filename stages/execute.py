@@ -211,7 +211,7 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     else:
         o, O = plan["o"], plan["O"]
     T = o.shape[0]
-    effort = P @ robot.effort
+    effort = robot.plant_effort()
     ctx_id = plant.CreateDefaultContext()
     forces = MultibodyForces_[float](plant)
     split = P / np.maximum(P.sum(axis=0), 1.0)  # planning torque shared by coupled joints
@@ -314,7 +314,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
 
     ctrl_ctx = ctrl.GetMyContextFromRoot(sim.get_context())
     taus, saturated, clamped = [], [], []
-    effort_plant = robot.P @ robot.effort
+    effort_plant = robot.plant_effort()
     ok = sample(0)
     for k in range(T):
         if not ok:

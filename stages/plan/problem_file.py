@@ -353,12 +353,18 @@ def _rotation(t: dict, name: str) -> np.ndarray:
     return np.eye(3)
 
 
-def _check_frame(robot, frame: str, name: str) -> None:
-    if not robot.plant.HasFrameNamed(frame):
-        from plants.model_file import _closest
+def _frame(robot, frame: str, name: str) -> str:
+    """The frame a term names: a frame of the plant, or a joint's name for the frame of its child
+    link (Pinocchio's joint frames, which crocoddyl's examples name)."""
+    plant = robot.plant
+    if plant.HasFrameNamed(frame):
+        return frame
+    if plant.HasJointNamed(frame):
+        return plant.GetJointByName(frame).child_body().body_frame().name()
+    from plants.model_file import _closest
 
-        frames = sorted({robot.plant.get_frame(i).name() for i in _frame_indices(robot.plant)})
-        raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {_closest(frame, frames)}")
+    frames = sorted({plant.get_frame(i).name() for i in _frame_indices(plant)})
+    raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {_closest(frame, frames)}")
 
 
 def _frame_indices(plant):
@@ -416,16 +422,16 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
 
     kind = t["type"]
     precision = t.get("precision")
+    if kind in ("frame_position", "frame_orientation", "frame_placement"):
+        t = {**t, "frame": _frame(robot, t["frame"], name)}
     if kind == "frame_position":
-        _check_frame(robot, t["frame"], name)
         axes = tuple(t.get("axes", (0, 1, 2)))
         if not axes or any(a not in (0, 1, 2) for a in axes):
             raise ValueError(f"[costs.{name}] axes must be a list of 0, 1, 2")
         points = t.get("points")
         if "in_frame" in t:
-            _check_frame(robot, t["in_frame"], name)
             p = np.asarray(_vector(t.get("target"), f"[costs.{name}] target", 3))
-            X = robot.plant.GetFrameByName(t["in_frame"]).CalcPoseInWorld(robot.set_state(q0))
+            X = robot.plant.GetFrameByName(_frame(robot, t["in_frame"], name)).CalcPoseInWorld(robot.set_state(q0))
             target = (X.rotation().matrix() @ p + X.translation())[list(axes)]
         else:
             at_start = FramePoints(robot, t["frame"], points=points).value(q0)
@@ -435,14 +441,12 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         m = ob.frame_points(t["frame"], name, axes=axes, points=points)
         return ob.via(name, m, target, steps, weight, precision)
     if kind == "frame_orientation":
-        _check_frame(robot, t["frame"], name)
         if "angle" in t:
             return ob.via(name, ob.roll(t["frame"], name), [_number(t.get("target"), f"[costs.{name}] target")],
                           steps, weight, precision)
         return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name), name), np.zeros(3), steps, weight,
                       precision)
     if kind == "frame_placement":
-        _check_frame(robot, t["frame"], name)
         p = _vector(t["position"], f"[costs.{name}] position", 3)
         return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name), p, name), np.zeros(6), steps,
                       weight, precision)
