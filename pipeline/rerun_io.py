@@ -315,13 +315,24 @@ def _mesh(shape: Any, color: np.ndarray) -> Any | None:
     mesh = _read_mesh(str(path))
     if mesh is None:
         return None
-    vertices, faces = mesh
-    return rr.Mesh3D(vertex_positions=vertices * np.asarray(shape.scale3(), float), triangle_indices=faces,
-                     albedo_factor=color)
+    vertices, normals, faces = mesh
+    scale = np.asarray(shape.scale3(), float)
+    normals = normals / scale  # normals of a scaled mesh: the inverse-transpose of the scaling
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    return rr.Mesh3D(vertex_positions=vertices * scale, vertex_normals=normals, triangle_indices=faces,
+                     albedo_factor=_visible(color))
+
+
+def _visible(color: np.ndarray) -> np.ndarray:
+    """A colour lifted to at least a dark grey (a black part vanishes against the viewer's black)."""
+    rgb = np.asarray(color[:3], float)
+    lift = max(0.0, 70.0 - float(rgb.max()))
+    return np.concatenate([np.minimum(rgb + lift, 255.0), np.asarray(color[3:4], float)]).astype(np.uint8)
 
 
 @functools.cache
-def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Vertices ``(V, 3)``, vertex normals ``(V, 3)`` and triangles ``(F, 3)`` of a mesh file."""
     import logging
 
     import trimesh
@@ -330,6 +341,7 @@ def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray] | None:
     try:
         m = trimesh.load(path, force="mesh", process=False)
         vertices, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.uint32)
+        normals = np.asarray(m.vertex_normals, np.float32)
     except Exception as e:  # noqa: BLE001 - any reader failure: the visual is skipped, said once
         print(f"raico: note: visual mesh {Path(path).name} cannot be read ({type(e).__name__}): not drawn",
               file=sys.stderr)
@@ -339,7 +351,7 @@ def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     if len(faces) > MESH_FACES_MAX:
         faces = faces[np.linspace(0, len(faces) - 1, MESH_FACES_MAX).astype(int)]
-    return vertices, faces
+    return vertices, normals, faces
 
 
 def _bodies(plant: Any) -> list[Any]:

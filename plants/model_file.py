@@ -63,6 +63,7 @@ class RobotSpec:
     file: str
     packages: tuple[tuple[str, str], ...] = ()
     weld: str | None = None
+    weld_pose: tuple[float, ...] = ()  # (x, y, z, roll, pitch, yaw) of the welded frame in the world
     locked: tuple[tuple[str, float], ...] = ()
     start: str | tuple[tuple[str, float], ...] = ()
     srdf: str | None = None
@@ -71,7 +72,8 @@ class RobotSpec:
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it)."""
-        return {"file": self.file, "packages": dict(self.packages), "weld": self.weld, "locked": dict(self.locked),
+        return {"file": self.file, "packages": dict(self.packages), "weld": self.weld,
+                "weld_pose": list(self.weld_pose), "locked": dict(self.locked),
                 "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
                 "armature": self.armature if isinstance(self.armature, float) else dict(self.armature),
                 "limits": {j: dict(v) for j, v in self.limits}}
@@ -85,7 +87,8 @@ class RobotSpec:
         armature = d.get("armature", 0.0)
         return cls(file=str(d["file"]), packages=tuple(sorted((str(k), str(v)) for k, v in
                                                               (d.get("packages") or {}).items())),
-                   weld=d.get("weld"), locked=items(d.get("locked")),
+                   weld=d.get("weld"), weld_pose=tuple(float(v) for v in (d.get("weld_pose") or ())),
+                   locked=items(d.get("locked")),
                    start=start if isinstance(start, str) else items(start), srdf=d.get("srdf"),
                    armature=float(armature) if isinstance(armature, (int, float)) else items(armature),
                    limits=tuple(sorted((str(j), items(v)) for j, v in (d.get("limits") or {}).items())))
@@ -401,7 +404,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         raise ModelError(f"{path.name}: Drake cannot parse it: {_first_line(e)}") from None
     finally:
         drake_log.setLevel(level)
-    notes.extend(_weld_base(plant, models, spec.weld, path))
+    notes.extend(_weld_base(plant, models, spec.weld, path, spec.weld_pose))
     joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
     for j in joints:
         kind = j.type_name()
@@ -469,7 +472,7 @@ def _first_line(e: Exception) -> str:
     return lines[0] if lines else type(e).__name__
 
 
-def _weld_base(plant, models, weld: str | None, path: Path) -> list[str]:
+def _weld_base(plant, models, weld: str | None, path: Path, pose: tuple[float, ...] = ()) -> list[str]:
     """Weld ``weld`` (or a free root body) to the world; the report's line."""
     world = plant.world_body()
     roots = [b for b in (plant.get_body(i) for m in models for i in plant.GetBodyIndices(m))
@@ -479,13 +482,12 @@ def _weld_base(plant, models, weld: str | None, path: Path) -> list[str]:
             frames = [plant.get_frame(i).name() for i in range(plant.num_frames())] \
                 if hasattr(plant, "num_frames") else []
             raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest {_closest(weld, frames)}")
-        frame = plant.GetFrameByName(weld)
-        X = frame.GetFixedPoseInBodyFrame().inverse() if frame.body().index() != world.index() else None
-        from pydrake.math import RigidTransform
+        from pydrake.math import RigidTransform, RollPitchYaw
 
-        plant.WeldFrames(plant.world_frame(), frame, RigidTransform())
-        _ = X
-        return [f"frame '{weld}' welded to the world" + (" (the root is free in the file)" if roots else "")]
+        X_WF = RigidTransform(RollPitchYaw(*pose[3:]), list(pose[:3])) if pose else RigidTransform()
+        plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(weld), X_WF)
+        at = f" at {', '.join(f'{v:g}' for v in pose)}" if pose else ""
+        return [f"frame '{weld}' welded to the world{at}" + (" (the root is free in the file)" if roots else "")]
     if len(roots) > 1:
         raise ModelError(f"{path.name}: {len(roots)} bodies are free ({_names([b.name() for b in roots])}): "
                          "weld one frame to the world (weld = \"<frame>\")")

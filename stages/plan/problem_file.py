@@ -34,7 +34,8 @@ Cost term types (``type``) and their keys:
   crocoddyl's frame-placement residual;
 - ``com``: ``target`` (3, or one per ``axes``), ``precision``;
 - ``posture``: ``joints`` (names; default all), ``target`` (values or ``"start"``);
-- ``state``: ``target`` (``2 n`` values or ``"start"``: the start posture at rest), ``precision``;
+- ``state``: ``target`` (``2 n`` values or ``"start"``: the start posture at rest), ``precision``
+  (``2 n`` values, or ``{q = a, v = b}``);
 - ``control``: ``weight``, optional ``target`` (n values);
 - ``control_limit``: ``lower``/``upper`` (default: the model's effort limits), soft, torques only;
 - ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
@@ -42,7 +43,8 @@ Cost term types (``type``) and their keys:
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
 F's pose at ``q0`` (before ``axes`` selects coordinates). ``times``: a list of steps in ``[0, T]``,
-``"last"`` (``[T]``), ``"all"`` (``1..T``) or ``"running"`` (``0..T-1``). Weights: with the
+``{from = a, to = b}`` (steps a..b), ``"last"`` (``[T]``), ``"all"`` (``1..T``), ``"running"``
+(``0..T-1``) or ``"every"`` (``0..T``, crocoddyl's running and terminal nodes). Weights: with the
 ``raico`` convention (default) a term costs ``w ||r||_C^2`` at each of its steps (thesis eq. 3.7);
 with ``crocoddyl`` it costs ``w/2 ||r||^2``, times ``dt`` on steps before ``T``, so crocoddyl's
 problems are written with crocoddyl's numbers.
@@ -68,14 +70,14 @@ from planning import objective as ob
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
 TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs"}
-ROBOT_KEYS = {"plant", "file", "packages", "weld", "locked", "start", "srdf", "armature", "limits"}
+ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits"}
 HORIZON_KEYS = {"T", "dt"}
 DYNAMICS_KEYS = {"model", "integrator"}
 # dynamics model -> integrator -> raico's dynamics name (plants.dynamics_registry)
 INTEGRATORS = {"pseudo": {"backward-euler": "pseudo", "euler": "pseudo-euler", "heun": "pseudo-heun"},
                "analytic": {"semi-implicit-euler": "analytic"}}
 CONVENTIONS = ("raico", "crocoddyl")
-TIMES = ("last", "all", "running")
+TIMES = ("last", "all", "running", "every")
 COMMON = {"type", "weight", "times"}
 TERM_KEYS = {
     "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame"},
@@ -216,7 +218,11 @@ def _robot(r: dict, base: Path) -> dict:
 
     packages = {str(k): str((base / v).resolve()) for k, v in (r.get("packages") or {}).items()}
     path = resolve_model_file(str(r["file"]), base, packages)
+    pose = r.get("weld_pose", [])
+    if pose and (r.get("weld") is None or len(_vector(pose, "[robot] weld_pose")) != 6):
+        raise ValueError("[robot] weld_pose is [x, y, z, roll, pitch, yaw] (m, rad) of the weld frame")
     out: dict[str, Any] = {"file": str(path), "packages": packages, "weld": r.get("weld"),
+                           "weld_pose": [float(v) for v in pose],
                            "sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
     for key in ("locked", "limits", "packages"):
         if key in r and not isinstance(r[key], dict):
@@ -275,6 +281,14 @@ def _vector(v, what: str, n: int | None = None) -> list:
 def _times(v, T: int, name: str):
     if v is None:
         raise ValueError(f"[costs.{name}] needs times: a list of steps in [0, {T}], or one of {', '.join(TIMES)}")
+    if isinstance(v, dict):
+        _refuse_unknown(v, {"from", "to"}, f"[costs.{name}] times")
+        a, b = v.get("from"), v.get("to")
+        if not (isinstance(a, int) and isinstance(b, int) and 0 <= a <= b):
+            raise ValueError(f"[costs.{name}] times = {{from = a, to = b}} needs integers 0 <= a <= b")
+        if b > T:
+            raise ValueError(f"[costs.{name}] step {b} is past the horizon: steps are in [0, T = {T}]")
+        return {"from": a, "to": b}
     if isinstance(v, str):
         if v not in TIMES:
             raise ValueError(f"[costs.{name}] unknown times '{v}': choose one of {', '.join(TIMES)} or a list of steps")
@@ -322,6 +336,10 @@ def _steps(times, T: int):
         return range(1, T + 1)
     if times == "running":
         return range(0, T)
+    if times == "every":
+        return range(0, T + 1)
+    if isinstance(times, dict):
+        return range(times["from"], times["to"] + 1)
     return list(times)
 
 
@@ -334,7 +352,8 @@ def _scale(convention: str, times, T: int, dt: float) -> list[tuple[Any, float]]
     running = [s for s in steps if s < T]
     pieces = []
     if running:
-        pieces.append((running if times != "running" else range(0, T), 0.5 * dt))
+        pieces.append((range(running[0], running[-1] + 1) if len(running) == running[-1] - running[0] + 1
+                       else running, 0.5 * dt))
     if T in steps:
         pieces.append(([T], 0.5))
     return pieces
@@ -458,6 +477,10 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         idx = _joint_indices(robot, t.get("joints"), name)
         return ob.via(name, ob.joints(name, idx), _target(t, name, q0[idx]), steps, weight, precision)
     if kind == "state":
+        if isinstance(precision, dict):  # {q = a, v = b}: one weight for the positions, one for the velocities
+            _refuse_unknown(precision, {"q", "v"}, f"[costs.{name}] precision")
+            precision = [_nonneg(precision.get("q", 1.0), f"[costs.{name}] precision.q")] * robot.n_q + \
+                [_nonneg(precision.get("v", 1.0), f"[costs.{name}] precision.v")] * robot.n_q
         x0 = np.concatenate([q0, np.zeros(robot.n_q)])
         target = x0 if t.get("target", "start") == "start" else \
             np.asarray(_vector(t["target"], f"[costs.{name}] target", 2 * robot.n_q))
