@@ -13,7 +13,9 @@ the generated derivative code, ``d(M a)/dq`` is included. Everything not dependi
 computed in a first pass (``M``, ``h``, ``dh/dv``, ...), the rest after the solve for ``a``.
 
 Plants that are too big to read (the 26-joint Nao) or that use unsupported joints raise
-``NotImplementedError``; :func:`make_fast_or_exact` then returns ``AnalyticDynamics``.
+``NotImplementedError``. :func:`make_fast_or_exact` takes this route for plants of up to
+``SYMBOLIC_MAX_POSITIONS`` (5) positions, :class:`TreeAnalyticDynamics` for larger ones (and where
+this route fails), ``AnalyticDynamics`` where neither builds.
 
 Compiled route (speed only): the generated functions are also emitted as C
 (:mod:`plants.codegen.c_backend`), built once per plant with ``gcc`` and called through ``ctypes``
@@ -26,10 +28,11 @@ code runs.
 
 :class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
 kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its forward-mode derivatives in C): exact
-derivatives for the Nao, whose symbolic equations are too large to generate. The registry's
-``analytic`` model of the Nao is still ``AnalyticDynamics`` (tests pin that fallback);
-``TreeAnalyticDynamics(robot, dt)`` is the faster exact route, checked against it in
-``tests/test_kernels.py`` and timed by ``make bench``.
+derivatives for the Nao, whose symbolic equations are too large to generate, and for arms of 6 or
+more joints, whose symbolic derivation is slow or fails (see ``SYMBOLIC_MAX_POSITIONS``); revolute,
+prismatic and weld joints. It is the registry's ``analytic`` model for those plants (through
+:func:`make_fast_or_exact`), checked against ``AnalyticDynamics`` in ``tests/test_kernels.py`` and
+timed by ``make bench``.
 """
 
 from __future__ import annotations
@@ -393,15 +396,35 @@ class TreeAnalyticDynamics(FastAnalyticDynamics):
         return np.stack([self.step(x, u) for x, u in zip(X, U)])
 
 
+# Plants with more positions than this go to the kinematic-tree route first. The symbolic derivation
+# grows quickly with the chain: on a first load (2-core machine) arm5 (5 joints) takes 12 s with its
+# C build, biorob 4 s, the 6-joint UR5 10 s, and the 6-joint Kinova, the 7-joint xArm7 and Panda
+# give up after 26-31 s (too large to compile), on every process since a failure is not cached;
+# the tree kernels build in 2.5-3.5 s for all of them and load in 0.03 s from the disk cache. The
+# built-in pendulum (1), arm5 and biorob (5) keep the symbolic route (the Nao, 26, took the tree
+# route already).
+SYMBOLIC_MAX_POSITIONS = 5
+
+
 def make_fast_or_exact(robot, dt: float) -> FastAnalyticDynamics | AnalyticDynamics:
-    """:class:`FastAnalyticDynamics` when the robot's plant compiles symbolically; else the
-    compiled kinematic-tree model :class:`TreeAnalyticDynamics` (the Nao); else, without a C
-    compiler, ``AnalyticDynamics`` (AutoDiffXd)."""
-    try:
-        return FastAnalyticDynamics(robot, dt)
-    except NotImplementedError:
-        pass
+    """:class:`FastAnalyticDynamics` when the robot's plant has at most
+    ``SYMBOLIC_MAX_POSITIONS`` positions and compiles symbolically; else the compiled
+    kinematic-tree model :class:`TreeAnalyticDynamics` (the Nao, 6- and 7-joint arms); else the
+    symbolic route for a larger plant (its numpy code runs without a C compiler); else
+    ``AnalyticDynamics`` (AutoDiffXd)."""
+    small = robot.plant.num_positions() <= SYMBOLIC_MAX_POSITIONS
+    if small:
+        try:
+            return FastAnalyticDynamics(robot, dt)
+        except NotImplementedError:
+            pass
     try:
         return TreeAnalyticDynamics(robot, dt)
     except NotImplementedError:
-        return AnalyticDynamics(robot, dt)
+        pass
+    if not small:
+        try:
+            return FastAnalyticDynamics(robot, dt)
+        except NotImplementedError:
+            pass
+    return AnalyticDynamics(robot, dt)

@@ -77,7 +77,7 @@ class _DrakeMap(_BatchByPoints):
         self._plant = robot.plant
         self._ctx = robot.plant.CreateDefaultContext()
         self._world = robot.plant.world_frame()
-        self._wrt = JacobianWrtVariable.kQDot  # revolute joints only: qdot == v
+        self._wrt = JacobianWrtVariable.kQDot  # revolute and prismatic joints only: qdot == v
 
     def _set_plant(self, qp: np.ndarray):
         """The context at plant positions ``qp (m,)``."""

@@ -1,7 +1,8 @@
 """A plant's kinematic tree read from Drake, compiled to C: kinematics, task maps and dynamics.
 
-For plants whose symbolic equations are too large to generate (the 26-joint Nao, see
-:mod:`plants.codegen.derive`), the same quantities come from the classical recursive algorithms
+For plants whose symbolic equations are too large or too slow to generate (the 26-joint Nao, arms
+of 6 or more joints: see :mod:`plants.codegen.derive` and
+:data:`plants.fast_analytic.SYMBOLIC_MAX_POSITIONS`), the same quantities come from the classical recursive algorithms
 on the tree, with the tree's numbers (frames, axes, masses, inertias, damping, reflected rotor
 inertia, gravity) read from the Drake plant and baked into the C source:
 
@@ -19,8 +20,11 @@ inertia, gravity) read from the Drake plant and baked into the C source:
   compiled task messages (``planning/task_messages.c``, :func:`planning.kernels.compile_task_set`)
   evaluate them.
 
-Supported: trees of revolute and weld joints (also traversed against the joint's parent/child
-direction, as Drake does when a foot is welded to the world), gravity as the only force element.
+Supported: trees of revolute, prismatic and weld joints (also traversed against the joint's
+parent/child direction, as Drake does when a foot is welded to the world), gravity as the only force
+element. A prismatic joint translates its child along its axis by ``q`` (m); in the world-frame
+Newton-Euler its motion axis is ``(0, a)`` (revolute: ``(a, o x a)``), its damping and reflected
+inertia (rotor inertia x gear ratio^2, kg) enter as a revolute joint's do.
 :func:`tree_code` checks ``M``, ``h`` and ``dID`` against Drake's float and AutoDiffXd evaluation
 at random states and refuses the plant on a mismatch (``NotImplementedError``), as
 :func:`plants.codegen.derive.derive` does for the generated code.
@@ -42,8 +46,9 @@ SELF_CHECK_RTOL = 1e-9
 @dataclass
 class Tree:
     """Bodies (world excluded) in topological order; ``X_PJ``, ``X_JB``: fixed ``(R (3, 3), p (3,))``
-    from the parent body's frame to the joint frame and from the rotated joint frame to the body;
-    the joint turns by ``q[qidx]`` about ``axis`` (joint frame; ``qidx = -1``: a weld)."""
+    from the parent body's frame to the joint frame and from the moved joint frame to the body;
+    the joint turns by ``q[qidx]`` about ``axis`` (joint frame; ``qidx = -1``: a weld), or, where
+    ``prismatic``, translates by ``q[qidx]`` along it."""
 
     names: list[str]
     parent: np.ndarray      # (nb,) int, -1 = world
@@ -60,6 +65,11 @@ class Tree:
     reflected: np.ndarray   # (m,)
     gravity: np.ndarray     # (3,)
     m: int
+    prismatic: np.ndarray | None = None   # (nb,) bool; None: no prismatic joint
+
+    def __post_init__(self):
+        if self.prismatic is None:
+            self.prismatic = np.zeros(len(self.names), bool)
 
     def body(self, name: str) -> int:
         return self.names.index(name)
@@ -87,11 +97,11 @@ def extract_tree(plant) -> Tree:
             raise Unsupported("force elements other than gravity")
     joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
     for j in joints:
-        if j.type_name() not in ("revolute", "weld"):
+        if j.type_name() not in ("revolute", "prismatic", "weld"):
             raise Unsupported(f"joint type {j.type_name()}")
     world = plant.world_body().index()
     known = {world: -1}
-    order, parent, qidx, R_PJ, p_PJ, axis, R_JB, p_JB = [], [], [], [], [], [], [], []
+    order, parent, qidx, R_PJ, p_PJ, axis, R_JB, p_JB, prismatic = [], [], [], [], [], [], [], [], []
     frontier = [world]
     used = set()
     while frontier:
@@ -121,8 +131,12 @@ def extract_tree(plant) -> Tree:
                 R_KF, p_KF = R_KF @ R_FM, p_KF + R_KF @ p_FM
                 ax, qi = np.zeros(3), -1
             else:
-                ax = np.asarray(j.revolute_axis(), float) * (1.0 if forward else -1.0)
+                # reversed: X_MF(q) = X_FM(q)^-1 turns (translates) by q about (along) -axis;
+                # a prismatic joint's X_FM has no rotation, so its axis is the same in F and M
+                ax = np.asarray(j.revolute_axis() if j.type_name() == "revolute" else j.translation_axis(),
+                                float) * (1.0 if forward else -1.0)
                 qi = j.position_start()
+            prismatic.append(j.type_name() == "prismatic")
             known[new] = len(order)
             order.append(new)
             parent.append(known[k])
@@ -145,7 +159,7 @@ def extract_tree(plant) -> Tree:
         I_com.append(I_o - mb * (c @ c * np.eye(3) - np.outer(c, c)))
     damping = np.zeros(m)
     for j in joints:
-        if j.type_name() == "revolute":
+        if j.type_name() in ("revolute", "prismatic"):
             damping[j.position_start()] = j.default_damping()
     reflected = np.zeros(m)
     for i in range(plant.num_actuators()):
@@ -154,7 +168,7 @@ def extract_tree(plant) -> Tree:
     return Tree([b.name() for b in bodies], np.array(parent), np.array(qidx), np.array(R_PJ),
                 np.array(p_PJ), np.array(axis), np.array(R_JB), np.array(p_JB), mass, com,
                 np.array(I_com), damping, reflected,
-                np.asarray(plant.gravity_field().gravity_vector(), float), m)
+                np.asarray(plant.gravity_field().gravity_vector(), float), m, np.array(prismatic, bool))
 
 
 def _arr(name: str, ctype: str, a: np.ndarray) -> str:
@@ -177,6 +191,7 @@ def tree_source(tree: Tree, header: bool = True) -> str:
             f"#define MP {tree.m}\n#define NCARRY (2 * MP)\n") if header else ""
     data = "".join([f"#define NB {nb}\n",
         _arr("PARENT", "int", tree.parent), _arr("QIDX", "int", tree.qidx),
+        _arr("PRISMATIC", "int", tree.prismatic.astype(int)),
         _arr("R_PJ", "double", tree.R_PJ), _arr("P_PJ", "double", tree.p_PJ),
         _arr("AXIS", "double", tree.axis), _arr("R_JB", "double", tree.R_JB),
         _arr("P_JB", "double", tree.p_JB), _arr("MASS", "double", tree.mass),

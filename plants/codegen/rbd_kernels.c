@@ -1,6 +1,7 @@
 
 /* ---- rigid-body kernels (plants/codegen/rbd.py); every scalar is an array of 1 + nd doubles:
- * value, then nd partial derivatives (nd = 0: plain evaluation) ---- */
+ * value, then nd partial derivatives (nd = 0: plain evaluation). A joint turns its body by q about
+ * AXIS (revolute), or translates it by q along AXIS where PRISMATIC[b] ---- */
 #define L_MAX (1 + 2 * MP)
 
 typedef struct { int nd; } dctx;
@@ -89,7 +90,8 @@ static void extend(int Lp, int L, const double *src, double *dst, int count)
 static inline int LB(int nd, int b) { return nd ? 1 + NDB[b] : 1; }
 
 /* Forward kinematics with duals: R[b] (9), p[b] (3): body poses in the world; ax[b], o[b]: the
- * joint axis and a point on it in the world (revolute), each in body b's layout LB(nd, b). */
+ * joint axis and a point on it in the world (the joint frame's origin before a prismatic joint's
+ * translation), each in body b's layout LB(nd, b). */
 typedef struct { double R[9 * L_MAX], p[3 * L_MAX], ax[3 * L_MAX], o[3 * L_MAX]; } dpose;
 
 static void d_fk(int nd, const double *q, dpose *P)
@@ -112,7 +114,16 @@ static void d_fk(int nd, const double *q, dpose *P)
             extend(Lp, L, t3, P[b].o, 3);
         }
         const double *R_after = RJ;
-        if (QIDX[b] >= 0) {
+        for (int k = 0; k < 3 * L; k++) t3[k] = 0.0;   /* the prismatic joint's translation */
+        if (QIDX[b] >= 0 && PRISMATIC[b]) {
+            const double *a = AXIS + 3 * b;
+            double qd[L_MAX];
+            for (int k = 0; k < L; k++) qd[k] = 0.0;
+            qd[0] = q[QIDX[b]];
+            if (nd) qd[L - 2] = 1.0;                         /* d/dq_k: the slot before d/dv_k */
+            dm_cvec(L, P[b].ax, RJ, a);
+            for (int r = 0; r < 3; r++) d_addmul(L, t3 + r * L, P[b].ax + r * L, qd);
+        } else if (QIDX[b] >= 0) {
             const double *a = AXIS + 3 * b;
             double qv = q[QIDX[b]];
             double c[L_MAX], s[L_MAX], omc[L_MAX];
@@ -134,8 +145,8 @@ static void d_fk(int nd, const double *q, dpose *P)
             for (int k = 0; k < 3 * L; k++) P[b].ax[k] = 0.0;
         }
         dm_cmat(L, P[b].R, R_after, RJB);
-        dm_cvec(L, t3, R_after, pJB);
-        for (int k = 0; k < 3 * L; k++) P[b].p[k] = P[b].o[k] + t3[k];
+        dm_cvec(L, tmp, R_after, pJB);
+        for (int k = 0; k < 3 * L; k++) P[b].p[k] = P[b].o[k] + t3[k] + tmp[k];
     }
 }
 
@@ -158,7 +169,14 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
             }
         }
         const double *Ru = RJ;
-        if (QIDX[b] >= 0) {
+        double tr[3] = {0.0, 0.0, 0.0};   /* the prismatic joint's translation */
+        if (QIDX[b] >= 0 && PRISMATIC[b]) {
+            const double *a = AXIS + 3 * b, qv = q[QIDX[b]];
+            for (int r = 0; r < 3; r++) {
+                ax[3 * b + r] = RJ[3 * r] * a[0] + RJ[3 * r + 1] * a[1] + RJ[3 * r + 2] * a[2];
+                tr[r] = qv * ax[3 * b + r];
+            }
+        } else if (QIDX[b] >= 0) {
             const double *a = AXIS + 3 * b;
             double c = cos(q[QIDX[b]]), s = sin(q[QIDX[b]]), omc = 1.0 - c;
             double K[9] = {0.0, -a[2], a[1], a[2], 0.0, -a[0], -a[1], a[0], 0.0};
@@ -174,7 +192,7 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
         }
         for (int r = 0; r < 3; r++) {
             for (int c = 0; c < 3; c++) R[9 * b + 3 * r + c] = Ru[3 * r] * RJB[c] + Ru[3 * r + 1] * RJB[3 + c] + Ru[3 * r + 2] * RJB[6 + c];
-            p[3 * b + r] = ob[r] + (Ru[3 * r] * pJB[0] + Ru[3 * r + 1] * pJB[1] + Ru[3 * r + 2] * pJB[2]);
+            p[3 * b + r] = ob[r] + tr[r] + (Ru[3 * r] * pJB[0] + Ru[3 * r + 1] * pJB[1] + Ru[3 * r + 2] * pJB[2]);
         }
     }
 }
@@ -186,6 +204,10 @@ static void point_jacobian(int b, const double *r, const double *ax, const doubl
         int k = QIDX[i];
         if (k < 0) continue;
         const double *a = ax + 3 * i, *oi = o + 3 * i;
+        if (PRISMATIC[i]) {   /* translation along the axis */
+            J[k] += a[0]; J[ld + k] += a[1]; J[2 * ld + k] += a[2];
+            continue;
+        }
         double d0 = r[0] - oi[0], d1 = r[1] - oi[1], d2 = r[2] - oi[2];
         J[k] += a[1] * d2 - a[2] * d1;
         J[ld + k] += a[2] * d0 - a[0] * d2;
@@ -197,7 +219,7 @@ static void angular_jacobian(int b, const double *ax, double *J, int ld)
 {
     for (int i = b; i >= 0; i = PARENT[i]) {
         int k = QIDX[i];
-        if (k < 0) continue;
+        if (k < 0 || PRISMATIC[i]) continue;
         for (int r = 0; r < 3; r++) J[r * ld + k] += ax[3 * i + r];
     }
 }
@@ -322,7 +344,20 @@ static void rnea(int nd, const double *q, const double *v, const double *a, doub
             extend(LB(nd, pa), L, W[pa], om, 12);
         }
         int k = QIDX[b];
-        if (k >= 0) {
+        if (k >= 0 && PRISMATIC[b]) {
+            /* motion axis (0, a): vO += a qd; aO += a qdd + (omega x a) qd (alpha, omega unchanged) */
+            const double *ax = P[b].ax;
+            double qdd = a[k];
+            for (int i = 0; i < L; i++) qdk[i] = 0.0;
+            qdk[0] = v[k];
+            if (nd) qdk[L - 1] = 1.0;               /* d/dv_k: the body's last slot */
+            dv_cross(L, t1, om, ax);                /* omega x a */
+            for (int r = 0; r < 3; r++) {
+                d_addmul(L, vO + r * L, ax + r * L, qdk);
+                d_addcmul(L, aO + r * L, qdd, ax + r * L);
+                d_addmul(L, aO + r * L, t1 + r * L, qdk);
+            }
+        } else if (k >= 0) {
             const double *ax = P[b].ax, *o = P[b].o;
             double qdd = a[k];
             for (int i = 0; i < L; i++) qdk[i] = 0.0;
@@ -373,7 +408,7 @@ static void rnea(int nd, const double *q, const double *v, const double *a, doub
             if (nd) for (int s = 1; s < L; s++) dst[1 + SLOT[b][s - 1]] = src[s];
         }
     }
-    /* backward: forces to the root; tau_k = a . n_O + (o x a) . f (global layout) */
+    /* backward: forces to the root; tau_k = a . n_O + (o x a) . f (global layout); prismatic: a . f */
     for (int i = 0; i < MP * LF; i++) tau_d[i] = 0.0;
     double axF[3 * L_MAX], S2F[3 * L_MAX];
     for (int b = NB - 1; b >= 0; b--) {
@@ -381,7 +416,8 @@ static void rnea(int nd, const double *q, const double *v, const double *a, doub
         int k = QIDX[b], L = LB(nd, b);
         if (k >= 0) {
             double *tk = tau_d + k * LF;
-            dv_cross(L, S2, P[b].o, P[b].ax);
+            if (PRISMATIC[b]) for (int i = 0; i < 3 * L; i++) S2[i] = 0.0;
+            else dv_cross(L, S2, P[b].o, P[b].ax);
             for (int c = 0; c < 3; c++) {
                 const double *sa = P[b].ax + c * L, *ss = S2 + c * L;
                 double *da = axF + c * LF, *ds = S2F + c * LF;
@@ -389,9 +425,11 @@ static void rnea(int nd, const double *q, const double *v, const double *a, doub
                 da[0] = sa[0]; ds[0] = ss[0];
                 if (nd) for (int s = 1; s < L; s++) { da[1 + SLOT[b][s - 1]] = sa[s]; ds[1 + SLOT[b][s - 1]] = ss[s]; }
             }
+            /* (angular, linear) parts of the motion axis: (a, o x a), prismatic (0, a) */
+            const double *Sw = PRISMATIC[b] ? S2F : axF, *Sv = PRISMATIC[b] ? axF : S2F;
             for (int r = 0; r < 3; r++) {
-                d_addmul(LF, tk, axF + r * LF, n + r * LF);
-                d_addmul(LF, tk, S2F + r * LF, f + r * LF);
+                d_addmul(LF, tk, Sw + r * LF, n + r * LF);
+                d_addmul(LF, tk, Sv + r * LF, f + r * LF);
             }
             tk[0] += DAMPING[k] * v[k] + REFLECTED[k] * a[k];
             if (nd) tk[1 + MP + k] += DAMPING[k];
