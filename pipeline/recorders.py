@@ -409,6 +409,10 @@ def _map_components(m: dict | None, dim: int, name: str, joint_names) -> tuple[l
     if kind == "joints":
         idx = m.get("indices") or range(len(joint_names))
         return [joint_names[i] for i in idx], dim, "rad", False
+    if kind == "frame_rotation":  # the rotation vector of R*^T R
+        return ["rx", "ry", "rz"], 3, "rad", False
+    if kind == "frame_placement":  # log6: translation part (m) then rotation vector (rad)
+        return ["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False
     return [f"{name}[{i}]" for i in range(dim)], dim, "", False
 
 

@@ -330,6 +330,12 @@ def _visible(color: np.ndarray) -> np.ndarray:
     return np.concatenate([np.minimum(rgb + lift, 255.0), np.asarray(color[3:4], float)]).astype(np.uint8)
 
 
+def _collada_y_up(path: str) -> bool:
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    return b"<up_axis>Y_UP</up_axis>" in head
+
+
 @functools.cache
 def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Vertices ``(V, 3)``, vertex normals ``(V, 3)`` and triangles ``(F, 3)`` of a mesh file."""
@@ -342,6 +348,8 @@ def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         m = trimesh.load(path, force="mesh", process=False)
         vertices, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.uint32)
         normals = np.asarray(m.vertex_normals, np.float32)
+        if path.lower().endswith(".dae") and _collada_y_up(path):  # COLLADA's Y_UP, as assimp reads it: z up
+            vertices, normals = vertices[:, [0, 2, 1]] * [1, -1, 1], normals[:, [0, 2, 1]] * [1, -1, 1]
     except Exception as e:  # noqa: BLE001 - any reader failure: the visual is skipped, said once
         print(f"raico: note: visual mesh {Path(path).name} cannot be read ({type(e).__name__}): not drawn",
               file=sys.stderr)

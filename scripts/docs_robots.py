@@ -44,6 +44,7 @@ weight = 1e-2
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", default="docs/robots.png")
+    ap.add_argument("--only", nargs="*", help="these robots only (to look at one)")
     args = ap.parse_args(argv)
     from pipeline import api
     from pipeline.screenshots import read_png, render_screenshot, renderer_unavailable
@@ -61,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for name, (file, extra, *rest) in {**ARMS, **HUMANOIDS}.items():
+            if args.only and name not in args.only:
+                continue
             uri = f"package://example-robot-data/robots/{file}"
             if rest:
                 robot = load_model(RobotSpec.from_dict({"file": str(robots / file), **extra}))

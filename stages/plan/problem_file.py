@@ -27,8 +27,8 @@ Cost term types (``type``) and their keys:
 
 - ``frame_position``: ``frame``, ``target`` (3, or one per ``axes``), optional ``axes``,
   ``points`` (points fixed in the frame, k x 3; the target then k x dim), ``precision``;
-- ``frame_orientation``: ``frame`` and ``rotation`` (3 x 3) or ``rpy`` (rad): the rotation vector
-  of ``R*^T R(q)``; or ``angle = "roll"`` with a scalar ``target`` (the thesis's roll about the
+- ``frame_orientation``: ``frame`` and ``rotation`` (3 x 3, or ``"start"``: the frame's at ``q0``)
+  or ``rpy`` (rad): the rotation vector of ``R*^T R(q)``; or ``angle = "roll"`` with a scalar ``target`` (the thesis's roll about the
   hand axis, ``atan2(y_E . z_W, z_E . z_W)``);
 - ``frame_placement``: ``frame``, ``position`` and ``rotation``/``rpy``: ``log6(M*^-1 M(q))``, as
   crocoddyl's frame-placement residual;
@@ -359,7 +359,9 @@ def _scale(convention: str, times, T: int, dt: float) -> list[tuple[Any, float]]
     return pieces
 
 
-def _rotation(t: dict, name: str) -> np.ndarray:
+def _rotation(t: dict, name: str, robot=None, q0=None) -> np.ndarray:
+    if t.get("rotation") == "start":  # the frame's orientation at the start posture
+        return robot.plant.GetFrameByName(t["frame"]).CalcPoseInWorld(robot.set_state(q0)).rotation().matrix()
     if "rotation" in t:
         R = np.asarray(t["rotation"], dtype=float)
         if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
@@ -463,11 +465,12 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         if "angle" in t:
             return ob.via(name, ob.roll(t["frame"], name), [_number(t.get("target"), f"[costs.{name}] target")],
                           steps, weight, precision)
-        return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name), name), np.zeros(3), steps, weight,
+        return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), name), np.zeros(3), steps,
+                      weight,
                       precision)
     if kind == "frame_placement":
         p = _vector(t["position"], f"[costs.{name}] position", 3)
-        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name), p, name), np.zeros(6), steps,
+        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, name), np.zeros(6), steps,
                       weight, precision)
     if kind == "com":
         axes = tuple(t.get("axes", (0, 1, 2)))
