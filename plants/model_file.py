@@ -474,7 +474,6 @@ def _first_line(e: Exception) -> str:
 
 def _weld_base(plant, models, weld: str | None, path: Path, pose: tuple[float, ...] = ()) -> list[str]:
     """Weld ``weld`` (or a free root body) to the world; the report's line."""
-    world = plant.world_body()
     roots = [b for b in (plant.get_body(i) for m in models for i in plant.GetBodyIndices(m))
              if not _has_joint(plant, b)]
     if weld is not None:

@@ -46,12 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="docs/robots.png")
     ap.add_argument("--only", nargs="*", help="these robots only (to look at one)")
     args = ap.parse_args(argv)
+    from test_model_file import ARMS, HUMANOIDS, LIMITS, REACH, problem_text
+
     from pipeline import api
     from pipeline.screenshots import read_png, render_screenshot, renderer_unavailable
     from plants.model_file import RobotSpec, example_robot_data, load_model
     from plants.taskmaps import FramePoints
     from stages.plan.problem_file import _frame
-    from test_model_file import ARMS, HUMANOIDS, LIMITS, REACH, problem_text
 
     why = renderer_unavailable() or (None if example_robot_data() else "example-robot-data is not installed")
     if why:
