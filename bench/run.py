@@ -378,6 +378,9 @@ def main() -> None:
     from bench.scaling import run as scaling_rows
 
     rows += scaling_rows(Path(args.artifacts) / "bench")  # and bench/scaling.png
+    from bench.model_files import run as model_file_rows
+
+    rows += model_file_rows()  # robots from model files: load times, per-iteration time against joints
     rows.append(cached_reproduce_row(Path(args.artifacts)))
     baseline = bench_baseline()
     print_baseline(baseline)

@@ -1,0 +1,196 @@
+"""Robots from model files: load times and per-iteration time against the number of joints.
+
+    .venv/bin/python -m bench.model_files
+
+- **First load** of a robot from its file in a fresh process with an empty kernel folder: the file
+  repaired and parsed into Drake, the compiled tree kernels generated, compiled and checked against
+  Drake, the planning problem built (its compiled task messages too). Targets: a 7-DOF arm (xArm7)
+  <= 10 s, a 30-DOF humanoid (Talos on a welded sole, 32 joints) <= 60 s. **A later process** with
+  the kernels on disk: <= 1 s (the load itself, the interpreter's start and imports not counted).
+- **Scaling**: a serial chain of n links (n = 2 to 32, a URDF written here, alternating pitch and
+  yaw axes, 0.2 m links of 1 kg), a reach of its tip with analytic dynamics (T = 100, dt = 0.01):
+  seconds per R-AICO iteration (and per crocoddyl FDDP iteration where crocoddyl translates the
+  problem), with the exponent of a least-squares line through log(time) against log(n).
+  Recursive dynamics and the tree's Jacobians cost O(n) to O(n^2) per step, the dense Riccati-like
+  sweeps O(n^3): the exponent is reported as measured.
+
+Not a test: nothing here fails on a slow machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+
+CHAIN_SIZES = (2, 4, 8, 16, 32)
+CHAIN_T = 100
+ITERATIONS = 4
+
+_LOAD = textwrap.dedent("""
+    import json, sys, time
+    t0 = time.perf_counter()
+    from stages.plan.stage import PlanConfig, build_problem
+    t_import = time.perf_counter()
+    cfg = PlanConfig(problem=sys.argv[1], iterations=1).normalized()
+    cfg.validate()
+    build_problem(cfg)
+    from plants.fast_analytic import make_fast_or_exact
+    from stages.plan.stage import robot_and_task
+    robot, task = robot_and_task(cfg)
+    dyn = make_fast_or_exact(robot, task.dt)
+    print(json.dumps({"load_s": time.perf_counter() - t_import, "import_s": t_import - t0,
+                      "route": type(dyn).__name__, "n": robot.n_q}))
+""")
+
+
+def _load_in_process(problem: Path, kernels: Path) -> dict:
+    env = {**os.environ, "RAICO_KERNEL_DIR": str(kernels)}
+    out = subprocess.run([sys.executable, "-c", _LOAD, str(problem)], capture_output=True, text=True, env=env,
+                         check=True, cwd=Path(__file__).resolve().parents[1])
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def load_rows(reps: int = 3) -> list[dict]:
+    """First load (empty kernel folder) and a later process's load, per robot, medians of ``reps``."""
+    from plants.model_file import example_robot_data
+
+    if example_robot_data() is None:
+        return []
+    root = Path(__file__).resolve().parents[1]
+    cases = [("xArm7 (7 joints)", root / "problems/examples/xarm7_reach.toml", 10.0),
+             ("Talos on its right sole (32 joints)", root / "problems/crocoddyl/talos_taichi.toml", 60.0)]
+    rows = []
+    for name, problem, target in cases:
+        first, later = [], []
+        for _ in range(reps):
+            with tempfile.TemporaryDirectory() as kernels:
+                first.append(_load_in_process(problem, Path(kernels)))
+                later.append(_load_in_process(problem, Path(kernels)))
+        for label, samples, tgt in (("first load", first, target), ("a later process", later, 1.0)):
+            s = [r["load_s"] for r in samples]
+            med = statistics.median(s)
+            rows.append({"benchmark": f"{name}: {label} (repairs, parse, kernels, problem; route "
+                                      f"{samples[0]['route']})", "median_s": med, "samples_s": s,
+                         "target_s": tgt, "ratio_to_target": med / tgt})
+    return rows
+
+
+# ------------------------------------------------------------------ scaling with the number of joints
+def chain_urdf(n: int) -> str:
+    """A serial chain of ``n`` revolute joints (pitch, yaw, pitch, ...), 0.2 m links of 1 kg, a tip frame."""
+    links = ['<link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" '
+             'ixz="0" iyz="0"/></inertial></link>']
+    parent = "base"
+    for k in range(n):
+        axis = "0 1 0" if k % 2 == 0 else "0 0 1"
+        links.append(f'<joint name="j{k}" type="revolute"><parent link="{parent}"/><child link="l{k}"/>'
+                     f'<origin xyz="0 0 {0.2 if k else 0.05}"/><axis xyz="{axis}"/>'
+                     f'<limit lower="-3" upper="3" effort="100" velocity="10"/></joint>')
+        links.append(f'<link name="l{k}"><inertial><origin xyz="0 0 0.1"/><mass value="1"/>'
+                     f'<inertia ixx="0.004" iyy="0.004" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+        parent = f"l{k}"
+    links.append(f'<joint name="tip_joint" type="fixed"><parent link="{parent}"/><child link="tip"/>'
+                 '<origin xyz="0 0 0.2"/></joint><link name="tip"/>')
+    return '<?xml version="1.0"?>\n<robot name="chain">' + "".join(links) + "</robot>\n"
+
+
+def chain_problem(n: int, folder: Path) -> Path:
+    """A problem file: the chain's tip 5 cm from its start at T, from a bent start posture."""
+    urdf = folder / f"chain{n}.urdf"
+    urdf.write_text(chain_urdf(n))
+    start = ", ".join(f"j{k} = {0.3 if k % 2 == 0 else 0.1}" for k in range(n))
+    text = textwrap.dedent(f"""
+        [robot]
+        file = "{urdf.name}"
+        start = {{ {start} }}
+        armature = 0.01
+        [horizon]
+        T = {CHAIN_T}
+        dt = 0.01
+        [dynamics]
+        model = "analytic"
+        [costs.reach]
+        type = "frame_position"
+        frame = "tip"
+        target = [0.05, 0.0, -0.05]
+        relative = "start"
+        times = "last"
+        weight = 1e4
+        [costs.control]
+        type = "control"
+        weight = 1e-3
+    """)
+    path = folder / f"chain{n}.toml"
+    path.write_text(text)
+    return path
+
+
+def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3) -> float | None:
+    from planning.solvers import solve
+    from stages.plan.stage import PlanConfig, build_problem
+
+    times = []
+    for _ in range(reps):
+        _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file)).normalized())
+        try:
+            t0 = time.perf_counter()
+            res = solve(problem, solver, options)
+        except Exception:  # noqa: BLE001 - a solver that cannot take the problem: no row
+            return None
+        times.append((time.perf_counter() - t0) / max(1, res.iterations))
+    return statistics.median(times)
+
+
+def _exponent(sizes, times) -> float:
+    return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
+
+
+def scaling_rows() -> list[dict]:
+    """Seconds per iteration against the number of joints, R-AICO and FDDP, with exponents."""
+    from planning.solvers import SOLVERS
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        files = {n: chain_problem(n, Path(tmp)) for n in CHAIN_SIZES}
+        solvers = [("R-AICO", "raico", {"iterations": ITERATIONS, "alpha": 1.0, "tol_rel": 0.0})]
+        if "fddp" in SOLVERS:
+            solvers.append(("crocoddyl FDDP", "fddp", {"iterations": ITERATIONS}))
+        for label, solver, options in solvers:
+            sizes, times = [], []
+            for n, f in files.items():
+                t = _per_iteration(f, solver, options)
+                if t is None:
+                    continue
+                sizes.append(n)
+                times.append(t)
+                rows.append({"benchmark": f"chain of {n} joints, analytic reach T={CHAIN_T}: one {label} iteration",
+                             "median_s": t, "samples_s": [t], "target_s": None, "ratio_to_target": None})
+                print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration", flush=True)
+            if len(sizes) >= 3:
+                e = _exponent(sizes, times)
+                rows.append({"benchmark": f"{label} per iteration against joints n = {sizes[0]}..{sizes[-1]}: "
+                                          f"exponent {e:.2f}", "median_s": None, "samples_s": [],
+                             "exponent": e, "target_s": None, "ratio_to_target": None})
+                print(f"  {label}: exponent {e:.2f} over n = {sizes}", flush=True)
+    return rows
+
+
+def run() -> list[dict]:
+    rows = load_rows()
+    for r in rows:
+        print(f"{r['benchmark']:90s} median {r['median_s']:7.2f} s   target {r['target_s']:6.1f} s   "
+              f"{r['ratio_to_target']:5.2f}x", flush=True)
+    return rows + scaling_rows()
+
+
+if __name__ == "__main__":
+    run()
