@@ -319,3 +319,21 @@ def test_unsupported_joint_is_one_line(tmp_path):
     urdf.write_text(USER_URDF.replace('type="continuous"', 'type="planar"'))
     with pytest.raises(ModelError, match="planar joint"):
         load_model(RobotSpec(file=str(urdf)))
+
+
+def test_quasi_static_start_holds_x0():
+    """The quasi-static start's torques keep x0 at rest under the model's own dynamics (the start
+    crocoddyl's examples use), on a built-in arm and on a humanoid from its file."""
+    from plants.dynamics import rollout
+    from stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
+
+    root = Path(__file__).resolve().parents[1]
+    for cfg in (PlanConfig(plant="arm5", task="reach", dynamics="analytic"),
+                PlanConfig(problem=str(root / "problems/crocoddyl/talos_taichi.toml"))):
+        _, _, problem, q0, _ = build_problem(cfg.normalized())
+        U = quasi_static_controls(problem, q0)
+        assert np.abs(U).max() > 0.1  # gravity is held, not zero
+        X = rollout(problem.dynamics, problem.x0, U[:20])
+        assert np.abs(X - problem.x0).max() < 1e-8
+        X0 = rollout(problem.dynamics, problem.x0, np.zeros_like(U[:20]))
+        assert not np.abs(X0 - problem.x0).max() <= 1e-3  # without them it moves (the humanoid blows up: NaN)

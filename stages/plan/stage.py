@@ -38,7 +38,7 @@ PROBLEM_FILE = "problem.json"
 Q0_STD = 0.05  # rad, the thesis's spread of the initial states
 INTEGRATOR_DYNAMICS = tuple(n for m in INTEGRATORS.values() for n in m.values())
 WARM_FROM = ("trajectory", "controls")
-STARTS = ("held", "rollout")
+STARTS = ("held", "rollout", "quasi-static")
 
 
 @dataclass(frozen=True)
@@ -78,8 +78,10 @@ class PlanConfig(StageConfig):
             "belief_rate": "AICO/R-AICO: learning rate on the belief update (Algorithm 1 line 13), in (0, 1].",
             "controller_rate": "AICO/R-AICO: learning rate on the controller (Algorithm 1 line 18): the new "
                                "controller blended with the previous one, in (0, 1].",
-            "start": "AICO/R-AICO's first trajectory: held (x0 at every step, the thesis) or rollout (the zero-control "
-                     "rollout, where crocoddyl FDDP's rollout start begins); iLQG always rolls out.",
+            "start": "The first trajectory: held (AICO/R-AICO: x0 at every step, the thesis), rollout (AICO/R-AICO: "
+                     "the zero-control rollout, where crocoddyl FDDP's rollout start begins) or quasi-static (every "
+                     "solver: the torques that hold x0 at rest, g(q0), rolled out: crocoddyl's examples' start; "
+                     "zero accelerations for pseudo-dynamics). iLQG otherwise rolls zero controls out.",
             "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
                               "an iteration that lowers the cost, grows and retries after one that raises it).",
             "balance": f"Nao only: none (the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
@@ -179,7 +181,9 @@ class PlanConfig(StageConfig):
         elif self.alpha_schedule == "adaptive":
             note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
         if self.solver not in ("aico", "raico"):
-            note(("relinearize", "belief_rate", "controller_rate", "start"), f"AICO's and R-AICO's, not {self.solver}'s")
+            note(("relinearize", "belief_rate", "controller_rate"), f"AICO's and R-AICO's, not {self.solver}'s")
+            if self.start == "rollout":
+                note(("start",), f"AICO's and R-AICO's, not {self.solver}'s")
         if self.warm_start is None or self.solver == "ilqg":
             note(("warm_from",), "for AICO/R-AICO with --warm-start")
         if self.sigma is None:
@@ -247,7 +251,7 @@ class PlanConfig(StageConfig):
             d["gamma"] = 1.0  # not used by the adaptive schedule
         if self.warm_start is None or self.solver == "ilqg":
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
-        if self.warm_start is not None or self.solver not in ("aico", "raico"):
+        if self.warm_start is not None or (self.solver not in ("aico", "raico") and self.start != "quasi-static"):
             d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
         if self.solver not in ("aico", "raico"):
             d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
@@ -339,6 +343,19 @@ def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
     return np.clip(robot.default_q + q0_std * rng.standard_normal(robot.n_q), lower, upper)
 
 
+def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
+    """``(T, n_u)``: the controls that hold ``x0 = (q0, 0)`` at rest at every step: the torques
+    ``g(q0)`` of the model's inverse dynamics (zero accelerations for pseudo-dynamics)."""
+    dyn = problem.dynamics
+    if isinstance(dyn, PseudoDynamics):
+        return np.zeros((problem.T, problem.n_u))
+    inverse = getattr(dyn, "inverse_dynamics", None)
+    if inverse is None:
+        raise ValueError(f"--start quasi-static needs a model with inverse dynamics, not {type(dyn).__name__}")
+    zero = np.zeros_like(q0)
+    return np.tile(np.asarray(inverse(q0, zero, zero), float), (problem.T, 1))
+
+
 def control_kind(dynamics) -> str:
     """``acceleration`` for pseudo-dynamics, ``torque`` for the analytic and learned models."""
     return "acceleration" if isinstance(dynamics, PseudoDynamics) else "torque"
@@ -414,6 +431,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     init = {}
     if cfg.start == "rollout" and warm_start is None and cfg.solver in ("aico", "raico"):
         init["U_init"] = np.zeros((problem.T, problem.n_u))  # the first trajectory: the zero-control rollout
+    if cfg.start == "quasi-static" and warm_start is None:
+        init["U_init"] = quasi_static_controls(problem, q0)
     if warm_start is not None:
         U0 = warm_start.arrays(PLAN_FILE)["U"]
         if U0.shape != (problem.T, problem.n_u) or not np.all(np.isfinite(U0)):
