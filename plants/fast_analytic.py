@@ -420,11 +420,16 @@ def make_fast_or_exact(robot, dt: float) -> FastAnalyticDynamics | AnalyticDynam
             pass
     try:
         return TreeAnalyticDynamics(robot, dt)
-    except NotImplementedError:
-        pass
+    except NotImplementedError as e:
+        why = str(e)
     if not small:
         try:
             return FastAnalyticDynamics(robot, dt)
         except NotImplementedError:
             pass
+    if robot.spec is not None:  # a model file's robot: say why it is slower (the built-in plants compile)
+        import sys
+
+        print(f"raico: note: {robot.name}: no compiled dynamics ({why}): Drake's own evaluation (AutoDiffXd) "
+              "is used, slower", file=sys.stderr)
     return AnalyticDynamics(robot, dt)
