@@ -451,20 +451,33 @@ def exp_show(
 @handles_errors
 def exp_diff(
     experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
-    a: Annotated[str, typer.Argument(help="A variant's label (as exp show lists it).")],
-    b: Annotated[str, typer.Argument(help="Another variant's label: B - A is reported.")],
-    metric: Annotated[str, typer.Option("--metric", "-m", help="The column compared.")] = "plan.final_cost",
+    a: Annotated[str, typer.Argument(help="A variant's label (as exp show lists it), or a run's cache key (or a "
+                                     "prefix of it, at least 4 characters; plan/KEY also works).")],
+    b: Annotated[str, typer.Argument(help="Another variant's label, or another run's key: B - A is reported.")],
+    metric: Annotated[str, typer.Option("--metric", "-m", help="The column compared (two variants).")]
+    = "plan.final_cost",
     fmt: Annotated[str, typer.Option("--format", help="table or json.")] = "table",
     artifacts: Artifacts = None,
 ):
     """Two variants of an experiment, paired by seed: per-seed differences of a metric, their median, the
-    mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test)."""
+    mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test).
+    Two runs (cache keys): every metric side by side with B - A, and the options that differ."""
     from pipeline import expfile
 
     if fmt not in ("table", "json"):
         raise BadInput(f"--format {fmt}: choose table or json")
-    df, _ = expfile.read_table(open_cache(artifacts), experiment)
-    typer.echo(expfile.render_paired(expfile.paired(df, a, b, metric), fmt))
+    cache = open_cache(artifacts)
+    df, swept = expfile.read_table(cache, experiment)
+    labels = set(df["variant"])
+    if a in labels and b in labels:
+        typer.echo(expfile.render_paired(expfile.paired(df, a, b, metric), fmt))
+        return
+    runs = [expfile.find_run(df, x) if x not in labels else None for x in (a, b)]
+    if any(x in labels for x in (a, b)) and any(r is not None for r in runs):
+        raise BadInput("give two variants (paired by seed) or two runs' keys, not one of each")
+    if runs[0] is None and runs[1] is None and not any(expfile.KEY_RE.match(x.split("/")[-1].lower()) for x in (a, b)):
+        expfile.paired(df, a, b, metric)   # neither a variant nor a key: the variants' error, with their labels
+    typer.echo(expfile.render_run_diff(expfile.run_diff(df, swept, a, b, cache), fmt))
 
 
 def describe_entry(cache: Cache, info) -> dict:

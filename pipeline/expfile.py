@@ -657,3 +657,144 @@ def render_paired(r: Paired, fmt: str = "table") -> str:
         p = "-" if r.p_value is None else f"{r.p_value:.3g}"
         lines += [f"  median difference {_cell(r.median)}; mean's 95 % interval {ci}; signed-rank p {p}"]
     return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- two single runs
+KEY_RE = re.compile(r"^[0-9a-f]{4,16}$")   # a cache key or a prefix of one (at least 4 hex digits)
+
+
+def key_columns(df) -> list[str]:
+    """The table's ``<stage>.key`` columns, in the stages' order."""
+    return [c for c in df.columns if str(c).endswith(".key")]
+
+
+def find_run(df, ref: str) -> int | None:
+    """The row index of the run whose key (of any stage) is ``ref`` or starts with it; None if ``ref``
+    is not a key prefix or no run has it; :class:`BadInput` if it names more than one run."""
+    ref = ref.strip().lower()
+    if "/" in ref:   # STAGE/KEY, as raico show and raico ls write it
+        stage, ref = ref.split("/", 1)
+        cols = [f"{stage}.key"] if f"{stage}.key" in df.columns else []
+    else:
+        cols = key_columns(df)
+    if not KEY_RE.match(ref):
+        return None
+    hits = sorted({i for c in cols for i, k in df[c].items() if isinstance(k, str) and k.startswith(ref)})
+    if len(hits) > 1:
+        which = ", ".join(f"{df.at[i, 'variant']} seed {df.at[i, 'seed']}" for i in hits[:4])
+        raise BadInput(f"key prefix '{ref}' names {len(hits)} runs ({which}{', ...' if len(hits) > 4 else ''}): "
+                       "give more characters")
+    return hits[0] if hits else None
+
+
+@dataclass
+class RunDiff:
+    """Two single runs of an experiment side by side: who they are, the options that differ, every
+    metric of either with ``b - a``."""
+
+    a: dict[str, Any]                                  # {"variant", "seed", "keys": {stage: key}}
+    b: dict[str, Any]
+    options: list[tuple[str, Any, Any]]                # (option, a's value, b's value), only where they differ
+    metrics: list[tuple[str, Any, Any, float | None]]  # (metric, a, b, b - a where both are numbers)
+
+
+def _who(df, i: int) -> dict[str, Any]:
+    row = df.loc[i]
+    return {"variant": row["variant"], "seed": _plain(row["seed"]),
+            "keys": {c[:-4]: row[c] for c in key_columns(df) if isinstance(row[c], str)}}
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars and NaN as plain Python values (None for a missing one)."""
+    if hasattr(v, "item"):
+        v = v.item()
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
+def _configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
+    """The options each stage of a run used (its ``meta.json`` config, input references left out),
+    named as the table names them: the first stage's plain, later ones ``stage.option``."""
+    from stages.registry import get_stage
+
+    out: dict[str, Any] = {}
+    for stage, key in who["keys"].items():
+        cfg = _meta(cache, stage, key).get("config") or {}
+        try:
+            inputs = set(get_stage(stage).config_cls.INPUTS)
+        except Exception:  # noqa: BLE001 - a stage this version does not know: every field
+            inputs = set()
+        for k, v in cfg.items():
+            if k not in inputs:
+                out[k if stage == first else f"{stage}.{k}"] = v
+    return out
+
+
+def _same(x: Any, y: Any) -> bool:
+    if isinstance(x, (int, float)) and isinstance(y, (int, float)) and not isinstance(x, bool) \
+            and not isinstance(y, bool):
+        return x == y or (math.isnan(x) and math.isnan(y))
+    return x == y
+
+
+def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
+    """Runs ``a`` and ``b`` (cache keys or key prefixes of any stage of the table) side by side: the
+    options that differ (every option of each stage's config where ``cache`` has the entries, else the
+    swept ones) and every metric with its difference. :class:`BadInput` if a key names no run."""
+    idx = []
+    for ref in (a, b):
+        i = find_run(df, ref)
+        if i is None:
+            cols = ", ".join(key_columns(df)) or "no key columns"
+            raise BadInput(f"no run with key '{ref}' in the table ({cols}: `raico exp show NAME --no-group "
+                           f"--metric plan.key` lists them) and no variant of that name")
+        idx.append(i)
+    ia, ib = idx
+    who_a, who_b = _who(df, ia), _who(df, ib)
+    first = key_columns(df)[0][:-4] if key_columns(df) else "plan"
+    conf_a = _configs(cache, who_a, first) if cache is not None else {}
+    conf_b = _configs(cache, who_b, first) if cache is not None else {}
+    if not conf_a or not conf_b:   # no entries to read: the swept options and the seed, from the table
+        conf_a = {k: _plain(df.at[ia, k]) for k in (*swept, "seed") if k in df.columns}
+        conf_b = {k: _plain(df.at[ib, k]) for k in (*swept, "seed") if k in df.columns}
+    names = list(dict.fromkeys([*conf_a, *conf_b]))
+    options = [(k, conf_a.get(k), conf_b.get(k)) for k in names if not _same(conf_a.get(k), conf_b.get(k))]
+    skip = {*swept, "experiment", "variant", "seed", "error", *key_columns(df)}
+    metrics = []
+    for c in df.columns:
+        if c in skip or c.endswith((".cached", ".code_version")):
+            continue
+        va, vb = _plain(df.at[ia, c]), _plain(df.at[ib, c])
+        if va is None and vb is None:
+            continue
+        num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (va, vb))
+        metrics.append((c, va, vb, float(vb - va) if num else None))
+    return RunDiff(who_a, who_b, options, metrics)
+
+
+def _run_name(who: dict[str, Any]) -> str:
+    keys = ", ".join(f"{s} {k}" for s, k in who["keys"].items())
+    return f"{keys} ({who['variant']}, seed {who['seed']})"
+
+
+def render_run_diff(r: RunDiff, fmt: str = "table") -> str:
+    if fmt == "json":
+        return json.dumps({"a": r.a, "b": r.b,
+                           "options": [{"option": k, "a": x, "b": y} for k, x, y in r.options],
+                           "metrics": [{"metric": k, "a": x, "b": y, "b_minus_a": d} for k, x, y, d in r.metrics]},
+                          default=str, allow_nan=False)
+
+    def table(head: list[str], rows: list[list[str]]) -> list[str]:
+        widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
+        line = "  ".join(f"{{:<{w}}}" for w in widths)
+        return ["  " + line.format(*head).rstrip(), *("  " + line.format(*row).rstrip() for row in rows)]
+
+    out = [f"A: {_run_name(r.a)}", f"B: {_run_name(r.b)}"]
+    if r.options:
+        out += ["options that differ:", *table(["option", "A", "B"], [[k, _cell(x), _cell(y)] for k, x, y in r.options])]
+    else:
+        out += ["options that differ: none"]
+    out += ["metrics:", *table(["metric", "A", "B", "B - A"],
+                               [[k, _cell(x), _cell(y), _cell(d)] for k, x, y, d in r.metrics])]
+    return "\n".join(out)
