@@ -480,6 +480,66 @@ def exp_diff(
     typer.echo(expfile.render_run_diff(expfile.run_diff(df, swept, a, b, cache), fmt))
 
 
+@app.command("plot")
+@handles_errors
+def plot(
+    experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
+    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds; curve: "
+                                      "cost per iteration per group (log axis); box: a box and the runs per "
+                                      "group.")] = "line",
+    x: Annotated[str | None, typer.Option("--x", help="The swept option on the x axis (--kind line).")] = None,
+    metric: Annotated[str, typer.Option("--metric", "-m", help="The runs table's column plotted (line, box).")]
+    = "plan.final_cost",
+    group: Annotated[list[str] | None, typer.Option("--group", help="Group the runs by these options (repeatable; "
+                                                    "default: every swept option that varies, but --x).")] = None,
+    where: Annotated[str | None, typer.Option("--where", help="Keep rows matching a condition, as in exp show.")]
+    = None,
+    yscale: Annotated[str, typer.Option("--yscale", help="auto (log when the values span two decades; curve: "
+                                        "log), linear or log.")] = "auto",
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="The PNG to write (default: artifacts/exp/NAME/"
+                                             "KIND-METRIC.png).")] = None,
+    artifacts: Artifacts = None, quiet: Quiet = False,
+):
+    """Plot an experiment's runs table: a metric against a swept option (median line, interquartile band over
+    seeds), the cost per iteration per group, or a box per group. Legends name the options that differ."""
+    from pipeline import expfile, plots
+    from pipeline.ui import Reporter
+
+    if kind not in plots.KINDS:
+        raise BadInput(f"--kind {kind}: choose one of {', '.join(plots.KINDS)}")
+    if yscale not in ("auto", "linear", "log"):
+        raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
+    if out is not None and out.suffix.lower() != ".png":
+        raise BadInput(f"--out {out}: a .png file")
+    cache = open_cache(artifacts)
+    df, swept = expfile.read_table(cache, experiment)
+    name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
+    if kind == "line":
+        if x is None:
+            raise BadInput(f"--kind line needs --x OPTION: one of the swept options {', '.join(swept) or '(none)'}")
+        if x not in df.columns:
+            raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
+    elif x is not None:
+        raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
+    if kind != "curve" and metric not in expfile.metric_columns(df):
+        raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
+                       f"metrics: {', '.join(expfile.metric_columns(df))}")
+    df = expfile.query(df, where)
+    if not len(df):
+        raise BadInput(f"--where '{where}' keeps no run")
+    what = {"line": metric, "curve": "cost", "box": metric}[kind]
+    out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
+    check_folder(out.parent, "output folder")
+    if kind == "line":
+        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale)
+    elif kind == "curve":
+        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale)
+    else:
+        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale)
+    Reporter(quiet).say(f"plot {name}: {kind} of {what}{' against ' + x if x else ''}, {len(df)} runs in "
+                        f"{len(drawn.series)} groups -> {drawn.path}")
+
+
 def describe_entry(cache: Cache, info) -> dict:
     """What a listing shows of an entry: plant, task, solver (or dynamics), status and headline
     metric. An execution or evaluation takes plant, task and solver from its plan."""

@@ -495,6 +495,26 @@ def read_table(cache, name_or_file: str):
     return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
 
 
+def query(df, where: str | None):
+    """The rows of ``df`` matching ``where`` (pandas query syntax: comparisons, and/or, in; names with dots
+    in backticks); :class:`BadInput` with the table's columns if it does not parse or names no column."""
+    if not where:
+        return df
+    try:
+        return df.query(where, engine="python")
+    except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
+        names = ", ".join(map(str, df.columns))
+        raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+
+
+def metric_columns(df) -> list[str]:
+    """The table's numeric metric columns (``stage.metric``; keys, cache flags and code versions left out)."""
+    import pandas as pd
+
+    return [c for c in df.columns if "." in str(c) and not str(c).endswith((".key", ".cached", ".code_version"))
+            and (pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c]))]
+
+
 DEFAULT_METRICS = ("plan.final_cost", "plan.iterations", "plan.wall_time_s", "plan.cost.iterations_to_1pct",
                    "execute.rmse_planned_executed", "learn.episodes")
 
@@ -508,12 +528,7 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     import numpy as np
     import pandas as pd
 
-    if where:
-        try:
-            df = df.query(where, engine="python")
-        except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
-            names = ", ".join(map(str, df.columns))
-            raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+    df = query(df, where)
     metrics = [m for m in (metrics or DEFAULT_METRICS) if m in df.columns]
     keys = ["variant", *[s for s in swept if s in df.columns]]
     if only_changed:
