@@ -540,6 +540,53 @@ def plot(
                         f"{len(drawn.series)} groups -> {drawn.path}")
 
 
+@app.command("compare")
+@handles_errors
+def compare(
+    keys: Annotated[list[str] | None, typer.Argument(help="Runs to compare: plan or execute keys, key prefixes or "
+                                                     "STAGE/KEY (at most 9).")] = None,
+    exp: Annotated[str | None, typer.Option("--exp", help="Compare runs of this experiment (its name or file) "
+                                            "instead: those --where keeps.")] = None,
+    where: Annotated[str | None, typer.Option("--where", help="With --exp: the runs to compare, a condition on "
+                                              "the runs table as in exp show, e.g. \"seed == 0\".")] = None,
+    stage: Annotated[str | None, typer.Option("--stage", help="With --exp: plan or execute (default: the "
+                                              "experiment's first stage).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="The recording to write (default: "
+                                             "artifacts/compare/HASH.rrd).")] = None,
+    open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
+    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
+):
+    """Put up to 9 runs into one Rerun recording on one timeline, each under its own entity path named by
+    the options that differ, with a generated layout: a 3D view per run beside overlaid joint angles (and
+    each run's log10 cost per iteration on the iteration timeline)."""
+    from pipeline import compare as cmp
+    from pipeline.ui import Reporter
+
+    if exp is None and (where is not None or stage is not None):
+        raise BadInput("--where and --stage go with --exp NAME")
+    if exp is not None and keys:
+        raise BadInput("give keys or --exp NAME, not both")
+    if stage is not None and stage not in cmp.STAGES:
+        raise BadInput(f"--stage {stage}: choose one of {', '.join(cmp.STAGES)}")
+    if out is not None and out.suffix != ".rrd":
+        raise BadInput(f"--out {out}: a .rrd file")
+    cache = open_cache(artifacts)
+    refs = cmp.runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
+    runs = cmp.load_runs(cache, refs)
+    cmp.label_runs(runs)
+    out = out or cmp.default_path(cache, runs)
+    check_folder(out.parent, "output folder")
+    path = cmp.write(cache, runs, out)
+    reporter = Reporter(quiet)
+    reporter.say(f"compare: {len(runs)} runs -> {path}")
+    for r in runs:
+        reporter.say(f"  {r.label}: {r.ref}")
+    if json_:
+        typer.echo(json.dumps({"recording": str(path), "runs": {r.label: r.ref for r in runs}}))
+    if open_:
+        open_viewer(str(path))
+
+
 def describe_entry(cache: Cache, info) -> dict:
     """What a listing shows of an entry: plant, task, solver (or dynamics), status and headline
     metric. An execution or evaluation takes plant, task and solver from its plan."""

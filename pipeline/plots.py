@@ -82,46 +82,42 @@ def _normalized(cfg):
     return cfg.normalized() if hasattr(cfg, "normalized") else cfg
 
 
-def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -> set[str]:
-    """Of ``options``, those the run of ``row`` does not use: setting one to any value ``others`` lists
-    for it leaves the run's normalized first-stage config (its cache key) as it is. Read from the
-    run's ``meta.json``; none where the entry or its stage cannot be read."""
+def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: dict[str, set]) -> set[str]:
+    """Of ``options``, those a run of ``stage`` with config ``cfg`` (its ``meta.json`` config) does not use:
+    setting one to any value ``others`` lists for it leaves the normalized config (so the cache key) as it
+    is, as iLQG's alpha. Options of later stages (``stage.option``) and unknown ones count as used."""
     import dataclasses
 
-    from pipeline.expfile import _meta
     from stages.registry import get_stage
 
-    cols = [c for c in row.index if str(c).endswith(".key")]
-    if cache is None or not cols or not isinstance(row[cols[0]], str):
-        return set()
-    stage = cols[0][:-4]
-    cfg = (_meta(cache, stage, row[cols[0]]).get("config") or {})
     try:
-        cls = get_stage(stage).config_cls
-        base = cls.from_dict(cfg)
+        base = get_stage(stage).config_cls.from_dict(cfg)
         ref = dataclasses.asdict(_normalized(base))
     except Exception:  # noqa: BLE001 - an entry of another version: say nothing is unused
         return set()
     out = set()
     for opt in options:
-        if "." in opt or opt not in cfg:
+        values = [v for v in others.get(opt, ()) if v is not None and v != cfg.get(opt)]
+        if "." in opt or opt not in cfg or not others.get(opt):
             continue
-        same = True
-        for v in others.get(opt, ()):
-            if v is None or v == cfg[opt]:
-                continue
-            try:
-                changed = dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v})))
-            except (TypeError, ValueError):
-                same = False
-                break
-            if {k: w for k, w in changed.items() if k != opt} != {k: w for k, w in ref.items() if k != opt} \
-                    or changed.get(opt) != ref.get(opt):
-                same = False
-                break
-        if same and others.get(opt):
-            out.add(opt)
+        try:
+            if all(dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v}))) == ref for v in values):
+                out.add(opt)
+        except (TypeError, ValueError):
+            continue
     return out
+
+
+def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -> set[str]:
+    """:func:`unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``); none
+    without a cache or an entry."""
+    from pipeline.expfile import _meta
+
+    cols = [c for c in row.index if str(c).endswith(".key")]
+    if cache is None or not cols or not isinstance(row[cols[0]], str):
+        return set()
+    stage = cols[0][:-4]
+    return unused_in(stage, _meta(cache, stage, row[cols[0]]).get("config") or {}, options, others)
 
 
 def labels(cache, grouped: list[tuple[dict[str, Any], Any]], drop_unused: bool = True) -> list[str]:

@@ -1,5 +1,5 @@
 """Views of an experiment's runs: ``raico plot`` (pipeline/plots.py) and ``raico compare`` (pipeline/compare.py),
-on one small experiment (the arm's reach, 3 iterations, R-AICO at two alphas and iLQG, 3 seeds)."""
+on one small experiment (the arm's reach, 3 iterations, R-AICO at two alphas and iLQG, 4 seeds)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ runner = CliRunner()
 SMALL = '''
 name = "small"
 stages = ["plan"]
-seeds = "range(3)"
+seeds = "range(4)"
 [base]
 plant = "arm5"
 task = "reach"
@@ -76,13 +76,13 @@ def test_line_plot_draws_the_median_and_quartiles_over_seeds(arts, tmp_path):
     res = invoke("plot", "small", "--x", "alpha", "--out", out, "--artifacts", arts)
     assert res.exit_code == 0, res.output
     assert png_size(out) == (900, 600)
-    assert "plot small: line of plan.final_cost against alpha, 9 runs in 2 groups" in res.stderr
+    assert "plot small: line of plan.final_cost against alpha, 12 runs in 2 groups" in res.stderr
     df, swept = expfile.read_table(Cache(arts), "small")
     drawn = plots.line_plot(df, swept, "alpha", "plan.final_cost", tmp_path / "again.png", "small", Cache(arts))
     t = table(arts)
     raico = t[t["solver"] == "raico"]
     line = drawn.series["solver=raico"]
-    assert line["x"] == [0.5, 5.0] and line["n"] == [3, 3]
+    assert line["x"] == [0.5, 5.0] and line["n"] == [4, 4]
     for xv, med, lo, hi in zip(line["x"], line["median"], line["q25"], line["q75"]):
         v = raico[raico["alpha"] == xv]["plan.final_cost"].to_numpy()
         assert med == pytest.approx(np.median(v)) and (lo, hi) == pytest.approx(tuple(np.percentile(v, [25, 75])))
@@ -134,3 +134,87 @@ def test_plot_refuses_bad_input_in_one_line(arts, args, needle):
 def test_plot_of_an_experiment_that_has_not_run(tmp_path):
     res = invoke("plot", "nothing", "--kind", "box", "--artifacts", tmp_path)
     assert res.exit_code == 2 and "no runs table of experiment 'nothing'" in res.stderr
+
+
+def _chunks(path: Path) -> list:
+    from rerun.chunk import RrdReader
+
+    return RrdReader(path).stream().to_chunks()
+
+
+def test_compare_writes_one_recording_with_a_path_per_run(arts, tmp_path):
+    import json
+
+    from rerun.chunk import RrdReader
+
+    from pipeline.compare import _path
+
+    out = tmp_path / "c.rrd"
+    res = invoke("compare", "--exp", "small", "--where", "seed == 1", "--out", out, "--json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    runs = json.loads(res.stdout)["runs"]
+    t = table(arts)
+    one = t[t["seed"] == 1]
+    assert runs == {"alpha=0.5, solver=raico": f"plan/{one['plan.key'].iloc[0]}",
+                    "alpha=5, solver=raico": f"plan/{one['plan.key'].iloc[1]}",
+                    "solver=ilqg": f"plan/{one['plan.key'].iloc[2]}"}
+    chunks = _chunks(out)
+    entities = {c.entity_path for c in chunks}
+    joints = ("base_yaw", "shoulder_pitch", "elbow_pitch", "forearm_roll", "wrist_pitch")
+    for label, ref in runs.items():
+        base = "/" + _path(label)
+        assert {f"{base}/joints/{j}" for j in joints} | {f"{base}/cost", f"{base}/world/paths/ee"} <= entities
+        assert any(e.startswith(f"{base}/world/robot/") for e in entities)
+        # the run's own numbers: its planned elbow angle on sim_time, its cost per iteration (log10)
+        plan = np.load(arts / "plan" / ref.split("/")[1] / "plan.npz")
+        angle = next(c for c in chunks if c.entity_path == f"{base}/joints/elbow_pitch" and not c.is_static)
+        assert "sim_time" in angle.timeline_names
+        values = np.ravel(angle.to_record_batch().column("Scalars:scalars").to_pylist())
+        assert values == pytest.approx(plan["X"][:, 2])
+        cost = next(c for c in chunks if c.entity_path == f"{base}/cost" and not c.is_static)
+        assert np.ravel(cost.to_record_batch().column("Scalars:scalars").to_pylist()) == \
+            pytest.approx(np.log10(plan["costs"]))
+        names = next(c for c in chunks if c.entity_path == f"{base}/joints/elbow_pitch" and c.is_static)
+        assert names.to_record_batch().column("SeriesLines:names").to_pylist() == [[label]]
+    assert not any(KEY.search(e) for e in entities)   # paths named by options, never keys
+    reader = RrdReader(out)
+    views = {}
+    for c in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = c.to_record_batch()
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            views[batch.column("ViewBlueprint:display_name").to_pylist()[0][0]] = \
+                batch.column("ViewBlueprint:class_identifier").to_pylist()[0][0]
+    assert {label: views.get(label) for label in runs} == {label: "3D" for label in runs}
+    assert views["elbow_pitch (rad)"] == "TimeSeries" and "log10 cost per iteration (iteration timeline)" in views
+
+
+def test_compare_by_keys_and_its_bad_input(arts, tmp_path):
+    import json
+
+    t = table(arts)
+    a, b = t[(t["variant"] == "alpha=0.5") & (t["seed"] == 0)]["plan.key"].iloc[0], \
+        t[(t["variant"] == "alpha=0.5") & (t["seed"] == 2)]["plan.key"].iloc[0]
+    res = invoke("compare", a[:6], f"plan/{b}", a, "--out", tmp_path / "k.rrd", "--json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    # the same variant at two seeds: the seed is what differs (a key given twice is one run)
+    assert json.loads(res.stdout)["runs"] == {"seed=0": f"plan/{a}", "seed=2": f"plan/{b}"}
+    assert (tmp_path / "k.rrd").stat().st_size > 0
+    # --open starts the viewer on the file; with no display it says so (the recording is written first)
+    (tmp_path / "k.rrd").unlink()
+    res = runner.invoke(app, ["compare", a, b, "--open", "--out", str(tmp_path / "k.rrd"), "--artifacts", str(arts)],
+                        env={"DISPLAY": None, "WAYLAND_DISPLAY": None, "WAYLAND_SOCKET": None})
+    assert res.exit_code == 1 and "cannot open the Rerun viewer: no display" in res.stderr
+    assert (tmp_path / "k.rrd").stat().st_size > 0
+    for args, needle, code in (
+            (("--exp", "small"), "12 runs of 'small' match: raico compare shows at most 9", 2),
+            (("--exp", "small", "--where", "sed == 0"), "--where 'sed == 0': UndefinedVariableError", 2),
+            (("--exp", "small", "--where", "seed == 9"), "no plan run of 'small' matches --where 'seed == 9'", 2),
+            (("--exp", "small", "--stage", "execute"), "the table of 'small' has no execute runs", 2),
+            (("--where", "seed == 0"), "--where and --stage go with --exp NAME", 2),
+            ((), "give the runs to compare", 2),
+            ((a, "--out", "c.png"), "--out c.png: a .rrd file", 2),
+            (tuple(f"{i:04x}" for i in range(10)), "10 runs: raico compare shows at most 9", 2),
+            (("deadbeef",), "no artifact with key 'deadbeef'", 3)):
+        res = invoke("compare", *args, "--artifacts", arts)
+        assert res.exit_code == code, (args, res.output)
+        assert res.stderr.count("\n") == 1 and needle in res.stderr, res.stderr
