@@ -22,9 +22,25 @@ An experiment file (read with ``tomllib``)::
     solver = "ilqg"
 
 Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
-field: the plan's initial state), so comparisons pair by seed. A grid or point key ``execute.x0_noise``
+field: the plan's initial state), so comparisons pair by seed; a point's own ``seeds`` (a list or
+``range(N)``, among the experiment's) runs it at those only (an ablation on the first three). A grid or point key ``execute.x0_noise``
 sets a later stage's option. Every key and value is checked by the stage's own config class before
 anything runs; an unknown key is refused with the valid ones listed.
+
+More keys, for experiments that carry their own analysis (the thesis's files, experiments/thesis/)::
+
+    claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
+    [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
+    seeds = "range(2)"                     # options over [base], and the points it keeps (default all)
+    iterations = 6
+    points = ["iLQG", "R-AICO a=1"]
+    [[point]]
+    label = "crocoddyl FDDP (x0 held)"
+    solver = "fddp"
+    iterations = 100
+    quick = {iterations = 12}              # this point's options in the quick profile
+    needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
+    [reproduce]                            # read by raico reproduce (pipeline/experiments.py), carried here
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
@@ -55,7 +71,10 @@ from pipeline.executors import Batch, Executor, Job, run_flow
 
 CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
           ("babble",)}
-TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate")
+TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate", "claims",
+            "quick", "reproduce")
+POINT_KEYS = ("label", "seeds", "quick", "needs")   # a point's keys that are not options
+NEEDS = ("crocoddyl",)   # what a point or a claim may need: the crocoddyl baseline (the extra raico[baseline])
 CURVE_TOL = 0.01   # iterations to come within 1 % of the run's lowest cost
 # a run counted as failed in the summaries: a stage raised, a solver diverged, the robot fell
 FAILED_STATUSES = ("error", "diverged", "fell")
@@ -69,6 +88,7 @@ class Variant:
     label: str
     options: dict[str, dict[str, Any]]   # stage -> {option: value}
     swept: dict[str, Any]                # the options that vary across the experiment (``stage.option`` for later stages)
+    seeds: tuple[int, ...] = ()          # a point's own seeds (empty: the experiment's)
 
 
 @dataclass(frozen=True)
@@ -88,6 +108,10 @@ class Experiment:
     zipped: dict[str, list]
     points: list[dict[str, Any]]
     path: Path | None = None
+    claims: tuple[str, ...] = ()            # named claims (Python functions of stages.evaluate.claims)
+    reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
+    quick: bool = False                     # loaded with its [quick] profile
+    left_out: tuple[str, ...] = ()          # points left out: what they need is not installed
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
@@ -95,7 +119,15 @@ class Experiment:
 
     @property
     def runs(self) -> list[Run]:
-        return [Run(v, s) for v in self.variants for s in self.seeds]
+        return [Run(v, s) for v in self.variants for s in (v.seeds or self.seeds)]
+
+    def variant(self, label: str) -> Variant:
+        """The variant labelled ``label``; :class:`BadInput` listing the labels if there is none."""
+        for v in self.variants:
+            if v.label == label:
+                return v
+        raise BadInput(f"{self.name}: no variant '{label}': variants are "
+                       + ", ".join(repr(v.label) for v in self.variants))
 
 
 # ----------------------------------------------------------------------------- reading
@@ -134,9 +166,50 @@ def parse_override(text: str) -> tuple[str, list]:
     return key, values
 
 
-def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
+@functools.cache
+def available(need: str) -> bool:
+    """Whether what a point or claim ``needs`` is installed (:data:`NEEDS`)."""
+    if need == "crocoddyl":
+        from planning.crocoddyl_model import AVAILABLE
+
+        return bool(AVAILABLE)
+    raise BadInput(f"needs = '{need}': one of {', '.join(NEEDS)}")
+
+
+def _claims(path: Path, value: Any) -> tuple[str, ...]:
+    """``claims``: names, or ``{name, needs}`` tables (left out where the need is not installed)."""
+    if not isinstance(value, list):
+        raise BadInput(f"{path}: claims must be a list of names or {{name = ..., needs = ...}} tables")
+    out = []
+    for c in value:
+        if isinstance(c, dict) and set(c) <= {"name", "needs"} and isinstance(c.get("name"), str):
+            if "needs" not in c or available(str(c["needs"])):
+                out.append(c["name"])
+        elif isinstance(c, str) and c:
+            out.append(c)
+        else:
+            raise BadInput(f"{path}: claim {c!r} is neither a name nor a {{name = ..., needs = ...}} table")
+    return tuple(out)
+
+
+def _point_seeds(path: Path, point: dict, seeds: tuple[int, ...], quick: bool) -> tuple[int, ...]:
+    """A point's own seeds (those of the experiment it runs at), () for the experiment's."""
+    if "seeds" not in point:
+        return ()
+    try:
+        own = _seeds(point["seeds"])
+    except BadInput as e:
+        raise BadInput(f"{path}: point '{point.get('label')}': {e}") from None
+    missing = [s for s in own if s not in seeds]
+    if missing and not quick:
+        raise BadInput(f"{path}: point '{point.get('label')}': seed {missing[0]} is not among the experiment's seeds")
+    return tuple(s for s in seeds if s in own)
+
+
+def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Experiment:
     """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
-    (:class:`BadInput` with one line on any problem) but not yet validated against the stages."""
+    (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
+    ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
     path = Path(path)
     try:
         doc = tomllib.loads(path.read_text())
@@ -159,6 +232,11 @@ def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
                        + "; ".join(", ".join(c) for c in sorted(CHAINS)))
     grid, zipped = dict(doc.get("grid", {})), dict(doc.get("zip", {}))
     seeds = _seeds(doc.get("seeds", [0]))
+    profile = doc.get("quick", {})
+    if not isinstance(profile, dict):
+        raise BadInput(f"{path}: [quick] must be a table")
+    if quick:
+        seeds = _seeds(profile["seeds"]) if "seeds" in profile else seeds[:2]
     for text in overrides:
         key, values = parse_override(text)
         if key == "seeds":
@@ -179,13 +257,42 @@ def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
     labels = [p.get("label") for p in points]
     if any(not isinstance(lb, str) or not lb for lb in labels) or len(set(labels)) != len(labels):
         raise BadInput(f"{path}: every [[point]] needs a unique label")
+    in_quick = profile.get("points", labels)
+    unknown = [lb for lb in in_quick if lb not in labels] if isinstance(in_quick, list) else [in_quick]
+    if unknown:
+        raise BadInput(f"{path}: [quick] points: no point '{unknown[0]}'")
+    kept = in_quick if quick else labels
+    left_out, chosen = [], []
+    for p in points:
+        if not isinstance(p.get("quick", {}), dict) or not isinstance(p.get("needs", ""), str):
+            raise BadInput(f"{path}: point '{p['label']}': quick must be a table of options, needs a name")
+        if "needs" in p and not available(p["needs"]):
+            left_out.append(p["label"])
+            continue
+        if p["label"] not in kept:
+            continue
+        opts = {k: v for k, v in p.items() if k not in POINT_KEYS}
+        if quick:
+            opts.update(p.get("quick", {}))
+        own = _point_seeds(path, p, seeds, quick)
+        if "seeds" in p and not own:   # the profile's seeds are none of the point's own: it does not run
+            continue
+        chosen.append({"label": p["label"], **opts, "seeds": own})
+    points = chosen
+    claims = _claims(path, doc.get("claims", []))
+    reproduce = doc.get("reproduce", {})
+    if not isinstance(reproduce, dict):
+        raise BadInput(f"{path}: [reproduce] must be a table")
     base = {stages[0]: dict(doc.get("base", {}))}
+    if quick:
+        base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
         base[later] = dict(doc.get(later, {}))
     for stage in ("execute", "evaluate"):
         if stage in doc and stage not in stages[1:]:
             raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
-    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path)
+    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
+                      claims, reproduce, quick, tuple(left_out))
 
 
 # ----------------------------------------------------------------------------- variants and configs
@@ -205,17 +312,19 @@ def _variants(exp: Experiment) -> list[Variant]:
     n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
     zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
     settings = [(None, {**c, **z}) for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
-    settings += [(p["label"], {k: v for k, v in p.items() if k != "label"}) for p in exp.points]
-    swept_keys = sorted({k for _, s in settings for k in s})
+    settings = [(None, s, ()) for _, s in settings]
+    settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
+                 for p in exp.points]
+    swept_keys = sorted({k for _, s, _ in settings for k in s})
     out = []
-    for label, setting in settings:
+    for label, setting, seeds in settings:
         options = {st: dict(opts) for st, opts in exp.base.items()}
         for key, value in setting.items():
             stage, option = _split(exp, key)
             options[stage][option] = value
         swept = {k: _used_value(exp, options, k) for k in swept_keys}
         label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
-        out.append(Variant(label, options, swept))
+        out.append(Variant(label, options, swept, tuple(seeds)))
     return out
 
 
@@ -269,7 +378,7 @@ def validate(exp: Experiment) -> None:
         raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
     for v in exp.variants:
         try:
-            first_config(exp, Run(v, exp.seeds[0]))
+            first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
             for stage in exp.stages[1:]:
                 _config(stage, v.options[stage], **{"plan": "0" * 16})
         except BadInput as e:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -279,3 +280,55 @@ def test_two_single_runs_side_by_side_on_known_numbers():
         expfile.run_diff(df, [], "aaaa", "bbbb")
     with pytest.raises(BadInput, match="no run with key 'cccc'"):
         expfile.run_diff(df, [], "aaaa1", "cccc")
+
+
+def test_a_quick_profile_point_seeds_needs_and_claims(tmp_path, monkeypatch):
+    text = '''
+seeds = "range(4)"
+claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]
+[base]
+plant = "arm5"
+task = "reach"
+iterations = 30
+[quick]
+seeds = "range(2)"
+iterations = 3
+points = ["a", "ablation"]
+[[point]]
+label = "a"
+solver = "raico"
+iterations = 50
+quick = {iterations = 5}
+[[point]]
+label = "ablation"
+solver = "aico"
+seeds = [1, 3]
+[[point]]
+label = "not quick"
+solver = "ilqg"
+[[point]]
+label = "fddp"
+solver = "fddp"
+needs = "crocoddyl"
+'''
+    f = write(tmp_path, text)
+    full, quick = expfile.load(f), expfile.load(f, quick=True)
+    assert [(v.label, v.options["plan"]["iterations"]) for v in full.variants] == [
+        ("a", 50), ("ablation", 30), ("not quick", 30), ("fddp", 30)]
+    assert [(r.variant.label, r.seed) for r in full.runs if r.variant.label == "ablation"] == [("ablation", 1),
+                                                                                                ("ablation", 3)]
+    assert len(full.runs) == 4 + 2 + 4 + 4 and full.claims == ("raico_converges", "raico_reaches_fddp")
+    assert [(v.label, v.options["plan"]["iterations"]) for v in quick.variants] == [("a", 5), ("ablation", 3)]
+    assert [(r.variant.label, r.seed) for r in quick.runs] == [("a", 0), ("a", 1), ("ablation", 1)]
+    expfile.validate(quick)
+    monkeypatch.setattr(expfile, "available", lambda need: False)   # crocoddyl not installed: left out
+    without = expfile.load(f)
+    assert [v.label for v in without.variants] == ["a", "ablation", "not quick"] and without.left_out == ("fddp",)
+    assert without.claims == ("raico_converges",)
+    monkeypatch.undo()
+    for old, new, needle in (('seeds = [1, 3]', 'seeds = [1, 7]', "point 'ablation': seed 7 is not among"),
+                             ('needs = "crocoddyl"', 'needs = "gpu"', "needs = 'gpu': one of crocoddyl"),
+                             ('points = ["a", "ablation"]', 'points = ["b"]', "[quick] points: no point 'b'"),
+                             ('claims = ["raico_converges",', 'claims = [3,', "claim 3 is neither a name")):
+        with pytest.raises(BadInput, match=re.escape(needle)):
+            expfile.load(write(tmp_path, text.replace(old, new), "bad.toml"))
