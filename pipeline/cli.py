@@ -537,7 +537,7 @@ def plot(
     else:
         drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale)
     Reporter(quiet).say(f"plot {name}: {kind} of {what}{' against ' + x if x else ''}, {len(df)} runs in "
-                        f"{len(drawn.series)} groups -> {drawn.path}")
+                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}")
 
 
 @app.command("compare")

@@ -218,3 +218,21 @@ def test_compare_by_keys_and_its_bad_input(arts, tmp_path):
         res = invoke("compare", *args, "--artifacts", arts)
         assert res.exit_code == code, (args, res.output)
         assert res.stderr.count("\n") == 1 and needle in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("exp", "diff", "small", "deadbeef", "0123abcd"), "no run with key 'deadbeef' in the table"),
+    (("exp", "diff", "small", "alpha=0.5", "nope"), "no variant 'nope' in the table: variants are 'alpha=0.5'"),
+    (("exp", "diff", "small", "alpha=0.5", "iLQG", "--metric", "plan.nothing"), "no column 'plan.nothing'"),
+    (("exp", "show", "small", "--where", "colour == 'red'"), "--where 'colour == 'red'': UndefinedVariableError"),
+    (("exp", "show", "small", "--where", "alpha >"), "--where 'alpha >': SyntaxError"),
+    (("plot", "small", "--x", "colour"), "--x colour: no such option in the table"),
+    (("plot", "small", "--kind", "curve", "--where", "colour == 'red'"), "UndefinedVariableError"),
+    (("compare", "--exp", "small", "--where", "seed < 4"), "12 runs of 'small' match: raico compare shows at most 9"),
+    (("compare", "--exp", "small", "--where", "colour == 'red'"), "UndefinedVariableError"),
+])
+def test_bad_input_to_the_views_is_one_line_and_exit_2(arts, args, needle):
+    res = invoke(*args, "--artifacts", arts)
+    assert res.exit_code == 2, res.output
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: ") and needle in res.stderr, res.stderr
+    assert not res.stdout
