@@ -820,6 +820,7 @@ class RunDiff:
     b: dict[str, Any]
     options: list[tuple[str, Any, Any]]                # (option, a's value, b's value), only where they differ
     metrics: list[tuple[str, Any, Any, float | None]]  # (metric, a, b, b - a where both are numbers)
+    unused: dict[str, list[str]] = field(default_factory=dict)   # "a"/"b" -> options of it its run does not use
 
 
 def _who(df, i: int) -> dict[str, Any]:
@@ -884,6 +885,14 @@ def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
         conf_b = {k: _plain(df.at[ib, k]) for k in (*swept, "seed") if k in df.columns}
     names = list(dict.fromkeys([*conf_a, *conf_b]))
     options = [(k, conf_a.get(k), conf_b.get(k)) for k in names if not _same(conf_a.get(k), conf_b.get(k))]
+    unused = {}
+    if cache is not None:   # options a run does not use (iLQG's alpha): its normalized config is the same without
+        from pipeline.plots import unused_in
+
+        differ = [k for k, _, _ in options]
+        values = {k: {_hashable(x), _hashable(y)} for k, x, y in options}
+        for side, conf in (("a", conf_a), ("b", conf_b)):
+            unused[side] = sorted(unused_in(first, conf, differ, values))
     skip = {*swept, "experiment", "variant", "seed", "error", *key_columns(df)}
     metrics = []
     for c in df.columns:
@@ -894,7 +903,11 @@ def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
             continue
         num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (va, vb))
         metrics.append((c, va, vb, float(vb - va) if num else None))
-    return RunDiff(who_a, who_b, options, metrics)
+    return RunDiff(who_a, who_b, options, metrics, unused)
+
+
+def _hashable(v: Any) -> Any:
+    return tuple(v) if isinstance(v, list) else v
 
 
 def _run_name(who: dict[str, Any]) -> str:
@@ -905,7 +918,9 @@ def _run_name(who: dict[str, Any]) -> str:
 def render_run_diff(r: RunDiff, fmt: str = "table") -> str:
     if fmt == "json":
         return json.dumps({"a": r.a, "b": r.b,
-                           "options": [{"option": k, "a": x, "b": y} for k, x, y in r.options],
+                           "options": [{"option": k, "a": x, "b": y,
+                                        "unused_by": [s for s in ("a", "b") if k in r.unused.get(s, ())]}
+                                       for k, x, y in r.options],
                            "metrics": [{"metric": k, "a": x, "b": y, "b_minus_a": d} for k, x, y, d in r.metrics]},
                           default=str, allow_nan=False)
 
@@ -916,7 +931,11 @@ def render_run_diff(r: RunDiff, fmt: str = "table") -> str:
 
     out = [f"A: {_run_name(r.a)}", f"B: {_run_name(r.b)}"]
     if r.options:
-        out += ["options that differ:", *table(["option", "A", "B"], [[k, _cell(x), _cell(y)] for k, x, y in r.options])]
+        def value(side: str, k: str, v: Any) -> str:
+            return _cell(v) + (" (not used)" if k in r.unused.get(side, ()) else "")
+
+        out += ["options that differ:", *table(["option", "A", "B"], [[k, value("a", k, x), value("b", k, y)]
+                                                                      for k, x, y in r.options])]
     else:
         out += ["options that differ: none"]
     out += ["metrics:", *table(["metric", "A", "B", "B - A"],

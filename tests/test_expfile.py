@@ -248,11 +248,13 @@ def test_exp_diff_from_the_command_line(tmp_path):
     doc = json.loads(res.stdout)
     assert doc["a"]["keys"]["plan"] == ka and doc["b"]["keys"]["execute"] == table.loc[("ilqg", 1), "execute.key"]
     assert {o["option"]: (o["a"], o["b"]) for o in doc["options"]} == {"alpha": (0.5, 0.0), "solver": ("raico", "ilqg")}
+    assert {o["option"]: o["unused_by"] for o in doc["options"]} == {"alpha": ["b"], "solver": []}   # iLQG has no alpha
     cost = next(m for m in doc["metrics"] if m["metric"] == "plan.final_cost")
     assert cost["b_minus_a"] == pytest.approx(table.loc[("ilqg", 1), "plan.final_cost"]
                                               - table.loc[("alpha=0.5", 1), "plan.final_cost"])
     text = invoke("exp", "diff", "alpha-arm", ka, kb, "--artifacts", arts).stdout
     assert text.startswith(f"A: plan {ka}, execute ") and "options that differ:" in text
+    assert any(line.split()[:3] == ["alpha", "0.5", "0"] and line.endswith("0 (not used)") for line in text.splitlines())
     for args, needle in (((ka, "deadbeef"), "no run with key 'deadbeef'"),
                          ((ka, "ilqg"), "two variants (paired by seed) or two runs' keys, not one of each")):
         bad = invoke("exp", "diff", "alpha-arm", *args, "--artifacts", arts)
