@@ -106,7 +106,8 @@ def runs_of_experiment(cache, name: str, where: str | None, stage: str | None = 
 def label_runs(runs: list[Run]) -> None:
     """Each run's label: the options whose values differ between the runs (``option=value``, those
     a run does not use left out: iLQG's alpha), or its stage and key when every option is the same."""
-    from pipeline.plots import _value, unused_in
+    from pipeline.expfile import unused_in
+    from pipeline.plots import _value
 
     names = list(dict.fromkeys(k for r in runs for k in r.options))
     values = {k: {_hashable(r.options.get(k)) for r in runs} for k in names}

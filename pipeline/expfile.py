@@ -61,7 +61,7 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -783,6 +783,36 @@ def render_paired(r: Paired, fmt: str = "table") -> str:
     return "\n".join(lines)
 
 
+def _normalized(cfg):
+    return cfg.normalized() if hasattr(cfg, "normalized") else cfg
+
+
+def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: dict[str, set]) -> set[str]:
+    """Of ``options``, those a run of ``stage`` with config ``cfg`` (its ``meta.json`` config) does not use:
+    setting one to any value ``others`` lists for it leaves the normalized config (so the cache key) as it
+    is, as iLQG's alpha. Options of later stages (``stage.option``) and unknown ones count as used."""
+    import dataclasses
+
+    from stages.registry import get_stage
+
+    try:
+        base = get_stage(stage).config_cls.from_dict(cfg)
+        ref = dataclasses.asdict(_normalized(base))
+    except Exception:  # noqa: BLE001 - an entry of another version: say nothing is unused
+        return set()
+    out = set()
+    for opt in options:
+        values = [v for v in others.get(opt, ()) if v is not None and v != cfg.get(opt)]
+        if "." in opt or opt not in cfg or not others.get(opt):
+            continue
+        try:
+            if all(dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v}))) == ref for v in values):
+                out.add(opt)
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
 # ----------------------------------------------------------------------------- two single runs
 KEY_RE = re.compile(r"^[0-9a-f]{4,16}$")   # a cache key or a prefix of one (at least 4 hex digits)
 
@@ -887,8 +917,6 @@ def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
     options = [(k, conf_a.get(k), conf_b.get(k)) for k in names if not _same(conf_a.get(k), conf_b.get(k))]
     unused = {}
     if cache is not None:   # options a run does not use (iLQG's alpha): its normalized config is the same without
-        from pipeline.plots import unused_in
-
         differ = [k for k, _, _ in options]
         values = {k: {_hashable(x), _hashable(y)} for k, x, y in options}
         for side, conf in (("a", conf_a), ("b", conf_b)):

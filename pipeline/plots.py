@@ -78,40 +78,10 @@ def _value(v: Any) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
-def _normalized(cfg):
-    return cfg.normalized() if hasattr(cfg, "normalized") else cfg
-
-
-def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: dict[str, set]) -> set[str]:
-    """Of ``options``, those a run of ``stage`` with config ``cfg`` (its ``meta.json`` config) does not use:
-    setting one to any value ``others`` lists for it leaves the normalized config (so the cache key) as it
-    is, as iLQG's alpha. Options of later stages (``stage.option``) and unknown ones count as used."""
-    import dataclasses
-
-    from stages.registry import get_stage
-
-    try:
-        base = get_stage(stage).config_cls.from_dict(cfg)
-        ref = dataclasses.asdict(_normalized(base))
-    except Exception:  # noqa: BLE001 - an entry of another version: say nothing is unused
-        return set()
-    out = set()
-    for opt in options:
-        values = [v for v in others.get(opt, ()) if v is not None and v != cfg.get(opt)]
-        if "." in opt or opt not in cfg or not others.get(opt):
-            continue
-        try:
-            if all(dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v}))) == ref for v in values):
-                out.add(opt)
-        except (TypeError, ValueError):
-            continue
-    return out
-
-
 def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -> set[str]:
-    """:func:`unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``); none
-    without a cache or an entry."""
-    from pipeline.expfile import _meta
+    """:func:`pipeline.expfile.unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``);
+    none without a cache or an entry."""
+    from pipeline.expfile import _meta, unused_in
 
     cols = [c for c in row.index if str(c).endswith(".key")]
     if cache is None or not cols or not isinstance(row[cols[0]], str):
