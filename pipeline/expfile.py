@@ -64,10 +64,12 @@ import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import BadInput
-from pipeline.executors import Batch, Executor, Job, run_flow
+
+if TYPE_CHECKING:
+    from pipeline.executors import Executor
 
 CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
           ("babble",)}
@@ -461,6 +463,8 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
         progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
     """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
     the runs table and returns its rows."""
+    from pipeline.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+
     runs = exp.runs
 
     def flow():
