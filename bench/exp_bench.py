@@ -18,8 +18,10 @@ take minutes of both cores.
 
 from __future__ import annotations
 
+import atexit
 import functools
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -66,6 +68,7 @@ def synthetic() -> tuple[Path, object, list]:
     from pipeline import expfile
 
     root = Path(tempfile.mkdtemp(prefix="raico-bench-exp-"))
+    atexit.register(shutil.rmtree, root, True)   # 1000 entries, about 100 MB: gone with the process
     f = root / "bench.toml"
     f.write_text(EXPERIMENT)
     exp = expfile.load(f)
