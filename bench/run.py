@@ -150,6 +150,26 @@ def bench_cli(args: tuple[str, ...], reps: int) -> list[float]:
     return times
 
 
+def bench_exp_show(reps: int) -> list[float]:
+    from bench.exp_bench import bench_exp_show as run
+
+    return run(reps)
+
+
+def bench_exp_table(reps: int) -> list[float]:
+    from bench.exp_bench import bench_exp_table as run
+
+    return run(reps)
+
+
+def bench_thesis_dry_run(reps: int) -> list[float]:
+    from bench.exp_bench import bench_thesis_dry_run as run
+
+    return run(reps, ARTIFACTS)
+
+
+ARTIFACTS = "artifacts"   # the bench's cache (--artifacts): the thesis files' dry runs look their runs up there
+
 CASES = [
     # name, target (s), function, args
     ("raico --help (start-up: no stage is imported)", 0.5, bench_cli, (("--help",), 7)),
@@ -181,6 +201,12 @@ CASES = [
     # machine the same execution took 2.0-3.6 s within one minute (idle, load 0.5)
     ("nao: one 3 s execution with the whole-body stabilizer (fig3.4-inside plan, standing start)", 3.0,
      bench_stabilizer_execution, (7,)),
+    # experiment files (bench/exp_bench.py): a synthetic experiment of 1000 runs, the thesis's files
+    ("raico exp show of a 1000-run experiment (warm: reads its runs table; Python's start included)", 1.0,
+     bench_exp_show, (7,)),
+    ("building the runs table of a 1000-run experiment (rows from the entries, runs.csv, runs.json)", 5.0,
+     bench_exp_table, (3,)),
+    ("raico exp run --dry-run of a thesis file (the slowest of experiments/thesis/)", 2.0, bench_thesis_dry_run, (3,)),
 ]
 
 
@@ -360,13 +386,39 @@ def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None =
             "ratio_to_target": med / target}
 
 
+def write_only(out: Path, rows: list[dict], load_start: float) -> None:
+    """The rows of a partial run (``--only``) into ``results.json``: each replaces the row of its name, or is added;
+    the other rows and sections stay as the last whole run wrote them."""
+    path = out / "results.json"
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        doc = {"machine": {}, "packages": package_versions(), "results": []}
+    new = {r["benchmark"]: r for r in rows}
+    doc["results"] = [new.pop(r["benchmark"], r) for r in doc.get("results", [])] + list(new.values())
+    doc.setdefault("partial_runs", []).append({"rows": [r["benchmark"] for r in rows],
+                                               "load_average_1min_start": load_start,
+                                               "load_average_1min_end": os.getloadavg()[0],
+                                               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+    out.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(path, json.dumps(doc, indent=2))
+    print(f"wrote {len(rows)} rows into {path}")
+
+
 def main() -> None:
+    global ARTIFACTS
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--artifacts", default="artifacts")
+    ap.add_argument("--only", action="append", default=None, metavar="TEXT",
+                    help="Run only the rows whose name contains TEXT (repeatable); their results replace the rows of "
+                         "the same name in results.json, the others stay")
     args = ap.parse_args()
+    ARTIFACTS = args.artifacts
     load_start = os.getloadavg()[0]
     rows = []
     for name, target, fn, fargs in CASES:
+        if args.only and not any(t in name for t in args.only):
+            continue
         samples = fn(*fargs)
         med = statistics.median(samples)
         rows.append({"benchmark": name, "median_s": med, "samples_s": samples, "target_s": target,
@@ -374,6 +426,9 @@ def main() -> None:
         tgt = f"{target:8.3f}" if target else "       -"
         ratio = f"{med / target:6.2f}x" if target else "      -"
         print(f"{name:68s} median {med:8.3f} s   target {tgt} s   {ratio}   (n={len(samples)})", flush=True)
+    if args.only:
+        write_only(Path(args.artifacts) / "bench", rows, load_start)
+        return
     rows += model_learning_rows()
     from bench.scaling import run as scaling_rows
 

@@ -451,20 +451,140 @@ def exp_show(
 @handles_errors
 def exp_diff(
     experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
-    a: Annotated[str, typer.Argument(help="A variant's label (as exp show lists it).")],
-    b: Annotated[str, typer.Argument(help="Another variant's label: B - A is reported.")],
-    metric: Annotated[str, typer.Option("--metric", "-m", help="The column compared.")] = "plan.final_cost",
+    a: Annotated[str, typer.Argument(help="A variant's label (as exp show lists it), or a run's cache key (or a "
+                                     "prefix of it, at least 4 characters; plan/KEY also works).")],
+    b: Annotated[str, typer.Argument(help="Another variant's label, or another run's key: B - A is reported.")],
+    metric: Annotated[str, typer.Option("--metric", "-m", help="The column compared (two variants).")]
+    = "plan.final_cost",
     fmt: Annotated[str, typer.Option("--format", help="table or json.")] = "table",
     artifacts: Artifacts = None,
 ):
     """Two variants of an experiment, paired by seed: per-seed differences of a metric, their median, the
-    mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test)."""
+    mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test).
+    Two runs (cache keys): every metric side by side with B - A, and the options that differ."""
     from pipeline import expfile
 
     if fmt not in ("table", "json"):
         raise BadInput(f"--format {fmt}: choose table or json")
-    df, _ = expfile.read_table(open_cache(artifacts), experiment)
-    typer.echo(expfile.render_paired(expfile.paired(df, a, b, metric), fmt))
+    cache = open_cache(artifacts)
+    df, swept = expfile.read_table(cache, experiment)
+    labels = set(df["variant"])
+    if a in labels and b in labels:
+        typer.echo(expfile.render_paired(expfile.paired(df, a, b, metric), fmt))
+        return
+    runs = [expfile.find_run(df, x) if x not in labels else None for x in (a, b)]
+    if any(x in labels for x in (a, b)) and any(r is not None for r in runs):
+        raise BadInput("give two variants (paired by seed) or two runs' keys, not one of each")
+    if runs[0] is None and runs[1] is None and not any(expfile.KEY_RE.match(x.split("/")[-1].lower()) for x in (a, b)):
+        expfile.paired(df, a, b, metric)   # neither a variant nor a key: the variants' error, with their labels
+    typer.echo(expfile.render_run_diff(expfile.run_diff(df, swept, a, b, cache), fmt))
+
+
+@app.command("plot")
+@handles_errors
+def plot(
+    experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
+    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds; curve: "
+                                      "cost per iteration per group (log axis); box: a box and the runs per "
+                                      "group.")] = "line",
+    x: Annotated[str | None, typer.Option("--x", help="The swept option on the x axis (--kind line).")] = None,
+    metric: Annotated[str, typer.Option("--metric", "-m", help="The runs table's column plotted (line, box).")]
+    = "plan.final_cost",
+    group: Annotated[list[str] | None, typer.Option("--group", help="Group the runs by these options (repeatable; "
+                                                    "default: every swept option that varies, but --x).")] = None,
+    where: Annotated[str | None, typer.Option("--where", help="Keep rows matching a condition, as in exp show.")]
+    = None,
+    yscale: Annotated[str, typer.Option("--yscale", help="auto (log when the values span two decades; curve: "
+                                        "log), linear or log.")] = "auto",
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="The PNG to write (default: artifacts/exp/NAME/"
+                                             "KIND-METRIC.png).")] = None,
+    artifacts: Artifacts = None, quiet: Quiet = False,
+):
+    """Plot an experiment's runs table: a metric against a swept option (median line, interquartile band over
+    seeds), the cost per iteration per group, or a box per group. Legends name the options that differ."""
+    from pipeline import expfile, plots
+    from pipeline.ui import Reporter
+
+    if kind not in plots.KINDS:
+        raise BadInput(f"--kind {kind}: choose one of {', '.join(plots.KINDS)}")
+    if yscale not in ("auto", "linear", "log"):
+        raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
+    if out is not None and out.suffix.lower() != ".png":
+        raise BadInput(f"--out {out}: a .png file")
+    cache = open_cache(artifacts)
+    df, swept = expfile.read_table(cache, experiment)
+    name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
+    if kind == "line":
+        if x is None:
+            raise BadInput(f"--kind line needs --x OPTION: one of the swept options {', '.join(swept) or '(none)'}")
+        if x not in df.columns:
+            raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
+    elif x is not None:
+        raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
+    if kind != "curve" and metric not in expfile.metric_columns(df):
+        raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
+                       f"metrics: {', '.join(expfile.metric_columns(df))}")
+    df = expfile.query(df, where)
+    if not len(df):
+        raise BadInput(f"--where '{where}' keeps no run")
+    what = {"line": metric, "curve": "cost", "box": metric}[kind]
+    out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
+    check_folder(out.parent, "output folder")
+    if kind == "line":
+        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale)
+    elif kind == "curve":
+        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale)
+    else:
+        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale)
+    Reporter(quiet).say(f"plot {name}: {kind} of {what}{' against ' + x if x else ''}, {len(df)} runs in "
+                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}")
+
+
+@app.command("compare")
+@handles_errors
+def compare(
+    keys: Annotated[list[str] | None, typer.Argument(help="Runs to compare: plan or execute keys, key prefixes or "
+                                                     "STAGE/KEY (at most 9).")] = None,
+    exp: Annotated[str | None, typer.Option("--exp", help="Compare runs of this experiment (its name or file) "
+                                            "instead: those --where keeps.")] = None,
+    where: Annotated[str | None, typer.Option("--where", help="With --exp: the runs to compare, a condition on "
+                                              "the runs table as in exp show, e.g. \"seed == 0\".")] = None,
+    stage: Annotated[str | None, typer.Option("--stage", help="With --exp: plan or execute (default: the "
+                                              "experiment's first stage).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="The recording to write (default: "
+                                             "artifacts/compare/HASH.rrd).")] = None,
+    open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
+    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
+):
+    """Put up to 9 runs into one Rerun recording on one timeline, each under its own entity path named by
+    the options that differ, with a generated layout: a 3D view per run beside overlaid joint angles (and
+    each run's log10 cost per iteration on the iteration timeline)."""
+    from pipeline import compare as cmp
+    from pipeline.ui import Reporter
+
+    if exp is None and (where is not None or stage is not None):
+        raise BadInput("--where and --stage go with --exp NAME")
+    if exp is not None and keys:
+        raise BadInput("give keys or --exp NAME, not both")
+    if stage is not None and stage not in cmp.STAGES:
+        raise BadInput(f"--stage {stage}: choose one of {', '.join(cmp.STAGES)}")
+    if out is not None and out.suffix != ".rrd":
+        raise BadInput(f"--out {out}: a .rrd file")
+    cache = open_cache(artifacts)
+    refs = cmp.runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
+    runs = cmp.load_runs(cache, refs)
+    cmp.label_runs(runs)
+    out = out or cmp.default_path(cache, runs)
+    check_folder(out.parent, "output folder")
+    path = cmp.write(cache, runs, out)
+    reporter = Reporter(quiet)
+    reporter.say(f"compare: {len(runs)} runs -> {path}")
+    for r in runs:
+        reporter.say(f"  {r.label}: {r.ref}")
+    if json_:
+        typer.echo(json.dumps({"recording": str(path), "runs": {r.label: r.ref for r in runs}}))
+    if open_:
+        open_viewer(str(path))
 
 
 def describe_entry(cache: Cache, info) -> dict:

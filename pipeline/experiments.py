@@ -1,4 +1,12 @@
-"""The thesis's experiments (figs. 3.2-3.4) and raico's own beside them: definitions, the parallel sweep, figure, claims.
+"""The thesis's experiments (figs. 3.2-3.4, 4.1-4.3) and raico's own beside them: read from their files, the
+parallel sweep, figure, claims.
+
+Each experiment is a file under ``experiments/thesis/`` (:data:`THESIS_FILES`), read by the same loader as
+any user's experiment (``pipeline.expfile``: ``raico exp run experiments/thesis/fig3.2a.toml`` runs its
+plans, with the same cache keys): its solver variants (``[[point]]``), initial states (``seeds``), the
+``--quick`` profile, the claims checked on it (Python functions of ``stages.evaluate.claims``, named in the
+file) and, under ``[reproduce]``, which plans are executed and how. Every plan and learning loop's config is
+made from the file by ``pipeline.expfile`` (:func:`plan_config`, :func:`learn_config`).
 
 An experiment is a set of plan runs: every solver variant on every initial state
 ``q0 = default + N(0, 0.05^2)`` (seeds 0..9). Each run is a cached plan artifact, so a second
@@ -9,6 +17,7 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -75,63 +84,20 @@ class Variant:
         return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
 
 
-# The crocoddyl baseline (only where crocoddyl is installed: the extra raico[baseline],
-# which `make install` installs). FDDP runs beyond the thesis's 25 iterations: it passes R-AICO
-# only after 30-45.
+# The crocoddyl baseline's labels (its points need crocoddyl: the extra raico[baseline], which `make install` installs)
 BASELINE_LABELS = {"fddp": FDDP_HELD, "fddp-rollout": FDDP_ROLLOUT, "fddp-rollout-accept-any": FDDP_ACCEPT_ANY,
                    "fddp-rollout-ilqg-schedule": FDDP_ILQG_SCHEDULE}
 
 
-def _baseline_available() -> bool:
-    from planning.crocoddyl_model import AVAILABLE
-
-    return AVAILABLE
-
-
-FDDP_ITERATIONS, FDDP_QUICK_ITERATIONS = 100, 12
-FDDP_VARIANTS = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS)
-                      for s in ("fddp", "fddp-rollout")) if _baseline_available() else ()
-# ablations (fig3.2c), FDDP from the rollout start with one rule of iLQG's: accept any step that lowers
-# the cost (actual/expected > 0, crocoddyl: > 0.1); lower the regularization after every accepted step.
-# On the first ABLATION_SEEDS initial states (what they explain, a stall by a factor, shows on each).
-ABLATION_SEEDS = 3
-FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
-                              seeds=ABLATION_SEEDS)
-                      for s in ("fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule")) if FDDP_VARIANTS else ()
-# Beyond the thesis R-AICO with the adaptive alpha schedule, FDDP's iteration budget
-ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
-                   schedule="adaptive")
-ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
-# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost
-# any solver reaches on the figure's initial states, including long-budget runs, cached as ordinary plan runs (their
-# keys are the problem's: a changed task, plant, start or cost gives a new run). The adaptive R-AICO at FDDP's
-# budget runs on every problem raico has; crocoddyl FDDP (100 iterations) joins it on the analytic arm.
-REFERENCE = ADAPTIVE
-# Ablations R-AICO with a growing alpha (gamma = 2, thesis §3.5's Algorithm 1 allows it; its figures
-# use gamma = 1), and R-AICO (fixed and adaptive) started from the zero-control rollout, FDDP's other start
-GAMMA_ABLATION = Variant("raico", 1.0, gamma=2.0)
-# plain AICO with the thesis's finite-difference linearizations of the analytic model (§3.4) beside the exact ones
-FD_ABLATION = Variant("aico", dynamics="analytic-fd")
-# plain AICO with the learning rates R-AICO replaces (thesis §3.5: on the state update, Algorithm 1 line 13, or on the
-# feedback controller, line 18; "neither implementation can guarantee convergence")
-RATE_ABLATIONS = (Variant("aico", belief_rate=0.5), Variant("aico", controller_rate=0.5))
-# Appendix C the three pseudo-dynamics integrators ("We compared all methods, and could not find any
-# significant difference in terms of accuracy"), R-AICO a=1 and plain AICO on fig3.2a's first INTEGRATOR_SEEDS initial
-# states (backward Euler is the figure's own runs of these seeds, served from the cache); each plan's controls are
-# also integrated open loop by Drake (execute --open-loop). Not in --quick.
+# the pseudo-dynamics integrators (appendix C's comparison) by their planning model's name, as the labels say them
 INTEGRATOR_NAMES = {"pseudo": "backward Euler", "pseudo-euler": "Euler", "pseudo-heun": "Heun"}
-INTEGRATOR_SEEDS = 5
-INTEGRATORS = tuple(Variant(solver, alpha, dynamics=d, seeds=INTEGRATOR_SEEDS)
-                    for solver, alpha in (("raico", 1.0), ("aico", 0.0)) for d in INTEGRATOR_NAMES)
-ROLLOUT_VARIANTS = (Variant("raico", 1.0, start="rollout"),
-                    Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
-                            schedule="adaptive", start="rollout"))
-ROLLOUT_CLAIMS = ("rollout_start_reaches_fddp",) if FDDP_VARIANTS else ()
-FDDP_CLAIMS = ("raico_reaches_fddp",) if FDDP_VARIANTS else ()
 
 
 @dataclass(frozen=True)
 class Experiment:
+    """A plan figure, made from its file by :func:`load_figure` (the fields are what the figure, tables and
+    claims read; the runs' configs come from the file itself, :func:`plan_config`)."""
+
     id: str
     plant: str
     task: str
@@ -155,6 +121,9 @@ class Experiment:
     execute_pd: bool = True
     # the stabilizer's noise sweep every executed plan at every noise level (stabilized figures)
     noise_wbc: bool = True
+    source: str = field(default="", compare=False)   # the experiment's file
+    # the file as pipeline.expfile reads it: (its runs, its --quick profile's runs)
+    profiles: tuple = field(default=(), compare=False, repr=False)
 
     def integrator_variants(self, quick: bool) -> tuple[Variant, ...]:
         """The integrator comparison's variants (none with --quick)."""
@@ -165,82 +134,15 @@ class Experiment:
         return sum(v.seed_count(self.seeds, quick) for v in (*self.variants, *self.integrator_variants(quick)))
 
 
-ARM_VARIANTS = (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0))
-ABLATION = Variant("aico", 0.0, relinearize=False)
-EXPERIMENTS: dict[str, Experiment] = {
-    "fig3.2a": Experiment("fig3.2a", "arm5", "reach", "pseudo", (*ARM_VARIANTS, REFERENCE), 40, 6,
-                          "arm5, pseudo-dynamics, via-points (1,-0.4,0)@500 and (1,0,0)@1000",
-                          claims=("raico_decays_fast", "ilqg_performs_well", "all_converge_aico_fastest",
-                                  "integrators_agree", "raico_converges"), integrators=INTEGRATORS),
-    "fig3.2b": Experiment("fig3.2b", "arm5", "reach-roll", "pseudo",
-                          (*ARM_VARIANTS, ABLATION, GAMMA_ABLATION, *RATE_ABLATIONS, REFERENCE), 40,
-                          6, "as a, plus the roll angle at pi/2 (with an AICO ablation: no sweep relinearization)",
-                          claims=("raico_decays_fast", "ilqg_performs_well", "aico_unstable", "raico_converges",
-                                  "aico_unstable_without_relinearization", "gamma_ablation", "learning_rates_fail")),
-    "fig3.2c": Experiment("fig3.2c", "arm5", "reach", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *RATE_ABLATIONS, *FDDP_VARIANTS,
-                           *FDDP_ABLATION, *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
-                          25, 4, "as a, analytic Drake dynamics (controls = torques)",
-                          claims=("raico_decays_fast", "raico_outperforms", "aico_fails", "ilqg_stalls", "raico_converges",
-                                  *FDDP_CLAIMS, *ADAPTIVE_CLAIMS, *(("ilqg_stall_ablation",) if FDDP_ABLATION else ()),
-                                  "gamma_ablation", "fd_ablation", "learning_rates_fail", *ROLLOUT_CLAIMS)),
-    "fig3.2d": Experiment("fig3.2d", "arm5", "reach-roll", "analytic",
-                          (*ARM_VARIANTS, ADAPTIVE, GAMMA_ABLATION, FD_ABLATION, *FDDP_VARIANTS,
-                           *(ROLLOUT_VARIANTS if FDDP_VARIANTS else ())),
-                          25, 4, "as b, analytic Drake dynamics",
-                          claims=("raico_decays_fast", "raico_outperforms", "aico_fails", "ilqg_stalls", "raico_converges",
-                                  *FDDP_CLAIMS, *ADAPTIVE_CLAIMS, "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
-    "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
-                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), REFERENCE), 25, 5,
-                         "Nao, pseudo-dynamics: right hand to a target, CoG held",
-                         execute=(Variant("raico", 1.0),), stabilized=True,
-                         claims=("raico_reaches_aico_not", "counterbalance", "cog_support", "executed_reaches",
-                                 "stabilizer_stands", "stabilizer_stands_under_noise")),
-    "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
-                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE),
-                         25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
-                         execute=(Variant("raico", 1.0),),
-                         claims=("aico_no_balancing", "raico_converged_25", "cog_support", "executed_reaches")),
-    "fig3.4-inside": Experiment("fig3.4-inside", "nao", "balance-inside", "pseudo",
-                                (Variant("aico"), Variant("raico", 1.0)), 25, 5,
-                                "variant of 3.4 whose CoG offsets stay over the feet",
-                                execute=(Variant("raico", 1.0),), stabilized=True,
-                                claims=("cog_support", "executed_reaches", "stabilizer_stands",
-                                        "stabilizer_stands_under_noise")),
-    # beyond the thesis the thesis's "balance on one foot" (§3.6.2) on the free-standing Nao. The
-    # balance-inside targets with the single-support objective (the left sole's polygon at every step, the right
-    # sole lifted from step 100 on), executed by the stabilizer, which releases the right sole once the CoG is over
-    # the left one. Margin 2.5 cm: with 1.5 cm (the double-support default) the CoG decelerating into via-points at
-    # the margin put the ZMP on the sole's edge (measured, seeds 0-2: one fell, the ZMP at the edge 7-9 % of the time)
-    "fig3.4-single": Experiment("fig3.4-single", "nao", "balance-inside", "pseudo", (Variant("raico", 1.0),), 25, 5,
-                                "beyond the thesis: balance on the left foot, right foot lifted (--balance single)",
-                                execute=(Variant("raico", 1.0),), stabilized=True, execute_pd=False,
-                                balance="single", balance_margin=0.025, noise_wbc=False,
-                                claims=("single_support_stands",)),
-    # beyond the thesis fig3.4-inside's targets with the support term (--balance support: the CoG's
-    # ground projection 2.5 cm inside both soles' polygon and every joint inside its range at every step, a via-point
-    # within that margin moved to the nearest feasible point before planning), executed both ways: fig3.4-inside is
-    # the same without the term. Margin 2.5 cm as fig3.4-single's: with 1.5 cm seed 0 (its torso leaning back) tipped
-    # over its heel at 1.7 s under the stabilizer, the ZMP on the heel's edge for 0.35 s; with 2.5 cm 10 of 10 stand
-    "fig3.4-support": Experiment("fig3.4-support", "nao", "balance-inside", "pseudo", (Variant("raico", 1.0),), 25, 5,
-                                 "beyond the thesis: fig3.4-inside with the support term (--balance support)",
-                                 execute=(Variant("raico", 1.0),), stabilized=True, balance="support",
-                                 balance_margin=0.025,
-                                 claims=("cog_support", "executed_reaches", "stabilizer_stands",
-                                         "stabilizer_stands_under_noise")),
-}
-
-
 def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
-    from stages.plan.stage import PlanConfig
+    """The plan config of variant ``v`` at initial state ``seed``, made from the experiment's file by
+    ``pipeline.expfile`` (its ``--quick`` profile with ``quick``): the config ``raico exp run`` makes."""
+    from pipeline import expfile
 
-    return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
-                      alpha=v.alpha, gamma=v.gamma, start=v.start,
-                      belief_rate=v.belief_rate, controller_rate=v.controller_rate,
-                      iterations=(v.quick_iterations or exp.quick_iterations) if quick
-                      else (v.iterations or exp.iterations), seed=seed,
-                      q0_std=0.05, relinearize=v.relinearize, alpha_schedule=v.schedule,
-                      balance=exp.balance, balance_margin=exp.balance_margin).normalized()
+    if not exp.profiles:
+        raise ValueError(f"{exp.id}: an experiment without a file has no plan configs")
+    fexp = exp.profiles[1 if quick else 0]
+    return expfile.first_config(fexp, expfile.Run(fexp.variant(v.label), seed)).normalized()
 
 
 def _job(args) -> dict:
@@ -316,7 +218,7 @@ STABILIZER = {"controller": "wbc", "start": "standing"}
 # execution status ok.
 NOISE_LEVELS = ((0.0, 0.0), (0.02, 0.5))
 NOISE_RUNS = 3  # per level (--quick: 2)
-NOISE_SWEEPS = {fid: Variant("raico", 1.0) for fid in ("fig3.2c", "fig3.2d", "fig3.3", "fig3.4", "fig3.4-inside")}
+# NOISE_SWEEPS (figure id -> the variant whose plans the joint PD's sweep executes): from the files, below
 
 
 def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
@@ -441,67 +343,18 @@ class LearnExperiment:
     quick_episodes: int
     claims: tuple[str, ...] = ()
     notes: tuple[tuple[str, str], ...] = ()
-
-
-def _sigma_settings() -> tuple[LearnSetting, ...]:
-    out = []
-    for w in (1e-2, 1e2):
-        for sigma in ("0", "0.2", "1"):
-            seeds = 5 if (sigma, w) == ("0", 1e-2) else 2  # five seeds for the data-efficiency comparison
-            out.append(LearnSetting(f"sigma*={sigma}, w={w:g}", (("sigma_star", sigma), ("sigma_weight", w)), seeds,
-                                    quick=(sigma, w) in (("0", 1e-2), ("1", 1e2))))
-    out.append(LearnSetting("sigma*=none", (("sigma_star", "none"),), 2, quick=True))
-    return tuple(out)
-
-
-LEARN_EXPERIMENTS: dict[str, LearnExperiment] = {
-    "fig4.1/4.2": LearnExperiment(
-        "fig4.1/4.2", "pendulum", "swing-up",
-        "pendulum swing-up on a GP model learned while planning: sigma* in {0, 0.2, 1, none}, w in {1e-2, 1e2}",
-        _sigma_settings(), (("alpha", 0.0), ("babble_points", 15), ("iterations", 20), ("max_points", 300),
-                            ("restarts", 1), ("refit_restarts", 1), ("stride", 5), ("warm_from", "controls")),
-        episodes=10, quick_episodes=6,
-        claims=("gp_error_falls", "rmse_falls", "large_weight_explores", "large_weight_converges_without_exploration",
-                "swing_up_achieved", "best_with_sigma_zero", "pilco_efficiency"),
-        notes=(("pendulum learning horizon", "1.5 s at 2 ms (750 steps): the thesis's 300 ms cannot swing up under "
-                "+-10 N m; swing-up counted when the executed pendulum ends within 0.1 rad of upright"),
-               ("babbling", "15 samples, one every 0.1 s of PD tracking (Kp 50, Kd 5) of a random spline, "
-                "amplitude 1 rad"),
-               ("GP data", "every 5th executed step joins the training set; at most 300 points (recent half "
-                "plus farthest-point subsample of the rest)"),
-               ("uncertainty term", "g = the GP's latent predictive variance in (rad/s^2)^2 (raw, thesis eq. 4.3); "
-                "state-control cross terms dropped"),
-               ("pendulum warm start", "each evaluation starts from the previous plan's controls rolled out on the "
-                "new model; the thesis's start (x0 held at every step, every evaluation, §4.4) leaves plain AICO "
-                "hanging: measured on seed 0 (sigma* = 0 and none), the final angle stayed 3.1 rad from upright in "
-                "all 10 episodes"))),
-    "fig4.3": LearnExperiment(
-        "fig4.3", "biorob", "reach",
-        "BioRob-like arm reaching x0 + (0.5, 0, 0.5) m in 1 s on a GP model: hyperparameter schedules every vs "
-        "batch-100, 20 evaluations warm-started",
-        # 3 seeds each: on one seed the schedule claim's verdict flipped with rounding-level changes
-        # of the planner (GP errors 566/572, 614/135, 256/173 rad/s^2 for batch-100/every)
-        (LearnSetting("every", (("schedule", "every"),), 3, quick=True),
-         LearnSetting("batch-100", (("schedule", "batch-100"),), 3, quick=True)),
-        (("alpha", 2.0), ("babble_points", 200), ("iterations", 10), ("max_points", 5000), ("restarts", 1),
-         ("stride", 20), ("sigma_star", "none"), ("warm_from", "trajectory")), episodes=20, quick_episodes=3,
-        claims=("batch_cheaper", "reach_achieved"),
-        notes=(("biorob learning", "200 babbling samples (20 s, one random knot every 0.25 s); every 20th executed "
-                "step joins the data (25 per evaluation, only the steps before a lost execution's failure time); "
-                "no cap on the training set (675 points after 20 evaluations); 10 R-AICO iterations per evaluation, "
-                "each started from the last planned trajectory (thesis 4.5)"),
-               ("biorob hyperparameters", "the first fit with one seeded random restart; every later optimization "
-                "(each evaluation's with 'every', every 100 points with 'batch-100') starts at the previous fit's "
-                "hyperparameters without random restarts (the thesis does not say how its optimizer started); the "
-                "fit times the schedules measured are in the claims table"))),
-}
+    source: str = field(default="", compare=False)
+    profiles: tuple = field(default=(), compare=False, repr=False)
 
 
 def learn_config(exp: LearnExperiment, s: LearnSetting, seed: int, quick: bool):
-    from stages.learn import LearnConfig
+    """The learn config of setting ``s`` at ``seed``, made from the experiment's file by ``pipeline.expfile``."""
+    from pipeline import expfile
 
-    return LearnConfig(plant=exp.plant, task=exp.task, **dict(exp.base), **dict(s.overrides), seed=seed,
-                       episodes=exp.quick_episodes if quick else exp.episodes)
+    if not exp.profiles:
+        raise ValueError(f"{exp.id}: an experiment without a file has no learn configs")
+    fexp = exp.profiles[1 if quick else 0]
+    return expfile.first_config(fexp, expfile.Run(fexp.variant(s.label), seed))
 
 
 def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: bool = True):
@@ -521,3 +374,138 @@ def summarize_learns(learns: list[dict]) -> dict[str, dict]:
     labels = list(dict.fromkeys(x["setting"].label for x in learns))
     return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
             for lab in labels}
+
+
+# ----------------------------------------------------------------------------- the experiment files
+THESIS_DIR = Path(__file__).resolve().parents[1] / "experiments" / "thesis"
+# the files, in the report's order (the figure ids are their [reproduce] figure, else their name)
+THESIS_FILES = ("fig3.2a", "fig3.2b", "fig3.2c", "fig3.2d", "fig3.3", "fig3.4", "fig3.4-inside", "fig3.4-single",
+                "fig3.4-support", "fig4.1-4.2", "fig4.3")
+# a plan experiment's [base] and [[point]] options: those the figures, tables and claims tell variants by
+PLAN_BASE = ("plant", "task", "dynamics", "iterations", "q0_std", "balance", "balance_margin")
+VARIANT_OPTIONS = {"solver": "solver", "alpha": "alpha", "relinearize": "relinearize", "iterations": "iterations",
+                   "alpha_schedule": "schedule", "gamma": "gamma", "start": "start", "dynamics": "dynamics",
+                   "belief_rate": "belief_rate", "controller_rate": "controller_rate"}
+REPRODUCE_KEYS = ("figure", "execute", "controllers", "noise_sweep", "stabilizer_noise", "integrators", "notes")
+CONTROLLERS = ("pd", "stabilizer")   # the joint PD from the plan's start; the whole-body stabilizer (STABILIZER)
+
+
+def _count(path: Path, what: str, seeds: tuple[int, ...], of: tuple[int, ...] | None = None) -> int:
+    """``len(seeds)``, which must be the first seeds 0..N-1 (the figures count initial states from 0)."""
+    from pipeline.errors import BadInput
+
+    if seeds != tuple(range(len(seeds))):
+        raise BadInput(f"{path}: {what}: the seeds of a figure are range(N), got {list(seeds)}")
+    return len(seeds)
+
+
+def _labels(path: Path, rep: dict, key: str, by_label: dict) -> list:
+    from pipeline.errors import BadInput
+
+    value = rep.get(key, [])
+    value = [value] if isinstance(value, str) else value
+    unknown = [x for x in value if x not in by_label]
+    if unknown:
+        raise BadInput(f"{path}: [reproduce] {key}: no point '{unknown[0]}'")
+    return [by_label[x] for x in value]
+
+
+def _plan_experiment(path: Path, full, quick) -> Experiment:
+    """The figure of a plan experiment file (its profiles ``full`` and ``quick`` read by pipeline.expfile)."""
+    from pipeline.errors import BadInput
+
+    base = full.base["plan"]
+    unknown = [k for k in base if k not in PLAN_BASE]
+    if unknown:
+        raise BadInput(f"{path}: [base] {unknown[0]}: a figure's base options are {', '.join(PLAN_BASE)}")
+    quick_points = {p["label"]: p for p in quick.points}
+    by_label: dict[str, Variant] = {}
+    for p in full.points:
+        extra = [k for k in p if k not in (*VARIANT_OPTIONS, "label", "seeds")]
+        if extra:
+            raise BadInput(f"{path}: point '{p['label']}': {extra[0]}: a figure's points set "
+                           f"{', '.join(VARIANT_OPTIONS)}")
+        q = quick_points.get(p["label"], {})
+        fields = {VARIANT_OPTIONS[k]: v for k, v in p.items() if k in VARIANT_OPTIONS}
+        v = Variant(**{"alpha": 0.0, **fields}, quick_iterations=q.get("iterations") if "iterations" in p else None,
+                    seeds=_count(path, f"point '{p['label']}'", p["seeds"]) if p["seeds"] else None)
+        if v.label != p["label"]:   # the tables, colours and claims know a variant by its label
+            raise BadInput(f"{path}: point '{p['label']}': the figures and claims call these options '{v.label}'")
+        by_label[p["label"]] = v
+    rep = full.reproduce
+    unknown = [k for k in rep if k not in REPRODUCE_KEYS]
+    if unknown:
+        raise BadInput(f"{path}: [reproduce] {unknown[0]}: valid keys are {', '.join(REPRODUCE_KEYS)}")
+    controllers = rep.get("controllers", ["pd"])
+    if not controllers or any(c not in CONTROLLERS for c in controllers):
+        raise BadInput(f"{path}: [reproduce] controllers: one or both of {', '.join(CONTROLLERS)}")
+    integrators = _labels(path, rep, "integrators", by_label)
+    defaults = Experiment("", "", "", "", (), 0, 0, "")
+    return Experiment(
+        id=rep.get("figure", full.name), plant=base["plant"], task=base["task"], dynamics=base.get("dynamics", "pseudo"),
+        variants=tuple(v for v in by_label.values() if v not in integrators), iterations=base["iterations"],
+        quick_iterations=quick.base["plan"]["iterations"], description=full.description,
+        seeds=_count(path, "seeds", full.seeds), execute=tuple(_labels(path, rep, "execute", by_label)),
+        claims=full.claims, integrators=tuple(integrators), stabilized="stabilizer" in controllers,
+        balance=base.get("balance", defaults.balance), balance_margin=base.get("balance_margin", defaults.balance_margin),
+        execute_pd="pd" in controllers, noise_wbc=bool(rep.get("stabilizer_noise", True)), source=str(path),
+        profiles=(full, quick))
+
+
+def _learn_experiment(path: Path, full, quick) -> LearnExperiment:
+    """The figure of a learning experiment file."""
+    from pipeline.errors import BadInput
+
+    base = full.base["learn"]
+    rep = full.reproduce
+    unknown = [k for k in rep if k not in ("figure", "notes")]
+    if unknown:
+        raise BadInput(f"{path}: [reproduce] {unknown[0]}: a learning figure's keys are figure, notes")
+    in_quick = {p["label"] for p in quick.points}
+    settings = tuple(LearnSetting(p["label"], tuple((k, v) for k, v in p.items() if k not in ("label", "seeds")),
+                                  _count(path, f"point '{p['label']}'", p["seeds"] or full.seeds),
+                                  quick=p["label"] in in_quick) for p in full.points)
+    return LearnExperiment(
+        id=rep.get("figure", full.name), plant=base["plant"], task=base["task"], description=full.description,
+        settings=settings, base=tuple((k, v) for k, v in base.items() if k not in ("plant", "task", "episodes")),
+        episodes=base["episodes"], quick_episodes=quick.base["learn"]["episodes"], claims=full.claims,
+        notes=tuple((str(k), str(v)) for k, v in (rep.get("notes") or {}).items()), source=str(path),
+        profiles=(full, quick))
+
+
+def load_figure(path: str | Path) -> Experiment | LearnExperiment:
+    """A figure from its experiment file, read by ``pipeline.expfile`` in full and in its ``--quick`` profile:
+    :class:`~pipeline.errors.BadInput` (one line) on anything a figure cannot be made of."""
+    from pipeline import expfile
+    from pipeline.errors import BadInput
+    from stages.evaluate.claims import CLAIMS
+
+    path = Path(path)
+    full, quick = expfile.load(path), expfile.load(path, quick=True)
+    unknown = [c for c in full.claims if c not in CLAIMS]
+    if unknown:
+        raise BadInput(f"{path}: claim '{unknown[0]}': no such claim (stages/evaluate/claims.py: "
+                       f"{', '.join(CLAIMS)})")
+    if full.stages == ("plan",):
+        return _plan_experiment(path, full, quick)
+    if full.stages == ("learn",):
+        return _learn_experiment(path, full, quick)
+    raise BadInput(f"{path}: a figure's stages are [\"plan\"] (its executions under [reproduce]) or [\"learn\"]")
+
+
+def _load_figures() -> tuple[dict[str, Experiment], dict[str, LearnExperiment]]:
+    plans: dict[str, Experiment] = {}
+    learns: dict[str, LearnExperiment] = {}
+    for name in THESIS_FILES:
+        fig = load_figure(THESIS_DIR / f"{name}.toml")
+        (learns if isinstance(fig, LearnExperiment) else plans)[fig.id] = fig
+    return plans, learns
+
+
+EXPERIMENTS, LEARN_EXPERIMENTS = _load_figures()
+NOISE_SWEEPS = {e.id: next(v for v in e.variants if v.label == e.profiles[0].reproduce["noise_sweep"])
+                for e in EXPERIMENTS.values() if "noise_sweep" in e.profiles[0].reproduce}
+# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost any solver
+# reaches on the figure's initial states, including long-budget runs: the adaptive R-AICO at FDDP's budget, which
+# every plan figure's file lists (crocoddyl FDDP at 100 iterations joins it on the analytic arm)
+REFERENCE = next(v for v in EXPERIMENTS["fig3.2a"].variants if v.label == "R-AICO adaptive (a0=1)")

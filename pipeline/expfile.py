@@ -22,9 +22,25 @@ An experiment file (read with ``tomllib``)::
     solver = "ilqg"
 
 Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
-field: the plan's initial state), so comparisons pair by seed. A grid or point key ``execute.x0_noise``
+field: the plan's initial state), so comparisons pair by seed; a point's own ``seeds`` (a list or
+``range(N)``, among the experiment's) runs it at those only (an ablation on the first three). A grid or point key ``execute.x0_noise``
 sets a later stage's option. Every key and value is checked by the stage's own config class before
 anything runs; an unknown key is refused with the valid ones listed.
+
+More keys, for experiments that carry their own analysis (the thesis's files, experiments/thesis/)::
+
+    claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
+    [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
+    seeds = "range(2)"                     # options over [base], and the points it keeps (default all)
+    iterations = 6
+    points = ["iLQG", "R-AICO a=1"]
+    [[point]]
+    label = "crocoddyl FDDP (x0 held)"
+    solver = "fddp"
+    iterations = 100
+    quick = {iterations = 12}              # this point's options in the quick profile
+    needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
+    [reproduce]                            # read by raico reproduce (pipeline/experiments.py), carried here
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
@@ -45,17 +61,22 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import BadInput
-from pipeline.executors import Batch, Executor, Job, run_flow
+
+if TYPE_CHECKING:
+    from pipeline.executors import Executor
 
 CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
           ("babble",)}
-TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate")
+TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate", "claims",
+            "quick", "reproduce")
+POINT_KEYS = ("label", "seeds", "quick", "needs")   # a point's keys that are not options
+NEEDS = ("crocoddyl",)   # what a point or a claim may need: the crocoddyl baseline (the extra raico[baseline])
 CURVE_TOL = 0.01   # iterations to come within 1 % of the run's lowest cost
 # a run counted as failed in the summaries: a stage raised, a solver diverged, the robot fell
 FAILED_STATUSES = ("error", "diverged", "fell")
@@ -69,6 +90,7 @@ class Variant:
     label: str
     options: dict[str, dict[str, Any]]   # stage -> {option: value}
     swept: dict[str, Any]                # the options that vary across the experiment (``stage.option`` for later stages)
+    seeds: tuple[int, ...] = ()          # a point's own seeds (empty: the experiment's)
 
 
 @dataclass(frozen=True)
@@ -88,6 +110,10 @@ class Experiment:
     zipped: dict[str, list]
     points: list[dict[str, Any]]
     path: Path | None = None
+    claims: tuple[str, ...] = ()            # named claims (Python functions of stages.evaluate.claims)
+    reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
+    quick: bool = False                     # loaded with its [quick] profile
+    left_out: tuple[str, ...] = ()          # points left out: what they need is not installed
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
@@ -95,7 +121,15 @@ class Experiment:
 
     @property
     def runs(self) -> list[Run]:
-        return [Run(v, s) for v in self.variants for s in self.seeds]
+        return [Run(v, s) for v in self.variants for s in (v.seeds or self.seeds)]
+
+    def variant(self, label: str) -> Variant:
+        """The variant labelled ``label``; :class:`BadInput` listing the labels if there is none."""
+        for v in self.variants:
+            if v.label == label:
+                return v
+        raise BadInput(f"{self.name}: no variant '{label}': variants are "
+                       + ", ".join(repr(v.label) for v in self.variants))
 
 
 # ----------------------------------------------------------------------------- reading
@@ -134,9 +168,50 @@ def parse_override(text: str) -> tuple[str, list]:
     return key, values
 
 
-def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
+@functools.cache
+def available(need: str) -> bool:
+    """Whether what a point or claim ``needs`` is installed (:data:`NEEDS`)."""
+    if need == "crocoddyl":
+        from planning.crocoddyl_model import AVAILABLE
+
+        return bool(AVAILABLE)
+    raise BadInput(f"needs = '{need}': one of {', '.join(NEEDS)}")
+
+
+def _claims(path: Path, value: Any) -> tuple[str, ...]:
+    """``claims``: names, or ``{name, needs}`` tables (left out where the need is not installed)."""
+    if not isinstance(value, list):
+        raise BadInput(f"{path}: claims must be a list of names or {{name = ..., needs = ...}} tables")
+    out = []
+    for c in value:
+        if isinstance(c, dict) and set(c) <= {"name", "needs"} and isinstance(c.get("name"), str):
+            if "needs" not in c or available(str(c["needs"])):
+                out.append(c["name"])
+        elif isinstance(c, str) and c:
+            out.append(c)
+        else:
+            raise BadInput(f"{path}: claim {c!r} is neither a name nor a {{name = ..., needs = ...}} table")
+    return tuple(out)
+
+
+def _point_seeds(path: Path, point: dict, seeds: tuple[int, ...], quick: bool) -> tuple[int, ...]:
+    """A point's own seeds (those of the experiment it runs at), () for the experiment's."""
+    if "seeds" not in point:
+        return ()
+    try:
+        own = _seeds(point["seeds"])
+    except BadInput as e:
+        raise BadInput(f"{path}: point '{point.get('label')}': {e}") from None
+    missing = [s for s in own if s not in seeds]
+    if missing and not quick:
+        raise BadInput(f"{path}: point '{point.get('label')}': seed {missing[0]} is not among the experiment's seeds")
+    return tuple(s for s in seeds if s in own)
+
+
+def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Experiment:
     """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
-    (:class:`BadInput` with one line on any problem) but not yet validated against the stages."""
+    (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
+    ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
     path = Path(path)
     try:
         doc = tomllib.loads(path.read_text())
@@ -159,6 +234,11 @@ def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
                        + "; ".join(", ".join(c) for c in sorted(CHAINS)))
     grid, zipped = dict(doc.get("grid", {})), dict(doc.get("zip", {}))
     seeds = _seeds(doc.get("seeds", [0]))
+    profile = doc.get("quick", {})
+    if not isinstance(profile, dict):
+        raise BadInput(f"{path}: [quick] must be a table")
+    if quick:
+        seeds = _seeds(profile["seeds"]) if "seeds" in profile else seeds[:2]
     for text in overrides:
         key, values = parse_override(text)
         if key == "seeds":
@@ -179,13 +259,42 @@ def load(path: str | Path, overrides: list[str] = ()) -> Experiment:
     labels = [p.get("label") for p in points]
     if any(not isinstance(lb, str) or not lb for lb in labels) or len(set(labels)) != len(labels):
         raise BadInput(f"{path}: every [[point]] needs a unique label")
+    in_quick = profile.get("points", labels)
+    unknown = [lb for lb in in_quick if lb not in labels] if isinstance(in_quick, list) else [in_quick]
+    if unknown:
+        raise BadInput(f"{path}: [quick] points: no point '{unknown[0]}'")
+    kept = in_quick if quick else labels
+    left_out, chosen = [], []
+    for p in points:
+        if not isinstance(p.get("quick", {}), dict) or not isinstance(p.get("needs", ""), str):
+            raise BadInput(f"{path}: point '{p['label']}': quick must be a table of options, needs a name")
+        if "needs" in p and not available(p["needs"]):
+            left_out.append(p["label"])
+            continue
+        if p["label"] not in kept:
+            continue
+        opts = {k: v for k, v in p.items() if k not in POINT_KEYS}
+        if quick:
+            opts.update(p.get("quick", {}))
+        own = _point_seeds(path, p, seeds, quick)
+        if "seeds" in p and not own:   # the profile's seeds are none of the point's own: it does not run
+            continue
+        chosen.append({"label": p["label"], **opts, "seeds": own})
+    points = chosen
+    claims = _claims(path, doc.get("claims", []))
+    reproduce = doc.get("reproduce", {})
+    if not isinstance(reproduce, dict):
+        raise BadInput(f"{path}: [reproduce] must be a table")
     base = {stages[0]: dict(doc.get("base", {}))}
+    if quick:
+        base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
         base[later] = dict(doc.get(later, {}))
     for stage in ("execute", "evaluate"):
         if stage in doc and stage not in stages[1:]:
             raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
-    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path)
+    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
+                      claims, reproduce, quick, tuple(left_out))
 
 
 # ----------------------------------------------------------------------------- variants and configs
@@ -205,17 +314,19 @@ def _variants(exp: Experiment) -> list[Variant]:
     n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
     zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
     settings = [(None, {**c, **z}) for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
-    settings += [(p["label"], {k: v for k, v in p.items() if k != "label"}) for p in exp.points]
-    swept_keys = sorted({k for _, s in settings for k in s})
+    settings = [(None, s, ()) for _, s in settings]
+    settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
+                 for p in exp.points]
+    swept_keys = sorted({k for _, s, _ in settings for k in s})
     out = []
-    for label, setting in settings:
+    for label, setting, seeds in settings:
         options = {st: dict(opts) for st, opts in exp.base.items()}
         for key, value in setting.items():
             stage, option = _split(exp, key)
             options[stage][option] = value
         swept = {k: _used_value(exp, options, k) for k in swept_keys}
         label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
-        out.append(Variant(label, options, swept))
+        out.append(Variant(label, options, swept, tuple(seeds)))
     return out
 
 
@@ -269,7 +380,7 @@ def validate(exp: Experiment) -> None:
         raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
     for v in exp.variants:
         try:
-            first_config(exp, Run(v, exp.seeds[0]))
+            first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
             for stage in exp.stages[1:]:
                 _config(stage, v.options[stage], **{"plan": "0" * 16})
         except BadInput as e:
@@ -352,6 +463,8 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
         progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
     """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
     the runs table and returns its rows."""
+    from pipeline.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+
     runs = exp.runs
 
     def flow():
@@ -495,6 +608,26 @@ def read_table(cache, name_or_file: str):
     return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
 
 
+def query(df, where: str | None):
+    """The rows of ``df`` matching ``where`` (pandas query syntax: comparisons, and/or, in; names with dots
+    in backticks); :class:`BadInput` with the table's columns if it does not parse or names no column."""
+    if not where:
+        return df
+    try:
+        return df.query(where, engine="python")
+    except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
+        names = ", ".join(map(str, df.columns))
+        raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+
+
+def metric_columns(df) -> list[str]:
+    """The table's numeric metric columns (``stage.metric``; keys, cache flags and code versions left out)."""
+    import pandas as pd
+
+    return [c for c in df.columns if "." in str(c) and not str(c).endswith((".key", ".cached", ".code_version"))
+            and (pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c]))]
+
+
 DEFAULT_METRICS = ("plan.final_cost", "plan.iterations", "plan.wall_time_s", "plan.cost.iterations_to_1pct",
                    "execute.rmse_planned_executed", "learn.episodes")
 
@@ -508,12 +641,7 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     import numpy as np
     import pandas as pd
 
-    if where:
-        try:
-            df = df.query(where, engine="python")
-        except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
-            names = ", ".join(map(str, df.columns))
-            raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+    df = query(df, where)
     metrics = [m for m in (metrics or DEFAULT_METRICS) if m in df.columns]
     keys = ["variant", *[s for s in swept if s in df.columns]]
     if only_changed:
@@ -657,3 +785,191 @@ def render_paired(r: Paired, fmt: str = "table") -> str:
         p = "-" if r.p_value is None else f"{r.p_value:.3g}"
         lines += [f"  median difference {_cell(r.median)}; mean's 95 % interval {ci}; signed-rank p {p}"]
     return "\n".join(lines)
+
+
+def _normalized(cfg):
+    return cfg.normalized() if hasattr(cfg, "normalized") else cfg
+
+
+def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: dict[str, set]) -> set[str]:
+    """Of ``options``, those a run of ``stage`` with config ``cfg`` (its ``meta.json`` config) does not use:
+    setting one to any value ``others`` lists for it leaves the normalized config (so the cache key) as it
+    is, as iLQG's alpha. Options of later stages (``stage.option``) and unknown ones count as used."""
+    import dataclasses
+
+    from stages.registry import get_stage
+
+    try:
+        base = get_stage(stage).config_cls.from_dict(cfg)
+        ref = dataclasses.asdict(_normalized(base))
+    except Exception:  # noqa: BLE001 - an entry of another version: say nothing is unused
+        return set()
+    out = set()
+    for opt in options:
+        values = [v for v in others.get(opt, ()) if v is not None and v != cfg.get(opt)]
+        if "." in opt or opt not in cfg or not others.get(opt):
+            continue
+        try:
+            if all(dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v}))) == ref for v in values):
+                out.add(opt)
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
+# ----------------------------------------------------------------------------- two single runs
+KEY_RE = re.compile(r"^[0-9a-f]{4,16}$")   # a cache key or a prefix of one (at least 4 hex digits)
+
+
+def key_columns(df) -> list[str]:
+    """The table's ``<stage>.key`` columns, in the stages' order."""
+    return [c for c in df.columns if str(c).endswith(".key")]
+
+
+def find_run(df, ref: str) -> int | None:
+    """The row index of the run whose key (of any stage) is ``ref`` or starts with it; None if ``ref``
+    is not a key prefix or no run has it; :class:`BadInput` if it names more than one run."""
+    ref = ref.strip().lower()
+    if "/" in ref:   # STAGE/KEY, as raico show and raico ls write it
+        stage, ref = ref.split("/", 1)
+        cols = [f"{stage}.key"] if f"{stage}.key" in df.columns else []
+    else:
+        cols = key_columns(df)
+    if not KEY_RE.match(ref):
+        return None
+    hits = sorted({i for c in cols for i, k in df[c].items() if isinstance(k, str) and k.startswith(ref)})
+    if len(hits) > 1:
+        which = ", ".join(f"{df.at[i, 'variant']} seed {df.at[i, 'seed']}" for i in hits[:4])
+        raise BadInput(f"key prefix '{ref}' names {len(hits)} runs ({which}{', ...' if len(hits) > 4 else ''}): "
+                       "give more characters")
+    return hits[0] if hits else None
+
+
+@dataclass
+class RunDiff:
+    """Two single runs of an experiment side by side: who they are, the options that differ, every
+    metric of either with ``b - a``."""
+
+    a: dict[str, Any]                                  # {"variant", "seed", "keys": {stage: key}}
+    b: dict[str, Any]
+    options: list[tuple[str, Any, Any]]                # (option, a's value, b's value), only where they differ
+    metrics: list[tuple[str, Any, Any, float | None]]  # (metric, a, b, b - a where both are numbers)
+    unused: dict[str, list[str]] = field(default_factory=dict)   # "a"/"b" -> options of it its run does not use
+
+
+def _who(df, i: int) -> dict[str, Any]:
+    row = df.loc[i]
+    return {"variant": row["variant"], "seed": _plain(row["seed"]),
+            "keys": {c[:-4]: row[c] for c in key_columns(df) if isinstance(row[c], str)}}
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars and NaN as plain Python values (None for a missing one)."""
+    if hasattr(v, "item"):
+        v = v.item()
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
+def _configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
+    """The options each stage of a run used (its ``meta.json`` config, input references left out),
+    named as the table names them: the first stage's plain, later ones ``stage.option``."""
+    from stages.registry import get_stage
+
+    out: dict[str, Any] = {}
+    for stage, key in who["keys"].items():
+        cfg = _meta(cache, stage, key).get("config") or {}
+        try:
+            inputs = set(get_stage(stage).config_cls.INPUTS)
+        except Exception:  # noqa: BLE001 - a stage this version does not know: every field
+            inputs = set()
+        for k, v in cfg.items():
+            if k not in inputs:
+                out[k if stage == first else f"{stage}.{k}"] = v
+    return out
+
+
+def _same(x: Any, y: Any) -> bool:
+    if isinstance(x, (int, float)) and isinstance(y, (int, float)) and not isinstance(x, bool) \
+            and not isinstance(y, bool):
+        return x == y or (math.isnan(x) and math.isnan(y))
+    return x == y
+
+
+def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
+    """Runs ``a`` and ``b`` (cache keys or key prefixes of any stage of the table) side by side: the
+    options that differ (every option of each stage's config where ``cache`` has the entries, else the
+    swept ones) and every metric with its difference. :class:`BadInput` if a key names no run."""
+    idx = []
+    for ref in (a, b):
+        i = find_run(df, ref)
+        if i is None:
+            cols = ", ".join(key_columns(df)) or "no key columns"
+            raise BadInput(f"no run with key '{ref}' in the table ({cols}: `raico exp show NAME --no-group "
+                           f"--metric plan.key` lists them) and no variant of that name")
+        idx.append(i)
+    ia, ib = idx
+    who_a, who_b = _who(df, ia), _who(df, ib)
+    first = key_columns(df)[0][:-4] if key_columns(df) else "plan"
+    conf_a = _configs(cache, who_a, first) if cache is not None else {}
+    conf_b = _configs(cache, who_b, first) if cache is not None else {}
+    if not conf_a or not conf_b:   # no entries to read: the swept options and the seed, from the table
+        conf_a = {k: _plain(df.at[ia, k]) for k in (*swept, "seed") if k in df.columns}
+        conf_b = {k: _plain(df.at[ib, k]) for k in (*swept, "seed") if k in df.columns}
+    names = list(dict.fromkeys([*conf_a, *conf_b]))
+    options = [(k, conf_a.get(k), conf_b.get(k)) for k in names if not _same(conf_a.get(k), conf_b.get(k))]
+    unused = {}
+    if cache is not None:   # options a run does not use (iLQG's alpha): its normalized config is the same without
+        differ = [k for k, _, _ in options]
+        values = {k: {_hashable(x), _hashable(y)} for k, x, y in options}
+        for side, conf in (("a", conf_a), ("b", conf_b)):
+            unused[side] = sorted(unused_in(first, conf, differ, values))
+    skip = {*swept, "experiment", "variant", "seed", "error", *key_columns(df)}
+    metrics = []
+    for c in df.columns:
+        if c in skip or c.endswith((".cached", ".code_version")):
+            continue
+        va, vb = _plain(df.at[ia, c]), _plain(df.at[ib, c])
+        if va is None and vb is None:
+            continue
+        num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (va, vb))
+        metrics.append((c, va, vb, float(vb - va) if num else None))
+    return RunDiff(who_a, who_b, options, metrics, unused)
+
+
+def _hashable(v: Any) -> Any:
+    return tuple(v) if isinstance(v, list) else v
+
+
+def _run_name(who: dict[str, Any]) -> str:
+    keys = ", ".join(f"{s} {k}" for s, k in who["keys"].items())
+    return f"{keys} ({who['variant']}, seed {who['seed']})"
+
+
+def render_run_diff(r: RunDiff, fmt: str = "table") -> str:
+    if fmt == "json":
+        return json.dumps({"a": r.a, "b": r.b,
+                           "options": [{"option": k, "a": x, "b": y,
+                                        "unused_by": [s for s in ("a", "b") if k in r.unused.get(s, ())]}
+                                       for k, x, y in r.options],
+                           "metrics": [{"metric": k, "a": x, "b": y, "b_minus_a": d} for k, x, y, d in r.metrics]},
+                          default=str, allow_nan=False)
+
+    def table(head: list[str], rows: list[list[str]]) -> list[str]:
+        widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
+        line = "  ".join(f"{{:<{w}}}" for w in widths)
+        return ["  " + line.format(*head).rstrip(), *("  " + line.format(*row).rstrip() for row in rows)]
+
+    out = [f"A: {_run_name(r.a)}", f"B: {_run_name(r.b)}"]
+    if r.options:
+        def value(side: str, k: str, v: Any) -> str:
+            return _cell(v) + (" (not used)" if k in r.unused.get(side, ()) else "")
+
+        out += ["options that differ:", *table(["option", "A", "B"], [[k, value("a", k, x), value("b", k, y)]
+                                                                      for k, x, y in r.options])]
+    else:
+        out += ["options that differ: none"]
+    out += ["metrics:", *table(["metric", "A", "B", "B - A"],
+                               [[k, _cell(x), _cell(y), _cell(d)] for k, x, y, d in r.metrics])]
+    return "\n".join(out)

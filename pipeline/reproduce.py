@@ -174,15 +174,18 @@ def _record_timing(root: Path, fid: str, runs: int, cached: int, elapsed: float)
 
 
 def _report_key(fid: str, result: dict) -> str:
-    """What a figure's report is made from: the report code and every run's key (input-addressed,
-    like a stage: the same runs and code give the same report)."""
+    """What a figure's report is made from: the report code, the figure's experiment file (its labels,
+    claims and notes) and every run's key (input-addressed, like a stage: the same runs, file and code
+    give the same report)."""
     import hashlib
 
     from pipeline.runner import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
     code = source_version("report", "pipeline.report", "pipeline.reproduce", "pipeline.experiments", "stages.evaluate")
-    return hashlib.sha256(json.dumps([fid, code, keys]).encode()).hexdigest()[:16]
+    exp = EXPERIMENTS.get(fid) or LEARN_EXPERIMENTS.get(fid)
+    text = Path(exp.source).read_bytes() if exp is not None and exp.source else b""
+    return hashlib.sha256(json.dumps([fid, code, keys, hashlib.sha256(text).hexdigest()]).encode()).hexdigest()[:16]
 
 
 def _outcomes(result: dict) -> list:

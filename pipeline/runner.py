@@ -304,8 +304,6 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
     Cheap (no stage code runs): lets a sweep skip worker processes for what is cached. A damaged
     entry, input or recording is left to the run (which recomputes, rebuilds or writes it again);
     ``cache.notify`` hears why."""
-    from pipeline.recorders import RECORDERS, RECORDING
-
     try:
         stage, config, _, _, _, _, key = _prepare(cache, stage, config)
     except CorruptArtifact as e:  # a damaged input: the run rebuilds it (or says why it cannot)
@@ -318,6 +316,8 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
             cache.notify(f"{stage.name} {key}: {why}; computing it again")
         return None
     recording = None
+    if record:   # the recorders (Rerun, Drake's geometry) are imported only when a recording is asked for
+        from pipeline.recorders import RECORDERS, RECORDING
     if record and stage.name in RECORDERS:
         intact, damaged = cache.derived_check(entry)
         if RECORDING not in intact or damaged:  # the recorder writes the .rrd and the .mcap together

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -240,3 +241,96 @@ def test_exp_diff_from_the_command_line(tmp_path):
     assert doc["seeds"] == [0, 1] and doc["differences"] == pytest.approx(want) and doc["p_value"] is None
     bad = invoke("exp", "diff", "alpha-arm", "alpha=0.5", "nope", "--artifacts", arts)
     assert bad.exit_code == 2 and "no variant 'nope'" in bad.stderr
+    # two single runs: their keys (or prefixes); the options from the entries' configs
+    ka, kb = table.loc[("alpha=0.5", 1), "plan.key"], table.loc[("ilqg", 1), "plan.key"]
+    res = invoke("exp", "diff", "alpha-arm", ka[:6], f"plan/{kb}", "--format", "json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["a"]["keys"]["plan"] == ka and doc["b"]["keys"]["execute"] == table.loc[("ilqg", 1), "execute.key"]
+    assert {o["option"]: (o["a"], o["b"]) for o in doc["options"]} == {"alpha": (0.5, 0.0), "solver": ("raico", "ilqg")}
+    assert {o["option"]: o["unused_by"] for o in doc["options"]} == {"alpha": ["b"], "solver": []}   # iLQG has no alpha
+    cost = next(m for m in doc["metrics"] if m["metric"] == "plan.final_cost")
+    assert cost["b_minus_a"] == pytest.approx(table.loc[("ilqg", 1), "plan.final_cost"]
+                                              - table.loc[("alpha=0.5", 1), "plan.final_cost"])
+    text = invoke("exp", "diff", "alpha-arm", ka, kb, "--artifacts", arts).stdout
+    assert text.startswith(f"A: plan {ka}, execute ") and "options that differ:" in text
+    assert any(line.split()[:3] == ["alpha", "0.5", "0"] and line.endswith("0 (not used)") for line in text.splitlines())
+    for args, needle in (((ka, "deadbeef"), "no run with key 'deadbeef'"),
+                         ((ka, "ilqg"), "two variants (paired by seed) or two runs' keys, not one of each")):
+        bad = invoke("exp", "diff", "alpha-arm", *args, "--artifacts", arts)
+        assert bad.exit_code == 2 and bad.stderr.count("\n") == 1 and needle in bad.stderr, bad.stderr
+
+
+def test_two_single_runs_side_by_side_on_known_numbers():
+    df = pd.DataFrame({"experiment": ["e"] * 3, "variant": ["a", "a", "b"], "alpha": [1.0, 1.0, 0.0],
+                       "solver": ["raico", "raico", "ilqg"], "seed": [0, 1, 0],
+                       "plan.key": ["aaaa111100000000", "aaaa222200000000", "bbbb111100000000"],
+                       "plan.status": ["converged", "converged", "diverged"], "plan.final_cost": [10.0, 12.0, 25.5],
+                       "plan.cached": [True, True, True], "failed": [False, False, True]})
+    r = expfile.run_diff(df, ["alpha", "solver"], "aaaa1", "plan/bbbb")
+    assert r.a["keys"] == {"plan": "aaaa111100000000"} and (r.b["variant"], r.b["seed"]) == ("b", 0)
+    assert r.options == [("alpha", 1.0, 0.0), ("solver", "raico", "ilqg")]     # the seed is the same: not listed
+    metrics = {m: (x, y, d) for m, x, y, d in r.metrics}
+    assert metrics["plan.final_cost"] == (10.0, 25.5, 15.5) and metrics["plan.status"][2] is None
+    assert "plan.cached" not in metrics and "plan.key" not in metrics
+    same_variant = expfile.run_diff(df, ["alpha", "solver"], "aaaa1", "aaaa2")
+    assert same_variant.options == [("seed", 0, 1)]
+    text = expfile.render_run_diff(r)
+    assert text.splitlines()[0] == "A: plan aaaa111100000000 (a, seed 0)" and "options that differ:" in text
+    assert any(line.split()[:4] == ["plan.final_cost", "10", "25.5", "15.5"] for line in text.splitlines())
+    with pytest.raises(BadInput, match="key prefix 'aaaa' names 2 runs"):
+        expfile.run_diff(df, [], "aaaa", "bbbb")
+    with pytest.raises(BadInput, match="no run with key 'cccc'"):
+        expfile.run_diff(df, [], "aaaa1", "cccc")
+
+
+def test_a_quick_profile_point_seeds_needs_and_claims(tmp_path, monkeypatch):
+    text = '''
+seeds = "range(4)"
+claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]
+[base]
+plant = "arm5"
+task = "reach"
+iterations = 30
+[quick]
+seeds = "range(2)"
+iterations = 3
+points = ["a", "ablation"]
+[[point]]
+label = "a"
+solver = "raico"
+iterations = 50
+quick = {iterations = 5}
+[[point]]
+label = "ablation"
+solver = "aico"
+seeds = [1, 3]
+[[point]]
+label = "not quick"
+solver = "ilqg"
+[[point]]
+label = "fddp"
+solver = "fddp"
+needs = "crocoddyl"
+'''
+    f = write(tmp_path, text)
+    full, quick = expfile.load(f), expfile.load(f, quick=True)
+    assert [(v.label, v.options["plan"]["iterations"]) for v in full.variants] == [
+        ("a", 50), ("ablation", 30), ("not quick", 30), ("fddp", 30)]
+    assert [(r.variant.label, r.seed) for r in full.runs if r.variant.label == "ablation"] == [("ablation", 1),
+                                                                                                ("ablation", 3)]
+    assert len(full.runs) == 4 + 2 + 4 + 4 and full.claims == ("raico_converges", "raico_reaches_fddp")
+    assert [(v.label, v.options["plan"]["iterations"]) for v in quick.variants] == [("a", 5), ("ablation", 3)]
+    assert [(r.variant.label, r.seed) for r in quick.runs] == [("a", 0), ("a", 1), ("ablation", 1)]
+    expfile.validate(quick)
+    monkeypatch.setattr(expfile, "available", lambda need: False)   # crocoddyl not installed: left out
+    without = expfile.load(f)
+    assert [v.label for v in without.variants] == ["a", "ablation", "not quick"] and without.left_out == ("fddp",)
+    assert without.claims == ("raico_converges",)
+    monkeypatch.undo()
+    for old, new, needle in (('seeds = [1, 3]', 'seeds = [1, 7]', "point 'ablation': seed 7 is not among"),
+                             ('needs = "crocoddyl"', 'needs = "gpu"', "needs = 'gpu': one of crocoddyl"),
+                             ('points = ["a", "ablation"]', 'points = ["b"]', "[quick] points: no point 'b'"),
+                             ('claims = ["raico_converges",', 'claims = [3,', "claim 3 is neither a name")):
+        with pytest.raises(BadInput, match=re.escape(needle)):
+            expfile.load(write(tmp_path, text.replace(old, new), "bad.toml"))
