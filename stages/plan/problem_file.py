@@ -40,6 +40,9 @@ Cost term types (``type``) and their keys:
 - ``control_limit``: ``lower``/``upper`` (default: the model's effort limits), soft, torques only;
 - ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
 
+Every term may name its task map (``map``, default: the frame's name, ``cog``, ``joints`` or the
+term's name): terms on maps of one name share a plot and a path in the recordings.
+
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
 F's pose at ``q0`` (before ``axes`` selects coordinates). ``times``: a list of steps in ``[0, T]``,
@@ -78,7 +81,7 @@ INTEGRATORS = {"pseudo": {"backward-euler": "pseudo", "euler": "pseudo-euler", "
                "analytic": {"semi-implicit-euler": "analytic"}}
 CONVENTIONS = ("raico", "crocoddyl")
 TIMES = ("last", "all", "running", "every")
-COMMON = {"type", "weight", "times"}
+COMMON = {"type", "weight", "times", "map"}
 TERM_KEYS = {
     "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame"},
     "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision"},
@@ -312,7 +315,7 @@ def _term(name: str, t: dict, T: int) -> dict:
     out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
     if "times" in TERM_KEYS[kind]:
         out["times"] = _times(t.get("times"), T, name)
-    for key in ("frame", "in_frame", "angle", "relative"):
+    for key in ("frame", "in_frame", "angle", "relative", "map"):
         if key in t and not isinstance(t[key], str):
             raise ValueError(f"[costs.{name}] {key} must be a string")
     if kind in ("frame_position", "frame_orientation", "frame_placement") and "frame" not in t:
@@ -438,10 +441,24 @@ def _target(t: dict, name: str, value_at_start: np.ndarray) -> np.ndarray:
     return value_at_start + x if t.get("relative") == "start" else x
 
 
+MAP_NAMES = {"com": "cog", "posture": "joints", "joint_limit": "joints"}
+
+
+def _map_name(t: dict, name: str) -> str:
+    """The task map's name (``map``): terms on maps of one name share a plot and a path in the
+    recordings; by default a frame's name, ``cog``, ``joints``, or the term's own name."""
+    if "map" in t:
+        return t["map"]
+    if t["type"] == "frame_position":
+        return t["frame"]
+    return MAP_NAMES.get(t["type"], name)
+
+
 def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float) -> dict:
     from plants.taskmaps import CenterOfMass, FramePoints
 
     kind = t["type"]
+    mname = _map_name(t, name)
     precision = t.get("precision")
     if kind in ("frame_position", "frame_orientation", "frame_placement"):
         t = {**t, "frame": _frame(robot, t["frame"], name)}
@@ -459,26 +476,26 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
             at_start = at_start.reshape(-1, 3)[:, list(axes)].reshape(-1) if points is not None \
                 else at_start[list(axes)]
             target = _target(t, name, at_start)
-        m = ob.frame_points(t["frame"], name, axes=axes, points=points)
+        m = ob.frame_points(t["frame"], mname, axes=axes, points=points)
         return ob.via(name, m, target, steps, weight, precision)
     if kind == "frame_orientation":
         if "angle" in t:
-            return ob.via(name, ob.roll(t["frame"], name), [_number(t.get("target"), f"[costs.{name}] target")],
+            return ob.via(name, ob.roll(t["frame"], t.get("map", "roll")), [_number(t.get("target"), f"[costs.{name}] target")],
                           steps, weight, precision)
-        return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), name), np.zeros(3), steps,
+        return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), mname), np.zeros(3), steps,
                       weight,
                       precision)
     if kind == "frame_placement":
         p = _vector(t["position"], f"[costs.{name}] position", 3)
-        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, name), np.zeros(6), steps,
+        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, mname), np.zeros(6), steps,
                       weight, precision)
     if kind == "com":
         axes = tuple(t.get("axes", (0, 1, 2)))
         at_start = CenterOfMass(robot).value(q0)[list(axes)]
-        return ob.via(name, ob.cog(axes, name), _target(t, name, at_start), steps, weight, precision)
+        return ob.via(name, ob.cog(axes, mname), _target(t, name, at_start), steps, weight, precision)
     if kind == "posture":
         idx = _joint_indices(robot, t.get("joints"), name)
-        return ob.via(name, ob.joints(name, idx), _target(t, name, q0[idx]), steps, weight, precision)
+        return ob.via(name, ob.joints(mname, idx), _target(t, name, q0[idx]), steps, weight, precision)
     if kind == "state":
         if isinstance(precision, dict):  # {q = a, v = b}: one weight for the positions, one for the velocities
             _refuse_unknown(precision, {"q", "v"}, f"[costs.{name}] precision")
@@ -496,7 +513,7 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         A = np.vstack([np.eye(len(idx)), -np.eye(len(idx))])
         b = np.concatenate([np.where(np.isfinite(hi), hi, 1e9), np.where(np.isfinite(lo), -lo, 1e9)])
         rows = np.concatenate([keep, keep])
-        return ob.inequality(name, ob.joints(name, idx), A[rows], b[rows], steps, weight)
+        return ob.inequality(name, ob.joints(mname, idx), A[rows], b[rows], steps, weight)
     raise ValueError(f"[costs.{name}] unknown type {kind!r}")
 
 
