@@ -427,7 +427,7 @@ def make_fast_or_exact(robot, dt: float) -> FastAnalyticDynamics | AnalyticDynam
             return FastAnalyticDynamics(robot, dt)
         except NotImplementedError:
             pass
-    if robot.spec is not None:  # a model file's robot: say why it is slower (the built-in plants compile)
+    if getattr(robot, "spec", None) is not None:  # a model file's robot: say why it is slower (the built-in plants compile)
         import sys
 
         print(f"raico: note: {robot.name}: no compiled dynamics ({why}): Drake's own evaluation (AutoDiffXd) "

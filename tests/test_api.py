@@ -50,5 +50,5 @@ def test_api_says_what_ran_unless_quiet_and_names_the_valid_keywords(tmp_path, c
     assert capfd.readouterr().err == ""
     with pytest.raises(TypeError, match="unknown keyword 'iteratons'; its keywords are plant, task, .*iterations"):
         api.plan(tmp_path, plant="arm5", task="reach", iteratons=2)
-    with pytest.raises(TypeError, match="missing keyword 'task'"):
+    with pytest.raises(ValueError, match="give --plant and --task, or --problem FILE \\(missing: --task\\)"):
         api.plan(tmp_path, plant="arm5")

@@ -125,8 +125,9 @@ class PlanConfig(StageConfig):
                 raise ValueError(f"unknown dynamics '{self.dynamics}': choose one of {', '.join(DYNAMICS)}")
             check_problem(self)
         else:
-            if not self.plant:
-                raise ValueError("give --plant and --task, or --problem FILE")
+            if not self.plant or not self.task:
+                raise ValueError(f"give --plant and --task, or --problem FILE (missing: "
+                                 f"{'--plant' if not self.plant else '--task'})")
             if self.plant not in PLANTS:
                 raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
             get_task(self.plant, self.task)
@@ -393,7 +394,9 @@ def check_problem(cfg: PlanConfig) -> None:
 
 
 def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
-    """Robot, task, problem, ``q0`` and the problem's description for ``cfg``."""
+    """Robot, task, problem, ``q0`` and the problem's description for ``cfg`` (normalized here: the
+    task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it)."""
+    cfg = cfg.normalized()
     robot, task = robot_and_task(cfg)
     q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed)
     params = model.arrays("model.npz") if model is not None else None
