@@ -3,22 +3,24 @@
 :func:`build` turns a raico :class:`~planning.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:
 
-- the model: the project's URDF, copied to a temporary folder with a ``<link name="world"/>``
-  added and the visual elements dropped (urdfdom refuses the file as written), loaded into
-  pinocchio; the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own
-  armature as well: that would count it twice); joint damping (the pendulum's viscous
-  friction, which pinocchio's ``aba`` ignores) enters through an actuation model
+- the model: for a built-in plant the project's URDF, copied to a temporary folder with a
+  ``<link name="world"/>`` added and the visual elements dropped (urdfdom refuses the file as
+  written), loaded into pinocchio; for a robot from a model file the same repaired URDF text Drake
+  reads (:mod:`planning.crocoddyl_problem`: the joint order mapped, continuous joints, the fixed
+  base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
+  well: that would count it twice); joint damping (the pendulum's viscous friction, a model file's
+  ``<dynamics damping>``, which pinocchio's ``aba`` ignores) enters through an actuation model
   ``tau = u - D qdot``;
 - the integrator: ``IntegratedActionModelEuler`` over ``DifferentialActionModelFreeFwdDynamics``,
   i.e. semi-implicit Euler, raico's analytic step;
 - the cost: crocoddyl's quadratic cost is ``1/2 weight ||r||^2`` and a running node's cost is
   multiplied by ``dt``, so a raico term ``w ||r||_C^2`` becomes weight ``2 w / dt`` on a running
   node (``t < T``: control cost, control limits, via-points before the end) and ``2 w`` on the
-  terminal node. Via-points on a frame's origin use ``ResidualModelFrameTranslation`` with the
-  precision ``C`` (diagonal) as activation weights (0 on coordinates the task map leaves out);
-  the roll angle ``atan2(y_E . z_W, z_E . z_W)`` is a Python residual with raico's Jacobian;
-  the centre of gravity ``ResidualModelCoMPosition``; control limits the quadratic barrier of
-  ``ActivationModelQuadraticBarrier`` (raico's soft limit), and BoxFDDP's hard bounds on top.
+  terminal node. Each term's residual and activation: :func:`planning.crocoddyl_problem.cost_items`
+  (frame points, rotation and placement, the roll angle ``atan2(y_E . z_W, z_E . z_W)`` as a
+  Python residual with raico's Jacobian, the centre of gravity, posture, state, control, control
+  limits as the quadratic barrier of ``ActivationModelQuadraticBarrier`` (raico's soft limit) with
+  BoxFDDP's hard bounds on top, joint bounds).
 
 What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueError``):
 
@@ -26,13 +28,15 @@ What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueErro
   action models take torques; there is no built-in double integrator on a multibody state;
 - the Nao: its stance sole is welded to the world (Drake re-roots the tree at ``l_sole``,
   pinocchio's URDF tree is rooted at the torso) and RHipYawPitch copies LHipYawPitch (one motor):
-  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling;
-- via-points on points other than a frame's origin, non-diagonal precisions, the learned
-  model and its uncertainty term.
+  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling; so is a
+  model file's robot welded on a frame other than its root;
+- non-diagonal precisions, inequalities other than joint bounds, the learned model and its
+  uncertainty term.
 
 :func:`fddp` solves with FDDP (BoxFDDP where control limits exist) from ``x0`` held at every
-node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start) or
-from the zero-torque rollout (``start="rollout"``, feasible), and returns a raico ``Result``:
+node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start), from
+the zero-torque rollout (``start="rollout"``, feasible) or from crocoddyl's own cold start (the
+zero state at every node, ``start="zero"``), and returns a raico ``Result`` (in raico's coordinates):
 the controller ``u = U_t - K_t (x - X_t)`` from crocoddyl's gains, i.e. ``o_t = U_t + K_t X_t``,
 ``O_t = -K_t``; the trajectory is that controller rolled out on raico's planning model; the
 history holds per iteration the cost of rolling the iterate's controller out on the planning
@@ -344,12 +348,14 @@ def _pinocchio(robot, continuous: str):
     return pin.Model(pinocchio_model(robot.name)), StateMap.identity(robot.n_q)
 
 
-def build(problem: Problem, continuous: str = "angle") -> CrocoddylProblem:
+def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> CrocoddylProblem:
     """The crocoddyl problem of a raico ``problem`` (analytic dynamics; ``NotExpressible`` for
     what crocoddyl cannot express exactly, see the module docstring and
     :mod:`planning.crocoddyl_problem`). ``continuous``: how Pinocchio holds a model file's continuous
     joints, ``"angle"`` (raico's cost exactly) or ``"cos-sin"`` (Pinocchio's own reading, as
-    crocoddyl's examples; its state differences wrap at pi)."""
+    crocoddyl's examples; its state differences wrap at pi). ``damping=False`` leaves out the joint
+    damping of the model file, as crocoddyl's examples do (Pinocchio's ABA ignores it): not raico's
+    problem then (Drake's plant damps the joints), only crocoddyl's own."""
     _require()
     from planning.costs import ControlLimit
     from planning.crocoddyl_problem import add_frames, cost_items
@@ -362,8 +368,8 @@ def build(problem: Problem, continuous: str = "angle") -> CrocoddylProblem:
     control_costs = [t for t in problem.control_terms if t.weight != 0]
     add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
     state = crocoddyl.StateMultibody(pmodel)
-    damping = np.asarray(pmodel.damping, float)
-    actuation = (_DampedActuation(state, damping) if np.any(damping != 0)
+    D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
+    actuation = (_DampedActuation(state, D) if np.any(D != 0)
                  else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
     items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
