@@ -52,13 +52,20 @@ import math
 import re
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
 import numpy as np
 
+from planning.crocoddyl_problem import (  # the optional baseline's import, shared with the translation
+    AVAILABLE,
+    UNAVAILABLE_REASON,
+    NotExpressible,
+    _assign,
+    crocoddyl,
+    pin,
+)
 from planning.problem import (
     Callback,
     IterationRecord,
@@ -70,29 +77,11 @@ from planning.problem import (
     controller_rollout,
 )
 
-try:  # the optional baseline: the extra ``raico[baseline]`` (``make install`` installs it)
-    with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
-        warnings.simplefilter("ignore", DeprecationWarning)
-        import crocoddyl
-        import pinocchio as pin
-
-    AVAILABLE = True
-    UNAVAILABLE_REASON = ""
-except ImportError as _e:  # pragma: no cover - depends on the environment
-    crocoddyl = pin = None
-    AVAILABLE = False
-    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make install` installs the "
-                          "pinned pair (the extra raico[baseline]) into .venv")
-
 STARTS = ("held", "rollout", "zero")
 ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's actual/expected > 0)
 # iLQG's regularization schedule in crocoddyl's terms: lower the regularization after every accepted
 # step (whatever its length), raise it only when the line search reaches its last step 2^-9
 ILQG_SCHEDULE = {"th_step_dec": 1e-12, "th_step_inc": 0.002}
-
-
-class NotExpressible(ValueError):
-    """A raico problem crocoddyl cannot express exactly (the message says what and why)."""
 
 
 # ----------------------------------------------------------------------------- the model
@@ -158,11 +147,6 @@ def _robot(problem: Problem):
     return robot
 
 
-def _assign(target: np.ndarray, value: np.ndarray) -> None:
-    """Write ``value`` into a crocoddyl data matrix in place (eigenpy maps a 1 x n matrix to ``(n,)``)."""
-    target[...] = np.reshape(value, np.shape(target))
-
-
 if AVAILABLE:
     class _DampedActuation(crocoddyl.ActuationModelAbstract):
         """Full actuation with viscous joint damping: ``tau = u - D qdot`` (Drake's joint damping)."""
@@ -188,44 +172,6 @@ if AVAILABLE:
 
         def torqueTransform(self, data, x, u):
             _assign(data.Mtau, np.eye(self.nu))
-
-    class _RollResidual(crocoddyl.ResidualModelAbstract):
-        """raico's roll angle minus its target: ``atan2(y_E . z_W, z_E . z_W) - target`` (rad).
-
-        Jacobian as ``plants.taskmaps.RollAngle``: ``d(e . z_W) = J_w . (e x z_W)`` with the
-        world-frame angular-velocity Jacobian ``J_w`` of the frame."""
-
-        def __init__(self, state, frame_id: int, target: float, nu: int):
-            crocoddyl.ResidualModelAbstract.__init__(self, state, 1, nu, True, False, False)
-            self.fid, self.target, self.pmodel = frame_id, float(target), state.pinocchio
-
-        def _kin(self, data, x):
-            q = np.asarray(x)[:self.state.nq]
-            pin.forwardKinematics(self.pmodel, data.pdata, q)
-            R = pin.updateFramePlacement(self.pmodel, data.pdata, self.fid).rotation
-            return q, R[:, 1], R[:, 2]
-
-        def calc(self, data, x, u=None):
-            _, y, z = self._kin(data, x)
-            data.r[:] = [math.atan2(y[2], z[2]) - self.target]
-
-        def calcDiff(self, data, x, u=None):
-            q, y, z = self._kin(data, x)
-            up = np.array([0.0, 0.0, 1.0])
-            Jw = pin.computeFrameJacobian(self.pmodel, data.pdata, q, self.fid, pin.LOCAL_WORLD_ALIGNED)[3:]
-            a, b = y[2], z[2]
-            da, db = np.cross(y, up) @ Jw, np.cross(z, up) @ Jw
-            Rx = np.zeros((1, self.state.ndx))
-            Rx[0, :self.state.nv] = (b * da - a * db) / (a * a + b * b)
-            _assign(data.Rx, Rx)
-
-        def createData(self, collector):
-            return _RollData(self, collector)
-
-    class _RollData(crocoddyl.ResidualDataAbstract):
-        def __init__(self, model, collector):
-            crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
-            self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
 
 
 @dataclass

@@ -2,7 +2,9 @@
 
 :mod:`planning.crocoddyl_model` builds the ``ShootingProblem`` and runs FDDP; this module says
 how a raico robot and each raico cost term become Pinocchio and crocoddyl objects, for the
-built-in plants and for robots loaded from model files (:mod:`plants.model_file`).
+built-in plants and for robots loaded from model files (:mod:`plants.model_file`). It holds the
+optional import of crocoddyl and Pinocchio (``AVAILABLE``) and ``NotExpressible``, which
+crocoddyl_model re-exports.
 
 The model of a model-file robot (:func:`pinocchio_robot`): Pinocchio reads the SAME repaired URDF
 text Drake reads (``plants.model_file.repair_urdf``: locked joints are fixed joints there, mimic
@@ -41,7 +43,7 @@ crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the calle
   diagonal precision as activation weights, 0 on coordinates left out;
 - ``frame_rotation``, ``frame_placement``: ``ResidualModelFrameRotation`` /
   ``ResidualModelFramePlacement`` (raico's task maps are exactly their log3/log6 residuals);
-- ``roll``: the Python residual of crocoddyl_model;
+- ``roll``: a Python residual with raico's Jacobian;
 - ``joints`` (a posture via-point) and ``state``: ``ResidualModelState`` to the target, weights on
   the joints named (0 elsewhere);
 - ``cog``: Pinocchio's centre of mass computed by a Python residual (crocoddyl's own CoM residual
@@ -60,12 +62,76 @@ inequality on another task map or with general rows, the uncertainty term) raise
 from __future__ import annotations
 
 import math
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
 
-from planning.crocoddyl_model import NotExpressible, crocoddyl, pin
+try:  # the optional baseline: the extra ``raico[baseline]`` (``make install`` installs it)
+    with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import crocoddyl
+        import pinocchio as pin
+
+    AVAILABLE = True
+    UNAVAILABLE_REASON = ""
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    crocoddyl = pin = None
+    AVAILABLE = False
+    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make install` installs the "
+                          "pinned pair (the extra raico[baseline]) into .venv")
+
+
+class NotExpressible(ValueError):
+    """A raico problem crocoddyl cannot express exactly (the message says what and why)."""
+
+
+def _assign(target: np.ndarray, value: np.ndarray) -> None:
+    """Write ``value`` into a crocoddyl data matrix in place (eigenpy maps a 1 x n matrix to ``(n,)``)."""
+    target[...] = np.reshape(value, np.shape(target))
+
+
+if crocoddyl is not None:
+    class _RollResidual(crocoddyl.ResidualModelAbstract):
+        """raico's roll angle minus its target: ``atan2(y_E . z_W, z_E . z_W) - target`` (rad).
+
+        Jacobian as ``plants.taskmaps.RollAngle``: ``d(e . z_W) = J_w . (e x z_W)`` with the
+        world-frame angular-velocity Jacobian ``J_w`` of the frame."""
+
+        def __init__(self, state, frame_id: int, target: float, nu: int):
+            crocoddyl.ResidualModelAbstract.__init__(self, state, 1, nu, True, False, False)
+            self.fid, self.target, self.pmodel = frame_id, float(target), state.pinocchio
+
+        def _kin(self, data, x):
+            q = np.asarray(x)[:self.state.nq]
+            pin.forwardKinematics(self.pmodel, data.pdata, q)
+            R = pin.updateFramePlacement(self.pmodel, data.pdata, self.fid).rotation
+            return q, R[:, 1], R[:, 2]
+
+        def calc(self, data, x, u=None):
+            _, y, z = self._kin(data, x)
+            data.r[:] = [math.atan2(y[2], z[2]) - self.target]
+
+        def calcDiff(self, data, x, u=None):
+            q, y, z = self._kin(data, x)
+            up = np.array([0.0, 0.0, 1.0])
+            Jw = pin.computeFrameJacobian(self.pmodel, data.pdata, q, self.fid, pin.LOCAL_WORLD_ALIGNED)[3:]
+            a, b = y[2], z[2]
+            da, db = np.cross(y, up) @ Jw, np.cross(z, up) @ Jw
+            Rx = np.zeros((1, self.state.ndx))
+            Rx[0, :self.state.nv] = (b * da - a * db) / (a * a + b * b)
+            _assign(data.Rx, Rx)
+
+        def createData(self, collector):
+            return _RollData(self, collector)
+
+    class _RollData(crocoddyl.ResidualDataAbstract):
+        def __init__(self, model, collector):
+            crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
+            self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
+
+
 
 
 # ----------------------------------------------------------------------------- coordinates
@@ -346,7 +412,6 @@ def cost_items(term, state, nu: int, model, smap: StateMap, robot) -> list[tuple
 
 
 def _via(term, state, nu, model, smap, robot):
-    from planning.crocoddyl_model import _RollResidual
     from plants.taskmaps import (
         CenterOfMass,
         FramePlacementError,
