@@ -15,7 +15,7 @@ executed by the execute stage (Drake, the plan's controller).
 R-AICO's alpha is 1: raico plan's default for R-AICO and the smaller of the thesis's two values
 (alpha in {1, 10}, gamma = 1), not chosen on these problems.
 
-Columns: the final cost is raico's cost of the plan (its controller rolled out on raico's model),
+Columns: the final cost is raico's cost of the plan (none for a diverged run) (its controller rolled out on raico's model),
 which for FDDP on the exact translation is crocoddyl's own; the solver's wall time is the sum of its
 iterations' times (the solvers' own clocks, bookkeeping excluded; one process, one run each on a
 shared 2-core machine: ratios mean more than absolute times); the hand error is the distance of the
@@ -60,6 +60,8 @@ SOLVERS = [  # label, plan-stage options
     ("iLQG", {"solver": "ilqg"}),
     ("FDDP (x0 held)", {"solver": "fddp"}),
 ]
+# in bench/run.py's results: the rows of these problems (the in-range Kinova: the executions)
+BENCH_PROBLEMS = ("kinova", "kinova_in_range", "talos_arm")
 
 
 def _cfg(path: str, **options):
@@ -86,9 +88,10 @@ def _row(label: str, out, spec: dict, crocoddyl_cost: float | None = None, note:
 
     r, problem, robot = out.result, out.problem, out.robot
     finite = bool(np.all(np.isfinite(r.X)))
+    diverged = str(r.status) == "diverged"  # its X is not a plan it stands by: no final cost
     times = [h.time_s for h in r.history]
     row = {"solver": label, "status": str(r.status), "iterations": int(r.iterations),
-           "final_cost": float(problem.cost(r.X, r.U)) if finite else math.inf,
+           "final_cost": None if diverged else float(problem.cost(r.X, r.U)) if finite else math.inf,
            "solver_cost": float(r.cost) if math.isfinite(r.cost) else math.inf,
            "crocoddyl_cost": crocoddyl_cost,
            "wall_time_s": float(sum(times)), "per_iteration_s": float(statistics.median(times)) if times else None,
