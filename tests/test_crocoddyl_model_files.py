@@ -339,6 +339,35 @@ def test_every_term_of_a_problem_file_costs_the_same_in_crocoddyl(every_term):
 
 
 @pytest.mark.compiled
+def test_every_terms_gradient_and_gauss_newton_hessian_are_raicos(every_term):
+    """At nodes where every state term is active (t = 20: the points, t = 25: the roll, t = 40 = T: the
+    pose), crocoddyl's cost gradient and Gauss-Newton Hessian in its tangent coordinates are raico's
+    ``l_x``, ``l_xx`` (and ``l_u``, ``l_uu`` on a running node), through the map's permutation."""
+    robot, problem, cp = every_term
+    X, U = _trajectory(problem, 4)
+    idx = cp.smap.tangent_index
+    for t in (20, 25, problem.T):
+        m = cp.shooting.runningModels[t] if t < problem.T else cp.shooting.terminalModel
+        d = m.createData()
+        x = cp.smap.x_to_pin(X[t])
+        if t < problem.T:
+            u = cp.smap.u_to_pin(U[t])
+            m.calc(d, x, u)
+            m.calcDiff(d, x, u)
+            lu, luu = problem.control_derivatives(U[t][None])
+            Lu, Luu = np.asarray(d.Lu)[cp.smap.v_index], np.asarray(d.Luu)[np.ix_(cp.smap.v_index, cp.smap.v_index)]
+            assert np.allclose(Lu, lu[0], rtol=RTOL, atol=RTOL * np.abs(lu).max())
+            assert np.allclose(Luu, luu[0], rtol=RTOL, atol=RTOL * np.abs(luu).max())
+        else:
+            m.calc(d, x)
+            m.calcDiff(d, x)
+        lx, lxx = problem.point_state_derivatives(X[t], t)
+        Lx, Lxx = np.asarray(d.Lx)[idx], np.asarray(d.Lxx)[np.ix_(idx, idx)]
+        assert np.allclose(Lx, lx, rtol=RTOL, atol=RTOL * np.abs(lx).max()), t
+        assert np.allclose(Lxx, lxx, rtol=RTOL, atol=RTOL * np.abs(lxx).max()), t
+
+
+@pytest.mark.compiled
 def test_kinova_problem_file_costs_the_same_in_crocoddyl(kinova, kinova_cos_sin):
     """Within pi of the references both translations cost what raico does; beyond (the base joint
     turned 4 rad) only the angle translation: crocoddyl's wrapped state difference costs less."""
