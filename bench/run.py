@@ -439,12 +439,19 @@ def main() -> None:
     rows.append(cached_reproduce_row(Path(args.artifacts)))
     baseline = bench_baseline()
     print_baseline(baseline)
+    from bench.crocoddyl_problems import BENCH_PROBLEMS
+    from bench.crocoddyl_problems import run as crocoddyl_problems
+
+    # crocoddyl's own problems as problem files: every solver, each plan executed in Drake (also written
+    # to crocoddyl_problems.json and .md)
+    croc_problems = crocoddyl_problems(Path(args.artifacts), BENCH_PROBLEMS)
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     doc = {"machine": {"python": platform.python_version(), "processor": platform.processor(),
                        "cpus": os.cpu_count(), "load_average_1min_start": load_start,
                        "load_average_1min_end": os.getloadavg()[0]},
-           "packages": package_versions(), "results": rows, "crocoddyl_baseline": baseline}
+           "packages": package_versions(), "results": rows, "crocoddyl_baseline": baseline,
+           "crocoddyl_problems": croc_problems}
     write_file_atomic(out / "results.json", json.dumps(doc, indent=2))
     print(f"wrote {out / 'results.json'}")
 

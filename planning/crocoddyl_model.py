@@ -3,22 +3,24 @@
 :func:`build` turns a raico :class:`~planning.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:
 
-- the model: the project's URDF, copied to a temporary folder with a ``<link name="world"/>``
-  added and the visual elements dropped (urdfdom refuses the file as written), loaded into
-  pinocchio; the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own
-  armature as well: that would count it twice); joint damping (the pendulum's viscous
-  friction, which pinocchio's ``aba`` ignores) enters through an actuation model
+- the model: for a built-in plant the project's URDF, copied to a temporary folder with a
+  ``<link name="world"/>`` added and the visual elements dropped (urdfdom refuses the file as
+  written), loaded into pinocchio; for a robot from a model file the same repaired URDF text Drake
+  reads (:mod:`planning.crocoddyl_problem`: the joint order mapped, continuous joints, the fixed
+  base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
+  well: that would count it twice); joint damping (the pendulum's viscous friction, a model file's
+  ``<dynamics damping>``, which pinocchio's ``aba`` ignores) enters through an actuation model
   ``tau = u - D qdot``;
 - the integrator: ``IntegratedActionModelEuler`` over ``DifferentialActionModelFreeFwdDynamics``,
   i.e. semi-implicit Euler, raico's analytic step;
 - the cost: crocoddyl's quadratic cost is ``1/2 weight ||r||^2`` and a running node's cost is
   multiplied by ``dt``, so a raico term ``w ||r||_C^2`` becomes weight ``2 w / dt`` on a running
   node (``t < T``: control cost, control limits, via-points before the end) and ``2 w`` on the
-  terminal node. Via-points on a frame's origin use ``ResidualModelFrameTranslation`` with the
-  precision ``C`` (diagonal) as activation weights (0 on coordinates the task map leaves out);
-  the roll angle ``atan2(y_E . z_W, z_E . z_W)`` is a Python residual with raico's Jacobian;
-  the centre of gravity ``ResidualModelCoMPosition``; control limits the quadratic barrier of
-  ``ActivationModelQuadraticBarrier`` (raico's soft limit), and BoxFDDP's hard bounds on top.
+  terminal node. Each term's residual and activation: :func:`planning.crocoddyl_problem.cost_items`
+  (frame points, rotation and placement, the roll angle ``atan2(y_E . z_W, z_E . z_W)`` as a
+  Python residual with raico's Jacobian, the centre of gravity, posture, state, control, control
+  limits as the quadratic barrier of ``ActivationModelQuadraticBarrier`` (raico's soft limit) with
+  BoxFDDP's hard bounds on top, joint bounds).
 
 What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueError``):
 
@@ -26,13 +28,15 @@ What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueErro
   action models take torques; there is no built-in double integrator on a multibody state;
 - the Nao: its stance sole is welded to the world (Drake re-roots the tree at ``l_sole``,
   pinocchio's URDF tree is rooted at the torso) and RHipYawPitch copies LHipYawPitch (one motor):
-  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling;
-- via-points on points other than a frame's origin, non-diagonal precisions, the learned
-  model and its uncertainty term.
+  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling; so is a
+  model file's robot welded on a frame other than its root;
+- non-diagonal precisions, inequalities other than joint bounds, the learned model and its
+  uncertainty term.
 
 :func:`fddp` solves with FDDP (BoxFDDP where control limits exist) from ``x0`` held at every
-node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start) or
-from the zero-torque rollout (``start="rollout"``, feasible), and returns a raico ``Result``:
+node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start), from
+the zero-torque rollout (``start="rollout"``, feasible) or from crocoddyl's own cold start (the
+zero state at every node, ``start="zero"``), and returns a raico ``Result`` (in raico's coordinates):
 the controller ``u = U_t - K_t (x - X_t)`` from crocoddyl's gains, i.e. ``o_t = U_t + K_t X_t``,
 ``O_t = -K_t``; the trajectory is that controller rolled out on raico's planning model; the
 history holds per iteration the cost of rolling the iterate's controller out on the planning
@@ -48,13 +52,20 @@ import math
 import re
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
 import numpy as np
 
+from planning.crocoddyl_problem import (  # the optional baseline's import, shared with the translation
+    AVAILABLE,
+    UNAVAILABLE_REASON,
+    NotExpressible,
+    _assign,
+    crocoddyl,
+    pin,
+)
 from planning.problem import (
     Callback,
     IterationRecord,
@@ -66,29 +77,11 @@ from planning.problem import (
     controller_rollout,
 )
 
-try:  # the optional baseline: the extra ``raico[baseline]`` (``make install`` installs it)
-    with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
-        warnings.simplefilter("ignore", DeprecationWarning)
-        import crocoddyl
-        import pinocchio as pin
-
-    AVAILABLE = True
-    UNAVAILABLE_REASON = ""
-except ImportError as _e:  # pragma: no cover - depends on the environment
-    crocoddyl = pin = None
-    AVAILABLE = False
-    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make install` installs the "
-                          "pinned pair (the extra raico[baseline]) into .venv")
-
-STARTS = ("held", "rollout")
+STARTS = ("held", "rollout", "zero")
 ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's actual/expected > 0)
 # iLQG's regularization schedule in crocoddyl's terms: lower the regularization after every accepted
 # step (whatever its length), raise it only when the line search reaches its last step 2^-9
 ILQG_SCHEDULE = {"th_step_dec": 1e-12, "th_step_inc": 0.002}
-
-
-class NotExpressible(ValueError):
-    """A raico problem crocoddyl cannot express exactly (the message says what and why)."""
 
 
 # ----------------------------------------------------------------------------- the model
@@ -137,8 +130,10 @@ def pinocchio_model(name: str):
     return model
 
 
-def _plant_name(problem: Problem) -> str:
-    from plants.dynamics import PseudoDynamics
+def _robot(problem: Problem):
+    """The robot of ``problem``'s analytic dynamics (``NotExpressible`` for other dynamics)."""
+    from plants.dynamics import AnalyticDynamics, PseudoDynamics
+    from plants.fast_analytic import FastAnalyticDynamics
 
     dyn = problem.dynamics
     if isinstance(dyn, PseudoDynamics):
@@ -146,15 +141,10 @@ def _plant_name(problem: Problem) -> str:
             "solver fddp: crocoddyl cannot express the pseudo-dynamics exactly (controls are accelerations; "
             "its forward-dynamics models take torques): use --dynamics analytic")
     robot = getattr(dyn, "robot", None)
-    if robot is None or type(dyn).__name__ not in ("FastAnalyticDynamics", "AnalyticDynamics"):
+    if robot is None or not isinstance(dyn, (FastAnalyticDynamics, AnalyticDynamics)):
         raise NotExpressible(f"solver fddp: crocoddyl can express only the analytic dynamics, not "
                              f"{type(dyn).__name__}")
-    return robot.name
-
-
-def _assign(target: np.ndarray, value: np.ndarray) -> None:
-    """Write ``value`` into a crocoddyl data matrix in place (eigenpy maps a 1 x n matrix to ``(n,)``)."""
-    target[...] = np.reshape(value, np.shape(target))
+    return robot
 
 
 if AVAILABLE:
@@ -183,105 +173,16 @@ if AVAILABLE:
         def torqueTransform(self, data, x, u):
             _assign(data.Mtau, np.eye(self.nu))
 
-    class _RollResidual(crocoddyl.ResidualModelAbstract):
-        """raico's roll angle minus its target: ``atan2(y_E . z_W, z_E . z_W) - target`` (rad).
-
-        Jacobian as ``plants.taskmaps.RollAngle``: ``d(e . z_W) = J_w . (e x z_W)`` with the
-        world-frame angular-velocity Jacobian ``J_w`` of the frame."""
-
-        def __init__(self, state, frame_id: int, target: float, nu: int):
-            crocoddyl.ResidualModelAbstract.__init__(self, state, 1, nu, True, False, False)
-            self.fid, self.target, self.pmodel = frame_id, float(target), state.pinocchio
-
-        def _kin(self, data, x):
-            q = np.asarray(x)[:self.state.nq]
-            pin.forwardKinematics(self.pmodel, data.pdata, q)
-            R = pin.updateFramePlacement(self.pmodel, data.pdata, self.fid).rotation
-            return q, R[:, 1], R[:, 2]
-
-        def calc(self, data, x, u=None):
-            _, y, z = self._kin(data, x)
-            data.r[:] = [math.atan2(y[2], z[2]) - self.target]
-
-        def calcDiff(self, data, x, u=None):
-            q, y, z = self._kin(data, x)
-            up = np.array([0.0, 0.0, 1.0])
-            Jw = pin.computeFrameJacobian(self.pmodel, data.pdata, q, self.fid, pin.LOCAL_WORLD_ALIGNED)[3:]
-            a, b = y[2], z[2]
-            da, db = np.cross(y, up) @ Jw, np.cross(z, up) @ Jw
-            Rx = np.zeros((1, self.state.ndx))
-            Rx[0, :self.state.nv] = (b * da - a * db) / (a * a + b * b)
-            _assign(data.Rx, Rx)
-
-        def createData(self, collector):
-            return _RollData(self, collector)
-
-    class _RollData(crocoddyl.ResidualDataAbstract):
-        def __init__(self, model, collector):
-            crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
-            self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
-
-
-def _weights(rows: np.ndarray, C: np.ndarray, dim: int, what: str) -> np.ndarray:
-    """Activation weights ``(dim,)``: the diagonal of ``C`` at ``rows``, 0 elsewhere."""
-    if not np.allclose(C, np.diag(np.diag(C))):
-        raise NotExpressible(f"crocoddyl: term {what!r} has a non-diagonal precision")
-    w = np.zeros(dim)
-    w[rows] = np.diag(C)
-    return w
-
-
-def _state_cost(term, state, nu: int, pmodel):
-    """``(residual, activation, weight per unit raico weight)`` of a raico state term."""
-    from planning.costs import StateTarget, ViaPoint
-    from plants.taskmaps import CenterOfMass, FramePoints, RollAngle
-
-    if isinstance(term, StateTarget):
-        return (crocoddyl.ResidualModelState(state, term.target, nu),
-                crocoddyl.ActivationModelWeightedQuad(_weights(np.arange(state.nx), term.C, state.nx, term.name)))
-    if not isinstance(term, ViaPoint):
-        raise NotExpressible(f"crocoddyl: no equivalent of the cost term {term.name!r} ({type(term).__name__})")
-    tm = term.taskmap
-    if isinstance(tm, FramePoints):
-        if tm.points.shape != (1, 3) or np.any(tm.points != 0):
-            raise NotExpressible(f"crocoddyl: via-point {term.name!r} is on points off the frame's origin")
-        ref = np.zeros(3)
-        ref[tm.rows] = term.target
-        fid = pmodel.getFrameId(tm.frame.name())
-        return (crocoddyl.ResidualModelFrameTranslation(state, fid, ref, nu),
-                crocoddyl.ActivationModelWeightedQuad(_weights(tm.rows, term.C, 3, term.name)))
-    if isinstance(tm, RollAngle):
-        fid = pmodel.getFrameId(tm.frame.name())
-        return (_RollResidual(state, fid, float(term.target[0]), nu),
-                crocoddyl.ActivationModelWeightedQuad(_weights(np.arange(1), term.C, 1, term.name)))
-    if isinstance(tm, CenterOfMass):
-        ref = np.zeros(3)
-        ref[tm.axes] = term.target
-        return (crocoddyl.ResidualModelCoMPosition(state, ref, nu),
-                crocoddyl.ActivationModelWeightedQuad(_weights(tm.axes, term.C, 3, term.name)))
-    raise NotExpressible(f"crocoddyl: no equivalent of the task map {tm.name!r} ({type(tm).__name__})")
-
-
-def _control_cost(term, state, nu: int):
-    from planning.costs import ControlCost, ControlLimit
-
-    if isinstance(term, ControlCost):
-        ref = np.zeros(nu) if term.target is None else term.target
-        return crocoddyl.ResidualModelControl(state, ref), crocoddyl.ActivationModelQuad(nu)
-    if isinstance(term, ControlLimit):
-        lo = np.broadcast_to(term.lower, (nu,)).astype(float)
-        hi = np.broadcast_to(term.upper, (nu,)).astype(float)
-        return (crocoddyl.ResidualModelControl(state, nu),
-                crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lo, hi)))
-    raise NotExpressible(f"crocoddyl: no equivalent of the control term {term.name!r} ({type(term).__name__})")
-
 
 @dataclass
 class CrocoddylProblem:
     """A raico problem in crocoddyl: the ``ShootingProblem`` and what built it.
 
-    ``bounds``: ``(lower, upper)`` torque limits (N m) of the problem's control-limit terms
-    (hard bounds for BoxFDDP), or ``None``."""
+    ``bounds``: ``(lower, upper)`` torque limits (N m, raico's joint order) of the problem's
+    control-limit terms (hard bounds for BoxFDDP), or ``None``. ``smap``: raico's coordinates <->
+    Pinocchio's (:class:`planning.crocoddyl_problem.StateMap`; the identity for the built-in
+    plants). States and controls passed to and returned by the methods are raico's; ``shooting``
+    and ``x0_pin`` are in Pinocchio's coordinates."""
 
     shooting: object
     state: object
@@ -290,13 +191,41 @@ class CrocoddylProblem:
     dt: float
     x0: np.ndarray
     bounds: tuple[np.ndarray, np.ndarray] | None
+    smap: object = None
 
     def __post_init__(self) -> None:
+        from planning.crocoddyl_problem import StateMap
+
+        if self.smap is None:
+            self.smap = StateMap.identity(self.x0.size // 2)
+        self.identity = self.smap.is_identity
+        self.x0_pin = self.smap.x_to_pin(self.x0)
         # evaluation datas of their own (one per distinct node model): the solver's datas hold its
         # linearization and gaps and must not be touched between its iterations
         sp = self.shooting
         models = {id(m): m for m in [*sp.runningModels, sp.terminalModel]}
         self._datas = {k: m.createData() for k, m in models.items()}
+
+    # -- coordinates
+    def to_pin(self, X: np.ndarray) -> list:
+        """raico states ``(K, n_x)`` -> a list of crocoddyl states."""
+        return list(self.smap.x_to_pin(np.asarray(X, float)))
+
+    def from_pin(self, xs) -> np.ndarray:
+        """crocoddyl states (a list) -> raico states ``(K, n_x)`` (angles unwrapped from ``x0``)."""
+        X = np.array(xs, float)
+        return X if self.identity else self.smap.x_to_raico(X, self.x0[:self.smap.n], self.dt)
+
+    def controls_to_pin(self, U: np.ndarray) -> list:
+        return list(self.smap.u_to_pin(np.asarray(U, float)))
+
+    def controls_from_pin(self, us) -> np.ndarray:
+        return self.smap.u_to_raico(np.array(us, float))
+
+    def gains_from_pin(self, K) -> np.ndarray:
+        """crocoddyl's gains -> raico's ``(T, n_u, n_x)``."""
+        K = np.array(K, float).reshape(self.T, self.smap.nv, 2 * self.smap.nv)
+        return K if self.identity else self.smap.gains_to_raico(K)
 
     def _nodes(self):
         sp = self.shooting
@@ -308,31 +237,36 @@ class CrocoddylProblem:
 
     def rollout(self, U: np.ndarray) -> np.ndarray:
         """States ``(T+1, n_x)`` of the open-loop controls ``U (T, n_u)``."""
-        return np.array(self.shooting.rollout([np.asarray(u, float) for u in U]))
+        return self.from_pin(self.shooting.rollout(self.controls_to_pin(U)))
 
     def cost(self, X: np.ndarray, U: np.ndarray) -> float:
         """The problem's cost of ``X (T+1, n_x)``, ``U (T, n_u)`` evaluated by crocoddyl."""
         total = 0.0
-        for (m, d), x, u in zip(self._nodes(), X[:-1], U):
-            m.calc(d, np.asarray(x, float), np.asarray(u, float))
+        Xp, Up = self.to_pin(X), self.controls_to_pin(U)
+        for (m, d), x, u in zip(self._nodes(), Xp[:-1], Up):
+            m.calc(d, x, u)
             total += d.cost
         m, d = self._terminal()
-        m.calc(d, np.asarray(X[-1], float))
+        m.calc(d, Xp[-1])
         return float(total + d.cost)
 
     def feedback_rollout(self, xs, us, K) -> tuple[np.ndarray, np.ndarray, float]:
-        """Roll ``u = us_t - K_t (x - xs_t)`` out from ``x0`` through crocoddyl's models:
-        ``X (T+1, n_x)``, ``U (T, n_u)`` and the cost (``inf`` if not finite)."""
-        X = np.empty((self.T + 1, self.x0.size))
+        """Roll ``u = us_t - K_t (x - xs_t)`` (crocoddyl's iterate and gains, in its coordinates) out
+        from ``x0`` through crocoddyl's models: raico's ``X (T+1, n_x)``, ``U (T, n_u)`` and the
+        cost (``inf`` if not finite)."""
+        X = np.empty((self.T + 1, self.x0_pin.size))
         U = np.empty((self.T, len(us[0])))
-        X[0] = self.x0
+        X[0] = self.x0_pin
         xs, us, K = np.array(xs), np.array(us), np.array(K)  # one conversion each, not one per step
+        diff = self.state.diff
         total = 0.0
         with np.errstate(all="ignore"):
             for t, (m, d) in enumerate(self._nodes()):
-                u = us[t] - K[t] @ (X[t] - xs[t])
-                if not math.isfinite(u.sum() + X[t].sum()):  # a NaN or inf in u or x (or a sum past 1e308)
-                    return X, U, math.inf
+                if not math.isfinite(X[t].sum()):
+                    return self._raico(X, U, math.inf)
+                u = us[t] - K[t] @ (X[t] - xs[t] if self.identity else diff(xs[t], X[t]))
+                if not math.isfinite(u.sum()):  # a NaN or inf in u or x (or a sum past 1e308)
+                    return self._raico(X, U, math.inf)
                 U[t] = u
                 m.calc(d, X[t], u)
                 total += d.cost
@@ -340,48 +274,79 @@ class CrocoddylProblem:
             m, d = self._terminal()
             m.calc(d, X[-1])
         total += d.cost
-        return X, U, float(total) if math.isfinite(total) else math.inf
+        return self._raico(X, U, float(total) if math.isfinite(total) else math.inf)
+
+    def _raico(self, X, U, cost):
+        if self.identity:
+            return X, U, cost
+        if not math.isfinite(cost):
+            return np.full((self.T + 1, self.x0.size), np.nan), np.full((self.T, self.smap.n), np.nan), cost
+        return self.from_pin(X), self.controls_from_pin(U), cost
 
 
-def build(problem: Problem) -> CrocoddylProblem:
+def _pinocchio(robot, continuous: str):
+    """``(model, StateMap)``: a model-file robot's from its URDF text, a built-in plant's from the
+    project's URDF (a copy: frames may be added to it)."""
+    from planning.crocoddyl_problem import StateMap, pinocchio_robot
+
+    if getattr(robot, "spec", None) is not None:
+        return pinocchio_robot(robot, continuous)
+    return pin.Model(pinocchio_model(robot.name)), StateMap.identity(robot.n_q)
+
+
+def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> CrocoddylProblem:
     """The crocoddyl problem of a raico ``problem`` (analytic dynamics; ``NotExpressible`` for
-    what crocoddyl cannot express exactly, see the module docstring)."""
+    what crocoddyl cannot express exactly, see the module docstring and
+    :mod:`planning.crocoddyl_problem`). ``continuous``: how Pinocchio holds a model file's continuous
+    joints, ``"angle"`` (raico's cost exactly) or ``"cos-sin"`` (Pinocchio's own reading, as
+    crocoddyl's examples; its state differences wrap at pi). ``damping=False`` leaves out the joint
+    damping of the model file, as crocoddyl's examples do (Pinocchio's ABA ignores it): not raico's
+    problem then (Drake's plant damps the joints), only crocoddyl's own."""
     _require()
-    name = _plant_name(problem)
+    from planning.costs import ControlLimit
+    from planning.crocoddyl_problem import add_frames, cost_items
+
+    robot = _robot(problem)
     if problem.joint_terms:
         raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
-    pmodel = pinocchio_model(name)
+    pmodel, smap = _pinocchio(robot, continuous)
+    state_costs = [t for t in problem.state_terms if t.weight != 0]
+    control_costs = [t for t in problem.control_terms if t.weight != 0]
+    add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
     state = crocoddyl.StateMultibody(pmodel)
-    damping = np.asarray(pmodel.damping, float)
-    actuation = (_DampedActuation(state, damping) if np.any(damping != 0)
+    D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
+    actuation = (_DampedActuation(state, D) if np.any(D != 0)
                  else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
-    state_costs = [(t, *_state_cost(t, state, nu, pmodel)) for t in problem.state_terms if t.weight != 0]
-    control_costs = [(t, *_control_cost(t, state, nu)) for t in problem.control_terms if t.weight != 0]
-    from planning.costs import ControlLimit
-
+    items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
     limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
     bounds = None
     if limits:
-        bounds = (np.max([np.broadcast_to(t.lower, (nu,)) for t in limits], axis=0),
-                  np.min([np.broadcast_to(t.upper, (nu,)) for t in limits], axis=0))
+        n = problem.n_u
+        bounds = (np.max([np.broadcast_to(t.lower, (n,)) for t in limits], axis=0),
+                  np.min([np.broadcast_to(t.upper, (n,)) for t in limits], axis=0))
+
+    def add(costs, term, scale: float) -> None:
+        pairs = items[id(term)]
+        for k, (res, act) in enumerate(pairs):
+            name = term.name if len(pairs) == 1 else f"{term.name}/{k}"
+            costs.addCost(name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
 
     def node_model(active: tuple[int, ...], terminal: bool):
         costs = crocoddyl.CostModelSum(state, nu)
         scale = 1.0 if terminal else 1.0 / dt
         for i in active:
-            term, res, act = state_costs[i]
-            costs.addCost(term.name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
+            add(costs, state_costs[i], scale)
         if not terminal:
-            for term, res, act in control_costs:
-                costs.addCost(term.name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
+            for term in control_costs:
+                add(costs, term, scale)
         dam = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
         if bounds is not None and not terminal:
-            dam.u_lb, dam.u_ub = bounds[0].copy(), bounds[1].copy()
+            dam.u_lb, dam.u_ub = smap.u_to_pin(bounds[0]), smap.u_to_pin(bounds[1])
         return crocoddyl.IntegratedActionModelEuler(dam, 0.0 if terminal else dt)
 
     def active_at(t: int) -> tuple[int, ...]:
-        return tuple(i for i, (term, _, _) in enumerate(state_costs) if term.is_active_at(t))
+        return tuple(i for i, term in enumerate(state_costs) if term.is_active_at(t))
 
     by_set: dict = {}
     running = []
@@ -391,8 +356,9 @@ def build(problem: Problem) -> CrocoddylProblem:
             by_set[key] = node_model(key, False)
         running.append(by_set[key])
     terminal = node_model(active_at(T), True)
-    shooting = crocoddyl.ShootingProblem(np.asarray(problem.x0, float), running, terminal)
-    return CrocoddylProblem(shooting, state, pmodel, T, dt, np.asarray(problem.x0, float).copy(), bounds)
+    x0 = np.asarray(problem.x0, float).copy()
+    shooting = crocoddyl.ShootingProblem(smap.x_to_pin(x0), running, terminal)
+    return CrocoddylProblem(shooting, state, pmodel, T, dt, x0, bounds, smap)
 
 
 # ----------------------------------------------------------------------------- the solver
@@ -402,8 +368,11 @@ class FDDPOptions(OptionsBase):
 
     Attributes:
         iterations: maximum FDDP iterations (>= 1).
-        start: ``"held"`` (``x0`` at every node, zero controls: infeasible, R-AICO's start) or
-            ``"rollout"`` (the zero-torque rollout, feasible).
+        start: ``"held"`` (``x0`` at every node, zero controls: infeasible, R-AICO's start),
+            ``"rollout"`` (the zero-torque rollout, feasible) or ``"zero"`` (crocoddyl's own cold
+            start, ``solve()`` without a guess: the zero state at every node, zero controls).
+        continuous: a model file's continuous joints in Pinocchio, ``"angle"`` (raico's cost
+            exactly) or ``"cos-sin"`` (crocoddyl's own reading; see :mod:`planning.crocoddyl_problem`).
         th_stop: crocoddyl's stopping threshold (expected improvement), its default 1e-9.
         reg_init: initial regularization (``None``: crocoddyl's default, 1e-9).
         box: ``"auto"`` (BoxFDDP where the problem has control limits, else FDDP), ``"yes"``, ``"no"``.
@@ -423,9 +392,14 @@ class FDDPOptions(OptionsBase):
     step_sizes: tuple | None = None
     th_step_dec: float = 0.5
     th_step_inc: float = 0.01
+    continuous: str = "angle"
 
     def validate(self) -> None:
+        from planning.crocoddyl_problem import CONTINUOUS
+
         check_range("iterations", self.iterations, lo=1, integer=True)
+        if self.continuous not in CONTINUOUS:
+            raise ValueError(f"option continuous must be one of {CONTINUOUS}, got {self.continuous!r}")
         if self.start not in STARTS:
             raise ValueError(f"option start must be one of {STARTS}, got {self.start!r}")
         check_range("th_stop", self.th_stop, lo=0.0)
@@ -468,7 +442,7 @@ if AVAILABLE:
             self.history.append(rec)
             if self.callback is not None and math.isfinite(cost):
                 if X is None:
-                    X, U = np.array(solver.xs), np.array(solver.us)
+                    X, U = self.cp.from_pin(solver.xs), self.cp.controls_from_pin(solver.us)
                 self.callback(rec, X, U)
             self.t_last = time.perf_counter()
 
@@ -480,7 +454,7 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     prebuilt ``build(problem)``. Raises ``NotExpressible`` for problems crocoddyl cannot express."""
     _require()
     o = options or FDDPOptions()
-    cp = croc if croc is not None else build(problem)
+    cp = croc if croc is not None else build(problem, o.continuous)
     T, n_u = problem.T, problem.n_u
     U0 = np.zeros((T, n_u)) if U_init is None else np.array(U_init, float)
     if U0.shape != (T, n_u):
@@ -496,22 +470,24 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
         solver.alphas = list(o.step_sizes)  # crocoddyl's name
     rec = _Recorder(cp, callback)
     solver.setCallbacks([rec])
-    if o.start == "held" and U_init is None:
-        xs, feasible = [cp.x0.copy() for _ in range(T + 1)], False
+    us = cp.controls_to_pin(U0)
+    if o.start == "zero" and U_init is None:
+        xs, us, feasible = [], [], False  # crocoddyl fills in its zero state and zero controls
+    elif o.start == "held" and U_init is None:
+        xs, feasible = [cp.x0_pin.copy() for _ in range(T + 1)], False
     else:
-        xs, feasible = list(X_roll), True
-    us = list(U0)
+        xs, feasible = cp.to_pin(X_roll), True
     args = (xs, us, int(o.iterations), feasible) + (() if o.reg_init is None else (float(o.reg_init),))
     rec.t_last = rec.t_start = time.perf_counter()
     try:
         converged = bool(solver.solve(*args))
     except (ArithmeticError, RuntimeError, ValueError) as e:
         return _result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
-                       initial_cost, solver, X_roll)
+                       initial_cost, solver, X_roll, cp)
     costs = [h.cost for h in rec.history]
     if not all(math.isfinite(c) for c in costs[-1:]):
         return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
-                       X_roll)
+                       X_roll, cp)
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     n = len(rec.history)
     if converged:
@@ -522,16 +498,17 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     else:
         why = f"reached {n} iterations"
     msg = f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: {why}"
-    return _result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll)
+    return _result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll, cp)
 
 
-def _result(problem: Problem, solved, history, status, message, initial_cost, solver, X_initial=None) -> Result:
+def _result(problem: Problem, solved, history, status, message, initial_cost, solver, X_initial=None,
+            cp: CrocoddylProblem | None = None) -> Result:
     T, n_x, n_u = problem.T, problem.n_x, problem.n_u
     if solved is None:
         X = np.full((T + 1, n_x), np.nan)
         U, K = np.zeros((T, n_u)), np.zeros((T, n_u, n_x))
-    else:
-        X, U, K = np.array(solver.xs), np.array(solver.us), np.array(solver.K).reshape(T, n_u, n_x)
+    else:  # in raico's coordinates: u = U_t - K_t (x - X_t) with crocoddyl's state difference read as x - X_t
+        X, U, K = cp.from_pin(solver.xs), cp.controls_from_pin(solver.us), cp.gains_from_pin(solver.K)
     o = U + np.einsum("tij,tj->ti", K, X[:-1])
     O = -K
     if solved is not None:  # the controller rolled out on raico's planning model
