@@ -451,8 +451,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     for k, name in enumerate(names):
         lower[k] = limits.get(name, {}).get("lower", lower[k])
         upper[k] = limits.get(name, {}).get("upper", upper[k])
-    revolute = [j.type_name() == "revolute" for j in planning]
-    default = _start_posture(spec, path, names, lower, upper, notes, revolute)
+    default = _start_posture(spec, path, names, lower, upper, notes)
     robot = Robot(name=f"{path.stem}-{spec_digest(spec, text)}", plant=plant, scene_graph=scene_graph,
                   builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper, effort=effort,
                   default_q=default, end_effectors={}, B_act=plant.MakeActuationMatrix())
@@ -540,8 +539,7 @@ def _per_joint(value, names: list[str], what: str) -> np.ndarray:
     return np.array([d.get(n, 0.0) for n in names])
 
 
-def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, notes: list[str],
-                   revolute: list[bool]) -> np.ndarray:
+def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, notes: list[str]) -> np.ndarray:
     if isinstance(spec.start, str):
         srdf = Path(spec.srdf) if spec.srdf else default_srdf(path)
         if srdf is None:
@@ -560,17 +558,10 @@ def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, 
                 raise ModelError(f"start: joint '{k}' is not a planning joint of {path.name}: closest "
                                  f"{_closest(k, names)}")
     q = np.array([values.get(n, 0.0) for n in names])
-    wrapped = []
-    for k, (v, lo, hi) in enumerate(zip(q, lower, upper)):  # a turn of a revolute joint: the same posture
-        for turn in (2 * math.pi, -2 * math.pi):
-            if not lo <= v <= hi and revolute[k] and lo <= v + turn <= hi:
-                q[k] = v + turn
-                wrapped.append(f"{names[k]} {v:g} as {v + turn:.4f}")
-    if wrapped:
-        notes.append(f"start posture read a turn further, inside the joint limits: {_names(wrapped)}")
     outside = [n for n, v, lo, hi in zip(names, q, lower, upper) if not lo <= v <= hi]
-    if outside:  # kept as stated (crocoddyl's Kinova starts so); plans start there
-        notes.append(f"start posture outside the file's joint limits on {_names(outside)} (kept)")
+    if outside:  # kept as stated (crocoddyl's Kinova starts so; a turn further would change its cold start)
+        notes.append(f"start posture outside the file's joint limits on {_names(outside)} (kept: planning "
+                     "knows no limits unless a joint_limit term says so; an execution starts clipped to them)")
     return q
 
 

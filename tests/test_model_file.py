@@ -24,7 +24,10 @@ ROBOTS = None if ERD is None else ERD / "robots"
 
 # name -> (file under robots/, [robot] table extras, end-effector frame, planning joints)
 ARMS = {
-    "kinova": ("kinova_description/robots/kinova.urdf", {"start": "arm_up"}, "j2s6s200_end_effector", 6),
+    # arm_up with joint 3 a turn higher, inside its range (arm_up's -1.5707 is outside it)
+    "kinova": ("kinova_description/robots/kinova.urdf",
+               {"start": {"j2s6s200_joint_1": 1.5707, "j2s6s200_joint_2": 2.618, "j2s6s200_joint_3": 4.7124853,
+                          "j2s6s200_joint_4": 3.1415, "j2s6s200_joint_5": 2.618}}, "j2s6s200_end_effector", 6),
     "panda": ("panda_description/urdf/panda.urdf",
               {"start": "default", "locked": {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}},
               "panda_hand_tcp", 7),
@@ -105,10 +108,10 @@ def test_kinova_report_names_each_repair():
     robot = load_model(RobotSpec.from_dict({"file": str(ROBOTS / ARMS["kinova"][0]), "start": "arm_up"}))
     report = " | ".join(robot.load_report)
     for phrase in ("transmissions replaced", "<collision> elements dropped", "repeated material",
-                   "welded to the world", "a turn further"):
+                   "welded to the world", "outside the file's joint limits on j2s6s200_joint_3"):
         assert phrase in report, (phrase, report)
-    # arm_up's joint 3 (-1.5707) is outside the file's [0.33, 5.95]: read as -1.5707 + 2 pi
-    assert robot.default_q[2] == pytest.approx(-1.5707 + 2 * np.pi)
+    # arm_up's joint 3 (-1.5707) is outside the file's [0.33, 5.95]: kept, as crocoddyl's example starts there
+    assert robot.default_q[2] == -1.5707
 
 
 @pytest.mark.parametrize("name", sorted(HUMANOIDS))
