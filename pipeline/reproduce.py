@@ -287,6 +287,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
                "`recording.rrd` with `raico show KEY --open`.", ""]
         md += [line for caption, png in shots for line in (f"![{caption}]({png.relative_to(root)})", "",
                                                             f"*{caption}*", "")]
+    md += crocoddyl_problems_section(root)
     md += ["## Errors and inconsistencies in the thesis", "",
            "Where the thesis contradicts itself or its physics; raico follows the reading given.", "",
            "| where | what the thesis says | what raico does |", "|---|---|---|"]
@@ -296,6 +297,22 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     md += [f"| {k} | {v} |" for k, v in {**DEVIATIONS, **TASK_NOTES, **notes}.items()]
     root.mkdir(parents=True, exist_ok=True)
     write_file_atomic(root / "README.md", "\n".join(md) + "\n")
+
+
+def crocoddyl_problems_section(root: Path) -> list[str]:
+    """The report's page on crocoddyl's own problems written as problem files (``make bench``
+    measures them: ``bench/crocoddyl_problems.md`` beside the report), copied into the report with
+    a pointer; nothing where the bench has not run."""
+    page = root.parent / "bench" / "crocoddyl_problems.md"
+    if not page.is_file():
+        return []
+    root.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(root / "crocoddyl_problems.md", page.read_text())
+    return ["## crocoddyl's own problems, as problem files", "",
+            "crocoddyl's Kinova reach, its Talos arm reach and the single-support phases of its humanoid taichi, "
+            "written as raico problem files (`problems/crocoddyl/`), solved by R-AICO, AICO, iLQG and crocoddyl's "
+            "FDDP and executed in Drake; measured by the latest `make bench`, not by this call: "
+            "[crocoddyl_problems.md](crocoddyl_problems.md).", ""]
 
 
 def call_line(call: dict) -> str:
