@@ -206,9 +206,8 @@ def _talos_example(problem):
 
 
 def run_problem(name: str) -> dict:
-    from stages.plan.stage import plan
-
     from planning.crocoddyl_model import NotExpressible
+    from stages.plan.stage import plan
 
     spec = PROBLEMS[name]
     rows = []
