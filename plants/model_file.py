@@ -424,17 +424,32 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
             raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {_closest(j, names)}")
     armature = _per_joint(spec.armature, names, "armature")
     unlimited = []
+    # SDF and MJCF files declare their actuators (URDF transmissions were replaced above): one per joint kept
+    existing = {}
+    for i in plant.GetJointActuatorIndices():
+        act = plant.get_joint_actuator(i)
+        if act.joint().index() in existing:
+            raise ModelError(f"{path.name}: joint '{act.joint().name()}' has more than one actuator")
+        existing[act.joint().index()] = act
     for j, arm in zip(planning, armature):
-        effort = _file_effort(text, fmt, j.name())
+        act = existing.get(j.index())
+        effort = float(act.effort_limit()) if act is not None else _file_effort(text, fmt, j.name())
         effort = limits.get(j.name(), {}).get("effort", effort)
         if not effort or effort <= 0 or not math.isfinite(effort):
             unlimited.append(j.name())
             effort = math.inf
-        act = plant.AddJointActuator(f"{j.name()}_actuator", j, effort)
+        if act is None:
+            act = plant.AddJointActuator(f"{j.name()}_actuator", j, effort)
+        elif effort != act.effort_limit():
+            raise ModelError(f"limits: the effort of '{j.name()}' is set by its actuator in {path.name} "
+                             f"({act.effort_limit():g}); edit the file")
         act.set_default_gear_ratio(1.0)
         act.set_default_rotor_inertia(arm)
     if unlimited:
-        notes.append(f"effort limit 0 or missing on {len(unlimited)} joints ({_names(unlimited)}): unlimited")
+        notes.append(f"effort limit 0 or missing on {len(unlimited)} joints ({_names(unlimited)}): unlimited"
+                     + (f"; {len(existing)} actuators of the file kept" if existing else ""))
+    elif existing:
+        notes.append(f"{len(existing)} actuators of the file kept")
     try:
         plant.Finalize()
     except RuntimeError as e:

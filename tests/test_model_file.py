@@ -340,3 +340,22 @@ def test_quasi_static_start_holds_x0():
         assert np.abs(X - problem.x0).max() < 1e-8
         X0 = rollout(problem.dynamics, problem.x0, np.zeros_like(U[:20]))
         assert not np.abs(X0 - problem.x0).max() <= 1e-3  # without them it moves (the humanoid blows up: NaN)
+
+
+@pytest.mark.parametrize("fmt, frame", [("xml", "tip_body"), ("sdf", "tip")])
+def test_mjcf_and_sdf_plan_and_execute(tmp_path, fmt, frame):
+    """The same two-link arm as MJCF and as SDF (tests/data): the file's own actuators kept, one added
+    where the file has none, a reach planned and executed in Drake."""
+    from pipeline import api
+
+    file = Path(__file__).parent / "data" / f"arm2.{fmt}"
+    robot = load_model(RobotSpec(file=str(file)))
+    assert robot.n_q == 2 and robot.plant.num_actuators() == 2 and robot.B_act.shape == (2, 2)
+    assert robot.effort[0] == 20.0 and robot.effort[1] == np.inf
+    path = write_problem(tmp_path, fmt, problem_text(str(file), {"start": {"shoulder": 0.3, "elbow": 0.5}},
+                                                     REACH.format(frame=frame, target=[0.05, 0.0, -0.03]), T=50,
+                                                     dynamics="analytic"))
+    plan = api.plan(tmp_path / "art", problem=str(path), iterations=30, quiet=True, record=False)
+    assert plan.metrics["via_point_errors"]["reach@50"] < 0.005
+    run = api.execute(tmp_path / "art", plan=plan.key, quiet=True, record=False)
+    assert run.status == "ok", run.metrics.get("reason")
