@@ -516,6 +516,31 @@ def log_task_paths(rec, problem, X: np.ndarray, plots: list[TaskPlot] | None = N
         if not label:
             rec_mod.log_points_path(rec, f"world/targets/{tp.entity}", np.array([t for _, t in tp.targets]),
                                     color=(230, 40, 40), radius=0.012, line=False)
+    _log_placement_paths(rec, problem, X, label)
+
+
+def _log_placement_paths(rec, problem, X: np.ndarray, label: str = "") -> None:
+    """Frames with a placement target (crocoddyl's frame-placement residual): the frame origin's path
+    (``world/paths/<frame>``) and the target positions (``world/targets/<frame>``), as for points."""
+    from plants.taskmaps import FramePlacementError, FramePoints
+
+    if not np.all(np.isfinite(X)):
+        return
+    targets: dict[str, tuple] = {}
+    for term in problem.state_terms:
+        m = getattr(term, "taskmap", None)
+        if isinstance(m, FramePlacementError):
+            entry = targets.setdefault(m.frame.name(), (m, []))
+            entry[1].append(m.p_target)
+    n_q = X.shape[1] // 2
+    for frame, (m, points) in targets.items():
+        path = FramePoints(m.robot, frame).values_and_jacobians(X[:, :n_q])[0]
+        name = rec_mod.entity_name(frame)
+        rec_mod.log_points_path(rec, f"world/paths/{name}_{label}" if label else f"world/paths/{name}", path,
+                                color=(140, 180, 240) if label else (250, 200, 30), radius=0.003)
+        if not label:
+            rec_mod.log_points_path(rec, f"world/targets/{name}", np.unique(np.array(points), axis=0),
+                                    color=(230, 40, 40), radius=0.012, line=False)
 
 
 ZMP_COLOR = (200, 60, 200)  # the zero-moment point: magenta on the ground, its margin series alike
