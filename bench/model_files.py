@@ -177,9 +177,8 @@ def scaling_rows() -> list[dict]:
                 print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration", flush=True)
             if len(sizes) >= 3:
                 e = _exponent(sizes, times)
-                rows.append({"benchmark": f"{label} per iteration against joints n = {sizes[0]}..{sizes[-1]}: "
-                                          f"exponent {e:.2f}", "median_s": None, "samples_s": [],
-                             "exponent": e, "target_s": None, "ratio_to_target": None})
+                rows.append({"benchmark": f"{label} per iteration against joints", "joint_sizes": sizes,
+                             "joint_seconds": times, "joint_exponent": e})
                 print(f"  {label}: exponent {e:.2f} over n = {sizes}", flush=True)
     return rows
 
