@@ -285,7 +285,8 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
     reproduce = doc.get("reproduce", {})
     if not isinstance(reproduce, dict):
         raise BadInput(f"{path}: [reproduce] must be a table")
-    base = {stages[0]: dict(doc.get("base", {}))}
+    base = {stages[0]: _resolve_problem(dict(doc.get("base", {})), path)}
+    points = [_resolve_problem(p, path) for p in points]
     if quick:
         base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
@@ -295,6 +296,15 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
             raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
     return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
                       claims, reproduce, quick, tuple(left_out))
+
+
+def _resolve_problem(options: dict, path: Path) -> dict:
+    """A ``problem`` file named relative to the experiment file, made absolute (a run reads it from
+    wherever it is started)."""
+    problem = options.get("problem")
+    if isinstance(problem, str) and not Path(problem).is_absolute():
+        options = {**options, "problem": str((Path(path).resolve().parent / problem).resolve())}
+    return options
 
 
 # ----------------------------------------------------------------------------- variants and configs
