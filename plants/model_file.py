@@ -234,6 +234,15 @@ def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, flo
     if not root.get("name"):
         root.set("name", path.stem)
         notes.append(f"the robot has no name: named '{path.stem}'")
+    links = {link.get("name") for link in root.findall("link")}
+    dangling = [j for j in root.findall("joint")
+                if {(j.find("parent") if j.find("parent") is not None else ET.Element("x")).get("link"),
+                    (j.find("child") if j.find("child") is not None else ET.Element("x")).get("link")} - links]
+    for j in dangling:  # a joint to a link the file does not have
+        root.remove(j)
+    if dangling:
+        notes.append(f"{len(dangling)} joints to links the file does not have dropped "
+                     f"({_names([j.get('name') for j in dangling])})")
     joints = {j.get("name"): j for j in root.findall("joint")}
     mimics = [j.get("name") for j in joints.values() if j.find("mimic") is not None]
     for j in joints.values():
@@ -281,6 +290,15 @@ def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, flo
             seen_mat.add(name)
     if dup:
         notes.append(f"{dup} repeated material definitions dropped (the first one kept)")
+    defined = {m.get("name") for m in root.iter("material") if len(m)}
+    undefined = 0
+    for vis in root.findall("link/visual"):  # a reference to a material nothing defines: the default colour
+        for m in vis.findall("material"):
+            if not len(m) and m.get("name") not in defined:
+                vis.remove(m)
+                undefined += 1
+    if undefined:
+        notes.append(f"{undefined} references to undefined materials dropped (default colour)")
     for link in root.findall("link"):
         for vis in link.findall("visual"):
             mesh = vis.find("geometry/mesh")
