@@ -298,6 +298,14 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b (3,)``: np.cross's arithmetic on Python floats (np.cross's axis handling costs
+    tens of microseconds a call, more than the rest of a logarithm)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def _unskew(M: np.ndarray) -> np.ndarray:
     """The vector of the antisymmetric part of ``M (3, 3)``: ``(M - M^T) / 2 = [v]x``."""
     return 0.5 * np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
@@ -308,8 +316,8 @@ def _renormalized(R: np.ndarray) -> np.ndarray:
     ``renormalize_rotation_matrix``)."""
     c0 = R[:, 0] / np.linalg.norm(R[:, 0])
     c1 = R[:, 1] / np.linalg.norm(R[:, 1])
-    c2 = np.cross(c0, c1)
-    return np.column_stack([np.cross(c1, c2), c1, c2])
+    c2 = _cross3(c0, c1)
+    return np.column_stack([_cross3(c1, c2), c1, c2])
 
 
 def log3_angle(R) -> tuple[float, np.ndarray]:
@@ -390,7 +398,7 @@ def _log6_parts(R: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.nda
         st, ct = np.sin(theta), np.cos(theta)
         alpha = theta * st / (2.0 * (1.0 - ct))
         beta = 1.0 / (theta * theta) - st / (2.0 * theta * (1.0 - ct))
-    lin = alpha * p - 0.5 * np.cross(w, p) + (beta * (w @ p)) * w
+    lin = alpha * p - 0.5 * _cross3(w, p) + (beta * (w @ p)) * w
     return theta, w, np.concatenate([lin, w])
 
 
