@@ -128,11 +128,18 @@ class _DrakeMap(_BatchByPoints):
         if k is not None:
             V[ok], Jp = self._compiled_batch(k, Q[ok] @ P.T)
         else:
-            Jp = np.empty((ok.size, self.dim, P.shape[0]))
-            for i, qp in enumerate(Q[ok] @ P.T):
-                V[ok[i]], Jp[i] = self._in_plant(qp)
+            V[ok], Jp = self._drake_batch(Q[ok] @ P.T)
         J[ok] = Jp @ P
         return V, J
+
+    def _drake_batch(self, Qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values ``(K, dim)`` and plant Jacobians ``(K, dim, m)`` at the rows of ``Qp`` by Drake's
+        calls (``_in_plant`` row by row)."""
+        V = np.empty((len(Qp), self.dim))
+        Jp = np.empty((len(Qp), self.dim, Qp.shape[1]))
+        for i, qp in enumerate(Qp):
+            V[i], Jp[i] = self._in_plant(qp)
+        return V, Jp
 
     def _compiled_batch(self, kernels, Qp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Values ``(K, dim)`` and plant Jacobians ``(K, dim, m)`` at the rows of ``Qp``."""
@@ -291,6 +298,14 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b (3,)``: np.cross's arithmetic on Python floats (np.cross's axis handling costs
+    tens of microseconds a call, more than the rest of a logarithm)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def _unskew(M: np.ndarray) -> np.ndarray:
     """The vector of the antisymmetric part of ``M (3, 3)``: ``(M - M^T) / 2 = [v]x``."""
     return 0.5 * np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
@@ -301,8 +316,8 @@ def _renormalized(R: np.ndarray) -> np.ndarray:
     ``renormalize_rotation_matrix``)."""
     c0 = R[:, 0] / np.linalg.norm(R[:, 0])
     c1 = R[:, 1] / np.linalg.norm(R[:, 1])
-    c2 = np.cross(c0, c1)
-    return np.column_stack([np.cross(c1, c2), c1, c2])
+    c2 = _cross3(c0, c1)
+    return np.column_stack([_cross3(c1, c2), c1, c2])
 
 
 def log3_angle(R) -> tuple[float, np.ndarray]:
@@ -383,7 +398,7 @@ def _log6_parts(R: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.nda
         st, ct = np.sin(theta), np.cos(theta)
         alpha = theta * st / (2.0 * (1.0 - ct))
         beta = 1.0 / (theta * theta) - st / (2.0 * theta * (1.0 - ct))
-    lin = alpha * p - 0.5 * np.cross(w, p) + (beta * (w @ p)) * w
+    lin = alpha * p - 0.5 * _cross3(w, p) + (beta * (w @ p)) * w
     return theta, w, np.concatenate([lin, w])
 
 
@@ -426,11 +441,130 @@ def Jlog6(R, p) -> np.ndarray:
     return _jlog6(theta, w, p)
 
 
+# -- the same, batched over a leading axis: rows (K, 3, 3) and (K, 3) -------------------------------
+# Each formula is the scalar one above, evaluated for every row at once; where the scalar code
+# branches, the batch computes both sides with safe arguments and keeps each row's own (np.where),
+# and log3's near-pi rows (the quaternion route, rare) are the scalar function's, row by row.
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b`` row by row, ``(K, 3)`` each (np.cross's formula without its axis handling)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+
+
+def _skew_rows(v: np.ndarray) -> np.ndarray:
+    """``[v_k]x (K, 3, 3)`` of the rows of ``v (K, 3)``."""
+    S = np.zeros((v.shape[0], 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def _unskew_rows(M: np.ndarray) -> np.ndarray:
+    """:func:`_unskew` of each ``M (K, 3, 3)``: ``(K, 3)``."""
+    return 0.5 * np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0],
+                           M[:, 1, 0] - M[:, 0, 1]], axis=1)
+
+
+def _renormalized_rows(R: np.ndarray) -> np.ndarray:
+    """:func:`_renormalized` of each ``R (K, 3, 3)``."""
+    c0 = R[:, :, 0] / np.sqrt(np.einsum("ki,ki->k", R[:, :, 0], R[:, :, 0]))[:, None]
+    c1 = R[:, :, 1] / np.sqrt(np.einsum("ki,ki->k", R[:, :, 1], R[:, :, 1]))[:, None]
+    c2 = _cross_rows(c0, c1)
+    return np.stack([_cross_rows(c1, c2), c1, c2], axis=2)
+
+
+def _trace_rows(R: np.ndarray) -> np.ndarray:
+    return R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
+
+
+def log3_angle_rows(R) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`log3_angle` of each ``R (K, 3, 3)``: ``theta (K,)``, ``r (K, 3)``."""
+    R = np.asarray(R, float)
+    Rn = _renormalized_rows(R)
+    tr = _trace_rows(Rn)
+    cos_value = (tr - 1.0) / 2.0
+    near_pi = ~(cos_value >= -1.0 + _PREC2)
+    acos = np.arccos(np.clip(cos_value, -1.0, 1.0))   # clipped for the rows that do not use it
+    near0 = np.sqrt(2.0 * (1.0 - cos_value) + _EPS * _EPS)
+    theta = np.where(tr <= 3.0 - _PREC2, acos, near0)
+    a = _unskew_rows(Rn)   # sin(theta) * axis
+    n2 = np.einsum("ki,ki->k", a, a)
+    big = theta >= _PREC2
+    t = np.where(big, theta / np.sin(np.where(big, theta, 1.0)),
+                 1.0 + n2 / 6.0 + n2 * n2 * 3.0 / 40.0)
+    r = t[:, None] * a
+    for k in np.flatnonzero(near_pi):
+        theta[k], r[k] = log3_angle(R[k])
+    return theta, r
+
+
+def _jlog3_rows(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`_jlog3` of each row: ``theta (K,)``, ``r (K, 3)`` -> ``(K, 3, 3)``."""
+    small = theta < _PREC3
+    th = np.where(small, 1.0, theta)
+    st_1mct = np.sin(th) / (1.0 - np.cos(th))   # cot(theta / 2)
+    t2 = theta * theta
+    alpha = np.where(small, 1.0 / 12.0 + t2 / 720.0, 1.0 / (th * th) - st_1mct / (2.0 * th))
+    diag = np.where(small, 0.5 * (2.0 - t2 / 6.0), 0.5 * th * st_1mct)
+    J = alpha[:, None, None] * (r[:, :, None] * r[:, None, :]) + _skew_rows(0.5 * r)
+    J[:, 0, 0] += diag
+    J[:, 1, 1] += diag
+    J[:, 2, 2] += diag
+    return J
+
+
+def _log6_parts_rows(R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_log6_parts` of each pose: ``R (K, 3, 3)``, ``p (K, 3)`` -> ``theta (K,)``,
+    ``w (K, 3)``, ``log6 (K, 6)``."""
+    a = _unskew_rows(R)
+    t2 = np.einsum("ki,ki->k", a, a)   # sin(theta)^2
+    theta, w = log3_angle_rows(R)
+    taylor = _trace_rows(R) >= 3.0 - _PREC2
+    th = np.where(taylor, 1.0, theta)
+    st, ct = np.sin(th), np.cos(th)
+    alpha = np.where(taylor, 1.0 - t2 / 12.0 - t2 * t2 / 720.0, th * st / (2.0 * (1.0 - ct)))
+    beta = np.where(taylor, 1.0 / 12.0 + t2 / 720.0,
+                    1.0 / (th * th) - st / (2.0 * th * (1.0 - ct)))
+    wp = np.einsum("ki,ki->k", w, p)
+    lin = alpha[:, None] * p - 0.5 * _cross_rows(w, p) + (beta * wp)[:, None] * w
+    return theta, w, np.concatenate([lin, w], axis=1)
+
+
+def _jlog6_rows(theta: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """:func:`_jlog6` of each row: ``theta (K,)``, ``w``, ``p (K, 3)`` -> ``(K, 6, 6)``."""
+    A = _jlog3_rows(theta, w)
+    t2 = theta * theta
+    small = theta < _PREC3
+    tinv = 1.0 / np.where(small, 1.0, theta)
+    t2inv = tinv * tinv
+    st, ct = np.sin(theta), np.cos(theta)
+    inv_2_2ct = 1.0 / (2.0 * (1.0 - np.where(small, 0.0, ct)))
+    beta = np.where(small, 1.0 / 12.0 + t2 / 720.0, t2inv - st * tinv * inv_2_2ct)
+    beta_dot_over_theta = np.where(
+        small, 1.0 / 360.0, -2.0 * t2inv * t2inv + (1.0 + st * tinv) * t2inv * inv_2_2ct)
+    wTp = np.einsum("ki,ki->k", w, p)
+    v = (beta_dot_over_theta * wTp)[:, None] * w - (t2 * beta_dot_over_theta + 2.0 * beta)[:, None] * p
+    C = v[:, :, None] * w[:, None, :] + beta[:, None, None] * (w[:, :, None] * p[:, None, :]) \
+        + _skew_rows(0.5 * p)
+    d = wTp * beta
+    C[:, 0, 0] += d
+    C[:, 1, 1] += d
+    C[:, 2, 2] += d
+    J = np.zeros((theta.shape[0], 6, 6))
+    J[:, :3, :3] = J[:, 3:, 3:] = A
+    J[:, :3, 3:] = C @ A
+    return J
+
+
 class _FramePose(_OnFrame, _DrakeMap):
     """Base of the maps on a frame's pose ``(R_WF, p_WF)`` and its LOCAL Jacobian (the frame's
     velocity ``(v, w)`` expressed in F, linear rows first, as Pinocchio's ``LOCAL`` frame
     Jacobian). Subclasses implement ``_residual(R, p, Jv, Jw)`` on the world pose and the world
-    Jacobians ``Jv`` (of the origin), ``Jw`` (angular), ``(3, m)`` each."""
+    Jacobians ``Jv`` (of the origin), ``Jw`` (angular), ``(3, m)`` each, and ``_residuals`` on a
+    batch of them, ``R (K, 3, 3)``, ``p (K, 3)``, ``Jv``, ``Jw (K, 3, m)`` (the same numbers; the
+    batches, compiled or Drake's, evaluate the logarithms for all rows at once)."""
 
     _needs_translation = True
 
@@ -446,12 +580,27 @@ class _FramePose(_OnFrame, _DrakeMap):
     def _residual(self, R, p, Jv, Jw) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def _in_plant(self, qp):
+    def _residuals(self, R, p, Jv, Jw) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _drake_pose(self, qp):
+        """``R (3, 3)``, ``p (3,)``, ``Jv``, ``Jw (3, m)`` at plant positions ``qp`` by Drake's calls."""
         ctx = self._set_plant(qp)
         X = self._plant.CalcRelativeTransform(ctx, self._world, self.frame)
         J = self._plant.CalcJacobianSpatialVelocity(ctx, self._wrt, self.frame, np.zeros(3),
                                                     self._world, self._world)   # (6, m): w, v
-        return self._residual(X.rotation().matrix(), X.translation(), J[3:], J[:3])
+        return X.rotation().matrix(), X.translation(), J[3:], J[:3]
+
+    def _in_plant(self, qp):
+        return self._residual(*self._drake_pose(qp))
+
+    def _drake_batch(self, Qp):
+        K, m = Qp.shape
+        R, p = np.empty((K, 3, 3)), np.empty((K, 3))
+        Jv, Jw = np.empty((K, 3, m)), np.empty((K, 3, m))
+        for i, qp in enumerate(Qp):   # Drake's calls row by row, the logarithms once for all
+            R[i], p[i], Jv[i], Jw[i] = self._drake_pose(qp)
+        return self._residuals(R, p, Jv, Jw)
 
     def _compiled_in_plant(self, kernels, qp):
         b = kernels.tree.body(self._body_name)
@@ -464,13 +613,10 @@ class _FramePose(_OnFrame, _DrakeMap):
     def _compiled_batch(self, kernels, Qp):
         b = kernels.tree.body(self._body_name)
         R, Jw = kernels.frame_rotation_batch(Qp, b, self._R_BF)
-        if self._needs_translation:
-            pos, Jv = kernels.frame_points_batch(Qp, b, self._R_BF, self._p_BF, self._origin)
-            out = [self._residual(R[k], pos[k, 0], Jv[k], Jw[k]) for k in range(len(Qp))]
-        else:
-            out = [self._residual(R[k], None, None, Jw[k]) for k in range(len(Qp))]
-        return (np.array([o[0] for o in out]).reshape(len(Qp), self.dim),
-                np.array([o[1] for o in out]).reshape(len(Qp), self.dim, -1))
+        if not self._needs_translation:
+            return self._residuals(R, None, None, Jw)
+        pos, Jv = kernels.frame_points_batch(Qp, b, self._R_BF, self._p_BF, self._origin)
+        return self._residuals(R, pos[:, 0], Jv, Jw)
 
 
 class FrameRotationError(_FramePose):
@@ -491,6 +637,10 @@ class FrameRotationError(_FramePose):
     def _residual(self, R, p, Jv, Jw):
         theta, r = log3_angle(self.R_target.T @ R)
         return r, _jlog3(theta, r) @ (R.T @ Jw)
+
+    def _residuals(self, R, p, Jv, Jw):
+        theta, r = log3_angle_rows(self.R_target.T @ R)
+        return r, _jlog3_rows(theta, r) @ (np.swapaxes(R, 1, 2) @ Jw)
 
 
 class FramePlacementError(_FramePose):
@@ -514,6 +664,14 @@ class FramePlacementError(_FramePose):
         theta, w, r = _log6_parts(R_rel, p_rel)
         J_local = np.vstack([R.T @ Jv, R.T @ Jw])
         return r, _jlog6(theta, w, p_rel) @ J_local
+
+    def _residuals(self, R, p, Jv, Jw):
+        Rt = self.R_target
+        R_rel, p_rel = Rt.T @ R, (p - self.p_target) @ Rt   # rows Rt^T (p_k - p_target)
+        theta, w, r = _log6_parts_rows(R_rel, p_rel)
+        RT = np.swapaxes(R, 1, 2)
+        J_local = np.concatenate([RT @ Jv, RT @ Jw], axis=1)
+        return r, _jlog6_rows(theta, w, p_rel) @ J_local
 
 
 class Stack(_BatchByPoints):

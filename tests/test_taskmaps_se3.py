@@ -9,6 +9,8 @@ SO(3) / SE(3) logarithms beneath them.
   (``TASKMAP_EXAMPLES``) are checked by ``tests/test_derivatives.py`` as every other map;
 - residual and Jacobian equal crocoddyl's ``ResidualModelFrameRotation`` and
   ``ResidualModelFramePlacement`` on the same robot (arm5, biorob);
+- the batched logarithms (``log3_angle_rows``, ...) and the maps' batches (compiled and Drake's)
+  equal the scalar functions row by row, each branch's rows mixed in one batch;
 - the JSON descriptions of ``planning.objective`` build them.
 """
 
@@ -28,7 +30,15 @@ from plants.taskmaps import (
     FrameRotationError,
     Jlog3,
     Jlog6,
+    _jlog3,
+    _jlog3_rows,
+    _jlog6,
+    _jlog6_rows,
+    _log6_parts,
+    _log6_parts_rows,
     log3,
+    log3_angle,
+    log3_angle_rows,
     log6,
 )
 
@@ -104,6 +114,53 @@ def test_jlog_is_the_derivative_along_a_local_perturbation(angle):
         assert np.max(np.abs(Jlog3(R).T - fd3)) > 1e-3
 
 
+# -- the batched logarithms --------------------------------------------------------------------------
+def _mixed_batch(seed: int = 5):
+    """``(R (K, 3, 3), p (K, 3))``: every angle of ``ANGLES`` and pi - 1e-7 about coordinate and
+    random axes, slightly non-orthonormal copies of some, and random rotations, shuffled so that
+    each branch's rows sit between the others'."""
+    rng = np.random.default_rng(seed)
+    Rs = [R for R, _ in _random_cases(seed, per_angle=5)]
+    Rs += [_rotation(rng.standard_normal(3), np.pi - 1e-7) for _ in range(4)]
+    Rs += [np.asarray(pin.exp3(rng.standard_normal(3))) for _ in range(20)]
+    Rs += [R + 1e-9 * rng.standard_normal((3, 3)) for R in Rs[::7]]   # renormalized first
+    R = np.array(Rs)[rng.permutation(len(Rs))]
+    return R, 2.0 * rng.standard_normal((len(R), 3))
+
+
+def test_batched_logarithms_equal_the_scalar_ones_row_by_row():
+    R, p = _mixed_batch()
+    angles = np.array([log3_angle(Rk)[0] for Rk in R])
+    for a in (0.0, 1e-7, 1e-5, np.pi - 1e-7, np.pi):   # each branch has rows in the batch
+        assert np.any(np.abs(angles - a) <= 1e-12 + 0.05 * min(a, np.pi - a)), a
+    theta, r = log3_angle_rows(R)
+    J3 = _jlog3_rows(theta, r)
+    theta6, w6, l6 = _log6_parts_rows(R, p)
+    J6 = _jlog6_rows(theta6, w6, p)
+    assert theta.shape == (len(R),) and r.shape == (len(R), 3) and J3.shape == (len(R), 3, 3)
+    assert l6.shape == (len(R), 6) and J6.shape == (len(R), 6, 6)
+    for k in range(len(R)):
+        th, rk = log3_angle(R[k])
+        th6, wk, lk = _log6_parts(R[k], p[k])
+        np.testing.assert_allclose([theta[k], theta6[k]], [th, th6], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(r[k], rk, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(J3[k], _jlog3(th, rk), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(w6[k], wk, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(l6[k], lk, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(J6[k], _jlog6(th6, wk, p[k]), rtol=0, atol=1e-12)
+
+
+def test_batched_logarithms_raise_no_warning_on_the_branches_they_do_not_take():
+    """The generic formulas are evaluated on every row with safe arguments (no division by
+    sin 0 or 1 - cos 0 left for np.where to discard)."""
+    R, p = _mixed_batch(6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        theta, w, _ = _log6_parts_rows(R, p)
+        _jlog6_rows(theta, w, p)
+        _jlog3_rows(*log3_angle_rows(R))
+
+
 # -- the task maps on the robots --------------------------------------------------------------------
 def _pose(robot, frame: str, q: np.ndarray):
     plant = robot.plant
@@ -157,6 +214,50 @@ def test_compiled_and_drake_routes_agree(plant, frame):
             v_d, J_d = tm._in_plant(qp)
             np.testing.assert_allclose(v_c, v_d, rtol=0, atol=1e-12)
             np.testing.assert_allclose(J_c, J_d, rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("cls", [FrameRotationError, FramePlacementError])
+def test_batched_residuals_equal_the_scalar_residual_row_by_row(cls):
+    """``_residuals`` on a batch of world poses and Jacobians (errors at every branch's angle,
+    random Jacobians) equals ``_residual`` row by row."""
+    robot = shared_robot("arm5")
+    rng = np.random.default_rng(12)
+    R_err, p = _mixed_batch(7)
+    R_t = _rotation(rng.standard_normal(3), 0.7)
+    R = R_t @ R_err   # the error rotation R_t^T R is R_err
+    m = robot.n_q
+    Jv, Jw = rng.standard_normal((len(R), 3, m)), rng.standard_normal((len(R), 3, m))
+    tm = (FrameRotationError(robot, "ee", R_t) if cls is FrameRotationError
+          else FramePlacementError(robot, "ee", R_t, rng.standard_normal(3)))
+    V, J = tm._residuals(R, p, Jv, Jw)
+    assert V.shape == (len(R), tm.dim) and J.shape == (len(R), tm.dim, m)
+    for k in range(len(R)):
+        v, Jk = tm._residual(R[k], p[k], Jv[k], Jw[k])
+        np.testing.assert_allclose(V[k], v, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(J[k], Jk, rtol=0, atol=1e-11)
+
+
+@pytest.mark.compiled
+@pytest.mark.parametrize("route", ["compiled", "drake"])
+def test_batches_evaluate_the_logarithms_once_for_all_rows(route, monkeypatch):
+    """``values_and_jacobians`` (the tree kernels' route and Drake's) never calls the per-row
+    ``_residual``, and equals the points' ``value_and_jacobian`` (which does) row by row; a
+    non-finite row gives NaN."""
+    robot = shared_robot("arm5")
+    rng = np.random.default_rng(13)
+    Q = _random_postures(robot, rng, 9)
+    Q[4] = np.nan
+    for tm in _maps(robot, "ee", rng):
+        if route == "drake":
+            tm._kernels = False
+        points = [tm.value_and_jacobian(q) for q in np.delete(Q, 4, axis=0)]
+        with monkeypatch.context() as mp:
+            mp.setattr(type(tm), "_residual", lambda *a: pytest.fail("per-row _residual in a batch"))
+            V, J = tm.values_and_jacobians(Q)
+        assert np.all(np.isnan(V[4])) and np.all(np.isnan(J[4]))
+        V, J = np.delete(V, 4, axis=0), np.delete(J, 4, axis=0)
+        np.testing.assert_allclose(V, [v for v, _ in points], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(J, [Jk for _, Jk in points], rtol=0, atol=1e-11)
 
 
 def test_value_is_zero_at_the_target_and_the_jacobian_is_the_local_one():
