@@ -275,7 +275,7 @@ def markdown_page(doc: dict) -> str:
              "run each on a shared 2-core machine.", ""]
     for res in doc["problems"]:
         lines += [f"## {res['problem']}: `{res['file']}`", "", f"Reference: {res['example']}.",
-                  f"At most {res['iterations_budget']} iterations.", "",
+                  f"At most {res.get('iterations_budget', ITERATIONS)} iterations.", "",
                   "| solver | status | iterations | final cost | crocoddyl's cost | wall (s) | per iteration (ms) "
                   "| hand error at T, plan (mm) | execution | tracking RMSE (rad) | hand error at T, executed (mm) |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
