@@ -132,8 +132,13 @@ class StateTerm:
                               lxx: np.ndarray) -> None:
         """Add the gradient and GN Hessian at one state ``x (n_x,)`` of step ``t`` into
         ``lx (n_x,)``, ``lxx (n_x, n_x)`` (the same as ``add_derivatives`` on one row; terms
-        override it to skip the batch bookkeeping)."""
-        self.add_derivatives(x[None, :], np.array([t]), lx[None, :], lxx[None, :, :])
+        override it to skip the batch bookkeeping). The step is looked up in ``times`` directly: the
+        batch's remembered mask (:meth:`active`) is left to the batches."""
+        if self.weight == 0 or not self.is_active_at(t):
+            return
+        g, H = self._derivs(x[None, :], np.array([t]))
+        lx += g[0]
+        lxx += H[0]
 
     def _value(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
         raise NotImplementedError
