@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import sys
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -413,7 +414,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if robot.spec is not None:  # a model file's robot: execute, evaluate and the recordings rebuild it
-        desc.update(plant=robot.name, robot=robot.spec.to_dict())
+        desc.update(plant=robot.name, robot=robot.spec.to_dict(), load_report=list(robot.load_report))
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
@@ -428,6 +429,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     earlier plan of the same horizon: its controls are the initial guess, and with
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
     robot, task, problem, q0, desc = build_problem(cfg, model)
+    for line in desc.get("load_report", []):  # what loading the model file changed, said once per run
+        print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)
