@@ -170,7 +170,7 @@ def resolve_model_file(file: str, base: Path, packages: dict[str, str]) -> Path:
 
 
 # ------------------------------------------------------------------ URDF repairs
-def _rpy_matrix(rpy) -> np.ndarray:
+def rpy_matrix(rpy) -> np.ndarray:
     r, p, y = rpy
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
     return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
@@ -205,7 +205,7 @@ def _lock_joint(joint: ET.Element, value: float) -> None:
     axis_el = joint.find("axis")
     axis = _floats(axis_el.get("xyz") if axis_el is not None else None, 3) if axis_el is not None \
         else np.array([1.0, 0.0, 0.0])
-    R = _rpy_matrix(rpy)
+    R = rpy_matrix(rpy)
     if kind in ("revolute", "continuous"):
         R = R @ _axis_angle(axis, value)
     elif kind == "prismatic":
@@ -253,7 +253,7 @@ def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, flo
     unknown = sorted(set(locked) - set(joints))
     if unknown:
         raise ModelError(f"locked joint '{unknown[0]}' is not in {path.name}: closest "
-                         f"{_closest(unknown[0], joints)}")
+                         f"{closest_names(unknown[0], joints)}")
     for name, value in locked.items():
         if joints[name].get("type") not in ("revolute", "continuous", "prismatic"):
             raise ModelError(f"locked joint '{name}' is a {joints[name].get('type')} joint: only revolute, "
@@ -320,7 +320,7 @@ def _names(items: list[str], k: int = 3) -> str:
     return ", ".join(items[:k]) + (f" and {len(items) - k} more" if len(items) > k else "")
 
 
-def _closest(name: str, choices) -> str:
+def closest_names(name: str, choices) -> str:
     import difflib
 
     near = difflib.get_close_matches(name, list(choices), n=3, cutoff=0.3)
@@ -439,7 +439,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     names = [j.name() for j in planning]
     for j in limits:
         if j not in names:
-            raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {_closest(j, names)}")
+            raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {closest_names(j, names)}")
     armature = _per_joint(spec.armature, names, "armature")
     unlimited = []
     # SDF and MJCF files declare their actuators (URDF transmissions were replaced above): one per joint kept
@@ -512,7 +512,7 @@ def _weld_base(plant, models, weld: str | None, path: Path, pose: tuple[float, .
         if not plant.HasFrameNamed(weld):
             frames = [plant.get_frame(i).name() for i in range(plant.num_frames())] \
                 if hasattr(plant, "num_frames") else []
-            raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest {_closest(weld, frames)}")
+            raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest {closest_names(weld, frames)}")
         from pydrake.math import RigidTransform, RollPitchYaw
 
         X_WF = RigidTransform(RollPitchYaw(*pose[3:]), list(pose[:3])) if pose else RigidTransform()
@@ -566,7 +566,7 @@ def _per_joint(value, names: list[str], what: str) -> np.ndarray:
     d = dict(value)
     for k, v in d.items():
         if k not in names:
-            raise ModelError(f"{what}: joint '{k}' is not a planning joint: closest {_closest(k, names)}")
+            raise ModelError(f"{what}: joint '{k}' is not a planning joint: closest {closest_names(k, names)}")
         if v < 0:
             raise ModelError(f"{what} of '{k}' must be >= 0, got {v}")
     return np.array([d.get(n, 0.0) for n in names])
@@ -589,7 +589,7 @@ def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, 
         for k in values:
             if k not in names:
                 raise ModelError(f"start: joint '{k}' is not a planning joint of {path.name}: closest "
-                                 f"{_closest(k, names)}")
+                                 f"{closest_names(k, names)}")
     q = np.array([values.get(n, 0.0) for n in names])
     outside = [n for n, v, lo, hi in zip(names, q, lower, upper) if not lo <= v <= hi]
     if outside:  # kept as stated (crocoddyl's Kinova starts so; a turn further would change its cold start)

@@ -21,24 +21,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-COM = """
-[costs.com]
-type = "com"
-target = [0.0, -0.03, 0.0]
-relative = "start"
-times = "last"
-weight = 1e4
-
-[costs.posture]
-type = "posture"
-target = "start"
-times = "all"
-weight = 1.0
-
-[costs.control]
-type = "control"
-weight = 1e-2
-"""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,13 +28,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="docs/robots.png")
     ap.add_argument("--only", nargs="*", help="these robots only (to look at one)")
     args = ap.parse_args(argv)
-    from test_model_file import ARMS, HUMANOIDS, LIMITS, REACH, problem_text
+    from test_model_file import ARMS, COM_SHIFT, HUMANOIDS, LIMITS, REACH, problem_text
 
     from pipeline import api
     from pipeline.screenshots import read_png, render_screenshot, renderer_unavailable
     from plants.model_file import RobotSpec, example_robot_data, load_model
     from plants.taskmaps import FramePoints
-    from stages.plan.problem_file import _frame
+    from stages.plan.problem_file import resolve_frame
 
     why = renderer_unavailable() or (None if example_robot_data() else "example-robot-data is not installed")
     if why:
@@ -68,12 +50,12 @@ def main(argv: list[str] | None = None) -> int:
             uri = f"package://example-robot-data/robots/{file}"
             if rest:
                 robot = load_model(RobotSpec.from_dict({"file": str(robots / file), **extra}))
-                frame = _frame(robot, rest[0], "reach")
+                frame = resolve_frame(robot, rest[0], "reach")
                 p = FramePoints(robot, frame).value(robot.default_q)
                 costs = REACH.format(frame=rest[0], target=(-0.06 * p / np.linalg.norm(p)).tolist()) + LIMITS
                 text, T = problem_text(uri, extra, costs.replace("weight = 1e4", "weight = 1e6")), 40
             else:
-                text, T = problem_text(uri, extra, COM, T=30), 30
+                text, T = problem_text(uri, extra, COM_SHIFT, T=30), 30
             path = tmp / f"{name}.toml"
             path.write_text(text)
             run = api.plan(tmp / "art", problem=str(path), solver="raico", iterations=20, quiet=True)

@@ -80,6 +80,25 @@ type = "joint_limit"
 times = "all"
 weight = 1e6
 """
+# the humanoids: the CoM 3 cm to the right of its start at T, the posture held at every step
+COM_SHIFT = """
+[costs.com]
+type = "com"
+target = [0.0, -0.03, 0.0]
+relative = "start"
+times = "last"
+weight = 1e4
+
+[costs.posture]
+type = "posture"
+target = "start"
+times = "all"
+weight = 1.0
+
+[costs.control]
+type = "control"
+weight = 1e-2
+"""
 TIP_TARGET = [0.04, 0.0, -0.04]
 
 
@@ -143,11 +162,11 @@ def test_missing_mesh_dropped_and_said():
 def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
     from pipeline import api
     from plants.taskmaps import FramePoints
-    from stages.plan.problem_file import _frame
+    from stages.plan.problem_file import resolve_frame
 
     file, extra, frame, _ = ARMS[name]
     robot = load_model(RobotSpec.from_dict({"file": str(ROBOTS / file), **extra}))
-    p = FramePoints(robot, _frame(robot, frame, "reach")).value(robot.default_q)
+    p = FramePoints(robot, resolve_frame(robot, frame, "reach")).value(robot.default_q)
     retract = (-0.06 * p / np.linalg.norm(p)).tolist()  # 6 cm towards the base: reachable from any posture
     reach = REACH.format(frame=frame, target=retract).replace("weight = 1e4", "weight = 1e6") + LIMITS  # 0.4 s
     path = write_problem(tmp_path, name, problem_text(f"package://example-robot-data/robots/{file}", extra, reach))
@@ -165,26 +184,8 @@ def test_humanoid_moves_its_com_over_the_welded_sole(tmp_path, name):
     from pipeline import api
 
     file, extra = HUMANOIDS[name]
-    costs = """
-    [costs.com]
-    type = "com"
-    target = [0.0, -0.03, 0.0]
-    relative = "start"
-    times = "last"
-    weight = 1e4
-
-    [costs.posture]
-    type = "posture"
-    target = "start"
-    times = "all"
-    weight = 1.0
-
-    [costs.control]
-    type = "control"
-    weight = 1e-2
-    """
-    path = write_problem(tmp_path, name, problem_text(f"package://example-robot-data/robots/{file}", extra, costs,
-                                                      T=30))
+    path = write_problem(tmp_path, name, problem_text(f"package://example-robot-data/robots/{file}", extra,
+                                                      COM_SHIFT, T=30))
     plan = api.plan(tmp_path / "art", problem=str(path), solver="raico", iterations=25, quiet=True, record=False)
     assert plan.metrics["via_point_errors"]["com@30"] < 0.01  # of 3 cm asked, against a posture held at every step
 

@@ -371,13 +371,13 @@ def _rotation(t: dict, name: str, robot=None, q0=None) -> np.ndarray:
             raise ValueError(f"[costs.{name}] rotation must be a 3 x 3 rotation matrix")
         return R
     if "rpy" in t:
-        from plants.model_file import _rpy_matrix
+        from plants.model_file import rpy_matrix
 
-        return _rpy_matrix(_vector(t["rpy"], f"[costs.{name}] rpy", 3))
+        return rpy_matrix(_vector(t["rpy"], f"[costs.{name}] rpy", 3))
     return np.eye(3)
 
 
-def _frame(robot, frame: str, name: str) -> str:
+def resolve_frame(robot, frame: str, name: str) -> str:
     """The frame a term names: a frame of the plant, or a joint's name for the frame of its child
     link (Pinocchio's joint frames, which crocoddyl's examples name)."""
     plant = robot.plant
@@ -385,10 +385,10 @@ def _frame(robot, frame: str, name: str) -> str:
         return frame
     if plant.HasJointNamed(frame):
         return plant.GetJointByName(frame).child_body().body_frame().name()
-    from plants.model_file import _closest
+    from plants.model_file import closest_names
 
     frames = sorted({plant.get_frame(i).name() for i in _frame_indices(plant)})
-    raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {_closest(frame, frames)}")
+    raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {closest_names(frame, frames)}")
 
 
 def _frame_indices(plant):
@@ -461,7 +461,7 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
     mname = _map_name(t, name)
     precision = t.get("precision")
     if kind in ("frame_position", "frame_orientation", "frame_placement"):
-        t = {**t, "frame": _frame(robot, t["frame"], name)}
+        t = {**t, "frame": resolve_frame(robot, t["frame"], name)}
     if kind == "frame_position":
         axes = tuple(t.get("axes", (0, 1, 2)))
         if not axes or any(a not in (0, 1, 2) for a in axes):
@@ -469,7 +469,7 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         points = t.get("points")
         if "in_frame" in t:
             p = np.asarray(_vector(t.get("target"), f"[costs.{name}] target", 3))
-            X = robot.plant.GetFrameByName(_frame(robot, t["in_frame"], name)).CalcPoseInWorld(robot.set_state(q0))
+            X = robot.plant.GetFrameByName(resolve_frame(robot, t["in_frame"], name)).CalcPoseInWorld(robot.set_state(q0))
             target = (X.rotation().matrix() @ p + X.translation())[list(axes)]
         else:
             at_start = FramePoints(robot, t["frame"], points=points).value(q0)
@@ -522,13 +522,13 @@ def _joint_indices(robot, joints, name: str) -> list[int]:
         return list(range(robot.n_q))
     if not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
         raise ValueError(f"[costs.{name}] joints must be a list of joint names")
-    from plants.model_file import _closest
+    from plants.model_file import closest_names
 
     out = []
     for j in joints:
         if j not in robot.joint_names:
             raise ValueError(f"[costs.{name}] joint '{j}' is not a planning joint: closest "
-                             f"{_closest(j, robot.joint_names)}")
+                             f"{closest_names(j, robot.joint_names)}")
         out.append(robot.joint_names.index(j))
     return out
 
