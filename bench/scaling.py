@@ -28,7 +28,6 @@ import argparse
 import json
 import statistics
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,15 +40,16 @@ ITERATIONS = 4
 
 
 def _problem(plant: str, task: str, dynamics: str, T: int):
-    """The task's problem at horizon ``T`` (via-point times are fractions of ``T``; seed 0)."""
+    """The task's problem at horizon ``T`` (its via-point steps scaled with the horizon; seed 0)."""
     from planning.objective import build_terms
     from planning.problem import Problem
     from plants.dynamics_registry import make_dynamics
+    from stages.plan.problem_file import read_problem, shipped, with_horizon
     from stages.plan.stage import control_kind, initial_posture, shared_robot
-    from stages.plan.tasks import get_task
+    from stages.plan.tasks import task_from_problem
 
     robot = shared_robot(plant)
-    spec = replace(get_task(plant, task), T=T)
+    spec = task_from_problem(with_horizon(read_problem(shipped(plant, task)), T))
     q0 = initial_posture(robot, 0.05, 0)
     dyn = make_dynamics(dynamics, robot, spec.dt, None)
     objective = build_terms(robot, spec.build(robot, q0, T), T, control_kind(dyn))

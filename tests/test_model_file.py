@@ -379,3 +379,11 @@ def test_every_example_robot_data_model_loads_or_is_refused_in_one_line():
             assert "\n" not in str(e).strip(), str(e)
             refused.append(f)
     assert len(files) >= 80 and len(loaded) >= 70, (len(files), len(loaded), refused)
+
+
+def test_with_horizon_scales_listed_steps():
+    from stages.plan.problem_file import read_problem, shipped, with_horizon
+
+    pf = with_horizon(read_problem(shipped("arm5", "reach")), 250)
+    assert pf.T == 250 and pf.doc["costs"]["terms"]["via_x1"]["times"] == [125]
+    assert pf.doc["costs"]["terms"]["via_x2"]["times"] == "last"

@@ -533,5 +533,27 @@ def _joint_indices(robot, joints, name: str) -> list[int]:
     return out
 
 
+def with_horizon(problem: ProblemFile, T: int) -> ProblemFile:
+    """``problem`` at horizon ``T`` steps (same ``dt``): listed steps and ranges scaled by ``T / T0``
+    (rounded; ``last``, ``all``, ``running`` and ``every`` follow the horizon). For sweeps over the
+    horizon (``bench/scaling.py``)."""
+    import copy
+
+    doc = copy.deepcopy(problem.doc)
+    T0 = int(doc["horizon"]["T"])
+
+    def scale(step: int) -> int:
+        return min(T, round(step * T / T0))
+
+    for term in doc["costs"]["terms"].values():
+        times = term.get("times")
+        if isinstance(times, list):
+            term["times"] = sorted({scale(t) for t in times})
+        elif isinstance(times, dict):
+            term["times"] = {"from": scale(times["from"]), "to": scale(times["to"])}
+    doc["horizon"]["T"] = int(T)
+    return ProblemFile(doc)
+
+
 def shipped(plant: str, task: str) -> Path:
     return SHIPPED / f"{plant}_{task}.toml"
