@@ -19,7 +19,9 @@ from typer.testing import CliRunner
 from plants.model_file import ModelError, RobotSpec, example_robot_data, load_model
 
 ERD = example_robot_data()
-pytestmark = pytest.mark.skipif(ERD is None, reason="example-robot-data is not installed (pip extra baseline)")
+# compiled: the robots' tree kernels (generated per model, 2 to 32 joints) run under the sanitizers too
+pytestmark = [pytest.mark.skipif(ERD is None, reason="example-robot-data is not installed (pip extra baseline)"),
+              pytest.mark.compiled]
 ROBOTS = None if ERD is None else ERD / "robots"
 
 # name -> (file under robots/, [robot] table extras, end-effector frame, planning joints)
