@@ -124,9 +124,11 @@ if crocoddyl is not None:
             _assign(data.Rx, Rx)
 
         def createData(self, collector):
-            return _RollData(self, collector)
+            return _OwnKinematicsData(self, collector)
 
-    class _RollData(crocoddyl.ResidualDataAbstract):
+    class _OwnKinematicsData(crocoddyl.ResidualDataAbstract):
+        """A Python residual's data with its own Pinocchio data (the action's data is left alone)."""
+
         def __init__(self, model, collector):
             crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
             self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
@@ -349,12 +351,8 @@ if crocoddyl is not None:
             data.Rx[:, :] = Rx
 
         def createData(self, collector):
-            return _CoMData(self, collector)
+            return _OwnKinematicsData(self, collector)
 
-    class _CoMData(crocoddyl.ResidualDataAbstract):
-        def __init__(self, model, collector):
-            crocoddyl.ResidualDataAbstract.__init__(self, model, collector)
-            self.pdata = model.pmodel.createData()  # own kinematics: the action's data is left alone
 
 
 def _diag(C: np.ndarray, what: str) -> np.ndarray:

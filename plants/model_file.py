@@ -441,7 +441,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         if j not in names:
             raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {closest_names(j, names)}")
     armature = _per_joint(spec.armature, names, "armature")
-    unlimited = []
+    unlimited, file_efforts = [], _file_efforts(text, fmt)
     # SDF and MJCF files declare their actuators (URDF transmissions were replaced above): one per joint kept
     existing = {}
     for i in plant.GetJointActuatorIndices():
@@ -451,7 +451,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         existing[act.joint().index()] = act
     for j, arm in zip(planning, armature):
         act = existing.get(j.index())
-        effort = float(act.effort_limit()) if act is not None else _file_effort(text, fmt, j.name())
+        effort = float(act.effort_limit()) if act is not None else file_efforts.get(j.name())
         effort = limits.get(j.name(), {}).get("effort", effort)
         if not effort or effort <= 0 or not math.isfinite(effort):
             unlimited.append(j.name())
@@ -506,13 +506,15 @@ def _first_line(e: Exception) -> str:
 
 def _weld_base(plant, models, weld: str | None, path: Path, pose: tuple[float, ...] = ()) -> list[str]:
     """Weld ``weld`` (or a free root body) to the world; the report's line."""
+    from pydrake.multibody.tree import JointIndex
+
+    children = {plant.get_joint(JointIndex(i)).child_body().index() for i in range(plant.num_joints())}
     roots = [b for b in (plant.get_body(i) for m in models for i in plant.GetBodyIndices(m))
-             if not _has_joint(plant, b)]
+             if b.index() not in children]
     if weld is not None:
         if not plant.HasFrameNamed(weld):
-            frames = [plant.get_frame(i).name() for i in range(plant.num_frames())] \
-                if hasattr(plant, "num_frames") else []
-            raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest {closest_names(weld, frames)}")
+            raise ModelError(f"weld frame '{weld}' is not in {path.name}: closest "
+                             f"{closest_names(weld, frame_names(plant))}")
         from pydrake.math import RigidTransform, RollPitchYaw
 
         X_WF = RigidTransform(RollPitchYaw(*pose[3:]), list(pose[:3])) if pose else RigidTransform()
@@ -528,26 +530,23 @@ def _weld_base(plant, models, weld: str | None, path: Path, pose: tuple[float, .
     return []
 
 
-def _has_joint(plant, body) -> bool:
-    from pydrake.multibody.tree import JointIndex
+def frame_names(plant) -> list[str]:
+    """Every frame's name in ``plant`` (sorted, for the closest-name lists of error lines)."""
+    from pydrake.multibody.tree import FrameIndex
 
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        if j.child_body().index() == body.index():
-            return True
-    return False
+    return sorted({plant.get_frame(FrameIndex(i)).name() for i in range(plant.num_frames())})
 
 
-def _file_effort(text: str, fmt: str, joint: str) -> float | None:
+def _file_efforts(text: str, fmt: str) -> dict[str, float]:
+    """``joint -> <limit effort>`` of a URDF's text (none for other formats: their actuators say it)."""
     if fmt != "urdf":
-        return None
-    root = ET.fromstring(text)
-    for j in root.findall("joint"):
-        if j.get("name") == joint:
-            lim = j.find("limit")
-            if lim is not None and lim.get("effort") is not None:
-                return float(lim.get("effort"))
-    return None
+        return {}
+    out = {}
+    for j in ET.fromstring(text).findall("joint"):
+        lim = j.find("limit")
+        if lim is not None and lim.get("effort") is not None:
+            out[j.get("name")] = float(lim.get("effort"))
+    return out
 
 
 def _effort_of(plant, joint) -> float:

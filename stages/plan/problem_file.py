@@ -385,16 +385,10 @@ def resolve_frame(robot, frame: str, name: str) -> str:
         return frame
     if plant.HasJointNamed(frame):
         return plant.GetJointByName(frame).child_body().body_frame().name()
-    from plants.model_file import closest_names
+    from plants.model_file import closest_names, frame_names
 
-    frames = sorted({plant.get_frame(i).name() for i in _frame_indices(plant)})
-    raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest {closest_names(frame, frames)}")
-
-
-def _frame_indices(plant):
-    from pydrake.multibody.tree import FrameIndex
-
-    return [FrameIndex(i) for i in range(plant.num_frames())]
+    raise ValueError(f"[costs.{name}] frame '{frame}' is not in the robot: closest "
+                     f"{closest_names(frame, frame_names(plant))}")
 
 
 def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
