@@ -399,6 +399,37 @@ def validate(exp: Experiment) -> None:
             raise BadInput(f"variant '{v.label}': set the seeds with seeds = [...], not an option 'seed'")
 
 
+def identical_seeds(exp: Experiment) -> str | None:
+    """One line when some variant runs at several seeds that cannot differ, else None: a plan's seed
+    only draws its initial state ``q0 = default + N(0, q0_std^2)``, and a problem file's ``q0_std``
+    defaults to 0; an execution's seed only draws its noise (``x0_noise``, ``process_noise``)."""
+    if exp.stages[0] != "plan":
+        return None
+    from stages.registry import get_stage
+
+    ex_defaults = get_stage("execute").config_cls.defaults() if "execute" in exp.stages else {}
+    same = []
+    for v in exp.variants:
+        seeds = v.seeds or exp.seeds
+        if len(seeds) < 2:
+            continue
+        try:
+            q0_std = first_config(exp, Run(v, seeds[0])).normalized().q0_std
+        except (BadInput, ValueError):
+            continue  # validate() says what is wrong
+        ex = {**ex_defaults, **v.options.get("execute", {})}
+        if q0_std == 0 and not ex.get("x0_noise") and not ex.get("process_noise"):
+            same.append(v.label)
+    if not same:
+        return None
+    n = len(exp.seeds)
+    which = "every variant" if len(same) == len(exp.variants) else ", ".join(same[:3]) + (
+        f" and {len(same) - 3} more" if len(same) > 3 else "")
+    return (f"exp {exp.name}: note: q0_std = 0 (a problem file's default), so the seeds of {which} are identical "
+            f"runs ({n} seeds, one result); for initial states that differ set q0_std in [base] "
+            "(e.g. q0_std = 0.05, rad) or -S q0_std=0.05")
+
+
 # ----------------------------------------------------------------------------- running
 SEEDED = ("plan", "execute", "learn", "babble")   # stages whose ``seed`` is the run's seed
 
