@@ -420,6 +420,37 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     return robot, task, problem, q0, desc
 
 
+def reach_notes(robot: Robot, problem: Problem) -> list[str]:
+    """One line per position target (a via-point on a frame's points) farther from the robot's base
+    than the frame can get: the link lengths along the chain to it (:func:`plants.robots.chain_reach`).
+    The distance counts the target's coordinates the term sets (its ``axes``)."""
+    from planning.costs import ViaPoint
+    from plants.robots import chain_reach
+    from plants.taskmaps import FramePoints
+
+    out = []
+    for term in problem.state_terms:
+        tm = getattr(term, "taskmap", None)
+        if not isinstance(term, ViaPoint) or not isinstance(tm, FramePoints) or term.weight == 0:
+            continue
+        chain = chain_reach(robot, tm.frame.name())
+        if chain is None:
+            continue
+        base, reach = chain
+        k = len(tm.points)
+        axes = tm.rows[:len(tm.rows) // k] % 3
+        targets = term.target.reshape(k, len(axes))
+        dist = np.linalg.norm(targets - base[axes], axis=1)
+        excess = dist - (reach + np.linalg.norm(tm.points, axis=1))
+        j = int(np.argmax(excess))
+        if excess[j] > 0:
+            out.append(f"raico: note: the target of '{term.name}' ({tm.frame.name()} at "
+                       f"{np.round(targets[j], 4).tolist()} m) is {dist[j]:.3g} m from the robot's base, beyond its "
+                       f"reach of {reach + np.linalg.norm(tm.points[j]):.3g} m (the link lengths along the chain): "
+                       "planning anyway")
+    return out
+
+
 def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None,
          warm_start: Artifact | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception.
@@ -431,6 +462,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     robot, task, problem, q0, desc = build_problem(cfg, model)
     for line in desc.get("load_report", []):  # what loading the model file changed, said once per run
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
+    for line in reach_notes(robot, problem):
+        print(line, file=sys.stderr, flush=True)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)
