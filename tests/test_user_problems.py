@@ -3,10 +3,14 @@ robot's reach said before planning, control toward gravity, success judged per t
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from plants.model_file import example_robot_data
 from tests.test_model_file import problem_text, user_robot, write_problem
 
 FAR_REACH = """
@@ -46,3 +50,88 @@ def test_a_target_beyond_reach_is_said_before_planning_and_planned_anyway(tmp_pa
     near = write_problem(tmp_path, "near", problem_text(str(urdf), {}, FAR_REACH.format(target=[0.3, 0.0, 0.4]), T=10))
     r = CliRunner().invoke(app, ["plan", "--problem", str(near), "--iterations", "2", "--artifacts", str(tmp_path / "a")])
     assert r.exit_code == 0 and "beyond its reach" not in r.stderr, r.stderr
+
+
+UR5 = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
+
+
+def _ur5_toward_gravity(tmp_path: Path) -> Path:
+    """The README's UR5 reach with its control term toward the gravity-compensating torque."""
+    text = UR5.read_text()
+    assert text.rstrip().endswith('type = "control"\nweight = 1e-3')
+    p = tmp_path / "ur5_reach.toml"   # beside nothing: the model file is a package:// URI
+    p.write_text(text.rstrip() + '\ntarget = "gravity"\n')
+    return p
+
+
+@pytest.mark.skipif(example_robot_data() is None, reason="example-robot-data is not installed (pip extra baseline)")
+@pytest.mark.parametrize("solver,iterations", [("raico", 20), ("fddp", 30)])
+def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path, solver, iterations):
+    """The UR5 pays for holding itself up under a control cost toward zero; toward gravity it reaches
+    closer (and the whole cost falls by two orders of magnitude)."""
+    from planning import crocoddyl_model as cm
+    from stages.plan.stage import PlanConfig, plan
+
+    if solver == "fddp" and not cm.AVAILABLE:
+        pytest.skip(cm.UNAVAILABLE_REASON)
+    out = {}
+    for label, path in (("zero", UR5), ("gravity", _ur5_toward_gravity(tmp_path))):
+        m = plan(PlanConfig(problem=str(path), solver=solver, iterations=iterations).normalized()).metrics()
+        out[label] = (m["final_cost"], m["via_point_errors"]["reach@100"])
+    (c0, e0), (c1, e1) = out["zero"], out["gravity"]
+    assert e1 < e0 / 3 and c1 < c0 / 10, out
+
+
+def test_control_weights_per_joint_and_gravity_target_are_read_and_checked(tmp_path):
+    from planning.costs import ControlCost, ControlGravity
+    from stages.plan.stage import PlanConfig, build_problem
+
+    urdf = user_robot(tmp_path)
+    costs = FAR_REACH.format(target=[0.3, 0.0, 0.4]).replace("weight = 1e-2", "weight = [1e-2, 4e-2]")
+    p = write_problem(tmp_path, "w", problem_text(str(urdf), {}, costs + '\n[costs.hold]\ntype = "control"\n'
+                                                  'target = "gravity"\nweight = 0.5\n', T=10, dynamics="analytic"))
+    _, _, problem, _, desc = build_problem(PlanConfig(problem=str(p)))
+    effort = problem.term("control")
+    assert isinstance(effort, ControlCost) and effort.weight == 4e-2 and np.allclose(effort.c, [0.25, 1.0])
+    hold = problem.term("hold")
+    assert isinstance(hold, ControlGravity) and hold in problem.joint_terms and hold.weight == 0.5
+    U = np.ones((problem.T, 2))
+    assert np.allclose(effort.value(U), 1e-2 + 4e-2)
+    # the pseudo-dynamics' controls are accelerations: the gravity term does not apply to them
+    _, _, pseudo, _, _ = build_problem(PlanConfig(problem=str(p), dynamics="pseudo"))
+    assert "hold" not in pseudo.term_names() and "control" in pseudo.term_names()
+    for bad, needle in (("weight = [1e-2]", "has 1 values, expected 2"), ('target = "up"', 'or "gravity"')):
+        q = write_problem(tmp_path, "bad", problem_text(str(urdf), {}, costs.replace("weight = [1e-2, 4e-2]", bad)
+                                                        + ("\nweight = 1.0" if "target" in bad else ""), T=10))
+        with pytest.raises(ValueError, match=needle.replace("[", r"\[")):
+            build_problem(PlanConfig(problem=str(q)))
+
+
+def test_gravity_torques_hold_the_robot_still_and_their_jacobian_is_exact(tmp_path):
+    from plants.dynamics import AnalyticDynamics, GravityTorques
+    from plants.model_file import RobotSpec, load_model
+    from plants.numdiff import check_jacobian
+
+    robot = load_model(RobotSpec(file=str(user_robot(tmp_path))))
+    g = GravityTorques(robot)
+    q = np.array([0.7, -0.4])
+    tau, G = g.value_and_jacobian(q)
+    assert np.abs(tau).min() > 0.1   # an arm that holds itself up (N m)
+    acc = AnalyticDynamics(robot, 0.01).qddot(q, np.zeros(2), tau)
+    assert np.abs(acc).max() <= 1e-9 * np.abs(tau).max()
+    assert check_jacobian("dg/dq", G, g.value, q)
+
+
+def test_crocoddyl_refuses_control_toward_gravity_on_damped_joints(tmp_path):
+    """crocoddyl's residual takes the actuation's torque u - D v, raico's term u: one line, not a wrong cost."""
+    from planning import crocoddyl_model as cm
+    from stages.plan.stage import PlanConfig, build_problem
+
+    if not cm.AVAILABLE:
+        pytest.skip(cm.UNAVAILABLE_REASON)
+    urdf = user_robot(tmp_path)   # its shoulder is damped
+    costs = FAR_REACH.format(target=[0.3, 0.0, 0.4]) + 'target = "gravity"\n'
+    p = write_problem(tmp_path, "damped", problem_text(str(urdf), {}, costs, T=10, dynamics="analytic"))
+    _, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
+    with pytest.raises(cm.NotExpressible, match="damps its joints"):
+        cm.build(problem)

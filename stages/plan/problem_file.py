@@ -36,7 +36,8 @@ Cost term types (``type``) and their keys:
 - ``posture``: ``joints`` (names; default all), ``target`` (values or ``"start"``);
 - ``state``: ``target`` (``2 n`` values or ``"start"``: the start posture at rest), ``precision``
   (``2 n`` values, or ``{q = a, v = b}``);
-- ``control``: ``weight``, optional ``target`` (n values);
+- ``control``: ``weight`` (a number, or one per joint), optional ``target`` (n values, or ``"gravity"``:
+  the torque that holds the robot still, crocoddyl's ``ResidualModelControlGrav``; torque controls only);
 - ``control_limit``: ``lower``/``upper`` (default: the model's effort limits), soft, torques only;
 - ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
 
@@ -312,7 +313,15 @@ def _term(name: str, t: dict, T: int) -> dict:
     if "weight" not in t:
         raise ValueError(f"[costs.{name}] needs a weight")
     out = dict(t)
-    out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
+    if kind == "control" and isinstance(t["weight"], list):  # per-joint weights
+        out["weight"] = [_nonneg(w, f"[costs.{name}] weight") for w in t["weight"]]
+        if not out["weight"]:
+            raise ValueError(f"[costs.{name}] weight must be a number or one number per joint")
+    else:
+        out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
+    if kind == "control" and isinstance(t.get("target"), str) and t["target"] != "gravity":
+        raise ValueError(f"[costs.{name}] target must be {{n}} numbers or \"gravity\" (the torque that holds the "
+                         f"robot still), got {t['target']!r}")
     if "times" in TERM_KEYS[kind]:
         out["times"] = _times(t.get("times"), T, name)
     for key in ("frame", "in_frame", "angle", "relative", "map"):
@@ -399,11 +408,7 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
     for name, t in doc["terms"].items():
         kind = t["type"]
         if kind == "control":
-            w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
-            d = ob.control(w, name)
-            if "target" in t:
-                d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
-            out.append(d)
+            out.append(_control(name, t, robot, 0.5 * dt if convention == "crocoddyl" else 1.0))
             continue
         if kind == "control_limit":
             w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
@@ -416,6 +421,26 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
             suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
             out.append(_state_term(f"{name}{suffix}", t, robot, q0, steps, t["weight"] * factor))
     return out
+
+
+def _control(name: str, t: dict, robot, factor: float) -> dict:
+    """A control term's description: ``target`` numbers (N m, or rad/s^2) or ``"gravity"`` (the torque
+    that holds the robot still, for torque controls only); a list ``weight`` weighs each joint: the
+    term's weight is the largest, the list over it its precision."""
+    w = t["weight"]
+    precision = None
+    if isinstance(w, list):
+        w = np.asarray(_vector(w, f"[costs.{name}] weight", robot.n_q))
+        top = float(w.max())
+        precision, w = (w / top if top > 0 else np.ones_like(w)).tolist(), top
+    d = ob.control(w * factor, name)
+    if t.get("target") == "gravity":
+        d.update(target="gravity", controls="torque")
+    elif "target" in t:
+        d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
+    if precision is not None:
+        d["precision"] = precision
+    return d
 
 
 def _target(t: dict, name: str, value_at_start: np.ndarray) -> np.ndarray:

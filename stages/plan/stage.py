@@ -406,9 +406,9 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
     objective = build_terms(robot, terms, task.T, kind)
-    descriptions, joint = objective.descriptions, []
+    descriptions, joint = objective.descriptions, list(objective.joint_terms)
     if cfg.sigma is not None:  # the uncertainty term from the config's values (its description only stored)
-        joint = [Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units)]
+        joint.append(Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units))
         descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
