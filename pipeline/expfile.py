@@ -581,7 +581,23 @@ def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> di
     stage_status = [row.get(f"{s}.status") for s in exp.stages]
     row["status"], row["error"] = status, error
     row["failed"] = status == "error" or any(s in FAILED_STATUSES for s in stage_status)
+    row["achieved"] = achieved(result, exp.stages) if status != "error" else False
     return row
+
+
+def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
+    """Whether a run achieved its task: its last stage that judges one (execute, else plan) has every
+    via-point within its tolerance (``planning.costs.task_errors``), an execution with status ok, a plan
+    not diverged; None where no stage judges a task (no via-point, or a stage without the verdict)."""
+    for stage, good in (("execute", lambda st: st == "ok"), ("plan", lambda st: st != "diverged")):
+        if stage not in stages:
+            continue
+        res = result.get(stage) or {}
+        task = (res.get("metrics") or {}).get("task")
+        if isinstance(task, dict):
+            return bool(task.get("achieved")) and good(res.get("status"))
+        return None
+    return None
 
 
 def _meta(cache, stage: str, key: str) -> dict:
@@ -688,7 +704,7 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     if only_changed:
         keys = ["variant", *[k for k in keys[1:] if df[k].astype(str).nunique() > 1]]
     if not group:
-        cols = [*keys, "seed", "status", "error", *metrics]
+        cols = [*keys, "seed", "status", "achieved", "error", *metrics]
         out = df[[c for c in cols if c in df.columns]]
         return out.sort_values(sort) if sort else out
     rows = []
@@ -698,6 +714,11 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
         row["n"] = len(g)
         failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
         row["failed"] = f"{failed}/{len(g)}"
+        if "achieved" in g and g["achieved"].notna().any():   # runs that judged a task, and how many achieved it
+            judged = g["achieved"].dropna()
+            row["achieved"] = f"{int(judged.astype(bool).sum())}/{len(judged)}"
+        if "status" in g:
+            row["statuses"] = ", ".join(f"{st} {k}" for st, k in g["status"].astype(str).value_counts().items())
         for m in metrics:
             x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
             if not x.size:

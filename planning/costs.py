@@ -19,6 +19,7 @@ velocity block is zero).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -178,11 +179,14 @@ class ViaPoint(_OnPositions):
         weight: ``w`` (thesis eq. 3.7: 1e4).
         precision: diagonal of ``C (dim,)`` (default ones) or a full ``(dim, dim)`` matrix.
         name: unique name of the term.
+        tol: the term's own tolerance of "task achieved" in its unit (:func:`task_errors`; a frame
+            placement ``[m, rad]``); None: its kind's default.
     """
 
     def __init__(self, taskmap: TaskMap, target, times, weight: float = 1e4,
-                 precision=None, name: str | None = None):
+                 precision=None, name: str | None = None, tol=None):
         self.taskmap = taskmap
+        self.tol = tol
         self.target = np.asarray(target, dtype=float).reshape(-1)
         if self.target.shape != (taskmap.dim,):
             raise ValueError(f"ViaPoint target has shape {self.target.shape}, "
@@ -862,3 +866,84 @@ def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
         else:
             out.update({f"{term.name}@{t}": float(e) for t, e in zip(idx, errs)})
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# "Task achieved": each via-point judged in its own unit, against its kind's tolerance (or its own).
+# --------------------------------------------------------------------------------------------
+TASK_TOLERANCES = {"position": (0.01, "m"), "orientation": (0.05, "rad"), "com": (0.01, "m"),
+                   "posture": (0.05, "rad")}   # kind -> (default tolerance, unit)
+
+
+def task_kinds(term) -> list[tuple[str, np.ndarray]]:
+    """A via-point's kinds and the task-map rows each covers: ``[(kind, rows)]`` (one kind; a frame
+    placement two: its position rows, then its orientation rows); ``[]`` for a task map of no kind."""
+    from plants.taskmaps import CenterOfMass, FramePlacementError, FrameRotationError, JointPositions, RollAngle
+
+    tm, rows = term.taskmap, np.arange(term.taskmap.dim)
+    if isinstance(tm, FramePoints):
+        return [("position", rows)]
+    if isinstance(tm, (FrameRotationError, RollAngle)):
+        return [("orientation", rows)]
+    if isinstance(tm, CenterOfMass):
+        return [("com", rows)]
+    if isinstance(tm, JointPositions):
+        return [("posture", rows)]
+    if isinstance(tm, FramePlacementError):
+        return [("position", rows[:3]), ("orientation", rows[3:])]
+    return []
+
+
+def task_errors(problem, X: np.ndarray) -> dict[str, dict]:
+    """Per via-point (a frame placement: ``NAME`` its position, ``NAME/orientation`` its orientation):
+    ``{"kind", "unit", "error", "tol"}``: the largest Euclidean error over its steps (the dimensions
+    that count, as :func:`via_point_errors`; ``inf`` where a state is not finite) in the kind's unit,
+    and its tolerance: the term's own ``tol`` (a number, or for a placement ``[m, rad]``), else the
+    kind's default (:data:`TASK_TOLERANCES`). Terms that also cost step 0 are left out."""
+    n_q = X.shape[1] // 2
+    out: dict[str, dict] = {}
+    for term in problem.state_terms:
+        if not isinstance(term, ViaPoint) or term.is_active_at(0) or term.weight == 0:
+            continue
+        kinds = task_kinds(term)
+        if not kinds:
+            continue
+        w = np.diag(term.C)
+        idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
+        good = np.all(np.isfinite(X[idx]), axis=1)
+        diff = np.full((idx.size, term.taskmap.dim), np.inf)
+        if good.any():
+            phi, _ = term.taskmap.values_and_jacobians(X[idx[good], :n_q])
+            diff[good] = term.target - phi
+        own = getattr(term, "tol", None)
+        own = [own] if own is not None and np.ndim(own) == 0 else own
+        for k, (kind, rows) in enumerate(kinds):
+            keep = rows[w[rows] >= 0.01 * w.max()]
+            if not keep.size:
+                continue
+            tol, unit = TASK_TOLERANCES[kind]
+            if own is not None and k < len(own):
+                tol = float(own[k])
+            err = float(np.max(np.linalg.norm(diff[:, keep], axis=1))) if idx.size else 0.0
+            name = term.name if k == 0 else f"{term.name}/{kind}"
+            out[name] = {"kind": kind, "unit": unit, "error": err, "tol": tol}
+    return out
+
+
+def task_verdict(errors: dict[str, dict]) -> dict | None:
+    """Whether every term of :func:`task_errors` is within its tolerance, and the worst term (the largest
+    error over tolerance): ``{"achieved", "worst", "kind", "unit", "error", "tol"}``; None without terms."""
+    if not errors:
+        return None
+    name, e = max(errors.items(), key=lambda kv: kv[1]["error"] / kv[1]["tol"] if kv[1]["tol"] > 0
+                  else (math.inf if kv[1]["error"] > 0 else 0.0))
+    achieved = all(v["error"] <= v["tol"] for v in errors.values())
+    return {"achieved": bool(achieved), "worst": name, **e}
+
+
+def task_line(verdict: dict) -> str:
+    """``task achieved: worst term 'reach' 0.00632 m <= 0.01 m (position)`` (or ``missed``, ``>``)."""
+    ok = verdict["error"] <= verdict["tol"]
+    return (f"task {'achieved' if verdict['achieved'] else 'missed'}: worst term '{verdict['worst']}' "
+            f"{verdict['error']:.3g} {verdict['unit']} {'<=' if ok else '>'} {verdict['tol']:g} {verdict['unit']} "
+            f"({verdict['kind']})")

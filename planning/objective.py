@@ -96,12 +96,16 @@ def _times_desc(times) -> list[int] | dict:
     return [int(t) for t in times]
 
 
-def via(name: str, taskmap: dict, target, times, weight: float, precision=None) -> TermDesc:
-    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``."""
+def via(name: str, taskmap: dict, target, times, weight: float, precision=None, tol=None) -> TermDesc:
+    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``; ``tol``: its own tolerance of
+    "task achieved" (``planning.costs.task_errors``), kept only where given."""
     times = _times_desc(times)
-    return {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
-            "times": times, "weight": float(weight),
-            "precision": None if precision is None else np.asarray(precision, float).tolist()}
+    d = {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
+         "times": times, "weight": float(weight),
+         "precision": None if precision is None else np.asarray(precision, float).tolist()}
+    if tol is not None:
+        d["tol"] = tol
+    return d
 
 
 def inequality(name: str, taskmap: dict, A, b, times, weight: float, **info: Any) -> TermDesc:
@@ -169,7 +173,7 @@ def build_term(robot, d: TermDesc):
     kind = d["term"]
     if kind == "via":
         return ViaPoint(build_taskmap(robot, d["map"]), d["target"], list(_times(d["times"])), d["weight"],
-                        d.get("precision"), name=d["name"])
+                        d.get("precision"), name=d["name"], tol=d.get("tol"))
     if kind == "inequality":
         return TaskInequality(build_taskmap(robot, d["map"]), d["A"], d["b"], list(_times(d["times"])),
                               d["weight"], name=d["name"])

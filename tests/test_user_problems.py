@@ -135,3 +135,98 @@ def test_crocoddyl_refuses_control_toward_gravity_on_damped_joints(tmp_path):
     _, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
     with pytest.raises(cm.NotExpressible, match="damps its joints"):
         cm.build(problem)
+
+
+# ------------------------------------------------------------------ task achieved, per term kind in its unit
+HELD = """
+[costs.reach]
+type = "frame_position"
+frame = "tip"
+target = [0.005, 0.0, 0.0]
+relative = "start"
+times = "last"
+weight = 1e4
+
+[costs.bend]
+type = "posture"
+joints = ["elbow"]
+target = [0.03]
+relative = "start"
+times = "last"
+weight = 10.0
+{tol}
+
+[costs.control]
+type = "control"
+weight = 1e-2
+"""
+
+
+def _held_problem(tmp_path, tol: str = ""):
+    from stages.plan.stage import PlanConfig, build_problem
+
+    urdf = tmp_path / "two_link" / "urdf" / "two_link.urdf"
+    urdf = urdf if urdf.exists() else user_robot(tmp_path)
+    p = write_problem(tmp_path, "held", problem_text(str(urdf), {}, HELD.format(tol=tol), T=10))
+    _, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
+    return problem, np.tile(problem.x0, (problem.T + 1, 1))   # the robot held at its start: errors 5 mm, 0.03 rad
+
+
+def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
+    from planning.costs import TASK_TOLERANCES, task_errors, task_line, task_verdict
+
+    problem, X = _held_problem(tmp_path)
+    errors = task_errors(problem, X)
+    assert {k: (v["kind"], v["unit"], v["tol"]) for k, v in errors.items()} == {
+        "reach": ("position", "m", TASK_TOLERANCES["position"][0]), "bend": ("posture", "rad", 0.05)}
+    assert np.isclose(errors["reach"]["error"], 0.005, rtol=1e-9) and np.isclose(errors["bend"]["error"], 0.03, rtol=1e-9)
+    verdict = task_verdict(errors)   # 0.03 rad is not judged against the 0.01 m of a position
+    assert verdict["achieved"] and verdict["worst"] == "bend"   # 0.03 / 0.05 above 0.005 / 0.01
+    assert task_line(verdict) == "task achieved: worst term 'bend' 0.03 rad <= 0.05 rad (posture)"
+    problem, X = _held_problem(tmp_path, "tol = 0.02")    # the term's own tolerance
+    verdict = task_verdict(task_errors(problem, X))
+    assert not verdict["achieved"] and task_line(verdict) == "task missed: worst term 'bend' 0.03 rad > 0.02 rad (posture)"
+    X[-1] = np.nan   # a diverged execution misses
+    assert task_verdict(task_errors(problem, X))["error"] == np.inf
+    with pytest.raises(ValueError, match=r"tol must be a number > 0"):
+        _held_problem(tmp_path, "tol = -1.0")
+
+
+def test_the_outcome_line_names_the_worst_term_and_its_unit():
+    from pipeline.runner import Outcome, outcome_line
+
+    task = {"achieved": True, "worst": "level", "kind": "orientation", "unit": "rad", "error": 0.0818, "tol": 0.1}
+    line = outcome_line(Outcome("execute", "k" * 16, "p", True, "ok", {"task": task, "via_point_errors": {"reach@9": 0.002}}))
+    assert "[ok; task achieved: worst term 'level' 0.0818 rad <= 0.1 rad (orientation)]" in line
+    line = outcome_line(Outcome("execute", "k" * 16, "p", True, "limits", {"task": task}))
+    assert "task missed: worst term 'level' 0.0818 rad <= 0.1 rad (orientation)" in line   # achieved needs status ok
+
+
+def test_runs_table_has_achieved_and_exp_show_counts_statuses_and_only_the_used_thresholds(tmp_path):
+    import json
+
+    problem = write_problem(tmp_path, "reach", problem_text(str(user_robot(tmp_path)), {},
+                                                            FAR_REACH.format(target=[0.3, 0.0, 0.4]), T=10,
+                                                            dynamics="analytic"))
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'name = "reach-user"\nstages = ["plan", "execute"]\nseeds = "range(2)"\n[base]\n'
+                   f'problem = "{problem}"\niterations = 2\nq0_std = 0.05\n')
+    arts = tmp_path / "arts"
+    r = CliRunner().invoke(app, ["exp", "run", str(exp), "--executor", "serial", "--artifacts", str(arts)])
+    assert r.exit_code == 0, r.output
+    rows = json.loads((arts / "exp" / "reach-user" / "runs.json").read_text())["rows"]
+    assert [type(row["achieved"]) for row in rows] == [bool, bool]
+    assert all(row["achieved"] == (row["execute.status"] == "ok" and row["execute.task.achieved"]) for row in rows)
+    assert all(row["execute.task.worst"] == "reach" and row["execute.task.unit"] == "m" for row in rows)
+    columns = set().union(*rows)
+    assert "execute.thresholds.tracking_lost_rad" in columns
+    assert not {c for c in columns if c.endswith(("foot_lift_m", "fall_torso_drop_m", "contact_tol_m"))}
+    r = CliRunner().invoke(app, ["exp", "show", "reach-user", "--format", "json", "--artifacts", str(arts)])
+    assert r.exit_code == 0, r.output
+    (group,) = json.loads(r.stdout)
+    k = sum(row["achieved"] for row in rows)
+    assert group["achieved"] == f"{k}/2"
+    statuses = {}
+    for row in rows:
+        statuses[row["status"]] = statuses.get(row["status"], 0) + 1
+    assert group["statuses"] == ", ".join(f"{s} {n}" for s, n in sorted(statuses.items(), key=lambda kv: -kv[1]))

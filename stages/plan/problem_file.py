@@ -42,7 +42,10 @@ Cost term types (``type``) and their keys:
 - ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
 
 Every term may name its task map (``map``, default: the frame's name, ``cog``, ``joints`` or the
-term's name): terms on maps of one name share a plot and a path in the recordings.
+term's name): terms on maps of one name share a plot and a path in the recordings. A via-point term
+(``frame_position``, ``frame_orientation``, ``frame_placement``, ``com``, ``posture``) may set its
+tolerance of "task achieved" in its unit, ``tol`` (m or rad; a placement ``[m, rad]``; default its
+kind's, ``planning.costs.TASK_TOLERANCES``).
 
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
@@ -84,11 +87,11 @@ CONVENTIONS = ("raico", "crocoddyl")
 TIMES = ("last", "all", "running", "every")
 COMMON = {"type", "weight", "times", "map"}
 TERM_KEYS = {
-    "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame"},
-    "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision"},
-    "frame_placement": COMMON | {"frame", "position", "rotation", "rpy", "precision"},
-    "com": COMMON | {"target", "axes", "precision", "relative"},
-    "posture": COMMON | {"joints", "target", "precision", "relative"},
+    "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame", "tol"},
+    "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision", "tol"},
+    "frame_placement": COMMON | {"frame", "position", "rotation", "rpy", "precision", "tol"},
+    "com": COMMON | {"target", "axes", "precision", "relative", "tol"},
+    "posture": COMMON | {"joints", "target", "precision", "relative", "tol"},
     "state": COMMON | {"target", "precision"},
     "control": {"type", "weight", "target"},
     "control_limit": {"type", "weight", "lower", "upper"},
@@ -337,7 +340,20 @@ def _term(name: str, t: dict, T: int) -> dict:
         raise ValueError(f"[costs.{name}] needs rotation (3 x 3) or rpy (3), or angle = \"roll\" with a target")
     if kind == "frame_placement" and "position" not in t:
         raise ValueError(f"[costs.{name}] needs a position (3)")
+    if "tol" in t:
+        out["tol"] = _tol(t["tol"], name, kind)
     return out
+
+
+def _tol(v, name: str, kind: str):
+    """A term's own tolerance of "task achieved": a number > 0 in its unit (m, rad); a frame placement's
+    a number (both parts) or ``[m, rad]``."""
+    vals = v if isinstance(v, list) and kind == "frame_placement" else [v]
+    if len(vals) not in (1, 2) or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not 0 < x < math.inf
+                                      for x in vals):
+        raise ValueError(f"[costs.{name}] tol must be a number > 0 (m or rad"
+                         + (", or [m, rad] for a frame placement" if kind == "frame_placement" else "") + f"), got {v!r}")
+    return [float(x) for x in vals] if isinstance(v, list) else float(v)
 
 
 # ------------------------------------------------------------------ building
@@ -479,6 +495,7 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
     kind = t["type"]
     mname = _map_name(t, name)
     precision = t.get("precision")
+    tol = t.get("tol")
     if kind in ("frame_position", "frame_orientation", "frame_placement"):
         t = {**t, "frame": resolve_frame(robot, t["frame"], name)}
     if kind == "frame_position":
@@ -496,25 +513,24 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
                 else at_start[list(axes)]
             target = _target(t, name, at_start)
         m = ob.frame_points(t["frame"], mname, axes=axes, points=points)
-        return ob.via(name, m, target, steps, weight, precision)
+        return ob.via(name, m, target, steps, weight, precision, tol)
     if kind == "frame_orientation":
         if "angle" in t:
             return ob.via(name, ob.roll(t["frame"], t.get("map", "roll")), [_number(t.get("target"), f"[costs.{name}] target")],
-                          steps, weight, precision)
+                          steps, weight, precision, tol)
         return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), mname), np.zeros(3), steps,
-                      weight,
-                      precision)
+                      weight, precision, tol)
     if kind == "frame_placement":
         p = _vector(t["position"], f"[costs.{name}] position", 3)
         return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, mname), np.zeros(6), steps,
-                      weight, precision)
+                      weight, precision, tol)
     if kind == "com":
         axes = tuple(t.get("axes", (0, 1, 2)))
         at_start = CenterOfMass(robot).value(q0)[list(axes)]
-        return ob.via(name, ob.cog(axes, mname), _target(t, name, at_start), steps, weight, precision)
+        return ob.via(name, ob.cog(axes, mname), _target(t, name, at_start), steps, weight, precision, tol)
     if kind == "posture":
         idx = _joint_indices(robot, t.get("joints"), name)
-        return ob.via(name, ob.joints(mname, idx), _target(t, name, q0[idx]), steps, weight, precision)
+        return ob.via(name, ob.joints(mname, idx), _target(t, name, q0[idx]), steps, weight, precision, tol)
     if kind == "state":
         if isinstance(precision, dict):  # {q = a, v = b}: one weight for the positions, one for the velocities
             _refuse_unknown(precision, {"q", "v"}, f"[costs.{name}] precision")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planning.costs import SIGMA_UNITS, Uncertainty, via_point_errors
+from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, via_point_errors
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
 from planning.problem import Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
@@ -322,7 +322,8 @@ class PlanOutput:
                "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
                "iterations": int(r.iterations), "status": str(r.status),
                "wall_time_s": float(sum(h.time_s for h in r.history)),
-               "via_point_errors": self.via_point_errors(), "message": r.message}
+               "via_point_errors": self.via_point_errors(), "task": task_verdict(task_errors(self.problem, r.X)),
+               "message": r.message}
         if "balance" in self.description:  # only with --balance: other plans' metrics as before
             out["balance"] = self.balance_metrics()
         return out
