@@ -54,7 +54,7 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
     dyn = make_dynamics(dynamics, robot, spec.dt, None)
     objective = build_terms(robot, spec.build(robot, q0, T), T, control_kind(dyn))
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
-    return Problem(dyn, x0, T, objective.state_terms, objective.control_terms, [])
+    return Problem(dyn, x0, T, objective.state_terms, objective.control_terms, objective.joint_terms)
 
 
 def seconds_per_iteration(plant: str, task: str, dynamics: str, T: int, solver: str, reps: int = 2) -> float:

@@ -373,6 +373,10 @@ def exp_run(
         raise BadInput("--jobs must be in [1, 64]")
     cache = open_cache(artifacts)
     reporter = Reporter(quiet)
+    same = expfile.identical_seeds(exp)   # seeds that cannot differ: said before the runs
+    if same:
+        reporter.say(same)
+
     def summary_of(cached: int) -> dict:
         runs = len(exp.runs)
         return {"experiment": exp.name, "variants": len(exp.variants), "seeds": len(exp.seeds), "runs": runs,

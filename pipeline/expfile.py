@@ -399,6 +399,37 @@ def validate(exp: Experiment) -> None:
             raise BadInput(f"variant '{v.label}': set the seeds with seeds = [...], not an option 'seed'")
 
 
+def identical_seeds(exp: Experiment) -> str | None:
+    """One line when some variant runs at several seeds that cannot differ, else None: a plan's seed
+    only draws its initial state ``q0 = default + N(0, q0_std^2)``, and a problem file's ``q0_std``
+    defaults to 0; an execution's seed only draws its noise (``x0_noise``, ``process_noise``)."""
+    if exp.stages[0] != "plan":
+        return None
+    from stages.registry import get_stage
+
+    ex_defaults = get_stage("execute").config_cls.defaults() if "execute" in exp.stages else {}
+    same = []
+    for v in exp.variants:
+        seeds = v.seeds or exp.seeds
+        if len(seeds) < 2:
+            continue
+        try:
+            q0_std = first_config(exp, Run(v, seeds[0])).normalized().q0_std
+        except (BadInput, ValueError):
+            continue  # validate() says what is wrong
+        ex = {**ex_defaults, **v.options.get("execute", {})}
+        if q0_std == 0 and not ex.get("x0_noise") and not ex.get("process_noise"):
+            same.append(v.label)
+    if not same:
+        return None
+    n = len(exp.seeds)
+    which = "every variant" if len(same) == len(exp.variants) else ", ".join(same[:3]) + (
+        f" and {len(same) - 3} more" if len(same) > 3 else "")
+    return (f"exp {exp.name}: note: q0_std = 0 (a problem file's default), so the seeds of {which} are identical "
+            f"runs ({n} seeds, one result); for initial states that differ set q0_std in [base] "
+            "(e.g. q0_std = 0.05, rad) or -S q0_std=0.05")
+
+
 # ----------------------------------------------------------------------------- running
 SEEDED = ("plan", "execute", "learn", "babble")   # stages whose ``seed`` is the run's seed
 
@@ -550,7 +581,23 @@ def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> di
     stage_status = [row.get(f"{s}.status") for s in exp.stages]
     row["status"], row["error"] = status, error
     row["failed"] = status == "error" or any(s in FAILED_STATUSES for s in stage_status)
+    row["achieved"] = achieved(result, exp.stages) if status != "error" else False
     return row
+
+
+def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
+    """Whether a run achieved its task: its last stage that judges one (execute, else plan) has every
+    via-point within its tolerance (``planning.costs.task_errors``), an execution with status ok, a plan
+    not diverged; None where no stage judges a task (no via-point, or a stage without the verdict)."""
+    for stage, good in (("execute", lambda st: st == "ok"), ("plan", lambda st: st != "diverged")):
+        if stage not in stages:
+            continue
+        res = result.get(stage) or {}
+        task = (res.get("metrics") or {}).get("task")
+        if isinstance(task, dict):
+            return bool(task.get("achieved")) and good(res.get("status"))
+        return None
+    return None
 
 
 def _meta(cache, stage: str, key: str) -> dict:
@@ -657,7 +704,7 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     if only_changed:
         keys = ["variant", *[k for k in keys[1:] if df[k].astype(str).nunique() > 1]]
     if not group:
-        cols = [*keys, "seed", "status", "error", *metrics]
+        cols = [*keys, "seed", "status", "achieved", "error", *metrics]
         out = df[[c for c in cols if c in df.columns]]
         return out.sort_values(sort) if sort else out
     rows = []
@@ -667,6 +714,11 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
         row["n"] = len(g)
         failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
         row["failed"] = f"{failed}/{len(g)}"
+        if "achieved" in g and g["achieved"].notna().any():   # runs that judged a task, and how many achieved it
+            judged = g["achieved"].dropna()
+            row["achieved"] = f"{int(judged.astype(bool).sum())}/{len(judged)}"
+        if "status" in g:
+            row["statuses"] = ", ".join(f"{st} {k}" for st, k in g["status"].astype(str).value_counts().items())
         for m in metrics:
             x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
             if not x.size:

@@ -1043,6 +1043,8 @@ def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
                 values.setdefault(t.name, []).append(float(np.sum(t.value(P["X"]))))
             for t in obj.control_terms:
                 values.setdefault(t.name, []).append(float(np.sum(t.value(P["U"]))))
+            for t in obj.joint_terms:
+                values.setdefault(t.name, []).append(float(np.sum(t.joint_value(P["X"][:-1], P["U"]))))
     return {k: median(np.array(v)) for k, v in values.items()}
 
 

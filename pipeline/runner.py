@@ -62,7 +62,13 @@ def outcome_notes(outcome: Outcome) -> list[str]:
     via-points reached, the report's tolerance) and whether a plan's cost rose over its iterations."""
     m = outcome.metrics if isinstance(outcome.metrics, dict) else {}
     notes = []
-    if outcome.stage == "execute" and m.get("via_point_errors"):
+    if outcome.stage == "execute" and isinstance(m.get("task"), dict):   # each term in its unit, the worst named
+        from planning.costs import task_line
+
+        verdict = {**m["task"], "achieved": bool(m["task"]["achieved"]) and outcome.status == "ok"}
+        notes.append(task_line(verdict) + ("" if outcome.status == "ok" or not m["task"]["achieved"]
+                                           else f", status {outcome.status}"))
+    elif outcome.stage == "execute" and m.get("via_point_errors"):   # an entry from before the task verdict
         from stages.evaluate.claims import EXECUTED_VIA_TOL, executed_achieved
         from stages.evaluate.summary import largest_via_error
 

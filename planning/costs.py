@@ -19,6 +19,7 @@ velocity block is zero).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -178,11 +179,14 @@ class ViaPoint(_OnPositions):
         weight: ``w`` (thesis eq. 3.7: 1e4).
         precision: diagonal of ``C (dim,)`` (default ones) or a full ``(dim, dim)`` matrix.
         name: unique name of the term.
+        tol: the term's own tolerance of "task achieved" in its unit (:func:`task_errors`; a frame
+            placement ``[m, rad]``); None: its kind's default.
     """
 
     def __init__(self, taskmap: TaskMap, target, times, weight: float = 1e4,
-                 precision=None, name: str | None = None):
+                 precision=None, name: str | None = None, tol=None):
         self.taskmap = taskmap
+        self.tol = tol
         self.target = np.asarray(target, dtype=float).reshape(-1)
         if self.target.shape != (taskmap.dim,):
             raise ValueError(f"ViaPoint target has shape {self.target.shape}, "
@@ -376,18 +380,23 @@ class ControlTerm:
 
 
 class ControlCost(ControlTerm):
-    """Control effort ``w_u (u_t - u*)^T (u_t - u*)`` (``u* = 0`` by default): ``H = 2 w_u I``.
+    """Control effort ``w_u (u_t - u*)^T C (u_t - u*)`` (``u* = 0``, ``C = I`` by default):
+    ``H = 2 w_u C``.
 
     Args:
         weight: ``w_u`` (thesis eq. 3.7: 1e-2), per (control unit)^2.
-        target: optional ``u* (n_u,)`` (then ``h = 2 w_u u*``).
+        target: optional ``u* (n_u,)`` (then ``h = 2 w_u C u*``).
+        precision: optional diagonal of ``C (n_u,)``: per-joint weights (relative to ``w_u``).
         name: unique name of the term.
     """
 
-    def __init__(self, weight: float = 1e-2, target=None, name: str = "control"):
+    def __init__(self, weight: float = 1e-2, target=None, name: str = "control", precision=None):
         self.name = name
         self.weight = _check_weight(weight, name)
         self.target = None if target is None else np.asarray(target, dtype=float).reshape(-1)
+        self.c = None if precision is None else np.asarray(precision, dtype=float).reshape(-1)
+        if self.c is not None and (np.any(self.c < 0) or not np.all(np.isfinite(self.c))):
+            raise ValueError(f"{name}: precision must be finite values >= 0")
 
     def _err(self, U: np.ndarray) -> np.ndarray:
         U = np.atleast_2d(U)
@@ -395,13 +404,16 @@ class ControlCost(ControlTerm):
 
     def value(self, U):
         e = self._err(U)
+        if self.c is not None:
+            return self.weight * np.einsum("ki,i,ki->k", e, self.c, e)
         return self.weight * np.einsum("ki,ki->k", e, e)
 
     def derivatives(self, U):
         e = self._err(U)
         n_u = e.shape[1]
-        luu = np.broadcast_to(2.0 * self.weight * np.eye(n_u), (e.shape[0], n_u, n_u)).copy()
-        return 2.0 * self.weight * e, luu
+        C = np.eye(n_u) if self.c is None else np.diag(self.c)
+        luu = np.broadcast_to(2.0 * self.weight * C, (e.shape[0], n_u, n_u)).copy()
+        return 2.0 * self.weight * (e if self.c is None else e * self.c), luu
 
 
 class ControlLimit(ControlTerm):
@@ -571,6 +583,138 @@ class Uncertainty:
         return self.joint_value(self._X, np.atleast_2d(U))
 
 
+class ControlGravity:
+    """Control effort toward the gravity-compensating torque, a joint term on ``(x_t, u_t)``:
+    ``c_t = w (u_t - g(q_t))^T C (u_t - g(q_t))`` at every step ``t = 0..T-1`` (crocoddyl's
+    ``ResidualModelControlGrav``), ``g`` the torques that hold the robot still
+    (:class:`plants.dynamics.GravityTorques`, N m) and ``C`` diagonal (per-joint weights, default ones).
+
+    An arm that holds itself up pays for its own weight under a control cost toward zero; this one
+    costs only what the controls add to holding it. Derivatives as the other joint term's
+    (:class:`Uncertainty`): the gradient is exact, ``l_x = -2 w G^T C r`` on the ``q`` block
+    (``G = dg/dq``, ``r = u - g(q)``) at the nominal controls and ``l_u = 2 w C r`` at the nominal
+    states; the Gauss-Newton Hessians ``2 w G^T C G`` and ``2 w C`` (the latter exact); the cross
+    term ``-2 w G^T C`` is dropped (solvers take ``l_ux = 0``).
+
+    Args:
+        robot: a robot (``plants.robots.Robot``) with torque controls.
+        weight: ``w`` per (N m)^2.
+        T: the horizon (steps).
+        precision: diagonal of ``C (n_q,)``.
+        name: unique name of the term.
+    """
+
+    def __init__(self, robot, weight: float, T: int, precision=None, name: str = "control"):
+        from plants.dynamics import GravityTorques
+
+        self.gravity = GravityTorques(robot)
+        self.name = name
+        self.weight = _check_weight(weight, name)
+        self.T = int(T)
+        self.times = np.arange(self.T)
+        n = robot.n_q
+        self.c = np.ones(n) if precision is None else np.asarray(precision, float).reshape(-1)
+        if self.c.shape != (n,) or np.any(self.c < 0) or not np.all(np.isfinite(self.c)):
+            raise ValueError(f"{name}: precision must be {n} finite values >= 0")
+        self._X = self._U = None
+        self._memo = None
+
+    def _g(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``g (K, n)`` and ``dg/dq (K, n, n)`` at the rows' positions (the last batch remembered)."""
+        n = self.c.size
+        Q = np.ascontiguousarray(np.atleast_2d(X)[:, :n])
+        key = (Q.shape, Q.tobytes())
+        if self._memo is None or self._memo[0] != key:
+            self._memo = (key, self.gravity.values_and_jacobians(Q))
+        return self._memo[1]
+
+    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The nominal trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the split models use."""
+        self._X, self._U = np.array(X[:self.T], float), np.array(U, float)
+
+    def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Per-step costs ``(K,)`` at ``X (K, n_x)``, ``U (K, n_u)``."""
+        if self.weight == 0:
+            return np.zeros(len(X))
+        r = np.atleast_2d(U) - self._g(X)[0]
+        return self.weight * np.einsum("ki,i,ki->k", r, self.c, r)
+
+    # -- the state part (as a state term) -----------------------------------------------------
+    def active(self, idx: np.ndarray) -> np.ndarray:
+        return np.asarray(idx) < self.T
+
+    def is_active_at(self, t: int) -> bool:
+        return 0 <= t < self.T
+
+    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
+        """State-part view: costs at rows ``X`` with the nominal controls of steps ``idx``."""
+        X = np.atleast_2d(X)
+        idx = np.arange(len(X)) if idx is None else np.asarray(idx).reshape(-1)
+        out = np.zeros(len(X))
+        m = self.active(idx)
+        if self._U is not None and m.any():
+            out[m] = self.joint_value(X[m], self._U[idx[m]])
+        return out
+
+    def _state_gn(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``l_q (K, n)``, GN ``l_qq (K, n, n)`` at rows ``X``, controls ``U``."""
+        g, G = self._g(X)
+        CG = self.c[None, :, None] * G
+        w2 = 2.0 * self.weight
+        return -w2 * np.einsum("kij,ki->kj", CG, U - g), w2 * np.einsum("kij,kil->kjl", G, CG)
+
+    def add_derivatives(self, X: np.ndarray, idx: np.ndarray, lx: np.ndarray, lxx: np.ndarray) -> None:
+        """Add the state part at rows ``X (K, n_x)`` of steps ``idx`` (nominal controls), ``q`` block."""
+        m = self.active(np.asarray(idx))
+        if self.weight == 0 or self._U is None or not m.any():
+            return
+        n = self.c.size
+        gq, Hq = self._state_gn(X[m], self._U[np.asarray(idx)[m]])
+        lx[m, :n] += gq
+        sub = lxx[m]
+        sub[:, :n, :n] += Hq
+        lxx[m] = sub
+
+    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        X = np.atleast_2d(X)
+        lx, lxx = np.zeros(X.shape), np.zeros((len(X), X.shape[1], X.shape[1]))
+        self.add_derivatives(X, np.arange(len(X)) if idx is None else np.asarray(idx), lx, lxx)
+        return lx, lxx
+
+    def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray, lxx: np.ndarray) -> None:
+        """The state part at one state ``x (n_x,)`` of step ``t`` (the sweeps' relinearization)."""
+        if self.weight == 0 or self._U is None or not self.is_active_at(t):
+            return
+        n = self.c.size
+        g, G = self.gravity.value_and_jacobian(x[:n])
+        CG = self.c[:, None] * G
+        lx[:n] -= 2.0 * self.weight * (CG.T @ (self._U[t] - g))
+        lxx[:n, :n] += 2.0 * self.weight * (G.T @ CG)
+
+    # -- the control part --------------------------------------------------------------------
+    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``l_u (T, n_u)``, ``l_uu (T, n_u, n_u)`` at ``U`` with the nominal states."""
+        U = np.atleast_2d(U)
+        lu, luu = np.zeros(U.shape), np.zeros((len(U), U.shape[1], U.shape[1]))
+        self.add_control_derivatives(U, lu, luu)
+        return lu, luu
+
+    def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
+        """Add ``l_u = 2 w C (u - g(q))`` (nominal states) and ``l_uu = 2 w C``. Without a nominal
+        trajectory of ``U``'s length (a probe at one control, e.g. AICO's check that the control cost is
+        positive definite) only the Hessian, which does not depend on the states."""
+        if self.weight == 0:
+            return
+        idx = np.arange(self.c.size)
+        luu[:, idx, idx] += 2.0 * self.weight * self.c
+        if self._X is not None and len(U) == len(self._X):
+            lu += 2.0 * self.weight * self.c * (U - self._g(self._X)[0])
+
+    def control_value(self, U: np.ndarray) -> np.ndarray:
+        """Control-part view: costs at ``U (T, n_u)`` with the nominal states."""
+        return self.joint_value(self._X, np.atleast_2d(U))
+
+
 # --------------------------------------------------------------------------------------------
 # Examples: a configured instance of every cost term class, checked against finite
 # differences by tests/test_derivatives.py (plants.numdiff.check_cost_term). Via-points are
@@ -670,6 +814,11 @@ register_cost_term_example(
                                                 name="control_target"),
     "control", exact_hessian=True)
 register_cost_term_example(
+    "control_per_joint", lambda r, q0: ControlCost(0.5, target=np.linspace(-1.0, 1.0, len(q0)),
+                                                   name="control_per_joint",
+                                                   precision=np.linspace(0.1, 3.0, len(q0))),
+    "control", exact_hessian=True)
+register_cost_term_example(
     "control_limit", lambda r, q0: ControlLimit(-0.5 * np.ones(len(q0)), 0.7 * np.ones(len(q0)),
                                                 1e3),
     "control", exact_hessian=True)
@@ -685,6 +834,9 @@ def _uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> 
 
 register_cost_term_example("uncertainty", _uncertainty_example, "joint")
 register_cost_term_example("uncertainty_raw", lambda r, q0: _uncertainty_example(r, q0, "raw"), "joint")
+register_cost_term_example(
+    "control_gravity", lambda r, q0: ControlGravity(r, 0.3, T=4, precision=np.linspace(0.5, 2.0, len(q0)),
+                                                    name="control_gravity"), "joint")
 
 
 def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
@@ -714,3 +866,84 @@ def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
         else:
             out.update({f"{term.name}@{t}": float(e) for t, e in zip(idx, errs)})
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# "Task achieved": each via-point judged in its own unit, against its kind's tolerance (or its own).
+# --------------------------------------------------------------------------------------------
+TASK_TOLERANCES = {"position": (0.01, "m"), "orientation": (0.05, "rad"), "com": (0.01, "m"),
+                   "posture": (0.05, "rad")}   # kind -> (default tolerance, unit)
+
+
+def task_kinds(term) -> list[tuple[str, np.ndarray]]:
+    """A via-point's kinds and the task-map rows each covers: ``[(kind, rows)]`` (one kind; a frame
+    placement two: its position rows, then its orientation rows); ``[]`` for a task map of no kind."""
+    from plants.taskmaps import CenterOfMass, FramePlacementError, FrameRotationError, JointPositions, RollAngle
+
+    tm, rows = term.taskmap, np.arange(term.taskmap.dim)
+    if isinstance(tm, FramePoints):
+        return [("position", rows)]
+    if isinstance(tm, (FrameRotationError, RollAngle)):
+        return [("orientation", rows)]
+    if isinstance(tm, CenterOfMass):
+        return [("com", rows)]
+    if isinstance(tm, JointPositions):
+        return [("posture", rows)]
+    if isinstance(tm, FramePlacementError):
+        return [("position", rows[:3]), ("orientation", rows[3:])]
+    return []
+
+
+def task_errors(problem, X: np.ndarray) -> dict[str, dict]:
+    """Per via-point (a frame placement: ``NAME`` its position, ``NAME/orientation`` its orientation):
+    ``{"kind", "unit", "error", "tol"}``: the largest Euclidean error over its steps (the dimensions
+    that count, as :func:`via_point_errors`; ``inf`` where a state is not finite) in the kind's unit,
+    and its tolerance: the term's own ``tol`` (a number, or for a placement ``[m, rad]``), else the
+    kind's default (:data:`TASK_TOLERANCES`). Terms that also cost step 0 are left out."""
+    n_q = X.shape[1] // 2
+    out: dict[str, dict] = {}
+    for term in problem.state_terms:
+        if not isinstance(term, ViaPoint) or term.is_active_at(0) or term.weight == 0:
+            continue
+        kinds = task_kinds(term)
+        if not kinds:
+            continue
+        w = np.diag(term.C)
+        idx = np.flatnonzero(term.active(np.arange(problem.T + 1)))
+        good = np.all(np.isfinite(X[idx]), axis=1)
+        diff = np.full((idx.size, term.taskmap.dim), np.inf)
+        if good.any():
+            phi, _ = term.taskmap.values_and_jacobians(X[idx[good], :n_q])
+            diff[good] = term.target - phi
+        own = getattr(term, "tol", None)
+        own = [own] if own is not None and np.ndim(own) == 0 else own
+        for k, (kind, rows) in enumerate(kinds):
+            keep = rows[w[rows] >= 0.01 * w.max()]
+            if not keep.size:
+                continue
+            tol, unit = TASK_TOLERANCES[kind]
+            if own is not None and k < len(own):
+                tol = float(own[k])
+            err = float(np.max(np.linalg.norm(diff[:, keep], axis=1))) if idx.size else 0.0
+            name = term.name if k == 0 else f"{term.name}/{kind}"
+            out[name] = {"kind": kind, "unit": unit, "error": err, "tol": tol}
+    return out
+
+
+def task_verdict(errors: dict[str, dict]) -> dict | None:
+    """Whether every term of :func:`task_errors` is within its tolerance, and the worst term (the largest
+    error over tolerance): ``{"achieved", "worst", "kind", "unit", "error", "tol"}``; None without terms."""
+    if not errors:
+        return None
+    name, e = max(errors.items(), key=lambda kv: kv[1]["error"] / kv[1]["tol"] if kv[1]["tol"] > 0
+                  else (math.inf if kv[1]["error"] > 0 else 0.0))
+    achieved = all(v["error"] <= v["tol"] for v in errors.values())
+    return {"achieved": bool(achieved), "worst": name, **e}
+
+
+def task_line(verdict: dict) -> str:
+    """``task achieved: worst term 'reach' 0.00632 m <= 0.01 m (position)`` (or ``missed``, ``>``)."""
+    ok = verdict["error"] <= verdict["tol"]
+    return (f"task {'achieved' if verdict['achieved'] else 'missed'}: worst term '{verdict['worst']}' "
+            f"{verdict['error']:.3g} {verdict['unit']} {'<=' if ok else '>'} {verdict['tol']:g} {verdict['unit']} "
+            f"({verdict['kind']})")

@@ -303,18 +303,21 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     damping of the model file, as crocoddyl's examples do (Pinocchio's ABA ignores it): not raico's
     problem then (Drake's plant damps the joints), only crocoddyl's own."""
     _require()
-    from planning.costs import ControlLimit
+    from planning.costs import ControlGravity, ControlLimit
     from planning.crocoddyl_problem import add_frames, cost_items
 
     robot = _robot(problem)
-    if problem.joint_terms:
+    if any(not isinstance(t, ControlGravity) for t in problem.joint_terms):
         raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
     pmodel, smap = _pinocchio(robot, continuous)
     state_costs = [t for t in problem.state_terms if t.weight != 0]
-    control_costs = [t for t in problem.control_terms if t.weight != 0]
+    control_costs = [t for t in [*problem.control_terms, *problem.joint_terms] if t.weight != 0]
     add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
     state = crocoddyl.StateMultibody(pmodel)
     D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
+    if np.any(D != 0) and any(isinstance(t, ControlGravity) for t in control_costs):
+        raise NotExpressible("crocoddyl: its control-gravity residual measures the actuation's torque u - D v "
+                             "against gravity, raico's term the control u: the model file damps its joints")
     actuation = (_DampedActuation(state, D) if np.any(D != 0)
                  else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)

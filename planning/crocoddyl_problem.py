@@ -50,7 +50,8 @@ crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the calle
   reads a value its free forward dynamics do not compute), its target moved and its weights
   scaled so that it is Drake's centre of mass, which counts the links welded to the world (a fixed
   base) that Pinocchio's universe carries;
-- ``control`` (with its target) ``ResidualModelControl``; ``control_limit`` the control under
+- ``control`` (with its target, its per-joint weights as activation weights) ``ResidualModelControl``;
+  toward gravity (``planning.costs.ControlGravity``) ``ResidualModelControlGrav``; ``control_limit`` the control under
   ``ActivationModelQuadraticBarrier`` (raico's squared hinge); an inequality on joint positions
   whose rows are +-unit vectors (``joint_limit``) the state under a quadratic barrier.
 
@@ -384,7 +385,7 @@ def _state_ref(smap: StateMap, model, q: dict[int, float] | np.ndarray | None = 
 
 def cost_items(term, state, nu: int, model, smap: StateMap, robot) -> list[tuple[object, object]]:
     """crocoddyl ``(residual, activation)`` pairs of a raico cost term (see the module docstring)."""
-    from planning.costs import ControlCost, ControlLimit, StateTarget, TaskInequality, ViaPoint
+    from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
 
     if isinstance(term, StateTarget):
         w = np.zeros(state.ndx)
@@ -393,9 +394,13 @@ def cost_items(term, state, nu: int, model, smap: StateMap, robot) -> list[tuple
         xref = _state_ref(smap, model, term.target[:n], term.target[n:])
         return [(crocoddyl.ResidualModelState(state, xref, nu), crocoddyl.ActivationModelWeightedQuad(w))]
     if isinstance(term, ControlCost):
+        act = (crocoddyl.ActivationModelQuad(nu) if term.c is None
+               else crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))
         if term.target is None:
-            return [(crocoddyl.ResidualModelControl(state, nu), crocoddyl.ActivationModelQuad(nu))]
-        return [(crocoddyl.ResidualModelControl(state, smap.u_to_pin(term.target)), crocoddyl.ActivationModelQuad(nu))]
+            return [(crocoddyl.ResidualModelControl(state, nu), act)]
+        return [(crocoddyl.ResidualModelControl(state, smap.u_to_pin(term.target)), act)]
+    if isinstance(term, ControlGravity):   # u - g(q), Pinocchio's generalized gravity
+        return [(crocoddyl.ResidualModelControlGrav(state, nu), crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))]
     if isinstance(term, ControlLimit):
         n = smap.n
         lo = smap.u_to_pin(np.broadcast_to(term.lower, (n,)).astype(float))

@@ -18,7 +18,9 @@ Descriptions:
 - terms: ``{"term": "via", "name", "map", "target", "times", "weight", "precision"}`` with
   ``times`` a list of steps or ``{"from": a, "to": b}`` (every step a..b);
   ``{"term": "state", "name", "target" (n_x), "times", "weight", "precision"}``;
-  ``{"term": "control", "name", "weight"}`` (optionally ``"target"``); ``{"term": "control_limit", "name",
+  ``{"term": "control", "name", "weight"}`` (optionally ``"target"``: ``n_u`` values, or ``"gravity"``:
+  the torque that holds the robot still, ``planning.costs.ControlGravity``, with ``"controls": "torque"``;
+  optionally ``"precision"``: per-joint weights, ``n_u`` values); ``{"term": "control_limit", "name",
   "weight", "lower", "upper", "controls": "torque"}`` (a torque limit: dropped when the
   dynamics' controls are accelerations); ``{"term": "inequality", "name", "map", "A", "b",
   "times", "weight"}`` (one-sided bounds ``A phi <= b``, ``planning.costs.TaskInequality``;
@@ -27,12 +29,12 @@ Descriptions:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from planning.costs import ControlCost, ControlLimit, StateTarget, TaskInequality, ViaPoint
+from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
 from plants.model_file import robot_for
 from plants.robots import Robot
 from plants.taskmaps import (
@@ -94,12 +96,16 @@ def _times_desc(times) -> list[int] | dict:
     return [int(t) for t in times]
 
 
-def via(name: str, taskmap: dict, target, times, weight: float, precision=None) -> TermDesc:
-    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``."""
+def via(name: str, taskmap: dict, target, times, weight: float, precision=None, tol=None) -> TermDesc:
+    """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``; ``tol``: its own tolerance of
+    "task achieved" (``planning.costs.task_errors``), kept only where given."""
     times = _times_desc(times)
-    return {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
-            "times": times, "weight": float(weight),
-            "precision": None if precision is None else np.asarray(precision, float).tolist()}
+    d = {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
+         "times": times, "weight": float(weight),
+         "precision": None if precision is None else np.asarray(precision, float).tolist()}
+    if tol is not None:
+        d["tol"] = tol
+    return d
 
 
 def inequality(name: str, taskmap: dict, A, b, times, weight: float, **info: Any) -> TermDesc:
@@ -167,14 +173,14 @@ def build_term(robot, d: TermDesc):
     kind = d["term"]
     if kind == "via":
         return ViaPoint(build_taskmap(robot, d["map"]), d["target"], list(_times(d["times"])), d["weight"],
-                        d.get("precision"), name=d["name"])
+                        d.get("precision"), name=d["name"], tol=d.get("tol"))
     if kind == "inequality":
         return TaskInequality(build_taskmap(robot, d["map"]), d["A"], d["b"], list(_times(d["times"])),
                               d["weight"], name=d["name"])
     if kind == "state":
         return StateTarget(d["target"], list(_times(d["times"])), d["weight"], d.get("precision"), name=d["name"])
     if kind == "control":
-        return ControlCost(d["weight"], target=d.get("target"), name=d["name"])
+        return ControlCost(d["weight"], target=d.get("target"), name=d["name"], precision=d.get("precision"))
     if kind == "control_limit":
         return ControlLimit(d["lower"], d["upper"], d["weight"], name=d["name"])
     raise ValueError(f"unknown cost term kind {kind!r}")
@@ -182,12 +188,19 @@ def build_term(robot, d: TermDesc):
 
 @dataclass
 class Objective:
-    """Built cost terms of a horizon ``T``: state terms on ``x_t``, control terms on ``u_t``."""
+    """Built cost terms of a horizon ``T``: state terms on ``x_t``, control terms on ``u_t``, joint
+    terms on both (the control toward gravity)."""
 
     T: int
     state_terms: list
     control_terms: list
     descriptions: list[TermDesc]
+    joint_terms: list = field(default_factory=list)
+
+
+def toward_gravity(d: TermDesc) -> bool:
+    """Whether ``d`` is a control term toward the gravity-compensating torque (a joint term)."""
+    return d["term"] == "control" and d.get("target") == "gravity"
 
 
 def applies(d: TermDesc, control_kind: str) -> bool:
@@ -197,16 +210,19 @@ def applies(d: TermDesc, control_kind: str) -> bool:
 
 def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str = "torque") -> Objective:
     """The objective from term descriptions (terms that do not apply to the controls dropped)."""
-    state, controls, kept = [], [], []
+    state, controls, kept, joint = [], [], [], []
     for d in descriptions:
         if not applies(d, control_kind):
             continue
         kept.append(d)
         if d["term"] == "uncertainty":  # needs the learned model: the plan stage builds it
             continue
+        if toward_gravity(d):
+            joint.append(ControlGravity(robot, d["weight"], T, d.get("precision"), name=d["name"]))
+            continue
         term = build_term(robot, d)
         (state if d["term"] in STATE_TERMS else controls).append(term)
-    return Objective(T, state, controls, kept)
+    return Objective(T, state, controls, kept, joint)
 
 
 def objective_from_description(desc: dict, robot: Robot | None = None) -> Objective:

@@ -245,3 +245,45 @@ class AnalyticDynamics(SemiImplicitEuler, _TrajectoryByPoints):
         B = np.vstack([dt * dv_du, dv_du])
         return A, self.step(x, u) - A @ x - B @ u, B
 
+
+
+class GravityTorques:
+    """The joint torques that hold a robot still against gravity: ``g(q) = -P^T tau_g(P q)`` (N m,
+    ``(n_q,)``), with ``tau_g`` Drake's generalized gravity forces (``M qddot + C v = tau + tau_g``);
+    its Jacobian ``dg/dq (n_q, n_q)`` exact, by Drake's AutoDiffXd. At rest, ``u = g(q)`` gives
+    ``qddot = 0`` (joint damping is zero at ``v = 0``): crocoddyl's ``ResidualModelControlGrav``
+    measures the control against it."""
+
+    def __init__(self, robot):
+        from pydrake.autodiffutils import AutoDiffXd  # noqa: F401  (registers the scalar type)
+
+        self.robot, self.P, self.n_q = robot, robot.P, robot.n_q
+        self._plant = robot.plant
+        self._ctx = self._plant.CreateDefaultContext()
+        self._plant_ad = self._plant.ToAutoDiffXd()
+        self._ctx_ad = self._plant_ad.CreateDefaultContext()
+
+    def value(self, q: np.ndarray) -> np.ndarray:
+        """``g(q) (n_q,)`` at planning positions ``q (n_q,)`` (NaN where ``q`` is not finite)."""
+        if not np.all(np.isfinite(q)):
+            return np.full(self.n_q, np.nan)
+        self._plant.SetPositions(self._ctx, self.P @ q)
+        return -self.P.T @ self._plant.CalcGravityGeneralizedForces(self._ctx)
+
+    def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``g(q) (n_q,)`` and ``dg/dq (n_q, n_q)``."""
+        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+
+        if not np.all(np.isfinite(q)):
+            return np.full(self.n_q, np.nan), np.full((self.n_q, self.n_q), np.nan)
+        qa = InitializeAutoDiff(np.asarray(q, float)).reshape(-1)
+        self._plant_ad.SetPositions(self._ctx_ad, self.P @ qa)
+        g = -self.P.T @ self._plant_ad.CalcGravityGeneralizedForces(self._ctx_ad)
+        return ExtractValue(g).reshape(-1), ExtractGradient(g)
+
+    def values_and_jacobians(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows ``Q (K, n_q)`` -> ``G (K, n_q)``, ``dG (K, n_q, n_q)``."""
+        Q = np.atleast_2d(Q)
+        out = [self.value_and_jacobian(q) for q in Q]
+        return np.array([o[0] for o in out]).reshape(len(Q), self.n_q), \
+            np.array([o[1] for o in out]).reshape(len(Q), self.n_q, self.n_q)

@@ -190,3 +190,39 @@ def shared_robot(name: str) -> Robot:
     """One robot per name and process for kinematics and dynamics queries (not for diagrams)."""
     return load_robot(name)
 
+
+
+def chain_reach(robot: Robot, frame_name: str) -> tuple[np.ndarray, float] | None:
+    """How far frame ``frame_name`` can get from the robot's base: ``(base (3,), reach)`` (m, world).
+
+    The chain from the frame's body down to the world: ``base`` is where it leaves the world (the
+    origin of the joint whose parent is the world), ``reach`` the sum of the distances between
+    successive joint origins along it, the frame's offset from the last one, and each prismatic
+    joint's largest travel. Revolute joints turn about their origins, so the frame never gets
+    farther from ``base`` than ``reach`` (a bound, not the workspace). ``None`` where the chain does
+    not reach the world through one-coordinate joints and welds (a free or ball joint, a prismatic
+    joint without limits, a robot standing on a welded sole whose tree Drake re-rooted)."""
+    plant, ctx = robot.plant, robot.context
+    frame = plant.GetFrameByName(frame_name)
+    by_child = {plant.get_joint(i).child_body().index(): plant.get_joint(i) for i in plant.GetJointIndices()}
+    world = plant.world_body().index()
+    point = frame.CalcPoseInWorld(ctx).translation()
+    reach, body = 0.0, frame.body().index()
+    for _ in range(plant.num_bodies()):
+        if body == world:
+            return None    # the frame is on the world: nothing moves it
+        joint = by_child.get(body)
+        if joint is None or joint.num_positions() > 1:
+            return None
+        origin = joint.frame_on_child().CalcPoseInWorld(ctx).translation()
+        reach += float(np.linalg.norm(point - origin))
+        if joint.num_positions() == 1 and joint.type_name() == "prismatic":
+            travel = max(abs(float(joint.position_lower_limits()[0])), abs(float(joint.position_upper_limits()[0])))
+            if not np.isfinite(travel):
+                return None
+            reach += travel
+        point = joint.frame_on_parent().CalcPoseInWorld(ctx).translation()
+        body = joint.parent_body().index()
+        if body == world:
+            return point, reach
+    return None

@@ -91,6 +91,8 @@ from stages.evaluate.metrics import (
     point_margins,
     single_support_lift,
     support_polygons,
+    task_errors,
+    task_verdict,
     via_point_errors,
 )
 from stages.plan.balance import cog_margins
@@ -704,7 +706,8 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
     n = len(desc["q0"])
     X = np.full((T + 1, 2 * n), np.nan)
     metrics = {"status": "diverged", "failure_time": 0.0, "reason": reason,
-               "via_point_errors": via_point_errors(problem, X), "rmse_planned_executed": float("inf"),
+               "via_point_errors": via_point_errors(problem, X), "task": task_verdict(task_errors(problem, X)),
+               "rmse_planned_executed": float("inf"),
                "max_tracking_error": float("inf"), "max_abs_torque": 0.0, "torque_saturation": 0.0,
                "effort_clamped_fraction": 0.0,
                "position_limit_fraction": 0.0, "limits_fraction": 0.0}

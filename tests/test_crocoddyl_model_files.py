@@ -161,7 +161,7 @@ def raico_problem(path):
     objective = build_terms(robot, task.build(robot, q0, task.T), task.T, "torque")
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     return robot, Problem(TreeAnalyticDynamics(robot, task.dt), x0, task.T, objective.state_terms,
-                          objective.control_terms, [])
+                          objective.control_terms, objective.joint_terms)
 
 
 EVERY_TERM = """
@@ -365,6 +365,71 @@ def test_every_terms_gradient_and_gauss_newton_hessian_are_raicos(every_term):
         Lx, Lxx = np.asarray(d.Lx)[idx], np.asarray(d.Lxx)[np.ix_(idx, idx)]
         assert np.allclose(Lx, lx, rtol=RTOL, atol=RTOL * np.abs(lx).max()), t
         assert np.allclose(Lxx, lxx, rtol=RTOL, atol=RTOL * np.abs(lxx).max()), t
+
+
+GRAVITY = """
+name = "ur5-hold"
+[robot]
+file = "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+start = { shoulder_lift_joint = -1.2, elbow_joint = 1.6 }
+armature = 0.01
+[horizon]
+T = 10
+dt = 0.01
+[dynamics]
+model = "analytic"
+[costs.reach]
+type = "frame_position"
+frame = "tool0"
+target = [0.1, 0.0, -0.1]
+relative = "start"
+times = "last"
+weight = 1e3
+[costs.hold]
+type = "control"
+target = "gravity"
+weight = [0.01, 0.02, 0.03, 0.04, 0.05, 0.06]
+[costs.effort]
+type = "control"
+target = [1.0, 2.0, 0.0, 0.0, 0.0, 0.5]
+weight = [1e-3, 1e-3, 2e-3, 0.0, 1e-3, 1e-3]
+"""
+
+
+@pytest.mark.compiled
+def test_control_toward_gravity_and_per_joint_weights_cost_and_derive_as_in_crocoddyl(tmp_path):
+    """The control term toward the gravity-compensating torque is crocoddyl's ResidualModelControlGrav
+    (r = u - g(q)) and per-joint control weights its weighted activation: the same cost per term, and at
+    a running node crocoddyl's gradient and Gauss-Newton Hessian blocks are raico's (the state-control
+    cross block, which raico's solvers take as zero, left out)."""
+    _erd()
+    path = tmp_path / "hold.toml"
+    path.write_text(GRAVITY)
+    robot, problem = raico_problem(path)
+    assert [type(t).__name__ for t in problem.joint_terms] == ["ControlGravity"]
+    cp = cm.build(problem)
+    for seed in range(2):
+        X, U = _trajectory(problem, seed)
+        U = U + 20.0 * np.sign(U)   # torques about the size of the UR5's gravity torques (N m)
+        raico_terms, croc_terms = problem.cost_terms(X, U), _crocoddyl_term_costs(cp, X, U)
+        assert set(croc_terms) == set(raico_terms) == {"reach", "hold", "effort"}
+        for name, c in raico_terms.items():
+            assert c > 0 and abs(croc_terms[name] - c) <= RTOL * c, (name, croc_terms[name], c)
+    problem.set_nominal(X, U)
+    idx = cp.smap.tangent_index
+    for t in (0, 5):
+        m, x, u = cp.shooting.runningModels[t], cp.smap.x_to_pin(X[t]), cp.smap.u_to_pin(U[t])
+        d = m.createData()
+        m.calc(d, x, u)
+        m.calcDiff(d, x, u)
+        lu, luu = problem.control_derivatives(U)
+        lx, lxx = problem.point_state_derivatives(X[t], t)
+        v = cp.smap.v_index
+        pairs = [(np.asarray(d.Lu)[v], lu[t]), (np.asarray(d.Luu)[np.ix_(v, v)], luu[t]),
+                 (np.asarray(d.Lx)[idx], lx), (np.asarray(d.Lxx)[np.ix_(idx, idx)], lxx)]
+        for croc, raico in pairs:
+            assert np.abs(raico).max() > 0
+            assert np.allclose(croc, raico, rtol=RTOL, atol=RTOL * np.abs(raico).max()), (t, croc, raico)
 
 
 @pytest.mark.compiled

@@ -195,7 +195,7 @@ def test_every_cost_term_class_has_an_example():
     built = {type(ex.build(robot, robot.default_q)) for ex in COST_TERM_EXAMPLES.values()
              if ex.applies_to("arm5")}
     classes = (_classes(costs_module, StateTerm) | _classes(costs_module, ControlTerm)
-               | {costs_module.Uncertainty})
+               | {costs_module.Uncertainty, costs_module.ControlGravity})
     assert classes <= built, f"cost term classes without an example: {classes - built}"
     via = {name for name in COST_TERM_EXAMPLES if name.startswith("via_")}
     assert via == {f"via_{name}" for name in TASKMAP_EXAMPLES}  # a via-point on every task map

@@ -334,3 +334,31 @@ needs = "crocoddyl"
                              ('claims = ["raico_converges",', 'claims = [3,', "claim 3 is neither a name")):
         with pytest.raises(BadInput, match=re.escape(needle)):
             expfile.load(write(tmp_path, text.replace(old, new), "bad.toml"))
+
+
+def test_seeds_that_cannot_differ_are_said_in_the_dry_run_and_the_run(tmp_path):
+    """A problem file's q0_std defaults to 0: its seeds are identical runs, said in one line; with a spread,
+    or execution noise, nothing is said."""
+    problem = Path(__file__).resolve().parents[1] / "problems" / "arm5_reach.toml"
+    f = write(tmp_path, f'''
+stages = ["plan"]
+seeds = "range(2)"
+[base]
+problem = "{problem}"
+iterations = 2
+''')
+    arts = tmp_path / "arts"
+    dry = invoke("exp", "run", f, "--dry-run", "--artifacts", arts)
+    assert dry.exit_code == 0, dry.output
+    notes = [ln for ln in dry.stderr.splitlines() if "q0_std = 0" in ln]
+    assert len(notes) == 1 and "identical runs" in notes[0] and "-S q0_std=0.05" in notes[0], dry.stderr
+    ran = invoke("exp", "run", f, "--executor", "serial", "--artifacts", arts)
+    assert ran.exit_code == 0, ran.output
+    assert sum("identical runs" in ln for ln in ran.stderr.splitlines()) == 1
+    spread = invoke("exp", "run", f, "--dry-run", "-S", "q0_std=0.05", "--artifacts", arts)
+    assert spread.exit_code == 0 and "identical runs" not in spread.stderr
+    exp = expfile.load(write(tmp_path, ARM.replace('task = "reach"', f'problem = "{problem}"')
+                             .replace('plant = "arm5"\n', '') + "[execute]\nx0_noise = 0.01\n", "noisy.toml"))
+    assert expfile.identical_seeds(exp) is None     # the execution's noise differs by seed
+    exp = expfile.load(write(tmp_path, ARM, "builtin.toml"))
+    assert expfile.identical_seeds(exp) is None     # a built-in task's q0_std is 0.05

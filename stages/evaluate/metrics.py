@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planning.costs import via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
+from planning.costs import task_errors, task_verdict, via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
 from plants.polygons import signed_margin  # noqa: F401  (re-exported)
 
 FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
@@ -48,6 +48,12 @@ STATUSES = ("ok", "limits", "tracking-lost", "fell", "diverged")
 THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_TORSO_TILT,
               "foot_lift_m": FOOT_LIFT, "tracking_lost_rad": TRACKING_LOST, "limits_share": LIMITS_SHARE,
               "limit_tol_rad": LIMIT_TOL, "contact_tol_m": CONTACT_TOL}
+STANDING = ("fall_torso_drop_m", "fall_torso_tilt_rad", "foot_lift_m", "contact_tol_m")  # the free-standing Nao's only
+
+
+def used_thresholds(standing: bool) -> dict[str, float]:
+    """The thresholds an execution's status is judged by: a fixed-base robot's leave out the falls and feet."""
+    return {k: v for k, v in THRESHOLDS.items() if standing or k not in STANDING}
 
 
 # ----------------------------------------------------------------------------- support polygon
@@ -224,7 +230,8 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
          "position_limit_fraction": float(np.mean(pos_lim)),
          "limits_fraction": float(np.mean(at_limit)),
          "limited_joints": limited,
-         "thresholds": dict(THRESHOLDS), **m}
+         "task": task_verdict(task_errors(problem, X)),
+         "thresholds": used_thresholds(nao is not None), **m}
     if nao is not None:
         margin = nao["cog_margin"]
         with np.errstate(invalid="ignore"):

@@ -36,12 +36,16 @@ Cost term types (``type``) and their keys:
 - ``posture``: ``joints`` (names; default all), ``target`` (values or ``"start"``);
 - ``state``: ``target`` (``2 n`` values or ``"start"``: the start posture at rest), ``precision``
   (``2 n`` values, or ``{q = a, v = b}``);
-- ``control``: ``weight``, optional ``target`` (n values);
+- ``control``: ``weight`` (a number, or one per joint), optional ``target`` (n values, or ``"gravity"``:
+  the torque that holds the robot still, crocoddyl's ``ResidualModelControlGrav``; torque controls only);
 - ``control_limit``: ``lower``/``upper`` (default: the model's effort limits), soft, torques only;
 - ``joint_limit``: soft position limits (default: the model's), ``lower``/``upper``.
 
 Every term may name its task map (``map``, default: the frame's name, ``cog``, ``joints`` or the
-term's name): terms on maps of one name share a plot and a path in the recordings.
+term's name): terms on maps of one name share a plot and a path in the recordings. A via-point term
+(``frame_position``, ``frame_orientation``, ``frame_placement``, ``com``, ``posture``) may set its
+tolerance of "task achieved" in its unit, ``tol`` (m or rad; a placement ``[m, rad]``; default its
+kind's, ``planning.costs.TASK_TOLERANCES``).
 
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
@@ -83,11 +87,11 @@ CONVENTIONS = ("raico", "crocoddyl")
 TIMES = ("last", "all", "running", "every")
 COMMON = {"type", "weight", "times", "map"}
 TERM_KEYS = {
-    "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame"},
-    "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision"},
-    "frame_placement": COMMON | {"frame", "position", "rotation", "rpy", "precision"},
-    "com": COMMON | {"target", "axes", "precision", "relative"},
-    "posture": COMMON | {"joints", "target", "precision", "relative"},
+    "frame_position": COMMON | {"frame", "target", "axes", "points", "precision", "relative", "in_frame", "tol"},
+    "frame_orientation": COMMON | {"frame", "rotation", "rpy", "angle", "target", "precision", "tol"},
+    "frame_placement": COMMON | {"frame", "position", "rotation", "rpy", "precision", "tol"},
+    "com": COMMON | {"target", "axes", "precision", "relative", "tol"},
+    "posture": COMMON | {"joints", "target", "precision", "relative", "tol"},
     "state": COMMON | {"target", "precision"},
     "control": {"type", "weight", "target"},
     "control_limit": {"type", "weight", "lower", "upper"},
@@ -312,7 +316,15 @@ def _term(name: str, t: dict, T: int) -> dict:
     if "weight" not in t:
         raise ValueError(f"[costs.{name}] needs a weight")
     out = dict(t)
-    out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
+    if kind == "control" and isinstance(t["weight"], list):  # per-joint weights
+        out["weight"] = [_nonneg(w, f"[costs.{name}] weight") for w in t["weight"]]
+        if not out["weight"]:
+            raise ValueError(f"[costs.{name}] weight must be a number or one number per joint")
+    else:
+        out["weight"] = _nonneg(t["weight"], f"[costs.{name}] weight")
+    if kind == "control" and isinstance(t.get("target"), str) and t["target"] != "gravity":
+        raise ValueError(f"[costs.{name}] target must be {{n}} numbers or \"gravity\" (the torque that holds the "
+                         f"robot still), got {t['target']!r}")
     if "times" in TERM_KEYS[kind]:
         out["times"] = _times(t.get("times"), T, name)
     for key in ("frame", "in_frame", "angle", "relative", "map"):
@@ -328,7 +340,20 @@ def _term(name: str, t: dict, T: int) -> dict:
         raise ValueError(f"[costs.{name}] needs rotation (3 x 3) or rpy (3), or angle = \"roll\" with a target")
     if kind == "frame_placement" and "position" not in t:
         raise ValueError(f"[costs.{name}] needs a position (3)")
+    if "tol" in t:
+        out["tol"] = _tol(t["tol"], name, kind)
     return out
+
+
+def _tol(v, name: str, kind: str):
+    """A term's own tolerance of "task achieved": a number > 0 in its unit (m, rad); a frame placement's
+    a number (both parts) or ``[m, rad]``."""
+    vals = v if isinstance(v, list) and kind == "frame_placement" else [v]
+    if len(vals) not in (1, 2) or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not 0 < x < math.inf
+                                      for x in vals):
+        raise ValueError(f"[costs.{name}] tol must be a number > 0 (m or rad"
+                         + (", or [m, rad] for a frame placement" if kind == "frame_placement" else "") + f"), got {v!r}")
+    return [float(x) for x in vals] if isinstance(v, list) else float(v)
 
 
 # ------------------------------------------------------------------ building
@@ -399,11 +424,7 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
     for name, t in doc["terms"].items():
         kind = t["type"]
         if kind == "control":
-            w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
-            d = ob.control(w, name)
-            if "target" in t:
-                d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
-            out.append(d)
+            out.append(_control(name, t, robot, 0.5 * dt if convention == "crocoddyl" else 1.0))
             continue
         if kind == "control_limit":
             w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
@@ -416,6 +437,26 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
             suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
             out.append(_state_term(f"{name}{suffix}", t, robot, q0, steps, t["weight"] * factor))
     return out
+
+
+def _control(name: str, t: dict, robot, factor: float) -> dict:
+    """A control term's description: ``target`` numbers (N m, or rad/s^2) or ``"gravity"`` (the torque
+    that holds the robot still, for torque controls only); a list ``weight`` weighs each joint: the
+    term's weight is the largest, the list over it its precision."""
+    w = t["weight"]
+    precision = None
+    if isinstance(w, list):
+        w = np.asarray(_vector(w, f"[costs.{name}] weight", robot.n_q))
+        top = float(w.max())
+        precision, w = (w / top if top > 0 else np.ones_like(w)).tolist(), top
+    d = ob.control(w * factor, name)
+    if t.get("target") == "gravity":
+        d.update(target="gravity", controls="torque")
+    elif "target" in t:
+        d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
+    if precision is not None:
+        d["precision"] = precision
+    return d
 
 
 def _target(t: dict, name: str, value_at_start: np.ndarray) -> np.ndarray:
@@ -454,6 +495,7 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
     kind = t["type"]
     mname = _map_name(t, name)
     precision = t.get("precision")
+    tol = t.get("tol")
     if kind in ("frame_position", "frame_orientation", "frame_placement"):
         t = {**t, "frame": resolve_frame(robot, t["frame"], name)}
     if kind == "frame_position":
@@ -471,25 +513,24 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
                 else at_start[list(axes)]
             target = _target(t, name, at_start)
         m = ob.frame_points(t["frame"], mname, axes=axes, points=points)
-        return ob.via(name, m, target, steps, weight, precision)
+        return ob.via(name, m, target, steps, weight, precision, tol)
     if kind == "frame_orientation":
         if "angle" in t:
             return ob.via(name, ob.roll(t["frame"], t.get("map", "roll")), [_number(t.get("target"), f"[costs.{name}] target")],
-                          steps, weight, precision)
+                          steps, weight, precision, tol)
         return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), mname), np.zeros(3), steps,
-                      weight,
-                      precision)
+                      weight, precision, tol)
     if kind == "frame_placement":
         p = _vector(t["position"], f"[costs.{name}] position", 3)
         return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, mname), np.zeros(6), steps,
-                      weight, precision)
+                      weight, precision, tol)
     if kind == "com":
         axes = tuple(t.get("axes", (0, 1, 2)))
         at_start = CenterOfMass(robot).value(q0)[list(axes)]
-        return ob.via(name, ob.cog(axes, mname), _target(t, name, at_start), steps, weight, precision)
+        return ob.via(name, ob.cog(axes, mname), _target(t, name, at_start), steps, weight, precision, tol)
     if kind == "posture":
         idx = _joint_indices(robot, t.get("joints"), name)
-        return ob.via(name, ob.joints(mname, idx), _target(t, name, q0[idx]), steps, weight, precision)
+        return ob.via(name, ob.joints(mname, idx), _target(t, name, q0[idx]), steps, weight, precision, tol)
     if kind == "state":
         if isinstance(precision, dict):  # {q = a, v = b}: one weight for the positions, one for the velocities
             _refuse_unknown(precision, {"q", "v"}, f"[costs.{name}] precision")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planning.costs import SIGMA_UNITS, Uncertainty, via_point_errors
+from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, via_point_errors
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
 from planning.problem import Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
@@ -322,7 +322,8 @@ class PlanOutput:
                "final_cost": float(r.cost), "cost_ratio": float(r.cost / init) if init else None,
                "iterations": int(r.iterations), "status": str(r.status),
                "wall_time_s": float(sum(h.time_s for h in r.history)),
-               "via_point_errors": self.via_point_errors(), "message": r.message}
+               "via_point_errors": self.via_point_errors(), "task": task_verdict(task_errors(self.problem, r.X)),
+               "message": r.message}
         if "balance" in self.description:  # only with --balance: other plans' metrics as before
             out["balance"] = self.balance_metrics()
         return out
@@ -406,9 +407,9 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
     objective = build_terms(robot, terms, task.T, kind)
-    descriptions, joint = objective.descriptions, []
+    descriptions, joint = objective.descriptions, list(objective.joint_terms)
     if cfg.sigma is not None:  # the uncertainty term from the config's values (its description only stored)
-        joint = [Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units)]
+        joint.append(Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units))
         descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
@@ -418,6 +419,37 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
+
+
+def reach_notes(robot: Robot, problem: Problem) -> list[str]:
+    """One line per position target (a via-point on a frame's points) farther from the robot's base
+    than the frame can get: the link lengths along the chain to it (:func:`plants.robots.chain_reach`).
+    The distance counts the target's coordinates the term sets (its ``axes``)."""
+    from planning.costs import ViaPoint
+    from plants.robots import chain_reach
+    from plants.taskmaps import FramePoints
+
+    out = []
+    for term in problem.state_terms:
+        tm = getattr(term, "taskmap", None)
+        if not isinstance(term, ViaPoint) or not isinstance(tm, FramePoints) or term.weight == 0:
+            continue
+        chain = chain_reach(robot, tm.frame.name())
+        if chain is None:
+            continue
+        base, reach = chain
+        k = len(tm.points)
+        axes = tm.rows[:len(tm.rows) // k] % 3
+        targets = term.target.reshape(k, len(axes))
+        dist = np.linalg.norm(targets - base[axes], axis=1)
+        excess = dist - (reach + np.linalg.norm(tm.points, axis=1))
+        j = int(np.argmax(excess))
+        if excess[j] > 0:
+            out.append(f"raico: note: the target of '{term.name}' ({tm.frame.name()} at "
+                       f"{np.round(targets[j], 4).tolist()} m) is {dist[j]:.3g} m from the robot's base, beyond its "
+                       f"reach of {reach + np.linalg.norm(tm.points[j]):.3g} m (the link lengths along the chain): "
+                       "planning anyway")
+    return out
 
 
 def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None,
@@ -431,6 +463,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     robot, task, problem, q0, desc = build_problem(cfg, model)
     for line in desc.get("load_report", []):  # what loading the model file changed, said once per run
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
+    for line in reach_notes(robot, problem):
+        print(line, file=sys.stderr, flush=True)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)
