@@ -11,7 +11,9 @@ text Drake reads (``plants.model_file.repair_urdf``: locked joints are fixed joi
 tags dropped), with a fixed base, which is where Drake puts the robot when its free root is welded
 at the world origin (or the file attaches it to a ``world`` link). A robot welded on another frame
 (a humanoid standing on a sole) re-roots the tree in Drake: Pinocchio's URDF tree is rooted at the
-file's root link, so that is ``NotExpressible``. The armature of the spec is Pinocchio's
+file's root link, so that is ``NotExpressible``. An MJCF file is read by Pinocchio's own MJCF reader
+(``buildModelFromMJCF``), as Drake reads the file itself; an SDF file by Pinocchio's SDFormat reader
+where Pinocchio was built with it (``NotExpressible`` otherwise). The armature of the spec is Pinocchio's
 ``model.armature`` (Drake's rotor inertia with gear ratio 1: both add it to the mass matrix's
 diagonal); Drake's joint damping (the file's ``<dynamics damping>``), which Pinocchio's forward
 dynamics ignores, enters through an actuation model ``tau = u - D v`` (crocoddyl_model's).
@@ -62,6 +64,7 @@ inequality on another task map or with general rows, the uncertainty term) raise
 from __future__ import annotations
 
 import math
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -248,6 +251,31 @@ def _continuous_as_revolute(text: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def _other_format_roots(path: Path, fmt: str) -> list[str]:
+    """The bodies of an MJCF file's ``<worldbody>`` (the roots of its tree); SDF: Pinocchio's reader
+    (``NotExpressible`` where Pinocchio was built without SDFormat)."""
+    if fmt == "mjcf":
+        world = ET.parse(path).getroot().find("worldbody")
+        return [b.get("name") for b in ([] if world is None else world.findall("body"))]
+    if fmt == "sdf" and not getattr(pin, "WITH_SDFORMAT", False):
+        raise NotExpressible(f"crocoddyl: {path.name} is SDF and this Pinocchio was built without SDFormat "
+                             f"(pinocchio.WITH_SDFORMAT is false): write the robot as URDF or MJCF")
+
+    m = re.search(r"<link\s+name=\"([^\"]+)\"", path.read_text(errors="replace"))
+    return [m.group(1)] if m else []
+
+
+def _other_format_model(path: Path, fmt: str):
+    """Pinocchio's model of an MJCF file (``buildModelFromMJCF``: hinge and slide joints, bodies
+    without a joint fixed to their parent) or an SDF file (``buildModelsFromSdf``, fixed base)."""
+    try:
+        if fmt == "mjcf":
+            return pin.buildModelFromMJCF(str(path))
+        return pin.buildModelsFromSdf(str(path))[0]
+    except (RuntimeError, ValueError) as e:
+        raise NotExpressible(f"crocoddyl: Pinocchio cannot read {path.name}: {str(e).splitlines()[0]}") from None
+
+
 def pinocchio_robot(robot, continuous: str = "angle"):
     """``(model, StateMap)`` of a model-file robot (``robot.spec``), see the module docstring;
     ``continuous``: ``"angle"`` or ``"cos-sin"``."""
@@ -259,14 +287,18 @@ def pinocchio_robot(robot, continuous: str = "angle"):
     if continuous not in CONTINUOUS:
         raise ValueError(f"continuous must be one of {CONTINUOUS}, got {continuous!r}")
     path, fmt, text, _, _ = _model_text(spec)
-    if fmt != "urdf":
-        raise NotExpressible(f"crocoddyl: {path.name} is {fmt.upper()}: the bridge reads URDF files into Pinocchio")
-    roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
+    if fmt == "urdf":
+        roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
+    else:
+        roots = _other_format_roots(path, fmt)
     if spec.weld is not None and not (len(roots) == 1 and spec.weld == roots[0]):
         raise NotExpressible(
             f"crocoddyl cannot express {path.name} welded on '{spec.weld}': Drake re-roots the tree there, "
-            f"Pinocchio's URDF tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
-    model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
+            f"Pinocchio's tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
+    if fmt == "urdf":
+        model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
+    else:
+        model = _other_format_model(path, fmt)
     names = [model.names[i] for i in range(1, model.njoints)]
     if sorted(names) != sorted(robot.joint_names):
         raise NotExpressible(f"crocoddyl: Pinocchio's joints {names} of {path.name} are not raico's planning "
