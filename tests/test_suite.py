@@ -231,3 +231,41 @@ time_budget_s = 0
         rows = list(csv.DictReader(f))
     assert len(rows) == 4 and all(r["plan.cached"] == "True" for r in rows if r["plan.key"])
     assert sum(bool(r["plan.key"]) for r in rows) == 3
+
+
+# ----------------------------------------------------------------------------- the page and the README block
+def _synthetic_doc():
+    s = suite.Suite("mini", "", Path("suite.toml"), [suite.SolverEntry("A", {"solver": "raico"}),
+                                                     suite.SolverEntry("B", {"solver": "ilqg"})],
+                    [suite.ProblemEntry("p", Path("p.toml")), suite.ProblemEntry("q", Path("q.toml"), reason="r0")])
+    base = {"iterations": 3, "wall_time_s": 0.1, "joint_range_excess": 0.0, "effort_excess": 0.0,
+            "over_time_budget": False, "status": "max-iterations"}
+    recs = [{**base, "problem": "p", "solver": "A", "final_cost": 2.0, "cost_ratio": 2.0, "time_to_target_s": None,
+             "key": "a" * 16, "reason": ""},
+            {**base, "problem": "p", "solver": "B", "final_cost": 1.0, "cost_ratio": 1.0, "time_to_target_s": 0.05,
+             "key": "b" * 16, "reason": ""},
+            *({**base, "problem": "q", "solver": x, "final_cost": None, "cost_ratio": None, "time_to_target_s": None,
+               "key": None, "reason": "no problem file q.toml", "status": "not run"} for x in ("A", "B"))]
+    return suite.summary(s, recs, {"date": "today", "machine": "here"})
+
+
+def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numbers(tmp_path):
+    import importlib.util
+
+    doc = _synthetic_doc()
+    page = suite.markdown(doc)
+    assert "| p | 40 it, 20 s, held | 2 (2x) | 1 (1x) |" in page
+    assert "| q | 40 it, 20 s, held | - [1] | - [1] |" in page
+    assert "1. no problem file q.toml" in page
+    assert "| A | 0.00 | 0.00 | 0.00 | 0.00 | 0.50 | 0.50 |" in page      # cost: within 2x on p, q unsolved
+    (tmp_path / "suite.md").write_text(page)
+    from pipeline.runner import finite_json
+
+    (tmp_path / "suite.json").write_text(json.dumps(finite_json(doc)))
+    spec = importlib.util.spec_from_file_location("readme_numbers", ROOT / "scripts" / "readme_numbers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    block = mod.suite_block(tmp_path / "suite.md", tmp_path / "suite.json")
+    assert "Every run" not in block and "#### Final cost" in block
+    assert f"]({tmp_path / 'suite_profiles.png'})" in block
+    assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
