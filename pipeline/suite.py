@@ -15,6 +15,7 @@ The suite is a list file (``problems/suite/suite.toml``) and every other problem
     label = "arm5-reach analytic"
     dynamics = "analytic"      # default: the file's
     start = "rollout"          # held | rollout | quasi-static
+    q0_std = 0.05              # the start posture's spread (seed 0; default 0: the file's posture)
     iterations = 25            # its own budgets
 
 Every solver runs on every problem as an ordinary cached plan (seed 0, the problem's start posture,
@@ -62,7 +63,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
 TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "solver", "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
-PROBLEM_KEYS = ("file", "label", "dynamics", "start", "iterations", "time_budget_s")
+PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
 TAUS = (1.0, 1.01, 1.1, 1.5, 2.0, 10.0)   # the profiles' table columns
 
@@ -82,6 +83,7 @@ class ProblemEntry:
     file: Path
     dynamics: str = ""
     start: str = "held"
+    q0_std: float | None = None   # rad: the start posture's spread (seed 0); None: the file's posture exactly
     iterations: int = 40
     time_budget_s: float = 20.0
     reason: str = ""              # why none of its cells runs ("" : they run)
@@ -200,7 +202,7 @@ def _solver_refusal(opts: dict) -> str:
 
 def _problem(path: Path, e: dict, file: Path, iterations: int, budget: float) -> ProblemEntry:
     label = e.get("label") or (_problem_label(file) if file.exists() else Path(e.get("file", file)).stem)
-    p = ProblemEntry(str(label), file, str(e.get("dynamics", "")), str(e.get("start", "held")),
+    p = ProblemEntry(str(label), file, str(e.get("dynamics", "")), str(e.get("start", "held")), e.get("q0_std"),
                      e.get("iterations", iterations), e.get("time_budget_s", budget))
     try:
         _budget(p.iterations, f"problem '{p.label}': iterations", True)
@@ -222,6 +224,8 @@ def options(problem: ProblemEntry, solver: SolverEntry) -> dict[str, Any]:
     opts = {"problem": str(problem.file), **solver.options, "iterations": int(problem.iterations)}
     if problem.dynamics:
         opts["dynamics"] = problem.dynamics
+    if problem.q0_std is not None:
+        opts["q0_std"] = problem.q0_std
     if problem.start == "rollout" and solver.rollout:
         opts["solver"] = solver.rollout
     elif problem.start != "held":

@@ -269,3 +269,16 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "Every run" not in block and "#### Final cost" in block
     assert f"]({tmp_path / 'suite_profiles.png'})" in block
     assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
+
+
+@pytest.mark.parametrize("args, line", [
+    (["/no/such/suite.toml"], "raico: error: no suite file /no/such/suite.toml"),
+    (["-p", "no-such-problem"], "raico: error: --problem no-such-problem: not in the suite; choose from "),
+    (["-s", "no-such-solver"], "raico: error: --solver no-such-solver: not in the suite; choose from "),
+    (["--jobs", "0"], "raico: error: --jobs must be in [1, 64]"),
+])
+def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, args, line):
+    res = runner.invoke(app, ["bench", "suite", *args, "--artifacts", str(tmp_path / "art")])
+    assert res.exit_code == 2
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith(line)
+    assert not (tmp_path / "art" / "bench").exists()
