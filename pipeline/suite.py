@@ -369,10 +369,11 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
         rec: dict[str, Any] = {"problem": c.problem, "solver": c.solver, "status": "not run", "iterations": None,
                                "final_cost": None, "wall_time_s": None, "time_to_target_s": None,
                                "cost_ratio": None, "joint_range_excess": None, "effort_excess": None,
-                               "key": None, "reason": c.reason, "over_time_budget": False}
+                               "key": None, "reason": c.reason, "over_time_budget": False, "cached": False}
         row = c.row
         if row and row.get("plan.key"):
             rec.update(key=row["plan.key"], status=row.get("plan.status"), iterations=row.get("plan.iterations"),
+                       cached=bool(row.get("plan.cached")),
                        wall_time_s=row.get("plan.wall_time_s"))
             with np.load(cache.root / "plan" / row["plan.key"] / "plan.npz", allow_pickle=False) as f:
                 costs, elapsed = np.asarray(f["costs"], float), np.asarray(f["elapsed"], float)
@@ -510,6 +511,28 @@ def summary(suite: Suite, records: list[dict], meta: dict[str, Any]) -> dict[str
                          "every_solver_ran": profiles(records, ran_all, solvers)}}
 
 
+def _raico_losses(doc: dict[str, Any], by: dict, problems: list[str]) -> list[str]:
+    """One line per problem on which the best of R-AICO's entries (solver ``raico``) ends above 1.1x the
+    best final cost: its ratio and the solver that set the best."""
+    raico = [s for s, o in doc["solvers"].items() if o.get("solver") == "raico"]
+    if not raico:
+        return []
+    out = []
+    for p in problems:
+        best = min((r for s, r in ((s, by[(p, s)]) for s in doc["solvers"]) if r["final_cost"] is not None),
+                   key=lambda r: r["final_cost"], default=None)
+        if best is None:
+            continue
+        mine = [by[(p, s)] for s in raico if by[(p, s)]["cost_ratio"] is not None]
+        top = min(mine, key=lambda r: r["cost_ratio"], default=None)
+        if top is None or top["cost_ratio"] > 1.1:
+            what = "no result" if top is None else f"{_f(top['cost_ratio'], '.3g')}x ({top['solver']})"
+            out.append(f"- {p}: R-AICO's best {what}; the best {_f(best['final_cost'])} by {best['solver']}")
+    head = (f"Where R-AICO ({', '.join(raico)}: the best of them) ends above 1.1x the best final cost: "
+            f"{len(out)} of {len(problems)} problems" + (":" if out else "."))
+    return [head, "", *out] if out else [head]
+
+
 def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
     """The suite's page: per-problem cost and time grids, every run's numbers, both profiles."""
     recs = doc["records"]
@@ -525,8 +548,12 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
         return f"- [{n}]"
 
     within = f"{doc['within'] * 100:g} %"
+    ran = [r for r in recs if r["key"]]
+    cached = sum(r.get("cached", False) for r in ran)
     lines = [f"# The solver suite: {doc['suite']}", "",
-             f"Measured by `raico bench suite` ({doc.get('date', '')}; {doc.get('machine', '')}). "
+             f"Measured by `raico bench suite` ({doc.get('date', '')}; {doc.get('machine', '')}; "
+             f"{len(ran) - cached} of its {len(ran)} runs computed in this call, "
+             f"{cached} read from the cache with the times of the call that computed them). "
              f"{len(problems)} problems x {len(solvers)} solvers, each run an ordinary cached plan (`raico exp show "
              f"{doc['suite']}`), one run each, seed 0, the problem's start posture. Final cost: raico's cost of the "
              "plan at the budget (the cost of the last iteration finished within the time budget where the run "
@@ -543,7 +570,7 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
                          f"{_f(r['final_cost'])} ({_f(r['cost_ratio'], '.3g')}x)")
         lines.append(f"| {p} | {b['iterations']} it, {_f(b['time_budget_s'], 'g')} s, {b['start']} | "
                      + " | ".join(cells) + " |")
-    lines += ["", f"## Time to within {within} of the best cost (s)", "",
+    lines += ["", *_raico_losses(doc, by, problems), "", f"## Time to within {within} of the best cost (s)", "",
               "| problem | " + " | ".join(solvers) + " |", "|---|" + "---|" * len(solvers)]
     for p in problems:
         cells = []

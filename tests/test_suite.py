@@ -257,6 +257,7 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "| p | 40 it, 20 s, held | 2 (2x) | 1 (1x) |" in page
     assert "| q | 40 it, 20 s, held | - [1] | - [1] |" in page
     assert "1. no problem file q.toml" in page
+    assert "ends above 1.1x the best final cost: 1 of 2 problems:\n\n- p: R-AICO's best 2x (A); the best 1 by B" in page
     assert "| A | 0.00 | 0.00 | 0.00 | 0.00 | 0.50 | 0.50 |" in page      # cost: within 2x on p, q unsolved
     (tmp_path / "suite.md").write_text(page)
     from pipeline.runner import finite_json
