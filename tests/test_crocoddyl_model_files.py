@@ -524,24 +524,22 @@ def test_crocoddyls_talos_arm_example_is_reproduced_through_the_problem_file(tal
     assert len(log.rows) > 20 and solver.cost < 0.15  # 3.2.0's rule: further
 
 
-# ----------------------------------------------------------------------------- MJCF
-ARM3_MJCF = "problems/suite/arm3_mjcf_reach.toml"
-
-
-def test_an_mjcf_robot_is_the_same_model_in_pinocchio_and_fddp_reports_raicos_cost():
-    """Pinocchio's own MJCF reader and Drake's give the same mass matrix, bias (gravity, Coriolis,
-    the file's joint damping) and frames; FDDP on the file's problem reaches a controller whose
-    rollout on raico's model costs what crocoddyl says."""
+# ----------------------------------------------------------------------------- MJCF and SDF
+@pytest.mark.parametrize("path", ["problems/suite/arm3_mjcf_reach.toml", "problems/suite/arm3_sdf_reach.toml"])
+def test_mjcf_and_sdf_robots_are_the_same_model_in_pinocchio_and_fddp_reports_raicos_cost(path):
+    """Pinocchio's own MJCF reader, and the model built from Drake's reading of an SDF file, give Drake's
+    mass matrix, bias (gravity, Coriolis, the file's joint damping) and frames; FDDP on the file's problem
+    reaches a controller whose rollout on raico's model costs what crocoddyl says."""
     import pinocchio as pin
 
     from planning.crocoddyl_problem import frame_id, pinocchio_robot
     from planning.solvers import solve
 
-    robot, problem = raico_problem(ARM3_MJCF)
+    robot, problem = raico_problem(path)
     model, smap = pinocchio_robot(robot)
     assert np.all(np.asarray(model.damping) > 0)          # the file's damping, read by both
+    ids = {name: frame_id(model, robot, name) for name in ("tip", "fore", "upper")}   # may add frames
     data = model.createData()
-    ctx = None
     for x in _random_states(robot, smap, 3, seed=3):
         q, v = x[:robot.n_q], x[robot.n_q:]
         xp = smap.x_to_pin(x)
@@ -551,25 +549,27 @@ def test_an_mjcf_robot_is_the_same_model_in_pinocchio_and_fddp_reports_raicos_co
         h = (pin.rnea(model, data, xp[:model.nq], xp[model.nq:], np.zeros(model.nv))
              + np.asarray(model.damping) * xp[model.nq:])[smap.v_index]
         assert _rel(M, M_drake) <= RTOL and _rel(h, h_drake) <= RTOL
-        tip = frame_id(model, robot, "tip")
         pin.framesForwardKinematics(model, data, xp[:model.nq])
-        X = robot.plant.GetFrameByName("tip").CalcPoseInWorld(ctx)
-        assert np.max(np.abs(data.oMf[tip].translation - X.translation())) <= 1e-12
+        for name, fid in ids.items():
+            X = robot.plant.GetFrameByName(name).CalcPoseInWorld(ctx)
+            oMf = data.oMf[fid]
+            assert np.max(np.abs(oMf.translation - X.translation())) <= 1e-12, name
+            assert np.max(np.abs(oMf.rotation - X.rotation().matrix())) <= 1e-12, name
     r = solve(problem, "fddp", {"iterations": 60})
     assert math.isclose(problem.cost(r.X, r.U), r.cost, rel_tol=1e-6)
     assert r.cost < 1e-3 * r.initial_cost
 
 
-def test_an_sdf_robot_without_pinocchios_sdformat_is_refused_in_one_line():
-    import pinocchio as pin
+def test_a_drake_joint_pinocchio_cannot_hold_is_refused_in_one_line():
+    """A floating joint inside the tree (Drake's quaternion floating joint of a free root) is refused
+    by the model built from Drake's plant."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.multibody.tree import SpatialInertia
 
-    from planning.crocoddyl_problem import pinocchio_robot
-    from plants.model_file import RobotSpec, load_model
+    from planning.crocoddyl_problem import model_from_drake
 
-    if getattr(pin, "WITH_SDFORMAT", False):
-        pytest.skip("this Pinocchio reads SDF (built with SDFormat)")
-    from pathlib import Path
-
-    robot = load_model(RobotSpec(file=str(Path(__file__).parent / "data" / "arm2.sdf")))
-    with pytest.raises(cm.NotExpressible, match=r"arm2.sdf is SDF and this Pinocchio was built without SDFormat"):
-        pinocchio_robot(robot)
+    plant = MultibodyPlant(0.0)
+    plant.AddRigidBody("floating", SpatialInertia.SolidSphereWithMass(1.0, 0.1))
+    plant.Finalize()
+    with pytest.raises(cm.NotExpressible, match=r"joint '.*' of free is a quaternion_floating joint in Drake"):
+        model_from_drake(type("R", (), {"plant": plant, "name": "free"})())
