@@ -502,8 +502,9 @@ def bench_suite(
 ):
     """Every solver of the suite on every problem (each an ordinary cached plan; `raico exp show suite`),
     then per problem final cost, status, iterations, wall time, time to within 1 % of the best cost and
-    limit violations, and Dolan-More performance profiles (table and PNG). A missing problem, a budget
-    of 0 or a solver that cannot express a problem is one line; the suite goes on."""
+    limit violations, and Dolan-More performance profiles (table and PNG). With --problem/--solver the page
+    and the runs table hold those cells only. A missing problem, a budget of 0 or a solver that cannot
+    express a problem is one line and the suite goes on; exit 1 after it if a problem entry could not run."""
     from pipeline import suite as suite_mod
     from pipeline.executors import make_executor
     from pipeline.ui import Reporter
@@ -540,6 +541,10 @@ def bench_suite(
                               default=float, allow_nan=False))
     elif not quiet:
         typer.echo(suite_mod.markdown(doc).split("## Every run")[0].rstrip())
+    bad = [p.label for p in s.problems if p.reason]
+    if bad:   # the list file named what cannot run (said above, one line each): not a clean result
+        say(f"suite: {len(bad)} problem entr{'y' if len(bad) == 1 else 'ies'} could not run ({', '.join(bad)}): exit 1")
+        raise typer.Exit(1)
 
 
 @app.command("plot")

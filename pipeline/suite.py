@@ -587,7 +587,7 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
         lines.append(f"| {r['problem']} | {r['solver']} | {status} | {_f(r['iterations'], 'd')} | "
                      f"{_f(r['final_cost'])} | {_f(r['wall_time_s'], '.3g')} | {_f(r['time_to_target_s'], '.3g')} | "
                      f"{_f(r['joint_range_excess'], '.3g')} | {_f(r['effort_excess'], '.3g')} | "
-                     f"{(r['key'] or why(r))[:8] if r['key'] else why(r)} |")
+                     f"{r['key'] or why(r)} |")
     lines += ["", "Joint range excess: the largest distance of a planned joint position outside the model's range "
               "(rad; m for a prismatic joint). Effort excess: the largest torque above a joint's effort limit (for "
               "pseudo-dynamics the torques of the planned accelerations).", ""]
