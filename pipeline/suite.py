@@ -473,10 +473,11 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
         ax.set_ylabel(f"fraction of the {n} problems")
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, loc="lower right")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=min(len(solvers), 7), frameon=False)
     fig.suptitle(f"{doc['suite']}: Dolan-Moré performance profiles ({n} problems; a cell without a result counts "
                  "as not solved)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     import io
 
     buf = io.BytesIO()
