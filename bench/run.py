@@ -445,13 +445,19 @@ def main() -> None:
     # crocoddyl's own problems as problem files: every solver, each plan executed in Drake (also written
     # to crocoddyl_problems.json and .md)
     croc_problems = crocoddyl_problems(Path(args.artifacts), BENCH_PROBLEMS)
+    from bench.suite import run as solver_suite
+    from pipeline.runner import finite_json
+
+    # every solver on every problem of problems/suite, judged by performance profiles (suite.json, .md, .png)
+    suite_doc = solver_suite(Path(args.artifacts))
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     doc = {"machine": {"python": platform.python_version(), "processor": platform.processor(),
                        "cpus": os.cpu_count(), "load_average_1min_start": load_start,
                        "load_average_1min_end": os.getloadavg()[0]},
            "packages": package_versions(), "results": rows, "crocoddyl_baseline": baseline,
-           "crocoddyl_problems": croc_problems}
+           "crocoddyl_problems": croc_problems,
+           "suite": {"page": suite_doc["outputs"][1], "profiles": finite_json(suite_doc["profiles"])}}
     write_file_atomic(out / "results.json", json.dumps(doc, indent=2))
     print(f"wrote {out / 'results.json'}")
 

@@ -484,6 +484,73 @@ def exp_diff(
     typer.echo(expfile.render_run_diff(expfile.run_diff(df, swept, a, b, cache), fmt))
 
 
+bench_app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                        rich_markup_mode=None, help="Benchmarks: the solver suite judged by performance profiles.")
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("suite")
+@handles_errors
+def bench_suite(
+    file: Annotated[Path | None, typer.Argument(help="The suite's list file (default problems/suite/suite.toml; "
+                                                "see pipeline/suite.py).")] = None,
+    problem: Annotated[list[str] | None, typer.Option("--problem", "-p", help="Run only this problem (its label; "
+                                                      "repeatable).")] = None,
+    solver: Annotated[list[str] | None, typer.Option("--solver", "-s", help="Run only this solver (its label; "
+                                                     "repeatable).")] = None,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers (1: one run at a time in this process, "
+                                      "the cleanest times).")] = 1,
+    out: Annotated[Path | None, typer.Option("--out", help="Folder of the page, its JSON and the profiles' PNG "
+                                             "(default ARTIFACTS/bench).")] = None,
+    artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
+):
+    """Every solver of the suite on every problem (each an ordinary cached plan; `raico exp show suite`),
+    then per problem final cost, status, iterations, wall time, time to within 1 % of the best cost and
+    limit violations, and Dolan-More performance profiles (table and PNG). With --problem/--solver the page
+    and the runs table hold those cells only. A missing problem, a budget of 0 or a solver that cannot
+    express a problem is one line and the suite goes on; exit 1 after it if a problem entry could not run."""
+    from pipeline import suite as suite_mod
+    from pipeline.executors import make_executor
+    from pipeline.ui import Reporter
+
+    if not 1 <= jobs <= 64:
+        raise BadInput("--jobs must be in [1, 64]")
+    s = suite_mod.load(file)
+    for flag, chosen, have in (("--problem", problem, [p.label for p in s.problems]),
+                               ("--solver", solver, [x.label for x in s.solvers])):
+        missing = [c for c in chosen or [] if c not in have]
+        if missing:
+            raise BadInput(f"{flag} {missing[0]}: not in the suite; choose from {', '.join(have)}")
+    if problem:
+        s.problems = [p for p in s.problems if p.label in problem]
+    if solver:
+        s.solvers = [x for x in s.solvers if x.label in solver]
+    reporter = Reporter(quiet)
+    cache = open_cache(artifacts)
+
+    def say(line: str) -> None:   # the suite's bad-input lines: said even with --quiet
+        typer.echo(line, err=True)
+
+    with reporter.board() as board:
+        def progress(done: int, total: int, label: str | None) -> None:
+            board.update(s.name, f"suite {s.name}", done, total,
+                         f"suite {s.name}: {done}/{total} runs done ({label})" if label else None)
+
+        doc = suite_mod.bench(cache, s, make_executor("process", jobs), say, out or cache.root / "bench", progress)
+    reporter.say(f"suite {s.name}: {len(s.problems)} problems x {len(s.solvers)} solvers -> {doc['outputs'][1]}")
+    if json_:
+        from pipeline.runner import finite_json
+
+        typer.echo(json.dumps(finite_json({k: doc[k] for k in ("suite", "profiles", "records", "outputs")}),
+                              default=float, allow_nan=False))
+    elif not quiet:
+        typer.echo(suite_mod.markdown(doc).split("## Every run")[0].rstrip())
+    bad = [p.label for p in s.problems if p.reason]
+    if bad:   # the list file named what cannot run (said above, one line each): not a clean result
+        say(f"suite: {len(bad)} problem entr{'y' if len(bad) == 1 else 'ies'} could not run ({', '.join(bad)}): exit 1")
+        raise typer.Exit(1)
+
+
 @app.command("plot")
 @handles_errors
 def plot(

@@ -6,8 +6,8 @@
 - the model: for a built-in plant the project's URDF, copied to a temporary folder with a
   ``<link name="world"/>`` added and the visual elements dropped (urdfdom refuses the file as
   written), loaded into pinocchio; for a robot from a model file the same repaired URDF text Drake
-  reads (:mod:`planning.crocoddyl_problem`: the joint order mapped, continuous joints, the fixed
-  base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
+  reads, an MJCF file through Pinocchio's MJCF reader, an SDF file through Drake's reading of it
+  (:mod:`planning.crocoddyl_problem`: the joint order mapped, continuous joints, the fixed base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
   well: that would count it twice); joint damping (the pendulum's viscous friction, a model file's
   ``<dynamics damping>``, which pinocchio's ``aba`` ignores) enters through an actuation model
   ``tau = u - D qdot``;

@@ -11,7 +11,10 @@ text Drake reads (``plants.model_file.repair_urdf``: locked joints are fixed joi
 tags dropped), with a fixed base, which is where Drake puts the robot when its free root is welded
 at the world origin (or the file attaches it to a ``world`` link). A robot welded on another frame
 (a humanoid standing on a sole) re-roots the tree in Drake: Pinocchio's URDF tree is rooted at the
-file's root link, so that is ``NotExpressible``. The armature of the spec is Pinocchio's
+file's root link, so that is ``NotExpressible``. An MJCF file is read by Pinocchio's own MJCF reader
+(``buildModelFromMJCF``), as Drake reads the file itself; an SDF file through Drake's reading of it
+(:func:`model_from_drake`: Pinocchio's model built joint by joint from Drake's plant; Pinocchio's own
+SDFormat reader is an option of its build, absent here). The armature of the spec is Pinocchio's
 ``model.armature`` (Drake's rotor inertia with gear ratio 1: both add it to the mass matrix's
 diagonal); Drake's joint damping (the file's ``<dynamics damping>``), which Pinocchio's forward
 dynamics ignores, enters through an actuation model ``tau = u - D v`` (crocoddyl_model's).
@@ -63,9 +66,11 @@ inequality on another task map or with general rows, the uncertainty term) raise
 from __future__ import annotations
 
 import math
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -249,6 +254,80 @@ def _continuous_as_revolute(text: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def _other_format_roots(path: Path, fmt: str) -> list[str]:
+    """The roots of an MJCF (the bodies of its ``<worldbody>``) or SDF file's tree (its first link)."""
+    if fmt == "mjcf":
+        world = ET.parse(path).getroot().find("worldbody")
+        return [b.get("name") for b in ([] if world is None else world.findall("body"))]
+    m = re.search(r"<link\s+name=\"([^\"]+)\"", path.read_text(errors="replace"))
+    return [m.group(1)] if m else []
+
+
+def _other_format_model(robot, path: Path, fmt: str):
+    """Pinocchio's model of an MJCF file (its own reader, ``buildModelFromMJCF``: hinge and slide
+    joints, bodies without a joint fixed to their parent) or of an SDF file (:func:`model_from_drake`:
+    Drake's reading of it, joint by joint; the SDFormat reader is an option of Pinocchio's build)."""
+    if fmt == "sdf":
+        return model_from_drake(robot)
+    try:
+        return pin.buildModelFromMJCF(str(path))
+    except (RuntimeError, ValueError) as e:
+        raise NotExpressible(f"crocoddyl: Pinocchio cannot read {path.name}: {str(e).splitlines()[0]}") from None
+
+
+def _se3(X) -> pin.SE3:
+    """Drake's RigidTransform as Pinocchio's SE3."""
+    return pin.SE3(X.rotation().matrix(), X.translation())
+
+
+def model_from_drake(robot):
+    """Pinocchio's model of ``robot``'s Drake plant, joint by joint from the world: each revolute or
+    prismatic joint a Pinocchio joint about its axis at the parent side's joint frame, each weld
+    merged into its parent (the child's inertia and a frame of its name on the parent's joint), each
+    body's spatial inertia and a BODY frame of its name, joint damping and position limits; the
+    joint names are Drake's. ``NotExpressible`` for another joint type (a floating joint inside)."""
+    from pydrake.multibody.tree import JointIndex
+
+    plant = robot.plant
+    model = pin.Model()
+    world = plant.world_body().index()
+    at = {world: (0, pin.SE3.Identity())}   # body -> (Pinocchio joint, body origin in its joint frame)
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+    pending = list(joints)
+    while pending:
+        ready = [j for j in pending if j.parent_body().index() in at]
+        if not ready:
+            raise NotExpressible(f"crocoddyl: {robot.name}'s tree does not reach every joint from the world")
+        for j in ready:
+            pending.remove(j)
+            parent, X_JP = at[j.parent_body().index()]
+            X_JF = X_JP * _se3(j.frame_on_parent().GetFixedPoseInBodyFrame())   # the joint frame on the parent
+            X_CM = _se3(j.frame_on_child().GetFixedPoseInBodyFrame()).inverse()  # the child in its joint frame
+            kind = j.type_name()
+            if kind == "weld":
+                X_FM = _se3(j.X_FM()) if hasattr(j, "X_FM") else pin.SE3.Identity()
+                jid, X_JC = parent, X_JF * X_FM * X_CM
+            elif kind in ("revolute", "prismatic"):
+                axis = np.asarray(j.revolute_axis() if kind == "revolute" else j.translation_axis(), float)
+                jm = (pin.JointModelRevoluteUnaligned if kind == "revolute" else pin.JointModelPrismaticUnaligned)(
+                    *axis)
+                jid = model.addJoint(parent, jm, X_JF, j.name())
+                model.damping[model.joints[jid].idx_v] = float(j.default_damping())
+                model.lowerPositionLimit[model.joints[jid].idx_q] = float(j.position_lower_limits()[0])
+                model.upperPositionLimit[model.joints[jid].idx_q] = float(j.position_upper_limits()[0])
+                X_JC = X_CM
+            else:
+                raise NotExpressible(f"crocoddyl: joint '{j.name()}' of {robot.name} is a {kind} joint in Drake")
+            body = j.child_body()
+            M = body.default_spatial_inertia()
+            com = np.asarray(M.get_com(), float)
+            I_com = M.Shift(com).CalcRotationalInertia().CopyToFullMatrix3()
+            model.appendBodyToJoint(jid, pin.Inertia(float(M.get_mass()), com, I_com), X_JC)
+            model.addFrame(pin.Frame(body.name(), jid, X_JC, pin.FrameType.BODY))
+            at[body.index()] = (jid, X_JC)
+    return model
+
+
 def pinocchio_robot(robot, continuous: str = "angle"):
     """``(model, StateMap)`` of a model-file robot (``robot.spec``), see the module docstring;
     ``continuous``: ``"angle"`` or ``"cos-sin"``."""
@@ -260,14 +339,18 @@ def pinocchio_robot(robot, continuous: str = "angle"):
     if continuous not in CONTINUOUS:
         raise ValueError(f"continuous must be one of {CONTINUOUS}, got {continuous!r}")
     path, fmt, text, _, _ = _model_text(spec)
-    if fmt != "urdf":
-        raise NotExpressible(f"crocoddyl: {path.name} is {fmt.upper()}: the bridge reads URDF files into Pinocchio")
-    roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
+    if fmt == "urdf":
+        roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
+    else:
+        roots = _other_format_roots(path, fmt)
     if spec.weld is not None and not (len(roots) == 1 and spec.weld == roots[0]):
         raise NotExpressible(
             f"crocoddyl cannot express {path.name} welded on '{spec.weld}': Drake re-roots the tree there, "
-            f"Pinocchio's URDF tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
-    model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
+            f"Pinocchio's tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
+    if fmt == "urdf":
+        model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
+    else:
+        model = _other_format_model(robot, path, fmt)
     names = [model.names[i] for i in range(1, model.njoints)]
     if sorted(names) != sorted(robot.joint_names):
         raise NotExpressible(f"crocoddyl: Pinocchio's joints {names} of {path.name} are not raico's planning "

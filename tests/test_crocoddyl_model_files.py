@@ -587,3 +587,54 @@ def test_crocoddyls_talos_arm_example_is_reproduced_through_the_problem_file(tal
     for (cost, stop, _), (cost_log, stop_log) in zip(log.rows, TALOS_LOG):
         assert math.isclose(cost, cost_log, rel_tol=2e-3) and math.isclose(stop, stop_log, rel_tol=5e-3)
     assert len(log.rows) > 20 and solver.cost < 0.15  # 3.2.0's rule: further
+
+
+# ----------------------------------------------------------------------------- MJCF and SDF
+@pytest.mark.parametrize("path", ["problems/suite/arm3_mjcf_reach.toml", "problems/suite/arm3_sdf_reach.toml"])
+def test_mjcf_and_sdf_robots_are_the_same_model_in_pinocchio_and_fddp_reports_raicos_cost(path):
+    """Pinocchio's own MJCF reader, and the model built from Drake's reading of an SDF file, give Drake's
+    mass matrix, bias (gravity, Coriolis, the file's joint damping) and frames; FDDP on the file's problem
+    reaches a controller whose rollout on raico's model costs what crocoddyl says."""
+    import pinocchio as pin
+
+    from planning.crocoddyl_problem import frame_id, pinocchio_robot
+    from planning.solvers import solve
+
+    robot, problem = raico_problem(path)
+    model, smap = pinocchio_robot(robot)
+    assert np.all(np.asarray(model.damping) > 0)          # the file's damping, read by both
+    ids = {name: frame_id(model, robot, name) for name in ("tip", "fore", "upper")}   # may add frames
+    data = model.createData()
+    for x in _random_states(robot, smap, 3, seed=3):
+        q, v = x[:robot.n_q], x[robot.n_q:]
+        xp = smap.x_to_pin(x)
+        M_drake, h_drake, ctx = _drake_M_h(robot, q, v)
+        M = pin.crba(model, data, xp[:model.nq])
+        M = (np.triu(M) + np.triu(M, 1).T)[np.ix_(smap.v_index, smap.v_index)]
+        h = (pin.rnea(model, data, xp[:model.nq], xp[model.nq:], np.zeros(model.nv))
+             + np.asarray(model.damping) * xp[model.nq:])[smap.v_index]
+        assert _rel(M, M_drake) <= RTOL and _rel(h, h_drake) <= RTOL
+        pin.framesForwardKinematics(model, data, xp[:model.nq])
+        for name, fid in ids.items():
+            X = robot.plant.GetFrameByName(name).CalcPoseInWorld(ctx)
+            oMf = data.oMf[fid]
+            assert np.max(np.abs(oMf.translation - X.translation())) <= 1e-12, name
+            assert np.max(np.abs(oMf.rotation - X.rotation().matrix())) <= 1e-12, name
+    r = solve(problem, "fddp", {"iterations": 60})
+    assert math.isclose(problem.cost(r.X, r.U), r.cost, rel_tol=1e-6)
+    assert r.cost < 1e-3 * r.initial_cost
+
+
+def test_a_drake_joint_pinocchio_cannot_hold_is_refused_in_one_line():
+    """A floating joint inside the tree (Drake's quaternion floating joint of a free root) is refused
+    by the model built from Drake's plant."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.multibody.tree import SpatialInertia
+
+    from planning.crocoddyl_problem import model_from_drake
+
+    plant = MultibodyPlant(0.0)
+    plant.AddRigidBody("floating", SpatialInertia.SolidSphereWithMass(1.0, 0.1))
+    plant.Finalize()
+    with pytest.raises(cm.NotExpressible, match=r"joint '.*' of free is a quaternion_floating joint in Drake"):
+        model_from_drake(type("R", (), {"plant": plant, "name": "free"})())

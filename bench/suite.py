@@ -1,0 +1,47 @@
+"""The solver suite on ``make bench``'s page: ``python -m bench.suite [--artifacts DIR] [--jobs N]``.
+
+Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.suite`: every solver on
+every problem, each an ordinary cached plan in ``DIR``, one run at a time in this process for the
+cleanest times) and writes ``DIR/bench/suite.json``, ``suite.md`` (the page; its tables go into
+the README through ``scripts/readme_numbers.py``) and ``suite_profiles.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def run(artifacts: Path, file: Path | None = None, jobs: int = 1) -> dict:
+    """The suite's document (see :func:`pipeline.suite.bench`)."""
+    from pipeline import suite
+    from pipeline.cache import Cache
+    from pipeline.executors import make_executor
+
+    s = suite.load(file)
+
+    def say(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    def progress(done: int, total: int, label: str | None) -> None:
+        if label:
+            print(f"suite {s.name}: {done}/{total} runs done ({label})", flush=True)
+
+    doc = suite.bench(Cache(Path(artifacts)), s, make_executor("process", jobs), say, Path(artifacts) / "bench",
+                      progress)
+    print(f"wrote {', '.join(doc['outputs'])}", flush=True)
+    return doc
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--artifacts", default="artifacts")
+    ap.add_argument("--file", default=None, help="the suite's list file (default problems/suite/suite.toml)")
+    ap.add_argument("--jobs", type=int, default=1)
+    args = ap.parse_args()
+    run(Path(args.artifacts), args.file, args.jobs)
+
+
+if __name__ == "__main__":
+    main()
