@@ -342,7 +342,11 @@ def test_compiled_task_maps_equal_drake(name, plant):
     rng = np.random.default_rng(3)
     Q = robot.default_q + 0.3 * rng.standard_normal((3, robot.n_q))
     for m in maps:
-        if not hasattr(m, "_in_plant"):
+        if not hasattr(m, "_in_plant"):   # a joint selection: no plant; its definition is the reference
+            V, J = m.values_and_jacobians(Q)
+            idx = np.argmax(m.S, axis=1)
+            np.testing.assert_array_equal(V, Q[:, idx])
+            np.testing.assert_array_equal(J, np.broadcast_to(np.eye(robot.n_q)[idx], J.shape))
             continue
         assert m.tree_kernels() is not None
         for q in Q:
