@@ -41,6 +41,7 @@ from plants.taskmaps import (
     log3_angle_rows,
     log6,
 )
+from tests.tolerance import REL, assert_close, scale_of
 
 with warnings.catch_warnings():   # pinocchio imports its collision library by its old name
     warnings.simplefilter("ignore")
@@ -164,7 +165,7 @@ def test_batched_logarithms_equal_the_scalar_ones_row_by_row():
     R, p = _mixed_batch()
     angles = np.array([log3_angle(Rk)[0] for Rk in R])
     for a in (0.0, 1e-7, 1e-5, np.pi - 1e-7, np.pi):   # each branch has rows in the batch
-        assert np.any(np.abs(angles - a) <= 1e-12 + 0.05 * min(a, np.pi - a)), a
+        assert np.any(np.abs(angles - a) <= REL + 0.05 * min(a, np.pi - a)), a
     theta, r = log3_angle_rows(R)
     J3 = _jlog3_rows(theta, r)
     theta6, w6, l6 = _log6_parts_rows(R, p)
@@ -174,12 +175,14 @@ def test_batched_logarithms_equal_the_scalar_ones_row_by_row():
     for k in range(len(R)):
         th, rk = log3_angle(R[k])
         th6, wk, lk = _log6_parts(R[k], p[k])
-        np.testing.assert_allclose([theta[k], theta6[k]], [th, th6], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(r[k], rk, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(J3[k], _jlog3(th, rk), rtol=0, atol=1e-12)
-        np.testing.assert_allclose(w6[k], wk, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(l6[k], lk, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(J6[k], _jlog6(th6, wk, p[k]), rtol=0, atol=1e-12)
+        # the inputs' scale: a rotation's entries (1) and the translation's (|p|)
+        s6 = max(1.0, scale_of(p[k]))
+        assert_close([theta[k], theta6[k]], [th, th6], scale=1.0, err_msg=str(k))
+        assert_close(r[k], rk, scale=1.0, err_msg=str(k))
+        assert_close(J3[k], _jlog3(th, rk), scale=1.0, err_msg=str(k))
+        assert_close(w6[k], wk, scale=1.0, err_msg=str(k))
+        assert_close(l6[k], lk, scale=s6, err_msg=str(k))
+        assert_close(J6[k], _jlog6(th6, wk, p[k]), scale=s6, err_msg=str(k))
 
 
 def test_batched_logarithms_raise_no_warning_on_the_branches_they_do_not_take():
@@ -244,8 +247,8 @@ def test_compiled_and_drake_routes_agree(plant, frame):
         for qp in _random_postures(robot, rng, 3) @ robot.P.T:
             v_c, J_c = tm._compiled_in_plant(tm.tree_kernels(), qp)
             v_d, J_d = tm._in_plant(qp)
-            np.testing.assert_allclose(v_c, v_d, rtol=0, atol=1e-12)
-            np.testing.assert_allclose(J_c, J_d, rtol=0, atol=1e-11)
+            assert_close(v_c, v_d, scale=1.0)   # radians and metres of a robot of about 1 m
+            assert_close(J_c, J_d, scale=1.0)
 
 
 @pytest.mark.parametrize("cls", [FrameRotationError, FramePlacementError])
@@ -265,8 +268,8 @@ def test_batched_residuals_equal_the_scalar_residual_row_by_row(cls):
     assert V.shape == (len(R), tm.dim) and J.shape == (len(R), tm.dim, m)
     for k in range(len(R)):
         v, Jk = tm._residual(R[k], p[k], Jv[k], Jw[k])
-        np.testing.assert_allclose(V[k], v, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(J[k], Jk, rtol=0, atol=1e-11)
+        assert_close(V[k], v, scale=max(1.0, scale_of(p[k])))
+        assert_close(J[k], Jk, scale=max(1.0, scale_of(p[k])) * scale_of(Jv[k], Jw[k]))
 
 
 @pytest.mark.compiled
@@ -288,8 +291,8 @@ def test_batches_evaluate_the_logarithms_once_for_all_rows(route, monkeypatch):
             V, J = tm.values_and_jacobians(Q)
         assert np.all(np.isnan(V[4])) and np.all(np.isnan(J[4]))
         V, J = np.delete(V, 4, axis=0), np.delete(J, 4, axis=0)
-        np.testing.assert_allclose(V, [v for v, _ in points], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(J, [Jk for _, Jk in points], rtol=0, atol=1e-11)
+        assert_close(V, [v for v, _ in points], scale=1.0)
+        assert_close(J, [Jk for _, Jk in points], scale=1.0)
 
 
 def test_value_is_zero_at_the_target_and_the_jacobian_is_the_local_one():
@@ -303,19 +306,19 @@ def test_value_is_zero_at_the_target_and_the_jacobian_is_the_local_one():
     place = FramePlacementError(robot, "ee", R, p)
     rot = FrameRotationError(robot, "ee", R)
     v, J = place.value_and_jacobian(q)
-    np.testing.assert_allclose(v, 0.0, atol=1e-12)
-    np.testing.assert_allclose(rot.value_and_jacobian(q)[0], 0.0, atol=1e-12)
+    pose_scale = max(1.0, scale_of(p))   # zero up to the rounding of the pose's entries
+    assert_close(v, np.zeros_like(v), scale=pose_scale)
+    assert_close(rot.value_and_jacobian(q)[0], np.zeros(3), scale=1.0)
     plant, ctx = robot.plant, robot.plant.CreateDefaultContext()
     plant.SetPositions(ctx, robot.P @ q)
     Js = plant.CalcJacobianSpatialVelocity(ctx, JacobianWrtVariable.kV, plant.GetFrameByName("ee"),
                                            np.zeros(3), plant.world_frame(), plant.world_frame())
     J_local = np.vstack([R.T @ Js[3:], R.T @ Js[:3]]) @ robot.P
-    np.testing.assert_allclose(J, J_local, atol=1e-12)
-    np.testing.assert_allclose(rot.value_and_jacobian(q)[1], J_local[3:], atol=1e-12)
+    assert_close(J, J_local, scale=pose_scale)
+    assert_close(rot.value_and_jacobian(q)[1], J_local[3:], scale=1.0)
     # a translated target moves the linear part only (by R^T dp, at zero rotation error)
     place2 = FramePlacementError(robot, "ee", R, p - np.array([0.0, 0.0, 0.1]))
-    np.testing.assert_allclose(place2.value_and_jacobian(q)[0], np.r_[R.T @ [0.0, 0.0, 0.1], 0, 0, 0],
-                               atol=1e-12)
+    assert_close(place2.value_and_jacobian(q)[0], np.r_[R.T @ [0.0, 0.0, 0.1], 0, 0, 0], scale=pose_scale)
 
 
 # -- the same residuals as crocoddyl's ---------------------------------------------------------------
@@ -349,8 +352,8 @@ def test_equal_to_crocoddyls_frame_residuals(plant):
             res.calc(data, x)
             res.calcDiff(data, x)
             v, J = tm.value_and_jacobian(q)
-            np.testing.assert_allclose(v, data.r, rtol=0, atol=1e-10)
-            np.testing.assert_allclose(J, data.Rx[:, :model.nv], rtol=0, atol=1e-9)
+            assert_close(v, data.r, scale=1.0)   # radians and metres of a robot of about 1 m
+            assert_close(J, data.Rx[:, :model.nv], scale=1.0)
 
 
 # -- the JSON descriptions --------------------------------------------------------------------------
@@ -374,7 +377,8 @@ def test_descriptions_build_the_maps():
     X = np.zeros((3, 2 * robot.n_q))
     X[:, :robot.n_q] = robot.default_q
     for term in terms.state_terms:
-        assert term.value(X, np.arange(3))[1] == pytest.approx(0.0, abs=1e-20)
+        # zero up to the rounding of the residual (REL of its unit scale), squared and weighted
+        assert 0.0 <= term.value(X, np.arange(3))[1] <= 1e2 * 6 * REL**2
     X[1, :robot.n_q] = q
     assert all(term.value(X, np.arange(3))[1] > 1e-3 for term in terms.state_terms)
 
