@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
+import errno
 import fcntl
 import hashlib
 import json
@@ -480,6 +481,9 @@ def key_lock(path: Path, on_wait: Callable[[], None] | None = None) -> Iterator[
             held[path] -= 1
         return
     fd = _lock_file(path, on_wait)
+    if fd is None:   # a file system without locks: the atomic rename still keeps one entry
+        yield
+        return
     held[path] = 1
     try:
         yield
@@ -490,8 +494,9 @@ def key_lock(path: Path, on_wait: Callable[[], None] | None = None) -> Iterator[
         os.close(fd)
 
 
-def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int:
-    """An open descriptor of ``path`` with its exclusive lock taken (waiting for it if need be)."""
+def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int | None:
+    """An open descriptor of ``path`` with its exclusive lock taken (waiting for it if need be); None
+    where the file system has no locks (then identical calls in flight may both compute)."""
     told = False
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -508,6 +513,14 @@ def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int:
                 return fd
         except FileNotFoundError:
             pass   # the holder removed it on release: lock the next one
+        except OSError as e:
+            if e.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
+                os.close(fd)
+                raise
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            return None
         except BaseException:
             os.close(fd)
             raise
