@@ -249,7 +249,8 @@ def targets(result: dict) -> dict:
             else None
         t = r["time_to_1.1x_reference_s"]
         out[label] = {"per_iteration_ratio_to_fddp": per_it, "per_iteration_met": per_it is not None and per_it <= 1.0,
-                      "cost_ratio_to_reference": r["final_cost"] / result["reference_cost"],
+                      "cost_ratio_to_reference": None if r["final_cost"] is None   # diverged: no final cost
+                      else r["final_cost"] / result["reference_cost"],
                       "time_to_1.1x_reference_s": t,
                       "example_wall_time_s": None if example is None else example["wall_time_s"],
                       "cost_in_time_met": None if example is None else t is not None and t <= example["wall_time_s"]}

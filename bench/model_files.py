@@ -134,7 +134,8 @@ def chain_problem(n: int, folder: Path) -> Path:
     return path
 
 
-def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3) -> float | None:
+def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[float | None, str]:
+    """(median seconds per iteration, "") or (None, why the solver could not take the problem)."""
     from planning.solvers import solve
     from stages.plan.stage import PlanConfig, build_problem
 
@@ -144,10 +145,10 @@ def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3
         try:
             t0 = time.perf_counter()
             res = solve(problem, solver, options)
-        except Exception:  # noqa: BLE001 - a solver that cannot take the problem: no row
-            return None
+        except Exception as e:  # noqa: BLE001 - a solver that cannot take the problem: no time, said why
+            return None, f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".rstrip(": ")
         times.append((time.perf_counter() - t0) / max(1, res.iterations))
-    return statistics.median(times)
+    return statistics.median(times), ""
 
 
 def _exponent(sizes, times) -> float:
@@ -165,10 +166,12 @@ def scaling_rows() -> list[dict]:
         if "fddp" in SOLVERS:
             solvers.append(("crocoddyl FDDP", "fddp", {"iterations": ITERATIONS}))
         for label, solver, options in solvers:
-            sizes, times = [], []
+            sizes, times, skipped = [], [], {}
             for n, f in files.items():
-                t = _per_iteration(f, solver, options)
-                if t is None:
+                t, why = _per_iteration(f, solver, options)
+                if t is None:   # left out of the fit, and said so here and on the page
+                    skipped[n] = why
+                    print(f"  {label:15s} n={n:3d}  not timed: {why}", flush=True)
                     continue
                 sizes.append(n)
                 times.append(t)
@@ -178,8 +181,11 @@ def scaling_rows() -> list[dict]:
             if len(sizes) >= 3:
                 e = _exponent(sizes, times)
                 rows.append({"benchmark": f"{label} per iteration against joints", "joint_sizes": sizes,
-                             "joint_seconds": times, "joint_exponent": e})
+                             "joint_seconds": times, "joint_exponent": e, "joint_skipped": skipped})
                 print(f"  {label}: exponent {e:.2f} over n = {sizes}", flush=True)
+            elif skipped:
+                rows.append({"benchmark": f"{label} per iteration against joints", "joint_sizes": sizes,
+                             "joint_seconds": times, "joint_exponent": None, "joint_skipped": skipped})
     return rows
 
 

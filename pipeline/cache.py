@@ -14,6 +14,11 @@ read; any other (edited, copied, restored from a backup, or changed within the f
 tick of its stamp) is re-hashed once and its new stamp recorded. ``meta.json`` stays immutable
 (it carries its own checksum); ``state.json`` is only ever a cache of verified facts, so a lost,
 stale or damaged one costs a re-hash, never a wrong answer.
+
+Identical runs in flight compute once: a miss takes an exclusive ``fcntl`` lock on
+``root/<stage>/.lock-<key>`` (removed on release), checks again, and computes only if the entry is
+still missing; the others wait and find the entry. The derived files (recordings) are written and
+stamped under the same lock, so no two writers interleave their files and records.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
+import errno
+import fcntl
 import hashlib
 import json
 import math
@@ -30,6 +37,7 @@ import secrets
 import shutil
 import socket
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -65,6 +73,7 @@ META_SUM = "meta_sha256"
 FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
 TMP_PREFIX = ".tmp-"
+LOCK_PREFIX = ".lock-"  # root/<stage>/.lock-<key>: held while one call computes or records the entry
 # Packages whose versions a stage's numbers depend on: an entry made with other installed
 # versions of these is computed again by the next run, which says which versions differ (``raico ls --verify``
 # flags it). rerun-sdk governs the recordings only: a recording written by another version is written again.
@@ -451,6 +460,73 @@ def write_file_atomic(path: str | Path, data: str | bytes) -> None:
         tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
 
 
+# --------------------------------------------------------------------------- a lock per key
+
+_held = threading.local()  # the lock files this thread holds -> depth (a nested take of the same key)
+
+
+@contextlib.contextmanager
+def key_lock(path: Path, on_wait: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold an exclusive ``fcntl.flock`` on the file ``path`` (created if need be, removed on
+    release) for the ``with`` block; ``on_wait()`` is called once if another process holds it.
+
+    Re-entrant within a thread. The file is unlinked while still locked, so a waiter that opened the
+    old file finds it gone after it gets the lock and locks the new one instead (no two holders)."""
+    held: dict[Path, int] = _held.__dict__.setdefault("paths", {})
+    if path in held:
+        held[path] += 1
+        try:
+            yield
+        finally:
+            held[path] -= 1
+        return
+    fd = _lock_file(path, on_wait)
+    if fd is None:   # a file system without locks: the atomic rename still keeps one entry
+        yield
+        return
+    held[path] = 1
+    try:
+        yield
+    finally:
+        del held[path]
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        os.close(fd)
+
+
+def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int | None:
+    """An open descriptor of ``path`` with its exclusive lock taken (waiting for it if need be); None
+    where the file system has no locks (then identical calls in flight may both compute)."""
+    told = False
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if on_wait is not None and not told:
+                    on_wait()
+                    told = True
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            mine, now = os.fstat(fd), os.stat(path)
+            if (mine.st_ino, mine.st_dev) == (now.st_ino, now.st_dev):
+                return fd
+        except FileNotFoundError:
+            pass   # the holder removed it on release: lock the next one
+        except OSError as e:
+            if e.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
+                os.close(fd)
+                raise
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            return None
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+
+
 # --------------------------------------------------------------------------- cache
 
 
@@ -620,6 +696,25 @@ class Cache:
 
     # ---- writing
 
+    @contextlib.contextmanager
+    def lock(self, stage: str, key: str) -> Iterator[None]:
+        """Hold entry ``stage/key``'s lock (:func:`key_lock`): one call at a time computes it or writes
+        its derived files; ``notify`` hears once that this one waits for another."""
+        final = self.path(stage, key)
+
+        def waiting() -> None:
+            if self.notify is not None:
+                self.notify(f"{stage} {key}: an identical call is computing it; waiting for it")
+
+        with contextlib.ExitStack() as stack:
+            try:
+                final.parent.mkdir(parents=True, exist_ok=True)
+                stack.enter_context(key_lock(final.parent / f"{LOCK_PREFIX}{key}", waiting))
+            except OSError as e:   # a read-only or full cache: said as for any write there
+                cause = OSError(e.errno, e.strerror or str(e), final.parent)
+                raise StorageError(f"cannot write artifact {stage}/{key}: {_os_text(cause, None, final)}") from None
+            yield
+
     def write(
         self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
     ) -> Entry:
@@ -679,7 +774,11 @@ class Cache:
         entry, reason = self._check_current(stage, key)
         if entry is not None:
             return RunResult(entry, True, reason)
-        return RunResult(self.write(stage, key, writer, meta), False, reason)
+        with self.lock(stage, key):   # an identical call in flight computes it once; this one waits
+            entry, _ = self._check_current(stage, key)
+            if entry is not None:
+                return RunResult(entry, True, "cached")
+            return RunResult(self.write(stage, key, writer, meta), False, reason)
 
     @staticmethod
     def _result_parts(result: Any) -> tuple[dict[str, Any], dict[str, float]]:

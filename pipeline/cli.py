@@ -211,9 +211,14 @@ def config_command(name: str, cls: type, description: str, action, target: typer
     hints = typing.get_type_hints(cls)
     helps = {**SHARED_HELP, **getattr(cls, "HELP", {})}
     params = []
+    unset = set()   # fields whose default "" means "the task's" (left out); a typed "" is refused
     for f in dataclasses.fields(cls):
         default = inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default
-        params.append(_option(f.name, hints[f.name], default, helps.get(f.name, "")))
+        hint = hints[f.name]
+        if default == "" and hint is str:
+            unset.add(f.name)
+            hint, default = str | None, None
+        params.append(_option(f.name, hint, default, helps.get(f.name, "")))
     shared = {"artifacts": (Artifacts, None), "no_record": (NoRecord, False), "quiet": (Quiet, False),
               "json_": (Json, False)}
     params += [inspect.Parameter(k, inspect.Parameter.KEYWORD_ONLY, default=d, annotation=a)
@@ -223,6 +228,11 @@ def config_command(name: str, cls: type, description: str, action, target: typer
         from pipeline.ui import Reporter
 
         artifacts, no_record, quiet, as_json = (kw.pop(k) for k in ("artifacts", "no_record", "quiet", "json_"))
+        for k in unset:
+            if kw[k] is None:
+                del kw[k]
+            elif not kw[k].strip():
+                raise BadInput(f"--{k.replace('_', '-')}: an empty value (leave the option out for its default)")
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
         try:
             cfg = cls(**values)

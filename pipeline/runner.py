@@ -509,9 +509,13 @@ def ensure_recording(cache: Cache, entry: Entry) -> str | None:
         return None
     intact, damaged = cache.derived_check(entry)
     if RECORDING not in intact or damaged:  # written again together (the cache says which was damaged)
-        inputs = [as_artifact(cache.require(*ref.split("/", 1))) for ref in entry.meta.get("inputs", [])]
-        try:
-            cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs))
-        except (OSError, ValueError) as e:
-            raise CorruptArtifact(f"cannot write the recording of {entry.stage}/{entry.key}: {e}") from None
+        with cache.lock(entry.stage, entry.key):   # one writer; an identical call in flight waits, then reads
+            intact, damaged = cache.derived_check(entry)
+            if RECORDING in intact and not damaged:
+                return str(entry.path / RECORDING)
+            inputs = [as_artifact(cache.require(*ref.split("/", 1))) for ref in entry.meta.get("inputs", [])]
+            try:
+                cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs))
+            except (OSError, ValueError) as e:
+                raise CorruptArtifact(f"cannot write the recording of {entry.stage}/{entry.key}: {e}") from None
     return str(entry.path / RECORDING)

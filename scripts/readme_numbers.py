@@ -149,9 +149,14 @@ def bench_block(results: Path) -> str:
                  "URDF written by the bench, analytic reach, T = 100; exponent: slope of log time against log n):",
                  "", "| solver | joints | time per iteration | exponent |", "|---|---|---|---|"]
         for r in joints:
+            e = r["joint_exponent"]
             rows.append(f"| {r['benchmark'].removesuffix(' per iteration against joints')} | "
                         f"{', '.join(str(n) for n in r['joint_sizes'])} | "
-                        f"{', '.join(_seconds(t) for t in r['joint_seconds'])} | {r['joint_exponent']:.2f} |")
+                        f"{', '.join(_seconds(t) for t in r['joint_seconds'])} | "
+                        f"{'-' if e is None else f'{e:.2f}'} |")
+        rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} not timed (left out of the "
+                 f"exponent): " + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
+                 for r in joints if r.get("joint_skipped")]
     return head + "\n\n" + "\n".join(rows)
 
 

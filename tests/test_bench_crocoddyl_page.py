@@ -43,3 +43,13 @@ def test_page_has_one_row_per_solver_with_its_numbers():
     assert "| FDDP (x0 held) | converged | 10 | 3.698 | 3.698 | 0.150 | 2.00 | 3.00 | ok | 0.01 | 8.10 |" in lines
     assert "| AICO | diverged | 10 | - |" in page
     assert "25.0x: missed" in page and "0.5x: met" in page
+
+
+def test_a_diverged_raico_run_has_no_cost_ratio_and_its_page_says_diverged():
+    res = _result()
+    res["rows"][0] = _row("R-AICO a=1 fixed", None, 0.5, 0.050, None, status="diverged")
+    t = targets(res)
+    assert t["R-AICO a=1 fixed"]["cost_ratio_to_reference"] is None
+    assert t["R-AICO a=1 adaptive"]["cost_ratio_to_reference"] == 3.7 / 8.125
+    res["targets"] = t
+    assert "| R-AICO a=1 fixed | diverged | 10 | - |" in markdown_page({"date": "d", "machine": "m", "problems": [res]})

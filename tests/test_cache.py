@@ -583,3 +583,39 @@ def test_recording_written_by_another_rerun_is_written_again(tmp_path: Path, mon
     intact, bad = c.derived_check(e)
     assert intact == {} and bad == {"recording.rrd": f"recording.rrd written by rerun-sdk {made} (installed 0.0.test)"}
     assert c.run("plan", KEY, write_npz).cached  # the data stay a hit: only the recording is stale
+
+
+def test_key_lock_one_holder_a_waiter_told_reentrant_and_no_file_left(tmp_path, monkeypatch):
+    """One holder at a time (a second thread waits and is told once), re-entrant in its thread, the
+    lock file removed on release; a file system without locks runs unlocked rather than failing."""
+    import errno
+    import fcntl
+    import threading
+
+    from pipeline.cache import key_lock
+
+    path, order, told = tmp_path / ".lock-k", [], []
+
+    def other():
+        with key_lock(path, lambda: told.append(1)):
+            order.append("other")
+
+    with key_lock(path):
+        with key_lock(path):   # nested in the same thread: no deadlock
+            t = threading.Thread(target=other)
+            t.start()
+            for _ in range(200):
+                if told:
+                    break
+                time.sleep(0.01)
+            order.append("first")
+    t.join(10)
+    assert order == ["first", "other"] and told == [1] and not path.exists()
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with key_lock(path):
+        order.append("unlocked")
+    assert order[-1] == "unlocked" and not path.exists()

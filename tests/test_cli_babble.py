@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from pipeline.cache import Cache
 from pipeline.cli import app
+from tests.tolerance import assert_close, close
 
 runner = CliRunner()
 
@@ -56,7 +57,7 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(tmp_path):
     assert (m["episodes"], m["samples"]) == (3, 3 * 501)
     assert m["max_abs_u"] == np.abs(data["u"]).max()
     assert m["rms_tracking_error"] == pytest.approx(np.sqrt(np.mean((data["q"] - data["q_des"]) ** 2)), rel=1e-12)
-    np.testing.assert_allclose(data["t"], np.arange(501) * 0.002, rtol=0, atol=1e-12)
+    assert_close(data["t"], np.arange(501) * 0.002, scale=1.0)   # seconds
     # same command again: served from the cache, the stage is not run (data file untouched)
     mtime = (folder / "data.npz").stat().st_mtime_ns
     res2 = invoke("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
@@ -101,7 +102,7 @@ def test_babble_torques_follow_the_saturated_pd_law():
     d = babble(cfg)
     robot = load_robot("biorob")
     spline = desired_trajectory(np.random.default_rng(cfg.seed), robot.default_q, robot.lower, robot.upper, cfg)
-    assert np.allclose(d.q_des[0], spline(d.t), atol=1e-12)
+    assert close(d.q_des[0], spline(d.t), scale=1.0)   # radians
     tau = cfg.kp * (spline(d.t) - d.q[0]) + cfg.kd * (spline(d.t, 1) - d.qdot[0])
     u_max = robot.babble_torque_limit()
     assert np.allclose(d.u[0], np.clip(tau, -u_max, u_max), atol=1e-9)

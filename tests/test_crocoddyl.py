@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from planning import crocoddyl_model as cm
+from tests.tolerance import close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
@@ -82,7 +83,7 @@ def test_dynamics_derivatives_agree_with_raicos_linearization(built, case):
     model.calcDiff(d, x, u)
     A, _, B = problem.dynamics.linearize(x, u)
     assert np.allclose(np.reshape(d.Fx, A.shape), A, rtol=1e-9, atol=1e-9)
-    assert np.allclose(np.reshape(d.Fu, B.shape), B, rtol=1e-9, atol=1e-12)
+    assert close(np.reshape(d.Fu, B.shape), B)
 
 
 def test_control_limit_term_is_active_in_the_compared_pendulum_trajectory(built):

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from planning import crocoddyl_model as cm
+from tests.tolerance import close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
@@ -134,10 +135,11 @@ def test_drake_and_pinocchio_agree_on_mass_matrix_bias_and_frames(arms, name):
         for f in frames:
             X = f.CalcPoseInWorld(ctx)
             oMf = data.oMf[ids[f.name()]]
-            assert np.max(np.abs(oMf.translation - X.translation())) <= 1e-12, (name, f.name())
-            assert np.max(np.abs(oMf.rotation - X.rotation().matrix())) <= 1e-12, (name, f.name())
+            # metres of a robot of about 1 m, rotation entries of scale 1: equal up to rounding
+            assert close(oMf.translation, X.translation(), scale=1.0), (name, f.name())
+            assert close(oMf.rotation, X.rotation().matrix(), scale=1.0), (name, f.name())
         # the map's way back: raico's angles from cos, sin (continuous joints past pi included)
-        assert np.allclose(smap.x_to_raico(xp[None], q)[0], x, rtol=0, atol=1e-12)
+        assert close(smap.x_to_raico(xp[None], q)[0], x, scale=1.0)
 
 
 def _frame_indices(plant):
@@ -556,7 +558,7 @@ def test_talos_problem_file_costs_the_same_in_crocoddyl_and_targets_the_examples
     pin.framesForwardKinematics(cp.pmodel, data, cp.smap.x_to_pin(X[7])[:cp.pmodel.nq])
     a = data.oMf[cp.pmodel.getFrameId("gripper_left_joint")]
     b = data.oMf[cp.pmodel.getFrameId("gripper_left_motor_double_link", pin.BODY)]
-    assert np.allclose(a.homogeneous, b.homogeneous, rtol=0, atol=1e-14)
+    assert close(a.homogeneous, b.homogeneous, scale=1.0)
 
 
 def test_crocoddyls_talos_arm_example_is_reproduced_through_the_problem_file(talos):

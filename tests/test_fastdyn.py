@@ -15,6 +15,7 @@ from plants.dynamics import AnalyticDynamics, rollout
 from plants.fast_analytic import FastAnalyticDynamics, make_fast_or_exact
 from plants.numdiff import numdiff_jacobian
 from plants.robots import shared_robot
+from tests.tolerance import REL, assert_close, scale_of
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -32,13 +33,9 @@ def random_states(robot, T, seed):
     return X, U
 
 
-def close(got, ref, rtol=1e-9):
-    """Relative agreement, scaled by the reference's largest entry."""
-    got, ref = np.asarray(got), np.asarray(ref)
-    assert got.shape == ref.shape
-    scale = max(float(np.max(np.abs(ref))), 1e-12)
-    err = float(np.max(np.abs(got - ref))) / scale
-    assert err <= rtol, f"relative error {err:.2e}"
+def close(got, ref, rtol=REL):
+    """Relative agreement, scaled by the reference's largest entry (``tests/tolerance.py``)."""
+    assert_close(got, ref, rel=rtol)
 
 
 @pytest.fixture(scope="module", params=NAMES)
@@ -62,12 +59,12 @@ def test_step_qddot_and_inverse_dynamics_equal_analytic(pair):
         q, v = x[:n], x[n:]
         close(fast.qddot(q, v, u), exact.qddot(q, v, u))
         close(fast.inverse_dynamics(q, v, u), exact.inverse_dynamics(q, v, u))
-        close(fast.step(x, u), exact.step(x, u), rtol=1e-12)
+        close(fast.step(x, u), exact.step(x, u))
         for got, ref in zip(fast.qddot_derivatives(q, v, u), exact.qddot_derivatives(q, v, u)):
             close(got, ref)
     close(fast.qddot_trajectory(X[:, :n], X[:, n:], U),
           np.stack([exact.qddot(x[:n], x[n:], u) for x, u in zip(X, U)]))
-    close(fast.step_trajectory(X, U), np.stack([exact.step(x, u) for x, u in zip(X, U)]), 1e-12)
+    close(fast.step_trajectory(X, U), np.stack([exact.step(x, u) for x, u in zip(X, U)]))
 
 
 def test_linearize_equals_analytic(pair):
@@ -79,8 +76,8 @@ def test_linearize_equals_analytic(pair):
         close(A, A0)
         close(B, B0)
         # the offset is a small difference of large terms: compare on the scale of the step
-        assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(x)) + np.max(np.abs(u)))
-        np.testing.assert_allclose(A @ x + a + B @ u, exact.step(x, u), rtol=0, atol=1e-12)
+        assert_close(a, a0, scale=1 + scale_of(x) + scale_of(u))
+        assert_close(A @ x + a + B @ u, exact.step(x, u), scale=scale_of(x, u))
 
 
 def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
@@ -91,13 +88,13 @@ def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
     assert A.shape == (40, r.n_x, r.n_x) and a.shape == (40, r.n_x) and B.shape == (40, r.n_x, r.n_q)
     close(A, A0)
     close(B, B0)
-    assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(X)) + np.max(np.abs(U)))
+    assert_close(a, a0, scale=1 + scale_of(X) + scale_of(U))
     # the batched path and the single-point path give the same numbers
     for t in (0, 17, 39):
         A1, a1, B1 = fast.linearize(X[t], U[t])
-        close(A[t], A1, 1e-13)
-        close(B[t], B1, 1e-13)
-        np.testing.assert_allclose(a[t], a1, rtol=0, atol=1e-14)
+        close(A[t], A1)
+        close(B[t], B1)
+        assert_close(a[t], a1, scale=1 + scale_of(X[t], U[t]))
 
 
 def test_qddot_matches_drake_time_derivatives(pair):
@@ -117,14 +114,14 @@ def test_rollout_equals_analytic(pair):
     r, fast, exact = pair
     X, U = random_states(r, 30, seed=6)
     U = 0.3 * U
-    close(rollout(fast, X[0], U), rollout(exact, X[0], U), rtol=1e-10)
+    close(rollout(fast, X[0], U), rollout(exact, X[0], U))
 
 
 def test_build_self_check_and_cache():
     r = shared_robot("arm5")
     code = compiled_dynamics(r)
     assert compiled_dynamics(r) is code  # cached per plant name
-    assert self_check(r.plant, code, n_states=2, seed=7) <= 1e-10
+    assert self_check(r.plant, code, n_states=2, seed=7) <= REL
     # the base yaw is vertical: its angle was eliminated, and derivatives along it are exact 0
     assert code.stats["cyclic_positions"] == [r.plant.GetJointByName("base_yaw").position_start()]
     fast = FastAnalyticDynamics(r, DT)
@@ -215,8 +212,8 @@ def test_coupled_joints_through_P_equal_analytic():
     A0, a0, B0 = exact.linearize_trajectory(X, U)
     close(A, A0)
     close(B, B0)
-    assert np.max(np.abs(a - a0)) <= 1e-12 * (1 + np.max(np.abs(X)))
-    close(fast.step(X[0], U[0]), exact.step(X[0], U[0]), 1e-12)
+    assert_close(a, a0, scale=1 + scale_of(X))
+    close(fast.step(X[0], U[0]), exact.step(X[0], U[0]))
     for got, ref in zip(fast.linearize(X[1], U[1]), (A0[1], a0[1], B0[1])):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(ref))))
 
@@ -239,7 +236,7 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
     loaded = compiled_dynamics(r)
     assert calls == [] and loaded is not fresh
     assert loaded.source == fresh.source and loaded.c_source == fresh.c_source
-    assert self_check(r.plant, loaded, n_states=2, seed=3) <= 1e-10
+    assert self_check(r.plant, loaded, n_states=2, seed=3) <= REL
 
     doc = json.loads(path.read_text())
     doc["c_source"] += " "  # damaged: the checksum no longer matches

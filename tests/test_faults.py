@@ -325,6 +325,9 @@ def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
     (["babble", "--plant", "pendulum", "--artifacts", ""], 2, "--artifacts: an empty path"),
     (["plan", "--plant", "arm5", "--task", "reach", "--iterations", "10001"], 2, "iterations must be in [1, 10000]"),
     (["plan", "--plant", "arm5", "--task", "reach", "--seed", str(2**32)], 2, "seed must be in [0, 2^32 - 1]"),
+    (["plan", "--plant", "arm5", "--task", "reach", "--dynamics", ""], 2,
+     "--dynamics: an empty value (leave the option out for its default)"),
+    (["plan", "--plant", "arm5", "--task", " "], 2, "--task: an empty value (leave the option out for its default)"),
     (["execute", "--plan", " "], 2, "plan: an empty artifact reference"),
     (["evaluate", "--plan", ""], 2, "plan: an empty artifact reference"),
     (["fit", "--data", ""], 2, "data: an empty artifact reference"),
@@ -872,3 +875,38 @@ def test_ray_reaper_kills_the_instance_when_raico_is_sigkilled(tmp_path):
         if owner.poll() is None:
             owner.kill()
             owner.wait()
+
+
+def _files_agree_with_their_records(entry: Path) -> None:
+    """Every data and derived file of the entry folder has the size and sha256 its record says, and
+    every stamp in ``state.json`` describes the file now there (size, inode, digest)."""
+    import hashlib
+
+    meta = json.loads((entry / "meta.json").read_text())
+    derived = json.loads((entry / "derived.json").read_text())
+    stamps = json.loads((entry / "state.json").read_text())["stamps"]
+    for name, rec in {**meta["files"], **derived}.items():
+        data = (entry / name).read_bytes()
+        assert rec["size"] == len(data) and rec["sha256"] == hashlib.sha256(data).hexdigest(), name
+    for name, (size, _, _, ino, digest) in stamps.items():
+        st = (entry / name).stat()
+        assert (size, ino) == (st.st_size, st.st_ino), name
+        assert digest == hashlib.sha256((entry / name).read_bytes()).hexdigest(), name
+
+
+def test_identical_plans_in_flight_compute_once(tmp_path):
+    """Four identical ``raico plan`` calls started at once: one computes (and records), the others wait
+    for it and report a cache hit; every record and stamp of the entry agrees with its file."""
+    args = [RAICO, "plan", "--plant", "pendulum", "--task", "swing-up", "--iterations", "40",
+            "--artifacts", str(tmp_path)]
+    procs = [subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+             for _ in range(4)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0] * 4, [err for _, err in outs]
+    lines = [next(ln for ln in err.splitlines() if ln.startswith("plan ") and " -> " in ln) for _, err in outs]
+    assert sum(": ran (no cache entry) -> " in ln for ln in lines) == 1, lines
+    assert sum(": cached -> " in ln for ln in lines) == 3, lines
+    assert all(ln.endswith("recording.rrd") for ln in lines), lines
+    [entry] = valid_entries(tmp_path, "plan")
+    _files_agree_with_their_records(entry.path)
+    assert tmp_folders(tmp_path) == [] and not list((tmp_path / "plan").glob(".lock-*"))

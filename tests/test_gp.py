@@ -14,6 +14,7 @@ from plants.dynamics import Dynamics
 from plants.gp import NOISE_FLOOR, GPModel
 from plants.learned import LearnedDynamics, build_learned
 from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
+from tests.tolerance import REL, close, scale_of
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -168,7 +169,7 @@ def test_warm_start_starts_at_the_given_model():
 
 def test_noise_floor_respected_on_noise_free_data(fitted_pendulum):
     model, info = fitted_pendulum
-    assert np.all(np.asarray(info["sn2"]) >= NOISE_FLOOR * (1 - 1e-12))
+    assert np.all(np.asarray(info["sn2"]) >= NOISE_FLOOR * (1 - REL))
     assert np.all(model.sn2 >= NOISE_FLOOR)
     assert np.all(model.sn2 < 1e-2)  # noise-free data: the fitted noise sits near the floor
 
@@ -310,10 +311,10 @@ def test_learned_linearization_exact_and_batched():
     A, a, B = dyn.linearize_trajectory(X, U)
     for t in range(5):
         At, at, Bt = dyn.linearize(X[t], U[t])
-        assert np.allclose(At, A[t], rtol=1e-12, atol=1e-14) and np.allclose(Bt, B[t], rtol=1e-12, atol=1e-14)
-        assert np.allclose(at, a[t], rtol=1e-12, atol=1e-14)
+        assert close(At, A[t], scale=1.0) and close(Bt, B[t], scale=1.0)
+        assert close(at, a[t], scale=1 + scale_of(X[t], U[t]))
         x1 = dyn.step(X[t], U[t])
-        assert np.allclose(A[t] @ X[t] + a[t] + B[t] @ U[t], x1, rtol=1e-13, atol=1e-13)
+        assert close(A[t] @ X[t] + a[t] + B[t] @ U[t], x1, scale=scale_of(X[t], U[t]))
         fdA = np.stack([(dyn.step(X[t] + e, U[t]) - dyn.step(X[t] - e, U[t])) / 2e-6 for e in 1e-6 * np.eye(4)], 1)
         fdB = np.stack([(dyn.step(X[t], U[t] + e) - dyn.step(X[t], U[t] - e)) / 2e-6 for e in 1e-6 * np.eye(2)], 1)
         assert _rel(A[t], fdA) < 1e-6 and _rel(B[t], fdB) < 1e-6
@@ -337,8 +338,8 @@ def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkey
         m_ref, g_ref = model.mean_with_gradients(Q)
         for x, mr, gr in zip(Q, m_ref, g_ref):
             m, g = model.point_mean_with_gradients(x)
-            assert np.allclose(m, mr, rtol=1e-12, atol=1e-13 * np.abs(m_ref).max())
-            assert np.allclose(g, gr, rtol=1e-11, atol=1e-12 * np.abs(g_ref).max())
+            assert close(m, mr, scale=scale_of(m_ref))
+            assert close(g, gr, scale=scale_of(g_ref))
         if step == 0:
             Xn = rng.normal(size=(5, model.d))
             model.update(Xn, np.sin(Xn[:, :model.D]))
@@ -391,14 +392,14 @@ def test_learned_controller_rollout_compiled_equals_python_steps(monkeypatch):
         x0 = np.array([0.2, -0.1, 0.3, 0.0])
         Xc, Uc = dyn.controller_rollout(x0, o, O)
         Xp, Up = controller_rollout(dyn, x0, o, O)
-        assert np.allclose(Xc, Xp, rtol=1e-12, atol=1e-12) and np.allclose(Uc, Up, rtol=1e-12, atol=1e-12)
+        assert close(Xc, Xp, scale=1.0) and close(Uc, Up, scale=1.0)
         o_bad = o.copy()
         o_bad[30, 0] = np.nan
         Xn, _ = dyn.controller_rollout(x0, o_bad, O)
         assert np.all(np.isfinite(Xn[:31])) and np.all(np.isnan(Xn[31:, 2:]))
         monkeypatch.setattr(gp, "_POINT_LIB", False)      # no compiler: the Python steps
         Xf, _ = dyn.controller_rollout(x0, o, O)
-        assert np.array_equal(Xf, controller_rollout(dyn, x0, o, O)[0]) and np.allclose(Xf, Xp, rtol=1e-8, atol=1e-10)
+        assert np.array_equal(Xf, controller_rollout(dyn, x0, o, O)[0]) and close(Xf, Xp, scale=1.0)
         monkeypatch.undo()
 
 
@@ -453,7 +454,7 @@ def test_subsampling_cap_and_its_measured_cost():
     assert cost["n_capped"] == 80 and cost["n_full"] == 260
     model, info = fit_gp(X, Y, restarts=0, seed=0, max_points=80)  # the capped model, fit again
     assert model.N == info["n_points"] == 80 and info["n_input"] == 260
-    assert np.allclose(model.Z, model.scale_x(X[idx]), rtol=0, atol=1e-12)  # trained on the subsample
+    assert close(model.Z, model.scale_x(X[idx]), scale=1.0)  # trained on the subsample
     # the reported errors, recomputed from the two models' predictions on the test set
     full = refit_fixed(model, X, Y)
     rmse_capped = np.sqrt(np.mean((model.predict(Xt)[0] - Yt) ** 2, axis=0))
@@ -525,7 +526,7 @@ def test_learned_compiled_linearizer_equals_linearize():
         A, a, B = np.empty((4, 4)), np.empty(4), np.empty((4, 2))
         assert call(ctx, x.ctypes.data, u.ctypes.data, A.ctypes.data, a.ctypes.data, B.ctypes.data) == 0
         A2, a2, B2 = dyn.linearize(x, u)
-        assert np.array_equal(A, A2) and np.array_equal(B, B2) and np.allclose(a, a2, rtol=1e-13, atol=1e-13)
+        assert np.array_equal(A, A2) and np.array_equal(B, B2) and close(a, a2, scale=1 + scale_of(x, u))
     x[1] = np.nan
     assert call(ctx, x.ctypes.data, u.ctypes.data, A.ctypes.data, a.ctypes.data, B.ctypes.data) == -1
     assert np.all(np.isnan(A)) and np.all(np.isnan(a)) and np.all(np.isnan(B))

@@ -31,6 +31,7 @@ from plants.robots import PLANTS, shared_robot
 from plants.taskmaps import FramePoints
 from tests.test_kernels import _assert_same, _dense_lib, _padded, _plan_problem
 from tests.test_solvers_lq import exact_solution, make_lq
+from tests.tolerance import REL, assert_close, close
 
 pytestmark = pytest.mark.compiled
 
@@ -43,9 +44,10 @@ def _compiled():
         pytest.fail(f"compiled kernels unavailable ({c_backend.why_unavailable()}): these tests are about them")
 
 
-def _close(got, ref, tol):
-    """Max abs difference relative to the reference's scale (at least 1)."""
-    return float(np.max(np.abs(np.asarray(got) - ref))) <= tol * max(1.0, float(np.max(np.abs(ref))))
+def _close(got, ref, tol=REL):
+    """Max abs difference relative to the reference's scale (at least 1); ``REL`` where the two routes
+    agree up to rounding (FMA, vector widths: ``tests/tolerance.py``)."""
+    return close(got, ref, rel=tol, scale=1.0)
 
 
 # -- every solver on random LQ problems of every shape: the exact optimum --------------------------
@@ -107,7 +109,7 @@ def test_lti_rollout_on_every_shape(n, m, T):
     o, O = rng.standard_normal((T, m)), 0.05 * rng.standard_normal((T, m, n))
     Xc, Uc = pb.controller_rollout(o, O)
     Xp, Up = controller_rollout(pb.dynamics, pb.x0, o, O)
-    assert _close(Xc, Xp, 1e-12) and _close(Uc, Up, 1e-12)
+    assert _close(Xc, Xp) and _close(Uc, Up)
     with pytest.raises(ValueError, match="lti_rollout: O has shape"):
         pb.controller_rollout(o, O[:-1] if T > 1 else O[:, :, :0])
 
@@ -123,7 +125,7 @@ def _backward_args(rng, T: int, n: int, m: int):
 
 def _backward_equal(args, mu: float) -> None:
     for got, ref in zip(_backward(*args, mu), _backward(*args, mu, compiled=False)):
-        assert np.allclose(got, ref, rtol=1e-9, atol=1e-11 * max(np.abs(ref).max(), 1.0))
+        assert _close(got, ref)
 
 
 @pytest.mark.parametrize("T,n,m", [(1, 1, 1), (2, 1, 1), (1, 1, 7), (2, 2, 5), (100, 2, 5), (7, 1, 24),
@@ -201,8 +203,8 @@ def _messages_equal(problem) -> None:
         lx, lxx = np.empty(n), np.empty((n, n))
         evaluate(ctx, t, x.ctypes.data, lx.ctypes.data, lxx.ctypes.data)
         g, G = problem.point_state_derivatives(x, t, active[t])
-        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * max(np.abs(g).max(), 1.0))
-        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * max(np.abs(G).max(), 1.0))
+        assert_close(lx, g, scale=1.0)
+        assert_close(lxx, G, scale=1.0)
 
 
 def test_task_messages_at_the_largest_map_the_kernel_takes():
@@ -240,7 +242,7 @@ def test_gp_point_kernels_on_every_shape(N, d, D):
     ref = model.predict_with_gradients(Q)
     for i, x in enumerate(Q):
         m, g = model.point_mean_with_gradients(x)
-        assert _close(m, m_ref[i], 1e-10) and _close(g, g_ref[i], 1e-9)
+        assert _close(m, m_ref[i]) and _close(g, g_ref[i], 1e-9)
         for got, r in zip(model.point_predict_with_gradients(x), ref):
             assert _close(got, r[i], 1e-8)
     with pytest.raises(ValueError, match="a query has"):
@@ -265,7 +267,7 @@ def test_sparse_gp_with_more_inducing_points_than_data():
     m_ref, g_ref = model.mean_with_gradients(Q)
     for i, x in enumerate(Q):
         m, g = model.point_mean_with_gradients(x)
-        assert _close(m, m_ref[i], 1e-10) and _close(g, g_ref[i], 1e-9)
+        assert _close(m, m_ref[i]) and _close(g, g_ref[i], 1e-9)
 
 
 # (N, n_q, n_u): the learned dynamics' rollout and relinearization at their corners
@@ -283,12 +285,12 @@ def test_learned_dynamics_kernels_on_every_shape(N, nq, nu):
     A, a, B = np.empty((2 * nq, 2 * nq)), np.empty(2 * nq), np.empty((2 * nq, nu))
     assert call(ctx, x.ctypes.data, u.ctypes.data, A.ctypes.data, a.ctypes.data, B.ctypes.data) == 0
     A2, a2, B2 = dyn.linearize(x, u)
-    assert np.array_equal(A, A2) and np.array_equal(B, B2) and _close(a, a2, 1e-12)
+    assert np.array_equal(A, A2) and np.array_equal(B, B2) and _close(a, a2)
     for T in (1, 2, 30):
         o, O = rng.standard_normal((T, nu)), 0.01 * rng.standard_normal((T, nu, 2 * nq))
         Xc, Uc = dyn.controller_rollout(x, o, O)
         Xp, Up = controller_rollout(dyn, x, o, O)
-        assert _close(Xc, Xp, 1e-10) and _close(Uc, Up, 1e-10)
+        assert _close(Xc, Xp) and _close(Uc, Up)
     with pytest.raises(ValueError, match="rollout expects"):
         model.controller_rollout(x, o, O[:, :, :-1], 0.01)
 
@@ -325,9 +327,9 @@ def test_compiled_dynamics_batches_at_every_length(plant):
         x = X[0]
         for t in range(T):
             u = U[t] + O[t] @ x
-            assert _close(Ur[t], u, 1e-12)
+            assert _close(Ur[t], u)
             x = c.step(x, u)
-            assert _close(Xr[t + 1], x, 1e-12)
+            assert _close(Xr[t + 1], x)
     X, U = _states(robot, 3, seed=0)
     with pytest.raises(ValueError, match="dyn_linearize_batch: U has shape"):
         c.linearize_trajectory(X, U[:2])

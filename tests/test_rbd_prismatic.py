@@ -17,6 +17,7 @@ import pytest
 
 from plants.codegen import c_backend, rbd
 from plants.codegen.reference import DrakeReference
+from tests.tolerance import EPS, REL, assert_close, scale_of
 
 pytestmark = pytest.mark.compiled
 
@@ -102,8 +103,9 @@ def test_tree_reads_the_prismatic_joint(robot):
     assert tree.prismatic.sum() == 1 and tree.qidx[tree.prismatic][0] == j2.position_start()
     np.testing.assert_allclose(tree.damping[j2.position_start()], 1.7)
     reflected = {robot.plant.GetJointByName(j).position_start(): r * g * g for j, r, g in zip(("j1", "j2", "j3"), ROTOR, GEAR)}
-    np.testing.assert_allclose(tree.reflected, [reflected[k] for k in range(3)], rtol=1e-15)
-    assert rbd.self_check(robot.plant, rbd.tree_kernels(robot), n_states=2, seed=3) <= 1e-10
+    # rotor * gear^2: a few roundings either way (16 eps)
+    np.testing.assert_allclose(tree.reflected, [reflected[k] for k in range(3)], rtol=16 * EPS)
+    assert rbd.self_check(robot.plant, rbd.tree_kernels(robot), n_states=2, seed=3) <= REL
 
 
 def test_dynamics_against_drake(robot):
@@ -112,9 +114,9 @@ def test_dynamics_against_drake(robot):
     drake = DrakeReference(robot.plant)
     for q, v, a in _states(k.m, 5, seed=1):
         M, tau, _, D = drake.evaluate(q, v, a)
-        np.testing.assert_allclose(k.mass_matrix(q), M, rtol=0, atol=1e-12 * np.abs(M).max())
-        np.testing.assert_allclose(k.inverse_dynamics(q, v, a), tau, rtol=0, atol=1e-11 * np.abs(tau).max())
-        np.testing.assert_allclose(k.id_derivatives(q, v, a), D, rtol=0, atol=1e-11 * np.abs(D).max())
+        assert_close(k.mass_matrix(q), M)
+        assert_close(k.inverse_dynamics(q, v, a), tau)
+        assert_close(k.id_derivatives(q, v, a), D)
 
 
 def test_kinematics_and_jacobians_against_drake(robot):
@@ -134,16 +136,15 @@ def test_kinematics_and_jacobians_against_drake(robot):
             X = frame.CalcPoseInWorld(ctx)
             pos, J = k.frame_points(q, b, np.eye(3), np.zeros(3), pts)
             R, Jw = k.frame_rotation(q, b, np.eye(3))
-            np.testing.assert_allclose(pos, (X.rotation().matrix() @ pts.T).T + X.translation(), atol=1e-14)
-            np.testing.assert_allclose(R, X.rotation().matrix(), atol=1e-14)
+            # metres and radians of a robot of about 1 m: scale 1
+            assert_close(pos, (X.rotation().matrix() @ pts.T).T + X.translation(), scale=1.0)
+            assert_close(R, X.rotation().matrix(), scale=1.0)
             J_ref = plant.CalcJacobianTranslationalVelocity(ctx, wrt, frame, pts.T, world, world)
-            np.testing.assert_allclose(J, J_ref, atol=1e-14)
-            np.testing.assert_allclose(
-                Jw, plant.CalcJacobianAngularVelocity(ctx, wrt, frame, world, world), atol=1e-14)
+            assert_close(J, J_ref, scale=1.0)
+            assert_close(Jw, plant.CalcJacobianAngularVelocity(ctx, wrt, frame, world, world), scale=1.0)
         c, Jc = k.com(q)
-        np.testing.assert_allclose(c, plant.CalcCenterOfMassPositionInWorld(ctx), atol=1e-14)
-        np.testing.assert_allclose(
-            Jc, plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, wrt, world, world), atol=1e-14)
+        assert_close(c, plant.CalcCenterOfMassPositionInWorld(ctx), scale=1.0)
+        assert_close(Jc, plant.CalcJacobianCenterOfMassTranslationalVelocity(ctx, wrt, world, world), scale=1.0)
         moved = max(moved, abs(q[plant.GetJointByName("j2").position_start()]))
     assert moved > 0.5   # the slider was far from 0
 
@@ -159,10 +160,11 @@ def test_damping_and_reflected_inertia_of_the_prismatic_joint():
         diff = kb.inverse_dynamics(q, v, a) - ka.inverse_dynamics(q, v, a)
         want = np.zeros(3)
         want[i] = (4.2 - 1.7) * v[i] + (0.05 - 0.02) * GEAR[1] ** 2 * a[i]
-        np.testing.assert_allclose(diff, want, rtol=0, atol=1e-12)
+        # a difference of two torques: zero up to their rounding, so their scale counts
+        assert_close(diff, want, scale=scale_of(ka.inverse_dynamics(q, v, a)))
         dM = np.zeros((3, 3))
         dM[i, i] = (0.05 - 0.02) * GEAR[1] ** 2
-        np.testing.assert_allclose(kb.mass_matrix(q) - ka.mass_matrix(q), dM, rtol=0, atol=1e-13)
+        assert_close(kb.mass_matrix(q) - ka.mass_matrix(q), dM, scale=scale_of(ka.mass_matrix(q)))
 
 
 def test_tree_dynamics_model_against_drakes_analytic_model(robot):
@@ -174,7 +176,7 @@ def test_tree_dynamics_model_against_drakes_analytic_model(robot):
     tree, exact = TreeAnalyticDynamics(robot, 0.01), AnalyticDynamics(robot, 0.01)
     for q, v, u in _states(3, 4, seed=6):
         x = np.concatenate([q, v])
-        np.testing.assert_allclose(tree.step(x, u), exact.step(x, u), rtol=1e-11, atol=1e-12)
+        assert_close(tree.step(x, u), exact.step(x, u), scale=scale_of(x, u))
         for got, ref in zip(tree.linearize(x, u), exact.linearize(x, u)):
             np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.abs(ref).max()))
 
@@ -194,8 +196,8 @@ def test_task_maps_on_the_prismatic_tree(robot):
         for q in Q:
             v_c, J_c = tm._compiled_in_plant(tm.tree_kernels(), q)
             v_d, J_d = tm._in_plant(q)
-            np.testing.assert_allclose(v_c, v_d, atol=1e-13)
-            np.testing.assert_allclose(J_c, J_d, atol=1e-12)
+            assert_close(v_c, v_d, scale=1.0)
+            assert_close(J_c, J_d, scale=1.0)
 
 
 def test_the_kernel_shape_checks_on_the_prismatic_tree(robot, monkeypatch):

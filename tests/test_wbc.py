@@ -15,6 +15,7 @@ from plants.free_nao import STANCE_MARGIN, shared_free_nao
 from stages.evaluate.metrics import STATUSES, signed_margin
 from stages.execute import ExecuteConfig, execute
 from tests.test_execute_free_nao import desc_for, pseudo_plan
+from tests.tolerance import assert_close, close, scale_of
 
 NAO_MASS = 5.305354  # kg, as tests/test_execute_free_nao.py
 G = 9.81
@@ -213,7 +214,7 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
         p = 0.2 * rng.normal(size=2)
         got = clamp_to_polygon(p, A, b)
         assert np.all(A @ got <= b + 1e-9)
-        assert np.allclose(got, p if np.all(A @ p <= b) else dykstra(p, A, b), atol=1e-12)
+        assert close(got, p if np.all(A @ p <= b) else dykstra(p, A, b), scale=scale_of(p, b))
     A, b = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]]), np.ones(4)   # the square |x|, |y| <= 1
     assert np.array_equal(clamp_to_polygon(np.array([0.3, -0.2]), A, b), [0.3, -0.2])
     assert np.allclose(clamp_to_polygon(np.array([3.0, 2.0]), A, b), [1.0, 1.0])
@@ -339,7 +340,7 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     assert runs[0].metrics["effort_clamped_fraction"] == 0.0 and runs[1].metrics["effort_clamped_fraction"] > 0.5
     assert runs[0].metrics["status"] == "ok" and not runs[0].effort_at_limit.any()
     # without noise the command the limits judge is the torque the plant applied in each sample's last step
-    np.testing.assert_allclose(runs[0].nao["torque_asked"] @ free.A, runs[0].tau, rtol=0, atol=1e-12)
+    assert_close(runs[0].nao["torque_asked"] @ free.A, runs[0].tau)
     for out in runs:
         asked = out.nao["torque_asked"]
         assert np.all(np.abs(asked) <= free.effort + 1e-6)
@@ -387,10 +388,10 @@ def test_disturbance_observer_recovers_a_known_joint_torque():
     np.testing.assert_allclose(w_hat[~near], w[~near], atol=1e-9)
     assert np.all(w_hat[near] == 0.0)
     n_act = B.shape[1]
-    np.testing.assert_allclose(d.u[:n_act], free.effort - hj, atol=1e-12)
-    np.testing.assert_allclose(d.l[:n_act], -free.effort - hj, atol=1e-12)
+    assert_close(d.u[:n_act], free.effort - hj, scale=scale_of(free.effort, hj))   # N m
+    assert_close(d.l[:n_act], -free.effort - hj, scale=scale_of(free.effort, hj))
     _, (_, hj0) = stab.program(0.1, q, v)  # no observer: no compensation
-    np.testing.assert_allclose(hj0, h[jv], atol=1e-12)
+    assert_close(hj0, h[jv], scale=scale_of(h))
 
 
 def test_stabilizer_execution_is_repeatable_in_one_process():
