@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from planning import crocoddyl_model as cm
-from tests.tolerance import close
+from tests.tolerance import assert_close, close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
@@ -620,8 +620,8 @@ def test_mjcf_and_sdf_robots_are_the_same_model_in_pinocchio_and_fddp_reports_ra
         for name, fid in ids.items():
             X = robot.plant.GetFrameByName(name).CalcPoseInWorld(ctx)
             oMf = data.oMf[fid]
-            assert np.max(np.abs(oMf.translation - X.translation())) <= 1e-12, name
-            assert np.max(np.abs(oMf.rotation - X.rotation().matrix())) <= 1e-12, name
+            assert_close(oMf.translation, X.translation(), scale=1.0, err_msg=name)  # metres
+            assert_close(oMf.rotation, X.rotation().matrix(), scale=1.0, err_msg=name)
     r = solve(problem, "fddp", {"iterations": 60})
     assert math.isclose(problem.cost(r.X, r.U), r.cost, rel_tol=1e-6)
     assert r.cost < 1e-3 * r.initial_cost

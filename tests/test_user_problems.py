@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from pipeline.cli import app
 from plants.model_file import example_robot_data
 from tests.test_model_file import problem_text, user_robot, write_problem
+from tests.tolerance import close
 
 FAR_REACH = """
 [costs.reach]
@@ -33,9 +34,9 @@ def test_chain_reach_is_the_link_lengths_to_the_frame(tmp_path):
 
     robot = load_model(RobotSpec(file=str(user_robot(tmp_path))))
     base, reach = chain_reach(robot, "tip")     # base 0.1, upper arm 0.3, forearm 0.25 (m)
-    assert np.allclose(base, 0.0, atol=1e-12) and np.isclose(reach, 0.65, rtol=1e-12)
+    assert close(base, np.zeros_like(base), scale=0.65) and close(reach, 0.65)
     base, reach = chain_reach(shared_robot("arm5"), "ee")
-    assert np.isclose(reach, 1.25, rtol=1e-12)   # five links of 0.25 m (its end effector starts at (1, 0, 0))
+    assert close(reach, 1.25)   # five links of 0.25 m (its end effector starts at (1, 0, 0))
 
 
 def test_a_target_beyond_reach_is_said_before_planning_and_planned_anyway(tmp_path):
