@@ -51,13 +51,12 @@ def record_learn(folder: Path, art, inputs: list) -> None:
     import rerun as rr
 
     from plants.gp import GPModel
-    from plants.robots import shared_robot
     from plants.taskmaps import EndEffectorPosition
-    from stages.learn import EPISODES_FILE
+    from stages.learn import EPISODES_FILE, LearnConfig
 
     cache = Cache(art.path.parent.parent)  # the episodes' runs are in the learn entry's cache
     doc = art.document(EPISODES_FILE)
-    robot = shared_robot(doc["config"]["plant"])
+    robot = LearnConfig.from_dict(doc["config"]).robots()[0]
     eps = doc["episodes"]
     k = np.array([e["episode"] for e in eps])
     n = robot.n_q

@@ -287,7 +287,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     name = desc["plant"]
     # a model file's robot executes as the arms do: a discrete plant that enforces its joint limits
     discrete = (name in DISCRETE or "robot" in desc) and not cfg.open_loop
-    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0)
+    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0, true=True)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
