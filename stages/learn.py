@@ -72,7 +72,8 @@ class LearnConfig(StageConfig):
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
                          "thesis 4.4).",
-            "gp": "GP of every fit: exact or sparse (FITC with --inducing points, see raico fit --help).",
+            "gp": "GP of every fit: exact, sparse (FITC with --inducing points) or auto (exact up to 1000 training "
+                  "points, sparse above; see raico fit --help).",
             "inducing": "Inducing points of --gp sparse (at most --babble-points: the first fit has only the babbling).",
             "problem": "A problem file (TOML) in place of --plant and --task: its robot (a model file; the executed "
                        "robot [robot.true]'s where stated) and task.",
@@ -167,7 +168,7 @@ class LearnConfig(StageConfig):
                   (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
                   (0 <= self.refit_restarts <= 20, "refit-restarts must be in [0, 20]"),
                   (1 <= self.stride <= 1000, "stride must be 0 (the plant's default) or in [1, 1000]"),
-                  (self.gp in ("exact", "sparse"), f"gp must be exact or sparse, got '{self.gp}'"),
+                  (self.gp in ("exact", "sparse", "auto"), f"gp must be exact, sparse or auto, got '{self.gp}'"),
                   (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
                   (self.gp != "sparse" or self.inducing <= self.max_points,
                    f"inducing ({self.inducing}) exceeds max-points ({self.max_points})"),

@@ -212,3 +212,61 @@ def test_learn_problem_file_bad_input_is_one_line(tmp_path, args, needle):
     assert res.exit_code == 2, res.output
     assert res.output.strip().count("\n") == 0 and needle in res.output
     assert not (tmp_path / "learn").exists()
+
+
+def test_babble_a_robot_standing_on_a_welded_sole(tmp_path):
+    """A robot whose root is free in its file, welded to the world at another frame (as a humanoid at its
+    sole): the arm turned upside down, standing on its tip."""
+    urdf = (DATA / "arm2.urdf").read_text()
+    urdf = urdf.replace('<link name="world"/>', "").replace(
+        '<joint name="weld" type="fixed"><parent link="world"/><child link="base"/></joint>', "")
+    (tmp_path / "stand.urdf").write_text(urdf)
+    p = tmp_path / "stand.toml"
+    p.write_text('name = "stand"\n[robot]\nfile = "stand.urdf"\nweld = "tip"\nstart = { shoulder = 0.2, elbow = -0.3 }\n'
+                 '[horizon]\nT = 10\ndt = 0.01\n[dynamics]\nmodel = "analytic"\n'
+                 '[costs.hold]\ntype = "posture"\ntarget = "start"\ntimes = "last"\nweight = 1.0\n')
+    line = last_json(invoke("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
+                            "--json", "--artifacts", tmp_path / "art"))
+    data = np.load(Path(line["path"]) / "data.npz")
+    from plants.dynamics_registry import make_dynamics
+    from plants.model_file import shared_model
+    from stages.plan.problem_file import read_problem
+
+    robot = shared_model(read_problem(p).robot_spec())
+    assert any("welded to the world" in note for note in robot.load_report)
+    q = data["q"].reshape(-1, 2)
+    assert np.all(q >= robot.lower) and np.all(q <= robot.upper) and np.all(q.std(axis=0) > 0.02)
+    f = make_dynamics("analytic", robot, 0.01)
+    k = 50
+    a = f.qddot(q[k], data["qdot"][0, k], data["u"][0, k])
+    np.testing.assert_allclose(a, data["qddot"][0, k], rtol=1e-6, atol=1e-6 * np.abs(data["qddot"]).max())
+
+
+def test_auto_gp_switches_to_the_sparse_gp_and_says_so(capsys):
+    from stages.fit.stage import AUTO_EXACT_POINTS, FitConfig, gp_kind
+
+    cfg = FitConfig(data=("x",), gp="auto", max_points=5000, inducing=300)
+    assert gp_kind(cfg, AUTO_EXACT_POINTS) == "exact" and capsys.readouterr().err == ""
+    assert gp_kind(cfg, AUTO_EXACT_POINTS + 1) == "sparse"
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "too many for the exact GP" in err and "300 inducing points" in err
+    # the cap comes first: 3000 points capped at 800 stay exact
+    assert gp_kind(FitConfig(data=("x",), gp="auto", max_points=800), 3000) == "exact"
+    assert gp_kind(FitConfig(data=("x",), gp="exact", max_points=5000), 4000) == "exact"
+
+
+def test_an_experiment_file_sweeps_learn_on_a_problem_file(tmp_path):
+    (tmp_path / "arm2.urdf").write_text((DATA / "arm2.urdf").read_text())
+    (tmp_path / "arm2_payload.toml").write_text(PROBLEM.read_text())
+    f = tmp_path / "sweep.toml"
+    f.write_text('name = "learn-any"\nstages = ["learn"]\nseeds = [0]\n[base]\nproblem = "arm2_payload.toml"\n'
+                 'episodes = 1\nbabble_points = 30\niterations = 3\nstride = 10\nrestarts = 0\n'
+                 '[grid]\nresidual = [true, false]\n')
+    res = invoke("exp", "run", f, "--jobs", 1, "--json", "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.splitlines()[-1])
+    assert line["runs"] == 2
+    import pandas as pd
+
+    table = pd.read_csv(tmp_path / "arts" / "exp" / "learn-any" / "runs.csv")
+    assert sorted(table["residual"]) == [False, True] and set(table["learn.status"]) == {"ok"}

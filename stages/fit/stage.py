@@ -71,7 +71,8 @@ FIT_FILE = "fit.json"
 DATA_STAGES = ("babble", "execute")
 MIN_BATCH = 100  # batch-N only with N >= 100 (the thesis's ">100")
 _BATCH = re.compile(r"batch-(\d+)")
-GP_KINDS = ("exact", "sparse")
+GP_KINDS = ("exact", "sparse", "auto")
+AUTO_EXACT_POINTS = 1000  # --gp auto: the exact GP up to this many training points (after the cap), sparse above
 
 
 @dataclass(frozen=True)
@@ -89,7 +90,8 @@ class FitConfig(StageConfig):
             "max_points": "Cap on the training points (older ones subsampled).",
             "holdout": "Trailing fraction of every time segment held out for the error and the recording.",
             "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all).",
-            "gp": "exact (the full GP) or sparse (FITC with --inducing points chosen among the training inputs by "
+            "gp": "exact (the full GP), auto (exact up to 1000 training points, sparse above: said on stderr) or "
+                  "sparse (FITC with --inducing points chosen among the training inputs by "
                   "greedy maximum variance; hyperparameters optimized on that many points).",
             "inducing": "Inducing points of --gp sparse (1 to --max-points, and at most the training points).",
             "residual": "Fit the difference between the data's accelerations and the planning model's (the plant's "
@@ -126,7 +128,7 @@ class FitConfig(StageConfig):
                   (1 <= self.stride <= 1000, "stride must be in [1, 1000]"),
                   (self.gp in GP_KINDS, f"gp must be one of {', '.join(GP_KINDS)}, got '{self.gp}'"),
                   (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
-                  (self.gp != "sparse" or self.inducing <= self.max_points,
+                  (self.gp == "exact" or self.inducing <= self.max_points,
                    f"inducing ({self.inducing}) exceeds max-points ({self.max_points})")]
         for ok, msg in checks:
             if not ok:
@@ -367,13 +369,28 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
         since = n_train
     start = GPModel.from_arrays(prior.arrays(MODEL_FILE)) if prior is not None else None
     t0 = time.perf_counter()
-    if cfg.gp == "sparse":
+    if gp_kind(cfg, n_train) == "sparse":
         model, info = fit_sparse_gp(data.X, data.Y, inducing=cfg.inducing, restarts=cfg.restarts, seed=cfg.seed,
                                     max_points=cfg.max_points, start=start)
     else:
         model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
                              start=start)
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
+
+
+def gp_kind(cfg: FitConfig, n_train: int) -> str:
+    """The GP a fit makes: ``cfg.gp``, or for ``auto`` the exact GP up to ``AUTO_EXACT_POINTS`` training points
+    (after the ``max_points`` cap) and the sparse GP (``cfg.inducing`` points) above, said on stderr."""
+    if cfg.gp != "auto":
+        return cfg.gp
+    n = min(n_train, cfg.max_points)
+    if n <= AUTO_EXACT_POINTS:
+        return "exact"
+    import sys
+
+    print(f"raico: note: fit: {n} training points are too many for the exact GP (more than {AUTO_EXACT_POINTS}): "
+          f"the sparse GP with {min(cfg.inducing, n)} inducing points", file=sys.stderr, flush=True)
+    return "sparse"
 
 
 def _add_points(model: GPBase, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPBase, str]:
