@@ -193,6 +193,10 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(tmp_path):
         assert desc["dynamics"] == "learned" and "robot_true" in desc and desc["robot_true"]["true"]
         ex = last_json(invoke("execute", "--plan", plan["key"], "--json", "--artifacts", art))
         assert np.isfinite(ex["metrics"]["via_point_errors"]["reach@50"])
+    # a GP of another robot with as many joints is refused (the same arm welded at its tip)
+    stand = stand_problem(tmp_path)
+    res = invoke("plan", "--problem", stand, "--dynamics", "learned", "--model", fit["key"], "--artifacts", art)
+    assert res.exit_code == 2 and res.output.strip().count("\n") == 0 and "is a GP of arm2-" in res.output
     res = invoke("learn", "--problem", PROBLEM, "--episodes", 2, "--babble-points", 40, "--iterations", 5,
                  "--residual", "--stride", 5, "--restarts", 0, "--json", "--artifacts", art)
     line = last_json(res)
@@ -214,9 +218,9 @@ def test_learn_problem_file_bad_input_is_one_line(tmp_path, args, needle):
     assert not (tmp_path / "learn").exists()
 
 
-def test_babble_a_robot_standing_on_a_welded_sole(tmp_path):
+def stand_problem(tmp_path) -> Path:
     """A robot whose root is free in its file, welded to the world at another frame (as a humanoid at its
-    sole): the arm turned upside down, standing on its tip."""
+    sole): the test arm turned upside down, standing on its tip."""
     urdf = (DATA / "arm2.urdf").read_text()
     urdf = urdf.replace('<link name="world"/>', "").replace(
         '<joint name="weld" type="fixed"><parent link="world"/><child link="base"/></joint>', "")
@@ -225,6 +229,11 @@ def test_babble_a_robot_standing_on_a_welded_sole(tmp_path):
     p.write_text('name = "stand"\n[robot]\nfile = "stand.urdf"\nweld = "tip"\nstart = { shoulder = 0.2, elbow = -0.3 }\n'
                  '[horizon]\nT = 10\ndt = 0.01\n[dynamics]\nmodel = "analytic"\n'
                  '[costs.hold]\ntype = "posture"\ntarget = "start"\ntimes = "last"\nweight = 1.0\n')
+    return p
+
+
+def test_babble_a_robot_standing_on_a_welded_sole(tmp_path):
+    p = stand_problem(tmp_path)
     line = last_json(invoke("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
                             "--json", "--artifacts", tmp_path / "art"))
     data = np.load(Path(line["path"]) / "data.npz")

@@ -408,6 +408,18 @@ def true_robot(pf: ProblemFile) -> Robot | None:
         raise ValueError(str(e)) from None
 
 
+def check_model_robot(model: Artifact, robot: Robot) -> None:
+    """A fit's GP is of this robot (its data's plant, or the model file's robot by name: file and spec),
+    else ``ValueError``: a model of another robot with as many joints would plan silently wrong."""
+    try:
+        fitted = model.document("fit.json").get("plant")
+    except (OSError, ValueError, KeyError):
+        return  # a fit without its document: the dimensions are still checked by the learned dynamics
+    if fitted is not None and fitted != robot.name:
+        raise ValueError(f"--model {model.key} is a GP of {fitted}, this problem's robot is {robot.name}: "
+                         "fit it on data of this robot")
+
+
 def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
     """Robot, task, problem, ``q0`` and the problem's description for ``cfg`` (normalized here: the
     task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it)."""
@@ -415,6 +427,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     robot, task = robot_and_task(cfg)
     q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed)
     params = model.arrays("model.npz") if model is not None else None
+    if model is not None:
+        check_model_robot(model, robot)
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
