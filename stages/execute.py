@@ -39,6 +39,8 @@ Execution models:
   enforced) driven by the plan's own feedback controller ``u_k = o_k + O_k x_k`` (a LeafSystem,
   zero-order hold per planning step; pseudo-dynamics plans through computed torque evaluated at
   every plant step). Effort limits: Drake clamps the actuation.
+- **a model file's robot** executes as the arms do; where its problem states ``[robot.true]`` the plant
+  is that robot (payload, mass scale, friction: ``plants.model_file``), the model file only the plan's.
 - **pendulum**: the thesis's ideal point mass, continuous plant, the plan's controller as for the
   arms, Drake's ``runge_kutta5`` at a fixed step of at most 1 ms (its +-100 rad joint range is
   no physical limit; its +-10 N m bound is the swing-up task's control limit: saturation is
