@@ -73,7 +73,8 @@ class LearnConfig(StageConfig):
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
                          "thesis 4.4).",
             "gp": "GP of every fit: exact, sparse (FITC with --inducing points) or auto (exact up to 1000 training "
-                  "points, sparse above; see raico fit --help).",
+                  "points, sparse above, said on stderr; see raico fit --help); default: exact for a built-in plant, "
+                  "auto for --problem.",
             "inducing": "Inducing points of --gp sparse (at most --babble-points: the first fit has only the babbling).",
             "problem": "A problem file (TOML) in place of --plant and --task: its robot (a model file; the executed "
                        "robot [robot.true]'s where stated) and task.",
@@ -101,7 +102,7 @@ class LearnConfig(StageConfig):
     q0_std: float = 0.0
     warm_from: str = "trajectory"
     seed: int = 0
-    gp: str = "exact"
+    gp: str = ""  # "": exact for a built-in plant, auto for a problem file's robot
     inducing: int = 200
 
     def normalized(self) -> LearnConfig:
@@ -117,7 +118,8 @@ class LearnConfig(StageConfig):
                 return self  # validate() says what is wrong
             cfg = replace(self, problem=pf.canonical(), plant=pf.plant or pf.robot_label, task=pf.name)
         d = PLANT_DEFAULTS.get(cfg.plant, ARM_DEFAULTS)
-        return replace(cfg, babble_points=cfg.babble_points or d["babble_points"], stride=cfg.stride or d["stride"])
+        return replace(cfg, babble_points=cfg.babble_points or d["babble_points"], stride=cfg.stride or d["stride"],
+                       gp=cfg.gp or ("exact" if cfg.problem is None else "auto"))
 
     def problem_file(self):
         """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
@@ -155,7 +157,7 @@ class LearnConfig(StageConfig):
                 raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}"
                                  + ("" if self.plant else " (or --problem FILE)"))
             get_task(self.plant, self.task)
-        if self.babble_points == 0 or self.stride == 0:
+        if self.babble_points == 0 or self.stride == 0 or not self.gp:
             return self.normalized().validate()
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")

@@ -204,6 +204,7 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(tmp_path):
     assert all(np.isfinite(e) for e in line["metrics"]["gp_error_heldout"])
     doc = json.loads((Path(line["path"]) / "episodes.json").read_text())
     assert (Path(line["path"]) / "recording.rrd").is_file()
+    assert doc["config"]["gp"] == "auto" and doc["config"]["residual"] is True  # a problem file's default GP
     # the second fit had the first execution's data (unless it failed at once)
     assert doc["episodes"][1]["n_points"] >= doc["episodes"][0]["n_points"]
 
