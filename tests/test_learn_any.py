@@ -280,3 +280,23 @@ def test_an_experiment_file_sweeps_learn_on_a_problem_file(tmp_path):
 
     table = pd.read_csv(tmp_path / "arts" / "exp" / "learn-any" / "runs.csv")
     assert sorted(table["residual"]) == [False, True] and set(table["learn.status"]) == {"ok"}
+
+
+def test_full_gp_dynamics_of_a_model_files_robot_by_finite_differences():
+    """The thesis's model (the GP's mean alone) on a model file's robot: linearization and variance gradient."""
+    from plants.dynamics_registry import make_dynamics
+    from plants.learned import example_params
+
+    model, _ = robots()
+    dyn = make_dynamics("learned", model, 0.01, example_params(model))
+    x, u = np.array([0.35, 0.4, 0.2, -0.1]), np.array([0.5, -0.3])
+    A, a, B = dyn.linearize(x, u)
+    h = 1e-6
+    A_fd = np.column_stack([(dyn.step(x + h * e, u) - dyn.step(x - h * e, u)) / (2 * h) for e in np.eye(4)])
+    B_fd = np.column_stack([(dyn.step(x, u + h * e) - dyn.step(x, u - h * e)) / (2 * h) for e in np.eye(2)])
+    np.testing.assert_allclose(A, A_fd, rtol=1e-6, atol=1e-7 * np.abs(A).max())
+    np.testing.assert_allclose(B, B_fd, rtol=1e-6, atol=1e-7 * np.abs(B).max())
+    _, dvx, dvu = dyn.predict_variance(x[None], u[None])
+    fd = np.column_stack([(dyn.predict_variance(x[None], (u + h * e)[None])[0][0]
+                           - dyn.predict_variance(x[None], (u - h * e)[None])[0][0]) / (2 * h) for e in np.eye(2)])
+    np.testing.assert_allclose(dvu[0], fd, rtol=1e-5, atol=1e-7 * np.abs(dvu).max())
