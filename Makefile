@@ -58,6 +58,7 @@ reproduce-quick: $(STAMP) $(KERNEL)
 
 bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.learn_any --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check pipeline plants planning stages tests bench scripts

@@ -43,12 +43,12 @@ def record_fit(folder: Path, art, inputs: list) -> None:
     import rerun as rr
 
     from plants.gp import GPModel
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     doc = art.document("fit.json")
     h = art.arrays("heldout.npz")
     model = GPModel.from_arrays(art.arrays("model.npz"))
-    robot = shared_robot(doc["plant"])
+    robot = robot_for({"plant": doc["plant"], "robot": doc.get("robot")})
     joints = [rec_mod.entity_name(j) for j in doc["joint_names"]]
     times, X, Y = h["time"], h["X"], h["Y"]
     props = {"stage": "fit", "key": art.key, **art.config, "n_points": doc["n_points"],

@@ -51,17 +51,17 @@ def record_learn(folder: Path, art, inputs: list) -> None:
     import rerun as rr
 
     from plants.gp import GPModel
-    from plants.robots import shared_robot
     from plants.taskmaps import EndEffectorPosition
-    from stages.learn import EPISODES_FILE
+    from stages.learn import EPISODES_FILE, LearnConfig
 
     cache = Cache(art.path.parent.parent)  # the episodes' runs are in the learn entry's cache
     doc = art.document(EPISODES_FILE)
-    robot = shared_robot(doc["config"]["plant"])
+    robot = LearnConfig.from_dict(doc["config"]).robots()[0]
     eps = doc["episodes"]
     k = np.array([e["episode"] for e in eps])
     n = robot.n_q
-    ee = EndEffectorPosition(robot, "ee") if robot.plant.HasFrameNamed("ee") else None
+    frame = "ee" if robot.plant.HasFrameNamed("ee") else _task_frame(cache, eps[-1]["plan"])
+    ee = EndEffectorPosition(robot, frame) if frame is not None else None
     last_plan = as_artifact(cache.require("plan", eps[-1]["plan"])).arrays("plan.npz")
     eye = rec_mod.robot_eye(robot, last_plan["X"][:, :n])
     with rec_mod.Recording(folder / "recording.rrd", properties={"stage": "learn", "key": art.key,
@@ -121,6 +121,16 @@ def record_learn(folder: Path, art, inputs: list) -> None:
                 target = _task_target(cache, e["plan"])
         if target is not None:
             stream.log("world/target", rr.Points3D([target], colors=[(40, 200, 80)], radii=[0.02]), static=True)
+
+
+def _task_frame(cache: Cache, plan_key: str) -> str | None:
+    """The frame of a plan's first 3-D frame-position via-point (a model file's robot has no ``ee``)."""
+    doc = as_artifact(cache.require("plan", plan_key)).document("problem.json")
+    for t in doc.get("terms", []):
+        m = t.get("map") or {}
+        if t.get("term") == "via" and m.get("map") == "frame_points" and len(t.get("target", [])) == 3:
+            return m.get("frame")
+    return None
 
 
 def _task_target(cache: Cache, plan_key: str) -> np.ndarray | None:

@@ -81,11 +81,12 @@ def _episode_times(t: np.ndarray, episodes: int, gap: float) -> np.ndarray:
 def record_babble(folder: Path, art, inputs: list) -> None:
     """Every babbling episode laid end to end on ``sim_time``: robot (at most ``MAX_POSES`` poses
     per episode), joints, desired joints and torques by limb."""
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
+    from stages.babble import robot_description
 
     cfg = art.config
     data = art.arrays("data.npz")
-    robot = shared_robot(cfg["plant"])
+    robot = robot_for(robot_description(cfg), true=True)
     q, qdot, u, t = data["q"], data["qdot"], data["u"], data["t"]
     E, K, n = q.shape
     times = _episode_times(t, E, gap=t[1] - t[0])

@@ -114,15 +114,94 @@ class LearnedDynamics(SemiImplicitEuler):
         return var, dvar[:, :, :self.n_x], dvar[:, :, self.n_x:]
 
 
+class ResidualDynamics(LearnedDynamics):
+    """The model file's dynamics plus a GP of what it misses: ``qddot = f_model(q, qdot, u) + GP mean``.
+
+    ``base``: the robot's analytic model (``plants.fast_analytic.make_fast_or_exact``, semi-implicit
+    Euler of the same ``dt``); the GP was fitted to ``qddot_executed - f_model`` (``stages.fit``,
+    ``--residual``). A step is linear in ``qddot``, so the linearization is the base's plus the GP
+    mean's: ``dv'/dx += dt F_x``, ``dq'/dx += dt^2 F_x`` (and ``F_u`` for ``B``), exact at the point.
+    The variance (the uncertainty term) is the GP's alone: the model file adds none. No compiled
+    one-point linearization or rollout (``c_linearizer`` is None): the sweeps call ``linearize``."""
+
+    def __init__(self, model: GPBase, base, dt: float):
+        super().__init__(model, base.n_q, dt)
+        if abs(base.dt - self.dt) > 1e-12:
+            raise ValueError(f"the base model's step {base.dt} s differs from {dt} s")
+        self.base = base
+
+    def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``f_model + GP mean`` ``(n_q,)`` (rad/s^2) at one state and control (NaN if not finite)."""
+        x = np.concatenate([q, v, u])
+        if not np.all(np.isfinite(x)):
+            return np.full(self.n_q, np.nan)
+        return self.base.qddot(q, v, u) + self.model.point_mean_with_gradients(x)[0]
+
+    def step_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Next states ``(T, n_x)`` for states ``X (T, n_x)`` and controls ``U (T, n_u)``."""
+        n = self.n_q
+        base = np.array([self.base.qddot(x[:n], x[n:], u) for x, u in zip(X, U)]).reshape(-1, n)
+        return self._euler(X, base + self.model.predict_mean(np.hstack([X, U])))
+
+    def _add_gp(self, A: np.ndarray, B: np.ndarray, F: np.ndarray) -> None:
+        """Add the GP mean's part ``F = d mean / d(x, u)`` (``(..., n_q, n_x + n_u)``) to ``A``, ``B`` in place."""
+        n, nx, dt = self.n_q, self.n_x, self.dt
+        A[..., n:, :] += dt * F[..., :nx]
+        A[..., :n, :] += dt * dt * F[..., :nx]
+        B[..., n:, :] += dt * F[..., nx:]
+        B[..., :n, :] += dt * dt * F[..., nx:]
+
+    def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, a, B)`` at ``(x, u)``: the base model's plus the GP mean's (class docstring)."""
+        x, u = np.asarray(x, float).reshape(-1), np.asarray(u, float).reshape(-1)
+        A, _, B = self.base.linearize(x, u)
+        A, B = np.array(A, float), np.array(B, float)
+        _, F = self.model.point_mean_with_gradients(np.concatenate([x, u]))
+        self._add_gp(A, B, F)
+        return A, self.step(x, u) - A @ x - B @ u, B
+
+    def linearize_trajectory(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)`` along ``X (T, n_x)``, ``U (T, n_u)``."""
+        X, U = np.asarray(X, float), np.asarray(U, float)
+        A, _, B = self.base.linearize_trajectory(X, U)
+        A, B = np.array(A, float), np.array(B, float)
+        _, F = self.model.mean_with_gradients(np.hstack([X, U]))
+        self._add_gp(A, B, F)
+        a = self.step_batch(X, U) - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U)
+        return A, a, B
+
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0``, stepped in Python."""
+        return stepped_rollout(self, np.asarray(x0, float).reshape(-1), o, O)
+
+    def c_linearizer(self) -> None:
+        """No compiled linearization of the sum (the sweeps call :meth:`linearize`)."""
+        return None
+
+
+RESIDUAL_KEY = "residual"  # in a fit's stored arrays: 1 when the GP models f_true - f_model (ResidualDynamics)
+
+
 def build_learned(robot, dt: float, params: Mapping[str, np.ndarray] | None) -> LearnedDynamics:
-    """``LearnedDynamics`` of ``robot`` (anything with ``n_q``) from ``GPModel.to_arrays()`` output, step ``dt`` s.
+    """``LearnedDynamics`` of ``robot`` (anything with ``n_q``) from ``GPModel.to_arrays()`` output, step ``dt`` s;
+    a residual fit's arrays (``RESIDUAL_KEY`` set) give :class:`ResidualDynamics` on the robot's analytic model.
 
     Bad input (no params, inconsistent arrays, ``dt`` not positive) raises ``ValueError``."""
     if params is None:
         raise ValueError("learned dynamics need params (the arrays of a fitted GP)")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt}")
-    return LearnedDynamics(GPModel.from_arrays(params), robot.n_q, dt)
+    gp_arrays = {k: v for k, v in params.items() if k != RESIDUAL_KEY}
+    if is_residual(params):
+        from plants.fast_analytic import make_fast_or_exact
+
+        return ResidualDynamics(GPModel.from_arrays(gp_arrays), make_fast_or_exact(robot, dt), dt)
+    return LearnedDynamics(GPModel.from_arrays(gp_arrays), robot.n_q, dt)
+
+
+def is_residual(params: Mapping[str, np.ndarray]) -> bool:
+    """Whether a fit's stored arrays are a residual GP's."""
+    return bool(np.asarray(params.get(RESIDUAL_KEY, 0)).item())
 
 
 def example_params(robot, n_points: int = 40, seed: int = 0) -> dict[str, np.ndarray]:

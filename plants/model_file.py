@@ -18,7 +18,12 @@ The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem 
 - ``start``: joint values by name, or the name of a posture of the robot's SRDF (``srdf``);
   joints not named start at 0;
 - ``armature``: reflected motor inertia on every planning joint (kg m^2), a number or by joint;
-- ``limits``: ``joint -> {lower, upper, effort}`` overrides of the file's limits.
+- ``limits``: ``joint -> {lower, upper, effort}`` overrides of the file's limits;
+- ``true``: how the robot that is babbled on and executed differs from its file (``[robot.true]`` of a
+  problem file; the file stays the planner's model): ``mass_scale`` (every link's mass and inertia
+  times this, URDF only), ``payload_mass`` (kg) at ``payload_frame`` (a 3 cm solid sphere centred at ``payload_com``
+  in that frame, m) and ``friction`` (viscous damping on every planning joint, N m s/rad). Loaded
+  as its own plant (:func:`true_spec`); a frame it names that the file does not have is a ``ModelError``.
 
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
 ``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
@@ -38,7 +43,7 @@ import logging
 import math
 import sysconfig
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -69,10 +74,12 @@ class RobotSpec:
     srdf: str | None = None
     armature: float | tuple[tuple[str, float], ...] = 0.0
     limits: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+    true: tuple[tuple[str, object], ...] = ()  # the true robot's changes (module docstring); () for the file's
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it)."""
-        return {"file": self.file, "packages": dict(self.packages), "weld": self.weld,
+        extra = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} if self.true else {}
+        return {**extra, "file": self.file, "packages": dict(self.packages), "weld": self.weld,
                 "weld_pose": list(self.weld_pose), "locked": dict(self.locked),
                 "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
                 "armature": self.armature if isinstance(self.armature, float) else dict(self.armature),
@@ -91,7 +98,29 @@ class RobotSpec:
                    locked=items(d.get("locked")),
                    start=start if isinstance(start, str) else items(start), srdf=d.get("srdf"),
                    armature=float(armature) if isinstance(armature, (int, float)) else items(armature),
-                   limits=tuple(sorted((str(j), items(v)) for j, v in (d.get("limits") or {}).items())))
+                   limits=tuple(sorted((str(j), items(v)) for j, v in (d.get("limits") or {}).items())),
+                   true=true_items(d.get("true")))
+
+    @property
+    def planning(self) -> RobotSpec:
+        """The model file's robot (the planner's model): this spec without the true robot's changes."""
+        return replace(self, true=())
+
+
+TRUE_KEYS = ("friction", "mass_scale", "payload_com", "payload_frame", "payload_mass")
+PAYLOAD_RADIUS = 0.03  # m, the true payload: a solid sphere of its mass (its inertia matters little)
+
+
+def true_items(d: dict | None) -> tuple[tuple[str, object], ...]:
+    """The hashable form of a true robot's changes ``{mass_scale, payload_mass, payload_frame,
+    payload_com, friction}`` (lists as tuples, sorted by key)."""
+    return tuple(sorted((str(k), tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else v)
+                        for k, v in (d or {}).items()))
+
+
+def true_spec(spec: RobotSpec, true: dict | None) -> RobotSpec:
+    """``spec`` with the true robot's changes ``true`` (None or empty: ``spec`` itself)."""
+    return replace(spec, true=true_items(true)) if true else spec
 
 
 # ------------------------------------------------------------------ packages
@@ -385,7 +414,55 @@ def _model_text(spec: RobotSpec) -> tuple[Path, str, str, list[str], Packages]:
         text, notes = repair_urdf(text, path, packages, dict(spec.locked))
     elif spec.locked:
         raise ModelError(f"locked joints are supported for URDF files, not {fmt.upper()} ({path.name})")
+    scale = dict(spec.true).get("mass_scale", 1.0)
+    if scale != 1.0:
+        if fmt != "urdf":
+            raise ModelError(f"[robot.true] mass_scale is supported for URDF files, not {fmt.upper()} ({path.name})")
+        text = scale_masses(text, float(scale))
+        notes.append(f"true robot: every link's mass and inertia x {scale:g}")
     return path, fmt, text, notes, packages
+
+
+def scale_masses(text: str, scale: float) -> str:
+    """A URDF's text with every ``<inertial>``'s mass and inertia multiplied by ``scale`` (> 0)."""
+    root = ET.fromstring(text)
+    for inertial in root.iter("inertial"):
+        mass = inertial.find("mass")
+        if mass is not None and mass.get("value") is not None:
+            mass.set("value", repr(float(mass.get("value")) * scale))
+        inertia = inertial.find("inertia")
+        if inertia is not None:
+            for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                if inertia.get(k) is not None:
+                    inertia.set(k, repr(float(inertia.get(k)) * scale))
+    return ET.tostring(root, encoding="unicode")
+
+
+def _apply_true(plant, spec: RobotSpec, path: Path, planning: list) -> list[str]:
+    """The true robot's payload (a solid sphere of radius PAYLOAD_RADIUS welded to its frame) and joint friction (viscous damping
+    on every planning joint), before the plant is finalized; the report's lines."""
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.tree import SpatialInertia
+
+    true, notes = dict(spec.true), []
+    mass = float(true.get("payload_mass", 0.0))
+    if mass > 0:
+        frame = str(true.get("payload_frame", ""))
+        if not plant.HasFrameNamed(frame):
+            raise ModelError(f"[robot.true] payload frame '{frame}' is not in {path.name}: closest "
+                             f"{closest_names(frame, frame_names(plant))}")
+        com = np.asarray(true.get("payload_com", (0.0, 0.0, 0.0)), float)
+        parent = plant.GetFrameByName(frame)
+        body = plant.AddRigidBody("raico_true_payload", parent.body().model_instance(),
+                                  SpatialInertia.SolidSphereWithMass(mass, PAYLOAD_RADIUS))
+        plant.WeldFrames(parent, body.body_frame(), RigidTransform(com))
+        notes.append(f"true robot: a {mass:g} kg payload at '{frame}' ({', '.join(f'{v:g}' for v in com)} m)")
+    friction = float(true.get("friction", 0.0))
+    if friction > 0:
+        for j in planning:
+            j.set_default_damping(friction)
+        notes.append(f"true robot: joint friction {friction:g} N m s/rad on every planning joint")
+    return notes
 
 
 def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
@@ -435,6 +512,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     planning = [j for j in joints if j.type_name() in ONE_DOF_JOINTS]
     if not planning:
         raise ModelError(f"{path.name}: no revolute, continuous or prismatic joint to plan for")
+    if spec.true:
+        notes.extend(_apply_true(plant, spec, path, planning))
     limits = {j: dict(v) for j, v in spec.limits}
     names = [j.name() for j in planning]
     for j in limits:
@@ -603,20 +682,28 @@ def shared_model(spec: RobotSpec) -> Robot:
     return load_model(spec)
 
 
-def robot_for(desc: dict) -> Robot:
+def _desc_spec(desc: dict, true: bool) -> dict | None:
+    """The stored spec of a plan description: the model file's (``robot``) or, with ``true``, the
+    true robot's where the problem states one (``robot_true``)."""
+    return (desc.get("robot_true") or desc.get("robot")) if true else desc.get("robot")
+
+
+def robot_for(desc: dict, true: bool = False) -> Robot:
     """The shared robot of a stored plan description (``problem.json``): a built-in plant by name,
-    or a model file's robot by its spec (``desc["robot"]``)."""
+    or a model file's robot by its spec (``desc["robot"]``; with ``true`` the robot that is
+    executed, ``desc["robot_true"]`` where the problem states one)."""
     from plants.robots import shared_robot
 
-    spec = desc.get("robot")
+    spec = _desc_spec(desc, true)
     return shared_robot(desc["plant"]) if spec is None else shared_model(RobotSpec.from_dict(spec))
 
 
-def load_robot_for(desc: dict, builder=None, time_step: float = 0.0) -> Robot:
-    """A fresh robot (its own plant) of a stored plan description, as ``plants.robots.load_robot``."""
+def load_robot_for(desc: dict, builder=None, time_step: float = 0.0, true: bool = False) -> Robot:
+    """A fresh robot (its own plant) of a stored plan description, as ``plants.robots.load_robot``
+    (``true``: as :func:`robot_for`)."""
     from plants.robots import load_robot
 
-    spec = desc.get("robot")
+    spec = _desc_spec(desc, true)
     if spec is None:
         return load_robot(desc["plant"], builder, time_step)
     return load_model(RobotSpec.from_dict(spec), builder, time_step)

@@ -12,15 +12,27 @@ RK4). Every ``dt`` the
 tuple ``(q, qdot, qddot, u)`` is sampled; ``qddot`` is the plant's own time derivative at
 that instant.
 
+A robot from a problem file (``--problem FILE``: its model file, on a welded base or sole; the
+robot babbled on is ``[robot.true]``'s where the file states one) babbles the same way with two
+additions: the PD's torques are added to the model file's gravity compensation ``g(q)`` (Drake's
+``InverseDynamics`` block in gravity-compensation mode on the planning model: an arm of several kg
+holds itself only so), and to **per-joint random torques** (``torque_noise``: a clamped cubic spline
+per joint through random knots, uniform in ``+-torque_noise u_max``, at the knots' times) that excite
+the dynamics beyond what the tracking asks; ``u_max`` is the file's effort limit (1000 N m where the
+file states none). What keeps the robot away from its joint limits is the PD: its desired
+trajectory stays 5 % of each joint's range inside the limits, and with the random torques bounded
+by ``torque_noise`` of the effort the tracking error stays small (tests: no sample leaves the range).
+
 Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 ``K = round(duration / dt) + 1`` samples per episode; ``t`` is ``(K,)`` in seconds.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -36,13 +48,20 @@ DATA_FILE = "data.npz"
 class BabbleConfig(StageConfig):
     """Declared parameters of the babble stage (all part of its cache key; defaults stated here only)."""
 
-    HELP = {"plant": "pendulum, arm5, biorob or nao.", "episodes": "Number of babbling episodes.",
+    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+            "problem": "A problem file (TOML) whose robot babbles (its model file; [robot.true]'s robot where "
+                       "stated); replaces --plant.",
+            "torque_noise": "Per-joint random torques added to the PD, as a fraction of the effort limit "
+                            "(default: 0 for a built-in plant, 0.1 for a problem file's robot).",
+            "episodes": "Number of babbling episodes.",
             "duration": "Seconds per episode.", "dt": "Sample period (s).", "kp": "PD stiffness (N m/rad).",
             "kd": "PD damping (N m s/rad).", "amplitude": "Spread of the random knots (rad).",
             "knots": "Random knots per episode.", "integrator": "Drake integrator scheme.",
             "substeps": "Fixed integrator steps per sample."}
 
-    plant: str
+    plant: str = ""
+    problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
+    torque_noise: float | None = None  # fraction of u_max; None: 0 (built-in plant) or TORQUE_NOISE (problem file)
     episodes: int = 5
     seed: int = 0
     duration: float = 1.0  # s per episode
@@ -54,10 +73,37 @@ class BabbleConfig(StageConfig):
     integrator: str = "runge_kutta5"
     substeps: int = 2  # fixed integrator steps per sample
 
+    def problem_file(self):
+        """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
+        from stages.plan.problem_file import ProblemFile, read_problem
+
+        text = str(self.problem)
+        return ProblemFile(json.loads(text)) if text.lstrip().startswith("{") else read_problem(text)
+
+    def normalized(self) -> BabbleConfig:
+        """One spelling per meaning (cache key): a problem file as its canonical content (its robot's label
+        as ``plant``; a built-in plant's file as that plant), the random torques' default spelled out."""
+        if self.problem is None:
+            return replace(self, torque_noise=0.0 if self.torque_noise is None else self.torque_noise)
+        try:
+            pf = self.problem_file()
+        except ValueError:
+            return self  # validate() says what is wrong
+        if pf.plant is not None:
+            return replace(self, problem=None, plant=pf.plant).normalized()
+        noise = TORQUE_NOISE if self.torque_noise is None else self.torque_noise
+        return replace(self, problem=pf.canonical(), plant=pf.robot_label, torque_noise=noise)
+
     def validate(self) -> None:
-        if self.plant not in PLANTS:
-            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
-        checks = [(self.episodes >= 1, "episodes must be >= 1"),
+        if self.problem is not None:
+            if self.plant and self.problem_file().plant is None and self.plant != self.problem_file().robot_label:
+                raise ValueError("give --plant or --problem, not both")
+            babble_robots(self)
+        elif self.plant not in PLANTS:
+            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}"
+                             + ("" if self.plant else " (or --problem FILE)"))
+        checks = [(self.torque_noise is None or 0 <= self.torque_noise <= 1,
+                   "torque-noise must be in [0, 1] (a fraction of the effort limit)"),(self.episodes >= 1, "episodes must be >= 1"),
                   (self.episodes <= 10000, "episodes must be <= 10000"),
                   (0 <= self.seed < 2**32, "seed must be in [0, 2^32 - 1]"),
                   (0 < self.dt <= 0.1, "dt must be in (0, 0.1] s"),
@@ -86,6 +132,8 @@ class BabbleConfig(StageConfig):
         return float(round(self.duration / self.dt) + 1)
 
 
+TORQUE_NOISE = 0.1  # a problem file's robot: per-joint random torques, fraction of the effort limit
+UNLIMITED_EFFORT = 1000.0  # N m, the babbling's torque bound on a joint whose file states no effort limit
 MAX_SAMPLES = 1_000_000  # per episode (the arrays are episodes x samples x joints)
 MAX_TOTAL_SAMPLES = 2_000_000  # per run: the Nao's six arrays then take 2.4 GB
 MAX_STEPS = 200_000_000  # integrator steps per run
@@ -167,9 +215,97 @@ def _simulator(robot, cfg: BabbleConfig):
     return sim, diagram, source, pid, act, pinv
 
 
+def babble_robots(cfg: BabbleConfig):
+    """``(planning robot, spec of the robot babbled on)`` of a problem file's babbling (the spec: the
+    true robot's where ``[robot.true]`` states one, else the model file's); ``ValueError`` for a model
+    file that does not load or a frame the true robot names that it lacks."""
+    from plants.model_file import ModelError, shared_model
+
+    pf = cfg.problem_file()
+    spec = pf.robot_spec()
+    if spec is None:
+        raise ValueError("a problem file of a built-in plant babbles as --plant")
+    true = pf.true_spec() or spec
+    try:
+        robot = shared_model(spec)
+        shared_model(true)
+    except ModelError as e:
+        raise ValueError(str(e)) from None
+    return robot, true
+
+
+def robot_description(config: dict) -> dict:
+    """The babbled robot as a plan's ``problem.json`` states it (``plant``, and for a problem file's
+    robot ``robot``: the planning model's spec, ``robot_true``: the robot babbled on), from a babble
+    artifact's stored ``config``: what the fit stage needs to name, load and model it."""
+    if not config.get("problem"):
+        return {"plant": str(config["plant"])}
+    cfg = BabbleConfig.from_dict(config)
+    robot, true = babble_robots(cfg)
+    out = {"plant": robot.name, "robot": robot.spec.to_dict()}
+    if true != robot.spec:
+        out["robot_true"] = true.to_dict()
+    return out
+
+
+def _model_simulator(robot, model, cfg: BabbleConfig):
+    """Diagram of a problem file's robot (``robot``: the one babbled on, ``model``: the planning model):
+    ``u = clip(g_model(q) + PD(q_des - q) + r(t), -u_max, u_max)`` (module docstring), Drake's blocks only:
+    ``InverseDynamics`` (gravity compensation on ``model``'s plant), ``PidController``, a
+    ``TrajectorySource`` each for ``(q_des, qdot_des)`` and the random torques ``r``, an ``Adder``,
+    ``Saturation`` and ``MatrixGain`` to the actuation port."""
+    from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+    from pydrake.systems.controllers import InverseDynamics, PidController
+    from pydrake.systems.primitives import Adder, MatrixGain, Saturation, TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    plant, n = robot.plant, robot.plant.num_positions()
+    u_max = babble_effort(robot)
+    builder = robot.builder
+    source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 1, True))
+    noise = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 0, True))
+    pid = builder.AddSystem(PidController(np.full(n, float(cfg.kp)), np.zeros(n), np.full(n, float(cfg.kd))))
+    gravity = builder.AddSystem(InverseDynamics(model.plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
+    add = builder.AddSystem(Adder(3, n))
+    sat = builder.AddSystem(Saturation(-u_max, u_max))
+    act = builder.AddSystem(MatrixGain(robot.B_act.T))
+    builder.Connect(plant.get_state_output_port(), pid.get_input_port_estimated_state())
+    builder.Connect(plant.get_state_output_port(), gravity.get_input_port_estimated_state())
+    builder.Connect(source.get_output_port(), pid.get_input_port_desired_state())
+    builder.Connect(pid.get_output_port_control(), add.get_input_port(0))
+    builder.Connect(gravity.get_output_port_generalized_force(), add.get_input_port(1))
+    builder.Connect(noise.get_output_port(), add.get_input_port(2))
+    builder.Connect(add.get_output_port(), sat.get_input_port())
+    builder.Connect(sat.get_output_port(), act.get_input_port())
+    builder.Connect(act.get_output_port(), plant.get_actuation_input_port())
+    sim = Simulator(builder.Build())
+    integrator = ResetIntegratorFromFlags(sim, cfg.integrator, cfg.dt)
+    integrator.set_fixed_step_mode(True)
+    integrator.set_maximum_step_size(cfg.dt / cfg.substeps)
+    return sim, source, noise, pid, act
+
+
+def babble_effort(robot) -> np.ndarray:
+    """Per joint of a problem file's robot: its effort limit (N m), ``UNLIMITED_EFFORT`` where none is stated."""
+    return np.where(np.isfinite(robot.effort), robot.effort, UNLIMITED_EFFORT)
+
+
+def random_torques(rng: np.random.Generator, spline: CubicSpline, u_max: np.ndarray, cfg: BabbleConfig):
+    """Per-joint random torques ``r(t)`` (N m) as Drake's clamped cubic through ``U(-1, 1) torque_noise u_max``
+    at the desired trajectory's knot times (zero at the start)."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    knots = rng.uniform(-1.0, 1.0, size=(len(spline.x) - 1, u_max.size)) * cfg.torque_noise * u_max
+    samples = np.vstack([np.zeros(u_max.size), knots]).T
+    zero = np.zeros(u_max.size)
+    return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(spline.x, samples, zero, zero)
+
+
 def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None) -> BabbleData:
     """Simulate ``cfg.episodes`` babbling episodes on the Drake plant; see the module docstring."""
     cfg.validate()
+    if cfg.problem is not None:
+        return _babble_model_file(cfg, progress)
     robot = load_robot(cfg.plant)
     sim, diagram, source, pid, act, pinv = _simulator(robot, cfg)
     plant = robot.plant
@@ -208,6 +344,49 @@ def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None
     return BabbleData(t=t, joint_names=robot.joint_names, **out)
 
 
+def _babble_model_file(cfg: BabbleConfig, progress: Callable[[int, int], None] | None) -> BabbleData:
+    """:func:`babble` for a problem file's robot (module docstring): the random desired trajectory and
+    random torques drawn per episode, in that order, from one generator of ``cfg.seed``."""
+    from plants.model_file import load_model
+
+    model, true = babble_robots(cfg)
+    robot = load_model(true)
+    sim, source, noise, pid, act = _model_simulator(robot, model, cfg)
+    plant = robot.plant
+    root = sim.get_mutable_context()
+    pctx = plant.GetMyMutableContextFromRoot(root)
+    pid_ctx = pid.GetMyMutableContextFromRoot(root)
+    act_ctx = act.GetMyContextFromRoot(root)
+    n = robot.n_q
+    K = int(round(cfg.duration / cfg.dt)) + 1
+    t = np.arange(K) * cfg.dt
+    rng = np.random.default_rng(cfg.seed)
+    E = cfg.episodes
+    out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
+    q0 = np.clip(robot.default_q, robot.lower, robot.upper)
+    u_max = babble_effort(robot)
+    for e in range(E):
+        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        source.UpdateTrajectory(plant_spline(spline, robot.P))
+        noise.UpdateTrajectory(random_torques(rng, spline, u_max, cfg))
+        root.SetTime(0.0)
+        plant.SetPositions(pctx, q0)
+        plant.SetVelocities(pctx, np.zeros(n))
+        pid_ctx.SetContinuousState(np.zeros(n))
+        sim.Initialize()
+        for k in range(K):
+            if k > 0:
+                sim.AdvanceTo(t[k])
+            x = plant.GetPositionsAndVelocities(pctx)
+            out["q"][e, k], out["qdot"][e, k] = x[:n], x[n:]
+            out["qddot"][e, k] = plant.EvalTimeDerivatives(pctx).CopyToVector()[n:]
+            out["u"][e, k] = robot.B_act @ act.get_output_port().Eval(act_ctx)
+        out["q_des"][e] = spline(t)
+        if progress:
+            progress(e + 1, E)
+    return BabbleData(t=t, joint_names=robot.joint_names, **out)
+
+
 def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, int], None] | None = None
         ) -> StageOutput:
     """The babble stage: ``data.npz`` with the sampled tuples of every episode."""
@@ -215,7 +394,8 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
     return StageOutput(status="ok", metrics=data.metrics(), arrays={DATA_FILE: data.arrays()}, payload=data)
 
 
-STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run, sources=("plants", "stages.babble", "stages.base"),
+STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run,
+              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file"),
               data_files=(DATA_FILE,),
               description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)

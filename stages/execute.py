@@ -39,6 +39,8 @@ Execution models:
   enforced) driven by the plan's own feedback controller ``u_k = o_k + O_k x_k`` (a LeafSystem,
   zero-order hold per planning step; pseudo-dynamics plans through computed torque evaluated at
   every plant step). Effort limits: Drake clamps the actuation.
+- **a model file's robot** executes as the arms do; where its problem states ``[robot.true]`` the plant
+  is that robot (payload, mass scale, friction: ``plants.model_file``), the model file only the plan's.
 - **pendulum**: the thesis's ideal point mass, continuous plant, the plan's controller as for the
   arms, Drake's ``runge_kutta5`` at a fixed step of at most 1 ms (its +-100 rad joint range is
   no physical limit; its +-10 N m bound is the swing-up task's control limit: saturation is
@@ -289,7 +291,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     name = desc["plant"]
     # a model file's robot executes as the arms do: a discrete plant that enforces its joint limits
     discrete = (name in DISCRETE or "robot" in desc) and not cfg.open_loop
-    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0)
+    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0, true=True)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))

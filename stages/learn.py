@@ -10,6 +10,12 @@ artifact (``learn/<key>/episodes.json``: the per-episode numbers and the keys of
 keyed like any stage's, by its config and its code version, which includes its steps'. Its
 recording (the ``episode`` timeline) is made from that file by ``pipeline.recorders``.
 
+Any robot: ``--problem FILE`` replaces ``--plant`` and ``--task``; the problem file's robot babbles
+(``stages.babble``: PD around random trajectories with the model file's gravity compensation and
+per-joint random torques), the plans are the problem's with ``--dynamics learned`` and the
+executions run on ``[robot.true]``'s robot where the file states one. ``--residual`` fits the GP
+to what the model file misses (``stages.fit``) and plans with model + GP.
+
 A parameter goes one way: the CLI fills :class:`LearnConfig`, which derives each step's config
 (:meth:`LearnConfig.plan_config`, :meth:`LearnConfig.fit_config`, ...); the plan config carries
 ``alpha`` and the uncertainty term's ``sigma_*`` to the plan stage, which normalizes and checks them
@@ -66,11 +72,21 @@ class LearnConfig(StageConfig):
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
                          "thesis 4.4).",
-            "gp": "GP of every fit: exact or sparse (FITC with --inducing points, see raico fit --help).",
-            "inducing": "Inducing points of --gp sparse (at most --babble-points: the first fit has only the babbling)."}
+            "gp": "GP of every fit: exact, sparse (FITC with --inducing points) or auto (exact up to 1000 training "
+                  "points, sparse above, said on stderr; see raico fit --help); default: exact for a built-in plant, "
+                  "auto for --problem.",
+            "inducing": "Inducing points of --gp sparse (at most --babble-points: the first fit has only the babbling).",
+            "problem": "A problem file (TOML) in place of --plant and --task: its robot (a model file; the executed "
+                       "robot [robot.true]'s where stated) and task.",
+            "residual": "Fit the GP to the difference between the executed accelerations and the planning model's "
+                        "(the model file's, or the plant's analytic model) and plan with model + GP.",
+            "babble_amplitude": "Spread of the babbling's random knots around the start posture (rad)."}
 
-    plant: str
-    task: str
+    plant: str = ""
+    task: str = ""
+    problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
+    residual: bool = False
+    babble_amplitude: float = 1.0  # rad
     episodes: int = 10
     sigma_star: str = "none"
     sigma_weight: float = 1e-2
@@ -86,7 +102,7 @@ class LearnConfig(StageConfig):
     q0_std: float = 0.0
     warm_from: str = "trajectory"
     seed: int = 0
-    gp: str = "exact"
+    gp: str = ""  # "": exact for a built-in plant, auto for a problem file's robot
     inducing: int = 200
 
     def normalized(self) -> LearnConfig:
@@ -94,17 +110,54 @@ class LearnConfig(StageConfig):
         (the runner normalizes every config before it keys it)."""
         from dataclasses import replace
 
-        d = PLANT_DEFAULTS.get(self.plant, ARM_DEFAULTS)
-        return replace(self, babble_points=self.babble_points or d["babble_points"], stride=self.stride or d["stride"])
+        cfg = self
+        if self.problem is not None:
+            try:
+                pf = self.problem_file()
+            except ValueError:
+                return self  # validate() says what is wrong
+            cfg = replace(self, problem=pf.canonical(), plant=pf.plant or pf.robot_label, task=pf.name)
+        d = PLANT_DEFAULTS.get(cfg.plant, ARM_DEFAULTS)
+        return replace(cfg, babble_points=cfg.babble_points or d["babble_points"], stride=cfg.stride or d["stride"],
+                       gp=cfg.gp or ("exact" if cfg.problem is None else "auto"))
+
+    def problem_file(self):
+        """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
+        import json
+
+        from stages.plan.problem_file import ProblemFile, read_problem
+
+        text = str(self.problem)
+        return ProblemFile(json.loads(text)) if text.lstrip().startswith("{") else read_problem(text)
+
+    def robots(self):
+        """``(planning robot, executed robot)``: the built-in plant twice, or the problem file's model
+        and its ``[robot.true]`` robot (the model again where none is stated)."""
+        from plants.robots import shared_robot
+
+        if self.problem is None:
+            robot = shared_robot(self.plant)
+            return robot, robot
+        from stages.plan.stage import robot_and_task, true_robot
+
+        pf = self.problem_file()
+        robot, _ = robot_and_task(self.plan_config(model="x", warm_start=None))
+        return robot, true_robot(pf) or robot
 
     def validate(self) -> None:
         """The loop's own values; what goes to the plan stage unchanged (seed, ``alpha``, ``q0_std``, the
         ``sigma_*`` of the uncertainty term) is checked once, by the plan config (and the solver's
         options) it makes."""
-        if self.plant not in PLANTS:
-            raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}")
-        get_task(self.plant, self.task)
-        if self.babble_points == 0 or self.stride == 0:
+        if self.problem is not None:
+            pf = self.problem_file()
+            if (self.plant, self.task) not in (("", ""), (pf.plant or pf.robot_label, pf.name)):
+                raise ValueError("give --plant and --task, or --problem FILE, not both")
+        else:
+            if self.plant not in PLANTS:
+                raise ValueError(f"unknown plant '{self.plant}': choose one of {', '.join(PLANTS)}"
+                                 + ("" if self.plant else " (or --problem FILE)"))
+            get_task(self.plant, self.task)
+        if self.babble_points == 0 or self.stride == 0 or not self.gp:
             return self.normalized().validate()
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
@@ -112,11 +165,12 @@ class LearnConfig(StageConfig):
                   (2 <= self.babble_points <= 100_000, "babble-points must be 0 (the plant's default) or in "
                                                         "[2, 100000]"),
                   (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
+                  (0 <= self.babble_amplitude <= 3.2, "babble-amplitude must be in [0, 3.2] rad"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
                   (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
                   (0 <= self.refit_restarts <= 20, "refit-restarts must be in [0, 20]"),
                   (1 <= self.stride <= 1000, "stride must be 0 (the plant's default) or in [1, 1000]"),
-                  (self.gp in ("exact", "sparse"), f"gp must be exact or sparse, got '{self.gp}'"),
+                  (self.gp in ("exact", "sparse", "auto"), f"gp must be exact, sparse or auto, got '{self.gp}'"),
                   (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
                   (self.gp != "sparse" or self.inducing <= self.max_points,
                    f"inducing ({self.inducing}) exceeds max-points ({self.max_points})"),
@@ -128,6 +182,7 @@ class LearnConfig(StageConfig):
                 raise ValueError(msg)
         parse_schedule(self.schedule)
         self.plan_config(model="x", warm_start=None).validate()
+        self.babble_config().validate()
 
     @property
     def solver(self) -> str:
@@ -141,7 +196,8 @@ class LearnConfig(StageConfig):
         if self.warm_from == "none":
             warm_start = None
 
-        return PlanConfig(plant=self.plant, task=self.task, dynamics="learned", solver=self.solver,
+        where = {"problem": self.problem} if self.problem is not None else {"plant": self.plant, "task": self.task}
+        return PlanConfig(**where, dynamics="learned", solver=self.solver,
                           alpha=self.alpha, iterations=self.iterations,
                           seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
@@ -155,16 +211,17 @@ class LearnConfig(StageConfig):
         return FitConfig(data=data, prior=prior, schedule=self.schedule,
                          restarts=self.restarts if prior is None else self.refit_restarts, seed=self.seed,
                          max_points=self.max_points, stride=self.stride, holdout=0.0, gp=self.gp,
-                         inducing=self.inducing)
+                         inducing=self.inducing, residual=self.residual)
 
     def babble_config(self):
         """Babbling that yields ``babble_points`` samples (thesis: 15 for the pendulum): one episode
         of ``BABBLE_DT`` s per sample, so few samples still cover a spread of states and torques."""
         from stages.babble import BabbleConfig
 
-        return BabbleConfig(plant=self.plant, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
+        where = {"problem": self.problem} if self.problem is not None else {"plant": self.plant}
+        return BabbleConfig(**where, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
                             dt=BABBLE_DT, knots=babble_knots(self.babble_points),
-                            substeps=int(round(BABBLE_DT / 1e-3)), amplitude=1.0)
+                            substeps=int(round(BABBLE_DT / 1e-3)), amplitude=self.babble_amplitude)
 
 
     def heldout_babble_config(self):
@@ -193,6 +250,26 @@ def parse_schedule(schedule: str) -> int | None:
     if schedule.startswith("batch-") and schedule[6:].isdigit() and int(schedule[6:]) >= 100:
         return int(schedule[6:])
     raise ValueError(f"schedule must be 'every' or 'batch-N' with N >= 100, got '{schedule}'")
+
+
+class Predictor:
+    """A fit's model of ``qddot (K, n_q)`` at inputs ``(K, 2 n_q + n_u)``: the GP mean, or for a residual fit
+    the planning model's accelerations plus the GP mean (``predict_mean``, as the GP's)."""
+
+    def __init__(self, arrays, robot):
+        from plants.gp import GPModel
+        from plants.learned import RESIDUAL_KEY, is_residual
+
+        self.gp = GPModel.from_arrays({k: v for k, v in arrays.items() if k != RESIDUAL_KEY})
+        self.robot = robot if is_residual(arrays) else None
+
+    def predict_mean(self, XU: np.ndarray) -> np.ndarray:
+        mean = self.gp.predict_mean(XU)
+        if self.robot is None:
+            return mean
+        from stages.fit.stage import model_accelerations
+
+        return mean + model_accelerations(self.robot, XU)
 
 
 def gp_prediction_error(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray) -> float:
@@ -239,11 +316,10 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
     """The learn stage: babble, then per episode fit, plan and execute, each a cached step;
     ``episodes.json`` holds every episode's numbers (:func:`episode_measurements`) and the metrics
     their lists (:func:`summary`)."""
-    from plants.robots import shared_robot
     from stages.execute import ExecuteConfig
 
     t0 = time.perf_counter()
-    robot = shared_robot(cfg.plant)
+    robot = cfg.robots()
     babble = steps.run("babble", cfg.babble_config())
     held_out = heldout_set(steps.run("babble", cfg.heldout_babble_config()))
     data, prior, warm = [babble.ref], None, None
@@ -284,17 +360,17 @@ def heldout_set(heldout: Artifact) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return XU[:, :2 * n], XU[:, 2 * n:], Y
 
 
-def episode_measurements(cfg: LearnConfig, robot, fit: Artifact, plan: Artifact, execution: Artifact,
+def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact, execution: Artifact,
                          heldout: tuple | None = None) -> dict:
     """One episode's numbers, from its fit, plan and execute artifacts: GP error on the executed
     motion (a true prediction: the episode's data join only the next fit) and on the fixed held-out
     babbling, per joint and normalized; planned-vs-executed RMSE, task error planned and executed,
     whether the task was achieved in execution, how much of the execution may join the data, wall
     times, training points."""
-    from plants.gp import GPModel
     from stages.fit.stage import usable_steps
 
-    model = GPModel.from_arrays(fit.arrays("model.npz"))
+    robot, executed = robots if isinstance(robots, tuple) else (robots, robots)
+    model = Predictor(fit.arrays("model.npz"), robot)
     roll = execution.arrays("rollout.npz")
     X, tau = roll["X"][:-1], roll["tau"]
     K = min(len(X), len(tau))
@@ -303,7 +379,7 @@ def episode_measurements(cfg: LearnConfig, robot, fit: Artifact, plan: Artifact,
     ok = np.all(np.isfinite(X), axis=1)
     qdd = np.full((K, robot.n_q), np.nan)
     if ok.any():
-        qdd[ok] = true_accelerations(robot, dt, X[ok], tau[ok])
+        qdd[ok] = true_accelerations(executed, dt, X[ok], tau[ok])
     em, pm = execution.metrics, plan.metrics
     err = task_error(em.get("via_point_errors") or {})
     if cfg.plant == "pendulum":  # the task: within 0.1 rad of upright at the end, on the Drake plant

@@ -206,7 +206,7 @@ def test_fit_bad_sparse_input_is_one_line(babbled, args, needle):
     (["--gp", "sparse", "--inducing", "-1"], "inducing must be >= 1"),
     (["--gp", "sparse", "--inducing", "20"], "inducing (20) exceeds babble-points (15)"),
     (["--gp", "sparse", "--inducing", "100", "--max-points", "50"], "inducing (100) exceeds max-points (50)"),
-    (["--gp", "gauss"], "gp must be exact or sparse"),
+    (["--gp", "gauss"], "gp must be exact, sparse or auto"),
 ])
 def test_learn_bad_sparse_input_is_one_line(tmp_path, args, needle):
     res = _invoke("learn", "--plant", "pendulum", "--task", "swing-up", "--episodes", 1, *args,

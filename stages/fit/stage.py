@@ -29,6 +29,14 @@ ones are subsampled by ``subsample_indices`` and refactorized at the prior's hyp
 (``refit_fixed``). The cap ``max_points`` applies to every path; ``n_dropped`` says how many
 training points it dropped.
 
+Residual model (``--residual``). The targets become ``qddot - f_model(q, qdot, u)``: what the
+planning model (the built-in plant's analytic model, or the problem file's model file) misses of
+the data's accelerations (the babbled robot's own, an execution's by the executed robot's forward
+dynamics: ``[robot.true]``'s where the problem states one). The stored arrays say so
+(``plants.learned.RESIDUAL_KEY``) and ``--dynamics learned`` then plans with model + GP
+(``plants.learned.ResidualDynamics``). The held-out errors are those of the sum (the model's part
+is exact). A prior must be of the same kind.
+
 GP kind (``--gp``). ``exact`` (default): ``plants.gp.GPModel``. ``sparse``: FITC with
 ``--inducing M`` inducing inputs (``plants.gp.SparseGPModel``, ``stages.fit.gp_fit.fit_sparse_gp``):
 hyperparameters optimized on ``M`` of the training points, inducing inputs chosen among all
@@ -63,7 +71,8 @@ FIT_FILE = "fit.json"
 DATA_STAGES = ("babble", "execute")
 MIN_BATCH = 100  # batch-N only with N >= 100 (the thesis's ">100")
 _BATCH = re.compile(r"batch-(\d+)")
-GP_KINDS = ("exact", "sparse")
+GP_KINDS = ("exact", "sparse", "auto")
+AUTO_EXACT_POINTS = 1000  # --gp auto: the exact GP up to this many training points (after the cap), sparse above
 
 
 @dataclass(frozen=True)
@@ -81,9 +90,12 @@ class FitConfig(StageConfig):
             "max_points": "Cap on the training points (older ones subsampled).",
             "holdout": "Trailing fraction of every time segment held out for the error and the recording.",
             "stride": "Keep every stride-th sample of each executed trajectory (1: all; babbling keeps all).",
-            "gp": "exact (the full GP) or sparse (FITC with --inducing points chosen among the training inputs by "
+            "gp": "exact (the full GP), auto (exact up to 1000 training points, sparse above: said on stderr) or "
+                  "sparse (FITC with --inducing points chosen among the training inputs by "
                   "greedy maximum variance; hyperparameters optimized on that many points).",
-            "inducing": "Inducing points of --gp sparse (1 to --max-points, and at most the training points)."}
+            "inducing": "Inducing points of --gp sparse (1 to --max-points, and at most the training points).",
+            "residual": "Fit the difference between the data's accelerations and the planning model's (the plant's "
+                        "or the model file's analytic dynamics): planning then uses model + GP."}
 
     data: tuple[str, ...] = ()
     prior: str | None = None
@@ -95,6 +107,7 @@ class FitConfig(StageConfig):
     stride: int = 1
     gp: str = "exact"
     inducing: int = 200
+    residual: bool = False
 
     def validate(self) -> None:
         if not self.data:
@@ -115,7 +128,7 @@ class FitConfig(StageConfig):
                   (1 <= self.stride <= 1000, "stride must be in [1, 1000]"),
                   (self.gp in GP_KINDS, f"gp must be one of {', '.join(GP_KINDS)}, got '{self.gp}'"),
                   (self.inducing >= 1, f"inducing must be >= 1, got {self.inducing}"),
-                  (self.gp != "sparse" or self.inducing <= self.max_points,
+                  (self.gp == "exact" or self.inducing <= self.max_points,
                    f"inducing ({self.inducing}) exceeds max-points ({self.max_points})")]
         for ok, msg in checks:
             if not ok:
@@ -159,6 +172,8 @@ class DataSet:
     Y_test: np.ndarray  # (M, n_q)
     t_test: np.ndarray  # (M,) s, held-out segments laid end to end
     seg_test: np.ndarray  # (M,) segment number
+    robot: dict | None = None  # the robot as a plan's problem.json states it (plant, robot, robot_true)
+    residual: bool = False  # targets are qddot - f_model (the module docstring)
 
 
 def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
@@ -166,8 +181,11 @@ def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
     return np.all(np.hstack([np.isfinite(a).reshape(len(a), -1) for a in arrays]), axis=1)
 
 
-def babble_segments(art: Artifact) -> tuple[str, list[Segment]]:
-    """The plant and one segment per episode of a babble artifact (``data.npz``)."""
+def babble_segments(art: Artifact) -> tuple[dict, list[Segment]]:
+    """The robot (``stages.babble.robot_description``) and one segment per episode of a babble artifact
+    (``data.npz``)."""
+    from stages.babble import robot_description
+
     d = art.arrays("data.npz")
     segs = []
     for e in range(d["q"].shape[0]):
@@ -175,7 +193,7 @@ def babble_segments(art: Artifact) -> tuple[str, list[Segment]]:
         Y = d["qddot"][e]
         ok = _finite_rows(X, Y)
         segs.append(Segment(art.ref, X[ok], Y[ok], d["t"][ok]))
-    return str(art.config["plant"]), segs
+    return robot_description(art.config), segs
 
 
 def plan_problem(art: Artifact) -> dict:
@@ -187,8 +205,8 @@ def plan_problem(art: Artifact) -> dict:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def execute_segments(art: Artifact, stride: int = 1) -> tuple[str, list[Segment]]:
-    """The plant and the one segment of an execute artifact: ``(X[k], tau[k]) -> qddot`` by Drake's
+def execute_segments(art: Artifact, stride: int = 1) -> tuple[dict, list[Segment]]:
+    """The robot (``plant``, ``robot``, ``robot_true`` of its plan's description) and the one segment of an execute artifact: ``(X[k], tau[k]) -> qddot`` by Drake's
     forward dynamics (the analytic model), ``k < T``; non-finite rows skipped, then every
     ``stride``-th row kept. The accelerations are computed only at the kept rows (all rows only if
     one of them is not finite, so the selection is the same as computing everything first)."""
@@ -197,7 +215,7 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[str, list[Segment]
 
     desc = plan_problem(art)
     r = art.arrays("rollout.npz")
-    robot = robot_for(desc)
+    robot = robot_for(desc, true=True)  # the targets: the executed (true) robot's forward dynamics
     n, tau = robot.n_q, r["tau"]
     T = len(tau)
     X = r["X"][:T]
@@ -211,7 +229,8 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[str, list[Segment]
         for k in np.flatnonzero(ok):   # a non-finite acceleration drops its row before the stride
             Y[k] = dyn.qddot(X[k, :n], X[k, n:], tau[k])
         keep = np.flatnonzero(ok & _finite_rows(Y))[::stride]
-    return str(desc["plant"]), [Segment(art.ref, np.hstack([X, tau])[keep], Y[keep], r["times"][:T][keep])]
+    robot_desc = {k: desc[k] for k in ("plant", "robot", "robot_true") if desc.get(k) is not None}
+    return robot_desc, [Segment(art.ref, np.hstack([X, tau])[keep], Y[keep], r["times"][:T][keep])]
 
 
 FAILED = ("tracking-lost", "fell", "diverged")  # executions whose data end where they failed
@@ -227,25 +246,50 @@ def usable_steps(art: Artifact, dt: float, T: int) -> int:
     return max(0, min(T, int(math.floor(float(t_fail) / dt + 1e-9))))
 
 
+def model_accelerations(robot, X: np.ndarray) -> np.ndarray:
+    """The planning model's ``qddot (K, n_q)`` (rad/s^2) at inputs ``X (K, 2 n_q + n_u)`` = ``(q, qdot, u)``:
+    the robot's analytic model (its step's ``dt`` does not enter the accelerations)."""
+    from plants.dynamics_registry import make_dynamics
+
+    n = robot.n_q
+    dyn = make_dynamics("analytic", robot, 0.01)
+    return np.array([dyn.qddot(x[:n], x[n:2 * n], x[2 * n:]) for x in X]).reshape(-1, n)
+
+
+def residual_segment(robot, seg: Segment) -> Segment:
+    """``seg`` with targets ``qddot - f_model`` (:func:`model_accelerations`); rows the model cannot
+    evaluate (non-finite) are dropped."""
+    if len(seg.X) == 0:
+        return seg
+    Y = seg.Y - model_accelerations(robot, seg.X)
+    ok = _finite_rows(Y)
+    return Segment(seg.source, seg.X[ok], Y[ok], seg.t[ok])
+
+
 def split_count(K: int, holdout: float) -> int:
     """Held-out samples at the end of a segment of ``K``: ``round(holdout K)``, leaving one for training."""
     return max(0, min(K - 1, int(round(holdout * K))))
 
 
-def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1) -> DataSet:
+def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1, residual: bool = False) -> DataSet:
     """Training and held-out points of ``arts`` (babble or execute, all of the same plant), every
-    ``stride``-th sample of each segment."""
-    from plants.robots import shared_robot
+    ``stride``-th sample of each segment; with ``residual`` the targets less the planning model's
+    accelerations (module docstring)."""
+    from plants.model_file import robot_for
 
-    plant_names, segs = set(), []
+    plant_names, segs, robots = set(), [], {}
     for art in arts:
         # babbling keeps its own sampling rate; an execution every ``stride``-th (finite) sample
-        plant, s = babble_segments(art) if art.stage == "babble" else execute_segments(art, stride)
-        plant_names.add(plant)
+        desc, s = babble_segments(art) if art.stage == "babble" else execute_segments(art, stride)
+        plant_names.add(desc["plant"])
+        robots[desc["plant"]] = desc
         segs += s
     if len(plant_names) != 1:
         raise ValueError(f"data of different plants: {', '.join(sorted(plant_names))}")
     plant = plant_names.pop()
+    robot = robot_for(robots[plant])
+    if residual:
+        segs = [residual_segment(robot, s) for s in segs]
     sources = tuple(a.ref for a in arts)
     tr, te, laid, seg_id, offset = [], [], [], [], 0.0
     for i, s in enumerate(segs):
@@ -263,7 +307,8 @@ def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1) -> Da
     if len(X) == 0:
         raise ValueError("the data artifacts hold no finite points")
     d, n = X.shape[1], segs[0].Y.shape[1]
-    return DataSet(plant=plant, joint_names=tuple(shared_robot(plant).joint_names), sources=sources, X=X,
+    return DataSet(plant=plant, joint_names=tuple(robot.joint_names), sources=sources, X=X, robot=robots[plant],
+                   residual=residual,
                    Y=np.vstack([b for _, b, _ in tr]), source=np.concatenate([c for _, _, c in tr]),
                    X_test=np.vstack([a for a, _ in te]) if te else np.zeros((0, d)),
                    Y_test=np.vstack([b for _, b in te]) if te else np.zeros((0, n)),
@@ -294,6 +339,9 @@ def check_prior(prior: Artifact, data: DataSet, cfg: FitConfig) -> dict:
     if not math.isclose(float(doc["holdout"]), cfg.holdout) or int(doc["stride"]) != cfg.stride:
         raise ValueError(f"prior {prior.ref} was fit with holdout {doc['holdout']} and stride {doc['stride']}: "
                          "use the same")
+    if bool(doc.get("residual", False)) != cfg.residual:
+        raise ValueError(f"prior {prior.ref} is {'a residual' if doc.get('residual') else 'a full'} model, this fit "
+                         f"asks for {'--residual' if cfg.residual else '--no-residual'}: use the same")
     if doc.get("gp", "exact") != cfg.gp:
         raise ValueError(f"prior {prior.ref} is a {doc.get('gp', 'exact')} GP, this fit asks for --gp {cfg.gp}: "
                          "use the same")
@@ -321,13 +369,28 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
         since = n_train
     start = GPModel.from_arrays(prior.arrays(MODEL_FILE)) if prior is not None else None
     t0 = time.perf_counter()
-    if cfg.gp == "sparse":
+    if gp_kind(cfg, n_train) == "sparse":
         model, info = fit_sparse_gp(data.X, data.Y, inducing=cfg.inducing, restarts=cfg.restarts, seed=cfg.seed,
                                     max_points=cfg.max_points, start=start)
     else:
         model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
                              start=start)
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
+
+
+def gp_kind(cfg: FitConfig, n_train: int) -> str:
+    """The GP a fit makes: ``cfg.gp``, or for ``auto`` the exact GP up to ``AUTO_EXACT_POINTS`` training points
+    (after the ``max_points`` cap) and the sparse GP (``cfg.inducing`` points) above, said on stderr."""
+    if cfg.gp != "auto":
+        return cfg.gp
+    n = min(n_train, cfg.max_points)
+    if n <= AUTO_EXACT_POINTS:
+        return "exact"
+    import sys
+
+    print(f"raico: note: fit: {n} training points are too many for the exact GP (more than {AUTO_EXACT_POINTS}): "
+          f"the sparse GP with {min(cfg.inducing, n)} inducing points", file=sys.stderr, flush=True)
+    return "sparse"
 
 
 def _add_points(model: GPBase, X: np.ndarray, Y: np.ndarray, max_points: int) -> tuple[GPBase, str]:
@@ -361,7 +424,8 @@ def fit_document(cfg: FitConfig, data: DataSet, res: FitResult, prior: Artifact 
     return {
         "plant": data.plant, "joint_names": names, "data_keys": list(data.sources),
         "prior": prior.ref if prior else None, "schedule": cfg.schedule, "holdout": cfg.holdout,
-        "stride": cfg.stride, "gp": cfg.gp,
+        "stride": cfg.stride, "gp": cfg.gp, "residual": cfg.residual,
+        **{k: data.robot[k] for k in ("robot", "robot_true") if data.robot and k in data.robot},
         "n_inducing": m.M if isinstance(m, SparseGPModel) else None,
         "mode": res.mode, "optimized": res.mode == "optimized", "fit_time_s": res.fit_time_s,
         "hyperparameters": {j: {"length_scales": m.ell[i].tolist(), "sf2": float(m.sf2[i]),
@@ -390,18 +454,24 @@ def run(cfg: FitConfig, inputs: dict, progress: Progress | None = None) -> Stage
     arts = tuple(inputs.get("data", ()))
     if len({a.ref for a in arts}) != len(arts):
         raise ValueError("data: the same artifact given twice")
-    data = load_data(arts, cfg.holdout, cfg.stride)
+    data = load_data(arts, cfg.holdout, cfg.stride, cfg.residual)
     if cfg.holdout > 0 and len(data.X_test) == 0:
         raise ValueError(f"holdout {cfg.holdout} leaves no held-out point (round(holdout x samples) is 0 in every "
                          "segment): give a larger --holdout, or --holdout 0 for none")
     res = fit_model(cfg, data, inputs.get("prior"))
     doc = fit_document(cfg, data, res, inputs.get("prior"))
     heldout = {"X": data.X_test, "Y": data.Y_test, "time": data.t_test, "segment": data.seg_test}
-    return StageOutput(status="ok", metrics=fit_metrics(doc), arrays={MODEL_FILE: res.model.to_arrays(),
+    arrays = res.model.to_arrays()
+    if cfg.residual:
+        from plants.learned import RESIDUAL_KEY
+
+        arrays[RESIDUAL_KEY] = np.array(1.0)
+    return StageOutput(status="ok", metrics=fit_metrics(doc), arrays={MODEL_FILE: arrays,
                                                                      HELDOUT_FILE: heldout},
                        documents={FIT_FILE: doc}, payload=res)
 
 
-STAGE = Stage(name="fit", config_cls=FitConfig, run=run, sources=("plants", "stages.fit", "stages.base"),
+STAGE = Stage(name="fit", config_cls=FitConfig, run=run,
+              sources=("plants", "stages.fit", "stages.base", "stages.babble", "stages.plan.problem_file"),
               data_files=(MODEL_FILE, HELDOUT_FILE, FIT_FILE),
               description=DESCRIPTIONS["fit"])

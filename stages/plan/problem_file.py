@@ -77,7 +77,10 @@ from planning import objective as ob
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
 TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs"}
-ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits"}
+ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits",
+              "true"}
+TRUE_KEYS = {"payload", "mass_scale", "friction"}  # [robot.true]: the executed robot's differences from its file
+PAYLOAD_KEYS = {"frame", "mass", "com"}
 HORIZON_KEYS = {"T", "dt"}
 DYNAMICS_KEYS = {"model", "integrator"}
 # dynamics model -> integrator -> raico's dynamics name (plants.dynamics_registry)
@@ -139,8 +142,18 @@ class ProblemFile:
         return self.plant or Path(self.doc["robot"]["file"]).stem
 
     def robot_spec(self):
-        """The :class:`plants.model_file.RobotSpec` of a model-file robot (None for a built-in plant)."""
+        """The :class:`plants.model_file.RobotSpec` of a model-file robot, the planner's model (None for a
+        built-in plant)."""
         if self.plant is not None:
+            return None
+        from plants.model_file import RobotSpec
+
+        return RobotSpec.from_dict(self.doc["robot"]).planning
+
+    def true_spec(self):
+        """The spec of the robot that is babbled on and executed: the model file's with ``[robot.true]``'s
+        changes, or None when the problem states none (then the file's robot is the true one)."""
+        if self.plant is not None or not self.doc["robot"].get("true"):
             return None
         from plants.model_file import RobotSpec
 
@@ -260,6 +273,35 @@ def _robot(r: dict, base: Path) -> dict:
         _refuse_unknown(lim, {"lower", "upper", "effort"}, f"[robot] limits.{j}")
         limits[j] = {k: _number(v, f"[robot] limits.{j}.{k}") for k, v in lim.items()}
     out["limits"] = limits
+    if "true" in r:
+        out["true"] = _true_robot(r["true"])
+    return out
+
+
+def _true_robot(t) -> dict:
+    """``[robot.true]``: ``payload = {frame, mass (kg), com (3, m, in the frame)}``, ``mass_scale`` (> 0,
+    every link's mass and inertia) and ``friction`` (N m s/rad, viscous, every planning joint), as
+    the flat table :class:`plants.model_file.RobotSpec` stores (unset changes left out)."""
+    if not isinstance(t, dict):
+        raise ValueError("[robot.true] must be a table {payload, mass_scale, friction}")
+    _refuse_unknown(t, TRUE_KEYS, "[robot.true]")
+    out: dict[str, Any] = {}
+    if "payload" in t:
+        p = t["payload"]
+        if not isinstance(p, dict):
+            raise ValueError("[robot.true] payload must be a table {frame, mass, com}")
+        _refuse_unknown(p, PAYLOAD_KEYS, "[robot.true] payload")
+        if not isinstance(p.get("frame"), str) or "mass" not in p:
+            raise ValueError("[robot.true] payload needs a frame (a name) and a mass (kg)")
+        out.update(payload_frame=p["frame"], payload_mass=_nonneg(p["mass"], "[robot.true] payload mass"),
+                   payload_com=_vector(p.get("com", [0.0, 0.0, 0.0]), "[robot.true] payload com", 3))
+    if "mass_scale" in t:
+        scale = _number(t["mass_scale"], "[robot.true] mass_scale")
+        if not 0 < scale <= 100:
+            raise ValueError(f"[robot.true] mass_scale must be in (0, 100], got {scale!r}")
+        out["mass_scale"] = scale
+    if "friction" in t:
+        out["friction"] = _nonneg(t["friction"], "[robot.true] friction")
     return out
 
 

@@ -119,9 +119,8 @@ class PlanConfig(StageConfig):
     def validate(self) -> None:
         if self.problem is not None:
             pf = self.problem_file()
-            if pf.plant is None and (self.dynamics == "learned" or self.balance != "none"):
-                raise ValueError("--dynamics learned and --balance need a built-in plant (the GP is fitted to its "
-                                 "babbling, the support polygon is the Nao's)")
+            if pf.plant is None and self.balance != "none":
+                raise ValueError("--balance needs a built-in plant (the support polygon is the Nao's)")
             if self.dynamics not in ("", *INTEGRATOR_DYNAMICS, "analytic-fd", "learned"):
                 raise ValueError(f"unknown dynamics '{self.dynamics}': choose one of {', '.join(DYNAMICS)}")
             check_problem(self)
@@ -393,6 +392,33 @@ def check_problem(cfg: PlanConfig) -> None:
     otherwise): bad frames, joints and shapes are refused before anything runs."""
     robot, task = robot_and_task(cfg)
     task.build(robot, robot.default_q.copy(), task.T)
+    true_robot(cfg.problem_file())
+
+
+def true_robot(pf: ProblemFile) -> Robot | None:
+    """The robot a problem's babbling and executions run on when ``[robot.true]`` states one (its
+    own shared model), else None (``ValueError`` for a frame it names that is not in the file)."""
+    spec = pf.true_spec()
+    if spec is None:
+        return None
+    from plants.model_file import ModelError, shared_model
+
+    try:
+        return shared_model(spec)
+    except ModelError as e:
+        raise ValueError(str(e)) from None
+
+
+def check_model_robot(model: Artifact, robot: Robot) -> None:
+    """A fit's GP is of this robot (its data's plant, or the model file's robot by name: file and spec),
+    else ``ValueError``: a model of another robot with as many joints would plan silently wrong."""
+    try:
+        fitted = model.document("fit.json").get("plant")
+    except (OSError, ValueError, KeyError):
+        return  # a fit without its document: the dimensions are still checked by the learned dynamics
+    if fitted is not None and fitted != robot.name:
+        raise ValueError(f"--model {model.key} is a GP of {fitted}, this problem's robot is {robot.name}: "
+                         "fit it on data of this robot")
 
 
 def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
@@ -402,6 +428,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     robot, task = robot_and_task(cfg)
     q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed)
     params = model.arrays("model.npz") if model is not None else None
+    if model is not None:
+        check_model_robot(model, robot)
     dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
@@ -416,6 +444,9 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if robot.spec is not None:  # a model file's robot: execute, evaluate and the recordings rebuild it
         desc.update(plant=robot.name, robot=robot.spec.to_dict(), load_report=list(robot.load_report))
+        true_spec = cfg.problem_file().true_spec()
+        if true_spec is not None:  # the robot that executes the plan: the file's with [robot.true]'s changes
+            desc["robot_true"] = true_spec.to_dict()
     if balance is not None:
         desc["balance"] = balance.to_dict()
     return robot, task, problem, q0, desc
