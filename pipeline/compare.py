@@ -163,12 +163,12 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     from pipeline import rerun_io as rec_mod
     from pipeline.recorders import task_plots
     from planning.objective import objective_from_description
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     data = [_trajectory(cache, r) for r in runs]
     views3d, joints_of, digest = [], {}, hashlib.sha256("".join(r.ref for r in runs).encode()).hexdigest()[:12]
     for r, d, color in zip(runs, data, RUN_COLORS):
-        robot = shared_robot(d["plant"])
+        robot = robot_for(d["desc"])  # a built-in plant by name, a model file's robot by its spec
         n = robot.n_q
         X = np.nan_to_num(d["X"], nan=0.0, posinf=0.0, neginf=0.0)
         d.update(robot=robot, Q=X[:, :n], objective=objective_from_description(d["desc"], robot), color=color)

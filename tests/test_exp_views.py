@@ -236,3 +236,29 @@ def test_bad_input_to_the_views_is_one_line_and_exit_2(arts, args, needle):
     assert res.exit_code == 2, res.output
     assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: ") and needle in res.stderr, res.stderr
     assert not res.stdout
+
+
+def test_compare_a_model_file_robot(tmp_path):
+    """The README's UR5 example (a robot from a model file): two plans side by side, its joints in the recording."""
+    import json
+
+    pytest.importorskip("example_robot_data")
+    problem = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
+    keys = []
+    for solver in ("raico", "ilqg"):
+        res = invoke("plan", "--problem", problem, "--solver", solver, "--iterations", 2, "--no-record", "--json",
+                     "--artifacts", tmp_path)
+        assert res.exit_code == 0, res.output
+        keys.append(json.loads(res.stdout)["key"])
+    out = tmp_path / "ur5.rrd"
+    res = invoke("compare", *keys, "--out", out, "--json", "--artifacts", tmp_path)
+    assert res.exit_code == 0, res.output
+    runs = json.loads(res.stdout)["runs"]
+    assert sorted(runs.values()) == sorted(f"plan/{k}" for k in keys)
+    entities = {c.entity_path for c in _chunks(out)}
+    from pipeline.compare import _path
+
+    for label in runs:
+        base = "/" + _path(label)
+        assert {f"{base}/joints/{j}" for j in ("shoulder_pan_joint", "elbow_joint", "wrist_3_joint")} <= entities
+        assert any(e.startswith(f"{base}/world/robot/") for e in entities)
