@@ -11,6 +11,7 @@ round. Keyword arguments are the stage's config fields (``raico <stage> --help``
     X = api.arrays(e, "rollout.npz")["X"]            # executed states (T+1, n_x)
     l = api.learn(plant="biorob", task="reach", episodes=20, alpha=2.0)
     rows = api.reproduce(["fig3.2a"], quick=True)     # one summary per figure
+    api.show_png(p.key, "plan.png", time=0.5)         # the recording as the viewer opens it, headless
 
 Each returns a :class:`pipeline.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
 ``recording``: the ``.rrd`` to open in the Rerun viewer, or in a notebook with ``rerun-notebook``).
@@ -30,7 +31,7 @@ import numpy as np
 from pipeline.cache import Cache
 from pipeline.runner import Outcome
 
-__all__ = ["arrays", "babble", "evaluate", "execute", "fit", "learn", "plan", "reproduce", "run"]
+__all__ = ["arrays", "babble", "evaluate", "execute", "fit", "learn", "plan", "reproduce", "run", "show_png"]
 
 
 def _cache(artifacts: str | Path | None) -> Cache:
@@ -117,6 +118,23 @@ def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bo
 
     return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
                         executor=executor, reporter=Reporter(quiet)))
+
+
+def show_png(ref: str, png: str | Path, time: float | None = None, artifacts: str | Path | None = None) -> Path:
+    """A cached run's recording (``ref``: ``KEY``, a key prefix or ``STAGE/KEY``) rendered headless as the
+    Rerun viewer opens it, saved as ``png`` (1920 x 1080), the time cursor at ``time`` s of ``sim_time``
+    if given (``raico show KEY --png PNG --time T``). The recording is written from the entry's data if
+    missing. Raises :class:`pipeline.errors.RaicoError` with one line naming what is missing where it
+    cannot render (no Vulkan driver, no ``rerun`` executable), ``ValueError`` for a run without one."""
+    from pipeline import runner
+    from pipeline.screenshots import render_png
+
+    cache = _cache(artifacts)
+    entry = runner.find_entry(cache, ref)
+    rec = runner.ensure_recording(cache, entry)
+    if rec is None:
+        raise ValueError(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
+    return render_png(rec, png, time)
 
 
 def arrays(outcome: Outcome, name: str) -> dict[str, np.ndarray]:

@@ -667,23 +667,48 @@ def show(
     ref: Annotated[str, typer.Argument(help="STAGE/KEY or KEY of a cached artifact.")],
     artifacts: Artifacts = None,
     open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
+    png: Annotated[Path | None, typer.Option("--png", help="Render the recording headless, as the viewer opens "
+                                             "it, to this PNG (1920 x 1080; needs a Vulkan driver).")] = None,
+    at: Annotated[float | None, typer.Option("--time", help="With --png: the time cursor at T s of sim_time.")]
+    = None,
 ):
-    """Print an artifact's meta.json and recording path, or open its recording in Rerun."""
+    """Print an artifact's meta.json and recording path, open its recording in Rerun, or render it to a PNG."""
     from pipeline import runner
     from pipeline.ui import Reporter
+    if open_ and png is not None:
+        raise BadInput("give --open or --png, not both")
+    if at is not None and png is None:
+        raise BadInput("--time goes with --png")
+    if png is not None and png.suffix.lower() != ".png":
+        raise BadInput(f"--png {png}: a .png file")
+    if at is not None and not (at >= 0 and at < float("inf")):
+        raise BadInput(f"--time {at}: a time in s, at least 0")
     cache = open_cache(artifacts)
     cache.notify = Reporter().say
     entry = runner.find_entry(cache, ref)
     rrd = entry.path / "recording.rrd"
-    if open_:
+    if open_ or png is not None:
         rec = runner.ensure_recording(cache, entry)
         if rec is None:
             raise BadInput(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
+        if png is not None:
+            from pipeline.screenshots import render_png
+
+            check_folder(png.parent, "output folder")
+            Reporter().say(f"show {entry.stage}/{entry.key}: {render_png(rec, png, at)}")
+            return
         open_viewer(rec)
         return
+    config = dict(entry.meta.get("config") or {})
+    if isinstance(config.get("problem"), str):  # a problem file's content, stored as canonical JSON text
+        try:
+            config["problem"] = json.loads(config["problem"])
+        except ValueError:
+            pass
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,
                            **{k: entry.meta.get(k) for k in ("stage", "key", "config", "inputs",
-                                                             "status", "metrics", "timings")}},
+                                                             "status", "metrics", "timings")},
+                           "config": config},
                           indent=2, default=str))
 
 

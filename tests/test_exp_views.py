@@ -238,27 +238,47 @@ def test_bad_input_to_the_views_is_one_line_and_exit_2(arts, args, needle):
     assert not res.stdout
 
 
-def test_compare_a_model_file_robot(tmp_path):
-    """The README's UR5 example (a robot from a model file): two plans side by side, its joints in the recording."""
+@pytest.fixture(scope="module")
+def ur5_plans(tmp_path_factory) -> tuple[Path, list[str]]:
+    """The README's UR5 example (a robot from a model file) planned by R-AICO and iLQG, 2 iterations each."""
     import json
 
     pytest.importorskip("example_robot_data")
+    arts = tmp_path_factory.mktemp("ur5")
     problem = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
     keys = []
     for solver in ("raico", "ilqg"):
         res = invoke("plan", "--problem", problem, "--solver", solver, "--iterations", 2, "--no-record", "--json",
-                     "--artifacts", tmp_path)
+                     "--artifacts", arts)
         assert res.exit_code == 0, res.output
         keys.append(json.loads(res.stdout)["key"])
+    return arts, keys
+
+
+def test_compare_a_model_file_robot(ur5_plans, tmp_path):
+    import json
+
+    from pipeline.compare import _path
+
+    arts, keys = ur5_plans
     out = tmp_path / "ur5.rrd"
-    res = invoke("compare", *keys, "--out", out, "--json", "--artifacts", tmp_path)
+    res = invoke("compare", *keys, "--out", out, "--json", "--artifacts", arts)
     assert res.exit_code == 0, res.output
     runs = json.loads(res.stdout)["runs"]
     assert sorted(runs.values()) == sorted(f"plan/{k}" for k in keys)
     entities = {c.entity_path for c in _chunks(out)}
-    from pipeline.compare import _path
-
     for label in runs:
         base = "/" + _path(label)
         assert {f"{base}/joints/{j}" for j in ("shoulder_pan_joint", "elbow_joint", "wrist_3_joint")} <= entities
         assert any(e.startswith(f"{base}/world/robot/") for e in entities)
+
+
+def test_show_prints_a_problem_file_as_json(ur5_plans):
+    import json
+
+    arts, keys = ur5_plans
+    res = invoke("show", keys[0], "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    problem = json.loads(res.stdout)["config"]["problem"]
+    assert problem["name"] == "ur5-reach" and problem["costs"]["terms"]["reach"]["frame"] == "tool0"
+    assert '\\"' not in res.stdout   # no JSON text escaped inside a string
