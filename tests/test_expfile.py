@@ -334,3 +334,32 @@ needs = "crocoddyl"
                              ('claims = ["raico_converges",', 'claims = [3,', "claim 3 is neither a name")):
         with pytest.raises(BadInput, match=re.escape(needle)):
             expfile.load(write(tmp_path, text.replace(old, new), "bad.toml"))
+
+
+def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeypatch):
+    """An entry of another version (a field or value this version refuses) counts as "nothing unused" and an
+    unknown stage as "every field"; any other error is not swallowed."""
+    from stages import registry
+
+    cfg = {"plant": "arm5", "task": "reach", "solver": "ilqg", "alpha": 0.5}
+    assert expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}}) == {"alpha"}   # iLQG's alpha
+
+    def old(name):
+        raise TypeError("__init__() got an unexpected keyword argument 'sigma'")
+
+    monkeypatch.setattr(registry, "get_stage", old)
+    assert expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}}) == set()
+
+    def broken(name):
+        raise RuntimeError("a bug, not an old entry")
+
+    monkeypatch.setattr(registry, "get_stage", broken)
+    with pytest.raises(RuntimeError, match="a bug"):
+        expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}})
+    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    with pytest.raises(RuntimeError, match="a bug"):
+        expfile._configs(None, {"keys": {"execute": "k"}}, "plan")
+    monkeypatch.undo()
+    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    assert expfile._configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
+    assert expfile._configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
