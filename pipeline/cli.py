@@ -484,9 +484,10 @@ def exp_diff(
 @handles_errors
 def plot(
     experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
-    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds; curve: "
-                                      "cost per iteration per group (log axis); box: a box and the runs per "
-                                      "group.")] = "line",
+    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds (points "
+                                      "and error bars on a categorical option); curve: cost per iteration per "
+                                      "group (log axis); wall: cost against wall time per group; box: a box and "
+                                      "the runs per group.")] = "line",
     x: Annotated[str | None, typer.Option("--x", help="The swept option on the x axis (--kind line).")] = None,
     metric: Annotated[str, typer.Option("--metric", "-m", help="The runs table's column plotted (line, box).")]
     = "plan.final_cost",
@@ -496,6 +497,8 @@ def plot(
     = None,
     yscale: Annotated[str, typer.Option("--yscale", help="auto (log when the values span two decades; curve: "
                                         "log), linear or log.")] = "auto",
+    ylim: Annotated[str | None, typer.Option("--ylim", help="LO,HI: the value axis's range (default: the data's; "
+                                             "curve and wall: the finite values that do not explode).")] = None,
     out: Annotated[Path | None, typer.Option("--out", "-o", help="The PNG to write (default: artifacts/exp/NAME/"
                                              "KIND-METRIC.png).")] = None,
     artifacts: Artifacts = None, quiet: Quiet = False,
@@ -511,6 +514,7 @@ def plot(
         raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
     if out is not None and out.suffix.lower() != ".png":
         raise BadInput(f"--out {out}: a .png file")
+    limits = plots.parse_ylim(ylim)
     cache = open_cache(artifacts)
     df, swept = expfile.read_table(cache, experiment)
     name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
@@ -521,23 +525,27 @@ def plot(
             raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
     elif x is not None:
         raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
-    if kind != "curve" and metric not in expfile.metric_columns(df):
+    if kind in ("line", "box") and metric not in expfile.metric_columns(df):
         raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
                        f"metrics: {', '.join(expfile.metric_columns(df))}")
     df = expfile.query(df, where)
     if not len(df):
         raise BadInput(f"--where '{where}' keeps no run")
-    what = {"line": metric, "curve": "cost", "box": metric}[kind]
+    what = {"line": metric, "curve": "cost", "wall": "cost", "box": metric}[kind]
     out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
     check_folder(out.parent, "output folder")
     if kind == "line":
-        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale)
+        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale, limits)
     elif kind == "curve":
-        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale)
+        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale, limits)
+    elif kind == "wall":
+        drawn = plots.wall_plot(df, swept, out, name, cache, group, yscale, limits)
     else:
-        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale)
-    Reporter(quiet).say(f"plot {name}: {kind} of {what}{' against ' + x if x else ''}, {len(df)} runs in "
-                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}")
+        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale, limits)
+    against = f" against {x}" if x else " against wall time" if kind == "wall" else ""
+    Reporter(quiet).say(f"plot {name}: {kind} of {what}{against}, {len(df)} runs in "
+                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}"
+                        + (f" ({drawn.clipped})" if drawn.clipped else ""))
 
 
 @app.command("compare")
