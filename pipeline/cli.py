@@ -53,6 +53,7 @@ from pipeline.errors import (
     MissingArtifact,
     RaicoError,
     StorageError,
+    check_folder,
     install_signal_handlers,
     interrupt_in,
     os_error_text,
@@ -279,18 +280,6 @@ def open_cache(artifacts: str | Path | None) -> Cache:
     return Cache(root)
 
 
-def check_folder(path: Path, what: str) -> None:
-    """:class:`StorageError` if ``path`` exists as something other than a folder, or if one of its
-    parents is a file (it could never be created)."""
-    for p in (path, *path.parents):
-        try:
-            if p.exists() and not p.is_dir():
-                where = "is" if p == path else f"lies below {p}, which is"
-                raise StorageError(f"{what} {path} {where} a file, not a folder")
-        except OSError as e:
-            raise StorageError(f"{what} {path}: {os_error_text(e)}") from None
-
-
 @app.command()
 @handles_errors
 def reproduce(
@@ -389,20 +378,11 @@ def exp_run(
             typer.echo(json.dumps(summary))
         return
     pool = make_executor(executor, jobs)   # its workers start at the first run that is not cached
-    with reporter.board() as board:
-        def progress(done: int, total: int, label: str | None) -> None:
-            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
-            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
-
-        rows = expfile.run(cache, exp, pool, record=record, progress=progress)
+    rows = expfile.run_reported(cache, exp, pool, record, reporter)
     summary = summary_of(sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows))
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     out = expfile.table_dir(cache, exp.name)
-    reporter.say(f"exp {exp.name}: {len(rows)} runs ({summary['cached']} cached; {len(failed)} failed, of them "
-                 f"{len(errors)} with an error) -> {out / 'runs.csv'}")
-    for r in errors[:5]:
-        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     if json_:
         typer.echo(json.dumps({**summary, "failed": len(failed), "errors": len(errors),
                                "table": str(out / "runs.csv")}))
@@ -505,47 +485,14 @@ def plot(
 ):
     """Plot an experiment's runs table: a metric against a swept option (median line, interquartile band over
     seeds), the cost per iteration per group, or a box per group. Legends name the options that differ."""
-    from pipeline import expfile, plots
+    from pipeline import plots
     from pipeline.ui import Reporter
 
-    if kind not in plots.KINDS:
-        raise BadInput(f"--kind {kind}: choose one of {', '.join(plots.KINDS)}")
-    if yscale not in ("auto", "linear", "log"):
-        raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
     if out is not None and out.suffix.lower() != ".png":
         raise BadInput(f"--out {out}: a .png file")
-    limits = plots.parse_ylim(ylim)
     cache = open_cache(artifacts)
-    df, swept = expfile.read_table(cache, experiment)
-    name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
-    if kind == "line":
-        if x is None:
-            raise BadInput(f"--kind line needs --x OPTION: one of the swept options {', '.join(swept) or '(none)'}")
-        if x not in df.columns:
-            raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
-    elif x is not None:
-        raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
-    if kind in ("line", "box") and metric not in expfile.metric_columns(df):
-        raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
-                       f"metrics: {', '.join(expfile.metric_columns(df))}")
-    df = expfile.query(df, where)
-    if not len(df):
-        raise BadInput(f"--where '{where}' keeps no run")
-    what = {"line": metric, "curve": "cost", "wall": "cost", "box": metric}[kind]
-    out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
-    check_folder(out.parent, "output folder")
-    if kind == "line":
-        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale, limits)
-    elif kind == "curve":
-        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale, limits)
-    elif kind == "wall":
-        drawn = plots.wall_plot(df, swept, out, name, cache, group, yscale, limits)
-    else:
-        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale, limits)
-    against = f" against {x}" if x else " against wall time" if kind == "wall" else ""
-    Reporter(quiet).say(f"plot {name}: {kind} of {what}{against}, {len(df)} runs in "
-                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}"
-                        + (f" ({drawn.clipped})" if drawn.clipped else ""))
+    drawn = plots.plot_experiment(cache, experiment, kind, x, metric, group, where, yscale, ylim, out)
+    Reporter(quiet).say(drawn.line)
 
 
 @app.command("compare")
@@ -570,21 +517,10 @@ def compare(
     from pipeline import compare as cmp
     from pipeline.ui import Reporter
 
-    if exp is None and (where is not None or stage is not None):
-        raise BadInput("--where and --stage go with --exp NAME")
-    if exp is not None and keys:
-        raise BadInput("give keys or --exp NAME, not both")
-    if stage is not None and stage not in cmp.STAGES:
-        raise BadInput(f"--stage {stage}: choose one of {', '.join(cmp.STAGES)}")
     if out is not None and out.suffix != ".rrd":
         raise BadInput(f"--out {out}: a .rrd file")
     cache = open_cache(artifacts)
-    refs = cmp.runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
-    runs = cmp.load_runs(cache, refs)
-    cmp.label_runs(runs)
-    out = out or cmp.default_path(cache, runs)
-    check_folder(out.parent, "output folder")
-    path = cmp.write(cache, runs, out)
+    path, runs = cmp.compare(cache, list(keys or []), exp, where, stage, out)
     reporter = Reporter(quiet)
     reporter.say(f"compare: {len(runs)} runs -> {path}")
     for r in runs:

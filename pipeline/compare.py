@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import BadInput
+from pipeline.errors import BadInput, check_folder
 
 MAX_RUNS = 9
 STAGES = ("plan", "execute")   # what can be compared: stages with a trajectory
@@ -229,3 +229,24 @@ def default_path(cache, runs: list[Run]) -> Path:
     """``artifacts/compare/<12 hex of the runs' keys>.rrd``: the same runs, the same file."""
     digest = hashlib.sha256("\n".join(r.ref for r in runs).encode()).hexdigest()[:12]
     return cache.root / "compare" / f"{digest}.rrd"
+
+
+def compare(cache, keys: list[str], exp: str | None = None, where: str | None = None, stage: str | None = None,
+            out: Path | None = None) -> tuple[Path, list[Run]]:
+    """``raico compare``: the recording of the runs ``keys`` (or those of experiment ``exp`` that ``where``
+    keeps, of ``stage``) at ``out`` (default :func:`default_path`), and the runs with their labels;
+    :class:`BadInput` on bad input."""
+    if exp is None and (where is not None or stage is not None):
+        raise BadInput("--where and --stage go with --exp NAME")
+    if exp is not None and keys:
+        raise BadInput("give keys or --exp NAME, not both")
+    if stage is not None and stage not in STAGES:
+        raise BadInput(f"--stage {stage}: choose one of {', '.join(STAGES)}")
+    if out is not None and Path(out).suffix != ".rrd":
+        raise BadInput(f"--out {out}: a .rrd file")
+    refs = runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
+    runs = load_runs(cache, refs)
+    label_runs(runs)
+    out = Path(out) if out is not None else default_path(cache, runs)
+    check_folder(out.parent, "output folder")
+    return write(cache, runs, out), runs

@@ -490,6 +490,25 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     return rows
 
 
+def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
+    """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
+    its outcome said: runs, cached, failed, errors (the first five with their reason) and the table."""
+    with reporter.board() as board:
+        def progress(done: int, total: int, label: str | None) -> None:
+            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
+            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+
+        rows = run(cache, exp, executor, record=record, progress=progress)
+    cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
+    errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
+    failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
+    reporter.say(f"exp {exp.name}: {len(rows)} runs ({cached} cached; {len(failed)} failed, of them "
+                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / 'runs.csv'}")
+    for r in errors[:5]:
+        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
+    return rows
+
+
 # ----------------------------------------------------------------------------- the runs table
 def _flat(prefix: str, value: Any, out: dict[str, Any]) -> None:
     """Scalar metrics as columns: numbers, booleans and short strings; dicts of them as ``prefix.key``."""

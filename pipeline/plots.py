@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import BadInput
+from pipeline.errors import BadInput, check_folder
 
 KINDS = ("line", "curve", "wall", "box")
 EXPLODE_DECADES = 3.0  # a value this many decades above the bulk's upper quartile (or more) is exploding
@@ -52,6 +52,7 @@ class Plot:
     series: dict[str, dict[str, Any]] = field(default_factory=dict)
     clipped: str = ""  # what the value axis leaves out ("" if nothing), as the figure says it
     limits: tuple[float, float] | None = None  # the value axis's range where it was set (--ylim, or clipped)
+    line: str = ""  # what raico plot says of it (plot_experiment)
 
 
 @dataclass
@@ -546,3 +547,53 @@ def box_plot(df, swept: list[str], metric: str, out: Path, name: str, cache=None
 
 def _cycle(n: int) -> list[str]:
     return [COLORS[i % len(COLORS)] for i in range(n)]
+
+
+def plot_experiment(cache, experiment: str, kind: str = "line", x: str | None = None,
+                    metric: str = "plan.final_cost", group: Sequence[str] | None = None, where: str | None = None,
+                    yscale: str = "auto", ylim: str | tuple[float, float] | None = None,
+                    out: str | Path | None = None) -> Plot:
+    """``raico plot``: the figure of experiment ``experiment``'s runs table (its name or file) at ``out``
+    (default ``artifacts/exp/NAME/KIND-METRIC[-X].png``), with the line the command prints
+    (:attr:`Plot.line`); :class:`BadInput` with the command's message on bad input."""
+    from pipeline import expfile
+
+    if kind not in KINDS:
+        raise BadInput(f"--kind {kind}: choose one of {', '.join(KINDS)}")
+    if yscale not in ("auto", "linear", "log"):
+        raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
+    out = Path(out) if out is not None else None
+    if out is not None and out.suffix.lower() != ".png":
+        raise BadInput(f"--out {out}: a .png file")
+    limits = parse_ylim(ylim) if isinstance(ylim, str) or ylim is None else parse_ylim(",".join(map(str, ylim)))
+    df, swept = expfile.read_table(cache, experiment)
+    name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
+    if kind == "line":
+        if x is None:
+            raise BadInput(f"--kind line needs --x OPTION: one of the swept options {', '.join(swept) or '(none)'}")
+        if x not in df.columns:
+            raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
+    elif x is not None:
+        raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
+    if kind in ("line", "box") and metric not in expfile.metric_columns(df):
+        raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
+                       f"metrics: {', '.join(expfile.metric_columns(df))}")
+    df = expfile.query(df, where)
+    if not len(df):
+        raise BadInput(f"--where '{where}' keeps no run")
+    what = {"line": metric, "curve": "cost", "wall": "cost", "box": metric}[kind]
+    out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
+    check_folder(out.parent, "output folder")
+    if kind == "line":
+        drawn = line_plot(df, swept, x, metric, out, name, cache, group, yscale, limits)
+    elif kind == "curve":
+        drawn = curve_plot(df, swept, out, name, cache, group, yscale, limits)
+    elif kind == "wall":
+        drawn = wall_plot(df, swept, out, name, cache, group, yscale, limits)
+    else:
+        drawn = box_plot(df, swept, metric, out, name, cache, group, yscale, limits)
+    against = f" against {x}" if x else " against wall time" if kind == "wall" else ""
+    drawn.line = (f"plot {name}: {kind} of {what}{against}, {len(df)} runs in {len(drawn.series)} "
+                  f"group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}"
+                  + (f" ({drawn.clipped})" if drawn.clipped else ""))
+    return drawn
