@@ -338,8 +338,9 @@ app.add_typer(exp_app, name="exp")
 @handles_errors
 def exp_run(
     file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/expfile.py).")],
-    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Override or add a grid axis: KEY=A,B or "
-                                                   "KEY=range(N); seeds=range(N) sets the seeds.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Add values to a grid axis of the file, or "
+                                                   "a new axis (over [base]'s value): KEY=A,B or KEY=range(N); "
+                                                   "seeds=range(N) sets the seeds.")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would run (variants, runs, cached, to "
                                           "compute); run nothing.")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers.")] = 2,

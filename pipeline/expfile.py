@@ -243,7 +243,9 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
         key, values = parse_override(text)
         if key == "seeds":
             seeds = _seeds(values)
-        else:
+        elif isinstance(grid.get(key), list):   # a grid axis of the file: its values and these
+            grid[key] = [*grid[key], *(v for v in values if v not in grid[key])]
+        else:   # a new axis (over [base]'s value or a [zip] list's)
             zipped.pop(key, None)
             grid[key] = values
     for table, what in ((grid, "grid"), (zipped, "zip")):

@@ -149,12 +149,27 @@ def test_run_twice_computes_nothing_and_a_new_value_computes_only_its_runs(tmp_p
     assert "ilqg" not in text and "alpha=50.0" not in text and "plan.final_cost (IQR)" in text
 
 
+def test_set_adds_a_grid_value_and_the_table_keeps_the_others(tmp_path):
+    """``-S alpha=3`` adds 3 to the file's alpha axis (as the README says): the runs table keeps the file's
+    variants (cached) beside the new one's runs; a key that is no grid axis becomes one."""
+    f = write(tmp_path, ARM.replace('stages = ["plan", "execute"]', 'stages = ["plan"]'))
+    arts = tmp_path / "arts"
+    assert invoke("exp", "run", f, "--jobs", 1, "--artifacts", arts).exit_code == 0
+    res = invoke("exp", "run", f, "-S", "alpha=3", "--jobs", 1, "--json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.splitlines()[-1])
+    assert (line["variants"], line["runs"], line["cached"]) == (4, 8, 6)
+    table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv")
+    assert sorted(set(table["variant"])) == ["alpha=0.5", "alpha=3", "alpha=5.0", "ilqg"] and len(table) == 8
+    exp = expfile.load(f, ["iterations=2,3"])
+    assert exp.grid == {"alpha": [0.5, 5.0], "iterations": [2, 3]}
+
+
 def test_a_failing_run_is_a_row_and_the_others_go_on(tmp_path):
     f = write(tmp_path, ARM.replace('[[point]]\nlabel = "ilqg"\nsolver = "ilqg"\n', "")
-              + '[execute]\ncontroller = "pd"\n')
+              .replace("alpha = [0.5, 5.0]", "alpha = [0.5]") + '[execute]\ncontroller = "pd"\n')
     arts = tmp_path / "arts"
-    res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "-S", "alpha=0.5", "--jobs", 1,
-                 "--artifacts", arts)
+    res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "--jobs", 1, "--artifacts", arts)
     assert res.exit_code == 1
     assert "error: alpha=0.5, execute.controller=wbc seed 0: execute: --controller wbc is for plans" in res.stderr
     assert "4 runs (0 cached; 2 failed, of them 2 with an error)" in res.stderr
