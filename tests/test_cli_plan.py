@@ -350,3 +350,23 @@ def test_every_command_has_help(command):
         text = " ".join(res.output.split())
         assert "nao: balance- inside" in text or "nao: balance-inside" in text
         assert "pendulum: swing-" in text
+
+
+def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_path):
+    """A diverged plan's reason is in its outcome line (not only in `raico show`); `raico evaluate` prints the
+    final cost and the worst via-point error with its term."""
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "analytic", "--solver",
+                              "aico", "--iterations", "3", "--no-record", "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout)
+    assert line["status"] == "diverged" and line["metrics"]["message"]
+    assert f"[diverged; reason: {line['metrics']['message']}]" in res.stderr
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--iterations", "2", "--no-record",
+                              "--json", "--artifacts", str(tmp_path)])
+    plan = json.loads(res.stdout)
+    res = runner.invoke(app, ["evaluate", "--plan", plan["key"], "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.stdout)["metrics"]
+    name, err = max(m["via_point_errors"].items(), key=lambda kv: kv[1])
+    assert f"[ok; final cost {m['final_cost']:.4g}; worst planned via-point error {err:.3g} ({name})]" in res.stderr
+    assert m["final_cost"] == pytest.approx(plan["metrics"]["final_cost"], rel=1e-12)
