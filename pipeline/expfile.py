@@ -425,16 +425,38 @@ def _run_chain(args) -> dict:
     from pipeline.cache import Cache
     from pipeline.errors import RaicoError
 
+    from stages.plan.stage import load_notes_said
+
     cache, out, refs = Cache(root), {}, {}
-    for stage in stages:
-        try:
-            outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
-        except (RaicoError, ValueError, ArithmeticError) as e:
-            out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
-            break
-        out[stage] = dataclasses.asdict(outcome)
-        refs[stage] = f"{stage}/{outcome.key}"
+    with load_notes_said():   # the experiment said the model file's load report once (run_reported)
+        for stage in stages:
+            try:
+                outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
+            except (RaicoError, ValueError, ArithmeticError) as e:
+                out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
+                break
+            out[stage] = dataclasses.asdict(outcome)
+            refs[stage] = f"{stage}/{outcome.key}"
     return out
+
+
+def model_notes(exp: Experiment) -> list[str]:
+    """What loading the experiment's model-file robots changed (each line once, the first stage a plan)."""
+    if exp.stages[0] != "plan":
+        return []
+    from stages.plan.stage import load_notes, robot_and_task
+
+    lines: list[str] = []
+    for v in exp.variants:
+        cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
+        if getattr(cfg, "problem", None) is None:
+            continue
+        try:
+            robot, _ = robot_and_task(cfg)
+        except ValueError:   # the run says why, in its row
+            continue
+        lines += [ln for ln in load_notes(robot) if ln not in lines]
+    return lines
 
 
 def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
@@ -494,7 +516,10 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
 
 def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
     """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
-    its outcome said: runs, cached, failed, errors (the first five with their reason) and the table."""
+    its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
+    loading a model file changed is said once, before the runs (not by each run)."""
+    for line in model_notes(exp):
+        reporter.say(line)
     with reporter.board() as board:
         def progress(done: int, total: int, label: str | None) -> None:
             line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")

@@ -378,3 +378,19 @@ def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeyp
     monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
     assert expfile._configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
     assert expfile._configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
+
+
+def test_a_model_file_s_load_report_is_said_once_per_experiment(tmp_path):
+    pytest.importorskip("example_robot_data")
+    problem = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
+    f = write(tmp_path, f'name = "ur5"\nstages = ["plan"]\nseeds = "range(3)"\n[base]\nproblem = "{problem}"\n'
+                        'iterations = 1\nq0_std = 0.01\n')
+    res = invoke("exp", "run", f, "--executor", "serial", "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 0, res.output
+    assert "3 runs (0 cached" in res.stderr
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("raico: note: ur5_robot.urdf: ")]
+    assert notes and len(notes) == len(set(notes)), res.stderr   # each line of the load report once, not per run
+    # a single plan still says it
+    res = invoke("plan", "--problem", problem, "--iterations", 1, "--seed", 7, "--no-record", "--artifacts",
+                 tmp_path / "arts")
+    assert [ln for ln in res.stderr.splitlines() if ln.startswith("raico: note: ur5_robot.urdf: ")] == notes

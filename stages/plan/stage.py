@@ -371,6 +371,28 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
 
 
+_LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an experiment says it once instead
+
+
+def load_notes(robot: Robot) -> list[str]:
+    """The lines saying what loading ``robot``'s model file changed (none for a built-in plant)."""
+    if robot.spec is None:
+        return []
+    return [f"raico: note: {Path(robot.spec.file).name}: {line}" for line in robot.load_report]
+
+
+class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib's
+    """Within it, plan() does not say the model file's load report (the experiment said it once)."""
+
+    def __enter__(self):
+        self.before, _LOAD_NOTES["say"] = _LOAD_NOTES["say"], False
+        return self
+
+    def __exit__(self, *exc):
+        _LOAD_NOTES["say"] = self.before
+        return False
+
+
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
     """The robot and the task of ``cfg``: a built-in plant's shipped task, or a problem file's."""
     if cfg.problem is None:
@@ -429,7 +451,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     earlier plan of the same horizon: its controls are the initial guess, and with
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
     robot, task, problem, q0, desc = build_problem(cfg, model)
-    for line in desc.get("load_report", []):  # what loading the model file changed, said once per run
+    for line in desc.get("load_report", []) if _LOAD_NOTES["say"] else []:  # what loading the model file changed
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
