@@ -424,7 +424,6 @@ def _run_chain(args) -> dict:
     from pipeline import runner
     from pipeline.cache import Cache
     from pipeline.errors import RaicoError
-
     from stages.plan.stage import load_notes_said
 
     cache, out, refs = Cache(root), {}, {}

@@ -459,13 +459,23 @@ def curve_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[s
     return _save(fig, out, series, clip)
 
 
+def cost_at_times(C: np.ndarray, E: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``(runs, times)``: per run the cost of its last iteration finished by each time of ``grid``
+    (``E``: each iteration's end, s since the run started); NaN before its first."""
+    at = np.full((C.shape[0], grid.size), np.nan)
+    for i in range(C.shape[0]):
+        e = np.where(np.isfinite(E[i]), E[i], np.inf)
+        k = np.searchsorted(e, grid, side="right") - 1
+        ok = k >= 0
+        at[i, ok] = C[i, k[ok]]
+    return at
+
+
 def wall_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[str] | None = None,
               yscale: str = "log", ylim: tuple[float, float] | None = None, points: int = 200) -> Plot:
     """The cost against wall time: per run the cost of its last iteration finished by each time of a
     log-spaced grid (s, the solver's own clock), median and interquartile band over the runs of each group
     where at least half of them have one; the cost axis clipped as :func:`curve_plot`'s."""
-    from pipeline.report import cost_at_times
-
     if "plan.key" not in df.columns:
         raise BadInput(f"{name}: no plan runs in the table (--kind wall plots the plans' cost against wall time)")
     grouped = groups(df, grouping(df, swept, by))

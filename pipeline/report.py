@@ -23,6 +23,7 @@ from pipeline.experiments import (
     cost_curves,
     summarize,
 )
+from pipeline.plots import clip_range, cost_at_times
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 
 
@@ -170,18 +171,6 @@ def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[di
     return out
 
 
-def cost_at_times(C: np.ndarray, E: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """``(runs, times)``: per run the cost of its last iteration finished by each time of ``grid``
-    (``E``: each iteration's end, s since the run started); NaN before its first."""
-    at = np.full((C.shape[0], grid.size), np.nan)
-    for i in range(C.shape[0]):
-        e = np.where(np.isfinite(E[i]), E[i], np.inf)
-        k = np.searchsorted(e, grid, side="right") - 1
-        ok = k >= 0
-        at[i, ok] = C[i, k[ok]]
-    return at
-
-
 def wall_panel_data(cache: Cache, exp: Experiment, plans: list[dict], points: int = 300) -> list[dict]:
     """What the cost-against-wall-time panel draws, per variant: ``label``, ``color``, ``runs``,
     ``times`` (a log-spaced grid common to the figure), ``median``/``q25``/``q75`` of
@@ -253,8 +242,6 @@ def _clipped_limits(drawn: list[np.ndarray], first: list[float]) -> tuple[tuple[
     """The log cost axis of a panel: the finite values drawn that do not explode (``raico plot``'s
     :func:`pipeline.plots.clip_range`; ``first``: each variant's first finite median), padded a quarter
     decade, and what it leaves out ("" if nothing)."""
-    from pipeline.plots import clip_range
-
     v = np.concatenate([np.ravel(np.asarray(x, float)) for x in drawn]) if drawn else np.zeros(0)
     v = v[np.isfinite(v) & (v > 0)]   # NaN and non-positive values are gaps in the lines, not clipped
     clip = clip_range(v, log=True, first=np.asarray(first, float))
