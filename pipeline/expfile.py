@@ -507,7 +507,8 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
         return (yield Batch("run", jobs))
 
     events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
-    results = run_flow(executor, flow(), events, scheduled=len(runs))
+    # an interrupt kills the workers; their temporary folders go with them (cleanup_stale), not at the next call
+    results = run_flow(executor, flow(), events, on_abort=cache.cleanup_stale, scheduled=len(runs))
     rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
     write_table(cache, exp, rows)
     return rows
