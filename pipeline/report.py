@@ -304,11 +304,14 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     ax_of = dict(zip(panels, axes.ravel()))
 
     thesis = [r for r in rows if r["thesis"]]
+    # the budget the runs had (--quick: its profile's, not the full figure's)
+    budget = next((p["iterations"] for p in plans if p.get("iterations") and p["variant"].iterations is None),
+                  exp.iterations)
     _cost_panel(ax_of["cost"], exp, thesis, f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics}), the thesis's "
-                f"solvers at the figure's budget ({exp.iterations} iterations)")
+                f"solvers at the figure's budget ({budget} iterations)")
     if "beyond" in ax_of:
         _cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
-                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=exp.iterations,
+                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=budget,
                     stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
     if "wall" in ax_of:
         _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)

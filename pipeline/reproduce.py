@@ -74,6 +74,7 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     if _record_call(root, done, time.perf_counter() - t0, cpu_seconds(cpu0, cpu1) if local else None,
                     cpu_seconds(cpu0, cpu1, children=False), jobs, fresh and not quick and len(done) == len(ALL_IDS)):
         write_readme(root, reporter)
+    reporter.say(f"raico: report: {root / 'README.md'}")   # the last line: where to read the results
 
 
 CALL = "this call"  # timings.json's entry of the whole reproduce call (the figures' entries are keyed by id)

@@ -280,6 +280,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
     assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
     assert (tmp_path / "report-quick" / "README.md").is_file()
+    assert res.stderr.splitlines()[-1] == f"raico: report: {tmp_path / 'report-quick' / 'README.md'}"  # said last
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])

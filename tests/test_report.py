@@ -334,3 +334,16 @@ def test_cost_and_wall_panels_leave_out_exploding_iterates_and_say_so(runs):
     _wall_time_panel(ax2, wall_panel_data(FakeCache(), exp, plans), {})
     assert ax2.get_ylim()[1] < 1e6 and "up to 1e+35; exploding" in ax2.get_title()
     plt.close(fig)
+
+
+def test_the_cost_panel_title_names_the_budget_the_runs_had(runs, monkeypatch, tmp_path):
+    """--quick runs a figure at its profile's budget: the title says that budget, not the full figure's."""
+    import pipeline.report as report
+
+    exp = Experiment("figT", "arm5", "reach", "pseudo", (ILQG, R1), 6, 2, "synthetic")   # 6 iterations in full
+    plans = [{**runs(v, s, np.geomspace(1000, 50, 3)), "iterations": 3} for v in (ILQG, R1) for s in range(2)]
+    shown = {}
+    monkeypatch.setattr(report, "save_figure", lambda fig, path, dpi: shown.update(fig=fig))
+    write_figure(FakeCache(), exp, plans, tmp_path / "figure.png")
+    title = shown["fig"].axes[0].get_title()
+    assert "at the figure's budget (3 iterations)" in title and shown["fig"].axes[0].get_xlim()[1] < 4
