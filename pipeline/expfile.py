@@ -8,8 +8,8 @@ An experiment file (read with ``tomllib``)::
                                            # | learn | babble
     seeds = "range(10)"                    # or a list: the initial states, shared by every point
     [base]                                 # options of the first stage (raico <stage> --help)
-    plant = "arm5"
-    task = "reach-roll"
+    plant = "arm5"                         # or problem = "my_robot_reach.toml" (a problem file, relative
+    task = "reach-roll"                    #   to this file) in place of plant and task
     dynamics = "analytic"
     iterations = 25
     [execute]                              # options of a later stage
