@@ -289,6 +289,9 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
         raise BadInput(f"{path}: [reproduce] must be a table")
     base = {stages[0]: _resolve_problem(dict(doc.get("base", {})), path)}
     points = [_resolve_problem(p, path) for p in points]
+    for table in (grid, zipped):   # problem files as a grid or zip axis: each relative to this file
+        if isinstance(table.get("problem"), list):
+            table["problem"] = [_resolve_problem({"problem": p}, path)["problem"] for p in table["problem"]]
     if quick:
         base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:

@@ -394,3 +394,15 @@ def test_a_model_file_s_load_report_is_said_once_per_experiment(tmp_path):
     res = invoke("plan", "--problem", problem, "--iterations", 1, "--seed", 7, "--no-record", "--artifacts",
                  tmp_path / "arts")
     assert [ln for ln in res.stderr.splitlines() if ln.startswith("raico: note: ur5_robot.urdf: ")] == notes
+
+
+def test_problem_files_are_read_from_the_experiment_file_s_folder(tmp_path):
+    """``problem = ...`` in [base], a point or a grid: a relative path is the experiment file's neighbour."""
+    (tmp_path / "sub").mkdir()
+    f = write(tmp_path / "sub", 'name = "p"\n[base]\nproblem = "a.toml"\n[grid]\nproblem = ["b.toml", "/abs/c.toml"]\n'
+                                '[[point]]\nlabel = "d"\nproblem = "d.toml"\n')
+    exp = expfile.load(f)
+    here = (tmp_path / "sub").resolve()
+    assert exp.base["plan"]["problem"] == str(here / "a.toml")
+    assert exp.grid["problem"] == [str(here / "b.toml"), "/abs/c.toml"]
+    assert exp.points[0]["problem"] == str(here / "d.toml")
