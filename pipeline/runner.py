@@ -79,6 +79,10 @@ def outcome_notes(outcome: Outcome) -> list[str]:
         notes.append(f"reason: {m['message']}")   # why, here and not only in `raico show`
     if outcome.stage == "evaluate":
         notes += evaluation_notes(m)
+    if outcome.stage == "plan" and isinstance(m.get("rejected_trials"), int):   # adaptive R-AICO
+        notes.append(f"{m['rejected_trials']} of {m.get('iterations')} trials rejected (the previous iterate "
+                     f"kept, the step shrunk); {m.get('repeats_per_iteration', 0):.0f} relinearization repeats per "
+                     "iteration (median), which set its time")
     first, final = m.get("first_iteration_cost"), m.get("final_cost")
     if (outcome.stage == "plan" and isinstance(first, (int, float)) and isinstance(final, (int, float))
             and math.isfinite(first) and math.isfinite(final) and final > first * (1 + COST_ROSE) and first > 0):

@@ -297,7 +297,7 @@ class PlanOutput:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """``plan.npz``: the plan (``X``, ``U``, controller ``o``, ``O``), its history per iteration
-        (``costs``, wall times, ``step``, ``mu``) and every iteration's trajectory decimated in time,
+        (``costs``, wall times, ``step``, ``mu``, ``accepted``, AICO's relinearization ``repeats``) and every iteration's trajectory decimated in time,
         ``X_iterations (iterations + 1, K, n_x)`` float32 (a display copy; row 0 the initial
         trajectory, NaN rows for iterations that diverged) at the steps ``t_iterations (K,)``
         (``planning.problem.iterate_steps``)."""
@@ -308,6 +308,8 @@ class PlanOutput:
                 "times": self.times, "wall_time": np.array([h.time_s for h in r.history]),
                 "elapsed": np.array([h.elapsed_s for h in r.history]),
                 "step": np.array([h.step for h in r.history]), "mu": np.array([h.mu for h in r.history]),
+                "accepted": np.array([h.accepted for h in r.history], bool),
+                "repeats": np.array([h.repeats for h in r.history], np.int64),
                 "beliefs": r.beliefs if r.beliefs is not None else np.zeros((0,)),
                 "joint_names": np.array(self.robot.joint_names), **iterates}
 
@@ -325,6 +327,12 @@ class PlanOutput:
                "via_point_errors": self.via_point_errors(), "message": r.message}
         if "balance" in self.description:  # only with --balance: other plans' metrics as before
             out["balance"] = self.balance_metrics()
+        if self.config.solver in ("aico", "raico") and r.history:
+            # the relinearization repeats per iteration set AICO's time per iteration (small steps repeat more)
+            out["repeats_per_iteration"] = float(np.median([h.repeats for h in r.history]))
+        if self.config.solver == "raico" and self.config.alpha_schedule == "adaptive" and r.history:
+            # the trials the schedule rejected: each an iteration that kept the previous iterate
+            out["rejected_trials"] = int(sum(not h.accepted for h in r.history))
         return out
 
     def balance_metrics(self) -> dict:
