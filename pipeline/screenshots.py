@@ -279,8 +279,9 @@ def report_screenshots(cache: Any, out_dir: str | Path,
     recording is derived from its entry's data: the same key, the same picture), older ones of the
     plant are removed. Returns ``[(caption, path)]`` plans first, each sorted by plant; ``[]`` where no
     renderer is available (:func:`renderer_unavailable`, or the viewer does not start); a recording
-    that fails to render is left out. Nothing raises: what is left out, and why, is one line each to
-    ``say`` (e.g. a reporter's)."""
+    that fails to render is left out. Nothing raises: a cache that cannot be listed, a recording that
+    fails to render and a viewer that does not start are one line each to ``say`` (e.g. a reporter's);
+    no renderer installed is no screenshots, without a word (the report stands without them)."""
     out_dir = Path(out_dir)
     say = say or (lambda line: None)
     try:
@@ -304,10 +305,7 @@ def report_screenshots(cache: Any, out_dir: str | Path,
         return " ".join(text.split())
 
     todo = [it for it in items if not png_of(*it).is_file()]
-    why = renderer_unavailable() if todo else None
-    if why is not None:
-        say(f"raico: warning: {len(todo)} screenshot{'s' if len(todo) > 1 else ''} left out of the report: {why}")
-    elif todo:
+    if todo and renderer_unavailable() is None:   # no renderer installed: no screenshots, as documented
         out_dir.mkdir(parents=True, exist_ok=True)
         try:
             with _viewer() as viewer:
