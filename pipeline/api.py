@@ -11,6 +11,11 @@ round. Keyword arguments are the stage's config fields (``raico <stage> --help``
     X = api.arrays(e, "rollout.npz")["X"]            # executed states (T+1, n_x)
     l = api.learn(plant="biorob", task="reach", episodes=20, alpha=2.0)
     rows = api.reproduce(["fig3.2a"], quick=True)     # one summary per figure
+    api.show_png(p.key, "plan.png", time=0.5)         # the recording as the viewer opens it, headless
+    df = api.exp_run("experiments/arm_alpha.toml")    # an experiment file: its runs table (a DataFrame)
+    api.exp_show("arm-alpha")                         # grouped over seeds, as `raico exp show`
+    api.plot("arm-alpha", kind="curve")               # a Plot: .path, .series, .clipped
+    api.compare(exp="arm-alpha", where="seed == 0")   # {"recording": Path, "runs": {label: STAGE/KEY}}
 
 Each returns a :class:`pipeline.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
 ``recording``: the ``.rrd`` to open in the Rerun viewer, or in a notebook with ``rerun-notebook``).
@@ -30,7 +35,8 @@ import numpy as np
 from pipeline.cache import Cache
 from pipeline.runner import Outcome
 
-__all__ = ["arrays", "babble", "evaluate", "execute", "fit", "learn", "plan", "reproduce", "run"]
+__all__ = ["arrays", "babble", "compare", "evaluate", "execute", "exp_run", "exp_show", "fit", "learn", "plan", "plot",
+           "reproduce", "run", "show_png"]
 
 
 def _cache(artifacts: str | Path | None) -> Cache:
@@ -117,6 +123,91 @@ def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bo
 
     return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
                         executor=executor, reporter=Reporter(quiet)))
+
+
+def show_png(ref: str, png: str | Path, time: float | None = None, artifacts: str | Path | None = None) -> Path:
+    """A cached run's recording (``ref``: ``KEY``, a key prefix or ``STAGE/KEY``) rendered headless as the
+    Rerun viewer opens it, saved as ``png`` (1920 x 1080), the time cursor at ``time`` s of ``sim_time``
+    if given (``raico show KEY --png PNG --time T``). The recording is written from the entry's data if
+    missing. Raises :class:`pipeline.errors.RaicoError` with one line naming what is missing where it
+    cannot render (no Vulkan driver, no ``rerun`` executable), ``ValueError`` for a run without one."""
+    from pipeline import runner
+    from pipeline.screenshots import render_png
+
+    cache = _cache(artifacts)
+    entry = runner.find_entry(cache, ref)
+    rec = runner.ensure_recording(cache, entry)
+    if rec is None:
+        raise ValueError(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
+    return render_png(rec, png, time)
+
+
+def exp_run(file: str | Path, overrides: list[str] | None = None, artifacts: str | Path | None = None,
+            jobs: int = 2, executor: str = "process", record: bool = False, quiet: bool = False):
+    """Run an experiment file (``raico exp run FILE -S ...``): every variant at every seed through the cache
+    (cached runs are looked up, not run again). Returns its runs table, a pandas ``DataFrame`` (one row per
+    run; a run that raised has ``status`` "error" and its reason in ``error``, as in ``runs.csv``).
+    ``overrides``: the ``-S`` ones (``["alpha=3", "seeds=range(5)"]``). Bad input raises
+    :class:`pipeline.errors.BadInput` with the command's message."""
+    from pipeline import expfile
+    from pipeline.errors import BadInput
+    from pipeline.executors import make_executor
+    from pipeline.ui import Reporter
+
+    exp = expfile.load(file, list(overrides or []))
+    expfile.validate(exp)
+    if not 1 <= jobs <= 64:
+        raise BadInput("jobs must be in [1, 64]")
+    cache = _cache(artifacts)
+    expfile.run_reported(cache, exp, make_executor(executor, jobs), record, Reporter(quiet))
+    return expfile.read_table(cache, exp.name)[0]
+
+
+def exp_show(experiment: str | Path, where: str | None = None, metrics: list[str] | None = None,
+             stat: str = "median", group: bool = True, sort: str | None = None, only_changed: bool = False,
+             artifacts: str | Path | None = None):
+    """An experiment's runs table (its name or file) as ``raico exp show`` shows it, a pandas ``DataFrame``:
+    per variant n, failures k/n and each metric's median and IQR (``stat="mean"``: mean and 95 %
+    half-width) over seeds; ``group=False`` one row per run."""
+    from pipeline import expfile
+    from pipeline.errors import BadInput
+
+    if stat not in ("median", "mean"):
+        raise BadInput(f"--stat {stat}: choose median or mean")
+    df, swept = expfile.read_table(_cache(artifacts), str(experiment))
+    missing = [m for m in metrics or [] if m not in df.columns]
+    if missing:
+        raise BadInput(f"--metric {missing[0]}: no such column; metrics: "
+                       + ", ".join(c for c in df.columns if c.count(".") >= 1))
+    return expfile.summarize(df, swept, list(metrics) if metrics else None, stat, group, where, sort, only_changed)
+
+
+def plot(experiment: str | Path, kind: str = "line", x: str | None = None, metric: str = "plan.final_cost",
+         group: list[str] | None = None, where: str | None = None, yscale: str = "auto",
+         ylim: tuple[float, float] | None = None, out: str | Path | None = None,
+         artifacts: str | Path | None = None, quiet: bool = True):
+    """``raico plot``: a figure of an experiment's runs table (``kind`` line, curve, wall or box) written as a
+    PNG (default ``artifacts/exp/NAME/KIND-METRIC.png``). Returns the :class:`pipeline.plots.Plot`: its
+    ``path``, the numbers behind each legend entry (``series``) and what the value axis left out
+    (``clipped``); ``quiet=False`` prints the command's line."""
+    from pipeline.plots import plot_experiment
+    from pipeline.ui import Reporter
+
+    drawn = plot_experiment(_cache(artifacts), str(experiment), kind, x, metric, group, where, yscale, ylim, out)
+    Reporter(quiet).say(drawn.line)
+    return drawn
+
+
+def compare(keys: list[str] | None = None, exp: str | Path | None = None, where: str | None = None,
+            stage: str | None = None, out: str | Path | None = None, artifacts: str | Path | None = None) -> dict:
+    """``raico compare``: up to nine runs (``keys``, or those of experiment ``exp`` that ``where`` keeps) in one
+    Rerun recording. Returns ``{"recording": Path, "runs": {label: "STAGE/KEY"}}`` (the labels: the options
+    that differ between the runs)."""
+    from pipeline.compare import compare as compare_runs
+
+    path, runs = compare_runs(_cache(artifacts), list(keys or []), None if exp is None else str(exp), where, stage,
+                              None if out is None else Path(out))
+    return {"recording": path, "runs": {r.label: r.ref for r in runs}}
 
 
 def arrays(outcome: Outcome, name: str) -> dict[str, np.ndarray]:

@@ -53,6 +53,7 @@ from pipeline.errors import (
     MissingArtifact,
     RaicoError,
     StorageError,
+    check_folder,
     install_signal_handlers,
     interrupt_in,
     os_error_text,
@@ -289,18 +290,6 @@ def open_cache(artifacts: str | Path | None) -> Cache:
     return Cache(root)
 
 
-def check_folder(path: Path, what: str) -> None:
-    """:class:`StorageError` if ``path`` exists as something other than a folder, or if one of its
-    parents is a file (it could never be created)."""
-    for p in (path, *path.parents):
-        try:
-            if p.exists() and not p.is_dir():
-                where = "is" if p == path else f"lies below {p}, which is"
-                raise StorageError(f"{what} {path} {where} a file, not a folder")
-        except OSError as e:
-            raise StorageError(f"{what} {path}: {os_error_text(e)}") from None
-
-
 @app.command()
 @handles_errors
 def reproduce(
@@ -359,8 +348,9 @@ app.add_typer(exp_app, name="exp")
 @handles_errors
 def exp_run(
     file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/expfile.py).")],
-    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Override or add a grid axis: KEY=A,B or "
-                                                   "KEY=range(N); seeds=range(N) sets the seeds.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Add values to a grid axis of the file, or "
+                                                   "a new axis (over [base]'s value): KEY=A,B or KEY=range(N); "
+                                                   "seeds=range(N) sets the seeds.")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would run (variants, runs, cached, to "
                                           "compute); run nothing.")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers.")] = 2,
@@ -403,20 +393,11 @@ def exp_run(
             typer.echo(json.dumps(summary))
         return
     pool = make_executor(executor, jobs)   # its workers start at the first run that is not cached
-    with reporter.board() as board:
-        def progress(done: int, total: int, label: str | None) -> None:
-            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
-            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
-
-        rows = expfile.run(cache, exp, pool, record=record, progress=progress)
+    rows = expfile.run_reported(cache, exp, pool, record, reporter)
     summary = summary_of(sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows))
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     out = expfile.table_dir(cache, exp.name)
-    reporter.say(f"exp {exp.name}: {len(rows)} runs ({summary['cached']} cached; {len(failed)} failed, of them "
-                 f"{len(errors)} with an error) -> {out / 'runs.csv'}")
-    for r in errors[:5]:
-        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     if json_:
         typer.echo(json.dumps({**summary, "failed": len(failed), "errors": len(errors),
                                "table": str(out / "runs.csv")}))
@@ -565,9 +546,10 @@ def bench_suite(
 @handles_errors
 def plot(
     experiment: Annotated[str, typer.Argument(help="An experiment's name or its file.")],
-    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds; curve: "
-                                      "cost per iteration per group (log axis); box: a box and the runs per "
-                                      "group.")] = "line",
+    kind: Annotated[str, typer.Option("--kind", help="line: a metric against --x with bands over seeds (points "
+                                      "and error bars on a categorical option); curve: cost per iteration per "
+                                      "group (log axis); wall: cost against wall time per group; box: a box and "
+                                      "the runs per group.")] = "line",
     x: Annotated[str | None, typer.Option("--x", help="The swept option on the x axis (--kind line).")] = None,
     metric: Annotated[str, typer.Option("--metric", "-m", help="The runs table's column plotted (line, box).")]
     = "plan.final_cost",
@@ -577,48 +559,22 @@ def plot(
     = None,
     yscale: Annotated[str, typer.Option("--yscale", help="auto (log when the values span two decades; curve: "
                                         "log), linear or log.")] = "auto",
+    ylim: Annotated[str | None, typer.Option("--ylim", help="LO,HI: the value axis's range (default: the data's; "
+                                             "curve and wall: the finite values that do not explode).")] = None,
     out: Annotated[Path | None, typer.Option("--out", "-o", help="The PNG to write (default: artifacts/exp/NAME/"
                                              "KIND-METRIC.png).")] = None,
     artifacts: Artifacts = None, quiet: Quiet = False,
 ):
     """Plot an experiment's runs table: a metric against a swept option (median line, interquartile band over
     seeds), the cost per iteration per group, or a box per group. Legends name the options that differ."""
-    from pipeline import expfile, plots
+    from pipeline import plots
     from pipeline.ui import Reporter
 
-    if kind not in plots.KINDS:
-        raise BadInput(f"--kind {kind}: choose one of {', '.join(plots.KINDS)}")
-    if yscale not in ("auto", "linear", "log"):
-        raise BadInput(f"--yscale {yscale}: choose auto, linear or log")
     if out is not None and out.suffix.lower() != ".png":
         raise BadInput(f"--out {out}: a .png file")
     cache = open_cache(artifacts)
-    df, swept = expfile.read_table(cache, experiment)
-    name = str(df["experiment"].iloc[0]) if "experiment" in df.columns and len(df) else experiment
-    if kind == "line":
-        if x is None:
-            raise BadInput(f"--kind line needs --x OPTION: one of the swept options {', '.join(swept) or '(none)'}")
-        if x not in df.columns:
-            raise BadInput(f"--x {x}: no such option in the table; swept options: {', '.join(swept) or 'none'}")
-    elif x is not None:
-        raise BadInput(f"--x goes with --kind line (--kind {kind} has no x option)")
-    if kind != "curve" and metric not in expfile.metric_columns(df):
-        raise BadInput(f"--metric {metric}: {'not a number' if metric in df.columns else 'no such column'}; "
-                       f"metrics: {', '.join(expfile.metric_columns(df))}")
-    df = expfile.query(df, where)
-    if not len(df):
-        raise BadInput(f"--where '{where}' keeps no run")
-    what = {"line": metric, "curve": "cost", "box": metric}[kind]
-    out = out or expfile.table_dir(cache, name) / f"{kind}-{what}{'-' + x if x else ''}.png"
-    check_folder(out.parent, "output folder")
-    if kind == "line":
-        drawn = plots.line_plot(df, swept, x, metric, out, name, cache, group, yscale)
-    elif kind == "curve":
-        drawn = plots.curve_plot(df, swept, out, name, cache, group, yscale)
-    else:
-        drawn = plots.box_plot(df, swept, metric, out, name, cache, group, yscale)
-    Reporter(quiet).say(f"plot {name}: {kind} of {what}{' against ' + x if x else ''}, {len(df)} runs in "
-                        f"{len(drawn.series)} group{'' if len(drawn.series) == 1 else 's'} -> {drawn.path}")
+    drawn = plots.plot_experiment(cache, experiment, kind, x, metric, group, where, yscale, ylim, out)
+    Reporter(quiet).say(drawn.line)
 
 
 @app.command("compare")
@@ -643,21 +599,10 @@ def compare(
     from pipeline import compare as cmp
     from pipeline.ui import Reporter
 
-    if exp is None and (where is not None or stage is not None):
-        raise BadInput("--where and --stage go with --exp NAME")
-    if exp is not None and keys:
-        raise BadInput("give keys or --exp NAME, not both")
-    if stage is not None and stage not in cmp.STAGES:
-        raise BadInput(f"--stage {stage}: choose one of {', '.join(cmp.STAGES)}")
     if out is not None and out.suffix != ".rrd":
         raise BadInput(f"--out {out}: a .rrd file")
     cache = open_cache(artifacts)
-    refs = cmp.runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
-    runs = cmp.load_runs(cache, refs)
-    cmp.label_runs(runs)
-    out = out or cmp.default_path(cache, runs)
-    check_folder(out.parent, "output folder")
-    path = cmp.write(cache, runs, out)
+    path, runs = cmp.compare(cache, list(keys or []), exp, where, stage, out)
     reporter = Reporter(quiet)
     reporter.say(f"compare: {len(runs)} runs -> {path}")
     for r in runs:
@@ -748,23 +693,48 @@ def show(
     ref: Annotated[str, typer.Argument(help="STAGE/KEY or KEY of a cached artifact.")],
     artifacts: Artifacts = None,
     open_: Annotated[bool, typer.Option("--open", help="Open the recording in the Rerun viewer.")] = False,
+    png: Annotated[Path | None, typer.Option("--png", help="Render the recording headless, as the viewer opens "
+                                             "it, to this PNG (1920 x 1080; needs a Vulkan driver).")] = None,
+    at: Annotated[float | None, typer.Option("--time", help="With --png: the time cursor at T s of sim_time.")]
+    = None,
 ):
-    """Print an artifact's meta.json and recording path, or open its recording in Rerun."""
+    """Print an artifact's meta.json and recording path, open its recording in Rerun, or render it to a PNG."""
     from pipeline import runner
     from pipeline.ui import Reporter
+    if open_ and png is not None:
+        raise BadInput("give --open or --png, not both")
+    if at is not None and png is None:
+        raise BadInput("--time goes with --png")
+    if png is not None and png.suffix.lower() != ".png":
+        raise BadInput(f"--png {png}: a .png file")
+    if at is not None and not (at >= 0 and at < float("inf")):
+        raise BadInput(f"--time {at}: a time in s, at least 0")
     cache = open_cache(artifacts)
     cache.notify = Reporter().say
     entry = runner.find_entry(cache, ref)
     rrd = entry.path / "recording.rrd"
-    if open_:
+    if open_ or png is not None:
         rec = runner.ensure_recording(cache, entry)
         if rec is None:
             raise BadInput(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
+        if png is not None:
+            from pipeline.screenshots import render_png
+
+            check_folder(png.parent, "output folder")
+            Reporter().say(f"show {entry.stage}/{entry.key}: {render_png(rec, png, at)}")
+            return
         open_viewer(rec)
         return
+    config = dict(entry.meta.get("config") or {})
+    if isinstance(config.get("problem"), str):  # a problem file's content, stored as canonical JSON text
+        try:
+            config["problem"] = json.loads(config["problem"])
+        except ValueError:
+            pass
     typer.echo(json.dumps({"path": str(entry.path), "recording": str(rrd) if rrd.exists() else None,
                            **{k: entry.meta.get(k) for k in ("stage", "key", "config", "inputs",
-                                                             "status", "metrics", "timings")}},
+                                                             "status", "metrics", "timings")},
+                           "config": config},
                           indent=2, default=str))
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import BadInput
+from pipeline.errors import BadInput, check_folder
 
 MAX_RUNS = 9
 STAGES = ("plan", "execute")   # what can be compared: stages with a trajectory
@@ -163,12 +163,12 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     from pipeline import rerun_io as rec_mod
     from pipeline.recorders import task_plots
     from planning.objective import objective_from_description
-    from plants.robots import shared_robot
+    from plants.model_file import robot_for
 
     data = [_trajectory(cache, r) for r in runs]
     views3d, joints_of, digest = [], {}, hashlib.sha256("".join(r.ref for r in runs).encode()).hexdigest()[:12]
     for r, d, color in zip(runs, data, RUN_COLORS):
-        robot = shared_robot(d["plant"])
+        robot = robot_for(d["desc"])  # a built-in plant by name, a model file's robot by its spec
         n = robot.n_q
         X = np.nan_to_num(d["X"], nan=0.0, posinf=0.0, neginf=0.0)
         d.update(robot=robot, Q=X[:, :n], objective=objective_from_description(d["desc"], robot), color=color)
@@ -229,3 +229,24 @@ def default_path(cache, runs: list[Run]) -> Path:
     """``artifacts/compare/<12 hex of the runs' keys>.rrd``: the same runs, the same file."""
     digest = hashlib.sha256("\n".join(r.ref for r in runs).encode()).hexdigest()[:12]
     return cache.root / "compare" / f"{digest}.rrd"
+
+
+def compare(cache, keys: list[str], exp: str | None = None, where: str | None = None, stage: str | None = None,
+            out: Path | None = None) -> tuple[Path, list[Run]]:
+    """``raico compare``: the recording of the runs ``keys`` (or those of experiment ``exp`` that ``where``
+    keeps, of ``stage``) at ``out`` (default :func:`default_path`), and the runs with their labels;
+    :class:`BadInput` on bad input."""
+    if exp is None and (where is not None or stage is not None):
+        raise BadInput("--where and --stage go with --exp NAME")
+    if exp is not None and keys:
+        raise BadInput("give keys or --exp NAME, not both")
+    if stage is not None and stage not in STAGES:
+        raise BadInput(f"--stage {stage}: choose one of {', '.join(STAGES)}")
+    if out is not None and Path(out).suffix != ".rrd":
+        raise BadInput(f"--out {out}: a .rrd file")
+    refs = runs_of_experiment(cache, exp, where, stage) if exp is not None else list(keys or [])
+    runs = load_runs(cache, refs)
+    label_runs(runs)
+    out = Path(out) if out is not None else default_path(cache, runs)
+    check_folder(out.parent, "output folder")
+    return write(cache, runs, out), runs

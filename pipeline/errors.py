@@ -221,3 +221,15 @@ def stop_resource_tracker() -> None:
         tracker._stop()
     except Exception:  # noqa: BLE001  (private API; at worst the tracker exits with this process)
         pass
+
+
+def check_folder(path, what: str) -> None:
+    """:class:`StorageError` if ``path`` (a ``Path``) exists as something other than a folder, or if one of
+    its parents is a file (it could never be created)."""
+    for p in (path, *path.parents):
+        try:
+            if p.exists() and not p.is_dir():
+                where = "is" if p == path else f"lies below {p}, which is"
+                raise StorageError(f"{what} {path} {where} a file, not a folder")
+        except OSError as e:
+            raise StorageError(f"{what} {path}: {os_error_text(e)}") from None

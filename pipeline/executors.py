@@ -275,7 +275,8 @@ class RayExecutor(Executor):
             main = threading.current_thread() is threading.main_thread()
             handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
             kwargs: dict[str, Any] = {"logging_level": logging.ERROR}
-            os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # no C++ warning lines on stderr
+            # RAY_BACKEND_LOG_LEVEL is left to the user: Ray's C++ side logs to its files unless it is set, and
+            # setting it prints "Set ray log level from environment variable ..." on stderr from every process
             mark = None
             if self.address is None:
                 kwargs.update(num_cpus=self.workers, include_dashboard=False)

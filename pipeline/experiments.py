@@ -178,7 +178,8 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
             for s in range(v.seed_count(exp.seeds, quick))]
     outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record and v.records(s), f"{v.label} seed {s}")
                                 for v, s, cfg in runs])
-    every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
+    every = [{"variant": v, "seed": s, "outcome": o, "iterations": cfg.iterations}   # the run's budget
+             for (v, s, cfg), o in zip(runs, _outcomes(outs))]
     n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)
     plans, integ_plans = every[:n_main], every[n_main:]
     ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"),

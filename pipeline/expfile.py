@@ -8,8 +8,8 @@ An experiment file (read with ``tomllib``)::
                                            # | learn | babble
     seeds = "range(10)"                    # or a list: the initial states, shared by every point
     [base]                                 # options of the first stage (raico <stage> --help)
-    plant = "arm5"
-    task = "reach-roll"
+    plant = "arm5"                         # or problem = "my_robot_reach.toml" (a problem file, relative
+    task = "reach-roll"                    #   to this file) in place of plant and task
     dynamics = "analytic"
     iterations = 25
     [execute]                              # options of a later stage
@@ -243,7 +243,9 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
         key, values = parse_override(text)
         if key == "seeds":
             seeds = _seeds(values)
-        else:
+        elif isinstance(grid.get(key), list):   # a grid axis of the file: its values and these
+            grid[key] = [*grid[key], *(v for v in values if v not in grid[key])]
+        else:   # a new axis (over [base]'s value or a [zip] list's)
             zipped.pop(key, None)
             grid[key] = values
     for table, what in ((grid, "grid"), (zipped, "zip")):
@@ -287,6 +289,9 @@ def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Ex
         raise BadInput(f"{path}: [reproduce] must be a table")
     base = {stages[0]: _resolve_problem(dict(doc.get("base", {})), path)}
     points = [_resolve_problem(p, path) for p in points]
+    for table in (grid, zipped):   # problem files as a grid or zip axis: each relative to this file
+        if isinstance(table.get("problem"), list):
+            table["problem"] = [_resolve_problem({"problem": p}, path)["problem"] for p in table["problem"]]
     if quick:
         base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
@@ -453,17 +458,38 @@ def _run_chain(args) -> dict:
     from pipeline import runner
     from pipeline.cache import Cache
     from pipeline.errors import RaicoError
+    from stages.plan.stage import load_notes_said
 
     cache, out, refs = Cache(root), {}, {}
-    for stage in stages:
-        try:
-            outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
-        except (RaicoError, ValueError, ArithmeticError) as e:
-            out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
-            break
-        out[stage] = dataclasses.asdict(outcome)
-        refs[stage] = f"{stage}/{outcome.key}"
+    with load_notes_said():   # the experiment said the model file's load report once (run_reported)
+        for stage in stages:
+            try:
+                outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
+            except (RaicoError, ValueError, ArithmeticError) as e:
+                out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
+                break
+            out[stage] = dataclasses.asdict(outcome)
+            refs[stage] = f"{stage}/{outcome.key}"
     return out
+
+
+def model_notes(exp: Experiment) -> list[str]:
+    """What loading the experiment's model-file robots changed (each line once, the first stage a plan)."""
+    if exp.stages[0] != "plan":
+        return []
+    from stages.plan.stage import load_notes, robot_and_task
+
+    lines: list[str] = []
+    for v in exp.variants:
+        cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
+        if getattr(cfg, "problem", None) is None:
+            continue
+        try:
+            robot, _ = robot_and_task(cfg)
+        except ValueError:   # the run says why, in its row
+            continue
+        lines += [ln for ln in load_notes(robot) if ln not in lines]
+    return lines
 
 
 def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
@@ -515,9 +541,32 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
         return (yield Batch("run", jobs))
 
     events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
-    results = run_flow(executor, flow(), events, scheduled=len(runs))
+    # an interrupt kills the workers; their temporary folders go with them (cleanup_stale), not at the next call
+    results = run_flow(executor, flow(), events, on_abort=cache.cleanup_stale, scheduled=len(runs))
     rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
     write_table(cache, exp, rows)
+    return rows
+
+
+def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
+    """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
+    its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
+    loading a model file changed is said once, before the runs (not by each run)."""
+    for line in model_notes(exp):
+        reporter.say(line)
+    with reporter.board() as board:
+        def progress(done: int, total: int, label: str | None) -> None:
+            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
+            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+
+        rows = run(cache, exp, executor, record=record, progress=progress)
+    cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
+    errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
+    failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
+    reporter.say(f"exp {exp.name}: {len(rows)} runs ({cached} cached; {len(failed)} failed, of them "
+                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / 'runs.csv'}")
+    for r in errors[:5]:
+        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     return rows
 
 
@@ -864,7 +913,7 @@ def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: d
     try:
         base = get_stage(stage).config_cls.from_dict(cfg)
         ref = dataclasses.asdict(_normalized(base))
-    except Exception:  # noqa: BLE001 - an entry of another version: say nothing is unused
+    except (TypeError, ValueError, KeyError):  # an entry of another version (fields, values): nothing unused
         return set()
     out = set()
     for opt in options:
@@ -944,7 +993,7 @@ def _configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
         cfg = _meta(cache, stage, key).get("config") or {}
         try:
             inputs = set(get_stage(stage).config_cls.INPUTS)
-        except Exception:  # noqa: BLE001 - a stage this version does not know: every field
+        except ValueError:  # a stage this version does not know (get_stage's error): every field
             inputs = set()
         for k, v in cfg.items():
             if k not in inputs:

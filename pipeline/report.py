@@ -23,6 +23,7 @@ from pipeline.experiments import (
     cost_curves,
     summarize,
 )
+from pipeline.plots import clip_range, cost_at_times
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 
 
@@ -170,18 +171,6 @@ def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[di
     return out
 
 
-def cost_at_times(C: np.ndarray, E: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """``(runs, times)``: per run the cost of its last iteration finished by each time of ``grid``
-    (``E``: each iteration's end, s since the run started); NaN before its first."""
-    at = np.full((C.shape[0], grid.size), np.nan)
-    for i in range(C.shape[0]):
-        e = np.where(np.isfinite(E[i]), E[i], np.inf)
-        k = np.searchsorted(e, grid, side="right") - 1
-        ok = k >= 0
-        at[i, ok] = C[i, k[ok]]
-    return at
-
-
 def wall_panel_data(cache: Cache, exp: Experiment, plans: list[dict], points: int = 300) -> list[dict]:
     """What the cost-against-wall-time panel draws, per variant: ``label``, ``color``, ``runs``,
     ``times`` (a log-spaced grid common to the figure), ``median``/``q25``/``q75`` of
@@ -249,12 +238,25 @@ def wants_wall_panel(exp: Experiment, per_iteration: dict[str, float]) -> bool:
 
 
 # ----------------------------------------------------------------------------- the experiment figure
-def _log_limits(values: list[np.ndarray], pad: float = 0.25) -> tuple[float, float] | None:
-    v = np.concatenate([np.ravel(np.asarray(x, float)) for x in values]) if values else np.zeros(0)
-    v = v[np.isfinite(v) & (v > 0)]
-    if v.size == 0:
-        return None
-    return 10 ** (np.log10(v.min()) - pad), 10 ** (np.log10(v.max()) + pad)
+def _clipped_limits(drawn: list[np.ndarray], first: list[float]) -> tuple[tuple[float, float] | None, str]:
+    """The log cost axis of a panel: the finite values drawn that do not explode (``raico plot``'s
+    :func:`pipeline.plots.clip_range`; ``first``: each variant's first finite median), padded a quarter
+    decade, and what it leaves out ("" if nothing)."""
+    v = np.concatenate([np.ravel(np.asarray(x, float)) for x in drawn]) if drawn else np.zeros(0)
+    v = v[np.isfinite(v) & (v > 0)]   # NaN and non-positive values are gaps in the lines, not clipped
+    clip = clip_range(v, log=True, first=np.asarray(first, float))
+    clip.what = "drawn point"
+    if clip.lo is None:
+        return None, ""
+    kept = v[v <= clip.hi]
+    lim = (10 ** (np.log10(kept.min()) - 0.25), 10 ** (np.log10(kept.max()) + 0.25))
+    return lim, clip.text()
+
+
+def _first_finite(y: np.ndarray) -> float:
+    y = np.asarray(y, float)
+    ok = np.isfinite(y) & (y > 0)
+    return float(y[ok][0]) if ok.any() else float("nan")
 
 
 def _runs_phrase(rows: list[dict]) -> str:
@@ -302,11 +304,14 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     ax_of = dict(zip(panels, axes.ravel()))
 
     thesis = [r for r in rows if r["thesis"]]
+    # the budget the runs had (--quick: its profile's, not the full figure's)
+    budget = next((p["iterations"] for p in plans if p.get("iterations") and p["variant"].iterations is None),
+                  exp.iterations)
     _cost_panel(ax_of["cost"], exp, thesis, f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics}), the thesis's "
-                f"solvers at the figure's budget ({exp.iterations} iterations)")
+                f"solvers at the figure's budget ({budget} iterations)")
     if "beyond" in ax_of:
         _cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
-                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=exp.iterations,
+                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=budget,
                     stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
     if "wall" in ax_of:
         _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
@@ -370,7 +375,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
                         bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
             labelled += 1
     ax.set_yscale("log")
-    lim = _log_limits(drawn)
+    lim, clipped = _clipped_limits(drawn, [_first_finite(r["median"]) for r in rows])
     if lim:
         ax.set_ylim(*lim)
     n_it = max((r["iterations"].size for r in rows), default=1)
@@ -383,7 +388,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
     ax.set_ylabel("cost (rollout on the planning model)")
     what = ("mean and standard deviation" if stat == "mean" else "median and interquartile range (25-75 %)")
     ax.set_title(f"{title}\ncost per iteration: {what} over {_runs_phrase(rows)}"
-                 + (" (median dashed)" if stat == "mean" else ""), fontsize=9)
+                 + (" (median dashed)" if stat == "mean" else "") + (f"\n{clipped}" if clipped else ""), fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
 
@@ -440,8 +445,8 @@ def _planned_cog_panel(cache: Cache, exp: Experiment, plans: list[dict], ax, lab
 def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> None:
     """Cost against wall time: per run the cost of the last iteration finished by time t, median and
     interquartile range over the runs on a common log-spaced time grid (where more than half the
-    runs have finished an iteration). The cost axis spans the band's lowest value to ten times the
-    highest first median (FDDP's infeasible first iterates, x0 held, may spike far above)."""
+    runs have finished an iteration). The cost axis spans the values that do not explode
+    (FDDP's infeasible first iterates, x0 held, spike far above), said in the title."""
     import matplotlib.ticker
 
     lo_all, hi_first = [], []
@@ -460,15 +465,18 @@ def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> N
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    if lo_all and hi_first:  # up to the band's top, at most ten times the highest first median
-        top = min(max(np.nanmax(r["q75"]) for r in rows if np.isfinite(r["q75"]).any()), 10 * max(hi_first))
-        ax.set_ylim(10 ** (np.log10(min(lo_all)) - 0.25), 10 ** (np.log10(top) + 0.25))
+    clipped = ""
+    if lo_all and hi_first:  # the values that do not explode, as the cost panels
+        lim, clipped = _clipped_limits([np.asarray(lo_all), *[r[k] for r in rows for k in ("median", "q25", "q75")]],
+                                       hi_first)
+        if lim:
+            ax.set_ylim(*lim)
     ax.set_xlabel("wall time (s, solver's own clock; shared 2-core machine)")
     ax.set_ylabel("cost (rollout on the planning model)")
     ts = [x for x in per_iteration.values() if x > 0]
     spread = f"\ntime per iteration (median) {1e3 * min(ts):.3g}-{1e3 * max(ts):.3g} ms" if ts else ""
-    ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}",
-                 fontsize=9)
+    ax.set_title(f"cost against wall time: median and interquartile range\nof the cost reached by each time{spread}"
+                 + (f"\n{clipped}" if clipped else ""), fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
 
 

@@ -74,6 +74,7 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     if _record_call(root, done, time.perf_counter() - t0, cpu_seconds(cpu0, cpu1) if local else None,
                     cpu_seconds(cpu0, cpu1, children=False), jobs, fresh and not quick and len(done) == len(ALL_IDS)):
         write_readme(root, reporter)
+    reporter.say(f"raico: report: {root / 'README.md'}")   # the last line: where to read the results
 
 
 CALL = "this call"  # timings.json's entry of the whole reproduce call (the figures' entries are keyed by id)
@@ -280,7 +281,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         md += [f"| {f} | {t['runs']} | {t['cached_runs']} | {t['wall_time_s']} | {t['load_average_1min']} | "
                f"{t['when']} |" for f, t in timings.items()]
         md += [""]
-    shots = _screenshots(root)
+    shots = _screenshots(root, reporter.say)
     if shots:
         md += ["## Recordings as the Rerun viewer opens them", "",
                "Rendered headless by the native viewer (`pipeline/screenshots.py`); open any run's "
@@ -334,13 +335,13 @@ def call_line(call: dict) -> str:
     return line
 
 
-def _screenshots(root: Path) -> list:
+def _screenshots(root: Path, say=None) -> list:
     """The report's screenshots (one plan recording per plant of the cache ``root`` belongs to, one
     learn recording per learning plant), rendered once per entry and reused; none where no renderer is
-    available."""
+    available (said to ``say``)."""
     from pipeline.screenshots import report_screenshots
 
-    return report_screenshots(Cache(root.parent), root / "screenshots")
+    return report_screenshots(Cache(root.parent), root / "screenshots", say)
 
 
 THESIS_ERRORS = (

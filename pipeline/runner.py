@@ -81,11 +81,37 @@ def outcome_notes(outcome: Outcome) -> list[str]:
     if outcome.stage == "learn" and isinstance(achieved, list) and achieved:
         notes.append(f"task {'achieved' if achieved[-1] else 'missed'} in the last episode "
                      f"({sum(map(bool, achieved))}/{len(achieved)} episodes achieved it)")
+    if outcome.stage == "plan" and outcome.status == "diverged" and m.get("message"):
+        notes.append(f"reason: {m['message']}")   # why, here and not only in `raico show`
+    if outcome.stage == "evaluate":
+        notes += evaluation_notes(m)
+    if outcome.stage == "plan" and isinstance(m.get("rejected_trials"), int):   # adaptive R-AICO
+        notes.append(f"{m['rejected_trials']} of {m.get('iterations')} trials rejected (the previous iterate "
+                     f"kept, the step shrunk); {m.get('repeats_per_iteration', 0):.0f} relinearization repeats per "
+                     "iteration (median), which set its time")
     first, final = m.get("first_iteration_cost"), m.get("final_cost")
     if (outcome.stage == "plan" and isinstance(first, (int, float)) and isinstance(final, (int, float))
             and math.isfinite(first) and math.isfinite(final) and final > first * (1 + COST_ROSE) and first > 0):
         notes.append(f"warning: the cost rose over the iterations, from {first:.4g} after the first to "
                      f"{final:.4g} ({final / first:.3g}x)")
+    return notes
+
+
+def evaluation_notes(m: dict) -> list[str]:
+    """An evaluation's headline: the plan's final cost and the worst via-point error of the plan (and of
+    its execution), each with its term's name (m or rad, the term's unit)."""
+    from stages.evaluate.summary import largest_via_error
+
+    notes = []
+    if isinstance(m.get("final_cost"), (int, float)):
+        notes.append(f"final cost {m['final_cost']:.4g}")
+    for key, what in (("via_point_errors", "planned"), ("executed_via_point_errors", "executed")):
+        errs = m.get(key) or {}
+        err = largest_via_error({"via_point_errors": errs})
+        name = next((k for k, v in errs.items() if not k.startswith("r_sole")
+                     and (math.inf if v is None else v) == err), None)
+        if name is not None:
+            notes.append(f"worst {what} via-point error {err:.3g} ({name})")
     return notes
 
 

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["content_mask", "read_png", "render_screenshot", "renderer_unavailable", "report_screenshots", "robot_mask"]
+__all__ = ["content_mask", "read_png", "render_png", "render_screenshot", "renderer_unavailable", "report_screenshots",
+           "robot_mask"]
 
 ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.rerun_io)
 VULKAN_ICDS = "/usr/share/vulkan/icd.d/*.json"
@@ -62,7 +63,7 @@ def renderer_unavailable() -> str | None:
     Vulkan driver are installed)."""
     if _rerun_executable() is None:
         return "the rerun executable is not installed"
-    if not glob.glob(VULKAN_ICDS) and "VK_ICD_FILENAMES" not in os.environ:
+    if not glob.glob(VULKAN_ICDS) and not os.environ.get("VK_ICD_FILENAMES"):
         return "no Vulkan driver (apt-get install mesa-vulkan-drivers)"
     return None
 
@@ -234,6 +235,25 @@ def render_screenshot(
                       ready or _robot_drawn, timeout_s)
 
 
+def render_png(rrd_path: str | Path, png_path: str | Path, time_s: float | None = None) -> Path:
+    """``raico show KEY --png``: the recording as the viewer opens it (``time_s``: the time cursor at that
+    many seconds of ``sim_time``), saved as ``png_path`` (1920 x 1080). Where it cannot render, a
+    :class:`pipeline.errors.RaicoError` whose one line names what is missing (no Vulkan driver, no
+    ``rerun`` executable) or the viewer's own error; never a raw transport error."""
+    from pipeline.errors import RaicoError
+
+    why = renderer_unavailable()
+    if why is not None:
+        raise RaicoError(f"cannot render {rrd_path}: {why}")
+    try:
+        return render_screenshot(rrd_path, png_path, timeline=None if time_s is None else "sim_time",
+                                 time=None if time_s is None else float(time_s))
+    except (RuntimeError, ConnectionError, TimeoutError) as e:  # the viewer did not start, or could not draw
+        text = " ".join(str(e).split()) or type(e).__name__
+        raise RaicoError(f"cannot render {rrd_path}: the Rerun viewer failed ({text}); a Vulkan driver that "
+                         f"works is needed (apt-get install mesa-vulkan-drivers)") from None
+
+
 def _latest_plans(cache: Any, stage: str = "plan") -> dict[str, Any]:
     """Plant -> the most recent valid ``stage`` entry (plan or learn) that has a recording (``EntryInfo``)."""
     from pipeline.recorders import RECORDING
@@ -251,18 +271,23 @@ def _latest_plans(cache: Any, stage: str = "plan") -> dict[str, Any]:
     return latest
 
 
-def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]]:
+def report_screenshots(cache: Any, out_dir: str | Path,
+                       say: Callable[[str], None] | None = None) -> list[tuple[str, Path]]:
     """One screenshot per plant and stage of the cache in ``out_dir`` (``plan-<plant>-<key>.png``, and
     for the learning plants ``learn-<plant>-<key>.png``): the recording of its most recent plan (learn
     loop) that has one, as the viewer opens it. A screenshot already there for that entry is reused (a
     recording is derived from its entry's data: the same key, the same picture), older ones of the
     plant are removed. Returns ``[(caption, path)]`` plans first, each sorted by plant; ``[]`` where no
     renderer is available (:func:`renderer_unavailable`, or the viewer does not start); a recording
-    that fails to render is left out. Nothing raises."""
+    that fails to render is left out. Nothing raises: a cache that cannot be listed, a recording that
+    fails to render and a viewer that does not start are one line each to ``say`` (e.g. a reporter's);
+    no renderer installed is no screenshots, without a word (the report stands without them)."""
     out_dir = Path(out_dir)
+    say = say or (lambda line: None)
     try:
         found = {stage: _latest_plans(cache, stage) for stage in ("plan", "learn")}
-    except Exception:  # noqa: BLE001 - an unreadable cache: no screenshots
+    except Exception as e:  # noqa: BLE001 - an unreadable cache: no screenshots, said
+        say(f"raico: warning: no screenshots in the report: the cache cannot be listed ({_one_line(e)})")
         return []
     items = [(stage, plant, info) for stage in ("plan", "learn") for plant, info in sorted(found[stage].items())]
     if not items:
@@ -280,7 +305,7 @@ def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]
         return " ".join(text.split())
 
     todo = [it for it in items if not png_of(*it).is_file()]
-    if todo and renderer_unavailable() is None:
+    if todo and renderer_unavailable() is None:   # no renderer installed: no screenshots, as documented
         out_dir.mkdir(parents=True, exist_ok=True)
         try:
             with _viewer() as viewer:
@@ -290,8 +315,17 @@ def report_screenshots(cache: Any, out_dir: str | Path) -> list[tuple[str, Path]
                     try:
                         _shoot(viewer, info.path / RECORDING, png_of(stage, plant, info), {}, None, None,
                                _robot_drawn, 30.0)
-                    except Exception:  # noqa: BLE001 - one recording the viewer cannot show: leave it out
+                    except Exception as e:  # noqa: BLE001 - one recording the viewer cannot show: left out, said
+                        say(f"raico: warning: screenshot of {stage}/{info.key} left out of the report: "
+                            f"the viewer could not render it ({_one_line(e)})")
                         continue
-        except Exception:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...)
-            pass
+        except Exception as e:  # noqa: BLE001 - the viewer did not start (no graphics adapter, ...): said
+            say(f"raico: warning: screenshots left out of the report: the Rerun viewer did not start "
+                f"({_one_line(e)})")
     return [(caption(*it), png_of(*it)) for it in items if png_of(*it).is_file()]
+
+
+def _one_line(e: BaseException) -> str:
+    """An exception as one line: its type and its first words."""
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__

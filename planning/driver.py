@@ -196,7 +196,7 @@ def drive(step: StepFn, start: Iterate, options: LoopOptions, *, initial_cost: f
         t0 = time.perf_counter()
         s = step(it, current)
         now = time.perf_counter()
-        rec = IterationRecord(it, s.cost, now - t0, now - t_start, s.step, s.mu, s.repeats)
+        rec = IterationRecord(it, s.cost, now - t0, now - t_start, s.step, s.mu, s.repeats, s.moved)
         out.history.append(rec)
         if it == 1 and not (math.isfinite(reference) and reference > 0):
             reference = s.cost

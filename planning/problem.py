@@ -257,6 +257,9 @@ class IterationRecord:
             line-search step, 0 if none was accepted).
         mu: regularization (iLQG: mu after the iteration's update; AICO: 0).
         repeats: AICO only: number of relinearization repeats in the sweeps.
+        accepted: whether the iterate moved to this iteration's result (False: a trial the adaptive
+            R-AICO schedule rejected, keeping the previous iterate; an iLQG iteration without an
+            accepted step; a numerical failure).
     """
 
     iteration: int
@@ -266,6 +269,7 @@ class IterationRecord:
     step: float
     mu: float = 0.0
     repeats: int = 0
+    accepted: bool = True
 
 
 @dataclass(eq=False)

@@ -208,6 +208,8 @@ def main() -> None:
         text = replace(text, "headline", headline_block(root / "report"))
     if (root / "exp" / "arm-alpha" / "runs.json").exists():
         text = replace(text, "exp", exp_block(root / "exp" / "arm-alpha"))
+    if (root / "exp" / "ur5-reach" / "runs.json").exists():   # raico exp run experiments/ur5_reach.toml
+        text = replace(text, "exp-ur5", exp_block(root / "exp" / "ur5-reach"))
     if (root / "bench" / "results.json").exists():
         text = replace(text, "bench", bench_block(root / "bench" / "results.json"))
     if (root / "bench" / "crocoddyl_problems.md").exists():

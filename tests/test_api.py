@@ -52,3 +52,63 @@ def test_api_says_what_ran_unless_quiet_and_names_the_valid_keywords(tmp_path, c
         api.plan(tmp_path, plant="arm5", task="reach", iteratons=2)
     with pytest.raises(ValueError, match="give --plant and --task, or --problem FILE \\(missing: --task\\)"):
         api.plan(tmp_path, plant="arm5")
+
+
+EXP = '''
+name = "api-small"
+stages = ["plan"]
+seeds = "range(2)"
+[base]
+plant = "arm5"
+task = "reach"
+iterations = 3
+[grid]
+alpha = [0.5, 5.0]
+[[point]]
+label = "iLQG"
+solver = "ilqg"
+'''
+
+
+def test_api_experiments_show_plot_and_compare_as_the_cli(tmp_path, capfd):
+    """exp_run returns the runs table the CLI writes, exp_show the grouped one as a DataFrame, plot a Plot, compare
+    the recording and its runs; the CLI finds the same runs cached."""
+    import numpy as np
+    import pandas as pd
+
+    from pipeline.errors import BadInput
+
+    f = tmp_path / "api.toml"
+    f.write_text(EXP)
+    arts = tmp_path / "arts"
+    df = api.exp_run(f, artifacts=arts, executor="serial", quiet=True)
+    assert isinstance(df, pd.DataFrame) and len(df) == 6 and set(df["variant"]) == {"alpha=0.5", "alpha=5.0", "iLQG"}
+    assert not df["plan.cached"].any()
+    assert capfd.readouterr().err == ""   # quiet
+    res = CliRunner().invoke(app, ["exp", "run", str(f), "--executor", "serial", "--json", "--artifacts", str(arts)])
+    assert res.exit_code == 0 and json.loads(res.stdout)["cached"] == 6
+    # -S through the API: a new grid value, only its runs computed
+    more = api.exp_run(f, ["alpha=2"], artifacts=arts, executor="serial", quiet=True)
+    assert len(more) == 8 and int((~more["plan.cached"].astype(bool)).sum()) == 2
+    shown = api.exp_show("api-small", artifacts=arts)
+    assert isinstance(shown, pd.DataFrame) and list(shown["variant"]) == ["alpha=0.5", "alpha=5.0", "alpha=2", "iLQG"]
+    one = more[more["variant"] == "alpha=5.0"]["plan.final_cost"]
+    assert shown.set_index("variant").loc["alpha=5.0", "plan.final_cost"] == np.median(one)
+    per_run = api.exp_show(f, group=False, where="solver == 'ilqg'", artifacts=arts)
+    assert len(per_run) == 2 and set(per_run["seed"]) == {0, 1}
+    with pytest.raises(BadInput, match="--metric plan.nothing: no such column"):
+        api.exp_show("api-small", metrics=["plan.nothing"], artifacts=arts)
+    drawn = api.plot("api-small", kind="curve", artifacts=arts)
+    assert drawn.path == arts / "exp" / "api-small" / "curve-cost.png" and drawn.path.stat().st_size > 0
+    assert set(drawn.series) == {"alpha=0.5, solver=raico", "alpha=2, solver=raico", "alpha=5, solver=raico",
+                                 "solver=ilqg"}
+    box = api.plot("api-small", kind="box", ylim=(1, 1e4), out=tmp_path / "box.png", artifacts=arts)
+    assert box.limits == (1, 1e4) and (tmp_path / "box.png").exists()
+    with pytest.raises(BadInput, match="--kind line needs --x OPTION"):
+        api.plot("api-small", artifacts=arts)
+    got = api.compare(exp="api-small", where="seed == 0 and alpha > 1", out=tmp_path / "c.rrd", artifacts=arts)
+    assert got["recording"] == tmp_path / "c.rrd" and got["recording"].stat().st_size > 0
+    keys = more[(more["seed"] == 0) & (more["alpha"] > 1)]["plan.key"]
+    assert sorted(got["runs"].values()) == sorted(f"plan/{k}" for k in keys)
+    with pytest.raises(BadInput, match="give keys or --exp NAME, not both"):
+        api.compare(["abcd"], exp="api-small", artifacts=arts)

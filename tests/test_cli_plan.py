@@ -280,6 +280,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
     assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
     assert (tmp_path / "report-quick" / "README.md").is_file()
+    assert res.stderr.splitlines()[-1] == f"raico: report: {tmp_path / 'report-quick' / 'README.md'}"  # said last
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
@@ -350,3 +351,50 @@ def test_every_command_has_help(command):
         text = " ".join(res.output.split())
         assert "nao: balance- inside" in text or "nao: balance-inside" in text
         assert "pendulum: swing-" in text
+
+
+def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_path):
+    """A diverged plan's reason is in its outcome line (not only in `raico show`); `raico evaluate` prints the
+    final cost and the worst via-point error with its term."""
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "analytic", "--solver",
+                              "aico", "--iterations", "3", "--no-record", "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout)
+    assert line["status"] == "diverged" and line["metrics"]["message"]
+    assert f"[diverged; reason: {line['metrics']['message']}]" in res.stderr
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--iterations", "2", "--no-record",
+                              "--json", "--artifacts", str(tmp_path)])
+    plan = json.loads(res.stdout)
+    res = runner.invoke(app, ["evaluate", "--plan", plan["key"], "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.stdout)["metrics"]
+    name, err = max(m["via_point_errors"].items(), key=lambda kv: kv[1])
+    assert f"[ok; final cost {m['final_cost']:.4g}; worst planned via-point error {err:.3g} ({name})]" in res.stderr
+    assert m["final_cost"] == pytest.approx(plan["metrics"]["final_cost"], rel=1e-12)
+
+
+def test_adaptive_r_aico_counts_and_says_its_rejected_trials(tmp_path):
+    """Each trial the adaptive schedule rejects is an iteration that keeps the previous iterate: counted in the
+    history (plan.npz ``accepted``) and the metrics, said in the outcome line with the relinearization repeats that
+    set the time per iteration."""
+    args = ["plan", "--plant", "arm5", "--task", "reach-roll", "--dynamics", "analytic", "--iterations", "12",
+            "--seed", "3", "--no-record", "--json", "--artifacts", str(tmp_path)]
+    res = runner.invoke(app, [*args, "--alpha-schedule", "adaptive"])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout)
+    d = np.load(Path(line["path"]) / "plan.npz")
+    accepted, costs = d["accepted"], d["costs"]
+    assert accepted.shape == costs.shape and d["repeats"].shape == costs.shape and (d["repeats"] > 0).all()
+    rejected = int((~accepted).sum())
+    assert 0 < rejected < len(costs) and line["metrics"]["rejected_trials"] == rejected
+    # a rejected trial keeps the previous iterate: its cost is the previous one's
+    idx = np.flatnonzero(~accepted)
+    assert np.all(costs[idx[idx > 0]] == costs[idx[idx > 0] - 1])
+    repeats = line["metrics"]["repeats_per_iteration"]
+    assert repeats == np.median(d["repeats"])
+    assert (f"{rejected} of 12 trials rejected (the previous iterate kept, the step shrunk); {repeats:.0f} "
+            "relinearization repeats per iteration (median)") in res.stderr
+    fixed = runner.invoke(app, args)
+    m = json.loads(fixed.stdout)["metrics"]
+    assert "rejected_trials" not in m and m["repeats_per_iteration"] > 0 and "trials rejected" not in fixed.stderr
+    assert np.load(Path(json.loads(fixed.stdout)["path"]) / "plan.npz")["accepted"].all()

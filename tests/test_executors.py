@@ -7,6 +7,7 @@ Module level imports stay light: pool and Ray workers import this module for its
 from __future__ import annotations
 
 import json
+import os
 import re
 import time
 from pathlib import Path
@@ -222,7 +223,8 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     lines = [ln for ln in by_process.stderr.splitlines() if ln.strip()]
     progress = [ln for ln in lines if PROGRESS.fullmatch(ln)]
     assert sorted(int(PROGRESS.fullmatch(ln).group(1)) for ln in progress) == list(range(1, N + 1)), lines
-    assert len(lines) == N + 1 and lines[-1].startswith(f"fig3.2a: {N} runs (0 cached) in ")  # and nothing else
+    assert len(lines) == N + 2 and lines[-2].startswith(f"fig3.2a: {N} runs (0 cached) in ")  # and nothing else
+    assert lines[-1] == f"raico: report: {tmp_path / 'process' / 'report-quick' / 'README.md'}"
     call = _call(tmp_path / "process")  # the whole call: wall time, and CPU of this process and its workers
     assert (call["figures"], call["runs"], call["cached_runs"], call["jobs"]) == (1, N, 0, 2)
     assert 0 < call["wall_time_s"] and call["cpu_time_s"] > 0.5  # the workers' planning, not only this process's
@@ -234,7 +236,7 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
     assert _claims(tmp_path / "ray") == _claims(tmp_path / "process")
     again = _reproduce(tmp_path / "ray", "--executor", "ray")  # cached: nothing submitted, no progress line
     assert json.loads(again.stdout.splitlines()[-1])["cached_runs"] == N
-    assert [ln for ln in again.stderr.splitlines() if ln.strip()][-1].startswith(f"fig3.2a: {N} runs ({N} cached)")
+    assert [ln for ln in again.stderr.splitlines() if ln.strip()][-2].startswith(f"fig3.2a: {N} runs ({N} cached)")
     assert not any(PROGRESS.fullmatch(ln) for ln in again.stderr.splitlines())
     assert _call(tmp_path / "ray")["cached_runs"] == 0  # all cached: the call that computed them stays
 
@@ -267,3 +269,18 @@ def test_cache_is_empty_until_a_stage_holds_an_entry(tmp_path):
     assert Cache(tmp_path).is_empty()
     (tmp_path / "plan" / "0123456789abcdef").mkdir()
     assert not Cache(tmp_path).is_empty()
+
+
+def test_ray_quiet_prints_nothing_at_all(tmp_path):
+    """``raico reproduce --executor ray --quiet`` in its own process: not even Ray's own log lines (its C++ side
+    writes to the process's stderr, which a CliRunner does not see)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("ray")
+    raico = str(Path(sys.executable).with_name("raico"))
+    res = subprocess.run([raico, "reproduce", "--figure", "fig3.2a", "--quick", "--executor", "ray", "--jobs", "2",
+                          "--quiet", "--no-record", "--artifacts", str(tmp_path)], capture_output=True, text=True,
+                         timeout=300, env={k: v for k, v in os.environ.items() if not k.startswith("RAY_")})
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == "" and res.stdout == ""

@@ -116,7 +116,10 @@ def test_cost_curves_per_group_and_boxes(arts, tmp_path):
     (("--x", "alfa"), "--x alfa: no such option in the table; swept options: alpha, solver"),
     (("--x", "alpha", "--metric", "plan.nothing"), "--metric plan.nothing: no such column; metrics: plan.initial_cost,"),
     (("--kind", "box", "--metric", "plan.status"), "--metric plan.status: not a number; metrics: plan.initial_cost,"),
-    (("--kind", "violin"), "--kind violin: choose one of line, curve, box"),
+    (("--kind", "violin"), "--kind violin: choose one of line, curve, wall, box"),
+    (("--kind", "curve", "--ylim", "1"), "--ylim 1: give two numbers LO,HI"),
+    (("--kind", "curve", "--ylim", "5,1"), "--ylim 5,1: LO < HI, both finite"),
+    (("--kind", "curve", "--ylim", "0,10"), "--ylim 0,10: a log axis needs LO > 0"),
     ((), "--kind line needs --x OPTION: one of the swept options alpha, solver"),
     (("--kind", "box", "--x", "alpha"), "--x goes with --kind line"),
     (("--kind", "box", "--where", "colour == 'red'"), "--where 'colour == 'red'': UndefinedVariableError"),
@@ -129,6 +132,61 @@ def test_plot_refuses_bad_input_in_one_line(arts, args, needle):
     res = invoke("plot", "small", *args, "--artifacts", arts)
     assert res.exit_code == 2, res.output
     assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: ") and needle in res.stderr, res.stderr
+
+
+def test_plot_kinds_ylim_categories_and_units(arts, tmp_path):
+    """--ylim says what it leaves out; --kind wall draws cost against wall time; a categorical x draws points."""
+    t = table(arts)
+    res = invoke("plot", "small", "--kind", "curve", "--ylim", "1,100", "--out", tmp_path / "c.png", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    costs = np.concatenate([np.load(arts / "plan" / k / "plan.npz")["costs"] for k in t["plan.key"]])
+    above = int((costs > 100).sum())
+    assert above and f"(clipped: {above} values above 100 (up to {costs.max():.3g}; beyond --ylim))" in res.stderr
+    res = invoke("plot", "small", "--kind", "wall", "--out", tmp_path / "w.png", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    assert "plot small: wall of cost against wall time, 12 runs in 3 groups" in res.stderr
+    assert png_size(tmp_path / "w.png") == (900, 600) and "clipped" not in res.stderr
+    cache = Cache(arts)
+    df, swept = expfile.read_table(cache, "small")
+    wall = plots.wall_plot(df, swept, tmp_path / "w2.png", "small", cache)
+    line = wall.series["alpha=5, solver=raico"]
+    assert np.all(np.diff(line["x"]) > 0) and np.nanmin(line["median"]) == pytest.approx(
+        np.median([np.load(arts / "plan" / k / "plan.npz")["costs"][-1]
+                   for k in t[t["variant"] == "alpha=5.0"]["plan.key"]]))
+    res = invoke("plot", "small", "--x", "solver", "--out", tmp_path / "s.png", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    cat = plots.line_plot(df, swept, "solver", "plan.final_cost", tmp_path / "s2.png", "small", cache)
+    assert {s["drawn"] for s in cat.series.values()} == {"points"}
+    num = plots.line_plot(df, swept, "alpha", "plan.final_cost", tmp_path / "a.png", "small", cache)
+    assert num.series["solver=raico"]["drawn"] == "line"
+    assert plots.axis_label("plan.final_cost") == "plan.final_cost (cost, no unit)"
+    assert plots.axis_label("plan.wall_time_s") == "plan.wall_time_s (s)"
+    assert plots.axis_label("execute.rmse_planned_executed") == "execute.rmse_planned_executed (rad)"
+    assert plots.axis_label("plan.iterations") == "plan.iterations (count)"
+
+
+def test_cost_axis_leaves_out_exploding_values_and_says_so(tmp_path):
+    """Synthetic plans: one run's early iterates explode to 1e250 (as FDDP's infeasible ones can); the axis spans
+    the others, a run that starts high (1e8) stays in view, and the figure and the plot say what was left out."""
+    cache = Cache(tmp_path)
+    rows = []
+    curves = {"a": [1e3, 1e2, 1e1, 1.0], "b": [2e3, 2e2, 2e1, 2.0], "c": [1e250, 3e3, np.inf, 3e2],
+              "d": [1e8, 1e4, 1e2, 1.5]}
+    for i, (k, c) in enumerate(curves.items()):
+        key = f"{i:016x}"
+        (tmp_path / "plan" / key).mkdir(parents=True)
+        np.savez(tmp_path / "plan" / key / "plan.npz", costs=np.array(c), elapsed=0.01 * np.arange(1, 5))
+        rows.append({"plan.key": key, "seed": i, "variant": "v", "solver": "fddp" if k == "c" else "raico"})
+    df = pd.DataFrame(rows)
+    drawn = plots.curve_plot(df, ["solver"], tmp_path / "c.png", "synthetic", cache)
+    lo, hi = drawn.limits
+    assert 1e8 < hi < 1e12 and lo < 1.0
+    assert drawn.clipped.startswith("clipped: 1 value above") and "up to 1e+250; exploding" in drawn.clipped
+    assert "1 not finite" in drawn.clipped
+    clip = plots.clip_range(np.array([1e8, 1e6, 1e3, 10, 1, 0.5, 0.3]), log=True, first=np.array([1e8]))
+    assert clip.above == 0 and clip.text() == ""   # where runs start is never exploding
+    wall = plots.wall_plot(df, ["solver"], tmp_path / "w.png", "synthetic", cache)
+    assert wall.limits[1] < 1e12 and "up to 1e+250" in wall.clipped
 
 
 def test_plot_of_an_experiment_that_has_not_run(tmp_path):
@@ -236,3 +294,49 @@ def test_bad_input_to_the_views_is_one_line_and_exit_2(arts, args, needle):
     assert res.exit_code == 2, res.output
     assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: ") and needle in res.stderr, res.stderr
     assert not res.stdout
+
+
+@pytest.fixture(scope="module")
+def ur5_plans(tmp_path_factory) -> tuple[Path, list[str]]:
+    """The README's UR5 example (a robot from a model file) planned by R-AICO and iLQG, 2 iterations each."""
+    import json
+
+    pytest.importorskip("example_robot_data")
+    arts = tmp_path_factory.mktemp("ur5")
+    problem = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
+    keys = []
+    for solver in ("raico", "ilqg"):
+        res = invoke("plan", "--problem", problem, "--solver", solver, "--iterations", 2, "--no-record", "--json",
+                     "--artifacts", arts)
+        assert res.exit_code == 0, res.output
+        keys.append(json.loads(res.stdout)["key"])
+    return arts, keys
+
+
+def test_compare_a_model_file_robot(ur5_plans, tmp_path):
+    import json
+
+    from pipeline.compare import _path
+
+    arts, keys = ur5_plans
+    out = tmp_path / "ur5.rrd"
+    res = invoke("compare", *keys, "--out", out, "--json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    runs = json.loads(res.stdout)["runs"]
+    assert sorted(runs.values()) == sorted(f"plan/{k}" for k in keys)
+    entities = {c.entity_path for c in _chunks(out)}
+    for label in runs:
+        base = "/" + _path(label)
+        assert {f"{base}/joints/{j}" for j in ("shoulder_pan_joint", "elbow_joint", "wrist_3_joint")} <= entities
+        assert any(e.startswith(f"{base}/world/robot/") for e in entities)
+
+
+def test_show_prints_a_problem_file_as_json(ur5_plans):
+    import json
+
+    arts, keys = ur5_plans
+    res = invoke("show", keys[0], "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    problem = json.loads(res.stdout)["config"]["problem"]
+    assert problem["name"] == "ur5-reach" and problem["costs"]["terms"]["reach"]["frame"] == "tool0"
+    assert '\\"' not in res.stdout   # no JSON text escaped inside a string

@@ -149,12 +149,27 @@ def test_run_twice_computes_nothing_and_a_new_value_computes_only_its_runs(tmp_p
     assert "ilqg" not in text and "alpha=50.0" not in text and "plan.final_cost (IQR)" in text
 
 
+def test_set_adds_a_grid_value_and_the_table_keeps_the_others(tmp_path):
+    """``-S alpha=3`` adds 3 to the file's alpha axis (as the README says): the runs table keeps the file's
+    variants (cached) beside the new one's runs; a key that is no grid axis becomes one."""
+    f = write(tmp_path, ARM.replace('stages = ["plan", "execute"]', 'stages = ["plan"]'))
+    arts = tmp_path / "arts"
+    assert invoke("exp", "run", f, "--jobs", 1, "--artifacts", arts).exit_code == 0
+    res = invoke("exp", "run", f, "-S", "alpha=3", "--jobs", 1, "--json", "--artifacts", arts)
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.splitlines()[-1])
+    assert (line["variants"], line["runs"], line["cached"]) == (4, 8, 6)
+    table = pd.read_csv(arts / "exp" / "alpha-arm" / "runs.csv")
+    assert sorted(set(table["variant"])) == ["alpha=0.5", "alpha=3", "alpha=5.0", "ilqg"] and len(table) == 8
+    exp = expfile.load(f, ["iterations=2,3"])
+    assert exp.grid == {"alpha": [0.5, 5.0], "iterations": [2, 3]}
+
+
 def test_a_failing_run_is_a_row_and_the_others_go_on(tmp_path):
     f = write(tmp_path, ARM.replace('[[point]]\nlabel = "ilqg"\nsolver = "ilqg"\n', "")
-              + '[execute]\ncontroller = "pd"\n')
+              .replace("alpha = [0.5, 5.0]", "alpha = [0.5]") + '[execute]\ncontroller = "pd"\n')
     arts = tmp_path / "arts"
-    res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "-S", "alpha=0.5", "--jobs", 1,
-                 "--artifacts", arts)
+    res = invoke("exp", "run", f, "-S", "execute.controller=pd,wbc", "--jobs", 1, "--artifacts", arts)
     assert res.exit_code == 1
     assert "error: alpha=0.5, execute.controller=wbc seed 0: execute: --controller wbc is for plans" in res.stderr
     assert "4 runs (0 cached; 2 failed, of them 2 with an error)" in res.stderr
@@ -362,3 +377,60 @@ iterations = 2
     assert expfile.identical_seeds(exp) is None     # the execution's noise differs by seed
     exp = expfile.load(write(tmp_path, ARM, "builtin.toml"))
     assert expfile.identical_seeds(exp) is None     # a built-in task's q0_std is 0.05
+
+
+def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeypatch):
+    """An entry of another version (a field or value this version refuses) counts as "nothing unused" and an
+    unknown stage as "every field"; any other error is not swallowed."""
+    from stages import registry
+
+    cfg = {"plant": "arm5", "task": "reach", "solver": "ilqg", "alpha": 0.5}
+    assert expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}}) == {"alpha"}   # iLQG's alpha
+
+    def old(name):
+        raise TypeError("__init__() got an unexpected keyword argument 'sigma'")
+
+    monkeypatch.setattr(registry, "get_stage", old)
+    assert expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}}) == set()
+
+    def broken(name):
+        raise RuntimeError("a bug, not an old entry")
+
+    monkeypatch.setattr(registry, "get_stage", broken)
+    with pytest.raises(RuntimeError, match="a bug"):
+        expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}})
+    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    with pytest.raises(RuntimeError, match="a bug"):
+        expfile._configs(None, {"keys": {"execute": "k"}}, "plan")
+    monkeypatch.undo()
+    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    assert expfile._configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
+    assert expfile._configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
+
+
+def test_a_model_file_s_load_report_is_said_once_per_experiment(tmp_path):
+    pytest.importorskip("example_robot_data")
+    problem = Path(__file__).resolve().parents[1] / "problems" / "examples" / "ur5_reach.toml"
+    f = write(tmp_path, f'name = "ur5"\nstages = ["plan"]\nseeds = "range(3)"\n[base]\nproblem = "{problem}"\n'
+                        'iterations = 1\nq0_std = 0.01\n')
+    res = invoke("exp", "run", f, "--executor", "serial", "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 0, res.output
+    assert "3 runs (0 cached" in res.stderr
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("raico: note: ur5_robot.urdf: ")]
+    assert notes and len(notes) == len(set(notes)), res.stderr   # each line of the load report once, not per run
+    # a single plan still says it
+    res = invoke("plan", "--problem", problem, "--iterations", 1, "--seed", 7, "--no-record", "--artifacts",
+                 tmp_path / "arts")
+    assert [ln for ln in res.stderr.splitlines() if ln.startswith("raico: note: ur5_robot.urdf: ")] == notes
+
+
+def test_problem_files_are_read_from_the_experiment_file_s_folder(tmp_path):
+    """``problem = ...`` in [base], a point or a grid: a relative path is the experiment file's neighbour."""
+    (tmp_path / "sub").mkdir()
+    f = write(tmp_path / "sub", 'name = "p"\n[base]\nproblem = "a.toml"\n[grid]\nproblem = ["b.toml", "/abs/c.toml"]\n'
+                                '[[point]]\nlabel = "d"\nproblem = "d.toml"\n')
+    exp = expfile.load(f)
+    here = (tmp_path / "sub").resolve()
+    assert exp.base["plan"]["problem"] == str(here / "a.toml")
+    assert exp.grid["problem"] == [str(here / "b.toml"), "/abs/c.toml"]
+    assert exp.points[0]["problem"] == str(here / "d.toml")

@@ -910,3 +910,22 @@ def test_identical_plans_in_flight_compute_once(tmp_path):
     [entry] = valid_entries(tmp_path, "plan")
     _files_agree_with_their_records(entry.path)
     assert tmp_folders(tmp_path) == [] and not list((tmp_path / "plan").glob(".lock-*"))
+
+
+@linux_only
+def test_sigint_during_exp_run_removes_the_workers_temporary_folders(tmp_path):
+    """Ctrl-C while an experiment's workers write their plans: exit 130, one line, and no ``.tmp-*`` folder left
+    for the next call to remove."""
+    f = tmp_path / "slow.toml"
+    f.write_text('name = "slow"\nstages = ["plan"]\nseeds = "range(4)"\n[base]\nplant = "arm5"\ntask = "reach"\n'
+                 'dynamics = "analytic"\niterations = 300\n')
+    arts = tmp_path / "arts"
+    proc = subprocess.Popen([RAICO, "exp", "run", str(f), "--jobs", "2", "--artifacts", str(arts)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(lambda: bool(list((arts / "plan").glob(".tmp-*"))) or proc.poll() is not None, 120, "a plan")
+    assert proc.poll() is None, "exp run ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert one_error_line(err).startswith("raico: error: interrupted by SIGINT")
+    assert tmp_folders(arts) == []

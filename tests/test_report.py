@@ -310,3 +310,40 @@ def test_claims_table_names_section_figure_runs_setup_and_why():
     assert "### The thesis's claims (0 of 1 hold)" in thesis and "(about Fig. 3.2C,D)" in thesis
     assert "| 10 | arm5 is raico's own light-weight arm" in thesis and "**does not hold** (" in thesis
     assert "(1 of 1 hold)" in beyond and "within the figure's budget (25 iterations)" in beyond
+
+
+def test_cost_and_wall_panels_leave_out_exploding_iterates_and_say_so(runs):
+    """A variant whose early iterates explode (as FDDP's infeasible ones, x0 held: 1e35): the cost and wall-time
+    panels span the other values, as ``raico plot`` does, and their titles say what was left out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.report import _cost_panel, _wall_time_panel
+
+    fddp = Variant("fddp")
+    exp = Experiment("figT", "arm5", "reach", "analytic", (R1, fddp), 6, 2, "synthetic")
+    plans = [runs(R1, s, np.geomspace(1000 + 100 * s, 50 + 7 * s, 6)) for s in range(3)]
+    plans += [runs(fddp, s, [1e35, 3e4, 2e4, 1e4, 9e3, 8e3]) for s in range(3)]
+    fig, (ax, ax2) = plt.subplots(1, 2)
+    _cost_panel(ax, exp, cost_panel_data(FakeCache(), exp, plans), "synthetic", stat="median")
+    lo, hi = ax.get_ylim()
+    assert hi < 1e6 and lo < 50
+    assert "drawn points above" in ax.get_title() and "up to 1e+35; exploding" in ax.get_title()
+    _wall_time_panel(ax2, wall_panel_data(FakeCache(), exp, plans), {})
+    assert ax2.get_ylim()[1] < 1e6 and "up to 1e+35; exploding" in ax2.get_title()
+    plt.close(fig)
+
+
+def test_the_cost_panel_title_names_the_budget_the_runs_had(runs, monkeypatch, tmp_path):
+    """--quick runs a figure at its profile's budget: the title says that budget, not the full figure's."""
+    import pipeline.report as report
+
+    exp = Experiment("figT", "arm5", "reach", "pseudo", (ILQG, R1), 6, 2, "synthetic")   # 6 iterations in full
+    plans = [{**runs(v, s, np.geomspace(1000, 50, 3)), "iterations": 3} for v in (ILQG, R1) for s in range(2)]
+    shown = {}
+    monkeypatch.setattr(report, "save_figure", lambda fig, path, dpi: shown.update(fig=fig))
+    write_figure(FakeCache(), exp, plans, tmp_path / "figure.png")
+    title = shown["fig"].axes[0].get_title()
+    assert "at the figure's budget (3 iterations)" in title and shown["fig"].axes[0].get_xlim()[1] < 4

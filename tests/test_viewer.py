@@ -101,7 +101,84 @@ def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
 
     plan = SimpleNamespace(key="0123456789abcdef", path=tmp_path, meta={"config": {}})
     monkeypatch.setattr(screenshots, "_latest_plans", lambda cache, stage="plan": {"arm5": plan})
-    assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []
+    said = []
+    assert report_screenshots(Cache(tmp_path), tmp_path / "out", said.append) == []
+    # no renderer installed: no screenshots, nothing said (the report works without them); a cache that cannot be
+    # listed and a viewer that does not start are said
+    assert said == []
+
+    def unreadable(cache, stage="plan"):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "plan"))
+
+    monkeypatch.setattr(screenshots, "_latest_plans", unreadable)
+    said.clear()
+    assert report_screenshots(Cache(tmp_path), tmp_path / "out", said.append) == []
+    assert len(said) == 1 and "the cache cannot be listed (PermissionError" in said[0] and "Permission denied" in said[0]
+    monkeypatch.setattr(screenshots, "_latest_plans", lambda cache, stage="plan": {"arm5": plan})
+    monkeypatch.setattr(screenshots, "renderer_unavailable", lambda: None)
+
+    def no_start():
+        raise RuntimeError("the Rerun viewer exited at start (code 102)")
+
+    monkeypatch.setattr(screenshots, "_viewer", no_start)
+    said.clear()
+    assert report_screenshots(Cache(tmp_path), tmp_path / "out", said.append) == []
+    assert said == ["raico: warning: screenshots left out of the report: the Rerun viewer did not start "
+                    "(RuntimeError: the Rerun viewer exited at start (code 102))"]
+
+
+def _plan_arm5(tmp_path, *extra) -> dict:
+    return _run("plan", "--plant", "arm5", "--task", "reach", "--iterations", 2, *extra, "--artifacts", tmp_path)
+
+
+@needs_renderer
+def test_show_png_renders_a_recording_headless(tmp_path):
+    """``raico show KEY --png OUT --time T`` and ``api.show_png``: the recording as the viewer opens it, the
+    robot drawn in the 3D view (the left 60 % of the window, above the cost view)."""
+    from pipeline import api
+
+    key = _plan_arm5(tmp_path, "--no-record")["key"]   # the recording is written from the entry's data
+    out = tmp_path / "shots" / "plan.png"
+    res = CliRunner().invoke(app, ["show", key[:8], "--png", str(out), "--time", "0.5", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert str(out) in res.stderr and not res.stdout
+    img = read_png(out)
+    assert img.shape == (1080, 1920, 3)
+    assert robot_mask(img[60:780, :1150]).mean() > 3e-4
+    again = api.show_png(key, tmp_path / "api.png", artifacts=tmp_path)
+    assert again == tmp_path / "api.png" and robot_mask(read_png(again)[60:780, :1150]).mean() > 3e-4
+
+
+def test_show_png_without_a_renderer_names_what_is_missing(tmp_path, monkeypatch):
+    from pipeline import api, screenshots
+    from pipeline.errors import RaicoError
+
+    key = _plan_arm5(tmp_path, "--no-record")["key"]
+    monkeypatch.setattr(screenshots, "VULKAN_ICDS", str(tmp_path / "no-icd" / "*.json"))
+    monkeypatch.setenv("VK_ICD_FILENAMES", "")
+    out = tmp_path / "plan.png"
+    res = CliRunner().invoke(app, ["show", key, "--png", str(out), "--artifacts", str(tmp_path)])
+    assert res.exit_code == 1, res.output
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith("raico: error: cannot render ")
+    assert res.stderr.rstrip().endswith("no Vulkan driver (apt-get install mesa-vulkan-drivers)"), res.stderr
+    assert not out.exists()
+    with pytest.raises(RaicoError, match="no Vulkan driver"):
+        api.show_png(key, out, artifacts=tmp_path)
+    # the viewer itself failing (a driver that does not work) is one line, too, never a transport traceback
+    monkeypatch.setattr(screenshots, "renderer_unavailable", lambda: None)
+
+    def broken(*args, **kwargs):
+        raise ConnectionError("transport error")
+
+    monkeypatch.setattr(screenshots, "render_screenshot", broken)
+    res = CliRunner().invoke(app, ["show", key, "--png", str(out), "--artifacts", str(tmp_path)])
+    assert res.exit_code == 1 and res.stderr.count("\n") == 1, res.output
+    assert "the Rerun viewer failed (transport error)" in res.stderr
+    for args, needle in ((["--png", "x.jpg"], "--png x.jpg: a .png file"), (["--time", "1"], "--time goes with --png"),
+                         (["--png", "x.png", "--time", "-1"], "--time -1.0: a time in s"),
+                         (["--png", "x.png", "--open"], "give --open or --png, not both")):
+        res = CliRunner().invoke(app, ["show", key, *args, "--artifacts", str(tmp_path)])
+        assert res.exit_code == 2 and needle in res.stderr, (args, res.output)
 
 
 @needs_renderer

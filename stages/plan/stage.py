@@ -296,7 +296,7 @@ class PlanOutput:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """``plan.npz``: the plan (``X``, ``U``, controller ``o``, ``O``), its history per iteration
-        (``costs``, wall times, ``step``, ``mu``) and every iteration's trajectory decimated in time,
+        (``costs``, wall times, ``step``, ``mu``, ``accepted``, AICO's relinearization ``repeats``) and every iteration's trajectory decimated in time,
         ``X_iterations (iterations + 1, K, n_x)`` float32 (a display copy; row 0 the initial
         trajectory, NaN rows for iterations that diverged) at the steps ``t_iterations (K,)``
         (``planning.problem.iterate_steps``)."""
@@ -307,6 +307,8 @@ class PlanOutput:
                 "times": self.times, "wall_time": np.array([h.time_s for h in r.history]),
                 "elapsed": np.array([h.elapsed_s for h in r.history]),
                 "step": np.array([h.step for h in r.history]), "mu": np.array([h.mu for h in r.history]),
+                "accepted": np.array([h.accepted for h in r.history], bool),
+                "repeats": np.array([h.repeats for h in r.history], np.int64),
                 "beliefs": r.beliefs if r.beliefs is not None else np.zeros((0,)),
                 "joint_names": np.array(self.robot.joint_names), **iterates}
 
@@ -325,6 +327,12 @@ class PlanOutput:
                "message": r.message}
         if "balance" in self.description:  # only with --balance: other plans' metrics as before
             out["balance"] = self.balance_metrics()
+        if self.config.solver in ("aico", "raico") and r.history:
+            # the relinearization repeats per iteration set AICO's time per iteration (small steps repeat more)
+            out["repeats_per_iteration"] = float(np.median([h.repeats for h in r.history]))
+        if self.config.solver == "raico" and self.config.alpha_schedule == "adaptive" and r.history:
+            # the trials the schedule rejected: each an iteration that kept the previous iterate
+            out["rejected_trials"] = int(sum(not h.accepted for h in r.history))
         return out
 
     def balance_metrics(self) -> dict:
@@ -369,6 +377,28 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
     return {"plant": cfg.plant, "task": cfg.task, "dynamics": cfg.dynamics, "model": model_key,
             "control_kind": kind, "dt": task.dt, "T": task.T, "q0": q0.tolist(),
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
+
+
+_LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an experiment says it once instead
+
+
+def load_notes(robot: Robot) -> list[str]:
+    """The lines saying what loading ``robot``'s model file changed (none for a built-in plant)."""
+    if robot.spec is None:
+        return []
+    return [f"raico: note: {Path(robot.spec.file).name}: {line}" for line in robot.load_report]
+
+
+class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib's
+    """Within it, plan() does not say the model file's load report (the experiment said it once)."""
+
+    def __enter__(self):
+        self.before, _LOAD_NOTES["say"] = _LOAD_NOTES["say"], False
+        return self
+
+    def __exit__(self, *exc):
+        _LOAD_NOTES["say"] = self.before
+        return False
 
 
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
@@ -492,7 +522,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     earlier plan of the same horizon: its controls are the initial guess, and with
     ``warm_from = "trajectory"`` (AICO/R-AICO) its states are the first linearization point."""
     robot, task, problem, q0, desc = build_problem(cfg, model)
-    for line in desc.get("load_report", []):  # what loading the model file changed, said once per run
+    for line in desc.get("load_report", []) if _LOAD_NOTES["say"] else []:  # what loading the model file changed
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
     for line in reach_notes(robot, problem):
         print(line, file=sys.stderr, flush=True)
