@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from tests.tolerance import assert_close
 
 DATA = Path(__file__).parent / "data"
 PROBLEM = DATA / "arm2_payload.toml"
@@ -152,7 +153,7 @@ def test_residual_dynamics_derivatives_by_finite_differences():
     x, u = np.array([0.2, -0.3, 0.5, 0.1]), np.array([0.7, -0.4])
     A, a, B = dyn.linearize(x, u)
     f0 = dyn.step(x, u)
-    np.testing.assert_allclose(A @ x + a + B @ u, f0, rtol=1e-12, atol=1e-12 * np.abs(f0).max())
+    assert_close(A @ x + a + B @ u, f0)
     h = 1e-6
     A_fd = np.column_stack([(dyn.step(x + h * e, u) - dyn.step(x - h * e, u)) / (2 * h) for e in np.eye(4)])
     B_fd = np.column_stack([(dyn.step(x, u + h * e) - dyn.step(x, u - h * e)) / (2 * h) for e in np.eye(2)])
@@ -160,15 +161,15 @@ def test_residual_dynamics_derivatives_by_finite_differences():
     np.testing.assert_allclose(B, B_fd, rtol=1e-6, atol=1e-7 * np.abs(B).max())
     # the step is the model's plus the GP mean's acceleration
     base = dyn.base.qddot(x[:2], x[2:], u) + dyn.model.predict_mean(np.concatenate([x, u])[None])[0]
-    np.testing.assert_allclose(dyn.qddot(x[:2], x[2:], u), base, rtol=1e-12, atol=1e-12 * np.abs(base).max())
+    assert_close(dyn.qddot(x[:2], x[2:], u), base)
     # the batch linearization is the point one at every step
     X = x + 0.1 * np.arange(3)[:, None]
     U = u + 0.2 * np.arange(3)[:, None]
     At, at, Bt = dyn.linearize_trajectory(X, U)
     for t in range(3):
         Ap, ap, Bp = dyn.linearize(X[t], U[t])
-        np.testing.assert_allclose(At[t], Ap, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(Bt[t], Bp, rtol=1e-10, atol=1e-12)
+        assert_close(At[t], Ap)
+        assert_close(Bt[t], Bp)
         np.testing.assert_allclose(at[t], ap, rtol=1e-10, atol=1e-10 * np.abs(ap).max())
     # the variance is the GP's, its gradient by central differences
     var, dvx, dvu = dyn.predict_variance(x[None], u[None])
