@@ -123,24 +123,85 @@ def interrupt_in(error: BaseException) -> Interrupted | None:
     return None
 
 
+# Extension modules whose initialization catches an exception raised inside it and logs it with a stack
+# trace from C++ (Drake's spdlog) before re-raising: an interrupt is held back until they are loaded.
+HOLD_SIGNALS_DURING = ("pydrake.common",)
+
+
+class _HeldSignals:
+    """A meta-path finder that loads the modules of :data:`HOLD_SIGNALS_DURING` with the interrupt held:
+    the handler records a signal that lands meanwhile, and it is raised once the module is loaded."""
+
+    def __init__(self, state: dict[str, int], raise_held) -> None:
+        self.state, self.raise_held = state, raise_held
+
+    def find_spec(self, name, path, target=None):
+        import importlib.util
+        import sys
+
+        if name not in HOLD_SIGNALS_DURING:
+            return None
+        sys.meta_path.remove(self)
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _HeldLoader(spec.loader, self)
+        return spec
+
+
+class _HeldLoader:
+    """A loader that runs another one's ``create_module`` and ``exec_module`` with the interrupt held."""
+
+    def __init__(self, loader, finder: _HeldSignals) -> None:
+        self.loader, self.finder = loader, finder
+
+    def _held(self, call, arg):
+        state = self.finder.state
+        state["holding"] = state.get("holding", 0) + 1
+        try:
+            return call(arg)
+        finally:
+            state["holding"] -= 1
+            if not state["holding"] and "held" in state:
+                self.finder.raise_held(state.pop("held"))
+
+    def create_module(self, spec):
+        return self._held(self.loader.create_module, spec)
+
+    def exec_module(self, module):
+        return self._held(self.loader.exec_module, module)
+
+
 def install_signal_handlers() -> None:
     """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread; a second signal while
-    the first unwinds exits at once (``128 + signum``) with one line on stderr."""
+    the first unwinds exits at once (``128 + signum``) with one line on stderr. A signal that lands
+    while an extension of :data:`HOLD_SIGNALS_DURING` initializes is raised once it is loaded."""
     import os
     import signal
+    import sys
 
     state: dict[str, int] = {}
+
+    def raise_interrupt(signum: int):
+        state["first"] = signum
+        raise Interrupted(signum)
 
     def handler(signum, frame):
         if "first" in state:
             os.write(2, f"raico: error: interrupted by {signal.Signals(signum).name} again; "
                         f"stopped without cleaning up\n".encode())
             os._exit(128 + signum)
-        state["first"] = signum
-        raise Interrupted(signum)
+        if state.get("holding"):
+            state.setdefault("held", signum)
+            return
+        raise_interrupt(signum)
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, handler)
+    sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _HeldSignals)]
+    sys.meta_path.insert(0, _HeldSignals(state, raise_interrupt))
 
 
 def die_with_parent(parent_pid: int | str | None) -> None:

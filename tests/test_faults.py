@@ -321,7 +321,7 @@ def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
      "episodes x samples per episode = 5.01e+06; at most 2,000,000 samples in one run"),
     (["babble", "--plant", "pendulum", "--episodes", "10001"], 2, "episodes must be <= 10000"),
     (["babble", "--plant", "pendulum", "--seed", "-1"], 2, "seed must be in [0, 2^32 - 1]"),
-    (["babble", "--plant", ""], 2, "unknown plant '': choose one of pendulum, arm5, biorob, nao"),
+    (["babble", "--plant", ""], 2, "--plant: an empty value (leave the option out for its default)"),
     (["babble", "--plant", "pendulum", "--artifacts", ""], 2, "--artifacts: an empty path"),
     (["plan", "--plant", "arm5", "--task", "reach", "--iterations", "10001"], 2, "iterations must be in [1, 10000]"),
     (["plan", "--plant", "arm5", "--task", "reach", "--seed", str(2**32)], 2, "seed must be in [0, 2^32 - 1]"),
@@ -929,3 +929,27 @@ def test_sigint_during_exp_run_removes_the_workers_temporary_folders(tmp_path):
     assert proc.returncode == 130, err
     assert one_error_line(err).startswith("raico: error: interrupted by SIGINT")
     assert tmp_folders(arts) == []
+
+
+def test_an_interrupt_during_a_held_extension_s_initialization_is_raised_once_it_is_loaded(tmp_path, monkeypatch):
+    """Drake's extension logs an exception raised inside its initialization with a C++ stack: a signal that
+    lands while such a module loads is held and raised as the one interrupt once the module is in."""
+    from pipeline import errors
+
+    done = tmp_path / "ran to its end"
+    (tmp_path / "slow_ext.py").write_text(f"import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n"
+                                          f"open({str(done)!r}, 'w').close()\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(errors, "HOLD_SIGNALS_DURING", ("slow_ext",))
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    meta = list(sys.meta_path)
+    try:
+        errors.install_signal_handlers()
+        with pytest.raises(errors.Interrupted):
+            import slow_ext  # noqa: F401
+        assert done.exists()     # the whole module ran before the interrupt was raised
+    finally:
+        sys.meta_path[:] = meta
+        sys.modules.pop("slow_ext", None)
+        for s, h in old.items():
+            signal.signal(s, h)
