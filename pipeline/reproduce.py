@@ -353,7 +353,7 @@ THESIS_ERRORS = (
     ("§4.1", "the pendulum's gravity term written with q = 0 upright, while the text starts at the stable "
      "equilibrium", "q = 0 hanging down"),
     ("§4.4", "a 300 ms horizon in which the pendulum plans several swings: not possible under +-10 N m",
-     "a 1.5 s horizon (deviations below)"),
+     "a 2 s horizon (deviations below)"),
     ("§4.3", "one Jacobian of state and control together", "the state part into R, r, the control part into H, h; "
      "cross terms dropped"),
     ("§4.4 against the Fig. 4.2 caption", "§4.4: the algorithm explores too much \"for σ* = 1 and σ* = 0.1\"; the "

@@ -1065,7 +1065,8 @@ SETUP_NOTES = {
     "right sole": "the right sole held at its initial pose by a task term at every step",
     "cog weights": "CoG weights read as 1e6 on the lateral axis (the thesis's x), 10 on the others",
     "nao reach": "hand target read in the torso frame at t = 0, via-point at the last step (the thesis gives none)",
-    "pendulum horizon": "1.5 s horizon (the thesis's 300 ms cannot swing up under +-10 N m)",
+    "pendulum horizon": "2 s horizon (the thesis's 300 ms cannot swing up under +-10 N m; at 1.5 s the upright is out of "
+                        "reach)",
     "pendulum warm start": "each evaluation starts from the previous plan's controls (the thesis: x0 held)",
     "biorob": "BioRob-like arm (raico's own model), 10 R-AICO iterations per evaluation",
     "biorob hyperparameters": "every re-optimization starts at the previous fit's hyperparameters",

@@ -467,7 +467,8 @@ def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None =
                        documents={PROBLEM_FILE: out.description}, payload=out)
 
 
-STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics",
+                                                        "files:problems/*.toml"),
               data_files=(PLAN_FILE, PROBLEM_FILE),
               description=DESCRIPTIONS["plan"],
               progress_total=lambda cfg: cfg.iterations)

@@ -64,7 +64,8 @@ TASK_NOTES = {
     "arm5 roll": "roll = atan2(y_E . z_W, z_E . z_W) about the hand axis, moved by the shoulder, elbow, forearm roll "
                  "and wrist (a roll axis between two pitch axes); target pi/2 at both via-points",
     "arm5 start": "q0 ~ N(0, 0.05^2) about the zero posture, the thesis's initial pose x2 = (1, 0, 0) m",
-    "pendulum horizon": f"{PENDULUM_T} steps of 2 ms (1.5 s): 300 ms cannot swing up under +-10 N m",
+    "pendulum horizon": f"{PENDULUM_T} steps of 2 ms ({PENDULUM_T * 0.002:g} s): 300 ms cannot swing up under +-10 N m, "
+                        "1.5 s leaves the upright out of reach (every plan pushes at the limit throughout)",
 }
 
 
