@@ -277,6 +277,11 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
     cost curves)."""
     from stages.evaluate.summary import summarize as summary
 
+    return summary(variant.label, [r for _, r in variant_runs(plans, variant, cache)])
+
+
+def variant_runs(plans: list[dict], variant: Variant, cache: Cache | None = None) -> list[tuple[int, dict]]:
+    """``(seed, {"status", "metrics"})`` of each of the variant's runs, as :func:`summarize` reads them."""
     runs = []
     for p in plans:
         if p["variant"] != variant:
@@ -292,8 +297,8 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
             m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
             if nao_reach:
                 m.update(counterbalance(d["X"]))
-        runs.append({"status": p["outcome"].status, "metrics": m})
-    return summary(variant.label, runs)
+        runs.append((p["seed"], {"status": p["outcome"].status, "metrics": m}))
+    return runs
 
 
 COUNTERBALANCE_JOINTS = ("HeadYaw", "HeadPitch", "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll")
@@ -367,13 +372,20 @@ def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: 
     return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
 
 
-def summarize_learns(learns: list[dict]) -> dict[str, dict]:
-    """Setting label -> ``stages.evaluate.summary.summarize_learn`` over its seeds."""
+def summarize_learns(learns: list[dict], leave_out: int | None = None) -> dict[str, dict]:
+    """Setting label -> ``stages.evaluate.summary.summarize_learn`` over its seeds (``leave_out``: without that
+    seed's loops)."""
     from stages.evaluate.summary import summarize_learn
 
+    learns = [x for x in learns if x["seed"] != leave_out]
     labels = list(dict.fromkeys(x["setting"].label for x in learns))
     return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
             for lab in labels}
+
+
+# A verdict is fragile where leaving out one seed flips it; with fewer seeds than this, leaving one out leaves
+# too little to judge (a median of one run), so it is not tried.
+LEAVE_ONE_OUT_MIN = 3
 
 
 # ----------------------------------------------------------------------------- the experiment files

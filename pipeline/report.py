@@ -968,11 +968,19 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
     from stages.evaluate.claims import evaluate_claims
 
-    S = {v.label: summarize(plans, v, cache) for v in exp.variants}
-    S.update({r["label"]: r for r in integrator_table(exp, integrators or [], cache)})
+    from pipeline.experiments import LEAVE_ONE_OUT_MIN, variant_runs
+    from stages.evaluate.summary import summarize as summary
+
+    runs = {v.label: variant_runs(plans, v, cache) for v in exp.variants}
+    S = {k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}
+    integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
+    S.update(integ)
+    seeds = sorted({seed for rs in runs.values() for seed, _ in rs})
+    without = {k: {**{lab: summary(lab, [r for seed, r in rs if seed != k]) for lab, rs in runs.items()}, **integ}
+               for k in seeds} if len(seeds) >= LEAVE_ONE_OUT_MIN else {}
     names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
     noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
-    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy)
+    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy, without)
 
 
 def integrator_table(exp: Experiment, integrators: list[dict], cache: Cache | None = None) -> list[dict]:
@@ -1069,11 +1077,14 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
         if smoke:   # --quick: the verdict as computed, marked as not a finding
             return f"{r['verdict']} ({SMOKE})"
         why = r.get("why") or ""
-        return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] == "does not hold" and why else "")
+        said = [f"why: {why}"] if r["verdict"] == "does not hold" and why else []
+        said += [f"fragile: {r['fragile']}"] if r.get("fragile") else []
+        return f"**{r['verdict']}**" + (f" ({'; '.join(said)})" if said else "")
 
     thesis_head = ["| figure | claim | the thesis says (section, about which figure) | criterion | measured | runs "
-                   "(initial states or seeds) | set-up deviations that can drive the verdict | verdict (if it does "
-                   "not hold: why) |", "|---|---|---|---|---|---|---|---|"]
+                   "(initial states or seeds) | set-up deviations that can drive the verdict | margin (each condition "
+                   "against its limit) | verdict (if it does not hold: why; fragile: what would flip it) |",
+                   "|---|---|---|---|---|---|---|---|---|"]
     beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | verdict |",
                    "|---|---|---|---|---|---|---|"]
     beyond = [r for r in rows if str(r.get("thesis", "")).startswith(BEYOND)]
@@ -1084,14 +1095,19 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
         untested = sum(r["verdict"] == CANNOT for r in thesis)
         out += [f"### The thesis's claims ({held} of {len(thesis)} hold"
                 + (f", {untested} cannot be tested" if untested else "") + ")", "", *thesis_head]
+        fragile = sum(bool(r.get("fragile")) for r in thesis)
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | {r.get('setup', '')} | {verdict(r)} |" for r in thesis]
+                f"{r.get('seeds', '')} | {r.get('setup', '')} | {r.get('margin') or '-'} | {verdict(r)} |"
+                for r in thesis]
+        if fragile and not smoke:
+            out += ["", f"{fragile} of these {len(thesis)} verdicts are fragile: leaving out one seed flips them, or a "
+                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit)."]
         out += [""]
     if beyond:
         held = sum(r["verdict"] == "holds" for r in beyond)
         out += [f"### Beyond the thesis ({held} of {len(beyond)} hold)", "", *beyond_head]
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | {verdict(r) if smoke else '**' + r['verdict'] + '**'} |" for r in beyond]
+                f"{r.get('seeds', '')} | {verdict(r)} |" for r in beyond]
         out += [""]
     return "\n".join(out).rstrip()
 
@@ -1416,7 +1432,7 @@ def learn_findings(S: dict) -> list[str]:
 
 def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
-    from pipeline.experiments import summarize_learns
+    from pipeline.experiments import LEAVE_ONE_OUT_MIN, summarize_learns
     from stages.evaluate.claims import evaluate_claims
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1425,7 +1441,9 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     write_learn_figure(exp, S, out_dir / "figure.png")
     best = "sigma*=0, w=0.01" if exp.plant == "pendulum" else "every"
     motion_key = write_learn_motion(cache, exp, learns, best, out_dir / "motion.png")
-    rows = evaluate_claims(exp.claims, S, [], exp.id)
+    seeds = sorted({x["seed"] for x in learns})
+    without = ({k: summarize_learns(learns, leave_out=k) for k in seeds} if len(seeds) >= LEAVE_ONE_OUT_MIN else {})
+    rows = evaluate_claims(exp.claims, S, [], exp.id, without=without)
     runs = [{"setting": x["setting"].label, "seed": x["seed"], "key": x["outcome"].key,
              "recording": x["outcome"].recording or str(Path(x["outcome"].path) / "recording.rrd"),
              "first_success_episode": x["outcome"].metrics.get("first_success_episode")} for x in learns]
