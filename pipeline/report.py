@@ -966,21 +966,44 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
     the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
-    from stages.evaluate.claims import evaluate_claims
+    from pipeline.experiments import TASK_LABELS
+    from stages.evaluate.claims import THESIS, Quote, evaluate_claims
 
+    integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
+    names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
+    noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
+    own = [v for v in exp.variants if v.task is None]
+    S, without = _summaries(plans, own, cache, integ)
+    rows = evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy, without)
+    for task, words in TASK_LABELS.items():  # the thesis's set-up beside raico's: its thesis rows, judged alike
+        setup = [v for v in exp.variants if v.task == task]
+        if not setup:
+            continue
+        tail = f", {words}"
+        S, without = _summaries(plans, setup, cache, {}, tail)
+        more = evaluate_claims(tuple(c for c in names if isinstance(THESIS[c], Quote)), S, [], exp.id, [], without)
+        rows += [{**r, "claim": f"{r['claim']} (with the thesis's {SETUP_WORDS.get(task, words)})"} for r in more]
+    return rows
+
+
+# how a row names the thesis's set-up it was judged in (pipeline.experiments.TASK_LABELS)
+SETUP_WORDS = {"reach-zero": "start: the zero posture", "balance-thesis": "cost: eq. 3.7's 1e4, no right-sole term"}
+
+
+def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: dict,
+               tail: str = "") -> tuple[dict, dict]:
+    """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
+    labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
+    fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
     from pipeline.experiments import LEAVE_ONE_OUT_MIN, variant_runs
     from stages.evaluate.summary import summarize as summary
 
-    runs = {v.label: variant_runs(plans, v, cache) for v in exp.variants}
-    S = {k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}
-    integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
-    S.update(integ)
+    runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
+    S = {**{k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}, **extra}
     seeds = sorted({seed for rs in runs.values() for seed, _ in rs})
-    without = {k: {**{lab: summary(lab, [r for seed, r in rs if seed != k]) for lab, rs in runs.items()}, **integ}
+    without = {k: {**{lab: summary(lab, [r for seed, r in rs if seed != k]) for lab, rs in runs.items()}, **extra}
                for k in seeds} if len(seeds) >= LEAVE_ONE_OUT_MIN else {}
-    names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
-    noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
-    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy, without)
+    return S, without
 
 
 def integrator_table(exp: Experiment, integrators: list[dict], cache: Cache | None = None) -> list[dict]:

@@ -95,13 +95,16 @@ EXPERIMENTS: dict[str, Experiment] = {
                           claims=("raico_decays_fast", "raico_outperforms", "aico_fails", "ilqg_stalls", "raico_converges",
                                   *FDDP_CLAIMS, *ADAPTIVE_CLAIMS, "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
-                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), REFERENCE), 25, 5,
-                         "Nao, pseudo-dynamics: right hand to a target, CoG held",
+                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), REFERENCE,
+                          *(Variant(s, a, task="reach-zero") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0)))),
+                         25, 5, "Nao, pseudo-dynamics: right hand to a target, CoG held",
                          execute=(Variant("raico", 1.0),), stabilized=True,
                          claims=("raico_reaches_aico_not", "counterbalance", "cog_support", "executed_reaches",
                                  "stabilizer_stands", "stabilizer_stands_under_noise")),
     "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
-                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE),
+                         (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE,
+                          *(Variant(s, a, task="balance-thesis") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0),
+                                                                              ("raico", 10.0)))),
                          25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
                          execute=(Variant("raico", 1.0),),
                          claims=("aico_no_balancing", "raico_converged_25", "cog_support", "executed_reaches")),
@@ -138,7 +141,7 @@ EXPERIMENTS: dict[str, Experiment] = {
 def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
-    return PlanConfig(plant=exp.plant, task=exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
+    return PlanConfig(plant=exp.plant, task=v.task or exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
                       alpha=v.alpha, gamma=v.gamma, start=v.start,
                       belief_rate=v.belief_rate, controller_rate=v.controller_rate,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick

@@ -43,6 +43,9 @@ Cost term types (``type``) and their keys:
 Every term may name its task map (``map``, default: the frame's name, ``cog``, ``joints`` or the
 term's name): terms on maps of one name share a plot and a path in the recordings.
 
+A built-in plant (``plant``) takes only ``start``: ``"zero"`` (every joint at 0, clipped to its
+range) or ``{joint = value, ...}`` (the others at the plant's default posture).
+
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
 F's pose at ``q0`` (before ``axes`` selects coordinates). ``times``: a list of steps in ``[0, T]``,
@@ -130,6 +133,11 @@ class ProblemFile:
         return self.doc["robot"].get("plant")
 
     @property
+    def plant_start(self) -> str | dict | None:
+        """A built-in plant's start posture in place of its default (``"zero"`` or {joint: rad}), else None."""
+        return self.doc["robot"].get("start") if self.plant is not None else None
+
+    @property
     def robot_label(self) -> str:
         """A short name of the robot for tables: the built-in plant, or the model file's stem."""
         return self.plant or Path(self.doc["robot"]["file"]).stem
@@ -213,10 +221,16 @@ def _robot(r: dict, base: Path) -> dict:
 
         if r["plant"] not in PLANTS:
             raise ValueError(f"[robot] unknown plant '{r['plant']}': choose one of {', '.join(PLANTS)}")
-        extra = sorted(set(r) - {"plant"})
+        extra = sorted(set(r) - {"plant", "start"})
         if extra:
             raise ValueError(f"[robot] '{extra[0]}' goes with file, not with a built-in plant")
-        return {"plant": r["plant"]}
+        if "start" not in r:
+            return {"plant": r["plant"]}
+        start = r["start"]  # the plant's start posture in place of its default: "zero", or {joint = value}
+        if start != "zero" and not isinstance(start, dict):
+            raise ValueError("[robot] start of a built-in plant must be \"zero\" or a table {joint = value}")
+        return {"plant": r["plant"], "start": "zero" if start == "zero" else
+                {k: _number(v, f"[robot] start.{k}") for k, v in start.items()}}
     from plants.model_file import default_srdf, resolve_model_file
 
     packages = {str(k): str((base / v).resolve()) for k, v in (r.get("packages") or {}).items()}

@@ -374,10 +374,12 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
     """The robot and the task of ``cfg``: a built-in plant's shipped task, or a problem file's."""
     if cfg.problem is None:
-        return shared_robot(cfg.plant), get_task(cfg.plant, cfg.task)
+        task = get_task(cfg.plant, cfg.task)
+        return task.robot(shared_robot(cfg.plant)), task
     pf = cfg.problem_file()
     if pf.plant is not None:
-        return shared_robot(pf.plant), task_from_problem(pf)
+        task = task_from_problem(pf)
+        return task.robot(shared_robot(pf.plant)), task
     from plants.model_file import ModelError, shared_model
 
     try:
