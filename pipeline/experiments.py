@@ -50,6 +50,7 @@ class Variant:
     belief_rate: float = 1.0  # AICO's learning rates (Algorithm 1 lines 13 and 18; 1: none)
     controller_rate: float = 1.0
     task: str | None = None  # own task (the thesis's set-up beside raico's: TASK_LABELS), else the experiment's
+    nudge: float = 0.0  # rad added to every joint of the start (the perturbation test of chaotic runs)
 
     @property
     def label(self) -> str:
@@ -61,7 +62,8 @@ class Variant:
             f", {INTEGRATOR_NAMES[self.dynamics]} pseudo-dynamics" if self.dynamics in INTEGRATOR_NAMES else "") + (
             f", belief rate {self.belief_rate:g}" if self.belief_rate != 1.0 else "") + (
             f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "") + (
-            f", {TASK_LABELS[self.task]}" if self.task is not None else "")
+            f", {TASK_LABELS[self.task]}" if self.task is not None else "") + (
+            f", start {self.nudge:+g} rad" if self.nudge else "")
         if self.solver == "raico" and self.schedule == "adaptive":
             return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
@@ -404,7 +406,8 @@ THESIS_FILES = ("fig3.2a", "fig3.2b", "fig3.2c", "fig3.2d", "fig3.3", "fig3.4", 
 PLAN_BASE = ("plant", "task", "dynamics", "iterations", "q0_std", "balance", "balance_margin")
 VARIANT_OPTIONS = {"solver": "solver", "alpha": "alpha", "relinearize": "relinearize", "iterations": "iterations",
                    "alpha_schedule": "schedule", "gamma": "gamma", "start": "start", "dynamics": "dynamics",
-                   "belief_rate": "belief_rate", "controller_rate": "controller_rate", "task": "task"}
+                   "belief_rate": "belief_rate", "controller_rate": "controller_rate", "task": "task",
+                   "x0_nudge": "nudge"}
 REPRODUCE_KEYS = ("figure", "execute", "controllers", "noise_sweep", "stabilizer_noise", "integrators", "notes")
 CONTROLLERS = ("pd", "stabilizer")   # the joint PD from the plan's start; the whole-body stabilizer (STABILIZER)
 

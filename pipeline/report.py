@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -972,9 +974,23 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
     names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
     noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
-    own = [v for v in exp.variants if v.task is None]
+    own = [v for v in exp.variants if v.task is None and not v.nudge]
     S, without = _summaries(plans, own, cache, integ)
     rows = evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy, without)
+    for v in (v for v in exp.variants if v.nudge and v.task is None):  # the start moved by a tiny amount
+        twin = replace(v, nudge=0.0)
+        moved = {**S, twin.label: _summaries(plans, [v], cache, {}, v.label.removeprefix(twin.label))[0][twin.label]}
+        again = evaluate_claims(names, moved, [e.metrics for e in executions], exp.id, noisy)
+        effect = nudge_effect(plans, twin, v)
+        for r, a in zip(rows, again):
+            named = re.search(rf"(?<![-\w]){re.escape(twin.label)}(?![\w=])", r["measured"])
+            if not named and a["verdict"] == r["verdict"]:
+                continue
+            said = (f"with {twin.label}'s start moved {v.nudge:g} rad ({effect['said']}): "
+                    + ("the same verdict" if a["verdict"] == r["verdict"] else f"the verdict flips to {a['verdict']}"))
+            r["margin"] = "; ".join(x for x in (r.get("margin"), said) if x)
+            if a["verdict"] != r["verdict"]:
+                r["fragile"] = "; ".join(x for x in (r.get("fragile"), said) if x)
     for task, words in TASK_LABELS.items():  # the thesis's set-up beside raico's: its thesis rows, judged alike
         setup = [v for v in exp.variants if v.task == task]
         if not setup:
@@ -984,6 +1000,75 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
         more = evaluate_claims(tuple(c for c in names if isinstance(THESIS[c], Quote)), S, [], exp.id, [], without)
         rows += [{**r, "claim": f"{r['claim']} (with the thesis's {SETUP_WORDS.get(task, words)})"} for r in more]
     return rows
+
+
+CHAOTIC = 1e-3  # a run is chaotic when a 1e-9 rad change of its start moves its final cost by more than 0.1 %
+
+
+def nudge_effect(plans: list[dict], twin, nudged) -> dict:
+    """How far each seed's final cost and largest via-point error moved when the start moved by ``nudged.nudge``
+    (rad) from ``twin``'s: ``{"label", "nudge", "seeds", "cost_change", "via_change", "chaotic", "said"}``, the
+    changes relative (cost) and in m (via-point), ``chaotic`` the seeds whose cost moved by more than
+    ``CHAOTIC``."""
+    from stages.evaluate.summary import largest_via_error
+
+    def by_seed(v) -> dict[int, tuple[float, float]]:
+        return {p["seed"]: (float(p["outcome"].metrics.get("final_cost") or math.nan),
+                            largest_via_error(p["outcome"].metrics)) for p in plans if p["variant"] == v}
+
+    a, b = by_seed(twin), by_seed(nudged)
+    seeds = sorted(set(a) & set(b))
+    cost = [abs(b[k][0] - a[k][0]) / abs(a[k][0]) if a[k][0] else math.nan for k in seeds]
+    via = [abs(b[k][1] - a[k][1]) for k in seeds]
+    chaotic = [k for k, c in zip(seeds, cost) if not c <= CHAOTIC]
+    fin = [c for c in cost if math.isfinite(c)]
+    said = (f"final costs moved by up to {_share_pct(max(fin)) if fin else 'n/a'}, via-point errors by up to "
+            f"{_fmt(max(via)) if via else 'n/a'} m; chaotic (cost moved > {CHAOTIC:.1%}) in {len(chaotic)}/{len(seeds)}"
+            " runs" + (f": seeds {', '.join(map(str, chaotic))}" if chaotic else ""))
+    return {"label": twin.label, "nudge": nudged.nudge, "seeds": seeds, "cost_change": cost, "via_change": via,
+            "chaotic": chaotic, "said": said}
+
+
+def processor_section(docs: list[dict]) -> list[str]:
+    """Markdown: the figures' perturbation tests of the start (``nudge_effect``): which runs are chaotic, so
+    that their numbers differ from processor to processor (numpy's BLAS sums in another order on another
+    processor: a change of the order of 1e-16 that a chaotic run amplifies)."""
+    tests = [(d["figure"], e) for d in docs for e in d.get("processor") or []]
+    if not tests:
+        return []
+    out = ["## Which numbers depend on the processor", "",
+           "Each run below ran twice, the second time with every joint of its start moved by the stated amount. "
+           "The compiled kernels are deterministic; numpy's BLAS is not across processors, so a run whose result "
+           f"moves far more than its start (final cost by more than {CHAOTIC:.1%} after 1e-9 rad: chaotic) gives "
+           "other numbers on another processor. The claims' rows on such a variant say whether the verdict "
+           "survives the move.", "", "| figure | variant | start moved (rad) | runs | chaotic runs (seeds) | largest final-"
+           "cost change | largest via-point change (m) |", "|---|---|---|---|---|---|---|"]
+    for fid, e in tests:
+        fin = [c for c in e["cost_change"] if math.isfinite(c)]
+        out.append(f"| {fid} | {e['label']} | {e['nudge']:g} | {len(e['seeds'])} | {len(e['chaotic'])} "
+                   f"({', '.join(map(str, e['chaotic'])) or 'none'}) | {_share_pct(max(fin)) if fin else 'n/a'} | "
+                   f"{_fmt(max(e['via_change'])) if e['via_change'] else 'n/a'} |")
+    return out + [""]
+
+
+def not_holding_section(rows: list[dict]) -> list[str]:
+    """Markdown: every thesis row that does not hold (or cannot be tested), with its reason and how fragile it is."""
+    from stages.evaluate.claims import BEYOND, CANNOT
+
+    thesis = [r for r in rows if not str(r.get("thesis", "")).startswith(BEYOND)]
+    out = [r for r in thesis if r["verdict"] in ("does not hold", CANNOT)]
+    if not out:
+        return []
+    lines = ["### The thesis's rows that do not hold, and why", ""]
+    for r in out:
+        why = r.get("why") or (r["criterion"] if r["verdict"] == CANNOT else "")
+        lines.append(f"- {r['figure']}, {r['claim']}: **{r['verdict']}**. {why}"
+                     + (f" Fragile: {r['fragile']}." if r.get("fragile") else ""))
+    return lines + [""]
+
+
+def _share_pct(x: float) -> str:
+    return f"{100 * x:.3g} %"
 
 
 # how a row names the thesis's set-up it was judged in (pipeline.experiments.TASK_LABELS)
@@ -1196,10 +1281,11 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     moved_md, moved_rows = moved_section(exp, result["plans"])
     missed_md, missed = missed_section(result["executions"], result.get("noise"))
     balance_md = moved_md + balance_md + missed_md
+    processor = [nudge_effect(result["plans"], replace(v, nudge=0.0), v) for v in exp.variants if v.nudge]
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
            "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows,
-           "stabilizer_missed": missed}
+           "stabilizer_missed": missed, "processor": processor}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
@@ -1227,6 +1313,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
         md += [""]
     md += balance_md
     md += noise_md
+    md += processor_section([doc])
     if integ_rows:
         md += ["## Pseudo-dynamics integrators (appendix C)", "", INTEGRATOR_TEXT, "", markdown_integrators(integ_rows),
                "", "Drake's integrations (execute entries, not recorded; `raico execute --plan KEY --open-loop` "

@@ -230,6 +230,8 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         INTEGRATOR_TEXT,
         identical_results_remarks,
         markdown_integrators,
+        not_holding_section,
+        processor_section,
         standing_section,
     )
     from stages.plan.tasks import TASK_NOTES
@@ -252,7 +254,8 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     md = ["# raico reproduction report" + (": smoke test (--quick)" if quick else ""), "", *smoke,
           "Thesis: M. Mindt, *Probabilistic Inference for Movement Planning in Humanoids* (TU Darmstadt 2014).",
           "Every number below is measured by this run; verdicts follow the stated criteria.", "",
-          "## Claims", "", markdown_claims(rows, smoke=quick), "", "## Figures", "", FIGURE_CAPTION, ""]
+          "## Claims", "", markdown_claims(rows, smoke=quick), "",
+          *([] if quick else not_holding_section(rows)), *processor_section(docs), "## Figures", "", FIGURE_CAPTION, ""]
     md += standing_section(docs, root)
     remarks = identical_results_remarks(docs)
     for d in docs:

@@ -104,7 +104,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE,
                           *(Variant(s, a, task="balance-thesis") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0),
-                                                                              ("raico", 10.0)))),
+                                                                              ("raico", 10.0))),
+                          Variant("aico", nudge=1e-9)),
                          25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
                          execute=(Variant("raico", 1.0),),
                          claims=("aico_no_balancing", "raico_converged_25", "cog_support", "executed_reaches")),
@@ -142,7 +143,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     from stages.plan.stage import PlanConfig
 
     return PlanConfig(plant=exp.plant, task=v.task or exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
-                      alpha=v.alpha, gamma=v.gamma, start=v.start,
+                      alpha=v.alpha, gamma=v.gamma, start=v.start, x0_nudge=v.nudge,
                       belief_rate=v.belief_rate, controller_rate=v.controller_rate,
                       iterations=(v.quick_iterations or exp.quick_iterations) if quick
                       else (v.iterations or exp.iterations), seed=seed,
