@@ -588,3 +588,87 @@ def test_figure_names_as_the_thesis_names_its_panels():
 
     assert figure_names(["fig3.2c", "fig3.2d"]) == "Fig. 3.2C,D"
     assert figure_names(["fig3.4"]) == "Fig. 3.4" and figure_names(["fig4.1/4.2"]) == "Fig. 4.1/4.2"
+
+
+# ----------------------------------------------------------------------------- margins, reasons, fragile verdicts
+def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed_numbers():
+    from stages.evaluate.claims import Check, judged
+
+    rho, r2 = Check("rho", 0.575, "<=", 0.8), Check("R^2", 0.916, ">=", 0.95)
+    assert rho.ok and not r2.ok and rho.margin == pytest.approx(0.225) and r2.margin == pytest.approx(-0.034)
+    j = judged([rho, r2])
+    assert not j["ok"] and j["margin"] == ("rho 0.575 (holds at <= 0.8; margin 0.225); "
+                                           "R^2 0.916 (holds at >= 0.95; margin 0.034)")
+    # the reason is what decided it, from the numbers: the failed condition, the one that held beside it
+    assert j["why"] == "R^2 0.916 < 0.95 (while rho 0.575 <= 0.8)"
+    assert judged([rho])["why"] == ""  # a verdict that holds needs no reason
+    count = Check("successful AICO runs", 1, "=", 0, "/10")
+    assert judged([count])["margin"] == "successful AICO runs 1/10 (holds at = 0/10)"
+    assert judged([Check("a", 3, ">", 5), Check("b", 1, "<", 0)], "any")["why"] == "none holds: a 3 <= 5; b 1 >= 0"
+
+
+def test_a_margin_inside_the_runs_spread_or_near_its_limit_is_fragile():
+    from stages.evaluate.claims import Check, judged
+
+    assert Check("via", 0.0197, "<=", 0.01, " m", spread=0.024).near()  # 1 cm over the rule, runs 2.4 cm apart
+    assert not Check("via", 0.0197, "<=", 0.01, " m", spread=0.001).near()
+    assert Check("angle", 0.0971, "<=", 0.1, " rad", spread=0.0).near()  # identical runs 3 % inside the limit
+    assert not Check("angle", 0.008, "<=", 0.1, " rad", spread=0.0).near()
+    assert judged([Check("angle", 0.0971, "<=", 0.1, " rad")])["near"] == [
+        "angle: margin 0.0029 rad, within 5% of its limit"]
+
+
+def test_no_balancing_success_names_the_run_nearest_the_rule():
+    """Fig. 3.4: holds at 0 successful runs; the nearest run 0.64 cm over the 1 cm rule, inside the runs' spread:
+    one run would flip it. A successful run is named by its error in the reason."""
+    errs = [0.0164, 0.02, 0.025, 0.03, 0.03, 0.035, 0.04, 0.045, 0.05, 0.0541]
+    (row,) = evaluate_claims(("aico_no_balancing",), {"AICO": S_("AICO", 100.0, vias=errs, via=0.03)}, [], "fig3.4")
+    assert row["verdict"] == "holds" and "successful AICO runs 0/10 (holds at = 0/10)" in row["margin"]
+    assert row["fragile"].startswith("one run would flip it: the nearest unsuccessful run's")
+    (row,) = evaluate_claims(("aico_no_balancing",), {"AICO": S_("AICO", 100.0, vias=[0.0033, *errs[1:]], via=0.03)},
+                             [], "fig3.4")
+    assert row["verdict"] == "does not hold" and "0.0033 m (<= 0.01 m)" in row["why"]
+
+
+def test_leaving_one_seed_out_that_flips_a_verdict_marks_it_fragile():
+    """fig3.2b's iLQG: five runs miss by 0.8 cm, five by 3.2 cm. Judged on its cost the row holds whatever seed is
+    left out; the thesis rows judged on the via-point median flip."""
+    vias = [0.008] * 5 + [0.032] * 5
+    S = table(ilqg={"final": 120, "via": 0.02, "vias": vias}, aico=100, r1=100)
+    without = {k: table(ilqg={"final": 120, "via": float(np.median(vias[:k] + vias[k + 1:])),
+                              "vias": vias[:k] + vias[k + 1:], "runs": 9}, aico=100, r1=100) for k in range(10)}
+    (row,) = evaluate_claims(("ilqg_stalls",), S, [], "fig3.2c", without=without)
+    assert row["verdict"] == "holds" and row["fragile"].startswith("leaving out any one of seeds 5, 6, 7, 8, 9 flips it")
+    assert "iLQG's median largest via-point error 0.02 m (holds at > 0.01 m" in row["margin"]
+    (row,) = evaluate_claims(("ilqg_performs_well",), S, [], "fig3.2b", without=without)
+    assert row["verdict"] == "holds" and row["fragile"] == ""  # 1.2x the best: its cost decides, not the vias
+    assert "runs missing a via-point by more than 1 cm: 5/10" in row["measured"]
+
+
+def test_converge_fast_cannot_be_tested_beside_converge_and_aico_best():
+    S = table(ilqg={"final": 100, "rho": 0.7}, aico={"final": 100, "rho": 0.3})
+    rows = evaluate_claims(("all_converge_aico_fastest",), S, [], "fig3.2a")
+    assert [(r["claim"], r["verdict"]) for r in rows] == [
+        ("the costs of AICO and iLQG converge, plain AICO best", "holds"),
+        ("the costs of AICO and iLQG converge fast", "cannot be tested")]
+    assert "no rule for 'fast'" in rows[1]["criterion"] and rows[1]["why"] == ""
+
+
+def test_large_weight_explores_is_judged_from_the_thesis_start_in_its_own_rows():
+    held = {f"{k}, x0 held": v for k, v in {"sigma*=0.2, w=0.01": L_(), "sigma*=0.2, w=100": L_()}.items()}
+    L = {**SMALL, "sigma*=0.2, w=100": L_(gp_curve=[1, 1, 1, 2, 3, 4, 5, 6]), **held}
+    rows = evaluate_claims(("large_weight_explores",), L, [], "fig4.1/4.2")
+    assert [(r["claim"], r["verdict"]) for r in rows] == [
+        ("sigma* = 0.2: a large weight (w = 1e2) explores too much", "holds"),
+        ("sigma* = 0.2: a large weight (w = 1e2) explores too much (with the thesis's start: x0 held at every "
+         "evaluation)", "does not hold")]
+    assert rows[1]["why"].startswith("w=100 explores: none holds: w=100 GP error: the last three's largest deviation")
+    # the thesis-start settings join none of the other rows
+    assert "x0 held" not in CLAIMS["gp_error_falls"](L, [])[2]
+
+
+def test_swing_up_margin_is_the_farthest_seed_against_the_tolerance():
+    (row,) = evaluate_claims(("swing_up_achieved",), {"sigma*=0, w=0.01": L_(task_by_seed=[0.0971, 0.0971])}, [],
+                             "fig4.1/4.2")
+    assert row["verdict"] == "holds" and "final angle to upright 0.0971 rad (holds at <= 0.1 rad" in row["margin"]
+    assert "within 5% of its limit" in row["fragile"]

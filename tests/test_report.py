@@ -310,3 +310,41 @@ def test_claims_table_names_section_figure_runs_setup_and_why():
     assert "### The thesis's claims (0 of 1 hold)" in thesis and "(about Fig. 3.2C,D)" in thesis
     assert "| 10 | arm5 is raico's own light-weight arm" in thesis and "**does not hold** (" in thesis
     assert "(1 of 1 hold)" in beyond and "within the figure's budget (25 iterations)" in beyond
+
+
+def test_a_nudged_start_lists_the_chaotic_runs():
+    """A variant run again with its start moved by 1e-9 rad: the seeds whose final cost moved by more than 0.1 % are
+    chaotic, listed in the report's processor section."""
+    from types import SimpleNamespace
+
+    from pipeline.experiments import Variant
+    from pipeline.report import nudge_effect, processor_section
+
+    a, b = Variant("aico"), Variant("aico", nudge=1e-9)
+    assert b.label == "AICO, start +1e-09 rad"
+
+    def plan(v, seed, cost, via):
+        return {"variant": v, "seed": seed, "outcome": SimpleNamespace(metrics={
+            "final_cost": cost, "via_point_errors": {"via_cog1@100": via}})}
+
+    plans = [plan(a, 0, 100.0, 0.02), plan(a, 1, 200.0, 0.03), plan(b, 0, 100.0 + 1e-9, 0.02),
+             plan(b, 1, 260.0, 0.009)]
+    e = nudge_effect(plans, a, b)
+    assert e["seeds"] == [0, 1] and e["chaotic"] == [1] and e["cost_change"][1] == pytest.approx(0.3)
+    assert e["via_change"][1] == pytest.approx(0.021)
+    md = "\n".join(processor_section([{"figure": "fig3.4", "processor": [e]}]))
+    assert "| fig3.4 | AICO | 1e-09 | 2 | 1 (1) | 30 % | 0.021 |" in md
+    assert processor_section([{"figure": "fig3.4"}]) == []
+
+
+def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
+    from pipeline.report import not_holding_section
+    from stages.evaluate.claims import evaluate_claims
+    from tests.test_evaluate import table
+
+    rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
+                           "fig3.2c")
+    md = not_holding_section(rows)
+    assert md[0] == "### The thesis's rows that do not hold, and why" and len(md) == 4  # the beyond row left out
+    assert md[2].startswith("- fig3.2c, iLQG cannot generate movement policies with low costs on the analytic model: "
+                            "**does not hold**. none holds: iLQG's diverged runs 0/10 <= 0/10")

@@ -102,9 +102,9 @@ def judged(checks: list[Check], rule: str = "all", prefix: str = "") -> dict:
         why = "; ".join(failed) + (f" (while {'; '.join(held)})" if held and failed else "")
     else:
         why = "none holds: " + "; ".join(failed)
-    near = [f"{c.what}'s margin {_fmt(abs(c.margin))}{c.unit} is inside its spread over the runs "
-            f"({_fmt(c.spread)}{c.unit})" if math.isfinite(c.spread) and abs(c.margin) < c.spread else
-            f"{c.what}'s margin {_fmt(abs(c.margin))}{c.unit} is within {NEAR:.0%} of its limit" for c in checks
+    near = [f"{c.what}: margin {_fmt(abs(c.margin))}{c.unit}, inside the runs' spread ({_fmt(c.spread)}{c.unit})"
+            if math.isfinite(c.spread) and abs(c.margin) < c.spread else
+            f"{c.what}: margin {_fmt(abs(c.margin))}{c.unit}, within {NEAR:.0%} of its limit" for c in checks
             if c.near()]
     pre = f"{prefix}: " if prefix else ""
     return {"ok": ok, "margin": pre + "; ".join(c.text() for c in checks), "why": pre + why if not ok else "",
@@ -742,8 +742,8 @@ def _no_success_margin(errs: list[float]) -> dict:
                  spread=iqr(errs))
     j["margin"] += f"; {near.text()}"
     if success == 0 and near.near():
-        j["near"] = [f"one run would flip it: {near.what}'s margin {_fmt(near.margin)} m is inside the runs' spread "
-                     f"({_fmt(near.spread)} m)"]
+        j["near"] = [f"one run would flip it: {near.what} is {_fmt(near.margin)} m over the rule, inside the runs' "
+                     f"spread ({_fmt(near.spread)} m)"]
     if success:
         j["why"] = (f"successful AICO runs {success}/{len(errs)} != 0: largest CoG via-point errors of the successful "
                     f"ones {', '.join(_fmt(e) for e in sorted(errs) if e <= VIA_TOL)} m (<= {VIA_TOL:g} m)")
