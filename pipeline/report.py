@@ -1193,8 +1193,8 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
                    "(initial states or seeds) | set-up deviations that can drive the verdict | margin (each condition "
                    "against its limit) | verdict (if it does not hold: why; fragile: what would flip it) |",
                    "|---|---|---|---|---|---|---|---|---|"]
-    beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | verdict |",
-                   "|---|---|---|---|---|---|---|"]
+    beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | margin | verdict |",
+                   "|---|---|---|---|---|---|---|---|"]
     beyond = [r for r in rows if str(r.get("thesis", "")).startswith(BEYOND)]
     thesis = [r for r in rows if r not in beyond]
     out: list[str] = []
@@ -1215,7 +1215,7 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
         held = sum(r["verdict"] == "holds" for r in beyond)
         out += [f"### Beyond the thesis ({held} of {len(beyond)} hold)", "", *beyond_head]
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | {verdict(r)} |" for r in beyond]
+                f"{r.get('seeds', '')} | {r.get('margin') or '-'} | {verdict(r)} |" for r in beyond]
         out += [""]
     return "\n".join(out).rstrip()
 

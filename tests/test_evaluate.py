@@ -372,7 +372,7 @@ def test_noise_claim_reads_the_noisy_runs_only():
 def test_stabilizer_claim_judges_only_the_stabilizer_runs():
     """The joint-PD runs of the figure are reported beside, not judged; no stabilizer run: no verdict."""
     execs = [ex(controller="wbc")] * 2 + [ex("fell"), ex()]
-    _, _, measured, ok = CLAIMS["stabilizer_stands"]({}, execs)
+    _, _, measured, ok = CLAIMS["stabilizer_stands"]({}, execs)[:4]
     assert ok and measured.startswith("achieved in 2/2 runs; stood 2/2 (statuses: ok 2)")
     assert measured.endswith("joint PD beside it: stood 1/2, achieved 1/2")
     assert CLAIMS["stabilizer_stands"]({}, [ex(), ex()])[2:] == ("no executions with the stabilizer", False)
@@ -380,7 +380,7 @@ def test_stabilizer_claim_judges_only_the_stabilizer_runs():
 
 @pytest.mark.parametrize("name, execs, holds", EXECUTION_CASES)
 def test_execution_claims_on_synthetic_executions(name, execs, holds):
-    claim, criterion, measured, ok = CLAIMS[name]({}, execs)
+    claim, criterion, measured, ok = CLAIMS[name]({}, execs)[:4]
     assert ok is holds, measured
     if execs:  # the claims say how many runs stood
         stood = sum(e["stood"] for e in execs)

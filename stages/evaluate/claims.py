@@ -338,9 +338,11 @@ def claim_raico_converges(S, execs):
                      f"final median {_fmt(s['final_cost_median'])} ({_fmt(s['final_cost_median'] / ref)}x the "
                      f"reference), diverged {s['diverged']}/{s['runs']}, largest via-point error median "
                      f"{_fmt(s['max_via_error_median'])} m" for k, s in R.items())
+    j = judged([c for k, s in R.items() for c in (_diverged(k, s), _flat_check(k, s),
+                                                   _cost_check(k, s, ref, "<=", LOW_COST, "the reference"))])
     return (f"beyond the thesis: R-AICO converges on the arm within the figure's budget ({budget} iterations)",
             f"for each R-AICO variant: {FLAT_TEXT}, and its median final cost is within {LOW_COST:g}x the reference "
-            f"optimum ({REFERENCE_TEXT})", f"{nums}; reference optimum {_fmt(ref)}", ok)
+            f"optimum ({REFERENCE_TEXT})", f"{nums}; reference optimum {_fmt(ref)}", ok, None, j)
 
 
 def claim_raico_converged_25(S, execs):
@@ -387,10 +389,13 @@ def claim_aico_unstable(S, execs):
 def claim_aico_unstable_without_relinearization(S, execs):
     a, best = S["AICO (no sweep relinearization)"], _best_raico(S)
     ok = a["diverged"] > 0 or a["final_cost_median"] > 2 * best or a["final_cost_max"] > 2 * best
+    j = judged([Check("diverged runs", a["diverged"], ">", 0, f"/{a['runs']}"),
+                Check("median final cost / the best R-AICO's", a["final_cost_median"] / best, ">", 2, "x"),
+                Check("worst final cost / the best R-AICO's", a["final_cost_max"] / best, ">", 2, "x")], "any")
     return ("ablation: AICO taking full Gauss-Newton steps (theta = inf) is unstable",
             "it diverges in some run, or its median or worst final cost exceeds 2x the best R-AICO's median",
             f"AICO without relinearization: final median {_fmt(a['final_cost_median'])}, worst "
-            f"{_fmt(a['final_cost_max'])}, diverged {a['diverged']}/{a['runs']}; best R-AICO {_fmt(best)}", ok)
+            f"{_fmt(a['final_cost_max'])}, diverged {a['diverged']}/{a['runs']}; best R-AICO {_fmt(best)}", ok, None, j)
 
 
 def claim_aico_fails(S, execs):
@@ -485,6 +490,8 @@ def claim_raico_reaches_fddp(S, execs):
     r = R[lab] if lab else None
     rf, ff = (r["final_cost_median"] if r else math.nan), f["final_cost_median"]
     ok = r is not None and math.isfinite(rf) and math.isfinite(ff) and rf <= FDDP_WITHIN * ff
+    j = judged([Check("the best R-AICO's median final cost / FDDP's", rf / ff if ff else math.nan, "<=", FDDP_WITHIN,
+                      "x")])
     nums = (f"best R-AICO ({lab}): final median {_fmt(rf)} after {_fmt(r['wall_time_median_s'])} s; " if r else
             "no R-AICO runs; ")
     nums += (f"crocoddyl FDDP (x0 held): {_fmt(ff)} after {_fmt(f['wall_time_median_s'])} s "
@@ -494,7 +501,7 @@ def claim_raico_reaches_fddp(S, execs):
     return ("beyond the thesis: R-AICO reaches a modern DDP's cost (crocoddyl FDDP, same problem, same start)",
             f"the best R-AICO variant's median final cost is at most {FDDP_WITHIN:g}x crocoddyl FDDP's from the same "
             "start (x0 held at every node); wall times are medians of whole runs (R-AICO: the thesis's iteration "
-            "budget; FDDP: its own), the figure's right panel shows cost against wall time", nums, ok)
+            "budget; FDDP: its own), the figure's right panel shows cost against wall time", nums, ok, None, j)
 
 
 def claim_adaptive_reaches_fddp(S, execs):
@@ -507,6 +514,9 @@ def claim_adaptive_reaches_fddp(S, execs):
     ta, tf = a["wall_time_median_s"], f["wall_time_median_s"]
     ok = (a["diverged"] == 0 and all(math.isfinite(x) for x in (ca, cf, ta, tf))
           and ca <= FDDP_WITHIN * cf and ta <= tf)
+    j = judged([_diverged(a["label"], a), Check("median final cost / FDDP's", ca / cf if cf else math.nan, "<=",
+                                                FDDP_WITHIN, "x"),
+                Check("median wall time / FDDP's", ta / tf if tf else math.nan, "<=", 1.0, "x")])
     nums = (f"{a['label']}: final median {_fmt(ca)} after {_fmt(ta)} s (diverged {a['diverged']}/{a['runs']}); "
             f"crocoddyl FDDP (x0 held): {_fmt(cf)} after {_fmt(tf)} s (ratio {_fmt(ca / cf if cf else math.nan)})")
     if fr:
@@ -516,7 +526,7 @@ def claim_adaptive_reaches_fddp(S, execs):
     return ("beyond the thesis: adaptive R-AICO reaches FDDP's cost within FDDP's wall time (same start)",
             f"the adaptive R-AICO's median final cost is at most {FDDP_WITHIN:g}x crocoddyl FDDP's from the same "
             "start (x0 held), no run diverged, and its median wall time for the whole run is at most FDDP's "
-            "(both at FDDP's iteration budget)", nums, ok)
+            "(both at FDDP's iteration budget)", nums, ok, None, j)
 
 
 GAMMA2 = "R-AICO a=1, gamma=2"
@@ -529,13 +539,15 @@ def claim_gamma_ablation(S, execs):
     if not (g and r):
         return ("ablation: R-AICO with a growing alpha (gamma = 2)", "needs both variants", "no runs", False)
     ok = math.isfinite(ref) and _flat_and_low(g, ref)
+    j = judged([_diverged("gamma=2", g), _flat_check("gamma=2", g), _cost_check("gamma=2", g, ref, "<=", LOW_COST,
+                                                                                   "the reference")])
     return ("ablation: R-AICO with alpha doubled after every iteration (gamma = 2) converges",
             f"for the gamma = 2 variant: {FLAT_TEXT}, and its median final cost is within {LOW_COST:g}x the reference "
             f"optimum ({REFERENCE_TEXT})",
             f"gamma=2: final median {_fmt(g['final_cost_median'])} ({_fmt(g['final_cost_median'] / ref)}x the "
             f"reference {_fmt(ref)}), cost change {_pct(per_iteration_change(g))} per iteration over the last "
             f"{FLAT_ITERS}, diverged {g['diverged']}/{g['runs']}; gamma=1: final median {_fmt(r['final_cost_median'])} "
-            f"({_fmt(r['final_cost_median'] / ref)}x)", ok)
+            f"({_fmt(r['final_cost_median'] / ref)}x)", ok, None, j)
 
 
 FD_AICO = "AICO, finite differences"
@@ -547,12 +559,14 @@ def claim_fd_ablation(S, execs):
         return ("ablation: plain AICO with finite-difference linearizations fails as with exact ones",
                 "needs both variants", "no runs", False)
     ok = f["diverged"] >= f["runs"] / 2 and a["diverged"] >= a["runs"] / 2
+    j = judged([Check("finite differences: diverged runs", f["diverged"], ">=", f["runs"] / 2, f"/{f['runs']}"),
+                Check("exact: diverged runs", a["diverged"], ">=", a["runs"] / 2, f"/{a['runs']}")])
     return ("ablation: plain AICO with the thesis's finite-difference linearizations fails as with exact ones "
             "(the derivatives are not the difference)",
             "both plain AICO variants, exact and finite-difference (central, 1e-6) linearizations of the analytic "
             "model, diverge in at least half the runs",
             f"finite differences: diverged {f['diverged']}/{f['runs']}, final median {_fmt(f['final_cost_median'])}; "
-            f"exact: diverged {a['diverged']}/{a['runs']}, final median {_fmt(a['final_cost_median'])}", ok)
+            f"exact: diverged {a['diverged']}/{a['runs']}, final median {_fmt(a['final_cost_median'])}", ok, None, j)
 
 
 # Appendix C: the three pseudo-dynamics integrators. A variant of the comparison is labelled
@@ -615,12 +629,17 @@ def claim_learning_rates_fail(S, execs):
     if len(vs) < 2:
         return ("plain AICO with a learning rate does not converge", "needs both variants", "no runs", False)
     ok = math.isfinite(ref) and all(not _flat_and_low(v, ref) for v in vs.values())
+    j = merge(*(judged([Check(f"{k}: diverged runs", v["diverged"], ">", 0, f"/{v['runs']}"),
+                        Check(f"{k}: cost change per iteration over its last {FLAT_ITERS}",
+                              100 * per_iteration_change(v), ">", 100 * FLAT_RATE, " %"),
+                        _cost_check(k, v, ref, ">", LOW_COST, "the reference")], "any", f"{k} does not converge")
+                for k, v in vs.items()))
     nums = "; ".join(f"{k}: final median {_fmt(v['final_cost_median'])} ({_fmt(v['final_cost_median'] / ref)}x the "
                      f"reference), cost change {_pct(per_iteration_change(v))} per iteration over the last "
                      f"{FLAT_ITERS}, diverged {v['diverged']}/{v['runs']}" for k, v in vs.items())
     return ("ablation: plain AICO with a learning rate (0.5) on the belief update or on the controller does not "
             "converge", f"neither variant converges: {FLAT_TEXT}, with a median final cost within {LOW_COST:g}x the "
-            f"reference optimum ({REFERENCE_TEXT})", f"{nums}; reference optimum {_fmt(ref)}", ok)
+            f"reference optimum ({REFERENCE_TEXT})", f"{nums}; reference optimum {_fmt(ref)}", ok, None, j)
 
 
 def claim_rollout_start_reaches_fddp(S, execs):
@@ -632,6 +651,7 @@ def claim_rollout_start_reaches_fddp(S, execs):
     cf = f["final_cost_median"]
     best = min(vs, key=lambda k: vs[k]["final_cost_median"])
     ok = math.isfinite(cf) and vs[best]["diverged"] == 0 and vs[best]["final_cost_median"] <= FDDP_WITHIN * cf
+    j = judged([_diverged(best, vs[best]), _cost_check(best, vs[best], cf, "<=", FDDP_WITHIN, "FDDP's")])
     nums = "; ".join(f"{k}: final median {_fmt(v['final_cost_median'])} ({_fmt(v['final_cost_median'] / cf)}x), "
                      f"cost change {_pct(per_iteration_change(v))} per iteration over its last {FLAT_ITERS} "
                      f"iterations, diverged {v['diverged']}/{v['runs']}" for k, v in vs.items())
@@ -645,7 +665,7 @@ def claim_rollout_start_reaches_fddp(S, execs):
     return ("beyond the thesis: R-AICO started from the zero-control rollout reaches crocoddyl FDDP's cost from "
             "that start", f"the better of R-AICO a=1 and adaptive R-AICO, both from the rollout start, ends within "
             f"{FDDP_WITHIN:g}x FDDP's median final cost from the rollout start, no run diverged",
-            f"{nums}; FDDP (rollout start) {_fmt(cf)}{why}", ok)
+            f"{nums}; FDDP (rollout start) {_fmt(cf)}{why}", ok, None, j)
 
 
 def claim_ilqg_stall_ablation(S, execs):
@@ -658,6 +678,8 @@ def claim_ilqg_stall_ablation(S, execs):
     ratio = {k: (v["final_cost_median"] / a if a else math.nan) for k, v in rules.items()}
     stall = [k.split(" (")[0] for k, r in ratio.items() if not math.isfinite(r) or r >= 2]
     ok = math.isfinite(a) and bool(stall)
+    j = judged([Check(f"with iLQG's {k.split(' (')[0]}: final cost / FDDP's", r, ">=", 2, "x")
+                for k, r in ratio.items()], "any")
     parts = "; ".join(f"with iLQG's {k}: {_fmt(v['final_cost_median'])} ({_fmt(ratio[k])}x)" for k, v in rules.items())
     why = (f"iLQG's {' and '.join(stall)} alone makes FDDP stall" if ok else
            "neither rule alone makes FDDP stall")
@@ -665,7 +687,7 @@ def claim_ilqg_stall_ablation(S, execs):
             "FDDP from the zero-torque rollout with one of iLQG's rules swapped in (all else crocoddyl's) ends at "
             "least 2x above FDDP's own median final cost",
             f"FDDP (rollout start) final median {_fmt(a)}; {parts}; iLQG {_fmt(i['final_cost_median'])} after the "
-            f"thesis's budget: {why}", ok)
+            f"thesis's budget: {why}", ok, None, j)
 
 
 def claim_all_converge_aico_fastest(S, execs):
@@ -794,10 +816,13 @@ def claim_cog_support(S, execs):
     margin = [e.get("cog_min_margin", math.nan) for e in execs]
     sat = [e.get("torque_saturation", math.nan) for e in execs]
     ok = stood == len(execs) and all(f >= 1.0 for f in inside)
+    j = judged([Check("runs that stood", stood, "=", len(execs), f"/{len(execs)}"),
+                Check("runs with the CoG inside at every sample", sum(f >= 1.0 for f in inside), "=", len(execs),
+                      f"/{len(execs)}")])
     return (claim, criterion,
             f"stood {stood}/{len(execs)} runs (statuses: {counts}); CoG inside the contact polygon: median "
             f"{_pct(float(np.median(inside)))} of the samples, worst margin {_fmt(float(np.nanmin(margin)))} m; steps "
-            f"with an actuator at its effort limit: median {_pct(float(np.median(sat)))}", ok)
+            f"with an actuator at its effort limit: median {_pct(float(np.median(sat)))}", ok, None, j)
 
 
 EXECUTED_VIA_TOL = 0.01  # m, as the planning claim's tolerance
@@ -825,9 +850,10 @@ def claim_executed_reaches(S, execs):
     errs = [largest_via_error(e) for e in execs]
     achieved = sum(map(executed_achieved, execs))
     ok = achieved == len(execs)
+    j = judged([Check("runs achieving it", achieved, "=", len(execs), f"/{len(execs)}")])
     return (claim, criterion,
             f"achieved in {achieved}/{len(execs)} runs; stood {stood}/{len(execs)} (statuses: {counts}); largest "
-            f"executed via-point error median {_fmt(float(np.nanmedian(errs)) if errs else math.nan)} m", ok)
+            f"executed via-point error median {_fmt(float(np.nanmedian(errs)) if errs else math.nan)} m", ok, None, j)
 
 
 def claim_stabilizer_stands(S, execs):
@@ -850,7 +876,8 @@ def claim_stabilizer_stands(S, execs):
             if pd else "")
     return (claim, criterion,
             f"achieved in {achieved}/{len(wbc)} runs; stood {stood}/{len(wbc)} (statuses: {counts}); largest executed "
-            f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", achieved == len(wbc))
+            f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", achieved == len(wbc), None,
+            judged([Check("runs achieving it", achieved, "=", len(wbc), f"/{len(wbc)}")]))
 
 
 NOISE_STOOD = 0.9  # ">= 9/10 stand" under noise
@@ -874,7 +901,8 @@ def claim_stabilizer_stands_under_noise(S, execs):
     ok = sum(e.get("status") == "ok" for e in wbc)
     base = f"; joint PD beside it: stood {_stood_counts(pd)[0]}/{len(pd)}" if pd else ""
     return (claim, criterion, f"stood {stood}/{len(wbc)} (statuses: {counts}); status ok {ok}/{len(wbc)}{base}",
-            stood >= NOISE_STOOD * len(wbc))
+            stood >= NOISE_STOOD * len(wbc), None,
+            judged([Check("runs that stood", stood, ">=", NOISE_STOOD * len(wbc), f"/{len(wbc)}")]))
 
 
 def claim_single_support_stands(S, execs):
@@ -899,7 +927,8 @@ def claim_single_support_stands(S, execs):
             f"stood with the foot lifted in {ok}/{len(wbc)} runs; stood {stood}/{len(wbc)} (statuses: {counts}); right "
             f"sole's lowest corner from the lift step on: median {_fmt(float(np.nanmedian(lifts)))} m (min "
             f"{_fmt(float(np.nanmin(lifts)) if np.isfinite(lifts).any() else math.nan)} m); largest executed CoG "
-            f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", ok == len(wbc))
+            f"via-point error median {_fmt(float(np.nanmedian(errs)))} m{base}", ok == len(wbc), None,
+            judged([Check("runs standing with the foot lifted", ok, "=", len(wbc), f"/{len(wbc)}")]))
 
 
 # ----------------------------------------------------------------------------- learning (thesis §4)
@@ -1110,11 +1139,12 @@ def claim_pilco_efficiency(L, execs):
     fin = [x for x in secs if math.isfinite(x)]
     med = float(np.median(secs)) if secs else math.inf
     ok = bool(secs) and med <= PILCO_SECONDS
+    j = judged([Check("raico's median executed seconds", med, "<=", PILCO_SECONDS, " s")])
     return ("data efficiency against PILCO: seconds of executed motion until the first swing-up",
             f"median over seeds of raico's executed seconds (babbling included) until the first episode that "
             f"ends within 0.1 rad of upright <= {PILCO_SECONDS} s ({PILCO_SOURCE})",
             f"raico: {', '.join(_fmt(x) for x in secs)} s over {len(secs)} seeds ({len(fin)} succeeded), "
-            f"median {_fmt(med)} s; PILCO {PILCO_SECONDS} s", ok)
+            f"median {_fmt(med)} s; PILCO {PILCO_SECONDS} s", ok, None, j)
 
 
 def claim_batch_cheaper(L, execs):
