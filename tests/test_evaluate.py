@@ -672,3 +672,14 @@ def test_swing_up_margin_is_the_farthest_seed_against_the_tolerance():
                              "fig4.1/4.2")
     assert row["verdict"] == "holds" and "final angle to upright 0.0971 rad (holds at <= 0.1 rad" in row["margin"]
     assert "within 5% of its limit" in row["fragile"]
+
+
+def test_only_a_check_whose_flip_flips_the_verdict_makes_it_fragile():
+    from stages.evaluate.claims import Check, judged
+
+    close, far = Check("a", 1.01, ">", 1.0, "x"), Check("b", 21.4, ">", 1.0, "x")
+    assert judged([close, far], "any")["near"] == []  # b alone keeps it
+    assert judged([close, Check("b", 0.5, ">", 1.0, "x")], "any")["near"] == ["a: margin 0.01x, within 5% of its limit"]
+    assert judged([close, far], "all")["near"] == ["a: margin 0.01x, within 5% of its limit"]
+    # it fails on two checks: moving one of them does not make it hold
+    assert judged([Check("a", 0.99, ">", 1.0), Check("b", 0.5, ">", 1.0)], "all")["near"] == []

@@ -96,6 +96,10 @@ def judged(checks: list[Check], rule: str = "all", prefix: str = "") -> dict:
     one is enough): the margin lists every check against its limit; the reason names the checks that decided it
     (where it fails: the failed ones, those that held beside them), composed from the measured numbers."""
     ok = all(c.ok for c in checks) if rule == "all" else any(c.ok for c in checks)
+    # the checks whose flip alone would flip the verdict: all of them where every one holds ("all") or none does
+    # ("any"); otherwise only a lone failed ("all") or lone held ("any") check
+    side = [c for c in checks if c.ok != (rule == "all")]
+    deciding = checks if not side else side if len(side) == 1 else []
     failed = [c.said() for c in checks if not c.ok]
     held = [c.said() for c in checks if c.ok]
     if rule == "all":
@@ -104,7 +108,7 @@ def judged(checks: list[Check], rule: str = "all", prefix: str = "") -> dict:
         why = "none holds: " + "; ".join(failed)
     near = [f"{c.what}: margin {_fmt(abs(c.margin))}{c.unit}, inside the runs' spread ({_fmt(c.spread)}{c.unit})"
             if math.isfinite(c.spread) and abs(c.margin) < c.spread else
-            f"{c.what}: margin {_fmt(abs(c.margin))}{c.unit}, within {NEAR:.0%} of its limit" for c in checks
+            f"{c.what}: margin {_fmt(abs(c.margin))}{c.unit}, within {NEAR:.0%} of its limit" for c in deciding
             if c.near()]
     pre = f"{prefix}: " if prefix else ""
     return {"ok": ok, "margin": pre + "; ".join(c.text() for c in checks), "why": pre + why if not ok else "",
