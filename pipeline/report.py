@@ -1528,10 +1528,33 @@ def heldout_sentence(label: str, s: dict) -> str | None:
             f"{_fmt(nxt[0])} to {_fmt(nxt[1])}.")
 
 
+def endings_sentence(S: dict, tol: float = 0.1) -> str | None:
+    """How far apart the settings that achieve a pendulum's swing-up end their last episode (``task_error_last_by_seed``,
+    rad from upright, within ``tol``), with the executed torque's share of steps at its limit and the GP error on
+    the next execution: settings whose plans converged to one optimum of the task's cost end together. None
+    without two such settings."""
+    ends = {k: [x for x in s.get("task_error_last_by_seed") or [] if x <= tol] for k, s in S.items()}
+    ends = {k: v for k, v in ends.items() if v}
+    if len(ends) < 2:
+        return None
+    allv = [x for v in ends.values() for x in v]
+    sat = [s["torque_saturation_curve"][-1] for k, s in S.items() if k in ends and s.get("torque_saturation_curve")]
+    gp = [s["gp_error_curve"][-1] for k, s in S.items() if k in ends and s.get("gp_error_curve")]
+    return (f"{len(ends)} of {len(S)} settings end a last episode within {tol:g} rad of upright; those endings lie "
+            f"between {_fmt(min(allv))} and {_fmt(max(allv))} rad (spread {_fmt(max(allv) - min(allv))} rad)"
+            + (f", with the executed torque at its limit in {_share(min(sat))}-{_share(max(sat))} of the steps" if sat
+               else "")
+            + (f" and a GP error on the next execution of {_fmt(min(gp))}-{_fmt(max(gp))} rad/s^2" if gp else "")
+            + ": the settings' plans converge to one optimum of the task's cost on a model this accurate, and the "
+              "uncertainty term, small along the data, no longer separates them.")
+
+
 def learn_findings(S: dict) -> list[str]:
-    """Sentences on a learning figure's curves, from the numbers: the held-out GP error of each setting and, for
-    the hyperparameter schedules, the measured ratio of their fit times."""
+    """Sentences on a learning figure's curves, from the numbers: the held-out GP error of each setting, where the
+    settings that swing up end, and, for the hyperparameter schedules, the measured ratio of their fit times."""
     out = [x for lab, s in S.items() if (x := heldout_sentence(lab, s))]
+    if any("sigma*" in k for k in S):
+        out += [x for x in [endings_sentence({k: v for k, v in S.items() if not k.endswith(", x0 held")})] if x]
     e, b = S.get("every"), S.get("batch-100")
     if e and b and b.get("fit_time_s_total"):
         out.append(f"Fit time over the whole loop (median over seeds): every {_fmt(e['fit_time_s_total'])} s, batch-100 "

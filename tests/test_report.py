@@ -348,3 +348,17 @@ def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
     assert md[0] == "### The thesis's rows that do not hold, and why" and len(md) == 4  # the beyond row left out
     assert md[2].startswith("- fig3.2c, iLQG cannot generate movement policies with low costs on the analytic model: "
                             "**does not hold**. none holds: iLQG's diverged runs 0/10 <= 0/10")
+
+
+def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
+    from pipeline.report import endings_sentence
+
+    S = {"sigma*=0, w=0.01": {"task_error_last_by_seed": [0.00763, 0.00764], "torque_saturation_curve": [0.9, 0.29],
+                              "gp_error_curve": [1.0, 2e-4]},
+         "sigma*=none": {"task_error_last_by_seed": [0.00762], "torque_saturation_curve": [0.5, 0.3],
+                         "gp_error_curve": [1.0, 3e-4]},
+         "sigma*=1, w=100": {"task_error_last_by_seed": [2.7, 2.2]}}
+    text = endings_sentence(S)
+    assert text.startswith("2 of 3 settings end a last episode within 0.1 rad of upright; those endings lie between "
+                           "0.00762 and 0.00764 rad (spread 2e-05 rad), with the executed torque at its limit in 29")
+    assert endings_sentence({"sigma*=1, w=100": S["sigma*=1, w=100"]}) is None
