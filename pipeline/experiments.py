@@ -300,7 +300,7 @@ def variant_runs(plans: list[dict], variant: Variant, cache: Cache | None = None
             from pipeline.artifacts import as_artifact
 
             art = as_artifact(cache.require("plan", p["outcome"].key))
-            nao_reach = art.config.get("plant") == "nao" and art.config.get("task") == "reach"
+            nao_reach = art.config.get("plant") == "nao" and art.config.get("task") in ("reach", "reach-zero")
             d = art.arrays("plan.npz", ("costs", "X") if nao_reach else ("costs",))
             c = d.get("costs")
             m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
