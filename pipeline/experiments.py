@@ -16,6 +16,7 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -525,6 +526,19 @@ def _load_figures() -> tuple[dict[str, Experiment], dict[str, LearnExperiment]]:
 
 
 EXPERIMENTS, LEARN_EXPERIMENTS = _load_figures()
+
+
+def include_thesis_setups() -> None:
+    """Load the figures again with their points that need "thesis-setups" (the thesis's set-ups beside raico's:
+    the Nao's reach from the zero posture, its balancing with eq. 3.7's cost, the pendulum with x0 held), in place,
+    so every module that holds the figures sees them."""
+    from pipeline import expfile
+
+    os.environ[expfile.THESIS_SETUPS] = "1"
+    expfile.available.cache_clear()
+    plans, learns = _load_figures()
+    EXPERIMENTS.update(plans)
+    LEARN_EXPERIMENTS.update(learns)
 NOISE_SWEEPS = {e.id: next(v for v in e.variants if v.label == e.profiles[0].reproduce["noise_sweep"])
                 for e in EXPERIMENTS.values() if "noise_sweep" in e.profiles[0].reproduce}
 # The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost any solver

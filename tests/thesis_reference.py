@@ -6,6 +6,7 @@ the figure flow of that time), kept only to prove that the files give every run 
 # ruff: noqa: E501
 from __future__ import annotations
 
+from pipeline import expfile
 from pipeline.cache import Cache
 from pipeline.executors import Batch
 from pipeline.experiments import (
@@ -69,6 +70,7 @@ FDDP_CLAIMS = ("raico_reaches_fddp",) if FDDP_VARIANTS else ()
 
 
 
+SETUPS = expfile.available("thesis-setups")  # the thesis's set-ups beside raico's (raico reproduce --thesis-setups)
 ARM_VARIANTS = (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0))
 ABLATION = Variant("aico", 0.0, relinearize=False)
 EXPERIMENTS: dict[str, Experiment] = {
@@ -97,7 +99,8 @@ EXPERIMENTS: dict[str, Experiment] = {
                                   *FDDP_CLAIMS, *ADAPTIVE_CLAIMS, "gamma_ablation", "fd_ablation", *ROLLOUT_CLAIMS)),
     "fig3.3": Experiment("fig3.3", "nao", "reach", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), REFERENCE,
-                          *(Variant(s, a, task="reach-zero") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0)))),
+                          *(Variant(s, a, task="reach-zero") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0))
+                            if SETUPS)),
                          25, 5, "Nao, pseudo-dynamics: right hand to a target, CoG held",
                          execute=(Variant("raico", 1.0),), stabilized=True,
                          claims=("raico_reaches_aico_not", "counterbalance", "cog_support", "executed_reaches",
@@ -105,7 +108,7 @@ EXPERIMENTS: dict[str, Experiment] = {
     "fig3.4": Experiment("fig3.4", "nao", "balance", "pseudo",
                          (Variant("ilqg"), Variant("aico"), Variant("raico", 1.0), Variant("raico", 10.0), REFERENCE,
                           *(Variant(s, a, task="balance-thesis") for s, a in (("ilqg", 0.0), ("aico", 0.0), ("raico", 1.0),
-                                                                              ("raico", 10.0))),
+                                                                              ("raico", 10.0)) if SETUPS),
                           Variant("aico", nudge=1e-9), Variant("raico", 1.0, nudge=1e-9)),
                          25, 5, "Nao, pseudo-dynamics: CoG 0.1 m right, left, back",
                          execute=(Variant("raico", 1.0),),
@@ -237,7 +240,7 @@ def _sigma_settings() -> tuple[LearnSetting, ...]:
             out.append(LearnSetting(f"sigma*={sigma}, w={w:g}", (("sigma_star", sigma), ("sigma_weight", w)), seeds,
                                     quick=(sigma, w) in (("0", 1e-2), ("1", 1e2))))
     out.append(LearnSetting("sigma*=none", (("sigma_star", "none"),), 2, quick=True))
-    for sigma in ("0.2", "1"):  # the thesis's start beside raico's
+    for sigma in ("0.2", "1") if SETUPS else ():  # the thesis's start beside raico's (--thesis-setups)
         for w in (1e-2, 1e2):
             out.append(LearnSetting(f"sigma*={sigma}, w={w:g}, x0 held", (("sigma_star", sigma), ("sigma_weight", w),
                                                                           ("warm_from", "none"), ("q0_std", 0.05)), 2))
