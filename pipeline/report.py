@@ -55,6 +55,12 @@ SOLVER_COLORS: dict[str, str] = {
     "AICO, controller rate 0.5": "#e7969c",
     "R-AICO a=1, rollout start": "#637939",
     "R-AICO adaptive (a0=1, rollout start)": "#8c6d31",
+    # the start moved by 1e-9 rad (the perturbation test): a darker shade of the solver's colour
+    "iLQG, start +1e-09 rad": "#08519c", "AICO, start +1e-09 rad": "#a63603",
+    "R-AICO a=1, start +1e-09 rad": "#006d2c",
+    # the thesis's set-up beside raico's: a lighter shade of the solver's colour
+    **{f"{k}, {setup}": c for k, c in (("iLQG", "#aec7e8"), ("AICO", "#ffbb78"), ("R-AICO a=1", "#98df8a"),
+                                         ("R-AICO a=10", "#ff9896")) for setup in ("zero posture", "thesis's cost")},
 }
 SOLVER_COLOR_PREFIXES: tuple[tuple[str, str], ...] = (("R-AICO adaptive", "tab:cyan"),)
 # labels of neither table: a colour from these, chosen by a hash of the label (the same in every figure unless
