@@ -757,7 +757,21 @@ def claim_aico_no_balancing(S, execs):
             f"{VIA_TOL * 100:g} cm; the held right sole left out)",
             f"successful AICO runs {success}/{len(errs)}; largest CoG via-point error {_fmt(min(fin) if fin else math.nan)}"
             f"-{_fmt(max(fin) if fin else math.nan)} m (median {_fmt(a['max_via_error_median'])} m); diverged "
-            f"{a['diverged']}/{a['runs']}", bool(errs) and success == 0, a["runs"], _no_success_margin(errs))
+            f"{a['diverged']}/{a['runs']}{_success_costs(S, a, errs)}", bool(errs) and success == 0, a["runs"],
+            _no_success_margin(errs))
+
+
+def _success_costs(S: dict, a: dict, errs: list[float]) -> str:
+    """Beside the 1 cm rule, what Fig. 3.4B plots: the final costs of AICO's successful runs (or its median) against
+    the best R-AICO's median."""
+    best = _best_raico(S)
+    if not math.isfinite(best) or not best:
+        return ""
+    won = [c for c, e in zip(a.get("final_costs") or [], errs) if e <= VIA_TOL]
+    costs = ", ".join(f"{_fmt(c)} ({_fmt(c / best)}x)" for c in won)
+    return (f"; final cost of the successful runs {costs}" if won else
+            f"; final cost median {_fmt(a['final_cost_median'])} ({_fmt(a['final_cost_median'] / best)}x)") + \
+        f" against the best R-AICO's median {_fmt(best)}"
 
 
 def _no_success_margin(errs: list[float]) -> dict:
