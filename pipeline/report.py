@@ -1068,7 +1068,7 @@ def not_holding_section(rows: list[dict]) -> list[str]:
     lines = ["### The thesis's rows that do not hold, and why", ""]
     for r in out:
         why = r.get("why") or (r["criterion"] if r["verdict"] == CANNOT else "")
-        lines.append(f"- {r['figure']}, {r['claim']}: **{r['verdict']}**. {why}"
+        lines.append(f"- {r['figure']}, {r['claim']}: **{r['verdict']}**. {why.rstrip('.')}."
                      + (f" Fragile: {r['fragile']}." if r.get("fragile") else ""))
     return lines + [""]
 

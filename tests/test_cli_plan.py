@@ -333,7 +333,10 @@ def test_no_record_then_record_is_cached_and_writes_the_recording(tmp_path):
 
     chunks = RrdReader(folder / "recording.rrd").stream().to_chunks()
     assert sum(c.num_rows for c in chunks if c.entity_path == "/cost/total" and "iteration" in c.timeline_names) == 2
-    assert sum(c.num_rows for c in chunks if c.entity_path == "/world/robot/rod" and "sim_time" in c.timeline_names) == 751
+    from pipeline.rerun_io import MAX_POSES, decimate
+
+    assert sum(c.num_rows for c in chunks if c.entity_path == "/world/robot/rod" and "sim_time" in c.timeline_names) \
+        == len(decimate(PENDULUM_T + 1, MAX_POSES, [PENDULUM_T]))
     from pipeline.mcap_io import read_trajectory_mcap
 
     np.testing.assert_allclose(read_trajectory_mcap(folder / "trajectory.mcap")["position"],
