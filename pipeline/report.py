@@ -1535,24 +1535,33 @@ def heldout_sentence(label: str, s: dict) -> str | None:
 
 
 def endings_sentence(S: dict, tol: float = 0.1) -> str | None:
-    """How far apart the settings that achieve a pendulum's swing-up end their last episode (``task_error_last_by_seed``,
-    rad from upright, within ``tol``), with the executed torque's share of steps at its limit and the GP error on
-    the next execution: settings whose plans converged to one optimum of the task's cost end together. None
-    without two such settings."""
-    ends = {k: [x for x in s.get("task_error_last_by_seed") or [] if x <= tol] for k, s in S.items()}
-    ends = {k: v for k, v in ends.items() if v}
-    if len(ends) < 2:
+    """Where the swing-up's endings lie (``task_error_last_by_seed``: each setting and seed's last episode, rad from
+    upright, those within ``tol``): how many lie within the claims' tie (1 mrad) of their median, with the executed
+    torque's share of steps at its limit and the GP error on the next execution of those settings, and the others
+    named. None with fewer than two endings."""
+    from stages.evaluate.claims import TIE
+
+    pts = [(k, i, x) for k, s in S.items() for i, x in enumerate(s.get("task_error_last_by_seed") or []) if x <= tol]
+    if len(pts) < 2:
         return None
-    allv = [x for v in ends.values() for x in v]
-    sat = [s["torque_saturation_curve"][-1] for k, s in S.items() if k in ends and s.get("torque_saturation_curve")]
-    gp = [s["gp_error_curve"][-1] for k, s in S.items() if k in ends and s.get("gp_error_curve")]
-    return (f"{len(ends)} of {len(S)} settings end a last episode within {tol:g} rad of upright; those endings lie "
-            f"between {_fmt(min(allv))} and {_fmt(max(allv))} rad (spread {_fmt(max(allv) - min(allv))} rad)"
-            + (f", with the executed torque at its limit in {_share(min(sat))}-{_share(max(sat))} of the steps" if sat
-               else "")
-            + (f" and a GP error on the next execution of {_fmt(min(gp))}-{_fmt(max(gp))} rad/s^2" if gp else "")
-            + ": the settings' plans converge to one optimum of the task's cost on a model this accurate, and the "
-              "uncertainty term, small along the data, no longer separates them.")
+    med = float(np.median([x for _, _, x in pts]))
+    near = [p for p in pts if abs(p[2] - med) < TIE]
+    far = [p for p in pts if abs(p[2] - med) >= TIE]
+    together = {k for k, _, _ in near} - {k for k, _, _ in far}
+    sat = [S[k]["torque_saturation_curve"][-1] for k in together if S[k].get("torque_saturation_curve")]
+    gp = [S[k]["gp_error_curve"][-1] for k in together if S[k].get("gp_error_curve")]
+    xs = [x for _, _, x in near]
+    text = (f"{len(near)} of the {len(pts)} endings within {tol:g} rad of upright (setting and seed, last episode) lie "
+            f"within {TIE * 1e3:g} mrad of {_fmt(med)} rad (from {_fmt(min(xs))} to {_fmt(max(xs))})")
+    if sat and gp:
+        text += (f"; in the settings that end there every time, the executed torque is at its limit in "
+                 f"{_share(min(sat))}-{_share(max(sat))} of the last episode's steps and the GP error on the next "
+                 f"execution is {_fmt(min(gp))}-{_fmt(max(gp))} rad/s^2: their plans converge to one optimum of the "
+                 "task's cost on a model this accurate, where the uncertainty term, small along the data, no longer "
+                 "separates the settings")
+    if far:
+        text += "; the others: " + ", ".join(f"{k} seed {i} at {_fmt(x)} rad" for k, i, x in far)
+    return text + "."
 
 
 def learn_findings(S: dict) -> list[str]:

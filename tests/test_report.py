@@ -358,7 +358,10 @@ def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
          "sigma*=none": {"task_error_last_by_seed": [0.00762], "torque_saturation_curve": [0.5, 0.3],
                          "gp_error_curve": [1.0, 3e-4]},
          "sigma*=1, w=100": {"task_error_last_by_seed": [2.7, 2.2]}}
+    S["sigma*=0.2, w=100"] = {"task_error_last_by_seed": [2.4, 0.003]}
     text = endings_sentence(S)
-    assert text.startswith("2 of 3 settings end a last episode within 0.1 rad of upright; those endings lie between "
-                           "0.00762 and 0.00764 rad (spread 2e-05 rad), with the executed torque at its limit in 29")
+    assert text.startswith("3 of the 4 endings within 0.1 rad of upright (setting and seed, last episode) lie within 1 "
+                           "mrad of 0.00762 rad (from 0.00762 to 0.00764); in the settings that end there every time, "
+                           "the executed torque is at its limit in 29 %-30 % of the last episode's steps")
+    assert text.endswith("; the others: sigma*=0.2, w=100 seed 1 at 0.003 rad.")
     assert endings_sentence({"sigma*=1, w=100": S["sigma*=1, w=100"]}) is None
