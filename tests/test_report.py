@@ -365,3 +365,15 @@ def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
                            "the executed torque is at its limit in 29 %-30 % of the last episode's steps")
     assert text.endswith("; the others: sigma*=0.2, w=100 seed 1 at 0.003 rad.")
     assert endings_sentence({"sigma*=1, w=100": S["sigma*=1, w=100"]}) is None
+
+
+def test_a_thesis_setup_row_names_its_set_up_in_place_of_raicos():
+    from pipeline.report import _setup_in_place
+    from stages.evaluate.claims import setup_notes
+
+    raico = setup_notes("aico_no_balancing", "fig3.4")
+    assert "CoG weights read as 1e6" in raico and "right sole held" in raico
+    row = _setup_in_place(raico, "balance-thesis")
+    assert row.startswith("eq. 3.7's cost") and "CoG weights read" not in row and "right sole held" not in row
+    assert "q0 about a posture leaning" in row  # the start is raico's in this set-up
+    assert _setup_in_place(setup_notes("counterbalance", "fig3.3"), "reach-zero").startswith("q0 about the zero posture")
