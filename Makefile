@@ -7,7 +7,7 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick bench lint clean
+.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint clean
 
 install: $(STAMP)
 
@@ -52,6 +52,9 @@ test-sanitize: $(STAMP)
 
 reproduce: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --jobs $(JOBS) --artifacts $(ARTIFACTS)
+
+reproduce-thesis: $(STAMP) $(KERNEL)
+	$(BIN)/raico reproduce --all --thesis-setups --jobs $(JOBS) --artifacts $(ARTIFACTS)
 
 reproduce-quick: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --quick --jobs $(JOBS) --artifacts $(ARTIFACTS)

@@ -305,6 +305,10 @@ def reproduce(
                                           "--address).")] = "process",
     address: Annotated[str | None, typer.Option("--address", help="Ray cluster to run on (HOST:PORT of its head, "
                                                 "or auto); goes with --executor ray.")] = None,
+    thesis_setups: Annotated[bool, typer.Option("--thesis-setups", help="Also run the thesis's set-ups beside "
+                                                "raico's (the Nao's reach from the zero posture, its balancing with "
+                                                "eq. 3.7's cost, the pendulum with x0 held), each judged in rows of "
+                                                "its own; about 1.5 min more on 2 cores.")] = False,
     artifacts: Artifacts = None, no_record: NoRecord = False, quiet: Quiet = False, json_: Json = False,
 ):
     """Run experiments over their initial states in parallel (cached per run), then write the
@@ -319,6 +323,10 @@ def reproduce(
     from pipeline.runner import finite_json
     from pipeline.ui import Reporter
 
+    if thesis_setups:
+        from pipeline.experiments import include_thesis_setups
+
+        include_thesis_setups()
     ids = list(repro.ALL_IDS) if all_ else list(figure or [])
     if not ids:
         raise BadInput(f"give --figure ID or --all; experiments: {', '.join(repro.ALL_IDS)}")

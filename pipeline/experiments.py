@@ -16,6 +16,7 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,8 @@ class Variant:
     dynamics: str | None = None  # own planning model (the finite-difference ablation), else the experiment's
     belief_rate: float = 1.0  # AICO's learning rates (Algorithm 1 lines 13 and 18; 1: none)
     controller_rate: float = 1.0
+    task: str | None = None  # own task (the thesis's set-up beside raico's: TASK_LABELS), else the experiment's
+    nudge: float = 0.0  # rad added to every joint of the start (the perturbation test of chaotic runs)
 
     @property
     def label(self) -> str:
@@ -59,7 +62,9 @@ class Variant:
             ", finite differences" if self.dynamics == "analytic-fd" else "") + (
             f", {INTEGRATOR_NAMES[self.dynamics]} pseudo-dynamics" if self.dynamics in INTEGRATOR_NAMES else "") + (
             f", belief rate {self.belief_rate:g}" if self.belief_rate != 1.0 else "") + (
-            f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "")
+            f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "") + (
+            f", {TASK_LABELS[self.task]}" if self.task is not None else "") + (
+            f", start {self.nudge:+g} rad" if self.nudge else "")
         if self.solver == "raico" and self.schedule == "adaptive":
             return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
@@ -82,6 +87,11 @@ class Variant:
     def seed_count(self, exp_seeds: int, quick: bool) -> int:
         """Initial states this variant runs on: 2 with --quick, else its own count or the experiment's."""
         return 2 if quick else min(self.seeds or exp_seeds, exp_seeds)
+
+
+# The tasks a figure's point may run in place of the figure's, as the labels say them: the thesis's set-up beside
+# raico's (the claims judge these variants in rows of their own, "with the thesis's start" / "cost")
+TASK_LABELS = {"reach-zero": "zero posture", "balance-thesis": "thesis's cost"}
 
 
 # The crocoddyl baseline's labels (its points need crocoddyl: the extra raico[baseline], which `make install` installs)
@@ -278,6 +288,11 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
     cost curves)."""
     from stages.evaluate.summary import summarize as summary
 
+    return summary(variant.label, [r for _, r in variant_runs(plans, variant, cache)])
+
+
+def variant_runs(plans: list[dict], variant: Variant, cache: Cache | None = None) -> list[tuple[int, dict]]:
+    """``(seed, {"status", "metrics"})`` of each of the variant's runs, as :func:`summarize` reads them."""
     runs = []
     for p in plans:
         if p["variant"] != variant:
@@ -287,14 +302,14 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
             from pipeline.artifacts import as_artifact
 
             art = as_artifact(cache.require("plan", p["outcome"].key))
-            nao_reach = art.config.get("plant") == "nao" and art.config.get("task") == "reach"
+            nao_reach = art.config.get("plant") == "nao" and art.config.get("task") in ("reach", "reach-zero")
             d = art.arrays("plan.npz", ("costs", "X") if nao_reach else ("costs",))
             c = d.get("costs")
             m["cost_history"] = [float(x) if np.isfinite(x) else None for x in np.asarray(c if c is not None else [])]
             if nao_reach:
                 m.update(counterbalance(d["X"]))
-        runs.append({"status": p["outcome"].status, "metrics": m})
-    return summary(variant.label, runs)
+        runs.append((p["seed"], {"status": p["outcome"].status, "metrics": m}))
+    return runs
 
 
 COUNTERBALANCE_JOINTS = ("HeadYaw", "HeadPitch", "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll")
@@ -368,13 +383,20 @@ def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: 
     return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
 
 
-def summarize_learns(learns: list[dict]) -> dict[str, dict]:
-    """Setting label -> ``stages.evaluate.summary.summarize_learn`` over its seeds."""
+def summarize_learns(learns: list[dict], leave_out: int | None = None) -> dict[str, dict]:
+    """Setting label -> ``stages.evaluate.summary.summarize_learn`` over its seeds (``leave_out``: without that
+    seed's loops)."""
     from stages.evaluate.summary import summarize_learn
 
+    learns = [x for x in learns if x["seed"] != leave_out]
     labels = list(dict.fromkeys(x["setting"].label for x in learns))
     return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
             for lab in labels}
+
+
+# A verdict is fragile where leaving out one seed flips it; with fewer seeds than this, leaving one out leaves
+# too little to judge (a median of one run), so it is not tried.
+LEAVE_ONE_OUT_MIN = 3
 
 
 # ----------------------------------------------------------------------------- the experiment files
@@ -386,7 +408,8 @@ THESIS_FILES = ("fig3.2a", "fig3.2b", "fig3.2c", "fig3.2d", "fig3.3", "fig3.4", 
 PLAN_BASE = ("plant", "task", "dynamics", "iterations", "q0_std", "balance", "balance_margin")
 VARIANT_OPTIONS = {"solver": "solver", "alpha": "alpha", "relinearize": "relinearize", "iterations": "iterations",
                    "alpha_schedule": "schedule", "gamma": "gamma", "start": "start", "dynamics": "dynamics",
-                   "belief_rate": "belief_rate", "controller_rate": "controller_rate"}
+                   "belief_rate": "belief_rate", "controller_rate": "controller_rate", "task": "task",
+                   "x0_nudge": "nudge"}
 REPRODUCE_KEYS = ("figure", "execute", "controllers", "noise_sweep", "stabilizer_noise", "integrators", "notes")
 CONTROLLERS = ("pd", "stabilizer")   # the joint PD from the plan's start; the whole-body stabilizer (STABILIZER)
 
@@ -504,6 +527,19 @@ def _load_figures() -> tuple[dict[str, Experiment], dict[str, LearnExperiment]]:
 
 
 EXPERIMENTS, LEARN_EXPERIMENTS = _load_figures()
+
+
+def include_thesis_setups() -> None:
+    """Load the figures again with their points that need "thesis-setups" (the thesis's set-ups beside raico's:
+    the Nao's reach from the zero posture, its balancing with eq. 3.7's cost, the pendulum with x0 held), in place,
+    so every module that holds the figures sees them."""
+    from pipeline import expfile
+
+    os.environ[expfile.THESIS_SETUPS] = "1"
+    expfile.available.cache_clear()
+    plans, learns = _load_figures()
+    EXPERIMENTS.update(plans)
+    LEARN_EXPERIMENTS.update(learns)
 NOISE_SWEEPS = {e.id: next(v for v in e.variants if v.label == e.profiles[0].reproduce["noise_sweep"])
                 for e in EXPERIMENTS.values() if "noise_sweep" in e.profiles[0].reproduce}
 # The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost any solver

@@ -59,6 +59,7 @@ import functools
 import itertools
 import json
 import math
+import os
 import re
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
@@ -76,7 +77,10 @@ CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execut
 TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate", "claims",
             "quick", "reproduce")
 POINT_KEYS = ("label", "seeds", "quick", "needs")   # a point's keys that are not options
-NEEDS = ("crocoddyl",)   # what a point or a claim may need: the crocoddyl baseline (the extra raico[baseline])
+# what a point or a claim may need: the crocoddyl baseline (the extra raico[baseline]); the thesis's set-ups beside
+# raico's, run where THESIS_SETUPS is "1" in the environment (`raico reproduce --thesis-setups`)
+NEEDS = ("crocoddyl", "thesis-setups")
+THESIS_SETUPS = "RAICO_THESIS_SETUPS"
 CURVE_TOL = 0.01   # iterations to come within 1 % of the run's lowest cost
 # a run counted as failed in the summaries: a stage raised, a solver diverged, the robot fell
 FAILED_STATUSES = ("error", "diverged", "fell")
@@ -175,6 +179,8 @@ def available(need: str) -> bool:
         from planning.crocoddyl_model import AVAILABLE
 
         return bool(AVAILABLE)
+    if need == "thesis-setups":
+        return os.environ.get(THESIS_SETUPS) == "1"
     raise BadInput(f"needs = '{need}': one of {', '.join(NEEDS)}")
 
 

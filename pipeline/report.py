@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +56,12 @@ SOLVER_COLORS: dict[str, str] = {
     "AICO, controller rate 0.5": "#e7969c",
     "R-AICO a=1, rollout start": "#637939",
     "R-AICO adaptive (a0=1, rollout start)": "#8c6d31",
+    # the start moved by 1e-9 rad (the perturbation test): a darker shade of the solver's colour
+    "iLQG, start +1e-09 rad": "#08519c", "AICO, start +1e-09 rad": "#a63603",
+    "R-AICO a=1, start +1e-09 rad": "#006d2c",
+    # the thesis's set-up beside raico's: a lighter shade of the solver's colour
+    **{f"{k}, {setup}": c for k, c in (("iLQG", "#aec7e8"), ("AICO", "#ffbb78"), ("R-AICO a=1", "#98df8a"),
+                                         ("R-AICO a=10", "#ff9896")) for setup in ("zero posture", "thesis's cost")},
 }
 SOLVER_COLOR_PREFIXES: tuple[tuple[str, str], ...] = (("R-AICO adaptive", "tab:cyan"),)
 # labels of neither table: a colour from these, chosen by a hash of the label (the same in every figure unless
@@ -974,13 +982,144 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
     the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
-    from stages.evaluate.claims import evaluate_claims
+    from pipeline.experiments import TASK_LABELS
+    from stages.evaluate.claims import THESIS, Quote, evaluate_claims
 
-    S = {v.label: summarize(plans, v, cache) for v in exp.variants}
-    S.update({r["label"]: r for r in integrator_table(exp, integrators or [], cache)})
+    integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
     names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
     noisy = [{**r["outcome"].metrics, "noise_level": list(r["level"])} for r in noise or [] if any(r["level"])]
-    return evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy)
+    own = [v for v in exp.variants if v.task is None and not v.nudge]
+    S, without = _summaries(plans, own, cache, integ)
+    rows = evaluate_claims(names, S, [e.metrics for e in executions], exp.id, noisy, without)
+    for v in (v for v in exp.variants if v.nudge and v.task is None):  # the start moved by a tiny amount
+        twin = replace(v, nudge=0.0)
+        moved = {**S, twin.label: _summaries(plans, [v], cache, {}, v.label.removeprefix(twin.label))[0][twin.label]}
+        again = evaluate_claims(names, moved, [e.metrics for e in executions], exp.id, noisy)
+        effect = nudge_effect(plans, twin, v)
+        for r, a in zip(rows, again):
+            named = re.search(rf"(?<![-\w]){re.escape(twin.label)}(?![\w=])", r["measured"])
+            if not named and a["verdict"] == r["verdict"]:
+                continue
+            said = (f"with {twin.label}'s start moved {v.nudge:g} rad ({effect['said']}): "
+                    + ("the same verdict" if a["verdict"] == r["verdict"] else f"the verdict flips to {a['verdict']}"))
+            r["margin"] = "; ".join(x for x in (r.get("margin"), said) if x)
+            if a["verdict"] != r["verdict"]:
+                r["fragile"] = "; ".join(x for x in (r.get("fragile"), said) if x)
+    for task, words in TASK_LABELS.items():  # the thesis's set-up beside raico's: its thesis rows, judged alike
+        setup = [v for v in exp.variants if v.task == task]
+        if not setup:
+            continue
+        tail = f", {words}"
+        S, without = _summaries(plans, setup, cache, {}, tail)
+        more = evaluate_claims(tuple(c for c in names if isinstance(THESIS[c], Quote)), S, [], exp.id, [], without)
+        rows += [{**r, "claim": f"{r['claim']} (with the thesis's {SETUP_WORDS.get(task, words)})",
+                  "setup": _setup_in_place(r.get("setup", ""), task)} for r in more]
+    return rows
+
+
+# the set-up deviations (stages.evaluate.claims.SETUP_NOTES) a thesis set-up removes, and what its rows say instead
+SETUP_REPLACES = {"reach-zero": (("nao start",), "q0 about the zero posture (the thesis's start; the elbow rolls at "
+                                                 "the end of their range, 0.03 rad short of 0)"),
+                  "balance-thesis": (("cog weights", "right sole"), "eq. 3.7's cost: 1e4 on the CoG via-points with "
+                                                                    "C = diag(10, 1e6, 10), no right-sole term")}
+
+
+def _setup_in_place(setup: str, task: str) -> str:
+    """A row's set-up deviations with those the thesis's set-up ``task`` removes replaced by what it runs."""
+    from stages.evaluate.claims import SETUP_NOTES
+
+    gone, instead = SETUP_REPLACES.get(task, ((), ""))
+    parts = [p for p in setup.split("; ") if p not in {SETUP_NOTES[k] for k in gone}]
+    return "; ".join([instead, *parts] if instead else parts)
+
+
+CHAOTIC = 1e-3  # a run is chaotic when a 1e-9 rad change of its start moves its final cost by more than 0.1 %
+
+
+def nudge_effect(plans: list[dict], twin, nudged) -> dict:
+    """How far each seed's final cost and largest via-point error moved when the start moved by ``nudged.nudge``
+    (rad) from ``twin``'s: ``{"label", "nudge", "seeds", "cost_change", "via_change", "chaotic", "said"}``, the
+    changes relative (cost) and in m (via-point), ``chaotic`` the seeds whose cost moved by more than
+    ``CHAOTIC``."""
+    from stages.evaluate.summary import largest_via_error
+
+    def by_seed(v) -> dict[int, tuple[float, float]]:
+        return {p["seed"]: (float(p["outcome"].metrics.get("final_cost") or math.nan),
+                            largest_via_error(p["outcome"].metrics)) for p in plans if p["variant"] == v}
+
+    a, b = by_seed(twin), by_seed(nudged)
+    seeds = sorted(set(a) & set(b))
+    cost = [abs(b[k][0] - a[k][0]) / abs(a[k][0]) if a[k][0] else math.nan for k in seeds]
+    via = [abs(b[k][1] - a[k][1]) for k in seeds]
+    chaotic = [k for k, c in zip(seeds, cost) if not c <= CHAOTIC]
+    fin = [c for c in cost if math.isfinite(c)]
+    said = (f"final costs moved by up to {_share_pct(max(fin)) if fin else 'n/a'}, via-point errors by up to "
+            f"{_fmt(max(via)) if via else 'n/a'} m; chaotic (cost moved > {CHAOTIC:.1%}) in {len(chaotic)}/{len(seeds)}"
+            " runs" + (f": seeds {', '.join(map(str, chaotic))}" if chaotic else ""))
+    return {"label": twin.label, "nudge": nudged.nudge, "seeds": seeds, "cost_change": cost, "via_change": via,
+            "chaotic": chaotic, "said": said}
+
+
+def processor_section(docs: list[dict]) -> list[str]:
+    """Markdown: the figures' perturbation tests of the start (``nudge_effect``): which runs are chaotic, so
+    that their numbers differ from processor to processor (numpy's BLAS sums in another order on another
+    processor: a change of the order of 1e-16 that a chaotic run amplifies)."""
+    tests = [(d["figure"], e) for d in docs for e in d.get("processor") or []]
+    if not tests:
+        return []
+    out = ["## Which numbers depend on the processor", "",
+           "Each run below ran twice, the second time with every joint of its start moved by the stated amount. "
+           "The compiled kernels are deterministic; numpy's BLAS is not across processors, so a run whose result "
+           f"moves far more than its start (final cost by more than {CHAOTIC:.1%} after 1e-9 rad: chaotic) gives "
+           "other numbers on another processor. The claims' rows on such a variant say whether the verdict "
+           "survives the move.", "", "| figure | variant | start moved (rad) | runs | chaotic runs (seeds) | largest final-"
+           "cost change | largest via-point change (m) |", "|---|---|---|---|---|---|---|"]
+    for fid, e in tests:
+        fin = [c for c in e["cost_change"] if math.isfinite(c)]
+        out.append(f"| {fid} | {e['label']} | {e['nudge']:g} | {len(e['seeds'])} | {len(e['chaotic'])} "
+                   f"({', '.join(map(str, e['chaotic'])) or 'none'}) | {_share_pct(max(fin)) if fin else 'n/a'} | "
+                   f"{_fmt(max(e['via_change'])) if e['via_change'] else 'n/a'} |")
+    return out + [""]
+
+
+def not_holding_section(rows: list[dict]) -> list[str]:
+    """Markdown: every thesis row that does not hold (or cannot be tested), with its reason and how fragile it is."""
+    from stages.evaluate.claims import BEYOND, CANNOT
+
+    thesis = [r for r in rows if not str(r.get("thesis", "")).startswith(BEYOND)]
+    out = [r for r in thesis if r["verdict"] in ("does not hold", CANNOT)]
+    if not out:
+        return []
+    lines = ["### The thesis's rows that do not hold, and why", ""]
+    for r in out:
+        why = r.get("why") or (r["criterion"] if r["verdict"] == CANNOT else "")
+        lines.append(f"- {r['figure']}, {r['claim']}: **{r['verdict']}**. {why.rstrip('.')}."
+                     + (f" Fragile: {r['fragile']}." if r.get("fragile") else ""))
+    return lines + [""]
+
+
+def _share_pct(x: float) -> str:
+    return f"{100 * x:.3g} %"
+
+
+# how a row names the thesis's set-up it was judged in (pipeline.experiments.TASK_LABELS)
+SETUP_WORDS = {"reach-zero": "start: the zero posture", "balance-thesis": "cost: eq. 3.7's 1e4, no right-sole term"}
+
+
+def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: dict,
+               tail: str = "") -> tuple[dict, dict]:
+    """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
+    labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
+    fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
+    from pipeline.experiments import LEAVE_ONE_OUT_MIN, variant_runs
+    from stages.evaluate.summary import summarize as summary
+
+    runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
+    S = {**{k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}, **extra}
+    seeds = sorted({seed for rs in runs.values() for seed, _ in rs})
+    without = {k: {**{lab: summary(lab, [r for seed, r in rs if seed != k]) for lab, rs in runs.items()}, **extra}
+               for k in seeds} if len(seeds) >= LEAVE_ONE_OUT_MIN else {}
+    return S, without
 
 
 def integrator_table(exp: Experiment, integrators: list[dict], cache: Cache | None = None) -> list[dict]:
@@ -1079,13 +1218,16 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
         if smoke:   # --quick: the verdict as computed, marked as not a finding
             return f"{r['verdict']} ({SMOKE})"
         why = r.get("why") or ""
-        return f"**{r['verdict']}**" + (f" ({why})" if r["verdict"] == "does not hold" and why else "")
+        said = [f"why: {why}"] if r["verdict"] == "does not hold" and why else []
+        said += [f"fragile: {r['fragile']}"] if r.get("fragile") else []
+        return f"**{r['verdict']}**" + (f" ({'; '.join(said)})" if said else "")
 
     thesis_head = ["| figure | claim | the thesis says (section, about which figure) | criterion | measured | runs "
-                   "(initial states or seeds) | set-up deviations that can drive the verdict | verdict (if it does "
-                   "not hold: why) |", "|---|---|---|---|---|---|---|---|"]
-    beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | verdict |",
-                   "|---|---|---|---|---|---|---|"]
+                   "(initial states or seeds) | set-up deviations that can drive the verdict | margin (each condition "
+                   "against its limit) | verdict (if it does not hold: why; fragile: what would flip it) |",
+                   "|---|---|---|---|---|---|---|---|---|"]
+    beyond_head = ["| figure | claim | the thesis says | criterion | measured | runs | margin | verdict |",
+                   "|---|---|---|---|---|---|---|---|"]
     beyond = [r for r in rows if str(r.get("thesis", "")).startswith(BEYOND)]
     thesis = [r for r in rows if r not in beyond]
     out: list[str] = []
@@ -1094,14 +1236,19 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
         untested = sum(r["verdict"] == CANNOT for r in thesis)
         out += [f"### The thesis's claims ({held} of {len(thesis)} hold"
                 + (f", {untested} cannot be tested" if untested else "") + ")", "", *thesis_head]
+        fragile = sum(bool(r.get("fragile")) for r in thesis)
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | {r.get('setup', '')} | {verdict(r)} |" for r in thesis]
+                f"{r.get('seeds', '')} | {r.get('setup', '')} | {r.get('margin') or '-'} | {verdict(r)} |"
+                for r in thesis]
+        if fragile and not smoke:
+            out += ["", f"{fragile} of these {len(thesis)} verdicts are fragile: leaving out one seed flips them, or a "
+                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit)."]
         out += [""]
     if beyond:
         held = sum(r["verdict"] == "holds" for r in beyond)
         out += [f"### Beyond the thesis ({held} of {len(beyond)} hold)", "", *beyond_head]
         out += [f"| {r['figure']} | {r['claim']} | {r.get('thesis', '')} | {r['criterion']} | {r['measured']} | "
-                f"{r.get('seeds', '')} | {verdict(r) if smoke else '**' + r['verdict'] + '**'} |" for r in beyond]
+                f"{r.get('seeds', '')} | {r.get('margin') or '-'} | {verdict(r)} |" for r in beyond]
         out += [""]
     return "\n".join(out).rstrip()
 
@@ -1167,10 +1314,11 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
     moved_md, moved_rows = moved_section(exp, result["plans"])
     missed_md, missed = missed_section(result["executions"], result.get("noise"))
     balance_md = moved_md + balance_md + missed_md
+    processor = [nudge_effect(result["plans"], replace(v, nudge=0.0), v) for v in exp.variants if v.nudge]
     doc = {"figure": exp.id, "description": exp.description, "claims": rows, "summary": summary,
            "runs": runs, "executions": execs, "noise": noise_rows, "integrators": integ_rows,
            "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows,
-           "stabilizer_missed": missed}
+           "stabilizer_missed": missed, "processor": processor}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
     md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
@@ -1198,6 +1346,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
         md += [""]
     md += balance_md
     md += noise_md
+    md += processor_section([doc])
     if integ_rows:
         md += ["## Pseudo-dynamics integrators (appendix C)", "", INTEGRATOR_TEXT, "", markdown_integrators(integ_rows),
                "", "Drake's integrations (execute entries, not recorded; `raico execute --plan KEY --open-loop` "
@@ -1412,10 +1561,42 @@ def heldout_sentence(label: str, s: dict) -> str | None:
             f"{_fmt(nxt[0])} to {_fmt(nxt[1])}.")
 
 
+def endings_sentence(S: dict, tol: float = 0.1) -> str | None:
+    """Where the swing-up's endings lie (``task_error_last_by_seed``: each setting and seed's last episode, rad from
+    upright, those within ``tol``): how many lie within the claims' tie (1 mrad) of their median, with the executed
+    torque's share of steps at its limit and the GP error on the next execution of those settings, and the others
+    named. None with fewer than two endings."""
+    from stages.evaluate.claims import TIE
+
+    pts = [(k, i, x) for k, s in S.items() for i, x in enumerate(s.get("task_error_last_by_seed") or []) if x <= tol]
+    if len(pts) < 2:
+        return None
+    med = float(np.median([x for _, _, x in pts]))
+    near = [p for p in pts if abs(p[2] - med) < TIE]
+    far = [p for p in pts if abs(p[2] - med) >= TIE]
+    together = {k for k, _, _ in near} - {k for k, _, _ in far}
+    sat = [S[k]["torque_saturation_curve"][-1] for k in together if S[k].get("torque_saturation_curve")]
+    gp = [S[k]["gp_error_curve"][-1] for k in together if S[k].get("gp_error_curve")]
+    xs = [x for _, _, x in near]
+    text = (f"{len(near)} of the {len(pts)} endings within {tol:g} rad of upright (setting and seed, last episode) lie "
+            f"within {TIE * 1e3:g} mrad of {_fmt(med)} rad (from {_fmt(min(xs))} to {_fmt(max(xs))})")
+    if sat and gp:
+        text += (f"; in the settings that end there every time, the executed torque is at its limit in "
+                 f"{_share(min(sat))}-{_share(max(sat))} of the last episode's steps and the GP error on the next "
+                 f"execution is {_fmt(min(gp))}-{_fmt(max(gp))} rad/s^2: their plans converge to one optimum of the "
+                 "task's cost on a model this accurate, where the uncertainty term, small along the data, no longer "
+                 "separates the settings")
+    if far:
+        text += "; the others: " + ", ".join(f"{k} seed {i} at {_fmt(x)} rad" for k, i, x in far)
+    return text + "."
+
+
 def learn_findings(S: dict) -> list[str]:
-    """Sentences on a learning figure's curves, from the numbers: the held-out GP error of each setting and, for
-    the hyperparameter schedules, the measured ratio of their fit times."""
+    """Sentences on a learning figure's curves, from the numbers: the held-out GP error of each setting, where the
+    settings that swing up end, and, for the hyperparameter schedules, the measured ratio of their fit times."""
     out = [x for lab, s in S.items() if (x := heldout_sentence(lab, s))]
+    if any("sigma*" in k for k in S):
+        out += [x for x in [endings_sentence({k: v for k, v in S.items() if not k.endswith(", x0 held")})] if x]
     e, b = S.get("every"), S.get("batch-100")
     if e and b and b.get("fit_time_s_total"):
         out.append(f"Fit time over the whole loop (median over seeds): every {_fmt(e['fit_time_s_total'])} s, batch-100 "
@@ -1426,7 +1607,7 @@ def learn_findings(S: dict) -> list[str]:
 
 def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
-    from pipeline.experiments import summarize_learns
+    from pipeline.experiments import LEAVE_ONE_OUT_MIN, summarize_learns
     from stages.evaluate.claims import evaluate_claims
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1435,7 +1616,9 @@ def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     write_learn_figure(exp, S, out_dir / "figure.png")
     best = "sigma*=0, w=0.01" if exp.plant == "pendulum" else "every"
     motion_key = write_learn_motion(cache, exp, learns, best, out_dir / "motion.png")
-    rows = evaluate_claims(exp.claims, S, [], exp.id)
+    seeds = sorted({x["seed"] for x in learns})
+    without = ({k: summarize_learns(learns, leave_out=k) for k in seeds} if len(seeds) >= LEAVE_ONE_OUT_MIN else {})
+    rows = evaluate_claims(exp.claims, S, [], exp.id, without=without)
     runs = [{"setting": x["setting"].label, "seed": x["seed"], "key": x["outcome"].key,
              "recording": x["outcome"].recording or str(Path(x["outcome"].path) / "recording.rrd"),
              "first_success_episode": x["outcome"].metrics.get("first_success_episode")} for x in learns]

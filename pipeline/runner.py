@@ -134,9 +134,14 @@ def finite_json(obj: Any) -> Any:
     return obj
 
 
+FILES = "files:"  # a source entry naming data files (a glob under the repository root), not a package
+REPO = Path(__file__).resolve().parents[1]
+
+
 def source_version(name: str, *packages: str) -> str:
     """``name`` plus a hash of the source (``*.py``, ``*.c``: the compiled kernels) and model files
-    (``*.urdf``) of ``packages``.
+    (``*.urdf``) of ``packages``, and of the data files an entry ``files:GLOB`` names (the shipped
+    problem files).
 
     The cache key includes it, so editing a solver or a model file invalidates the stages
     that depend on it (and only those).
@@ -146,6 +151,11 @@ def source_version(name: str, *packages: str) -> str:
 
     h = hashlib.sha256()
     for pkg in packages:
+        if pkg.startswith(FILES):  # data files the stage reads (a glob under the repository root)
+            for f in sorted(REPO.glob(pkg[len(FILES):])):
+                h.update(str(f.relative_to(REPO)).encode())
+                h.update(f.read_bytes())
+            continue
         src = Path(importlib.import_module(pkg).__file__)
         root = src.parent
         if src.name != "__init__.py":  # a module: just its file

@@ -396,6 +396,7 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
             "gp_nrmse_joint": per_joint_n, **held,
             "data_steps": int(data_steps), "data_truncated": bool(data_steps < K),
             "rmse_planned_executed": em.get("rmse_planned_executed"),
+            "torque_saturation": em.get("torque_saturation"),
             "task_error": err, "achieved": bool(execution.status not in ("diverged", "fell") and err <= ACHIEVED_TOL[cfg.plant == "pendulum"]),
             "execution_status": execution.status, "plan_status": plan.status,
             "planned_task_error": task_error(pm.get("via_point_errors") or {}),
@@ -416,7 +417,8 @@ def summary(episodes: list[dict], wall: float) -> dict:
     """The ``--json`` metrics: per-episode lists and the first success."""
     keys = ("gp_error", "gp_error_heldout", "gp_nrmse_joint", "gp_nrmse_heldout_joint", "rmse_planned_executed",
             "task_error", "planned_task_error", "achieved", "fit_time_s", "plan_time_s", "execute_time_s",
-            "n_points", "optimized", "execution_status", "executed_seconds", "data_steps", "data_truncated")
+            "n_points", "optimized", "execution_status", "executed_seconds", "data_steps", "data_truncated",
+            "torque_saturation")
     out: dict[str, Any] = {k: [e.get(k) for e in episodes] for k in keys}
     out["episodes_feeding_data"] = sum(1 for e in episodes if e.get("data_steps", 0) > 0)
     out["episodes_truncated"] = sum(1 for e in episodes if e.get("data_truncated"))

@@ -7,6 +7,7 @@ from typer.testing import CliRunner
 
 from pipeline import api
 from pipeline.cli import app
+from stages.plan.tasks import PENDULUM_T
 
 
 def test_api_plan_execute_and_cli_share_the_cache(tmp_path):
@@ -14,7 +15,7 @@ def test_api_plan_execute_and_cli_share_the_cache(tmp_path):
                  iterations=2)
     assert not p.cached and p.status in ("max-iterations", "converged") and p.metrics["iterations"] == 2
     X = api.arrays(p, "plan.npz")["X"]
-    assert X.shape == (751, 2)
+    assert X.shape == (PENDULUM_T + 1, 2)
     # the CLI finds the same run: a cache hit with the same key
     res = CliRunner().invoke(app, ["plan", "--plant", "pendulum", "--task", "swing-up", "--dynamics", "analytic",
                                    "--solver", "ilqg", "--iterations", "2", "--no-record", "--json",
@@ -22,7 +23,7 @@ def test_api_plan_execute_and_cli_share_the_cache(tmp_path):
     line = json.loads(res.stdout.strip().splitlines()[-1])
     assert res.exit_code == 0 and line["cached"] and line["key"] == p.key
     e = api.execute(tmp_path, record=False, plan=p.key)
-    assert e.status in ("ok", "limits", "tracking-lost") and api.arrays(e, "rollout.npz")["X"].shape == (751, 2)
+    assert e.status in ("ok", "limits", "tracking-lost") and api.arrays(e, "rollout.npz")["X"].shape == (PENDULUM_T + 1, 2)
     again = api.plan(tmp_path, record=False, plant="pendulum", task="swing-up", dynamics="analytic", solver="ilqg",
                      iterations=2)
     assert again.cached and again.key == p.key

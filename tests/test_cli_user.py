@@ -213,7 +213,7 @@ def test_the_quick_report_is_labelled_a_smoke_test():
     rows = [{"figure": "fig3.2a", "claim": "c", "thesis": '§3.5: "x" (Fig. 3.2A)', "criterion": "k", "measured": "m",
              "verdict": "does not hold", "why": "because"}]
     real, smoke = markdown_claims(rows), markdown_claims(rows, smoke=True)
-    assert "**does not hold** (because)" in real and SMOKE not in real
+    assert "**does not hold** (why: because)" in real and SMOKE not in real
     assert f"does not hold ({SMOKE})" in smoke and "**" not in smoke.split("\n")[-1]
 
 

@@ -125,7 +125,7 @@ def test_fit_on_executed_data_labels_by_drake_forward_dynamics(base):
     fit = run_json("fit", "--data", ex["key"], "--stride", 2, *FAST, "--no-record", "--json", "--artifacts", root)
     held = np.load(Path(fit["path"]) / "heldout.npz")
     X, Y = held["X"], held["Y"][:, 0]
-    assert (fit["metrics"]["n_points"], fit["metrics"]["n_heldout"]) == (300, 75)  # 750 steps, every 2nd
+    assert (fit["metrics"]["n_points"], fit["metrics"]["n_heldout"]) == (400, 100)  # 1000 steps, every 2nd
     assert np.allclose(Y, X[:, 2] - X[:, 1] - 9.81 * np.sin(X[:, 0]), atol=1e-6)  # the pendulum's equation
     assert fit["metrics"]["heldout_rmse"]["theta"] < 0.01 * Y.std()
 

@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from stages.plan.tasks import PENDULUM_T
 
 runner = CliRunner()
 SMALL = ["--plant", "pendulum", "--task", "swing-up", "--sigma-star", "0", "--sigma-weight", "1e-2",
@@ -42,7 +43,7 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     # how much of each execution fed the data
     assert all(0 < e < float("inf") for e in m["gp_error_heldout"])
     assert len(m["gp_nrmse_joint"][0]) == len(m["gp_nrmse_heldout_joint"][0]) == 1
-    assert m["data_steps"] == [750, 750] and m["episodes_feeding_data"] == 2 and m["episodes_truncated"] == 0
+    assert m["data_steps"] == [PENDULUM_T, PENDULUM_T] and m["episodes_feeding_data"] == 2 and m["episodes_truncated"] == 0
     doc = as_artifact(Cache(tmp_path).require("learn", two["key"])).document("episodes.json")
     eps = doc["episodes"]
     # every episode's numbers come from its own cached fit, plan and execute runs
@@ -51,8 +52,8 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
         plan = json.loads((tmp_path / "plan" / e["plan"] / "meta.json").read_text())
         assert e["n_points"] == fit["metrics"]["n_points"] and e["plan_time_s"] == plan["metrics"]["wall_time_s"]
         assert plan["config"]["dynamics"] == "learned" and plan["config"]["sigma_star"] == "0.0"
-    # the second fit trains on the babbling plus the first execution (every 25th of 750 steps: 30 points)
-    assert eps[1]["n_points"] == eps[0]["n_points"] + 30
+    # the second fit trains on the babbling plus the first execution (every 25th of its steps)
+    assert eps[1]["n_points"] == eps[0]["n_points"] + PENDULUM_T // 25
     plan2 = json.loads((tmp_path / "plan" / eps[1]["plan"] / "meta.json").read_text())
     assert plan2["inputs"] == [f"fit/{eps[1]['fit']}", f"plan/{eps[0]['plan']}"]  # warm-started
 

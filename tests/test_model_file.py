@@ -413,3 +413,25 @@ def test_without_example_robot_data_only_its_tests_skip():
     res = subprocess.run([sys.executable, "-c", code, test], capture_output=True, text=True, timeout=300,
                          cwd=Path(__file__).resolve().parents[1])
     assert res.returncode == 0 and "1 passed" in res.stdout and "skipped" not in res.stdout, res.stdout[-2000:]
+
+
+def test_a_built_in_plants_task_may_start_at_the_zero_posture(tmp_path):
+    """The Nao's reach from the thesis's zero posture (problems/nao_reach-zero.toml): every joint at 0, clipped to
+    its range (the elbow rolls stop short of 0); a bad start is refused in one line."""
+    from dataclasses import replace
+
+    from plants.robots import shared_robot
+    from stages.plan.problem_file import read_problem
+    from stages.plan.tasks import get_task
+
+    nao = shared_robot("nao")
+    robot = get_task("nao", "reach-zero").robot(nao)
+    assert np.all((robot.default_q >= nao.lower) & (robot.default_q <= nao.upper))
+    moved = {j for j, q in zip(robot.joint_names, robot.default_q) if q != 0.0}
+    assert moved and all("Elbow" in j or "Hand" in j for j in moved), moved
+    assert get_task("nao", "reach").robot(nao) is nao  # the default posture where a task names none
+    with pytest.raises(ValueError, match="unknown joint 'Nope'"):
+        replace(get_task("nao", "reach-zero"), start={"Nope": 1.0}).robot(nao)
+    with pytest.raises(ValueError, match=r"start of a built-in plant must be \"zero\""):
+        text = (Path(__file__).parents[1] / "problems" / "nao_reach-zero.toml").read_text()
+        read_problem(write_problem(tmp_path, "crouch", text.replace('start = "zero"', 'start = "crouch"')))

@@ -347,3 +347,70 @@ def test_the_cost_panel_title_names_the_budget_the_runs_had(runs, monkeypatch, t
     write_figure(FakeCache(), exp, plans, tmp_path / "figure.png")
     title = shown["fig"].axes[0].get_title()
     assert "at the figure's budget (3 iterations)" in title and shown["fig"].axes[0].get_xlim()[1] < 4
+
+
+def test_a_nudged_start_lists_the_chaotic_runs():
+    """A variant run again with its start moved by 1e-9 rad: the seeds whose final cost moved by more than 0.1 % are
+    chaotic, listed in the report's processor section."""
+    from types import SimpleNamespace
+
+    from pipeline.experiments import Variant
+    from pipeline.report import nudge_effect, processor_section
+
+    a, b = Variant("aico"), Variant("aico", nudge=1e-9)
+    assert b.label == "AICO, start +1e-09 rad"
+
+    def plan(v, seed, cost, via):
+        return {"variant": v, "seed": seed, "outcome": SimpleNamespace(metrics={
+            "final_cost": cost, "via_point_errors": {"via_cog1@100": via}})}
+
+    plans = [plan(a, 0, 100.0, 0.02), plan(a, 1, 200.0, 0.03), plan(b, 0, 100.0 + 1e-9, 0.02),
+             plan(b, 1, 260.0, 0.009)]
+    e = nudge_effect(plans, a, b)
+    assert e["seeds"] == [0, 1] and e["chaotic"] == [1] and e["cost_change"][1] == pytest.approx(0.3)
+    assert e["via_change"][1] == pytest.approx(0.021)
+    md = "\n".join(processor_section([{"figure": "fig3.4", "processor": [e]}]))
+    assert "| fig3.4 | AICO | 1e-09 | 2 | 1 (1) | 30 % | 0.021 |" in md
+    assert processor_section([{"figure": "fig3.4"}]) == []
+
+
+def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
+    from pipeline.report import not_holding_section
+    from stages.evaluate.claims import evaluate_claims
+    from tests.test_evaluate import table
+
+    rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
+                           "fig3.2c")
+    md = not_holding_section(rows)
+    assert md[0] == "### The thesis's rows that do not hold, and why" and len(md) == 4  # the beyond row left out
+    assert md[2].startswith("- fig3.2c, iLQG cannot generate movement policies with low costs on the analytic model: "
+                            "**does not hold**. none holds: iLQG's diverged runs 0/10 <= 0/10")
+
+
+def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
+    from pipeline.report import endings_sentence
+
+    S = {"sigma*=0, w=0.01": {"task_error_last_by_seed": [0.00763, 0.00764], "torque_saturation_curve": [0.9, 0.29],
+                              "gp_error_curve": [1.0, 2e-4]},
+         "sigma*=none": {"task_error_last_by_seed": [0.00762], "torque_saturation_curve": [0.5, 0.3],
+                         "gp_error_curve": [1.0, 3e-4]},
+         "sigma*=1, w=100": {"task_error_last_by_seed": [2.7, 2.2]}}
+    S["sigma*=0.2, w=100"] = {"task_error_last_by_seed": [2.4, 0.003]}
+    text = endings_sentence(S)
+    assert text.startswith("3 of the 4 endings within 0.1 rad of upright (setting and seed, last episode) lie within 1 "
+                           "mrad of 0.00762 rad (from 0.00762 to 0.00764); in the settings that end there every time, "
+                           "the executed torque is at its limit in 29 %-30 % of the last episode's steps")
+    assert text.endswith("; the others: sigma*=0.2, w=100 seed 1 at 0.003 rad.")
+    assert endings_sentence({"sigma*=1, w=100": S["sigma*=1, w=100"]}) is None
+
+
+def test_a_thesis_setup_row_names_its_set_up_in_place_of_raicos():
+    from pipeline.report import _setup_in_place
+    from stages.evaluate.claims import setup_notes
+
+    raico = setup_notes("aico_no_balancing", "fig3.4")
+    assert "CoG weights read as 1e6" in raico and "right sole held" in raico
+    row = _setup_in_place(raico, "balance-thesis")
+    assert row.startswith("eq. 3.7's cost") and "CoG weights read" not in row and "right sole held" not in row
+    assert "q0 about a posture leaning" in row  # the start is raico's in this set-up
+    assert _setup_in_place(setup_notes("counterbalance", "fig3.3"), "reach-zero").startswith("q0 about the zero posture")

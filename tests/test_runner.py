@@ -73,3 +73,22 @@ def test_json_line_is_strict_json():
     o = Outcome("plan", "k", "p", False, "diverged", {"final_cost": float("nan"), "e": {"a": float("inf")}})
     text = json.dumps(o.json_line(), allow_nan=False)
     assert json.loads(text)["metrics"] == {"final_cost": None, "e": {"a": None}}
+
+
+def test_source_version_follows_the_shipped_problem_files(tmp_path, monkeypatch):
+    """A built-in task is a problem file (problems/*.toml): editing one invalidates the plans, as editing code does
+    (a ``files:GLOB`` source entry, under the repository root)."""
+    from pipeline import runner
+
+    (tmp_path / "problems").mkdir()
+    task = tmp_path / "problems" / "pendulum_swing-up.toml"
+    task.write_text("T = 750\n")
+    monkeypatch.setattr(runner, "REPO", tmp_path)
+    v1 = source_version("plan", "files:problems/*.toml")
+    assert v1 == source_version("plan", "files:problems/*.toml")
+    task.write_text("T = 1000\n")
+    assert source_version("plan", "files:problems/*.toml") != v1
+    # the plan stage hashes the shipped problem files
+    from stages.plan.stage import STAGE
+
+    assert "files:problems/*.toml" in STAGE.sources

@@ -119,3 +119,29 @@ def test_a_figure_file_that_does_not_make_a_figure_is_one_line(tmp_path, change,
     with pytest.raises(BadInput) as e:
         files.load_figure(bad)
     assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_thesis_setups_run_only_when_asked(monkeypatch):
+    """The thesis's set-ups beside raico's (points that need "thesis-setups") are left out of `raico reproduce` unless
+    --thesis-setups (the environment's RAICO_THESIS_SETUPS) asks for them; then each figure has them, under the
+    labels its claims judge in rows of their own."""
+    from pipeline.experiments import load_figure
+
+    monkeypatch.delenv(expfile.THESIS_SETUPS, raising=False)
+    expfile.available.cache_clear()
+    try:
+        plain = {f: [v.label for v in load_figure(files.THESIS_DIR / f"{f}.toml").variants] for f in ("fig3.3", "fig3.4")}
+        learn = [s.label for s in load_figure(files.THESIS_DIR / "fig4.1-4.2.toml").settings]
+        assert not any("zero posture" in x or "thesis's cost" in x for v in plain.values() for x in v)
+        assert not any(x.endswith("x0 held") for x in learn)
+        monkeypatch.setenv(expfile.THESIS_SETUPS, "1")
+        expfile.available.cache_clear()
+        fig33 = [v.label for v in load_figure(files.THESIS_DIR / "fig3.3.toml").variants]
+        fig34 = [v for v in load_figure(files.THESIS_DIR / "fig3.4.toml").variants if v.task == "balance-thesis"]
+        learn = [s.label for s in load_figure(files.THESIS_DIR / "fig4.1-4.2.toml").settings]
+        assert [x for x in fig33 if x.endswith("zero posture")] == ["iLQG, zero posture", "AICO, zero posture",
+                                                                    "R-AICO a=1, zero posture"]
+        assert len(fig34) == 4 and sum(x.endswith(", x0 held") for x in learn) == 4
+    finally:
+        monkeypatch.delenv(expfile.THESIS_SETUPS, raising=False)
+        expfile.available.cache_clear()

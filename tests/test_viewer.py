@@ -61,9 +61,12 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     assert bars.mean() > 0.05, f"cost view nearly empty ({bars.mean():.3f} of its pixels coloured)"
     _assert_in_frame(robot_mask(read_png(tmp_path / "robot.png")))
     # the iteration timeline at the last iteration shows the plan's final pose, as sim_time does at the end
-    # of the motion (1.5 s)
+    # of the motion (its horizon, in s)
+    from stages.plan.tasks import PENDULUM_T, TASKS
+
     last = int(line["metrics"]["iterations"])
-    render_screenshot(rrd, tmp_path / "end.png", timeline="sim_time", time=1.5, views={"robot": tmp_path / "r_end.png"})
+    end_s = PENDULUM_T * TASKS[("pendulum", "swing-up")].dt
+    render_screenshot(rrd, tmp_path / "end.png", timeline="sim_time", time=end_s, views={"robot": tmp_path / "r_end.png"})
     render_screenshot(rrd, tmp_path / "it.png", timeline="iteration", time=last, views={"robot": tmp_path / "r_it.png"})
     end, it = robot_mask(read_png(tmp_path / "r_end.png")), robot_mask(read_png(tmp_path / "r_it.png"))
     overlap = (end & it).sum() / max((end | it).sum(), 1)

@@ -112,7 +112,7 @@ def summarize_learn(label: str, runs: list[dict]) -> dict:
     episodes (fewer if the run is shorter)."""
     out: dict = {"label": label, "runs": len(runs)}
     for key in ("gp_error", "gp_error_heldout", "rmse_planned_executed", "task_error", "planned_task_error",
-                "fit_time_s", "plan_time_s", "execute_time_s"):
+                "fit_time_s", "plan_time_s", "execute_time_s", "torque_saturation"):
         C = _curves(runs, key)
         k = min(3, C.shape[1]) if C.size else 0
         with np.errstate(all="ignore"):

@@ -47,6 +47,9 @@ term's name): terms on maps of one name share a plot and a path in the recording
 tolerance of "task achieved" in its unit, ``tol`` (m or rad; a placement ``[m, rad]``; default its
 kind's, ``planning.costs.TASK_TOLERANCES``).
 
+A built-in plant (``plant``) takes only ``start``: ``"zero"`` (every joint at 0, clipped to its
+range) or ``{joint = value, ...}`` (the others at the plant's default posture).
+
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
 F's pose at ``q0`` (before ``axes`` selects coordinates). ``times``: a list of steps in ``[0, T]``,
@@ -135,6 +138,11 @@ class ProblemFile:
     @property
     def plant(self) -> str | None:
         return self.doc["robot"].get("plant")
+
+    @property
+    def plant_start(self) -> str | dict | None:
+        """A built-in plant's start posture in place of its default (``"zero"`` or {joint: rad}), else None."""
+        return self.doc["robot"].get("start") if self.plant is not None else None
 
     @property
     def robot_label(self) -> str:
@@ -230,10 +238,16 @@ def _robot(r: dict, base: Path) -> dict:
 
         if r["plant"] not in PLANTS:
             raise ValueError(f"[robot] unknown plant '{r['plant']}': choose one of {', '.join(PLANTS)}")
-        extra = sorted(set(r) - {"plant"})
+        extra = sorted(set(r) - {"plant", "start"})
         if extra:
             raise ValueError(f"[robot] '{extra[0]}' goes with file, not with a built-in plant")
-        return {"plant": r["plant"]}
+        if "start" not in r:
+            return {"plant": r["plant"]}
+        start = r["start"]  # the plant's start posture in place of its default: "zero", or {joint = value}
+        if start != "zero" and not isinstance(start, dict):
+            raise ValueError("[robot] start of a built-in plant must be \"zero\" or a table {joint = value}")
+        return {"plant": r["plant"], "start": "zero" if start == "zero" else
+                {k: _number(v, f"[robot] start.{k}") for k, v in start.items()}}
     from plants.model_file import default_srdf, resolve_model_file
 
     packages = {str(k): str((base / v).resolve()) for k, v in (r.get("packages") or {}).items()}

@@ -65,6 +65,8 @@ class PlanConfig(StageConfig):
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
             "q0_std": "Std of q0 around the default posture (rad); default 0.05 for the built-in tasks (the "
                       "thesis's), 0 for a problem file (its start posture exactly).",
+            "x0_nudge": "Added to every joint of q0 (rad) after it is drawn: a perturbation test of the start (1e-9: "
+                        "does a run's result change far more than its start, a chaotic run?).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
             "model": "Key of a fit artifact (the GP of --dynamics learned).",
             "warm_start": "Key of an earlier plan that starts this one (AICO/R-AICO, iLQG; see --warm-from).",
@@ -102,6 +104,7 @@ class PlanConfig(StageConfig):
     iterations: int = 50
     seed: int = 0
     q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
+    x0_nudge: float = 0.0  # rad added to every joint of q0 after it is drawn (a perturbation test)
     relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
     model: str | None = None
     warm_start: str | None = None
@@ -141,6 +144,8 @@ class PlanConfig(StageConfig):
             raise ValueError("iterations must be in [1, 10000]")
         if not 0 <= self.seed < 2**32:
             raise ValueError("seed must be in [0, 2^32 - 1]")
+        if not abs(self.x0_nudge) <= 1e-3:
+            raise ValueError(f"x0-nudge must be at most 1e-3 rad in size (a perturbation), got {self.x0_nudge}")
         if self.q0_std is not None and not 0 <= self.q0_std <= 1.0:
             raise ValueError("q0-std must be in [0, 1] rad")
         if self.sigma is not None and self.dynamics != "learned":
@@ -404,10 +409,12 @@ class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib'
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
     """The robot and the task of ``cfg``: a built-in plant's shipped task, or a problem file's."""
     if cfg.problem is None:
-        return shared_robot(cfg.plant), get_task(cfg.plant, cfg.task)
+        task = get_task(cfg.plant, cfg.task)
+        return task.robot(shared_robot(cfg.plant)), task
     pf = cfg.problem_file()
     if pf.plant is not None:
-        return shared_robot(pf.plant), task_from_problem(pf)
+        task = task_from_problem(pf)
+        return task.robot(shared_robot(pf.plant)), task
     from plants.model_file import ModelError, shared_model
 
     try:
@@ -456,7 +463,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it)."""
     cfg = cfg.normalized()
     robot, task = robot_and_task(cfg)
-    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed)
+    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed) + cfg.x0_nudge
     params = model.arrays("model.npz") if model is not None else None
     if model is not None:
         check_model_robot(model, robot)
@@ -562,7 +569,8 @@ def run(cfg: PlanConfig, inputs: dict | None = None, progress: Progress | None =
                        documents={PROBLEM_FILE: out.description}, payload=out)
 
 
-STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics"),
+STAGE = Stage(name="plan", config_cls=PlanConfig, run=run, sources=("plants", "planning", "stages.plan", "stages.base", "stages.evaluate.metrics",
+                                                        "files:problems/*.toml"),
               data_files=(PLAN_FILE, PROBLEM_FILE),
               description=DESCRIPTIONS["plan"],
               progress_total=lambda cfg: cfg.iterations)

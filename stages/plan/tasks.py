@@ -34,12 +34,25 @@ class TaskSpec:
     build: Callable[[Robot, np.ndarray, int], list]
     description: str
     dynamics: str = "pseudo"
+    start: str | dict | None = None  # the robot's start posture in place of its default ("zero" or {joint: rad})
+
+    def robot(self, robot: Robot) -> Robot:
+        """``robot`` with this task's start posture as its default (itself where the task names none): ``"zero"``
+        sets every joint to 0, clipped to its range (the Nao's elbow rolls stop 0.03 rad short of it)."""
+        if self.start is None:
+            return robot
+        q = np.zeros(robot.n_q) if self.start == "zero" else robot.default_q.copy()
+        for name, value in ({} if self.start == "zero" else self.start).items():
+            if name not in robot.joint_names:
+                raise ValueError(f"[robot] start: unknown joint '{name}'")
+            q[list(robot.joint_names).index(name)] = value
+        return replace(robot, default_q=np.clip(q, robot.lower, robot.upper))
 
 
 def task_from_problem(problem: ProblemFile) -> TaskSpec:
     """The task a problem file states (its terms built at the start posture ``q0``)."""
     return TaskSpec(problem.robot_label, problem.name, problem.T, problem.dt, partial(build_terms, problem),
-                    problem.doc["description"], problem.dynamics)
+                    problem.doc["description"], problem.dynamics, problem.plant_start)
 
 
 def _shipped_tasks() -> dict[tuple[str, str], TaskSpec]:
@@ -64,7 +77,8 @@ TASK_NOTES = {
     "arm5 roll": "roll = atan2(y_E . z_W, z_E . z_W) about the hand axis, moved by the shoulder, elbow, forearm roll "
                  "and wrist (a roll axis between two pitch axes); target pi/2 at both via-points",
     "arm5 start": "q0 ~ N(0, 0.05^2) about the zero posture, the thesis's initial pose x2 = (1, 0, 0) m",
-    "pendulum horizon": f"{PENDULUM_T} steps of 2 ms (1.5 s): 300 ms cannot swing up under +-10 N m",
+    "pendulum horizon": f"{PENDULUM_T} steps of 2 ms ({PENDULUM_T * 0.002:g} s): 300 ms cannot swing up under +-10 N m, "
+                        "1.5 s leaves the upright out of reach (every plan pushes at the limit throughout)",
 }
 
 
