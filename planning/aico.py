@@ -44,6 +44,7 @@ kernel asks Python for them, step by step.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -65,6 +66,9 @@ from plants.dynamics import rollout
 from plants.lazy import LazyModule
 
 blas, lapack = LazyModule("scipy.linalg.blas"), LazyModule("scipy.linalg.lapack")  # imported at first use
+
+
+SCHEDULES = ("fixed", "adaptive", "robust")
 
 
 @dataclass(frozen=True)
@@ -94,7 +98,25 @@ class AICOOptions(OptionsBase):
             the cost ``alpha *= shrink`` (not below ``alpha_min``); after one that raises it the
             iterate is rejected, the previous one kept and ``alpha *= grow`` (not above
             ``alpha_max``) for the retry; ``gamma`` is not used). Each trial counts as an iteration.
+            ``"robust"`` (beyond the thesis; Levenberg-Marquardt style, invariant to the cost's
+            scale): the regularization is ``alpha^[n] = lambda^[n] kappa``, ``kappa`` the mean
+            diagonal of the state cost's Gauss-Newton Hessian at the first trajectory (the cost's
+            curvature per (state unit)^2 and step; the control Hessian's if no state term costs
+            anything), ``lambda^[1] = alpha`` (relative); the process noise and the start
+            variance are taken per unit of that curvature (``q / kappa``,
+            ``start_variance / kappa``), so that a cost multiplied by ``c`` gives the same
+            iterates. A trial is accepted when its actual decrease is at least ``accept`` times
+            the decrease the quadratic model of the cost at the current iterate predicts along
+            the step (any decrease if the model predicts none); then ``lambda /= lm_factor``
+            when the ratio is at least ``decrease_above``; a rejected trial (or a numerical
+            failure of the sweeps) keeps the iterate and ``lambda *= lm_factor`` (crocoddyl
+            FDDP's x10 and /10), within ``[lambda_min, lambda_max]``; a trial rejected at
+            ``lambda_max`` stops the run (``max-iterations``). A start that is no trajectory of
+            the dynamics (x0 held) has no feasible cost to compare with: its first finite
+            trial is taken (as the fixed schedule takes it), with ``lambda *= lm_factor`` if
+            it costs more than the start. Each trial counts as an iteration.
         shrink, grow, alpha_min, alpha_max: the adaptive schedule's factors and bounds.
+        lm_factor, accept, decrease_above, lambda_min, lambda_max: the robust schedule's.
     """
 
     iterations: int = 100
@@ -113,16 +135,26 @@ class AICOOptions(OptionsBase):
     grow: float = 4.0
     alpha_min: float = 1e-4
     alpha_max: float = 1e8
+    lm_factor: float = 10.0
+    accept: float = 0.1
+    decrease_above: float = 0.5
+    lambda_min: float = 1e-9
+    lambda_max: float = 1e9
 
     def validate(self) -> None:
-        if self.schedule not in ("fixed", "adaptive"):
-            raise ValueError(f"option schedule must be 'fixed' or 'adaptive', got {self.schedule!r}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
+        check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
+        check_range("accept", self.accept, lo=0.0, hi=1.0)
+        check_range("decrease_above", self.decrease_above, lo=self.accept)
+        check_range("lambda_min", self.lambda_min, lo=0.0, lo_open=True)
+        check_range("lambda_max", self.lambda_max, lo=self.lambda_min)
         check_range("shrink", self.shrink, lo=0.0, hi=1.0, lo_open=True)
         check_range("grow", self.grow, lo=1.0, lo_open=True)
         check_range("alpha_min", self.alpha_min, lo=0.0, lo_open=True)
         check_range("alpha_max", self.alpha_max, lo=self.alpha_min)
-        if self.schedule == "adaptive" and not self.alpha > 0:
-            raise ValueError("the adaptive schedule needs alpha > 0 (R-AICO)")
+        if self.schedule != "fixed" and not self.alpha > 0:
+            raise ValueError(f"the {self.schedule} schedule needs alpha > 0 (R-AICO)")
         check_range("iterations", self.iterations, lo=1, integer=True)
         check_range("alpha", self.alpha, lo=0.0)
         check_range("gamma", self.gamma, lo=0.0, lo_open=True)
@@ -643,10 +675,17 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
         if X.shape != (T + 1, problem.n_x) or not np.all(np.isfinite(X)):
             raise ValueError(f"X_init must be finite with shape {(T + 1, problem.n_x)}")
     _check_control_cost(problem)
-    sw = _Sweeps(problem, opts)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
-    out = drive(_AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost), start, opts,
-                initial_cost=initial_cost, callback=callback)
+    if opts.schedule == "robust":
+        kappa = cost_curvature(problem, X, U)
+        sw = _Sweeps(problem, dataclasses.replace(opts, process_noise=opts.process_noise / kappa,
+                                                  start_variance=opts.start_variance / kappa))
+        feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
+        step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
+    else:
+        sw = _Sweeps(problem, opts)
+        step = _AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
+    out = drive(step, start, opts, initial_cost=initial_cost, callback=callback)
     last = out.last_finite
     beliefs = None
     if out.status is not Status.DIVERGED:
@@ -694,6 +733,7 @@ class _AICOStep:
         try:
             with np.errstate(all="ignore"):
                 sw.linearize_all(cur.X, cur.U, cur.X, alpha)
+                self._after_linearize(cur)
                 sw.sweep()
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
@@ -710,10 +750,137 @@ class _AICOStep:
         return Step(Iterate(Xn, Un, o_new, O_new), cost, step=alpha,
                     repeats=sw.repeats)
 
+    def _after_linearize(self, cur: Iterate) -> None:
+        """Hook after the linearization at ``cur``, before the sweeps (the robust schedule's model)."""
+
     def _failed(self, cur: Iterate, alpha: float, why: str) -> Step:
         """A numerical failure: cost ``inf``, status diverged."""
         return Step(cur, math.inf, step=alpha, repeats=self.sw.repeats, moved=False,
                     stop=Stop(Status.DIVERGED, why))
+
+
+LINE_SEARCH = (1.0, 0.5, 0.25)   # the robust schedule's feedforward steps before a rejection
+
+
+class _RobustStep(_AICOStep):
+    """R-AICO's robust schedule (``AICOOptions.schedule = "robust"``): Levenberg-Marquardt style
+    ``alpha = lambda kappa`` with acceptance by the ratio of actual to predicted decrease.
+
+    State: ``lam`` (relative regularization of the next trial), ``cur_cost`` (cost of the current
+    iterate, ``None`` while it is a start that is no trajectory) and the quadratic model of the cost
+    at the current iterate (``_model``: ``l_x (T+1, n)``, ``l_xx (T+1, n, n)``, ``l_u (T, m)``,
+    ``l_uu (T, m, m)``, the sweeps' own task and control messages before regularization).
+    """
+
+    def __init__(self, problem: Problem, sw: _Sweeps, opts: AICOOptions, kappa: float,
+                 start_cost: float | None):
+        super().__init__(problem, sw, float(opts.alpha) * kappa, 1.0, opts, math.inf)
+        self.kappa, self.lam = kappa, float(opts.alpha)
+        self.cur_cost = start_cost
+        self._model: tuple | None = None
+        self._model_of: Iterate | None = None
+        self._record_model = False
+        self.nu = 2.0    # the next rejection's factor (Nielsen: doubles per rejection in a row)
+
+    def __call__(self, it: int, cur: Iterate) -> Step:
+        o = self.opts
+        self.alpha = self.lam * self.kappa
+        step = self._trial(cur)
+        lam = self.lam
+        failed = step.stop is not None and step.stop.status is Status.DIVERGED
+        if self.cur_cost is None:   # the start is no trajectory: take the first finite trial
+            if failed or not math.isfinite(step.cost):
+                return self._reject(cur, step, lam, math.inf)
+            start_cost = self.problem.cost(cur.X, cur.U)
+            self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
+            self.cur_cost = step.cost
+            return Step(step.iterate, step.cost, step=step.step, mu=lam, repeats=step.repeats)
+        if failed:
+            return self._reject(cur, step, lam, self.cur_cost)
+        trial = step.iterate
+        for eps in LINE_SEARCH:
+            if eps < 1.0:       # the same controller with its feedforward shortened about cur
+                trial = self._shortened(cur, step.iterate, eps)
+                if trial is None:
+                    continue
+            cost = step.cost if eps == 1.0 else self.problem.cost(trial.X, trial.U)
+            if not math.isfinite(cost):
+                continue
+            actual = self.cur_cost - cost
+            pred = self._predicted_decrease(cur, trial)
+            if actual > 0 and (pred <= 0 or actual >= o.accept * pred):
+                break
+        else:
+            return self._reject(cur, step, lam, self.cur_cost)
+        if eps < 1.0:   # the step was too long: more regularization next time
+            self.lam = min(o.lambda_max, lam * 2.0)
+        else:
+            rho = 1.0 if pred <= 0 else actual / pred
+            self.lam = max(o.lambda_min, lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3))
+        self.nu = 2.0
+        self.cur_cost = cost
+        return Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats)
+
+    def _shortened(self, cur: Iterate, new: Iterate, eps: float) -> Iterate | None:
+        """``u_t = U_t + eps (o_t + O_t X_t - U_t) + O_t (x_t - X_t)`` about ``cur`` (DDP's line
+        search on the feedforward): ``o_eps = eps o + (1 - eps)(U - O X)``, rolled out (``None``
+        if the rollout fails)."""
+        OX = np.einsum("tij,tj->ti", new.O, cur.X[:-1])
+        o_eps = eps * new.o + (1.0 - eps) * (cur.U - OX)
+        try:
+            with np.errstate(all="ignore"):
+                X, U = self.problem.controller_rollout(o_eps, new.O, kernel=_Sweeps.compiled)
+        except (ArithmeticError, ValueError, RuntimeError):
+            return None
+        return Iterate(X, U, o_eps, new.O)
+
+    def _reject(self, cur: Iterate, step: Step, lam: float, cost: float) -> Step:
+        """Keep ``cur``; ``lambda *= lm_factor``, or stop when it is at its cap."""
+        o = self.opts
+        stop = None
+        if lam >= o.lambda_max:
+            why = step.stop.message if step.stop is not None else f"trial cost {step.cost:.6g}"
+            stop = Stop(Status.MAX_ITERATIONS, f"no step lowers the cost at lambda = lambda_max = "
+                                               f"{o.lambda_max:g} ({why})")
+        self.lam = min(o.lambda_max, lam * self.nu)
+        self.nu = min(2.0 * self.nu, o.lm_factor)
+        return Step(cur, cost, step=step.step, mu=lam, repeats=step.repeats, moved=False, stop=stop)
+
+    def _trial(self, cur: Iterate) -> Step:
+        if self._model_of is not cur:     # the model at a new iterate: recorded before the sweeps
+            self._record_model = True
+        return super()._trial(cur)
+
+    def _after_linearize(self, cur: Iterate) -> None:
+        if getattr(self, "_record_model", False):
+            sw, n = self.sw, self.sw.n
+            R = sw.RA[:, :, :n].copy()
+            R[:, np.arange(n), np.arange(n)] -= 2.0 * sw.alpha
+            lu = np.einsum("tij,tj->ti", sw.H, cur.U) - sw.h
+            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H)), cur, False
+
+    def _predicted_decrease(self, cur: Iterate, new: Iterate) -> float:
+        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur``."""
+        lx, R, lu, H = self._model
+        dX, dU = new.X - cur.X, new.U - cur.U
+        q = float(np.einsum("ti,ti->", lx, dX) + 0.5 * np.einsum("ti,tij,tj->", dX, R, dX)
+                  + np.einsum("ti,ti->", lu, dU) + 0.5 * np.einsum("ti,tij,tj->", dU, H, dU))
+        return -q
+
+
+def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:
+    """``kappa``: the mean diagonal of the state cost's Gauss-Newton Hessian along ``X (T+1, n)``
+    (cost per (state unit)^2 and step), or of the control Hessian at ``U (T, m)`` if no state term
+    costs anything; scales with the cost (the robust schedule's unit of alpha)."""
+    problem.set_nominal(X, U)
+    _, R = problem.state_derivatives(X)
+    k = float(np.trace(R, axis1=1, axis2=2).mean()) / problem.n_x
+    if not (math.isfinite(k) and k > 0):
+        _, H = problem.control_derivatives(U)
+        k = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u
+    if not (math.isfinite(k) and k > 0):
+        raise ValueError("the robust schedule needs a cost with positive curvature")
+    return k
 
 
 def _check_control_cost(problem: Problem) -> None:

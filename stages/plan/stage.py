@@ -83,8 +83,11 @@ class PlanConfig(StageConfig):
                      "the zero-control rollout, where crocoddyl FDDP's rollout start begins) or quasi-static (every "
                      "solver: the torques that hold x0 at rest, g(q0), rolled out: crocoddyl's examples' start; "
                      "zero accelerations for pseudo-dynamics). iLQG otherwise rolls zero controls out.",
-            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
-                              "an iteration that lowers the cost, grows and retries after one that raises it).",
+            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma), adaptive (alpha shrinks after "
+                              "an iteration that lowers the cost, grows and retries after one that raises it) or robust "
+                              "(Levenberg-Marquardt style: alpha relative to the cost's curvature, acceptance by actual "
+                              "against predicted decrease; --alpha is its first relative value). Default: robust for "
+                              "--problem FILE, fixed for --plant/--task (the thesis's).",
             "balance": f"Nao only: none (the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
                        "(--balance-margin) inside both "
                        "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
@@ -108,7 +111,7 @@ class PlanConfig(StageConfig):
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
     sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
-    alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
+    alpha_schedule: str = ""  # R-AICO: "fixed" (thesis), "adaptive", "robust"; "": robust for a problem file, else fixed
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
     start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
     belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
@@ -180,7 +183,7 @@ class PlanConfig(StageConfig):
 
         if self.solver != "raico":
             note(("alpha", "gamma", "alpha_schedule"), f"R-AICO's (--solver raico), not {self.solver}'s")
-        elif self.alpha_schedule == "adaptive":
+        elif self.schedule() != "fixed":
             note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
         if self.solver not in ("aico", "raico"):
             note(("relinearize", "belief_rate", "controller_rate"), f"AICO's and R-AICO's, not {self.solver}'s")
@@ -249,8 +252,10 @@ class PlanConfig(StageConfig):
         if self.solver != "raico":
             relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
             d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
-        elif self.alpha_schedule == "adaptive":
-            d["gamma"] = 1.0  # not used by the adaptive schedule
+        else:
+            d["alpha_schedule"] = self.schedule()
+            if d["alpha_schedule"] != "fixed":
+                d["gamma"] = 1.0  # not used by the adaptive and robust schedules
         if self.warm_start is None or self.solver == "ilqg":
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
         if self.warm_start is not None or (self.solver not in ("aico", "raico") and self.start != "quasi-static"):
@@ -272,8 +277,15 @@ class PlanConfig(StageConfig):
         if self.controller_rate != 1.0:
             opts["controller_rate"] = self.controller_rate
         if self.solver == "raico":
-            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.alpha_schedule)
+            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.schedule())
         return opts
+
+    def schedule(self) -> str:
+        """R-AICO's alpha schedule: the one given, else robust for a problem file and the thesis's fixed one for
+        a built-in plant and task."""
+        if self.alpha_schedule:
+            return self.alpha_schedule
+        return "robust" if self.problem is not None else "fixed"
 
 
 @dataclass

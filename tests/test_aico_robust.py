@@ -1,0 +1,118 @@
+"""R-AICO's robust schedule (Levenberg-Marquardt style, invariant to the cost's scale) on problems whose
+answer is known: the exact LQ solution, the same iterates whatever the cost's scale, and the acceptance
+rule on trials whose outcome is known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planning.aico import AICOOptions, _RobustStep, _Sweeps, aico, cost_curvature
+from planning.driver import Iterate
+from planning.problem import Status
+from tests.test_solvers_lq import N_U, T, exact_solution, make_lq
+
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
+
+def scaled_lq(scale: float):
+    """``make_lq(seed=2, running=5)`` with every term's weight multiplied by ``scale``."""
+    pb = make_lq(seed=2, running=5.0)
+    for term in pb.all_terms():
+        term.weight *= scale
+    return pb
+
+
+def run(pb, **kw):
+    iterates = []
+    res = aico(pb, AICOOptions(**{"iterations": 40, "alpha": 1.0, "schedule": "robust", **kw}),
+               callback=lambda rec, X, U: iterates.append((X.copy(), U.copy())))
+    return res, iterates
+
+
+def test_robust_schedule_reaches_the_exact_lq_solution():
+    """From x0 held (no trajectory of the dynamics) the first trial is taken, then the model is exact and
+    lambda falls by up to 10 per iteration: the exact solution to 1e-6 within 12 iterations."""
+    pb = scaled_lq(1.0)
+    X, U = exact_solution(pb)
+    res, its = run(pb, tol_rel=0.0, iterations=20)
+    errs = [np.abs(Xi - X).max() / np.abs(X).max() for Xi, _ in its]
+    hit = next(i + 1 for i, e in enumerate(errs) if e < 1e-6)
+    assert hit <= 12, errs
+    assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-9)
+    lam = [h.mu for h in res.history]
+    assert lam[0] == 1.0 and lam[2] == pytest.approx(0.1) and lam[3] == pytest.approx(0.01)  # rho = 1: /10
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_robust_schedule_iterates_do_not_depend_on_the_cost_scale(scale):
+    """The same LQ problem with every weight times 1e-3 or 1e3: kappa scales with it, alpha = lambda kappa,
+    the process noise and start variance per unit of kappa; the iterates are the same to rounding and the
+    costs scale exactly, for as long as the cost falls by more than rounding (6 iterations here; then a
+    step of relative size 1e-9 may be taken at one scale and not at the other, which the end test allows)."""
+    ref, ref_its = run(scaled_lq(1.0), iterations=6, tol_rel=0.0)
+    res, its = run(scaled_lq(scale), iterations=6, tol_rel=0.0)
+    assert len(its) == len(ref_its) == 6
+    for (X, U), (Xr, Ur) in zip(its, ref_its):
+        assert np.abs(X - Xr).max() <= 1e-12 * np.abs(Xr).max()
+        assert np.abs(U - Ur).max() <= 1e-12 * np.abs(Ur).max()
+    assert [h.mu for h in res.history] == pytest.approx([h.mu for h in ref.history], rel=1e-12)
+    costs, ref_costs = np.array([h.cost for h in res.history]), np.array([h.cost for h in ref.history])
+    assert costs == pytest.approx(scale * ref_costs, rel=1e-12)
+    end, end_ref = run(scaled_lq(scale))[0], run(scaled_lq(1.0))[0]
+    assert np.abs(end.X - end_ref.X).max() <= 1e-7 * np.abs(end_ref.X).max()
+    # the fixed schedule's absolute alpha is not scale-free: the same alpha gives other iterates
+    f1 = aico(scaled_lq(1.0), AICOOptions(iterations=1, alpha=1.0)).X
+    fs = aico(scaled_lq(scale), AICOOptions(iterations=1, alpha=1.0)).X
+    assert np.abs(f1 - fs).max() > 1e-4 * np.abs(f1).max()
+
+
+def test_cost_curvature_scales_with_the_cost():
+    X = np.tile(make_lq(seed=2).x0, (T + 1, 1))
+    U = np.zeros((T, N_U))
+    k1, k2 = cost_curvature(scaled_lq(1.0), X, U), cost_curvature(scaled_lq(1e3), X, U)
+    assert k1 > 0 and k2 == pytest.approx(1e3 * k1, rel=1e-12)
+
+
+def _step(pb, start_cost, **kw):
+    opts = AICOOptions(**{"alpha": 1.0, "schedule": "robust", **kw})
+    return _RobustStep(pb, _Sweeps(pb, opts), opts, cost_curvature(pb, np.tile(pb.x0, (T + 1, 1)),
+                                                                     np.zeros((T, N_U))), start_cost)
+
+
+def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambda_max():
+    """A feasible iterate of cost 0 cannot be beaten: every trial is rejected, the iterate and its cost stay,
+    lambda grows by 2, 4, 8, 10, 10 (Nielsen's doubling, capped at x10); rejected at lambda_max the run stops."""
+    pb = make_lq(seed=2, running=5.0)
+    step = _step(pb, 0.0, lambda_max=1e3)
+    start = Iterate(np.tile(pb.x0, (T + 1, 1)), np.zeros((T, N_U)))
+    lams = []
+    for it in range(1, 10):
+        s = step(it, start)
+        assert s.iterate is start and s.cost == 0.0 and not s.moved
+        lams.append(s.mu)
+        if s.stop is not None:
+            break
+    assert lams == pytest.approx([1.0, 2.0, 8.0, 64.0, 640.0, 1e3])
+    assert s.stop.status is Status.MAX_ITERATIONS and "lambda_max" in s.stop.message
+
+
+def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajectory():
+    """The stall this schedule fixes: from x0 held the reference is no trajectory's cost; the first finite
+    trial is taken whatever it costs (the adaptive schedule compared it with the zero-control rollout's cost
+    and, when that is lower than holding the start, rejected every trial)."""
+    pb = make_lq(seed=2, running=5.0)
+    step = _step(pb, None)
+    start = Iterate(np.tile(pb.x0, (T + 1, 1)), np.zeros((T, N_U)))
+    s = step(1, start)
+    assert s.moved and s.iterate is not start and np.isfinite(s.cost)
+    assert step.cur_cost == s.cost
+
+
+def test_robust_schedule_options_are_checked():
+    with pytest.raises(ValueError, match="the robust schedule needs alpha > 0"):
+        AICOOptions(alpha=0.0, schedule="robust")
+    with pytest.raises(ValueError, match="schedule must be one of fixed, adaptive, robust"):
+        AICOOptions(alpha=1.0, schedule="lm")
+    with pytest.raises(ValueError, match="lm_factor"):
+        AICOOptions(alpha=1.0, schedule="robust", lm_factor=1.0)
