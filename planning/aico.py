@@ -51,12 +51,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from planning import kernels
+from planning.costs import ControlTerm, StateTerm
 from planning.driver import Iterate, Status, Step, Stop, drive
 from planning.problem import (
     Callback,
     OptionsBase,
     Problem,
     Result,
+    bounds_status,
     check_range,
     is_lti,
     single_threaded_blas,
@@ -656,8 +658,160 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
         ``Result``; a run whose cost becomes non-finite or explodes, or whose messages
         fail numerically, ends with status ``"diverged"`` (no exception).
     """
+    opts = options or AICOOptions()
     with single_threaded_blas():
-        return _aico(problem, options or AICOOptions(), X_init, U_init, callback)
+        b = problem.bounds
+        if b is not None and (b.has_positions or b.has_controls):
+            return _aico_in_range(problem, opts, X_init, U_init, callback)
+        return _aico(problem, opts, X_init, U_init, callback)
+
+
+RANGE_TOL = 1e-4      # rad: the augmented Lagrangian's target on a joint range's violation
+AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
+
+
+class _RangeAL(StateTerm):
+    """The joint ranges ``lo <= q_j <= hi`` (state coordinates ``idx``) at every step as an augmented
+    Lagrangian: ``mu/2 (max(0, q - hi + y_hi / mu)^2 + max(0, lo - q + y_lo / mu)^2)`` per joint and step,
+    multipliers ``y (T+1, k) >= 0`` (the constant ``-y^2 / (2 mu)`` left out). Exact gradient; Hessian
+    ``mu`` on the joints whose hinge is active."""
+
+    def __init__(self, idx, lo, hi, T: int, mu: float):
+        self.name, self.weight, self.mu = "joint_range_al", 1.0, mu
+        self.idx, self.lo, self.hi = np.asarray(idx), np.asarray(lo, float), np.asarray(hi, float)
+        self.y_hi, self.y_lo = np.zeros((T + 1, len(idx))), np.zeros((T + 1, len(idx)))
+        self._set_times(range(1, T + 1))     # x_0 is the start: no plan changes it
+
+    def _hinges(self, X, idx):
+        Q = X[:, self.idx]
+        hu = np.maximum(0.0, Q - self.hi + self.y_hi[idx] / self.mu)
+        hl = np.maximum(0.0, self.lo - Q + self.y_lo[idx] / self.mu)
+        return hu, hl
+
+    def _value(self, X, idx):
+        hu, hl = self._hinges(X, idx)
+        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
+
+    def _derivs(self, X, idx):
+        hu, hl = self._hinges(X, idx)
+        K, n = X.shape
+        g, H = np.zeros((K, n)), np.zeros((K, n, n))
+        g[:, self.idx] = self.mu * (hu - hl)
+        H[:, self.idx, self.idx] = self.mu * ((hu > 0) | (hl > 0))
+        return g, H
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The multipliers' first-order update at the trajectory ``X (T+1, n)`` (``U`` unused)."""
+        Q = X[1:, self.idx]
+        self.y_hi[1:] = np.maximum(0.0, self.y_hi[1:] + self.mu * (Q - self.hi))
+        self.y_lo[1:] = np.maximum(0.0, self.y_lo[1:] + self.mu * (self.lo - Q))
+
+
+class _EffortAL(ControlTerm):
+    """The effort limits ``lo <= u_t <= hi`` as an augmented Lagrangian (as ``_RangeAL``): ``mu/2
+    (max(0, u - hi + y_hi / mu)^2 + max(0, lo - u + y_lo / mu)^2)`` per control and step, multipliers
+    ``y (T, m) >= 0``. A batch of other than ``T`` rows (the control-cost check) gets zero multipliers."""
+
+    def __init__(self, lo, hi, T: int, mu: float):
+        self.name, self.weight, self.mu, self.T = "effort_al", 1.0, mu, T
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.y_hi, self.y_lo = np.zeros((T, self.lo.shape[0])), np.zeros((T, self.lo.shape[0]))
+
+    def _hinges(self, U):
+        U = np.atleast_2d(U)
+        y_hi, y_lo = (self.y_hi, self.y_lo) if U.shape[0] == self.T else (0.0, 0.0)
+        with np.errstate(invalid="ignore"):   # inf - inf of an unlimited control: no hinge
+            hu = np.nan_to_num(np.maximum(0.0, U - self.hi + y_hi / self.mu), nan=0.0)
+            hl = np.nan_to_num(np.maximum(0.0, self.lo - U + y_lo / self.mu), nan=0.0)
+        return hu, hl
+
+    def value(self, U):
+        hu, hl = self._hinges(U)
+        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
+
+    def derivatives(self, U):
+        hu, hl = self._hinges(U)
+        K, m = hu.shape
+        H = np.zeros((K, m, m))
+        H[:, np.arange(m), np.arange(m)] = self.mu * ((hu > 0) | (hl > 0))
+        return self.mu * (hu - hl), H
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The multipliers' first-order update at the controls ``U (T, m)``."""
+        self.y_hi = np.maximum(0.0, self.y_hi + self.mu * np.where(np.isfinite(self.hi), U - self.hi, -np.inf))
+        self.y_lo = np.maximum(0.0, self.y_lo + self.mu * np.where(np.isfinite(self.lo), self.lo - U, -np.inf))
+
+
+def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
+    """AICO / R-AICO with the hard bounds of ``problem.bounds`` kept by an augmented Lagrangian (the joint
+    ranges: ``_RangeAL``; the efforts: ``_EffortAL``): inner solves of the problem plus those terms, without
+    clipping (each from the last one's trajectory and controls, a rollout), then the multipliers' update,
+    ``mu *= 10`` when the largest violation did not fall by 4; stops when a solve converged with every joint
+    within ``RANGE_TOL`` rad of its range and every control within ``RANGE_TOL`` (relative to its largest
+    limit) of its effort, or at the iteration budget. The plan is the last controller rolled out with its
+    controls clipped into their box (:func:`bounded_rollout`: the efforts hold exactly). The history reports
+    the problem's own cost (the Lagrangian's terms left out); ``mu`` starts at ``AL_MU0 kappa``
+    (:func:`cost_curvature`: the cost's curvature per (state unit)^2 and step)."""
+    b, T = problem.bounds, problem.T
+    U = np.zeros((T, problem.n_u)) if U_init is None else np.asarray(U_init, float)
+    X = np.tile(problem.x0, (T + 1, 1)) if X_init is None else np.asarray(X_init, float)
+    if X_init is None and U_init is not None:
+        X = rollout(problem.dynamics, problem.x0, U)
+    mu = AL_MU0 * cost_curvature(problem, X, U)
+    terms = ([_RangeAL(b.q_index, b.q_lower, b.q_upper, T, mu)] if b.has_positions else []) + (
+        [_EffortAL(b.u_lower, b.u_upper, T, mu)] if b.has_controls else [])
+    mu_max = 1e6 * mu
+    sub = dataclasses.replace(problem, state_terms=[*problem.state_terms, *terms[:b.has_positions]],
+                              control_terms=[*problem.control_terms, *terms[b.has_positions:]], bounds=None)
+    u_scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)), initial=1.0)) \
+        if b.has_controls else 1.0
+    history, last, viol, it0, t0 = [], None, math.inf, 0, 0.0
+    chunk, alpha = max(10, opts.iterations // 4), opts.alpha
+    Xi, Ui = X_init, U_init
+    while it0 < opts.iterations:
+        n = min(chunk, opts.iterations - it0)
+        costs: dict[int, float] = {}
+
+        def cb(rec, Xc, Uc, costs=costs, it0=it0, t0=t0):   # noqa: ANN001
+            c = problem.cost(Xc, Uc)
+            costs[rec.iteration] = c
+            if callback is not None:
+                callback(dataclasses.replace(rec, iteration=it0 + rec.iteration, cost=c,
+                                             elapsed_s=t0 + rec.elapsed_s), Xc, Uc)
+
+        res = _aico(sub, dataclasses.replace(opts, iterations=n, alpha=alpha), Xi, Ui, cb)
+        if last is None:
+            initial_cost, X_initial = problem.cost(res.X_initial, U), res.X_initial
+        history += [dataclasses.replace(h, iteration=it0 + h.iteration, cost=costs.get(h.iteration, math.inf),
+                                        elapsed_s=t0 + h.elapsed_s) for h in res.history]
+        it0, t0 = it0 + res.iterations, t0 + (res.history[-1].elapsed_s if res.history else 0.0)
+        if res.status is Status.DIVERGED:
+            if last is None:
+                last = res
+            break
+        last = res
+        q, u = b.violation(res.X, res.U)
+        new_viol = max(q, u / u_scale)
+        if res.status is Status.CONVERGED and new_viol <= RANGE_TOL:
+            break
+        for term in terms:
+            term.update(res.X, res.U)
+            if new_viol > 0.25 * viol:
+                term.mu = min(term.mu * 10.0, mu_max)
+        viol = new_viol
+        Xi, Ui = res.X, res.U      # the next solve starts at this rollout (feasible)
+        if opts.schedule == "robust" and res.history:   # and at the regularization this one ended with
+            alpha = min(max(res.history[-1].mu, 1e-6), 1.0)
+    X, U, o, O = (last.X, last.U, last.o, last.O)
+    if last.status is not Status.DIVERGED:
+        X, U, o, O = bounded_rollout(problem, last.o, last.O)
+        if history:
+            history[-1] = dataclasses.replace(history[-1], cost=problem.cost(X, U))
+    out = Result(X=X, U=U, o=o, O=O, status=last.status, history=history,
+                 iterations=len(history), message=last.message, initial_cost=initial_cost, beliefs=last.beliefs,
+                 solver=last.solver, X_initial=X_initial)
+    bounds_status(problem, out)
+    return out
 
 
 def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
@@ -742,7 +896,7 @@ class _AICOStep:
         if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = self.problem.controller_rollout(o_new, O_new, kernel=_Sweeps.compiled)
+            Xn, Un, o_new, O_new = bounded_rollout(self.problem, o_new, O_new)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")
@@ -760,6 +914,7 @@ class _AICOStep:
 
 
 LINE_SEARCH = (1.0, 0.5, 0.25)   # the robust schedule's feedforward steps before a rejection
+ASCENTS = 5   # the robust schedule stops after this many rejections in a row of steps the model rightly sees rise
 
 
 class _RobustStep(_AICOStep):
@@ -781,6 +936,7 @@ class _RobustStep(_AICOStep):
         self._model_of: Iterate | None = None
         self._record_model = False
         self.nu = 2.0    # the next rejection's factor (Nielsen: doubles per rejection in a row)
+        self.ascents = 0  # rejections in a row whose step the model rightly predicts to raise the cost
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
@@ -797,7 +953,7 @@ class _RobustStep(_AICOStep):
             return Step(step.iterate, step.cost, step=step.step, mu=lam, repeats=step.repeats)
         if failed:
             return self._reject(cur, step, lam, self.cur_cost)
-        trial = step.iterate
+        trial, pred_full = step.iterate, None
         for eps in LINE_SEARCH:
             if eps < 1.0:       # the same controller with its feedforward shortened about cur
                 trial = self._shortened(cur, step.iterate, eps)
@@ -808,16 +964,33 @@ class _RobustStep(_AICOStep):
                 continue
             actual = self.cur_cost - cost
             pred = self._predicted_decrease(cur, trial)
+            pred_full = pred if eps == 1.0 else pred_full
             if actual > 0 and (pred <= 0 or actual >= o.accept * pred):
                 break
         else:
-            return self._reject(cur, step, lam, self.cur_cost)
+            out = self._reject(cur, step, lam, self.cur_cost)
+            tol = max(o.tol_rel, 1e-14) * abs(self.cur_cost)
+            act_full = self.cur_cost - step.cost
+            ascent = pred_full is not None and pred_full < 0 and abs(act_full - pred_full) <= 0.1 * abs(pred_full)
+            self.ascents = self.ascents + 1 if ascent else 0
+            if self.ascents >= ASCENTS:
+                # the model is right and its step raises the cost: more regularization shortens the step, it does
+                # not turn it (controls clipped to their bounds: the projected step is no descent direction)
+                out = dataclasses.replace(out, stop=Stop(Status.CONVERGED, f"{ASCENTS} trials in a row whose step "
+                                                     f"the cost's model rightly predicts to raise it (last "
+                                                     f"{pred_full:.3g}): no descent direction at lambda = {lam:.3g}"))
+            elif pred_full is not None and lam <= 1.0 and abs(pred_full) <= tol:
+                # where the regularization is at most the cost's curvature the model's own step promises nothing
+                # beyond rounding: a stationary point (else lambda would climb to its cap, trial after trial)
+                out = dataclasses.replace(out, stop=Stop(Status.CONVERGED, f"predicted decrease {pred_full:.3g} "
+                                                     f"below tol_rel x cost ({tol:.3g}) at lambda = {lam:.3g}"))
+            return out
         if eps < 1.0:   # the step was too long: more regularization next time
             self.lam = min(o.lambda_max, lam * 2.0)
         else:
             rho = 1.0 if pred <= 0 else actual / pred
             self.lam = max(o.lambda_min, lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3))
-        self.nu = 2.0
+        self.nu, self.ascents = 2.0, 0
         self.cur_cost = cost
         return Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats)
 
@@ -829,10 +1002,10 @@ class _RobustStep(_AICOStep):
         o_eps = eps * new.o + (1.0 - eps) * (cur.U - OX)
         try:
             with np.errstate(all="ignore"):
-                X, U = self.problem.controller_rollout(o_eps, new.O, kernel=_Sweeps.compiled)
+                X, U, o_eps, O = bounded_rollout(self.problem, o_eps, new.O)
         except (ArithmeticError, ValueError, RuntimeError):
             return None
-        return Iterate(X, U, o_eps, new.O)
+        return Iterate(X, U, o_eps, O)
 
     def _reject(self, cur: Iterate, step: Step, lam: float, cost: float) -> Step:
         """Keep ``cur``; ``lambda *= lm_factor``, or stop when it is at its cap."""
@@ -866,6 +1039,34 @@ class _RobustStep(_AICOStep):
         q = float(np.einsum("ti,ti->", lx, dX) + 0.5 * np.einsum("ti,tij,tj->", dX, R, dX)
                   + np.einsum("ti,ti->", lu, dU) + 0.5 * np.einsum("ti,tij,tj->", dU, H, dU))
         return -q
+
+
+def bounded_rollout(problem: Problem, o: np.ndarray, O: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The controller ``u_t = o_t + O_t x_t`` rolled out: ``X (T+1, n)``, ``U (T, m)`` and the controller
+    ``o, O`` that gives them. With control bounds (``problem.bounds``) every control is clipped into its
+    box as it is applied (a projection: the effort limits hold exactly), and the controller returned is
+    the consistent one: a clipped control's feedforward is its clipped value and its feedback row zero
+    (BoxDDP's clamped directions: near the plan a saturated motor stays saturated)."""
+    b = problem.bounds
+    if b is None or not b.has_controls:
+        X, U = problem.controller_rollout(o, O, kernel=_Sweeps.compiled)
+        return X, U, o, O
+    T, step = o.shape[0], problem.dynamics.step
+    X, U = np.empty((T + 1, problem.n_x)), np.empty(o.shape)
+    X[0] = problem.x0
+    clipped = np.zeros(o.shape, dtype=bool)
+    with np.errstate(all="ignore"):
+        for t in range(T):
+            raw = o[t] + O[t] @ X[t]
+            U[t] = np.clip(raw, b.u_lower, b.u_upper)
+            clipped[t] = U[t] != raw
+            X[t + 1] = step(X[t], U[t])
+    if clipped.any():
+        o, O = o.copy(), O.copy()
+        o[clipped] = U[clipped]
+        O[clipped] = 0.0
+    return X, U, o, O
 
 
 def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:

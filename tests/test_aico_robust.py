@@ -116,3 +116,82 @@ def test_robust_schedule_options_are_checked():
         AICOOptions(alpha=1.0, schedule="lm")
     with pytest.raises(ValueError, match="lm_factor"):
         AICOOptions(alpha=1.0, schedule="robust", lm_factor=1.0)
+
+
+def bounded_lq(T: int = T):
+    """The LQ problem with hard bounds its unconstrained optimum leaves: state coordinates 0 and 1 within
+    [-0.3, 0.3] (as joint positions, from step 1 on) and both controls within +-0.8 (as efforts)."""
+    import dataclasses
+
+    from planning.problem import Bounds
+
+    pb = make_lq(seed=2, running=5.0, T=T)
+    b = Bounds(u_lower=np.full(N_U, -0.8), u_upper=np.full(N_U, 0.8), q_index=np.array([0, 1]),
+               q_lower=np.full(2, -0.3), q_upper=np.full(2, 0.3))
+    return pb, dataclasses.replace(pb, bounds=b)
+
+
+def bounded_qp_optimum(pb) -> float:
+    """The bounded LQ problem's optimal cost, from scipy's SLSQP on the QP over ``z = (x_0..x_T, u_0..u_{T-1})``
+    (``1/2 z^T H z - g^T z``, the dynamics as linear equalities, the bounds as a box; independent of the
+    solvers)."""
+    from scipy.linalg import block_diag
+    from scipy.optimize import minimize
+
+    T, n, m, dyn, b = pb.T, pb.n_x, pb.n_u, pb.dynamics, pb.bounds
+    R, r = pb.quadratize_states(np.zeros((T + 1, n)))
+    Hu, hu = pb.quadratize_controls(np.zeros((T, m)))
+    Hq, g = block_diag(*R, *Hu), np.concatenate([*r, *hu])
+    off = (T + 1) * n
+    C = np.zeros(((T + 1) * n, off + T * m))
+    d = np.concatenate([pb.x0, np.tile(dyn.a, T)])
+    C[:n, :n] = np.eye(n)
+    for t in range(T):
+        rows = slice((t + 1) * n, (t + 2) * n)
+        C[rows, (t + 1) * n:(t + 2) * n], C[rows, t * n:(t + 1) * n] = np.eye(n), -dyn.A
+        C[rows, off + t * m:off + (t + 1) * m] = -dyn.B
+    lo, hi = np.full(off + T * m, -np.inf), np.full(off + T * m, np.inf)
+    for t in range(1, T + 1):
+        lo[t * n + b.q_index], hi[t * n + b.q_index] = b.q_lower, b.q_upper
+    lo[off:], hi[off:] = np.tile(b.u_lower, T), np.tile(b.u_upper, T)
+    z0 = np.concatenate([np.tile(pb.x0, T + 1), np.zeros(T * m)])
+    res = minimize(lambda z: 0.5 * z @ Hq @ z - g @ z, z0, jac=lambda z: Hq @ z - g, method="SLSQP",
+                   constraints=[{"type": "eq", "fun": lambda z: C @ z - d, "jac": lambda z: C}],
+                   bounds=list(zip(np.where(np.isfinite(lo), lo, None), np.where(np.isfinite(hi), hi, None))),
+                   options={"maxiter": 1000, "ftol": 1e-10})
+    assert res.success, res.message
+    X, U = res.x[:off].reshape(T + 1, n), res.x[off:].reshape(T, m)
+    assert max(pb.bounds.violation(X, U)) <= 1e-8 and np.abs(C @ res.x - d).max() <= 1e-8
+    return pb.cost(X, U)
+
+
+@pytest.mark.parametrize("schedule", ["robust", "fixed"])
+def test_hard_bounds_hold_where_the_unconstrained_optimum_leaves_them(schedule):
+    """The unconstrained optimum leaves the range and asks for more than the effort; with the bounds
+    R-AICO's plan is inside the range to 1e-3 (1e-4 the augmented Lagrangian's target) and within the effort
+    exactly (the last controller's controls clipped), its status is not out-of-bounds, and its cost is the
+    bounded QP's optimum to 1e-4."""
+    free, pb = bounded_lq(T=12)
+    X, U = exact_solution(free)
+    q_out, u_out = pb.bounds.violation(X, U)
+    assert q_out > 0.1 and u_out > 0.1
+    res = aico(pb, AICOOptions(iterations=120, alpha=1.0, schedule=schedule))
+    q, u = pb.bounds.violation(res.X, res.U)
+    assert q <= 1e-4 and u == 0.0, (q, u, res.message)
+    assert res.status is Status.CONVERGED and np.all(np.abs(res.U) <= 0.8)
+    assert pb.cost(res.X, res.U) == pytest.approx(bounded_qp_optimum(pb), rel=1e-4)
+    assert res.cost == pb.cost(res.X, res.U)       # the history's last cost is the plan's
+    # the stored controller gives the plan: clipped controls have their value as feedforward, no feedback
+    assert np.allclose(res.o + np.einsum("tij,tj->ti", res.O, res.X[:-1]), res.U, atol=1e-9)
+
+
+def test_a_plan_that_cannot_stay_inside_says_so():
+    """A range the plan cannot keep (the start's state 0 is 0.18; the bound at 0.1 from step 1 on is beyond
+    what one step of the bounded controls can do): status out-of-bounds with the amount."""
+    import dataclasses
+
+    free, pb = bounded_lq()
+    x0 = pb.x0.copy()
+    b = dataclasses.replace(pb.bounds, q_lower=np.array([x0[0] + 2.0, -10.0]), q_upper=np.array([x0[0] + 3.0, 10.0]))
+    res = aico(dataclasses.replace(pb, bounds=b), AICOOptions(iterations=30, alpha=1.0, schedule="robust"))
+    assert res.status is Status.OUT_OF_BOUNDS and "joint range by" in res.message
