@@ -750,17 +750,20 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
     within ``RANGE_TOL`` rad of its range and every control within ``RANGE_TOL`` (relative to its largest
     limit) of its effort, or at the iteration budget. The plan is the last controller rolled out with its
     controls clipped into their box (:func:`bounded_rollout`: the efforts hold exactly). The history reports
-    the problem's own cost (the Lagrangian's terms left out); ``mu`` starts at ``AL_MU0 kappa``
-    (:func:`cost_curvature`: the cost's curvature per (state unit)^2 and step)."""
+    the problem's own cost (the Lagrangian's terms left out); ``mu`` starts at ``AL_MU0 kappa`` on the ranges
+    (:func:`cost_curvature`: the cost's curvature per (state unit)^2 and step) and at ``AL_MU0`` times the
+    control cost's mean curvature on the efforts, so that both are invariant to the cost's scale."""
     b, T = problem.bounds, problem.T
     U = np.zeros((T, problem.n_u)) if U_init is None else np.asarray(U_init, float)
     X = np.tile(problem.x0, (T + 1, 1)) if X_init is None else np.asarray(X_init, float)
     if X_init is None and U_init is not None:
         X = rollout(problem.dynamics, problem.x0, U)
     mu = AL_MU0 * cost_curvature(problem, X, U)
+    _, H = problem.control_derivatives(U)
+    mu_u = AL_MU0 * float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (control unit)^2
     terms = ([_RangeAL(b.q_index, b.q_lower, b.q_upper, T, mu)] if b.has_positions else []) + (
-        [_EffortAL(b.u_lower, b.u_upper, T, mu)] if b.has_controls else [])
-    mu_max = 1e6 * mu
+        [_EffortAL(b.u_lower, b.u_upper, T, mu_u)] if b.has_controls else [])
+    mu_max = {id(t): 1e6 * t.mu for t in terms}
     sub = dataclasses.replace(problem, state_terms=[*problem.state_terms, *terms[:b.has_positions]],
                               control_terms=[*problem.control_terms, *terms[b.has_positions:]], bounds=None)
     u_scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)), initial=1.0)) \
@@ -797,14 +800,17 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
         for term in terms:
             term.update(res.X, res.U)
             if new_viol > 0.25 * viol:
-                term.mu = min(term.mu * 10.0, mu_max)
+                term.mu = min(term.mu * 10.0, mu_max[id(term)])
         viol = new_viol
         Xi, Ui = res.X, res.U      # the next solve starts at this rollout (feasible)
+        chunk = max(10, opts.iterations // 10)   # later solves start near their optimum: update more often
         if opts.schedule == "robust" and res.history:   # and at the regularization this one ended with
             alpha = min(max(res.history[-1].mu, 1e-6), 1.0)
     X, U, o, O = (last.X, last.U, last.o, last.O)
     if last.status is not Status.DIVERGED:
-        X, U, o, O = bounded_rollout(problem, last.o, last.O)
+        clipped = bounded_rollout(problem, last.o, last.O)
+        if np.all(np.isfinite(clipped[0])):   # else the unclipped plan stays, its status says out-of-bounds
+            X, U, o, O = clipped
         if history:
             history[-1] = dataclasses.replace(history[-1], cost=problem.cost(X, U))
     out = Result(X=X, U=U, o=o, O=O, status=last.status, history=history,
