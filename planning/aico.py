@@ -768,7 +768,7 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
                               control_terms=[*problem.control_terms, *terms[b.has_positions:]], bounds=None)
     u_scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)), initial=1.0)) \
         if b.has_controls else 1.0
-    history, last, viol, it0, t0 = [], None, math.inf, 0, 0.0
+    history, last, viol, it0, t0, solves = [], None, math.inf, 0, 0.0, 0
     chunk, alpha = max(10, opts.iterations // 4), opts.alpha
     Xi, Ui = X_init, U_init
     while it0 < opts.iterations:
@@ -783,6 +783,7 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
                                              elapsed_s=t0 + rec.elapsed_s), Xc, Uc)
 
         res = _aico(sub, dataclasses.replace(opts, iterations=n, alpha=alpha), Xi, Ui, cb)
+        solves += 1
         if last is None:
             initial_cost, X_initial = problem.cost(res.X_initial, U), res.X_initial
         history += [dataclasses.replace(h, iteration=it0 + h.iteration, cost=costs.get(h.iteration, math.inf),
@@ -813,8 +814,13 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
             X, U, o, O = clipped
         if history:
             history[-1] = dataclasses.replace(history[-1], cost=problem.cost(X, U))
+    q, u = b.violation(X, U)
+    capped = last.status is Status.MAX_ITERATIONS
+    message = (f"reached {len(history)} iterations" if capped else last.message) + (
+        f" (augmented Lagrangian: {solves} solves{f', the last: {last.message}' if capped else ''}; largest "
+        f"excess {q:.2g} rad, {u:.2g} control units)")
     out = Result(X=X, U=U, o=o, O=O, status=last.status, history=history,
-                 iterations=len(history), message=last.message, initial_cost=initial_cost, beliefs=last.beliefs,
+                 iterations=len(history), message=message, initial_cost=initial_cost, beliefs=last.beliefs,
                  solver=last.solver, X_initial=X_initial)
     bounds_status(problem, out)
     return out

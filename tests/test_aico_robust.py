@@ -4,6 +4,8 @@ rule on trials whose outcome is known."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -195,3 +197,38 @@ def test_a_plan_that_cannot_stay_inside_says_so():
     b = dataclasses.replace(pb.bounds, q_lower=np.array([x0[0] + 2.0, -10.0]), q_upper=np.array([x0[0] + 3.0, 10.0]))
     res = aico(dataclasses.replace(pb, bounds=b), AICOOptions(iterations=30, alpha=1.0, schedule="robust"))
     assert res.status is Status.OUT_OF_BOUNDS and "joint range by" in res.message
+
+
+def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bounds(tmp_path):
+    """``raico plan --problem FILE``: R-AICO's robust schedule and the model's hard bounds by default (stored in
+    the config), the thesis's fixed schedule and no hard bounds for ``--plant/--task``; the plan is within its
+    joint ranges and effort limits; a bad ``--bounds`` is one line on stderr and exit 2."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from plants.robots import shared_robot
+
+    runner = CliRunner()
+    root = Path(__file__).resolve().parents[1]
+    res = runner.invoke(app, ["plan", "--problem", str(root / "problems" / "arm5_reach.toml"), "--dynamics", "analytic",
+                              "--iterations", "12", "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.strip().splitlines()[-1])
+    cfg = json.loads((Path(line["path"]) / "meta.json").read_text())["config"]
+    assert cfg["alpha_schedule"] == "robust" and cfg["bounds"] == "hard"
+    plan = np.load(Path(line["path"]) / "plan.npz")
+    robot = shared_robot("arm5")
+    Q = plan["X"][1:, :robot.n_q]
+    assert np.all(Q <= robot.upper + 1e-3) and np.all(Q >= robot.lower - 1e-3)
+    assert np.all(np.abs(plan["U"]) <= robot.effort * (1 + 1e-12))
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--iterations", "2", "--json",
+                              "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.strip().splitlines()[-1])
+    cfg = json.loads((Path(line["path"]) / "meta.json").read_text())["config"]
+    assert cfg["alpha_schedule"] == "fixed" and cfg["bounds"] == "none"
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--bounds", "soft",
+                              "--artifacts", str(tmp_path)])
+    assert res.exit_code == 2 and "unknown bounds 'soft'" in res.output
