@@ -1055,30 +1055,8 @@ class _RobustStep(_AICOStep):
 
 def bounded_rollout(problem: Problem, o: np.ndarray, O: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The controller ``u_t = o_t + O_t x_t`` rolled out: ``X (T+1, n)``, ``U (T, m)`` and the controller
-    ``o, O`` that gives them. With control bounds (``problem.bounds``) every control is clipped into its
-    box as it is applied (a projection: the effort limits hold exactly), and the controller returned is
-    the consistent one: a clipped control's feedforward is its clipped value and its feedback row zero
-    (BoxDDP's clamped directions: near the plan a saturated motor stays saturated)."""
-    b = problem.bounds
-    if b is None or not b.has_controls:
-        X, U = problem.controller_rollout(o, O, kernel=_Sweeps.compiled)
-        return X, U, o, O
-    T, step = o.shape[0], problem.dynamics.step
-    X, U = np.empty((T + 1, problem.n_x)), np.empty(o.shape)
-    X[0] = problem.x0
-    clipped = np.zeros(o.shape, dtype=bool)
-    with np.errstate(all="ignore"):
-        for t in range(T):
-            raw = o[t] + O[t] @ X[t]
-            U[t] = np.clip(raw, b.u_lower, b.u_upper)
-            clipped[t] = U[t] != raw
-            X[t + 1] = step(X[t], U[t])
-    if clipped.any():
-        o, O = o.copy(), O.copy()
-        o[clipped] = U[clipped]
-        O[clipped] = 0.0
-    return X, U, o, O
+    """``problem.bounded_rollout`` with the sweeps' kernel switch (tests turn the compiled code off)."""
+    return problem.bounded_rollout(o, O, kernel=_Sweeps.compiled)
 
 
 def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:

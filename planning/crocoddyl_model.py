@@ -514,9 +514,7 @@ def _result(problem: Problem, solved, history, status, message, initial_cost, so
     o = U + np.einsum("tij,tj->ti", K, X[:-1])
     O = -K
     if solved is not None:  # the controller rolled out on raico's planning model (within its effort bounds)
-        from planning.aico import bounded_rollout
-
-        X, U, o, O = bounded_rollout(problem, o, O)
+        X, U, o, O = problem.bounded_rollout(o, O)
     res = Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
                  message=message, initial_cost=initial_cost, solver="fddp", X_initial=X_initial)
     if problem.bounds is not None:

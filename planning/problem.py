@@ -38,9 +38,9 @@ class Status(StrEnum):
     value, e.g. ``Status.CONVERGED == "converged"``."""
 
     CONVERGED = "converged"            # a convergence test was met
-    OUT_OF_BOUNDS = "out-of-bounds"    # the plan leaves its hard bounds (joint range, effort) beyond tolerance
     MAX_ITERATIONS = "max-iterations"  # iteration budget, or a regularization limit (iLQG, crocoddyl FDDP)
     DIVERGED = "diverged"              # cost not finite or exploded, or a numerical failure
+    OUT_OF_BOUNDS = "out-of-bounds"    # the plan leaves its hard bounds (joint range, effort) beyond tolerance
 
 
 STATUSES = tuple(s.value for s in Status)
@@ -134,6 +134,33 @@ class Problem:
                 lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
                 return X, U
         return controller_rollout(dynamics, x0, o, O)
+
+    def bounded_rollout(self, o: np.ndarray, O: np.ndarray, *, kernel: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The controller ``u_t = o_t + O_t x_t`` rolled out: ``X (T+1, n)``, ``U (T, m)`` and the controller
+        ``o, O`` that gives them. With control bounds (``bounds``) every control is clipped into its box as it
+        is applied (a projection: the effort limits hold exactly), and the controller returned is the
+        consistent one: a clipped control's feedforward is its clipped value and its feedback row zero
+        (BoxDDP's clamped directions: near the plan a saturated motor stays saturated)."""
+        b = self.bounds
+        if b is None or not b.has_controls:
+            X, U = self.controller_rollout(o, O, kernel=kernel)
+            return X, U, o, O
+        T, step = o.shape[0], self.dynamics.step
+        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
+        X[0] = self.x0
+        clipped = np.zeros(o.shape, dtype=bool)
+        with np.errstate(all="ignore"):
+            for t in range(T):
+                raw = o[t] + O[t] @ X[t]
+                U[t] = np.clip(raw, b.u_lower, b.u_upper)
+                clipped[t] = U[t] != raw
+                X[t + 1] = step(X[t], U[t])
+        if clipped.any():
+            o, O = o.copy(), O.copy()
+            o[clipped] = U[clipped]
+            O[clipped] = 0.0
+        return X, U, o, O
 
     def __post_init__(self) -> None:
         self.x0 = np.asarray(self.x0, dtype=float).reshape(-1)
