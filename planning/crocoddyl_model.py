@@ -75,6 +75,7 @@ from planning.problem import (
     Status,
     bounds_status,
     check_range,
+    controller_rollout,
 )
 
 STARTS = ("held", "rollout", "zero")
@@ -514,7 +515,10 @@ def _result(problem: Problem, solved, history, status, message, initial_cost, so
     o = U + np.einsum("tij,tj->ti", K, X[:-1])
     O = -K
     if solved is not None:  # the controller rolled out on raico's planning model (within its effort bounds)
-        X, U, o, O = problem.bounded_rollout(o, O)
+        if problem.bounds is not None and problem.bounds.has_controls:
+            X, U, o, O = problem.bounded_rollout(o, O)
+        else:
+            X, U = controller_rollout(problem.dynamics, problem.x0, o, O)
     res = Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
                  message=message, initial_cost=initial_cost, solver="fddp", X_initial=X_initial)
     if problem.bounds is not None:
