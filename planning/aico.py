@@ -926,6 +926,7 @@ class _AICOStep:
 
 
 LINE_SEARCH = (1.0, 0.5, 0.25)   # the robust schedule's feedforward steps before a rejection
+NOISE_MAX = 1e6   # the robust schedule raises the process noise by 10 per failed factorization, up to this factor
 ASCENTS = 5   # the robust schedule stops after this many rejections in a row of steps the model rightly sees rise
 
 
@@ -943,6 +944,7 @@ class _RobustStep(_AICOStep):
                  start_cost: float | None):
         super().__init__(problem, sw, float(opts.alpha) * kappa, 1.0, opts, math.inf)
         self.kappa, self.lam = kappa, float(opts.alpha)
+        self.q0 = sw.q
         self.cur_cost = start_cost
         self._model: tuple | None = None
         self._model_of: Iterate | None = None
@@ -956,9 +958,13 @@ class _RobustStep(_AICOStep):
         step = self._trial(cur)
         lam = self.lam
         failed = step.stop is not None and step.stop.status is Status.DIVERGED
+        if failed and "NumericalError" in step.stop.message and self.sw.q < NOISE_MAX * self.q0:
+            # a factorization failed: more process noise bounds the messages' precision (V* <= I / q)
+            self.sw.q *= 10.0
+            self.sw.qI = self.sw.q * self.sw.I
         if self.cur_cost is None:   # the start is no trajectory: take the first finite trial
             if failed or not math.isfinite(step.cost):
-                return self._reject(cur, step, lam, math.inf)
+                return self._reject(cur, step, lam, self.problem.cost(cur.X, cur.U))
             start_cost = self.problem.cost(cur.X, cur.U)
             self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
             self.cur_cost = step.cost
