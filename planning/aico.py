@@ -116,7 +116,13 @@ class AICOOptions(OptionsBase):
             ``lambda_max`` stops the run (``max-iterations``). A start that is no trajectory of
             the dynamics (x0 held) has no feasible cost to compare with: its first finite
             trial is taken (as the fixed schedule takes it), with ``lambda *= lm_factor`` if
-            it costs more than the start. Each trial counts as an iteration.
+            it costs more than the start. Details: ``lambda`` falls by Nielsen's factor
+            ``max(1/lm_factor, 1 - (2 rho - 1)^3)`` and grows by 2, 4, 8, then ``lm_factor`` per
+            rejection in a row; before a rejection the feedforward is shortened to 1/2 and 1/4
+            about the current iterate (``LINE_SEARCH``); a failed factorization also raises the
+            process noise by 10 (``NOISE_MAX``); ``ASCENTS`` rejections in a row of steps the model
+            rightly predicts to raise the cost stop the run (converged: no descent direction).
+            Each trial counts as an iteration.
         shrink, grow, alpha_min, alpha_max: the adaptive schedule's factors and bounds.
         lm_factor, accept, decrease_above, lambda_min, lambda_max: the robust schedule's.
     """
