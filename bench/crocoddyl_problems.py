@@ -64,12 +64,16 @@ PROBLEMS = {
                                 "Nao's)",
                      "reference_cost": None},
 }
-SOLVERS = [  # label, plan-stage options
-    ("R-AICO a=1 fixed", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "fixed"}),
-    ("R-AICO a=1 adaptive", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "adaptive"}),
-    ("AICO", {"solver": "aico"}),
-    ("iLQG", {"solver": "ilqg"}),
-    ("FDDP (x0 held)", {"solver": "fddp"}),
+SOLVERS = [  # label, plan-stage options (the problem as crocoddyl's example states it: no hard bounds, but
+    # the robust schedule and BoxFDDP also with the model's joint ranges and effort limits as hard bounds)
+    ("R-AICO a=1 fixed", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "fixed", "bounds": "none"}),
+    ("R-AICO a=1 adaptive", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "adaptive", "bounds": "none"}),
+    ("R-AICO robust", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "robust", "bounds": "none"}),
+    ("AICO", {"solver": "aico", "bounds": "none"}),
+    ("iLQG", {"solver": "ilqg", "bounds": "none"}),
+    ("FDDP (x0 held)", {"solver": "fddp", "bounds": "none"}),
+    ("R-AICO robust, hard bounds", {"solver": "raico", "alpha": ALPHA, "alpha_schedule": "robust", "bounds": "hard"}),
+    ("BoxFDDP (x0 held), effort bounds", {"solver": "boxfddp", "bounds": "hard"}),
 ]
 # in bench/run.py's results: the rows of these problems (the in-range Kinova: the executions)
 BENCH_PROBLEMS = ("kinova", "kinova_in_range", "talos_arm", "talos_taichi")
@@ -243,7 +247,9 @@ def targets(result: dict) -> dict:
         return {}
     example = result["rows"][-1] if "example" in result["rows"][-1]["solver"] else None
     out = {}
-    for label in ("R-AICO a=1 fixed", "R-AICO a=1 adaptive"):
+    for label in ("R-AICO a=1 fixed", "R-AICO a=1 adaptive", "R-AICO robust"):
+        if label not in rows:
+            continue
         r = rows[label]
         per_it = r["per_iteration_s"] / fddp["per_iteration_s"] if r["per_iteration_s"] and fddp["per_iteration_s"] \
             else None

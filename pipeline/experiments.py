@@ -43,7 +43,7 @@ class Variant:
     relinearize: bool = True  # AICO only: False is the ablation without sweep relinearization
     iterations: int | None = None  # own budget (the crocoddyl baseline), else the experiment's
     quick_iterations: int | None = None
-    schedule: str = "fixed"  # R-AICO's alpha schedule: the thesis's fixed one, or "adaptive" (beyond the thesis)
+    schedule: str = "fixed"  # R-AICO's alpha schedule: the thesis's fixed one, or "adaptive" / "robust" (beyond it)
     seeds: int | None = None  # own number of initial states (ablations), else the experiment's
     gamma: float = 1.0  # R-AICO: alpha^[n] = alpha^[n-1] gamma (thesis §3.5; the thesis's figures use 1)
     start: str = "held"  # AICO/R-AICO's first trajectory: x0 held (thesis) or the zero-control rollout
@@ -65,8 +65,8 @@ class Variant:
             f", controller rate {self.controller_rate:g}" if self.controller_rate != 1.0 else "") + (
             f", {TASK_LABELS[self.task]}" if self.task is not None else "") + (
             f", start {self.nudge:+g} rad" if self.nudge else "")
-        if self.solver == "raico" and self.schedule == "adaptive":
-            return f"R-AICO adaptive (a0={self.alpha:g}{extra})"
+        if self.solver == "raico" and self.schedule in ("adaptive", "robust"):
+            return f"R-AICO {self.schedule} (a0={self.alpha:g}{extra})"
         base = {"ilqg": "iLQG", "aico": "AICO"}.get(self.solver, f"R-AICO a={self.alpha:g}") + extra
         return base if self.relinearize else f"{base} (no sweep relinearization)"
 

@@ -44,18 +44,21 @@ kernel asks Python for them, step by step.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from planning import kernels
+from planning.costs import ControlTerm, StateTerm
 from planning.driver import Iterate, Status, Step, Stop, drive
 from planning.problem import (
     Callback,
     OptionsBase,
     Problem,
     Result,
+    bounds_status,
     check_range,
     is_lti,
     single_threaded_blas,
@@ -65,6 +68,9 @@ from plants.dynamics import rollout
 from plants.lazy import LazyModule
 
 blas, lapack = LazyModule("scipy.linalg.blas"), LazyModule("scipy.linalg.lapack")  # imported at first use
+
+
+SCHEDULES = ("fixed", "adaptive", "robust")
 
 
 @dataclass(frozen=True)
@@ -94,7 +100,31 @@ class AICOOptions(OptionsBase):
             the cost ``alpha *= shrink`` (not below ``alpha_min``); after one that raises it the
             iterate is rejected, the previous one kept and ``alpha *= grow`` (not above
             ``alpha_max``) for the retry; ``gamma`` is not used). Each trial counts as an iteration.
+            ``"robust"`` (beyond the thesis; Levenberg-Marquardt style, invariant to the cost's
+            scale): the regularization is ``alpha^[n] = lambda^[n] kappa``, ``kappa`` the mean
+            diagonal of the state cost's Gauss-Newton Hessian at the first trajectory (the cost's
+            curvature per (state unit)^2 and step; the control Hessian's if no state term costs
+            anything), ``lambda^[1] = alpha`` (relative); the process noise and the start
+            variance are taken per unit of that curvature (``q / kappa``,
+            ``start_variance / kappa``), so that a cost multiplied by ``c`` gives the same
+            iterates. A trial is accepted when its actual decrease is at least ``accept`` times
+            the decrease the quadratic model of the cost at the current iterate predicts along
+            the step (any decrease if the model predicts none); then ``lambda /= lm_factor``
+            when the ratio is at least ``decrease_above``; a rejected trial (or a numerical
+            failure of the sweeps) keeps the iterate and ``lambda *= lm_factor`` (crocoddyl
+            FDDP's x10 and /10), within ``[lambda_min, lambda_max]``; a trial rejected at
+            ``lambda_max`` stops the run (``max-iterations``). A start that is no trajectory of
+            the dynamics (x0 held) has no feasible cost to compare with: its first finite
+            trial is taken (as the fixed schedule takes it), with ``lambda *= lm_factor`` if
+            it costs more than the start. Details: ``lambda`` falls by Nielsen's factor
+            ``max(1/lm_factor, 1 - (2 rho - 1)^3)`` and grows by 2, 4, 8, then ``lm_factor`` per
+            rejection in a row; before a rejection the feedforward is shortened to 1/2 and 1/4
+            about the current iterate (``LINE_SEARCH``); a failed factorization also raises the
+            process noise by 10 (``NOISE_MAX``); ``ASCENTS`` rejections in a row of steps the model
+            rightly predicts to raise the cost stop the run (converged: no descent direction).
+            Each trial counts as an iteration.
         shrink, grow, alpha_min, alpha_max: the adaptive schedule's factors and bounds.
+        lm_factor, accept, decrease_above, lambda_min, lambda_max: the robust schedule's.
     """
 
     iterations: int = 100
@@ -113,16 +143,26 @@ class AICOOptions(OptionsBase):
     grow: float = 4.0
     alpha_min: float = 1e-4
     alpha_max: float = 1e8
+    lm_factor: float = 10.0
+    accept: float = 0.1
+    decrease_above: float = 0.5
+    lambda_min: float = 1e-9
+    lambda_max: float = 1e9
 
     def validate(self) -> None:
-        if self.schedule not in ("fixed", "adaptive"):
-            raise ValueError(f"option schedule must be 'fixed' or 'adaptive', got {self.schedule!r}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
+        check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
+        check_range("accept", self.accept, lo=0.0, hi=1.0)
+        check_range("decrease_above", self.decrease_above, lo=self.accept)
+        check_range("lambda_min", self.lambda_min, lo=0.0, lo_open=True)
+        check_range("lambda_max", self.lambda_max, lo=self.lambda_min)
         check_range("shrink", self.shrink, lo=0.0, hi=1.0, lo_open=True)
         check_range("grow", self.grow, lo=1.0, lo_open=True)
         check_range("alpha_min", self.alpha_min, lo=0.0, lo_open=True)
         check_range("alpha_max", self.alpha_max, lo=self.alpha_min)
-        if self.schedule == "adaptive" and not self.alpha > 0:
-            raise ValueError("the adaptive schedule needs alpha > 0 (R-AICO)")
+        if self.schedule != "fixed" and not self.alpha > 0:
+            raise ValueError(f"the {self.schedule} schedule needs alpha > 0 (R-AICO)")
         check_range("iterations", self.iterations, lo=1, integer=True)
         check_range("alpha", self.alpha, lo=0.0)
         check_range("gamma", self.gamma, lo=0.0, lo_open=True)
@@ -624,8 +664,172 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
         ``Result``; a run whose cost becomes non-finite or explodes, or whose messages
         fail numerically, ends with status ``"diverged"`` (no exception).
     """
+    opts = options or AICOOptions()
     with single_threaded_blas():
-        return _aico(problem, options or AICOOptions(), X_init, U_init, callback)
+        b = problem.bounds
+        if b is not None and (b.has_positions or b.has_controls):
+            return _aico_in_range(problem, opts, X_init, U_init, callback)
+        return _aico(problem, opts, X_init, U_init, callback)
+
+
+RANGE_TOL = 1e-4      # rad: the augmented Lagrangian's target on a joint range's violation
+AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
+
+
+class _RangeAL(StateTerm):
+    """The joint ranges ``lo <= q_j <= hi`` (state coordinates ``idx``) at every step as an augmented
+    Lagrangian: ``mu/2 (max(0, q - hi + y_hi / mu)^2 + max(0, lo - q + y_lo / mu)^2)`` per joint and step,
+    multipliers ``y (T+1, k) >= 0`` (the constant ``-y^2 / (2 mu)`` left out). Exact gradient; Hessian
+    ``mu`` on the joints whose hinge is active."""
+
+    def __init__(self, idx, lo, hi, T: int, mu: float):
+        self.name, self.weight, self.mu = "joint_range_al", 1.0, mu
+        self.idx, self.lo, self.hi = np.asarray(idx), np.asarray(lo, float), np.asarray(hi, float)
+        self.y_hi, self.y_lo = np.zeros((T + 1, len(idx))), np.zeros((T + 1, len(idx)))
+        self._set_times(range(1, T + 1))     # x_0 is the start: no plan changes it
+
+    def _hinges(self, X, idx):
+        Q = X[:, self.idx]
+        hu = np.maximum(0.0, Q - self.hi + self.y_hi[idx] / self.mu)
+        hl = np.maximum(0.0, self.lo - Q + self.y_lo[idx] / self.mu)
+        return hu, hl
+
+    def _value(self, X, idx):
+        hu, hl = self._hinges(X, idx)
+        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
+
+    def _derivs(self, X, idx):
+        hu, hl = self._hinges(X, idx)
+        K, n = X.shape
+        g, H = np.zeros((K, n)), np.zeros((K, n, n))
+        g[:, self.idx] = self.mu * (hu - hl)
+        H[:, self.idx, self.idx] = self.mu * ((hu > 0) | (hl > 0))
+        return g, H
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The multipliers' first-order update at the trajectory ``X (T+1, n)`` (``U`` unused)."""
+        Q = X[1:, self.idx]
+        self.y_hi[1:] = np.maximum(0.0, self.y_hi[1:] + self.mu * (Q - self.hi))
+        self.y_lo[1:] = np.maximum(0.0, self.y_lo[1:] + self.mu * (self.lo - Q))
+
+
+class _EffortAL(ControlTerm):
+    """The effort limits ``lo <= u_t <= hi`` as an augmented Lagrangian (as ``_RangeAL``): ``mu/2
+    (max(0, u - hi + y_hi / mu)^2 + max(0, lo - u + y_lo / mu)^2)`` per control and step, multipliers
+    ``y (T, m) >= 0``. A batch of other than ``T`` rows (the control-cost check) gets zero multipliers."""
+
+    def __init__(self, lo, hi, T: int, mu: float):
+        self.name, self.weight, self.mu, self.T = "effort_al", 1.0, mu, T
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.y_hi, self.y_lo = np.zeros((T, self.lo.shape[0])), np.zeros((T, self.lo.shape[0]))
+
+    def _hinges(self, U):
+        U = np.atleast_2d(U)
+        y_hi, y_lo = (self.y_hi, self.y_lo) if U.shape[0] == self.T else (0.0, 0.0)
+        with np.errstate(invalid="ignore"):   # inf - inf of an unlimited control: no hinge
+            hu = np.nan_to_num(np.maximum(0.0, U - self.hi + y_hi / self.mu), nan=0.0)
+            hl = np.nan_to_num(np.maximum(0.0, self.lo - U + y_lo / self.mu), nan=0.0)
+        return hu, hl
+
+    def value(self, U):
+        hu, hl = self._hinges(U)
+        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
+
+    def derivatives(self, U):
+        hu, hl = self._hinges(U)
+        K, m = hu.shape
+        H = np.zeros((K, m, m))
+        H[:, np.arange(m), np.arange(m)] = self.mu * ((hu > 0) | (hl > 0))
+        return self.mu * (hu - hl), H
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The multipliers' first-order update at the controls ``U (T, m)``."""
+        self.y_hi = np.maximum(0.0, self.y_hi + self.mu * np.where(np.isfinite(self.hi), U - self.hi, -np.inf))
+        self.y_lo = np.maximum(0.0, self.y_lo + self.mu * np.where(np.isfinite(self.lo), self.lo - U, -np.inf))
+
+
+def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
+    """AICO / R-AICO with the hard bounds of ``problem.bounds`` kept by an augmented Lagrangian (the joint
+    ranges: ``_RangeAL``; the efforts: ``_EffortAL``): inner solves of the problem plus those terms, without
+    clipping (each from the last one's trajectory and controls, a rollout), then the multipliers' update,
+    ``mu *= 10`` when the largest violation did not fall by 4; stops when a solve converged with every joint
+    within ``RANGE_TOL`` rad of its range and every control within ``RANGE_TOL`` (relative to its largest
+    limit) of its effort, or at the iteration budget. The plan is the last controller rolled out with its
+    controls clipped into their box (:func:`bounded_rollout`: the efforts hold exactly). The history reports
+    the problem's own cost (the Lagrangian's terms left out); ``mu`` starts at ``AL_MU0 kappa`` on the ranges
+    (:func:`cost_curvature`: the cost's curvature per (state unit)^2 and step) and at ``AL_MU0`` times the
+    control cost's mean curvature on the efforts, so that both are invariant to the cost's scale."""
+    b, T = problem.bounds, problem.T
+    U = np.zeros((T, problem.n_u)) if U_init is None else np.asarray(U_init, float)
+    X = np.tile(problem.x0, (T + 1, 1)) if X_init is None else np.asarray(X_init, float)
+    if X_init is None and U_init is not None:
+        X = rollout(problem.dynamics, problem.x0, U)
+    mu = AL_MU0 * cost_curvature(problem, X, U)
+    _, H = problem.control_derivatives(U)
+    mu_u = AL_MU0 * float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (control unit)^2
+    terms = ([_RangeAL(b.q_index, b.q_lower, b.q_upper, T, mu)] if b.has_positions else []) + (
+        [_EffortAL(b.u_lower, b.u_upper, T, mu_u)] if b.has_controls else [])
+    mu_max = {id(t): 1e6 * t.mu for t in terms}
+    sub = dataclasses.replace(problem, state_terms=[*problem.state_terms, *terms[:b.has_positions]],
+                              control_terms=[*problem.control_terms, *terms[b.has_positions:]], bounds=None)
+    u_scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)), initial=1.0)) \
+        if b.has_controls else 1.0
+    history, last, viol, it0, t0, solves = [], None, math.inf, 0, 0.0, 0
+    chunk, alpha = max(10, opts.iterations // 4), opts.alpha
+    Xi, Ui = X_init, U_init
+    while it0 < opts.iterations:
+        n = min(chunk, opts.iterations - it0)
+        costs: dict[int, float] = {}
+
+        def cb(rec, Xc, Uc, costs=costs, it0=it0, t0=t0):   # noqa: ANN001
+            c = problem.cost(Xc, Uc)
+            costs[rec.iteration] = c
+            if callback is not None:
+                callback(dataclasses.replace(rec, iteration=it0 + rec.iteration, cost=c,
+                                             elapsed_s=t0 + rec.elapsed_s), Xc, Uc)
+
+        res = _aico(sub, dataclasses.replace(opts, iterations=n, alpha=alpha), Xi, Ui, cb)
+        solves += 1
+        if last is None:
+            initial_cost, X_initial = problem.cost(res.X_initial, U), res.X_initial
+        history += [dataclasses.replace(h, iteration=it0 + h.iteration, cost=costs.get(h.iteration, math.inf),
+                                        elapsed_s=t0 + h.elapsed_s) for h in res.history]
+        it0, t0 = it0 + res.iterations, t0 + (res.history[-1].elapsed_s if res.history else 0.0)
+        if res.status is Status.DIVERGED:
+            if last is None:
+                last = res
+            break
+        last = res
+        q, u = b.violation(res.X, res.U)
+        new_viol = max(q, u / u_scale)
+        if res.status is Status.CONVERGED and new_viol <= RANGE_TOL:
+            break
+        for term in terms:
+            term.update(res.X, res.U)
+            if new_viol > 0.25 * viol:
+                term.mu = min(term.mu * 10.0, mu_max[id(term)])
+        viol = new_viol
+        Xi, Ui = res.X, res.U      # the next solve starts at this rollout (feasible)
+        chunk = max(10, opts.iterations // 10)   # later solves start near their optimum: update more often
+        if opts.schedule == "robust" and res.history:   # and at the regularization this one ended with
+            alpha = min(max(res.history[-1].mu, 1e-6), 1.0)
+    X, U, o, O = (last.X, last.U, last.o, last.O)
+    if last.status is not Status.DIVERGED:
+        clipped = bounded_rollout(problem, last.o, last.O)
+        if np.all(np.isfinite(clipped[0])):   # else the unclipped plan stays, its status says out-of-bounds
+            X, U, o, O = clipped
+        if history:
+            history[-1] = dataclasses.replace(history[-1], cost=problem.cost(X, U))
+    q, u = b.violation(X, U)
+    capped = last.status is Status.MAX_ITERATIONS
+    message = (f"reached {len(history)} iterations" if capped else last.message) + (
+        f" (augmented Lagrangian: {solves} solves{f', the last: {last.message}' if capped else ''}; largest "
+        f"excess {q:.2g} rad, {u:.2g} control units)")
+    out = Result(X=X, U=U, o=o, O=O, status=last.status, history=history,
+                 iterations=len(history), message=message, initial_cost=initial_cost, beliefs=last.beliefs,
+                 solver=last.solver, X_initial=X_initial)
+    bounds_status(problem, out)
+    return out
 
 
 def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
@@ -643,10 +847,17 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
         if X.shape != (T + 1, problem.n_x) or not np.all(np.isfinite(X)):
             raise ValueError(f"X_init must be finite with shape {(T + 1, problem.n_x)}")
     _check_control_cost(problem)
-    sw = _Sweeps(problem, opts)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
-    out = drive(_AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost), start, opts,
-                initial_cost=initial_cost, callback=callback)
+    if opts.schedule == "robust":
+        kappa = cost_curvature(problem, X, U)
+        sw = _Sweeps(problem, dataclasses.replace(opts, process_noise=opts.process_noise / kappa,
+                                                  start_variance=opts.start_variance / kappa))
+        feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
+        step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
+    else:
+        sw = _Sweeps(problem, opts)
+        step = _AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
+    out = drive(step, start, opts, initial_cost=initial_cost, callback=callback)
     last = out.last_finite
     beliefs = None
     if out.status is not Status.DIVERGED:
@@ -694,6 +905,7 @@ class _AICOStep:
         try:
             with np.errstate(all="ignore"):
                 sw.linearize_all(cur.X, cur.U, cur.X, alpha)
+                self._after_linearize(cur)
                 sw.sweep()
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
@@ -702,7 +914,7 @@ class _AICOStep:
         if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
         try:   # a model may raise on the exploding states of a diverging rollout
-            Xn, Un = self.problem.controller_rollout(o_new, O_new, kernel=_Sweeps.compiled)
+            Xn, Un, o_new, O_new = bounded_rollout(self.problem, o_new, O_new)
             cost = self.problem.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")
@@ -710,10 +922,168 @@ class _AICOStep:
         return Step(Iterate(Xn, Un, o_new, O_new), cost, step=alpha,
                     repeats=sw.repeats)
 
+    def _after_linearize(self, cur: Iterate) -> None:
+        """Hook after the linearization at ``cur``, before the sweeps (the robust schedule's model)."""
+
     def _failed(self, cur: Iterate, alpha: float, why: str) -> Step:
         """A numerical failure: cost ``inf``, status diverged."""
         return Step(cur, math.inf, step=alpha, repeats=self.sw.repeats, moved=False,
                     stop=Stop(Status.DIVERGED, why))
+
+
+LINE_SEARCH = (1.0, 0.5, 0.25)   # the robust schedule's feedforward steps before a rejection
+NOISE_MAX = 1e6   # the robust schedule raises the process noise by 10 per failed factorization, up to this factor
+ASCENTS = 5   # the robust schedule stops after this many rejections in a row of steps the model rightly sees rise
+
+
+class _RobustStep(_AICOStep):
+    """R-AICO's robust schedule (``AICOOptions.schedule = "robust"``): Levenberg-Marquardt style
+    ``alpha = lambda kappa`` with acceptance by the ratio of actual to predicted decrease.
+
+    State: ``lam`` (relative regularization of the next trial), ``cur_cost`` (cost of the current
+    iterate, ``None`` while it is a start that is no trajectory) and the quadratic model of the cost
+    at the current iterate (``_model``: ``l_x (T+1, n)``, ``l_xx (T+1, n, n)``, ``l_u (T, m)``,
+    ``l_uu (T, m, m)``, the sweeps' own task and control messages before regularization).
+    """
+
+    def __init__(self, problem: Problem, sw: _Sweeps, opts: AICOOptions, kappa: float,
+                 start_cost: float | None):
+        super().__init__(problem, sw, float(opts.alpha) * kappa, 1.0, opts, math.inf)
+        self.kappa, self.lam = kappa, float(opts.alpha)
+        self.q0 = sw.q
+        self.cur_cost = start_cost
+        self._model: tuple | None = None
+        self._model_of: Iterate | None = None
+        self._record_model = False
+        self.nu = 2.0    # the next rejection's factor (Nielsen: doubles per rejection in a row)
+        self.ascents = 0  # rejections in a row whose step the model rightly predicts to raise the cost
+
+    def __call__(self, it: int, cur: Iterate) -> Step:
+        o = self.opts
+        self.alpha = self.lam * self.kappa
+        step = self._trial(cur)
+        lam = self.lam
+        failed = step.stop is not None and step.stop.status is Status.DIVERGED
+        if failed and "NumericalError" in step.stop.message and self.sw.q < NOISE_MAX * self.q0:
+            # a factorization failed: more process noise bounds the messages' precision (V* <= I / q)
+            self.sw.q *= 10.0
+            self.sw.qI = self.sw.q * self.sw.I
+        if self.cur_cost is None:   # the start is no trajectory: take the first finite trial
+            if failed or not math.isfinite(step.cost):
+                return self._reject(cur, step, lam, self.problem.cost(cur.X, cur.U))
+            start_cost = self.problem.cost(cur.X, cur.U)
+            self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
+            self.cur_cost = step.cost
+            return Step(step.iterate, step.cost, step=step.step, mu=lam, repeats=step.repeats)
+        if failed:
+            return self._reject(cur, step, lam, self.cur_cost)
+        trial, pred_full = step.iterate, None
+        for eps in LINE_SEARCH:
+            if eps < 1.0:       # the same controller with its feedforward shortened about cur
+                trial = self._shortened(cur, step.iterate, eps)
+                if trial is None:
+                    continue
+            cost = step.cost if eps == 1.0 else self.problem.cost(trial.X, trial.U)
+            if not math.isfinite(cost):
+                continue
+            actual = self.cur_cost - cost
+            pred = self._predicted_decrease(cur, trial)
+            pred_full = pred if eps == 1.0 else pred_full
+            if actual > 0 and (pred <= 0 or actual >= o.accept * pred):
+                break
+        else:
+            out = self._reject(cur, step, lam, self.cur_cost)
+            tol = max(o.tol_rel, 1e-14) * abs(self.cur_cost)
+            act_full = self.cur_cost - step.cost
+            ascent = pred_full is not None and pred_full < 0 and abs(act_full - pred_full) <= 0.1 * abs(pred_full)
+            self.ascents = self.ascents + 1 if ascent else 0
+            if self.ascents >= ASCENTS:
+                # the model is right and its step raises the cost: more regularization shortens the step, it does
+                # not turn it (controls clipped to their bounds: the projected step is no descent direction)
+                out = dataclasses.replace(out, stop=Stop(Status.CONVERGED, f"{ASCENTS} trials in a row whose step "
+                                                     f"the cost's model rightly predicts to raise it (last "
+                                                     f"{pred_full:.3g}): no descent direction at lambda = {lam:.3g}"))
+            elif pred_full is not None and lam <= 1.0 and abs(pred_full) <= tol:
+                # where the regularization is at most the cost's curvature the model's own step promises nothing
+                # beyond rounding: a stationary point (else lambda would climb to its cap, trial after trial)
+                out = dataclasses.replace(out, stop=Stop(Status.CONVERGED, f"predicted decrease {pred_full:.3g} "
+                                                     f"below tol_rel x cost ({tol:.3g}) at lambda = {lam:.3g}"))
+            return out
+        if eps < 1.0:   # the step was too long: more regularization next time
+            self.lam = min(o.lambda_max, lam * 2.0)
+        else:
+            rho = 1.0 if pred <= 0 else actual / pred
+            self.lam = max(o.lambda_min, lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3))
+        self.nu, self.ascents = 2.0, 0
+        self.cur_cost = cost
+        return Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats)
+
+    def _shortened(self, cur: Iterate, new: Iterate, eps: float) -> Iterate | None:
+        """``u_t = U_t + eps (o_t + O_t X_t - U_t) + O_t (x_t - X_t)`` about ``cur`` (DDP's line
+        search on the feedforward): ``o_eps = eps o + (1 - eps)(U - O X)``, rolled out (``None``
+        if the rollout fails)."""
+        OX = np.einsum("tij,tj->ti", new.O, cur.X[:-1])
+        o_eps = eps * new.o + (1.0 - eps) * (cur.U - OX)
+        try:
+            with np.errstate(all="ignore"):
+                X, U, o_eps, O = bounded_rollout(self.problem, o_eps, new.O)
+        except (ArithmeticError, ValueError, RuntimeError):
+            return None
+        return Iterate(X, U, o_eps, O)
+
+    def _reject(self, cur: Iterate, step: Step, lam: float, cost: float) -> Step:
+        """Keep ``cur``; ``lambda *= lm_factor``, or stop when it is at its cap."""
+        o = self.opts
+        stop = None
+        if lam >= o.lambda_max:
+            why = step.stop.message if step.stop is not None else f"trial cost {step.cost:.6g}"
+            stop = Stop(Status.MAX_ITERATIONS, f"no step lowers the cost at lambda = lambda_max = "
+                                               f"{o.lambda_max:g} ({why})")
+        self.lam = min(o.lambda_max, lam * self.nu)
+        self.nu = min(2.0 * self.nu, o.lm_factor)
+        return Step(cur, cost, step=step.step, mu=lam, repeats=step.repeats, moved=False, stop=stop)
+
+    def _trial(self, cur: Iterate) -> Step:
+        if self._model_of is not cur:     # the model at a new iterate: recorded before the sweeps
+            self._record_model = True
+        return super()._trial(cur)
+
+    def _after_linearize(self, cur: Iterate) -> None:
+        if getattr(self, "_record_model", False):
+            sw, n = self.sw, self.sw.n
+            R = sw.RA[:, :, :n].copy()
+            R[:, np.arange(n), np.arange(n)] -= 2.0 * sw.alpha
+            lu = np.einsum("tij,tj->ti", sw.H, cur.U) - sw.h
+            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H)), cur, False
+
+    def _predicted_decrease(self, cur: Iterate, new: Iterate) -> float:
+        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur``."""
+        lx, R, lu, H = self._model
+        dX, dU = new.X - cur.X, new.U - cur.U
+        q = float(np.einsum("ti,ti->", lx, dX) + 0.5 * np.einsum("ti,tij,tj->", dX, R, dX)
+                  + np.einsum("ti,ti->", lu, dU) + 0.5 * np.einsum("ti,tij,tj->", dU, H, dU))
+        return -q
+
+
+def bounded_rollout(problem: Problem, o: np.ndarray, O: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``problem.bounded_rollout`` with the sweeps' kernel switch (tests turn the compiled code off)."""
+    return problem.bounded_rollout(o, O, kernel=_Sweeps.compiled)
+
+
+def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:
+    """``kappa``: the mean diagonal of the state cost's Gauss-Newton Hessian along ``X (T+1, n)``
+    (cost per (state unit)^2 and step), or of the control Hessian at ``U (T, m)`` if no state term
+    costs anything; scales with the cost (the robust schedule's unit of alpha)."""
+    problem.set_nominal(X, U)
+    _, R = problem.state_derivatives(X)
+    k = float(np.trace(R, axis1=1, axis2=2).mean()) / problem.n_x
+    if not (math.isfinite(k) and k > 0):
+        _, H = problem.control_derivatives(U)
+        k = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u
+    if not (math.isfinite(k) and k > 0):
+        raise ValueError("the robust schedule needs a cost with positive curvature")
+    return k
 
 
 def _check_control_cost(problem: Problem) -> None:

@@ -73,6 +73,7 @@ from planning.problem import (
     Problem,
     Result,
     Status,
+    bounds_status,
     check_range,
     controller_rollout,
 )
@@ -324,10 +325,12 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
     limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
     bounds = None
-    if limits:
-        n = problem.n_u
-        bounds = (np.max([np.broadcast_to(t.lower, (n,)) for t in limits], axis=0),
-                  np.min([np.broadcast_to(t.upper, (n,)) for t in limits], axis=0))
+    n = problem.n_u
+    boxes = [(np.broadcast_to(t.lower, (n,)), np.broadcast_to(t.upper, (n,))) for t in limits]
+    if problem.bounds is not None and problem.bounds.has_controls:   # the model's effort limits, hard
+        boxes.append((problem.bounds.u_lower, problem.bounds.u_upper))
+    if boxes:
+        bounds = (np.max([lo for lo, _ in boxes], axis=0), np.min([hi for _, hi in boxes], axis=0))
 
     def add(costs, term, scale: float) -> None:
         pairs = items[id(term)]
@@ -514,7 +517,13 @@ def _result(problem: Problem, solved, history, status, message, initial_cost, so
         X, U, K = cp.from_pin(solver.xs), cp.controls_from_pin(solver.us), cp.gains_from_pin(solver.K)
     o = U + np.einsum("tij,tj->ti", K, X[:-1])
     O = -K
-    if solved is not None:  # the controller rolled out on raico's planning model
-        X, U = controller_rollout(problem.dynamics, problem.x0, o, O)
-    return Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
-                  message=message, initial_cost=initial_cost, solver="fddp", X_initial=X_initial)
+    if solved is not None:  # the controller rolled out on raico's planning model (within its effort bounds)
+        if problem.bounds is not None and problem.bounds.has_controls:
+            X, U, o, O = problem.bounded_rollout(o, O)
+        else:
+            X, U = controller_rollout(problem.dynamics, problem.x0, o, O)
+    res = Result(X=X, U=U, o=o, O=O, status=status, history=history, iterations=len(history),
+                 message=message, initial_cost=initial_cost, solver="fddp", X_initial=X_initial)
+    if problem.bounds is not None:
+        bounds_status(problem, res)
+    return res

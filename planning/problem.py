@@ -40,9 +40,45 @@ class Status(StrEnum):
     CONVERGED = "converged"            # a convergence test was met
     MAX_ITERATIONS = "max-iterations"  # iteration budget, or a regularization limit (iLQG, crocoddyl FDDP)
     DIVERGED = "diverged"              # cost not finite or exploded, or a numerical failure
+    OUT_OF_BOUNDS = "out-of-bounds"    # the plan leaves its hard bounds (joint range, effort) beyond tolerance
 
 
 STATUSES = tuple(s.value for s in Status)
+
+
+RANGE_STATUS_TOL = 1e-3  # rad: a plan beyond a joint range by more than this says so in its status
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Hard bounds a solver keeps (beside any soft limit term): controls ``u_lower <= u_t <= u_upper``
+    ``(n_u,)`` (``None``: unbounded; ``inf`` entries unbounded) and the positions ``q_lower <= x_t[j] <=
+    q_upper`` of the state coordinates ``q_index (k,)`` (rad; ``None``: none)."""
+
+    u_lower: np.ndarray | None = None
+    u_upper: np.ndarray | None = None
+    q_index: np.ndarray | None = None
+    q_lower: np.ndarray | None = None
+    q_upper: np.ndarray | None = None
+
+    @property
+    def has_controls(self) -> bool:
+        return self.u_lower is not None and bool(np.any(np.isfinite(self.u_lower) | np.isfinite(self.u_upper)))
+
+    @property
+    def has_positions(self) -> bool:
+        return self.q_index is not None and len(self.q_index) > 0
+
+    def violation(self, X: np.ndarray, U: np.ndarray) -> tuple[float, float]:
+        """Largest excess ``(positions (rad), controls)`` of ``X (T+1, n_x)`` (steps 1..T), ``U (T, n_u)``
+        beyond the bounds (0 inside)."""
+        q = u = 0.0
+        if self.has_positions:   # from step 1: x_0 is the start, no plan changes it
+            Q = X[1:, self.q_index]
+            q = float(max(0.0, np.max(Q - self.q_upper), np.max(self.q_lower - Q)))
+        if self.has_controls:
+            u = float(max(0.0, np.max(U - self.u_upper), np.max(self.u_lower - U)))
+        return q, u
 
 
 @dataclass(eq=False)
@@ -61,6 +97,8 @@ class Problem:
             nominal states into ``H, h``, and the state-control cross terms are dropped.
             A solver sets the nominal trajectory with :meth:`set_nominal` before
             it asks for derivatives.
+        bounds: hard bounds (``Bounds``) for the solvers that keep them (AICO / R-AICO, BoxFDDP),
+            or ``None``.
     """
 
     dynamics: Dynamics
@@ -69,6 +107,7 @@ class Problem:
     state_terms: list = field(default_factory=list)
     control_terms: list = field(default_factory=list)
     joint_terms: list = field(default_factory=list)
+    bounds: Bounds | None = None
 
     def controller_rollout(self, o: np.ndarray, O: np.ndarray, *, kernel: bool = True
                            ) -> tuple[np.ndarray, np.ndarray]:
@@ -95,6 +134,33 @@ class Problem:
                 lib.lti_rollout(T, n, m, *(z.ctypes.data for z in (A, a, B, x0, o, O, X, U)))
                 return X, U
         return controller_rollout(dynamics, x0, o, O)
+
+    def bounded_rollout(self, o: np.ndarray, O: np.ndarray, *, kernel: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The controller ``u_t = o_t + O_t x_t`` rolled out: ``X (T+1, n)``, ``U (T, m)`` and the controller
+        ``o, O`` that gives them. With control bounds (``bounds``) every control is clipped into its box as it
+        is applied (a projection: the effort limits hold exactly), and the controller returned is the
+        consistent one: a clipped control's feedforward is its clipped value and its feedback row zero
+        (BoxDDP's clamped directions: near the plan a saturated motor stays saturated)."""
+        b = self.bounds
+        if b is None or not b.has_controls:
+            X, U = self.controller_rollout(o, O, kernel=kernel)
+            return X, U, o, O
+        T, step = o.shape[0], self.dynamics.step
+        X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
+        X[0] = self.x0
+        clipped = np.zeros(o.shape, dtype=bool)
+        with np.errstate(all="ignore"):
+            for t in range(T):
+                raw = o[t] + O[t] @ X[t]
+                U[t] = np.clip(raw, b.u_lower, b.u_upper)
+                clipped[t] = U[t] != raw
+                X[t + 1] = step(X[t], U[t])
+        if clipped.any():
+            o, O = o.copy(), O.copy()
+            o[clipped] = U[clipped]
+            O[clipped] = 0.0
+        return X, U, o, O
 
     def __post_init__(self) -> None:
         self.x0 = np.asarray(self.x0, dtype=float).reshape(-1)
@@ -327,6 +393,20 @@ class Result:
     def costs(self) -> np.ndarray:
         """Per-iteration costs ``(iterations,)``."""
         return np.array([h.cost for h in self.history])
+
+
+def bounds_status(problem: Problem, res: Result) -> None:
+    """Status ``out-of-bounds`` (and why) for a plan beyond a joint range by more than ``RANGE_STATUS_TOL`` or
+    beyond an effort limit (relative 1e-9); a diverged plan keeps its status."""
+    if res.status is Status.DIVERGED or not np.all(np.isfinite(res.X)):
+        return
+    b = problem.bounds
+    q, u = b.violation(res.X, res.U)
+    scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)))) if b.has_controls else 0.0
+    if q > RANGE_STATUS_TOL or u > 1e-9 * max(scale, 1.0):
+        what = f"a joint range by {q:.3g} rad" if q > RANGE_STATUS_TOL else f"an effort limit by {u:.3g}"
+        res.status = Status.OUT_OF_BOUNDS
+        res.message = f"the plan leaves {what} ({res.message})"
 
 
 def is_lti(dynamics) -> bool:

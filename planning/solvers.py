@@ -60,7 +60,7 @@ SOLVERS: dict[str, SolverSpec | None] = {   # None: made on first use (crocoddyl
 }
 
 
-CROCODDYL_SOLVERS = ("fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule")
+CROCODDYL_SOLVERS = ("fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule", "boxfddp")
 
 
 def _register_crocoddyl() -> None:
@@ -101,6 +101,9 @@ def _crocoddyl_specs() -> dict[str, SolverSpec]:
     specs["fddp-rollout-ilqg-schedule"] = SolverSpec(
         "fddp-rollout-ilqg-schedule", cm.fddp, cm.FDDPOptions, {"start": "rollout", **cm.ILQG_SCHEDULE},
         check("rollout"))
+    # BoxFDDP from x0 held: the control limits (the problem's hard effort bounds, its control-limit terms) as
+    # BoxDDP's box on the control QP; "fddp" takes it too where limits exist (box "auto"), this name insists
+    specs["boxfddp"] = SolverSpec("boxfddp", cm.fddp, cm.FDDPOptions, {"start": "held", "box": "yes"}, check("held"))
     assert tuple(specs) == CROCODDYL_SOLVERS
     return specs
 

@@ -169,7 +169,7 @@ def test_status_serializes_as_its_value():
     assert repr(s) == "<Status.MAX_ITERATIONS: 'max-iterations'>" and isinstance(s, str)
     assert json.dumps({"status": Status.CONVERGED}) == '{"status": "converged"}'
     assert s == "max-iterations" and Status("diverged") is Status.DIVERGED
-    assert STATUSES == ("converged", "max-iterations", "diverged")
+    assert STATUSES == ("converged", "max-iterations", "diverged", "out-of-bounds")
     assert {Status.CONVERGED: 1}["converged"] == 1                    # same hash as the str
     X, U = np.zeros((3, 1)), np.zeros((2, 1))
     r = Result(X, U, U, np.zeros((2, 1, 1)), "converged", [], 0, "")

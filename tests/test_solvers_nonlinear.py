@@ -239,7 +239,8 @@ def test_options_validate_ranges(cls, bad, message):
 def test_solver_registry(arm_problem):
     from planning.crocoddyl_model import AVAILABLE  # the crocoddyl baseline registers where installed
 
-    baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule"} if AVAILABLE else set()
+    baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule",
+                "boxfddp"} if AVAILABLE else set()
     assert set(SOLVERS) == {"aico", "raico", "ilqg"} | baseline
     assert make_options("raico").alpha == 1.0 and make_options("aico").alpha == 0.0
     assert make_options("ilqg", {"mu0": 0.5}).mu0 == 0.5

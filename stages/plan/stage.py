@@ -17,7 +17,7 @@ import numpy as np
 
 from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, via_point_errors
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
-from planning.problem import Problem, Result
+from planning.problem import Bounds, Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
 from plants.dynamics_registry import make_dynamics
@@ -40,6 +40,7 @@ Q0_STD = 0.05  # rad, the thesis's spread of the initial states
 INTEGRATOR_DYNAMICS = tuple(n for m in INTEGRATORS.values() for n in m.values())
 WARM_FROM = ("trajectory", "controls")
 STARTS = ("held", "rollout", "quasi-static")
+BOUNDS = ("hard", "none")
 
 
 @dataclass(frozen=True)
@@ -85,8 +86,15 @@ class PlanConfig(StageConfig):
                      "the zero-control rollout, where crocoddyl FDDP's rollout start begins) or quasi-static (every "
                      "solver: the torques that hold x0 at rest, g(q0), rolled out: crocoddyl's examples' start; "
                      "zero accelerations for pseudo-dynamics). iLQG otherwise rolls zero controls out.",
-            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma) or adaptive (alpha shrinks after "
-                              "an iteration that lowers the cost, grows and retries after one that raises it).",
+            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma), adaptive (alpha shrinks after "
+                              "an iteration that lowers the cost, grows and retries after one that raises it) or robust "
+                              "(Levenberg-Marquardt style: alpha relative to the cost's curvature, acceptance by actual "
+                              "against predicted decrease; --alpha is its first relative value). Default: robust for "
+                              "--problem FILE, fixed for --plant/--task (the thesis's).",
+            "bounds": "hard (the model's joint ranges and, for torque controls, effort limits kept by AICO/R-AICO "
+                      "and BoxFDDP: controls clipped in the rollout, ranges by an augmented Lagrangian; a plan that "
+                      "cannot stay inside has status out-of-bounds) or none (only the soft limit terms the task "
+                      "has). Default: hard for --problem FILE, none for --plant/--task (the thesis's).",
             "balance": f"Nao only: none (the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
                        "(--balance-margin) inside both "
                        "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
@@ -111,11 +119,12 @@ class PlanConfig(StageConfig):
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
     sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
-    alpha_schedule: str = "fixed"  # R-AICO: "fixed" (thesis, alpha * gamma) or "adaptive" (trust-region style)
+    alpha_schedule: str = ""  # R-AICO: "fixed" (thesis), "adaptive", "robust"; "": robust for a problem file, else fixed
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
     start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
     belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
     controller_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 18's learning rate (1: none)
+    bounds: str = ""  # "hard" (joint ranges, effort limits kept by the solver) or "none"; "": hard for a problem file
     balance: str = "none"  # Nao: "none", "support" (double support) or "single" (left foot), stages.plan.balance
     balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
@@ -158,6 +167,8 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown sigma-units '{self.sigma_units}': choose one of {', '.join(SIGMA_UNITS)}")
         if self.start not in STARTS:
             raise ValueError(f"unknown start '{self.start}': choose one of {', '.join(STARTS)}")
+        if self.bounds not in ("", *BOUNDS):
+            raise ValueError(f"unknown bounds '{self.bounds}': choose one of {', '.join(BOUNDS)}")
         if self.warm_from not in WARM_FROM:
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         if self.balance not in BALANCE_MODES:
@@ -184,7 +195,7 @@ class PlanConfig(StageConfig):
 
         if self.solver != "raico":
             note(("alpha", "gamma", "alpha_schedule"), f"R-AICO's (--solver raico), not {self.solver}'s")
-        elif self.alpha_schedule == "adaptive":
+        elif self.schedule() != "fixed":
             note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
         if self.solver not in ("aico", "raico"):
             note(("relinearize", "belief_rate", "controller_rate"), f"AICO's and R-AICO's, not {self.solver}'s")
@@ -253,8 +264,10 @@ class PlanConfig(StageConfig):
         if self.solver != "raico":
             relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
             d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
-        elif self.alpha_schedule == "adaptive":
-            d["gamma"] = 1.0  # not used by the adaptive schedule
+        else:
+            d["alpha_schedule"] = self.schedule()
+            if d["alpha_schedule"] != "fixed":
+                d["gamma"] = 1.0  # not used by the adaptive and robust schedules
         if self.warm_start is None or self.solver == "ilqg":
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
         if self.warm_start is not None or (self.solver not in ("aico", "raico") and self.start != "quasi-static"):
@@ -263,7 +276,14 @@ class PlanConfig(StageConfig):
             d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
         if self.balance == "none":
             d["balance_margin"] = NO_BALANCE_MARGIN  # no balance term: its margin means nothing
+        d["bounds"] = self.hard_bounds()
         return PlanConfig(**d)
+
+    def hard_bounds(self) -> str:
+        """``hard`` or ``none``: the one given, else hard for a problem file, none for a built-in plant and task."""
+        if self.bounds:
+            return self.bounds
+        return "hard" if self.problem is not None else "none"
 
     def solver_options(self) -> dict:
         if self.solver == "ilqg":
@@ -276,8 +296,15 @@ class PlanConfig(StageConfig):
         if self.controller_rate != 1.0:
             opts["controller_rate"] = self.controller_rate
         if self.solver == "raico":
-            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.alpha_schedule)
+            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.schedule())
         return opts
+
+    def schedule(self) -> str:
+        """R-AICO's alpha schedule: the one given, else robust for a problem file and the thesis's fixed one for
+        a built-in plant and task."""
+        if self.alpha_schedule:
+            return self.alpha_schedule
+        return "robust" if self.problem is not None else "fixed"
 
 
 @dataclass
@@ -369,6 +396,18 @@ def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
         raise ValueError(f"--start quasi-static needs a model with inverse dynamics, not {type(dyn).__name__}")
     zero = np.zeros_like(q0)
     return np.tile(np.asarray(inverse(q0, zero, zero), float), (problem.T, 1))
+
+
+def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
+    """The robot's joint ranges (rad; the joints with a finite one) and, for torque controls, its effort limits
+    (N m; unlimited joints ``inf``) as a problem's hard bounds (``None`` if it has neither)."""
+    idx = np.flatnonzero(np.isfinite(robot.lower) | np.isfinite(robot.upper))
+    eff = np.where((robot.effort > 0) & np.isfinite(robot.effort), robot.effort, np.inf)
+    torque = kind == "torque" and bool(np.any(np.isfinite(eff)))
+    if not len(idx) and not torque:
+        return None
+    return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
+                  q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx])
 
 
 def control_kind(dynamics) -> str:
@@ -477,7 +516,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
         joint.append(Uncertainty(dyn, cfg.sigma, cfg.sigma_weight, task.T, units=cfg.sigma_units))
         descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
-    problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint)
+    problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint,
+                      hard_bounds(robot, kind) if cfg.hard_bounds() == "hard" else None)
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if robot.spec is not None:  # a model file's robot: execute, evaluate and the recordings rebuild it
         desc.update(plant=robot.name, robot=robot.spec.to_dict(), load_report=list(robot.load_report))
