@@ -362,7 +362,7 @@ class PlanOutput:
         if self.config.solver in ("aico", "raico") and r.history:
             # the relinearization repeats per iteration set AICO's time per iteration (small steps repeat more)
             out["repeats_per_iteration"] = float(np.median([h.repeats for h in r.history]))
-        if self.config.solver == "raico" and self.config.alpha_schedule == "adaptive" and r.history:
+        if self.config.solver == "raico" and self.config.schedule() != "fixed" and r.history:
             # the trials the schedule rejected: each an iteration that kept the previous iterate
             out["rejected_trials"] = int(sum(not h.accepted for h in r.history))
         return out
