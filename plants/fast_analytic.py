@@ -41,7 +41,6 @@ import ctypes
 
 import numpy as np
 
-from plants._threads import output_threads
 from plants.codegen import c_backend
 from plants.codegen.derive import compiled_dynamics
 from plants.dynamics import AnalyticDynamics, SemiImplicitEuler, stepped_rollout
@@ -61,37 +60,6 @@ _P = ctypes.POINTER(ctypes.c_double)
 # kernels' dual-number lanes: 40 % less time at 32 joints, 18 % at 6); contraction and
 # reassociation stay off, so every number is the -O2 build's, bit for bit (tests/test_fastdyn.py).
 DYN_FLAGS = (*c_backend.CFLAGS, "-O3")
-
-# A trajectory's linearization is split over the process's threads (plants._threads.output_threads)
-# where each gets at least this many steps (below, a thread's start costs more than it saves).
-THREAD_MIN_ROWS = 16
-
-
-class _Pool:
-    """A persistent thread pool for the batched kernels (a pool per call would cost more than the
-    rows it shares out)."""
-
-    def __init__(self):
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.ex = ThreadPoolExecutor(max_workers=max(1, output_threads()), thread_name_prefix="raico-rows")
-
-    def map_chunks(self, fn, cuts) -> None:
-        """``fn(cuts[i], cuts[i + 1])`` for every chunk, the last on this thread; exceptions re-raised."""
-        futures = [self.ex.submit(fn, int(k0), int(k1)) for k0, k1 in zip(cuts[:-2], cuts[1:-1])]
-        fn(int(cuts[-2]), int(cuts[-1]))
-        for f in futures:
-            f.result()
-
-
-_POOL: _Pool | None = None
-
-
-def _pool() -> _Pool:
-    global _POOL
-    if _POOL is None:
-        _POOL = _Pool()
-    return _POOL
 
 
 class _CompiledStep:
@@ -126,7 +94,6 @@ class _CompiledStep:
         self._x, self._u, self._xn = np.empty(N), np.empty(n), np.empty(N)
         self._A, self._a, self._B = np.empty((N, N)), np.empty(N), np.empty((N, n))
         self._addr = [b.ctypes.data for b in (self._x, self._u, self._xn, self._A, self._a, self._B)]
-        self._warm = False     # whether a call ran (then batches may use threads)
 
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         self._x[:] = x
@@ -165,18 +132,8 @@ class _CompiledStep:
         U = np.ascontiguousarray(U, dtype=float)
         c_backend.check_shapes("dyn_linearize_batch", X=(X, (T, N)), U=(U, (T, n)))
         A, a, B = np.empty((T, N, N)), np.empty((T, N)), np.empty((T, N, n))
-
-        def rows(k0: int, k1: int) -> None:   # rows k0..k1-1 (ctypes releases the GIL for the call)
-            self.lib.dyn_linearize_batch(self.ctx_address, k1 - k0, X[k0].ctypes.data, U[k0].ctypes.data,
-                                         A[k0].ctypes.data, a[k0].ctypes.data, B[k0].ctypes.data)
-
-        threads = min(output_threads(), T // THREAD_MIN_ROWS) if self._warm else 1
-        self._warm = True      # the first call runs alone (the kernels set up their tables once)
-        if threads <= 1:
-            rows(0, T)
-        else:   # independent rows on the process's threads: the same numbers, bit for bit
-            cuts = np.linspace(0, T, threads + 1).astype(int)
-            _pool().map_chunks(rows, cuts)
+        self.lib.dyn_linearize_batch(self.ctx_address, T, X.ctypes.data, U.ctypes.data,
+                                     A.ctypes.data, a.ctypes.data, B.ctypes.data)
         return A, a, B
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray):

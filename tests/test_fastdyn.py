@@ -255,38 +255,6 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
 
 
 @pytest.mark.parametrize("kind", ["symbolic", "tree"])
-def test_threaded_trajectory_linearization_is_bit_for_bit_the_serial_one(kind, monkeypatch):
-    """A trajectory's linearization shared out over threads (chunks of rows) gives the serial
-    call's numbers exactly, with more chunks than threads would ever make here."""
-    import plants.fast_analytic as fa
-
-    robot = shared_robot("arm5")
-    dyn = fa.FastAnalyticDynamics(robot, 0.01) if kind == "symbolic" else fa.TreeAnalyticDynamics(robot, 0.01)
-    c = dyn._compiled()
-    if c is None:
-        pytest.skip("no compiler: the numpy route has no threads")
-    rng = np.random.default_rng(3)
-    T = 37
-    X = np.concatenate([robot.default_q + 0.4 * rng.standard_normal((T, robot.n_q)),
-                        rng.standard_normal((T, robot.n_q))], axis=1)
-    U = 3.0 * rng.standard_normal((T, robot.n_q))
-    monkeypatch.setattr(fa, "output_threads", lambda: 1)
-    serial = c.linearize_trajectory(X, U)
-    assert c._warm
-    monkeypatch.setattr(fa, "output_threads", lambda: 5)
-    monkeypatch.setattr(fa, "THREAD_MIN_ROWS", 4)
-    monkeypatch.setattr(fa, "_POOL", None)
-    calls = []
-    real = fa._Pool.map_chunks
-    monkeypatch.setattr(fa._Pool, "map_chunks", lambda self, fn, cuts: (calls.append(len(cuts) - 1),
-                                                                         real(self, fn, cuts)))
-    threaded = c.linearize_trajectory(X, U)
-    assert calls == [5]
-    for s, t in zip(serial, threaded):
-        assert np.array_equal(s, t)
-
-
-@pytest.mark.parametrize("kind", ["symbolic", "tree"])
 def test_dynamics_library_flags_keep_every_bit(kind, monkeypatch):
     """The dynamics libraries' -O3 (plants.fast_analytic.DYN_FLAGS) vectorizes without contraction or
     reassociation: the linearization equals the -O2 build's bit for bit."""
