@@ -252,6 +252,9 @@ class _Sweeps:
         self.Xprev = Xprev
         self.alpha = alpha
         p.set_nominal(X, U)
+        ct = self._compiled_tasks()
+        if ct is not None:
+            kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         self.H, self.h = p.quadratize_controls(U)
         if self.lti:
             if not self._C_filled:
@@ -270,7 +273,6 @@ class _Sweeps:
         self._control_marginals()
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
-        ct = self._compiled_tasks()
         if ct is not None and np.isfinite(X).all():             # R = l_xx, compiled
             (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
         else:
@@ -297,8 +299,9 @@ class _Sweeps:
         """``problem.cost(X, U)`` with the state terms' values compiled where the task messages are
         (the same sums in another order: equal to rounding)."""
         ct = self._compiled_tasks()
-        if ct is None or not np.isfinite(X).all():
+        if ct is None or not (np.isfinite(X).all() and np.isfinite(U).all()):
             return self.p.cost(X, U)
+        kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
         _, per_step = kernels.task_rows(ct, self.T, X, self._steps, derivatives=False, costs=True)
         with np.errstate(all="ignore"):
             c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)

@@ -103,12 +103,13 @@ class _VTerm(ctypes.Structure):
     _fields_ = [("kind", _L), ("body", _L), ("npts", _L), ("dim", _L), ("R_BF", _V), ("p_BF", _V),
                 ("pts", _V), ("rows", _V), ("S", _V), ("target", _V), ("C", _V), ("weight", _D),
                 ("active", _V), ("cost", _L), ("nb", _L), ("A", _V), ("b", _V), ("R_target", _V),
-                ("p_target", _V)]
+                ("p_target", _V), ("target_stride", _L), ("last_step", _L)]
 
 
 class _TaskSet(ctypes.Structure):
     _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("m", _L), ("P", _V), ("terms", _V),
-                ("frame_points", _V), ("com", _V), ("frame_rotation", _V)]
+                ("frame_points", _V), ("com", _V), ("frame_rotation", _V), ("inverse_dynamics", _V),
+                ("id_derivatives", _V)]
 
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
@@ -144,19 +145,21 @@ def compile_task_set(problem):
     Compiled: ``ViaPoint`` and ``TaskInequality`` on every task map whose row of the task-map
     table (:mod:`planning.term_kinds`) names a compiled counterpart (frame points, CoM, roll,
     joints, a frame's orientation and placement errors; the frame maps on one robot whose tree
-    kernels exist); ``StateTarget``. Joint terms (the GP uncertainty) are not.
+    kernels exist); ``StateTarget``; the state part of the control toward gravity (a joint term, at
+    the controls :func:`set_task_controls` gives). The GP uncertainty is not.
     """
     import numpy as np
 
-    from planning.costs import StateTarget, TaskInequality, ViaPoint
+    from planning.costs import ControlGravity, StateTarget, TaskInequality, ViaPoint
 
-    if any(t.weight != 0 for t in problem.joint_terms):
-        return None
     T, nx = problem.T, problem.n_x
     nq = nx // 2
     if nx != 2 * nq or not 1 <= nq <= TASK_MAX_POSITIONS:
         return None    # outside the kernel's stack buffers: the Python messages
-    keep, terms, kern, robot = [], [], None, None
+    if any(t.weight != 0 and type(t) is not ControlGravity for t in problem.joint_terms):
+        return None    # the GP uncertainty: its model's messages
+    # keep[0]: the controls the joint terms read (set_task_controls), u_t at row t
+    keep, terms, kern, robot = [np.zeros((T, problem.n_u))], [], None, None
 
     def arr(a, dtype=float):
         a = np.ascontiguousarray(a, dtype=dtype)
@@ -164,6 +167,18 @@ def compile_task_set(problem):
         return a.ctypes.data
 
     steps = np.arange(T + 1)
+    for term in problem.joint_terms:   # toward gravity: its state part, at the controls of keep[0]
+        if term.weight == 0:
+            continue
+        k = _robot_kernels(term.gravity.robot)
+        if k is None or (kern is not None and k is not kern) or term.c.shape != (nq,) or problem.n_u != nq:
+            return None
+        kern, robot = k, term.gravity.robot
+        vt = _VTerm()
+        vt.kind, vt.cost, vt.dim, vt.weight = MessageKind.GRAVITY, CostKind.VIA, nq, float(term.weight)
+        vt.active, vt.last_step = arr(np.ones(T + 1), np.uint8), T
+        vt.target, vt.target_stride, vt.C = keep[0].ctypes.data, nq, arr(np.diag(term.c))
+        terms.append(vt)
     for term in problem.state_terms:
         if term.weight == 0:
             continue
@@ -215,8 +230,9 @@ def compile_task_set(problem):
         P, m = np.asarray(robot.P, float), kern.m
         if P.shape != (kern.m, nq) or kern.m > TASK_MAX_POSITIONS:
             return None
-        ts.frame_points, ts.com, ts.frame_rotation = (kern.addresses[f] for f in (
-            "tree_frame_points", "tree_com", "tree_frame_rotation"))
+        ts.frame_points, ts.com, ts.frame_rotation, ts.inverse_dynamics, ts.id_derivatives = (
+            kern.addresses[f] for f in ("tree_frame_points", "tree_com", "tree_frame_rotation",
+                                        "tree_inverse_dynamics", "tree_id_derivatives"))
     ts.nq, ts.nx, ts.nterms, ts.m = nq, nx, len(terms), m
     ts.identity = int(m == nq and np.array_equal(P, np.eye(nq)))
     ts.P = arr(P)
@@ -224,6 +240,24 @@ def compile_task_set(problem):
     ts.terms = ctypes.addressof(term_arr)
     keep += [term_arr, ts, kern]
     return lib.taskset_eval_address(), ctypes.addressof(ts), keep
+
+
+def _robot_kernels(robot):
+    """The robot's compiled tree kernels (``plants.codegen.rbd``), or ``None``."""
+    from plants.codegen.rbd import tree_kernels
+
+    try:
+        return tree_kernels(robot)
+    except (NotImplementedError, AttributeError, c_backend.CompileUnavailable):
+        return None
+
+
+def set_task_controls(compiled, U) -> None:
+    """The controls ``U (T, n_u)`` the compiled joint terms read (toward gravity: the nominal controls
+    of the sweeps' linearization, or a rollout's controls for its cost)."""
+    buf = compiled[2][0]
+    c_backend.check_shapes("taskset controls", U=(U, buf.shape))
+    buf[:] = U
 
 
 def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False):

@@ -11,7 +11,7 @@
 
 /* what a term evaluates (planning/kernels.py: MessageKind, the same values) */
 enum message_kind { MK_FRAME_POINTS = 0, MK_CENTER_OF_MASS = 1, MK_ROLL = 2, MK_JOINTS = 3, MK_STATE_TARGET = 4,
-                    MK_FRAME_ROTATION = 5, MK_FRAME_PLACEMENT = 6 };
+                    MK_FRAME_ROTATION = 5, MK_FRAME_PLACEMENT = 6, MK_GRAVITY = 7 };
 /* what a term costs of its map's value (planning/kernels.py: CostKind) */
 enum cost_kind { CK_VIA = 0, CK_BOUNDS = 1 };
 
@@ -28,6 +28,7 @@ typedef int (*frame_points_fn)(const double *q, int b, const double *RBF, const 
                                const double *pts, double *pos, double *J);
 typedef int (*com_fn)(const double *q, double *c, double *J);
 typedef int (*frame_rotation_fn)(const double *q, int b, const double *RBF, double *RWF, double *Jw);
+typedef int (*id_fn)(const double *q, const double *v, const double *a, double *out);
 
 typedef struct {
     long kind;               /* enum message_kind */
@@ -41,6 +42,8 @@ typedef struct {
     long cost, nb;           /* enum cost_kind; bounds: their number */
     const double *A, *b;     /* bounds: A (nb, dim), b (nb) */
     const double *R_target, *p_target;   /* rotation / placement: the target pose (world) */
+    long target_stride;      /* > 0: the target of step t is target + t * target_stride (gravity: u_t) */
+    long last_step;          /* > 0: the term costs steps t < last_step only (a joint term: 0..T-1) */
 } vterm_t;
 
 typedef struct {
@@ -50,6 +53,7 @@ typedef struct {
     frame_points_fn frame_points;       /* the robot's tree library */
     com_fn com;
     frame_rotation_fn frame_rotation;
+    id_fn inverse_dynamics, id_derivatives;   /* gravity: tau(q, 0, 0) and dtau/d(q, v) (m x 2m) */
 } taskset_t;
 
 /* y (n) += a x (n), 4 at a time with vector extensions (per element the same multiply and add as
@@ -232,8 +236,9 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
     else for (int i = 0; i < MP; i++) { double v = 0.0; for (int j = 0; j < nq; j++) v += ts->P[i * nq + j] * x[j]; qp[i] = v; }
     for (long k = 0; k < ts->nterms; k++) {
         const vterm_t *tm = ts->terms + k;
-        if (tm->weight == 0.0 || !tm->active[t]) continue;
+        if (tm->weight == 0.0 || !tm->active[t] || (tm->last_step > 0 && t >= tm->last_step)) continue;
         int dim = (int)tm->dim;
+        const double *target = tm->target + (tm->target_stride > 0 ? t * tm->target_stride : 0);
         double w2 = 2.0 * tm->weight;
         if (tm->kind == MK_STATE_TARGET) {   /* state target: lx = 2w C (x - x*), lxx = 2w C */
             for (int i = 0; i < nx; i++) e[i] = x[i] - tm->target[i];
@@ -274,7 +279,26 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
                 Jf[j] = (b * da - a * db) / den;
             }
         }
-        if (tm->kind == MK_JOINTS) {   /* phi = S q, J = S (planning coordinates) */
+        if (tm->kind == MK_GRAVITY) {   /* phi = g(q) = P^T tau(P q, 0, 0), J = P^T dtau/dq P */
+            static __thread double D[MPMAX * 2 * MPMAX];
+            double zero[MPMAX];
+            memset(zero, 0, sizeof(double) * MP);
+            ts->inverse_dynamics(qp, zero, zero, full);
+            ts->id_derivatives(qp, zero, zero, D);
+            for (int i = 0; i < MP; i++) memcpy(Jf + i * MP, D + i * 2 * MP, sizeof(double) * MP);
+            for (int r = 0; r < dim; r++) {
+                double *Jo = J + r * nq, v = 0.0;
+                if (ts->identity) { phi[r] = full[r]; memcpy(Jo, Jf + r * MP, sizeof(double) * nq); continue; }
+                for (int j = 0; j < nq; j++) Jo[j] = 0.0;
+                for (int i = 0; i < MP; i++) {
+                    double pir = ts->P[i * nq + r];
+                    if (pir == 0.0) continue;
+                    v += pir * full[i];
+                    for (int k = 0; k < MP; k++) v_axpy(nq, pir * Jf[i * MP + k], ts->P + k * nq, Jo);
+                }
+                phi[r] = v;
+            }
+        } else if (tm->kind == MK_JOINTS) {   /* phi = S q, J = S (planning coordinates) */
             for (int r = 0; r < dim; r++) {
                 double v = 0.0;
                 for (int j = 0; j < nq; j++) v += tm->S[r * nq + j] * x[j];
@@ -312,7 +336,7 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
         }
         /* CJ = C J; lx[:nq] -= 2w (x* - phi)^T CJ; lxx[:nq, :nq] += 2w J^T CJ (sums in a
          * different order than the numpy terms', equal to rounding) */
-        for (int r = 0; r < dim; r++) e[r] = tm->target[r] - phi[r];
+        for (int r = 0; r < dim; r++) e[r] = target[r] - phi[r];
         if (cost) {
             double c = 0.0;
             for (int r = 0; r < dim; r++) { double v = 0.0; for (int i = 0; i < dim; i++) v += tm->C[r * dim + i] * e[i]; c += e[r] * v; }

@@ -65,6 +65,7 @@ class MessageKind(IntEnum):
     STATE_TARGET = 4      # StateTarget on the whole state
     FRAME_ROTATION = 5    # FrameRotationError (log3, Jlog3)
     FRAME_PLACEMENT = 6   # FramePlacementError (log6, Jlog6)
+    GRAVITY = 7           # ControlGravity's state part: g(q), the target u_t (the nominal controls)
 
 
 TASK_MAX_ROWS = 64        # TMAX of task_messages.c: rows of one task map's full output
@@ -221,7 +222,8 @@ def _term_rows() -> tuple[TermKind, ...]:
         TermKind("control_limit", ControlLimit, "control", lambda r, d: ControlLimit(
             d["lower"], d["upper"], d["weight"], name=d["name"]), "_items_control_limit"),
         # toward gravity: a joint term on (x_t, u_t), built by planning.objective.build_terms from a
-        # "control" description whose target is "gravity" (it needs the horizon): no builder here
+        # "control" description whose target is "gravity" (it needs the horizon): no builder here;
+        # compiled: MessageKind.GRAVITY (its state part, planning.kernels.compile_task_set)
         TermKind("control@gravity", ControlGravity, "joint", None, "_items_control_gravity"),
     )
 

@@ -53,8 +53,8 @@ def _problem(robot, terms) -> Problem:
     return Problem(make_dynamics("pseudo", robot, 0.01), x0, T, list(terms), [ControlCost(1e-2)])
 
 
-def _evaluator(problem):
-    compiled = kernels.compile_task_set(problem)
+def _evaluator(problem, compiled=None):
+    compiled = compiled or kernels.compile_task_set(problem)
     assert compiled is not None
     fn, ctx, keep = compiled
     ev = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
@@ -254,3 +254,72 @@ def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
         assert row.crocoddyl is None or callable(getattr(crocoddyl_problem, row.crocoddyl, None)), row.key
     with pytest.raises(ValueError, match="unknown cost term kind"):
         ob.build_term(robot, {"term": "nope", "name": "x"})
+
+
+@pytest.mark.parametrize("robot_name", ["arm5", "nao", "ur5"])
+def test_control_toward_gravity_compiled(robot_name):
+    """The control toward gravity (a joint term: its state part at the controls set_task_controls
+    gives) compiled: point messages, batched rows and costs equal the Python term's (Drake's gravity
+    forces and their AutoDiffXd Jacobian), on an arm, on the Nao (planning coordinates mapped to the
+    plant's by P, not the identity) and on a model-file robot; nothing at step T."""
+    from planning.costs import ControlGravity
+
+    robot = _robot(robot_name)
+    term = ControlGravity(robot, 0.3, T, precision=np.linspace(1.0, 2.0, robot.n_q), name="toward_gravity")
+    x0 = np.concatenate([robot.default_q, np.zeros(robot.n_q)])
+    problem = Problem(make_dynamics("pseudo", robot, 0.01), x0, T, [], [ControlCost(1e-2)], [term])
+    compiled = kernels.compile_task_set(problem)
+    assert compiled is not None
+    rng = np.random.default_rng(11)
+    X = x0 + 0.3 * rng.standard_normal((T + 1, problem.n_x))
+    U = 2.0 * rng.standard_normal((T, problem.n_u))
+    problem.set_nominal(X, U)
+    kernels.set_task_controls(compiled, U)
+    evaluate = _evaluator(problem, compiled)
+    for t in range(T + 1):
+        lx, lxx = evaluate(X[t], t)
+        g, G = problem.point_state_derivatives(X[t], t)
+        if t == T:
+            assert not np.any(lx) and not np.any(g)
+            continue
+        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
+        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+    (lx, lxx), costs = kernels.task_rows(compiled, T, X, np.arange(T + 1), costs=True)
+    g, G = problem.state_derivatives(X)
+    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
+    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+    ref = np.r_[term.joint_value(X[:-1], U), 0.0]
+    np.testing.assert_allclose(costs, ref, rtol=1e-10, atol=1e-14 * ref.max())
+    with pytest.raises(ValueError, match="U has shape"):
+        kernels.set_task_controls(compiled, U[:-1])
+
+
+def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):
+    """R-AICO on the arm with a via-point and the control toward gravity: the compiled sweeps (task
+    messages, batched rows, iteration costs in C) give the numpy sweeps' iterations to rounding."""
+    from planning.aico import AICOOptions, _Sweeps, aico
+    from planning.costs import ControlGravity
+
+    robot = _robot("arm5")
+    ee = next(iter(robot.end_effectors.values()))
+    Tn = 30
+
+    def make():
+        from plants.taskmaps import FramePoints
+
+        tm = FramePoints(robot, ee)
+        x0 = np.concatenate([robot.default_q, np.zeros(robot.n_q)])
+        via = ViaPoint(tm, tm.value(robot.default_q) + [0.05, 0.0, -0.05], [Tn], 1e4, name="reach")
+        grav = ControlGravity(robot, 1e-2, Tn, name="toward_gravity")
+        return Problem(make_dynamics("analytic", robot, 0.01), x0, Tn, [via], [], [grav])
+
+    assert kernels.compile_task_set(make()) is not None
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=4, tol_rel=0.0))
+    a, b = out[True], out[False]
+    assert a.iterations == b.iterations == 4 and str(a.status) == str(b.status)
+    assert [h.repeats for h in a.history] == [h.repeats for h in b.history]
+    np.testing.assert_allclose(a.costs, b.costs, rtol=1e-9)
+    np.testing.assert_allclose(a.X, b.X, rtol=0, atol=1e-8 * np.abs(b.X).max())
