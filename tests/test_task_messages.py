@@ -261,7 +261,8 @@ def test_control_toward_gravity_compiled(robot_name):
     """The control toward gravity (a joint term: its state part at the controls set_task_controls
     gives) compiled: point messages, batched rows and costs equal the Python term's (Drake's gravity
     forces and their AutoDiffXd Jacobian), on an arm, on the Nao (planning coordinates mapped to the
-    plant's by P, not the identity) and on a model-file robot; nothing at step T."""
+    plant's by P, not the identity) and on a model-file robot; nothing at step T. The Python term's
+    gravity is the compiled tree's too where it exists: it equals Drake's AutoDiffXd route."""
     from planning.costs import ControlGravity
 
     robot = _robot(robot_name)
@@ -292,6 +293,16 @@ def test_control_toward_gravity_compiled(robot_name):
     np.testing.assert_allclose(costs, ref, rtol=1e-10, atol=1e-14 * ref.max())
     with pytest.raises(ValueError, match="U has shape"):
         kernels.set_task_controls(compiled, U[:-1])
+    from plants.dynamics import GravityTorques
+    from plants.fast_analytic import TreeGravityTorques
+
+    assert type(term.gravity) is TreeGravityTorques
+    drake = GravityTorques(robot)   # Drake's gravity forces and their AutoDiffXd Jacobian
+    for x in X:
+        g_tree, G_tree = term.gravity.value_and_jacobian(x[:robot.n_q])
+        g_ad, G_ad = drake.value_and_jacobian(x[:robot.n_q])
+        np.testing.assert_allclose(g_tree, g_ad, rtol=0, atol=1e-10 * np.abs(g_ad).max())
+        np.testing.assert_allclose(G_tree, G_ad, rtol=0, atol=1e-10 * np.abs(G_ad).max())
 
 
 def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):
