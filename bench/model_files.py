@@ -14,6 +14,12 @@
   Recursive dynamics and the tree's Jacobians cost O(n) to O(n^2) per step, the dense Riccati-like
   sweeps O(n^3): the exponent is reported as measured.
 
+- **Robots** (the Kinova, UR5 and xArm7 problem files, T = 100): seconds per R-AICO and per FDDP
+  iteration and their ratio.
+- **Flops**: beside every R-AICO row, the sweep's flops per iteration from the formulas of
+  :mod:`bench.flops`, the achieved GFLOP/s and its ratio to a one-thread dgemm measured in the same
+  run (a row of its own).
+
 Not a test: nothing here fails on a slow machine.
 """
 
@@ -136,10 +142,18 @@ def chain_problem(n: int, folder: Path) -> Path:
 
 def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[float | None, str]:
     """(median seconds per iteration, "") or (None, why the solver could not take the problem)."""
+    detail, why = _per_iteration_detail(problem_file, solver, options, reps)
+    return (None if detail is None else detail["seconds"]), why
+
+
+def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:
+    """Median seconds per iteration over ``reps`` solves, with the repeats of a step per iteration
+    (R-AICO's relinearizations within the sweeps; 0 for the others), how the median run ended and
+    the problem's sizes, and ""; or (None, why the solver could not take the problem)."""
     from planning.solvers import solve
     from stages.plan.stage import PlanConfig, build_problem
 
-    times = []
+    times, repeats, status = [], [], []
     for _ in range(reps):
         _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file)).normalized())
         try:
@@ -148,36 +162,91 @@ def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3
         except Exception as e:  # noqa: BLE001 - a solver that cannot take the problem: no time, said why
             return None, f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".rstrip(": ")
         times.append((time.perf_counter() - t0) / max(1, res.iterations))
-    return statistics.median(times), ""
+        repeats.append(sum(getattr(h, "repeats", 0) or 0 for h in res.history) / max(1, res.iterations))
+        status.append(str(getattr(res.status, "value", res.status)))
+    i = int(np.argsort(times)[len(times) // 2])   # the median run's own repeats
+    return {"seconds": times[i], "repeats": repeats[i], "n_x": problem.n_x, "n_u": problem.n_u, "T": problem.T,
+            "status": status[i]}, ""
 
 
 def _exponent(sizes, times) -> float:
     return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
 
 
-def scaling_rows() -> list[dict]:
-    """Seconds per iteration against the number of joints, R-AICO and FDDP, with exponents."""
+RAICO_OPTIONS = {"iterations": ITERATIONS, "alpha": 1.0, "tol_rel": 0.0}
+ROBOTS = (("Kinova reach (crocoddyl)", "problems/crocoddyl/kinova_reach.toml"),
+          ("UR5 reach", "problems/examples/ur5_reach.toml"), ("xArm7 reach", "problems/examples/xarm7_reach.toml"))
+
+
+def _flops(detail: dict, dgemm: float | None) -> dict:
+    """The sweep's flop columns of an R-AICO measurement (bench.flops), none without a dgemm rate."""
+    if dgemm is None:
+        return {}
+    from bench.flops import flop_fields
+
+    return flop_fields(detail["n_x"], detail["n_u"], detail["T"], detail["seconds"], dgemm, detail["repeats"])
+
+
+def _flop_note(f: dict) -> str:
+    return (f"  {f['flops_per_iteration'] / 1e6:8.1f} Mflop/iteration  {f['gflops']:6.2f} GFLOP/s = "
+            f"{100 * f['ratio_to_dgemm']:5.1f} % of dgemm" if f else "")
+
+
+def robot_rows(dgemm: float | None = None) -> list[dict]:
+    """R-AICO and FDDP seconds per iteration on the Kinova, UR5 and xArm7 problems (T = 100), their
+    ratio, and R-AICO's sweep flops against the dgemm rate."""
+    from planning.solvers import SOLVERS
+    from plants.model_file import example_robot_data
+
+    if example_robot_data() is None:
+        return []
+    root = Path(__file__).resolve().parents[1]
+    rows = []
+    for label, rel in ROBOTS:
+        a = _per_iteration_detail(root / rel, "raico", RAICO_OPTIONS)[0]
+        f = _per_iteration_detail(root / rel, "fddp", {"iterations": ITERATIONS})[0] if "fddp" in SOLVERS else None
+        if a is None:
+            continue
+        row = {"benchmark": f"{label}: one R-AICO iteration", "median_s": a["seconds"], "samples_s": [a["seconds"]],
+               "target_s": None, "ratio_to_target": None, "repeats_per_iteration": a["repeats"], "status": a["status"],
+               **_flops(a, dgemm)}
+        if f is not None:
+            row.update(fddp_s=f["seconds"], ratio_to_fddp=a["seconds"] / f["seconds"])
+        rows.append(row)
+        print(f"  {label:28s} R-AICO {a['seconds'] * 1e3:7.2f} ms"
+              + (f"  FDDP {f['seconds'] * 1e3:7.2f} ms  ratio {a['seconds'] / f['seconds']:5.2f}" if f else "")
+              + _flop_note(row), flush=True)
+    return rows
+
+
+def scaling_rows(dgemm: float | None = None) -> list[dict]:
+    """Seconds per iteration against the number of joints, R-AICO and FDDP, with exponents (and the
+    R-AICO sweeps' flops against the dgemm rate)."""
     from planning.solvers import SOLVERS
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         files = {n: chain_problem(n, Path(tmp)) for n in CHAIN_SIZES}
-        solvers = [("R-AICO", "raico", {"iterations": ITERATIONS, "alpha": 1.0, "tol_rel": 0.0})]
+        solvers = [("R-AICO", "raico", RAICO_OPTIONS)]
         if "fddp" in SOLVERS:
             solvers.append(("crocoddyl FDDP", "fddp", {"iterations": ITERATIONS}))
         for label, solver, options in solvers:
             sizes, times, skipped = [], [], {}
             for n, f in files.items():
-                t, why = _per_iteration(f, solver, options)
-                if t is None:   # left out of the fit, and said so here and on the page
+                d, why = _per_iteration_detail(f, solver, options)
+                if d is None:   # left out of the fit, and said so here and on the page
                     skipped[n] = why
                     print(f"  {label:15s} n={n:3d}  not timed: {why}", flush=True)
                     continue
+                t = d["seconds"]
                 sizes.append(n)
                 times.append(t)
+                flops = _flops(d, dgemm) if solver == "raico" else {}
                 rows.append({"benchmark": f"chain of {n} joints, analytic reach T={CHAIN_T}: one {label} iteration",
-                             "median_s": t, "samples_s": [t], "target_s": None, "ratio_to_target": None})
-                print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration", flush=True)
+                             "median_s": t, "samples_s": [t], "target_s": None, "ratio_to_target": None,
+                             "status": d["status"], **flops})
+                print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration  ({d['status']})" + _flop_note(flops),
+                      flush=True)
             if len(sizes) >= 3:
                 e = _exponent(sizes, times)
                 rows.append({"benchmark": f"{label} per iteration against joints", "joint_sizes": sizes,
@@ -194,7 +263,12 @@ def run() -> list[dict]:
     for r in rows:
         print(f"{r['benchmark']:90s} median {r['median_s']:7.2f} s   target {r['target_s']:6.1f} s   "
               f"{r['ratio_to_target']:5.2f}x", flush=True)
-    return rows + scaling_rows()
+    from bench.flops import dgemm_rate
+
+    dgemm = dgemm_rate()
+    print(f"  dgemm (one BLAS thread, this run): {dgemm:.1f} GFLOP/s", flush=True)
+    rows.append({"benchmark": "dense dgemm, one BLAS thread (384 x 384)", "dgemm_gflops": dgemm})
+    return rows + robot_rows(dgemm) + scaling_rows(dgemm)
 
 
 if __name__ == "__main__":

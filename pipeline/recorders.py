@@ -60,6 +60,7 @@ from pipeline import rerun_io as rec_mod
 from pipeline.mcap_io import write_trajectory_mcap
 from pipeline.recorder_fit import record_fit
 from pipeline.recorder_learn import record_learn
+from planning.term_kinds import default_labels, kind_named
 
 RECORDING = "recording.rrd"
 MCAP = "trajectory.mcap"
@@ -400,21 +401,10 @@ class TaskPlot:
 
 
 def _map_components(m: dict | None, dim: int, name: str, joint_names) -> tuple[list[str], int, str, bool]:
-    """(component names, coordinates per point, unit, angle?) of a task-map description."""
-    kind = (m or {}).get("map")
-    if kind in ("frame_points", "cog"):
-        axes = [("x", "y", "z")[a] for a in m.get("axes", (0, 1, 2))]
-        return axes, len(axes), "m", False
-    if kind == "roll":
-        return [f"{name} (unwrapped)"], 1, "rad", True
-    if kind == "joints":
-        idx = m.get("indices") or range(len(joint_names))
-        return [joint_names[i] for i in idx], dim, "rad", False
-    if kind == "frame_rotation":  # the rotation vector of R*^T R
-        return ["rx", "ry", "rz"], 3, "rad", False
-    if kind == "frame_placement":  # log6: translation part (m) then rotation vector (rad)
-        return ["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False
-    return [f"{name}[{i}]" for i in range(dim)], dim, "", False
+    """(component names, coordinates per point, unit, angle?) of a task-map description: its row's
+    labels in the task-map table (``planning.term_kinds``)."""
+    row = kind_named((m or {}).get("map"))
+    return (row.labels if row is not None else default_labels)(m, dim, name, joint_names)
 
 
 def task_plots(problem, X: np.ndarray, joint_names=()) -> list[TaskPlot]:

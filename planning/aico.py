@@ -275,6 +275,7 @@ class _Sweeps:
         self._active_flags = np.array([bool(a) for a in self.active], dtype=np.uint8)
         self._kstate = None
         self._ctask = None        # compiled task messages (kernels.compile_task_set), on first use
+        self._steps = np.arange(T + 1)
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
         self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
@@ -291,6 +292,9 @@ class _Sweeps:
         self.Xprev = Xprev
         self.alpha = alpha
         p.set_nominal(X, U)
+        ct = self._compiled_tasks()
+        if ct is not None:
+            kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         self.H, self.h = p.quadratize_controls(U)
         if self.lti:
             if not self._C_filled:
@@ -309,7 +313,10 @@ class _Sweeps:
         self._control_marginals()
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
-        p.state_derivatives(X, out=(lx, R))                    # R = l_xx
+        if ct is not None and np.isfinite(X).all():             # R = l_xx, compiled
+            (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
+        else:
+            p.state_derivatives(X, out=(lx, R))                # R = l_xx
         np.matmul(R, X[:, :, None], out=RA[:, :, n:])          # r = l_xx x - l_x
         RA[:, :, n] -= lx
         if alpha:
@@ -318,6 +325,27 @@ class _Sweeps:
             RA[:, :, n] += 2.0 * alpha * Xprev
         self._check_finite(RA)
         self._2aI = 2.0 * alpha * self.I
+
+    def _compiled_tasks(self):
+        """The compiled task messages (``kernels.compile_task_set``, built on first use) when the
+        sweeps run compiled, else ``None``."""
+        if not self.compiled or kernels.library() is None:
+            return None
+        if self._ctask is None:
+            self._ctask = kernels.compile_task_set(self.p) or False
+        return self._ctask or None
+
+    def cost(self, X: np.ndarray, U: np.ndarray) -> float:
+        """``problem.cost(X, U)`` with the state terms' values compiled where the task messages are
+        (the same sums in another order: equal to rounding)."""
+        ct = self._compiled_tasks()
+        if ct is None or not (np.isfinite(X).all() and np.isfinite(U).all()):
+            return self.p.cost(X, U)
+        kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
+        _, per_step = kernels.task_rows(ct, self.T, X, self._steps, derivatives=False, costs=True)
+        with np.errstate(all="ignore"):
+            c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
+        return c if math.isfinite(c) else math.inf
 
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
@@ -349,13 +377,13 @@ class _Sweeps:
             self.Qbar += self.qI
             self.a_eff = np.einsum("tij,tj->ti", BHi, self.h) - C[:, :n, m + n]
 
-    def relinearize(self, t: int) -> tuple[bool, bool]:
-        """Relinearize step ``t`` at ``self.X[t]``: the dynamics (if ``t < T`` and they depend
-        on the state) and the task message (if a term costs step ``t``).
+    def relinearize(self, t: int, dynamics: bool = True) -> tuple[bool, bool]:
+        """Relinearize step ``t`` at ``self.X[t]``: the dynamics (if ``dynamics``, ``t < T`` and they
+        depend on the state) and the task message (if a term costs step ``t``).
 
         Returns whether ``(dynamics, task message)`` changed.
         """
-        dyn = t < self.T and not self.lti
+        dyn = dynamics and t < self.T and not self.lti
         if dyn:
             self._relinearize_dynamics(t)
         task = bool(self.active[t])
@@ -493,23 +521,30 @@ class _Sweeps:
     def settle(self, t: int, backward: bool = False) -> None:
         """Algorithm 1 at step ``t`` (message already updated): while the belief is more than
         ``theta`` from the linearization point, move the point towards it, relinearize step
-        ``t``, redo the backward message (``backward``: in the backward sweep, where it
+        ``t`` (in the forward sweep its dynamics once, at the final point: nothing reads them
+        before), redo the backward message (``backward``: in the backward sweep, where it
         depends on the dynamics at ``t``), and repeat. The belief is recomputed only when
         something it depends on changed (else it is the same)."""
         o = self.o
         x = self.X[t]
         b = self.belief(t)
+        moved = False
         for _ in range(o.max_repeats):
             d = b - x
             if not math.sqrt(float(d @ d)) > o.theta:
-                return
+                break
             x += o.belief_rate * d
-            dyn, task = self.relinearize(t)
+            moved = True
+            # forward sweep: nothing reads the dynamics at t before the step is left (the belief
+            # does not depend on them): relinearized once below, at the final point
+            dyn, task = self.relinearize(t, dynamics=backward)
             redo = backward and dyn
             if redo:
                 self.backward(t, reuse_vstar=True)
             if redo or task:
                 b = self.belief(t)
+        if moved and not backward and t < self.T and not self.lti:
+            self._relinearize_dynamics(t)
 
     def sweep(self) -> None:
         """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
@@ -915,7 +950,7 @@ class _AICOStep:
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
         try:   # a model may raise on the exploding states of a diverging rollout
             Xn, Un, o_new, O_new = bounded_rollout(self.problem, o_new, O_new)
-            cost = self.problem.cost(Xn, Un)
+            cost = self.sw.cost(Xn, Un)
         except (ArithmeticError, ValueError, RuntimeError) as e:
             return self._failed(cur, alpha, f"rollout failed: {type(e).__name__}: {e}")
         # o_ and O_ are new arrays every sweep (no copies needed: 3 MB per iteration on the Nao)

@@ -605,9 +605,9 @@ class ControlGravity:
     """
 
     def __init__(self, robot, weight: float, T: int, precision=None, name: str = "control"):
-        from plants.dynamics import GravityTorques
+        from plants.fast_analytic import gravity_torques
 
-        self.gravity = GravityTorques(robot)
+        self.gravity = gravity_torques(robot)   # on the compiled tree where it builds, else Drake's
         self.name = name
         self.weight = _check_weight(weight, name)
         self.T = int(T)

@@ -467,99 +467,120 @@ def _state_ref(smap: StateMap, model, q: dict[int, float] | np.ndarray | None = 
 
 
 def cost_items(term, state, nu: int, model, smap: StateMap, robot) -> list[tuple[object, object]]:
-    """crocoddyl ``(residual, activation)`` pairs of a raico cost term (see the module docstring)."""
-    from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
+    """crocoddyl ``(residual, activation)`` pairs of a raico cost term (see the module docstring): the
+    function its row of the cost-term table (:mod:`planning.term_kinds`) names."""
+    from planning.term_kinds import kind_of_term
 
-    if isinstance(term, StateTarget):
-        w = np.zeros(state.ndx)
-        w[smap.tangent_index] = _diag(term.C, term.name)
-        n = smap.n
-        xref = _state_ref(smap, model, term.target[:n], term.target[n:])
-        return [(crocoddyl.ResidualModelState(state, xref, nu), crocoddyl.ActivationModelWeightedQuad(w))]
-    if isinstance(term, ControlCost):
-        act = (crocoddyl.ActivationModelQuad(nu) if term.c is None
-               else crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))
-        if term.target is None:
-            return [(crocoddyl.ResidualModelControl(state, nu), act)]
-        return [(crocoddyl.ResidualModelControl(state, smap.u_to_pin(term.target)), act)]
-    if isinstance(term, ControlGravity):   # u - g(q), Pinocchio's generalized gravity
-        return [(crocoddyl.ResidualModelControlGrav(state, nu), crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))]
-    if isinstance(term, ControlLimit):
-        n = smap.n
-        lo = smap.u_to_pin(np.broadcast_to(term.lower, (n,)).astype(float))
-        hi = smap.u_to_pin(np.broadcast_to(term.upper, (n,)).astype(float))
-        return [(crocoddyl.ResidualModelControl(state, nu),
-                 crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lo, hi)))]
-    if isinstance(term, TaskInequality):
-        return _joint_bounds(term, state, nu, model, smap)
-    if isinstance(term, ViaPoint):
-        return _via(term, state, nu, model, smap, robot)
-    raise NotExpressible(f"crocoddyl: no equivalent of the cost term {term.name!r} ({type(term).__name__})")
+    row = kind_of_term(term)
+    items = globals().get(row.crocoddyl) if row is not None and row.crocoddyl else None
+    if items is None:
+        raise NotExpressible(f"crocoddyl: no equivalent of the cost term {term.name!r} ({type(term).__name__})")
+    return items(term, state, nu, model, smap, robot)
+
+
+def _items_state(term, state, nu, model, smap, robot):
+    w = np.zeros(state.ndx)
+    w[smap.tangent_index] = _diag(term.C, term.name)
+    n = smap.n
+    xref = _state_ref(smap, model, term.target[:n], term.target[n:])
+    return [(crocoddyl.ResidualModelState(state, xref, nu), crocoddyl.ActivationModelWeightedQuad(w))]
+
+
+def _items_control(term, state, nu, model, smap, robot):
+    act = (crocoddyl.ActivationModelQuad(nu) if term.c is None
+           else crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))
+    if term.target is None:
+        return [(crocoddyl.ResidualModelControl(state, nu), act)]
+    return [(crocoddyl.ResidualModelControl(state, smap.u_to_pin(term.target)), act)]
+
+
+def _items_control_gravity(term, state, nu, model, smap, robot):
+    """u - g(q), Pinocchio's generalized gravity."""
+    return [(crocoddyl.ResidualModelControlGrav(state, nu), crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))]
+
+
+def _items_control_limit(term, state, nu, model, smap, robot):
+    n = smap.n
+    lo = smap.u_to_pin(np.broadcast_to(term.lower, (n,)).astype(float))
+    hi = smap.u_to_pin(np.broadcast_to(term.upper, (n,)).astype(float))
+    return [(crocoddyl.ResidualModelControl(state, nu),
+             crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lo, hi)))]
 
 
 def _via(term, state, nu, model, smap, robot):
-    from plants.taskmaps import (
-        CenterOfMass,
-        FramePlacementError,
-        FramePoints,
-        FrameRotationError,
-        JointPositions,
-        RollAngle,
-    )
+    """A via-point's crocoddyl residuals and activations: the function its task map's row of the
+    task-map table (:mod:`planning.term_kinds`) names."""
+    from planning.term_kinds import kind_of_map
 
-    tm, w = term.taskmap, _diag(term.C, term.name)
-    if isinstance(tm, FramePoints):
-        axes = [int(r) for r in tm.rows[:len(tm.rows) // len(tm.points)]]
-        k = len(axes)
-        target = term.target.reshape(len(tm.points), k)
-        out = []
-        for j, point in enumerate(tm.points):
-            fid = frame_id(model, robot, tm.frame.name(), point)
-            ref, wj = np.zeros(3), np.zeros(3)
-            ref[axes], wj[axes] = target[j], w[j * k:(j + 1) * k]
-            out.append((crocoddyl.ResidualModelFrameTranslation(state, fid, ref, nu),
-                        crocoddyl.ActivationModelWeightedQuad(wj)))
-        return out
-    if isinstance(tm, RollAngle):
-        fid = frame_id(model, robot, tm.frame.name())
-        return [(_RollResidual(state, fid, float(term.target[0]), nu), crocoddyl.ActivationModelWeightedQuad(w))]
-    if isinstance(tm, CenterOfMass):
-        # Drake's centre of mass counts the links welded to the world (a fixed base), Pinocchio's
-        # leaves out what its universe carries (m0 at c0): c_drake - ref = k (c_pin - ref') with
-        # k = M / (M + m0), ref' = ((M + m0) ref - m0 c0) / M, exactly
-        M, m0 = float(pin.computeTotalMass(model)), float(model.inertias[0].mass)
-        c0 = np.asarray(model.inertias[0].lever, float)
-        drake_mass = robot.plant.CalcTotalMass(robot.context)
-        if not math.isclose(M + m0, drake_mass, rel_tol=1e-12):
-            raise NotExpressible(f"crocoddyl: via-point {term.name!r} on the centre of mass: Drake's robot weighs "
-                                 f"{drake_mass:g} kg, Pinocchio's {M + m0:g} kg")
-        k = M / (M + m0)
-        ref, wc = np.zeros(3), np.zeros(3)
-        ref[tm.axes], wc[tm.axes] = term.target, w
-        ref = ((M + m0) * ref - m0 * c0) / M
-        return [(_CoMResidual(state, ref, nu), crocoddyl.ActivationModelWeightedQuad(k * k * wc))]
-    if isinstance(tm, (FrameRotationError, FramePlacementError)):
-        if np.any(term.target != 0):
-            raise NotExpressible(f"crocoddyl: via-point {term.name!r} asks a pose error of {term.target.tolist()}, "
-                                 "crocoddyl's frame residuals are zero at their reference")
-        fid = frame_id(model, robot, tm.frame.name())
-        if isinstance(tm, FrameRotationError):
-            res = crocoddyl.ResidualModelFrameRotation(state, fid, tm.R_target, nu)
-        else:
-            res = crocoddyl.ResidualModelFramePlacement(state, fid, pin.SE3(tm.R_target, tm.p_target), nu)
-        return [(res, crocoddyl.ActivationModelWeightedQuad(w))]
-    if isinstance(tm, JointPositions):
-        idx = [int(np.flatnonzero(row)[0]) for row in tm.S]
-        if len(set(idx)) != len(idx):
-            raise NotExpressible(f"crocoddyl: via-point {term.name!r} names a joint twice")
-        ws = np.zeros(state.ndx)
-        ws[smap.v_index[idx]] = w
-        xref = _state_ref(smap, model, dict(zip(idx, term.target)))
-        return [(crocoddyl.ResidualModelState(state, xref, nu), crocoddyl.ActivationModelWeightedQuad(ws))]
-    raise NotExpressible(f"crocoddyl: no equivalent of the task map {tm.name!r} ({type(tm).__name__})")
+    tm = term.taskmap
+    row = kind_of_map(tm)
+    build = globals().get(row.crocoddyl) if row is not None and row.crocoddyl else None
+    if build is None:
+        raise NotExpressible(f"crocoddyl: no equivalent of the task map {tm.name!r} ({type(tm).__name__})")
+    return build(term, tm, _diag(term.C, term.name), state, nu, model, smap, robot)
 
 
-def _joint_bounds(term, state, nu, model, smap):
+def _via_frame_points(term, tm, w, state, nu, model, smap, robot):
+    axes = [int(r) for r in tm.rows[:len(tm.rows) // len(tm.points)]]
+    k = len(axes)
+    target = term.target.reshape(len(tm.points), k)
+    out = []
+    for j, point in enumerate(tm.points):
+        fid = frame_id(model, robot, tm.frame.name(), point)
+        ref, wj = np.zeros(3), np.zeros(3)
+        ref[axes], wj[axes] = target[j], w[j * k:(j + 1) * k]
+        out.append((crocoddyl.ResidualModelFrameTranslation(state, fid, ref, nu),
+                    crocoddyl.ActivationModelWeightedQuad(wj)))
+    return out
+
+
+def _via_roll(term, tm, w, state, nu, model, smap, robot):
+    fid = frame_id(model, robot, tm.frame.name())
+    return [(_RollResidual(state, fid, float(term.target[0]), nu), crocoddyl.ActivationModelWeightedQuad(w))]
+
+
+def _via_com(term, tm, w, state, nu, model, smap, robot):
+    # Drake's centre of mass counts the links welded to the world (a fixed base), Pinocchio's
+    # leaves out what its universe carries (m0 at c0): c_drake - ref = k (c_pin - ref') with
+    # k = M / (M + m0), ref' = ((M + m0) ref - m0 c0) / M, exactly
+    M, m0 = float(pin.computeTotalMass(model)), float(model.inertias[0].mass)
+    c0 = np.asarray(model.inertias[0].lever, float)
+    drake_mass = robot.plant.CalcTotalMass(robot.context)
+    if not math.isclose(M + m0, drake_mass, rel_tol=1e-12):
+        raise NotExpressible(f"crocoddyl: via-point {term.name!r} on the centre of mass: Drake's robot weighs "
+                             f"{drake_mass:g} kg, Pinocchio's {M + m0:g} kg")
+    k = M / (M + m0)
+    ref, wc = np.zeros(3), np.zeros(3)
+    ref[tm.axes], wc[tm.axes] = term.target, w
+    ref = ((M + m0) * ref - m0 * c0) / M
+    return [(_CoMResidual(state, ref, nu), crocoddyl.ActivationModelWeightedQuad(k * k * wc))]
+
+
+def _via_frame_pose(term, tm, w, state, nu, model, smap, robot):
+    from plants.taskmaps import FrameRotationError
+
+    if np.any(term.target != 0):
+        raise NotExpressible(f"crocoddyl: via-point {term.name!r} asks a pose error of {term.target.tolist()}, "
+                             "crocoddyl's frame residuals are zero at their reference")
+    fid = frame_id(model, robot, tm.frame.name())
+    if isinstance(tm, FrameRotationError):
+        res = crocoddyl.ResidualModelFrameRotation(state, fid, tm.R_target, nu)
+    else:
+        res = crocoddyl.ResidualModelFramePlacement(state, fid, pin.SE3(tm.R_target, tm.p_target), nu)
+    return [(res, crocoddyl.ActivationModelWeightedQuad(w))]
+
+
+def _via_joints(term, tm, w, state, nu, model, smap, robot):
+    idx = [int(np.flatnonzero(row)[0]) for row in tm.S]
+    if len(set(idx)) != len(idx):
+        raise NotExpressible(f"crocoddyl: via-point {term.name!r} names a joint twice")
+    ws = np.zeros(state.ndx)
+    ws[smap.v_index[idx]] = w
+    xref = _state_ref(smap, model, dict(zip(idx, term.target)))
+    return [(crocoddyl.ResidualModelState(state, xref, nu), crocoddyl.ActivationModelWeightedQuad(ws))]
+
+
+def _joint_bounds(term, state, nu, model, smap, robot=None):
     """``A q[idx] <= b`` with +-unit rows: the state difference to a reference under a quadratic
     barrier (reference 0 for revolute and prismatic joints, where the difference is ``q`` itself;
     the bounds' middle, or the bound, for a continuous joint)."""

@@ -22,7 +22,7 @@ typedef int (*task_t)(const void *, long, const double *, double *, double *);
 
 enum { ERR_CHOL = -1, ERR_LIN = -2 };
 enum { PH_FWD = 0, PH_BWD = 1, PH_DONE = 2 };
-enum { SUB_STEP = 0, SUB_CHECK = 1, SUB_AFTER = 2 };
+enum { SUB_STEP = 0, SUB_CHECK = 1, SUB_AFTER = 2, SUB_LEAVE = 3 };
 enum { DYN_NONE = 0, DYN_C = 1, DYN_PY = 2 };
 
 typedef struct {
@@ -465,6 +465,10 @@ int sweep_run(sweep_t *s)
     long n = s->n, T = s->T;
     int rc;
     for (;;) {
+        if (s->sub == SUB_LEAVE) {   /* the caller relinearized the dynamics of the step left */
+            s->t += 1;
+            s->sub = SUB_STEP;
+        }
         if (s->sub == SUB_STEP) {
             long t = s->t;
             if (s->phase == PH_FWD) {
@@ -487,13 +491,20 @@ int sweep_run(sweep_t *s)
                 for (long i = 0; i < n; i++) { double d = b[i] - x[i]; dd += d * d; }
                 next = !(sqrt(dd) > s->theta);
             }
+            /* In the forward sweep nothing reads the dynamics of step t before the step is left (the
+             * belief of t does not depend on them): they are relinearized once, at the final point,
+             * the numbers of a relinearization at every move (the last one wins) */
+            if (next && s->phase == PH_FWD && s->r > 0 && t < T && s->dyn_mode != DYN_NONE) {
+                if (s->dyn_mode == DYN_PY) { s->sub = SUB_LEAVE; return 1; }
+                if ((rc = relin_dyn(s, &w, t)) != 0) return rc;
+            }
             if (next) {
                 s->t += (s->phase == PH_FWD) ? 1 : -1;
                 s->sub = SUB_STEP;
                 continue;
             }
             for (long i = 0; i < n; i++) x[i] += s->rate * (b[i] - x[i]);
-            s->dyn_flag = t < T && s->dyn_mode != DYN_NONE;
+            s->dyn_flag = t < T && s->dyn_mode != DYN_NONE && s->phase == PH_BWD;   /* forward: on leaving */
             s->task_flag = s->active[t] != 0;
             long req = 0;
             if (s->dyn_flag && s->dyn_mode == DYN_C) {
@@ -510,7 +521,7 @@ int sweep_run(sweep_t *s)
         if (s->sub == SUB_AFTER) {
             long t = s->t;
             s->repeats++;
-            int redo = s->phase == PH_BWD && s->dyn_flag;
+            int redo = s->dyn_flag;
             if (redo && (rc = backward(s, &w, t, 1)) != 0) return rc;
             if ((redo || s->task_flag) && (rc = belief(s, &w, t)) != 0) return rc;
             s->r++;

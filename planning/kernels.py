@@ -24,6 +24,7 @@ import ctypes
 from enum import IntEnum
 from pathlib import Path
 
+from planning.term_kinds import TASK_MAX_ROWS, MessageKind, kind_of_map
 from plants.codegen import c_backend
 
 SOURCES = (Path(__file__).with_name("dense.c"), Path(__file__).with_name("csweep.c"))
@@ -91,30 +92,28 @@ def library() -> ctypes.CDLL | None:
 
 
 # -- compiled task messages -------------------------------------------------------------------------
-class MessageKind(IntEnum):
-    """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
-    (the same values; tests/test_kernels.py reads the C enum and compares)."""
+class CostKind(IntEnum):
+    """What a compiled term costs of its map's value: ``enum cost_kind`` of ``task_messages.c``."""
 
-    FRAME_POINTS = 0     # ViaPoint on FramePoints
-    CENTER_OF_MASS = 1   # ViaPoint on CenterOfMass
-    ROLL = 2             # ViaPoint on RollAngle
-    JOINTS = 3           # ViaPoint on JointPositions (phi = S q)
-    STATE_TARGET = 4     # StateTarget on the whole state
+    VIA = 0      # ViaPoint: w (x* - phi)^T C (x* - phi)
+    BOUNDS = 1   # TaskInequality: w sum_i max(0, a_i . phi - b_i)^2
 
 
 class _VTerm(ctypes.Structure):
     _fields_ = [("kind", _L), ("body", _L), ("npts", _L), ("dim", _L), ("R_BF", _V), ("p_BF", _V),
                 ("pts", _V), ("rows", _V), ("S", _V), ("target", _V), ("C", _V), ("weight", _D),
-                ("active", _V)]
+                ("active", _V), ("cost", _L), ("nb", _L), ("A", _V), ("b", _V), ("R_target", _V),
+                ("p_target", _V), ("target_stride", _L), ("last_step", _L)]
 
 
 class _TaskSet(ctypes.Structure):
     _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("m", _L), ("P", _V), ("terms", _V),
-                ("frame_points", _V), ("com", _V), ("frame_rotation", _V)]
+                ("frame_points", _V), ("com", _V), ("frame_rotation", _V), ("inverse_dynamics", _V),
+                ("id_derivatives", _V)]
 
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
-TASK_MAX_ROWS = 64        # TMAX of task_messages.c: rows of one task map's full output
+TASK_MAX_BOUNDS = 128     # BMAX of task_messages.c: bounds of one term
 _TASK_LIB: ctypes.CDLL | None | bool = None
 
 
@@ -129,6 +128,8 @@ def task_library() -> ctypes.CDLL | None:
                 raise c_backend.CompileUnavailable("disabled")
             lib = c_backend.load_library(c_backend.c_source(__file__, "task_messages.c"), "task_messages")
             lib.taskset_eval_address.restype = ctypes.c_void_p
+            lib.taskset_rows.argtypes = [_V, _L, _V, _V, _V, _V, _V]
+            lib.taskset_rows.restype = ctypes.c_int
             _TASK_LIB = lib
         except c_backend.CompileUnavailable:
             _TASK_LIB = False
@@ -141,22 +142,24 @@ def compile_task_set(problem):
     kinematics): ``(function address, context address, keep-alive)``, or ``None`` when some term
     with a nonzero weight has no compiled counterpart (then the sweeps ask Python).
 
-    Compiled: ``ViaPoint`` on ``FramePoints``, ``CenterOfMass``, ``RollAngle`` (one robot whose
-    tree kernels exist) or ``JointPositions``; ``StateTarget``. Joint terms (the GP uncertainty)
-    are not.
+    Compiled: ``ViaPoint`` and ``TaskInequality`` on every task map whose row of the task-map
+    table (:mod:`planning.term_kinds`) names a compiled counterpart (frame points, CoM, roll,
+    joints, a frame's orientation and placement errors; the frame maps on one robot whose tree
+    kernels exist); ``StateTarget``; the state part of the control toward gravity (a joint term, at
+    the controls :func:`set_task_controls` gives). The GP uncertainty is not.
     """
     import numpy as np
 
-    from planning.costs import StateTarget, ViaPoint
-    from plants.taskmaps import CenterOfMass, FramePoints, JointPositions, RollAngle
+    from planning.costs import ControlGravity, StateTarget, TaskInequality, ViaPoint
 
-    if any(t.weight != 0 for t in problem.joint_terms):
-        return None
     T, nx = problem.T, problem.n_x
     nq = nx // 2
     if nx != 2 * nq or not 1 <= nq <= TASK_MAX_POSITIONS:
         return None    # outside the kernel's stack buffers: the Python messages
-    keep, terms, kern, robot = [], [], None, None
+    if any(t.weight != 0 and type(t) is not ControlGravity for t in problem.joint_terms):
+        return None    # the GP uncertainty: its model's messages
+    # keep[0]: the controls the joint terms read (set_task_controls), u_t at row t
+    keep, terms, kern, robot = [np.zeros((T, problem.n_u))], [], None, None
 
     def arr(a, dtype=float):
         a = np.ascontiguousarray(a, dtype=dtype)
@@ -164,69 +167,121 @@ def compile_task_set(problem):
         return a.ctypes.data
 
     steps = np.arange(T + 1)
+    for term in problem.joint_terms:   # toward gravity: its state part, at the controls of keep[0]
+        if term.weight == 0:
+            continue
+        k = _robot_kernels(term.gravity.robot)
+        if k is None or (kern is not None and k is not kern) or term.c.shape != (nq,) or problem.n_u != nq:
+            return None
+        kern, robot = k, term.gravity.robot
+        vt = _VTerm()
+        vt.kind, vt.cost, vt.dim, vt.weight = MessageKind.GRAVITY, CostKind.VIA, nq, float(term.weight)
+        vt.active, vt.last_step = arr(np.ones(T + 1), np.uint8), T
+        vt.target, vt.target_stride, vt.C = keep[0].ctypes.data, nq, arr(np.diag(term.c))
+        terms.append(vt)
     for term in problem.state_terms:
         if term.weight == 0:
             continue
         vt = _VTerm()
         vt.weight = float(term.weight)
         vt.active = arr(term.active(steps), np.uint8)
-        if isinstance(term, StateTarget):
+        if type(term) is StateTarget:
             vt.kind, vt.dim = MessageKind.STATE_TARGET, nx
             c_backend.check_shapes("taskset_eval", target=(term.target, (nx,)), C=(term.C, (nx, nx)))
             vt.target, vt.C = arr(term.target), arr(term.C)
             terms.append(vt)
             continue
-        if type(term) is not ViaPoint:
+        if type(term) not in (ViaPoint, TaskInequality):
             return None
         tm = term.taskmap
         vt.dim = tm.dim
         if not 1 <= tm.dim <= TASK_MAX_ROWS:
             return None
-        c_backend.check_shapes("taskset_eval", target=(term.target, (tm.dim,)), C=(term.C, (tm.dim, tm.dim)))
-        vt.target, vt.C = arr(term.target), arr(term.C)
-        if type(tm) is JointPositions:
-            c_backend.check_shapes("taskset_eval", S=(tm.S, (tm.dim, nq)))
-            vt.kind, vt.S = MessageKind.JOINTS, arr(tm.S)
-            terms.append(vt)
-            continue
-        if type(tm) not in (FramePoints, CenterOfMass, RollAngle):
-            return None
-        k = tm.tree_kernels()
-        if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
-            return None
-        kern, robot = k, tm.robot
-        # the map's full output (rows) and the rows the term keeps, within the kernel's buffers
-        rows, kept = ((3 * len(tm.points), tm.rows) if type(tm) is FramePoints else
-                      (3, tm.axes) if type(tm) is CenterOfMass else (1, np.array([0])))
-        if rows > TASK_MAX_ROWS or np.shape(kept) != (tm.dim,) or min(kept) < 0 or max(kept) >= rows:
-            return None
-        if type(tm) is FramePoints:
-            vt.kind, vt.npts = MessageKind.FRAME_POINTS, len(tm.points)
-            vt.body = k.tree.body(tm.body_name)
-            vt.R_BF, vt.p_BF, vt.pts = arr(tm.frame_rotation), arr(tm.frame_offset), arr(tm.points)
-            vt.rows = arr(tm.rows, np.int64)
-        elif type(tm) is CenterOfMass:
-            vt.kind, vt.rows = MessageKind.CENTER_OF_MASS, arr(tm.axes, np.int64)
+        if type(term) is ViaPoint:
+            c_backend.check_shapes("taskset_eval", target=(term.target, (tm.dim,)), C=(term.C, (tm.dim, tm.dim)))
+            vt.cost, vt.target, vt.C = CostKind.VIA, arr(term.target), arr(term.C)
         else:
-            vt.kind, vt.body = MessageKind.ROLL, k.tree.body(tm.body_name)
-            vt.R_BF, vt.rows = arr(tm.frame_rotation), arr([0], np.int64)
+            nb = term.A.shape[0]
+            if nb > TASK_MAX_BOUNDS:
+                return None
+            c_backend.check_shapes("taskset_eval", A=(term.A, (nb, tm.dim)), b=(term.b, (nb,)))
+            vt.cost, vt.nb, vt.A, vt.b = CostKind.BOUNDS, nb, arr(term.A), arr(term.b)
+        row = kind_of_map(tm)
+        if row is None or row.compile is None:
+            return None
+        k = None
+        if row.tree:    # the frame maps and the CoM: one robot's tree kernels
+            k = tm.tree_kernels()
+            if k is None or (kern is not None and k is not kern) or (robot is not None and tm.robot is not robot):
+                return None
+            kern, robot = k, tm.robot
+        else:
+            c_backend.check_shapes("taskset_eval", S=(tm.S, (tm.dim, nq)))
+        if not row.compile(tm, vt, k, arr):
+            return None
         terms.append(vt)
-    if kern is None:
-        return None    # the kinematics live in a robot's tree library
     lib = task_library()
-    P = np.asarray(robot.P, float)
-    if lib is None or P.shape != (kern.m, nq) or kern.m > TASK_MAX_POSITIONS:
+    if lib is None:
         return None
     ts = _TaskSet()
-    ts.nq, ts.nx, ts.nterms, ts.m = nq, nx, len(terms), kern.m
-    ts.frame_points, ts.com, ts.frame_rotation = (kern.addresses[f] for f in (
-        "tree_frame_points", "tree_com", "tree_frame_rotation"))
-    ts.identity = int(kern.m == nq and np.array_equal(P, np.eye(nq)))
+    if kern is None:    # joints and state targets only: no kinematics
+        P, m = np.eye(nq), nq
+    else:
+        P, m = np.asarray(robot.P, float), kern.m
+        if P.shape != (kern.m, nq) or kern.m > TASK_MAX_POSITIONS:
+            return None
+        ts.frame_points, ts.com, ts.frame_rotation, ts.inverse_dynamics, ts.id_derivatives = (
+            kern.addresses[f] for f in ("tree_frame_points", "tree_com", "tree_frame_rotation",
+                                        "tree_inverse_dynamics", "tree_id_derivatives"))
+    ts.nq, ts.nx, ts.nterms, ts.m = nq, nx, len(terms), m
+    ts.identity = int(m == nq and np.array_equal(P, np.eye(nq)))
     ts.P = arr(P)
     term_arr = (_VTerm * max(len(terms), 1))(*terms)
     ts.terms = ctypes.addressof(term_arr)
     keep += [term_arr, ts, kern]
     return lib.taskset_eval_address(), ctypes.addressof(ts), keep
+
+
+def _robot_kernels(robot):
+    """The robot's compiled tree kernels (``plants.codegen.rbd``), or ``None``."""
+    from plants.codegen.rbd import tree_kernels
+
+    try:
+        return tree_kernels(robot)
+    except (NotImplementedError, AttributeError, c_backend.CompileUnavailable):
+        return None
+
+
+def set_task_controls(compiled, U) -> None:
+    """The controls ``U (T, n_u)`` the compiled joint terms read (toward gravity: the nominal controls
+    of the sweeps' linearization, or a rollout's controls for its cost)."""
+    buf = compiled[2][0]
+    c_backend.check_shapes("taskset controls", U=(U, buf.shape))
+    buf[:] = U
+
+
+def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False):
+    """The compiled task terms (``compile_task_set``'s result for a horizon of ``T`` steps) at the
+    rows ``X (K, n_x)`` of steps ``steps (K,)`` (each in ``0..T``): ``(l_x (K, n_x), l_xx (K, n_x, n_x))`` as
+    ``Problem.state_derivatives`` (``None`` without ``derivatives``) and the per-row costs ``(K,)``
+    as the state terms' ``value`` summed (``None`` without ``costs``). ``X`` must be finite (the
+    tree kernels are not asked at NaN; callers keep the Python terms for such rows)."""
+    import numpy as np
+
+    lib = task_library()
+    X = np.ascontiguousarray(X, dtype=float)
+    steps = np.ascontiguousarray(steps, dtype=np.int64)
+    ts = _TaskSet.from_address(compiled[1])
+    K, nx = X.shape
+    c_backend.check_shapes("taskset_rows", X=(X, (len(steps), int(ts.nx))))
+    if len(steps) and (steps.min() < 0 or steps.max() > T):
+        raise ValueError(f"taskset_rows: steps must lie in 0..{T}")
+    lx = np.empty((K, nx)) if derivatives else None
+    lxx = np.empty((K, nx, nx)) if derivatives else None
+    out = np.empty(K) if costs else None
+    lib.taskset_rows(compiled[1], K, steps.ctypes.data, X.ctypes.data, *(None if a is None else a.ctypes.data
+                                                                         for a in (lx, lxx, out)))
+    return (lx, lxx) if derivatives else None, out
 
 
 if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (or find) the kernel

@@ -34,20 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
+from planning.costs import ControlGravity
+from planning.term_kinds import kind_named, map_keys, term_named
 from plants.model_file import robot_for
 from plants.robots import Robot
-from plants.taskmaps import (
-    CenterOfMass,
-    FramePlacementError,
-    FramePoints,
-    FrameRotationError,
-    JointPositions,
-    RollAngle,
-)
 
 TermDesc = dict[str, Any]
-STATE_TERMS = ("via", "inequality", "state")  # term kinds on x_t (the others are on u_t)
 
 
 # ------------------------------------------------------------------ descriptions
@@ -148,42 +140,20 @@ def control_limit(lower, upper, weight: float, name: str = "control_limit") -> T
 
 # ------------------------------------------------------------------ building
 def build_taskmap(robot, d: dict):
-    kind = d["map"]
-    if kind == "frame_points":
-        return FramePoints(robot, d["frame"], points=d.get("points"), axes=tuple(d["axes"]), name=d["name"])
-    if kind == "roll":
-        return RollAngle(robot, d["frame"], name=d["name"])
-    if kind == "cog":
-        return CenterOfMass(robot, axes=tuple(d["axes"]), name=d["name"])
-    if kind == "joints":
-        return JointPositions(robot.n_q, d.get("indices"), name=d["name"])
-    if kind == "frame_rotation":
-        return FrameRotationError(robot, d["frame"], d["rotation"], name=d["name"])
-    if kind == "frame_placement":
-        return FramePlacementError(robot, d["frame"], d["rotation"], d["translation"], name=d["name"])
-    raise ValueError(f"unknown task map kind {kind!r}")
-
-
-def _times(t) -> list[int] | range:
-    return range(int(t["from"]), int(t["to"]) + 1) if isinstance(t, dict) else list(t)
+    """The task map of description ``d`` (its ``"map"`` key's row of :data:`planning.term_kinds.MAP_KINDS`)."""
+    row = kind_named(d["map"])
+    if row is None:
+        raise ValueError(f"unknown task map kind {d['map']!r}: valid kinds are {', '.join(map_keys())}")
+    return row.build(robot, d)
 
 
 def build_term(robot, d: TermDesc):
-    """One cost-term object from its description."""
-    kind = d["term"]
-    if kind == "via":
-        return ViaPoint(build_taskmap(robot, d["map"]), d["target"], list(_times(d["times"])), d["weight"],
-                        d.get("precision"), name=d["name"], tol=d.get("tol"))
-    if kind == "inequality":
-        return TaskInequality(build_taskmap(robot, d["map"]), d["A"], d["b"], list(_times(d["times"])),
-                              d["weight"], name=d["name"])
-    if kind == "state":
-        return StateTarget(d["target"], list(_times(d["times"])), d["weight"], d.get("precision"), name=d["name"])
-    if kind == "control":
-        return ControlCost(d["weight"], target=d.get("target"), name=d["name"], precision=d.get("precision"))
-    if kind == "control_limit":
-        return ControlLimit(d["lower"], d["upper"], d["weight"], name=d["name"])
-    raise ValueError(f"unknown cost term kind {kind!r}")
+    """One cost-term object from its description (its ``"term"`` key's row of
+    :func:`planning.term_kinds.term_kinds`)."""
+    row = term_named(d["term"])
+    if row is None:
+        raise ValueError(f"unknown cost term kind {d['term']!r}")
+    return row.build(robot, d)
 
 
 @dataclass
@@ -221,7 +191,7 @@ def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str =
             joint.append(ControlGravity(robot, d["weight"], T, d.get("precision"), name=d["name"]))
             continue
         term = build_term(robot, d)
-        (state if d["term"] in STATE_TERMS else controls).append(term)
+        (state if term_named(d["term"]).side == "state" else controls).append(term)
     return Objective(T, state, controls, kept, joint)
 
 

@@ -577,6 +577,11 @@ class _FramePose(_OnFrame, _DrakeMap):
         self._p_BF = np.ascontiguousarray(X_BF.translation())
         self._origin = np.zeros((1, 3))
 
+    @property
+    def frame_offset(self) -> np.ndarray:
+        """``p_BF (3,)`` m: the frame's origin in its body."""
+        return self._p_BF
+
     def _residual(self, R, p, Jv, Jw) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 

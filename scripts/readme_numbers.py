@@ -159,6 +159,19 @@ def bench_block(results: Path) -> str:
         rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} not timed (left out of the "
                  f"exponent): " + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
                  for r in joints if r.get("joint_skipped")]
+    flops = [r for r in doc.get("results", []) if "ratio_to_dgemm" in r]
+    if flops:
+        rows += ["", "R-AICO's sweeps against the machine (`bench/flops.py`: flops from the formulas, the achieved "
+                 "rate over the whole iteration, a one-thread dgemm measured in the same run; FDDP beside it):", "",
+                 "| problem | R-AICO per iteration | FDDP per iteration | ratio | sweep flops per iteration | "
+                 "GFLOP/s | of dgemm |", "|---|---|---|---|---|---|---|"]
+        for r in flops:
+            fddp = _seconds(r["fddp_s"]) if "fddp_s" in r else "-"
+            ratio = f"{r['ratio_to_fddp']:.2f}" if "ratio_to_fddp" in r else "-"
+            ended = f" ({r['status']})" if r.get("status") == "diverged" else ""   # a run's time, not a plan's
+            rows.append(f"| {r['benchmark'].removesuffix(': one R-AICO iteration')}{ended} | {_seconds(r['median_s'])} | "
+                        f"{fddp} | {ratio} | {r['flops_per_iteration'] / 1e6:.1f} M | {r['gflops']:.2f} | "
+                        f"{100 * r['ratio_to_dgemm']:.1f} % |")
     return head + "\n\n" + "\n".join(rows)
 
 

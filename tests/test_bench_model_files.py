@@ -9,14 +9,14 @@ from bench import model_files
 
 def test_a_solver_exception_is_said_with_its_chain_size(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(model_files, "CHAIN_SIZES", (2, 3))
-    real = model_files._per_iteration
+    real = model_files._per_iteration_detail
 
     def per_iteration(f, solver, options, reps=3):
         if solver == "raico" and f.name == "chain3.toml":
             return real(f, "no-such-solver", options, reps=1)   # the solver registry refuses it: an exception
-        return 1e-3, ""
+        return {"seconds": 1e-3, "repeats": 0.0, "n_x": 4, "n_u": 2, "T": 100, "status": "max-iterations"}, ""
 
-    monkeypatch.setattr(model_files, "_per_iteration", per_iteration)
+    monkeypatch.setattr(model_files, "_per_iteration_detail", per_iteration)
     rows = model_files.scaling_rows()
     out = capsys.readouterr().out
     assert "n=  3  not timed: " in out and "no-such-solver" in out

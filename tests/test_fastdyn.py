@@ -252,3 +252,26 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
     monkeypatch.setattr(dv, "_COMPILED", {})
     assert dv._load_derived(r.plant, path) is None
     assert compiled_dynamics(r) is fresh and calls == [1, 1]
+
+
+@pytest.mark.parametrize("kind", ["symbolic", "tree"])
+def test_dynamics_library_flags_keep_every_bit(kind, monkeypatch):
+    """The dynamics libraries' -O3 (plants.fast_analytic.DYN_FLAGS) vectorizes without contraction or
+    reassociation: the linearization equals the -O2 build's bit for bit."""
+    import plants.fast_analytic as fa
+    from plants.codegen import c_backend
+
+    robot = shared_robot("arm5")
+    make = fa.FastAnalyticDynamics if kind == "symbolic" else fa.TreeAnalyticDynamics
+    rng = np.random.default_rng(5)
+    X = np.concatenate([robot.default_q + rng.standard_normal((9, robot.n_q)), rng.standard_normal((9, robot.n_q))], 1)
+    U = 5.0 * rng.standard_normal((9, robot.n_q))
+    fast = make(robot, 0.01)._compiled()
+    if fast is None:
+        pytest.skip("no compiler")
+    assert "-O3" in fa.DYN_FLAGS
+    monkeypatch.setattr(fa, "DYN_FLAGS", c_backend.CFLAGS)
+    plain = make(robot, 0.01)._compiled()
+    assert plain.lib is not fast.lib
+    for s, t in zip(plain.linearize_trajectory(X, U), fast.linearize_trajectory(X, U)):
+        assert np.array_equal(s, t)

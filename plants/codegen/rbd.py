@@ -221,9 +221,10 @@ class TreeKernels:
             getattr(lib, f).argtypes = args
             getattr(lib, f).restype = ctypes.c_int
         self.lib = lib
-        # C entry points for compiled callers (planning/task_messages.c calls these three)
+        # C entry points for compiled callers (planning/task_messages.c calls these)
         self.addresses = {f: ctypes.cast(getattr(lib, f), ctypes.c_void_p).value
-                          for f in ("tree_frame_points", "tree_com", "tree_frame_rotation")}
+                          for f in ("tree_frame_points", "tree_com", "tree_frame_rotation", "tree_inverse_dynamics",
+                                    "tree_id_derivatives")}
 
     @staticmethod
     def _a(x) -> np.ndarray:

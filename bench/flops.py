@@ -1,0 +1,90 @@
+"""The arithmetic of an R-AICO sweep against the machine: flops from the formulas, the achieved rate,
+and a dense ``dgemm`` measured in the same run.
+
+    .venv/bin/python -m bench.flops
+
+:func:`sweep_flops` counts the floating-point operations (a multiply and an add are two) of the
+compiled sweep (``planning/csweep.c`` on ``planning/dense.c``) per time step for a state of ``N``
+and controls of ``m`` entries, dense ``C_t`` (a model-file robot's time-varying linearization):
+
+- forward message: ``P = S^-1 + R`` factored (``N^3/3``), ``W = R^-T A^T`` (``N^3``), ``S = W^T W +
+  Qbar`` (``N^3``), ``S`` factored (``N^3/3``) and inverted (``N^3``): ``11/3 N^3``;
+- backward message: ``V*`` (``(I + q P') V = [P' | p']`` by Cholesky: ``N^3/3 + 2 N^2 (N + 1)``),
+  ``G = V* C`` (``2 N (N + 1) K``, ``K = m + N + 1``), ``B^T G`` (``2 m N K``), ``A^T G``
+  (``2 N^2 (N + 1)``), the ``m x m`` factor (``m^3/3``) and its two solves (``2 m^2 (N + 1)``),
+  ``Kmat^T Kmat`` (``m N^2``);
+- two beliefs (each a factor ``N^3/3`` and two triangular solves ``2 N^2``);
+- the dynamics' relinearization: ``B H^-1`` (``2 N m^2``) and ``B H^-1 B^T`` (``2 N^2 m``).
+
+Lower-order terms (vector updates, copies) are left out; the task messages' and the dynamics'
+own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T`` such steps, and
+for each repeat of a step within the sweep (a relinearization where the belief moved farther than
+theta) its dynamics relinearization and one belief (a repeat in the backward sweep also redoes the
+backward message from the kept ``V*``: not counted, so the count is a floor).
+
+:func:`dgemm_rate` times numpy's ``matmul`` (OpenBLAS) on square matrices with one BLAS thread: this
+machine's single-core dense rate, the physical limit the sweeps are compared with. The achieved
+rate is the sweep's flops over the whole iteration's time (rollout, linearization, cost included),
+so it is a lower bound of the sweep's own rate.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+
+def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0) -> dict:
+    """Flops of one R-AICO sweep: per time step, per iteration (``T`` steps and ``repeats`` repeats of
+    a step) and by part."""
+    K = m + N + 1
+    parts = {
+        "forward": N ** 3 / 3 + N ** 3 + N ** 3 + N ** 3 / 3 + N ** 3,
+        "backward": (N ** 3 / 3 + 2 * N ** 2 * (N + 1) + 2 * N * (N + 1) * K + 2 * m * N * K
+                     + 2 * N ** 2 * (N + 1) + m ** 3 / 3 + 2 * m ** 2 * (N + 1) + m * N ** 2),
+        "beliefs": 2 * (N ** 3 / 3 + 2 * N ** 2),
+        "dynamics relinearization": 2 * N * m * m + 2 * N * N * m,
+    }
+    per_step = float(sum(parts.values()))
+    per_repeat = parts["dynamics relinearization"] + parts["beliefs"] / 2
+    return {"per_step": per_step, "per_iteration": per_step * T + per_repeat * repeats,
+            "parts": {k: float(v) for k, v in parts.items()}}
+
+
+def dgemm_rate(size: int = 384, reps: int = 5) -> float:
+    """GFLOP/s of one ``size x size`` matrix product (``2 size^3`` flops) with one BLAS thread,
+    the median of ``reps`` timings after a warm-up."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    A, B = rng.standard_normal((size, size)), rng.standard_normal((size, size))
+    out = np.empty((size, size))
+    with threadpool_limits(limits=1, user_api="blas"):
+        np.matmul(A, B, out=out)
+        times = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            np.matmul(A, B, out=out)
+            times.append(time.perf_counter() - t0)
+    return 2.0 * size ** 3 / statistics.median(times) / 1e9
+
+
+def flop_fields(N: int, m: int, T: int, seconds_per_iteration: float, dgemm_gflops: float,
+                repeats: float = 0.0) -> dict:
+    """The flop columns of an R-AICO row (``repeats``: per iteration): flops per step and per
+    iteration, the achieved GFLOP/s and its ratio to the measured ``dgemm`` rate."""
+    f = sweep_flops(N, m, T, repeats)
+    gflops = f["per_iteration"] / seconds_per_iteration / 1e9
+    return {"flops_per_step": f["per_step"], "flops_per_iteration": f["per_iteration"],
+            "gflops": gflops, "dgemm_gflops": dgemm_gflops, "ratio_to_dgemm": gflops / dgemm_gflops}
+
+
+if __name__ == "__main__":
+    rate = dgemm_rate()
+    print(f"dgemm (one thread): {rate:.1f} GFLOP/s")
+    for n in (2, 4, 8, 16, 32):
+        f = sweep_flops(2 * n, n, 100)
+        print(f"chain of {n:2d} joints: {f['per_step'] / n ** 3:6.1f} n^3 = {f['per_step']:.3g} flops per step, "
+              f"{f['per_iteration']:.3g} per iteration (T = 100)")

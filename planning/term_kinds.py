@@ -1,0 +1,249 @@
+"""The kinds of cost terms and task maps in two tables: each class with its description key, its
+builder from a description, its compiled counterpart (``planning/task_messages.c``), its crocoddyl
+residual and (task maps) its plot labels.
+
+Cost terms (:data:`TERM_KINDS`, rows :class:`TermKind`): ``key`` (the description's ``"term"``),
+``cls``, ``side`` (``"state"``: on ``x_t``, ``"control"``: on ``u_t``, ``"joint"``: on both),
+``build(robot, d)`` (``None``: built elsewhere, see the row) and
+``crocoddyl``, the name of the function of ``planning.crocoddyl_problem`` that gives its crocoddyl
+``(residual, activation)`` pairs. ``planning.objective.build_term`` and
+``planning.crocoddyl_problem.cost_items`` read it. A new term kind is its class
+(``planning.costs``) and one row (and its crocoddyl function, where crocoddyl has one).
+
+Task maps:
+
+One row per kind (:data:`MAP_KINDS`); the objective (``planning.objective.build_taskmap``), the
+compiled task messages (``planning.kernels.compile_task_set``), the crocoddyl translation
+(``planning.crocoddyl_problem``) and the recordings' plots (``pipeline.recorders``) look a map up
+here, by class (:func:`kind_of_map`) or by description key (:func:`kind_named`). A new task-map
+kind is its class (``plants.taskmaps``) and one row; its compiled counterpart, where it has one, is
+a :class:`MessageKind` with its branch in ``task_messages.c`` and a ``compile`` function here.
+
+Columns of a row (:class:`MapKind`):
+
+- ``key``: the description's ``"map"`` value (``planning.objective``);
+- ``cls``: the task-map class;
+- ``build(robot, d) -> TaskMap`` from a description ``d``;
+- ``compile(tm, vt, kernels, arr) -> bool``: fills the map fields of a compiled term (``vt``, a
+  ``planning.kernels._VTerm``; ``kernels``: the robot's tree kernels, ``None`` for a map that needs
+  none; ``arr(a, dtype)`` keeps ``a`` alive and gives its address); ``False`` where this instance
+  does not fit the kernel (then the Python messages run); ``None``: no compiled counterpart;
+- ``tree``: whether the compiled map reads the robot's tree kernels (the frame maps, the CoM);
+- ``crocoddyl``: the name of the function of ``planning.crocoddyl_problem`` that gives the
+  via-point's crocoddyl residuals (``None``: not expressible);
+- ``labels(m, dim, name, joint_names) -> (component names, coordinates per point, unit, angle?)``
+  of a map description ``m`` for the plots.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+
+from plants.taskmaps import (
+    CenterOfMass,
+    FramePlacementError,
+    FramePoints,
+    FrameRotationError,
+    JointPositions,
+    RollAngle,
+)
+
+
+class MessageKind(IntEnum):
+    """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
+    (the same values; tests/test_kernels.py reads the C enum and compares)."""
+
+    FRAME_POINTS = 0      # FramePoints
+    CENTER_OF_MASS = 1    # CenterOfMass
+    ROLL = 2              # RollAngle
+    JOINTS = 3            # JointPositions (phi = S q)
+    STATE_TARGET = 4      # StateTarget on the whole state
+    FRAME_ROTATION = 5    # FrameRotationError (log3, Jlog3)
+    FRAME_PLACEMENT = 6   # FramePlacementError (log6, Jlog6)
+    GRAVITY = 7           # ControlGravity's state part: g(q), the target u_t (the nominal controls)
+
+
+TASK_MAX_ROWS = 64        # TMAX of task_messages.c: rows of one task map's full output
+
+
+@dataclass(frozen=True)
+class MapKind:
+    """One row of the task-map table (the columns: see the module's docstring)."""
+
+    key: str
+    cls: type
+    build: Callable[[Any, dict], Any]
+    compile: Callable[..., bool] | None
+    tree: bool
+    crocoddyl: str | None
+    labels: Callable[[dict, int, str, list], tuple[list[str], int, str, bool]]
+
+
+# -- compiled counterparts: the map fields of a compiled term -------------------------------------
+def _rows_fit(kept, rows: int, dim: int) -> bool:
+    """The rows a term keeps lie in its map's full output (``rows``), and that output fits the kernel."""
+    return (rows <= TASK_MAX_ROWS and np.shape(kept) == (dim,) and min(kept) >= 0
+            and max(kept) < rows)
+
+
+def _compile_frame_points(tm: FramePoints, vt, k, arr) -> bool:
+    vt.kind, vt.npts = MessageKind.FRAME_POINTS, len(tm.points)
+    vt.body = k.tree.body(tm.body_name)
+    vt.R_BF, vt.p_BF, vt.pts = arr(tm.frame_rotation), arr(tm.frame_offset), arr(tm.points)
+    vt.rows = arr(tm.rows, np.int64)
+    return _rows_fit(tm.rows, 3 * len(tm.points), tm.dim)
+
+
+def _compile_com(tm: CenterOfMass, vt, k, arr) -> bool:
+    vt.kind, vt.rows = MessageKind.CENTER_OF_MASS, arr(tm.axes, np.int64)
+    return _rows_fit(tm.axes, 3, tm.dim)
+
+
+def _compile_roll(tm: RollAngle, vt, k, arr) -> bool:
+    vt.kind, vt.body = MessageKind.ROLL, k.tree.body(tm.body_name)
+    vt.R_BF, vt.rows = arr(tm.frame_rotation), arr([0], np.int64)
+    return True
+
+
+def _compile_joints(tm: JointPositions, vt, k, arr) -> bool:
+    vt.kind, vt.S = MessageKind.JOINTS, arr(tm.S)
+    return True
+
+
+def _compile_frame_pose(tm, vt, k, arr) -> bool:
+    """A frame's orientation (3 rows) or placement (6 rows) error from its target pose."""
+    vt.kind = MessageKind.FRAME_ROTATION if isinstance(tm, FrameRotationError) else MessageKind.FRAME_PLACEMENT
+    vt.body = k.tree.body(tm.body_name)
+    vt.R_BF, vt.p_BF = arr(tm.frame_rotation), arr(tm.frame_offset)
+    vt.R_target = arr(tm.R_target)
+    vt.p_target = arr(getattr(tm, "p_target", np.zeros(3)))
+    vt.rows = arr(np.arange(tm.dim), np.int64)
+    return True
+
+
+# -- plot labels ------------------------------------------------------------------------------------
+def _axes_labels(m, dim, name, joint_names):
+    axes = [("x", "y", "z")[a] for a in m.get("axes", (0, 1, 2))]
+    return axes, len(axes), "m", False
+
+
+def _joint_labels(m, dim, name, joint_names):
+    idx = m.get("indices") or range(len(joint_names))
+    return [joint_names[i] for i in idx], dim, "rad", False
+
+
+def default_labels(m, dim: int, name: str, joint_names) -> tuple[list[str], int, str, bool]:
+    """Labels of a map without a row (or without a description): ``name[i]``, no unit."""
+    return [f"{name}[{i}]" for i in range(dim)], dim, "", False
+
+
+# -- the table --------------------------------------------------------------------------------------
+MAP_KINDS: tuple[MapKind, ...] = (
+    MapKind("frame_points", FramePoints,
+            lambda r, d: FramePoints(r, d["frame"], points=d.get("points"), axes=tuple(d["axes"]), name=d["name"]),
+            _compile_frame_points, True, "_via_frame_points", _axes_labels),
+    MapKind("roll", RollAngle, lambda r, d: RollAngle(r, d["frame"], name=d["name"]),
+            _compile_roll, True, "_via_roll",
+            lambda m, dim, name, jn: ([f"{name} (unwrapped)"], 1, "rad", True)),
+    MapKind("cog", CenterOfMass, lambda r, d: CenterOfMass(r, axes=tuple(d["axes"]), name=d["name"]),
+            _compile_com, True, "_via_com", _axes_labels),
+    MapKind("joints", JointPositions, lambda r, d: JointPositions(r.n_q, d.get("indices"), name=d["name"]),
+            _compile_joints, False, "_via_joints", _joint_labels),
+    MapKind("frame_rotation", FrameRotationError,     # the rotation vector of R*^T R
+            lambda r, d: FrameRotationError(r, d["frame"], d["rotation"], name=d["name"]),
+            _compile_frame_pose, True, "_via_frame_pose",
+            lambda m, dim, name, jn: (["rx", "ry", "rz"], 3, "rad", False)),
+    MapKind("frame_placement", FramePlacementError,   # log6: translation part (m) then rotation vector (rad)
+            lambda r, d: FramePlacementError(r, d["frame"], d["rotation"], d["translation"], name=d["name"]),
+            _compile_frame_pose, True, "_via_frame_pose",
+            lambda m, dim, name, jn: (["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False)),
+)
+_BY_CLASS = {k.cls: k for k in MAP_KINDS}
+_BY_KEY = {k.key: k for k in MAP_KINDS}
+
+
+def kind_of_map(tm) -> MapKind | None:
+    """The row of the task map ``tm``'s class (its exact class: a subclass may compute something
+    else), or ``None``."""
+    return _BY_CLASS.get(type(tm))
+
+
+def kind_named(key: str | None) -> MapKind | None:
+    """The row of a description's ``"map"`` key, or ``None``."""
+    return _BY_KEY.get(key)
+
+
+def map_keys() -> list[str]:
+    """The description keys of the task-map kinds."""
+    return [k.key for k in MAP_KINDS]
+
+
+# -- cost terms --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TermKind:
+    """One row of the cost-term table (the columns: see the module's docstring)."""
+
+    key: str
+    cls: type
+    side: str
+    build: Callable[[Any, dict], Any] | None
+    crocoddyl: str | None
+
+
+def _times(t) -> list[int]:
+    """Steps as described: a list, or ``{"from": a, "to": b}`` (every step a..b)."""
+    return list(range(int(t["from"]), int(t["to"]) + 1)) if isinstance(t, dict) else list(t)
+
+
+def _term_rows() -> tuple[TermKind, ...]:
+    from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
+
+    def taskmap(robot, d):
+        row = kind_named(d["map"]["map"])
+        if row is None:
+            raise ValueError(f"unknown task map kind {d['map']['map']!r}: valid kinds are {', '.join(map_keys())}")
+        return row.build(robot, d["map"])
+
+    return (
+        TermKind("via", ViaPoint, "state", lambda r, d: ViaPoint(
+            taskmap(r, d), d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"],
+            tol=d.get("tol")), "_via"),
+        TermKind("inequality", TaskInequality, "state", lambda r, d: TaskInequality(
+            taskmap(r, d), d["A"], d["b"], _times(d["times"]), d["weight"], name=d["name"]), "_joint_bounds"),
+        TermKind("state", StateTarget, "state", lambda r, d: StateTarget(
+            d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"]), "_items_state"),
+        TermKind("control", ControlCost, "control", lambda r, d: ControlCost(
+            d["weight"], target=d.get("target"), name=d["name"], precision=d.get("precision")), "_items_control"),
+        TermKind("control_limit", ControlLimit, "control", lambda r, d: ControlLimit(
+            d["lower"], d["upper"], d["weight"], name=d["name"]), "_items_control_limit"),
+        # toward gravity: a joint term on (x_t, u_t), built by planning.objective.build_terms from a
+        # "control" description whose target is "gravity" (it needs the horizon): no builder here;
+        # compiled: MessageKind.GRAVITY (its state part, planning.kernels.compile_task_set)
+        TermKind("control@gravity", ControlGravity, "joint", None, "_items_control_gravity"),
+    )
+
+
+_TERMS: tuple[TermKind, ...] | None = None
+
+
+def term_kinds() -> tuple[TermKind, ...]:
+    """The cost-term table (built on first use: ``planning.costs`` imports nothing from here)."""
+    global _TERMS
+    if _TERMS is None:
+        _TERMS = _term_rows()
+    return _TERMS
+
+
+def term_named(key: str) -> TermKind | None:
+    """The row of a description's ``"term"`` key that builds it, or ``None``."""
+    return next((k for k in term_kinds() if k.key == key and k.build is not None), None)
+
+
+def kind_of_term(term) -> TermKind | None:
+    """The row of the cost term ``term``'s exact class, or ``None``."""
+    return next((k for k in term_kinds() if type(term) is k.cls), None)
