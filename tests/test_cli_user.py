@@ -136,7 +136,7 @@ def test_help_texts_come_from_the_code():
 
 def test_errors_name_the_option_typed():
     res = invoke("plan", "--plant", "arm5", "--task", "reach", "--alpha-schedule", "sometimes")
-    assert res.exit_code == 2 and "raico: error: --alpha-schedule must be 'fixed' or 'adaptive'" in res.stderr
+    assert res.exit_code == 2 and "raico: error: --alpha-schedule must be one of fixed, adaptive, robust, got 'sometimes'" in res.stderr
 
 
 def test_errors_say_which_command_makes_the_missing_input(arm_plan, tmp_path):
