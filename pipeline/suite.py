@@ -433,13 +433,27 @@ def profile(ratios: list[float], taus) -> list[float]:
     return [float(np.mean(r <= tau)) if r.size else 0.0 for tau in taus]
 
 
+RANGE_TOL = 1e-3    # rad (m for a prismatic joint): a plan farther outside a joint range leaves it
+EFFORT_TOL = 1e-6   # N m above an effort limit
+
+
+def inside_limits(record: dict) -> bool:
+    """Whether a run's plan stays in the model's joint ranges (to :data:`RANGE_TOL`) and effort limits
+    (to :data:`EFFORT_TOL`); a run without a measurement is not inside."""
+    rng, eff = record.get("joint_range_excess"), record.get("effort_excess")
+    return rng is not None and rng <= RANGE_TOL and (eff is None or eff <= EFFORT_TOL)
+
+
 def profiles(records: list[dict], problems: list[str], solvers: list[str]) -> dict[str, Any]:
-    """The cost and the time profiles of ``records`` over ``problems``: per kind the ratios per
-    solver (problem order) and ``rho`` at :data:`TAUS`."""
+    """The cost, the time and the inside-the-limits cost profiles of ``records`` over ``problems``: per
+    kind the ratios per solver (problem order) and ``rho`` at :data:`TAUS`. ``inside``: the final cost of
+    the plans that stay inside the robot's limits (:func:`inside_limits`) against the best such plan; a
+    plan that leaves them counts as not solved."""
     by = {(r["problem"], r["solver"]): r for r in records}
     out: dict[str, Any] = {"problems": problems, "taus": list(TAUS)}
-    for kind, key in (("cost", "final_cost"), ("time", "time_to_target_s")):
-        m = {s: [by[(p, s)][key] if (p, s) in by else None for p in problems] for s in solvers}
+    for kind, key in (("cost", "final_cost"), ("time", "time_to_target_s"), ("inside", "final_cost")):
+        m = {s: [by[(p, s)][key] if (p, s) in by and (kind != "inside" or inside_limits(by[(p, s)])) else None
+                 for p in problems] for s in solvers}
         ratios = performance_ratios(m)
         out[kind] = {"ratios": ratios, "rho": {s: profile(ratios[s], TAUS) for s in solvers}}
     return out
@@ -457,10 +471,12 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     prof = doc["profiles"]["all"]
     solvers = list(prof["cost"]["ratios"])
     n = len(prof["problems"])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, kind, title in ((axes[0], "cost", "final cost within tau x the best"),
-                            (axes[1], "time", f"time to within {doc['within'] * 100:g} % of the best cost, "
-                                              "within tau x the fastest")):
+    kinds = [("cost", "final cost within tau x the best"),
+             ("time", f"time to within {doc['within'] * 100:g} % of the best cost,\nwithin tau x the fastest"),
+             ("inside", "final cost within tau x the best plan inside the limits\n(a plan outside: not solved)")]
+    kinds = [k for k in kinds if k[0] in prof]
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5.5 * len(kinds), 4.4))
+    for ax, (kind, title) in zip(axes, kinds):
         finite = [r for s in solvers for r in prof[kind]["ratios"][s] if math.isfinite(r)]
         top = max(10.0, 1.5 * max(finite)) if finite else 10.0
         taus = np.geomspace(1.0, top, 400)
@@ -606,6 +622,13 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             lines.append(f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["cost"]["rho"][s]) + " | "
                          + " | ".join(f"{v:.2f}" for v in prof["time"]["rho"][s]) + " |")
         lines.append("")
+        if "inside" in prof:
+            lines += [f"Inside the limits: the final cost of the plans that stay in every joint range (to {RANGE_TOL:g} "
+                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best such plan; a plan that leaves "
+                      "them counts as not solved.", "",
+                      "| solver | " + " | ".join(f"inside {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
+            lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["inside"]["rho"][s]) + " |" for s in solvers]
+            lines.append("")
     lines += [f"![performance profiles]({png_name})", ""]
     if notes or doc.get("notes"):
         lines += ["## Empty cells and left-out solvers", ""]

@@ -285,3 +285,20 @@ def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, ar
     assert res.exit_code == 2
     assert res.stderr.count("\n") == 1 and res.stderr.startswith(line)
     assert not (tmp_path / "art" / "bench").exists()
+
+
+def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
+    """Two problems: on the first the cheaper plan leaves a joint range (by 0.1 rad), so inside the limits the
+    other solver is the best and the cheaper one unsolved; on the second both stay inside."""
+    from pipeline import suite as st
+
+    def rec(p, s, cost, rng, eff=0.0):
+        return {"problem": p, "solver": s, "final_cost": cost, "time_to_target_s": 1.0,
+                "joint_range_excess": rng, "effort_excess": eff}
+
+    records = [rec("a", "x", 1.0, 0.1), rec("a", "y", 2.0, 0.0), rec("b", "x", 3.0, 5e-4), rec("b", "y", 3.3, 0.0, 1.0)]
+    assert [st.inside_limits(r) for r in records] == [False, True, True, False]
+    prof = st.profiles(records, ["a", "b"], ["x", "y"])
+    assert prof["cost"]["ratios"]["x"] == [1.0, 1.0] and np.allclose(prof["cost"]["ratios"]["y"], [2.0, 1.1])
+    assert prof["inside"]["ratios"]["x"][0] == math.inf and prof["inside"]["ratios"]["x"][1] == 1.0
+    assert prof["inside"]["ratios"]["y"][0] == 1.0 and prof["inside"]["ratios"]["y"][1] == math.inf
