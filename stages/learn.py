@@ -61,6 +61,10 @@ class LearnConfig(StageConfig):
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
             "schedule": "Hyperparameter schedule: every (re-optimize each episode) or batch-N (N >= 100 new points).",
             "alpha": "R-AICO regularization alpha (0: plain AICO).",
+            "alpha_schedule": "R-AICO's alpha schedule: fixed, adaptive or robust (empty: the plan stage's default, "
+                              "robust for a problem file, fixed for a built-in plant).",
+            "bounds": "hard or none: the robot's joint ranges and effort limits kept by the planner (empty: the plan "
+                      "stage's default, hard for a problem file).",
             "babble_points": "Motor-babbling samples (q, qdot, qddot, u) of the initial model (0: the plant's "
                              "default, 15 for the pendulum as in the thesis, 200 for the arms).",
             "iterations": "Planner iterations per episode.", "max_points": "Cap on the GP's training set.",
@@ -93,6 +97,8 @@ class LearnConfig(StageConfig):
     sigma_units: str = "raw"
     schedule: str = "every"
     alpha: float = 0.0
+    alpha_schedule: str = ""  # "": the plan stage's default
+    bounds: str = ""  # "": the plan stage's default
     babble_points: int = 0  # 0: PLANT_DEFAULTS
     iterations: int = 20
     max_points: int = 2000
@@ -198,7 +204,8 @@ class LearnConfig(StageConfig):
 
         where = {"problem": self.problem} if self.problem is not None else {"plant": self.plant, "task": self.task}
         return PlanConfig(**where, dynamics="learned", solver=self.solver,
-                          alpha=self.alpha, iterations=self.iterations,
+                          alpha=self.alpha, alpha_schedule=self.alpha_schedule, bounds=self.bounds,
+                          iterations=self.iterations,
                           seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
                           sigma_units=self.sigma_units,
