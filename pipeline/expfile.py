@@ -176,7 +176,7 @@ def parse_override(text: str) -> tuple[str, list]:
 def available(need: str) -> bool:
     """Whether what a point or claim ``needs`` is installed (:data:`NEEDS`)."""
     if need == "crocoddyl":
-        from planning.crocoddyl_model import AVAILABLE
+        from planning.crocoddyl import AVAILABLE
 
         return bool(AVAILABLE)
     if need == "thesis-setups":

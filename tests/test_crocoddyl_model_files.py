@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pytest
 
-from planning import crocoddyl_model as cm
+from planning import crocoddyl as cm
 from tests.tolerance import assert_close, close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
@@ -59,7 +59,7 @@ def arms():
     continuous joints as Pinocchio reads them (cos, sin), and as angles for "kinova:angle"."""
     from dataclasses import replace
 
-    from planning.crocoddyl_problem import pinocchio_robot
+    from planning.crocoddyl import pinocchio_robot
     from plants.model_file import load_model
 
     out = {}
@@ -106,7 +106,7 @@ def _rel(a, b) -> float:
 def test_drake_and_pinocchio_agree_on_mass_matrix_bias_and_frames(arms, name):
     import pinocchio as pin
 
-    from planning.crocoddyl_problem import frame_id
+    from planning.crocoddyl import frame_id
 
     robot, model, smap = arms[name]
     assert sorted(model.names[1:]) == sorted(robot.joint_names)
@@ -496,7 +496,7 @@ def test_fddp_solver_on_the_exact_translation_reports_raicos_cost(kinova):
     """The solver ``fddp`` of raico plan (x0 held at every node) and crocoddyl's cold start on the
     exact translation: the gains mapped from crocoddyl's tangent space, the controller rolled out on
     raico's model reaching crocoddyl's cost, which is raico's cost of it."""
-    from planning.crocoddyl_model import FDDPOptions, fddp
+    from planning.crocoddyl import FDDPOptions, fddp
     from planning.solvers import solve
 
     robot, problem, cp = kinova
@@ -510,7 +510,7 @@ def test_fddp_solver_on_the_exact_translation_reports_raicos_cost(kinova):
 
 def test_what_pinocchio_cannot_hold_is_refused_in_one_line():
     from planning.costs import TaskInequality
-    from planning.crocoddyl_problem import pinocchio_robot
+    from planning.crocoddyl import pinocchio_robot
     from plants.model_file import RobotSpec, load_model
     from plants.taskmaps import CenterOfMass
 
@@ -599,7 +599,7 @@ def test_mjcf_and_sdf_robots_are_the_same_model_in_pinocchio_and_fddp_reports_ra
     reaches a controller whose rollout on raico's model costs what crocoddyl says."""
     import pinocchio as pin
 
-    from planning.crocoddyl_problem import frame_id, pinocchio_robot
+    from planning.crocoddyl import frame_id, pinocchio_robot
     from planning.solvers import solve
 
     robot, problem = raico_problem(path)
@@ -633,7 +633,7 @@ def test_a_drake_joint_pinocchio_cannot_hold_is_refused_in_one_line():
     from pydrake.multibody.plant import MultibodyPlant
     from pydrake.multibody.tree import SpatialInertia
 
-    from planning.crocoddyl_problem import model_from_drake
+    from planning.crocoddyl import model_from_drake
 
     plant = MultibodyPlant(0.0)
     plant.AddRigidBody("floating", SpatialInertia.SolidSphereWithMass(1.0, 0.1))

@@ -237,7 +237,7 @@ def test_options_validate_ranges(cls, bad, message):
 
 
 def test_solver_registry(arm_problem):
-    from planning.crocoddyl_model import AVAILABLE  # the crocoddyl baseline registers where installed
+    from planning.crocoddyl import AVAILABLE  # the crocoddyl baseline registers where installed
 
     baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule",
                 "boxfddp"} if AVAILABLE else set()

@@ -173,7 +173,7 @@ def test_a_malformed_list_file_is_one_error(tmp_path, extra, message):
 
 # ----------------------------------------------------------------------------- end to end
 def test_bench_suite_runs_every_cell_says_why_a_cell_is_empty_and_caches(tmp_path):
-    from planning import crocoddyl_model as cm
+    from planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")

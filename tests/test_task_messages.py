@@ -187,7 +187,7 @@ def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
     name every component, its crocoddyl residual function exists; and the table has a row for
     every description the objective writes."""
     from pipeline.recorders import _map_components
-    from planning import crocoddyl_problem
+    from planning.crocoddyl import costs as crocoddyl_costs
     from planning.objective import build_taskmap
 
     robot = _robot("arm5")
@@ -198,7 +198,7 @@ def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
         assert type(tm) is row.cls and kind_of_map(tm) is row
         names, per_point, unit, _ = _map_components(descs[row.key], tm.dim, tm.name, list(robot.joint_names))
         assert len(names) == tm.dim and per_point >= 1 and unit
-        assert row.crocoddyl is None or callable(getattr(crocoddyl_problem, row.crocoddyl, None)), row.key
+        assert row.crocoddyl is None or callable(getattr(crocoddyl_costs, row.crocoddyl, None)), row.key
     with pytest.raises(ValueError, match="unknown task map kind"):
         build_taskmap(robot, {"map": "nope", "name": "x"})
 
@@ -232,8 +232,8 @@ def test_rows_equal_the_batched_terms(robot_name):
 def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
     """The cost-term table: each row's description (planning.objective's writers) builds its class on
     its side of the objective, and its crocoddyl function exists."""
-    from planning import crocoddyl_problem
     from planning import objective as ob
+    from planning.crocoddyl import costs as crocoddyl_costs
     from planning.term_kinds import kind_of_term, term_kinds
 
     robot = _robot("arm5")
@@ -251,7 +251,7 @@ def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
     for row in term_kinds():
         term, side = built[row.key]
         assert type(term) is row.cls and side == row.side
-        assert row.crocoddyl is None or callable(getattr(crocoddyl_problem, row.crocoddyl, None)), row.key
+        assert row.crocoddyl is None or callable(getattr(crocoddyl_costs, row.crocoddyl, None)), row.key
     with pytest.raises(ValueError, match="unknown cost term kind"):
         ob.build_term(robot, {"term": "nope", "name": "x"})
 

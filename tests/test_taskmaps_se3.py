@@ -326,11 +326,11 @@ def test_value_is_zero_at_the_target_and_the_jacobian_is_the_local_one():
 @pytest.mark.compiled
 @pytest.mark.parametrize("plant", ["arm5", "biorob"])
 def test_equal_to_crocoddyls_frame_residuals(plant):
-    from planning import crocoddyl_model as cm
+    from planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
-    crocoddyl = cm.crocoddyl
+    import crocoddyl
     model = cm.pinocchio_model(plant)
     robot = shared_robot(plant)
     state = crocoddyl.StateMultibody(model)

@@ -70,7 +70,7 @@ def _ur5_toward_gravity(tmp_path: Path) -> Path:
 def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path, solver, iterations):
     """The UR5 pays for holding itself up under a control cost toward zero; toward gravity it reaches
     closer (and the whole cost falls by two orders of magnitude)."""
-    from planning import crocoddyl_model as cm
+    from planning import crocoddyl as cm
     from stages.plan.stage import PlanConfig, plan
 
     if solver == "fddp" and not cm.AVAILABLE:
@@ -125,7 +125,7 @@ def test_gravity_torques_hold_the_robot_still_and_their_jacobian_is_exact(tmp_pa
 
 def test_crocoddyl_refuses_control_toward_gravity_on_damped_joints(tmp_path):
     """crocoddyl's residual takes the actuation's torque u - D v, raico's term u: one line, not a wrong cost."""
-    from planning import crocoddyl_model as cm
+    from planning import crocoddyl as cm
     from stages.plan.stage import PlanConfig, build_problem
 
     if not cm.AVAILABLE:

@@ -22,7 +22,7 @@ from pipeline.experiments import (
 
 
 def _baseline_available() -> bool:
-    from planning.crocoddyl_model import AVAILABLE
+    from planning.crocoddyl import AVAILABLE
 
     return AVAILABLE
 

@@ -7,7 +7,7 @@
   ``<link name="world"/>`` added and the visual elements dropped (urdfdom refuses the file as
   written), loaded into pinocchio; for a robot from a model file the same repaired URDF text Drake
   reads, an MJCF file through Pinocchio's MJCF reader, an SDF file through Drake's reading of it
-  (:mod:`planning.crocoddyl_problem`: the joint order mapped, continuous joints, the fixed base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
+  (:mod:`planning.crocoddyl.model`: the joint order mapped, continuous joints, the fixed base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
   well: that would count it twice); joint damping (the pendulum's viscous friction, a model file's
   ``<dynamics damping>``, which pinocchio's ``aba`` ignores) enters through an actuation model
   ``tau = u - D qdot``;
@@ -16,7 +16,7 @@
 - the cost: crocoddyl's quadratic cost is ``1/2 weight ||r||^2`` and a running node's cost is
   multiplied by ``dt``, so a raico term ``w ||r||_C^2`` becomes weight ``2 w / dt`` on a running
   node (``t < T``: control cost, control limits, via-points before the end) and ``2 w`` on the
-  terminal node. Each term's residual and activation: :func:`planning.crocoddyl_problem.cost_items`
+  terminal node. Each term's residual and activation: :func:`planning.crocoddyl.model.cost_items`
   (frame points, rotation and placement, the roll angle ``atan2(y_E . z_W, z_E . z_W)`` as a
   Python residual with raico's Jacobian, the centre of gravity, posture, state, control, control
   limits as the quadratic barrier of ``ActivationModelQuadraticBarrier`` (raico's soft limit) with
@@ -49,22 +49,22 @@ in ``planning.solvers`` when crocoddyl imports (``pip`` extra, see the README).
 from __future__ import annotations
 
 import math
-import re
-import tempfile
 import time
 from dataclasses import dataclass
-from functools import cache
-from pathlib import Path
 
 import numpy as np
 
-from planning.crocoddyl_problem import (  # the optional baseline's import, shared with the translation
+from planning.crocoddyl.model import (
     AVAILABLE,
-    UNAVAILABLE_REASON,
+    CONTINUOUS,
+    DampedActuation,
     NotExpressible,
-    _assign,
+    StateMap,
+    add_frames,
     crocoddyl,
-    pin,
+    pinocchio_of,
+    problem_robot,
+    require,
 )
 from planning.problem import (
     Callback,
@@ -85,103 +85,13 @@ ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's a
 ILQG_SCHEDULE = {"th_step_dec": 1e-12, "th_step_inc": 0.002}
 
 
-# ----------------------------------------------------------------------------- the model
-def _require() -> None:
-    if not AVAILABLE:
-        raise RuntimeError(UNAVAILABLE_REASON)
-
-
-def urdf_for_pinocchio(name: str, folder: Path) -> Path:
-    """The project's ``plants/models/NAME.urdf`` with a ``<link name="world"/>`` and no visuals,
-    written to ``folder`` (urdfdom refuses the original: its fixed joint names a ``world`` link
-    that the file does not declare)."""
-    from plants.robots import MODELS
-
-    text = (MODELS / f"{name}.urdf").read_text()
-    text = re.sub(r"<visual\b.*?</visual>", "", text, flags=re.S)
-    text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
-    if '<link name="world"' not in text:
-        text = re.sub(r"(<robot\b[^>]*>)", r'\1\n  <link name="world"/>', text, count=1)
-    path = folder / f"{name}.urdf"
-    path.write_text(text)
-    return path
-
-
-@cache
-def pinocchio_model(name: str):
-    """The pinocchio model of plant ``name`` (reflected inertia in ``armature``); its joints must
-    be raico's planning joints in the same order (``NotExpressible`` otherwise)."""
-    _require()
-    from plants.robots import REFLECTED_INERTIA, shared_robot
-
-    if name == "nao":
-        raise NotExpressible(
-            "crocoddyl cannot express the Nao exactly: its left sole is welded to the world (Drake re-roots "
-            "the tree there, pinocchio's URDF tree starts at the torso) and RHipYawPitch is coupled to "
-            "LHipYawPitch (one motor), which pinocchio's free forward dynamics does not model")
-    robot = shared_robot(name)
-    with tempfile.TemporaryDirectory(prefix="raico-urdf-") as d:
-        model = pin.buildModelFromUrdf(str(urdf_for_pinocchio(name, Path(d))))
-    names = tuple(model.names[i] for i in range(1, model.njoints))
-    if names != tuple(robot.joint_names) or model.nq != robot.n_q or model.nv != robot.n_q \
-            or not np.array_equal(robot.P, np.eye(robot.n_q)):
-        raise NotExpressible(f"crocoddyl: the pinocchio joints {names} of {name} are not raico's planning "
-                             f"joints {robot.joint_names}")
-    model.armature[:] = REFLECTED_INERTIA[name]
-    return model
-
-
-def _robot(problem: Problem):
-    """The robot of ``problem``'s analytic dynamics (``NotExpressible`` for other dynamics)."""
-    from plants.dynamics import AnalyticDynamics, PseudoDynamics
-    from plants.fast_analytic import FastAnalyticDynamics
-
-    dyn = problem.dynamics
-    if isinstance(dyn, PseudoDynamics):
-        raise NotExpressible(
-            "solver fddp: crocoddyl cannot express the pseudo-dynamics exactly (controls are accelerations; "
-            "its forward-dynamics models take torques): use --dynamics analytic")
-    robot = getattr(dyn, "robot", None)
-    if robot is None or not isinstance(dyn, (FastAnalyticDynamics, AnalyticDynamics)):
-        raise NotExpressible(f"solver fddp: crocoddyl can express only the analytic dynamics, not "
-                             f"{type(dyn).__name__}")
-    return robot
-
-
-if AVAILABLE:
-    class _DampedActuation(crocoddyl.ActuationModelAbstract):
-        """Full actuation with viscous joint damping: ``tau = u - D qdot`` (Drake's joint damping)."""
-
-        def __init__(self, state, damping: np.ndarray):
-            crocoddyl.ActuationModelAbstract.__init__(self, state, state.nv)
-            self.D = np.asarray(damping, float)
-            self.nq = state.nq
-
-        def calc(self, data, x, u=None):
-            v = np.asarray(x)[self.nq:]
-            data.tau[:] = (np.zeros(self.nu) if u is None else np.asarray(u)) - self.D * v
-
-        def calcDiff(self, data, x, u=None):
-            nv = self.state.nv
-            dx = np.zeros((nv, self.state.ndx))
-            dx[:, nv:] = -np.diag(self.D)
-            _assign(data.dtau_dx, dx)
-            _assign(data.dtau_du, np.eye(nv))
-
-        def commands(self, data, x, tau):
-            data.u[:] = np.asarray(tau) + self.D * np.asarray(x)[self.nq:]
-
-        def torqueTransform(self, data, x, u):
-            _assign(data.Mtau, np.eye(self.nu))
-
-
 @dataclass
 class CrocoddylProblem:
     """A raico problem in crocoddyl: the ``ShootingProblem`` and what built it.
 
     ``bounds``: ``(lower, upper)`` torque limits (N m, raico's joint order) of the problem's
     control-limit terms (hard bounds for BoxFDDP), or ``None``. ``smap``: raico's coordinates <->
-    Pinocchio's (:class:`planning.crocoddyl_problem.StateMap`; the identity for the built-in
+    Pinocchio's (:class:`planning.crocoddyl.model.StateMap`; the identity for the built-in
     plants). States and controls passed to and returned by the methods are raico's; ``shooting``
     and ``x0_pin`` are in Pinocchio's coordinates."""
 
@@ -195,8 +105,6 @@ class CrocoddylProblem:
     smap: object = None
 
     def __post_init__(self) -> None:
-        from planning.crocoddyl_problem import StateMap
-
         if self.smap is None:
             self.smap = StateMap.identity(self.x0.size // 2)
         self.identity = self.smap.is_identity
@@ -285,32 +193,22 @@ class CrocoddylProblem:
         return self.from_pin(X), self.controls_from_pin(U), cost
 
 
-def _pinocchio(robot, continuous: str):
-    """``(model, StateMap)``: a model-file robot's from its URDF text, a built-in plant's from the
-    project's URDF (a copy: frames may be added to it)."""
-    from planning.crocoddyl_problem import StateMap, pinocchio_robot
-
-    if getattr(robot, "spec", None) is not None:
-        return pinocchio_robot(robot, continuous)
-    return pin.Model(pinocchio_model(robot.name)), StateMap.identity(robot.n_q)
-
-
 def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> CrocoddylProblem:
     """The crocoddyl problem of a raico ``problem`` (analytic dynamics; ``NotExpressible`` for
     what crocoddyl cannot express exactly, see the module docstring and
-    :mod:`planning.crocoddyl_problem`). ``continuous``: how Pinocchio holds a model file's continuous
+    :mod:`planning.crocoddyl.model`). ``continuous``: how Pinocchio holds a model file's continuous
     joints, ``"angle"`` (raico's cost exactly) or ``"cos-sin"`` (Pinocchio's own reading, as
     crocoddyl's examples; its state differences wrap at pi). ``damping=False`` leaves out the joint
     damping of the model file, as crocoddyl's examples do (Pinocchio's ABA ignores it): not raico's
     problem then (Drake's plant damps the joints), only crocoddyl's own."""
-    _require()
+    require()
     from planning.costs import ControlGravity, ControlLimit
-    from planning.crocoddyl_problem import add_frames, cost_items
+    from planning.crocoddyl.costs import cost_items
 
-    robot = _robot(problem)
+    robot = problem_robot(problem)
     if any(not isinstance(t, ControlGravity) for t in problem.joint_terms):
         raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
-    pmodel, smap = _pinocchio(robot, continuous)
+    pmodel, smap = pinocchio_of(robot, continuous)
     state_costs = [t for t in problem.state_terms if t.weight != 0]
     control_costs = [t for t in [*problem.control_terms, *problem.joint_terms] if t.weight != 0]
     add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
@@ -319,7 +217,7 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     if np.any(D != 0) and any(isinstance(t, ControlGravity) for t in control_costs):
         raise NotExpressible("crocoddyl: its control-gravity residual measures the actuation's torque u - D v "
                              "against gravity, raico's term the control u: the model file damps its joints")
-    actuation = (_DampedActuation(state, D) if np.any(D != 0)
+    actuation = (DampedActuation(state, D) if np.any(D != 0)
                  else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
     items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
@@ -378,7 +276,7 @@ class FDDPOptions(OptionsBase):
             ``"rollout"`` (the zero-torque rollout, feasible) or ``"zero"`` (crocoddyl's own cold
             start, ``solve()`` without a guess: the zero state at every node, zero controls).
         continuous: a model file's continuous joints in Pinocchio, ``"angle"`` (raico's cost
-            exactly) or ``"cos-sin"`` (crocoddyl's own reading; see :mod:`planning.crocoddyl_problem`).
+            exactly) or ``"cos-sin"`` (crocoddyl's own reading; see :mod:`planning.crocoddyl.model`).
         th_stop: crocoddyl's stopping threshold (expected improvement), its default 1e-9.
         reg_init: initial regularization (``None``: crocoddyl's default, 1e-9).
         box: ``"auto"`` (BoxFDDP where the problem has control limits, else FDDP), ``"yes"``, ``"no"``.
@@ -401,8 +299,6 @@ class FDDPOptions(OptionsBase):
     continuous: str = "angle"
 
     def validate(self) -> None:
-        from planning.crocoddyl_problem import CONTINUOUS
-
         check_range("iterations", self.iterations, lo=1, integer=True)
         if self.continuous not in CONTINUOUS:
             raise ValueError(f"option continuous must be one of {CONTINUOUS}, got {self.continuous!r}")
@@ -458,7 +354,7 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     """Solve ``problem`` with crocoddyl's FDDP (BoxFDDP with control limits); see the module
     docstring. ``U_init``: warm-start controls (their rollout is the start); ``croc``: a
     prebuilt ``build(problem)``. Raises ``NotExpressible`` for problems crocoddyl cannot express."""
-    _require()
+    require()
     o = options or FDDPOptions()
     cp = croc if croc is not None else build(problem, o.continuous)
     T, n_u = problem.T, problem.n_u
@@ -488,11 +384,11 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     try:
         converged = bool(solver.solve(*args))
     except (ArithmeticError, RuntimeError, ValueError) as e:
-        return _result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
+        return result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
                        initial_cost, solver, X_roll, cp)
     costs = [h.cost for h in rec.history]
     if not all(math.isfinite(c) for c in costs[-1:]):
-        return _result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
+        return result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
                        X_roll, cp)
     status = Status.CONVERGED if converged else Status.MAX_ITERATIONS
     n = len(rec.history)
@@ -504,11 +400,14 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     else:
         why = f"reached {n} iterations"
     msg = f"crocoddyl {'BoxFDDP' if box else 'FDDP'}: {why}"
-    return _result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll, cp)
+    return result(problem, solver, rec.history, status, msg, initial_cost, solver, X_roll, cp)
 
 
-def _result(problem: Problem, solved, history, status, message, initial_cost, solver, X_initial=None,
-            cp: CrocoddylProblem | None = None) -> Result:
+def result(problem: Problem, solved, history, status, message, initial_cost, solver, X_initial=None,
+           cp: CrocoddylProblem | None = None) -> Result:
+    """raico's ``Result`` of a crocoddyl ``solver`` (``solved=None``: a failed solve, NaN states):
+    the controller from crocoddyl's iterate and gains in raico's coordinates, rolled out on the
+    planning model (within its effort bounds), with the ``history`` and the ``status`` given."""
     T, n_x, n_u = problem.T, problem.n_x, problem.n_u
     if solved is None:
         X = np.full((T + 1, n_x), np.nan)
