@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import package_versions, write_file_atomic
+from pipeline.engine.cache import package_versions, write_file_atomic
 from planning.solvers import solve
 from stages.plan.stage import PlanConfig, build_problem
 
@@ -352,8 +352,8 @@ def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None =
     import subprocess
     import sys
 
-    from pipeline.cache import Cache
-    from pipeline.executors import Executor
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import Executor
     from pipeline.reproduce import ALL_IDS, reproduce
 
     ids = list(ids or ALL_IDS)
@@ -446,7 +446,7 @@ def main() -> None:
     # to crocoddyl_problems.json and .md)
     croc_problems = crocoddyl_problems(Path(args.artifacts), BENCH_PROBLEMS)
     from bench.suite import run as solver_suite
-    from pipeline.runner import finite_json
+    from pipeline.engine.runner import finite_json
 
     # every solver on every problem of problems/suite, judged by performance profiles (suite.json, .md, .png)
     suite_doc = solver_suite(Path(args.artifacts))

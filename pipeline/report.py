@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import Cache, atomic_path, write_file_atomic
-from pipeline.experiments import (
+from pipeline.engine.cache import Cache, atomic_path, write_file_atomic
+from pipeline.experiments.plots import clip_range, cost_at_times
+from pipeline.figures import (
     BASELINE_LABELS,
     EXPERIMENTS,
     NOISE_RUNS,
@@ -25,7 +26,6 @@ from pipeline.experiments import (
     cost_curves,
     summarize,
 )
-from pipeline.plots import clip_range, cost_at_times
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 
 
@@ -39,7 +39,7 @@ def save_figure(fig, path: Path, dpi: int = 100) -> None:
 
 
 # ----------------------------------------------------------------------------- colours
-# One colour per solver variant in every figure, keyed by the variant's label (pipeline.experiments.Variant.label).
+# One colour per solver variant in every figure, keyed by the variant's label (pipeline.figures.Variant.label).
 SOLVER_COLORS: dict[str, str] = {
     "iLQG": "tab:blue",
     "AICO": "tab:orange",
@@ -248,7 +248,7 @@ def wants_wall_panel(exp: Experiment, per_iteration: dict[str, float]) -> bool:
 # ----------------------------------------------------------------------------- the experiment figure
 def _clipped_limits(drawn: list[np.ndarray], first: list[float]) -> tuple[tuple[float, float] | None, str]:
     """The log cost axis of a panel: the finite values drawn that do not explode (``raico plot``'s
-    :func:`pipeline.plots.clip_range`; ``first``: each variant's first finite median), padded a quarter
+    :func:`pipeline.experiments.plots.clip_range`; ``first``: each variant's first finite median), padded a quarter
     decade, and what it leaves out ("" if nothing)."""
     v = np.concatenate([np.ravel(np.asarray(x, float)) for x in drawn]) if drawn else np.zeros(0)
     v = v[np.isfinite(v) & (v > 0)]   # NaN and non-positive values are gaps in the lines, not clipped
@@ -403,7 +403,7 @@ def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int |
 def planned_cog(cache: Cache, plans: list[dict], label: str) -> list[dict]:
     """Per plan of variant ``label`` the planned CoG's lateral coordinate (m, Drake's CoG of the planned joint
     positions) and its CoG via-points: ``{"times", "y", "via": [(t, target y)]}``."""
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
     from plants.robots import shared_robot
     from plants.taskmaps import CenterOfMass
 
@@ -512,7 +512,7 @@ def _cog_panel(cache: Cache, exp: Experiment, executions: list, ax) -> None:
     """The executed CoG's lateral coordinate of every executed run (free-standing Nao), in the
     executed variant's colour (the stabilizer's runs in plum), line style by the run's status,
     against that run's via-points (its plan's CoG targets: dots); a cross marks the moment a run failed."""
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
 
     label = _executed_label(exp)
     counts: dict[tuple[str, str, str], int] = {}
@@ -572,7 +572,7 @@ def write_balance_figure(cache: Cache, exp: Experiment, executions: list, path: 
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
     from stages.evaluate.metrics import ZMP_EDGE
 
     groups: dict[str, list] = {}
@@ -636,7 +636,7 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     """Per executed run its largest via-point error (the held right sole left out), planned (open
     circle) and executed (filled: status ok; cross: any other status), against the tolerance of the
     claim "executed_reaches"."""
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
     from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.evaluate.summary import largest_via_error
 
@@ -881,7 +881,7 @@ NOISE_CONTROLLERS = {"pd": "joint PD", "wbc": "stabilizer"}
 
 
 def noise_summary(noise: list[dict]) -> list[dict]:
-    """Per controller and noise level of the sweep (``pipeline.experiments.noise_runs``, run by ``experiment_flow``):
+    """Per controller and noise level of the sweep (``pipeline.figures.noise_runs``, run by ``experiment_flow``):
     runs, status counts, success rate (share with status ok), stood, and the spread of the largest executed via-point
     error."""
     from stages.evaluate.summary import largest_via_error
@@ -982,7 +982,7 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
     the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
-    from pipeline.experiments import TASK_LABELS
+    from pipeline.figures import TASK_LABELS
     from stages.evaluate.claims import THESIS, Quote, evaluate_claims
 
     integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
@@ -1102,7 +1102,7 @@ def _share_pct(x: float) -> str:
     return f"{100 * x:.3g} %"
 
 
-# how a row names the thesis's set-up it was judged in (pipeline.experiments.TASK_LABELS)
+# how a row names the thesis's set-up it was judged in (pipeline.figures.TASK_LABELS)
 SETUP_WORDS = {"reach-zero": "start: the zero posture", "balance-thesis": "cost: eq. 3.7's 1e4, no right-sole term"}
 
 
@@ -1111,7 +1111,7 @@ def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: di
     """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
     labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
     fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
-    from pipeline.experiments import LEAVE_ONE_OUT_MIN, variant_runs
+    from pipeline.figures import LEAVE_ONE_OUT_MIN, variant_runs
     from stages.evaluate.summary import summarize as summary
 
     runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
@@ -1173,7 +1173,7 @@ def term_medians(cache: Cache, plans: list[dict], variant) -> dict[str, float]:
     """Per cost term of the variant's problem, the median over its runs with a finite final cost of
     the term's value on the final plan (the objective rebuilt from the run's ``problem.json``; terms
     that need a learned model left out). Their sum is the run's final cost."""
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
     from planning.objective import objective_from_description
     from stages.evaluate.summary import median
 
@@ -1496,7 +1496,7 @@ def write_learn_motion(cache: Cache, exp, learns: list[dict], label: str, path: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
     from plants.robots import shared_robot
     from plants.taskmaps import EndEffectorPosition
 
@@ -1607,7 +1607,7 @@ def learn_findings(S: dict) -> list[str]:
 
 def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
-    from pipeline.experiments import LEAVE_ONE_OUT_MIN, summarize_learns
+    from pipeline.figures import LEAVE_ONE_OUT_MIN, summarize_learns
     from stages.evaluate.claims import evaluate_claims
 
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -8,12 +8,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from pipeline.cache import Cache, write_file_atomic
+from pipeline.engine.cache import Cache, write_file_atomic
+from pipeline.engine.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
+from pipeline.engine.ui import Board, Reporter
 from pipeline.errors import Interrupted
-from pipeline.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
-from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
+from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
 from pipeline.report import SMOKE, folder_name, markdown_claims, write_experiment_report, write_learn_report
-from pipeline.ui import Board, Reporter
 
 ALL_IDS = [*EXPERIMENTS, *LEARN_EXPERIMENTS]
 
@@ -42,7 +42,7 @@ def work_order(ids: list[str]) -> list[str]:
 def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, record: bool = True,
               reporter: Reporter | None = None, executor: str | Executor = "process",
               address: str | None = None) -> Iterator[dict]:
-    """Run the experiments ``ids`` on one executor (``pipeline.executors``: ``serial``, ``process``
+    """Run the experiments ``ids`` on one executor (``pipeline.engine.executors``: ``serial``, ``process``
     with ``jobs`` workers, or ``ray``; or an :class:`Executor`), all figures at once, longest work
     first; write each figure's report as soon as its runs are done (yielding its summary), then
     (re)write the report README.
@@ -180,10 +180,10 @@ def _report_key(fid: str, result: dict) -> str:
     give the same report)."""
     import hashlib
 
-    from pipeline.runner import source_version
+    from pipeline.engine.runner import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
-    code = source_version("report", "pipeline.report", "pipeline.reproduce", "pipeline.experiments", "stages.evaluate")
+    code = source_version("report", "pipeline.report", "pipeline.reproduce", "pipeline.figures", "stages.evaluate")
     exp = EXPERIMENTS.get(fid) or LEARN_EXPERIMENTS.get(fid)
     text = Path(exp.source).read_bytes() if exp is not None and exp.source else b""
     return hashlib.sha256(json.dumps([fid, code, keys, hashlib.sha256(text).hexdigest()]).encode()).hexdigest()[:16]
@@ -287,7 +287,7 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     shots = _screenshots(root, reporter.say)
     if shots:
         md += ["## Recordings as the Rerun viewer opens them", "",
-               "Rendered headless by the native viewer (`pipeline/screenshots.py`); open any run's "
+               "Rendered headless by the native viewer (`pipeline/recordings/screenshots.py`); open any run's "
                "`recording.rrd` with `raico show KEY --open`.", ""]
         md += [line for caption, png in shots for line in (f"![{caption}]({png.relative_to(root)})", "",
                                                             f"*{caption}*", "")]
@@ -342,7 +342,7 @@ def _screenshots(root: Path, say=None) -> list:
     """The report's screenshots (one plan recording per plant of the cache ``root`` belongs to, one
     learn recording per learning plant), rendered once per entry and reused; none where no renderer is
     available (said to ``say``)."""
-    from pipeline.screenshots import report_screenshots
+    from pipeline.recordings.screenshots import report_screenshots
 
     return report_screenshots(Cache(root.parent), root / "screenshots", say)
 

@@ -14,7 +14,7 @@ Task maps:
 
 One row per kind (:data:`MAP_KINDS`); the objective (``planning.objective.build_taskmap``), the
 compiled task messages (``planning.kernels.compile_task_set``), the crocoddyl translation
-(``planning.crocoddyl.costs``) and the recordings' plots (``pipeline.recorders``) look a map up
+(``planning.crocoddyl.costs``) and the recordings' plots (``pipeline.recordings.tasks``) look a map up
 here, by class (:func:`kind_of_map`) or by description key (:func:`kind_named`). A new task-map
 kind is its class (``plants.taskmaps``) and one row; its compiled counterpart, where it has one, is
 a :class:`MessageKind` with its branch in ``task_messages.c`` and a ``compile`` function here.

@@ -207,7 +207,7 @@ def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bou
 
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
     from plants.robots import shared_robot
 
     runner = CliRunner()

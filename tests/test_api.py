@@ -1,12 +1,12 @@
-"""The Python API (pipeline/api.py): the same runs and artifacts as the CLI, through the same cache."""
+"""The Python API (pipeline/interface/api.py): the same runs and artifacts as the CLI, through the same cache."""
 
 import json
 
 import pytest
 from typer.testing import CliRunner
 
-from pipeline import api
-from pipeline.cli import app
+from pipeline.interface import api
+from pipeline.interface.cli import app
 from stages.plan.tasks import PENDULUM_T
 
 

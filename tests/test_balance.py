@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from planning import objective as ob
 from planning.costs import TaskInequality
 from plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin

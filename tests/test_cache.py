@@ -1,4 +1,4 @@
-"""Tests of the artifact cache (pipeline/cache.py) and the error classes."""
+"""Tests of the artifact cache (pipeline/engine/cache.py) and the error classes."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import cache as cache_mod
-from pipeline.cache import Cache, Entry, WriteResult, stage_key
+from pipeline.engine import cache as cache_mod
+from pipeline.engine.cache import Cache, Entry, WriteResult, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
 from tests.damage import flip_byte
 
@@ -333,7 +333,7 @@ def test_damage_the_stamps_do_not_show_is_found_by_verify(tmp_path: Path) -> Non
     """The residual case (DVC's trade-off): damage that keeps size, times and inode -- only possible
     below the file system, simulated here by stamping the damaged file -- is served by a hit; the
     deep check of ``raico ls --verify`` finds it, and a stage that fails to load it says so
-    (``pipeline.artifacts.CheckedArtifact``)."""
+    (``pipeline.engine.artifacts.CheckedArtifact``)."""
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
     e = _settled(c)
@@ -481,7 +481,7 @@ def test_sigkill_mid_write_leaves_no_entry(tmp_path: Path) -> None:
         f"""
         import sys, time
         from pathlib import Path
-        from pipeline.cache import Cache
+        from pipeline.engine.cache import Cache
         def writer(d):
             (d / "data.npz").write_bytes(b"x" * 4096)
             print("started", flush=True)
@@ -592,7 +592,7 @@ def test_key_lock_one_holder_a_waiter_told_reentrant_and_no_file_left(tmp_path, 
     import fcntl
     import threading
 
-    from pipeline.cache import key_lock
+    from pipeline.engine.cache import key_lock
 
     path, order, told = tmp_path / ".lock-k", [], []
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cache import Cache
-from pipeline.cli import app
+from pipeline.engine.cache import Cache
+from pipeline.interface.cli import app
 from tests.tolerance import assert_close, close
 
 runner = CliRunner()
@@ -170,7 +170,7 @@ def test_babble_recording_has_a_world_transform_for_every_body(tmp_path, plant):
     robot = shared_robot(plant)
     from pydrake.multibody.tree import BodyIndex
 
-    from pipeline.rerun_io import entity_name
+    from pipeline.recordings.rerun_io import entity_name
 
     bodies = [entity_name(robot.plant.get_body(BodyIndex(i)).name()) for i in range(1, robot.plant.num_bodies())]
     assert len(bodies) == robot.plant.num_bodies() - 1 >= {"pendulum": 2, "arm5": 5, "biorob": 5, "nao": 31}[plant]

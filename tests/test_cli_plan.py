@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from stages.plan.tasks import PENDULUM_T
 
 runner = CliRunner()
@@ -106,7 +106,7 @@ def test_plan_recording_has_costs_robot_and_task(tmp_path):
 
     assert rows("/cost/total", "iteration") == line["metrics"]["iterations"]
     # the T + 1 planned states of the swing-up, the robot's poses decimated (T + 1 times its bodies exceed the budget)
-    from pipeline.rerun_io import MAX_POSES, POSE_BUDGET, decimate
+    from pipeline.recordings.rerun_io import MAX_POSES, POSE_BUDGET, decimate
 
     assert (PENDULUM_T + 1) * 3 > POSE_BUDGET
     assert rows("/world/robot/rod", "sim_time") == len(decimate(PENDULUM_T + 1, MAX_POSES, [PENDULUM_T]))
@@ -269,18 +269,18 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
         metrics = {**meta["metrics"], "cost_history": [float(c) if np.isfinite(c) else None for c in costs]}
         runs.setdefault(r["variant"], []).append({"status": meta["status"], "metrics": metrics})
     S = {label: summarize(label, rs) for label, rs in runs.items()}
-    from pipeline.experiments import EXPERIMENTS as EXPERIMENTS_
+    from pipeline.figures import EXPERIMENTS as EXPERIMENTS_
 
     names = tuple(c for c in EXPERIMENTS_["fig3.2a"].claims if c != "integrators_agree")  # not in --quick
     assert claims["claims"] == evaluate_claims(names, S, [], "fig3.2a")
     # the thesis's solvers' runs are recorded, the long-budget reference's on demand (`raico show KEY --open`)
-    from pipeline.experiments import EXPERIMENTS
+    from pipeline.figures import EXPERIMENTS
 
     recorded = {v.label for v in EXPERIMENTS["fig3.2a"].variants if v.recorded}
     assert recorded == {"iLQG", "AICO", "R-AICO a=1", "R-AICO a=10"}
     assert all(Path(r["recording"]).is_file() == r["recorded"] == (r["variant"] in recorded) for r in claims["runs"])
     # beyond the first RECORDED_SEEDS initial states only on demand (--quick runs 2: all recorded)
-    from pipeline.experiments import RECORDED_SEEDS, Variant
+    from pipeline.figures import RECORDED_SEEDS, Variant
 
     assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
     assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
@@ -289,7 +289,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
-    from pipeline.experiments import EXPERIMENTS
+    from pipeline.figures import EXPERIMENTS
 
     assert doc2["cached_runs"] == doc2["runs"] == EXPERIMENTS["fig3.2a"].run_count(True)  # 10 with the reference run
 
@@ -334,11 +334,11 @@ def test_no_record_then_record_is_cached_and_writes_the_recording(tmp_path):
 
     chunks = RrdReader(folder / "recording.rrd").stream().to_chunks()
     assert sum(c.num_rows for c in chunks if c.entity_path == "/cost/total" and "iteration" in c.timeline_names) == 2
-    from pipeline.rerun_io import MAX_POSES, decimate
+    from pipeline.recordings.rerun_io import MAX_POSES, decimate
 
     assert sum(c.num_rows for c in chunks if c.entity_path == "/world/robot/rod" and "sim_time" in c.timeline_names) \
         == len(decimate(PENDULUM_T + 1, MAX_POSES, [PENDULUM_T]))
-    from pipeline.mcap_io import read_trajectory_mcap
+    from pipeline.recordings.mcap_io import read_trajectory_mcap
 
     np.testing.assert_allclose(read_trajectory_mcap(folder / "trajectory.mcap")["position"],
                                np.load(folder / "plan.npz")["X"][:, :1])

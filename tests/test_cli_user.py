@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.runner import Outcome, outcome_line, outcome_notes
+from pipeline.engine.runner import Outcome, outcome_line, outcome_notes
+from pipeline.interface.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
 runner = CliRunner()
@@ -159,7 +159,7 @@ _PROBE = """
 import runpy, sys
 sys.argv = ["raico", *sys.argv[1:]]
 try:
-    runpy.run_module("pipeline.cli", run_name="__main__")
+    runpy.run_module("pipeline.interface.cli", run_name="__main__")
 except SystemExit:
     pass
 print("HEAVY", sorted(m for m in ("pydrake", "crocoddyl", "ray", "scipy", "rerun", "stages.plan.stage")
@@ -229,9 +229,9 @@ def test_the_call_line_counts_jobs_in_english():
 def test_a_whole_stage_slash_key_is_found_without_listing_the_stage(tmp_path, monkeypatch):
     """The pipeline names inputs as STAGE/KEY: resolving one must not check every entry of the stage
     (a reproduce resolves hundreds; listing made a cached reproduce 25 times slower)."""
-    from pipeline.cache import Cache
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.runner import find_entry
     from pipeline.errors import MissingArtifact
-    from pipeline.runner import find_entry
 
     cache = Cache(tmp_path)
     monkeypatch.setattr(Cache, "list", lambda *a, **k: pytest.fail("listed the stage"))

@@ -475,7 +475,7 @@ def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
 def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
     """The map of sections to figures decides: a thesis claim listed on a figure its quoted section is not written
     about fails here (e.g. the balancing's "converged after 25 iterations", §3.6.2, on an arm panel)."""
-    from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS
+    from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS
     from stages.evaluate.claims import SECTION_FIGURES, THESIS, Quote
 
     for exp in (*EXPERIMENTS.values(), *LEARN_EXPERIMENTS.values()):
@@ -530,8 +530,8 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
     new run, while the other variants of a figure do not touch it."""
     from dataclasses import replace
 
-    from pipeline.cache import stage_key
-    from pipeline.experiments import EXPERIMENTS, REFERENCE, plan_config
+    from pipeline.engine.cache import stage_key
+    from pipeline.figures import EXPERIMENTS, REFERENCE, plan_config
 
     def key(cfg):
         return stage_key("plan", "v", cfg.normalized().key_dict(), [])

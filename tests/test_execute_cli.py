@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from stages.evaluate.metrics import STATUSES
 
 runner = CliRunner()

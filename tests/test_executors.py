@@ -1,4 +1,4 @@
-"""Executors and the scheduler of ``raico reproduce`` (``pipeline/executors.py``): serial, process and
+"""Executors and the scheduler of ``raico reproduce`` (``pipeline/engine/executors.py``): serial, process and
 Ray give the same results; a failed job stops the rest; a real figure on a local Ray instance equals
 the process pool's; one progress line per finished run in a log.
 
@@ -59,7 +59,7 @@ def ray_instance():
 
 
 def executor(name: str, request):
-    from pipeline.executors import make_executor
+    from pipeline.engine.executors import make_executor
 
     if name == "ray":
         request.getfixturevalue("ray_instance")
@@ -69,7 +69,7 @@ def executor(name: str, request):
 # ----------------------------------------------------------------------------- executors and scheduler
 def _flow(n: int, cached: dict[int, int]):
     """Squares (some answered by a lookup), then sums of neighbours that depend on them."""
-    from pipeline.executors import Batch, Job
+    from pipeline.engine.executors import Batch, Job
 
     squares = yield Batch("square", [Job(_never, i, f"{i}^2", lambda i=i: cached[i]) if i in cached
                                      else Job(_square, i, f"{i}^2") for i in range(n)])
@@ -80,7 +80,7 @@ def _flow(n: int, cached: dict[int, int]):
 
 @pytest.mark.parametrize("name", EXECUTORS)
 def test_executors_give_the_same_results(name, request):
-    from pipeline.executors import Scheduler
+    from pipeline.engine.executors import Scheduler
 
     events = []
     with executor(name, request) as ex, Scheduler(ex, events.append) as sched:
@@ -100,7 +100,7 @@ def test_executors_give_the_same_results(name, request):
 
 @pytest.mark.parametrize("name", EXECUTORS)
 def test_a_failing_job_stops_the_rest(name, request, tmp_path):
-    from pipeline.executors import Batch, Job, run_flow
+    from pipeline.engine.executors import Batch, Job, run_flow
 
     def flow():
         yield Batch("run", [Job(_fail_or_sleep, (str(tmp_path), i, name != "serial")) for i in range(6)])
@@ -120,7 +120,7 @@ def test_a_failing_job_stops_the_rest(name, request, tmp_path):
 def test_bad_executor_values_are_one_line(tmp_path):
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
 
     for args, message in ((["--executor", "threads"], "unknown executor 'threads': choose one of serial, process, ray"),
                           (["--address", "head:6379"], "--address goes with --executor ray"),
@@ -133,8 +133,8 @@ def test_bad_executor_values_are_one_line(tmp_path):
 
 
 def test_unreachable_ray_address_is_one_error_at_once():
+    from pipeline.engine.executors import _check_reachable
     from pipeline.errors import RaicoError
-    from pipeline.executors import _check_reachable
 
     t0 = time.monotonic()
     with pytest.raises(RaicoError, match=r"^cannot reach the Ray cluster at 127\.0\.0\.1:1: "):
@@ -145,7 +145,7 @@ def test_unreachable_ray_address_is_one_error_at_once():
 def test_reproduce_help_lists_every_experiment_and_executor():
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
     from pipeline.reproduce import ALL_IDS
 
     text = " ".join(CliRunner().invoke(app, ["reproduce", "--help"]).output.split())
@@ -162,7 +162,7 @@ def test_work_order_is_longest_first():
 # ----------------------------------------------------------------------------- a real figure on Ray
 def _quick_runs() -> int:
     """fig3.2a's plan runs with --quick (two initial states per variant; the experiment says which)."""
-    from pipeline.experiments import EXPERIMENTS
+    from pipeline.figures import EXPERIMENTS
 
     exp = EXPERIMENTS["fig3.2a"]
     return sum(v.seed_count(exp.seeds, True) for v in exp.variants)
@@ -176,7 +176,7 @@ PROGRESS = re.compile(rf"raico: fig3\.2a plan (\d+)/{N} done \((iLQG|AICO|R-AICO
 def _reproduce(root: Path, *args: str):
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
 
     res = CliRunner().invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--no-record", "--json",
                                    "--artifacts", str(root), *args])
@@ -260,7 +260,7 @@ def test_call_line_compares_a_complete_call_with_the_reproduce_target():
 def test_cache_is_empty_until_a_stage_holds_an_entry(tmp_path):
     """``Cache.is_empty``: an empty or missing root, a report folder or stray files are empty; one key folder in
     a stage is not."""
-    from pipeline.cache import Cache
+    from pipeline.engine.cache import Cache
 
     assert Cache(tmp_path / "missing").is_empty()
     (tmp_path / "report").mkdir()

@@ -1,4 +1,4 @@
-"""Views of an experiment's runs: ``raico plot`` (pipeline/plots.py) and ``raico compare`` (pipeline/compare.py),
+"""Views of an experiment's runs: ``raico plot`` (pipeline/experiments/plots.py) and ``raico compare`` (pipeline/experiments/compare.py),
 on one small experiment (the arm's reach, 3 iterations, R-AICO at two alphas and iLQG, 4 seeds)."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from pipeline import expfile, plots
-from pipeline.cache import Cache
-from pipeline.cli import app
+from pipeline.engine.cache import Cache
+from pipeline.experiments import expfile, plots
+from pipeline.interface.cli import app
 
 runner = CliRunner()
 
@@ -205,7 +205,7 @@ def test_compare_writes_one_recording_with_a_path_per_run(arts, tmp_path):
 
     from rerun.chunk import RrdReader
 
-    from pipeline.compare import _path
+    from pipeline.experiments.compare import _path
 
     out = tmp_path / "c.rrd"
     res = invoke("compare", "--exp", "small", "--where", "seed == 1", "--out", out, "--json", "--artifacts", arts)
@@ -316,7 +316,7 @@ def ur5_plans(tmp_path_factory) -> tuple[Path, list[str]]:
 def test_compare_a_model_file_robot(ur5_plans, tmp_path):
     import json
 
-    from pipeline.compare import _path
+    from pipeline.experiments.compare import _path
 
     arts, keys = ur5_plans
     out = tmp_path / "ur5.rrd"

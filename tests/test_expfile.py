@@ -1,4 +1,4 @@
-"""Experiment files (pipeline/expfile.py, ``raico exp run`` / ``raico exp show``): variants over seeds as
+"""Experiment files (pipeline/experiments/expfile.py, ``raico exp run`` / ``raico exp show``): variants over seeds as
 ordinary cached stage runs, one runs table, summaries over seeds; bad input refused before anything runs."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from pipeline import expfile
-from pipeline.cli import app
 from pipeline.errors import BadInput
+from pipeline.experiments import expfile
+from pipeline.interface.cli import app
 
 runner = CliRunner()
 
@@ -216,7 +216,7 @@ def test_summaries_over_seeds_on_known_numbers():
 
 def test_the_table_takes_non_finite_metrics(tmp_path):
     """A diverged run's inf cost is null in runs.json (strict JSON) and empty in runs.csv."""
-    from pipeline.cache import Cache
+    from pipeline.engine.cache import Cache
 
     exp = expfile.load(write(tmp_path, '[base]\nplant = "arm5"\ntask = "reach"\n'))
     row = {"experiment": exp.name, "variant": "base", "seed": 0, "plan.final_cost": math.inf, "status": "diverged",

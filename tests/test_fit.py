@@ -11,7 +11,7 @@ import pytest
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from plants.gp import GPModel
 from stages.fit.gp_fit import refit_fixed
 

@@ -6,6 +6,8 @@ still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out)
 
 - the floors, ``pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
   ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``;
+- inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``pipeline.errors``
+  the base of all);
 - no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl``);
 - no import cycle between modules;
 - no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
@@ -26,6 +28,11 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("plants", "planning", "stages", "pipeline")
 # package -> the top-level packages it must not import
 FLOORS = {"plants": {"planning", "stages", "pipeline"}, "planning": {"stages", "pipeline"}, "stages": {"pipeline"}}
+# inside ``pipeline``: sub-package -> the sub-packages it must not import (interface -> experiments -> engine
+# -> recordings; ``pipeline.errors`` is the shared base below them all)
+PIPELINE_FLOORS = {"pipeline.recordings": {"pipeline.engine", "pipeline.experiments", "pipeline.interface"},
+                   "pipeline.engine": {"pipeline.experiments", "pipeline.interface"},
+                   "pipeline.experiments": {"pipeline.interface"}}
 # Package-level loops allowed, each as the sorted packages of one strongly connected set (none left).
 KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = set()
 SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl")
@@ -170,6 +177,18 @@ def test_floors(lower):
     assert not bad, f"{lower} imports a floor above it:\n" + "\n".join(bad)
 
 
+@pytest.mark.parametrize("lower", sorted(PIPELINE_FLOORS))
+def test_pipeline_floors(lower):
+    """Inside the pipeline: the recordings know nothing of the engine (the runner passes them what they
+    read), the engine nothing of experiments or the interface."""
+    def sub(mod: str) -> str:
+        return ".".join(mod.split(".")[:2])
+
+    bad = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if sub(m) == lower for t in ts if sub(t) in PIPELINE_FLOORS[lower])
+    assert any(sub(m) == lower for m in GRAPH), f"no modules in {lower}"
+    assert not bad, f"{lower} imports a sub-package above it:\n" + "\n".join(bad)
+
+
 def test_no_module_import_cycle():
     cycles = strongly_connected(GRAPH)
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(_cycle_path(GRAPH, c)) for c in cycles)
@@ -205,7 +224,7 @@ def test_the_walk_sees_the_known_edges():
     """The walk itself: edges this layout is known to have (so an empty graph cannot pass)."""
     assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
     assert "planning.kernels" in GRAPH["planning.aico"]       # a lazy or module-level import
-    assert "pipeline.cache" in GRAPH["pipeline.cli"]
+    assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli"]
     assert len(GRAPH) > 50
 
 

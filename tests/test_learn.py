@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from stages.plan.tasks import PENDULUM_T
 
 runner = CliRunner()
@@ -29,8 +29,8 @@ def learn_json(tmp_path, *extra):
 def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     from rerun.chunk import RrdReader
 
-    from pipeline.artifacts import as_artifact
-    from pipeline.cache import Cache
+    from pipeline.engine.artifacts import as_artifact
+    from pipeline.engine.cache import Cache
 
     two, err = learn_json(tmp_path, "--episodes", 2)
     m = two["metrics"]
@@ -120,8 +120,8 @@ def test_killed_learn_resumes_without_recomputing_finished_episodes(tmp_path):
 def test_babbling_pace_and_plant_defaults(tmp_path):
     """One random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
     the plant's default, resolved before the key (one cache entry per meaning)."""
-    from pipeline.cache import Cache
-    from pipeline.runner import run_key
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.runner import run_key
     from stages.learn import LearnConfig, babble_knots
 
     assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
@@ -214,10 +214,10 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stages it names."""
     import dataclasses
 
-    from pipeline import runner
-    from pipeline.cache import Cache
-    from pipeline.recorders import RECORDERS
-    from pipeline.ui import Reporter
+    from pipeline.engine import runner
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.ui import Reporter
+    from pipeline.recordings.registry import RECORDERS
     from stages.execute import ExecuteConfig
     from stages.learn import LearnConfig
     from stages.registry import get_stage, stage_names

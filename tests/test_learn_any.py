@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from tests.tolerance import assert_close
 
 DATA = Path(__file__).parent / "data"

@@ -169,7 +169,7 @@ def test_missing_mesh_dropped_and_said():
 @needs_erd
 @pytest.mark.parametrize("name", sorted(ARMS))
 def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
-    from pipeline import api
+    from pipeline.interface import api
     from plants.taskmaps import FramePoints
     from stages.plan.problem_file import resolve_frame
 
@@ -191,7 +191,7 @@ def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
 @needs_erd
 @pytest.mark.parametrize("name", sorted(HUMANOIDS))
 def test_humanoid_moves_its_com_over_the_welded_sole(tmp_path, name):
-    from pipeline import api
+    from pipeline.interface import api
 
     file, extra = HUMANOIDS[name]
     path = write_problem(tmp_path, name, problem_text(f"package://example-robot-data/robots/{file}", extra,
@@ -244,7 +244,7 @@ def user_robot(tmp_path: Path) -> Path:
 
 
 def test_user_urdf_plan_execute_record(tmp_path):
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
 
     urdf = user_robot(tmp_path)
     costs = """
@@ -276,7 +276,7 @@ def test_user_urdf_plan_execute_record(tmp_path):
 
 
 def test_problem_content_is_part_of_the_key(tmp_path):
-    from pipeline import api
+    from pipeline.interface import api
 
     urdf = user_robot(tmp_path)
     text = problem_text(str(urdf), {}, REACH.format(frame="tip", target=TIP_TARGET), T=10)
@@ -311,7 +311,7 @@ BAD = {
 
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_bad_problem_is_one_line_exit_2_nothing_cached(tmp_path, case):
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
 
     urdf = user_robot(tmp_path)
     robot_line, costs, expected = BAD[case]
@@ -358,7 +358,7 @@ def test_quasi_static_start_holds_x0():
 def test_mjcf_and_sdf_plan_and_execute(tmp_path, fmt, frame):
     """The same two-link arm as MJCF and as SDF (tests/data): the file's own actuators kept, one added
     where the file has none, a reach planned and executed in Drake."""
-    from pipeline import api
+    from pipeline.interface import api
 
     file = Path(__file__).parent / "data" / f"arm2.{fmt}"
     robot = load_model(RobotSpec(file=str(file)))

@@ -1,4 +1,4 @@
-"""Tests of the Rerun recordings (pipeline/rerun_io.py) and MCAP rollouts (pipeline/mcap_io.py)."""
+"""Tests of the Rerun recordings (pipeline/recordings/rerun_io.py) and MCAP rollouts (pipeline/recordings/mcap_io.py)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from mcap.reader import make_reader
 from pydrake.multibody.tree import BodyIndex
 from rerun.chunk import RrdReader
 
-from pipeline.mcap_io import read_trajectory_mcap, write_trajectory_mcap
-from pipeline.rerun_io import (
+from pipeline.recordings.mcap_io import read_trajectory_mcap, write_trajectory_mcap
+from pipeline.recordings.rerun_io import (
     MAX_POSES,
     Recording,
     body_poses,
@@ -249,7 +249,7 @@ def test_mcap_round_trip(tmp_path: Path) -> None:
 def test_mcap_messages_are_the_bytes_json_dumps_gives(tmp_path: Path) -> None:
     """The messages formatted directly (floats in one pass of the json encoder) are byte for byte what
     ``json.dumps(msg, separators=(",", ":"))`` writes for the same message as a dict (non-finite values as null)."""
-    from pipeline.mcap_io import _joint_state, _stamp, _transforms
+    from pipeline.recordings.mcap_io import _joint_state, _stamp, _transforms
 
     robot = shared_robot("nao")
     r = _rollout(robot)
@@ -314,7 +314,7 @@ def _blueprint(path: Path) -> tuple[dict[str, str], str | None]:
 def _plan(tmp_path: Path, *args) -> Path:
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from pipeline.interface.cli import app
 
     res = CliRunner().invoke(app, ["plan", *map(str, args), "--solver", "raico", "--alpha", "1", "--iterations", "2",
                                    "--json", "--quiet", "--artifacts", str(tmp_path)])

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import pipeline.artifacts
-from pipeline.experiments import EXPERIMENTS, Experiment, Variant, summarize
+import pipeline.engine.artifacts
+from pipeline.figures import EXPERIMENTS, Experiment, Variant, summarize
 from pipeline.report import (
     FALLBACK_COLORS,
     SOLVER_COLORS,
@@ -46,7 +46,7 @@ def runs(monkeypatch):
             d = arrays[self.key]
             return {k: v for k, v in d.items() if keys is None or k in keys}
 
-    monkeypatch.setattr(pipeline.artifacts, "as_artifact", lambda entry: Art(entry))
+    monkeypatch.setattr(pipeline.engine.artifacts, "as_artifact", lambda entry: Art(entry))
 
     def add(variant, seed, costs, status="max-iterations", elapsed=None, initial=1e4):
         key = f"{variant.label}/{seed}"
@@ -265,7 +265,7 @@ def test_noise_section_counts_statuses_and_the_motors_clamping_the_noise(tmp_pat
 def test_cost_panels_draw_mean_and_standard_deviation_and_split_the_thesis_solvers(runs):
     """The thesis draws mean and standard deviation over the initial states: the panel data carries both (median
     beside); the thesis's solvers at the figure's budget go in one panel, long-budget and other variants in another."""
-    from pipeline.experiments import REFERENCE
+    from pipeline.figures import REFERENCE
     from pipeline.report import figure_panels, mean_std
 
     m, sd = mean_std(np.array([[1.0, 4.0], [3.0, np.inf], [5.0, 8.0]]))
@@ -354,7 +354,7 @@ def test_a_nudged_start_lists_the_chaotic_runs():
     chaotic, listed in the report's processor section."""
     from types import SimpleNamespace
 
-    from pipeline.experiments import Variant
+    from pipeline.figures import Variant
     from pipeline.report import nudge_effect, processor_section
 
     a, b = Variant("aico"), Variant("aico", nudge=1e-9)

@@ -3,8 +3,8 @@
 import hashlib
 import sys
 
-from pipeline.cache import Cache
-from pipeline.runner import run_stage, source_version
+from pipeline.engine.cache import Cache
+from pipeline.engine.runner import run_stage, source_version
 
 
 def _package(tmp_path, monkeypatch, name: str, files: dict[str, str]):
@@ -68,7 +68,7 @@ def test_run_stage_hit_never_computes(tmp_path):
 def test_json_line_is_strict_json():
     import json
 
-    from pipeline.runner import Outcome
+    from pipeline.engine.runner import Outcome
 
     o = Outcome("plan", "k", "p", False, "diverged", {"final_cost": float("nan"), "e": {"a": float("inf")}})
     text = json.dumps(o.json_line(), allow_nan=False)
@@ -78,7 +78,7 @@ def test_json_line_is_strict_json():
 def test_source_version_follows_the_shipped_problem_files(tmp_path, monkeypatch):
     """A built-in task is a problem file (problems/*.toml): editing one invalidates the plans, as editing code does
     (a ``files:GLOB`` source entry, under the repository root)."""
-    from pipeline import runner
+    from pipeline.engine import runner
 
     (tmp_path / "problems").mkdir()
     task = tmp_path / "problems" / "pendulum_swing-up.toml"

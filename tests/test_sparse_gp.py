@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from plants.gp import SELECT_TOL, GPModel, SparseGPModel, select_inducing
 from plants.learned import build_learned
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline import suite
-from pipeline.cli import app
 from pipeline.errors import BadInput
+from pipeline.experiments import suite
+from pipeline.interface.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
 runner = CliRunner()
@@ -262,7 +262,7 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "ends above 1.1x the best final cost: 1 of 2 problems:\n\n- p: R-AICO's best 2x (A); the best 1 by B" in page
     assert "| A | 0.00 | 0.00 | 0.00 | 0.00 | 0.50 | 0.50 |" in page      # cost: within 2x on p, q unsolved
     (tmp_path / "suite.md").write_text(page)
-    from pipeline.runner import finite_json
+    from pipeline.engine.runner import finite_json
 
     (tmp_path / "suite.json").write_text(json.dumps(finite_json(doc)))
     spec = importlib.util.spec_from_file_location("readme_numbers", ROOT / "scripts" / "readme_numbers.py")

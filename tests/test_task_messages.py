@@ -186,7 +186,7 @@ def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
     """Each row: its description builds its class (planning.objective.build_taskmap), its labels
     name every component, its crocoddyl residual function exists; and the table has a row for
     every description the objective writes."""
-    from pipeline.recorders import _map_components
+    from pipeline.recordings.tasks import map_components
     from planning.crocoddyl import costs as crocoddyl_costs
     from planning.objective import build_taskmap
 
@@ -196,7 +196,7 @@ def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
     for row in MAP_KINDS:
         tm = build_taskmap(robot, descs[row.key])
         assert type(tm) is row.cls and kind_of_map(tm) is row
-        names, per_point, unit, _ = _map_components(descs[row.key], tm.dim, tm.name, list(robot.joint_names))
+        names, per_point, unit, _ = map_components(descs[row.key], tm.dim, tm.name, list(robot.joint_names))
         assert len(names) == tm.dim and per_point >= 1 and unit
         assert row.crocoddyl is None or callable(getattr(crocoddyl_costs, row.crocoddyl, None)), row.key
     with pytest.raises(ValueError, match="unknown task map kind"):

@@ -1,4 +1,4 @@
-"""The thesis's experiments as files (experiments/thesis/*.toml, read by pipeline.expfile for raico reproduce and
+"""The thesis's experiments as files (experiments/thesis/*.toml, read by pipeline.experiments.expfile for raico reproduce and
 raico exp run alike): every run keeps the cache key it had when the experiments were Python definitions
 (tests/thesis_reference.py, a frozen copy of them), with and without --quick, plans, executions, noise sweeps,
 open-loop integrations and learning loops; the claims are the ones the definitions named."""
@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline import experiments as files
-from pipeline import expfile
-from pipeline.cache import Cache, stage_key
-from pipeline.cli import app
+from pipeline import figures as files
+from pipeline.engine.cache import Cache, stage_key
+from pipeline.engine.runner import Outcome, code_version
 from pipeline.errors import BadInput
-from pipeline.runner import Outcome, code_version
+from pipeline.experiments import expfile
+from pipeline.interface.cli import app
 from stages.registry import get_stage
 from tests import thesis_reference as python
 
@@ -25,7 +25,7 @@ LEARNING = list(python.LEARN_EXPERIMENTS)
 
 
 def key_of(stage: str, cfg) -> str:
-    """The cache key of a run of ``cfg`` (as pipeline.runner computes it; its input references are whole
+    """The cache key of a run of ``cfg`` (as pipeline.engine.runner computes it; its input references are whole
     ``STAGE/KEY``s, so no cache is needed to resolve them)."""
     cfg = cfg.normalized() if hasattr(cfg, "normalized") else cfg
     inputs = []
@@ -125,7 +125,7 @@ def test_the_thesis_setups_run_only_when_asked(monkeypatch):
     """The thesis's set-ups beside raico's (points that need "thesis-setups") are left out of `raico reproduce` unless
     --thesis-setups (the environment's RAICO_THESIS_SETUPS) asks for them; then each figure has them, under the
     labels its claims judge in rows of their own."""
-    from pipeline.experiments import load_figure
+    from pipeline.figures import load_figure
 
     monkeypatch.delenv(expfile.THESIS_SETUPS, raising=False)
     expfile.available.cache_clear()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from plants.model_file import example_robot_data
 from tests.test_model_file import problem_text, user_robot, write_problem
 from tests.tolerance import close
@@ -194,7 +194,7 @@ def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
 
 
 def test_the_outcome_line_names_the_worst_term_and_its_unit():
-    from pipeline.runner import Outcome, outcome_line
+    from pipeline.engine.runner import Outcome, outcome_line
 
     task = {"achieved": True, "worst": "level", "kind": "orientation", "unit": "rad", "error": 0.0818, "tol": 0.1}
     line = outcome_line(Outcome("execute", "k" * 16, "p", True, "ok", {"task": task, "via_point_errors": {"reach@9": 0.002}}))

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import ConvexHull
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from pipeline.interface.cli import app
 from plants.free_nao import STANCE_MARGIN, shared_free_nao
 from stages.evaluate.metrics import STATUSES, signed_margin
 from stages.execute import ExecuteConfig, execute
@@ -145,10 +145,10 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     pd = run_json("execute", "--plan", plan["key"], "--no-record", "--json", "--artifacts", tmp_path)
     assert pd["key"] != r["key"] and "wbc_qp_failures" not in pd["metrics"]
     # the report's balance section: one panel and one table row per controller, from these two runs
-    from pipeline.cache import Cache
-    from pipeline.experiments import EXPERIMENTS
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.runner import Outcome
+    from pipeline.figures import EXPERIMENTS
     from pipeline.report import balance_section
-    from pipeline.runner import Outcome
 
     outs = [Outcome("execute", x["key"], x["path"], True, x["status"], metrics=x["metrics"]) for x in (pd, r)]
     md, rows = balance_section(Cache(tmp_path), EXPERIMENTS["fig3.3"], outs, tmp_path)
@@ -162,10 +162,10 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
     """A figure marked ``stabilized`` executes each executed variant's plan twice,
     with the joint PD from the plan's start (the thesis rows) and with the stabilizer from the standing start;
     the thesis-set execution claims read the PD runs only, the stabilizer's claim its own."""
-    from pipeline.cache import Cache
-    from pipeline.executors import Batch
-    from pipeline.experiments import EXPERIMENTS, STABILIZER, experiment_flow
-    from pipeline.runner import Outcome
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import Batch
+    from pipeline.engine.runner import Outcome
+    from pipeline.figures import EXPERIMENTS, STABILIZER, experiment_flow
     from stages.evaluate.claims import claim_executed_reaches, claim_stabilizer_stands
 
     for fid in ("fig3.3", "fig3.4-inside"):

@@ -1,15 +1,15 @@
 """The thesis's experiments as they were defined in Python before they became the files under
-experiments/thesis/ (a frozen copy of pipeline/experiments.py's definitions, plan and learn configs and
+experiments/thesis/ (a frozen copy of pipeline/figures.py's definitions, plan and learn configs and
 the figure flow of that time), kept only to prove that the files give every run the same cache key
 (tests/test_thesis_files.py). Nothing else reads it."""
 
 # ruff: noqa: E501
 from __future__ import annotations
 
-from pipeline import expfile
-from pipeline.cache import Cache
-from pipeline.executors import Batch
-from pipeline.experiments import (
+from pipeline.engine.cache import Cache
+from pipeline.engine.executors import Batch
+from pipeline.experiments import expfile
+from pipeline.figures import (
     STABILIZER,
     Experiment,
     LearnExperiment,
@@ -157,7 +157,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
 
 
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
-    """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
+    """The runs of ``exp`` as a scheduler flow (``pipeline.engine.executors``): its plans, then the runs
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
     integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
     "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""

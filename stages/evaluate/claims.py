@@ -251,7 +251,7 @@ REFERENCE_TEXT = ("the lowest median final cost any solver reaches on the figure
 def reference_cost(S: dict) -> float:
     """The reference optimum of a figure's problem (``REFERENCE_TEXT``), for the claims beyond the thesis: the
     lowest median final cost any solver run in the figure on all its initial states reaches: the thesis's
-    solvers, the ablations, and the long-budget runs (``pipeline.experiments.REFERENCE``, adaptive R-AICO at
+    solvers, the ablations, and the long-budget runs (``pipeline.figures.REFERENCE``, adaptive R-AICO at
     100 iterations; crocoddyl FDDP at 100 where the figure has it). Variants run on fewer initial states, such
     as the FDDP rule ablations, are left out: a median over other problems."""
     full = max((s.get("runs", 0) for s in S.values()), default=0)

@@ -5,7 +5,7 @@ Every function runs through the same cache as the CLI (``artifacts``, default ``
 round. Keyword arguments are the stage's config fields (``raico <stage> --help`` lists them, with
 ``-`` for ``_``); a bad value raises ``ValueError`` with the CLI's message.
 
-    from pipeline import api
+    from pipeline.interface import api
     p = api.plan(plant="arm5", task="reach", dynamics="analytic", iterations=25)
     e = api.execute(plan=p.key)
     X = api.arrays(e, "rollout.npz")["X"]            # executed states (T+1, n_x)
@@ -17,7 +17,7 @@ round. Keyword arguments are the stage's config fields (``raico <stage> --help``
     api.plot("arm-alpha", kind="curve")               # a Plot: .path, .series, .clipped
     api.compare(exp="arm-alpha", where="seed == 0")   # {"recording": Path, "runs": {label: STAGE/KEY}}
 
-Each returns a :class:`pipeline.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
+Each returns a :class:`pipeline.engine.runner.Outcome` (``key``, ``path``, ``status``, ``metrics``,
 ``recording``: the ``.rrd`` to open in the Rerun viewer, or in a notebook with ``rerun-notebook``).
 Progress and outcome go to stderr as from the CLI (a bar on a terminal, one line per stage run or
 learning episode otherwise); ``quiet=True`` silences them. A keyword the stage does not have is a
@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.cache import Cache
-from pipeline.runner import Outcome
+from pipeline.engine.cache import Cache
+from pipeline.engine.runner import Outcome
 
 __all__ = ["arrays", "babble", "compare", "evaluate", "execute", "exp_run", "exp_show", "fit", "learn", "plan", "plot",
            "reproduce", "run", "show_png"]
@@ -49,8 +49,8 @@ def run(stage: str, artifacts: str | Path | None = None, record: bool = True, qu
     the config fields ``config``; the result is cached as by the CLI."""
     import dataclasses
 
-    from pipeline import runner
-    from pipeline.ui import Reporter
+    from pipeline.engine import runner
+    from pipeline.engine.ui import Reporter
     from stages.registry import get_stage
 
     spec = get_stage(stage)
@@ -112,14 +112,14 @@ def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bo
               record: bool = True, executor: str = "process", quiet: bool = False) -> list[dict]:
     """The named experiments (``raico reproduce --figure ...``): one summary per figure (its runs,
     claims and report folder), the report README written as by the CLI."""
-    from pipeline.experiments import EXPERIMENTS, LEARN_EXPERIMENTS
+    from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS
     from pipeline.reproduce import reproduce as run_all
 
     unknown = [f for f in figures if f not in EXPERIMENTS and f not in LEARN_EXPERIMENTS]
     if not figures or unknown:
         raise ValueError(f"unknown experiment '{(unknown or [''])[0]}': choose one of "
                          f"{', '.join([*EXPERIMENTS, *LEARN_EXPERIMENTS])}")
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
 
     return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
                         executor=executor, reporter=Reporter(quiet)))
@@ -131,8 +131,8 @@ def show_png(ref: str, png: str | Path, time: float | None = None, artifacts: st
     if given (``raico show KEY --png PNG --time T``). The recording is written from the entry's data if
     missing. Raises :class:`pipeline.errors.RaicoError` with one line naming what is missing where it
     cannot render (no Vulkan driver, no ``rerun`` executable), ``ValueError`` for a run without one."""
-    from pipeline import runner
-    from pipeline.screenshots import render_png
+    from pipeline.engine import runner
+    from pipeline.recordings.screenshots import render_png
 
     cache = _cache(artifacts)
     entry = runner.find_entry(cache, ref)
@@ -149,10 +149,10 @@ def exp_run(file: str | Path, overrides: list[str] | None = None, artifacts: str
     run; a run that raised has ``status`` "error" and its reason in ``error``, as in ``runs.csv``).
     ``overrides``: the ``-S`` ones (``["alpha=3", "seeds=range(5)"]``). Bad input raises
     :class:`pipeline.errors.BadInput` with the command's message."""
-    from pipeline import expfile
+    from pipeline.engine.executors import make_executor
+    from pipeline.engine.ui import Reporter
     from pipeline.errors import BadInput
-    from pipeline.executors import make_executor
-    from pipeline.ui import Reporter
+    from pipeline.experiments import expfile
 
     exp = expfile.load(file, list(overrides or []))
     expfile.validate(exp)
@@ -169,8 +169,8 @@ def exp_show(experiment: str | Path, where: str | None = None, metrics: list[str
     """An experiment's runs table (its name or file) as ``raico exp show`` shows it, a pandas ``DataFrame``:
     per variant n, failures k/n and each metric's median and IQR (``stat="mean"``: mean and 95 %
     half-width) over seeds; ``group=False`` one row per run."""
-    from pipeline import expfile
     from pipeline.errors import BadInput
+    from pipeline.experiments import expfile
 
     if stat not in ("median", "mean"):
         raise BadInput(f"--stat {stat}: choose median or mean")
@@ -187,11 +187,11 @@ def plot(experiment: str | Path, kind: str = "line", x: str | None = None, metri
          ylim: tuple[float, float] | None = None, out: str | Path | None = None,
          artifacts: str | Path | None = None, quiet: bool = True):
     """``raico plot``: a figure of an experiment's runs table (``kind`` line, curve, wall or box) written as a
-    PNG (default ``artifacts/exp/NAME/KIND-METRIC.png``). Returns the :class:`pipeline.plots.Plot`: its
+    PNG (default ``artifacts/exp/NAME/KIND-METRIC.png``). Returns the :class:`pipeline.experiments.plots.Plot`: its
     ``path``, the numbers behind each legend entry (``series``) and what the value axis left out
     (``clipped``); ``quiet=False`` prints the command's line."""
-    from pipeline.plots import plot_experiment
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
+    from pipeline.experiments.plots import plot_experiment
 
     drawn = plot_experiment(_cache(artifacts), str(experiment), kind, x, metric, group, where, yscale, ylim, out)
     Reporter(quiet).say(drawn.line)
@@ -203,7 +203,7 @@ def compare(keys: list[str] | None = None, exp: str | Path | None = None, where:
     """``raico compare``: up to nine runs (``keys``, or those of experiment ``exp`` that ``where`` keeps) in one
     Rerun recording. Returns ``{"recording": Path, "runs": {label: "STAGE/KEY"}}`` (the labels: the options
     that differ between the runs)."""
-    from pipeline.compare import compare as compare_runs
+    from pipeline.experiments.compare import compare as compare_runs
 
     path, runs = compare_runs(_cache(artifacts), list(keys or []), None if exp is None else str(exp), where, stage,
                               None if out is None else Path(out))

@@ -19,7 +19,7 @@ The suite is a list file (``problems/suite/suite.toml``) and every other problem
     iterations = 25            # its own budgets
 
 Every solver runs on every problem as an ordinary cached plan (seed 0, the problem's start posture,
-q0-std 0) through the experiment machinery (:mod:`pipeline.expfile`): the runs table is
+q0-std 0) through the experiment machinery (:mod:`pipeline.experiments.expfile`): the runs table is
 ``artifacts/exp/<name>/runs.csv`` (``raico exp show suite``), a second call computes nothing.
 
 Per run (problem x solver), from the plan's per-iteration history (``plan.npz``: ``costs`` and
@@ -59,7 +59,7 @@ import numpy as np
 
 from pipeline.errors import BadInput
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
 TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "solver", "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
@@ -164,7 +164,7 @@ def load(path: str | Path | None = None) -> Suite:
 
 
 def _solvers(path: Path, entries: Any, notes: list[str]) -> list[SolverEntry]:
-    from pipeline.expfile import available
+    from pipeline.experiments.expfile import available
 
     if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
         raise BadInput(f"{path}: give at least one [[solver]] table")
@@ -191,7 +191,7 @@ def _solvers(path: Path, entries: Any, notes: list[str]) -> list[SolverEntry]:
 def _solver_refusal(opts: dict) -> str:
     """Why a solver's options do not make a plan on any problem ("" where they do), checked on a
     built-in task."""
-    from pipeline.expfile import _config
+    from pipeline.experiments.expfile import _config
 
     try:
         _config("plan", {"plant": "arm5", "task": "reach", **opts})
@@ -240,13 +240,13 @@ class Cell:
     solver: str
     options: dict[str, Any] | None = None
     reason: str = ""              # why it did not run or has no result
-    row: dict[str, Any] = field(default_factory=dict)   # its runs-table row (pipeline.expfile.table_row)
+    row: dict[str, Any] = field(default_factory=dict)   # its runs-table row (pipeline.experiments.expfile.table_row)
 
 
 def cells(suite: Suite, say: Callable[[str], None]) -> list[Cell]:
     """Every problem x solver cell, the options of those that can run checked by the plan stage's
     config; each that cannot is one line through ``say`` and keeps its reason."""
-    from pipeline.expfile import _config
+    from pipeline.experiments.expfile import _config
 
     out = []
     for p in suite.problems:
@@ -271,7 +271,7 @@ def cells(suite: Suite, say: Callable[[str], None]) -> list[Cell]:
 def experiment(suite: Suite, runnable: list[Cell]):
     """The suite's runs as an experiment (one point per runnable cell, seed 0): its runs are the
     plans ``raico plan --problem FILE ...`` would make, its table ``raico exp show <name>``'s."""
-    from pipeline.expfile import Experiment, Variant
+    from pipeline.experiments.expfile import Experiment, Variant
 
     points = [{"label": f"{c.problem} | {c.solver}", **c.options, "seeds": ()} for c in runnable]
     exp = Experiment(suite.name, suite.description, ("plan",), (0,), {"plan": {}}, {}, {}, points, suite.path)
@@ -285,7 +285,7 @@ def run(cache, suite: Suite, executor, say: Callable[[str], None],
         progress: Callable[[int, int, str | None], None] | None = None) -> list[Cell]:
     """Every cell of ``suite``: the runnable ones through the cache (``executor``), the runs table
     written; a run that raised keeps its error as the cell's reason (one line through ``say``)."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     all_cells = cells(suite, say)
     runnable = [c for c in all_cells if c.options is not None]
@@ -452,7 +452,7 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.cache import write_file_atomic
+    from pipeline.engine.cache import write_file_atomic
 
     prof = doc["profiles"]["all"]
     solvers = list(prof["cost"]["ratios"])
@@ -622,8 +622,8 @@ def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
     ``<name>_profiles.png``; the document."""
     import json
 
-    from pipeline.cache import write_file_atomic
-    from pipeline.runner import finite_json
+    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.runner import finite_json
 
     for note in suite.notes:
         say(note)

@@ -4,8 +4,8 @@ The held-out segments (``heldout.npz``) are laid end to end on ``sim_time``. Per
 scalar series under ``fit/<joint>/``: ``mean`` (GP predictive mean of qddot, rad/s^2),
 ``upper`` and ``lower`` (mean +- 2 predictive std, the noise included: where a new
 measurement should fall) and ``measured`` (the held-out target); each joint gets its own plot
-(the Nao's in a tab per limb, ``pipeline.rerun_io.joint_groups``). The robot moves through the
-held-out states in the 3D view (poses decimated as in ``pipeline.rerun_io``), above
+(the Nao's in a tab per limb, ``pipeline.recordings.rerun_io.joint_groups``). The robot moves through the
+held-out states in the 3D view (poses decimated as in ``pipeline.recordings.rerun_io``), above
 ``fit/summary`` (static text); that and the recording properties hold the config, the key, the
 training points' count (used and dropped by the cap) and how the hyperparameters were obtained.
 """
@@ -16,9 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import rerun_io as rec_mod
-
-RECORDING = "recording.rrd"  # = pipeline.recorders.RECORDING (that module imports this one)
+from pipeline.recordings import RECORDING
+from pipeline.recordings import rerun_io as rec_mod
 
 
 def predicted_band(model, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -38,7 +37,7 @@ def summary_text(doc: dict) -> str:
             f"|---|---|---|---|\n{rows}\n")
 
 
-def record_fit(folder: Path, art, inputs: list) -> None:
+def record_fit(folder: Path, art, inputs: list, lookup=None) -> None:
     """Predicted mean with a +-2 sigma band against the held-out data, per joint, on ``sim_time``."""
     import rerun as rr
 

@@ -26,7 +26,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from pipeline.rerun_io import body_poses
+from pipeline.recordings.rerun_io import body_poses
 
 __all__ = ["JOINT_STATES", "TASK_PREFIX", "TF", "read_trajectory_mcap", "write_trajectory_mcap"]
 

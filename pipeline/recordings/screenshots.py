@@ -33,7 +33,7 @@ import numpy as np
 __all__ = ["content_mask", "read_png", "render_png", "render_screenshot", "renderer_unavailable", "report_screenshots",
            "robot_mask"]
 
-ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.rerun_io)
+ROBOT_VIEW = "robot"  # name of the 3D view in every recording's blueprint (pipeline.recordings.rerun_io)
 VULKAN_ICDS = "/usr/share/vulkan/icd.d/*.json"
 TOAST_S = 8.0  # a new viewer shows a notification ("Listening for gRPC connections") for 3 s, longer on a busy machine
 ROBOT_PIXELS = 3e-4  # share of a 3D view's pixels showing bodies once drawn (an empty view: 0; the pendulum: 1e-3)
@@ -256,7 +256,7 @@ def render_png(rrd_path: str | Path, png_path: str | Path, time_s: float | None 
 
 def _latest_plans(cache: Any, stage: str = "plan") -> dict[str, Any]:
     """Plant -> the most recent valid ``stage`` entry (plan or learn) that has a recording (``EntryInfo``)."""
-    from pipeline.recorders import RECORDING
+    from pipeline.recordings import RECORDING
 
     latest: dict[str, Any] = {}
     for info in cache.list(stage):
@@ -292,7 +292,7 @@ def report_screenshots(cache: Any, out_dir: str | Path,
     items = [(stage, plant, info) for stage in ("plan", "learn") for plant, info in sorted(found[stage].items())]
     if not items:
         return []
-    from pipeline.recorders import RECORDING
+    from pipeline.recordings import RECORDING
 
     def png_of(stage: str, plant: str, info: Any) -> Path:
         return out_dir / f"{stage}-{plant}-{info.key}.png"

@@ -16,7 +16,7 @@ import sys
 
 # The raico command quiets Rerun's Rust-side log lines (e.g. its file writer's own coloured errors,
 # which the command reports as one line instead); a RUST_LOG the user set wins. Here, in the
-# command's module, not in the library modules: importing pipeline.rerun_io or the stages leaves
+# command's module, not in the library modules: importing pipeline.recordings.rerun_io or the stages leaves
 # RUST_LOG to the user. Set before Rerun loads (it reads RUST_LOG when it is imported).
 os.environ.setdefault("RUST_LOG", "off")
 
@@ -61,9 +61,9 @@ from pipeline.errors import (
 )
 
 if typing.TYPE_CHECKING:
-    from pipeline.cache import Cache
-    from pipeline.runner import Outcome
-    from pipeline.ui import Reporter
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.runner import Outcome
+    from pipeline.engine.ui import Reporter
 
 
 class _LazyStageGroup(TyperGroup):
@@ -182,7 +182,7 @@ def handles_errors(fn):
 
 def report(outcome: Outcome, as_json: bool, reporter: Reporter) -> None:
     """Say whether the stage ran (and why) or was cached; print the JSON line if asked."""
-    from pipeline import runner
+    from pipeline.engine import runner
 
     note = (outcome.metrics.get("balance") or {}).get("note") if isinstance(outcome.metrics, dict) else None
     if outcome.cached and note:  # a plan's moved via-points (stages.plan.balance): said again on a cache hit
@@ -226,7 +226,7 @@ def config_command(name: str, cls: type, description: str, action, target: typer
                for k, (a, d) in shared.items()]
 
     def command(**kw):
-        from pipeline.ui import Reporter
+        from pipeline.engine.ui import Reporter
 
         artifacts, no_record, quiet, as_json = (kw.pop(k) for k in ("artifacts", "no_record", "quiet", "json_"))
         for k in unset:
@@ -258,7 +258,7 @@ def config_command(name: str, cls: type, description: str, action, target: typer
 
 def stage_command(name: str, target: typer.Typer | None = None) -> None:
     """``raico NAME`` for a registered stage: its config's fields, run through the cache."""
-    from pipeline import runner
+    from pipeline.engine import runner
     from stages.registry import get_stage
 
     stage = get_stage(name)
@@ -279,8 +279,8 @@ def open_cache(artifacts: str | Path | None) -> Cache:
 
     An empty path, one that is a file or lies below a file is refused before any work; other
     OS errors (read-only, unwritable, full disk) are reported where they happen."""
-    from pipeline.cache import Cache
-    from pipeline.runner import artifacts_root
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.runner import artifacts_root
     if artifacts is not None and not str(artifacts).strip():
         raise BadInput("--artifacts: an empty path")
     root = artifacts_root(artifacts)
@@ -319,12 +319,12 @@ def reproduce(
     import contextlib
 
     from pipeline import reproduce as repro
-    from pipeline.executors import make_executor
-    from pipeline.runner import finite_json
-    from pipeline.ui import Reporter
+    from pipeline.engine.executors import make_executor
+    from pipeline.engine.runner import finite_json
+    from pipeline.engine.ui import Reporter
 
     if thesis_setups:
-        from pipeline.experiments import include_thesis_setups
+        from pipeline.figures import include_thesis_setups
 
         include_thesis_setups()
     ids = list(repro.ALL_IDS) if all_ else list(figure or [])
@@ -355,7 +355,7 @@ app.add_typer(exp_app, name="exp")
 @exp_app.command("run")
 @handles_errors
 def exp_run(
-    file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/expfile.py).")],
+    file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/experiments/expfile.py).")],
     set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Add values to a grid axis of the file, or "
                                                    "a new axis (over [base]'s value): KEY=A,B or KEY=range(N); "
                                                    "seeds=range(N) sets the seeds.")] = None,
@@ -371,9 +371,9 @@ def exp_run(
     """Run an experiment file: every variant at every seed, each an ordinary cached stage run (a rerun
     computes only what is missing); then write artifacts/exp/NAME/runs.csv and runs.json. Exit 1 if a
     run raised an error (its row says why), after the others ran; a diverged solver is a result."""
-    from pipeline import expfile
-    from pipeline.executors import make_executor
-    from pipeline.ui import Reporter
+    from pipeline.engine.executors import make_executor
+    from pipeline.engine.ui import Reporter
+    from pipeline.experiments import expfile
 
     exp = expfile.load(file, set_ or [])
     expfile.validate(exp)
@@ -433,7 +433,7 @@ def exp_show(
 ):
     """Show an experiment's runs table grouped over seeds: per variant n, failures k/n and each metric's
     median and interquartile range (or mean and 95 % interval)."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     if fmt not in ("table", "md", "csv", "json"):
         raise BadInput(f"--format {fmt}: choose one of table, md, csv, json")
@@ -465,7 +465,7 @@ def exp_diff(
     """Two variants of an experiment, paired by seed: per-seed differences of a metric, their median, the
     mean's 95 % t-interval and a Wilcoxon signed-rank test (below 6 seeds: not enough seeds, no test).
     Two runs (cache keys): every metric side by side with B - A, and the options that differ."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     if fmt not in ("table", "json"):
         raise BadInput(f"--format {fmt}: choose table or json")
@@ -492,7 +492,7 @@ app.add_typer(bench_app, name="bench")
 @handles_errors
 def bench_suite(
     file: Annotated[Path | None, typer.Argument(help="The suite's list file (default problems/suite/suite.toml; "
-                                                "see pipeline/suite.py).")] = None,
+                                                "see pipeline/experiments/suite.py).")] = None,
     problem: Annotated[list[str] | None, typer.Option("--problem", "-p", help="Run only this problem (its label; "
                                                       "repeatable).")] = None,
     solver: Annotated[list[str] | None, typer.Option("--solver", "-s", help="Run only this solver (its label; "
@@ -508,9 +508,9 @@ def bench_suite(
     limit violations, and Dolan-More performance profiles (table and PNG). With --problem/--solver the page
     and the runs table hold those cells only. A missing problem, a budget of 0 or a solver that cannot
     express a problem is one line and the suite goes on; exit 1 after it if a problem entry could not run."""
-    from pipeline import suite as suite_mod
-    from pipeline.executors import make_executor
-    from pipeline.ui import Reporter
+    from pipeline.engine.executors import make_executor
+    from pipeline.engine.ui import Reporter
+    from pipeline.experiments import suite as suite_mod
 
     if not 1 <= jobs <= 64:
         raise BadInput("--jobs must be in [1, 64]")
@@ -538,7 +538,7 @@ def bench_suite(
         doc = suite_mod.bench(cache, s, make_executor("process", jobs), say, out or cache.root / "bench", progress)
     reporter.say(f"suite {s.name}: {len(s.problems)} problems x {len(s.solvers)} solvers -> {doc['outputs'][1]}")
     if json_:
-        from pipeline.runner import finite_json
+        from pipeline.engine.runner import finite_json
 
         typer.echo(json.dumps(finite_json({k: doc[k] for k in ("suite", "profiles", "records", "outputs")}),
                               default=float, allow_nan=False))
@@ -575,8 +575,8 @@ def plot(
 ):
     """Plot an experiment's runs table: a metric against a swept option (median line, interquartile band over
     seeds), the cost per iteration per group, or a box per group. Legends name the options that differ."""
-    from pipeline import plots
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
+    from pipeline.experiments import plots
 
     if out is not None and out.suffix.lower() != ".png":
         raise BadInput(f"--out {out}: a .png file")
@@ -604,8 +604,8 @@ def compare(
     """Put up to 9 runs into one Rerun recording on one timeline, each under its own entity path named by
     the options that differ, with a generated layout: a 3D view per run beside overlaid joint angles (and
     each run's log10 cost per iteration on the iteration timeline)."""
-    from pipeline import compare as cmp
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
+    from pipeline.experiments import compare as cmp
 
     if out is not None and out.suffix != ".rrd":
         raise BadInput(f"--out {out}: a .rrd file")
@@ -663,7 +663,7 @@ def ls(
     (valid ones; --all also shows invalid or partial entries).
 
     A plain listing checks each entry's own record and file sizes; --verify re-hashes every file."""
-    from pipeline.runner import finite_json
+    from pipeline.engine.runner import finite_json
     from stages.registry import stage_names
 
     cache = open_cache(artifacts)
@@ -707,8 +707,8 @@ def show(
     = None,
 ):
     """Print an artifact's meta.json and recording path, open its recording in Rerun, or render it to a PNG."""
-    from pipeline import runner
-    from pipeline.ui import Reporter
+    from pipeline.engine import runner
+    from pipeline.engine.ui import Reporter
     if open_ and png is not None:
         raise BadInput("give --open or --png, not both")
     if at is not None and png is None:
@@ -726,7 +726,7 @@ def show(
         if rec is None:
             raise BadInput(f"{ref} is {runner.with_article(entry.stage)} artifact, which has no recording")
         if png is not None:
-            from pipeline.screenshots import render_png
+            from pipeline.recordings.screenshots import render_png
 
             check_folder(png.parent, "output folder")
             Reporter().say(f"show {entry.stage}/{entry.key}: {render_png(rec, png, at)}")

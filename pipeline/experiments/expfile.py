@@ -40,7 +40,7 @@ More keys, for experiments that carry their own analysis (the thesis's files, ex
     iterations = 100
     quick = {iterations = 12}              # this point's options in the quick profile
     needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
-    [reproduce]                            # read by raico reproduce (pipeline/experiments.py), carried here
+    [reproduce]                            # read by raico reproduce (pipeline/figures.py), carried here
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
@@ -70,7 +70,7 @@ from typing import TYPE_CHECKING, Any
 from pipeline.errors import BadInput
 
 if TYPE_CHECKING:
-    from pipeline.executors import Executor
+    from pipeline.engine.executors import Executor
 
 CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
           ("babble",)}
@@ -461,8 +461,8 @@ def _run_chain(args) -> dict:
     """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
     fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
     root, stages, options, seed, record = args
-    from pipeline import runner
-    from pipeline.cache import Cache
+    from pipeline.engine import runner
+    from pipeline.engine.cache import Cache
     from pipeline.errors import RaicoError
     from stages.plan.stage import load_notes_said
 
@@ -500,7 +500,7 @@ def model_notes(exp: Experiment) -> list[str]:
 
 def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
     """The run's outcomes when every stage is cached (nothing to submit), else None."""
-    from pipeline import runner
+    from pipeline.engine import runner
 
     out, refs = {}, {}
     for stage in exp.stages:
@@ -536,7 +536,7 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
         progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
     """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
     the runs table and returns its rows."""
-    from pipeline.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+    from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
 
     runs = exp.runs
 
@@ -668,7 +668,7 @@ def table_dir(cache, name: str) -> Path:
 
 def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
     """``runs.csv`` and ``runs.json`` of the experiment (written atomically), with the file's text."""
-    from pipeline.cache import write_file_atomic
+    from pipeline.engine.cache import write_file_atomic
 
     out = table_dir(cache, exp.name)
     out.mkdir(parents=True, exist_ok=True)
@@ -679,7 +679,7 @@ def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
            "file": str(exp.path) if exp.path else None,
            "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
            "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
-    from pipeline.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
+    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
                                                     allow_nan=False))

@@ -1,7 +1,8 @@
 """Recording of a learn artifact: the loop's quantities per episode on the ``episode`` timeline.
 
 Made from ``episodes.json`` and the fit, plan and execute entries it names (read from the same
-cache as the learn entry), like every recording from stored data (``pipeline/recorders.py``).
+cache as the learn entry, through the runner's ``lookup``), like every recording from stored data
+(:mod:`pipeline.recordings`).
 """
 
 from __future__ import annotations
@@ -10,9 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import rerun_io as rec_mod
-from pipeline.artifacts import as_artifact
-from pipeline.cache import Cache
+from pipeline.recordings import rerun_io as rec_mod
 
 LEARN_VIEWS = {  # view name -> entity root (the learn recording's plots, one quantity and unit each)
     "GP error on the next execution, log10 (rad/s^2)": "gp_error_log10",
@@ -40,29 +39,29 @@ def learn_blueprint(eye):
                                    robot_share=2.5, play_state="following")
 
 
-def record_learn(folder: Path, art, inputs: list) -> None:
+def record_learn(folder: Path, art, inputs: list, lookup) -> None:
     """Per episode on the ``episode`` timeline (the file opens on it, at the last episode): the GP
     error per joint on the next execution and on the held-out babbling (log10), the distance to the
     target executed and planned, the time per evaluation (fit, plan, execute), the training points,
     the largest torque per joint and the GP's variance along the execution; in 3D the robot at the
     episode's executed final pose (the last finite state; the plan's final pose if none is finite),
     that episode's planned (blue) and executed (orange) end-effector paths (each episode replaces
-    the last) and the target. The camera frames the last episode's planned motion."""
+    the last) and the target. The camera frames the last episode's planned motion. ``lookup(stage, key)``:
+    an entry of the learn entry's cache (its episodes' fit, plan and execute runs) as an artifact."""
     import rerun as rr
 
     from plants.gp import GPModel
     from plants.taskmaps import EndEffectorPosition
     from stages.learn import EPISODES_FILE, LearnConfig
 
-    cache = Cache(art.path.parent.parent)  # the episodes' runs are in the learn entry's cache
     doc = art.document(EPISODES_FILE)
     robot = LearnConfig.from_dict(doc["config"]).robots()[0]
     eps = doc["episodes"]
     k = np.array([e["episode"] for e in eps])
     n = robot.n_q
-    frame = "ee" if robot.plant.HasFrameNamed("ee") else _task_frame(cache, eps[-1]["plan"])
+    frame = "ee" if robot.plant.HasFrameNamed("ee") else _task_frame(lookup, eps[-1]["plan"])
     ee = EndEffectorPosition(robot, frame) if frame is not None else None
-    last_plan = as_artifact(cache.require("plan", eps[-1]["plan"])).arrays("plan.npz")
+    last_plan = lookup("plan", eps[-1]["plan"]).arrays("plan.npz")
     eye = rec_mod.robot_eye(robot, last_plan["X"][:, :n])
     with rec_mod.Recording(folder / "recording.rrd", properties={"stage": "learn", "key": art.key,
                                                                  **doc["config"]},
@@ -92,9 +91,9 @@ def record_learn(folder: Path, art, inputs: list) -> None:
         stream = rec.rec
         target = None
         for e in eps:
-            plan = as_artifact(cache.require("plan", e["plan"])).arrays("plan.npz")
-            roll = as_artifact(cache.require("execute", e["execute"])).arrays("rollout.npz")
-            model = GPModel.from_arrays(as_artifact(cache.require("fit", e["fit"])).arrays("model.npz"))
+            plan = lookup("plan", e["plan"]).arrays("plan.npz")
+            roll = lookup("execute", e["execute"]).arrays("rollout.npz")
+            model = GPModel.from_arrays(lookup("fit", e["fit"]).arrays("model.npz"))
             stream.set_time("episode", sequence=int(e["episode"]))
             Xe = roll["X"]
             ok = np.all(np.isfinite(Xe), axis=1)
@@ -118,14 +117,14 @@ def record_learn(folder: Path, art, inputs: list) -> None:
                 for j, name in enumerate(joints):
                     stream.log(f"variance/{name}", rr.Scalars(float(np.mean(var[:, j]))))
             if target is None and ee is not None:
-                target = _task_target(cache, e["plan"])
+                target = _task_target(lookup, e["plan"])
         if target is not None:
             stream.log("world/target", rr.Points3D([target], colors=[(40, 200, 80)], radii=[0.02]), static=True)
 
 
-def _task_frame(cache: Cache, plan_key: str) -> str | None:
+def _task_frame(lookup, plan_key: str) -> str | None:
     """The frame of a plan's first 3-D frame-position via-point (a model file's robot has no ``ee``)."""
-    doc = as_artifact(cache.require("plan", plan_key)).document("problem.json")
+    doc = lookup("plan", plan_key).document("problem.json")
     for t in doc.get("terms", []):
         m = t.get("map") or {}
         if t.get("term") == "via" and m.get("map") == "frame_points" and len(t.get("target", [])) == 3:
@@ -133,9 +132,9 @@ def _task_frame(cache: Cache, plan_key: str) -> str | None:
     return None
 
 
-def _task_target(cache: Cache, plan_key: str) -> np.ndarray | None:
+def _task_target(lookup, plan_key: str) -> np.ndarray | None:
     """The end-effector via-point target (m) of a plan's task, if its objective has one."""
-    doc = as_artifact(cache.require("plan", plan_key)).document("problem.json")
+    doc = lookup("plan", plan_key).document("problem.json")
     for t in doc.get("terms", []):
         if t.get("term") == "via" and len(t.get("target", [])) == 3:
             return np.asarray(t["target"], float)

@@ -3,7 +3,7 @@
 A stage run is ``(stage name, code version, declared config, input keys)``. On a hit the
 stage function is never called; otherwise the stage's ``run`` does the work and its files
 are written into a temporary folder that the cache publishes atomically. A recording is
-derived from the stored data afterwards (``pipeline/recorders.py``), so ``--no-record``
+derived from the stored data afterwards (``pipeline/recordings/``), so ``--no-record``
 never changes the key and a later call with recording writes it without recomputing. The
 outcome is what the CLI prints: ``{"stage", "key", "path", "cached", "status", "metrics",
 "recording"}``.
@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.artifacts import as_artifact
-from pipeline.cache import KEY_LENGTH, Cache, Entry, stage_key
+from pipeline.engine.artifacts import as_artifact
+from pipeline.engine.cache import KEY_LENGTH, Cache, Entry, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
 from stages.base import Artifact
 
@@ -135,7 +135,7 @@ def finite_json(obj: Any) -> Any:
 
 
 FILES = "files:"  # a source entry naming data files (a glob under the repository root), not a package
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def source_version(name: str, *packages: str) -> str:
@@ -359,7 +359,8 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
         return None
     recording = None
     if record:   # the recorders (Rerun, Drake's geometry) are imported only when a recording is asked for
-        from pipeline.recorders import RECORDERS, RECORDING
+        from pipeline.recordings import RECORDING
+        from pipeline.recordings.registry import RECORDERS
     if record and stage.name in RECORDERS:
         intact, damaged = cache.derived_check(entry)
         if RECORDING not in intact or damaged:  # the recorder writes the .rrd and the .mcap together
@@ -385,7 +386,7 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
     one :class:`CorruptArtifact` line; a cached entry of this run whose data turn out unreadable is
     computed again. Each entry is rebuilt at most once per call.
     """
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
 
     reporter = reporter or Reporter(quiet=True)
     rebuilt: set[str] = set() if _rebuilt is None else _rebuilt
@@ -489,7 +490,7 @@ def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None =
     if need be), under the same key; the reporter says so in one line. Where that cannot be (its
     ``meta.json`` is damaged too, it is not a stage run, or this code would give it another key), or
     it was rebuilt already in this call, one :class:`CorruptArtifact` line saying why."""
-    from pipeline.ui import Reporter
+    from pipeline.engine.ui import Reporter
     from stages.registry import get_stage, stage_names
 
     ref, why = err.ref, err.reason or str(err)
@@ -538,7 +539,8 @@ def _label(cfg: dict) -> str:
 def ensure_recording(cache: Cache, entry: Entry) -> str | None:
     """Path of the entry's recording, written from its stored data if missing or damaged;
     None for a stage that does not record."""
-    from pipeline.recorders import RECORDERS, RECORDING
+    from pipeline.recordings import RECORDING
+    from pipeline.recordings.registry import RECORDERS
 
     recorder = RECORDERS.get(entry.stage)
     if recorder is None:
@@ -550,8 +552,12 @@ def ensure_recording(cache: Cache, entry: Entry) -> str | None:
             if RECORDING in intact and not damaged:
                 return str(entry.path / RECORDING)
             inputs = [as_artifact(cache.require(*ref.split("/", 1))) for ref in entry.meta.get("inputs", [])]
+
+            def lookup(stage: str, key: str):  # another entry of this cache (a learn entry's episodes)
+                return as_artifact(cache.require(stage, key))
+
             try:
-                cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs))
+                cache.write_derived(entry, lambda tmp: recorder(tmp, as_artifact(entry), inputs, lookup))
             except (OSError, ValueError) as e:
                 raise CorruptArtifact(f"cannot write the recording of {entry.stage}/{entry.key}: {e}") from None
     return str(entry.path / RECORDING)

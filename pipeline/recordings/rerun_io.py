@@ -44,7 +44,7 @@ from types import TracebackType
 from typing import Any, Self
 
 # Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
-# the raico command sets RUST_LOG=off unless the user set it (pipeline/cli.py); this module leaves
+# the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli.py); this module leaves
 # RUST_LOG to its importer.
 import numpy as np
 import rerun as rr
@@ -96,7 +96,7 @@ def entity_name(name: str) -> str:
 
 Eye = tuple[Sequence[float], Sequence[float]]  # (camera position, look target), m
 ViewLike = rrb.View | rrb.Container
-ROBOT_VIEW = "robot"  # the 3D view's name in every blueprint (pipeline.screenshots looks for it)
+ROBOT_VIEW = "robot"  # the 3D view's name in every blueprint (pipeline.recordings.screenshots looks for it)
 MAX_POSES = 200  # robot poses per trajectory when full rate is not cheap
 POSE_BUDGET = 3000  # samples x bodies logged at full rate (about 180 kB of poses)
 MAX_PLOT_SAMPLES = 2000  # samples per plotted trajectory

@@ -2,11 +2,11 @@
 parallel sweep, figure, claims.
 
 Each experiment is a file under ``experiments/thesis/`` (:data:`THESIS_FILES`), read by the same loader as
-any user's experiment (``pipeline.expfile``: ``raico exp run experiments/thesis/fig3.2a.toml`` runs its
+any user's experiment (``pipeline.experiments.expfile``: ``raico exp run experiments/thesis/fig3.2a.toml`` runs its
 plans, with the same cache keys): its solver variants (``[[point]]``), initial states (``seeds``), the
 ``--quick`` profile, the claims checked on it (Python functions of ``stages.evaluate.claims``, named in the
 file) and, under ``[reproduce]``, which plans are executed and how. Every plan and learning loop's config is
-made from the file by ``pipeline.expfile`` (:func:`plan_config`, :func:`learn_config`).
+made from the file by ``pipeline.experiments.expfile`` (:func:`plan_config`, :func:`learn_config`).
 
 An experiment is a set of plan runs: every solver variant on every initial state
 ``q0 = default + N(0, 0.05^2)`` (seeds 0..9). Each run is a cached plan artifact, so a second
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import Cache
-from pipeline.executors import Batch, Job
-from pipeline.runner import Outcome
+from pipeline.engine.cache import Cache
+from pipeline.engine.executors import Batch, Job
+from pipeline.engine.runner import Outcome
 from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
 RECORDED_SEEDS = 3  # make reproduce records the thesis solvers' plans, and the executions, of the first this many
@@ -132,7 +132,7 @@ class Experiment:
     # the stabilizer's noise sweep every executed plan at every noise level (stabilized figures)
     noise_wbc: bool = True
     source: str = field(default="", compare=False)   # the experiment's file
-    # the file as pipeline.expfile reads it: (its runs, its --quick profile's runs)
+    # the file as pipeline.experiments.expfile reads it: (its runs, its --quick profile's runs)
     profiles: tuple = field(default=(), compare=False, repr=False)
 
     def integrator_variants(self, quick: bool) -> tuple[Variant, ...]:
@@ -146,8 +146,8 @@ class Experiment:
 
 def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
     """The plan config of variant ``v`` at initial state ``seed``, made from the experiment's file by
-    ``pipeline.expfile`` (its ``--quick`` profile with ``quick``): the config ``raico exp run`` makes."""
-    from pipeline import expfile
+    ``pipeline.experiments.expfile`` (its ``--quick`` profile with ``quick``): the config ``raico exp run`` makes."""
+    from pipeline.experiments import expfile
 
     if not exp.profiles:
         raise ValueError(f"{exp.id}: an experiment without a file has no plan configs")
@@ -158,14 +158,14 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
 def _job(args) -> dict:
     """One stage run in a worker process: ``(root, stage, config, record) -> Outcome fields``."""
     root, stage, cfg, record = args
-    from pipeline import runner
+    from pipeline.engine import runner
 
     return runner.run(Cache(root), stage, cfg, record=record).__dict__
 
 
 def _stage_job(cache: Cache, stage: str, cfg, record: bool, label: str = "") -> Job:
     """A stage run for the scheduler: looked up here (a cached run is never submitted), else ``_job``."""
-    from pipeline import runner
+    from pipeline.engine import runner
 
     return Job(_job, (str(cache.root), stage, cfg, record), label,
                lambda: runner.lookup(cache, stage, cfg, record=record))
@@ -177,7 +177,7 @@ def _outcomes(values: list) -> list[Outcome]:
 
 
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
-    """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
+    """The runs of ``exp`` as a scheduler flow (``pipeline.engine.executors``): its plans, then the runs
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
     integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
     "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""
@@ -263,7 +263,7 @@ def cost_curves(cache: Cache, plans: list[dict], variant: Variant, what: str = "
     """``(seeds, iterations)`` per-iteration ``what`` (``costs`` or ``elapsed`` wall time, s) of a
     variant's runs; runs that stopped early hold their last value, diverged runs are NaN after
     they diverged."""
-    from pipeline.artifacts import as_artifact
+    from pipeline.engine.artifacts import as_artifact
 
     curves = []
     for p in plans:
@@ -299,7 +299,7 @@ def variant_runs(plans: list[dict], variant: Variant, cache: Cache | None = None
             continue
         m = dict(p["outcome"].metrics)
         if cache is not None:
-            from pipeline.artifacts import as_artifact
+            from pipeline.engine.artifacts import as_artifact
 
             art = as_artifact(cache.require("plan", p["outcome"].key))
             nao_reach = art.config.get("plant") == "nao" and art.config.get("task") in ("reach", "reach-zero")
@@ -364,8 +364,8 @@ class LearnExperiment:
 
 
 def learn_config(exp: LearnExperiment, s: LearnSetting, seed: int, quick: bool):
-    """The learn config of setting ``s`` at ``seed``, made from the experiment's file by ``pipeline.expfile``."""
-    from pipeline import expfile
+    """The learn config of setting ``s`` at ``seed``, made from the experiment's file by ``pipeline.experiments.expfile``."""
+    from pipeline.experiments import expfile
 
     if not exp.profiles:
         raise ValueError(f"{exp.id}: an experiment without a file has no learn configs")
@@ -435,7 +435,7 @@ def _labels(path: Path, rep: dict, key: str, by_label: dict) -> list:
 
 
 def _plan_experiment(path: Path, full, quick) -> Experiment:
-    """The figure of a plan experiment file (its profiles ``full`` and ``quick`` read by pipeline.expfile)."""
+    """The figure of a plan experiment file (its profiles ``full`` and ``quick`` read by pipeline.experiments.expfile)."""
     from pipeline.errors import BadInput
 
     base = full.base["plan"]
@@ -498,10 +498,10 @@ def _learn_experiment(path: Path, full, quick) -> LearnExperiment:
 
 
 def load_figure(path: str | Path) -> Experiment | LearnExperiment:
-    """A figure from its experiment file, read by ``pipeline.expfile`` in full and in its ``--quick`` profile:
+    """A figure from its experiment file, read by ``pipeline.experiments.expfile`` in full and in its ``--quick`` profile:
     :class:`~pipeline.errors.BadInput` (one line) on anything a figure cannot be made of."""
-    from pipeline import expfile
     from pipeline.errors import BadInput
+    from pipeline.experiments import expfile
     from stages.evaluate.claims import CLAIMS
 
     path = Path(path)
@@ -533,7 +533,7 @@ def include_thesis_setups() -> None:
     """Load the figures again with their points that need "thesis-setups" (the thesis's set-ups beside raico's:
     the Nao's reach from the zero posture, its balancing with eq. 3.7's cost, the pendulum with x0 held), in place,
     so every module that holds the figures sees them."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     os.environ[expfile.THESIS_SETUPS] = "1"
     expfile.available.cache_clear()

@@ -12,7 +12,7 @@ import zipfile
 import zlib
 from typing import Any
 
-from pipeline.cache import Cache, Entry
+from pipeline.engine.cache import Cache, Entry
 from pipeline.errors import UnreadableArtifact
 from stages.base import Artifact
 

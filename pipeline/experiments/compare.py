@@ -58,7 +58,7 @@ def _config(entry) -> dict[str, Any]:
 def load_runs(cache, refs: list[str]) -> list[Run]:
     """The runs of ``refs`` (``KEY``, a key prefix or ``STAGE/KEY`` of plans or executions), each once, in
     order; :class:`BadInput` on more than :data:`MAX_RUNS`, an unknown key or a stage without a trajectory."""
-    from pipeline.runner import find_entry
+    from pipeline.engine.runner import find_entry
     from stages.registry import get_stage
 
     if not refs:
@@ -85,7 +85,7 @@ def load_runs(cache, refs: list[str]) -> list[Run]:
 def runs_of_experiment(cache, name: str, where: str | None, stage: str | None = None) -> list[str]:
     """The keys (``STAGE/KEY``) of an experiment's runs that match ``where``: the first stage's, or
     ``stage``'s; :class:`BadInput` if the stage has no runs in the table or more than :data:`MAX_RUNS` match."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     df, _ = expfile.read_table(cache, name)
     df = expfile.query(df, where)
@@ -106,8 +106,8 @@ def runs_of_experiment(cache, name: str, where: str | None, stage: str | None = 
 def label_runs(runs: list[Run]) -> None:
     """Each run's label: the options whose values differ between the runs (``option=value``, those
     a run does not use left out: iLQG's alpha), or its stage and key when every option is the same."""
-    from pipeline.expfile import unused_in
-    from pipeline.plots import _value
+    from pipeline.experiments.expfile import unused_in
+    from pipeline.experiments.plots import _value
 
     names = list(dict.fromkeys(k for r in runs for k in r.options))
     values = {k: {_hashable(r.options.get(k)) for r in runs} for k in names}
@@ -138,8 +138,8 @@ def _path(label: str) -> str:
 
 def _trajectory(cache, run: Run) -> dict[str, Any]:
     """What is drawn of a run: plant, times (s), Q (rad), the objective, the cost per iteration."""
-    from pipeline.artifacts import as_artifact
-    from pipeline.runner import find_entry
+    from pipeline.engine.artifacts import as_artifact
+    from pipeline.engine.runner import find_entry
 
     art = as_artifact(run.entry)
     if run.entry.stage == "plan":
@@ -160,8 +160,8 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from pipeline import rerun_io as rec_mod
-    from pipeline.recorders import task_plots
+    from pipeline.recordings import rerun_io as rec_mod
+    from pipeline.recordings.tasks import task_plots
     from planning.objective import objective_from_description
     from plants.model_file import robot_for
 

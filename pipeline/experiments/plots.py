@@ -196,9 +196,9 @@ def _value(v: Any) -> str:
 
 
 def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -> set[str]:
-    """:func:`pipeline.expfile.unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``);
+    """:func:`pipeline.experiments.expfile.unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``);
     none without a cache or an entry."""
-    from pipeline.expfile import _meta, unused_in
+    from pipeline.experiments.expfile import _meta, unused_in
 
     cols = [c for c in row.index if str(c).endswith(".key")]
     if cache is None or not cols or not isinstance(row[cols[0]], str):
@@ -269,7 +269,7 @@ def _legend(ax, entries: int) -> None:
 def _save(fig, out: Path, series: dict[str, dict[str, Any]], clip: Clip | None = None) -> Plot:
     import matplotlib.pyplot as plt
 
-    from pipeline.cache import atomic_path
+    from pipeline.engine.cache import atomic_path
 
     text = clip.text() if clip is not None else ""
     if text:   # said in the figure, below its title
@@ -566,7 +566,7 @@ def plot_experiment(cache, experiment: str, kind: str = "line", x: str | None = 
     """``raico plot``: the figure of experiment ``experiment``'s runs table (its name or file) at ``out``
     (default ``artifacts/exp/NAME/KIND-METRIC[-X].png``), with the line the command prints
     (:attr:`Plot.line`); :class:`BadInput` with the command's message on bad input."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     if kind not in KINDS:
         raise BadInput(f"--kind {kind}: choose one of {', '.join(KINDS)}")
