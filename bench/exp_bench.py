@@ -5,7 +5,7 @@
   (``pipeline.experiments.expfile.table_row`` and ``write_table``, what ``raico exp run`` does after its runs);
 - ``raico exp show`` of that experiment, the whole command (Python's start included), warm: it reads
   the runs table only;
-- ``raico exp run FILE --dry-run`` of each thesis file (experiments/thesis/), the whole command: what
+- ``raico exp run FILE --dry-run`` of each thesis file (thesis/experiments/), the whole command: what
   would run and how much of it is cached, in the bench's cache.
 
 The 1000 runs are synthetic entries (a plan's ``meta.json`` with a real plan's metrics, a ``plan.npz``
@@ -125,7 +125,7 @@ def bench_exp_show(reps: int) -> list[float]:
 
 def thesis_dry_runs(reps: int, artifacts: str | Path = "artifacts") -> dict[str, list[float]]:
     """Per thesis file, the wall times (s) of ``raico exp run FILE --dry-run`` in the cache ``artifacts``."""
-    from pipeline.figures import THESIS_DIR, THESIS_FILES
+    from thesis.figures import THESIS_DIR, THESIS_FILES
 
     out = {}
     for name in THESIS_FILES:

@@ -17,7 +17,7 @@ def bench_learn_episode() -> dict:
     """``{"fit_s", "plan_s", "execute_s", "n_points"}`` of episode 1 of fig4.3's ``every`` setting."""
     from pipeline.engine.cache import Cache
     from pipeline.engine.runner import run
-    from pipeline.figures import LEARN_EXPERIMENTS, learn_config
+    from thesis.figures import LEARN_EXPERIMENTS, learn_config
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], 0, quick=True)
@@ -65,7 +65,7 @@ def bench_learn_evaluation(gp: str = "exact", inducing: int = 200, points: int =
     Returns ``{"fit_s", "plan_s", "execute_s", "total_s", "n_points", "gp", "n_inducing"}``."""
     from pipeline.engine.cache import Cache
     from pipeline.engine.runner import run
-    from pipeline.figures import LEARN_EXPERIMENTS, learn_config
+    from thesis.figures import LEARN_EXPERIMENTS, learn_config
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], seed, quick=True)

@@ -206,7 +206,7 @@ CASES = [
      bench_exp_show, (7,)),
     ("building the runs table of a 1000-run experiment (rows from the entries, runs.csv, runs.json)", 5.0,
      bench_exp_table, (3,)),
-    ("raico exp run --dry-run of a thesis file (the slowest of experiments/thesis/)", 2.0, bench_thesis_dry_run, (3,)),
+    ("raico exp run --dry-run of a thesis file (the slowest of thesis/experiments/)", 2.0, bench_thesis_dry_run, (3,)),
 ]
 
 
@@ -354,7 +354,7 @@ def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None =
 
     from pipeline.engine.cache import Cache
     from pipeline.engine.executors import Executor
-    from pipeline.reproduce import ALL_IDS, reproduce
+    from thesis.reproduce import ALL_IDS, reproduce
 
     ids = list(ids or ALL_IDS)
     args = ["--all"] if ids == list(ALL_IDS) else [a for fid in ids for a in ("--figure", fid)]

@@ -19,7 +19,7 @@ import json
 import re
 from pathlib import Path
 
-from pipeline.reproduce import CALL, call_line
+from thesis.reproduce import CALL, call_line
 
 
 def section(text: str, start: str) -> str:

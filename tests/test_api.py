@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 from pipeline.interface import api
 from pipeline.interface.cli import app
 from stages.plan.tasks import PENDULUM_T
+from thesis import api as thesis_api
 
 
 def test_api_plan_execute_and_cli_share_the_cache(tmp_path):
@@ -36,7 +37,7 @@ def test_api_learn_and_bad_input(tmp_path):
     with pytest.raises(ValueError, match="unknown plant 'crane'"):
         api.plan(tmp_path, plant="crane", task="reach")
     with pytest.raises(ValueError, match="unknown experiment 'fig9'"):
-        api.reproduce(["fig9"], tmp_path)
+        thesis_api.reproduce(["fig9"], tmp_path)
     with pytest.raises(ValueError, match="unknown stage 'dance'"):
         api.run("dance", tmp_path)
 

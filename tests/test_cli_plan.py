@@ -259,8 +259,8 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     assert img.shape[0] >= 0.95 * 5.2 * 110 and img.shape[1] >= 0.95 * 5.6 * 110 and img[..., :3].std() > 0.05
     claims = json.loads((out / "claims.json").read_text())
     # the table is the claim functions applied to the runs' own metrics
-    from stages.evaluate.claims import evaluate_claims
     from stages.evaluate.summary import summarize
+    from thesis.claims import evaluate_claims
 
     runs = {}
     for r in claims["runs"]:
@@ -269,18 +269,18 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
         metrics = {**meta["metrics"], "cost_history": [float(c) if np.isfinite(c) else None for c in costs]}
         runs.setdefault(r["variant"], []).append({"status": meta["status"], "metrics": metrics})
     S = {label: summarize(label, rs) for label, rs in runs.items()}
-    from pipeline.figures import EXPERIMENTS as EXPERIMENTS_
+    from thesis.figures import EXPERIMENTS as EXPERIMENTS_
 
     names = tuple(c for c in EXPERIMENTS_["fig3.2a"].claims if c != "integrators_agree")  # not in --quick
     assert claims["claims"] == evaluate_claims(names, S, [], "fig3.2a")
     # the thesis's solvers' runs are recorded, the long-budget reference's on demand (`raico show KEY --open`)
-    from pipeline.figures import EXPERIMENTS
+    from thesis.figures import EXPERIMENTS
 
     recorded = {v.label for v in EXPERIMENTS["fig3.2a"].variants if v.recorded}
     assert recorded == {"iLQG", "AICO", "R-AICO a=1", "R-AICO a=10"}
     assert all(Path(r["recording"]).is_file() == r["recorded"] == (r["variant"] in recorded) for r in claims["runs"])
     # beyond the first RECORDED_SEEDS initial states only on demand (--quick runs 2: all recorded)
-    from pipeline.figures import RECORDED_SEEDS, Variant
+    from thesis.figures import RECORDED_SEEDS, Variant
 
     assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
     assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
@@ -289,7 +289,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
-    from pipeline.figures import EXPERIMENTS
+    from thesis.figures import EXPERIMENTS
 
     assert doc2["cached_runs"] == doc2["runs"] == EXPERIMENTS["fig3.2a"].run_count(True)  # 10 with the reference run
 

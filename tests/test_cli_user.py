@@ -208,7 +208,7 @@ def test_a_signal_inside_an_import_is_the_interrupt():
 
 
 def test_the_quick_report_is_labelled_a_smoke_test():
-    from pipeline.report import SMOKE, markdown_claims
+    from thesis.report import SMOKE, markdown_claims
 
     rows = [{"figure": "fig3.2a", "claim": "c", "thesis": '§3.5: "x" (Fig. 3.2A)', "criterion": "k", "measured": "m",
              "verdict": "does not hold", "why": "because"}]
@@ -218,7 +218,7 @@ def test_the_quick_report_is_labelled_a_smoke_test():
 
 
 def test_the_call_line_counts_jobs_in_english():
-    from pipeline.reproduce import call_line
+    from thesis.reproduce import call_line
 
     call = {"figures": 1, "runs": 10, "cached_runs": 0, "jobs": 1, "wall_time_s": 3.0, "cpu_time_s": 2.0,
             "main_cpu_time_s": 1.0, "when": "now", "load_average_1min": 0.5}

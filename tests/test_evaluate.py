@@ -6,7 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from stages.evaluate.claims import (
+from stages.evaluate.stage import iterations_to
+from stages.evaluate.summary import largest_via_error, summarize
+from thesis.claims import (
     CLAIMS,
     FDDP_ACCEPT_ANY,
     FDDP_HELD,
@@ -14,8 +16,6 @@ from stages.evaluate.claims import (
     FDDP_ROLLOUT,
     evaluate_claims,
 )
-from stages.evaluate.stage import iterations_to
-from stages.evaluate.summary import largest_via_error, summarize
 
 
 def S_(label, final, diverged=0, runs=10, first=None, via=0.001, ratio=0.01, worst=None, converged=0, wall=1.0,
@@ -359,7 +359,7 @@ EXECUTION_CASES = [
 
 def test_noise_claim_reads_the_noisy_runs_only():
     """evaluate_claims hands the noise claim the sweep's noisy runs, every other claim the figure's own runs."""
-    from stages.evaluate.claims import evaluate_claims
+    from thesis.claims import evaluate_claims
 
     own = [ex(controller="wbc")] * 3
     noisy = [ex("fell", controller="wbc", noise_level=[0.02, 0.5])] * 3
@@ -459,7 +459,7 @@ def test_identical_variants_of_two_figures():
 def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
     """Each claim row names the thesis sentence it tests (quoted, with its section and the figures it is written
     about) or says it is raico's own test."""
-    from stages.evaluate.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS
+    from thesis.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS
 
     assert set(THESIS) == set(CLAIMS)
     for name, q in THESIS.items():
@@ -475,8 +475,8 @@ def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
 def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
     """The map of sections to figures decides: a thesis claim listed on a figure its quoted section is not written
     about fails here (e.g. the balancing's "converged after 25 iterations", §3.6.2, on an arm panel)."""
-    from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS
-    from stages.evaluate.claims import SECTION_FIGURES, THESIS, Quote
+    from thesis.claims import SECTION_FIGURES, THESIS, Quote
+    from thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS
 
     for exp in (*EXPERIMENTS.values(), *LEARN_EXPERIMENTS.values()):
         for name in exp.claims:
@@ -497,7 +497,7 @@ def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
 
 
 def test_decay_fit_recovers_the_rate_and_flat_curves():
-    from stages.evaluate.claims import decay_fit
+    from thesis.claims import decay_fit
 
     rho, r2, b = decay_fit([5.0 + 100.0 * 0.6**k for k in range(25)])
     assert abs(rho - 0.6) < 0.01 and r2 > 0.999 and b <= 5.0 + 100.0 * 0.6**24
@@ -531,7 +531,7 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
     from dataclasses import replace
 
     from pipeline.engine.cache import stage_key
-    from pipeline.figures import EXPERIMENTS, REFERENCE, plan_config
+    from thesis.figures import EXPERIMENTS, REFERENCE, plan_config
 
     def key(cfg):
         return stage_key("plan", "v", cfg.normalized().key_dict(), [])
@@ -551,8 +551,8 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
 
 
 def test_integration_summary_and_integrator_groups():
-    from stages.evaluate.claims import integrator_groups
     from stages.evaluate.summary import integration_summary
+    from thesis.claims import integrator_groups
 
     ms = [{"rmse_planned_executed": 1e-4, "max_tracking_error": 3e-4, "via_point_errors": {"a@1": 0.002, "b@2": 0.004}},
           {"rmse_planned_executed": 3e-4, "max_tracking_error": 5e-4, "via_point_errors": {"a@1": 0.001, "b@2": 0.008}},
@@ -568,7 +568,7 @@ def test_integration_summary_and_integrator_groups():
 def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
     """Settings that all end equally near the upright (within 1 mrad) cannot be ranked: the row says so instead of
     a verdict, and a row that does not hold says why in the measured numbers."""
-    from stages.evaluate.claims import CANNOT
+    from thesis.claims import CANNOT
 
     L = {"sigma*=0, w=0.01": L_(task_by_seed=[0.0971, 0.09712]), "sigma*=none": L_(task_by_seed=[0.09711, 0.0971])}
     assert CLAIMS["best_with_sigma_zero"](L, [])[3] is None
@@ -584,7 +584,7 @@ def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
 
 
 def test_figure_names_as_the_thesis_names_its_panels():
-    from stages.evaluate.claims import figure_names
+    from thesis.claims import figure_names
 
     assert figure_names(["fig3.2c", "fig3.2d"]) == "Fig. 3.2C,D"
     assert figure_names(["fig3.4"]) == "Fig. 3.4" and figure_names(["fig4.1/4.2"]) == "Fig. 4.1/4.2"
@@ -592,7 +592,7 @@ def test_figure_names_as_the_thesis_names_its_panels():
 
 # ----------------------------------------------------------------------------- margins, reasons, fragile verdicts
 def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed_numbers():
-    from stages.evaluate.claims import Check, judged
+    from thesis.claims import Check, judged
 
     rho, r2 = Check("rho", 0.575, "<=", 0.8), Check("R^2", 0.916, ">=", 0.95)
     assert rho.ok and not r2.ok and rho.margin == pytest.approx(0.225) and r2.margin == pytest.approx(-0.034)
@@ -608,7 +608,7 @@ def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed
 
 
 def test_a_margin_inside_the_runs_spread_or_near_its_limit_is_fragile():
-    from stages.evaluate.claims import Check, judged
+    from thesis.claims import Check, judged
 
     assert Check("via", 0.0197, "<=", 0.01, " m", spread=0.024).near()  # 1 cm over the rule, runs 2.4 cm apart
     assert not Check("via", 0.0197, "<=", 0.01, " m", spread=0.001).near()
@@ -677,7 +677,7 @@ def test_swing_up_margin_is_the_farthest_seed_against_the_tolerance():
 
 
 def test_only_a_check_whose_flip_flips_the_verdict_makes_it_fragile():
-    from stages.evaluate.claims import Check, judged
+    from thesis.claims import Check, judged
 
     close, far = Check("a", 1.01, ">", 1.0, "x", spread=0.0), Check("b", 21.4, ">", 1.0, "x", spread=0.0)
     assert judged([close, far], "any")["near"] == []  # b alone keeps it

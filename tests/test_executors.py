@@ -146,14 +146,14 @@ def test_reproduce_help_lists_every_experiment_and_executor():
     from typer.testing import CliRunner
 
     from pipeline.interface.cli import app
-    from pipeline.reproduce import ALL_IDS
+    from thesis.reproduce import ALL_IDS
 
     text = " ".join(CliRunner().invoke(app, ["reproduce", "--help"]).output.split())
     assert all(i in text for i in ALL_IDS) and all(e in text for e in ("serial", "process", "ray", "--address"))
 
 
 def test_work_order_is_longest_first():
-    from pipeline.reproduce import ALL_IDS, work_order
+    from thesis.reproduce import ALL_IDS, work_order
 
     order = work_order(["fig3.2a", "fig4.1/4.2", "fig3.2c", "fig3.2a", "fig4.3"])
     assert order == ["fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2a"] and sorted(work_order(ALL_IDS)) == sorted(ALL_IDS)
@@ -162,7 +162,7 @@ def test_work_order_is_longest_first():
 # ----------------------------------------------------------------------------- a real figure on Ray
 def _quick_runs() -> int:
     """fig3.2a's plan runs with --quick (two initial states per variant; the experiment says which)."""
-    from pipeline.figures import EXPERIMENTS
+    from thesis.figures import EXPERIMENTS
 
     exp = EXPERIMENTS["fig3.2a"]
     return sum(v.seed_count(exp.seeds, True) for v in exp.variants)
@@ -201,7 +201,7 @@ def _claims(root: Path) -> dict:
 
 def _call(root: Path) -> dict:
     """The whole reproduce call's timing (``timings.json``), checked against the report README's line."""
-    from pipeline.reproduce import CALL, call_line
+    from thesis.reproduce import CALL, call_line
 
     call = json.loads((root / "report-quick" / "timings.json").read_text())[CALL]
     assert call_line(call) in (root / "report-quick" / "README.md").read_text()
@@ -244,7 +244,7 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
 def test_call_line_compares_a_complete_call_with_the_reproduce_target():
     """A call over every figure from an empty cache is held against the 600 s target (met, or missed by
     how much); any other call (some figures, a warm cache) gets no verdict."""
-    from pipeline.reproduce import REPRODUCE_TARGET_S, call_line
+    from thesis.reproduce import REPRODUCE_TARGET_S, call_line
 
     base = {"figures": 11, "runs": 569, "cached_runs": 6, "cpu_time_s": 1255.0, "main_cpu_time_s": 27.4,
             "jobs": 2, "when": "2026-11-24T21:20:42Z", "load_average_1min": 1.89}

@@ -199,7 +199,7 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
 
 def test_damaged_report_file_is_skipped_with_a_warning_and_rebuilt(tmp_path):
     from pipeline.engine.ui import Reporter
-    from pipeline.reproduce import _cached_report, write_readme
+    from thesis.reproduce import _cached_report, write_readme
 
     root = tmp_path / "report-quick"
     good = {"figure": "fig3.2a", "description": "arm", "claims": [
@@ -831,7 +831,7 @@ def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp
     assert any("rerun" in c for c in seen.values()), seen
     assert elapsed < 2.0, elapsed
     _wait_for(lambda: not [p for p in seen if running(p)], 5, f"the processes of the run to end: {seen}")
-    from pipeline.figures import EXPERIMENTS
+    from thesis.figures import EXPERIMENTS
 
     exp = EXPERIMENTS["fig3.2a"]
     runs = sum(v.seed_count(exp.seeds, True) for v in exp.variants)

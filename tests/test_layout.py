@@ -1,11 +1,14 @@
 """The layout: the floors hold and no module imports itself back.
 
-The imports of the packages ``plants``, ``planning``, ``stages`` and ``pipeline`` are read with ``ast`` (nothing
+The imports of the packages ``plants``, ``planning``, ``stages``, ``pipeline`` and ``thesis`` are read with ``ast`` (nothing
 is imported), every ``import`` statement counted, the ones inside functions too (a lazy import
 still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out):
 
-- the floors, ``pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
-  ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``;
+- the floors, ``thesis -> pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
+  ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``,
+  and none of the tool's layers the thesis (its figures, claims, report and ``raico reproduce``, which
+  it registers through an entry point);
+- no stage's code version reads a file of the thesis (editing a claim keeps every cached run);
 - inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``pipeline.errors``
   the base of all);
 - no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl``);
@@ -25,9 +28,10 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("plants", "planning", "stages", "pipeline")
-# package -> the top-level packages it must not import
-FLOORS = {"plants": {"planning", "stages", "pipeline"}, "planning": {"stages", "pipeline"}, "stages": {"pipeline"}}
+PACKAGES = ("plants", "planning", "stages", "pipeline", "thesis")
+# package -> the top-level packages it must not import: thesis -> pipeline -> stages -> planning -> plants
+FLOORS = {"plants": {"planning", "stages", "pipeline", "thesis"}, "planning": {"stages", "pipeline", "thesis"},
+          "stages": {"pipeline", "thesis"}, "pipeline": {"thesis"}}
 # inside ``pipeline``: sub-package -> the sub-packages it must not import (interface -> experiments -> engine
 # -> recordings; ``pipeline.errors`` is the shared base below them all)
 PIPELINE_FLOORS = {"pipeline.recordings": {"pipeline.engine", "pipeline.experiments", "pipeline.interface"},
@@ -187,6 +191,24 @@ def test_pipeline_floors(lower):
     bad = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if sub(m) == lower for t in ts if sub(t) in PIPELINE_FLOORS[lower])
     assert any(sub(m) == lower for m in GRAPH), f"no modules in {lower}"
     assert not bad, f"{lower} imports a sub-package above it:\n" + "\n".join(bad)
+
+
+def test_no_stage_code_version_reads_the_thesis():
+    """A stage's code version hashes its ``sources``: none of them lies in the thesis, so editing a claim
+    (thesis/claims.py) leaves every cached run, the evaluate stage's too, valid."""
+    import importlib
+
+    from stages.registry import get_stage, stage_names
+
+    thesis = REPO / "thesis"
+    for name in stage_names():
+        for src in get_stage(name).sources:
+            if src.startswith("files:"):
+                assert not src[len("files:"):].startswith("thesis"), (name, src)
+                continue
+            path = Path(importlib.import_module(src).__file__).resolve()
+            assert thesis not in path.parents, f"stage {name} hashes {src} ({path})"
+    assert "thesis.claims" not in {s for n in stage_names() for s in get_stage(n).sources}
 
 
 def test_no_module_import_cycle():

@@ -1,4 +1,4 @@
-"""The thesis's experiments as files (experiments/thesis/*.toml, read by pipeline.experiments.expfile for raico reproduce and
+"""The thesis's experiments as files (thesis/experiments/*.toml, read by pipeline.experiments.expfile for raico reproduce and
 raico exp run alike): every run keeps the cache key it had when the experiments were Python definitions
 (tests/thesis_reference.py, a frozen copy of them), with and without --quick, plans, executions, noise sweeps,
 open-loop integrations and learning loops; the claims are the ones the definitions named."""
@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline import figures as files
 from pipeline.engine.cache import Cache, stage_key
 from pipeline.engine.runner import Outcome, code_version
 from pipeline.errors import BadInput
@@ -19,6 +18,7 @@ from pipeline.experiments import expfile
 from pipeline.interface.cli import app
 from stages.registry import get_stage
 from tests import thesis_reference as python
+from thesis import figures as files
 
 FIGURES = list(python.EXPERIMENTS)
 LEARNING = list(python.LEARN_EXPERIMENTS)
@@ -62,7 +62,7 @@ def test_every_figure_is_a_file_and_the_same_experiment(tmp_path):
         assert files.LEARN_EXPERIMENTS[fid] == python.LEARN_EXPERIMENTS[fid], fid
     assert files.NOISE_SWEEPS == python.NOISE_SWEEPS and files.REFERENCE == python.REFERENCE
     # the claims are Python functions, named from the files
-    from stages.evaluate import claims
+    from thesis import claims
 
     named = {c for e in (*files.EXPERIMENTS.values(), *files.LEARN_EXPERIMENTS.values()) for c in e.claims}
     assert named and all(callable(claims.CLAIMS[c]) for c in named)
@@ -125,7 +125,7 @@ def test_the_thesis_setups_run_only_when_asked(monkeypatch):
     """The thesis's set-ups beside raico's (points that need "thesis-setups") are left out of `raico reproduce` unless
     --thesis-setups (the environment's RAICO_THESIS_SETUPS) asks for them; then each figure has them, under the
     labels its claims judge in rows of their own."""
-    from pipeline.figures import load_figure
+    from thesis.figures import load_figure
 
     monkeypatch.delenv(expfile.THESIS_SETUPS, raising=False)
     expfile.available.cache_clear()

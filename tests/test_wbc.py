@@ -147,8 +147,8 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     # the report's balance section: one panel and one table row per controller, from these two runs
     from pipeline.engine.cache import Cache
     from pipeline.engine.runner import Outcome
-    from pipeline.figures import EXPERIMENTS
-    from pipeline.report import balance_section
+    from thesis.figures import EXPERIMENTS
+    from thesis.report import balance_section
 
     outs = [Outcome("execute", x["key"], x["path"], True, x["status"], metrics=x["metrics"]) for x in (pd, r)]
     md, rows = balance_section(Cache(tmp_path), EXPERIMENTS["fig3.3"], outs, tmp_path)
@@ -165,8 +165,8 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
     from pipeline.engine.cache import Cache
     from pipeline.engine.executors import Batch
     from pipeline.engine.runner import Outcome
-    from pipeline.figures import EXPERIMENTS, STABILIZER, experiment_flow
-    from stages.evaluate.claims import claim_executed_reaches, claim_stabilizer_stands
+    from thesis.claims import claim_executed_reaches, claim_stabilizer_stands
+    from thesis.figures import EXPERIMENTS, STABILIZER, experiment_flow
 
     for fid in ("fig3.3", "fig3.4-inside"):
         exp = EXPERIMENTS[fid]
@@ -235,8 +235,8 @@ def test_zmp_metrics_on_synthetic_margins():
 
 def test_single_support_metric_and_claim_on_synthetic_runs():
     """The lift metric and the single-support claim on inputs whose verdict is known."""
-    from stages.evaluate.claims import claim_single_support_stands
     from stages.evaluate.metrics import LIFT, single_support_lift
+    from thesis.claims import claim_single_support_stands
 
     corners = np.zeros((10, 2, 4, 3))
     corners[5:, 1, :, 2] = [LIFT + 0.001, LIFT + 0.002, LIFT + 0.003, LIFT + 0.004]

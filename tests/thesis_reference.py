@@ -1,5 +1,5 @@
 """The thesis's experiments as they were defined in Python before they became the files under
-experiments/thesis/ (a frozen copy of pipeline/figures.py's definitions, plan and learn configs and
+thesis/experiments/ (a frozen copy of thesis/figures.py's definitions, plan and learn configs and
 the figure flow of that time), kept only to prove that the files give every run the same cache key
 (tests/test_thesis_files.py). Nothing else reads it."""
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 from pipeline.engine.cache import Cache
 from pipeline.engine.executors import Batch
 from pipeline.experiments import expfile
-from pipeline.figures import (
+from thesis.figures import (
     STABILIZER,
     Experiment,
     LearnExperiment,
@@ -41,7 +41,7 @@ FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FD
 ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                    schedule="adaptive")
 ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
-# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost
+# The reference optimum of a figure (thesis.claims.reference_cost): the lowest median final cost
 # any solver reaches on the figure's initial states, including long-budget runs, cached as ordinary plan runs (their
 # keys are the problem's: a changed task, plant, start or cost gives a new run). The adaptive R-AICO at FDDP's
 # budget runs on every problem raico has; crocoddyl FDDP (100 iterations) joins it on the analytic arm.

@@ -69,8 +69,7 @@ def outcome_notes(outcome: Outcome) -> list[str]:
         notes.append(task_line(verdict) + ("" if outcome.status == "ok" or not m["task"]["achieved"]
                                            else f", status {outcome.status}"))
     elif outcome.stage == "execute" and m.get("via_point_errors"):   # an entry from before the task verdict
-        from stages.evaluate.claims import EXECUTED_VIA_TOL, executed_achieved
-        from stages.evaluate.summary import largest_via_error
+        from stages.evaluate.summary import EXECUTED_VIA_TOL, executed_achieved, largest_via_error
 
         err = largest_via_error(m)
         verdict = "achieved" if executed_achieved({**m, "status": outcome.status}) else "missed"

@@ -27,7 +27,7 @@ field: the plan's initial state), so comparisons pair by seed; a point's own ``s
 sets a later stage's option. Every key and value is checked by the stage's own config class before
 anything runs; an unknown key is refused with the valid ones listed.
 
-More keys, for experiments that carry their own analysis (the thesis's files, experiments/thesis/)::
+More keys, for experiments that carry their own analysis (the thesis's files, thesis/experiments/)::
 
     claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
     [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
@@ -40,7 +40,7 @@ More keys, for experiments that carry their own analysis (the thesis's files, ex
     iterations = 100
     quick = {iterations = 12}              # this point's options in the quick profile
     needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
-    [reproduce]                            # read by raico reproduce (pipeline/figures.py), carried here
+    [reproduce]                            # read by raico reproduce (thesis/figures.py), carried here
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
@@ -114,7 +114,7 @@ class Experiment:
     zipped: dict[str, list]
     points: list[dict[str, Any]]
     path: Path | None = None
-    claims: tuple[str, ...] = ()            # named claims (Python functions of stages.evaluate.claims)
+    claims: tuple[str, ...] = ()            # named claims (Python functions of thesis.claims)
     reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
     quick: bool = False                     # loaded with its [quick] profile
     left_out: tuple[str, ...] = ()          # points left out: what they need is not installed

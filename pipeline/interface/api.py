@@ -10,7 +10,6 @@ round. Keyword arguments are the stage's config fields (``raico <stage> --help``
     e = api.execute(plan=p.key)
     X = api.arrays(e, "rollout.npz")["X"]            # executed states (T+1, n_x)
     l = api.learn(plant="biorob", task="reach", episodes=20, alpha=2.0)
-    rows = api.reproduce(["fig3.2a"], quick=True)     # one summary per figure
     api.show_png(p.key, "plan.png", time=0.5)         # the recording as the viewer opens it, headless
     df = api.exp_run("experiments/arm_alpha.toml")    # an experiment file: its runs table (a DataFrame)
     api.exp_show("arm-alpha")                         # grouped over seeds, as `raico exp show`
@@ -36,7 +35,7 @@ from pipeline.engine.cache import Cache
 from pipeline.engine.runner import Outcome
 
 __all__ = ["arrays", "babble", "compare", "evaluate", "execute", "exp_run", "exp_show", "fit", "learn", "plan", "plot",
-           "reproduce", "run", "show_png"]
+           "run", "show_png"]
 
 
 def _cache(artifacts: str | Path | None) -> Cache:
@@ -106,23 +105,6 @@ def learn(artifacts: str | Path | None = None, record: bool = True, quiet: bool 
           **config: Any) -> Outcome:
     """The learning loop (``raico learn``): babble, then fit, plan and execute per episode."""
     return run("learn", artifacts, record, quiet, **config)
-
-
-def reproduce(figures: list[str], artifacts: str | Path | None = None, quick: bool = False, jobs: int = 2,
-              record: bool = True, executor: str = "process", quiet: bool = False) -> list[dict]:
-    """The named experiments (``raico reproduce --figure ...``): one summary per figure (its runs,
-    claims and report folder), the report README written as by the CLI."""
-    from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS
-    from pipeline.reproduce import reproduce as run_all
-
-    unknown = [f for f in figures if f not in EXPERIMENTS and f not in LEARN_EXPERIMENTS]
-    if not figures or unknown:
-        raise ValueError(f"unknown experiment '{(unknown or [''])[0]}': choose one of "
-                         f"{', '.join([*EXPERIMENTS, *LEARN_EXPERIMENTS])}")
-    from pipeline.engine.ui import Reporter
-
-    return list(run_all(_cache(artifacts), list(dict.fromkeys(figures)), quick=quick, jobs=jobs, record=record,
-                        executor=executor, reporter=Reporter(quiet)))
 
 
 def show_png(ref: str, png: str | Path, time: float | None = None, artifacts: str | Path | None = None) -> Path:

@@ -12,8 +12,8 @@ from pipeline.engine.cache import Cache, write_file_atomic
 from pipeline.engine.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
 from pipeline.engine.ui import Board, Reporter
 from pipeline.errors import Interrupted
-from pipeline.figures import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
-from pipeline.report import SMOKE, folder_name, markdown_claims, write_experiment_report, write_learn_report
+from thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
+from thesis.report import SMOKE, folder_name, markdown_claims, write_experiment_report, write_learn_report
 
 ALL_IDS = [*EXPERIMENTS, *LEARN_EXPERIMENTS]
 
@@ -183,7 +183,7 @@ def _report_key(fid: str, result: dict) -> str:
     from pipeline.engine.runner import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
-    code = source_version("report", "pipeline.report", "pipeline.reproduce", "pipeline.figures", "stages.evaluate")
+    code = source_version("report", "thesis.report", "thesis.reproduce", "thesis.figures", "stages.evaluate")
     exp = EXPERIMENTS.get(fid) or LEARN_EXPERIMENTS.get(fid)
     text = Path(exp.source).read_bytes() if exp is not None and exp.source else b""
     return hashlib.sha256(json.dumps([fid, code, keys, hashlib.sha256(text).hexdigest()]).encode()).hexdigest()[:16]
@@ -226,7 +226,8 @@ def _read_claims(path: Path) -> dict:
 def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     """The report: every figure written so far, its claims table, deviations and recordings. A
     damaged figure report is left out with a warning (running that figure again rebuilds it)."""
-    from pipeline.report import (
+    from stages.plan.tasks import TASK_NOTES
+    from thesis.report import (
         FIGURE_CAPTION,
         INTEGRATOR_TEXT,
         identical_results_remarks,
@@ -235,7 +236,6 @@ def write_readme(root: Path, reporter: Reporter | None = None) -> None:
         processor_section,
         standing_section,
     )
-    from stages.plan.tasks import TASK_NOTES
 
     reporter = reporter or Reporter(quiet=True)
     docs = []

@@ -1,10 +1,10 @@
 """The thesis's experiments (figs. 3.2-3.4, 4.1-4.3) and raico's own beside them: read from their files, the
 parallel sweep, figure, claims.
 
-Each experiment is a file under ``experiments/thesis/`` (:data:`THESIS_FILES`), read by the same loader as
-any user's experiment (``pipeline.experiments.expfile``: ``raico exp run experiments/thesis/fig3.2a.toml`` runs its
+Each experiment is a file under ``thesis/experiments/`` (:data:`THESIS_FILES`), read by the same loader as
+any user's experiment (``pipeline.experiments.expfile``: ``raico exp run thesis/experiments/fig3.2a.toml`` runs its
 plans, with the same cache keys): its solver variants (``[[point]]``), initial states (``seeds``), the
-``--quick`` profile, the claims checked on it (Python functions of ``stages.evaluate.claims``, named in the
+``--quick`` profile, the claims checked on it (Python functions of ``thesis.claims``, named in the
 file) and, under ``[reproduce]``, which plans are executed and how. Every plan and learning loop's config is
 made from the file by ``pipeline.experiments.expfile`` (:func:`plan_config`, :func:`learn_config`).
 
@@ -25,7 +25,7 @@ import numpy as np
 from pipeline.engine.cache import Cache
 from pipeline.engine.executors import Batch, Job
 from pipeline.engine.runner import Outcome
-from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
+from thesis.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT
 
 RECORDED_SEEDS = 3  # make reproduce records the thesis solvers' plans, and the executions, of the first this many
 #                     initial states (the others: `raico show KEY --open`)
@@ -400,7 +400,7 @@ LEAVE_ONE_OUT_MIN = 3
 
 
 # ----------------------------------------------------------------------------- the experiment files
-THESIS_DIR = Path(__file__).resolve().parents[1] / "experiments" / "thesis"
+THESIS_DIR = Path(__file__).resolve().parent / "experiments"
 # the files, in the report's order (the figure ids are their [reproduce] figure, else their name)
 THESIS_FILES = ("fig3.2a", "fig3.2b", "fig3.2c", "fig3.2d", "fig3.3", "fig3.4", "fig3.4-inside", "fig3.4-single",
                 "fig3.4-support", "fig4.1-4.2", "fig4.3")
@@ -502,13 +502,13 @@ def load_figure(path: str | Path) -> Experiment | LearnExperiment:
     :class:`~pipeline.errors.BadInput` (one line) on anything a figure cannot be made of."""
     from pipeline.errors import BadInput
     from pipeline.experiments import expfile
-    from stages.evaluate.claims import CLAIMS
+    from thesis.claims import CLAIMS
 
     path = Path(path)
     full, quick = expfile.load(path), expfile.load(path, quick=True)
     unknown = [c for c in full.claims if c not in CLAIMS]
     if unknown:
-        raise BadInput(f"{path}: claim '{unknown[0]}': no such claim (stages/evaluate/claims.py: "
+        raise BadInput(f"{path}: claim '{unknown[0]}': no such claim (thesis/claims.py: "
                        f"{', '.join(CLAIMS)})")
     if full.stages == ("plan",):
         return _plan_experiment(path, full, quick)
@@ -542,7 +542,7 @@ def include_thesis_setups() -> None:
     LEARN_EXPERIMENTS.update(learns)
 NOISE_SWEEPS = {e.id: next(v for v in e.variants if v.label == e.profiles[0].reproduce["noise_sweep"])
                 for e in EXPERIMENTS.values() if "noise_sweep" in e.profiles[0].reproduce}
-# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost any solver
+# The reference optimum of a figure (thesis.claims.reference_cost): the lowest median final cost any solver
 # reaches on the figure's initial states, including long-budget runs: the adaptive R-AICO at FDDP's budget, which
 # every plan figure's file lists (crocoddyl FDDP at 100 iterations joins it on the analytic arm)
 REFERENCE = next(v for v in EXPERIMENTS["fig3.2a"].variants if v.label == "R-AICO adaptive (a0=1)")

@@ -16,7 +16,8 @@ import numpy as np
 
 from pipeline.engine.cache import Cache, atomic_path, write_file_atomic
 from pipeline.experiments.plots import clip_range, cost_at_times
-from pipeline.figures import (
+from thesis.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
+from thesis.figures import (
     BASELINE_LABELS,
     EXPERIMENTS,
     NOISE_RUNS,
@@ -26,7 +27,6 @@ from pipeline.figures import (
     cost_curves,
     summarize,
 )
-from stages.evaluate.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 
 
 def save_figure(fig, path: Path, dpi: int = 100) -> None:
@@ -39,7 +39,7 @@ def save_figure(fig, path: Path, dpi: int = 100) -> None:
 
 
 # ----------------------------------------------------------------------------- colours
-# One colour per solver variant in every figure, keyed by the variant's label (pipeline.figures.Variant.label).
+# One colour per solver variant in every figure, keyed by the variant's label (thesis.figures.Variant.label).
 SOLVER_COLORS: dict[str, str] = {
     "iLQG": "tab:blue",
     "AICO": "tab:orange",
@@ -157,7 +157,7 @@ def cost_panel_data(cache: Cache, exp: Experiment, plans: list[dict]) -> list[di
     ``runs``, ``iterations`` (1..n), ``mean``/``std`` (``mean_std`` of ``cost_curves``), ``median``/``q25``/``q75``
     (``median_band``), ``thesis`` (one of the thesis's solvers at the figure's budget) and ``diverged``: a
     ``diverged_path`` per diverged run."""
-    from stages.evaluate.claims import THESIS_SOLVERS
+    from thesis.claims import THESIS_SOLVERS
 
     colors = figure_colors(v.label for v in exp.variants)
     out = []
@@ -637,8 +637,8 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     circle) and executed (filled: status ok; cross: any other status), against the tolerance of the
     claim "executed_reaches"."""
     from pipeline.engine.artifacts import as_artifact
-    from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.evaluate.summary import largest_via_error
+    from thesis.claims import EXECUTED_VIA_TOL
 
     label = _executed_label(exp)
     color = solver_color(label)
@@ -760,8 +760,8 @@ def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
 
 def missed_section(executions: list, noisy: list | None = None) -> tuple[list[str], list[dict]]:
     """The markdown lines on the stabilizer's runs that missed (``missed_rows``); none if every run achieved."""
-    from stages.evaluate.claims import EXECUTED_VIA_TOL
     from stages.wbc import COG_MARGIN, LIMIT_MARGIN
+    from thesis.claims import EXECUTED_VIA_TOL
 
     rows = missed_rows(executions, noisy)
     if not rows:
@@ -881,7 +881,7 @@ NOISE_CONTROLLERS = {"pd": "joint PD", "wbc": "stabilizer"}
 
 
 def noise_summary(noise: list[dict]) -> list[dict]:
-    """Per controller and noise level of the sweep (``pipeline.figures.noise_runs``, run by ``experiment_flow``):
+    """Per controller and noise level of the sweep (``thesis.figures.noise_runs``, run by ``experiment_flow``):
     runs, status counts, success rate (share with status ok), stood, and the spread of the largest executed via-point
     error."""
     from stages.evaluate.summary import largest_via_error
@@ -979,11 +979,11 @@ def noise_section(exp: Experiment, noise: list[dict], out_dir: Path) -> tuple[li
 # ----------------------------------------------------------------------------- claims
 def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Cache | None = None,
                  integrators: list[dict] | None = None, noise: list[dict] | None = None) -> list[dict]:
-    """The experiment's claims (``stages.evaluate.claims``) on its measured summaries (with ``cache``:
+    """The experiment's claims (``thesis.claims``) on its measured summaries (with ``cache``:
     the runs' cost curves too; with ``integrators``, the integrator comparison's runs, its rows join
     ``S``). The integrator claim is left out where the comparison did not run (--quick)."""
-    from pipeline.figures import TASK_LABELS
-    from stages.evaluate.claims import THESIS, Quote, evaluate_claims
+    from thesis.claims import THESIS, Quote, evaluate_claims
+    from thesis.figures import TASK_LABELS
 
     integ = {r["label"]: r for r in integrator_table(exp, integrators or [], cache)}
     names = tuple(c for c in exp.claims if c != "integrators_agree" or integrators)
@@ -1017,7 +1017,7 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
     return rows
 
 
-# the set-up deviations (stages.evaluate.claims.SETUP_NOTES) a thesis set-up removes, and what its rows say instead
+# the set-up deviations (thesis.claims.SETUP_NOTES) a thesis set-up removes, and what its rows say instead
 SETUP_REPLACES = {"reach-zero": (("nao start",), "q0 about the zero posture (the thesis's start; the elbow rolls at "
                                                  "the end of their range, 0.03 rad short of 0)"),
                   "balance-thesis": (("cog weights", "right sole"), "eq. 3.7's cost: 1e4 on the CoG via-points with "
@@ -1026,7 +1026,7 @@ SETUP_REPLACES = {"reach-zero": (("nao start",), "q0 about the zero posture (the
 
 def _setup_in_place(setup: str, task: str) -> str:
     """A row's set-up deviations with those the thesis's set-up ``task`` removes replaced by what it runs."""
-    from stages.evaluate.claims import SETUP_NOTES
+    from thesis.claims import SETUP_NOTES
 
     gone, instead = SETUP_REPLACES.get(task, ((), ""))
     parts = [p for p in setup.split("; ") if p not in {SETUP_NOTES[k] for k in gone}]
@@ -1084,7 +1084,7 @@ def processor_section(docs: list[dict]) -> list[str]:
 
 def not_holding_section(rows: list[dict]) -> list[str]:
     """Markdown: every thesis row that does not hold (or cannot be tested), with its reason and how fragile it is."""
-    from stages.evaluate.claims import BEYOND, CANNOT
+    from thesis.claims import BEYOND, CANNOT
 
     thesis = [r for r in rows if not str(r.get("thesis", "")).startswith(BEYOND)]
     out = [r for r in thesis if r["verdict"] in ("does not hold", CANNOT)]
@@ -1102,7 +1102,7 @@ def _share_pct(x: float) -> str:
     return f"{100 * x:.3g} %"
 
 
-# how a row names the thesis's set-up it was judged in (pipeline.figures.TASK_LABELS)
+# how a row names the thesis's set-up it was judged in (thesis.figures.TASK_LABELS)
 SETUP_WORDS = {"reach-zero": "start: the zero posture", "balance-thesis": "cost: eq. 3.7's 1e4, no right-sole term"}
 
 
@@ -1111,8 +1111,8 @@ def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: di
     """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
     labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
     fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
-    from pipeline.figures import LEAVE_ONE_OUT_MIN, variant_runs
     from stages.evaluate.summary import summarize as summary
+    from thesis.figures import LEAVE_ONE_OUT_MIN, variant_runs
 
     runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
     S = {**{k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}, **extra}
@@ -1212,7 +1212,7 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
     and the figure it is written about, the runs it reads, the set-up deviations that can drive its verdict and,
     where it does not hold, why), then the rows beyond the thesis (crocoddyl, adaptive R-AICO, long budgets,
     ablations, free-standing executions, PILCO, ...)."""
-    from stages.evaluate.claims import BEYOND, CANNOT
+    from thesis.claims import BEYOND, CANNOT
 
     def verdict(r: dict) -> str:
         if smoke:   # --quick: the verdict as computed, marked as not a finding
@@ -1566,7 +1566,7 @@ def endings_sentence(S: dict, tol: float = 0.1) -> str | None:
     upright, those within ``tol``): how many lie within the claims' tie (1 mrad) of their median, with the executed
     torque's share of steps at its limit and the GP error on the next execution of those settings, and the others
     named. None with fewer than two endings."""
-    from stages.evaluate.claims import TIE
+    from thesis.claims import TIE
 
     pts = [(k, i, x) for k, s in S.items() for i, x in enumerate(s.get("task_error_last_by_seed") or []) if x <= tol]
     if len(pts) < 2:
@@ -1607,8 +1607,8 @@ def learn_findings(S: dict) -> list[str]:
 
 def write_learn_report(cache: Cache, exp, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``motion.png``, ``claims.md``/``claims.json`` of a learning experiment."""
-    from pipeline.figures import LEAVE_ONE_OUT_MIN, summarize_learns
-    from stages.evaluate.claims import evaluate_claims
+    from thesis.claims import evaluate_claims
+    from thesis.figures import LEAVE_ONE_OUT_MIN, summarize_learns
 
     out_dir.mkdir(parents=True, exist_ok=True)
     learns = result["learns"]

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.evaluate.summary import EXECUTED_VIA_TOL, executed_achieved
+
 
 def _fmt(x: float) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
@@ -251,7 +253,7 @@ REFERENCE_TEXT = ("the lowest median final cost any solver reaches on the figure
 def reference_cost(S: dict) -> float:
     """The reference optimum of a figure's problem (``REFERENCE_TEXT``), for the claims beyond the thesis: the
     lowest median final cost any solver run in the figure on all its initial states reaches: the thesis's
-    solvers, the ablations, and the long-budget runs (``pipeline.figures.REFERENCE``, adaptive R-AICO at
+    solvers, the ablations, and the long-budget runs (``thesis.figures.REFERENCE``, adaptive R-AICO at
     100 iterations; crocoddyl FDDP at 100 where the figure has it). Variants run on fewer initial states, such
     as the FDDP rule ablations, are left out: a median over other problems."""
     full = max((s.get("runs", 0) for s in S.values()), default=0)
@@ -843,17 +845,6 @@ def claim_cog_support(S, execs):
             f"stood {stood}/{len(execs)} runs (statuses: {counts}); CoG inside the contact polygon: median "
             f"{_pct(float(np.median(inside)))} of the samples, worst margin {_fmt(float(np.nanmin(margin)))} m; steps "
             f"with an actuator at its effort limit: median {_pct(float(np.median(sat)))}", ok, None, j)
-
-
-EXECUTED_VIA_TOL = 0.01  # m, as the planning claim's tolerance
-
-
-def executed_achieved(metrics: dict) -> bool:
-    """An execution achieved the task: status ``ok`` and its largest executed via-point error (the held right sole
-    left out) within ``EXECUTED_VIA_TOL``."""
-    from stages.evaluate.summary import largest_via_error
-
-    return metrics.get("status") == "ok" and largest_via_error(metrics) <= EXECUTED_VIA_TOL
 
 
 def claim_executed_reaches(S, execs):
