@@ -56,7 +56,7 @@ from plants.taskmaps import (
 
 class MessageKind(IntEnum):
     """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
-    (the same values; tests/test_kernels.py reads the C enum and compares)."""
+    (the same values; tests/planning/test_kernels.py reads the C enum and compares)."""
 
     FRAME_POINTS = 0      # FramePoints
     CENTER_OF_MASS = 1    # CenterOfMass

@@ -1,7 +1,7 @@
 """The thesis's experiments as they were defined in Python before they became the files under
 thesis/experiments/ (a frozen copy of thesis/figures.py's definitions, plan and learn configs and
 the figure flow of that time), kept only to prove that the files give every run the same cache key
-(tests/test_thesis_files.py). Nothing else reads it."""
+(tests/thesis/test_thesis_files.py). Nothing else reads it."""
 
 # ruff: noqa: E501
 from __future__ import annotations
