@@ -247,6 +247,8 @@ def test_the_walk_sees_the_known_edges():
     assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
     assert "planning.kernels" in GRAPH["planning.aico"]       # a lazy or module-level import
     assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli"]
+    assert "thesis.claims" in GRAPH["thesis.report"] and "pipeline.engine.cache" in GRAPH["thesis.report"]
+    assert "thesis.cli" in GRAPH and not any(t.startswith("thesis") for t in GRAPH["pipeline.interface.cli"])
     assert len(GRAPH) > 50
 
 
