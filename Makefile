@@ -64,7 +64,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.learn_any --artifacts $(ARTIFACTS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check pipeline plants planning stages tests bench scripts
+	$(BIN)/ruff check pipeline plants planning stages thesis tests bench scripts
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -149,7 +149,7 @@ def _direct(path: str, label: str, run, spec: dict, note: str) -> dict:
 
 
 def _fddp_cold(problem):
-    from planning.crocoddyl_model import FDDPOptions, fddp
+    from planning.crocoddyl import FDDPOptions, fddp
 
     r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero"))
     return r, r.cost
@@ -158,7 +158,7 @@ def _fddp_cold(problem):
 def _kinova_example(problem):
     """crocoddyl's own problem: Pinocchio's cos/sin joints, FDDP's cold start; raico's cost of its
     plan differs from crocoddyl's (its state differences wrap at pi)."""
-    from planning.crocoddyl_model import FDDPOptions, fddp
+    from planning.crocoddyl import FDDPOptions, fddp
 
     r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", continuous="cos-sin"))
     return r, r.cost
@@ -169,8 +169,8 @@ def _talos_example(problem):
     (sum ||Q_u||^2 < 1e-9); crocoddyl 3.2.0's DDP takes the same iterates."""
     import crocoddyl
 
-    from planning.crocoddyl_model import Status, _result, build
-    from planning.problem import IterationRecord
+    from planning.crocoddyl import build, result
+    from planning.problem import IterationRecord, Status
 
     cp = build(problem, damping=False)
     solver = crocoddyl.SolverDDP(cp.shooting)
@@ -204,13 +204,13 @@ def _talos_example(problem):
     s = Stopped()
     s.xs, s.us, s.K = xs, us, K
     croc = history[-1].cost
-    res = _result(problem, s, history, Status.CONVERGED, "crocoddyl DDP stopped by crocoddyl 1.0.0's rule "
-                  "sum ||Q_u||^2 < 1e-9 (no joint damping)", math.nan, s, None, cp)
+    res = result(problem, s, history, Status.CONVERGED, "crocoddyl DDP stopped by crocoddyl 1.0.0's rule "
+                 "sum ||Q_u||^2 < 1e-9 (no joint damping)", math.nan, s, None, cp)
     return res, croc
 
 
 def run_problem(name: str) -> dict:
-    from planning.crocoddyl_model import NotExpressible
+    from planning.crocoddyl import NotExpressible
     from stages.plan.stage import plan
 
     spec = PROBLEMS[name]
@@ -320,7 +320,7 @@ def run(artifacts: Path, names=tuple(PROBLEMS)) -> dict:
     import os
     import platform
 
-    from pipeline.cache import write_file_atomic
+    from pipeline.engine.cache import write_file_atomic
 
     doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
            "machine": f"{os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f} at start, Python "

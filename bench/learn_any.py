@@ -34,7 +34,7 @@ REACH = 0.01  # m: the learning loop's goal
 
 def model_file_row(cache) -> dict:
     """The plan on the model file alone, executed on the true robot: its distance to the target (m)."""
-    from pipeline.runner import run
+    from pipeline.engine.runner import run
     from stages.execute import ExecuteConfig
     from stages.plan.stage import PlanConfig
 
@@ -49,7 +49,7 @@ def model_file_row(cache) -> dict:
 def learn_row(cache, residual: bool, episodes: int, sigma_weight: float | None = None) -> dict:
     """The learning loop with the residual or the full GP, with the uncertainty term (``sigma* = 0``,
     weight ``sigma_weight``, standardized units) or without (None): per-episode numbers and the wall time."""
-    from pipeline.runner import run
+    from pipeline.engine.runner import run
     from stages.learn import LearnConfig
 
     sigma = {} if sigma_weight is None else {"sigma_star": "0", "sigma_weight": sigma_weight,
@@ -172,7 +172,7 @@ def plot(rows: list[dict], path: Path) -> None:
 def main() -> None:
     import os
 
-    from pipeline.cache import Cache
+    from pipeline.engine.cache import Cache
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=5, help="episodes of the residual-GP loop")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cache import package_versions, write_file_atomic
+from pipeline.engine.cache import package_versions, write_file_atomic
 from planning.solvers import solve
 from stages.plan.stage import PlanConfig, build_problem
 
@@ -206,7 +206,7 @@ CASES = [
      bench_exp_show, (7,)),
     ("building the runs table of a 1000-run experiment (rows from the entries, runs.csv, runs.json)", 5.0,
      bench_exp_table, (3,)),
-    ("raico exp run --dry-run of a thesis file (the slowest of experiments/thesis/)", 2.0, bench_thesis_dry_run, (3,)),
+    ("raico exp run --dry-run of a thesis file (the slowest of thesis/experiments/)", 2.0, bench_thesis_dry_run, (3,)),
 ]
 
 
@@ -352,9 +352,9 @@ def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None =
     import subprocess
     import sys
 
-    from pipeline.cache import Cache
-    from pipeline.executors import Executor
-    from pipeline.reproduce import ALL_IDS, reproduce
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import Executor
+    from thesis.reproduce import ALL_IDS, reproduce
 
     ids = list(ids or ALL_IDS)
     args = ["--all"] if ids == list(ALL_IDS) else [a for fid in ids for a in ("--figure", fid)]
@@ -446,7 +446,7 @@ def main() -> None:
     # to crocoddyl_problems.json and .md)
     croc_problems = crocoddyl_problems(Path(args.artifacts), BENCH_PROBLEMS)
     from bench.suite import run as solver_suite
-    from pipeline.runner import finite_json
+    from pipeline.engine.runner import finite_json
 
     # every solver on every problem of problems/suite, judged by performance profiles (suite.json, .md, .png)
     suite_doc = solver_suite(Path(args.artifacts))

@@ -103,7 +103,7 @@ def run(out_dir: Path | None = None) -> list[dict]:
     """The three sweeps as result rows (and ``scaling.png`` in ``out_dir``)."""
     from threadpoolctl import threadpool_limits
 
-    from planning.crocoddyl_model import AVAILABLE
+    from planning.crocoddyl import AVAILABLE
 
     rows, curves = [], {}
     with threadpool_limits(1):

@@ -1,6 +1,6 @@
 """The solver suite on ``make bench``'s page: ``python -m bench.suite [--artifacts DIR] [--jobs N]``.
 
-Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.suite`: every solver on
+Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.experiments.suite`: every solver on
 every problem, each an ordinary cached plan in ``DIR``, one run at a time in this process for the
 cleanest times) and writes ``DIR/bench/suite.json``, ``suite.md`` (the page; its tables go into
 the README through ``scripts/readme_numbers.py``) and ``suite_profiles.png``.
@@ -14,10 +14,10 @@ from pathlib import Path
 
 
 def run(artifacts: Path, file: Path | None = None, jobs: int = 1) -> dict:
-    """The suite's document (see :func:`pipeline.suite.bench`)."""
-    from pipeline import suite
-    from pipeline.cache import Cache
-    from pipeline.executors import make_executor
+    """The suite's document (see :func:`pipeline.experiments.suite.bench`)."""
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import make_executor
+    from pipeline.experiments import suite
 
     s = suite.load(file)
 

@@ -1,3 +1,3 @@
-"""The CLI, the cache, the stage runner, recordings, experiments, report."""
+"""The tool around the stages: engine (cache, runner), recordings, experiments, interface (CLI, API)."""
 
 import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)

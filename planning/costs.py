@@ -717,7 +717,7 @@ class ControlGravity:
 
 # --------------------------------------------------------------------------------------------
 # Examples: a configured instance of every cost term class, checked against finite
-# differences by tests/test_derivatives.py (plants.numdiff.check_cost_term). Via-points are
+# differences by tests/plants/test_derivatives.py (plants.numdiff.check_cost_term). Via-points are
 # made on every registered task map example. A new term class registers an example here.
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@
  * bit 2: task message) with the step's point already moved; the caller fills C[t], Qbar[t],
  * a_eff[t] and/or RA[t] and calls sweep_run again, which continues where it stopped.
  * Build: gcc -O3 with fused multiply-adds where the CPU has them (kernels.FLAGS, Makefile target
- * `kernels`); the results equal the numpy code's to rounding (tests/test_kernels.py), not bit for bit.
+ * `kernels`); the results equal the numpy code's to rounding (tests/planning/test_kernels.py), not bit for bit.
  */
 #include <math.h>
 #include <string.h>

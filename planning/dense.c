@@ -2,7 +2,7 @@
  * register-tiled products, Cholesky factors, triangular solves and the SPD inverse, row-major,
  * no BLAS. planning/kernels.py compiles this file and csweep.c as one translation unit (this file
  * first; the functions stay static, so the compiler inlines them as before); the k_* entry points
- * at the end exist for tests/test_kernels.py, which checks each against numpy.
+ * at the end exist for tests/planning/test_kernels.py, which checks each against numpy.
  */
 #include <math.h>
 #include <string.h>

@@ -5,7 +5,7 @@
  * out k (T, m), K (T, m, n), dV (2). The regularized Q_uu (with mu: luu + (B^T Vxx + mu B^T) B)
  * is symmetrized and factored by Cholesky; returns 0, or t + 1 when it is not positive definite at
  * step t (the caller raises its regularization). Results equal the numpy code's to rounding
- * (tests/test_solvers_lq.py compares them).
+ * (tests/planning/test_solvers_lq.py compares them).
  */
 #include <math.h>
 #include <stdlib.h>

@@ -3,7 +3,7 @@
 ``csweep.c`` is ``planning.aico._Sweeps``'s forward / backward / belief / settle code in C, on
 the register-tiled dense linear algebra of ``dense.c`` (no BLAS: at the sweeps' sizes it beats
 OpenBLAS, see the measurements there; its entry points ``k_*`` are tested against numpy by
-tests/test_kernels.py). The two files are compiled as one translation unit (:data:`SOURCES`, in
+tests/planning/test_kernels.py). The two files are compiled as one translation unit (:data:`SOURCES`, in
 that order: the dense functions stay ``static`` and inline as before). The sources ship with the package (package data) and is compiled
 on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
 cache (``make kernels`` builds it ahead: ``python -m planning.kernels``). :data:`FLAGS` follow

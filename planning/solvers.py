@@ -74,11 +74,11 @@ def _register_crocoddyl() -> None:
 
 
 def _crocoddyl_specs() -> dict[str, SolverSpec]:
-    """The crocoddyl baseline (``planning.crocoddyl_model``): ``fddp`` starts from ``x0`` held at every
+    """The crocoddyl baseline (``planning.crocoddyl``): ``fddp`` starts from ``x0`` held at every
     node (R-AICO's start), ``fddp-rollout`` from the zero-torque rollout; ``fddp-rollout-accept-any``
     and ``fddp-rollout-ilqg-schedule`` are the ablations with iLQG's acceptance rule and its
     regularization schedule."""
-    from planning import crocoddyl_model as cm
+    from planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         raise ValueError(f"crocoddyl's solvers cannot run here: {cm.UNAVAILABLE_REASON}")

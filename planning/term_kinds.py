@@ -5,16 +5,16 @@ residual and (task maps) its plot labels.
 Cost terms (:data:`TERM_KINDS`, rows :class:`TermKind`): ``key`` (the description's ``"term"``),
 ``cls``, ``side`` (``"state"``: on ``x_t``, ``"control"``: on ``u_t``, ``"joint"``: on both),
 ``build(robot, d)`` (``None``: built elsewhere, see the row) and
-``crocoddyl``, the name of the function of ``planning.crocoddyl_problem`` that gives its crocoddyl
+``crocoddyl``, the name of the function of ``planning.crocoddyl.costs`` that gives its crocoddyl
 ``(residual, activation)`` pairs. ``planning.objective.build_term`` and
-``planning.crocoddyl_problem.cost_items`` read it. A new term kind is its class
+``planning.crocoddyl.costs.cost_items`` read it. A new term kind is its class
 (``planning.costs``) and one row (and its crocoddyl function, where crocoddyl has one).
 
 Task maps:
 
 One row per kind (:data:`MAP_KINDS`); the objective (``planning.objective.build_taskmap``), the
 compiled task messages (``planning.kernels.compile_task_set``), the crocoddyl translation
-(``planning.crocoddyl_problem``) and the recordings' plots (``pipeline.recorders``) look a map up
+(``planning.crocoddyl.costs``) and the recordings' plots (``pipeline.recordings.tasks``) look a map up
 here, by class (:func:`kind_of_map`) or by description key (:func:`kind_named`). A new task-map
 kind is its class (``plants.taskmaps``) and one row; its compiled counterpart, where it has one, is
 a :class:`MessageKind` with its branch in ``task_messages.c`` and a ``compile`` function here.
@@ -29,7 +29,7 @@ Columns of a row (:class:`MapKind`):
   none; ``arr(a, dtype)`` keeps ``a`` alive and gives its address); ``False`` where this instance
   does not fit the kernel (then the Python messages run); ``None``: no compiled counterpart;
 - ``tree``: whether the compiled map reads the robot's tree kernels (the frame maps, the CoM);
-- ``crocoddyl``: the name of the function of ``planning.crocoddyl_problem`` that gives the
+- ``crocoddyl``: the name of the function of ``planning.crocoddyl.costs`` that gives the
   via-point's crocoddyl residuals (``None``: not expressible);
 - ``labels(m, dim, name, joint_names) -> (component names, coordinates per point, unit, angle?)``
   of a map description ``m`` for the plots.
@@ -56,7 +56,7 @@ from plants.taskmaps import (
 
 class MessageKind(IntEnum):
     """What a compiled task term evaluates: ``enum message_kind`` of ``planning/task_messages.c``
-    (the same values; tests/test_kernels.py reads the C enum and compares)."""
+    (the same values; tests/planning/test_kernels.py reads the C enum and compares)."""
 
     FRAME_POINTS = 0      # FramePoints
     CENTER_OF_MASS = 1    # CenterOfMass
@@ -146,21 +146,21 @@ def default_labels(m, dim: int, name: str, joint_names) -> tuple[list[str], int,
 MAP_KINDS: tuple[MapKind, ...] = (
     MapKind("frame_points", FramePoints,
             lambda r, d: FramePoints(r, d["frame"], points=d.get("points"), axes=tuple(d["axes"]), name=d["name"]),
-            _compile_frame_points, True, "_via_frame_points", _axes_labels),
+            _compile_frame_points, True, "via_frame_points", _axes_labels),
     MapKind("roll", RollAngle, lambda r, d: RollAngle(r, d["frame"], name=d["name"]),
-            _compile_roll, True, "_via_roll",
+            _compile_roll, True, "via_roll",
             lambda m, dim, name, jn: ([f"{name} (unwrapped)"], 1, "rad", True)),
     MapKind("cog", CenterOfMass, lambda r, d: CenterOfMass(r, axes=tuple(d["axes"]), name=d["name"]),
-            _compile_com, True, "_via_com", _axes_labels),
+            _compile_com, True, "via_com", _axes_labels),
     MapKind("joints", JointPositions, lambda r, d: JointPositions(r.n_q, d.get("indices"), name=d["name"]),
-            _compile_joints, False, "_via_joints", _joint_labels),
+            _compile_joints, False, "via_joints", _joint_labels),
     MapKind("frame_rotation", FrameRotationError,     # the rotation vector of R*^T R
             lambda r, d: FrameRotationError(r, d["frame"], d["rotation"], name=d["name"]),
-            _compile_frame_pose, True, "_via_frame_pose",
+            _compile_frame_pose, True, "via_frame_pose",
             lambda m, dim, name, jn: (["rx", "ry", "rz"], 3, "rad", False)),
     MapKind("frame_placement", FramePlacementError,   # log6: translation part (m) then rotation vector (rad)
             lambda r, d: FramePlacementError(r, d["frame"], d["rotation"], d["translation"], name=d["name"]),
-            _compile_frame_pose, True, "_via_frame_pose",
+            _compile_frame_pose, True, "via_frame_pose",
             lambda m, dim, name, jn: (["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False)),
 )
 _BY_CLASS = {k.cls: k for k in MAP_KINDS}
@@ -212,19 +212,19 @@ def _term_rows() -> tuple[TermKind, ...]:
     return (
         TermKind("via", ViaPoint, "state", lambda r, d: ViaPoint(
             taskmap(r, d), d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"],
-            tol=d.get("tol")), "_via"),
+            tol=d.get("tol")), "items_via"),
         TermKind("inequality", TaskInequality, "state", lambda r, d: TaskInequality(
-            taskmap(r, d), d["A"], d["b"], _times(d["times"]), d["weight"], name=d["name"]), "_joint_bounds"),
+            taskmap(r, d), d["A"], d["b"], _times(d["times"]), d["weight"], name=d["name"]), "items_joint_bounds"),
         TermKind("state", StateTarget, "state", lambda r, d: StateTarget(
-            d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"]), "_items_state"),
+            d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"]), "items_state"),
         TermKind("control", ControlCost, "control", lambda r, d: ControlCost(
-            d["weight"], target=d.get("target"), name=d["name"], precision=d.get("precision")), "_items_control"),
+            d["weight"], target=d.get("target"), name=d["name"], precision=d.get("precision")), "items_control"),
         TermKind("control_limit", ControlLimit, "control", lambda r, d: ControlLimit(
-            d["lower"], d["upper"], d["weight"], name=d["name"]), "_items_control_limit"),
+            d["lower"], d["upper"], d["weight"], name=d["name"]), "items_control_limit"),
         # toward gravity: a joint term on (x_t, u_t), built by planning.objective.build_terms from a
         # "control" description whose target is "gravity" (it needs the horizon): no builder here;
         # compiled: MessageKind.GRAVITY (its state part, planning.kernels.compile_task_set)
-        TermKind("control@gravity", ControlGravity, "joint", None, "_items_control_gravity"),
+        TermKind("control@gravity", ControlGravity, "joint", None, "items_control_gravity"),
     )
 
 

@@ -16,7 +16,7 @@ def output_threads() -> int:
     """Threads for independent per-output GP work in this process (the outputs' hyperparameter fits,
     a batch posterior): ``RAICO_THREADS`` if set, else the CPUs this process may run on. Each thread
     runs single-threaded BLAS on its own output, so the numbers do not depend on the count. A pool
-    worker of the pipeline gets its share (``pipeline.executors``: CPUs // workers; a Ray task 1)."""
+    worker of the pipeline gets its share (``pipeline.engine.executors``: CPUs // workers; a Ray task 1)."""
     env = os.environ.get("RAICO_THREADS", "")
     if env.strip():
         try:

@@ -6,7 +6,7 @@ parameters). Built-ins: ``pseudo`` (backward Euler; ``pseudo-euler`` and ``pseud
 other two schemes) and ``analytic``. A new model (e.g. ``learned``, whose
 builder takes the GP's fitted arrays as ``params``) is added by one ``register_dynamics`` call
 at the end of this module; its own module must not import this one (no import cycle). Every
-registered model is checked against finite differences by ``tests/test_derivatives.py``.
+registered model is checked against finite differences by ``tests/plants/test_derivatives.py``.
 """
 
 from __future__ import annotations

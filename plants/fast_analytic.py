@@ -31,7 +31,7 @@ kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its forward-mode derivati
 derivatives for the Nao, whose symbolic equations are too large to generate, and for arms of 6 or
 more joints, whose symbolic derivation is slow or fails (see ``SYMBOLIC_MAX_POSITIONS``); revolute,
 prismatic and weld joints. It is the registry's ``analytic`` model for those plants (through
-:func:`make_fast_or_exact`), checked against ``AnalyticDynamics`` in ``tests/test_kernels.py`` and
+:func:`make_fast_or_exact`), checked against ``AnalyticDynamics`` in ``tests/planning/test_kernels.py`` and
 timed by ``make bench``.
 """
 
@@ -58,7 +58,7 @@ _P = ctypes.POINTER(ctypes.c_double)
 
 # The dynamics libraries at -O3 (later flags win): the derivative loops vectorize (the tree
 # kernels' dual-number lanes: 40 % less time at 32 joints, 18 % at 6); contraction and
-# reassociation stay off, so every number is the -O2 build's, bit for bit (tests/test_fastdyn.py).
+# reassociation stay off, so every number is the -O2 build's, bit for bit (tests/plants/test_fastdyn.py).
 DYN_FLAGS = (*c_backend.CFLAGS, "-O3")
 
 
@@ -445,7 +445,7 @@ class TreeGravityTorques(GravityTorques):
     """:class:`plants.dynamics.GravityTorques` on the robot's compiled tree (:mod:`plants.codegen.rbd`,
     checked against Drake when built): ``g(q) = P^T ID(P q, 0, 0)`` and ``dg/dq = P^T dID/dq P``, the
     inverse dynamics at rest and its derivatives in C (Drake's gravity forces and AutoDiffXd Jacobian
-    to rounding, tests/test_task_messages.py); Drake's route for non-finite ``q``."""
+    to rounding, tests/planning/test_task_messages.py); Drake's route for non-finite ``q``."""
 
     def __init__(self, robot, kernels):
         super().__init__(robot)

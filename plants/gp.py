@@ -47,7 +47,7 @@ NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the m
 # One query point, every output: the GP mean and its input gradient in C (no per-output numpy
 # calls: a planner's relinearization inside the sweeps asks for one point at a time). The same
 # formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
-# agree to rounding (tests/test_gp.py). The source: gp_point.c beside this module.
+# agree to rounding (tests/plants/test_gp.py). The source: gp_point.c beside this module.
 _POINT_LIB: object = None
 # The point kernels' stack buffers (gp_point.c): at most this many inputs, and for the compiled
 # relinearization this many outputs; larger models run the numpy code.
@@ -548,7 +548,7 @@ class GPModel(GPBase):
         """One point, every output in one compiled call: forward and back substitution against each
         Cholesky factor, ``2 N^2`` flops per output (the planner's sweeps ask for one point at a time).
         The same formulas as the batch call; the solves run in a different order than BLAS's, so the
-        two agree to rounding (tests/test_gp.py). ``None`` without a C compiler."""
+        two agree to rounding (tests/plants/test_gp.py). ``None`` without a C compiler."""
         lib = _point_lib() if self.d <= POINT_MAX_INPUTS else None
         if lib is None:
             return None

@@ -699,7 +699,7 @@ class Stack(_BatchByPoints):
 
 # --------------------------------------------------------------------------------------------
 # Examples: one or more configured instances of every task map class, checked against finite
-# differences by tests/test_derivatives.py (and turned into via-point examples in
+# differences by tests/plants/test_derivatives.py (and turned into via-point examples in
 # planning.costs). A new task map class registers an example here.
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)

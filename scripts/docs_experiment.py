@@ -16,9 +16,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipeline import compare, expfile, plots
-from pipeline.cache import Cache
-from pipeline.screenshots import read_png, render_screenshot, renderer_unavailable, robot_mask
+from pipeline.engine.cache import Cache
+from pipeline.experiments import compare, expfile, plots
+from pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable, robot_mask
 
 ROOT = Path(__file__).resolve().parent.parent
 FILE = ROOT / "experiments" / "arm_alpha.toml"

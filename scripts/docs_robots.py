@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "plants"))
 
 
 
@@ -30,8 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from test_model_file import ARMS, COM_SHIFT, HUMANOIDS, LIMITS, REACH, problem_text
 
-    from pipeline import api
-    from pipeline.screenshots import read_png, render_screenshot, renderer_unavailable
+    from pipeline.interface import api
+    from pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable
     from plants.model_file import RobotSpec, example_robot_data, load_model
     from plants.taskmaps import FramePoints
     from stages.plan.problem_file import resolve_frame

@@ -13,8 +13,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pipeline import api
-from pipeline.screenshots import render_screenshot, renderer_unavailable
+from pipeline.interface import api
+from pipeline.recordings.screenshots import render_screenshot, renderer_unavailable
 from plants.robots import PLANTS
 
 

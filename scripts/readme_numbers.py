@@ -19,7 +19,7 @@ import json
 import re
 from pathlib import Path
 
-from pipeline.reproduce import CALL, call_line
+from thesis.reproduce import CALL, call_line
 
 
 def section(text: str, start: str) -> str:
@@ -68,7 +68,7 @@ def headline_block(report: Path) -> str:
 
 def exp_block(table_dir: Path) -> str:
     """The example experiment's grouped table (``raico exp show arm-alpha --format md``)."""
-    from pipeline import expfile
+    from pipeline.experiments import expfile
 
     doc = json.loads((table_dir / "runs.json").read_text())
     import pandas as pd

@@ -13,10 +13,10 @@ A stage is a plain object that knows nothing of the CLI or the cache:
   key) and validated (``config.validate()``) once, so ``run`` need not do either again;
 - ``data_files``: the data files ``run`` returns (``.npz`` arrays or JSON documents).
 
-The pipeline (``pipeline/runner.py``) resolves the inputs, keys the run by
+The pipeline (``pipeline/engine/runner.py``) resolves the inputs, keys the run by
 ``(name, code version, config without its input references, input keys)``, calls
 ``run`` on a miss and publishes the files atomically. Recordings are derived from the
-stored data by the pipeline's recorder of the stage (``pipeline/recorders.py``), so a
+stored data by the pipeline's recorder of the stage (``pipeline/recordings/``, one module per stage), so a
 recording is never part of the data's key.
 
 A composite stage (``raico learn``) is a stage whose work is a sequence of other stages' runs
@@ -30,7 +30,7 @@ invalidates the composite's entries too. The steps are not inputs: the composite
 them, so they are not part of its key.
 
 Adding a stage: one module under ``stages/`` defining a ``Stage`` and one line in
-``stages/registry.py``; a recorder, if it records, in ``pipeline/recorders.py``.
+``stages/registry.py``; a recorder, if it records, in ``pipeline/recordings/`` (registered in ``registry.py``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ never on the GP); the executed data feed the next fit. Every step goes through t
 killed ``learn`` resumes where it stopped: finished episodes are cache hits. The loop's own
 artifact (``learn/<key>/episodes.json``: the per-episode numbers and the keys of their runs) is
 keyed like any stage's, by its config and its code version, which includes its steps'. Its
-recording (the ``episode`` timeline) is made from that file by ``pipeline.recorders``.
+recording (the ``episode`` timeline) is made from that file by ``pipeline.recordings.learn``.
 
 Any robot: ``--problem FILE`` replaces ``--plant`` and ``--task``; the problem file's robot babbles
 (``stages.babble``: PD around random trajectories with the model file's gravity compensation and

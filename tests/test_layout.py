@@ -1,12 +1,17 @@
 """The layout: the floors hold and no module imports itself back.
 
-The imports of the packages ``plants``, ``planning``, ``stages`` and ``pipeline`` are read with ``ast`` (nothing
+The imports of the packages ``plants``, ``planning``, ``stages``, ``pipeline`` and ``thesis`` are read with ``ast`` (nothing
 is imported), every ``import`` statement counted, the ones inside functions too (a lazy import
 still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out):
 
-- the floors, ``pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
-  ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``;
-- no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl_model``);
+- the floors, ``thesis -> pipeline -> stages -> planning -> plants``: ``plants`` imports none of the others,
+  ``planning`` (the planner as a library) neither ``stages`` nor ``pipeline``, ``stages`` not ``pipeline``,
+  and none of the tool's layers the thesis (its figures, claims, report and ``raico reproduce``, which
+  it registers through an entry point);
+- no stage's code version reads a file of the thesis (editing a claim keeps every cached run);
+- inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``pipeline.errors``
+  the base of all);
+- no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl``);
 - no import cycle between modules;
 - no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
   beyond :data:`KNOWN_PACKAGE_LOOPS` (none since the planner moved to ``planning``);
@@ -23,12 +28,18 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("plants", "planning", "stages", "pipeline")
-# package -> the top-level packages it must not import
-FLOORS = {"plants": {"planning", "stages", "pipeline"}, "planning": {"stages", "pipeline"}, "stages": {"pipeline"}}
+PACKAGES = ("plants", "planning", "stages", "pipeline", "thesis")
+# package -> the top-level packages it must not import: thesis -> pipeline -> stages -> planning -> plants
+FLOORS = {"plants": {"planning", "stages", "pipeline", "thesis"}, "planning": {"stages", "pipeline", "thesis"},
+          "stages": {"pipeline", "thesis"}, "pipeline": {"thesis"}}
+# inside ``pipeline``: sub-package -> the sub-packages it must not import (interface -> experiments -> engine
+# -> recordings; ``pipeline.errors`` is the shared base below them all)
+PIPELINE_FLOORS = {"pipeline.recordings": {"pipeline.engine", "pipeline.experiments", "pipeline.interface"},
+                   "pipeline.engine": {"pipeline.experiments", "pipeline.interface"},
+                   "pipeline.experiments": {"pipeline.interface"}}
 # Package-level loops allowed, each as the sorted packages of one strongly connected set (none left).
 KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = set()
-SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl_model")
+SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl")
 
 
 def _modules() -> dict[str, Path]:
@@ -170,6 +181,36 @@ def test_floors(lower):
     assert not bad, f"{lower} imports a floor above it:\n" + "\n".join(bad)
 
 
+@pytest.mark.parametrize("lower", sorted(PIPELINE_FLOORS))
+def test_pipeline_floors(lower):
+    """Inside the pipeline: the recordings know nothing of the engine (the runner passes them what they
+    read), the engine nothing of experiments or the interface."""
+    def sub(mod: str) -> str:
+        return ".".join(mod.split(".")[:2])
+
+    bad = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if sub(m) == lower for t in ts if sub(t) in PIPELINE_FLOORS[lower])
+    assert any(sub(m) == lower for m in GRAPH), f"no modules in {lower}"
+    assert not bad, f"{lower} imports a sub-package above it:\n" + "\n".join(bad)
+
+
+def test_no_stage_code_version_reads_the_thesis():
+    """A stage's code version hashes its ``sources``: none of them lies in the thesis, so editing a claim
+    (thesis/claims.py) leaves every cached run, the evaluate stage's too, valid."""
+    import importlib
+
+    from stages.registry import get_stage, stage_names
+
+    thesis = REPO / "thesis"
+    for name in stage_names():
+        for src in get_stage(name).sources:
+            if src.startswith("files:"):
+                assert not src[len("files:"):].startswith("thesis"), (name, src)
+                continue
+            path = Path(importlib.import_module(src).__file__).resolve()
+            assert thesis not in path.parents, f"stage {name} hashes {src} ({path})"
+    assert "thesis.claims" not in {s for n in stage_names() for s in get_stage(n).sources}
+
+
 def test_no_module_import_cycle():
     cycles = strongly_connected(GRAPH)
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(_cycle_path(GRAPH, c)) for c in cycles)
@@ -193,7 +234,11 @@ def test_package_loops_only_the_known_ones():
 
 def test_no_solver_imports_another():
     """Solvers share the problem (its rollout, its options contract), never each other's code."""
-    bad = [f"{a} -> {b}" for a in SOLVERS for b in SOLVERS if a != b and b in GRAPH.get(a, set())]
+    def solver(mod: str) -> str | None:  # the solver a module belongs to (a solver may be a package)
+        return next((s for s in SOLVERS if mod == s or mod.startswith(s + ".")), None)
+
+    bad = sorted({f"{m} -> {t}" for m, ts in GRAPH.items() for t in ts
+                  if solver(m) and solver(t) and solver(m) != solver(t)})
     assert not bad, f"a solver imports another: {bad}"
 
 
@@ -201,7 +246,9 @@ def test_the_walk_sees_the_known_edges():
     """The walk itself: edges this layout is known to have (so an empty graph cannot pass)."""
     assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
     assert "planning.kernels" in GRAPH["planning.aico"]       # a lazy or module-level import
-    assert "pipeline.cache" in GRAPH["pipeline.cli"]
+    assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli"]
+    assert "thesis.claims" in GRAPH["thesis.report"] and "pipeline.engine.cache" in GRAPH["thesis.report"]
+    assert "thesis.cli" in GRAPH and not any(t.startswith("thesis") for t in GRAPH["pipeline.interface.cli"])
     assert len(GRAPH) > 50
 
 

@@ -19,7 +19,7 @@ def test_crocoddyl_tolerances_quoted_are_the_ones_tested():
     text = " ".join(_section("## Baseline: crocoddyl", "### crocoddyl's own problems").split())
     rollout = re.search(r"rollouts agree with raico's analytic model to (\S+)", text).group(1)
     cost = re.search(r"costs of the same trajectory to (\S+) relative", text).group(1)
-    tests = (ROOT / "tests" / "test_crocoddyl.py").read_text()
+    tests = (ROOT / "tests" / "planning" / "test_crocoddyl.py").read_text()
     assert f"np.max(np.abs(Xc - X)) <= {rollout} * max(1.0, np.max(np.abs(X)))" in tests, rollout
     assert f"abs(cp.cost(X, U) - c) <= {cost} * c" in tests, cost
 

@@ -1,15 +1,15 @@
 """The thesis's experiments as they were defined in Python before they became the files under
-experiments/thesis/ (a frozen copy of pipeline/experiments.py's definitions, plan and learn configs and
+thesis/experiments/ (a frozen copy of thesis/figures.py's definitions, plan and learn configs and
 the figure flow of that time), kept only to prove that the files give every run the same cache key
-(tests/test_thesis_files.py). Nothing else reads it."""
+(tests/thesis/test_thesis_files.py). Nothing else reads it."""
 
 # ruff: noqa: E501
 from __future__ import annotations
 
-from pipeline import expfile
-from pipeline.cache import Cache
-from pipeline.executors import Batch
-from pipeline.experiments import (
+from pipeline.engine.cache import Cache
+from pipeline.engine.executors import Batch
+from pipeline.experiments import expfile
+from thesis.figures import (
     STABILIZER,
     Experiment,
     LearnExperiment,
@@ -22,7 +22,7 @@ from pipeline.experiments import (
 
 
 def _baseline_available() -> bool:
-    from planning.crocoddyl_model import AVAILABLE
+    from planning.crocoddyl import AVAILABLE
 
     return AVAILABLE
 
@@ -41,7 +41,7 @@ FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FD
 ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                    schedule="adaptive")
 ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
-# The reference optimum of a figure (stages.evaluate.claims.reference_cost): the lowest median final cost
+# The reference optimum of a figure (thesis.claims.reference_cost): the lowest median final cost
 # any solver reaches on the figure's initial states, including long-budget runs, cached as ordinary plan runs (their
 # keys are the problem's: a changed task, plant, start or cost gives a new run). The adaptive R-AICO at FDDP's
 # budget runs on every problem raico has; crocoddyl FDDP (100 iterations) joins it on the analytic arm.
@@ -157,7 +157,7 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
 
 
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
-    """The runs of ``exp`` as a scheduler flow (``pipeline.executors``): its plans, then the runs
+    """The runs of ``exp`` as a scheduler flow (``pipeline.engine.executors``): its plans, then the runs
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
     integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
     "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""

@@ -1,1 +1,1 @@
-"""Evaluation: per-run metrics, experiment summaries, the thesis's claims and the evaluate stage."""
+"""Evaluation: per-run metrics, experiment summaries and the evaluate stage (the thesis's claims are in thesis/claims.py)."""

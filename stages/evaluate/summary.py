@@ -26,6 +26,15 @@ def largest_via_error(metrics: dict) -> float:
     return max(math.inf if v is None else v for v in errs.values())
 
 
+EXECUTED_VIA_TOL = 0.01  # m, as the planning claim's tolerance
+
+
+def executed_achieved(metrics: dict) -> bool:
+    """An execution achieved the task: status ``ok`` and its largest executed via-point error (the held right sole
+    left out) within ``EXECUTED_VIA_TOL``."""
+    return metrics.get("status") == "ok" and largest_via_error(metrics) <= EXECUTED_VIA_TOL
+
+
 def median_curve(curves: list[np.ndarray]) -> list[float]:
     """Elementwise median over runs of per-iteration cost curves; a run that stopped early (converged)
     keeps its last cost for the later iterations."""

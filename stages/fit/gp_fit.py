@@ -16,7 +16,7 @@ count). A warm-started refit (the learning loop's, from the previous fit's hyper
 the likelihood's relative change falls below ``WARM_FTOL`` = 1e-7 (scipy's default 2.2e-9 otherwise):
 at the loop's 200-1200 points the likelihood is O(1e3) nats, so the stop is 1e-4 nats; it cuts the
 refits' likelihood evaluations by about a quarter (the 20-episode BioRob loop's fits 27 -> 20 s) and
-moves the hyperparameters by < 1e-3 in log scale (tests/test_gp.py). The noise is bounded below by
+moves the hyperparameters by < 1e-3 in log scale (tests/plants/test_gp.py). The noise is bounded below by
 ``noise_floor`` (so the likelihood and ``GPModel``'s posterior use the same ``K + sn2 I``,
 nothing else on the diagonal). Bounds (standardized units): length-scales ``[1e-2, 1e3]``,
 ``sf2`` in ``[1e-3, 1e3]``, ``sn2`` in ``[noise_floor, 1]``; ``sf2 <= 1e3`` and ``sn2 >= 1e-6``

@@ -33,7 +33,7 @@ from plants.robots import NAO_SOLE_POLYGON, Robot
 BALANCE_MODES = ("none", "support", "single")
 MARGIN = 0.025  # m, CoG ground projection inside every support-polygon edge by at least this (the default: with
 # 1.5 cm the stabilizer's runs of seed 0's plans tipped over a sole's edge, in double and in single support; with
-# 2.5 cm the ten of each stood: pipeline/experiments.py, fig3.4-support and fig3.4-single)
+# 2.5 cm the ten of each stood: thesis/figures.py, fig3.4-support and fig3.4-single)
 NO_BALANCE_MARGIN = 0.015  # m, what a plan without a balance term stores (its cache key; the margin means nothing)
 W_SUPPORT = 1e6  # per m^2 of margin violation (the balance task's lateral CoG weight)
 LIFT = 0.02  # m, the right sole's lowest corner above the ground in single support ...

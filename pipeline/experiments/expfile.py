@@ -1,0 +1,1092 @@
+"""Experiments a user writes: a TOML file of variants over seeds, run through the cache, one runs table.
+
+An experiment file (read with ``tomllib``)::
+
+    name = "alpha-on-the-arm"              # the table's folder: artifacts/exp/<name>/
+    description = "R-AICO's alpha against iLQG on the 5-joint arm"
+    stages = ["plan", "execute"]           # plan | plan, execute | plan, evaluate | plan, execute, evaluate
+                                           # | learn | babble
+    seeds = "range(10)"                    # or a list: the initial states, shared by every point
+    [base]                                 # options of the first stage (raico <stage> --help)
+    plant = "arm5"                         # or problem = "my_robot_reach.toml" (a problem file, relative
+    task = "reach-roll"                    #   to this file) in place of plant and task
+    dynamics = "analytic"
+    iterations = 25
+    [execute]                              # options of a later stage
+    clip_torques = true
+    [grid]                                 # the cartesian product of these lists ...
+    alpha = [0.1, 1.0, 10.0]
+    [zip]                                  # ... times these lists taken side by side (equal lengths)
+    [[point]]                              # and hand-listed variants, each on top of [base]
+    label = "ilqg"
+    solver = "ilqg"
+
+Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
+field: the plan's initial state), so comparisons pair by seed; a point's own ``seeds`` (a list or
+``range(N)``, among the experiment's) runs it at those only (an ablation on the first three). A grid or point key ``execute.x0_noise``
+sets a later stage's option. Every key and value is checked by the stage's own config class before
+anything runs; an unknown key is refused with the valid ones listed.
+
+More keys, for experiments that carry their own analysis (the thesis's files, thesis/experiments/)::
+
+    claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
+    [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
+    seeds = "range(2)"                     # options over [base], and the points it keeps (default all)
+    iterations = 6
+    points = ["iLQG", "R-AICO a=1"]
+    [[point]]
+    label = "crocoddyl FDDP (x0 held)"
+    solver = "fddp"
+    iterations = 100
+    quick = {iterations = 12}              # this point's options in the quick profile
+    needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
+    [reproduce]                            # read by raico reproduce (thesis/figures.py), carried here
+
+Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
+has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
+(bad combination, solver error) is a row with its error; the others go on. After a run the table
+``runs.csv`` and ``runs.json`` (one row per seed and variant: the swept options, the seed, each
+stage's key and status, scalar metrics, the cost curve's first, last and lowest values and the
+iterations to come within 1 % of its lowest, wall times and code version) is written under
+``artifacts/exp/<name>/``; :func:`summarize` groups it over seeds.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import itertools
+import json
+import math
+import os
+import re
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pipeline.errors import BadInput
+
+if TYPE_CHECKING:
+    from pipeline.engine.executors import Executor
+
+CHAINS = {("plan",), ("plan", "execute"), ("plan", "evaluate"), ("plan", "execute", "evaluate"), ("learn",),
+          ("babble",)}
+TOP_KEYS = ("name", "description", "stages", "seeds", "base", "grid", "zip", "point", "execute", "evaluate", "claims",
+            "quick", "reproduce")
+POINT_KEYS = ("label", "seeds", "quick", "needs")   # a point's keys that are not options
+# what a point or a claim may need: the crocoddyl baseline (the extra raico[baseline]); the thesis's set-ups beside
+# raico's, run where THESIS_SETUPS is "1" in the environment (`raico reproduce --thesis-setups`)
+NEEDS = ("crocoddyl", "thesis-setups")
+THESIS_SETUPS = "RAICO_THESIS_SETUPS"
+CURVE_TOL = 0.01   # iterations to come within 1 % of the run's lowest cost
+# a run counted as failed in the summaries: a stage raised, a solver diverged, the robot fell
+FAILED_STATUSES = ("error", "diverged", "fell")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of the experiment: its label and options per stage (first stage's under its name)."""
+
+    label: str
+    options: dict[str, dict[str, Any]]   # stage -> {option: value}
+    swept: dict[str, Any]                # the options that vary across the experiment (``stage.option`` for later stages)
+    seeds: tuple[int, ...] = ()          # a point's own seeds (empty: the experiment's)
+
+
+@dataclass(frozen=True)
+class Run:
+    variant: Variant
+    seed: int
+
+
+@dataclass
+class Experiment:
+    name: str
+    description: str
+    stages: tuple[str, ...]
+    seeds: tuple[int, ...]
+    base: dict[str, dict[str, Any]]
+    grid: dict[str, list]
+    zipped: dict[str, list]
+    points: list[dict[str, Any]]
+    path: Path | None = None
+    claims: tuple[str, ...] = ()            # named claims (Python functions of thesis.claims)
+    reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
+    quick: bool = False                     # loaded with its [quick] profile
+    left_out: tuple[str, ...] = ()          # points left out: what they need is not installed
+
+    @functools.cached_property
+    def variants(self) -> list[Variant]:
+        return _variants(self)
+
+    @property
+    def runs(self) -> list[Run]:
+        return [Run(v, s) for v in self.variants for s in (v.seeds or self.seeds)]
+
+    def variant(self, label: str) -> Variant:
+        """The variant labelled ``label``; :class:`BadInput` listing the labels if there is none."""
+        for v in self.variants:
+            if v.label == label:
+                return v
+        raise BadInput(f"{self.name}: no variant '{label}': variants are "
+                       + ", ".join(repr(v.label) for v in self.variants))
+
+
+# ----------------------------------------------------------------------------- reading
+def _seeds(value: Any) -> tuple[int, ...]:
+    if isinstance(value, str):
+        m = re.fullmatch(r"\s*range\(\s*(\d+)\s*(?:,\s*(\d+)\s*)?\)\s*", value)
+        if not m:
+            raise BadInput(f"seeds: '{value}' is neither a list of integers nor range(N) / range(A, B)")
+        a, b = (0, int(m.group(1))) if m.group(2) is None else (int(m.group(1)), int(m.group(2)))
+        value = list(range(a, b))
+    if not isinstance(value, list) or not value or not all(isinstance(s, int) and s >= 0 for s in value):
+        raise BadInput("seeds: a non-empty list of integers >= 0, or range(N)")
+    if len(set(value)) != len(value):
+        raise BadInput("seeds: a seed is listed twice")
+    return tuple(value)
+
+
+def parse_override(text: str) -> tuple[str, list]:
+    """``-S key=a,b`` / ``-S key=range(3)``: a grid axis (values parsed as TOML scalars)."""
+    if "=" not in text:
+        raise BadInput(f"-S {text}: expected KEY=VALUE[,VALUE...]")
+    key, raw = (p.strip() for p in text.split("=", 1))
+    m = re.fullmatch(r"range\(\s*(\d+)\s*(?:,\s*(\d+)\s*)?\)", raw)
+    if m:
+        a, b = (0, int(m.group(1))) if m.group(2) is None else (int(m.group(1)), int(m.group(2)))
+        return key, list(range(a, b))
+    values = []
+    for item in raw.split(","):
+        item = item.strip()
+        try:
+            values.append(tomllib.loads(f"v = {item}")["v"])
+        except tomllib.TOMLDecodeError:
+            values.append(item)   # a bare word: a string
+    if not key or not values or any(v == "" for v in values):
+        raise BadInput(f"-S {text}: expected KEY=VALUE[,VALUE...]")
+    return key, values
+
+
+@functools.cache
+def available(need: str) -> bool:
+    """Whether what a point or claim ``needs`` is installed (:data:`NEEDS`)."""
+    if need == "crocoddyl":
+        from planning.crocoddyl import AVAILABLE
+
+        return bool(AVAILABLE)
+    if need == "thesis-setups":
+        return os.environ.get(THESIS_SETUPS) == "1"
+    raise BadInput(f"needs = '{need}': one of {', '.join(NEEDS)}")
+
+
+def _claims(path: Path, value: Any) -> tuple[str, ...]:
+    """``claims``: names, or ``{name, needs}`` tables (left out where the need is not installed)."""
+    if not isinstance(value, list):
+        raise BadInput(f"{path}: claims must be a list of names or {{name = ..., needs = ...}} tables")
+    out = []
+    for c in value:
+        if isinstance(c, dict) and set(c) <= {"name", "needs"} and isinstance(c.get("name"), str):
+            if "needs" not in c or available(str(c["needs"])):
+                out.append(c["name"])
+        elif isinstance(c, str) and c:
+            out.append(c)
+        else:
+            raise BadInput(f"{path}: claim {c!r} is neither a name nor a {{name = ..., needs = ...}} table")
+    return tuple(out)
+
+
+def _point_seeds(path: Path, point: dict, seeds: tuple[int, ...], quick: bool) -> tuple[int, ...]:
+    """A point's own seeds (those of the experiment it runs at), () for the experiment's."""
+    if "seeds" not in point:
+        return ()
+    try:
+        own = _seeds(point["seeds"])
+    except BadInput as e:
+        raise BadInput(f"{path}: point '{point.get('label')}': {e}") from None
+    missing = [s for s in own if s not in seeds]
+    if missing and not quick:
+        raise BadInput(f"{path}: point '{point.get('label')}': seed {missing[0]} is not among the experiment's seeds")
+    return tuple(s for s in seeds if s in own)
+
+
+def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Experiment:
+    """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
+    (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
+    ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"no experiment file {path}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BadInput(f"cannot read the experiment file {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise BadInput(f"{path}: not valid TOML ({e})") from None
+    unknown = [k for k in doc if k not in TOP_KEYS]
+    if unknown:
+        raise BadInput(f"{path}: unknown key '{unknown[0]}': valid keys are {', '.join(TOP_KEYS)}")
+    name = doc.get("name") or path.stem
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise BadInput(f"{path}: name '{name}' must be letters, digits, '.', '_' or '-' (at most 64)")
+    stages = doc.get("stages", ["plan"])
+    stages = tuple([stages] if isinstance(stages, str) else stages)
+    if stages not in CHAINS:
+        raise BadInput(f"{path}: stages {list(stages)} is not one of "
+                       + "; ".join(", ".join(c) for c in sorted(CHAINS)))
+    grid, zipped = dict(doc.get("grid", {})), dict(doc.get("zip", {}))
+    seeds = _seeds(doc.get("seeds", [0]))
+    profile = doc.get("quick", {})
+    if not isinstance(profile, dict):
+        raise BadInput(f"{path}: [quick] must be a table")
+    if quick:
+        seeds = _seeds(profile["seeds"]) if "seeds" in profile else seeds[:2]
+    for text in overrides:
+        key, values = parse_override(text)
+        if key == "seeds":
+            seeds = _seeds(values)
+        elif isinstance(grid.get(key), list):   # a grid axis of the file: its values and these
+            grid[key] = [*grid[key], *(v for v in values if v not in grid[key])]
+        else:   # a new axis (over [base]'s value or a [zip] list's)
+            zipped.pop(key, None)
+            grid[key] = values
+    for table, what in ((grid, "grid"), (zipped, "zip")):
+        for k, v in table.items():
+            if not isinstance(v, list) or not v:
+                raise BadInput(f"{path}: [{what}] {k} must be a non-empty list of values")
+    if len({len(v) for v in zipped.values()}) > 1:
+        raise BadInput(f"{path}: the [zip] lists must have equal lengths, got "
+                       + ", ".join(f"{k} {len(v)}" for k, v in zipped.items()))
+    points = doc.get("point", [])
+    if not isinstance(points, list) or not all(isinstance(p, dict) for p in points):
+        raise BadInput(f"{path}: [[point]] entries must be tables")
+    labels = [p.get("label") for p in points]
+    if any(not isinstance(lb, str) or not lb for lb in labels) or len(set(labels)) != len(labels):
+        raise BadInput(f"{path}: every [[point]] needs a unique label")
+    in_quick = profile.get("points", labels)
+    unknown = [lb for lb in in_quick if lb not in labels] if isinstance(in_quick, list) else [in_quick]
+    if unknown:
+        raise BadInput(f"{path}: [quick] points: no point '{unknown[0]}'")
+    kept = in_quick if quick else labels
+    left_out, chosen = [], []
+    for p in points:
+        if not isinstance(p.get("quick", {}), dict) or not isinstance(p.get("needs", ""), str):
+            raise BadInput(f"{path}: point '{p['label']}': quick must be a table of options, needs a name")
+        if "needs" in p and not available(p["needs"]):
+            left_out.append(p["label"])
+            continue
+        if p["label"] not in kept:
+            continue
+        opts = {k: v for k, v in p.items() if k not in POINT_KEYS}
+        if quick:
+            opts.update(p.get("quick", {}))
+        own = _point_seeds(path, p, seeds, quick)
+        if "seeds" in p and not own:   # the profile's seeds are none of the point's own: it does not run
+            continue
+        chosen.append({"label": p["label"], **opts, "seeds": own})
+    points = chosen
+    claims = _claims(path, doc.get("claims", []))
+    reproduce = doc.get("reproduce", {})
+    if not isinstance(reproduce, dict):
+        raise BadInput(f"{path}: [reproduce] must be a table")
+    base = {stages[0]: _resolve_problem(dict(doc.get("base", {})), path)}
+    points = [_resolve_problem(p, path) for p in points]
+    for table in (grid, zipped):   # problem files as a grid or zip axis: each relative to this file
+        if isinstance(table.get("problem"), list):
+            table["problem"] = [_resolve_problem({"problem": p}, path)["problem"] for p in table["problem"]]
+    if quick:
+        base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
+    for later in stages[1:]:
+        base[later] = dict(doc.get(later, {}))
+    for stage in ("execute", "evaluate"):
+        if stage in doc and stage not in stages[1:]:
+            raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
+    return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
+                      claims, reproduce, quick, tuple(left_out))
+
+
+def _resolve_problem(options: dict, path: Path) -> dict:
+    """A ``problem`` file named relative to the experiment file, made absolute (a run reads it from
+    wherever it is started)."""
+    problem = options.get("problem")
+    if isinstance(problem, str) and not Path(problem).is_absolute():
+        options = {**options, "problem": str((Path(path).resolve().parent / problem).resolve())}
+    return options
+
+
+# ----------------------------------------------------------------------------- variants and configs
+def _split(exp: Experiment, key: str) -> tuple[str, str]:
+    """``stage.option`` or ``option`` (the first stage's) -> (stage, option)."""
+    if "." in key:
+        stage, option = key.split(".", 1)
+        if stage not in exp.stages[1:]:
+            raise BadInput(f"'{key}': {stage} is not a later stage of this experiment ({', '.join(exp.stages)})")
+        return stage, option
+    return exp.stages[0], key
+
+
+def _variants(exp: Experiment) -> list[Variant]:
+    axes = list(exp.grid.items())
+    combos = [dict(zip([k for k, _ in axes], values)) for values in itertools.product(*[v for _, v in axes])]
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
+    zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
+    settings = [(None, {**c, **z}) for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
+    settings = [(None, s, ()) for _, s in settings]
+    settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
+                 for p in exp.points]
+    swept_keys = sorted({k for _, s, _ in settings for k in s})
+    out = []
+    for label, setting, seeds in settings:
+        options = {st: dict(opts) for st, opts in exp.base.items()}
+        for key, value in setting.items():
+            stage, option = _split(exp, key)
+            options[stage][option] = value
+        swept = {k: _used_value(exp, options, k) for k in swept_keys}
+        label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
+        out.append(Variant(label, options, swept, tuple(seeds)))
+    return out
+
+
+def _used_value(exp: Experiment, options: dict, key: str) -> Any:
+    """The value a variant's run uses for option ``key``: as given, else the stage's default, as the
+    config normalizes it (plain AICO's and iLQG's alpha is 0: they have none); None where the options
+    do not make a config (``validate`` then says why)."""
+    from stages.registry import get_stage
+
+    stage, option = _split(exp, key)
+    cls = get_stage(stage).config_cls
+    if stage != exp.stages[0]:
+        return options[stage].get(option, cls.defaults().get(option))
+    try:
+        cfg = cls(**{k.replace("-", "_"): v for k, v in options[stage].items()})
+        cfg = cfg.normalized() if hasattr(cfg, "normalized") else cfg
+    except (TypeError, ValueError):
+        return options[stage].get(option)
+    return getattr(cfg, option.replace("-", "_"), options[stage].get(option))
+
+
+def _config(stage: str, options: Mapping[str, Any], **inputs: Any):
+    """The stage's config from ``options`` (plus input references), validated: :class:`BadInput`
+    naming the option and listing the valid ones."""
+    from stages.registry import get_stage
+
+    cls = get_stage(stage).config_cls
+    fields = {f.name for f in dataclasses.fields(cls)}
+    values = {k.replace("-", "_"): tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    unknown = [k for k in values if k not in fields or k in cls.INPUTS]
+    if unknown:
+        valid = sorted(fields - set(cls.INPUTS) - {"seed"})
+        raise BadInput(f"{stage}: unknown option '{unknown[0]}': valid are {', '.join(valid)}")
+    try:
+        cfg = cls(**values, **inputs)
+        cfg.validate()
+    except (TypeError, ValueError) as e:
+        raise BadInput(f"{stage}: {e}") from None
+    return cfg
+
+
+def first_config(exp: Experiment, run: Run):
+    """The first stage's config of ``run`` (its seed set)."""
+    return _config(exp.stages[0], {**run.variant.options[exp.stages[0]], "seed": run.seed})
+
+
+def validate(exp: Experiment) -> None:
+    """Build every run's first-stage config and every later stage's options (with a stand-in input)
+    before anything runs: the first bad key or value is one :class:`BadInput` naming the variant."""
+    if not exp.runs:
+        raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
+    for v in exp.variants:
+        try:
+            first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
+            for stage in exp.stages[1:]:
+                _config(stage, v.options[stage], **{"plan": "0" * 16})
+        except BadInput as e:
+            raise BadInput(f"variant '{v.label}': {e}") from None
+        if "seed" in v.options[exp.stages[0]]:
+            raise BadInput(f"variant '{v.label}': set the seeds with seeds = [...], not an option 'seed'")
+
+
+def identical_seeds(exp: Experiment) -> str | None:
+    """One line when some variant runs at several seeds that cannot differ, else None: a plan's seed
+    only draws its initial state ``q0 = default + N(0, q0_std^2)``, and a problem file's ``q0_std``
+    defaults to 0; an execution's seed only draws its noise (``x0_noise``, ``process_noise``)."""
+    if exp.stages[0] != "plan":
+        return None
+    from stages.registry import get_stage
+
+    ex_defaults = get_stage("execute").config_cls.defaults() if "execute" in exp.stages else {}
+    same = []
+    for v in exp.variants:
+        seeds = v.seeds or exp.seeds
+        if len(seeds) < 2:
+            continue
+        try:
+            q0_std = first_config(exp, Run(v, seeds[0])).normalized().q0_std
+        except (BadInput, ValueError):
+            continue  # validate() says what is wrong
+        ex = {**ex_defaults, **v.options.get("execute", {})}
+        if q0_std == 0 and not ex.get("x0_noise") and not ex.get("process_noise"):
+            same.append(v.label)
+    if not same:
+        return None
+    n = len(exp.seeds)
+    which = "every variant" if len(same) == len(exp.variants) else ", ".join(same[:3]) + (
+        f" and {len(same) - 3} more" if len(same) > 3 else "")
+    return (f"exp {exp.name}: note: q0_std = 0 (a problem file's default), so the seeds of {which} are identical "
+            f"runs ({n} seeds, one result); for initial states that differ set q0_std in [base] "
+            "(e.g. q0_std = 0.05, rad) or -S q0_std=0.05")
+
+
+# ----------------------------------------------------------------------------- running
+SEEDED = ("plan", "execute", "learn", "babble")   # stages whose ``seed`` is the run's seed
+
+
+def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapping[str, str]):
+    """A stage's config in a run's chain: its options, the run's seed, and the earlier stages' artifacts
+    as its inputs (execute and evaluate read the plan; evaluate also the execution)."""
+    inputs = {}
+    if stage in ("execute", "evaluate"):
+        inputs["plan"] = refs["plan"]
+    if stage == "evaluate" and "execute" in refs:
+        inputs["rollout"] = refs["execute"]
+    opts = {**options[stage], **({"seed": seed} if stage in SEEDED else {})}
+    return _config(stage, opts, **inputs)
+
+
+def _run_chain(args) -> dict:
+    """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
+    fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
+    root, stages, options, seed, record = args
+    from pipeline.engine import runner
+    from pipeline.engine.cache import Cache
+    from pipeline.errors import RaicoError
+    from stages.plan.stage import load_notes_said
+
+    cache, out, refs = Cache(root), {}, {}
+    with load_notes_said():   # the experiment said the model file's load report once (run_reported)
+        for stage in stages:
+            try:
+                outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
+            except (RaicoError, ValueError, ArithmeticError) as e:
+                out[stage] = {"error": " ".join(str(e).split()) or type(e).__name__}
+                break
+            out[stage] = dataclasses.asdict(outcome)
+            refs[stage] = f"{stage}/{outcome.key}"
+    return out
+
+
+def model_notes(exp: Experiment) -> list[str]:
+    """What loading the experiment's model-file robots changed (each line once, the first stage a plan)."""
+    if exp.stages[0] != "plan":
+        return []
+    from stages.plan.stage import load_notes, robot_and_task
+
+    lines: list[str] = []
+    for v in exp.variants:
+        cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
+        if getattr(cfg, "problem", None) is None:
+            continue
+        try:
+            robot, _ = robot_and_task(cfg)
+        except ValueError:   # the run says why, in its row
+            continue
+        lines += [ln for ln in load_notes(robot) if ln not in lines]
+    return lines
+
+
+def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
+    """The run's outcomes when every stage is cached (nothing to submit), else None."""
+    from pipeline.engine import runner
+
+    out, refs = {}, {}
+    for stage in exp.stages:
+        try:
+            hit = runner.lookup(cache, stage, _chain_config(stage, run.variant.options, run.seed, refs),
+                                record=record)
+        except Exception:  # noqa: BLE001 - anything unusual: let the worker run it and say what happened
+            return None
+        if hit is None:
+            return None
+        out[stage] = dataclasses.asdict(hit)
+        refs[stage] = f"{stage}/{hit.key}"
+    return out
+
+
+@dataclass
+class Plan:
+    """What ``run`` would do: the runs and how many are cached."""
+
+    runs: list[Run]
+    cached: list[bool] = field(default_factory=list)
+
+    @property
+    def to_compute(self) -> int:
+        return sum(not c for c in self.cached)
+
+
+def dry_run(cache, exp: Experiment) -> Plan:
+    return Plan(exp.runs, [_lookup(cache, exp, r, record=False) is not None for r in exp.runs])
+
+
+def run(cache, exp: Experiment, executor: Executor, record: bool = False,
+        progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
+    """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
+    the runs table and returns its rows."""
+    from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+
+    runs = exp.runs
+
+    def flow():
+        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record),
+                    f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
+                for r in runs]
+        return (yield Batch("run", jobs))
+
+    events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
+    # an interrupt kills the workers; their temporary folders go with them (cleanup_stale), not at the next call
+    results = run_flow(executor, flow(), events, on_abort=cache.cleanup_stale, scheduled=len(runs))
+    rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
+    write_table(cache, exp, rows)
+    return rows
+
+
+def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
+    """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
+    its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
+    loading a model file changed is said once, before the runs (not by each run)."""
+    for line in model_notes(exp):
+        reporter.say(line)
+    with reporter.board() as board:
+        def progress(done: int, total: int, label: str | None) -> None:
+            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
+            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+
+        rows = run(cache, exp, executor, record=record, progress=progress)
+    cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
+    errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
+    failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
+    reporter.say(f"exp {exp.name}: {len(rows)} runs ({cached} cached; {len(failed)} failed, of them "
+                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / 'runs.csv'}")
+    for r in errors[:5]:
+        reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
+    return rows
+
+
+# ----------------------------------------------------------------------------- the runs table
+def _flat(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    """Scalar metrics as columns: numbers, booleans and short strings; dicts of them as ``prefix.key``."""
+    if isinstance(value, bool) or isinstance(value, (int, float)) and not isinstance(value, bool):
+        out[prefix] = value
+    elif isinstance(value, str) and len(value) <= 80:
+        out[prefix] = value
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _flat(f"{prefix}.{k}", v, out)
+
+
+def _curve(cache, ref: str) -> dict[str, Any]:
+    """First, last and lowest cost of a plan's iterations and the iterations to within 1 % of the lowest."""
+    import numpy as np
+
+    try:
+        with np.load(cache.root / ref / "plan.npz", allow_pickle=False) as f:
+            costs = np.asarray(f["costs"], float)
+    except (OSError, KeyError, ValueError):
+        return {}
+    finite = costs[np.isfinite(costs)]
+    if not finite.size:
+        return {"cost.first": None, "cost.last": None, "cost.min": None, "cost.iterations_to_1pct": None}
+    low = float(finite.min())
+    within = np.nonzero(np.isfinite(costs) & (costs <= low + CURVE_TOL * abs(low)))[0]
+    return {"cost.first": float(costs[0]) if np.isfinite(costs[0]) else None, "cost.last": float(costs[-1])
+            if np.isfinite(costs[-1]) else None, "cost.min": low,
+            "cost.iterations_to_1pct": int(within[0]) + 1 if within.size else None}
+
+
+def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
+    """The runs table's row of one run: variant, swept options, seed, per stage key / status / metrics."""
+    row: dict[str, Any] = {"experiment": exp.name, "variant": run.variant.label, **run.variant.swept,
+                           "seed": run.seed}
+    status, error = "ok", ""
+    for stage in exp.stages:
+        res = result.get(stage)
+        if res is None:
+            row[f"{stage}.status"] = "not run"
+            continue
+        if "error" in res:
+            row[f"{stage}.status"], error, status = "error", f"{stage}: {res['error']}", "error"
+            continue
+        row[f"{stage}.key"], row[f"{stage}.status"] = res["key"], res["status"]
+        status = res["status"]
+        row[f"{stage}.cached"] = res["cached"]
+        metrics: dict[str, Any] = {}
+        for k, v in (res.get("metrics") or {}).items():
+            if k != "status":
+                _flat(f"{stage}.{k}", v, metrics)
+        row.update(metrics)
+        meta = _meta(cache, stage, res["key"])
+        row[f"{stage}.compute_s"] = (meta.get("timings") or {}).get("compute_s")
+        row[f"{stage}.code_version"] = meta.get("code_version")
+        if stage == "plan":
+            row.update({f"plan.{k}": v for k, v in _curve(cache, f"plan/{res['key']}").items()})
+    stage_status = [row.get(f"{s}.status") for s in exp.stages]
+    row["status"], row["error"] = status, error
+    row["failed"] = status == "error" or any(s in FAILED_STATUSES for s in stage_status)
+    row["achieved"] = achieved(result, exp.stages) if status != "error" else False
+    return row
+
+
+def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
+    """Whether a run achieved its task: its last stage that judges one (execute, else plan) has every
+    via-point within its tolerance (``planning.costs.task_errors``), an execution with status ok, a plan
+    not diverged; None where no stage judges a task (no via-point, or a stage without the verdict)."""
+    for stage, good in (("execute", lambda st: st == "ok"), ("plan", lambda st: st != "diverged")):
+        if stage not in stages:
+            continue
+        res = result.get(stage) or {}
+        task = (res.get("metrics") or {}).get("task")
+        if isinstance(task, dict):
+            return bool(task.get("achieved")) and good(res.get("status"))
+        return None
+    return None
+
+
+def _meta(cache, stage: str, key: str) -> dict:
+    try:
+        return json.loads((cache.root / stage / key / "meta.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def table_dir(cache, name: str) -> Path:
+    return cache.root / "exp" / name
+
+
+def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
+    """``runs.csv`` and ``runs.json`` of the experiment (written atomically), with the file's text."""
+    from pipeline.engine.cache import write_file_atomic
+
+    out = table_dir(cache, exp.name)
+    out.mkdir(parents=True, exist_ok=True)
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    buf = _csv_text(columns, rows)
+    write_file_atomic(out / "runs.csv", buf)
+    doc = {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
+           "file": str(exp.path) if exp.path else None,
+           "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
+           "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
+    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
+
+    write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
+                                                    allow_nan=False))
+    return out
+
+
+def _json_default(x: Any) -> Any:
+    return str(x)
+
+
+def _csv_text(columns: list[str], rows: list[dict]) -> str:
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    w.writeheader()
+    for row in rows:
+        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------- reading the table
+def read_table(cache, name_or_file: str):
+    """The runs table (a pandas ``DataFrame``) of an experiment by name or by its file, and the swept
+    option columns; :class:`BadInput` if it has not run."""
+    import pandas as pd
+
+    name = name_or_file
+    p = Path(name_or_file)
+    if p.suffix == ".toml" and p.exists():
+        name = load(p).name
+    path = table_dir(cache, name) / "runs.json"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"no runs table of experiment '{name}' under {cache.root / 'exp'}: "
+                       "`raico exp run FILE` makes it") from None
+    return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
+
+
+def query(df, where: str | None):
+    """The rows of ``df`` matching ``where`` (pandas query syntax: comparisons, and/or, in; names with dots
+    in backticks); :class:`BadInput` with the table's columns if it does not parse or names no column."""
+    if not where:
+        return df
+    try:
+        return df.query(where, engine="python")
+    except Exception as e:  # noqa: BLE001 - pandas raises many kinds for a bad expression
+        names = ", ".join(map(str, df.columns))
+        raise BadInput(f"--where '{where}': {type(e).__name__}: {e} (columns: {names})") from None
+
+
+def metric_columns(df) -> list[str]:
+    """The table's numeric metric columns (``stage.metric``; keys, cache flags and code versions left out)."""
+    import pandas as pd
+
+    return [c for c in df.columns if "." in str(c) and not str(c).endswith((".key", ".cached", ".code_version"))
+            and (pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c]))]
+
+
+DEFAULT_METRICS = ("plan.final_cost", "plan.iterations", "plan.wall_time_s", "plan.cost.iterations_to_1pct",
+                   "execute.rmse_planned_executed", "learn.episodes")
+
+
+def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str = "median",
+              group: bool = True, where: str | None = None, sort: str | None = None,
+              only_changed: bool = False):
+    """The table a user reads: rows filtered by ``where`` (pandas query syntax), grouped over seeds by
+    variant (``stat``: median with interquartile range, or mean with a 95 % t-interval; n; failures
+    k/n), sorted by a column. Returns a ``DataFrame`` of strings and numbers."""
+    import numpy as np
+    import pandas as pd
+
+    df = query(df, where)
+    metrics = [m for m in (metrics or DEFAULT_METRICS) if m in df.columns]
+    keys = ["variant", *[s for s in swept if s in df.columns]]
+    if only_changed:
+        keys = ["variant", *[k for k in keys[1:] if df[k].astype(str).nunique() > 1]]
+    if not group:
+        cols = [*keys, "seed", "status", "achieved", "error", *metrics]
+        out = df[[c for c in cols if c in df.columns]]
+        return out.sort_values(sort) if sort else out
+    rows = []
+    for values, g in df.groupby(keys, sort=False, dropna=False):
+        values = values if isinstance(values, tuple) else (values,)
+        row: dict[str, Any] = dict(zip(keys, values))
+        row["n"] = len(g)
+        failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
+        row["failed"] = f"{failed}/{len(g)}"
+        if "achieved" in g and g["achieved"].notna().any():   # runs that judged a task, and how many achieved it
+            judged = g["achieved"].dropna()
+            row["achieved"] = f"{int(judged.astype(bool).sum())}/{len(judged)}"
+        if "status" in g:
+            row["statuses"] = ", ".join(f"{st} {k}" for st, k in g["status"].astype(str).value_counts().items())
+        for m in metrics:
+            x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
+            if not x.size:
+                row[m] = None
+                continue
+            if stat == "mean":
+                half = _t_half_width(x)
+                row[m] = float(x.mean())
+                row[f"{m} ±95%"] = half
+            else:
+                row[m] = float(np.median(x))
+                row[f"{m} IQR"] = float(np.subtract(*np.percentile(x, [75, 25])))
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    if sort:
+        if sort not in out.columns:
+            raise BadInput(f"--sort {sort}: no such column (columns: {', '.join(map(str, out.columns))})")
+        out = out.sort_values(sort)
+    return out
+
+
+def _t_half_width(x) -> float | None:
+    """Half-width of the 95 % t-interval of the mean of ``x`` (None below 2 values)."""
+    if len(x) < 2:
+        return None
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+
+
+SPREADS = (" IQR", " ±95%")
+
+
+def render(df, fmt: str) -> str:
+    """``table`` (aligned text), ``md``, ``csv`` or ``json``; in a table a metric's spread is written
+    beside it in its cell: ``median (IQR x)`` or ``mean ± half-width``."""
+    if fmt == "json":
+        return df.to_json(orient="records")
+    if fmt == "csv":
+        return df.to_csv(index=False)
+    head, cells = [], [[] for _ in range(len(df))]
+    cols = list(df.columns)
+    for c in cols:
+        if any(str(c).endswith(s) for s in SPREADS):
+            continue
+        spread = next((f"{c}{s}" for s in SPREADS if f"{c}{s}" in cols), None)
+        head.append(str(c) + ("" if spread is None else " (IQR)" if spread.endswith("IQR") else " (±95%)"))
+        for i, (v, w) in enumerate(zip(df[c], df[spread] if spread else [None] * len(df))):
+            cells[i].append(_cell(v) if spread is None or _cell(w) == "-" else
+                            f"{_cell(v)} ({_cell(w)})" if spread.endswith("IQR") else f"{_cell(v)} ± {_cell(w)}")
+    if fmt == "md":
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in cells])
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(head)]
+    fmt_row = "  ".join(f"{{:<{w}}}" for w in widths)
+    return "\n".join([fmt_row.format(*head), *(fmt_row.format(*r) for r in cells)])
+
+
+def _cell(v: Any) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+
+# ----------------------------------------------------------------------------- two variants, paired by seed
+MIN_PAIRS_FOR_TEST = 6   # below this many seeds the signed-rank test cannot reach p < 0.05 (two-sided): none
+
+
+@dataclass
+class Paired:
+    """``metric`` of variant ``b`` minus variant ``a``, seed by seed."""
+
+    metric: str
+    a: str
+    b: str
+    seeds: list[int]
+    differences: list[float]
+    median: float | None
+    interval: tuple[float, float] | None      # 95 % t-interval of the mean difference
+    p_value: float | None                     # Wilcoxon signed-rank, two-sided; None below MIN_PAIRS_FOR_TEST
+    note: str
+
+
+def paired(df, a: str, b: str, metric: str) -> Paired:
+    """Variant ``b`` against variant ``a`` on ``metric``, paired by seed (seeds where both have a finite
+    value). :class:`BadInput` if a variant or the metric is not in the table."""
+    import numpy as np
+    import pandas as pd
+
+    labels = list(dict.fromkeys(df["variant"]))
+    for v in (a, b):
+        if v not in labels:
+            raise BadInput(f"no variant '{v}' in the table: variants are {', '.join(map(repr, labels))}")
+    if metric not in df.columns:
+        raise BadInput(f"no column '{metric}': metrics are " + ", ".join(c for c in df.columns if "." in c))
+    va = df[df["variant"] == a].set_index("seed")[metric].apply(pd.to_numeric, errors="coerce")
+    vb = df[df["variant"] == b].set_index("seed")[metric].apply(pd.to_numeric, errors="coerce")
+    both = sorted(s for s in set(va.index) & set(vb.index) if np.isfinite(va[s]) and np.isfinite(vb[s]))
+    d = np.array([vb[s] - va[s] for s in both], float)
+    if not d.size:
+        return Paired(metric, a, b, [], [], None, None, None, "no seed where both variants have a value")
+    half = _t_half_width(d)
+    interval = None if half is None else (float(d.mean() - half), float(d.mean() + half))
+    p, note = None, f"{d.size} seeds paired"
+    if d.size < MIN_PAIRS_FOR_TEST:
+        note += f"; not enough seeds for a signed-rank test (at least {MIN_PAIRS_FOR_TEST})"
+    elif np.all(d == 0):
+        p, note = 1.0, note + "; every difference is 0"
+    else:
+        from scipy import stats
+
+        p = float(stats.wilcoxon(d).pvalue)
+    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+
+
+def render_paired(r: Paired, fmt: str = "table") -> str:
+    if fmt == "json":
+        return json.dumps(dataclasses.asdict(r))
+    lines = [f"{r.metric}: {r.b} - {r.a}, paired by seed ({r.note})"]
+    lines += [f"  seed {s}: {_cell(x)}" for s, x in zip(r.seeds, r.differences)]
+    if r.median is not None:
+        ci = "-" if r.interval is None else f"[{_cell(r.interval[0])}, {_cell(r.interval[1])}]"
+        p = "-" if r.p_value is None else f"{r.p_value:.3g}"
+        lines += [f"  median difference {_cell(r.median)}; mean's 95 % interval {ci}; signed-rank p {p}"]
+    return "\n".join(lines)
+
+
+def _normalized(cfg):
+    return cfg.normalized() if hasattr(cfg, "normalized") else cfg
+
+
+def unused_in(stage: str, cfg: dict[str, Any], options: Sequence[str], others: dict[str, set]) -> set[str]:
+    """Of ``options``, those a run of ``stage`` with config ``cfg`` (its ``meta.json`` config) does not use:
+    setting one to any value ``others`` lists for it leaves the normalized config (so the cache key) as it
+    is, as iLQG's alpha. Options of later stages (``stage.option``) and unknown ones count as used."""
+    import dataclasses
+
+    from stages.registry import get_stage
+
+    try:
+        base = get_stage(stage).config_cls.from_dict(cfg)
+        ref = dataclasses.asdict(_normalized(base))
+    except (TypeError, ValueError, KeyError):  # an entry of another version (fields, values): nothing unused
+        return set()
+    out = set()
+    for opt in options:
+        values = [v for v in others.get(opt, ()) if v is not None and v != cfg.get(opt)]
+        if "." in opt or opt not in cfg or not others.get(opt):
+            continue
+        try:
+            if all(dataclasses.asdict(_normalized(dataclasses.replace(base, **{opt: v}))) == ref for v in values):
+                out.add(opt)
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
+# ----------------------------------------------------------------------------- two single runs
+KEY_RE = re.compile(r"^[0-9a-f]{4,16}$")   # a cache key or a prefix of one (at least 4 hex digits)
+
+
+def key_columns(df) -> list[str]:
+    """The table's ``<stage>.key`` columns, in the stages' order."""
+    return [c for c in df.columns if str(c).endswith(".key")]
+
+
+def find_run(df, ref: str) -> int | None:
+    """The row index of the run whose key (of any stage) is ``ref`` or starts with it; None if ``ref``
+    is not a key prefix or no run has it; :class:`BadInput` if it names more than one run."""
+    ref = ref.strip().lower()
+    if "/" in ref:   # STAGE/KEY, as raico show and raico ls write it
+        stage, ref = ref.split("/", 1)
+        cols = [f"{stage}.key"] if f"{stage}.key" in df.columns else []
+    else:
+        cols = key_columns(df)
+    if not KEY_RE.match(ref):
+        return None
+    hits = sorted({i for c in cols for i, k in df[c].items() if isinstance(k, str) and k.startswith(ref)})
+    if len(hits) > 1:
+        which = ", ".join(f"{df.at[i, 'variant']} seed {df.at[i, 'seed']}" for i in hits[:4])
+        raise BadInput(f"key prefix '{ref}' names {len(hits)} runs ({which}{', ...' if len(hits) > 4 else ''}): "
+                       "give more characters")
+    return hits[0] if hits else None
+
+
+@dataclass
+class RunDiff:
+    """Two single runs of an experiment side by side: who they are, the options that differ, every
+    metric of either with ``b - a``."""
+
+    a: dict[str, Any]                                  # {"variant", "seed", "keys": {stage: key}}
+    b: dict[str, Any]
+    options: list[tuple[str, Any, Any]]                # (option, a's value, b's value), only where they differ
+    metrics: list[tuple[str, Any, Any, float | None]]  # (metric, a, b, b - a where both are numbers)
+    unused: dict[str, list[str]] = field(default_factory=dict)   # "a"/"b" -> options of it its run does not use
+
+
+def _who(df, i: int) -> dict[str, Any]:
+    row = df.loc[i]
+    return {"variant": row["variant"], "seed": _plain(row["seed"]),
+            "keys": {c[:-4]: row[c] for c in key_columns(df) if isinstance(row[c], str)}}
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars and NaN as plain Python values (None for a missing one)."""
+    if hasattr(v, "item"):
+        v = v.item()
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
+def _configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
+    """The options each stage of a run used (its ``meta.json`` config, input references left out),
+    named as the table names them: the first stage's plain, later ones ``stage.option``."""
+    from stages.registry import get_stage
+
+    out: dict[str, Any] = {}
+    for stage, key in who["keys"].items():
+        cfg = _meta(cache, stage, key).get("config") or {}
+        try:
+            inputs = set(get_stage(stage).config_cls.INPUTS)
+        except ValueError:  # a stage this version does not know (get_stage's error): every field
+            inputs = set()
+        for k, v in cfg.items():
+            if k not in inputs:
+                out[k if stage == first else f"{stage}.{k}"] = v
+    return out
+
+
+def _same(x: Any, y: Any) -> bool:
+    if isinstance(x, (int, float)) and isinstance(y, (int, float)) and not isinstance(x, bool) \
+            and not isinstance(y, bool):
+        return x == y or (math.isnan(x) and math.isnan(y))
+    return x == y
+
+
+def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
+    """Runs ``a`` and ``b`` (cache keys or key prefixes of any stage of the table) side by side: the
+    options that differ (every option of each stage's config where ``cache`` has the entries, else the
+    swept ones) and every metric with its difference. :class:`BadInput` if a key names no run."""
+    idx = []
+    for ref in (a, b):
+        i = find_run(df, ref)
+        if i is None:
+            cols = ", ".join(key_columns(df)) or "no key columns"
+            raise BadInput(f"no run with key '{ref}' in the table ({cols}: `raico exp show NAME --no-group "
+                           f"--metric plan.key` lists them) and no variant of that name")
+        idx.append(i)
+    ia, ib = idx
+    who_a, who_b = _who(df, ia), _who(df, ib)
+    first = key_columns(df)[0][:-4] if key_columns(df) else "plan"
+    conf_a = _configs(cache, who_a, first) if cache is not None else {}
+    conf_b = _configs(cache, who_b, first) if cache is not None else {}
+    if not conf_a or not conf_b:   # no entries to read: the swept options and the seed, from the table
+        conf_a = {k: _plain(df.at[ia, k]) for k in (*swept, "seed") if k in df.columns}
+        conf_b = {k: _plain(df.at[ib, k]) for k in (*swept, "seed") if k in df.columns}
+    names = list(dict.fromkeys([*conf_a, *conf_b]))
+    options = [(k, conf_a.get(k), conf_b.get(k)) for k in names if not _same(conf_a.get(k), conf_b.get(k))]
+    unused = {}
+    if cache is not None:   # options a run does not use (iLQG's alpha): its normalized config is the same without
+        differ = [k for k, _, _ in options]
+        values = {k: {_hashable(x), _hashable(y)} for k, x, y in options}
+        for side, conf in (("a", conf_a), ("b", conf_b)):
+            unused[side] = sorted(unused_in(first, conf, differ, values))
+    skip = {*swept, "experiment", "variant", "seed", "error", *key_columns(df)}
+    metrics = []
+    for c in df.columns:
+        if c in skip or c.endswith((".cached", ".code_version")):
+            continue
+        va, vb = _plain(df.at[ia, c]), _plain(df.at[ib, c])
+        if va is None and vb is None:
+            continue
+        num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (va, vb))
+        metrics.append((c, va, vb, float(vb - va) if num else None))
+    return RunDiff(who_a, who_b, options, metrics, unused)
+
+
+def _hashable(v: Any) -> Any:
+    return tuple(v) if isinstance(v, list) else v
+
+
+def _run_name(who: dict[str, Any]) -> str:
+    keys = ", ".join(f"{s} {k}" for s, k in who["keys"].items())
+    return f"{keys} ({who['variant']}, seed {who['seed']})"
+
+
+def render_run_diff(r: RunDiff, fmt: str = "table") -> str:
+    if fmt == "json":
+        return json.dumps({"a": r.a, "b": r.b,
+                           "options": [{"option": k, "a": x, "b": y,
+                                        "unused_by": [s for s in ("a", "b") if k in r.unused.get(s, ())]}
+                                       for k, x, y in r.options],
+                           "metrics": [{"metric": k, "a": x, "b": y, "b_minus_a": d} for k, x, y, d in r.metrics]},
+                          default=str, allow_nan=False)
+
+    def table(head: list[str], rows: list[list[str]]) -> list[str]:
+        widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(head)]
+        line = "  ".join(f"{{:<{w}}}" for w in widths)
+        return ["  " + line.format(*head).rstrip(), *("  " + line.format(*row).rstrip() for row in rows)]
+
+    out = [f"A: {_run_name(r.a)}", f"B: {_run_name(r.b)}"]
+    if r.options:
+        def value(side: str, k: str, v: Any) -> str:
+            return _cell(v) + (" (not used)" if k in r.unused.get(side, ()) else "")
+
+        out += ["options that differ:", *table(["option", "A", "B"], [[k, value("a", k, x), value("b", k, y)]
+                                                                      for k, x, y in r.options])]
+    else:
+        out += ["options that differ: none"]
+    out += ["metrics:", *table(["metric", "A", "B", "B - A"],
+                               [[k, _cell(x), _cell(y), _cell(d)] for k, x, y, d in r.metrics])]
+    return "\n".join(out)

@@ -1,0 +1,1 @@
+"""The interfaces: the ``raico`` command line and the Python API."""

@@ -1,0 +1,446 @@
+"""raico's robots in crocoddyl's terms: the optional import, the Pinocchio model of a robot, its coordinates.
+
+:mod:`planning.crocoddyl.solve` builds the ``ShootingProblem`` and runs FDDP, :mod:`planning.crocoddyl.costs`
+turns each raico cost term into crocoddyl residuals; this module says how a raico robot becomes a
+Pinocchio model, for the built-in plants and for robots loaded from model files
+(:mod:`plants.model_file`). It holds the optional import of crocoddyl and Pinocchio (``AVAILABLE``)
+and ``NotExpressible``.
+
+The model of a model-file robot (:func:`pinocchio_robot`): Pinocchio reads the SAME repaired URDF
+text Drake reads (``plants.model_file.repair_urdf``: locked joints are fixed joints there, mimic
+tags dropped), with a fixed base, which is where Drake puts the robot when its free root is welded
+at the world origin (or the file attaches it to a ``world`` link). A robot welded on another frame
+(a humanoid standing on a sole) re-roots the tree in Drake: Pinocchio's URDF tree is rooted at the
+file's root link, so that is ``NotExpressible``. An MJCF file is read by Pinocchio's own MJCF reader
+(``buildModelFromMJCF``), as Drake reads the file itself; an SDF file through Drake's reading of it
+(:func:`model_from_drake`: Pinocchio's model built joint by joint from Drake's plant; Pinocchio's own
+SDFormat reader is an option of its build, absent here). The armature of the spec is Pinocchio's
+``model.armature`` (Drake's rotor inertia with gear ratio 1: both add it to the mass matrix's
+diagonal); Drake's joint damping (the file's ``<dynamics damping>``), which Pinocchio's forward
+dynamics ignores, enters through an actuation model ``tau = u - D v`` (:class:`DampedActuation`).
+
+Continuous joints (``continuous``): raico's angle of a continuous joint is a real number, and its
+costs take plain differences ``q - q*``. Pinocchio reads a URDF continuous joint as a unit complex
+number ``(cos q, sin q)`` (nq 2, nv 1) and crocoddyl's state difference is then the angle
+difference wrapped to (-pi, pi]: the same cost only while the joint stays within pi of each term's
+reference. ``"angle"`` (the default: raico's problem exactly) gives Pinocchio the joint as a revolute
+joint without position limits (nq 1, the same dynamics); ``"cos-sin"`` keeps Pinocchio's own
+reading, crocoddyl's own problem (its examples), whose costs agree with raico's only within that
+range (crocoddyl's Kinova example leaves it: its solution turns the base joint 3.65 rad from the
+start, so raico's cost of it is 8.179 where crocoddyl's is 8.125).
+
+Coordinates (:class:`StateMap`): raico's state is ``(q, v)`` over its planning joints (Drake's
+position order); Pinocchio's is ``(q_pin, v_pin)`` in its own joint order, a ``"cos-sin"`` continuous
+joint stored as ``(cos q, sin q)``. Controls and tangent vectors (``v``, state differences, gains)
+are permutations. Back from Pinocchio such an angle is ``atan2(sin, cos)`` unwrapped along the
+trajectory, each step's nearest to the previous angle plus ``dt`` times the new velocity (the
+semi-implicit Euler step: exact on a rollout, however fast the joint turns).
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import warnings
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from planning.problem import Problem
+
+try:  # the optional baseline: the extra ``raico[baseline]`` (``make install`` installs it)
+    with warnings.catch_warnings():  # pinocchio imports its collision library by its old name
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import crocoddyl
+        import pinocchio as pin
+
+    AVAILABLE = True
+    UNAVAILABLE_REASON = ""
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    crocoddyl = pin = None
+    AVAILABLE = False
+    UNAVAILABLE_REASON = (f"crocoddyl/pinocchio not installed ({_e}); `make install` installs the "
+                          "pinned pair (the extra raico[baseline]) into .venv")
+
+
+class NotExpressible(ValueError):
+    """A raico problem crocoddyl cannot express exactly (the message says what and why)."""
+
+
+def assign(target: np.ndarray, value: np.ndarray) -> None:
+    """Write ``value`` into a crocoddyl data matrix in place (eigenpy maps a 1 x n matrix to ``(n,)``)."""
+    target[...] = np.reshape(value, np.shape(target))
+
+
+
+def require() -> None:
+    """Raise ``RuntimeError`` (what to install) where crocoddyl or Pinocchio does not import."""
+    if not AVAILABLE:
+        raise RuntimeError(UNAVAILABLE_REASON)
+
+
+# ----------------------------------------------------------------------------- coordinates
+@dataclass(frozen=True)
+class StateMap:
+    """raico's planning coordinates <-> Pinocchio's. Per raico joint ``i``: ``q_index[i]`` (start in
+    Pinocchio's ``q``), ``v_index[i]`` (in its ``v``), ``continuous[i]`` (stored as cos, sin)."""
+
+    nq: int
+    nv: int
+    q_index: np.ndarray
+    v_index: np.ndarray
+    continuous: np.ndarray
+
+    @classmethod
+    def identity(cls, n: int) -> StateMap:
+        r = np.arange(n)
+        return cls(n, n, r, r.copy(), np.zeros(n, bool))
+
+    @property
+    def n(self) -> int:
+        return len(self.v_index)
+
+    @property
+    def is_identity(self) -> bool:
+        r = np.arange(self.n)
+        return (self.nq == self.nv == self.n and not self.continuous.any()
+                and np.array_equal(self.q_index, r) and np.array_equal(self.v_index, r))
+
+    @property
+    def tangent_index(self) -> np.ndarray:
+        """``(2 n,)``: the Pinocchio tangent (``ndx = 2 nv``) coordinate of each raico state coordinate."""
+        return np.concatenate([self.v_index, self.nv + self.v_index])
+
+    # -- states
+    def x_to_pin(self, X: np.ndarray) -> np.ndarray:
+        """raico states ``(..., 2 n)`` -> Pinocchio states ``(..., nq + nv)``."""
+        X = np.asarray(X, float)
+        n = self.n
+        out = np.zeros((*X.shape[:-1], self.nq + self.nv))
+        q, v = X[..., :n], X[..., n:]
+        c = self.continuous
+        out[..., self.q_index[~c]] = q[..., ~c]
+        out[..., self.q_index[c]] = np.cos(q[..., c])
+        out[..., self.q_index[c] + 1] = np.sin(q[..., c])
+        out[..., self.nq + self.v_index] = v
+        return out
+
+    def x_to_raico(self, Xp: np.ndarray, q_start: np.ndarray | None = None, dt: float = 0.0) -> np.ndarray:
+        """Pinocchio states ``(K, nq + nv)`` (a trajectory) -> raico states ``(K, 2 n)``: cos/sin
+        joints' angles ``atan2(sin, cos)`` unwrapped along the rows, the first row's nearest to
+        ``q_start`` (raico angles of the start; ``None``: in (-pi, pi]), each next one nearest to the
+        previous angle plus ``dt`` times its velocity."""
+        Xp = np.atleast_2d(np.asarray(Xp, float))
+        n, c = self.n, self.continuous
+        out = np.empty((Xp.shape[0], 2 * n))
+        out[:, np.flatnonzero(~c)] = Xp[:, self.q_index[~c]]
+        out[:, n:] = Xp[:, self.nq + self.v_index]
+        if c.any():
+            ang = np.arctan2(Xp[:, self.q_index[c] + 1], Xp[:, self.q_index[c]])
+            vel = out[:, n + np.flatnonzero(c)]
+            prev = ang[0] if q_start is None else np.asarray(q_start, float)[c]
+            for k in range(len(ang)):  # nearest to the semi-implicit Euler step from the previous row
+                guess = prev + (dt * vel[k] if k else 0.0)
+                ang[k] = guess + _wrap(ang[k] - guess)
+                prev = ang[k]
+            out[:, np.flatnonzero(c)] = ang
+        return out
+
+    # -- controls and tangent vectors
+    def u_to_pin(self, U: np.ndarray) -> np.ndarray:
+        U = np.asarray(U, float)
+        out = np.zeros((*U.shape[:-1], self.nv))
+        out[..., self.v_index] = U
+        return out
+
+    def u_to_raico(self, Up: np.ndarray) -> np.ndarray:
+        return np.asarray(Up, float)[..., self.v_index]
+
+    def gains_to_raico(self, K: np.ndarray) -> np.ndarray:
+        """crocoddyl's gains ``(T, nv, 2 nv)`` (``u = us - K (x - xs)``, tangent) -> raico's ``(T, n, 2 n)``."""
+        K = np.asarray(K, float)
+        return K[:, self.v_index][:, :, self.tangent_index]
+
+
+def _wrap(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+# ----------------------------------------------------------------------------- the model
+def _root_links(text: str) -> list[str]:
+    root = ET.fromstring(text)
+    children = {j.find("child").get("link") for j in root.findall("joint") if j.find("child") is not None}
+    return [link.get("name") for link in root.findall("link") if link.get("name") not in children]
+
+
+CONTINUOUS = ("angle", "cos-sin")
+
+
+def _continuous_as_revolute(text: str) -> str:
+    """The URDF text with every continuous joint a revolute joint without position limits (Pinocchio
+    then stores its angle, nq 1; effort and velocity limits kept)."""
+    root = ET.fromstring(text)
+    for j in root.findall("joint"):
+        if j.get("type") == "continuous":
+            j.set("type", "revolute")
+            lim = j.find("limit")
+            if lim is None:
+                lim = ET.SubElement(j, "limit", {"effort": "0", "velocity": "0"})
+            lim.set("lower", "-1e30")
+            lim.set("upper", "1e30")
+    return ET.tostring(root, encoding="unicode")
+
+
+def _other_format_roots(path: Path, fmt: str) -> list[str]:
+    """The roots of an MJCF (the bodies of its ``<worldbody>``) or SDF file's tree (its first link)."""
+    if fmt == "mjcf":
+        world = ET.parse(path).getroot().find("worldbody")
+        return [b.get("name") for b in ([] if world is None else world.findall("body"))]
+    m = re.search(r"<link\s+name=\"([^\"]+)\"", path.read_text(errors="replace"))
+    return [m.group(1)] if m else []
+
+
+def _other_format_model(robot, path: Path, fmt: str):
+    """Pinocchio's model of an MJCF file (its own reader, ``buildModelFromMJCF``: hinge and slide
+    joints, bodies without a joint fixed to their parent) or of an SDF file (:func:`model_from_drake`:
+    Drake's reading of it, joint by joint; the SDFormat reader is an option of Pinocchio's build)."""
+    if fmt == "sdf":
+        return model_from_drake(robot)
+    try:
+        return pin.buildModelFromMJCF(str(path))
+    except (RuntimeError, ValueError) as e:
+        raise NotExpressible(f"crocoddyl: Pinocchio cannot read {path.name}: {str(e).splitlines()[0]}") from None
+
+
+def _se3(X) -> pin.SE3:
+    """Drake's RigidTransform as Pinocchio's SE3."""
+    return pin.SE3(X.rotation().matrix(), X.translation())
+
+
+def model_from_drake(robot):
+    """Pinocchio's model of ``robot``'s Drake plant, joint by joint from the world: each revolute or
+    prismatic joint a Pinocchio joint about its axis at the parent side's joint frame, each weld
+    merged into its parent (the child's inertia and a frame of its name on the parent's joint), each
+    body's spatial inertia and a BODY frame of its name, joint damping and position limits; the
+    joint names are Drake's. ``NotExpressible`` for another joint type (a floating joint inside)."""
+    from pydrake.multibody.tree import JointIndex
+
+    plant = robot.plant
+    model = pin.Model()
+    world = plant.world_body().index()
+    at = {world: (0, pin.SE3.Identity())}   # body -> (Pinocchio joint, body origin in its joint frame)
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+    pending = list(joints)
+    while pending:
+        ready = [j for j in pending if j.parent_body().index() in at]
+        if not ready:
+            raise NotExpressible(f"crocoddyl: {robot.name}'s tree does not reach every joint from the world")
+        for j in ready:
+            pending.remove(j)
+            parent, X_JP = at[j.parent_body().index()]
+            X_JF = X_JP * _se3(j.frame_on_parent().GetFixedPoseInBodyFrame())   # the joint frame on the parent
+            X_CM = _se3(j.frame_on_child().GetFixedPoseInBodyFrame()).inverse()  # the child in its joint frame
+            kind = j.type_name()
+            if kind == "weld":
+                X_FM = _se3(j.X_FM()) if hasattr(j, "X_FM") else pin.SE3.Identity()
+                jid, X_JC = parent, X_JF * X_FM * X_CM
+            elif kind in ("revolute", "prismatic"):
+                axis = np.asarray(j.revolute_axis() if kind == "revolute" else j.translation_axis(), float)
+                jm = (pin.JointModelRevoluteUnaligned if kind == "revolute" else pin.JointModelPrismaticUnaligned)(
+                    *axis)
+                jid = model.addJoint(parent, jm, X_JF, j.name())
+                model.damping[model.joints[jid].idx_v] = float(j.default_damping())
+                model.lowerPositionLimit[model.joints[jid].idx_q] = float(j.position_lower_limits()[0])
+                model.upperPositionLimit[model.joints[jid].idx_q] = float(j.position_upper_limits()[0])
+                X_JC = X_CM
+            else:
+                raise NotExpressible(f"crocoddyl: joint '{j.name()}' of {robot.name} is a {kind} joint in Drake")
+            body = j.child_body()
+            M = body.default_spatial_inertia()
+            com = np.asarray(M.get_com(), float)
+            I_com = M.Shift(com).CalcRotationalInertia().CopyToFullMatrix3()
+            model.appendBodyToJoint(jid, pin.Inertia(float(M.get_mass()), com, I_com), X_JC)
+            model.addFrame(pin.Frame(body.name(), jid, X_JC, pin.FrameType.BODY))
+            at[body.index()] = (jid, X_JC)
+    return model
+
+
+def pinocchio_robot(robot, continuous: str = "angle"):
+    """``(model, StateMap)`` of a model-file robot (``robot.spec``), see the module docstring;
+    ``continuous``: ``"angle"`` or ``"cos-sin"``."""
+    from plants.model_file import _model_text
+
+    spec = robot.spec
+    if spec is None:
+        raise ValueError(f"{robot.name} is a built-in plant, not a model-file robot")
+    if continuous not in CONTINUOUS:
+        raise ValueError(f"continuous must be one of {CONTINUOUS}, got {continuous!r}")
+    path, fmt, text, _, _ = _model_text(spec)
+    if fmt == "urdf":
+        roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
+    else:
+        roots = _other_format_roots(path, fmt)
+    if spec.weld is not None and not (len(roots) == 1 and spec.weld == roots[0]):
+        raise NotExpressible(
+            f"crocoddyl cannot express {path.name} welded on '{spec.weld}': Drake re-roots the tree there, "
+            f"Pinocchio's tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
+    if fmt == "urdf":
+        model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
+    else:
+        model = _other_format_model(robot, path, fmt)
+    names = [model.names[i] for i in range(1, model.njoints)]
+    if sorted(names) != sorted(robot.joint_names):
+        raise NotExpressible(f"crocoddyl: Pinocchio's joints {names} of {path.name} are not raico's planning "
+                             f"joints {list(robot.joint_names)}")
+    if not np.array_equal(robot.P, np.eye(robot.n_q)):
+        raise NotExpressible(f"crocoddyl: {robot.name} has coupled joints (P is not the identity)")
+    qi, vi, cont = [], [], []
+    for name in robot.joint_names:
+        j = model.joints[model.getJointId(name)]
+        if j.nv != 1 or j.nq not in (1, 2):
+            raise NotExpressible(f"crocoddyl: joint '{name}' is a {j.shortname()} in Pinocchio (nq {j.nq}, nv {j.nv})")
+        qi.append(j.idx_q)
+        vi.append(j.idx_v)
+        cont.append(j.nq == 2)
+    smap = StateMap(model.nq, model.nv, np.array(qi), np.array(vi), np.array(cont, bool))
+    from plants.model_file import _per_joint
+
+    armature = _per_joint(spec.armature, list(robot.joint_names), "armature")
+    arm = np.zeros(model.nv)
+    arm[smap.v_index] = armature
+    model.armature = arm
+    return model, smap
+
+
+def frame_id(model, robot, frame_name: str, point=None) -> int:
+    """Pinocchio's frame at Drake's frame ``frame_name`` of ``robot`` (moved to ``point``, m, in
+    it): the link's own frame where it is one, else an operational frame added to ``model``."""
+    f = robot.plant.GetFrameByName(frame_name)
+    body = f.body().name()
+    X = f.GetFixedPoseInBodyFrame()
+    R, p = X.rotation().matrix(), X.translation()
+    if point is not None:
+        p = p + R @ np.asarray(point, float)
+    if not model.existFrame(body, pin.BODY):
+        raise NotExpressible(f"crocoddyl: frame '{frame_name}' is on body '{body}', which Pinocchio's model lacks")
+    fb = model.getFrameId(body, pin.BODY)
+    if np.array_equal(R, np.eye(3)) and not np.any(p):
+        return fb
+    parent = model.frames[fb]
+    M = parent.placement * pin.SE3(R, p)
+    name = f"{frame_name}@{','.join(repr(float(x)) for x in p)}"
+    if model.existFrame(name):
+        return model.getFrameId(name)
+    return model.addFrame(pin.Frame(name, parent.parentJoint, fb, M, pin.OP_FRAME), False)
+
+
+def add_frames(terms, model, robot) -> None:
+    """Add to ``model`` the operational frames the via-points of ``terms`` need (:func:`frame_id`)."""
+    from planning.costs import ViaPoint
+    from plants.taskmaps import FramePoints
+
+    for term in terms:
+        tm = getattr(term, "taskmap", None)
+        frame = getattr(tm, "frame", None)
+        if not isinstance(term, ViaPoint) or frame is None:
+            continue
+        for point in (tm.points if isinstance(tm, FramePoints) else [None]):
+            frame_id(model, robot, frame.name(), point)
+
+
+# ----------------------------------------------------------------------------- the built-in plants
+def urdf_for_pinocchio(name: str, folder: Path) -> Path:
+    """The project's ``plants/models/NAME.urdf`` with a ``<link name="world"/>`` and no visuals,
+    written to ``folder`` (urdfdom refuses the original: its fixed joint names a ``world`` link
+    that the file does not declare)."""
+    from plants.robots import MODELS
+
+    text = (MODELS / f"{name}.urdf").read_text()
+    text = re.sub(r"<visual\b.*?</visual>", "", text, flags=re.S)
+    text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
+    if '<link name="world"' not in text:
+        text = re.sub(r"(<robot\b[^>]*>)", r'\1\n  <link name="world"/>', text, count=1)
+    path = folder / f"{name}.urdf"
+    path.write_text(text)
+    return path
+
+
+@cache
+def pinocchio_model(name: str):
+    """The pinocchio model of plant ``name`` (reflected inertia in ``armature``); its joints must
+    be raico's planning joints in the same order (``NotExpressible`` otherwise)."""
+    require()
+    from plants.robots import REFLECTED_INERTIA, shared_robot
+
+    if name == "nao":
+        raise NotExpressible(
+            "crocoddyl cannot express the Nao exactly: its left sole is welded to the world (Drake re-roots "
+            "the tree there, pinocchio's URDF tree starts at the torso) and RHipYawPitch is coupled to "
+            "LHipYawPitch (one motor), which pinocchio's free forward dynamics does not model")
+    robot = shared_robot(name)
+    with tempfile.TemporaryDirectory(prefix="raico-urdf-") as d:
+        model = pin.buildModelFromUrdf(str(urdf_for_pinocchio(name, Path(d))))
+    names = tuple(model.names[i] for i in range(1, model.njoints))
+    if names != tuple(robot.joint_names) or model.nq != robot.n_q or model.nv != robot.n_q \
+            or not np.array_equal(robot.P, np.eye(robot.n_q)):
+        raise NotExpressible(f"crocoddyl: the pinocchio joints {names} of {name} are not raico's planning "
+                             f"joints {robot.joint_names}")
+    model.armature[:] = REFLECTED_INERTIA[name]
+    return model
+
+
+def problem_robot(problem: Problem):
+    """The robot of ``problem``'s analytic dynamics (``NotExpressible`` for other dynamics)."""
+    from plants.dynamics import AnalyticDynamics, PseudoDynamics
+    from plants.fast_analytic import FastAnalyticDynamics
+
+    dyn = problem.dynamics
+    if isinstance(dyn, PseudoDynamics):
+        raise NotExpressible(
+            "solver fddp: crocoddyl cannot express the pseudo-dynamics exactly (controls are accelerations; "
+            "its forward-dynamics models take torques): use --dynamics analytic")
+    robot = getattr(dyn, "robot", None)
+    if robot is None or not isinstance(dyn, (FastAnalyticDynamics, AnalyticDynamics)):
+        raise NotExpressible(f"solver fddp: crocoddyl can express only the analytic dynamics, not "
+                             f"{type(dyn).__name__}")
+    return robot
+
+
+if AVAILABLE:
+    class DampedActuation(crocoddyl.ActuationModelAbstract):
+        """Full actuation with viscous joint damping: ``tau = u - D qdot`` (Drake's joint damping)."""
+
+        def __init__(self, state, damping: np.ndarray):
+            crocoddyl.ActuationModelAbstract.__init__(self, state, state.nv)
+            self.D = np.asarray(damping, float)
+            self.nq = state.nq
+
+        def calc(self, data, x, u=None):
+            v = np.asarray(x)[self.nq:]
+            data.tau[:] = (np.zeros(self.nu) if u is None else np.asarray(u)) - self.D * v
+
+        def calcDiff(self, data, x, u=None):
+            nv = self.state.nv
+            dx = np.zeros((nv, self.state.ndx))
+            dx[:, nv:] = -np.diag(self.D)
+            assign(data.dtau_dx, dx)
+            assign(data.dtau_du, np.eye(nv))
+
+        def commands(self, data, x, tau):
+            data.u[:] = np.asarray(tau) + self.D * np.asarray(x)[self.nq:]
+
+        def torqueTransform(self, data, x, u):
+            assign(data.Mtau, np.eye(self.nu))
+
+
+def pinocchio_of(robot, continuous: str):
+    """``(model, StateMap)``: a model-file robot's from its URDF text, a built-in plant's from the
+    project's URDF (a copy: frames may be added to it)."""
+    if getattr(robot, "spec", None) is not None:
+        return pinocchio_robot(robot, continuous)
+    return pin.Model(pinocchio_model(robot.name)), StateMap.identity(robot.n_q)

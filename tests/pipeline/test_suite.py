@@ -1,0 +1,300 @@
+"""The solver suite: Dolan-Moré performance profiles on inputs with known answers, the budgets and
+limit measures on synthetic histories, the list file's bad entries, and ``raico bench suite`` end to
+end on a tiny suite (two problems, two solvers, three iterations) through the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.errors import BadInput
+from pipeline.experiments import suite
+from pipeline.interface.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+runner = CliRunner()
+
+
+# ----------------------------------------------------------------------------- profiles
+def test_performance_ratios_and_profiles_have_their_known_values():
+    # problem 0: best 1 (A); 1: best 2 (B); 2: only B solves it; 3: best 5 (A); 4: nobody solves it
+    m = {"A": [1.0, 4.0, None, 5.0, None], "B": [2.0, 2.0, 3.0, 10.0, math.inf]}
+    r = suite.performance_ratios(m)
+    assert r["A"] == [1.0, 2.0, math.inf, 1.0, math.inf]
+    assert r["B"] == [2.0, 1.0, 1.0, 2.0, math.inf]
+    taus = (1.0, 1.5, 2.0, 100.0)
+    assert suite.profile(r["A"], taus) == [0.4, 0.4, 0.6, 0.6]    # the unsolved problem stays in the denominator
+    assert suite.profile(r["B"], taus) == [0.4, 0.4, 0.8, 0.8]
+
+
+def test_a_best_of_zero_gives_one_for_zero_and_inf_otherwise():
+    r = suite.performance_ratios({"A": [0.0], "B": [1e-3]})
+    assert r == {"A": [1.0], "B": [math.inf]}
+
+
+def test_profiles_from_records_take_the_cost_and_the_time_to_target():
+    recs = [{"problem": p, "solver": s, "final_cost": c, "time_to_target_s": t}
+            for p, s, c, t in [("p", "A", 1.0, 0.5), ("p", "B", 1.05, None), ("q", "A", 3.0, 2.0),
+                               ("q", "B", 2.0, 1.0)]]
+    prof = suite.profiles(recs, ["p", "q"], ["A", "B"])
+    assert prof["cost"]["ratios"] == {"A": [1.0, 1.5], "B": [1.05, 1.0]}
+    assert prof["time"]["ratios"] == {"A": [1.0, 2.0], "B": [math.inf, 1.0]}
+    i = suite.TAUS.index(1.1)
+    assert prof["cost"]["rho"]["B"][i] == 1.0 and prof["cost"]["rho"]["A"][i] == 0.5
+    assert prof["time"]["rho"]["B"][suite.TAUS.index(10.0)] == 0.5
+
+
+# ----------------------------------------------------------------------------- budgets and limits
+def test_the_cost_at_the_time_budget_is_the_last_iteration_finished_within_it():
+    costs, elapsed = np.array([10.0, 5.0, 2.0, 1.0]), np.array([1.0, 2.0, 3.0, 4.0])
+    assert suite.cost_at_budget(costs, elapsed, 0.9, budget=5.0) == 0.9      # within: the plan's own cost
+    assert suite.cost_at_budget(costs, elapsed, 0.9, budget=2.5) == 5.0
+    assert suite.cost_at_budget(costs, elapsed, 0.9, budget=0.5) is None     # no iteration finished
+    assert suite.cost_at_budget(costs, elapsed, None, budget=5.0) is None    # diverged
+    target = suite.target_of(1.0, 0.01)
+    assert target == pytest.approx(1.01, rel=1e-15)
+    assert suite.time_to(costs, elapsed, 2.0) == 3.0
+    assert suite.time_to(costs, elapsed, 2.0, budget=2.5) is None
+    assert suite.time_to(np.array([np.nan, 3.0]), np.array([1.0, 2.0]), 5.0) == 2.0
+
+
+def test_limit_violations_are_the_largest_excess_over_range_and_effort():
+    robot = SimpleNamespace(n_q=2, lower=np.array([-1.0, -2.0]), upper=np.array([1.0, 2.0]),
+                            effort=np.array([5.0, np.inf]))
+    X = np.array([[0.0, 0.0, 0, 0], [1.25, -2.5, 0, 0], [0.5, 1.0, 0, 0]])
+    U = np.array([[6.0, 100.0], [-4.0, -1e9]])
+    v = suite.limit_violations(robot, X, U, None)
+    assert v == {"joint_range": 0.5, "effort": 1.0}
+    inside = suite.limit_violations(robot, X[[0, 2]], U[:1] * 0, None)
+    assert inside == {"joint_range": 0.0, "effort": 0.0}
+    assert suite.limit_violations(robot, X * np.nan, U, None) == {"joint_range": None, "effort": None}
+
+
+# ----------------------------------------------------------------------------- the list file
+PROBLEM = '''
+name = "{name}"
+[robot]
+file = "{model}"
+start = {{ shoulder = 0.3, elbow = 0.5, wrist = 0.2 }}
+{weld}
+[horizon]
+T = {T}
+dt = 0.01
+[dynamics]
+model = "analytic"
+[costs.reach]
+type = "frame_position"
+frame = "{frame}"
+target = [0.05, 0.0, -0.05]
+relative = "start"
+times = "last"
+weight = 1e3
+[costs.effort]
+type = "control"
+weight = 1e-3
+'''
+
+
+def _tiny(tmp_path: Path, extra: str = "") -> Path:
+    """A suite of two problems (the MJCF arm, and the Talos arm welded on a frame other than its root,
+    which crocoddyl cannot express) and two solvers, three iterations; plus ``extra`` entries."""
+    from plants.model_file import example_robot_data
+
+    shutil.copy(ROOT / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
+    (tmp_path / "arm3.toml").write_text(PROBLEM.format(name="arm3", model="arm3.xml", weld="", T=20, frame="tip"))
+    erd = example_robot_data()
+    if erd is None:
+        pytest.skip("example-robot-data is not installed (it comes with the extra raico[baseline])")
+    talos = erd / "robots" / "talos_data" / "robots" / "talos_left_arm.urdf"
+    (tmp_path / "talos.toml").write_text(
+        PROBLEM.format(name="talos-welded", model=talos, weld='weld = "gripper_left_base_link"', T=5,
+                       frame="arm_left_2_link").replace("start = { shoulder = 0.3, elbow = 0.5, wrist = 0.2 }", ""))
+    (tmp_path / "suite.toml").write_text(f'''
+name = "tiny"
+iterations = 3
+time_budget_s = 60.0
+[[solver]]
+label = "R-AICO"
+solver = "raico"
+[[solver]]
+label = "FDDP"
+solver = "fddp"
+needs = "crocoddyl"
+[[solver]]
+label = "later"
+solver = "boxfddp-that-does-not-exist"
+optional = true
+{extra}
+''')
+    return tmp_path / "suite.toml"
+
+
+def test_the_list_file_keeps_bad_entries_with_their_reasons(tmp_path):
+    path = _tiny(tmp_path, '''
+[[problem]]
+file = "missing.toml"
+[[problem]]
+file = "zero.toml"
+label = "arm3 no budget"
+iterations = 0
+''')
+    shutil.copy(tmp_path / "arm3.toml", tmp_path / "zero.toml")   # named by an entry: not a problem of its own
+    s = suite.load(path)
+    by = {p.label: p for p in s.problems}
+    assert set(by) == {"missing", "arm3 no budget", "arm3", "talos-welded"}   # entries, then the folder's files
+    assert by["missing"].reason.startswith("no problem file missing.toml")
+    assert by["arm3 no budget"].reason == "a budget of 0 (iterations = 0): nothing to run"
+    assert not by["arm3"].reason
+    assert [x.label for x in s.solvers] == ["R-AICO", "FDDP"]
+    assert s.notes == ["suite: solver 'later' left out (optional): unknown solver 'boxfddp-that-does-not-exist': "
+                       "choose one of " + s.notes[0].split("choose one of ")[1]]
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("[[problem]]\nlabel = 'x'", "give its file"),
+    ("[[problem]]\nfile = 'arm3.toml'\nhorizon = 3", "unknown key 'horizon'"),
+    ("[[problem]]\nfile = 'arm3.toml'\n[[problem]]\nfile = 'arm3.toml'", "two problems are labelled 'arm3'"),
+    ("colour = 1", "unknown key 'colour'"),
+])
+def test_a_malformed_list_file_is_one_error(tmp_path, extra, message):
+    path = _tiny(tmp_path, extra)
+    if extra.startswith("colour"):
+        path.write_text(extra + "\n" + path.read_text())
+    with pytest.raises(BadInput, match=message):
+        suite.load(path)
+
+
+# ----------------------------------------------------------------------------- end to end
+def test_bench_suite_runs_every_cell_says_why_a_cell_is_empty_and_caches(tmp_path, crocoddyl_baseline):
+    path = _tiny(tmp_path, '''
+[[problem]]
+file = "missing.toml"
+[[problem]]
+file = "zero.toml"
+label = "arm3 no time"
+time_budget_s = 0
+''')
+    shutil.copy(tmp_path / "arm3.toml", tmp_path / "zero.toml")
+    art, out = tmp_path / "art", tmp_path / "out"
+    res = runner.invoke(app, ["bench", "suite", str(path), "--artifacts", str(art), "--out", str(out), "--quiet"])
+    assert res.exit_code == 1, res.output     # the suite ran; two of its entries could not
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("suite: ")]
+    assert lines[-1] == "suite: 2 problem entries could not run (missing, arm3 no time): exit 1"
+    # one line per bad entry, the suite went on
+    assert any(ln.startswith("suite: problem 'missing': no problem file missing.toml") for ln in lines)
+    assert "suite: problem 'arm3 no time': a budget of 0 (time_budget_s = 0): nothing to run; its cells stay empty" \
+        in lines
+    assert any(ln.startswith("suite: talos-welded x FDDP: crocoddyl cannot express talos_left_arm.urdf welded on "
+                             "'gripper_left_base_link'") for ln in lines)
+    assert any(ln.startswith("suite: solver 'later' left out (optional)") for ln in lines)
+    doc = json.loads((out / "tiny.json").read_text())
+    recs = {(r["problem"], r["solver"]): r for r in doc["records"]}
+    assert len(recs) == 4 * 2
+    for solver in ("R-AICO", "FDDP"):
+        r = recs[("arm3", solver)]
+        assert r["status"] == "max-iterations" and r["iterations"] == 3 and r["key"]
+        assert r["final_cost"] > 0 and r["joint_range_excess"] >= 0 and r["effort_excess"] >= 0
+    best = min(recs[("arm3", s)]["final_cost"] for s in ("R-AICO", "FDDP"))
+    assert {recs[("arm3", s)]["cost_ratio"] for s in ("R-AICO", "FDDP")} >= {1.0}
+    assert all(recs[("arm3", s)]["best_cost"] == best for s in ("R-AICO", "FDDP"))
+    winner = min(("R-AICO", "FDDP"), key=lambda s: recs[("arm3", s)]["final_cost"])
+    assert recs[("arm3", winner)]["time_to_target_s"] is not None
+    assert recs[("talos-welded", "R-AICO")]["key"] and recs[("talos-welded", "FDDP")]["key"] is None
+    assert "welded on 'gripper_left_base_link'" in recs[("talos-welded", "FDDP")]["reason"]
+    assert recs[("missing", "R-AICO")]["reason"].startswith("no problem file")
+    # the page: the empty cells point at their reasons
+    page = (out / "tiny.md").read_text()
+    assert "## Empty cells and left-out solvers" in page and "Pinocchio's tree is rooted at 'arm_left_1_link'" in page
+    assert (out / "tiny_profiles.png").stat().st_size > 10_000
+    rho = doc["profiles"]["all"]["cost"]["rho"]
+    # at tau = 1: the arm3's winner, and R-AICO on the welded Talos arm (the only solver there), of 4 problems
+    assert rho["R-AICO"][0] == pytest.approx((1 + (winner == "R-AICO")) / 4)
+    assert rho["FDDP"][0] == pytest.approx((winner == "FDDP") / 4)
+    # every run an ordinary cached plan: exp show lists them, a second call computes nothing
+    shown = runner.invoke(app, ["exp", "show", "tiny", "--artifacts", str(art), "--format", "csv"])
+    assert shown.exit_code == 0 and "arm3 | FDDP" in shown.output
+    again = runner.invoke(app, ["bench", "suite", str(path), "--artifacts", str(art), "--out", str(out), "--quiet",
+                                "-p", "arm3", "-p", "talos-welded"])
+    assert again.exit_code == 0, again.output
+    import csv
+
+    with open(art / "exp" / "tiny" / "runs.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4 and all(r["plan.cached"] == "True" for r in rows if r["plan.key"])
+    assert [r["variant"] for r in rows if not r["plan.key"]] == ["talos-welded | FDDP"]   # its error, again
+
+
+# ----------------------------------------------------------------------------- the page and the README block
+def _synthetic_doc():
+    s = suite.Suite("mini", "", Path("suite.toml"), [suite.SolverEntry("A", {"solver": "raico"}),
+                                                     suite.SolverEntry("B", {"solver": "ilqg"})],
+                    [suite.ProblemEntry("p", Path("p.toml")), suite.ProblemEntry("q", Path("q.toml"), reason="r0")])
+    base = {"iterations": 3, "wall_time_s": 0.1, "joint_range_excess": 0.0, "effort_excess": 0.0,
+            "over_time_budget": False, "status": "max-iterations"}
+    recs = [{**base, "problem": "p", "solver": "A", "final_cost": 2.0, "cost_ratio": 2.0, "time_to_target_s": None,
+             "key": "a" * 16, "reason": ""},
+            {**base, "problem": "p", "solver": "B", "final_cost": 1.0, "cost_ratio": 1.0, "time_to_target_s": 0.05,
+             "key": "b" * 16, "reason": ""},
+            *({**base, "problem": "q", "solver": x, "final_cost": None, "cost_ratio": None, "time_to_target_s": None,
+               "key": None, "reason": "no problem file q.toml", "status": "not run"} for x in ("A", "B"))]
+    return suite.summary(s, recs, {"date": "today", "machine": "here"})
+
+
+def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numbers(tmp_path):
+    import importlib.util
+
+    doc = _synthetic_doc()
+    page = suite.markdown(doc)
+    assert "| p | 40 it, 20 s, held | 2 (2x) | 1 (1x) |" in page
+    assert "| q | 40 it, 20 s, held | - [1] | - [1] |" in page
+    assert "1. no problem file q.toml" in page
+    assert "ends above 1.1x the best final cost: 1 of 2 problems:\n\n- p: R-AICO's best 2x (A); the best 1 by B" in page
+    assert "| A | 0.00 | 0.00 | 0.00 | 0.00 | 0.50 | 0.50 |" in page      # cost: within 2x on p, q unsolved
+    (tmp_path / "suite.md").write_text(page)
+    from pipeline.engine.runner import finite_json
+
+    (tmp_path / "suite.json").write_text(json.dumps(finite_json(doc)))
+    spec = importlib.util.spec_from_file_location("readme_numbers", ROOT / "scripts" / "readme_numbers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    block = mod.suite_block(tmp_path / "suite.md", tmp_path / "suite.json")
+    assert "Every run" not in block and "#### Final cost" in block
+    assert f"]({tmp_path / 'suite_profiles.png'})" in block
+    assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
+
+
+@pytest.mark.parametrize("args, line", [
+    (["/no/such/suite.toml"], "raico: error: no suite file /no/such/suite.toml"),
+    (["-p", "no-such-problem"], "raico: error: --problem no-such-problem: not in the suite; choose from "),
+    (["-s", "no-such-solver"], "raico: error: --solver no-such-solver: not in the suite; choose from "),
+    (["--jobs", "0"], "raico: error: --jobs must be in [1, 64]"),
+])
+def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, args, line):
+    res = runner.invoke(app, ["bench", "suite", *args, "--artifacts", str(tmp_path / "art")])
+    assert res.exit_code == 2
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith(line)
+    assert not (tmp_path / "art" / "bench").exists()
+
+
+def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
+    """Two problems: on the first the cheaper plan leaves a joint range (by 0.1 rad), so inside the limits the
+    other solver is the best and the cheaper one unsolved; on the second both stay inside."""
+    from pipeline import suite as st
+
+    def rec(p, s, cost, rng, eff=0.0):
+        return {"problem": p, "solver": s, "final_cost": cost, "time_to_target_s": 1.0,
+                "joint_range_excess": rng, "effort_excess": eff}
+
+    records = [rec("a", "x", 1.0, 0.1), rec("a", "y", 2.0, 0.0), rec("b", "x", 3.0, 5e-4), rec("b", "y", 3.3, 0.0, 1.0)]
+    assert [st.inside_limits(r) for r in records] == [False, True, True, False]
+    prof = st.profiles(records, ["a", "b"], ["x", "y"])
+    assert prof["cost"]["ratios"]["x"] == [1.0, 1.0] and np.allclose(prof["cost"]["ratios"]["y"], [2.0, 1.1])
+    assert prof["inside"]["ratios"]["x"][0] == math.inf and prof["inside"]["ratios"]["x"][1] == 1.0
+    assert prof["inside"]["ratios"]["y"][0] == 1.0 and prof["inside"]["ratios"]["y"][1] == math.inf

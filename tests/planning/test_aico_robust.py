@@ -1,0 +1,234 @@
+"""R-AICO's robust schedule (Levenberg-Marquardt style, invariant to the cost's scale) on problems whose
+answer is known: the exact LQ solution, the same iterates whatever the cost's scale, and the acceptance
+rule on trials whose outcome is known."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planning.aico import AICOOptions, _RobustStep, _Sweeps, aico, cost_curvature
+from planning.driver import Iterate
+from planning.problem import Status
+from tests.planning.test_solvers_lq import N_U, T, exact_solution, make_lq
+
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
+
+def scaled_lq(scale: float):
+    """``make_lq(seed=2, running=5)`` with every term's weight multiplied by ``scale``."""
+    pb = make_lq(seed=2, running=5.0)
+    for term in pb.all_terms():
+        term.weight *= scale
+    return pb
+
+
+def run(pb, **kw):
+    iterates = []
+    res = aico(pb, AICOOptions(**{"iterations": 40, "alpha": 1.0, "schedule": "robust", **kw}),
+               callback=lambda rec, X, U: iterates.append((X.copy(), U.copy())))
+    return res, iterates
+
+
+def test_robust_schedule_reaches_the_exact_lq_solution():
+    """From x0 held (no trajectory of the dynamics) the first trial is taken, then the model is exact and
+    lambda falls by up to 10 per iteration: the exact solution to 1e-6 within 12 iterations."""
+    pb = scaled_lq(1.0)
+    X, U = exact_solution(pb)
+    res, its = run(pb, tol_rel=0.0, iterations=20)
+    errs = [np.abs(Xi - X).max() / np.abs(X).max() for Xi, _ in its]
+    hit = next(i + 1 for i, e in enumerate(errs) if e < 1e-6)
+    assert hit <= 12, errs
+    assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-9)
+    lam = [h.mu for h in res.history]
+    assert lam[0] == 1.0 and lam[2] == pytest.approx(0.1) and lam[3] == pytest.approx(0.01)  # rho = 1: /10
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_robust_schedule_iterates_do_not_depend_on_the_cost_scale(scale):
+    """The same LQ problem with every weight times 1e-3 or 1e3: kappa scales with it, alpha = lambda kappa,
+    the process noise and start variance per unit of kappa; the iterates are the same to rounding and the
+    costs scale exactly, for as long as the cost falls by more than rounding (6 iterations here; then a
+    step of relative size 1e-9 may be taken at one scale and not at the other, which the end test allows)."""
+    ref, ref_its = run(scaled_lq(1.0), iterations=6, tol_rel=0.0)
+    res, its = run(scaled_lq(scale), iterations=6, tol_rel=0.0)
+    assert len(its) == len(ref_its) == 6
+    for (X, U), (Xr, Ur) in zip(its, ref_its):
+        assert np.abs(X - Xr).max() <= 1e-12 * np.abs(Xr).max()
+        assert np.abs(U - Ur).max() <= 1e-12 * np.abs(Ur).max()
+    assert [h.mu for h in res.history] == pytest.approx([h.mu for h in ref.history], rel=1e-12)
+    costs, ref_costs = np.array([h.cost for h in res.history]), np.array([h.cost for h in ref.history])
+    assert costs == pytest.approx(scale * ref_costs, rel=1e-12)
+    end, end_ref = run(scaled_lq(scale))[0], run(scaled_lq(1.0))[0]
+    assert np.abs(end.X - end_ref.X).max() <= 1e-7 * np.abs(end_ref.X).max()
+    # the fixed schedule's absolute alpha is not scale-free: the same alpha gives other iterates
+    f1 = aico(scaled_lq(1.0), AICOOptions(iterations=1, alpha=1.0)).X
+    fs = aico(scaled_lq(scale), AICOOptions(iterations=1, alpha=1.0)).X
+    assert np.abs(f1 - fs).max() > 1e-4 * np.abs(f1).max()
+
+
+def test_cost_curvature_scales_with_the_cost():
+    X = np.tile(make_lq(seed=2).x0, (T + 1, 1))
+    U = np.zeros((T, N_U))
+    k1, k2 = cost_curvature(scaled_lq(1.0), X, U), cost_curvature(scaled_lq(1e3), X, U)
+    assert k1 > 0 and k2 == pytest.approx(1e3 * k1, rel=1e-12)
+
+
+def _step(pb, start_cost, **kw):
+    opts = AICOOptions(**{"alpha": 1.0, "schedule": "robust", **kw})
+    return _RobustStep(pb, _Sweeps(pb, opts), opts, cost_curvature(pb, np.tile(pb.x0, (T + 1, 1)),
+                                                                     np.zeros((T, N_U))), start_cost)
+
+
+def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambda_max():
+    """A feasible iterate of cost 0 cannot be beaten: every trial is rejected, the iterate and its cost stay,
+    lambda grows by 2, 4, 8, 10, 10 (Nielsen's doubling, capped at x10); rejected at lambda_max the run stops."""
+    pb = make_lq(seed=2, running=5.0)
+    step = _step(pb, 0.0, lambda_max=1e3)
+    start = Iterate(np.tile(pb.x0, (T + 1, 1)), np.zeros((T, N_U)))
+    lams = []
+    for it in range(1, 10):
+        s = step(it, start)
+        assert s.iterate is start and s.cost == 0.0 and not s.moved
+        lams.append(s.mu)
+        if s.stop is not None:
+            break
+    assert lams == pytest.approx([1.0, 2.0, 8.0, 64.0, 640.0, 1e3])
+    assert s.stop.status is Status.MAX_ITERATIONS and "lambda_max" in s.stop.message
+
+
+def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajectory():
+    """The stall this schedule fixes: from x0 held the reference is no trajectory's cost; the first finite
+    trial is taken whatever it costs (the adaptive schedule compared it with the zero-control rollout's cost
+    and, when that is lower than holding the start, rejected every trial)."""
+    pb = make_lq(seed=2, running=5.0)
+    step = _step(pb, None)
+    start = Iterate(np.tile(pb.x0, (T + 1, 1)), np.zeros((T, N_U)))
+    s = step(1, start)
+    assert s.moved and s.iterate is not start and np.isfinite(s.cost)
+    assert step.cur_cost == s.cost
+
+
+def test_robust_schedule_options_are_checked():
+    with pytest.raises(ValueError, match="the robust schedule needs alpha > 0"):
+        AICOOptions(alpha=0.0, schedule="robust")
+    with pytest.raises(ValueError, match="schedule must be one of fixed, adaptive, robust"):
+        AICOOptions(alpha=1.0, schedule="lm")
+    with pytest.raises(ValueError, match="lm_factor"):
+        AICOOptions(alpha=1.0, schedule="robust", lm_factor=1.0)
+
+
+def bounded_lq(T: int = T):
+    """The LQ problem with hard bounds its unconstrained optimum leaves: state coordinates 0 and 1 within
+    [-0.3, 0.3] (as joint positions, from step 1 on) and both controls within +-0.8 (as efforts)."""
+    import dataclasses
+
+    from planning.problem import Bounds
+
+    pb = make_lq(seed=2, running=5.0, T=T)
+    b = Bounds(u_lower=np.full(N_U, -0.8), u_upper=np.full(N_U, 0.8), q_index=np.array([0, 1]),
+               q_lower=np.full(2, -0.3), q_upper=np.full(2, 0.3))
+    return pb, dataclasses.replace(pb, bounds=b)
+
+
+def bounded_qp_optimum(pb) -> float:
+    """The bounded LQ problem's optimal cost, from scipy's SLSQP on the QP over ``z = (x_0..x_T, u_0..u_{T-1})``
+    (``1/2 z^T H z - g^T z``, the dynamics as linear equalities, the bounds as a box; independent of the
+    solvers)."""
+    from scipy.linalg import block_diag
+    from scipy.optimize import minimize
+
+    T, n, m, dyn, b = pb.T, pb.n_x, pb.n_u, pb.dynamics, pb.bounds
+    R, r = pb.quadratize_states(np.zeros((T + 1, n)))
+    Hu, hu = pb.quadratize_controls(np.zeros((T, m)))
+    Hq, g = block_diag(*R, *Hu), np.concatenate([*r, *hu])
+    off = (T + 1) * n
+    C = np.zeros(((T + 1) * n, off + T * m))
+    d = np.concatenate([pb.x0, np.tile(dyn.a, T)])
+    C[:n, :n] = np.eye(n)
+    for t in range(T):
+        rows = slice((t + 1) * n, (t + 2) * n)
+        C[rows, (t + 1) * n:(t + 2) * n], C[rows, t * n:(t + 1) * n] = np.eye(n), -dyn.A
+        C[rows, off + t * m:off + (t + 1) * m] = -dyn.B
+    lo, hi = np.full(off + T * m, -np.inf), np.full(off + T * m, np.inf)
+    for t in range(1, T + 1):
+        lo[t * n + b.q_index], hi[t * n + b.q_index] = b.q_lower, b.q_upper
+    lo[off:], hi[off:] = np.tile(b.u_lower, T), np.tile(b.u_upper, T)
+    z0 = np.concatenate([np.tile(pb.x0, T + 1), np.zeros(T * m)])
+    res = minimize(lambda z: 0.5 * z @ Hq @ z - g @ z, z0, jac=lambda z: Hq @ z - g, method="SLSQP",
+                   constraints=[{"type": "eq", "fun": lambda z: C @ z - d, "jac": lambda z: C}],
+                   bounds=list(zip(np.where(np.isfinite(lo), lo, None), np.where(np.isfinite(hi), hi, None))),
+                   options={"maxiter": 1000, "ftol": 1e-10})
+    assert res.success, res.message
+    X, U = res.x[:off].reshape(T + 1, n), res.x[off:].reshape(T, m)
+    assert max(pb.bounds.violation(X, U)) <= 1e-8 and np.abs(C @ res.x - d).max() <= 1e-8
+    return pb.cost(X, U)
+
+
+@pytest.mark.parametrize("schedule", ["robust", "fixed"])
+def test_hard_bounds_hold_where_the_unconstrained_optimum_leaves_them(schedule):
+    """The unconstrained optimum leaves the range and asks for more than the effort; with the bounds
+    R-AICO's plan is inside the range to 1e-3 (1e-4 the augmented Lagrangian's target) and within the effort
+    exactly (the last controller's controls clipped), its status is not out-of-bounds, and its cost is the
+    bounded QP's optimum to 1e-4."""
+    free, pb = bounded_lq(T=12)
+    X, U = exact_solution(free)
+    q_out, u_out = pb.bounds.violation(X, U)
+    assert q_out > 0.1 and u_out > 0.1
+    res = aico(pb, AICOOptions(iterations=120, alpha=1.0, schedule=schedule))
+    q, u = pb.bounds.violation(res.X, res.U)
+    assert q <= 1e-4 and u == 0.0, (q, u, res.message)
+    assert res.status is Status.CONVERGED and np.all(np.abs(res.U) <= 0.8)
+    assert pb.cost(res.X, res.U) == pytest.approx(bounded_qp_optimum(pb), rel=1e-4)
+    assert res.cost == pb.cost(res.X, res.U)       # the history's last cost is the plan's
+    # the stored controller gives the plan: clipped controls have their value as feedforward, no feedback
+    assert np.allclose(res.o + np.einsum("tij,tj->ti", res.O, res.X[:-1]), res.U, atol=1e-9)
+
+
+def test_a_plan_that_cannot_stay_inside_says_so():
+    """A range the plan cannot keep (the start's state 0 is 0.18; the bound at 0.1 from step 1 on is beyond
+    what one step of the bounded controls can do): status out-of-bounds with the amount."""
+    import dataclasses
+
+    free, pb = bounded_lq()
+    x0 = pb.x0.copy()
+    b = dataclasses.replace(pb.bounds, q_lower=np.array([x0[0] + 2.0, -10.0]), q_upper=np.array([x0[0] + 3.0, 10.0]))
+    res = aico(dataclasses.replace(pb, bounds=b), AICOOptions(iterations=30, alpha=1.0, schedule="robust"))
+    assert res.status is Status.OUT_OF_BOUNDS and "joint range by" in res.message
+
+
+def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bounds(tmp_path):
+    """``raico plan --problem FILE``: R-AICO's robust schedule and the model's hard bounds by default (stored in
+    the config), the thesis's fixed schedule and no hard bounds for ``--plant/--task``; the plan is within its
+    joint ranges and effort limits; a bad ``--bounds`` is one line on stderr and exit 2."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from pipeline.interface.cli import app
+    from plants.robots import shared_robot
+
+    runner = CliRunner()
+    root = Path(__file__).resolve().parents[2]
+    res = runner.invoke(app, ["plan", "--problem", str(root / "problems" / "arm5_reach.toml"), "--dynamics", "analytic",
+                              "--iterations", "12", "--json", "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.strip().splitlines()[-1])
+    cfg = json.loads((Path(line["path"]) / "meta.json").read_text())["config"]
+    assert cfg["alpha_schedule"] == "robust" and cfg["bounds"] == "hard"
+    plan = np.load(Path(line["path"]) / "plan.npz")
+    robot = shared_robot("arm5")
+    Q = plan["X"][1:, :robot.n_q]
+    assert np.all(Q <= robot.upper + 1e-3) and np.all(Q >= robot.lower - 1e-3)
+    assert np.all(np.abs(plan["U"]) <= robot.effort * (1 + 1e-9))
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--iterations", "2", "--json",
+                              "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    line = json.loads(res.stdout.strip().splitlines()[-1])
+    cfg = json.loads((Path(line["path"]) / "meta.json").read_text())["config"]
+    assert cfg["alpha_schedule"] == "fixed" and cfg["bounds"] == "none"
+    res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--bounds", "soft",
+                              "--artifacts", str(tmp_path)])
+    assert res.exit_code == 2 and "unknown bounds 'soft'" in res.output

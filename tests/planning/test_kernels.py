@@ -1,0 +1,388 @@
+"""The compiled kernels (speed only) against the numpy / Drake code they replace.
+
+- the AICO sweep kernel (``planning/csweep.c``) against ``_Sweeps``'s numpy code, on every
+  route it takes: dynamics linearized in Python (``NEED_DYN``), compiled (``dyn_linearize``) or
+  never (LTI, sparse shared ``C``); task messages from Python (``NEED_TASK``) or compiled
+  (``taskset_eval``); theta = inf;
+- the generated dynamics in C (``FastAnalyticDynamics``) against the same generated code run by
+  Python, and the tree dynamics (``TreeAnalyticDynamics``, the Nao's route) against Drake's
+  AutoDiffXd (``AnalyticDynamics``) and finite differences;
+- the tree kernels (forward kinematics, Jacobians, mass matrix, inverse dynamics and its
+  derivatives) against Drake; the compiled task maps and task messages against Drake's;
+- that the kernel cannot vanish silently: no skip when the library is missing (a
+  missing kernel fails here), the aico runs of this file take the compiled path, a source that
+  gcc rejects raises, the source ships as package data, and the build flags match this CPU.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planning import kernels
+from planning.aico import AICOOptions, _Sweeps, aico
+from plants.codegen import c_backend, rbd
+from plants.dynamics import AnalyticDynamics
+from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
+from plants.numdiff import check_dynamics
+from plants.robots import PLANTS, shared_robot
+from plants.taskmaps import TASKMAP_EXAMPLES
+from stages.plan.stage import PlanConfig, build_problem
+from tests.planning.test_aico_speed_equivalence import make_problem
+from tests.tolerance import REL, assert_close, scale_of
+
+pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(autouse=True)
+def _the_kernel():
+    """Every test here needs the compiled kernel: missing, it fails (never skips), saying why."""
+    if kernels.library() is None:
+        pytest.fail(f"the compiled sweep kernel is not available ({c_backend.why_unavailable()}): "
+                    "install gcc (with RAICO_NO_C set only the numpy code runs)")
+
+
+def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
+    """aico with the kernel available runs its sweeps in C (``_sweep_compiled``), not the numpy code."""
+    calls = []
+    real = _Sweeps._sweep_compiled
+    monkeypatch.setattr(_Sweeps, "_sweep_compiled", lambda self, lib: (calls.append(1), real(self, lib))[1])
+    aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    assert calls
+
+
+def test_a_broken_kernel_source_fails_loudly(tmp_path):
+    """gcc present and the source broken (a syntax error): the build raises CompileError (never the
+    silent numpy fallback), and so does ``python -m planning.kernels`` (make kernels)."""
+    broken = kernels.source_text().replace("sweep_run(", "sweep_run((", 1)
+    with pytest.raises(c_backend.CompileError, match="gcc failed on csweep"):
+        c_backend.build_library(broken, "csweep", directory=tmp_path, flags=kernels.FLAGS)
+    assert not list(tmp_path.glob("*.so"))
+    # the build helper of make kernels, on a copy of the package whose csweep.c is broken
+    copy = tmp_path / "repo"
+    for pkg in ("plants", "planning"):
+        shutil.copytree(REPO / pkg, copy / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    (copy / "planning" / "csweep.c").write_text(kernels.SOURCES[1].read_text().replace("sweep_run(", "sweep_run((", 1))
+    env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(copy)}
+    env.pop("RAICO_NO_C", None)
+    p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=copy, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode != 0 and "CompileError" in p.stderr, p.stderr[-2000:]
+
+
+def test_the_kernel_source_is_package_data():
+    """A wheel or non-editable install has ``planning/csweep.c`` (pyproject's package data)."""
+    data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    import fnmatch
+
+    for name in ("dense.c", "csweep.c"):
+        assert any(fnmatch.fnmatch(name, pat) for pat in data["planning"]), name
+        assert (REPO / "planning" / name).exists()
+
+
+def test_the_kernel_flags_follow_this_cpu():
+    """-mavx2 / -mfma only where /proc/cpuinfo lists the CPU flags; they are part of the cached
+    library's key, so a build for another CPU is never the one loaded here."""
+    cpu = c_backend.cpu_features()
+    assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
+    assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
+    source = kernels.source_text()
+    here = c_backend.library_path(source, "csweep", flags=kernels.FLAGS)
+    portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma"))
+    assert c_backend.library_path(source, "csweep", flags=portable) != here
+    loaded = kernels.library()
+    assert Path(loaded._name) == here
+
+
+def _plan_problem(plant: str, task: str, dynamics: str, T: int | None = None):
+    problem = build_problem(PlanConfig(plant=plant, task=task, dynamics=dynamics, seed=0))[2]
+    return problem
+
+
+def _both(make, options: AICOOptions, monkeypatch):
+    """The same run with the compiled sweeps and with the numpy sweeps."""
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), options)
+    return out[True], out[False]
+
+
+def _assert_same(a, b, rtol: float = 1e-9):
+    assert a.status == b.status and a.iterations == b.iterations, (a.message, b.message)
+    assert [h.repeats for h in a.history] == [h.repeats for h in b.history]
+    np.testing.assert_allclose(a.costs, b.costs, rtol=rtol)
+    for key in ("X", "U", "o", "O", "beliefs"):
+        x, y = getattr(a, key), getattr(b, key)
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-8 * max(np.abs(y).max(), 1.0), err_msg=key)
+
+
+@pytest.mark.parametrize("dynamics,limits,opts", [
+    ("pendulums", False, dict(alpha=1.0, iterations=4)),                  # Python dynamics + tasks
+    ("pendulums", True, dict(alpha=0.5, gamma=0.8, iterations=3, theta=0.02)),
+    ("pendulums", False, dict(alpha=1.0, iterations=3, theta=math.inf)),  # backward sweep only
+    ("pseudo", False, dict(alpha=1.0, iterations=4, theta=0.02)),         # LTI: sparse shared C
+    # V*: Cholesky (large q), Cholesky and 3-term series mixed, 1-term series (tiny q); the
+    # default q gives the 2- and 3-term series
+    ("pendulums", False, dict(alpha=1.0, iterations=3, process_noise=1e-2)),
+    ("pseudo", False, dict(alpha=1.0, iterations=3, theta=0.02, process_noise=1e-7)),
+    ("pendulums", False, dict(alpha=1.0, iterations=3, process_noise=1e-14)),
+], ids=["python-dynamics", "limits", "theta-inf", "lti", "vstar-cholesky", "vstar-mixed", "vstar-one-term"])
+def test_compiled_sweeps_equal_numpy_sweeps(dynamics, limits, opts, monkeypatch):
+    a, b = _both(lambda: make_problem(dynamics, limits), AICOOptions(tol_rel=0.0, **opts), monkeypatch)
+    _assert_same(a, b)
+    if math.isfinite(opts.get("theta", 0.1)):
+        assert sum(h.repeats for h in a.history) > 0
+
+
+@pytest.mark.parametrize("plant,task,dynamics", [
+    ("arm5", "reach-roll", "analytic"),   # compiled dynamics and task messages (Drake maps in C)
+    ("nao", "balance", "pseudo"),         # n = 50, LTI, a task term at every step
+])
+def test_compiled_sweeps_on_the_plans(plant, task, dynamics, monkeypatch):
+    assert kernels.compile_task_set(_plan_problem(plant, task, dynamics)) is not None
+    a, b = _both(lambda: _plan_problem(plant, task, dynamics),
+                 AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0), monkeypatch)
+    _assert_same(a, b)
+    assert sum(h.repeats for h in a.history) > 0
+
+
+@pytest.mark.parametrize("plant,task,dynamics", [
+    ("arm5", "reach-roll", "analytic"), ("nao", "balance", "pseudo"), ("nao", "reach", "pseudo"),
+    ("biorob", "reach", "analytic"), ("pendulum", "swing-up", "analytic")])
+def test_compiled_task_messages_equal_the_terms(plant, task, dynamics):
+    problem = _plan_problem(plant, task, dynamics)
+    fn, ctx, keep = kernels.compile_task_set(problem)
+    import ctypes
+
+    evaluate = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p,
+                                ctypes.c_void_p, ctypes.c_void_p)(fn)
+    rng = np.random.default_rng(0)
+    active = problem.active_state_terms()
+    n = problem.n_x
+    steps = [t for t in range(problem.T + 1) if active[t]][:3] + [problem.T]
+    for t in steps:
+        x = problem.x0 + 0.2 * rng.standard_normal(n)
+        lx, lxx = np.empty(n), np.empty((n, n))
+        evaluate(ctx, t, x.ctypes.data, lx.ctypes.data, lxx.ctypes.data)
+        g, G = problem.point_state_derivatives(x, t, active[t])
+        scale = max(np.abs(G).max(), 1.0)
+        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * max(np.abs(g).max(), 1.0))
+        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * scale)
+
+
+def test_fallback_without_the_kernel(monkeypatch):
+    """No compiler (or RAICO_NO_C): the numpy sweeps run (and give the compiled numbers)."""
+    a = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    monkeypatch.setattr(kernels, "library", lambda: None)
+    b = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
+    _assert_same(a, b)
+
+
+# -- the dense kernels of the sweeps, by themselves ------------------------------------------------
+_SIZES = [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 25, 50]
+_PAD = 12345.0     # written around every operand: a kernel reading or writing outside its block fails
+
+
+def _dense_lib():
+    import ctypes
+
+    lib = kernels.library()
+    L, D, P = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
+    lib.k_chol_u.argtypes, lib.k_chol_u.restype = [L, P, L], ctypes.c_int
+    for f in ("k_solve_rt", "k_solve_r"):
+        getattr(lib, f).argtypes = [L, P, L, P, L, L]
+    lib.k_spd_inverse.argtypes = [L, P, L, P, L, P]
+    lib.k_gemm_nn.argtypes = lib.k_gemm_tn.argtypes = lib.k_gemm_nn_set.argtypes = [L, L, L, D, P, L, P, L,
+                                                                                     P, L]
+    lib.k_syrk_tn.argtypes = [L, L, D, P, L, P, L, L]
+    lib.k_transpose.argtypes = [L, L, P, L, P, L]
+    return lib
+
+
+def _padded(M: np.ndarray, extra: int = 3) -> np.ndarray:
+    """``M`` inside a larger row-major buffer (``extra`` more columns and one more row of _PAD)."""
+    r, c = M.shape
+    out = np.full((r + 1, c + extra), _PAD)
+    out[:r, :c] = M
+    return out
+
+
+def _spd(rng, n: int) -> np.ndarray:
+    G = rng.standard_normal((n, n))
+    return G.T @ G + 0.1 * np.eye(n)
+
+
+@pytest.mark.parametrize("n", _SIZES)
+def test_dense_cholesky_solves_and_inverse(n):
+    """Cholesky factor (upper, only the upper triangle read), R^-T B, R^-1 B and the SPD inverse
+    against numpy, on every edge shape of the register tiles, nothing touched outside the block."""
+    lib, rng = _dense_lib(), np.random.default_rng(n)
+    A = _spd(rng, n)
+    buf = _padded(np.triu(A) + np.tril(np.full((n, n), np.nan), -1))
+    ld = buf.shape[1]
+    assert lib.k_chol_u(n, buf.ctypes.data, ld) == 0
+    R = np.triu(buf[:n, :n])
+    np.testing.assert_allclose(R, np.linalg.cholesky(A).T, rtol=0, atol=1e-12 * np.abs(A).max())
+    assert (buf[:n, n:] == _PAD).all() and (buf[n] == _PAD).all()
+    for c in (1, 3, 4, 5, 8, 11, n + 1):
+        B = rng.standard_normal((n, c))
+        for f, ref in (("k_solve_rt", np.linalg.solve(R.T, B)), ("k_solve_r", np.linalg.solve(R, B))):
+            Bb = _padded(B)
+            getattr(lib, f)(n, buf.ctypes.data, ld, Bb.ctypes.data, Bb.shape[1], c)
+            np.testing.assert_allclose(Bb[:n, :c], ref, rtol=0, atol=1e-9 * max(np.abs(ref).max(), 1.0),
+                                       err_msg=f"{f} c={c}")
+            assert (Bb[:n, c:] == _PAD).all() and (Bb[n] == _PAD).all()
+    out, Y = _padded(np.full((n, n), np.nan)), np.full((n, n), np.nan)
+    lib.k_spd_inverse(n, buf.ctypes.data, ld, out.ctypes.data, out.shape[1], Y.ctypes.data)
+    Ainv = np.linalg.inv(A)
+    np.testing.assert_allclose(out[:n, :n], Ainv, rtol=0, atol=1e-9 * np.abs(Ainv).max())
+    assert (out[:n, :n] == out[:n, :n].T).all() and (out[:n, n:] == _PAD).all()
+    bad = _padded(-np.eye(n))
+    assert lib.k_chol_u(n, bad.ctypes.data, bad.shape[1]) == 1     # not positive definite: row 1
+
+
+@pytest.mark.parametrize("a,r,c", [(1, 1, 1), (3, 5, 2), (4, 4, 4), (5, 7, 9), (9, 3, 13),
+                                   (25, 50, 76), (50, 51, 51), (50, 25, 50), (13, 50, 8)])
+def test_dense_products_and_transpose(a, r, c):
+    """A B, A^T B, the upper triangle of W^T W and transposes against numpy, with alpha,
+    accumulated into C or setting it (C not read: NaN before), nothing touched outside the block."""
+    lib, rng = _dense_lib(), np.random.default_rng(a * 100 + r)
+    A, At, B, C0 = (rng.standard_normal(s) for s in ((a, r), (r, a), (r, c), (a, c)))
+    for f, X, ref in (("k_gemm_nn", A, C0 - 0.5 * A @ B), ("k_gemm_tn", At, C0 - 0.5 * At.T @ B)):
+        Xb, Bb, Cb = _padded(X), _padded(B), _padded(C0)
+        args = (a, r, c) if f == "k_gemm_nn" else (r, a, c)
+        getattr(lib, f)(*args, -0.5, Xb.ctypes.data, Xb.shape[1], Bb.ctypes.data, Bb.shape[1],
+                        Cb.ctypes.data, Cb.shape[1])
+        np.testing.assert_allclose(Cb[:a, :c], ref, rtol=0, atol=1e-12 * r, err_msg=f)
+        assert (Cb[:a, c:] == _PAD).all() and (Cb[a] == _PAD).all()
+    Xb, Bb, Cb = _padded(A), _padded(B), _padded(np.full((a, c), np.nan))
+    lib.k_gemm_nn_set(a, r, c, -0.5, Xb.ctypes.data, Xb.shape[1], Bb.ctypes.data, Bb.shape[1],
+                      Cb.ctypes.data, Cb.shape[1])
+    np.testing.assert_allclose(Cb[:a, :c], -0.5 * A @ B, rtol=0, atol=1e-12 * r)
+    W, S0 = rng.standard_normal((r, a)), rng.standard_normal((a, a))
+    iu = np.triu_indices(a)
+    for set_, before, ref in ((0, S0, S0 + 2.0 * W.T @ W), (1, np.full((a, a), np.nan), 2.0 * W.T @ W)):
+        Wb, Sb = _padded(W), _padded(before)
+        lib.k_syrk_tn(r, a, 2.0, Wb.ctypes.data, Wb.shape[1], Sb.ctypes.data, Sb.shape[1], set_)
+        np.testing.assert_allclose(Sb[:a, :a][iu], ref[iu], rtol=0, atol=1e-12 * r)
+        assert (Sb[:a, a:] == _PAD).all() and (Sb[a] == _PAD).all()
+    M = rng.standard_normal((a, c))
+    Mb, Tb = _padded(M), _padded(np.zeros((c, a)))
+    lib.k_transpose(a, c, Mb.ctypes.data, Mb.shape[1], Tb.ctypes.data, Tb.shape[1])
+    assert (Tb[:c, :a] == M.T).all() and (Tb[:c, a:] == _PAD).all() and (Tb[c] == _PAD).all()
+
+
+# -- dynamics ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("plant", ["pendulum", "arm5", "biorob"])
+def test_generated_dynamics_in_c_equal_python(plant):
+    robot = shared_robot(plant)
+    fast, slow = FastAnalyticDynamics(robot, 0.01), FastAnalyticDynamics(robot, 0.01)
+    slow._c = False                                  # the generated Python code
+    assert fast._compiled() is not None
+    rng = np.random.default_rng(1)
+    n = robot.n_q
+    X = np.concatenate([robot.default_q + rng.uniform(-1.5, 1.5, (6, n)), rng.standard_normal((6, n))], 1)
+    U = 3.0 * rng.standard_normal((6, n))
+    for x, u in zip(X, U):
+        for got, ref in zip(fast.linearize(x, u), slow.linearize(x, u)):
+            assert_close(got, ref, scale=1.0)   # the C is built with FMA: equal up to rounding
+        assert_close(fast.step(x, u), slow.step(x, u), scale=scale_of(x, u))
+    for got, ref in zip(fast.linearize_trajectory(X, U), slow.linearize_trajectory(X, U)):
+        assert_close(got, ref, scale=1.0)
+    O = 0.1 * rng.standard_normal((6, n, 2 * n))
+    for got, ref in zip(fast.controller_rollout(X[0], U, O), slow.controller_rollout(X[0], U, O)):
+        assert_close(got, ref, scale=1.0)
+
+
+@pytest.mark.parametrize("plant", PLANTS)
+def test_tree_kernels_equal_drake(plant):
+    robot = shared_robot(plant)
+    k = rbd.tree_kernels(robot)
+    assert rbd.self_check(robot.plant, k, n_states=4, seed=11) <= REL   # relative to each quantity's scale
+
+
+def test_tree_dynamics_of_the_nao_equal_autodiff():
+    nao = shared_robot("nao")
+    fast, exact = TreeAnalyticDynamics(nao, 0.01), AnalyticDynamics(nao, 0.01)
+    rng = np.random.default_rng(2)
+    n = nao.n_q
+    X = np.concatenate([nao.default_q + 0.5 * rng.standard_normal((3, n)), rng.standard_normal((3, n))], 1)
+    U = rng.standard_normal((3, n))
+    for x, u in zip(X, U):
+        A, a, B = fast.linearize(x, u)
+        A0, a0, B0 = exact.linearize(x, u)
+        assert_close(A, A0)
+        assert_close(B, B0)
+        assert_close(a, a0, scale=1 + scale_of(x) + scale_of(u))
+        assert_close(fast.step(x, u), exact.step(x, u), scale=scale_of(x, u))
+        q, v = x[:n], x[n:]
+        for got, ref in zip(fast.qddot_derivatives(q, v, u), exact.qddot_derivatives(q, v, u)):
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(np.abs(ref).max(), 1.0))
+        assert_close(fast.inverse_dynamics(q, v, u), exact.inverse_dynamics(q, v, u), scale=1.0)
+    check_dynamics(fast, X[:2], U[:2]).assert_passed()   # and against finite differences
+
+
+@pytest.mark.parametrize("name,plant", [(n, p) for n, ex in TASKMAP_EXAMPLES.items()
+                                        for p in PLANTS if ex.applies_to(p)])
+def test_compiled_task_maps_equal_drake(name, plant):
+    robot = shared_robot(plant)
+    tm = TASKMAP_EXAMPLES[name].build(robot)
+    maps = getattr(tm, "maps", [tm])
+    rng = np.random.default_rng(3)
+    Q = robot.default_q + 0.3 * rng.standard_normal((3, robot.n_q))
+    for m in maps:
+        if not hasattr(m, "_in_plant"):   # a joint selection: no plant; its definition is the reference
+            V, J = m.values_and_jacobians(Q)
+            idx = np.argmax(m.S, axis=1)
+            np.testing.assert_array_equal(V, Q[:, idx])
+            np.testing.assert_array_equal(J, np.broadcast_to(np.eye(robot.n_q)[idx], J.shape))
+            continue
+        assert m.tree_kernels() is not None
+        for q in Q:
+            qp = robot.P @ q
+            for got, ref in zip(m._compiled_in_plant(m.tree_kernels(), qp), m._in_plant(qp)):
+                assert_close(got, ref, scale=1.0)   # metres, radians: a robot of about 1 m
+        V, J = m.values_and_jacobians(Q)
+        for i, q in enumerate(Q):
+            v, Jd = m._in_plant(robot.P @ q)
+            assert_close(V[i], v, scale=1.0)
+            assert_close(J[i], Jd @ robot.P, scale=1.0)
+
+
+def test_emitted_c_is_the_python_arithmetic():
+    """The generated C evaluates the very operations of the generated Python (bitwise here:
+    same libm, no contraction)."""
+    from plants.codegen.derive import compiled_dynamics
+
+    code = compiled_dynamics(shared_robot("arm5"))
+    fast = FastAnalyticDynamics(shared_robot("arm5"), 0.01)
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal(10)
+    Mr, hr = fast._compiled().mh(x)
+    out = code.sca["mh"]([*x.tolist()], [0.0] * 30)
+    assert np.array_equal(Mr.reshape(-1), np.array(out[:25])) and np.array_equal(hr, np.array(out[25:]))
+    assert "-ffp-contract=off" in c_backend.CFLAGS
+
+
+def test_message_kinds_are_named_alike_in_python_and_c():
+    """The compiled task terms are selected by named constants: planning.kernels.MessageKind mirrors
+    ``enum message_kind`` of planning/task_messages.c value for value; the plants floor holds none of it."""
+    import re
+
+    src = (REPO / "planning" / "task_messages.c").read_text()
+    assert "message_kind" not in (REPO / "plants" / "codegen" / "rbd_kernels.c").read_text()
+    body = re.search(r"enum message_kind \{([^}]*)\}", src).group(1)
+    c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
+    assert c_enum == {k.name: int(k) for k in kernels.MessageKind}
+    assert not re.search(r"tm->kind == \d", src)  # no bare numbers where the kinds are tested

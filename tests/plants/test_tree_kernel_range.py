@@ -1,0 +1,86 @@
+"""The generated kinematic-tree kernels (``plants/codegen/rbd_kernels.c`` with a tree's numbers baked
+in, and the dynamics driver on top) over the range of trees they accept, not only the plants' trees:
+1 to 70 joints, revolute, continuous and prismatic joints, welds between them, branching trees, and
+trees welded to the world at a leaf (traversed against the joints' directions). Each tree is
+self-checked against Drake when built (``tree_kernels``); then every kernel entry point runs at batch
+lengths 1, 2, 4 and 17 with 1 and 21 points (``tests/planning/test_kernel_shapes.py``'s checks). Marked
+``compiled``: ``make test-sanitize`` runs them under AddressSanitizer and UBSan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plants.model_file import RobotSpec, load_model
+from tests.tolerance import assert_close
+
+pytestmark = pytest.mark.compiled
+
+INERTIA = '<inertia ixx="0.004" iyy="0.004" izz="0.002" ixy="0" ixz="0" iyz="0"/>'
+
+
+def tree_urdf(n: int, branches: int, seed: int) -> str:
+    """A tree of ``n`` moving joints (revolute, continuous, prismatic in turn, random axes), split into
+    ``branches`` chains off the base, with a weld after every third joint."""
+    rng = np.random.default_rng(seed)
+    kinds = ("revolute", "continuous", "prismatic")
+    parts = [f'<link name="base"><inertial><mass value="2"/>{INERTIA}</inertial></link>']
+    tips = ["base"] * branches
+    for k in range(n):
+        b = k % branches
+        axis = rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        kind = kinds[k % 3]
+        limit = '<limit lower="-0.5" upper="0.5" effort="50" velocity="5"/>' if kind != "continuous" else \
+            '<limit effort="50" velocity="5"/>'
+        xyz = " ".join(f"{v:.3f}" for v in 0.1 * rng.standard_normal(3) + [0, 0, 0.15])
+        parts.append(f'<joint name="j{k}" type="{kind}"><parent link="{tips[b]}"/><child link="l{k}"/>'
+                     f'<origin xyz="{xyz}" rpy="{rng.uniform(-1, 1):.3f} 0.2 0"/>'
+                     f'<axis xyz="{axis[0]:.4f} {axis[1]:.4f} {axis[2]:.4f}"/>{limit}'
+                     f'<dynamics damping="{0.01 * (k % 4)}"/></joint>')
+        parts.append(f'<link name="l{k}"><inertial><origin xyz="0 0.02 0.07"/><mass value="{0.3 + 0.1 * (k % 5)}"/>'
+                     f'{INERTIA}</inertial></link>')
+        tips[b] = f"l{k}"
+        if k % 3 == 2:  # a weld between moving joints
+            parts.append(f'<joint name="w{k}" type="fixed"><parent link="l{k}"/><child link="f{k}"/>'
+                         f'<origin xyz="0 0 0.05" rpy="0 0 0.3"/></joint>')
+            parts.append(f'<link name="f{k}"><inertial><mass value="0.1"/>{INERTIA}</inertial></link>')
+            tips[b] = f"f{k}"
+    return f'<?xml version="1.0"?>\n<robot name="tree{n}">{"".join(parts)}</robot>\n'
+
+
+# (joints, branches, welded at a leaf)
+TREES = [(1, 1, False), (2, 1, True), (9, 3, False), (9, 2, True), (33, 4, False), (33, 1, True), (70, 5, False)]
+
+
+@pytest.fixture(params=TREES, ids=[f"n{n}-b{b}{'-leaf' if leaf else ''}" for n, b, leaf in TREES])
+def tree_robot(request, tmp_path):
+    n, branches, leaf = request.param
+    path = tmp_path / f"tree{n}.urdf"
+    path.write_text(tree_urdf(n, branches, seed=n + branches))
+    weld = f"l{n - 1}" if leaf else None   # the last link welded to the world: the tree re-rooted there
+    return load_model(RobotSpec(file=str(path), weld=weld, armature=0.01))
+
+
+def test_tree_kernels_over_the_range_of_trees(tree_robot, monkeypatch):
+    from plants.codegen import c_backend, rbd
+    from plants.fast_analytic import TreeAnalyticDynamics
+    from tests.planning import test_kernel_shapes as shapes
+
+    if not c_backend.enabled():
+        pytest.fail(f"compiled kernels unavailable ({c_backend.why_unavailable()}): these tests are about them")
+    k = rbd.tree_kernels(tree_robot)   # self-checked against Drake's M, h and dID (float and AutoDiffXd)
+    assert k.m == tree_robot.n_q
+    monkeypatch.setattr(shapes, "shared_robot", lambda name: tree_robot)
+    monkeypatch.setattr(shapes, "_dynamics", lambda name: (tree_robot, TreeAnalyticDynamics(tree_robot, 0.01)))
+    shapes.test_tree_kernels_at_every_shape(tree_robot.name)
+    shapes.test_compiled_dynamics_batches_at_every_length(tree_robot.name)
+    # the mass matrix and inverse dynamics against Drake at a state away from the self-check's
+    rng = np.random.default_rng(1)
+    q, v, a = (0.4 * rng.standard_normal(k.m) for _ in range(3))
+    plant, ctx = tree_robot.plant, tree_robot.plant.CreateDefaultContext()
+    plant.SetPositions(ctx, q)
+    plant.SetVelocities(ctx, v)
+    M = plant.CalcMassMatrix(ctx)
+    assert_close(k.mass_matrix(q), M)  # Drake counts the armature too
