@@ -422,7 +422,8 @@ class ControlLimit(ControlTerm):
     Its Gauss-Newton model is exact on each side: ``l_uu = 2 w diag(active)``.
 
     Args:
-        lower, upper: limits ``(n_u,)`` or scalars (control units, e.g. N m).
+        lower: lower limits ``(n_u,)`` or a scalar (control units, e.g. N m).
+        upper: upper limits, as ``lower``.
         weight: ``w`` per (control unit)^2 of violation.
         name: unique name of the term.
     """
