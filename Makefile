@@ -7,7 +7,7 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint docs clean
+.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
 
 install: $(STAMP)
 
@@ -64,8 +64,12 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.learn_any --artifacts $(ARTIFACTS)
 
-lint: $(STAMP)
+lint: $(STAMP) typecheck
 	$(BIN)/ruff check pipeline plants planning stages tests bench scripts
+
+# mypy over the library packages, configured in pyproject.toml ([tool.mypy]: which checks are on and why).
+typecheck: $(STAMP)
+	$(BIN)/mypy
 
 # The documentation site: docs/ (the reference moved out of the README, the generated results and bench pages,
 # the API from the docstrings) built by mkdocs into site/; a warning fails the build (--strict).

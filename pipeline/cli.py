@@ -271,7 +271,7 @@ def config_command(name: str, cls: type, description: str, action, target: typer
         outcome = action(cache, cfg, not no_record, reporter)
         report(outcome, as_json, reporter)
 
-    command.__signature__ = inspect.Signature(params)
+    typing.cast(Any, command).__signature__ = inspect.Signature(params)   # what Typer reads the options from
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__name__ = name
     command.__doc__ = description

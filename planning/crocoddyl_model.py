@@ -55,6 +55,7 @@ import time
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -185,14 +186,14 @@ class CrocoddylProblem:
     plants). States and controls passed to and returned by the methods are raico's; ``shooting``
     and ``x0_pin`` are in Pinocchio's coordinates."""
 
-    shooting: object
-    state: object
-    pmodel: object
+    shooting: Any
+    state: Any
+    pmodel: Any
     T: int
     dt: float
     x0: np.ndarray
     bounds: tuple[np.ndarray, np.ndarray] | None
-    smap: object = None
+    smap: Any = None
 
     def __post_init__(self) -> None:
         from planning.crocoddyl_problem import StateMap
