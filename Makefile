@@ -7,16 +7,17 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint clean
+.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
 
 install: $(STAMP)
 
 # One resolution by pip of everything, the crocoddyl baseline included (the [baseline] extra of
-# pyproject.toml), then `pip check`: an inconsistent environment stops the install here.
+# pyproject.toml) and the documentation site's tools (the [docs] extra), then `pip check`: an inconsistent
+# environment stops the install here.
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,ray,baseline]'
+	$(BIN)/pip install --quiet -e '.[test,ray,baseline,docs]'
 	$(BIN)/pip check
 	touch $(STAMP)
 
@@ -63,8 +64,17 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.learn_any --artifacts $(ARTIFACTS)
 
-lint: $(STAMP)
+lint: $(STAMP) typecheck
 	$(BIN)/ruff check pipeline plants planning stages thesis tests bench scripts
 
+# mypy over the library packages, configured in pyproject.toml ([tool.mypy]: which checks are on and why).
+typecheck: $(STAMP)
+	$(BIN)/mypy
+
+# The documentation site: docs/ (the reference moved out of the README, the generated results and bench pages,
+# the API from the docstrings) built by mkdocs into site/; a warning fails the build (--strict).
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) .pytest_cache site

@@ -8,7 +8,7 @@ GP of what it misses) and with the full GP (the thesis's), each without and with
 executed distance to the reach target, the GP's held-out error (babbling of another seed, rad/s^2), the training points and
 the wall time of fit + plan + execute. One run, in a cache of its own (``--artifacts``, default
 ``artifacts/bench/learn_any``); the page is ``artifacts/bench/learn_any.md`` (+ ``.json``), which
-``scripts/readme_numbers.py`` puts into the README.
+``scripts/readme_numbers.py`` puts into docs/learning.md.
 
     python -m bench.learn_any [--episodes 5] [--full-episodes 20] [--render]
 """

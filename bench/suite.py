@@ -3,7 +3,7 @@
 Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.experiments.suite`: every solver on
 every problem, each an ordinary cached plan in ``DIR``, one run at a time in this process for the
 cleanest times) and writes ``DIR/bench/suite.json``, ``suite.md`` (the page; its tables go into
-the README through ``scripts/readme_numbers.py``) and ``suite_profiles.png``.
+docs/benchmarks.md through ``scripts/readme_numbers.py``) and ``suite_profiles.png``.
 """
 
 from __future__ import annotations

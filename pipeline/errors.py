@@ -215,7 +215,7 @@ def die_with_parent(parent_pid: int | str | None) -> None:
     import time
 
     try:
-        ppid = int(parent_pid)  # type: ignore[arg-type]
+        ppid = int(parent_pid)
     except (TypeError, ValueError):
         return
     if sys.platform.startswith("linux"):

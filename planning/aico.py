@@ -47,6 +47,7 @@ import ctypes
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -273,8 +274,8 @@ class _Sweeps:
         self.Z = np.zeros((T, m, n + 1))     # [-O_t | o_t] per step
         self.repeats = 0
         self._active_flags = np.array([bool(a) for a in self.active], dtype=np.uint8)
-        self._kstate = None
-        self._ctask = None        # compiled task messages (kernels.compile_task_set), on first use
+        self._kstate: tuple | None = None   # the kernel's state and the arrays it points to, on first use
+        self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
         self._steps = np.arange(T + 1)
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
@@ -883,6 +884,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
             raise ValueError(f"X_init must be finite with shape {(T + 1, problem.n_x)}")
     _check_control_cost(problem)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
+    step: _RobustStep | _AICOStep
     if opts.schedule == "robust":
         kappa = cost_curvature(problem, X, U)
         sw = _Sweeps(problem, dataclasses.replace(opts, process_noise=opts.process_noise / kappa,

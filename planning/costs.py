@@ -65,7 +65,7 @@ class StateTerm:
         else:
             t = np.unique(np.asarray(list(times), dtype=int).reshape(-1))
             self.times = t
-        self._active_last = None
+        self._active_last: tuple | None = None
 
     def active(self, idx: np.ndarray) -> np.ndarray:
         """Boolean mask ``(K,)``: which time steps ``idx`` this term costs (read-only: the mask of
@@ -152,6 +152,25 @@ class _OnPositions(StateTerm):
     """A state term of the joint positions only: its derivatives are the ``q`` blocks that
     ``_q_blocks(X) -> (g (K, n_q), H (K, n_q, n_q), n_q)`` gives, zero elsewhere."""
 
+    taskmap: Any                # the task map the term reads (``plants.taskmaps.TaskMap``)
+    _last: tuple | None = None  # (taskmap, Q, phi, J) of the last batch evaluated
+
+    def _map(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``phi (K, dim)`` and ``J (K, dim, n_q)`` at ``Q (K, n_q)``.
+
+        The last batch is remembered: a solver evaluates the cost of a rollout and then
+        linearizes at the same trajectory, so the (expensive, e.g. Drake) task map runs once
+        for both. Hits need bitwise-equal ``Q`` and the same task map; the arrays returned
+        are shared with the memo and must not be modified.
+        """
+        last = self._last
+        if (last is not None and last[0] is self.taskmap and last[1].shape == Q.shape
+                and np.array_equal(last[1], Q)):
+            return last[2], last[3]
+        phi, J = self.taskmap.values_and_jacobians(Q)
+        self._last = (self.taskmap, np.array(Q, dtype=float), phi, J)
+        return phi, J
+
     def _at_point(self, x: np.ndarray, t: int):
         """``(n_q, phi, J)`` of the task map at the state ``x`` of step ``t``, or ``None`` where the
         term adds nothing there (zero weight, inactive step)."""
@@ -197,22 +216,6 @@ class ViaPoint(_OnPositions):
         self._set_times(times)
         self._last = None  # (taskmap, Q, phi, J) of the last batch evaluated
 
-    def _map(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``phi (K, dim)`` and ``J (K, dim, n_q)`` at ``Q (K, n_q)``.
-
-        The last batch is remembered: a solver evaluates the cost of a rollout and then
-        linearizes at the same trajectory, so the (expensive, e.g. Drake) task map runs once
-        for both. Hits need bitwise-equal ``Q`` and the same task map; the arrays returned
-        are shared with the memo and must not be modified.
-        """
-        last = self._last
-        if (last is not None and last[0] is self.taskmap and last[1].shape == Q.shape
-                and np.array_equal(last[1], Q)):
-            return last[2], last[3]
-        phi, J = self.taskmap.values_and_jacobians(Q)
-        self._last = (self.taskmap, np.array(Q, dtype=float), phi, J)
-        return phi, J
-
     def _errors(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         n_q = X.shape[1] // 2
         phi, J = self._map(X[:, :n_q])
@@ -251,9 +254,10 @@ class ViaPoint(_OnPositions):
             lx[:, :n_q] += g
             lxx[:, :n_q, :n_q] += H
         else:
-            rows = np.flatnonzero(m)
-            if rows[-1] - rows[0] + 1 == rows.size:   # one run of steps: views, no gathers
-                rows = slice(int(rows[0]), int(rows[-1]) + 1)
+            steps = np.flatnonzero(m)
+            rows: np.ndarray | slice = steps
+            if steps[-1] - steps[0] + 1 == steps.size:   # one run of steps: views, no gathers
+                rows = slice(int(steps[0]), int(steps[-1]) + 1)
             g, H, n_q = self._q_blocks(X[rows])
             lx[rows, :n_q] += g
             lxx[rows, :n_q, :n_q] += H
@@ -292,8 +296,6 @@ class TaskInequality(_OnPositions):
         self.weight = _check_weight(weight, self.name)
         self._set_times(times)
         self._last = None
-
-    _map = ViaPoint._map  # the same memo of the last batch (a solver's cost then linearization)
 
     def _hinge(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """``h (K, m)``, ``A J (K, m, n_q)`` and ``n_q`` at rows ``X (K, n_x)``."""
@@ -422,7 +424,8 @@ class ControlLimit(ControlTerm):
     Its Gauss-Newton model is exact on each side: ``l_uu = 2 w diag(active)``.
 
     Args:
-        lower, upper: limits ``(n_u,)`` or scalars (control units, e.g. N m).
+        lower: lower limits ``(n_u,)`` or a scalar (control units, e.g. N m).
+        upper: upper limits, as ``lower``.
         weight: ``w`` per (control unit)^2 of violation.
         name: unique name of the term.
     """
@@ -485,8 +488,9 @@ class Uncertainty:
         self.times = np.arange(self.T)
         y_std = np.asarray(model.model.y_std, float)
         self._scale = 1.0 / y_std ** 2 if units == "standardized" else np.ones_like(y_std)  # (D,)
-        self._X = self._U = None
-        self._memo = None
+        self._X: np.ndarray | None = None   # the nominal trajectory (set_nominal)
+        self._U: np.ndarray | None = None
+        self._memo: tuple | None = None
 
     # -- the model ----------------------------------------------------------------------------
     def variance(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -616,8 +620,9 @@ class ControlGravity:
         self.c = np.ones(n) if precision is None else np.asarray(precision, float).reshape(-1)
         if self.c.shape != (n,) or np.any(self.c < 0) or not np.all(np.isfinite(self.c)):
             raise ValueError(f"{name}: precision must be {n} finite values >= 0")
-        self._X = self._U = None
-        self._memo = None
+        self._X: np.ndarray | None = None   # the nominal trajectory (set_nominal)
+        self._U: np.ndarray | None = None
+        self._memo: tuple | None = None
 
     def _g(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``g (K, n)`` and ``dg/dq (K, n, n)`` at the rows' positions (the last batch remembered)."""
@@ -727,7 +732,7 @@ class CostTermExample:
     the Gauss-Newton Hessian is the exact one (quadratic terms, away from kinks)."""
 
     name: str
-    build: Callable[[Any, np.ndarray], StateTerm | ControlTerm]
+    build: Callable[[Any, np.ndarray], StateTerm | ControlTerm | Uncertainty | ControlGravity]
     kind: str
     plants: tuple[str, ...] | None = None
     exact_hessian: bool = False
@@ -739,7 +744,7 @@ class CostTermExample:
 COST_TERM_EXAMPLES: dict[str, CostTermExample] = {}
 
 
-def register_cost_term_example(name: str, build: Callable[[Any, np.ndarray], StateTerm | ControlTerm],
+def register_cost_term_example(name: str, build: Callable[[Any, np.ndarray], StateTerm | ControlTerm | Uncertainty | ControlGravity],
                                kind: str, plants: tuple[str, ...] | None = None,
                                exact_hessian: bool = False) -> CostTermExample:
     """Register an example cost term (unique ``name``; ``kind`` ``"state"``, ``"control"`` or

@@ -88,11 +88,16 @@ StepFn = Callable[[int, Iterate], Step]
 
 
 class LoopOptions(Protocol):
-    """The options ``drive`` reads (fields of ``AICOOptions`` and ``ILQGOptions``)."""
+    """The options ``drive`` reads (fields of ``AICOOptions`` and ``ILQGOptions``, frozen: read-only here)."""
 
-    iterations: int          # iteration budget (>= 1)
-    tol_rel: float           # converged when the relative cost change is at most this
-    divergence_factor: float  # diverged when the cost exceeds this times the initial cost
+    @property
+    def iterations(self) -> int: ...          # iteration budget (>= 1)
+
+    @property
+    def tol_rel(self) -> float: ...           # converged when the relative cost change is at most this
+
+    @property
+    def divergence_factor(self) -> float: ...  # diverged when the cost exceeds this times the initial cost
 
 
 @dataclass

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -95,7 +96,7 @@ class _NotPD(Exception):
     """Q_uu was not positive definite at some step."""
 
 
-_C_LIB: object = None
+_C_LIB: Any = None
 # The compiled backward pass is used up to this state dimension: its plain loops beat numpy's per-call
 # overhead on the arms (T = 1000, n_x = 10: 4 ms against 56 ms a pass) but lose to BLAS on the Nao
 # (n_x = 50: 37 ms against 14 ms); measured crossover near n_x = 30 (one run, this 2-core machine).
@@ -310,7 +311,8 @@ def _regularized_backward(derivs, lm: _LM):
     """
     while True:
         try:
-            k, K, dV = _backward(*derivs, lm.mu)
+            A, B, lx, lxx, lu, luu = derivs
+            k, K, dV = _backward(A, B, lx, lxx, lu, luu, lm.mu)
             return k, K, dV, False
         except _NotPD:
             lm.increase()
@@ -348,9 +350,10 @@ def _final_gains(problem, X, U, mu, K_fallback):
         derivs = _derivatives(problem, X, U)
     except (ArithmeticError, np.linalg.LinAlgError):
         return K_fallback
+    A, B, lx, lxx, lu, luu = derivs
     for m in (0.0, mu):
         try:
-            return _backward(*derivs, m)[1]
+            return _backward(A, B, lx, lxx, lu, luu, m)[1]
         except _NotPD:
             continue
     return K_fallback

@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 from enum import IntEnum
 from pathlib import Path
+from typing import Literal
 
 from planning.term_kinds import TASK_MAX_ROWS, MessageKind, kind_of_map
 from plants.codegen import c_backend
@@ -61,7 +62,7 @@ class SweepState(ctypes.Structure):
     ]
 
 
-_LIB: ctypes.CDLL | None | bool = None
+_LIB: ctypes.CDLL | None | Literal[False] = None
 
 
 def _load() -> ctypes.CDLL:
@@ -114,7 +115,7 @@ class _TaskSet(ctypes.Structure):
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
 TASK_MAX_BOUNDS = 128     # BMAX of task_messages.c: bounds of one term
-_TASK_LIB: ctypes.CDLL | None | bool = None
+_TASK_LIB: ctypes.CDLL | None | Literal[False] = None
 
 
 def task_library() -> ctypes.CDLL | None:

@@ -180,7 +180,9 @@ def applies(d: TermDesc, control_kind: str) -> bool:
 
 def build_terms(robot, descriptions: list[TermDesc], T: int, control_kind: str = "torque") -> Objective:
     """The objective from term descriptions (terms that do not apply to the controls dropped)."""
-    state, controls, kept, joint = [], [], [], []
+    state: list = []
+    controls: list = []
+    kept, joint = [], []
     for d in descriptions:
         if not applies(d, control_kind):
             continue

@@ -24,7 +24,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -409,7 +409,7 @@ def bounds_status(problem: Problem, res: Result) -> None:
         res.message = f"the plan leaves {what} ({res.message})"
 
 
-def is_lti(dynamics) -> bool:
+def is_lti(dynamics) -> TypeGuard[LinearDynamics]:
     """Whether ``dynamics`` linearizes to the same ``A, a, B`` everywhere (a ``LinearDynamics``
     that keeps its ``linearize``): then relinearizing never changes them."""
     return (isinstance(dynamics, LinearDynamics)

@@ -23,7 +23,7 @@ class SolverSpec:
 
     name: str
     run: Callable[..., Result]
-    options_cls: type
+    options_cls: type[OptionsBase]
     defaults: dict[str, Any] = field(default_factory=dict)
     check: Callable[[Any], None] | None = None
 

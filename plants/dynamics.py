@@ -22,6 +22,7 @@ Models are built by name with :func:`plants.dynamics_registry.make_dynamics`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -30,11 +31,16 @@ import numpy as np
 
 @runtime_checkable
 class Dynamics(Protocol):
-    """What every dynamics model offers (see the module docstring for shapes)."""
+    """What every dynamics model offers (see the module docstring for shapes; read-only here)."""
 
-    n_x: int
-    n_u: int
-    dt: float
+    @property
+    def n_x(self) -> int: ...
+
+    @property
+    def n_u(self) -> int: ...
+
+    @property
+    def dt(self) -> float: ...
 
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Next state ``(n_x,)`` from state ``(n_x,)`` and control ``(n_u,)``."""
@@ -148,11 +154,15 @@ def stepped_rollout(dynamics, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> t
 class SemiImplicitEuler:
     """The analytic models' step: ``qdot' = qdot + dt qddot(q, qdot, u)``, ``q' = q + dt qdot'``."""
 
+    n_q: int
+    dt: float
+    qddot: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]   # each model's own (rad/s^2)
+
     def step(self, x, u):
-        n = self.n_q  # type: ignore[attr-defined]
+        n = self.n_q
         q, v = x[:n], x[n:]
-        v1 = v + self.dt * self.qddot(q, v, u)  # type: ignore[attr-defined]
-        return np.concatenate([q + self.dt * v1, v1])  # type: ignore[attr-defined]
+        v1 = v + self.dt * self.qddot(q, v, u)
+        return np.concatenate([q + self.dt * v1, v1])
 
 
 class AnalyticDynamics(SemiImplicitEuler, _TrajectoryByPoints):

@@ -38,6 +38,7 @@ timed by ``make bench``.
 from __future__ import annotations
 
 import ctypes
+from typing import Literal
 
 import numpy as np
 
@@ -175,7 +176,7 @@ class FastAnalyticDynamics(SemiImplicitEuler):
         if self.P.shape != (m, self.n_q):
             raise ValueError(f"P has shape {self.P.shape}, the plant has {m} positions")
         self._identity = m == self.n_q and np.array_equal(self.P, np.eye(m))
-        self._c: _CompiledStep | None | bool = None   # built on first use; False: unavailable
+        self._c: _CompiledStep | None | Literal[False] = None   # built on first use; False: unavailable
 
     # -- the compiled twin ----------------------------------------------------------------------
     def _compiled(self) -> _CompiledStep | None:

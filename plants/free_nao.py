@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -95,12 +96,12 @@ def _tip(C: np.ndarray, c: np.ndarray) -> np.ndarray:
 class FreeNao:
     """The free-standing Nao plant with the maps to and from the planning coordinates."""
 
-    plant: object
-    scene_graph: object
-    builder: object
-    model: object  # ModelInstanceIndex of the robot
+    plant: Any
+    scene_graph: Any
+    builder: Any
+    model: Any  # ModelInstanceIndex of the robot
     fixed: Robot  # the planning (fixed-base) robot: joint names, P, limits, efforts
-    base: object  # the floating base body
+    base: Any  # the floating base body
     A: np.ndarray  # (n_act, n_q): actuator values = A @ planning values (actuator order)
     act_fixed_idx: np.ndarray  # (n_act,): each actuator's joint in the fixed plant's q (= v) order
     joint_idx: np.ndarray  # (n_fixed_positions,): free-plant position index of each fixed-plant position
@@ -108,7 +109,7 @@ class FreeNao:
     effort: np.ndarray  # (n_act,) N m
     sole_geometries: dict = field(default_factory=dict)  # GeometryId -> sole index (0 left, 1 right)
     name: str = "nao"
-    _context: object = field(default=None, repr=False)
+    _context: Any = field(default=None, repr=False)
 
     @property
     def joint_names(self) -> tuple[str, ...]:

@@ -33,6 +33,7 @@ Non-finite query rows give NaN outputs (and NaN gradients), never an exception.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -48,7 +49,7 @@ NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the m
 # calls: a planner's relinearization inside the sweeps asks for one point at a time). The same
 # formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
 # agree to rounding (tests/plants/test_gp.py). The source: gp_point.c beside this module.
-_POINT_LIB: object = None
+_POINT_LIB: Any = None
 # The point kernels' stack buffers (gp_point.c): at most this many inputs, and for the compiled
 # relinearization this many outputs; larger models run the numpy code.
 POINT_MAX_INPUTS = 256
@@ -147,6 +148,37 @@ class GPBase:
     variance (``_latent_variance``) and the weights of its gradient (``_variance_weights``), its
     factorization, update, likelihood and stored arrays.
     """
+
+    Z: np.ndarray        # (M, d) scaled inputs of the mean (set by the subclass)
+    weights: np.ndarray  # (D, M) the mean's weights over Z (set by the subclass)
+
+    # -- what each subclass gives --------------------------------------------------------
+    @property
+    def N(self) -> int:
+        """Number of training points."""
+        raise NotImplementedError
+
+    @property
+    def X(self) -> np.ndarray:
+        """Training inputs ``(N, d)`` in physical units."""
+        raise NotImplementedError
+
+    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> GPBase:
+        """Add data at fixed hyperparameters and scaling, in place."""
+        raise NotImplementedError
+
+    def log_marginal_likelihood(self) -> np.ndarray:
+        """``log p(y | theta)`` per output ``(D,)``."""
+        raise NotImplementedError
+
+    def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
+        """Plain arrays for ``np.savez``."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPBase:
+        """Inverse of ``to_arrays``."""
+        raise NotImplementedError
 
     def _set_data(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                   x_mean: np.ndarray | None, x_std: np.ndarray | None, y_mean: np.ndarray | None,
@@ -342,7 +374,7 @@ class GPBase:
             pc["z"] /= self.x_std
         return pc
 
-    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """``point_predict_with_gradients`` at a finite ``x (d,)`` by the compiled kernel, or ``None``
         where there is none for this model (the batch call on one row then)."""
         return None
@@ -544,7 +576,7 @@ class GPModel(GPBase):
         v, Vt = self._solve_fwd(j, Ks)
         return v, self._solve_bwd(j, Vt)
 
-    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    def _compiled_point_predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """One point, every output in one compiled call: forward and back substitution against each
         Cholesky factor, ``2 N^2`` flops per output (the planner's sweeps ask for one point at a time).
         The same formulas as the batch call; the solves run in a different order than BLAS's, so the
@@ -675,7 +707,7 @@ class SparseGPModel(GPBase):
             self.m_requested = M
             self.Z = self.Z_train[select_inducing(self.Z_train, self.ell, self.sf2, M)]
         else:
-            U = _as_2d(inducing, "inducing")
+            U = _as_2d(np.asarray(inducing), "inducing")
             if U.shape[1] != d or len(U) == 0 or not np.all(np.isfinite(U)):
                 raise ValueError(f"inducing inputs must be finite, (M >= 1, {d}), got shape {U.shape}")
             self.m_requested = len(U)

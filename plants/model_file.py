@@ -46,7 +46,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -74,7 +74,7 @@ class RobotSpec:
     srdf: str | None = None
     armature: float | tuple[tuple[str, float], ...] = 0.0
     limits: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
-    true: tuple[tuple[str, object], ...] = ()  # the true robot's changes (module docstring); () for the file's
+    true: tuple[tuple[str, Any], ...] = ()  # the true robot's changes (module docstring); () for the file's
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it)."""
@@ -559,13 +559,13 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     P = np.eye(n)
     lower = np.array([j.position_lower_limits()[0] for j in planning])
     upper = np.array([j.position_upper_limits()[0] for j in planning])
-    effort = np.array([_effort_of(plant, j) for j in planning])
+    efforts = np.array([_effort_of(plant, j) for j in planning])
     for k, name in enumerate(names):
         lower[k] = limits.get(name, {}).get("lower", lower[k])
         upper[k] = limits.get(name, {}).get("upper", upper[k])
     default = _start_posture(spec, path, names, lower, upper, notes)
     robot = Robot(name=f"{path.stem}-{spec_digest(spec, text)}", plant=plant, scene_graph=scene_graph,
-                  builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper, effort=effort,
+                  builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper, effort=efforts,
                   default_q=default, end_effectors={}, B_act=plant.MakeActuationMatrix())
     robot.load_report = notes
     robot.spec = spec

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 Array = np.ndarray
 
@@ -82,7 +83,7 @@ class Check:
                 f"rtol {self.rtol:.1e}){' ' + self.note if self.note else ''}")
 
 
-def compare(name: str, got: Array, ref: Array, atol: float, rtol: float = 0.0) -> Check:
+def compare(name: str, got: ArrayLike, ref: ArrayLike, atol: float, rtol: float = 0.0) -> Check:
     """``got`` against the reference ``ref`` (same shape; other shapes or NaN fail)."""
     got, ref = np.asarray(got, dtype=float), np.asarray(ref, dtype=float)
     if got.shape != ref.shape:

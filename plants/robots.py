@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -61,7 +61,7 @@ class Robot:
 
     name: str
     plant: MultibodyPlant
-    scene_graph: object
+    scene_graph: Any
     builder: DiagramBuilder
     joint_names: tuple[str, ...]
     P: np.ndarray  # (n_plant, n_q)
@@ -72,9 +72,9 @@ class Robot:
     end_effectors: dict[str, str]
     B_act: np.ndarray = None  # (n_plant, n_act) Drake actuation matrix: tau = B_act @ u_act
     support_polygon: np.ndarray | None = None  # (k, 2) in the stance sole frame, Nao only
-    spec: object = None  # plants.model_file.RobotSpec of a robot loaded from a user's model file
+    spec: Any = None  # plants.model_file.RobotSpec of a robot loaded from a user's model file
     load_report: list = field(default_factory=list)  # what loading the model file changed (one line each)
-    _context: object = field(default=None, repr=False)
+    _context: Any = field(default=None, repr=False)
     _P_pinv: np.ndarray | None = field(default=None, repr=False)  # pinv(P), computed once
 
     @property

@@ -67,6 +67,7 @@ class _DrakeMap(_BatchByPoints):
     for non-finite positions, Drake's calls.
     """
 
+    dim: int          # the map's dimension (set by the subclass)
     _kernels = None   # per instance: the tree kernels, or False where they are unavailable
 
     def __init__(self, robot, name: str):
@@ -150,6 +151,9 @@ class _DrakeMap(_BatchByPoints):
 
 class _OnFrame:
     """A task map read at a frame fixed to a body: the data the compiled task messages need."""
+
+    _body_name: str      # set by the task map's constructor
+    _R_BF: np.ndarray
 
     @property
     def body_name(self) -> str:

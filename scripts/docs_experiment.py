@@ -1,4 +1,4 @@
-"""The README's experiment images: docs/exp_arm_alpha_cost.png (``raico plot arm-alpha --kind curve``) and
+"""The README's (and docs/experiment-files.md's) experiment images: docs/exp_arm_alpha_cost.png (``raico plot arm-alpha --kind curve``) and
 docs/compare_arm_alpha.png (``raico compare --exp arm-alpha --where "seed == 0"``, its recording rendered in the
 headless Rerun viewer as a user opens it, the time cursor at 1 s).
 

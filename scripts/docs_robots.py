@@ -1,4 +1,4 @@
-"""The README's robots from model files (docs/robots.png): each example-robot-data robot that the
+"""The robots from model files of docs/problem-files.md (docs/robots.png): each example-robot-data robot that the
 tests plan for, loaded from its installed file, a short R-AICO reach (the arms) or CoM shift (the
 humanoids on a welded sole) planned in a temporary cache, its recording's 3D view rendered in the
 headless Rerun viewer at the plan's end, the views tiled with the robot's name.

@@ -1,4 +1,4 @@
-"""The README's babbling screenshots (docs/babble_<plant>.png): a short babbling run of each plant
+"""The babbling screenshots of docs/stages.md (docs/babble_<plant>.png): a short babbling run of each plant
 in a temporary cache, its recording rendered in the headless Rerun viewer as a user opens it.
 
     .venv/bin/python scripts/docs_screenshots.py [--out docs]

@@ -58,12 +58,13 @@ class StageConfig:
 
     INPUTS: ClassVar[tuple[str, ...]] = ()
     INPUT_STAGES: ClassVar[dict[str, str | tuple[str, ...]]] = {}
+    __dataclass_fields__: ClassVar[dict[str, Any]]   # every subclass is a dataclass
 
     def validate(self) -> None:
         """Raise ``ValueError`` with one clear line on a bad value."""
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)  # type: ignore[call-overload]
+        return dataclasses.asdict(self)
 
     def key_dict(self) -> dict[str, Any]:
         """The config values that go into the cache key (input references left out)."""
@@ -72,14 +73,14 @@ class StageConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]):
         """From a stored config (``meta.json``): keys the class does not declare are ignored."""
-        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        names = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: _frozen(v) for k, v in d.items() if k in names})
 
     @classmethod
     def defaults(cls) -> dict[str, Any]:
         """Field name -> default value (fields without a default are left out)."""
         out = {}
-        for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        for f in dataclasses.fields(cls):
             if f.default is not dataclasses.MISSING:
                 out[f.name] = f.default
         return out
@@ -163,7 +164,7 @@ class Stage:
     """A pipeline stage (see the module docstring)."""
 
     name: str
-    config_cls: type
+    config_cls: type[StageConfig]
     run: Callable[..., StageOutput]
     sources: tuple[str, ...]
     data_files: tuple[str, ...]

@@ -77,6 +77,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -181,7 +182,7 @@ class ExecuteOutput:
     metrics: dict
     effort_at_limit: np.ndarray = None  # (T, n_q) bool
     nao: dict = field(default_factory=dict)  # free-standing Nao arrays (see the module docstring)
-    problem: object = None  # the plan's problem (task terms for recordings)
+    problem: Any = None  # the plan's problem (task terms for recordings)
     robot: Robot | None = None
 
     @property
@@ -653,7 +654,7 @@ def _reference_cog_metrics(problem, fixed, X_plan: np.ndarray, corners0: np.ndar
     """The CoG via-points' and the joint reference's CoG margins (m) against the feet's polygon at the start
     (``corners0 (2, 4, 3)`` m): the least margin and its time (s), and the margin where the run failed."""
     feet = convex_hull(corners0[:, :, :2].reshape(-1, 2))
-    out = {"cog_via_point_margins": cog_via_point_margins(problem, feet)}
+    out: dict[str, Any] = {"cog_via_point_margins": cog_via_point_margins(problem, feet)}
     ref_margin = cog_margins(fixed, X_plan, feet)
     k_min = int(np.nanargmin(ref_margin))
     out.update(reference_cog_min_margin=float(ref_margin[k_min]), reference_cog_min_margin_time=k_min * dt)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -202,7 +202,7 @@ class LearnConfig(StageConfig):
         if self.warm_from == "none":
             warm_start = None
 
-        where = {"problem": self.problem} if self.problem is not None else {"plant": self.plant, "task": self.task}
+        where: dict[str, Any] = {"problem": self.problem} if self.problem is not None else {"plant": self.plant, "task": self.task}
         return PlanConfig(**where, dynamics="learned", solver=self.solver,
                           alpha=self.alpha, alpha_schedule=self.alpha_schedule, bounds=self.bounds,
                           iterations=self.iterations,
@@ -225,7 +225,7 @@ class LearnConfig(StageConfig):
         of ``BABBLE_DT`` s per sample, so few samples still cover a spread of states and torques."""
         from stages.babble import BabbleConfig
 
-        where = {"problem": self.problem} if self.problem is not None else {"plant": self.plant}
+        where: dict[str, Any] = {"problem": self.problem} if self.problem is not None else {"plant": self.plant}
         return BabbleConfig(**where, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
                             dt=BABBLE_DT, knots=babble_knots(self.babble_points),
                             substeps=int(round(BABBLE_DT / 1e-3)), amplitude=self.babble_amplitude)
@@ -304,9 +304,10 @@ def gp_joint_errors(model, X: np.ndarray, tau: np.ndarray, qddot: np.ndarray) ->
 
 def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """Drake's forward dynamics ``qddot (K, n_q)`` at states ``X (K, n_x)`` under torques ``tau``."""
+    from plants.dynamics import SemiImplicitEuler
     from plants.dynamics_registry import make_dynamics
 
-    dyn = make_dynamics("analytic", robot, dt)
+    dyn = cast(SemiImplicitEuler, make_dynamics("analytic", robot, dt))   # an analytic model: it has qddot
     n = robot.n_q
     return np.array([dyn.qddot(x[:n], x[n:], u) for x, u in zip(X, tau)]).reshape(-1, n)
 

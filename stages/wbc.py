@@ -65,6 +65,7 @@ import atexit
 import time
 import weakref
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -273,7 +274,7 @@ class ProxQP:
         self._cold = proxsuite.proxqp.InitialGuess.NO_INITIAL_GUESS
         self._solved = proxsuite.proxqp.QPSolverOutput.PROXQP_SOLVED
         self._started = False
-        self._fallback = None
+        self._fallback: ClarabelProgram | None = None
         self.fallbacks = 0
         _LIVE.add(self)
 
@@ -344,9 +345,9 @@ class FreePlantLayout:
     ``act_joint (n_act,)``, the effort limits ``(n_act,)`` N m and the tree joints' position limits
     ``lower_q, upper_q (26,)`` rad."""
 
-    plant: object
-    ctx: object
-    world: object
+    plant: Any
+    ctx: Any
+    world: Any
     frames: list
     corners: np.ndarray
     joint_idx: np.ndarray

@@ -31,7 +31,8 @@ def test_pip_check_is_clean():
 
 
 def test_pinned_versions_are_installed():
-    pins = _pins(PYPROJECT["dependencies"]) | _pins(PYPROJECT["optional-dependencies"]["baseline"])
+    extras = PYPROJECT["optional-dependencies"]
+    pins = _pins(PYPROJECT["dependencies"]) | _pins(extras["baseline"]) | _pins(extras["docs"])
     wrong = {}
     for name, version in pins.items():
         try:
@@ -40,7 +41,7 @@ def test_pinned_versions_are_installed():
             have = None
         if have != version:
             wrong[name] = (version, have)
-    assert not wrong, f"pinned -> installed: {wrong} (make install: pip install -e '.[test,ray,baseline]')"
+    assert not wrong, f"pinned -> installed: {wrong} (make install: pip install -e '.[test,ray,baseline,docs]')"
 
 
 def test_the_baseline_imports():

@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -219,7 +220,7 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
 
 
 # the stabilized executions' settings the whole-body QP from the standing start
-STABILIZER = {"controller": "wbc", "start": "standing"}
+STABILIZER: dict[str, Any] = {"controller": "wbc", "start": "standing"}
 
 
 # ----------------------------------------------------------------------------- robustness under noise
@@ -522,7 +523,10 @@ def _load_figures() -> tuple[dict[str, Experiment], dict[str, LearnExperiment]]:
     learns: dict[str, LearnExperiment] = {}
     for name in THESIS_FILES:
         fig = load_figure(THESIS_DIR / f"{name}.toml")
-        (learns if isinstance(fig, LearnExperiment) else plans)[fig.id] = fig
+        if isinstance(fig, LearnExperiment):
+            learns[fig.id] = fig
+        else:
+            plans[fig.id] = fig
     return plans, learns
 
 

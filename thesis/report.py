@@ -187,8 +187,8 @@ def wall_panel_data(cache: Cache, exp: Experiment, plans: list[dict], points: in
     iterate before the divergence."""
     colors = figure_colors(v.label for v in exp.variants)
     curves = [(v, cost_curves(cache, plans, v), cost_curves(cache, plans, v, "elapsed")) for v in exp.variants]
-    ends = [E[np.isfinite(E)] for _, _, E in curves if E.size]
-    ends = np.concatenate(ends) if ends else np.zeros(0)
+    finite_ends = [E[np.isfinite(E)] for _, _, E in curves if E.size]
+    ends = np.concatenate(finite_ends) if finite_ends else np.zeros(0)
     ends = ends[ends > 0]
     if ends.size == 0:
         return []
@@ -643,7 +643,9 @@ def _executed_panel(cache: Cache, exp: Experiment, plans: list[dict], executions
     label = _executed_label(exp)
     color = solver_color(label)
     seed_of = {p["outcome"].key: (p["seed"], p["outcome"].metrics) for p in plans}
-    pts, achieved, runs = [], {}, {}
+    pts: list = []
+    achieved: dict = {}
+    runs: dict = {}
     for i, e in enumerate(executions):
         key = as_artifact(cache.require("execute", e.key)).inputs[0].split("/", 1)[1]
         seed, pm = seed_of.get(key, (i, {}))
@@ -1407,8 +1409,8 @@ def identical_results_remarks(docs: list[dict], rtol: float = IDENTICAL_RTOL) ->
                          + ", ".join(f"{t} ({f} only)" for t, f in extra) + ".")
                 parts = []
                 for t, f in extra:
-                    vals = [(lab, _term(by_id[f], lab, t)) for lab in labels]
-                    parts.append(f"{t} costs " + ", ".join(f"{_fmt(v)} ({lab})" for lab, v in vals if v is not None))
+                    costs = [(lab, _term(by_id[f], lab, t)) for lab in labels]
+                    parts.append(f"{t} costs " + ", ".join(f"{_fmt(v)} ({lab})" for lab, v in costs if v is not None))
                 for t in sorted(ta & tb):
                     vals = [(lab, _term(a, lab, t), _term(b, lab, t)) for lab in labels]
                     parts.append(f"{t} " + ", ".join(_change(x, y, lab) for lab, x, y in vals))

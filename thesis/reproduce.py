@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Generator
 from pathlib import Path
 
 from pipeline.engine.cache import Cache, write_file_atomic
@@ -41,7 +41,7 @@ def work_order(ids: list[str]) -> list[str]:
 
 def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, record: bool = True,
               reporter: Reporter | None = None, executor: str | Executor = "process",
-              address: str | None = None) -> Iterator[dict]:
+              address: str | None = None) -> Generator[dict, None, None]:
     """Run the experiments ``ids`` on one executor (``pipeline.engine.executors``: ``serial``, ``process``
     with ``jobs`` workers, or ``ray``; or an :class:`Executor`), all figures at once, longest work
     first; write each figure's report as soon as its runs are done (yielding its summary), then

@@ -916,7 +916,7 @@ class Cache:
     def _write_derived_from(self, entry: Entry, writer: Callable[[Path], None], tmp: Path
                             ) -> dict[str, dict[str, Any]]:
         writer(tmp)
-        new = {}
+        new: dict[str, dict[str, Any]] = {}
         for p in sorted(tmp.iterdir()):
             if p.name in (META, DERIVED, STATE) or p.name in entry.meta.get("files", {}) or not p.is_file():
                 raise ValueError(f"a derived file may not be called {p.name!r}")

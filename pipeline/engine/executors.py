@@ -54,7 +54,12 @@ class Executor:
     """Runs ``fn(arg)`` somewhere; a context manager (an exception on the way out cancels everything)."""
 
     name = "executor"
-    slots = 1  # jobs that run at once
+    _workers = 1   # jobs that run at once (set by a subclass; a Ray cluster counts its CPUs)
+
+    @property
+    def slots(self) -> int:
+        """Jobs that run at once."""
+        return self._workers
     # jobs queued beyond the running ones (per slot): workers that run apart from this process start the next
     # job at once while this process is busy (a figure's report is written here between waits)
     queued_per_slot = 0
@@ -191,7 +196,7 @@ class ProcessExecutor(Executor):
     queued_per_slot = 1
 
     def __init__(self, workers: int) -> None:
-        self.slots = workers
+        self._workers = workers
         self._pool: ProcessPoolExecutor | None = None
 
     def submit(self, fn, arg) -> Future:
@@ -250,7 +255,7 @@ class RayExecutor(Executor):
 
     def __init__(self, workers: int, address: str | None = None) -> None:
         self.workers, self.address = workers, address
-        self._remote = None
+        self._remote: Any = None   # ray.remote of _ray_call, on connecting
         self._slots: int | None = None
         self._connected_here = False
         self._refs: dict[Future, Any] = {}

@@ -65,8 +65,8 @@ def outcome_notes(outcome: Outcome) -> list[str]:
     if outcome.stage == "execute" and isinstance(m.get("task"), dict):   # each term in its unit, the worst named
         from planning.costs import task_line
 
-        verdict = {**m["task"], "achieved": bool(m["task"]["achieved"]) and outcome.status == "ok"}
-        notes.append(task_line(verdict) + ("" if outcome.status == "ok" or not m["task"]["achieved"]
+        task = {**m["task"], "achieved": bool(m["task"]["achieved"]) and outcome.status == "ok"}
+        notes.append(task_line(task) + ("" if outcome.status == "ok" or not m["task"]["achieved"]
                                            else f", status {outcome.status}"))
     elif outcome.stage == "execute" and m.get("via_point_errors"):   # an entry from before the task verdict
         from stages.evaluate.summary import EXECUTED_VIA_TOL, executed_achieved, largest_via_error

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -50,7 +51,7 @@ class Board:
 
     def __init__(self, reporter: Reporter, bars: Progress | None):
         self.reporter, self.bars = reporter, bars
-        self.tasks: dict[str, object] = {}
+        self.tasks: dict[str, Any] = {}   # rich's task ids
 
     def update(self, key: str, description: str, done: int, total: int, line: str | None = None) -> None:
         if self.bars is None:

@@ -166,7 +166,8 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     from plants.model_file import robot_for
 
     data = [_trajectory(cache, r) for r in runs]
-    views3d, joints_of, digest = [], {}, hashlib.sha256("".join(r.ref for r in runs).encode()).hexdigest()[:12]
+    joints_of: dict[str, list[str]] = {}
+    views3d, digest = [], hashlib.sha256("".join(r.ref for r in runs).encode()).hexdigest()[:12]
     for r, d, color in zip(runs, data, RUN_COLORS):
         robot = robot_for(d["desc"])  # a built-in plant by name, a model file's robot by its spec
         n = robot.n_q
@@ -179,8 +180,8 @@ def write(cache, runs: list[Run], path: Path) -> Path:
         base = _path(r.label)
         views3d.append(rrb.Spatial3DView(origin=f"/{base}/world", contents=f"/{base}/world/**", name=r.label,
                                          eye_controls=controls))
-        for j in robot.joint_names:
-            joints_of.setdefault(j, []).append(f"/{base}/joints/{rec_mod.entity_name(j)}")
+        for joint in robot.joint_names:
+            joints_of.setdefault(joint, []).append(f"/{base}/joints/{rec_mod.entity_name(joint)}")
     # no legends over the angles (nine entries would hide them): a run's colour is its path's in its 3D view,
     # and hovering a line names it; the cost tab keeps its legend
     joint_views = [rrb.TimeSeriesView(origin="/runs", contents=paths, name=f"{j} (rad)",

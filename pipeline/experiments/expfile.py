@@ -214,7 +214,7 @@ def _point_seeds(path: Path, point: dict, seeds: tuple[int, ...], quick: bool) -
     return tuple(s for s in seeds if s in own)
 
 
-def load(path: str | Path, overrides: list[str] = (), quick: bool = False) -> Experiment:
+def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -> Experiment:
     """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
     (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
     ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
@@ -334,8 +334,8 @@ def _variants(exp: Experiment) -> list[Variant]:
     combos = [dict(zip([k for k, _ in axes], values)) for values in itertools.product(*[v for _, v in axes])]
     n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
     zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
-    settings = [(None, {**c, **z}) for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
-    settings = [(None, s, ()) for _, s in settings]
+    grid = [{**c, **z} for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
+    settings: list[tuple[Any, dict[str, Any], Any]] = [(None, s, ()) for s in grid]
     settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
                  for p in exp.points]
     swept_keys = sorted({k for _, s, _ in settings for k in s})
@@ -466,7 +466,9 @@ def _run_chain(args) -> dict:
     from pipeline.errors import RaicoError
     from stages.plan.stage import load_notes_said
 
-    cache, out, refs = Cache(root), {}, {}
+    cache = Cache(root)
+    out: dict[str, Any] = {}
+    refs: dict[str, Any] = {}
     with load_notes_said():   # the experiment said the model file's load report once (run_reported)
         for stage in stages:
             try:
@@ -502,7 +504,8 @@ def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
     """The run's outcomes when every stage is cached (nothing to submit), else None."""
     from pipeline.engine import runner
 
-    out, refs = {}, {}
+    out: dict[str, Any] = {}
+    refs: dict[str, Any] = {}
     for stage in exp.stages:
         try:
             hit = runner.lookup(cache, stage, _chain_config(stage, run.variant.options, run.seed, refs),
@@ -814,7 +817,8 @@ def render(df, fmt: str) -> str:
         return df.to_json(orient="records")
     if fmt == "csv":
         return df.to_csv(index=False)
-    head, cells = [], [[] for _ in range(len(df))]
+    head: list[str] = []
+    cells: list[list[str]] = [[] for _ in range(len(df))]
     cols = list(df.columns)
     for c in cols:
         if any(str(c).endswith(s) for s in SPREADS):

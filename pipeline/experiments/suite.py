@@ -135,7 +135,7 @@ def load(path: str | Path | None = None) -> Suite:
     unknown = [k for k in doc if k not in TOP_KEYS]
     if unknown:
         raise BadInput(f"{path}: unknown key '{unknown[0]}': valid keys are {', '.join(TOP_KEYS)}")
-    iterations = _budget(doc.get("iterations", 40), f"{path.name}: iterations", True)
+    iterations = int(_budget(doc.get("iterations", 40), f"{path.name}: iterations", True))   # an integer, checked
     budget = _budget(doc.get("time_budget_s", 20.0), f"{path.name}: time_budget_s", False)
     within = _budget(doc.get("within", 0.01), f"{path.name}: within", False)
     suite = Suite(str(doc.get("name", path.stem)), str(doc.get("description", "")), path, [], [], float(within))
@@ -168,7 +168,7 @@ def _solvers(path: Path, entries: Any, notes: list[str]) -> list[SolverEntry]:
 
     if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
         raise BadInput(f"{path}: give at least one [[solver]] table")
-    out = []
+    out: list[SolverEntry] = []
     for e in entries:
         label = e.get("label")
         if not isinstance(label, str) or not label or any(s.label == label for s in out):
@@ -400,7 +400,8 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
                 r["cost_ratio"] = _ratio(r["final_cost"], best)
             curve = r.pop("_curve", None)
             if best is not None and curve is not None:
-                r["time_to_target_s"] = time_to(*curve, target_of(best, suite.within), p.time_budget_s)
+                costs, elapsed = curve
+                r["time_to_target_s"] = time_to(costs, elapsed, target_of(best, suite.within), p.time_budget_s)
     return records
 
 

@@ -87,7 +87,7 @@ class _LazyStageGroup(TyperGroup):
 
         if name in stage_names() and name not in self.commands:
             self.commands[name] = _stage_click_command(name)
-        return super().get_command(ctx, name)
+        return _with_docs(super().get_command(ctx, name), name)
 
     def format_commands(self, ctx, formatter) -> None:
         from stages.registry import DESCRIPTIONS
@@ -104,6 +104,28 @@ class _LazyStageGroup(TyperGroup):
                 formatter.write_dl(rows)
 
 
+# The documentation page each command's --help ends with (docs/PAGE; `make docs` builds the site from docs/).
+DOCS_PAGES = {"": "index.md", "babble": "learning.md", "fit": "learning.md", "plan": "planning.md",
+              "execute": "execution.md", "evaluate": "stages.md", "learn": "learning.md", "reproduce": "results.md",
+              "exp": "experiment-files.md", "exp run": "experiment-files.md", "exp show": "experiment-files.md",
+              "exp diff": "experiment-files.md", "bench": "benchmarks.md", "bench suite": "benchmarks.md",
+              "plot": "experiment-files.md", "compare": "experiment-files.md", "ls": "cache.md", "show": "stages.md"}
+
+
+def docs_line(command: str) -> str:
+    """The last line of ``raico COMMAND --help``: the page that documents it."""
+    return f"Docs: docs/{DOCS_PAGES[command]}"
+
+
+def _with_docs(cmd, path: str):
+    """``cmd`` (and its subcommands) with the docs line as the epilog of its help."""
+    if cmd is not None and path in DOCS_PAGES:
+        cmd.epilog = docs_line(path)
+        for name, sub in getattr(cmd, "commands", {}).items():
+            _with_docs(sub, f"{path} {name}")
+    return cmd
+
+
 def _short(text: str, limit: int = 70) -> str:
     """Click's short help: the first sentence, cut at ``limit`` characters."""
     first = text.split(". ")[0].split("; ")[0]
@@ -111,7 +133,7 @@ def _short(text: str, limit: int = 70) -> str:
 
 
 app = typer.Typer(cls=_LazyStageGroup, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  rich_markup_mode=None,
+                  rich_markup_mode=None, epilog=docs_line(""),
                   help="raico: probabilistic movement planning (AICO, R-AICO, iLQG) on Drake "
                        "plants, with cached stages and Rerun recordings.")
 
@@ -249,7 +271,7 @@ def config_command(name: str, cls: type, description: str, action, target: typer
         outcome = action(cache, cfg, not no_record, reporter)
         report(outcome, as_json, reporter)
 
-    command.__signature__ = inspect.Signature(params)
+    typing.cast(Any, command).__signature__ = inspect.Signature(params)   # what Typer reads the options from
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__name__ = name
     command.__doc__ = description

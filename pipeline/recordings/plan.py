@@ -140,10 +140,10 @@ def log_iterations(rec, robot, objective, X_iterations: np.ndarray, steps: np.nd
     flat = Q.reshape(-1, n)
     ok = np.all(np.isfinite(flat), axis=1)
     for j, (name, tm) in enumerate(iteration_path_maps(robot, objective).items()):
-        P = np.full((len(flat), 3), np.nan)
+        P_flat = np.full((len(flat), 3), np.nan)
         if ok.any():
-            P[ok] = np.asarray(tm.values_and_jacobians(flat[ok])[0], float).reshape(-1, 3)
-        P = P.reshape(len(its), len(steps), 3)
+            P_flat[ok] = np.asarray(tm.values_and_jacobians(flat[ok])[0], float).reshape(-1, 3)
+        P = P_flat.reshape(len(its), len(steps), 3)
         drawn = np.all(np.isfinite(P), axis=2).sum(axis=1) >= 2
         if drawn.any():
             rec_mod.log_path_series(rec, f"world/iterations/{name}", "iteration", its[drawn], P[drawn],

@@ -41,7 +41,7 @@ import sys
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Self
+from typing import Any, Self, TypeAlias
 
 # Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
 # the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli.py); this module leaves
@@ -95,7 +95,7 @@ def entity_name(name: str) -> str:
 
 
 Eye = tuple[Sequence[float], Sequence[float]]  # (camera position, look target), m
-ViewLike = rrb.View | rrb.Container
+ViewLike: TypeAlias = rrb.View | rrb.Container
 ROBOT_VIEW = "robot"  # the 3D view's name in every blueprint (pipeline.recordings.screenshots looks for it)
 MAX_POSES = 200  # robot poses per trajectory when full rate is not cheap
 POSE_BUDGET = 3000  # samples x bodies logged at full rate (about 180 kB of poses)
@@ -349,7 +349,8 @@ def _read_mesh(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         vertices, faces = np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.uint32)
         normals = np.asarray(m.vertex_normals, np.float32)
         if path.lower().endswith(".dae") and _collada_y_up(path):  # COLLADA's Y_UP, as assimp reads it: z up
-            vertices, normals = vertices[:, [0, 2, 1]] * [1, -1, 1], normals[:, [0, 2, 1]] * [1, -1, 1]
+            flip = np.array([1, -1, 1], np.float32)   # float32 kept: what Rerun stores
+            vertices, normals = vertices[:, [0, 2, 1]] * flip, normals[:, [0, 2, 1]] * flip
     except Exception as e:  # noqa: BLE001 - any reader failure: the visual is skipped, said once
         print(f"raico: note: visual mesh {Path(path).name} cannot be read ({type(e).__name__}): not drawn",
               file=sys.stderr)

@@ -51,6 +51,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -95,14 +96,14 @@ class CrocoddylProblem:
     plants). States and controls passed to and returned by the methods are raico's; ``shooting``
     and ``x0_pin`` are in Pinocchio's coordinates."""
 
-    shooting: object
-    state: object
-    pmodel: object
+    shooting: Any
+    state: Any
+    pmodel: Any
     T: int
     dt: float
     x0: np.ndarray
     bounds: tuple[np.ndarray, np.ndarray] | None
-    smap: object = None
+    smap: Any = None
 
     def __post_init__(self) -> None:
         if self.smap is None:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import ctypes
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -101,6 +102,7 @@ def extract_tree(plant) -> Tree:
             raise Unsupported(f"joint type {j.type_name()}")
     world = plant.world_body().index()
     known = {world: -1}
+    order: list[Any]
     order, parent, qidx, R_PJ, p_PJ, axis, R_JB, p_JB, prismatic = [], [], [], [], [], [], [], [], []
     frontier = [world]
     used = set()
@@ -238,7 +240,8 @@ class TreeKernels:
         c_backend.check_shapes(kernel, **arrays)
 
     def _frame(self, kernel: str, R_BF, p_BF=None) -> None:
-        self._check(kernel, R_BF=(R_BF, (3, 3)), **({} if p_BF is None else {"p_BF": (p_BF, (3,))}))
+        point: dict[str, Any] = {} if p_BF is None else {"p_BF": (p_BF, (3,))}
+        self._check(kernel, R_BF=(R_BF, (3, 3)), **point)
 
     def frame_points(self, qp, body: int, R_BF, p_BF, points) -> tuple[np.ndarray, np.ndarray]:
         """World positions ``(k, 3)`` of ``points (k, 3)`` in frame F on ``body`` and the

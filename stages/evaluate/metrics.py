@@ -32,6 +32,7 @@ Execution status, first that applies:
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planning.costs import task_errors, task_verdict, via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
 from plants.polygons import signed_margin  # noqa: F401  (re-exported)
@@ -63,11 +64,11 @@ def contact_polygon(corners: np.ndarray, force: np.ndarray) -> np.ndarray:
     at least ``CONTACT_FORCE`` (``force (2,)`` N, Drake's contact results; NaN: no results yet,
     at t = 0, where the height decides). Fewer than three points in contact give a segment, a
     point or nothing."""
-    pts = [corners[s, c, :2] for s in range(corners.shape[0]) for c in range(corners.shape[1])
-           if not force[s] < CONTACT_FORCE and corners[s, c, 2] <= CONTACT_TOL]
-    if len(pts) < 3:
-        return np.array(pts).reshape(-1, 2)
-    pts = np.array(pts)
+    touching = [corners[s, c, :2] for s in range(corners.shape[0]) for c in range(corners.shape[1])
+                if not force[s] < CONTACT_FORCE and corners[s, c, 2] <= CONTACT_TOL]
+    if len(touching) < 3:
+        return np.array(touching).reshape(-1, 2)
+    pts = np.array(touching)
     from scipy.spatial import ConvexHull, QhullError
 
     try:
@@ -167,7 +168,7 @@ def execution_status(finite: np.ndarray, fell: np.ndarray | None, tracking_error
 
 def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, robot, dt: float,
                       effort_at_limit: np.ndarray, nao: dict | None = None, effort_is_limit: bool = True,
-                      effort_clamped: np.ndarray | None = None) -> dict:
+                      effort_clamped: ArrayLike | None = None) -> dict:
     """Metrics of one execution (``X (T+1, n_x)`` executed, ``tau (T, n_q)`` applied torques N m,
     ``effort_at_limit (T, n_q)`` per joint, or ``(T,)``): status (module docstring), via-point errors, planned-vs-executed
     RMSE and largest error (rad), largest torque (N m), limit shares; for the free-standing Nao

@@ -307,6 +307,7 @@ def measure_cap_cost(X: np.ndarray, Y: np.ndarray, X_test: np.ndarray, Y_test: n
     capped, info = fit_gp(X, Y, restarts=restarts, seed=seed, noise_floor=noise_floor, max_points=max_points)
     t_capped = time.perf_counter() - t0
     t0 = time.perf_counter()
+    full: GPBase
     if refit_full:
         full, _ = fit_gp(X, Y, restarts=restarts, seed=seed, noise_floor=noise_floor)
     else:

@@ -57,6 +57,7 @@ import math
 import re
 import time
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -210,6 +211,7 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[dict, list[Segment
     forward dynamics (the analytic model), ``k < T``; non-finite rows skipped, then every
     ``stride``-th row kept. The accelerations are computed only at the kept rows (all rows only if
     one of them is not finite, so the selection is the same as computing everything first)."""
+    from plants.dynamics import SemiImplicitEuler
     from plants.dynamics_registry import make_dynamics
     from plants.model_file import robot_for
 
@@ -219,7 +221,7 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[dict, list[Segment
     n, tau = robot.n_q, r["tau"]
     T = len(tau)
     X = r["X"][:T]
-    dyn = make_dynamics("analytic", robot, float(desc["dt"]))
+    dyn = cast(SemiImplicitEuler, make_dynamics("analytic", robot, float(desc["dt"])))   # it has qddot
     ok = _finite_rows(X, tau) & (np.arange(T) < usable_steps(art, float(desc["dt"]), T))
     Y = np.full((T, n), np.nan)
     keep = np.flatnonzero(ok)[::stride]
@@ -249,10 +251,11 @@ def usable_steps(art: Artifact, dt: float, T: int) -> int:
 def model_accelerations(robot, X: np.ndarray) -> np.ndarray:
     """The planning model's ``qddot (K, n_q)`` (rad/s^2) at inputs ``X (K, 2 n_q + n_u)`` = ``(q, qdot, u)``:
     the robot's analytic model (its step's ``dt`` does not enter the accelerations)."""
+    from plants.dynamics import SemiImplicitEuler
     from plants.dynamics_registry import make_dynamics
 
     n = robot.n_q
-    dyn = make_dynamics("analytic", robot, 0.01)
+    dyn = cast(SemiImplicitEuler, make_dynamics("analytic", robot, 0.01))   # an analytic model: it has qddot
     return np.array([dyn.qddot(x[:n], x[n:2 * n], x[2 * n:]) for x in X]).reshape(-1, n)
 
 
@@ -280,10 +283,10 @@ def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1, resid
     plant_names, segs, robots = set(), [], {}
     for art in arts:
         # babbling keeps its own sampling rate; an execution every ``stride``-th (finite) sample
-        desc, s = babble_segments(art) if art.stage == "babble" else execute_segments(art, stride)
+        desc, got = babble_segments(art) if art.stage == "babble" else execute_segments(art, stride)
         plant_names.add(desc["plant"])
         robots[desc["plant"]] = desc
-        segs += s
+        segs += got
     if len(plant_names) != 1:
         raise ValueError(f"data of different plants: {', '.join(sorted(plant_names))}")
     plant = plant_names.pop()

@@ -577,8 +577,8 @@ def _state_term(name: str, t: dict, robot, q0: np.ndarray, steps, weight: float)
         return ob.via(name, ob.frame_rotation(t["frame"], _rotation(t, name, robot, q0), mname), np.zeros(3), steps,
                       weight, precision, tol)
     if kind == "frame_placement":
-        p = _vector(t["position"], f"[costs.{name}] position", 3)
-        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), p, mname), np.zeros(6), steps,
+        position = _vector(t["position"], f"[costs.{name}] position", 3)
+        return ob.via(name, ob.frame_placement(t["frame"], _rotation(t, name, robot, q0), position, mname), np.zeros(6), steps,
                       weight, precision, tol)
     if kind == "com":
         axes = tuple(t.get("axes", (0, 1, 2)))

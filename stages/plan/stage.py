@@ -12,6 +12,7 @@ import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -288,7 +289,7 @@ class PlanConfig(StageConfig):
     def solver_options(self) -> dict:
         if self.solver == "ilqg":
             return {"iterations": self.iterations}
-        opts = {"iterations": self.iterations}
+        opts: dict[str, Any] = {"iterations": self.iterations}
         if not self.relinearize:
             opts["theta"] = float("inf")
         if self.belief_rate != 1.0:

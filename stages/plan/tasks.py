@@ -42,7 +42,7 @@ class TaskSpec:
         if self.start is None:
             return robot
         q = np.zeros(robot.n_q) if self.start == "zero" else robot.default_q.copy()
-        for name, value in ({} if self.start == "zero" else self.start).items():
+        for name, value in ({} if isinstance(self.start, str) else self.start).items():   # "zero" or {joint: value}
             if name not in robot.joint_names:
                 raise ValueError(f"[robot] start: unknown joint '{name}'")
             q[list(robot.joint_names).index(name)] = value

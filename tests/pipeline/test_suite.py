@@ -265,8 +265,8 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     block = mod.suite_block(tmp_path / "suite.md", tmp_path / "suite.json")
-    assert "Every run" not in block and "#### Final cost" in block
-    assert f"]({tmp_path / 'suite_profiles.png'})" in block
+    assert "Every run" not in block and "\n### Final cost" in block
+    assert f"The profiles as a plot: `{tmp_path / 'suite_profiles.png'}`." in block and "](" not in block
     assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
 
 

@@ -1,0 +1,104 @@
+"""The documentation: a README of at most 300 lines that links its pages, generated blocks that live in one
+file each, every command's ``--help`` ending with its page, and the reference tables the site generates from
+the code's own schema (``scripts/docs_hooks.py``). ``make docs`` builds the site itself."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from pipeline.interface.cli import DOCS_PAGES, app
+from scripts import docs_hooks, readme_numbers
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def test_the_readme_is_short_and_keeps_the_walk_throughs():
+    assert len(README.splitlines()) <= 300
+    for heading in ("## Set-up", "## A five-minute tour", "## Your own experiment", "## Your own robot",
+                    "## Documentation"):
+        assert re.search(rf"^{re.escape(heading)}", README, re.M), heading
+
+
+def test_every_docs_link_of_the_readme_and_the_pages_names_a_page_that_exists():
+    links = re.findall(r"\]\((docs/[^)#]+)", README)
+    assert len(links) >= 15
+    missing = [link for link in links if not (ROOT / link).is_file()]
+    assert missing == []
+    assert set(DOCS_PAGES.values()) <= {p.name for p in (ROOT / "docs").glob("*.md")}
+
+
+@pytest.mark.parametrize("name, home", [("headline", "README.md"), ("exp", "README.md"),
+                                        ("results", "docs/results.md"), ("bench", "docs/benchmarks.md"),
+                                        ("suite", "docs/benchmarks.md"), ("problems", "docs/crocoddyl.md"),
+                                        ("learn_any", "docs/learning.md"), ("exp-ur5", "docs/problem-files.md")])
+def test_each_generated_block_lives_in_exactly_one_file(name, home):
+    assert readme_numbers.home(name) == ROOT / home
+
+
+def test_a_block_in_two_files_or_none_is_refused(tmp_path):
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "README.md").write_text("<!-- bench:begin -->\nx\n<!-- bench:end -->\n")
+    (tmp_path / "docs" / "b.md").write_text("<!-- bench:begin -->\ny\n<!-- bench:end -->\n")
+    with pytest.raises(SystemExit, match="found in README.md, docs/b.md"):
+        readme_numbers.home("bench", tmp_path)
+    with pytest.raises(SystemExit, match="found in no file"):
+        readme_numbers.home("suite", tmp_path)
+
+
+def _commands(cmd, ctx, path=""):
+    """Every command of the click tree below ``cmd`` as (path, command)."""
+    yield path, cmd
+    if isinstance(cmd, typer.core.TyperGroup):
+        for name in cmd.list_commands(ctx):
+            yield from _commands(cmd.get_command(ctx, name), ctx, f"{path} {name}".strip())
+
+
+def test_every_command_names_its_page_and_the_page_exists():
+    group = typer.main.get_command(app)
+    ctx = typer.Context(group)
+    paths = {path: cmd.epilog for path, cmd in _commands(group, ctx)}
+    assert {"", "plan", "learn", "exp run", "bench suite", "ls"} <= set(paths)
+    assert set(paths) == set(DOCS_PAGES), set(paths) ^ set(DOCS_PAGES)
+    for path, epilog in paths.items():
+        page = re.fullmatch(r"Docs: (docs/[\w-]+\.md)", epilog or "")
+        assert page and (ROOT / page.group(1)).is_file(), (path, epilog)
+
+
+@pytest.mark.parametrize("args", [[], ["plan"], ["exp", "run"], ["bench", "suite"]])
+def test_help_ends_with_the_page(args):
+    res = CliRunner().invoke(app, [*args, "--help"])
+    assert res.exit_code == 0, res.output
+    assert res.output.strip().splitlines()[-1].strip() == f"Docs: docs/{DOCS_PAGES[' '.join(args)]}"
+
+
+def test_the_options_table_lists_every_field_of_the_stage_config():
+    from stages.plan.stage import PlanConfig
+
+    table = docs_hooks.options_table("plan")
+    flags = re.findall(r"^\| `(--[\w-]+)` \|", table, re.M)
+    assert flags == [f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(PlanConfig)]
+    assert "| `--alpha-schedule` | `str` | `unset` |" in table
+
+
+def test_the_problem_file_table_lists_every_key_set_of_the_loader():
+    from stages.plan import problem_file as pf
+
+    table = docs_hooks.problem_file_table()
+    for kind, keys in pf.TERM_KEYS.items():
+        row = next(line for line in table.splitlines() if line.startswith(f"| `{kind}` |"))
+        assert set(re.findall(r"`(\w+)`", row)[1:]) == set(keys), kind
+    assert all(f"`{k}`" in table for k in pf.ROBOT_KEYS | pf.TRUE_KEYS | pf.HORIZON_KEYS)
+
+
+def test_markers_become_tables_and_an_unknown_marker_stops_the_build():
+    out = docs_hooks.on_page_markdown("a\n<!-- schema: experiment-file -->\nb", None, None, None)
+    assert "<!-- schema" not in out and "| top level | `name`" in out
+    with pytest.raises(ValueError, match="unknown schema marker: nonsense"):
+        docs_hooks.on_page_markdown("<!-- schema: nonsense -->", None, None, None)
