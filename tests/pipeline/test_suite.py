@@ -286,7 +286,7 @@ def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, ar
 def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
     """Two problems: on the first the cheaper plan leaves a joint range (by 0.1 rad), so inside the limits the
     other solver is the best and the cheaper one unsolved; on the second both stay inside."""
-    from pipeline import suite as st
+    from pipeline.experiments import suite as st
 
     def rec(p, s, cost, rng, eff=0.0):
         return {"problem": p, "solver": s, "final_cost": cost, "time_to_target_s": 1.0,
