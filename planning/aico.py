@@ -107,7 +107,9 @@ class AICOOptions(OptionsBase):
             anything), ``lambda^[1] = alpha`` (relative); the process noise and the start
             variance are taken per unit of that curvature (``q / kappa``,
             ``start_variance / kappa``), so that a cost multiplied by ``c`` gives the same
-            iterates. A trial is accepted when its actual decrease is at least ``accept`` times
+            iterates. Each trial linearizes once, at the current iterate (``theta``,
+            ``max_repeats`` and ``belief_rate`` are not used: the step is the minimizer of the
+            regularized quadratic model the acceptance test compares it with). A trial is accepted when its actual decrease is at least ``accept`` times
             the decrease the quadratic model of the cost at the current iterate predicts along
             the step (any decrease if the model predicts none); then ``lambda /= lm_factor``
             when the ratio is at least ``decrease_above``; a rejected trial (or a numerical
@@ -885,7 +887,10 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
     if opts.schedule == "robust":
         kappa = cost_curvature(problem, X, U)
-        sw = _Sweeps(problem, dataclasses.replace(opts, process_noise=opts.process_noise / kappa,
+        # one linearization per trial, at the current iterate (theta = inf): the step is then the minimizer of
+        # the regularized model the acceptance test measures it against (a relinearization at the beliefs
+        # inside the sweeps makes a step of other models, which that one often sees, rightly, raise the cost)
+        sw = _Sweeps(problem, dataclasses.replace(opts, theta=math.inf, process_noise=opts.process_noise / kappa,
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
         step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)

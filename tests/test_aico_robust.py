@@ -111,6 +111,36 @@ def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajector
     assert step.cur_cost == s.cost
 
 
+def test_robust_trials_are_steps_of_the_regularized_model_at_the_current_iterate(monkeypatch):
+    """A nonlinear cost (end-effector via-points of a planar arm) under linear dynamics (pseudo-dynamics),
+    from the zero-control rollout: a trial is the minimizer of the quadratic model at the current iterate plus
+    ``alpha ||x - x_cur||^2``, so the model predicts a decrease of at least ``alpha ||dX||^2`` along it (the
+    rollout is the model's own trajectory here). Relinearizing at the beliefs inside the sweeps (theta) made
+    steps of other models: with theta = 1e-3 half of the trials were ones the model rightly saw raise the cost
+    and the run took twice the iterations. The schedule linearizes once per trial: theta changes nothing."""
+    from tests.test_solvers_nonlinear import N_Q, make_arm_problem
+    from tests.test_solvers_nonlinear import T as T_ARM
+
+    seen = []
+    predicted = _RobustStep._predicted_decrease
+
+    def record(self, cur, new):
+        pred = predicted(self, cur, new)
+        seen.append((pred, self.alpha * float(np.sum((new.X - cur.X) ** 2))))
+        return pred
+
+    monkeypatch.setattr(_RobustStep, "_predicted_decrease", record)
+    pb = make_arm_problem()
+    runs = {}
+    for theta in (0.1, 1e-3):
+        seen.clear()
+        runs[theta] = aico(pb, AICOOptions(iterations=30, alpha=1.0, schedule="robust", theta=theta),
+                           U_init=np.zeros((T_ARM, N_Q)))
+        assert runs[theta].status == Status.CONVERGED and runs[theta].iterations <= 12, runs[theta].message
+        assert seen and all(pred >= reg for pred, reg in seen), seen
+    assert np.array_equal(runs[0.1].X, runs[1e-3].X)
+
+
 def test_robust_schedule_options_are_checked():
     with pytest.raises(ValueError, match="the robust schedule needs alpha > 0"):
         AICOOptions(alpha=0.0, schedule="robust")
