@@ -262,3 +262,16 @@ def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bou
     res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--bounds", "soft",
                               "--artifacts", str(tmp_path)])
     assert res.exit_code == 2 and "unknown bounds 'soft'" in res.output
+
+
+def test_plan_config_says_the_robust_schedule_does_not_relinearize_inside_the_sweeps():
+    """--no-relinearize and --belief-rate are the sweeps' relinearization, which the robust schedule does not
+    do: named as ignored, left out of the cache key (the same plan either way); the fixed schedule keeps them."""
+    from stages.plan.stage import PlanConfig
+
+    file = str(Path(__file__).resolve().parents[1] / "problems" / "arm5_reach.toml")
+    robust = PlanConfig(problem=file, relinearize=False, belief_rate=0.5)
+    assert set(robust.ignored()) == {"relinearize", "belief_rate"}
+    assert robust.normalized() == PlanConfig(problem=file).normalized()
+    fixed = PlanConfig(problem=file, alpha_schedule="fixed", relinearize=False, belief_rate=0.5)
+    assert fixed.ignored() == {} and fixed.normalized() != PlanConfig(problem=file, alpha_schedule="fixed").normalized()
