@@ -99,6 +99,30 @@ def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambd
     assert s.stop.status is Status.MAX_ITERATIONS and "lambda_max" in s.stop.message
 
 
+def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is_finite(monkeypatch):
+    """A trial whose rollouts (the full step and both shortened ones) all blow up gives no ratio of actual to
+    predicted decrease: lambda grows by lm_factor at once, not by Nielsen's 2, 4, 8 meant for a measured rise
+    (from a quasi-static start the first trials' rollouts can blow up: three rejections at lambda 1, 2, 8)."""
+    import planning.aico as aico_module
+
+    pb = make_lq(seed=2, running=5.0)
+    U0 = np.zeros((T, N_U))
+    X0 = pb.controller_rollout(U0, np.zeros((T, N_U, pb.n_x)))[0]
+    step = _step(pb, pb.cost(X0, U0))
+    start = Iterate(X0, U0, U0.copy(), np.zeros((T, N_U, pb.n_x)))
+
+    def blow_up(problem, o, O):
+        return np.full((T + 1, problem.n_x), np.inf), np.full((T, problem.n_u), np.inf), o, O
+
+    monkeypatch.setattr(aico_module, "bounded_rollout", blow_up)
+    lams = []
+    for it in range(1, 4):
+        s = step(it, start)
+        assert s.iterate is start and not s.moved and s.stop is None
+        lams.append(s.mu)
+    assert lams == pytest.approx([1.0, 10.0, 100.0]) and step.lam == pytest.approx(1e3)
+
+
 def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajectory():
     """The stall this schedule fixes: from x0 held the reference is no trajectory's cost; the first finite
     trial is taken whatever it costs (the adaptive schedule compared it with the zero-control rollout's cost
