@@ -108,7 +108,9 @@ class AICOOptions(OptionsBase):
             anything), ``lambda^[1] = alpha`` (relative); the process noise and the start
             variance are taken per unit of that curvature (``q / kappa``,
             ``start_variance / kappa``), so that a cost multiplied by ``c`` gives the same
-            iterates. A trial is accepted when its actual decrease is at least ``accept`` times
+            iterates. Each trial linearizes once, at the current iterate (``theta``,
+            ``max_repeats`` and ``belief_rate`` are not used: the step is the minimizer of the
+            regularized quadratic model the acceptance test compares it with). A trial is accepted when its actual decrease is at least ``accept`` times
             the decrease the quadratic model of the cost at the current iterate predicts along
             the step (any decrease if the model predicts none); then ``lambda /= lm_factor``
             when the ratio is at least ``decrease_above``; a rejected trial (or a numerical
@@ -119,7 +121,8 @@ class AICOOptions(OptionsBase):
             trial is taken (as the fixed schedule takes it), with ``lambda *= lm_factor`` if
             it costs more than the start. Details: ``lambda`` falls by Nielsen's factor
             ``max(1/lm_factor, 1 - (2 rho - 1)^3)`` and grows by 2, 4, 8, then ``lm_factor`` per
-            rejection in a row; before a rejection the feedforward is shortened to 1/2 and 1/4
+            rejection in a row (by ``lm_factor`` at once when no rollout of the trial was finite:
+            no ratio to go by); before a rejection the feedforward is shortened to 1/2 and 1/4
             about the current iterate (``LINE_SEARCH``); a failed factorization also raises the
             process noise by 10 (``NOISE_MAX``); ``ASCENTS`` rejections in a row of steps the model
             rightly predicts to raise the cost stop the run (converged: no descent direction).
@@ -887,7 +890,10 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     step: _RobustStep | _AICOStep
     if opts.schedule == "robust":
         kappa = cost_curvature(problem, X, U)
-        sw = _Sweeps(problem, dataclasses.replace(opts, process_noise=opts.process_noise / kappa,
+        # one linearization per trial, at the current iterate (theta = inf): the step is then the minimizer of
+        # the regularized model the acceptance test measures it against (a relinearization at the beliefs
+        # inside the sweeps makes a step of other models, which that one often sees, rightly, raise the cost)
+        sw = _Sweeps(problem, dataclasses.replace(opts, theta=math.inf, process_noise=opts.process_noise / kappa,
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
         step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
@@ -1007,14 +1013,14 @@ class _RobustStep(_AICOStep):
             self.sw.qI = self.sw.q * self.sw.I
         if self.cur_cost is None:   # the start is no trajectory: take the first finite trial
             if failed or not math.isfinite(step.cost):
-                return self._reject(cur, step, lam, self.problem.cost(cur.X, cur.U))
+                return self._reject(cur, step, lam, self.problem.cost(cur.X, cur.U), measured=False)
             start_cost = self.problem.cost(cur.X, cur.U)
             self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
             self.cur_cost = step.cost
             return Step(step.iterate, step.cost, step=step.step, mu=lam, repeats=step.repeats)
         if failed:
-            return self._reject(cur, step, lam, self.cur_cost)
-        trial, pred_full = step.iterate, None
+            return self._reject(cur, step, lam, self.cur_cost, measured=False)
+        trial, pred_full, measured = step.iterate, None, False
         for eps in LINE_SEARCH:
             if eps < 1.0:       # the same controller with its feedforward shortened about cur
                 trial = self._shortened(cur, step.iterate, eps)
@@ -1023,13 +1029,14 @@ class _RobustStep(_AICOStep):
             cost = step.cost if eps == 1.0 else self.problem.cost(trial.X, trial.U)
             if not math.isfinite(cost):
                 continue
+            measured = True
             actual = self.cur_cost - cost
             pred = self._predicted_decrease(cur, trial)
             pred_full = pred if eps == 1.0 else pred_full
             if actual > 0 and (pred <= 0 or actual >= o.accept * pred):
                 break
         else:
-            out = self._reject(cur, step, lam, self.cur_cost)
+            out = self._reject(cur, step, lam, self.cur_cost, measured)
             tol = max(o.tol_rel, 1e-14) * abs(self.cur_cost)
             act_full = self.cur_cost - step.cost
             ascent = pred_full is not None and pred_full < 0 and abs(act_full - pred_full) <= 0.1 * abs(pred_full)
@@ -1068,10 +1075,14 @@ class _RobustStep(_AICOStep):
             return None
         return Iterate(X, U, o_eps, O)
 
-    def _reject(self, cur: Iterate, step: Step, lam: float, cost: float) -> Step:
-        """Keep ``cur``; ``lambda *= lm_factor``, or stop when it is at its cap."""
+    def _reject(self, cur: Iterate, step: Step, lam: float, cost: float, measured: bool = True) -> Step:
+        """Keep ``cur``; ``lambda`` grows by Nielsen's factor (2, 4, 8, then ``lm_factor`` per rejection in a
+        row), or by ``lm_factor`` at once when no trial was ``measured`` (every rollout non-finite or failed: no
+        ratio of actual to predicted decrease to go by); stop when it is at its cap."""
         o = self.opts
         stop = None
+        if not measured:
+            self.nu = o.lm_factor
         if lam >= o.lambda_max:
             why = step.stop.message if step.stop is not None else f"trial cost {step.cost:.6g}"
             stop = Stop(Status.MAX_ITERATIONS, f"no step lowers the cost at lambda = lambda_max = "

@@ -198,6 +198,8 @@ class PlanConfig(StageConfig):
             note(("alpha", "gamma", "alpha_schedule"), f"R-AICO's (--solver raico), not {self.solver}'s")
         elif self.schedule() != "fixed":
             note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
+            if self.schedule() == "robust":
+                note(("relinearize", "belief_rate"), "not used by the robust schedule (one linearization per trial)")
         if self.solver not in ("aico", "raico"):
             note(("relinearize", "belief_rate", "controller_rate"), f"AICO's and R-AICO's, not {self.solver}'s")
             if self.start == "rollout":
@@ -269,6 +271,8 @@ class PlanConfig(StageConfig):
             d["alpha_schedule"] = self.schedule()
             if d["alpha_schedule"] != "fixed":
                 d["gamma"] = 1.0  # not used by the adaptive and robust schedules
+            if d["alpha_schedule"] == "robust":
+                d.update(relinearize=True, belief_rate=1.0)  # the robust schedule linearizes once per trial
         if self.warm_start is None or self.solver == "ilqg":
             d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
         if self.warm_start is not None or (self.solver not in ("aico", "raico") and self.start != "quasi-static"):

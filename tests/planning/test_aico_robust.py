@@ -99,6 +99,30 @@ def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambd
     assert s.stop.status is Status.MAX_ITERATIONS and "lambda_max" in s.stop.message
 
 
+def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is_finite(monkeypatch):
+    """A trial whose rollouts (the full step and both shortened ones) all blow up gives no ratio of actual to
+    predicted decrease: lambda grows by lm_factor at once, not by Nielsen's 2, 4, 8 meant for a measured rise
+    (from a quasi-static start the first trials' rollouts can blow up: three rejections at lambda 1, 2, 8)."""
+    import planning.aico as aico_module
+
+    pb = make_lq(seed=2, running=5.0)
+    U0 = np.zeros((T, N_U))
+    X0 = pb.controller_rollout(U0, np.zeros((T, N_U, pb.n_x)))[0]
+    step = _step(pb, pb.cost(X0, U0))
+    start = Iterate(X0, U0, U0.copy(), np.zeros((T, N_U, pb.n_x)))
+
+    def blow_up(problem, o, O):
+        return np.full((T + 1, problem.n_x), np.inf), np.full((T, problem.n_u), np.inf), o, O
+
+    monkeypatch.setattr(aico_module, "bounded_rollout", blow_up)
+    lams = []
+    for it in range(1, 4):
+        s = step(it, start)
+        assert s.iterate is start and not s.moved and s.stop is None
+        lams.append(s.mu)
+    assert lams == pytest.approx([1.0, 10.0, 100.0]) and step.lam == pytest.approx(1e3)
+
+
 def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajectory():
     """The stall this schedule fixes: from x0 held the reference is no trajectory's cost; the first finite
     trial is taken whatever it costs (the adaptive schedule compared it with the zero-control rollout's cost
@@ -109,6 +133,36 @@ def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajector
     s = step(1, start)
     assert s.moved and s.iterate is not start and np.isfinite(s.cost)
     assert step.cur_cost == s.cost
+
+
+def test_robust_trials_are_steps_of_the_regularized_model_at_the_current_iterate(monkeypatch):
+    """A nonlinear cost (end-effector via-points of a planar arm) under linear dynamics (pseudo-dynamics),
+    from the zero-control rollout: a trial is the minimizer of the quadratic model at the current iterate plus
+    ``alpha ||x - x_cur||^2``, so the model predicts a decrease of at least ``alpha ||dX||^2`` along it (the
+    rollout is the model's own trajectory here). Relinearizing at the beliefs inside the sweeps (theta) made
+    steps of other models: with theta = 1e-3 half of the trials were ones the model rightly saw raise the cost
+    and the run took twice the iterations. The schedule linearizes once per trial: theta changes nothing."""
+    from tests.test_solvers_nonlinear import N_Q, make_arm_problem
+    from tests.test_solvers_nonlinear import T as T_ARM
+
+    seen = []
+    predicted = _RobustStep._predicted_decrease
+
+    def record(self, cur, new):
+        pred = predicted(self, cur, new)
+        seen.append((pred, self.alpha * float(np.sum((new.X - cur.X) ** 2))))
+        return pred
+
+    monkeypatch.setattr(_RobustStep, "_predicted_decrease", record)
+    pb = make_arm_problem()
+    runs = {}
+    for theta in (0.1, 1e-3):
+        seen.clear()
+        runs[theta] = aico(pb, AICOOptions(iterations=30, alpha=1.0, schedule="robust", theta=theta),
+                           U_init=np.zeros((T_ARM, N_Q)))
+        assert runs[theta].status == Status.CONVERGED and runs[theta].iterations <= 12, runs[theta].message
+        assert seen and all(pred >= reg for pred, reg in seen), seen
+    assert np.array_equal(runs[0.1].X, runs[1e-3].X)
 
 
 def test_robust_schedule_options_are_checked():
@@ -232,3 +286,16 @@ def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bou
     res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--bounds", "soft",
                               "--artifacts", str(tmp_path)])
     assert res.exit_code == 2 and "unknown bounds 'soft'" in res.output
+
+
+def test_plan_config_says_the_robust_schedule_does_not_relinearize_inside_the_sweeps():
+    """--no-relinearize and --belief-rate are the sweeps' relinearization, which the robust schedule does not
+    do: named as ignored, left out of the cache key (the same plan either way); the fixed schedule keeps them."""
+    from stages.plan.stage import PlanConfig
+
+    file = str(Path(__file__).resolve().parents[1] / "problems" / "arm5_reach.toml")
+    robust = PlanConfig(problem=file, relinearize=False, belief_rate=0.5)
+    assert set(robust.ignored()) == {"relinearize", "belief_rate"}
+    assert robust.normalized() == PlanConfig(problem=file).normalized()
+    fixed = PlanConfig(problem=file, alpha_schedule="fixed", relinearize=False, belief_rate=0.5)
+    assert fixed.ignored() == {} and fixed.normalized() != PlanConfig(problem=file, alpha_schedule="fixed").normalized()
