@@ -142,8 +142,8 @@ def test_robust_trials_are_steps_of_the_regularized_model_at_the_current_iterate
     rollout is the model's own trajectory here). Relinearizing at the beliefs inside the sweeps (theta) made
     steps of other models: with theta = 1e-3 half of the trials were ones the model rightly saw raise the cost
     and the run took twice the iterations. The schedule linearizes once per trial: theta changes nothing."""
-    from tests.test_solvers_nonlinear import N_Q, make_arm_problem
-    from tests.test_solvers_nonlinear import T as T_ARM
+    from tests.planning.test_solvers_nonlinear import N_Q, make_arm_problem
+    from tests.planning.test_solvers_nonlinear import T as T_ARM
 
     seen = []
     predicted = _RobustStep._predicted_decrease
@@ -293,7 +293,7 @@ def test_plan_config_says_the_robust_schedule_does_not_relinearize_inside_the_sw
     do: named as ignored, left out of the cache key (the same plan either way); the fixed schedule keeps them."""
     from stages.plan.stage import PlanConfig
 
-    file = str(Path(__file__).resolve().parents[1] / "problems" / "arm5_reach.toml")
+    file = str(Path(__file__).resolve().parents[2] / "problems" / "arm5_reach.toml")
     robust = PlanConfig(problem=file, relinearize=False, belief_rate=0.5)
     assert set(robust.ignored()) == {"relinearize", "belief_rate"}
     assert robust.normalized() == PlanConfig(problem=file).normalized()
