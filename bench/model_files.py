@@ -147,15 +147,16 @@ def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3
 
 
 def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:
-    """Median seconds per iteration over ``reps`` solves, with the repeats of a step per iteration
-    (R-AICO's relinearizations within the sweeps; 0 for the others), how the median run ended and
+    """Median seconds per iteration over ``reps`` solves (without hard bounds, as FDDP: like for like), with the
+    repeats of a step per iteration (R-AICO's relinearizations within the sweeps; 0 for the others), how the
+    median run ended and
     the problem's sizes, and ""; or (None, why the solver could not take the problem)."""
     from planning.solvers import solve
     from stages.plan.stage import PlanConfig, build_problem
 
     times, repeats, status = [], [], []
     for _ in range(reps):
-        _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file)).normalized())
+        _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
         try:
             t0 = time.perf_counter()
             res = solve(problem, solver, options)
