@@ -65,7 +65,10 @@ def headline_block(report: Path) -> str:
     if t.exists():
         call = json.loads(t.read_text()).get(CALL)
         if call and call.get("wall_time_s") is not None:
-            out += f" That call took {call['wall_time_s']:.0f} s on the 2-core machine."
+            cached = call.get("cached_runs") or 0
+            out += (f" That call took {call['wall_time_s']:.0f} s on the 2-core machine"
+                    + (f" ({cached} of its {call.get('runs')} runs read from the cache)." if cached else
+                       " from an empty cache." if call.get("from_empty_cache") else "."))
     return out
 
 
