@@ -14,18 +14,18 @@ def test_leading_term_of_a_sweep_step():
     n = 4096
     f = sweep_flops(2 * n, n, 1)
     assert math.isclose(f["per_step"] / n ** 3, 377 / 3, rel_tol=1e-3)
-    assert math.isclose(sum(f["parts"].values()), f["per_step"], rel_tol=1e-15)
-    assert math.isclose(f["parts"]["forward"], 11 / 3 * (2 * n) ** 3, rel_tol=1e-15)
+    assert math.isclose(sum(f["parts"].values()), f["per_step"], rel_tol=1e-9)
+    assert math.isclose(f["parts"]["forward"], 11 / 3 * (2 * n) ** 3, rel_tol=1e-9)
 
 
 def test_iteration_counts_steps_and_repeats():
     f0, f = sweep_flops(12, 6, 100), sweep_flops(12, 6, 100, repeats=50)
     per_repeat = f0["parts"]["dynamics relinearization"] + f0["parts"]["beliefs"] / 2
     assert f0["per_iteration"] == 100 * f0["per_step"]
-    assert math.isclose(f["per_iteration"] - f0["per_iteration"], 50 * per_repeat, rel_tol=1e-12)
+    assert math.isclose(f["per_iteration"] - f0["per_iteration"], 50 * per_repeat, rel_tol=1e-9)
 
 
 def test_rate_columns():
     row = flop_fields(64, 32, 100, 0.25, 50.0, repeats=10)
-    assert math.isclose(row["gflops"], row["flops_per_iteration"] / 0.25 / 1e9, rel_tol=1e-15)
-    assert math.isclose(row["ratio_to_dgemm"], row["gflops"] / 50.0, rel_tol=1e-15)
+    assert math.isclose(row["gflops"], row["flops_per_iteration"] / 0.25 / 1e9, rel_tol=1e-9)
+    assert math.isclose(row["ratio_to_dgemm"], row["gflops"] / 50.0, rel_tol=1e-9)

@@ -183,7 +183,7 @@ def test_nao_balance_plan_and_execute_reports_cog(tmp_path):
     limit = nao.effort * nao.P.sum(0)
     saturated = np.any(np.abs(r["tau"]) >= limit - 1e-9, axis=1)
     assert 0 < saturated.sum() < len(saturated)
-    assert em["torque_saturation"] == pytest.approx(np.mean(saturated), rel=1e-12)   # a share of counts
+    assert em["torque_saturation"] == pytest.approx(np.mean(saturated), rel=1e-9)   # a share of counts
     assert em["max_abs_torque"] == np.abs(r["tau"]).max()
 
 
@@ -379,7 +379,7 @@ def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_
     m = json.loads(res.stdout)["metrics"]
     name, err = max(m["via_point_errors"].items(), key=lambda kv: kv[1])
     assert f"[ok; final cost {m['final_cost']:.4g}; worst planned via-point error {err:.3g} ({name})]" in res.stderr
-    assert m["final_cost"] == pytest.approx(plan["metrics"]["final_cost"], rel=1e-12)
+    assert m["final_cost"] == pytest.approx(plan["metrics"]["final_cost"], rel=1e-9)
 
 
 def test_adaptive_r_aico_counts_and_says_its_rejected_trials(tmp_path):

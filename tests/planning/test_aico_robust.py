@@ -56,11 +56,11 @@ def test_robust_schedule_iterates_do_not_depend_on_the_cost_scale(scale):
     res, its = run(scaled_lq(scale), iterations=6, tol_rel=0.0)
     assert len(its) == len(ref_its) == 6
     for (X, U), (Xr, Ur) in zip(its, ref_its):
-        assert np.abs(X - Xr).max() <= 1e-12 * np.abs(Xr).max()
-        assert np.abs(U - Ur).max() <= 1e-12 * np.abs(Ur).max()
-    assert [h.mu for h in res.history] == pytest.approx([h.mu for h in ref.history], rel=1e-12)
+        assert np.abs(X - Xr).max() <= 1e-9 * np.abs(Xr).max()
+        assert np.abs(U - Ur).max() <= 1e-9 * np.abs(Ur).max()
+    assert [h.mu for h in res.history] == pytest.approx([h.mu for h in ref.history], rel=1e-9)
     costs, ref_costs = np.array([h.cost for h in res.history]), np.array([h.cost for h in ref.history])
-    assert costs == pytest.approx(scale * ref_costs, rel=1e-12)
+    assert costs == pytest.approx(scale * ref_costs, rel=1e-9)
     end, end_ref = run(scaled_lq(scale))[0], run(scaled_lq(1.0))[0]
     assert np.abs(end.X - end_ref.X).max() <= 1e-7 * np.abs(end_ref.X).max()
     # the fixed schedule's absolute alpha is not scale-free: the same alpha gives other iterates
@@ -73,7 +73,7 @@ def test_cost_curvature_scales_with_the_cost():
     X = np.tile(make_lq(seed=2).x0, (T + 1, 1))
     U = np.zeros((T, N_U))
     k1, k2 = cost_curvature(scaled_lq(1.0), X, U), cost_curvature(scaled_lq(1e3), X, U)
-    assert k1 > 0 and k2 == pytest.approx(1e3 * k1, rel=1e-12)
+    assert k1 > 0 and k2 == pytest.approx(1e3 * k1, rel=1e-9)
 
 
 def _step(pb, start_cost, **kw):
