@@ -372,3 +372,75 @@ def test_tree_kernels_at_every_shape(plant):
                        (lambda: k.com_batch(np.zeros((2, k.m + 1))), "Qp")):
         with pytest.raises(ValueError, match=what):
             call()
+
+
+# -- task messages (task_messages.c) over the range of robots and maps it accepts -------------------------
+# (moving joints, branches, welded at a leaf): one joint; a branching tree with prismatic joints and welds;
+# a re-rooted one; the largest tree the kernel's buffers take (64 positions: a posture map of 64 rows);
+# one past it
+TASK_TREES = [(1, 1, False), (9, 3, False), (9, 2, True), (33, 4, False), (64, 5, False)]
+
+
+def _task_tree(n: int, branches: int, leaf: bool, tmp_path):
+    from plants.model_file import RobotSpec, load_model
+    from tests.plants.test_tree_kernel_range import tree_urdf
+
+    path = tmp_path / f"tree{n}.urdf"
+    path.write_text(tree_urdf(n, branches, seed=n + branches))
+    robot = load_model(RobotSpec(file=str(path), weld=f"l{n - 1}" if leaf else None, armature=0.01))
+    robot.end_effectors["tool"] = "l0" if leaf else f"l{n - 1}"   # a frame away from the root
+    return robot
+
+
+@pytest.mark.parametrize("n, branches, leaf", TASK_TREES, ids=[f"n{n}-b{b}{'-leaf' if l else ''}"
+                                                                for n, b, l in TASK_TREES])
+def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branches, leaf, tmp_path):
+    """Every state-term example with a compiled counterpart, all in one task set, on trees of 1 to 64
+    moving joints: compiled, and the messages equal the Python terms' at every step, relative to their scale;
+    the control toward gravity compiles too."""
+    from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlGravity, TaskInequality
+    from planning.problem import Problem
+    from planning.term_kinds import kind_of_map
+    from plants.dynamics_registry import make_dynamics
+    from tests.planning.test_task_messages import _evaluator
+
+    robot = _task_tree(n, branches, leaf, tmp_path)
+    q0 = np.clip(robot.default_q + 0.2, robot.lower, robot.upper)
+    terms = []
+    for _, ex in sorted(COST_TERM_EXAMPLES.items()):
+        if ex.kind != "state":
+            continue
+        term = ex.build(robot, q0)
+        tm = getattr(term, "taskmap", None)
+        if tm is None or (kind_of_map(tm) is not None and kind_of_map(tm).compile is not None):
+            terms.append(term)
+    assert any(type(t) is TaskInequality for t in terms) and len(terms) >= 8, [type(t).__name__ for t in terms]
+    T = 4   # the examples' via-points lie at steps up to 4
+    x0 = np.concatenate([robot.default_q, np.zeros(robot.n_q)])
+    problem = Problem(make_dynamics("pseudo", robot, 0.01), x0, T, terms, [ControlCost(1e-2)])
+    evaluate = _evaluator(problem)
+    active = problem.active_state_terms()
+    rng = np.random.default_rng(n)
+    for s in (0.1, 1.0):
+        x = np.concatenate([robot.default_q + s * rng.standard_normal(robot.n_q), rng.standard_normal(robot.n_q)])
+        for t in range(T + 1):
+            lx, lxx = evaluate(x, t)
+            g, G = problem.point_state_derivatives(x, t, active[t])
+            assert_close(lx, g, scale=1.0, err_msg=f"n={n} t={t}")
+            assert_close(lxx, G, scale=1.0, err_msg=f"n={n} t={t}")
+    gravity = Problem(make_dynamics("analytic", robot, 0.01), x0, T, [],
+                      [ControlCost(1e-2)], joint_terms=[ControlGravity(robot, 1e-2, T=T, name="gravity")])
+    assert kernels.compile_task_set(gravity) is not None
+
+
+def test_task_messages_beyond_64_positions_use_python(tmp_path):
+    """65 moving joints exceed the kernel's position buffers: no compiled messages."""
+    from planning.costs import COST_TERM_EXAMPLES, ControlCost
+    from planning.problem import Problem
+    from plants.dynamics_registry import make_dynamics
+
+    robot = _task_tree(65, 5, False, tmp_path)
+    term = COST_TERM_EXAMPLES["via_joint_positions"].build(robot, robot.default_q)
+    x0 = np.concatenate([robot.default_q, np.zeros(robot.n_q)])
+    assert kernels.compile_task_set(Problem(make_dynamics("pseudo", robot, 0.01), x0, 4, [term],
+                                            [ControlCost(1e-2)])) is None
