@@ -414,6 +414,32 @@ def first_costs(C: np.ndarray) -> np.ndarray:
     return np.where(ok.any(axis=1), C[np.arange(C.shape[0]), idx], np.nan) if C.size else np.zeros(0)
 
 
+def _column_band(A: np.ndarray, min_count: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per column of ``A (runs, points)``: the median, 25th and 75th percentile of its finite values; NaN
+    where fewer than ``min_count`` (at least one) runs have one."""
+    med, lo, hi = (np.full(A.shape[1], np.nan) for _ in range(3))
+    for j in range(A.shape[1]):
+        col = A[np.isfinite(A[:, j]), j]
+        if col.size >= max(min_count, 1):
+            med[j] = np.median(col)
+            lo[j], hi[j] = np.percentile(col, [25, 75])
+    return med, lo, hi
+
+
+def _cost_axis(ax, every: list[np.ndarray], starts: list[np.ndarray], yscale: str,
+               ylim: tuple[float, float] | None):
+    """The cost axis of a curve or wall plot: log where asked (``auto``: where every finite cost is positive),
+    clipped to the values that do not explode (``every``: the runs' stored costs; ``starts``: their first
+    costs) or to ``ylim``; what was clipped."""
+    values = np.concatenate(every) if every else np.zeros(0)
+    finite = values[np.isfinite(values)]
+    log = _log_scale(finite, "log" if yscale == "auto" and finite.size and finite.min() > 0 else yscale)
+    if log:
+        ax.set_yscale("log")
+    ax.set_ylabel("cost (no unit; rollout on the planning model)")
+    return _apply_ylim(ax, values, log, ylim, explode=True, first=np.concatenate(starts) if starts else None)
+
+
 def curve_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[str] | None = None,
                yscale: str = "log", ylim: tuple[float, float] | None = None) -> Plot:
     """The cost per iteration, median and interquartile band over the seeds per group; the cost axis
@@ -431,14 +457,8 @@ def curve_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[s
         if not C.size:
             continue
         starts.append(first_costs(C))
-        alive = np.isfinite(C)
         it = np.arange(1, C.shape[1] + 1)
-        med, lo, hi = (np.full(C.shape[1], np.nan) for _ in range(3))
-        for j in range(C.shape[1]):
-            col = C[alive[:, j], j]
-            if col.size:
-                med[j] = np.median(col)
-                lo[j], hi[j] = np.percentile(col, [25, 75])
+        med, lo, hi = _column_band(C)
         ended = int(np.isfinite(C[:, -1]).sum())
         text = f"n={len(rows)}" + ("" if ended == len(rows) else f"; {len(rows) - ended} without a finite last cost")
         ax.plot(it, med, color=color, lw=1.8, label=f"{label} ({text})")
@@ -447,14 +467,8 @@ def curve_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[s
         ax.fill_between(it, lo, hi, color=color, alpha=BAND_ALPHA, lw=0)
         every.append(C[~np.isnan(C)])   # the stored costs (inf included), not the NaN after a run's end
         shown += 1
-    values = np.concatenate(every) if every else np.zeros(0)
-    finite = values[np.isfinite(values)]
-    log = _log_scale(finite, "log" if yscale == "auto" and finite.size and finite.min() > 0 else yscale)
-    if log:
-        ax.set_yscale("log")
-    clip = _apply_ylim(ax, values, log, ylim, explode=True, first=np.concatenate(starts) if starts else None)
+    clip = _cost_axis(ax, every, starts, yscale, ylim)
     ax.set_xlabel("iteration (count)")
-    ax.set_ylabel("cost (no unit; rollout on the planning model)")
     _legend(ax, shown)
     return _save(fig, out, series, clip)
 
@@ -493,12 +507,7 @@ def wall_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[st
         if not C.size or E.shape != C.shape:
             continue
         at = cost_at_times(C, E, grid)
-        med, lo, hi = (np.full(grid.size, np.nan) for _ in range(3))
-        for j in range(grid.size):
-            col = at[np.isfinite(at[:, j]), j]
-            if col.size * 2 >= C.shape[0] and col.size:
-                med[j] = np.median(col)
-                lo[j], hi[j] = np.percentile(col, [25, 75])
+        med, lo, hi = _column_band(at, min_count=(C.shape[0] + 1) // 2)   # where half the runs have one
         ax.plot(grid, med, color=color, lw=1.8, label=f"{label} (n={len(rows)})")
         ax.fill_between(grid, lo, hi, color=color, alpha=BAND_ALPHA, lw=0)
         series[label] = {"x": grid.tolist(), "median": med.tolist(), "q25": lo.tolist(), "q75": hi.tolist(),
@@ -506,15 +515,9 @@ def wall_plot(df, swept: list[str], out: Path, name: str, cache, by: Sequence[st
         every.append(C[~np.isnan(C)])
         starts.append(first_costs(C))
         shown += 1
-    values = np.concatenate(every) if every else np.zeros(0)
-    finite = values[np.isfinite(values)]
-    log = _log_scale(finite, "log" if yscale == "auto" and finite.size and finite.min() > 0 else yscale)
-    if log:
-        ax.set_yscale("log")
     ax.set_xscale("log")
-    clip = _apply_ylim(ax, values, log, ylim, explode=True, first=np.concatenate(starts) if starts else None)
+    clip = _cost_axis(ax, every, starts, yscale, ylim)
     ax.set_xlabel("wall time (s, the solver's own clock)")
-    ax.set_ylabel("cost (no unit; rollout on the planning model)")
     _legend(ax, shown)
     return _save(fig, out, series, clip)
 
