@@ -459,7 +459,64 @@ class ControlLimit(ControlTerm):
 SIGMA_UNITS = ("raw", "standardized")  # the uncertainty term's g: (rad/s^2)^2, or over the data's variance
 
 
-class Uncertainty:
+class JointTerm:
+    """What a term on ``(x_t, u_t)`` together (``t = 0..T-1``) shares: the nominal trajectory it is split at
+    (``set_nominal``), its state-part view at the nominal controls (``value``, ``derivatives``) and its
+    control-part view at the nominal states (``control_value``, ``control_derivatives``). A subclass gives
+    ``T``, ``joint_value``, ``add_derivatives`` and ``add_control_derivatives``."""
+
+    T: int
+    _X: np.ndarray | None = None
+    _U: np.ndarray | None = None
+
+    def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def add_derivatives(self, X: np.ndarray, idx: np.ndarray, lx: np.ndarray, lxx: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The nominal trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the split models use."""
+        self._X, self._U = np.array(X[:self.T], float), np.array(U, float)
+
+    def active(self, idx: np.ndarray) -> np.ndarray:
+        return np.asarray(idx) < self.T
+
+    def is_active_at(self, t: int) -> bool:
+        return 0 <= t < self.T
+
+    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
+        """State-part view: costs at rows ``X`` with the nominal controls of steps ``idx``."""
+        X = np.atleast_2d(X)
+        idx = np.arange(len(X)) if idx is None else np.asarray(idx).reshape(-1)
+        out = np.zeros(len(X))
+        m = self.active(idx)
+        if self._U is not None and m.any():
+            out[m] = self.joint_value(X[m], self._U[idx[m]])
+        return out
+
+    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        X = np.atleast_2d(X)
+        lx, lxx = np.zeros(X.shape), np.zeros((len(X), X.shape[1], X.shape[1]))
+        self.add_derivatives(X, np.arange(len(X)) if idx is None else np.asarray(idx), lx, lxx)
+        return lx, lxx
+
+    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``l_u (T, n_u)``, ``l_uu (T, n_u, n_u)`` at ``U`` with the nominal states."""
+        U = np.atleast_2d(U)
+        lu, luu = np.zeros(U.shape), np.zeros((len(U), U.shape[1], U.shape[1]))
+        self.add_control_derivatives(U, lu, luu)
+        return lu, luu
+
+    def control_value(self, U: np.ndarray) -> np.ndarray:
+        """Control-part view: costs at ``U (T, n_u)`` with the nominal states."""
+        return self.joint_value(self._X, np.atleast_2d(U))
+
+
+class Uncertainty(JointTerm):
     """The model-uncertainty objective (thesis eq. 4.3), a joint term on ``(x_t, u_t)``:
 
     ``c_t = (sigma* - g(x_t, u_t))^T C_sigma (sigma* - g(x_t, u_t))``, ``C_sigma = w I``,
@@ -502,10 +559,6 @@ class Uncertainty:
             self._memo = (key, (var * s, dx * s[:, None], du * s[:, None]))
         return self._memo[1]
 
-    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
-        """The nominal trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the split models use."""
-        self._X, self._U = np.array(X[:self.T], float), np.array(U, float)
-
     def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Per-step costs ``(K,)`` at ``X (K, n_x)``, ``U (K, n_u)``."""
         if self.weight == 0:
@@ -519,19 +572,6 @@ class Uncertainty:
         return -2.0 * w * np.einsum("kdi,kd->ki", J, e), 2.0 * w * np.einsum("kdi,kdj->kij", J, J)
 
     # -- the state part (as a state term) -----------------------------------------------------
-    def active(self, idx: np.ndarray) -> np.ndarray:
-        return np.asarray(idx) < self.T
-
-    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
-        """State-part view: costs at rows ``X`` with the nominal controls of steps ``idx``."""
-        X = np.atleast_2d(X)
-        idx = np.arange(len(X)) if idx is None else np.asarray(idx).reshape(-1)
-        out = np.zeros(len(X))
-        m = self.active(idx)
-        if self._U is not None and m.any():
-            out[m] = self.joint_value(X[m], self._U[idx[m]])
-        return out
-
     def add_derivatives(self, X: np.ndarray, idx: np.ndarray, lx: np.ndarray, lxx: np.ndarray) -> None:
         """Add the state part at rows ``X (K, n_x)`` of steps ``idx`` (nominal controls)."""
         m = self.active(np.asarray(idx))
@@ -541,12 +581,6 @@ class Uncertainty:
         gx, Hx = self._gn(self.sigma_star - g, Jx)
         lx[m] += gx
         lxx[m] += Hx
-
-    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
-        X = np.atleast_2d(X)
-        lx, lxx = np.zeros(X.shape), np.zeros((len(X), X.shape[1], X.shape[1]))
-        self.add_derivatives(X, np.arange(len(X)) if idx is None else np.asarray(idx), lx, lxx)
-        return lx, lxx
 
     def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray, lxx: np.ndarray) -> None:
         """The state part at one state ``x (n_x,)`` of step ``t`` (the sweeps' relinearization): the
@@ -567,13 +601,6 @@ class Uncertainty:
             lxx += G[0]
 
     # -- the control part --------------------------------------------------------------------
-    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``l_u (T, n_u)``, ``l_uu (T, n_u, n_u)`` at ``U`` with the nominal states."""
-        U = np.atleast_2d(U)
-        lu, luu = np.zeros(U.shape), np.zeros((len(U), U.shape[1], U.shape[1]))
-        self.add_control_derivatives(U, lu, luu)
-        return lu, luu
-
     def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
         if self.weight == 0 or self._X is None or len(U) != len(self._X):
             return   # no nominal trajectory of this length (e.g. a probe at one control)
@@ -582,12 +609,8 @@ class Uncertainty:
         lu += gu
         luu += Hu
 
-    def control_value(self, U: np.ndarray) -> np.ndarray:
-        """Control-part view: costs at ``U (T, n_u)`` with the nominal states."""
-        return self.joint_value(self._X, np.atleast_2d(U))
 
-
-class ControlGravity:
+class ControlGravity(JointTerm):
     """Control effort toward the gravity-compensating torque, a joint term on ``(x_t, u_t)``:
     ``c_t = w (u_t - g(q_t))^T C (u_t - g(q_t))`` at every step ``t = 0..T-1`` (crocoddyl's
     ``ResidualModelControlGrav``), ``g`` the torques that hold the robot still
@@ -633,10 +656,6 @@ class ControlGravity:
             self._memo = (key, self.gravity.values_and_jacobians(Q))
         return self._memo[1]
 
-    def set_nominal(self, X: np.ndarray, U: np.ndarray) -> None:
-        """The nominal trajectory ``X (T+1, n_x)``, ``U (T, n_u)`` the split models use."""
-        self._X, self._U = np.array(X[:self.T], float), np.array(U, float)
-
     def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Per-step costs ``(K,)`` at ``X (K, n_x)``, ``U (K, n_u)``."""
         if self.weight == 0:
@@ -645,22 +664,6 @@ class ControlGravity:
         return self.weight * np.einsum("ki,i,ki->k", r, self.c, r)
 
     # -- the state part (as a state term) -----------------------------------------------------
-    def active(self, idx: np.ndarray) -> np.ndarray:
-        return np.asarray(idx) < self.T
-
-    def is_active_at(self, t: int) -> bool:
-        return 0 <= t < self.T
-
-    def value(self, X: np.ndarray, idx=None) -> np.ndarray:
-        """State-part view: costs at rows ``X`` with the nominal controls of steps ``idx``."""
-        X = np.atleast_2d(X)
-        idx = np.arange(len(X)) if idx is None else np.asarray(idx).reshape(-1)
-        out = np.zeros(len(X))
-        m = self.active(idx)
-        if self._U is not None and m.any():
-            out[m] = self.joint_value(X[m], self._U[idx[m]])
-        return out
-
     def _state_gn(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``l_q (K, n)``, GN ``l_qq (K, n, n)`` at rows ``X``, controls ``U``."""
         g, G = self._g(X)
@@ -680,12 +683,6 @@ class ControlGravity:
         sub[:, :n, :n] += Hq
         lxx[m] = sub
 
-    def derivatives(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
-        X = np.atleast_2d(X)
-        lx, lxx = np.zeros(X.shape), np.zeros((len(X), X.shape[1], X.shape[1]))
-        self.add_derivatives(X, np.arange(len(X)) if idx is None else np.asarray(idx), lx, lxx)
-        return lx, lxx
-
     def add_point_derivatives(self, x: np.ndarray, t: int, lx: np.ndarray, lxx: np.ndarray) -> None:
         """The state part at one state ``x (n_x,)`` of step ``t`` (the sweeps' relinearization)."""
         if self.weight == 0 or self._U is None or not self.is_active_at(t):
@@ -697,13 +694,6 @@ class ControlGravity:
         lxx[:n, :n] += 2.0 * self.weight * (G.T @ CG)
 
     # -- the control part --------------------------------------------------------------------
-    def control_derivatives(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``l_u (T, n_u)``, ``l_uu (T, n_u, n_u)`` at ``U`` with the nominal states."""
-        U = np.atleast_2d(U)
-        lu, luu = np.zeros(U.shape), np.zeros((len(U), U.shape[1], U.shape[1]))
-        self.add_control_derivatives(U, lu, luu)
-        return lu, luu
-
     def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
         """Add ``l_u = 2 w C (u - g(q))`` (nominal states) and ``l_uu = 2 w C``. Without a nominal
         trajectory of ``U``'s length (a probe at one control, e.g. AICO's check that the control cost is
@@ -715,9 +705,6 @@ class ControlGravity:
         if self._X is not None and len(U) == len(self._X):
             lu += 2.0 * self.weight * self.c * (U - self._g(self._X)[0])
 
-    def control_value(self, U: np.ndarray) -> np.ndarray:
-        """Control-part view: costs at ``U (T, n_u)`` with the nominal states."""
-        return self.joint_value(self._X, np.atleast_2d(U))
 
 
 # --------------------------------------------------------------------------------------------
