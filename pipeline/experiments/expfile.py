@@ -214,19 +214,25 @@ def _point_seeds(path: Path, point: dict, seeds: tuple[int, ...], quick: bool) -
     return tuple(s for s in seeds if s in own)
 
 
+def read_toml(path: Path, what: str) -> dict:
+    """The TOML document of ``path``; a missing, unreadable or invalid file is one :class:`BadInput` line
+    naming it as ``what`` (e.g. "experiment file")."""
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"no {what} {path}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BadInput(f"cannot read the {what} {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise BadInput(f"{path}: not valid TOML ({e})") from None
+
+
 def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -> Experiment:
     """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
     (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
     ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise BadInput(f"no experiment file {path}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise BadInput(f"cannot read the experiment file {path}: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise BadInput(f"{path}: not valid TOML ({e})") from None
+    doc = read_toml(path, "experiment file")
     unknown = [k for k in doc if k not in TOP_KEYS]
     if unknown:
         raise BadInput(f"{path}: unknown key '{unknown[0]}': valid keys are {', '.join(TOP_KEYS)}")

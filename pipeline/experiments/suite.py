@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import BadInput
+from pipeline.experiments.expfile import read_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
@@ -100,17 +101,6 @@ class Suite:
     notes: list[str] = field(default_factory=list)   # the lines said while loading (left-out entries)
 
 
-def _read_toml(path: Path) -> dict:
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise BadInput(f"no suite file {path}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise BadInput(f"cannot read the suite file {path}: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise BadInput(f"{path}: not valid TOML ({e})") from None
-
-
 def _budget(value: Any, what: str, integer: bool) -> float:
     ok = (isinstance(value, int) if integer else isinstance(value, (int, float))) and not isinstance(value, bool)
     if not ok or value < 0 or not math.isfinite(value):
@@ -131,7 +121,7 @@ def load(path: str | Path | None = None) -> Suite:
     file that does not exist or a budget of 0 is kept with its ``reason`` (its cells stay empty);
     a malformed list file is :class:`BadInput`."""
     path = Path(path or DEFAULT_FILE).resolve()
-    doc = _read_toml(path)
+    doc = read_toml(path, "suite file")
     unknown = [k for k in doc if k not in TOP_KEYS]
     if unknown:
         raise BadInput(f"{path}: unknown key '{unknown[0]}': valid keys are {', '.join(TOP_KEYS)}")
