@@ -106,7 +106,8 @@ class RobotSpec:
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it). Facts at their defaults are left
         out, so a model file's stored spec reads as before they existed."""
-        extra = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} if self.true else {}
+        extra: dict[str, Any] = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} \
+            if self.true else {}
         for key in FACTS:
             value = getattr(self, key)
             if value != FACT_DEFAULTS[key]:

@@ -500,3 +500,23 @@ def test_a_model_files_robot_states_facts_and_bad_facts_are_one_line(tmp_path):
         load_model(RobotSpec.from_dict({"file": str(urdf), "coupled": {"wrist": "shoulder"}}))
     with pytest.raises(ModelError, match="built for the Nao only"):
         load_model(RobotSpec.from_dict({"file": str(urdf), "execution": "floating"}))
+
+
+def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(tmp_path):
+    from plants.model_file import shared_model
+    from stages.plan.problem_file import read_problem
+
+    urdf = user_robot(tmp_path)
+    costs = REACH.format(frame="tip", target=[0.0, 0.0, 0.0])
+    good = write_problem(tmp_path, "facts", problem_text(str(urdf), {"hands": ["tip"], "execution": "continuous"},
+                                                         costs) + "[achieved]\njoint = \"elbow\"\nangle = 1.0\ntol = 0.2\n")
+    pf = read_problem(good)
+    robot = shared_model(pf.robot_spec())
+    assert robot.hands == ("tip",) and robot.execution == "continuous"
+    assert pf.achieved == {"joint": "elbow", "angle": 1.0, "tol": 0.2}
+    for robot_keys, extra, match in (({"execution": "flying"}, "", r"\[robot\] execution 'flying'"),
+                                     ({}, "[achieved]\njoint = \"elbow\"\nangle = 1.0\ntol = 0\n", r"tol must be > 0"),
+                                     ({}, "[achieved]\njoint = \"elbow\"\n", "needs joint")):
+        bad = write_problem(tmp_path, "bad", problem_text(str(urdf), robot_keys, costs) + extra)
+        with pytest.raises(ValueError, match=match):
+            read_problem(bad)

@@ -209,7 +209,7 @@ def test_cli_balance_single_lifts_the_right_sole(tmp_path):
     (["--plant", "nao", "--task", "balance", "--balance", "both"],
      r"unknown balance 'both': choose one of none, support, single"),
     (["--plant", "arm5", "--task", "reach", "--balance", "support"],
-     re.escape("--balance support needs --plant nao (a support polygon of the soles)")),
+     re.escape("--balance support needs a robot that stands on its soles (--plant nao): arm5 has none")),
     (["--plant", "nao", "--task", "balance", "--balance", "single", "--balance-margin", "0.05"],
      re.escape("balance-margin must be in [0, 0.04] m, got 0.05")),
 ])
