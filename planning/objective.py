@@ -36,8 +36,7 @@ import numpy as np
 
 from planning.costs import ControlGravity
 from planning.term_kinds import kind_named, map_keys, term_named
-from plants.model_file import robot_for
-from plants.robots import Robot
+from plants.robots import Robot, robot_for
 
 TermDesc = dict[str, Any]
 

@@ -17,7 +17,7 @@ The plans are made on the thesis's fixed-base Nao (left sole welded to the world
   constraints); effort limits enforced by the plant: every joint actuator is PD-controlled
   by Drake (implicit in SAP) and its total actuation ``Kp (q_d - q) + Kd (v_d - v) + u_ff``
   is clamped at the actuator's effort limit;
-- reflected motor inertia as in the planning model (``REFLECTED_INERTIA``).
+- reflected motor inertia as in the planning model (the ``armature`` of ``plants/models/nao.toml``).
 
 Gains (every joint, both hip yaw-pitch joints included): ``KP`` N m/rad, ``KD`` N m s/rad.
 
@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from plants.robots import MODELS, NAO_SOLE_POLYGON, REFLECTED_INERTIA, Robot, shared_robot
+from plants.robots import Robot, builtin_spec, shared_robot
 
-TIME_STEP = 2e-3  # s, discrete plant step (a 1 ms step with a 2 ms control period gave the same statuses at three times the cost: docs/stabilizer.md)
+TIME_STEP = builtin_spec("nao").time_step  # s, 2 ms: the discrete plant's step (a 1 ms step with a 2 ms control period gave the same statuses at three times the cost: docs/stabilizer.md)
 DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
 HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
 DISSIPATION = 5.0  # s/m, Hunt-Crossley
@@ -61,7 +61,8 @@ BUMPERS = (
 
 def sole_corners_local() -> np.ndarray:
     """The four corners ``(4, 3)`` of a sole in its sole frame (m, z = 0: the contact face)."""
-    return np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))]
+    sole = np.array(builtin_spec("nao").sole)
+    return np.c_[sole, np.zeros(len(sole))]
 
 
 STANCE_MARGIN = 0.02  # m, the standing start's CoG margin inside the support polygon
@@ -381,11 +382,12 @@ def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True)
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     plant.set_contact_model(ContactModel.kHydroelasticWithFallback)
     plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
-    model, = Parser(plant).AddModels(str(MODELS / "nao.urdf"))
+    spec = builtin_spec("nao")
+    model, = Parser(plant).AddModels(spec.file)
     for i in plant.GetJointActuatorIndices():
         act = plant.get_joint_actuator(i)
         act.set_default_gear_ratio(1.0)
-        act.set_default_rotor_inertia(REFLECTED_INERTIA["nao"])
+        act.set_default_rotor_inertia(spec.armature)
         if pd:
             act.set_controller_gains(PdControllerGains(p=KP, d=KD))
     friction = CoulombFriction(FRICTION, FRICTION)

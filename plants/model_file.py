@@ -1,9 +1,10 @@
 """A robot from its model file (URDF, SDF or MJCF): loaded into Drake, repaired, reported.
 
-``load_model(spec)`` gives the same :class:`plants.robots.Robot` as the built-in plants: a
-finalized plant registered with a scene graph, its planning joints (every 1-DOF joint that is not
-locked, in the plant's position order, so ``P`` is the identity), limits and efforts from the file
-(overridable), a start posture and a short load report that says what the load changed.
+``load_model(spec)`` gives a :class:`plants.robot.Robot` (the built-in plants load through it too,
+``plants.robots``): a finalized plant registered with a scene graph, its planning joints (every 1-DOF
+joint that is not locked, in the plant's position order, so ``P`` is the identity unless joints are
+coupled), limits and efforts from the file (overridable), a start posture, the robot's facts and a
+short load report that says what the load changed.
 
 The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem file):
 
@@ -24,6 +25,21 @@ The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem 
   times this, URDF only), ``payload_mass`` (kg) at ``payload_frame`` (a 3 cm solid sphere centred at ``payload_com``
   in that frame, m) and ``friction`` (viscous damping on every planning joint, N m s/rad). Loaded
   as its own plant (:func:`true_spec`); a frame it names that the file does not have is a ``ModelError``.
+
+Facts (what raico needs to know of a robot beyond its file; the defaults are a fixed-base arm's):
+
+- ``coupled``: ``joint -> driver``, joints that copy a planning joint (one motor drives both: the Nao's
+  RHipYawPitch copies LHipYawPitch); ``P`` then maps the planning coordinates to the plant's positions;
+- ``order``: the planning joints in Drake's tree order (``"tree"``) or the file's (``"file"``);
+- ``end_effectors`` (label -> frame), ``hands`` (frames drawn as hands in the recordings);
+- ``feet`` (sole frames, the stance one first) and ``sole`` (a sole's outline in its frame, ``(k, 2)`` m):
+  the support polygon a balance objective keeps the centre of mass in;
+- ``execution``: ``"discrete"`` (a 1 ms plant that enforces the joint limits: the arms), ``"continuous"``
+  (Drake's continuous plant, whose effort limit nothing clamps: the pendulum) or ``"floating"`` (free on
+  its soles with contact: built for the Nao only, ``plants/free_nao.py``), and ``time_step``, its step (s; a
+  continuous plant's largest integrator step);
+- ``learn``: the learning loop's defaults ``{babble_points, stride}``;
+- ``plant``: a built-in plant's name (its robot is called so, its plans store the name only).
 
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
 ``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
@@ -51,7 +67,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from plants.robots import Robot
+    from plants.robot import Robot
 
 FORMATS = {".urdf": "urdf", ".sdf": "sdf", ".xml": "mjcf"}
 ONE_DOF_JOINTS = ("revolute", "prismatic")  # Drake's names (a URDF "continuous" joint is a revolute one)
@@ -75,10 +91,28 @@ class RobotSpec:
     armature: float | tuple[tuple[str, float], ...] = 0.0
     limits: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
     true: tuple[tuple[str, Any], ...] = ()  # the true robot's changes (module docstring); () for the file's
+    # the robot's facts (module docstring, "Facts"); their defaults are a fixed-base arm's
+    plant: str | None = None  # a built-in plant's name (plants/models/NAME.toml); its robot is called so
+    order: str = "tree"  # planning joints in Drake's tree order ("tree") or in the file's ("file")
+    coupled: tuple[tuple[str, str], ...] = ()  # joint -> the planning joint it copies (one motor)
+    end_effectors: tuple[tuple[str, str], ...] = ()  # label -> frame
+    hands: tuple[str, ...] = ()  # frames drawn as hands in the recordings
+    feet: tuple[str, ...] = ()  # soles, the stance (welded) one first
+    sole: tuple[tuple[float, float], ...] = ()  # (k, 2) a sole's outline in its frame (m)
+    execution: str = "discrete"  # EXECUTIONS
+    time_step: float = 1e-3  # s, the execution's step (a discrete plant's; a continuous one's largest integrator step)
+    learn: tuple[tuple[str, int], ...] = ()  # the learning loop's defaults {babble_points, stride}
 
     def to_dict(self) -> dict:
-        """JSON form (stored with a plan; :meth:`from_dict` inverts it)."""
-        extra = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} if self.true else {}
+        """JSON form (stored with a plan; :meth:`from_dict` inverts it). Facts at their defaults are left
+        out, so a model file's stored spec reads as before they existed."""
+        extra: dict[str, Any] = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} \
+            if self.true else {}
+        for key in FACTS:
+            value = getattr(self, key)
+            if value != FACT_DEFAULTS[key]:
+                extra[key] = dict(value) if key in ("coupled", "end_effectors", "learn") else \
+                    [list(v) for v in value] if key == "sole" else list(value) if isinstance(value, tuple) else value
         return {**extra, "file": self.file, "packages": dict(self.packages), "weld": self.weld,
                 "weld_pose": list(self.weld_pose), "locked": dict(self.locked),
                 "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
@@ -99,12 +133,67 @@ class RobotSpec:
                    start=start if isinstance(start, str) else items(start), srdf=d.get("srdf"),
                    armature=float(armature) if isinstance(armature, (int, float)) else items(armature),
                    limits=tuple(sorted((str(j), items(v)) for j, v in (d.get("limits") or {}).items())),
-                   true=true_items(d.get("true")))
+                   true=true_items(d.get("true")), **facts_from(d))
 
     @property
     def planning(self) -> RobotSpec:
         """The model file's robot (the planner's model): this spec without the true robot's changes."""
         return replace(self, true=())
+
+
+EXECUTIONS = ("discrete", "continuous", "floating")
+FACTS = ("plant", "order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "time_step", "learn")
+FACT_DEFAULTS = {"plant": None, "order": "tree", "coupled": (), "end_effectors": (), "hands": (), "feet": (),
+                 "sole": (), "execution": "discrete", "time_step": 1e-3, "learn": ()}
+LEARN_KEYS = ("babble_points", "stride")
+
+
+def facts_from(d: dict) -> dict:
+    """The robot's facts of a spec's JSON or TOML form ``d`` as :class:`RobotSpec` fields (checked; absent:
+    left out, so the defaults hold)."""
+    out: dict[str, Any] = {}
+    for key in FACTS:
+        if key not in d or d[key] is None:
+            continue
+        v = d[key]
+        if key in ("coupled", "end_effectors"):
+            out[key] = tuple((str(a), str(b)) for a, b in _table(v, key).items())  # in the order given
+        elif key == "learn":
+            t = _table(v, key)
+            bad = sorted(set(t) - set(LEARN_KEYS))
+            if bad or not all(isinstance(x, int) and x > 0 for x in t.values()):
+                raise ModelError(f"learn: {{{', '.join(LEARN_KEYS)}}} as integers > 0, got {t}")
+            out[key] = tuple(sorted((str(a), int(b)) for a, b in t.items()))
+        elif key in ("hands", "feet"):
+            out[key] = tuple(str(x) for x in _list(v, key))
+        elif key == "sole":
+            pts = np.asarray(_list(v, key), float)
+            if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+                raise ModelError(f"sole: a list of at least 3 [x, y] corners (m), got {v}")
+            out[key] = tuple((float(x), float(y)) for x, y in pts)
+        elif key == "time_step":
+            if not isinstance(v, (int, float)) or not 1e-5 <= v <= 0.1:
+                raise ModelError(f"time_step must be a number of seconds in [1e-5, 0.1], got {v}")
+            out[key] = float(v)
+        elif key == "execution" and v not in EXECUTIONS:
+            raise ModelError(f"execution '{v}': choose one of {', '.join(EXECUTIONS)}")
+        elif key == "order" and v not in ("tree", "file"):
+            raise ModelError(f"order '{v}': choose tree (Drake's) or file")
+        else:
+            out[key] = str(v)
+    return out
+
+
+def _table(v, key: str) -> dict:
+    if not isinstance(v, dict):
+        raise ModelError(f"{key} must be a table")
+    return v
+
+
+def _list(v, key: str) -> list:
+    if not isinstance(v, (list, tuple)):
+        raise ModelError(f"{key} must be a list")
+    return list(v)
 
 
 TRUE_KEYS = ("friction", "mass_scale", "payload_com", "payload_frame", "payload_mass")
@@ -472,9 +561,12 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     from pydrake.multibody.tree import JointIndex
     from pydrake.systems.framework import DiagramBuilder
 
-    from plants.robots import Robot
+    from plants.robot import Robot
 
     path, fmt, text, notes, packages = _model_text(spec)
+    if spec.execution == "floating" and spec.plant is None:
+        raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) is built for the "
+                         "Nao only (plants/free_nao.py); a model file's robot executes welded: discrete or continuous")
     builder = builder or DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     if time_step > 0:
@@ -551,12 +643,13 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         plant.Finalize()
     except RuntimeError as e:
         raise ModelError(f"{path.name}: Drake cannot build the plant: {_first_line(e)}") from None
-    order = np.argsort([j.position_start() for j in planning])
-    planning, names = [planning[i] for i in order], [names[i] for i in order]
+    if spec.order == "tree":
+        order = np.argsort([j.position_start() for j in planning])
+        planning, names = [planning[i] for i in order], [names[i] for i in order]
     n = plant.num_positions()
     if n != len(planning) or plant.num_velocities() != n:
         raise ModelError(f"{path.name}: {n} positions for {len(planning)} planning joints")
-    P = np.eye(n)
+    P, planning, names = _coupling(dict(spec.coupled), planning, path)
     lower = np.array([j.position_lower_limits()[0] for j in planning])
     upper = np.array([j.position_upper_limits()[0] for j in planning])
     efforts = np.array([_effort_of(plant, j) for j in planning])
@@ -564,12 +657,36 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         lower[k] = limits.get(name, {}).get("lower", lower[k])
         upper[k] = limits.get(name, {}).get("upper", upper[k])
     default = _start_posture(spec, path, names, lower, upper, notes)
-    robot = Robot(name=f"{path.stem}-{spec_digest(spec, text)}", plant=plant, scene_graph=scene_graph,
-                  builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper, effort=efforts,
-                  default_q=default, end_effectors={}, B_act=plant.MakeActuationMatrix())
+    for label, frame in spec.end_effectors + tuple((f, f) for f in spec.hands + spec.feet):
+        if not plant.HasFrameNamed(frame):
+            raise ModelError(f"frame '{frame}' ({label}) is not in {path.name}: closest "
+                             f"{closest_names(frame, frame_names(plant))}")
+    robot = Robot(name=spec.plant or f"{path.stem}-{spec_digest(spec, text)}", plant=plant,
+                  scene_graph=scene_graph, builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper,
+                  effort=efforts, default_q=default, end_effectors=dict(spec.end_effectors),
+                  B_act=plant.MakeActuationMatrix(),
+                  support_polygon=np.array(spec.sole) if spec.sole else None, hands=spec.hands, feet=spec.feet,
+                  execution=spec.execution, time_step=spec.time_step)
     robot.load_report = notes
     robot.spec = spec
     return robot
+
+
+def _coupling(coupled: dict[str, str], joints: list, path: Path) -> tuple[np.ndarray, list, list[str]]:
+    """``(P, planning joints, their names)``: every joint a planning coordinate, except a coupled one, which
+    copies the coordinate of the joint it names (one motor drives both). ``P (n_plant, n_q)``."""
+    names = [j.name() for j in joints]
+    for joint, driver in coupled.items():
+        if joint not in names or driver not in names or driver in coupled:
+            bad = joint if joint not in names else driver
+            raise ModelError(f"coupled: '{joint}' -> '{driver}': '{bad}' is not a free joint of {path.name}: "
+                             f"closest {closest_names(bad, names)}")
+    planning = [j for j in joints if j.name() not in coupled]
+    col = {j.name(): k for k, j in enumerate(planning)}
+    P = np.zeros((len(joints), len(planning)))
+    for j in joints:
+        P[j.position_start(), col[coupled.get(j.name(), j.name())]] = 1.0
+    return P, planning, [j.name() for j in planning]
 
 
 def _package_names(text: str) -> list[str]:
@@ -680,30 +797,3 @@ def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, 
 def shared_model(spec: RobotSpec) -> Robot:
     """One robot per spec and process for kinematics and dynamics queries (not for diagrams)."""
     return load_model(spec)
-
-
-def _desc_spec(desc: dict, true: bool) -> dict | None:
-    """The stored spec of a plan description: the model file's (``robot``) or, with ``true``, the
-    true robot's where the problem states one (``robot_true``)."""
-    return (desc.get("robot_true") or desc.get("robot")) if true else desc.get("robot")
-
-
-def robot_for(desc: dict, true: bool = False) -> Robot:
-    """The shared robot of a stored plan description (``problem.json``): a built-in plant by name,
-    or a model file's robot by its spec (``desc["robot"]``; with ``true`` the robot that is
-    executed, ``desc["robot_true"]`` where the problem states one)."""
-    from plants.robots import shared_robot
-
-    spec = _desc_spec(desc, true)
-    return shared_robot(desc["plant"]) if spec is None else shared_model(RobotSpec.from_dict(spec))
-
-
-def load_robot_for(desc: dict, builder=None, time_step: float = 0.0, true: bool = False) -> Robot:
-    """A fresh robot (its own plant) of a stored plan description, as ``plants.robots.load_robot``
-    (``true``: as :func:`robot_for`)."""
-    from plants.robots import load_robot
-
-    spec = _desc_spec(desc, true)
-    if spec is None:
-        return load_robot(desc["plant"], builder, time_step)
-    return load_model(RobotSpec.from_dict(spec), builder, time_step)

@@ -89,6 +89,7 @@ def problem_file_table() -> str:
             f"| `[robot]` | {_keys(pf.ROBOT_KEYS)} |",
             f"| `[robot.true]` | {_keys(pf.TRUE_KEYS)} |",
             f"| `[robot.true] payload` | {_keys(pf.PAYLOAD_KEYS)} |",
+            f"| `[achieved]` | {_keys(pf.ACHIEVED_KEYS)} |",
             f"| `[horizon]` | {_keys(pf.HORIZON_KEYS)} |",
             f"| `[dynamics]` | {_keys(pf.DYNAMICS_KEYS)} |"]
     integ = ["| `model` | `integrator` (the first is the default) |", "|---|---|"]

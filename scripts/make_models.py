@@ -175,7 +175,7 @@ def nao(facts: dict) -> str:
     """Nao H25 from the reference facts: links, inertias, joints, limits; primitive visuals.
 
     RHipYawPitch is kept as its own revolute joint (no <mimic>): the planner couples it to
-    LHipYawPitch (plants/robots.py maps 25 planning joints onto 26 tree joints).
+    LHipYawPitch (plants/models/nao.toml couples them: 25 planning joints drive 26 tree joints).
     """
     links = {l["name"]: l for l in facts["links"]}
     joints = facts["joints"]

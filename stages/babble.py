@@ -242,6 +242,8 @@ def robot_description(config: dict) -> dict:
         return {"plant": str(config["plant"])}
     cfg = BabbleConfig.from_dict(config)
     robot, true = babble_robots(cfg)
+    if robot.builtin:   # a problem file on a built-in plant: its plans store the name only
+        return {"plant": robot.name}
     out = {"plant": robot.name, "robot": robot.spec.to_dict()}
     if true != robot.spec:
         out["robot_true"] = true.to_dict()

@@ -82,9 +82,8 @@ from typing import Any
 import numpy as np
 
 from planning.objective import objective_from_description
-from plants.model_file import load_robot_for
 from plants.polygons import convex_hull
-from plants.robots import Robot
+from plants.robots import Robot, load_robot_for, robot_for
 from stages.base import Artifact, Stage, StageConfig, StageOutput
 from stages.evaluate.metrics import (
     cog_via_point_margins,
@@ -103,9 +102,6 @@ from stages.plan.stage import PLAN_FILE, PROBLEM_FILE
 from stages.registry import DESCRIPTIONS
 
 ROLLOUT_FILE = "rollout.npz"
-MAX_STEP = 1e-3  # s, integrator step bound (continuous pendulum)
-ARM_TIME_STEP = 1e-3  # s, discrete arm plants
-DISCRETE = ("arm5", "biorob")
 STARTS = ("plan", "standing")  # the Nao's start state (module docstring)
 CONTROLLERS = ("pd", "wbc")  # the Nao's controller (module docstring)
 
@@ -145,10 +141,12 @@ class ExecuteConfig(StageConfig):
         return dataclasses.replace(self, start="standing" if self.controller == "wbc" else "plan")
 
     def check_inputs(self, inputs: dict) -> None:
-        """The Nao's options refused for another plant's plan (they would change the key, not the run)."""
-        plant = inputs["plan"].config.get("plant")
-        if plant == "nao":
+        """The options of a robot executed on its soles (the Nao) refused for another robot's plan (they would
+        change the key, not the run)."""
+        plan = inputs["plan"]
+        if robot_for(plan.document(PROBLEM_FILE)).floating:
             return
+        plant = plan.config.get("plant")
         if self.controller != "pd":
             raise ValueError(f"--controller {self.controller} is for plans of the Nao; this plan is of {plant} "
                              "(its executions use the computed-torque controller)")
@@ -289,10 +287,12 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
     dt, T = float(desc["dt"]), int(desc["T"])
-    name = desc["plant"]
-    # a model file's robot executes as the arms do: a discrete plant that enforces its joint limits
-    discrete = (name in DISCRETE or "robot" in desc) and not cfg.open_loop
-    robot = load_robot_for(desc, time_step=ARM_TIME_STEP if discrete else 0.0, true=True)
+    # the robot's execution model: a discrete plant that enforces its joint limits (the arms, a model file's
+    # robot) or a continuous one (the pendulum); the integration check is always continuous
+    facts = robot_for(desc, true=True)
+    execution, step = facts.execution, facts.time_step  # s: the discrete plant's step, or the integrator's bound
+    discrete = execution == "discrete" and not cfg.open_loop
+    robot = load_robot_for(desc, time_step=step if discrete else 0.0, true=True)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
@@ -300,7 +300,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     sim = Simulator(robot.builder.Build())
     if not discrete:
         integ = ResetIntegratorFromFlags(sim, "runge_kutta3" if cfg.open_loop else "runge_kutta5",
-                                         dt / math.ceil(dt / MAX_STEP - 1e-9))
+                                         dt / math.ceil(dt / step - 1e-9))
         integ.set_fixed_step_mode(True)
     pctx = robot.plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
     robot.plant.SetPositions(pctx, robot.to_plant_q(q_start))
@@ -339,7 +339,7 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     sat = np.array(saturated, bool).reshape(-1, n)
-    metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=name != "pendulum",
+    metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=execution != "continuous",
                                 effort_clamped=clamped)
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
                          effort_at_limit=sat, problem=problem, robot=robot)
@@ -680,7 +680,7 @@ def _swing_task(lift_from: int | None, fixed):
     from plants.free_nao import sole_corners_local
     from plants.taskmaps import FramePoints
 
-    return FramePoints(fixed, "r_sole", sole_corners_local(), name="r_sole_swing")
+    return FramePoints(fixed, fixed.feet[1], sole_corners_local(), name="r_sole_swing")
 
 
 def _frame_tasks(problem) -> list:
@@ -714,7 +714,7 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
                "max_tracking_error": float("inf"), "max_abs_torque": 0.0, "torque_saturation": 0.0,
                "effort_clamped_fraction": 0.0,
                "position_limit_fraction": 0.0, "limits_fraction": 0.0}
-    if desc["plant"] == "nao":
+    if robot_for(desc).floating:
         metrics.update(stood=False, cog_inside_fraction=0.0, cog_min_margin=float("nan"))
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=np.full((T, n), np.nan), tau=np.full((T, n), np.nan),
                          X_plan=np.asarray(plan["X"]), metrics=metrics, effort_at_limit=np.zeros((T, n), bool),
@@ -727,7 +727,7 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
     cfg = cfg.normalized()
     cfg.validate()
     problem = objective_from_description(desc)
-    nao = desc["plant"] == "nao"
+    nao = robot_for(desc).floating  # executed free on its soles (plants/free_nao.py)
     if nao and cfg.open_loop:
         raise ValueError("--open-loop is the arms' and the pendulum's integration check; the Nao stands on its feet")
     needed = ("X", "U") if nao or cfg.open_loop else ("X", "o", "O")

@@ -276,3 +276,44 @@ def test_c_lives_in_c_files_shipped_as_package_data():
     for c in c_files:
         pkg, rel = c.relative_to(root).parts[0], "/".join(c.relative_to(root).parts[1:])
         assert any(fnmatch.fnmatch(rel, pat) for pat in data.get(pkg, [])), f"{c} is not package data"
+
+
+# --------------------------------------------------------------------- one route to a robot
+PLANT_NAMES = ("pendulum", "arm5", "biorob", "nao")
+
+
+def _plant_name_tests(tree: ast.AST) -> list[int]:
+    """Lines of ``tree`` where a built-in plant's name decides something: compared (``==``, ``!=``,
+    ``in``/``not in`` a literal tuple, list or set of names) or a key of a literal dict (a table per plant)."""
+    def named(node) -> bool:
+        return isinstance(node, ast.Constant) and node.value in PLANT_NAMES
+
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            parts = [node.left, *node.comparators]
+            for part in parts:
+                if named(part) or (isinstance(part, (ast.Tuple, ast.List, ast.Set)) and any(map(named, part.elts))):
+                    lines.append(node.lineno)
+                    break
+        elif isinstance(node, ast.Dict) and any(named(k) for k in node.keys if k is not None):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_no_plant_name_decides_outside_plants_and_the_thesis():
+    """What a built-in plant's name decided is a fact of its Robot (floating or welded, soles, hands,
+    execution, learning defaults) read from ``plants/models/NAME.toml``: the tool's layers above
+    ``plants`` never test a plant's name."""
+    found = []
+    for package in ("planning", "stages", "pipeline"):
+        for path in sorted((REPO / package).rglob("*.py")):
+            for line in _plant_name_tests(ast.parse(path.read_text(), str(path))):
+                found.append(f"{path.relative_to(REPO)}:{line}")
+    assert found == []
+
+
+def test_the_plant_name_grep_finds_what_it_looks_for():
+    src = ('a = plant == "nao"\nb = "arm5" != x\nc = name in ("arm5", "biorob")\nd = {"pendulum": 1}\n'
+           'e = TASKS[("nao", "reach")]\nf = robot.floating\n')
+    assert _plant_name_tests(ast.parse(src)) == [1, 2, 3, 4]

@@ -163,7 +163,7 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     from pipeline.recordings import rerun_io as rec_mod
     from pipeline.recordings.tasks import task_plots
     from planning.objective import objective_from_description
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     data = [_trajectory(cache, r) for r in runs]
     joints_of: dict[str, list[str]] = {}

@@ -20,7 +20,7 @@ def _episode_times(t: np.ndarray, episodes: int, gap: float) -> np.ndarray:
 def record_babble(folder: Path, art, inputs: list, lookup=None) -> None:
     """Every babbling episode laid end to end on ``sim_time``: robot (at most ``MAX_POSES`` poses
     per episode), joints, desired joints and torques by limb."""
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
     from stages.babble import robot_description
 
     cfg = art.config

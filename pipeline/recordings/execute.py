@@ -23,7 +23,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
     robot in the world, its contact points, the contact-based support polygon and the CoG's ground
     projection."""
     from planning.objective import objective_from_description
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     plan = _input(inputs, "plan")
     desc = plan.document("problem.json")

@@ -42,7 +42,7 @@ def record_fit(folder: Path, art, inputs: list, lookup=None) -> None:
     import rerun as rr
 
     from plants.gp import GPModel
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     doc = art.document("fit.json")
     h = art.arrays("heldout.npz")

@@ -80,7 +80,8 @@ def record_learn(folder: Path, art, inputs: list, lookup) -> None:
             rec_mod.log_scalars(rec, "gp_error_log10", "episode", k, np.log10(per_joint("gp_error_joint")), joints)
             rec_mod.log_scalars(rec, "gp_error_heldout_log10", "episode", k,
                                 np.log10(per_joint("gp_error_heldout_joint")), joints)
-        executed = "executed" if doc["config"]["plant"] != "pendulum" else "executed_angle_from_upright_rad"
+        crit = LearnConfig.from_dict(doc["config"]).achieved()  # the task's own end-angle criterion
+        executed = "executed" if crit is None else f"executed_{crit['joint']}_angle_error_rad"
         for name, key in ((executed, "task_error"), ("planned", "planned_task_error")):
             rec_mod.log_scalars(rec, f"distance/{rec_mod.entity_name(name)}", "episode", k, series(key))
         for name in ("fit", "plan", "execute"):

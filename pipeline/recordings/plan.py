@@ -23,7 +23,7 @@ Plan recordings:
   last via-point step (the final step if there is none) and ``world/iterations/<map>`` holds its
   paths as LineStrips3D on ``iteration``: every one-point task map with via-points in all three
   coordinates (the arm's and the pendulum's end effector ``ee``, the Nao's ``cog``), plus the
-  hands ``l_gripper`` and ``r_gripper`` of a robot that has them (the Nao). The static final path
+  robot's hands (``robot.hands``: the Nao's ``l_gripper`` and ``r_gripper``). The static final path
   stays visible beside it, so an iterate is seen against the plan. An iteration that diverged
   (a NaN row) logs nothing: the last finite iterate stays on screen; at most
   ``MAX_ITERATION_FRAMES`` iterations are drawn (every s-th one and the last). Nothing of this is
@@ -50,7 +50,7 @@ def record_plan(folder: Path, art, inputs: list, lookup=None) -> None:
     """The planned motion, task values against their via-points, controls and cost per iteration
     (see the module docstring)."""
     from planning.objective import objective_from_description
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     cfg = art.config
     d = art.arrays("plan.npz")
@@ -97,8 +97,8 @@ def iteration_path_maps(robot, objective) -> dict:
     """``{name: task map}`` of the 3-D paths drawn per iteration: every one-point task map with
     via-points (a term active at no more than ``HELD_STEPS`` steps), in all three coordinates
     even where the cost uses fewer (the pendulum's ``ee_xz`` -> ``ee``), named after its frame
-    (``cog`` for the centre of gravity), plus the hands ``l_gripper``/``r_gripper`` of a robot that
-    has them (the Nao)."""
+    (``cog`` for the centre of gravity), plus the robot's hands (``robot.hands``: the Nao's ``l_gripper`` and
+    ``r_gripper``)."""
     from plants.taskmaps import CenterOfMass, FramePoints
 
     out: dict = {}
@@ -112,8 +112,8 @@ def iteration_path_maps(robot, objective) -> dict:
             name = rec_mod.entity_name(tm.frame.name())
             if name not in out:
                 out[name] = FramePoints(robot, tm.frame.name(), points=tm.points)
-    for hand in ("l_gripper", "r_gripper"):
-        if hand not in out and robot.plant.HasFrameNamed(hand):
+    for hand in robot.hands:
+        if hand not in out:
             out[hand] = FramePoints(robot, hand)
     return out
 

@@ -15,7 +15,6 @@ from planning.crocoddyl.model import (
     StateMap,
     frame_id,
     model_from_drake,
-    pinocchio_model,
     pinocchio_robot,
 )
 from planning.crocoddyl.solve import (
@@ -30,4 +29,4 @@ from planning.crocoddyl.solve import (
 
 __all__ = ["ACCEPT_ANY", "AVAILABLE", "CONTINUOUS", "ILQG_SCHEDULE", "UNAVAILABLE_REASON", "CrocoddylProblem",
            "FDDPOptions", "NotExpressible", "StateMap", "build", "fddp", "frame_id", "model_from_drake",
-           "pinocchio_model", "pinocchio_robot", "result"]
+           "pinocchio_robot", "result"]

@@ -2,8 +2,8 @@
 
 :mod:`planning.crocoddyl.solve` builds the ``ShootingProblem`` and runs FDDP, :mod:`planning.crocoddyl.costs`
 turns each raico cost term into crocoddyl residuals; this module says how a raico robot becomes a
-Pinocchio model, for the built-in plants and for robots loaded from model files
-(:mod:`plants.model_file`). It holds the optional import of crocoddyl and Pinocchio (``AVAILABLE``)
+Pinocchio model: from the model file it was loaded from (:mod:`plants.model_file`; a built-in plant is
+one too). It holds the optional import of crocoddyl and Pinocchio (``AVAILABLE``)
 and ``NotExpressible``.
 
 The model of a model-file robot (:func:`pinocchio_robot`): Pinocchio reads the SAME repaired URDF
@@ -40,11 +40,9 @@ semi-implicit Euler step: exact on a rollout, however fast the joint turns).
 from __future__ import annotations
 
 import re
-import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -181,6 +179,16 @@ def _root_links(text: str) -> list[str]:
 CONTINUOUS = ("angle", "cos-sin")
 
 
+def _without_visuals(text: str) -> str:
+    """The URDF text without its ``<visual>`` elements: the dynamics need none, and urdfdom refuses
+    geometry it does not know (a capsule), with an error line per link."""
+    root = ET.fromstring(text)
+    for link in root.findall("link"):
+        for vis in link.findall("visual"):
+            link.remove(vis)
+    return ET.tostring(root, encoding="unicode")
+
+
 def _continuous_as_revolute(text: str) -> str:
     """The URDF text with every continuous joint a revolute joint without position limits (Pinocchio
     then stores its angle, nq 1; effort and velocity limits kept)."""
@@ -271,13 +279,13 @@ def model_from_drake(robot):
 
 
 def pinocchio_robot(robot, continuous: str = "angle"):
-    """``(model, StateMap)`` of a model-file robot (``robot.spec``), see the module docstring;
-    ``continuous``: ``"angle"`` or ``"cos-sin"``."""
+    """``(model, StateMap)`` of a robot from the model file it was loaded from (``robot.spec``: a built-in
+    plant's too), see the module docstring; ``continuous``: ``"angle"`` or ``"cos-sin"``."""
     from plants.model_file import _model_text
 
     spec = robot.spec
     if spec is None:
-        raise ValueError(f"{robot.name} is a built-in plant, not a model-file robot")
+        raise ValueError(f"{robot.name} was not loaded from a model file (plants.model_file.load_model)")
     if continuous not in CONTINUOUS:
         raise ValueError(f"continuous must be one of {CONTINUOUS}, got {continuous!r}")
     path, fmt, text, _, _ = _model_text(spec)
@@ -290,6 +298,7 @@ def pinocchio_robot(robot, continuous: str = "angle"):
             f"crocoddyl cannot express {path.name} welded on '{spec.weld}': Drake re-roots the tree there, "
             f"Pinocchio's tree is rooted at '{roots[0] if roots else '?'}' (a fixed base at the root only)")
     if fmt == "urdf":
+        text = _without_visuals(text)
         model = pin.buildModelFromXML(_continuous_as_revolute(text) if continuous == "angle" else text)
     else:
         model = _other_format_model(robot, path, fmt)
@@ -353,47 +362,6 @@ def add_frames(terms, model, robot) -> None:
             frame_id(model, robot, frame.name(), point)
 
 
-# ----------------------------------------------------------------------------- the built-in plants
-def urdf_for_pinocchio(name: str, folder: Path) -> Path:
-    """The project's ``plants/models/NAME.urdf`` with a ``<link name="world"/>`` and no visuals,
-    written to ``folder`` (urdfdom refuses the original: its fixed joint names a ``world`` link
-    that the file does not declare)."""
-    from plants.robots import MODELS
-
-    text = (MODELS / f"{name}.urdf").read_text()
-    text = re.sub(r"<visual\b.*?</visual>", "", text, flags=re.S)
-    text = re.sub(r"<collision\b.*?</collision>", "", text, flags=re.S)
-    if '<link name="world"' not in text:
-        text = re.sub(r"(<robot\b[^>]*>)", r'\1\n  <link name="world"/>', text, count=1)
-    path = folder / f"{name}.urdf"
-    path.write_text(text)
-    return path
-
-
-@cache
-def pinocchio_model(name: str):
-    """The pinocchio model of plant ``name`` (reflected inertia in ``armature``); its joints must
-    be raico's planning joints in the same order (``NotExpressible`` otherwise)."""
-    require()
-    from plants.robots import REFLECTED_INERTIA, shared_robot
-
-    if name == "nao":
-        raise NotExpressible(
-            "crocoddyl cannot express the Nao exactly: its left sole is welded to the world (Drake re-roots "
-            "the tree there, pinocchio's URDF tree starts at the torso) and RHipYawPitch is coupled to "
-            "LHipYawPitch (one motor), which pinocchio's free forward dynamics does not model")
-    robot = shared_robot(name)
-    with tempfile.TemporaryDirectory(prefix="raico-urdf-") as d:
-        model = pin.buildModelFromUrdf(str(urdf_for_pinocchio(name, Path(d))))
-    names = tuple(model.names[i] for i in range(1, model.njoints))
-    if names != tuple(robot.joint_names) or model.nq != robot.n_q or model.nv != robot.n_q \
-            or not np.array_equal(robot.P, np.eye(robot.n_q)):
-        raise NotExpressible(f"crocoddyl: the pinocchio joints {names} of {name} are not raico's planning "
-                             f"joints {robot.joint_names}")
-    model.armature[:] = REFLECTED_INERTIA[name]
-    return model
-
-
 def problem_robot(problem: Problem):
     """The robot of ``problem``'s analytic dynamics (``NotExpressible`` for other dynamics)."""
     from plants.dynamics import AnalyticDynamics, PseudoDynamics
@@ -439,8 +407,6 @@ if AVAILABLE:
 
 
 def pinocchio_of(robot, continuous: str):
-    """``(model, StateMap)``: a model-file robot's from its URDF text, a built-in plant's from the
-    project's URDF (a copy: frames may be added to it)."""
-    if getattr(robot, "spec", None) is not None:
-        return pinocchio_robot(robot, continuous)
-    return pin.Model(pinocchio_model(robot.name)), StateMap.identity(robot.n_q)
+    """``(model, StateMap)`` of any robot, from the model file it was loaded from (a fresh model: frames
+    may be added to it)."""
+    return pinocchio_robot(robot, continuous)

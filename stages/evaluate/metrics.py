@@ -303,12 +303,12 @@ def single_support_lift(corners: np.ndarray, lift_from: int) -> dict:
 
 
 def _relative_sole_drift(robot, X: np.ndarray) -> float:
-    """How far (m) the right sole moved relative to the left sole, start to end (fixed-base
-    kinematics of the executed joint angles: the left sole is the fixed model's world frame)."""
+    """How far (m) the swing sole (the right one) moved relative to the stance sole, start to end (fixed-base
+    kinematics of the executed joint angles: the stance sole is the fixed model's world frame)."""
     n = X.shape[1] // 2
     if not np.all(np.isfinite(X[[0, -1]])):
         return float("inf")
-    sole = robot.plant.GetFrameByName("r_sole")
+    sole = robot.plant.GetFrameByName(robot.feet[1])
     ctx = robot.plant.CreateDefaultContext()
     ends = []
     for k in (0, len(X) - 1):

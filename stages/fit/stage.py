@@ -213,7 +213,7 @@ def execute_segments(art: Artifact, stride: int = 1) -> tuple[dict, list[Segment
     one of them is not finite, so the selection is the same as computing everything first)."""
     from plants.dynamics import SemiImplicitEuler
     from plants.dynamics_registry import make_dynamics
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     desc = plan_problem(art)
     r = art.arrays("rollout.npz")
@@ -278,7 +278,7 @@ def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1, resid
     """Training and held-out points of ``arts`` (babble or execute, all of the same plant), every
     ``stride``-th sample of each segment; with ``residual`` the targets less the planning model's
     accelerations (module docstring)."""
-    from plants.model_file import robot_for
+    from plants.robots import robot_for
 
     plant_names, segs, robots = set(), [], {}
     for art in arts:

@@ -3,7 +3,7 @@
 The planning model is welded at the left sole (world frame = left sole frame, ground z = 0), so
 the support polygon is fixed in that frame for the whole movement:
 
-- ``support`` (double support): the convex hull of both soles' corners (``NAO_SOLE_POLYGON`` in
+- ``support`` (double support): the convex hull of both soles' corners (the robot's sole outline in
   each sole frame; the right sole at its start pose, which the task's ``r_sole`` term holds at
   every step 1..T);
 - ``single`` (balance on the left foot): the left sole alone; the right sole's ``r_sole`` term
@@ -28,7 +28,7 @@ import numpy as np
 
 from planning import objective as ob
 from plants.polygons import convex_hull, halfplanes, nearest_feasible, signed_margin
-from plants.robots import NAO_SOLE_POLYGON, Robot
+from plants.robots import Robot
 
 BALANCE_MODES = ("none", "support", "single")
 MARGIN = 0.025  # m, CoG ground projection inside every support-polygon edge by at least this (the default: with
@@ -47,7 +47,7 @@ W_RANGE = 1e5  # ... per rad^2 beyond it (the stabilizer keeps 0.02 rad: stages/
 def sole_corners(robot: Robot, q: np.ndarray, frame: str) -> np.ndarray:
     """World positions ``(4, 3)`` (m) of the corners of sole ``frame`` at planning positions ``q (n_q,)``."""
     X = robot.plant.GetFrameByName(frame).CalcPoseInWorld(robot.set_state(q))
-    local = np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))]
+    local = np.c_[robot.support_polygon, np.zeros(len(robot.support_polygon))]
     return local @ X.rotation().matrix().T + X.translation()
 
 
@@ -57,7 +57,7 @@ def support_polygon(robot: Robot, q0: np.ndarray, mode: str) -> np.ndarray:
     (``single``)."""
     if mode not in BALANCE_MODES[1:]:
         raise ValueError(f"unknown balance '{mode}': choose one of {', '.join(BALANCE_MODES)}")
-    soles = ("l_sole", "r_sole") if mode == "support" else ("l_sole",)
+    soles = robot.feet if mode == "support" else robot.feet[:1]  # the stance sole first
     return convex_hull(np.vstack([sole_corners(robot, q0, s)[:, :2] for s in soles]))
 
 
@@ -146,11 +146,12 @@ def apply_balance(robot: Robot, q0: np.ndarray, T: int, terms: list, mode: str,
                              np.r_[robot.upper - JOINT_MARGIN, -(robot.lower + JOINT_MARGIN)], range(1, T + 1),
                              W_RANGE, margin=JOINT_MARGIN))
     if mode == "single":
-        sole = ob.frame_points("r_sole", "r_sole_heights", axes=(2,),
-                               points=np.c_[NAO_SOLE_POLYGON, np.zeros(len(NAO_SOLE_POLYGON))])
+        swing = robot.feet[1]
+        sole = ob.frame_points(swing, "r_sole_heights", axes=(2,),
+                               points=np.c_[robot.support_polygon, np.zeros(len(robot.support_polygon))])
         lift_from = max(T // 3, 1)
         if lift_from > 1:  # not below the ground, nor below a start corner that is (a perturbed start)
-            lower = np.minimum(sole_corners(robot, q0, "r_sole")[:, 2], 0.0)
+            lower = np.minimum(sole_corners(robot, q0, swing)[:, 2], 0.0)
             out.append(ob.inequality("r_sole_clear", sole, -np.eye(4), -lower, range(1, lift_from),
                                      W_LIFT, lower=lower.tolist()))
         out.append(ob.inequality("r_sole_lift", sole, -np.eye(4), -LIFT_BOUND * np.ones(4), range(lift_from, T + 1),

@@ -48,7 +48,13 @@ tolerance of "task achieved" in its unit, ``tol`` (m or rad; a placement ``[m, r
 kind's, ``planning.costs.TASK_TOLERANCES``).
 
 A built-in plant (``plant``) takes only ``start``: ``"zero"`` (every joint at 0, clipped to its
-range) or ``{joint = value, ...}`` (the others at the plant's default posture).
+range) or ``{joint = value, ...}`` (the others at the plant's default posture). A model file's robot
+may state its facts as the built-in plants do in ``plants/models/NAME.toml`` (``coupled``,
+``end_effectors``, ``hands``, ``feet``, ``sole``, ``order``, ``execution`` and ``learn``;
+:class:`plants.model_file.RobotSpec`).
+
+``[achieved]`` (optional): how an execution is judged achieved where the terms' own errors do not say
+it: ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), wrapped (the pendulum's swing-up).
 
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
@@ -79,9 +85,11 @@ from planning import objective as ob
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
-TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs"}
+TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved"}
+ACHIEVED_KEYS = {"joint", "angle", "tol"}
+ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn"}
 ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits",
-              "true"}
+              "true"} | ROBOT_FACTS
 TRUE_KEYS = {"payload", "mass_scale", "friction"}  # [robot.true]: the executed robot's differences from its file
 PAYLOAD_KEYS = {"frame", "mass", "com"}
 HORIZON_KEYS = {"T", "dt"}
@@ -140,6 +148,11 @@ class ProblemFile:
         return self.doc["robot"].get("plant")
 
     @property
+    def achieved(self) -> dict | None:
+        """The task's own criterion of an execution achieved (``[achieved]``: joint, angle, tol), or None."""
+        return self.doc.get("achieved")
+
+    @property
     def plant_start(self) -> str | dict | None:
         """A built-in plant's start posture in place of its default (``"zero"`` or {joint: rad}), else None."""
         return self.doc["robot"].get("start") if self.plant is not None else None
@@ -196,6 +209,8 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
     doc: dict[str, Any] = {"name": str(raw.get("name", default_name)),
                            "description": str(raw.get("description", ""))}
     doc["robot"] = _robot(raw["robot"], base)
+    if "achieved" in raw:
+        doc["achieved"] = _achieved(raw["achieved"])
     h = raw["horizon"]
     _refuse_unknown(h, HORIZON_KEYS, "[horizon]")
     T, dt = h.get("T"), h.get("dt")
@@ -227,6 +242,20 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
         terms[name] = _term(name, term, T)
     doc["costs"] = {"convention": convention, "terms": terms}
     return doc
+
+
+def _achieved(a) -> dict:
+    """``[achieved]``: how an execution of the task is judged achieved, where the terms' own errors do not say it:
+    joint ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), the difference wrapped to (-pi, pi]."""
+    if not isinstance(a, dict):
+        raise ValueError("[achieved] must be a table {joint, angle, tol}")
+    _refuse_unknown(a, ACHIEVED_KEYS, "[achieved]")
+    if not isinstance(a.get("joint"), str) or "angle" not in a or "tol" not in a:
+        raise ValueError("[achieved] needs joint (a name), angle (rad) and tol (rad)")
+    tol = _number(a["tol"], "[achieved] tol")
+    if tol <= 0:
+        raise ValueError(f"[achieved] tol must be > 0 (rad), got {tol}")
+    return {"joint": a["joint"], "angle": _number(a["angle"], "[achieved] angle"), "tol": tol}
 
 
 def _robot(r: dict, base: Path) -> dict:
@@ -287,6 +316,14 @@ def _robot(r: dict, base: Path) -> dict:
         _refuse_unknown(lim, {"lower", "upper", "effort"}, f"[robot] limits.{j}")
         limits[j] = {k: _number(v, f"[robot] limits.{j}.{k}") for k, v in lim.items()}
     out["limits"] = limits
+    from plants.model_file import ModelError, facts_from
+
+    facts = {k: r[k] for k in ROBOT_FACTS if k in r}
+    try:
+        facts_from(facts)  # checked here: one line naming the key
+    except ModelError as e:
+        raise ValueError(f"[robot] {e}") from None
+    out.update(facts)
     if "true" in r:
         out["true"] = _true_robot(r["true"])
     return out

@@ -174,8 +174,9 @@ class PlanConfig(StageConfig):
             raise ValueError(f"unknown warm-from '{self.warm_from}': choose one of {', '.join(WARM_FROM)}")
         if self.balance not in BALANCE_MODES:
             raise ValueError(f"unknown balance '{self.balance}': choose one of {', '.join(BALANCE_MODES)}")
-        if self.balance != "none" and self.robot_name() != "nao":
-            raise ValueError(f"--balance {self.balance} needs --plant nao (a support polygon of the soles)")
+        if self.balance != "none" and not self._has_soles():
+            raise ValueError(f"--balance {self.balance} needs a robot that stands on its soles (--plant nao): "
+                             f"{self.robot_name() or 'this robot'} has none")
         if not (isinstance(self.balance_margin, (int, float)) and 0 <= self.balance_margin <= 0.04):
             raise ValueError(f"balance-margin must be in [0, 0.04] m, got {self.balance_margin}")
         try:
@@ -229,6 +230,11 @@ class PlanConfig(StageConfig):
         if text.lstrip().startswith("{"):
             return ProblemFile(json.loads(text))
         return read_problem(text)
+
+    def _has_soles(self) -> bool:
+        """The robot states its soles and their outline (a support polygon to balance in)."""
+        robot, _ = robot_and_task(self)
+        return robot.support_polygon is not None and len(robot.feet) > 0
 
     def robot_name(self) -> str:
         """The built-in plant's name ("" for a model file's robot)."""
@@ -433,7 +439,7 @@ _LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an exper
 
 def load_notes(robot: Robot) -> list[str]:
     """The lines saying what loading ``robot``'s model file changed (none for a built-in plant)."""
-    if robot.spec is None:
+    if not robot.spec or robot.builtin:
         return []
     return [f"raico: note: {Path(robot.spec.file).name}: {line}" for line in robot.load_report]
 
@@ -524,7 +530,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint,
                       hard_bounds(robot, kind) if cfg.hard_bounds() == "hard" else None)
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
-    if robot.spec is not None:  # a model file's robot: execute, evaluate and the recordings rebuild it
+    if not robot.builtin:  # a model file's robot: execute, evaluate and the recordings rebuild it
         desc.update(plant=robot.name, robot=robot.spec.to_dict(), load_report=list(robot.load_report))
         true_spec = cfg.problem_file().true_spec()
         if true_spec is not None:  # the robot that executes the plan: the file's with [robot.true]'s changes

@@ -35,6 +35,7 @@ class TaskSpec:
     description: str
     dynamics: str = "pseudo"
     start: str | dict | None = None  # the robot's start posture in place of its default ("zero" or {joint: rad})
+    achieved: dict | None = None  # the problem file's [achieved]: {joint, angle, tol} of an execution's end
 
     def robot(self, robot: Robot) -> Robot:
         """``robot`` with this task's start posture as its default (itself where the task names none): ``"zero"``
@@ -52,7 +53,7 @@ class TaskSpec:
 def task_from_problem(problem: ProblemFile) -> TaskSpec:
     """The task a problem file states (its terms built at the start posture ``q0``)."""
     return TaskSpec(problem.robot_label, problem.name, problem.T, problem.dt, partial(build_terms, problem),
-                    problem.doc["description"], problem.dynamics, problem.plant_start)
+                    problem.doc["description"], problem.dynamics, problem.plant_start, problem.achieved)
 
 
 def _shipped_tasks() -> dict[tuple[str, str], TaskSpec]:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from planning import crocoddyl as cm
+from plants.robots import shared_robot
 from tests.tolerance import close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
@@ -117,8 +118,8 @@ def test_roll_residual_gradient_and_gauss_newton_hessian_match_raico(built):
 def test_what_crocoddyl_cannot_express_is_refused_with_the_reason():
     with pytest.raises(cm.NotExpressible, match="pseudo-dynamics"):
         cm.build(_problem("arm5", "reach", "pseudo"))
-    with pytest.raises(cm.NotExpressible, match="Nao"):
-        cm.pinocchio_model("nao")
+    with pytest.raises(cm.NotExpressible, match="welded on 'l_sole'"):
+        cm.pinocchio_robot(shared_robot("nao"))
 
 
 def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(built):

@@ -182,13 +182,16 @@ def test_bad_shapes_are_refused():
                                              P=np.eye(4), n_q=4), DT)
 
 
-def test_a_plant_with_other_parameters_gets_its_own_code(monkeypatch):
+def test_a_plant_with_other_parameters_gets_its_own_code():
     from plants import robots
 
     code = compiled_dynamics(shared_robot("pendulum"))
     assert FastAnalyticDynamics(robots.load_robot("pendulum"), DT)._code is code
-    monkeypatch.setitem(robots.REFLECTED_INERTIA, "pendulum", 0.2)  # a motor on the pendulum
-    other = robots.load_robot("pendulum")
+    from dataclasses import replace
+
+    from plants.model_file import load_model
+
+    other = load_model(replace(robots.builtin_spec("pendulum"), armature=0.2))  # a motor on the pendulum
     fast = FastAnalyticDynamics(other, DT)
     assert fast._code is not code
     q, v, u = np.array([0.4]), np.array([1.0]), np.array([0.5])

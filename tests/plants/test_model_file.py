@@ -435,3 +435,88 @@ def test_a_built_in_plants_task_may_start_at_the_zero_posture(tmp_path):
     with pytest.raises(ValueError, match=r"start of a built-in plant must be \"zero\""):
         text = (Path(__file__).resolve().parents[2] / "problems" / "nao_reach-zero.toml").read_text()
         read_problem(write_problem(tmp_path, "crouch", text.replace('start = "zero"', 'start = "crouch"')))
+
+
+# --------------------------------------------------------------------- one route: the built-in plants and facts
+@pytest.mark.parametrize("name", ["pendulum", "arm5", "biorob", "nao"])
+def test_a_built_in_plant_is_a_model_file_with_its_facts(name):
+    """``load_robot(name)`` is ``load_model`` of ``plants/models/NAME.toml``: the robot carries its spec,
+    is called by its name and its facts come from the file (none from code keyed by the name)."""
+    import tomllib
+
+    from plants.robots import MODELS, builtin_spec, load_robot
+
+    spec = builtin_spec(name)
+    doc = tomllib.loads((MODELS / f"{name}.toml").read_text())
+    robot = load_robot(name)
+    assert robot.spec == spec and robot.builtin and robot.name == name
+    assert spec.file == str(MODELS / doc["file"]) and robot.execution == doc.get("execution", "discrete")
+    assert robot.time_step == doc["time_step"]
+    assert robot.end_effectors == doc.get("end_effectors", {})
+    assert robot.hands == tuple(doc.get("hands", ())) and robot.feet == tuple(doc.get("feet", ()))
+    assert robot.learn_defaults() == {"babble_points": 200, "stride": 20, **doc.get("learn", {})}
+    rotor = {robot.plant.get_joint_actuator(i).default_rotor_inertia() for i in robot.plant.GetJointActuatorIndices()}
+    assert rotor == {float(doc["armature"])}
+    start = doc.get("start", {})
+    assert all(robot.default_q[robot.joint_names.index(j)] == v for j, v in start.items())
+    assert robot.load_report  # what the load changed is said for a built-in plant too (transmissions)
+
+
+def test_the_nao_couples_its_hip_yaw_pitch_and_keeps_the_files_joint_order():
+    from plants.robots import shared_robot
+
+    nao = shared_robot("nao")
+    assert nao.n_q == 25 and nao.P.shape == (26, 25) and nao.floating
+    assert "RHipYawPitch" not in nao.joint_names
+    rows = {nao.plant.GetJointByName(j).position_start(): j for j in ("LHipYawPitch", "RHipYawPitch")}
+    col = nao.joint_names.index("LHipYawPitch")
+    assert all(nao.P[r, col] == 1.0 for r in rows) and np.all(nao.P.sum(axis=1) == 1.0)
+    starts = [nao.plant.GetJointByName(j).position_start() for j in nao.joint_names]
+    assert starts != sorted(starts)  # the file's order, not Drake's (the tree re-rooted at the sole)
+    assert nao.support_polygon.shape == (4, 2) and nao.feet[0] == nao.spec.weld
+
+
+def test_a_model_files_robot_states_facts_and_bad_facts_are_one_line(tmp_path):
+    urdf = user_robot(tmp_path)
+    spec = RobotSpec.from_dict({"file": str(urdf), "hands": ["tip"], "end_effectors": {"tip": "tip"},
+                                "coupled": {"elbow": "shoulder"}, "execution": "continuous",
+                                "learn": {"stride": 7}})
+    robot = load_model(spec)
+    assert not robot.builtin and robot.hands == ("tip",) and robot.execution == "continuous"
+    assert robot.n_q == 1 and robot.P.shape == (2, 1) and np.all(robot.P == 1.0)
+    assert robot.learn_defaults() == {"babble_points": 200, "stride": 7}
+    assert RobotSpec.from_dict(spec.to_dict()) == spec
+    plain = RobotSpec(file=str(urdf))
+    assert set(plain.to_dict()) == {"file", "packages", "weld", "weld_pose", "locked", "start", "srdf",
+                                    "armature", "limits"}   # facts at their defaults are not stored
+    for bad, match in (({"execution": "flying"}, "execution 'flying'"), ({"learn": {"stride": 0}}, "learn"),
+                       ({"sole": [[0, 0]]}, "sole"), ({"order": "alphabet"}, "order"),
+                       ({"time_step": 0}, "time_step")):
+        with pytest.raises(ModelError, match=match):
+            RobotSpec.from_dict({"file": str(urdf), **bad})
+    with pytest.raises(ModelError, match="hands_frame"):
+        load_model(RobotSpec.from_dict({"file": str(urdf), "hands": ["hands_frame"]}))
+    with pytest.raises(ModelError, match="coupled"):
+        load_model(RobotSpec.from_dict({"file": str(urdf), "coupled": {"wrist": "shoulder"}}))
+    with pytest.raises(ModelError, match="built for the Nao only"):
+        load_model(RobotSpec.from_dict({"file": str(urdf), "execution": "floating"}))
+
+
+def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(tmp_path):
+    from plants.model_file import shared_model
+    from stages.plan.problem_file import read_problem
+
+    urdf = user_robot(tmp_path)
+    costs = REACH.format(frame="tip", target=[0.0, 0.0, 0.0])
+    good = write_problem(tmp_path, "facts", problem_text(str(urdf), {"hands": ["tip"], "execution": "continuous"},
+                                                         costs) + "[achieved]\njoint = \"elbow\"\nangle = 1.0\ntol = 0.2\n")
+    pf = read_problem(good)
+    robot = shared_model(pf.robot_spec())
+    assert robot.hands == ("tip",) and robot.execution == "continuous"
+    assert pf.achieved == {"joint": "elbow", "angle": 1.0, "tol": 0.2}
+    for robot_keys, extra, match in (({"execution": "flying"}, "", r"\[robot\] execution 'flying'"),
+                                     ({}, "[achieved]\njoint = \"elbow\"\nangle = 1.0\ntol = 0\n", r"tol must be > 0"),
+                                     ({}, "[achieved]\njoint = \"elbow\"\n", "needs joint")):
+        bad = write_problem(tmp_path, "bad", problem_text(str(urdf), robot_keys, costs) + extra)
+        with pytest.raises(ValueError, match=match):
+            read_problem(bad)

@@ -259,15 +259,13 @@ def test_biorob_actuator_facts_reach_drake():
     q = 0 (the arm stretched along +x) the wrist roll's axis is the hand's own axis, its centre of mass
     lies on it and its inertia is diagonal, so 1 N m there accelerates the roll alone, by hand:
     1 / (0.5 m r^2 + reflected inertia), rad/s^2, at any roll velocity (no damping)."""
-    from plants.robots import REFLECTED_INERTIA
-
     r = shared_robot("biorob")
     dyn = AnalyticDynamics(r, 0.002)
     j = r.joint_names.index("wrist_roll")
     u = np.zeros(r.n_q)
     u[j] = 1.0
     m, radius = 0.15, 0.02  # scripts/make_models.py: the hand
-    by_hand = 1.0 / (0.5 * m * radius**2 + REFLECTED_INERTIA["biorob"])
+    by_hand = 1.0 / (0.5 * m * radius**2 + r.spec.armature)
     q, v = np.zeros(r.n_q), np.zeros(r.n_q)
     g = dyn.qddot(q, v, np.zeros(r.n_q))  # gravity alone (the roll feels none)
     acc = dyn.qddot(q, v, u) - g

@@ -329,7 +329,7 @@ def test_equal_to_crocoddyls_frame_residuals(plant, crocoddyl_baseline):
     import crocoddyl
 
     cm = crocoddyl_baseline
-    model = cm.pinocchio_model(plant)
+    model = cm.pinocchio_robot(shared_robot(plant))[0]
     robot = shared_robot(plant)
     state = crocoddyl.StateMultibody(model)
     fid = model.getFrameId("ee")

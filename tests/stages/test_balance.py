@@ -17,7 +17,7 @@ from pipeline.interface.cli import app
 from planning import objective as ob
 from planning.costs import TaskInequality
 from plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
-from plants.robots import NAO_SOLE_POLYGON, shared_robot
+from plants.robots import shared_robot
 from plants.taskmaps import CenterOfMass, JointPositions
 from stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
 from stages.plan.stage import PlanConfig, build_problem, objective_from_description
@@ -26,7 +26,7 @@ from tests.tolerance import REL, assert_close, close
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
 runner = CliRunner()
-SOLE = NAO_SOLE_POLYGON  # x in [-0.055, 0.105], y in [-0.044, 0.044] (m)
+SOLE = shared_robot("nao").support_polygon  # x in [-0.055, 0.105], y in [-0.044, 0.044] (m)
 
 
 def _sole_term(margin: float = 0.015) -> TaskInequality:
@@ -209,7 +209,7 @@ def test_cli_balance_single_lifts_the_right_sole(tmp_path):
     (["--plant", "nao", "--task", "balance", "--balance", "both"],
      r"unknown balance 'both': choose one of none, support, single"),
     (["--plant", "arm5", "--task", "reach", "--balance", "support"],
-     re.escape("--balance support needs --plant nao (a support polygon of the soles)")),
+     re.escape("--balance support needs a robot that stands on its soles (--plant nao): arm5 has none")),
     (["--plant", "nao", "--task", "balance", "--balance", "single", "--balance-margin", "0.05"],
      re.escape("balance-margin must be in [0, 0.04] m, got 0.05")),
 ])

@@ -64,7 +64,7 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
 
     # one view per quantity: GP error per joint (log10), distance planned and executed, times, points
     assert rows("/gp_error_log10", "episode") == 2 and rows("/gp_error_heldout_log10", "episode") == 2
-    assert rows("/distance/executed_angle_from_upright_rad", "episode") == rows("/distance/planned", "episode") == 2
+    assert rows("/distance/executed_theta_angle_error_rad", "episode") == rows("/distance/planned", "episode") == 2
     assert rows("/time/fit", "episode") == rows("/time/execute", "episode") == 2
     assert rows("/episode/torque", "episode") == 2
     # per episode the robot at its executed final pose and that episode's paths (not static: each episode its own)
