@@ -209,6 +209,19 @@ def _is_constant(Z: np.ndarray) -> bool:
     return bool(np.array_equal(Z, np.broadcast_to(Z[0], Z.shape)))
 
 
+def _block_form_dt(dynamics) -> float:
+    """The time step with which the sweep kernel may take the semi-implicit Euler block form of ``C_t``
+    (``A = J + e A_b``, ``B = e B_b``, checked step by step: the same matrices to rounding, fewer flops),
+    or 0: the dense products. The learned (GP) models keep the dense products and their rounding: the
+    thesis's learning figures flip with rounding-level changes of the planner."""
+    from plants.learned import LearnedDynamics
+
+    dt = getattr(dynamics, "dt", None)
+    if isinstance(dynamics, LearnedDynamics) or not isinstance(dt, (int, float)) or not math.isfinite(dt):
+        return 0.0
+    return float(dt) if dt > 0 else 0.0
+
+
 class _Sweeps:
     """Message state and per-step updates of one AICO run (arrays indexed by time).
 
@@ -634,10 +647,7 @@ class _Sweeps:
             st.dyn_mode = kernels.DYN_PY if lin is None else kernels.DYN_C
             if lin is not None:
                 st.lin_fn, st.lin_ctx = lin[0], lin[1]
-            # a semi-implicit Euler step's time step: the kernel checks each step's C for that block form
-            # and then takes the cheaper block products (the same matrices to rounding)
-            dt = getattr(self.p.dynamics, "dt", None)
-            st.dt = float(dt) if isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0 else 0.0
+            st.dt = _block_form_dt(self.p.dynamics)
         if self._ctask is None:
             self._ctask = kernels.compile_task_set(self.p) or False
         if self._ctask:

@@ -514,7 +514,7 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
     for (long i = 0; i < (long)(n + 1) * K; i++) sum += Ct[i];
     if (!isfinite(sum)) return ERR_LIN;
     const double *Hi = s->Hinv + t * s->Hinv_s, *ht = s->h + t * m;
-    double *Qb = s->Qbar + t * s->Qbar_s, *ae = s->a_eff + t * n, *Bt = w->Bt, *v = w->tmp;
+    double *Qb = s->Qbar + t * s->Qbar_s, *ae = s->a_eff + t * n, *Bt = w->Bt, *bh = w->tmp;
     s->blk[t] = 0;
     if (block_form(s, t)) {
         /* B = e B_b: B H^-1 B^T = e D e^T with D = B_b H^-1 B_b^T (h x h), B H^-1 h = e (B_b H^-1 h) */
@@ -535,22 +535,30 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
             }
             double u = 0.0;
             for (int k = 0; k < m; k++) u += BHi[(long)i * m + k] * ht[k];
-            v[i] = u;
+            bh[i] = u;
         }
-        for (int i = 0; i < h; i++) { ae[i] = a[i] + dt * v[i]; ae[h + i] = a[h + i] + v[i]; }
+        for (int i = 0; i < h; i++) { ae[i] = a[i] + dt * bh[i]; ae[h + i] = a[h + i] + bh[i]; }
         s->block_steps++;
-    } else {
-        gemm_nn(n, m, m, 1.0, B, m, Hi, m, BHi, m, 1);                   /* B H^-1 */
-        transpose(n, m, B, m, Bt, n);
-        upd(n, n, 0, m, UP_UPPER | UP_SET, BHi, m, 1, Bt, n, Qb, n, 1.0);  /* upper of B H^-1 B^T */
-        mirror_upper(n, Qb, n);
-        for (int i = 0; i < n; i++) {
-            double u = 0.0;
-            for (int k = 0; k < m; k++) u += BHi[(long)i * m + k] * ht[k];
-            ae[i] = a[i] + u;
-        }
+        for (int i = 0; i < n; i++) Qb[(long)i * n + i] += s->q;
+        return 0;
     }
-    for (int i = 0; i < n; i++) Qb[(long)i * n + i] += s->q;
+    /* other models: the loops (and the rounding) of the sweeps before the block form */
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < m; j++) {
+            double v = 0.0;
+            for (int k = 0; k < m; k++) v += B[i * m + k] * Hi[k * m + j];
+            BHi[i * m + j] = v;
+        }
+    for (int i = 0; i < n; i++) {
+        for (int j = 0; j < n; j++) {
+            double v = 0.0;
+            for (int k = 0; k < m; k++) v += BHi[i * m + k] * B[j * m + k];
+            Qb[(long)i * n + j] = v + (i == j ? s->q : 0.0);
+        }
+        double v = 0.0;
+        for (int k = 0; k < m; k++) v += BHi[i * m + k] * ht[k];
+        ae[i] = a[i] + v;
+    }
     return 0;
 }
 

@@ -352,6 +352,29 @@ def test_learned_dynamics_kernels_on_every_shape(N, nq, nu):
         model.controller_rollout(x, o, O[:, :, :-1], 0.01)
 
 
+def test_learned_dynamics_keep_the_dense_sweep_products(monkeypatch):
+    """A learned (GP) model is semi-implicit Euler too, but its sweeps keep the dense products and their
+    rounding (the thesis's learning figures flip with rounding-level changes): no step takes the block form,
+    and the compiled sweeps still equal the numpy sweeps."""
+    from tests.planning.test_kernels import _recording_block_steps
+
+    nq, T = 2, 12
+
+    def make():
+        dyn = LearnedDynamics(_gp(20, 3 * nq, nq, seed=7), n_q=nq, dt=0.02)
+        goal = np.concatenate([np.full(nq, 0.4), np.zeros(nq)])
+        return Problem(dyn, np.zeros(2 * nq), T, [StateTarget(goal, [T], weight=1e3, name="goal")], [ControlCost(1e-2)])
+
+    counts = _recording_block_steps(monkeypatch)
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.01))
+    _assert_same(out[True], out[False])
+    assert counts and not any(counts)
+    assert sum(h.repeats for h in out[True].history) > 0
+
+
 # -- the plants' generated dynamics and tree kernels ----------------------------------------------
 def _states(robot, K: int, seed: int):
     rng = np.random.default_rng(seed)
