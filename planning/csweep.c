@@ -175,8 +175,7 @@ static int forward(sweep_t *s, work_t *w, long t)
         }
         sandwich_sparse(s, X, Qb, S, W, w->Y0, u, ae, tmp);
     } else {
-        for (int i = 0; i < n; i++)
-            for (int j = 0; j < n; j++) W[(long)i * n + j] = Ct[(long)j * K + m + i];
+        transpose(n, n, Ct + m, K, W, n);                 /* W = A^T (4 x 4 blocks: C[t] row by row) */
         solve_rt(n, Pa, N1, W, n, n);
         for (int i = 0; i < n; i++) y[i] = Pa[(long)i * N1 + n];
         trsv_rt(n, Pa, N1, y);
