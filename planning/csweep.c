@@ -3,7 +3,10 @@
  *
  * Arrays are numpy's, row-major. The dense algebra (Cholesky factors, triangular solves, products)
  * is dense.c's register-tiled loops, no BLAS (planning/kernels.py compiles dense.c, then this file,
- * as one translation unit). The message layout is _Sweeps's:
+ * as one translation unit). Where a step's C has the block form of a semi-implicit Euler step
+ * (semi_implicit: A = J + e A_b, B = e B_b) the backward message and the dynamics relinearization
+ * take their products from the velocity rows (the same matrices to rounding, fewer flops); every
+ * other C takes the dense products. The message layout is _Sweeps's:
  * SA[t], VA[t], RA[t] = [P | p] (n x (n+1)), C[t] = [[B, A, -a], [0, 0, 1]] ((n+1) x (m+n+1)),
  * Z[t] = [-O_t | o_t] (m x (n+1)).
  *
@@ -56,7 +59,8 @@ typedef struct {
 /* Accepted shapes (planning/aico.py: _Sweeps._check_kernel_shapes checks them before every call and
  * raises ValueError): T, n, m >= 1; SA, VA, RA (T+1, n, n+1); C (T, n+1, m+n+1) or one shared (stride
  * 0); Qbar (T, n, n) or shared; H, Hinv (T, m, m) or shared; h (T, m); a_eff (T, n); X, Xprev, b
- * (T+1, n); U (T, m); Z (T, m, n+1); active (T+1); w and iw of the sizes below. */
+ * (T+1, n); U (T, m); Z (T, m, n+1); active (T+1); blk (T), zeros at the start of a sweep; dt >= 0;
+ * w and iw of the sizes below. */
 
 /* work doubles needed for sizes n, m: exactly the sum of layout()'s blocks (no slack, so that the
  * sanitizer build sees any access past them) */
