@@ -5,22 +5,31 @@ and a dense ``dgemm`` measured in the same run.
 
 :func:`sweep_flops` counts the floating-point operations (a multiply and an add are two) of the
 compiled sweep (``planning/csweep.c`` on ``planning/dense.c``) per time step for a state of ``N``
-and controls of ``m`` entries, dense ``C_t`` (a model-file robot's time-varying linearization):
+and controls of ``m`` entries, dense ``C_t`` (a model-file robot's time-varying linearization) of
+the semi-implicit Euler step's block form (``A = J + e A_b``, ``B = e B_b``: ``e = [dt I; I]``,
+``A_b``, ``B_b`` the velocity rows, ``h = N/2`` joints; the route of every model-file robot):
 
 - forward message: ``P = S^-1 + R`` factored (``N^3/3``), ``W = R^-T A^T`` (``N^3``), ``S = W^T W +
   Qbar`` (``N^3``), ``S`` factored (``N^3/3``) and inverted (``N^3``): ``11/3 N^3``;
-- backward message: ``V*`` (``(I + q P') V = [P' | p']`` by Cholesky: ``N^3/3 + 2 N^2 (N + 1)``),
-  ``G = V* C`` (``2 N (N + 1) K``, ``K = m + N + 1``), ``B^T G`` (``2 m N K``), ``A^T G``
-  (``2 N^2 (N + 1)``), the ``m x m`` factor (``m^3/3``) and its two solves (``2 m^2 (N + 1)``),
-  ``Kmat^T Kmat`` (``m N^2``);
+- backward message: ``V*`` (``(I + q P') V = [P' | p']`` by Cholesky: ``N^3/3 + 2 N^2 (N + 1)``; the
+  truncated series taken where ``q ||P'||`` is small costs about as much), then the products in the
+  block form from ``E1 = e^T V* e``: ``E1 B_b`` (``2 h^2 m``), ``Z1 = E1 A_b`` (``2 h^2 N``), the
+  upper triangle of ``A_b^T Z1`` (``h N^2``), ``Ve[:h] A_b`` (``2 h^2 N``), ``B_b^T Y`` (``2 m h K``,
+  ``K = m + N + 1``), ``V* a`` (``2 N^2``); the ``m x m`` factor (``m^3/3``), its two solves
+  (``2 m^2 (N + 1)``) and the upper triangle of ``Kmat^T Kmat`` (``m N^2``);
 - two beliefs (each a factor ``N^3/3`` and two triangular solves ``2 N^2``);
-- the dynamics' relinearization: ``B H^-1`` (``2 N m^2``) and ``B H^-1 B^T`` (``2 N^2 m``).
+- the dynamics' relinearization: ``B_b H^-1`` (``2 h m^2``) and the upper triangle of
+  ``B_b H^-1 B_b^T`` (``h^2 m``).
 
-Lower-order terms (vector updates, copies) are left out; the task messages' and the dynamics'
-own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T`` such steps, and
-for each repeat of a step within the sweep (a relinearization where the belief moved farther than
-theta) its dynamics relinearization and one belief (a repeat in the backward sweep also redoes the
-backward message from the kept ``V*``: not counted, so the count is a floor).
+``block=False`` counts the dense route of other models instead: ``G = V* C`` (``2 N (N + 1) K``),
+``B^T G`` (``2 m N K``), ``A^T G`` (``2 N^2 (N + 1)``) in the backward message, ``B H^-1`` (``2 N m^2``)
+and the upper triangle of ``B H^-1 B^T`` (``N^2 m``) in the relinearization.
+
+Lower-order terms (vector updates, copies, the block form's check) are left out; the task messages'
+and the dynamics' own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T``
+such steps, and for each repeat of a step within the sweep (a relinearization where the belief moved
+farther than theta) its dynamics relinearization and one belief (a repeat in the backward sweep also
+redoes the backward message's products from the kept ``V*``: not counted, so the count is a floor).
 
 :func:`dgemm_rate` times numpy's ``matmul`` (OpenBLAS) on square matrices with one BLAS thread: this
 machine's single-core dense rate, the physical limit the sweeps are compared with. The achieved
@@ -36,16 +45,23 @@ import time
 import numpy as np
 
 
-def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0) -> dict:
+def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0, block: bool = True) -> dict:
     """Flops of one R-AICO sweep: per time step, per iteration (``T`` steps and ``repeats`` repeats of
-    a step) and by part."""
-    K = m + N + 1
+    a step) and by part; ``block``: the semi-implicit Euler block form (else the dense products)."""
+    K, h = m + N + 1, N / 2
+    vstar = N ** 3 / 3 + 2 * N ** 2 * (N + 1)
+    control = m ** 3 / 3 + 2 * m ** 2 * (N + 1) + m * N ** 2
+    if block:
+        products = 2 * h * h * m + 2 * h * h * N + h * N ** 2 + 2 * h * h * N + 2 * m * h * K + 2 * N ** 2
+        relin = 2 * h * m * m + h * h * m
+    else:
+        products = 2 * N * (N + 1) * K + 2 * m * N * K + 2 * N ** 2 * (N + 1)
+        relin = 2 * N * m * m + N * N * m
     parts = {
         "forward": N ** 3 / 3 + N ** 3 + N ** 3 + N ** 3 / 3 + N ** 3,
-        "backward": (N ** 3 / 3 + 2 * N ** 2 * (N + 1) + 2 * N * (N + 1) * K + 2 * m * N * K
-                     + 2 * N ** 2 * (N + 1) + m ** 3 / 3 + 2 * m ** 2 * (N + 1) + m * N ** 2),
+        "backward": vstar + products + control,
         "beliefs": 2 * (N ** 3 / 3 + 2 * N ** 2),
-        "dynamics relinearization": 2 * N * m * m + 2 * N * N * m,
+        "dynamics relinearization": relin,
     }
     per_step = float(sum(parts.values()))
     per_repeat = parts["dynamics relinearization"] + parts["beliefs"] / 2

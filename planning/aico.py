@@ -209,6 +209,19 @@ def _is_constant(Z: np.ndarray) -> bool:
     return bool(np.array_equal(Z, np.broadcast_to(Z[0], Z.shape)))
 
 
+def _block_form_dt(dynamics) -> float:
+    """The time step with which the sweep kernel may take the semi-implicit Euler block form of ``C_t``
+    (``A = J + e A_b``, ``B = e B_b``, checked step by step: the same matrices to rounding, fewer flops),
+    or 0: the dense products. The learned (GP) models keep the dense products and their rounding: the
+    thesis's learning figures flip with rounding-level changes of the planner."""
+    from plants.learned import LearnedDynamics
+
+    dt = getattr(dynamics, "dt", None)
+    if isinstance(dynamics, LearnedDynamics) or not isinstance(dt, (int, float)) or not math.isfinite(dt):
+        return 0.0
+    return float(dt) if dt > 0 else 0.0
+
+
 class _Sweeps:
     """Message state and per-step updates of one AICO run (arrays indexed by time).
 
@@ -276,6 +289,7 @@ class _Sweeps:
         self.b = np.full((T + 1, n), np.nan)
         self.Z = np.zeros((T, m, n + 1))     # [-O_t | o_t] per step
         self.repeats = 0
+        self.block_steps = 0     # compiled steps that took the semi-implicit Euler block form
         self._active_flags = np.array([bool(a) for a in self.active], dtype=np.uint8)
         self._kstate: tuple | None = None   # the kernel's state and the arrays it points to, on first use
         self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
@@ -633,6 +647,7 @@ class _Sweeps:
             st.dyn_mode = kernels.DYN_PY if lin is None else kernels.DYN_C
             if lin is not None:
                 st.lin_fn, st.lin_ctx = lin[0], lin[1]
+            st.dt = _block_form_dt(self.p.dynamics)
         if self._ctask is None:
             self._ctask = kernels.compile_task_set(self.p) or False
         if self._ctask:
@@ -641,6 +656,9 @@ class _Sweeps:
         Xprev = np.ascontiguousarray(self.Xprev, dtype=float)
         keep.append(Xprev)
         st.Xprev = Xprev.ctypes.data
+        blk = np.zeros(T, dtype=np.uint8)      # the kernel's per-step note of C[t]'s block form
+        st.blk = blk.ctypes.data
+        keep.append(blk)
         work = np.empty(lib.sweep_work_size(n, m))
         iwork = np.empty(lib.sweep_iwork_size(n, m), dtype=np.intc)
         st.w, st.iw, st.sp_state = work.ctypes.data, iwork.ctypes.data, 0
@@ -671,7 +689,7 @@ class _Sweeps:
         with the point of step ``t`` already moved; then it resumes where it stopped."""
         st = self._kernel_state(lib)
         st.phase, st.t = (kernels.PH_FWD, 1) if self.relocate else (kernels.PH_BWD, self.T - 1)
-        st.sub = st.repeats = 0
+        st.sub = st.repeats = st.block_steps = 0
         run, ref = lib.sweep_run, ctypes.byref(st)
         while True:
             rc = run(ref)
@@ -684,6 +702,7 @@ class _Sweeps:
                 self._relinearize_task(t)
         self._kernel_check(st, rc)
         self.repeats += st.repeats
+        self.block_steps += st.block_steps
 
 
 def aico(problem: Problem, options: AICOOptions | None = None, *,

@@ -59,6 +59,7 @@ class SweepState(ctypes.Structure):
         ("task_fn", _V), ("task_ctx", _V), ("alpha", _D), ("Xprev", _V),
         *((k, _L) for k in ("phase", "t", "r", "sub", "dyn_flag", "task_flag", "repeats",
                             "err_info", "err_code")),
+        ("dt", _D), ("block_steps", _L), ("blk", _V),
     ]
 
 

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from planning import kernels
 from planning.aico import AICOOptions, _Sweeps, aico
-from planning.costs import ViaPoint
+from planning.costs import ControlCost, StateTarget, ViaPoint
 from planning.ilqg import ILQGOptions, _backward, ilqg
 from planning.problem import Problem, controller_rollout
 from plants.codegen import c_backend, rbd
@@ -99,6 +99,63 @@ def test_compiled_sweeps_equal_numpy_sweeps_on_every_shape(n, m, T, monkeypatch)
         out[compiled] = aico(make_lq(seed=3, running=1.0, n=n, m=m, T=T),
                              AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.05))
     _assert_same(out[True], out[False])
+
+
+class _SemiImplicitToy:
+    """``qddot = -k sin(S q) - c v + G u`` (``n_q`` joints, ``n_u`` controls, ``G`` random), semi-implicit
+    Euler as ``plants.dynamics``: a time-varying ``C`` of the block form the sweep kernel exploits."""
+
+    def __init__(self, n_q: int, n_u: int, dt: float = 0.02, seed: int = 0):
+        rng = np.random.default_rng(seed)
+        self.n_q, self.n_x, self.n_u, self.dt = n_q, 2 * n_q, n_u, dt
+        self.S = np.eye(n_q) + 0.5 * np.eye(n_q, k=-1)
+        self.G = rng.standard_normal((n_q, n_u)) / np.sqrt(n_u)
+        self.k, self.c = 3.0, 0.5
+
+    def step(self, x, u):
+        n, dt = self.n_q, self.dt
+        v1 = x[n:] + dt * (-self.k * np.sin(self.S @ x[:n]) - self.c * x[n:] + self.G @ u)
+        return np.concatenate([x[:n] + dt * v1, v1])
+
+    def linearize(self, x, u):
+        n, dt = self.n_q, self.dt
+        Fq = -self.k * np.cos(self.S @ x[:n])[:, None] * self.S
+        dv = np.hstack([dt * Fq, (1.0 - dt * self.c) * np.eye(n)])
+        A = np.vstack([np.hstack([np.eye(n), np.zeros((n, n))]) + dt * dv, dv])
+        B = np.vstack([dt * (dt * self.G), dt * self.G])
+        return A, self.step(x, u) - A @ x - B @ u, B
+
+    def linearize_trajectory(self, X, U):
+        parts = [self.linearize(x, u) for x, u in zip(X, U)]
+        return tuple(np.stack([p[i] for p in parts]) for i in range(3))
+
+
+# (joints, controls, T): one joint, one control, more controls than joints, the 4-row tiles' edges, 32 joints
+BLOCK_SHAPES = [(1, 1, 1), (1, 3, 2), (2, 1, 5), (3, 7, 4), (5, 2, 9), (4, 4, 20), (9, 5, 6), (13, 13, 3),
+                (32, 32, 3)]
+
+
+@pytest.mark.parametrize("nq,nu,T", BLOCK_SHAPES, ids=[f"nq{a}-nu{b}-T{c}" for a, b, c in BLOCK_SHAPES])
+def test_block_form_sweeps_on_every_shape(nq, nu, T, monkeypatch):
+    """The semi-implicit Euler block form of the sweep kernel against _Sweeps's numpy code (dense A, B)."""
+    from tests.planning.test_kernels import _recording_block_steps
+
+    def make():
+        dyn = _SemiImplicitToy(nq, nu, seed=nq * 10 + nu)
+        x0 = np.concatenate([np.linspace(0.2, 0.5, nq), np.zeros(nq)])
+        goal = np.concatenate([np.full(nq, -0.3), np.zeros(nq)])
+        return Problem(dyn, x0, T, [StateTarget(goal, [T], weight=1e3, name="goal"),
+                                    StateTarget(np.zeros(2 * nq), None, weight=1.0, name="run")],
+                       [ControlCost(1e-2)])
+
+    counts = _recording_block_steps(monkeypatch)
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.01))
+    _assert_same(out[True], out[False])
+    assert counts and all(c > 0 for c in counts)
+    assert sum(h.repeats for h in out[True].history) > 0    # the backward messages redone at a moved point
 
 
 @pytest.mark.parametrize("n,m,T", [(1, 1, 1), (1, 1, 2), (2, 5, 100), (9, 3, 7), (3, 9, 1000)])
@@ -293,6 +350,29 @@ def test_learned_dynamics_kernels_on_every_shape(N, nq, nu):
         assert _close(Xc, Xp) and _close(Uc, Up)
     with pytest.raises(ValueError, match="rollout expects"):
         model.controller_rollout(x, o, O[:, :, :-1], 0.01)
+
+
+def test_learned_dynamics_keep_the_dense_sweep_products(monkeypatch):
+    """A learned (GP) model is semi-implicit Euler too, but its sweeps keep the dense products and their
+    rounding (the thesis's learning figures flip with rounding-level changes): no step takes the block form,
+    and the compiled sweeps still equal the numpy sweeps."""
+    from tests.planning.test_kernels import _recording_block_steps
+
+    nq, T = 2, 12
+
+    def make():
+        dyn = LearnedDynamics(_gp(20, 3 * nq, nq, seed=7), n_q=nq, dt=0.02)
+        goal = np.concatenate([np.full(nq, 0.4), np.zeros(nq)])
+        return Problem(dyn, np.zeros(2 * nq), T, [StateTarget(goal, [T], weight=1e3, name="goal")], [ControlCost(1e-2)])
+
+    counts = _recording_block_steps(monkeypatch)
+    out = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.01))
+    _assert_same(out[True], out[False])
+    assert counts and not any(counts)
+    assert sum(h.repeats for h in out[True].history) > 0
 
 
 # -- the plants' generated dynamics and tree kernels ----------------------------------------------

@@ -181,6 +181,103 @@ def test_compiled_task_messages_equal_the_terms(plant, task, dynamics):
         np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * scale)
 
 
+def _recording_block_steps(monkeypatch) -> list[int]:
+    """After each compiled sweep, how many of its backward messages and dynamics relinearizations took
+    the semi-implicit Euler block form (``_Sweeps.block_steps``)."""
+    counts: list[int] = []
+    real = _Sweeps._sweep_compiled
+
+    def run(self, lib):
+        before = self.block_steps
+        real(self, lib)
+        counts.append(self.block_steps - before)
+
+    monkeypatch.setattr(_Sweeps, "_sweep_compiled", run)
+    return counts
+
+
+def _dense_route(monkeypatch) -> None:
+    """The compiled sweeps without the block form (no time step given to the kernel): the dense products."""
+    real = _Sweeps._kernel_state
+
+    def state(self, lib):
+        st = real(self, lib)
+        st.dt = 0.0
+        return st
+
+    monkeypatch.setattr(_Sweeps, "_kernel_state", state)
+
+
+_MODEL_FILES = ("problems/examples/ur5_reach.toml", "problems/examples/xarm7_reach.toml",
+                "problems/crocoddyl/kinova_reach.toml")
+
+
+def _file_problem(path: str):
+    from plants.model_file import example_robot_data
+
+    if example_robot_data() is None:
+        pytest.skip("example-robot-data is not installed (it comes with the extra raico[baseline])")
+    return build_problem(PlanConfig(problem=str(REPO / path), bounds="none").normalized())[2]
+
+
+@pytest.mark.parametrize("case", [
+    ("arm5", "reach-roll", "analytic"), ("pendulum", "swing-up", "analytic"), ("biorob", "reach", "analytic"),
+    *_MODEL_FILES], ids=["arm5", "pendulum", "biorob", "ur5", "xarm7", "kinova"])
+def test_block_form_sweeps_equal_numpy_sweeps(case, monkeypatch):
+    """The semi-implicit Euler step's block form (A = J + e A_b, B = e B_b) is taken on the thesis's analytic
+    plans and on model-file robots, and gives the numpy sweeps' numbers (dense A, B) to rounding; the
+    dense compiled products give them too."""
+    make = (lambda: _plan_problem(*case)) if isinstance(case, tuple) else (lambda: _file_problem(case))
+    opts = AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0)
+    counts = _recording_block_steps(monkeypatch)
+    a, b = _both(make, opts, monkeypatch)
+    _assert_same(a, b)
+    assert counts and all(c > 0 for c in counts)
+    _dense_route(monkeypatch)
+    counts.clear()
+    monkeypatch.setattr(_Sweeps, "compiled", True)
+    d = aico(make(), opts)
+    _assert_same(d, b)
+    assert counts and not any(counts)
+
+
+class _NotQuiteSemiImplicit:
+    """The test pendulums with the position rows of ``A`` off the block form by a relative 1e-6: the
+    kernel must take the dense products (and still give the numpy sweeps' numbers)."""
+
+    def __init__(self, inner):
+        self.inner, self.n_q, self.n_x, self.n_u, self.dt = inner, inner.n_q, inner.n_x, inner.n_u, inner.dt
+
+    def step(self, x, u):
+        return self.inner.step(x, u)
+
+    def linearize(self, x, u):
+        A, a, B = self.inner.linearize(x, u)
+        A[: self.n_q] *= 1.0 + 1e-6
+        return A, a, B
+
+    def linearize_trajectory(self, X, U):
+        parts = [self.linearize(x, u) for x, u in zip(X, U)]
+        return tuple(np.stack([p[i] for p in parts]) for i in range(3))
+
+
+def test_block_form_only_where_the_matrices_have_it(monkeypatch):
+    import dataclasses
+
+    def make():
+        p = make_problem()
+        return dataclasses.replace(p, dynamics=_NotQuiteSemiImplicit(p.dynamics))
+
+    counts = _recording_block_steps(monkeypatch)
+    a, b = _both(make, AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0), monkeypatch)
+    _assert_same(a, b)
+    assert counts and not any(counts)
+    counts.clear()
+    monkeypatch.setattr(_Sweeps, "compiled", True)
+    aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))   # the same model, exact
+    assert counts and all(c > 0 for c in counts)
+
+
 def test_fallback_without_the_kernel(monkeypatch):
     """No compiler (or RAICO_NO_C): the numpy sweeps run (and give the compiled numbers)."""
     a = aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
