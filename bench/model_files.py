@@ -143,7 +143,7 @@ def chain_problem(n: int, folder: Path) -> Path:
         type = "state"
         target = "start"
         times = "all"
-        weight = 1.0
+        weight = 1e-3
         [costs.control]
         type = "control"
         target = "gravity"
