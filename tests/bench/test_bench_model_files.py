@@ -114,3 +114,19 @@ def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(
     assert np.allclose(X, problem.x0, rtol=1e-9, atol=1e-9)   # held: at rest where it starts
     opts = model_files.chain_raico_options(f)
     assert opts["schedule"] == "robust" and opts["iterations"] == model_files.ITERATIONS and opts["tol_rel"] == 0.0
+
+
+def test_both_solvers_lower_the_cost_of_the_8_joint_chain(tmp_path):
+    """The timed runs are of a problem both solvers solve: their 4 iterations end below the start's cost (the
+    upright chain this bench wrote before ended FDDP's at 1e201 here)."""
+    from planning.solvers import SOLVERS
+
+    f = model_files.chain_problem(8, tmp_path)
+    solvers = [("raico", model_files.chain_raico_options(f))]
+    if "fddp" in SOLVERS:
+        solvers.append(("fddp", {"iterations": model_files.ITERATIONS}))
+    for solver, options in solvers:
+        d, why = model_files._per_iteration_detail(f, solver, options, reps=1)
+        assert d is not None, why
+        assert d["ended"] in ("converged", "max-iterations"), (solver, d)
+        assert d["final_cost"] < 0.01 * d["start_cost"], (solver, d)
