@@ -260,7 +260,7 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
             continue
         row = {"benchmark": f"{label}: one R-AICO iteration", "median_s": a["seconds"], "samples_s": [a["seconds"]],
                "target_s": None, "ratio_to_target": None, "repeats_per_iteration": a["repeats"], "status": a["status"],
-               **_flops(a, dgemm)}
+               "ended": a["ended"], **_flops(a, dgemm)}
         if f is not None:
             row.update(fddp_s=f["seconds"], ratio_to_fddp=a["seconds"] / f["seconds"])
         rows.append(row)
