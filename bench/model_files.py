@@ -182,8 +182,10 @@ def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3
 
 
 def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:
-    """Median seconds per iteration over ``reps`` solves (without hard bounds, as FDDP: like for like), with the
-    repeats of a step per iteration (R-AICO's relinearizations within the sweeps; 0 for the others), how the
+    """Median seconds per iteration over ``reps`` solves (without hard bounds, as FDDP: like for like; the solve's
+    time over its iterations, its setup included: crocoddyl's model built from the problem, R-AICO's first
+    rollout and last beliefs), the median of the median run's iterations' own wall times (``iteration_s``,
+    as the solvers record them: no setup), the repeats of a step per iteration (R-AICO's relinearizations within the sweeps; 0 for the others), how the
     median run ended (``status``; ``ended``: :func:`_ended`), its start's and its last iteration's cost and
     the problem's sizes, and ""; or (None, why the solver could not take the problem)."""
     from planning.solvers import solve
@@ -204,8 +206,10 @@ def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: 
     res = runs[i]
     status = str(getattr(res.status, "value", res.status))
     final = float(res.history[-1].cost) if res.history else float("inf")
-    return {"seconds": times[i], "repeats": repeats[i], "n_x": problem.n_x, "n_u": problem.n_u, "T": problem.T,
-            "status": status, "start_cost": float(res.initial_cost), "final_cost": final,
+    own = [h.time_s for h in res.history]
+    return {"seconds": times[i], "iteration_s": float(np.median(own)) if own else None, "repeats": repeats[i],
+            "n_x": problem.n_x, "n_u": problem.n_u, "T": problem.T, "status": status,
+            "start_cost": float(res.initial_cost), "final_cost": final,
             "ended": _ended(status, float(res.initial_cost), final)}, ""
 
 
@@ -310,7 +314,8 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
             solvers.insert(0, ("crocoddyl FDDP", "fddp"))   # first: its time goes beside R-AICO's
         fits = []
         for label, solver in solvers:
-            sizes, times, skipped, ended, rows = [], [], {}, {}, per_solver.setdefault(label, [])
+            sizes, times, own, skipped, ended = [], [], [], {}, {}
+            rows = per_solver.setdefault(label, [])
             for n, f in files.items():
                 options = chain_raico_options(f) if solver == "raico" else {"iterations": ITERATIONS}
                 d, why = _per_iteration_detail(f, solver, options)
@@ -324,6 +329,7 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
                 else:
                     sizes.append(n)
                     times.append(t)
+                    own.append(d["iteration_s"])
                     ended[n] = d["ended"]
                 flops = _flops(d, dgemm) if solver == "raico" else {}
                 beside = {}
@@ -334,12 +340,15 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
                 rows.append({"benchmark": f"chain of {n} joints, analytic reach T={CHAIN_T}: one {label} iteration",
                              "median_s": t, "samples_s": [t], "target_s": None, "ratio_to_target": None,
                              "status": d["status"], "ended": d["ended"], "start_cost": d["start_cost"],
-                             "final_cost": d["final_cost"], "repeats_per_iteration": d["repeats"], **flops, **beside})
-                print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration  ({d['ended']}: cost {d['start_cost']:.4g}"
+                             "final_cost": d["final_cost"], "repeats_per_iteration": d["repeats"],
+                             "iteration_s": d["iteration_s"], **flops, **beside})
+                own_ms = "-" if d["iteration_s"] is None else f"{d['iteration_s'] * 1e3:.2f}"
+                print(f"  {label:15s} n={n:3d}  {t * 1e3:8.2f} ms/iteration (the iterations' own: {own_ms} ms)  "
+                      f"({d['ended']}: cost {d['start_cost']:.4g}"
                       f" -> {d['final_cost']:.4g}, {d['repeats']:.0f} repeats/iteration)" + _flop_note(flops),
                       flush=True)
             if len(sizes) >= 3 or skipped:
-                fits.append({**_fit(label, sizes, times, skipped), "joint_ended": ended})
+                fits.append({**_fit(label, sizes, times, skipped), "joint_ended": ended, "joint_iteration_seconds": own})
     rows = [r for label, _ in solvers[::-1] for r in per_solver.get(label, [])]   # R-AICO's first, as before
     return rows + fits[::-1]
 

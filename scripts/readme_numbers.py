@@ -164,15 +164,19 @@ def bench_block(results: Path) -> str:
                  "URDF written by the bench, hanging from its base, a reach of its tip, T = 100, both solvers from the "
                  "start held, R-AICO with the robust schedule `raico plan` gives a problem file; exponent: slope of "
                  "log time against log n, over every size and over the larger chains; a run that diverged or did not "
-                 "lower the cost is left out and named below):",
-                 "", "| solver | joints | time per iteration | exponent | exponent, larger chains |",
-                 "|---|---|---|---|---|"]
+                 "lower the cost is left out and named below; time per iteration: the solve's time over its "
+                 "iterations, its setup included, as every row here; beside it the median of the iterations' own "
+                 "times as the solvers record them):",
+                 "", "| solver | joints | time per iteration | the iterations' own | exponent | exponent, larger chains |",
+                 "|---|---|---|---|---|---|"]
         for r in joints:
             e, e_up = r["joint_exponent"], r.get("joint_exponent_upper")
             upper = "-" if e_up is None else f"{e_up:.2f} (n >= {r['joint_exponent_from']})"
+            own = r.get("joint_iteration_seconds") or []
             rows.append(f"| {r['benchmark'].removesuffix(' per iteration against joints')} | "
                         f"{', '.join(str(n) for n in r['joint_sizes'])} | "
                         f"{', '.join(_seconds(t) for t in r['joint_seconds'])} | "
+                        f"{', '.join('-' if t is None else _seconds(t) for t in own) or '-'} | "
                         f"{'-' if e is None else f'{e:.2f}'} | {upper} |")
         rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} left out of the exponents: "
                  + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
