@@ -90,6 +90,13 @@ def _seconds(x: float) -> str:
     return f"{x * 1e3:.1f} ms" if x < 1 else f"{x:.2f} s"
 
 
+def _ended(r: dict) -> str:
+    """`` (diverged)`` or `` (no descent)`` after a row whose timed run found nothing (a run's time, not a
+    plan's), else ""."""
+    ended = r.get("ended", r.get("status"))
+    return f" ({ended})" if ended in ("diverged", "no descent") else ""
+
+
 def bench_block(results: Path) -> str:
     doc = json.loads(results.read_text())
     rows = ["| benchmark | median | target | median / target |", "|---|---|---|---|"]
@@ -97,7 +104,7 @@ def bench_block(results: Path) -> str:
         if "median_s" not in r:
             continue
         med, tgt = r["median_s"], r.get("target_s")
-        rows.append(f"| {r['benchmark']} | {_seconds(med)} | {_seconds(tgt) if tgt else ''} | "
+        rows.append(f"| {r['benchmark']}{_ended(r)} | {_seconds(med)} | {_seconds(tgt) if tgt else ''} | "
                     f"{f'{med / tgt:.2f}' if tgt else ''} |")
     m = doc.get("machine", {})
     load = (f"{m['load_average_1min_start']:.2f} at the start, {m['load_average_1min_end']:.2f} at the end"
@@ -154,16 +161,25 @@ def bench_block(results: Path) -> str:
     joints = [r for r in doc.get("results", []) if "joint_exponent" in r]
     if joints:
         rows += ["", "Per-iteration time against the number of joints (`bench/model_files.py`: a serial chain from a "
-                 "URDF written by the bench, analytic reach, T = 100; exponent: slope of log time against log n):",
-                 "", "| solver | joints | time per iteration | exponent |", "|---|---|---|---|"]
+                 "URDF written by the bench, hanging from its base, a reach of its tip, T = 100, both solvers from the "
+                 "start held, R-AICO with the robust schedule `raico plan` gives a problem file; exponent: slope of "
+                 "log time against log n, over every size and over the larger chains; a run that diverged or did not "
+                 "lower the cost is left out and named below; time per iteration: the solve's time over its "
+                 "iterations, its setup included, as every row here; beside it the median of the iterations' own "
+                 "times as the solvers record them):",
+                 "", "| solver | joints | time per iteration | the iterations' own | exponent | exponent, larger chains |",
+                 "|---|---|---|---|---|---|"]
         for r in joints:
-            e = r["joint_exponent"]
+            e, e_up = r["joint_exponent"], r.get("joint_exponent_upper")
+            upper = "-" if e_up is None else f"{e_up:.2f} (n >= {r['joint_exponent_from']})"
+            own = r.get("joint_iteration_seconds") or []
             rows.append(f"| {r['benchmark'].removesuffix(' per iteration against joints')} | "
                         f"{', '.join(str(n) for n in r['joint_sizes'])} | "
                         f"{', '.join(_seconds(t) for t in r['joint_seconds'])} | "
-                        f"{'-' if e is None else f'{e:.2f}'} |")
-        rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} not timed (left out of the "
-                 f"exponent): " + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
+                        f"{', '.join('-' if t is None else _seconds(t) for t in own) or '-'} | "
+                        f"{'-' if e is None else f'{e:.2f}'} | {upper} |")
+        rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} left out of the exponents: "
+                 + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
                  for r in joints if r.get("joint_skipped")]
     flops = [r for r in doc.get("results", []) if "ratio_to_dgemm" in r]
     if flops:
@@ -174,8 +190,7 @@ def bench_block(results: Path) -> str:
         for r in flops:
             fddp = _seconds(r["fddp_s"]) if "fddp_s" in r else "-"
             ratio = f"{r['ratio_to_fddp']:.2f}" if "ratio_to_fddp" in r else "-"
-            ended = f" ({r['status']})" if r.get("status") == "diverged" else ""   # a run's time, not a plan's
-            rows.append(f"| {r['benchmark'].removesuffix(': one R-AICO iteration')}{ended} | {_seconds(r['median_s'])} | "
+            rows.append(f"| {r['benchmark'].removesuffix(': one R-AICO iteration')}{_ended(r)} | {_seconds(r['median_s'])} | "
                         f"{fddp} | {ratio} | {r['flops_per_iteration'] / 1e6:.1f} M | {r['gflops']:.2f} | "
                         f"{100 * r['ratio_to_dgemm']:.1f} % |")
     return head + "\n\n" + "\n".join(rows)
