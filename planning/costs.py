@@ -712,7 +712,7 @@ class ControlGravity(JointTerm):
         idx = np.arange(self.c.size)
         luu[:, idx, idx] += 2.0 * self.weight * self.c
         if self._X is not None and len(U) == len(self._X):
-            lu += 2.0 * self.weight * self.c * (U - self._g(self._X)[0])
+            lu += 2.0 * self.weight * self.c * (U - self._g_only(self._X))
 
 
 
