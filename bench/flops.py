@@ -87,6 +87,35 @@ def dgemm_rate(size: int = 384, reps: int = 5) -> float:
     return 2.0 * size ** 3 / statistics.median(times) / 1e9
 
 
+def backward_sweep_rate(problem, reps: int = 5) -> dict:
+    """The message arithmetic on its own: one compiled backward sweep of ``problem`` at a fixed linearization
+    (the start held, no relinearization: ``theta = inf``), timed ``reps`` times after a warm-up. Returns its
+    ``seconds`` (median, one thread), its ``flops`` (``T`` backward messages by :func:`sweep_flops`) and
+    ``gflops``; the achieved rate of the sweeps themselves, where :func:`flop_fields` divides by the whole
+    iteration (dynamics derivatives, rollouts and costs included)."""
+    import dataclasses
+    import math
+
+    from planning import aico
+
+    opts = dataclasses.replace(aico.AICOOptions(), theta=math.inf)
+    T, m = problem.T, problem.n_u
+    X, U = np.tile(problem.x0, (T + 1, 1)), np.zeros((T, m))
+    block = aico._block_form_dt(problem.dynamics) > 0  # the kernel takes the block form where C_t has it
+    with aico.single_threaded_blas():
+        sw = aico._Sweeps(problem, opts)
+        sw.linearize_all(X, U, X, 1.0)
+        sw.sweep()
+        times = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            sw.sweep()
+            times.append(time.perf_counter() - t0)
+    seconds = statistics.median(times)
+    flops = sweep_flops(len(problem.x0), m, T, block=block)["parts"]["backward"] * T
+    return {"seconds": seconds, "flops": flops, "gflops": flops / seconds / 1e9, "block": block}
+
+
 def flop_fields(N: int, m: int, T: int, seconds_per_iteration: float, dgemm_gflops: float,
                 repeats: float = 0.0) -> dict:
     """The flop columns of an R-AICO row (``repeats``: per iteration): flops per step and per

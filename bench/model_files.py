@@ -228,28 +228,39 @@ def _exponent(sizes, times) -> float:
     return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
 
 
-RAICO_OPTIONS = {"iterations": ITERATIONS, "alpha": 1.0, "tol_rel": 0.0}
 ROBOTS = (("Kinova reach (crocoddyl)", "problems/crocoddyl/kinova_reach.toml"),
           ("UR5 reach", "problems/examples/ur5_reach.toml"), ("xArm7 reach", "problems/examples/xarm7_reach.toml"))
 
 
-def _flops(detail: dict, dgemm: float | None) -> dict:
-    """The sweep's flop columns of an R-AICO measurement (bench.flops), none without a dgemm rate."""
+def _flops(detail: dict, dgemm: float | None, problem_file: Path | None = None) -> dict:
+    """The sweep's flop columns of an R-AICO measurement (bench.flops), none without a dgemm rate; with
+    ``problem_file`` also the backward sweep timed alone (``sweep_alone_*``: the message arithmetic's own rate)."""
     if dgemm is None:
         return {}
-    from bench.flops import flop_fields
+    from bench.flops import backward_sweep_rate, flop_fields
 
-    return flop_fields(detail["n_x"], detail["n_u"], detail["T"], detail["seconds"], dgemm, detail["repeats"])
+    out = flop_fields(detail["n_x"], detail["n_u"], detail["T"], detail["seconds"], dgemm, detail["repeats"])
+    if problem_file is not None:
+        from stages.plan.stage import PlanConfig, build_problem
+
+        _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
+        alone = backward_sweep_rate(problem)
+        out.update(sweep_alone_s=alone["seconds"], sweep_alone_gflops=alone["gflops"],
+                   sweep_alone_ratio_to_dgemm=alone["gflops"] / dgemm)
+    return out
 
 
 def _flop_note(f: dict) -> str:
+    alone = (f"; the backward sweep alone {f['sweep_alone_gflops']:6.2f} GFLOP/s = "
+             f"{100 * f['sweep_alone_ratio_to_dgemm']:5.1f} %" if "sweep_alone_gflops" in f else "")
     return (f"  {f['flops_per_iteration'] / 1e6:8.1f} Mflop/iteration  {f['gflops']:6.2f} GFLOP/s = "
-            f"{100 * f['ratio_to_dgemm']:5.1f} % of dgemm" if f else "")
+            f"{100 * f['ratio_to_dgemm']:5.1f} % of dgemm" + alone if f else "")
 
 
 def robot_rows(dgemm: float | None = None) -> list[dict]:
     """R-AICO and FDDP seconds per iteration on the Kinova, UR5 and xArm7 problems (T = 100), their
-    ratio, and R-AICO's sweep flops against the dgemm rate."""
+    ratio (over the solve, and over the iterations' own times), and R-AICO's sweep flops against the dgemm
+    rate. R-AICO runs with what ``raico plan`` gives the problem file (:func:`chain_raico_options`)."""
     from planning.solvers import SOLVERS
     from plants.model_file import example_robot_data
 
@@ -258,15 +269,17 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
     root = Path(__file__).resolve().parents[1]
     rows = []
     for label, rel in ROBOTS:
-        a = _per_iteration_detail(root / rel, "raico", RAICO_OPTIONS)[0]
+        a = _per_iteration_detail(root / rel, "raico", chain_raico_options(root / rel))[0]
         f = _per_iteration_detail(root / rel, "fddp", {"iterations": ITERATIONS})[0] if "fddp" in SOLVERS else None
         if a is None:
             continue
         row = {"benchmark": f"{label}: one R-AICO iteration", "median_s": a["seconds"], "samples_s": [a["seconds"]],
                "target_s": None, "ratio_to_target": None, "repeats_per_iteration": a["repeats"], "status": a["status"],
-               "ended": a["ended"], **_flops(a, dgemm)}
+               "ended": a["ended"], "iteration_s": a["iteration_s"], **_flops(a, dgemm, root / rel)}
         if f is not None:
-            row.update(fddp_s=f["seconds"], ratio_to_fddp=a["seconds"] / f["seconds"])
+            row.update(fddp_s=f["seconds"], ratio_to_fddp=a["seconds"] / f["seconds"], fddp_iteration_s=f["iteration_s"])
+            if a["iteration_s"] and f["iteration_s"]:
+                row["ratio_to_fddp_own"] = a["iteration_s"] / f["iteration_s"]
         rows.append(row)
         print(f"  {label:28s} R-AICO {a['seconds'] * 1e3:7.2f} ms"
               + (f"  FDDP {f['seconds'] * 1e3:7.2f} ms  ratio {a['seconds'] / f['seconds']:5.2f}" if f else "")
@@ -275,8 +288,8 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
 
 
 def chain_raico_options(problem_file: Path) -> dict:
-    """R-AICO's options on a chain: the ones ``raico plan`` gives a problem file (its robust schedule, alpha 1),
-    every iteration run (``tol_rel = 0``)."""
+    """R-AICO's options on a problem file (a chain, a robot): the ones ``raico plan`` gives it (its robust
+    schedule, alpha 1), every iteration run (``tol_rel = 0``)."""
     from stages.plan.stage import PlanConfig
 
     cfg = PlanConfig(problem=str(problem_file), iterations=ITERATIONS, bounds="none").normalized()
@@ -331,12 +344,15 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
                     times.append(t)
                     own.append(d["iteration_s"])
                     ended[n] = d["ended"]
-                flops = _flops(d, dgemm) if solver == "raico" else {}
+                flops = _flops(d, dgemm, f if n >= FIT_FROM else None) if solver == "raico" else {}
                 beside = {}
                 if solver == "fddp":
                     fddp[n] = d
                 elif n in fddp and n in ended and fddp[n]["ended"] not in ("diverged", "no descent"):
-                    beside = {"fddp_s": fddp[n]["seconds"], "ratio_to_fddp": t / fddp[n]["seconds"]}
+                    beside = {"fddp_s": fddp[n]["seconds"], "ratio_to_fddp": t / fddp[n]["seconds"],
+                              "fddp_iteration_s": fddp[n]["iteration_s"]}
+                    if d["iteration_s"] and fddp[n]["iteration_s"]:
+                        beside["ratio_to_fddp_own"] = d["iteration_s"] / fddp[n]["iteration_s"]
                 rows.append({"benchmark": f"chain of {n} joints, analytic reach T={CHAIN_T}: one {label} iteration",
                              "median_s": t, "samples_s": [t], "target_s": None, "ratio_to_target": None,
                              "status": d["status"], "ended": d["ended"], "start_cost": d["start_cost"],

@@ -656,11 +656,20 @@ class ControlGravity(JointTerm):
             self._memo = (key, self.gravity.values_and_jacobians(Q))
         return self._memo[1]
 
+    def _g_only(self, X: np.ndarray) -> np.ndarray:
+        """``g (K, n)`` at the rows' positions, without the Jacobians where none are remembered for them (a
+        cost alone: a rollout's, a trial's)."""
+        n = self.c.size
+        Q = np.ascontiguousarray(np.atleast_2d(X)[:, :n])
+        if self._memo is not None and self._memo[0] == (Q.shape, Q.tobytes()):
+            return self._memo[1][0]
+        return self.gravity.values(Q)
+
     def joint_value(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Per-step costs ``(K,)`` at ``X (K, n_x)``, ``U (K, n_u)``."""
         if self.weight == 0:
             return np.zeros(len(X))
-        r = np.atleast_2d(U) - self._g(X)[0]
+        r = np.atleast_2d(U) - self._g_only(X)
         return self.weight * np.einsum("ki,i,ki->k", r, self.c, r)
 
     # -- the state part (as a state term) -----------------------------------------------------
@@ -703,7 +712,7 @@ class ControlGravity(JointTerm):
         idx = np.arange(self.c.size)
         luu[:, idx, idx] += 2.0 * self.weight * self.c
         if self._X is not None and len(U) == len(self._X):
-            lu += 2.0 * self.weight * self.c * (U - self._g(self._X)[0])
+            lu += 2.0 * self.weight * self.c * (U - self._g_only(self._X))
 
 
 

@@ -284,17 +284,19 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
             double zero[MPMAX];
             memset(zero, 0, sizeof(double) * MP);
             ts->inverse_dynamics(qp, zero, zero, full);
-            ts->id_derivatives(qp, zero, zero, D);
-            for (int i = 0; i < MP; i++) memcpy(Jf + i * MP, D + i * 2 * MP, sizeof(double) * MP);
+            if (lx) {   /* the derivatives only where a gradient is asked (a cost alone needs tau) */
+                ts->id_derivatives(qp, zero, zero, D);
+                for (int i = 0; i < MP; i++) memcpy(Jf + i * MP, D + i * 2 * MP, sizeof(double) * MP);
+            }
             for (int r = 0; r < dim; r++) {
                 double *Jo = J + r * nq, v = 0.0;
-                if (ts->identity) { phi[r] = full[r]; memcpy(Jo, Jf + r * MP, sizeof(double) * nq); continue; }
-                for (int j = 0; j < nq; j++) Jo[j] = 0.0;
+                if (ts->identity) { phi[r] = full[r]; if (lx) memcpy(Jo, Jf + r * MP, sizeof(double) * nq); continue; }
+                if (lx) for (int j = 0; j < nq; j++) Jo[j] = 0.0;
                 for (int i = 0; i < MP; i++) {
                     double pir = ts->P[i * nq + r];
                     if (pir == 0.0) continue;
                     v += pir * full[i];
-                    for (int k = 0; k < MP; k++) v_axpy(nq, pir * Jf[i * MP + k], ts->P + k * nq, Jo);
+                    if (lx) for (int k = 0; k < MP; k++) v_axpy(nq, pir * Jf[i * MP + k], ts->P + k * nq, Jo);
                 }
                 phi[r] = v;
             }

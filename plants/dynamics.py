@@ -291,6 +291,11 @@ class GravityTorques:
         g = -self.P.T @ self._plant_ad.CalcGravityGeneralizedForces(self._ctx_ad)
         return ExtractValue(g).reshape(-1), ExtractGradient(g)
 
+    def values(self, Q: np.ndarray) -> np.ndarray:
+        """Rows ``Q (K, n_q)`` -> ``G (K, n_q)``, without the Jacobians (a cost alone)."""
+        Q = np.atleast_2d(Q)
+        return np.array([self.value(q) for q in Q]).reshape(len(Q), self.n_q)
+
     def values_and_jacobians(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows ``Q (K, n_q)`` -> ``G (K, n_q)``, ``dG (K, n_q, n_q)``."""
         Q = np.atleast_2d(Q)

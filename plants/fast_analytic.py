@@ -452,6 +452,14 @@ class TreeGravityTorques(GravityTorques):
         super().__init__(robot)
         self._k = kernels
 
+    def value(self, q: np.ndarray) -> np.ndarray:
+        """``g(q)`` alone: the inverse dynamics at rest, no derivatives (the same numbers as
+        :meth:`value_and_jacobian`'s value)."""
+        if not np.all(np.isfinite(q)):
+            return super().value(q)
+        k = self._k
+        return self.P.T @ k.inverse_dynamics(self.P @ np.asarray(q, float), np.zeros(k.m), np.zeros(k.m))
+
     def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(q)):
             return super().value_and_jacobian(q)

@@ -34,3 +34,16 @@ def test_rate_columns():
     row = flop_fields(64, 32, 100, 0.25, 50.0, repeats=10)
     assert math.isclose(row["gflops"], row["flops_per_iteration"] / 0.25 / 1e9, rel_tol=1e-9)
     assert math.isclose(row["ratio_to_dgemm"], row["gflops"] / 50.0, rel_tol=1e-9)
+
+
+def test_the_backward_sweep_alone_is_timed_on_its_own_flops(tmp_path):
+    """The sweeps' own rate: T backward messages of the chain (block form), counted by the formulas."""
+    from bench import model_files as mf
+    from bench.flops import backward_sweep_rate
+    from stages.plan.stage import PlanConfig, build_problem
+
+    _, _, problem, _, _ = build_problem(PlanConfig(problem=str(mf.chain_problem(3, tmp_path)), bounds="none").normalized())
+    r = backward_sweep_rate(problem, reps=2)
+    assert r["block"] and r["seconds"] > 0
+    assert r["flops"] == sweep_flops(6, 3, problem.T)["parts"]["backward"] * problem.T
+    assert r["gflops"] == r["flops"] / r["seconds"] / 1e9
