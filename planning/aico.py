@@ -308,7 +308,7 @@ class _Sweeps:
                 self._C_filled = True
         else:
             C = self.C
-            A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
+            A, a, B = self._linearize_dynamics(X[:-1], U)
             C[:, :n, :m] = B
             C[:, :n, m:m + n] = A
             np.negative(a, out=C[:, :n, m + n])
@@ -329,6 +329,19 @@ class _Sweeps:
             RA[:, :, n] += 2.0 * alpha * Xprev
         self._check_finite(RA)
         self._2aI = 2.0 * alpha * self.I
+
+    def _linearize_dynamics(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``linearize_trajectory`` along ``X (T, n)``, ``U (T, m)``: ``A (T, n, n)``, ``a (T, n)``, ``B (T, n, m)``,
+        or ``(n, n)``, ``(n,)``, ``(n, m)`` for every step when all rows are the same bits (the default start:
+        ``x0`` at every step, zero controls). Only on ``FastAnalyticDynamics``, whose batch linearizes each row
+        alone with the same code: the one point's numbers are every step's, at ``1/T`` of the cost."""
+        from plants.fast_analytic import FastAnalyticDynamics
+
+        dyn = self.p.dynamics
+        if isinstance(dyn, FastAnalyticDynamics) and _rows_identical(X) and _rows_identical(U):
+            A, a, B = dyn.linearize_trajectory(X[:1], U[:1])
+            return A[0], a[0], B[0]
+        return dyn.linearize_trajectory(X, U)
 
     def _compiled_tasks(self):
         """The compiled task messages (``kernels.compile_task_set``, built on first use) when the
@@ -874,11 +887,9 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
 def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
-    with np.errstate(all="ignore"):
-        X0_roll = rollout(problem.dynamics, problem.x0, U)
-    initial_cost = problem.cost(X0_roll, U)
     if U.shape != (T, n_u):
         raise ValueError(f"U_init has shape {U.shape}, expected {(T, n_u)}")
+    X0_roll = _open_loop_rollout(problem, U)
     if X_init is None:
         X = np.tile(problem.x0, (T + 1, 1)) if U_init is None else X0_roll
     else:
@@ -896,9 +907,11 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
         sw = _Sweeps(problem, dataclasses.replace(opts, theta=math.inf, process_noise=opts.process_noise / kappa,
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
+        initial_cost = sw.cost(X0_roll, U)
         step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
     else:
         sw = _Sweeps(problem, opts)
+        initial_cost = sw.cost(X0_roll, U)      # the iterations' own (compiled) cost
         step = _AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
     out = drive(step, start, opts, initial_cost=initial_cost, callback=callback)
     last = out.last_finite
@@ -912,6 +925,33 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     return Result(X=last.X, U=last.U, o=last.o, O=last.O, status=out.status, history=out.history,
                   iterations=len(out.history), message=out.message, initial_cost=initial_cost,
                   beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico", X_initial=X0_roll)
+
+
+def _rows_identical(Z: np.ndarray) -> bool:
+    """Whether every row of ``Z (K, ...)`` float64 has the bits of the first (NaN rows included)."""
+    Z = np.asarray(Z)
+    if Z.dtype != np.float64 or Z.shape[0] == 0:
+        return False
+    bits = np.ascontiguousarray(Z).view(np.uint64)
+    return bool((bits == bits[:1]).all())
+
+
+def _open_loop_rollout(problem: Problem, U: np.ndarray) -> np.ndarray:
+    """States ``(T+1, n_x)`` of the controls ``U (T, n_u)`` from ``x0``: the numbers of
+    :func:`plants.dynamics.rollout`, the Python loop. On a compiled model (``FastAnalyticDynamics``) its
+    controller rollout with zero feedback gives them up to the first state that is not finite (``u_t =
+    U_t + 0`` exactly, the same step); the loop goes on from there (where ``0 x_t`` would be NaN)."""
+    from plants.fast_analytic import FastAnalyticDynamics
+
+    with np.errstate(all="ignore"):
+        if not isinstance(problem.dynamics, FastAnalyticDynamics):
+            return rollout(problem.dynamics, problem.x0, U)
+        X, _ = problem.controller_rollout(U, np.zeros((problem.T, problem.n_u, problem.n_x)))
+        bad = ~np.isfinite(X).all(axis=1)
+        if bad.any():
+            k = int(np.argmax(bad))     # rows 0..k are the loop's own (each stepped from a finite state)
+            X[k:] = rollout(problem.dynamics, X[k], U[k:])
+        return X
 
 
 class _AICOStep:
