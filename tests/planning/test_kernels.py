@@ -386,3 +386,45 @@ def test_message_kinds_are_named_alike_in_python_and_c():
     c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
     assert c_enum == {k.name: int(k) for k in kernels.MessageKind}
     assert not re.search(r"tm->kind == \d", src)  # no bare numbers where the kinds are tested
+
+
+# -- per-solve shortcuts on a compiled model ----------------------------------------------------------
+@pytest.mark.parametrize("compiled", [True, False], ids=["c", "generated-python"])
+def test_a_constant_start_is_linearized_once_with_the_same_numbers(compiled, monkeypatch):
+    """At the default start (``x0`` at every step, zero controls) the sweeps linearize the dynamics at one
+    point, and every step gets the numbers the whole batch would give; any other trajectory is the batch."""
+    problem = _plan_problem("arm5", "reach-roll", "analytic")
+    dyn, T = problem.dynamics, 40
+    if not compiled:
+        dyn._c = False
+    sizes = []
+    real = type(dyn).linearize_trajectory
+    monkeypatch.setattr(type(dyn), "linearize_trajectory", lambda self, X, U: (sizes.append(len(X)), real(self, X, U))[1])
+    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    X, U = np.tile(problem.x0, (T, 1)), np.zeros((T, problem.n_u))
+    for got, ref in zip(sw._linearize_dynamics(X, U), real(dyn, X, U)):
+        assert got.shape == ref.shape[1:] and (np.broadcast_to(got, ref.shape) == ref).all()
+    assert sizes == [1]
+    X[7, 0] += 1e-9                          # one step elsewhere: the whole batch
+    for got, ref in zip(sw._linearize_dynamics(X, U), real(dyn, X, U)):
+        assert (got == ref).all()
+    assert sizes == [1, T]
+
+
+def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
+    """``aico``'s open-loop start rollout on a compiled model: the bits of ``plants.dynamics.rollout``, for
+    a rollout that stays finite and for one that leaves the finite numbers part-way."""
+    from planning.aico import _open_loop_rollout
+    from plants.dynamics import rollout
+
+    problem = _plan_problem("arm5", "reach-roll", "analytic")
+    rng = np.random.default_rng(3)
+    U = rng.standard_normal((problem.T, problem.n_u))
+    X = _open_loop_rollout(problem, U)
+    assert np.isfinite(X).all() and np.array_equal(X, rollout(problem.dynamics, problem.x0, U))
+    U[problem.T // 2] = 1e200                # a control that sends the state to inf, then NaN
+    with np.errstate(all="ignore"):
+        ref = rollout(problem.dynamics, problem.x0, U)
+    X = _open_loop_rollout(problem, U)
+    assert not np.isfinite(X).all() and np.isfinite(X[:problem.T // 2 + 1]).all()
+    assert np.array_equal(X, ref, equal_nan=True)
