@@ -428,3 +428,26 @@ def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
     X = _open_loop_rollout(problem, U)
     assert not np.isfinite(X).all() and np.isfinite(X[:problem.T // 2 + 1]).all()
     assert np.array_equal(X, ref, equal_nan=True)
+
+
+def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkeypatch):
+    """``_Sweeps.cost`` keeps the compiled task rows' derivatives of the trajectory it costs; a linearization
+    at that trajectory (the next iteration's) takes them instead of a second pass, with the same task
+    messages as a pass of its own; at another trajectory it makes its own pass."""
+    problem = build_problem(PlanConfig(problem=str(REPO / "problems/examples/ur5_reach.toml"), bounds="none")
+                            .normalized())[2]
+    rng = np.random.default_rng(4)
+    X = np.tile(problem.x0, (problem.T + 1, 1)) + 0.05 * rng.standard_normal((problem.T + 1, problem.n_x))
+    U = rng.standard_normal((problem.T, problem.n_u))
+    fresh = _Sweeps(problem, AICOOptions(alpha=1.0))
+    fresh.linearize_all(X, U, X, 1.0)
+    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    assert sw.cost(X, U) == fresh.cost(X, U)
+    passes = []
+    real = kernels.task_rows
+    monkeypatch.setattr(kernels, "task_rows", lambda *a, **k: (passes.append(1), real(*a, **k))[1])
+    sw.linearize_all(X, U, X, 1.0)
+    assert passes == [] and np.array_equal(sw.RA, fresh.RA)
+    X[3] += 1e-3
+    sw.linearize_all(X, U, X, 1.0)
+    assert passes == [1]
