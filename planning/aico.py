@@ -897,6 +897,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     if U.shape != (T, n_u):
         raise ValueError(f"U_init has shape {U.shape}, expected {(T, n_u)}")
     X0_roll = _open_loop_rollout(problem, U)
+    initial_cost = problem.cost(X0_roll, U)   # the problem's own sum (the compiled one rounds otherwise)
     if X_init is None:
         X = np.tile(problem.x0, (T + 1, 1)) if U_init is None else X0_roll
     else:
@@ -914,11 +915,9 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
         sw = _Sweeps(problem, dataclasses.replace(opts, theta=math.inf, process_noise=opts.process_noise / kappa,
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
-        initial_cost = sw.cost(X0_roll, U)
         step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
     else:
         sw = _Sweeps(problem, opts)
-        initial_cost = sw.cost(X0_roll, U)      # the iterations' own (compiled) cost
         step = _AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
     out = drive(step, start, opts, initial_cost=initial_cost, callback=callback)
     last = out.last_finite
