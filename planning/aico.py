@@ -946,7 +946,8 @@ def _open_loop_rollout(problem: Problem, U: np.ndarray) -> np.ndarray:
     """States ``(T+1, n_x)`` of the controls ``U (T, n_u)`` from ``x0``: the numbers of
     :func:`plants.dynamics.rollout`, the Python loop. On a compiled model (``FastAnalyticDynamics``) its
     controller rollout with zero feedback gives them up to the first state that is not finite (``u_t =
-    U_t + 0`` exactly, the same step); the loop goes on from there (where ``0 x_t`` would be NaN)."""
+    U_t + 0`` exactly, the same step); the loop goes on from there (where ``0 x_t`` would be NaN), unless
+    that state is all NaN: then so is every later one (semi-implicit Euler adds each coordinate's old value)."""
     from plants.fast_analytic import FastAnalyticDynamics
 
     with np.errstate(all="ignore"):
@@ -956,7 +957,10 @@ def _open_loop_rollout(problem: Problem, U: np.ndarray) -> np.ndarray:
         bad = ~np.isfinite(X).all(axis=1)
         if bad.any():
             k = int(np.argmax(bad))     # rows 0..k are the loop's own (each stepped from a finite state)
-            X[k:] = rollout(problem.dynamics, X[k], U[k:])
+            if np.isnan(X[k]).all():
+                X[k + 1:] = np.nan
+            else:
+                X[k:] = rollout(problem.dynamics, X[k], U[k:])
         return X
 
 

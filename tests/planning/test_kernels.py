@@ -422,12 +422,16 @@ def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
     U = rng.standard_normal((problem.T, problem.n_u))
     X = _open_loop_rollout(problem, U)
     assert np.isfinite(X).all() and np.array_equal(X, rollout(problem.dynamics, problem.x0, U))
-    U[problem.T // 2] = 1e200                # a control that sends the state to inf, then NaN
-    with np.errstate(all="ignore"):
-        ref = rollout(problem.dynamics, problem.x0, U)
-    X = _open_loop_rollout(problem, U)
-    assert not np.isfinite(X).all() and np.isfinite(X[:problem.T // 2 + 1]).all()
-    assert np.array_equal(X, ref, equal_nan=True)
+    # a huge control: the state goes all NaN at once (every later state is NaN), or first to a mix of
+    # inf and NaN (the loop goes on from there)
+    for big, all_nan in ((1e200, True), (1.7e308, False)):
+        U[problem.T // 2] = big
+        with np.errstate(all="ignore"):
+            ref = rollout(problem.dynamics, problem.x0, U)
+        X = _open_loop_rollout(problem, U)
+        k = int(np.argmin(np.isfinite(ref).all(axis=1)))
+        assert problem.T // 2 < k < problem.T and bool(np.isnan(ref[k]).all()) is all_nan
+        assert np.isfinite(X[:k]).all() and np.array_equal(X, ref, equal_nan=True)
 
 
 def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkeypatch):
