@@ -294,6 +294,7 @@ class _Sweeps:
         self._kstate: tuple | None = None   # the kernel's state and the arrays it points to, on first use
         self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
         self._steps = np.arange(T + 1)
+        self._task_memo: tuple | None = None   # (X, U, l_x, l_xx) of the last compiled cost's rows
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
         self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
@@ -322,7 +323,7 @@ class _Sweeps:
                 self._C_filled = True
         else:
             C = self.C
-            A, a, B = p.dynamics.linearize_trajectory(X[:-1], U)
+            A, a, B = self._linearize_dynamics(X[:-1], U)
             C[:, :n, :m] = B
             C[:, :n, m:m + n] = A
             np.negative(a, out=C[:, :n, m + n])
@@ -331,7 +332,10 @@ class _Sweeps:
         self._control_marginals()
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
-        if ct is not None and np.isfinite(X).all():             # R = l_xx, compiled
+        memo = self._task_memo
+        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
+            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
+        elif ct is not None and np.isfinite(X).all():           # R = l_xx, compiled
             (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
         else:
             p.state_derivatives(X, out=(lx, R))                # R = l_xx
@@ -343,6 +347,19 @@ class _Sweeps:
             RA[:, :, n] += 2.0 * alpha * Xprev
         self._check_finite(RA)
         self._2aI = 2.0 * alpha * self.I
+
+    def _linearize_dynamics(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``linearize_trajectory`` along ``X (T, n)``, ``U (T, m)``: ``A (T, n, n)``, ``a (T, n)``, ``B (T, n, m)``,
+        or ``(n, n)``, ``(n,)``, ``(n, m)`` for every step when all rows are the same bits (the default start:
+        ``x0`` at every step, zero controls). Only on ``FastAnalyticDynamics``, whose batch linearizes each row
+        alone with the same code: the one point's numbers are every step's, at ``1/T`` of the cost."""
+        from plants.fast_analytic import FastAnalyticDynamics
+
+        dyn = self.p.dynamics
+        if isinstance(dyn, FastAnalyticDynamics) and _rows_identical(X) and _rows_identical(U):
+            A, a, B = dyn.linearize_trajectory(X[:1], U[:1])
+            return A[0], a[0], B[0]
+        return dyn.linearize_trajectory(X, U)
 
     def _compiled_tasks(self):
         """The compiled task messages (``kernels.compile_task_set``, built on first use) when the
@@ -360,7 +377,10 @@ class _Sweeps:
         if ct is None or not (np.isfinite(X).all() and np.isfinite(U).all()):
             return self.p.cost(X, U)
         kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
-        _, per_step = kernels.task_rows(ct, self.T, X, self._steps, derivatives=False, costs=True)
+        # the rows' derivatives too (the same pass, the same numbers): the next iteration linearizes at
+        # this rollout when it is accepted, and takes them from here
+        derivs, per_step = kernels.task_rows(ct, self.T, X, self._steps, costs=True)
+        self._task_memo = (X.copy(), np.array(U, dtype=float), *derivs)
         with np.errstate(all="ignore"):
             c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
         return c if math.isfinite(c) else math.inf
@@ -893,11 +913,10 @@ def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback
 def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
-    with np.errstate(all="ignore"):
-        X0_roll = rollout(problem.dynamics, problem.x0, U)
-    initial_cost = problem.cost(X0_roll, U)
     if U.shape != (T, n_u):
         raise ValueError(f"U_init has shape {U.shape}, expected {(T, n_u)}")
+    X0_roll = _open_loop_rollout(problem, U)
+    initial_cost = problem.cost(X0_roll, U)   # the problem's own sum (the compiled one rounds otherwise)
     if X_init is None:
         X = np.tile(problem.x0, (T + 1, 1)) if U_init is None else X0_roll
     else:
@@ -931,6 +950,37 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     return Result(X=last.X, U=last.U, o=last.o, O=last.O, status=out.status, history=out.history,
                   iterations=len(out.history), message=out.message, initial_cost=initial_cost,
                   beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico", X_initial=X0_roll)
+
+
+def _rows_identical(Z: np.ndarray) -> bool:
+    """Whether every row of ``Z (K, ...)`` float64 has the bits of the first (NaN rows included)."""
+    Z = np.asarray(Z)
+    if Z.dtype != np.float64 or Z.shape[0] == 0:
+        return False
+    bits = np.ascontiguousarray(Z).view(np.uint64)
+    return bool((bits == bits[:1]).all())
+
+
+def _open_loop_rollout(problem: Problem, U: np.ndarray) -> np.ndarray:
+    """States ``(T+1, n_x)`` of the controls ``U (T, n_u)`` from ``x0``: the numbers of
+    :func:`plants.dynamics.rollout`, the Python loop. On a compiled model (``FastAnalyticDynamics``) its
+    controller rollout with zero feedback gives them up to the first state that is not finite (``u_t =
+    U_t + 0`` exactly, the same step); the loop goes on from there (where ``0 x_t`` would be NaN), unless
+    that state is all NaN: then so is every later one (semi-implicit Euler adds each coordinate's old value)."""
+    from plants.fast_analytic import FastAnalyticDynamics
+
+    with np.errstate(all="ignore"):
+        if not isinstance(problem.dynamics, FastAnalyticDynamics):
+            return rollout(problem.dynamics, problem.x0, U)
+        X, _ = problem.controller_rollout(U, np.zeros((problem.T, problem.n_u, problem.n_x)))
+        bad = ~np.isfinite(X).all(axis=1)
+        if bad.any():
+            k = int(np.argmax(bad))     # rows 0..k are the loop's own (each stepped from a finite state)
+            if np.isnan(X[k]).all():
+                X[k + 1:] = np.nan
+            else:
+                X[k:] = rollout(problem.dynamics, X[k], U[k:])
+        return X
 
 
 class _AICOStep:

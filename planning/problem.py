@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -534,16 +535,23 @@ class IterateHistory:
         return out
 
 
+_BLAS_CONTROLLER: list[Any] = [None, -1]   # threadpoolctl's controller, len(sys.modules) when it was built
+
+
 def single_threaded_blas():
     """Context limiting BLAS/LAPACK to one thread while a solver runs.
 
     The solvers issue many small (n <= 100) dense operations; a multithreaded BLAS gains
     nothing on them and, on a loaded machine, spin-waiting threads slow them down by an
-    order of magnitude.
+    order of magnitude. The scan of the loaded libraries (about 1 ms) is kept from one solve
+    to the next and redone only when a module was imported since (it may have loaded a BLAS).
     """
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
         import contextlib
         return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    n_modules = len(sys.modules)
+    if _BLAS_CONTROLLER[0] is None or _BLAS_CONTROLLER[1] != n_modules:
+        _BLAS_CONTROLLER[:] = [ThreadpoolController(), n_modules]
+    return _BLAS_CONTROLLER[0].limit(limits=1, user_api="blas")

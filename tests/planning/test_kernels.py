@@ -483,3 +483,72 @@ def test_message_kinds_are_named_alike_in_python_and_c():
     c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
     assert c_enum == {k.name: int(k) for k in kernels.MessageKind}
     assert not re.search(r"tm->kind == \d", src)  # no bare numbers where the kinds are tested
+
+
+# -- per-solve shortcuts on a compiled model ----------------------------------------------------------
+@pytest.mark.parametrize("compiled", [True, False], ids=["c", "generated-python"])
+def test_a_constant_start_is_linearized_once_with_the_same_numbers(compiled, monkeypatch):
+    """At the default start (``x0`` at every step, zero controls) the sweeps linearize the dynamics at one
+    point, and every step gets the numbers the whole batch would give; any other trajectory is the batch."""
+    problem = _plan_problem("arm5", "reach-roll", "analytic")
+    dyn, T = problem.dynamics, 40
+    if not compiled:
+        dyn._c = False
+    sizes = []
+    real = type(dyn).linearize_trajectory
+    monkeypatch.setattr(type(dyn), "linearize_trajectory", lambda self, X, U: (sizes.append(len(X)), real(self, X, U))[1])
+    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    X, U = np.tile(problem.x0, (T, 1)), np.zeros((T, problem.n_u))
+    for got, ref in zip(sw._linearize_dynamics(X, U), real(dyn, X, U)):
+        assert got.shape == ref.shape[1:] and (np.broadcast_to(got, ref.shape) == ref).all()
+    assert sizes == [1]
+    X[7, 0] += 1e-9                          # one step elsewhere: the whole batch
+    for got, ref in zip(sw._linearize_dynamics(X, U), real(dyn, X, U)):
+        assert (got == ref).all()
+    assert sizes == [1, T]
+
+
+def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
+    """``aico``'s open-loop start rollout on a compiled model: the bits of ``plants.dynamics.rollout``, for
+    a rollout that stays finite and for one that leaves the finite numbers part-way."""
+    from planning.aico import _open_loop_rollout
+    from plants.dynamics import rollout
+
+    problem = _plan_problem("arm5", "reach-roll", "analytic")
+    rng = np.random.default_rng(3)
+    U = rng.standard_normal((problem.T, problem.n_u))
+    X = _open_loop_rollout(problem, U)
+    assert np.isfinite(X).all() and np.array_equal(X, rollout(problem.dynamics, problem.x0, U))
+    # a huge control: the state goes all NaN at once (every later state is NaN), or first to a mix of
+    # inf and NaN (the loop goes on from there)
+    for big, all_nan in ((1e200, True), (1.7e308, False)):
+        U[problem.T // 2] = big
+        with np.errstate(all="ignore"):
+            ref = rollout(problem.dynamics, problem.x0, U)
+        X = _open_loop_rollout(problem, U)
+        k = int(np.argmin(np.isfinite(ref).all(axis=1)))
+        assert problem.T // 2 < k < problem.T and bool(np.isnan(ref[k]).all()) is all_nan
+        assert np.isfinite(X[:k]).all() and np.array_equal(X, ref, equal_nan=True)
+
+
+def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkeypatch):
+    """``_Sweeps.cost`` keeps the compiled task rows' derivatives of the trajectory it costs; a linearization
+    at that trajectory (the next iteration's) takes them instead of a second pass, with the same task
+    messages as a pass of its own; at another trajectory it makes its own pass."""
+    problem = build_problem(PlanConfig(problem=str(REPO / "problems/examples/ur5_reach.toml"), bounds="none")
+                            .normalized())[2]
+    rng = np.random.default_rng(4)
+    X = np.tile(problem.x0, (problem.T + 1, 1)) + 0.05 * rng.standard_normal((problem.T + 1, problem.n_x))
+    U = rng.standard_normal((problem.T, problem.n_u))
+    fresh = _Sweeps(problem, AICOOptions(alpha=1.0))
+    fresh.linearize_all(X, U, X, 1.0)
+    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    assert sw.cost(X, U) == fresh.cost(X, U)
+    passes = []
+    real = kernels.task_rows
+    monkeypatch.setattr(kernels, "task_rows", lambda *a, **k: (passes.append(1), real(*a, **k))[1])
+    sw.linearize_all(X, U, X, 1.0)
+    assert passes == [] and np.array_equal(sw.RA, fresh.RA)
+    X[3] += 1e-3
+    sw.linearize_all(X, U, X, 1.0)
+    assert passes == [1]

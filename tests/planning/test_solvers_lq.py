@@ -281,3 +281,28 @@ def test_compiled_ilqg_backward_equals_numpy():
         for compiled in (True, False):
             with pytest.raises(_NotPD):
                 _backward(*bad, 0.0, compiled=compiled)
+
+
+def test_the_solvers_blas_runs_on_one_thread_and_the_library_scan_is_kept():
+    """``single_threaded_blas``: one BLAS thread inside, the previous counts after; the scan of the loaded
+    libraries is made once and kept while no module is imported (then it is made again)."""
+    import sys
+
+    from threadpoolctl import threadpool_info
+
+    from planning import problem as pm
+
+    before = {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    with pm.single_threaded_blas():
+        inside = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+        controller = pm._BLAS_CONTROLLER[0]
+    assert inside and set(inside) == {1}
+    assert {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == before
+    with pm.single_threaded_blas():
+        assert pm._BLAS_CONTROLLER[0] is controller
+    sys.modules["_a_module_imported_since"] = sys     # what an import that loads a BLAS changes
+    try:
+        with pm.single_threaded_blas():
+            assert pm._BLAS_CONTROLLER[0] is not controller
+    finally:
+        del sys.modules["_a_module_imported_since"]
