@@ -123,6 +123,134 @@ int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr)
     return 0;
 }
 
+/* D_r = [P^T Dq P, P^T Dv P] (n x 2n) from the plant's D = [Dq, Dv] (MP x 2 MP) */
+static void reduce_D(const dyn_ctx *c, const double *D, double *Dr)
+{
+    int n = c->n, N = 2 * n;
+    if (c->identity) { memcpy(Dr, D, sizeof(double) * 2 * MP * MP); return; }
+    for (int i = 0; i < n; i++)
+        for (int half = 0; half < 2; half++)
+            for (int j = 0; j < n; j++) {
+                double s = 0.0;
+                for (int k = 0; k < MP; k++) {
+                    double pk = c->P[k * n + i];
+                    if (pk == 0.0) continue;
+                    for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
+                }
+                Dr[i * N + half * n + j] = s;
+            }
+}
+
+#ifdef TREE_DYN
+/* The kinematic tree's route (plants/codegen/rbd_kernels.c): M and h by the first pass of the analytical
+ * inverse-dynamics derivatives, M_r^-1 from the Cholesky factor of M_r (LU where M_r is not positive
+ * definite), dID/d(q, v) at a = qddot by the second pass. */
+
+/* the Cholesky factor L (lower triangle of a, in place) of the n x n matrix a: 0, or -1 where a pivot
+ * is not positive */
+static int chol(int n, double *a)
+{
+    for (int j = 0; j < n; j++) {
+        double d = a[j * n + j];
+        for (int k = 0; k < j; k++) d -= a[j * n + k] * a[j * n + k];
+        if (!(d > 0.0)) return -1;
+        d = sqrt(d);
+        a[j * n + j] = d;
+        for (int i = j + 1; i < n; i++) {
+            double s = a[i * n + j];
+            for (int k = 0; k < j; k++) s -= a[i * n + k] * a[j * n + k];
+            a[i * n + j] = s / d;
+        }
+    }
+    return 0;
+}
+
+/* C (r x c, row stride ldc) = sum over k < K of A_ik B_kj, with A_ik = A[i lda + k] (trans = 0) or
+ * A[k lda + i] (trans = 1), B (K x c, row stride ldb); from k = k0(i) = (lower ? i : 0) on (the rows
+ * of B above are zero). Every entry is summed in the order of k, as the scalar loop does; the columns
+ * go in blocks of 16 and 4 (vectors of 4 doubles) with a scalar tail. */
+typedef double v4d __attribute__((vector_size(32)));
+static inline v4d ld4(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }
+static inline void st4(double *p, v4d v) { memcpy(p, &v, sizeof v); }
+
+static void gemm_rows(int r, int c, int K, const double *A, int lda, int trans, int lower,
+                      const double *B, int ldb, double *C, int ldc)
+{
+    for (int i = 0; i < r; i++) {
+        double *Ci = C + (long)i * ldc;
+        int k0 = lower ? i : 0, j = 0;
+        for (; j + 16 <= c; j += 16) {
+            v4d c0 = {0.0, 0.0, 0.0, 0.0}, c1 = c0, c2 = c0, c3 = c0;
+            for (int k = k0; k < K; k++) {
+                double aik = trans ? A[(long)k * lda + i] : A[(long)i * lda + k];
+                v4d av = {aik, aik, aik, aik};
+                const double *Bk = B + (long)k * ldb + j;
+                c0 += av * ld4(Bk); c1 += av * ld4(Bk + 4); c2 += av * ld4(Bk + 8); c3 += av * ld4(Bk + 12);
+            }
+            st4(Ci + j, c0); st4(Ci + j + 4, c1); st4(Ci + j + 8, c2); st4(Ci + j + 12, c3);
+        }
+        for (; j + 4 <= c; j += 4) {
+            v4d c0 = {0.0, 0.0, 0.0, 0.0};
+            for (int k = k0; k < K; k++) {
+                double aik = trans ? A[(long)k * lda + i] : A[(long)i * lda + k];
+                v4d av = {aik, aik, aik, aik};
+                c0 += av * ld4(B + (long)k * ldb + j);
+            }
+            st4(Ci + j, c0);
+        }
+        for (; j < c; j++) {
+            double s = 0.0;
+            for (int k = k0; k < K; k++) s += (trans ? A[(long)k * lda + i] : A[(long)i * lda + k]) * B[(long)k * ldb + j];
+            Ci[j] = s;
+        }
+    }
+}
+
+/* Mi (n x n) = (L L^T)^-1 = L^-T L^-1 from the factor L (lower triangle of a) */
+static void chol_inverse(int n, const double *a, double *Mi)
+{
+    double Li[MP * MP];   /* L^-1, lower (zeros above), row by row: row i = (e_i - sum_k<i L_ik row k) / L_ii */
+    for (int i = 0; i < n; i++) {
+        double *row = Li + i * n;
+        for (int j = 0; j < n; j++) row[j] = 0.0;
+        row[i] = 1.0;
+        for (int k = 0; k < i; k++) {
+            double l = a[i * n + k];
+            const double *rk = Li + k * n;
+            for (int j = 0; j <= k; j++) row[j] -= l * rk[j];
+        }
+        double d = a[i * n + i];
+        for (int j = 0; j <= i; j++) row[j] /= d;
+    }
+    gemm_rows(n, n, n, Li, n, 1, 1, Li, n, Mi, n);   /* Mi_ij = sum_k>=i (L^-1)_ki (L^-1)_kj */
+}
+
+int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *a, double *F, double *Mi)
+{
+    int n = c->n, N = 2 * n;
+    double xs[2 * MP], M[MP * MP], h[MP], Mr[MP * MP], hr[MP], ap[MP], D[2 * MP * MP], Dr[MP * 2 * MP];
+    to_plant(c, x, xs);
+    to_plant(c, x + n, xs + MP);
+    tree_pass1(xs, xs + MP, &TREE_W, M, h);
+    reduce_mh(c, M, h, Mr, hr);
+    if (chol(n, Mr) == 0) chol_inverse(n, Mr, Mi);
+    else {
+        reduce_mh(c, M, h, Mr, hr);
+        inverse(n, Mr, Mi);
+    }
+    for (int i = 0; i < n; i++) {
+        double s = 0.0;
+        for (int j = 0; j < n; j++) s += Mi[i * n + j] * (u[j] - hr[j]);
+        a[i] = s;
+    }
+    to_plant(c, a, ap);
+    tree_pass2(&TREE_W, xs + MP, ap, NULL, D);
+    reduce_D(c, D, Dr);
+    gemm_rows(n, N, n, Mi, n, 0, 0, Dr, N, F, N);   /* F = -M_r^-1 D_r */
+    for (int i = 0; i < n * N; i++) F[i] = -F[i];
+    return 0;
+}
+#else
 /* qddot a (n), d qddot / d(q, v) F (n x 2n), M_r^-1 Mi (n x n) at (x, u) */
 int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *a, double *F, double *Mi)
 {
@@ -142,21 +270,7 @@ int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *
     to_plant(c, a, ys);
     for (int k = 0; k < NCARRY; k++) ys[MP + k] = carry[k];
     gen_second(ys, D);
-    /* D_r = [P^T Dq P, P^T Dv P] (n x 2n) */
-    if (c->identity) memcpy(Dr, D, sizeof(double) * 2 * MP * MP);
-    else {
-        for (int i = 0; i < n; i++)
-            for (int half = 0; half < 2; half++)
-                for (int j = 0; j < n; j++) {
-                    double s = 0.0;
-                    for (int k = 0; k < MP; k++) {
-                        double pk = c->P[k * n + i];
-                        if (pk == 0.0) continue;
-                        for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
-                    }
-                    Dr[i * N + half * n + j] = s;
-                }
-    }
+    reduce_D(c, D, Dr);
     for (int i = 0; i < n; i++)
         for (int j = 0; j < N; j++) {
             double s = 0.0;
@@ -165,6 +279,8 @@ int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *
         }
     return 0;
 }
+
+#endif
 
 /* A (2n x 2n), aff (2n), B (2n x n) of the step at (x, u) (AnalyticDynamics.linearize) */
 int dyn_linearize(const void *cv, const double *x, const double *u, double *A, double *aff, double *B)

@@ -191,7 +191,7 @@ def tree_source(tree: Tree, header: bool = True) -> str:
     nb = len(tree.names)
     head = ("#include <math.h>\n#include <string.h>\n"
             f"#define MP {tree.m}\n#define NCARRY (2 * MP)\n") if header else ""
-    data = "".join([f"#define NB {nb}\n",
+    data = "".join([f"#define NB {nb}\n#define TREE_DYN 1\n",
         _arr("PARENT", "int", tree.parent), _arr("QIDX", "int", tree.qidx),
         _arr("PRISMATIC", "int", tree.prismatic.astype(int)),
         _arr("R_PJ", "double", tree.R_PJ), _arr("P_PJ", "double", tree.p_PJ),
@@ -216,7 +216,7 @@ class TreeKernels:
         sigs = {"tree_frame_points": [vp, i, vp, vp, i, vp, vp, vp],
                 "tree_frame_rotation": [vp, i, vp, vp, vp], "tree_com": [vp, vp, vp],
                 "tree_mass_matrix": [vp, vp], "tree_inverse_dynamics": [vp, vp, vp, vp],
-                "tree_id_derivatives": [vp, vp, vp, vp],
+                "tree_id_derivatives": [vp, vp, vp, vp], "tree_id_analytic": [vp] * 6,
                 "tree_frame_points_batch": [i, vp, i, vp, vp, i, vp, vp, vp],
                 "tree_com_batch": [i, vp, vp, vp], "tree_frame_rotation_batch": [i, vp, i, vp, vp, vp]}
         for f, args in sigs.items():
@@ -314,6 +314,16 @@ class TreeKernels:
         self.lib.tree_inverse_dynamics(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, tau.ctypes.data)
         return tau
 
+    def id_analytic(self, qp, vp, ap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``ID(q, v, a) (m,)``, ``M (m, m)`` and ``dID/d(q, v) (m, 2 m)`` by the analytical derivatives
+        of the inverse dynamics (the dynamics driver's route; :meth:`id_derivatives` by forward mode)."""
+        qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
+        self._check("tree_id_analytic", q=(qp, (self.m,)), v=(vp, (self.m,)), a=(ap, (self.m,)))
+        tau, M, D = np.empty(self.m), np.empty((self.m, self.m)), np.empty((self.m, 2 * self.m))
+        self.lib.tree_id_analytic(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, tau.ctypes.data,
+                                  M.ctypes.data, D.ctypes.data)
+        return tau, M, D
+
     def id_derivatives(self, qp, vp, ap) -> np.ndarray:
         """``dID/d(q, v) (m, 2 m)``."""
         qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
@@ -341,9 +351,11 @@ def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) ->
     for _ in range(n_states):
         q, v, a = rng.uniform(-np.pi, np.pi, m), rng.standard_normal(m), rng.standard_normal(m)
         M_ref, tau_ref, _, D_ref = drake.evaluate(q, v, a)
+        tau, M, D = kernels.id_analytic(q, v, a)
         worst = max(worst, rel(kernels.mass_matrix(q), M_ref),
                     rel(kernels.inverse_dynamics(q, v, a), tau_ref),
-                    rel(kernels.id_derivatives(q, v, a), D_ref))
+                    rel(kernels.id_derivatives(q, v, a), D_ref),
+                    rel(tau, tau_ref), rel(M, M_ref), rel(D, D_ref))
         c_ref = plant.CalcCenterOfMassPositionInWorld(ctx)
         worst = max(worst, rel(kernels.com(q)[0], c_ref))
         for b in range(len(tree.names)):
