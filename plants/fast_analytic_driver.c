@@ -231,7 +231,7 @@ int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *
     double xs[2 * MP], M[MP * MP], h[MP], Mr[MP * MP], hr[MP], ap[MP], D[2 * MP * MP], Dr[MP * 2 * MP];
     to_plant(c, x, xs);
     to_plant(c, x + n, xs + MP);
-    tree_pass1(xs, xs + MP, &TREE_W, M, h);
+    tree_pass1(xs, xs + MP, 1, &TREE_W, M, h);
     reduce_mh(c, M, h, Mr, hr);
     if (chol(n, Mr) == 0) chol_inverse(n, Mr, Mi);
     else {

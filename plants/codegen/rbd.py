@@ -173,6 +173,50 @@ def extract_tree(plant) -> Tree:
                 np.asarray(plant.gravity_field().gravity_vector(), float), m, np.array(prismatic, bool))
 
 
+def dynamics_tree(tree: Tree) -> Tree:
+    """The moving bodies of ``tree`` only, for the dynamics: a body welded to another (directly or through
+    welds) merged into it (mass, centre of mass and inertia about it combined in its frame), the moving
+    bodies below it re-attached to it through the composed fixed poses; the bodies welded to the world
+    (no moving joint above them) left out (their forces go to the world). Same motion, same ``M``, ``ID``."""
+    nb = len(tree.names)
+    parent = [int(x) for x in tree.parent]
+    R_PJ, p_PJ = [r.copy() for r in tree.R_PJ], [x.copy() for x in tree.p_PJ]
+    mass = [float(x) for x in tree.mass]
+    com = [c.copy() for c in tree.com]
+    I_com = [i.copy() for i in tree.I_com]
+    for b in range(nb - 1, -1, -1):   # children after their parents: welds below b are merged into b already
+        if tree.qidx[b] >= 0:
+            continue
+        # the weld's fixed pose in its parent's frame (or the world's)
+        R_PB, p_PB = R_PJ[b] @ tree.R_JB[b], p_PJ[b] + R_PJ[b] @ tree.p_JB[b]
+        pa = parent[b]
+        for c in range(b + 1, nb):   # the moving bodies attached to b: to b's parent
+            if parent[c] == b:
+                R_PJ[c], p_PJ[c] = R_PB @ R_PJ[c], p_PB + R_PB @ p_PJ[c]
+                parent[c] = pa
+        if pa < 0:
+            continue
+        m1, m2 = mass[pa], mass[b]
+        c1, c2 = com[pa], p_PB + R_PB @ com[b]
+        I2 = R_PB @ I_com[b] @ R_PB.T
+        m = m1 + m2
+        c = (m1 * c1 + m2 * c2) / m if m > 0.0 else np.zeros(3)
+
+        def shift(mi, di):   # parallel axis: mi (|d|^2 1 - d d^T)
+            return mi * (di @ di * np.eye(3) - np.outer(di, di))
+
+        I_com[pa] = I_com[pa] + shift(m1, c1 - c) + I2 + shift(m2, c2 - c)
+        mass[pa], com[pa] = m, c
+    keep = [b for b in range(nb) if tree.qidx[b] >= 0]
+    index = {b: i for i, b in enumerate(keep)}
+    return Tree([tree.names[b] for b in keep], np.array([index[parent[b]] if parent[b] >= 0 else -1 for b in keep], int),
+                tree.qidx[keep], np.array([R_PJ[b] for b in keep]).reshape(-1, 3, 3),
+                np.array([p_PJ[b] for b in keep]).reshape(-1, 3), tree.axis[keep], tree.R_JB[keep], tree.p_JB[keep],
+                np.array([mass[b] for b in keep]), np.array([com[b] for b in keep]).reshape(-1, 3),
+                np.array([I_com[b] for b in keep]).reshape(-1, 3, 3), tree.damping, tree.reflected, tree.gravity,
+                tree.m, tree.prismatic[keep])
+
+
 def _arr(name: str, ctype: str, a: np.ndarray) -> str:
     flat = np.asarray(a).reshape(-1)
     if ctype == "int":
@@ -180,6 +224,16 @@ def _arr(name: str, ctype: str, a: np.ndarray) -> str:
     else:
         body = ", ".join(repr(float(x)) for x in flat)
     return f"static const {ctype} {name}[{max(len(flat), 1)}] = {{{body or '0'}}};\n"
+
+
+def _tree_arrays(prefix: str, tree: Tree) -> str:
+    """The C arrays of ``tree``'s bodies, their names prefixed (the kinematics' tree, ``D``: the dynamics')."""
+    return "".join([_arr(prefix + "PARENT", "int", tree.parent), _arr(prefix + "QIDX", "int", tree.qidx),
+                    _arr(prefix + "PRISMATIC", "int", tree.prismatic.astype(int)),
+                    _arr(prefix + "R_PJ", "double", tree.R_PJ), _arr(prefix + "P_PJ", "double", tree.p_PJ),
+                    _arr(prefix + "AXIS", "double", tree.axis), _arr(prefix + "R_JB", "double", tree.R_JB),
+                    _arr(prefix + "P_JB", "double", tree.p_JB), _arr(prefix + "MASS", "double", tree.mass),
+                    _arr(prefix + "COM", "double", tree.com), _arr(prefix + "I_COM", "double", tree.I_com)])
 
 
 _KERNEL_C = c_backend.c_source(__file__, "rbd_kernels.c")  # the C beside this module
@@ -191,15 +245,11 @@ def tree_source(tree: Tree, header: bool = True) -> str:
     nb = len(tree.names)
     head = ("#include <math.h>\n#include <string.h>\n"
             f"#define MP {tree.m}\n#define NCARRY (2 * MP)\n") if header else ""
-    data = "".join([f"#define NB {nb}\n#define TREE_DYN 1\n",
-        _arr("PARENT", "int", tree.parent), _arr("QIDX", "int", tree.qidx),
-        _arr("PRISMATIC", "int", tree.prismatic.astype(int)),
-        _arr("R_PJ", "double", tree.R_PJ), _arr("P_PJ", "double", tree.p_PJ),
-        _arr("AXIS", "double", tree.axis), _arr("R_JB", "double", tree.R_JB),
-        _arr("P_JB", "double", tree.p_JB), _arr("MASS", "double", tree.mass),
-        _arr("COM", "double", tree.com), _arr("I_COM", "double", tree.I_com),
-        _arr("DAMPING", "double", tree.damping), _arr("REFLECTED", "double", tree.reflected),
-        _arr("GRAVITY", "double", tree.gravity)])
+    dyn = dynamics_tree(tree)
+    data = "".join([f"#define NB {nb}\n#define DNB {len(dyn.names)}\n#define TREE_DYN 1\n",
+                    _tree_arrays("", tree), _tree_arrays("D", dyn),
+                    _arr("DAMPING", "double", tree.damping), _arr("REFLECTED", "double", tree.reflected),
+                    _arr("GRAVITY", "double", tree.gravity)])
     return head + data + _KERNEL_C
 
 

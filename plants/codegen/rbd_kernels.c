@@ -150,12 +150,21 @@ static void d_fk(int nd, const double *q, dpose *P)
     }
 }
 
-/* plain forward kinematics: R (NB, 9), p (NB, 3), ax (NB, 3), o (NB, 3) */
-static void fk(const double *q, double *R, double *p, double *ax, double *o)
+/* a tree's bodies (the kinematics' tree: all bodies; the dynamics': the moving ones, welds merged) */
+typedef struct {
+    int nb;
+    const int *parent, *qidx, *prismatic;
+    const double *R_PJ, *P_PJ, *axis, *R_JB, *P_JB;
+} tree_arrays;
+static const tree_arrays KIN = {NB, PARENT, QIDX, PRISMATIC, R_PJ, P_PJ, AXIS, R_JB, P_JB};
+static const tree_arrays DYN = {DNB, DPARENT, DQIDX, DPRISMATIC, DR_PJ, DP_PJ, DAXIS, DR_JB, DP_JB};
+
+/* plain forward kinematics of the tree t: R (nb, 9), p (nb, 3), ax (nb, 3), o (nb, 3) */
+static void fk_of(const tree_arrays *t, const double *q, double *R, double *p, double *ax, double *o)
 {
-    for (int b = 0; b < NB; b++) {
-        int pa = PARENT[b];
-        const double *RPJ = R_PJ + 9 * b, *pPJ = P_PJ + 3 * b, *RJB = R_JB + 9 * b, *pJB = P_JB + 3 * b;
+    for (int b = 0; b < t->nb; b++) {
+        int pa = t->parent[b];
+        const double *RPJ = t->R_PJ + 9 * b, *pPJ = t->P_PJ + 3 * b, *RJB = t->R_JB + 9 * b, *pJB = t->P_JB + 3 * b;
         double RJ[9], Rot[9], RA[9];
         double *ob = o + 3 * b;
         if (pa < 0) {
@@ -170,15 +179,15 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
         }
         const double *Ru = RJ;
         double tr[3] = {0.0, 0.0, 0.0};   /* the prismatic joint's translation */
-        if (QIDX[b] >= 0 && PRISMATIC[b]) {
-            const double *a = AXIS + 3 * b, qv = q[QIDX[b]];
+        if (t->qidx[b] >= 0 && t->prismatic[b]) {
+            const double *a = t->axis + 3 * b, qv = q[t->qidx[b]];
             for (int r = 0; r < 3; r++) {
                 ax[3 * b + r] = RJ[3 * r] * a[0] + RJ[3 * r + 1] * a[1] + RJ[3 * r + 2] * a[2];
                 tr[r] = qv * ax[3 * b + r];
             }
-        } else if (QIDX[b] >= 0) {
-            const double *a = AXIS + 3 * b;
-            double c = cos(q[QIDX[b]]), s = sin(q[QIDX[b]]), omc = 1.0 - c;
+        } else if (t->qidx[b] >= 0) {
+            const double *a = t->axis + 3 * b;
+            double c = cos(q[t->qidx[b]]), s = sin(q[t->qidx[b]]), omc = 1.0 - c;
             double K[9] = {0.0, -a[2], a[1], a[2], 0.0, -a[0], -a[1], a[0], 0.0};
             for (int r = 0; r < 3; r++) for (int cc = 0; cc < 3; cc++)
                 Rot[3 * r + cc] = (r == cc ? c : 0.0) + K[3 * r + cc] * s + a[r] * a[cc] * omc;
@@ -196,6 +205,8 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
         }
     }
 }
+
+static void fk(const double *q, double *R, double *p, double *ax, double *o) { fk_of(&KIN, q, R, p, ax, o); }
 
 /* add to J (3 x MP, row-major, row stride ld) the translational Jacobian of world point r on body b */
 static void point_jacobian(int b, const double *r, const double *ax, const double *o, double *J, int ld)
@@ -476,31 +487,33 @@ static void inertia_apply(double *z, double m, const double *h, const double *J,
     z[3] = m * x[3] - t[0]; z[4] = m * x[4] - t[1]; z[5] = m * x[5] - t[2];
 }
 
-/* the state of one evaluation: pass 1 at (q, v), pass 2 at a */
+/* the state of one evaluation on the dynamics' tree (the moving bodies, welds merged: DNB bodies,
+ * rbd.py's dynamics_tree): pass 1 at (q, v), pass 2 at a */
 typedef struct {
-    double S[NB][6], V[NB][6], A0[NB][6];     /* motion axis (0: weld), velocity, acceleration at a = 0 */
-    double m[NB], h[NB][3], J[NB][6];          /* the body's inertia, then the subtree's (Ic) */
-    double hd[NB][3], Jd[NB][6];               /* Bc: the subtree's inertia rate */
-    double H[NB][6], F0[NB][6];                /* the subtree's momentum and force at a = 0 */
-    double Ib[NB][10];                         /* the body's own inertia (m, h, J), for pass 2 */
-    double u[NB][6], w[NB][6], zy[NB][6];      /* u_j, w_i, z_i - y_i */
-    double y[NB][6];                           /* y_i */
-    double dA[NB][6], F[NB][6], alpha[NB][6];  /* pass 2 */
+    double S[DNB][6], V[DNB][6], A0[DNB][6];    /* motion axis, velocity, acceleration at a = 0 */
+    double m[DNB], h[DNB][3], J[DNB][6];        /* the body's inertia, then the subtree's (Ic) */
+    double hd[DNB][3], Jd[DNB][6];              /* Bc: the subtree's inertia rate */
+    double H[DNB][6], F0[DNB][6];               /* the subtree's momentum and force at a = 0 */
+    double Ib[DNB][10];                         /* the body's own inertia (m, h, J), for pass 2 */
+    double u[DNB][6], w[DNB][6], zy[DNB][6];    /* u_j, w_i, z_i - y_i */
+    double y[DNB][6];                           /* y_i */
+    double dA[DNB][6], F[DNB][6], alpha[DNB][6];  /* pass 2 */
 } tree_work;
 
 static __thread tree_work TREE_W;   /* one evaluation's state per thread */
 
-/* pass 1 at (q, v): M (MP x MP, with the reflected inertia) and the bias torques h (MP) = ID(q, v, 0) */
-static void tree_pass1(const double *q, const double *v, tree_work *W, double *M, double *hb)
+/* pass 1 at (q, v): M (MP x MP, with the reflected inertia) and the bias torques h (MP) = ID(q, v, 0);
+ * full = 0: these only (not what pass 2 needs) */
+static void tree_pass1(const double *q, const double *v, int full, tree_work *W, double *M, double *hb)
 {
-    double R[9 * NB], p[3 * NB], axw[3 * NB], o[3 * NB];
-    fk(q, R, p, axw, o);
-    for (int b = 0; b < NB; b++) {
-        int pa = PARENT[b], k = QIDX[b];
+    double R[9 * DNB], p[3 * DNB], axw[3 * DNB], o[3 * DNB];
+    fk_of(&DYN, q, R, p, axw, o);
+    for (int b = 0; b < DNB; b++) {
+        int pa = DPARENT[b], k = DQIDX[b];
         double *S = W->S[b], *V = W->V[b], *A0 = W->A0[b], *u = W->u[b];
         const double *ax = axw + 3 * b;
         for (int i = 0; i < 6; i++) S[i] = u[i] = 0.0;
-        if (k >= 0 && PRISMATIC[b]) { S[3] = ax[0]; S[4] = ax[1]; S[5] = ax[2]; }
+        if (k >= 0 && DPRISMATIC[b]) { S[3] = ax[0]; S[4] = ax[1]; S[5] = ax[2]; }
         else if (k >= 0) { S[0] = ax[0]; S[1] = ax[1]; S[2] = ax[2]; x3(S + 3, o + 3 * b, ax); }
         if (pa < 0) {
             for (int i = 0; i < 6; i++) V[i] = A0[i] = 0.0;
@@ -515,8 +528,8 @@ static void tree_pass1(const double *q, const double *v, tree_work *W, double *M
             for (int i = 0; i < 6; i++) { V[i] += S[i] * vk; A0[i] -= u[i] * vk; }
         }
         /* the body's inertia about the origin: h = m c, J = R I_c R^T + m (|c|^2 1 - c c^T) */
-        double mb = MASS[b], c[3], RI[9], Jf[9];
-        const double *Rb = R + 9 * b, *Ic = I_COM + 9 * b, *cb = COM + 3 * b;
+        double mb = DMASS[b], c[3], RI[9], Jf[9];
+        const double *Rb = R + 9 * b, *Ic = DI_COM + 9 * b, *cb = DCOM + 3 * b;
         for (int r = 0; r < 3; r++) c[r] = p[3 * b + r] + (Rb[3 * r] * cb[0] + Rb[3 * r + 1] * cb[1] + Rb[3 * r + 2] * cb[2]);
         for (int r = 0; r < 3; r++) for (int cc = 0; cc < 3; cc++)
             RI[3 * r + cc] = Rb[3 * r] * Ic[cc] + Rb[3 * r + 1] * Ic[3 + cc] + Rb[3 * r + 2] * Ic[6 + cc];
@@ -541,6 +554,7 @@ static void tree_pass1(const double *q, const double *v, tree_work *W, double *M
         inertia_apply(F0, mb, h, J, A0);
         fcross(t, V, Hb);
         for (int i = 0; i < 6; i++) F0[i] += t[i];
+        if (!full) continue;
         const double *om = V, *vo = V + 3;
         double *hd = W->hd[b], *Jd = W->Jd[b], X[9], Jc[9] = {J[0], J[3], J[4], J[3], J[1], J[5], J[4], J[5], J[2]};
         x3(hd, om, h);
@@ -559,33 +573,35 @@ static void tree_pass1(const double *q, const double *v, tree_work *W, double *M
         Jd[5] = X[5] + X[7] - (h[1] * vo[2] + vo[1] * h[2]);
     }
     /* subtree sums towards the root (children come after their parents) */
-    for (int b = NB - 1; b >= 0; b--) {
-        int pa = PARENT[b];
+    for (int b = DNB - 1; b >= 0; b--) {
+        int pa = DPARENT[b];
         if (pa < 0) continue;
         W->m[pa] += W->m[b];
-        for (int i = 0; i < 3; i++) { W->h[pa][i] += W->h[b][i]; W->hd[pa][i] += W->hd[b][i]; }
-        for (int i = 0; i < 6; i++) {
-            W->J[pa][i] += W->J[b][i]; W->Jd[pa][i] += W->Jd[b][i];
-            W->H[pa][i] += W->H[b][i]; W->F0[pa][i] += W->F0[b][i];
-        }
+        for (int i = 0; i < 3; i++) W->h[pa][i] += W->h[b][i];
+        for (int i = 0; i < 6; i++) { W->J[pa][i] += W->J[b][i]; W->F0[pa][i] += W->F0[b][i]; }
+        if (!full) continue;
+        for (int i = 0; i < 3; i++) W->hd[pa][i] += W->hd[b][i];
+        for (int i = 0; i < 6; i++) { W->Jd[pa][i] += W->Jd[b][i]; W->H[pa][i] += W->H[b][i]; }
     }
     memset(M, 0, sizeof(double) * MP * MP);
-    for (int i = 0; i < NB; i++) {
-        int ki = QIDX[i];
+    for (int i = 0; i < DNB; i++) {
+        int ki = DQIDX[i];
         if (ki < 0) continue;
         const double *S = W->S[i];
         double *w = W->w[i], *y = W->y[i], *zy = W->zy[i], z[6], t[3];
         inertia_apply(w, W->m[i], W->h[i], W->J[i], S);
-        sym3(y, W->Jd[i], S);   /* y = Bc S: (Jd s_w + hd x s_v, -hd x s_w) */
-        x3(t, W->hd[i], S + 3);
-        y[0] += t[0]; y[1] += t[1]; y[2] += t[2];
-        x3(t, W->hd[i], S);
-        y[3] = -t[0]; y[4] = -t[1]; y[5] = -t[2];
-        fcross(z, S, W->H[i]);
-        for (int r = 0; r < 6; r++) zy[r] = z[r] - y[r];
+        if (full) {
+            sym3(y, W->Jd[i], S);   /* y = Bc S: (Jd s_w + hd x s_v, -hd x s_w) */
+            x3(t, W->hd[i], S + 3);
+            y[0] += t[0]; y[1] += t[1]; y[2] += t[2];
+            x3(t, W->hd[i], S);
+            y[3] = -t[0]; y[4] = -t[1]; y[5] = -t[2];
+            fcross(z, S, W->H[i]);
+            for (int r = 0; r < 6; r++) zy[r] = z[r] - y[r];
+        }
         hb[ki] = dot6(S, W->F0[i]) + DAMPING[ki] * v[ki];
-        for (int j = i; j >= 0; j = PARENT[j]) {
-            int kj = QIDX[j];
+        for (int j = i; j >= 0; j = DPARENT[j]) {
+            int kj = DQIDX[j];
             if (kj < 0) continue;
             double mij = dot6(w, W->S[j]);
             M[ki * MP + kj] = mij;
@@ -599,8 +615,8 @@ static void tree_pass1(const double *q, const double *v, tree_work *W, double *M
  * NULL) and D = dID/d(q, v) (MP x 2 MP) */
 static void tree_pass2(tree_work *W, const double *v, const double *a, double *tau, double *D)
 {
-    for (int b = 0; b < NB; b++) {
-        int pa = PARENT[b], k = QIDX[b];
+    for (int b = 0; b < DNB; b++) {
+        int pa = DPARENT[b], k = DQIDX[b];
         double *dA = W->dA[b], *F = W->F[b];
         if (pa < 0) for (int i = 0; i < 6; i++) dA[i] = 0.0;
         else memcpy(dA, W->dA[pa], sizeof(double) * 6);
@@ -622,14 +638,14 @@ static void tree_pass2(tree_work *W, const double *v, const double *a, double *t
         const double *Ib = W->Ib[b];
         inertia_apply(F, Ib[0], Ib + 1, Ib + 4, dA);
     }
-    for (int b = NB - 1; b >= 0; b--) {   /* F: the subtree's sum of I_k dA_k, then + F0 */
-        int pa = PARENT[b];
+    for (int b = DNB - 1; b >= 0; b--) {   /* F: the subtree's sum of I_k dA_k, then + F0 */
+        int pa = DPARENT[b];
         if (pa >= 0) for (int i = 0; i < 6; i++) W->F[pa][i] += W->F[b][i];
     }
-    for (int b = 0; b < NB; b++) for (int i = 0; i < 6; i++) W->F[b][i] += W->F0[b][i];
+    for (int b = 0; b < DNB; b++) for (int i = 0; i < 6; i++) W->F[b][i] += W->F0[b][i];
     memset(D, 0, sizeof(double) * 2 * MP * MP);
-    for (int i = 0; i < NB; i++) {
-        int ki = QIDX[i];
+    for (int i = 0; i < DNB; i++) {
+        int ki = DQIDX[i];
         if (ki < 0) continue;
         const double *S = W->S[i], *u = W->u[i], *w = W->w[i], *zy = W->zy[i], *al = W->alpha[i];
         double Phi[6], Psi[6], t[6], t2[6];
@@ -649,8 +665,8 @@ static void tree_pass2(tree_work *W, const double *v, const double *a, double *t
         for (int r = 0; r < 6; r++) Psi[r] += W->y[i][r] - 2.0 * t[r];
         if (tau) tau[ki] = dot6(S, W->F[i]) + DAMPING[ki] * v[ki] + REFLECTED[ki] * a[ki];
         double *Dq = D + (long)ki * 2 * MP, *Dv = Dq + MP;
-        for (int j = i; j >= 0; j = PARENT[j]) {
-            int kj = QIDX[j];
+        for (int j = i; j >= 0; j = DPARENT[j]) {
+            int kj = DQIDX[j];
             if (kj < 0) continue;
             const double *Sj = W->S[j], *uj = W->u[j];
             Dq[kj] = dot6(zy, uj) - dot6(w, W->alpha[j]);
@@ -668,7 +684,7 @@ static void tree_pass2(tree_work *W, const double *v, const double *a, double *t
  * -> out = (M, h); tree_pass1 / tree_pass2 for the derivatives */
 static void gen_mh(const double *xs, double *out)
 {
-    tree_pass1(xs, xs + MP, &TREE_W, out, out + MP * MP);
+    tree_pass1(xs, xs + MP, 0, &TREE_W, out, out + MP * MP);
 }
 
 /* exported for the checks and the task maps (the task maps' inverse dynamics and its derivatives:
@@ -677,7 +693,7 @@ int tree_mass_matrix(const double *q, double *M)
 {
     double v[MP], hb[MP];
     memset(v, 0, sizeof v);
-    tree_pass1(q, v, &TREE_W, M, hb);
+    tree_pass1(q, v, 0, &TREE_W, M, hb);
     return 0;
 }
 int tree_inverse_dynamics(const double *q, const double *v, const double *a, double *tau) { rnea(0, q, v, a, tau); return 0; }
@@ -693,7 +709,7 @@ int tree_id_derivatives(const double *q, const double *v, const double *a, doubl
 int tree_id_analytic(const double *q, const double *v, const double *a, double *tau, double *M, double *D)
 {
     double hb[MP];
-    tree_pass1(q, v, &TREE_W, M, hb);
+    tree_pass1(q, v, 1, &TREE_W, M, hb);
     tree_pass2(&TREE_W, v, a, tau, D);
     return 0;
 }
