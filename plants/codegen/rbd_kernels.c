@@ -208,6 +208,22 @@ static void fk_of(const tree_arrays *t, const double *q, double *R, double *p, d
 
 static void fk(const double *q, double *R, double *p, double *ax, double *o) { fk_of(&KIN, q, R, p, ax, o); }
 
+/* the last configuration's kinematics, per thread: the task maps of one step evaluate several frames
+ * at the same q (a placement: its rotation, then its position) */
+typedef struct { int valid; double q[MP], R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB]; } fk_memo;
+static __thread fk_memo FK_MEMO;
+
+static const fk_memo *fk_at(const double *q)
+{
+    fk_memo *m = &FK_MEMO;
+    if (!m->valid || memcmp(m->q, q, sizeof(double) * MP) != 0) {
+        fk(q, m->R, m->p, m->ax, m->o);
+        memcpy(m->q, q, sizeof(double) * MP);
+        m->valid = 1;
+    }
+    return m;
+}
+
 /* add to J (3 x MP, row-major, row stride ld) the translational Jacobian of world point r on body b */
 static void point_jacobian(int b, const double *r, const double *ax, const double *o, double *J, int ld)
 {
@@ -245,8 +261,8 @@ int tree_frame_points(const double *q, int b, const double *RBF, const double *p
                       const double *pts, double *pos, double *J)
 {
     if (b < 0 || b >= NB || npts < 0) return -1;
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
-    fk(q, R, p, ax, o);
+    const fk_memo *K = fk_at(q);
+    const double *R = K->R, *p = K->p, *ax = K->ax, *o = K->o;
     const double *Rb = R + 9 * b, *pb = p + 3 * b;
     memset(J, 0, sizeof(double) * 3 * npts * MP);
     for (int k = 0; k < npts; k++) {
@@ -264,9 +280,8 @@ int tree_frame_points(const double *q, int b, const double *RBF, const double *p
 int tree_frame_rotation(const double *q, int b, const double *RBF, double *RWF, double *Jw)
 {
     if (b < 0 || b >= NB) return -1;
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
-    fk(q, R, p, ax, o);
-    const double *Rb = R + 9 * b;
+    const fk_memo *K = fk_at(q);
+    const double *Rb = K->R + 9 * b, *ax = K->ax;
     for (int r = 0; r < 3; r++) for (int c = 0; c < 3; c++)
         RWF[3 * r + c] = Rb[3 * r] * RBF[c] + Rb[3 * r + 1] * RBF[3 + c] + Rb[3 * r + 2] * RBF[6 + c];
     memset(Jw, 0, sizeof(double) * 3 * MP);
@@ -277,8 +292,9 @@ int tree_frame_rotation(const double *q, int b, const double *RBF, double *RWF, 
 /* centre of mass c (3) in the world and its Jacobian J (3 x MP) */
 int tree_com(const double *q, double *c, double *J)
 {
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB], total = 0.0;
-    fk(q, R, p, ax, o);
+    const fk_memo *K = fk_at(q);
+    const double *R = K->R, *p = K->p, *ax = K->ax, *o = K->o;
+    double total = 0.0;
     double Jb[3 * MP];
     c[0] = c[1] = c[2] = 0.0;
     memset(J, 0, sizeof(double) * 3 * MP);
