@@ -27,7 +27,7 @@ with partial pivoting like ``np.linalg.inv``). Without ``gcc`` (or with ``RAICO_
 code runs.
 
 :class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
-kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its forward-mode derivatives in C): exact
+kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its analytical derivatives in C): exact
 derivatives for the Nao, whose symbolic equations are too large to generate, and for arms of 6 or
 more joints, whose symbolic derivation is slow or fails (see ``SYMBOLIC_MAX_POSITIONS``); revolute,
 prismatic and weld joints. It is the registry's ``analytic`` model for those plants (through
@@ -380,9 +380,10 @@ class _TreeCode:
 class TreeAnalyticDynamics(FastAnalyticDynamics):
     """:class:`FastAnalyticDynamics` on the plant's kinematic tree instead of generated symbolic
     code: for plants too large for :mod:`plants.codegen.derive` (the 26-joint Nao). ``M`` from
-    the body Jacobians, ``ID`` by Newton-Euler, ``dID/d(q, v)`` by forward-mode differentiation of
-    it, all in C (:mod:`plants.codegen.rbd`, checked against Drake's AutoDiffXd when built), with
-    the formulas of :class:`plants.dynamics.AnalyticDynamics` on top (the driver of this module).
+    the composite inertias, ``ID`` by Newton-Euler, ``dID/d(q, v)`` by its analytical derivatives
+    (Carpentier and Mansard 2018), all in C (:mod:`plants.codegen.rbd`, checked against Drake's
+    AutoDiffXd when built), with the formulas of :class:`plants.dynamics.AnalyticDynamics` on top
+    (the driver of this module; ``M_r^-1`` from a Cholesky factor).
     Needs the compiled route: raises ``NotImplementedError`` without it.
     """
 

@@ -8,14 +8,17 @@ inertia, gravity) read from the Drake plant and baked into the C source:
 
 - forward kinematics, point / centre-of-mass / angular-velocity Jacobians (the task maps of
   :mod:`plants.taskmaps`);
-- the mass matrix ``M = sum_b m_b J_vb^T J_vb + J_wb^T I_b J_wb + diag(reflected inertia)``;
 - the inverse dynamics ``ID(q, v, a)`` by the recursive Newton-Euler algorithm, written in world
   coordinates (spatial vectors at the world origin: forces of the bodies simply add up towards
   the root), gravity as the base's acceleration, plus joint damping and reflected inertia;
-- its exact derivatives ``dID/d(q, v)`` by forward-mode automatic differentiation of that same
-  code: a body's quantities carry the partial derivatives along the positions and velocities of
-  the joints between it and the world only (the others are zero), the forces summed towards the
-  root all ``2 m``;
+- its exact derivatives ``dID/d(q, v)`` two ways: by forward-mode automatic differentiation of that
+  same code (a body's quantities carry the partial derivatives along the positions and velocities
+  of the joints between it and the world only; the task maps' gravity torques use it), and, for the
+  dynamics model (:class:`plants.fast_analytic.TreeAnalyticDynamics`), by the analytical derivatives
+  of the recursive Newton-Euler algorithm (Carpentier and Mansard, RSS 2018) in the same world
+  coordinates, with the mass matrix ``M`` from the same pass (the composite inertias): O(1) work per body
+  and a few dot products of 6-vectors per pair of joints on a path to the root, on the dynamics'
+  own tree (:func:`dynamics_tree`: the moving bodies, welded ones merged into them);
 - the C entry points of these maps (``TreeKernels.addresses``) through which the planning floor's
   compiled task messages (``planning/task_messages.c``, :func:`planning.kernels.compile_task_set`)
   evaluate them.
@@ -25,8 +28,8 @@ parent/child direction, as Drake does when a foot is welded to the world), gravi
 element. A prismatic joint translates its child along its axis by ``q`` (m); in the world-frame
 Newton-Euler its motion axis is ``(0, a)`` (revolute: ``(a, o x a)``), its damping and reflected
 inertia (rotor inertia x gear ratio^2, kg) enter as a revolute joint's do.
-:func:`tree_code` checks ``M``, ``h`` and ``dID`` against Drake's float and AutoDiffXd evaluation
-at random states and refuses the plant on a mismatch (``NotImplementedError``), as
+:func:`tree_kernels` checks ``M``, ``h`` and ``dID`` (both routes) against Drake's float and AutoDiffXd
+evaluation at random states and refuses the plant on a mismatch (``NotImplementedError``), as
 :func:`plants.codegen.derive.derive` does for the generated code.
 """
 
