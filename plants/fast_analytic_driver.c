@@ -166,8 +166,8 @@ static int chol(int n, double *a)
 }
 
 /* C (r x c, row stride ldc) = sum over k < K of A_ik B_kj, with A_ik = A[i lda + k] (trans = 0) or
- * A[k lda + i] (trans = 1), B (K x c, row stride ldb); from k = k0(i) = (lower ? i : 0) on (the rows
- * of B above are zero). Every entry is summed in the order of k, as the scalar loop does; the columns
+ * A[k lda + i] (trans = 1), B (K x c, row stride ldb); from k = k0(i) = (lower ? i : 0) on (lower:
+ * A_ik = 0 for k < i). Every entry is summed in the order of k, as the scalar loop does; the columns
  * go in blocks of 16 and 4 (vectors of 4 doubles) with a scalar tail. */
 typedef double v4d __attribute__((vector_size(32)));
 static inline v4d ld4(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }

@@ -176,6 +176,11 @@ def extract_tree(plant) -> Tree:
                 np.asarray(plant.gravity_field().gravity_vector(), float), m, np.array(prismatic, bool))
 
 
+def _parallel_axis(m: float, d: np.ndarray) -> np.ndarray:
+    """The inertia (3, 3) a mass ``m`` (kg) adds when moved by ``d`` (m) from its centre: ``m (|d|^2 1 - d d^T)``."""
+    return m * (d @ d * np.eye(3) - np.outer(d, d))
+
+
 def dynamics_tree(tree: Tree) -> Tree:
     """The moving bodies of ``tree`` only, for the dynamics: a body welded to another (directly or through
     welds) merged into it (mass, centre of mass and inertia about it combined in its frame), the moving
@@ -203,13 +208,9 @@ def dynamics_tree(tree: Tree) -> Tree:
         c1, c2 = com[pa], p_PB + R_PB @ com[b]
         I2 = R_PB @ I_com[b] @ R_PB.T
         m = m1 + m2
-        c = (m1 * c1 + m2 * c2) / m if m > 0.0 else np.zeros(3)
-
-        def shift(mi, di):   # parallel axis: mi (|d|^2 1 - d d^T)
-            return mi * (di @ di * np.eye(3) - np.outer(di, di))
-
-        I_com[pa] = I_com[pa] + shift(m1, c1 - c) + I2 + shift(m2, c2 - c)
-        mass[pa], com[pa] = m, c
+        cm = (m1 * c1 + m2 * c2) / m if m > 0.0 else np.zeros(3)
+        I_com[pa] = I_com[pa] + _parallel_axis(m1, c1 - cm) + I2 + _parallel_axis(m2, c2 - cm)
+        mass[pa], com[pa] = m, cm
     keep = [b for b in range(nb) if tree.qidx[b] >= 0]
     index = {b: i for i, b in enumerate(keep)}
     return Tree([tree.names[b] for b in keep], np.array([index[parent[b]] if parent[b] >= 0 else -1 for b in keep], int),
