@@ -22,6 +22,70 @@ static void to_plant(const dyn_ctx *c, const double *z, double *out)
     }
 }
 
+#ifdef TREE_DYN
+/* The tree's route: the reductions by P's nonzeros (a selection of the plant's joints, coupled ones
+ * summed: one or two per column), O(MP (MP + n)) instead of O(MP^2 n). */
+
+/* the nonzeros of P (MP x n) row by row: rows rk, columns ci, values pv; their count */
+static int p_nonzeros(const dyn_ctx *c, int *rk, int *ci, double *pv)
+{
+    int nz = 0;
+    for (int k = 0; k < MP; k++)
+        for (int i = 0; i < c->n; i++) {
+            double p = c->P[k * c->n + i];
+            if (p != 0.0) { rk[nz] = k; ci[nz] = i; pv[nz] = p; nz++; }
+        }
+    return nz;
+}
+
+/* Y (n x cols, row stride ldy) = P^T X (X: MP x cols, row stride ldx) */
+static void pt_times(int nz, const int *rk, const int *ci, const double *pv, int n, int cols,
+                     const double *X, int ldx, double *Y, int ldy)
+{
+    for (int i = 0; i < n; i++) for (int j = 0; j < cols; j++) Y[i * ldy + j] = 0.0;
+    for (int e = 0; e < nz; e++) {
+        const double *x = X + rk[e] * ldx;
+        double *y = Y + ci[e] * ldy, p = pv[e];
+        for (int j = 0; j < cols; j++) y[j] += p * x[j];
+    }
+}
+
+/* Y (rows x n, row stride ldy) = X P (X: rows x MP, row stride ldx) */
+static void times_p(int nz, const int *rk, const int *ci, const double *pv, int n, int rows,
+                    const double *X, int ldx, double *Y, int ldy)
+{
+    for (int r = 0; r < rows; r++) {
+        double *y = Y + r * ldy;
+        const double *x = X + r * ldx;
+        for (int j = 0; j < n; j++) y[j] = 0.0;
+        for (int e = 0; e < nz; e++) y[ci[e]] += pv[e] * x[rk[e]];
+    }
+}
+
+/* M_r = P^T M P (n x n), h_r = P^T h (n) from the plant's M (MP x MP), h (MP) */
+static void reduce_mh(const dyn_ctx *c, const double *M, const double *h, double *Mr, double *hr)
+{
+    int n = c->n, rk[MP * MP], ci[MP * MP];
+    double pv[MP * MP], MPm[MP * MP];   /* M P (MP x n) */
+    if (c->identity) { memcpy(Mr, M, sizeof(double) * MP * MP); memcpy(hr, h, sizeof(double) * MP); return; }
+    int nz = p_nonzeros(c, rk, ci, pv);
+    times_p(nz, rk, ci, pv, n, MP, M, MP, MPm, n);
+    pt_times(nz, rk, ci, pv, n, n, MPm, n, Mr, n);
+    pt_times(nz, rk, ci, pv, n, 1, h, 1, hr, 1);
+}
+
+/* D_r = [P^T Dq P, P^T Dv P] (n x 2n) from the plant's D = [Dq, Dv] (MP x 2 MP) */
+static void reduce_D(const dyn_ctx *c, const double *D, double *Dr)
+{
+    int n = c->n, rk[MP * MP], ci[MP * MP];
+    double pv[MP * MP], DP[MP * 2 * MP];   /* [Dq P, Dv P] (MP x 2n) */
+    if (c->identity) { memcpy(Dr, D, sizeof(double) * 2 * MP * MP); return; }
+    int nz = p_nonzeros(c, rk, ci, pv);
+    times_p(nz, rk, ci, pv, n, MP, D, 2 * MP, DP, 2 * n);
+    times_p(nz, rk, ci, pv, n, MP, D + MP, 2 * MP, DP + n, 2 * n);
+    pt_times(nz, rk, ci, pv, n, 2 * n, DP, 2 * n, Dr, 2 * n);
+}
+#else
 /* M_r = P^T M P (n x n), h_r = P^T h (n) from the plant's M (MP x MP), h (MP) */
 static void reduce_mh(const dyn_ctx *c, const double *M, const double *h, double *Mr, double *hr)
 {
@@ -45,6 +109,7 @@ static void reduce_mh(const dyn_ctx *c, const double *M, const double *h, double
         hr[i] = s;
     }
 }
+#endif
 
 /* LU with partial pivoting of the n x n matrix a (overwritten); piv (n). */
 static void lu(int n, double *a, int *piv)
@@ -121,24 +186,6 @@ int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr)
     gen_mh(xs, out);
     reduce_mh(c, out, out + MP * MP, Mr, hr);
     return 0;
-}
-
-/* D_r = [P^T Dq P, P^T Dv P] (n x 2n) from the plant's D = [Dq, Dv] (MP x 2 MP) */
-static void reduce_D(const dyn_ctx *c, const double *D, double *Dr)
-{
-    int n = c->n, N = 2 * n;
-    if (c->identity) { memcpy(Dr, D, sizeof(double) * 2 * MP * MP); return; }
-    for (int i = 0; i < n; i++)
-        for (int half = 0; half < 2; half++)
-            for (int j = 0; j < n; j++) {
-                double s = 0.0;
-                for (int k = 0; k < MP; k++) {
-                    double pk = c->P[k * n + i];
-                    if (pk == 0.0) continue;
-                    for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
-                }
-                Dr[i * N + half * n + j] = s;
-            }
 }
 
 #ifdef TREE_DYN
@@ -251,6 +298,24 @@ int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *
     return 0;
 }
 #else
+/* D_r = [P^T Dq P, P^T Dv P] (n x 2n) from the plant's D = [Dq, Dv] (MP x 2 MP) */
+static void reduce_D(const dyn_ctx *c, const double *D, double *Dr)
+{
+    int n = c->n, N = 2 * n;
+    if (c->identity) { memcpy(Dr, D, sizeof(double) * 2 * MP * MP); return; }
+    for (int i = 0; i < n; i++)
+        for (int half = 0; half < 2; half++)
+            for (int j = 0; j < n; j++) {
+                double s = 0.0;
+                for (int k = 0; k < MP; k++) {
+                    double pk = c->P[k * n + i];
+                    if (pk == 0.0) continue;
+                    for (int l = 0; l < MP; l++) s += pk * D[k * 2 * MP + half * MP + l] * c->P[l * n + j];
+                }
+                Dr[i * N + half * n + j] = s;
+            }
+}
+
 /* qddot a (n), d qddot / d(q, v) F (n x 2n), M_r^-1 Mi (n x n) at (x, u) */
 int dyn_derivatives(const dyn_ctx *c, const double *x, const double *u, double *a, double *F, double *Mi)
 {
