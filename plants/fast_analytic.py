@@ -23,7 +23,9 @@ for single points (``step``, ``linearize``), trajectories (``linearize_trajector
 rollouts (``controller_rollout``); the AICO sweep kernel calls ``dyn_linearize`` directly
 (:meth:`FastAnalyticDynamics.c_linearizer`). The C driver below is the numpy code of this module
 line by line (the generated part is operation for operation the same; ``M_r`` is inverted by LU
-with partial pivoting like ``np.linalg.inv``). Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
+with partial pivoting like ``np.linalg.inv``); on the tree route it computes ``M``, ``h`` and
+``dID/d(q, v)`` in two passes over the tree, inverts ``M_r`` from its Cholesky factor and reduces
+by ``P``'s nonzeros. Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
 code runs.
 
 :class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
