@@ -59,8 +59,7 @@ class _DynCtx(ctypes.Structure):
 _P = ctypes.POINTER(ctypes.c_double)
 
 
-# The dynamics libraries at -O3 (later flags win): the derivative loops vectorize (the tree
-# kernels' dual-number lanes: 40 % less time at 32 joints, 18 % at 6); contraction and
+# The dynamics libraries at -O3 (later flags win): the derivative loops vectorize; contraction and
 # reassociation stay off, so every number is the -O2 build's, bit for bit (tests/plants/test_fastdyn.py).
 DYN_FLAGS = (*c_backend.CFLAGS, "-O3")
 
