@@ -194,19 +194,20 @@ int dyn_mh(const dyn_ctx *c, const double *x, double *Mr, double *hr)
  * definite), dID/d(q, v) at a = qddot by the second pass. */
 
 /* the Cholesky factor L (lower triangle of a, in place) of the n x n matrix a: 0, or -1 where a pivot
- * is not positive */
+ * is not positive. Right-looking: after column j, the rows below take its outer product off their
+ * trailing part (row-wise updates that vectorize, no dependent sums). */
 static int chol(int n, double *a)
 {
+    double col[MP];
     for (int j = 0; j < n; j++) {
         double d = a[j * n + j];
-        for (int k = 0; k < j; k++) d -= a[j * n + k] * a[j * n + k];
         if (!(d > 0.0)) return -1;
         d = sqrt(d);
         a[j * n + j] = d;
+        for (int i = j + 1; i < n; i++) col[i] = a[i * n + j] /= d;
         for (int i = j + 1; i < n; i++) {
-            double s = a[i * n + j];
-            for (int k = 0; k < j; k++) s -= a[i * n + k] * a[j * n + k];
-            a[i * n + j] = s / d;
+            double l = col[i], *row = a + i * n;
+            for (int k = j + 1; k <= i; k++) row[k] -= l * col[k];
         }
     }
     return 0;
@@ -214,8 +215,8 @@ static int chol(int n, double *a)
 
 /* C (r x c, row stride ldc) = sum over k < K of A_ik B_kj, with A_ik = A[i lda + k] (trans = 0) or
  * A[k lda + i] (trans = 1), B (K x c, row stride ldb); from k = k0(i) = (lower ? i : 0) on (lower:
- * A_ik = 0 for k < i). Every entry is summed in the order of k, as the scalar loop does; the columns
- * go in blocks of 16 and 4 (vectors of 4 doubles) with a scalar tail. */
+ * A_ik = 0 for k < i). Every entry is summed in the order of k, as the scalar loop does; two rows at a
+ * time, the columns in blocks of 16 and 4 (vectors of 4 doubles) with a scalar tail. */
 typedef double v4d __attribute__((vector_size(32)));
 static inline v4d ld4(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }
 static inline void st4(double *p, v4d v) { memcpy(p, &v, sizeof v); }
@@ -223,34 +224,58 @@ static inline void st4(double *p, v4d v) { memcpy(p, &v, sizeof v); }
 static void gemm_rows(int r, int c, int K, const double *A, int lda, int trans, int lower,
                       const double *B, int ldb, double *C, int ldc)
 {
-    for (int i = 0; i < r; i++) {
-        double *Ci = C + (long)i * ldc;
-        int k0 = lower ? i : 0, j = 0;
+#define A_(i, k) (trans ? A[(long)(k) * lda + (i)] : A[(long)(i) * lda + (k)])
+    int i = 0;
+    for (; i + 2 <= r; i += 2) {   /* two rows at once: 8 independent sums of 4 */
+        double *C0 = C + (long)i * ldc, *C1 = C0 + ldc;
+        int k0 = lower ? i : 0, j = 0;   /* lower: row i + 1 adds A_(i+1, i) = 0 first, exactly */
         for (; j + 16 <= c; j += 16) {
-            v4d c0 = {0.0, 0.0, 0.0, 0.0}, c1 = c0, c2 = c0, c3 = c0;
+            v4d z = {0.0, 0.0, 0.0, 0.0}, a0 = z, a1 = z, a2 = z, a3 = z, b0 = z, b1 = z, b2 = z, b3 = z;
             for (int k = k0; k < K; k++) {
-                double aik = trans ? A[(long)k * lda + i] : A[(long)i * lda + k];
-                v4d av = {aik, aik, aik, aik};
+                double x = A_(i, k), y = A_(i + 1, k);
+                v4d xv = {x, x, x, x}, yv = {y, y, y, y};
                 const double *Bk = B + (long)k * ldb + j;
-                c0 += av * ld4(Bk); c1 += av * ld4(Bk + 4); c2 += av * ld4(Bk + 8); c3 += av * ld4(Bk + 12);
+                v4d B0 = ld4(Bk), B1 = ld4(Bk + 4), B2 = ld4(Bk + 8), B3 = ld4(Bk + 12);
+                a0 += xv * B0; a1 += xv * B1; a2 += xv * B2; a3 += xv * B3;
+                b0 += yv * B0; b1 += yv * B1; b2 += yv * B2; b3 += yv * B3;
             }
-            st4(Ci + j, c0); st4(Ci + j + 4, c1); st4(Ci + j + 8, c2); st4(Ci + j + 12, c3);
+            st4(C0 + j, a0); st4(C0 + j + 4, a1); st4(C0 + j + 8, a2); st4(C0 + j + 12, a3);
+            st4(C1 + j, b0); st4(C1 + j + 4, b1); st4(C1 + j + 8, b2); st4(C1 + j + 12, b3);
         }
         for (; j + 4 <= c; j += 4) {
-            v4d c0 = {0.0, 0.0, 0.0, 0.0};
+            v4d a0 = {0.0, 0.0, 0.0, 0.0}, b0 = a0;
             for (int k = k0; k < K; k++) {
-                double aik = trans ? A[(long)k * lda + i] : A[(long)i * lda + k];
-                v4d av = {aik, aik, aik, aik};
-                c0 += av * ld4(B + (long)k * ldb + j);
+                double x = A_(i, k), y = A_(i + 1, k);
+                v4d xv = {x, x, x, x}, yv = {y, y, y, y}, Bv = ld4(B + (long)k * ldb + j);
+                a0 += xv * Bv; b0 += yv * Bv;
             }
-            st4(Ci + j, c0);
+            st4(C0 + j, a0); st4(C1 + j, b0);
         }
         for (; j < c; j++) {
-            double s = 0.0;
-            for (int k = k0; k < K; k++) s += (trans ? A[(long)k * lda + i] : A[(long)i * lda + k]) * B[(long)k * ldb + j];
-            Ci[j] = s;
+            double s0 = 0.0, s1 = 0.0;
+            for (int k = k0; k < K; k++) { double b = B[(long)k * ldb + j]; s0 += A_(i, k) * b; s1 += A_(i + 1, k) * b; }
+            C0[j] = s0; C1[j] = s1;
         }
     }
+    for (; i < r; i++) {
+        double *Ci = C + (long)i * ldc;
+        int k0 = lower ? i : 0, j = 0;
+        for (; j + 4 <= c; j += 4) {
+            v4d a0 = {0.0, 0.0, 0.0, 0.0};
+            for (int k = k0; k < K; k++) {
+                double x = A_(i, k);
+                v4d xv = {x, x, x, x};
+                a0 += xv * ld4(B + (long)k * ldb + j);
+            }
+            st4(Ci + j, a0);
+        }
+        for (; j < c; j++) {
+            double s0 = 0.0;
+            for (int k = k0; k < K; k++) s0 += A_(i, k) * B[(long)k * ldb + j];
+            Ci[j] = s0;
+        }
+    }
+#undef A_
 }
 
 /* Mi (n x n) = (L L^T)^-1 = L^-T L^-1 from the factor L (lower triangle of a) */
