@@ -23,11 +23,13 @@ for single points (``step``, ``linearize``), trajectories (``linearize_trajector
 rollouts (``controller_rollout``); the AICO sweep kernel calls ``dyn_linearize`` directly
 (:meth:`FastAnalyticDynamics.c_linearizer`). The C driver below is the numpy code of this module
 line by line (the generated part is operation for operation the same; ``M_r`` is inverted by LU
-with partial pivoting like ``np.linalg.inv``). Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
+with partial pivoting like ``np.linalg.inv``); on the tree route it computes ``M``, ``h`` and
+``dID/d(q, v)`` in two passes over the tree, inverts ``M_r`` from its Cholesky factor and reduces
+by ``P``'s nonzeros. Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
 code runs.
 
 :class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
-kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its forward-mode derivatives in C): exact
+kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its analytical derivatives in C): exact
 derivatives for the Nao, whose symbolic equations are too large to generate, and for arms of 6 or
 more joints, whose symbolic derivation is slow or fails (see ``SYMBOLIC_MAX_POSITIONS``); revolute,
 prismatic and weld joints. It is the registry's ``analytic`` model for those plants (through
@@ -57,8 +59,7 @@ class _DynCtx(ctypes.Structure):
 _P = ctypes.POINTER(ctypes.c_double)
 
 
-# The dynamics libraries at -O3 (later flags win): the derivative loops vectorize (the tree
-# kernels' dual-number lanes: 40 % less time at 32 joints, 18 % at 6); contraction and
+# The dynamics libraries at -O3 (later flags win): the derivative loops vectorize; contraction and
 # reassociation stay off, so every number is the -O2 build's, bit for bit (tests/plants/test_fastdyn.py).
 DYN_FLAGS = (*c_backend.CFLAGS, "-O3")
 
@@ -380,9 +381,10 @@ class _TreeCode:
 class TreeAnalyticDynamics(FastAnalyticDynamics):
     """:class:`FastAnalyticDynamics` on the plant's kinematic tree instead of generated symbolic
     code: for plants too large for :mod:`plants.codegen.derive` (the 26-joint Nao). ``M`` from
-    the body Jacobians, ``ID`` by Newton-Euler, ``dID/d(q, v)`` by forward-mode differentiation of
-    it, all in C (:mod:`plants.codegen.rbd`, checked against Drake's AutoDiffXd when built), with
-    the formulas of :class:`plants.dynamics.AnalyticDynamics` on top (the driver of this module).
+    the composite inertias, ``ID`` by Newton-Euler, ``dID/d(q, v)`` by its analytical derivatives
+    (Carpentier and Mansard 2018), all in C (:mod:`plants.codegen.rbd`, checked against Drake's
+    AutoDiffXd when built), with the formulas of :class:`plants.dynamics.AnalyticDynamics` on top
+    (the driver of this module; ``M_r^-1`` from a Cholesky factor).
     Needs the compiled route: raises ``NotImplementedError`` without it.
     """
 

@@ -11,7 +11,8 @@
 - :mod:`plants.codegen.c_backend`: the same code as C (gcc, a disk cache keyed by the source,
   ``ctypes``) and scipy's BLAS/LAPACK addresses for compiled kernels;
 - :mod:`plants.codegen.rbd`: the kinematic tree read from Drake, compiled: forward kinematics,
-  Jacobians, mass matrix, Newton-Euler inverse dynamics and its derivatives, task messages
+  Jacobians, mass matrix, Newton-Euler inverse dynamics and its derivatives (forward mode and
+  analytical), task messages
   (for plants too large for the symbolic route, and for the task maps).
 
 The models built on it are :class:`plants.fast_analytic.FastAnalyticDynamics` and

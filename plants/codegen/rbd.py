@@ -8,14 +8,17 @@ inertia, gravity) read from the Drake plant and baked into the C source:
 
 - forward kinematics, point / centre-of-mass / angular-velocity Jacobians (the task maps of
   :mod:`plants.taskmaps`);
-- the mass matrix ``M = sum_b m_b J_vb^T J_vb + J_wb^T I_b J_wb + diag(reflected inertia)``;
 - the inverse dynamics ``ID(q, v, a)`` by the recursive Newton-Euler algorithm, written in world
   coordinates (spatial vectors at the world origin: forces of the bodies simply add up towards
   the root), gravity as the base's acceleration, plus joint damping and reflected inertia;
-- its exact derivatives ``dID/d(q, v)`` by forward-mode automatic differentiation of that same
-  code: a body's quantities carry the partial derivatives along the positions and velocities of
-  the joints between it and the world only (the others are zero), the forces summed towards the
-  root all ``2 m``;
+- its exact derivatives ``dID/d(q, v)`` two ways: by forward-mode automatic differentiation of that
+  same code (a body's quantities carry the partial derivatives along the positions and velocities
+  of the joints between it and the world only; the task maps' gravity torques use it), and, for the
+  dynamics model (:class:`plants.fast_analytic.TreeAnalyticDynamics`), by the analytical derivatives
+  of the recursive Newton-Euler algorithm (Carpentier and Mansard, RSS 2018) in the same world
+  coordinates, with the mass matrix ``M`` from the same pass (the composite inertias): O(1) work per body
+  and a few dot products of 6-vectors per pair of joints on a path to the root, on the dynamics'
+  own tree (:func:`dynamics_tree`: the moving bodies, welded ones merged into them);
 - the C entry points of these maps (``TreeKernels.addresses``) through which the planning floor's
   compiled task messages (``planning/task_messages.c``, :func:`planning.kernels.compile_task_set`)
   evaluate them.
@@ -25,8 +28,8 @@ parent/child direction, as Drake does when a foot is welded to the world), gravi
 element. A prismatic joint translates its child along its axis by ``q`` (m); in the world-frame
 Newton-Euler its motion axis is ``(0, a)`` (revolute: ``(a, o x a)``), its damping and reflected
 inertia (rotor inertia x gear ratio^2, kg) enter as a revolute joint's do.
-:func:`tree_code` checks ``M``, ``h`` and ``dID`` against Drake's float and AutoDiffXd evaluation
-at random states and refuses the plant on a mismatch (``NotImplementedError``), as
+:func:`tree_kernels` checks ``M``, ``h`` and ``dID`` (both routes) against Drake's float and AutoDiffXd
+evaluation at random states and refuses the plant on a mismatch (``NotImplementedError``), as
 :func:`plants.codegen.derive.derive` does for the generated code.
 """
 
@@ -173,6 +176,51 @@ def extract_tree(plant) -> Tree:
                 np.asarray(plant.gravity_field().gravity_vector(), float), m, np.array(prismatic, bool))
 
 
+def _parallel_axis(m: float, d: np.ndarray) -> np.ndarray:
+    """The inertia (3, 3) a mass ``m`` (kg) adds when moved by ``d`` (m) from its centre: ``m (|d|^2 1 - d d^T)``."""
+    return m * (d @ d * np.eye(3) - np.outer(d, d))
+
+
+def dynamics_tree(tree: Tree) -> Tree:
+    """The moving bodies of ``tree`` only, for the dynamics: a body welded to another (directly or through
+    welds) merged into it (mass, centre of mass and inertia about it combined in its frame), the moving
+    bodies below it re-attached to it through the composed fixed poses; the bodies welded to the world
+    (no moving joint above them) left out (their forces go to the world). Same motion, same ``M``, ``ID``."""
+    nb = len(tree.names)
+    parent = [int(x) for x in tree.parent]
+    R_PJ, p_PJ = [r.copy() for r in tree.R_PJ], [x.copy() for x in tree.p_PJ]
+    mass = [float(x) for x in tree.mass]
+    com = [c.copy() for c in tree.com]
+    I_com = [i.copy() for i in tree.I_com]
+    for b in range(nb - 1, -1, -1):   # children after their parents: welds below b are merged into b already
+        if tree.qidx[b] >= 0:
+            continue
+        # the weld's fixed pose in its parent's frame (or the world's)
+        R_PB, p_PB = R_PJ[b] @ tree.R_JB[b], p_PJ[b] + R_PJ[b] @ tree.p_JB[b]
+        pa = parent[b]
+        for c in range(b + 1, nb):   # the moving bodies attached to b: to b's parent
+            if parent[c] == b:
+                R_PJ[c], p_PJ[c] = R_PB @ R_PJ[c], p_PB + R_PB @ p_PJ[c]
+                parent[c] = pa
+        if pa < 0:
+            continue
+        m1, m2 = mass[pa], mass[b]
+        c1, c2 = com[pa], p_PB + R_PB @ com[b]
+        I2 = R_PB @ I_com[b] @ R_PB.T
+        m = m1 + m2
+        cm = (m1 * c1 + m2 * c2) / m if m > 0.0 else np.zeros(3)
+        I_com[pa] = I_com[pa] + _parallel_axis(m1, c1 - cm) + I2 + _parallel_axis(m2, c2 - cm)
+        mass[pa], com[pa] = m, cm
+    keep = [b for b in range(nb) if tree.qidx[b] >= 0]
+    index = {b: i for i, b in enumerate(keep)}
+    return Tree([tree.names[b] for b in keep], np.array([index[parent[b]] if parent[b] >= 0 else -1 for b in keep], int),
+                tree.qidx[keep], np.array([R_PJ[b] for b in keep]).reshape(-1, 3, 3),
+                np.array([p_PJ[b] for b in keep]).reshape(-1, 3), tree.axis[keep], tree.R_JB[keep], tree.p_JB[keep],
+                np.array([mass[b] for b in keep]), np.array([com[b] for b in keep]).reshape(-1, 3),
+                np.array([I_com[b] for b in keep]).reshape(-1, 3, 3), tree.damping, tree.reflected, tree.gravity,
+                tree.m, tree.prismatic[keep])
+
+
 def _arr(name: str, ctype: str, a: np.ndarray) -> str:
     flat = np.asarray(a).reshape(-1)
     if ctype == "int":
@@ -180,6 +228,16 @@ def _arr(name: str, ctype: str, a: np.ndarray) -> str:
     else:
         body = ", ".join(repr(float(x)) for x in flat)
     return f"static const {ctype} {name}[{max(len(flat), 1)}] = {{{body or '0'}}};\n"
+
+
+def _tree_arrays(prefix: str, tree: Tree) -> str:
+    """The C arrays of ``tree``'s bodies, their names prefixed (the kinematics' tree, ``D``: the dynamics')."""
+    return "".join([_arr(prefix + "PARENT", "int", tree.parent), _arr(prefix + "QIDX", "int", tree.qidx),
+                    _arr(prefix + "PRISMATIC", "int", tree.prismatic.astype(int)),
+                    _arr(prefix + "R_PJ", "double", tree.R_PJ), _arr(prefix + "P_PJ", "double", tree.p_PJ),
+                    _arr(prefix + "AXIS", "double", tree.axis), _arr(prefix + "R_JB", "double", tree.R_JB),
+                    _arr(prefix + "P_JB", "double", tree.p_JB), _arr(prefix + "MASS", "double", tree.mass),
+                    _arr(prefix + "COM", "double", tree.com), _arr(prefix + "I_COM", "double", tree.I_com)])
 
 
 _KERNEL_C = c_backend.c_source(__file__, "rbd_kernels.c")  # the C beside this module
@@ -191,15 +249,11 @@ def tree_source(tree: Tree, header: bool = True) -> str:
     nb = len(tree.names)
     head = ("#include <math.h>\n#include <string.h>\n"
             f"#define MP {tree.m}\n#define NCARRY (2 * MP)\n") if header else ""
-    data = "".join([f"#define NB {nb}\n",
-        _arr("PARENT", "int", tree.parent), _arr("QIDX", "int", tree.qidx),
-        _arr("PRISMATIC", "int", tree.prismatic.astype(int)),
-        _arr("R_PJ", "double", tree.R_PJ), _arr("P_PJ", "double", tree.p_PJ),
-        _arr("AXIS", "double", tree.axis), _arr("R_JB", "double", tree.R_JB),
-        _arr("P_JB", "double", tree.p_JB), _arr("MASS", "double", tree.mass),
-        _arr("COM", "double", tree.com), _arr("I_COM", "double", tree.I_com),
-        _arr("DAMPING", "double", tree.damping), _arr("REFLECTED", "double", tree.reflected),
-        _arr("GRAVITY", "double", tree.gravity)])
+    dyn = dynamics_tree(tree)
+    data = "".join([f"#define NB {nb}\n#define DNB {len(dyn.names)}\n#define TREE_DYN 1\n",
+                    _tree_arrays("", tree), _tree_arrays("D", dyn),
+                    _arr("DAMPING", "double", tree.damping), _arr("REFLECTED", "double", tree.reflected),
+                    _arr("GRAVITY", "double", tree.gravity)])
     return head + data + _KERNEL_C
 
 
@@ -216,7 +270,7 @@ class TreeKernels:
         sigs = {"tree_frame_points": [vp, i, vp, vp, i, vp, vp, vp],
                 "tree_frame_rotation": [vp, i, vp, vp, vp], "tree_com": [vp, vp, vp],
                 "tree_mass_matrix": [vp, vp], "tree_inverse_dynamics": [vp, vp, vp, vp],
-                "tree_id_derivatives": [vp, vp, vp, vp],
+                "tree_id_derivatives": [vp, vp, vp, vp], "tree_id_analytic": [vp] * 6,
                 "tree_frame_points_batch": [i, vp, i, vp, vp, i, vp, vp, vp],
                 "tree_com_batch": [i, vp, vp, vp], "tree_frame_rotation_batch": [i, vp, i, vp, vp, vp]}
         for f, args in sigs.items():
@@ -314,6 +368,16 @@ class TreeKernels:
         self.lib.tree_inverse_dynamics(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, tau.ctypes.data)
         return tau
 
+    def id_analytic(self, qp, vp, ap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``ID(q, v, a) (m,)``, ``M (m, m)`` and ``dID/d(q, v) (m, 2 m)`` by the analytical derivatives
+        of the inverse dynamics (the dynamics driver's route; :meth:`id_derivatives` by forward mode)."""
+        qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
+        self._check("tree_id_analytic", q=(qp, (self.m,)), v=(vp, (self.m,)), a=(ap, (self.m,)))
+        tau, M, D = np.empty(self.m), np.empty((self.m, self.m)), np.empty((self.m, 2 * self.m))
+        self.lib.tree_id_analytic(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, tau.ctypes.data,
+                                  M.ctypes.data, D.ctypes.data)
+        return tau, M, D
+
     def id_derivatives(self, qp, vp, ap) -> np.ndarray:
         """``dID/d(q, v) (m, 2 m)``."""
         qp, vp, ap = self._a(qp), self._a(vp), self._a(ap)
@@ -341,9 +405,11 @@ def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) ->
     for _ in range(n_states):
         q, v, a = rng.uniform(-np.pi, np.pi, m), rng.standard_normal(m), rng.standard_normal(m)
         M_ref, tau_ref, _, D_ref = drake.evaluate(q, v, a)
+        tau, M, D = kernels.id_analytic(q, v, a)
         worst = max(worst, rel(kernels.mass_matrix(q), M_ref),
                     rel(kernels.inverse_dynamics(q, v, a), tau_ref),
-                    rel(kernels.id_derivatives(q, v, a), D_ref))
+                    rel(kernels.id_derivatives(q, v, a), D_ref),
+                    rel(tau, tau_ref), rel(M, M_ref), rel(D, D_ref))
         c_ref = plant.CalcCenterOfMassPositionInWorld(ctx)
         worst = max(worst, rel(kernels.com(q)[0], c_ref))
         for b in range(len(tree.names)):

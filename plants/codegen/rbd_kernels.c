@@ -150,12 +150,21 @@ static void d_fk(int nd, const double *q, dpose *P)
     }
 }
 
-/* plain forward kinematics: R (NB, 9), p (NB, 3), ax (NB, 3), o (NB, 3) */
-static void fk(const double *q, double *R, double *p, double *ax, double *o)
+/* a tree's bodies (the kinematics' tree: all bodies; the dynamics': the moving ones, welds merged) */
+typedef struct {
+    int nb;
+    const int *parent, *qidx, *prismatic;
+    const double *R_PJ, *P_PJ, *axis, *R_JB, *P_JB;
+} tree_arrays;
+static const tree_arrays KIN = {NB, PARENT, QIDX, PRISMATIC, R_PJ, P_PJ, AXIS, R_JB, P_JB};
+static const tree_arrays DYN = {DNB, DPARENT, DQIDX, DPRISMATIC, DR_PJ, DP_PJ, DAXIS, DR_JB, DP_JB};
+
+/* plain forward kinematics of the tree t: R (nb, 9), p (nb, 3), ax (nb, 3), o (nb, 3) */
+static void fk_of(const tree_arrays *t, const double *q, double *R, double *p, double *ax, double *o)
 {
-    for (int b = 0; b < NB; b++) {
-        int pa = PARENT[b];
-        const double *RPJ = R_PJ + 9 * b, *pPJ = P_PJ + 3 * b, *RJB = R_JB + 9 * b, *pJB = P_JB + 3 * b;
+    for (int b = 0; b < t->nb; b++) {
+        int pa = t->parent[b];
+        const double *RPJ = t->R_PJ + 9 * b, *pPJ = t->P_PJ + 3 * b, *RJB = t->R_JB + 9 * b, *pJB = t->P_JB + 3 * b;
         double RJ[9], Rot[9], RA[9];
         double *ob = o + 3 * b;
         if (pa < 0) {
@@ -170,15 +179,15 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
         }
         const double *Ru = RJ;
         double tr[3] = {0.0, 0.0, 0.0};   /* the prismatic joint's translation */
-        if (QIDX[b] >= 0 && PRISMATIC[b]) {
-            const double *a = AXIS + 3 * b, qv = q[QIDX[b]];
+        if (t->qidx[b] >= 0 && t->prismatic[b]) {
+            const double *a = t->axis + 3 * b, qv = q[t->qidx[b]];
             for (int r = 0; r < 3; r++) {
                 ax[3 * b + r] = RJ[3 * r] * a[0] + RJ[3 * r + 1] * a[1] + RJ[3 * r + 2] * a[2];
                 tr[r] = qv * ax[3 * b + r];
             }
-        } else if (QIDX[b] >= 0) {
-            const double *a = AXIS + 3 * b;
-            double c = cos(q[QIDX[b]]), s = sin(q[QIDX[b]]), omc = 1.0 - c;
+        } else if (t->qidx[b] >= 0) {
+            const double *a = t->axis + 3 * b;
+            double c = cos(q[t->qidx[b]]), s = sin(q[t->qidx[b]]), omc = 1.0 - c;
             double K[9] = {0.0, -a[2], a[1], a[2], 0.0, -a[0], -a[1], a[0], 0.0};
             for (int r = 0; r < 3; r++) for (int cc = 0; cc < 3; cc++)
                 Rot[3 * r + cc] = (r == cc ? c : 0.0) + K[3 * r + cc] * s + a[r] * a[cc] * omc;
@@ -195,6 +204,24 @@ static void fk(const double *q, double *R, double *p, double *ax, double *o)
             p[3 * b + r] = ob[r] + tr[r] + (Ru[3 * r] * pJB[0] + Ru[3 * r + 1] * pJB[1] + Ru[3 * r + 2] * pJB[2]);
         }
     }
+}
+
+static void fk(const double *q, double *R, double *p, double *ax, double *o) { fk_of(&KIN, q, R, p, ax, o); }
+
+/* the last configuration's kinematics, per thread: the task maps of one step evaluate several frames
+ * at the same q (a placement: its rotation, then its position) */
+typedef struct { int valid; double q[MP], R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB]; } fk_memo;
+static __thread fk_memo FK_MEMO;
+
+static const fk_memo *fk_at(const double *q)
+{
+    fk_memo *m = &FK_MEMO;
+    if (!m->valid || memcmp(m->q, q, sizeof(double) * MP) != 0) {
+        fk(q, m->R, m->p, m->ax, m->o);
+        memcpy(m->q, q, sizeof(double) * MP);
+        m->valid = 1;
+    }
+    return m;
 }
 
 /* add to J (3 x MP, row-major, row stride ld) the translational Jacobian of world point r on body b */
@@ -234,8 +261,8 @@ int tree_frame_points(const double *q, int b, const double *RBF, const double *p
                       const double *pts, double *pos, double *J)
 {
     if (b < 0 || b >= NB || npts < 0) return -1;
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
-    fk(q, R, p, ax, o);
+    const fk_memo *K = fk_at(q);
+    const double *R = K->R, *p = K->p, *ax = K->ax, *o = K->o;
     const double *Rb = R + 9 * b, *pb = p + 3 * b;
     memset(J, 0, sizeof(double) * 3 * npts * MP);
     for (int k = 0; k < npts; k++) {
@@ -253,9 +280,8 @@ int tree_frame_points(const double *q, int b, const double *RBF, const double *p
 int tree_frame_rotation(const double *q, int b, const double *RBF, double *RWF, double *Jw)
 {
     if (b < 0 || b >= NB) return -1;
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
-    fk(q, R, p, ax, o);
-    const double *Rb = R + 9 * b;
+    const fk_memo *K = fk_at(q);
+    const double *Rb = K->R + 9 * b, *ax = K->ax;
     for (int r = 0; r < 3; r++) for (int c = 0; c < 3; c++)
         RWF[3 * r + c] = Rb[3 * r] * RBF[c] + Rb[3 * r + 1] * RBF[3 + c] + Rb[3 * r + 2] * RBF[6 + c];
     memset(Jw, 0, sizeof(double) * 3 * MP);
@@ -266,8 +292,9 @@ int tree_frame_rotation(const double *q, int b, const double *RBF, double *RWF, 
 /* centre of mass c (3) in the world and its Jacobian J (3 x MP) */
 int tree_com(const double *q, double *c, double *J)
 {
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB], total = 0.0;
-    fk(q, R, p, ax, o);
+    const fk_memo *K = fk_at(q);
+    const double *R = K->R, *p = K->p, *ax = K->ax, *o = K->o;
+    double total = 0.0;
     double Jb[3 * MP];
     c[0] = c[1] = c[2] = 0.0;
     memset(J, 0, sizeof(double) * 3 * MP);
@@ -286,38 +313,6 @@ int tree_com(const double *q, double *c, double *J)
     for (int r = 0; r < 3; r++) c[r] /= total;
     for (int k = 0; k < 3 * MP; k++) J[k] /= total;
     return 0;
-}
-
-/* mass matrix (MP x MP) */
-static void mass_matrix(const double *q, double *M)
-{
-    double R[9 * NB], p[3 * NB], ax[3 * NB], o[3 * NB];
-    double Jv[3 * MP], Jw[3 * MP], IJ[3 * MP];
-    fk(q, R, p, ax, o);
-    memset(M, 0, sizeof(double) * MP * MP);
-    for (int b = 0; b < NB; b++) {
-        double mb = MASS[b];
-        const double *Rb = R + 9 * b, *pb = p + 3 * b, *cb = COM + 3 * b, *Ib = I_COM + 9 * b;
-        double w[3], RI[9], IW[9];
-        for (int r = 0; r < 3; r++) w[r] = pb[r] + (Rb[3 * r] * cb[0] + Rb[3 * r + 1] * cb[1] + Rb[3 * r + 2] * cb[2]);
-        memset(Jv, 0, sizeof Jv);
-        memset(Jw, 0, sizeof Jw);
-        point_jacobian(b, w, ax, o, Jv, MP);
-        angular_jacobian(b, ax, Jw, MP);
-        /* I_W = R I R^T */
-        for (int r = 0; r < 3; r++) for (int c = 0; c < 3; c++)
-            RI[3 * r + c] = Rb[3 * r] * Ib[c] + Rb[3 * r + 1] * Ib[3 + c] + Rb[3 * r + 2] * Ib[6 + c];
-        for (int r = 0; r < 3; r++) for (int c = 0; c < 3; c++)
-            IW[3 * r + c] = RI[3 * r] * Rb[3 * c] + RI[3 * r + 1] * Rb[3 * c + 1] + RI[3 * r + 2] * Rb[3 * c + 2];
-        for (int r = 0; r < 3; r++) for (int k = 0; k < MP; k++)
-            IJ[r * MP + k] = IW[3 * r] * Jw[k] + IW[3 * r + 1] * Jw[MP + k] + IW[3 * r + 2] * Jw[2 * MP + k];
-        for (int i = 0; i < MP; i++) for (int j = 0; j < MP; j++) {
-            double s = 0.0;
-            for (int r = 0; r < 3; r++) s += mb * Jv[r * MP + i] * Jv[r * MP + j] + Jw[r * MP + i] * IJ[r * MP + j];
-            M[i * MP + j] += s;
-        }
-    }
-    for (int i = 0; i < MP; i++) M[i * MP + i] += REFLECTED[i];
 }
 
 /* inverse dynamics tau (MP) at (q, v, a) by Newton-Euler in world coordinates; nd = 0: plain,
@@ -442,37 +437,296 @@ static void rnea(int nd, const double *q, const double *v, const double *a, doub
     }
 }
 
-/* the CompiledDynamics interface of plants/codegen/derive.py (see plants/fast_analytic.py):
- * gen_mh: xs = (q, v) -> out = (M, h); gen_first: also carry = (q, v); gen_second: ys = (a, q, v)
- * -> dID/d(q, v) (MP x 2 MP) */
-static void gen_mh(const double *xs, double *out)
+
+/* ---- the analytical derivatives of the inverse dynamics (Carpentier & Mansard 2018), in world
+ * coordinates: spatial motion vectors (omega, v_O) and forces (n_O, f) at the world origin, each a
+ * double[6] (angular part first). A joint's motion axis S (revolute (a, o x a), prismatic (0, a))
+ * depends on the positions of the joints above it only, d S_i/dq_j = S_j x S_i for j above i.
+ * Per body k: velocity V_k, acceleration A_k (gravity as the base's acceleration), inertia I_k
+ * (mass m, first moment h = m c, rotational inertia J about the origin), its rate
+ * dI_k/dt = V_k x* I_k - I_k V_k x (an inertia of mass 0: first moment hd, rotational Jd), momentum
+ * I_k V_k, force f_k = I_k A_k + V_k x* I_k V_k; over the subtree of body i: Ic_i, Bc_i (the summed
+ * rates), H_i (momenta), F_i (forces), tau_i = S_i . F_i. With, for a joint j below body l = parent(j),
+ * u_j = S_j x V_l and alpha_j = S_j x A_l - u_j x V_l, and for every joint i, w_i = Ic_i S_i,
+ * y_i = Bc_i S_i, z_i = S_i x* H_i, for j at or above i:
+ *   M_ij = w_i . S_j,
+ *   dtau_i/dq_j = -w_i . alpha_j + (z_i - y_i) . u_j,   dtau_i/dv_j = (y_i - z_i) . S_j - 2 w_i . u_j,
+ *   dtau_j/dq_i = S_j . (S_i x* F_i - Ic_i alpha_i - Bc_i u_i - u_i x* H_i),
+ *   dtau_j/dv_i = S_j . (y_i + S_i x* H_i - 2 Ic_i u_i),
+ * every other entry zero; plus the joints' damping d v and reflected inertia r a. Cost: O(1) per body
+ * and about 40 flops per pair of joints on a path to the root (forward mode: O(depth) per body). ---- */
+
+/* c = a x b (3-vectors) */
+static inline void x3(double *c, const double *a, const double *b)
 {
-    double zero[MP];
-    memset(zero, 0, sizeof zero);
-    mass_matrix(xs, out);
-    rnea(0, xs, xs + MP, zero, out + MP * MP);
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
 }
-static void gen_first(const double *xs, double *out, double *carry)
+static inline double dot6(const double *a, const double *b)
 {
-    gen_mh(xs, out);
-    memcpy(carry, xs, sizeof(double) * 2 * MP);
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5];
 }
-static void gen_second(const double *ys, double *out)
+/* z = a x b (motion on motion) */
+static void mcross(double *z, const double *a, const double *b)
 {
-    static __thread double td[MP * L_MAX];
-    int L = 1 + 2 * MP;
-    rnea(2 * MP, ys + MP, ys + 2 * MP, ys, td);
-    for (int i = 0; i < MP; i++) for (int k = 0; k < 2 * MP; k++) out[i * 2 * MP + k] = td[i * L + 1 + k];
+    double t[3];
+    x3(z, a, b);
+    x3(z + 3, a, b + 3);
+    x3(t, a + 3, b);
+    z[3] += t[0]; z[4] += t[1]; z[5] += t[2];
+}
+/* z = a x* f (motion on force) */
+static void fcross(double *z, const double *a, const double *f)
+{
+    double t[3];
+    x3(z, a, f);
+    x3(t, a + 3, f + 3);
+    z[0] += t[0]; z[1] += t[1]; z[2] += t[2];
+    x3(z + 3, a, f + 3);
+}
+/* symmetric 3x3 J (xx, yy, zz, xy, xz, yz) times w */
+static inline void sym3(double *z, const double *J, const double *w)
+{
+    z[0] = J[0] * w[0] + J[3] * w[1] + J[4] * w[2];
+    z[1] = J[3] * w[0] + J[1] * w[1] + J[5] * w[2];
+    z[2] = J[4] * w[0] + J[5] * w[1] + J[2] * w[2];
+}
+/* z = I x for the inertia (m, h, J): (J w + h x v, m v - h x w) */
+static void inertia_apply(double *z, double m, const double *h, const double *J, const double *x)
+{
+    double t[3];
+    sym3(z, J, x);
+    x3(t, h, x + 3);
+    z[0] += t[0]; z[1] += t[1]; z[2] += t[2];
+    x3(t, h, x);
+    z[3] = m * x[3] - t[0]; z[4] = m * x[4] - t[1]; z[5] = m * x[5] - t[2];
 }
 
-/* exported for the checks and the task maps */
-int tree_mass_matrix(const double *q, double *M) { mass_matrix(q, M); return 0; }
+/* the state of one evaluation on the dynamics' tree (the moving bodies, welds merged: DNB bodies,
+ * rbd.py's dynamics_tree): pass 1 at (q, v), pass 2 at a */
+typedef struct {
+    double S[DNB][6], V[DNB][6], A0[DNB][6];    /* motion axis, velocity, acceleration at a = 0 */
+    double m[DNB], h[DNB][3], J[DNB][6];        /* the body's inertia, then the subtree's (Ic) */
+    double hd[DNB][3], Jd[DNB][6];              /* Bc: the subtree's inertia rate */
+    double H[DNB][6], F0[DNB][6];               /* the subtree's momentum and force at a = 0 */
+    double Ib[DNB][10];                         /* the body's own inertia (m, h, J), for pass 2 */
+    double u[DNB][6], w[DNB][6], zy[DNB][6];    /* u_j, w_i, z_i - y_i */
+    double y[DNB][6];                           /* y_i */
+    double dA[DNB][6], F[DNB][6], alpha[DNB][6];  /* pass 2 */
+} tree_work;
+
+static __thread tree_work TREE_W;   /* one evaluation's state per thread */
+
+/* pass 1 at (q, v): M (MP x MP, with the reflected inertia) and the bias torques h (MP) = ID(q, v, 0);
+ * full = 0: these only (not what pass 2 needs) */
+static void tree_pass1(const double *q, const double *v, int full, tree_work *W, double *M, double *hb)
+{
+    double R[9 * DNB], p[3 * DNB], axw[3 * DNB], o[3 * DNB];
+    fk_of(&DYN, q, R, p, axw, o);
+    for (int b = 0; b < DNB; b++) {
+        int pa = DPARENT[b], k = DQIDX[b];
+        double *S = W->S[b], *V = W->V[b], *A0 = W->A0[b], *u = W->u[b];
+        const double *ax = axw + 3 * b;
+        for (int i = 0; i < 6; i++) S[i] = u[i] = 0.0;
+        if (k >= 0 && DPRISMATIC[b]) { S[3] = ax[0]; S[4] = ax[1]; S[5] = ax[2]; }
+        else if (k >= 0) { S[0] = ax[0]; S[1] = ax[1]; S[2] = ax[2]; x3(S + 3, o + 3 * b, ax); }
+        if (pa < 0) {
+            for (int i = 0; i < 6; i++) V[i] = A0[i] = 0.0;
+            for (int i = 0; i < 3; i++) A0[3 + i] = -GRAVITY[i];
+        } else {
+            memcpy(V, W->V[pa], sizeof(double) * 6);
+            memcpy(A0, W->A0[pa], sizeof(double) * 6);
+            if (k >= 0) mcross(u, S, W->V[pa]);
+        }
+        if (k >= 0) {   /* V += S v_k; A0 += (V x S) v_k = -u v_k */
+            double vk = v[k];
+            for (int i = 0; i < 6; i++) { V[i] += S[i] * vk; A0[i] -= u[i] * vk; }
+        }
+        /* the body's inertia about the origin: h = m c, J = R I_c R^T + m (|c|^2 1 - c c^T) */
+        double mb = DMASS[b], c[3], RI[9], Jf[9];
+        const double *Rb = R + 9 * b, *Ic = DI_COM + 9 * b, *cb = DCOM + 3 * b;
+        for (int r = 0; r < 3; r++) c[r] = p[3 * b + r] + (Rb[3 * r] * cb[0] + Rb[3 * r + 1] * cb[1] + Rb[3 * r + 2] * cb[2]);
+        for (int r = 0; r < 3; r++) for (int cc = 0; cc < 3; cc++)
+            RI[3 * r + cc] = Rb[3 * r] * Ic[cc] + Rb[3 * r + 1] * Ic[3 + cc] + Rb[3 * r + 2] * Ic[6 + cc];
+        for (int r = 0; r < 3; r++) for (int cc = 0; cc < 3; cc++)
+            Jf[3 * r + cc] = RI[3 * r] * Rb[3 * cc] + RI[3 * r + 1] * Rb[3 * cc + 1] + RI[3 * r + 2] * Rb[3 * cc + 2];
+        double c2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+        double *h = W->h[b], *J = W->J[b];
+        for (int r = 0; r < 3; r++) h[r] = mb * c[r];
+        J[0] = Jf[0] + mb * (c2 - c[0] * c[0]);
+        J[1] = Jf[4] + mb * (c2 - c[1] * c[1]);
+        J[2] = Jf[8] + mb * (c2 - c[2] * c[2]);
+        J[3] = 0.5 * (Jf[1] + Jf[3]) - mb * c[0] * c[1];
+        J[4] = 0.5 * (Jf[2] + Jf[6]) - mb * c[0] * c[2];
+        J[5] = 0.5 * (Jf[5] + Jf[7]) - mb * c[1] * c[2];
+        W->m[b] = mb;
+        double *Ib = W->Ib[b];
+        Ib[0] = mb; memcpy(Ib + 1, h, sizeof(double) * 3); memcpy(Ib + 4, J, sizeof(double) * 6);
+        /* momentum, force at a = 0, and the inertia's rate: hd = w x h + m v,
+         * Jd = X + X^T - (h v^T + v h^T) + 2 (v . h) 1 with X = [w]x J */
+        double *Hb = W->H[b], *F0 = W->F0[b], t[6];
+        inertia_apply(Hb, mb, h, J, V);
+        inertia_apply(F0, mb, h, J, A0);
+        fcross(t, V, Hb);
+        for (int i = 0; i < 6; i++) F0[i] += t[i];
+        if (!full) continue;
+        const double *om = V, *vo = V + 3;
+        double *hd = W->hd[b], *Jd = W->Jd[b], X[9], Jc[9] = {J[0], J[3], J[4], J[3], J[1], J[5], J[4], J[5], J[2]};
+        x3(hd, om, h);
+        for (int r = 0; r < 3; r++) hd[r] += mb * vo[r];
+        for (int cc = 0; cc < 3; cc++) {
+            double col[3] = {Jc[cc], Jc[3 + cc], Jc[6 + cc]}, z[3];
+            x3(z, om, col);
+            X[cc] = z[0]; X[3 + cc] = z[1]; X[6 + cc] = z[2];
+        }
+        double vh2 = 2.0 * (vo[0] * h[0] + vo[1] * h[1] + vo[2] * h[2]);
+        Jd[0] = 2.0 * X[0] - 2.0 * h[0] * vo[0] + vh2;
+        Jd[1] = 2.0 * X[4] - 2.0 * h[1] * vo[1] + vh2;
+        Jd[2] = 2.0 * X[8] - 2.0 * h[2] * vo[2] + vh2;
+        Jd[3] = X[1] + X[3] - (h[0] * vo[1] + vo[0] * h[1]);
+        Jd[4] = X[2] + X[6] - (h[0] * vo[2] + vo[0] * h[2]);
+        Jd[5] = X[5] + X[7] - (h[1] * vo[2] + vo[1] * h[2]);
+    }
+    /* subtree sums towards the root (children come after their parents) */
+    for (int b = DNB - 1; b >= 0; b--) {
+        int pa = DPARENT[b];
+        if (pa < 0) continue;
+        W->m[pa] += W->m[b];
+        for (int i = 0; i < 3; i++) W->h[pa][i] += W->h[b][i];
+        for (int i = 0; i < 6; i++) { W->J[pa][i] += W->J[b][i]; W->F0[pa][i] += W->F0[b][i]; }
+        if (!full) continue;
+        for (int i = 0; i < 3; i++) W->hd[pa][i] += W->hd[b][i];
+        for (int i = 0; i < 6; i++) { W->Jd[pa][i] += W->Jd[b][i]; W->H[pa][i] += W->H[b][i]; }
+    }
+    memset(M, 0, sizeof(double) * MP * MP);
+    for (int i = 0; i < DNB; i++) {
+        int ki = DQIDX[i];
+        if (ki < 0) continue;
+        const double *S = W->S[i];
+        double *w = W->w[i], *y = W->y[i], *zy = W->zy[i], z[6], t[3];
+        inertia_apply(w, W->m[i], W->h[i], W->J[i], S);
+        if (full) {
+            sym3(y, W->Jd[i], S);   /* y = Bc S: (Jd s_w + hd x s_v, -hd x s_w) */
+            x3(t, W->hd[i], S + 3);
+            y[0] += t[0]; y[1] += t[1]; y[2] += t[2];
+            x3(t, W->hd[i], S);
+            y[3] = -t[0]; y[4] = -t[1]; y[5] = -t[2];
+            fcross(z, S, W->H[i]);
+            for (int r = 0; r < 6; r++) zy[r] = z[r] - y[r];
+        }
+        hb[ki] = dot6(S, W->F0[i]) + DAMPING[ki] * v[ki];
+        for (int j = i; j >= 0; j = DPARENT[j]) {
+            int kj = DQIDX[j];
+            if (kj < 0) continue;
+            double mij = dot6(w, W->S[j]);
+            M[ki * MP + kj] = mij;
+            M[kj * MP + ki] = mij;
+        }
+        M[ki * MP + ki] += REFLECTED[ki];
+    }
+}
+
+/* pass 2 at the accelerations a (MP) after tree_pass1 at (q, v): tau (MP) = ID(q, v, a) (may be
+ * NULL) and D = dID/d(q, v) (MP x 2 MP) */
+static void tree_pass2(tree_work *W, const double *v, const double *a, double *tau, double *D)
+{
+    for (int b = 0; b < DNB; b++) {
+        int pa = DPARENT[b], k = DQIDX[b];
+        double *dA = W->dA[b], *F = W->F[b];
+        if (pa < 0) for (int i = 0; i < 6; i++) dA[i] = 0.0;
+        else memcpy(dA, W->dA[pa], sizeof(double) * 6);
+        if (k >= 0) {
+            double ak = a[k];
+            for (int i = 0; i < 6; i++) dA[i] += W->S[b][i] * ak;
+            /* alpha_j = S_j x A_l - u_j x V_l, l = parent (the world: A = (0, -g), V = 0) */
+            double Al[6], t[6];
+            if (pa < 0) {
+                for (int i = 0; i < 3; i++) { Al[i] = 0.0; Al[3 + i] = -GRAVITY[i]; }
+                mcross(W->alpha[b], W->S[b], Al);
+            } else {
+                for (int i = 0; i < 6; i++) Al[i] = W->A0[pa][i] + W->dA[pa][i];
+                mcross(W->alpha[b], W->S[b], Al);
+                mcross(t, W->u[b], W->V[pa]);
+                for (int i = 0; i < 6; i++) W->alpha[b][i] -= t[i];
+            }
+        }
+        const double *Ib = W->Ib[b];
+        inertia_apply(F, Ib[0], Ib + 1, Ib + 4, dA);
+    }
+    for (int b = DNB - 1; b >= 0; b--) {   /* F: the subtree's sum of I_k dA_k, then + F0 */
+        int pa = DPARENT[b];
+        if (pa >= 0) for (int i = 0; i < 6; i++) W->F[pa][i] += W->F[b][i];
+    }
+    for (int b = 0; b < DNB; b++) for (int i = 0; i < 6; i++) W->F[b][i] += W->F0[b][i];
+    memset(D, 0, sizeof(double) * 2 * MP * MP);
+    for (int i = 0; i < DNB; i++) {
+        int ki = DQIDX[i];
+        if (ki < 0) continue;
+        const double *S = W->S[i], *u = W->u[i], *w = W->w[i], *zy = W->zy[i], *al = W->alpha[i];
+        double Phi[6], Psi[6], t[6], t2[6];
+        /* Phi = S x* F - Ic alpha - Bc u - u x* H; Psi = y + S x* H - 2 Ic u */
+        fcross(Phi, S, W->F[i]);
+        inertia_apply(t, W->m[i], W->h[i], W->J[i], al);
+        for (int r = 0; r < 6; r++) Phi[r] -= t[r];
+        sym3(t, W->Jd[i], u);
+        x3(t2, W->hd[i], u + 3);
+        for (int r = 0; r < 3; r++) Phi[r] -= t[r] + t2[r];
+        x3(t2, W->hd[i], u);
+        for (int r = 0; r < 3; r++) Phi[3 + r] += t2[r];
+        fcross(t, u, W->H[i]);
+        for (int r = 0; r < 6; r++) Phi[r] -= t[r];
+        fcross(Psi, S, W->H[i]);
+        inertia_apply(t, W->m[i], W->h[i], W->J[i], u);
+        for (int r = 0; r < 6; r++) Psi[r] += W->y[i][r] - 2.0 * t[r];
+        if (tau) tau[ki] = dot6(S, W->F[i]) + DAMPING[ki] * v[ki] + REFLECTED[ki] * a[ki];
+        double *Dq = D + (long)ki * 2 * MP, *Dv = Dq + MP;
+        for (int j = i; j >= 0; j = DPARENT[j]) {
+            int kj = DQIDX[j];
+            if (kj < 0) continue;
+            const double *Sj = W->S[j], *uj = W->u[j];
+            Dq[kj] = dot6(zy, uj) - dot6(w, W->alpha[j]);
+            Dv[kj] = -dot6(zy, Sj) - 2.0 * dot6(w, uj);
+            if (j != i) {
+                D[(long)kj * 2 * MP + ki] = dot6(Sj, Phi);
+                D[(long)kj * 2 * MP + MP + ki] = dot6(Sj, Psi);
+            }
+        }
+        Dv[ki] += DAMPING[ki];
+    }
+}
+
+/* the tree's part of the dynamics driver (plants/fast_analytic_driver.c, TREE_DYN): gen_mh: xs = (q, v)
+ * -> out = (M, h); tree_pass1 / tree_pass2 for the derivatives */
+static void gen_mh(const double *xs, double *out)
+{
+    tree_pass1(xs, xs + MP, 0, &TREE_W, out, out + MP * MP);
+}
+
+/* exported for the checks and the task maps (the task maps' inverse dynamics and its derivatives:
+ * Newton-Euler and its forward-mode derivatives above) */
+int tree_mass_matrix(const double *q, double *M)
+{
+    double v[MP], hb[MP];
+    memset(v, 0, sizeof v);
+    tree_pass1(q, v, 0, &TREE_W, M, hb);
+    return 0;
+}
 int tree_inverse_dynamics(const double *q, const double *v, const double *a, double *tau) { rnea(0, q, v, a, tau); return 0; }
 int tree_id_derivatives(const double *q, const double *v, const double *a, double *D)
 {
-    double ys[3 * MP];
-    memcpy(ys, a, sizeof(double) * MP); memcpy(ys + MP, q, sizeof(double) * MP); memcpy(ys + 2 * MP, v, sizeof(double) * MP);
-    gen_second(ys, D);
+    static __thread double td[MP * L_MAX];
+    int L = 1 + 2 * MP;
+    rnea(2 * MP, q, v, a, td);
+    for (int i = 0; i < MP; i++) for (int k = 0; k < 2 * MP; k++) D[i * 2 * MP + k] = td[i * L + 1 + k];
+    return 0;
+}
+/* the analytical route: tau = ID(q, v, a) (MP), M (MP x MP), D = dID/d(q, v) (MP x 2 MP) */
+int tree_id_analytic(const double *q, const double *v, const double *a, double *tau, double *M, double *D)
+{
+    double hb[MP];
+    tree_pass1(q, v, 1, &TREE_W, M, hb);
+    tree_pass2(&TREE_W, v, a, tau, D);
     return 0;
 }
 /* batches: K configurations qp (K, MP) */

@@ -200,23 +200,29 @@ def test_a_plant_with_other_parameters_gets_its_own_code():
         q, v, u)[0]) > 1e-3
 
 
-def test_coupled_joints_through_P_equal_analytic():
-    """A reduced model (two arm joints driven by one coordinate, as the Nao's hips) gives the
-    numbers of AnalyticDynamics on the same coupling map."""
+@pytest.mark.parametrize("kind", ["symbolic", "tree"])
+def test_coupled_joints_through_P_equal_analytic(kind):
+    """A reduced model (two arm joints driven by one coordinate, as the Nao's hips; the tree route also
+    with a coupling of another ratio) gives the numbers of AnalyticDynamics on the same coupling map."""
+    from plants.fast_analytic import TreeAnalyticDynamics
+
     arm = shared_robot("arm5")
     P = np.zeros((5, 4))
     P[[0, 1, 2, 3, 4], [0, 1, 2, 2, 3]] = 1.0  # elbow and wrist pitch move together
+    if kind == "tree":
+        P[3, 2] = -0.5   # the wrist at minus half the elbow's angle
     r = SimpleNamespace(name=arm.name, plant=arm.plant, P=P, n_q=4)
-    fast, exact = FastAnalyticDynamics(r, DT), AnalyticDynamics(r, DT)
+    fast = (FastAnalyticDynamics if kind == "symbolic" else TreeAnalyticDynamics)(r, DT)
+    exact = AnalyticDynamics(r, DT)
     rng = np.random.default_rng(9)
     X = np.concatenate([rng.uniform(-1.5, 1.5, (6, 4)), rng.standard_normal((6, 4))], axis=1)
     U = rng.standard_normal((6, 4))
     A, a, B = fast.linearize_trajectory(X, U)
     A0, a0, B0 = exact.linearize_trajectory(X, U)
-    close(A, A0)
-    close(B, B0)
+    assert_close(A, A0)
+    assert_close(B, B0)
     assert_close(a, a0, scale=1 + scale_of(X))
-    close(fast.step(X[0], U[0]), exact.step(X[0], U[0]))
+    assert_close(fast.step(X[0], U[0]), exact.step(X[0], U[0]), scale=scale_of(X[0], U[0]))
     for got, ref in zip(fast.linearize(X[1], U[1]), (A0[1], a0[1], B0[1])):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(ref))))
 

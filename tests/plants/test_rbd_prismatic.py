@@ -109,7 +109,8 @@ def test_tree_reads_the_prismatic_joint(robot):
 
 
 def test_dynamics_against_drake(robot):
-    """``M``, ``ID(q, v, a)`` and ``dID/d(q, v)`` (Drake's AutoDiffXd) at random states."""
+    """``M``, ``ID(q, v, a)`` and ``dID/d(q, v)`` (Drake's AutoDiffXd) at random states, by forward mode
+    and by the analytical derivatives."""
     k = rbd.tree_kernels(robot)
     drake = DrakeReference(robot.plant)
     for q, v, a in _states(k.m, 5, seed=1):
@@ -117,6 +118,8 @@ def test_dynamics_against_drake(robot):
         assert_close(k.mass_matrix(q), M)
         assert_close(k.inverse_dynamics(q, v, a), tau)
         assert_close(k.id_derivatives(q, v, a), D)
+        for got, ref in zip(k.id_analytic(q, v, a), (tau, M, D)):   # the dynamics driver's route
+            assert_close(got, ref)
 
 
 def test_kinematics_and_jacobians_against_drake(robot):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from plants.model_file import RobotSpec, load_model
-from tests.tolerance import assert_close
+from tests.tolerance import assert_close, scale_of
 
 pytestmark = pytest.mark.compiled
 
@@ -84,3 +84,40 @@ def test_tree_kernels_over_the_range_of_trees(tree_robot, monkeypatch):
     plant.SetVelocities(ctx, v)
     M = plant.CalcMassMatrix(ctx)
     assert_close(k.mass_matrix(q), M)  # Drake counts the armature too
+
+
+def _central_differences(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """``df/dx (len f, len x)`` by central differences of step ``h``."""
+    return np.stack([(f(x + h * e) - f(x - h * e)) / (2.0 * h) for e in np.eye(x.size)], axis=1)
+
+
+def test_analytical_dynamics_derivatives_over_the_range_of_trees(tree_robot):
+    """The analytical derivatives of the inverse dynamics (``tree_id_analytic``: the dynamics driver's
+    ``M``, ``ID`` and ``dID/d(q, v)``) against Drake's float and AutoDiffXd evaluation and the forward-mode
+    kernel, relative to their scale, and against central differences of the inverse dynamics; the driver's
+    ``qddot`` derivatives on top against Drake's ``AnalyticDynamics`` (AutoDiffXd) and central differences of
+    ``qddot``."""
+    from plants.codegen import rbd
+    from plants.codegen.reference import DrakeReference
+    from plants.dynamics import AnalyticDynamics
+    from plants.fast_analytic import TreeAnalyticDynamics
+
+    k = rbd.tree_kernels(tree_robot)
+    m = k.m
+    rng = np.random.default_rng(7)
+    q, v, a, u = 0.4 * rng.standard_normal(m), rng.standard_normal(m), rng.standard_normal(m), rng.standard_normal(m)
+    tau, M, D = k.id_analytic(q, v, a)
+    M_ref, tau_ref, _, D_ref = DrakeReference(tree_robot.plant).evaluate(q, v, a)
+    assert_close(tau, tau_ref)
+    assert_close(M, M_ref)
+    assert_close(D, D_ref)
+    assert_close(D, k.id_derivatives(q, v, a))
+    # central differences: truncation h^2 and rounding eps / h, about 1e-10 of the scale
+    assert_close(D, _central_differences(lambda z: k.id_analytic(z[:m], z[m:], a)[0], np.concatenate([q, v])),
+                 rel=1e-6)
+    dyn, exact = TreeAnalyticDynamics(tree_robot, 0.01), AnalyticDynamics(tree_robot, 0.01)
+    got, ref = dyn.qddot_derivatives(q, v, u), exact.qddot_derivatives(q, v, u)
+    for g, r in zip(got, ref):   # relative to the largest derivative (one may vanish: a single joint's d/dq)
+        assert_close(g, r, scale=scale_of(*ref[1:]))
+    fd = _central_differences(lambda z: dyn.qddot(z[:m], z[m:2 * m], z[2 * m:]), np.concatenate([q, v, u]))
+    assert_close(np.hstack(got[1:]), fd, rel=1e-6)
