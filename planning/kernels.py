@@ -110,8 +110,7 @@ class _VTerm(ctypes.Structure):
 
 class _TaskSet(ctypes.Structure):
     _fields_ = [("nq", _L), ("nx", _L), ("identity", _L), ("nterms", _L), ("m", _L), ("P", _V), ("terms", _V),
-                ("frame_points", _V), ("com", _V), ("frame_rotation", _V), ("inverse_dynamics", _V),
-                ("id_derivatives", _V)]
+                ("frame_points", _V), ("com", _V), ("frame_rotation", _V), ("gravity", _V)]
 
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
@@ -232,9 +231,8 @@ def compile_task_set(problem):
         P, m = np.asarray(robot.P, float), kern.m
         if P.shape != (kern.m, nq) or kern.m > TASK_MAX_POSITIONS:
             return None
-        ts.frame_points, ts.com, ts.frame_rotation, ts.inverse_dynamics, ts.id_derivatives = (
-            kern.addresses[f] for f in ("tree_frame_points", "tree_com", "tree_frame_rotation",
-                                        "tree_inverse_dynamics", "tree_id_derivatives"))
+        ts.frame_points, ts.com, ts.frame_rotation, ts.gravity = (
+            kern.addresses[f] for f in ("tree_frame_points", "tree_com", "tree_frame_rotation", "tree_gravity"))
     ts.nq, ts.nx, ts.nterms, ts.m = nq, nx, len(terms), m
     ts.identity = int(m == nq and np.array_equal(P, np.eye(nq)))
     ts.P = arr(P)

@@ -28,7 +28,7 @@ typedef int (*frame_points_fn)(const double *q, int b, const double *RBF, const 
                                const double *pts, double *pos, double *J);
 typedef int (*com_fn)(const double *q, double *c, double *J);
 typedef int (*frame_rotation_fn)(const double *q, int b, const double *RBF, double *RWF, double *Jw);
-typedef int (*id_fn)(const double *q, const double *v, const double *a, double *out);
+typedef int (*gravity_fn)(const double *q, double *g, double *G);
 
 typedef struct {
     long kind;               /* enum message_kind */
@@ -53,7 +53,7 @@ typedef struct {
     frame_points_fn frame_points;       /* the robot's tree library */
     com_fn com;
     frame_rotation_fn frame_rotation;
-    id_fn inverse_dynamics, id_derivatives;   /* gravity: tau(q, 0, 0) and dtau/d(q, v) (m x 2m) */
+    gravity_fn gravity;      /* g = tau(q, 0, 0) (m) and, unless NULL, dg/dq (m x m) */
 } taskset_t;
 
 /* y (n) += a x (n), 4 at a time with vector extensions (per element the same multiply and add as
@@ -280,14 +280,8 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
             }
         }
         if (tm->kind == MK_GRAVITY) {   /* phi = g(q) = P^T tau(P q, 0, 0), J = P^T dtau/dq P */
-            static __thread double D[MPMAX * 2 * MPMAX];
-            double zero[MPMAX];
-            memset(zero, 0, sizeof(double) * MP);
-            ts->inverse_dynamics(qp, zero, zero, full);
-            if (lx) {   /* the derivatives only where a gradient is asked (a cost alone needs tau) */
-                ts->id_derivatives(qp, zero, zero, D);
-                for (int i = 0; i < MP; i++) memcpy(Jf + i * MP, D + i * 2 * MP, sizeof(double) * MP);
-            }
+            /* the derivatives (Jf: MP x MP) only where a gradient is asked (a cost alone needs g) */
+            ts->gravity(qp, full, lx ? Jf : NULL);
             for (int r = 0; r < dim; r++) {
                 double *Jo = J + r * nq, v = 0.0;
                 if (ts->identity) { phi[r] = full[r]; if (lx) memcpy(Jo, Jf + r * MP, sizeof(double) * nq); continue; }

@@ -447,8 +447,8 @@ def make_fast_or_exact(robot, dt: float) -> FastAnalyticDynamics | AnalyticDynam
 class TreeGravityTorques(GravityTorques):
     """:class:`plants.dynamics.GravityTorques` on the robot's compiled tree (:mod:`plants.codegen.rbd`,
     checked against Drake when built): ``g(q) = P^T ID(P q, 0, 0)`` and ``dg/dq = P^T dID/dq P``, the
-    inverse dynamics at rest and its derivatives in C (Drake's gravity forces and AutoDiffXd Jacobian
-    to rounding, tests/planning/test_task_messages.py); Drake's route for non-finite ``q``."""
+    inverse dynamics at rest and its analytical derivatives in one pass in C (Drake's gravity forces and
+    AutoDiffXd Jacobian to rounding, tests/planning/test_task_messages.py); Drake's route for non-finite ``q``."""
 
     def __init__(self, robot, kernels):
         super().__init__(robot)
@@ -459,16 +459,13 @@ class TreeGravityTorques(GravityTorques):
         :meth:`value_and_jacobian`'s value)."""
         if not np.all(np.isfinite(q)):
             return super().value(q)
-        k = self._k
-        return self.P.T @ k.inverse_dynamics(self.P @ np.asarray(q, float), np.zeros(k.m), np.zeros(k.m))
+        return self.P.T @ self._k.gravity(self.P @ np.asarray(q, float), jacobian=False)[0]
 
     def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(q)):
             return super().value_and_jacobian(q)
-        k = self._k
-        qp, zero = self.P @ np.asarray(q, float), np.zeros(k.m)
-        D = k.id_derivatives(qp, zero, zero)
-        return self.P.T @ k.inverse_dynamics(qp, zero, zero), self.P.T @ D[:, :k.m] @ self.P
+        g, G = self._k.gravity(self.P @ np.asarray(q, float))
+        return self.P.T @ g, self.P.T @ G @ self.P
 
 
 def gravity_torques(robot) -> GravityTorques:

@@ -271,6 +271,7 @@ class TreeKernels:
                 "tree_frame_rotation": [vp, i, vp, vp, vp], "tree_com": [vp, vp, vp],
                 "tree_mass_matrix": [vp, vp], "tree_inverse_dynamics": [vp, vp, vp, vp],
                 "tree_id_derivatives": [vp, vp, vp, vp], "tree_id_analytic": [vp] * 6,
+                "tree_gravity": [vp, vp, vp],
                 "tree_frame_points_batch": [i, vp, i, vp, vp, i, vp, vp, vp],
                 "tree_com_batch": [i, vp, vp, vp], "tree_frame_rotation_batch": [i, vp, i, vp, vp, vp]}
         for f, args in sigs.items():
@@ -279,8 +280,7 @@ class TreeKernels:
         self.lib = lib
         # C entry points for compiled callers (planning/task_messages.c calls these)
         self.addresses = {f: ctypes.cast(getattr(lib, f), ctypes.c_void_p).value
-                          for f in ("tree_frame_points", "tree_com", "tree_frame_rotation", "tree_inverse_dynamics",
-                                    "tree_id_derivatives")}
+                          for f in ("tree_frame_points", "tree_com", "tree_frame_rotation", "tree_gravity")}
 
     @staticmethod
     def _a(x) -> np.ndarray:
@@ -386,10 +386,21 @@ class TreeKernels:
         self.lib.tree_id_derivatives(qp.ctypes.data, vp.ctypes.data, ap.ctypes.data, D.ctypes.data)
         return D
 
+    def gravity(self, qp, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """The gravity torques ``ID(q, 0, 0) (m,)`` and, if ``jacobian``, their Jacobian ``dID(q, 0, 0)/dq
+        (m, m)`` (else None) by the analytical derivatives at rest (:meth:`inverse_dynamics` and
+        :meth:`id_derivatives`' first ``m`` columns at ``v = a = 0``, to rounding)."""
+        qp = self._a(qp)
+        self._check("tree_gravity", q=(qp, (self.m,)))
+        g, G = np.empty(self.m), (np.empty((self.m, self.m)) if jacobian else None)
+        self.lib.tree_gravity(qp.ctypes.data, g.ctypes.data, None if G is None else G.ctypes.data)
+        return g, G
+
 
 def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) -> float:
     """Largest relative difference of ``M``, ``h``, ``dID/d(q, v)``, a frame's pose and the centre
-    of mass from Drake's own evaluation (float and AutoDiffXd) at random states."""
+    of mass from Drake's own evaluation (float and AutoDiffXd) at random states, and of the gravity
+    torques' pass (``g``, ``dg/dq``) from Newton-Euler and forward mode at rest."""
     from plants.codegen.reference import DrakeReference
 
     m = kernels.m
@@ -406,10 +417,13 @@ def self_check(plant, kernels: TreeKernels, n_states: int = 3, seed: int = 0) ->
         q, v, a = rng.uniform(-np.pi, np.pi, m), rng.standard_normal(m), rng.standard_normal(m)
         M_ref, tau_ref, _, D_ref = drake.evaluate(q, v, a)
         tau, M, D = kernels.id_analytic(q, v, a)
+        zero = np.zeros(m)   # the gravity torques' pass against Newton-Euler and forward mode at rest
+        gravity_ref = (kernels.inverse_dynamics(q, zero, zero), kernels.id_derivatives(q, zero, zero)[:, :m])
         worst = max(worst, rel(kernels.mass_matrix(q), M_ref),
                     rel(kernels.inverse_dynamics(q, v, a), tau_ref),
                     rel(kernels.id_derivatives(q, v, a), D_ref),
-                    rel(tau, tau_ref), rel(M, M_ref), rel(D, D_ref))
+                    rel(tau, tau_ref), rel(M, M_ref), rel(D, D_ref),
+                    *(rel(got, ref) for got, ref in zip(kernels.gravity(q), gravity_ref)))
         c_ref = plant.CalcCenterOfMassPositionInWorld(ctx)
         worst = max(worst, rel(kernels.com(q)[0], c_ref))
         for b in range(len(tree.names)):

@@ -599,7 +599,7 @@ static void tree_pass1(const double *q, const double *v, int full, tree_work *W,
         for (int i = 0; i < 3; i++) W->hd[pa][i] += W->hd[b][i];
         for (int i = 0; i < 6; i++) { W->Jd[pa][i] += W->Jd[b][i]; W->H[pa][i] += W->H[b][i]; }
     }
-    memset(M, 0, sizeof(double) * MP * MP);
+    if (M) memset(M, 0, sizeof(double) * MP * MP);   /* M NULL: w and h only (the gravity's pass) */
     for (int i = 0; i < DNB; i++) {
         int ki = DQIDX[i];
         if (ki < 0) continue;
@@ -616,6 +616,7 @@ static void tree_pass1(const double *q, const double *v, int full, tree_work *W,
             for (int r = 0; r < 6; r++) zy[r] = z[r] - y[r];
         }
         hb[ki] = dot6(S, W->F0[i]) + DAMPING[ki] * v[ki];
+        if (!M) continue;
         for (int j = i; j >= 0; j = DPARENT[j]) {
             int kj = DQIDX[j];
             if (kj < 0) continue;
@@ -696,6 +697,32 @@ static void tree_pass2(tree_work *W, const double *v, const double *a, double *t
     }
 }
 
+/* the gravity torques' Jacobian G = dID(q, 0, 0)/dq (MP x MP) after tree_pass1 at (q, 0) with M NULL:
+ * tree_pass2's derivatives at v = 0, a = 0, where every velocity term vanishes (V = u = H = Bc = 0),
+ * A_l = (0, -g) for every body and F_i = F0_i = Ic_i (0, -g): alpha_j = S_j x (0, -g) and, for j at
+ * or above i, G_ij = -w_i . alpha_j, G_ji = S_j . (S_i x* F_i - Ic_i alpha_i) (j != i). */
+static void tree_gravity_pass(tree_work *W, double *G)
+{
+    double Al[6] = {0.0, 0.0, 0.0, -GRAVITY[0], -GRAVITY[1], -GRAVITY[2]};
+    for (int b = 0; b < DNB; b++) if (DQIDX[b] >= 0) mcross(W->alpha[b], W->S[b], Al);
+    memset(G, 0, sizeof(double) * MP * MP);
+    for (int i = 0; i < DNB; i++) {
+        int ki = DQIDX[i];
+        if (ki < 0) continue;
+        const double *w = W->w[i];
+        double Phi[6], t[6];
+        fcross(Phi, W->S[i], W->F0[i]);
+        inertia_apply(t, W->m[i], W->h[i], W->J[i], W->alpha[i]);
+        for (int r = 0; r < 6; r++) Phi[r] -= t[r];
+        for (int j = i; j >= 0; j = DPARENT[j]) {
+            int kj = DQIDX[j];
+            if (kj < 0) continue;
+            G[(long)ki * MP + kj] = -dot6(w, W->alpha[j]);
+            if (j != i) G[(long)kj * MP + ki] = dot6(W->S[j], Phi);
+        }
+    }
+}
+
 /* the tree's part of the dynamics driver (plants/fast_analytic_driver.c, TREE_DYN): gen_mh: xs = (q, v)
  * -> out = (M, h); tree_pass1 / tree_pass2 for the derivatives */
 static void gen_mh(const double *xs, double *out)
@@ -703,8 +730,8 @@ static void gen_mh(const double *xs, double *out)
     tree_pass1(xs, xs + MP, 0, &TREE_W, out, out + MP * MP);
 }
 
-/* exported for the checks and the task maps (the task maps' inverse dynamics and its derivatives:
- * Newton-Euler and its forward-mode derivatives above) */
+/* exported for the checks and the task maps (the task maps' inverse dynamics: Newton-Euler above;
+ * its forward-mode derivatives for the checks) */
 int tree_mass_matrix(const double *q, double *M)
 {
     double v[MP], hb[MP];
@@ -727,6 +754,17 @@ int tree_id_analytic(const double *q, const double *v, const double *a, double *
     double hb[MP];
     tree_pass1(q, v, 1, &TREE_W, M, hb);
     tree_pass2(&TREE_W, v, a, tau, D);
+    return 0;
+}
+/* the gravity torques g (MP) = ID(q, 0, 0) and, unless G is NULL, their Jacobian G = dg/dq (MP x MP)
+ * analytically (tree_inverse_dynamics and the columns dq of tree_id_derivatives at v = a = 0, to
+ * rounding) */
+int tree_gravity(const double *q, double *g, double *G)
+{
+    double v[MP];
+    memset(v, 0, sizeof v);
+    tree_pass1(q, v, 0, &TREE_W, NULL, g);
+    if (G) tree_gravity_pass(&TREE_W, G);
     return 0;
 }
 /* batches: K configurations qp (K, MP) */

@@ -477,7 +477,8 @@ def _task_tree(n: int, branches: int, leaf: bool, tmp_path):
 def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branches, leaf, tmp_path):
     """Every state-term example with a compiled counterpart, all in one task set, on trees of 1 to 64
     moving joints: compiled, and the messages equal the Python terms' at every step, relative to their scale;
-    the control toward gravity compiles too."""
+    the control toward gravity too (its state part at random controls: the gravity torques' analytical
+    Jacobian on the tree, mapped by P), and its costs without a gradient."""
     from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlGravity, TaskInequality
     from planning.problem import Problem
     from planning.term_kinds import kind_of_map
@@ -508,9 +509,22 @@ def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branc
             g, G = problem.point_state_derivatives(x, t, active[t])
             assert_close(lx, g, scale=1.0, err_msg=f"n={n} t={t}")
             assert_close(lxx, G, scale=1.0, err_msg=f"n={n} t={t}")
-    gravity = Problem(make_dynamics("analytic", robot, 0.01), x0, T, [],
-                      [ControlCost(1e-2)], joint_terms=[ControlGravity(robot, 1e-2, T=T, name="gravity")])
-    assert kernels.compile_task_set(gravity) is not None
+    grav = ControlGravity(robot, 0.3, T=T, precision=np.linspace(1.0, 2.0, robot.n_q), name="gravity")
+    gravity = Problem(make_dynamics("analytic", robot, 0.01), x0, T, [], [ControlCost(1e-2)], joint_terms=[grav])
+    compiled = kernels.compile_task_set(gravity)
+    assert compiled is not None
+    X = x0 + 0.3 * rng.standard_normal((T + 1, gravity.n_x))
+    U = 2.0 * rng.standard_normal((T, gravity.n_u))
+    gravity.set_nominal(X, U)
+    kernels.set_task_controls(compiled, U)
+    evaluate = _evaluator(gravity, compiled)
+    for t in range(T):
+        lx, lxx = evaluate(X[t], t)
+        g, G = gravity.point_state_derivatives(X[t], t)
+        assert_close(lx, g, err_msg=f"gravity n={n} t={t}")
+        assert_close(lxx, G, err_msg=f"gravity n={n} t={t}")
+    (lx, lxx), costs = kernels.task_rows(compiled, T, X, np.arange(T + 1), costs=True)
+    assert_close(costs, np.r_[grav.joint_value(X[:-1], U), 0.0], err_msg=f"gravity n={n}")
 
 
 def test_task_messages_beyond_64_positions_use_python(tmp_path):

@@ -121,3 +121,32 @@ def test_analytical_dynamics_derivatives_over_the_range_of_trees(tree_robot):
         assert_close(g, r, scale=scale_of(*ref[1:]))
     fd = _central_differences(lambda z: dyn.qddot(z[:m], z[m:2 * m], z[2 * m:]), np.concatenate([q, v, u]))
     assert_close(np.hstack(got[1:]), fd, rel=1e-6)
+
+
+def test_gravity_torques_and_their_jacobian_over_the_range_of_trees(tree_robot):
+    """The gravity torques' one pass (``tree_gravity``: the analytical derivatives at rest) equals the
+    Newton-Euler torques and the forward-mode ``dID/dq`` at ``v = a = 0`` (the same derivative: to rounding),
+    Drake's float and AutoDiffXd evaluation at rest, and central differences of the torques; without the
+    Jacobian it gives the same torques."""
+    from plants.codegen import rbd
+    from plants.codegen.reference import DrakeReference
+
+    k = rbd.tree_kernels(tree_robot)
+    m, zero = k.m, np.zeros(k.m)
+    rng = np.random.default_rng(5)
+    drake = DrakeReference(tree_robot.plant)
+    for q in (0.4 * rng.standard_normal(m), rng.uniform(-np.pi, np.pi, m)):
+        g, G = k.gravity(q)
+        assert G is not None
+        scale = scale_of(g, G)   # one joint's torque or derivative may vanish (an axis along gravity)
+        assert_close(g, k.inverse_dynamics(q, zero, zero), scale=scale)
+        assert_close(G, k.id_derivatives(q, zero, zero)[:, :m], scale=scale)
+        _, tau_ref, _, D_ref = drake.evaluate(q, zero, zero)
+        assert_close(g, tau_ref, scale=scale)
+        assert_close(G, D_ref[:, :m], scale=scale)
+        g_only, none = k.gravity(q, jacobian=False)
+        assert none is None and np.array_equal(g_only, g)
+        # central differences: truncation h^2 and rounding eps / h, about 1e-10 of the scale
+        assert_close(G, _central_differences(lambda z: k.gravity(z, jacobian=False)[0], q), rel=1e-6, scale=scale)
+    with pytest.raises(ValueError):
+        k.gravity(np.zeros(m + 1))
