@@ -7,7 +7,8 @@ tests/planning/test_kernels.py). The two files are compiled as one translation u
 that order: the dense functions stay ``static`` and inline as before). The sources ship with the package (package data) and is compiled
 on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
 cache (``make kernels`` builds it ahead: ``python -m planning.kernels``). :data:`FLAGS` follow
-this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both) and are part of the cached
+this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both, :func:`wide_flags` where it
+lists AVX-512 too) and are part of the cached
 file's key, so a library built for AVX2/FMA is never loaded on a CPU without them: there the
 portable build is made and loaded.
 
