@@ -292,6 +292,7 @@ class _Sweeps:
         self.block_steps = 0     # compiled steps that took the semi-implicit Euler block form
         self._active_flags = np.array([bool(a) for a in self.active], dtype=np.uint8)
         self._kstate: tuple | None = None   # the kernel's state and the arrays it points to, on first use
+        self._kwork: tuple | None = None    # the kernel's work arrays (blk, work, iwork), on first use
         self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
         self._steps = np.arange(T + 1)
         self._task_memo: tuple | None = None   # (X, U, l_x, l_xx) of the last compiled cost's rows
@@ -676,14 +677,24 @@ class _Sweeps:
         Xprev = np.ascontiguousarray(self.Xprev, dtype=float)
         keep.append(Xprev)
         st.Xprev = Xprev.ctypes.data
-        blk = np.zeros(T, dtype=np.uint8)      # the kernel's per-step note of C[t]'s block form
+        blk, work, iwork = self._kernel_work(lib)
+        blk[:] = 0                             # the kernel's per-step note of C[t]'s block form: not known yet
         st.blk = blk.ctypes.data
-        keep.append(blk)
-        work = np.empty(lib.sweep_work_size(n, m))
-        iwork = np.empty(lib.sweep_iwork_size(n, m), dtype=np.intc)
         st.w, st.iw, st.sp_state = work.ctypes.data, iwork.ctypes.data, 0
         self._kstate = (st, work, iwork, keep, lin)       # keep everything the kernel points to alive
         return st
+
+    def _kernel_work(self, lib) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's work arrays, allocated once per run and reused by every sweep (fresh pages per
+        sweep cost page faults): ``blk (T,)`` uint8, ``work`` and ``iwork`` of the sizes
+        ``sweep_work_size`` / ``sweep_iwork_size`` give for ``(n, m)``, checked on every reuse. The
+        kernel writes every entry of them before reading it within a call (scratch; ``blk`` is zeroed
+        by the caller), so nothing of an earlier sweep is read."""
+        T, n, m = self.T, self.n, self.m
+        sizes = (T, lib.sweep_work_size(n, m), lib.sweep_iwork_size(n, m))
+        if self._kwork is None or tuple(a.size for a in self._kwork) != sizes:
+            self._kwork = (np.zeros(T, dtype=np.uint8), np.empty(sizes[1]), np.empty(sizes[2], dtype=np.intc))
+        return self._kwork
 
     def _check_kernel_shapes(self) -> None:
         """The shapes ``sweep_t`` of csweep.c accepts (its layout comment): ``ValueError`` before any

@@ -96,12 +96,67 @@ def test_the_kernel_flags_follow_this_cpu():
     cpu = c_backend.cpu_features()
     assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
     assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
+    assert ("-mavx512f" in kernels.FLAGS) == ({"avx2", "fma", "avx512f"} <= cpu)
     source = kernels.source_text()
     here = c_backend.library_path(source, "csweep", flags=kernels.FLAGS)
-    portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma"))
+    portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma", *kernels.wide_flags()))
     assert c_backend.library_path(source, "csweep", flags=portable) != here
     loaded = kernels.library()
     assert Path(loaded._name) == here
+
+
+def _sweep_lib_at(path: Path):
+    """The sweep kernel built at ``path``, its entry points typed as :func:`planning.kernels.library` types them."""
+    import ctypes
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(c_backend, "load_library", lambda *args, **kw: ctypes.CDLL(str(path)))
+        return kernels._load()
+
+
+def test_wide_tiles_give_the_avx2_numbers_bit_for_bit(tmp_path, monkeypatch):
+    """Where the CPU has AVX-512 the products take 16-column tiles (kernels.wide_flags): every entry gets
+    the operations of the AVX2 build's 8-column tiles in the same order, so both builds give the same
+    bits: the dense kernels on shapes across the tiles' edges, and whole runs on the block form (coupled
+    pendulums) and on the dense route of a learned model (whose figures depend on its rounding)."""
+    from planning.costs import ControlCost, StateTarget
+    from planning.problem import Problem
+    from plants.learned import LearnedDynamics
+    from tests.planning.test_aico_speed_equivalence import CoupledPendulums
+    from tests.planning.test_kernel_shapes import _gp
+
+    if not kernels.wide_flags():
+        pytest.skip("no AVX-512 on this CPU: one build only")
+    narrow = tuple(f for f in kernels.FLAGS if f not in kernels.wide_flags())
+    path = c_backend.build_library(kernels.source_text(), "csweep", directory=tmp_path, flags=narrow)
+    wide_lib, narrow_lib = kernels.library(), _sweep_lib_at(path)
+    rng = np.random.default_rng(5)
+    for a, r, c in ((16, 16, 16), (17, 33, 31), (40, 21, 65), (64, 32, 97), (5, 64, 48)):
+        A, B, C0, S = rng.standard_normal((a, r)), rng.standard_normal((r, c)), rng.standard_normal((a, c)), _spd(rng, c)
+        out = []
+        for lib in (_dense_lib(wide_lib), _dense_lib(narrow_lib)):
+            C, W, R = C0.copy(), np.zeros((c, c)), S.copy()
+            lib.k_gemm_nn(a, r, c, -0.5, A.ctypes.data, r, B.ctypes.data, c, C.ctypes.data, c)
+            lib.k_syrk_tn(r, c, 2.0, B.ctypes.data, c, W.ctypes.data, c, 1)
+            assert lib.k_chol_u(c, R.ctypes.data, c) == 0
+            Inv, Y = np.empty((c, c)), np.full((c, c), np.nan)
+            lib.k_spd_inverse(c, R.ctypes.data, c, Inv.ctypes.data, c, Y.ctypes.data)
+            out.append((C, np.triu(W), np.triu(R), Inv))
+        for x, y in zip(*out):
+            assert np.array_equal(x, y), (a, r, c)
+    nq, T = 10, 15
+    goal = np.concatenate([np.full(nq, 0.4), np.zeros(nq)])
+    cases = (lambda: CoupledPendulums(nq, 0.02), lambda: LearnedDynamics(_gp(30, 3 * nq, nq, seed=3), n_q=nq, dt=0.02))
+    counts = _recording_block_steps(monkeypatch)
+    for make_dyn in cases:
+        runs = []
+        for lib in (wide_lib, narrow_lib):
+            monkeypatch.setattr(kernels, "_LIB", lib)
+            problem = Problem(make_dyn(), np.zeros(2 * nq), T, [StateTarget(goal, [T], weight=1e3, name="goal")],
+                              [ControlCost(1e-2)])
+            runs.append(aico(problem, AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0, theta=0.01)))
+        assert np.array_equal(runs[0].X, runs[1].X) and np.array_equal(runs[0].U, runs[1].U)
+    assert any(counts) and not all(counts)   # the block form on the pendulums, the dense route on the model
 
 
 def _plan_problem(plant: str, task: str, dynamics: str, T: int | None = None):
@@ -291,10 +346,10 @@ _SIZES = [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 25, 50]
 _PAD = 12345.0     # written around every operand: a kernel reading or writing outside its block fails
 
 
-def _dense_lib():
+def _dense_lib(lib=None):
     import ctypes
 
-    lib = kernels.library()
+    lib = kernels.library() if lib is None else lib
     L, D, P = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
     lib.k_chol_u.argtypes, lib.k_chol_u.restype = [L, P, L], ctypes.c_int
     for f in ("k_solve_rt", "k_solve_r"):
