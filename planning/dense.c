@@ -26,71 +26,48 @@ typedef double v4d __attribute__((vector_size(32)));
 static inline v4d ldv(const double *p) { v4d v; memcpy(&v, p, sizeof v); return v; }
 static inline void stv(double *p, v4d v) { memcpy(p, &v, sizeof v); }
 
-/* tile of nr (<= 4) rows x 8 columns: c[r][j] += scale sum_{k=kb}^{ke-1} X(r, k) y[k][j],
- * X(r, k) = x[r xr + k xk] */
-static inline __attribute__((always_inline)) void mk8(int nr, int kb, int ke, const double *x, long xr, long xk,
-                                                     const double *y, long ldy, double *c, long ldc, double scale,
-                                                     int set)
-{
-    v4d a0 = {0}, a1 = {0}, b0 = {0}, b1 = {0}, c0 = {0}, c1 = {0}, d0 = {0}, d1 = {0};
-    for (int k = kb; k < ke; k++) {
-        const double *yk = y + (long)k * ldy, *xk_ = x + (long)k * xk;
-        v4d y0 = ldv(yk), y1 = ldv(yk + 4);
-        double f = xk_[0];
-        a0 += f * y0; a1 += f * y1;
-        if (nr > 1) { f = xk_[xr]; b0 += f * y0; b1 += f * y1; }
-        if (nr > 2) { f = xk_[2 * xr]; c0 += f * y0; c1 += f * y1; }
-        if (nr > 3) { f = xk_[3 * xr]; d0 += f * y0; d1 += f * y1; }
-    }
-    if (set) {
-        stv(c, scale * a0); stv(c + 4, scale * a1);
-        if (nr > 1) { c += ldc; stv(c, scale * b0); stv(c + 4, scale * b1); }
-        if (nr > 2) { c += ldc; stv(c, scale * c0); stv(c + 4, scale * c1); }
-        if (nr > 3) { c += ldc; stv(c, scale * d0); stv(c + 4, scale * d1); }
-        return;
-    }
-    stv(c, ldv(c) + scale * a0); stv(c + 4, ldv(c + 4) + scale * a1);
-    if (nr > 1) { c += ldc; stv(c, ldv(c) + scale * b0); stv(c + 4, ldv(c + 4) + scale * b1); }
-    if (nr > 2) { c += ldc; stv(c, ldv(c) + scale * c0); stv(c + 4, ldv(c + 4) + scale * c1); }
-    if (nr > 3) { c += ldc; stv(c, ldv(c) + scale * d0); stv(c + 4, ldv(c + 4) + scale * d1); }
+/* tile of nr (<= 4) rows x 2H columns in H-wide vectors V (load LD, store ST):
+ * c[r][j] += scale sum_{k=kb}^{ke-1} X(r, k) y[k][j], X(r, k) = x[r xr + k xk]. Every entry of C gets its
+ * own accumulator, k ascending, one multiply-add per k, then the scaled add: the 8- and 16-column tiles
+ * give the same numbers bit for bit. */
+#define TILE_KERNEL(NAME, V, H, LD, ST)                                                                      \
+static inline __attribute__((always_inline)) void NAME(int nr, int kb, int ke, const double *x, long xr,   \
+                                                       long xk, const double *y, long ldy, double *c,     \
+                                                       long ldc, double scale, int set)                   \
+{                                                                                                          \
+    V a0 = {0}, a1 = {0}, b0 = {0}, b1 = {0}, c0 = {0}, c1 = {0}, d0 = {0}, d1 = {0};                      \
+    for (int k = kb; k < ke; k++) {                                                                        \
+        const double *yk = y + (long)k * ldy, *xk_ = x + (long)k * xk;                                     \
+        V y0 = LD(yk), y1 = LD(yk + H);                                                                    \
+        double f = xk_[0];                                                                                 \
+        a0 += f * y0; a1 += f * y1;                                                                        \
+        if (nr > 1) { f = xk_[xr]; b0 += f * y0; b1 += f * y1; }                                           \
+        if (nr > 2) { f = xk_[2 * xr]; c0 += f * y0; c1 += f * y1; }                                       \
+        if (nr > 3) { f = xk_[3 * xr]; d0 += f * y0; d1 += f * y1; }                                       \
+    }                                                                                                      \
+    if (set) {                                                                                             \
+        ST(c, scale * a0); ST(c + H, scale * a1);                                                          \
+        if (nr > 1) { c += ldc; ST(c, scale * b0); ST(c + H, scale * b1); }                                \
+        if (nr > 2) { c += ldc; ST(c, scale * c0); ST(c + H, scale * c1); }                                \
+        if (nr > 3) { c += ldc; ST(c, scale * d0); ST(c + H, scale * d1); }                                \
+        return;                                                                                            \
+    }                                                                                                      \
+    ST(c, LD(c) + scale * a0); ST(c + H, LD(c + H) + scale * a1);                                          \
+    if (nr > 1) { c += ldc; ST(c, LD(c) + scale * b0); ST(c + H, LD(c + H) + scale * b1); }                \
+    if (nr > 2) { c += ldc; ST(c, LD(c) + scale * c0); ST(c + H, LD(c + H) + scale * c1); }                \
+    if (nr > 3) { c += ldc; ST(c, LD(c) + scale * d0); ST(c + H, LD(c + H) + scale * d1); }                \
 }
+
+TILE_KERNEL(mk8, v4d, 4, ldv, stv)
 
 #if defined(__AVX512F__)
 /* AVX-512 (planning/kernels.py adds -mavx512f where the CPU has it): mk8's tile twice as wide, nr (<= 4)
- * rows x 16 columns in 8-wide vectors. Every entry of C gets the same operations in the same order as in
- * mk8 (its own accumulator, k ascending, one fused multiply-add per k, then the scaled add): the same
- * numbers bit for bit, in half the instructions. */
+ * rows x 16 columns in 8-wide vectors, in half the instructions. */
 typedef double v8d __attribute__((vector_size(64)));
 static inline v8d ldw(const double *p) { v8d v; memcpy(&v, p, sizeof v); return v; }
 static inline void stw(double *p, v8d v) { memcpy(p, &v, sizeof v); }
 #define TILE_W 16
-
-static inline __attribute__((always_inline)) void mk16(int nr, int kb, int ke, const double *x, long xr, long xk,
-                                                      const double *y, long ldy, double *c, long ldc, double scale,
-                                                      int set)
-{
-    v8d a0 = {0}, a1 = {0}, b0 = {0}, b1 = {0}, c0 = {0}, c1 = {0}, d0 = {0}, d1 = {0};
-    for (int k = kb; k < ke; k++) {
-        const double *yk = y + (long)k * ldy, *xk_ = x + (long)k * xk;
-        v8d y0 = ldw(yk), y1 = ldw(yk + 8);
-        double f = xk_[0];
-        a0 += f * y0; a1 += f * y1;
-        if (nr > 1) { f = xk_[xr]; b0 += f * y0; b1 += f * y1; }
-        if (nr > 2) { f = xk_[2 * xr]; c0 += f * y0; c1 += f * y1; }
-        if (nr > 3) { f = xk_[3 * xr]; d0 += f * y0; d1 += f * y1; }
-    }
-    if (set) {
-        stw(c, scale * a0); stw(c + 8, scale * a1);
-        if (nr > 1) { c += ldc; stw(c, scale * b0); stw(c + 8, scale * b1); }
-        if (nr > 2) { c += ldc; stw(c, scale * c0); stw(c + 8, scale * c1); }
-        if (nr > 3) { c += ldc; stw(c, scale * d0); stw(c + 8, scale * d1); }
-        return;
-    }
-    stw(c, ldw(c) + scale * a0); stw(c + 8, ldw(c + 8) + scale * a1);
-    if (nr > 1) { c += ldc; stw(c, ldw(c) + scale * b0); stw(c + 8, ldw(c + 8) + scale * b1); }
-    if (nr > 2) { c += ldc; stw(c, ldw(c) + scale * c0); stw(c + 8, ldw(c + 8) + scale * c1); }
-    if (nr > 3) { c += ldc; stw(c, ldw(c) + scale * d0); stw(c + 8, ldw(c + 8) + scale * d1); }
-}
+TILE_KERNEL(mk16, v8d, 8, ldw, stw)
 #else
 #define TILE_W 8
 #endif
