@@ -1,11 +1,11 @@
-"""The built-in plants, loaded as any model file is, and :class:`Robot`, what every robot is.
+"""The built-in plants, loaded as any model file is, and the robot of a stored plan.
 
 A built-in plant is a model file with its robot's facts: ``plants/models/NAME.urdf`` and
 ``plants/models/NAME.toml``, whose keys are a problem file's ``[robot]`` keys (``file``, ``weld``,
 ``armature``, ``start``) plus the facts (:class:`plants.model_file.RobotSpec`): the joints one motor
 couples, the end effectors, hands and soles, the sole's outline, how the robot is executed and the
 learning loop's defaults. ``load_robot(name)`` is ``load_model(builtin_spec(name))``: one route from a
-file to a :class:`Robot` (a finalized continuous-time plant registered with a scene graph, the planning
+file to a :class:`plants.robot.Robot` (a finalized continuous-time plant registered with a scene graph, the planning
 joints, the map from planning coordinates to the plant's positions, the facts).
 
 Planning coordinates: ``q (n_q,)`` in rad. The plant's positions are ``P @ q`` with
@@ -59,7 +59,6 @@ def load_robot(name: str, builder: DiagramBuilder | None = None, time_step: floa
 def shared_robot(name: str) -> Robot:
     """One robot per name and process for kinematics and dynamics queries (not for diagrams)."""
     return load_robot(name)
-
 
 
 def _desc_spec(desc: dict, true: bool) -> dict | None:
