@@ -1,6 +1,6 @@
-"""No test compares floating-point results with an absolute tolerance below 1e-9: rounding differs
-between processors (FMA, AVX-512, a library's last bit), so such a test passes here and fails elsewhere.
-Tolerances are relative to the compared quantities' scale (``tests/tolerance.py``)."""
+"""No test compares floating-point results with a tolerance below 1e-9, absolute or relative: rounding
+differs between processors (FMA, AVX-512, a library's last bit), so such a test passes here and fails
+elsewhere. Tolerances are relative to the compared quantities' scale (``tests/tolerance.py``), at 1e-9."""
 
 from __future__ import annotations
 
@@ -18,11 +18,14 @@ LIT = r"(\d+(?:\.\d+)?e-\d+)"
 # assert's offset, not multiplied by a scale (``1e-12 * scale`` is relative)
 PATTERNS = [re.compile(rf"\b(?:atol|abs)\s*=\s*{LIT}(?!\s*\*)"),
             re.compile(rf"^\s*assert\b.*[<>]=?\s*-?\s*{LIT}(?!\s*\*)"),
-            re.compile(rf"^\s*assert\b.*[<>]=?.*[-+]\s*{LIT}(?!\s*\*)")]
+            re.compile(rf"^\s*assert\b.*[<>]=?.*[-+]\s*{LIT}(?!\s*\*)"),
+            # a relative one: rtol= / rel= / rel_tol=, or an absolute one as a multiple of the scale
+            re.compile(rf"\b(?:rtol|rel|rel_tol)\s*=\s*{LIT}"),
+            re.compile(rf"\b(?:atol|abs)\s*=\s*{LIT}(?=\s*\*)")]
 
 
-def absolute_tolerances(text: str) -> list[str]:
-    """``line: text`` of each absolute tolerance below 1e-9 in the source ``text``."""
+def tight_tolerances(text: str) -> list[str]:
+    """``line: text`` of each tolerance below 1e-9 in the source ``text``."""
     found = []
     for i, line in enumerate(text.splitlines(), 1):
         code = line.split("#", 1)[0]
@@ -33,8 +36,8 @@ def absolute_tolerances(text: str) -> list[str]:
     return sorted(set(found))
 
 
-def test_no_test_uses_an_absolute_tolerance_below_1e_9():
-    found = {str(p.relative_to(TESTS)): absolute_tolerances(p.read_text()) for p in sorted(TESTS.rglob("test_*.py"))
+def test_no_test_uses_a_tolerance_below_1e_9():
+    found = {str(p.relative_to(TESTS)): tight_tolerances(p.read_text()) for p in sorted(TESTS.rglob("test_*.py"))
              if p.name != Path(__file__).name}
     assert len(found) > 40, "the scan sees the tests in their folders"
     found = {k: v for k, v in found.items() if v}
@@ -42,10 +45,13 @@ def test_no_test_uses_an_absolute_tolerance_below_1e_9():
 
 
 def test_the_scan_sees_each_form():
-    src = ("np.testing.assert_allclose(a, b, atol=1e-12)\nassert x == pytest.approx(0, abs=1e-20)\n"
-           "assert err < 1e-10\nassert c >= d - 1e-12\nassert e <= 1e-12 * scale\nok = np.allclose(a, b, atol=1e-9)\n"
-           "if tol > 1e-10:\n")
-    assert [s.split(":")[0] for s in absolute_tolerances(src)] == ["1", "2", "3", "4"]
+    tight = "1e-" + "12"   # the forms the scan must catch, spelled so that no source line is one of them
+    src = (f"np.testing.assert_allclose(a, b, atol={tight})\nassert x == pytest.approx(0, abs=1e-20)\n"
+           f"assert err < 1e-10\nassert c >= d - {tight}\nassert np.allclose(a, b, rtol={tight})\n"
+           f"assert x == pytest.approx(y, rel={tight})\nassert np.allclose(a, b, rtol=0, atol={tight} * scale)\n"
+           "ok = np.allclose(a, b, atol=1e-9)\nok = np.allclose(a, b, rtol=1e-9, atol=1e-9 * scale)\n"
+           "if tol > 1e-10:\nILQGOptions(tol_rel=1e-13)\n")
+    assert [s.split(":")[0] for s in tight_tolerances(src)] == ["1", "2", "3", "4", "5", "6", "7"]
 
 
 def test_close_is_relative_to_the_scale_and_still_fails_on_a_real_difference():

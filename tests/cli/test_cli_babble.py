@@ -50,7 +50,7 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(raico, tmp_path):
     m = line["metrics"]
     assert (m["episodes"], m["samples"]) == (3, 3 * 501)
     assert m["max_abs_u"] == np.abs(data["u"]).max()
-    assert m["rms_tracking_error"] == pytest.approx(np.sqrt(np.mean((data["q"] - data["q_des"]) ** 2)), rel=1e-12)
+    assert m["rms_tracking_error"] == pytest.approx(np.sqrt(np.mean((data["q"] - data["q_des"]) ** 2)), rel=1e-9)
     assert_close(data["t"], np.arange(501) * 0.002, scale=1.0)   # seconds
     # same command again: served from the cache, the stage is not run (data file untouched)
     mtime = (folder / "data.npz").stat().st_mtime_ns

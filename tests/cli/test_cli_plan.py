@@ -49,15 +49,15 @@ def test_plan_and_execute_arm5_pseudo(tmp_path):
     assert m["iterations"] == 8
     # the metrics are the stored arrays': costs per iteration, wall time per iteration
     assert (m["first_iteration_cost"], m["final_cost"]) == (costs[0], costs[-1])
-    assert m["wall_time_s"] == pytest.approx(d["wall_time"].sum(), rel=1e-12)
-    assert m["cost_ratio"] == pytest.approx(m["final_cost"] / m["initial_cost"], rel=1e-12)
+    assert m["wall_time_s"] == pytest.approx(d["wall_time"].sum(), rel=1e-9)
+    assert m["cost_ratio"] == pytest.approx(m["final_cost"] / m["initial_cost"], rel=1e-9)
     # ... and the objective rebuilt from problem.json gives them again (pseudo-dynamics: u = 0
     # keeps the arm at rest at x0, the initial trajectory)
     desc = json.loads((folder / "problem.json").read_text())
     obj = objective_from_description(desc)
     pb = Problem(PseudoDynamics(5, desc["dt"]), np.array(desc["x0"]), desc["T"], obj.state_terms, obj.control_terms)
-    assert m["initial_cost"] == pytest.approx(pb.cost(np.tile(desc["x0"], (1001, 1)), np.zeros((1000, 5))), rel=1e-10)
-    assert m["final_cost"] == pytest.approx(pb.cost(d["X"], d["U"]), rel=1e-10)
+    assert m["initial_cost"] == pytest.approx(pb.cost(np.tile(desc["x0"], (1001, 1)), np.zeros((1000, 5))), rel=1e-9)
+    assert m["final_cost"] == pytest.approx(pb.cost(d["X"], d["U"]), rel=1e-9)
     assert m["final_cost"] < m["first_iteration_cost"] < m["initial_cost"]
     # via-point errors: Drake's end-effector position against the task's targets
     arm = shared_robot("arm5")
@@ -81,7 +81,7 @@ def test_plan_and_execute_arm5_pseudo(tmp_path):
     # the metrics are the rollout's: executed via-point errors, RMSE against the plan, torques
     assert em["via_point_errors"] == pytest.approx(errors(r["X"]), rel=1e-9)
     rmse = np.sqrt(np.mean((r["X"][:, :5] - d["X"][:, :5]) ** 2))
-    assert em["rmse_planned_executed"] == pytest.approx(rmse, rel=1e-12)
+    assert em["rmse_planned_executed"] == pytest.approx(rmse, rel=1e-9)
     assert em["max_abs_torque"] == np.abs(r["tau"]).max()
     # computed torque in Drake follows the plan closely
     assert em["rmse_planned_executed"] < 0.01

@@ -222,7 +222,7 @@ def test_dense_kernels_on_drawn_shapes(a, r, c, extra, seed):
     Ab, Bb, Cb = _padded(A, extra), _padded(B, extra), _padded(C0, extra)
     lib.k_gemm_nn(a, r, c, 0.5, Ab.ctypes.data, Ab.shape[1], Bb.ctypes.data, Bb.shape[1], Cb.ctypes.data,
                   Cb.shape[1])
-    np.testing.assert_allclose(Cb[:a, :c], C0 + 0.5 * A @ B, rtol=0, atol=1e-12 * r)
+    np.testing.assert_allclose(Cb[:a, :c], C0 + 0.5 * A @ B, rtol=0, atol=1e-9 * r)
     assert (Cb[:a, c:] == 12345.0).all() and (Cb[a] == 12345.0).all()
     n = a
     G = rng.standard_normal((n, n))

@@ -202,7 +202,7 @@ def test_vstar_all_regimes(scale):
     out = sw._vstar(Pa)
     E = np.eye(N_X) + 1e-9 * P
     exact = np.linalg.solve(E, Pa)
-    assert np.allclose(out, exact, rtol=1e-12, atol=1e-13 * np.abs(exact).max())
+    assert np.allclose(out, exact, rtol=1e-9, atol=1e-9 * np.abs(exact).max())
 
 
 def test_adaptive_raico_converges_faster_on_lq():
@@ -274,7 +274,7 @@ def test_compiled_ilqg_backward_equals_numpy():
                 H @ np.swapaxes(H, 1, 2) / m + 0.1 * np.eye(m))
         for mu in (0.0, 0.5):
             for got, ref in zip(_backward(*args, mu), _backward(*args, mu, compiled=False)):
-                assert np.allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+                assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
         bad = list(args)
         bad[5] = bad[5].copy()
         bad[5][T // 2] = -np.eye(m)

@@ -104,8 +104,8 @@ def test_compiled_messages_equal_the_terms_and_finite_differences(example, robot
             lx, lxx = evaluate(x, t)
             g, G = problem.point_state_derivatives(x, t, active[t])
             scale_g, scale_G = max(np.abs(g).max(), 1e-300), max(np.abs(G).max(), 1e-300)
-            np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * scale_g, err_msg=f"{example} t={t}")
-            np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * scale_G, err_msg=f"{example} t={t}")
+            np.testing.assert_allclose(lx, g, rtol=0, atol=1e-9 * scale_g, err_msg=f"{example} t={t}")
+            np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-9 * scale_G, err_msg=f"{example} t={t}")
             if not active[t] or not np.any(g):
                 assert not np.any(lx) and not np.any(lxx)
                 continue
@@ -156,8 +156,8 @@ def test_logarithm_branches(angle):
     lx, lxx = evaluate(x, 2)
     g, G = problem.point_state_derivatives(x, 2, problem.active_state_terms()[2])
     assert np.abs(g).max() > 0
-    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
-    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-9 * np.abs(G).max())
 
 
 def test_cost_kinds_are_named_alike_in_python_and_c():
@@ -220,8 +220,8 @@ def test_rows_equal_the_batched_terms(robot_name):
     g, G = problem.state_derivatives(X, steps)
     ref = sum(t.value(X, steps) for t in problem.state_terms)
     assert np.abs(ref).max() > 0
-    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
-    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-9 * np.abs(G).max())
     np.testing.assert_allclose(costs, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
     none, only = kernels.task_rows(compiled, T, X, steps, derivatives=False, costs=True)
     assert none is None and np.array_equal(only, costs)
@@ -283,12 +283,12 @@ def test_control_toward_gravity_compiled(robot_name):
         if t == T:
             assert not np.any(lx) and not np.any(g)
             continue
-        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
-        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+        np.testing.assert_allclose(lx, g, rtol=0, atol=1e-9 * np.abs(g).max())
+        np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-9 * np.abs(G).max())
     (lx, lxx), costs = kernels.task_rows(compiled, T, X, np.arange(T + 1), costs=True)
     g, G = problem.state_derivatives(X)
-    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-10 * np.abs(g).max())
-    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-10 * np.abs(G).max())
+    np.testing.assert_allclose(lx, g, rtol=0, atol=1e-9 * np.abs(g).max())
+    np.testing.assert_allclose(lxx, G, rtol=0, atol=1e-9 * np.abs(G).max())
     ref = np.r_[term.joint_value(X[:-1], U), 0.0]
     np.testing.assert_allclose(costs, ref, rtol=1e-9, atol=1e-9 * ref.max())
     with pytest.raises(ValueError, match="U has shape"):
@@ -301,8 +301,8 @@ def test_control_toward_gravity_compiled(robot_name):
     for x in X:
         g_tree, G_tree = term.gravity.value_and_jacobian(x[:robot.n_q])
         g_ad, G_ad = drake.value_and_jacobian(x[:robot.n_q])
-        np.testing.assert_allclose(g_tree, g_ad, rtol=0, atol=1e-10 * np.abs(g_ad).max())
-        np.testing.assert_allclose(G_tree, G_ad, rtol=0, atol=1e-10 * np.abs(G_ad).max())
+        np.testing.assert_allclose(g_tree, g_ad, rtol=0, atol=1e-9 * np.abs(g_ad).max())
+        np.testing.assert_allclose(G_tree, G_ad, rtol=0, atol=1e-9 * np.abs(G_ad).max())
 
 
 def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):

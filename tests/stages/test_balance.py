@@ -49,12 +49,12 @@ def test_support_term_is_zero_inside_with_margin_and_grows_outside():
     ys = np.array([0.0295, 0.035, 0.044, 0.06, 0.1, 0.2])
     costs = np.array([term.value(_x([0.02, y]))[0] for y in ys])
     assert np.all(np.diff(costs) > 0)
-    np.testing.assert_allclose(costs, 1e6 * (ys - (0.044 - 0.015)) ** 2, rtol=1e-12)
+    np.testing.assert_allclose(costs, 1e6 * (ys - (0.044 - 0.015)) ** 2, rtol=1e-9)
     # past a corner two edges count
     assert term.value(_x([0.2, 0.2]))[0] == pytest.approx(1e6 * ((0.2 - 0.09) ** 2 + (0.2 - 0.029) ** 2))
     # the gradient points out, the Gauss-Newton Hessian is 2 w a a^T on the violated edge
     lx, lxx = term.derivatives(_x([0.02, 0.06]))
-    np.testing.assert_allclose(lx[0, :2], [0.0, 2e6 * (0.06 - 0.029)], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(lx[0, :2], [0.0, 2e6 * (0.06 - 0.029)], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(lxx[0, :2, :2], [[0.0, 0.0], [0.0, 2e6]], atol=1e-6)
     assert not lx[0, 2:].any() and not lxx[0, 2:].any()
 
@@ -165,7 +165,7 @@ def test_cli_balance_support_keeps_the_planned_cog_inside(tmp_path):
     assert all(signed_margin(poly, p) > -REL for p in hull_pts)   # inside up to rounding (metres)
     margins = cog_margins(nao, d["X"][1:], poly)
     assert margins.min() >= MARGIN - 1e-3, margins.min()  # a soft penalty: to 1 mm
-    assert m["balance"]["cog_min_margin"] == pytest.approx(margins.min(), rel=1e-12)
+    assert m["balance"]["cog_min_margin"] == pytest.approx(margins.min(), rel=1e-9)
     assert m["via_point_errors"]["r_sole@max"] < 5e-3  # the right sole held at every step
     assert m["final_cost"] < m["initial_cost"]
     # the stored objective (execute and evaluate rebuild it) has the support term and its cost
