@@ -342,7 +342,8 @@ def test_fallback_without_the_kernel(monkeypatch):
 
 
 # -- the dense kernels of the sweeps, by themselves ------------------------------------------------
-_SIZES = [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 25, 50]
+# every edge of the 4-row, 4-, 8- and 16-column tiles (16: the AVX-512 build) and the sizes the sweeps reach
+_SIZES = [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 15, 16, 17, 25, 31, 32, 33, 50, 63, 64, 65]
 _PAD = 12345.0     # written around every operand: a kernel reading or writing outside its block fails
 
 
@@ -405,7 +406,9 @@ def test_dense_cholesky_solves_and_inverse(n):
 
 
 @pytest.mark.parametrize("a,r,c", [(1, 1, 1), (3, 5, 2), (4, 4, 4), (5, 7, 9), (9, 3, 13),
-                                   (25, 50, 76), (50, 51, 51), (50, 25, 50), (13, 50, 8)])
+                                   (25, 50, 76), (50, 51, 51), (50, 25, 50), (13, 50, 8),
+                                   (4, 16, 16), (5, 17, 15), (16, 31, 17), (17, 33, 32), (33, 16, 33),
+                                   (15, 9, 31), (64, 64, 64), (3, 65, 65), (65, 2, 48)])
 def test_dense_products_and_transpose(a, r, c):
     """A B, A^T B, the upper triangle of W^T W and transposes against numpy, with alpha,
     accumulated into C or setting it (C not read: NaN before), nothing touched outside the block."""
