@@ -93,26 +93,19 @@ def backward_sweep_rate(problem, reps: int = 5) -> dict:
     ``seconds`` (median, one thread), its ``flops`` (``T`` backward messages by :func:`sweep_flops`) and
     ``gflops``; the achieved rate of the sweeps themselves, where :func:`flop_fields` divides by the whole
     iteration (dynamics derivatives, rollouts and costs included)."""
-    import dataclasses
-    import math
+    from planning.aico import backward_sweep_at_start
+    from planning.problem import single_threaded_blas
 
-    from planning import aico
-
-    opts = dataclasses.replace(aico.AICOOptions(), theta=math.inf)
-    T, m = problem.T, problem.n_u
-    X, U = np.tile(problem.x0, (T + 1, 1)), np.zeros((T, m))
-    block = aico._block_form_dt(problem.dynamics) > 0  # the kernel takes the block form where C_t has it
-    with aico.single_threaded_blas():
-        sw = aico._Sweeps(problem, opts)
-        sw.linearize_all(X, U, X, 1.0)
-        sw.sweep()
+    with single_threaded_blas():
+        sweep, block = backward_sweep_at_start(problem)
+        sweep()
         times = []
         for _ in range(reps):
             t0 = time.perf_counter()
-            sw.sweep()
+            sweep()
             times.append(time.perf_counter() - t0)
     seconds = statistics.median(times)
-    flops = sweep_flops(len(problem.x0), m, T, block=block)["parts"]["backward"] * T
+    flops = sweep_flops(len(problem.x0), problem.n_u, problem.T, block=block)["parts"]["backward"] * problem.T
     return {"seconds": seconds, "flops": flops, "gflops": flops / seconds / 1e9, "block": block}
 
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -1197,6 +1198,19 @@ def bounded_rollout(problem: Problem, o: np.ndarray, O: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``problem.bounded_rollout`` with the sweeps' kernel switch (tests turn the compiled code off)."""
     return problem.bounded_rollout(o, O, kernel=_Sweeps.compiled)
+
+
+def backward_sweep_at_start(problem: Problem) -> tuple[Callable[[], None], bool]:
+    """One backward sweep of ``problem`` at a fixed linearization (the start held, zero controls, no
+    relinearization: ``theta = inf``), as a callable to time (call it inside :func:`single_threaded_blas`),
+    and whether the kernel may take the semi-implicit Euler block form: the message arithmetic on its own
+    (``bench.flops``)."""
+    opts = dataclasses.replace(AICOOptions(), theta=math.inf)
+    T = problem.T
+    X, U = np.tile(problem.x0, (T + 1, 1)), np.zeros((T, problem.n_u))
+    sw = _Sweeps(problem, opts)
+    sw.linearize_all(X, U, X, 1.0)
+    return sw.sweep, _block_form_dt(problem.dynamics) > 0
 
 
 def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:

@@ -108,11 +108,8 @@ class RobotSpec:
         out, so a model file's stored spec reads as before they existed."""
         extra: dict[str, Any] = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} \
             if self.true else {}
-        for key in FACTS:
-            value = getattr(self, key)
-            if value != FACT_DEFAULTS[key]:
-                extra[key] = dict(value) if key in ("coupled", "end_effectors", "learn") else \
-                    [list(v) for v in value] if key == "sole" else list(value) if isinstance(value, tuple) else value
+        extra.update({key: _fact_json(key, getattr(self, key)) for key in FACTS
+                      if getattr(self, key) != FACT_DEFAULTS[key]})
         return {**extra, "file": self.file, "packages": dict(self.packages), "weld": self.weld,
                 "weld_pose": list(self.weld_pose), "locked": dict(self.locked),
                 "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
@@ -182,6 +179,15 @@ def facts_from(d: dict) -> dict:
         else:
             out[key] = str(v)
     return out
+
+
+def _fact_json(key: str, value):
+    """A fact's JSON form: tables as dicts (``coupled``, ``end_effectors``, ``learn``), lists as lists."""
+    if key in ("coupled", "end_effectors", "learn"):
+        return dict(value)
+    if key == "sole":
+        return [list(v) for v in value]
+    return list(value) if isinstance(value, tuple) else value
 
 
 def _table(v, key: str) -> dict:

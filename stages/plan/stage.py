@@ -439,7 +439,7 @@ _LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an exper
 
 def load_notes(robot: Robot) -> list[str]:
     """The lines saying what loading ``robot``'s model file changed (none for a built-in plant)."""
-    if not robot.spec or robot.builtin:
+    if robot.builtin:
         return []
     return [f"raico: note: {Path(robot.spec.file).name}: {line}" for line in robot.load_report]
 
