@@ -256,12 +256,14 @@ def compile_task_set(problem):
 
 
 def _robot_kernels(robot):
-    """The robot's compiled tree kernels (``plants.codegen.rbd``), or ``None``."""
+    """The robot's compiled tree kernels (``plants.codegen.rbd``), or ``None`` where the plant has none
+    (a joint or force element the generator does not handle, no C compiler): the Python terms then run.
+    Any other error is a fault and is raised."""
     from plants.codegen.rbd import tree_kernels
 
     try:
         return tree_kernels(robot)
-    except (NotImplementedError, AttributeError, c_backend.CompileUnavailable):
+    except (NotImplementedError, c_backend.CompileUnavailable):
         return None
 
 

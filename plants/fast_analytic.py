@@ -470,10 +470,12 @@ class TreeGravityTorques(GravityTorques):
 
 def gravity_torques(robot) -> GravityTorques:
     """The robot's gravity-compensating torques: on its compiled tree where that builds
-    (:class:`TreeGravityTorques`), else Drake's (:class:`plants.dynamics.GravityTorques`)."""
+    (:class:`TreeGravityTorques`), else Drake's (:class:`plants.dynamics.GravityTorques`, equal to rounding,
+    slower) where the plant has no tree kernels (a joint or force element the generator does not handle,
+    no C compiler). Any other error is a fault and is raised."""
     from plants.codegen.rbd import tree_kernels
 
     try:
         return TreeGravityTorques(robot, tree_kernels(robot))
-    except (NotImplementedError, AttributeError, c_backend.CompileUnavailable):
+    except (NotImplementedError, c_backend.CompileUnavailable):
         return GravityTorques(robot)

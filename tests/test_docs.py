@@ -1,6 +1,7 @@
 """The documentation: a README of at most 300 lines that links its pages, generated blocks that live in one
 file each, every command's ``--help`` ending with its page, and the reference tables the site generates from
-the code's own schema (``scripts/docs_hooks.py``). ``make docs`` builds the site itself."""
+the code's own schema (``scripts/docs_hooks.py``), and numbers typed in the prose that a generated table or a
+test owns (the claims table's counts, a test's bound) equal to theirs. ``make docs`` builds the site itself."""
 
 from __future__ import annotations
 
@@ -102,3 +103,77 @@ def test_markers_become_tables_and_an_unknown_marker_stops_the_build():
     assert "<!-- schema" not in out and "| top level | `name`" in out
     with pytest.raises(ValueError, match="unknown schema marker: nonsense"):
         docs_hooks.on_page_markdown("<!-- schema: nonsense -->", None, None, None)
+
+
+# ----------------------------------------------------------------------------- typed numbers a generator owns
+CARRY, NOISE = ("the whole-body stabilizer carries out the R-AICO a=1 plans on the free-standing Nao",
+                "the stabilizer keeps the Nao standing under noise")
+STOOD, ACHIEVED, PD_STOOD = r"stood (\d+)/10", r"achieved in (\d+)/10", r"joint PD beside it: stood (\d+)/10"
+# A number typed in a page's prose (outside the generated blocks) that the claims table of docs/results.md
+# also gives: (page, the sentence with the number as its group, whitespace as single spaces; the figure and
+# claim of the table's row; the number in that row). ``optional``: a sentence that went (its number now read
+# from the table), kept so that it cannot come back with a number the table contradicts.
+TYPED_COUNTS = [
+    ("docs/results.md", r"\(fig3\.4-inside\) stand in (\d+) of 10 runs", "fig3.4-inside", CARRY, STOOD),
+    ("docs/results.md", r"and reach their via-points in (\d+), so those claims", "fig3.4-inside", CARRY, ACHIEVED),
+    ("docs/results.md", r"under noise (\d+) of 10 stand \(the claim", "fig3.4-inside", NOISE, STOOD),
+    ("docs/results.md", r"reaches the planned points in (\d+) of 10 runs", "fig3.4-support", CARRY, ACHIEVED),
+    ("docs/results.md", r"reaches the planned points in \d+ of 10 runs, (\d+) of 10 stand under noise",
+     "fig3.4-support", NOISE, STOOD),
+    ("docs/results.md", r"the joint PD stands in (\d+) of 10", "fig3.4-support", CARRY, PD_STOOD),
+    ("docs/results.md", r"\((\d+) of 10 without the term\)", "fig3.4-inside", CARRY, PD_STOOD),
+    ("docs/results.md", r"the stabilizer stands in (\d+) of 10 runs with status ok", "fig3.4-single",
+     "the Nao balances on its left foot with the right foot lifted (stabilizer, free-standing)", STOOD),
+    ("docs/stabilizer.md", r"reached to 1 cm (\d+) of 10", "fig3.4-inside", CARRY, ACHIEVED),
+    ("docs/stabilizer.md", r"stood (\d+) of 10 \(seed 0 falls", "fig3.4-inside", CARRY, STOOD),
+    ("docs/stabilizer.md", r"under noise fig3\.3 (\d+) of 10", "fig3.3", NOISE, STOOD),
+    ("docs/stabilizer.md", r"fig3\.4-support (\d+) of 10 stood", "fig3.4-support", NOISE, STOOD),
+    ("docs/stabilizer.md", r"fig3\.4-inside plans: (\d+) of 10 stood with it", "fig3.4-inside", NOISE, STOOD),
+    ("docs/stabilizer.md", r"fig3\.3: (\d+) and \d+ of 10", "fig3.3", NOISE, STOOD),
+]
+OPTIONAL_COUNTS = [
+    ("docs/stabilizer.md", r"with both\); under noise (\d+) of 10 stood", "fig3.4-inside", NOISE, STOOD),
+]
+
+
+def _prose(page: str) -> str:
+    """The page without its generated blocks, whitespace as single spaces."""
+    text = re.sub(r"<!-- ([\w-]+):begin -->.*?<!-- \1:end -->", "", (ROOT / page).read_text(), flags=re.S)
+    return " ".join(text.split())
+
+
+def _claims_row(figure: str, claim: str) -> str:
+    """The row of ``figure``'s ``claim`` in the generated claims table of docs/results.md."""
+    block = re.search(r"<!-- results:begin -->(.*?)<!-- results:end -->", (ROOT / "docs" / "results.md").read_text(),
+                      re.S)
+    assert block, "docs/results.md has no generated results block"
+    rows = [ln for ln in block.group(1).splitlines() if ln.startswith(f"| {figure} | {claim} |")]
+    assert len(rows) == 1, f"{len(rows)} rows of {figure}: {claim}"
+    return rows[0]
+
+
+@pytest.mark.parametrize("page, sentence, figure, claim, cell", [*TYPED_COUNTS, *OPTIONAL_COUNTS])
+def test_a_count_typed_in_the_prose_is_the_generated_tables(page, sentence, figure, claim, cell):
+    said = re.search(sentence, _prose(page))
+    if (page, sentence, figure, claim, cell) in OPTIONAL_COUNTS and said is None:
+        return
+    assert said, f"{page}: no sentence {sentence!r} (gone? then drop its entry)"
+    generated = re.search(cell, _claims_row(figure, claim))
+    assert generated, f"the row of {figure}: {claim} has no {cell!r}"
+    assert said.group(1) == generated.group(1), (page, said.group(0), generated.group(0))
+
+
+def test_a_row_the_prose_points_at_is_in_the_generated_table():
+    """``the FIGURE row "CLAIM" of the generated table``: a pointer the prose uses instead of a typed number."""
+    pointers = [m.groups() for page in sorted((ROOT / "docs").glob("*.md"))
+                for m in re.finditer(r'the (fig[\w./-]+) row "([^"]+)" of the generated table', _prose(f"docs/{page.name}"))]
+    assert ("fig3.4-inside", NOISE) in pointers   # docs/stabilizer.md's count under noise
+    for figure, claim in pointers:
+        _claims_row(figure, claim)
+
+
+def test_the_sparse_gp_sentence_gives_the_bound_its_test_asserts():
+    said = re.search(r"100 of 400 points on a 6-input toy, held-out RMSE within ([\d.]+)x", _prose("docs/learning.md"))
+    test = (ROOT / "tests" / "plants" / "test_sparse_gp.py").read_text()
+    bound = re.search(r"assert np\.all\(r100 < ([\d.]+)\)", test)
+    assert said and bound and said.group(1) == bound.group(1), (said and said.group(0), bound and bound.group(0))

@@ -598,17 +598,23 @@ def _flat(prefix: str, value: Any, out: dict[str, Any]) -> None:
 
 
 def _curve(cache, ref: str) -> dict[str, Any]:
-    """First, last and lowest cost of a plan's iterations and the iterations to within 1 % of the lowest."""
+    """First, last and lowest cost of a plan's iterations and the iterations to within 1 % of the lowest;
+    all None where it has no finite cost, or where its ``plan.npz`` cannot be read (said in one line on
+    stderr: the row keeps its other columns)."""
     import numpy as np
 
+    from pipeline.engine.artifacts import LOAD_ERRORS
+
+    empty = {"cost.first": None, "cost.last": None, "cost.min": None, "cost.iterations_to_1pct": None}
     try:
         with np.load(cache.root / ref / "plan.npz", allow_pickle=False) as f:
             costs = np.asarray(f["costs"], float)
-    except (OSError, KeyError, ValueError):
-        return {}
+    except (OSError, *LOAD_ERRORS) as e:
+        _unreadable(f"{ref}/plan.npz", e, "its cost columns stay empty")
+        return empty
     finite = costs[np.isfinite(costs)]
     if not finite.size:
-        return {"cost.first": None, "cost.last": None, "cost.min": None, "cost.iterations_to_1pct": None}
+        return empty
     low = float(finite.min())
     within = np.nonzero(np.isfinite(costs) & (costs <= low + CURVE_TOL * abs(low)))[0]
     return {"cost.first": float(costs[0]) if np.isfinite(costs[0]) else None, "cost.last": float(costs[-1])
@@ -665,10 +671,26 @@ def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
 
 
 def _meta(cache, stage: str, key: str) -> dict:
+    """The entry's ``meta.json``; ``{}`` where it cannot be read (said in one line on stderr: the row's
+    compute time and code version stay empty)."""
     try:
-        return json.loads((cache.root / stage / key / "meta.json").read_text())
-    except (OSError, ValueError):
+        meta = json.loads((cache.root / stage / key / "meta.json").read_text())
+        if not isinstance(meta, dict):
+            raise ValueError(f"a JSON {type(meta).__name__}, not an object")
+    except (OSError, ValueError) as e:
+        _unreadable(f"{stage}/{key}/meta.json", e, f"the row's {stage}.compute_s and {stage}.code_version stay empty")
         return {}
+    return meta
+
+
+def _unreadable(what: str, e: BaseException, instead: str) -> None:
+    """One line on stderr: a file of the runs table's rows could not be read, and what the table does instead."""
+    import sys
+
+    from pipeline.engine.artifacts import clean_error
+
+    print(f"raico: warning: runs table: {what} cannot be read ({clean_error(e)}): {instead}", file=sys.stderr,
+          flush=True)
 
 
 def table_dir(cache, name: str) -> Path:

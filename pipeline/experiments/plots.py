@@ -30,6 +30,7 @@ never by keys. Each legend entry says how many runs it shows (``n=8/10``: two ru
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -386,18 +387,25 @@ def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, c
 def cost_curves(cache, keys: Sequence[Any], name: str = "costs") -> np.ndarray:
     """``(runs, iterations)`` costs of the plans ``keys`` (``plan.npz`` ``costs``; a cost that is not finite,
     such as crocoddyl's for an infeasible iterate or a diverged run's, stays so); a run that stopped early
-    holds its last cost if it is finite; a missing entry is a row of NaN. ``name="elapsed"``: each
-    iteration's end (s since the run started) instead, NaN after a run's last."""
-    curves = []
+    holds its last cost if it is finite; a run without a plan (not a key: its plan failed) is a row of NaN,
+    and so is one whose ``plan.npz`` cannot be read or lacks ``name``, said in one line on stderr.
+    ``name="elapsed"``: each iteration's end (s since the run started) instead, NaN after a run's last."""
+    from pipeline.engine.artifacts import LOAD_ERRORS, clean_error
+
+    curves, unread = [], []
     for k in keys:
         c = np.zeros(0)
         if isinstance(k, str):
             try:
                 with np.load(cache.root / "plan" / k / "plan.npz", allow_pickle=False) as f:
                     c = np.asarray(f[name], float)
-            except (OSError, KeyError, ValueError):
-                pass
+            except (OSError, *LOAD_ERRORS) as e:
+                unread.append(f"plan/{k}: {clean_error(e)}")
         curves.append(c)
+    if unread:
+        print(f"raico: warning: {len(unread)} of {len(curves)} plans have no readable '{name}' in plan.npz "
+              f"({'; '.join(unread[:3])}{'; ...' if len(unread) > 3 else ''}): their curves are left out (NaN)",
+              file=sys.stderr, flush=True)
     n = max((len(c) for c in curves), default=0)
     out = np.full((len(curves), n), np.nan)
     for i, c in enumerate(curves):

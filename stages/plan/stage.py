@@ -498,12 +498,20 @@ def true_robot(pf: ProblemFile) -> Robot | None:
 
 def check_model_robot(model: Artifact, robot: Robot) -> None:
     """A fit's GP is of this robot (its data's plant, or the model file's robot by name: file and spec),
-    else ``ValueError``: a model of another robot with as many joints would plan silently wrong."""
+    else ``ValueError``: a model of another robot with as many joints would plan silently wrong. A fit
+    whose ``fit.json`` cannot be read or names no plant is refused as well (``ValueError``, one line):
+    the fit stage always writes it, so such a fit is damaged, and its robot cannot be checked."""
     try:
-        fitted = model.document("fit.json").get("plant")
-    except (OSError, ValueError, KeyError):
-        return  # a fit without its document: the dimensions are still checked by the learned dynamics
-    if fitted is not None and fitted != robot.name:
+        doc = model.document("fit.json")
+    except (OSError, ValueError) as e:   # missing, unreadable, not UTF-8, not JSON
+        why = (str(e).strip().splitlines() or [""])[0]
+        raise ValueError(f"--model {model.key}: its fit.json cannot be read ({type(e).__name__}: {why}), so the "
+                         "robot its GP was fit on cannot be checked: fit it again") from None
+    fitted = doc.get("plant") if isinstance(doc, dict) else None
+    if not isinstance(fitted, str):
+        raise ValueError(f"--model {model.key}: its fit.json names no plant, so the robot its GP was fit on "
+                         "cannot be checked: fit it again")
+    if fitted != robot.name:
         raise ValueError(f"--model {model.key} is a GP of {fitted}, this problem's robot is {robot.name}: "
                          "fit it on data of this robot")
 
