@@ -97,7 +97,7 @@ class _DrakeMap(_BatchByPoints):
 
             try:
                 k = tree_kernels(self.robot)
-            except (NotImplementedError, AttributeError):
+            except NotImplementedError:  # no tree kernels for this plant (said by tree_kernels)
                 k = False
             self._kernels = k
         return k or None
