@@ -540,12 +540,34 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     return robot, task, problem, q0, desc
 
 
+def _directions(chain, target: np.ndarray, axes: np.ndarray) -> list[np.ndarray]:
+    """Unit directions (3,) to compare the target with the reach along: toward it, along and against each
+    joint's axis, and toward it normal to each axis (a lift's target too high, an arm's too far out),
+    within the coordinates ``axes`` the term sets."""
+    delta = np.zeros(3)
+    delta[axes] = target - chain.base[axes]
+    out = [delta]
+    for _, axis in chain.joints:
+        out += [axis, -axis, delta - (delta @ axis) * axis]
+    mask = np.zeros(3)
+    mask[axes] = 1.0
+    units = []
+    for e in out:
+        e = e * mask
+        n = float(np.linalg.norm(e))
+        if n > 1e-9 * max(1.0, float(np.linalg.norm(delta))):
+            units.append(e / n)
+    return units
+
+
 def reach_notes(robot: Robot, problem: Problem) -> list[str]:
-    """One line per position target (a via-point on a frame's points) farther from the robot's base
-    than the frame can get: the link lengths along the chain to it (:func:`plants.robots.chain_reach`).
-    The distance counts the target's coordinates the term sets (its ``axes``)."""
+    """One line per position target (a via-point on a frame's points) that lies farther from the robot's
+    base along some direction than the point can get along it (:meth:`plants.robots.Chain.reach_along`, a
+    bound from the chain's links: toward the target, along and against the joints' axes, toward it normal
+    to them). A target that passes may still be out of reach; one that fails is. Only the target's
+    coordinates the term sets (its ``axes``) count."""
     from planning.costs import ViaPoint
-    from plants.robots import chain_reach
+    from plants.robots import kinematic_chain
     from plants.taskmaps import FramePoints
 
     out = []
@@ -553,21 +575,26 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
         tm = getattr(term, "taskmap", None)
         if not isinstance(term, ViaPoint) or not isinstance(tm, FramePoints) or term.weight == 0:
             continue
-        chain = chain_reach(robot, tm.frame.name())
-        if chain is None:
-            continue
-        base, reach = chain
         k = len(tm.points)
         axes = tm.rows[:len(tm.rows) // k] % 3
         targets = term.target.reshape(k, len(axes))
-        dist = np.linalg.norm(targets - base[axes], axis=1)
-        excess = dist - (reach + np.linalg.norm(tm.points, axis=1))
-        j = int(np.argmax(excess))
-        if excess[j] > 0:
+        worst = None
+        for j in range(k):
+            chain = kinematic_chain(robot, tm.frame.name(), tm.points[j])
+            if chain is None:
+                break
+            delta = np.zeros(3)
+            delta[axes] = targets[j] - chain.base[axes]
+            for e in _directions(chain, targets[j], axes):
+                far, reach = float(e @ delta), chain.reach_along(e)
+                if far > reach and (worst is None or far - reach > worst[0] - worst[1]):
+                    worst = (far, reach, j, chain.base, e)
+        if worst is not None:
+            far, reach, j, base, e = worst
             out.append(f"raico: note: the target of '{term.name}' ({tm.frame.name()} at "
-                       f"{np.round(targets[j], 4).tolist()} m) is {dist[j]:.3g} m from the robot's base, beyond its "
-                       f"reach of {reach + np.linalg.norm(tm.points[j]):.3g} m (the link lengths along the chain): "
-                       "planning anyway")
+                       f"{np.round(targets[j], 4).tolist()} m) lies {far:.3g} m from the robot's base at "
+                       f"{np.round(base, 4).tolist()} m along {np.round(e, 3).tolist()}, beyond its reach of "
+                       f"{reach:.3g} m along it (the most its links and prismatic travel can add): planning anyway")
     return out
 
 
