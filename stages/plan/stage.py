@@ -598,6 +598,31 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
     return out
 
 
+def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
+    """One line where the start ``x0`` lies outside the model's joint ranges, saying what the bounds in
+    force make of it: hard bounds (a problem file's default) keep steps 1..T inside the ranges, so the
+    first step must bring those joints back (else status out-of-bounds); without them only a
+    ``joint_limit`` term pulls them in, and without one planning knows no limits."""
+    q0 = problem.x0[:robot.n_q]
+    outside = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper))
+    if not len(outside):
+        return []
+    which = ", ".join(f"{robot.joint_names[i]} ({q0[i]:.4g}, range {robot.lower[i]:.4g} to {robot.upper[i]:.4g})"
+                      for i in outside[:4]) + (f" and {len(outside) - 4} more" if len(outside) > 4 else "")
+    head = f"raico: note: the start is outside the joint limits on {which}"
+    bounds = problem.bounds
+    held = bounds is not None and bounds.has_positions and bool(np.isin(outside, bounds.q_index).any())
+    if held:
+        return [f"{head}: the hard bounds (--bounds hard{', the default for a problem file' if cfg.problem else ''})"
+                " keep steps 1..T inside them, so the first step must bring them back, or the plan ends "
+                "out-of-bounds; --bounds none plans without them"]
+    pf = cfg.problem_file() if cfg.problem is not None else None
+    soft = pf is not None and any(t.get("type") == "joint_limit" for t in pf.doc["costs"]["terms"].values())
+    return [f"{head}: planning keeps no hard bounds (--bounds none); "
+            + ("the joint_limit term pulls them in" if soft else "no joint_limit term either: it plans as if "
+               "there were no limits") + "; an execution starts clipped to them"]
+
+
 def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None,
          warm_start: Artifact | None = None) -> PlanOutput:
     """Plan; a diverging solver is a result (status ``diverged``), not an exception.
@@ -609,7 +634,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     robot, task, problem, q0, desc = build_problem(cfg, model)
     for line in desc.get("load_report", []) if _LOAD_NOTES["say"] else []:  # what loading the model file changed
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
-    for line in reach_notes(robot, problem):
+    for line in reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem):
         print(line, file=sys.stderr, flush=True)
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:

@@ -126,3 +126,28 @@ def test_a_target_beyond_the_reach_in_its_direction_is_said(tmp_path, target, sa
         far, reach, direction = said
         assert (f"lies {far:.3g} m from the robot's base at [0.0, 0.0, 0.2] m along {direction}, beyond its reach "
                 f"of {reach:.3g} m along it") in notes[0], notes
+
+
+@pytest.mark.parametrize("bounds,costs,needle", [
+    ("", "", "the hard bounds (--bounds hard, the default for a problem file) keep steps 1..T inside them"),
+    ("none", "", "no joint_limit term either: it plans as if there were no limits"),
+    ("none", '\n[costs.limits]\ntype = "joint_limit"\ntimes = "all"\nweight = 1e3\n', "the joint_limit term pulls")])
+def test_a_start_outside_the_limits_is_said_as_the_bounds_in_force_treat_it(tmp_path, bounds, costs, needle):
+    """A problem file plans with hard bounds unless told otherwise: the note says so (it said "planning knows
+    no limits" whatever the bounds), and the model's load report no longer guesses."""
+    from plants.robots import load_robot_for
+    from stages.plan.stage import PlanConfig, build_problem, start_limit_notes
+
+    text = problem_text(str(user_robot(tmp_path)), {"start": {"shoulder": 2.5}},
+                        REACH.format(target=[0.3, 0.0, 0.4]) + costs, T=10, dynamics="analytic")
+    cfg = PlanConfig(problem=str(write_problem(tmp_path, "outside", text)), bounds=bounds).normalized()
+    robot, _, problem, _, desc = build_problem(cfg)
+    assert (problem.bounds is not None) == (bounds == "")
+    notes = start_limit_notes(cfg, robot, problem)
+    assert len(notes) == 1 and "outside the joint limits on shoulder (2.5, range -2 to 2)" in notes[0], notes
+    assert needle in notes[0], notes
+    report = [ln for ln in load_robot_for(desc).load_report if "outside the file's joint limits" in ln]
+    assert len(report) == 1 and "knows no limits" not in report[0], report
+    inside = PlanConfig(problem=str(write_problem(tmp_path, "inside", text.replace("2.5", "1.5")))).normalized()
+    robot, _, problem, _, _ = build_problem(inside)
+    assert start_limit_notes(inside, robot, problem) == []
