@@ -102,3 +102,39 @@ def test_markers_become_tables_and_an_unknown_marker_stops_the_build():
     assert "<!-- schema" not in out and "| top level | `name`" in out
     with pytest.raises(ValueError, match="unknown schema marker: nonsense"):
         docs_hooks.on_page_markdown("<!-- schema: nonsense -->", None, None, None)
+
+
+def _pages() -> list[Path]:
+    """The README and every page under docs/ (the reference pages too)."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def test_every_test_file_the_docs_name_exists():
+    """A page that says "tests/x.py checks it" names a file a reader can open (the suite's folders moved)."""
+    named = {(page.relative_to(ROOT).as_posix(), path) for page in _pages()
+             for path in re.findall(r"\btests/[\w/.-]*?\.py\b", page.read_text())}
+    assert len(named) >= 10
+    missing = sorted(f"{page}: {path}" for page, path in named if not (ROOT / path).is_file())
+    assert missing == []
+
+
+def test_every_import_in_the_docs_python_blocks_resolves():
+    """``from pipeline.interface import api`` as the pages write it: each import line of a ```python block names
+    a module, and each name it takes from one is in it (an attribute or a submodule)."""
+    import importlib
+    import importlib.util
+
+    checked, bad = 0, []
+    for page in _pages():
+        for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.S):
+            for module, names in re.findall(r"^from ([\w.]+) import ([\w, ]+)$", block, re.M):
+                mod = importlib.import_module(module)
+                for name in (n.strip() for n in names.split(",")):
+                    checked += 1
+                    if not hasattr(mod, name) and importlib.util.find_spec(f"{module}.{name}") is None:
+                        bad.append(f"{page.relative_to(ROOT)}: from {module} import {name}")
+            for module in re.findall(r"^import ([\w.]+)$", block, re.M):
+                checked += 1
+                if importlib.util.find_spec(module) is None:
+                    bad.append(f"{page.relative_to(ROOT)}: import {module}")
+    assert checked >= 1 and bad == []
