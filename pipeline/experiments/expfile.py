@@ -118,6 +118,7 @@ class Experiment:
     reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
     quick: bool = False                     # loaded with its [quick] profile
     left_out: tuple[str, ...] = ()          # points left out: what they need is not installed
+    notes: tuple[str, ...] = ()             # what the -S overrides did where a user may expect otherwise
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
@@ -228,7 +229,9 @@ def read_toml(path: Path, what: str) -> dict:
 
 
 def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -> Experiment:
-    """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
+    """The experiment of ``path`` with ``-S`` overrides (``seeds=...``; values added to a grid axis; one value
+    of another option: ``[base]``'s, :func:`_set_base`; several: a new axis), what they do said in
+    :attr:`Experiment.notes`, checked
     (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
     ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
     path = Path(path)
@@ -251,14 +254,19 @@ def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -
         raise BadInput(f"{path}: [quick] must be a table")
     if quick:
         seeds = _seeds(profile["seeds"]) if "seeds" in profile else seeds[:2]
+    base_sets: dict[str, Any] = {}   # -S KEY=VALUE on an option that is no axis: [base]'s value, every variant's
     for text in overrides:
         key, values = parse_override(text)
         if key == "seeds":
             seeds = _seeds(values)
         elif isinstance(grid.get(key), list):   # a grid axis of the file: its values and these
             grid[key] = [*grid[key], *(v for v in values if v not in grid[key])]
+        elif len(values) == 1 and key not in zipped:
+            base_sets[key] = values[0]
+            grid.pop(key, None)
         else:   # a new axis (over [base]'s value or a [zip] list's)
             zipped.pop(key, None)
+            base_sets.pop(key, None)
             grid[key] = values
     for table, what in ((grid, "grid"), (zipped, "zip")):
         for k, v in table.items():
@@ -308,11 +316,65 @@ def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -
         base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
         base[later] = dict(doc.get(later, {}))
+    notes = _set_base(path, stages, base, base_sets, points) + _axis_notes(grid, overrides, points, base, stages)
     for stage in ("execute", "evaluate"):
         if stage in doc and stage not in stages[1:]:
             raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
     return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
-                      claims, reproduce, quick, tuple(left_out))
+                      claims, reproduce, quick, tuple(left_out), tuple(notes))
+
+
+def _stage_option(path: Path, stages: tuple[str, ...], key: str) -> tuple[str, str]:
+    """``stage.option`` (a later stage's) or ``option`` (the first stage's) -> (stage, option)."""
+    if "." in key:
+        stage, option = key.split(".", 1)
+        if stage not in stages[1:]:
+            raise BadInput(f"{path}: -S {key}: {stage} is not a later stage of this experiment ({', '.join(stages)})")
+        return stage, option
+    return stages[0], key
+
+
+def _keeping(points: list[dict[str, Any]], key: str) -> list[str]:
+    """``'label' (key=value)`` of the points that set ``key`` themselves."""
+    return [f"'{p['label']}' ({key}={p[key]!r})" for p in points if key in p]
+
+
+def _set_base(path: Path, stages: tuple[str, ...], base: dict[str, dict[str, Any]], sets: Mapping[str, Any],
+              points: list[dict[str, Any]]) -> list[str]:
+    """Apply ``-S KEY=VALUE`` on an option that is no grid or zip axis to ``[base]`` (in place): every
+    variant runs with it, a ``[[point]]`` that sets the key itself keeps its own value. One line each
+    saying so (the dry run and the run print them)."""
+    out = []
+    for key, value in sets.items():
+        stage, option = _stage_option(path, stages, key)
+        before = base[stage].get(option)
+        base[stage][option] = value
+        was = f"[base]'s {before!r}" if before is not None else "the stage's default"
+        keep = _keeping(points, key)
+        out.append(f"-S {key}={value!r}: in place of {was} for every variant"
+                   + (f"; the points that set {key} keep their own: {', '.join(keep)}" if keep else ""))
+    return out
+
+
+def _axis_notes(grid: Mapping[str, list], overrides: Sequence[str], points: list[dict[str, Any]],
+                base: dict[str, dict[str, Any]], stages: tuple[str, ...]) -> list[str]:
+    """A line per ``-S`` grid axis that the ``[[point]]`` variants do not run along: they are listed
+    beside the grid, each at its own value or ``[base]``'s."""
+    if not points:
+        return []
+    out = []
+    for text in overrides:
+        key = text.split("=", 1)[0].strip()
+        if key == "seeds" or key not in grid:
+            continue
+        stage, option = (key.split(".", 1) if "." in key else (stages[0], key))
+        own = _keeping(points, key)
+        rest = [f"'{p['label']}'" for p in points if key not in p]
+        at = base.get(stage, {}).get(option)
+        where = "the stage's default" if at is None else f"[base]'s {at!r}"
+        parts = ([f"{', '.join(rest)} at {where}"] if rest else []) + ([f"{', '.join(own)} at their own"] if own else [])
+        out.append(f"-S {text.strip()}: a grid axis; the points do not run along it: {'; '.join(parts)}")
+    return out
 
 
 def _resolve_problem(options: dict, path: Path) -> dict:
