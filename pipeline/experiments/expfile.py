@@ -528,7 +528,7 @@ def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapp
 def _run_chain(args) -> dict:
     """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
     fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
-    root, stages, options, seed, record = args
+    root, stages, options, seed, record, notes_said = args
     from pipeline.engine import runner
     from pipeline.engine.cache import Cache
     from pipeline.errors import RaicoError
@@ -537,7 +537,8 @@ def _run_chain(args) -> dict:
     cache = Cache(root)
     out: dict[str, Any] = {}
     refs: dict[str, Any] = {}
-    with load_notes_said():   # the experiment said the model file's load report once (run_reported)
+    # the experiment said the model file's load report once (run_reported), and the plan's notes where it could
+    with load_notes_said(plan_notes=not notes_said):
         for stage in stages:
             try:
                 outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
@@ -549,23 +550,34 @@ def _run_chain(args) -> dict:
     return out
 
 
-def model_notes(exp: Experiment) -> list[str]:
-    """What loading the experiment's model-file robots changed (each line once, the first stage a plan)."""
+def model_notes(exp: Experiment) -> tuple[list[str], frozenset[str]]:
+    """What loading the experiment's model-file robots changed and what the plan stage says before planning
+    (a target beyond reach, a start outside the limits: :func:`stages.plan.stage.plan_notes`, at each variant's
+    first seed), each line once (the first stage a plan); and the labels of the variants whose plan notes these
+    are (their runs do not repeat them; a variant whose problem does not build here, e.g. on a learned model,
+    says them in its runs)."""
     if exp.stages[0] != "plan":
-        return []
-    from stages.plan.stage import load_notes, robot_and_task
+        return [], frozenset()
+    from stages.plan.stage import build_problem, load_notes, plan_notes, robot_and_task
 
     lines: list[str] = []
+    said = set()
     for v in exp.variants:
         cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
-        if getattr(cfg, "problem", None) is None:
-            continue
         try:
-            robot, _ = robot_and_task(cfg)
+            if getattr(cfg, "problem", None) is not None:
+                robot, _ = robot_and_task(cfg)
+                lines += [ln for ln in load_notes(robot) if ln not in lines]
+            if cfg.dynamics == "learned" or cfg.model:
+                continue   # the plan needs its model's artifact: its runs say the notes
+            cfg = cfg.normalized()
+            robot, _, problem, _, _ = build_problem(cfg)
+            notes = plan_notes(cfg, robot, problem)
         except ValueError:   # the run says why, in its row
             continue
-        lines += [ln for ln in load_notes(robot) if ln not in lines]
-    return lines
+        lines += [ln for ln in notes if ln not in lines]
+        said.add(v.label)
+    return lines, frozenset(said)
 
 
 def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
@@ -604,15 +616,18 @@ def dry_run(cache, exp: Experiment) -> Plan:
 
 
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
+        progress: Callable[[int, int, str | None], None] | None = None, notes_said: frozenset[str] = frozenset()
+        ) -> list[dict]:
     """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
-    the runs table and returns its rows."""
+    the runs table and returns its rows. ``notes_said``: the variants whose plan notes the caller said
+    (:func:`model_notes`): their runs do not say them again."""
     from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
 
     runs = exp.runs
 
     def flow():
-        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record),
+        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record,
+                                 r.variant.label in notes_said),
                     f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
                 for r in runs]
         return (yield Batch("run", jobs))
@@ -629,14 +644,15 @@ def run_reported(cache, exp: Experiment, executor: Executor, record: bool, repor
     """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
     its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
     loading a model file changed is said once, before the runs (not by each run)."""
-    for line in model_notes(exp):
+    lines, notes_said = model_notes(exp)
+    for line in lines:
         reporter.say(line)
     with reporter.board() as board:
         def progress(done: int, total: int, label: str | None) -> None:
             line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
             board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
 
-        rows = run(cache, exp, executor, record=record, progress=progress)
+        rows = run(cache, exp, executor, record=record, progress=progress, notes_said=notes_said)
     cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell

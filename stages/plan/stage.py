@@ -434,7 +434,10 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
 
 
-_LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an experiment says it once instead
+# plan() says a model file's load report and its own notes (reach, start outside the limits); within
+# load_notes_said the caller said the report once, and plan() says each note once ("said": those said so
+# far) or, when the caller said those too, none ("said": None)
+_LOAD_NOTES: dict[str, Any] = {"say": True, "said": set()}
 
 
 def load_notes(robot: Robot) -> list[str]:
@@ -445,15 +448,37 @@ def load_notes(robot: Robot) -> list[str]:
 
 
 class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib's
-    """Within it, plan() does not say the model file's load report (the experiment said it once)."""
+    """Within it, plan() does not say the model file's load report (the caller, an experiment or a learning
+    loop, said it once) and says each of its own notes (:func:`plan_notes`) once, or (``plan_notes`` False:
+    the caller said them too) not at all."""
+
+    def __init__(self, plan_notes: bool = True):
+        self.plan_notes = plan_notes
 
     def __enter__(self):
-        self.before, _LOAD_NOTES["say"] = _LOAD_NOTES["say"], False
+        self.before = dict(_LOAD_NOTES)
+        _LOAD_NOTES.update(say=False, said=set() if self.plan_notes else None)
         return self
 
     def __exit__(self, *exc):
-        _LOAD_NOTES["say"] = self.before
+        _LOAD_NOTES.update(self.before)
         return False
+
+
+def plan_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
+    """What the plan stage says before planning: targets beyond the reach (:func:`reach_notes`), a start
+    outside the joint limits (:func:`start_limit_notes`)."""
+    return reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem)
+
+
+def _say_plan_notes(lines: list[str]) -> None:
+    """Print ``lines`` on stderr, each once within :class:`load_notes_said` (none there if the caller said them)."""
+    said = _LOAD_NOTES["said"]
+    for line in lines:
+        if _LOAD_NOTES["say"] or (said is not None and line not in said):
+            print(line, file=sys.stderr, flush=True)
+            if said is not None:
+                said.add(line)
 
 
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
@@ -634,8 +659,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     robot, task, problem, q0, desc = build_problem(cfg, model)
     for line in desc.get("load_report", []) if _LOAD_NOTES["say"] else []:  # what loading the model file changed
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
-    for line in reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem):
-        print(line, file=sys.stderr, flush=True)
+    _say_plan_notes(plan_notes(cfg, robot, problem))
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)

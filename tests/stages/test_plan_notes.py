@@ -151,3 +151,30 @@ def test_a_start_outside_the_limits_is_said_as_the_bounds_in_force_treat_it(tmp_
     inside = PlanConfig(problem=str(write_problem(tmp_path, "inside", text.replace("2.5", "1.5")))).normalized()
     robot, _, problem, _, _ = build_problem(inside)
     assert start_limit_notes(inside, robot, problem) == []
+
+
+def test_the_notes_are_said_once_per_experiment_and_once_within_a_loop(raico, tmp_path, capfd):
+    """An experiment says a variant's notes before its runs, not in each run; plan() within
+    ``load_notes_said`` (a learning loop's episodes) says each note once; a single plan says it."""
+    from stages.plan.stage import PlanConfig, load_notes_said, plan
+
+    text = problem_text(str(lift_arm(tmp_path)), {"start": {"shoulder": 3.0}}, REACH.format(target=[1.17, 0.0, 0.5]),
+                        T=10)
+    p = write_problem(tmp_path, "lift", text)
+    f = tmp_path / "exp.toml"
+    f.write_text(f'name = "lift"\nstages = ["plan"]\nseeds = "range(3)"\n[base]\nproblem = "{p}"\n'
+                 'iterations = 1\nq0_std = 0.01\n')
+    res = raico("exp", "run", f, "--executor", "serial", "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 0, res.output
+    for needle in ("beyond its reach", "the start is outside the joint limits on shoulder"):
+        assert sum(needle in ln for ln in res.stderr.splitlines()) == 1, res.stderr
+    capfd.readouterr()
+    cfg = PlanConfig(problem=str(p), iterations=1).normalized()
+    with load_notes_said():
+        for _ in range(3):
+            plan(cfg)
+    err = capfd.readouterr().err
+    assert err.count("beyond its reach") == 1 and err.count("the start is outside") == 1, err
+    plan(cfg)
+    err = capfd.readouterr().err
+    assert err.count("beyond its reach") == 1 and err.count("the start is outside") == 1, err
