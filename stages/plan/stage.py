@@ -565,6 +565,11 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     return robot, task, problem, q0, desc
 
 
+# relative to the chain's length: the bound and the target's distance are sums of a few link vectors, rounded
+# to a few eps each; a target this close to the bound is at it
+REACH_SLACK = 1e-9
+
+
 def _directions(chain, target: np.ndarray, axes: np.ndarray) -> list[np.ndarray]:
     """Unit directions (3,) to compare the target with the reach along: toward it, along and against each
     joint's axis, and toward it normal to each axis (a lift's target too high, an arm's too far out),
@@ -610,9 +615,10 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
                 break
             delta = np.zeros(3)
             delta[axes] = targets[j] - chain.base[axes]
+            slack = REACH_SLACK * chain.reach()   # a target at the bound, as rounded, is within it
             for e in _directions(chain, targets[j], axes):
                 far, reach = float(e @ delta), chain.reach_along(e)
-                if far > reach and (worst is None or far - reach > worst[0] - worst[1]):
+                if far - reach > slack and (worst is None or far - reach > worst[0] - worst[1]):
                     worst = (far, reach, j, chain.base, e)
         if worst is not None:
             far, reach, j, base, e = worst

@@ -178,3 +178,15 @@ def test_the_notes_are_said_once_per_experiment_and_once_within_a_loop(raico, tm
     plan(cfg)
     err = capfd.readouterr().err
     assert err.count("beyond its reach") == 1 and err.count("the start is outside") == 1, err
+
+
+def test_a_target_at_the_reach_is_within_it(tmp_path):
+    """The arm stretched out (0.91 m from the lift's axis, at its top): at the bound, as rounded; no note.
+    A millimetre farther: the note."""
+    from stages.plan.stage import PlanConfig, build_problem, reach_notes
+
+    for x, said in ((0.91, 0), (0.911, 1)):
+        p = write_problem(tmp_path, "edge", problem_text(str(lift_arm(tmp_path)), {},
+                                                         REACH.format(target=[x * 0.6, x * 0.8, 0.7]), T=10))
+        robot, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
+        assert len(reach_notes(robot, problem)) == said
