@@ -22,7 +22,7 @@ from planning.problem import Bounds, Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
 from plants.dynamics_registry import make_dynamics
-from plants.robots import PLANTS, Robot, shared_robot
+from plants.robots import PLANTS, Chain, Robot, kinematic_chain, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
 from stages.plan.problem_file import INTEGRATORS, ProblemFile, read_problem
@@ -570,7 +570,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
 REACH_SLACK = 1e-9
 
 
-def _directions(chain, target: np.ndarray, axes: np.ndarray) -> list[np.ndarray]:
+def _directions(chain: Chain, target: np.ndarray, axes: np.ndarray) -> list[np.ndarray]:
     """Unit directions (3,) to compare the target with the reach along: toward it, along and against each
     joint's axis, and toward it normal to each axis (a lift's target too high, an arm's too far out),
     within the coordinates ``axes`` the term sets."""
@@ -597,7 +597,6 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
     to them). A target that passes may still be out of reach; one that fails is. Only the target's
     coordinates the term sets (its ``axes``) count."""
     from planning.costs import ViaPoint
-    from plants.robots import kinematic_chain
     from plants.taskmaps import FramePoints
 
     out = []
