@@ -348,7 +348,7 @@ def _set_base(path: Path, stages: tuple[str, ...], base: dict[str, dict[str, Any
     for key, value in sets.items():
         stage, option = _stage_option(path, stages, key)
         before = base[stage].get(option)
-        base[stage][option] = value
+        base[stage][option] = _resolve_problem({option: value}, path)[option]   # a file: as [base]'s, from here
         was = f"[base]'s {before!r}" if before is not None else "the stage's default"
         keep = _keeping(points, key)
         out.append(f"-S {key}={value!r}: in place of {was} for every variant"

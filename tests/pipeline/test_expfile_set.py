@@ -82,3 +82,11 @@ def test_the_dry_run_says_what_the_override_reaches(raico, tmp_path):
                     "that set alpha keep their own: 'R-AICO big' (alpha=5.0)"], res.stderr
     assert json.loads(res.stdout.splitlines()[-1])["variants"] == 3
     assert not (arts / "plan").exists()
+
+
+def test_one_problem_file_is_read_from_the_experiment_file_s_folder(tmp_path):
+    (tmp_path / "sub").mkdir()
+    f = tmp_path / "sub" / "exp.toml"
+    f.write_text('name = "p"\n[base]\nproblem = "a.toml"\n')
+    exp = expfile.load(f, ["problem=b.toml"])
+    assert exp.base["plan"]["problem"] == str((tmp_path / "sub" / "b.toml").resolve())
