@@ -794,8 +794,8 @@ def _start_posture(spec: RobotSpec, path: Path, names: list[str], lower, upper, 
     q = np.array([values.get(n, 0.0) for n in names])
     outside = [n for n, v, lo, hi in zip(names, q, lower, upper) if not lo <= v <= hi]
     if outside:  # kept as stated (crocoddyl's Kinova starts so; a turn further would change its cold start)
-        notes.append(f"start posture outside the file's joint limits on {_names(outside)} (kept: planning "
-                     "knows no limits unless a joint_limit term says so; an execution starts clipped to them)")
+        notes.append(f"start posture outside the file's joint limits on {_names(outside)} (kept as stated; "
+                     "an execution starts clipped to them; the plan stage says what its bounds make of it)")
     return q
 
 

@@ -177,3 +177,39 @@ def test_the_sparse_gp_sentence_gives_the_bound_its_test_asserts():
     test = (ROOT / "tests" / "plants" / "test_sparse_gp.py").read_text()
     bound = re.search(r"assert np\.all\(r100 < ([\d.]+)\)", test)
     assert said and bound and said.group(1) == bound.group(1), (said and said.group(0), bound and bound.group(0))
+
+
+def _pages() -> list[Path]:
+    """The README and every page under docs/ (the reference pages too)."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def test_every_test_file_the_docs_name_exists():
+    """A page that says "tests/x.py checks it" names a file a reader can open (the suite's folders moved)."""
+    named = {(page.relative_to(ROOT).as_posix(), path) for page in _pages()
+             for path in re.findall(r"\btests/[\w/.-]*?\.py\b", page.read_text())}
+    assert len(named) >= 10
+    missing = sorted(f"{page}: {path}" for page, path in named if not (ROOT / path).is_file())
+    assert missing == []
+
+
+def test_every_import_in_the_docs_python_blocks_resolves():
+    """``from pipeline.interface import api`` as the pages write it: each import line of a ```python block names
+    a module, and each name it takes from one is in it (an attribute or a submodule)."""
+    import importlib
+    import importlib.util
+
+    checked, bad = 0, []
+    for page in _pages():
+        for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.S):
+            for module, names in re.findall(r"^from ([\w.]+) import ([\w, ]+)$", block, re.M):
+                mod = importlib.import_module(module)
+                for name in (n.strip() for n in names.split(",")):
+                    checked += 1
+                    if not hasattr(mod, name) and importlib.util.find_spec(f"{module}.{name}") is None:
+                        bad.append(f"{page.relative_to(ROOT)}: from {module} import {name}")
+            for module in re.findall(r"^import ([\w.]+)$", block, re.M):
+                checked += 1
+                if importlib.util.find_spec(module) is None:
+                    bad.append(f"{page.relative_to(ROOT)}: import {module}")
+    assert checked >= 1 and bad == []

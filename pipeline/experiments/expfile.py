@@ -118,6 +118,7 @@ class Experiment:
     reproduce: dict[str, Any] = field(default_factory=dict)   # raico reproduce's own settings, unread here
     quick: bool = False                     # loaded with its [quick] profile
     left_out: tuple[str, ...] = ()          # points left out: what they need is not installed
+    notes: tuple[str, ...] = ()             # what the -S overrides did where a user may expect otherwise
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
@@ -228,7 +229,9 @@ def read_toml(path: Path, what: str) -> dict:
 
 
 def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -> Experiment:
-    """The experiment of ``path`` with ``-S`` overrides (``seeds=...`` or a grid axis), checked
+    """The experiment of ``path`` with ``-S`` overrides (``seeds=...``; values added to a grid axis; one value
+    of another option: ``[base]``'s, :func:`_set_base`; several: a new axis), what they do said in
+    :attr:`Experiment.notes`, checked
     (:class:`BadInput` with one line on any problem) but not yet validated against the stages.
     ``quick``: its ``[quick]`` profile (seeds, options over ``[base]`` and the points', points kept)."""
     path = Path(path)
@@ -251,14 +254,19 @@ def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -
         raise BadInput(f"{path}: [quick] must be a table")
     if quick:
         seeds = _seeds(profile["seeds"]) if "seeds" in profile else seeds[:2]
+    base_sets: dict[str, Any] = {}   # -S KEY=VALUE on an option that is no axis: [base]'s value, every variant's
     for text in overrides:
         key, values = parse_override(text)
         if key == "seeds":
             seeds = _seeds(values)
         elif isinstance(grid.get(key), list):   # a grid axis of the file: its values and these
             grid[key] = [*grid[key], *(v for v in values if v not in grid[key])]
+        elif len(values) == 1 and key not in zipped:
+            base_sets[key] = values[0]
+            grid.pop(key, None)
         else:   # a new axis (over [base]'s value or a [zip] list's)
             zipped.pop(key, None)
+            base_sets.pop(key, None)
             grid[key] = values
     for table, what in ((grid, "grid"), (zipped, "zip")):
         for k, v in table.items():
@@ -308,11 +316,65 @@ def load(path: str | Path, overrides: Sequence[str] = (), quick: bool = False) -
         base[stages[0]].update({k: v for k, v in profile.items() if k not in ("seeds", "points")})
     for later in stages[1:]:
         base[later] = dict(doc.get(later, {}))
+    notes = _set_base(path, stages, base, base_sets, points) + _axis_notes(grid, overrides, points, base, stages)
     for stage in ("execute", "evaluate"):
         if stage in doc and stage not in stages[1:]:
             raise BadInput(f"{path}: [{stage}] options, but {stage} is not among the stages {list(stages)}")
     return Experiment(name, str(doc.get("description", "")), stages, seeds, base, grid, zipped, points, path,
-                      claims, reproduce, quick, tuple(left_out))
+                      claims, reproduce, quick, tuple(left_out), tuple(notes))
+
+
+def _stage_option(path: Path, stages: tuple[str, ...], key: str) -> tuple[str, str]:
+    """``stage.option`` (a later stage's) or ``option`` (the first stage's) -> (stage, option)."""
+    if "." in key:
+        stage, option = key.split(".", 1)
+        if stage not in stages[1:]:
+            raise BadInput(f"{path}: -S {key}: {stage} is not a later stage of this experiment ({', '.join(stages)})")
+        return stage, option
+    return stages[0], key
+
+
+def _keeping(points: list[dict[str, Any]], key: str) -> list[str]:
+    """``'label' (key=value)`` of the points that set ``key`` themselves."""
+    return [f"'{p['label']}' ({key}={p[key]!r})" for p in points if key in p]
+
+
+def _set_base(path: Path, stages: tuple[str, ...], base: dict[str, dict[str, Any]], sets: Mapping[str, Any],
+              points: list[dict[str, Any]]) -> list[str]:
+    """Apply ``-S KEY=VALUE`` on an option that is no grid or zip axis to ``[base]`` (in place): every
+    variant runs with it, a ``[[point]]`` that sets the key itself keeps its own value. One line each
+    saying so (the dry run and the run print them)."""
+    out = []
+    for key, value in sets.items():
+        stage, option = _stage_option(path, stages, key)
+        before = base[stage].get(option)
+        base[stage][option] = _resolve_problem({option: value}, path)[option]   # a file: as [base]'s, from here
+        was = f"[base]'s {before!r}" if before is not None else "the stage's default"
+        keep = _keeping(points, key)
+        out.append(f"-S {key}={value!r}: in place of {was} for every variant"
+                   + (f"; the points that set {key} keep their own: {', '.join(keep)}" if keep else ""))
+    return out
+
+
+def _axis_notes(grid: Mapping[str, list], overrides: Sequence[str], points: list[dict[str, Any]],
+                base: dict[str, dict[str, Any]], stages: tuple[str, ...]) -> list[str]:
+    """A line per ``-S`` grid axis that the ``[[point]]`` variants do not run along: they are listed
+    beside the grid, each at its own value or ``[base]``'s."""
+    if not points:
+        return []
+    out = []
+    for text in overrides:
+        key = text.split("=", 1)[0].strip()
+        if key == "seeds" or key not in grid:
+            continue
+        stage, option = (key.split(".", 1) if "." in key else (stages[0], key))
+        own = _keeping(points, key)
+        rest = [f"'{p['label']}'" for p in points if key not in p]
+        at = base.get(stage, {}).get(option)
+        where = "the stage's default" if at is None else f"[base]'s {at!r}"
+        parts = ([f"{', '.join(rest)} at {where}"] if rest else []) + ([f"{', '.join(own)} at their own"] if own else [])
+        out.append(f"-S {text.strip()}: a grid axis; the points do not run along it: {'; '.join(parts)}")
+    return out
 
 
 def _resolve_problem(options: dict, path: Path) -> dict:
@@ -466,7 +528,7 @@ def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapp
 def _run_chain(args) -> dict:
     """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
     fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
-    root, stages, options, seed, record = args
+    root, stages, options, seed, record, notes_said = args
     from pipeline.engine import runner
     from pipeline.engine.cache import Cache
     from pipeline.errors import RaicoError
@@ -475,7 +537,8 @@ def _run_chain(args) -> dict:
     cache = Cache(root)
     out: dict[str, Any] = {}
     refs: dict[str, Any] = {}
-    with load_notes_said():   # the experiment said the model file's load report once (run_reported)
+    # the experiment said the model file's load report once (run_reported), and the plan's notes where it could
+    with load_notes_said(plan_notes=not notes_said):
         for stage in stages:
             try:
                 outcome = runner.run(cache, stage, _chain_config(stage, options, seed, refs), record=record)
@@ -487,23 +550,34 @@ def _run_chain(args) -> dict:
     return out
 
 
-def model_notes(exp: Experiment) -> list[str]:
-    """What loading the experiment's model-file robots changed (each line once, the first stage a plan)."""
+def model_notes(exp: Experiment) -> tuple[list[str], frozenset[str]]:
+    """What loading the experiment's model-file robots changed and what the plan stage says before planning
+    (a target beyond reach, a start outside the limits: :func:`stages.plan.stage.plan_notes`, at each variant's
+    first seed), each line once (the first stage a plan); and the labels of the variants whose plan notes these
+    are (their runs do not repeat them; a variant whose problem does not build here, e.g. on a learned model,
+    says them in its runs)."""
     if exp.stages[0] != "plan":
-        return []
-    from stages.plan.stage import load_notes, robot_and_task
+        return [], frozenset()
+    from stages.plan.stage import build_problem, load_notes, plan_notes, robot_and_task
 
     lines: list[str] = []
+    said = set()
     for v in exp.variants:
         cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
-        if getattr(cfg, "problem", None) is None:
-            continue
         try:
-            robot, _ = robot_and_task(cfg)
+            if getattr(cfg, "problem", None) is not None:
+                robot, _ = robot_and_task(cfg)
+                lines += [ln for ln in load_notes(robot) if ln not in lines]
+            if cfg.dynamics == "learned" or cfg.model:
+                continue   # the plan needs its model's artifact: its runs say the notes
+            cfg = cfg.normalized()
+            robot, _, problem, _, _ = build_problem(cfg)
+            notes = plan_notes(cfg, robot, problem)
         except ValueError:   # the run says why, in its row
             continue
-        lines += [ln for ln in load_notes(robot) if ln not in lines]
-    return lines
+        lines += [ln for ln in notes if ln not in lines]
+        said.add(v.label)
+    return lines, frozenset(said)
 
 
 def _lookup(cache, exp: Experiment, run: Run, record: bool) -> dict | None:
@@ -542,15 +616,18 @@ def dry_run(cache, exp: Experiment) -> Plan:
 
 
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
+        progress: Callable[[int, int, str | None], None] | None = None, notes_said: frozenset[str] = frozenset()
+        ) -> list[dict]:
     """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
-    the runs table and returns its rows."""
+    the runs table and returns its rows. ``notes_said``: the variants whose plan notes the caller said
+    (:func:`model_notes`): their runs do not say them again."""
     from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
 
     runs = exp.runs
 
     def flow():
-        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record),
+        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record,
+                                 r.variant.label in notes_said),
                     f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
                 for r in runs]
         return (yield Batch("run", jobs))
@@ -567,14 +644,15 @@ def run_reported(cache, exp: Experiment, executor: Executor, record: bool, repor
     """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
     its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
     loading a model file changed is said once, before the runs (not by each run)."""
-    for line in model_notes(exp):
+    lines, notes_said = model_notes(exp)
+    for line in lines:
         reporter.say(line)
     with reporter.board() as board:
         def progress(done: int, total: int, label: str | None) -> None:
             line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
             board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
 
-        rows = run(cache, exp, executor, record=record, progress=progress)
+        rows = run(cache, exp, executor, record=record, progress=progress, notes_said=notes_said)
     cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell

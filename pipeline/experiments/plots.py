@@ -6,10 +6,12 @@ line through the variants that differ only in x):
 
 - ``line``: a metric against a swept option: the median over the seeds at each x and the
   interquartile range as a band. A group that has one x value only because it does not use the option
-  (iLQG has no alpha) or was run at one value is drawn as a dashed horizontal line at its median, its
-  band across the plot: a baseline to compare the lines with.
+  (iLQG has no alpha) is drawn as a dashed horizontal line at its median, its band across the plot: a
+  baseline to compare the lines with; a group that uses it at one value is a point there.
   On a categorical option (solver, schedule) the groups are points at each category with the
-  interquartile range as error bars, never a line between categories.
+  interquartile range as error bars, never a line between categories. Every group has its own colour,
+  marker and line style, and baselines place their markers apart, so no line hides another; a group
+  without a finite value is in the legend with ``n=0``.
 - ``curve``: the cost per iteration (``plan.npz`` ``costs`` of each run's plan), median and
   interquartile band per group on a log axis; a run that stopped early holds its last cost, a diverged
   run drops out from its divergence on.
@@ -24,7 +26,7 @@ Axes name their unit (:func:`axis_label`).
 
 Legends name the groups by the options that differ between them, leaving out those a group's runs
 do not use (an option whose value leaves the run's normalized config, so its cache key, unchanged);
-never by keys. Each legend entry says how many runs it shows (``n=8/10``: two runs had no finite value).
+a group whose runs use none of them by its variants' names (``AICO, iLQG``); never by keys. Each legend entry says how many runs it shows (``n=8/10``: two runs had no finite value).
 """
 
 from __future__ import annotations
@@ -161,6 +163,8 @@ def axis_label(column: str) -> str:
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
           "#17becf")
 BAND_ALPHA = 0.2
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+LINESTYLES = ("-", "--", "-.", ":")
 
 
 # ----------------------------------------------------------------------------- groups and their names
@@ -208,9 +212,18 @@ def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -
     return unused_in(stage, _meta(cache, stage, row[cols[0]]).get("config") or {}, options, others)
 
 
+def _variant_names(rows) -> str:
+    """The variants (their labels: a ``[[point]]``'s own, a grid variant's ``option=value``) of a group's runs."""
+    if "variant" not in rows.columns:
+        return ""
+    return ", ".join(str(v) for v in dict.fromkeys(rows["variant"].map(_plain)) if v is not None)
+
+
 def labels(cache, grouped: list[tuple[dict[str, Any], Any]], drop_unused: bool = True) -> list[str]:
     """A legend entry per group: the options whose values differ between the groups (``option=value``),
-    without those the group's runs do not use (:func:`unused_options`); ``all runs`` for a single group."""
+    without those the group's runs do not use (:func:`unused_options`); a group whose runs use none of them
+    (AICO, iLQG and FDDP where the groups differ in R-AICO's schedule) by its variants' names, as the
+    experiment file calls them; ``all runs`` for a single group."""
     if len(grouped) == 1 and not grouped[0][0]:
         return ["all runs"]
     keys = list(grouped[0][0])
@@ -220,7 +233,7 @@ def labels(cache, grouped: list[tuple[dict[str, Any], Any]], drop_unused: bool =
     for opts, rows in grouped:
         skip = unused_options(cache, rows.iloc[0], differ, values) if drop_unused else set()
         parts = [f"{k}={_value(opts[k])}" for k in differ if k not in skip]
-        out.append(", ".join(parts) or ", ".join(f"{k}={_value(opts[k])}" for k in differ))
+        out.append(", ".join(parts) or _variant_names(rows) or ", ".join(f"{k}={_value(opts[k])}" for k in differ))
     if len(set(out)) < len(out):   # dropping unused options made two the same: name every differing option
         out = [", ".join(f"{k}={_value(opts[k])}" for k in differ) for opts, _ in grouped]
     return out
@@ -260,11 +273,16 @@ def _figure(title: str, subtitle: str):
     return fig, ax
 
 
+LEGEND_COLUMN = 60   # characters: longer entries take the whole width (two columns would leave the figure)
+
+
 def _legend(ax, entries: int) -> None:
-    """The legend below the axes (it never hides a line or a band), in two columns when it is long."""
+    """The legend below the axes (it never hides a line or a band), in two columns when it is long and its
+    entries are short enough to fit side by side."""
     if entries:
-        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2 if entries > 3 else 1,
-                  frameon=False)
+        longest = max((len(t) for t in ax.get_legend_handles_labels()[1]), default=0)
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12),
+                  ncol=2 if entries > 3 and longest <= LEGEND_COLUMN else 1, frameon=False)
 
 
 def _save(fig, out: Path, series: dict[str, dict[str, Any]], clip: Clip | None = None) -> Plot:
@@ -303,39 +321,55 @@ def _apply_ylim(ax, values: np.ndarray, log: bool, ylim: tuple[float, float] | N
     return clip
 
 
+def _style(i: int) -> dict[str, Any]:
+    """Group ``i``'s colour, marker and line style: no two of the first ten groups share all three, and the
+    markers shrink from group to group, so a marker drawn over another leaves the one below in sight."""
+    return {"color": COLORS[i % len(COLORS)], "marker": MARKERS[i % len(MARKERS)],
+            "ls": LINESTYLES[i % len(LINESTYLES)], "ms": max(9.0 - 1.2 * (i % 5), 4.0)}
+
+
+def _style_key(style: dict[str, Any]) -> tuple[str, str, str]:
+    return style["color"], style["marker"], style["ls"]
+
+
 def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, cache=None,
               by: Sequence[str] | None = None, yscale: str = "auto", ylim: tuple[float, float] | None = None) -> Plot:
     """``metric`` against option ``x``: median and interquartile band over the seeds per group; on a
     categorical ``x`` a point per category with the interquartile range as an error bar (no line: the
-    categories have no order between them), the groups side by side."""
+    categories have no order between them), the groups side by side. A group that does not use ``x``
+    (iLQG has no alpha) is a horizontal baseline across the plot; one that uses it at a single value is a
+    point there. Each group has its own colour, marker and line style (:func:`_style`); a group without a
+    finite value is a legend entry that says so."""
     by = grouping(df, swept, by, x)
     grouped = groups(df, by)
     names = labels(cache, grouped)
     xs_all = df[x].map(_plain)
     numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in xs_all if v is not None)
-    # the axis spans the x values of the groups that vary x (a baseline's single value, e.g. iLQG's alpha 0, is
-    # not a point on it)
-    varied = [rows for _, rows in grouped if rows[x].map(_plain).nunique() > 1]
-    on_axis = [v for rows in varied for v in rows[x].map(_plain)] if varied else list(xs_all)
+    single = [rows[x].map(_plain).nunique(dropna=False) == 1 for _, rows in grouped]
+    varied = not all(single)
+    # a baseline: a group at one x value because it does not use x (its normalized config ignores it)
+    everyone = {v for v in xs_all if v is not None}
+    baseline = [varied and one and x in unused_options(cache, rows.iloc[0], [x], {x: everyone})
+                for (_, rows), one in zip(grouped, single)]
+    # the axis spans the x values of the groups that use x (a baseline's value, e.g. iLQG's alpha 0, is no point on it)
+    on_axis = [v for (_, rows), flat in zip(grouped, baseline) if not flat for v in rows[x].map(_plain)] or list(xs_all)
     order = sorted({v for v in on_axis if v is not None}, key=(float if numeric else str))
     pos = (lambda v: float(v)) if numeric else (lambda v: float(order.index(v)))
     fig, ax = _figure(f"{name}: {metric} against {x}",
                       f"median over the seeds, {'band' if numeric else 'error bar'}: interquartile range "
                       f"({df['seed'].nunique()} seeds)")
     every = _numbers(df[metric])
-    lines, flat, series = [], [], {}
-    dodged = [label for (_, rows), label in zip(grouped, names)   # the groups drawn at the categories (no baseline)
-              if not (varied and rows[x].map(_plain).nunique(dropna=False) == 1)]
-    for (_, rows), label, color in zip(grouped, names, _cycle(len(grouped))):
+    entries, flat, series = 0, [], {}
+    dodged = [label for label, flat_ in zip(names, baseline) if not flat_]   # drawn at their x values, side by side
+    for i, ((_, rows), label, is_flat) in enumerate(zip(grouped, names, baseline)):
+        style = _style(i)
         pts = []
         for xv, g in rows.groupby(rows[x].map(_plain), sort=False, dropna=False):
             v = _numbers(g[metric])
             v = v[np.isfinite(v)]
             pts.append((xv, v, len(g)))
-        if len(pts) == 1 and varied:   # one x value: a baseline across the plot
-            uses = x not in unused_options(cache, rows.iloc[0], [x], {x: set(order)})
-            flat.append((label, color, pts[0][1], pts[0][2],
-                         f"at {x}={_value(pts[0][0])} only" if uses else f"does not use {x}"))
+        if is_flat:   # across the plot
+            flat.append((label, style, pts[0][1], pts[0][2], f"does not use {x}"))
             continue
         pts = sorted((p for p in pts if p[0] is not None), key=lambda p: pos(p[0]))
         X = np.array([pos(p[0]) for p in pts])
@@ -345,24 +379,37 @@ def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, c
         ns, totals = [p[1].size for p in pts], [p[2] for p in pts]
         n_text = (f"n={ns[0]}" if len(set(ns)) == 1 and ns == totals else
                   f"n={min(ns)}-{max(ns)} of {max(totals)}" if min(ns) != max(ns) else f"n={ns[0]}/{max(totals)}")
+        joined = numeric and len(X) > 1
         series[label] = {"x": [p[0] for p in pts], "median": med.tolist(), "q25": lo.tolist(), "q75": hi.tolist(),
-                         "n": ns, "drawn": "line" if numeric else "points"}
-        if numeric:
-            ax.plot(X, med, "-o", color=color, lw=1.8, ms=4, label=f"{label} ({n_text} per point)")
-            ax.fill_between(X, lo, hi, color=color, alpha=BAND_ALPHA, lw=0)
-        else:   # categories: points and error bars, side by side, never joined
-            X = X + _dodge(dodged.index(label), len(dodged))
-            ax.errorbar(X, med, yerr=np.vstack([med - lo, hi - med]), fmt="o", color=color, ms=6, capsize=4, lw=1.5,
-                        label=f"{label} ({n_text} per point)")
-        lines.append(label)
-    for label, color, v, total, why in flat:
-        if not v.size:
+                         "n": ns, "drawn": "line" if joined else "points", "style": _style_key(style)}
+        at = f", at {x}={_value(pts[0][0])} only" if numeric and len(X) == 1 and varied else ""
+        text = f"{label} ({n_text} per point{at})" if max(ns) else f"{label} (n=0/{max(totals)}: no finite value)"
+        if joined:
+            ax.plot(X, med, color=style["color"], ls=style["ls"], marker=style["marker"], ms=style["ms"] * 0.7,
+                    lw=1.8, label=text)
+            ax.fill_between(X, lo, hi, color=style["color"], alpha=BAND_ALPHA, lw=0)
+        else:   # categories, or one value: points and error bars, side by side, never joined
+            if not numeric:
+                X = X + _dodge(dodged.index(label), len(dodged))
+            ax.errorbar(X, med, yerr=np.vstack([med - lo, hi - med]), fmt=style["marker"], color=style["color"],
+                        ms=style["ms"], capsize=4, lw=1.5, label=text)
+        entries += 1
+    for k, (label, style, v, total, why) in enumerate(flat):
+        entries += 1
+        if not v.size:   # nothing to draw: the legend says so rather than leaving the group out
+            ax.plot([], [], color=style["color"], ls=style["ls"], marker=style["marker"],
+                    label=f"{label} (n=0/{total}: no finite value; {why})")
+            series[label] = {"x": None, "median": [], "q25": [], "q75": [], "n": [0], "style": _style_key(style)}
             continue
-        ax.axhline(np.median(v), color=color, ls="--", lw=1.5, label=f"{label} ({_n_text(v.size, total)}; {why})")
+        # across the axes (x in axes units), its markers placed apart from every other baseline's
+        marks = 1 + (2 * k) % 8
+        ax.plot(np.linspace(0.0, 1.0, 41), np.full(41, np.median(v)), transform=ax.get_yaxis_transform(),
+                color=style["color"], ls=style["ls"] if style["ls"] != "-" else "--", lw=1.5, marker=style["marker"],
+                ms=style["ms"] * 0.7, markevery=(marks, 8), label=f"{label} ({_n_text(v.size, total)}; {why})")
         q25, q75 = np.percentile(v, [25, 75])
         series[label] = {"x": None, "median": [float(np.median(v))], "q25": [float(q25)], "q75": [float(q75)],
-                         "n": [v.size]}
-        ax.axhspan(q25, q75, color=color, alpha=BAND_ALPHA * 0.6, lw=0)
+                         "n": [v.size], "style": _style_key(style), "marks_from": marks}
+        ax.axhspan(q25, q75, color=style["color"], alpha=BAND_ALPHA * 0.6, lw=0)
     if numeric:
         xv = np.array(order, float)
         if xv.size > 1 and xv.min() > 0 and xv.max() / xv.min() >= 10:
@@ -380,7 +427,7 @@ def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, c
     clip = _apply_ylim(ax, every, log, ylim)
     ax.set_xlabel(axis_label(x) + ("" if numeric else " (categories)"))
     ax.set_ylabel(axis_label(metric))
-    _legend(ax, len(lines) + len(flat))
+    _legend(ax, entries)
     return _save(fig, out, series, clip)
 
 

@@ -141,7 +141,10 @@ def exp_run(file: str | Path, overrides: list[str] | None = None, artifacts: str
     if not 1 <= jobs <= 64:
         raise BadInput("jobs must be in [1, 64]")
     cache = _cache(artifacts)
-    expfile.run_reported(cache, exp, make_executor(executor, jobs), record, Reporter(quiet))
+    reporter = Reporter(quiet)
+    for line in exp.notes:   # what the overrides reach, and what they do not
+        reporter.say(f"exp {exp.name}: {line}")
+    expfile.run_reported(cache, exp, make_executor(executor, jobs), record, reporter)
     return expfile.read_table(cache, exp.name)[0]
 
 

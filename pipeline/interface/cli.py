@@ -339,9 +339,11 @@ app.add_typer(exp_app, name="exp")
 @handles_errors
 def exp_run(
     file: Annotated[Path, typer.Argument(help="The experiment file (TOML; see pipeline/experiments/expfile.py).")],
-    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Add values to a grid axis of the file, or "
-                                                   "a new axis (over [base]'s value): KEY=A,B or KEY=range(N); "
-                                                   "seeds=range(N) sets the seeds.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-S", help="Add values to a grid axis of the file "
+                                                   "(KEY=A,B or KEY=range(N)); one value of another option sets "
+                                                   "[base]'s for every variant (a point that sets it keeps its own, "
+                                                   "as the run says); several make a new axis; seeds=range(N) sets "
+                                                   "the seeds.")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would run (variants, runs, cached, to "
                                           "compute); run nothing.")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers.")] = 2,
@@ -364,6 +366,8 @@ def exp_run(
         raise BadInput("--jobs must be in [1, 64]")
     cache = open_cache(artifacts)
     reporter = Reporter(quiet)
+    for line in exp.notes:   # what the -S overrides reach, and what they do not
+        reporter.say(f"exp {exp.name}: {line}")
     same = expfile.identical_seeds(exp)   # seeds that cannot differ: said before the runs
     if same:
         reporter.say(same)

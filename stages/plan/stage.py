@@ -22,7 +22,7 @@ from planning.problem import Bounds, Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
 from plants.dynamics import PseudoDynamics
 from plants.dynamics_registry import make_dynamics
-from plants.robots import PLANTS, Robot, shared_robot
+from plants.robots import PLANTS, Chain, Robot, kinematic_chain, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
 from stages.plan.problem_file import INTEGRATORS, ProblemFile, read_problem
@@ -434,7 +434,10 @@ def describe_problem(cfg: PlanConfig, task: TaskSpec, q0: np.ndarray, descriptio
             "x0": np.concatenate([q0, np.zeros_like(q0)]).tolist(), "terms": descriptions}
 
 
-_LOAD_NOTES = {"say": True}   # plan() says a model file's load report; an experiment says it once instead
+# plan() says a model file's load report and its own notes (reach, start outside the limits); within
+# load_notes_said the caller said the report once, and plan() says each note once ("said": those said so
+# far) or, when the caller said those too, none ("said": None)
+_LOAD_NOTES: dict[str, Any] = {"say": True, "said": set()}
 
 
 def load_notes(robot: Robot) -> list[str]:
@@ -445,15 +448,37 @@ def load_notes(robot: Robot) -> list[str]:
 
 
 class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib's
-    """Within it, plan() does not say the model file's load report (the experiment said it once)."""
+    """Within it, plan() does not say the model file's load report (the caller, an experiment or a learning
+    loop, said it once) and says each of its own notes (:func:`plan_notes`) once, or (``plan_notes`` False:
+    the caller said them too) not at all."""
+
+    def __init__(self, plan_notes: bool = True):
+        self.plan_notes = plan_notes
 
     def __enter__(self):
-        self.before, _LOAD_NOTES["say"] = _LOAD_NOTES["say"], False
+        self.before = dict(_LOAD_NOTES)
+        _LOAD_NOTES.update(say=False, said=set() if self.plan_notes else None)
         return self
 
     def __exit__(self, *exc):
-        _LOAD_NOTES["say"] = self.before
+        _LOAD_NOTES.update(self.before)
         return False
+
+
+def plan_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
+    """What the plan stage says before planning: targets beyond the reach (:func:`reach_notes`), a start
+    outside the joint limits (:func:`start_limit_notes`)."""
+    return reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem)
+
+
+def _say_plan_notes(lines: list[str]) -> None:
+    """Print ``lines`` on stderr, each once within :class:`load_notes_said` (none there if the caller said them)."""
+    said = _LOAD_NOTES["said"]
+    for line in lines:
+        if _LOAD_NOTES["say"] or (said is not None and line not in said):
+            print(line, file=sys.stderr, flush=True)
+            if said is not None:
+                said.add(line)
 
 
 def robot_and_task(cfg: PlanConfig) -> tuple[Robot, TaskSpec]:
@@ -548,12 +573,38 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     return robot, task, problem, q0, desc
 
 
+# relative to the chain's length: the bound and the target's distance are sums of a few link vectors, rounded
+# to a few eps each; a target this close to the bound is at it
+REACH_SLACK = 1e-9
+
+
+def _directions(chain: Chain, target: np.ndarray, axes: np.ndarray) -> list[np.ndarray]:
+    """Unit directions (3,) to compare the target with the reach along: toward it, along and against each
+    joint's axis, and toward it normal to each axis (a lift's target too high, an arm's too far out),
+    within the coordinates ``axes`` the term sets."""
+    delta = np.zeros(3)
+    delta[axes] = target - chain.base[axes]
+    out = [delta]
+    for _, axis in chain.joints:
+        out += [axis, -axis, delta - (delta @ axis) * axis]
+    mask = np.zeros(3)
+    mask[axes] = 1.0
+    units = []
+    for e in out:
+        e = e * mask
+        n = float(np.linalg.norm(e))
+        if n > 1e-9 * max(1.0, float(np.linalg.norm(delta))):
+            units.append(e / n)
+    return units
+
+
 def reach_notes(robot: Robot, problem: Problem) -> list[str]:
-    """One line per position target (a via-point on a frame's points) farther from the robot's base
-    than the frame can get: the link lengths along the chain to it (:func:`plants.robots.chain_reach`).
-    The distance counts the target's coordinates the term sets (its ``axes``)."""
+    """One line per position target (a via-point on a frame's points) that lies farther from the robot's
+    base along some direction than the point can get along it (:meth:`plants.robots.Chain.reach_along`, a
+    bound from the chain's links: toward the target, along and against the joints' axes, toward it normal
+    to them). A target that passes may still be out of reach; one that fails is. Only the target's
+    coordinates the term sets (its ``axes``) count."""
     from planning.costs import ViaPoint
-    from plants.robots import chain_reach
     from plants.taskmaps import FramePoints
 
     out = []
@@ -561,22 +612,53 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
         tm = getattr(term, "taskmap", None)
         if not isinstance(term, ViaPoint) or not isinstance(tm, FramePoints) or term.weight == 0:
             continue
-        chain = chain_reach(robot, tm.frame.name())
-        if chain is None:
-            continue
-        base, reach = chain
         k = len(tm.points)
         axes = tm.rows[:len(tm.rows) // k] % 3
         targets = term.target.reshape(k, len(axes))
-        dist = np.linalg.norm(targets - base[axes], axis=1)
-        excess = dist - (reach + np.linalg.norm(tm.points, axis=1))
-        j = int(np.argmax(excess))
-        if excess[j] > 0:
+        worst = None
+        for j in range(k):
+            chain = kinematic_chain(robot, tm.frame.name(), tm.points[j])
+            if chain is None:
+                break
+            delta = np.zeros(3)
+            delta[axes] = targets[j] - chain.base[axes]
+            slack = REACH_SLACK * chain.reach()   # a target at the bound, as rounded, is within it
+            for e in _directions(chain, targets[j], axes):
+                far, reach = float(e @ delta), chain.reach_along(e)
+                if far - reach > slack and (worst is None or far - reach > worst[0] - worst[1]):
+                    worst = (far, reach, j, chain.base, e)
+        if worst is not None:
+            far, reach, j, base, e = worst
             out.append(f"raico: note: the target of '{term.name}' ({tm.frame.name()} at "
-                       f"{np.round(targets[j], 4).tolist()} m) is {dist[j]:.3g} m from the robot's base, beyond its "
-                       f"reach of {reach + np.linalg.norm(tm.points[j]):.3g} m (the link lengths along the chain): "
-                       "planning anyway")
+                       f"{np.round(targets[j], 4).tolist()} m) lies {far:.3g} m from the robot's base at "
+                       f"{np.round(base, 4).tolist()} m along {np.round(e, 3).tolist()}, beyond its reach of "
+                       f"{reach:.3g} m along it (the most its links and prismatic travel can add): planning anyway")
     return out
+
+
+def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
+    """One line where the start ``x0`` lies outside the model's joint ranges, saying what the bounds in
+    force make of it: hard bounds (a problem file's default) keep steps 1..T inside the ranges, so the
+    first step must bring those joints back (else status out-of-bounds); without them only a
+    ``joint_limit`` term pulls them in, and without one planning knows no limits."""
+    q0 = problem.x0[:robot.n_q]
+    outside = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper))
+    if not len(outside):
+        return []
+    which = ", ".join(f"{robot.joint_names[i]} ({q0[i]:.4g}, range {robot.lower[i]:.4g} to {robot.upper[i]:.4g})"
+                      for i in outside[:4]) + (f" and {len(outside) - 4} more" if len(outside) > 4 else "")
+    head = f"raico: note: the start is outside the joint limits on {which}"
+    bounds = problem.bounds
+    held = bounds is not None and bounds.has_positions and bool(np.isin(outside, bounds.q_index).any())
+    if held:
+        return [f"{head}: the hard bounds (--bounds hard{', the default for a problem file' if cfg.problem else ''})"
+                " keep steps 1..T inside them, so the first step must bring them back, or the plan ends "
+                "out-of-bounds; --bounds none plans without them"]
+    pf = cfg.problem_file() if cfg.problem is not None else None
+    soft = pf is not None and any(t.get("type") == "joint_limit" for t in pf.doc["costs"]["terms"].values())
+    return [f"{head}: planning keeps no hard bounds (--bounds none); "
+            + ("the joint_limit term pulls them in" if soft else "no joint_limit term either: it plans as if "
+               "there were no limits") + "; an execution starts clipped to them"]
 
 
 def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | None = None,
@@ -590,8 +672,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     robot, task, problem, q0, desc = build_problem(cfg, model)
     for line in desc.get("load_report", []) if _LOAD_NOTES["say"] else []:  # what loading the model file changed
         print(f"raico: note: {Path(desc['robot']['file']).name}: {line}", file=sys.stderr, flush=True)
-    for line in reach_notes(robot, problem):
-        print(line, file=sys.stderr, flush=True)
+    _say_plan_notes(plan_notes(cfg, robot, problem))
     if "balance" in desc:  # say it before planning, never silently
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)

@@ -33,8 +33,8 @@ def test_chain_reach_is_the_link_lengths_to_the_frame(tmp_path):
     from plants.robots import chain_reach, shared_robot
 
     robot = load_model(RobotSpec(file=str(user_robot(tmp_path))))
-    base, reach = chain_reach(robot, "tip")     # base 0.1, upper arm 0.3, forearm 0.25 (m)
-    assert close(base, np.zeros_like(base), scale=0.65) and close(reach, 0.65)
+    base, reach = chain_reach(robot, "tip")     # the shoulder 0.1 m up, upper arm 0.3, forearm 0.25 (m)
+    assert close(base, [0.0, 0.0, 0.1]) and close(reach, 0.55)
     base, reach = chain_reach(shared_robot("arm5"), "ee")
     assert close(reach, 1.25)   # five links of 0.25 m (its end effector starts at (1, 0, 0))
 
@@ -46,7 +46,7 @@ def test_a_target_beyond_reach_is_said_before_planning_and_planned_anyway(tmp_pa
     assert r.exit_code == 0, r.output
     notes = [ln for ln in r.stderr.splitlines() if "beyond its reach" in ln]
     assert len(notes) == 1 and "'reach'" in notes[0] and "3 m from the robot's base" in notes[0] \
-        and "reach of 0.65 m" in notes[0] and "planning anyway" in notes[0], r.stderr
+        and "reach of 0.55 m" in notes[0] and "planning anyway" in notes[0], r.stderr
     assert "plan " in r.stderr   # and it planned
     near = write_problem(tmp_path, "near", problem_text(str(urdf), {}, FAR_REACH.format(target=[0.3, 0.0, 0.4]), T=10))
     r = CliRunner().invoke(app, ["plan", "--problem", str(near), "--iterations", "2", "--artifacts", str(tmp_path / "a")])
