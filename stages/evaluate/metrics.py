@@ -52,6 +52,29 @@ THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_
 STANDING = ("fall_torso_drop_m", "fall_torso_tilt_rad", "foot_lift_m", "contact_tol_m")  # the free-standing Nao's only
 
 
+# ----------------------------------------------------------------------------- "task achieved", one judgement
+def executed_task(task: dict | None, status: str) -> dict | None:
+    """Execute's judgement of an execution (the ``execute`` line, ``learn`` and ``evaluate`` all use it): the
+    task verdict of its trajectory (``metrics["task"]``, :func:`planning.costs.task_verdict`: every via-point
+    term within its tolerance, in its unit) achieved only where the execution's ``status`` is ``ok`` too;
+    the verdict's fields plus ``terms_within`` (the terms' own verdict) and ``status``. None without terms."""
+    if not isinstance(task, dict):
+        return None
+    within = bool(task["achieved"])
+    return {**task, "achieved": within and status == "ok", "terms_within": within, "status": status}
+
+
+def task_note(verdict: dict) -> str:
+    """One verdict as a line: ``task missed: worst term 'reach' 0.0157 m > 0.01 m (position)``, with
+    ``, status tracking-lost`` where the terms were within their tolerances but the execution's status was
+    not ok (:func:`executed_task`)."""
+    from planning.costs import task_line
+
+    tail = (f", status {verdict['status']}" if verdict.get("terms_within") and not verdict["achieved"]
+            and verdict.get("status") not in (None, "ok") else "")
+    return task_line(verdict) + tail
+
+
 def used_thresholds(standing: bool) -> dict[str, float]:
     """The thresholds an execution's status is judged by: a fixed-base robot's leave out the falls and feet."""
     return {k: v for k, v in THRESHOLDS.items() if standing or k not in STANDING}
