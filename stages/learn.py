@@ -73,7 +73,8 @@ class LearnConfig(StageConfig):
             "refit_restarts": "Random restarts at the later fits (each starts at the previous fit's hyperparameters).",
             "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the pendulum, 20 for "
                       "the arms).",
-            "q0_std": "Std of q0 around the default posture (rad).",
+            "q0_std": "Std of q0 around the default posture on a revolute joint (rad).",
+            "q0_std_prismatic": "Std of q0 around the default posture on a prismatic joint (m).",
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
                          "thesis 4.4).",
@@ -109,7 +110,8 @@ class LearnConfig(StageConfig):
     restarts: int = 1
     refit_restarts: int = 0
     stride: int = 0  # 0: the robot's default
-    q0_std: float = 0.0
+    q0_std: float = 0.0  # rad
+    q0_std_prismatic: float = 0.0  # m
     warm_from: str = "trajectory"
     seed: int = 0
     gp: str = ""  # "": exact for a built-in plant, auto for a problem file's robot
@@ -217,7 +219,8 @@ class LearnConfig(StageConfig):
         return PlanConfig(**where, dynamics="learned", solver=self.solver,
                           alpha=self.alpha, alpha_schedule=self.alpha_schedule, bounds=self.bounds,
                           iterations=self.iterations,
-                          seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
+                          seed=self.seed if seed is None else seed, q0_std=self.q0_std,
+                          q0_std_prismatic=self.q0_std_prismatic, model=model,
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
                           sigma_units=self.sigma_units,
                           warm_from="trajectory" if self.warm_from == "none" else self.warm_from)

@@ -144,3 +144,21 @@ def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
     q = data.q.reshape(-1, robot.n_q)
     assert np.all(q >= robot.lower) and np.all(q <= robot.upper), (q.min(axis=0), q.max(axis=0))
     assert q[:, 0].std() > 0.02 and np.all(q[:, 1:].std(axis=0) > 0.1)   # every joint moves (m, rad)
+
+
+def test_q0_std_is_per_joint_type():
+    """The start's spread: ``q0_std`` rad on the revolute joints, ``q0_std_prismatic`` m on the lift (the same
+    normal draws, each scaled in its joint's unit)."""
+    from plants.model_file import shared_model
+    from stages.learn import LearnConfig
+    from stages.plan.problem_file import read_problem
+    from stages.plan.stage import initial_posture
+
+    robot = shared_model(read_problem(PROBLEM).robot_spec())
+    z = np.random.default_rng(4).standard_normal(robot.n_q)
+    q0 = initial_posture(robot, 0.1, 4, q0_std_prismatic=0.01)
+    expected = np.clip(robot.default_q + np.r_[0.01, np.full(5, 0.1)] * z, robot.lower, robot.upper)
+    np.testing.assert_array_equal(q0, expected)
+    assert abs(q0[0] - robot.default_q[0]) <= 0.01 * abs(z[0]) + 1e-15
+    plan = LearnConfig(problem=str(PROBLEM), q0_std=0.1, q0_std_prismatic=0.01).plan_config(model="x", warm_start=None)
+    assert (plan.q0_std, plan.q0_std_prismatic) == (0.1, 0.01)
