@@ -20,8 +20,13 @@ holds itself only so), and to **per-joint random torques** (``torque_noise``: a 
 per joint through random knots, uniform in ``+-torque_noise u_max``, at the knots' times) that excite
 the dynamics beyond what the tracking asks; ``u_max`` is the file's effort limit (1000 N m where the
 file states none). What keeps the robot away from its joint limits is the PD: its desired
-trajectory stays 5 % of each joint's range inside the limits, and with the random torques bounded
-by ``torque_noise`` of the effort the tracking error stays small (tests: no sample leaves the range).
+trajectory stays ``MARGIN`` (5 %) of each joint's range inside the limits, and the random torques,
+bounded by ``torque_noise`` of the effort, are capped at what the PD holds within half that margin
+(:func:`noise_bound`), so the tracking error stays small (tests: no sample leaves the range).
+
+Each joint babbles in its own unit: a revolute joint with ``kp`` N m/rad, ``kd`` N m s/rad and knots
+within ``amplitude`` rad, a prismatic joint (a lift) with ``kp_prismatic`` N/m, ``kd_prismatic``
+N s/m and knots within ``amplitude_prismatic`` m (:func:`joint_gains`, :func:`joint_amplitudes`).
 
 Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 ``K = round(duration / dt) + 1`` samples per episode; ``t`` is ``(K,)`` in seconds.
