@@ -44,6 +44,7 @@ from scipy.interpolate import CubicSpline
 
 from plants.robots import PLANTS, load_robot
 from stages.base import Stage, StageConfig, StageOutput
+from stages.evaluate.metrics import prismatic_joints
 from stages.registry import DESCRIPTIONS
 
 DATA_FILE = "data.npz"
@@ -179,11 +180,6 @@ class BabbleData:
 MARGIN = 0.05  # the desired trajectory's knots stay this share of each joint's range inside it
 
 
-def prismatic_mask(plant, names) -> np.ndarray:
-    """``(len(names),)`` bool: which of the plant's joints ``names`` are prismatic (their unit m, N)."""
-    return np.array([plant.GetJointByName(n).type_name() == "prismatic" for n in names], bool)
-
-
 def joint_amplitudes(prismatic: np.ndarray, cfg: BabbleConfig) -> np.ndarray:
     """Per joint, the spread of the random knots: ``amplitude`` (rad) or ``amplitude_prismatic`` (m)."""
     return np.where(prismatic, cfg.amplitude_prismatic, cfg.amplitude)
@@ -233,7 +229,7 @@ def _simulator(robot, cfg: BabbleConfig):
     n_plant = plant.num_positions()
     pinv = np.linalg.pinv(P)
     u_max = P @ robot.babble_torque_limit()  # per plant joint (coupled joints share the motor limit)
-    kp, kd = joint_gains(P @ prismatic_mask(plant, robot.joint_names) > 0, cfg)   # per plant joint
+    kp, kd = joint_gains(P @ prismatic_joints(robot) > 0, cfg)   # per plant joint
     builder = robot.builder
     source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n_plant)), 1, True))
     pid = builder.AddSystem(PidController(kp, np.zeros(n_plant), kd))
@@ -300,7 +296,7 @@ def _model_simulator(robot, model, cfg: BabbleConfig):
 
     plant, n = robot.plant, robot.plant.num_positions()
     u_max = babble_effort(robot)
-    kp, kd = joint_gains(prismatic_mask(plant, robot.joint_names), cfg)
+    kp, kd = joint_gains(prismatic_joints(robot), cfg)
     builder = robot.builder
     source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 1, True))
     noise = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 0, True))
@@ -372,7 +368,7 @@ def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None
     E, n = cfg.episodes, robot.n_q
     out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
     q0 = robot.default_q
-    prismatic = prismatic_mask(plant, robot.joint_names)
+    prismatic = prismatic_joints(robot)
     for e in range(E):
         spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg, prismatic)
         source.UpdateTrajectory(plant_spline(spline, robot.P))
@@ -417,7 +413,7 @@ def _babble_model_file(cfg: BabbleConfig, progress: Callable[[int, int], None] |
     E = cfg.episodes
     out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
     q0 = np.clip(robot.default_q, robot.lower, robot.upper)
-    prismatic = prismatic_mask(plant, robot.joint_names)
+    prismatic = prismatic_joints(robot)
     bound = noise_bound(babble_effort(robot), joint_gains(prismatic, cfg)[0], robot.lower, robot.upper, cfg)
     for e in range(E):
         spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg, prismatic)
@@ -449,7 +445,7 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
 
 
 STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run,
-              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file"),
+              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file", "stages.evaluate.metrics"),
               data_files=(DATA_FILE,),
               description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)

@@ -375,12 +375,12 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
     """The learn stage: babble, then per episode fit, plan and execute, each a cached step;
     ``episodes.json`` holds every episode's numbers (:func:`episode_measurements`) and the metrics
     their lists (:func:`summary`); a model file's load report is said once, before the loop."""
-    from stages.babble import prismatic_mask
+    from stages.evaluate.metrics import prismatic_joints
     from stages.plan.stage import load_notes, load_notes_said
 
     t0 = time.perf_counter()
     robot = cfg.robots()
-    acc = "rad/s^2 and m/s^2" if prismatic_mask(robot[0].plant, robot[0].joint_names).any() else "rad/s^2"
+    acc = "rad/s^2 and m/s^2" if prismatic_joints(robot[0]).any() else "rad/s^2"
     for line in load_notes(robot[0]):   # what loading the model file changed: said here once, not per episode
         print(line, file=sys.stderr, flush=True)
     with load_notes_said():

@@ -68,11 +68,11 @@ def term_costs(cp, X, U) -> dict[str, float]:
 
 def test_the_fixture_damps_every_joint_and_has_a_prismatic_lift():
     from plants.model_file import shared_model
-    from stages.babble import prismatic_mask
+    from stages.evaluate.metrics import prismatic_joints
     from stages.plan.problem_file import read_problem
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
-    assert robot.n_q == 6 and prismatic_mask(robot.plant, robot.joint_names).tolist() == [True] + [False] * 5
+    assert robot.n_q == 6 and prismatic_joints(robot).tolist() == [True] + [False] * 5
     pmodel, _ = cm.pinocchio_robot(robot, "angle")
     assert np.all(np.asarray(pmodel.damping) > 0)
 

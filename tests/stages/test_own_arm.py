@@ -130,13 +130,14 @@ def test_the_random_torques_are_capped_at_what_the_pd_holds_inside_the_margin():
 
 def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
     from plants.model_file import shared_model
-    from stages.babble import babble, joint_amplitudes, joint_gains, prismatic_mask
+    from stages.babble import babble, joint_amplitudes, joint_gains
+    from stages.evaluate.metrics import prismatic_joints
     from stages.learn import LearnConfig
     from stages.plan.problem_file import read_problem
 
     cfg = LearnConfig(problem=str(PROBLEM), babble_points=120).normalized().babble_config().normalized()
     robot = shared_model(read_problem(PROBLEM).robot_spec())
-    lift = prismatic_mask(robot.plant, robot.joint_names)
+    lift = prismatic_joints(robot)
     kp, kd = joint_gains(lift, cfg)
     assert kp[0] == cfg.kp_prismatic and kd[0] == cfg.kd_prismatic and np.all(kp[1:] == cfg.kp)
     assert joint_amplitudes(lift, cfg).tolist() == [cfg.amplitude_prismatic] + [cfg.amplitude] * 5
@@ -161,3 +162,30 @@ def test_q0_std_is_per_joint_type():
     np.testing.assert_array_equal(q0, expected)   # the lift spread by 0.01 m, not by 0.1 "rad"
     plan = LearnConfig(problem=str(PROBLEM), q0_std=0.1, q0_std_prismatic=0.01).plan_config(model="x", warm_start=None)
     assert (plan.q0_std, plan.q0_std_prismatic) == (0.1, 0.01)
+
+
+def test_tracking_is_lost_in_each_joint_s_unit():
+    """An execution's tracking-lost threshold: 0.5 rad on a revolute joint, 0.1 m on the lift (0.5 m would be
+    more than its whole 0.4 m range); the reason names the joint in its unit."""
+    from types import SimpleNamespace
+
+    from plants.model_file import shared_model
+    from stages.evaluate.metrics import TRACKING_LOST_M, execution_metrics
+    from stages.plan.problem_file import read_problem
+
+    robot = shared_model(read_problem(PROBLEM).robot_spec())
+    K, n = 11, robot.n_q
+    X_plan = np.tile(np.concatenate([robot.default_q, np.zeros(n)]), (K, 1))
+    no_terms = SimpleNamespace(state_terms=[], T=K - 1)
+
+    def status(joint: int, off: float) -> dict:
+        X = X_plan.copy()
+        X[6:, joint] += off
+        return execution_metrics(no_terms, X, X_plan, np.zeros((K - 1, n)), robot, 0.01, np.zeros((K - 1, n), bool))
+
+    lost = status(0, 1.5 * TRACKING_LOST_M)
+    assert lost["status"] == "tracking-lost" and lost["failure_time"] == pytest.approx(0.06, rel=1e-9)
+    assert "lift 0.15 m from its plan" in lost["reason"] and lost["thresholds"]["tracking_lost_m"] == TRACKING_LOST_M
+    assert status(0, 0.5 * TRACKING_LOST_M)["status"] == "ok"
+    assert status(2, 0.3)["status"] == "ok"   # 0.3 rad on the shoulder: within 0.5 rad
+    assert "shoulder 0.60 rad" in status(2, 0.6)["reason"]
