@@ -20,8 +20,13 @@ holds itself only so), and to **per-joint random torques** (``torque_noise``: a 
 per joint through random knots, uniform in ``+-torque_noise u_max``, at the knots' times) that excite
 the dynamics beyond what the tracking asks; ``u_max`` is the file's effort limit (1000 N m where the
 file states none). What keeps the robot away from its joint limits is the PD: its desired
-trajectory stays 5 % of each joint's range inside the limits, and with the random torques bounded
-by ``torque_noise`` of the effort the tracking error stays small (tests: no sample leaves the range).
+trajectory stays ``MARGIN`` (5 %) of each joint's range inside the limits, and the random torques,
+bounded by ``torque_noise`` of the effort, are capped at what the PD holds within half that margin
+(:func:`noise_bound`), so the tracking error stays small (tests: no sample leaves the range).
+
+Each joint babbles in its own unit: a revolute joint with ``kp`` N m/rad, ``kd`` N m s/rad and knots
+within ``amplitude`` rad, a prismatic joint (a lift) with ``kp_prismatic`` N/m, ``kd_prismatic``
+N s/m and knots within ``amplitude_prismatic`` m (:func:`joint_gains`, :func:`joint_amplitudes`).
 
 Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 ``K = round(duration / dt) + 1`` samples per episode; ``t`` is ``(K,)`` in seconds.
@@ -39,6 +44,7 @@ from scipy.interpolate import CubicSpline
 
 from plants.robots import PLANTS, load_robot
 from stages.base import Stage, StageConfig, StageOutput
+from stages.evaluate.metrics import prismatic_joints
 from stages.registry import DESCRIPTIONS
 
 DATA_FILE = "data.npz"
@@ -54,8 +60,12 @@ class BabbleConfig(StageConfig):
             "torque_noise": "Per-joint random torques added to the PD, as a fraction of the effort limit "
                             "(default: 0 for a built-in plant, 0.1 for a problem file's robot).",
             "episodes": "Number of babbling episodes.",
-            "duration": "Seconds per episode.", "dt": "Sample period (s).", "kp": "PD stiffness (N m/rad).",
-            "kd": "PD damping (N m s/rad).", "amplitude": "Spread of the random knots (rad).",
+            "duration": "Seconds per episode.", "dt": "Sample period (s).",
+            "kp": "PD stiffness of a revolute joint (N m/rad).", "kd": "PD damping of a revolute joint (N m s/rad).",
+            "amplitude": "Spread of a revolute joint's random knots (rad).",
+            "kp_prismatic": "PD stiffness of a prismatic joint (N/m).",
+            "kd_prismatic": "PD damping of a prismatic joint (N s/m).",
+            "amplitude_prismatic": "Spread of a prismatic joint's random knots (m).",
             "knots": "Random knots per episode.", "integrator": "Drake integrator scheme.",
             "substeps": "Fixed integrator steps per sample."}
 
@@ -66,9 +76,12 @@ class BabbleConfig(StageConfig):
     seed: int = 0
     duration: float = 1.0  # s per episode
     dt: float = 0.002  # s between samples
-    kp: float = 50.0
-    kd: float = 5.0
-    amplitude: float = 0.6  # rad, spread of the random knots around the start posture
+    kp: float = 50.0  # N m/rad, a revolute joint's PD stiffness
+    kd: float = 5.0  # N m s/rad
+    amplitude: float = 0.6  # rad, spread of a revolute joint's random knots around the start posture
+    kp_prismatic: float = 1000.0  # N/m, a prismatic joint's PD stiffness (a lift carrying a few kg)
+    kd_prismatic: float = 100.0  # N s/m
+    amplitude_prismatic: float = 0.1  # m, spread of a prismatic joint's random knots
     knots: int = 4  # random knots per episode (after the start)
     integrator: str = "runge_kutta5"
     substeps: int = 2  # fixed integrator steps per sample
@@ -117,7 +130,9 @@ class BabbleConfig(StageConfig):
                    f"episodes x samples x substeps = {self.episodes * self.samples * self.substeps:.3g} "
                    f"integrator steps; at most {MAX_STEPS:,}"),
                   (self.kp >= 0 and self.kd >= 0, "kp and kd must be >= 0"),
+                  (self.kp_prismatic >= 0 and self.kd_prismatic >= 0, "kp-prismatic and kd-prismatic must be >= 0"),
                   (0 <= self.amplitude <= 3.2, "amplitude must be in [0, 3.2] rad"),
+                  (0 <= self.amplitude_prismatic <= 2.0, "amplitude-prismatic must be in [0, 2] m"),
                   (1 <= self.knots <= MAX_KNOTS, f"knots must be in [1, {MAX_KNOTS:,}]"),
                   (1 <= self.substeps <= 1000, "substeps must be in [1, 1000]")]
         for ok, msg in checks:
@@ -162,12 +177,30 @@ class BabbleData:
                 "rms_tracking_error": float(np.sqrt(np.mean((self.q - self.q_des) ** 2)))}
 
 
+MARGIN = 0.05  # the desired trajectory's knots stay this share of each joint's range inside it
+
+
+def joint_amplitudes(prismatic: np.ndarray, cfg: BabbleConfig) -> np.ndarray:
+    """Per joint, the spread of the random knots: ``amplitude`` (rad) or ``amplitude_prismatic`` (m)."""
+    return np.where(prismatic, cfg.amplitude_prismatic, cfg.amplitude)
+
+
+def joint_gains(prismatic: np.ndarray, cfg: BabbleConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint, the PD's ``(kp, kd)``: N m/rad and N m s/rad on a revolute joint, N/m and N s/m on a
+    prismatic one."""
+    return (np.where(prismatic, cfg.kp_prismatic, cfg.kp).astype(float),
+            np.where(prismatic, cfg.kd_prismatic, cfg.kd).astype(float))
+
+
 def desired_trajectory(rng: np.random.Generator, q0: np.ndarray, lower: np.ndarray,
-                       upper: np.ndarray, cfg: BabbleConfig) -> CubicSpline:
-    """A clamped cubic spline ``q_des(t)`` from ``q0`` at rest through random knots (rad)."""
+                       upper: np.ndarray, cfg: BabbleConfig, prismatic: np.ndarray | None = None) -> CubicSpline:
+    """A clamped cubic spline ``q_des(t)`` from ``q0`` at rest through random knots (rad, m on a prismatic
+    joint: ``prismatic (n,)`` bool, None: none), uniform within each joint's amplitude
+    (:func:`joint_amplitudes`) and ``MARGIN`` of its range inside it."""
     times = np.linspace(0.0, cfg.duration, cfg.knots + 1)
-    knots = q0 + rng.uniform(-cfg.amplitude, cfg.amplitude, size=(cfg.knots, q0.size))
-    margin = 0.05 * (upper - lower)
+    amp = joint_amplitudes(np.zeros(q0.size, bool) if prismatic is None else prismatic, cfg)
+    knots = q0 + rng.uniform(-amp, amp, size=(cfg.knots, q0.size))
+    margin = MARGIN * (upper - lower)
     knots = np.clip(knots, lower + margin, upper - margin)
     return CubicSpline(times, np.vstack([q0, knots]), bc_type="clamped")
 
@@ -196,10 +229,10 @@ def _simulator(robot, cfg: BabbleConfig):
     n_plant = plant.num_positions()
     pinv = np.linalg.pinv(P)
     u_max = P @ robot.babble_torque_limit()  # per plant joint (coupled joints share the motor limit)
+    kp, kd = joint_gains(P @ prismatic_joints(robot) > 0, cfg)   # per plant joint
     builder = robot.builder
     source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n_plant)), 1, True))
-    pid = builder.AddSystem(PidController(np.full(n_plant, float(cfg.kp)), np.zeros(n_plant),
-                                          np.full(n_plant, float(cfg.kd))))
+    pid = builder.AddSystem(PidController(kp, np.zeros(n_plant), kd))
     sat = builder.AddSystem(Saturation(-u_max, u_max))
     act = builder.AddSystem(MatrixGain(robot.B_act.T))
     builder.Connect(plant.get_state_output_port(), pid.get_input_port_estimated_state())
@@ -263,10 +296,11 @@ def _model_simulator(robot, model, cfg: BabbleConfig):
 
     plant, n = robot.plant, robot.plant.num_positions()
     u_max = babble_effort(robot)
+    kp, kd = joint_gains(prismatic_joints(robot), cfg)
     builder = robot.builder
     source = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 1, True))
     noise = builder.AddSystem(TrajectorySource(PiecewisePolynomial(np.zeros(n)), 0, True))
-    pid = builder.AddSystem(PidController(np.full(n, float(cfg.kp)), np.zeros(n), np.full(n, float(cfg.kd))))
+    pid = builder.AddSystem(PidController(kp, np.zeros(n), kd))
     gravity = builder.AddSystem(InverseDynamics(model.plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
     add = builder.AddSystem(Adder(3, n))
     sat = builder.AddSystem(Saturation(-u_max, u_max))
@@ -292,12 +326,24 @@ def babble_effort(robot) -> np.ndarray:
     return np.where(np.isfinite(robot.effort), robot.effort, UNLIMITED_EFFORT)
 
 
-def random_torques(rng: np.random.Generator, spline: CubicSpline, u_max: np.ndarray, cfg: BabbleConfig):
-    """Per-joint random torques ``r(t)`` (N m) as Drake's clamped cubic through ``U(-1, 1) torque_noise u_max``
-    at the desired trajectory's knot times (zero at the start)."""
+def noise_bound(u_max: np.ndarray, kp: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                cfg: BabbleConfig) -> np.ndarray:
+    """Per joint, the random torques' bound (N m; N on a prismatic joint): ``torque_noise u_max``, at most
+    what the PD's stiffness ``kp`` holds within half the desired trajectory's margin (``kp MARGIN range / 2``,
+    the other half left to the tracking error): a random torque can then push a joint at most half the margin
+    off its desired position, which stays ``MARGIN`` of the range inside it. Without the cap a lift of
+    0-0.4 m (300 N effort limit, 30 N of noise against 50 N/m) was pushed to 0.68 m."""
+    cap = 0.5 * kp * MARGIN * np.where(np.isfinite(upper - lower), upper - lower, np.inf)
+    return np.minimum(cfg.torque_noise * u_max, cap)
+
+
+def random_torques(rng: np.random.Generator, spline: CubicSpline, bound: np.ndarray):
+    """Per-joint random torques ``r(t)`` (N m, N on a prismatic joint) as Drake's clamped cubic through
+    ``U(-1, 1) bound`` (:func:`noise_bound`) at the desired trajectory's knot times (zero at the start)."""
     from pydrake.trajectories import PiecewisePolynomial
 
-    knots = rng.uniform(-1.0, 1.0, size=(len(spline.x) - 1, u_max.size)) * cfg.torque_noise * u_max
+    u_max = np.asarray(bound, float)
+    knots = rng.uniform(-1.0, 1.0, size=(len(spline.x) - 1, u_max.size)) * u_max
     samples = np.vstack([np.zeros(u_max.size), knots]).T
     zero = np.zeros(u_max.size)
     return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(spline.x, samples, zero, zero)
@@ -322,8 +368,9 @@ def babble(cfg: BabbleConfig, progress: Callable[[int, int], None] | None = None
     E, n = cfg.episodes, robot.n_q
     out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
     q0 = robot.default_q
+    prismatic = prismatic_joints(robot)
     for e in range(E):
-        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg, prismatic)
         source.UpdateTrajectory(plant_spline(spline, robot.P))
         root.SetTime(0.0)
         plant.SetPositions(pctx, robot.to_plant_q(q0))
@@ -366,11 +413,12 @@ def _babble_model_file(cfg: BabbleConfig, progress: Callable[[int, int], None] |
     E = cfg.episodes
     out = {k: np.zeros((E, K, n)) for k in ("q", "qdot", "qddot", "u", "q_des")}
     q0 = np.clip(robot.default_q, robot.lower, robot.upper)
-    u_max = babble_effort(robot)
+    prismatic = prismatic_joints(robot)
+    bound = noise_bound(babble_effort(robot), joint_gains(prismatic, cfg)[0], robot.lower, robot.upper, cfg)
     for e in range(E):
-        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg)
+        spline = desired_trajectory(rng, q0, robot.lower, robot.upper, cfg, prismatic)
         source.UpdateTrajectory(plant_spline(spline, robot.P))
-        noise.UpdateTrajectory(random_torques(rng, spline, u_max, cfg))
+        noise.UpdateTrajectory(random_torques(rng, spline, bound))
         root.SetTime(0.0)
         plant.SetPositions(pctx, q0)
         plant.SetVelocities(pctx, np.zeros(n))
@@ -397,7 +445,7 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
 
 
 STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run,
-              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file"),
+              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file", "stages.evaluate.metrics"),
               data_files=(DATA_FILE,),
               description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)

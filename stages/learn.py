@@ -24,6 +24,7 @@ A parameter goes one way: the CLI fills :class:`LearnConfig`, which derives each
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 from typing import Any, cast
@@ -72,7 +73,8 @@ class LearnConfig(StageConfig):
             "refit_restarts": "Random restarts at the later fits (each starts at the previous fit's hyperparameters).",
             "stride": "Use every stride-th executed step as data (0: the plant's default, 5 for the pendulum, 20 for "
                       "the arms).",
-            "q0_std": "Std of q0 around the default posture (rad).",
+            "q0_std": "Std of q0 around the default posture on a revolute joint (rad).",
+            "q0_std_prismatic": "Std of q0 around the default posture on a prismatic joint (m).",
             "warm_from": "Start of each episode's plan: trajectory (the last planned trajectory, thesis 4.5), "
                          "controls (the last plan's controls rolled out on the new model) or none (x0 held, "
                          "thesis 4.4).",
@@ -84,13 +86,16 @@ class LearnConfig(StageConfig):
                        "robot [robot.true]'s where stated) and task.",
             "residual": "Fit the GP to the difference between the executed accelerations and the planning model's "
                         "(the model file's, or the plant's analytic model) and plan with model + GP.",
-            "babble_amplitude": "Spread of the babbling's random knots around the start posture (rad)."}
+            "babble_amplitude": "Spread of the babbling's random knots around the start posture on a revolute "
+                                "joint (rad).",
+            "babble_amplitude_prismatic": "Spread of the babbling's random knots on a prismatic joint (m)."}
 
     plant: str = ""
     task: str = ""
     problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
     residual: bool = False
-    babble_amplitude: float = 1.0  # rad
+    babble_amplitude: float = 1.0  # rad, a revolute joint's
+    babble_amplitude_prismatic: float = 0.1  # m, a prismatic joint's
     episodes: int = 10
     sigma_star: str = "none"
     sigma_weight: float = 1e-2
@@ -105,7 +110,8 @@ class LearnConfig(StageConfig):
     restarts: int = 1
     refit_restarts: int = 0
     stride: int = 0  # 0: the robot's default
-    q0_std: float = 0.0
+    q0_std: float = 0.0  # rad
+    q0_std_prismatic: float = 0.0  # m
     warm_from: str = "trajectory"
     seed: int = 0
     gp: str = ""  # "": exact for a built-in plant, auto for a problem file's robot
@@ -178,6 +184,7 @@ class LearnConfig(StageConfig):
                                                         "[2, 100000]"),
                   (1 <= self.iterations <= 1000, "iterations must be in [1, 1000]"),
                   (0 <= self.babble_amplitude <= 3.2, "babble-amplitude must be in [0, 3.2] rad"),
+                  (0 <= self.babble_amplitude_prismatic <= 2.0, "babble-amplitude-prismatic must be in [0, 2] m"),
                   (10 <= self.max_points <= 5000, "max-points must be in [10, 5000]"),
                   (0 <= self.restarts <= 20, "restarts must be in [0, 20]"),
                   (0 <= self.refit_restarts <= 20, "refit-restarts must be in [0, 20]"),
@@ -212,7 +219,8 @@ class LearnConfig(StageConfig):
         return PlanConfig(**where, dynamics="learned", solver=self.solver,
                           alpha=self.alpha, alpha_schedule=self.alpha_schedule, bounds=self.bounds,
                           iterations=self.iterations,
-                          seed=self.seed if seed is None else seed, q0_std=self.q0_std, model=model,
+                          seed=self.seed if seed is None else seed, q0_std=self.q0_std,
+                          q0_std_prismatic=self.q0_std_prismatic, model=model,
                           warm_start=warm_start, sigma_star=self.sigma_star, sigma_weight=self.sigma_weight,
                           sigma_units=self.sigma_units,
                           warm_from="trajectory" if self.warm_from == "none" else self.warm_from)
@@ -234,7 +242,8 @@ class LearnConfig(StageConfig):
         where: dict[str, Any] = {"problem": self.problem} if self.problem is not None else {"plant": self.plant}
         return BabbleConfig(**where, episodes=1, seed=self.seed, duration=(self.babble_points - 1) * BABBLE_DT,
                             dt=BABBLE_DT, knots=babble_knots(self.babble_points),
-                            substeps=int(round(BABBLE_DT / 1e-3)), amplitude=self.babble_amplitude)
+                            substeps=int(round(BABBLE_DT / 1e-3)), amplitude=self.babble_amplitude,
+                            amplitude_prismatic=self.babble_amplitude_prismatic)
 
 
     def heldout_babble_config(self):
@@ -327,10 +336,37 @@ def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.n
     return np.array([dyn.qddot(x[:n], x[n:], u) for x, u in zip(X, tau)]).reshape(-1, n)
 
 
-def task_error(via_point_errors: dict) -> float:
-    """The largest via-point error of a run (m or rad); inf if none is finite."""
-    vals = [v for v in via_point_errors.values() if v is not None]
-    return float(max(vals)) if vals else float("inf")
+def own_criterion(crit: dict, q_end: float, status: str) -> dict:
+    """The task's own criterion (a problem file's ``[achieved]``: ``joint`` within ``tol`` rad of ``angle`` at the
+    execution's end, the angle wrapped) as a task verdict (the fields of ``planning.costs.task_verdict``): judged
+    on the final state of a run that neither diverged nor fell (a run that lost tracking of its plan but ends at
+    the goal achieved the task; its status says it did not follow the plan)."""
+    err = float(abs((q_end - crit["angle"] + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")
+    return {"achieved": bool(status not in ("diverged", "fell") and err <= crit["tol"]), "worst": crit["joint"],
+            "kind": "end angle", "unit": "rad", "error": err, "tol": float(crit["tol"]), "status": status}
+
+
+def episode_task(crit: dict | None, q_end: float, metrics: dict, status: str) -> dict | None:
+    """An episode's executed task verdict: the task's own criterion where it states one (:func:`own_criterion`),
+    else execute's judgement of the execution (``stages.evaluate.metrics.executed_task``: every via-point term
+    within its tolerance, in its unit, and status ok); None where the task has neither."""
+    from stages.evaluate.metrics import executed_task
+
+    if crit is not None:
+        return own_criterion(crit, q_end, status)
+    return executed_task(metrics.get("task"), status)
+
+
+def verdict_error(verdict: dict | None) -> float:
+    """The verdict's worst term's error in its unit (NaN without a verdict)."""
+    return float("nan") if verdict is None else float(verdict["error"])
+
+
+def task_words(verdict: dict | None) -> str:
+    """An episode's verdict as words for its line (``stages.evaluate.metrics.task_note``)."""
+    from stages.evaluate.metrics import task_note
+
+    return "no task term to judge" if verdict is None else task_note(verdict)
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -338,11 +374,23 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
         steps: Steps) -> StageOutput:
     """The learn stage: babble, then per episode fit, plan and execute, each a cached step;
     ``episodes.json`` holds every episode's numbers (:func:`episode_measurements`) and the metrics
-    their lists (:func:`summary`)."""
-    from stages.execute import ExecuteConfig
+    their lists (:func:`summary`); a model file's load report is said once, before the loop."""
+    from stages.evaluate.metrics import prismatic_joints
+    from stages.plan.stage import load_notes, load_notes_said
 
     t0 = time.perf_counter()
     robot = cfg.robots()
+    acc = "rad/s^2 and m/s^2" if prismatic_joints(robot[0]).any() else "rad/s^2"
+    for line in load_notes(robot[0]):   # what loading the model file changed: said here once, not per episode
+        print(line, file=sys.stderr, flush=True)
+    with load_notes_said():
+        return _loop(cfg, robot, acc, t0, progress, steps)
+
+
+def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | None, steps: Steps) -> StageOutput:
+    """:func:`run`'s loop (``acc``: the GP error's unit)."""
+    from stages.execute import ExecuteConfig
+
     babble = steps.run("babble", cfg.babble_config())
     held_out = heldout_set(steps.run("babble", cfg.heldout_babble_config()))
     data, prior, warm = [babble.ref], None, None
@@ -353,10 +401,9 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
         execution = steps.run("execute", ExecuteConfig(plan=plan.ref, seed=cfg.seed))
         m = episode_measurements(cfg, robot, fit, plan, execution, held_out)
         episodes.append({"episode": k, **m})
-        steps.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} rad/s^2 "
-                  f"(held-out {m['gp_error_heldout']:.3g}), "
-                  f"task error {m['task_error']:.3g}, RMSE {m['rmse_planned_executed']:.3g} "
-                  f"[execution {execution.status}; task {'achieved' if m['achieved'] else 'missed'}] "
+        steps.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} {acc} "
+                  f"(held-out {m['gp_error_heldout']:.3g}), RMSE {m['rmse_planned_executed']:.3g} "
+                  f"[execution {execution.status}; {task_words(m['task'])}] "
                   f"({'cached' if plan.cached and fit.cached else 'ran'})")
         if progress:
             progress(k, cfg.episodes)
@@ -404,12 +451,10 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
     if ok.any():
         qdd[ok] = true_accelerations(executed, dt, X[ok], tau[ok])
     em, pm = execution.metrics, plan.metrics
-    err, tol = task_error(em.get("via_point_errors") or {}), ACHIEVED_TOL
-    crit = cfg.achieved()
-    if crit is not None:  # the task's own criterion: a joint's end angle, on the Drake plant
-        q_end = roll["X"][-1, robot.joint_names.index(crit["joint"])]
-        err = float(abs((q_end - crit["angle"] + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")
-        tol = crit["tol"]
+    crit = cfg.achieved()   # the task's own criterion (a joint's end angle, on the Drake plant), or None
+    q_end = roll["X"][-1, robot.joint_names.index(crit["joint"])] if crit is not None else float("nan")
+    task = episode_task(crit, q_end, em, str(execution.status))
+    planned = pm.get("task")   # the plan stage's verdict of the planned trajectory (its via-point terms)
     per_joint, per_joint_n = gp_joint_errors(model, X, tau, qdd)
     held = {}
     if heldout is not None:
@@ -422,9 +467,10 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
             "data_steps": int(data_steps), "data_truncated": bool(data_steps < K),
             "rmse_planned_executed": em.get("rmse_planned_executed"),
             "torque_saturation": em.get("torque_saturation"),
-            "task_error": err, "achieved": bool(execution.status not in ("diverged", "fell") and err <= tol),
+            "task": task, "task_error": verdict_error(task), "task_unit": None if task is None else task["unit"],
+            "achieved": bool(task is not None and task["achieved"]),
             "execution_status": execution.status, "plan_status": plan.status,
-            "planned_task_error": task_error(pm.get("via_point_errors") or {}),
+            "planned_task": planned, "planned_task_error": verdict_error(planned),
             "fit_time_s": fit.metrics.get("fit_time_s"), "plan_time_s": pm.get("wall_time_s"),
             "execute_time_s": execution.timings.get("compute_s"),
             "n_points": fit.metrics.get("n_points"), "optimized": fit.metrics.get("optimized"),
@@ -432,16 +478,10 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
             "fit": fit.key, "plan": plan.key, "execute": execution.key}
 
 
-# achieved in execution: the largest via-point error <= 5 cm; the pendulum: its final angle within 0.1 rad of upright;
-# judged on the final state of a run that neither diverged nor fell (a run that lost tracking of its plan but ends
-# at the goal achieved the task; its status says it did not follow the plan)
-ACHIEVED_TOL = 0.05  # m, a via-point's executed error where the task states no criterion of its own
-
-
 def summary(episodes: list[dict], wall: float) -> dict:
     """The ``--json`` metrics: per-episode lists and the first success."""
     keys = ("gp_error", "gp_error_heldout", "gp_nrmse_joint", "gp_nrmse_heldout_joint", "rmse_planned_executed",
-            "task_error", "planned_task_error", "achieved", "fit_time_s", "plan_time_s", "execute_time_s",
+            "task_error", "task_unit", "planned_task_error", "achieved", "fit_time_s", "plan_time_s", "execute_time_s",
             "n_points", "optimized", "execution_status", "executed_seconds", "data_steps", "data_truncated",
             "torque_saturation")
     out: dict[str, Any] = {k: [e.get(k) for e in episodes] for k in keys}

@@ -63,11 +63,9 @@ def outcome_notes(outcome: Outcome) -> list[str]:
     m = outcome.metrics if isinstance(outcome.metrics, dict) else {}
     notes = []
     if outcome.stage == "execute" and isinstance(m.get("task"), dict):   # each term in its unit, the worst named
-        from planning.costs import task_line
+        from stages.evaluate.metrics import executed_task, task_note
 
-        task = {**m["task"], "achieved": bool(m["task"]["achieved"]) and outcome.status == "ok"}
-        notes.append(task_line(task) + ("" if outcome.status == "ok" or not m["task"]["achieved"]
-                                           else f", status {outcome.status}"))
+        notes.append(task_note(executed_task(m["task"], str(outcome.status))))
     elif outcome.stage == "execute" and m.get("via_point_errors"):   # an entry from before the task verdict
         from stages.evaluate.summary import EXECUTED_VIA_TOL, executed_achieved, largest_via_error
 
@@ -97,14 +95,20 @@ def outcome_notes(outcome: Outcome) -> list[str]:
 
 
 def evaluation_notes(m: dict) -> list[str]:
-    """An evaluation's headline: the plan's final cost and the worst via-point error of the plan (and of
-    its execution), each with its term's name (m or rad, the term's unit)."""
+    """An evaluation's headline: the plan's final cost and the task verdict of the plan (and of its
+    execution: execute's judgement), the worst term named in its unit; an evaluation from before the
+    verdicts: the worst via-point error."""
+    from stages.evaluate.metrics import task_note
     from stages.evaluate.summary import largest_via_error
 
     notes = []
     if isinstance(m.get("final_cost"), (int, float)):
         notes.append(f"final cost {m['final_cost']:.4g}")
-    for key, what in (("via_point_errors", "planned"), ("executed_via_point_errors", "executed")):
+    for key, vkey, what in (("via_point_errors", "task", "planned"),
+                            ("executed_via_point_errors", "executed_task", "executed")):
+        if isinstance(m.get(vkey), dict):
+            notes.append(f"{what} {task_note(m[vkey])}")
+            continue
         errs = m.get(key) or {}
         err = largest_via_error({"via_point_errors": errs})
         name = next((k for k, v in errs.items() if not k.startswith("r_sole")

@@ -18,7 +18,9 @@ crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the calle
   scaled so that it is Drake's centre of mass, which counts the links welded to the world (a fixed
   base) that Pinocchio's universe carries;
 - ``control`` (with its target, its per-joint weights as activation weights) ``ResidualModelControl``;
-  toward gravity (``planning.costs.ControlGravity``) ``ResidualModelControlGrav``; ``control_limit`` the control under
+  toward gravity (``planning.costs.ControlGravity``) ``ResidualModelControlGrav`` (on a model that damps its joints
+  a Python residual on the control, as raico's term: crocoddyl's measures the damped actuation's torque);
+  ``control_limit`` the control under
   ``ActivationModelQuadraticBarrier`` (raico's squared hinge); an inequality on joint positions
   whose rows are +-unit vectors (``joint_limit``) the state under a quadratic barrier.
 
@@ -103,6 +105,31 @@ if crocoddyl is not None:
         def createData(self, collector):
             return _OwnKinematicsData(self, collector)
 
+    class _ControlGravityResidual(crocoddyl.ResidualModelAbstract):
+        """``u - g(q)`` on the control ``u`` itself (N m, Pinocchio's generalized gravity ``g``): raico's
+        ``ControlGravity``. crocoddyl's ``ResidualModelControlGrav`` measures the actuation's torque instead,
+        ``u - D v`` under a damped actuation (a model file's ``<dynamics damping>``), so its cost differs
+        there from raico's by the damping torque (and its Jacobian leaves out that torque's ``-D``)."""
+
+        def __init__(self, state, nu: int):
+            crocoddyl.ResidualModelAbstract.__init__(self, state, state.nv, nu, True, False, True)
+            self.pmodel = state.pinocchio
+
+        def calc(self, data, x, u=None):
+            q = np.asarray(x)[:self.state.nq]
+            g = pin.computeGeneralizedGravity(self.pmodel, data.pdata, q)
+            data.r[:] = (-g if u is None else np.asarray(u) - g)
+
+        def calcDiff(self, data, x, u=None):
+            q = np.asarray(x)[:self.state.nq]
+            Rx = np.zeros((self.state.nv, self.state.ndx))
+            Rx[:, :self.state.nv] = -pin.computeGeneralizedGravityDerivatives(self.pmodel, data.pdata, q)
+            assign(data.Rx, Rx)
+            if u is not None:
+                assign(data.Ru, np.eye(self.state.nv))
+
+        def createData(self, collector):
+            return _OwnKinematicsData(self, collector)
 
 
 def _diag(C: np.ndarray, what: str) -> np.ndarray:
@@ -161,8 +188,13 @@ def items_control(term, state, nu, model, smap, robot):
 
 
 def items_control_gravity(term, state, nu, model, smap, robot):
-    """u - g(q), Pinocchio's generalized gravity."""
-    return [(crocoddyl.ResidualModelControlGrav(state, nu), crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c)))]
+    """u - g(q), Pinocchio's generalized gravity: crocoddyl's ``ResidualModelControlGrav`` on an undamped
+    model, raico's own residual on the control where the model damps its joints (crocoddyl's would
+    measure the damped actuation's torque ``u - D v``, see ``_ControlGravityResidual``)."""
+    act = crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c))
+    if np.any(np.asarray(model.damping) != 0):
+        return [(_ControlGravityResidual(state, nu), act)]
+    return [(crocoddyl.ResidualModelControlGrav(state, nu), act)]
 
 
 def items_control_limit(term, state, nu, model, smap, robot):

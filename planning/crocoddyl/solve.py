@@ -215,9 +215,6 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
     state = crocoddyl.StateMultibody(pmodel)
     D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
-    if np.any(D != 0) and any(isinstance(t, ControlGravity) for t in control_costs):
-        raise NotExpressible("crocoddyl: its control-gravity residual measures the actuation's torque u - D v "
-                             "against gravity, raico's term the control u: the model file damps its joints")
     actuation = (DampedActuation(state, D) if np.any(D != 0)
                  else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)

@@ -16,8 +16,8 @@ Execution status, first that applies:
   the fixed-base model along the plan (left sole at the world origin, as on the free robot
   at the start). A plan whose initial posture cannot stand on flat ground (its soles not
   level: ``plants.free_nao``) has fallen at t = 0;
-- ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` at
-  some sample;
+- ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` (rad; on a
+  prismatic joint ``TRACKING_LOST_M``, m) at some sample;
 - ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
   limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than
   ``LIMIT_TOL`` elsewhere) or some actuator is at its effort limit (the controller asks for
@@ -41,6 +41,7 @@ FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
 FALL_TORSO_TILT = 0.5  # rad, angle between the executed and the planned torso z axes
 FOOT_LIFT = 0.01  # m, a sole's lowest corner above its planned height
 TRACKING_LOST = 0.5  # rad, largest planned-vs-executed joint error
+TRACKING_LOST_M = 0.1  # m, the same on a prismatic joint (a lift: 0.5 m would be its whole range)
 LIMITS_SHARE = 0.2  # share of the samples with a joint at a position limit or an actuator at its effort limit
 LIMIT_TOL = 0.01  # rad, a joint within this of a position limit is at it
 CONTACT_TOL = 1e-3  # m, a sole corner this close to the ground (or below) is in contact ...
@@ -50,6 +51,35 @@ THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_
               "foot_lift_m": FOOT_LIFT, "tracking_lost_rad": TRACKING_LOST, "limits_share": LIMITS_SHARE,
               "limit_tol_rad": LIMIT_TOL, "contact_tol_m": CONTACT_TOL}
 STANDING = ("fall_torso_drop_m", "fall_torso_tilt_rad", "foot_lift_m", "contact_tol_m")  # the free-standing Nao's only
+
+
+# ----------------------------------------------------------------------------- "task achieved", one judgement
+def executed_task(task: dict | None, status: str) -> dict | None:
+    """Execute's judgement of an execution (the ``execute`` line, ``learn`` and ``evaluate`` all use it): the
+    task verdict of its trajectory (``metrics["task"]``, :func:`planning.costs.task_verdict`: every via-point
+    term within its tolerance, in its unit) achieved only where the execution's ``status`` is ``ok`` too;
+    the verdict's fields plus ``terms_within`` (the terms' own verdict) and ``status``. None without terms."""
+    if not isinstance(task, dict):
+        return None
+    within = bool(task["achieved"])
+    return {**task, "achieved": within and status == "ok", "terms_within": within, "status": status}
+
+
+def task_note(verdict: dict) -> str:
+    """One verdict as a line: ``task missed: worst term 'reach' 0.0157 m > 0.01 m (position)``, with
+    ``, status tracking-lost`` where the terms were within their tolerances but the execution's status was
+    not ok (:func:`executed_task`)."""
+    from planning.costs import task_line
+
+    tail = (f", status {verdict['status']}" if verdict.get("terms_within") and not verdict["achieved"]
+            and verdict.get("status") not in (None, "ok") else "")
+    return task_line(verdict) + tail
+
+
+def prismatic_joints(robot) -> np.ndarray:
+    """``(n_q,)`` bool: which of ``robot``'s planning joints are prismatic (their unit m, N)."""
+    return np.array([robot.plant.GetJointByName(name).type_name() == "prismatic" for name in robot.joint_names],
+                    bool)
 
 
 def used_thresholds(standing: bool) -> dict[str, float]:
@@ -181,8 +211,12 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
     K = len(X)
     finite = np.all(np.isfinite(X), axis=1)
     Q, Qp = X[:, :n], X_plan[:, :n]
+    prismatic = prismatic_joints(robot)
+    # a joint's error in TRACKING_LOST's terms: a prismatic joint's m scaled by TRACKING_LOST / TRACKING_LOST_M
+    lost_scale = np.where(prismatic, TRACKING_LOST / TRACKING_LOST_M, 1.0)
     with np.errstate(invalid="ignore"):
         err = np.nanmax(np.abs(Q - Qp), axis=1) if finite.any() else np.full(K, np.inf)
+        lost_err = np.nanmax(np.abs(Q - Qp) * lost_scale, axis=1) if finite.any() else np.full(K, np.inf)
         rmse = float(np.sqrt(np.mean((Q - Qp) ** 2))) if finite.all() else float("inf")
     pos_lim = position_limit_flags(Q, Qp, robot.lower, robot.upper)
     e = np.asarray(effort_at_limit, bool).reshape(len(effort_at_limit), -1)[:K - 1]
@@ -201,7 +235,7 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
         fell = flags["torso_dropped"] | flags["torso_tilted"] | flags["foot_lifted"] | \
             flags["initial_posture_does_not_stand"]
         m["fall_conditions"] = {k: first_true(v) * dt if first_true(v) is not None else None for k, v in flags.items()}
-    status, t_fail, reason = execution_status(finite, fell, err, at_limit, dt)
+    status, t_fail, reason = execution_status(finite, fell, lost_err, at_limit, dt)
     limited = {}
     for i, name in enumerate(robot.joint_names):
         shares = {"position": float(np.mean(pos_j[:, i]))}
@@ -213,10 +247,13 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
         worst = sorted(limited.items(), key=lambda kv: -max(kv[1].values()))[:3]
         reason += ": " + ", ".join(f"{j} " + " and ".join(f"{k} {v:.0%}" for k, v in sh.items() if v > 0)
                                    for j, sh in worst)
-    if status == "tracking-lost":  # the joint that lost it
+    if status == "tracking-lost":  # the joint that lost it, in its unit
         k = int(round(t_fail / dt))
-        j = int(np.nanargmax(np.abs(Q[k] - Qp[k])))
-        reason += f": {robot.joint_names[j]} {abs(Q[k, j] - Qp[k, j]):.2f} rad from its plan"
+        j = int(np.nanargmax(np.abs(Q[k] - Qp[k]) * lost_scale))
+        if prismatic.any():
+            reason = reason.replace(f"above {TRACKING_LOST} rad",
+                                    f"above {TRACKING_LOST} rad ({TRACKING_LOST_M} m on a prismatic joint)")
+        reason += f": {robot.joint_names[j]} {abs(Q[k, j] - Qp[k, j]):.2f} {'m' if prismatic[j] else 'rad'} from its plan"
     if status == "fell":
         why = [k.replace("_", " ") for k, t in m["fall_conditions"].items() if t == t_fail]
         reason = f"{reason}: {', '.join(why)}"
@@ -232,7 +269,8 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
          "limits_fraction": float(np.mean(at_limit)),
          "limited_joints": limited,
          "task": task_verdict(task_errors(problem, X)),
-         "thresholds": used_thresholds(nao is not None), **m}
+         "thresholds": {**used_thresholds(nao is not None),
+                        **({"tracking_lost_m": TRACKING_LOST_M} if prismatic.any() else {})}, **m}
     if nao is not None:
         margin = nao["cog_margin"]
         with np.errstate(invalid="ignore"):

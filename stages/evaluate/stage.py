@@ -1,8 +1,11 @@
 """The evaluate stage: one run's metrics from its plan and, optionally, its rollout.
 
-``evaluation.json``: final cost, via-point errors, iterations, iterations to a 0.1% relative
-cost change, wall time and, with a rollout, the executed via-point errors and the
-planned-vs-executed RMSE; ``cost.png``: cost per iteration.
+``evaluation.json``: final cost, via-point errors, the plan's task verdict (``task``: every via-point
+term against its tolerance in its unit, the worst named, as the plan stage judged it), iterations,
+iterations to a 0.1% relative cost change, wall time and, with a rollout, the executed via-point
+errors, the execution's task verdict (``executed_task``: execute's judgement,
+``stages.evaluate.metrics.executed_task``) and the planned-vs-executed RMSE; ``cost.png``: cost per
+iteration.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.base import Artifact, Stage, StageConfig, StageOutput
+from stages.evaluate.metrics import executed_task
 from stages.registry import DESCRIPTIONS
 
 EVALUATION_FILE = "evaluation.json"
@@ -54,11 +58,12 @@ def evaluate(plan: Artifact, rollout: Artifact | None) -> dict:
                "initial_cost": pm.get("initial_cost"), "final_cost": pm.get("final_cost"),
                "cost_ratio": pm.get("cost_ratio"), "iterations": pm.get("iterations"),
                "iterations_to_0.1%": iterations_to(costs), "wall_time_s": pm.get("wall_time_s"),
-               "via_point_errors": pm.get("via_point_errors")}
+               "via_point_errors": pm.get("via_point_errors"), "task": pm.get("task")}
     if rollout is not None:
         rm = rollout.metrics
         metrics.update(rollout=rollout.key, execution_status=rollout.status,
                        executed_via_point_errors=rm.get("via_point_errors"),
+                       executed_task=executed_task(rm.get("task"), str(rollout.status)),
                        rmse_planned_executed=rm.get("rmse_planned_executed"),
                        **{k: rm[k] for k in rm if k.startswith("cog_") or k == "torque_saturation"})
     return metrics

@@ -65,8 +65,9 @@ class PlanConfig(StageConfig):
                       "FDDP and its ablations, where crocoddyl is installed).",
             "alpha": "R-AICO regularization alpha (raico only).",
             "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
-            "q0_std": "Std of q0 around the default posture (rad); default 0.05 for the built-in tasks (the "
-                      "thesis's), 0 for a problem file (its start posture exactly).",
+            "q0_std": "Std of q0 around the default posture on a revolute joint (rad); default 0.05 for the built-in "
+                      "tasks (the thesis's), 0 for a problem file (its start posture exactly).",
+            "q0_std_prismatic": "Std of q0 around the default posture on a prismatic joint (m).",
             "x0_nudge": "Added to every joint of q0 (rad) after it is drawn: a perturbation test of the start (1e-9: "
                         "does a run's result change far more than its start, a chaotic run?).",
             "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
@@ -113,6 +114,7 @@ class PlanConfig(StageConfig):
     iterations: int = 50
     seed: int = 0
     q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
+    q0_std_prismatic: float = 0.0  # m, a prismatic joint's q0 std (no built-in plant has one)
     x0_nudge: float = 0.0  # rad added to every joint of q0 after it is drawn (a perturbation test)
     relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
     model: str | None = None
@@ -158,6 +160,8 @@ class PlanConfig(StageConfig):
             raise ValueError(f"x0-nudge must be at most 1e-3 rad in size (a perturbation), got {self.x0_nudge}")
         if self.q0_std is not None and not 0 <= self.q0_std <= 1.0:
             raise ValueError("q0-std must be in [0, 1] rad")
+        if not 0 <= self.q0_std_prismatic <= 0.5:
+            raise ValueError("q0-std-prismatic must be in [0, 0.5] m")
         if self.sigma is not None and self.dynamics != "learned":
             raise ValueError("--sigma-star needs --dynamics learned (the GP's variance)")
         if self.sigma is not None and not 0 <= self.sigma <= 100:
@@ -387,13 +391,15 @@ class PlanOutput:
         return b
 
 
-def initial_posture(robot: Robot, q0_std: float, seed: int) -> np.ndarray:
-    """``q0 = default + N(0, q0_std^2)`` (rad), clipped to the joint limits (a robot cannot start
-    outside them; the Nao's hands default to their lower limit), widened to hold the default
-    posture where a model file's start posture lies outside them."""
+def initial_posture(robot: Robot, q0_std: float, seed: int, q0_std_prismatic: float = 0.0) -> np.ndarray:
+    """``q0 = default + N(0, q0_std^2)`` (rad; ``q0_std_prismatic`` m on a prismatic joint), clipped to the
+    joint limits (a robot cannot start outside them; the Nao's hands default to their lower limit), widened
+    to hold the default posture where a model file's start posture lies outside them."""
     rng = np.random.default_rng(seed)
     lower, upper = np.minimum(robot.lower, robot.default_q), np.maximum(robot.upper, robot.default_q)
-    return np.clip(robot.default_q + q0_std * rng.standard_normal(robot.n_q), lower, upper)
+    prismatic = np.array([robot.plant.GetJointByName(n).type_name() == "prismatic" for n in robot.joint_names])
+    std = np.where(prismatic, q0_std_prismatic, q0_std)
+    return np.clip(robot.default_q + std * rng.standard_normal(robot.n_q), lower, upper)
 
 
 def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
@@ -546,7 +552,8 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it)."""
     cfg = cfg.normalized()
     robot, task = robot_and_task(cfg)
-    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed) + cfg.x0_nudge
+    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed,
+                         cfg.q0_std_prismatic) + cfg.x0_nudge
     params = model.arrays("model.npz") if model is not None else None
     if model is not None:
         check_model_robot(model, robot)

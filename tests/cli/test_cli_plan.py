@@ -364,7 +364,7 @@ def test_every_command_has_help(command):
 
 def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_path):
     """A diverged plan's reason is in its outcome line (not only in `raico show`); `raico evaluate` prints the
-    final cost and the worst via-point error with its term."""
+    final cost and the plan's task verdict, its worst term in its unit."""
     res = runner.invoke(app, ["plan", "--plant", "arm5", "--task", "reach", "--dynamics", "analytic", "--solver",
                               "aico", "--iterations", "3", "--no-record", "--json", "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
@@ -377,8 +377,10 @@ def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_
     res = runner.invoke(app, ["evaluate", "--plan", plan["key"], "--json", "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
     m = json.loads(res.stdout)["metrics"]
-    name, err = max(m["via_point_errors"].items(), key=lambda kv: kv[1])
-    assert f"[ok; final cost {m['final_cost']:.4g}; worst planned via-point error {err:.3g} ({name})]" in res.stderr
+    from stages.evaluate.metrics import task_note
+
+    assert m["task"] == plan["metrics"]["task"] and m["task"]["unit"] == "m"
+    assert f"[ok; final cost {m['final_cost']:.4g}; planned {task_note(m['task'])}]" in res.stderr
     assert m["final_cost"] == pytest.approx(plan["metrics"]["final_cost"], rel=1e-9)
 
 

@@ -36,8 +36,9 @@ def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     m = two["metrics"]
     # each episode's line says whether the execution achieved the task, not only that it ran
     lines = [ln for ln in err.splitlines() if ln.startswith("learn episode")]
-    assert len(lines) == 2 and all(("task achieved]" in ln) != ("task missed]" in ln) for ln in lines), err
-    assert all(("task achieved]" in ln) == a for ln, a in zip(lines, m["achieved"]))
+    assert len(lines) == 2 and all(("; task achieved: " in ln) != ("; task missed: " in ln) for ln in lines), err
+    assert all(("; task achieved: " in ln) == a for ln, a in zip(lines, m["achieved"]))
+    assert all("worst term 'theta'" in ln and " rad (end angle)]" in ln for ln in lines)   # the task's own criterion
     assert m["episodes"] == 2 and len(m["gp_error"]) == len(m["task_error"]) == len(m["fit_time_s"]) == 2
     # the GP scored on a fixed held-out babbling set too (never trained on), per joint normalized;
     # how much of each execution fed the data

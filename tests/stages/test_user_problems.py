@@ -123,8 +123,10 @@ def test_gravity_torques_hold_the_robot_still_and_their_jacobian_is_exact(tmp_pa
     assert check_jacobian("dg/dq", G, g.value, q)
 
 
-def test_crocoddyl_refuses_control_toward_gravity_on_damped_joints(tmp_path):
-    """crocoddyl's residual takes the actuation's torque u - D v, raico's term u: one line, not a wrong cost."""
+def test_crocoddyl_costs_control_toward_gravity_on_damped_joints_as_raico(tmp_path):
+    """crocoddyl's own residual takes the actuation's torque u - D v, raico's term u: on damped joints the
+    adapter measures the control itself, so the plan's cost is raico's (tests/planning/
+    test_crocoddyl_damped_gravity.py: per term and derivatives)."""
     from planning import crocoddyl as cm
     from stages.plan.stage import PlanConfig, build_problem
 
@@ -134,8 +136,12 @@ def test_crocoddyl_refuses_control_toward_gravity_on_damped_joints(tmp_path):
     costs = FAR_REACH.format(target=[0.3, 0.0, 0.4]) + 'target = "gravity"\n'
     p = write_problem(tmp_path, "damped", problem_text(str(urdf), {}, costs, T=10, dynamics="analytic"))
     _, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
-    with pytest.raises(cm.NotExpressible, match="damps its joints"):
-        cm.build(problem)
+    cp = cm.build(problem)
+    rng = np.random.default_rng(0)
+    X = problem.x0 + 0.5 * rng.standard_normal((problem.T + 1, problem.x0.size))
+    U = rng.standard_normal((problem.T, problem.n_u))
+    c = problem.cost(X, U)
+    assert abs(cp.cost(X, U) - c) <= 1e-9 * c   # sums over 11 nodes of two recursions' rounding (tests/tolerance.py)
 
 
 # ------------------------------------------------------------------ task achieved, per term kind in its unit
