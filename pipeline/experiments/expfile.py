@@ -480,8 +480,8 @@ def validate(exp: Experiment) -> None:
 
 def identical_seeds(exp: Experiment) -> str | None:
     """One line when some variant runs at several seeds that cannot differ, else None: a plan's seed
-    only draws its initial state ``q0 = default + N(0, q0_std^2)``, and a problem file's ``q0_std``
-    defaults to 0; an execution's seed only draws its noise (``x0_noise``, ``process_noise``)."""
+    only draws its initial state ``q0 = default + N(0, q0_std^2)`` (``q0_std_prismatic`` on a
+    prismatic joint), and a problem file's ``q0_std`` defaults to 0; an execution's seed only draws its noise (``x0_noise``, ``process_noise``)."""
     if exp.stages[0] != "plan":
         return None
     from stages.registry import get_stage
@@ -493,11 +493,13 @@ def identical_seeds(exp: Experiment) -> str | None:
         if len(seeds) < 2:
             continue
         try:
-            q0_std = first_config(exp, Run(v, seeds[0])).normalized().q0_std
+            cfg = first_config(exp, Run(v, seeds[0])).normalized()
         except (BadInput, ValueError):
             continue  # validate() says what is wrong
         ex = {**ex_defaults, **v.options.get("execute", {})}
-        if q0_std == 0 and not ex.get("x0_noise") and not ex.get("process_noise"):
+        # a prismatic joint's own std draws q0 too (on a robot without one the seeds stay alike, unsaid)
+        drawn = cfg.q0_std or getattr(cfg, "q0_std_prismatic", 0.0)
+        if not drawn and not ex.get("x0_noise") and not ex.get("process_noise"):
             same.append(v.label)
     if not same:
         return None
