@@ -435,7 +435,8 @@ def main() -> None:
     rows += scaling_rows(Path(args.artifacts) / "bench")  # and bench/scaling.png
     from bench.model_files import run as model_file_rows
 
-    rows += model_file_rows()  # robots from model files: load times, per-iteration time against joints
+    # robots from model files: load times, per-iteration time against joints (also model_files.json and .md)
+    rows += model_file_rows(Path(args.artifacts))
     rows.append(cached_reproduce_row(Path(args.artifacts)))
     baseline = bench_baseline()
     print_baseline(baseline)
