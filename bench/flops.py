@@ -30,7 +30,7 @@ once after the last iteration).
 
 ``block=False`` counts the dense route of other models instead: ``G = V* C`` (``2 N (N + 1) K``),
 ``B^T G`` (``2 m N K``), ``A^T G`` (``2 N^2 (N + 1)``) in the backward message, ``B H^-1`` (``2 N m^2``)
-and the upper triangle of ``B H^-1 B^T`` (``N^2 m``) in the relinearization.
+and the whole ``B H^-1 B^T`` (``2 N^2 m``: the loops of the sweeps before the block form) in the relinearization.
 
 Lower-order terms (vector updates, copies, the block form's check) are left out; the task messages'
 and the dynamics' own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T``
@@ -66,7 +66,7 @@ def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0, block: bool = True
         relin = 2 * h * m * m + h * h * m
     else:
         products = 2 * N * (N + 1) * K + 2 * m * N * K + 2 * N ** 2 * (N + 1)
-        relin = 2 * N * m * m + N * N * m
+        relin = 2 * N * m * m + 2 * N * N * m
     parts = {
         "forward": N ** 3 / 3 + N ** 3 + N ** 3 + N ** 3 / 3 + 2 * N ** 3 / 3,
         "backward": vstar + products + control,

@@ -1,12 +1,22 @@
-"""Robots from model files: load times and per-iteration time against the number of joints.
+"""Robots from model files: load times and per-iteration time against the number of joints, R-AICO against
+FDDP like for like.
 
-    .venv/bin/python -m bench.model_files
+    .venv/bin/python -m bench.model_files [--artifacts artifacts] [--part loads|robots|scaling ...]
+
+writes ``artifacts/bench/model_files.json`` and ``model_files.md`` (:func:`markdown_page`; the ``models`` block
+of docs/benchmarks.md, ``scripts/readme_numbers.py``); ``make bench`` runs it too (bench/run.py).
 
 - **First load** of a robot from its file in a fresh process with an empty kernel folder: the file
   repaired and parsed into Drake, the compiled tree kernels generated, compiled and checked against
   Drake, the planning problem built (its compiled task messages too). Targets: a 7-DOF arm (xArm7)
   <= 10 s, a 30-DOF humanoid (Talos on a welded sole, 32 joints) <= 60 s. **A later process** with
   the kernels on disk: <= 1 s (the load itself, the interpreter's start and imports not counted).
+- **Like for like**: every time per iteration is the median of the iterations' own wall times as the solvers
+  record them, for R-AICO and for FDDP alike; FDDP's records are made after crocoddyl's solve (no feedback
+  rollout of raico's between its iterations). The setup before the first iteration (crocoddyl's model built
+  from the problem and the start's rollout; R-AICO's first rollout, its cost, the sweeps' buffers) is a column
+  of its own (:func:`_timed_solve`), and beside every row each solver's time to the common cost, the better
+  final cost of the two plus 1 % (:func:`common_cost`; "not reached": a run that never got there).
 - **Scaling**: a serial chain of n links (n = 2 to 32, a URDF written here), a reach of its tip with
   analytic dynamics (T = 100, dt = 0.01): seconds per R-AICO iteration and per crocoddyl FDDP
   iteration (where crocoddyl translates the problem), with the exponent of a least-squares line
@@ -34,11 +44,12 @@
   how it ended (``ended``): one that diverged or did not lower the cost keeps its time, labelled, and
   stays out of the exponents and the ratio to FDDP.
 
-- **Robots** (the Kinova, UR5 and xArm7 problem files, T = 100): seconds per R-AICO and per FDDP
-  iteration and their ratio.
-- **Flops**: beside every R-AICO row, the sweep's flops per iteration from the formulas of
-  :mod:`bench.flops`, the achieved GFLOP/s and its ratio to a one-thread dgemm measured in the same
-  run (a row of its own).
+- **Robots** (the Kinova, UR5 and xArm7 problem files, T = 100): R-AICO's and FDDP's time per iteration and
+  setup, their ratio, each one's time to the common cost; a solver that fails on a robot keeps its row with the
+  reason (and a line on stderr).
+- **Flops**: beside every R-AICO row, the flops of the sweep its iterations run (:mod:`bench.flops`; the robust
+  schedule: the backward messages alone), the achieved GFLOP/s over the iteration's own time and its ratio to a
+  one-thread dgemm measured in the same run (a row of its own).
 
 Not a test: nothing here fails on a slow machine.
 """

@@ -138,24 +138,36 @@ def test_a_robot_a_solver_fails_on_keeps_its_row_with_the_reason(monkeypatch, ca
     assert "UR5 reach: one R-AICO iteration: not timed: ValueError: raico refused" in capsys.readouterr().err
 
 
-def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart(tmp_path):
-    """The bench's FDDP solve: records made after crocoddyl's solve (the same costs as the live recorder's, the
-    infeasible iterates' feedback rollouts included), its setup (the model built) measured apart."""
-    import pytest
-
+def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart(tmp_path, monkeypatch):
+    """The bench's FDDP solve: records made after crocoddyl's solve (the same costs and iterates as the live
+    recorder's, the infeasible first iterate's feedback rollout included: the 4-joint chain's first step leaves
+    gaps), its setup (the model built) measured apart."""
     from planning.solvers import SOLVERS, solve
     from stages.plan.stage import PlanConfig, build_problem
 
     if "fddp" not in SOLVERS:
         pytest.skip("crocoddyl is not installed")
-    f = model_files.chain_problem(2, tmp_path)
+    from planning.crocoddyl import fddp
+    from planning.crocoddyl import solve as croc_solve
+
+    f = model_files.chain_problem(4, tmp_path)
     _, _, problem, _, _ = build_problem(PlanConfig(problem=str(f), bounds="none").normalized())
     live = solve(problem, "fddp", {"iterations": 4})
+    deferred, finish = [], croc_solve._Recorder.finish
+
+    def counted_finish(self):
+        deferred.append(sum(K is not None for *_, K in self.pending))
+        finish(self)
+
+    monkeypatch.setattr(croc_solve._Recorder, "finish", counted_finish)
     res, setup = model_files._timed_solve(problem, "fddp", {"iterations": 4})
+    assert deferred[-1] >= 1   # an infeasible iterate rolled out after the solve
     assert [h.cost for h in res.history] == [h.cost for h in live.history]
     assert setup > 0 and all(h.time_s > 0 for h in res.history)
     assert np.array_equal(res.X_iterations, live.X_iterations, equal_nan=True)   # the callbacks: the same iterates
-    a, setup_a = model_files._timed_solve(problem, "raico", model_files.chain_raico_options(f))
+    with pytest.raises(ValueError, match="record must be"):
+        fddp(problem, record="later")
+    _, setup_a = model_files._timed_solve(problem, "raico", model_files.chain_raico_options(f))
     assert setup_a is not None and setup_a > 0
 
 
@@ -197,3 +209,14 @@ def test_both_solvers_lower_the_cost_of_the_chain(tmp_path, n):
         assert d["ended"] in ("converged", "max-iterations"), (solver, d)
         assert d["final_cost"] < d["start_cost"], (solver, d)
         assert d["setup_s"] is not None and d["setup_s"] > 0 and len(d["costs"]) == len(d["elapsed_s"]) >= 1
+
+
+def test_the_models_block_lives_on_the_benchmarks_page_and_is_the_page_without_its_title(tmp_path):
+    from scripts import readme_numbers
+
+    root = readme_numbers.ROOT
+    assert readme_numbers.home("models") == root / "docs" / "benchmarks.md"
+    page = tmp_path / "model_files.md"
+    page.write_text(model_files.markdown_page({"date": "d", "machine": "m", "rows": []}))
+    block = readme_numbers.models_block(page)
+    assert block.startswith(f"From `{page}`") and "# Per-iteration time" not in block and "Measured by" in block
