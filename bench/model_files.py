@@ -227,38 +227,56 @@ def _timed_solve(problem, solver: str, options: dict):
 
 
 def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:
-    """A solver's timed runs on a problem file (without hard bounds, as FDDP: like for like), ``reps`` solves:
-    ``seconds``, the median of the iterations' own wall times as the solvers record them (no setup; FDDP's records
-    made after its solve) in the median run (by that median); ``setup_s``, the median setup (:func:`_timed_solve`:
-    crocoddyl's model built from the problem and the start's rollout; R-AICO's first rollout, its cost, the
-    sweeps' buffers); that run's ``costs`` and ``elapsed_s`` per iteration (the solver's clock: the iterations'
-    own times summed); the repeats of a step per iteration (R-AICO's relinearizations within the sweeps; 0 for
-    the others), how the run ended (``status``; ``ended``: :func:`_ended`), its start's and its last
-    iteration's cost and the problem's sizes, and ""; or (None, why the solver could not take the problem)."""
+    """One solver's measurement on a problem file: :func:`_per_iteration_details` of it alone."""
+    return _per_iteration_details(problem_file, [(solver, options)], reps)[0]
+
+
+def _per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], reps: int = 3) -> list[tuple[dict | None, str]]:
+    """Solvers' timed runs on a problem file (without hard bounds, as FDDP: like for like), ``reps`` rounds of one
+    solve of each solver in ``specs`` (``(solver, options)``) in turn, so that a shared machine's load falls on
+    them alike. Per solver: ``seconds``, the median of the iterations' own wall times as the solvers record them
+    (no setup; FDDP's records made after its solve) in the median run (by that median); ``setup_s``, the median
+    setup (:func:`_timed_solve`: crocoddyl's model built from the problem and the start's rollout; R-AICO's first
+    rollout, its cost, the sweeps' buffers); that run's ``costs`` and ``elapsed_s`` per iteration (the solver's
+    clock: the iterations' own times summed); the repeats of a step per iteration (R-AICO's relinearizations
+    within the sweeps; 0 for the others), how the run ended (``status``; ``ended``: :func:`_ended`), its start's
+    and its last iteration's cost and the problem's sizes, and ""; or (None, why the solver could not take the
+    problem)."""
     from stages.plan.stage import PlanConfig, build_problem
 
-    own, setups, repeats, runs = [], [], [], []
+    samples: list[list] = [[] for _ in specs]   # per solver: (own median, setup, repeats, result)
+    failed: dict[int, str] = {}
+    problem = None
     for _ in range(reps):
-        _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
-        try:
-            res, setup = _timed_solve(problem, solver, options)
-        except Exception as e:  # noqa: BLE001 - a solver that cannot take the problem: no time, said why
-            return None, f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".rstrip(": ")
-        times = [h.time_s for h in res.history]
-        own.append(float(np.median(times)) if times else float("inf"))
-        setups.append(setup)
-        repeats.append(sum(getattr(h, "repeats", 0) or 0 for h in res.history) / max(1, res.iterations))
-        runs.append(res)
-    i = int(np.argsort(own)[len(own) // 2])   # the median run's own repeats, history and ending
-    res = runs[i]
-    status = str(getattr(res.status, "value", res.status))
-    final = float(res.history[-1].cost) if res.history else float("inf")
-    timed = [s for s in setups if s is not None]
-    return {"seconds": own[i] if res.history else None, "setup_s": float(np.median(timed)) if timed else None,
-            "repeats": repeats[i], "n_x": problem.n_x, "n_u": problem.n_u, "T": problem.T, "status": status,
-            "start_cost": float(res.initial_cost), "final_cost": final,
-            "costs": [float(h.cost) for h in res.history], "elapsed_s": [float(h.elapsed_s) for h in res.history],
-            "ended": _ended(status, float(res.initial_cost), final)}, ""
+        for k, (solver, options) in enumerate(specs):
+            if k in failed:
+                continue
+            _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
+            try:
+                res, setup = _timed_solve(problem, solver, options)
+            except Exception as e:  # noqa: BLE001 - a solver that cannot take the problem: no time, said why
+                failed[k] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".rstrip(": ")
+                continue
+            times = [h.time_s for h in res.history]
+            samples[k].append((float(np.median(times)) if times else float("inf"), setup,
+                               sum(getattr(h, "repeats", 0) or 0 for h in res.history) / max(1, res.iterations), res))
+    out: list[tuple[dict | None, str]] = []
+    for k in range(len(specs)):
+        if k in failed:
+            out.append((None, failed[k]))
+            continue
+        runs = sorted(samples[k], key=lambda r: r[0])
+        own, _, repeats, res = runs[len(runs) // 2]   # the median run's own repeats, history and ending
+        status = str(getattr(res.status, "value", res.status))
+        final = float(res.history[-1].cost) if res.history else float("inf")
+        timed = [r[1] for r in runs if r[1] is not None]
+        out.append(({"seconds": own if res.history else None, "setup_s": float(np.median(timed)) if timed else None,
+                     "repeats": repeats, "n_x": problem.n_x, "n_u": problem.n_u, "T": problem.T, "status": status,
+                     "start_cost": float(res.initial_cost), "final_cost": final,
+                     "costs": [float(h.cost) for h in res.history],
+                     "elapsed_s": [float(h.elapsed_s) for h in res.history],
+                     "ended": _ended(status, float(res.initial_cost), final)}, ""))
+    return out
 
 
 COMMON_WITHIN = 0.01   # the common cost: within 1 % of the better final cost of the two solvers
@@ -393,12 +411,11 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
     rows = []
     for label, rel in ROBOTS:
         options = chain_raico_options(root / rel)
-        a, why = _per_iteration_detail(root / rel, "raico", options)
+        specs = [("raico", options)] + ([("fddp", {"iterations": ITERATIONS})] if "fddp" in SOLVERS else [])
+        (a, why), (f, fwhy) = (_per_iteration_details(root / rel, specs) + [(None, "crocoddyl not installed")])[:2]
         if a is None:
             rows.append(_failed(f"{label}: one R-AICO iteration", why))
             continue
-        f, fwhy = (_per_iteration_detail(root / rel, "fddp", {"iterations": ITERATIONS}) if "fddp" in SOLVERS
-                   else (None, "crocoddyl not installed"))
         row = {"benchmark": f"{label}: one R-AICO iteration", "median_s": a["seconds"], "samples_s": [a["seconds"]],
                "target_s": None, "ratio_to_target": None, "setup_s": a["setup_s"], "repeats_per_iteration": a["repeats"],
                "status": a["status"], "ended": a["ended"], "final_cost": a["final_cost"],
@@ -455,9 +472,9 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
         files = {n: chain_problem(n, Path(tmp)) for n in CHAIN_SIZES}
         for n, f in files.items():
             details: dict[str, dict] = {}
-            for label, solver in solvers:
-                options = chain_raico_options(f) if solver == "raico" else {"iterations": ITERATIONS}
-                d, why = _per_iteration_detail(f, solver, options)
+            specs = [(solver, chain_raico_options(f) if solver == "raico" else {"iterations": ITERATIONS})
+                     for _, solver in solvers]
+            for (label, _), (d, why) in zip(solvers, _per_iteration_details(f, specs)):
                 if d is None:   # left out of the fit, and said so here and on the page
                     fit[label]["skipped"][n] = f"not timed: {why}"
                     print(f"  {label:15s} n={n:3d}  not timed: {why}", flush=True)

@@ -12,6 +12,12 @@ from bench import model_files
 from tests.tolerance import assert_close
 
 
+def _each(monkeypatch, per_iteration) -> None:
+    """``model_files._per_iteration_details`` made of ``per_iteration(f, solver, options, reps)`` per solver."""
+    monkeypatch.setattr(model_files, "_per_iteration_details",
+                        lambda f, specs, reps=3: [per_iteration(f, solver, options, reps) for solver, options in specs])
+
+
 def _detail(seconds, status, start, costs, n=2, setup=0.01):
     """A measurement as ``model_files._per_iteration_detail`` returns it: its iterations' costs, ``seconds``
     each."""
@@ -23,14 +29,14 @@ def _detail(seconds, status, start, costs, n=2, setup=0.01):
 
 def test_a_solver_exception_is_said_with_its_chain_size(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(model_files, "CHAIN_SIZES", (2, 3))
-    real = model_files._per_iteration_detail
+    real = model_files._per_iteration_details
 
     def per_iteration(f, solver, options, reps=3):
-        if solver == "raico" and f.name == "chain3.toml":
-            return real(f, "no-such-solver", options, reps=1)   # the solver registry refuses it: an exception
+        if solver == "raico" and f.name == "chain3.toml":   # the solver registry refuses it: an exception
+            return real(f, [("no-such-solver", options)], reps=1)[0]
         return _detail(1e-3, "max-iterations", 2.0, [1.5, 1.0], n=2), ""
 
-    monkeypatch.setattr(model_files, "_per_iteration_detail", per_iteration)
+    _each(monkeypatch, per_iteration)
     rows = model_files.scaling_rows()
     out = capsys.readouterr().out
     assert "n=  3  not timed: " in out and "no-such-solver" in out
@@ -59,7 +65,8 @@ def test_a_diverged_run_is_labelled_and_left_out_of_the_exponents_and_ratios(mon
             return {**_detail(5.0, "diverged", 10.0, [math.inf], n=n), "repeats": 300.0}, ""
         return _detail(seconds * (2.0 if solver == "raico" else 1.0), "max-iterations", 10.0, [2.0, 1.0], n=n), ""
 
-    monkeypatch.setattr(model_files, "_per_iteration_detail", per_iteration)
+    _each(monkeypatch, per_iteration)
+    monkeypatch.setattr(model_files, "_flops", lambda *args, **kwargs: {})   # the flop columns: test_bench_flops.py
     rows = model_files.scaling_rows(dgemm=10.0)
     raico = next(r for r in rows if r["benchmark"] == "R-AICO per iteration against joints")
     assert raico["joint_sizes"] == [2, 4, 8, 32] and "diverged" in raico["joint_skipped"][16]
@@ -126,12 +133,9 @@ def test_a_robot_a_solver_fails_on_keeps_its_row_with_the_reason(monkeypatch, ca
     from plants.model_file import example_robot_data
 
     if example_robot_data() is None:
-        import pytest
-
         pytest.skip("example-robot-data is not installed: no robot rows")
     monkeypatch.setattr(model_files, "ROBOTS", (("UR5 reach", "problems/examples/ur5_reach.toml"),))
-    monkeypatch.setattr(model_files, "_per_iteration_detail",
-                        lambda f, solver, options, reps=3: (None, f"ValueError: {solver} refused"))
+    _each(monkeypatch, lambda f, solver, options, reps=3: (None, f"ValueError: {solver} refused"))
     rows = model_files.robot_rows()
     assert rows == [{"benchmark": "UR5 reach: one R-AICO iteration", "status": "failed", "ended": "failed",
                      "error": "ValueError: raico refused"}]
