@@ -187,12 +187,6 @@ def chain_problem(n: int, folder: Path) -> Path:
     return path
 
 
-def _per_iteration(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[float | None, str]:
-    """(median seconds per iteration, "") or (None, why the solver could not take the problem)."""
-    detail, why = _per_iteration_detail(problem_file, solver, options, reps)
-    return (None if detail is None else detail["seconds"]), why
-
-
 def _timed_solve(problem, solver: str, options: dict):
     """One solve of ``problem`` and its setup (s): the time from the call to its first iteration's start.
 
@@ -200,7 +194,7 @@ def _timed_solve(problem, solver: str, options: dict):
     the solver) and the rollout of its start and its cost (what ``fddp`` does before crocoddyl's solve,
     timed here the same way); its records are made after the solve (``record="after"``: no feedback rollout of
     an infeasible iterate between crocoddyl's iterations). R-AICO and the others: the first callback's
-    time, less the call's and the first iteration's own (the solver's loop calls it as the iteration's
+    time, less the call's and the solver's clock at that record (the solver's loop calls it as the iteration's
     clock stops); ``None`` when the first iteration diverged (no callback)."""
     from planning.solvers import solve
 
@@ -209,21 +203,19 @@ def _timed_solve(problem, solver: str, options: dict):
 
         t0 = time.perf_counter()
         cp = build(problem)
-        t1 = time.perf_counter()
         U0 = np.zeros((problem.T, problem.n_u))
         problem.cost(cp.rollout(U0), U0)
-        setup = (t1 - t0) + (time.perf_counter() - t1)
+        setup = time.perf_counter() - t0
         return solve(problem, solver, options, croc=cp, record="after"), setup
     first: list[float] = []
 
     def stamp(rec, *_) -> None:  # noqa: ANN001
         if not first:
-            first.append(time.perf_counter())
+            first.append(time.perf_counter() - rec.elapsed_s)   # when the solver's clock started
 
     t0 = time.perf_counter()
     res = solve(problem, solver, options, callback=stamp)
-    setup = first[0] - t0 - res.history[0].time_s if first and res.history else None
-    return res, setup
+    return res, (first[0] - t0 if first else None)
 
 
 def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:

@@ -3,6 +3,7 @@ diverged keeps its row, labelled, out of the exponents and the ratios; the chain
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -224,3 +225,13 @@ def test_the_models_block_lives_on_the_benchmarks_page_and_is_the_page_without_i
     page.write_text(model_files.markdown_page({"date": "d", "machine": "m", "rows": []}))
     block = readme_numbers.models_block(page)
     assert block.startswith(f"From `{page}`") and "# Per-iteration time" not in block and "Measured by" in block
+
+
+def test_the_bench_block_leaves_the_per_iteration_rows_to_the_models_block(tmp_path):
+    from scripts.readme_numbers import bench_block
+
+    rows = [{"benchmark": "chain of 4 joints: one R-AICO iteration", "median_s": 0.002, "setup_s": 0.01},
+            {"benchmark": "xArm7 (7 joints): first load", "median_s": 1.7, "target_s": 10.0}]
+    (tmp_path / "results.json").write_text(json.dumps({"results": rows}))
+    block = bench_block(tmp_path / "results.json")
+    assert "| xArm7 (7 joints): first load | 1.70 s | 10.00 s | 0.17 |" in block and "chain of 4" not in block
