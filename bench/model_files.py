@@ -66,6 +66,7 @@ import tempfile
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -459,7 +460,7 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
     if "fddp" in SOLVERS:
         solvers.insert(0, ("crocoddyl FDDP", "fddp"))   # first: its time goes beside R-AICO's
     per_solver: dict[str, list[dict]] = {label: [] for label, _ in solvers}
-    fit = {label: {"sizes": [], "times": [], "setup": [], "skipped": {}, "ended": {}} for label, _ in solvers}
+    fit: dict[str, dict[str, Any]] = {label: {"sizes": [], "times": [], "setup": [], "skipped": {}, "ended": {}} for label, _ in solvers}
     with tempfile.TemporaryDirectory() as tmp:
         files = {n: chain_problem(n, Path(tmp)) for n in CHAIN_SIZES}
         for n, f in files.items():
