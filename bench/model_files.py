@@ -188,6 +188,14 @@ def chain_problem(n: int, folder: Path) -> Path:
     return path
 
 
+def records_after(solver: str) -> dict:
+    """The keyword that keeps raico's bookkeeping out of a crocoddyl solver's iterations (its records made after its
+    solve: ``planning.crocoddyl.fddp``'s ``record="after"``); none for raico's own solvers."""
+    from planning.solvers import CROCODDYL_SOLVERS
+
+    return {"record": "after"} if solver in CROCODDYL_SOLVERS else {}
+
+
 def _timed_solve(problem, solver: str, options: dict):
     """One solve of ``problem`` and its setup (s): the time from the call to its first iteration's start.
 
@@ -199,7 +207,7 @@ def _timed_solve(problem, solver: str, options: dict):
     clock stops); ``None`` when the first iteration diverged (no callback)."""
     from planning.solvers import solve
 
-    if solver.startswith("fddp") or solver == "boxfddp":
+    if records_after(solver):
         from planning.crocoddyl import build
 
         t0 = time.perf_counter()
@@ -207,7 +215,7 @@ def _timed_solve(problem, solver: str, options: dict):
         U0 = np.zeros((problem.T, problem.n_u))
         problem.cost(cp.rollout(U0), U0)
         setup = time.perf_counter() - t0
-        return solve(problem, solver, options, croc=cp, record="after"), setup
+        return solve(problem, solver, options, croc=cp, **records_after(solver)), setup
     first: list[float] = []
 
     def stamp(rec, *_) -> None:  # noqa: ANN001

@@ -293,9 +293,11 @@ def bench_baseline(task: str = "reach") -> dict:
 
     if "fddp" not in SOLVERS:
         return {"skipped": "crocoddyl not installed (the extra raico[baseline]: make install)"}
+    from bench.model_files import records_after
+
     results = {}
-    for label, solver, opts in BASELINE_SOLVERS:
-        results[label] = solve(_problem("arm5", task, "analytic"), solver, opts)
+    for label, solver, opts in BASELINE_SOLVERS:   # crocoddyl's records made after its solve, as in bench.model_files
+        results[label] = solve(_problem("arm5", task, "analytic"), solver, opts, **records_after(solver))
     ref = results["R-AICO a=1"]
     target = 1.1 * ref.cost
     budget = ref.history[-1].elapsed_s

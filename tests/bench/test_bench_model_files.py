@@ -170,6 +170,7 @@ def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart
     assert [h.cost for h in res.history] == [h.cost for h in live.history]
     assert setup > 0 and all(h.time_s > 0 for h in res.history)
     assert np.array_equal(res.X_iterations, live.X_iterations, equal_nan=True)   # the callbacks: the same iterates
+    assert model_files.records_after("boxfddp") == {"record": "after"} and model_files.records_after("raico") == {}
     with pytest.raises(ValueError, match="record must be"):
         fddp(problem, record="later")
     _, setup_a = model_files._timed_solve(problem, "raico", model_files.chain_raico_options(f))
