@@ -28,6 +28,7 @@ import argparse
 import json
 import math
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -195,17 +196,27 @@ def _talos_example(problem):
     cb = Stop10()
     solver.setCallbacks([cb])
     solver.solve()
-    n, xs, us, K = cb.stop_at
-    history = history[:n]
 
     class Stopped:  # the solver's state at 1.0.0's stop
         pass
 
     s = Stopped()
-    s.xs, s.us, s.K = xs, us, K
+    if cb.stop_at is None:   # 1.0.0's rule never met: crocoddyl's own last iterate, said so
+        why = (f"crocoddyl 1.0.0's rule sum ||Q_u||^2 < 1e-9 never met in {len(history)} DDP iterations: "
+               "crocoddyl 3's own stop (no joint damping)")
+        print(f"talos_arm, crocoddyl 1.0's example: {why}", file=sys.stderr, flush=True)
+        s.xs, s.us, s.K = [np.array(x) for x in solver.xs], [np.array(u) for u in solver.us], \
+            [np.array(k) for k in solver.K]
+        status = Status.MAX_ITERATIONS
+    else:
+        n, s.xs, s.us, s.K = cb.stop_at
+        history = history[:n]
+        why = "crocoddyl DDP stopped by crocoddyl 1.0.0's rule sum ||Q_u||^2 < 1e-9 (no joint damping)"
+        status = Status.CONVERGED
+    if not history:
+        raise RuntimeError("crocoddyl's DDP ran no iteration on the Talos arm's example")
     croc = history[-1].cost
-    res = result(problem, s, history, Status.CONVERGED, "crocoddyl DDP stopped by crocoddyl 1.0.0's rule "
-                 "sum ||Q_u||^2 < 1e-9 (no joint damping)", math.nan, s, None, cp)
+    res = result(problem, s, history, status, why, math.nan, s, None, cp)
     return res, croc
 
 

@@ -10,7 +10,8 @@ the semi-implicit Euler step's block form (``A = J + e A_b``, ``B = e B_b``: ``e
 ``A_b``, ``B_b`` the velocity rows, ``h = N/2`` joints; the route of every model-file robot):
 
 - forward message: ``P = S^-1 + R`` factored (``N^3/3``), ``W = R^-T A^T`` (``N^3``), ``S = W^T W +
-  Qbar`` (``N^3``), ``S`` factored (``N^3/3``) and inverted (``N^3``): ``11/3 N^3``;
+  Qbar`` (its upper triangle: ``N^3``), ``S`` factored (``N^3/3``) and inverted from its factor
+  (``R^-T`` and the upper triangle of ``R^-1 R^-T``, each ``N^3/3``): ``10/3 N^3``;
 - backward message: ``V*`` (``(I + q P') V = [P' | p']`` by Cholesky: ``N^3/3 + 2 N^2 (N + 1)``; the
   truncated series taken where ``q ||P'||`` is small costs about as much), then the products in the
   block form from ``E1 = e^T V* e``: ``E1 B_b`` (``2 h^2 m``), ``Z1 = E1 A_b`` (``2 h^2 N``), the
@@ -18,18 +19,26 @@ the semi-implicit Euler step's block form (``A = J + e A_b``, ``B = e B_b``: ``e
   ``K = m + N + 1``), ``V* a`` (``2 N^2``); the ``m x m`` factor (``m^3/3``), its two solves
   (``2 m^2 (N + 1)``) and the upper triangle of ``Kmat^T Kmat`` (``m N^2``);
 - two beliefs (each a factor ``N^3/3`` and two triangular solves ``2 N^2``);
-- the dynamics' relinearization: ``B_b H^-1`` (``2 h m^2``) and the upper triangle of
-  ``B_b H^-1 B_b^T`` (``h^2 m``).
+- the dynamics' relinearization, at a repeat of a step only (the sweep starts from the iteration's
+  linearization): ``B_b H^-1`` (``2 h m^2``) and the upper triangle of ``B_b H^-1 B_b^T`` (``h^2 m``).
+
+Which of them an iteration runs: with relinearizations in the sweeps (``theta`` finite, the fixed and
+adaptive schedules) a step's forward message, backward message and two beliefs (``forward=True``);
+without (``theta = inf``, the robust schedule ``raico plan`` gives a problem file) the backward message
+only (``forward=False``: the forward messages could not change the controller, the beliefs are made
+once after the last iteration).
 
 ``block=False`` counts the dense route of other models instead: ``G = V* C`` (``2 N (N + 1) K``),
 ``B^T G`` (``2 m N K``), ``A^T G`` (``2 N^2 (N + 1)``) in the backward message, ``B H^-1`` (``2 N m^2``)
-and the upper triangle of ``B H^-1 B^T`` (``N^2 m``) in the relinearization.
+and the whole ``B H^-1 B^T`` (``2 N^2 m``: the loops of the sweeps before the block form) in the relinearization.
 
 Lower-order terms (vector updates, copies, the block form's check) are left out; the task messages'
 and the dynamics' own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T``
 such steps, and for each repeat of a step within the sweep (a relinearization where the belief moved
 farther than theta) its dynamics relinearization and one belief (a repeat in the backward sweep also
 redoes the backward message's products from the kept ``V*``: not counted, so the count is a floor).
+``tests/bench/test_bench_flops.py`` counts the operations of these loops one by one (scalar loops
+with the kernels' index ranges, on small sizes) and checks each part's cubic term against them.
 
 :func:`dgemm_rate` times numpy's ``matmul`` (OpenBLAS) on square matrices with one BLAS thread: this
 machine's single-core dense rate, the physical limit the sweeps are compared with. The achieved
@@ -45,9 +54,10 @@ import time
 import numpy as np
 
 
-def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0, block: bool = True) -> dict:
+def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0, block: bool = True, forward: bool = True) -> dict:
     """Flops of one R-AICO sweep: per time step, per iteration (``T`` steps and ``repeats`` repeats of
-    a step) and by part; ``block``: the semi-implicit Euler block form (else the dense products)."""
+    a step) and by part; ``block``: the semi-implicit Euler block form (else the dense products);
+    ``forward``: the forward messages and beliefs run at every step (else the backward messages alone)."""
     K, h = m + N + 1, N / 2
     vstar = N ** 3 / 3 + 2 * N ** 2 * (N + 1)
     control = m ** 3 / 3 + 2 * m ** 2 * (N + 1) + m * N ** 2
@@ -56,15 +66,15 @@ def sweep_flops(N: int, m: int, T: int, repeats: float = 0.0, block: bool = True
         relin = 2 * h * m * m + h * h * m
     else:
         products = 2 * N * (N + 1) * K + 2 * m * N * K + 2 * N ** 2 * (N + 1)
-        relin = 2 * N * m * m + N * N * m
+        relin = 2 * N * m * m + 2 * N * N * m
     parts = {
-        "forward": N ** 3 / 3 + N ** 3 + N ** 3 + N ** 3 / 3 + N ** 3,
+        "forward": N ** 3 / 3 + N ** 3 + N ** 3 + N ** 3 / 3 + 2 * N ** 3 / 3,
         "backward": vstar + products + control,
         "beliefs": 2 * (N ** 3 / 3 + 2 * N ** 2),
         "dynamics relinearization": relin,
     }
-    per_step = float(sum(parts.values()))
-    per_repeat = parts["dynamics relinearization"] + parts["beliefs"] / 2
+    per_step = float(parts["backward"] + (parts["forward"] + parts["beliefs"] if forward else 0.0))
+    per_repeat = parts["dynamics relinearization"] + parts["beliefs"] / 2 if forward else 0.0
     return {"per_step": per_step, "per_iteration": per_step * T + per_repeat * repeats,
             "parts": {k: float(v) for k, v in parts.items()}}
 
@@ -110,10 +120,10 @@ def backward_sweep_rate(problem, reps: int = 5) -> dict:
 
 
 def flop_fields(N: int, m: int, T: int, seconds_per_iteration: float, dgemm_gflops: float,
-                repeats: float = 0.0) -> dict:
-    """The flop columns of an R-AICO row (``repeats``: per iteration): flops per step and per
-    iteration, the achieved GFLOP/s and its ratio to the measured ``dgemm`` rate."""
-    f = sweep_flops(N, m, T, repeats)
+                repeats: float = 0.0, forward: bool = True) -> dict:
+    """The flop columns of an R-AICO row (``repeats``: per iteration; ``forward``: see :func:`sweep_flops`):
+    flops per step and per iteration, the achieved GFLOP/s and its ratio to the measured ``dgemm`` rate."""
+    f = sweep_flops(N, m, T, repeats, forward=forward)
     gflops = f["per_iteration"] / seconds_per_iteration / 1e9
     return {"flops_per_step": f["per_step"], "flops_per_iteration": f["per_iteration"],
             "gflops": gflops, "dgemm_gflops": dgemm_gflops, "ratio_to_dgemm": gflops / dgemm_gflops}
@@ -123,6 +133,7 @@ if __name__ == "__main__":
     rate = dgemm_rate()
     print(f"dgemm (one thread): {rate:.1f} GFLOP/s")
     for n in (2, 4, 8, 16, 32):
-        f = sweep_flops(2 * n, n, 100)
-        print(f"chain of {n:2d} joints: {f['per_step'] / n ** 3:6.1f} n^3 = {f['per_step']:.3g} flops per step, "
-              f"{f['per_iteration']:.3g} per iteration (T = 100)")
+        f, b = sweep_flops(2 * n, n, 100), sweep_flops(2 * n, n, 100, forward=False)
+        print(f"chain of {n:2d} joints: {f['per_step'] / n ** 3:6.1f} n^3 = {f['per_step']:.3g} flops per step "
+              f"({b['per_step'] / n ** 3:.1f} n^3 for the backward message alone), {f['per_iteration']:.3g} per "
+              f"iteration (T = 100)")

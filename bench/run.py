@@ -293,9 +293,11 @@ def bench_baseline(task: str = "reach") -> dict:
 
     if "fddp" not in SOLVERS:
         return {"skipped": "crocoddyl not installed (the extra raico[baseline]: make install)"}
+    from bench.model_files import records_after
+
     results = {}
-    for label, solver, opts in BASELINE_SOLVERS:
-        results[label] = solve(_problem("arm5", task, "analytic"), solver, opts)
+    for label, solver, opts in BASELINE_SOLVERS:   # crocoddyl's records made after its solve, as in bench.model_files
+        results[label] = solve(_problem("arm5", task, "analytic"), solver, opts, **records_after(solver))
     ref = results["R-AICO a=1"]
     target = 1.1 * ref.cost
     budget = ref.history[-1].elapsed_s
@@ -435,7 +437,8 @@ def main() -> None:
     rows += scaling_rows(Path(args.artifacts) / "bench")  # and bench/scaling.png
     from bench.model_files import run as model_file_rows
 
-    rows += model_file_rows()  # robots from model files: load times, per-iteration time against joints
+    # robots from model files: load times, per-iteration time against joints (also model_files.json and .md)
+    rows += model_file_rows(Path(args.artifacts))
     rows.append(cached_reproduce_row(Path(args.artifacts)))
     baseline = bench_baseline()
     print_baseline(baseline)

@@ -59,13 +59,14 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
 
 def seconds_per_iteration(plant: str, task: str, dynamics: str, T: int, solver: str, reps: int = 2) -> float:
     """Median wall time (s) of one iteration of ``solver`` (``ITERATIONS`` iterations per run)."""
+    from bench.model_files import records_after
     from planning.solvers import solve
     from stages.plan.stage import PlanConfig
 
     opts = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, iterations=ITERATIONS).solver_options()
     per = []
-    for _ in range(reps):
-        res = solve(_problem(plant, task, dynamics, T), solver, opts)
+    for _ in range(reps):   # crocoddyl's records made after its solve: no raico work between its iterations
+        res = solve(_problem(plant, task, dynamics, T), solver, opts, **records_after(solver))
         per += [h.time_s for h in res.history]
     return float(statistics.median(per))
 

@@ -6,6 +6,7 @@ in the README, the results and benchmark blocks in their docs pages). Replaces t
 ``<!-- results:begin -->`` / ``<!-- results:end -->`` with the claims table and per-figure wall times of ``artifacts/report/README.md`` / ``timings.json``, between
 ``<!-- headline:begin -->`` / ``<!-- headline:end -->`` with one sentence of the claims' counts, and between
 ``<!-- bench:begin -->`` / ``<!-- bench:end -->`` with the rows of ``artifacts/bench/results.json``, and
+between ``<!-- models:begin -->`` / ``<!-- models:end -->`` with ``artifacts/bench/model_files.md``, and
 between ``<!-- problems:begin -->`` / ``<!-- problems:end -->`` with ``artifacts/bench/crocoddyl_problems.md``, and
 between ``<!-- suite:begin -->`` / ``<!-- suite:end -->`` with the solver suite's page ``artifacts/bench/suite.md``, and
 between ``<!-- learn_any:begin -->`` / ``<!-- learn_any:end -->`` with ``artifacts/bench/learn_any.md``
@@ -101,7 +102,7 @@ def bench_block(results: Path) -> str:
     doc = json.loads(results.read_text())
     rows = ["| benchmark | median | target | median / target |", "|---|---|---|---|"]
     for r in doc.get("results", []):
-        if "median_s" not in r:
+        if "median_s" not in r or "setup_s" in r:   # the per-iteration rows: the models block (bench.model_files)
             continue
         med, tgt = r["median_s"], r.get("target_s")
         rows.append(f"| {r['benchmark']}{_ended(r)} | {_seconds(med)} | {_seconds(tgt) if tgt else ''} | "
@@ -158,48 +159,14 @@ def bench_block(results: Path) -> str:
             rows.append(f"| {r['benchmark'].removeprefix('scaling: ')} | {', '.join(str(s) for s in r['sizes'])} | "
                         f"{', '.join(_seconds(t) for t in r['seconds'])} | {r['exponent']:.2f} | "
                         f"{r['exponent_upper']:.2f} | {r['expected_exponent']:g} |")
-    joints = [r for r in doc.get("results", []) if "joint_exponent" in r]
-    if joints:
-        rows += ["", "Per-iteration time against the number of joints (`bench/model_files.py`: a serial chain from a "
-                 "URDF written by the bench, hanging from its base, a reach of its tip, T = 100, both solvers from the "
-                 "start held, R-AICO with the robust schedule `raico plan` gives a problem file; exponent: slope of "
-                 "log time against log n, over every size and over the larger chains; a run that diverged or did not "
-                 "lower the cost is left out and named below; time per iteration: the solve's time over its "
-                 "iterations, its setup included, as every row here; beside it the median of the iterations' own "
-                 "times as the solvers record them):",
-                 "", "| solver | joints | time per iteration | the iterations' own | exponent | exponent, larger chains |",
-                 "|---|---|---|---|---|---|"]
-        for r in joints:
-            e, e_up = r["joint_exponent"], r.get("joint_exponent_upper")
-            upper = "-" if e_up is None else f"{e_up:.2f} (n >= {r['joint_exponent_from']})"
-            own = r.get("joint_iteration_seconds") or []
-            rows.append(f"| {r['benchmark'].removesuffix(' per iteration against joints')} | "
-                        f"{', '.join(str(n) for n in r['joint_sizes'])} | "
-                        f"{', '.join(_seconds(t) for t in r['joint_seconds'])} | "
-                        f"{', '.join('-' if t is None else _seconds(t) for t in own) or '-'} | "
-                        f"{'-' if e is None else f'{e:.2f}'} | {upper} |")
-        rows += [f"\n{r['benchmark'].removesuffix(' per iteration against joints')} left out of the exponents: "
-                 + "; ".join(f"n = {n}: {why}" for n, why in r["joint_skipped"].items())
-                 for r in joints if r.get("joint_skipped")]
-    flops = [r for r in doc.get("results", []) if "ratio_to_dgemm" in r]
-    if flops:
-        rows += ["", "R-AICO's sweeps against the machine (`bench/flops.py`: flops from the formulas, the achieved "
-                 "rate over the whole iteration, a one-thread dgemm measured in the same run; FDDP beside it; the "
-                 "ratio over the solve per iteration, setup included, and over the iterations' own times; the backward "
-                 "sweep alone, timed at a fixed linearization, is the message arithmetic's own rate):", "",
-                 "| problem | R-AICO per iteration | FDDP per iteration | ratio | ratio, iterations' own | "
-                 "sweep flops per iteration | GFLOP/s | of dgemm | backward sweep alone | of dgemm |",
-                 "|---|---|---|---|---|---|---|---|---|---|"]
-        for r in flops:
-            fddp = _seconds(r["fddp_s"]) if "fddp_s" in r else "-"
-            ratio = f"{r['ratio_to_fddp']:.2f}" if "ratio_to_fddp" in r else "-"
-            own = f"{r['ratio_to_fddp_own']:.2f}" if "ratio_to_fddp_own" in r else "-"
-            alone = (f"{r['sweep_alone_gflops']:.1f} GFLOP/s | {100 * r['sweep_alone_ratio_to_dgemm']:.0f} %"
-                     if "sweep_alone_gflops" in r else "- | -")
-            rows.append(f"| {r['benchmark'].removesuffix(': one R-AICO iteration')}{_ended(r)} | {_seconds(r['median_s'])} | "
-                        f"{fddp} | {ratio} | {own} | {r['flops_per_iteration'] / 1e6:.1f} M | {r['gflops']:.2f} | "
-                        f"{100 * r['ratio_to_dgemm']:.1f} % | {alone} |")
     return head + "\n\n" + "\n".join(rows)
+
+
+def models_block(page: Path) -> str:
+    """R-AICO against FDDP per iteration on model-file robots and chains: the page ``python -m bench.model_files``
+    (and ``make bench``) writes, its title dropped."""
+    text = page.read_text().split("\n", 2)[2].strip()
+    return f"From `{page}` (regenerated by `scripts/readme_numbers.py`).\n\n" + text
 
 
 def problems_block(page: Path) -> str:
@@ -274,6 +241,8 @@ def main() -> None:
         blocks["exp-ur5"] = exp_block(root / "exp" / "ur5-reach")
     if (root / "bench" / "results.json").exists():
         blocks["bench"] = bench_block(root / "bench" / "results.json")
+    if (root / "bench" / "model_files.md").exists():
+        blocks["models"] = models_block(root / "bench" / "model_files.md")
     if (root / "bench" / "crocoddyl_problems.md").exists():
         blocks["problems"] = problems_block(root / "bench" / "crocoddyl_problems.md")
     if (root / "bench" / "suite.md").exists():

@@ -320,12 +320,16 @@ class FDDPOptions(OptionsBase):
 if AVAILABLE:
     class _Recorder(crocoddyl.CallbackAbstract):
         """Per-iteration record: cost of the iterate's controller rolled out, wall times with this
-        bookkeeping excluded."""
+        bookkeeping excluded. ``after``: during the solve only the clock and a copy of crocoddyl's
+        iterate (``xs``, ``us``, and ``K`` while gaps remain); the rollouts of the infeasible iterates
+        and the callbacks after it (:meth:`finish`), so that none of raico's work runs between the
+        solver's iterations (the same records, the callbacks late)."""
 
-        def __init__(self, cp: CrocoddylProblem, callback: Callback | None):
+        def __init__(self, cp: CrocoddylProblem, callback: Callback | None, after: bool = False):
             crocoddyl.CallbackAbstract.__init__(self)
-            self.cp, self.callback = cp, callback
+            self.cp, self.callback, self.after = cp, callback, after
             self.history: list[IterationRecord] = []
+            self.pending: list[tuple] = []   # after: per record (xs, us, K or None when feasible)
             self.t_last = self.t_start = time.perf_counter()
             self.elapsed = 0.0
 
@@ -333,6 +337,14 @@ if AVAILABLE:
             now = time.perf_counter()
             dt = now - self.t_last
             self.elapsed += dt
+            if self.after:
+                feasible = bool(solver.isFeasible)
+                self.history.append(IterationRecord(len(self.history) + 1, float(solver.cost) if feasible else math.nan,
+                                                    dt, self.elapsed, float(solver.stepLength), float(solver.preg)))
+                self.pending.append((np.array(solver.xs), np.array(solver.us),
+                                     None if feasible else np.array(solver.K)))
+                self.t_last = time.perf_counter()
+                return
             if solver.isFeasible:
                 cost, X, U = float(solver.cost), None, None
             else:
@@ -346,13 +358,35 @@ if AVAILABLE:
                 self.callback(rec, X, U)
             self.t_last = time.perf_counter()
 
+        def finish(self) -> None:
+            """``after``: each infeasible iterate's cost (its feedback rollout) into its record, and the
+            callbacks in order, as the live recorder makes and calls them."""
+            for i, (xs, us, K) in enumerate(self.pending):
+                rec = self.history[i]
+                if K is None:
+                    X = U = None
+                    cost = rec.cost
+                else:
+                    X, U, cost = self.cp.feedback_rollout(xs, us, K)
+                rec.cost = cost if math.isfinite(cost) else math.inf
+                if self.callback is not None and math.isfinite(cost):
+                    if X is None:
+                        X, U = self.cp.from_pin(xs), self.cp.controls_from_pin(us)
+                    self.callback(rec, X, U)
+            self.pending.clear()
+
 
 def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.ndarray | None = None,
-         callback: Callback | None = None, croc: CrocoddylProblem | None = None) -> Result:
+         callback: Callback | None = None, croc: CrocoddylProblem | None = None, record: str = "live") -> Result:
     """Solve ``problem`` with crocoddyl's FDDP (BoxFDDP with control limits); see the module
     docstring. ``U_init``: warm-start controls (their rollout is the start); ``croc``: a
-    prebuilt ``build(problem)``. Raises ``NotExpressible`` for problems crocoddyl cannot express."""
+    prebuilt ``build(problem)``; ``record``: ``"live"`` (each iteration's record and callback as it
+    ends) or ``"after"`` (the infeasible iterates rolled out and the callbacks made after the solve:
+    nothing of raico's runs between crocoddyl's iterations; the bench's timing). Raises
+    ``NotExpressible`` for problems crocoddyl cannot express."""
     require()
+    if record not in ("live", "after"):
+        raise ValueError(f"record must be 'live' or 'after', got {record!r}")
     o = options or FDDPOptions()
     cp = croc if croc is not None else build(problem, o.continuous)
     T, n_u = problem.T, problem.n_u
@@ -368,7 +402,7 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     solver.th_stepDec, solver.th_stepInc = o.th_step_dec, o.th_step_inc
     if o.step_sizes is not None:
         solver.alphas = list(o.step_sizes)  # crocoddyl's name
-    rec = _Recorder(cp, callback)
+    rec = _Recorder(cp, callback, after=record == "after")
     solver.setCallbacks([rec])
     us = cp.controls_to_pin(U0)
     if o.start == "zero" and U_init is None:
@@ -382,8 +416,10 @@ def fddp(problem: Problem, options: FDDPOptions | None = None, *, U_init: np.nda
     try:
         converged = bool(solver.solve(*args))
     except (ArithmeticError, RuntimeError, ValueError) as e:
+        rec.finish()
         return result(problem, None, rec.history, Status.DIVERGED, f"crocoddyl: {type(e).__name__}: {e}",
                        initial_cost, solver, X_roll, cp)
+    rec.finish()
     costs = [h.cost for h in rec.history]
     if not all(math.isfinite(c) for c in costs[-1:]):
         return result(problem, solver, rec.history, Status.DIVERGED, "cost not finite", initial_cost, solver,
