@@ -152,16 +152,17 @@ def _direct(path: str, label: str, run, spec: dict, note: str) -> dict:
 def _fddp_cold(problem):
     from planning.crocoddyl import FDDPOptions, fddp
 
-    r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero"))
+    r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", box="no"))
     return r, r.cost
 
 
 def _kinova_example(problem):
     """crocoddyl's own problem: Pinocchio's cos/sin joints, FDDP's cold start; raico's cost of its
-    plan differs from crocoddyl's (its state differences wrap at pi)."""
+    plan differs from crocoddyl's (its state differences wrap at pi). Plain FDDP as the example runs it:
+    the problem file's default hard bounds would otherwise make it BoxFDDP (``box="auto"``)."""
     from planning.crocoddyl import FDDPOptions, fddp
 
-    r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", continuous="cos-sin"))
+    r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", continuous="cos-sin", box="no"))
     return r, r.cost
 
 

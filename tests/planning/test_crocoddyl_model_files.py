@@ -492,6 +492,19 @@ def test_crocoddyls_kinova_example_is_reproduced_through_the_problem_file(kinova
     assert 8.17 < raico_cost < 8.19
 
 
+def test_the_bench_row_of_crocoddyls_example_is_plain_fddp(crocoddyl_baseline):
+    """The benchmark page's row "crocoddyl's example" runs the example's solver, FDDP, on the problem as the
+    bench builds it (the problem file's default hard bounds, which ``box="auto"`` would turn into BoxFDDP):
+    the logged 72 iterations (0-based) and cost 8.125."""
+    from bench.crocoddyl_problems import PROBLEMS, _cfg, _kinova_example
+    from stages.plan.stage import build_problem
+
+    problem = build_problem(_cfg(PROBLEMS["kinova"]["file"], solver="fddp"))[2]
+    assert problem.bounds is not None
+    r, cost = _kinova_example(problem)
+    assert r.iterations == 73 and abs(cost - 8.125) < 5e-4
+
+
 def test_fddp_solver_on_the_exact_translation_reports_raicos_cost(kinova):
     """The solver ``fddp`` of raico plan (x0 held at every node) and crocoddyl's cold start on the
     exact translation: the gains mapped from crocoddyl's tangent space, the controller rolled out on
