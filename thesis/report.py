@@ -1113,8 +1113,8 @@ def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: di
     """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
     labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
     fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
-    from stages.evaluate.summary import summarize as summary
     from thesis.figures import LEAVE_ONE_OUT_MIN, variant_runs
+    from thesis.figures import plan_summary as summary
 
     runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
     S = {**{k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}, **extra}
