@@ -16,7 +16,9 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
+import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -415,8 +417,36 @@ def summarize_learns(learns: list[dict], leave_out: int | None = None) -> dict[s
 
     learns = [x for x in learns if x["seed"] != leave_out]
     labels = list(dict.fromkeys(x["setting"].label for x in learns))
-    return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
-            for lab in labels}
+    out = {}
+    for lab in labels:
+        runs = [x["outcome"].metrics for x in learns if x["setting"].label == lab]
+        with warnings.catch_warnings():  # a seed whose last episodes all diverged has no mean there: NaN, said apart
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = summarize_learn(lab, [without_diverged(m) for m in runs])
+        s["diverged_by_seed"] = [sum(st == "diverged" for st in m.get("execution_status") or []) for m in runs]
+        s["episodes"] = max((len(m.get("execution_status") or []) for m in runs), default=0)
+        # a seed whose last execution diverged did not end anywhere: no end angle to rank it by
+        s["task_error_last_by_seed"] = [math.inf if (m.get("execution_status") or [None])[-1] == "diverged" else e
+                                        for m, e in zip(runs, s["task_error_last_by_seed"])]
+        out[lab] = s
+    return out
+
+
+# per-episode numbers measured on an execution: of a diverged execution (the simulation blew up) they are no data
+EXECUTION_KEYS = ("gp_error", "rmse_planned_executed", "task_error", "torque_saturation")
+
+
+def without_diverged(m: dict) -> dict:
+    """A learn run's metrics with the numbers of its diverged executions (``execution_status`` "diverged") set to
+    None, so that no curve averages them in as if they were data (the summary counts them apart)."""
+    bad = [st == "diverged" for st in m.get("execution_status") or []]
+    if not any(bad):
+        return m
+    out = dict(m)
+    for key in EXECUTION_KEYS:
+        if isinstance(m.get(key), list):
+            out[key] = [None if i < len(bad) and bad[i] else v for i, v in enumerate(m[key])]
+    return out
 
 
 # A verdict is fragile where leaving out one seed flips it; with fewer seeds than this, leaving one out leaves
