@@ -1294,10 +1294,18 @@ def _controller(e: dict) -> str:
     return f"{ctrl}, {'standing start' if e.get('start') == 'standing' else 'plan start'}"
 
 
+MOTION_CAPTION = ("The motion, drawn from the R-AICO a=1 plans as the thesis's panels show it: snapshots (Fig. 3.3A, "
+                  "Fig. 3.4A; stick figures of Drake's kinematics, the first initial state's plan), and on the reach "
+                  "the right hand's objectives (Fig. 3.3C) and the left hand and head (Fig. 3.3D).")
+
+
 def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
+    from thesis.panels import write_motion_panels
+
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
+    motion = write_motion_panels(cache, exp, result["plans"], out_dir / "motion.png")
     integ = result.get("integrators") or []
     rows = claims_table(exp, result["plans"], result["executions"], cache, integ, result.get("noise"))
     summary = summary_table(exp, result["plans"], cache)
@@ -1322,7 +1330,9 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
            "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows,
            "stabilizer_missed": missed, "processor": processor}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
-    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
+    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, ""]
+    md += ["![motion](motion.png)", "", MOTION_CAPTION, ""] if motion else []
+    md += ["## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
     if execs:
         nao = exp.plant == "nao"
@@ -1599,6 +1609,11 @@ def learn_findings(S: dict) -> list[str]:
     out = [x for lab, s in S.items() if (x := heldout_sentence(lab, s))]
     if any("sigma*" in k for k in S):
         out += [x for x in [endings_sentence({k: v for k, v in S.items() if not k.endswith(", x0 held")})] if x]
+    div = {k: s["diverged_by_seed"] for k, s in S.items() if sum(s.get("diverged_by_seed") or [])}
+    if div:
+        out.append("Diverged executions (the simulation blew up; no data, left out of every curve and median), per "
+                   "seed: " + "; ".join(f"{k}: {', '.join(map(str, d))} of {S[k].get('episodes', '?')} episodes"
+                                        for k, d in div.items()) + ".")
     e, b = S.get("every"), S.get("batch-100")
     if e and b and b.get("fit_time_s_total"):
         out.append(f"Fit time over the whole loop (median over seeds): every {_fmt(e['fit_time_s_total'])} s, batch-100 "
