@@ -7,8 +7,6 @@ stick figures of Drake's kinematics (body origins joined along the kinematic tre
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from pipeline.engine.cache import Cache
@@ -137,23 +135,22 @@ def _counterbalance_panels(ax_hand, ax_head, robot, runs: list, dt: float) -> No
     ax_head.set_title(f"(D) the head joints (no objective names them), {LABEL}:\nangle from the start", fontsize=9)
 
 
-def write_motion_panels(cache: Cache, exp, plans: list[dict], path: Path) -> bool:
-    """``path``: the thesis's panels of the Nao's motion from the ``LABEL`` plans: Fig. 3.3A, C, D (reach) or
-    Fig. 3.4A (balance). The snapshots show the first initial state's plan. False (nothing written) where the
-    figure has none or no finite plan."""
+def motion_figure(cache: Cache, exp, plans: list[dict]):
+    """The thesis's panels of the Nao's motion from the ``LABEL`` plans, a matplotlib figure: Fig. 3.3A, C, D (reach)
+    or Fig. 3.4A (balance). The snapshots show the first initial state's plan. None where the figure has none or no
+    finite plan."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from plants.robots import shared_robot
-    from thesis.report import save_figure
 
     if not wants_motion_panels(exp):
-        return False
+        return None
     runs = _plans_of(cache, plans, LABEL)
     if not runs:
-        return False
+        return None
     robot = shared_robot("nao")
     seed, X, desc = runs[0]
     dt = float(desc["dt"])
@@ -172,5 +169,4 @@ def write_motion_panels(cache: Cache, exp, plans: list[dict], path: Path) -> boo
         _snapshot_panel(ax, robot, X, dt, count, f"(A) {count} snapshots of the balancing movement, {LABEL}, initial "
                                                  f"state {seed} (front view: the robot's left on the right; colour: "
                                                  "time)")
-    save_figure(fig, path, dpi=100)
-    return True
+    return fig

@@ -1294,6 +1294,16 @@ def _controller(e: dict) -> str:
     return f"{ctrl}, {'standing start' if e.get('start') == 'standing' else 'plan start'}"
 
 
+def write_motion_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path) -> bool:
+    """``path``: the Nao's motion panels (``thesis.panels.motion_figure``); False (nothing written) without any."""
+    from thesis.panels import motion_figure
+
+    fig = motion_figure(cache, exp, plans)
+    if fig is not None:
+        save_figure(fig, path, dpi=100)
+    return fig is not None
+
+
 MOTION_CAPTION = ("The motion, drawn from the R-AICO a=1 plans as the thesis's panels show it: snapshots (Fig. 3.3A, "
                   "Fig. 3.4A; stick figures of Drake's kinematics, the first initial state's plan), and on the reach "
                   "the right hand's objectives (Fig. 3.3C) and the left hand and head (Fig. 3.3D).")
@@ -1301,11 +1311,9 @@ MOTION_CAPTION = ("The motion, drawn from the R-AICO a=1 plans as the thesis's p
 
 def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
-    from thesis.panels import write_motion_panels
-
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
-    motion = write_motion_panels(cache, exp, result["plans"], out_dir / "motion.png")
+    motion = write_motion_figure(cache, exp, result["plans"], out_dir / "motion.png")
     integ = result.get("integrators") or []
     rows = claims_table(exp, result["plans"], result["executions"], cache, integ, result.get("noise"))
     summary = summary_table(exp, result["plans"], cache)
