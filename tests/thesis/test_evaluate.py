@@ -779,3 +779,13 @@ def test_diverged_executions_are_counted_and_left_out_of_the_curves():
     # episodes 2-4: the median of seeds 0 and 2 alone (99 is no data); episode 1: of all three
     assert s["gp_error_curve"] == [3.0, 0.6, 0.6, 0.6]
     assert s["task_error_last_by_seed"] == [2.37, math.inf, 2.37]
+
+
+def test_a_failed_leave_one_out_rerun_is_said_in_the_row():
+    """A rerun without a seed that raises leaves the flip unknown: the row says so, it does not pass for robust."""
+    S = table(ilqg={"final": 120, "via": 0.02}, aico=100, r1=100)
+    without = {3: {"AICO": S["AICO"]}, 4: S}  # seed 3's summaries lack iLQG: the rerun raises KeyError
+    (row,) = evaluate_claims(("ilqg_stalls",), S, [], "fig3.2c", without=without)
+    assert "not known whether leaving out seed 3 (KeyError: 'iLQG') flips it" in row["fragile"]
+    (row,) = evaluate_claims(("ilqg_stalls",), S, [], "fig3.2c", without={4: S})
+    assert row["fragile"] == ""
