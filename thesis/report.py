@@ -1244,7 +1244,8 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
                 for r in thesis]
         if fragile and not smoke:
             out += ["", f"{fragile} of these {len(thesis)} verdicts are fragile: leaving out one seed flips them, or a "
-                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit)."]
+                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit), or "
+                    "a rerun without a seed failed, so whether it flips is not known (the row says which)."]
         out += [""]
     if beyond:
         held = sum(r["verdict"] == "holds" for r in beyond)
