@@ -294,6 +294,9 @@ LEARN_CASES = [
                               "sigma*=1, w=0.01": L_(success_ep=[3, 3, 3, 3, 2])}, True),
     ("best_with_sigma_zero", {"sigma*=0, w=0.01": L_(success_ep=[3, 4, 5, 2, 3]),
                               "sigma*=1, w=0.01": L_(success_ep=[2, 3, 4, 2, 4])}, False),
+    # ties rank nothing: four ties and one seed where another setting is first is no best swing-up with sigma* = 0
+    ("best_with_sigma_zero", {"sigma*=0, w=0.01": L_(success_ep=[2, 2, 2, 2, 3]),
+                              "sigma*=1, w=0.01": L_(success_ep=[2, 2, 2, 2, 2])}, False),
     # a seed that never swings up ranks last
     ("best_with_sigma_zero", {"sigma*=0, w=0.01": L_(success_ep=[None, None, 3]),
                               "sigma*=1, w=0.01": L_(success_ep=[4, 4, 4])}, False),
@@ -646,7 +649,7 @@ def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
     L["sigma*=none"] = L_(success_ep=[2, 2])
     assert CLAIMS["best_with_sigma_zero"](L, [])[3] is False
     (row,) = evaluate_claims(("best_with_sigma_zero",), L, [], "fig4.1/4.2")
-    assert row["why"] == "seeds where a sigma* = 0 setting swings up first (or tied) 0/2 <= 1/2"
+    assert row["why"] == "seeds where a sigma* = 0 setting swings up first, of those that rank them 0/2 <= 1/2"
     # settings run from the thesis's start are not ranked with raico's
     L["sigma*=1, w=100, x0 held"] = L_(success_ep=[1, 1])
     assert "x0 held" not in CLAIMS["best_with_sigma_zero"](L, [])[2]
@@ -789,3 +792,16 @@ def test_a_failed_leave_one_out_rerun_is_said_in_the_row():
     assert "not known whether leaving out seed 3 (KeyError: 'iLQG') flips it" in row["fragile"]
     (row,) = evaluate_claims(("ilqg_stalls",), S, [], "fig3.2c", without={4: S})
     assert row["fragile"] == ""
+
+
+def test_large_weight_explores_cannot_be_tested_where_its_executions_diverged():
+    """Every seed's last executions with w = 100 diverged: no error level is left to judge exploring by, and the row
+    says so (with the counts) instead of a verdict."""
+    from thesis.claims import CANNOT
+
+    nan = math.nan
+    big = {**L_(gp_curve=[1, 1, 1, nan, nan, nan, nan, nan], rmse_curve=[1, 1, 1, nan, nan, nan, nan, nan]),
+           "diverged_by_seed": [5, 5], "episodes": 8}
+    (row,) = [r for r in evaluate_claims(("large_weight_explores",), {**SMALL, "sigma*=1, w=100": big}, [],
+                                         "fig4.1/4.2") if r["claim"].startswith("sigma* = 1")]
+    assert row["verdict"] == CANNOT and "w=100 10 of 16 executions (2 seeds of 8 episodes; per seed 5, 5)" in row["measured"]
