@@ -1452,7 +1452,9 @@ def _learn_panel(ax, S: dict, labels: list[str], key: str, ylabel: str, band: bo
         curve = np.array(S[lab].get(f"{key}_curve", []), float)
         if curve.size:
             x = np.arange(1, curve.size + 1)
-            line, = ax.plot(x, curve, style, marker=".", color=f"C{i}", label=f"{lab}{tag} (n={S[lab]['runs']})")
+            div = sum(S[lab].get("diverged_by_seed") or [])
+            note = f"; {div} diverged executions, not drawn" if div else ""
+            line, = ax.plot(x, curve, style, marker=".", color=f"C{i}", label=f"{lab}{tag} (n={S[lab]['runs']}{note})")
             lohi = np.array(S[lab].get(f"{key}_band", []), float)
             if band and lohi.shape == (curve.size, 2):
                 ax.fill_between(x, lohi[:, 0], lohi[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
