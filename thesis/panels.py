@@ -57,11 +57,12 @@ def _snapshot_panel(ax, robot, X: np.ndarray, dt: float, count: int, title: str)
     chains = skeleton(robot, X[steps, :robot.n_q])
     width = max(float(np.ptp(np.concatenate([c[..., 1].ravel() for c in chains]))), 0.2) * 1.15
     cmap = matplotlib.colormaps["viridis"]
+    ref = float(np.mean([c[0, :, 1].mean() for c in chains]))  # the first snapshot's middle: each drawn about it
     for i, k in enumerate(steps):
         color = cmap(i / max(count - 1, 1))
         for c in chains:
-            # seen from the front: the robot's left (world +y) on the viewer's right
-            ax.plot(-c[i, :, 1] + i * width, c[i, :, 2], "-o", color=color, lw=1.6, markersize=2)
+            # seen from the front (the robot faces world +x): its left, world +y, on the viewer's right
+            ax.plot(c[i, :, 1] - ref + i * width, c[i, :, 2], "-o", color=color, lw=1.6, markersize=2)
         ax.text(i * width, -0.03, f"{k * dt:.2f} s", ha="center", va="top", fontsize=7)
     ax.set_aspect("equal")
     ax.set_yticks([])
@@ -100,8 +101,8 @@ def _objectives_panel(ax, robot, runs: list, dt: float) -> None:
                 ax.plot(tt * dt, term["target"][a], "o", color=c, markersize=9, mfc="none", mew=1.5)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("position (m)")
-    ax.set_title(f"(C) the right arm's objectives, {LABEL} ({len(runs)} plans): mean and standard deviation,\n"
-                 "each plan thin; circles: the via-point targets at their times", fontsize=9)
+    ax.set_title(f"(C) the right arm's objectives, {LABEL} ({len(runs)} plans):\nmean and standard deviation, each "
+                 "plan thin; circles: the targets", fontsize=9)
     ax.legend(fontsize=7, loc="best")
     ax.grid(True, alpha=0.3)
 
@@ -130,8 +131,8 @@ def _counterbalance_panels(ax_hand, ax_head, robot, runs: list, dt: float) -> No
         ax.set_ylabel(f"change from the start ({unit})")
         ax.legend(fontsize=7, loc="best")
         ax.grid(True, alpha=0.3)
-    ax_hand.set_title(f"(D) the left hand (no objective names it), {LABEL}: its displacement\nfrom the start, "
-                      "world axes; mean and standard deviation, each plan thin", fontsize=9)
+    ax_hand.set_title(f"(D) the left hand (no objective names it), {LABEL}:\ndisplacement from the start (world "
+                      "axes), mean and sd, each plan thin", fontsize=9)
     ax_head.set_title(f"(D) the head joints (no objective names them), {LABEL}:\nangle from the start", fontsize=9)
 
 
@@ -165,7 +166,7 @@ def motion_figure(cache: Cache, exp, plans: list[dict]):
         _objectives_panel(fig.add_subplot(grid[1, 0]), robot, runs, dt)
         _counterbalance_panels(fig.add_subplot(grid[1, 1]), fig.add_subplot(grid[1, 2]), robot, runs, dt)
     else:
-        fig, ax = plt.subplots(figsize=(15, 3.6), layout="constrained")
+        fig, ax = plt.subplots(figsize=(15, 2.6), layout="constrained")
         _snapshot_panel(ax, robot, X, dt, count, f"(A) {count} snapshots of the balancing movement, {LABEL}, initial "
                                                  f"state {seed} (front view: the robot's left on the right; colour: "
                                                  "time)")
