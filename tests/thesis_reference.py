@@ -236,14 +236,13 @@ def _sigma_settings() -> tuple[LearnSetting, ...]:
     out = []
     for w in (1e-2, 1e2):
         for sigma in ("0", "0.2", "1"):
-            seeds = 5 if (sigma, w) == ("0", 1e-2) else 2  # five seeds for the data-efficiency comparison
-            out.append(LearnSetting(f"sigma*={sigma}, w={w:g}", (("sigma_star", sigma), ("sigma_weight", w)), seeds,
+            out.append(LearnSetting(f"sigma*={sigma}, w={w:g}", (("sigma_star", sigma), ("sigma_weight", w)), 5,
                                     quick=(sigma, w) in (("0", 1e-2), ("1", 1e2))))
-    out.append(LearnSetting("sigma*=none", (("sigma_star", "none"),), 2, quick=True))
+    out.append(LearnSetting("sigma*=none", (("sigma_star", "none"),), 5, quick=True))
     for sigma in ("0.2", "1") if SETUPS else ():  # the thesis's start beside raico's (--thesis-setups)
         for w in (1e-2, 1e2):
             out.append(LearnSetting(f"sigma*={sigma}, w={w:g}, x0 held", (("sigma_star", sigma), ("sigma_weight", w),
-                                                                          ("warm_from", "none"), ("q0_std", 0.05)), 2))
+                                                                          ("warm_from", "none"), ("q0_std", 0.05)), 5))
     return tuple(out)
 
 

@@ -16,7 +16,9 @@ Drake (CoG against the support polygon). ``--quick`` uses 2 seeds and fewer iter
 
 from __future__ import annotations
 
+import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -287,9 +289,22 @@ def summarize(plans: list[dict], variant: Variant, cache: Cache | None = None) -
     """The variant's summary (``stages.evaluate.summary``) over its runs; with ``cache`` each run's
     per-iteration costs (``plan.npz``) join its metrics as ``cost_history`` (the convergence claims'
     cost curves)."""
+    return plan_summary(variant.label, [r for _, r in variant_runs(plans, variant, cache)])
+
+
+def plan_summary(label: str, runs: list[dict]) -> dict:
+    """``stages.evaluate.summary.summarize`` of a variant's runs, with the medians over its runs of what
+    :func:`counterbalance` measured beside the excursions (``cog_drift``, ``cog_drift_held``, m) where the runs
+    have them."""
+    from stages.evaluate.summary import median
     from stages.evaluate.summary import summarize as summary
 
-    return summary(variant.label, [r for _, r in variant_runs(plans, variant, cache)])
+    out = summary(label, runs)
+    for key in ("cog_drift", "cog_drift_held"):
+        vals = [r["metrics"][key] for r in runs if key in r.get("metrics", {})]
+        if vals:
+            out[f"{key}_median"] = median(np.asarray(vals, float))
+    return out
 
 
 def variant_runs(plans: list[dict], variant: Variant, cache: Cache | None = None) -> list[tuple[int, dict]]:
@@ -319,9 +334,13 @@ COUNTERBALANCE_JOINTS = ("HeadYaw", "HeadPitch", "LShoulderPitch", "LShoulderRol
 def counterbalance(X: np.ndarray) -> dict:
     """How far a Nao plan moves what no objective names (thesis Fig. 3.3D: "To counter balance, the robot
     moves its left hand and the head"): the largest excursion from the start of the head joints and of
-    the left arm's joints (rad), and of the left hand's position (m), over the plan ``X (T+1, n_x)``."""
+    the left arm's joints (rad), and of the left hand's position (m), over the plan ``X (T+1, n_x)``; and what
+    that motion does to balance: ``cog_drift``, the largest horizontal distance (m) of the CoG from its start (over
+    the support the plan starts on) over the plan, and ``cog_drift_held``, the same with the head and left-arm joints
+    held at their start angles (the plan without its counterbalancing motion). The motion counterbalances where
+    the first is the smaller."""
     from plants.robots import shared_robot
-    from plants.taskmaps import EndEffectorPosition
+    from plants.taskmaps import CenterOfMass, EndEffectorPosition
 
     robot = shared_robot("nao")
     n = robot.n_q
@@ -334,7 +353,14 @@ def counterbalance(X: np.ndarray) -> dict:
     arm = max(float(dq[:, idx[j]].max()) for j in COUNTERBALANCE_JOINTS if j.startswith("L"))
     P, _ = EndEffectorPosition(robot, "l_gripper").values_and_jacobians(Q[::5])
     hand = float(np.linalg.norm(P - P[0], axis=1).max())
-    return {"head_joint_excursion": head, "left_arm_joint_excursion": arm, "left_hand_excursion": hand}
+    held = Q.copy()
+    cols = list(idx.values())
+    held[:, cols] = Q[0, cols]
+    cog = CenterOfMass(robot, axes=(0, 1))
+    drift = [float(np.linalg.norm(C - C[0], axis=1).max()) for C in
+             (cog.values_and_jacobians(Qx[::5])[0] for Qx in (Q, held))]
+    return {"head_joint_excursion": head, "left_arm_joint_excursion": arm, "left_hand_excursion": hand,
+            "cog_drift": drift[0], "cog_drift_held": drift[1]}
 
 
 # ----------------------------------------------------------------------------- learning experiments
@@ -391,8 +417,36 @@ def summarize_learns(learns: list[dict], leave_out: int | None = None) -> dict[s
 
     learns = [x for x in learns if x["seed"] != leave_out]
     labels = list(dict.fromkeys(x["setting"].label for x in learns))
-    return {lab: summarize_learn(lab, [x["outcome"].metrics for x in learns if x["setting"].label == lab])
-            for lab in labels}
+    out = {}
+    for lab in labels:
+        runs = [x["outcome"].metrics for x in learns if x["setting"].label == lab]
+        with warnings.catch_warnings():  # a seed whose last episodes all diverged has no mean there: NaN, said apart
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = summarize_learn(lab, [without_diverged(m) for m in runs])
+        s["diverged_by_seed"] = [sum(st == "diverged" for st in m.get("execution_status") or []) for m in runs]
+        s["episodes"] = max((len(m.get("execution_status") or []) for m in runs), default=0)
+        # a seed whose last execution diverged did not end anywhere: no end angle to rank it by
+        s["task_error_last_by_seed"] = [math.inf if (m.get("execution_status") or [None])[-1] == "diverged" else e
+                                        for m, e in zip(runs, s["task_error_last_by_seed"])]
+        out[lab] = s
+    return out
+
+
+# per-episode numbers measured on an execution: of a diverged execution (the simulation blew up) they are no data
+EXECUTION_KEYS = ("gp_error", "rmse_planned_executed", "task_error", "torque_saturation")
+
+
+def without_diverged(m: dict) -> dict:
+    """A learn run's metrics with the numbers of its diverged executions (``execution_status`` "diverged") set to
+    None, so that no curve averages them in as if they were data (the summary counts them apart)."""
+    bad = [st == "diverged" for st in m.get("execution_status") or []]
+    if not any(bad):
+        return m
+    out = dict(m)
+    for key in EXECUTION_KEYS:
+        if isinstance(m.get(key), list):
+            out[key] = [None if i < len(bad) and bad[i] else v for i, v in enumerate(m[key])]
+    return out
 
 
 # A verdict is fragile where leaving out one seed flips it; with fewer seeds than this, leaving one out leaves

@@ -1113,8 +1113,8 @@ def _summaries(plans: list[dict], variants: list, cache: Cache | None, extra: di
     """The variants' summaries by label (``tail`` cut off the end of each: the thesis's set-up's variants under the
     labels the claims know), with ``extra`` rows; and seed -> those summaries with that seed left out (empty with
     fewer than ``LEAVE_ONE_OUT_MIN`` seeds)."""
-    from stages.evaluate.summary import summarize as summary
     from thesis.figures import LEAVE_ONE_OUT_MIN, variant_runs
+    from thesis.figures import plan_summary as summary
 
     runs = {v.label.removesuffix(tail): variant_runs(plans, v, cache) for v in variants}
     S = {**{k: summary(k, [r for _, r in rs]) for k, rs in runs.items()}, **extra}
@@ -1244,7 +1244,8 @@ def markdown_claims(rows: list[dict], smoke: bool = False) -> str:
                 for r in thesis]
         if fragile and not smoke:
             out += ["", f"{fragile} of these {len(thesis)} verdicts are fragile: leaving out one seed flips them, or a "
-                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit)."]
+                    "deciding margin is inside its quantity's spread over the runs (or within 5 % of its limit), or "
+                    "a rerun without a seed failed, so whether it flips is not known (the row says which)."]
         out += [""]
     if beyond:
         held = sum(r["verdict"] == "holds" for r in beyond)
@@ -1294,10 +1295,26 @@ def _controller(e: dict) -> str:
     return f"{ctrl}, {'standing start' if e.get('start') == 'standing' else 'plan start'}"
 
 
+def write_motion_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path) -> bool:
+    """``path``: the Nao's motion panels (``thesis.panels.motion_figure``); False (nothing written) without any."""
+    from thesis.panels import motion_figure
+
+    fig = motion_figure(cache, exp, plans)
+    if fig is not None:
+        save_figure(fig, path, dpi=100)
+    return fig is not None
+
+
+MOTION_CAPTION = ("The motion, drawn from the R-AICO a=1 plans as the thesis's panels show it: snapshots (Fig. 3.3A, "
+                  "Fig. 3.4A; stick figures of Drake's kinematics, the first initial state's plan), and on the reach "
+                  "the right hand's objectives (Fig. 3.3C) and the left hand and head (Fig. 3.3D).")
+
+
 def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir: Path) -> dict:
     """``figure.png``, ``claims.md``/``claims.json`` and the run list under ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_figure(cache, exp, result["plans"], out_dir / "figure.png", result.get("executions"))
+    motion = write_motion_figure(cache, exp, result["plans"], out_dir / "motion.png")
     integ = result.get("integrators") or []
     rows = claims_table(exp, result["plans"], result["executions"], cache, integ, result.get("noise"))
     summary = summary_table(exp, result["plans"], cache)
@@ -1322,7 +1339,9 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
            "integrator_runs": integ_runs, "balance": balance_rows, "moved_via_points": moved_rows,
            "stabilizer_missed": missed, "processor": processor}
     write_file_atomic(out_dir / "claims.json", json.dumps(doc, indent=2, default=float))
-    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, "", "## Claims", "",
+    md = [f"# {exp.id}: {exp.description}", "", "![figure](figure.png)", "", FIGURE_CAPTION, ""]
+    md += ["![motion](motion.png)", "", MOTION_CAPTION, ""] if motion else []
+    md += ["## Claims", "",
           markdown_claims(rows), "", "## Runs", "", markdown_summary(summary), ""]
     if execs:
         nao = exp.plant == "nao"
@@ -1433,7 +1452,9 @@ def _learn_panel(ax, S: dict, labels: list[str], key: str, ylabel: str, band: bo
         curve = np.array(S[lab].get(f"{key}_curve", []), float)
         if curve.size:
             x = np.arange(1, curve.size + 1)
-            line, = ax.plot(x, curve, style, marker=".", color=f"C{i}", label=f"{lab}{tag} (n={S[lab]['runs']})")
+            div = sum(S[lab].get("diverged_by_seed") or [])
+            note = f"; {div} diverged executions, not drawn" if div else ""
+            line, = ax.plot(x, curve, style, marker=".", color=f"C{i}", label=f"{lab}{tag} (n={S[lab]['runs']}{note})")
             lohi = np.array(S[lab].get(f"{key}_band", []), float)
             if band and lohi.shape == (curve.size, 2):
                 ax.fill_between(x, lohi[:, 0], lohi[:, 1], color=line.get_color(), alpha=0.15, linewidth=0)
@@ -1599,6 +1620,11 @@ def learn_findings(S: dict) -> list[str]:
     out = [x for lab, s in S.items() if (x := heldout_sentence(lab, s))]
     if any("sigma*" in k for k in S):
         out += [x for x in [endings_sentence({k: v for k, v in S.items() if not k.endswith(", x0 held")})] if x]
+    div = {k: s["diverged_by_seed"] for k, s in S.items() if sum(s.get("diverged_by_seed") or [])}
+    if div:
+        out.append("Diverged executions (the simulation blew up; no data, left out of every curve and median), per "
+                   "seed: " + "; ".join(f"{k}: {', '.join(map(str, d))} of {S[k].get('episodes', '?')} episodes"
+                                        for k, d in div.items()) + ".")
     e, b = S.get("every"), S.get("batch-100")
     if e and b and b.get("fit_time_s_total"):
         out.append(f"Fit time over the whole loop (median over seeds): every {_fmt(e['fit_time_s_total'])} s, batch-100 "

@@ -183,7 +183,8 @@ def _report_key(fid: str, result: dict) -> str:
     from pipeline.engine.runner import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
-    code = source_version("report", "thesis.report", "thesis.reproduce", "thesis.figures", "stages.evaluate")
+    code = source_version("report", "thesis.report", "thesis.reproduce", "thesis.figures", "thesis.claims",
+                          "thesis.panels", "stages.evaluate")
     exp = EXPERIMENTS.get(fid) or LEARN_EXPERIMENTS.get(fid)
     text = Path(exp.source).read_bytes() if exp is not None and exp.source else b""
     return hashlib.sha256(json.dumps([fid, code, keys, hashlib.sha256(text).hexdigest()]).encode()).hexdigest()[:16]
