@@ -121,8 +121,10 @@ def cartpole() -> str:
     s += ('  <link name="cart">\n' + _inertial(c["M"], [0, 0, 0], tiny)
           + _box([0, 0, 0], [0.2, 0.12, 0.08], "blue", "cart") + "  </link>\n")
     rod = c["m"] * c["l"] ** 2 / 12  # a thin rod about its centre
-    s += ('  <link name="pole">\n' + _inertial(c["m"], [0, 0, -c["l"] / 2],
-                                              {"ixx": rod, "iyy": rod, "izz": 1e-6, "ixy": 0.0, "ixz": 0.0, "iyz": 0.0})
+    inertial = _inertial(c["m"], [0, 0, -c["l"] / 2], {"ixx": 0.0, "iyy": 0.0, "izz": 1e-6, "ixy": 0.0, "ixz": 0.0,
+                                                        "iyz": 0.0})
+    inertial = inertial.replace('ixx="0"', f'ixx="{rod!r}"').replace('iyy="0"', f'iyy="{rod!r}"')  # every digit
+    s += ('  <link name="pole">\n' + inertial
           + _segment([0, 0, 0], [0, 0, -c["l"]], 0.012, "grey", "pole")
           + _sphere([0, 0, -c["l"]], 0.03, "orange", "tip") + "  </link>\n")
     s += ('  <link name="tip"/>\n'

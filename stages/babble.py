@@ -167,7 +167,8 @@ def desired_trajectory(rng: np.random.Generator, q0: np.ndarray, lower: np.ndarr
     """A clamped cubic spline ``q_des(t)`` from ``q0`` at rest through random knots (rad)."""
     times = np.linspace(0.0, cfg.duration, cfg.knots + 1)
     knots = q0 + rng.uniform(-cfg.amplitude, cfg.amplitude, size=(cfg.knots, q0.size))
-    margin = 0.05 * (upper - lower)
+    with np.errstate(invalid="ignore"):   # an unlimited joint (the cart-pole's pole): no margin, no clipping
+        margin = np.where(np.isfinite(upper - lower), 0.05 * (upper - lower), 0.0)
     knots = np.clip(knots, lower + margin, upper - margin)
     return CubicSpline(times, np.vstack([q0, knots]), bc_type="clamped")
 
