@@ -443,22 +443,21 @@ def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
                   q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx])
 
 
-def substepped(dyn, substeps: int):
-    """``dyn`` stepped ``substeps`` times per control step (:class:`plants.dynamics.SubstepDynamics`; 1: ``dyn``)."""
-    return dyn if substeps == 1 else SubstepDynamics(dyn, substeps)
-
-
-def actuated(dyn, robot: Robot):
-    """``dyn`` with the motors' commands as its controls for an underactuated robot
-    (:class:`plants.dynamics.ActuatedDynamics`), else ``dyn``; pseudo-dynamics (every joint's acceleration
-    commanded) cannot hold an unactuated joint: ``ValueError``."""
-    if not robot.underactuated:
-        return dyn
-    if isinstance(dyn, PseudoDynamics):
+def actuated(dyn, robot: Robot, substeps: int = 1):
+    """The problem's model of step model ``dyn``: stepped ``substeps`` times per control step
+    (:class:`plants.dynamics.SubstepDynamics`) and, for an underactuated robot, with the motors' commands as
+    its controls (:class:`plants.dynamics.ActuatedDynamics`); ``dyn`` itself for one step of a fully actuated
+    robot. Pseudo-dynamics (every joint's acceleration commanded) take neither: ``ValueError``."""
+    if isinstance(dyn, PseudoDynamics) and robot.underactuated:
         off = [n for k, n in enumerate(robot.joint_names) if k not in set(robot.actuated.tolist())]
         raise ValueError(f"{robot.name} has unactuated joints ({', '.join(off)}): pseudo-dynamics command every "
                          "joint's acceleration; use --dynamics analytic or learned")
-    return ActuatedDynamics(dyn, robot.S)
+    if isinstance(dyn, PseudoDynamics) and substeps != 1:
+        raise ValueError(f"the problem steps its model {substeps} times per control step: for the analytic and "
+                         "learned models only, not pseudo-dynamics")
+    if substeps != 1:
+        dyn = SubstepDynamics(dyn, substeps)
+    return ActuatedDynamics(dyn, robot.S) if robot.underactuated else dyn
 
 
 def control_kind(dynamics) -> str:
@@ -565,8 +564,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     params = model.arrays("model.npz") if model is not None else None
     if model is not None:
         check_model_robot(model, robot)
-    dyn = actuated(substepped(make_dynamics(cfg.dynamics, robot, task.dt / task.substeps, params), task.substeps),
-                   robot)
+    dyn = actuated(make_dynamics(cfg.dynamics, robot, task.dt / task.substeps, params), robot, task.substeps)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
