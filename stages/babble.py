@@ -48,7 +48,7 @@ DATA_FILE = "data.npz"
 class BabbleConfig(StageConfig):
     """Declared parameters of the babble stage (all part of its cache key; defaults stated here only)."""
 
-    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+    HELP = {"plant": "pendulum, cartpole, arm5, biorob or nao (or --problem FILE).",
             "problem": "A problem file (TOML) whose robot babbles (its model file; [robot.true]'s robot where "
                        "stated); replaces --plant.",
             "torque_noise": "Per-joint random torques added to the PD, as a fraction of the effort limit "

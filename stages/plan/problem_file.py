@@ -273,7 +273,7 @@ def _achieved(a) -> dict:
 def _robot(r: dict, base: Path) -> dict:
     _refuse_unknown(r, ROBOT_KEYS, "[robot]")
     if ("plant" in r) == ("file" in r):
-        raise ValueError("[robot]: give either plant (a built-in: pendulum, arm5, biorob, nao) or file (a model file)")
+        raise ValueError("[robot]: give either plant (a built-in: pendulum, cartpole, arm5, biorob, nao) or file (a model file)")
     if "plant" in r:
         from plants.robots import PLANTS
 

@@ -54,7 +54,7 @@ class PlanConfig(StageConfig):
 
     INPUTS = ("model", "warm_start")
     INPUT_STAGES = {"model": "fit", "warm_start": "plan"}
-    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+    HELP = {"plant": "pendulum, cartpole, arm5, biorob or nao (or --problem FILE).",
             "problem": "A problem file (TOML): robot (a built-in plant or a URDF/SDF/MJCF model file), horizon, "
                        "dynamics and named cost terms; replaces --plant and --task.",
             "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",

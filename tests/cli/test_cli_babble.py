@@ -104,7 +104,7 @@ def test_babble_torques_follow_the_saturated_pd_law():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, arm5, biorob, nao"),
+    (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, cartpole, arm5, biorob, nao"),
     (["--plant", "arm5", "--episodes", "0"], "episodes must be >= 1"),
     (["--plant", "arm5", "--dt", "-1"], "dt must be in (0, 0.1] s"),
 ])
