@@ -87,7 +87,8 @@ ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
 TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved"}
 ACHIEVED_KEYS = {"joint", "angle", "tol"}
-ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn"}
+ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn", "unactuated",
+               "gravity"}
 ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits",
               "true"} | ROBOT_FACTS
 TRUE_KEYS = {"payload", "mass_scale", "friction"}  # [robot.true]: the executed robot's differences from its file

@@ -3,6 +3,8 @@ the motor-command and substep models' derivatives, and underactuated planning ag
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -156,3 +158,36 @@ def test_underactuated_lq_matches_riccati(solver):
     res = solve(pb, solver, {"iterations": 20})
     assert_close(res.U, U_ref, rel=1e-6)
     assert_close(res.X, X_ref, rel=1e-6)
+
+
+def test_a_model_files_robot_states_its_unactuated_joints(tmp_path):
+    """A user's problem file names the joints without a motor and g as the built-in cart-pole's file does:
+    the planner's controls are then the motors' (one here)."""
+    from stages.plan.stage import PlanConfig, build_problem
+
+    urdf = Path(__file__).resolve().parents[2] / "plants" / "models" / "cartpole.urdf"
+    (tmp_path / "cp.toml").write_text(f'''name = "own-cartpole"
+[robot]
+file = "{urdf}"
+unactuated = ["pole"]
+gravity = 9.82
+end_effectors = {{ tip = "tip" }}
+[horizon]
+T = 10
+dt = 0.05
+[dynamics]
+model = "analytic"
+[costs.up]
+type = "posture"
+joints = ["pole"]
+target = [3.0]
+times = "last"
+weight = 10.0
+[costs.control]
+type = "control"
+weight = 0.01
+''')
+    robot, _, problem, _, desc = build_problem(PlanConfig(problem=str(tmp_path / "cp.toml")))
+    assert not robot.builtin and robot.underactuated and problem.n_u == 1
+    assert desc["robot"]["unactuated"] == ["pole"] and desc["robot"]["gravity"] == 9.82
+    assert problem.bounds.u_upper.tolist() == [10.0]
