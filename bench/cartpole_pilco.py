@@ -8,7 +8,8 @@ Drake plant. The measure is PILCO's: executed seconds (the random episode's incl
 that ends upright (pole within 0.1 rad of upright; the discrete plant keeps the cart on its rail), per seed; PILCO
 reports 17.5 s. Seeds whose loop never ends upright within ``EPISODES`` count as not reached (infinite). One run
 over ``SEEDS`` seeds, in a cache of its own (``--artifacts``, default ``artifacts/bench/cartpole_pilco``); the page
-is ``artifacts/bench/cartpole_pilco.md`` (+ ``.json``, ``.png``: the executed end error per episode).
+is ``artifacts/bench/cartpole_pilco.md`` (+ ``.json``, ``.png``: the executed end error per episode, and
+``_swing.png``: the first upright episode as executed).
 
     python -m bench.cartpole_pilco [--seeds 10] [--episodes 8] [--render]
 """
@@ -53,7 +54,11 @@ def run_seed(cache, seed: int, episodes: int) -> dict:
     t0 = time.perf_counter()
     out = run(cache, "learn", cfg, record=False)
     m = out.metrics
-    return {"seed": seed, "seconds": seconds_to_upright(m), "first_episode": m["first_success_episode"],
+    X = None
+    if m["first_success_episode"] is not None:   # the first upright episode's executed states, for the filmstrip
+        ep = json.loads((Path(out.path) / "episodes.json").read_text())["episodes"][m["first_success_episode"] - 1]
+        X = np.load(cache.root / "execute" / ep["execute"] / "rollout.npz")["X"].tolist()
+    return {"seed": seed, "seconds": seconds_to_upright(m), "first_episode": m["first_success_episode"], "X_upright": X,
             "task_error": m["task_error"], "status": m["execution_status"], "n_points": m["n_points"],
             "episode_s": [sum(v or 0.0 for v in vals) for vals in zip(m["fit_time_s"], m["plan_time_s"],
                                                                           m["execute_time_s"])],
@@ -122,6 +127,36 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def filmstrip(rows: list[dict], path: Path, every: int = 2) -> None:
+    """The first seed's first upright episode as executed on the Drake plant: the cart (box) and the pole
+    (line, 0.5 m) every ``every`` control steps, later ones darker; the rail's range shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    row = next((r for r in rows if r.get("X_upright")), None)
+    if row is None:
+        return
+    X = np.asarray(row["X_upright"], float)
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    ax.axvspan(-2.0, 2.0, color="0.94", zorder=0)
+    ks = range(0, len(X), every)
+    for i, k in enumerate(ks):
+        x, th = X[k, 0], X[k, 1]
+        c = plt.cm.viridis(i / max(1, len(ks) - 1))
+        ax.add_patch(plt.Rectangle((x - 0.1, -0.04), 0.2, 0.08, fill=False, ec=c, lw=1))
+        ax.plot([x, x + 0.5 * np.sin(th)], [0, -0.5 * np.cos(th)], color=c, lw=1.5)
+    ax.set(aspect="equal", xlabel="cart position (m)", ylabel="height (m)",
+           title=f"seed {row['seed']}, episode {row['first_episode']}: the first upright episode, every "
+                 f"{every * 0.1:g} s (dark: early, yellow: late)")
+    ax.set_xlim(min(-1.0, X[:, 0].min() - 0.6), max(1.0, X[:, 0].max() + 0.6))
+    ax.set_ylim(-0.6, 0.6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     import os
 
@@ -138,6 +173,7 @@ def main() -> None:
         doc = json.loads((out / "cartpole_pilco.json").read_text())
         (out / "cartpole_pilco.md").write_text(page(doc["rows"], doc["load"], pendulum_seconds(Path(args.artifacts))))
         plot(doc["rows"], out / "cartpole_pilco.png")
+        filmstrip(doc["rows"], out / "cartpole_pilco_swing.png")
         return
     cache = Cache(out / "cartpole_pilco")
     rows = []
@@ -151,6 +187,7 @@ def main() -> None:
     pendulum = pendulum_seconds(Path(args.artifacts))
     (out / "cartpole_pilco.md").write_text(page(rows, load, pendulum))
     plot(rows, out / "cartpole_pilco.png")
+    filmstrip(rows, out / "cartpole_pilco_swing.png")
     print(page(rows, load, pendulum))
 
 
