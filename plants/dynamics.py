@@ -302,3 +302,126 @@ class GravityTorques:
         out = [self.value_and_jacobian(q) for q in Q]
         return np.array([o[0] for o in out]).reshape(len(Q), self.n_q), \
             np.array([o[1] for o in out]).reshape(len(Q), self.n_q, self.n_q)
+
+
+class ActuatedDynamics:
+    """An underactuated robot's model: controls are the motors' commands ``u (n_act,)`` (N m or N), the joint
+    torques ``S @ u`` with ``S (n_q, n_act)`` selecting the actuated joints (``plants.robot.Robot.S``); the
+    unactuated joints get none. Wraps any torque-controlled model ``inner`` (analytic or learned):
+    ``f(x, u) = inner.f(x, S u)``, so ``B = B_inner S`` and ``a`` is the inner model's (``B_inner S u = B u``).
+    The uncertainty term's variance gradients are mapped alike (``dvar/du = dvar/dtau S``)."""
+
+    def __init__(self, inner, S: np.ndarray):
+        self.inner = inner
+        self.S = np.asarray(S, float)
+        if self.S.shape[0] != inner.n_u:
+            raise ValueError(f"S is {self.S.shape}, the model takes {inner.n_u} torques")
+        self.n_x, self.n_u, self.dt = inner.n_x, self.S.shape[1], inner.dt
+        self.n_q = getattr(inner, "n_q", self.n_x // 2)
+        self.robot = getattr(inner, "robot", None)
+
+    def torques(self, u: np.ndarray) -> np.ndarray:
+        """Joint torques ``(..., n_q)`` of motor commands ``u (..., n_act)``."""
+        return np.asarray(u, float) @ self.S.T
+
+    def step(self, x, u):
+        return self.inner.step(x, self.torques(u))
+
+    def qddot(self, q, v, u):
+        return self.inner.qddot(q, v, self.torques(u))
+
+    def linearize(self, x, u):
+        A, a, B = self.inner.linearize(x, self.torques(u))
+        return A, a, B @ self.S
+
+    def linearize_trajectory(self, X, U):
+        A, a, B = self.inner.linearize_trajectory(X, self.torques(U))
+        return A, a, B @ self.S
+
+    def controller_rollout(self, x0, o, O):
+        """``X (T+1, n_x)``, ``U (T, n_act)`` of ``u_t = o_t + O_t x_t``: the inner model's rollout of the
+        torque controller ``S o_t + S O_t x_t`` (its compiled one where it has one)."""
+        own = getattr(self.inner, "controller_rollout", None)
+        if own is None:
+            return stepped_rollout(self, np.asarray(x0, float), o, O)
+        X, tau = own(np.asarray(x0, float), self.torques(o), np.einsum("ij,tjk->tik", self.S, O))
+        return X, tau @ self.S   # S has orthonormal columns: S^T S u = u
+
+    def inverse_dynamics(self, q, v, a):
+        """The motor commands ``(n_act,)`` closest (least squares) to the torques that give ``a``."""
+        return self.S.T @ self.inner.inverse_dynamics(q, v, a)
+
+    def predict_variance(self, X, U):
+        var, dx, du = self.inner.predict_variance(X, self.torques(U))
+        return var, dx, du @ self.S
+
+    def point_variance(self, x, u):
+        var, dx, du = self.inner.point_variance(x, self.torques(u))
+        return var, dx, du @ self.S
+
+    @property
+    def model(self):
+        """The inner learned model's GP (the uncertainty term reads its output scale)."""
+        return self.inner.model
+
+
+class SubstepDynamics:
+    """A model stepped ``k`` times per control step: ``x_{t+1} = f^k(x_t, u_t)`` with ``f`` the inner model of
+    step ``dt / k`` and ``u_t`` held over the ``k`` substeps (a zero-order hold, as an execution applies it).
+    A coarse control step (PILCO's 0.1 s) then keeps the inner integrator's accuracy. The linearization is
+    the chain rule through the substeps, exact at the point: ``A = A_k ... A_1``,
+    ``B = sum_i A_k ... A_{i+1} B_i`` and ``a = f^k(x, u) - A x - B u``. The uncertainty term's variance is
+    the inner model's at the step's start ``(x_t, u_t)``."""
+
+    def __init__(self, inner, k: int):
+        if int(k) < 1:
+            raise ValueError(f"substeps must be >= 1, got {k}")
+        self.inner, self.k = inner, int(k)
+        self.n_x, self.n_u, self.dt = inner.n_x, inner.n_u, inner.dt * self.k
+        self.n_q = getattr(inner, "n_q", self.n_x // 2)
+        self.robot = getattr(inner, "robot", None)
+
+    def step(self, x, u):
+        for _ in range(self.k):
+            x = self.inner.step(x, u)
+        return x
+
+    def linearize(self, x, u):
+        x = np.asarray(x, float)
+        A, B = np.eye(self.n_x), np.zeros((self.n_x, self.n_u))
+        xi = x
+        for _ in range(self.k):
+            Ai, ai, Bi = self.inner.linearize(xi, u)
+            A, B = Ai @ A, Ai @ B + Bi
+            xi = Ai @ xi + ai + Bi @ u   # the inner model's step (its affine model is exact at the point)
+        return A, xi - A @ x - B @ u, B
+
+    def linearize_trajectory(self, X, U):
+        X, U = np.asarray(X, float), np.asarray(U, float)
+        T = X.shape[0]
+        A = np.broadcast_to(np.eye(self.n_x), (T, self.n_x, self.n_x)).copy()
+        B = np.zeros((T, self.n_x, self.n_u))
+        Xi = X
+        for _ in range(self.k):
+            Ai, ai, Bi = self.inner.linearize_trajectory(Xi, U)
+            A, B = Ai @ A, Ai @ B + Bi
+            Xi = np.einsum("tij,tj->ti", Ai, Xi) + ai + np.einsum("tij,tj->ti", Bi, U)
+        return A, Xi - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U), B
+
+    def controller_rollout(self, x0, o, O):
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` held over each step's substeps."""
+        return stepped_rollout(self, np.asarray(x0, float), o, O)
+
+    def inverse_dynamics(self, q, v, a):
+        return self.inner.inverse_dynamics(q, v, a)
+
+    def predict_variance(self, X, U):
+        return self.inner.predict_variance(X, U)
+
+    def point_variance(self, x, u):
+        return self.inner.point_variance(x, u)
+
+    @property
+    def model(self):
+        """The inner learned model's GP (the uncertainty term reads its output scale)."""
+        return self.inner.model

@@ -39,6 +39,9 @@ Facts (what raico needs to know of a robot beyond its file; the defaults are a f
   its soles with contact: built for the Nao only, ``plants/free_nao.py``), and ``time_step``, its step (s; a
   continuous plant's largest integrator step);
 - ``learn``: the learning loop's defaults ``{babble_points, stride}``;
+- ``unactuated``: planning joints without a motor (the cart-pole's pole): no actuator is added for them, their
+  effort is 0 and the controls are the actuated joints' (``Robot.actuated``, ``Robot.S``);
+- ``gravity``: the magnitude of gravity (m/s^2, along -z; Drake's 9.81 by default);
 - ``plant``: a built-in plant's name (its robot is called so, its plans store the name only).
 
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
@@ -69,6 +72,7 @@ import numpy as np
 if TYPE_CHECKING:
     from plants.robot import Robot
 
+DRAKE_GRAVITY = 9.81  # m/s^2, Drake's default gravity
 FORMATS = {".urdf": "urdf", ".sdf": "sdf", ".xml": "mjcf"}
 ONE_DOF_JOINTS = ("revolute", "prismatic")  # Drake's names (a URDF "continuous" joint is a revolute one)
 
@@ -102,6 +106,8 @@ class RobotSpec:
     execution: str = "discrete"  # EXECUTIONS
     time_step: float = 1e-3  # s, the execution's step (a discrete plant's; a continuous one's largest integrator step)
     learn: tuple[tuple[str, int], ...] = ()  # the learning loop's defaults {babble_points, stride}
+    unactuated: tuple[str, ...] = ()  # planning joints without a motor (effort 0)
+    gravity: float = DRAKE_GRAVITY  # m/s^2, along -z
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it). Facts at their defaults are left
@@ -139,9 +145,11 @@ class RobotSpec:
 
 
 EXECUTIONS = ("discrete", "continuous", "floating")
-FACTS = ("plant", "order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "time_step", "learn")
+FACTS = ("plant", "order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "time_step", "learn",
+         "unactuated", "gravity")
 FACT_DEFAULTS = {"plant": None, "order": "tree", "coupled": (), "end_effectors": (), "hands": (), "feet": (),
-                 "sole": (), "execution": "discrete", "time_step": 1e-3, "learn": ()}
+                 "sole": (), "execution": "discrete", "time_step": 1e-3, "learn": (), "unactuated": (),
+                 "gravity": DRAKE_GRAVITY}
 LEARN_KEYS = ("babble_points", "stride")
 
 
@@ -161,8 +169,12 @@ def facts_from(d: dict) -> dict:
             if bad or not all(isinstance(x, int) and x > 0 for x in t.values()):
                 raise ModelError(f"learn: {{{', '.join(LEARN_KEYS)}}} as integers > 0, got {t}")
             out[key] = tuple(sorted((str(a), int(b)) for a, b in t.items()))
-        elif key in ("hands", "feet"):
+        elif key in ("hands", "feet", "unactuated"):
             out[key] = tuple(str(x) for x in _list(v, key))
+        elif key == "gravity":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 100:
+                raise ModelError(f"gravity must be a number of m/s^2 in [0, 100], got {v}")
+            out[key] = float(v)
         elif key == "sole":
             pts = np.asarray(_list(v, key), float)
             if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
@@ -610,6 +622,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     planning = [j for j in joints if j.type_name() in ONE_DOF_JOINTS]
     if not planning:
         raise ModelError(f"{path.name}: no revolute, continuous or prismatic joint to plan for")
+    if spec.gravity != DRAKE_GRAVITY:
+        plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -spec.gravity])
     if spec.true:
         notes.extend(_apply_true(plant, spec, path, planning))
     limits = {j: dict(v) for j, v in spec.limits}
@@ -618,6 +632,10 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         if j not in names:
             raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {closest_names(j, names)}")
     armature = _per_joint(spec.armature, names, "armature")
+    for j in spec.unactuated:
+        if j not in names:
+            raise ModelError(f"unactuated: joint '{j}' is not a planning joint of {path.name}: closest "
+                             f"{closest_names(j, names)}")
     unlimited, file_efforts = [], _file_efforts(text, fmt)
     # SDF and MJCF files declare their actuators (URDF transmissions were replaced above): one per joint kept
     existing = {}
@@ -628,6 +646,10 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
         existing[act.joint().index()] = act
     for j, arm in zip(planning, armature):
         act = existing.get(j.index())
+        if j.name() in spec.unactuated:  # no motor: no actuator (the file's is refused)
+            if act is not None:
+                raise ModelError(f"unactuated: joint '{j.name()}' has an actuator in {path.name}; edit the file")
+            continue
         effort = float(act.effort_limit()) if act is not None else file_efforts.get(j.name())
         effort = limits.get(j.name(), {}).get("effort", effort)
         if not effort or effort <= 0 or not math.isfinite(effort):
@@ -658,7 +680,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
     P, planning, names = _coupling(dict(spec.coupled), planning, path)
     lower = np.array([j.position_lower_limits()[0] for j in planning])
     upper = np.array([j.position_upper_limits()[0] for j in planning])
-    efforts = np.array([_effort_of(plant, j) for j in planning])
+    efforts = np.array([0.0 if j.name() in spec.unactuated else _effort_of(plant, j) for j in planning])
     for k, name in enumerate(names):
         lower[k] = limits.get(name, {}).get("lower", lower[k])
         upper[k] = limits.get(name, {}).get("upper", upper[k])

@@ -90,6 +90,23 @@ class Robot:
         unlimited joints are ``inf``."""
         return np.array([self.effort[row != 0][0] if np.any(row != 0) else np.inf for row in self.P])
 
+    @property
+    def actuated(self) -> np.ndarray:
+        """Indices ``(n_act,)`` of the planning joints with a motor (all but the spec's ``unactuated``)."""
+        off = set(self.spec.unactuated) if self.spec is not None else set()
+        return np.array([k for k, n in enumerate(self.joint_names) if n not in off], dtype=np.int64)
+
+    @property
+    def underactuated(self) -> bool:
+        """Some planning joint has no motor (the cart-pole's pole): torque controls are the actuated joints'."""
+        return len(self.actuated) < self.n_q
+
+    @property
+    def S(self) -> np.ndarray:
+        """``(n_q, n_act)`` the selection of the actuated joints: joint torques ``tau = S @ u`` of motor
+        commands ``u (n_act,)`` (N m or N); the identity for a fully actuated robot."""
+        return np.eye(self.n_q)[:, self.actuated]
+
     def babble_torque_limit(self) -> np.ndarray:
         """Per planning joint: min(10 N m, effort limit)."""
         return np.minimum(BABBLE_TORQUE_LIMIT, self.effort)

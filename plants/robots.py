@@ -34,7 +34,7 @@ __all__ = ["BABBLE_TORQUE_LIMIT", "LEARN_DEFAULTS", "MODELS", "PLANTS", "Chain",
            "kinematic_chain", "load_robot", "load_robot_for", "robot_for", "shared_robot"]
 
 MODELS = Path(__file__).resolve().parent / "models"
-PLANTS = ("pendulum", "arm5", "biorob", "nao")  # the built-in plants: plants/models/NAME.{urdf,toml}
+PLANTS = ("pendulum", "cartpole", "arm5", "biorob", "nao")  # the built-in plants: plants/models/NAME.{urdf,toml}
 
 
 @cache

@@ -103,6 +103,47 @@ def pendulum() -> str:
     return s + "</robot>\n"
 
 
+# PILCO's cart-pole (UCL-SML/pilco-matlab, scenarios/cartPole/dynamics_cp.m and settings_cp.m): cart M = 0.5 kg,
+# pole m = 0.5 kg a uniform rod of l = 0.5 m (its centre of mass at l/2, inertia m l^2 / 12 about it), cart
+# friction b = 0.1 N s/m, force limit 10 N (policy.maxU); g = 9.82 m/s^2 is the model file's gravity fact
+CARTPOLE = {"M": 0.5, "m": 0.5, "l": 0.5, "b": 0.1, "force": 10.0, "rail": 2.0}
+
+
+def cartpole() -> str:
+    """A cart on a prismatic rail along x (``cart``, m, with PILCO's force limit and friction and a rail range)
+    carrying an unactuated pole (``pole``, rad, 0 hanging down, pi upright; its axis -y, so a positive angle
+    moves the pole's tip towards +x as PILCO's ``theta``). The pole is a uniform thin rod."""
+    c = CARTPOLE
+    s = _header("cartpole")
+    s += ('  <link name="rail">\n' + _box([0, 0, -0.06], [2 * c["rail"] + 0.3, 0.04, 0.02], "dark", "rail")
+          + "  </link>\n")
+    tiny = {"ixx": 1e-6, "iyy": 1e-6, "izz": 1e-6, "ixy": 0.0, "ixz": 0.0, "iyz": 0.0}
+    s += ('  <link name="cart">\n' + _inertial(c["M"], [0, 0, 0], tiny)
+          + _box([0, 0, 0], [0.2, 0.12, 0.08], "blue", "cart") + "  </link>\n")
+    rod = c["m"] * c["l"] ** 2 / 12  # a thin rod about its centre
+    inertial = _inertial(c["m"], [0, 0, -c["l"] / 2], {"ixx": 0.0, "iyy": 0.0, "izz": 1e-6, "ixy": 0.0, "ixz": 0.0,
+                                                        "iyz": 0.0})
+    inertial = inertial.replace('ixx="0"', f'ixx="{rod!r}"').replace('iyy="0"', f'iyy="{rod!r}"')  # every digit
+    s += ('  <link name="pole">\n' + inertial
+          + _segment([0, 0, 0], [0, 0, -c["l"]], 0.012, "grey", "pole")
+          + _sphere([0, 0, -c["l"]], 0.03, "orange", "tip") + "  </link>\n")
+    s += ('  <link name="tip"/>\n'
+          '  <joint name="tip_fixed" type="fixed"><parent link="pole"/><child link="tip"/>'
+          f'<origin xyz="0 0 {-c["l"]:.9g}" rpy="0 0 0"/></joint>\n')
+    s += ('  <joint name="world_rail" type="fixed"><parent link="world"/><child link="rail"/>'
+          '<origin xyz="0 0 0" rpy="0 0 0"/></joint>\n')
+    s += ('  <joint name="cart" type="prismatic"><parent link="rail"/><child link="cart"/>\n'
+          '    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="1 0 0"/>\n'
+          f'    <limit lower="{-c["rail"]:.9g}" upper="{c["rail"]:.9g}" effort="{c["force"]:.9g}" velocity="100"/>\n'
+          f'    <dynamics damping="{c["b"]:.9g}" friction="0"/>\n  </joint>\n')
+    s += ('  <joint name="pole" type="continuous"><parent link="cart"/><child link="pole"/>\n'
+          '    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 -1 0"/>\n'
+          '    <dynamics damping="0" friction="0"/>\n  </joint>\n')
+    s += ('  <transmission type="SimpleTransmission" name="cart_tr"><actuator name="cart_motor"/>'
+          '<joint name="cart"/><mechanicalReduction>1</mechanicalReduction></transmission>\n')
+    return s + "</robot>\n"
+
+
 def serial_arm(name: str, links: list[dict], color: str) -> str:
     """A serial arm on a welded base. Each link: name, joint axis, joint origin offset from the
     previous link's frame, length along +x, mass, com fraction, radius, effort, limits."""
@@ -242,6 +283,7 @@ def main() -> None:
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "pendulum.urdf").write_text(pendulum())
+    (OUT / "cartpole.urdf").write_text(cartpole())
     (OUT / "arm5.urdf").write_text(serial_arm("arm5", ARM5, "orange"))
     (OUT / "biorob.urdf").write_text(serial_arm("biorob", BIOROB, "blue"))
     (OUT / "nao.urdf").write_text(nao(json.loads(Path(args.nao_json).read_text())))

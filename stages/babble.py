@@ -54,7 +54,7 @@ DATA_FILE = "data.npz"
 class BabbleConfig(StageConfig):
     """Declared parameters of the babble stage (all part of its cache key; defaults stated here only)."""
 
-    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+    HELP = {"plant": "pendulum, cartpole, arm5, biorob or nao (or --problem FILE).",
             "problem": "A problem file (TOML) whose robot babbles (its model file; [robot.true]'s robot where "
                        "stated); replaces --plant.",
             "torque_noise": "Per-joint random torques added to the PD, as a fraction of the effort limit "
@@ -200,7 +200,8 @@ def desired_trajectory(rng: np.random.Generator, q0: np.ndarray, lower: np.ndarr
     times = np.linspace(0.0, cfg.duration, cfg.knots + 1)
     amp = joint_amplitudes(np.zeros(q0.size, bool) if prismatic is None else prismatic, cfg)
     knots = q0 + rng.uniform(-amp, amp, size=(cfg.knots, q0.size))
-    margin = MARGIN * (upper - lower)
+    with np.errstate(invalid="ignore"):   # an unlimited joint (the cart-pole's pole): no margin, no clipping
+        margin = np.where(np.isfinite(upper - lower), MARGIN * (upper - lower), 0.0)
     knots = np.clip(knots, lower + margin, upper - margin)
     return CubicSpline(times, np.vstack([q0, knots]), bc_type="clamped")
 

@@ -54,7 +54,7 @@ def babble_knots(points: int) -> int:
 class LearnConfig(StageConfig):
     """Parameters of ``raico learn`` (defaults stated here only)."""
 
-    HELP = {"plant": "pendulum, arm5, biorob or nao.", "task": "Task of the plant (see raico plan --help).",
+    HELP = {"plant": "pendulum, cartpole, arm5, biorob or nao.", "task": "Task of the plant (see raico plan --help).",
             "episodes": "Planning-and-execution episodes after babbling.",
             "sigma_star": "Desired model uncertainty sigma* (GP predictive variance, see --sigma-units) or none.",
             "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "

@@ -198,7 +198,7 @@ def items_control_gravity(term, state, nu, model, smap, robot):
 
 
 def items_control_limit(term, state, nu, model, smap, robot):
-    n = smap.n
+    n = getattr(smap, "n_u", smap.n)   # an underactuated robot's motors (ActuatedMap)
     lo = smap.u_to_pin(np.broadcast_to(term.lower, (n,)).astype(float))
     hi = smap.u_to_pin(np.broadcast_to(term.upper, (n,)).astype(float))
     return [(crocoddyl.ResidualModelControl(state, nu),

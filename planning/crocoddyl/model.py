@@ -165,6 +165,40 @@ class StateMap:
         return K[:, self.v_index][:, :, self.tangent_index]
 
 
+@dataclass(frozen=True)
+class ActuatedMap(StateMap):
+    """A :class:`StateMap` whose controls are an underactuated robot's motor commands ``u (n_act,)`` (raico's
+    actuated joints in order, ``plants.robot.Robot.S``), which are crocoddyl's controls as they are: its
+    actuation model (:class:`SelectedActuation`) puts them on their joints."""
+
+    sel: np.ndarray = None  # (nv, n_act): Pinocchio's generalized force of each motor command
+
+    @classmethod
+    def of(cls, smap: StateMap, S: np.ndarray) -> ActuatedMap:
+        """``smap`` with the motors of the selection ``S (n_q, n_act)`` (raico's joints)."""
+        sel = np.zeros((smap.nv, S.shape[1]))
+        sel[smap.v_index] = S
+        return cls(smap.nq, smap.nv, smap.q_index, smap.v_index, smap.continuous, sel)
+
+    @property
+    def n_u(self) -> int:
+        return self.sel.shape[1]
+
+    @property
+    def is_identity(self) -> bool:
+        return False   # the controls are not the joints'
+
+    def u_to_pin(self, U: np.ndarray) -> np.ndarray:
+        return np.asarray(U, float)
+
+    def u_to_raico(self, Up: np.ndarray) -> np.ndarray:
+        return np.asarray(Up, float)
+
+    def gains_to_raico(self, K: np.ndarray) -> np.ndarray:
+        """crocoddyl's gains ``(T, n_act, 2 nv)`` -> raico's ``(T, n_act, 2 n)``."""
+        return np.asarray(K, float)[:, :, self.tangent_index]
+
+
 def _wrap(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
@@ -364,10 +398,15 @@ def add_frames(terms, model, robot) -> None:
 
 def problem_robot(problem: Problem):
     """The robot of ``problem``'s analytic dynamics (``NotExpressible`` for other dynamics)."""
-    from plants.dynamics import AnalyticDynamics, PseudoDynamics
+    from plants.dynamics import ActuatedDynamics, AnalyticDynamics, PseudoDynamics, SubstepDynamics
     from plants.fast_analytic import FastAnalyticDynamics
 
     dyn = problem.dynamics
+    if isinstance(dyn, ActuatedDynamics):   # an underactuated robot: crocoddyl's actuation selects its motors
+        dyn = dyn.inner
+    if isinstance(dyn, SubstepDynamics):
+        raise NotExpressible("solver fddp: crocoddyl steps its model once per node; the problem's model takes "
+                             f"{dyn.k} substeps per control step")
     if isinstance(dyn, PseudoDynamics):
         raise NotExpressible(
             "solver fddp: crocoddyl cannot express the pseudo-dynamics exactly (controls are accelerations; "
@@ -404,6 +443,33 @@ if AVAILABLE:
 
         def torqueTransform(self, data, x, u):
             assign(data.Mtau, np.eye(self.nu))
+
+    class SelectedActuation(crocoddyl.ActuationModelAbstract):
+        """An underactuated robot's motors with viscous joint damping: ``tau = Sel u - D qdot`` with
+        ``Sel (nv, n_act)`` putting each motor command on its joint (:class:`ActuatedMap`)."""
+
+        def __init__(self, state, sel: np.ndarray, damping: np.ndarray):
+            crocoddyl.ActuationModelAbstract.__init__(self, state, sel.shape[1])
+            self.sel = np.asarray(sel, float)
+            self.D = np.asarray(damping, float)
+            self.nq = state.nq
+
+        def calc(self, data, x, u=None):
+            v = np.asarray(x)[self.nq:]
+            data.tau[:] = (np.zeros(self.state.nv) if u is None else self.sel @ np.asarray(u)) - self.D * v
+
+        def calcDiff(self, data, x, u=None):
+            nv = self.state.nv
+            dx = np.zeros((nv, self.state.ndx))
+            dx[:, nv:] = -np.diag(self.D)
+            assign(data.dtau_dx, dx)
+            assign(data.dtau_du, self.sel)
+
+        def commands(self, data, x, tau):
+            data.u[:] = self.sel.T @ (np.asarray(tau) + self.D * np.asarray(x)[self.nq:])
+
+        def torqueTransform(self, data, x, u):
+            assign(data.Mtau, self.sel.T)
 
 
 def pinocchio_of(robot, continuous: str):

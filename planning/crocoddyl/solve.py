@@ -58,8 +58,10 @@ import numpy as np
 from planning.crocoddyl.model import (
     AVAILABLE,
     CONTINUOUS,
+    ActuatedMap,
     DampedActuation,
     NotExpressible,
+    SelectedActuation,
     StateMap,
     add_frames,
     crocoddyl,
@@ -134,7 +136,7 @@ class CrocoddylProblem:
 
     def gains_from_pin(self, K) -> np.ndarray:
         """crocoddyl's gains -> raico's ``(T, n_u, n_x)``."""
-        K = np.array(K, float).reshape(self.T, self.smap.nv, 2 * self.smap.nv)
+        K = np.array(K, float).reshape(self.T, -1, 2 * self.smap.nv)
         return K if self.identity else self.smap.gains_to_raico(K)
 
     def _nodes(self):
@@ -190,7 +192,7 @@ class CrocoddylProblem:
         if self.identity:
             return X, U, cost
         if not math.isfinite(cost):
-            return np.full((self.T + 1, self.x0.size), np.nan), np.full((self.T, self.smap.n), np.nan), cost
+            return np.full((self.T + 1, self.x0.size), np.nan), np.full(U.shape, np.nan), cost
         return self.from_pin(X), self.controls_from_pin(U), cost
 
 
@@ -205,18 +207,24 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     require()
     from planning.costs import ControlGravity, ControlLimit
     from planning.crocoddyl.costs import cost_items
+    from plants.dynamics import ActuatedDynamics
 
     robot = problem_robot(problem)
     if any(not isinstance(t, ControlGravity) for t in problem.joint_terms):
         raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
     pmodel, smap = pinocchio_of(robot, continuous)
+    pmodel.gravity.linear = np.asarray(robot.plant.gravity_field().gravity_vector(), float)  # the model file's g
     state_costs = [t for t in problem.state_terms if t.weight != 0]
     control_costs = [t for t in [*problem.control_terms, *problem.joint_terms] if t.weight != 0]
     add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
     state = crocoddyl.StateMultibody(pmodel)
     D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
-    actuation = (DampedActuation(state, D) if np.any(D != 0)
-                 else crocoddyl.ActuationModelFull(state))
+    if isinstance(problem.dynamics, ActuatedDynamics):   # motors on some joints only
+        smap = ActuatedMap.of(smap, problem.dynamics.S)
+        actuation = SelectedActuation(state, smap.sel, D)
+    else:
+        actuation = (DampedActuation(state, D) if np.any(D != 0)
+                     else crocoddyl.ActuationModelFull(state))
     nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
     items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
     limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]

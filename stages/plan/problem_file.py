@@ -87,13 +87,14 @@ ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
 TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved"}
 ACHIEVED_KEYS = {"joint", "angle", "tol"}
-ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn"}
+ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn", "unactuated",
+               "gravity"}
 ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits",
               "true"} | ROBOT_FACTS
 TRUE_KEYS = {"payload", "mass_scale", "friction"}  # [robot.true]: the executed robot's differences from its file
 PAYLOAD_KEYS = {"frame", "mass", "com"}
 HORIZON_KEYS = {"T", "dt"}
-DYNAMICS_KEYS = {"model", "integrator"}
+DYNAMICS_KEYS = {"model", "integrator", "substeps"}
 # dynamics model -> integrator -> raico's dynamics name (plants.dynamics_registry)
 INTEGRATORS = {"pseudo": {"backward-euler": "pseudo", "euler": "pseudo-euler", "heun": "pseudo-heun"},
                "analytic": {"semi-implicit-euler": "analytic"}}
@@ -142,6 +143,11 @@ class ProblemFile:
     def dynamics(self) -> str:
         d = self.doc["dynamics"]
         return INTEGRATORS[d["model"]][d["integrator"]]
+
+    @property
+    def substeps(self) -> int:
+        """Model steps per control step of ``dt`` (``plants.dynamics.SubstepDynamics``; 1: one)."""
+        return int(self.doc["dynamics"].get("substeps", 1))
 
     @property
     def plant(self) -> str | None:
@@ -229,6 +235,13 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
         raise ValueError(f"[dynamics] unknown integrator '{integ}' for {model}: choose one of "
                          f"{', '.join(INTEGRATORS[model])}")
     doc["dynamics"] = {"model": model, "integrator": integ}
+    substeps = d.get("substeps", 1)
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= 1000:
+        raise ValueError(f"[dynamics] substeps must be an integer in [1, 1000], got {substeps!r}")
+    if substeps != 1:  # the model stepped substeps times per control step (kept out of the doc at 1)
+        if model == "pseudo":
+            raise ValueError("[dynamics] substeps: for the analytic model (and the learned one) only")
+        doc["dynamics"]["substeps"] = substeps
     costs = dict(raw["costs"])
     convention = costs.pop("convention", "raico")
     if convention not in CONVENTIONS:
@@ -261,7 +274,7 @@ def _achieved(a) -> dict:
 def _robot(r: dict, base: Path) -> dict:
     _refuse_unknown(r, ROBOT_KEYS, "[robot]")
     if ("plant" in r) == ("file" in r):
-        raise ValueError("[robot]: give either plant (a built-in: pendulum, arm5, biorob, nao) or file (a model file)")
+        raise ValueError("[robot]: give either plant (a built-in: pendulum, cartpole, arm5, biorob, nao) or file (a model file)")
     if "plant" in r:
         from plants.robots import PLANTS
 
@@ -521,8 +534,9 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
             continue
         if kind == "control_limit":
             w = t["weight"] * (0.5 * dt if convention == "crocoddyl" else 1.0)
-            lo = _vector(t["lower"], f"[costs.{name}] lower", robot.n_q) if "lower" in t else (-robot.effort).tolist()
-            hi = _vector(t["upper"], f"[costs.{name}] upper", robot.n_q) if "upper" in t else robot.effort.tolist()
+            effort, n_u = robot.effort[robot.actuated], len(robot.actuated)  # an underactuated robot's motors
+            lo = _vector(t["lower"], f"[costs.{name}] lower", n_u) if "lower" in t else (-effort).tolist()
+            hi = _vector(t["upper"], f"[costs.{name}] upper", n_u) if "upper" in t else effort.tolist()
             out.append(ob.control_limit(lo, hi, w, name))
             continue
         pieces = _scale(convention, t["times"], T, dt)
@@ -539,14 +553,14 @@ def _control(name: str, t: dict, robot, factor: float) -> dict:
     w = t["weight"]
     precision = None
     if isinstance(w, list):
-        w = np.asarray(_vector(w, f"[costs.{name}] weight", robot.n_q))
+        w = np.asarray(_vector(w, f"[costs.{name}] weight", len(robot.actuated)))
         top = float(w.max())
         precision, w = (w / top if top > 0 else np.ones_like(w)).tolist(), top
     d = ob.control(w * factor, name)
     if t.get("target") == "gravity":
         d.update(target="gravity", controls="torque")
     elif "target" in t:
-        d["target"] = _vector(t["target"], f"[costs.{name}] target", robot.n_q)
+        d["target"] = _vector(t["target"], f"[costs.{name}] target", len(robot.actuated))
     if precision is not None:
         d["precision"] = precision
     return d

@@ -20,7 +20,7 @@ from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, 
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
 from planning.problem import Bounds, Problem, Result
 from planning.solvers import SOLVERS, make_options, solve
-from plants.dynamics import PseudoDynamics
+from plants.dynamics import ActuatedDynamics, PseudoDynamics, SubstepDynamics
 from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Chain, Robot, kinematic_chain, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
@@ -54,7 +54,7 @@ class PlanConfig(StageConfig):
 
     INPUTS = ("model", "warm_start")
     INPUT_STAGES = {"model": "fit", "warm_start": "plan"}
-    HELP = {"plant": "pendulum, arm5, biorob or nao (or --problem FILE).",
+    HELP = {"plant": "pendulum, cartpole, arm5, biorob or nao (or --problem FILE).",
             "problem": "A problem file (TOML): robot (a built-in plant or a URDF/SDF/MJCF model file), horizon, "
                        "dynamics and named cost terms; replaces --plant and --task.",
             "task": "Task of the plant: " + "; ".join(f"{p}: {t}" for p, t in sorted(TASKS)) + ".",
@@ -350,7 +350,8 @@ class PlanOutput:
         r = self.result
         iterates = {} if r.X_iterations is None else {"X_iterations": r.X_iterations,
                                                        "t_iterations": r.t_iterations}
-        return {"X": r.X, "U": r.U, "o": r.o, "O": r.O, "costs": r.costs, "q0": self.q0,
+        U, o, O = joint_controls(self.problem, r.U, r.o, r.O)
+        return {"X": r.X, "U": U, "o": o, "O": O, "costs": r.costs, "q0": self.q0,
                 "times": self.times, "wall_time": np.array([h.time_s for h in r.history]),
                 "elapsed": np.array([h.elapsed_s for h in r.history]),
                 "step": np.array([h.step for h in r.history]), "mu": np.array([h.mu for h in r.history]),
@@ -391,6 +392,25 @@ class PlanOutput:
         return b
 
 
+def joint_controls(problem: Problem, U: np.ndarray, o: np.ndarray, O: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A plan's controls as every planning joint's torque (what ``plan.npz`` stores and executions apply):
+    an underactuated robot's motor commands ``U (T, n_act)`` and controller ``o (T, n_act)``,
+    ``O (T, n_act, n_x)`` times its selection ``S`` (0 on the unactuated joints); others unchanged."""
+    dyn = problem.dynamics
+    if not isinstance(dyn, ActuatedDynamics):
+        return U, o, O
+    S = dyn.S
+    return U @ S.T, o @ S.T, np.einsum("ij,tjk->tik", S, O)
+
+
+def motor_controls(problem: Problem, U: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`joint_controls` for stored controls ``U (T, n_q)`` (a warm start): the motor
+    commands ``(T, n_act)`` of an underactuated robot (the actuated joints' columns), else ``U``."""
+    dyn = problem.dynamics
+    return U @ dyn.S if isinstance(dyn, ActuatedDynamics) and U.ndim == 2 and U.shape[1] == dyn.S.shape[0] else U
+
+
 def initial_posture(robot: Robot, q0_std: float, seed: int, q0_std_prismatic: float = 0.0) -> np.ndarray:
     """``q0 = default + N(0, q0_std^2)`` (rad; ``q0_std_prismatic`` m on a prismatic joint), clipped to the
     joint limits (a robot cannot start outside them; the Nao's hands default to their lower limit), widened
@@ -420,11 +440,30 @@ def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
     (N m; unlimited joints ``inf``) as a problem's hard bounds (``None`` if it has neither)."""
     idx = np.flatnonzero(np.isfinite(robot.lower) | np.isfinite(robot.upper))
     eff = np.where((robot.effort > 0) & np.isfinite(robot.effort), robot.effort, np.inf)
+    if kind == "torque" and robot.underactuated:  # the controls are the motors' commands
+        eff = robot.effort[robot.actuated]
     torque = kind == "torque" and bool(np.any(np.isfinite(eff)))
     if not len(idx) and not torque:
         return None
     return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
                   q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx])
+
+
+def actuated(dyn, robot: Robot, substeps: int = 1):
+    """The problem's model of step model ``dyn``: stepped ``substeps`` times per control step
+    (:class:`plants.dynamics.SubstepDynamics`) and, for an underactuated robot, with the motors' commands as
+    its controls (:class:`plants.dynamics.ActuatedDynamics`); ``dyn`` itself for one step of a fully actuated
+    robot. Pseudo-dynamics (every joint's acceleration commanded) take neither: ``ValueError``."""
+    if isinstance(dyn, PseudoDynamics) and robot.underactuated:
+        off = [n for k, n in enumerate(robot.joint_names) if k not in set(robot.actuated.tolist())]
+        raise ValueError(f"{robot.name} has unactuated joints ({', '.join(off)}): pseudo-dynamics command every "
+                         "joint's acceleration; use --dynamics analytic or learned")
+    if isinstance(dyn, PseudoDynamics) and substeps != 1:
+        raise ValueError(f"the problem steps its model {substeps} times per control step: for the analytic and "
+                         "learned models only, not pseudo-dynamics")
+    if substeps != 1:
+        dyn = SubstepDynamics(dyn, substeps)
+    return ActuatedDynamics(dyn, robot.S) if robot.underactuated else dyn
 
 
 def control_kind(dynamics) -> str:
@@ -557,7 +596,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot
     params = model.arrays("model.npz") if model is not None else None
     if model is not None:
         check_model_robot(model, robot)
-    dyn = make_dynamics(cfg.dynamics, robot, task.dt, params)
+    dyn = actuated(make_dynamics(cfg.dynamics, robot, task.dt / task.substeps, params), robot, task.substeps)
     kind = control_kind(dyn)
     terms = task.build(robot, q0, task.T)
     terms, balance = apply_balance(robot, q0, task.T, terms, cfg.balance, float(cfg.balance_margin))
@@ -689,7 +728,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
     if cfg.start == "quasi-static" and warm_start is None:
         init["U_init"] = quasi_static_controls(problem, q0)
     if warm_start is not None:
-        U0 = warm_start.arrays(PLAN_FILE)["U"]
+        U0 = motor_controls(problem, np.asarray(warm_start.arrays(PLAN_FILE)["U"], float))
         if U0.shape != (problem.T, problem.n_u) or not np.all(np.isfinite(U0)):
             raise ValueError(f"warm start {warm_start.key}: its controls do not fit this problem "
                              f"(shape {U0.shape}, expected {(problem.T, problem.n_u)}, finite)")

@@ -36,6 +36,7 @@ class TaskSpec:
     dynamics: str = "pseudo"
     start: str | dict | None = None  # the robot's start posture in place of its default ("zero" or {joint: rad})
     achieved: dict | None = None  # the problem file's [achieved]: {joint, angle, tol} of an execution's end
+    substeps: int = 1  # model steps per control step of dt (the problem file's [dynamics] substeps)
 
     def robot(self, robot: Robot) -> Robot:
         """``robot`` with this task's start posture as its default (itself where the task names none): ``"zero"``
@@ -53,7 +54,8 @@ class TaskSpec:
 def task_from_problem(problem: ProblemFile) -> TaskSpec:
     """The task a problem file states (its terms built at the start posture ``q0``)."""
     return TaskSpec(problem.robot_label, problem.name, problem.T, problem.dt, partial(build_terms, problem),
-                    problem.doc["description"], problem.dynamics, problem.plant_start, problem.achieved)
+                    problem.doc["description"], problem.dynamics, problem.plant_start, problem.achieved,
+                    problem.substeps)
 
 
 def _shipped_tasks() -> dict[tuple[str, str], TaskSpec]:

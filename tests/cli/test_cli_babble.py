@@ -104,7 +104,7 @@ def test_babble_torques_follow_the_saturated_pd_law():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, arm5, biorob, nao"),
+    (["--plant", "nope"], "unknown plant 'nope': choose one of pendulum, cartpole, arm5, biorob, nao"),
     (["--plant", "arm5", "--episodes", "0"], "episodes must be >= 1"),
     (["--plant", "arm5", "--dt", "-1"], "dt must be in (0, 0.1] s"),
 ])
@@ -122,8 +122,8 @@ def test_console_script_usage_error_is_one_line(tmp_path):
     assert p.returncode == 2 and p.stderr.strip() == "raico: error: Option '--episodes' requires an argument."
     # no robot at all: babble needs a plant or a problem file, said in one line
     p = subprocess.run([str(exe), "babble", "--artifacts", str(tmp_path)], capture_output=True, text=True)
-    assert p.returncode == 2 and p.stderr.strip() == ("raico: error: unknown plant '': choose one of pendulum, arm5, "
-                                                      "biorob, nao (or --problem FILE)")
+    assert p.returncode == 2 and p.stderr.strip() == ("raico: error: unknown plant '': choose one of pendulum, cartpole, "
+                                                      "arm5, biorob, nao (or --problem FILE)")
 
 
 def test_sigkill_halfway_leaves_nothing_valid_and_next_run_completes(raico, tmp_path):

@@ -91,7 +91,7 @@ def test_recording_has_every_body_and_joint(tmp_path: Path, name: str) -> None:
     inspector = robot.scene_graph.model_inspector()
     frames = [robot.plant.GetBodyFrameIdIfExists(BodyIndex(i)) for i in range(robot.plant.num_bodies())]
     n_geometries = sum(len(inspector.GetGeometries(f, Role.kIllustration)) for f in frames if f is not None)
-    assert sum(len(g) for g in geometry.values()) == n_geometries == {"pendulum": 3, "arm5": 11, "biorob": 11,
+    assert sum(len(g) for g in geometry.values()) == n_geometries == {"pendulum": 3, "cartpole": 4, "arm5": 11, "biorob": 11,
                                                                        "nao": 30}[name]
     reader = RrdReader(path)
     assert [s.application_id for s in reader.recordings()] == ["raico"]

@@ -25,6 +25,7 @@ def random_state(robot, seed=0):
 
 PLANNING_VIEWS = {  # n_q, plant positions, end effectors
     "pendulum": (1, 1, {"ee"}),
+    "cartpole": (2, 2, {"tip"}),
     "arm5": (5, 5, {"ee"}),
     "biorob": (5, 5, {"ee"}),
     "nao": (25, 26, {"r_hand", "l_hand", "r_sole", "l_sole", "head"}),
@@ -41,7 +42,8 @@ def test_robot_has_planning_view(name):
     q = np.random.default_rng(0).standard_normal(r.n_q)
     np.testing.assert_array_equal(r.to_plant_q(q), r.P @ q)
     assert len(set(r.joint_names)) == r.n_q and np.all(r.lower < r.upper)
-    assert r.effort.shape == (r.n_q,) and np.all(r.effort > 0)
+    assert r.effort.shape == (r.n_q,) and np.all(r.effort[r.actuated] > 0)
+    assert np.all(r.effort[np.setdiff1d(np.arange(r.n_q), r.actuated)] == 0)   # no motor (the cart-pole's pole)
     for frame in r.end_effectors.values():
         r.plant.GetFrameByName(frame)
 
