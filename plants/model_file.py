@@ -560,8 +560,10 @@ def _apply_true(plant, spec: RobotSpec, path: Path, planning: list) -> list[str]
     return notes
 
 
-def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
-    """A fresh :class:`~plants.robots.Robot` from ``spec`` (its report in ``robot.load_report``)."""
+def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_finalize=None) -> Robot:
+    """A fresh :class:`~plants.robots.Robot` from ``spec`` (its report in ``robot.load_report``);
+    ``before_finalize(plant, text, path, packages)``, where given, adds to the plant before it is finalized
+    (a scene's geometry, ``plants.scene``)."""
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
     from pydrake.multibody.tree import JointIndex
@@ -645,6 +647,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
                      + (f"; {len(existing)} actuators of the file kept" if existing else ""))
     elif existing:
         notes.append(f"{len(existing)} actuators of the file kept")
+    if before_finalize is not None:
+        before_finalize(plant, text, path, packages)
     try:
         plant.Finalize()
     except RuntimeError as e:
