@@ -44,8 +44,8 @@ Facts (what raico needs to know of a robot beyond its file; the defaults are a f
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
 ``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
 replaced by one actuator per planning joint with the file's effort limit (0 or none: unlimited);
-``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes,
-and planning does not use contact); a visual whose mesh file does not exist dropped; relative mesh
+``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes;
+the dynamics use no contact; collision terms read them again, meshes as convex hulls: ``plants.scene``); a visual whose mesh file does not exist dropped; relative mesh
 paths made absolute; duplicate top-level materials dropped; a robot without a name named after its
 file. Unsupported content is one clear ``ModelError``: a floating joint inside the tree, a joint
 type the planning coordinates cannot hold (ball, planar, universal), a kinematic loop.
@@ -396,7 +396,7 @@ def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, flo
             link.remove(c)
             ncol += 1
     if ncol:
-        notes.append(f"{ncol} <collision> elements dropped (planning uses no contact geometry)")
+        notes.append(f"{ncol} <collision> elements dropped from the dynamics (collision terms read them: plants.scene)")
     missing, seen_mat, dup = [], set(), 0
     for m in root.findall("material"):
         name = m.get("name")

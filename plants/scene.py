@@ -381,6 +381,7 @@ class CollisionWorld:
         self.sg_context = self.scene_graph.GetMyContextFromRoot(self.context)
         self.inspector = self.scene_graph.model_inspector()
         self.shapes = shapes + scene_shapes(scene)
+        self.shapes_by_name = {s.name: s for s in self.shapes}
         self.geometries: dict[str, Any] = {}
         self.body_of: dict[str, str] = {}
         self.object_of: dict[str, str] = {}   # geometry name -> scene object name (robot geometry: link name)
@@ -407,7 +408,7 @@ class CollisionWorld:
             self.geometries[name] = gid
             self.body_of[name] = bname
         self._names_of = {gid: n for n, gid in self.geometries.items()}
-        by_name = {s.name: s for s in self.shapes}
+        by_name = self.shapes_by_name
         self.bounds: dict[str, tuple[np.ndarray, float]] = {}   # name -> (centre in its body's frame, radius)
         for name in self.geometries:
             shape = by_name.get(name)
@@ -743,3 +744,8 @@ class SignedDistances:
 
     def value(self, q: np.ndarray) -> np.ndarray:
         return self.evaluate(q[None], jacobians=False)[0][0]
+
+    def witnesses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distances ``(m,)`` (capped) and witness points ``(m, 2, 3)`` (world, m; NaN where capped) at ``q``."""
+        D, _, W = self.evaluate(q[None], jacobians=False)
+        return D[0], W[0]
