@@ -259,6 +259,25 @@ def bounding_sphere(s: Shape) -> tuple[np.ndarray, float]:
     return c, float(np.linalg.norm(V - c, axis=1).max())
 
 
+def point_distance(s: Shape, P: np.ndarray) -> np.ndarray:
+    """Signed distances ``(K,)`` (m) of world points ``P (K, 3)`` to the primitive ``s`` placed in the world
+    (box, sphere, cylinder, capsule; negative inside)."""
+    X = rigid_transform(s.pose)
+    L = (P - X.translation()) @ X.rotation().matrix()     # in the shape's frame
+    if s.kind == "sphere":
+        return np.linalg.norm(L, axis=1) - s.size[0]
+    if s.kind == "capsule":
+        z = np.clip(L[:, 2], -0.5 * s.size[1], 0.5 * s.size[1])
+        return np.linalg.norm(L - np.c_[np.zeros((len(L), 2)), z], axis=1) - s.size[0]
+    if s.kind == "box":
+        q = np.abs(L) - 0.5 * np.asarray(s.size)
+    elif s.kind == "cylinder":
+        q = np.c_[np.hypot(L[:, 0], L[:, 1]) - s.size[0], np.abs(L[:, 2]) - 0.5 * s.size[1]]
+    else:
+        raise ValueError(f"point_distance: no formula for a {s.kind}")
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
 def _floats(text: str | None, n: int, default: float = 0.0) -> list[float]:
     vals = [float(x) for x in (text or "").split()]
     return vals if len(vals) == n else [default] * n
@@ -640,6 +659,13 @@ class SignedDistances:
             X = world.inspector.GetPoseInFrame(world.geometries[n])
             self._X_BG[n] = (X.rotation().matrix(), X.translation())
         self._bodies = list(dict.fromkeys(world.body_of[n] for n in names if world.body_of[n] != "world"))
+        self._R_BG = np.array([self._X_BG[n][0] for n in names]).reshape(-1, 3, 3)
+        self._p_BG = np.array([self._X_BG[n][1] for n in names]).reshape(-1, 3)
+        self._body_index = np.array([self._bodies.index(world.body_of[n]) if world.body_of[n] != "world"
+                                     else len(self._bodies) for n in names], int)
+        self._against_scene = [(p, (a, b)) for p, (a, b) in enumerate(self.pairs)
+                               if world.body_of[a] != "world" and b in world.shapes_by_name
+                               and world.body_of[b] == "world" and world.shapes_by_name[b].kind != "convex"]
 
     def tree_kernels(self):
         """The robot's compiled tree kernels (``plants.codegen.rbd``), or None where they do not build."""
@@ -681,6 +707,16 @@ class SignedDistances:
             out[body] = (o, R, Jp[:, 0], Jp[:, 1:] - Jp[:, :1])
         return out
 
+    def _stacked(self, frames: dict, K: int, m: int) -> tuple[np.ndarray, ...]:
+        """The bodies' frames of :meth:`_frames` stacked in ``_bodies`` order, the world last (origin 0, identity,
+        no Jacobian): ``O (b+1, K, 3)``, ``R (b+1, K, 3, 3)``, ``J_o (b+1, K, 3, m)``, ``J_e (b+1, K, 3, 3, m)``."""
+        nb = len(self._bodies)
+        O, R = np.zeros((nb + 1, K, 3)), np.broadcast_to(np.eye(3), (nb + 1, K, 3, 3)).copy()
+        Jo, Je = np.zeros((nb + 1, K, 3, m)), np.zeros((nb + 1, K, 3, 3, m))
+        for i, body in enumerate(self._bodies):
+            O[i], R[i], Jo[i], Je[i] = frames[body]
+        return O, R, Jo, Je
+
     def evaluate(self, Q: np.ndarray, jacobians: bool = True):
         """Distances ``(K, m)`` (capped), Jacobians ``(K, m, n_q)`` (None without ``jacobians``) and witness
         points ``(K, m, 2, 3)`` (world, m; NaN where not queried) at the rows of ``Q (K, n_q)``; rows with
@@ -701,12 +737,14 @@ class SignedDistances:
             c, body = w.bounds[n][0], w.body_of[n]
             C[:, i] = c if body == "world" else frames[body][0] + frames[body][1] @ c
         lb = (np.linalg.norm(C[:, self._ia] - C[:, self._ib], axis=2) - self._radius[self._ia] - self._radius[self._ib])
+        for p, (a, b) in self._against_scene:   # a robot geometry's sphere against a scene primitive: sharper
+            lb[:, p] = point_distance(w.shapes_by_name[b], C[:, self._slot[a]]) - self._radius[self._slot[a]]
         D[ok] = self.max_distance
         if jacobians:
             J[ok] = 0.0
         port = w.scene_graph.get_query_output_port()
-        n_p = Qp.shape[1]
-        for t, row in enumerate(ok):
+        rows, found = [], []   # (row of ok, pair) and Drake's results, gathered first: the arithmetic after, in batches
+        for t in range(len(ok)):
             near = np.flatnonzero(lb[t] < self.max_distance)
             if near.size == 0:
                 continue
@@ -714,24 +752,27 @@ class SignedDistances:
             qo = port.Eval(w.sg_context)
             for p in near:
                 r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[p])
-                if r.distance >= self.max_distance:
-                    continue
-                D[row, p] = r.distance
-                Jd = np.zeros(n_p)
-                n = np.asarray(r.nhat_BA_W)
-                for side, (name, p_G) in enumerate(((self.pairs[p][0], r.p_ACa), (self.pairs[p][1], r.p_BCb))):
-                    R_BG, p_BG = self._X_BG[name]
-                    p_B = R_BG @ p_G + p_BG
-                    body = w.body_of[name]
-                    if body == "world":
-                        W[row, p, side] = p_B
-                        continue
-                    o, R, Jo, Je = frames[body]
-                    W[row, p, side] = o[t] + R[t] @ p_B
-                    if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
-                        Jd += (1.0 if side == 0 else -1.0) * (n @ Jo[t] + p_B @ (n @ Je[t]))
-                if jacobians:
-                    J[row, p] = Jd @ P
+                if r.distance < self.max_distance:
+                    rows.append((t, p))
+                    found.append((r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb))
+        if not rows:
+            return D, J, W
+        tt, pp = np.array(rows).T
+        dist = np.array([f[0] for f in found])
+        nrm = np.array([f[1] for f in found])
+        D[ok[tt], pp] = dist
+        O, R, Jo, Je = self._stacked(frames, len(ok), Qp.shape[1])
+        Jd = 0.0
+        for side, (slots, pts) in enumerate(((self._ia[pp], np.array([f[2] for f in found])),
+                                             (self._ib[pp], np.array([f[3] for f in found])))):
+            p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
+            b = self._body_index[slots]
+            W[ok[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
+            if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
+                nJ = np.einsum("kc,kcm->km", nrm, Jo[b, tt]) + np.einsum("ki,kc,kicm->km", p_B, nrm, Je[b, tt])
+                Jd = Jd + (nJ if side == 0 else -nJ)
+        if jacobians:
+            J[ok[tt], pp] = Jd @ P
         return D, J, W
 
     def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
