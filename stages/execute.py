@@ -391,24 +391,32 @@ def _no_self_contact(robot: Robot) -> None:
 def collision_metrics(problem, X: np.ndarray, dt: float, metrics: dict) -> dict:
     """The executed trajectory's smallest distance over the plan's collision terms' pairs (m, at the planning
     steps; ``min_distance_time`` s, ``min_distance_pair``) and ``contact`` (a distance below 0); a contact
-    before any other failure makes the status ``collided``."""
+    no later than any other failure makes the status ``collided`` (the reason names the first one)."""
     from planning.costs import Collision
     from plants.scene import ROBOT_PREFIX
 
-    best = (math.inf, -1, "")
+    n = X.shape[1] // 2
+    best, first = (math.inf, -1, ""), (len(X), "", 0.0)
     for term in problem.state_terms:
-        if isinstance(term, Collision):
-            d, k, p = term.smallest(X)
-            if d < best[0]:
-                a, b = term.taskmap.pairs[p]
-                best = (d, k, f"{a.removeprefix(ROBOT_PREFIX)} | {b.removeprefix(ROBOT_PREFIX)}")
+        if not isinstance(term, Collision):
+            continue
+        D = term.taskmap.evaluate(X[:, :n], jacobians=False)[0]
+        D = np.where(np.isfinite(D) & term.active(np.arange(len(X)))[:, None], D, np.inf)
+        k, p = np.unravel_index(int(np.argmin(D)), D.shape)
+        names = [" | ".join(x.removeprefix(ROBOT_PREFIX) for x in pair) for pair in term.taskmap.pairs]
+        if D[k, p] < best[0]:
+            best = (float(D[k, p]), int(k), names[p])
+        hit = np.flatnonzero(D.min(axis=1) < 0)
+        if hit.size and hit[0] < first[0]:
+            first = (int(hit[0]), names[int(np.argmin(D[hit[0]]))], float(D[hit[0]].min()))
     d, k, pair = best
     out: dict[str, Any] = {"min_distance": d, "min_distance_time": k * dt if k >= 0 else None,
                            "min_distance_pair": pair, "contact": bool(d < 0)}
     failed_at = metrics.get("failure_time")
-    if d < 0 and (metrics["status"] in ("ok", "limits") or failed_at is None or k * dt <= failed_at):
-        out.update(status="collided", failure_time=k * dt,
-                   reason=f"contact: {pair} at t = {k * dt:.3g} s ({1e3 * d:.3g} mm)")
+    kc, pc, dc = first
+    if d < 0 and (metrics["status"] in ("ok", "limits") or failed_at is None or kc * dt <= failed_at + 1e-12):
+        out.update(status="collided", failure_time=kc * dt,
+                   reason=f"contact: {pc} at t = {kc * dt:.3g} s ({1e3 * dc:.3g} mm)")
     return out
 
 
