@@ -60,7 +60,6 @@ def _pose(pose) -> rr.Transform3D:
 
 def log_scene_geometry(rec, world) -> None:
     """The scene's objects and the robot's collision geometry of a ``plants.scene.CollisionWorld``, static."""
-    from pydrake.geometry import Role
 
     from plants.scene import ROBOT_PREFIX
 

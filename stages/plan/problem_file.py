@@ -53,6 +53,16 @@ may state its facts as the built-in plants do in ``plants/models/NAME.toml`` (``
 ``end_effectors``, ``hands``, ``feet``, ``sole``, ``order``, ``execution`` and ``learn``;
 :class:`plants.model_file.RobotSpec`).
 
+``[[scene]]`` (optional): objects around the robot, each with a ``name``, a ``type`` (``box`` ``size``,
+``sphere`` ``radius``, ``cylinder`` and ``capsule`` ``radius`` and ``length``, ``mesh`` ``file`` and ``scale``:
+its convex hull, ``file``: a URDF/SDF world file) and a ``pose`` ``[x, y, z, roll, pitch, yaw]``
+(:mod:`plants.scene`). A ``collision`` term keeps geometry pairs apart: ``pairs`` of ``[robot side, scene
+side]`` (a link, a group of ``groups``, or ``"robot"``; an object, or ``"scene"``), ``self = true`` (every two
+links no joint connects, less ``allow``: pairs of links, or ``"srdf"``), ``margin`` (m), ``hard`` (default
+true: ``d >= margin``; a stiff penalty of weight ``planning.costs.HARD_COLLISION_WEIGHT`` unless ``weight``
+says otherwise, until a solver takes it as a constraint), ``max_distance`` (m, pairs farther are not queried;
+default ``margin + CULL``).
+
 ``[achieved]`` (optional): how an execution is judged achieved where the terms' own errors do not say
 it: ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), wrapped (the pendulum's swing-up).
 
@@ -82,6 +92,8 @@ from typing import Any
 import numpy as np
 
 from planning import objective as ob
+from plants.scene import COMMON_KEYS as SCENE_COMMON
+from plants.scene import SHAPES
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
@@ -113,6 +125,7 @@ TERM_KEYS = {
     "collision": {"type", "weight", "times", "map", "pairs", "groups", "self", "allow", "margin", "hard",
                   "max_distance"},
 }
+SCENE_KEYS = {kind: SCENE_COMMON | keys for kind, keys in SHAPES.items()}   # [[scene]] by type (plants.scene)
 CULL = 0.05   # m: a collision term's default max_distance beyond its margin (pairs farther are not queried)
 ANGLES = ("roll",)
 
