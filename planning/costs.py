@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -391,6 +391,26 @@ class Collision(TaskInequality):
 
 
 HARD_COLLISION_WEIGHT = 1e6   # the stiff penalty of a hard collision term without a weight (per m^2)
+
+
+@runtime_checkable
+class StepInequality(Protocol):
+    """What a constrained solver reads of a state term the problem states as hard: per time step
+    ``g(x_t) <= 0`` (``m`` rows) and its Jacobian. :class:`Collision` is one (``margin - d(q_t)``, m)."""
+
+    name: str
+    hard: bool
+
+    def constraints(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """``g (K, m)`` and ``G (K, m, n_x)`` at rows ``X (K, n_x)`` of steps ``idx``; ``-inf`` rows (zero
+        Jacobian) at steps the term does not cover."""
+        ...
+
+
+def hard_inequalities(state_terms) -> list:
+    """The state terms a problem states as hard inequalities (:class:`StepInequality` with ``hard``): a
+    constrained solver keeps ``g <= 0`` for them (and drops their penalty); the others minimize the penalty."""
+    return [t for t in state_terms if isinstance(t, StepInequality) and t.hard]
 
 
 class StateTarget(StateTerm):

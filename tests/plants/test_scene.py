@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.interface.cli import app
-from planning.costs import Collision
+from planning.costs import Collision, ControlCost, hard_inequalities
 from planning.objective import build_terms as build_objective
 from planning.objective import objective_from_description
 from plants.model_file import shared_model
@@ -129,6 +129,8 @@ def test_collision_term_is_the_squared_hinge_below_the_margin_and_its_constraint
     assert not np.any(G[:, :, robot.n_q:])
     dmin, step, pair = term.smallest(X)
     assert dmin == d[[1, 3]].min() and step in (1, 3)
+    soft = Collision(tm, margin, [1, 3], 10.0, hard=False, name="soft")
+    assert hard_inequalities([term, soft, ControlCost(1.0)]) == [term]
 
 
 def test_self_pairs_leave_out_adjacent_and_welded_links_and_the_allow_list(tmp_path):
