@@ -5,7 +5,7 @@ with a ``name`` and a ``pose`` ``[x, y, z, roll, pitch, yaw]`` (m, rad) in the w
 
 - ``box`` (``size``, 3 edge lengths, m), ``sphere`` (``radius``), ``cylinder`` and ``capsule``
   (``radius``, ``length`` along the object's z axis, m);
-- ``mesh`` (``file``: ``.obj`` or ``.stl``, ``scale``): its convex hull (Drake's ``Convex``);
+- ``mesh`` (``file``: ``.obj``, ``.stl`` or ``.dae``, ``scale``): its convex hull (Drake's ``Convex``);
 - ``file``: a URDF or SDF world file (``file``) whose collision geometry is the object; its root
   link welded to the world at ``pose``.
 
@@ -28,6 +28,7 @@ cannot be read, a world file that does not parse.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import struct
@@ -49,25 +50,43 @@ ROBOT_PREFIX = "robot:"  # geometry names of the robot's collision elements: "ro
 # ------------------------------------------------------------------ meshes
 def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices ``(n, 3)`` and triangles ``(m, 3)`` (0-based) of an ``.obj`` or ``.stl`` (binary or ASCII)
-    file; ``ValueError`` (one line) where it cannot be read."""
+    file, or a COLLADA ``.dae`` (through trimesh, its ``Y_UP`` turned to z up as the recordings do);
+    ``ValueError`` (one line) where it cannot be read."""
     path = Path(path)
-    if path.suffix.lower() not in MESH_FORMATS:
-        raise ValueError(f"mesh {path.name}: cannot be read: format '{path.suffix}' (use {', '.join(MESH_FORMATS)})")
+    suffix = path.suffix.lower()
+    if suffix not in (*MESH_FORMATS, ".dae"):
+        raise ValueError(f"mesh {path.name}: cannot be read: format '{path.suffix}' (use "
+                         f"{', '.join((*MESH_FORMATS, '.dae'))})")
+    try:
+        stat = path.stat()
+    except OSError as e:
+        raise ValueError(f"mesh {path}: cannot be read ({e.strerror})") from None
+    return _read_mesh(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=512)
+def _read_mesh(file: str, mtime_ns: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_mesh` of a file as it is (its modification time and size in the key): read once per process."""
+    path = Path(file)
+    suffix = path.suffix.lower()
     try:
         data = path.read_bytes()
     except OSError as e:
         raise ValueError(f"mesh {path}: cannot be read ({e.strerror})") from None
     try:
-        V, F = (_read_obj(data) if path.suffix.lower() == ".obj" else _read_stl(data))
+        V, F = (_read_obj(data) if suffix == ".obj" else _read_stl(data) if suffix == ".stl" else _read_dae(path))
     except (ValueError, IndexError, struct.error) as e:
         raise ValueError(f"mesh {path.name}: cannot be read ({e})") from None
     if len(V) < 4 or not np.all(np.isfinite(V)) or np.linalg.matrix_rank(V - V.mean(0), tol=1e-9) < 3:
         raise ValueError(f"mesh {path.name}: cannot be read (fewer than 4 vertices off one plane, or not finite)")
+    V.flags.writeable = False
+    F.flags.writeable = False
     return V, F
 
 
 def _read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
-    V, F = [], []
+    V: list[list[float]] = []
+    F: list[list[int]] = []
     for line in data.decode("utf-8", errors="strict").splitlines():
         parts = line.split()
         if not parts:
@@ -78,7 +97,7 @@ def _read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
             idx = [int(p.split("/")[0]) for p in parts[1:]]
             idx = [i - 1 if i > 0 else len(V) + i for i in idx]
             F.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
-    return np.asarray(V, float).reshape(-1, 3), np.asarray(F, int).reshape(-1, 3)
+    return np.asarray(V, dtype=float).reshape(-1, 3), np.asarray(F, dtype=np.int64).reshape(-1, 3)
 
 
 def _read_stl(data: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -92,8 +111,25 @@ def _read_stl(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     text = data.decode("ascii")
     if not text.lstrip().startswith("solid"):
         raise ValueError("neither binary nor ASCII STL")
-    V = [[float(x) for x in line.split()[1:4]] for line in text.splitlines() if line.strip().startswith("vertex")]
-    return np.asarray(V, float).reshape(-1, 3), np.arange(len(V)).reshape(-1, 3)
+    rows = [[float(x) for x in line.split()[1:4]] for line in text.splitlines() if line.strip().startswith("vertex")]
+    return np.asarray(rows, dtype=float).reshape(-1, 3), np.arange(len(rows)).reshape(-1, 3)
+
+
+def _read_dae(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import logging
+
+    import trimesh
+
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    try:
+        m = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as e:  # noqa: BLE001 - any reader failure is this mesh's fault: one line
+        raise ValueError(f"{type(e).__name__}") from None
+    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, int)
+    with open(path, "rb") as f:
+        if b"<up_axis>Y_UP</up_axis>" in f.read(4096):
+            V = V[:, [0, 2, 1]] * np.array([1.0, -1.0, 1.0])
+    return V, F
 
 
 def obj_text(V: np.ndarray, F: np.ndarray) -> str:
@@ -405,7 +441,6 @@ class CollisionWorld:
         self.body_of: dict[str, str] = {}
         self.object_of: dict[str, str] = {}   # geometry name -> scene object name (robot geometry: link name)
         world_files = {d["name"]: d for d in scene if d["type"] == "file"}
-        file_models = {}
         for gid in self.inspector.GetAllGeometryIds(Role.kProximity):
             name = self.inspector.GetName(gid).split("::")[-1]   # without its model instance's scope
             body = self.plant.GetBodyFromFrameId(self.inspector.GetFrameId(gid))
@@ -417,7 +452,7 @@ class CollisionWorld:
             else:
                 inst = self.plant.GetModelInstanceName(body.model_instance()) if body is not None else ""
                 owner = next((n for n, d in world_files.items() if inst.startswith("scene_")
-                              and self._instance_of_file(body.model_instance(), d, file_models)), None)
+                              and self._instance_of_file(body.model_instance(), d)), None)
                 if owner is None:   # geometry Drake registered from the robot's own (SDF, MJCF) file
                     name = f"{ROBOT_PREFIX}{bname}/{name}"
                     self.object_of[name] = bname
@@ -438,7 +473,7 @@ class CollisionWorld:
             X = rigid_transform(shape.pose)
             self.bounds[name] = (X.rotation().matrix() @ c_G + X.translation(), r)
 
-    def _instance_of_file(self, instance, d: dict, cache: dict) -> bool:
+    def _instance_of_file(self, instance, d: dict) -> bool:
         tag = f"scene_{hashlib.sha256(d['file'].encode()).hexdigest()[:8]}"
         return self.plant.GetModelInstanceName(instance).startswith(tag)
 
@@ -463,7 +498,7 @@ class CollisionWorld:
         from pydrake.multibody.tree import JointIndex
 
         joints = [self.plant.get_joint(JointIndex(i)) for i in range(self.plant.num_joints())]
-        group = {}
+        group: dict[str, str] = {}
 
         def root(b: str) -> str:
             while group.get(b, b) != b:
@@ -686,7 +721,7 @@ class SignedDistances:
         K, m = Qp.shape
         pts = np.vstack([np.zeros(3), np.eye(3)])
         k = self.tree_kernels()
-        out = {}
+        out: dict[str, tuple[np.ndarray, ...]] = {}
         for body in self._bodies:
             if k is not None:
                 pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)

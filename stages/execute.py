@@ -402,10 +402,10 @@ def collision_metrics(problem, X: np.ndarray, dt: float, metrics: dict) -> dict:
             continue
         D = term.taskmap.evaluate(X[:, :n], jacobians=False)[0]
         D = np.where(np.isfinite(D) & term.active(np.arange(len(X)))[:, None], D, np.inf)
-        k, p = np.unravel_index(int(np.argmin(D)), D.shape)
+        kk, pp = (int(i) for i in np.unravel_index(int(np.argmin(D)), D.shape))
         names = [" | ".join(x.removeprefix(ROBOT_PREFIX) for x in pair) for pair in term.taskmap.pairs]
-        if D[k, p] < best[0]:
-            best = (float(D[k, p]), int(k), names[p])
+        if D[kk, pp] < best[0]:
+            best = (float(D[kk, pp]), kk, names[pp])
         hit = np.flatnonzero(D.min(axis=1) < 0)
         if hit.size and hit[0] < first[0]:
             first = (int(hit[0]), names[int(np.argmin(D[hit[0]]))], float(D[hit[0]].min()))

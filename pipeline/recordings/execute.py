@@ -88,7 +88,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
                           np.vstack([tau, np.full((len(times) - len(tau), n), np.nan)]), task_values=values)
 
 
-def _execute_blueprint(plots: list, joint_names, eye, free: bool, extra: list = ()):
+def _execute_blueprint(plots: list, joint_names, eye, free: bool, extra: list | tuple = ()):
     """The robot above the status text and the event log; on the right the task views (executed
     against planned), the tracking error (and the CoG's margin for the free Nao), joints and torques
     by limb."""

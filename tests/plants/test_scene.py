@@ -168,8 +168,8 @@ def test_meshes_read_from_obj_and_binary_and_ascii_stl_alike(tmp_path):
     (tmp_path / "bad.stl").write_bytes(b"\x01\x02garbage")
     with pytest.raises(ValueError, match=r"^mesh bad.stl: cannot be read"):
         read_mesh(tmp_path / "bad.stl")
-    with pytest.raises(ValueError, match=r"format '.dae'"):
-        read_mesh(tmp_path / "x.dae")
+    with pytest.raises(ValueError, match=r"format '.ply'"):
+        read_mesh(tmp_path / "x.ply")
 
 
 # ------------------------------------------------------------------ problem files
