@@ -440,6 +440,7 @@ class CollisionWorld:
         self.geometries: dict[str, Any] = {}
         self.body_of: dict[str, str] = {}
         self.object_of: dict[str, str] = {}   # geometry name -> scene object name (robot geometry: link name)
+        self.fixed_pose: dict[str, Any] = {}  # a world file's geometry -> its pose in the world (RigidTransform)
         world_files = {d["name"]: d for d in scene if d["type"] == "file"}
         for gid in self.inspector.GetAllGeometryIds(Role.kProximity):
             name = self.inspector.GetName(gid).split("::")[-1]   # without its model instance's scope
@@ -456,9 +457,12 @@ class CollisionWorld:
                 if owner is None:   # geometry Drake registered from the robot's own (SDF, MJCF) file
                     name = f"{ROBOT_PREFIX}{bname}/{name}"
                     self.object_of[name] = bname
-                else:
+                else:   # welded to the world: fixed, its pose in the world kept
                     name = f"{owner}/{name}"
                     self.object_of[name] = owner
+                    bname = "world"
+                    self.fixed_pose[name] = self.plant.EvalBodyPoseInWorld(self.plant_context, body).multiply(
+                        self.inspector.GetPoseInFrame(gid))
             self.geometries[name] = gid
             self.body_of[name] = bname
         self._names_of = {gid: n for n, gid in self.geometries.items()}
@@ -690,8 +694,8 @@ class SignedDistances:
         self._ib = np.array([self._slot[b] for _, b in self.pairs], int)
         self._gid = [(world.geometries[a], world.geometries[b]) for a, b in self.pairs]
         self._X_BG = {}   # name -> (R, p) of the geometry in its body's frame
-        for n in names:
-            X = world.inspector.GetPoseInFrame(world.geometries[n])
+        for n in names:   # a world file's geometry: its pose in the world (its body is welded there)
+            X = world.fixed_pose.get(n) or world.inspector.GetPoseInFrame(world.geometries[n])
             self._X_BG[n] = (X.rotation().matrix(), X.translation())
         self._bodies = list(dict.fromkeys(world.body_of[n] for n in names if world.body_of[n] != "world"))
         self._R_BG = np.array([self._X_BG[n][0] for n in names]).reshape(-1, 3, 3)

@@ -240,3 +240,34 @@ def test_a_start_in_collision_is_said_and_planned_anyway(tmp_path):
     notes = [ln for ln in r.stderr.splitlines() if "the start is in collision" in ln]
     assert len(notes) == 1 and "'avoid'" in notes[0] and "planned anyway (hard)" in notes[0], r.stderr
     assert robot.n_q == 3 and list(Path(tmp_path / "a").glob("plan/*"))
+
+
+def test_a_world_files_geometry_is_the_object_it_describes(tmp_path):
+    """A URDF world file holding one board, welded at its pose: its distances are those of the same board given as
+    a box (two routes to one geometry: equal up to rounding)."""
+    (tmp_path / "shelf.urdf").write_text('<robot name="shelf"><link name="board"><collision><origin xyz="0 0 0.1"/>'
+                                         '<geometry><box size="0.4 0.6 0.02"/></geometry></collision></link></robot>')
+    scene = """
+[[scene]]
+name = "shelf"
+type = "file"
+file = "shelf.urdf"
+pose = [0.45, 0.0, 0.5, 0.0, 0.0, 0.0]
+
+[[scene]]
+name = "board"
+type = "box"
+size = [0.4, 0.6, 0.02]
+pose = [0.45, 0.0, 0.6, 0.0, 0.0, 0.0]
+"""
+    pf = read_problem(_problem(tmp_path, scene=scene))
+    world = CollisionWorld(pf.robot_spec(), pf.doc["scene"])
+    robot = shared_model(pf.robot_spec())
+    assert sorted(world.scene_objects()) == ["board", "shelf"]
+    a = SignedDistances(robot, world, resolve_pairs(world, [["robot", "shelf"]], {}, False, [], "t"), 1.0)
+    b = SignedDistances(robot, world, resolve_pairs(world, [["robot", "board"]], {}, False, [], "t"), 1.0)
+    Q = _postures(robot, 5, seed=3)
+    (Da, Ja), (Db, Jb) = a.values_and_jacobians(Q), b.values_and_jacobians(Q)
+    assert np.any(Da < 1.0)
+    assert_close(Da, Db)
+    assert_close(Ja, Jb, scale=1.0)
