@@ -85,7 +85,9 @@ def main(iterations: int = 20) -> None:
         path = Path(tmp) / "xarm7.toml"
         path.write_text(src)
         base = plan(PlanConfig(problem=str(path), solver="raico", iterations=iterations).normalized()).metrics()
-    print(f"without the collision term: {1e3 * base['wall_time_s'] / max(base['iterations'], 1):.1f} ms per iteration")
+    without = base["wall_time_s"] / max(base["iterations"], 1)
+    print(f"without the collision term: {1e3 * without:.1f} ms per iteration; the term's share of an iteration "
+          f"with it: {100 * (per - without) / per:.0f} %")
 
 
 if __name__ == "__main__":
