@@ -47,8 +47,9 @@ replaced by one actuator per planning joint with the file's effort limit (0 or n
 ``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes;
 the dynamics use no contact; collision terms read them again, meshes as convex hulls:
 ``plants.scene``); a visual whose mesh file does not exist dropped; relative mesh paths made absolute;
-duplicate top-level materials dropped; a robot without a name named after its file. Unsupported content is one clear ``ModelError``: a floating joint inside the tree, a joint
-type the planning coordinates cannot hold (ball, planar, universal), a kinematic loop.
+duplicate top-level materials dropped; a robot without a name named after its file. Unsupported content
+is one clear ``ModelError``: a floating joint inside the tree, a joint type the planning coordinates
+cannot hold (ball, planar, universal), a kinematic loop.
 """
 
 from __future__ import annotations
