@@ -442,13 +442,15 @@ class CollisionWorld:
         self.object_of: dict[str, str] = {}   # geometry name -> scene object name (robot geometry: link name)
         self.fixed_pose: dict[str, Any] = {}  # a world file's geometry -> its pose in the world (RigidTransform)
         world_files = {d["name"]: d for d in scene if d["type"] == "file"}
+        robot_names = {s.name for s in shapes}
+        scene_names = {s.name for s in self.shapes if s.body == "world"}
         for gid in self.inspector.GetAllGeometryIds(Role.kProximity):
             name = self.inspector.GetName(gid).split("::")[-1]   # without its model instance's scope
             body = self.plant.GetBodyFromFrameId(self.inspector.GetFrameId(gid))
             bname = "world" if body is None or body.index() == self.plant.world_body().index() else body.name()
-            if name.startswith(ROBOT_PREFIX) or any(s.name == name for s in shapes):
+            if name.startswith(ROBOT_PREFIX) or name in robot_names:
                 self.object_of[name] = bname
-            elif any(s.name == name for s in scene_shapes(scene)):
+            elif name in scene_names:
                 self.object_of[name] = name
             else:
                 inst = self.plant.GetModelInstanceName(body.model_instance()) if body is not None else ""
@@ -465,7 +467,6 @@ class CollisionWorld:
                         self.inspector.GetPoseInFrame(gid))
             self.geometries[name] = gid
             self.body_of[name] = bname
-        self._names_of = {gid: n for n, gid in self.geometries.items()}
         by_name = self.shapes_by_name
         self.bounds: dict[str, tuple[np.ndarray, float]] = {}   # name -> (centre in its body's frame, radius)
         for name in self.geometries:
