@@ -19,8 +19,11 @@ negative in penetration) by ``QueryObject.ComputeSignedDistancePairwiseClosestPo
 SceneGraph filters, such as two links a joint connects, each by
 ``ComputeSignedDistancePairClosestPoints``), and their gradients with respect to the plant's
 positions, ``dd/dq = n^T (J_A(p_A) - J_B(p_B))``: the witness points' translational Jacobians
-projected on the normal ``n`` (from B to A). :class:`SignedDistances` is the task map of those
-distances on planning coordinates.
+(Drake's) projected on the normal ``n`` (from B to A): the reference. :class:`SignedDistances` is the
+task map of those distances on planning coordinates, batched over a trajectory: spheres around the
+geometries cull the pairs first (their centres by the compiled kinematics), each remaining pair is one
+``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics (measured
+here faster than the pairwise query with SceneGraph's filters set to the map's pairs).
 
 Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
 cannot be read, a world file that does not parse.
