@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -328,6 +328,89 @@ class TaskInequality(_OnPositions):
         AJ = self.A[h > 0] @ J
         lx[:n_q] += (2.0 * self.weight) * (h[h > 0] @ AJ)
         lxx[:n_q, :n_q] += (2.0 * self.weight) * (AJ.T @ AJ)
+
+
+class Collision(TaskInequality):
+    """Collision avoidance: signed distances ``d(q_t) (m,)`` (m) of geometry pairs kept at least ``margin``
+    away, crocoddyl's pair-collision style: ``w sum_pairs max(0, margin - d)^2`` at the listed steps (a
+    squared hinge on the distance below the margin; :class:`TaskInequality` with ``A = -I``,
+    ``b = -margin``).
+
+    ``hard``: the problem asks for ``d >= margin`` as a constraint. Solvers that take constraints read
+    :meth:`constraints` (``g(x_t) <= 0`` per step with its Jacobian); the others minimize the stiff
+    penalty this term is (its weight: the problem's, by default :data:`HARD_COLLISION_WEIGHT`).
+
+    Args:
+        taskmap: the distances (``plants.scene.SignedDistances``, ``dim`` pairs, capped at its
+            ``max_distance``).
+        margin: the smallest distance allowed (m, >= 0).
+        times: step indices in ``[0, T]``; ``None``: every step.
+        weight: ``w`` per m^2 of the distance below the margin.
+        hard: whether the problem states the margin as a hard constraint.
+        name: unique name of the term.
+    """
+
+    def __init__(self, taskmap: TaskMap, margin: float, times, weight: float = 1e6, hard: bool = True,
+                 name: str | None = None):
+        m = taskmap.dim
+        super().__init__(taskmap, -np.eye(m), -float(margin) * np.ones(m), times, weight,
+                         name=name or f"collision_{taskmap.name}")
+        if not 0 <= float(margin) < math.inf:
+            raise ValueError(f"{self.name}: margin must be >= 0 (m), got {margin}")
+        self.margin, self.hard = float(margin), bool(hard)
+
+    def constraints(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """The inequality ``g(x_t) = margin - d(q_t) <= 0`` at rows ``X (K, n_x)`` of steps ``idx``: ``g (K, m)``
+        (m) and its Jacobian ``G (K, m, n_x)`` (``-J`` on the positions, zero on the velocities); rows of
+        steps the term does not cover are ``-inf`` with a zero Jacobian (never active)."""
+        X = np.atleast_2d(X)
+        idx = self._idx(X, idx)
+        K, n_x = X.shape
+        n_q = n_x // 2
+        g = np.full((K, self.taskmap.dim), -np.inf)
+        G = np.zeros((K, self.taskmap.dim, n_x))
+        m = self.active(idx)
+        if m.any():
+            d, J = self._map(X[m][:, :n_q])
+            g[m] = self.margin - d
+            G[np.flatnonzero(m), :, :n_q] = -J
+        return g, G
+
+    def smallest(self, X: np.ndarray) -> tuple[float, int, int]:
+        """The smallest distance (m, capped at the map's ``max_distance``) over rows ``X (K, n_x)`` of steps
+        ``0..K-1`` this term covers, its step and its pair's index."""
+        X = np.atleast_2d(X)
+        idx = np.flatnonzero(self.active(np.arange(len(X))))
+        if idx.size == 0 or self.taskmap.dim == 0:
+            return math.inf, -1, -1
+        n_q = X.shape[1] // 2
+        d = self.taskmap.evaluate(X[idx, :n_q], jacobians=False)[0]
+        d = np.where(np.isfinite(d), d, np.inf)
+        k, p = np.unravel_index(int(np.argmin(d)), d.shape)
+        return float(d[k, p]), int(idx[k]), int(p)
+
+
+HARD_COLLISION_WEIGHT = 1e6   # the stiff penalty of a hard collision term without a weight (per m^2)
+
+
+@runtime_checkable
+class StepInequality(Protocol):
+    """What a constrained solver reads of a state term the problem states as hard: per time step
+    ``g(x_t) <= 0`` (``m`` rows) and its Jacobian. :class:`Collision` is one (``margin - d(q_t)``, m)."""
+
+    name: str
+    hard: bool
+
+    def constraints(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """``g (K, m)`` and ``G (K, m, n_x)`` at rows ``X (K, n_x)`` of steps ``idx``; ``-inf`` rows (zero
+        Jacobian) at steps the term does not cover."""
+        ...
+
+
+def hard_inequalities(state_terms) -> list:
+    """The state terms a problem states as hard inequalities (:class:`StepInequality` with ``hard``): a
+    constrained solver keeps ``g <= 0`` for them (and drops their penalty); the others minimize the penalty."""
+    return [t for t in state_terms if isinstance(t, StepInequality) and t.hard]
 
 
 class StateTarget(StateTerm):

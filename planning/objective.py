@@ -108,6 +108,14 @@ def inequality(name: str, taskmap: dict, A, b, times, weight: float, **info: Any
             **info}
 
 
+def collision(name: str, taskmap: dict, margin: float, hard: bool, times, weight: float) -> TermDesc:
+    """Signed distances of geometry pairs (``taskmap``: ``{"map": "distances", "name", "scene", "pairs",
+    "max_distance"}``) kept at least ``margin`` (m) apart at ``times``: ``w sum max(0, margin - d)^2``
+    (``planning.costs.Collision``); ``hard``: the problem states it as a constraint."""
+    return {"term": "collision", "name": name, "map": taskmap, "margin": float(margin), "hard": bool(hard),
+            "times": _times_desc(times), "weight": float(weight)}
+
+
 def control(weight: float, name: str = "control") -> TermDesc:
     return {"term": "control", "name": name, "weight": float(weight)}
 

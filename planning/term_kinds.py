@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from plants.scene import ROBOT_PREFIX, CollisionWorld, SignedDistances
 from plants.taskmaps import (
     CenterOfMass,
     FramePlacementError,
@@ -142,6 +143,22 @@ def default_labels(m, dim: int, name: str, joint_names) -> tuple[list[str], int,
     return [f"{name}[{i}]" for i in range(dim)], dim, "", False
 
 
+def _distance_labels(m, dim, name, joint_names):
+    return [f"{a.removeprefix(ROBOT_PREFIX)} | {b.removeprefix(ROBOT_PREFIX)}" for a, b in m["pairs"]], dim, "m", False
+
+
+def _build_distances(robot, d: dict) -> SignedDistances:
+    """The signed distances of a description's geometry pairs, on a collision world of the robot's model
+    file and the description's scene (``plants.scene``)."""
+    if robot.spec is None:
+        raise ValueError(f"collision terms need a robot loaded from a model file; {robot.name} is not")
+    world = CollisionWorld(robot.spec, d["scene"])
+    unknown = [n for p in d["pairs"] for n in p if n not in world.geometries]
+    if unknown:
+        raise ValueError(f"collision map '{d['name']}': geometry '{unknown[0]}' is not in the collision world")
+    return SignedDistances(robot, world, [tuple(p) for p in d["pairs"]], d["max_distance"], name=d["name"])
+
+
 # -- the table --------------------------------------------------------------------------------------
 MAP_KINDS: tuple[MapKind, ...] = (
     MapKind("frame_points", FramePoints,
@@ -158,6 +175,7 @@ MAP_KINDS: tuple[MapKind, ...] = (
             lambda r, d: FrameRotationError(r, d["frame"], d["rotation"], name=d["name"]),
             _compile_frame_pose, True, "via_frame_pose",
             lambda m, dim, name, jn: (["rx", "ry", "rz"], 3, "rad", False)),
+    MapKind("distances", SignedDistances, _build_distances, None, False, None, _distance_labels),
     MapKind("frame_placement", FramePlacementError,   # log6: translation part (m) then rotation vector (rad)
             lambda r, d: FramePlacementError(r, d["frame"], d["rotation"], d["translation"], name=d["name"]),
             _compile_frame_pose, True, "via_frame_pose",
@@ -201,7 +219,15 @@ def _times(t) -> list[int]:
 
 
 def _term_rows() -> tuple[TermKind, ...]:
-    from planning.costs import ControlCost, ControlGravity, ControlLimit, StateTarget, TaskInequality, ViaPoint
+    from planning.costs import (
+        Collision,
+        ControlCost,
+        ControlGravity,
+        ControlLimit,
+        StateTarget,
+        TaskInequality,
+        ViaPoint,
+    )
 
     def taskmap(robot, d):
         row = kind_named(d["map"]["map"])
@@ -215,6 +241,9 @@ def _term_rows() -> tuple[TermKind, ...]:
             tol=d.get("tol")), "items_via"),
         TermKind("inequality", TaskInequality, "state", lambda r, d: TaskInequality(
             taskmap(r, d), d["A"], d["b"], _times(d["times"]), d["weight"], name=d["name"]), "items_joint_bounds"),
+        TermKind("collision", Collision, "state", lambda r, d: Collision(
+            taskmap(r, d), d["margin"], _times(d["times"]), d["weight"], d.get("hard", True), name=d["name"]),
+            "items_collision"),
         TermKind("state", StateTarget, "state", lambda r, d: StateTarget(
             d["target"], _times(d["times"]), d["weight"], d.get("precision"), name=d["name"]), "items_state"),
         TermKind("control", ControlCost, "control", lambda r, d: ControlCost(

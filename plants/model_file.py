@@ -47,11 +47,12 @@ Facts (what raico needs to know of a robot beyond its file; the defaults are a f
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
 ``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
 replaced by one actuator per planning joint with the file's effort limit (0 or none: unlimited);
-``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes,
-and planning does not use contact); a visual whose mesh file does not exist dropped; relative mesh
-paths made absolute; duplicate top-level materials dropped; a robot without a name named after its
-file. Unsupported content is one clear ``ModelError``: a floating joint inside the tree, a joint
-type the planning coordinates cannot hold (ball, planar, universal), a kinematic loop.
+``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes;
+the dynamics use no contact; collision terms read them again, meshes as convex hulls:
+``plants.scene``); a visual whose mesh file does not exist dropped; relative mesh paths made absolute;
+duplicate top-level materials dropped; a robot without a name named after its file. Unsupported content
+is one clear ``ModelError``: a floating joint inside the tree, a joint type the planning coordinates
+cannot hold (ball, planar, universal), a kinematic loop.
 """
 
 from __future__ import annotations
@@ -408,7 +409,7 @@ def repair_urdf(text: str, path: Path, packages: Packages, locked: dict[str, flo
             link.remove(c)
             ncol += 1
     if ncol:
-        notes.append(f"{ncol} <collision> elements dropped (planning uses no contact geometry)")
+        notes.append(f"{ncol} <collision> elements dropped from the dynamics (collision terms read them: plants.scene)")
     missing, seen_mat, dup = [], set(), 0
     for m in root.findall("material"):
         name = m.get("name")
@@ -572,8 +573,10 @@ def _apply_true(plant, spec: RobotSpec, path: Path, planning: list) -> list[str]
     return notes
 
 
-def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
-    """A fresh :class:`~plants.robots.Robot` from ``spec`` (its report in ``robot.load_report``)."""
+def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_finalize=None) -> Robot:
+    """A fresh :class:`~plants.robots.Robot` from ``spec`` (its report in ``robot.load_report``);
+    ``before_finalize(plant, text, path, packages)``, where given, adds to the plant before it is finalized
+    (a scene's geometry, ``plants.scene``)."""
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
     from pydrake.multibody.tree import JointIndex
@@ -667,6 +670,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0) -> Robot:
                      + (f"; {len(existing)} actuators of the file kept" if existing else ""))
     elif existing:
         notes.append(f"{len(existing)} actuators of the file kept")
+    if before_finalize is not None:
+        before_finalize(plant, text, path, packages)
     try:
         plant.Finalize()
     except RuntimeError as e:

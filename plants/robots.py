@@ -76,13 +76,14 @@ def robot_for(desc: dict, true: bool = False) -> Robot:
     return shared_robot(desc["plant"]) if spec is None else shared_model(RobotSpec.from_dict(spec))
 
 
-def load_robot_for(desc: dict, builder=None, time_step: float = 0.0, true: bool = False) -> Robot:
+def load_robot_for(desc: dict, builder=None, time_step: float = 0.0, true: bool = False,
+                   before_finalize=None) -> Robot:
     """A fresh robot (its own plant) of a stored plan description, as ``plants.robots.load_robot``
-    (``true``: as :func:`robot_for`)."""
+    (``true``: as :func:`robot_for`; ``before_finalize``: as ``plants.model_file.load_model``)."""
     spec = _desc_spec(desc, true)
     if spec is None:
-        return load_robot(desc["plant"], builder, time_step)
-    return load_model(RobotSpec.from_dict(spec), builder, time_step)
+        return load_model(builtin_spec(desc["plant"]), builder, time_step, before_finalize)
+    return load_model(RobotSpec.from_dict(spec), builder, time_step, before_finalize)
 
 
 PARALLEL = 1e-9   # |a x b| of two unit joint axes below this: parallel (rounding of a file's axes and poses)

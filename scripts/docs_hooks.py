@@ -92,6 +92,7 @@ def problem_file_table() -> str:
             f"| `[achieved]` | {_keys(pf.ACHIEVED_KEYS)} |",
             f"| `[horizon]` | {_keys(pf.HORIZON_KEYS)} |",
             f"| `[dynamics]` | {_keys(pf.DYNAMICS_KEYS)} |"]
+    rows += [f"| `[[scene]]` `type = \"{kind}\"` | {_keys(keys)} |" for kind, keys in pf.SCENE_KEYS.items()]
     integ = ["| `model` | `integrator` (the first is the default) |", "|---|---|"]
     integ += [f"| `{m}` | {', '.join(f'`{i}`' for i in ints)} |" for m, ints in pf.INTEGRATORS.items()]
     terms = ["| `type` | keys |", "|---|---|"]

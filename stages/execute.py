@@ -58,8 +58,15 @@ Noise (``--x0-noise`` rad on the initial joint angles, clipped to the joint limi
 model. A plan whose status is ``diverged`` is executed and marked ``diverged`` (never a success;
 its data may still serve a model learner); a plan whose trajectory or controller is not finite
 is not executed (status ``diverged``, the rollout all NaN). The status of an execution (``ok``, ``limits``,
-``tracking-lost``, ``fell``, ``diverged``) follows the stated thresholds of
+``tracking-lost``, ``fell``, ``diverged``, ``collided``) follows the stated thresholds of
 ``stages.evaluate.metrics``.
+
+**A scene** (a plan with collision terms, ``plants.scene``): the executed plant carries the scene's objects and
+the robot's own collision geometry with contact (point contact, Coulomb friction ``plants.scene.FRICTION``; the
+robot's links do not touch each other in the simulation). The metrics give the executed trajectory's smallest
+distance over the terms' pairs at the planning steps (``min_distance`` m, ``min_distance_time`` s,
+``min_distance_pair``) and ``contact`` (a distance below 0); a contact before any other failure is the status
+``collided``.
 
 Outputs (``rollout.npz``): executed states ``X (T+1, n_x)`` in planning coordinates, the plan's
 ``X_plan``, applied planning controls ``U (T, n_u)`` (the Nao: the feed-forward's planning
@@ -292,7 +299,11 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     facts = robot_for(desc, true=True)
     execution, step = facts.execution, facts.time_step  # s: the discrete plant's step, or the integrator's bound
     discrete = execution == "discrete" and not cfg.open_loop
-    robot = load_robot_for(desc, time_step=step if discrete else 0.0, true=True)
+    scene = scene_of(desc)
+    robot = load_robot_for(desc, time_step=step if discrete else 0.0, true=True,
+                           before_finalize=None if scene is None else _scene_hook(desc, scene))
+    if scene is not None:
+        _no_self_contact(robot)
     q_start = _initial_q(desc, robot, cfg, rng)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
@@ -341,8 +352,72 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     sat = np.array(saturated, bool).reshape(-1, n)
     metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=execution != "continuous",
                                 effort_clamped=clamped)
+    if scene is not None:
+        metrics.update(collision_metrics(problem, X, dt, metrics))
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
                          effort_at_limit=sat, problem=problem, robot=robot)
+
+
+# ----------------------------------------------------------------------------- a scene
+def scene_of(desc: dict) -> list[dict] | None:
+    """The scene of a plan's collision terms (``plants.scene``), or None where it has none."""
+    for d in desc.get("terms", []):
+        if d.get("term") == "collision":
+            return d["map"]["scene"]
+    return None
+
+
+def _scene_hook(desc: dict, scene: list[dict]):
+    """Registers the scene and the robot's own collision geometry, with contact, in the executed plant."""
+    from plants.model_file import RobotSpec
+    from plants.scene import register_scene, robot_shapes
+
+    spec = desc.get("robot_true") or desc.get("robot")
+    return register_scene(scene, robot_shapes(RobotSpec.from_dict(spec)) if spec else [])
+
+
+def _no_self_contact(robot: Robot) -> None:
+    """No contact between the robot's own links in the simulation (their convex hulls may overlap where
+    the links do not): the robot against itself is judged by the distances (:func:`collision_metrics`)."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
+
+    inspector = robot.scene_graph.model_inspector()
+    ids = [g for g in inspector.GetAllGeometryIds(Role.kProximity)
+           if robot.plant.GetBodyFromFrameId(inspector.GetFrameId(g)) is not None
+           and robot.plant.GetBodyFromFrameId(inspector.GetFrameId(g)).index() != robot.plant.world_body().index()]
+    robot.scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
+
+
+def collision_metrics(problem, X: np.ndarray, dt: float, metrics: dict) -> dict:
+    """The executed trajectory's smallest distance over the plan's collision terms' pairs (m, at the planning
+    steps; ``min_distance_time`` s, ``min_distance_pair``) and ``contact`` (a distance below 0); a contact
+    no later than any other failure makes the status ``collided`` (the reason names the first one)."""
+    from planning.costs import Collision
+    from plants.scene import ROBOT_PREFIX
+
+    n = X.shape[1] // 2
+    best, first = (math.inf, -1, ""), (len(X), "", 0.0)
+    for term in problem.state_terms:
+        if not isinstance(term, Collision):
+            continue
+        D = term.taskmap.evaluate(X[:, :n], jacobians=False)[0]
+        D = np.where(np.isfinite(D) & term.active(np.arange(len(X)))[:, None], D, np.inf)
+        kk, pp = (int(i) for i in np.unravel_index(int(np.argmin(D)), D.shape))
+        names = [" | ".join(x.removeprefix(ROBOT_PREFIX) for x in pair) for pair in term.taskmap.pairs]
+        if D[kk, pp] < best[0]:
+            best = (float(D[kk, pp]), kk, names[pp])
+        hit = np.flatnonzero(D.min(axis=1) < 0)
+        if hit.size and hit[0] < first[0]:
+            first = (int(hit[0]), names[int(np.argmin(D[hit[0]]))], float(D[hit[0]].min()))
+    d, k, pair = best
+    out: dict[str, Any] = {"min_distance": d, "min_distance_time": k * dt if k >= 0 else None,
+                           "min_distance_pair": pair, "contact": bool(d < 0)}
+    failed_at = metrics.get("failure_time")
+    kc, pc, dc = first
+    if d < 0 and (metrics["status"] in ("ok", "limits") or failed_at is None or kc * dt <= failed_at + 1e-12):
+        out.update(status="collided", failure_time=kc * dt,
+                   reason=f"contact: {pc} at t = {kc * dt:.3g} s ({1e3 * dc:.3g} mm)")
+    return out
 
 
 # ----------------------------------------------------------------------------- free-standing Nao

@@ -25,7 +25,8 @@ DESCRIPTIONS = {
             "controller.",
     "execute": "Execute a plan in Drake's Simulator: an arm or the pendulum with the plan's feedback controller, "
                "the free-standing Nao with the joint PD and feed-forward or the whole-body stabilizer "
-               "(--controller wbc); status ok, limits, tracking-lost, fell or diverged.",
+               "(--controller wbc), an arm in its problem's scene; status ok, limits, tracking-lost, fell, diverged "
+               "or collided.",
     "evaluate": "Evaluate one run: final cost, via-point errors, iterations, wall time, planned-vs-executed RMSE.",
     "fit": "Fit a GP dynamics model (SE-ARD per joint) to babble/execute data; schedules every or batch-N with "
            "--prior.",

@@ -867,7 +867,7 @@ def _stood_counts(execs: list[dict]) -> tuple[int, str]:
     """How many executions stood (status neither ``fell`` nor ``diverged``) and the status counts."""
     st = [str(e.get("status", "?")) for e in execs]
     stood = sum(s not in ("fell", "diverged") for s in st)
-    counts = ", ".join(f"{k} {st.count(k)}" for k in ("ok", "limits", "tracking-lost", "fell", "diverged", "?")
+    counts = ", ".join(f"{k} {st.count(k)}" for k in ("ok", "limits", "tracking-lost", "fell", "diverged", "collided", "?")
                        if st.count(k))
     return stood, counts
 

@@ -488,7 +488,8 @@ def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> N
     ax.grid(True, which="both", alpha=0.3)
 
 
-STATUS_STYLES = {"ok": "-", "limits": "-.", "tracking-lost": ":", "fell": "--", "diverged": (0, (1, 3))}
+STATUS_STYLES = {"ok": "-", "limits": "-.", "tracking-lost": ":", "fell": "--", "diverged": (0, (1, 3)),
+                 "collided": (0, (3, 1, 1, 1))}
 
 
 def _executed_label(exp: Experiment) -> str:

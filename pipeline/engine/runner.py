@@ -74,6 +74,11 @@ def outcome_notes(outcome: Outcome) -> list[str]:
         rel = "<=" if err <= EXECUTED_VIA_TOL else ">"
         notes.append(f"task {verdict}: largest via-point error {err:.3g} {rel} {EXECUTED_VIA_TOL:g}"
                      + ("" if outcome.status == "ok" or verdict == "missed" else f", status {outcome.status}"))
+    if outcome.stage == "execute" and isinstance(m.get("min_distance"), (int, float)):   # a scene: how close it came
+        at = m.get("min_distance_time")
+        notes.append(f"smallest distance {1e3 * m['min_distance']:.3g} mm ({m.get('min_distance_pair')}"
+                     + (f" at t = {at:.3g} s" if isinstance(at, (int, float)) else "") + ")"
+                     + ("; contact" if m.get("contact") else ""))
     achieved = m.get("achieved")
     if outcome.stage == "learn" and isinstance(achieved, list) and achieved:
         notes.append(f"task {'achieved' if achieved[-1] else 'missed'} in the last episode "

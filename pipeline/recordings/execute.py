@@ -10,6 +10,7 @@ import numpy as np
 from pipeline.recordings import MCAP, RECORDING
 from pipeline.recordings import rerun_io as rec_mod
 from pipeline.recordings.mcap_io import write_trajectory_mcap
+from pipeline.recordings.scene import log_scene, scene_views
 from pipeline.recordings.tasks import XYZ_COLORS, log_task_paths, log_task_plots, task_plots, task_views
 
 
@@ -41,7 +42,8 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
     with rec_mod.Recording(folder / RECORDING, rec_mod.application_id("execute", pconf["plant"], pconf["task"]),
                            properties={"stage": "execute", "key": art.key, "plan": pconf, **art.config},
                            name=f"execute {pconf['plant']} {pconf['task']} {pconf['solver']}",
-                           blueprint=_execute_blueprint(plots, robot.joint_names, eye, free)) as rec:
+                           blueprint=_execute_blueprint(plots, robot.joint_names, eye, free,
+                                                        scene_views(objective))) as rec:
         sel = rec_mod.plot_indices(len(times), vias)
         if free:  # the free-standing Nao: its own plant (floating base, floor) and stored positions
             from plants.free_nao import shared_free_nao
@@ -60,6 +62,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
         if not free:  # the free Nao stands elsewhere in its world than the fixed model the tasks are in
             log_task_paths(rec, objective, X, plots)
             log_task_paths(rec, objective, X_plan, planned, label="planned")
+            log_scene(rec, objective, times, X, sel)
         if len(tau):
             sel_u = rec_mod.plot_indices(len(tau), vias)
             rec_mod.log_joint_series(rec, robot.joint_names, times[:len(tau)][sel_u], tau[sel_u], root="torque")
@@ -85,7 +88,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
                           np.vstack([tau, np.full((len(times) - len(tau), n), np.nan)]), task_values=values)
 
 
-def _execute_blueprint(plots: list, joint_names, eye, free: bool):
+def _execute_blueprint(plots: list, joint_names, eye, free: bool, extra: list | tuple = ()):
     """The robot above the status text and the event log; on the right the task views (executed
     against planned), the tracking error (and the CoG's margin for the free Nao), joints and torques
     by limb."""
@@ -93,7 +96,7 @@ def _execute_blueprint(plots: list, joint_names, eye, free: bool):
 
     groups = rec_mod.joint_groups(joint_names)
     error = rrb.TimeSeriesView(origin="/error", name="tracking error (rad)")
-    views = [*task_views(plots, planned=True), error,
+    views = [*task_views(plots, planned=True), error, *extra,
              *([rrb.TimeSeriesView(origin="/cog", name="CoG and ZMP (m)"),
                 rrb.TimeSeriesView(origin="/contact", name="ground force on the soles (N)")] if free else []),
              rec_mod.group_views("joints", groups, "joints (rad)"),

@@ -30,6 +30,8 @@ Plan recordings:
   on ``sim_time``. A plan stored before ``X_iterations`` existed shows its final pose on
   ``iteration`` instead.
 - ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
+- A plan with collision terms: the scene, the robot's collision geometry, the closest-distance segments and
+  the smallest distance (:mod:`pipeline.recordings.scene`).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import numpy as np
 from pipeline.recordings import MCAP, RECORDING
 from pipeline.recordings import rerun_io as rec_mod
 from pipeline.recordings.mcap_io import write_trajectory_mcap
+from pipeline.recordings.scene import log_scene, scene_views
 from pipeline.recordings.tasks import HELD_STEPS, log_task_paths, log_task_plots, task_plots, task_views
 
 COST_COLOR = (240, 175, 40)
@@ -64,7 +67,7 @@ def record_plan(folder: Path, art, inputs: list, lookup=None) -> None:
     vias = sorted({s for tp in plots for s, _ in tp.targets})
     eye = rec_mod.robot_eye(robot, X[:, :n])
     groups = rec_mod.joint_groups(robot.joint_names)
-    views = [*task_views(plots), rec_mod.group_views("joints", groups, "joints (rad)"),
+    views = [*task_views(plots), *scene_views(objective), rec_mod.group_views("joints", groups, "joints (rad)"),
              rec_mod.group_views("control", groups, "control (" + _control_unit(desc) + ")")]
     blueprint = rec_mod.stage_blueprint(eye, views, [cost_views()])
     metrics = art.metrics or {}
@@ -82,6 +85,7 @@ def record_plan(folder: Path, art, inputs: list, lookup=None) -> None:
         sel = rec_mod.plot_indices(len(times), vias)
         log_task_plots(rec, plots, times, sel)
         log_task_paths(rec, objective, X, plots)
+        log_scene(rec, objective, times, X, sel)
         sel_u = rec_mod.plot_indices(len(U), vias)
         rec_mod.log_joint_series(rec, robot.joint_names, times[:-1][sel_u], U[sel_u], root="control")
     values = {term: tp.raw for tp in plots for term in tp.terms}

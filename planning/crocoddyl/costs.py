@@ -22,7 +22,9 @@ crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the calle
   a Python residual on the control, as raico's term: crocoddyl's measures the damped actuation's torque);
   ``control_limit`` the control under
   ``ActivationModelQuadraticBarrier`` (raico's squared hinge); an inequality on joint positions
-  whose rows are +-unit vectors (``joint_limit``) the state under a quadratic barrier.
+  whose rows are +-unit vectors (``joint_limit``) the state under a quadratic barrier;
+- ``collision``: the pairs' signed distances in Pinocchio's GeometryModel under a quadratic barrier at the
+  margin (:mod:`planning.crocoddyl.collision`; crocoddyl's own pair-collision residual is not in this build).
 
 What has no exact counterpart (a non-diagonal precision, a non-zero target of a pose error, an
 inequality on another task map or with general rows, the uncertainty term) raises
@@ -316,3 +318,11 @@ def items_joint_bounds(term, state, nu, model, smap, robot=None):
     xref = _state_ref(smap, model, ref)
     return [(crocoddyl.ResidualModelState(state, xref, nu),
              crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lb, ub)))]
+
+
+def items_collision(term, state, nu, model, smap, robot):
+    """A collision term: the signed distances of its pairs in Pinocchio's GeometryModel under a quadratic
+    barrier at its margin (:mod:`planning.crocoddyl.collision`)."""
+    from planning.crocoddyl.collision import items_collision as items
+
+    return items(term, state, nu, model, smap, robot)

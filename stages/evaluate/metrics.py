@@ -46,7 +46,7 @@ LIMITS_SHARE = 0.2  # share of the samples with a joint at a position limit or a
 LIMIT_TOL = 0.01  # rad, a joint within this of a position limit is at it
 CONTACT_TOL = 1e-3  # m, a sole corner this close to the ground (or below) is in contact ...
 CONTACT_FORCE = 1e-3  # N, ... when Drake reports at least this normal force on its sole
-STATUSES = ("ok", "limits", "tracking-lost", "fell", "diverged")
+STATUSES = ("ok", "limits", "tracking-lost", "fell", "diverged", "collided")
 THRESHOLDS = {"fall_torso_drop_m": FALL_TORSO_DROP, "fall_torso_tilt_rad": FALL_TORSO_TILT,
               "foot_lift_m": FOOT_LIFT, "tracking_lost_rad": TRACKING_LOST, "limits_share": LIMITS_SHARE,
               "limit_tol_rad": LIMIT_TOL, "contact_tol_m": CONTACT_TOL}

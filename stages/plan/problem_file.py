@@ -53,6 +53,16 @@ may state its facts as the built-in plants do in ``plants/models/NAME.toml`` (``
 ``end_effectors``, ``hands``, ``feet``, ``sole``, ``order``, ``execution`` and ``learn``;
 :class:`plants.model_file.RobotSpec`).
 
+``[[scene]]`` (optional): objects around the robot, each with a ``name``, a ``type`` (``box`` ``size``,
+``sphere`` ``radius``, ``cylinder`` and ``capsule`` ``radius`` and ``length``, ``mesh`` ``file`` and ``scale``:
+its convex hull, ``file``: a URDF/SDF world file) and a ``pose`` ``[x, y, z, roll, pitch, yaw]``
+(:mod:`plants.scene`). A ``collision`` term keeps geometry pairs apart: ``pairs`` of ``[robot side, scene
+side]`` (a link, a group of ``groups``, or ``"robot"``; an object, or ``"scene"``), ``self = true`` (every two
+links no joint connects, less ``allow``: pairs of links, or ``"srdf"``), ``margin`` (m), ``hard`` (default
+true: ``d >= margin``; a stiff penalty of weight ``planning.costs.HARD_COLLISION_WEIGHT`` unless ``weight``
+says otherwise, until a solver takes it as a constraint), ``max_distance`` (m, pairs farther are not queried;
+default ``margin + CULL``).
+
 ``[achieved]`` (optional): how an execution is judged achieved where the terms' own errors do not say
 it: ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), wrapped (the pendulum's swing-up).
 
@@ -82,10 +92,12 @@ from typing import Any
 import numpy as np
 
 from planning import objective as ob
+from plants.scene import COMMON_KEYS as SCENE_COMMON
+from plants.scene import SHAPES
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
-TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved"}
+TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved", "scene"}
 ACHIEVED_KEYS = {"joint", "angle", "tol"}
 ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn", "unactuated",
                "gravity"}
@@ -111,7 +123,11 @@ TERM_KEYS = {
     "control": {"type", "weight", "target"},
     "control_limit": {"type", "weight", "lower", "upper"},
     "joint_limit": COMMON | {"joints", "lower", "upper"},
+    "collision": {"type", "weight", "times", "map", "pairs", "groups", "self", "allow", "margin", "hard",
+                  "max_distance"},
 }
+SCENE_KEYS = {kind: SCENE_COMMON | keys for kind, keys in SHAPES.items()}   # [[scene]] by type (plants.scene)
+CULL = 0.05   # m: a collision term's default max_distance beyond its margin (pairs farther are not queried)
 ANGLES = ("roll",)
 
 
@@ -215,6 +231,8 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
     doc: dict[str, Any] = {"name": str(raw.get("name", default_name)),
                            "description": str(raw.get("description", ""))}
     doc["robot"] = _robot(raw["robot"], base)
+    if "scene" in raw:
+        doc["scene"] = _scene(raw["scene"], base, doc["robot"])
     if "achieved" in raw:
         doc["achieved"] = _achieved(raw["achieved"])
     h = raw["horizon"]
@@ -253,6 +271,9 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
         if not isinstance(term, dict):
             raise ValueError(f"[costs] '{name}' must be a table [costs.{name}] with a type")
         terms[name] = _term(name, term, T)
+        if term.get("type") == "collision" and "plant" in doc["robot"]:
+            raise ValueError(f"[costs.{name}] collision terms need a robot from a model file (file), "
+                             f"not the built-in plant '{doc['robot']['plant']}'")
     doc["costs"] = {"convention": convention, "terms": terms}
     return doc
 
@@ -419,6 +440,8 @@ def _term(name: str, t: dict, T: int) -> dict:
     if kind not in TERM_KEYS:
         raise ValueError(f"[costs.{name}] unknown type {kind!r}: choose one of {', '.join(TERM_KEYS)}")
     _refuse_unknown(t, TERM_KEYS[kind], f"[costs.{name}] ({kind})")
+    if kind == "collision":
+        return _collision(name, t, T)
     if "weight" not in t:
         raise ValueError(f"[costs.{name}] needs a weight")
     out = dict(t)
@@ -448,6 +471,68 @@ def _term(name: str, t: dict, T: int) -> dict:
         raise ValueError(f"[costs.{name}] needs a position (3)")
     if "tol" in t:
         out["tol"] = _tol(t["tol"], name, kind)
+    return out
+
+
+def _scene(entries, base: Path, robot: dict) -> list[dict]:
+    """``[[scene]]``: the canonical scene (``plants.scene.normalize_scene``; package URIs as the robot's)."""
+    from plants.model_file import Packages
+    from plants.scene import normalize_scene
+
+    packages = Packages(dict(robot.get("packages") or {}), Path(robot["file"])) if "file" in robot else None
+    return normalize_scene(entries, base, None if packages is None else lambda uri: packages.resolve(uri, base))
+
+
+def _name_pairs(v, what: str) -> list[list[str]]:
+    if not isinstance(v, list) or not all(isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p)
+                                          for p in v):
+        raise ValueError(f"{what} must be a list of [name, name] pairs")
+    return [list(p) for p in v]
+
+
+def _collision(name: str, t: dict, T: int) -> dict:
+    """A collision term (``type = "collision"``): ``pairs`` of ``[robot side, scene side]``, ``groups``
+    (name -> links), ``self`` (the robot against itself), ``allow`` (pairs of links never checked, or
+    ``"srdf"``: the robot's SRDF's ``<disable_collisions>``), ``margin`` (m, >= 0), ``hard`` (default true),
+    ``max_distance`` (m, the query's culling distance, > margin), ``weight``, ``times``."""
+    where = f"[costs.{name}]"
+    if "margin" not in t:
+        raise ValueError(f"{where} needs a margin (m): the smallest distance allowed")
+    margin = _number(t["margin"], f"{where} margin")
+    if margin < 0:
+        raise ValueError(f"{where} margin must be >= 0 (m), got {margin:g}")
+    hard = t.get("hard", True)
+    if not isinstance(hard, bool):
+        raise ValueError(f"{where} hard must be true or false")
+    if not hard and "weight" not in t:
+        raise ValueError(f"{where} needs a weight (a soft collision term)")
+    from planning.costs import HARD_COLLISION_WEIGHT
+
+    out: dict[str, Any] = {"type": "collision", "margin": margin, "hard": hard,
+                           "weight": _nonneg(t.get("weight", HARD_COLLISION_WEIGHT), f"{where} weight"),
+                           "times": _times(t.get("times", "all"), T, name),
+                           "pairs": _name_pairs(t.get("pairs", []), f"{where} pairs")}
+    groups = t.get("groups", {})
+    if not isinstance(groups, dict) or not all(isinstance(v, list) and all(isinstance(x, str) for x in v)
+                                               for v in groups.values()):
+        raise ValueError(f"{where} groups must be a table {{group = [link, ...]}}")
+    out["groups"] = {k: list(v) for k, v in groups.items()}
+    self_ = t.get("self", False)
+    if not isinstance(self_, bool):
+        raise ValueError(f"{where} self must be true or false")
+    out["self"] = self_
+    allow = t.get("allow", [])
+    out["allow"] = allow if allow == "srdf" else _name_pairs(allow, f"{where} allow")
+    if not out["pairs"] and not self_:
+        raise ValueError(f"{where} needs pairs (e.g. [[\"robot\", \"scene\"]]) or self = true")
+    dmax = _number(t.get("max_distance", margin + CULL), f"{where} max_distance")
+    if not dmax > margin:
+        raise ValueError(f"{where} max_distance must be > margin ({margin:g} m), got {dmax:g}")
+    out["max_distance"] = dmax
+    if "map" in t:
+        if not isinstance(t["map"], str):
+            raise ValueError(f"{where} map must be a string")
+        out["map"] = t["map"]
     return out
 
 
@@ -539,11 +624,65 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
             hi = _vector(t["upper"], f"[costs.{name}] upper", n_u) if "upper" in t else effort.tolist()
             out.append(ob.control_limit(lo, hi, w, name))
             continue
+        if kind == "collision":
+            pieces = _scale(convention, t["times"], T, dt)
+            for k, (steps, factor) in enumerate(pieces):
+                suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
+                out.append(_collision_term(f"{name}{suffix}", t, problem, robot, steps, t["weight"] * factor))
+            continue
         pieces = _scale(convention, t["times"], T, dt)
         for k, (steps, factor) in enumerate(pieces):
             suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
             out.append(_state_term(f"{name}{suffix}", t, robot, q0, steps, t["weight"] * factor))
     return out
+
+
+def _collision_term(name: str, t: dict, problem: ProblemFile, robot, steps, weight: float) -> dict:
+    """A collision term's description: its geometry pairs resolved on the robot's collision world
+    (``plants.scene.resolve_pairs``; unknown links, groups and objects refused)."""
+    from plants.scene import resolve_pairs, srdf_allowed
+
+    scene = problem.doc.get("scene", [])
+    world = _collision_world(robot.spec, scene)
+    allow = t["allow"]
+    if allow == "srdf":
+        srdf = problem.doc["robot"].get("srdf")
+        if srdf is None:
+            from plants.model_file import default_srdf
+
+            found = default_srdf(Path(problem.doc["robot"]["file"]))
+            srdf = None if found is None else str(found)
+        if srdf is None:
+            raise ValueError(f"[costs.{name}] allow = \"srdf\": the robot has no SRDF (give srdf in [robot])")
+        allow = srdf_allowed(srdf)
+    groups = t["groups"]
+    for g, links in groups.items():
+        for link in links:
+            if link not in groups and link not in world.robot_links() and link != "robot":
+                from plants.model_file import closest_names
+
+                raise ValueError(f"[costs.{name}] groups.{g}: unknown link '{link}': closest "
+                                 f"{closest_names(link, world.robot_links())}")
+    pairs = resolve_pairs(world, t["pairs"], groups, t["self"], allow, f"[costs.{name}]")
+    if not pairs:
+        raise ValueError(f"[costs.{name}]: no pair of geometries to check (the links or objects named carry none)")
+    m = {"map": "distances", "name": t.get("map", name), "scene": scene, "pairs": [list(p) for p in pairs],
+         "max_distance": t["max_distance"]}
+    return ob.collision(name, m, t["margin"], t["hard"], steps, weight)
+
+
+def _collision_world(spec, scene: list[dict]):
+    """The collision world of ``spec`` and ``scene`` for resolving names (one per process and content)."""
+    key = json.dumps([spec.to_dict(), scene], sort_keys=True)
+    world = _WORLDS.get(key)
+    if world is None:
+        from plants.scene import CollisionWorld
+
+        world = _WORLDS[key] = CollisionWorld(spec, scene)
+    return world
+
+
+_WORLDS: dict[str, Any] = {}
 
 
 def _control(name: str, t: dict, robot, factor: float) -> dict:

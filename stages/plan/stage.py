@@ -513,7 +513,31 @@ class load_notes_said:  # noqa: N801 - used as a context manager, as contextlib'
 def plan_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
     """What the plan stage says before planning: targets beyond the reach (:func:`reach_notes`), a start
     outside the joint limits (:func:`start_limit_notes`)."""
-    return reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem)
+    return reach_notes(robot, problem) + start_limit_notes(cfg, robot, problem) + start_collision_notes(problem)
+
+
+def start_collision_notes(problem: Problem) -> list[str]:
+    """One line per collision term whose pairs are closer than its margin at the start posture (below 0:
+    in collision), saying it is planned anyway (a hard term: its stiff penalty, or the constraint, pushes
+    the pairs apart from the first step the dynamics allow)."""
+    from planning.costs import Collision
+    from plants.scene import ROBOT_PREFIX
+
+    out = []
+    q0 = problem.x0[:len(problem.x0) // 2]
+    for term in problem.state_terms:
+        if not isinstance(term, Collision) or term.weight == 0:
+            continue
+        d = term.taskmap.value(q0)
+        k = int(np.argmin(d)) if d.size else -1
+        if k < 0 or d[k] >= term.margin:
+            continue
+        a, b = (n.removeprefix(ROBOT_PREFIX) for n in term.taskmap.pairs[k])
+        what = "in collision" if d[k] < 0 else "inside the margin"
+        out.append(f"raico: note: the start is {what} of '{term.name}': {a} | {b} at {1e3 * d[k]:.3g} mm "
+                   f"(margin {1e3 * term.margin:.3g} mm, {int(np.sum(d < term.margin))} pairs below it): "
+                   f"planned anyway ({'hard' if term.hard else 'soft'})")
+    return out
 
 
 def _say_plan_notes(lines: list[str]) -> None:

@@ -179,7 +179,15 @@ def _descriptions(robot) -> dict:
     R, p = np.eye(3), np.array([0.3, 0.1, 0.4])
     return {"frame_points": ob.frame_points(ee, "ee", axes=(0, 2)), "roll": ob.roll(ee),
             "cog": ob.cog((0, 1)), "joints": ob.joints("joints", [0, 2]),
-            "frame_rotation": ob.frame_rotation(ee, R, "rot"), "frame_placement": ob.frame_placement(ee, R, p, "pose")}
+            "frame_rotation": ob.frame_rotation(ee, R, "rot"), "frame_placement": ob.frame_placement(ee, R, p, "pose"),
+            "distances": _distances_description()}
+
+
+def _distances_description() -> dict:
+    """Signed distances of a pair of scene objects (the built-in arm carries no collision geometry)."""
+    scene = [{"name": "ball", "type": "sphere", "pose": [0.5, 0.0, 0.3, 0.0, 0.0, 0.0], "radius": 0.05},
+             {"name": "box", "type": "box", "pose": [0.5, 0.3, 0.3, 0.0, 0.0, 0.0], "size": [0.1, 0.1, 0.1]}]
+    return {"map": "distances", "name": "gap", "scene": scene, "pairs": [["ball", "box"]], "max_distance": 1.0}
 
 
 def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
@@ -241,7 +249,8 @@ def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
     descs = {"via": ob.via("v", ob.frame_points(ee, "ee"), np.zeros(3), [2], 1.0),
              "inequality": ob.inequality("b", ob.joints("joints", [0]), [[1.0]], [0.5], [1, 2], 10.0),
              "state": ob.state("s", np.zeros(2 * n), [T], 1.0),
-             "control": ob.control(1e-2), "control_limit": ob.control_limit(-np.ones(n), np.ones(n), 1e3)}
+             "control": ob.control(1e-2), "control_limit": ob.control_limit(-np.ones(n), np.ones(n), 1e3),
+             "collision": ob.collision("c", _distances_description(), 0.02, True, [1, 2], 10.0)}
     descs["control@gravity"] = {**ob.control(1e-2, name="toward_gravity"), "target": "gravity", "controls": "torque"}
     assert set(descs) == {k.key for k in term_kinds()}
     objective = ob.build_terms(robot, list(descs.values()), T)
