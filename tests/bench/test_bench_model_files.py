@@ -7,6 +7,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from bench import model_files
 from tests.tolerance import assert_close
@@ -102,6 +103,7 @@ def test_ended_says_diverged_no_descent_or_the_status():
     assert model_files._ended("converged", 10.0, 1.0) == "converged"
 
 
+@pytest.mark.numerics
 def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(tmp_path):
     """The start, held by the torques that hold it, is a stable equilibrium of the planning model at dt (the
     step's spectral radius 1 to rounding: no mode grows), which the upright chain with twist joints was not; R-AICO
@@ -120,6 +122,7 @@ def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(
     assert opts["schedule"] == "robust" and opts["iterations"] == model_files.ITERATIONS and opts["tol_rel"] == 0.0
 
 
+@pytest.mark.numerics
 def test_both_solvers_lower_the_cost_of_the_8_joint_chain(tmp_path):
     """The timed runs are of a problem both solvers solve: their 4 iterations end below the start's cost (the
     upright chain this bench wrote before ended FDDP's at 1e201 here)."""
