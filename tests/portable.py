@@ -77,13 +77,17 @@ def run_variant(name: str, pytest_args: list[str]) -> tuple[bool, str]:
     if asked and blas.lower() not in KERNEL_NAMES.get(asked.lower(), {asked.lower()}):
         head += f" (OpenBLAS fell back from {asked}: this CPU lacks its instructions)"
     cmd = [sys.executable, "-m", "pytest", "-q", "-m", MARK, "-p", "no:cacheprovider", *pytest_args]
-    p = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True)
-    lines = (p.stdout + p.stderr).rstrip().splitlines()
+    p = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    output = p.stdout.read() if p.stdout else ""
+    _, status, usage = os.wait4(p.pid, 0)   # the test process's own CPU time (not the other variant's)
+    code = os.waitstatus_to_exitcode(status)
+    lines = output.rstrip().splitlines()
     failures = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
-    report = [head, *failures, lines[-1] if lines else "(no output)", f"   ({time.monotonic() - start:.0f} s)"]
-    if p.returncode != 0 and not failures:   # a crash or a collection error: its tail
+    took = f"   (wall {time.monotonic() - start:.0f} s, CPU {usage.ru_utime + usage.ru_stime:.0f} s)"
+    report = [head, *failures, lines[-1] if lines else "(no output)", took]
+    if code != 0 and not failures:   # a crash or a collection error: its tail
         report[1:1] = lines[-40:]
-    return p.returncode == 0, "\n".join(report) + "\n"
+    return code == 0, "\n".join(report) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:

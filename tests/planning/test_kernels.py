@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -91,18 +92,81 @@ def test_the_kernel_source_is_package_data():
 
 
 def test_the_kernel_flags_follow_this_cpu():
-    """-mavx2 / -mfma only where /proc/cpuinfo lists the CPU flags; they are part of the cached
-    library's key, so a build for another CPU is never the one loaded here."""
-    cpu = c_backend.cpu_features()
-    assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
-    assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
-    assert ("-mavx512f" in kernels.FLAGS) == ({"avx2", "fma", "avx512f"} <= cpu)
+    """-mavx2 / -mfma only where /proc/cpuinfo lists the CPU flags (or the level RAICO_ISA names has
+    them); they are part of the cached library's key, so a build for another CPU is never the one
+    loaded here."""
+    cpu, level = c_backend.cpu_features(), c_backend.isa_level()
+    if level == "host":
+        assert ("-mavx2" in kernels.FLAGS) == ("avx2" in cpu)
+        assert ("-mfma" in kernels.FLAGS) == ({"avx2", "fma"} <= cpu)
+        assert ("-mavx512f" in kernels.FLAGS) == ({"avx2", "fma", "avx512f"} <= cpu)
+    else:
+        assert f"-march={level}" in kernels.FLAGS and "-mavx512f" not in kernels.FLAGS
+        assert ("-mfma" in kernels.FLAGS) == ("-mavx2" in kernels.FLAGS) == (level == "x86-64-v3")
     source = kernels.source_text()
     here = c_backend.library_path(source, "csweep", flags=kernels.FLAGS)
     portable = tuple(f for f in kernels.FLAGS if f not in ("-mavx2", "-mfma", *kernels.wide_flags()))
     assert c_backend.library_path(source, "csweep", flags=portable) != here
     loaded = kernels.library()
     assert Path(loaded._name) == here
+
+
+def _instructions(path: Path) -> set[str]:
+    """The mnemonics and registers of the machine code of the library at ``path`` (objdump's disassembly)."""
+    out = subprocess.run(["objdump", "-d", "--no-show-raw-insn", str(path)], capture_output=True, text=True,
+                         check=True).stdout
+    words = set()
+    for line in out.splitlines():
+        parts = line.split("\t")
+        if len(parts) >= 2 and parts[0].strip().endswith(":"):
+            words.add(parts[1].split()[0] if parts[1].split() else "")
+            words.update(re.findall(r"%([xyz]mm)\d+", parts[-1]))
+    return words
+
+
+@pytest.mark.numerics
+def test_an_instruction_set_level_builds_its_own_kernels_with_its_instructions_only(tmp_path, monkeypatch):
+    """RAICO_ISA's levels: x86-64-v2 has no AVX (no VEX-encoded instruction, no ymm or zmm register),
+    x86-64-v3 has AVX2 and FMA but no AVX-512; each level's flags are part of the cache key (three
+    files, never mixed); the sweeps built for x86-64-v2 give the numpy sweeps' numbers within the
+    rounding bound of the run, as the host's build does. An unknown level is refused in one line."""
+    if shutil.which("objdump") is None:
+        pytest.skip("objdump (binutils) is not installed")
+    v2, v3, host = (kernels.flags_for(level) for level in ("x86-64-v2", "x86-64-v3", "host"))
+    assert "-march=x86-64-v2" in v2 and not {"-mavx2", "-mfma", "-mavx512f"} & set(v2)
+    assert {"-march=x86-64-v3", "-mavx2", "-mfma"} <= set(v3) and "-mavx512f" not in v3
+    source = kernels.source_text()
+    paths = {c_backend.library_path(source, "csweep", tmp_path, flags) for flags in (v2, v3, host)}
+    assert len(paths) == 3
+    built = {}
+    for level, flags in (("x86-64-v2", v2), ("x86-64-v3", v3)):
+        missing = c_backend.ISA_LEVELS[level] - c_backend.cpu_features()
+        if missing:
+            continue   # this CPU cannot run that level's code
+        built[level] = c_backend.build_library(source, "csweep", directory=tmp_path, flags=flags)
+    if "x86-64-v2" not in built:
+        pytest.skip("this CPU cannot run x86-64-v2 code")
+    words = _instructions(built["x86-64-v2"])
+    assert "xmm" in words and not {"ymm", "zmm"} & words and not any(w.startswith("v") for w in words)
+    if "x86-64-v3" in built:
+        words = _instructions(built["x86-64-v3"])
+        assert "ymm" in words and "zmm" not in words and any(w.startswith("vfmadd") for w in words)
+    # the same run with the numpy sweeps, the host's kernel and the x86-64-v2 kernel
+    opts = AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.02)
+    compiled, ref, rel = _both_with_bound(make_problem, opts, monkeypatch)
+    _assert_same(compiled, ref, rel)
+    monkeypatch.setattr(_Sweeps, "compiled", True)
+    monkeypatch.setattr(kernels, "_LIB", _sweep_lib_at(built["x86-64-v2"]))
+    _assert_same(aico(make_problem(), opts), ref, rel)
+    # an unknown level: one line, before anything is built
+    monkeypatch.setenv("RAICO_ISA", "x86-64-v9")
+    with pytest.raises(c_backend.IsaError, match=r"^RAICO_ISA='x86-64-v9' is not an instruction-set level: give one of"):
+        c_backend.build_library(source + "\n", "csweep", directory=tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
+    env = {**os.environ, "RAICO_ISA": "avx9000", "RAICO_KERNEL_DIR": str(tmp_path / "cli")}
+    p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=REPO, env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 2 and p.stderr.strip().count("\n") == 0 and "RAICO_ISA='avx9000'" in p.stderr, p.stderr
 
 
 def _sweep_lib_at(path: Path):
