@@ -7,7 +7,7 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
+.PHONY: install anchors kernels test test-fast test-portable test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
 
 install: $(STAMP)
 
@@ -42,6 +42,14 @@ test: $(STAMP) $(KERNEL)
 
 test-fast: $(STAMP) $(KERNEL)
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# The tests that compare floating-point results (marked `numerics`) under other processors' rounding, on this
+# machine (tests/portable.py): numpy's OpenBLAS forced to its Haswell, SkylakeX and Prescott kernels
+# (OPENBLAS_CORETYPE), then every compiled kernel built for x86-64-v2 and x86-64-v3 (RAICO_ISA; their own files in
+# the kernel cache). Each variant prints its name and the OpenBLAS kernel threadpoolctl reports; any failure fails
+# the target. JOBS variants run at once.
+test-portable: $(STAMP) $(KERNEL)
+	$(BIN)/python -m tests.portable --jobs $(JOBS)
 
 # Every test that reaches compiled code (marked `compiled`) with every kernel, hand-written and generated,
 # built with AddressSanitizer and UBSan into its own folder and gcc's sanitizer runtimes preloaded into

@@ -8,7 +8,8 @@ that order: the dense functions stay ``static`` and inline as before). The sourc
 on first use by the build helper :func:`plants.codegen.c_backend.build_library` into the kernel
 cache (``make kernels`` builds it ahead: ``python -m planning.kernels``). :data:`FLAGS` follow
 this host's CPU (``-mavx2 -mfma`` only where ``/proc/cpuinfo`` lists both, :func:`wide_flags` where it
-lists AVX-512 too) and are part of the cached
+lists AVX-512 too), or the level ``RAICO_ISA`` names (``x86-64-v2``, ``x86-64-v3``: see
+:mod:`plants.codegen.c_backend`), and are part of the cached
 file's key, so a library built for AVX2/FMA is never loaded on a CPU without them: there the
 portable build is made and loaded.
 
@@ -37,20 +38,29 @@ def source_text() -> str:
     return "".join(p.read_text() for p in SOURCES)
 
 
-def wide_flags() -> tuple[str, ...]:
-    """``-mavx512f`` where the CPU has it (with AVX2 and FMA): dense.c's products then take 16-column
-    tiles in 512-bit vectors, the same operations per entry (the same numbers bit for bit, fewer
-    instructions); ``-mprefer-vector-width=256`` keeps every loop the compiler vectorizes by itself at
-    the 4-wide vectors of the AVX2 build (its vectorized sums group their terms by the vector width)."""
-    if {"avx512f", "avx2", "fma"} <= c_backend.cpu_features():
+def wide_flags(level: str | None = None) -> tuple[str, ...]:
+    """``-mavx512f`` where the CPU has it (with AVX2 and FMA) and the instruction-set level is the
+    host's (``RAICO_ISA``, :func:`plants.codegen.c_backend.isa_level`; the named levels have no
+    AVX-512): dense.c's products then take 16-column tiles in 512-bit vectors, the same operations per
+    entry (the same numbers bit for bit, fewer instructions); ``-mprefer-vector-width=256`` keeps every
+    loop the compiler vectorizes by itself at the 4-wide vectors of the AVX2 build (its vectorized sums
+    group their terms by the vector width)."""
+    level = c_backend.isa_level(strict=False) if level is None else level
+    if level == "host" and {"avx512f", "avx2", "fma"} <= c_backend.cpu_features():
         return ("-mavx512f", "-mprefer-vector-width=256")
     return ()
+
+
+def flags_for(level: str | None = None) -> tuple[str, ...]:
+    """The sweep kernel's flags at an instruction-set level (default ``RAICO_ISA``'s): :data:`FLAGS`."""
+    return (*c_backend.BASE_FLAGS, *c_backend.isa_flags(level), "-O3", "-ffp-contract=fast", "-fopenmp-simd",
+            *c_backend.fma_flags(level), *wide_flags(level))
 
 
 # -O3 vectorizes the small dense loops; contraction into fused multiply-adds and the vectorized
 # sums marked `omp simd` (-fopenmp-simd: the pragmas only, no OpenMP runtime) are allowed here (the
 # sweeps are compared with the numpy code to a tolerance, not bit for bit). Later flags win.
-FLAGS = (*c_backend.CFLAGS, "-O3", "-ffp-contract=fast", "-fopenmp-simd", *c_backend.fma_flags(), *wide_flags())
+FLAGS = flags_for()
 
 # sweep_t.phase / dyn_mode values and sweep_run's error codes
 PH_FWD, PH_BWD = 0, 1
@@ -300,6 +310,13 @@ def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool 
 
 
 if __name__ == "__main__":  # python -m planning.kernels (make kernels): build (or find) the kernel
+    import sys
+
+    try:
+        c_backend.isa_level()
+    except c_backend.IsaError as e:   # bad input: one line, exit 2
+        print(f"planning.kernels: error: {e}", file=sys.stderr)
+        sys.exit(2)
     lib = library()   # a failed build raises: make stops
     print("csweep:", f"compiled ({' '.join(FLAGS)})" if lib is not None
           else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")

@@ -12,11 +12,19 @@
 Flags: ``-O2 -fno-fast-math -ffp-contract=off`` (no reassociation, no fused multiply-add), so the
 compiled arithmetic is the one written; ``-mavx2`` where the CPU has it (the flags are part of the
 cache key: a library built for AVX2 is never the one loaded on a CPU without it, which builds its own).
+
+Instruction set: ``RAICO_ISA`` overrides the host's flags for every kernel (hand-written and
+generated): ``host`` (the default: the flags above, from ``/proc/cpuinfo``), ``x86-64-v2`` (``-march``
+of that level, SSE4.2: no AVX2, FMA or AVX-512) or ``x86-64-v3`` (AVX2 and FMA, no AVX-512). The
+level's flags are part of the cache key, so builds for different levels never mix; an unknown level,
+or one this CPU cannot run, is refused in one line (:class:`IsaError`) before anything is built.
+``make test-portable`` runs the float comparisons of the tests under each level.
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 import shutil
@@ -37,6 +45,7 @@ def _cpu_flags() -> str:
         return ""
 
 
+@functools.cache
 def cpu_features() -> frozenset[str]:
     """The CPU's feature flags (the ``flags`` line of ``/proc/cpuinfo``; empty elsewhere)."""
     for line in _cpu_flags().splitlines():
@@ -45,16 +54,56 @@ def cpu_features() -> frozenset[str]:
     return frozenset()
 
 
-def fma_flags() -> tuple[str, ...]:
-    """``-mfma`` where the CPU has it (and AVX2): for code whose results may depend on contraction
-    (the sweep kernel, compared with numpy to a tolerance, never bit for bit)."""
-    return ("-mfma",) if {"fma", "avx2"} <= cpu_features() else ()
+# The instruction-set levels RAICO_ISA may name: the x86-64 micro-architecture levels' CPU flags
+# (/proc/cpuinfo names; gcc's -march=<level> assumes them), and ``host`` (this CPU's own flags).
+ISA_LEVELS: dict[str, frozenset[str]] = {
+    "host": frozenset(),
+    "x86-64-v2": frozenset({"cx16", "popcnt", "sse4_1", "sse4_2", "ssse3"}),
+    "x86-64-v3": frozenset({"cx16", "popcnt", "sse4_1", "sse4_2", "ssse3", "avx", "avx2", "bmi1", "bmi2",
+                            "f16c", "fma", "movbe", "abm"}),
+}
 
 
-def _isa_flags() -> tuple[str, ...]:
-    """``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
-    contraction stays off, so the numbers do not depend on it)."""
-    return ("-mavx2",) if "avx2" in cpu_features() else ()
+class IsaError(ValueError):
+    """``RAICO_ISA`` names no level, or one this CPU cannot run (bad input: one line, exit 2)."""
+
+
+def isa_level(strict: bool = True) -> str:
+    """The instruction-set level of the kernels: ``RAICO_ISA`` (``host`` when unset or empty). With
+    ``strict``, an unknown level or one whose instructions this CPU lacks raises :class:`IsaError`;
+    without, such a value reads as ``host`` (the module's flags are computed at import; the build
+    refuses it)."""
+    level = os.environ.get("RAICO_ISA", "").strip() or "host"
+    if level not in ISA_LEVELS:
+        if not strict:
+            return "host"
+        raise IsaError(f"RAICO_ISA={level!r} is not an instruction-set level: give one of {', '.join(ISA_LEVELS)}")
+    missing = ISA_LEVELS[level] - cpu_features()
+    if missing and cpu_features():   # (no /proc/cpuinfo: nothing to check against)
+        raise IsaError(f"RAICO_ISA={level}: this CPU lacks {' '.join(sorted(missing))}, so code built "
+                       "for that level cannot run here")
+    return level
+
+
+def fma_flags(level: str | None = None) -> tuple[str, ...]:
+    """``-mfma`` where the level has it (``host``: where the CPU has FMA and AVX2; ``x86-64-v3``: always;
+    ``x86-64-v2``: never): for code whose results may depend on contraction (the sweep kernel,
+    compared with numpy to a tolerance, never bit for bit). ``level`` defaults to :func:`isa_level`."""
+    level = isa_level(strict=False) if level is None else level
+    if level == "host":
+        return ("-mfma",) if {"fma", "avx2"} <= cpu_features() else ()
+    return ("-mfma",) if "fma" in ISA_LEVELS[level] else ()
+
+
+def isa_flags(level: str | None = None) -> tuple[str, ...]:
+    """The instruction-set flags of every kernel at ``level`` (default :func:`isa_level`): ``host``,
+    ``-mavx2`` where the CPU has it (wider vector registers for the derivative loops; no FMA:
+    contraction stays off, so the numbers do not depend on it); a named level, ``-march=<level>``
+    and ``-mavx2`` where the level has AVX2."""
+    level = isa_level(strict=False) if level is None else level
+    if level == "host":
+        return ("-mavx2",) if "avx2" in cpu_features() else ()
+    return (f"-march={level}", *(("-mavx2",) if "avx2" in ISA_LEVELS[level] else ()))
 
 
 def c_source(module_file: str, name: str) -> str:
@@ -68,8 +117,8 @@ def c_source(module_file: str, name: str) -> str:
                            "reinstall raico (it ships its .c files as package data)") from None
 
 
-CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing",
-          *_isa_flags())
+BASE_FLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing")
+CFLAGS = (*BASE_FLAGS, *isa_flags())
 _LIBS: dict[str, ctypes.CDLL] = {}
 
 # The sanitizer build (``RAICO_SANITIZE=1``, ``make test-sanitize``): every kernel, hand-written and
@@ -168,6 +217,7 @@ def build_library(source: str, name: str, directory: Path | None = None,
     Raises :class:`CompileUnavailable` when compiling is off, :class:`CompileError` when gcc fails."""
     if not enabled():
         raise CompileUnavailable(f"compiled kernels disabled ({why_unavailable()})")
+    isa_level()   # an unknown level, or one this CPU cannot run: refused before any build
     path = library_path(source, name, directory, flags)
     if path.exists():
         return path

@@ -179,6 +179,7 @@ def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart
 
 @pytest.mark.parametrize("n", [pytest.param(n, marks=pytest.mark.slow) if n >= 16 else n
                                for n in model_files.CHAIN_SIZES])
+@pytest.mark.numerics
 def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(tmp_path, n):
     """At every size the page times: the start, held by the torques that hold it, is a stable equilibrium of the
     planning model at dt (the step's spectral radius 1 to rounding: no mode grows), which the upright chain with
@@ -199,6 +200,7 @@ def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(
 
 @pytest.mark.parametrize("n", [pytest.param(n, marks=pytest.mark.slow) if n >= 16 else n
                                for n in model_files.CHAIN_SIZES])
+@pytest.mark.numerics
 def test_both_solvers_lower_the_cost_of_the_chain(tmp_path, n):
     """At every size the page times, the timed runs are of a problem both solvers solve: their iterations (the
     bench's 4) end below the start's cost, neither diverged nor stalled (the upright chain this bench wrote before

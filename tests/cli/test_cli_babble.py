@@ -29,6 +29,7 @@ def test_help_lists_the_stages(raico):
                                      *(g.name for g in app.registered_groups)])
 
 
+@pytest.mark.numerics
 def test_babble_pendulum_writes_artifact_and_hits_cache(raico, tmp_path):
     res = raico("babble", "--plant", "pendulum", "--episodes", 3, "--json", "--artifacts", tmp_path)
     assert res.exit_code == 0, res.output
@@ -77,6 +78,7 @@ def test_babble_pendulum_writes_artifact_and_hits_cache(raico, tmp_path):
         {k: meta[k] for k in ("stage", "key", "config", "status", "metrics", "timings")}
 
 
+@pytest.mark.numerics
 def test_babble_data_are_consistent_with_the_plant(raico, tmp_path):
     """qddot recorded equals the pendulum's equation of motion at the recorded (q, qdot, u)."""
     res = raico("babble", "--plant", "pendulum", "--episodes", 1, "--no-record", "--json",
@@ -86,6 +88,7 @@ def test_babble_data_are_consistent_with_the_plant(raico, tmp_path):
     assert np.allclose(a, u - v - 9.81 * np.sin(q), rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.numerics
 def test_babble_torques_follow_the_saturated_pd_law():
     """The Drake-native controller (TrajectorySource -> PidController -> Saturation) applies
     ``clip(kp (q_des - q) + kd (qdot_des - qdot), -u_max, u_max)`` at every sample, on a multi-joint arm."""

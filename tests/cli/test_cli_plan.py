@@ -26,6 +26,7 @@ def ee_positions(robot, Q):
     return np.array([frame.CalcPoseInWorld(robot.set_state(q)).translation() for q in Q])
 
 
+@pytest.mark.numerics
 def test_plan_and_execute_arm5_pseudo(tmp_path):
     from planning.aico import AICOOptions
     from planning.objective import objective_from_description
@@ -88,6 +89,7 @@ def test_plan_and_execute_arm5_pseudo(tmp_path):
     assert abs(em["via_point_errors"]["via_x2@1000"] - m["via_point_errors"]["via_x2@1000"]) < 0.01
 
 
+@pytest.mark.numerics
 def test_plan_recording_has_costs_robot_and_task(tmp_path):
     import subprocess
     import sys
@@ -128,6 +130,7 @@ def test_plan_recording_has_costs_robot_and_task(tmp_path):
 SOLVER_NAMES = ["aico", "raico", "ilqg", "fddp-rollout"]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("solver", SOLVER_NAMES)
 def test_every_solver_stores_its_iterates(solver):
     """``X_iterations``: the initial rollout (zero torques, the analytic pendulum falls a little from
@@ -150,6 +153,7 @@ def test_every_solver_stores_its_iterates(solver):
     assert np.abs(Xi[1] - Xi[0]).max() > 1e-5  # the first iterate moved
 
 
+@pytest.mark.numerics
 def test_nao_balance_plan_and_execute_reports_cog(tmp_path):
     line = run_json("plan", "--plant", "nao", "--task", "balance", "--solver", "raico", "--alpha", 1,
                     "--iterations", 3, "--no-record", "--json", "--artifacts", tmp_path)
@@ -295,6 +299,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     assert doc2["cached_runs"] == doc2["runs"] == EXPERIMENTS["fig3.2a"].run_count(True)  # 10 with the reference run
 
 
+@pytest.mark.numerics
 def test_evaluate_plan_and_rollout(tmp_path):
     p = run_json("plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 5,
                  "--no-record", "--json", "--artifacts", tmp_path)
@@ -322,6 +327,7 @@ def test_evaluate_plan_and_rollout(tmp_path):
         f"raico: error: rollout {e['key']} was not executed from plan {other['key']}"
 
 
+@pytest.mark.numerics
 def test_no_record_then_record_is_cached_and_writes_the_recording(tmp_path):
     args = ["plan", "--plant", "pendulum", "--task", "swing-up", "--solver", "ilqg", "--iterations", 2,
             "--json", "--artifacts", tmp_path]
@@ -362,6 +368,7 @@ def test_every_command_has_help(command):
         assert "pendulum: swing-" in text
 
 
+@pytest.mark.numerics
 def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_path):
     """A diverged plan's reason is in its outcome line (not only in `raico show`); `raico evaluate` prints the
     final cost and the plan's task verdict, its worst term in its unit."""

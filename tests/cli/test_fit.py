@@ -75,6 +75,7 @@ def test_fit_heldout_error_recording_and_cache(base):
     assert again["cached"] and again["key"] == fit["key"]
 
 
+@pytest.mark.numerics
 def test_learned_model_of_the_fit_predicts_babbled_accelerations(base):
     from plants.dynamics_registry import make_dynamics
     from plants.robots import shared_robot
@@ -87,6 +88,7 @@ def test_learned_model_of_the_fit_predicts_babbled_accelerations(base):
     assert np.max(np.abs(pred - a)) < 1e-3 * np.abs(a).max()  # measured 1.3e-4
 
 
+@pytest.mark.numerics
 def test_batch_schedule_updates_then_reoptimizes(base):
     root, data, fit = base
     prior = model_of(fit)
@@ -117,6 +119,7 @@ def test_batch_schedule_updates_then_reoptimizes(base):
     assert fit_doc(opt)["n_train_at_optimization"] == 512
 
 
+@pytest.mark.numerics
 def test_fit_on_executed_data_labels_by_drake_forward_dynamics(base):
     root, _, _ = base
     plan = run_json("plan", "--plant", "pendulum", "--task", "swing-up", "--dynamics", "analytic", "--solver",

@@ -80,6 +80,7 @@ def _write(path: Path, robot) -> tuple[dict[str, list[str]], list[str]]:
     return geometry, bodies
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name", PLANTS)
 def test_recording_has_every_body_and_joint(tmp_path: Path, name: str) -> None:
     robot = shared_robot(name)
@@ -147,6 +148,7 @@ def test_decimation_rule() -> None:
     assert len(plot_indices(1001)) == 1001 and len(plot_indices(10_001)) <= 2001
 
 
+@pytest.mark.numerics
 def test_unwrap_angles() -> None:
     true = np.linspace(2.0, 4.5, 50)  # through +pi: the wrapped trace jumps by -2 pi
     wrapped = np.angle(np.exp(1j * true))
@@ -162,6 +164,7 @@ def test_unwrap_angles() -> None:
     assert not continuous_joints(shared_robot("arm5")).any() and not continuous_joints(shared_robot("nao")).any()
 
 
+@pytest.mark.numerics
 def test_recording_properties_and_capsule_offset(tmp_path: Path) -> None:
     path = tmp_path / "arm5.rrd"
     _write(path, shared_robot("arm5"))
@@ -190,6 +193,7 @@ def test_parallel_recordings_do_not_mix(tmp_path: Path) -> None:
     assert "/cost/b" in ents_b and "/cost/a" not in ents_b
 
 
+@pytest.mark.numerics
 def test_quaternions_match_drake() -> None:
     from pydrake.math import RollPitchYaw, RotationMatrix
 

@@ -52,6 +52,7 @@ def test_profiles_from_records_take_the_cost_and_the_time_to_target():
 
 
 # ----------------------------------------------------------------------------- budgets and limits
+@pytest.mark.numerics
 def test_the_cost_at_the_time_budget_is_the_last_iteration_finished_within_it():
     costs, elapsed = np.array([10.0, 5.0, 2.0, 1.0]), np.array([1.0, 2.0, 3.0, 4.0])
     assert suite.cost_at_budget(costs, elapsed, 0.9, budget=5.0) == 0.9      # within: the plan's own cost
@@ -299,6 +300,7 @@ def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, ar
     assert not (tmp_path / "art" / "bench").exists()
 
 
+@pytest.mark.numerics
 def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
     """Two problems: on the first the cheaper plan leaves a joint range (by 0.1 rad), so inside the limits the
     other solver is the best and the cheaper one unsolved; on the second both stay inside."""

@@ -32,6 +32,7 @@ def run(pb, **kw):
     return res, iterates
 
 
+@pytest.mark.numerics
 def test_robust_schedule_reaches_the_exact_lq_solution():
     """From x0 held (no trajectory of the dynamics) the first trial is taken, then the model is exact and
     lambda falls by up to 10 per iteration: the exact solution to 1e-6 within 12 iterations."""
@@ -46,6 +47,7 @@ def test_robust_schedule_reaches_the_exact_lq_solution():
     assert lam[0] == 1.0 and lam[2] == pytest.approx(0.1) and lam[3] == pytest.approx(0.01)  # rho = 1: /10
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
 def test_robust_schedule_iterates_do_not_depend_on_the_cost_scale(scale):
     """The same LQ problem with every weight times 1e-3 or 1e3: kappa scales with it, alpha = lambda kappa,
@@ -69,6 +71,7 @@ def test_robust_schedule_iterates_do_not_depend_on_the_cost_scale(scale):
     assert np.abs(f1 - fs).max() > 1e-4 * np.abs(f1).max()
 
 
+@pytest.mark.numerics
 def test_cost_curvature_scales_with_the_cost():
     X = np.tile(make_lq(seed=2).x0, (T + 1, 1))
     U = np.zeros((T, N_U))
@@ -82,6 +85,7 @@ def _step(pb, start_cost, **kw):
                                                                      np.zeros((T, N_U))), start_cost)
 
 
+@pytest.mark.numerics
 def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambda_max():
     """A feasible iterate of cost 0 cannot be beaten: every trial is rejected, the iterate and its cost stay,
     lambda grows by 2, 4, 8, 10, 10 (Nielsen's doubling, capped at x10); rejected at lambda_max the run stops."""
@@ -99,6 +103,7 @@ def test_robust_schedule_rejects_a_trial_that_raises_the_cost_and_stops_at_lambd
     assert s.stop.status is Status.MAX_ITERATIONS and "lambda_max" in s.stop.message
 
 
+@pytest.mark.numerics
 def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is_finite(monkeypatch):
     """A trial whose rollouts (the full step and both shortened ones) all blow up gives no ratio of actual to
     predicted decrease: lambda grows by lm_factor at once, not by Nielsen's 2, 4, 8 meant for a measured rise
@@ -123,6 +128,7 @@ def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is
     assert lams == pytest.approx([1.0, 10.0, 100.0]) and step.lam == pytest.approx(1e3)
 
 
+@pytest.mark.numerics
 def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajectory():
     """The stall this schedule fixes: from x0 held the reference is no trajectory's cost; the first finite
     trial is taken whatever it costs (the adaptive schedule compared it with the zero-control rollout's cost
@@ -135,6 +141,7 @@ def test_robust_schedule_takes_the_first_trial_from_a_start_that_is_no_trajector
     assert step.cur_cost == s.cost
 
 
+@pytest.mark.numerics
 def test_robust_trials_are_steps_of_the_regularized_model_at_the_current_iterate(monkeypatch):
     """A nonlinear cost (end-effector via-points of a planar arm) under linear dynamics (pseudo-dynamics),
     from the zero-control rollout: a trial is the minimizer of the quadratic model at the current iterate plus
@@ -221,6 +228,7 @@ def bounded_qp_optimum(pb) -> float:
     return pb.cost(X, U)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("schedule", ["robust", "fixed"])
 def test_hard_bounds_hold_where_the_unconstrained_optimum_leaves_them(schedule):
     """The unconstrained optimum leaves the range and asks for more than the effort; with the bounds
@@ -241,6 +249,7 @@ def test_hard_bounds_hold_where_the_unconstrained_optimum_leaves_them(schedule):
     assert np.allclose(res.o + np.einsum("tij,tj->ti", res.O, res.X[:-1]), res.U, atol=1e-9)
 
 
+@pytest.mark.numerics
 def test_a_plan_that_cannot_stay_inside_says_so():
     """A range the plan cannot keep (the start's state 0 is 0.18; the bound at 0.1 from step 1 on is beyond
     what one step of the bounded controls can do): status out-of-bounds with the amount."""
@@ -253,6 +262,7 @@ def test_a_plan_that_cannot_stay_inside_says_so():
     assert res.status is Status.OUT_OF_BOUNDS and "joint range by" in res.message
 
 
+@pytest.mark.numerics
 def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bounds(tmp_path):
     """``raico plan --problem FILE``: R-AICO's robust schedule and the model's hard bounds by default (stored in
     the config), the thesis's fixed schedule and no hard bounds for ``--plant/--task``; the plan is within its

@@ -23,7 +23,7 @@ from plants.dynamics import PseudoDynamics
 from tests.tolerance import assert_close
 from tests.toys import PlanarArm
 
-pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
+pytestmark = [pytest.mark.compiled, pytest.mark.numerics]   # reaches a C kernel: run under the sanitizers too
 
 N_Q, T, DT = 3, 40, 0.02
 

@@ -14,6 +14,8 @@ from plants.numdiff import check_cost_term, check_taskmap, numdiff_jacobian
 from tests.tolerance import assert_close
 from tests.toys import PlanarArm
 
+pytestmark = pytest.mark.numerics   # compares floating-point results (make test-portable)
+
 RNG = np.random.default_rng(0)
 N_Q = 3
 N_X = 2 * N_Q

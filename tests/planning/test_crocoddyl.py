@@ -52,6 +52,7 @@ def _trajectories(problem):
     return out
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("case", CASES, ids=lambda c: "-".join(c))
 def test_rollouts_agree_with_raicos_analytic_model(built, case):
     problem, cp = built[case]
@@ -60,6 +61,7 @@ def test_rollouts_agree_with_raicos_analytic_model(built, case):
         assert np.max(np.abs(Xc - X)) <= 1e-9 * max(1.0, np.max(np.abs(X)))
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("case", CASES, ids=lambda c: "-".join(c))
 def test_costs_of_the_same_trajectory_agree(built, case):
     problem, cp = built[case]
@@ -69,6 +71,7 @@ def test_costs_of_the_same_trajectory_agree(built, case):
         assert abs(cp.cost(X, U) - c) <= 1e-9 * c
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("case", [("arm5", "reach"), ("pendulum", "swing-up")], ids=lambda c: "-".join(c))
 def test_dynamics_derivatives_agree_with_raicos_linearization(built, case):
     """crocoddyl's Fx, Fu of a running node equal raico's A, B (the pendulum: through the damped
@@ -87,12 +90,14 @@ def test_dynamics_derivatives_agree_with_raicos_linearization(built, case):
     assert close(np.reshape(d.Fu, B.shape), B)
 
 
+@pytest.mark.numerics
 def test_control_limit_term_is_active_in_the_compared_pendulum_trajectory(built):
     problem, _ = built[("pendulum", "swing-up")]
     X, U = _trajectories(problem)[1]
     assert problem.cost_terms(X, U)["control_limit"] > 1.0
 
 
+@pytest.mark.numerics
 def test_roll_residual_gradient_and_gauss_newton_hessian_match_raico(built):
     """At the via-point nodes (a running node at T/2, the terminal node) crocoddyl's cost
     derivatives equal raico's ``l_x`` and Gauss-Newton ``l_xx`` (running: dt * 2w/dt = w...)."""
@@ -122,6 +127,7 @@ def test_what_crocoddyl_cannot_express_is_refused_with_the_reason():
         cm.pinocchio_robot(shared_robot("nao"))
 
 
+@pytest.mark.numerics
 def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(built):
     from planning.problem import controller_rollout
     from planning.solvers import solve
@@ -159,6 +165,7 @@ def test_plan_stage_refuses_fddp_on_pseudo_dynamics_in_one_line():
         plan(PlanConfig(plant="arm5", task="reach", dynamics="pseudo", solver="fddp", iterations=2))
 
 
+@pytest.mark.numerics
 def test_an_fddp_run_stopped_by_its_regularization_limit_says_so():
     """crocoddyl's FDDP also stops when no step is accepted and its regularization reaches reg_max
     (fig3.2d's roll task from the rollout start, seed 5: 23 of 100 iterations); the message says why."""

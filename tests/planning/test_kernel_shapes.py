@@ -64,6 +64,7 @@ def lq_case(request):
     return pb, *exact_solution(pb)
 
 
+@pytest.mark.numerics
 def test_ilqg_solves_every_shape_exactly(lq_case):
     pb, X, U = lq_case
     res = ilqg(pb, ILQGOptions(tol_rel=1e-13, tol_grad=1e-10))
@@ -71,12 +72,14 @@ def test_ilqg_solves_every_shape_exactly(lq_case):
     assert _close(res.X, X, 1e-8) and _close(res.U, U, 1e-8)
 
 
+@pytest.mark.numerics
 def test_aico_solves_every_shape_exactly_in_one_iteration(lq_case):
     pb, X, U = lq_case
     res = aico(pb, AICOOptions(iterations=1, alpha=0.0, process_noise=1e-9))
     assert _close(res.beliefs, X, 1e-5) and _close(res.X, X, 1e-5) and _close(res.U, U, 1e-5)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("n,m,T", LQ_SHAPES, ids=[f"n{n}-m{m}-T{T}" for n, m, T in LQ_SHAPES])
 def test_raico_converges_to_the_exact_solution_on_every_shape(n, m, T):
     """As the solver tests' R-AICO check (a running state cost, alpha = 1, the default process noise,
@@ -89,6 +92,7 @@ def test_raico_converges_to_the_exact_solution_on_every_shape(n, m, T):
     assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-7)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("n,m,T", [(1, 1, 1), (2, 5, 30), (1, 3, 2), (7, 2, 9)])
 def test_compiled_sweeps_equal_numpy_sweeps_on_every_shape(n, m, T, monkeypatch):
     """The C sweeps against _Sweeps's numpy code (the LTI route, and with a relinearization forced
@@ -135,6 +139,7 @@ BLOCK_SHAPES = [(1, 1, 1), (1, 3, 2), (2, 1, 5), (3, 7, 4), (5, 2, 9), (4, 4, 20
                 (32, 32, 3)]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("nq,nu,T", BLOCK_SHAPES, ids=[f"nq{a}-nu{b}-T{c}" for a, b, c in BLOCK_SHAPES])
 def test_block_form_sweeps_on_every_shape(nq, nu, T, monkeypatch):
     """The semi-implicit Euler block form of the sweep kernel against _Sweeps's numpy code (dense A, B)."""
@@ -158,6 +163,7 @@ def test_block_form_sweeps_on_every_shape(nq, nu, T, monkeypatch):
     assert sum(h.repeats for h in out[True].history) > 0    # the backward messages redone at a moved point
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("n,m,T", [(1, 1, 1), (1, 1, 2), (2, 5, 100), (9, 3, 7), (3, 9, 1000)])
 def test_lti_rollout_on_every_shape(n, m, T):
     """The sweep kernel's closed-loop rollout on an affine model against the reference Python loop."""
@@ -185,6 +191,7 @@ def _backward_equal(args, mu: float) -> None:
         assert _close(got, ref)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("T,n,m", [(1, 1, 1), (2, 1, 1), (1, 1, 7), (2, 2, 5), (100, 2, 5), (7, 1, 24),
                                    (3, 24, 1), (5, 24, 40), (1000, 3, 2)])
 def test_compiled_ilqg_backward_on_the_grid(T, n, m):
@@ -193,6 +200,7 @@ def test_compiled_ilqg_backward_on_the_grid(T, n, m):
         _backward_equal(_backward_args(rng, T, n, m), mu)
 
 
+@pytest.mark.numerics
 @HYPOTHESIS
 @given(T=st.integers(1, 30), n=st.integers(1, 24), m=st.integers(1, 30), mu=st.sampled_from([0.0, 0.3]),
        seed=st.integers(0, 2**31 - 1))
@@ -213,6 +221,7 @@ def test_ilqg_backward_refuses_wrong_shapes():
 
 
 # -- the dense algebra of the sweeps (dense.c), on drawn shapes and leading dimensions --------------
+@pytest.mark.numerics
 @HYPOTHESIS
 @given(a=st.integers(1, 40), r=st.integers(1, 40), c=st.integers(1, 40), extra=st.integers(0, 5),
        seed=st.integers(0, 2**31 - 1))
@@ -264,6 +273,7 @@ def _messages_equal(problem) -> None:
         assert_close(lxx, G, scale=1.0)
 
 
+@pytest.mark.numerics
 def test_task_messages_at_the_largest_map_the_kernel_takes():
     """21 points (63 rows, the kernel's 64-row limit) on the largest plant: compiled, equal to Python."""
     _messages_equal(_nao_points_problem(21))
@@ -291,6 +301,7 @@ def _gp(N: int, d: int, D: int, seed: int = 0) -> GPModel:
                    y_std=np.ones(D))
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("N,d,D", GP_SHAPES)
 def test_gp_point_kernels_on_every_shape(N, d, D):
     model = _gp(N, d, D)
@@ -306,6 +317,7 @@ def test_gp_point_kernels_on_every_shape(N, d, D):
         model.point_mean_with_gradients(np.zeros(d + 1))
 
 
+@pytest.mark.numerics
 def test_gp_point_beyond_the_compiled_input_size_uses_numpy():
     model = _gp(4, 257, 1)                      # d > 256: the kernel's stack buffers, numpy instead
     x = np.random.default_rng(2).standard_normal(257)
@@ -314,6 +326,7 @@ def test_gp_point_beyond_the_compiled_input_size_uses_numpy():
     assert np.array_equal(m, m_ref[0]) and np.array_equal(g, g_ref[0])
 
 
+@pytest.mark.numerics
 def test_sparse_gp_with_more_inducing_points_than_data():
     rng = np.random.default_rng(3)
     X, Y = rng.standard_normal((4, 3)), rng.standard_normal((4, 2))
@@ -331,6 +344,7 @@ def test_sparse_gp_with_more_inducing_points_than_data():
 LEARNED_SHAPES = [(1, 1, 1), (2, 1, 3), (9, 3, 1), (12, 4, 4), (5, 100, 56)]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("N,nq,nu", LEARNED_SHAPES)
 def test_learned_dynamics_kernels_on_every_shape(N, nq, nu):
     model = _gp(N, 2 * nq + nu, nq, seed=N)
@@ -352,6 +366,7 @@ def test_learned_dynamics_kernels_on_every_shape(N, nq, nu):
         model.controller_rollout(x, o, O[:, :, :-1], 0.01)
 
 
+@pytest.mark.numerics
 def test_learned_dynamics_keep_the_dense_sweep_products(monkeypatch):
     """A learned (GP) model is semi-implicit Euler too, but its sweeps keep the dense products and their
     rounding (the thesis's learning figures flip with rounding-level changes): no step takes the block form,
@@ -388,6 +403,7 @@ def _dynamics(plant: str):
     return robot, (TreeAnalyticDynamics(robot, 0.01) if plant == "nao" else FastAnalyticDynamics(robot, 0.01))
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("plant", PLANTS)
 def test_compiled_dynamics_batches_at_every_length(plant):
     """Batched linearization and closed-loop rollout at T = 1, 2 and longer against the point calls
@@ -417,6 +433,7 @@ def test_compiled_dynamics_batches_at_every_length(plant):
         c.controller_rollout(X[0], U, np.zeros((3, n, n)))
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("plant", PLANTS)
 def test_tree_kernels_at_every_shape(plant):
     """The tree kernels' batches at K = 1 and more, frames with 1 and many points, against the single
@@ -472,6 +489,7 @@ def _task_tree(n: int, branches: int, leaf: bool, tmp_path):
     return robot
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("n, branches, leaf", TASK_TREES, ids=[f"n{n}-b{b}{'-leaf' if l else ''}"
                                                                 for n, b, l in TASK_TREES])
 def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branches, leaf, tmp_path):

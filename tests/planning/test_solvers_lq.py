@@ -100,6 +100,7 @@ def lq():
     return pb, X, U, riccati_gains(pb)
 
 
+@pytest.mark.numerics
 def test_reference_is_the_optimum(lq):
     """The oracle itself: feasible, and every perturbation of the controls costs more."""
     pb, X, U, K = lq
@@ -114,6 +115,7 @@ def test_reference_is_the_optimum(lq):
     assert np.max(np.abs(K - K[0])) > 1e-2
 
 
+@pytest.mark.numerics
 def test_ilqg_equals_exact_solution(lq):
     pb, X, U, K = lq
     res = ilqg(pb, ILQGOptions())                       # the default stopping rules
@@ -130,6 +132,7 @@ def test_ilqg_equals_exact_solution(lq):
     assert res.history and all(h.cost >= res.cost - REL * abs(res.cost) for h in res.history)
 
 
+@pytest.mark.numerics
 def test_aico_equals_exact_solution_in_one_iteration(lq):
     pb, X, U, K = lq
     res = aico(pb, AICOOptions(iterations=1, alpha=0.0, process_noise=1e-9))
@@ -141,6 +144,7 @@ def test_aico_equals_exact_solution_in_one_iteration(lq):
     assert res.cost == pytest.approx(pb.cost(X, U), rel=1e-7)
 
 
+@pytest.mark.numerics
 def test_aico_without_relinearization_is_the_same(lq):
     """theta = inf skips the forward sweep during iterations: same controller."""
     pb, X, _, _ = lq
@@ -151,6 +155,7 @@ def test_aico_without_relinearization_is_the_same(lq):
     assert np.max(np.abs(b.beliefs - X)) < 1e-5
 
 
+@pytest.mark.numerics
 def test_aico_gap_shrinks_with_process_noise(lq):
     pb, X, _, K = lq
     gaps = []
@@ -165,6 +170,7 @@ def test_aico_gap_shrinks_with_process_noise(lq):
         assert gaps[i, 2] < gaps[i - 1, 2], gaps
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("alpha", [1.0, 10.0])
 def test_raico_converges_to_exact_solution(alpha):
     pb = make_lq(seed=2, running=5.0)
@@ -180,6 +186,7 @@ def test_raico_converges_to_exact_solution(alpha):
     assert np.max(np.abs(res.U - U)) < 1e-5
 
 
+@pytest.mark.numerics
 def test_larger_alpha_takes_smaller_first_step():
     pb = make_lq(seed=2, running=5.0)
     X0 = np.tile(pb.x0, (T + 1, 1))
@@ -188,6 +195,7 @@ def test_larger_alpha_takes_smaller_first_step():
     assert all(b < a for a, b in itertools.pairwise(steps)), steps
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("scale", [1e-2, 1e2, 1e4, 3e5, 1e8, 1e11])
 def test_vstar_all_regimes(scale):
     """``V* = (q I + P'^-1)^-1`` and ``V* m'`` in every branch (series and Cholesky)."""
@@ -205,6 +213,7 @@ def test_vstar_all_regimes(scale):
     assert np.allclose(out, exact, rtol=1e-9, atol=1e-9 * np.abs(exact).max())
 
 
+@pytest.mark.numerics
 def test_adaptive_raico_converges_faster_on_lq():
     """Beyond the thesis: the adaptive schedule shrinks alpha after accepted steps, so on the LQ
     problem it reaches the exact solution to 1e-6 in far fewer iterations than the fixed alpha = 10."""
@@ -226,6 +235,7 @@ def test_adaptive_raico_converges_faster_on_lq():
     assert steps[:3] == pytest.approx([10.0, 3.0, 0.9])  # shrinks by 0.3 per accepted step
 
 
+@pytest.mark.numerics
 def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
     """A trial that raises the cost is not taken: the iterate and its cost stay, alpha grows."""
     from planning.aico import _AICOStep, _Sweeps
@@ -241,6 +251,7 @@ def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
         AICOOptions(alpha=0.0, schedule="adaptive")
 
 
+@pytest.mark.numerics
 def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
     """Algorithm 1 line 18's learning rate: on an LQ problem plain AICO's new controller is the exact one
     at once; blended with the previous one at rate 0.5 the controller approaches it geometrically."""
@@ -258,6 +269,7 @@ def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
         AICOOptions(controller_rate=0.0).validate()
 
 
+@pytest.mark.numerics
 def test_compiled_ilqg_backward_equals_numpy():
     """planning/ilqg_backward.c computes iLQG's backward pass as the numpy code does (to rounding),
     with and without regularization, and refuses a Q_uu that is not positive definite as numpy does."""

@@ -51,6 +51,7 @@ def ilqg_optimum(arm_problem):
     return res.cost
 
 
+@pytest.mark.numerics
 def test_first_step_shrinks_as_alpha_grows(arm_problem):
     X0 = np.tile(arm_problem.x0, (T + 1, 1))
     steps = [np.linalg.norm(aico(arm_problem, AICOOptions(iterations=1, alpha=a)).X - X0)
@@ -58,6 +59,7 @@ def test_first_step_shrinks_as_alpha_grows(arm_problem):
     assert steps[0] > steps[1] > steps[2] > 0, steps
 
 
+@pytest.mark.numerics
 def test_raico_reduces_cost_below_5_percent_of_first_iteration(arm_problem, ilqg_optimum):
     res = aico(arm_problem, AICOOptions(iterations=60, alpha=10.0, gamma=1.0))
     costs = res.costs
@@ -72,6 +74,7 @@ def test_raico_reduces_cost_below_5_percent_of_first_iteration(arm_problem, ilqg
     assert arm_problem.cost(res.X, res.U) == pytest.approx(costs[-1])
 
 
+@pytest.mark.numerics
 def test_raico_reaches_the_ilqg_optimum(arm_problem, ilqg_optimum):
     res = aico(arm_problem, AICOOptions(iterations=60, alpha=1.0))
     assert res.costs[-1] == pytest.approx(ilqg_optimum, rel=1e-3)
@@ -83,6 +86,7 @@ def test_raico_reaches_the_ilqg_optimum(arm_problem, ilqg_optimum):
     assert np.allclose(U, res.U)
 
 
+@pytest.mark.numerics
 def test_alpha_schedule_and_warm_start(arm_problem):
     res = solve(arm_problem, "raico", {"iterations": 3, "alpha": 2.0, "gamma": 3.0})
     assert [h.step for h in res.history] == pytest.approx([2.0, 6.0, 18.0])
@@ -92,6 +96,7 @@ def test_alpha_schedule_and_warm_start(arm_problem):
     assert warm.costs[0] < cold.costs[0]
 
 
+@pytest.mark.numerics
 def test_control_limits_are_respected_as_an_objective():
     limit = 2.0
     free = aico(make_arm_problem(), AICOOptions(iterations=15, alpha=1.0))
@@ -142,6 +147,7 @@ DIVERGED_MESSAGES = {
 }
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("solver", ["aico", "raico", "ilqg"])
 @pytest.mark.parametrize("case, make", [
     ("nan-step", lambda: make_arm_problem(dynamics=NaNDynamics(N_Q, DT))),
@@ -156,6 +162,7 @@ def test_diverging_run_ends_with_status_diverged(solver, case, make):
     assert res.O.shape == (T, N_Q, 2 * N_Q)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("solver", ["aico", "raico"])
 def test_exploding_cost_ends_with_status_diverged(solver):
     pb = make_arm_problem(dynamics=MismatchedDynamics(N_Q, DT))
@@ -180,6 +187,7 @@ class FailingLaterDynamics(PseudoDynamics):
         return super().step(x, u) if self.calls <= self.limit else np.full(self.n_x, np.nan)
 
 
+@pytest.mark.numerics
 def test_iterates_of_a_diverging_run_are_finite_up_to_the_divergence():
     pb = make_arm_problem(dynamics=FailingLaterDynamics(N_Q, DT, limit=3 * T))
     res = solve(pb, "raico", {"iterations": 5})
@@ -190,6 +198,7 @@ def test_iterates_of_a_diverging_run_are_finite_up_to_the_divergence():
     np.testing.assert_allclose(Xi[2], res.X[steps], rtol=1e-6, atol=1e-6)  # the last finite iterate
 
 
+@pytest.mark.numerics
 def test_ilqg_stalls_instead_of_diverging_on_a_mismatched_model():
     pb = make_arm_problem(dynamics=MismatchedDynamics(N_Q, DT))
     res = ilqg(pb, ILQGOptions(iterations=100))

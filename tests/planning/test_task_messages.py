@@ -84,6 +84,7 @@ def _compiles(term) -> bool:
     return row is not None and row.compile is not None
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("robot_name", ["arm5", "ur5"])
 @pytest.mark.parametrize("example", STATE_EXAMPLES)
 def test_compiled_messages_equal_the_terms_and_finite_differences(example, robot_name):
@@ -136,6 +137,7 @@ def _rot(axis, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("angle", [0.0, 1e-7, 3e-5, 1.0, np.pi - 1e-4, np.pi - 1e-7])
 def test_logarithm_branches(angle):
     """Orientation and placement errors where the target is ``angle`` away from the frame's pose: the
@@ -211,6 +213,7 @@ def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
         build_taskmap(robot, {"map": "nope", "name": "x"})
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("robot_name", ["arm5", "ur5"])
 def test_rows_equal_the_batched_terms(robot_name):
     """``kernels.task_rows`` (the sweeps' batched linearization and the iteration's cost) equals
@@ -265,6 +268,7 @@ def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
         ob.build_term(robot, {"term": "nope", "name": "x"})
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("robot_name", ["arm5", "nao", "ur5"])
 def test_control_toward_gravity_compiled(robot_name):
     """The control toward gravity (a joint term: its state part at the controls set_task_controls
@@ -314,6 +318,7 @@ def test_control_toward_gravity_compiled(robot_name):
         np.testing.assert_allclose(G_tree, G_ad, rtol=0, atol=1e-9 * np.abs(G_ad).max())
 
 
+@pytest.mark.numerics
 def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):
     """R-AICO on the arm with a via-point and the control toward gravity: the compiled sweeps (task
     messages, batched rows, iteration costs in C) give the numpy sweeps' iterations to rounding."""

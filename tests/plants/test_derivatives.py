@@ -58,6 +58,7 @@ def _dynamics_cases() -> list:
     return [pytest.param(kind, plant, id=f"{kind}-{plant}") for kind in DYNAMICS for plant in PLANTS]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("kind,plant", _dynamics_cases())
 def test_dynamics_linearization(kind, plant):
     """Models that need fitted parameters are checked with their registered example set."""
@@ -68,6 +69,7 @@ def test_dynamics_linearization(kind, plant):
     check_dynamics(make_dynamics(kind, robot, DT, params), X, U).assert_passed()
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name,plant", [(n, p) for n, ex in TASKMAP_EXAMPLES.items()
                                         for p in PLANTS if ex.applies_to(p)])
 def test_taskmap_jacobian(name, plant):
@@ -100,6 +102,7 @@ def _check_cost_example(term, kind: str, robot, exact_hessian: bool, seed: int =
                            subject=term.name)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name,plant", [(n, p) for n, ex in COST_TERM_EXAMPLES.items()
                                         for p in PLANTS if ex.applies_to(p)])
 def test_cost_term_derivatives(name, plant):
@@ -134,6 +137,7 @@ class _WrongJacobian(JointPositions):
         return V, 1.001 * J
 
 
+@pytest.mark.numerics
 def test_checks_fail_on_wrong_derivatives():
     f = lambda x: np.array([np.sin(x[0]) * x[1], x[1] ** 2])  # noqa: E731
     x = np.array([0.3, -1.2])
@@ -163,6 +167,7 @@ def test_checks_fail_on_wrong_derivatives():
     assert [c.name for c in report.failures] == ["l_uu positive semi-definite"]
 
 
+@pytest.mark.numerics
 def test_numdiff_jacobian_shapes():
     x = np.array([1.0, -2.0, 0.5])
     np.testing.assert_allclose(numdiff_jacobian(lambda z: z @ z, x), [2 * x], rtol=1e-8)  # (1, 3)
@@ -203,6 +208,7 @@ def test_every_cost_term_class_has_an_example():
                for name in via if COST_TERM_EXAMPLES[name].applies_to("arm5"))
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name", sorted(TASKMAP_EXAMPLES))
 def test_taskmap_batch_of_non_finite_rows_is_nan(name):
     """A diverged trajectory (no finite row) gives NaN values and Jacobians, not an error."""

@@ -44,6 +44,7 @@ def pair(request):
     return r, FastAnalyticDynamics(r, DT), AnalyticDynamics(r, DT)
 
 
+@pytest.mark.numerics
 def test_interface_matches_analytic(pair):
     r, fast, exact = pair
     for attr in ("n_q", "n_x", "n_u", "dt"):
@@ -51,6 +52,7 @@ def test_interface_matches_analytic(pair):
     assert fast.robot is r and np.array_equal(fast.P, exact.P)
 
 
+@pytest.mark.numerics
 def test_step_qddot_and_inverse_dynamics_equal_analytic(pair):
     r, fast, exact = pair
     X, U = random_states(r, 6, seed=1)
@@ -67,6 +69,7 @@ def test_step_qddot_and_inverse_dynamics_equal_analytic(pair):
     close(fast.step_trajectory(X, U), np.stack([exact.step(x, u) for x, u in zip(X, U)]))
 
 
+@pytest.mark.numerics
 def test_linearize_equals_analytic(pair):
     r, fast, exact = pair
     X, U = random_states(r, 5, seed=2)
@@ -80,6 +83,7 @@ def test_linearize_equals_analytic(pair):
         assert_close(A @ x + a + B @ u, exact.step(x, u), scale=scale_of(x, u))
 
 
+@pytest.mark.numerics
 def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
     r, fast, exact = pair
     X, U = random_states(r, 40, seed=3)
@@ -97,6 +101,7 @@ def test_linearize_trajectory_equals_analytic_and_pointwise(pair):
         assert_close(a[t], a1, scale=1 + scale_of(X[t], U[t]))
 
 
+@pytest.mark.numerics
 def test_qddot_matches_drake_time_derivatives(pair):
     r, fast, _ = pair
     X, U = random_states(r, 3, seed=5)
@@ -110,6 +115,7 @@ def test_qddot_matches_drake_time_derivatives(pair):
         np.testing.assert_allclose(fast.qddot(x[:n], x[n:], u), xdot[n:], rtol=0, atol=1e-9)
 
 
+@pytest.mark.numerics
 def test_rollout_equals_analytic(pair):
     r, fast, exact = pair
     X, U = random_states(r, 30, seed=6)
@@ -117,6 +123,7 @@ def test_rollout_equals_analytic(pair):
     close(rollout(fast, X[0], U), rollout(exact, X[0], U))
 
 
+@pytest.mark.numerics
 def test_build_self_check_and_cache():
     r = shared_robot("arm5")
     code = compiled_dynamics(r)
@@ -151,6 +158,7 @@ def test_fallback_for_the_nao():
     assert type(make_fast_or_exact(shared_robot("arm5"), DT)) is FastAnalyticDynamics
 
 
+@pytest.mark.numerics
 def test_graph_simplifies_and_differentiates():
     g = Graph()
     x, y = g.x(0), g.x(1)
@@ -182,6 +190,7 @@ def test_bad_shapes_are_refused():
                                              P=np.eye(4), n_q=4), DT)
 
 
+@pytest.mark.numerics
 def test_a_plant_with_other_parameters_gets_its_own_code():
     from plants import robots
 
@@ -200,6 +209,7 @@ def test_a_plant_with_other_parameters_gets_its_own_code():
         q, v, u)[0]) > 1e-3
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("kind", ["symbolic", "tree"])
 def test_coupled_joints_through_P_equal_analytic(kind):
     """A reduced model (two arm joints driven by one coordinate, as the Nao's hips; the tree route also
@@ -227,6 +237,7 @@ def test_coupled_joints_through_P_equal_analytic(kind):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * max(1.0, np.max(np.abs(ref))))
 
 
+@pytest.mark.numerics
 def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypatch):
     """A new process loads the derived code from the kernel cache (the same code a derivation gives);
     a damaged file or one whose code disagrees with Drake is ignored and replaced by a new derivation."""
@@ -263,6 +274,7 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
     assert compiled_dynamics(r) is fresh and calls == [1, 1]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("kind", ["symbolic", "tree"])
 def test_dynamics_library_flags_keep_every_bit(kind, monkeypatch):
     """The dynamics libraries' -O3 (plants.fast_analytic.DYN_FLAGS) vectorizes without contraction or

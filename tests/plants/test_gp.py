@@ -14,7 +14,7 @@ from plants.dynamics import Dynamics
 from plants.gp import NOISE_FLOOR, GPModel
 from plants.learned import LearnedDynamics, build_learned
 from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
-from tests.tolerance import REL, close, scale_of
+from tests.tolerance import REL, bound, close, scale_of
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -79,6 +79,7 @@ def central_differences(model, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # -- agreement with scikit-learn -----------------------------------------------------------
+@pytest.mark.numerics
 def test_predictions_equal_sklearn(fitted_toy):
     model, info = fitted_toy
     Xq, _ = toy_data(30, 7)
@@ -106,7 +107,8 @@ def _sklearn_on(Z: np.ndarray, y: np.ndarray) -> GaussianProcessRegressor:
     return sk.fit(Z, y)
 
 
-@pytest.mark.parametrize("theta, tol", [([0.3, 0.1, -0.4, 0.8, -2.0], 1e-10),
+@pytest.mark.numerics
+@pytest.mark.parametrize("theta, tol", [([0.3, 0.1, -0.4, 0.8, -2.0], REL),
                                         # near the bounds, cond(K) ~ 1e10: agreement to rounding of that
                                         ([5.0, 3.0, 4.0, 2.0, np.log(1e-6)], 1e-7)])
 def test_lml_and_gradient_equal_sklearn_and_central_differences(theta, tol):
@@ -120,7 +122,7 @@ def test_lml_and_gradient_equal_sklearn_and_central_differences(theta, tol):
     lml_sk, g_sk = _sklearn_on(Z, y).log_marginal_likelihood(theta, eval_gradient=True)
     assert abs(lml - lml_sk) <= tol * max(1.0, abs(lml_sk))
     assert _rel(g, g_sk) < 100 * tol
-    if tol > 1e-10:
+    if tol > REL:
         return  # rounding of an ill-conditioned K swamps central differences there
     h = 1e-6
     fd = np.array([(lml_and_gradient(theta + h * e, Z, y)[0] - lml_and_gradient(theta - h * e, Z, y)[0]) / (2 * h)
@@ -128,6 +130,7 @@ def test_lml_and_gradient_equal_sklearn_and_central_differences(theta, tol):
     assert _rel(g, fd) < 1e-5
 
 
+@pytest.mark.numerics
 def test_fit_reaches_a_stationary_point_at_least_as_good_as_sklearn():
     """The own L-BFGS-B fit ends where the gradient vanishes (or a parameter is at a bound), with a
     likelihood at least sklearn's own optimizer's from the same start (to 1e-6 relative)."""
@@ -152,6 +155,7 @@ def test_fit_reaches_a_stationary_point_at_least_as_good_as_sklearn():
         assert lml >= sk.log_marginal_likelihood_value_ - 1e-6 * abs(sk.log_marginal_likelihood_value_)
 
 
+@pytest.mark.numerics
 def test_warm_start_starts_at_the_given_model():
     """Started at an optimum, the fit stays there (log hyperparameters to 1e-3: a warm refit stops at a
     relative likelihood change of WARM_FTOL, the likelihood to 1e-7) and says it was warm."""
@@ -167,6 +171,7 @@ def test_warm_start_starts_at_the_given_model():
         fit_gp(X[:, :2], Y, start=first)
 
 
+@pytest.mark.numerics
 def test_noise_floor_respected_on_noise_free_data(fitted_pendulum):
     model, info = fitted_pendulum
     assert np.all(np.asarray(info["sn2"]) >= NOISE_FLOOR * (1 - REL))
@@ -175,6 +180,7 @@ def test_noise_floor_respected_on_noise_free_data(fitted_pendulum):
 
 
 # -- gradients ------------------------------------------------------------------------------
+@pytest.mark.numerics
 def test_gradients_match_central_differences():
     model = toy_model()
     Xq, _ = toy_data(6, 3)
@@ -228,6 +234,7 @@ def _assert_posterior_close(got, ref, model, tol):
     assert np.all(var >= 0)
 
 
+@pytest.mark.numerics
 def test_posterior_equals_direct_solve_reference_also_after_update():
     """The BLAS-level posterior (in-place triangular solves, augmented-matmul kernel) equals a plain
     ``numpy.linalg.solve`` posterior to 1e-9 relative; after ``update`` it equals the reference on
@@ -253,11 +260,12 @@ def test_posterior_equals_direct_solve_reference_also_after_update():
     assert np.allclose(far[0][0], model.y_mean, rtol=0, atol=1e-9 * np.abs(model.Y).max())
 
 
+@pytest.mark.numerics
 def test_variance_accurate_on_an_ill_conditioned_kernel_matrix():
     """Noise at the floor, sf2 at its bound, long length-scales: cond(K + sn2 I) ~ 1e11, as on fitted
     models. The variance and its gradient agree with the triangular-solve reference (``scipy``
     ``solve_triangular`` on the Cholesky factor of the exact kernel matrix, variance as a sum of
-    squares) to 1e-11 of the prior variance; an explicit ``(K + sn2 I)^-1`` misses by ~1e-6 here."""
+    squares) to the rounding bound of that sum (5e-13 of the prior variance); an explicit ``(K + sn2 I)^-1`` misses by ~1e-6 here."""
     X, Y = pendulum_data(150, 31)
     model = GPModel(X, Y, np.full(3, 2.0), sf2=1e3, sn2=NOISE_FLOOR)
     assert np.linalg.cond(model.kernel_matrix(0)) > 1e10
@@ -272,12 +280,15 @@ def test_variance_accurate_on_an_ill_conditioned_kernel_matrix():
     W = Ks * B.T
     v_ref = (sf2 - (V * V).sum(0)) * s2
     dv_ref = -2.0 * (W @ Z - Zq * W.sum(1)[:, None]) / ell**2 * s2 / model.x_std
-    assert np.max(np.abs(var[:, 0] - v_ref)) < 1e-11 * sf2 * s2
+    # both: sf2 minus a sum of N squares of a forward substitution's entries (N terms each): 2N roundings
+    # on sf2's scale (a triangular solve's error does not grow with cond(L) ~ 3e5 here; measured <= 230 eps)
+    assert np.max(np.abs(var[:, 0] - v_ref)) < bound(2 * len(Z)) * sf2 * s2
     assert np.all(var >= 0) and np.min(v_ref) < 1e-8 * sf2 * s2  # some queries sit where var is ~1e-9 sf2
     assert _rel(dvar[:, 0], dv_ref) < 1e-6
 
 
 # -- incremental update ---------------------------------------------------------------------
+@pytest.mark.numerics
 def test_incremental_update_equals_refit():
     X, Y = toy_data(80, 5)
     base = toy_model()
@@ -302,6 +313,7 @@ def test_incremental_update_equals_refit():
 
 
 # -- learned dynamics -----------------------------------------------------------------------
+@pytest.mark.numerics
 def test_learned_linearization_exact_and_batched():
     dyn = LearnedDynamics(toy_model(), n_q=2, dt=0.01)
     assert isinstance(dyn, Dynamics) and (dyn.n_x, dyn.n_u) == (4, 2)
@@ -326,6 +338,7 @@ def test_learned_linearization_exact_and_batched():
     assert np.array_equal(dvx, dv_ref[:, :, :4]) and np.array_equal(dvu, dv_ref[:, :, 4:])
 
 
+@pytest.mark.numerics
 def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkeypatch):
     """The compiled one-point path (what the sweeps' relinearizations call) against
     ``mean_with_gradients``; after ``update()`` a cached copy of the old training set would fail."""
@@ -351,6 +364,7 @@ def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkey
     assert np.array_equal(m2, m_ref[0]) and np.array_equal(g2, g_ref[0])
 
 
+@pytest.mark.numerics
 def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
     """The compiled one-point mean, variance and gradients (the uncertainty term's relinearization
     in the sweeps) against ``predict_with_gradients``, also after ``update()`` (a cached copy of the
@@ -375,6 +389,7 @@ def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
         assert np.array_equal(got, r[0])
 
 
+@pytest.mark.numerics
 def test_learned_controller_rollout_compiled_equals_python_steps(monkeypatch):
     """``LearnedDynamics.controller_rollout`` (one compiled call) against stepping ``step`` in
     Python (planning.problem.controller_rollout), also on the sparse GP, NaN propagated."""
@@ -414,6 +429,7 @@ def test_learned_nonfinite_inputs_give_nan():
     assert np.all(np.isnan(var)) and np.all(np.isnan(dvx))
 
 
+@pytest.mark.numerics
 def test_learned_pendulum_predicts_true_acceleration(fitted_pendulum):
     model, _ = fitted_pendulum
     dyn = build_learned(SimpleNamespace(n_q=1), 0.002, model.to_arrays())
@@ -429,6 +445,7 @@ def test_learned_pendulum_predicts_true_acceleration(fitted_pendulum):
 
 
 # -- storage ----------------------------------------------------------------------------------
+@pytest.mark.numerics
 def test_to_from_arrays_round_trip(tmp_path):
     model = toy_model()
     model.update(*toy_data(10, 8))
@@ -443,6 +460,7 @@ def test_to_from_arrays_round_trip(tmp_path):
 
 
 # -- bounded cost -------------------------------------------------------------------------------
+@pytest.mark.numerics
 def test_subsampling_cap_and_its_measured_cost():
     X, Y = pendulum_data(260, 21)
     idx = subsample_indices(X, 80)
@@ -466,6 +484,7 @@ def test_subsampling_cap_and_its_measured_cost():
     assert cost["nrmse_capped"][0] < 0.02 and cost["rmse_full"][0] <= 1.5 * cost["rmse_capped"][0]
 
 
+@pytest.mark.numerics
 def test_uncertainty_term_units_raw_is_the_predictive_variance():
     """Thesis eq. 4.3: g = var(x*) in (rad/s^2)^2 ('raw'); 'standardized' divides by the training
     outputs' variance. At sigma* = 0 the raw cost is the standardized one times y_std^4 per output."""
@@ -492,6 +511,7 @@ def test_uncertainty_term_units_raw_is_the_predictive_variance():
         Uncertainty(raw.model, 0.0, 1.0, T=4, units="furlongs")
 
 
+@pytest.mark.numerics
 def test_hyperparameter_fits_identical_on_one_or_two_threads(monkeypatch):
     """The outputs' fits run on ``RAICO_THREADS`` threads (plants._threads.map_outputs): the same
     hyperparameters bit for bit on 1 and 2; a bad value is one clear error."""
@@ -511,6 +531,7 @@ def test_hyperparameter_fits_identical_on_one_or_two_threads(monkeypatch):
         _threads.output_threads()
 
 
+@pytest.mark.numerics
 def test_learned_compiled_linearizer_equals_linearize():
     """The sweep kernel's compiled relinearization of the learned dynamics (``c_linearizer``) against
     ``linearize``: A and B bit for bit, the affine term to rounding (the products A x, B u); NaN and an

@@ -112,6 +112,7 @@ def write_problem(tmp_path: Path, name: str, text: str) -> Path:
 
 
 # ------------------------------------------------------------------ loading and repairs
+@pytest.mark.numerics
 @needs_erd
 @pytest.mark.parametrize("name", sorted(ARMS))
 def test_arm_loads_with_its_repairs_reported(name):
@@ -138,6 +139,7 @@ def test_kinova_report_names_each_repair():
     assert robot.default_q[2] == -1.5707
 
 
+@pytest.mark.numerics
 @needs_erd
 @pytest.mark.parametrize("name", sorted(HUMANOIDS))
 def test_humanoid_stands_on_a_welded_sole(name):
@@ -166,6 +168,7 @@ def test_missing_mesh_dropped_and_said():
 
 
 # ------------------------------------------------------------------ planning and execution
+@pytest.mark.numerics
 @needs_erd
 @pytest.mark.parametrize("name", sorted(ARMS))
 def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
@@ -188,6 +191,7 @@ def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
     assert run.metrics["via_point_errors"]["reach@40"] < 0.02
 
 
+@pytest.mark.numerics
 @needs_erd
 @pytest.mark.parametrize("name", sorted(HUMANOIDS))
 def test_humanoid_moves_its_com_over_the_welded_sole(tmp_path, name):
@@ -335,6 +339,7 @@ def test_unsupported_joint_is_one_line(tmp_path):
         load_model(RobotSpec(file=str(urdf)))
 
 
+@pytest.mark.numerics
 @needs_erd
 def test_quasi_static_start_holds_x0():
     """The quasi-static start's torques keep x0 at rest under the model's own dynamics (the start
@@ -354,6 +359,7 @@ def test_quasi_static_start_holds_x0():
         assert not np.abs(X0 - problem.x0).max() <= 1e-3  # without them it moves (the humanoid blows up: NaN)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("fmt, frame", [("xml", "tip_body"), ("sdf", "tip")])
 def test_mjcf_and_sdf_plan_and_execute(tmp_path, fmt, frame):
     """The same two-link arm as MJCF and as SDF (tests/data): the file's own actuators kept, one added

@@ -32,6 +32,7 @@ PLANNING_VIEWS = {  # n_q, plant positions, end effectors
 }
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name", PLANTS)
 def test_robot_has_planning_view(name):
     r = shared_robot(name)
@@ -48,6 +49,7 @@ def test_robot_has_planning_view(name):
         r.plant.GetFrameByName(frame)
 
 
+@pytest.mark.numerics
 def test_nao_facts():
     r = shared_robot("nao")
     assert r.n_q == 25 and r.plant.num_positions() == 26
@@ -67,6 +69,7 @@ def test_nao_facts():
     assert np.all(c[:2] > lo) and np.all(c[:2] < hi) and c[2] > 0.2
 
 
+@pytest.mark.numerics
 def test_pendulum_facts():
     r = shared_robot("pendulum")
     dyn = AnalyticDynamics(r, 0.002)
@@ -78,6 +81,7 @@ def test_pendulum_facts():
     assert r.effort[0] == 10.0
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name", ["pendulum", "arm5", "biorob"])  # Nao: coupled, see the next test
 def test_analytic_qddot_matches_drake_time_derivatives(name):
     r = shared_robot(name)
@@ -91,6 +95,7 @@ def test_analytic_qddot_matches_drake_time_derivatives(name):
     assert np.allclose(xdot[r.n_q:], dyn.qddot(q, v, u), atol=1e-9)
 
 
+@pytest.mark.numerics
 def test_nao_reduced_model_keeps_the_coupling_in_drake():
     """Torques from the reduced model's inverse dynamics, applied to the 26-joint Drake plant,
     give accelerations P @ a: both hip yaw-pitch joints move together."""
@@ -112,6 +117,7 @@ def test_nao_reduced_model_keeps_the_coupling_in_drake():
     assert np.allclose(dyn.qddot(q, v, dyn.inverse_dynamics(q, v, a)), a, atol=1e-8)
 
 
+@pytest.mark.numerics
 def test_pseudo_dynamics_matrices():
     d = PseudoDynamics(2, 0.1)
     A, a, B = d.linearize(np.zeros(4), np.zeros(2))
@@ -119,6 +125,7 @@ def test_pseudo_dynamics_matrices():
     assert np.allclose(B, [[.01, 0], [0, .01], [.1, 0], [0, .1]]) and not a.any()
 
 
+@pytest.mark.numerics
 def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
@@ -142,6 +149,7 @@ def test_frictionless_unactuated_pendulum_keeps_energy_in_drake_simulation():
     assert abs(energy() - e0) < 1e-6 * max(1.0, abs(e0))
 
 
+@pytest.mark.numerics
 def test_roll_couples_with_the_reach():
     """arm5's roll is no single joint's angle. With a roll axis between two pitch axes (forearm roll,
     then wrist pitch) the hand's roll about its own axis moves with the shoulder, elbow, forearm roll and wrist,
@@ -256,6 +264,7 @@ def test_plants_has_no_import_cycle():
     assert _cycle({"plants.a": {"plants.b"}, "plants.b": {"plants.a"}}) == ["plants.a", "plants.b", "plants.a"]
 
 
+@pytest.mark.numerics
 def test_biorob_actuator_facts_reach_drake():
     """The BioRob-like arm's reflected motor inertia reaches Drake and no joint damping does. At
     q = 0 (the arm stretched along +x) the wrist roll's axis is the hand's own axis, its centre of mass
@@ -278,6 +287,7 @@ def test_biorob_actuator_facts_reach_drake():
     assert [r.plant.GetJointByName(n).default_damping() for n in r.joint_names] == [0.0] * r.n_q
 
 
+@pytest.mark.numerics
 def test_pseudo_dynamics_schemes_of_appendix_c():
     """Euler (C.1), backward Euler (C.2, the default) and Heun (C.3) differ only in B's position block:
     0, dt^2 and dt^2/2; Heun's step is the exact motion under an acceleration held over the step."""

@@ -28,6 +28,7 @@ def sparse_like(model: GPModel, X: np.ndarray, Y: np.ndarray, inducing) -> Spars
                          x_std=model.x_std, y_mean=model.y_mean, y_std=model.y_std, noise_floor=model.noise_floor)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("how", ["given", "selected"])
 def test_all_training_inputs_as_inducing_inputs_give_the_exact_gp(how):
     """FITC with U = the training inputs has Q_nn = K_nn: the exact posterior, likelihood, and one-point path."""
@@ -48,6 +49,7 @@ def test_all_training_inputs_as_inducing_inputs_give_the_exact_gp(how):
     assert _rel(var, exact.predict(Xq, noisy=True)[1]) < 1e-9 and _rel(mean, ref[0]) < 1e-9
 
 
+@pytest.mark.numerics
 def test_fewer_inducing_points_cost_a_bounded_heldout_error():
     """M < N on the toy arm (6 inputs, 2 outputs, N = 400) at the exact fit's hyperparameters: with 100
     inducing points held-out RMSE within 1.1x the exact GP's (measured 1.02x and 1.002x), with 50 within 2x
@@ -65,6 +67,7 @@ def test_fewer_inducing_points_cost_a_bounded_heldout_error():
     assert np.all(rmse(fitted, Xt, Yt) / e0 < 3.0)
 
 
+@pytest.mark.numerics
 def test_sparse_gradients_match_central_differences():
     X, Y = toy_data(120, 2)
     model = sparse_like(toy_model(120, 2), X, Y, 30)
@@ -85,6 +88,7 @@ def test_sparse_gradients_match_central_differences():
         assert close(m, mb[0]) and close(g, gb[0])
 
 
+@pytest.mark.numerics
 def test_round_trip_copy_and_learned_dynamics(tmp_path):
     X, Y = toy_data(80, 4)
     model = sparse_like(toy_model(80, 4), X, Y, 25)
@@ -113,6 +117,7 @@ def test_round_trip_copy_and_learned_dynamics(tmp_path):
     assert np.array_equal(var, ref[1]) and np.array_equal(dvx, ref[3][:, :, :4])
 
 
+@pytest.mark.numerics
 def test_update_equals_a_fresh_model_on_the_union_and_keeps_old_on_error():
     X, Y = toy_data(90, 7)
     base = toy_model(90, 7)
@@ -131,6 +136,7 @@ def test_update_equals_a_fresh_model_on_the_union_and_keeps_old_on_error():
     assert isinstance(refit, SparseGPModel) and np.array_equal(refit.Z, fresh.Z)
 
 
+@pytest.mark.numerics
 def test_selection_is_greedy_max_variance_without_repeats_and_stops_at_duplicates():
     X, Y = pendulum_data(40, 3)
     Xd = np.vstack([X, X[:10]])  # 10 duplicated rows: nothing new for an inducing set

@@ -15,7 +15,7 @@ import pytest
 from plants.model_file import RobotSpec, load_model
 from tests.tolerance import assert_close, scale_of
 
-pytestmark = pytest.mark.compiled
+pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
 
 INERTIA = '<inertia ixx="0.004" iyy="0.004" izz="0.002" ixy="0" ixz="0" iyz="0"/>'
 

@@ -93,6 +93,7 @@ def chain_robot(name: str, kinds=CHAIN):
                  B_act=plant.MakeActuationMatrix())
 
 
+@pytest.mark.numerics
 @pytest.mark.compiled
 def test_a_six_joint_arm_takes_the_tree_route_without_a_symbolic_derivation(monkeypatch):
     from plants.codegen import c_backend

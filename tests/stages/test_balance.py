@@ -39,6 +39,7 @@ def _x(p) -> np.ndarray:
     return np.r_[p, 0.0, 0.0][None, :]  # a state (q, qdot) with q = p
 
 
+@pytest.mark.numerics
 def test_support_term_is_zero_inside_with_margin_and_grows_outside():
     term = _sole_term()
     for p in ([0.0, 0.0], [0.08, 0.02], [-0.035, -0.028], [0.0899, 0.0289]):  # at least 1.5 cm in
@@ -59,6 +60,7 @@ def test_support_term_is_zero_inside_with_margin_and_grows_outside():
     assert not lx[0, 2:].any() and not lxx[0, 2:].any()
 
 
+@pytest.mark.numerics
 def test_polygon_geometry_on_the_sole():
     A, b = halfplanes(SOLE)
     np.testing.assert_allclose(np.linalg.norm(A, axis=1), 1.0)
@@ -81,6 +83,7 @@ def _cog_via(target, step: int = 10) -> dict:
     return ob.via("via_cog", ob.cog(), target, [step], 1.0, [10.0, 1e6, 10.0])
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("mode", ["support", "single"])
 def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     nao = shared_robot("nao")
@@ -115,6 +118,7 @@ def test_infeasible_via_point_is_reported_and_moved_feasible_one_is_not(mode):
     assert support["times"] == {"from": 1, "to": 20} and support["margin"] == MARGIN
 
 
+@pytest.mark.numerics
 def test_fig34_via_point_static_margins_from_the_model():
     """The thesis's +0.1 m CoG via-point (fig. 3.4): 5.5 cm beyond the stance sole's outer edge
     with raico's posture, about 6 mm with the zero posture."""
@@ -143,6 +147,7 @@ def _run(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
+@pytest.mark.numerics
 def test_cli_balance_support_keeps_the_planned_cog_inside(tmp_path):
     res = _run("plan", "--plant", "nao", "--task", "balance-inside", "--balance", "support", "--solver", "raico",
                "--alpha", 1, "--iterations", 6, "--no-record", "--json", "--artifacts", tmp_path)
@@ -179,6 +184,7 @@ def test_cli_balance_support_keeps_the_planned_cog_inside(tmp_path):
     assert [ln for ln in again.stderr.splitlines() if ln.startswith("balance ")] == notes
 
 
+@pytest.mark.numerics
 def test_cli_balance_single_lifts_the_right_sole(tmp_path):
     res = _run("plan", "--plant", "nao", "--task", "balance", "--balance", "single", "--solver", "raico",
                "--alpha", 1, "--iterations", 6, "--json", "--artifacts", tmp_path)
@@ -220,6 +226,7 @@ def test_bad_balance_option_is_one_line(tmp_path, args, pattern):
     assert len(lines) == 1 and re.fullmatch("raico: error: " + pattern, lines[0]), res.stderr
 
 
+@pytest.mark.numerics
 def test_balance_margin_option_sets_the_term_and_the_moved_targets():
     descs = {}
     for margin in (0.01, 0.02):
@@ -235,6 +242,7 @@ def test_balance_margin_option_sets_the_term_and_the_moved_targets():
     assert PlanConfig(plant="nao", task="balance", balance_margin=0.01).normalized().balance_margin == NO_BALANCE_MARGIN
 
 
+@pytest.mark.numerics
 def test_joint_range_term_bounds_every_joint_inside_its_range():
     """The balance objective's joint-range term: zero inside [lower + margin, upper - margin] at every step 1..T,
     a squared hinge beyond it, its gradient against central finite differences."""
@@ -262,6 +270,7 @@ def test_joint_range_term_bounds_every_joint_inside_its_range():
     assert np.count_nonzero(lx[0]) == 1 and lx[0, i] > 0
 
 
+@pytest.mark.numerics
 def test_cog_via_point_margins_against_the_feet():
     """The fig3.4 problem's CoG via-point targets against the feet's polygon: the +0.1 m one 5.5 cm
     outside (as the model says above), the -0.1 m one inside, keys as the via-point errors'."""
@@ -277,6 +286,7 @@ def test_cog_via_point_margins_against_the_feet():
     assert margins["via_cog2@200"] < -0.05 < 0 < margins["via_cog1@100"]
 
 
+@pytest.mark.numerics
 def test_plan_beyond_limits_names_only_the_joints_that_leave_their_range():
     from stages.evaluate.metrics import plan_beyond_limits
 

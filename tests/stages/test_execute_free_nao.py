@@ -36,6 +36,7 @@ def assert_within_limits(X: np.ndarray, robot) -> None:
     assert np.all(Q >= robot.lower - LIMIT_SLACK) and np.all(Q <= robot.upper + LIMIT_SLACK)
 
 
+@pytest.mark.numerics
 def test_free_nao_stands_still_in_the_default_posture():
     nao = shared_robot("nao")
     T, dt = 300, 0.01
@@ -65,6 +66,7 @@ def test_free_nao_stands_still_in_the_default_posture():
     assert_within_limits(out.X, nao)
 
 
+@pytest.mark.numerics
 def test_free_nao_falls_when_the_plan_pushes_the_cog_outside_the_feet():
     """The fixed-base plan tilts the robot over its left ankle until the CoG is 5 cm outside the
     left sole (the welded model does not mind); the free robot falls."""
@@ -91,6 +93,7 @@ def test_free_nao_falls_when_the_plan_pushes_the_cog_outside_the_feet():
     assert_within_limits(out.X, nao)
 
 
+@pytest.mark.numerics
 def test_diverged_plan_is_not_reported_ok():
     nao = shared_robot("nao")
     T, dt = 20, 0.01
@@ -105,6 +108,7 @@ def test_diverged_plan_is_not_reported_ok():
     assert all(math.isinf(v) for v in out.metrics["via_point_errors"].values())
 
 
+@pytest.mark.numerics
 def test_arm_execution_enforces_joint_limits_and_reports_them():
     """A plan that turns the arm's forearm roll 0.3 rad past its upper limit (pi): the discrete plant
     stops it at the limit, the other joints follow the plan, and the execution says ``limits``."""
@@ -128,6 +132,7 @@ def test_arm_execution_enforces_joint_limits_and_reports_them():
     assert np.abs(out.X[:, others] - Q[:, others]).max() < 0.05
 
 
+@pytest.mark.numerics
 def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
     """Appendix C's integration check: the planned accelerations held per step, open loop, on Drake's continuous
     arm through computed torque: Drake's trajectory is Heun's pseudo-dynamics rollout (exact for a held
@@ -180,6 +185,7 @@ def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
     assert "another drake warning" in run.stderr
 
 
+@pytest.mark.numerics
 def test_a_motor_that_only_clamps_the_noise_is_not_the_controllers_limit():
     """The arm holding its default posture under 15 N m of process noise: the 10 and 20 N m motors of the
     wrist and forearm clamp the noise in most steps (the light wrist is thrown about: tracking is lost), while

@@ -140,6 +140,7 @@ def test_babbling_pace_and_plant_defaults(tmp_path):
         LearnConfig(plant="biorob", task="reach", warm_from="sideways").validate()
 
 
+@pytest.mark.numerics
 def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypatch):
     """Thesis §4.5 'initialized with the last planned trajectory': AICO/R-AICO linearize first at the
     earlier plan's states (X_init) and controls; 'controls' rolls the controls out; iLQG always does."""
@@ -183,6 +184,7 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
         replace(cfg, start="sideways").validate()
 
 
+@pytest.mark.numerics
 def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     """A BioRob planned on a GP of 15 babbling samples loses tracking; only the steps
     before its failure time join the next fit (every 20th), flagged and counted."""

@@ -36,6 +36,7 @@ def robots():
     return shared_model(pf.robot_spec()), shared_model(pf.true_spec())
 
 
+@pytest.mark.numerics
 def test_true_robot_differs_from_the_model_by_what_the_file_states():
     from plants.dynamics_registry import make_dynamics
 
@@ -79,6 +80,7 @@ def test_true_table_refused_for_a_built_in_plant_and_bad_values(tmp_path):
         read_problem(bad)
 
 
+@pytest.mark.numerics
 def test_babble_a_problem_files_robot_within_its_ranges_on_the_true_robot(raico, tmp_path):
     line = last_json(raico("babble", "--problem", PROBLEM, "--episodes", 2, "--duration", 2.0, "--dt", 0.01,
                             "--json", "--artifacts", tmp_path))
@@ -106,6 +108,7 @@ def test_babble_a_problem_files_robot_within_its_ranges_on_the_true_robot(raico,
     assert err_model > 0.01 * np.abs(a).max()
 
 
+@pytest.mark.numerics
 def test_residual_gp_on_the_models_own_data_learns_zero(raico, tmp_path):
     p = without_true(tmp_path)
     art = tmp_path / "art"
@@ -141,6 +144,7 @@ def residual_dynamics():
     return ResidualDynamics(gp, make_fast_or_exact(model, 0.01), 0.01)
 
 
+@pytest.mark.numerics
 def test_residual_dynamics_derivatives_by_finite_differences():
     dyn = residual_dynamics()
     x, u = np.array([0.2, -0.3, 0.5, 0.1]), np.array([0.7, -0.4])
@@ -172,7 +176,15 @@ def test_residual_dynamics_derivatives_by_finite_differences():
     assert dyn.c_linearizer() is None
 
 
+@pytest.mark.numerics
 def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
+    """Babble, fit (residual or full GP), plan on the learned model, execute; learn two episodes. The plans
+    are R-AICO's with the problem file's robust schedule, which takes no step that raises the cost: a
+    result that holds for every rounding (plain AICO on these learned models diverges or not, and ends
+    anywhere from 0.3 to 5e6, by which OpenBLAS kernels the processor picks; in the learn loop it
+    diverged, its execution too, and no data joined the second fit)."""
+    from stages.fit.stage import FAILED
+
     art = tmp_path / "art"
     babble = last_json(raico("babble", "--problem", PROBLEM, "--episodes", 1, "--duration", 3.0, "--dt", 0.02, "--substeps", 10,
                               "--json", "--artifacts", art))
@@ -180,9 +192,9 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
         fit = last_json(raico("fit", "--data", babble["key"], residual, "--restarts", 0, "--json",
                                "--artifacts", art))
         plan = last_json(raico("plan", "--problem", PROBLEM, "--dynamics", "learned", "--model", fit["key"],
-                                "--solver", "aico", "--iterations", 5, "--sigma-star", 0, "--sigma-weight", 1e-4,
+                                "--solver", "raico", "--iterations", 5, "--sigma-star", 0, "--sigma-weight", 1e-4,
                                 "--json", "--artifacts", art))
-        assert plan["status"] != "diverged"
+        assert plan["status"] != "diverged" and plan["metrics"]["final_cost"] < plan["metrics"]["initial_cost"]
         desc = json.loads((Path(plan["path"]) / "problem.json").read_text())
         assert desc["dynamics"] == "learned" and "robot_true" in desc and desc["robot_true"]["true"]
         ex = last_json(raico("execute", "--plan", plan["key"], "--json", "--artifacts", art))
@@ -191,7 +203,7 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
     stand = stand_problem(tmp_path)
     res = raico("plan", "--problem", stand, "--dynamics", "learned", "--model", fit["key"], "--artifacts", art)
     assert res.exit_code == 2 and res.output.strip().count("\n") == 0 and "is a GP of arm2-" in res.output
-    res = raico("learn", "--problem", PROBLEM, "--episodes", 2, "--babble-points", 40, "--iterations", 5,
+    res = raico("learn", "--problem", PROBLEM, "--episodes", 2, "--babble-points", 40, "--iterations", 5, "--alpha", 1,
                  "--residual", "--stride", 5, "--restarts", 0, "--json", "--artifacts", art)
     line = last_json(res)
     assert line["metrics"]["episodes"] == 2 and len(line["metrics"]["task_error"]) == 2
@@ -199,8 +211,10 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
     doc = json.loads((Path(line["path"]) / "episodes.json").read_text())
     assert (Path(line["path"]) / "recording.rrd").is_file()
     assert doc["config"]["gp"] == "auto" and doc["config"]["residual"] is True  # a problem file's default GP
-    # the second fit had the first execution's data (unless it failed at once)
-    assert doc["episodes"][1]["n_points"] >= doc["episodes"][0]["n_points"]
+    # the first execution ran its plan (R-AICO's, as above) to the end and its data joined the second fit
+    first, second = doc["episodes"][:2]
+    assert first["plan_status"] != "diverged" and first["execution_status"] not in FAILED, first
+    assert first["data_steps"] > 0 and second["n_points"] > first["n_points"], (first, second)
 
 
 @pytest.mark.parametrize("args, needle", [(("--episodes", 0), "episodes must be in [1, 100]"),
@@ -227,6 +241,7 @@ def stand_problem(tmp_path) -> Path:
     return p
 
 
+@pytest.mark.numerics
 def test_babble_a_robot_standing_on_a_welded_sole(raico, tmp_path):
     p = stand_problem(tmp_path)
     line = last_json(raico("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
@@ -276,6 +291,7 @@ def test_an_experiment_file_sweeps_learn_on_a_problem_file(raico, tmp_path):
     assert sorted(table["residual"]) == [False, True] and set(table["learn.status"]) == {"ok"}
 
 
+@pytest.mark.numerics
 def test_full_gp_dynamics_of_a_model_files_robot_by_finite_differences():
     """The thesis's model (the GP's mean alone) on a model file's robot: linearization and variance gradient."""
     from plants.dynamics_registry import make_dynamics

@@ -28,6 +28,7 @@ weight = 1e-2
 """
 
 
+@pytest.mark.numerics
 def test_chain_reach_is_the_link_lengths_to_the_frame(tmp_path):
     from plants.model_file import RobotSpec, load_model
     from plants.robots import chain_reach, shared_robot
@@ -65,6 +66,7 @@ def _ur5_toward_gravity(tmp_path: Path) -> Path:
     return p
 
 
+@pytest.mark.numerics
 @pytest.mark.skipif(example_robot_data() is None, reason="example-robot-data is not installed (pip extra baseline)")
 @pytest.mark.parametrize("solver,iterations", [("raico", 20), ("fddp", 30)])
 def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path, solver, iterations):
@@ -83,6 +85,7 @@ def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path,
     assert e1 < e0 / 3 and c1 < c0 / 10, out
 
 
+@pytest.mark.numerics
 def test_control_weights_per_joint_and_gravity_target_are_read_and_checked(tmp_path):
     from planning.costs import ControlCost, ControlGravity
     from stages.plan.stage import PlanConfig, build_problem
@@ -108,6 +111,7 @@ def test_control_weights_per_joint_and_gravity_target_are_read_and_checked(tmp_p
             build_problem(PlanConfig(problem=str(q)))
 
 
+@pytest.mark.numerics
 def test_gravity_torques_hold_the_robot_still_and_their_jacobian_is_exact(tmp_path):
     from plants.dynamics import AnalyticDynamics, GravityTorques
     from plants.model_file import RobotSpec, load_model
@@ -179,6 +183,7 @@ def _held_problem(tmp_path, tol: str = ""):
     return problem, np.tile(problem.x0, (problem.T + 1, 1))   # the robot held at its start: errors 5 mm, 0.03 rad
 
 
+@pytest.mark.numerics
 def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
     from planning.costs import TASK_TOLERANCES, task_errors, task_line, task_verdict
 
@@ -199,6 +204,7 @@ def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
         _held_problem(tmp_path, "tol = -1.0")
 
 
+@pytest.mark.numerics
 def test_the_outcome_line_names_the_worst_term_and_its_unit():
     from pipeline.engine.runner import Outcome, outcome_line
 

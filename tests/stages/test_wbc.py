@@ -21,6 +21,7 @@ NAO_MASS = 5.305354  # kg, as tests/stages/test_execute_free_nao.py
 G = 9.81
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
     """The thesis's spread (0.05 rad) on the standing posture puts the feet uneven; the projection
@@ -62,6 +63,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
     assert np.all(qj <= fixed.plant.GetPositionUpperLimits() + 1e-6)
 
 
+@pytest.mark.numerics
 def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
     2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
@@ -125,6 +127,7 @@ def test_bad_values_of_the_new_options(field, value, message):
     assert err == [f"raico: error: {message}"], res.stderr
 
 
+@pytest.mark.numerics
 def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     """`raico execute --controller wbc --start standing` end to end on a small R-AICO reach plan."""
     runner = CliRunner()
@@ -192,6 +195,7 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
     assert claim_stabilizer_stands({}, [pd, wbc])[3] is True
 
 
+@pytest.mark.numerics
 def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
     """The stabilizer's CoG clamp against Dykstra's alternating projections run to convergence (an
     independent method) on random polygons; a point inside comes back unchanged; a point beyond a
@@ -221,6 +225,7 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
     assert np.allclose(clamp_to_polygon(np.array([0.5, 4.0]), A, b), [0.5, 1.0])
 
 
+@pytest.mark.numerics
 def test_zmp_metrics_on_synthetic_margins():
     """The ZMP criteria on margins whose answer is known: the samples without a ZMP left out."""
     from stages.evaluate.metrics import ZMP_EDGE, point_margins, zmp_metrics
@@ -233,6 +238,7 @@ def test_zmp_metrics_on_synthetic_margins():
     assert np.allclose(out[:2], [0.2, -0.5]) and np.isnan(out[2])
 
 
+@pytest.mark.numerics
 def test_single_support_metric_and_claim_on_synthetic_runs():
     """The lift metric and the single-support claim on inputs whose verdict is known."""
     from stages.evaluate.metrics import LIFT, single_support_lift
@@ -252,6 +258,7 @@ def test_single_support_metric_and_claim_on_synthetic_runs():
     assert claim_single_support_stands({}, [{**run, "controller": "pd"}])[3] is False   # no stabilizer runs
 
 
+@pytest.mark.numerics
 def test_stabilizer_balances_a_single_support_plan_on_the_left_foot(tmp_path):
     """`raico plan --balance single` then `raico execute --controller wbc`: the stabilizer releases the right
     sole once the CoG is over the left one (its ground force about 0 from then on, 0 once lifted), the robot
@@ -282,6 +289,7 @@ def test_stabilizer_balances_a_single_support_plan_on_the_left_foot(tmp_path):
     assert m["zmp_edge_fraction"] == 0.0
 
 
+@pytest.mark.numerics
 def test_proxqp_solves_the_stabilizers_programs_as_clarabel_does():
     """The stabilizer's solver (proxsuite, warm-started) against Drake's Clarabel (an interior-point method) on
     the programs of a standing Nao and of a moving one (random joint velocities, a CoG reference off the
@@ -320,6 +328,7 @@ def test_proxqp_solves_the_stabilizers_programs_as_clarabel_does():
     assert prox.fallbacks == 0
 
 
+@pytest.mark.numerics
 def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     """Process noise under the stabilizer is added to its held torques and the sum clamped at the effort
     limits (as the plant clamps the PD's total): the applied torques never exceed them, and they differ
@@ -347,6 +356,7 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
         np.testing.assert_array_equal(out.effort_at_limit, (np.abs(asked) >= free.effort * (1 - 1e-9)) @ free.A > 0)
 
 
+@pytest.mark.numerics
 def test_disturbance_observer_recovers_a_known_joint_torque():
     """The stabilizer's observer on a state reached from the last one under a known joint torque disturbance ``w``
     (besides its own command and the contact forces): its estimate is ``w`` exactly (to the fixed point's 1e-9),
@@ -394,6 +404,7 @@ def test_disturbance_observer_recovers_a_known_joint_torque():
     assert_close(hj0, h[jv], scale=scale_of(h))
 
 
+@pytest.mark.numerics
 def test_stabilizer_execution_is_repeatable_in_one_process():
     """The same noisy execution twice in one process gives the same numbers, bit for bit: the stabilizer
     loads proxsuite's portable build (its AVX2 build's results depend on where its work arrays lie in

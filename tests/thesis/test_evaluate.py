@@ -225,6 +225,7 @@ def test_claim_verdicts_on_synthetic_summaries(name, S, holds):
             assert r[5]["margin"] and (r[5]["why"] != "") is (not r[3]), (name, r[5])
 
 
+@pytest.mark.numerics
 def test_claims_judged_per_setting_give_a_row_each():
     """Per alpha (decay, 'converged after 25 iterations', 'outperformed') and per sigma* ('explores too much'):
     one row each, each with its own verdict and runs."""
@@ -322,6 +323,7 @@ def test_learning_claim_verdicts_on_synthetic_summaries(name, L, holds):
     assert all(r[3] for r in rows) is holds, (name, [r[2] for r in rows])
 
 
+@pytest.mark.numerics
 def test_summarize_learn_curves_and_success_time():
     from stages.evaluate.summary import seconds_to_success, summarize_learn
 
@@ -396,6 +398,7 @@ EXECUTION_CASES = [
 ]
 
 
+@pytest.mark.numerics
 def test_noise_claim_reads_the_noisy_runs_only():
     """evaluate_claims hands the noise claim the sweep's noisy runs, every other claim the figure's own runs."""
     from thesis.claims import evaluate_claims
@@ -408,6 +411,7 @@ def test_noise_claim_reads_the_noisy_runs_only():
     assert "x0 0.02 rad, process 0.5 N m" in rows[1]["criterion"]
 
 
+@pytest.mark.numerics
 def test_stabilizer_claim_judges_only_the_stabilizer_runs():
     """The joint-PD runs of the figure are reported beside, not judged; no stabilizer run: no verdict."""
     execs = [ex(controller="wbc")] * 2 + [ex("fell"), ex()]
@@ -426,6 +430,7 @@ def test_execution_claims_on_synthetic_executions(name, execs, holds):
         assert f"stood {stood}/{len(execs)}" in measured
 
 
+@pytest.mark.numerics
 def test_execution_claims_count_statuses():
     execs = [ex(), ex("fell"), ex("fell"), ex("limits")]
     measured = CLAIMS["executed_reaches"]({}, execs)[2]
@@ -433,6 +438,7 @@ def test_execution_claims_count_statuses():
     assert "stood 2/4 runs (statuses: ok 1, limits 1, fell 2)" in CLAIMS["cog_support"]({}, execs)[2]
 
 
+@pytest.mark.numerics
 def test_evaluate_claims_rows():
     rows = evaluate_claims(("ilqg_stalls",), table(ilqg=500, r1=100), [], "fig3.2c")
     (row,) = rows
@@ -452,6 +458,7 @@ def test_evaluate_claims_rows():
     assert no["verdict"] == "does not hold" and no["why"]
 
 
+@pytest.mark.numerics
 def test_summary_medians_and_counts():
     runs = [{"status": "converged", "metrics": {"final_cost": 1.0, "cost_ratio": 0.1, "first_iteration_cost": 5.0,
                                                 "wall_time_s": 2.0, "via_point_errors": {"a@1": 0.1, "r_sole@max": 9}}},
@@ -473,6 +480,7 @@ def test_iterations_to_relative_change():
     assert iterations_to(np.array([1.0])) is None
 
 
+@pytest.mark.numerics
 def test_identical_variants_of_two_figures():
     from stages.evaluate.summary import identical_variants, relative_difference
 
@@ -535,6 +543,7 @@ def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
     assert "fig3.2a" not in THESIS["raico_converged_25"].about
 
 
+@pytest.mark.numerics
 def test_decay_fit_recovers_the_rate_and_flat_curves():
     from thesis.claims import decay_fit
 
@@ -583,6 +592,7 @@ def test_decay_verdict_does_not_hang_on_the_first_iterate(shape, holds):
     assert abs(decay_fit(shape(1.7)).rho - decay_fit(shape(12.0)).rho) < 0.01
 
 
+@pytest.mark.numerics
 def test_summary_cost_curves_and_flatness():
     from stages.evaluate.summary import median_curve, relative_change
 
@@ -622,6 +632,7 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
     assert len(set(keys.values())) == len(keys)  # a problem of its own per figure
 
 
+@pytest.mark.numerics
 def test_integration_summary_and_integrator_groups():
     from stages.evaluate.summary import integration_summary
     from thesis.claims import integrator_groups
@@ -663,6 +674,7 @@ def test_figure_names_as_the_thesis_names_its_panels():
 
 
 # ----------------------------------------------------------------------------- margins, reasons, fragile verdicts
+@pytest.mark.numerics
 def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed_numbers():
     from thesis.claims import Check, judged
 
@@ -692,6 +704,7 @@ def test_a_margin_inside_the_runs_spread_or_near_its_limit_is_fragile():
     assert not Check("R^2", 0.96, ">=", 0.95).near()
 
 
+@pytest.mark.numerics
 def test_no_balancing_success_names_the_run_nearest_the_rule():
     """Fig. 3.4B: holds at 0 successful runs; the nearest run 1.6x the best R-AICO's median, 0.1x over the 1.5x rule
     and inside the runs' spread: one run would flip it. A successful run is named by its cost in the reason; the
@@ -707,6 +720,7 @@ def test_no_balancing_success_names_the_run_nearest_the_rule():
     assert row["verdict"] == "does not hold" and "1.2x" in row["why"]
 
 
+@pytest.mark.numerics
 def test_leaving_one_seed_out_that_flips_a_verdict_marks_it_fragile():
     """fig3.2b's iLQG: five runs miss by 0.8 cm, five by 3.2 cm. Judged on its cost the row holds whatever seed is
     left out; the thesis rows judged on the via-point median flip."""
@@ -722,6 +736,7 @@ def test_leaving_one_seed_out_that_flips_a_verdict_marks_it_fragile():
     assert "runs missing a via-point by more than 1 cm: 5/10" in row["measured"]
 
 
+@pytest.mark.numerics
 def test_converge_fast_cannot_be_tested_beside_converge_and_aico_best():
     S = table(ilqg={"final": 100, "rho": 0.7}, aico={"final": 100, "rho": 0.3})
     rows = evaluate_claims(("all_converge_aico_fastest",), S, [], "fig3.2a")
