@@ -1,5 +1,5 @@
-"""``make test-portable``: the tests that compare floating-point results (marked ``numerics``) under the
-rounding of other processors, on this one machine.
+"""``make test-portable``: the tests that compare floating-point results (marked ``numerics``, not ``slow``)
+under the rounding of other processors, on this one machine.
 
 Each variant runs the marked tests in a fresh Python with one setting changed:
 
@@ -36,7 +36,9 @@ VARIANTS: dict[str, dict[str, str]] = {
     "RAICO_ISA=x86-64-v2": {"RAICO_ISA": "x86-64-v2"},
     "RAICO_ISA=x86-64-v3": {"RAICO_ISA": "x86-64-v3"},
 }
-MARK = "numerics"
+# the marked tests but the slow ones (the chain at 16-32 joints, ...): those run on the host's kernels in
+# `make test`, and five variants of them would take CI's budget
+MARK = "numerics and not slow"
 # the names threadpoolctl reports for a core type where they differ from OPENBLAS_CORETYPE's (OpenBLAS's
 # Prescott kernels are its generic SSE3 ones, named Katmai)
 KERNEL_NAMES = {"prescott": {"prescott", "katmai"}}
