@@ -923,6 +923,48 @@ register_cost_term_example(
                                                     name="control_gravity"), "joint")
 
 
+class _SphereClearance:
+    """The example's distances: two points of the first end effector to a sphere of radius ``r`` (m) about
+    ``c (3,)``, ``d_i = |p_i(q) - c| - r`` (m), ``J_i = (p_i - c)^T / |p_i - c| dp_i/dq``. A stand-in for the
+    scene's :class:`plants.scene.SignedDistances` (whose gradients tests/plants/test_scene.py checks) on a
+    plant without collision geometry, so the term's hinge and its derivatives are checked on every plant."""
+
+    def __init__(self, robot, c: np.ndarray, r: float):
+        self.points = FramePoints(robot, next(iter(robot.end_effectors.values())),
+                                  points=[[0, 0, 0], [0.1, 0, 0]], name="clearance_points")
+        self.c, self.r, self.dim, self.name = np.asarray(c, float), float(r), 2, "sphere_clearance"
+
+    def values_and_jacobians(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        P, JP = self.points.values_and_jacobians(np.atleast_2d(Q))   # (K, 6), (K, 6, n_q)
+        K = P.shape[0]
+        delta = P.reshape(K, 2, 3) - self.c
+        dist = np.linalg.norm(delta, axis=2)
+        J = np.einsum("kpi,kpiq->kpq", delta / dist[..., None], JP.reshape(K, 2, 3, -1))
+        return dist - self.r, J
+
+    def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d, J = self.values_and_jacobians(q[None])
+        return d[0], J[0]
+
+    def value(self, q: np.ndarray) -> np.ndarray:
+        return self.values_and_jacobians(q[None])[0][0]
+
+    def evaluate(self, Q: np.ndarray, jacobians: bool = True):
+        d, J = self.values_and_jacobians(Q)
+        return (d, J) if jacobians else (d, None)
+
+
+def _collision_example(robot, q0: np.ndarray) -> Collision:
+    """Two end-effector points kept 4 cm from a 2 cm sphere 5 cm off the effector at ``q0``: at the example
+    postures (0.1-0.3 rad off ``q0``) some distances fall below the margin, others not."""
+    p0 = FramePoints(robot, next(iter(robot.end_effectors.values())), name="p0").value(q0)
+    tm = _SphereClearance(robot, p0 + np.array([0.05, 0.0, 0.0]), 0.02)
+    return Collision(tm, 0.04, EXAMPLE_TIMES, 1e4, hard=False, name="collision")
+
+
+register_cost_term_example("collision", _collision_example, "state")
+
+
 def via_point_errors(problem, X: np.ndarray) -> dict[str, float]:
     """``{"<term>@<t>": error}``: Euclidean task error over the dimensions that count.
 
