@@ -76,8 +76,15 @@ class TickLog:
 
     @classmethod
     def empty(cls, ticks: int) -> TickLog:
+        """Records for ``ticks`` ticks (NaN / zero until recorded)."""
         return cls(np.full(ticks, np.nan), np.zeros(ticks, dtype=np.int64), np.full(ticks, np.nan),
                    np.zeros(ticks, dtype=bool))
+
+    def grow(self, extra: int) -> None:
+        """Room for ``extra`` more ticks."""
+        for name in ("solve_time", "iterations", "cost", "over_budget"):
+            a = getattr(self, name)
+            setattr(self, name, np.concatenate([a, np.zeros(extra, a.dtype)]))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The recorded ticks as arrays named ``mpc_*`` (for an artifact)."""
@@ -136,6 +143,7 @@ class MPC:
         budget: time budget per tick (s) or ``None``: with a budget, iterations run one at a time
             while the next (estimated by the last one's time) fits; at least one runs, and a tick
             whose solve took longer than the budget is recorded as over budget.
+        ticks: ticks the log is preallocated for (default ``T``; it grows if more are run).
 
     Raises:
         ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start,
@@ -143,7 +151,7 @@ class MPC:
     """
 
     def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
-                 iterations: int = 1, budget: float | None = None):
+                 iterations: int = 1, budget: float | None = None, ticks: int | None = None):
         if solver not in WARM_STARTABLE:
             raise ValueError(f"solver {solver!r} cannot warm-start a receding horizon here; "
                              f"use one of {', '.join(WARM_STARTABLE)}")
@@ -163,8 +171,8 @@ class MPC:
         self.o = np.zeros((H, m))
         self.O = np.zeros((H, m, n))
         self.k = 0
-        self.log = TickLog.empty(problem.T)
-        self._solved = self._unshifted = False
+        self.log = TickLog.empty(ticks or problem.T)
+        self._solved, self._ticks = False, 0
         if solver == "fddp":
             self._init_fddp(options)
         else:
@@ -185,22 +193,22 @@ class MPC:
                                         tol_rel=0.0)
         self.alpha = float(opts.alpha)
 
-    def _shift_aico(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """The start of this tick: the shifted controller rolled out from the window's ``x0``."""
+    def _start_aico(self, shift: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The start of this tick: the previous controller, shifted by one step if ``shift`` (the last
+        step repeated), rolled out from the window's ``x0``; ``None`` before the first solve or if that
+        rollout is not finite (then AICO's own cold start)."""
         if not self._solved:
             return None, None
-        if self._unshifted:
-            self._unshifted = False
-            return self.X.copy(), self.U.copy()
-        self.o[:-1] = self.o[1:]
-        self.O[:-1] = self.O[1:]
+        if shift:
+            self.o[:-1] = self.o[1:]
+            self.O[:-1] = self.O[1:]
         X, U = self.window.controller_rollout(self.o, self.O)
         if not np.all(np.isfinite(X)):
             return None, None
         return X, U
 
-    def _solve_aico(self) -> tuple[int, float]:
-        X0, U0 = self._shift_aico()
+    def _solve_aico(self, shift: bool) -> tuple[int, float]:
+        X0, U0 = self._start_aico(shift)
         its, t0, cost = 0, time.perf_counter(), math.inf
         while True:
             opts = self.opts if self.alpha == self.opts.alpha else dataclasses.replace(self.opts, alpha=self.alpha)
@@ -242,43 +250,47 @@ class MPC:
             hit = self._croc[key] = (cp, solver)
         return hit
 
-    def _solve_fddp(self) -> tuple[int, float]:
+    def _solve_fddp(self, shift: bool) -> tuple[int, float]:
         cp, solver = self._fddp_for_tick()
         x_pin = cp.smap.x_to_pin(self.window.x0)
         cp.shooting.x0 = x_pin
-        if self._solved and len(solver.xs) == self.H + 1:
-            xs, us = list(solver.xs), list(solver.us)
-            if self._unshifted:
-                self._unshifted = False
-            else:
-                xs = xs[1:] + [xs[-1]]
-                us = us[1:] + [us[-1]]
+        if self._solved:
+            if shift:   # crocoddyl's MPC examples: xs[1:] + [xs[-1]], us[1:] + [us[-1]]
+                self.X[:-1] = self.X[1:]
+                self.U[:-1] = self.U[1:]
+            xs, us = cp.to_pin(self.X), cp.controls_to_pin(self.U)
             xs[0] = x_pin
         else:
             xs, us = [x_pin.copy() for _ in range(self.H + 1)], [np.zeros(self.problem.n_u)] * self.H
         solver.solve(xs, us, self.iterations, False)
-        n = int(solver.iter) + 1
+        n = max(int(solver.iter), 1)
         X, U, K = cp.from_pin(solver.xs), cp.controls_from_pin(solver.us), cp.gains_from_pin(solver.K)
         self.X[:], self.U[:] = X, U
         self.O[:] = -K
-        self.o[:] = U + np.einsum("tij,tj->ti", K, X[:-1])
+        np.einsum("tij,tj->ti", K, X[:-1], out=self.o)
+        self.o += U
         return n, float(solver.cost)
 
     # -- the tick
+    def start_from(self, X: np.ndarray, U: np.ndarray, o: np.ndarray, O: np.ndarray) -> None:
+        """Warm-start the first tick from a plan of the whole problem (its first ``H`` steps): states
+        ``X (>= H+1, n_x)``, controls ``U``, controller ``o``, ``O (>= H, ...)``."""
+        H = self.H
+        self.X[:], self.U[:], self.o[:], self.O[:] = X[:H + 1], U[:H], o[:H], O[:H]
+        self._solved = True
+
     def prepare(self, x: np.ndarray, iterations: int) -> None:
         """Solve tick 0's window from ``x (n_x,)`` with ``iterations`` iterations before the loop
-        (not recorded); the first ``tick`` then starts from that solution, unshifted."""
-        saved, self.iterations = self.iterations, int(iterations)
+        (not recorded); the first ``tick`` then starts from that solution."""
+        saved = self.iterations, self.budget, self.opts
+        self.iterations, self.budget = int(iterations), None
         if self.solver != "fddp":
-            saved_opts = self.opts
             self.opts = dataclasses.replace(self.opts, iterations=int(iterations))
         self.window.x0[:] = x
         self._set_tick(0)
-        self._solve_fddp() if self.solver == "fddp" else self._solve_aico()
-        self.iterations = saved
-        if self.solver != "fddp":
-            self.opts = saved_opts
-        self._solved, self._unshifted = True, True
+        self._solve_fddp(False) if self.solver == "fddp" else self._solve_aico(False)
+        self.iterations, self.budget, self.opts = saved
+        self._solved = True
 
     def _set_tick(self, k: int) -> None:
         kk = min(k, self.problem.T - 1)
@@ -286,26 +298,35 @@ class MPC:
             c.times = per_tick[kk]
             c._active_last = None
 
-    def tick(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def tick(self, x: np.ndarray, advance: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One control period at the measured state ``x (n_x,)``.
+
+        ``advance``: the window moves on by one planning step (the horizon shifted) unless this is the
+        first tick; ``False`` for a control period shorter than the planning step (the same window
+        solved again from the new measurement).
 
         Returns:
             ``(u, o, O)``: the first control ``u_0 (n_u,)`` (views into the controller's buffers,
             valid until the next tick) and the feedback ``u = o + O x`` to apply until the next
             tick, ``o (n_u,)``, ``O (n_u, n_x)``.
         """
+        shift = advance and self._ticks > 0
+        if shift:
+            self.k += 1
         self.window.x0[:] = x
         self._set_tick(self.k)
         t0 = time.perf_counter()
-        its, cost = self._solve_fddp() if self.solver == "fddp" else self._solve_aico()
+        its, cost = self._solve_fddp(shift) if self.solver == "fddp" else self._solve_aico(shift)
         dt = time.perf_counter() - t0
         self._solved = True
-        i = self.log.n
-        if i < self.log.solve_time.size:
-            self.log.solve_time[i], self.log.iterations[i], self.log.cost[i] = dt, its, cost
-            self.log.over_budget[i] = self.budget is not None and dt > self.budget
-            self.log.n += 1
-        self.k += 1
+        self._ticks += 1
+        log = self.log
+        if log.n >= log.solve_time.size:   # more ticks than planning steps (sub-step periods): grow once
+            log.grow(log.solve_time.size)
+        i = log.n
+        log.solve_time[i], log.iterations[i], log.cost[i] = dt, its, cost
+        log.over_budget[i] = self.budget is not None and dt > self.budget
+        log.n += 1
         return self.U[0], self.o[0], self.O[0]
 
 
