@@ -170,6 +170,7 @@ class MPC:
         self.U = np.zeros((H, m))
         self.o = np.zeros((H, m))
         self.O = np.zeros((H, m, n))
+        self._u = np.zeros(m)
         self.k = 0
         self.log = TickLog.empty(ticks or problem.T)
         self._solved, self._ticks = False, 0
@@ -261,7 +262,9 @@ class MPC:
             xs, us = cp.to_pin(self.X), cp.controls_to_pin(self.U)
             xs[0] = x_pin
         else:
-            xs, us = [x_pin.copy() for _ in range(self.H + 1)], [np.zeros(self.problem.n_u)] * self.H
+            # cold: x held at every node, the quasi-static controls (crocoddyl's examples' guess)
+            xs = [x_pin.copy() for _ in range(self.H + 1)]
+            us = list(cp.shooting.quasiStatic(xs[:-1]))
         solver.solve(xs, us, self.iterations, False)
         n = max(int(solver.iter), 1)
         X, U, K = cp.from_pin(solver.xs), cp.controls_from_pin(solver.us), cp.gains_from_pin(solver.K)
@@ -306,8 +309,8 @@ class MPC:
         solved again from the new measurement).
 
         Returns:
-            ``(u, o, O)``: the first control ``u_0 (n_u,)`` (views into the controller's buffers,
-            valid until the next tick) and the feedback ``u = o + O x`` to apply until the next
+            ``(u, o, O)``: the first control ``u_0 = o_0 + O_0 x (n_u,)`` (views into the controller's
+            buffers, valid until the next tick) and the feedback ``u = o + O x`` to apply until the next
             tick, ``o (n_u,)``, ``O (n_u, n_x)``.
         """
         shift = advance and self._ticks > 0
@@ -327,7 +330,9 @@ class MPC:
         log.solve_time[i], log.iterations[i], log.cost[i] = dt, its, cost
         log.over_budget[i] = self.budget is not None and dt > self.budget
         log.n += 1
-        return self.U[0], self.o[0], self.O[0]
+        np.matmul(self.O[0], x, out=self._u)
+        self._u += self.o[0]      # u_0 = o_0 + O_0 x (FDDP's xs[0] may still be off x after a partial step)
+        return self._u, self.o[0], self.O[0]
 
 
 def simulate(mpc: MPC, step, x0: np.ndarray, ticks: int, push=None) -> tuple[np.ndarray, np.ndarray]:
