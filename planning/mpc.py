@@ -33,8 +33,14 @@ Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's M
   (``xs[1:] + [xs[-1]]``, ``us[1:] + [us[-1]]``, ``xs[0] = x``) and calls ``solve`` with the
   iteration cap.
 
-Per-tick records (preallocated ``(ticks,)`` arrays in ``TickLog``): wall time of the solve (s),
-iterations, the window's cost after the solve, whether the tick went past its time budget.
+Per-tick records (preallocated arrays in ``TickLog``): wall time of the solve (s), iterations, the
+window's cost after the solve, whether the tick went past its time budget, the window's excess beyond
+its hard bounds. Iterations and budget: AICO / R-AICO run ``iterations`` in one call without a budget,
+one at a time while the next fits with one; FDDP runs ``iterations`` in one ``solve`` (crocoddyl's
+loop), the budget only recorded.
+
+Not yet here: AICO's messages carried across ticks (see above), a tick without allocation (``aico()``
+builds its sweeps' buffers per call), a preparation / feedback split.
 """
 
 from __future__ import annotations
@@ -65,6 +71,8 @@ class TickLog:
         cost: the window's cost after the solve, ``(ticks,)``.
         over_budget: whether the solve took longer than the time budget, ``(ticks,)`` (False
             without a budget).
+        violation: the window's largest excess beyond the hard bounds after the solve, ``(ticks, 2)``:
+            joint positions (rad) and controls (0 inside, and without hard bounds).
         n: ticks recorded so far.
     """
 
@@ -72,25 +80,27 @@ class TickLog:
     iterations: np.ndarray
     cost: np.ndarray
     over_budget: np.ndarray
+    violation: np.ndarray
     n: int = 0
 
     @classmethod
     def empty(cls, ticks: int) -> TickLog:
         """Records for ``ticks`` ticks (NaN / zero until recorded)."""
         return cls(np.full(ticks, np.nan), np.zeros(ticks, dtype=np.int64), np.full(ticks, np.nan),
-                   np.zeros(ticks, dtype=bool))
+                   np.zeros(ticks, dtype=bool), np.zeros((ticks, 2)))
 
     def grow(self, extra: int) -> None:
         """Room for ``extra`` more ticks."""
-        for name in ("solve_time", "iterations", "cost", "over_budget"):
+        for name in ("solve_time", "iterations", "cost", "over_budget", "violation"):
             a = getattr(self, name)
-            setattr(self, name, np.concatenate([a, np.zeros(extra, a.dtype)]))
+            setattr(self, name, np.concatenate([a, np.zeros((extra, *a.shape[1:]), a.dtype)]))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The recorded ticks as arrays named ``mpc_*`` (for an artifact)."""
         k = self.n
         return {"mpc_solve_time": self.solve_time[:k].copy(), "mpc_iterations": self.iterations[:k].copy(),
-                "mpc_cost": self.cost[:k].copy(), "mpc_over_budget": self.over_budget[:k].copy()}
+                "mpc_cost": self.cost[:k].copy(), "mpc_over_budget": self.over_budget[:k].copy(),
+                "mpc_violation": self.violation[:k].copy()}
 
 
 def window_times(times: np.ndarray | None, T: int, H: int, k: int) -> np.ndarray | None:
@@ -329,6 +339,9 @@ class MPC:
         i = log.n
         log.solve_time[i], log.iterations[i], log.cost[i] = dt, its, cost
         log.over_budget[i] = self.budget is not None and dt > self.budget
+        bounds = self.window.bounds
+        if bounds is not None:
+            log.violation[i] = bounds.violation(self.X, self.U)
         log.n += 1
         np.matmul(self.O[0], x, out=self._u)
         self._u += self.o[0]      # u_0 = o_0 + O_0 x (FDDP's xs[0] may still be off x after a partial step)

@@ -430,7 +430,8 @@ def _mpc_metrics(mpc, period: float) -> dict:
     return {"mpc_ticks": int(t.size), "mpc_period": period, "mpc_horizon": mpc.H, "mpc_solver": mpc.solver,
             "mpc_median_tick_s": float(np.median(t)), "mpc_p99_tick_s": float(np.percentile(t, 99)),
             "mpc_over_period": int(mpc.log.over_budget[:mpc.log.n].sum()),
-            "mpc_iterations": int(mpc.log.iterations[:mpc.log.n].sum())}
+            "mpc_iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
+            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)]}
 
 
 def _initial_q(desc: dict, robot: Robot, cfg: ExecuteConfig, rng) -> np.ndarray:
