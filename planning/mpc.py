@@ -184,6 +184,7 @@ class MPC:
         self.k = 0
         self.log = TickLog.empty(ticks or problem.T)
         self._solved, self._ticks = False, 0
+        self.opts: Any = None   # AICOOptions or FDDPOptions
         if solver == "fddp":
             self._init_fddp(options)
         else:
