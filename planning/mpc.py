@@ -73,6 +73,8 @@ class TickLog:
             without a budget).
         violation: the window's largest excess beyond the hard bounds after the solve, ``(ticks, 2)``:
             joint positions (rad) and controls (0 inside, and without hard bounds).
+        predicted: the window's predicted states after each solve, ``(ticks, H+1, n_x)`` float32 (the
+            predicted horizon; ``None`` unless asked for).
         n: ticks recorded so far.
     """
 
@@ -81,18 +83,23 @@ class TickLog:
     cost: np.ndarray
     over_budget: np.ndarray
     violation: np.ndarray
+    predicted: np.ndarray | None = None
     n: int = 0
 
     @classmethod
-    def empty(cls, ticks: int) -> TickLog:
-        """Records for ``ticks`` ticks (NaN / zero until recorded)."""
+    def empty(cls, ticks: int, window: tuple[int, int] | None = None) -> TickLog:
+        """Records for ``ticks`` ticks (NaN / zero until recorded); ``window = (H+1, n_x)``: keep the
+        predicted horizons too."""
+        predicted = None if window is None else np.full((ticks, *window), np.nan, dtype=np.float32)
         return cls(np.full(ticks, np.nan), np.zeros(ticks, dtype=np.int64), np.full(ticks, np.nan),
-                   np.zeros(ticks, dtype=bool), np.zeros((ticks, 2)))
+                   np.zeros(ticks, dtype=bool), np.zeros((ticks, 2)), predicted)
 
     def grow(self, extra: int) -> None:
         """Room for ``extra`` more ticks."""
-        for name in ("solve_time", "iterations", "cost", "over_budget", "violation"):
+        for name in ("solve_time", "iterations", "cost", "over_budget", "violation", "predicted"):
             a = getattr(self, name)
+            if a is None:
+                continue
             setattr(self, name, np.concatenate([a, np.zeros((extra, *a.shape[1:]), a.dtype)]))
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -100,7 +107,8 @@ class TickLog:
         k = self.n
         return {"mpc_solve_time": self.solve_time[:k].copy(), "mpc_iterations": self.iterations[:k].copy(),
                 "mpc_cost": self.cost[:k].copy(), "mpc_over_budget": self.over_budget[:k].copy(),
-                "mpc_violation": self.violation[:k].copy()}
+                "mpc_violation": self.violation[:k].copy(),
+                **({} if self.predicted is None else {"mpc_predicted": self.predicted[:k].copy()})}
 
 
 def window_times(times: np.ndarray | None, T: int, H: int, k: int) -> np.ndarray | None:
@@ -154,6 +162,7 @@ class MPC:
             while the next (estimated by the last one's time) fits; at least one runs, and a tick
             whose solve took longer than the budget is recorded as over budget.
         ticks: ticks the log is preallocated for (default ``T``; it grows if more are run).
+        keep_predictions: keep every tick's predicted window states in the log (``TickLog.predicted``).
 
     Raises:
         ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start,
@@ -161,7 +170,8 @@ class MPC:
     """
 
     def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
-                 iterations: int = 1, budget: float | None = None, ticks: int | None = None):
+                 iterations: int = 1, budget: float | None = None, ticks: int | None = None,
+                 keep_predictions: bool = False):
         if solver not in WARM_STARTABLE:
             raise ValueError(f"solver {solver!r} cannot warm-start a receding horizon here; "
                              f"use one of {', '.join(WARM_STARTABLE)}")
@@ -182,7 +192,7 @@ class MPC:
         self.O = np.zeros((H, m, n))
         self._u = np.zeros(m)
         self.k = 0
-        self.log = TickLog.empty(ticks or problem.T)
+        self.log = TickLog.empty(ticks or problem.T, (self.H + 1, problem.n_x) if keep_predictions else None)
         self._solved, self._ticks = False, 0
         self.opts: Any = None   # AICOOptions or FDDPOptions
         if solver == "fddp":
@@ -343,6 +353,8 @@ class MPC:
         bounds = self.window.bounds
         if bounds is not None:
             log.violation[i] = bounds.violation(self.X, self.U)
+        if log.predicted is not None:
+            log.predicted[i] = self.X
         log.n += 1
         np.matmul(self.O[0], x, out=self._u)
         self._u += self.o[0]      # u_0 = o_0 + O_0 x (FDDP's xs[0] may still be off x after a partial step)

@@ -417,7 +417,8 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
     mpc = MPC(problem, horizon, cfg.solver, {"alpha": 1.0} if cfg.solver == "raico" else None,
-              iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)))
+              iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
+              keep_predictions=True)
     mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))
     return mpc, period
 

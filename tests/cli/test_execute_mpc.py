@@ -51,6 +51,8 @@ def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     assert d["mpc_solve_time"].shape == (1000,) and np.all(d["mpc_iterations"] == 1)
     assert np.all(np.isfinite(d["mpc_cost"])) and d["mpc_over_budget"].dtype == bool
     assert d["mpc_violation"].shape == (1000, 2) and np.all(d["mpc_violation"] >= 0)
+    assert d["mpc_predicted"].shape == (1000, 101, d["X"].shape[1])   # each tick's predicted window
+    assert np.all(np.isfinite(d["mpc_predicted"]))
     assert m["mpc_max_violation"] == pytest.approx(d["mpc_violation"].max(axis=0).tolist(), rel=0, abs=0)
     # the per-tick over-period flags are the solve times against the period
     assert np.array_equal(d["mpc_over_budget"], d["mpc_solve_time"] > m["mpc_period"])

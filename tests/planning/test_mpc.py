@@ -94,9 +94,13 @@ def test_mpc_absorbs_a_push_the_open_loop_plan_cannot():
     for k in range(T):
         x = step(x, plan.U[k] + _push(k), k)
     open_loop = _task_error(pb, x)
-    mpc = MPC(pb, H, "raico", {"alpha": 1.0})
+    mpc = MPC(pb, H, "raico", {"alpha": 1.0}, keep_predictions=True)
     mpc.prepare(pb.x0, 50)
     X, _ = simulate(mpc, step, pb.x0, T, push=_push)
+    # the predicted horizon of each tick starts at the state it measured
+    pred = mpc.log.arrays()["mpc_predicted"]
+    assert pred.shape == (T, H + 1, 2 * N_Q)
+    assert np.allclose(pred[:, 0], X[:-1], rtol=0, atol=1e-6)
     closed = _task_error(pb, X[-1])
     assert open_loop > 0.2, open_loop       # the kick moves the open-loop end far off the target
     assert closed < 0.2 * open_loop, (closed, open_loop)
