@@ -35,8 +35,8 @@ def arm5_plan(tmp_path_factory):
 @pytest.mark.slow
 def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     key, root = arm5_plan
-    common = ("--plan", key, "--push", PUSH, "--no-record", "--json", "--artifacts", root)
-    plan_ctrl = run_json("execute", *common)
+    common = ("--plan", key, "--push", PUSH, "--json", "--artifacts", root)
+    plan_ctrl = run_json("execute", *common, "--no-record")
     mpc = run_json("execute", *common, "--controller", "mpc", "--horizon", 100, "--iterations-per-tick", 1,
                    "--solver", "raico")
     for r in (plan_ctrl, mpc):
@@ -53,6 +53,14 @@ def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     assert d["mpc_violation"].shape == (1000, 2) and np.all(d["mpc_violation"] >= 0)
     assert d["mpc_predicted"].shape == (1000, 101, d["X"].shape[1])   # each tick's predicted window
     assert np.all(np.isfinite(d["mpc_predicted"]))
+    # the recording: the solve time per tick, the predicted hand paths (the latest and two fading before it)
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    for c in RrdReader(Path(mpc["recording"])).stream().to_chunks():
+        rows[c.entity_path] = rows.get(c.entity_path, 0) + c.num_rows
+    assert rows.get("/mpc/tick", 0) > 0
+    assert all(rows.get(f"/world/predicted/ee/{age}", 0) > 0 for age in range(3)), sorted(rows)
     assert m["mpc_max_violation"] == pytest.approx(d["mpc_violation"].max(axis=0).tolist(), rel=0, abs=0)
     # the per-tick over-period flags are the solve times against the period
     assert np.array_equal(d["mpc_over_budget"], d["mpc_solve_time"] > m["mpc_period"])
@@ -73,3 +81,10 @@ def test_bad_input(arm5_plan, args, message):
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and message in lines[0], res.output
+
+
+def test_the_scenario_file_expands(tmp_path):
+    root = Path(__file__).resolve().parents[2]
+    res = invoke("exp", "run", root / "experiments" / "ur5_payload_push.toml", "--dry-run", "--artifacts", tmp_path)
+    assert res.exit_code == 0, res.output
+    assert "3 variants x 3 seeds = 9 runs" in res.output
