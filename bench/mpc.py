@@ -79,9 +79,11 @@ def pushed_arm5(cache) -> dict:
 
     plan = run(cache, "plan", PlanConfig(plant="arm5", task="reach", solver="raico", iterations=30), record=False)
     out: dict = {"plan": plan.path}
-    for name, extra in (("plan's controller", {}),
-                        ("MPC R-AICO", {"controller": "mpc", "horizon": PUSH_HORIZON, "solver": "raico"})):
-        ex = run(cache, "execute", ExecuteConfig(plan=plan.key, push=(PUSH,), **extra), record=False)
+    configs = {"plan's controller": ExecuteConfig(plan=plan.key, push=(PUSH,)),
+               "MPC R-AICO": ExecuteConfig(plan=plan.key, push=(PUSH,), controller="mpc", horizon=PUSH_HORIZON,
+                                           solver="raico")}
+    for name, cfg in configs.items():
+        ex = run(cache, "execute", cfg, record=False)
         out[name] = {"path": ex.path, "status": ex.status,
                      "final_error_m": ex.metrics["via_point_errors"]["via_x2@1000"],
                      "first_via_error_m": ex.metrics["via_point_errors"]["via_x1@500"],
