@@ -110,7 +110,9 @@ from stages.registry import DESCRIPTIONS
 
 ROLLOUT_FILE = "rollout.npz"
 STARTS = ("plan", "standing")  # the Nao's start state (module docstring)
-CONTROLLERS = ("pd", "wbc")  # the Nao's controller (module docstring)
+CONTROLLERS = ("pd", "wbc", "mpc")  # the Nao's controller, or receding-horizon control of an arm (module docstring)
+MPC_SOLVERS = ("aico", "raico", "fddp")  # the solvers with a shift warm start (planning.mpc)
+MPC_HORIZON = 50  # planning steps: --controller mpc's default horizon (at most the problem's T)
 
 
 @dataclass(frozen=True)
@@ -129,7 +131,16 @@ class ExecuteConfig(StageConfig):
                      "standing (projected to double support by inverse kinematics); default: standing with "
                      "--controller wbc, plan with the joint PD.",
             "controller": "Nao controller: pd (joint PD + inverse-dynamics feed-forward) or wbc (the whole-body "
-                          "stabilizer, a task-space inverse-dynamics QP with contact)."}
+                          "stabilizer, a task-space inverse-dynamics QP with contact); arms: mpc (receding-horizon "
+                          "control re-planning every --period from the measured state, planning.mpc).",
+            "period": "--controller mpc: control period (s); default the planning step; a divisor of it, at least "
+                      "the simulation step.",
+            "horizon": f"--controller mpc: horizon in planning steps (default min(T, {MPC_HORIZON})).",
+            "iterations_per_tick": "--controller mpc: solver iterations per control period.",
+            "solver": "--controller mpc: the solver of each period: " + ", ".join(MPC_SOLVERS) + ".",
+            "push": "--controller mpc or the plan's controller (arms): a scripted push FRAME:NEWTONS:START:DURATION "
+                    "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
+                    "and DURATION in s); repeatable."}
 
     plan: str  # key, key prefix or plan/KEY of the plan to execute (required)
     x0_noise: float = 0.0  # rad, std of noise on the initial joint angles
@@ -138,7 +149,15 @@ class ExecuteConfig(StageConfig):
     clip_torques: bool = True
     open_loop: bool = False  # the integration check of appendix C (see HELP)
     start: str | None = None  # Nao: "plan" or "standing" (STARTS); None: standing with the stabilizer, else plan
-    controller: str = "pd"  # Nao: "pd" or "wbc" (CONTROLLERS)
+    controller: str = "pd"  # Nao: "pd" or "wbc"; arms: "pd" (the plan's controller) or "mpc" (CONTROLLERS)
+    period: float | None = None  # s, --controller mpc: control period (None: the planning step)
+    horizon: int | None = None  # planning steps, --controller mpc (None: min(T, MPC_HORIZON))
+    iterations_per_tick: int = 1  # --controller mpc
+    solver: str = "raico"  # --controller mpc (MPC_SOLVERS)
+    push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION (arms)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "push", tuple(self.push or ()))   # the CLI gives None for no --push
 
     def normalized(self) -> ExecuteConfig:
         """The start state spelled out: the standing start with the stabilizer (which needs both soles on the
@@ -152,15 +171,68 @@ class ExecuteConfig(StageConfig):
         change the key, not the run)."""
         plan = inputs["plan"]
         if robot_for(plan.document(PROBLEM_FILE)).floating:
+            if self.controller == "mpc" or self.push:
+                raise ValueError("--controller mpc and --push are for fixed-base robots; the Nao's controllers are "
+                                 "pd and wbc")
             return
         plant = plan.config.get("plant")
-        if self.controller != "pd":
+        if self.controller == "mpc":
+            T = int(plan.document(PROBLEM_FILE)["T"])
+            if self.horizon is not None and self.horizon > T:
+                raise ValueError(f"--horizon {self.horizon} is longer than the problem's {T} steps")
+        elif self.controller != "pd":
             raise ValueError(f"--controller {self.controller} is for plans of the Nao; this plan is of {plant} "
                              "(its executions use the computed-torque controller)")
         if self.start not in (None, "plan"):
             raise ValueError(f"--start {self.start} is for plans of the Nao; this plan is of {plant}")
 
+    def mpc_horizon(self, T: int | None) -> int:
+        """The MPC's horizon in planning steps for a problem of ``T`` steps."""
+        if self.horizon is not None:
+            return self.horizon
+        return MPC_HORIZON if T is None else min(T, MPC_HORIZON)
+
+    def pushes(self) -> list[tuple[str, np.ndarray, float, float]]:
+        """The scripted pushes ``(frame, force (3,) N in world, start s, duration s)``."""
+        out = []
+        for spec in self.push:
+            parts = spec.rsplit(":", 3)
+            try:
+                if len(parts) != 4 or not parts[0]:
+                    raise ValueError
+                f = np.array([float(v) for v in parts[1].split(",")])
+                force = np.array([f[0], 0.0, 0.0]) if f.size == 1 else f
+                start, duration = float(parts[2]), float(parts[3])
+                if force.size != 3 or not np.all(np.isfinite(force)) or not (start >= 0 and duration > 0):
+                    raise ValueError
+            except ValueError:
+                raise ValueError(f"--push {spec!r}: expected FRAME:NEWTONS:START:DURATION (NEWTONS one number along "
+                                 "world x or FX,FY,FZ; START >= 0 and DURATION > 0 in s)") from None
+            out.append((parts[0], force, start, duration))
+        return out
+
+    def _validate_mpc(self) -> None:
+        d = ExecuteConfig.__dataclass_fields__
+        if self.controller != "mpc":
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "solver") if getattr(self, n) != d[n].default]
+            if given:
+                raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
+            return
+        if self.solver not in MPC_SOLVERS:
+            raise ValueError(f"--solver {self.solver} cannot warm-start a receding horizon; use one of "
+                             f"{', '.join(MPC_SOLVERS)}")
+        if self.period is not None and not (math.isfinite(self.period) and self.period > 0):
+            raise ValueError(f"--period must be a positive number of seconds, got {self.period}")
+        if self.horizon is not None and self.horizon < 1:
+            raise ValueError(f"--horizon must be at least 1 planning step, got {self.horizon}")
+        if self.iterations_per_tick < 1:
+            raise ValueError(f"--iterations-per-tick must be at least 1, got {self.iterations_per_tick}")
+        if self.open_loop:
+            raise ValueError("--open-loop holds the plan's controls; --controller mpc re-plans: choose one")
+
     def validate(self) -> None:
+        self._validate_mpc()
+        self.pushes()
         if self.start is not None and self.start not in STARTS:
             raise ValueError(f"start must be one of {', '.join(STARTS)} (got {self.start!r})")
         if self.controller not in CONTROLLERS:
@@ -189,6 +261,7 @@ class ExecuteOutput:
     nao: dict = field(default_factory=dict)  # free-standing Nao arrays (see the module docstring)
     problem: Any = None  # the plan's problem (task terms for recordings)
     robot: Robot | None = None
+    mpc: dict = field(default_factory=dict)  # --controller mpc: per-tick records (planning.mpc.TickLog.arrays)
 
     @property
     def cog(self):
@@ -203,12 +276,16 @@ class ExecuteOutput:
              "effort_at_limit": np.asarray(self.effort_at_limit if self.effort_at_limit is not None
                                            else np.zeros((0, self.X.shape[1] // 2)), bool)}
         d.update(self.nao)
+        d.update(self.mpc)
         return d
 
 
 # ----------------------------------------------------------------------------- plan's controller (arms)
-def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng):
-    """LeafSystem: plant state in, held actuation out; logs the commanded controls."""
+def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng, mpc=None,
+                period: float | None = None):
+    """LeafSystem: plant state in, held actuation out; logs the commanded controls. With ``mpc``
+    (``planning.mpc.MPC``) the control is re-planned every ``period`` s (a divisor of ``dt``) from the measured
+    state, the horizon shifted at every planning step, its first control held for the period."""
     from pydrake.multibody.tree import MultibodyForces_
     from pydrake.systems.framework import BasicVector, LeafSystem
 
@@ -221,6 +298,8 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     else:
         o, O = plan["o"], plan["O"]
     T = o.shape[0]
+    period = dt if period is None else period
+    every = int(round(dt / period))   # control periods per planning step
     effort = robot.plant_effort()
     ctx_id = plant.CreateDefaultContext()
     forces = MultibodyForces_[float](plant)
@@ -244,15 +323,22 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
             # the same numbers). Computed torque reads the plant state at every evaluation.
             deps = {self.all_sources_ticket()} if pseudo else {self.xd_ticket()}
             self.DeclareVectorOutputPort("tau", BasicVector(plant.num_actuators()), self._torque, deps)
-            self.DeclarePeriodicDiscreteUpdateEvent(dt, 0.0, self._update)
+            self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
 
         def _update(self, context, discrete_state):
             xp = self.state_port.Eval(context)
-            k = min(int(round(context.get_time() / dt)), T - 1)
+            j = int(round(context.get_time() / period))   # control period
+            k, first = min(j // every, T - 1), j % every == 0   # planning step; its first period?
             x = np.concatenate([Pinv @ xp[:n_plant], Pinv @ xp[n_plant:]])
-            u = o[k] + O[k] @ x
-            w = cfg.process_noise * rng.standard_normal(u.size) if cfg.process_noise > 0 else 0 * u
-            self.log_u.append(u)
+            if mpc is not None:
+                u = mpc.tick(x, advance=first)[0].copy()
+            else:
+                u = o[k] + O[k] @ x
+            if first:   # the process noise: drawn per planning step
+                w = cfg.process_noise * rng.standard_normal(u.size) if cfg.process_noise > 0 else 0 * u
+                self.log_u.append(u)
+            else:
+                w = context.get_discrete_state_vector().CopyToVector()[o.shape[1]:]
             discrete_state.get_mutable_vector().SetFromVector(np.concatenate([u, w]))
 
         def commanded_torque(self, context) -> np.ndarray:
@@ -281,6 +367,74 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
     return FeedbackController()
 
 
+def _pusher(robot: Robot, pushes: list[tuple[str, np.ndarray, float, float]]):
+    """LeafSystem: the scripted pushes as ``ExternallyAppliedSpatialForce`` s (each a world-frame force at its
+    frame's origin, on the frame's body, during ``[start, start + duration)`` s). Raises ``ValueError`` on a
+    frame the simulated robot does not have."""
+    from pydrake.common.value import AbstractValue
+    from pydrake.multibody.math import SpatialForce
+    from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+    from pydrake.systems.framework import LeafSystem
+
+    plant = robot.plant
+    applied = []
+    for frame_name, force, start, duration in pushes:
+        if not plant.HasFrameNamed(frame_name):
+            raise ValueError(f"--push on frame {frame_name!r}: the robot has no such frame")
+        frame = plant.GetFrameByName(frame_name)
+        f = ExternallyAppliedSpatialForce()
+        f.body_index = frame.body().index()
+        f.p_BoBq_B = frame.GetFixedPoseInBodyFrame().translation()
+        f.F_Bq_W = SpatialForce(np.zeros(3), np.asarray(force, float))
+        applied.append((f, start, start + duration))
+
+    class Pusher(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareAbstractOutputPort("forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
+                                           self._calc)
+
+        def _calc(self, context, output):
+            t = context.get_time()
+            output.set_value([f for f, t0, t1 in applied if t0 <= t < t1])
+
+    return Pusher()
+
+
+def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float):
+    """The receding-horizon controller of ``cfg`` on the planning ``problem``, warm-started from the plan, and
+    its control period (s). Raises ``ValueError`` on a period shorter than the simulation step or no divisor of
+    the planning step, or a horizon longer than the problem."""
+    from planning.mpc import MPC
+
+    period = dt if cfg.period is None else float(cfg.period)
+    if period < sim_step - 1e-12:
+        raise ValueError(f"--period {period:g} s is shorter than the simulation step {sim_step:g} s")
+    every = dt / period
+    if period > dt + 1e-12 or abs(every - round(every)) > 1e-9:
+        raise ValueError(f"--period {period:g} s must divide the planning step {dt:g} s")
+    horizon = cfg.mpc_horizon(problem.T)
+    if horizon > problem.T:
+        raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    mpc = MPC(problem, horizon, cfg.solver, {"alpha": 1.0} if cfg.solver == "raico" else None,
+              iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
+              keep_predictions=True)
+    mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))
+    return mpc, period
+
+
+def _mpc_metrics(mpc, period: float) -> dict:
+    """The MPC's tick statistics: ticks, median and 99th-percentile solve time (s), ticks past the period."""
+    t = mpc.log.solve_time[:mpc.log.n]
+    if t.size == 0:
+        return {"mpc_ticks": 0}
+    return {"mpc_ticks": int(t.size), "mpc_period": period, "mpc_horizon": mpc.H, "mpc_solver": mpc.solver,
+            "mpc_median_tick_s": float(np.median(t)), "mpc_p99_tick_s": float(np.percentile(t, 99)),
+            "mpc_over_period": int(mpc.log.over_budget[:mpc.log.n].sum()),
+            "mpc_iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
+            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)]}
+
+
 def _initial_q(desc: dict, robot: Robot, cfg: ExecuteConfig, rng) -> np.ndarray:
     """The plan's ``q0`` plus ``x0_noise``, clipped to the joint limits (rad): the robot cannot
     start outside its joint range."""
@@ -289,8 +443,9 @@ def _initial_q(desc: dict, robot: Robot, cfg: ExecuteConfig, rng) -> np.ndarray:
     return np.clip(q, robot.lower, robot.upper)
 
 
-def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress) -> ExecuteOutput:
-    """A fixed-base plant (arms: discrete with limits; pendulum: continuous) with the plan's controller."""
+def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress, planning=None) -> ExecuteOutput:
+    """A fixed-base plant (arms: discrete with limits; pendulum: continuous) with the plan's controller, or
+    with receding-horizon control on the ``planning`` problem (``--controller mpc``)."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
     dt, T = float(desc["dt"]), int(desc["T"])
@@ -305,9 +460,15 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
     if scene is not None:
         _no_self_contact(robot)
     q_start = _initial_q(desc, robot, cfg, rng)
-    ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng))
+    sim_step = step if discrete else dt / math.ceil(dt / step - 1e-9)
+    mpc, period = _mpc_for(cfg, planning, plan, dt, sim_step) if cfg.controller == "mpc" else (None, dt)
+    ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng,
+                                               mpc, period))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
     robot.builder.Connect(ctrl.get_output_port(0), robot.plant.get_actuation_input_port())
+    if cfg.push:
+        pusher = robot.builder.AddSystem(_pusher(robot, cfg.pushes()))
+        robot.builder.Connect(pusher.get_output_port(0), robot.plant.get_applied_spatial_force_input_port())
     sim = Simulator(robot.builder.Build())
     if not discrete:
         integ = ResetIntegratorFromFlags(sim, "runge_kutta3" if cfg.open_loop else "runge_kutta5",
@@ -354,8 +515,12 @@ def _execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, pro
                                 effort_clamped=clamped)
     if scene is not None:
         metrics.update(collision_metrics(problem, X, dt, metrics))
+    extra = {}
+    if mpc is not None:
+        metrics.update(_mpc_metrics(mpc, period))
+        extra = mpc.log.arrays()
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
-                         effort_at_limit=sat, problem=problem, robot=robot)
+                         effort_at_limit=sat, problem=problem, robot=robot, mpc=extra)
 
 
 # ----------------------------------------------------------------------------- a scene
@@ -797,8 +962,9 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
 
 
 def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int, int], None] | None = None,
-            plan_status: str | None = None) -> ExecuteOutput:
-    """Execute a plan (its arrays, stored problem description and status) in Drake (module docstring)."""
+            plan_status: str | None = None, planning=None) -> ExecuteOutput:
+    """Execute a plan (its arrays, stored problem description and status) in Drake (module docstring);
+    ``planning``: the plan's planning problem (``--controller mpc``)."""
     cfg = cfg.normalized()
     cfg.validate()
     problem = objective_from_description(desc)
@@ -809,7 +975,10 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
     if not all(np.all(np.isfinite(plan[k])) for k in needed):
         return _not_executed(desc, plan, problem, "the plan is not finite: not executed")
     rng = np.random.default_rng(cfg.seed)
-    out = (_execute_free_nao if nao else _execute_fixed)(cfg, desc, plan, problem, rng, progress)
+    if nao:
+        out = _execute_free_nao(cfg, desc, plan, problem, rng, progress)
+    else:
+        out = _execute_fixed(cfg, desc, plan, problem, rng, progress, planning)
     if plan_status == "diverged":  # executed (its data may still be of use), never reported as a success
         out.metrics.update(status="diverged", failure_time=0.0,
                            reason=f"the plan diverged (executed: {out.metrics['reason']})")
@@ -818,11 +987,25 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
     return out
 
 
+def planning_problem(plan: Artifact):
+    """The plan's planning problem rebuilt from its config (the MPC's model; its start is the plan's)."""
+    from stages.plan.stage import PlanConfig, build_problem
+
+    pcfg = PlanConfig.from_dict(plan.config)
+    if pcfg.model is not None or pcfg.dynamics == "learned":
+        raise ValueError("--controller mpc on a plan of a learned model: not supported yet (plan with the model file)")
+    problem = build_problem(pcfg)[2]
+    problem.x0[:] = np.asarray(plan.document(PROBLEM_FILE)["x0"], float)
+    return problem
+
+
 def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int, int], None] | None = None
         ) -> StageOutput:
     """The execute stage: ``rollout.npz`` of the plan executed in Drake."""
     plan = inputs["plan"]
-    out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress, plan_status=plan.status)
+    planning = planning_problem(plan) if cfg.controller == "mpc" else None
+    out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress, plan_status=plan.status,
+                  planning=planning)
     return StageOutput(status=out.metrics["status"], metrics=out.metrics, arrays={ROLLOUT_FILE: out.arrays()},
                        payload=out)
 

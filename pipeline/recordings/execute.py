@@ -43,7 +43,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
                            properties={"stage": "execute", "key": art.key, "plan": pconf, **art.config},
                            name=f"execute {pconf['plant']} {pconf['task']} {pconf['solver']}",
                            blueprint=_execute_blueprint(plots, robot.joint_names, eye, free,
-                                                        scene_views(objective))) as rec:
+                                                        [*scene_views(objective), *_mpc_views(d)])) as rec:
         sel = rec_mod.plot_indices(len(times), vias)
         if free:  # the free-standing Nao: its own plant (floating base, floor) and stored positions
             from plants.free_nao import shared_free_nao
@@ -82,10 +82,55 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
             rec_mod.log_scalars(rec, "contact/force", "sim_time", times[sel], d["sole_force"][sel],
                                 names=["left sole (N)", "right sole (N)"])
             _log_support(rec, times, d["support"], cog, margin, d["contact_points"], poses, zmp)
+        if "mpc_solve_time" in d:
+            _log_mpc(rec, objective, d, plots, times, free)
         _log_status(rec, art, times)
     values = {term: tp.raw for tp in plots for term in tp.terms}
     write_trajectory_mcap(folder / MCAP, robot, times, X[:, :n], X[:, n:],
                           np.vstack([tau, np.full((len(times) - len(tau), n), np.nan)]), task_values=values)
+
+
+def _mpc_views(d) -> list:
+    """The MPC's solve time per tick, for a ``--controller mpc`` rollout (none otherwise)."""
+    import rerun.blueprint as rrb
+
+    return [rrb.TimeSeriesView(origin="/mpc", name="MPC solve time per tick (ms)")] if "mpc_solve_time" in d else []
+
+
+PREDICTIONS = 100   # predicted horizons drawn at most (evenly spread over the run)
+FADE = (255, 130, 50)   # alpha of the latest predicted horizon and of the two before it
+
+
+def _log_mpc(rec, objective, d, plots: list, times: np.ndarray, free: bool) -> None:
+    """Receding-horizon control (``--controller mpc``): each tick's solve time against the period
+    (``mpc/tick``), and in the 3-D view the predicted path of each 3-D task map of the window at every
+    tick drawn, with the two before it fading (``world/predicted/<map>/<age>``)."""
+    solve = d["mpc_solve_time"]
+    ticks = len(solve)
+    if ticks == 0:
+        return
+    period = float(times[-1]) / ticks
+    t_tick = np.arange(ticks) * period
+    sel = rec_mod.plot_indices(ticks)
+    rec_mod.log_scalars(rec, "mpc/tick", "sim_time", t_tick[sel],
+                        np.column_stack([solve[sel] * 1e3, np.full(len(sel), period * 1e3)]),
+                        names=["solve time (ms)", "period (ms)"])
+    pred = d["mpc_predicted"] if "mpc_predicted" in d else None
+    if pred is None or free:
+        return
+    wanted = {tp.entity for tp in plots if tp.raw.shape[1] == 3 and tp.targets}
+    stream = rec.rec
+    drawn = rec_mod.decimate(ticks, PREDICTIONS)
+    for j, i in enumerate(drawn):
+        stream.set_time("sim_time", duration=float(t_tick[i]))
+        for age in range(len(FADE)):
+            if j - age < 0:
+                continue
+            window = np.asarray(pred[drawn[j - age]], float)
+            for tp in task_plots(objective, window):
+                if tp.entity in wanted:
+                    rec_mod.log_points_path(rec, f"world/predicted/{tp.entity}/{age}", tp.raw,
+                                            color=(40, 200, 120, FADE[age]), radius=0.002, static=False)
 
 
 def _execute_blueprint(plots: list, joint_names, eye, free: bool, extra: list | tuple = ()):

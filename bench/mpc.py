@@ -1,0 +1,191 @@
+"""Receding-horizon control's tick time on a 7-DOF arm: R-AICO against crocoddyl's FDDP in one harness.
+
+``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md`` and
+``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the plan's controller and under MPC, its runs
+cached in ``DIR/bench/mpc``).
+
+The problems: ``problems/examples/xarm7_reach.toml`` and ``problems/crocoddyl/kinova_reach_in_range.toml``
+(7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms, T = 100) with their hard bounds as the plan
+stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
+iteration) and the thesis's relinearization inside the sweep (``theta = 0.1``). The controller
+(``planning.mpc.MPC``): horizon H = 50 (0.5 s), one iteration per tick, each window warm-started from
+the previous one shifted by a step; the first window solved beforehand (``prepare``, 50 iterations, not
+timed). The loop is closed on the planning model itself (no simulator in the timed path): every tick
+measures the state the previous control led to. Tick time: the wall time of ``MPC.tick``'s solve
+(window update, warm start, the solver's iteration, the controller read out), per tick; median and
+99th percentile over the run. One process, one run per solver, BLAS single-threaded, on a shared
+machine: the ratio means more than the absolute times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBLEMS = {"xArm7 reach": "problems/examples/xarm7_reach.toml",
+            "Kinova reach (in range)": "problems/crocoddyl/kinova_reach_in_range.toml"}
+HORIZON = 50
+TARGET_MEDIAN_S, TARGET_P99_S = 1e-3, 2e-3
+SOLVERS = (("R-AICO (alpha 1, one linearization per tick)", "raico", {"alpha": 1.0, "theta": math.inf}),
+           ("R-AICO (alpha 1, relinearized in the sweep, theta 0.1)", "raico", {"alpha": 1.0}),
+           ("FDDP / BoxFDDP", "fddp", None))
+
+
+def _problem(path: str):
+    from stages.plan.stage import PlanConfig, build_problem
+
+    cfg = PlanConfig(problem=str(ROOT / path), dynamics="analytic", q0_std=0.0)
+    return build_problem(cfg)[2]
+
+
+def run_one(problem, solver: str, options, ticks: int) -> dict:
+    """One closed loop of ``ticks`` ticks: tick times (s), iterations, the last window cost, whether x stayed finite."""
+    from planning.mpc import MPC
+    from planning.problem import single_threaded_blas
+
+    mpc = MPC(problem, HORIZON, solver, options, iterations=1, ticks=ticks)
+    with single_threaded_blas():
+        mpc.prepare(problem.x0, 50)
+        x = problem.x0.copy()
+        for _ in range(ticks):
+            u, _, _ = mpc.tick(x)
+            x = problem.dynamics.step(x, u)
+            if not np.all(np.isfinite(x)):   # the loop blew up: no more ticks to time
+                break
+    t = mpc.log.solve_time[:mpc.log.n]
+    return {"ticks": int(mpc.log.n), "median_s": float(np.median(t)), "p99_s": float(np.percentile(t, 99)),
+            "max_s": float(t.max()), "iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
+            "final_window_cost": float(mpc.log.cost[mpc.log.n - 1]), "finite": bool(np.all(np.isfinite(x)))}
+
+
+PUSH = "hand:30:0.9:0.1"   # arm5's reach: 30 N on the hand along world x from 0.9 s for 0.1 s
+PUSH_HORIZON = 100
+
+
+def pushed_arm5(cache) -> dict:
+    """arm5's reach (R-AICO, 30 iterations) executed in Drake pushed on the hand: the plan's controller and
+    MPC (R-AICO, horizon 100, one iteration per 2 ms period); the final target's error (m) of each and the
+    arrays the figure draws."""
+    from pipeline.engine.runner import run
+    from stages.execute import ExecuteConfig
+    from stages.plan.stage import PlanConfig
+
+    plan = run(cache, "plan", PlanConfig(plant="arm5", task="reach", solver="raico", iterations=30), record=False)
+    out: dict = {"plan": plan.path}
+    configs = {"plan's controller": ExecuteConfig(plan=plan.key, push=(PUSH,)),
+               "MPC R-AICO": ExecuteConfig(plan=plan.key, push=(PUSH,), controller="mpc", horizon=PUSH_HORIZON,
+                                           solver="raico")}
+    for name, cfg in configs.items():
+        ex = run(cache, "execute", cfg, record=False)
+        out[name] = {"path": ex.path, "status": ex.status,
+                     "final_error_m": ex.metrics["via_point_errors"]["via_x2@1000"],
+                     "first_via_error_m": ex.metrics["via_point_errors"]["via_x1@500"],
+                     "median_tick_s": ex.metrics.get("mpc_median_tick_s")}
+    return out
+
+
+def figure(pushed: dict, path: Path) -> None:
+    """The hand's path (in the plane it moves in most) of the pushed arm5: planned, under the plan's controller, under MPC, and
+    MPC's predicted windows every 50 ticks (pale: early, dark: late); the via-points as crosses."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.recordings.tasks import task_plots
+    from planning.objective import objective_from_description
+
+    desc = json.loads((Path(pushed["plan"]) / "problem.json").read_text())
+    objective = objective_from_description(desc)
+
+    def hand(X: np.ndarray) -> np.ndarray:
+        tp = next(p for p in task_plots(objective, np.asarray(X, float)) if p.entity == "ee")
+        return tp.raw
+
+    pd_roll = np.load(Path(pushed["plan's controller"]["path"]) / "rollout.npz")
+    mpc_roll = np.load(Path(pushed["MPC R-AICO"]["path"]) / "rollout.npz")
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    spread = np.ptp(np.vstack([hand(pd_roll["X_plan"]), hand(mpc_roll["X"]), hand(pd_roll["X"])]), axis=0)
+    a, b = sorted(np.argsort(spread)[-2:])   # the plane the hand moves in most
+    pred = mpc_roll["mpc_predicted"]
+    every = 50
+    for i in range(0, len(pred), every):
+        P = hand(pred[i])
+        ax.plot(P[:, a], P[:, b], color=plt.cm.Blues(0.25 + 0.75 * i / len(pred)), lw=0.8)
+    ax.plot([], [], color=plt.cm.Blues(0.8), lw=0.8, label=f"MPC's predicted windows (every {every} ticks)")
+    for X, style, label in ((pd_roll["X_plan"], dict(color="0.6", ls="--"), "planned"),
+                            (pd_roll["X"], dict(color="tab:red"), "plan's controller, pushed"),
+                            (mpc_roll["X"], dict(color="tab:green"), "MPC (R-AICO), pushed")):
+        P = hand(X)
+        ax.plot(P[:, a], P[:, b], lw=1.6, label=label, **style)
+    tp = next(p for p in task_plots(objective, np.asarray(pd_roll["X_plan"], float)) if p.entity == "ee")
+    for _, target in tp.targets:
+        ax.plot(target[a], target[b], "kx", ms=9, mew=2)
+    e_pd, e_mpc = (pushed[k]["final_error_m"] * 100 for k in ("plan's controller", "MPC R-AICO"))
+    v_pd, v_mpc = (pushed[k]["first_via_error_m"] * 100 for k in ("plan's controller", "MPC R-AICO"))
+    ax.set(aspect="equal", xlabel=f"hand {'xyz'[a]} (m)", ylabel=f"hand {'xyz'[b]} (m)",
+           title=f"arm5's reach pushed ({PUSH}); plan's controller / MPC (horizon {PUSH_HORIZON} steps):\n"
+                 f"final target off by {e_pd:.1f} / {e_mpc:.1f} cm, first via-point by {v_pd:.1f} / {v_mpc:.1f} cm")
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = None) -> str:
+    lines = [f"7-DOF arms, horizon {HORIZON} at dt = 10 ms, one iteration per tick, the loop closed on the planning "
+             f"model; target: median <= {TARGET_MEDIAN_S * 1e3:g} ms, p99 <= {TARGET_P99_S * 1e3:g} ms. Machine: "
+             f"{os.cpu_count()} cores, 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the end.", "",
+             "| problem | solver | ticks | median tick (ms) | p99 tick (ms) | max (ms) | loop stayed finite | "
+             "meets the target |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ok = r["finite"] and r["median_s"] <= TARGET_MEDIAN_S and r["p99_s"] <= TARGET_P99_S
+        lines.append(f"| {r['problem']} | {r['solver']} | {r['ticks']} | {r['median_s'] * 1e3:.3f} | "
+                     f"{r['p99_s'] * 1e3:.3f} | {r['max_s'] * 1e3:.3f} | {'yes' if r['finite'] else 'no'} | "
+                     f"{'yes' if ok else 'no'} |")
+    if pushed is not None:
+        lines += ["", f"Pushed in Drake: arm5's reach (R-AICO, 30 iterations), `--push {PUSH}`; the final via-point's "
+                  "error, the first one's (1 s, the push ends at it) and the execution's status:", "",
+                  "| controller | final target error (cm) | first via-point error (cm) | status | median tick (ms) |",
+                  "|---|---|---|---|---|"]
+        for name in ("plan's controller", "MPC R-AICO"):
+            r = pushed[name]
+            tick = "-" if r["median_tick_s"] is None else f"{r['median_tick_s'] * 1e3:.2f}"
+            lines.append(f"| {name} | {r['final_error_m'] * 100:.2f} | {r['first_via_error_m'] * 100:.2f} | "
+                         f"{r['status']} | {tick} |")
+        lines += ["", "![the pushed arm5](mpc_pushed_arm5.png)"]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--artifacts", default="artifacts")
+    ap.add_argument("--ticks", type=int, default=100)
+    args = ap.parse_args(argv)
+    from pipeline.engine.cache import Cache
+
+    out = Path(args.artifacts) / "bench"
+    out.mkdir(parents=True, exist_ok=True)
+    rows, start = [], os.getloadavg()[0]
+    for name, path in PROBLEMS.items():
+        problem = _problem(path)
+        for label, solver, opts in SOLVERS:
+            rows.append({"problem": name, "solver": label, **run_one(problem, solver, opts, args.ticks)})
+    pushed = pushed_arm5(Cache(out / "mpc"))
+    figure(pushed, out / "mpc_pushed_arm5.png")
+    (out / "mpc.json").write_text(json.dumps({"rows": rows, "pushed": pushed}, indent=2, allow_nan=True))
+    page = markdown(rows, (start, os.getloadavg()[0]), pushed)
+    (out / "mpc.md").write_text(page)
+    sys.stdout.write(page)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
