@@ -33,7 +33,7 @@ Non-finite query rows give NaN outputs (and NaN gradients), never an exception.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -611,8 +611,8 @@ class GPModel(GPBase):
     def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPBase:
         """Inverse of ``to_arrays`` (uses the stored factor when present, else refactorizes); the
         arrays of a :class:`SparseGPModel` (they hold ``Z_train``) give a ``SparseGPModel``."""
-        if cls is GPModel and ANGLE_KEY in arrays:
-            return AngleInputGP.from_arrays(arrays)
+        if cls is GPModel and ANGLE_KEY in arrays:   # answers every query of a GPBase (in the raw inputs)
+            return cast(GPBase, AngleInputGP.from_arrays(arrays))
         if cls is GPModel and "Z_train" in arrays:
             return SparseGPModel.from_arrays(arrays)
         g = cls._stored(arrays, {"Z", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"}, "GP")

@@ -459,7 +459,7 @@ def fit_document(cfg: FitConfig, data: DataSet, res: FitResult, prior: Artifact 
         "prior": prior.ref if prior else None, "schedule": cfg.schedule, "holdout": cfg.holdout,
         "stride": cfg.stride, "gp": cfg.gp, "residual": cfg.residual,
         **{k: data.robot[k] for k in ("robot", "robot_true") if data.robot and k in data.robot},
-        "n_inducing": m.M if isinstance(_inner(m), SparseGPModel) else None,
+        "n_inducing": inner.M if isinstance(inner := _inner(m), SparseGPModel) else None,
         "angle_inputs": [names[i] for i in data.angle_inputs],
         "mode": res.mode, "optimized": res.mode == "optimized", "fit_time_s": res.fit_time_s,
         "hyperparameters": {j: {"length_scales": m.ell[i].tolist(), "sf2": float(m.sf2[i]),
