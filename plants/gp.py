@@ -33,7 +33,7 @@ Non-finite query rows give NaN outputs (and NaN gradients), never an exception.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -611,6 +611,8 @@ class GPModel(GPBase):
     def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> GPBase:
         """Inverse of ``to_arrays`` (uses the stored factor when present, else refactorizes); the
         arrays of a :class:`SparseGPModel` (they hold ``Z_train``) give a ``SparseGPModel``."""
+        if cls is GPModel and ANGLE_KEY in arrays:   # answers every query of a GPBase (in the raw inputs)
+            return cast(GPBase, AngleInputGP.from_arrays(arrays))
         if cls is GPModel and "Z_train" in arrays:
             return SparseGPModel.from_arrays(arrays)
         g = cls._stored(arrays, {"Z", "y", "ell", "sf2", "sn2", "x_mean", "x_std", "y_mean", "y_std"}, "GP")
@@ -836,6 +838,126 @@ class SparseGPModel(GPBase):
         else:
             self._factorize()
         return self
+
+
+ANGLE_KEY = "angle_inputs"  # in a GP's stored arrays: the raw input columns it reads as (sin, cos)
+
+
+def angle_features(X: np.ndarray, wrap: np.ndarray) -> np.ndarray:
+    """Inputs ``X (M, d)`` with each column of ``wrap`` (an angle, rad) replaced by its sine and its cosine
+    appended: ``(M, d + len(wrap))``, the GP inputs of a continuous joint (PILCO's ``gTrig``): the angles
+    ``theta`` and ``theta + 2 pi k`` are the same input. NaN stays NaN."""
+    X = np.asarray(X, float)
+    F = np.concatenate([X, np.cos(X[..., wrap])], axis=-1)
+    F[..., wrap] = np.sin(X[..., wrap])
+    return F
+
+
+def angle_jacobian(X: np.ndarray, wrap: np.ndarray) -> np.ndarray:
+    """``d angle_features / dX`` ``(M, d + len(wrap), d)`` at ``X (M, d)``: the identity, but
+    ``d sin/d theta = cos`` in the angle's row and ``d cos / d theta = -sin`` in its appended row."""
+    X = np.asarray(X, float)
+    M, d = X.shape
+    J = np.zeros((M, d + len(wrap), d))
+    J[:, np.arange(d), np.arange(d)] = 1.0
+    for i, c in enumerate(np.asarray(wrap, int)):
+        J[:, c, c] = np.cos(X[:, c])
+        J[:, d + i, c] = -np.sin(X[:, c])
+    return J
+
+
+class AngleInputGP:
+    """A GP (``inner``, exact or sparse) over :func:`angle_features` of its physical inputs: the raw inputs'
+    columns ``wrap`` (the angles of continuous joints, rad) enter as ``(sin, cos)``, so a pole that spun turns
+    gives data at the same GP inputs as one that did not. Queries take the raw inputs ``(M, d)``; the
+    gradients are the inner GP's through the chain rule (``angle_jacobian``), exact at the point. No
+    compiled linearization or rollout (``point_linearizer`` and ``controller_rollout`` are None: the
+    callers step in Python); everything else (hyperparameters, scaling, likelihood) is the inner GP's."""
+
+    def __init__(self, inner: GPBase, wrap: np.ndarray):
+        self.inner = inner
+        self.wrap = np.asarray(wrap, int).reshape(-1)
+        if len(self.wrap) == 0 or inner.d <= 2 * len(self.wrap) or np.any(self.wrap >= inner.d - len(self.wrap)):
+            raise ValueError(f"angle inputs {self.wrap.tolist()} do not fit a GP of {inner.d} feature inputs")
+
+    def __getattr__(self, name: str):
+        if name in ("inner", "wrap"):
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    @property
+    def d(self) -> int:
+        """Raw inputs."""
+        return self.inner.d - len(self.wrap)
+
+    @property
+    def D(self) -> int:
+        return self.inner.D
+
+    def _features(self, Xq: np.ndarray) -> np.ndarray:
+        Xq = _as_2d(np.asarray(Xq, float), "Xq")
+        if Xq.shape[1] != self.d:
+            raise ValueError(f"a query has {self.d} entries, got {Xq.shape[1]}")
+        return angle_features(Xq, self.wrap)
+
+    def predict(self, Xq: np.ndarray, *, noisy: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """``GPBase.predict`` at raw inputs ``Xq (M, d)``."""
+        return self.inner.predict(self._features(Xq), noisy=noisy)
+
+    def predict_mean(self, Xq: np.ndarray) -> np.ndarray:
+        """``GPBase.predict_mean`` at raw inputs ``Xq (M, d)``."""
+        return self.inner.predict_mean(self._features(Xq))
+
+    def mean_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``(M, D)`` and its gradient ``(M, D, d)`` in the raw inputs (chain rule)."""
+        Xq = _as_2d(np.asarray(Xq, float), "Xq")
+        m, g = self.inner.mean_with_gradients(self._features(Xq))
+        return m, g @ angle_jacobian(Xq, self.wrap)
+
+    def predict_with_gradients(self, Xq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Mean, latent variance ``(M, D)`` and their gradients ``(M, D, d)`` in the raw inputs."""
+        Xq = _as_2d(np.asarray(Xq, float), "Xq")
+        m, v, dm, dv = self.inner.predict_with_gradients(self._features(Xq))
+        J = angle_jacobian(Xq, self.wrap)
+        return m, v, dm @ J, dv @ J
+
+    def point_mean_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``(D,)`` and gradient ``(D, d)`` at one raw input ``x (d,)`` (the inner GP's compiled point call)."""
+        x = np.asarray(x, float).reshape(-1)
+        if x.shape != (self.d,):
+            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        m, g = self.inner.point_mean_with_gradients(angle_features(x[None, :], self.wrap)[0])
+        return m, g @ angle_jacobian(x[None, :], self.wrap)[0]
+
+    def point_predict_with_gradients(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``predict_with_gradients`` at one raw input ``x (d,)``."""
+        x = np.asarray(x, float).reshape(-1)
+        if x.shape != (self.d,):
+            raise ValueError(f"a query has {self.d} entries, got {x.shape}")
+        m, v, dm, dv = self.inner.point_predict_with_gradients(angle_features(x[None, :], self.wrap)[0])
+        J = angle_jacobian(x[None, :], self.wrap)[0]
+        return m, v, dm @ J, dv @ J
+
+    def point_linearizer(self, dt: float) -> None:
+        """No compiled linearization through the features (the sweeps call ``linearize``)."""
+        return None
+
+    def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray, dt: float) -> None:
+        """No compiled rollout through the features (the caller steps in Python)."""
+        return None
+
+    def to_arrays(self, *, include_factor: bool = True) -> dict[str, np.ndarray]:
+        """The inner GP's arrays and ``ANGLE_KEY``."""
+        return {**self.inner.to_arrays(include_factor=include_factor), ANGLE_KEY: self.wrap.astype(float)}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> AngleInputGP:
+        """Inverse of :meth:`to_arrays`."""
+        wrap = np.asarray(arrays[ANGLE_KEY], float).reshape(-1).astype(int)
+        return cls(GPModel.from_arrays({k: v for k, v in arrays.items() if k != ANGLE_KEY}), wrap)
+
+    def copy(self) -> AngleInputGP:
+        return AngleInputGP.from_arrays(self.to_arrays())
 
 
 def _as_2d(A: np.ndarray, name: str) -> np.ndarray:

@@ -7,7 +7,9 @@ State ``x = (q, qdot)`` (rad, rad/s, ``n_x = 2 n_q``), control ``u`` (N m, ``n_u
 analytic input gradients, so it is exact at the point (``a = f(x, u) - A x - B u``);
 ``linearize_trajectory`` makes one GP call for all steps. ``predict_variance`` gives the GP's
 latent variance of each ``qddot`` and its gradients for the uncertainty cost (thesis eq. 4.3).
-Non-finite inputs give NaN outputs, never an exception.
+Non-finite inputs give NaN outputs, never an exception. A fit of a robot with continuous joints stores a
+``plants.gp.AngleInputGP``: its GP reads those angles as ``(sin, cos)`` and its gradients in ``(q, qdot, u)``
+come through the chain rule, so the linearization below is unchanged (and exact at the point).
 """
 
 from __future__ import annotations
@@ -17,13 +19,13 @@ from collections.abc import Mapping
 import numpy as np
 
 from plants.dynamics import SemiImplicitEuler, stepped_rollout
-from plants.gp import GPBase, GPModel
+from plants.gp import AngleInputGP, GPBase, GPModel
 
 
 class LearnedDynamics(SemiImplicitEuler):
     """Dynamics model (``plants.dynamics.Dynamics``) whose accelerations are a GP's mean."""
 
-    def __init__(self, model: GPBase, n_q: int, dt: float):
+    def __init__(self, model: GPBase | AngleInputGP, n_q: int, dt: float):
         if model.D != n_q or model.d <= 2 * n_q:
             raise ValueError(f"GP with {model.d} inputs and {model.D} outputs does not fit a robot with {n_q} joints")
         self.model = model
@@ -124,7 +126,7 @@ class ResidualDynamics(LearnedDynamics):
     The variance (the uncertainty term) is the GP's alone: the model file adds none. No compiled
     one-point linearization or rollout (``c_linearizer`` is None): the sweeps call ``linearize``."""
 
-    def __init__(self, model: GPBase, base, dt: float):
+    def __init__(self, model: GPBase | AngleInputGP, base, dt: float):
         super().__init__(model, base.n_q, dt)
         if abs(base.dt - self.dt) > 1e-12:
             raise ValueError(f"the base model's step {base.dt} s differs from {dt} s")

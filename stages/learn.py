@@ -16,6 +16,10 @@ per-joint random torques), the plans are the problem's with ``--dynamics learned
 executions run on ``[robot.true]``'s robot where the file states one. ``--residual`` fits the GP
 to what the model file misses (``stages.fit``) and plans with model + GP.
 
+An episode whose execution gives no data (its plan diverged, or was not finite and so not executed) is
+followed by a random episode (babbling with its own seed, ``RECOVERY_SEED``) whose data join the next fit
+and whose seconds count as executed: without it the next fit, plan and divergence would be the same.
+
 A parameter goes one way: the CLI fills :class:`LearnConfig`, which derives each step's config
 (:meth:`LearnConfig.plan_config`, :meth:`LearnConfig.fit_config`, ...); the plan config carries
 ``alpha`` and the uncertainty term's ``sigma_*`` to the plan stage, which normalizes and checks them
@@ -253,8 +257,16 @@ class LearnConfig(StageConfig):
 
         return replace(self.babble_config(), seed=(self.seed + HELDOUT_SEED) % 2**32)
 
+    def recovery_babble_config(self, episode: int):
+        """The random episode that replaces episode ``episode``'s execution when it gave no data (its plan
+        diverged or was not finite): babbling as :meth:`babble_config` with its own seed (``RECOVERY_SEED``)."""
+        from dataclasses import replace
+
+        return replace(self.babble_config(), seed=(self.seed + RECOVERY_SEED + episode) % 2**32)
+
 
 HELDOUT_SEED = 1_000_003  # seed offset of the held-out babbling
+RECOVERY_SEED = 2_000_003  # seed offset of the random episodes that replace executions without data
 WARM_FROM = ("trajectory", "controls", "none")
 # Per-plant defaults of the options whose 0 means "the plant's": the pendulum as in the thesis (§4.1: 15 babbling
 # points); a 5-joint arm needs more babbling to plan its first reach (BioRob reach, 8 episodes: with 15
@@ -336,24 +348,30 @@ def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.n
     return np.array([dyn.qddot(x[:n], x[n:], u) for x, u in zip(X, tau)]).reshape(-1, n)
 
 
-def own_criterion(crit: dict, q_end: float, status: str) -> dict:
+def own_criterion(crit: dict, q_end: float, status: str, v_end: float = 0.0) -> dict:
     """The task's own criterion (a problem file's ``[achieved]``: ``joint`` within ``tol`` rad of ``angle`` at the
-    execution's end, the angle wrapped) as a task verdict (the fields of ``planning.costs.task_verdict``): judged
-    on the final state of a run that neither diverged nor fell (a run that lost tracking of its plan but ends at
-    the goal achieved the task; its status says it did not follow the plan)."""
+    execution's end, the angle wrapped, and its speed ``|v_end|`` within ``velocity_tol`` rad/s where stated) as a
+    task verdict (the fields of ``planning.costs.task_verdict``, with ``speed`` and ``velocity_tol``): judged on
+    the final state of a run that neither diverged nor fell (a run that lost tracking of its plan but ends at
+    the goal achieved the task; its status says it did not follow the plan). A non-finite end fails."""
     err = float(abs((q_end - crit["angle"] + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")
-    return {"achieved": bool(status not in ("diverged", "fell") and err <= crit["tol"]), "worst": crit["joint"],
-            "kind": "end angle", "unit": "rad", "error": err, "tol": float(crit["tol"]), "status": status}
+    speed = float(abs(v_end)) if np.isfinite(v_end) else float("inf")
+    vtol = crit.get("velocity_tol")
+    still = vtol is None or speed <= float(vtol)
+    return {"achieved": bool(status not in ("diverged", "fell") and err <= crit["tol"] and still),
+            "worst": crit["joint"], "kind": "end angle" if vtol is None else "end angle and speed", "unit": "rad",
+            "error": err, "tol": float(crit["tol"]), "status": status, "speed": speed,
+            "velocity_tol": None if vtol is None else float(vtol)}
 
 
-def episode_task(crit: dict | None, q_end: float, metrics: dict, status: str) -> dict | None:
+def episode_task(crit: dict | None, q_end: float, metrics: dict, status: str, v_end: float = 0.0) -> dict | None:
     """An episode's executed task verdict: the task's own criterion where it states one (:func:`own_criterion`),
     else execute's judgement of the execution (``stages.evaluate.metrics.executed_task``: every via-point term
     within its tolerance, in its unit, and status ok); None where the task has neither."""
     from stages.evaluate.metrics import executed_task
 
     if crit is not None:
-        return own_criterion(crit, q_end, status)
+        return own_criterion(crit, q_end, status, v_end)
     return executed_task(metrics.get("task"), status)
 
 
@@ -366,7 +384,11 @@ def task_words(verdict: dict | None) -> str:
     """An episode's verdict as words for its line (``stages.evaluate.metrics.task_note``)."""
     from stages.evaluate.metrics import task_note
 
-    return "no task term to judge" if verdict is None else task_note(verdict)
+    if verdict is None:
+        return "no task term to judge"
+    if verdict.get("velocity_tol") is None:
+        return task_note(verdict)
+    return f"{task_note(verdict)}, end speed {verdict['speed']:.3g} rad/s (tol {verdict['velocity_tol']:g})"
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -395,6 +417,7 @@ def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | Non
     held_out = heldout_set(steps.run("babble", cfg.heldout_babble_config()))
     data, prior, warm = [babble.ref], None, None
     episodes = []
+    babble_s = float((cfg.babble_points - 1) * BABBLE_DT)
     for k in range(1, cfg.episodes + 1):
         fit = steps.run("fit", cfg.fit_config(tuple(data), prior))
         plan = steps.run("plan", cfg.plan_config(model=fit.ref, warm_start=warm))
@@ -408,11 +431,17 @@ def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | Non
         if progress:
             progress(k, cfg.episodes)
         data.append(execution.ref)
+        if m["data_steps"] == 0:   # nothing usable executed: a random episode instead, so the next fit differs
+            rand = steps.run("babble", cfg.recovery_babble_config(k))
+            data.append(rand.ref)
+            episodes[-1]["random_seconds"] = babble_s
+            episodes[-1]["executed_seconds"] += babble_s
+            steps.say(f"learn episode {k}: its execution gave no data (plan {plan.status}, execution "
+                      f"{execution.status}): a random {babble_s:g} s episode executed instead")
         prior = fit.ref
         if plan.status != "diverged":
             warm = plan.ref
     doc = {"babble": babble.key, "episodes": episodes, "config": cfg.key_dict()}
-    babble_s = float((cfg.babble_points - 1) * BABBLE_DT)
     return StageOutput(status="ok", metrics={**summary(episodes, time.perf_counter() - t0), "babble_seconds": babble_s},
                        documents={EPISODES_FILE: doc})
 
@@ -452,8 +481,10 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
         qdd[ok] = true_accelerations(executed, dt, X[ok], tau[ok])
     em, pm = execution.metrics, plan.metrics
     crit = cfg.achieved()   # the task's own criterion (a joint's end angle, on the Drake plant), or None
-    q_end = roll["X"][-1, robot.joint_names.index(crit["joint"])] if crit is not None else float("nan")
-    task = episode_task(crit, q_end, em, str(execution.status))
+    j = robot.joint_names.index(crit["joint"]) if crit is not None else None
+    q_end = roll["X"][-1, j] if j is not None else float("nan")
+    v_end = roll["X"][-1, robot.n_q + j] if j is not None else float("nan")
+    task = episode_task(crit, q_end, em, str(execution.status), v_end)
     planned = pm.get("task")   # the plan stage's verdict of the planned trajectory (its via-point terms)
     per_joint, per_joint_n = gp_joint_errors(model, X, tau, qdd)
     held = {}
@@ -474,7 +505,7 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
             "fit_time_s": fit.metrics.get("fit_time_s"), "plan_time_s": pm.get("wall_time_s"),
             "execute_time_s": execution.timings.get("compute_s"),
             "n_points": fit.metrics.get("n_points"), "optimized": fit.metrics.get("optimized"),
-            "executed_seconds": float(K * dt), "final_cost": pm.get("final_cost"),
+            "executed_seconds": float(np.sum(ok) * dt), "random_seconds": 0.0, "final_cost": pm.get("final_cost"),
             "fit": fit.key, "plan": plan.key, "execute": execution.key}
 
 
@@ -482,7 +513,8 @@ def summary(episodes: list[dict], wall: float) -> dict:
     """The ``--json`` metrics: per-episode lists and the first success."""
     keys = ("gp_error", "gp_error_heldout", "gp_nrmse_joint", "gp_nrmse_heldout_joint", "rmse_planned_executed",
             "task_error", "task_unit", "planned_task_error", "achieved", "fit_time_s", "plan_time_s", "execute_time_s",
-            "n_points", "optimized", "execution_status", "executed_seconds", "data_steps", "data_truncated",
+            "n_points", "optimized", "execution_status", "executed_seconds", "random_seconds", "data_steps",
+            "data_truncated",
             "torque_saturation")
     out: dict[str, Any] = {k: [e.get(k) for e in episodes] for k in keys}
     out["episodes_feeding_data"] = sum(1 for e in episodes if e.get("data_steps", 0) > 0)

@@ -51,7 +51,7 @@ from scipy.linalg import lapack
 from scipy.optimize import minimize
 
 from plants._threads import map_outputs
-from plants.gp import NOISE_FLOOR, GPBase, GPModel, SparseGPModel, column_std
+from plants.gp import NOISE_FLOOR, AngleInputGP, GPBase, GPModel, SparseGPModel, column_std
 
 LENGTH_SCALE_BOUNDS = (1e-2, 1e3)  # standardized input units
 SIGNAL_BOUNDS = (1e-3, 1e3)  # sf2, standardized output units
@@ -285,7 +285,7 @@ def subsample_indices(X: np.ndarray, max_points: int, *, recent_fraction: float 
     return np.sort(np.concatenate([np.asarray(chosen, int), np.arange(n_old, N)]))
 
 
-def rmse(model: GPBase, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+def rmse(model: GPBase | AngleInputGP, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Root mean squared error ``(D,)`` of the GP mean on ``X (M, d)`` against ``Y (M, D)`` (physical units)."""
     mean, _ = model.predict(X)
     return np.sqrt(np.mean((mean - Y) ** 2, axis=0))

@@ -61,7 +61,7 @@ from typing import cast
 
 import numpy as np
 
-from plants.gp import GPBase, GPModel, SparseGPModel
+from plants.gp import AngleInputGP, GPBase, GPModel, SparseGPModel, angle_features
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse, subsample_indices
 from stages.registry import DESCRIPTIONS
@@ -175,6 +175,17 @@ class DataSet:
     seg_test: np.ndarray  # (M,) segment number
     robot: dict | None = None  # the robot as a plan's problem.json states it (plant, robot, robot_true)
     residual: bool = False  # targets are qddot - f_model (the module docstring)
+    angle_inputs: tuple[int, ...] = ()  # input columns read as (sin, cos): the continuous joints' angles
+
+
+def angle_inputs(robot) -> tuple[int, ...]:
+    """The GP input columns (joint indices) of ``robot``'s continuous joints: revolute with no position limit
+    (a URDF ``continuous`` joint, the cart-pole's pole), whose angle the GP reads as ``(sin, cos)``
+    (``plants.gp.AngleInputGP``; PILCO's ``gTrig`` of the cart-pole's angle). A limited revolute joint (the
+    pendulum's, +-100 rad; the arms') keeps its raw angle."""
+    return tuple(i for i, name in enumerate(robot.joint_names)
+                 if robot.plant.GetJointByName(name).type_name() == "revolute"
+                 and not np.isfinite(robot.lower[i]) and not np.isfinite(robot.upper[i]))
 
 
 def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
@@ -311,7 +322,7 @@ def load_data(arts: tuple[Artifact, ...], holdout: float, stride: int = 1, resid
         raise ValueError("the data artifacts hold no finite points")
     d, n = X.shape[1], segs[0].Y.shape[1]
     return DataSet(plant=plant, joint_names=tuple(robot.joint_names), sources=sources, X=X, robot=robots[plant],
-                   residual=residual,
+                   residual=residual, angle_inputs=angle_inputs(robot),
                    Y=np.vstack([b for _, b, _ in tr]), source=np.concatenate([c for _, _, c in tr]),
                    X_test=np.vstack([a for a, _ in te]) if te else np.zeros((0, d)),
                    Y_test=np.vstack([b for _, b in te]) if te else np.zeros((0, n)),
@@ -325,7 +336,7 @@ class FitResult:
     """The model and how it was made (``mode``: ``optimized``, ``incremental`` or ``refactorized``,
     the last = the prior's hyperparameters on a capped set, factorized anew)."""
 
-    model: GPBase
+    model: GPBase | AngleInputGP
     mode: str
     fit_time_s: float
     n_at_optimization: int  # training points (before the cap) at the last hyperparameter optimization
@@ -354,8 +365,24 @@ def check_prior(prior: Artifact, data: DataSet, cfg: FitConfig) -> dict:
     return doc
 
 
+def _inner(model) -> GPBase:
+    """The GP over the features of an :class:`plants.gp.AngleInputGP`, else the model itself."""
+    return model.inner if isinstance(model, AngleInputGP) else model
+
+
 def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResult:
-    """Optimize the hyperparameters or update the prior's GP (rule in the module docstring)."""
+    """Optimize the hyperparameters or update the prior's GP (rule in the module docstring); a robot with
+    continuous joints gets an :class:`plants.gp.AngleInputGP` (the GP fit on ``angle_features``)."""
+    wrap = np.array(data.angle_inputs, int)
+    if len(wrap) == 0:
+        return _fit_features(cfg, data.X, data, prior)
+    res = _fit_features(cfg, angle_features(data.X, wrap), data, prior)
+    res.model = AngleInputGP(_inner(res.model), wrap)
+    return res
+
+
+def _fit_features(cfg: FitConfig, X: np.ndarray, data: DataSet, prior: Artifact | None) -> FitResult:
+    """:func:`fit_model` on the GP inputs ``X (N, d')`` (the data's, or their angle features)."""
     n_train = len(data.X)
     if prior is not None:
         doc = check_prior(prior, data, cfg)
@@ -363,20 +390,23 @@ def fit_model(cfg: FitConfig, data: DataSet, prior: Artifact | None) -> FitResul
         N = batch_size(cfg.schedule)
         if N is not None and since < N:
             t0 = time.perf_counter()
-            model = GPModel.from_arrays(prior.arrays(MODEL_FILE))
+            model = _inner(GPModel.from_arrays(prior.arrays(MODEL_FILE)))
             new = ~np.isin(np.array(data.sources)[data.source], doc["data_keys"])
-            model, mode = _add_points(model, data.X[new], data.Y[new], cfg.max_points)
+            model, mode = _add_points(model, X[new], data.Y[new], cfg.max_points)
             return FitResult(model, mode, time.perf_counter() - t0, int(doc["n_train_at_optimization"]),
                              since, [])
     else:
         since = n_train
-    start = GPModel.from_arrays(prior.arrays(MODEL_FILE)) if prior is not None else None
+    start = _inner(GPModel.from_arrays(prior.arrays(MODEL_FILE))) if prior is not None else None
+    if start is not None and start.d != X.shape[1]:
+        raise ValueError(f"prior {prior.ref} has {start.d} GP inputs, this fit {X.shape[1]}: use a prior of the same "
+                         "inputs")
     t0 = time.perf_counter()
     if gp_kind(cfg, n_train) == "sparse":
-        model, info = fit_sparse_gp(data.X, data.Y, inducing=cfg.inducing, restarts=cfg.restarts, seed=cfg.seed,
+        model, info = fit_sparse_gp(X, data.Y, inducing=cfg.inducing, restarts=cfg.restarts, seed=cfg.seed,
                                     max_points=cfg.max_points, start=start)
     else:
-        model, info = fit_gp(data.X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
+        model, info = fit_gp(X, data.Y, restarts=cfg.restarts, seed=cfg.seed, max_points=cfg.max_points,
                              start=start)
     return FitResult(model, "optimized", time.perf_counter() - t0, n_train, since, info["warnings"])
 
@@ -409,7 +439,7 @@ def _add_points(model: GPBase, X: np.ndarray, Y: np.ndarray, max_points: int) ->
     return refit_fixed(model, Xa[kept], Ya[kept]), "refactorized"
 
 
-def heldout_errors(model: GPBase, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
+def heldout_errors(model: GPBase | AngleInputGP, data: DataSet) -> tuple[np.ndarray, np.ndarray]:
     """Held-out RMSE ``(D,)`` (rad/s^2) and RMSE over the held-out targets' std ``(D,)``; NaN without held-out points."""
     if len(data.X_test) == 0:
         nan = np.full(model.D, np.nan)
@@ -429,7 +459,8 @@ def fit_document(cfg: FitConfig, data: DataSet, res: FitResult, prior: Artifact 
         "prior": prior.ref if prior else None, "schedule": cfg.schedule, "holdout": cfg.holdout,
         "stride": cfg.stride, "gp": cfg.gp, "residual": cfg.residual,
         **{k: data.robot[k] for k in ("robot", "robot_true") if data.robot and k in data.robot},
-        "n_inducing": m.M if isinstance(m, SparseGPModel) else None,
+        "n_inducing": inner.M if isinstance(inner := _inner(m), SparseGPModel) else None,
+        "angle_inputs": [names[i] for i in data.angle_inputs],
         "mode": res.mode, "optimized": res.mode == "optimized", "fit_time_s": res.fit_time_s,
         "hyperparameters": {j: {"length_scales": m.ell[i].tolist(), "sf2": float(m.sf2[i]),
                                 "sn2": float(m.sn2[i])} for i, j in enumerate(names)},

@@ -64,7 +64,8 @@ says otherwise, until a solver takes it as a constraint), ``max_distance`` (m, p
 default ``margin + CULL``).
 
 ``[achieved]`` (optional): how an execution is judged achieved where the terms' own errors do not say
-it: ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), wrapped (the pendulum's swing-up).
+it: ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), wrapped (the pendulum's swing-up), and, where
+``velocity_tol`` (rad/s) is stated, with its speed within it (a pole that passes upright is not balanced).
 
 Targets: ``target = "start"`` is the map's value at the start posture ``q0``; ``relative =
 "start"`` adds that value to the target; ``in_frame = "F"`` reads a 3-D position target in frame
@@ -98,7 +99,7 @@ from plants.scene import SHAPES
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "problems"
 TOP_KEYS = {"name", "description", "robot", "horizon", "dynamics", "costs", "achieved", "scene"}
-ACHIEVED_KEYS = {"joint", "angle", "tol"}
+ACHIEVED_KEYS = {"joint", "angle", "tol", "velocity_tol"}
 ROBOT_FACTS = {"order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "learn", "unactuated",
                "gravity"}
 ROBOT_KEYS = {"plant", "file", "packages", "weld", "weld_pose", "locked", "start", "srdf", "armature", "limits",
@@ -280,7 +281,8 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
 
 def _achieved(a) -> dict:
     """``[achieved]``: how an execution of the task is judged achieved, where the terms' own errors do not say it:
-    joint ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), the difference wrapped to (-pi, pi]."""
+    joint ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), the difference wrapped to (-pi, pi], and with a
+    speed within ``velocity_tol`` (rad/s) where it is stated."""
     if not isinstance(a, dict):
         raise ValueError("[achieved] must be a table {joint, angle, tol}")
     _refuse_unknown(a, ACHIEVED_KEYS, "[achieved]")
@@ -289,7 +291,13 @@ def _achieved(a) -> dict:
     tol = _number(a["tol"], "[achieved] tol")
     if tol <= 0:
         raise ValueError(f"[achieved] tol must be > 0 (rad), got {tol}")
-    return {"joint": a["joint"], "angle": _number(a["angle"], "[achieved] angle"), "tol": tol}
+    out = {"joint": a["joint"], "angle": _number(a["angle"], "[achieved] angle"), "tol": tol}
+    if "velocity_tol" in a:
+        vtol = _number(a["velocity_tol"], "[achieved] velocity_tol")
+        if vtol <= 0:
+            raise ValueError(f"[achieved] velocity_tol must be > 0 (rad/s), got {vtol}")
+        out["velocity_tol"] = vtol
+    return out
 
 
 def _robot(r: dict, base: Path) -> dict:
