@@ -44,11 +44,14 @@ More keys, for experiments that carry their own analysis (the thesis's files, th
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
-(bad combination, solver error) is a row with its error; the others go on. After a run the table
-``runs.csv`` and ``runs.json`` (one row per seed and variant: the swept options, the seed, each
-stage's key and status, scalar metrics, the cost curve's first, last and lowest values and the
-iterations to come within 1 % of its lowest, wall times and code version) is written under
-``artifacts/exp/<name>/``; :func:`summarize` groups it over seeds.
+(bad combination, solver error) is a row with its error; the others go on. The grid is generated as it
+is consumed (a grid of 10^5 points starts its first run at once) and runs on any executor
+(:func:`pipeline.engine.executors.stream`: cached runs looked up first, short runs batched). The runs
+table (one row per seed and variant: the swept options, the seed, each stage's key and status, scalar
+metrics, the cost curve's first, last and lowest values and the iterations to come within 1 % of its
+lowest, wall times and code version) is written as runs finish, ``runs.parquet`` under
+``artifacts/exp/<name>/`` (with ``runs.csv`` and ``runs.json`` beside it); :func:`summarize` groups it
+over seeds.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -121,11 +124,13 @@ class Experiment:
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
-        return _variants(self)
+        """Every variant, as a list (:func:`iter_variants` generates them one at a time)."""
+        return list(iter_variants(self))
 
     @property
     def runs(self) -> list[Run]:
-        return [Run(v, s) for v in self.variants for s in (v.seeds or self.seeds)]
+        """Every run, as a list (:func:`iter_runs` generates them one at a time)."""
+        return list(iter_runs(self))
 
     def variant(self, label: str) -> Variant:
         """The variant labelled ``label``; :class:`BadInput` listing the labels if there is none."""
@@ -335,26 +340,107 @@ def _split(exp: Experiment, key: str) -> tuple[str, str]:
     return exp.stages[0], key
 
 
-def _variants(exp: Experiment) -> list[Variant]:
+def _settings(exp: Experiment, grid_only: bool = False) -> Iterator[tuple[Any, dict[str, Any], Any]]:
+    """``(label or None, {key: value}, own seeds)`` of every variant, generated as it is consumed: the
+    grid's combinations (times the [zip] lists), then the points."""
     axes = list(exp.grid.items())
-    combos = [dict(zip([k for k, _ in axes], values)) for values in itertools.product(*[v for _, v in axes])]
+    names = [k for k, _ in axes]
     n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
-    zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
-    grid = [{**c, **z} for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
-    settings: list[tuple[Any, dict[str, Any], Any]] = [(None, s, ()) for s in grid]
-    settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
-                 for p in exp.points]
-    swept_keys = sorted({k for _, s, _ in settings for k in s})
-    out = []
-    for label, setting, seeds in settings:
-        options = {st: dict(opts) for st, opts in exp.base.items()}
-        for key, value in setting.items():
-            stage, option = _split(exp, key)
-            options[stage][option] = value
-        swept = {k: _used_value(exp, options, k) for k in swept_keys}
-        label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
-        out.append(Variant(label, options, swept, tuple(seeds)))
-    return out
+    if axes or exp.zipped or not exp.points:
+        for values in itertools.product(*[v for _, v in axes]):
+            combo = dict(zip(names, values))
+            for i in range(n_zip or 1):
+                yield None, {**combo, **{k: v[i] for k, v in exp.zipped.items()}}, ()
+    if not grid_only:
+        for p in exp.points:
+            yield p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ())
+
+
+def _grid_count(exp: Experiment) -> int:
+    if not (exp.grid or exp.zipped or not exp.points):
+        return 0
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 1
+    return math.prod(len(v) for v in exp.grid.values()) * n_zip
+
+
+def swept_keys(exp: Experiment) -> list[str]:
+    """The options that vary across the experiment: its grid and zip axes and every point's options (a
+    table's option columns); for variants given as a list, the keys of their ``swept``."""
+    if "variants" in exp.__dict__:
+        return sorted({k for v in exp.variants for k in v.swept})
+    keys = set(exp.grid) | set(exp.zipped) if _grid_count(exp) else set()
+    return sorted(keys | {k for p in exp.points for k in p if k not in ("label", "seeds")})
+
+
+def variant_count(exp: Experiment) -> int:
+    """How many variants, without generating them."""
+    if "variants" in exp.__dict__:
+        return len(exp.variants)
+    return _grid_count(exp) + len(exp.points)
+
+
+def run_count(exp: Experiment) -> int:
+    """How many runs, without generating them."""
+    if "variants" in exp.__dict__:
+        return sum(len(v.seeds or exp.seeds) for v in exp.variants)
+    return _grid_count(exp) * len(exp.seeds) + sum(len(p.get("seeds") or exp.seeds) for p in exp.points)
+
+
+def _variant(exp: Experiment, label: Any, setting: dict[str, Any], seeds: Any, keys: list[str]) -> Variant:
+    options = {st: dict(opts) for st, opts in exp.base.items()}
+    for key, value in setting.items():
+        stage, option = _split(exp, key)
+        options[stage][option] = value
+    swept = {k: _used_value(exp, options, k) for k in keys}
+    label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
+    return Variant(label, options, swept, tuple(seeds))
+
+
+def iter_variants(exp: Experiment) -> Iterator[Variant]:
+    """The variants one at a time, in the table's order (a grid of any size starts at once, in bounded
+    memory); those of an experiment whose variants were given as a list, from it."""
+    if "variants" in exp.__dict__:
+        yield from exp.variants
+        return
+    keys = swept_keys(exp)
+    for label, setting, seeds in _settings(exp):
+        yield _variant(exp, label, setting, seeds, keys)
+
+
+def iter_runs(exp: Experiment) -> Iterator[Run]:
+    """The runs one at a time: each variant at each of its seeds, in the table's order."""
+    for v in iter_variants(exp):
+        for seed in v.seeds or exp.seeds:
+            yield Run(v, seed)
+
+
+CHECK_ALL_BELOW = 1000   # variants: a larger grid is checked axis value by axis value, not combination by combination
+
+
+def checked_variants(exp: Experiment) -> Iterator[Variant]:
+    """The variants checked before anything runs: all of them up to :data:`CHECK_ALL_BELOW`; of a larger
+    grid its first combination, one combination per value of each axis (the first with that value) and
+    per [zip] position, and every point (a bad value is found before the runs; a combination that no
+    single value explains is its runs' error in the table)."""
+    if "variants" in exp.__dict__ or variant_count(exp) <= CHECK_ALL_BELOW:
+        yield from iter_variants(exp)
+        return
+    keys = swept_keys(exp)
+    first = {k: v[0] for k, v in exp.grid.items()}
+    zip0 = {k: v[0] for k, v in exp.zipped.items()}
+    seen: set[str] = set()
+    settings = [{**first, **zip0}]
+    settings += [{**first, k: x, **zip0} for k, values in exp.grid.items() for x in values]
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
+    settings += [{**first, **{k: v[i] for k, v in exp.zipped.items()}} for i in range(n_zip)]
+    for setting in settings:
+        v = _variant(exp, None, setting, (), keys)
+        if v.label not in seen:
+            seen.add(v.label)
+            yield v
+    for label, setting, seeds in ((p["label"], {k: x for k, x in p.items() if k not in ("label", "seeds")},
+                                   p.get("seeds", ())) for p in exp.points):
+        yield _variant(exp, label, setting, seeds, keys)
 
 
 def _used_value(exp: Experiment, options: dict, key: str) -> Any:
@@ -403,9 +489,9 @@ def first_config(exp: Experiment, run: Run):
 def validate(exp: Experiment) -> None:
     """Build every run's first-stage config and every later stage's options (with a stand-in input)
     before anything runs: the first bad key or value is one :class:`BadInput` naming the variant."""
-    if not exp.runs:
+    if not run_count(exp):
         raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
-    for v in exp.variants:
+    for v in checked_variants(exp):
         try:
             first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
             for stage in exp.stages[1:]:
@@ -426,7 +512,8 @@ def identical_seeds(exp: Experiment) -> str | None:
 
     ex_defaults = get_stage("execute").config_cls.defaults() if "execute" in exp.stages else {}
     same = []
-    for v in exp.variants:
+    checked = list(checked_variants(exp))
+    for v in checked:
         seeds = v.seeds or exp.seeds
         if len(seeds) < 2:
             continue
@@ -440,7 +527,7 @@ def identical_seeds(exp: Experiment) -> str | None:
     if not same:
         return None
     n = len(exp.seeds)
-    which = "every variant" if len(same) == len(exp.variants) else ", ".join(same[:3]) + (
+    which = "every variant" if len(same) == len(checked) else ", ".join(same[:3]) + (
         f" and {len(same) - 3} more" if len(same) > 3 else "")
     return (f"exp {exp.name}: note: q0_std = 0 (a problem file's default), so the seeds of {which} are identical "
             f"runs ({n} seeds, one result); for initial states that differ set q0_std in [base] "
@@ -494,7 +581,7 @@ def model_notes(exp: Experiment) -> list[str]:
     from stages.plan.stage import load_notes, robot_and_task
 
     lines: list[str] = []
-    for v in exp.variants:
+    for v in checked_variants(exp):
         cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
         if getattr(cfg, "problem", None) is None:
             continue
@@ -541,26 +628,121 @@ def dry_run(cache, exp: Experiment) -> Plan:
     return Plan(exp.runs, [_lookup(cache, exp, r, record=False) is not None for r in exp.runs])
 
 
+@dataclass(frozen=True)
+class _Head:
+    """What a run's row needs of its experiment (sent to workers with each run, not the whole grid)."""
+
+    name: str
+    stages: tuple[str, ...]
+
+
+@dataclass
+class Progress:
+    """Where an experiment is: runs ``done`` of ``total`` (``cached`` and ``failed`` among them), the
+    estimated seconds left (None until a run was computed), the run that just finished."""
+
+    done: int
+    total: int
+    cached: int = 0
+    failed: int = 0
+    eta_s: float | None = None
+    label: str | None = None
+
+    def line(self, name: str) -> str:
+        eta = "" if self.eta_s is None else f", ~{_duration(self.eta_s)} left"
+        return (f"exp {name}: {self.done}/{self.total} runs done ({self.cached} cached, {self.failed} failed{eta})"
+                + (f" ({self.label})" if self.label else ""))
+
+
+def _duration(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
+
+
+@functools.cache
+def _raico_version() -> str:
+    from pipeline.engine.runner import source_version
+
+    return source_version("raico", "pipeline", "stages", "planning", "plants")
+
+
+def worker_identity() -> tuple[str, str]:
+    """``(node, code version)`` of the process it runs in: the node is the Ray node (its address and id)
+    in a Ray worker, else the host; the version hashes raico's code (every stage's key holds its part)."""
+    import socket
+    import sys
+
+    node = socket.gethostname()
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        node = f"{ray.util.get_node_ip_address()} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
+    return node, _raico_version()
+
+
+def _job(args) -> dict:
+    """One run in a worker: ``(root, head, run, record)`` -> its row of the runs table."""
+    from pipeline.engine.cache import Cache
+
+    root, head, run_, record = args
+    result = _run_chain((root, head.stages, run_.variant.options, run_.seed, record))
+    return table_row(Cache(root), head, run_, result)
+
+
+def _cached_row(cache, exp: Experiment, head: _Head, run_: Run, record: bool) -> dict | None:
+    """The run's row where every stage is cached (then nothing is submitted), else None."""
+    result = _lookup(cache, exp, run_, record)
+    return None if result is None else table_row(cache, head, run_, result)
+
+
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[int, int, str | None], None] | None = None) -> list[dict]:
-    """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
-    the runs table and returns its rows."""
-    from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+        progress: Callable[[Progress], None] | None = None) -> list[dict]:
+    """Every run of ``exp`` on ``executor``, the grid generated as it is consumed; cached runs are looked
+    up here before anything is submitted, short runs go in batches (:func:`pipeline.engine.executors.stream`).
+    The runs table is written as runs finish (:class:`TableWriter`) and whole at the end; returns its rows.
+    An interrupt stops the workers; the rows written so far stay (``exp show`` reads them), and a second
+    call recomputes none of the finished runs (they are cached)."""
+    import time
 
-    runs = exp.runs
+    from pipeline.engine.executors import Item, stream
+    from pipeline.errors import Interrupted
 
-    def flow():
-        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record),
-                    f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
-                for r in runs]
-        return (yield Batch("run", jobs))
+    head, root, total = _Head(exp.name, exp.stages), str(cache.root), run_count(exp)
+    writer = TableWriter(cache, exp)
+    state = Progress(0, total)
+    computed_s = 0.0
 
-    events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
-    # an interrupt kills the workers; their temporary folders go with them (cleanup_stale), not at the next call
-    results = run_flow(executor, flow(), events, on_abort=cache.cleanup_stale, scheduled=len(runs))
-    rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
-    write_table(cache, exp, rows)
-    return rows
+    def items() -> Iterator[Item]:
+        for i, r in enumerate(iter_runs(exp)):
+            yield Item(_job, (root, head, r, record), f"{r.variant.label} seed {r.seed}",
+                       lookup=functools.partial(_cached_row, cache, exp, head, r, record), tag=(i, r))
+
+    t0 = time.perf_counter()
+    try:
+        with executor:
+            for done in stream(executor, items(), total=total, probe=worker_identity):
+                i, r = done.item.tag
+                row = done.value if done.error is None else \
+                    table_row(cache, head, r, {exp.stages[0]: {"error": done.error}})
+                writer.add(i, row)
+                state.done += 1
+                state.cached += done.cached
+                state.failed += bool(row["failed"])
+                computed_s = time.perf_counter() - t0
+                computing = state.done - state.cached
+                state.eta_s = computed_s / computing * (total - state.done) if computing else None
+                state.label = done.item.label
+                if progress is not None:
+                    progress(state)
+    except Interrupted as e:  # says how many runs are kept (not what one of them kept)
+        writer.flush()
+        cache.cleanup_stale()   # the killed workers' temporary folders
+        e.finished, e.scheduled, e.note = state.done, total, None
+        raise
+    except BaseException:
+        writer.flush()
+        cache.cleanup_stale()
+        raise
+    return writer.finish()
 
 
 def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
@@ -570,16 +752,16 @@ def run_reported(cache, exp: Experiment, executor: Executor, record: bool, repor
     for line in model_notes(exp):
         reporter.say(line)
     with reporter.board() as board:
-        def progress(done: int, total: int, label: str | None) -> None:
-            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
-            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+        def progress(p: Progress) -> None:
+            board.update(exp.name, f"exp {exp.name} ({p.cached} cached, {p.failed} failed)", p.done, p.total,
+                         p.line(exp.name) if p.label else None)
 
         rows = run(cache, exp, executor, record=record, progress=progress)
     cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     reporter.say(f"exp {exp.name}: {len(rows)} runs ({cached} cached; {len(failed)} failed, of them "
-                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / 'runs.csv'}")
+                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / TABLE}")
     for r in errors[:5]:
         reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     return rows
@@ -622,7 +804,7 @@ def _curve(cache, ref: str) -> dict[str, Any]:
             "cost.iterations_to_1pct": int(within[0]) + 1 if within.size else None}
 
 
-def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
+def table_row(cache, exp: Experiment | _Head, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
     """The runs table's row of one run: variant, swept options, seed, per stage key / status / metrics."""
     row: dict[str, Any] = {"experiment": exp.name, "variant": run.variant.label, **run.variant.swept,
                            "seed": run.seed}
@@ -697,19 +879,161 @@ def table_dir(cache, name: str) -> Path:
     return cache.root / "exp" / name
 
 
+TABLE = "runs.parquet"   # the runs table, columnar (the views read it); runs.csv and runs.json beside it
+PARTS = "runs.parts"     # the rows of a run in progress, a Parquet file per flush, gone when the table is whole
+INDEX = "_run"           # a part's column: the run's place in the experiment's order
+
+
+def _arrow_table(rows: list[dict], columns: list[str] | None = None):
+    """``rows`` as a pyarrow Table (a column of mixed kinds, a number and a word, is written as text)."""
+    import pyarrow as pa
+
+    columns = columns or list(dict.fromkeys(k for r in rows for k in r))
+    arrays = {}
+    for c in columns:
+        values = [r.get(c) for r in rows]
+        try:
+            arrays[c] = pa.array(values)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):
+            arrays[c] = pa.array([None if v is None else str(v) for v in values], pa.string())
+    return pa.table(arrays)
+
+
+def _concat(tables: list):
+    """One table of ``tables`` (their columns united; a column of different kinds across them as text)."""
+    import pyarrow as pa
+
+    try:
+        return pa.concat_tables(tables, promote_options="permissive")
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        kinds: dict[str, set] = {}
+        for t in tables:
+            for f in t.schema:
+                if not pa.types.is_null(f.type):
+                    kinds.setdefault(f.name, set()).add(f.type)
+        mixed = {c for c, k in kinds.items() if len(k) > 1}
+        fixed = []
+        for t in tables:
+            for c in mixed & set(t.column_names):
+                i = t.column_names.index(c)
+                t = t.set_column(i, c, pa.array([None if v is None else str(v) for v in t.column(c).to_pylist()],
+                                                pa.string()))
+            fixed.append(t)
+        return pa.concat_tables(fixed, promote_options="permissive")
+
+
+def _metadata(exp: Experiment) -> dict[str, Any]:
+    return {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
+            "file": str(exp.path) if exp.path else None, "swept": swept_keys(exp)}
+
+
+class TableWriter:
+    """The runs table of one call of :func:`run`, written as runs finish: rows are buffered and flushed
+    every :attr:`FLUSH_ROWS` rows or :attr:`FLUSH_S` seconds as a Parquet file of ``runs.parts/`` (named by
+    host, process and a counter: two calls on one experiment, or on two machines, do not collide);
+    :meth:`finish` puts them together in the experiment's order as ``runs.parquet`` (with ``runs.csv`` and
+    ``runs.json``) and removes them. Memory: one buffer of rows and the columns' order, not the table."""
+
+    FLUSH_ROWS = 500
+    FLUSH_S = 2.0
+
+    def __init__(self, cache, exp: Experiment) -> None:
+        import os
+        import secrets
+        import socket
+        import time
+
+        self.cache, self.exp = cache, exp
+        self.parts = table_dir(cache, exp.name) / PARTS
+        self.prefix = f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}"
+        self.buffer: list[dict] = []
+        self.written: list[Path] = []
+        self.order: dict[str, tuple[int, int]] = {}   # column -> (first run with it, its place in that row)
+        self.flushed_at = time.monotonic()
+        self.started = time.time()
+
+    def add(self, index: int, row: dict) -> None:
+        import time
+
+        for pos, k in enumerate(row):
+            if k not in self.order or (index, pos) < self.order[k]:
+                self.order[k] = (index, pos)
+        self.buffer.append({INDEX: index, **row})
+        if len(self.buffer) >= self.FLUSH_ROWS or time.monotonic() - self.flushed_at >= self.FLUSH_S:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered rows as one part (atomically)."""
+        import os
+        import time
+
+        import pyarrow.parquet as pq
+
+        self.flushed_at = time.monotonic()
+        if not self.buffer:
+            return
+        self.parts.mkdir(parents=True, exist_ok=True)
+        path = self.parts / f"{self.prefix}-{len(self.written):06d}.parquet"
+        tmp = path.with_suffix(".tmp")
+        table = _arrow_table(self.buffer)
+        pq.write_table(table.replace_schema_metadata({"raico": json.dumps(_metadata(self.exp), default=str)}), tmp)
+        os.replace(tmp, path)
+        self.written.append(path)
+        self.buffer = []
+
+    def finish(self) -> list[dict]:
+        """The whole table: written (``runs.parquet``, ``runs.csv``, ``runs.json``), its parts removed; its rows."""
+        import pyarrow.parquet as pq
+
+        self.flush()
+        if self.written:
+            table = _concat([pq.read_table(p) for p in self.written]).sort_by(INDEX)
+            columns = sorted(self.order, key=self.order.__getitem__)
+            rows = [{c: r.get(c) for c in columns} for r in table.drop_columns([INDEX]).to_pylist()]
+        else:
+            rows = []
+        write_table(self.cache, self.exp, rows)
+        for p in self.written:
+            p.unlink(missing_ok=True)
+        _remove_parts_before(self.parts, self.started)
+        return rows
+
+
+def _remove_parts_before(parts: Path, started: float) -> None:
+    """Remove the parts written before ``started`` (an interrupted call's: their runs are cached, so the
+    whole table just written holds them), and the folder if it is empty; a call still running beside
+    this one keeps what it writes from now on."""
+    import contextlib
+
+    for p in parts.glob("*.parquet") if parts.is_dir() else ():
+        with contextlib.suppress(OSError):
+            if p.stat().st_mtime < started:
+                p.unlink()
+    with contextlib.suppress(OSError):
+        parts.rmdir()
+
+
 def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
-    """``runs.csv`` and ``runs.json`` of the experiment (written atomically), with the file's text."""
+    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment (each written atomically), with
+    the file's text."""
+    import os
+
+    import pyarrow.parquet as pq
+
     from pipeline.engine.cache import write_file_atomic
 
     out = table_dir(cache, exp.name)
     out.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for row in rows for k in row))
-    buf = _csv_text(columns, rows)
-    write_file_atomic(out / "runs.csv", buf)
-    doc = {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
-           "file": str(exp.path) if exp.path else None,
+    meta = _metadata(exp)
+    table = _arrow_table(rows, columns).replace_schema_metadata({"raico": json.dumps(meta, default=str)})
+    tmp = out / f".{TABLE}.{os.getpid()}.tmp"
+    pq.write_table(table, tmp)
+    os.replace(tmp, out / TABLE)
+    write_file_atomic(out / "runs.csv", _csv_text(columns, rows))
+    doc = {**{k: v for k, v in meta.items() if k != "swept"},
            "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
-           "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
+           "swept": meta["swept"], "rows": rows}
     from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
@@ -735,20 +1059,51 @@ def _csv_text(columns: list[str], rows: list[dict]) -> str:
 # ----------------------------------------------------------------------------- reading the table
 def read_table(cache, name_or_file: str):
     """The runs table (a pandas ``DataFrame``) of an experiment by name or by its file, and the swept
-    option columns; :class:`BadInput` if it has not run."""
+    option columns: ``runs.parquet``, with the rows of a run in progress (``runs.parts/``) over it (an
+    experiment of an older raico: its ``runs.json``); :class:`BadInput` if it has not run."""
     import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
     name = name_or_file
     p = Path(name_or_file)
     if p.suffix == ".toml" and p.exists():
         name = load(p).name
-    path = table_dir(cache, name) / "runs.json"
+    folder = table_dir(cache, name)
+    parts = sorted((folder / PARTS).glob("*.parquet")) if (folder / PARTS).is_dir() else []
+    df, swept = None, None
     try:
-        doc = json.loads(path.read_text())
+        table = pq.read_table(folder / TABLE)
+        swept = json.loads((table.schema.metadata or {}).get(b"raico", b"{}")).get("swept")
+        df = table.to_pandas()
     except FileNotFoundError:
+        with _suppress_missing():
+            doc = json.loads((folder / "runs.json").read_text())
+            df, swept = pd.DataFrame(doc["rows"]), doc.get("swept", [])
+    except (OSError, pa.ArrowInvalid) as e:
+        raise BadInput(f"the runs table {folder / TABLE} cannot be read: {e}") from None
+    live = []
+    for part in parts:
+        try:
+            t = pq.read_table(part)
+        except (OSError, pa.ArrowInvalid):   # a part being replaced as it is read: the next look has it
+            continue
+        swept = swept if swept is not None else json.loads((t.schema.metadata or {}).get(b"raico", b"{}")).get("swept")
+        live.append(t)
+    if live:
+        new = _concat(live).sort_by(INDEX).drop_columns([INDEX]).to_pandas()
+        df = new if df is None else pd.concat([df, new], ignore_index=True).drop_duplicates(
+            ["variant", "seed"], keep="last").reset_index(drop=True)
+    if df is None:
         raise BadInput(f"no runs table of experiment '{name}' under {cache.root / 'exp'}: "
-                       "`raico exp run FILE` makes it") from None
-    return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
+                       "`raico exp run FILE` makes it")
+    return df, list(swept or [])
+
+
+def _suppress_missing():
+    import contextlib
+
+    return contextlib.suppress(FileNotFoundError)
 
 
 def query(df, where: str | None):

@@ -1,0 +1,148 @@
+"""Many runs (``pipeline.engine.executors.stream``, ``expfile.run``): a grid generated as it is consumed,
+runs batched into tasks (one failing run reports itself, its batch's others finish), resumed experiments
+recompute nothing finished, the runs table written as runs finish, a worker's code version checked.
+
+Module level imports stay light: pool workers import this module for its job functions."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import pytest
+
+PENDULUM = '''
+name = "{name}"
+stages = ["plan"]
+seeds = "range({seeds})"
+[base]
+plant = "pendulum"
+task = "swing-up"
+dynamics = "analytic"
+solver = "raico"
+iterations = 2
+q0_std = 0.05
+[grid]
+{grid}
+'''
+
+
+def pendulum(tmp_path: Path, grid: str, seeds: int = 2, name: str = "pend") -> Path:
+    path = tmp_path / f"{name}.toml"
+    path.write_text(PENDULUM.format(name=name, seeds=seeds, grid=grid))
+    return path
+
+
+# ----------------------------------------------------------------------------- job functions (run in workers)
+def _square_or_fail(x: int) -> int:
+    if x == 5:
+        raise ZeroDivisionError("run 5 divides by zero")
+    return x * x
+
+
+class Stop(Exception):
+    """Raised by a progress callback: the experiment stops there."""
+
+
+# ----------------------------------------------------------------------------- tests
+def test_a_lazy_grid_starts_its_first_run_before_the_grid_is_enumerated(tmp_path, monkeypatch):
+    """10^5 points (two axes): checked axis value by axis value, counted without enumerating, and the first
+    run finishes when a handful of runs have been generated."""
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import make_executor
+    from pipeline.experiments import expfile
+
+    alphas = ", ".join(str(0.1 + i / 1000) for i in range(1000))
+    stds = ", ".join(str(0.01 + i / 10000) for i in range(100))
+    exp = expfile.load(pendulum(tmp_path, f"alpha = [{alphas}]\nq0_std = [{stds}]", seeds=1))
+    expfile.validate(exp)
+    assert expfile.run_count(exp) == 100_000 and expfile.variant_count(exp) == 100_000
+    assert len(list(expfile.checked_variants(exp))) == 1 + 1000 + 100 - 2   # the first combination once
+    generated = []
+    runs = expfile.iter_runs
+
+    def counted(e):
+        for r in runs(e):
+            generated.append(r)
+            yield r
+
+    monkeypatch.setattr(expfile, "iter_runs", counted)
+
+    def first(p: expfile.Progress) -> None:
+        raise Stop(len(generated), p.done, p.total)
+
+    with pytest.raises(Stop) as stop:
+        expfile.run(Cache(tmp_path / "arts"), exp, make_executor("serial", 1), progress=first)
+    n_generated, done, total = stop.value.args
+    assert (done, total) == (1, 100_000) and n_generated <= 2
+    assert "variants" not in exp.__dict__   # the list of every variant was never made
+
+
+def test_a_failing_run_in_a_batch_reports_itself_and_the_others_finish():
+    """Ten runs in tasks of four on two worker processes: run 5 raises; it is reported with its error
+    (the exception's kind and text), and every other run of its task and of the others has its value."""
+    from pipeline.engine.executors import Item, make_executor, stream
+
+    with make_executor("process", 2) as pool:
+        done = list(stream(pool, (Item(_square_or_fail, i, tag=i) for i in range(10)), batch=4))
+    by = {d.item.tag: d for d in done}
+    assert sorted(by) == list(range(10))
+    assert by[5].error == "ZeroDivisionError: run 5 divides by zero" and by[5].value is None
+    assert all(by[i].error is None and by[i].value == i * i for i in range(10) if i != 5)
+
+
+def test_an_interrupted_experiment_resumed_recomputes_nothing_finished(tmp_path, monkeypatch):
+    """Interrupted after 3 of 8 runs (SIGINT, as Ctrl-C): the rows so far are readable (written as runs
+    finish); the second call finds those 3 cached, computes the other 5 only, and its table equals the
+    table of the same experiment run in one go elsewhere, value by value."""
+    from pipeline.engine.cache import Cache
+    from pipeline.engine.executors import make_executor
+    from pipeline.errors import Interrupted
+    from pipeline.experiments import expfile
+
+    monkeypatch.setattr(expfile.TableWriter, "FLUSH_ROWS", 1)
+    exp = expfile.load(pendulum(tmp_path, "alpha = [0.5, 1.0, 2.0, 4.0]"))
+    cache = Cache(tmp_path / "arts")
+    seen = []
+
+    def interrupt_at_3(p: expfile.Progress) -> None:
+        seen.append(len(expfile.read_table(cache, exp.name)[0]))
+        if p.done == 3:
+            raise Interrupted(signal.SIGINT)
+
+    with pytest.raises(Interrupted) as stop:
+        expfile.run(cache, exp, make_executor("serial", 1), progress=interrupt_at_3)
+    assert (stop.value.finished, stop.value.scheduled) == (3, 8) and seen == [1, 2, 3]
+    finished = {(r["variant"], r["seed"]) for r in expfile.read_table(cache, exp.name)[0].to_dict("records")}
+    rows = expfile.run(cache, exp, make_executor("serial", 1))
+    cached = {(r["variant"], r["seed"]) for r in rows if r["plan.cached"]}
+    assert cached == finished and len(rows) == 8
+    fresh = expfile.run(Cache(tmp_path / "fresh"), exp, make_executor("serial", 1))
+    columns = ("variant", "alpha", "seed", "plan.key", "plan.final_cost", "plan.cost.min", "status")
+    assert [[r[c] for c in columns] for r in rows] == [[r[c] for c in columns] for r in fresh]
+    assert not (expfile.table_dir(cache, exp.name) / expfile.PARTS).exists()   # the whole table replaced them
+
+
+def test_a_node_running_other_code_is_named_in_one_line():
+    from pipeline.engine.executors import VersionMismatch, _check_version
+
+    _check_version(("head", "raico+abc"), ("head", "raico+abc"))
+    with pytest.raises(VersionMismatch) as e:
+        _check_version(("10.0.0.7 (Ray node 1234abcd)", "raico+def"), ("head", "raico+abc"))
+    assert str(e.value).startswith("node 10.0.0.7 (Ray node 1234abcd) runs code version raico+def, this head "
+                                   "raico+abc") and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--executor", "dask"], "unknown executor 'dask': choose one of serial, process, ray"),
+    (["--address", "127.0.0.1:6379"], "--address goes with --executor ray"),
+    (["--executor", "ray", "--address", "nohost"], "--address nohost: give HOST:PORT of the Ray head"),
+    (["--jobs", "0"], "--jobs must be in [1, 64]"),
+])
+@pytest.mark.parametrize("command", [["exp", "run", "FILE"], ["bench", "suite"], ["reproduce", "--all"]])
+def test_every_command_of_many_runs_refuses_bad_executor_values_in_one_line(raico, tmp_path, command, args, needle):
+    f = pendulum(tmp_path, "alpha = [1.0]")
+    res = raico(*[str(f) if a == "FILE" else a for a in command], *args, "--artifacts", tmp_path / "arts")
+    assert res.exit_code == 2 and res.stderr.strip() == f"raico: error: {needle}" if "nohost" not in needle else \
+        res.exit_code == 2 and needle in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "arts" / "plan").exists()
