@@ -769,7 +769,8 @@ class VersionMismatch(RaicoError):
 
 
 def stream(executor: Executor, items, *, total: int | None = None, probe: Callable[[], Any] | None = None,
-           target_s: float = TASK_TARGET_S, batch: int | None = None) -> Iterator[Done]:
+           target_s: float = TASK_TARGET_S, batch: int | None = None,
+           notify: Callable[[str], None] | None = None) -> Iterator[Done]:
     """Run ``items`` (any iterable, consumed as it goes: a lazy grid's first run starts before the grid is
     enumerated) on ``executor``; yield a :class:`Done` per run as it finishes (cached runs at once).
 
@@ -782,7 +783,8 @@ def stream(executor: Executor, items, *, total: int | None = None, probe: Callab
     recomputed). ``probe`` (a module-level function of no argument) is called in each worker with each
     task, and on every node of a Ray cluster first: a worker whose answer's ``version`` (its second value)
     differs from this process's is :class:`VersionMismatch`, naming the node (its first value). ``batch``
-    fixes the runs per task (else adaptive; always 1 on the serial executor)."""
+    fixes the runs per task (else adaptive; always 1 on the serial executor); ``notify`` hears a line when
+    a task is submitted again."""
     mine = probe() if probe is not None else None
     if probe is not None and hasattr(executor, "probe_nodes") and getattr(executor, "address", None):
         for answer in executor.probe_nodes(probe):
@@ -835,6 +837,9 @@ def stream(executor: Executor, items, *, total: int | None = None, probe: Callab
             except WorkerLost:
                 if attempt >= RESUBMITS:
                     raise
+                if notify is not None:
+                    notify(f"a worker died with {len(sent)} run{'s' if len(sent) > 1 else ''} in flight: "
+                           f"{'they run' if len(sent) > 1 else 'it runs'} again elsewhere")
                 submit(sent, attempt + 1)
                 continue
             if probe is not None:

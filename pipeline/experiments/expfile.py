@@ -675,7 +675,12 @@ def worker_identity() -> tuple[str, str]:
     node = socket.gethostname()
     ray = sys.modules.get("ray")
     if ray is not None and ray.is_initialized():
-        node = f"{ray.util.get_node_ip_address()} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
+        worker = getattr(getattr(ray, "_private", None), "worker", None)
+        try:   # the address the node was started with (ray start --node-ip-address)
+            ip = worker.global_worker.node_ip_address
+        except AttributeError:
+            ip = ray.util.get_node_ip_address()
+        node = f"{ip} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
     return node, _raico_version()
 
 
@@ -695,12 +700,13 @@ def _cached_row(cache, exp: Experiment, head: _Head, run_: Run, record: bool) ->
 
 
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[Progress], None] | None = None) -> list[dict]:
+        progress: Callable[[Progress], None] | None = None, notify: Callable[[str], None] | None = None) -> list[dict]:
     """Every run of ``exp`` on ``executor``, the grid generated as it is consumed; cached runs are looked
     up here before anything is submitted, short runs go in batches (:func:`pipeline.engine.executors.stream`).
     The runs table is written as runs finish (:class:`TableWriter`) and whole at the end; returns its rows.
     An interrupt stops the workers; the rows written so far stay (``exp show`` reads them), and a second
-    call recomputes none of the finished runs (they are cached)."""
+    call recomputes none of the finished runs (they are cached). ``notify`` hears a line when a worker
+    died and its runs in flight run again."""
     import time
 
     from pipeline.engine.executors import Item, stream
@@ -719,7 +725,8 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     t0 = time.perf_counter()
     try:
         with executor:
-            for done in stream(executor, items(), total=total, probe=worker_identity):
+            said = (lambda line: notify(f"exp {exp.name}: {line}")) if notify else None
+            for done in stream(executor, items(), total=total, probe=worker_identity, notify=said):
                 i, r = done.item.tag
                 row = done.value if done.error is None else \
                     table_row(cache, head, r, {exp.stages[0]: {"error": done.error}})
@@ -756,7 +763,7 @@ def run_reported(cache, exp: Experiment, executor: Executor, record: bool, repor
             board.update(exp.name, f"exp {exp.name} ({p.cached} cached, {p.failed} failed)", p.done, p.total,
                          p.line(exp.name) if p.label else None)
 
-        rows = run(cache, exp, executor, record=record, progress=progress)
+        rows = run(cache, exp, executor, record=record, progress=progress, notify=reporter.say)
     cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
