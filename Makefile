@@ -63,6 +63,7 @@ reproduce-quick: $(STAMP) $(KERNEL)
 bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.run --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.learn_any --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck
 	$(BIN)/ruff check pipeline plants planning stages thesis tests bench scripts

@@ -647,6 +647,7 @@ class Progress:
     failed: int = 0
     eta_s: float | None = None
     label: str | None = None
+    run_s: float = 0.0   # the computed runs' own wall seconds, summed (in their workers)
 
     def line(self, name: str) -> str:
         eta = "" if self.eta_s is None else f", ~{_duration(self.eta_s)} left"
@@ -734,6 +735,7 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
                 state.done += 1
                 state.cached += done.cached
                 state.failed += bool(row["failed"])
+                state.run_s += done.seconds
                 computed_s = time.perf_counter() - t0
                 computing = state.done - state.cached
                 state.eta_s = computed_s / computing * (total - state.done) if computing else None
