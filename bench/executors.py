@@ -180,9 +180,7 @@ def page(doc: dict) -> str:
     load = doc["load"]
     pct = "-" if o["overhead"] is None else f"{100 * o['overhead']:.1f} %"
     return "\n".join([
-        f"# Many short runs on a local Ray instance of {o['cpus']} CPUs",
-        "",
-        f"`python -m bench.executors --runs {doc['settings']['runs']}` (pendulum swing-up, R-AICO, "
+        f"**Many short runs on a local Ray instance of {o['cpus']} CPUs**: `python -m bench.executors --runs {doc['settings']['runs']}` (pendulum swing-up, R-AICO, "
         f"{doc['settings']['iterations']} iterations per plan); the machine's load average at the start: "
         f"{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} (1, 5, 15 min; {doc['cpu_count']} CPUs).",
         "",
