@@ -1157,32 +1157,39 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
         cols = [*keys, "seed", "status", "achieved", "error", *metrics]
         out = df[[c for c in cols if c in df.columns]]
         return out.sort_values(sort) if sort else out
-    rows = []
-    for values, g in df.groupby(keys, sort=False, dropna=False):
-        values = values if isinstance(values, tuple) else (values,)
-        row: dict[str, Any] = dict(zip(keys, values))
-        row["n"] = len(g)
-        failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
-        row["failed"] = f"{failed}/{len(g)}"
-        if "achieved" in g and g["achieved"].notna().any():   # runs that judged a task, and how many achieved it
-            judged = g["achieved"].dropna()
-            row["achieved"] = f"{int(judged.astype(bool).sum())}/{len(judged)}"
-        if "status" in g:
-            row["statuses"] = ", ".join(f"{st} {k}" for st, k in g["status"].astype(str).value_counts().items())
-        for m in metrics:
-            x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
-            if not x.size:
-                row[m] = None
-                continue
-            if stat == "mean":
-                half = _t_half_width(x)
-                row[m] = float(x.mean())
-                row[f"{m} ±95%"] = half
-            else:
-                row[m] = float(np.median(x))
-                row[f"{m} IQR"] = float(np.subtract(*np.percentile(x, [75, 25])))
-        rows.append(row)
-    out = pd.DataFrame(rows)
+    # one pass per column over a group index (groups in order of appearance), not a loop over the groups:
+    # 10,000 runs in 1,000 variants take milliseconds
+    codes = df.groupby(keys, sort=False, dropna=False).ngroup().to_numpy()
+    count = int(codes.max()) + 1 if codes.size else 0
+    first = np.unique(codes, return_index=True)[1] if codes.size else np.array([], int)
+    out = df[keys].iloc[first].reset_index(drop=True)
+    n = np.bincount(codes, minlength=count)
+    out["n"] = n
+    failed = np.bincount(codes, weights=df["failed"].astype(bool).to_numpy(), minlength=count).astype(int) \
+        if "failed" in df else np.zeros(count, int)
+    out["failed"] = [f"{k}/{m}" for k, m in zip(failed, n)]
+    if "achieved" in df and df["achieved"].notna().any():   # runs that judged a task, and how many achieved it
+        judged = df["achieved"].notna().to_numpy()
+        j = np.bincount(codes[judged], minlength=count)
+        yes = np.bincount(codes[judged], weights=df["achieved"][judged].astype(bool).to_numpy(), minlength=count)
+        out["achieved"] = [f"{int(y)}/{k}" if k else None for y, k in zip(yes, j)]
+    if "status" in df:   # per group "status count", most frequent first (ties: the first seen first)
+        tally = pd.Series(codes).groupby([codes, df["status"].astype(str).to_numpy()], sort=False).size()
+        per: list[list[tuple[str, int]]] = [[] for _ in range(count)]
+        for (c, st), k in tally.items():
+            per[c].append((st, int(k)))
+        out["statuses"] = [", ".join(f"{st} {k}" for st, k in sorted(g, key=lambda t: -t[1])) for g in per]
+    for m in metrics:
+        x = pd.Series(pd.to_numeric(df[m], errors="coerce").to_numpy(float))
+        g = x.groupby(codes)
+        if stat == "mean":
+            k = g.count().reindex(range(count)).to_numpy()
+            mean, sd = g.mean().reindex(range(count)).to_numpy(), g.std(ddof=1).reindex(range(count)).to_numpy()
+            out[m] = mean
+            out[f"{m} ±95%"] = _t_half_widths(sd, k)
+        else:
+            out[m] = g.median().reindex(range(count)).to_numpy()
+            out[f"{m} IQR"] = (g.quantile(0.75) - g.quantile(0.25)).reindex(range(count)).to_numpy()
     if sort:
         if sort not in out.columns:
             raise BadInput(f"--sort {sort}: no such column (columns: {', '.join(map(str, out.columns))})")
@@ -1190,13 +1197,26 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     return out
 
 
+def _t_half_widths(sd, k):
+    """Half-widths of the 95 % t-intervals of means of ``k`` values of standard deviation ``sd`` (arrays);
+    NaN below 2 values."""
+    import numpy as np
+    from scipy import special  # stdtrit is what scipy.stats.t.ppf computes, without importing scipy.stats (~1 s)
+
+    k = np.asarray(k, float)
+    ok = k >= 2
+    out = np.full(k.shape, np.nan)
+    out[ok] = special.stdtrit(k[ok] - 1, 0.975) * np.asarray(sd, float)[ok] / np.sqrt(k[ok])
+    return out
+
+
 def _t_half_width(x) -> float | None:
     """Half-width of the 95 % t-interval of the mean of ``x`` (None below 2 values)."""
     if len(x) < 2:
         return None
-    from scipy import stats
+    from scipy import special
 
-    return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+    return float(special.stdtrit(len(x) - 1, 0.975) * x.std(ddof=1) / math.sqrt(len(x)))
 
 
 SPREADS = (" IQR", " ±95%")
@@ -1282,10 +1302,37 @@ def paired(df, a: str, b: str, metric: str) -> Paired:
     elif np.all(d == 0):
         p, note = 1.0, note + "; every difference is 0"
     else:
+        p = signed_rank_p(d)
+    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+
+
+EXACT_UP_TO = 50   # pairs: scipy.stats.wilcoxon's exact null distribution up to here (without ties or zeros)
+
+
+def signed_rank_p(d) -> float:
+    """Two-sided p-value of Wilcoxon's signed-rank test of the differences ``d``, as ``scipy.stats.wilcoxon(d)``
+    gives it. Without ties or zeros and up to :data:`EXACT_UP_TO` pairs (a table's seeds), from the exact null
+    distribution here (the count of rank subsets per sum; ``scipy.stats`` takes about a second to import,
+    more than ``exp diff``'s whole work); otherwise from ``scipy.stats.wilcoxon``."""
+    import numpy as np
+
+    d = np.asarray(d, float)
+    a = np.abs(d)
+    if d.size > EXACT_UP_TO or np.any(d == 0) or np.unique(a).size != a.size:
         from scipy import stats
 
-        p = float(stats.wilcoxon(d).pvalue)
-    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+        return float(stats.wilcoxon(d).pvalue)
+    n = d.size
+    ranks = np.empty(n, int)
+    ranks[np.argsort(a)] = np.arange(1, n + 1)
+    r_plus = int(ranks[d > 0].sum())
+    counts = [1] + [0] * (n * (n + 1) // 2)   # subsets of the ranks 1..n by their sum (exact integers)
+    for r in range(1, n + 1):
+        for total in range(len(counts) - 1, r - 1, -1):
+            counts[total] += counts[total - r]
+    whole = 2 ** n
+    cdf, sf = sum(counts[:r_plus + 1]), sum(counts[r_plus:])
+    return min(1.0, 2 * min(cdf, sf) / whole)
 
 
 def render_paired(r: Paired, fmt: str = "table") -> str:

@@ -146,3 +146,19 @@ def test_every_command_of_many_runs_refuses_bad_executor_values_in_one_line(raic
     assert res.exit_code == 2 and res.stderr.strip() == f"raico: error: {needle}" if "nohost" not in needle else \
         res.exit_code == 2 and needle in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "arts" / "plan").exists()
+
+
+def test_the_signed_rank_p_value_is_scipy_s():
+    """exp diff's p-value without importing scipy.stats (exact counts over 2^n sign patterns) equals
+    scipy.stats.wilcoxon's to rounding (sums of n pmf terms: n eps); ties and zeros go to scipy."""
+    import numpy as np
+    from scipy import stats
+
+    from pipeline.experiments.expfile import signed_rank_p
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 6, 10, 25, 50, 51):
+        d = rng.normal(0.3, 1.0, n)
+        assert signed_rank_p(d) == pytest.approx(stats.wilcoxon(d).pvalue, rel=1e-12)
+    tied = np.array([1.0, -1.0, 2.0, 3.0, -4.0, 5.0, 0.0, 6.0])
+    assert signed_rank_p(tied) == pytest.approx(stats.wilcoxon(tied).pvalue, rel=1e-12)
