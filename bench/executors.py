@@ -88,15 +88,15 @@ def overhead(arts: Path, file: Path, cpus: int) -> dict:
         if p.done == max(1, total // 4):
             memory["quarter"] = rss_mb()
 
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     rows = expfile.run(Cache(arts), exp, pool, progress=progress)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     memory["end"] = rss_mb()
     p = last[0]
     ideal = p.run_s / slots
     return {"runs": len(rows), "computed": p.done - p.cached, "failed": p.failed, "cpus": slots,
             "ray_start_s": startup, "wall_s": wall, "run_s_sum": p.run_s, "mean_run_s": p.run_s / max(1, p.done - p.cached),
-            "ideal_s": ideal, "overhead": wall / ideal - 1 if ideal else None,
+            "ideal_s": ideal, "overhead": wall / ideal - 1 if ideal else None, "driver_cpu_s": cpu,
             "rss_mb_quarter": memory.get("quarter"), "rss_mb_end": memory["end"]}
 
 
@@ -191,6 +191,7 @@ def page(doc: dict) -> str:
         f"| sum of run times / CPUs | {o['ideal_s']:.1f} s |",
         f"| wall time (from the first submit) | {o['wall_s']:.1f} s |",
         f"| overhead: wall / (sum / CPUs) - 1 | {pct} |",
+        f"| the driving process's CPU time (lookups, submits, the table) | {o['driver_cpu_s']:.1f} s |",
         f"| the Ray instance's start (apart) | {o['ray_start_s']:.1f} s |",
         f"| driver's resident memory at 1/4 and at the end | {o['rss_mb_quarter'] or float('nan'):.0f} MB, "
         f"{o['rss_mb_end']:.0f} MB |",

@@ -809,9 +809,11 @@ def stream(executor: Executor, items, *, total: int | None = None, probe: Callab
         future = executor.submit(_run_batch, ([(it.fn, it.arg) for it in sent], probe))
         inflight[future] = (sent, attempt)
 
+    def room() -> bool:   # (a Ray executor connects when asked its slots: not before a run is to be submitted)
+        return not inflight or len(inflight) < executor.slots * (1 + executor.queued_per_slot)
+
     while True:
-        depth = executor.slots * (1 + executor.queued_per_slot)
-        while not exhausted and len(inflight) < depth:
+        while not exhausted and room():
             runs: list[Item] = []
             k = batch_size()
             while len(runs) < k:
