@@ -1001,11 +1001,28 @@ class TableWriter:
             rows = [{c: r.get(c) for c in columns} for r in table.drop_columns([INDEX]).to_pylist()]
         else:
             rows = []
+        rows += self._newer_rows({(r.get("variant"), r.get("seed")) for r in rows})
         write_table(self.cache, self.exp, rows)
         for p in self.written:
             p.unlink(missing_ok=True)
         _remove_parts_before(self.parts, self.started)
         return rows
+
+
+    def _newer_rows(self, ours: set) -> list[dict]:
+        """The rows of a table another call of the same experiment wrote while this one ran (a second `exp
+        run` that added a grid value), those this one has not: the queue grew, the table keeps them."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        path = table_dir(self.cache, self.exp.name) / TABLE
+        try:
+            if path.stat().st_mtime < self.started:
+                return []
+            other = pq.read_table(path).to_pylist()
+        except (OSError, pa.ArrowInvalid):
+            return []
+        return [r for r in other if (r.get("variant"), r.get("seed")) not in ours]
 
 
 def _remove_parts_before(parts: Path, started: float) -> None:

@@ -162,3 +162,34 @@ def test_the_signed_rank_p_value_is_scipy_s():
         assert signed_rank_p(d) == pytest.approx(stats.wilcoxon(d).pvalue, rel=1e-12)
     tied = np.array([1.0, -1.0, 2.0, 3.0, -4.0, 5.0, 0.0, 6.0])
     assert signed_rank_p(tied) == pytest.approx(stats.wilcoxon(tied).pvalue, rel=1e-12)
+
+
+def test_a_second_call_on_the_same_file_adds_what_is_missing_and_shares_the_runs_in_flight(tmp_path):
+    """Two `raico exp run` at once on one artifacts folder, the second with one more alpha: every run is
+    computed once in all (a run the other call is computing is waited for through its key's lock, then
+    read), and the second's table has every run of its grid."""
+    import json
+    import subprocess
+    import sys
+    import time
+
+    import pandas as pd
+
+    f = pendulum(tmp_path, "alpha = [0.5, 1.0, 2.0, 4.0]", seeds=2)
+    f.write_text(f.read_text().replace("iterations = 2", "iterations = 10"))
+    arts = tmp_path / "arts"
+    raico = [str(Path(sys.executable).parent / "raico"), "exp", "run", str(f), "--executor", "serial", "--json",
+             "--quiet", "--artifacts", str(arts)]
+    first = subprocess.Popen(raico, stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (arts / "plan").is_dir() and time.monotonic() < deadline:   # the first call has started its runs
+        time.sleep(0.02)
+    second = subprocess.run([*raico, "-S", "alpha=8.0"], capture_output=True, text=True, timeout=120)
+    out_first, _ = first.communicate(timeout=120)
+    one, two = (json.loads(out.splitlines()[-1]) for out in (out_first, second.stdout))
+    assert first.returncode == 0 and second.returncode == 0, second.stderr
+    entries = [p for p in (arts / "plan").iterdir() if not p.name.startswith(".")]
+    assert len(entries) == 10 and (one["runs"], two["runs"]) == (8, 10)
+    assert one["to_compute"] + two["to_compute"] == 10   # no run computed by both
+    table = pd.read_parquet(arts / "exp" / "pend" / "runs.parquet")   # whichever call finished last wrote it
+    assert len(table) == 10 and set(table["alpha"]) == {0.5, 1.0, 2.0, 4.0, 8.0}
