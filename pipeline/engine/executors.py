@@ -1,4 +1,4 @@
-"""Where the runs of ``raico reproduce`` execute, and the scheduler that keeps those workers busy.
+"""Where the runs of ``raico reproduce``, ``exp run`` and ``bench suite`` execute, and what keeps the workers busy.
 
 An :class:`Executor` runs picklable job functions ``fn(arg)`` (module-level functions, so a
 spawned process or a Ray worker imports them by name): ``submit`` returns a
@@ -12,6 +12,10 @@ at once. Three of them (``make_executor``):
   parent, ignore SIGINT (Ctrl-C is the parent's), end on SIGTERM, and keep their per-process
   caches (compiled dynamics, shared robots) from one job to the next;
 - ``ray``: Ray tasks on a local instance with ``--jobs`` CPUs, or on the cluster at ``address``.
+
+:func:`stream` runs many independent runs on one executor (``raico exp run``, ``raico bench suite``):
+consumed lazily from any iterable, cached runs looked up first, short runs batched into tasks of about a
+second, a task whose worker died submitted again, each worker's code version checked.
 
 :class:`Scheduler` runs *flows* on one executor: a flow is a generator that yields a
 :class:`Batch` of jobs and receives their results (in the batch's order), so a figure is written
@@ -357,7 +361,14 @@ class RayExecutor(Executor):
         nodes = [n["NodeID"] for n in ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU")]
         refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node, soft=False)).remote(_call0, fn)
                 for node in nodes]
-        return ray.get(refs, timeout=120)
+        out = []
+        for node, ref in zip(nodes, refs):
+            try:
+                out.append(ray.get(ref, timeout=120))
+            except Exception as e:  # noqa: BLE001 - a node that cannot answer (raico missing there, ...): its name
+                last = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+                raise RaicoError(f"the Ray node {node[:12]} cannot run raico's check of its code: {last}") from None
+        return out
 
     def shutdown(self, cancel: bool = False) -> None:
         if self._remote is None:

@@ -716,7 +716,6 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     head, root, total = _Head(exp.name, exp.stages), str(cache.root), run_count(exp)
     writer = TableWriter(cache, exp)
     state = Progress(0, total)
-    computed_s = 0.0
 
     def items() -> Iterator[Item]:
         for i, r in enumerate(iter_runs(exp)):
@@ -736,9 +735,8 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
                 state.cached += done.cached
                 state.failed += bool(row["failed"])
                 state.run_s += done.seconds
-                computed_s = time.perf_counter() - t0
-                computing = state.done - state.cached
-                state.eta_s = computed_s / computing * (total - state.done) if computing else None
+                elapsed, computing = time.perf_counter() - t0, state.done - state.cached
+                state.eta_s = elapsed / computing * (total - state.done) if computing else None
                 state.label = done.item.label
                 if progress is not None:
                     progress(state)
