@@ -21,7 +21,8 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow,   # the processes are found in /proc
+              pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds its processes in /proc")]
 
 ROOT = Path(__file__).resolve().parents[2]
 MARK = "RAICO_TEST_CLUSTER"
