@@ -7,8 +7,8 @@ the grid is alpha x 10 seeds), each in a cache of its own under ``--artifacts`` 
 - **overhead**: all N runs on a local Ray instance of ``--cpus`` CPUs through ``expfile.run`` (the grid
   generated as it is consumed, cached runs looked up first, short runs batched into ~1 s tasks). The
   wall time (from the first submit; the instance's start is reported apart) against the sum of the runs'
-  own times (in their workers) divided by the CPUs; the driving process's resident memory at a quarter
-  and at the end of the runs (flat: it does not grow with the grid);
+  own times (in their workers) divided by the CPUs; the driving process's resident memory at a quarter,
+  half and the end of the runs (it does not grow with the grid);
 - **resume**: ``raico exp run --executor ray`` in a process of its own, SIGKILLed once half the runs
   are in the cache, then run again: the runs the second call computes, and how many of them had
   finished before the kill (0: none recomputed);
@@ -87,6 +87,8 @@ def overhead(arts: Path, file: Path, cpus: int) -> dict:
         last[:] = [p]
         if p.done == max(1, total // 4):
             memory["quarter"] = rss_mb()
+        if p.done == max(1, total // 2):
+            memory["half"] = rss_mb()
 
     t0, cpu0 = time.perf_counter(), time.process_time()
     rows = expfile.run(Cache(arts), exp, pool, progress=progress)
@@ -97,7 +99,7 @@ def overhead(arts: Path, file: Path, cpus: int) -> dict:
     return {"runs": len(rows), "computed": p.done - p.cached, "failed": p.failed, "cpus": slots,
             "ray_start_s": startup, "wall_s": wall, "run_s_sum": p.run_s, "mean_run_s": p.run_s / max(1, p.done - p.cached),
             "ideal_s": ideal, "overhead": wall / ideal - 1 if ideal else None, "driver_cpu_s": cpu,
-            "rss_mb_quarter": memory.get("quarter"), "rss_mb_end": memory["end"]}
+            "rss_mb_quarter": memory.get("quarter"), "rss_mb_half": memory.get("half"), "rss_mb_end": memory["end"]}
 
 
 def raico(*args: str, **kw) -> subprocess.CompletedProcess:
@@ -193,7 +195,8 @@ def page(doc: dict) -> str:
         f"| overhead: wall / (sum / CPUs) - 1 | {pct} |",
         f"| the driving process's CPU time (lookups, submits, the table) | {o['driver_cpu_s']:.1f} s |",
         f"| the Ray instance's start (apart) | {o['ray_start_s']:.1f} s |",
-        f"| driver's resident memory at 1/4 and at the end | {o['rss_mb_quarter'] or float('nan'):.0f} MB, "
+        f"| driver's resident memory at 1/4, 1/2 and the end of the runs | "
+        f"{o['rss_mb_quarter'] or float('nan'):.0f} MB, {o.get('rss_mb_half') or float('nan'):.0f} MB, "
         f"{o['rss_mb_end']:.0f} MB |",
         f"| resume: finished before the kill at 50 % | {r['finished_before']} of {r['runs']} |",
         f"| resume: computed by the second call | {r['second_computed']} ({r['second_cached']} cached) |",
