@@ -701,7 +701,7 @@ def _cached_row(cache, exp: Experiment, head: _Head, run_: Run, record: bool) ->
 
 
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[Progress], None] | None = None, notify: Callable[[str], None] | None = None) -> list[dict]:
+        progress: Callable[[Progress], None] | None = None, notify: Callable[[str], None] | None = None) -> Rows:
     """Every run of ``exp`` on ``executor``, the grid generated as it is consumed; cached runs are looked
     up here before anything is submitted, short runs go in batches (:func:`pipeline.engine.executors.stream`).
     The runs table is written as runs finish (:class:`TableWriter`) and whole at the end; returns its rows.
@@ -752,7 +752,7 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     return writer.finish()
 
 
-def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
+def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> Rows:
     """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
     its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
     loading a model file changed is said once, before the runs (not by each run)."""
@@ -988,39 +988,68 @@ class TableWriter:
         self.written.append(path)
         self.buffer = []
 
-    def finish(self) -> list[dict]:
-        """The whole table: written (``runs.parquet``, ``runs.csv``, ``runs.json``), its parts removed; its rows."""
+    def finish(self) -> Rows:
+        """The whole table: written (``runs.parquet``, ``runs.csv``, ``runs.json``), its parts removed; its rows
+        (columnar in memory, a dict per row as they are read)."""
+        import pyarrow as pa
         import pyarrow.parquet as pq
 
         self.flush()
-        if self.written:
-            table = _concat([pq.read_table(p) for p in self.written]).sort_by(INDEX)
-            columns = sorted(self.order, key=self.order.__getitem__)
-            rows = [{c: r.get(c) for c in columns} for r in table.drop_columns([INDEX]).to_pylist()]
-        else:
-            rows = []
-        rows += self._newer_rows({(r.get("variant"), r.get("seed")) for r in rows})
-        write_table(self.cache, self.exp, rows)
+        columns = sorted(self.order, key=self.order.__getitem__)
+        table = _concat([pq.read_table(p) for p in self.written]).sort_by(INDEX).drop_columns([INDEX]) \
+            if self.written else pa.table({})
+        newer = self._newer(table)
+        if newer is not None:
+            table = _concat([table, newer]) if table.num_columns else newer
+            columns += [c for c in newer.column_names if c not in columns]
+        table = table.select([c for c in columns if c in table.column_names])
+        _write_arrow(self.cache, self.exp, table)
         for p in self.written:
             p.unlink(missing_ok=True)
         _remove_parts_before(self.parts, self.started)
-        return rows
+        return Rows(table)
 
-
-    def _newer_rows(self, ours: set) -> list[dict]:
+    def _newer(self, ours):
         """The rows of a table another call of the same experiment wrote while this one ran (a second `exp
-        run` that added a grid value), those this one has not: the queue grew, the table keeps them."""
+        run` that added a grid value) that ``ours`` (a pyarrow Table) has not, as a Table; None if there are
+        none: the queue grew, the table keeps them."""
         import pyarrow as pa
         import pyarrow.parquet as pq
 
         path = table_dir(self.cache, self.exp.name) / TABLE
         try:
             if path.stat().st_mtime < self.started:
-                return []
-            other = pq.read_table(path).to_pylist()
+                return None
+            other = pq.read_table(path)
         except (OSError, pa.ArrowInvalid):
-            return []
-        return [r for r in other if (r.get("variant"), r.get("seed")) not in ours]
+            return None
+        if "variant" not in other.column_names or "seed" not in other.column_names:
+            return None
+        have = set(zip(*(ours.column(c).to_pylist() for c in ("variant", "seed")))) if ours.num_rows else set()
+        keep = [i for i, key in enumerate(zip(other.column("variant").to_pylist(), other.column("seed").to_pylist()))
+                if key not in have]
+        return other.take(keep).replace_schema_metadata(None) if keep else None
+
+
+class Rows(Sequence):
+    """The rows of a runs table held as its columns (a pyarrow Table): a dict per row as it is read."""
+
+    CHUNK = 2000
+
+    def __init__(self, table) -> None:
+        self.table = table
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(len(self))[i]]
+        return self.table.slice(range(len(self))[i], 1).to_pylist()[0]
+
+    def __iter__(self) -> Iterator[dict]:
+        for batch in self.table.to_batches(max_chunksize=self.CHUNK):
+            yield from batch.to_pylist()
 
 
 def _remove_parts_before(parts: Path, started: float) -> None:
@@ -1038,46 +1067,43 @@ def _remove_parts_before(parts: Path, started: float) -> None:
 
 
 def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
-    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment (each written atomically), with
-    the file's text."""
-    import os
+    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment from ``rows`` (see :func:`_write_arrow`)."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    return _write_arrow(cache, exp, _arrow_table(rows, columns))
 
+
+def _write_arrow(cache, exp: Experiment, table) -> Path:
+    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment from ``table`` (a pyarrow Table),
+    each written atomically; CSV and JSON a chunk of rows at a time (memory: the table's columns)."""
     import pyarrow.parquet as pq
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     out = table_dir(cache, exp.name)
     out.mkdir(parents=True, exist_ok=True)
-    columns = list(dict.fromkeys(k for row in rows for k in row))
     meta = _metadata(exp)
-    table = _arrow_table(rows, columns).replace_schema_metadata({"raico": json.dumps(meta, default=str)})
-    tmp = out / f".{TABLE}.{os.getpid()}.tmp"
-    pq.write_table(table, tmp)
-    os.replace(tmp, out / TABLE)
-    write_file_atomic(out / "runs.csv", _csv_text(columns, rows))
-    doc = {**{k: v for k, v in meta.items() if k != "swept"},
-           "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
-           "swept": meta["swept"], "rows": rows}
-    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
-
-    write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
-                                                    allow_nan=False))
+    with atomic_path(out / TABLE) as tmp:
+        pq.write_table(table.replace_schema_metadata({"raico": json.dumps(meta, default=str)}), tmp)
+    columns, rows = table.column_names, Rows(table)
+    with atomic_path(out / "runs.csv") as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns, lineterminator="\n")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+    head = {**{k: v for k, v in meta.items() if k != "swept"},
+            "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None, "swept": meta["swept"]}
+    with atomic_path(out / "runs.json") as tmp, open(tmp, "w") as f:
+        f.write(json.dumps(finite_json(head), indent=1, default=_json_default, allow_nan=False)[:-2])
+        f.write(',\n "rows": [')
+        for i, row in enumerate(rows):
+            f.write(("," if i else "") + "\n  " + json.dumps(finite_json(row), default=_json_default, allow_nan=False))
+        f.write("\n ]\n}")
     return out
 
 
 def _json_default(x: Any) -> Any:
     return str(x)
-
-
-def _csv_text(columns: list[str], rows: list[dict]) -> str:
-    import io
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
-    return buf.getvalue()
 
 
 # ----------------------------------------------------------------------------- reading the table
