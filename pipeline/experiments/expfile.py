@@ -742,11 +742,13 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
                     progress(state)
     except Interrupted as e:  # says how many runs are kept (not what one of them kept)
         writer.flush()
+        _WRITING.discard(writer.prefix)   # its parts stay for exp show; the next call removes them
         cache.cleanup_stale()   # the killed workers' temporary folders
         e.finished, e.scheduled, e.note = state.done, total, None
         raise
     except BaseException:
         writer.flush()
+        _WRITING.discard(writer.prefix)
         cache.cleanup_stale()
         raise
     return writer.finish()
@@ -953,6 +955,7 @@ class TableWriter:
         self.cache, self.exp = cache, exp
         self.parts = table_dir(cache, exp.name) / PARTS
         self.prefix = f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}"
+        _WRITING.add(self.prefix)
         self.buffer: list[dict] = []
         self.written: list[Path] = []
         self.order: dict[str, tuple[int, int]] = {}   # column -> (first run with it, its place in that row)
@@ -979,12 +982,18 @@ class TableWriter:
         self.flushed_at = time.monotonic()
         if not self.buffer:
             return
-        self.parts.mkdir(parents=True, exist_ok=True)
         path = self.parts / f"{self.prefix}-{len(self.written):06d}.parquet"
         tmp = path.with_suffix(".tmp")
-        table = _arrow_table(self.buffer)
-        pq.write_table(table.replace_schema_metadata({"raico": json.dumps(_metadata(self.exp), default=str)}), tmp)
-        os.replace(tmp, path)
+        table = _arrow_table(self.buffer).replace_schema_metadata({"raico": json.dumps(_metadata(self.exp), default=str)})
+        for attempt in range(3):   # another call that finished may remove the empty folder in between
+            self.parts.mkdir(parents=True, exist_ok=True)
+            try:
+                pq.write_table(table, tmp)
+                os.replace(tmp, path)
+                break
+            except FileNotFoundError:
+                if attempt == 2:
+                    raise
         self.written.append(path)
         self.buffer = []
 
@@ -1006,8 +1015,13 @@ class TableWriter:
         _write_arrow(self.cache, self.exp, table)
         for p in self.written:
             p.unlink(missing_ok=True)
-        _remove_parts_before(self.parts, self.started)
+        self.close()
         return Rows(table)
+
+    def close(self) -> None:
+        """This call writes no more parts: the next call removes those it left (an interrupted call's)."""
+        _WRITING.discard(self.prefix)
+        _remove_left_parts(self.parts)
 
     def _newer(self, ours):
         """The rows of a table another call of the same experiment wrote while this one ran (a second `exp
@@ -1052,15 +1066,24 @@ class Rows(Sequence):
             yield from batch.to_pylist()
 
 
-def _remove_parts_before(parts: Path, started: float) -> None:
-    """Remove the parts written before ``started`` (an interrupted call's: their runs are cached, so the
-    whole table just written holds them), and the folder if it is empty; a call still running beside
-    this one keeps what it writes from now on."""
-    import contextlib
+_WRITING: set[str] = set()   # the parts' prefixes of this process's writers that still write
 
-    for p in parts.glob("*.parquet") if parts.is_dir() else ():
-        with contextlib.suppress(OSError):
-            if p.stat().st_mtime < started:
+
+def _remove_left_parts(parts: Path) -> None:
+    """Remove the parts that no writer will use any more (their runs are cached, so a whole table written
+    since holds them): of this host, those of a dead process or of a writer of this process that was closed
+    (an interrupted call); the folder if it is empty. A call still running, here or on another host, keeps
+    its parts."""
+    import contextlib
+    import os
+    import socket
+
+    host, me = socket.gethostname(), str(os.getpid())
+    for p in parts.glob(f"{host}-*.parquet") if parts.is_dir() else ():
+        pid, _, rest = p.name[len(host) + 1:].partition("-")
+        prefix = f"{host}-{pid}-{rest.split('-', 1)[0]}"
+        if pid.isdigit() and (not Path(f"/proc/{pid}").exists() if pid != me else prefix not in _WRITING):
+            with contextlib.suppress(OSError):
                 p.unlink()
     with contextlib.suppress(OSError):
         parts.rmdir()

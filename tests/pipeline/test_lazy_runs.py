@@ -180,14 +180,14 @@ def test_a_second_call_on_the_same_file_adds_what_is_missing_and_shares_the_runs
     arts = tmp_path / "arts"
     raico = [str(Path(sys.executable).parent / "raico"), "exp", "run", str(f), "--executor", "serial", "--json",
              "--quiet", "--artifacts", str(arts)]
-    first = subprocess.Popen(raico, stdout=subprocess.PIPE, text=True)
+    first = subprocess.Popen(raico, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not (arts / "plan").is_dir() and time.monotonic() < deadline:   # the first call has started its runs
         time.sleep(0.02)
     second = subprocess.run([*raico, "-S", "alpha=8.0"], capture_output=True, text=True, timeout=120)
-    out_first, _ = first.communicate(timeout=120)
+    out_first, err_first = first.communicate(timeout=120)
+    assert first.returncode == 0 and second.returncode == 0, (err_first, second.stderr)
     one, two = (json.loads(out.splitlines()[-1]) for out in (out_first, second.stdout))
-    assert first.returncode == 0 and second.returncode == 0, second.stderr
     entries = [p for p in (arts / "plan").iterdir() if not p.name.startswith(".")]
     assert len(entries) == 10 and (one["runs"], two["runs"]) == (8, 10)
     assert one["to_compute"] + two["to_compute"] == 10   # no run computed by both
