@@ -941,7 +941,8 @@ class TableWriter:
     every :attr:`FLUSH_ROWS` rows or :attr:`FLUSH_S` seconds as a Parquet file of ``runs.parts/`` (named by
     host, process and a counter: two calls on one experiment, or on two machines, do not collide);
     :meth:`finish` puts them together in the experiment's order as ``runs.parquet`` (with ``runs.csv`` and
-    ``runs.json``) and removes them. Memory: one buffer of rows and the columns' order, not the table."""
+    ``runs.json``) and removes them (and those an interrupted or killed call of this host left). Memory while
+    the runs go: one buffer of rows and the columns' order, not the table."""
 
     FLUSH_ROWS = 500
     FLUSH_S = 2.0
