@@ -17,7 +17,17 @@ def register(app: typer.Typer) -> None:
     """Add ``reproduce`` to the ``raico`` group ``app`` (called while :mod:`pipeline.interface.cli` loads;
     the shared options and helpers it uses are defined by then)."""
     from pipeline.errors import BadInput
-    from pipeline.interface.cli import Artifacts, Json, NoRecord, Quiet, handles_errors, open_cache
+    from pipeline.interface.cli import (
+        Address,
+        Artifacts,
+        ExecutorName,
+        Json,
+        NoRecord,
+        Quiet,
+        executor_of,
+        handles_errors,
+        open_cache,
+    )
 
     @app.command()
     @handles_errors
@@ -28,12 +38,8 @@ def register(app: typer.Typer) -> None:
         quick: Annotated[bool, typer.Option("--quick", help="2 seeds and few iterations (minutes).")] = False,
         jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers: processes, or the CPUs of a local "
                                           "Ray instance.")] = 2,
-        executor: Annotated[str, typer.Option("--executor", help="Where the runs execute: serial (this process), "
-                                              "process (one pool of --jobs worker processes; --jobs 1 runs here) or "
-                                              "ray (a local Ray instance with --jobs CPUs, or the cluster at "
-                                              "--address).")] = "process",
-        address: Annotated[str | None, typer.Option("--address", help="Ray cluster to run on (HOST:PORT of its head, "
-                                                    "or auto); goes with --executor ray.")] = None,
+        executor: ExecutorName = "process",
+        address: Address = None,
         thesis_setups: Annotated[bool, typer.Option("--thesis-setups", help="Also run the thesis's set-ups beside "
                                                     "raico's (the Nao's reach from the zero posture, its balancing with "
                                                     "eq. 3.7's cost, the pendulum with x0 held), each judged in rows of "
@@ -47,7 +53,6 @@ def register(app: typer.Typer) -> None:
         soon as its runs are done. Progress: a bar per figure on a terminal, else one line per finished run."""
         import contextlib
 
-        from pipeline.engine.executors import make_executor
         from pipeline.engine.runner import finite_json
         from pipeline.engine.ui import Reporter
         from thesis import reproduce as repro
@@ -62,9 +67,7 @@ def register(app: typer.Typer) -> None:
         unknown = [i for i in ids if i not in repro.ALL_IDS]
         if unknown:
             raise BadInput(f"unknown experiment '{unknown[0]}': choose one of {', '.join(repro.ALL_IDS)}")
-        if not 1 <= jobs <= 64:
-            raise BadInput("jobs must be in [1, 64]")
-        pool = make_executor(executor, jobs, address)  # checks the name, the address and that Ray is there
+        pool = executor_of(executor, jobs, address)  # checks the name, the address and that Ray is there
         reporter = Reporter(quiet)
         cache = open_cache(artifacts)
         cache.notify = reporter.say  # damaged entries and recordings found on the way

@@ -1,4 +1,4 @@
-"""Where the runs of ``raico reproduce`` execute, and the scheduler that keeps those workers busy.
+"""Where the runs of ``raico reproduce``, ``exp run`` and ``bench suite`` execute, and what keeps the workers busy.
 
 An :class:`Executor` runs picklable job functions ``fn(arg)`` (module-level functions, so a
 spawned process or a Ray worker imports them by name): ``submit`` returns a
@@ -12,6 +12,10 @@ at once. Three of them (``make_executor``):
   parent, ignore SIGINT (Ctrl-C is the parent's), end on SIGTERM, and keep their per-process
   caches (compiled dynamics, shared robots) from one job to the next;
 - ``ray``: Ray tasks on a local instance with ``--jobs`` CPUs, or on the cluster at ``address``.
+
+:func:`stream` runs many independent runs on one executor (``raico exp run``, ``raico bench suite``):
+consumed lazily from any iterable, cached runs looked up first, short runs batched into tasks of about a
+second, a task whose worker died submitted again, each worker's code version checked.
 
 :class:`Scheduler` runs *flows* on one executor: a flow is a generator that yields a
 :class:`Batch` of jobs and receives their results (in the batch's order), so a figure is written
@@ -40,6 +44,11 @@ from pipeline.errors import BadInput, Interrupted, RaicoError
 
 EXECUTORS = ("serial", "process", "ray")
 WORKER_DIED = "a worker process died (killed, or out of memory); the runs that finished are cached"
+
+
+class WorkerLost(RaicoError):
+    """A job's worker (a pool process, a Ray worker or its whole node) died while it ran the job: the
+    job did not fail, it can run again elsewhere (:func:`stream` resubmits it; a flow stops)."""
 
 
 def timed(call: tuple[Callable[[Any], Any], Any]) -> tuple[float, Any]:
@@ -202,6 +211,9 @@ class ProcessExecutor(Executor):
     def submit(self, fn, arg) -> Future:
         import os
 
+        if self._pool is not None and getattr(self._pool, "_broken", False):  # a worker died: a new pool
+            _stop_pool(self._pool)
+            self._pool = None
         if self._pool is None:
             _quiet_resource_tracker()
             self._pool = ProcessPoolExecutor(max_workers=self.slots, mp_context=mp.get_context("spawn"),
@@ -216,7 +228,7 @@ class ProcessExecutor(Executor):
         try:
             return future.result()
         except BrokenProcessPool:
-            raise RaicoError(WORKER_DIED) from None
+            raise WorkerLost(WORKER_DIED) from None
 
     def shutdown(self, cancel: bool = False) -> None:
         pool, self._pool = self._pool, None
@@ -243,6 +255,11 @@ def _ray_call(fn, arg):
 
     os.environ["RAICO_THREADS"] = "1"
     return fn(arg)
+
+
+def _call0(fn):
+    """``fn()``: a job of no argument, as ``fn(arg)``."""
+    return fn()
 
 
 class RayExecutor(Executor):
@@ -331,8 +348,27 @@ class RayExecutor(Executor):
             if isinstance(cause, BaseException):
                 raise cause from None
             raise RaicoError(f"a Ray task failed: {str(e).splitlines()[-1] if str(e) else type(e).__name__}") from None
-        except (rex.WorkerCrashedError, rex.NodeDiedError, rex.OutOfMemoryError):
-            raise RaicoError(WORKER_DIED) from None
+        except (rex.WorkerCrashedError, rex.NodeDiedError, rex.OutOfMemoryError, rex.ObjectLostError):
+            raise WorkerLost(WORKER_DIED) from None
+
+    def probe_nodes(self, fn: Callable[[], Any]) -> list[Any]:
+        """``fn()`` run once on every alive node of the cluster that has CPUs (pinned to it), in node order."""
+        import ray
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        self._connect()
+        probe = ray.remote(num_cpus=0, max_retries=0)(_ray_call)
+        nodes = [n["NodeID"] for n in ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU")]
+        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node, soft=False)).remote(_call0, fn)
+                for node in nodes]
+        out = []
+        for node, ref in zip(nodes, refs):
+            try:
+                out.append(ray.get(ref, timeout=120))
+            except Exception as e:  # noqa: BLE001 - a node that cannot answer (raico missing there, ...): its name
+                last = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+                raise RaicoError(f"the Ray node {node[:12]} cannot run raico's check of its code: {last}") from None
+        return out
 
     def shutdown(self, cancel: bool = False) -> None:
         if self._remote is None:
@@ -690,3 +726,146 @@ def run_flow(executor: Executor, flow, progress: Callable[[Event], None] | None 
         except Interrupted as e:  # says how many runs are kept (not what one of them kept)
             e.finished, e.scheduled, e.note = sched.finished, scheduled, None
             raise
+
+
+# ----------------------------------------------------------------------------- a stream of many runs
+TASK_TARGET_S = 1.0   # runs shorter than this are batched into tasks of about this long
+MAX_BATCH = 256       # runs in one task at most
+RESUBMITS = 3         # times a task whose worker died is submitted again
+
+
+@dataclass
+class Item:
+    """One run of a :func:`stream`: ``fn(arg)`` in a worker, unless ``lookup()`` (here, before anything
+    is submitted) finds its result cached; ``label`` names it in progress lines."""
+
+    fn: Callable[[Any], Any]
+    arg: Any
+    label: str = ""
+    lookup: Callable[[], Any] | None = None
+    tag: Any = None   # the caller's, carried to its Done (not sent to the worker)
+
+
+@dataclass
+class Done:
+    """A finished run of a :func:`stream`: its value, or (``error``) the one line of what it raised; its
+    wall seconds in the worker (0 for a cached one); where it ran (``node``, from the probe)."""
+
+    item: Item
+    value: Any = None
+    seconds: float = 0.0
+    cached: bool = False
+    error: str | None = None
+    node: Any = None
+
+
+def _run_batch(payload: tuple[list[tuple[Callable[[Any], Any], Any]], Callable[[], Any] | None]) -> tuple[Any, list]:
+    """The one task of a stream, in a worker: ``(probe(), [(seconds, error or None, value) per run])``.
+    A run that raises is that run's error (one line); the batch's other runs go on."""
+    calls, probe = payload
+    out = []
+    for fn, arg in calls:
+        t0 = time.perf_counter()
+        try:
+            value, error = fn(arg), None
+        except Exception as e:  # noqa: BLE001 - one run's failure, reported as its own; an interrupt propagates
+            value, error = None, " ".join(str(e).split()) or type(e).__name__
+            error = f"{type(e).__name__}: {error}" if not isinstance(e, RaicoError) else error
+        out.append((time.perf_counter() - t0, error, value))
+    return (probe() if probe is not None else None), out
+
+
+class VersionMismatch(RaicoError):
+    """A worker node runs other code than this process (the head's): its results are refused."""
+
+
+def stream(executor: Executor, items, *, total: int | None = None, probe: Callable[[], Any] | None = None,
+           target_s: float = TASK_TARGET_S, batch: int | None = None,
+           notify: Callable[[str], None] | None = None) -> Iterator[Done]:
+    """Run ``items`` (any iterable, consumed as it goes: a lazy grid's first run starts before the grid is
+    enumerated) on ``executor``; yield a :class:`Done` per run as it finishes (cached runs at once).
+
+    Each item's ``lookup`` runs here before anything of it is submitted. Runs are sent as tasks of one
+    or more (a task of about ``target_s`` seconds, from the mean time of the runs so far; at most a
+    quarter of what is left per slot, so the last tasks still spread over every slot); at most the
+    executor's slots (plus its queue) of tasks are out at once, so memory is bounded by that, not by
+    the number of items. A task whose worker died (a killed process, a Ray node gone) is submitted again
+    (up to :data:`RESUBMITS` times; its runs that finished are in the cache by then and are found, not
+    recomputed). ``probe`` (a module-level function of no argument) is called in each worker with each
+    task, and on every node of a Ray cluster first: a worker whose answer's ``version`` (its second value)
+    differs from this process's is :class:`VersionMismatch`, naming the node (its first value). ``batch``
+    fixes the runs per task (else adaptive; always 1 on the serial executor); ``notify`` hears a line when
+    a task is submitted again."""
+    mine = probe() if probe is not None else None
+    if probe is not None and hasattr(executor, "probe_nodes") and getattr(executor, "address", None):
+        for answer in executor.probe_nodes(probe):
+            _check_version(answer, mine)
+    source = iter(items)
+    exhausted = False
+    inflight: dict[Future, tuple[list[Item], int]] = {}
+    run_s, timed_runs, pulled = 0.0, 0, 0
+    batching = not isinstance(executor, SerialExecutor)
+
+    def batch_size() -> int:
+        if batch is not None:
+            return max(1, batch)
+        if not batching or not timed_runs:
+            return 1
+        k = int(target_s / max(run_s / timed_runs, 1e-3))
+        if total is not None:
+            k = min(k, max(1, (total - pulled) // (4 * max(1, executor.slots))))
+        return max(1, min(k, MAX_BATCH))
+
+    def submit(sent: list[Item], attempt: int) -> None:
+        future = executor.submit(_run_batch, ([(it.fn, it.arg) for it in sent], probe))
+        inflight[future] = (sent, attempt)
+
+    def room() -> bool:   # (a Ray executor connects when asked its slots: not before a run is to be submitted)
+        return not inflight or len(inflight) < executor.slots * (1 + executor.queued_per_slot)
+
+    while True:
+        while not exhausted and room():
+            runs: list[Item] = []
+            k = batch_size()
+            while len(runs) < k:
+                try:
+                    item = next(source)
+                except StopIteration:
+                    exhausted = True
+                    break
+                pulled += 1
+                value = item.lookup() if item.lookup is not None else None
+                if value is not None:
+                    yield Done(item, value, cached=True)
+                else:
+                    runs.append(item)
+            if runs:
+                submit(runs, 0)
+        if not inflight:
+            return
+        for future in executor.wait(list(inflight)):
+            sent, attempt = inflight.pop(future)
+            try:
+                node, results = executor.result(future)
+            except WorkerLost:
+                if attempt >= RESUBMITS:
+                    raise
+                if notify is not None:
+                    notify(f"a worker died with {len(sent)} run{'s' if len(sent) > 1 else ''} in flight: "
+                           f"{'they run' if len(sent) > 1 else 'it runs'} again elsewhere")
+                submit(sent, attempt + 1)
+                continue
+            if probe is not None:
+                _check_version(node, mine)
+            for item, (seconds, error, value) in zip(sent, results):
+                run_s += seconds
+                timed_runs += 1
+                yield Done(item, value, seconds, False, error, node)
+
+
+def _check_version(answer: Any, mine: Any) -> None:
+    """``answer`` and ``mine`` are ``(node, version)``: a different version is :class:`VersionMismatch`."""
+    if answer is None or mine is None or answer[1] == mine[1]:
+        return
+    raise VersionMismatch(f"node {answer[0]} runs code version {answer[1]}, this head {mine[1]}: its results are "
+                          f"refused (install the same raico on every node)")

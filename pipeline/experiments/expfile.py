@@ -44,11 +44,14 @@ More keys, for experiments that carry their own analysis (the thesis's files, th
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
-(bad combination, solver error) is a row with its error; the others go on. After a run the table
-``runs.csv`` and ``runs.json`` (one row per seed and variant: the swept options, the seed, each
-stage's key and status, scalar metrics, the cost curve's first, last and lowest values and the
-iterations to come within 1 % of its lowest, wall times and code version) is written under
-``artifacts/exp/<name>/``; :func:`summarize` groups it over seeds.
+(bad combination, solver error) is a row with its error; the others go on. The grid is generated as it
+is consumed (a grid of 10^5 points starts its first run at once) and runs on any executor
+(:func:`pipeline.engine.executors.stream`: cached runs looked up first, short runs batched). The runs
+table (one row per seed and variant: the swept options, the seed, each stage's key and status, scalar
+metrics, the cost curve's first, last and lowest values and the iterations to come within 1 % of its
+lowest, wall times and code version) is written as runs finish, ``runs.parquet`` under
+``artifacts/exp/<name>/`` (with ``runs.csv`` and ``runs.json`` beside it); :func:`summarize` groups it
+over seeds.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -122,11 +125,13 @@ class Experiment:
 
     @functools.cached_property
     def variants(self) -> list[Variant]:
-        return _variants(self)
+        """Every variant, as a list (:func:`iter_variants` generates them one at a time)."""
+        return list(iter_variants(self))
 
     @property
     def runs(self) -> list[Run]:
-        return [Run(v, s) for v in self.variants for s in (v.seeds or self.seeds)]
+        """Every run, as a list (:func:`iter_runs` generates them one at a time)."""
+        return list(iter_runs(self))
 
     def variant(self, label: str) -> Variant:
         """The variant labelled ``label``; :class:`BadInput` listing the labels if there is none."""
@@ -397,26 +402,107 @@ def _split(exp: Experiment, key: str) -> tuple[str, str]:
     return exp.stages[0], key
 
 
-def _variants(exp: Experiment) -> list[Variant]:
+def _settings(exp: Experiment, grid_only: bool = False) -> Iterator[tuple[Any, dict[str, Any], Any]]:
+    """``(label or None, {key: value}, own seeds)`` of every variant, generated as it is consumed: the
+    grid's combinations (times the [zip] lists), then the points."""
     axes = list(exp.grid.items())
-    combos = [dict(zip([k for k, _ in axes], values)) for values in itertools.product(*[v for _, v in axes])]
+    names = [k for k, _ in axes]
     n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
-    zips = [{k: v[i] for k, v in exp.zipped.items()} for i in range(n_zip)] or [{}]
-    grid = [{**c, **z} for c in combos for z in zips] if (axes or exp.zipped or not exp.points) else []
-    settings: list[tuple[Any, dict[str, Any], Any]] = [(None, s, ()) for s in grid]
-    settings += [(p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ()))
-                 for p in exp.points]
-    swept_keys = sorted({k for _, s, _ in settings for k in s})
-    out = []
-    for label, setting, seeds in settings:
-        options = {st: dict(opts) for st, opts in exp.base.items()}
-        for key, value in setting.items():
-            stage, option = _split(exp, key)
-            options[stage][option] = value
-        swept = {k: _used_value(exp, options, k) for k in swept_keys}
-        label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
-        out.append(Variant(label, options, swept, tuple(seeds)))
-    return out
+    if axes or exp.zipped or not exp.points:
+        for values in itertools.product(*[v for _, v in axes]):
+            combo = dict(zip(names, values))
+            for i in range(n_zip or 1):
+                yield None, {**combo, **{k: v[i] for k, v in exp.zipped.items()}}, ()
+    if not grid_only:
+        for p in exp.points:
+            yield p["label"], {k: v for k, v in p.items() if k not in ("label", "seeds")}, p.get("seeds", ())
+
+
+def _grid_count(exp: Experiment) -> int:
+    if not (exp.grid or exp.zipped or not exp.points):
+        return 0
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 1
+    return math.prod(len(v) for v in exp.grid.values()) * n_zip
+
+
+def swept_keys(exp: Experiment) -> list[str]:
+    """The options that vary across the experiment: its grid and zip axes and every point's options (a
+    table's option columns); for variants given as a list, the keys of their ``swept``."""
+    if "variants" in exp.__dict__:
+        return sorted({k for v in exp.variants for k in v.swept})
+    keys = set(exp.grid) | set(exp.zipped) if _grid_count(exp) else set()
+    return sorted(keys | {k for p in exp.points for k in p if k not in ("label", "seeds")})
+
+
+def variant_count(exp: Experiment) -> int:
+    """How many variants, without generating them."""
+    if "variants" in exp.__dict__:
+        return len(exp.variants)
+    return _grid_count(exp) + len(exp.points)
+
+
+def run_count(exp: Experiment) -> int:
+    """How many runs, without generating them."""
+    if "variants" in exp.__dict__:
+        return sum(len(v.seeds or exp.seeds) for v in exp.variants)
+    return _grid_count(exp) * len(exp.seeds) + sum(len(p.get("seeds") or exp.seeds) for p in exp.points)
+
+
+def _variant(exp: Experiment, label: Any, setting: dict[str, Any], seeds: Any, keys: list[str]) -> Variant:
+    options = {st: dict(opts) for st, opts in exp.base.items()}
+    for key, value in setting.items():
+        stage, option = _split(exp, key)
+        options[stage][option] = value
+    swept = {k: _used_value(exp, options, k) for k in keys}
+    label = label or ", ".join(f"{k}={v}" for k, v in setting.items()) or "base"
+    return Variant(label, options, swept, tuple(seeds))
+
+
+def iter_variants(exp: Experiment) -> Iterator[Variant]:
+    """The variants one at a time, in the table's order (a grid of any size starts at once, in bounded
+    memory); those of an experiment whose variants were given as a list, from it."""
+    if "variants" in exp.__dict__:
+        yield from exp.variants
+        return
+    keys = swept_keys(exp)
+    for label, setting, seeds in _settings(exp):
+        yield _variant(exp, label, setting, seeds, keys)
+
+
+def iter_runs(exp: Experiment) -> Iterator[Run]:
+    """The runs one at a time: each variant at each of its seeds, in the table's order."""
+    for v in iter_variants(exp):
+        for seed in v.seeds or exp.seeds:
+            yield Run(v, seed)
+
+
+CHECK_ALL_BELOW = 1000   # variants: a larger grid is checked axis value by axis value, not combination by combination
+
+
+def checked_variants(exp: Experiment) -> Iterator[Variant]:
+    """The variants checked before anything runs: all of them up to :data:`CHECK_ALL_BELOW`; of a larger
+    grid its first combination, one combination per value of each axis (the first with that value) and
+    per [zip] position, and every point (a bad value is found before the runs; a combination that no
+    single value explains is its runs' error in the table)."""
+    if "variants" in exp.__dict__ or variant_count(exp) <= CHECK_ALL_BELOW:
+        yield from iter_variants(exp)
+        return
+    keys = swept_keys(exp)
+    first = {k: v[0] for k, v in exp.grid.items()}
+    zip0 = {k: v[0] for k, v in exp.zipped.items()}
+    seen: set[str] = set()
+    settings = [{**first, **zip0}]
+    settings += [{**first, k: x, **zip0} for k, values in exp.grid.items() for x in values]
+    n_zip = len(next(iter(exp.zipped.values()))) if exp.zipped else 0
+    settings += [{**first, **{k: v[i] for k, v in exp.zipped.items()}} for i in range(n_zip)]
+    for setting in settings:
+        v = _variant(exp, None, setting, (), keys)
+        if v.label not in seen:
+            seen.add(v.label)
+            yield v
+    for label, setting, seeds in ((p["label"], {k: x for k, x in p.items() if k not in ("label", "seeds")},
+                                   p.get("seeds", ())) for p in exp.points):
+        yield _variant(exp, label, setting, seeds, keys)
 
 
 def _used_value(exp: Experiment, options: dict, key: str) -> Any:
@@ -465,9 +551,9 @@ def first_config(exp: Experiment, run: Run):
 def validate(exp: Experiment) -> None:
     """Build every run's first-stage config and every later stage's options (with a stand-in input)
     before anything runs: the first bad key or value is one :class:`BadInput` naming the variant."""
-    if not exp.runs:
+    if not run_count(exp):
         raise BadInput(f"{exp.name}: no runs (an empty grid and no [[point]])")
-    for v in exp.variants:
+    for v in checked_variants(exp):
         try:
             first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
             for stage in exp.stages[1:]:
@@ -488,7 +574,8 @@ def identical_seeds(exp: Experiment) -> str | None:
 
     ex_defaults = get_stage("execute").config_cls.defaults() if "execute" in exp.stages else {}
     same = []
-    for v in exp.variants:
+    checked = list(checked_variants(exp))
+    for v in checked:
         seeds = v.seeds or exp.seeds
         if len(seeds) < 2:
             continue
@@ -504,7 +591,7 @@ def identical_seeds(exp: Experiment) -> str | None:
     if not same:
         return None
     n = len(exp.seeds)
-    which = "every variant" if len(same) == len(exp.variants) else ", ".join(same[:3]) + (
+    which = "every variant" if len(same) == len(checked) else ", ".join(same[:3]) + (
         f" and {len(same) - 3} more" if len(same) > 3 else "")
     return (f"exp {exp.name}: note: q0_std = 0 (a problem file's default), so the seeds of {which} are identical "
             f"runs ({n} seeds, one result); for initial states that differ set q0_std in [base] "
@@ -528,7 +615,7 @@ def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapp
 
 
 def _run_chain(args) -> dict:
-    """One run's stages in a worker: ``(root, stages, options, seed, record)`` -> each stage's outcome
+    """One run's stages in a worker: ``(root, stages, options, seed, record, notes_said)`` -> each stage's outcome
     fields, or the error that stopped it (the run's row says it; the experiment goes on)."""
     root, stages, options, seed, record, notes_said = args
     from pipeline.engine import runner
@@ -564,7 +651,7 @@ def model_notes(exp: Experiment) -> tuple[list[str], frozenset[str]]:
 
     lines: list[str] = []
     said = set()
-    for v in exp.variants:
+    for v in checked_variants(exp):
         cfg = first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
         try:
             if getattr(cfg, "problem", None) is not None:
@@ -617,32 +704,135 @@ def dry_run(cache, exp: Experiment) -> Plan:
     return Plan(exp.runs, [_lookup(cache, exp, r, record=False) is not None for r in exp.runs])
 
 
+@dataclass(frozen=True)
+class _Head:
+    """What a run's row needs of its experiment (sent to workers with each run, not the whole grid)."""
+
+    name: str
+    stages: tuple[str, ...]
+
+
+@dataclass
+class Progress:
+    """Where an experiment is: runs ``done`` of ``total`` (``cached`` and ``failed`` among them), the
+    estimated seconds left (None until a run was computed), the run that just finished."""
+
+    done: int
+    total: int
+    cached: int = 0
+    failed: int = 0
+    eta_s: float | None = None
+    label: str | None = None
+    run_s: float = 0.0   # the computed runs' own wall seconds, summed (in their workers)
+
+    def line(self, name: str) -> str:
+        eta = "" if self.eta_s is None else f", ~{_duration(self.eta_s)} left"
+        return (f"exp {name}: {self.done}/{self.total} runs done ({self.cached} cached, {self.failed} failed{eta})"
+                + (f" ({self.label})" if self.label else ""))
+
+
+def _duration(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
+
+
+@functools.cache
+def _raico_version() -> str:
+    from pipeline.engine.runner import source_version
+
+    return source_version("raico", "pipeline", "stages", "planning", "plants")
+
+
+def worker_identity() -> tuple[str, str]:
+    """``(node, code version)`` of the process it runs in: the node is the Ray node (its address and id)
+    in a Ray worker, else the host; the version hashes raico's code (every stage's key holds its part)."""
+    import socket
+    import sys
+
+    node = socket.gethostname()
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        worker = getattr(getattr(ray, "_private", None), "worker", None)
+        try:   # the address the node was started with (ray start --node-ip-address)
+            ip = worker.global_worker.node_ip_address
+        except AttributeError:
+            ip = ray.util.get_node_ip_address()
+        node = f"{ip} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
+    return node, _raico_version()
+
+
+def _job(args) -> dict:
+    """One run in a worker: ``(root, head, run, record, notes_said)`` -> its row of the runs table."""
+    from pipeline.engine.cache import Cache
+
+    root, head, run_, record, notes_said = args
+    result = _run_chain((root, head.stages, run_.variant.options, run_.seed, record, notes_said))
+    return table_row(Cache(root), head, run_, result)
+
+
+def _cached_row(cache, exp: Experiment, head: _Head, run_: Run, record: bool) -> dict | None:
+    """The run's row where every stage is cached (then nothing is submitted), else None."""
+    result = _lookup(cache, exp, run_, record)
+    return None if result is None else table_row(cache, head, run_, result)
+
+
 def run(cache, exp: Experiment, executor: Executor, record: bool = False,
-        progress: Callable[[int, int, str | None], None] | None = None, notes_said: frozenset[str] = frozenset()
-        ) -> list[dict]:
-    """Every run of ``exp`` on ``executor`` (cached runs are looked up here, never submitted); writes
-    the runs table and returns its rows. ``notes_said``: the variants whose plan notes the caller said
+        progress: Callable[[Progress], None] | None = None, notify: Callable[[str], None] | None = None,
+        notes_said: frozenset[str] = frozenset()) -> Rows:
+    """Every run of ``exp`` on ``executor``, the grid generated as it is consumed; cached runs are looked
+    up here before anything is submitted, short runs go in batches (:func:`pipeline.engine.executors.stream`).
+    The runs table is written as runs finish (:class:`TableWriter`) and whole at the end; returns its rows.
+    An interrupt stops the workers; the rows written so far stay (``exp show`` reads them), and a second
+    call recomputes none of the finished runs (they are cached). ``notify`` hears a line when a worker
+    died and its runs in flight run again. ``notes_said``: the variants whose plan notes the caller said
     (:func:`model_notes`): their runs do not say them again."""
-    from pipeline.engine.executors import Batch, Job, run_flow  # (not for the views: exp show starts without it)
+    import time
 
-    runs = exp.runs
+    from pipeline.engine.executors import Item, stream
+    from pipeline.errors import Interrupted
 
-    def flow():
-        jobs = [Job(_run_chain, (str(cache.root), exp.stages, r.variant.options, r.seed, record,
-                                 r.variant.label in notes_said),
-                    f"{r.variant.label} seed {r.seed}", lookup=(lambda r=r: _lookup(cache, exp, r, record)))
-                for r in runs]
-        return (yield Batch("run", jobs))
+    head, root, total = _Head(exp.name, exp.stages), str(cache.root), run_count(exp)
+    writer = TableWriter(cache, exp)
+    state = Progress(0, total)
 
-    events = (lambda ev: progress(ev.done, ev.total, ev.label)) if progress else None
-    # an interrupt kills the workers; their temporary folders go with them (cleanup_stale), not at the next call
-    results = run_flow(executor, flow(), events, on_abort=cache.cleanup_stale, scheduled=len(runs))
-    rows = [table_row(cache, exp, r, res) for r, res in zip(runs, results)]
-    write_table(cache, exp, rows)
-    return rows
+    def items() -> Iterator[Item]:
+        for i, r in enumerate(iter_runs(exp)):
+            yield Item(_job, (root, head, r, record, r.variant.label in notes_said), f"{r.variant.label} seed {r.seed}",
+                       lookup=functools.partial(_cached_row, cache, exp, head, r, record), tag=(i, r))
+
+    t0 = time.perf_counter()
+    try:
+        with executor:
+            said = (lambda line: notify(f"exp {exp.name}: {line}")) if notify else None
+            for done in stream(executor, items(), total=total, probe=worker_identity, notify=said):
+                i, r = done.item.tag
+                row = done.value if done.error is None else \
+                    table_row(cache, head, r, {exp.stages[0]: {"error": done.error}})
+                writer.add(i, row)
+                state.done += 1
+                state.cached += done.cached
+                state.failed += bool(row["failed"])
+                state.run_s += done.seconds
+                elapsed, computing = time.perf_counter() - t0, state.done - state.cached
+                state.eta_s = elapsed / computing * (total - state.done) if computing else None
+                state.label = done.item.label
+                if progress is not None:
+                    progress(state)
+    except Interrupted as e:  # says how many runs are kept (not what one of them kept)
+        writer.flush()
+        _WRITING.discard(writer.prefix)   # its parts stay for exp show; the next call removes them
+        cache.cleanup_stale()   # the killed workers' temporary folders
+        e.finished, e.scheduled, e.note = state.done, total, None
+        raise
+    except BaseException:
+        writer.flush()
+        _WRITING.discard(writer.prefix)
+        cache.cleanup_stale()
+        raise
+    return writer.finish()
 
 
-def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> list[dict]:
+def run_reported(cache, exp: Experiment, executor: Executor, record: bool, reporter) -> Rows:
     """:func:`run` with its progress on ``reporter`` (a bar on a terminal, a line per run otherwise) and
     its outcome said: runs, cached, failed, errors (the first five with their reason) and the table. What
     loading a model file changed is said once, before the runs (not by each run)."""
@@ -650,16 +840,17 @@ def run_reported(cache, exp: Experiment, executor: Executor, record: bool, repor
     for line in lines:
         reporter.say(line)
     with reporter.board() as board:
-        def progress(done: int, total: int, label: str | None) -> None:
-            line = f"exp {exp.name}: {done}/{total} runs done" + (f" ({label})" if label else "")
-            board.update(exp.name, f"exp {exp.name}", done, total, line if label else None)
+        def progress(p: Progress) -> None:
+            board.update(exp.name, f"exp {exp.name} ({p.cached} cached, {p.failed} failed)", p.done, p.total,
+                         p.line(exp.name) if p.label else None)
 
-        rows = run(cache, exp, executor, record=record, progress=progress, notes_said=notes_said)
+        rows = run(cache, exp, executor, record=record, progress=progress, notify=reporter.say,
+                   notes_said=notes_said)
     cached = sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows)
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
     failed = [r for r in rows if r["failed"]]                 # ... or a solver diverged, the robot fell
     reporter.say(f"exp {exp.name}: {len(rows)} runs ({cached} cached; {len(failed)} failed, of them "
-                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / 'runs.csv'}")
+                 f"{len(errors)} with an error) -> {table_dir(cache, exp.name) / TABLE}")
     for r in errors[:5]:
         reporter.say(f"  error: {r['variant']} seed {r['seed']}: {r['error']}")
     return rows
@@ -702,7 +893,7 @@ def _curve(cache, ref: str) -> dict[str, Any]:
             "cost.iterations_to_1pct": int(within[0]) + 1 if within.size else None}
 
 
-def table_row(cache, exp: Experiment, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
+def table_row(cache, exp: Experiment | _Head, run: Run, result: Mapping[str, Any]) -> dict[str, Any]:
     """The runs table's row of one run: variant, swept options, seed, per stage key / status / metrics."""
     row: dict[str, Any] = {"experiment": exp.name, "variant": run.variant.label, **run.variant.swept,
                            "seed": run.seed}
@@ -777,23 +968,241 @@ def table_dir(cache, name: str) -> Path:
     return cache.root / "exp" / name
 
 
+TABLE = "runs.parquet"   # the runs table, columnar (the views read it); runs.csv and runs.json beside it
+PARTS = "runs.parts"     # the rows of a run in progress, a Parquet file per flush, gone when the table is whole
+INDEX = "_run"           # a part's column: the run's place in the experiment's order
+
+
+def _arrow_table(rows: list[dict], columns: list[str] | None = None):
+    """``rows`` as a pyarrow Table (a column of mixed kinds, a number and a word, is written as text)."""
+    import pyarrow as pa
+
+    columns = columns or list(dict.fromkeys(k for r in rows for k in r))
+    arrays = {}
+    for c in columns:
+        values = [r.get(c) for r in rows]
+        try:
+            arrays[c] = pa.array(values)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):
+            arrays[c] = pa.array([None if v is None else str(v) for v in values], pa.string())
+    return pa.table(arrays)
+
+
+def _concat(tables: list):
+    """One table of ``tables`` (their columns united; a column of different kinds across them as text)."""
+    import pyarrow as pa
+
+    try:
+        return pa.concat_tables(tables, promote_options="permissive")
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        kinds: dict[str, set] = {}
+        for t in tables:
+            for f in t.schema:
+                if not pa.types.is_null(f.type):
+                    kinds.setdefault(f.name, set()).add(f.type)
+        mixed = {c for c, k in kinds.items() if len(k) > 1}
+        fixed = []
+        for t in tables:
+            for c in mixed & set(t.column_names):
+                i = t.column_names.index(c)
+                t = t.set_column(i, c, pa.array([None if v is None else str(v) for v in t.column(c).to_pylist()],
+                                                pa.string()))
+            fixed.append(t)
+        return pa.concat_tables(fixed, promote_options="permissive")
+
+
+def _metadata(exp: Experiment) -> dict[str, Any]:
+    return {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
+            "file": str(exp.path) if exp.path else None, "swept": swept_keys(exp)}
+
+
+class TableWriter:
+    """The runs table of one call of :func:`run`, written as runs finish: rows are buffered and flushed
+    every :attr:`FLUSH_ROWS` rows or :attr:`FLUSH_S` seconds as a Parquet file of ``runs.parts/`` (named by
+    host, process and a counter: two calls on one experiment, or on two machines, do not collide);
+    :meth:`finish` puts them together in the experiment's order as ``runs.parquet`` (with ``runs.csv`` and
+    ``runs.json``) and removes them (and those an interrupted or killed call of this host left). Memory while
+    the runs go: one buffer of rows and the columns' order, not the table."""
+
+    FLUSH_ROWS = 500
+    FLUSH_S = 2.0
+
+    def __init__(self, cache, exp: Experiment) -> None:
+        import os
+        import secrets
+        import socket
+        import time
+
+        self.cache, self.exp = cache, exp
+        self.parts = table_dir(cache, exp.name) / PARTS
+        self.prefix = f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}"
+        _WRITING.add(self.prefix)
+        self.buffer: list[dict] = []
+        self.written: list[Path] = []
+        self.order: dict[str, tuple[int, int]] = {}   # column -> (first run with it, its place in that row)
+        self.flushed_at = time.monotonic()
+        self.started = time.time()
+
+    def add(self, index: int, row: dict) -> None:
+        import time
+
+        for pos, k in enumerate(row):
+            if k not in self.order or (index, pos) < self.order[k]:
+                self.order[k] = (index, pos)
+        self.buffer.append({INDEX: index, **row})
+        if len(self.buffer) >= self.FLUSH_ROWS or time.monotonic() - self.flushed_at >= self.FLUSH_S:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered rows as one part (atomically)."""
+        import os
+        import time
+
+        import pyarrow.parquet as pq
+
+        self.flushed_at = time.monotonic()
+        if not self.buffer:
+            return
+        path = self.parts / f"{self.prefix}-{len(self.written):06d}.parquet"
+        tmp = path.with_suffix(".tmp")
+        table = _arrow_table(self.buffer).replace_schema_metadata({"raico": json.dumps(_metadata(self.exp), default=str)})
+        for attempt in range(3):   # another call that finished may remove the empty folder in between
+            self.parts.mkdir(parents=True, exist_ok=True)
+            try:
+                pq.write_table(table, tmp)
+                os.replace(tmp, path)
+                break
+            except FileNotFoundError:
+                if attempt == 2:
+                    raise
+        self.written.append(path)
+        self.buffer = []
+
+    def finish(self) -> Rows:
+        """The whole table: written (``runs.parquet``, ``runs.csv``, ``runs.json``), its parts removed; its rows
+        (columnar in memory, a dict per row as they are read)."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        self.flush()
+        columns = sorted(self.order, key=self.order.__getitem__)
+        table = _concat([pq.read_table(p) for p in self.written]).sort_by(INDEX).drop_columns([INDEX]) \
+            if self.written else pa.table({})
+        newer = self._newer(table)
+        if newer is not None:
+            table = _concat([table, newer]) if table.num_columns else newer
+            columns += [c for c in newer.column_names if c not in columns]
+        table = table.select([c for c in columns if c in table.column_names])
+        _write_arrow(self.cache, self.exp, table)
+        for p in self.written:
+            p.unlink(missing_ok=True)
+        self.close()
+        return Rows(table)
+
+    def close(self) -> None:
+        """This call writes no more parts: the next call removes those it left (an interrupted call's)."""
+        _WRITING.discard(self.prefix)
+        _remove_left_parts(self.parts)
+
+    def _newer(self, ours):
+        """The rows of a table another call of the same experiment wrote while this one ran (a second `exp
+        run` that added a grid value) that ``ours`` (a pyarrow Table) has not, as a Table; None if there are
+        none: the queue grew, the table keeps them."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        path = table_dir(self.cache, self.exp.name) / TABLE
+        try:
+            if path.stat().st_mtime < self.started:
+                return None
+            other = pq.read_table(path)
+        except (OSError, pa.ArrowInvalid):
+            return None
+        if "variant" not in other.column_names or "seed" not in other.column_names:
+            return None
+        have = set(zip(*(ours.column(c).to_pylist() for c in ("variant", "seed")))) if ours.num_rows else set()
+        keep = [i for i, key in enumerate(zip(other.column("variant").to_pylist(), other.column("seed").to_pylist()))
+                if key not in have]
+        return other.take(keep).replace_schema_metadata(None) if keep else None
+
+
+class Rows(Sequence):
+    """The rows of a runs table held as its columns (a pyarrow Table): a dict per row as it is read."""
+
+    CHUNK = 2000
+
+    def __init__(self, table) -> None:
+        self.table = table
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(len(self))[i]]
+        return self.table.slice(range(len(self))[i], 1).to_pylist()[0]
+
+    def __iter__(self) -> Iterator[dict]:
+        for batch in self.table.to_batches(max_chunksize=self.CHUNK):
+            yield from batch.to_pylist()
+
+
+_WRITING: set[str] = set()   # the parts' prefixes of this process's writers that still write
+
+
+def _remove_left_parts(parts: Path) -> None:
+    """Remove the parts that no writer will use any more (their runs are cached, so a whole table written
+    since holds them): of this host, those of a dead process or of a writer of this process that was closed
+    (an interrupted call); the folder if it is empty. A call still running, here or on another host, keeps
+    its parts."""
+    import contextlib
+    import os
+    import socket
+
+    host, me = socket.gethostname(), str(os.getpid())
+    for p in parts.glob(f"{host}-*.parquet") if parts.is_dir() else ():
+        pid, _, rest = p.name[len(host) + 1:].partition("-")
+        prefix = f"{host}-{pid}-{rest.split('-', 1)[0]}"
+        if pid.isdigit() and (not Path(f"/proc/{pid}").exists() if pid != me else prefix not in _WRITING):
+            with contextlib.suppress(OSError):
+                p.unlink()
+    with contextlib.suppress(OSError):
+        parts.rmdir()
+
+
 def write_table(cache, exp: Experiment, rows: list[dict]) -> Path:
-    """``runs.csv`` and ``runs.json`` of the experiment (written atomically), with the file's text."""
-    from pipeline.engine.cache import write_file_atomic
+    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment from ``rows`` (see :func:`_write_arrow`)."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    return _write_arrow(cache, exp, _arrow_table(rows, columns))
+
+
+def _write_arrow(cache, exp: Experiment, table) -> Path:
+    """``runs.parquet``, ``runs.csv`` and ``runs.json`` of the experiment from ``table`` (a pyarrow Table),
+    each written atomically; CSV and JSON a chunk of rows at a time (memory: the table's columns)."""
+    import pyarrow.parquet as pq
+
+    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     out = table_dir(cache, exp.name)
     out.mkdir(parents=True, exist_ok=True)
-    columns = list(dict.fromkeys(k for row in rows for k in row))
-    buf = _csv_text(columns, rows)
-    write_file_atomic(out / "runs.csv", buf)
-    doc = {"experiment": exp.name, "description": exp.description, "stages": list(exp.stages),
-           "file": str(exp.path) if exp.path else None,
-           "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None,
-           "swept": sorted({k for v in exp.variants for k in v.swept}), "rows": rows}
-    from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
-
-    write_file_atomic(out / "runs.json", json.dumps(finite_json(doc), indent=1, default=_json_default,
-                                                    allow_nan=False))
+    meta = _metadata(exp)
+    with atomic_path(out / TABLE) as tmp:
+        pq.write_table(table.replace_schema_metadata({"raico": json.dumps(meta, default=str)}), tmp)
+    columns, rows = table.column_names, Rows(table)
+    with atomic_path(out / "runs.csv") as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns, lineterminator="\n")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+    head = {**{k: v for k, v in meta.items() if k != "swept"},
+            "file_text": exp.path.read_text() if exp.path and exp.path.exists() else None, "swept": meta["swept"]}
+    with atomic_path(out / "runs.json") as tmp, open(tmp, "w") as f:
+        f.write(json.dumps(finite_json(head), indent=1, default=_json_default, allow_nan=False)[:-2])
+        f.write(',\n "rows": [')
+        for i, row in enumerate(rows):
+            f.write(("," if i else "") + "\n  " + json.dumps(finite_json(row), default=_json_default, allow_nan=False))
+        f.write("\n ]\n}")
     return out
 
 
@@ -801,34 +1210,54 @@ def _json_default(x: Any) -> Any:
     return str(x)
 
 
-def _csv_text(columns: list[str], rows: list[dict]) -> str:
-    import io
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
-    return buf.getvalue()
-
-
 # ----------------------------------------------------------------------------- reading the table
 def read_table(cache, name_or_file: str):
     """The runs table (a pandas ``DataFrame``) of an experiment by name or by its file, and the swept
-    option columns; :class:`BadInput` if it has not run."""
+    option columns: ``runs.parquet``, with the rows of a run in progress (``runs.parts/``) over it (an
+    experiment of an older raico: its ``runs.json``); :class:`BadInput` if it has not run."""
     import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
     name = name_or_file
     p = Path(name_or_file)
     if p.suffix == ".toml" and p.exists():
         name = load(p).name
-    path = table_dir(cache, name) / "runs.json"
+    folder = table_dir(cache, name)
+    parts = sorted((folder / PARTS).glob("*.parquet")) if (folder / PARTS).is_dir() else []
+    df, swept = None, None
     try:
-        doc = json.loads(path.read_text())
+        table = pq.read_table(folder / TABLE)
+        swept = json.loads((table.schema.metadata or {}).get(b"raico", b"{}")).get("swept")
+        df = table.to_pandas()
     except FileNotFoundError:
+        with _suppress_missing():
+            doc = json.loads((folder / "runs.json").read_text())
+            df, swept = pd.DataFrame(doc["rows"]), doc.get("swept", [])
+    except (OSError, pa.ArrowInvalid) as e:
+        raise BadInput(f"the runs table {folder / TABLE} cannot be read: {e}") from None
+    live = []
+    for part in parts:
+        try:
+            t = pq.read_table(part)
+        except (OSError, pa.ArrowInvalid):   # a part being replaced as it is read: the next look has it
+            continue
+        swept = swept if swept is not None else json.loads((t.schema.metadata or {}).get(b"raico", b"{}")).get("swept")
+        live.append(t)
+    if live:
+        new = _concat(live).sort_by(INDEX).drop_columns([INDEX]).to_pandas()
+        df = new if df is None else pd.concat([df, new], ignore_index=True).drop_duplicates(
+            ["variant", "seed"], keep="last").reset_index(drop=True)
+    if df is None:
         raise BadInput(f"no runs table of experiment '{name}' under {cache.root / 'exp'}: "
-                       "`raico exp run FILE` makes it") from None
-    return pd.DataFrame(doc["rows"]), list(doc.get("swept", []))
+                       "`raico exp run FILE` makes it")
+    return df, list(swept or [])
+
+
+def _suppress_missing():
+    import contextlib
+
+    return contextlib.suppress(FileNotFoundError)
 
 
 def query(df, where: str | None):
@@ -873,32 +1302,39 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
         cols = [*keys, "seed", "status", "achieved", "error", *metrics]
         out = df[[c for c in cols if c in df.columns]]
         return out.sort_values(sort) if sort else out
-    rows = []
-    for values, g in df.groupby(keys, sort=False, dropna=False):
-        values = values if isinstance(values, tuple) else (values,)
-        row: dict[str, Any] = dict(zip(keys, values))
-        row["n"] = len(g)
-        failed = int(g["failed"].astype(bool).sum()) if "failed" in g else 0
-        row["failed"] = f"{failed}/{len(g)}"
-        if "achieved" in g and g["achieved"].notna().any():   # runs that judged a task, and how many achieved it
-            judged = g["achieved"].dropna()
-            row["achieved"] = f"{int(judged.astype(bool).sum())}/{len(judged)}"
-        if "status" in g:
-            row["statuses"] = ", ".join(f"{st} {k}" for st, k in g["status"].astype(str).value_counts().items())
-        for m in metrics:
-            x = pd.to_numeric(g[m], errors="coerce").dropna().to_numpy(float)
-            if not x.size:
-                row[m] = None
-                continue
-            if stat == "mean":
-                half = _t_half_width(x)
-                row[m] = float(x.mean())
-                row[f"{m} ±95%"] = half
-            else:
-                row[m] = float(np.median(x))
-                row[f"{m} IQR"] = float(np.subtract(*np.percentile(x, [75, 25])))
-        rows.append(row)
-    out = pd.DataFrame(rows)
+    # one pass per column over a group index (groups in order of appearance), not a loop over the groups:
+    # 10,000 runs in 1,000 variants take milliseconds
+    codes = df.groupby(keys, sort=False, dropna=False).ngroup().to_numpy()
+    count = int(codes.max()) + 1 if codes.size else 0
+    first = np.unique(codes, return_index=True)[1] if codes.size else np.array([], int)
+    out = df[keys].iloc[first].reset_index(drop=True)
+    n = np.bincount(codes, minlength=count)
+    out["n"] = n
+    failed = np.bincount(codes, weights=df["failed"].astype(bool).to_numpy(), minlength=count).astype(int) \
+        if "failed" in df else np.zeros(count, int)
+    out["failed"] = [f"{k}/{m}" for k, m in zip(failed, n)]
+    if "achieved" in df and df["achieved"].notna().any():   # runs that judged a task, and how many achieved it
+        judged = df["achieved"].notna().to_numpy()
+        j = np.bincount(codes[judged], minlength=count)
+        yes = np.bincount(codes[judged], weights=df["achieved"][judged].astype(bool).to_numpy(), minlength=count)
+        out["achieved"] = [f"{int(y)}/{k}" if k else None for y, k in zip(yes, j)]
+    if "status" in df:   # per group "status count", most frequent first (ties: the first seen first)
+        tally = pd.Series(codes).groupby([codes, df["status"].astype(str).to_numpy()], sort=False).size()
+        per: list[list[tuple[str, int]]] = [[] for _ in range(count)]
+        for (c, st), k in tally.items():
+            per[c].append((st, int(k)))
+        out["statuses"] = [", ".join(f"{st} {k}" for st, k in sorted(g, key=lambda t: -t[1])) for g in per]
+    for m in metrics:
+        x = pd.Series(pd.to_numeric(df[m], errors="coerce").to_numpy(float))
+        g = x.groupby(codes)
+        if stat == "mean":
+            k = g.count().reindex(range(count)).to_numpy()
+            mean, sd = g.mean().reindex(range(count)).to_numpy(), g.std(ddof=1).reindex(range(count)).to_numpy()
+            out[m] = mean
+            out[f"{m} ±95%"] = _t_half_widths(sd, k)
+        else:
+            out[m] = g.median().reindex(range(count)).to_numpy()
+            out[f"{m} IQR"] = (g.quantile(0.75) - g.quantile(0.25)).reindex(range(count)).to_numpy()
     if sort:
         if sort not in out.columns:
             raise BadInput(f"--sort {sort}: no such column (columns: {', '.join(map(str, out.columns))})")
@@ -906,13 +1342,26 @@ def summarize(df, swept: list[str], metrics: list[str] | None = None, stat: str 
     return out
 
 
+def _t_half_widths(sd, k):
+    """Half-widths of the 95 % t-intervals of means of ``k`` values of standard deviation ``sd`` (arrays);
+    NaN below 2 values."""
+    import numpy as np
+    from scipy import special  # stdtrit is what scipy.stats.t.ppf computes, without importing scipy.stats (~1 s)
+
+    k = np.asarray(k, float)
+    ok = k >= 2
+    out = np.full(k.shape, np.nan)
+    out[ok] = special.stdtrit(k[ok] - 1, 0.975) * np.asarray(sd, float)[ok] / np.sqrt(k[ok])
+    return out
+
+
 def _t_half_width(x) -> float | None:
     """Half-width of the 95 % t-interval of the mean of ``x`` (None below 2 values)."""
     if len(x) < 2:
         return None
-    from scipy import stats
+    from scipy import special
 
-    return float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+    return float(special.stdtrit(len(x) - 1, 0.975) * x.std(ddof=1) / math.sqrt(len(x)))
 
 
 SPREADS = (" IQR", " ±95%")
@@ -998,10 +1447,37 @@ def paired(df, a: str, b: str, metric: str) -> Paired:
     elif np.all(d == 0):
         p, note = 1.0, note + "; every difference is 0"
     else:
+        p = signed_rank_p(d)
+    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+
+
+EXACT_UP_TO = 50   # pairs: scipy.stats.wilcoxon's exact null distribution up to here (without ties or zeros)
+
+
+def signed_rank_p(d) -> float:
+    """Two-sided p-value of Wilcoxon's signed-rank test of the differences ``d``, as ``scipy.stats.wilcoxon(d)``
+    gives it. Without ties or zeros and up to :data:`EXACT_UP_TO` pairs (a table's seeds), from the exact null
+    distribution here (the count of rank subsets per sum; ``scipy.stats`` takes about a second to import,
+    more than ``exp diff``'s whole work); otherwise from ``scipy.stats.wilcoxon``."""
+    import numpy as np
+
+    d = np.asarray(d, float)
+    a = np.abs(d)
+    if d.size > EXACT_UP_TO or np.any(d == 0) or np.unique(a).size != a.size:
         from scipy import stats
 
-        p = float(stats.wilcoxon(d).pvalue)
-    return Paired(metric, a, b, both, d.tolist(), float(np.median(d)), interval, p, note)
+        return float(stats.wilcoxon(d).pvalue)
+    n = d.size
+    ranks = np.empty(n, int)
+    ranks[np.argsort(a)] = np.arange(1, n + 1)
+    r_plus = int(ranks[d > 0].sum())
+    counts = [1] + [0] * (n * (n + 1) // 2)   # subsets of the ranks 1..n by their sum (exact integers)
+    for r in range(1, n + 1):
+        for total in range(len(counts) - 1, r - 1, -1):
+            counts[total] += counts[total - r]
+    whole = 2 ** n
+    cdf, sf = sum(counts[:r_plus + 1]), sum(counts[r_plus:])
+    return min(1.0, 2 * min(cdf, sf) / whole)
 
 
 def render_paired(r: Paired, fmt: str = "table") -> str:

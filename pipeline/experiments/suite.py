@@ -272,7 +272,7 @@ def experiment(suite: Suite, runnable: list[Cell]):
 
 
 def run(cache, suite: Suite, executor, say: Callable[[str], None],
-        progress: Callable[[int, int, str | None], None] | None = None) -> list[Cell]:
+        progress: Callable[[Any], None] | None = None) -> list[Cell]:
     """Every cell of ``suite``: the runnable ones through the cache (``executor``), the runs table
     written; a run that raised keeps its error as the cell's reason (one line through ``say``)."""
     from pipeline.experiments import expfile
@@ -631,7 +631,7 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
 
 # ----------------------------------------------------------------------------- one call
 def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
-          progress: Callable[[int, int, str | None], None] | None = None) -> dict[str, Any]:
+          progress: Callable[[Any], None] | None = None) -> dict[str, Any]:
     """Run the suite (:func:`run`), measure it, and write ``out/<name>.json``, ``<name>.md`` and
     ``<name>_profiles.png``; the document."""
     import json

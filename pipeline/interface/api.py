@@ -125,11 +125,13 @@ def show_png(ref: str, png: str | Path, time: float | None = None, artifacts: st
 
 
 def exp_run(file: str | Path, overrides: list[str] | None = None, artifacts: str | Path | None = None,
-            jobs: int = 2, executor: str = "process", record: bool = False, quiet: bool = False):
+            jobs: int = 2, executor: str = "process", record: bool = False, quiet: bool = False,
+            address: str | None = None):
     """Run an experiment file (``raico exp run FILE -S ...``): every variant at every seed through the cache
     (cached runs are looked up, not run again). Returns its runs table, a pandas ``DataFrame`` (one row per
     run; a run that raised has ``status`` "error" and its reason in ``error``, as in ``runs.csv``).
-    ``overrides``: the ``-S`` ones (``["alpha=3", "seeds=range(5)"]``). Bad input raises
+    ``overrides``: the ``-S`` ones (``["alpha=3", "seeds=range(5)"]``); ``executor``, ``jobs`` and ``address``
+    (a Ray cluster's ``HOST:PORT``) as the command's options. Bad input raises
     :class:`pipeline.errors.BadInput` with the command's message."""
     from pipeline.engine.executors import make_executor
     from pipeline.engine.ui import Reporter
@@ -144,7 +146,7 @@ def exp_run(file: str | Path, overrides: list[str] | None = None, artifacts: str
     reporter = Reporter(quiet)
     for line in exp.notes:   # what the overrides reach, and what they do not
         reporter.say(f"exp {exp.name}: {line}")
-    expfile.run_reported(cache, exp, make_executor(executor, jobs), record, reporter)
+    expfile.run_reported(cache, exp, make_executor(executor, jobs, address), record, reporter)
     return expfile.read_table(cache, exp.name)[0]
 
 

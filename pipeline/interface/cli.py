@@ -142,6 +142,24 @@ Artifacts = Annotated[str | None, typer.Option(
 NoRecord = Annotated[bool, typer.Option("--no-record", help="Skip the .rrd recording and MCAP.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress or messages on stderr.")]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON line with the outcome.")]
+# where the runs of a command that runs many execute (exp run, bench suite, reproduce): one set of options
+ExecutorName = Annotated[str, typer.Option("--executor", help="Where the runs execute: serial (this process), "
+                                           "process (one pool of --jobs worker processes; --jobs 1 runs here) or "
+                                           "ray (a local Ray instance with --jobs CPUs, or the cluster at "
+                                           "--address).")]
+Address = Annotated[str | None, typer.Option("--address", help="Ray cluster to run on (HOST:PORT of its head, "
+                                             "or auto); goes with --executor ray. A head started with a token "
+                                             "needs RAY_AUTH_MODE=token and its token here, as `ray start`.")]
+
+
+def executor_of(name: str, jobs: int, address: str | None):
+    """The executor of ``--executor``, ``--jobs`` and ``--address`` (:class:`BadInput` on a bad value, before
+    any work; nothing starts until the first run that is not cached)."""
+    from pipeline.engine.executors import make_executor
+
+    if not 1 <= jobs <= 64:
+        raise BadInput("--jobs must be in [1, 64]")
+    return make_executor(name, jobs, address)
 
 
 def version_text() -> str:
@@ -346,24 +364,25 @@ def exp_run(
                                                    "the seeds.")] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would run (variants, runs, cached, to "
                                           "compute); run nothing.")] = False,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers.")] = 2,
-    executor: Annotated[str, typer.Option("--executor", help="serial, process (a pool of --jobs processes) or "
-                                          "ray (a local Ray instance).")] = "process",
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers: processes, or the CPUs of a local "
+                                      "Ray instance.")] = 2,
+    executor: ExecutorName = "process",
+    address: Address = None,
     record: Annotated[bool, typer.Option("--record", help="Write each run's recording (off by default: "
                                          "`raico show KEY --open` writes one from the cache).")] = False,
     artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
 ):
     """Run an experiment file: every variant at every seed, each an ordinary cached stage run (a rerun
-    computes only what is missing); then write artifacts/exp/NAME/runs.csv and runs.json. Exit 1 if a
+    computes only what is missing; runs in flight in another call are waited for, not run twice). The grid
+    is generated as it runs; runs shorter than a second go to the workers in batches. The runs table
+    artifacts/exp/NAME/runs.parquet (with runs.csv and runs.json) is written as runs finish. Exit 1 if a
     run raised an error (its row says why), after the others ran; a diverged solver is a result."""
-    from pipeline.engine.executors import make_executor
     from pipeline.engine.ui import Reporter
     from pipeline.experiments import expfile
 
+    pool = executor_of(executor, jobs, address)   # its workers start at the first run that is not cached
     exp = expfile.load(file, set_ or [])
     expfile.validate(exp)
-    if not 1 <= jobs <= 64:
-        raise BadInput("--jobs must be in [1, 64]")
     cache = open_cache(artifacts)
     reporter = Reporter(quiet)
     for line in exp.notes:   # what the -S overrides reach, and what they do not
@@ -373,8 +392,8 @@ def exp_run(
         reporter.say(same)
 
     def summary_of(cached: int) -> dict:
-        runs = len(exp.runs)
-        return {"experiment": exp.name, "variants": len(exp.variants), "seeds": len(exp.seeds), "runs": runs,
+        runs = expfile.run_count(exp)
+        return {"experiment": exp.name, "variants": expfile.variant_count(exp), "seeds": len(exp.seeds), "runs": runs,
                 "cached": cached, "to_compute": runs - cached}
 
     if dry_run:
@@ -387,7 +406,6 @@ def exp_run(
         if json_:
             typer.echo(json.dumps(summary))
         return
-    pool = make_executor(executor, jobs)   # its workers start at the first run that is not cached
     rows = expfile.run_reported(cache, exp, pool, record, reporter)
     summary = summary_of(sum(all(r.get(f"{s}.cached") is True for s in exp.stages) for r in rows))
     errors = [r for r in rows if r["status"] == "error"]     # a stage raised: the run has no result
@@ -395,7 +413,7 @@ def exp_run(
     out = expfile.table_dir(cache, exp.name)
     if json_:
         typer.echo(json.dumps({**summary, "failed": len(failed), "errors": len(errors),
-                               "table": str(out / "runs.csv")}))
+                               "table": str(out / expfile.TABLE)}))
     if errors:
         raise typer.Exit(1)
 
@@ -486,6 +504,8 @@ def bench_suite(
                                                      "repeatable).")] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Parallel workers (1: one run at a time in this process, "
                                       "the cleanest times).")] = 1,
+    executor: ExecutorName = "process",
+    address: Address = None,
     out: Annotated[Path | None, typer.Option("--out", help="Folder of the page, its JSON and the profiles' PNG "
                                              "(default ARTIFACTS/bench).")] = None,
     artifacts: Artifacts = None, quiet: Quiet = False, json_: Json = False,
@@ -495,12 +515,10 @@ def bench_suite(
     limit violations, and Dolan-More performance profiles (table and PNG). With --problem/--solver the page
     and the runs table hold those cells only. A missing problem, a budget of 0 or a solver that cannot
     express a problem is one line and the suite goes on; exit 1 after it if a problem entry could not run."""
-    from pipeline.engine.executors import make_executor
     from pipeline.engine.ui import Reporter
     from pipeline.experiments import suite as suite_mod
 
-    if not 1 <= jobs <= 64:
-        raise BadInput("--jobs must be in [1, 64]")
+    pool = executor_of(executor, jobs, address)
     s = suite_mod.load(file)
     for flag, chosen, have in (("--problem", problem, [p.label for p in s.problems]),
                                ("--solver", solver, [x.label for x in s.solvers])):
@@ -518,11 +536,11 @@ def bench_suite(
         typer.echo(line, err=True)
 
     with reporter.board() as board:
-        def progress(done: int, total: int, label: str | None) -> None:
-            board.update(s.name, f"suite {s.name}", done, total,
-                         f"suite {s.name}: {done}/{total} runs done ({label})" if label else None)
+        def progress(p) -> None:
+            board.update(s.name, f"suite {s.name}", p.done, p.total,
+                         p.line(s.name).replace("exp ", "suite ", 1) if p.label else None)
 
-        doc = suite_mod.bench(cache, s, make_executor("process", jobs), say, out or cache.root / "bench", progress)
+        doc = suite_mod.bench(cache, s, pool, say, out or cache.root / "bench", progress)
     reporter.say(f"suite {s.name}: {len(s.problems)} problems x {len(s.solvers)} solvers -> {doc['outputs'][1]}")
     if json_:
         from pipeline.engine.runner import finite_json

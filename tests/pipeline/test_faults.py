@@ -336,7 +336,7 @@ def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
     (["learn", "--plant", "pendulum", "--task", "swing-up", "--episodes", "101"], 2, "episodes must be in [1, 100]"),
     (["learn", "--plant", "pendulum", "--task", "swing-up", "--babble-points", "100001"], 2,
      "babble-points must be 0 (the plant's default) or in [2, 100000]"),
-    (["reproduce", "--figure", "fig3.2a", "--jobs", "65"], 2, "jobs must be in [1, 64]"),
+    (["reproduce", "--figure", "fig3.2a", "--jobs", "65"], 2, "--jobs must be in [1, 64]"),
     (["reproduce", "--figure", ""], 2, "unknown experiment '': choose one of fig3.2a"),
     (["ls", ""], 2, "unknown stage '': choose one of babble, plan"),
     (["ls", "plann"], 2, "unknown stage 'plann': choose one of babble, plan"),
