@@ -159,9 +159,9 @@ def test_the_signed_rank_p_value_is_scipy_s():
     rng = np.random.default_rng(3)
     for n in (1, 2, 6, 10, 25, 50, 51):
         d = rng.normal(0.3, 1.0, n)
-        assert signed_rank_p(d) == pytest.approx(stats.wilcoxon(d).pvalue, rel=1e-12)
+        assert signed_rank_p(d) == pytest.approx(stats.wilcoxon(d).pvalue, rel=1e-9)
     tied = np.array([1.0, -1.0, 2.0, 3.0, -4.0, 5.0, 0.0, 6.0])
-    assert signed_rank_p(tied) == pytest.approx(stats.wilcoxon(tied).pvalue, rel=1e-12)
+    assert signed_rank_p(tied) == pytest.approx(stats.wilcoxon(tied).pvalue, rel=1e-9)
 
 
 def test_a_second_call_on_the_same_file_adds_what_is_missing_and_shares_the_runs_in_flight(tmp_path):
