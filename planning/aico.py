@@ -820,7 +820,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
     step: _RobustStep | _AICOStep
     al = hard_constraints(problem, X, U, efforts)
     if al is not None:
-        callback, costs = _own_costs(problem, callback)
+        callback, costs = _own_costs(problem, al, callback)
     if opts.schedule == "robust":
         kappa = cost_curvature(problem, X, U)
         # one linearization per trial, at the current iterate (theta = inf): the step is then the minimizer of
@@ -888,13 +888,14 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
     return AugmentedLagrangian(cons, T, AL_MU0 * kappa)
 
 
-def _own_costs(problem: Problem, callback: Callback | None) -> tuple[Callback, dict[int, float]]:
+def _own_costs(problem: Problem, al: AugmentedLagrangian, callback: Callback | None) -> tuple[Callback, dict[int, float]]:
     """A callback that records the problem's own cost of every iterate (the solver's is the merit) and passes
     it on to ``callback``, and the record it fills (iteration -> cost)."""
     costs: dict[int, float] = {}
 
     def cb(rec, X, U) -> None:  # noqa: ANN001
-        costs[rec.iteration] = c = problem.cost(X, U)
+        extra = al.value(X, U)      # 0 where no constraint is active: the merit is the solver's own cost
+        costs[rec.iteration] = c = rec.cost if extra == 0.0 else problem.cost(X, U)
         if callback is not None:
             callback(dataclasses.replace(rec, cost=c), X, U)
     return cb, costs

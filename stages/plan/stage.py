@@ -416,15 +416,19 @@ def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
 
 
 def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
-    """The robot's joint ranges (rad; the joints with a finite one) and, for torque controls, its effort limits
-    (N m; unlimited joints ``inf``) as a problem's hard bounds (``None`` if it has neither)."""
+    """The robot's joint ranges (rad; the joints with a finite one), its velocity limits (rad/s; the joints with
+    a finite one) and, for torque controls, its effort limits (N m; unlimited joints ``inf``) as a problem's
+    hard bounds (``None`` if it has none)."""
     idx = np.flatnonzero(np.isfinite(robot.lower) | np.isfinite(robot.upper))
     eff = np.where((robot.effort > 0) & np.isfinite(robot.effort), robot.effort, np.inf)
     torque = kind == "torque" and bool(np.any(np.isfinite(eff)))
-    if not len(idx) and not torque:
+    vel = robot.velocity if robot.velocity is not None else np.full(robot.n_q, np.inf)
+    vidx = np.flatnonzero(np.isfinite(vel))
+    if not len(idx) and not torque and not len(vidx):
         return None
     return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
-                  q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx])
+                  q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx],
+                  v_index=robot.n_q + vidx if len(vidx) else None, v_lower=-vel[vidx], v_upper=vel[vidx])
 
 
 def control_kind(dynamics) -> str:
