@@ -843,7 +843,8 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
     out = drive(step, start, opts, initial_cost=initial_cost, callback=callback, test=test)
     if al is not None:     # the history reports the problem's own cost (the merit's constraint terms left out)
         out.history = [dataclasses.replace(h, cost=costs.get(h.iteration, h.cost)) for h in out.history]
-        out.message += f" (constraints: {al.updates} multiplier updates, penalty {al.mu / al.mu0:.3g} x its start)"
+        if any(y is not None for y in al.y):
+            out.message += f" (constraints: {al.updates} multiplier updates, penalty {al.mu / al.mu0:.3g} x its start)"
     last = out.last_finite
     beliefs = None
     if out.status is not Status.DIVERGED:

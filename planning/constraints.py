@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -133,12 +133,9 @@ class FunctionConstraint:
     name: str
     fn: Callable[[np.ndarray, np.ndarray], tuple]
     tol: np.ndarray
-    _cache: tuple | None = field(default=None, repr=False)
 
     def _eval(self, X, U):
-        if self._cache is None or self._cache[0] is not X or self._cache[1] is not U:
-            self._cache = (X, U, *self.fn(X, U))
-        return self._cache[2:]
+        return self.fn(X, U)
 
     def values(self, X, U):
         return self._eval(X, U)[0]

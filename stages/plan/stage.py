@@ -649,8 +649,8 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
 
 def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
     """One line where the start ``x0`` lies outside the model's joint ranges, saying what the bounds in
-    force make of it: hard bounds (a problem file's default) keep steps 1..T inside the ranges, so the
-    first step must bring those joints back (else status out-of-bounds); without them only a
+    force make of it: hard bounds (a problem file's default) bring those joints back as fast as their velocity
+    limits allow (:meth:`planning.problem.Bounds.position_box`; else status out-of-bounds); without them only a
     ``joint_limit`` term pulls them in, and without one planning knows no limits."""
     q0 = problem.x0[:robot.n_q]
     outside = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper))
@@ -663,8 +663,8 @@ def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[s
     held = bounds is not None and bounds.has_positions and bool(np.isin(outside, bounds.q_index).any())
     if held:
         return [f"{head}: the hard bounds (--bounds hard{', the default for a problem file' if cfg.problem else ''})"
-                " keep steps 1..T inside them, so the first step must bring them back, or the plan ends "
-                "out-of-bounds; --bounds none plans without them"]
+                " bring them back as fast as their velocity limits allow (inside from step 1 where a joint has "
+                "none), or the plan ends out-of-bounds; --bounds none plans without them"]
     pf = cfg.problem_file() if cfg.problem is not None else None
     soft = pf is not None and any(t.get("type") == "joint_limit" for t in pf.doc["costs"]["terms"].values())
     return [f"{head}: planning keeps no hard bounds (--bounds none); "
