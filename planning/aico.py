@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from planning import kernels
-from planning.constraints import AugmentedLagrangian, ControlBox, StateBox
+from planning.constraints import AugmentedLagrangian, Constraint, ControlBox, StateBox
 from planning.driver import Iterate, Status, Step, Stop, cost_change_within, drive
 from planning.problem import (
     Bounds,
@@ -869,7 +869,7 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
     has_u = efforts is not None and efforts.has_controls
     if not has_u and (b is None or not (b.has_positions or b.has_velocities)):
         return None
-    T, cons = problem.T, []
+    T, cons = problem.T, list[Constraint]()
     kappa = cost_curvature(problem, X, U)
     if b is not None and b.has_positions:
         dt = getattr(problem.dynamics, "dt", 1.0)
