@@ -111,6 +111,7 @@ def transcribe(problem: Problem, X_init: np.ndarray, U_init: np.ndarray, solver:
         s = SnoptSolver()
         opts.SetOption(s.solver_id(), "Major iterations limit", max_iterations)
         opts.SetOption(s.solver_id(), "Major optimality tolerance", tol)
+        opts.SetOption(s.solver_id(), "Iterations limit", 100 * max_iterations)
     else:
         raise ValueError(f"solver must be ipopt or snopt, got {solver!r}")
     t0 = time.perf_counter()
