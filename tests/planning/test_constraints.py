@@ -103,3 +103,29 @@ def test_direct_transcription_matches_the_bounded_qp(solver):
     t = transcribe(pb, np.tile(pb.x0, (pb.T + 1, 1)), np.zeros((pb.T, pb.n_u)), solver=solver)
     assert t.success and t.defect <= 1e-9, t.message
     assert t.cost == pytest.approx(bounded_qp_optimum(pb), rel=1e-6)
+
+
+# crocoddyl's Kinova from its own start (problems/crocoddyl/kinova_reach.toml, joint 3 1.9 rad below its range,
+# velocity limit 0.63 rad/s): the best feasible cost known, from planning.transcription (SNOPT from x0 held,
+# kSolutionFound, dynamics defect 1e-12, every bound kept; 485 s on a shared 2-core machine, too slow for a test)
+KINOVA_BEST_FEASIBLE = 13.8886
+
+
+def test_kinova_from_its_own_start_is_feasible_and_within_1_1x_of_the_best_feasible():
+    """The robust schedule with the hard bounds: every bound kept (status not out-of-bounds), the message says the
+    start was outside, the cost at most 1.1x the direct transcription's (and no lower than it by more than its
+    stopping tolerance allows: a lower cost would be a plan outside the bounds)."""
+    from pathlib import Path
+
+    from planning.aico import AICOOptions, aico
+    from planning.problem import Status
+    from stages.plan.stage import PlanConfig, build_problem
+
+    root = Path(__file__).resolve().parents[2]
+    cfg = PlanConfig(problem=str(root / "problems/crocoddyl/kinova_reach.toml"), dynamics="analytic", q0_std=0.0,
+                     solver="raico", alpha=1.0, alpha_schedule="robust", bounds="hard").normalized()
+    pb = build_problem(cfg)[2]
+    res = aico(pb, AICOOptions(iterations=300, alpha=1.0, schedule="robust"))
+    assert res.status is not Status.OUT_OF_BOUNDS and res.status is not Status.DIVERGED, res.message
+    assert "the start is outside a joint range" in res.message
+    assert KINOVA_BEST_FEASIBLE * (1 - 1e-3) <= res.cost <= 1.1 * KINOVA_BEST_FEASIBLE, res.cost
