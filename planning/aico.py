@@ -611,9 +611,7 @@ class _Sweeps:
     def sweep(self) -> None:
         """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
         without relinearization (``theta = inf``) only the backward sweep."""
-        # the kernel's own relinearization of a task message knows no constraints: with active ones the
-        # relinearizing sweeps run here
-        lib = kernels.library() if self.compiled and not (self.relocate and self._al_model is not None) else None
+        lib = kernels.library() if self.compiled else None
         if lib is not None:
             self._sweep_compiled(lib)
         elif self.relocate:
@@ -696,7 +694,8 @@ class _Sweeps:
             st.dt = _block_form_dt(self.p.dynamics)
         if self._ctask is None:
             self._ctask = kernels.compile_task_set(self.p) or False
-        if self._ctask:
+        if self._ctask and self._al_model is None:
+            # (the compiled task messages know no constraints: with active ones the kernel asks Python for them)
             st.task_fn, st.task_ctx = self._ctask[0], self._ctask[1]
         st.alpha = self.alpha
         Xprev = np.ascontiguousarray(self.Xprev, dtype=float)
