@@ -53,9 +53,10 @@ from typing import Any
 import numpy as np
 
 from planning import kernels
-from planning.costs import ControlTerm, StateTerm
-from planning.driver import Iterate, Status, Step, Stop, drive
+from planning.constraints import AugmentedLagrangian, Constraint, ControlBox, StateBox
+from planning.driver import Iterate, Status, Step, Stop, cost_change_within, drive
 from planning.problem import (
+    Bounds,
     Callback,
     OptionsBase,
     Problem,
@@ -297,6 +298,8 @@ class _Sweeps:
         self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
         self._steps = np.arange(T + 1)
         self._task_memo: tuple | None = None   # (X, U, l_x, l_xx) of the last compiled cost's rows
+        self.al: AugmentedLagrangian | None = None   # hard constraints (planning.constraints), set by the caller
+        self._al_model: tuple | None = None   # (R, r) the constraints add to the task messages, None: nothing
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
         self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
@@ -317,6 +320,10 @@ class _Sweeps:
         if ct is not None:
             kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         self.H, self.h = p.quadratize_controls(U)
+        al = self.al.model(X, U) if self.al is not None else None   # None where no constraint is active
+        if al is not None:     # the constraints' control part: h = H u - l_u
+            self.H = self.H + al[3]
+            self.h = self.h + np.einsum("tij,tj->ti", al[3], U) - al[2]
         if self.lti:
             if not self._C_filled:
                 A, a, B = p.dynamics.linearize(X[0], U[0])
@@ -341,6 +348,11 @@ class _Sweeps:
             (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
         else:
             p.state_derivatives(X, out=(lx, R))                # R = l_xx
+        self._al_model = None
+        if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
+            lx += al[0]
+            R += al[1]
+            self._al_model = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0])
         np.matmul(R, X[:, :, None], out=RA[:, :, n:])          # r = l_xx x - l_x
         RA[:, :, n] -= lx
         if alpha:
@@ -374,7 +386,14 @@ class _Sweeps:
 
     def cost(self, X: np.ndarray, U: np.ndarray) -> float:
         """``problem.cost(X, U)`` with the state terms' values compiled where the task messages are
-        (the same sums in another order: equal to rounding)."""
+        (the same sums in another order: equal to rounding); with hard constraints (``al``) the merit: plus
+        the augmented Lagrangian's terms (0 where none is active)."""
+        c = self._cost(X, U)
+        if self.al is not None and math.isfinite(c):
+            c += self.al.value(X, U)
+        return c
+
+    def _cost(self, X: np.ndarray, U: np.ndarray) -> float:
         ct = self._compiled_tasks()
         if ct is None or not (np.isfinite(X).all() and np.isfinite(U).all()):
             return self.p.cost(X, U)
@@ -452,6 +471,9 @@ class _Sweeps:
         out = self.RA[t]
         np.add(lxx, self._2aI, out=out[:, :n])
         out[:, n] = lxx @ x - lx + 2.0 * self.alpha * self.Xprev[t]
+        if self._al_model is not None:   # the constraints' quadratic model of this iteration's linearization
+            out[:, :n] += self._al_model[0][t]
+            out[:, n] += self._al_model[1][t]
         self._check_finite(out)
 
     @staticmethod
@@ -672,7 +694,8 @@ class _Sweeps:
             st.dt = _block_form_dt(self.p.dynamics)
         if self._ctask is None:
             self._ctask = kernels.compile_task_set(self.p) or False
-        if self._ctask:
+        if self._ctask and self._al_model is None:
+            # (the compiled task messages know no constraints: with active ones the kernel asks Python for them)
             st.task_fn, st.task_ctx = self._ctask[0], self._ctask[1]
         st.alpha = self.alpha
         Xprev = np.ascontiguousarray(self.Xprev, dtype=float)
@@ -757,172 +780,28 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
     opts = options or AICOOptions()
     with single_threaded_blas():
         b = problem.bounds
-        if b is not None and (b.has_positions or b.has_controls):
-            return _aico_in_range(problem, opts, X_init, U_init, callback)
-        return _aico(problem, opts, X_init, U_init, callback)
+        if b is None or not b.has_controls:
+            res = _aico(problem, opts, X_init, U_init, callback)
+        else:   # the efforts are constraints of the iterations, unclipped; the plan's rollout clips them
+            inner = dataclasses.replace(problem, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
+            res = _aico(inner, opts, X_init, U_init, callback, efforts=b)
+            if res.status is not Status.DIVERGED:
+                X, U, o, O = bounded_rollout(problem, res.o, res.O)
+                if np.all(np.isfinite(X)):   # else the unclipped plan stays, its status says out-of-bounds
+                    res.X, res.U, res.o, res.O = X, U, o, O
+                    if res.history:
+                        res.history[-1] = dataclasses.replace(res.history[-1], cost=problem.cost(X, U))
+        if b is not None:
+            bounds_status(problem, res)
+        return res
 
 
-RANGE_TOL = 1e-4      # rad: the augmented Lagrangian's target on a joint range's violation
+RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or velocity limit's violation
+AL_INNER_TOL = 1e-3   # the multipliers move where the merit fell by less than this (relative), or inside the limits
 AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
 
 
-class _RangeAL(StateTerm):
-    """The joint ranges ``lo <= q_j <= hi`` (state coordinates ``idx``) at every step as an augmented
-    Lagrangian: ``mu/2 (max(0, q - hi + y_hi / mu)^2 + max(0, lo - q + y_lo / mu)^2)`` per joint and step,
-    multipliers ``y (T+1, k) >= 0`` (the constant ``-y^2 / (2 mu)`` left out). Exact gradient; Hessian
-    ``mu`` on the joints whose hinge is active."""
-
-    def __init__(self, idx, lo, hi, T: int, mu: float):
-        self.name, self.weight, self.mu = "joint_range_al", 1.0, mu
-        self.idx, self.lo, self.hi = np.asarray(idx), np.asarray(lo, float), np.asarray(hi, float)
-        self.y_hi, self.y_lo = np.zeros((T + 1, len(idx))), np.zeros((T + 1, len(idx)))
-        self._set_times(range(1, T + 1))     # x_0 is the start: no plan changes it
-
-    def _hinges(self, X, idx):
-        Q = X[:, self.idx]
-        hu = np.maximum(0.0, Q - self.hi + self.y_hi[idx] / self.mu)
-        hl = np.maximum(0.0, self.lo - Q + self.y_lo[idx] / self.mu)
-        return hu, hl
-
-    def _value(self, X, idx):
-        hu, hl = self._hinges(X, idx)
-        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
-
-    def _derivs(self, X, idx):
-        hu, hl = self._hinges(X, idx)
-        K, n = X.shape
-        g, H = np.zeros((K, n)), np.zeros((K, n, n))
-        g[:, self.idx] = self.mu * (hu - hl)
-        H[:, self.idx, self.idx] = self.mu * ((hu > 0) | (hl > 0))
-        return g, H
-
-    def update(self, X: np.ndarray, U: np.ndarray) -> None:
-        """The multipliers' first-order update at the trajectory ``X (T+1, n)`` (``U`` unused)."""
-        Q = X[1:, self.idx]
-        self.y_hi[1:] = np.maximum(0.0, self.y_hi[1:] + self.mu * (Q - self.hi))
-        self.y_lo[1:] = np.maximum(0.0, self.y_lo[1:] + self.mu * (self.lo - Q))
-
-
-class _EffortAL(ControlTerm):
-    """The effort limits ``lo <= u_t <= hi`` as an augmented Lagrangian (as ``_RangeAL``): ``mu/2
-    (max(0, u - hi + y_hi / mu)^2 + max(0, lo - u + y_lo / mu)^2)`` per control and step, multipliers
-    ``y (T, m) >= 0``. A batch of other than ``T`` rows (the control-cost check) gets zero multipliers."""
-
-    def __init__(self, lo, hi, T: int, mu: float):
-        self.name, self.weight, self.mu, self.T = "effort_al", 1.0, mu, T
-        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        self.y_hi, self.y_lo = np.zeros((T, self.lo.shape[0])), np.zeros((T, self.lo.shape[0]))
-
-    def _hinges(self, U):
-        U = np.atleast_2d(U)
-        y_hi, y_lo = (self.y_hi, self.y_lo) if U.shape[0] == self.T else (0.0, 0.0)
-        with np.errstate(invalid="ignore"):   # inf - inf of an unlimited control: no hinge
-            hu = np.nan_to_num(np.maximum(0.0, U - self.hi + y_hi / self.mu), nan=0.0)
-            hl = np.nan_to_num(np.maximum(0.0, self.lo - U + y_lo / self.mu), nan=0.0)
-        return hu, hl
-
-    def value(self, U):
-        hu, hl = self._hinges(U)
-        return 0.5 * self.mu * (np.sum(hu * hu, axis=1) + np.sum(hl * hl, axis=1))
-
-    def derivatives(self, U):
-        hu, hl = self._hinges(U)
-        K, m = hu.shape
-        H = np.zeros((K, m, m))
-        H[:, np.arange(m), np.arange(m)] = self.mu * ((hu > 0) | (hl > 0))
-        return self.mu * (hu - hl), H
-
-    def update(self, X: np.ndarray, U: np.ndarray) -> None:
-        """The multipliers' first-order update at the controls ``U (T, m)``."""
-        self.y_hi = np.maximum(0.0, self.y_hi + self.mu * np.where(np.isfinite(self.hi), U - self.hi, -np.inf))
-        self.y_lo = np.maximum(0.0, self.y_lo + self.mu * np.where(np.isfinite(self.lo), self.lo - U, -np.inf))
-
-
-def _aico_in_range(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
-    """AICO / R-AICO with the hard bounds of ``problem.bounds`` kept by an augmented Lagrangian (the joint
-    ranges: ``_RangeAL``; the efforts: ``_EffortAL``): inner solves of the problem plus those terms, without
-    clipping (each from the last one's trajectory and controls, a rollout), then the multipliers' update,
-    ``mu *= 10`` when the largest violation did not fall by 4; stops when a solve converged with every joint
-    within ``RANGE_TOL`` rad of its range and every control within ``RANGE_TOL`` (relative to its largest
-    limit) of its effort, or at the iteration budget. The plan is the last controller rolled out with its
-    controls clipped into their box (:func:`bounded_rollout`: the efforts hold exactly). The history reports
-    the problem's own cost (the Lagrangian's terms left out); ``mu`` starts at ``AL_MU0 kappa`` on the ranges
-    (:func:`cost_curvature`: the cost's curvature per (state unit)^2 and step) and at ``AL_MU0`` times the
-    control cost's mean curvature on the efforts, so that both are invariant to the cost's scale."""
-    b, T = problem.bounds, problem.T
-    U = np.zeros((T, problem.n_u)) if U_init is None else np.asarray(U_init, float)
-    X = np.tile(problem.x0, (T + 1, 1)) if X_init is None else np.asarray(X_init, float)
-    if X_init is None and U_init is not None:
-        X = rollout(problem.dynamics, problem.x0, U)
-    mu = AL_MU0 * cost_curvature(problem, X, U)
-    _, H = problem.control_derivatives(U)
-    mu_u = AL_MU0 * float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (control unit)^2
-    terms = ([_RangeAL(b.q_index, b.q_lower, b.q_upper, T, mu)] if b.has_positions else []) + (
-        [_EffortAL(b.u_lower, b.u_upper, T, mu_u)] if b.has_controls else [])
-    mu_max = {id(t): 1e6 * t.mu for t in terms}
-    sub = dataclasses.replace(problem, state_terms=[*problem.state_terms, *terms[:b.has_positions]],
-                              control_terms=[*problem.control_terms, *terms[b.has_positions:]], bounds=None)
-    u_scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)), initial=1.0)) \
-        if b.has_controls else 1.0
-    history, last, viol, it0, t0, solves = [], None, math.inf, 0, 0.0, 0
-    chunk, alpha = max(10, opts.iterations // 4), opts.alpha
-    Xi, Ui = X_init, U_init
-    while it0 < opts.iterations:
-        n = min(chunk, opts.iterations - it0)
-        costs: dict[int, float] = {}
-
-        def cb(rec, Xc, Uc, costs=costs, it0=it0, t0=t0):   # noqa: ANN001
-            c = problem.cost(Xc, Uc)
-            costs[rec.iteration] = c
-            if callback is not None:
-                callback(dataclasses.replace(rec, iteration=it0 + rec.iteration, cost=c,
-                                             elapsed_s=t0 + rec.elapsed_s), Xc, Uc)
-
-        res = _aico(sub, dataclasses.replace(opts, iterations=n, alpha=alpha), Xi, Ui, cb)
-        solves += 1
-        if last is None:
-            initial_cost, X_initial = problem.cost(res.X_initial, U), res.X_initial
-        history += [dataclasses.replace(h, iteration=it0 + h.iteration, cost=costs.get(h.iteration, math.inf),
-                                        elapsed_s=t0 + h.elapsed_s) for h in res.history]
-        it0, t0 = it0 + res.iterations, t0 + (res.history[-1].elapsed_s if res.history else 0.0)
-        if res.status is Status.DIVERGED:
-            if last is None:
-                last = res
-            break
-        last = res
-        q, u = b.violation(res.X, res.U)
-        new_viol = max(q, u / u_scale)
-        if res.status is Status.CONVERGED and new_viol <= RANGE_TOL:
-            break
-        for term in terms:
-            term.update(res.X, res.U)
-            if new_viol > 0.25 * viol:
-                term.mu = min(term.mu * 10.0, mu_max[id(term)])
-        viol = new_viol
-        Xi, Ui = res.X, res.U      # the next solve starts at this rollout (feasible)
-        chunk = max(10, opts.iterations // 10)   # later solves start near their optimum: update more often
-        if opts.schedule == "robust" and res.history:   # and at the regularization this one ended with
-            alpha = min(max(res.history[-1].mu, 1e-6), 1.0)
-    X, U, o, O = (last.X, last.U, last.o, last.O)
-    if last.status is not Status.DIVERGED:
-        clipped = bounded_rollout(problem, last.o, last.O)
-        if np.all(np.isfinite(clipped[0])):   # else the unclipped plan stays, its status says out-of-bounds
-            X, U, o, O = clipped
-        if history:
-            history[-1] = dataclasses.replace(history[-1], cost=problem.cost(X, U))
-    q, u = b.violation(X, U)
-    capped = last.status is Status.MAX_ITERATIONS
-    message = (f"reached {len(history)} iterations" if capped else last.message) + (
-        f" (augmented Lagrangian: {solves} solves{f', the last: {last.message}' if capped else ''}; largest "
-        f"excess {q:.2g} rad, {u:.2g} control units)")
-    out = Result(X=X, U=U, o=o, O=O, status=last.status, history=history,
-                 iterations=len(history), message=message, initial_cost=initial_cost, beliefs=last.beliefs,
-                 solver=last.solver, X_initial=X_initial)
-    bounds_status(problem, out)
-    return out
-
-
-def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Result:
+def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts: Bounds | None = None) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
     if U.shape != (T, n_u):
@@ -938,6 +817,9 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     _check_control_cost(problem)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
     step: _RobustStep | _AICOStep
+    al = hard_constraints(problem, X, U, efforts)
+    if al is not None:
+        callback, costs = _own_costs(problem, al, callback)
     if opts.schedule == "robust":
         kappa = cost_curvature(problem, X, U)
         # one linearization per trial, at the current iterate (theta = inf): the step is then the minimizer of
@@ -946,11 +828,22 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
         sw = _Sweeps(problem, dataclasses.replace(opts, theta=math.inf, process_noise=opts.process_noise / kappa,
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
-        step = _RobustStep(problem, sw, opts, kappa, initial_cost if feasible else None)
+        sw.al = al
+        start_merit = initial_cost + (al.value(X0_roll, U) if al is not None and feasible else 0.0)
+        step = _RobustStep(problem, sw, opts, kappa, start_merit if feasible else None)
     else:
         sw = _Sweeps(problem, opts)
+        sw.al = al
         step = _AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
-    out = drive(step, start, opts, initial_cost=initial_cost, callback=callback)
+    test = cost_change_within
+    if al is not None:     # no convergence outside the constraints
+        def test(previous: float, cost: float, tol: float) -> bool:
+            return al.last_violation <= 1.0 and cost_change_within(previous, cost, tol)
+    out = drive(step, start, opts, initial_cost=initial_cost, callback=callback, test=test)
+    if al is not None:     # the history reports the problem's own cost (the merit's constraint terms left out)
+        out.history = [dataclasses.replace(h, cost=costs.get(h.iteration, h.cost)) for h in out.history]
+        if any(y is not None for y in al.y):
+            out.message += f" (constraints: {al.updates} multiplier updates, penalty {al.mu / al.mu0:.3g} x its start)"
     last = out.last_finite
     beliefs = None
     if out.status is not Status.DIVERGED:
@@ -962,6 +855,50 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback) -> Resu
     return Result(X=last.X, U=last.U, o=last.o, O=last.O, status=out.status, history=out.history,
                   iterations=len(out.history), message=out.message, initial_cost=initial_cost,
                   beliefs=beliefs, solver="raico" if opts.alpha > 0 else "aico", X_initial=X0_roll)
+
+
+def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None
+                     ) -> AugmentedLagrangian | None:
+    """The hard constraints of ``problem.bounds`` (joint ranges, from a start outside one as far as the velocity
+    limits let it come back, :meth:`planning.problem.Bounds.position_box`; joint velocity limits) and the effort
+    limits of ``efforts`` as an augmented Lagrangian with the penalty ``AL_MU0 kappa`` (:func:`cost_curvature`
+    at ``X, U``: invariant to the cost's scale; on the efforts ``AL_MU0`` times the control cost's mean
+    curvature), or ``None`` (no constraint)."""
+    b = problem.bounds
+    has_u = efforts is not None and efforts.has_controls
+    if not has_u and (b is None or not (b.has_positions or b.has_velocities)):
+        return None
+    T, cons = problem.T, list[Constraint]()
+    kappa = cost_curvature(problem, X, U)
+    if b is not None and b.has_positions:
+        dt = getattr(problem.dynamics, "dt", 1.0)
+        lo, hi = b.position_box(problem.x0, float(dt) if isinstance(dt, (int, float)) and dt > 0 else 1.0, T)
+        cons.append(StateBox("joint_range", b.q_index, lo, hi, RANGE_TOL))
+    if b is not None and b.has_velocities:
+        k = len(b.v_index)
+        cons.append(StateBox("joint_velocity", b.v_index, np.broadcast_to(b.v_lower, (T + 1, k)),
+                             np.broadcast_to(b.v_upper, (T + 1, k)), RANGE_TOL))
+    if has_u:
+        idx = np.flatnonzero(np.isfinite(efforts.u_lower) | np.isfinite(efforts.u_upper))
+        _, H = problem.control_derivatives(U)
+        curv = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (control unit)^2
+        scale = np.max(np.abs(np.where(np.isfinite(efforts.u_upper), efforts.u_upper, 0.0)), initial=1.0)
+        cons.append(ControlBox("effort", idx, efforts.u_lower[idx], efforts.u_upper[idx],
+                               np.full(len(idx), RANGE_TOL * scale), scale=curv / kappa))
+    return AugmentedLagrangian(cons, T, AL_MU0 * kappa)
+
+
+def _own_costs(problem: Problem, al: AugmentedLagrangian, callback: Callback | None) -> tuple[Callback, dict[int, float]]:
+    """A callback that records the problem's own cost of every iterate (the solver's is the merit) and passes
+    it on to ``callback``, and the record it fills (iteration -> cost)."""
+    costs: dict[int, float] = {}
+
+    def cb(rec, X, U) -> None:  # noqa: ANN001
+        extra = al.value(X, U)      # 0 where no constraint is active: the merit is the solver's own cost
+        costs[rec.iteration] = c = rec.cost if extra == 0.0 else problem.cost(X, U)
+        if callback is not None:
+            callback(dataclasses.replace(rec, cost=c), X, U)
+    return cb, costs
 
 
 def _rows_identical(Z: np.ndarray) -> bool:
@@ -1009,14 +946,16 @@ class _AICOStep:
         self.opts = opts
         self.adaptive = opts is not None and opts.schedule == "adaptive"
         self.cur_cost = initial_cost   # cost of the iterate the next step starts from (adaptive)
+        self._last_merit = math.inf    # the merit of the last iterate (the constraints' multiplier updates)
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         step = self._trial(cur)
         if not self.adaptive or step.stop is not None:
-            return step
+            return self._update_constraints(step)
         o = self.opts
         if step.cost <= self.cur_cost:   # accepted: take larger steps
             self.alpha = max(o.alpha_min, step.step * o.shrink)
+            step = self._update_constraints(step)
             self.cur_cost = step.cost
             return step
         self.alpha = min(o.alpha_max, step.step * o.grow)   # rejected: keep the iterate, smaller step
@@ -1048,6 +987,29 @@ class _AICOStep:
 
     def _after_linearize(self, cur: Iterate) -> None:
         """Hook after the linearization at ``cur``, before the sweeps (the robust schedule's model)."""
+
+    def _merit(self, X: np.ndarray, U: np.ndarray) -> float:
+        """The problem's cost of ``X, U``, plus the hard constraints' augmented Lagrangian terms (``sw.al``)."""
+        c = self.problem.cost(X, U)
+        if self.sw.al is not None and math.isfinite(c):
+            c += self.sw.al.value(X, U)
+        return c
+
+    def _update_constraints(self, step: Step) -> Step:
+        """After a step that moved the iterate: the multipliers' and penalty's update at its iterate
+        (:meth:`planning.constraints.AugmentedLagrangian.update`), its cost the merit under them."""
+        al = self.sw.al
+        if al is None or not step.moved or (step.stop is not None and step.stop.status is Status.DIVERGED) \
+                or not math.isfinite(step.cost):
+            return step
+        prev, self._last_merit = self._last_merit, step.cost
+        if abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost) and al.violation(step.iterate.X, step.iterate.U) > 1.0:
+            return step     # the merit still falls: its minimizer is not yet found (the multipliers wait)
+        X, U = step.iterate.X, step.iterate.U
+        base = step.cost - al.value(X, U)
+        al.update(X, U)
+        self._last_merit = base + al.value(X, U)
+        return dataclasses.replace(step, cost=self._last_merit)
 
     def _failed(self, cur: Iterate, alpha: float, why: str) -> Step:
         """A numerical failure: cost ``inf``, status diverged."""
@@ -1094,11 +1056,13 @@ class _RobustStep(_AICOStep):
             self.sw.qI = self.sw.q * self.sw.I
         if self.cur_cost is None:   # the start is no trajectory: take the first finite trial
             if failed or not math.isfinite(step.cost):
-                return self._reject(cur, step, lam, self.problem.cost(cur.X, cur.U), measured=False)
-            start_cost = self.problem.cost(cur.X, cur.U)
+                return self._reject(cur, step, lam, self._merit(cur.X, cur.U), measured=False)
+            start_cost = self._merit(cur.X, cur.U)
             self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
-            self.cur_cost = step.cost
-            return Step(step.iterate, step.cost, step=step.step, mu=lam, repeats=step.repeats)
+            out = self._update_constraints(Step(step.iterate, step.cost, step=step.step, mu=lam,
+                                                repeats=step.repeats))
+            self.cur_cost = out.cost
+            return out
         if failed:
             return self._reject(cur, step, lam, self.cur_cost, measured=False)
         trial, pred_full, measured = step.iterate, None, False
@@ -1107,7 +1071,7 @@ class _RobustStep(_AICOStep):
                 trial = self._shortened(cur, step.iterate, eps)
                 if trial is None:
                     continue
-            cost = step.cost if eps == 1.0 else self.problem.cost(trial.X, trial.U)
+            cost = step.cost if eps == 1.0 else self._merit(trial.X, trial.U)
             if not math.isfinite(cost):
                 continue
             measured = True
@@ -1133,15 +1097,29 @@ class _RobustStep(_AICOStep):
                 # beyond rounding: a stationary point (else lambda would climb to its cap, trial after trial)
                 out = dataclasses.replace(out, stop=Stop(Status.CONVERGED, f"predicted decrease {pred_full:.3g} "
                                                      f"below tol_rel x cost ({tol:.3g}) at lambda = {lam:.3g}"))
-            return out
+            return self._stationary_infeasible(cur, out)
         if eps < 1.0:   # the step was too long: more regularization next time
             self.lam = min(o.lambda_max, lam * 2.0)
         else:
             rho = 1.0 if pred <= 0 else actual / pred
             self.lam = max(o.lambda_min, lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3))
         self.nu, self.ascents = 2.0, 0
-        self.cur_cost = cost
-        return Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats)
+        out = self._update_constraints(Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats))
+        self.cur_cost = out.cost
+        return out
+
+    def _stationary_infeasible(self, cur: Iterate, out: Step) -> Step:
+        """A stationary point of the merit that breaks a hard constraint is no solution: the multipliers and
+        penalty move there (the merit changes, so does its model) and the run goes on."""
+        al = self.sw.al
+        if al is None or out.stop is None or out.stop.status is not Status.CONVERGED \
+                or al.violation(cur.X, cur.U) <= 1.0:
+            return out
+        al.update(cur.X, cur.U)
+        al.force_growth()
+        self.cur_cost = self._merit(cur.X, cur.U)
+        self._model_of, self.ascents = None, 0
+        return dataclasses.replace(out, cost=self.cur_cost, stop=None)
 
     def _shortened(self, cur: Iterate, new: Iterate, eps: float) -> Iterate | None:
         """``u_t = U_t + eps (o_t + O_t X_t - U_t) + O_t (x_t - X_t)`` about ``cur`` (DDP's line

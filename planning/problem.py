@@ -54,13 +54,17 @@ RANGE_STATUS_TOL = 1e-3  # rad: a plan beyond a joint range by more than this sa
 class Bounds:
     """Hard bounds a solver keeps (beside any soft limit term): controls ``u_lower <= u_t <= u_upper``
     ``(n_u,)`` (``None``: unbounded; ``inf`` entries unbounded) and the positions ``q_lower <= x_t[j] <=
-    q_upper`` of the state coordinates ``q_index (k,)`` (rad; ``None``: none)."""
+    q_upper`` of the state coordinates ``q_index (k,)`` (rad; ``None``: none), and the joint velocities
+    ``v_lower <= x_t[j] <= v_upper`` of the state coordinates ``v_index`` (rad/s; ``None``: none)."""
 
     u_lower: np.ndarray | None = None
     u_upper: np.ndarray | None = None
     q_index: np.ndarray | None = None
     q_lower: np.ndarray | None = None
     q_upper: np.ndarray | None = None
+    v_index: np.ndarray | None = None
+    v_lower: np.ndarray | None = None
+    v_upper: np.ndarray | None = None
 
     @property
     def has_controls(self) -> bool:
@@ -69,6 +73,32 @@ class Bounds:
     @property
     def has_positions(self) -> bool:
         return self.q_index is not None and len(self.q_index) > 0
+
+    @property
+    def has_velocities(self) -> bool:
+        return self.v_index is not None and len(self.v_index) > 0
+
+    def velocity_violation(self, X: np.ndarray) -> float:
+        """Largest excess (rad/s) of ``X (T+1, n_x)`` (steps 1..T) beyond the velocity limits (0 inside)."""
+        if not self.has_velocities:
+            return 0.0
+        V = X[1:, self.v_index]
+        return float(max(0.0, np.max(V - self.v_upper), np.max(self.v_lower - V)))
+
+    def position_box(self, x0: np.ndarray, dt: float, T: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ranges per step ``(T+1, k)`` a plan from ``x0`` must keep: the joint ranges, and for a joint
+        that starts outside its range, as far as its velocity limit lets it come back by step ``t``
+        (:func:`planning.constraints.reachable_box`)."""
+        from planning.constraints import reachable_box
+
+        vmax = np.full(len(self.q_index), np.inf)
+        if self.has_velocities:
+            n_q = x0.shape[0] // 2
+            for j, qi in enumerate(self.q_index):
+                hit = np.flatnonzero(np.asarray(self.v_index) == qi + n_q)
+                if len(hit):
+                    vmax[j] = min(-self.v_lower[hit[0]], self.v_upper[hit[0]])
+        return reachable_box(self.q_lower, self.q_upper, x0[self.q_index], vmax, dt, T)
 
     def violation(self, X: np.ndarray, U: np.ndarray) -> tuple[float, float]:
         """Largest excess ``(positions (rad), controls)`` of ``X (T+1, n_x)`` (steps 1..T), ``U (T, n_u)``
@@ -147,6 +177,10 @@ class Problem:
         if b is None or not b.has_controls:
             X, U = self.controller_rollout(o, O, kernel=kernel)
             return X, U, o, O
+        with np.errstate(invalid="ignore"):   # no control beyond its box: the unbounded rollout's numbers
+            X, U = self.controller_rollout(o, O, kernel=kernel)
+            if np.all(np.isfinite(X)) and np.all((U >= b.u_lower) & (U <= b.u_upper)):
+                return X, U, o, O
         T, step = o.shape[0], self.dynamics.step
         X, U = np.empty((T + 1, self.n_x)), np.empty(o.shape)
         X[0] = self.x0
@@ -397,17 +431,54 @@ class Result:
 
 
 def bounds_status(problem: Problem, res: Result) -> None:
-    """Status ``out-of-bounds`` (and why) for a plan beyond a joint range by more than ``RANGE_STATUS_TOL`` or
-    beyond an effort limit (relative 1e-9); a diverged plan keeps its status."""
+    """Status ``out-of-bounds`` (and why) for a plan beyond a joint range by more than ``RANGE_STATUS_TOL`` (rad;
+    from a start outside a range: beyond the range as far as the velocity limits let the joint come back,
+    :meth:`Bounds.position_box`), beyond a velocity limit by more than ``RANGE_STATUS_TOL`` (rad/s) or beyond an
+    effort limit (relative 1e-9); a diverged plan keeps its status. A start outside a range is said in the
+    message (with the first step the plan is inside), whatever the status."""
+    b = problem.bounds
+    note = start_outside_note(problem, res.X) if np.all(np.isfinite(res.X)) else ""
+    if note:
+        res.message = f"{note}; {res.message}"
     if res.status is Status.DIVERGED or not np.all(np.isfinite(res.X)):
         return
-    b = problem.bounds
-    q, u = b.violation(res.X, res.U)
+    _, u = b.violation(res.X, res.U)
+    q = 0.0
+    if b.has_positions:
+        lo, hi = b.position_box(problem.x0, _dt(problem), problem.T)
+        Q = res.X[1:, b.q_index]
+        q = float(max(0.0, np.max(Q - hi[1:]), np.max(lo[1:] - Q)))
+    v = b.velocity_violation(res.X)
     scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)))) if b.has_controls else 0.0
-    if q > RANGE_STATUS_TOL or u > 1e-9 * max(scale, 1.0):
-        what = f"a joint range by {q:.3g} rad" if q > RANGE_STATUS_TOL else f"an effort limit by {u:.3g}"
+    if q > RANGE_STATUS_TOL or v > RANGE_STATUS_TOL or u > 1e-9 * max(scale, 1.0):
+        what = (f"a joint range by {q:.3g} rad" if q > RANGE_STATUS_TOL else
+                f"a velocity limit by {v:.3g} rad/s" if v > RANGE_STATUS_TOL else f"an effort limit by {u:.3g}")
         res.status = Status.OUT_OF_BOUNDS
         res.message = f"the plan leaves {what} ({res.message})"
+
+
+def _dt(problem: Problem) -> float:
+    dt = getattr(problem.dynamics, "dt", None)
+    return float(dt) if isinstance(dt, (int, float)) and dt > 0 else 1.0
+
+
+def start_outside_note(problem: Problem, X: np.ndarray) -> str:
+    """``""``, or where the start lies outside a joint range of ``problem.bounds``: which joints, by how much
+    and the first step at which the plan ``X (T+1, n_x)`` is inside every range."""
+    b = problem.bounds
+    if b is None or not b.has_positions:
+        return ""
+    q0 = problem.x0[b.q_index]
+    excess = np.maximum(b.q_lower - q0, q0 - b.q_upper)
+    out = np.flatnonzero(excess > 0)
+    if not len(out):
+        return ""
+    Q = X[:, b.q_index]
+    inside = np.all((Q >= b.q_lower - RANGE_STATUS_TOL) & (Q <= b.q_upper + RANGE_STATUS_TOL), axis=1)
+    first = int(np.argmax(inside)) if inside.any() else None
+    which = ", ".join(f"coordinate {b.q_index[j]} by {excess[j]:.3g} rad" for j in out[:4])
+    return (f"the start is outside a joint range ({which}); the plan is inside "
+            + (f"from step {first}" if first is not None else f"at no step of its {problem.T}"))
 
 
 def is_lti(dynamics) -> TypeGuard[LinearDynamics]:

@@ -686,6 +686,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
     lower = np.array([j.position_lower_limits()[0] for j in planning])
     upper = np.array([j.position_upper_limits()[0] for j in planning])
     efforts = np.array([0.0 if j.name() in spec.unactuated else _effort_of(plant, j) for j in planning])
+    velocity = np.array([min(-j.velocity_lower_limits()[0], j.velocity_upper_limits()[0]) for j in planning])
+    velocity = np.where(velocity > 0, velocity, np.inf)   # 0 or less: no limit stated
     for k, name in enumerate(names):
         lower[k] = limits.get(name, {}).get("lower", lower[k])
         upper[k] = limits.get(name, {}).get("upper", upper[k])
@@ -699,7 +701,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
                   effort=efforts, default_q=default, end_effectors=dict(spec.end_effectors),
                   B_act=plant.MakeActuationMatrix(),
                   support_polygon=np.array(spec.sole) if spec.sole else None, hands=spec.hands, feet=spec.feet,
-                  execution=spec.execution, time_step=spec.time_step)
+                  execution=spec.execution, time_step=spec.time_step, velocity=velocity)
     robot.load_report = notes
     robot.spec = spec
     return robot

@@ -42,6 +42,7 @@ class Robot:
     execution: str = "discrete"  # plants.model_file.EXECUTIONS: how the robot is executed
     time_step: float = 1e-3  # s, the execution's step (a continuous plant's largest integrator step)
     spec: Any = None  # the plants.model_file.RobotSpec it was loaded from
+    velocity: np.ndarray | None = None  # (n_q,) rad/s (m/s), the model file's velocity limits (inf: none); None: unknown
     load_report: list = field(default_factory=list)  # what loading the model file changed (one line each)
     _context: Any = field(default=None, repr=False)
     _P_pinv: np.ndarray | None = field(default=None, repr=False)  # pinv(P), computed once

@@ -436,17 +436,21 @@ def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
 
 
 def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
-    """The robot's joint ranges (rad; the joints with a finite one) and, for torque controls, its effort limits
-    (N m; unlimited joints ``inf``) as a problem's hard bounds (``None`` if it has neither)."""
+    """The robot's joint ranges (rad; the joints with a finite one), its velocity limits (rad/s; the joints with
+    a finite one) and, for torque controls, its effort limits (N m; unlimited joints ``inf``) as a problem's
+    hard bounds (``None`` if it has none)."""
     idx = np.flatnonzero(np.isfinite(robot.lower) | np.isfinite(robot.upper))
     eff = np.where((robot.effort > 0) & np.isfinite(robot.effort), robot.effort, np.inf)
     if kind == "torque" and robot.underactuated:  # the controls are the motors' commands
         eff = robot.effort[robot.actuated]
     torque = kind == "torque" and bool(np.any(np.isfinite(eff)))
-    if not len(idx) and not torque:
+    vel = robot.velocity if robot.velocity is not None else np.full(robot.n_q, np.inf)
+    vidx = np.flatnonzero(np.isfinite(vel))
+    if not len(idx) and not torque and not len(vidx):
         return None
     return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
-                  q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx])
+                  q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx],
+                  v_index=robot.n_q + vidx if len(vidx) else None, v_lower=-vel[vidx], v_upper=vel[vidx])
 
 
 def actuated(dyn, robot: Robot, substeps: int = 1):
@@ -708,8 +712,8 @@ def reach_notes(robot: Robot, problem: Problem) -> list[str]:
 
 def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[str]:
     """One line where the start ``x0`` lies outside the model's joint ranges, saying what the bounds in
-    force make of it: hard bounds (a problem file's default) keep steps 1..T inside the ranges, so the
-    first step must bring those joints back (else status out-of-bounds); without them only a
+    force make of it: hard bounds (a problem file's default) bring those joints back as fast as their velocity
+    limits allow (:meth:`planning.problem.Bounds.position_box`; else status out-of-bounds); without them only a
     ``joint_limit`` term pulls them in, and without one planning knows no limits."""
     q0 = problem.x0[:robot.n_q]
     outside = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper))
@@ -722,8 +726,8 @@ def start_limit_notes(cfg: PlanConfig, robot: Robot, problem: Problem) -> list[s
     held = bounds is not None and bounds.has_positions and bool(np.isin(outside, bounds.q_index).any())
     if held:
         return [f"{head}: the hard bounds (--bounds hard{', the default for a problem file' if cfg.problem else ''})"
-                " keep steps 1..T inside them, so the first step must bring them back, or the plan ends "
-                "out-of-bounds; --bounds none plans without them"]
+                " bring them back as fast as their velocity limits allow (inside from step 1 where a joint has "
+                "none), or the plan ends out-of-bounds; --bounds none plans without them"]
     pf = cfg.problem_file() if cfg.problem is not None else None
     soft = pf is not None and any(t.get("type") == "joint_limit" for t in pf.doc["costs"]["terms"].values())
     return [f"{head}: planning keeps no hard bounds (--bounds none); "

@@ -309,3 +309,57 @@ def test_plan_config_says_the_robust_schedule_does_not_relinearize_inside_the_sw
     assert robust.normalized() == PlanConfig(problem=file).normalized()
     fixed = PlanConfig(problem=file, alpha_schedule="fixed", relinearize=False, belief_rate=0.5)
     assert fixed.ignored() == {} and fixed.normalized() != PlanConfig(problem=file, alpha_schedule="fixed").normalized()
+
+
+@pytest.mark.parametrize("schedule", ["robust", "fixed"])
+def test_bounds_never_active_give_the_unbounded_iterates(schedule):
+    """Ranges, velocity limits and efforts far beyond anything the unbounded plan reaches: the merit is the
+    cost and the messages are the unconstrained ones, so every iterate and the plan are the same bits."""
+    import dataclasses
+
+    from planning.problem import Bounds
+
+    free, _ = bounded_lq(T=12)
+    X, U = exact_solution(free)
+    wide = 10.0 * (np.abs(X).max() + np.abs(U).max() + 1.0)
+    n = free.n_x
+    b = Bounds(u_lower=np.full(N_U, -wide), u_upper=np.full(N_U, wide), q_index=np.array([0, 1]),
+               q_lower=np.full(2, -wide), q_upper=np.full(2, wide), v_index=np.array([n - 1]),
+               v_lower=np.array([-wide]), v_upper=np.array([wide]))
+    runs = {}
+    for name, pb in (("free", free), ("bounded", dataclasses.replace(free, bounds=b))):
+        seen: list = []
+        runs[name] = (aico(pb, AICOOptions(iterations=40, alpha=1.0, schedule=schedule),
+                           callback=lambda r, Xc, Uc, seen=seen: seen.append((r.cost, Xc.copy()))), seen)
+    (a, sa), (c, sc) = runs["free"], runs["bounded"]
+    assert a.iterations == c.iterations and np.array_equal(a.X, c.X) and np.array_equal(a.U, c.U)
+    assert [s[0] for s in sa] == [s[0] for s in sc]
+    assert all(np.array_equal(x, y) for (_, x), (_, y) in zip(sa, sc))
+    assert c.status is a.status
+
+
+def test_a_start_outside_a_range_comes_back_as_its_velocity_limit_lets_it():
+    """State 0 starts 0.5 below its range [x0 + 0.5, x0 + 3]. The per-step box follows the velocity limit
+    (``(t - 1) dt vmax`` back toward the range; checked on its own with vmax = 0.1); without one the range holds
+    from step 1: the plan keeps it to 1e-3, converges (not out-of-bounds), and the message says the start was
+    outside and that the plan is inside from step 1."""
+    import dataclasses
+
+    from planning.problem import Bounds
+
+    free, _ = bounded_lq(T=12)
+    x0 = free.x0
+    vmax, dt = 0.1, 1.0
+    b = Bounds(q_index=np.array([0]), q_lower=np.array([x0[0] + 0.5]), q_upper=np.array([x0[0] + 3.0]),
+               v_index=np.array([free.n_x // 2]), v_lower=np.array([-np.inf]), v_upper=np.array([np.inf]))
+    lo, hi = b.position_box(x0, dt, free.T)
+    assert lo[1, 0] == x0[0] + 0.5      # no velocity limit on coordinate 0: inside from step 1
+    from planning.constraints import reachable_box
+
+    lo, _ = reachable_box(b.q_lower, b.q_upper, x0[:1], np.array([vmax]), dt, free.T)
+    assert lo[1, 0] == x0[0] and lo[3, 0] == pytest.approx(x0[0] + 0.2) and lo[7, 0] == x0[0] + 0.5
+    pb = dataclasses.replace(free, bounds=b)
+    res = aico(pb, AICOOptions(iterations=120, alpha=1.0, schedule="robust"))
+    assert "the start is outside a joint range" in res.message and "from step 1" in res.message, res.message
+    assert res.status is Status.CONVERGED, res.message
+    assert res.X[1:, 0].min() >= x0[0] + 0.5 - 1e-3

@@ -129,7 +129,7 @@ def test_a_target_beyond_the_reach_in_its_direction_is_said(tmp_path, target, sa
 
 
 @pytest.mark.parametrize("bounds,costs,needle", [
-    ("", "", "the hard bounds (--bounds hard, the default for a problem file) keep steps 1..T inside them"),
+    ("", "", "the hard bounds (--bounds hard, the default for a problem file) bring them back as fast as their velocity limits allow"),
     ("none", "", "no joint_limit term either: it plans as if there were no limits"),
     ("none", '\n[costs.limits]\ntype = "joint_limit"\ntimes = "all"\nweight = 1e3\n', "the joint_limit term pulls")])
 def test_a_start_outside_the_limits_is_said_as_the_bounds_in_force_treat_it(tmp_path, bounds, costs, needle):
