@@ -66,6 +66,7 @@ TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "sol
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
 PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
+STAGES = ("plan", "execute")   # every plan of the suite is executed in Drake (execute's defaults)
 TAUS = (1.0, 1.01, 1.1, 1.5, 2.0, 10.0)   # the profiles' table columns
 
 
@@ -264,9 +265,10 @@ def experiment(suite: Suite, runnable: list[Cell]):
     from pipeline.experiments.expfile import Experiment, Variant
 
     points = [{"label": f"{c.problem} | {c.solver}", **c.options, "seeds": ()} for c in runnable]
-    exp = Experiment(suite.name, suite.description, ("plan",), (0,), {"plan": {}}, {}, {}, points, suite.path)
+    exp = Experiment(suite.name, suite.description, STAGES, (0,), {"plan": {}, "execute": {}}, {}, {}, points,
+                     suite.path)
     # the table's option columns: the suite's labels (the problem's canonical content would fill a screen)
-    exp.variants = [Variant(f"{c.problem} | {c.solver}", {"plan": dict(c.options)},
+    exp.variants = [Variant(f"{c.problem} | {c.solver}", {"plan": dict(c.options), "execute": {}},
                             {"problem": c.problem, "solver": c.solver}) for c in runnable]
     return exp
 
@@ -284,9 +286,11 @@ def run(cache, suite: Suite, executor, say: Callable[[str], None],
         rows = expfile.run(cache, exp, executor, record=False, progress=progress)
         for c, row in zip(runnable, rows):
             c.row = row
-            if row["status"] == "error":
+            if row["status"] == "error" and not row.get("plan.key"):   # the plan raised: the cell is empty
                 c.reason = row["error"].removeprefix("plan: ")
                 say(f"suite: {c.problem} x {c.solver}: {c.reason}")
+            elif row["status"] == "error":                             # the execution raised: said, the plan kept
+                say(f"suite: {c.problem} x {c.solver}: {row['error']}")
     return all_cells
 
 
@@ -349,6 +353,31 @@ def _torques(problem_cache: dict, options: dict, X: np.ndarray, U: np.ndarray):
     return robot, tau
 
 
+def execution_columns(row: dict[str, Any]) -> dict[str, Any]:
+    """The execution's columns of a runs-table row: ``execution`` (execute's status, ``error`` where it
+    raised, ``None`` not run), ``task_achieved`` (execute's one judgement,
+    :func:`stages.evaluate.metrics.executed_task`: every via-point term within its tolerance and the status
+    ``ok``; ``None`` without task terms), ``task_note`` (:func:`stages.evaluate.metrics.task_note`) and
+    ``execute_key``."""
+    from stages.evaluate.metrics import executed_task, task_note
+
+    status = row.get("execute.status")
+    out: dict[str, Any] = {"execution": None if status in (None, "not run") else str(status),
+                           "task_achieved": None, "task_note": None, "execute_key": row.get("execute.key")}
+    task = {k.removeprefix("execute.task."): v for k, v in row.items() if k.startswith("execute.task.")}
+    if out["execute_key"] and {"achieved", "worst", "error", "tol", "unit", "kind"} <= set(task):
+        verdict = executed_task(task, str(status))
+        if verdict is not None:
+            out["task_achieved"], out["task_note"] = bool(verdict["achieved"]), task_note(verdict)
+    return out
+
+
+def executed_ok(record: dict) -> bool:
+    """Whether a run's plan, executed in Drake, ended ``ok`` and achieved its task (execute's judgement);
+    a run without an execution or without task terms is not."""
+    return record.get("execution") == "ok" and record.get("task_achieved") is True
+
+
 def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
     """One record per cell: the numbers of the module docstring (``None`` where there is none, with
     ``reason``), the best cost and time-to-target per problem filled in."""
@@ -359,7 +388,9 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
         rec: dict[str, Any] = {"problem": c.problem, "solver": c.solver, "status": "not run", "iterations": None,
                                "final_cost": None, "wall_time_s": None, "time_to_target_s": None,
                                "cost_ratio": None, "joint_range_excess": None, "effort_excess": None,
-                               "key": None, "reason": c.reason, "over_time_budget": False, "cached": False}
+                               "key": None, "reason": c.reason, "over_time_budget": False, "cached": False,
+                               "inside_limits": None, "execution": None, "task_achieved": None, "task_note": None,
+                               "execute_key": None}
         row = c.row
         if row and row.get("plan.key"):
             rec.update(key=row["plan.key"], status=row.get("plan.status"), iterations=row.get("plan.iterations"),
@@ -375,6 +406,8 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             robot, tau = _torques(robots, c.options, X, U)
             v = limit_violations(robot, X, U, tau)
             rec["joint_range_excess"], rec["effort_excess"] = v["joint_range"], v["effort"]
+            rec["inside_limits"] = inside_limits(rec)
+            rec.update(execution_columns(row))
             if rec["final_cost"] is None and not rec["reason"]:
                 rec["reason"] = "diverged" if rec["status"] == "diverged" else "no finite cost within the budget"
         elif row and row.get("status") == "error":
@@ -403,15 +436,19 @@ def _ratio(value: float, best: float) -> float:
     return 1.0 if value <= best else math.inf
 
 
-def performance_ratios(measure_: dict[str, list[float | None]]) -> dict[str, list[float]]:
+def performance_ratios(measure_: dict[str, list[float | None]],
+                       known: list[float | None] | None = None) -> dict[str, list[float]]:
     """Dolan-Moré ratios ``r[p, s] = m[p, s] / min_s m[p, s]`` per solver (``measure_``: solver ->
-    per-problem values >= 0, ``None`` not solved -> inf; a problem no solver solved: inf for all)."""
+    per-problem values >= 0, ``None`` not solved -> inf; a problem no solver solved: inf for all).
+    ``known``: per problem a value reached outside the solvers (the best feasible cost a reference
+    reached), a candidate for the minimum too (``None``: none)."""
     solvers = list(measure_)
     n = len(next(iter(measure_.values()))) if measure_ else 0
     out: dict[str, list[float]] = {s: [] for s in solvers}
     for p in range(n):
         vals = [measure_[s][p] for s in solvers]
-        finite = [v for v in vals if v is not None and math.isfinite(v)]
+        extra = [known[p]] if known is not None else []
+        finite = [v for v in [*vals, *extra] if v is not None and math.isfinite(v)]
         best = min(finite) if finite else None
         for s, v in zip(solvers, vals):
             out[s].append(math.inf if best is None or v is None or not math.isfinite(v) else _ratio(v, best))
@@ -435,17 +472,29 @@ def inside_limits(record: dict) -> bool:
     return rng is not None and rng <= RANGE_TOL and (eff is None or eff <= EFFORT_TOL)
 
 
-def profiles(records: list[dict], problems: list[str], solvers: list[str]) -> dict[str, Any]:
-    """The cost, the time and the inside-the-limits cost profiles of ``records`` over ``problems``: per
-    kind the ratios per solver (problem order) and ``rho`` at :data:`TAUS`. ``inside``: the final cost of
-    the plans that stay inside the robot's limits (:func:`inside_limits`) against the best such plan; a
-    plan that leaves them counts as not solved."""
+# the profiles: (kind, the record's measure, which plans count as solved (None: every plan with a value),
+# whether the best feasible cost a reference reached joins the minimum)
+PROFILE_KINDS = (("cost", "final_cost", None, False), ("time", "time_to_target_s", None, False),
+                 ("inside", "final_cost", "inside_limits", True), ("executed", "final_cost", "executed_ok", True))
+
+
+def profiles(records: list[dict], problems: list[str], solvers: list[str],
+             best_feasible: dict[str, float | None] | None = None) -> dict[str, Any]:
+    """The profiles of ``records`` over ``problems``: per kind the ratios per solver (problem order) and
+    ``rho`` at :data:`TAUS`. ``cost``: the final cost against the best; ``time``: the time to within
+    ``within`` of the best cost; ``inside``: the final cost of the plans that stay inside the robot's
+    limits (:func:`inside_limits`), a plan that leaves them not solved; ``executed``: the final cost of the
+    plans whose execution in Drake is ``ok`` and achieves the task (:func:`executed_ok`), any other not
+    solved. ``inside`` and ``executed`` are relative to the best feasible cost known: the best such plan
+    or ``best_feasible[problem]`` (the direct-transcription reference's cost from the same start)."""
     by = {(r["problem"], r["solver"]): r for r in records}
+    rules = {"inside_limits": inside_limits, "executed_ok": executed_ok}
     out: dict[str, Any] = {"problems": problems, "taus": list(TAUS)}
-    for kind, key in (("cost", "final_cost"), ("time", "time_to_target_s"), ("inside", "final_cost")):
-        m = {s: [by[(p, s)][key] if (p, s) in by and (kind != "inside" or inside_limits(by[(p, s)])) else None
+    for kind, key, rule, with_known in PROFILE_KINDS:
+        m = {s: [by[(p, s)][key] if (p, s) in by and (rule is None or rules[rule](by[(p, s)])) else None
                  for p in problems] for s in solvers}
-        ratios = performance_ratios(m)
+        known = [(best_feasible or {}).get(p) for p in problems] if with_known else None
+        ratios = performance_ratios(m, known)
         out[kind] = {"ratios": ratios, "rho": {s: profile(ratios[s], TAUS) for s in solvers}}
     return out
 
@@ -464,9 +513,10 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     n = len(prof["problems"])
     kinds = [("cost", "final cost within tau x the best"),
              ("time", f"time to within {doc['within'] * 100:g} % of the best cost,\nwithin tau x the fastest"),
-             ("inside", "final cost within tau x the best plan inside the limits\n(a plan outside: not solved)")]
+             ("inside", "final cost within tau x the best feasible cost known\n(a plan outside the limits: not solved)"),
+             ("executed", "final cost within tau x the best feasible cost known\n(solved: executed ok, task achieved)")]
     kinds = [k for k in kinds if k[0] in prof]
-    fig, axes = plt.subplots(1, len(kinds), figsize=(5.5 * len(kinds), 4.4))
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5.0 * len(kinds), 4.4))
     for ax, (kind, title) in zip(axes, kinds):
         finite = [r for s in solvers for r in prof[kind]["ratios"][s] if math.isfinite(r)]
         top = max(10.0, 1.5 * max(finite)) if finite else 10.0
@@ -504,19 +554,40 @@ def _f(x: Any, spec: str = ".4g") -> str:
     return format(x, spec)
 
 
-def summary(suite: Suite, records: list[dict], meta: dict[str, Any]) -> dict[str, Any]:
-    """The suite's document: the records, both profiles over every problem and over the problems every
-    solver ran (no empty cell for an expressibility or input reason), and the budgets."""
+def summary(suite: Suite, records: list[dict], meta: dict[str, Any],
+            references: dict[str, dict] | None = None) -> dict[str, Any]:
+    """The suite's document: the records, the profiles over every problem and over the problems every
+    solver ran (no empty cell for an expressibility or input reason), the budgets, and per problem the
+    direct-transcription reference (``references``: problem -> :func:`reference_record`), whose feasible
+    cost joins the best feasible cost known."""
     problems = [p.label for p in suite.problems]
     solvers = [s.label for s in suite.solvers]
     ran_all = [p for p in problems if all(r["key"] for r in records if r["problem"] == p)]
+    references = references or {}
+    best_feasible = {p: r["cost"] for p, r in references.items() if r.get("feasible") and r.get("cost") is not None}
+    executed = [r for r in records if r["key"]]
     return {"suite": suite.name, "file": str(suite.path), "description": suite.description, "within": suite.within,
             "budgets": {p.label: {"iterations": p.iterations, "time_budget_s": p.time_budget_s, "start": p.start,
                                   "dynamics": p.dynamics or "the file's"} for p in suite.problems},
             "solvers": {s.label: s.options for s in suite.solvers}, "notes": list(suite.notes), **meta,
-            "records": records,
-            "profiles": {"all": profiles(records, problems, solvers),
-                         "every_solver_ran": profiles(records, ran_all, solvers)}}
+            "records": records, "references": references,
+            "executions": {"runs": len(executed), "ok_achieved": sum(map(executed_ok, executed)),
+                           "problems": len(problems),
+                           "problems_default_ok": _default_ok(records, problems, suite)},
+            "profiles": {"all": profiles(records, problems, solvers, best_feasible),
+                         "every_solver_ran": profiles(records, ran_all, solvers, best_feasible)}}
+
+
+DEFAULT_SOLVER = "R-AICO robust, bounded"   # the entry with a problem file's default plan options
+
+
+def _default_ok(records: list[dict], problems: list[str], suite: Suite) -> int | None:
+    """On how many problems the default plan (the suite's :data:`DEFAULT_SOLVER` entry) executes ``ok``
+    and achieves its task; None where the suite has no such entry."""
+    if not any(s.label == DEFAULT_SOLVER for s in suite.solvers):
+        return None
+    by = {(r["problem"], r["solver"]): r for r in records}
+    return sum(executed_ok(by[(p, DEFAULT_SOLVER)]) for p in problems if (p, DEFAULT_SOLVER) in by)
 
 
 def _raico_losses(doc: dict[str, Any], by: dict, problems: list[str]) -> list[str]:
@@ -587,18 +658,23 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             t = r["time_to_target_s"]
             cells.append(_f(t, ".3g") if t is not None else (why(r) if r["reason"] else "not reached"))
         lines.append(f"| {p} | " + " | ".join(cells) + " |")
-    lines += ["", "## Every run", "",
+    lines += ["", *_execution_section(doc, by, problems, solvers), "", "## Every run", "",
               "| problem | solver | status | iterations | final cost | wall (s) | time to target (s) "
-              "| joint range excess | effort excess (N m) | plan |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "| joint range excess | effort excess (N m) | inside | execution | task | plan |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in recs:
         status = r["status"] + (" (over the time budget)" if r["over_time_budget"] else "")
         lines.append(f"| {r['problem']} | {r['solver']} | {status} | {_f(r['iterations'], 'd')} | "
                      f"{_f(r['final_cost'])} | {_f(r['wall_time_s'], '.3g')} | {_f(r['time_to_target_s'], '.3g')} | "
                      f"{_f(r['joint_range_excess'], '.3g')} | {_f(r['effort_excess'], '.3g')} | "
+                     f"{_yes(r.get('inside_limits'))} | {r.get('execution') or '-'} | {r.get('task_note') or '-'} | "
                      f"{r['key'] or why(r)} |")
     lines += ["", "Joint range excess: the largest distance of a planned joint position outside the model's range "
               "(rad; m for a prismatic joint). Effort excess: the largest torque above a joint's effort limit (for "
-              "pseudo-dynamics the torques of the planned accelerations).", ""]
+              "pseudo-dynamics the torques of the planned accelerations). Inside: both within "
+              f"{RANGE_TOL:g} rad and {EFFORT_TOL:g} N m. Execution: execute's status of the plan run in Drake "
+              "(`raico execute`, its defaults); task: execute's one judgement (`executed_task`: every via-point term "
+              "within its tolerance, and the status ok).", ""]
     for name, title in (("all", "every problem"), ("every_solver_ran", "the problems every solver ran")):
         prof = doc["profiles"][name]
         taus = prof["taus"]
@@ -613,10 +689,18 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             lines.append(f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["cost"]["rho"][s]) + " | "
                          + " | ".join(f"{v:.2f}" for v in prof["time"]["rho"][s]) + " |")
         lines.append("")
+        if "executed" in prof:
+            lines += ["Executed: the final cost of the plans whose execution in Drake ends `ok` and achieves the "
+                      "task, against the best feasible cost known (the best such plan, or the direct-transcription "
+                      "reference's where it is lower); any other plan counts as not solved.", "",
+                      "| solver | " + " | ".join(f"executed {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
+            lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["executed"]["rho"][s]) + " |"
+                      for s in solvers]
+            lines.append("")
         if "inside" in prof:
             lines += [f"Inside the limits: the final cost of the plans that stay in every joint range (to {RANGE_TOL:g} "
-                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best such plan; a plan that leaves "
-                      "them counts as not solved.", "",
+                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best feasible cost known (the best "
+                      "such plan, or the reference's); a plan that leaves them counts as not solved.", "",
                       "| solver | " + " | ".join(f"inside {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
             lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["inside"]["rho"][s]) + " |" for s in solvers]
             lines.append("")
@@ -627,6 +711,45 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
         lines += [f"- {text}" for text in doc.get("notes", [])]
         lines.append("")
     return "\n".join(lines)
+
+
+def _yes(flag: bool | None) -> str:
+    return "-" if flag is None else ("yes" if flag else "no")
+
+
+def _execution_section(doc: dict[str, Any], by: dict, problems: list[str], solvers: list[str]) -> list[str]:
+    """The executions as a grid (execute's status and the task verdict per cell), their count, and the
+    direct-transcription references."""
+    ex = doc.get("executions") or {}
+    lines = ["## Executed in Drake", "",
+             f"{ex.get('ok_achieved', 0)} of the {ex.get('runs', 0)} plans execute `ok` and achieve their task"
+             + (f"; the default plan ({DEFAULT_SOLVER}) on {ex['problems_default_ok']} of the {ex['problems']} "
+                "problems" if ex.get("problems_default_ok") is not None else "") + ". A cell: execute's status, "
+             "then `achieved` / `missed` (execute's judgement) and whether the plan stays inside the limits.", "",
+             "| problem | " + " | ".join(solvers) + " |", "|---|" + "---|" * len(solvers)]
+    for p in problems:
+        cells = []
+        for s in solvers:
+            r = by[(p, s)]
+            if not r.get("execution"):
+                cells.append("-")
+                continue
+            task = "-" if r.get("task_achieved") is None else ("achieved" if r["task_achieved"] else "missed")
+            cells.append(f"{r['execution']}, {task}" + ("" if r.get("inside_limits") else ", outside"))
+        lines.append(f"| {p} | " + " | ".join(cells) + " |")
+    refs = doc.get("references") or {}
+    if refs:
+        lines += ["", "### The direct-transcription reference", "",
+                  "Drake's MathematicalProgram over the states and controls of the same discrete dynamics, costs "
+                  "and bounds (planning/transcription.py), warm-started from the best plan inside the limits (else "
+                  "the best plan); its cost joins the best feasible cost known where it is feasible.", "",
+                  "| problem | solver | warm start | status | cost | feasible | range excess | dynamics defect | time (s) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for p, r in refs.items():
+            lines.append(f"| {p} | {r.get('solver', '-')} | {r.get('warm_start', '-')} | {r.get('status', '-')} | "
+                         f"{_f(r.get('cost'))} | {_yes(r.get('feasible'))} | {_f(r.get('range_excess'), '.3g')} | "
+                         f"{_f(r.get('defect'), '.3g')} | {_f(r.get('time_s'), '.3g')} |")
+    return lines
 
 
 # ----------------------------------------------------------------------------- one call
