@@ -741,7 +741,7 @@ def _execution_section(doc: dict[str, Any], by: dict, problems: list[str], solve
     if refs:
         lines += ["", "### The direct-transcription reference", "",
                   "Drake's MathematicalProgram over the states and controls of the same discrete dynamics, costs "
-                  "and bounds (planning/transcription.py), warm-started from the best plan inside the limits (else "
+                  "and bounds (pipeline/experiments/transcription.py), warm-started from the best plan inside the limits (else "
                   "the best plan); its cost joins the best feasible cost known where it is feasible.", "",
                   "| problem | solver | warm start | status | cost | feasible | range excess | dynamics defect | time (s) |",
                   "|---|---|---|---|---|---|---|---|---|"]

@@ -1,4 +1,4 @@
-"""The direct-transcription reference (planning/transcription.py) on a bounded LQ problem whose feasible
+"""The direct-transcription reference (pipeline/experiments/transcription.py) on a bounded LQ problem whose feasible
 optimum an exact convex QP gives (Clarabel, an interior-point QP solver, through Drake), from a guess that is
 neither feasible nor optimal; and its refusals."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planning.problem import Bounds, Problem
-from planning.transcription import judge, refusal, solve
+from pipeline.experiments.transcription import judge, refusal, solve
 from tests.planning.test_solvers_lq import make_lq
 
 T = 12
