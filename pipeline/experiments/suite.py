@@ -62,7 +62,7 @@ from pipeline.experiments.expfile import read_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
-TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "solver", "problem")
+TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "solver", "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
 PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
@@ -100,6 +100,7 @@ class Suite:
     problems: list[ProblemEntry]
     within: float = 0.01
     notes: list[str] = field(default_factory=list)   # the lines said while loading (left-out entries)
+    reference: bool = False   # run the direct-transcription reference on the problems small enough
 
 
 def _budget(value: Any, what: str, integer: bool) -> float:
@@ -130,6 +131,9 @@ def load(path: str | Path | None = None) -> Suite:
     budget = _budget(doc.get("time_budget_s", 20.0), f"{path.name}: time_budget_s", False)
     within = _budget(doc.get("within", 0.01), f"{path.name}: within", False)
     suite = Suite(str(doc.get("name", path.stem)), str(doc.get("description", "")), path, [], [], float(within))
+    if not isinstance(doc.get("reference", False), bool):
+        raise BadInput(f"{path}: reference must be true or false, got {doc['reference']!r}")
+    suite.reference = bool(doc.get("reference", False))
     suite.solvers = _solvers(path, doc.get("solver", []), suite.notes)
     entries = doc.get("problem", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
@@ -334,6 +338,21 @@ def limit_violations(robot, X: np.ndarray, U: np.ndarray, torques: np.ndarray | 
             "effort": None if effort is None or not np.all(np.isfinite(tau)) else float(effort.max())}
 
 
+def iterate_range_excess(X_iterations: np.ndarray, t_iterations: np.ndarray, robot) -> np.ndarray:
+    """Per iterate (row 0 the initial trajectory, row ``i`` iteration ``i``'s), the largest excess of a joint
+    position over the model's range (rad, or m) at the steps the plan keeps of its iterates
+    (``X_iterations (I+1, K, n_x)`` at steps ``t_iterations (K,)``: every n-th step and the via-points;
+    the start, step 0, left out: no plan changes it); NaN for an iterate not recorded (diverged)."""
+    n = robot.n_q
+    keep = np.asarray(t_iterations) > 0
+    Q = np.asarray(X_iterations, float)[:, keep, :n]
+    with np.errstate(invalid="ignore"):
+        excess = np.maximum(np.maximum(Q - robot.upper, robot.lower - Q), 0.0)
+        out = excess.reshape(len(Q), -1).max(axis=1) if Q.size else np.zeros(len(Q))
+    recorded = np.all(np.isfinite(Q.reshape(len(Q), -1)), axis=1) if Q.size else np.ones(len(Q), bool)
+    return np.where(recorded, out, np.nan)
+
+
 def _torques(problem_cache: dict, options: dict, X: np.ndarray, U: np.ndarray):
     """The robot of a cell and its plan's torques (computed torque for pseudo-dynamics)."""
     from plants.dynamics_registry import make_dynamics
@@ -399,6 +418,8 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             with np.load(cache.root / "plan" / row["plan.key"] / "plan.npz", allow_pickle=False) as f:
                 costs, elapsed = np.asarray(f["costs"], float), np.asarray(f["elapsed"], float)
                 X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
+                iterates = ((np.asarray(f["X_iterations"], float), np.asarray(f["t_iterations"]))
+                            if {"X_iterations", "t_iterations"} <= set(f.files) else None)
             final = None if rec["status"] == "diverged" else row.get("plan.final_cost")
             rec["final_cost"] = cost_at_budget(costs, elapsed, final, budgets[c.problem])
             rec["over_time_budget"] = bool(elapsed.size and elapsed[-1] > budgets[c.problem])
@@ -407,6 +428,10 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             v = limit_violations(robot, X, U, tau)
             rec["joint_range_excess"], rec["effort_excess"] = v["joint_range"], v["effort"]
             rec["inside_limits"] = inside_limits(rec)
+            rec["iteration_costs"] = [float(c) if math.isfinite(c) else None for c in costs]
+            rec["iteration_range_excess"] = (None if iterates is None else
+                                             [None if not math.isfinite(v) else float(v)
+                                              for v in iterate_range_excess(*iterates, robot)])
             rec.update(execution_columns(row))
             if rec["final_cost"] is None and not rec["reason"]:
                 rec["reason"] = "diverged" if rec["status"] == "diverged" else "no finite cost within the budget"
@@ -426,6 +451,54 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
                 costs, elapsed = curve
                 r["time_to_target_s"] = time_to(costs, elapsed, target_of(best, suite.within), p.time_budget_s)
     return records
+
+
+# ----------------------------------------------------------------------------- the reference
+REFERENCE_JOINTS = 7    # the direct-transcription reference runs on problems of at most this many joints ...
+REFERENCE_STEPS = 100   # ... and steps
+REFERENCE_SOLVER = "snopt"
+REFERENCE_TIME_S = 300.0
+
+
+def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[dict],
+                     say: Callable[[str], None], solver: str = REFERENCE_SOLVER) -> dict[str, Any] | None:
+    """The direct-transcription reference on one problem (:mod:`pipeline.experiments.transcription`): the
+    problem with its hard bounds (the robot's ranges, and effort limits for torques), warm-started from the
+    cheapest plan inside the limits (else the cheapest plan), by ``solver``. Its record (cost, status,
+    feasible, dynamics defect, bounds' excess, time, warm start) is kept under ``<cache>/reference/`` by
+    the warm start's plan key, so a second call solves nothing; ``None`` where the problem is too large
+    or no plan of it has a finite cost (said through ``say``)."""
+    import json
+
+    from pipeline.engine.cache import write_file_atomic
+    from pipeline.experiments.transcription import refusal, solve
+    from stages.plan.stage import PlanConfig, build_problem
+
+    mine = [r for r in records if r["problem"] == problem.label and r["key"] and r["final_cost"] is not None]
+    if not mine:
+        return None
+    warm = min(mine, key=lambda r: (not r.get("inside_limits"), r["final_cost"]))
+    path = cache.root / "reference" / f"{warm['key']}-{solver}.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    entry = next(s for s in suite.solvers if s.label == warm["solver"])
+    cfg = PlanConfig(**{**options(problem, entry), "bounds": "hard"})
+    _, _, pb, _, _ = build_problem(cfg)
+    why = refusal(pb, REFERENCE_JOINTS, REFERENCE_STEPS)
+    if why:
+        say(f"suite: {problem.label}: no transcription reference ({why})")
+        return None
+    with np.load(cache.root / "plan" / warm["key"] / "plan.npz", allow_pickle=False) as f:
+        X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
+    out = solve(pb, X, U, solver=solver, time_limit_s=REFERENCE_TIME_S)
+    rec = {**out.record(), "warm_start": f"{warm['solver']} ({_f(warm['final_cost'])})", "warm_key": warm["key"]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    from pipeline.engine.runner import finite_json
+
+    write_file_atomic(path, json.dumps(finite_json(rec)).encode())
+    say(f"suite: {problem.label}: transcription reference ({solver}) {out.status}, cost {_f(rec['cost'])}, "
+        f"{'feasible' if out.feasible else 'not feasible'}, {out.time_s:.3g} s")
+    return rec
 
 
 # ----------------------------------------------------------------------------- performance profiles
@@ -539,6 +612,57 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(path, buf.getvalue())
+    return path
+
+
+def plot_iterations(doc: dict[str, Any], path: Path) -> Path | None:
+    """Per problem (a row), per solver (a line): the cost per iteration (left, log axis) and beside it the
+    constraint violation per iteration (right: the iterate's largest joint-range excess,
+    :func:`iterate_range_excess`; the axis symmetric-log, 0 inside the ranges to :data:`RANGE_TOL`); one PNG.
+    ``None`` where no run recorded its iterations."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.engine.cache import write_file_atomic
+
+    recs = [r for r in doc["records"] if r.get("iteration_costs")]
+    problems = [p for p in doc["budgets"] if any(r["problem"] == p for r in recs)]
+    if not problems:
+        return None
+    solvers = list(doc["solvers"])
+    colors = {s: f"C{i % 10}" for i, s in enumerate(solvers)}
+    fig, axes = plt.subplots(len(problems), 2, figsize=(10, 2.1 * len(problems) + 0.8), squeeze=False)
+    for row, p in zip(axes, problems):
+        for r in (r for r in recs if r["problem"] == p):
+            c = np.array([np.nan if v is None else v for v in r["iteration_costs"]], float)
+            row[0].plot(np.arange(1, len(c) + 1), c, color=colors[r["solver"]], lw=1.3, label=r["solver"])
+            v = r.get("iteration_range_excess")
+            if v:
+                e = np.array([np.nan if x is None else x for x in v], float)
+                row[1].plot(np.arange(len(e)), e, color=colors[r["solver"]], lw=1.3)
+        row[0].set_yscale("log")
+        row[0].set_ylabel(p, fontsize=8)
+        row[1].set_yscale("symlog", linthresh=RANGE_TOL)
+        row[1].axhline(RANGE_TOL, color="k", lw=0.6, ls=":")
+        for ax in row:
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
+    axes[0][0].set_title("cost per iteration", fontsize=9)
+    axes[0][1].set_title(f"largest joint-range excess per iteration (rad; dotted: {RANGE_TOL:g})", fontsize=9)
+    axes[-1][0].set_xlabel("iteration")
+    axes[-1][1].set_xlabel("iteration (0: the initial trajectory)")
+    handles = [plt.Line2D([], [], color=colors[s], lw=1.5) for s in solvers]
+    fig.legend(handles, solvers, fontsize=8, loc="lower center", ncol=min(len(solvers), 5), frameon=False)
+    fig.tight_layout(rect=(0, 0.6 / (2.1 * len(problems) + 0.8), 1, 1))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_file_atomic(path, buf.getvalue())
@@ -704,7 +828,10 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
                       "| solver | " + " | ".join(f"inside {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
             lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["inside"]["rho"][s]) + " |" for s in solvers]
             lines.append("")
-    lines += [f"![performance profiles]({png_name})", ""]
+    lines += [f"![performance profiles]({png_name})", "",
+              "The cost and the constraint violation per iteration of every run (the iterate's largest joint-range "
+              "excess at the steps a plan keeps of its iterates): "
+              f"![cost and constraint violation per iteration]({png_name.replace('_profiles', '_iterations')})", ""]
     if notes or doc.get("notes"):
         lines += ["## Empty cells and left-out solvers", ""]
         lines += [f"{n}. {text}" for text, n in notes.items()]
@@ -768,11 +895,24 @@ def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
             "machine": f"{os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f} at the start, Python "
                        f"{platform.python_version()}"}
     all_cells = run(cache, suite, executor, say, progress)
-    doc = summary(suite, measure(cache, suite, all_cells), meta)
+    records = measure(cache, suite, all_cells)
+    refs = {}
+    if suite.reference:
+        for p in suite.problems:
+            try:
+                rec = reference_record(cache, suite, p, records, say)
+            except (ValueError, RuntimeError) as e:   # a problem Drake's program cannot take: said, the suite goes on
+                say(f"suite: {p.label}: no transcription reference: {' '.join(str(e).split())}")
+                rec = None
+            if rec is not None:
+                refs[p.label] = rec
+    doc = summary(suite, records, meta, refs)
     doc["machine"] += f", load {os.getloadavg()[0]:.1f} at the end"
     out.mkdir(parents=True, exist_ok=True)
     png = plot_profiles(doc, out / f"{suite.name}_profiles.png")
+    iters = plot_iterations(doc, out / f"{suite.name}_iterations.png")
     write_file_atomic(out / f"{suite.name}.json", json.dumps(finite_json(doc), indent=1, allow_nan=False))
     write_file_atomic(out / f"{suite.name}.md", markdown(doc, png.name))
-    doc["outputs"] = [str(out / f"{suite.name}.json"), str(out / f"{suite.name}.md"), str(png)]
+    doc["outputs"] = [str(out / f"{suite.name}.json"), str(out / f"{suite.name}.md"), str(png),
+                      *([str(iters)] if iters else [])]
     return doc

@@ -146,10 +146,11 @@ def transcribe(problem: Problem, X0: np.ndarray, U0: np.ndarray):
 
 
 def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt",
-          max_iterations: int = 3000, tol: float = FEASIBILITY_TOL) -> Transcribed:
+          max_iterations: int = 3000, tol: float = FEASIBILITY_TOL, time_limit_s: float = 600.0) -> Transcribed:
     """The reference plan of ``problem`` from the guess ``X0 (T+1, n_x)``, ``U0 (T, n_u)`` (a solver's plan)
-    by ``solver`` (``snopt`` or ``ipopt``), at most ``max_iterations`` major iterations. A solver that
-    stops without success still returns its last point, with its status: feasibility is judged here."""
+    by ``solver`` (``snopt`` or ``ipopt``), at most ``max_iterations`` major iterations and about
+    ``time_limit_s`` seconds. A solver that stops without success still returns its last point, with its
+    status: feasibility is judged here."""
     from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
     if solver not in SOLVERS:
@@ -163,6 +164,7 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
         opts.SetOption(sid, "Iterations limit", int(max_iterations) * 50)
         opts.SetOption(sid, "Major feasibility tolerance", tol)
         opts.SetOption(sid, "Major optimality tolerance", 1e-6)
+        opts.SetOption(sid, "Time limit", float(time_limit_s))
     else:
         drake_solver = IpoptSolver()
         sid = drake_solver.solver_id()
@@ -170,6 +172,7 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
         opts.SetOption(sid, "tol", 1e-8)
         opts.SetOption(sid, "constr_viol_tol", tol)
         opts.SetOption(sid, "print_level", 0)
+        opts.SetOption(sid, "max_cpu_time", float(time_limit_s))
     start = time.perf_counter()
     res = drake_solver.Solve(prog, prog.GetInitialGuess(prog.decision_variables()), opts)
     elapsed = time.perf_counter() - start

@@ -363,7 +363,7 @@ def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
     for name, target in (("near", "[0.02, 0.0, -0.02]"), ("far", "[0.1, 0.0, -0.1]")):
         (tmp_path / f"{name}.toml").write_text(PROBLEM.format(name=name, model="arm3.xml", weld="", T=20, frame="tip")
                                                .replace("[0.05, 0.0, -0.05]", target))
-    (tmp_path / "suite.toml").write_text('name = "two"\niterations = 3\n[[solver]]\nlabel = "R-AICO"\n'
+    (tmp_path / "suite.toml").write_text('name = "two"\niterations = 3\nreference = true\n[[solver]]\nlabel = "R-AICO"\n'
                                          'solver = "raico"\n[[solver]]\nlabel = "iLQG"\nsolver = "ilqg"\n')
     art, out = tmp_path / "art", tmp_path / "out"
     res = runner.invoke(app, ["bench", "suite", str(tmp_path / "suite.toml"), "--artifacts", str(art), "--out",
@@ -387,3 +387,34 @@ def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
                                                                                            doc["records"]))
     page = (out / "two.md").read_text()
     assert "## Executed in Drake" in page and "| inside | execution | task |" in page
+    for r in doc["records"]:   # the cost and the violation per iteration: the plan's iterations, the start
+        assert len(r["iteration_costs"]) == r["iterations"] and len(r["iteration_range_excess"]) == r["iterations"] + 1
+    assert (out / "two_iterations.png").stat().st_size > 10_000
+    # the transcription reference on both (3 joints, T = 20), warm-started from one of their plans
+    keys = {r["key"] for r in doc["records"]}
+    assert set(doc["references"]) == {"near", "far"}
+    for ref in doc["references"].values():
+        assert ref["warm_key"] in keys and isinstance(ref["feasible"], bool) and ref["cost"] > 0
+    assert "### The direct-transcription reference" in page
+
+
+def test_iterate_range_excess_is_the_largest_excess_per_recorded_iterate():
+    robot = SimpleNamespace(n_q=2, lower=np.array([-1.0, -2.0]), upper=np.array([1.0, 2.0]))
+    t = np.array([0, 2, 4])
+    X = np.zeros((3, 3, 4))
+    X[0, 0, 0] = 5.0                  # the start (step 0) outside: not the plan's doing, left out
+    X[1, 1, 1] = -2.25                # iteration 1: joint 2 0.25 below its range at step 2
+    X[1, 2, 0] = 1.1                  # ... and joint 1 0.1 above at step 4
+    X[2] = np.nan                     # iteration 2 not recorded
+    out = suite.iterate_range_excess(X, t, robot)
+    assert out[0] == 0.0 and out[1] == pytest.approx(0.25) and np.isnan(out[2])
+
+
+def test_the_reference_key_is_a_boolean(tmp_path):
+    path = _tiny(tmp_path, 'reference = "yes"', talos=False)
+    text = path.read_text().replace('reference = "yes"\n', "")
+    path.write_text('reference = "yes"\n' + text)
+    with pytest.raises(BadInput, match="reference must be true or false"):
+        suite.load(path)
+    path.write_text("reference = true\n" + text)
+    assert suite.load(path).reference is True

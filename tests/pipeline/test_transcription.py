@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning.problem import Bounds, Problem
 from pipeline.experiments.transcription import judge, refusal, solve
+from planning.problem import Bounds, Problem
 from tests.planning.test_solvers_lq import make_lq
 
 T = 12
