@@ -62,7 +62,8 @@ from pipeline.experiments.expfile import read_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
-TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "solver", "problem")
+TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "reference_time_s", "solver",
+            "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
 PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
@@ -101,6 +102,7 @@ class Suite:
     within: float = 0.01
     notes: list[str] = field(default_factory=list)   # the lines said while loading (left-out entries)
     reference: bool = False   # run the direct-transcription reference on the problems small enough
+    reference_time_s: float = 300.0   # its time limit per problem (s)
 
 
 def _budget(value: Any, what: str, integer: bool) -> float:
@@ -134,6 +136,8 @@ def load(path: str | Path | None = None) -> Suite:
     if not isinstance(doc.get("reference", False), bool):
         raise BadInput(f"{path}: reference must be true or false, got {doc['reference']!r}")
     suite.reference = bool(doc.get("reference", False))
+    suite.reference_time_s = float(_budget(doc.get("reference_time_s", REFERENCE_TIME_S),
+                                           f"{path.name}: reference_time_s", False))
     suite.solvers = _solvers(path, doc.get("solver", []), suite.notes)
     entries = doc.get("problem", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
@@ -490,7 +494,7 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
         return None
     with np.load(cache.root / "plan" / warm["key"] / "plan.npz", allow_pickle=False) as f:
         X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
-    out = solve(pb, X, U, solver=solver, time_limit_s=REFERENCE_TIME_S)
+    out = solve(pb, X, U, solver=solver, time_limit_s=suite.reference_time_s)
     rec = {**out.record(), "warm_start": f"{warm['solver']} ({_f(warm['final_cost'])})", "warm_key": warm["key"]}
     path.parent.mkdir(parents=True, exist_ok=True)
     from pipeline.engine.runner import finite_json
