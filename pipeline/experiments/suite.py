@@ -6,6 +6,8 @@ The suite is a list file (``problems/suite/suite.toml``) and every other problem
     iterations = 40            # the iteration budget of every run
     time_budget_s = 20.0       # the time budget (see below)
     within = 0.01              # the time profile's target: within 1 % of the best cost
+    reference = true           # the direct-transcription reference (default false) ...
+    reference_time_s = 120.0   # ... and its time limit per problem
     [[solver]]                 # a label and plan options; needs = "crocoddyl"; optional = true;
     label = "FDDP"             # rollout = NAME: the solver to use from the zero-control rollout
     solver = "fddp"
@@ -31,10 +33,20 @@ over the model's joint range (rad, or m for a prismatic joint) along the traject
 excess of a joint's torque over its effort limit (N m; for pseudo-dynamics the torques that produce
 the planned accelerations, ``M(q) u + h(q, v)`` of the analytic model).
 
+Every plan is also executed in Drake (``raico execute`` at its defaults, an ordinary cached run): its
+status and execute's one judgement of the task (:func:`stages.evaluate.metrics.executed_task`: every
+via-point term within its tolerance, status ``ok``) are columns, beside whether the plan stays inside the
+limits. With ``reference = true`` the direct-transcription reference
+(:mod:`pipeline.experiments.transcription`, SNOPT, at most ``reference_time_s`` per problem) runs on the
+problems of at most 7 joints and 100 steps, warm-started from the cheapest plan inside the limits: its
+feasible cost joins the best feasible cost known.
+
 Across problems, Dolan and Moré's performance profiles (Math. Program. 91, 2002): for a measure
 ``m[p, s]`` (lower is better; missing = not solved), ``r[p, s] = m[p, s] / min_s m[p, s]`` and
 ``rho_s(tau) = |{p : r[p, s] <= tau}| / n_problems``. The cost profile takes the final cost, the
-time profile the time to within ``within`` of the best cost. A cell without a value (the solver
+time profile the time to within ``within`` of the best cost; the inside profile the final cost of the plans
+inside the limits and the executed profile that of the plans executed ``ok`` that achieve their task (any
+other plan not solved), both against the best feasible cost known. A cell without a value (the solver
 could not express the problem, the run raised, diverged or never reached the target) counts as not
 solved; a problem no solver solved stays in the denominator.
 
