@@ -7,7 +7,7 @@ The suite is a list file (``problems/suite/suite.toml``) and every other problem
     time_budget_s = 20.0       # the time budget (see below)
     within = 0.01              # the time profile's target: within 1 % of the best cost
     reference = true           # the direct-transcription reference (default false) ...
-    reference_time_s = 120.0   # ... and its time limit per problem
+    reference_time_s = 45.0    # ... and its limit per problem (CPU seconds)
     [[solver]]                 # a label and plan options; needs = "crocoddyl"; optional = true;
     label = "FDDP"             # rollout = NAME: the solver to use from the zero-control rollout
     solver = "fddp"

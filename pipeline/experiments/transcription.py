@@ -66,6 +66,11 @@ def refusal(problem: Problem, max_joints: int = 7, max_steps: int = 100) -> str:
         return f"T = {problem.T} > {max_steps}"
     if problem.joint_terms:
         return "joint cost terms (a state and its control together) are not transcribed"
+    b = problem.bounds
+    if b is not None and b.has_positions:
+        q = problem.x0[b.q_index]
+        if np.any(q > b.q_upper + 1e-3) or np.any(q < b.q_lower - 1e-3):
+            return "the start lies outside a joint range: no plan is inside from step 1"
     return ""
 
 
@@ -148,8 +153,8 @@ def transcribe(problem: Problem, X0: np.ndarray, U0: np.ndarray):
 def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt",
           max_iterations: int = 3000, tol: float = FEASIBILITY_TOL, time_limit_s: float = 600.0) -> Transcribed:
     """The reference plan of ``problem`` from the guess ``X0 (T+1, n_x)``, ``U0 (T, n_u)`` (a solver's plan)
-    by ``solver`` (``snopt`` or ``ipopt``), at most ``max_iterations`` major iterations and about
-    ``time_limit_s`` seconds. A solver that stops without success still returns its last point, with its
+    by ``solver`` (``snopt`` or ``ipopt``), at most ``max_iterations`` major iterations and
+    ``time_limit_s`` seconds of CPU time (both solvers count CPU, not wall, time). A solver that stops without success still returns its last point, with its
     status: feasibility is judged here."""
     from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 

@@ -86,3 +86,5 @@ def test_refusals():
     assert refusal(pb) == ""
     assert "joints" in refusal(pb, max_joints=1)
     assert "T = 12" in refusal(pb, max_steps=10)
+    outside = Problem(pb.dynamics, np.r_[1.2, pb.x0[1:]], pb.T, pb.state_terms, pb.control_terms, bounds=pb.bounds)
+    assert "outside a joint range" in refusal(outside)
