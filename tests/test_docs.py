@@ -38,7 +38,8 @@ def test_every_docs_link_of_the_readme_and_the_pages_names_a_page_that_exists():
 @pytest.mark.parametrize("name, home", [("headline", "README.md"), ("exp", "README.md"),
                                         ("results", "docs/results.md"), ("bench", "docs/benchmarks.md"),
                                         ("suite", "docs/benchmarks.md"), ("problems", "docs/crocoddyl.md"),
-                                        ("learn_any", "docs/learning.md"), ("exp-ur5", "docs/problem-files.md")])
+                                        ("learn_any", "docs/learning.md"), ("exp-ur5", "docs/problem-files.md"),
+                                        ("suite-exec", "docs/suite.md")])
 def test_each_generated_block_lives_in_exactly_one_file(name, home):
     assert readme_numbers.home(name) == ROOT / home
 

@@ -284,6 +284,11 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "Every run" not in block and "\n### Final cost" in block
     assert f"The profiles as a plot: `{tmp_path / 'suite_profiles.png'}`." in block and "](" not in block
     assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
+    # the suite judged by execution (docs/suite.md): the count, one row per cell, the profiles
+    exec_block = mod.suite_exec_block(tmp_path / "suite.md", tmp_path / "suite.json")
+    assert "**0 of the 2 plans** execute `ok` and achieve their task" in exec_block
+    assert "| p | B | 1 | - | - | - |" in exec_block and "| q | A | - | - | - | - |" in exec_block
+    assert "| A | 0.00 | 0.00 | 0.50 | 0.00 | 0.00 | 0.50 | 0.00 | 0.00 | 0.00 |" in exec_block
 
 
 @pytest.mark.parametrize("args, line", [
