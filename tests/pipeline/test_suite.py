@@ -188,6 +188,7 @@ def test_a_malformed_list_file_is_one_error(tmp_path, extra, message):
 
 
 # ----------------------------------------------------------------------------- end to end
+@pytest.mark.slow
 def test_bench_suite_runs_every_cell_says_why_a_cell_is_empty_and_caches(tmp_path, crocoddyl_baseline):
     path = _tiny(tmp_path, '''
 [[problem]]
@@ -360,6 +361,7 @@ def test_execution_columns_use_executes_one_judgement():
         "execution": None, "task_achieved": None, "task_note": None, "execute_key": None}
 
 
+@pytest.mark.slow
 def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
     """Two problems (the MJCF arm, two targets) x two solvers (R-AICO, iLQG), 3 iterations, end to end: every
     plan executed in Drake; each record's columns are execute's own status and judgement of that run, and the
