@@ -474,6 +474,8 @@ REFERENCE_JOINTS = 7    # the direct-transcription reference runs on problems of
 REFERENCE_STEPS = 100   # ... and steps
 REFERENCE_SOLVER = "snopt"
 REFERENCE_TIME_S = 300.0
+REFERENCE_ITERATIONS = 300   # SNOPT's major iterations: its bound on the reference's time (its own time limit
+                             # counts CPU seconds and is not kept between major iterations)
 
 
 def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[dict],
@@ -482,7 +484,7 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
     problem with its hard bounds (the robot's ranges, and effort limits for torques), warm-started from the
     cheapest plan inside the limits (else the cheapest plan), by ``solver``. Its record (cost, status,
     feasible, dynamics defect, bounds' excess, time, warm start) is kept under ``<cache>/reference/`` by
-    the warm start's plan key, so a second call solves nothing; ``None`` where the problem is too large
+    the warm start's plan key and the solver's iteration limit, so a second call solves nothing; ``None`` where the problem is too large
     or no plan of it has a finite cost (said through ``say``)."""
     import json
 
@@ -494,7 +496,7 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
     if not mine:
         return None
     warm = min(mine, key=lambda r: (not r.get("inside_limits"), r["final_cost"]))
-    path = cache.root / "reference" / f"{warm['key']}-{solver}.json"
+    path = cache.root / "reference" / f"{warm['key']}-{solver}-{REFERENCE_ITERATIONS}.json"
     if path.exists():
         return json.loads(path.read_text())
     entry = next(s for s in suite.solvers if s.label == warm["solver"])
@@ -506,7 +508,7 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
         return None
     with np.load(cache.root / "plan" / warm["key"] / "plan.npz", allow_pickle=False) as f:
         X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
-    out = solve(pb, X, U, solver=solver, time_limit_s=suite.reference_time_s)
+    out = solve(pb, X, U, solver=solver, max_iterations=REFERENCE_ITERATIONS, time_limit_s=suite.reference_time_s)
     rec = {**out.record(), "warm_start": f"{warm['solver']} ({_f(warm['final_cost'])})", "warm_key": warm["key"]}
     path.parent.mkdir(parents=True, exist_ok=True)
     from pipeline.engine.runner import finite_json

@@ -154,7 +154,7 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
           max_iterations: int = 3000, tol: float = FEASIBILITY_TOL, time_limit_s: float = 600.0) -> Transcribed:
     """The reference plan of ``problem`` from the guess ``X0 (T+1, n_x)``, ``U0 (T, n_u)`` (a solver's plan)
     by ``solver`` (``snopt`` or ``ipopt``), at most ``max_iterations`` major iterations and
-    ``time_limit_s`` seconds of CPU time (both solvers count CPU, not wall, time). A solver that stops without success still returns its last point, with its
+    ``time_limit_s`` seconds (SNOPT's CPU seconds, checked at its own pace; IPOPT's wall-clock seconds). A solver that stops without success still returns its last point, with its
     status: feasibility is judged here."""
     from pydrake.solvers import IpoptSolver, SnoptSolver, SolverOptions
 
@@ -177,7 +177,7 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
         opts.SetOption(sid, "tol", 1e-8)
         opts.SetOption(sid, "constr_viol_tol", tol)
         opts.SetOption(sid, "print_level", 0)
-        opts.SetOption(sid, "max_cpu_time", float(time_limit_s))
+        opts.SetOption(sid, "max_wall_time", float(time_limit_s))
     start = time.perf_counter()
     res = drake_solver.Solve(prog, prog.GetInitialGuess(prog.decision_variables()), opts)
     elapsed = time.perf_counter() - start
