@@ -74,8 +74,8 @@ from pipeline.experiments.expfile import read_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
-TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "reference_time_s", "solver",
-            "problem")
+TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "reference_time_s",
+            "reference_total_s", "solver", "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
 PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
@@ -115,6 +115,7 @@ class Suite:
     notes: list[str] = field(default_factory=list)   # the lines said while loading (left-out entries)
     reference: bool = False   # run the direct-transcription reference on the problems small enough
     reference_time_s: float = 300.0   # its time limit per problem (s)
+    reference_total_s: float = math.inf   # the references computed in one call stop after this (s, wall)
 
 
 def _budget(value: Any, what: str, integer: bool) -> float:
@@ -150,6 +151,8 @@ def load(path: str | Path | None = None) -> Suite:
     suite.reference = bool(doc.get("reference", False))
     suite.reference_time_s = float(_budget(doc.get("reference_time_s", REFERENCE_TIME_S),
                                            f"{path.name}: reference_time_s", False))
+    suite.reference_total_s = float(_budget(doc.get("reference_total_s", math.inf),
+                                            f"{path.name}: reference_total_s", False))
     suite.solvers = _solvers(path, doc.get("solver", []), suite.notes)
     entries = doc.get("problem", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
@@ -479,13 +482,15 @@ REFERENCE_ITERATIONS = 300   # SNOPT's major iterations: its bound on the refere
 
 
 def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[dict],
-                     say: Callable[[str], None], solver: str = REFERENCE_SOLVER) -> dict[str, Any] | None:
+                     say: Callable[[str], None], solver: str = REFERENCE_SOLVER,
+                     cached_only: bool = False) -> dict[str, Any] | None:
     """The direct-transcription reference on one problem (:mod:`pipeline.experiments.transcription`): the
     problem with its hard bounds (the robot's ranges, and effort limits for torques), warm-started from the
     cheapest plan inside the limits (else the cheapest plan), by ``solver``. Its record (cost, status,
     feasible, dynamics defect, bounds' excess, time, warm start) is kept under ``<cache>/reference/`` by
     the warm start's plan key and the solver's iteration limit, so a second call solves nothing; ``None`` where the problem is too large
-    or no plan of it has a finite cost (said through ``say``)."""
+    or no plan of it has a finite cost, or, with ``cached_only`` (the call's ``reference_total_s`` is spent),
+    where it is not cached (said through ``say``: a later call goes on from there)."""
     import json
 
     from pipeline.engine.cache import write_file_atomic
@@ -499,6 +504,10 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
     path = cache.root / "reference" / f"{warm['key']}-{solver}-{REFERENCE_ITERATIONS}.json"
     if path.exists():
         return json.loads(path.read_text())
+    if cached_only:
+        say(f"suite: {problem.label}: no transcription reference in this call (reference_total_s = "
+            f"{suite.reference_total_s:g} s spent; the next call goes on)")
+        return None
     entry = next(s for s in suite.solvers if s.label == warm["solver"])
     cfg = PlanConfig(**{**options(problem, entry), "bounds": "hard"})
     _, _, pb, _, _ = build_problem(cfg)
@@ -916,9 +925,11 @@ def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
     records = measure(cache, suite, all_cells)
     refs = {}
     if suite.reference:
+        start = time.perf_counter()
         for p in suite.problems:
+            spent = time.perf_counter() - start > suite.reference_total_s
             try:
-                rec = reference_record(cache, suite, p, records, say)
+                rec = reference_record(cache, suite, p, records, say, cached_only=spent)
             except (ValueError, RuntimeError) as e:   # a problem Drake's program cannot take: said, the suite goes on
                 say(f"suite: {p.label}: no transcription reference: {' '.join(str(e).split())}")
                 rec = None
