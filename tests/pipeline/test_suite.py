@@ -425,3 +425,18 @@ def test_the_reference_key_is_a_boolean(tmp_path):
         suite.load(path)
     path.write_text("reference = true\n" + text)
     assert suite.load(path).reference is True
+
+
+def test_a_spent_reference_budget_reads_the_cache_and_solves_nothing(tmp_path):
+    s = suite.Suite("mini", "", tmp_path / "suite.toml", [suite.SolverEntry("A", {"solver": "raico"})],
+                    [suite.ProblemEntry("p", tmp_path / "p.toml")])
+    recs = [{"problem": "p", "solver": "A", "key": "k" * 16, "final_cost": 2.0, "inside_limits": True}]
+    cache = SimpleNamespace(root=tmp_path)
+    said: list[str] = []
+    assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True) is None
+    assert said == ["suite: p: no transcription reference in this call (reference_total_s = inf s spent; "
+                    "the next call goes on)"]
+    kept = tmp_path / "reference" / f"{'k' * 16}-snopt-{suite.REFERENCE_ITERATIONS}.json"
+    kept.parent.mkdir()
+    kept.write_text(json.dumps({"cost": 1.5, "feasible": True}))
+    assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True)["cost"] == 1.5
