@@ -1,9 +1,9 @@
 """The solver suite on ``make bench``'s page: ``python -m bench.suite [--artifacts DIR] [--jobs N]``.
 
 Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.experiments.suite`: every solver on
-every problem, each an ordinary cached plan in ``DIR``, one run at a time in this process for the
+every problem, each an ordinary cached plan in ``DIR`` executed in Drake, one run at a time in this process for the
 cleanest times) and writes ``DIR/bench/suite.json``, ``suite.md`` (the page; its tables go into
-docs/benchmarks.md through ``scripts/readme_numbers.py``) and ``suite_profiles.png``.
+docs/benchmarks.md through ``scripts/readme_numbers.py``), ``suite_profiles.png`` and ``suite_iterations.png``.
 """
 
 from __future__ import annotations

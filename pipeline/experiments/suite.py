@@ -6,6 +6,8 @@ The suite is a list file (``problems/suite/suite.toml``) and every other problem
     iterations = 40            # the iteration budget of every run
     time_budget_s = 20.0       # the time budget (see below)
     within = 0.01              # the time profile's target: within 1 % of the best cost
+    reference = true           # the direct-transcription reference (default false) ...
+    reference_time_s = 45.0    # ... and its limit per problem (CPU seconds)
     [[solver]]                 # a label and plan options; needs = "crocoddyl"; optional = true;
     label = "FDDP"             # rollout = NAME: the solver to use from the zero-control rollout
     solver = "fddp"
@@ -31,10 +33,20 @@ over the model's joint range (rad, or m for a prismatic joint) along the traject
 excess of a joint's torque over its effort limit (N m; for pseudo-dynamics the torques that produce
 the planned accelerations, ``M(q) u + h(q, v)`` of the analytic model).
 
+Every plan is also executed in Drake (``raico execute`` at its defaults, an ordinary cached run): its
+status and execute's one judgement of the task (:func:`stages.evaluate.metrics.executed_task`: every
+via-point term within its tolerance, status ``ok``) are columns, beside whether the plan stays inside the
+limits. With ``reference = true`` the direct-transcription reference
+(:mod:`pipeline.experiments.transcription`, SNOPT, at most ``reference_time_s`` per problem) runs on the
+problems of at most 7 joints and 100 steps, warm-started from the cheapest plan inside the limits: its
+feasible cost joins the best feasible cost known.
+
 Across problems, Dolan and Moré's performance profiles (Math. Program. 91, 2002): for a measure
 ``m[p, s]`` (lower is better; missing = not solved), ``r[p, s] = m[p, s] / min_s m[p, s]`` and
 ``rho_s(tau) = |{p : r[p, s] <= tau}| / n_problems``. The cost profile takes the final cost, the
-time profile the time to within ``within`` of the best cost. A cell without a value (the solver
+time profile the time to within ``within`` of the best cost; the inside profile the final cost of the plans
+inside the limits and the executed profile that of the plans executed ``ok`` that achieve their task (any
+other plan not solved), both against the best feasible cost known. A cell without a value (the solver
 could not express the problem, the run raised, diverged or never reached the target) counts as not
 solved; a problem no solver solved stays in the denominator.
 
@@ -62,10 +74,12 @@ from pipeline.experiments.expfile import read_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_FILE = ROOT / "problems" / "suite" / "suite.toml"
-TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "solver", "problem")
+TOP_KEYS = ("name", "description", "iterations", "time_budget_s", "within", "reference", "reference_time_s",
+            "reference_total_s", "solver", "problem")
 SOLVER_KEYS = ("label", "needs", "optional", "rollout")   # a solver entry's keys that are not plan options
 PROBLEM_KEYS = ("file", "label", "dynamics", "start", "q0_std", "iterations", "time_budget_s")
 STARTS = ("held", "rollout", "quasi-static")
+STAGES = ("plan", "execute")   # every plan of the suite is executed in Drake (execute's defaults)
 TAUS = (1.0, 1.01, 1.1, 1.5, 2.0, 10.0)   # the profiles' table columns
 
 
@@ -99,6 +113,9 @@ class Suite:
     problems: list[ProblemEntry]
     within: float = 0.01
     notes: list[str] = field(default_factory=list)   # the lines said while loading (left-out entries)
+    reference: bool = False   # run the direct-transcription reference on the problems small enough
+    reference_time_s: float = 300.0   # its time limit per problem (s)
+    reference_total_s: float = math.inf   # the references computed in one call stop after this (s, wall)
 
 
 def _budget(value: Any, what: str, integer: bool) -> float:
@@ -129,6 +146,13 @@ def load(path: str | Path | None = None) -> Suite:
     budget = _budget(doc.get("time_budget_s", 20.0), f"{path.name}: time_budget_s", False)
     within = _budget(doc.get("within", 0.01), f"{path.name}: within", False)
     suite = Suite(str(doc.get("name", path.stem)), str(doc.get("description", "")), path, [], [], float(within))
+    if not isinstance(doc.get("reference", False), bool):
+        raise BadInput(f"{path}: reference must be true or false, got {doc['reference']!r}")
+    suite.reference = bool(doc.get("reference", False))
+    suite.reference_time_s = float(_budget(doc.get("reference_time_s", REFERENCE_TIME_S),
+                                           f"{path.name}: reference_time_s", False))
+    suite.reference_total_s = float(_budget(doc.get("reference_total_s", math.inf),
+                                            f"{path.name}: reference_total_s", False))
     suite.solvers = _solvers(path, doc.get("solver", []), suite.notes)
     entries = doc.get("problem", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
@@ -264,9 +288,10 @@ def experiment(suite: Suite, runnable: list[Cell]):
     from pipeline.experiments.expfile import Experiment, Variant
 
     points = [{"label": f"{c.problem} | {c.solver}", **c.options, "seeds": ()} for c in runnable]
-    exp = Experiment(suite.name, suite.description, ("plan",), (0,), {"plan": {}}, {}, {}, points, suite.path)
+    exp = Experiment(suite.name, suite.description, STAGES, (0,), {"plan": {}, "execute": {}}, {}, {}, points,
+                     suite.path)
     # the table's option columns: the suite's labels (the problem's canonical content would fill a screen)
-    exp.variants = [Variant(f"{c.problem} | {c.solver}", {"plan": dict(c.options)},
+    exp.variants = [Variant(f"{c.problem} | {c.solver}", {"plan": dict(c.options), "execute": {}},
                             {"problem": c.problem, "solver": c.solver}) for c in runnable]
     return exp
 
@@ -284,9 +309,11 @@ def run(cache, suite: Suite, executor, say: Callable[[str], None],
         rows = expfile.run(cache, exp, executor, record=False, progress=progress)
         for c, row in zip(runnable, rows):
             c.row = row
-            if row["status"] == "error":
+            if row["status"] == "error" and not row.get("plan.key"):   # the plan raised: the cell is empty
                 c.reason = row["error"].removeprefix("plan: ")
                 say(f"suite: {c.problem} x {c.solver}: {c.reason}")
+            elif row["status"] == "error":                             # the execution raised: said, the plan kept
+                say(f"suite: {c.problem} x {c.solver}: {row['error']}")
     return all_cells
 
 
@@ -330,6 +357,21 @@ def limit_violations(robot, X: np.ndarray, U: np.ndarray, torques: np.ndarray | 
             "effort": None if effort is None or not np.all(np.isfinite(tau)) else float(effort.max())}
 
 
+def iterate_range_excess(X_iterations: np.ndarray, t_iterations: np.ndarray, robot) -> np.ndarray:
+    """Per iterate (row 0 the initial trajectory, row ``i`` iteration ``i``'s), the largest excess of a joint
+    position over the model's range (rad, or m) at the steps the plan keeps of its iterates
+    (``X_iterations (I+1, K, n_x)`` at steps ``t_iterations (K,)``: every n-th step and the via-points;
+    the start, step 0, left out: no plan changes it); NaN for an iterate not recorded (diverged)."""
+    n = robot.n_q
+    keep = np.asarray(t_iterations) > 0
+    Q = np.asarray(X_iterations, float)[:, keep, :n]
+    with np.errstate(invalid="ignore"):
+        excess = np.maximum(np.maximum(Q - robot.upper, robot.lower - Q), 0.0)
+        out = excess.reshape(len(Q), -1).max(axis=1) if Q.size else np.zeros(len(Q))
+    recorded = np.all(np.isfinite(Q.reshape(len(Q), -1)), axis=1) if Q.size else np.ones(len(Q), bool)
+    return np.where(recorded, out, np.nan)
+
+
 def _torques(problem_cache: dict, options: dict, X: np.ndarray, U: np.ndarray):
     """The robot of a cell and its plan's torques (computed torque for pseudo-dynamics)."""
     from plants.dynamics_registry import make_dynamics
@@ -349,6 +391,31 @@ def _torques(problem_cache: dict, options: dict, X: np.ndarray, U: np.ndarray):
     return robot, tau
 
 
+def execution_columns(row: dict[str, Any]) -> dict[str, Any]:
+    """The execution's columns of a runs-table row: ``execution`` (execute's status, ``error`` where it
+    raised, ``None`` not run), ``task_achieved`` (execute's one judgement,
+    :func:`stages.evaluate.metrics.executed_task`: every via-point term within its tolerance and the status
+    ``ok``; ``None`` without task terms), ``task_note`` (:func:`stages.evaluate.metrics.task_note`) and
+    ``execute_key``."""
+    from stages.evaluate.metrics import executed_task, task_note
+
+    status = row.get("execute.status")
+    out: dict[str, Any] = {"execution": None if status in (None, "not run") else str(status),
+                           "task_achieved": None, "task_note": None, "execute_key": row.get("execute.key")}
+    task = {k.removeprefix("execute.task."): v for k, v in row.items() if k.startswith("execute.task.")}
+    if out["execute_key"] and {"achieved", "worst", "error", "tol", "unit", "kind"} <= set(task):
+        verdict = executed_task(task, str(status))
+        if verdict is not None:
+            out["task_achieved"], out["task_note"] = bool(verdict["achieved"]), task_note(verdict)
+    return out
+
+
+def executed_ok(record: dict) -> bool:
+    """Whether a run's plan, executed in Drake, ended ``ok`` and achieved its task (execute's judgement);
+    a run without an execution or without task terms is not."""
+    return record.get("execution") == "ok" and record.get("task_achieved") is True
+
+
 def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
     """One record per cell: the numbers of the module docstring (``None`` where there is none, with
     ``reason``), the best cost and time-to-target per problem filled in."""
@@ -359,7 +426,9 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
         rec: dict[str, Any] = {"problem": c.problem, "solver": c.solver, "status": "not run", "iterations": None,
                                "final_cost": None, "wall_time_s": None, "time_to_target_s": None,
                                "cost_ratio": None, "joint_range_excess": None, "effort_excess": None,
-                               "key": None, "reason": c.reason, "over_time_budget": False, "cached": False}
+                               "key": None, "reason": c.reason, "over_time_budget": False, "cached": False,
+                               "inside_limits": None, "execution": None, "task_achieved": None, "task_note": None,
+                               "execute_key": None}
         row = c.row
         if row and row.get("plan.key"):
             rec.update(key=row["plan.key"], status=row.get("plan.status"), iterations=row.get("plan.iterations"),
@@ -368,6 +437,8 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             with np.load(cache.root / "plan" / row["plan.key"] / "plan.npz", allow_pickle=False) as f:
                 costs, elapsed = np.asarray(f["costs"], float), np.asarray(f["elapsed"], float)
                 X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
+                iterates = ((np.asarray(f["X_iterations"], float), np.asarray(f["t_iterations"]))
+                            if {"X_iterations", "t_iterations"} <= set(f.files) else None)
             final = None if rec["status"] == "diverged" else row.get("plan.final_cost")
             rec["final_cost"] = cost_at_budget(costs, elapsed, final, budgets[c.problem])
             rec["over_time_budget"] = bool(elapsed.size and elapsed[-1] > budgets[c.problem])
@@ -375,6 +446,12 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             robot, tau = _torques(robots, c.options, X, U)
             v = limit_violations(robot, X, U, tau)
             rec["joint_range_excess"], rec["effort_excess"] = v["joint_range"], v["effort"]
+            rec["inside_limits"] = inside_limits(rec)
+            rec["iteration_costs"] = [float(c) if math.isfinite(c) else None for c in costs]
+            rec["iteration_range_excess"] = (None if iterates is None else
+                                             [None if not math.isfinite(v) else float(v)
+                                              for v in iterate_range_excess(*iterates, robot)])
+            rec.update(execution_columns(row))
             if rec["final_cost"] is None and not rec["reason"]:
                 rec["reason"] = "diverged" if rec["status"] == "diverged" else "no finite cost within the budget"
         elif row and row.get("status") == "error":
@@ -395,6 +472,62 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
     return records
 
 
+# ----------------------------------------------------------------------------- the reference
+REFERENCE_JOINTS = 7    # the direct-transcription reference runs on problems of at most this many joints ...
+REFERENCE_STEPS = 100   # ... and steps
+REFERENCE_SOLVER = "snopt"
+REFERENCE_TIME_S = 300.0
+REFERENCE_ITERATIONS = 300   # SNOPT's major iterations: its bound on the reference's time (its own time limit
+                             # counts CPU seconds and is not kept between major iterations)
+
+
+def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[dict],
+                     say: Callable[[str], None], solver: str = REFERENCE_SOLVER,
+                     cached_only: bool = False) -> dict[str, Any] | None:
+    """The direct-transcription reference on one problem (:mod:`pipeline.experiments.transcription`): the
+    problem with its hard bounds (the robot's ranges, and effort limits for torques), warm-started from the
+    cheapest plan inside the limits (else the cheapest plan), by ``solver``. Its record (cost, status,
+    feasible, dynamics defect, bounds' excess, time, warm start) is kept under ``<cache>/reference/`` by
+    the warm start's plan key and the solver's iteration limit, so a second call solves nothing; ``None`` where the problem is too large
+    or no plan of it has a finite cost, or, with ``cached_only`` (the call's ``reference_total_s`` is spent),
+    where it is not cached (said through ``say``: a later call goes on from there)."""
+    import json
+
+    from pipeline.engine.cache import write_file_atomic
+    from pipeline.experiments.transcription import refusal, solve
+    from stages.plan.stage import PlanConfig, build_problem
+
+    mine = [r for r in records if r["problem"] == problem.label and r["key"] and r["final_cost"] is not None]
+    if not mine:
+        return None
+    warm = min(mine, key=lambda r: (not r.get("inside_limits"), r["final_cost"]))
+    path = cache.root / "reference" / f"{warm['key']}-{solver}-{REFERENCE_ITERATIONS}.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    if cached_only:
+        say(f"suite: {problem.label}: no transcription reference in this call (reference_total_s = "
+            f"{suite.reference_total_s:g} s spent; the next call goes on)")
+        return None
+    entry = next(s for s in suite.solvers if s.label == warm["solver"])
+    cfg = PlanConfig(**{**options(problem, entry), "bounds": "hard"})
+    _, _, pb, _, _ = build_problem(cfg)
+    why = refusal(pb, REFERENCE_JOINTS, REFERENCE_STEPS)
+    if why:
+        say(f"suite: {problem.label}: no transcription reference ({why})")
+        return None
+    with np.load(cache.root / "plan" / warm["key"] / "plan.npz", allow_pickle=False) as f:
+        X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
+    out = solve(pb, X, U, solver=solver, max_iterations=REFERENCE_ITERATIONS, time_limit_s=suite.reference_time_s)
+    rec = {**out.record(), "warm_start": f"{warm['solver']} ({_f(warm['final_cost'])})", "warm_key": warm["key"]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    from pipeline.engine.runner import finite_json
+
+    write_file_atomic(path, json.dumps(finite_json(rec)).encode())
+    say(f"suite: {problem.label}: transcription reference ({solver}) {out.status}, cost {_f(rec['cost'])}, "
+        f"{'feasible' if out.feasible else 'not feasible'}, {out.time_s:.3g} s")
+    return rec
+
+
 # ----------------------------------------------------------------------------- performance profiles
 def _ratio(value: float, best: float) -> float:
     """``value / best`` for costs >= 0 (a best of 0: 1 for 0, inf otherwise)."""
@@ -403,15 +536,19 @@ def _ratio(value: float, best: float) -> float:
     return 1.0 if value <= best else math.inf
 
 
-def performance_ratios(measure_: dict[str, list[float | None]]) -> dict[str, list[float]]:
+def performance_ratios(measure_: dict[str, list[float | None]],
+                       known: list[float | None] | None = None) -> dict[str, list[float]]:
     """Dolan-Moré ratios ``r[p, s] = m[p, s] / min_s m[p, s]`` per solver (``measure_``: solver ->
-    per-problem values >= 0, ``None`` not solved -> inf; a problem no solver solved: inf for all)."""
+    per-problem values >= 0, ``None`` not solved -> inf; a problem no solver solved: inf for all).
+    ``known``: per problem a value reached outside the solvers (the best feasible cost a reference
+    reached), a candidate for the minimum too (``None``: none)."""
     solvers = list(measure_)
     n = len(next(iter(measure_.values()))) if measure_ else 0
     out: dict[str, list[float]] = {s: [] for s in solvers}
     for p in range(n):
         vals = [measure_[s][p] for s in solvers]
-        finite = [v for v in vals if v is not None and math.isfinite(v)]
+        extra = [known[p]] if known is not None else []
+        finite = [v for v in [*vals, *extra] if v is not None and math.isfinite(v)]
         best = min(finite) if finite else None
         for s, v in zip(solvers, vals):
             out[s].append(math.inf if best is None or v is None or not math.isfinite(v) else _ratio(v, best))
@@ -435,17 +572,29 @@ def inside_limits(record: dict) -> bool:
     return rng is not None and rng <= RANGE_TOL and (eff is None or eff <= EFFORT_TOL)
 
 
-def profiles(records: list[dict], problems: list[str], solvers: list[str]) -> dict[str, Any]:
-    """The cost, the time and the inside-the-limits cost profiles of ``records`` over ``problems``: per
-    kind the ratios per solver (problem order) and ``rho`` at :data:`TAUS`. ``inside``: the final cost of
-    the plans that stay inside the robot's limits (:func:`inside_limits`) against the best such plan; a
-    plan that leaves them counts as not solved."""
+# the profiles: (kind, the record's measure, which plans count as solved (None: every plan with a value),
+# whether the best feasible cost a reference reached joins the minimum)
+PROFILE_KINDS = (("cost", "final_cost", None, False), ("time", "time_to_target_s", None, False),
+                 ("inside", "final_cost", "inside_limits", True), ("executed", "final_cost", "executed_ok", True))
+
+
+def profiles(records: list[dict], problems: list[str], solvers: list[str],
+             best_feasible: dict[str, float | None] | None = None) -> dict[str, Any]:
+    """The profiles of ``records`` over ``problems``: per kind the ratios per solver (problem order) and
+    ``rho`` at :data:`TAUS`. ``cost``: the final cost against the best; ``time``: the time to within
+    ``within`` of the best cost; ``inside``: the final cost of the plans that stay inside the robot's
+    limits (:func:`inside_limits`), a plan that leaves them not solved; ``executed``: the final cost of the
+    plans whose execution in Drake is ``ok`` and achieves the task (:func:`executed_ok`), any other not
+    solved. ``inside`` and ``executed`` are relative to the best feasible cost known: the best such plan
+    or ``best_feasible[problem]`` (the direct-transcription reference's cost from the same start)."""
     by = {(r["problem"], r["solver"]): r for r in records}
+    rules = {"inside_limits": inside_limits, "executed_ok": executed_ok}
     out: dict[str, Any] = {"problems": problems, "taus": list(TAUS)}
-    for kind, key in (("cost", "final_cost"), ("time", "time_to_target_s"), ("inside", "final_cost")):
-        m = {s: [by[(p, s)][key] if (p, s) in by and (kind != "inside" or inside_limits(by[(p, s)])) else None
+    for kind, key, rule, with_known in PROFILE_KINDS:
+        m = {s: [by[(p, s)][key] if (p, s) in by and (rule is None or rules[rule](by[(p, s)])) else None
                  for p in problems] for s in solvers}
-        ratios = performance_ratios(m)
+        known = [(best_feasible or {}).get(p) for p in problems] if with_known else None
+        ratios = performance_ratios(m, known)
         out[kind] = {"ratios": ratios, "rho": {s: profile(ratios[s], TAUS) for s in solvers}}
     return out
 
@@ -464,9 +613,10 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     n = len(prof["problems"])
     kinds = [("cost", "final cost within tau x the best"),
              ("time", f"time to within {doc['within'] * 100:g} % of the best cost,\nwithin tau x the fastest"),
-             ("inside", "final cost within tau x the best plan inside the limits\n(a plan outside: not solved)")]
+             ("inside", "final cost within tau x the best feasible cost known\n(a plan outside the limits: not solved)"),
+             ("executed", "final cost within tau x the best feasible cost known\n(solved: executed ok, task achieved)")]
     kinds = [k for k in kinds if k[0] in prof]
-    fig, axes = plt.subplots(1, len(kinds), figsize=(5.5 * len(kinds), 4.4))
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5.0 * len(kinds), 4.4))
     for ax, (kind, title) in zip(axes, kinds):
         finite = [r for s in solvers for r in prof[kind]["ratios"][s] if math.isfinite(r)]
         top = max(10.0, 1.5 * max(finite)) if finite else 10.0
@@ -495,6 +645,57 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     return path
 
 
+def plot_iterations(doc: dict[str, Any], path: Path) -> Path | None:
+    """Per problem (a row), per solver (a line): the cost per iteration (left, log axis) and beside it the
+    constraint violation per iteration (right: the iterate's largest joint-range excess,
+    :func:`iterate_range_excess`; the axis symmetric-log, 0 inside the ranges to :data:`RANGE_TOL`); one PNG.
+    ``None`` where no run recorded its iterations."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.engine.cache import write_file_atomic
+
+    recs = [r for r in doc["records"] if r.get("iteration_costs")]
+    problems = [p for p in doc["budgets"] if any(r["problem"] == p for r in recs)]
+    if not problems:
+        return None
+    solvers = list(doc["solvers"])
+    colors = {s: f"C{i % 10}" for i, s in enumerate(solvers)}
+    fig, axes = plt.subplots(len(problems), 2, figsize=(10, 2.1 * len(problems) + 0.8), squeeze=False)
+    for row, p in zip(axes, problems):
+        for r in (r for r in recs if r["problem"] == p):
+            c = np.array([np.nan if v is None else v for v in r["iteration_costs"]], float)
+            row[0].plot(np.arange(1, len(c) + 1), c, color=colors[r["solver"]], lw=1.3, label=r["solver"])
+            v = r.get("iteration_range_excess")
+            if v:
+                e = np.array([np.nan if x is None else x for x in v], float)
+                row[1].plot(np.arange(len(e)), e, color=colors[r["solver"]], lw=1.3)
+        row[0].set_yscale("log")
+        row[0].set_ylabel(p, fontsize=8)
+        row[1].set_yscale("symlog", linthresh=RANGE_TOL)
+        row[1].axhline(RANGE_TOL, color="k", lw=0.6, ls=":")
+        for ax in row:
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
+    axes[0][0].set_title("cost per iteration", fontsize=9)
+    axes[0][1].set_title(f"largest joint-range excess per iteration (rad; dotted: {RANGE_TOL:g})", fontsize=9)
+    axes[-1][0].set_xlabel("iteration")
+    axes[-1][1].set_xlabel("iteration (0: the initial trajectory)")
+    handles = [plt.Line2D([], [], color=colors[s], lw=1.5) for s in solvers]
+    fig.legend(handles, solvers, fontsize=8, loc="lower center", ncol=min(len(solvers), 5), frameon=False)
+    fig.tight_layout(rect=(0, 0.6 / (2.1 * len(problems) + 0.8), 1, 1))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_file_atomic(path, buf.getvalue())
+    return path
+
+
 # ----------------------------------------------------------------------------- the page
 def _f(x: Any, spec: str = ".4g") -> str:
     if x is None:
@@ -504,19 +705,40 @@ def _f(x: Any, spec: str = ".4g") -> str:
     return format(x, spec)
 
 
-def summary(suite: Suite, records: list[dict], meta: dict[str, Any]) -> dict[str, Any]:
-    """The suite's document: the records, both profiles over every problem and over the problems every
-    solver ran (no empty cell for an expressibility or input reason), and the budgets."""
+def summary(suite: Suite, records: list[dict], meta: dict[str, Any],
+            references: dict[str, dict] | None = None) -> dict[str, Any]:
+    """The suite's document: the records, the profiles over every problem and over the problems every
+    solver ran (no empty cell for an expressibility or input reason), the budgets, and per problem the
+    direct-transcription reference (``references``: problem -> :func:`reference_record`), whose feasible
+    cost joins the best feasible cost known."""
     problems = [p.label for p in suite.problems]
     solvers = [s.label for s in suite.solvers]
     ran_all = [p for p in problems if all(r["key"] for r in records if r["problem"] == p)]
+    references = references or {}
+    best_feasible = {p: r["cost"] for p, r in references.items() if r.get("feasible") and r.get("cost") is not None}
+    executed = [r for r in records if r["key"]]
     return {"suite": suite.name, "file": str(suite.path), "description": suite.description, "within": suite.within,
             "budgets": {p.label: {"iterations": p.iterations, "time_budget_s": p.time_budget_s, "start": p.start,
                                   "dynamics": p.dynamics or "the file's"} for p in suite.problems},
             "solvers": {s.label: s.options for s in suite.solvers}, "notes": list(suite.notes), **meta,
-            "records": records,
-            "profiles": {"all": profiles(records, problems, solvers),
-                         "every_solver_ran": profiles(records, ran_all, solvers)}}
+            "records": records, "references": references,
+            "executions": {"runs": len(executed), "ok_achieved": sum(map(executed_ok, executed)),
+                           "problems": len(problems),
+                           "problems_default_ok": _default_ok(records, problems, suite)},
+            "profiles": {"all": profiles(records, problems, solvers, best_feasible),
+                         "every_solver_ran": profiles(records, ran_all, solvers, best_feasible)}}
+
+
+DEFAULT_SOLVER = "R-AICO robust, bounded"   # the entry with a problem file's default plan options
+
+
+def _default_ok(records: list[dict], problems: list[str], suite: Suite) -> int | None:
+    """On how many problems the default plan (the suite's :data:`DEFAULT_SOLVER` entry) executes ``ok``
+    and achieves its task; None where the suite has no such entry."""
+    if not any(s.label == DEFAULT_SOLVER for s in suite.solvers):
+        return None
+    by = {(r["problem"], r["solver"]): r for r in records}
+    return sum(executed_ok(by[(p, DEFAULT_SOLVER)]) for p in problems if (p, DEFAULT_SOLVER) in by)
 
 
 def _raico_losses(doc: dict[str, Any], by: dict, problems: list[str]) -> list[str]:
@@ -587,18 +809,23 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             t = r["time_to_target_s"]
             cells.append(_f(t, ".3g") if t is not None else (why(r) if r["reason"] else "not reached"))
         lines.append(f"| {p} | " + " | ".join(cells) + " |")
-    lines += ["", "## Every run", "",
+    lines += ["", *_execution_section(doc, by, problems, solvers), "", "## Every run", "",
               "| problem | solver | status | iterations | final cost | wall (s) | time to target (s) "
-              "| joint range excess | effort excess (N m) | plan |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "| joint range excess | effort excess (N m) | inside | execution | task | plan |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in recs:
         status = r["status"] + (" (over the time budget)" if r["over_time_budget"] else "")
         lines.append(f"| {r['problem']} | {r['solver']} | {status} | {_f(r['iterations'], 'd')} | "
                      f"{_f(r['final_cost'])} | {_f(r['wall_time_s'], '.3g')} | {_f(r['time_to_target_s'], '.3g')} | "
                      f"{_f(r['joint_range_excess'], '.3g')} | {_f(r['effort_excess'], '.3g')} | "
+                     f"{_yes(r.get('inside_limits'))} | {r.get('execution') or '-'} | {r.get('task_note') or '-'} | "
                      f"{r['key'] or why(r)} |")
     lines += ["", "Joint range excess: the largest distance of a planned joint position outside the model's range "
               "(rad; m for a prismatic joint). Effort excess: the largest torque above a joint's effort limit (for "
-              "pseudo-dynamics the torques of the planned accelerations).", ""]
+              "pseudo-dynamics the torques of the planned accelerations). Inside: both within "
+              f"{RANGE_TOL:g} rad and {EFFORT_TOL:g} N m. Execution: execute's status of the plan run in Drake "
+              "(`raico execute`, its defaults); task: execute's one judgement (`executed_task`: every via-point term "
+              "within its tolerance, and the status ok).", ""]
     for name, title in (("all", "every problem"), ("every_solver_ran", "the problems every solver ran")):
         prof = doc["profiles"][name]
         taus = prof["taus"]
@@ -613,20 +840,70 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             lines.append(f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["cost"]["rho"][s]) + " | "
                          + " | ".join(f"{v:.2f}" for v in prof["time"]["rho"][s]) + " |")
         lines.append("")
+        if "executed" in prof:
+            lines += ["Executed: the final cost of the plans whose execution in Drake ends `ok` and achieves the "
+                      "task, against the best feasible cost known (the best such plan, or the direct-transcription "
+                      "reference's where it is lower); any other plan counts as not solved.", "",
+                      "| solver | " + " | ".join(f"executed {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
+            lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["executed"]["rho"][s]) + " |"
+                      for s in solvers]
+            lines.append("")
         if "inside" in prof:
             lines += [f"Inside the limits: the final cost of the plans that stay in every joint range (to {RANGE_TOL:g} "
-                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best such plan; a plan that leaves "
-                      "them counts as not solved.", "",
+                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best feasible cost known (the best "
+                      "such plan, or the reference's); a plan that leaves them counts as not solved.", "",
                       "| solver | " + " | ".join(f"inside {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
             lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["inside"]["rho"][s]) + " |" for s in solvers]
             lines.append("")
-    lines += [f"![performance profiles]({png_name})", ""]
+    lines += [f"![performance profiles]({png_name})", "",
+              "The cost and the constraint violation per iteration of every run (the iterate's largest joint-range "
+              "excess at the steps a plan keeps of its iterates): "
+              f"![cost and constraint violation per iteration]({png_name.replace('_profiles', '_iterations')})", ""]
     if notes or doc.get("notes"):
         lines += ["## Empty cells and left-out solvers", ""]
         lines += [f"{n}. {text}" for text, n in notes.items()]
         lines += [f"- {text}" for text in doc.get("notes", [])]
         lines.append("")
     return "\n".join(lines)
+
+
+def _yes(flag: bool | None) -> str:
+    return "-" if flag is None else ("yes" if flag else "no")
+
+
+def _execution_section(doc: dict[str, Any], by: dict, problems: list[str], solvers: list[str]) -> list[str]:
+    """The executions as a grid (execute's status and the task verdict per cell), their count, and the
+    direct-transcription references."""
+    ex = doc.get("executions") or {}
+    lines = ["## Executed in Drake", "",
+             f"{ex.get('ok_achieved', 0)} of the {ex.get('runs', 0)} plans execute `ok` and achieve their task"
+             + (f"; the default plan ({DEFAULT_SOLVER}) on {ex['problems_default_ok']} of the {ex['problems']} "
+                "problems" if ex.get("problems_default_ok") is not None else "") + ". A cell: execute's status, "
+             "then `achieved` / `missed` (execute's judgement) and whether the plan stays inside the limits.", "",
+             "| problem | " + " | ".join(solvers) + " |", "|---|" + "---|" * len(solvers)]
+    for p in problems:
+        cells = []
+        for s in solvers:
+            r = by[(p, s)]
+            if not r.get("execution"):
+                cells.append("-")
+                continue
+            task = "-" if r.get("task_achieved") is None else ("achieved" if r["task_achieved"] else "missed")
+            cells.append(f"{r['execution']}, {task}" + ("" if r.get("inside_limits") else ", outside"))
+        lines.append(f"| {p} | " + " | ".join(cells) + " |")
+    refs = doc.get("references") or {}
+    if refs:
+        lines += ["", "### The direct-transcription reference", "",
+                  "Drake's MathematicalProgram over the states and controls of the same discrete dynamics, costs "
+                  "and bounds (pipeline/experiments/transcription.py), warm-started from the best plan inside the limits (else "
+                  "the best plan); its cost joins the best feasible cost known where it is feasible.", "",
+                  "| problem | solver | warm start | status | cost | feasible | range excess | dynamics defect | time (s) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for p, r in refs.items():
+            lines.append(f"| {p} | {r.get('solver', '-')} | {r.get('warm_start', '-')} | {r.get('status', '-')} | "
+                         f"{_f(r.get('cost'))} | {_yes(r.get('feasible'))} | {_f(r.get('range_excess'), '.3g')} | "
+                         f"{_f(r.get('defect'), '.3g')} | {_f(r.get('time_s'), '.3g')} |")
+    return lines
 
 
 # ----------------------------------------------------------------------------- one call
@@ -645,11 +922,26 @@ def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
             "machine": f"{os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f} at the start, Python "
                        f"{platform.python_version()}"}
     all_cells = run(cache, suite, executor, say, progress)
-    doc = summary(suite, measure(cache, suite, all_cells), meta)
+    records = measure(cache, suite, all_cells)
+    refs = {}
+    if suite.reference:
+        start = time.perf_counter()
+        for p in suite.problems:
+            spent = time.perf_counter() - start > suite.reference_total_s
+            try:
+                rec = reference_record(cache, suite, p, records, say, cached_only=spent)
+            except (ValueError, RuntimeError) as e:   # a problem Drake's program cannot take: said, the suite goes on
+                say(f"suite: {p.label}: no transcription reference: {' '.join(str(e).split())}")
+                rec = None
+            if rec is not None:
+                refs[p.label] = rec
+    doc = summary(suite, records, meta, refs)
     doc["machine"] += f", load {os.getloadavg()[0]:.1f} at the end"
     out.mkdir(parents=True, exist_ok=True)
     png = plot_profiles(doc, out / f"{suite.name}_profiles.png")
+    iters = plot_iterations(doc, out / f"{suite.name}_iterations.png")
     write_file_atomic(out / f"{suite.name}.json", json.dumps(finite_json(doc), indent=1, allow_nan=False))
     write_file_atomic(out / f"{suite.name}.md", markdown(doc, png.name))
-    doc["outputs"] = [str(out / f"{suite.name}.json"), str(out / f"{suite.name}.md"), str(png)]
+    doc["outputs"] = [str(out / f"{suite.name}.json"), str(out / f"{suite.name}.md"), str(png),
+                      *([str(iters)] if iters else [])]
     return doc

@@ -189,6 +189,7 @@ def test_a_malformed_list_file_is_one_error(tmp_path, extra, message):
 
 
 # ----------------------------------------------------------------------------- end to end
+@pytest.mark.slow
 def test_bench_suite_runs_every_cell_says_why_a_cell_is_empty_and_caches(tmp_path, crocoddyl_baseline):
     path = _tiny(tmp_path, '''
 [[problem]]
@@ -285,6 +286,11 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "Every run" not in block and "\n### Final cost" in block
     assert f"The profiles as a plot: `{tmp_path / 'suite_profiles.png'}`." in block and "](" not in block
     assert "Over the 2 problems" in block and "A 0.00 / 0.00; B 0.50 / 0.50." in block
+    # the suite judged by execution (docs/suite.md): the count, one row per cell, the profiles
+    exec_block = mod.suite_exec_block(tmp_path / "suite.md", tmp_path / "suite.json")
+    assert "**0 of the 2 plans** execute `ok` and achieve their task" in exec_block
+    assert "| p | B | 1 | - | - | - |" in exec_block and "| q | A | - | - | - | - |" in exec_block
+    assert "| A | 0.00 | 0.00 | 0.50 | 0.00 | 0.00 | 0.50 | 0.00 | 0.00 | 0.00 |" in exec_block
 
 
 @pytest.mark.parametrize("args, line", [
@@ -316,3 +322,123 @@ def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
     assert prof["cost"]["ratios"]["x"] == [1.0, 1.0] and np.allclose(prof["cost"]["ratios"]["y"], [2.0, 1.1])
     assert prof["inside"]["ratios"]["x"][0] == math.inf and prof["inside"]["ratios"]["x"][1] == 1.0
     assert prof["inside"]["ratios"]["y"][0] == 1.0 and prof["inside"]["ratios"]["y"][1] == math.inf
+
+
+# ----------------------------------------------------------------------------- judged by execution
+def _exec_rec(p, s, cost, execution, achieved, rng=0.0):
+    return {"problem": p, "solver": s, "final_cost": cost, "time_to_target_s": 1.0, "joint_range_excess": rng,
+            "effort_excess": 0.0, "execution": execution, "task_achieved": achieved, "key": f"{p}{s}"}
+
+
+def test_the_executed_profile_counts_only_ok_and_achieved_executions():
+    """Three problems with known verdicts: on a the cheapest plan ends tracking-lost and the other is ok and
+    achieved; on b both execute ok but x misses the task; on c nobody's execution is ok, so nobody solves it.
+    The best feasible cost known on a comes from a reference (1.5, lower than y's 2.0), on b none is given."""
+    records = [_exec_rec("a", "x", 1.0, "tracking-lost", False), _exec_rec("a", "y", 2.0, "ok", True),
+               _exec_rec("b", "x", 3.0, "ok", False), _exec_rec("b", "y", 6.0, "ok", True),
+               _exec_rec("c", "x", 1.0, "limits", False), _exec_rec("c", "y", 1.0, None, None)]
+    assert [suite.executed_ok(r) for r in records] == [False, True, False, True, False, False]
+    prof = suite.profiles(records, ["a", "b", "c"], ["x", "y"], best_feasible={"a": 1.5})
+    ex = prof["executed"]["ratios"]
+    assert ex["x"] == [math.inf, math.inf, math.inf]
+    assert ex["y"] == [pytest.approx(2.0 / 1.5), 1.0, math.inf]
+    assert prof["cost"]["ratios"]["x"] == [1.0, 1.0, 1.0]         # the cost profile beside it, unchanged
+    # inside the limits x's cheaper plan counts (it stays in its ranges): the best feasible cost on a is 1.0
+    assert prof["inside"]["ratios"]["y"][0] == 2.0 and prof["inside"]["ratios"]["x"][0] == 1.0
+    taus = suite.TAUS
+    assert prof["executed"]["rho"]["y"][taus.index(1.0)] == pytest.approx(1 / 3)
+    assert prof["executed"]["rho"]["y"][taus.index(1.5)] == pytest.approx(2 / 3)
+
+
+def test_execution_columns_use_executes_one_judgement():
+    from stages.evaluate.metrics import executed_task, task_note
+
+    task = {"achieved": True, "worst": "reach", "kind": "position", "unit": "m", "error": 0.004, "tol": 0.01}
+    row = {"execute.key": "k" * 16, "execute.status": "tracking-lost", **{f"execute.task.{k}": v for k, v in task.items()}}
+    cols = suite.execution_columns(row)
+    assert cols["execution"] == "tracking-lost" and cols["task_achieved"] is False   # within tolerance, status not ok
+    assert cols["task_note"] == task_note(executed_task(task, "tracking-lost"))
+    assert suite.execution_columns({**row, "execute.status": "ok"})["task_achieved"] is True
+    assert suite.execution_columns({"execute.status": "not run"}) == {
+        "execution": None, "task_achieved": None, "task_note": None, "execute_key": None}
+
+
+@pytest.mark.slow
+def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
+    """Two problems (the MJCF arm, two targets) x two solvers (R-AICO, iLQG), 3 iterations, end to end: every
+    plan executed in Drake; each record's columns are execute's own status and judgement of that run, and the
+    executed profile solves exactly the cells executed ok and achieved."""
+    shutil.copy(ROOT / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
+    for name, target in (("near", "[0.02, 0.0, -0.02]"), ("far", "[0.1, 0.0, -0.1]")):
+        (tmp_path / f"{name}.toml").write_text(PROBLEM.format(name=name, model="arm3.xml", weld="", T=20, frame="tip")
+                                               .replace("[0.05, 0.0, -0.05]", target))
+    (tmp_path / "suite.toml").write_text('name = "two"\niterations = 3\nreference = true\n[[solver]]\nlabel = "R-AICO"\n'
+                                         'solver = "raico"\n[[solver]]\nlabel = "iLQG"\nsolver = "ilqg"\n')
+    art, out = tmp_path / "art", tmp_path / "out"
+    res = runner.invoke(app, ["bench", "suite", str(tmp_path / "suite.toml"), "--artifacts", str(art), "--out",
+                              str(out), "--quiet"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "two.json").read_text())
+    from stages.evaluate.metrics import STATUSES, executed_task
+
+    assert len(doc["records"]) == 4
+    for r in doc["records"]:
+        assert r["key"] and r["execute_key"] and r["execution"] in STATUSES
+        meta = json.loads((art / "execute" / r["execute_key"] / "meta.json").read_text())
+        verdict = executed_task(meta["metrics"]["task"], meta["status"])
+        assert r["execution"] == meta["status"] and r["task_achieved"] == verdict["achieved"]
+        assert r["inside_limits"] == suite.inside_limits(r)
+    ex = doc["profiles"]["all"]["executed"]["ratios"]
+    for r in doc["records"]:
+        solved = ex[r["solver"]][doc["profiles"]["all"]["problems"].index(r["problem"])] is not None
+        assert solved == suite.executed_ok(r)
+    assert doc["executions"]["runs"] == 4 and doc["executions"]["ok_achieved"] == sum(map(suite.executed_ok,
+                                                                                           doc["records"]))
+    page = (out / "two.md").read_text()
+    assert "## Executed in Drake" in page and "| inside | execution | task |" in page
+    for r in doc["records"]:   # the cost and the violation per iteration: the plan's iterations, the start
+        assert len(r["iteration_costs"]) == r["iterations"] and len(r["iteration_range_excess"]) == r["iterations"] + 1
+    assert (out / "two_iterations.png").stat().st_size > 10_000
+    # the transcription reference on both (3 joints, T = 20), warm-started from one of their plans
+    keys = {r["key"] for r in doc["records"]}
+    assert set(doc["references"]) == {"near", "far"}
+    for ref in doc["references"].values():
+        assert ref["warm_key"] in keys and isinstance(ref["feasible"], bool) and ref["cost"] > 0
+    assert "### The direct-transcription reference" in page
+
+
+def test_iterate_range_excess_is_the_largest_excess_per_recorded_iterate():
+    robot = SimpleNamespace(n_q=2, lower=np.array([-1.0, -2.0]), upper=np.array([1.0, 2.0]))
+    t = np.array([0, 2, 4])
+    X = np.zeros((3, 3, 4))
+    X[0, 0, 0] = 5.0                  # the start (step 0) outside: not the plan's doing, left out
+    X[1, 1, 1] = -2.25                # iteration 1: joint 2 0.25 below its range at step 2
+    X[1, 2, 0] = 1.1                  # ... and joint 1 0.1 above at step 4
+    X[2] = np.nan                     # iteration 2 not recorded
+    out = suite.iterate_range_excess(X, t, robot)
+    assert out[0] == 0.0 and out[1] == pytest.approx(0.25) and np.isnan(out[2])
+
+
+def test_the_reference_key_is_a_boolean(tmp_path):
+    path = _tiny(tmp_path, 'reference = "yes"', talos=False)
+    text = path.read_text().replace('reference = "yes"\n', "")
+    path.write_text('reference = "yes"\n' + text)
+    with pytest.raises(BadInput, match="reference must be true or false"):
+        suite.load(path)
+    path.write_text("reference = true\n" + text)
+    assert suite.load(path).reference is True
+
+
+def test_a_spent_reference_budget_reads_the_cache_and_solves_nothing(tmp_path):
+    s = suite.Suite("mini", "", tmp_path / "suite.toml", [suite.SolverEntry("A", {"solver": "raico"})],
+                    [suite.ProblemEntry("p", tmp_path / "p.toml")])
+    recs = [{"problem": "p", "solver": "A", "key": "k" * 16, "final_cost": 2.0, "inside_limits": True}]
+    cache = SimpleNamespace(root=tmp_path)
+    said: list[str] = []
+    assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True) is None
+    assert said == ["suite: p: no transcription reference in this call (reference_total_s = inf s spent; "
+                    "the next call goes on)"]
+    kept = tmp_path / "reference" / f"{'k' * 16}-snopt-{suite.REFERENCE_ITERATIONS}.json"
+    kept.parent.mkdir()
+    kept.write_text(json.dumps({"cost": 1.5, "feasible": True}))
+    assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True)["cost"] == 1.5

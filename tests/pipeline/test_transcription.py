@@ -1,0 +1,90 @@
+"""The direct-transcription reference (pipeline/experiments/transcription.py) on a bounded LQ problem whose feasible
+optimum an exact convex QP gives (Clarabel, an interior-point QP solver, through Drake), from a guess that is
+neither feasible nor optimal; and its refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.experiments.transcription import judge, refusal, solve
+from planning.problem import Bounds, Problem
+from tests.planning.test_solvers_lq import make_lq
+
+T = 12
+
+
+def bounded_lq() -> Problem:
+    """A random LQ problem (4 states, 2 controls, T = 12) with the first two state coordinates and both
+    controls boxed tighter than the unconstrained optimum goes (checked in the test)."""
+    pb = make_lq(seed=3, T=T)
+    b = Bounds(u_lower=np.full(2, -0.6), u_upper=np.full(2, 0.6), q_index=np.array([0, 1]),
+               q_lower=np.array([-1.0, -0.8]), q_upper=np.array([1.0, 0.8]))
+    pb.x0 = np.clip(pb.x0, -0.5, 0.5)
+    return Problem(pb.dynamics, pb.x0, pb.T, pb.state_terms, pb.control_terms, bounds=b)
+
+
+def exact_qp(pb: Problem, bounded: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """The QP's optimum ``X, U`` and cost: the terms' exact quadratic forms (``1/2 z^T R z - r^T z`` plus
+    the constant that makes them the cost), the affine dynamics, the bounds from step 1, by Clarabel."""
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram
+
+    n, m, dyn = pb.n_x, pb.n_u, pb.dynamics
+    prog = MathematicalProgram()
+    X = prog.NewContinuousVariables(T + 1, n)
+    U = prog.NewContinuousVariables(T, m)
+    R, r = pb.quadratize_states(np.zeros((T + 1, n)))
+    H, h = pb.quadratize_controls(np.zeros((T, m)))
+    for t in range(T + 1):
+        prog.AddQuadraticCost(R[t], -r[t], X[t], is_convex=True)
+    for t in range(T):
+        prog.AddQuadraticCost(H[t], -h[t], U[t], is_convex=True)
+        prog.AddLinearEqualityConstraint(np.hstack([dyn.A, dyn.B, -np.eye(n)]), -dyn.a,
+                                         np.concatenate([X[t], U[t], X[t + 1]]))
+    prog.AddBoundingBoxConstraint(pb.x0, pb.x0, X[0])
+    b = pb.bounds
+    if bounded:
+        for t in range(1, T + 1):
+            prog.AddBoundingBoxConstraint(b.q_lower, b.q_upper, X[t, b.q_index])
+        for t in range(T):
+            prog.AddBoundingBoxConstraint(b.u_lower, b.u_upper, U[t])
+    res = ClarabelSolver().Solve(prog)
+    assert res.is_success()
+    Xs, Us = res.GetSolution(X), res.GetSolution(U)
+    return Xs, Us, pb.cost(Xs, Us)
+
+
+@pytest.mark.parametrize("solver", ["snopt", "ipopt"])
+def test_reference_reaches_the_bounded_qp_optimum(solver):
+    pb = bounded_lq()
+    X_qp, U_qp, c_qp = exact_qp(pb)
+    _, _, c_free = exact_qp(pb, bounded=False)
+    assert c_qp > c_free * (1 + 1e-3)          # the bounds are active: the feasible optimum costs more
+    U0 = np.zeros((T, pb.n_u))                  # guess: the zero controls, the states held at the start
+    X0 = np.repeat(pb.x0[None, :], T + 1, axis=0)
+    out = solve(pb, X0, U0, solver=solver)
+    assert out.feasible, (out.status, out.defect, out.bound_excess)
+    # both solvers stop at a KKT point to their tolerances (1e-6 optimality, quasi-Newton): the strictly
+    # convex QP's optimum is unique, the cost within 1e-5 relative and the plan within 1e-3
+    assert out.cost == pytest.approx(c_qp, rel=1e-5)
+    np.testing.assert_allclose(out.U, U_qp, atol=1e-3)
+    np.testing.assert_allclose(out.X, X_qp, atol=1e-3)
+
+
+def test_judge_measures_defect_and_bounds():
+    pb = bounded_lq()
+    X_qp, U_qp, _ = exact_qp(pb)
+    assert judge(pb, X_qp, U_qp, "x", "qp", 0.0).feasible
+    bad = U_qp.copy()
+    bad[3, 0] = 0.7                              # 0.1 over the controls' box; the states no longer follow
+    out = judge(pb, X_qp, bad, "x", "qp", 0.0)
+    assert not out.feasible and out.bound_excess == pytest.approx(0.1) and out.defect > 1e-3
+
+
+def test_refusals():
+    pb = bounded_lq()
+    assert refusal(pb) == ""
+    assert "joints" in refusal(pb, max_joints=1)
+    assert "T = 12" in refusal(pb, max_steps=10)
+    outside = Problem(pb.dynamics, np.r_[1.2, pb.x0[1:]], pb.T, pb.state_terms, pb.control_terms, bounds=pb.bounds)
+    assert "outside a joint range" in refusal(outside)
