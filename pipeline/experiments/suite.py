@@ -151,8 +151,8 @@ def load(path: str | Path | None = None) -> Suite:
     suite.reference = bool(doc.get("reference", False))
     suite.reference_time_s = float(_budget(doc.get("reference_time_s", REFERENCE_TIME_S),
                                            f"{path.name}: reference_time_s", False))
-    suite.reference_total_s = float(_budget(doc.get("reference_total_s", math.inf),
-                                            f"{path.name}: reference_total_s", False))
+    if "reference_total_s" in doc:   # absent: no limit
+        suite.reference_total_s = float(_budget(doc["reference_total_s"], f"{path.name}: reference_total_s", False))
     suite.solvers = _solvers(path, doc.get("solver", []), suite.notes)
     entries = doc.get("problem", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
