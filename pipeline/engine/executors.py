@@ -296,7 +296,9 @@ class RayExecutor(Executor):
         if not ray.is_initialized():
             main = threading.current_thread() is threading.main_thread()
             handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
-            kwargs: dict[str, Any] = {"logging_level": logging.ERROR}
+            # log_to_driver off: the Ray processes' own lines (a metrics agent that retries under load, a
+            # worker's stdout) stay in Ray's log files; raico says a failed run in its row and one line
+            kwargs: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False}
             # RAY_BACKEND_LOG_LEVEL is left to the user: Ray's C++ side logs to its files unless it is set, and
             # setting it prints "Set ray log level from environment variable ..." on stderr from every process
             mark = None

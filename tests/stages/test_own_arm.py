@@ -8,6 +8,7 @@ visuals ``package://`` meshes, one of them missing, every joint damped) through 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +85,8 @@ def test_learn_reports_execute_s_verdict_of_every_episode(lift_learn):
 
     res, line, art = lift_learn
     doc = json.loads((Path(line["path"]) / "episodes.json").read_text())
-    said = [ln for ln in res.stderr.splitlines() if ln.startswith("learn episode ")]
+    # each episode's summary ("learn episode K/N: ..."), not the loop's other lines (a random episode run instead)
+    said = [ln for ln in res.stderr.splitlines() if re.match(r"learn episode \d+/\d+:", ln)]
     assert len(doc["episodes"]) == len(said) == 2
     for ep, words in zip(doc["episodes"], said):
         meta = json.loads((art / "execute" / ep["execute"] / "meta.json").read_text())

@@ -115,7 +115,7 @@ def test_default_execution_is_the_pd_baseline():
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("controller", "mpc", "controller must be one of pd, wbc (got 'mpc')"),
+    ("controller", "lqr", "controller must be one of pd, wbc, mpc (got 'lqr')"),
     ("start", "crouch", "start must be one of plan, standing (got 'crouch')"),
 ])
 def test_bad_values_of_the_new_options(field, value, message):
