@@ -35,7 +35,7 @@ plant = "pendulum"
 task = "swing-up"
 dynamics = "analytic"
 solver = "raico"
-iterations = 3
+iterations = 30                # runs of about 0.2 s: the node is killed while runs are in flight
 q0_std = 0.05
 [grid]
 alpha = [0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0]
