@@ -103,7 +103,7 @@ def backward_sweep_rate(problem, reps: int = 5) -> dict:
     ``seconds`` (median, one thread), its ``flops`` (``T`` backward messages by :func:`sweep_flops`) and
     ``gflops``; the achieved rate of the sweeps themselves, where :func:`flop_fields` divides by the whole
     iteration (dynamics derivatives, rollouts and costs included)."""
-    from planning.aico import backward_sweep_at_start
+    from planning.aico.sweeps import backward_sweep_at_start
     from planning.problem import single_threaded_blas
 
     with single_threaded_blas():

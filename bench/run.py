@@ -38,12 +38,12 @@ def bench_solver_total(plant, task, dynamics, solver, options, reps) -> list[flo
 
 
 def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[float]:
-    """Wall time (s) of whole solver runs spent inside the sweeps (``_Sweeps.sweep``: the compiled
+    """Wall time (s) of whole solver runs spent inside the sweeps (``Sweeps.sweep``: the compiled
     kernel and its Python driver), the rest being linearization, rollouts and costs in Python."""
-    from planning.aico import _Sweeps
+    from planning.aico.sweeps import Sweeps
 
     times, inner = [], [0.0]
-    original = _Sweeps.sweep
+    original = Sweeps.sweep
 
     def timed(self):
         t0 = time.perf_counter()
@@ -52,7 +52,7 @@ def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[floa
         finally:
             inner[0] += time.perf_counter() - t0
 
-    _Sweeps.sweep = timed
+    Sweeps.sweep = timed
     try:
         for _ in range(reps):
             problem = _problem(plant, task, dynamics)
@@ -60,7 +60,7 @@ def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[floa
             solve(problem, solver, options)
             times.append(inner[0])
     finally:
-        _Sweeps.sweep = original
+        Sweeps.sweep = original
     return times
 
 

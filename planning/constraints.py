@@ -19,7 +19,7 @@ Why this method (measured on this machine against the chunked augmented Lagrangi
 inner solves of 10, 10 and 5 iterations per multiplier update): a first-order multiplier step after *every*
 accepted iteration did not converge on the bounded LQ problem (tests/planning/test_aico_robust.py,
 ``bounded_lq``: the penalty climbed to its cap, violation 0.034 rad, diverged at iteration 37); gated on the
-merit settling (relative fall below ``AL_INNER_TOL`` in :mod:`planning.aico`) the same problem reaches the
+merit settling (relative fall below ``AL_INNER_TOL`` in :mod:`planning.aico.bounds`) the same problem reaches the
 QP's optimum in 25 iterations (violation 1e-9). On crocoddyl's Kinova from its own start (joint 3 1.9 rad
 below its range, velocity limit 0.63 rad/s) it ends feasible at 14.28 in 190 iterations, feasible and within
 1 % of that at iteration 40 (the unbounded run converges in 31; the chunked one ended at 355, out-of-bounds;

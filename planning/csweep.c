@@ -1,4 +1,4 @@
-/* AICO / R-AICO sweeps of planning/aico.py (_Sweeps) in C: the same formulas, the same order of
+/* AICO / R-AICO sweeps of planning/aico/sweeps.py (Sweeps) in C: the same formulas, the same order of
  * steps, relinearizations and repeats (thesis Algorithm 1), without per-step Python overhead.
  *
  * Arrays are numpy's, row-major. The dense algebra (Cholesky factors, triangular solves, products)
@@ -6,7 +6,7 @@
  * as one translation unit). Where a step's C has the block form of a semi-implicit Euler step
  * (semi_implicit: A = J + e A_b, B = e B_b) the backward message and the dynamics relinearization
  * take their products from the velocity rows (the same matrices to rounding, fewer flops); every
- * other C takes the dense products. The message layout is _Sweeps's:
+ * other C takes the dense products. The message layout is Sweeps's:
  * SA[t], VA[t], RA[t] = [P | p] (n x (n+1)), C[t] = [[B, A, -a], [0, 0, 1]] ((n+1) x (m+n+1)),
  * Z[t] = [-O_t | o_t] (m x (n+1)).
  *
@@ -56,7 +56,7 @@ typedef struct {
     unsigned char *blk;  /* (T): whether C[t] has the block form (block_form), 0 while not known */
 } sweep_t;
 
-/* Accepted shapes (planning/aico.py: _Sweeps._check_kernel_shapes checks them before every call and
+/* Accepted shapes (planning/aico/sweeps.py: Sweeps._check_kernel_shapes checks them before every call and
  * raises ValueError): T, n, m >= 1; SA, VA, RA (T+1, n, n+1); C (T, n+1, m+n+1) or one shared (stride
  * 0); Qbar (T, n, n) or shared; H, Hinv (T, m, m) or shared; h (T, m); a_eff (T, n); X, Xprev, b
  * (T+1, n); U (T, m); Z (T, m, n+1); active (T+1); blk (T), zeros at the start of a sweep; dt >= 0;
@@ -149,7 +149,7 @@ static void sandwich_sparse(const sweep_t *s, const double *X, const double *Q, 
     add_sparse_A_rows(s, Mt, n, S);
 }
 
-/* forward message [S_t^-1 | S_t^-1 s_t] at t >= 1 (_Sweeps.forward). P = R^T R;
+/* forward message [S_t^-1 | S_t^-1 s_t] at t >= 1 (Sweeps.forward). P = R^T R;
  * dense C: W = R^-T A^T, S = W^T W + Qbar, s_t = W^T R^-T p + a_eff;
  * sparse shared C: S = A P^-1 A^T + Qbar, s_t = A P^-1 p + a_eff (fewer flops: P^-1 by rows);
  * then S = V^T V, S^-1 = V^-1 V^-T. */
@@ -247,7 +247,7 @@ static int vstar_series(sweep_t *s, work_t *w, const double *Pa, double *Vs, int
     return 0;
 }
 
-/* [V* | V* m'] from Pa = [P' | p'] into Vs (_Sweeps._vstar) */
+/* [V* | V* m'] from Pa = [P' | p'] into Vs (Sweeps._vstar) */
 static int vstar(sweep_t *s, work_t *w, const double *Pa, double *Vs)
 {
     int n = (int)s->n, N1 = n + 1, info;
@@ -421,7 +421,7 @@ static void mul_sparse_CT(const sweep_t *s, int c0, int c1, const double *Y, int
     }
 }
 
-/* backward message [V_t^-1 | V_t^-1 v_t] and controller Z[t] (_Sweeps.backward):
+/* backward message [V_t^-1 | V_t^-1 v_t] and controller Z[t] (Sweeps.backward):
  * G = V* C, M = B^T V* B + H = R^T R, Kmat = R^-T [B^T V* A | B^T V*(m' - a) + h], Z = R^-1 Kmat,
  * V_t^-1 = sym(A^T V* A) - Kmat[:, :n]^T Kmat[:, :n], V_t^-1 v_t = A^T V*(m' - a) - Kmat[:, :n]^T Kmat[:, n] */
 static int backward(sweep_t *s, work_t *w, long t, int reuse)
@@ -482,7 +482,7 @@ static int backward(sweep_t *s, work_t *w, long t, int reuse)
     return 0;
 }
 
-/* belief mean b_t (_Sweeps.belief) */
+/* belief mean b_t (Sweeps.belief) */
 static int belief(sweep_t *s, work_t *w, long t)
 {
     int n = (int)s->n, N1 = n + 1, info;
@@ -501,7 +501,7 @@ static int belief(sweep_t *s, work_t *w, long t)
     return 0;
 }
 
-/* compiled relinearization of the dynamics at step t (_Sweeps.relinearize, dynamics part) */
+/* compiled relinearization of the dynamics at step t (Sweeps.relinearize, dynamics part) */
 static int relin_dyn(sweep_t *s, work_t *w, long t)
 {
     int n = (int)s->n, m = (int)s->m, K = m + n + 1;
@@ -565,7 +565,7 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
     return 0;
 }
 
-/* compiled task message RA[t] at X[t] (_Sweeps._relinearize_task) */
+/* compiled task message RA[t] at X[t] (Sweeps._relinearize_task) */
 static int relin_task(sweep_t *s, work_t *w, long t)
 {
     long n = s->n, N1 = n + 1;
@@ -664,7 +664,7 @@ int sweep_run(sweep_t *s)
     }
 }
 
-/* forward messages t = 1..T and every belief, no relinearization (_Sweeps.beliefs, theta = inf) */
+/* forward messages t = 1..T and every belief, no relinearization (Sweeps.beliefs, theta = inf) */
 int sweep_beliefs(sweep_t *s)
 {
     work_t w = layout(s);

@@ -1,6 +1,6 @@
 """The AICO sweeps compiled: ``csweep.c`` loaded with ``ctypes`` (speed only, Algorithm 1 unchanged).
 
-``csweep.c`` is ``planning.aico._Sweeps``'s forward / backward / belief / settle code in C, on
+``csweep.c`` is ``planning.aico.sweeps.Sweeps``'s forward / backward / belief / settle code in C, on
 the register-tiled dense linear algebra of ``dense.c`` (no BLAS: at the sweeps' sizes it beats
 OpenBLAS, see the measurements there; its entry points ``k_*`` are tested against numpy by
 tests/planning/test_kernels.py). The two files are compiled as one translation unit (:data:`SOURCES`, in
@@ -14,7 +14,7 @@ file's key, so a library built for AVX2/FMA is never loaded on a CPU without the
 portable build is made and loaded.
 
 Only an explicit opt-out (``RAICO_NO_C=1``) or a machine without ``gcc`` gives :func:`library`
-``None`` (then ``_Sweeps`` runs its numpy code); a failed build where ``gcc`` exists raises
+``None`` (then ``Sweeps`` runs its numpy code); a failed build where ``gcc`` exists raises
 :class:`plants.codegen.c_backend.CompileError`.
 
 ``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields).

@@ -25,7 +25,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any, TypeGuard
+from typing import Any, ClassVar, TypeGuard
 
 import numpy as np
 
@@ -500,8 +500,33 @@ def controller_rollout(
     return stepped_rollout(dynamics, x0, o, O)
 
 
+@dataclass(frozen=True)
+class Flag:
+    """A solver option as a plan-stage config field ``name`` (the CLI's ``--name``, dashes for
+    underscores) of type ``type`` with ``default`` and ``help``.
+
+    ``option``: the options-class field it sets (``None``: ``name``); ``to_option``: that option's
+    value from the field's (``None`` from it: the option's own default); ``resolve``: the value in
+    force given the field's and whether the problem is a problem file (``None``: the field's);
+    ``unused``: the value a config stores (its cache key) where it goes unused; ``only``:
+    ``(flag, values, why)``: used only while that other flag's value is one of ``values``."""
+
+    name: str
+    type: type
+    default: Any
+    help: str
+    unused: Any
+    option: str | None = None
+    to_option: Callable[[Any], Any] | None = None
+    resolve: Callable[[Any, bool], Any] | None = None
+    only: tuple[str, tuple, str] | None = None
+
+
 class OptionsBase:
-    """Mixin for frozen option dataclasses: strict construction from a dict."""
+    """Mixin for frozen option dataclasses: strict construction from a dict. ``FLAGS``: the options
+    the plan stage exposes as config fields and CLI flags (:class:`Flag`)."""
+
+    FLAGS: ClassVar[tuple[Flag, ...]] = ()
 
     def validate(self) -> None:  # overridden
         pass

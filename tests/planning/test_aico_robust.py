@@ -9,7 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, _RobustStep, _Sweeps, aico, cost_curvature
+from planning.aico import AICOOptions, aico
+from planning.aico.bounds import cost_curvature
+from planning.aico.steps import RobustStep
+from planning.aico.sweeps import Sweeps
 from planning.driver import Iterate
 from planning.problem import Status
 from tests.planning.test_solvers_lq import N_U, T, exact_solution, make_lq
@@ -81,7 +84,7 @@ def test_cost_curvature_scales_with_the_cost():
 
 def _step(pb, start_cost, **kw):
     opts = AICOOptions(**{"alpha": 1.0, "schedule": "robust", **kw})
-    return _RobustStep(pb, _Sweeps(pb, opts), opts, cost_curvature(pb, np.tile(pb.x0, (T + 1, 1)),
+    return RobustStep(pb, Sweeps(pb, opts), opts, cost_curvature(pb, np.tile(pb.x0, (T + 1, 1)),
                                                                      np.zeros((T, N_U))), start_cost)
 
 
@@ -108,7 +111,7 @@ def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is
     """A trial whose rollouts (the full step and both shortened ones) all blow up gives no ratio of actual to
     predicted decrease: lambda grows by lm_factor at once, not by Nielsen's 2, 4, 8 meant for a measured rise
     (from a quasi-static start the first trials' rollouts can blow up: three rejections at lambda 1, 2, 8)."""
-    import planning.aico as aico_module
+    import planning.aico.steps as steps_module
 
     pb = make_lq(seed=2, running=5.0)
     U0 = np.zeros((T, N_U))
@@ -119,7 +122,7 @@ def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is
     def blow_up(problem, o, O):
         return np.full((T + 1, problem.n_x), np.inf), np.full((T, problem.n_u), np.inf), o, O
 
-    monkeypatch.setattr(aico_module, "bounded_rollout", blow_up)
+    monkeypatch.setattr(steps_module, "bounded_rollout", blow_up)
     lams = []
     for it in range(1, 4):
         s = step(it, start)
@@ -153,14 +156,14 @@ def test_robust_trials_are_steps_of_the_regularized_model_at_the_current_iterate
     from tests.planning.test_solvers_nonlinear import T as T_ARM
 
     seen = []
-    predicted = _RobustStep._predicted_decrease
+    predicted = RobustStep._predicted_decrease
 
     def record(self, cur, new):
         pred = predicted(self, cur, new)
         seen.append((pred, self.alpha * float(np.sum((new.X - cur.X) ** 2))))
         return pred
 
-    monkeypatch.setattr(_RobustStep, "_predicted_decrease", record)
+    monkeypatch.setattr(RobustStep, "_predicted_decrease", record)
     pb = make_arm_problem()
     runs = {}
     for theta in (0.1, 1e-3):

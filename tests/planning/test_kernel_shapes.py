@@ -19,7 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from planning import kernels
-from planning.aico import AICOOptions, _Sweeps, aico
+from planning.aico import AICOOptions, aico
+from planning.aico.sweeps import Sweeps
 from planning.costs import ControlCost, StateTarget, ViaPoint
 from planning.ilqg import ILQGOptions, _backward, ilqg
 from planning.problem import Problem, controller_rollout
@@ -95,11 +96,11 @@ def test_raico_converges_to_the_exact_solution_on_every_shape(n, m, T):
 @pytest.mark.numerics
 @pytest.mark.parametrize("n,m,T", [(1, 1, 1), (2, 5, 30), (1, 3, 2), (7, 2, 9)])
 def test_compiled_sweeps_equal_numpy_sweeps_on_every_shape(n, m, T, monkeypatch):
-    """The C sweeps against _Sweeps's numpy code (the LTI route, and with a relinearization forced
+    """The C sweeps against Sweeps's numpy code (the LTI route, and with a relinearization forced
     by a finite theta on the time-varying route through Python dynamics)."""
     out = {}
     for compiled in (True, False):
-        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        monkeypatch.setattr(Sweeps, "compiled", compiled)
         out[compiled] = aico(make_lq(seed=3, running=1.0, n=n, m=m, T=T),
                              AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.05))
     _assert_same(out[True], out[False])
@@ -142,7 +143,7 @@ BLOCK_SHAPES = [(1, 1, 1), (1, 3, 2), (2, 1, 5), (3, 7, 4), (5, 2, 9), (4, 4, 20
 @pytest.mark.numerics
 @pytest.mark.parametrize("nq,nu,T", BLOCK_SHAPES, ids=[f"nq{a}-nu{b}-T{c}" for a, b, c in BLOCK_SHAPES])
 def test_block_form_sweeps_on_every_shape(nq, nu, T, monkeypatch):
-    """The semi-implicit Euler block form of the sweep kernel against _Sweeps's numpy code (dense A, B)."""
+    """The semi-implicit Euler block form of the sweep kernel against Sweeps's numpy code (dense A, B)."""
     from tests.planning.test_kernels import _recording_block_steps
 
     def make():
@@ -156,7 +157,7 @@ def test_block_form_sweeps_on_every_shape(nq, nu, T, monkeypatch):
     counts = _recording_block_steps(monkeypatch)
     out = {}
     for compiled in (True, False):
-        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        monkeypatch.setattr(Sweeps, "compiled", compiled)
         out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.01))
     _assert_same(out[True], out[False])
     assert counts and all(c > 0 for c in counts)
@@ -383,7 +384,7 @@ def test_learned_dynamics_keep_the_dense_sweep_products(monkeypatch):
     counts = _recording_block_steps(monkeypatch)
     out = {}
     for compiled in (True, False):
-        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        monkeypatch.setattr(Sweeps, "compiled", compiled)
         out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.01))
     _assert_same(out[True], out[False])
     assert counts and not any(counts)

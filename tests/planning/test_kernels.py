@@ -1,6 +1,6 @@
 """The compiled kernels (speed only) against the numpy / Drake code they replace.
 
-- the AICO sweep kernel (``planning/csweep.c``) against ``_Sweeps``'s numpy code, on every
+- the AICO sweep kernel (``planning/csweep.c``) against ``Sweeps``'s numpy code, on every
   route it takes: dynamics linearized in Python (``NEED_DYN``), compiled (``dyn_linearize``) or
   never (LTI, sparse shared ``C``); task messages from Python (``NEED_TASK``) or compiled
   (``taskset_eval``); theta = inf;
@@ -29,7 +29,8 @@ import numpy as np
 import pytest
 
 from planning import kernels
-from planning.aico import AICOOptions, _Sweeps, aico
+from planning.aico import AICOOptions, aico
+from planning.aico.sweeps import Sweeps
 from plants.codegen import c_backend, rbd
 from plants.dynamics import AnalyticDynamics
 from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
@@ -56,8 +57,8 @@ def _the_kernel():
 def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
     """aico with the kernel available runs its sweeps in C (``_sweep_compiled``), not the numpy code."""
     calls = []
-    real = _Sweeps._sweep_compiled
-    monkeypatch.setattr(_Sweeps, "_sweep_compiled", lambda self, lib: (calls.append(1), real(self, lib))[1])
+    real = Sweeps._sweep_compiled
+    monkeypatch.setattr(Sweeps, "_sweep_compiled", lambda self, lib: (calls.append(1), real(self, lib))[1])
     aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))
     assert calls
 
@@ -155,7 +156,7 @@ def test_an_instruction_set_level_builds_its_own_kernels_with_its_instructions_o
     opts = AICOOptions(alpha=1.0, iterations=3, tol_rel=0.0, theta=0.02)
     compiled, ref, rel = _both_with_bound(make_problem, opts, monkeypatch)
     _assert_same(compiled, ref, rel)
-    monkeypatch.setattr(_Sweeps, "compiled", True)
+    monkeypatch.setattr(Sweeps, "compiled", True)
     monkeypatch.setattr(kernels, "_LIB", _sweep_lib_at(built["x86-64-v2"]))
     _assert_same(aico(make_problem(), opts), ref, rel)
     # an unknown level: one line, before anything is built
@@ -237,16 +238,16 @@ def _both_with_bound(make, options: AICOOptions, monkeypatch):
     condition number of the matrices the numpy sweeps factored, the belief precisions
     ``S_t^-1 + V_t^-1 + R_t`` at every step of the last sweep."""
     out, seen = {}, []
-    real = _Sweeps.__init__
+    real = Sweeps.__init__
 
     def init(self, *args, **kwargs):
         real(self, *args, **kwargs)
         seen.append(self)
 
     for compiled in (True, False):
-        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        monkeypatch.setattr(Sweeps, "compiled", compiled)
         with monkeypatch.context() as m:
-            m.setattr(_Sweeps, "__init__", init)
+            m.setattr(Sweeps, "__init__", init)
             out[compiled] = aico(make(), options)
     s, n = seen[-1], out[False].X.shape[1]
     cond = cond_of(s.SA[..., :n] + s.VA[..., :n] + s.RA[..., :n])
@@ -328,29 +329,29 @@ def test_compiled_task_messages_equal_the_terms(plant, task, dynamics):
 
 def _recording_block_steps(monkeypatch) -> list[int]:
     """After each compiled sweep, how many of its backward messages and dynamics relinearizations took
-    the semi-implicit Euler block form (``_Sweeps.block_steps``)."""
+    the semi-implicit Euler block form (``Sweeps.block_steps``)."""
     counts: list[int] = []
-    real = _Sweeps._sweep_compiled
+    real = Sweeps._sweep_compiled
 
     def run(self, lib):
         before = self.block_steps
         real(self, lib)
         counts.append(self.block_steps - before)
 
-    monkeypatch.setattr(_Sweeps, "_sweep_compiled", run)
+    monkeypatch.setattr(Sweeps, "_sweep_compiled", run)
     return counts
 
 
 def _dense_route(monkeypatch) -> None:
     """The compiled sweeps without the block form (no time step given to the kernel): the dense products."""
-    real = _Sweeps._kernel_state
+    real = Sweeps._kernel_state
 
     def state(self, lib):
         st = real(self, lib)
         st.dt = 0.0
         return st
 
-    monkeypatch.setattr(_Sweeps, "_kernel_state", state)
+    monkeypatch.setattr(Sweeps, "_kernel_state", state)
 
 
 _MODEL_FILES = ("problems/examples/ur5_reach.toml", "problems/examples/xarm7_reach.toml",
@@ -381,7 +382,7 @@ def test_block_form_sweeps_equal_numpy_sweeps(case, monkeypatch):
     assert counts and all(c > 0 for c in counts)
     _dense_route(monkeypatch)
     counts.clear()
-    monkeypatch.setattr(_Sweeps, "compiled", True)
+    monkeypatch.setattr(Sweeps, "compiled", True)
     d = aico(make(), opts)
     _assert_same(d, b, rel)
     assert counts and not any(counts)
@@ -420,7 +421,7 @@ def test_block_form_only_where_the_matrices_have_it(monkeypatch):
     _assert_same(a, b)
     assert counts and not any(counts)
     counts.clear()
-    monkeypatch.setattr(_Sweeps, "compiled", True)
+    monkeypatch.setattr(Sweeps, "compiled", True)
     aico(make_problem(), AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0))   # the same model, exact
     assert counts and all(c > 0 for c in counts)
 
@@ -656,7 +657,7 @@ def test_a_constant_start_is_linearized_once_with_the_same_numbers(compiled, mon
     sizes = []
     real = type(dyn).linearize_trajectory
     monkeypatch.setattr(type(dyn), "linearize_trajectory", lambda self, X, U: (sizes.append(len(X)), real(self, X, U))[1])
-    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    sw = Sweeps(problem, AICOOptions(alpha=1.0))
     X, U = np.tile(problem.x0, (T, 1)), np.zeros((T, problem.n_u))
     for got, ref in zip(sw._linearize_dynamics(X, U), real(dyn, X, U)):
         assert got.shape == ref.shape[1:] and (np.broadcast_to(got, ref.shape) == ref).all()
@@ -671,13 +672,13 @@ def test_a_constant_start_is_linearized_once_with_the_same_numbers(compiled, mon
 def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
     """``aico``'s open-loop start rollout on a compiled model: the bits of ``plants.dynamics.rollout``, for
     a rollout that stays finite and for one that leaves the finite numbers part-way."""
-    from planning.aico import _open_loop_rollout
+    from planning.aico.solve import open_loop_rollout
     from plants.dynamics import rollout
 
     problem = _plan_problem("arm5", "reach-roll", "analytic")
     rng = np.random.default_rng(3)
     U = rng.standard_normal((problem.T, problem.n_u))
-    X = _open_loop_rollout(problem, U)
+    X = open_loop_rollout(problem, U)
     assert np.isfinite(X).all() and np.array_equal(X, rollout(problem.dynamics, problem.x0, U))
     # a huge control: the state goes all NaN at once (every later state is NaN), or first to a mix of
     # inf and NaN (the loop goes on from there)
@@ -685,7 +686,7 @@ def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
         U[problem.T // 2] = big
         with np.errstate(all="ignore"):
             ref = rollout(problem.dynamics, problem.x0, U)
-        X = _open_loop_rollout(problem, U)
+        X = open_loop_rollout(problem, U)
         k = int(np.argmin(np.isfinite(ref).all(axis=1)))
         assert problem.T // 2 < k < problem.T and bool(np.isnan(ref[k]).all()) is all_nan
         assert np.isfinite(X[:k]).all() and np.array_equal(X, ref, equal_nan=True)
@@ -693,7 +694,7 @@ def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
 
 @pytest.mark.numerics
 def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkeypatch):
-    """``_Sweeps.cost`` keeps the compiled task rows' derivatives of the trajectory it costs; a linearization
+    """``Sweeps.cost`` keeps the compiled task rows' derivatives of the trajectory it costs; a linearization
     at that trajectory (the next iteration's) takes them instead of a second pass, with the same task
     messages as a pass of its own; at another trajectory it makes its own pass."""
     problem = build_problem(PlanConfig(problem=str(REPO / "problems/examples/ur5_reach.toml"), bounds="none")
@@ -701,9 +702,9 @@ def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkey
     rng = np.random.default_rng(4)
     X = np.tile(problem.x0, (problem.T + 1, 1)) + 0.05 * rng.standard_normal((problem.T + 1, problem.n_x))
     U = rng.standard_normal((problem.T, problem.n_u))
-    fresh = _Sweeps(problem, AICOOptions(alpha=1.0))
+    fresh = Sweeps(problem, AICOOptions(alpha=1.0))
     fresh.linearize_all(X, U, X, 1.0)
-    sw = _Sweeps(problem, AICOOptions(alpha=1.0))
+    sw = Sweeps(problem, AICOOptions(alpha=1.0))
     assert sw.cost(X, U) == fresh.cost(X, U)
     passes = []
     real = kernels.task_rows

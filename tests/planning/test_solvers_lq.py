@@ -199,9 +199,9 @@ def test_larger_alpha_takes_smaller_first_step():
 @pytest.mark.parametrize("scale", [1e-2, 1e2, 1e4, 3e5, 1e8, 1e11])
 def test_vstar_all_regimes(scale):
     """``V* = (q I + P'^-1)^-1`` and ``V* m'`` in every branch (series and Cholesky)."""
-    from planning.aico import _Sweeps
+    from planning.aico.sweeps import Sweeps
 
-    sw = _Sweeps(make_lq(), AICOOptions(process_noise=1e-9))
+    sw = Sweeps(make_lq(), AICOOptions(process_noise=1e-9))
     rng = np.random.default_rng(3)
     G = rng.standard_normal((N_X, N_X - 1))                  # singular P' is allowed
     P = scale * G @ G.T
@@ -238,12 +238,13 @@ def test_adaptive_raico_converges_faster_on_lq():
 @pytest.mark.numerics
 def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
     """A trial that raises the cost is not taken: the iterate and its cost stay, alpha grows."""
-    from planning.aico import _AICOStep, _Sweeps
+    from planning.aico.steps import AICOStep
+    from planning.aico.sweeps import Sweeps
     from planning.driver import Iterate
 
     pb = make_lq(seed=2, running=5.0)
     opts = AICOOptions(alpha=1.0, schedule="adaptive")
-    step = _AICOStep(pb, _Sweeps(pb, opts), 1.0, 1.0, opts, initial_cost=0.0)  # no trial can beat 0
+    step = AICOStep(pb, Sweeps(pb, opts), 1.0, 1.0, opts, initial_cost=0.0)  # no trial can beat 0
     start = Iterate(np.tile(pb.x0, (T + 1, 1)), np.zeros((T, N_U)))
     s = step(1, start)
     assert s.iterate is start and s.cost == 0.0 and not s.moved and step.alpha == pytest.approx(4.0)

@@ -322,7 +322,8 @@ def test_control_toward_gravity_compiled(robot_name):
 def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):
     """R-AICO on the arm with a via-point and the control toward gravity: the compiled sweeps (task
     messages, batched rows, iteration costs in C) give the numpy sweeps' iterations to rounding."""
-    from planning.aico import AICOOptions, _Sweeps, aico
+    from planning.aico import AICOOptions, aico
+    from planning.aico.sweeps import Sweeps
     from planning.costs import ControlGravity
 
     robot = _robot("arm5")
@@ -341,7 +342,7 @@ def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatc
     assert kernels.compile_task_set(make()) is not None
     out = {}
     for compiled in (True, False):
-        monkeypatch.setattr(_Sweeps, "compiled", compiled)
+        monkeypatch.setattr(Sweeps, "compiled", compiled)
         out[compiled] = aico(make(), AICOOptions(alpha=1.0, iterations=4, tol_rel=0.0))
     a, b = out[True], out[False]
     assert a.iterations == b.iterations == 4 and str(a.status) == str(b.status)
