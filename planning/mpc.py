@@ -1,4 +1,4 @@
-"""Receding-horizon control (MPC) with AICO / R-AICO or crocoddyl's FDDP.
+"""Receding-horizon control (MPC) with AICO / R-AICO or crocoddyl's FDDP (docs/mpc.md tells it in full).
 
 A problem of ``T`` steps is controlled tick by tick: at tick ``k`` (absolute step ``k``) the
 controller takes the measured state ``x``, solves a window problem of ``H`` steps starting at
@@ -7,40 +7,20 @@ the previous tick's solution shifted by one step, and returns the first control 
 the window's first feedback gains ``O_0 (n_u, n_x)``, so that between solves (the plant's
 faster steps) ``u = o_0 + O_0 x`` can be applied.
 
-Time in the window (the choice, documented here and in docs/mpc.md): window step ``j`` is the
-absolute step ``k + j``. A state term with ``times`` keeps its absolute times: it costs window
-step ``j`` where ``k + j`` is one of its times before the problem's end ``T``. A term that costs
-the problem's last step ``T`` (a final target, a term "at last") follows the receding end: it
-costs the window's last step ``H`` while the problem's end lies beyond the window, and the
-absolute step ``T`` (window step ``T - k``) once it lies inside, so that the run still ends on
-its target at ``T``. Terms without ``times`` cost every step; control terms every step. Window
-steps past ``T`` (the last ``H`` ticks) carry only the terms at every step. The windows' times are
-computed once, at construction (no allocation in the tick for them).
+Time in the window: window step ``j`` is the absolute step ``k + j``; a state term with ``times`` keeps
+its absolute times, a term at the problem's last step ``T`` follows the receding end (the window's last
+step while ``T`` lies beyond it, ``T - k`` once inside); the windows' times are computed once.
 
-Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples):
+Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples), by the
+solver spec's ``caps.mpc``: ``"aico"``: the previous controller shifted (the last step repeated) and
+rolled out from the measured state is the start of the tick's iterations (R-AICO's regularization
+anchors there; the fixed schedule's alpha carries over ticks; the messages are not carried); ``"fddp"``:
+the window built in crocoddyl once per pattern of active terms, each tick shifting ``xs``/``us``.
 
-- AICO / R-AICO: the previous window's controller ``(o_t, O_t)`` shifted by one step (the last
-  one repeated) is rolled out from the measured state; that trajectory and its controls are the
-  start of the tick's iterations (``aico(X_init=..., U_init=...)``), so R-AICO's regularization
-  ``alpha ||x_t - x_t^[n-1]||^2`` anchors at the shifted trajectory, and the fixed schedule's
-  ``alpha^[n] = alpha^[n-1] gamma`` carries over ticks (the regularization state). The messages
-  are not carried: AICO's public entry point builds them in its first sweep (its backward message
-  starts from ``V_T^-1 = 0`` and its forward one from the measured state at every iteration, so at
-  one iteration per tick the shifted trajectory is the whole warm start that changes a number).
-  On a linear-quadratic window one iteration from any start is the exact optimum.
-- FDDP / BoxFDDP: the window is built in crocoddyl once (per distinct pattern of active terms)
-  with one solver; each tick sets the shooting problem's ``x0``, shifts ``xs``/``us``
-  (``xs[1:] + [xs[-1]]``, ``us[1:] + [us[-1]]``, ``xs[0] = x``) and calls ``solve`` with the
-  iteration cap.
-
-Per-tick records (preallocated arrays in ``TickLog``): wall time of the solve (s), iterations, the
-window's cost after the solve, whether the tick went past its time budget, the window's excess beyond
-its hard bounds. Iterations and budget: AICO / R-AICO run ``iterations`` in one call without a budget,
-one at a time while the next fits with one; FDDP runs ``iterations`` in one ``solve`` (crocoddyl's
-loop), the budget only recorded.
-
-Not yet here: AICO's messages carried across ticks (see above), a tick without allocation (``aico()``
-builds its sweeps' buffers per call), a preparation / feedback split.
+Per-tick records (preallocated arrays in ``TickLog``): solve wall time, iterations, the window's cost,
+whether the tick went past its budget, the window's excess beyond its hard bounds. AICO / R-AICO run
+``iterations`` in one call without a budget, one at a time while the next fits with one; FDDP runs
+``iterations`` in one ``solve``, the budget only recorded.
 """
 
 from __future__ import annotations
@@ -54,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from planning.aico import AICOOptions, aico
+from planning.aico import aico
 from planning.problem import Problem
+from planning.solvers import SOLVERS, get_solver
 
-SOLVERS = ("aico", "raico", "fddp")
-WARM_STARTABLE = SOLVERS   # solvers with a shift warm start (iLQG has none here: rejected)
+# the solvers with a shift warm start (their spec's ``caps.mpc``: "aico" or "fddp"; iLQG has none: rejected)
+WARM_STARTABLE = tuple(name for name, spec in SOLVERS.items() if spec.caps.mpc is not None)
 
 
 @dataclass
@@ -153,9 +134,11 @@ class MPC:
     Args:
         problem: the problem (its ``T`` is the number of ticks of a run; its terms' times absolute).
         horizon: window length ``H`` in planning steps (``1 <= H <= T``).
-        solver: ``"aico"``, ``"raico"`` or ``"fddp"`` (BoxFDDP where the problem has control limits).
-        options: the solver's options (``AICOOptions`` / ``FDDPOptions`` or a dict for ``from_dict``);
-            their ``iterations`` is replaced by ``iterations``.
+        solver: one of :data:`WARM_STARTABLE` (``"aico"``, ``"raico"``, ``"fddp"``: BoxFDDP where the problem has
+            control limits).
+        options: the solver's options (``AICOOptions`` / ``FDDPOptions`` or a dict, the solver's defaults
+            applied: :meth:`planning.solvers.SolverSpec.options`); their ``iterations`` is replaced by
+            ``iterations``.
         iterations: solver iterations per tick (>= 1) when no ``budget`` is given; with a budget the
             most iterations per tick.
         budget: time budget per tick (s) or ``None``: with a budget, iterations run one at a time
@@ -182,6 +165,7 @@ class MPC:
         if budget is not None and not (math.isfinite(budget) and budget > 0):
             raise ValueError(f"time budget must be a positive number of seconds, got {budget}")
         self.problem, self.H, self.solver = problem, int(horizon), solver
+        self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
         self.window, self._timed = _window_problem(problem, self.H)
         H, n, m = self.H, problem.n_x, problem.n_u
@@ -195,22 +179,14 @@ class MPC:
         self.log = TickLog.empty(ticks or problem.T, (self.H + 1, problem.n_x) if keep_predictions else None)
         self._solved, self._ticks = False, 0
         self.opts: Any = None   # AICOOptions or FDDPOptions
-        if solver == "fddp":
+        if self.warm == "fddp":
             self._init_fddp(options)
         else:
             self._init_aico(options)
 
     # -- AICO / R-AICO
     def _init_aico(self, options: Any) -> None:
-        if isinstance(options, AICOOptions):
-            opts = options
-        else:
-            d = dict(options or {})
-            if self.solver == "raico":
-                d.setdefault("alpha", 1.0)
-            opts = AICOOptions.from_dict(d)
-        if self.solver == "raico" and not opts.alpha > 0:
-            raise ValueError("solver raico needs alpha > 0 (alpha = 0 is plain AICO: solver aico)")
+        opts: Any = get_solver(self.solver).options(options)   # its defaults applied (R-AICO's alpha) and checked
         self.opts = dataclasses.replace(opts, iterations=1 if self.budget is not None else self.iterations,
                                         tol_rel=0.0)
         self.alpha = float(opts.alpha)
@@ -251,11 +227,10 @@ class MPC:
 
     # -- FDDP
     def _init_fddp(self, options: Any) -> None:
-        from planning.crocoddyl.solve import FDDPOptions, require
+        from planning.crocoddyl.solve import require
 
         require()
-        opts = options if isinstance(options, FDDPOptions) else FDDPOptions.from_dict(dict(options or {}))
-        self.opts = opts
+        self.opts = get_solver(self.solver).options(options)
         self._croc: dict[bytes, tuple] = {}   # window pattern -> (CrocoddylProblem, solver)
 
     def _fddp_for_tick(self) -> tuple:
@@ -308,11 +283,11 @@ class MPC:
         (not recorded); the first ``tick`` then starts from that solution."""
         saved = self.iterations, self.budget, self.opts
         self.iterations, self.budget = int(iterations), None
-        if self.solver != "fddp":
+        if self.warm != "fddp":
             self.opts = dataclasses.replace(self.opts, iterations=int(iterations))
         self.window.x0[:] = x
         self._set_tick(0)
-        self._solve_fddp(False) if self.solver == "fddp" else self._solve_aico(False)
+        self._solve_fddp(False) if self.warm == "fddp" else self._solve_aico(False)
         self.iterations, self.budget, self.opts = saved
         self._solved = True
 
@@ -340,7 +315,7 @@ class MPC:
         self.window.x0[:] = x
         self._set_tick(self.k)
         t0 = time.perf_counter()
-        its, cost = self._solve_fddp(shift) if self.solver == "fddp" else self._solve_aico(shift)
+        its, cost = self._solve_fddp(shift) if self.warm == "fddp" else self._solve_aico(shift)
         dt = time.perf_counter() - t0
         self._solved = True
         self._ticks += 1

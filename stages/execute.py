@@ -88,6 +88,7 @@ from typing import Any
 
 import numpy as np
 
+from planning.mpc import WARM_STARTABLE
 from planning.objective import objective_from_description
 from plants.polygons import convex_hull
 from plants.robots import Robot, load_robot_for, robot_for
@@ -111,7 +112,7 @@ from stages.registry import DESCRIPTIONS
 ROLLOUT_FILE = "rollout.npz"
 STARTS = ("plan", "standing")  # the Nao's start state (module docstring)
 CONTROLLERS = ("pd", "wbc", "mpc")  # the Nao's controller, or receding-horizon control of an arm (module docstring)
-MPC_SOLVERS = ("aico", "raico", "fddp")  # the solvers with a shift warm start (planning.mpc)
+MPC_SOLVERS = WARM_STARTABLE  # the solvers with a shift warm start (their spec's caps.mpc, planning.mpc)
 MPC_HORIZON = 50  # planning steps: --controller mpc's default horizon (at most the problem's T)
 
 
@@ -416,7 +417,7 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
-    mpc = MPC(problem, horizon, cfg.solver, {"alpha": 1.0} if cfg.solver == "raico" else None,
+    mpc = MPC(problem, horizon, cfg.solver, None,  # the solver's defaults (R-AICO: alpha 1)
               iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
               keep_predictions=True)
     mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))

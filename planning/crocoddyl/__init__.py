@@ -18,8 +18,6 @@ from planning.crocoddyl.model import (
     pinocchio_robot,
 )
 from planning.crocoddyl.solve import (
-    ACCEPT_ANY,
-    ILQG_SCHEDULE,
     CrocoddylProblem,
     FDDPOptions,
     build,
@@ -27,6 +25,6 @@ from planning.crocoddyl.solve import (
     result,
 )
 
-__all__ = ["ACCEPT_ANY", "AVAILABLE", "CONTINUOUS", "ILQG_SCHEDULE", "UNAVAILABLE_REASON", "CrocoddylProblem",
+__all__ = ["AVAILABLE", "CONTINUOUS", "UNAVAILABLE_REASON", "CrocoddylProblem",
            "FDDPOptions", "NotExpressible", "StateMap", "build", "fddp", "frame_id", "model_from_drake",
            "pinocchio_robot", "result"]

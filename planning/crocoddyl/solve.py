@@ -82,10 +82,6 @@ from planning.problem import (
 )
 
 STARTS = ("held", "rollout", "zero")
-ACCEPT_ANY = 1e-12  # th_acceptStep of "any step that lowers the cost" (iLQG's actual/expected > 0)
-# iLQG's regularization schedule in crocoddyl's terms: lower the regularization after every accepted
-# step (whatever its length), raise it only when the line search reaches its last step 2^-9
-ILQG_SCHEDULE = {"th_step_dec": 1e-12, "th_step_inc": 0.002}
 
 
 @dataclass

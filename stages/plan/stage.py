@@ -8,6 +8,7 @@ std 0.05). Arrays follow the solver contract of ``planning.problem``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from dataclasses import asdict, dataclass
@@ -19,7 +20,8 @@ import numpy as np
 from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, via_point_errors
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
 from planning.problem import Bounds, Problem, Result
-from planning.solvers import SOLVERS, make_options, solve
+from planning.solvers import SOLVERS, SolverSpec, get_solver, make_options, solve, takers
+from planning.solvers import flags as solver_flags
 from plants.dynamics import ActuatedDynamics, PseudoDynamics, SubstepDynamics
 from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Chain, Robot, kinematic_chain, shared_robot
@@ -29,9 +31,6 @@ from stages.plan.problem_file import INTEGRATORS, ProblemFile, read_problem
 from stages.plan.tasks import TASKS, TaskSpec, get_task, task_from_problem
 from stages.registry import DESCRIPTIONS
 
-# the solvers' option names and the plan options that set them (for error messages)
-SOLVER_OPTION_FLAGS = {"schedule": "alpha-schedule", "alpha": "alpha", "gamma": "gamma", "iterations": "iterations",
-                       "belief_rate": "belief-rate", "controller_rate": "controller-rate"}
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")
 PLAN_FILE = "plan.npz"
 PROBLEM_FILE = "problem.json"
@@ -42,11 +41,22 @@ INTEGRATOR_DYNAMICS = tuple(n for m in INTEGRATORS.values() for n in m.values())
 WARM_FROM = ("trajectory", "controls")
 STARTS = ("held", "rollout", "quasi-static")
 BOUNDS = ("hard", "none")
+# every registered solver's plan-stage options (its options class's FLAGS): PlanConfig's solver fields
+FLAGS = solver_flags()
+SolverFields = dataclasses.make_dataclass(
+    "SolverFields", [(f.name, f.type, dataclasses.field(default=f.default)) for f in FLAGS.values()], frozen=True)
+
+
+def _solver_names(specs) -> str:  # noqa: ANN001
+    """``"R-AICO's (--solver raico)"``, ``"AICO's and R-AICO's (--solver aico, raico)"``."""
+    return (" and ".join(f"{s.label}'s" for s in specs)
+            + f" (--solver {', '.join(s.name for s in specs)})")
 
 
 @dataclass(frozen=True)
-class PlanConfig(StageConfig):
-    """Declared parameters of the plan stage (defaults stated here only).
+class PlanConfig(SolverFields, StageConfig):  # type: ignore[misc, valid-type]
+    """Declared parameters of the plan stage: the problem, ``solver`` and the solvers' options
+    (``SolverFields``: the fields, defaults and help of every solver's ``FLAGS``, one per name).
 
     ``model``: the fit artifact whose GP the ``learned`` dynamics use (an input, so its key,
     not the reference typed, is part of the cache key).
@@ -61,43 +71,40 @@ class PlanConfig(StageConfig):
             "dynamics": "Default: the task's or the problem file's. pseudo (controls = accelerations, backward Euler), analytic (Drake, torques), analytic-fd "
                         "(the same, linearized by finite differences), learned (GP of --model), or pseudo-euler / "
                         "pseudo-heun (appendix C's other pseudo-dynamics).",
-            "solver": "One of " + ", ".join(SOLVERS) + " (aico: AICO, raico: R-AICO, ilqg: iLQG; fddp...: crocoddyl's "
-                      "FDDP and its ablations, where crocoddyl is installed).",
-            "alpha": "R-AICO regularization alpha (raico only).",
-            "gamma": "alpha^[n] = alpha^[n-1] gamma (raico only).", "iterations": "Maximum solver iterations.",
+            "solver": "One of " + ", ".join(f"{n} ({s.label})" for n, s in SOLVERS.items())
+                      + " (crocoddyl's FDDP and its ablations where crocoddyl is installed).",
+            "iterations": "Maximum solver iterations.",
+            **{f.name: f.help for f in FLAGS.values()},
             "q0_std": "Std of q0 around the default posture on a revolute joint (rad); default 0.05 for the built-in "
                       "tasks (the thesis's), 0 for a problem file (its start posture exactly).",
             "q0_std_prismatic": "Std of q0 around the default posture on a prismatic joint (m).",
             "x0_nudge": "Added to every joint of q0 (rad) after it is drawn: a perturbation test of the start (1e-9: "
                         "does a run's result change far more than its start, a chaotic run?).",
-            "relinearize": "AICO: relinearize inside the sweeps (theta rule).",
             "model": "Key of a fit artifact (the GP of --dynamics learned).",
-            "warm_start": "Key of an earlier plan that starts this one (AICO/R-AICO, iLQG; see --warm-from).",
-            "warm_from": "With --warm-start: trajectory (AICO/R-AICO linearize first at the earlier plan's states "
-                         "and controls; thesis 4.5: 'initialized with the last planned trajectory') or controls "
-                         "(its controls rolled out on this model). iLQG always rolls the controls out.",
+            "warm_start": "Key of an earlier plan that starts this one (see --warm-from).",
+            "warm_from": "With --warm-start: trajectory (linearize first at the earlier plan's states and "
+                         "controls; thesis 4.5: 'initialized with the last planned trajectory'; "
+                         + ", ".join(n for n, s in SOLVERS.items() if "trajectory" in s.caps.warm_from)
+                         + ") or controls (its controls rolled out on this model: the others always).",
             "sigma_star": "Desired model uncertainty sigma* (GP predictive variance, see --sigma-units), "
                           "or none (no uncertainty term); learned dynamics only.",
             "sigma_units": "Units of the uncertainty term's variance: raw ((rad/s^2)^2, thesis eq. 4.3) or "
                            "standardized (over the training outputs' variance).",
             "sigma_weight": "Weight w of the uncertainty term, C_sigma = w I.",
-            "belief_rate": "AICO/R-AICO: learning rate on the belief update (Algorithm 1 line 13), in (0, 1].",
-            "controller_rate": "AICO/R-AICO: learning rate on the controller (Algorithm 1 line 18): the new "
-                               "controller blended with the previous one, in (0, 1].",
-            "start": "The first trajectory: held (AICO/R-AICO: x0 at every step, the thesis), rollout (AICO/R-AICO: "
-                     "the zero-control rollout, where crocoddyl FDDP's rollout start begins) or quasi-static (every "
-                     "solver: the torques that hold x0 at rest, g(q0), rolled out: crocoddyl's examples' start; "
-                     "zero accelerations for pseudo-dynamics). iLQG otherwise rolls zero controls out.",
-            "alpha_schedule": "R-AICO: fixed (thesis: alpha^[n] = alpha^[n-1] gamma), adaptive (alpha shrinks after "
-                              "an iteration that lowers the cost, grows and retries after one that raises it) or robust "
-                              "(Levenberg-Marquardt style: alpha relative to the cost's curvature, acceptance by actual "
-                              "against predicted decrease; --alpha is its first relative value). Default: robust for "
-                              "--problem FILE, fixed for --plant/--task (the thesis's).",
-            "bounds": "hard (the model's joint ranges and, for torque controls, effort limits kept by AICO/R-AICO "
-                      "and BoxFDDP: controls clipped in the rollout, ranges by an augmented Lagrangian; a plan that "
-                      "cannot stay inside has status out-of-bounds) or none (only the soft limit terms the task "
-                      "has). Default: hard for --problem FILE, none for --plant/--task (the thesis's).",
-            "balance": f"Nao only: none (the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
+            "start": "The first trajectory: held (x0 at every step, the thesis; the solver's own start where it has "
+                     "one: iLQG rolls zero controls out), rollout (the zero-control rollout: "
+                     + ", ".join(n for n, s in SOLVERS.items() if "rollout" in s.caps.starts)
+                     + "; crocoddyl FDDP's rollout start is its solver fddp-rollout) or quasi-static (every solver: "
+                     "the torques that hold x0 at rest, g(q0), rolled out: crocoddyl's examples' start; zero "
+                     "accelerations for pseudo-dynamics).",
+            "bounds": "hard (the model's joint ranges and, for torque controls, effort limits, kept by "
+                      + ", ".join(n for n, s in SOLVERS.items() if s.caps.hard_bounds)
+                      + " (controls clipped in the rollout, ranges by an augmented Lagrangian) and as a control box by "
+                      + ", ".join(n for n, s in SOLVERS.items() if s.caps.control_box and not s.caps.hard_bounds)
+                      + "; a plan that cannot stay inside has status out-of-bounds) or none (only the soft limit terms "
+                      "the task has). Default: hard for --problem FILE, none for --plant/--task (the thesis's).",
+            "balance": f"A robot that stands on its soles (its model states feet and a sole outline, e.g. nao): none "
+                       f"(the task as stated), support (CoG ground projection kept {MARGIN * 100:g} cm "
                        "(--balance-margin) inside both "
                        "soles' support polygon at every step, right sole held) or single (balance on the left foot: "
                        "CoG inside the left sole, right sole released and lifted >= 2 cm from T/3). CoG via-points "
@@ -109,26 +116,20 @@ class PlanConfig(StageConfig):
     problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
     dynamics: str = ""  # "": the task's or the problem file's
     solver: str = "raico"
-    alpha: float = 1.0  # R-AICO only
-    gamma: float = 1.0  # R-AICO only
     iterations: int = 50
     seed: int = 0
     q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
     q0_std_prismatic: float = 0.0  # m, a prismatic joint's q0 std (no built-in plant has one)
     x0_nudge: float = 0.0  # rad added to every joint of q0 after it is drawn (a perturbation test)
-    relinearize: bool = True  # AICO/R-AICO: relinearize inside the sweeps (theta rule); False: theta = inf
     model: str | None = None
     warm_start: str | None = None
     sigma_star: str = "none"  # a number, or "none": no uncertainty term
     sigma_weight: float = 1e-2
     sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
-    alpha_schedule: str = ""  # R-AICO: "fixed" (thesis), "adaptive", "robust"; "": robust for a problem file, else fixed
     warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
-    start: str = "held"  # AICO/R-AICO without a warm start: "held" (x0 at every step, thesis) or "rollout"
-    belief_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 13's learning rate (1: none)
-    controller_rate: float = 1.0  # AICO/R-AICO: Algorithm 1 line 18's learning rate (1: none)
+    start: str = "held"  # without a warm start: "held" (x0 at every step, thesis), "rollout" or "quasi-static"
     bounds: str = ""  # "hard" (joint ranges, effort limits kept by the solver) or "none"; "": hard for a problem file
-    balance: str = "none"  # Nao: "none", "support" (double support) or "single" (left foot), stages.plan.balance
+    balance: str = "none"  # a robot on its soles: "none", "support" (double support) or "single" (left foot), stages.plan.balance
     balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
     def validate(self) -> None:
@@ -186,9 +187,9 @@ class PlanConfig(StageConfig):
         try:
             make_options(self.solver, self.solver_options())
         except ValueError as e:   # the solver's option names, said as the options the user typed
-            text = str(e)
-            for option, flag in SOLVER_OPTION_FLAGS.items():
-                text = text.replace(f"option {option} ", f"--{flag} ")
+            text = str(e).replace("option iterations ", "--iterations ")
+            for f in self.spec().flags:
+                text = text.replace(f"option {f.option or f.name} ", f"--{f.name.replace('_', '-')} ")
             raise ValueError(text) from None
 
     def ignored(self) -> dict[str, str]:
@@ -199,18 +200,18 @@ class PlanConfig(StageConfig):
         def note(names, why):
             out.update({n: why for n in names if getattr(self, n) != d[n]})
 
-        if self.solver != "raico":
-            note(("alpha", "gamma", "alpha_schedule"), f"R-AICO's (--solver raico), not {self.solver}'s")
-        elif self.schedule() != "fixed":
-            note(("gamma",), "the fixed schedule's (--alpha-schedule fixed)")
-            if self.schedule() == "robust":
-                note(("relinearize", "belief_rate"), "not used by the robust schedule (one linearization per trial)")
-        if self.solver not in ("aico", "raico"):
-            note(("relinearize", "belief_rate", "controller_rate"), f"AICO's and R-AICO's, not {self.solver}'s")
-            if self.start == "rollout":
-                note(("start",), f"AICO's and R-AICO's, not {self.solver}'s")
-        if self.warm_start is None or self.solver == "ilqg":
-            note(("warm_from",), "for AICO/R-AICO with --warm-start")
+        spec = self.spec()
+        for name, used in self._flags_used().items():
+            if used is None:
+                note((name,), f"{_solver_names(takers(name))}, not {self.solver}'s")
+            elif not used:
+                note((name,), FLAGS[name].only[2])
+        if self.start not in spec.caps.starts:
+            note(("start",), f"{_solver_names([s for s in SOLVERS.values() if self.start in s.caps.starts])}, "
+                             f"not {self.solver}'s")
+        if self.warm_start is None or len(spec.caps.warm_from) < 2:
+            chooses = [s for s in SOLVERS.values() if len(s.caps.warm_from) > 1]
+            note(("warm_from",), f"for {_solver_names(chooses)} with --warm-start")
         if self.sigma is None:
             note(("sigma_weight", "sigma_units"), "for --sigma-star")
         if self.balance == "none":
@@ -248,8 +249,10 @@ class PlanConfig(StageConfig):
 
     def normalized(self) -> PlanConfig:
         """One spelling per meaning (cache key): a problem file as its canonical content, the
-        dynamics as the task states them unless given, alpha/gamma only for R-AICO, sigma* as a
+        dynamics as the task states them unless given, the solver's options in force (the ones it leaves unused at one value), sigma* as a
         canonical number or "none", its weight only with it."""
+        if self.solver not in SOLVERS:
+            return self  # validate() says what is wrong
         d = asdict(self)
         if self.problem is not None:
             try:
@@ -274,21 +277,14 @@ class PlanConfig(StageConfig):
         if sigma is None:
             d["sigma_weight"] = 0.0
             d["sigma_units"] = "raw"
-        if self.solver != "raico":
-            relinearize = self.relinearize if self.solver == "aico" else True  # iLQG has no sweeps
-            d.update(alpha=0.0, gamma=1.0, relinearize=relinearize, alpha_schedule="fixed")
-        else:
-            d["alpha_schedule"] = self.schedule()
-            if d["alpha_schedule"] != "fixed":
-                d["gamma"] = 1.0  # not used by the adaptive and robust schedules
-            if d["alpha_schedule"] == "robust":
-                d.update(relinearize=True, belief_rate=1.0)  # the robust schedule linearizes once per trial
-        if self.warm_start is None or self.solver == "ilqg":
-            d["warm_from"] = "controls"  # nothing to start from, or iLQG (its states are always a rollout)
-        if self.warm_start is not None or (self.solver not in ("aico", "raico") and self.start != "quasi-static"):
-            d["start"] = "held"  # a warm start decides the first trajectory; iLQG and FDDP have their own
-        if self.solver not in ("aico", "raico"):
-            d.update(belief_rate=1.0, controller_rate=1.0)  # AICO's learning rates only
+        # the solver's options as in force (a default resolved), the ones it leaves unused at one value
+        d.update({name: self.flag_value(name) if used else FLAGS[name].unused
+                  for name, used in self._flags_used().items()})
+        caps = self.spec().caps
+        if self.warm_start is None or self.warm_from not in caps.warm_from:
+            d["warm_from"] = "controls"  # nothing to start from, or a solver that only rolls the controls out
+        if self.warm_start is not None or self.start not in caps.starts:
+            d["start"] = "held"  # a warm start decides the first trajectory; other solvers have their own
         if self.balance == "none":
             d["balance_margin"] = NO_BALANCE_MARGIN  # no balance term: its margin means nothing
         d["bounds"] = self.hard_bounds()
@@ -300,26 +296,42 @@ class PlanConfig(StageConfig):
             return self.bounds
         return "hard" if self.problem is not None else "none"
 
-    def solver_options(self) -> dict:
-        if self.solver == "ilqg":
-            return {"iterations": self.iterations}
-        opts: dict[str, Any] = {"iterations": self.iterations}
-        if not self.relinearize:
-            opts["theta"] = float("inf")
-        if self.belief_rate != 1.0:
-            opts["belief_rate"] = self.belief_rate
-        if self.controller_rate != 1.0:
-            opts["controller_rate"] = self.controller_rate
-        if self.solver == "raico":
-            opts.update(alpha=self.alpha, gamma=self.gamma, schedule=self.schedule())
-        return opts
+    def spec(self) -> SolverSpec:
+        """The solver's registered spec (``ValueError`` for an unknown name)."""
+        return get_solver(self.solver)
 
-    def schedule(self) -> str:
-        """R-AICO's alpha schedule: the one given, else robust for a problem file and the thesis's fixed one for
-        a built-in plant and task."""
-        if self.alpha_schedule:
-            return self.alpha_schedule
-        return "robust" if self.problem is not None else "fixed"
+    def flag_value(self, name: str) -> Any:
+        """The value in force of solver flag ``name``: the one given, or the default it resolves to (R-AICO's
+        alpha schedule: robust for a problem file, the thesis's fixed one for a built-in plant and task)."""
+        f = FLAGS[name]
+        value = getattr(self, name)
+        return f.resolve(value, self.problem is not None) if f.resolve is not None else value
+
+    def _flags_used(self) -> dict[str, bool | None]:
+        """Every solver flag: None where this solver does not take it, False where its other options leave it
+        unused (``Flag.only``), True where it is used."""
+        taken = {f.name for f in self.spec().flags}
+        out: dict[str, bool | None] = {}
+        for name, f in FLAGS.items():
+            if name not in taken:
+                out[name] = None
+            elif f.only is not None:
+                other = self.flag_value(f.only[0]) if f.only[0] in taken else FLAGS[f.only[0]].unused
+                out[name] = other in f.only[1]
+            else:
+                out[name] = True
+        return out
+
+    def solver_options(self) -> dict:
+        """The options of the solver these fields set (its ``options()`` applies its own defaults)."""
+        opts: dict[str, Any] = {"iterations": self.iterations}
+        for f in self.spec().flags:
+            value = self.flag_value(f.name)
+            if f.to_option is not None:
+                value = f.to_option(value)
+            if value is not None:
+                opts[f.option or f.name] = value
+        return opts
 
 
 @dataclass
@@ -375,10 +387,11 @@ class PlanOutput:
                "message": r.message}
         if "balance" in self.description:  # only with --balance: other plans' metrics as before
             out["balance"] = self.balance_metrics()
-        if self.config.solver in ("aico", "raico") and r.history:
+        caps = self.config.spec().caps
+        if caps.sweeps and r.history:
             # the relinearization repeats per iteration set AICO's time per iteration (small steps repeat more)
             out["repeats_per_iteration"] = float(np.median([h.repeats for h in r.history]))
-        if self.config.solver == "raico" and self.config.schedule() != "fixed" and r.history:
+        if caps.schedules and self.config.solver_options().get("schedule", "fixed") != "fixed" and r.history:
             # the trials the schedule rejected: each an iteration that kept the previous iterate
             out["rejected_trials"] = int(sum(not h.accepted for h in r.history))
         return out
@@ -751,7 +764,8 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
         if desc["balance"]["note"]:
             print(desc["balance"]["note"], file=sys.stderr, flush=True)
     init = {}
-    if cfg.start == "rollout" and warm_start is None and cfg.solver in ("aico", "raico"):
+    caps = cfg.spec().caps
+    if cfg.start == "rollout" and warm_start is None and "rollout" in caps.starts:
         init["U_init"] = np.zeros((problem.T, problem.n_u))  # the first trajectory: the zero-control rollout
     if cfg.start == "quasi-static" and warm_start is None:
         init["U_init"] = quasi_static_controls(problem, q0)
@@ -761,7 +775,7 @@ def plan(cfg: PlanConfig, model: Artifact | None = None, progress: Progress | No
             raise ValueError(f"warm start {warm_start.key}: its controls do not fit this problem "
                              f"(shape {U0.shape}, expected {(problem.T, problem.n_u)}, finite)")
         init["U_init"] = U0
-        if cfg.warm_from == "trajectory" and cfg.solver != "ilqg":
+        if cfg.warm_from == "trajectory" and "trajectory" in caps.warm_from:
             X0 = warm_start.arrays(PLAN_FILE)["X"]
             if X0.shape != (problem.T + 1, problem.n_x) or not np.all(np.isfinite(X0)):
                 raise ValueError(f"warm start {warm_start.key}: its states do not fit this problem")
