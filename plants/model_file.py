@@ -507,7 +507,9 @@ def spec_digest(spec: RobotSpec, text: str) -> str:
     return hashlib.sha256(doc.encode()).hexdigest()[:12]
 
 
-def _model_text(spec: RobotSpec) -> tuple[Path, str, str, list[str], Packages]:
+def model_text(spec: RobotSpec) -> tuple[Path, str, str, list[str], Packages]:
+    """The model file of ``spec`` as Drake reads it: ``(path, format, text, notes, packages)``, a URDF's text
+    repaired (:func:`repair_urdf`) and ``[robot.true]``'s mass scale applied (``ModelError`` otherwise)."""
     path = Path(spec.file)
     if not path.is_file():
         raise ModelError(f"robot file not found: {path}")
@@ -584,7 +586,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
 
     from plants.robot import Robot
 
-    path, fmt, text, notes, packages = _model_text(spec)
+    path, fmt, text, notes, packages = model_text(spec)
     if spec.execution == "floating" and spec.plant is None:
         raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) is built for the "
                          "Nao only (plants/free_nao.py); a model file's robot executes welded: discrete or continuous")
@@ -634,7 +636,7 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
     for j in limits:
         if j not in names:
             raise ModelError(f"limits: joint '{j}' is not a planning joint of {path.name}: closest {closest_names(j, names)}")
-    armature = _per_joint(spec.armature, names, "armature")
+    armature = per_joint(spec.armature, names, "armature")
     for j in spec.unactuated:
         if j not in names:
             raise ModelError(f"unactuated: joint '{j}' is not a planning joint of {path.name}: closest "
@@ -788,7 +790,9 @@ def _effort_of(plant, joint) -> float:
     return math.inf
 
 
-def _per_joint(value, names: list[str], what: str) -> np.ndarray:
+def per_joint(value, names: list[str], what: str) -> np.ndarray:
+    """``(len(names),)``: ``value`` at every joint (a number) or per joint (a mapping, 0 where not named);
+    ``ModelError`` for a negative value or a joint not in ``names``."""
     if isinstance(value, (int, float)):
         if value < 0:
             raise ModelError(f"{what} must be >= 0, got {value}")

@@ -1,40 +1,25 @@
-"""raico's robots in crocoddyl's terms: the optional import, the Pinocchio model of a robot, its coordinates.
+"""raico's robots in crocoddyl's terms: the optional import of crocoddyl and Pinocchio (``AVAILABLE``),
+``NotExpressible``, the Pinocchio model of a robot and the coordinates between raico and Pinocchio.
 
-:mod:`planning.crocoddyl.solve` builds the ``ShootingProblem`` and runs FDDP, :mod:`planning.crocoddyl.costs`
-turns each raico cost term into crocoddyl residuals; this module says how a raico robot becomes a
-Pinocchio model: from the model file it was loaded from (:mod:`plants.model_file`; a built-in plant is
-one too). It holds the optional import of crocoddyl and Pinocchio (``AVAILABLE``)
-and ``NotExpressible``.
+The model (:func:`pinocchio_robot`) comes from the model file the robot was loaded from (a built-in
+plant's too): Pinocchio reads the SAME repaired URDF text Drake reads (``plants.model_file.repair_urdf``:
+locked joints fixed, mimic tags dropped) with a fixed base, where Drake puts a robot whose free root is
+welded at the world origin; a robot welded on another frame (a humanoid on a sole) re-roots Drake's tree,
+which Pinocchio's cannot: ``NotExpressible``. MJCF goes through Pinocchio's MJCF reader, SDF through
+Drake's reading of it (:func:`model_from_drake`). The spec's armature is ``model.armature``; Drake's joint
+damping, which Pinocchio's forward dynamics ignores, enters as ``tau = u - D v`` (:class:`DampedActuation`).
 
-The model of a model-file robot (:func:`pinocchio_robot`): Pinocchio reads the SAME repaired URDF
-text Drake reads (``plants.model_file.repair_urdf``: locked joints are fixed joints there, mimic
-tags dropped), with a fixed base, which is where Drake puts the robot when its free root is welded
-at the world origin (or the file attaches it to a ``world`` link). A robot welded on another frame
-(a humanoid standing on a sole) re-roots the tree in Drake: Pinocchio's URDF tree is rooted at the
-file's root link, so that is ``NotExpressible``. An MJCF file is read by Pinocchio's own MJCF reader
-(``buildModelFromMJCF``), as Drake reads the file itself; an SDF file through Drake's reading of it
-(:func:`model_from_drake`: Pinocchio's model built joint by joint from Drake's plant; Pinocchio's own
-SDFormat reader is an option of its build, absent here). The armature of the spec is Pinocchio's
-``model.armature`` (Drake's rotor inertia with gear ratio 1: both add it to the mass matrix's
-diagonal); Drake's joint damping (the file's ``<dynamics damping>``), which Pinocchio's forward
-dynamics ignores, enters through an actuation model ``tau = u - D v`` (:class:`DampedActuation`).
+Continuous joints (``continuous``): raico's angle is a real number with plain differences ``q - q*``;
+Pinocchio reads a URDF continuous joint as ``(cos q, sin q)`` whose differences wrap to (-pi, pi].
+``"angle"`` (the default, raico's problem exactly) gives Pinocchio a revolute joint without limits;
+``"cos-sin"`` keeps Pinocchio's reading, crocoddyl's own problem (its examples), whose costs agree with
+raico's only within pi of each term's reference (crocoddyl's Kinova example leaves it: raico's cost of
+its solution is 8.179 where crocoddyl's is 8.125).
 
-Continuous joints (``continuous``): raico's angle of a continuous joint is a real number, and its
-costs take plain differences ``q - q*``. Pinocchio reads a URDF continuous joint as a unit complex
-number ``(cos q, sin q)`` (nq 2, nv 1) and crocoddyl's state difference is then the angle
-difference wrapped to (-pi, pi]: the same cost only while the joint stays within pi of each term's
-reference. ``"angle"`` (the default: raico's problem exactly) gives Pinocchio the joint as a revolute
-joint without position limits (nq 1, the same dynamics); ``"cos-sin"`` keeps Pinocchio's own
-reading, crocoddyl's own problem (its examples), whose costs agree with raico's only within that
-range (crocoddyl's Kinova example leaves it: its solution turns the base joint 3.65 rad from the
-start, so raico's cost of it is 8.179 where crocoddyl's is 8.125).
-
-Coordinates (:class:`StateMap`): raico's state is ``(q, v)`` over its planning joints (Drake's
-position order); Pinocchio's is ``(q_pin, v_pin)`` in its own joint order, a ``"cos-sin"`` continuous
-joint stored as ``(cos q, sin q)``. Controls and tangent vectors (``v``, state differences, gains)
-are permutations. Back from Pinocchio such an angle is ``atan2(sin, cos)`` unwrapped along the
-trajectory, each step's nearest to the previous angle plus ``dt`` times the new velocity (the
-semi-implicit Euler step: exact on a rollout, however fast the joint turns).
+Coordinates (:class:`StateMap`): raico's state ``(q, v)`` over its planning joints (Drake's order),
+Pinocchio's in its own joint order; controls and tangent vectors are permutations; a ``"cos-sin"``
+angle comes back as ``atan2(sin, cos)`` unwrapped along the trajectory (each step's nearest to the
+previous angle plus ``dt`` times the new velocity: exact on a semi-implicit Euler rollout).
 """
 
 from __future__ import annotations
@@ -315,14 +300,14 @@ def model_from_drake(robot):
 def pinocchio_robot(robot, continuous: str = "angle"):
     """``(model, StateMap)`` of a robot from the model file it was loaded from (``robot.spec``: a built-in
     plant's too), see the module docstring; ``continuous``: ``"angle"`` or ``"cos-sin"``."""
-    from plants.model_file import _model_text
+    from plants.model_file import model_text
 
     spec = robot.spec
     if spec is None:
         raise ValueError(f"{robot.name} was not loaded from a model file (plants.model_file.load_model)")
     if continuous not in CONTINUOUS:
         raise ValueError(f"continuous must be one of {CONTINUOUS}, got {continuous!r}")
-    path, fmt, text, _, _ = _model_text(spec)
+    path, fmt, text, _, _ = model_text(spec)
     if fmt == "urdf":
         roots = [r for r in _root_links(text) if r != "world"] or _root_links(text)
     else:
@@ -351,9 +336,9 @@ def pinocchio_robot(robot, continuous: str = "angle"):
         vi.append(j.idx_v)
         cont.append(j.nq == 2)
     smap = StateMap(model.nq, model.nv, np.array(qi), np.array(vi), np.array(cont, bool))
-    from plants.model_file import _per_joint
+    from plants.model_file import per_joint
 
-    armature = _per_joint(spec.armature, list(robot.joint_names), "armature")
+    armature = per_joint(spec.armature, list(robot.joint_names), "armature")
     arm = np.zeros(model.nv)
     arm[smap.v_index] = armature
     model.armature = arm

@@ -1,49 +1,27 @@
-"""crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems.
+"""crocoddyl's FDDP / BoxFDDP as a baseline on raico's own problems (docs/crocoddyl.md in full).
 
 :func:`build` turns a raico :class:`~planning.problem.Problem` (analytic dynamics) into a crocoddyl
 ``ShootingProblem`` of the same model, integrator and cost:
 
-- the model: for a built-in plant the project's URDF, copied to a temporary folder with a
-  ``<link name="world"/>`` added and the visual elements dropped (urdfdom refuses the file as
-  written), loaded into pinocchio; for a robot from a model file the same repaired URDF text Drake
-  reads, an MJCF file through Pinocchio's MJCF reader, an SDF file through Drake's reading of it
-  (:mod:`planning.crocoddyl.model`: the joint order mapped, continuous joints, the fixed base); the reflected motor inertia goes into ``model.armature`` (not crocoddyl's own armature as
-  well: that would count it twice); joint damping (the pendulum's viscous friction, a model file's
-  ``<dynamics damping>``, which pinocchio's ``aba`` ignores) enters through an actuation model
-  ``tau = u - D qdot``;
+- the model: the robot's model file (a built-in plant's too) in Pinocchio, :func:`planning.crocoddyl.model.
+  pinocchio_robot` (the joint order mapped, continuous joints, the fixed base); the reflected motor
+  inertia is ``model.armature``; joint damping enters through an actuation model ``tau = u - D qdot``;
 - the integrator: ``IntegratedActionModelEuler`` over ``DifferentialActionModelFreeFwdDynamics``,
   i.e. semi-implicit Euler, raico's analytic step;
-- the cost: crocoddyl's quadratic cost is ``1/2 weight ||r||^2`` and a running node's cost is
-  multiplied by ``dt``, so a raico term ``w ||r||_C^2`` becomes weight ``2 w / dt`` on a running
-  node (``t < T``: control cost, control limits, via-points before the end) and ``2 w`` on the
-  terminal node. Each term's residual and activation: :func:`planning.crocoddyl.model.cost_items`
-  (frame points, rotation and placement, the roll angle ``atan2(y_E . z_W, z_E . z_W)`` as a
-  Python residual with raico's Jacobian, the centre of gravity, posture, state, control, control
-  limits as the quadratic barrier of ``ActivationModelQuadraticBarrier`` (raico's soft limit) with
-  BoxFDDP's hard bounds on top, joint bounds).
+- the cost: crocoddyl's ``1/2 weight ||r||^2``, a running node's multiplied by ``dt``, so a raico term
+  ``w ||r||_C^2`` is weight ``2 w / dt`` on a running node and ``2 w`` on the terminal one; each term's
+  residual and activation: :mod:`planning.crocoddyl.costs`.
 
-What crocoddyl cannot express exactly (a clear ``NotExpressible``, a ``ValueError``):
+What crocoddyl cannot express exactly is a ``NotExpressible`` (a ``ValueError``): pseudo-dynamics
+(its action models take torques), a robot welded on a frame other than its root (the Nao's sole) or with
+coupled joints, non-diagonal precisions, inequalities other than joint bounds, the learned model.
 
-- the thesis's pseudo-dynamics (controls are accelerations): crocoddyl's forward-dynamics
-  action models take torques; there is no built-in double integrator on a multibody state;
-- the Nao: its stance sole is welded to the world (Drake re-roots the tree at ``l_sole``,
-  pinocchio's URDF tree is rooted at the torso) and RHipYawPitch copies LHipYawPitch (one motor):
-  pinocchio's free forward dynamics has neither the re-rooted tree nor the coupling; so is a
-  model file's robot welded on a frame other than its root;
-- non-diagonal precisions, inequalities other than joint bounds, the learned model and its
-  uncertainty term.
-
-:func:`fddp` solves with FDDP (BoxFDDP where control limits exist) from ``x0`` held at every
-node (``start="held"``: zero controls, infeasible; FDDP closes the gaps; R-AICO's start), from
-the zero-torque rollout (``start="rollout"``, feasible) or from crocoddyl's own cold start (the
-zero state at every node, ``start="zero"``), and returns a raico ``Result`` (in raico's coordinates):
-the controller ``u = U_t - K_t (x - X_t)`` from crocoddyl's gains, i.e. ``o_t = U_t + K_t X_t``,
-``O_t = -K_t``; the trajectory is that controller rolled out on raico's planning model; the
-history holds per iteration the cost of rolling the iterate's controller out on the planning
-dynamics (crocoddyl's own cost once the iterate is feasible; a feedback rollout through
-crocoddyl's models while gaps remain), the iteration's wall time (that bookkeeping excluded)
-and the step length and regularization. Registered as solvers ``fddp`` and ``fddp-rollout``
-in ``planning.solvers`` when crocoddyl imports (``pip`` extra, see the README).
+:func:`fddp` solves with FDDP (BoxFDDP where control limits exist) from ``x0`` held at every node
+(``start="held"``, R-AICO's start), the zero-torque rollout (``"rollout"``) or crocoddyl's own cold start
+(``"zero"``), and returns a raico ``Result`` in raico's coordinates: the controller ``o_t = U_t + K_t X_t``,
+``O_t = -K_t`` from crocoddyl's gains, rolled out on raico's planning model; the history holds per
+iteration the cost of the iterate's controller rolled out, its wall time, step length and regularization.
+Registered as the solvers ``fddp*`` in :mod:`planning.solvers` where crocoddyl is installed.
 """
 
 from __future__ import annotations
