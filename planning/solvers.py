@@ -152,7 +152,9 @@ def _crocoddyl_specs() -> dict[str, SolverSpec]:
         return _check
 
     caps = Capabilities(control_box=True, control_kinds=("torque",))
-    rows = {"fddp": ("FDDP", {"start": "held"}, "held", dataclasses.replace(caps, mpc="fddp")),
+    # name -> (label, the options the name implies, the start it insists on, capabilities)
+    rows: dict[str, tuple[str, dict[str, Any], str, Capabilities]] = {
+            "fddp": ("FDDP", {"start": "held"}, "held", dataclasses.replace(caps, mpc="fddp")),
             "fddp-rollout": ("FDDP (rollout start)", {"start": "rollout"}, "rollout", caps),
             # ablation (why iLQG stalls): FDDP accepting any step that lowers the cost, iLQG's rule
             "fddp-rollout-accept-any": ("FDDP (iLQG's acceptance)", {"start": "rollout", "th_accept": ACCEPT_ANY},
