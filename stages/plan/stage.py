@@ -54,7 +54,34 @@ def _solver_names(specs) -> str:  # noqa: ANN001
 
 
 @dataclass(frozen=True)
-class PlanConfig(SolverFields, StageConfig):  # type: ignore[misc, valid-type]
+class PlanProblem:
+    """The plan stage's problem, its solver and the stage's own options: ``PlanConfig`` without the
+    solvers' options (those come from the solvers' ``FLAGS``, ``SolverFields``)."""
+
+    plant: str = ""
+    task: str = ""
+    problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
+    dynamics: str = ""  # "": the task's or the problem file's
+    solver: str = "raico"
+    iterations: int = 50
+    seed: int = 0
+    q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
+    q0_std_prismatic: float = 0.0  # m, a prismatic joint's q0 std (no built-in plant has one)
+    x0_nudge: float = 0.0  # rad added to every joint of q0 after it is drawn (a perturbation test)
+    model: str | None = None
+    warm_start: str | None = None
+    sigma_star: str = "none"  # a number, or "none": no uncertainty term
+    sigma_weight: float = 1e-2
+    sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
+    warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
+    start: str = "held"  # without a warm start: "held" (x0 at every step, thesis), "rollout" or "quasi-static"
+    bounds: str = ""  # "hard" (joint ranges, effort limits kept by the solver) or "none"; "": hard for a problem file
+    balance: str = "none"  # a robot on its soles: "none", "support" (double support) or "single" (left foot), stages.plan.balance
+    balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
+
+
+@dataclass(frozen=True)
+class PlanConfig(SolverFields, PlanProblem, StageConfig):  # type: ignore[misc, valid-type]
     """Declared parameters of the plan stage: the problem, ``solver`` and the solvers' options
     (``SolverFields``: the fields, defaults and help of every solver's ``FLAGS``, one per name).
 
@@ -110,27 +137,6 @@ class PlanConfig(SolverFields, StageConfig):  # type: ignore[misc, valid-type]
                        "CoG inside the left sole, right sole released and lifted >= 2 cm from T/3). CoG via-points "
                        "outside the polygon are reported on stderr and planned at the nearest feasible point.",
             "balance_margin": "With --balance: the CoG's least distance (m) inside every support-polygon edge."}
-
-    plant: str = ""
-    task: str = ""
-    problem: str | None = None  # a problem file's path; normalized: its canonical content (JSON)
-    dynamics: str = ""  # "": the task's or the problem file's
-    solver: str = "raico"
-    iterations: int = 50
-    seed: int = 0
-    q0_std: float | None = None  # rad; None: 0.05 for the built-in tasks, 0 for a problem file
-    q0_std_prismatic: float = 0.0  # m, a prismatic joint's q0 std (no built-in plant has one)
-    x0_nudge: float = 0.0  # rad added to every joint of q0 after it is drawn (a perturbation test)
-    model: str | None = None
-    warm_start: str | None = None
-    sigma_star: str = "none"  # a number, or "none": no uncertainty term
-    sigma_weight: float = 1e-2
-    sigma_units: str = "raw"  # the uncertainty term's variance: "raw" (thesis eq. 4.3) or "standardized"
-    warm_from: str = "trajectory"  # with warm_start: "trajectory" (thesis 4.5) or "controls" (rollout)
-    start: str = "held"  # without a warm start: "held" (x0 at every step, thesis), "rollout" or "quasi-static"
-    bounds: str = ""  # "hard" (joint ranges, effort limits kept by the solver) or "none"; "": hard for a problem file
-    balance: str = "none"  # a robot on its soles: "none", "support" (double support) or "single" (left foot), stages.plan.balance
-    balance_margin: float = MARGIN  # m, with balance: the CoG ground projection this far inside every edge
 
     def validate(self) -> None:
         if self.problem is not None:
