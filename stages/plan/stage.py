@@ -255,8 +255,8 @@ class PlanConfig(SolverFields, PlanProblem, StageConfig):  # type: ignore[misc, 
 
     def normalized(self) -> PlanConfig:
         """One spelling per meaning (cache key): a problem file as its canonical content, the
-        dynamics as the task states them unless given, the solver's options in force (the ones it leaves unused at one value), sigma* as a
-        canonical number or "none", its weight only with it."""
+        dynamics as the task states them unless given, the solver's options in force (those it leaves
+        unused at one value), sigma* as a canonical number or "none", its weight only with it."""
         if self.solver not in SOLVERS:
             return self  # validate() says what is wrong
         d = asdict(self)
