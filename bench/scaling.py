@@ -44,9 +44,9 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
     from planning.objective import build_terms
     from planning.problem import Problem
     from plants.dynamics_registry import make_dynamics
-    from stages.plan.problem_file import read_problem, shipped, with_horizon
+    from planning.problem_file import read_problem, shipped, with_horizon
     from stages.plan.stage import control_kind, initial_posture, shared_robot
-    from stages.plan.tasks import task_from_problem
+    from planning.tasks import task_from_problem
 
     robot = shared_robot(plant)
     spec = task_from_problem(with_horizon(read_problem(shipped(plant, task)), T))

@@ -19,7 +19,7 @@ from planning.objective import objective_from_description
 from plants.model_file import shared_model
 from plants.numdiff import check_cost_term, numdiff_jacobian
 from plants.scene import CollisionWorld, SignedDistances, read_mesh, resolve_pairs
-from stages.plan.problem_file import ProblemFile, build_terms, read_problem
+from planning.problem_file import ProblemFile, build_terms, read_problem
 from tests.plants.scene_robot import SCENE, START, arm_file
 from tests.plants.test_model_file import problem_text
 from tests.tolerance import assert_close

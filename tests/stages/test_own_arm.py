@@ -135,7 +135,7 @@ def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
     from stages.babble import babble, joint_amplitudes, joint_gains
     from stages.evaluate.metrics import prismatic_joints
     from stages.learn import LearnConfig
-    from stages.plan.problem_file import read_problem
+    from planning.problem_file import read_problem
 
     cfg = LearnConfig(problem=str(PROBLEM), babble_points=120).normalized().babble_config().normalized()
     robot = shared_model(read_problem(PROBLEM).robot_spec())
@@ -154,7 +154,7 @@ def test_q0_std_is_per_joint_type():
     normal draws, each scaled in its joint's unit)."""
     from plants.model_file import shared_model
     from stages.learn import LearnConfig
-    from stages.plan.problem_file import read_problem
+    from planning.problem_file import read_problem
     from stages.plan.stage import initial_posture
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
@@ -173,7 +173,7 @@ def test_tracking_is_lost_in_each_joint_s_unit():
 
     from plants.model_file import shared_model
     from stages.evaluate.metrics import TRACKING_LOST_M, execution_metrics
-    from stages.plan.problem_file import read_problem
+    from planning.problem_file import read_problem
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
     K, n = 11, robot.n_q
