@@ -15,8 +15,8 @@ from functools import partial
 
 import numpy as np
 
-from plants.robots import Robot
 from planning.problem_file import SHIPPED, ProblemFile, build_terms, read_problem
+from plants.robots import Robot
 
 W_TASK = 1e4
 W_U = 1e-2

@@ -334,4 +334,4 @@ _BY_TYPE = {k.type: k for k in COST_KINDS}
 
 def cost_kind(type_: str | None) -> CostKind | None:
     """The row of a problem file's ``[costs.NAME] type``, or ``None``."""
-    return _BY_TYPE.get(type_)  # type: ignore[arg-type]
+    return _BY_TYPE.get(type_ or "")

@@ -128,7 +128,7 @@ def _pairs(key: str):
     return read
 
 
-def _names(key: str):
+def _name_list(key: str):
     def read(v):
         return tuple(str(x) for x in _list(v, key))
     return read
@@ -187,13 +187,13 @@ FACTS: dict[str, Fact] = {f.key: f for f in (
     Fact("order", _choice("order", ("tree", "file"), "choose tree (Drake's) or file")),
     Fact("coupled", _pairs("coupled"), dict),
     Fact("end_effectors", _pairs("end_effectors"), dict),
-    Fact("hands", _names("hands")),
-    Fact("feet", _names("feet")),
+    Fact("hands", _name_list("hands")),
+    Fact("feet", _name_list("feet")),
     Fact("sole", _read_sole, lambda v: [list(p) for p in v]),
     Fact("execution", _choice("execution", EXECUTIONS, f"choose one of {', '.join(EXECUTIONS)}")),
     Fact("time_step", _read_time_step),
     Fact("learn", _read_learn, dict),
-    Fact("unactuated", _names("unactuated")),
+    Fact("unactuated", _name_list("unactuated")),
     Fact("gravity", _read_gravity),
 )}
 

@@ -35,9 +35,9 @@ from typing import Any, cast
 
 import numpy as np
 
+from planning.tasks import get_task
 from plants.robots import PLANTS
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput, Steps
-from planning.tasks import get_task
 from stages.registry import DESCRIPTIONS
 
 EPISODES_FILE = "episodes.json"

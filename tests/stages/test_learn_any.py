@@ -29,8 +29,8 @@ def without_true(tmp_path) -> Path:
 
 
 def robots():
-    from plants.model_file import shared_model
     from planning.problem_file import read_problem
+    from plants.model_file import shared_model
 
     pf = read_problem(PROBLEM)
     return shared_model(pf.robot_spec()), shared_model(pf.true_spec())
@@ -247,9 +247,9 @@ def test_babble_a_robot_standing_on_a_welded_sole(raico, tmp_path):
     line = last_json(raico("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
                             "--json", "--artifacts", tmp_path / "art"))
     data = np.load(Path(line["path"]) / "data.npz")
+    from planning.problem_file import read_problem
     from plants.dynamics_registry import make_dynamics
     from plants.model_file import shared_model
-    from planning.problem_file import read_problem
 
     robot = shared_model(read_problem(p).robot_spec())
     assert any("welded to the world" in note for note in robot.load_report)
