@@ -446,7 +446,8 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
 
 
 STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run,
-              sources=("plants", "stages.babble", "stages.base", "planning.problem_file", "stages.evaluate.metrics"),
+              sources=("plants", "stages.babble", "stages.base", "planning.problem_file", "planning.problem_terms",
+                       "planning.term_kinds", "stages.evaluate.metrics"),
               data_files=(DATA_FILE,),
               description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)
