@@ -43,10 +43,10 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
     """The task's problem at horizon ``T`` (its via-point steps scaled with the horizon; seed 0)."""
     from planning.objective import build_terms
     from planning.problem import Problem
+    from planning.problem_file import read_problem, shipped, with_horizon
+    from planning.tasks import task_from_problem
     from plants.dynamics_registry import make_dynamics
-    from stages.plan.problem_file import read_problem, shipped, with_horizon
     from stages.plan.stage import control_kind, initial_posture, shared_robot
-    from stages.plan.tasks import task_from_problem
 
     robot = shared_robot(plant)
     spec = task_from_problem(with_horizon(read_problem(shipped(plant, task)), T))

@@ -1,6 +1,6 @@
 """The objective as data: named, weighted cost terms described in plain JSON.
 
-A task (``stages/plan/tasks.py``) builds a list of term descriptions from the robot, the
+A task (``planning/tasks.py``) builds a list of term descriptions from the robot, the
 initial posture and the horizon; :func:`build_terms` turns them into cost-term objects of
 ``planning/costs.py``. The plan artifact stores the descriptions (``problem.json``), so
 execute, evaluate and the report rebuild exactly the planned objective without re-running
@@ -89,7 +89,7 @@ def _times_desc(times) -> list[int] | dict:
 
 def via(name: str, taskmap: dict, target, times, weight: float, precision=None, tol=None) -> TermDesc:
     """Via-point ``w (x* - phi(q_t))^T C (x* - phi(q_t))`` at ``times``; ``tol``: its own tolerance of
-    "task achieved" (``planning.costs.task_errors``), kept only where given."""
+    "task achieved" (``planning.achieved.task_errors``), kept only where given."""
     times = _times_desc(times)
     d = {"term": "via", "name": name, "map": taskmap, "target": np.asarray(target, float).reshape(-1).tolist(),
          "times": times, "weight": float(weight),

@@ -1,38 +1,18 @@
-"""The kinds of cost terms and task maps in two tables: each class with its description key, its
-builder from a description, its compiled counterpart (``planning/task_messages.c``), its crocoddyl
-residual and (task maps) its plot labels.
+"""The kinds of cost terms in three tables, each row a kind with its columns, from the problem file's
+TOML key down to the compiled case.
 
-Cost terms (:data:`TERM_KINDS`, rows :class:`TermKind`): ``key`` (the description's ``"term"``),
-``cls``, ``side`` (``"state"``: on ``x_t``, ``"control"``: on ``u_t``, ``"joint"``: on both),
-``build(robot, d)`` (``None``: built elsewhere, see the row) and
-``crocoddyl``, the name of the function of ``planning.crocoddyl.costs`` that gives its crocoddyl
-``(residual, activation)`` pairs. ``planning.objective.build_term`` and
-``planning.crocoddyl.costs.cost_items`` read it. A new term kind is its class
-(``planning.costs``) and one row (and its crocoddyl function, where crocoddyl has one).
+- :data:`COST_KINDS` (rows :class:`CostKind`): a problem file's ``[costs.NAME] type``: its keys, its
+  parser and describer (``planning.problem_terms``), the description terms and task maps it gives;
+- :func:`term_kinds` (rows :class:`TermKind`): a description's ``"term"``: its class
+  (``planning.costs``), side, builder and crocoddyl residual;
+- :data:`MAP_KINDS` (rows :class:`MapKind`): a description's ``"map"``: its class (``plants.taskmaps``),
+  builder, compiled case (``planning/task_messages.c``), crocoddyl residual, tolerance kinds of "task
+  achieved" (``planning.achieved``) and plot labels (``pipeline.recordings.tasks``).
 
-Task maps:
-
-One row per kind (:data:`MAP_KINDS`); the objective (``planning.objective.build_taskmap``), the
-compiled task messages (``planning.kernels.compile_task_set``), the crocoddyl translation
-(``planning.crocoddyl.costs``) and the recordings' plots (``pipeline.recordings.tasks``) look a map up
-here, by class (:func:`kind_of_map`) or by description key (:func:`kind_named`). A new task-map
-kind is its class (``plants.taskmaps``) and one row; its compiled counterpart, where it has one, is
-a :class:`MessageKind` with its branch in ``task_messages.c`` and a ``compile`` function here.
-
-Columns of a row (:class:`MapKind`):
-
-- ``key``: the description's ``"map"`` value (``planning.objective``);
-- ``cls``: the task-map class;
-- ``build(robot, d) -> TaskMap`` from a description ``d``;
-- ``compile(tm, vt, kernels, arr) -> bool``: fills the map fields of a compiled term (``vt``, a
-  ``planning.kernels._VTerm``; ``kernels``: the robot's tree kernels, ``None`` for a map that needs
-  none; ``arr(a, dtype)`` keeps ``a`` alive and gives its address); ``False`` where this instance
-  does not fit the kernel (then the Python messages run); ``None``: no compiled counterpart;
-- ``tree``: whether the compiled map reads the robot's tree kernels (the frame maps, the CoM);
-- ``crocoddyl``: the name of the function of ``planning.crocoddyl.costs`` that gives the
-  via-point's crocoddyl residuals (``None``: not expressible);
-- ``labels(m, dim, name, joint_names) -> (component names, coordinates per point, unit, angle?)``
-  of a map description ``m`` for the plots.
+A row is looked up by key (:func:`cost_kind`, :func:`term_named`, :func:`kind_named`) or by the class of
+a built object (:func:`kind_of_term`, :func:`kind_of_map`). A new cost kind is a row of
+:data:`COST_KINDS` with its two functions; where it needs a new task map or cost term, that class and
+its row below (docs/layout.md walks through one).
 """
 
 from __future__ import annotations
@@ -74,7 +54,23 @@ TASK_MAX_ROWS = 64        # TMAX of task_messages.c: rows of one task map's full
 
 @dataclass(frozen=True)
 class MapKind:
-    """One row of the task-map table (the columns: see the module's docstring)."""
+    """One row of the task-map table. Columns:
+
+    - ``key``: the description's ``"map"`` value (``planning.objective``); ``cls``: the task-map class;
+    - ``build(robot, d) -> TaskMap`` from a description ``d``;
+    - ``compile(tm, vt, kernels, arr) -> bool``: fills the map fields of a compiled term (``vt``, a
+      ``planning.kernels._VTerm``; ``kernels``: the robot's tree kernels, ``None`` for a map that needs
+      none; ``arr(a, dtype)`` keeps ``a`` alive and gives its address); ``False`` where this instance
+      does not fit the kernel (then the Python messages run); ``None``: no compiled counterpart (a new
+      one is a :class:`MessageKind` with its branch in ``task_messages.c`` and a function here);
+    - ``tree``: whether the compiled map reads the robot's tree kernels (the frame maps, the CoM);
+    - ``crocoddyl``: the name of the function of ``planning.crocoddyl.costs`` that gives the
+      via-point's crocoddyl residuals (``None``: not expressible);
+    - ``labels(m, dim, name, joint_names) -> (component names, coordinates per point, unit, angle?)``
+      of a map description ``m`` for the plots;
+    - ``tolerance``: the kinds of "task achieved" a via-point on it is judged by
+      (``planning.achieved.TASK_TOLERANCES``), each with the rows of the map it covers; ``()``: none.
+    """
 
     key: str
     cls: type
@@ -83,6 +79,10 @@ class MapKind:
     tree: bool
     crocoddyl: str | None
     labels: Callable[[dict, int, str, list], tuple[list[str], int, str, bool]]
+    tolerance: tuple[tuple[str, slice], ...] = ()
+
+
+ALL = slice(None)  # every row of a map
 
 
 # -- compiled counterparts: the map fields of a compiled term -------------------------------------
@@ -163,23 +163,24 @@ def _build_distances(robot, d: dict) -> SignedDistances:
 MAP_KINDS: tuple[MapKind, ...] = (
     MapKind("frame_points", FramePoints,
             lambda r, d: FramePoints(r, d["frame"], points=d.get("points"), axes=tuple(d["axes"]), name=d["name"]),
-            _compile_frame_points, True, "via_frame_points", _axes_labels),
+            _compile_frame_points, True, "via_frame_points", _axes_labels, (("position", ALL),)),
     MapKind("roll", RollAngle, lambda r, d: RollAngle(r, d["frame"], name=d["name"]),
             _compile_roll, True, "via_roll",
-            lambda m, dim, name, jn: ([f"{name} (unwrapped)"], 1, "rad", True)),
+            lambda m, dim, name, jn: ([f"{name} (unwrapped)"], 1, "rad", True), (("orientation", ALL),)),
     MapKind("cog", CenterOfMass, lambda r, d: CenterOfMass(r, axes=tuple(d["axes"]), name=d["name"]),
-            _compile_com, True, "via_com", _axes_labels),
+            _compile_com, True, "via_com", _axes_labels, (("com", ALL),)),
     MapKind("joints", JointPositions, lambda r, d: JointPositions(r.n_q, d.get("indices"), name=d["name"]),
-            _compile_joints, False, "via_joints", _joint_labels),
+            _compile_joints, False, "via_joints", _joint_labels, (("posture", ALL),)),
     MapKind("frame_rotation", FrameRotationError,     # the rotation vector of R*^T R
             lambda r, d: FrameRotationError(r, d["frame"], d["rotation"], name=d["name"]),
             _compile_frame_pose, True, "via_frame_pose",
-            lambda m, dim, name, jn: (["rx", "ry", "rz"], 3, "rad", False)),
+            lambda m, dim, name, jn: (["rx", "ry", "rz"], 3, "rad", False), (("orientation", ALL),)),
     MapKind("distances", SignedDistances, _build_distances, None, False, None, _distance_labels),
     MapKind("frame_placement", FramePlacementError,   # log6: translation part (m) then rotation vector (rad)
             lambda r, d: FramePlacementError(r, d["frame"], d["rotation"], d["translation"], name=d["name"]),
             _compile_frame_pose, True, "via_frame_pose",
-            lambda m, dim, name, jn: (["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False)),
+            lambda m, dim, name, jn: (["vx", "vy", "vz", "rx", "ry", "rz"], 6, "m, rad", False),
+            (("position", slice(0, 3)), ("orientation", slice(3, None)))),
 )
 _BY_CLASS = {k.cls: k for k in MAP_KINDS}
 _BY_KEY = {k.key: k for k in MAP_KINDS}
@@ -204,7 +205,11 @@ def map_keys() -> list[str]:
 # -- cost terms --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TermKind:
-    """One row of the cost-term table (the columns: see the module's docstring)."""
+    """One row of the cost-term table: ``key`` (the description's ``"term"``), ``cls``, ``side``
+    (``"state"``: on ``x_t``, ``"control"``: on ``u_t``, ``"joint"``: on both), ``build(robot, d)``
+    (``None``: built elsewhere, see the row) and ``crocoddyl``, the name of the function of
+    ``planning.crocoddyl.costs`` that gives its crocoddyl ``(residual, activation)`` pairs
+    (``planning.objective.build_term`` and ``planning.crocoddyl.costs.cost_items`` read it)."""
 
     key: str
     cls: type
@@ -276,3 +281,57 @@ def term_named(key: str) -> TermKind | None:
 def kind_of_term(term) -> TermKind | None:
     """The row of the cost term ``term``'s exact class, or ``None``."""
     return next((k for k in term_kinds() if type(term) is k.cls), None)
+
+
+# -- a problem file's cost terms ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class CostKind:
+    """One row of the problem-file table: ``type`` (``[costs.NAME] type``), ``keys`` (those it takes;
+    others are refused), ``check`` and ``describe``: the names of its functions in
+    ``planning.problem_terms`` (``check(name, t, T)``: the term as written, checked, in canonical form;
+    ``describe(name, t, ctx, steps, factor)``: its description on the robot), ``terms`` and ``maps``: the
+    keys of the rows of :func:`term_kinds` and :data:`MAP_KINDS` its descriptions use (their classes,
+    compiled cases, crocoddyl residuals, tolerance kinds and labels). A term without ``times`` in its
+    keys is on the controls (every step)."""
+
+    type: str
+    keys: frozenset[str]
+    check: str
+    describe: str
+    terms: tuple[str, ...]
+    maps: tuple[str, ...] = ()
+
+    @property
+    def tolerance_parts(self) -> int:
+        """How many tolerances a term of this kind may state (``tol``; a frame placement's two: m, rad)."""
+        return max((len(kind_named(m).tolerance) for m in self.maps), default=0)
+
+
+_COMMON = frozenset({"type", "weight", "times", "map"})
+_VIA = _COMMON | {"precision", "tol"}
+COST_KINDS: tuple[CostKind, ...] = (
+    CostKind("frame_position", _VIA | {"frame", "target", "axes", "points", "relative", "in_frame"},
+             "check_frame_position", "describe_frame_position", ("via",), ("frame_points",)),
+    CostKind("frame_orientation", _VIA | {"frame", "rotation", "rpy", "angle", "target"},
+             "check_frame_orientation", "describe_frame_orientation", ("via",), ("frame_rotation", "roll")),
+    CostKind("frame_placement", _VIA | {"frame", "position", "rotation", "rpy"},
+             "check_frame_placement", "describe_frame_placement", ("via",), ("frame_placement",)),
+    CostKind("com", _VIA | {"target", "axes", "relative"}, "check_task", "describe_com", ("via",), ("cog",)),
+    CostKind("posture", _VIA | {"joints", "target", "relative"}, "check_task", "describe_posture", ("via",),
+             ("joints",)),
+    CostKind("state", _COMMON | {"target", "precision"}, "check_task", "describe_state", ("state",)),
+    CostKind("control", frozenset({"type", "weight", "target"}), "check_control", "describe_control",
+             ("control", "control@gravity")),
+    CostKind("control_limit", frozenset({"type", "weight", "lower", "upper"}), "check_task",
+             "describe_control_limit", ("control_limit",)),
+    CostKind("joint_limit", _COMMON | {"joints", "lower", "upper"}, "check_task", "describe_joint_limit",
+             ("inequality",), ("joints",)),
+    CostKind("collision", _COMMON | {"pairs", "groups", "self", "allow", "margin", "hard", "max_distance"},
+             "check_collision", "describe_collision", ("collision",), ("distances",)),
+)
+_BY_TYPE = {k.type: k for k in COST_KINDS}
+
+
+def cost_kind(type_: str | None) -> CostKind | None:
+    """The row of a problem file's ``[costs.NAME] type``, or ``None``."""
+    return _BY_TYPE.get(type_ or "")

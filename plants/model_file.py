@@ -6,49 +6,16 @@ joint that is not locked, in the plant's position order, so ``P`` is the identit
 coupled), limits and efforts from the file (overridable), a start posture, the robot's facts and a
 short load report that says what the load changed.
 
-The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem file):
-
-- ``file``: a path (relative to the problem file) or a ``package://`` URI;
-- ``packages``: ``name -> folder`` for ``package://`` URIs; the installed example-robot-data
-  (shipped with crocoddyl) is found by itself, and a package the map does not name is looked for
-  in the model file's parent folders (a folder of that name, or one whose ``package.xml`` names it);
-- ``weld``: a frame welded to the world. A robot whose root is free in the file (a humanoid) stands
-  on that frame, as the Nao stands on its left sole; a floating arm without ``weld`` gets its root
-  welded at the world origin (a fixed base);
-- ``locked``: joint values (rad or m) at which joints become welds (grippers);
-- ``start``: joint values by name, or the name of a posture of the robot's SRDF (``srdf``);
-  joints not named start at 0;
-- ``armature``: reflected motor inertia on every planning joint (kg m^2), a number or by joint;
-- ``limits``: ``joint -> {lower, upper, effort}`` overrides of the file's limits;
-- ``true``: how the robot that is babbled on and executed differs from its file (``[robot.true]`` of a
-  problem file; the file stays the planner's model): ``mass_scale`` (every link's mass and inertia
-  times this, URDF only), ``payload_mass`` (kg) at ``payload_frame`` (a 3 cm solid sphere centred at ``payload_com``
-  in that frame, m) and ``friction`` (viscous damping on every planning joint, N m s/rad). Loaded
-  as its own plant (:func:`true_spec`); a frame it names that the file does not have is a ``ModelError``.
-
-Facts (what raico needs to know of a robot beyond its file; the defaults are a fixed-base arm's):
-
-- ``coupled``: ``joint -> driver``, joints that copy a planning joint (one motor drives both: the Nao's
-  RHipYawPitch copies LHipYawPitch); ``P`` then maps the planning coordinates to the plant's positions;
-- ``order``: the planning joints in Drake's tree order (``"tree"``) or the file's (``"file"``);
-- ``end_effectors`` (label -> frame), ``hands`` (frames drawn as hands in the recordings);
-- ``feet`` (sole frames, the stance one first) and ``sole`` (a sole's outline in its frame, ``(k, 2)`` m):
-  the support polygon a balance objective keeps the centre of mass in;
-- ``execution``: ``"discrete"`` (a 1 ms plant that enforces the joint limits: the arms), ``"continuous"``
-  (Drake's continuous plant, whose effort limit nothing clamps: the pendulum) or ``"floating"`` (free on
-  its soles with contact: built for the Nao only, ``plants/free_nao.py``), and ``time_step``, its step (s; a
-  continuous plant's largest integrator step);
-- ``learn``: the learning loop's defaults ``{babble_points, stride}``;
-- ``unactuated``: planning joints without a motor (the cart-pole's pole): no actuator is added for them, their
-  effort is 0 and the controls are the actuated joints' (``Robot.actuated``, ``Robot.S``);
-- ``gravity``: the magnitude of gravity (m/s^2, along -z; Drake's 9.81 by default);
-- ``plant``: a built-in plant's name (its robot is called so, its plans store the name only).
+The robot is stated by a :class:`RobotSpec` (the ``[robot]`` table of a problem file; its keys and what
+they mean: docs/problem-files.md): where the file is (``file``, ``packages``), how it is mounted
+(``weld``, ``weld_pose``, ``locked``), its ``start``, ``armature`` and ``limits``, how the executed robot
+differs from the file (``true``: ``mass_scale``, a payload, ``friction``; :func:`true_spec`) and its
+facts: what raico needs to know of a robot beyond its file (:data:`FACTS`, one row each; the defaults are
+a fixed-base arm's). A new fact is a field of :class:`RobotSpec` and a row of :data:`FACTS`.
 
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
-``<mimic>`` tags dropped (the joints stay independent, as Pinocchio reads them); transmissions
-replaced by one actuator per planning joint with the file's effort limit (0 or none: unlimited);
-``<collision>`` elements dropped (Drake's scene graph cannot read ``.stl``/``.dae`` collision meshes;
-the dynamics use no contact; collision terms read them again, meshes as convex hulls:
+``<mimic>`` tags dropped; transmissions replaced by one actuator per planning joint with the file's
+effort limit (0 or none: unlimited); ``<collision>`` elements dropped (collision terms read them again,
 ``plants.scene``); a visual whose mesh file does not exist dropped; relative mesh paths made absolute;
 duplicate top-level materials dropped; a robot without a name named after its file. Unsupported content
 is one clear ``ModelError``: a floating joint inside the tree, a joint type the planning coordinates
@@ -63,6 +30,7 @@ import logging
 import math
 import sysconfig
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
@@ -115,8 +83,8 @@ class RobotSpec:
         out, so a model file's stored spec reads as before they existed."""
         extra: dict[str, Any] = {"true": {k: list(v) if isinstance(v, tuple) else v for k, v in self.true}} \
             if self.true else {}
-        extra.update({key: _fact_json(key, getattr(self, key)) for key in FACTS
-                      if getattr(self, key) != FACT_DEFAULTS[key]})
+        extra.update({key: fact.json(getattr(self, key)) for key, fact in FACTS.items()
+                      if getattr(self, key) != fact_default(key)})
         return {**extra, "file": self.file, "packages": dict(self.packages), "weld": self.weld,
                 "weld_pose": list(self.weld_pose), "locked": dict(self.locked),
                 "start": self.start if isinstance(self.start, str) else dict(self.start), "srdf": self.srdf,
@@ -146,61 +114,99 @@ class RobotSpec:
 
 
 EXECUTIONS = ("discrete", "continuous", "floating")
-FACTS = ("plant", "order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "time_step", "learn",
-         "unactuated", "gravity")
-FACT_DEFAULTS = {"plant": None, "order": "tree", "coupled": (), "end_effectors": (), "hands": (), "feet": (),
-                 "sole": (), "execution": "discrete", "time_step": 1e-3, "learn": (), "unactuated": (),
-                 "gravity": DRAKE_GRAVITY}
 LEARN_KEYS = ("babble_points", "stride")
+
+
+def _plain(v):
+    """A fact's JSON form: a tuple as a list, anything else as it is."""
+    return list(v) if isinstance(v, tuple) else v
+
+
+def _pairs(key: str):
+    def read(v):
+        return tuple((str(a), str(b)) for a, b in _table(v, key).items())  # in the order given
+    return read
+
+
+def _name_list(key: str):
+    def read(v):
+        return tuple(str(x) for x in _list(v, key))
+    return read
+
+
+def _choice(key: str, choices: tuple[str, ...], what: str):
+    def read(v):
+        if v not in choices:
+            raise ModelError(f"{key} '{v}': {what}")
+        return str(v)
+    return read
+
+
+def _read_learn(v):
+    t = _table(v, "learn")
+    bad = sorted(set(t) - set(LEARN_KEYS))
+    if bad or not all(isinstance(x, int) and x > 0 for x in t.values()):
+        raise ModelError(f"learn: {{{', '.join(LEARN_KEYS)}}} as integers > 0, got {t}")
+    return tuple(sorted((str(a), int(b)) for a, b in t.items()))
+
+
+def _read_gravity(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 100:
+        raise ModelError(f"gravity must be a number of m/s^2 in [0, 100], got {v}")
+    return float(v)
+
+
+def _read_sole(v):
+    pts = np.asarray(_list(v, "sole"), float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+        raise ModelError(f"sole: a list of at least 3 [x, y] corners (m), got {v}")
+    return tuple((float(x), float(y)) for x, y in pts)
+
+
+def _read_time_step(v):
+    if not isinstance(v, (int, float)) or not 1e-5 <= v <= 0.1:
+        raise ModelError(f"time_step must be a number of seconds in [1e-5, 0.1], got {v}")
+    return float(v)
+
+
+@dataclass(frozen=True)
+class Fact:
+    """One row of :data:`FACTS`: a ``[robot]`` key, which is the :class:`RobotSpec` field of that name (its
+    default there), ``read`` (its TOML/JSON value checked -> the field's value; ``ModelError`` naming the key)
+    and ``json`` (the field's value -> its JSON form)."""
+
+    key: str
+    read: Callable[[Any], Any]
+    json: Callable[[Any], Any] = _plain
+
+
+# The robot's facts: the schema of [robot] beyond its file (plants/models/NAME.toml, a problem file's [robot],
+# a plan's stored spec). A new fact: a RobotSpec field (with its default) and a row here.
+FACTS: dict[str, Fact] = {f.key: f for f in (
+    Fact("plant", str),
+    Fact("order", _choice("order", ("tree", "file"), "choose tree (Drake's) or file")),
+    Fact("coupled", _pairs("coupled"), dict),
+    Fact("end_effectors", _pairs("end_effectors"), dict),
+    Fact("hands", _name_list("hands")),
+    Fact("feet", _name_list("feet")),
+    Fact("sole", _read_sole, lambda v: [list(p) for p in v]),
+    Fact("execution", _choice("execution", EXECUTIONS, f"choose one of {', '.join(EXECUTIONS)}")),
+    Fact("time_step", _read_time_step),
+    Fact("learn", _read_learn, dict),
+    Fact("unactuated", _name_list("unactuated")),
+    Fact("gravity", _read_gravity),
+)}
+
+
+def fact_default(key: str):
+    """The default of fact ``key``: its :class:`RobotSpec` field's (a fixed-base arm's)."""
+    return RobotSpec.__dataclass_fields__[key].default
 
 
 def facts_from(d: dict) -> dict:
     """The robot's facts of a spec's JSON or TOML form ``d`` as :class:`RobotSpec` fields (checked; absent:
     left out, so the defaults hold)."""
-    out: dict[str, Any] = {}
-    for key in FACTS:
-        if key not in d or d[key] is None:
-            continue
-        v = d[key]
-        if key in ("coupled", "end_effectors"):
-            out[key] = tuple((str(a), str(b)) for a, b in _table(v, key).items())  # in the order given
-        elif key == "learn":
-            t = _table(v, key)
-            bad = sorted(set(t) - set(LEARN_KEYS))
-            if bad or not all(isinstance(x, int) and x > 0 for x in t.values()):
-                raise ModelError(f"learn: {{{', '.join(LEARN_KEYS)}}} as integers > 0, got {t}")
-            out[key] = tuple(sorted((str(a), int(b)) for a, b in t.items()))
-        elif key in ("hands", "feet", "unactuated"):
-            out[key] = tuple(str(x) for x in _list(v, key))
-        elif key == "gravity":
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 100:
-                raise ModelError(f"gravity must be a number of m/s^2 in [0, 100], got {v}")
-            out[key] = float(v)
-        elif key == "sole":
-            pts = np.asarray(_list(v, key), float)
-            if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
-                raise ModelError(f"sole: a list of at least 3 [x, y] corners (m), got {v}")
-            out[key] = tuple((float(x), float(y)) for x, y in pts)
-        elif key == "time_step":
-            if not isinstance(v, (int, float)) or not 1e-5 <= v <= 0.1:
-                raise ModelError(f"time_step must be a number of seconds in [1e-5, 0.1], got {v}")
-            out[key] = float(v)
-        elif key == "execution" and v not in EXECUTIONS:
-            raise ModelError(f"execution '{v}': choose one of {', '.join(EXECUTIONS)}")
-        elif key == "order" and v not in ("tree", "file"):
-            raise ModelError(f"order '{v}': choose tree (Drake's) or file")
-        else:
-            out[key] = str(v)
-    return out
-
-
-def _fact_json(key: str, value):
-    """A fact's JSON form: tables as dicts (``coupled``, ``end_effectors``, ``learn``), lists as lists."""
-    if key in ("coupled", "end_effectors", "learn"):
-        return dict(value)
-    if key == "sole":
-        return [list(v) for v in value]
-    return list(value) if isinstance(value, tuple) else value
+    return {key: fact.read(d[key]) for key, fact in FACTS.items() if d.get(key) is not None}
 
 
 def _table(v, key: str) -> dict:
@@ -700,12 +706,8 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
                              f"{closest_names(frame, frame_names(plant))}")
     robot = Robot(name=spec.plant or f"{path.stem}-{spec_digest(spec, text)}", plant=plant,
                   scene_graph=scene_graph, builder=builder, joint_names=tuple(names), P=P, lower=lower, upper=upper,
-                  effort=efforts, default_q=default, end_effectors=dict(spec.end_effectors),
-                  B_act=plant.MakeActuationMatrix(),
-                  support_polygon=np.array(spec.sole) if spec.sole else None, hands=spec.hands, feet=spec.feet,
-                  execution=spec.execution, time_step=spec.time_step, velocity=velocity)
+                  effort=efforts, default_q=default, spec=spec, B_act=plant.MakeActuationMatrix(), velocity=velocity)
     robot.load_report = notes
-    robot.spec = spec
     return robot
 
 

@@ -34,14 +34,8 @@ class Robot:
     upper: np.ndarray
     effort: np.ndarray
     default_q: np.ndarray
-    end_effectors: dict[str, str]
+    spec: Any  # the plants.model_file.RobotSpec it was loaded from: its file, its mounting and its facts
     B_act: np.ndarray = None  # (n_plant, n_act) Drake actuation matrix: tau = B_act @ u_act
-    support_polygon: np.ndarray | None = None  # (k, 2) a sole's outline in its frame (m); None: no soles
-    hands: tuple[str, ...] = ()  # frames drawn as hands
-    feet: tuple[str, ...] = ()  # sole frames, the stance (welded) one first
-    execution: str = "discrete"  # plants.model_file.EXECUTIONS: how the robot is executed
-    time_step: float = 1e-3  # s, the execution's step (a continuous plant's largest integrator step)
-    spec: Any = None  # the plants.model_file.RobotSpec it was loaded from
     velocity: np.ndarray | None = None  # (n_q,) rad/s (m/s), the model file's velocity limits (inf: none); None: unknown
     load_report: list = field(default_factory=list)  # what loading the model file changed (one line each)
     _context: Any = field(default=None, repr=False)
@@ -55,10 +49,41 @@ class Robot:
     def n_x(self) -> int:
         return 2 * self.n_q
 
+    # -- the robot's facts, read from its spec (plants.model_file.FACTS) --------------------------
+    @property
+    def end_effectors(self) -> dict[str, str]:
+        """Label -> frame."""
+        return dict(self.spec.end_effectors)
+
+    @property
+    def support_polygon(self) -> np.ndarray | None:
+        """``(k, 2)`` a sole's outline in its frame (m); None: no soles."""
+        return np.array(self.spec.sole) if self.spec.sole else None
+
+    @property
+    def hands(self) -> tuple[str, ...]:
+        """Frames drawn as hands."""
+        return self.spec.hands
+
+    @property
+    def feet(self) -> tuple[str, ...]:
+        """Sole frames, the stance (welded) one first."""
+        return self.spec.feet
+
+    @property
+    def execution(self) -> str:
+        """How the robot is executed (``plants.model_file.EXECUTIONS``)."""
+        return self.spec.execution
+
+    @property
+    def time_step(self) -> float:
+        """The execution's step (s; a continuous plant's largest integrator step)."""
+        return self.spec.time_step
+
     @property
     def builtin(self) -> bool:
         """A built-in plant (its plans store its name only), not a user's model file."""
-        return self.spec is not None and self.spec.plant is not None
+        return self.spec.plant is not None
 
     @property
     def floating(self) -> bool:
@@ -67,7 +92,7 @@ class Robot:
 
     def learn_defaults(self) -> dict[str, int]:
         """The learning loop's defaults: ``babble_points`` and ``stride`` (an arm's where the robot names none)."""
-        return {**LEARN_DEFAULTS, **dict(self.spec.learn if self.spec is not None else ())}
+        return {**LEARN_DEFAULTS, **dict(self.spec.learn)}
 
     @property
     def context(self):
@@ -94,7 +119,7 @@ class Robot:
     @property
     def actuated(self) -> np.ndarray:
         """Indices ``(n_act,)`` of the planning joints with a motor (all but the spec's ``unactuated``)."""
-        off = set(self.spec.unactuated) if self.spec is not None else set()
+        off = set(self.spec.unactuated)
         return np.array([k for k, n in enumerate(self.joint_names) if n not in off], dtype=np.int64)
 
     @property

@@ -25,7 +25,8 @@ from typing import Any
 # where the schema lives: the stage registry, the problem-file loader, the experiment-file loader, the CLI
 SCHEMA_MODULES = {
     "registry": "stages.registry",
-    "problem_file": "stages.plan.problem_file",
+    "problem_file": "planning.problem_file",
+    "term_kinds": "planning.term_kinds",
     "expfile": "pipeline.experiments.expfile",
     "cli": "pipeline.interface.cli",
 }
@@ -96,8 +97,9 @@ def problem_file_table() -> str:
     integ = ["| `model` | `integrator` (the first is the default) |", "|---|---|"]
     integ += [f"| `{m}` | {', '.join(f'`{i}`' for i in ints)} |" for m, ints in pf.INTEGRATORS.items()]
     terms = ["| `type` | keys |", "|---|---|"]
-    terms += [f"| `{kind}` | {_keys(keys)} |" for kind, keys in pf.TERM_KEYS.items()]
-    return ("Generated from the key sets of `" + SCHEMA_MODULES["problem_file"] + "` (a key outside them is refused "
+    terms += [f"| `{row.type}` | {_keys(row.keys)} |" for row in _mod("term_kinds").COST_KINDS]
+    return ("Generated from the key sets of `" + SCHEMA_MODULES["problem_file"] + "` and the cost kinds of `"
+            + SCHEMA_MODULES["term_kinds"] + "` (a key outside them is refused "
             "with the valid ones listed).\n\n" + "\n".join(rows) + "\n\nDynamics models and their integrators:\n\n"
             + "\n".join(integ) + "\n\nCost terms (`[costs.NAME]`; `[costs] convention` is `raico` or `crocoddyl`):\n\n"
             + "\n".join(terms))

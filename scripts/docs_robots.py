@@ -32,9 +32,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from pipeline.interface import api
     from pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable
+    from planning.problem_terms import resolve_frame
     from plants.model_file import RobotSpec, example_robot_data, load_model
     from plants.taskmaps import FramePoints
-    from stages.plan.problem_file import resolve_frame
 
     why = renderer_unavailable() or (None if example_robot_data() else "example-robot-data is not installed")
     if why:

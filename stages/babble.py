@@ -88,7 +88,7 @@ class BabbleConfig(StageConfig):
 
     def problem_file(self):
         """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
-        from stages.plan.problem_file import ProblemFile, read_problem
+        from planning.problem_file import ProblemFile, read_problem
 
         text = str(self.problem)
         return ProblemFile(json.loads(text)) if text.lstrip().startswith("{") else read_problem(text)
@@ -446,7 +446,8 @@ def run(cfg: BabbleConfig, inputs: dict | None = None, progress: Callable[[int, 
 
 
 STAGE = Stage(name="babble", config_cls=BabbleConfig, run=run,
-              sources=("plants", "stages.babble", "stages.base", "stages.plan.problem_file", "stages.evaluate.metrics"),
+              sources=("plants", "stages.babble", "stages.base", "planning.problem_file", "planning.problem_terms",
+                       "planning.term_kinds", "stages.evaluate.metrics"),
               data_files=(DATA_FILE,),
               description=DESCRIPTIONS["babble"],
               progress_total=lambda cfg: cfg.episodes)

@@ -35,9 +35,9 @@ from typing import Any, cast
 
 import numpy as np
 
+from planning.tasks import get_task
 from plants.robots import PLANTS
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput, Steps
-from stages.plan.tasks import get_task
 from stages.registry import DESCRIPTIONS
 
 EPISODES_FILE = "episodes.json"
@@ -141,7 +141,7 @@ class LearnConfig(StageConfig):
         """The problem file of ``--problem`` (a path, or the canonical content once normalized)."""
         import json
 
-        from stages.plan.problem_file import ProblemFile, read_problem
+        from planning.problem_file import ProblemFile, read_problem
 
         text = str(self.problem)
         return ProblemFile(json.loads(text)) if text.lstrip().startswith("{") else read_problem(text)
@@ -351,7 +351,7 @@ def true_accelerations(robot, dt: float, X: np.ndarray, tau: np.ndarray) -> np.n
 def own_criterion(crit: dict, q_end: float, status: str, v_end: float = 0.0) -> dict:
     """The task's own criterion (a problem file's ``[achieved]``: ``joint`` within ``tol`` rad of ``angle`` at the
     execution's end, the angle wrapped, and its speed ``|v_end|`` within ``velocity_tol`` rad/s where stated) as a
-    task verdict (the fields of ``planning.costs.task_verdict``, with ``speed`` and ``velocity_tol``): judged on
+    task verdict (the fields of ``planning.achieved.task_verdict``, with ``speed`` and ``velocity_tol``): judged on
     the final state of a run that neither diverged nor fell (a run that lost tracking of its plan but ends at
     the goal achieved the task; its status says it did not follow the plan). A non-finite end fails."""
     err = float(abs((q_end - crit["angle"] + np.pi) % (2 * np.pi) - np.pi)) if np.isfinite(q_end) else float("inf")

@@ -91,12 +91,13 @@ def test_the_options_table_lists_every_field_of_the_stage_config():
 
 
 def test_the_problem_file_table_lists_every_key_set_of_the_loader():
-    from stages.plan import problem_file as pf
+    from planning import problem_file as pf
+    from planning.term_kinds import COST_KINDS
 
     table = docs_hooks.problem_file_table()
-    for kind, keys in pf.TERM_KEYS.items():
-        row = next(line for line in table.splitlines() if line.startswith(f"| `{kind}` |"))
-        assert set(re.findall(r"`(\w+)`", row)[1:]) == set(keys), kind
+    for kind in COST_KINDS:
+        row = next(line for line in table.splitlines() if line.startswith(f"| `{kind.type}` |"))
+        assert set(re.findall(r"`(\w+)`", row)[1:]) == set(kind.keys), kind.type
     assert all(f"`{k}`" in table for k in pf.ROBOT_KEYS | pf.TRUE_KEYS | pf.HORIZON_KEYS)
 
 

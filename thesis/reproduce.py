@@ -227,7 +227,7 @@ def _read_claims(path: Path) -> dict:
 def write_readme(root: Path, reporter: Reporter | None = None) -> None:
     """The report: every figure written so far, its claims table, deviations and recordings. A
     damaged figure report is left out with a warning (running that figure again rebuilds it)."""
-    from stages.plan.tasks import TASK_NOTES
+    from planning.tasks import TASK_NOTES
     from thesis.report import (
         FIGURE_CAPTION,
         INTEGRATOR_TEXT,

@@ -928,7 +928,7 @@ def table_row(cache, exp: Experiment | _Head, run: Run, result: Mapping[str, Any
 
 def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
     """Whether a run achieved its task: its last stage that judges one (execute, else plan) has every
-    via-point within its tolerance (``planning.costs.task_errors``), an execution with status ok, a plan
+    via-point within its tolerance (``planning.achieved.task_errors``), an execution with status ok, a plan
     not diverged; None where no stage judges a task (no via-point, or a stage without the verdict)."""
     for stage, good in (("execute", lambda st: st == "ok"), ("plan", lambda st: st != "diverged")):
         if stage not in stages:

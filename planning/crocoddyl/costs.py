@@ -1,13 +1,12 @@
 """raico's cost terms as crocoddyl residuals and activations.
 
-Terms (:func:`cost_items`, each a list of crocoddyl ``(residual, activation)`` pairs whose summed
-crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the caller weighs them
-``2 w`` on the terminal node and ``2 w / dt`` on running nodes, see :mod:`planning.crocoddyl.solve`):
+Terms (:func:`cost_items`, the function the term's row of :mod:`planning.term_kinds` names: crocoddyl
+``(residual, activation)`` pairs whose summed cost ``1/2 sum a(r)`` is the raico term's cost divided by 2;
+the caller weighs them ``2 w`` on the terminal node and ``2 w / dt`` on running nodes):
 
-- a via-point on a frame's origin or on points fixed in it (``frame_points``): one
-  ``ResidualModelFrameTranslation`` per point, on a Pinocchio frame placed at that point of the
-  Drake frame (an operational frame is added where the Drake frame is not a link's origin); the
-  diagonal precision as activation weights, 0 on coordinates left out;
+- a via-point on a frame's origin or points fixed in it (``frame_points``): a ``ResidualModelFrameTranslation``
+  per point, on a Pinocchio frame at that point of the Drake frame (an operational frame where the Drake frame
+  is not a link's origin); the diagonal precision as activation weights, 0 on coordinates left out;
 - ``frame_rotation``, ``frame_placement``: ``ResidualModelFrameRotation`` /
   ``ResidualModelFramePlacement`` (raico's task maps are exactly their log3/log6 residuals);
 - ``roll``: a Python residual with raico's Jacobian;
@@ -17,18 +16,16 @@ crocoddyl cost ``1/2 sum a(r)`` is the raico term's cost divided by 2; the calle
   reads a value its free forward dynamics do not compute), its target moved and its weights
   scaled so that it is Drake's centre of mass, which counts the links welded to the world (a fixed
   base) that Pinocchio's universe carries;
-- ``control`` (with its target, its per-joint weights as activation weights) ``ResidualModelControl``;
-  toward gravity (``planning.costs.ControlGravity``) ``ResidualModelControlGrav`` (on a model that damps its joints
-  a Python residual on the control, as raico's term: crocoddyl's measures the damped actuation's torque);
-  ``control_limit`` the control under
-  ``ActivationModelQuadraticBarrier`` (raico's squared hinge); an inequality on joint positions
-  whose rows are +-unit vectors (``joint_limit``) the state under a quadratic barrier;
+- ``control`` (its target, its per-joint weights as activation weights) ``ResidualModelControl``; toward
+  gravity (``planning.costs.ControlGravity``) ``ResidualModelControlGrav`` (on a model that damps its joints a
+  Python residual on the control, as raico's term: crocoddyl's measures the damped actuation's torque);
+  ``control_limit`` the control under ``ActivationModelQuadraticBarrier`` (raico's squared hinge); an
+  inequality on joint positions whose rows are +-unit vectors (``joint_limit``) the state under a barrier;
 - ``collision``: the pairs' signed distances in Pinocchio's GeometryModel under a quadratic barrier at the
   margin (:mod:`planning.crocoddyl.collision`; crocoddyl's own pair-collision residual is not in this build).
 
-What has no exact counterpart (a non-diagonal precision, a non-zero target of a pose error, an
-inequality on another task map or with general rows, the uncertainty term) raises
-``NotExpressible`` with one line.
+What has no exact counterpart (a non-diagonal precision, a non-zero target of a pose error, an inequality
+on another task map or with general rows, the uncertainty term) raises ``NotExpressible`` with one line.
 """
 
 from __future__ import annotations

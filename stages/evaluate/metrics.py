@@ -34,7 +34,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from planning.costs import task_errors, task_verdict, via_point_errors  # noqa: F401  (the metrics of a run: re-exported)
+from planning.achieved import task_errors, task_verdict  # noqa: F401  (the metrics of a run: re-exported)
+from planning.costs import via_point_errors  # noqa: F401  (re-exported)
 from plants.polygons import signed_margin  # noqa: F401  (re-exported)
 
 FALL_TORSO_DROP = 0.10  # m, torso origin below its planned height
@@ -56,7 +57,7 @@ STANDING = ("fall_torso_drop_m", "fall_torso_tilt_rad", "foot_lift_m", "contact_
 # ----------------------------------------------------------------------------- "task achieved", one judgement
 def executed_task(task: dict | None, status: str) -> dict | None:
     """Execute's judgement of an execution (the ``execute`` line, ``learn`` and ``evaluate`` all use it): the
-    task verdict of its trajectory (``metrics["task"]``, :func:`planning.costs.task_verdict`: every via-point
+    task verdict of its trajectory (``metrics["task"]``, :func:`planning.achieved.task_verdict`: every via-point
     term within its tolerance, in its unit) achieved only where the execution's ``status`` is ``ok`` too;
     the verdict's fields plus ``terms_within`` (the terms' own verdict) and ``status``. None without terms."""
     if not isinstance(task, dict):
@@ -69,7 +70,7 @@ def task_note(verdict: dict) -> str:
     """One verdict as a line: ``task missed: worst term 'reach' 0.0157 m > 0.01 m (position)``, with
     ``, status tracking-lost`` where the terms were within their tolerances but the execution's status was
     not ok (:func:`executed_task`)."""
-    from planning.costs import task_line
+    from planning.achieved import task_line
 
     tail = (f", status {verdict['status']}" if verdict.get("terms_within") and not verdict["achieved"]
             and verdict.get("status") not in (None, "ok") else "")

@@ -506,6 +506,7 @@ def run(cfg: FitConfig, inputs: dict, progress: Progress | None = None) -> Stage
 
 
 STAGE = Stage(name="fit", config_cls=FitConfig, run=run,
-              sources=("plants", "stages.fit", "stages.base", "stages.babble", "stages.plan.problem_file"),
+              sources=("plants", "stages.fit", "stages.base", "stages.babble", "planning.problem_file",
+                       "planning.problem_terms", "planning.term_kinds"),
               data_files=(MODEL_FILE, HELDOUT_FILE, FIT_FILE),
               description=DESCRIPTIONS["fit"])

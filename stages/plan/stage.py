@@ -17,18 +17,19 @@ from typing import Any
 
 import numpy as np
 
-from planning.costs import SIGMA_UNITS, Uncertainty, task_errors, task_verdict, via_point_errors
+from planning.achieved import task_errors, task_verdict
+from planning.costs import SIGMA_UNITS, Uncertainty, via_point_errors
 from planning.objective import Objective, build_terms, objective_from_description, uncertainty  # noqa: F401
 from planning.problem import Bounds, Problem, Result
+from planning.problem_file import INTEGRATORS, ProblemFile, read_problem
 from planning.solvers import SOLVERS, SolverSpec, get_solver, make_options, solve, takers
 from planning.solvers import flags as solver_flags
+from planning.tasks import TASKS, TaskSpec, get_task, task_from_problem
 from plants.dynamics import ActuatedDynamics, PseudoDynamics, SubstepDynamics
 from plants.dynamics_registry import make_dynamics
 from plants.robots import PLANTS, Chain, Robot, kinematic_chain, shared_robot
 from stages.base import Artifact, Progress, Stage, StageConfig, StageOutput
 from stages.plan.balance import BALANCE_MODES, MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins
-from stages.plan.problem_file import INTEGRATORS, ProblemFile, read_problem
-from stages.plan.tasks import TASKS, TaskSpec, get_task, task_from_problem
 from stages.registry import DESCRIPTIONS
 
 DYNAMICS = ("pseudo", "analytic", "analytic-fd", "learned", "pseudo-euler", "pseudo-heun")

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.interface.cli import app
-from stages.plan.tasks import PENDULUM_T
+from planning.tasks import PENDULUM_T
 
 runner = CliRunner()
 

@@ -7,7 +7,7 @@ from typer.testing import CliRunner
 
 from pipeline.interface import api
 from pipeline.interface.cli import app
-from stages.plan.tasks import PENDULUM_T
+from planning.tasks import PENDULUM_T
 from thesis import api as thesis_api
 
 

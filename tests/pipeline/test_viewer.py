@@ -64,7 +64,7 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     _assert_in_frame(robot_mask(read_png(tmp_path / "robot.png")))
     # the iteration timeline at the last iteration shows the plan's final pose, as sim_time does at the end
     # of the motion (its horizon, in s)
-    from stages.plan.tasks import PENDULUM_T, TASKS
+    from planning.tasks import PENDULUM_T, TASKS
 
     last = int(line["metrics"]["iterations"])
     end_s = PENDULUM_T * TASKS[("pendulum", "swing-up")].dt

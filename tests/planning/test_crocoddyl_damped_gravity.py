@@ -67,9 +67,9 @@ def term_costs(cp, X, U) -> dict[str, float]:
 
 
 def test_the_fixture_damps_every_joint_and_has_a_prismatic_lift():
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
     from stages.evaluate.metrics import prismatic_joints
-    from stages.plan.problem_file import read_problem
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
     assert robot.n_q == 6 and prismatic_joints(robot).tolist() == [True] + [False] * 5
@@ -118,8 +118,8 @@ def test_the_residual_on_the_control_by_finite_differences():
     import crocoddyl
 
     from planning.crocoddyl.costs import _ControlGravityResidual
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
-    from stages.plan.problem_file import read_problem
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
     pmodel, smap = cm.pinocchio_robot(robot, "angle")

@@ -12,6 +12,7 @@ buffer at any of these shapes fails the run, not only a wrong number.
 from __future__ import annotations
 
 import ctypes
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -486,7 +487,7 @@ def _task_tree(n: int, branches: int, leaf: bool, tmp_path):
     path = tmp_path / f"tree{n}.urdf"
     path.write_text(tree_urdf(n, branches, seed=n + branches))
     robot = load_model(RobotSpec(file=str(path), weld=f"l{n - 1}" if leaf else None, armature=0.01))
-    robot.end_effectors["tool"] = "l0" if leaf else f"l{n - 1}"   # a frame away from the root
+    robot.spec = replace(robot.spec, end_effectors=(("tool", "l0" if leaf else f"l{n - 1}"),))  # away from the root
     return robot
 
 

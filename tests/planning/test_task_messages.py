@@ -12,6 +12,7 @@ for every state-term kind of the cost-term examples, on a built-in arm and on a 
 from __future__ import annotations
 
 import ctypes
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -41,7 +42,7 @@ def _robot(name: str):
             if erd is None:
                 pytest.skip("example-robot-data is not installed (it comes with the extra raico[baseline])")
             robot = load_model(RobotSpec(file=str(erd / "robots/ur_description/urdf/ur5_robot.urdf")))
-            robot.end_effectors["tool"] = "tool0"   # the examples' frame (a model file names none)
+            robot.spec = replace(robot.spec, end_effectors=(("tool", "tool0"),))  # the examples' frame
             _ROBOTS[name] = robot
         else:
             _ROBOTS[name] = shared_robot(name)

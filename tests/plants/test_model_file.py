@@ -173,8 +173,8 @@ def test_missing_mesh_dropped_and_said():
 @pytest.mark.parametrize("name", sorted(ARMS))
 def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
     from pipeline.interface import api
+    from planning.problem_terms import resolve_frame
     from plants.taskmaps import FramePoints
-    from stages.plan.problem_file import resolve_frame
 
     file, extra, frame, _ = ARMS[name]
     robot = load_model(RobotSpec.from_dict({"file": str(ROBOTS / file), **extra}))
@@ -402,7 +402,7 @@ def test_every_example_robot_data_model_loads_or_is_refused_in_one_line():
 
 
 def test_with_horizon_scales_listed_steps():
-    from stages.plan.problem_file import read_problem, shipped, with_horizon
+    from planning.problem_file import read_problem, shipped, with_horizon
 
     pf = with_horizon(read_problem(shipped("arm5", "reach")), 250)
     assert pf.T == 250 and pf.doc["costs"]["terms"]["via_x1"]["times"] == [125]
@@ -428,9 +428,9 @@ def test_a_built_in_plants_task_may_start_at_the_zero_posture(tmp_path):
     its range (the elbow rolls stop short of 0); a bad start is refused in one line."""
     from dataclasses import replace
 
+    from planning.problem_file import read_problem
+    from planning.tasks import get_task
     from plants.robots import shared_robot
-    from stages.plan.problem_file import read_problem
-    from stages.plan.tasks import get_task
 
     nao = shared_robot("nao")
     robot = get_task("nao", "reach-zero").robot(nao)
@@ -511,8 +511,8 @@ def test_a_model_files_robot_states_facts_and_bad_facts_are_one_line(tmp_path):
 
 
 def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(tmp_path):
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
-    from stages.plan.problem_file import read_problem
 
     urdf = user_robot(tmp_path)
     costs = REACH.format(frame="tip", target=[0.0, 0.0, 0.0])

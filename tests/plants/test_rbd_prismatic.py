@@ -17,6 +17,7 @@ import pytest
 
 from plants.codegen import c_backend, rbd
 from plants.codegen.reference import DrakeReference
+from plants.model_file import RobotSpec
 from tests.tolerance import REL, assert_close, bound, scale_of
 
 pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
@@ -81,7 +82,7 @@ def make_robot(name: str, rerooted: bool = False, damping: float = 1.7, rotor=RO
                  lower=np.array([j.position_lower_limits()[0] for j in joints]),
                  upper=np.array([j.position_upper_limits()[0] for j in joints]),
                  effort=np.full(n, 100.0), default_q=np.array([0.3, -0.2, 0.5][:n]),
-                 end_effectors={"tool": "tool"}, B_act=plant.MakeActuationMatrix())
+                 spec=RobotSpec(file=f"{name}.urdf", end_effectors=(("tool", "tool"),)), B_act=plant.MakeActuationMatrix())
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["base-welded", "rerooted-at-tool"])

@@ -13,6 +13,7 @@ import pytest
 
 from plants import fast_analytic as fa
 from plants.dynamics import AnalyticDynamics
+from plants.model_file import RobotSpec
 
 
 def _fake(n: int):
@@ -89,7 +90,7 @@ def chain_robot(name: str, kinds=CHAIN):
     n = plant.num_positions()
     return Robot(name=name, plant=plant, scene_graph=None, builder=None,
                  joint_names=tuple(f"j{i}" for i in range(n)), P=np.eye(n), lower=-np.ones(n),
-                 upper=np.ones(n), effort=np.full(n, 50.0), default_q=np.zeros(n), end_effectors={},
+                 upper=np.ones(n), effort=np.full(n, 50.0), default_q=np.zeros(n), spec=RobotSpec(file=f"{name}.urdf"),
                  B_act=plant.MakeActuationMatrix())
 
 

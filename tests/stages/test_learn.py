@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.interface.cli import app
-from stages.plan.tasks import PENDULUM_T
+from planning.tasks import PENDULUM_T
 
 runner = CliRunner()
 SMALL = ["--plant", "pendulum", "--task", "swing-up", "--sigma-star", "0", "--sigma-weight", "1e-2",

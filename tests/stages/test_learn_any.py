@@ -29,8 +29,8 @@ def without_true(tmp_path) -> Path:
 
 
 def robots():
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
-    from stages.plan.problem_file import read_problem
 
     pf = read_problem(PROBLEM)
     return shared_model(pf.robot_spec()), shared_model(pf.true_spec())
@@ -68,7 +68,7 @@ def test_missing_payload_frame_is_one_line_exit_2(raico, tmp_path):
 
 
 def test_true_table_refused_for_a_built_in_plant_and_bad_values(tmp_path):
-    from stages.plan.problem_file import read_problem
+    from planning.problem_file import read_problem
 
     bad = tmp_path / "b.toml"
     base = PROBLEM.read_text().replace('file = "arm2.urdf"', f'file = "{DATA / "arm2.urdf"}"')
@@ -247,9 +247,9 @@ def test_babble_a_robot_standing_on_a_welded_sole(raico, tmp_path):
     line = last_json(raico("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
                             "--json", "--artifacts", tmp_path / "art"))
     data = np.load(Path(line["path"]) / "data.npz")
+    from planning.problem_file import read_problem
     from plants.dynamics_registry import make_dynamics
     from plants.model_file import shared_model
-    from stages.plan.problem_file import read_problem
 
     robot = shared_model(read_problem(p).robot_spec())
     assert any("welded to the world" in note for note in robot.load_report)

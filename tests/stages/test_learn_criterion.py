@@ -37,7 +37,7 @@ def test_without_a_speed_tolerance_the_end_angle_alone_judges():
 
 
 def test_problem_file_reads_velocity_tol_and_refuses_a_bad_one():
-    from stages.plan.problem_file import _achieved
+    from planning.problem_file import _achieved
 
     assert _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 1})["velocity_tol"] == 1.0
     assert "velocity_tol" not in _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1})

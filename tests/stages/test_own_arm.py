@@ -131,11 +131,11 @@ def test_the_random_torques_are_capped_at_what_the_pd_holds_inside_the_margin():
 
 
 def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
     from stages.babble import babble, joint_amplitudes, joint_gains
     from stages.evaluate.metrics import prismatic_joints
     from stages.learn import LearnConfig
-    from stages.plan.problem_file import read_problem
 
     cfg = LearnConfig(problem=str(PROBLEM), babble_points=120).normalized().babble_config().normalized()
     robot = shared_model(read_problem(PROBLEM).robot_spec())
@@ -152,9 +152,9 @@ def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
 def test_q0_std_is_per_joint_type():
     """The start's spread: ``q0_std`` rad on the revolute joints, ``q0_std_prismatic`` m on the lift (the same
     normal draws, each scaled in its joint's unit)."""
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
     from stages.learn import LearnConfig
-    from stages.plan.problem_file import read_problem
     from stages.plan.stage import initial_posture
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
@@ -171,9 +171,9 @@ def test_tracking_is_lost_in_each_joint_s_unit():
     more than its whole 0.4 m range); the reason names the joint in its unit."""
     from types import SimpleNamespace
 
+    from planning.problem_file import read_problem
     from plants.model_file import shared_model
     from stages.evaluate.metrics import TRACKING_LOST_M, execution_metrics
-    from stages.plan.problem_file import read_problem
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
     K, n = 11, robot.n_q

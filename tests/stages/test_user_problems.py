@@ -185,7 +185,7 @@ def _held_problem(tmp_path, tol: str = ""):
 
 @pytest.mark.numerics
 def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
-    from planning.costs import TASK_TOLERANCES, task_errors, task_line, task_verdict
+    from planning.achieved import TASK_TOLERANCES, task_errors, task_line, task_verdict
 
     problem, X = _held_problem(tmp_path)
     errors = task_errors(problem, X)

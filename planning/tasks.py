@@ -1,6 +1,6 @@
 """Named planning tasks: plant + task name -> objective terms, horizon and step.
 
-The built-in plants' tasks are problem files shipped in ``problems/`` (``stages.plan.problem_file``):
+The built-in plants' tasks are problem files shipped in ``problems/`` (``planning.problem_file``):
 every task builds its terms from the robot's task maps at the initial posture ``q0``; the weights
 follow thesis eq. (3.7) (``w_task = 1e4``, ``w_u = 1e-2``) unless the experiment says otherwise.
 Choices the thesis leaves open are listed in ``TASK_NOTES`` (the report's deviations table reads
@@ -15,8 +15,8 @@ from functools import partial
 
 import numpy as np
 
+from planning.problem_file import SHIPPED, ProblemFile, build_terms, read_problem
 from plants.robots import Robot
-from stages.plan.problem_file import SHIPPED, ProblemFile, build_terms, read_problem
 
 W_TASK = 1e4
 W_U = 1e-2

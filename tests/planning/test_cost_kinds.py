@@ -1,0 +1,35 @@
+"""The problem-file table (``planning.term_kinds.COST_KINDS``): every row's functions exist, its terms and
+maps are rows of the other two tables, and every shipped problem file's terms have a row."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from planning import problem_terms
+from planning.achieved import TASK_TOLERANCES
+from planning.problem_file import read_problem
+from planning.term_kinds import COST_KINDS, MAP_KINDS, cost_kind, kind_named, term_kinds
+
+PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
+
+
+def test_every_cost_kind_names_its_functions_and_rows_that_exist():
+    terms = {k.key for k in term_kinds()}
+    for row in COST_KINDS:
+        assert callable(getattr(problem_terms, row.check)) and callable(getattr(problem_terms, row.describe)), row.type
+        assert set(row.terms) <= terms and all(kind_named(m) is not None for m in row.maps), row.type
+        assert {"type", "weight"} <= row.keys, row.type
+        if "tol" in row.keys:   # a via-point's own tolerance, in the kinds its map is judged by
+            assert row.terms == ("via",) and row.tolerance_parts > 0, row.type
+    assert cost_kind("frame_placement").tolerance_parts == 2 and cost_kind("nonsense") is None
+
+
+def test_every_tolerance_kind_of_the_map_table_has_a_default():
+    assert {kind for row in MAP_KINDS for kind, _ in row.tolerance} == set(TASK_TOLERANCES)
+
+
+def test_every_shipped_problem_files_terms_have_a_row():
+    files = [f for f in sorted(PROBLEMS.rglob("*.toml")) if f.name != "suite.toml"]
+    assert len(files) > 20
+    types = {t["type"] for f in files for t in read_problem(f).doc["costs"]["terms"].values()}
+    assert types <= {row.type for row in COST_KINDS}
