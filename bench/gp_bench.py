@@ -11,7 +11,7 @@ process CPU time (the machine may be shared: CPU time is the better single-core 
 ``mean_var_all_gradients_ms_per_output`` (the headline figure, target 20 ms): one
 ``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their
 gradients with respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread
-(the project's policy per process, ``plants/_threads.py``). Its bulk is two triangular solves per
+(the project's policy per process, ``plants/threads.py``). Its bulk is two triangular solves per
 output with ``M`` right-hand sides against the ``N x N`` Cholesky factor, ``2 M N^2 = 1e9`` flops
 (OpenBLAS ``dtrsm`` runs them at ~39 GFLOP/s on one core of the 2-vCPU AMD EPYC (AVX2) VM this
 was tuned on: ~25 ms), then the ``exp`` of the ``(M, N)`` cross-kernel (~3 ms; numpy has no SIMD

@@ -11,7 +11,7 @@ outputs per output). Starts: the kernel's initial point (or ``start``, a previou
 hyperparameters: the learning loop's warm start), then ``restarts`` random points drawn
 uniformly in the log bounds (``numpy.random.RandomState(seed)``, as sklearn's
 ``n_restarts_optimizer``); the best likelihood wins. The outputs are fitted independently, on
-``plants._threads.output_threads()`` threads (single-threaded BLAS each: the same numbers on any
+``plants.threads.output_threads()`` threads (single-threaded BLAS each: the same numbers on any
 count). A warm-started refit (the learning loop's, from the previous fit's hyperparameters) stops when
 the likelihood's relative change falls below ``WARM_FTOL`` = 1e-7 (scipy's default 2.2e-9 otherwise):
 at the loop's 200-1200 points the likelihood is O(1e3) nats, so the stop is 1e-4 nats; it cuts the
@@ -50,8 +50,8 @@ import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize
 
-from plants._threads import map_outputs
 from plants.gp import NOISE_FLOOR, AngleInputGP, GPBase, GPModel, SparseGPModel, column_std
+from plants.threads import map_outputs
 
 LENGTH_SCALE_BOUNDS = (1e-2, 1e3)  # standardized input units
 SIGNAL_BOUNDS = (1e-3, 1e3)  # sf2, standardized output units

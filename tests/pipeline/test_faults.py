@@ -377,7 +377,7 @@ HELPER = textwrap.dedent("""
     # (pipeline.interface.cli.main with its argv) or a stage run, killed or raced as the test asks.
     import json, os, resource, signal, sys, time
     from pathlib import Path
-    import plants._threads  # noqa: F401
+    import plants.threads  # noqa: F401
     from pipeline.engine import runner
     from pipeline.interface import cli
     from pipeline.engine.cache import Cache
