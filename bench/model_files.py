@@ -6,44 +6,18 @@ FDDP like for like.
 writes ``artifacts/bench/model_files.json`` and ``model_files.md`` (:func:`markdown_page`; the ``models`` block
 of docs/benchmarks.md, ``scripts/readme_numbers.py``); ``make bench`` runs it too (bench/run.py).
 
-- **First load** of a robot from its file in a fresh process with an empty kernel folder: the file
-  repaired and parsed into Drake, the compiled tree kernels generated, compiled and checked against
-  Drake, the planning problem built (its compiled task messages too). Targets: a 7-DOF arm (xArm7)
-  <= 10 s, a 30-DOF humanoid (Talos on a welded sole, 32 joints) <= 60 s. **A later process** with
-  the kernels on disk: <= 1 s (the load itself, the interpreter's start and imports not counted).
+- **First load** of a robot from its file in a fresh process with an empty kernel folder (the file parsed
+  into Drake, the tree kernels generated, compiled and checked, the planning problem built). Targets: a
+  7-DOF arm (xArm7) <= 10 s, a 30-DOF humanoid (Talos on a welded sole) <= 60 s; **a later process** with
+  the kernels on disk: <= 1 s (the interpreter's start and imports not counted).
 - **Like for like**: every time per iteration is the median of the iterations' own wall times as the solvers
-  record them, for R-AICO and for FDDP alike; FDDP's records are made after crocoddyl's solve (no feedback
-  rollout of raico's between its iterations). The setup before the first iteration (crocoddyl's model built
-  from the problem and the start's rollout; R-AICO's first rollout, its cost, the sweeps' buffers) is a column
-  of its own (:func:`timed_solve`), and beside every row each solver's time to the common cost, the better
-  final cost of the two plus 1 % (:func:`common_cost`; "not reached": a run that never got there).
+  record them (FDDP's records made after crocoddyl's solve); the setup before the first iteration is a column
+  of its own (:func:`timed_solve`), and beside every row each solver's time to the common cost
+  (:func:`common_cost`; "not reached": a run that never got there).
 - **Scaling**: a serial chain of n links (n = 2 to 32, a URDF written here), a reach of its tip with
-  analytic dynamics (T = 100, dt = 0.01): seconds per R-AICO iteration and per crocoddyl FDDP
-  iteration (where crocoddyl translates the problem), with the exponent of a least-squares line
-  through log(time) against log(n), over every size and over n >= 8 (where the dense O(n^3) algebra
-  should show). Recursive dynamics and the tree's Jacobians cost O(n) to O(n^2) per step, the dense
-  Riccati-like sweeps O(n^3): the exponents are reported as measured.
-
-  The problem is one a user would write and both solvers can solve at every size. The chain hangs from
-  its base, its joints alternate pitch and roll (every axis across its link; 0.2 m links of 1 kg,
-  reflected motor inertia 0.01 kg m^2), and it starts at rest in a zigzag, every link within 0.3 rad of
-  hanging straight (:func:`chain_start`): that posture, held by the torques that hold it, is a stable
-  equilibrium of the semi-implicit Euler step at dt = 0.01 (spectral radius 1 to rounding at every size:
-  no mode grows), and its zero-torque swing stays below 11 rad/s. An upright chain with twist joints
-  about its links (what this bench wrote before) is not: its held start grows by 1.9x per step at 32
-  joints, its passive fall overflows in the zero-torque rollout from 16 joints on (at 32 joints even
-  with dt = 0.002), and both solvers diverged there. The costs are crocoddyl's reach formulation (the
-  Kinova example): the tip 5 cm out and 5 cm up from its start at T (weight 1e4; FDDP's 4 iterations put
-  the tip within 0.1 mm of it from 4 joints on, while the 2-joint chain's tip moves on a surface and
-  ends at its nearest point), the state kept near the start posture at rest (1e-3 per step) and the
-  torques near the ones that hold the chain (1e-3; toward zero instead, the cheapest plan lets a long
-  chain swing, and FDDP's tip ends farther from the target than it started from 8 joints on). Both
-  solvers start from the start posture held (x0 at every step, zero controls), without hard bounds (plain
-  FDDP keeps none); R-AICO runs as ``raico plan`` runs a problem file (:func:`chain_raico_options`: its robust
-  schedule; the thesis's fixed alpha = 1 diverges at 32 joints in its first iteration). A run's row says
-  how it ended (``ended``): one that diverged or did not lower the cost keeps its time, labelled, and
-  stays out of the exponents and the ratio to FDDP.
-
+  analytic dynamics (T = 100, dt = 0.01): seconds per R-AICO and per FDDP iteration, with the exponent of a
+  least-squares line through log(time) against log(n), over every size and over n >= 8 (where the dense
+  O(n^3) algebra should show). The chain and its costs: docs/benchmarks.md, "The chain in detail".
 - **Robots** (the Kinova, UR5 and xArm7 problem files, T = 100): R-AICO's and FDDP's time per iteration and
   setup, their ratio, each one's time to the common cost; a solver that fails on a robot keeps its row with the
   reason (and a line on stderr).
