@@ -1,1 +1,1 @@
-import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -80,7 +80,9 @@ SOLVERS = [  # label, plan-stage options (the problem as crocoddyl's example sta
 BENCH_PROBLEMS = ("kinova", "kinova_in_range", "talos_arm", "talos_taichi")
 
 
-def _cfg(path: str, iterations: int = ITERATIONS, **options):
+def plan_config(path: str, iterations: int = ITERATIONS, **options):
+    """The plan stage's validated configuration of the problem file at ``path`` (from the repository root):
+    analytic dynamics, the start held (no ``q0`` noise), ``iterations`` and the solver's ``options``."""
     from stages.plan.stage import PlanConfig
 
     cfg = PlanConfig(problem=str(ROOT / path), dynamics="analytic", q0_std=0.0, iterations=iterations,
@@ -142,7 +144,7 @@ def _direct(path: str, label: str, run, spec: dict, note: str) -> dict:
     as a plan of solver ``fddp``."""
     from stages.plan.stage import PlanOutput, build_problem
 
-    cfg = _cfg(path, solver="fddp")
+    cfg = plan_config(path, solver="fddp")
     robot, task, problem, q0, desc = build_problem(cfg)
     result, croc_cost = run(problem)
     result.solver = "fddp"
@@ -156,7 +158,7 @@ def _fddp_cold(problem):
     return r, r.cost
 
 
-def _kinova_example(problem):
+def kinova_example(problem):
     """crocoddyl's own problem: Pinocchio's cos/sin joints, FDDP's cold start; raico's cost of its
     plan differs from crocoddyl's (its state differences wrap at pi). Plain FDDP as the example runs it:
     the problem file's default hard bounds would otherwise make it BoxFDDP (``box="auto"``)."""
@@ -229,7 +231,7 @@ def run_problem(name: str) -> dict:
     rows = []
     for label, opts in SOLVERS:
         try:
-            out = plan(_cfg(spec["file"], spec.get("iterations", ITERATIONS), **{**opts, **spec.get("options", {})}))
+            out = plan(plan_config(spec["file"], spec.get("iterations", ITERATIONS), **{**opts, **spec.get("options", {})}))
         except NotExpressible as e:
             rows.append(_not_expressible(label, str(e)))
             continue
@@ -240,7 +242,7 @@ def run_problem(name: str) -> dict:
     rows.append(_direct(spec["file"], "FDDP (crocoddyl's cold start)", _fddp_cold, spec,
                         "the zero state at every node, as solve() without a guess; the exact translation"))
     if name == "kinova":
-        rows.append(_direct(spec["file"], "crocoddyl's example (FDDP, cos/sin joints)", _kinova_example, spec,
+        rows.append(_direct(spec["file"], "crocoddyl's example (FDDP, cos/sin joints)", kinova_example, spec,
                             "crocoddyl's own problem: its continuous joints' state differences wrap at pi"))
     elif name == "talos_arm":
         rows.append(_direct(spec["file"], "crocoddyl 1.0's example (DDP, no damping)", _talos_example, spec,

@@ -5,40 +5,12 @@ and a dense ``dgemm`` measured in the same run.
 
 :func:`sweep_flops` counts the floating-point operations (a multiply and an add are two) of the
 compiled sweep (``planning/csweep.c`` on ``planning/dense.c``) per time step for a state of ``N``
-and controls of ``m`` entries, dense ``C_t`` (a model-file robot's time-varying linearization) of
-the semi-implicit Euler step's block form (``A = J + e A_b``, ``B = e B_b``: ``e = [dt I; I]``,
-``A_b``, ``B_b`` the velocity rows, ``h = N/2`` joints; the route of every model-file robot):
-
-- forward message: ``P = S^-1 + R`` factored (``N^3/3``), ``W = R^-T A^T`` (``N^3``), ``S = W^T W +
-  Qbar`` (its upper triangle: ``N^3``), ``S`` factored (``N^3/3``) and inverted from its factor
-  (``R^-T`` and the upper triangle of ``R^-1 R^-T``, each ``N^3/3``): ``10/3 N^3``;
-- backward message: ``V*`` (``(I + q P') V = [P' | p']`` by Cholesky: ``N^3/3 + 2 N^2 (N + 1)``; the
-  truncated series taken where ``q ||P'||`` is small costs about as much), then the products in the
-  block form from ``E1 = e^T V* e``: ``E1 B_b`` (``2 h^2 m``), ``Z1 = E1 A_b`` (``2 h^2 N``), the
-  upper triangle of ``A_b^T Z1`` (``h N^2``), ``Ve[:h] A_b`` (``2 h^2 N``), ``B_b^T Y`` (``2 m h K``,
-  ``K = m + N + 1``), ``V* a`` (``2 N^2``); the ``m x m`` factor (``m^3/3``), its two solves
-  (``2 m^2 (N + 1)``) and the upper triangle of ``Kmat^T Kmat`` (``m N^2``);
-- two beliefs (each a factor ``N^3/3`` and two triangular solves ``2 N^2``);
-- the dynamics' relinearization, at a repeat of a step only (the sweep starts from the iteration's
-  linearization): ``B_b H^-1`` (``2 h m^2``) and the upper triangle of ``B_b H^-1 B_b^T`` (``h^2 m``).
-
-Which of them an iteration runs: with relinearizations in the sweeps (``theta`` finite, the fixed and
-adaptive schedules) a step's forward message, backward message and two beliefs (``forward=True``);
-without (``theta = inf``, the robust schedule ``raico plan`` gives a problem file) the backward message
-only (``forward=False``: the forward messages could not change the controller, the beliefs are made
-once after the last iteration).
-
-``block=False`` counts the dense route of other models instead: ``G = V* C`` (``2 N (N + 1) K``),
-``B^T G`` (``2 m N K``), ``A^T G`` (``2 N^2 (N + 1)``) in the backward message, ``B H^-1`` (``2 N m^2``)
-and the whole ``B H^-1 B^T`` (``2 N^2 m``: the loops of the sweeps before the block form) in the relinearization.
-
-Lower-order terms (vector updates, copies, the block form's check) are left out; the task messages'
-and the dynamics' own evaluations are not sweep arithmetic and are not counted. Per iteration: ``T``
-such steps, and for each repeat of a step within the sweep (a relinearization where the belief moved
-farther than theta) its dynamics relinearization and one belief (a repeat in the backward sweep also
-redoes the backward message's products from the kept ``V*``: not counted, so the count is a floor).
-``tests/bench/test_bench_flops.py`` counts the operations of these loops one by one (scalar loops
-with the kernels' index ranges, on small sizes) and checks each part's cubic term against them.
+and controls of ``m`` entries: the forward message, the backward message, two beliefs and, at a
+repeat of a step, the dynamics' relinearization. ``forward=False`` counts the backward message alone
+(the robust schedule, ``theta = inf``), ``block=False`` the dense products of models without the
+semi-implicit Euler step's block form. Lower-order terms are left out (the count is a floor);
+``tests/bench/test_bench_flops.py`` checks each part's cubic term against a literal count. The
+formulas term by term: docs/benchmarks.md, "The sweep's flops, term by term".
 
 :func:`dgemm_rate` times numpy's ``matmul`` (OpenBLAS) on square matrices with one BLAS thread: this
 machine's single-core dense rate, the physical limit the sweeps are compared with. The achieved

@@ -9,30 +9,13 @@ not fitted (the cost does not depend on their values). Medians of ``repeats`` ru
 process CPU time (the machine may be shared: CPU time is the better single-core figure then).
 
 ``mean_var_all_gradients_ms_per_output`` (the headline figure, target 20 ms): one
-``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their
-gradients with respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread
-(the project's policy per process, ``plants/_threads.py``). Its bulk is two triangular solves per
-output with ``M`` right-hand sides against the ``N x N`` Cholesky factor, ``2 M N^2 = 1e9`` flops
-(OpenBLAS ``dtrsm`` runs them at ~39 GFLOP/s on one core of the 2-vCPU AMD EPYC (AVX2) VM this
-was tuned on: ~25 ms), then the ``exp`` of the ``(M, N)`` cross-kernel (~3 ms; numpy has no SIMD
-float64 ``exp`` without AVX-512): ~30 ms per output is the floor of the exact computation there.
-``..._2threads``: the same call under ``threadpool_limits(2)``, for information (the headline stays
-at one thread). On that VM it was slower than one thread (40-64 ms against 31-46, the spread is
-the host's): the small matmuls (kernel, gradients) and the ``exp`` between the solves slow down
-with two BLAS threads. ``..._2threads_solves_only``: one BLAS thread except two inside the two
-``dtrsm`` calls (a bench-only patch, ``_solves_on_threads``): 20-30 ms there, about 10 ms less
-than one thread in the same runs, the only configuration that came near the target.
-An explicit cached ``(K + sn2 I)^-1`` (one ``dgemm`` instead of the two solves) was measured and
-rejected: the same ``2 M N^2`` flops, ~10 % faster, but on fitted models (noise at the floor,
-``cond(K) ~ 1e8..3e11``) its variance near the data is off by ~5e-6 ``sf2`` (relative errors
-~1e5, negative variances), against <= 4e-13 ``sf2`` for the triangular solves.
-
-``sparse``: the same call on the sparse GP (FITC, ``plants.gp.SparseGPModel``) with ``M`` in
-``M_SPARSE`` inducing points chosen among the 1000 training inputs (greedy maximum variance), at the
-timing model's hyperparameters: four ``M x M`` triangular solves per output (``4 M^2`` flops per
-step) instead of two ``N x N`` (``2 N^2``), and its cost in accuracy against the exact GP (held-out
-RMSE ratio on 300 fresh points of the same synthetic function, mean and predictive-std differences
-along the trajectory), see :func:`bench_sparse`.
+``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their gradients with
+respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread (the project's policy
+per process, ``plants/threads.py``); ``..._2threads`` and ``..._2threads_solves_only`` (a bench-only
+patch, ``_solves_on_threads``) the same call with two BLAS threads, for information. ``sparse``: the
+same call on the sparse GP (FITC) with ``M_SPARSE`` inducing points and its cost in accuracy against the
+exact GP (:func:`bench_sparse`). Where the time goes, what was tried and rejected: docs/benchmarks.md,
+"The GP timings".
 
 ``mean_and_gradient_ms_per_output``: ``mean_with_gradients``; ``mean_and_variance_ms_per_output``:
 ``predict`` (one triangular solve per output). ``cap_cost``: held-out RMSE of

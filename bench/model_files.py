@@ -6,44 +6,18 @@ FDDP like for like.
 writes ``artifacts/bench/model_files.json`` and ``model_files.md`` (:func:`markdown_page`; the ``models`` block
 of docs/benchmarks.md, ``scripts/readme_numbers.py``); ``make bench`` runs it too (bench/run.py).
 
-- **First load** of a robot from its file in a fresh process with an empty kernel folder: the file
-  repaired and parsed into Drake, the compiled tree kernels generated, compiled and checked against
-  Drake, the planning problem built (its compiled task messages too). Targets: a 7-DOF arm (xArm7)
-  <= 10 s, a 30-DOF humanoid (Talos on a welded sole, 32 joints) <= 60 s. **A later process** with
-  the kernels on disk: <= 1 s (the load itself, the interpreter's start and imports not counted).
+- **First load** of a robot from its file in a fresh process with an empty kernel folder (the file parsed
+  into Drake, the tree kernels generated, compiled and checked, the planning problem built). Targets: a
+  7-DOF arm (xArm7) <= 10 s, a 30-DOF humanoid (Talos on a welded sole) <= 60 s; **a later process** with
+  the kernels on disk: <= 1 s (the interpreter's start and imports not counted).
 - **Like for like**: every time per iteration is the median of the iterations' own wall times as the solvers
-  record them, for R-AICO and for FDDP alike; FDDP's records are made after crocoddyl's solve (no feedback
-  rollout of raico's between its iterations). The setup before the first iteration (crocoddyl's model built
-  from the problem and the start's rollout; R-AICO's first rollout, its cost, the sweeps' buffers) is a column
-  of its own (:func:`_timed_solve`), and beside every row each solver's time to the common cost, the better
-  final cost of the two plus 1 % (:func:`common_cost`; "not reached": a run that never got there).
+  record them (FDDP's records made after crocoddyl's solve); the setup before the first iteration is a column
+  of its own (:func:`timed_solve`), and beside every row each solver's time to the common cost
+  (:func:`common_cost`; "not reached": a run that never got there).
 - **Scaling**: a serial chain of n links (n = 2 to 32, a URDF written here), a reach of its tip with
-  analytic dynamics (T = 100, dt = 0.01): seconds per R-AICO iteration and per crocoddyl FDDP
-  iteration (where crocoddyl translates the problem), with the exponent of a least-squares line
-  through log(time) against log(n), over every size and over n >= 8 (where the dense O(n^3) algebra
-  should show). Recursive dynamics and the tree's Jacobians cost O(n) to O(n^2) per step, the dense
-  Riccati-like sweeps O(n^3): the exponents are reported as measured.
-
-  The problem is one a user would write and both solvers can solve at every size. The chain hangs from
-  its base, its joints alternate pitch and roll (every axis across its link; 0.2 m links of 1 kg,
-  reflected motor inertia 0.01 kg m^2), and it starts at rest in a zigzag, every link within 0.3 rad of
-  hanging straight (:func:`chain_start`): that posture, held by the torques that hold it, is a stable
-  equilibrium of the semi-implicit Euler step at dt = 0.01 (spectral radius 1 to rounding at every size:
-  no mode grows), and its zero-torque swing stays below 11 rad/s. An upright chain with twist joints
-  about its links (what this bench wrote before) is not: its held start grows by 1.9x per step at 32
-  joints, its passive fall overflows in the zero-torque rollout from 16 joints on (at 32 joints even
-  with dt = 0.002), and both solvers diverged there. The costs are crocoddyl's reach formulation (the
-  Kinova example): the tip 5 cm out and 5 cm up from its start at T (weight 1e4; FDDP's 4 iterations put
-  the tip within 0.1 mm of it from 4 joints on, while the 2-joint chain's tip moves on a surface and
-  ends at its nearest point), the state kept near the start posture at rest (1e-3 per step) and the
-  torques near the ones that hold the chain (1e-3; toward zero instead, the cheapest plan lets a long
-  chain swing, and FDDP's tip ends farther from the target than it started from 8 joints on). Both
-  solvers start from the start posture held (x0 at every step, zero controls), without hard bounds (plain
-  FDDP keeps none); R-AICO runs as ``raico plan`` runs a problem file (:func:`chain_raico_options`: its robust
-  schedule; the thesis's fixed alpha = 1 diverges at 32 joints in its first iteration). A run's row says
-  how it ended (``ended``): one that diverged or did not lower the cost keeps its time, labelled, and
-  stays out of the exponents and the ratio to FDDP.
-
+  analytic dynamics (T = 100, dt = 0.01): seconds per R-AICO and per FDDP iteration, with the exponent of a
+  least-squares line through log(time) against log(n), over every size and over n >= 8 (where the dense
+  O(n^3) algebra should show). The chain and its costs: docs/benchmarks.md, "The chain in detail".
 - **Robots** (the Kinova, UR5 and xArm7 problem files, T = 100): R-AICO's and FDDP's time per iteration and
   setup, their ratio, each one's time to the common cost; a solver that fails on a robot keeps its row with the
   reason (and a line on stderr).
@@ -196,7 +170,7 @@ def records_after(solver: str) -> dict:
     return {"record": "after"} if solver in CROCODDYL_SOLVERS else {}
 
 
-def _timed_solve(problem, solver: str, options: dict):
+def timed_solve(problem, solver: str, options: dict):
     """One solve of ``problem`` and its setup (s): the time from the call to its first iteration's start.
 
     FDDP: crocoddyl's model built from the problem (``planning.crocoddyl.build``, timed here and handed to
@@ -227,20 +201,15 @@ def _timed_solve(problem, solver: str, options: dict):
     return res, (first[0] - t0 if first else None)
 
 
-def _per_iteration_detail(problem_file: Path, solver: str, options: dict, reps: int = 3) -> tuple[dict | None, str]:
-    """One solver's measurement on a problem file: :func:`_per_iteration_details` of it alone."""
-    return _per_iteration_details(problem_file, [(solver, options)], reps)[0]
-
-
-def _per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], reps: int = 3) -> list[tuple[dict | None, str]]:
+def per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], reps: int = 3) -> list[tuple[dict | None, str]]:
     """Solvers' timed runs on a problem file (without hard bounds, as FDDP: like for like), ``reps`` rounds of one
     solve of each solver in ``specs`` (``(solver, options)``) in turn, so that a shared machine's load falls on
     them alike. Per solver: ``seconds``, the median of the iterations' own wall times as the solvers record them
     (no setup; FDDP's records made after its solve) in the median run (by that median); ``setup_s``, the median
-    setup (:func:`_timed_solve`: crocoddyl's model built from the problem and the start's rollout; R-AICO's first
+    setup (:func:`timed_solve`: crocoddyl's model built from the problem and the start's rollout; R-AICO's first
     rollout, its cost, the sweeps' buffers); that run's ``costs`` and ``elapsed_s`` per iteration (the solver's
     clock: the iterations' own times summed); the repeats of a step per iteration (R-AICO's relinearizations
-    within the sweeps; 0 for the others), how the run ended (``status``; ``ended``: :func:`_ended`), its start's
+    within the sweeps; 0 for the others), how the run ended (``status``; ``ended``: :func:`ending`), its start's
     and its last iteration's cost and the problem's sizes, and ""; or (None, why the solver could not take the
     problem)."""
     from stages.plan.stage import PlanConfig, build_problem
@@ -254,7 +223,7 @@ def _per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], re
                 continue
             _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
             try:
-                res, setup = _timed_solve(problem, solver, options)
+                res, setup = timed_solve(problem, solver, options)
             except Exception as e:  # noqa: BLE001 - a solver that cannot take the problem: no time, said why
                 failed[k] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".rstrip(": ")
                 continue
@@ -276,7 +245,7 @@ def _per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], re
                      "start_cost": float(res.initial_cost), "final_cost": final,
                      "costs": [float(h.cost) for h in res.history],
                      "elapsed_s": [float(h.elapsed_s) for h in res.history],
-                     "ended": _ended(status, float(res.initial_cost), final)}, ""))
+                     "ended": ending(status, float(res.initial_cost), final)}, ""))
     return out
 
 
@@ -284,7 +253,7 @@ COMMON_WITHIN = 0.01   # the common cost: within 1 % of the better final cost of
 
 
 def common_cost(a: dict, b: dict) -> float | None:
-    """The cost both runs ``a`` and ``b`` (details of :func:`_per_iteration_detail`) are timed to: the better of
+    """The cost both runs ``a`` and ``b`` (details of :func:`per_iteration_details`) are timed to: the better of
     their final costs (a run that diverged or did not descend has none) plus ``COMMON_WITHIN`` of its size;
     ``None`` without a finite final cost."""
     finals = [d["final_cost"] for d in (a, b) if d["ended"] not in ("diverged", "no descent")
@@ -303,7 +272,7 @@ def time_to(d: dict, cost: float | None) -> float | None:
     return next((t for c, t in zip(d.get("costs", []), d.get("elapsed_s", [])) if c <= cost), None)
 
 
-def _beside(a: dict, f: dict) -> dict:
+def fddp_columns(a: dict, f: dict) -> dict:
     """The FDDP columns of an R-AICO row (``a``, ``f``: their details): FDDP's own time per iteration and setup,
     the ratio of the iterations' own times, the common cost and both solvers' times to it."""
     target = common_cost(a, f)
@@ -315,7 +284,7 @@ def _beside(a: dict, f: dict) -> dict:
     return out
 
 
-def _ended(status: str, start_cost: float, final_cost: float) -> str:
+def ending(status: str, start_cost: float, final_cost: float) -> str:
     """How a timed run ended, for the page: ``diverged`` (its status, or a cost that is not finite), ``no
     descent`` (its last cost not below its start's: the time is of iterations that found nothing), else its
     status (``converged``, ``max-iterations``)."""
@@ -344,7 +313,7 @@ def _relocates(options: dict) -> bool:
     return o.schedule != "robust" and math.isfinite(o.theta) and o.max_repeats > 0
 
 
-def _flops(detail: dict, dgemm: float | None, problem_file: Path | None = None, forward: bool = True) -> dict:
+def flop_columns(detail: dict, dgemm: float | None, problem_file: Path | None = None, forward: bool = True) -> dict:
     """The sweep's flop columns of an R-AICO measurement (bench.flops; ``forward``: :func:`_relocates`), none
     without a dgemm rate; with ``problem_file`` also the backward sweep timed alone (``sweep_alone_*``: the
     message arithmetic's own rate)."""
@@ -399,7 +368,7 @@ def _failed(label: str, why: str) -> dict:
 
 def robot_rows(dgemm: float | None = None) -> list[dict]:
     """R-AICO and FDDP on the Kinova, UR5 and xArm7 problems (T = 100): each solver's own time per iteration
-    (the iterations' own times) and setup (:func:`_timed_solve`), their ratio, the time of each to the common
+    (the iterations' own times) and setup (:func:`timed_solve`), their ratio, the time of each to the common
     cost (:func:`common_cost`), and R-AICO's sweep flops against the dgemm rate. R-AICO runs with what ``raico
     plan`` gives the problem file (:func:`chain_raico_options`). A solver that fails on a robot gives a row
     saying why (and a line on stderr)."""
@@ -413,16 +382,16 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
     for label, rel in ROBOTS:
         options = chain_raico_options(root / rel)
         specs = [("raico", options)] + ([("fddp", {"iterations": ITERATIONS})] if "fddp" in SOLVERS else [])
-        (a, why), (f, fwhy) = (_per_iteration_details(root / rel, specs) + [(None, "crocoddyl not installed")])[:2]
+        (a, why), (f, fwhy) = (per_iteration_details(root / rel, specs) + [(None, "crocoddyl not installed")])[:2]
         if a is None:
             rows.append(_failed(f"{label}: one R-AICO iteration", why))
             continue
         row = {"benchmark": f"{label}: one R-AICO iteration", "median_s": a["seconds"], "samples_s": [a["seconds"]],
                "target_s": None, "ratio_to_target": None, "setup_s": a["setup_s"], "repeats_per_iteration": a["repeats"],
                "status": a["status"], "ended": a["ended"], "final_cost": a["final_cost"],
-               **_flops(a, dgemm, root / rel, _relocates(options))}
+               **flop_columns(a, dgemm, root / rel, _relocates(options))}
         if f is not None:
-            row.update(_beside(a, f))
+            row.update(fddp_columns(a, f))
         else:
             row["fddp_error"] = fwhy
             print(f"  {label}: FDDP not timed: {fwhy}", file=sys.stderr, flush=True)
@@ -475,7 +444,7 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
             details: dict[str, dict] = {}
             specs = [(solver, chain_raico_options(f) if solver == "raico" else {"iterations": ITERATIONS})
                      for _, solver in solvers]
-            for (label, _), (d, why) in zip(solvers, _per_iteration_details(f, specs)):
+            for (label, _), (d, why) in zip(solvers, per_iteration_details(f, specs)):
                 if d is None:   # left out of the fit, and said so here and on the page
                     fit[label]["skipped"][n] = f"not timed: {why}"
                     print(f"  {label:15s} n={n:3d}  not timed: {why}", flush=True)
@@ -494,14 +463,14 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
                     continue
                 d = details[label]
                 other = next((details[o] for o, _ in solvers if o != label and o in details), None)
-                flops = (_flops(d, dgemm, f if n >= FIT_FROM else None, _relocates(chain_raico_options(f)))
+                flops = (flop_columns(d, dgemm, f if n >= FIT_FROM else None, _relocates(chain_raico_options(f)))
                          if solver == "raico" else {})
                 beside: dict = {}
                 if other is not None:
                     target = common_cost(d, other)
                     beside = {"common_cost": target, "time_to_common_s": time_to(d, target)}
                     if solver == "raico":
-                        beside = _beside(d, other)
+                        beside = fddp_columns(d, other)
                         if n not in fit[label]["ended"] or other["ended"] in ("diverged", "no descent"):
                             beside.pop("ratio_to_fddp", None)   # a run that found nothing: no ratio
                 row = {"benchmark": f"chain of {n} joints, analytic reach T={CHAIN_T}: one {label} iteration",

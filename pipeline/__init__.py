@@ -1,3 +1,3 @@
 """The tool around the stages: engine (cache, runner), recordings, experiments, interface (CLI, API)."""
 
-import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -15,21 +15,8 @@ their first-order step ``y = lam`` at the new iterate and, where the largest sca
 ``DECREASE`` in ``PATIENCE`` updates, ``mu *= MU_GROWTH`` (bounded): the iteration of ProxDDP / CSQP style
 (multipliers inside the iteration, a merit function the step must lower), not an outer loop of inner solves.
 
-Why this method (measured on this machine against the chunked augmented Lagrangian it replaces, which ran
-inner solves of 10, 10 and 5 iterations per multiplier update): a first-order multiplier step after *every*
-accepted iteration did not converge on the bounded LQ problem (tests/planning/test_aico_robust.py,
-``bounded_lq``: the penalty climbed to its cap, violation 0.034 rad, diverged at iteration 37); gated on the
-merit settling (relative fall below ``AL_INNER_TOL`` in :mod:`planning.aico.bounds`) the same problem reaches the
-QP's optimum in 25 iterations (violation 1e-9). On crocoddyl's Kinova from its own start (joint 3 1.9 rad
-below its range, velocity limit 0.63 rad/s) it ends feasible at 14.28 in 190 iterations, feasible and within
-1 % of that at iteration 40 (the unbounded run converges in 31; the chunked one ended at 355, out-of-bounds;
-SNOPT's direct transcription, :mod:`planning.transcription`: 13.89, so 1.03x); on the Talos arm feasible at
-0.707 after 200 (within 1 % at iteration 60; not converged under tol_rel = 1e-9); on the xArm7 example
-converged at 3.46 in 156, 1.42x SNOPT's 2.43 (a local minimum or slow progress: not yet resolved). Penalty and gate varied
-(``AL_MU0`` 100 or 1000, ``AL_INNER_TOL`` 1e-3 or 1e-2): 100 and 1e-3 were best on all four of the LQ, Kinova,
-Talos-arm and xArm7 problems. The controls' box inside
-the backward pass (BoxDDP's projected Newton step) and truncated-Gaussian (EP) messages (aico.cpp) were not
-built: both change the sweeps (``planning/csweep.c``), and were left for later.
+Why this method, measured against the chunked augmented Lagrangian it replaces, and what was not built:
+docs/planning.md, "Why this augmented Lagrangian".
 
 Where no row of any constraint is ever active (``y = 0`` and ``g < 0`` at every linearization and rollout) the
 merit is the cost and nothing is added to the messages: the iterates are the unconstrained ones, bit for bit.

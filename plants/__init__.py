@@ -1,3 +1,3 @@
 """The robots: models, dynamics, task maps."""
 
-from plants import _threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+from plants import threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -4,13 +4,8 @@
 same interface, same numbers up to rounding (~1e-15 relative), but ``linearize_trajectory`` is
 vectorized over time (no Python loop over steps) and single points skip Drake's per-call cost.
 The code comes from :mod:`plants.codegen` (derived from the Drake plant itself, self-checked
-against Drake at build time, kept in memory per plant name).
-
-Evaluation uses the formulas of ``AnalyticDynamics``: ``qddot = M_r^-1 (u - h_r)``,
-``d qddot/d(q, v) = -M_r^-1 dID_r/d(q, v)`` at ``a = qddot``, ``d qddot/du = M_r^-1`` with
-``M_r = P^T M P``, ``h_r = P^T h`` and ``dID_r = P^T dID [P 0; 0 P]``; with ``a`` an input of
-the generated derivative code, ``d(M a)/dq`` is included. Everything not depending on ``a`` is
-computed in a first pass (``M``, ``h``, ``dh/dv``, ...), the rest after the solve for ``a``.
+against Drake at build time, kept in memory per plant name). Evaluation uses the formulas of
+``AnalyticDynamics`` (``qddot = M_r^-1 (u - h_r)`` and its derivatives through ``dID``).
 
 Plants that are too big to read (the 26-joint Nao) or that use unsupported joints raise
 ``NotImplementedError``. :func:`make_fast_or_exact` takes this route for plants of up to
@@ -18,23 +13,14 @@ Plants that are too big to read (the 26-joint Nao) or that use unsupported joint
 this route fails), ``AnalyticDynamics`` where neither builds.
 
 Compiled route (speed only): the generated functions are also emitted as C
-(:mod:`plants.codegen.c_backend`), built once per plant with ``gcc`` and called through ``ctypes``
-for single points (``step``, ``linearize``), trajectories (``linearize_trajectory``) and closed-loop
-rollouts (``controller_rollout``); the AICO sweep kernel calls ``dyn_linearize`` directly
-(:meth:`FastAnalyticDynamics.c_linearizer`). The C driver below is the numpy code of this module
-line by line (the generated part is operation for operation the same; ``M_r`` is inverted by LU
-with partial pivoting like ``np.linalg.inv``); on the tree route it computes ``M``, ``h`` and
-``dID/d(q, v)`` in two passes over the tree, inverts ``M_r`` from its Cholesky factor and reduces
-by ``P``'s nonzeros. Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy
-code runs.
+(:mod:`plants.codegen.c_backend`), built once per plant with ``gcc`` and called through ``ctypes``;
+the AICO sweep kernel calls ``dyn_linearize`` directly (:meth:`FastAnalyticDynamics.c_linearizer`).
+Without ``gcc`` (or with ``RAICO_NO_C=1``) the numpy code runs.
 
 :class:`TreeAnalyticDynamics` is the same model with the generated code replaced by the tree
 kernels of :mod:`plants.codegen.rbd` (Newton-Euler and its analytical derivatives in C): exact
-derivatives for the Nao, whose symbolic equations are too large to generate, and for arms of 6 or
-more joints, whose symbolic derivation is slow or fails (see ``SYMBOLIC_MAX_POSITIONS``); revolute,
-prismatic and weld joints. It is the registry's ``analytic`` model for those plants (through
-:func:`make_fast_or_exact`), checked against ``AnalyticDynamics`` in ``tests/planning/test_kernels.py`` and
-timed by ``make bench``.
+derivatives for the Nao and for arms of 6 or more joints. The formulas, the C driver and the tree
+route in detail: docs/kernels.md, "Fast analytic dynamics".
 """
 
 from __future__ import annotations

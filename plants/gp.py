@@ -16,12 +16,9 @@ zero prior mean in scaled units is the training mean ``y_mean`` in physical unit
 The scaling is fixed when the model is built; ``update`` keeps it.
 
 Noise floor. Simulated data are nearly noise-free and ``K`` gets ill-conditioned; the noise level
-is bounded from below, ``sn2 >= noise_floor`` (default ``1e-6`` in standardized output units, i.e.
-a noise std of 0.1 % of the output's spread). The fit uses it as the lower bound of sklearn's
-``WhiteKernel(noise_level_bounds=(noise_floor, ...))`` with ``GaussianProcessRegressor(alpha=0)``,
-and this posterior clips ``sn2`` to the same floor; no other jitter is added anywhere, so the
-posterior is exactly the one whose likelihood the fit maximized. With the fit's bound
-``sf2 <= 1e3`` this keeps ``cond(K + sn2 I) <= 1 + N sf2 / sn2 <= 1 + 1e9 N``.
+is bounded from below, ``sn2 >= noise_floor`` (default ``1e-6`` in standardized output units), the
+same bound the fit keeps, and no other jitter is added anywhere: the posterior is exactly the one
+whose likelihood the fit maximized (docs/learning.md, "The GP's noise floor").
 
 Variances. ``var`` is the latent function's variance (without the noise), clipped at 0;
 ``predict(..., noisy=True)`` adds the noise ``sn2`` (what sklearn's ``return_std`` reports when

@@ -14,16 +14,12 @@ the planning plant drops them: :mod:`plants.model_file`), meshes as their convex
 
 :class:`CollisionWorld` is a MultibodyPlant with the robot and the scene registered in a SceneGraph;
 :meth:`CollisionWorld.distances` gives, for a list of geometry pairs, the signed distances (m,
-negative in penetration) by ``QueryObject.ComputeSignedDistancePairwiseClosestPoints`` with
-``max_distance`` culling (pairs farther than it report ``max_distance`` and a zero gradient; pairs
-SceneGraph filters, such as two links a joint connects, each by
-``ComputeSignedDistancePairClosestPoints``), and their gradients with respect to the plant's
-positions, ``dd/dq = n^T (J_A(p_A) - J_B(p_B))``: the witness points' translational Jacobians
-(Drake's) projected on the normal ``n`` (from B to A): the reference. :class:`SignedDistances` is the
-task map of those distances on planning coordinates, batched over a trajectory: spheres around the
-geometries cull the pairs first (their centres by the compiled kinematics), each remaining pair is one
-``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics (measured
-here faster than the pairwise query with SceneGraph's filters set to the map's pairs).
+negative in penetration; pairs farther than ``max_distance`` report it and a zero gradient) and their
+gradients with respect to the plant's positions, ``dd/dq = n^T (J_A(p_A) - J_B(p_B))``: the witness
+points' translational Jacobians (Drake's) projected on the normal ``n`` (from B to A): the reference.
+:class:`SignedDistances` is the task map of those distances on planning coordinates, batched over a
+trajectory: spheres around the geometries cull the pairs first, each remaining pair is one
+``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics.
 
 Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
 cannot be read, a world file that does not parse.

@@ -370,7 +370,7 @@ def log3(R) -> np.ndarray:
     return log3_angle(R)[1]
 
 
-def _jlog3(theta: float, r: np.ndarray) -> np.ndarray:
+def jlog3(theta: float, r: np.ndarray) -> np.ndarray:
     """:func:`Jlog3` from ``theta`` and ``r = log3(R)`` (Taylor expansion below ``theta = 1.2e-4``)."""
     if theta < _PREC3:
         alpha = 1.0 / 12.0 + theta * theta / 720.0
@@ -387,10 +387,10 @@ def Jlog3(R) -> np.ndarray:
     of the right Jacobian of ``exp``): ``I + [r]x / 2 + (1 / theta^2 - cot(theta / 2) / (2 theta))
     [r]x^2``, ``r = log3(R)``. A body-frame (LOCAL) angular velocity ``w`` moves ``log3(R)`` by
     ``Jlog3(R) w``."""
-    return _jlog3(*log3_angle(R))
+    return jlog3(*log3_angle(R))
 
 
-def _log6_parts(R: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+def log6_parts(R: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """``(theta, w, log6 (6,))`` of the pose ``(R, p)``."""
     a = _unskew(R)
     t2 = float(a @ a)   # sin(theta)^2 (Pinocchio's argument of the expansions near 0)
@@ -410,12 +410,12 @@ def log6(R, p) -> np.ndarray:
     """The twist ``(6,)``, linear part first, of the pose ``M = (R (3, 3), p (3,))``: ``exp6`` of it
     is ``M`` (Pinocchio's ``pin.log6(M).vector``): angular part ``w = log3(R)``, linear part
     ``V(w)^-1 p`` with ``V`` the left Jacobian of ``exp`` on SO(3)."""
-    return _log6_parts(np.asarray(R, float), np.asarray(p, float))[2]
+    return log6_parts(np.asarray(R, float), np.asarray(p, float))[2]
 
 
-def _jlog6(theta: float, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+def jlog6(theta: float, w: np.ndarray, p: np.ndarray) -> np.ndarray:
     """:func:`Jlog6` from ``theta``, ``w = log3(R)`` and ``p``."""
-    A = _jlog3(theta, w)
+    A = jlog3(theta, w)
     t2 = theta * theta
     if theta < _PREC3:
         beta = 1.0 / 12.0 + t2 / 720.0
@@ -442,7 +442,7 @@ def Jlog6(R, p) -> np.ndarray:
     ``(v, w)`` of ``M`` moves ``log6(M)`` by ``Jlog6(M) (v, w)``."""
     R, p = np.asarray(R, float), np.asarray(p, float)
     theta, w = log3_angle(R)
-    return _jlog6(theta, w, p)
+    return jlog6(theta, w, p)
 
 
 # -- the same, batched over a leading axis: rows (K, 3, 3) and (K, 3) -------------------------------
@@ -504,8 +504,8 @@ def log3_angle_rows(R) -> tuple[np.ndarray, np.ndarray]:
     return theta, r
 
 
-def _jlog3_rows(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """:func:`_jlog3` of each row: ``theta (K,)``, ``r (K, 3)`` -> ``(K, 3, 3)``."""
+def jlog3_rows(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`jlog3` of each row: ``theta (K,)``, ``r (K, 3)`` -> ``(K, 3, 3)``."""
     small = theta < _PREC3
     th = np.where(small, 1.0, theta)
     st_1mct = np.sin(th) / (1.0 - np.cos(th))   # cot(theta / 2)
@@ -519,8 +519,8 @@ def _jlog3_rows(theta: np.ndarray, r: np.ndarray) -> np.ndarray:
     return J
 
 
-def _log6_parts_rows(R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_log6_parts` of each pose: ``R (K, 3, 3)``, ``p (K, 3)`` -> ``theta (K,)``,
+def log6_parts_rows(R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`log6_parts` of each pose: ``R (K, 3, 3)``, ``p (K, 3)`` -> ``theta (K,)``,
     ``w (K, 3)``, ``log6 (K, 6)``."""
     a = _unskew_rows(R)
     t2 = np.einsum("ki,ki->k", a, a)   # sin(theta)^2
@@ -536,9 +536,9 @@ def _log6_parts_rows(R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return theta, w, np.concatenate([lin, w], axis=1)
 
 
-def _jlog6_rows(theta: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """:func:`_jlog6` of each row: ``theta (K,)``, ``w``, ``p (K, 3)`` -> ``(K, 6, 6)``."""
-    A = _jlog3_rows(theta, w)
+def jlog6_rows(theta: np.ndarray, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """:func:`jlog6` of each row: ``theta (K,)``, ``w``, ``p (K, 3)`` -> ``(K, 6, 6)``."""
+    A = jlog3_rows(theta, w)
     t2 = theta * theta
     small = theta < _PREC3
     tinv = 1.0 / np.where(small, 1.0, theta)
@@ -645,11 +645,11 @@ class FrameRotationError(_FramePose):
 
     def _residual(self, R, p, Jv, Jw):
         theta, r = log3_angle(self.R_target.T @ R)
-        return r, _jlog3(theta, r) @ (R.T @ Jw)
+        return r, jlog3(theta, r) @ (R.T @ Jw)
 
     def _residuals(self, R, p, Jv, Jw):
         theta, r = log3_angle_rows(self.R_target.T @ R)
-        return r, _jlog3_rows(theta, r) @ (np.swapaxes(R, 1, 2) @ Jw)
+        return r, jlog3_rows(theta, r) @ (np.swapaxes(R, 1, 2) @ Jw)
 
 
 class FramePlacementError(_FramePose):
@@ -670,17 +670,17 @@ class FramePlacementError(_FramePose):
     def _residual(self, R, p, Jv, Jw):
         Rt = self.R_target
         R_rel, p_rel = Rt.T @ R, Rt.T @ (p - self.p_target)
-        theta, w, r = _log6_parts(R_rel, p_rel)
+        theta, w, r = log6_parts(R_rel, p_rel)
         J_local = np.vstack([R.T @ Jv, R.T @ Jw])
-        return r, _jlog6(theta, w, p_rel) @ J_local
+        return r, jlog6(theta, w, p_rel) @ J_local
 
     def _residuals(self, R, p, Jv, Jw):
         Rt = self.R_target
         R_rel, p_rel = Rt.T @ R, (p - self.p_target) @ Rt   # rows Rt^T (p_k - p_target)
-        theta, w, r = _log6_parts_rows(R_rel, p_rel)
+        theta, w, r = log6_parts_rows(R_rel, p_rel)
         RT = np.swapaxes(R, 1, 2)
         J_local = np.concatenate([RT @ Jv, RT @ Jw], axis=1)
-        return r, _jlog6_rows(theta, w, p_rel) @ J_local
+        return r, jlog6_rows(theta, w, p_rel) @ J_local
 
 
 class Stack(_BatchByPoints):

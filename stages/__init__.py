@@ -1,3 +1,3 @@
 """Pure stage functions."""
 
-import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -4,29 +4,16 @@ Each episode starts at rest in the robot's default posture (the pendulum: hangin
 stable equilibrium). A random desired trajectory (a clamped cubic spline through random knots
 around the start posture, inside the joint limits) is tracked by
 ``u = clip(Kp (q_des - q) + Kd (qdot_des - qdot), -u_max, u_max)`` with ``u_max`` the smaller
-of 10 N m and each joint's effort limit, built from Drake's own blocks (``TrajectorySource``,
-``PidController``, ``Saturation``: no Python runs inside the integrator's steps, 2-5x faster than the
-former Python ``LeafSystem``, equal to rounding). Drake's Simulator integrates the plant (continuous
-time) with its ``runge_kutta5`` scheme at a fixed step of ``dt / substeps`` (Drake 1.51 has no
-RK4). Every ``dt`` the
-tuple ``(q, qdot, qddot, u)`` is sampled; ``qddot`` is the plant's own time derivative at
-that instant.
+of 10 N m and each joint's effort limit, built from Drake's own blocks; Drake's Simulator
+integrates the plant with ``runge_kutta5`` at a fixed step of ``dt / substeps``. Every ``dt`` the
+tuple ``(q, qdot, qddot, u)`` is sampled; ``qddot`` is the plant's own time derivative there.
 
-A robot from a problem file (``--problem FILE``: its model file, on a welded base or sole; the
-robot babbled on is ``[robot.true]``'s where the file states one) babbles the same way with two
-additions: the PD's torques are added to the model file's gravity compensation ``g(q)`` (Drake's
-``InverseDynamics`` block in gravity-compensation mode on the planning model: an arm of several kg
-holds itself only so), and to **per-joint random torques** (``torque_noise``: a clamped cubic spline
-per joint through random knots, uniform in ``+-torque_noise u_max``, at the knots' times) that excite
-the dynamics beyond what the tracking asks; ``u_max`` is the file's effort limit (1000 N m where the
-file states none). What keeps the robot away from its joint limits is the PD: its desired
-trajectory stays ``MARGIN`` (5 %) of each joint's range inside the limits, and the random torques,
-bounded by ``torque_noise`` of the effort, are capped at what the PD holds within half that margin
-(:func:`noise_bound`), so the tracking error stays small (tests: no sample leaves the range).
-
-Each joint babbles in its own unit: a revolute joint with ``kp`` N m/rad, ``kd`` N m s/rad and knots
-within ``amplitude`` rad, a prismatic joint (a lift) with ``kp_prismatic`` N/m, ``kd_prismatic``
-N s/m and knots within ``amplitude_prismatic`` m (:func:`joint_gains`, :func:`joint_amplitudes`).
+A robot from a problem file (``--problem FILE``; ``[robot.true]``'s robot where the file states one)
+babbles the same way with the model file's gravity compensation ``g(q)`` added to the PD's torques,
+and **per-joint random torques** (``torque_noise``) that excite the dynamics beyond what the tracking
+asks, bounded so that the PD keeps every joint inside its range (:func:`noise_bound`). Each joint
+babbles in its own unit (:func:`joint_gains`, :func:`joint_amplitudes`: revolute in rad, prismatic in
+m). The details: docs/learning.md, "Babbling".
 
 Output arrays are in planning coordinates, shaped ``(episodes, K, n_q)`` with
 ``K = round(duration / dt) + 1`` samples per episode; ``t`` is ``(K,)`` in seconds.

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)
 
 REPO = Path(__file__).resolve().parents[1]
 

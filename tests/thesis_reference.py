@@ -15,9 +15,9 @@ from thesis.figures import (
     LearnExperiment,
     LearnSetting,
     Variant,
-    _outcomes,
-    _stage_job,
+    as_outcomes,
     recorded_seed,
+    stage_job,
 )
 
 
@@ -166,30 +166,30 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     integ = exp.integrator_variants(quick)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
             for s in range(v.seed_count(exp.seeds, quick))]
-    outs = yield Batch("plan", [_stage_job(cache, "plan", cfg, record and v.records(s), f"{v.label} seed {s}")
+    outs = yield Batch("plan", [stage_job(cache, "plan", cfg, record and v.records(s), f"{v.label} seed {s}")
                                 for v, s, cfg in runs])
-    every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, _outcomes(outs))]
+    every = [{"variant": v, "seed": s, "outcome": o} for (v, s, _), o in zip(runs, as_outcomes(outs))]
     n_main = len(every) - sum(v.seed_count(exp.seeds, quick) for v in integ)
     plans, integ_plans = every[:n_main], every[n_main:]
-    ex_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"),
-                          record and recorded_seed(p["seed"]),
-                          f"{p['variant'].label} seed {p['seed']}")
+    ex_jobs = [stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}"),
+                         record and recorded_seed(p["seed"]),
+                         f"{p['variant'].label} seed {p['seed']}")
                for p in plans if p["variant"] in exp.execute and exp.execute_pd]
-    ex_jobs += [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", **STABILIZER),
-                           record and recorded_seed(p["seed"]), f"{p['variant'].label} seed {p['seed']}, stabilizer")
+    ex_jobs += [stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", **STABILIZER),
+                          record and recorded_seed(p["seed"]), f"{p['variant'].label} seed {p['seed']}, stabilizer")
                 for p in plans if exp.stabilized and p["variant"] in exp.execute]
     # no recordings of the integrations (about 0.4 s each; `raico execute --plan KEY --open-loop` writes one from the cache)
-    integ_jobs = [_stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), False,
-                             f"{p['variant'].label} seed {p['seed']}, open loop") for p in integ_plans]
+    integ_jobs = [stage_job(cache, "execute", ExecuteConfig(plan=f"plan/{p['outcome'].key}", open_loop=True), False,
+                            f"{p['variant'].label} seed {p['seed']}, open loop") for p in integ_plans]
     noise = noise_runs(exp, plans, quick)
     # the sweep's noisy runs are not recorded here (a free-standing Nao's recording takes 0.6 s; `raico show KEY --open`
     # writes one from the cache); level 0 is the figure's own execution, recorded with it
-    noise_jobs = [_stage_job(cache, "execute", r["config"],
-                             record and recorded_seed(r["plan_seed"]) and not any(r["level"]),
-                             f"{r['label']} seed {r['plan_seed']}{', stabilizer' if r['controller'] == 'wbc' else ''}, "
-                             f"noise x0 {r['level'][0]:g} rad, process {r['level'][1]:g} N m") for r in noise]
+    noise_jobs = [stage_job(cache, "execute", r["config"],
+                            record and recorded_seed(r["plan_seed"]) and not any(r["level"]),
+                            f"{r['label']} seed {r['plan_seed']}{', stabilizer' if r['controller'] == 'wbc' else ''}, "
+                            f"noise x0 {r['level'][0]:g} rad, process {r['level'][1]:g} N m") for r in noise]
     jobs = ex_jobs + noise_jobs + integ_jobs  # a Nao figure's executions are its sweep's level 0: each runs once
-    outs = _outcomes((yield Batch("execute", jobs)) if jobs else [])
+    outs = as_outcomes((yield Batch("execute", jobs)) if jobs else [])
     n_ex, n_noise = len(ex_jobs), len(noise_jobs)
     return {"plans": plans, "executions": outs[:n_ex],
             "noise": [{**{k: v for k, v in r.items() if k != "config"}, "outcome": o}
@@ -306,8 +306,8 @@ def learn_flow(cache: Cache, exp: LearnExperiment, quick: bool = False, record: 
     sequential chain of stage runs). Returns ``{"learns"}``."""
     runs = [(s, k, learn_config(exp, s, k, quick)) for s in exp.settings if s.quick or not quick
             for k in range(1 if quick else s.seeds)]
-    jobs = [_stage_job(cache, "learn", cfg, record, f"{s.label} seed {k}") for s, k, cfg in runs]
-    outs = _outcomes((yield Batch("learn", jobs)))
+    jobs = [stage_job(cache, "learn", cfg, record, f"{s.label} seed {k}") for s, k, cfg in runs]
+    outs = as_outcomes((yield Batch("learn", jobs)))
     return {"learns": [{"setting": s, "seed": k, "outcome": o} for (s, k, _), o in zip(runs, outs)]}
 
 

@@ -6,4 +6,4 @@ its experiment files in ``thesis/experiments/``), its claims (:mod:`thesis.claim
 The tool's layers (``pipeline``, ``stages``, ``planning``, ``plants``) import nothing from here.
 """
 
-import plants._threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

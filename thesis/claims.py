@@ -245,12 +245,6 @@ def not_low_cost_checks(k: str, s: dict, best: float) -> list[Check]:
             _cost_check(k, s, best, ">", HIGH_COST), _via_check(k, s, ">")]
 
 
-def _main(S: dict) -> dict:
-    """Variants of the thesis figure (ablations, the adaptive schedule and the crocoddyl baseline left out)."""
-    return {k: v for k, v in S.items()
-            if _thesis_variant(k) and not k.startswith(BASELINE) and not k.startswith(ADAPTIVE)}
-
-
 REFERENCE_TEXT = ("the lowest median final cost any solver reaches on the figure's initial states, the long-budget "
                   "runs included: adaptive R-AICO at 100 iterations, and crocoddyl FDDP at 100 on the analytic arm")
 
@@ -920,8 +914,8 @@ def claim_executed_reaches(S, execs):
 
 
 def claim_stabilizer_stands(S, execs):
-    """Issue 19: the whole-body stabilizer's executions (metrics ``controller`` ``wbc``) stand and reach
-    their via-points; the joint-PD executions of the same figure are counted beside them."""
+    """Beyond the thesis: the whole-body stabilizer's executions (metrics ``controller`` ``wbc``) stand and
+    reach their via-points; the joint-PD executions of the same figure are counted beside them."""
     from stages.evaluate.summary import largest_via_error
 
     claim = "the whole-body stabilizer carries out the R-AICO a=1 plans on the free-standing Nao"
@@ -947,8 +941,8 @@ NOISE_STOOD = 0.9  # ">= 9/10 stand" under noise
 
 
 def claim_stabilizer_stands_under_noise(S, execs):
-    """Issue 19: under the noise sweep's noise (initial joint angles and process torques) the stabilizer's
-    executions stand in at least ``NOISE_STOOD`` of the runs (``execs``: the sweep's noisy runs)."""
+    """Beyond the thesis: under the noise sweep's noise (initial joint angles and process torques) the
+    stabilizer's executions stand in at least ``NOISE_STOOD`` of the runs (``execs``: the sweep's noisy runs)."""
     claim = "the stabilizer keeps the Nao standing under noise"
     wbc = [e for e in execs if e.get("controller") == "wbc"]
     levels = sorted({tuple(e["noise_level"]) for e in wbc}) if wbc else []
@@ -969,8 +963,8 @@ def claim_stabilizer_stands_under_noise(S, execs):
 
 
 def claim_single_support_stands(S, execs):
-    """Issue 19: a single-support plan (``--balance single``) carried out by the stabilizer: every run stood,
-    has status ok and held the right sole at least ``LIFT`` high from the plan's lift step to the end."""
+    """Beyond the thesis: a single-support plan (``--balance single``) carried out by the stabilizer: every run
+    stood, has status ok and held the right sole at least ``LIFT`` high from the plan's lift step to the end."""
     from stages.evaluate.metrics import LIFT
     from stages.evaluate.summary import largest_via_error
 

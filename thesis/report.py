@@ -315,14 +315,14 @@ def write_figure(cache: Cache, exp: Experiment, plans: list[dict], path: Path, e
     # the budget the runs had (--quick: its profile's, not the full figure's)
     budget = next((p["iterations"] for p in plans if p.get("iterations") and p["variant"].iterations is None),
                   exp.iterations)
-    _cost_panel(ax_of["cost"], exp, thesis, f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics}), the thesis's "
-                f"solvers at the figure's budget ({budget} iterations)")
+    cost_panel(ax_of["cost"], exp, thesis, f"{exp.id}: {exp.plant} {exp.task} ({exp.dynamics}), the thesis's "
+               f"solvers at the figure's budget ({budget} iterations)")
     if "beyond" in ax_of:
-        _cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
-                    "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=budget,
-                    stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
+        cost_panel(ax_of["beyond"], exp, [r for r in rows if not r["thesis"]],
+                   "beyond the thesis: long budgets, crocoddyl FDDP and ablations", budget=budget,
+                   stat="median")  # the median: FDDP's infeasible first iterates (x0 held) reach 1e100
     if "wall" in ax_of:
-        _wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
+        wall_time_panel(ax_of["wall"], wall_panel_data(cache, exp, plans), per_it)
     if "cog_plan" in ax_of:
         _planned_cog_panel(cache, exp, plans, ax_of["cog_plan"])
     if "cog" in ax_of:
@@ -352,8 +352,8 @@ def band(r: dict, stat: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return r["mean"], np.fmax(r["mean"] - r["std"], r["lowest"]), r["mean"] + r["std"]
 
 
-def _cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int | None = None,
-                stat: str = "mean") -> None:
+def cost_panel(ax, exp: Experiment, rows: list[dict], title: str, budget: int | None = None,
+               stat: str = "mean") -> None:
     """Cost per iteration: per variant the mean (line) and mean +- one standard deviation (band, ``band``) over its
     runs with the median dashed, or (``stat`` "median") the median and the interquartile range; the diverged runs
     thin to their last iterate; ``budget``: a dotted line at the thesis's solvers' budget on the figure."""
@@ -450,7 +450,7 @@ def _planned_cog_panel(cache: Cache, exp: Experiment, plans: list[dict], ax, lab
     ax.grid(True, alpha=0.3)
 
 
-def _wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> None:
+def wall_time_panel(ax, rows: list[dict], per_iteration: dict[str, float]) -> None:
     """Cost against wall time: per run the cost of the last iteration finished by time t, median and
     interquartile range over the runs on a common log-spaced time grid (where more than half the
     runs have finished an iteration). The cost axis spans the values that do not explode
@@ -1016,7 +1016,7 @@ def claims_table(exp: Experiment, plans: list[dict], executions: list, cache: Ca
         S, without = _summaries(plans, setup, cache, {}, tail)
         more = evaluate_claims(tuple(c for c in names if isinstance(THESIS[c], Quote)), S, [], exp.id, [], without)
         rows += [{**r, "claim": f"{r['claim']} (with the thesis's {SETUP_WORDS.get(task, words)})",
-                  "setup": _setup_in_place(r.get("setup", ""), task)} for r in more]
+                  "setup": setup_in_place(r.get("setup", ""), task)} for r in more]
     return rows
 
 
@@ -1027,7 +1027,7 @@ SETUP_REPLACES = {"reach-zero": (("nao start",), "q0 about the zero posture (the
                                                                     "C = diag(10, 1e6, 10), no right-sole term")}
 
 
-def _setup_in_place(setup: str, task: str) -> str:
+def setup_in_place(setup: str, task: str) -> str:
     """A row's set-up deviations with those the thesis's set-up ``task`` removes replaced by what it runs."""
     from thesis.claims import SETUP_NOTES
 

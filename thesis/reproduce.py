@@ -133,12 +133,12 @@ def _figure_done(cache: Cache, fid: str, result: dict, quick: bool, reporter: Re
         lexp = LEARN_EXPERIMENTS[fid]
         n = sum(1 if quick else s.seeds for s in lexp.settings if s.quick or not quick)
         cached = sum(x["outcome"].cached for x in result["learns"])
-        doc = _cached_report(out, _report_key(fid, result)) or write_learn_report(cache, lexp, result, out)
+        doc = cached_report(out, _report_key(fid, result)) or write_learn_report(cache, lexp, result, out)
     else:
         exp = EXPERIMENTS[fid]
         n = exp.run_count(quick)
         cached = sum(p["outcome"].cached for p in (*result["plans"], *result.get("integrators", [])))
-        doc = _cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
+        doc = cached_report(out, _report_key(fid, result)) or write_experiment_report(cache, exp, result, out)
     _stamp_report(out, _report_key(fid, result))
     elapsed = time.perf_counter() - t0
     _record_timing(root, fid, n, cached, elapsed)
@@ -196,7 +196,7 @@ def _outcomes(result: dict) -> list:
             + [o for p in result.get("integrators", []) for o in (p["outcome"], p["integration"])])
 
 
-def _cached_report(out: Path, key: str) -> dict | None:
+def cached_report(out: Path, key: str) -> dict | None:
     """The figure's ``claims.json`` if it was written from the same runs and code, else None."""
     try:
         if (out / REPORT_STAMP).read_text().strip() != key or not (out / "figure.png").is_file():

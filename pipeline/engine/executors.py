@@ -244,7 +244,7 @@ class ProcessExecutor(Executor):
 def _share(workers: int) -> int:
     """Per-output GP threads of one of ``workers`` pool workers: this process's CPUs over the workers
     (at least 1)."""
-    from plants._threads import output_threads
+    from plants.threads import output_threads
 
     return max(1, output_threads() // max(1, workers))
 

@@ -1,17 +1,13 @@
 """Experiments a user writes: a TOML file of variants over seeds, run through the cache, one runs table.
 
-An experiment file (read with ``tomllib``)::
+An experiment file (read with ``tomllib``; every key: docs/experiment-files.md)::
 
     name = "alpha-on-the-arm"              # the table's folder: artifacts/exp/<name>/
-    description = "R-AICO's alpha against iLQG on the 5-joint arm"
-    stages = ["plan", "execute"]           # plan | plan, execute | plan, evaluate | plan, execute, evaluate
-                                           # | learn | babble
+    stages = ["plan", "execute"]           # plan | plan, execute | plan, evaluate | ... | learn | babble
     seeds = "range(10)"                    # or a list: the initial states, shared by every point
     [base]                                 # options of the first stage (raico <stage> --help)
-    plant = "arm5"                         # or problem = "my_robot_reach.toml" (a problem file, relative
-    task = "reach-roll"                    #   to this file) in place of plant and task
-    dynamics = "analytic"
-    iterations = 25
+    plant = "arm5"                         # or problem = "my_robot_reach.toml"
+    task = "reach-roll"
     [execute]                              # options of a later stage
     clip_torques = true
     [grid]                                 # the cartesian product of these lists ...
@@ -21,37 +17,15 @@ An experiment file (read with ``tomllib``)::
     label = "ilqg"
     solver = "ilqg"
 
-Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
-field: the plan's initial state), so comparisons pair by seed; a point's own ``seeds`` (a list or
-``range(N)``, among the experiment's) runs it at those only (an ablation on the first three). A grid or point key ``execute.x0_noise``
-sets a later stage's option. Every key and value is checked by the stage's own config class before
-anything runs; an unknown key is refused with the valid ones listed.
+Every variant runs at every seed (a point's own ``seeds`` at those only), so comparisons pair by
+seed; every key and value is checked by the stage's own config class before anything runs. The
+thesis's files add ``claims``, a ``[quick]`` profile, ``needs`` and ``[reproduce]``.
 
-More keys, for experiments that carry their own analysis (the thesis's files, thesis/experiments/)::
-
-    claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
-    [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
-    seeds = "range(2)"                     # options over [base], and the points it keeps (default all)
-    iterations = 6
-    points = ["iLQG", "R-AICO a=1"]
-    [[point]]
-    label = "crocoddyl FDDP (x0 held)"
-    solver = "fddp"
-    iterations = 100
-    quick = {iterations = 12}              # this point's options in the quick profile
-    needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
-    [reproduce]                            # read by raico reproduce (thesis/figures.py), carried here
-
-Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
-has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails
-(bad combination, solver error) is a row with its error; the others go on. The grid is generated as it
-is consumed (a grid of 10^5 points starts its first run at once) and runs on any executor
-(:func:`pipeline.engine.executors.stream`: cached runs looked up first, short runs batched). The runs
-table (one row per seed and variant: the swept options, the seed, each stage's key and status, scalar
-metrics, the cost curve's first, last and lowest values and the iterations to come within 1 % of its
-lowest, wall times and code version) is written as runs finish, ``runs.parquet`` under
-``artifacts/exp/<name>/`` (with ``runs.csv`` and ``runs.json`` beside it); :func:`summarize` groups it
-over seeds.
+Each run is an ordinary cached stage run: a second ``run`` computes nothing, a failed run is a row
+with its error. The grid is generated as it is consumed and runs on any executor
+(:func:`pipeline.engine.executors.stream`). The runs table (one row per seed and variant) is written
+as runs finish, ``runs.parquet`` under ``artifacts/exp/<name>/`` (with ``runs.csv`` and
+``runs.json`` beside it); :func:`summarize` groups it over seeds.
 """
 
 from __future__ import annotations

@@ -8,10 +8,9 @@ line through the variants that differ only in x):
   interquartile range as a band. A group that has one x value only because it does not use the option
   (iLQG has no alpha) is drawn as a dashed horizontal line at its median, its band across the plot: a
   baseline to compare the lines with; a group that uses it at one value is a point there.
-  On a categorical option (solver, schedule) the groups are points at each category with the
-  interquartile range as error bars, never a line between categories. Every group has its own colour,
-  marker and line style, and baselines place their markers apart, so no line hides another; a group
-  without a finite value is in the legend with ``n=0``.
+  On a categorical option (solver, schedule) the groups are points with the interquartile range as
+  error bars. Every group has its own colour, marker and line style; a group without a finite value is
+  in the legend with ``n=0``.
 - ``curve``: the cost per iteration (``plan.npz`` ``costs`` of each run's plan), median and
   interquartile band per group on a log axis; a run that stopped early holds its last cost, a diverged
   run drops out from its divergence on.
@@ -25,8 +24,8 @@ left out is said in the figure and by ``raico plot``. ``--ylim LO,HI`` sets the 
 Axes name their unit (:func:`axis_label`).
 
 Legends name the groups by the options that differ between them, leaving out those a group's runs
-do not use (an option whose value leaves the run's normalized config, so its cache key, unchanged);
-a group whose runs use none of them by its variants' names (``AICO, iLQG``); never by keys. Each legend entry says how many runs it shows (``n=8/10``: two runs had no finite value).
+do not use; a group whose runs use none of them by its variants' names (``AICO, iLQG``); never by
+keys. Each legend entry says how many runs it shows (``n=8/10``: two runs had no finite value).
 """
 
 from __future__ import annotations

@@ -18,17 +18,11 @@ Plan recordings:
 - The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recordings.rerun_io``), with the final
   plan's paths as static lines (``world/paths/<map>``, yellow) and the targets as static dots.
 - The ``iteration`` timeline shows each iteration's own trajectory, read from the plan's
-  ``X_iterations`` (every iterate decimated in time to the steps ``t_iterations``; iteration 0 is
-  the initial guess rolled out): at iteration ``i`` the robot stands at iterate ``i``'s pose at the
-  last via-point step (the final step if there is none) and ``world/iterations/<map>`` holds its
-  paths as LineStrips3D on ``iteration``: every one-point task map with via-points in all three
-  coordinates (the arm's and the pendulum's end effector ``ee``, the Nao's ``cog``), plus the
-  robot's hands (``robot.hands``: the Nao's ``l_gripper`` and ``r_gripper``). The static final path
-  stays visible beside it, so an iterate is seen against the plan. An iteration that diverged
-  (a NaN row) logs nothing: the last finite iterate stays on screen; at most
-  ``MAX_ITERATION_FRAMES`` iterations are drawn (every s-th one and the last). Nothing of this is
-  on ``sim_time``. A plan stored before ``X_iterations`` existed shows its final pose on
-  ``iteration`` instead.
+  ``X_iterations`` (iteration 0: the initial guess rolled out): at iteration ``i`` the robot stands at
+  iterate ``i``'s pose at the last via-point step and ``world/iterations/<map>`` holds its paths (every
+  one-point task map with via-points in all three coordinates, and ``robot.hands``) beside the static
+  final path. A diverged iteration logs nothing; at most ``MAX_ITERATION_FRAMES`` iterations are drawn
+  (every s-th one and the last). A plan stored before ``X_iterations`` existed shows its final pose.
 - ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
 - A plan with collision terms: the scene, the robot's collision geometry, the closest-distance segments and
   the smallest distance (:mod:`pipeline.recordings.scene`).

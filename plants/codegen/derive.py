@@ -193,14 +193,14 @@ def _disk_path(name: str, m: int):
     return kernel_dir() / f"derived-{name}-{h.hexdigest()[:20]}.json"
 
 
-def _load_derived(plant, path) -> CompiledDynamics | None:
+def load_derived(plant, path) -> CompiledDynamics | None:
     """The derived code stored at ``path`` if it is readable and passes the build's self-check against
     ``plant`` (a stale or damaged file is ignored: the caller derives anew)."""
     import json
 
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
-        if d.pop("sha256", None) != _digest(d):  # damaged (the C source is not covered by the self-check)
+        if d.pop("sha256", None) != derived_digest(d):  # damaged (the C source is not covered by the self-check)
             return None
         code = CompiledDynamics(int(d["m"]), int(d["n_carry"]), dict(d["sources"]), dict(d["stats"]),
                                 str(d["c_source"]))
@@ -211,14 +211,14 @@ def _load_derived(plant, path) -> CompiledDynamics | None:
     return code
 
 
-def _digest(doc: dict) -> str:
+def derived_digest(doc: dict) -> str:
     import hashlib
     import json
 
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def _store_derived(code: CompiledDynamics, path) -> None:
+def store_derived(code: CompiledDynamics, path) -> None:
     """Write the derived code to ``path`` atomically (best effort: a read-only cache only costs time)."""
     import contextlib
     import json
@@ -227,7 +227,7 @@ def _store_derived(code: CompiledDynamics, path) -> None:
 
     doc = {"m": code.m, "n_carry": code.n_carry, "sources": code.source, "stats": code.stats,
            "c_source": code.c_source}
-    doc["sha256"] = _digest(doc)
+    doc["sha256"] = derived_digest(doc)
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -253,14 +253,14 @@ def compiled_dynamics(robot) -> CompiledDynamics:
     if hit is None:
         m = robot.plant.num_positions()
         path = _disk_path(robot.name, m) if m <= MAX_PLANT_DOFS else None
-        hit = _load_derived(robot.plant, path) if path is not None else None
+        hit = load_derived(robot.plant, path) if path is not None else None
         if hit is None:
             try:
                 hit = derive(robot.plant)
             except NotImplementedError as exc:
                 hit = exc
             if path is not None and isinstance(hit, CompiledDynamics):
-                _store_derived(hit, path)
+                store_derived(hit, path)
         _COMPILED[robot.name] = hit
     if isinstance(hit, Exception):
         raise NotImplementedError(f"{robot.name}: {hit}")

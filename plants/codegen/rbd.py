@@ -2,35 +2,25 @@
 
 For plants whose symbolic equations are too large or too slow to generate (the 26-joint Nao, arms
 of 6 or more joints: see :mod:`plants.codegen.derive` and
-:data:`plants.fast_analytic.SYMBOLIC_MAX_POSITIONS`), the same quantities come from the classical recursive algorithms
-on the tree, with the tree's numbers (frames, axes, masses, inertias, damping, reflected rotor
-inertia, gravity) read from the Drake plant and baked into the C source:
+:data:`plants.fast_analytic.SYMBOLIC_MAX_POSITIONS`), the same quantities come from the classical
+recursive algorithms on the tree, with the tree's numbers (frames, axes, masses, inertias, damping,
+reflected rotor inertia, gravity) read from the Drake plant and baked into the C source:
 
 - forward kinematics, point / centre-of-mass / angular-velocity Jacobians (the task maps of
   :mod:`plants.taskmaps`);
-- the inverse dynamics ``ID(q, v, a)`` by the recursive Newton-Euler algorithm, written in world
-  coordinates (spatial vectors at the world origin: forces of the bodies simply add up towards
-  the root), gravity as the base's acceleration, plus joint damping and reflected inertia;
-- its exact derivatives ``dID/d(q, v)`` two ways: by forward-mode automatic differentiation of that
-  same code (a body's quantities carry the partial derivatives along the positions and velocities
-  of the joints between it and the world only; the task maps' gravity torques use it), and, for the
-  dynamics model (:class:`plants.fast_analytic.TreeAnalyticDynamics`), by the analytical derivatives
-  of the recursive Newton-Euler algorithm (Carpentier and Mansard, RSS 2018) in the same world
-  coordinates, with the mass matrix ``M`` from the same pass (the composite inertias): O(1) work per body
-  and a few dot products of 6-vectors per pair of joints on a path to the root, on the dynamics'
-  own tree (:func:`dynamics_tree`: the moving bodies, welded ones merged into them);
-- the C entry points of these maps (``TreeKernels.addresses``) through which the planning floor's
-  compiled task messages (``planning/task_messages.c``, :func:`planning.kernels.compile_task_set`)
-  evaluate them.
+- the inverse dynamics ``ID(q, v, a)`` by the recursive Newton-Euler algorithm in world coordinates;
+- its exact derivatives ``dID/d(q, v)`` by forward-mode automatic differentiation of that code and,
+  for :class:`plants.fast_analytic.TreeAnalyticDynamics`, by the analytical derivatives of the
+  recursive Newton-Euler algorithm with the mass matrix ``M`` from the same pass, on the dynamics'
+  own tree (:func:`dynamics_tree`);
+- the C entry points of these maps (``TreeKernels.addresses``) for the planning floor's compiled
+  task messages (:func:`planning.kernels.compile_task_set`).
 
-Supported: trees of revolute, prismatic and weld joints (also traversed against the joint's
-parent/child direction, as Drake does when a foot is welded to the world), gravity as the only force
-element. A prismatic joint translates its child along its axis by ``q`` (m); in the world-frame
-Newton-Euler its motion axis is ``(0, a)`` (revolute: ``(a, o x a)``), its damping and reflected
-inertia (rotor inertia x gear ratio^2, kg) enter as a revolute joint's do.
+Supported: trees of revolute, prismatic and weld joints, gravity as the only force element.
 :func:`tree_kernels` checks ``M``, ``h`` and ``dID`` (both routes) against Drake's float and AutoDiffXd
 evaluation at random states and refuses the plant on a mismatch (``NotImplementedError``), as
-:func:`plants.codegen.derive.derive` does for the generated code.
+:func:`plants.codegen.derive.derive` does for the generated code. The algorithms in detail:
+docs/kernels.md, "The kinematic tree in C".
 """
 
 from __future__ import annotations

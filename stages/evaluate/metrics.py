@@ -19,13 +19,9 @@ Execution status, first that applies:
 - ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` (rad; on a
   prismatic joint ``TRACKING_LOST_M``, m) at some sample;
 - ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
-  limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than
-  ``LIMIT_TOL`` elsewhere) or some actuator is at its effort limit (the controller asks for
-  at least what the motor gives: its command without the process noise; a motor that only
-  clamps the noise is not; ``effort_clamped_fraction``: the share of samples with any motor
-  clamped, the command plus the noise; not for the pendulum,
-  the thesis's ideal point mass, whose +-10 N m bound is its swing-up task's control limit,
-  there to be used);
+  limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than ``LIMIT_TOL``
+  elsewhere) or some actuator is at its effort limit because the controller asks for it (not a motor
+  that only clamps the process noise; not the pendulum, whose +-10 N m is its task's control limit);
 - ``ok``: none of these.
 """
 

@@ -4,41 +4,21 @@ Per output dimension, the log marginal likelihood of the kernel
 ``sf2 * exp(-|z - z'|^2_ell / 2) + sn2 * delta`` (scikit-learn's
 ``ConstantKernel * RBF(length_scale=ones(d)) + WhiteKernel``, :func:`make_kernel`) is maximized
 over ``theta = log(sf2, ell_1..ell_d, sn2)`` (sklearn's order) by L-BFGS-B with the analytic
-gradient (:func:`lml_and_gradient`; equal to sklearn's ``log_marginal_likelihood(theta,
-eval_gradient=True)``, tested, at a fraction of its cost: the inverse comes from LAPACK ``dpotri``
-on the factor, read through its lower triangle; 1.5-1.6x faster than solving against the identity at 300-1000 points, the same numbers to 1e-14), on the standardized data of ``plants.gp`` (inputs per dimension,
-outputs per output). Starts: the kernel's initial point (or ``start``, a previous model's
-hyperparameters: the learning loop's warm start), then ``restarts`` random points drawn
-uniformly in the log bounds (``numpy.random.RandomState(seed)``, as sklearn's
-``n_restarts_optimizer``); the best likelihood wins. The outputs are fitted independently, on
-``plants._threads.output_threads()`` threads (single-threaded BLAS each: the same numbers on any
-count). A warm-started refit (the learning loop's, from the previous fit's hyperparameters) stops when
-the likelihood's relative change falls below ``WARM_FTOL`` = 1e-7 (scipy's default 2.2e-9 otherwise):
-at the loop's 200-1200 points the likelihood is O(1e3) nats, so the stop is 1e-4 nats; it cuts the
-refits' likelihood evaluations by about a quarter (the 20-episode BioRob loop's fits 27 -> 20 s) and
-moves the hyperparameters by < 1e-3 in log scale (tests/plants/test_gp.py). The noise is bounded below by
-``noise_floor`` (so the likelihood and ``GPModel``'s posterior use the same ``K + sn2 I``,
-nothing else on the diagonal). Bounds (standardized units): length-scales ``[1e-2, 1e3]``,
-``sf2`` in ``[1e-3, 1e3]``, ``sn2`` in ``[noise_floor, 1]``; ``sf2 <= 1e3`` and ``sn2 >= 1e-6``
-keep ``cond(K + sn2 I) <= 1 + 1e9 N`` (nearly linear dependencies, e.g. the pendulum's on
-``qdot`` and ``u``, push ``sf2`` and the length-scales to their upper bounds; the fit then
-records which parameter ended at a bound in ``info["warnings"]``). The fitted parameters build a
-``GPModel``.
+gradient (:func:`lml_and_gradient`, equal to sklearn's, tested) on the standardized data of
+``plants.gp``. Starts: the kernel's initial point (or ``start``, a previous model's
+hyperparameters: the learning loop's warm start, which stops at ``WARM_FTOL``), then ``restarts``
+random points drawn uniformly in the log bounds (``numpy.random.RandomState(seed)``); the best
+likelihood wins. The outputs are fitted independently, on ``plants.threads.output_threads()``
+threads (the same numbers on any count). Bounds (standardized units): length-scales ``[1e-2, 1e3]``,
+``sf2`` in ``[1e-3, 1e3]``, ``sn2`` in ``[noise_floor, 1]``; a parameter that ends at a bound is
+named in ``info["warnings"]``. The fitted parameters build a ``GPModel``.
 
-Bounded cost (``max_points``): when a training set exceeds the cap, ``subsample_indices`` keeps
-
-1. the most recent ``ceil(recent_fraction * max_points)`` rows (rows are in collection order,
-   so these are the data around the trajectory the planner works on now), then
-2. greedy farthest-point selection among the older rows in standardized input space: each step
-   adds the older row farthest (Euclidean) from everything kept so far (ties: lowest index),
-
-which is deterministic and covers the older (babbling) region evenly. ``measure_cap_cost``
-reports what the cap costs in held-out RMSE.
-
-Sparse GP (``fit_sparse_gp``, ``raico fit/learn --gp sparse --inducing M``): the hyperparameters
-are this module's exact likelihood maximized on the ``M`` points ``subsample_indices`` keeps;
-the posterior is FITC on all (capped) points with ``M`` inducing inputs chosen by
-``plants.gp.select_inducing`` (greedy maximum variance).
+Bounded cost (``max_points``): above the cap ``subsample_indices`` keeps the most recent rows and
+fills the rest by greedy farthest-point selection among the older ones (deterministic);
+``measure_cap_cost`` reports what the cap costs in held-out RMSE. Sparse GP (``fit_sparse_gp``):
+the hyperparameters of the exact likelihood on the ``M`` points ``subsample_indices`` keeps, the
+posterior FITC on all (capped) points with ``M`` inducing inputs (``plants.gp.select_inducing``).
+The details: docs/learning.md, "Fitting the hyperparameters".
 """
 
 from __future__ import annotations
@@ -50,8 +30,8 @@ import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize
 
-from plants._threads import map_outputs
 from plants.gp import NOISE_FLOOR, AngleInputGP, GPBase, GPModel, SparseGPModel, column_std
+from plants.threads import map_outputs
 
 LENGTH_SCALE_BOUNDS = (1e-2, 1e3)  # standardized input units
 SIGNAL_BOUNDS = (1e-3, 1e3)  # sf2, standardized output units
@@ -127,7 +107,7 @@ def lml_and_gradient(theta: np.ndarray, Z: np.ndarray, y: np.ndarray) -> tuple[f
     return lml, grad
 
 
-WARM_FTOL = 1e-7  # L-BFGS-B's stop on the likelihood's relative change for a warm-started refit (module docstring)
+WARM_FTOL = 1e-7  # L-BFGS-B's stop on the likelihood's relative change for a warm-started refit (docs/learning.md)
 
 
 def maximize_lml(Z: np.ndarray, y: np.ndarray, starts: list[np.ndarray], bounds: np.ndarray,
@@ -257,7 +237,7 @@ def refit_fixed(model: GPBase, X: np.ndarray, Y: np.ndarray) -> GPBase:
 
 
 def subsample_indices(X: np.ndarray, max_points: int, *, recent_fraction: float = 0.5) -> np.ndarray:
-    """Sorted indices ``(min(N, max_points),)`` of the rows of ``X (N, d)`` to keep (rule in the module docstring)."""
+    """Sorted indices ``(min(N, max_points),)`` of the rows of ``X (N, d)`` to keep (the rule: docs/learning.md)."""
     N = X.shape[0]
     if max_points < 1:
         raise ValueError(f"max_points must be >= 1, got {max_points}")

@@ -1,53 +1,28 @@
 """The fit stage (thesis §4.2): a GP model of ``qddot = f(q, qdot, u)`` from babbled or executed data.
 
 Data. ``--data`` names babble and execute artifacts; the training set is every point of them
-(every ``stride``-th sample of each time segment), in the order given. A babble artifact
-contributes one time segment per episode with its sampled ``(q, qdot, u) -> qddot`` (Drake's
-own time derivative). An execute artifact contributes one segment: the executed states
-``X[k]`` with the torque ``tau[k]`` applied over planning step ``k``; its target is Drake's
-forward dynamics at that tuple, computed with the analytic model
-(``make_dynamics("analytic", ...)``, which *is* Drake's forward dynamics of the plant the
-simulator ran), so every training tuple is an exact sample of the plant's dynamics (for
-computed-torque plans the torque varies inside a step; the logged tuple is still exact). Rows
-with a non-finite value are skipped (a diverged rollout ends early). The execute artifact's
-plant and step come from its plan's ``problem.json``.
+(every ``stride``-th sample of each time segment), in the order given: a babble episode's sampled
+``(q, qdot, u) -> qddot``, an execution's states and applied torques with Drake's forward dynamics
+as the target (an exact sample of the plant's dynamics). Rows with a non-finite value are skipped.
+The trailing ``holdout`` fraction of every segment is held out: never trained on, used for the
+held-out RMSE and the recording.
 
-Held-out data. The trailing ``holdout`` fraction of every segment (``round(holdout * K)``
-samples, at least one sample stays for training) is held out: never trained on, used for
-the held-out RMSE and the recording, where the held-out segments are laid end to end on one
-``sim_time`` axis.
+Hyperparameter schedule (thesis "1:1" and ">100"). Without ``--prior`` the hyperparameters are
+optimized (``fit_gp``). With ``--prior`` (an earlier fit of the same plant, holdout and stride whose
+data keys are all among ``--data``): ``every`` re-optimizes on all data, warm-started at the prior's
+hyperparameters; ``batch-N`` re-optimizes when ``N`` training points arrived since the prior's last
+optimization, else extends the prior's GP at its hyperparameters (``GPModel.update``). The cap
+``max_points`` applies to every path; ``n_dropped`` says how many points it dropped.
 
-Hyperparameter schedule (thesis "1:1" and ">100"). Without ``--prior`` the
-hyperparameters are optimized (``fit_gp``). With ``--prior`` (an earlier fit artifact whose
-data keys must all be among ``--data``; same plant, holdout and stride): ``every`` re-optimizes on all
-data, starting the optimizer at the prior's hyperparameters (then ``restarts`` random
-starts); ``batch-N`` re-optimizes (also warm-started) when the training points added since the prior's last
-optimization (counted before the cap) reach ``N``, else it adds the points of the data keys
-the prior did not have to the prior's GP at its hyperparameters (``GPModel.update``, the
-Cholesky factor extended). When the cap would be exceeded the prior's points plus the new
-ones are subsampled by ``subsample_indices`` and refactorized at the prior's hyperparameters
-(``refit_fixed``). The cap ``max_points`` applies to every path; ``n_dropped`` says how many
-training points it dropped.
+Residual model (``--residual``): the targets are ``qddot - f_model(q, qdot, u)``, what the planning
+model misses (``plants.learned.ResidualDynamics`` plans with model + GP). GP kind (``--gp``):
+``exact`` (``plants.gp.GPModel``) or ``sparse`` (FITC with ``--inducing M`` inducing inputs). A prior
+must be of the same kind on both counts.
 
-Residual model (``--residual``). The targets become ``qddot - f_model(q, qdot, u)``: what the
-planning model (the built-in plant's analytic model, or the problem file's model file) misses of
-the data's accelerations (the babbled robot's own, an execution's by the executed robot's forward
-dynamics: ``[robot.true]``'s where the problem states one). The stored arrays say so
-(``plants.learned.RESIDUAL_KEY``) and ``--dynamics learned`` then plans with model + GP
-(``plants.learned.ResidualDynamics``). The held-out errors are those of the sum (the model's part
-is exact). A prior must be of the same kind.
-
-GP kind (``--gp``). ``exact`` (default): ``plants.gp.GPModel``. ``sparse``: FITC with
-``--inducing M`` inducing inputs (``plants.gp.SparseGPModel``, ``stages.fit.gp_fit.fit_sparse_gp``):
-hyperparameters optimized on ``M`` of the training points, inducing inputs chosen among all
-training points by greedy maximum variance; its updates at fixed hyperparameters select the
-inducing inputs again and refactorize (mode ``refactorized``). A prior must be of the same kind.
-An empty held-out set when ``holdout > 0`` (segments too short) is an error.
-
-Files: ``model.npz`` (``GPModel.to_arrays()``, with the Cholesky factor: what
-``make_dynamics("learned", robot, dt, params)`` takes), ``heldout.npz`` (held-out inputs
-``X (M, d)``, targets ``Y (M, n_q)``, laid-out ``time (M,)`` s, ``segment (M,)``) and
-``fit.json`` (see :func:`fit_document`).
+Files: ``model.npz`` (``GPModel.to_arrays()``: what ``make_dynamics("learned", robot, dt, params)``
+takes), ``heldout.npz`` (held-out inputs ``X (M, d)``, targets ``Y (M, n_q)``, laid-out ``time (M,)``
+s, ``segment (M,)``) and ``fit.json`` (:func:`fit_document`). The rules in detail: docs/learning.md,
+"The fit stage".
 """
 
 from __future__ import annotations

@@ -14,23 +14,23 @@ from tests.tolerance import assert_close
 
 
 def _each(monkeypatch, per_iteration) -> None:
-    """``model_files._per_iteration_details`` made of ``per_iteration(f, solver, options, reps)`` per solver."""
-    monkeypatch.setattr(model_files, "_per_iteration_details",
+    """``model_files.per_iteration_details`` made of ``per_iteration(f, solver, options, reps)`` per solver."""
+    monkeypatch.setattr(model_files, "per_iteration_details",
                         lambda f, specs, reps=3: [per_iteration(f, solver, options, reps) for solver, options in specs])
 
 
 def _detail(seconds, status, start, costs, n=2, setup=0.01):
-    """A measurement as ``model_files._per_iteration_detail`` returns it: its iterations' costs, ``seconds``
+    """A measurement as ``model_files.per_iteration_details`` returns one: its iterations' costs, ``seconds``
     each."""
     return {"seconds": seconds, "setup_s": setup, "repeats": 0.0, "n_x": 2 * n, "n_u": n, "T": 100,
             "status": status, "start_cost": start, "final_cost": costs[-1], "costs": list(costs),
             "elapsed_s": [seconds * (k + 1) for k in range(len(costs))],
-            "ended": model_files._ended(status, start, costs[-1])}
+            "ended": model_files.ending(status, start, costs[-1])}
 
 
 def test_a_solver_exception_is_said_with_its_chain_size(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(model_files, "CHAIN_SIZES", (2, 3))
-    real = model_files._per_iteration_details
+    real = model_files.per_iteration_details
 
     def per_iteration(f, solver, options, reps=3):
         if solver == "raico" and f.name == "chain3.toml":   # the solver registry refuses it: an exception
@@ -67,7 +67,7 @@ def test_a_diverged_run_is_labelled_and_left_out_of_the_exponents_and_ratios(mon
         return _detail(seconds * (2.0 if solver == "raico" else 1.0), "max-iterations", 10.0, [2.0, 1.0], n=n), ""
 
     _each(monkeypatch, per_iteration)
-    monkeypatch.setattr(model_files, "_flops", lambda *args, **kwargs: {})   # the flop columns: test_bench_flops.py
+    monkeypatch.setattr(model_files, "flop_columns", lambda *args, **kwargs: {})   # the flop columns: test_bench_flops.py
     rows = model_files.scaling_rows(dgemm=10.0)
     raico = next(r for r in rows if r["benchmark"] == "R-AICO per iteration against joints")
     assert raico["joint_sizes"] == [2, 4, 8, 32] and "diverged" in raico["joint_skipped"][16]
@@ -104,11 +104,11 @@ def test_the_page_labels_a_run_that_found_nothing_and_a_failed_one():
 
 
 def test_ended_says_diverged_no_descent_or_the_status():
-    assert model_files._ended("diverged", 10.0, 1.0) == "diverged"
-    assert model_files._ended("max-iterations", 10.0, math.inf) == "diverged"
-    assert model_files._ended("max-iterations", 10.0, 1.7e201) == "no descent"
-    assert model_files._ended("max-iterations", math.inf, 5.0) == "max-iterations"   # a start that is no rollout
-    assert model_files._ended("converged", 10.0, 1.0) == "converged"
+    assert model_files.ending("diverged", 10.0, 1.0) == "diverged"
+    assert model_files.ending("max-iterations", 10.0, math.inf) == "diverged"
+    assert model_files.ending("max-iterations", 10.0, 1.7e201) == "no descent"
+    assert model_files.ending("max-iterations", math.inf, 5.0) == "max-iterations"   # a start that is no rollout
+    assert model_files.ending("converged", 10.0, 1.0) == "converged"
 
 
 def test_the_common_cost_is_the_better_final_cost_plus_one_percent_and_each_solver_is_timed_to_it():
@@ -120,7 +120,7 @@ def test_the_common_cost_is_the_better_final_cost_plus_one_percent_and_each_solv
     assert math.isclose(target, 0.0202, rel_tol=1e-9)
     assert model_files.time_to(a, target) is None
     assert math.isclose(model_files.time_to(f, target), 3 * 0.035, rel_tol=1e-9)   # its third iteration: 0.0201
-    row = model_files._beside(a, f)
+    row = model_files.fddp_columns(a, f)
     assert row["time_to_common_s"] is None and math.isclose(row["ratio_to_fddp"], 0.016 / 0.035, rel_tol=1e-9)
     assert row["fddp_final_cost"] == 0.020 and row["fddp_setup_s"] == 0.01
     diverged = _detail(0.01, "diverged", 90.0, [math.inf], n=32)
@@ -165,7 +165,7 @@ def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart
         finish(self)
 
     monkeypatch.setattr(croc_solve._Recorder, "finish", counted_finish)
-    res, setup = model_files._timed_solve(problem, "fddp", {"iterations": 4})
+    res, setup = model_files.timed_solve(problem, "fddp", {"iterations": 4})
     assert deferred[-1] >= 1   # an infeasible iterate rolled out after the solve
     assert [h.cost for h in res.history] == [h.cost for h in live.history]
     assert setup > 0 and all(h.time_s > 0 for h in res.history)
@@ -173,7 +173,7 @@ def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart
     assert model_files.records_after("boxfddp") == {"record": "after"} and model_files.records_after("raico") == {}
     with pytest.raises(ValueError, match="record must be"):
         fddp(problem, record="later")
-    _, setup_a = model_files._timed_solve(problem, "raico", model_files.chain_raico_options(f))
+    _, setup_a = model_files.timed_solve(problem, "raico", model_files.chain_raico_options(f))
     assert setup_a is not None and setup_a > 0
 
 
@@ -212,7 +212,7 @@ def test_both_solvers_lower_the_cost_of_the_chain(tmp_path, n):
     if "fddp" in SOLVERS:
         solvers.append(("fddp", {"iterations": model_files.ITERATIONS}))
     for solver, options in solvers:
-        d, why = model_files._per_iteration_detail(f, solver, options, reps=1)
+        d, why = model_files.per_iteration_details(f, [(solver, options)], reps=1)[0]
         assert d is not None, why
         assert d["ended"] in ("converged", "max-iterations"), (solver, d)
         assert d["final_cost"] < d["start_cost"], (solver, d)

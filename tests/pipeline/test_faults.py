@@ -200,7 +200,7 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
 
 def test_damaged_report_file_is_skipped_with_a_warning_and_rebuilt(tmp_path):
     from pipeline.engine.ui import Reporter
-    from thesis.reproduce import _cached_report, write_readme
+    from thesis.reproduce import cached_report, write_readme
 
     root = tmp_path / "report-quick"
     good = {"figure": "fig3.2a", "description": "arm", "claims": [
@@ -226,9 +226,9 @@ def test_damaged_report_file_is_skipped_with_a_warning_and_rebuilt(tmp_path):
     # the figure's own run does not trust it either: rebuilt, whatever its stamp says
     (root / "fig3.2b" / "figure.png").write_bytes(b"png")
     (root / "fig3.2b" / "report_key.txt").write_text("k\n")
-    assert _cached_report(root / "fig3.2b", "k") is None
+    assert cached_report(root / "fig3.2b", "k") is None
     (root / "fig3.2b" / "claims.json").write_text(json.dumps({**good, "figure": "fig3.2b"}))
-    assert _cached_report(root / "fig3.2b", "k")["figure"] == "fig3.2b"
+    assert cached_report(root / "fig3.2b", "k")["figure"] == "fig3.2b"
 
 
 # ============================================================================= 3. OS errors
@@ -377,7 +377,7 @@ HELPER = textwrap.dedent("""
     # (pipeline.interface.cli.main with its argv) or a stage run, killed or raced as the test asks.
     import json, os, resource, signal, sys, time
     from pathlib import Path
-    import plants._threads  # noqa: F401
+    import plants.threads  # noqa: F401
     from pipeline.engine import runner
     from pipeline.interface import cli
     from pipeline.engine.cache import Cache

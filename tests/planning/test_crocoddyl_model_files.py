@@ -508,12 +508,12 @@ def test_the_bench_row_of_crocoddyls_example_is_plain_fddp(crocoddyl_baseline):
     """The benchmark page's row "crocoddyl's example" runs the example's solver, FDDP, on the problem as the
     bench builds it (the problem file's default hard bounds, which ``box="auto"`` would turn into BoxFDDP):
     the logged 72 iterations (0-based) and cost 8.125."""
-    from bench.crocoddyl_problems import PROBLEMS, _cfg, _kinova_example
+    from bench.crocoddyl_problems import PROBLEMS, kinova_example, plan_config
     from stages.plan.stage import build_problem
 
-    problem = build_problem(_cfg(PROBLEMS["kinova"]["file"], solver="fddp"))[2]
+    problem = build_problem(plan_config(PROBLEMS["kinova"]["file"], solver="fddp"))[2]
     assert problem.bounds is not None
-    r, cost = _kinova_example(problem)
+    r, cost = kinova_example(problem)
     assert r.iterations == 73 and abs(cost - 8.125) < 5e-4
 
 

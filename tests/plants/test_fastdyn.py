@@ -267,10 +267,10 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
     doc = json.loads(path.read_text())
     doc.pop("sha256")
     doc["sources"]["first"] = doc["sources"]["first"].replace("    return out\n", "    out[0] += 1.0\n    return out\n")
-    doc["sha256"] = dv._digest(doc)
+    doc["sha256"] = dv.derived_digest(doc)
     path.write_text(json.dumps(doc))
     monkeypatch.setattr(dv, "_COMPILED", {})
-    assert dv._load_derived(r.plant, path) is None
+    assert dv.load_derived(r.plant, path) is None
     assert compiled_dynamics(r) is fresh and calls == [1, 1]
 
 

@@ -513,22 +513,22 @@ def test_uncertainty_term_units_raw_is_the_predictive_variance():
 
 @pytest.mark.numerics
 def test_hyperparameter_fits_identical_on_one_or_two_threads(monkeypatch):
-    """The outputs' fits run on ``RAICO_THREADS`` threads (plants._threads.map_outputs): the same
+    """The outputs' fits run on ``RAICO_THREADS`` threads (plants.threads.map_outputs): the same
     hyperparameters bit for bit on 1 and 2; a bad value is one clear error."""
-    from plants import _threads
+    from plants import threads
 
     X, Y = toy_data(80, 2)
     fits = []
     for n in ("1", "2"):
         monkeypatch.setenv("RAICO_THREADS", n)
-        assert _threads.output_threads() == int(n)
+        assert threads.output_threads() == int(n)
         model, _ = fit_gp(X, Y, restarts=1, seed=0)
         fits.append(np.concatenate([model.ell.ravel(), model.sf2, model.sn2]))
     assert np.array_equal(fits[0], fits[1])
-    assert _threads.map_outputs(lambda j: j * j, 5) == [0, 1, 4, 9, 16]
+    assert threads.map_outputs(lambda j: j * j, 5) == [0, 1, 4, 9, 16]
     monkeypatch.setenv("RAICO_THREADS", "two")
     with pytest.raises(ValueError, match="RAICO_THREADS must be a positive integer"):
-        _threads.output_threads()
+        threads.output_threads()
 
 
 @pytest.mark.numerics

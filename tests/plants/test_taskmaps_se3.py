@@ -30,16 +30,16 @@ from plants.taskmaps import (
     FrameRotationError,
     Jlog3,
     Jlog6,
-    _jlog3,
-    _jlog3_rows,
-    _jlog6,
-    _jlog6_rows,
-    _log6_parts,
-    _log6_parts_rows,
+    jlog3,
+    jlog3_rows,
+    jlog6,
+    jlog6_rows,
     log3,
     log3_angle,
     log3_angle_rows,
     log6,
+    log6_parts,
+    log6_parts_rows,
 )
 from tests.tolerance import REL, assert_close, bound, scale_of
 
@@ -171,22 +171,22 @@ def test_batched_logarithms_equal_the_scalar_ones_row_by_row():
     for a in (0.0, 1e-7, 1e-5, np.pi - 1e-7, np.pi):   # each branch has rows in the batch
         assert np.any(np.abs(angles - a) <= REL + 0.05 * min(a, np.pi - a)), a
     theta, r = log3_angle_rows(R)
-    J3 = _jlog3_rows(theta, r)
-    theta6, w6, l6 = _log6_parts_rows(R, p)
-    J6 = _jlog6_rows(theta6, w6, p)
+    J3 = jlog3_rows(theta, r)
+    theta6, w6, l6 = log6_parts_rows(R, p)
+    J6 = jlog6_rows(theta6, w6, p)
     assert theta.shape == (len(R),) and r.shape == (len(R), 3) and J3.shape == (len(R), 3, 3)
     assert l6.shape == (len(R), 6) and J6.shape == (len(R), 6, 6)
     for k in range(len(R)):
         th, rk = log3_angle(R[k])
-        th6, wk, lk = _log6_parts(R[k], p[k])
+        th6, wk, lk = log6_parts(R[k], p[k])
         # the inputs' scale: a rotation's entries (1) and the translation's (|p|)
         s6 = max(1.0, scale_of(p[k]))
         assert_close([theta[k], theta6[k]], [th, th6], scale=1.0, err_msg=str(k))
         assert_close(r[k], rk, scale=1.0, err_msg=str(k))
-        assert_close(J3[k], _jlog3(th, rk), scale=1.0, err_msg=str(k))
+        assert_close(J3[k], jlog3(th, rk), scale=1.0, err_msg=str(k))
         assert_close(w6[k], wk, scale=1.0, err_msg=str(k))
         assert_close(l6[k], lk, scale=s6, err_msg=str(k))
-        assert_close(J6[k], _jlog6(th6, wk, p[k]), scale=s6, err_msg=str(k))
+        assert_close(J6[k], jlog6(th6, wk, p[k]), scale=s6, err_msg=str(k))
 
 
 def test_batched_logarithms_raise_no_warning_on_the_branches_they_do_not_take():
@@ -195,9 +195,9 @@ def test_batched_logarithms_raise_no_warning_on_the_branches_they_do_not_take():
     R, p = _mixed_batch(6)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        theta, w, _ = _log6_parts_rows(R, p)
-        _jlog6_rows(theta, w, p)
-        _jlog3_rows(*log3_angle_rows(R))
+        theta, w, _ = log6_parts_rows(R, p)
+        jlog6_rows(theta, w, p)
+        jlog3_rows(*log3_angle_rows(R))
 
 
 # -- the task maps on the robots --------------------------------------------------------------------

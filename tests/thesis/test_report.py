@@ -320,18 +320,18 @@ def test_cost_and_wall_panels_leave_out_exploding_iterates_and_say_so(runs):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from thesis.report import _cost_panel, _wall_time_panel
+    from thesis.report import cost_panel, wall_time_panel
 
     fddp = Variant("fddp")
     exp = Experiment("figT", "arm5", "reach", "analytic", (R1, fddp), 6, 2, "synthetic")
     plans = [runs(R1, s, np.geomspace(1000 + 100 * s, 50 + 7 * s, 6)) for s in range(3)]
     plans += [runs(fddp, s, [1e35, 3e4, 2e4, 1e4, 9e3, 8e3]) for s in range(3)]
     fig, (ax, ax2) = plt.subplots(1, 2)
-    _cost_panel(ax, exp, cost_panel_data(FakeCache(), exp, plans), "synthetic", stat="median")
+    cost_panel(ax, exp, cost_panel_data(FakeCache(), exp, plans), "synthetic", stat="median")
     lo, hi = ax.get_ylim()
     assert hi < 1e6 and lo < 50
     assert "drawn points above" in ax.get_title() and "up to 1e+35; exploding" in ax.get_title()
-    _wall_time_panel(ax2, wall_panel_data(FakeCache(), exp, plans), {})
+    wall_time_panel(ax2, wall_panel_data(FakeCache(), exp, plans), {})
     assert ax2.get_ylim()[1] < 1e6 and "up to 1e+35; exploding" in ax2.get_title()
     plt.close(fig)
 
@@ -406,11 +406,11 @@ def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
 
 def test_a_thesis_setup_row_names_its_set_up_in_place_of_raicos():
     from thesis.claims import setup_notes
-    from thesis.report import _setup_in_place
+    from thesis.report import setup_in_place
 
     raico = setup_notes("aico_no_balancing", "fig3.4")
     assert "CoG weights read as 1e6" in raico and "right sole held" in raico
-    row = _setup_in_place(raico, "balance-thesis")
+    row = setup_in_place(raico, "balance-thesis")
     assert row.startswith("eq. 3.7's cost") and "CoG weights read" not in row and "right sole held" not in row
     assert "q0 about a posture leaning" in row  # the start is raico's in this set-up
-    assert _setup_in_place(setup_notes("counterbalance", "fig3.3"), "reach-zero").startswith("q0 about the zero posture")
+    assert setup_in_place(setup_notes("counterbalance", "fig3.3"), "reach-zero").startswith("q0 about the zero posture")
