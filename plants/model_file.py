@@ -36,7 +36,7 @@ Facts (what raico needs to know of a robot beyond its file; the defaults are a f
   the support polygon a balance objective keeps the centre of mass in;
 - ``execution``: ``"discrete"`` (a 1 ms plant that enforces the joint limits: the arms), ``"continuous"``
   (Drake's continuous plant, whose effort limit nothing clamps: the pendulum) or ``"floating"`` (free on
-  its soles with contact: built for the Nao only, ``plants/free_nao.py``), and ``time_step``, its step (s; a
+  its soles with contact, ``plants.floating``: given ``feet``, ``sole`` and ``stand``, ``plants.stand``), and ``time_step``, its step (s; a
   continuous plant's largest integrator step);
 - ``learn``: the learning loop's defaults ``{babble_points, stride}``;
 - ``unactuated``: planning joints without a motor (the cart-pole's pole): no actuator is added for them, their
@@ -69,6 +69,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from plants.stand import Stand, StandError, missing_for_floating, stand_from
 
 if TYPE_CHECKING:
     from plants.robot import Robot
@@ -109,6 +111,7 @@ class RobotSpec:
     learn: tuple[tuple[str, int], ...] = ()  # the learning loop's defaults {babble_points, stride}
     unactuated: tuple[str, ...] = ()  # planning joints without a motor (effort 0)
     gravity: float = DRAKE_GRAVITY  # m/s^2, along -z
+    stand: Stand | None = None  # how a floating robot stands (plants.stand)
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it). Facts at their defaults are left
@@ -147,10 +150,11 @@ class RobotSpec:
 
 EXECUTIONS = ("discrete", "continuous", "floating")
 FACTS = ("plant", "order", "coupled", "end_effectors", "hands", "feet", "sole", "execution", "time_step", "learn",
-         "unactuated", "gravity")
+         "unactuated", "gravity",
+         "stand")  # how a floating robot stands: its own table, checked by plants.stand
 FACT_DEFAULTS = {"plant": None, "order": "tree", "coupled": (), "end_effectors": (), "hands": (), "feet": (),
                  "sole": (), "execution": "discrete", "time_step": 1e-3, "learn": (), "unactuated": (),
-                 "gravity": DRAKE_GRAVITY}
+                 "gravity": DRAKE_GRAVITY, "stand": None}
 LEARN_KEYS = ("babble_points", "stride")
 
 
@@ -181,6 +185,11 @@ def facts_from(d: dict) -> dict:
             if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
                 raise ModelError(f"sole: a list of at least 3 [x, y] corners (m), got {v}")
             out[key] = tuple((float(x), float(y)) for x, y in pts)
+        elif key == "stand":
+            try:
+                out[key] = stand_from(v)
+            except StandError as e:
+                raise ModelError(str(e)) from None
         elif key == "time_step":
             if not isinstance(v, (int, float)) or not 1e-5 <= v <= 0.1:
                 raise ModelError(f"time_step must be a number of seconds in [1e-5, 0.1], got {v}")
@@ -200,6 +209,8 @@ def _fact_json(key: str, value):
         return dict(value)
     if key == "sole":
         return [list(v) for v in value]
+    if key == "stand":
+        return value.to_json()
     return list(value) if isinstance(value, tuple) else value
 
 
@@ -585,9 +596,10 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
     from plants.robot import Robot
 
     path, fmt, text, notes, packages = _model_text(spec)
-    if spec.execution == "floating" and spec.plant is None:
-        raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) is built for the "
-                         "Nao only (plants/free_nao.py); a model file's robot executes welded: discrete or continuous")
+    missing = missing_for_floating(spec) if spec.execution == "floating" else []
+    if missing:
+        raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) needs the facts "
+                         f"{'; '.join(missing)}")
     builder = builder or DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     if time_step > 0:

@@ -45,13 +45,13 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
                            blueprint=_execute_blueprint(plots, robot.joint_names, eye, free,
                                                         [*scene_views(objective), *_mpc_views(d)])) as rec:
         sel = rec_mod.plot_indices(len(times), vias)
-        if free:  # the free-standing Nao: its own plant (floating base, floor) and stored positions
-            from plants.free_nao import shared_free_nao
+        if free:  # a floating robot: its own plant (floating base, floor) and stored positions
+            from plants.floating import shared_floating
 
-            nao = shared_free_nao()
-            poses = rec_mod.pose_indices(len(times), rec_mod.n_bodies(nao), vias)
-            rec_mod.log_robot_geometry(rec, nao)
-            rec_mod.log_body_trajectory(rec, nao, times, _hold_last_finite(d["q_free"]), joints=False, poses=poses)
+            floating = shared_floating(robot.spec)
+            poses = rec_mod.pose_indices(len(times), rec_mod.n_bodies(floating), vias)
+            rec_mod.log_robot_geometry(rec, floating)
+            rec_mod.log_body_trajectory(rec, floating, times, _hold_last_finite(d["q_free"]), joints=False, poses=poses)
             rec_mod.log_joint_series(rec, robot.joint_names, times[sel], X[sel, :n],
                                      continuous=rec_mod.continuous_joints(robot))
         else:

@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from plants.robots import shared_robot
+from plants.robots import builtin_spec, shared_robot
 from stages.evaluate.metrics import CONTACT_TOL, LIMIT_TOL
-from stages.execute import ExecuteConfig, execute
+from stages.execute.config import ExecuteConfig
+from stages.execute.stage import execute
 
 LIMIT_SLACK = LIMIT_TOL  # rad: Drake's SAP limit constraints are stiff but compliant
 
@@ -42,7 +43,7 @@ def test_free_nao_stands_still_in_the_default_posture():
     T, dt = 300, 0.01
     Q = np.tile(nao.default_q, (T + 1, 1))
     out = execute(ExecuteConfig(plan="hold"), desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt))
-    m, d = out.metrics, out.nao
+    m, d = out.metrics, out.floating
     assert (m["status"], m["stood"], m["failure_time"], m["start_tilt"]) == ("ok", True, None, 0.0)
     # the feet carry the robot's weight; the default posture leans over the left leg, whose sole
     # takes (nearly) all of it, the right sole touches the ground
@@ -55,9 +56,9 @@ def test_free_nao_stands_still_in_the_default_posture():
     assert m["max_tracking_error"] < 1e-3 and m["cog_inside_fraction"] == 1.0
     # the controller's command (the PD law at each step's end state plus the feed-forward), clamped, is the
     # torque Drake applied: what the limits status judges is what the motors were asked
-    from plants.free_nao import shared_free_nao
+    from plants.floating import shared_floating
 
-    free = shared_free_nao()
+    free = shared_floating(builtin_spec("nao"))
     np.testing.assert_allclose(np.clip(d["torque_asked"], -free.effort, free.effort) @ free.A, out.tau, atol=1e-6)
     assert np.abs(out.tau).max() > 0.1 and m["effort_clamped_fraction"] == 0.0
     # the contact polygon: all eight sole corners (both feet), the CoG well inside
@@ -88,7 +89,7 @@ def test_free_nao_falls_when_the_plan_pushes_the_cog_outside_the_feet():
     flags = m["fall_conditions"]
     assert min(t for t in flags.values() if t is not None) == m["failure_time"]
     # at the moment of failure the executed CoG has left the contact polygon
-    assert out.nao["cog_margin"][k] < 0
+    assert out.floating["cog_margin"][k] < 0
     assert m["cog_inside_fraction"] < 1.0
     assert_within_limits(out.X, nao)
 
@@ -174,8 +175,9 @@ def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
     script = ("import logging\n"
               "from pydrake.systems.analysis import Simulator\n"
               "from pydrake.systems.framework import DiagramBuilder\n"
-              "from plants.free_nao import load_free_nao\n"
-              "nao = load_free_nao(DiagramBuilder(), time_step=1e-3)\n"
+              "from plants.floating import load_floating\n"
+              "from plants.robots import builtin_spec\n"
+              "nao = load_floating(builtin_spec('nao'), DiagramBuilder(), time_step=1e-3)\n"
               "Simulator(nao.builder.Build()).AdvanceTo(0.01)\n"
               "logging.getLogger('drake').warning('another drake warning')\n")
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,

@@ -1,62 +1,24 @@
-"""A whole-body stabilizer for the free-standing Nao: task-space inverse dynamics.
+"""A whole-body stabilizer for a floating robot: task-space inverse dynamics.
 
-Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP, warm-started
-from the previous step (:class:`ProxQP`; Clarabel, through Drake's ``MathematicalProgram``, takes the
-rare program it does not solve within its iteration cap). Decision variables
-``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations (floating base included)
-and the ground forces at the eight sole corners (world frame). The joint torques are an affine
-function of ``x`` through the equations of motion (not variables of their own: 26 fewer)::
+Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP (portable build,
+warm-started: :class:`ProxQP`; Clarabel takes the rare program it does not solve). Decision variables
+``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations and the ground forces at the
+eight sole corners; the joint torques are an affine function of ``x`` through the equations of motion.
 
-    M vdot + C(q, v) v - tau_g(q) = B u + sum_c J_c^T f_c
+- Constraints: the floating base's rows of the equations of motion, the torques within the effort
+  limits, linearized friction cones (``MU``) with a bounded normal force and no force on a lifted
+  corner, each sole's centre of pressure off its edges (``COP_SHARE``), joint limits as acceleration
+  bounds (``LIMIT_MARGIN``, ``KP_LIMIT``, ``KD_LIMIT``).
+- Cost (weights ``W_*``, gains: the robot's ``stand.stabilizer``, ``plants.stand``): both soles held,
+  the CoG (the joint reference's, held ``COG_MARGIN`` inside the support polygon, its capture point
+  too), the via-point frames, the joints along the plan, a regularization.
+- Safeguards: a program no solver solves is solved again without the joint-limit bounds, else the
+  previous torque is held; a disturbance observer (``DISTURBANCE_OBSERVER``); a fallen robot
+  (``LIMP_TILT``) goes limp; single support releases the other sole once the CoG is over the stance
+  one (``RELEASE_MARGIN``, ``RELEASE_EARLIEST``).
 
-Constraints (hard):
-
-- the floating base's six rows of the equations of motion: ``M_b vdot + h_b = J_b^T f``;
-- torques ``u = B^T (M vdot + h - J^T f)`` within the model's effort limits;
-- each corner force unilateral inside a linearized friction cone (four faces, ``|f_x|, |f_y| <= MU f_z``,
-  ``MU`` 0.5 below the simulated 0.8), at most ``FZ_MAX``; a corner more than ``CORNER_UP`` above the
-  ground carries none;
-- every loaded corner carries at least ``COP_SHARE`` of its sole's mean corner load (each sole's
-  centre of pressure kept off its edges);
-- joint position limits as acceleration bounds: ``vdot_j <= KP_LIMIT (q_max - LIMIT_MARGIN - q_j) -
-  KD_LIMIT v_j`` and the mirror bound at the lower limit (every joint is kept ``LIMIT_MARGIN`` inside
-  its range, also where the reference lies at the limit: the hands, closed at 0, are held 0.02 rad open).
-
-Cost (weight times squared acceleration error):
-
-- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right
-  one until its release): each sole's spatial acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
-- CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
-  CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
-  held ``COG_MARGIN`` inside the feet's support polygon (:func:`clamp_to_polygon`) and its capture point
-  ``c + cdot / omega`` too (the reference velocity cut);
-- via-point frames ``W_FRAME`` (the hand of the reach task): their points along the plan as made;
-- joints ``W_JOINT``: ``vdot_j = a_r + KP (q_r - q) + KD (v_r - v)`` on the 26 tree joints (the
-  reference: the plan, shifted by the start-state projection when the start is ``standing``;
-  positions interpolated within a planning step, the step's velocity ``v_{k+1}`` and acceleration
-  ``(v_{k+1} - v_k) / dt``);
-- regularization ``W_REG |vdot|^2 + W_FORCE |f|^2``.
-
-Safeguards and modes:
-
-- ``proxsuite``'s portable build (:func:`portable_proxsuite`: bit-for-bit repeatable executions); a
-  program it does not solve within its iteration cap goes to Clarabel (``wbc_qp_fallbacks``); one
-  no solver solves is solved again without the joint-limit bounds that ask for an acceleration
-  (``wbc_qp_relaxed``); one that still fails holds the previous torque (``wbc_qp_failures``).
-- A disturbance observer (``DISTURBANCE_OBSERVER``): the joint torque the model does not explain
-  over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
-  plant's generalized contact forces of its last step; none for a joint within ``LIMIT_MARGIN_OBS``
-  of a limit), clamped at the effort limits and compensated by the next command
-  (``u = At x + h_j - w``, the torque bounds shifted by it).
-- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more
-  programs (``wbc_limp_time``).
-- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners
-  carry no force, it is no longer held) once the executed CoG's ground projection is
-  ``RELEASE_MARGIN`` inside the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG
-  reference is clamped to the left sole's polygon and the right sole's corners track the plan as
-  made (the frame task's weight and gains).
-
-Why each weight, gain, bound and solver setting is what it is (measured): ``docs/stabilizer.md``.
+The program term by term: docs/stabilizer.md ("The program"); why each weight, gain, bound and solver
+setting is what it is (measured): the rest of that page.
 """
 
 from __future__ import annotations
@@ -70,11 +32,8 @@ from typing import Any
 import numpy as np
 
 CONTROL_PERIOD = 4e-3  # s, one QP per period (zero-order hold in between)
-KP, KD = 100.0, 20.0  # 1/s^2, 1/s: joint acceleration PD around the plan
-KP_COG, KD_COG = 50.0, 14.0  # 1/s^2, 1/s: CoG acceleration PD around the planned CoG
-KP_CONTACT, KD_CONTACT = 100.0, 20.0  # 1/s^2, 1/s: sole pose and velocity feedback in the contact constraint
+# the acceleration gains (joints, CoG, soles' contact, via-point frames) are the robot's: its stand.stabilizer
 W_JOINT, W_COG, W_FRAME, W_CONTACT, W_REG, W_FORCE = 1.0, 1000.0, 1000.0, 1000.0, 1e-4, 1e-5
-KP_FRAME, KD_FRAME = 100.0, 20.0  # 1/s^2, 1/s: via-point frames (the hand) around the plan
 COG_FROM_JOINT_PLAN = True  # the CoG reference: the joint reference's CoG (True) or the plan's as made
 COG_MARGIN = 0.015  # m, the CoG reference is held this far inside the feet's support polygon
 LIMIT_MARGIN = 0.02  # rad, the joints are kept this far inside their position limits (None: no bounds)
@@ -343,7 +302,7 @@ class FreePlantLayout:
     the floating base's six velocity rows ``base_rows``, each actuator's velocity ``jv (n_act,)``, the tree
     joints' velocities in the reference's order ``joint_v (26,)``, each actuator's tree joint
     ``act_joint (n_act,)``, the effort limits ``(n_act,)`` N m and the tree joints' position limits
-    ``lower_q, upper_q (26,)`` rad."""
+    ``lower_q, upper_q (26,)`` rad, and the robot's acceleration gains ``gains`` (its ``stand.stabilizer``)."""
 
     plant: Any
     ctx: Any
@@ -364,25 +323,31 @@ class FreePlantLayout:
     nc: int
     nf: int
     nx: int
+    gains: dict
 
     @classmethod
     def of(cls, free) -> FreePlantLayout:
-        """The layout of ``plants.free_nao.FreeNao`` ``free`` (its plant without PD actuators)."""
-        from plants.free_nao import SOLES, sole_corners_local
+        """The layout of ``plants.floating.FloatingRobot`` ``free`` (its plant without PD actuators)."""
+        from plants.floating import sole_corners_local
 
+        corners = sole_corners_local(free.spec).T
+        if corners.shape[1] != 4 or len(free.soles) != 2:
+            raise ValueError("the whole-body stabilizer holds two soles of four corners each; "
+                             f"this robot's are {len(free.soles)} of {corners.shape[1]}")
         plant = free.plant
         nv = plant.num_velocities()
         B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
         jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
-        frames = [plant.GetFrameByName(s) for s in SOLES]
+        frames = [plant.GetFrameByName(s) for s in free.soles]
         nc = 4 * len(frames)
         return cls(plant=plant, ctx=plant.CreateDefaultContext(), world=plant.world_frame(), frames=frames,
-                   corners=sole_corners_local().T, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
+                   corners=corners, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
                    act_joint=np.array([list(free.joint_vidx).index(j) for j in jv]),
                    base_rows=np.flatnonzero(np.abs(B).sum(axis=1) == 0), effort=free.effort,
                    lower_q=plant.GetPositionLowerLimits()[free.joint_idx],
                    upper_q=plant.GetPositionUpperLimits()[free.joint_idx],
-                   nq=plant.num_positions(), nv=nv, n_act=B.shape[1], nc=nc, nf=3 * nc, nx=nv + 3 * nc)
+                   nq=plant.num_positions(), nv=nv, n_act=B.shape[1], nc=nc, nf=3 * nc, nx=nv + 3 * nc,
+                   gains=dict(free.spec.stand.stabilizer))
 
 
 def contact_rows(lay: FreePlantLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -552,6 +517,7 @@ class StabilizerProgram:
         sole alone)."""
         lay, kV = self.lay, self.kV
         plant, ctx, world = lay.plant, lay.ctx, lay.world
+        gains = lay.gains
         rows_J, rows_a, rows_w = [cog_rows[0]], [cog_rows[1]], [cog_rows[2]]
         tasks = self.tasks[:len(self.tasks) if single else self.n_tasks]
         for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks, frame_refs):
@@ -559,12 +525,12 @@ class StabilizerProgram:
             bp = plant.CalcBiasTranslationalAcceleration(ctx, kV, fr, pts, world, world).T.reshape(-1)[rows]
             p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
             rows_J.append(Jp)
-            rows_a.append(pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v) - bp)
+            rows_a.append(pdd_r + gains["kp_frame"] * (p_r - p) + gains["kd_frame"] * (pd_r - Jp @ v) - bp)
             rows_w.append(W_FRAME * self.ones[:len(Jp)])
         held = slice(0, 6) if single else slice(0, 12)
         Jh = Js[held]
         rows_J.append(Jh)
-        rows_a.append(-bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held])
+        rows_a.append(-bs[held] - gains["kd_contact"] * (Jh @ v) - gains["kp_contact"] * sole_err[held])
         rows_w.append(W_CONTACT * self.ones[:Jh.shape[0]])
         return np.vstack(rows_J), np.concatenate(rows_a), np.concatenate(rows_w)
 
@@ -633,8 +599,9 @@ class StabilizerProgram:
         (q_r, v_r, a_r), cog_ref, frame_refs = self.ref.at(t)
         single = self._single_support(t, com)
         c_r, cd_r, cdd_r = self._cog_reference(cog_ref, single)
-        a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
-        a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
+        gains = lay.gains
+        a_joint = a_r + gains["kp"] * (q_r - qj) + gains["kd"] * (v_r - vj)
+        a_com = cdd_r + gains["kp_cog"] * (c_r - com) + gains["kd_cog"] * (cd_r - Jcom @ v)
         J, a, w = self._task_rows(v, (Jcom, a_com - bcom, self.w_cog), frame_refs, Js, bs, sole_err, single)
         H, g = self._cost(J, a, w, a_joint)
         Aeq, Cm, l, u, lb, ub, At, hj = self._bounds(M, h, Jc, w_hat, zc, qj, vj, single)
