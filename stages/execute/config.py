@@ -85,11 +85,10 @@ class ExecuteConfig(StageConfig):
             if self.horizon is not None and self.horizon > T:
                 raise ValueError(f"--horizon {self.horizon} is longer than the problem's {T} steps")
         elif self.controller != "pd":
-            raise ValueError(f"--controller {self.controller} is for plans of a floating robot (the Nao); this plan "
-                             f"is of {plant} (its executions use the computed-torque controller)")
+            raise ValueError(f"--controller {self.controller} is for plans of a floating robot; this plan is of "
+                             f"{plant} (its executions use the computed-torque controller)")
         if self.start not in (None, "plan"):
-            raise ValueError(f"--start {self.start} is for plans of a floating robot (the Nao); this plan is of "
-                             f"{plant}")
+            raise ValueError(f"--start {self.start} is for plans of a floating robot; this plan is of {plant}")
 
     def mpc_horizon(self, T: int | None) -> int:
         """The MPC's horizon in planning steps for a problem of ``T`` steps."""

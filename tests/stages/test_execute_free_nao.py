@@ -159,7 +159,7 @@ def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
         assert errs[scheme].max() > 1e-5 and np.all(errs[scheme] >= drift - 1e-8)
     with pytest.raises(ValueError, match="no x0-noise or process-noise"):
         ExecuteConfig(plan="p", open_loop=True, x0_noise=0.01).validate()
-    with pytest.raises(ValueError, match="the Nao stands on its feet"):
+    with pytest.raises(ValueError, match="a floating robot stands on its feet"):
         execute(ExecuteConfig(plan="p", open_loop=True), desc_for("nao", shared_robot("nao").default_q, 2, 0.01),
                 {"X": np.zeros((3, 50)), "U": np.zeros((2, 25))})
 
