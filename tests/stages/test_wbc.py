@@ -16,10 +16,10 @@ from plants.robots import builtin_spec
 from stages.evaluate.metrics import STATUSES, signed_margin
 from stages.execute.config import ExecuteConfig
 from stages.execute.stage import execute
-from tests.stages.test_execute_free_nao import desc_for, pseudo_plan
+from tests.stages.test_execute_floating import desc_for, pseudo_plan
 from tests.tolerance import assert_close, close, scale_of
 
-NAO_MASS = 5.305354  # kg, as tests/stages/test_execute_free_nao.py
+NAO_MASS = 5.305354  # kg, as tests.stages.test_execute_floating.py
 G = 9.81
 
 
