@@ -2,8 +2,8 @@
 
 Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP (portable build,
 warm-started: :class:`ProxQP`; Clarabel takes the rare program it does not solve). Decision variables
-``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations and the ground forces at the
-eight sole corners; the joint torques are an affine function of ``x`` through the equations of motion.
+``x = (vdot (nv,), f (nc, 3))``: the free plant's generalized accelerations and the ground forces at the
+soles' corners (the Nao: 8); the joint torques are affine in ``x`` through the equations of motion.
 
 - Constraints: the floating base's rows of the equations of motion, the torques within the effort
   limits, linearized friction cones (``MU``) with a bounded normal force and no force on a lifted
@@ -297,8 +297,8 @@ class ClarabelProgram:
 @dataclass
 class FreePlantLayout:
     """What the stabilizer's programs need of the free plant, fixed for its life: the plant and one
-    context of it, the soles' frames and corners ``(3, 4)`` (m, sole frame), the sizes (``nq``, ``nv``,
-    ``n_act`` actuators, ``nc`` = 8 corners, ``nf = 3 nc`` forces, ``nx = nv + nf`` decision variables),
+    context of it, the soles' frames and corners ``(3, k)`` (m, sole frame), the sizes (``nq``, ``nv``,
+    ``n_act`` actuators, ``nc = 2 k`` corners, ``nf = 3 nc`` forces, ``nx = nv + nf`` decision variables),
     the floating base's six velocity rows ``base_rows``, each actuator's velocity ``jv (n_act,)``, the tree
     joints' velocities in the reference's order ``joint_v (26,)``, each actuator's tree joint
     ``act_joint (n_act,)``, the effort limits ``(n_act,)`` N m and the tree joints' position limits
@@ -331,15 +331,14 @@ class FreePlantLayout:
         from plants.floating import sole_corners_local
 
         corners = sole_corners_local(free.spec).T
-        if corners.shape[1] != 4 or len(free.soles) != 2:
-            raise ValueError("the whole-body stabilizer holds two soles of four corners each; "
-                             f"this robot's are {len(free.soles)} of {corners.shape[1]}")
+        if len(free.soles) != 2:
+            raise ValueError(f"the whole-body stabilizer holds two soles; this robot has {len(free.soles)}")
         plant = free.plant
         nv = plant.num_velocities()
         B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
         jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
         frames = [plant.GetFrameByName(s) for s in free.soles]
-        nc = 4 * len(frames)
+        nc = corners.shape[1] * len(frames)
         return cls(plant=plant, ctx=plant.CreateDefaultContext(), world=plant.world_frame(), frames=frames,
                    corners=corners, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
                    act_joint=np.array([list(free.joint_vidx).index(j) for j in jv]),
@@ -357,14 +356,15 @@ def contact_rows(lay: FreePlantLayout) -> tuple[np.ndarray, np.ndarray, np.ndarr
     carries at least ``COP_SHARE`` of its sole's mean corner load, ``>= 0``, its lower bound set per
     program). Returns ``C``, ``l``, ``u`` and the number of friction rows."""
     nv, nc, nx, n_act = lay.nv, lay.nc, lay.nx, lay.n_act
+    k = lay.corners.shape[1]  # corners per sole
     Fr = np.zeros((4 * nc, nx))
     Cp = np.zeros((nc, nx))
     for c in range(nc):
         i = nv + 3 * c
         for r, (a, b) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
             Fr[4 * c + r, [i, i + 1, i + 2]] = (a, b, -MU)
-        s0 = 4 * (c // 4)
-        Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
+        s0 = k * (c // k)  # the first corner of its sole
+        Cp[c, nv + 3 * np.arange(s0, s0 + k) + 2] = -COP_SHARE / k
         Cp[c, nv + 3 * c + 2] += 1.0
     n_in = n_act + len(Fr) + nc
     C = np.zeros((n_in, nx))
@@ -466,13 +466,14 @@ class StabilizerProgram:
         Jc = np.empty((lay.nf, nv))
         sole_err = np.empty(12)
         zc = np.empty(lay.nc)
+        k = lay.corners.shape[1]  # corners per sole
         for s_, X in enumerate(poses):
             R, p = X.rotation().matrix(), X.translation()
-            r = R @ lay.corners  # (3, 4) world offsets of the corners
-            zc[4 * s_:4 * s_ + 4] = r[2] + p[2]
+            r = R @ lay.corners  # (3, k) world offsets of the corners
+            zc[k * s_:k * s_ + k] = r[2] + p[2]
             Jw, Jv = Js[6 * s_:6 * s_ + 3], Js[6 * s_ + 3:6 * s_ + 6]
-            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (4, 1) each
-            Jc_s = Jc[12 * s_:12 * s_ + 12].reshape(4, 3, nv)          # (corner, xyz, nv), a view of Jc
+            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (k, 1) each
+            Jc_s = Jc[3 * k * s_:3 * k * (s_ + 1)].reshape(k, 3, nv)  # (corner, xyz, nv), a view of Jc
             Jc_s[:, 0] = Jv[0] - (ry * Jw[2] - rz * Jw[1])
             Jc_s[:, 1] = Jv[1] - (rz * Jw[0] - rx * Jw[2])
             Jc_s[:, 2] = Jv[2] - (rx * Jw[1] - ry * Jw[0])
@@ -565,7 +566,7 @@ class StabilizerProgram:
         # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
         up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
         if single:
-            up[4:] = True   # the released right sole carries nothing
+            up[self.lay.corners.shape[1]:] = True   # the released right sole carries nothing
         l[n_act + n_fr:] = np.where(up, -np.inf, 0.0)  # a lifted corner: no share of its sole's load
         lb, ub = -self.inf_x, self.inf_x.copy()
         lb[self.fz], ub[self.fz] = FZ_MIN * ~up, np.where(up, 0.0, FZ_MAX)
@@ -609,7 +610,7 @@ class StabilizerProgram:
 
     def solve(self, t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[np.ndarray, np.ndarray, bool]:
         """One QP at time ``t`` and state ``(q, v)`` (``obs``: the observer's data, see ``program``): actuation
-        ``(n_act,)`` N m, corner forces ``(8, 3)`` N, success."""
+        ``(n_act,)`` N m, corner forces ``(nc, 3)`` N, success."""
         lay = self.lay
         joint_v = lay.joint_v
         d, (At, hj) = self.program(t, q, v, obs)
@@ -715,7 +716,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
     (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
     along the whole plan) of ``X_task`` (default ``X_plan``); ``swing``: the right sole's corners
     (``FramePoints``) tracked once that sole is released (single support), else None. Its
-    attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
+    attributes ``log`` (per update: time, solve seconds, corner forces ``(nc, 3)`` N, success) and
     ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
     ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests), ``solve``, ``failed``,
     ``relaxed``, ``observed`` and ``qp`` are :class:`StabilizerProgram`'s."""
