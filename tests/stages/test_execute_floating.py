@@ -203,3 +203,22 @@ def test_a_motor_that_only_clamps_the_noise_is_not_the_controllers_limit():
         assert not out.effort_at_limit.any()
         assert not any("effort" in sh and sh["effort"] > 0 for sh in out.metrics["limited_joints"].values())
     assert np.abs(noisy.tau).max(axis=0)[-1] == pytest.approx(arm.effort[-1])  # the wrist's motor did clamp
+
+
+@pytest.mark.numerics
+def test_a_model_file_that_says_how_it_stands_executes_floating_as_the_nao():
+    """Floating execution is the facts' (feet, sole, stand), not the Nao's name: its model file with those
+    facts and no built-in name (a user's model file, stored in the plan as its spec) stands as the built-in
+    Nao does, with the same numbers."""
+    from plants.model_file import RobotSpec
+
+    nao = shared_robot("nao")
+    T, dt = 30, 0.01
+    Q = np.tile(nao.default_q, (T + 1, 1))
+    desc = desc_for("nao", nao.default_q, T, dt)
+    spec = RobotSpec.from_dict({**builtin_spec("nao").to_dict(), "plant": None})
+    builtin = execute(ExecuteConfig(plan="hold"), desc, pseudo_plan(Q, dt))
+    own = execute(ExecuteConfig(plan="hold"), {**desc, "plant": "own", "robot": spec.to_dict()}, pseudo_plan(Q, dt))
+    assert own.metrics["status"] == builtin.metrics["status"] == "ok" and own.metrics["stood"]
+    np.testing.assert_array_equal(own.X, builtin.X)
+    np.testing.assert_array_equal(own.floating["corners"], builtin.floating["corners"])
