@@ -102,7 +102,8 @@ def _hand_error(robot, X: np.ndarray, frame: str, target) -> float:
 
 def _row(label: str, out, spec: dict, crocoddyl_cost: float | None = None, note: str = "") -> dict:
     """One solver's numbers, its plan executed in Drake."""
-    from stages.execute import ExecuteConfig, execute
+    from stages.execute.config import ExecuteConfig
+    from stages.execute.stage import execute
 
     r, problem, robot = out.result, out.problem, out.robot
     finite = bool(np.all(np.isfinite(r.X)))

@@ -35,7 +35,7 @@ REACH = 0.01  # m: the learning loop's goal
 def model_file_row(cache) -> dict:
     """The plan on the model file alone, executed on the true robot: its distance to the target (m)."""
     from pipeline.engine.runner import run
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
     from stages.plan.stage import PlanConfig
 
     t0 = time.perf_counter()

@@ -74,7 +74,7 @@ def pushed_arm5(cache) -> dict:
     MPC (R-AICO, horizon 100, one iteration per 2 ms period); the final target's error (m) of each and the
     arrays the figure draws."""
     from pipeline.engine.runner import run
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
     from stages.plan.stage import PlanConfig
 
     plan = run(cache, "plan", PlanConfig(plant="arm5", task="reach", solver="raico", iterations=30), record=False)

@@ -115,7 +115,8 @@ def bench_stabilizer_execution(reps: int) -> list[float]:
     Nao with the whole-body stabilizer from the standing start: the execute stage's whole computation (start
     projection, simulation with a program every control period, metrics), in a warm process (the first
     execution, which also imports and builds Drake's systems, is left out)."""
-    from stages.execute import ExecuteConfig, execute
+    from stages.execute.config import ExecuteConfig
+    from stages.execute.stage import execute
     from stages.plan.stage import PlanConfig, plan
 
     cfg = PlanConfig(plant="nao", task="balance-inside", dynamics="pseudo", solver="raico", alpha=1.0, iterations=25,

@@ -69,12 +69,12 @@ def _shipped_tasks() -> dict[tuple[str, str], TaskSpec]:
 
 
 TASKS: dict[tuple[str, str], TaskSpec] = _shipped_tasks()
-NAO_REACH_T = TASKS[("nao", "reach")].T
+STANDING_REACH_T = TASKS[("nao", "reach")].T
 PENDULUM_T = TASKS[("pendulum", "swing-up")].T
 
 TASK_NOTES = {
     "nao reach target": "thesis x* = (0, 0.2, 0.06) read in the torso frame at t=0, lateral axis to the right",
-    "nao reach horizon": f"{NAO_REACH_T} steps of 10 ms, via-point at the last step (thesis gives none)",
+    "nao reach horizon": f"{STANDING_REACH_T} steps of 10 ms, via-point at the last step (thesis gives none)",
     "nao balance weights": "w = 1 with C = diag(10, 1e6, 10) (thesis: C scaled by [1e6, 10, 10])",
     "nao right sole": "three points of the right sole held at their initial positions, w = 1e4, every step",
     "arm5 roll": "roll = atan2(y_E . z_W, z_E . z_W) about the hand axis, moved by the shoulder, elbow, forearm roll "

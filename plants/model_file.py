@@ -11,7 +11,7 @@ they mean: docs/problem-files.md): where the file is (``file``, ``packages``), h
 (``weld``, ``weld_pose``, ``locked``), its ``start``, ``armature`` and ``limits``, how the executed robot
 differs from the file (``true``: ``mass_scale``, a payload, ``friction``; :func:`true_spec`) and its
 facts: what raico needs to know of a robot beyond its file (:data:`FACTS`, one row each; the defaults are
-a fixed-base arm's). A new fact is a field of :class:`RobotSpec` and a row of :data:`FACTS`.
+a fixed-base arm's; a floating robot's ``stand``: :mod:`plants.stand`). A new fact is a field of :class:`RobotSpec` and a row of :data:`FACTS`.
 
 Repairs (URDF; each one is a line of the report): ``package:///`` rewritten to ``package://``;
 ``<mimic>`` tags dropped; transmissions replaced by one actuator per planning joint with the file's
@@ -37,6 +37,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from plants.stand import Stand, StandError, missing_for_floating, stand_from
 
 if TYPE_CHECKING:
     from plants.robot import Robot
@@ -77,6 +79,7 @@ class RobotSpec:
     learn: tuple[tuple[str, int], ...] = ()  # the learning loop's defaults {babble_points, stride}
     unactuated: tuple[str, ...] = ()  # planning joints without a motor (effort 0)
     gravity: float = DRAKE_GRAVITY  # m/s^2, along -z
+    stand: Stand | None = None  # how a floating robot stands (plants.stand)
 
     def to_dict(self) -> dict:
         """JSON form (stored with a plan; :meth:`from_dict` inverts it). Facts at their defaults are left
@@ -182,6 +185,13 @@ class Fact:
 
 # The robot's facts: the schema of [robot] beyond its file (plants/models/NAME.toml, a problem file's [robot],
 # a plan's stored spec). A new fact: a RobotSpec field (with its default) and a row here.
+def _read_stand(v):
+    try:
+        return stand_from(v)
+    except StandError as e:
+        raise ModelError(str(e)) from None
+
+
 FACTS: dict[str, Fact] = {f.key: f for f in (
     Fact("plant", str),
     Fact("order", _choice("order", ("tree", "file"), "choose tree (Drake's) or file")),
@@ -195,6 +205,7 @@ FACTS: dict[str, Fact] = {f.key: f for f in (
     Fact("learn", _read_learn, dict),
     Fact("unactuated", _name_list("unactuated")),
     Fact("gravity", _read_gravity),
+    Fact("stand", _read_stand, lambda v: v.to_json()),  # how a floating robot stands (plants.stand)
 )}
 
 
@@ -593,9 +604,10 @@ def load_model(spec: RobotSpec, builder=None, time_step: float = 0.0, before_fin
     from plants.robot import Robot
 
     path, fmt, text, notes, packages = model_text(spec)
-    if spec.execution == "floating" and spec.plant is None:
-        raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) is built for the "
-                         "Nao only (plants/free_nao.py); a model file's robot executes welded: discrete or continuous")
+    missing = missing_for_floating(spec) if spec.execution == "floating" else []
+    if missing:
+        raise ModelError(f"{path.name}: execution = \"floating\" (free on its soles, with contact) needs the facts "
+                         f"{'; '.join(missing)}")
     builder = builder or DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     if time_step > 0:

@@ -1,7 +1,7 @@
 """Convex support polygons in the ground plane (m): hulls, edges as half-planes, the signed distance
 of a point to the boundary (a static margin), shrinking by a margin and the nearest point that keeps
 it. One module for the plan's balance term (``stages.plan.balance``), the standing start's projection
-(``plants.free_nao``) and the execution metrics (``stages.evaluate.metrics``)."""
+(``plants.floating``) and the execution metrics (``stages.evaluate.metrics``)."""
 
 from __future__ import annotations
 

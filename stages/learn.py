@@ -411,7 +411,7 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
 
 def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | None, steps: Steps) -> StageOutput:
     """:func:`run`'s loop (``acc``: the GP error's unit)."""
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
 
     babble = steps.run("babble", cfg.babble_config())
     held_out = heldout_set(steps.run("babble", cfg.heldout_babble_config()))

@@ -10,7 +10,7 @@ from stages.base import Stage
 _MODULES = {
     "babble": "stages.babble",
     "plan": "stages.plan.stage",
-    "execute": "stages.execute",
+    "execute": "stages.execute.stage",
     "evaluate": "stages.evaluate.stage",
     "fit": "stages.fit.stage",
     "learn": "stages.learn",  # composite: its steps are runs of babble, fit, plan and execute

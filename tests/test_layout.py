@@ -317,3 +317,46 @@ def test_the_plant_name_grep_finds_what_it_looks_for():
     src = ('a = plant == "nao"\nb = "arm5" != x\nc = name in ("arm5", "biorob")\nd = {"pendulum": 1}\n'
            'e = TASKS[("nao", "reach")]\nf = robot.floating\n')
     assert _plant_name_tests(ast.parse(src)) == [1, 2, 3, 4]
+
+
+# --------------------------------------------------------------------- no robot named in generic code
+def _robot_named_identifiers(tree: ast.AST, name: str = "nao") -> list[tuple[int, str]]:
+    """``(line, identifier)`` of every identifier in ``tree`` that contains ``name`` (case-insensitive):
+    names, attributes, functions, classes, arguments, keywords and imported names (strings are not
+    identifiers: a message may name the robot its facts name)."""
+    out = []
+    for node in ast.walk(tree):
+        ids: list[str] = []
+        if isinstance(node, ast.Name):
+            ids = [node.id]
+        elif isinstance(node, ast.Attribute):
+            ids = [node.attr]
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            ids = [node.name]
+        elif isinstance(node, ast.arg):
+            ids = [node.arg]
+        elif isinstance(node, ast.keyword) and node.arg is not None:
+            ids = [node.arg]
+        elif isinstance(node, ast.alias):
+            ids = [node.name, node.asname or ""]
+        elif isinstance(node, ast.ImportFrom):
+            ids = [node.module or ""]
+        out += [(getattr(node, "lineno", 0), i) for i in ids if name in i.lower()]
+    return out
+
+
+def test_no_robot_named_in_stages_and_pipeline():
+    """A robot's kind of execution (fixed or floating), its soles and gains are its facts: the stages and the
+    pipeline speak of a floating robot, never of the Nao by an identifier."""
+    found = []
+    for package in ("stages", "pipeline"):
+        for path in sorted((REPO / package).rglob("*.py")):
+            for line, ident in _robot_named_identifiers(ast.parse(path.read_text(), str(path))):
+                found.append(f"{path.relative_to(REPO)}:{line} {ident}")
+    assert found == []
+
+
+def test_the_robot_name_walk_finds_what_it_looks_for():
+    src = ('nao = 1\nx.free_nao\ndef run_nao(): pass\nclass _FreeNao: pass\ndef f(NAO_MASS): pass\n'
+           'g(nao=1)\nfrom plants.free_nao import load\nmsg = "the Nao"\n')
+    assert sorted({line for line, _ in _robot_named_identifiers(ast.parse(src))}) == [1, 2, 3, 4, 5, 6, 7]

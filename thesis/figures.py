@@ -184,7 +184,7 @@ def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: 
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
     integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
     "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
 
     integ = exp.integrator_variants(quick)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
@@ -240,7 +240,7 @@ def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
     PD's (the figures of ``NOISE_SWEEPS``): the swept variant's plans of the first ``NOISE_RUNS`` initial states at
     every level; the stabilizer's (a ``stabilized`` figure): every executed plan at every level (level 0 is
     the figure's own execution with the stabilizer)."""
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
 
     out = []
 

@@ -763,7 +763,7 @@ def missed_rows(executions: list, noisy: list | None = None) -> list[dict]:
 
 def missed_section(executions: list, noisy: list | None = None) -> tuple[list[str], list[dict]]:
     """The markdown lines on the stabilizer's runs that missed (``missed_rows``); none if every run achieved."""
-    from stages.wbc import COG_MARGIN, LIMIT_MARGIN
+    from stages.execute.wbc import COG_MARGIN, LIMIT_MARGIN
     from thesis.claims import EXECUTED_VIA_TOL
 
     rows = missed_rows(executions, noisy)
@@ -788,7 +788,7 @@ def missed_section(executions: list, noisy: list | None = None) -> tuple[list[st
           f"below, to {span(m.get('reference_cog_min_margin') for m in good)} in the {len(good)} that achieved; the "
           f"plan's CoG via-point target nearest the edge lies {span(target)} inside it below, {span(good_target)} in "
           f"those that achieved. The stabilizer holds its CoG reference {COG_MARGIN * 100:g} cm inside "
-          "(`stages/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped). The joint reference takes a joint "
+          "(`stages/execute/wbc.py: COG_MARGIN`; tracked nearer the edge the robot tipped). The joint reference takes a joint "
           f"past its range in {sum(bool(r['beyond_limits']) for r in rows)} of the {len(rows)} runs below and in "
           f"{sum(bool(m.get('reference_beyond_limits')) for m in good)} of the {len(good)} that achieved (the "
           f"stabilizer stops it {LIMIT_MARGIN:g} rad inside its range).", "",
@@ -1364,7 +1364,7 @@ def write_experiment_report(cache: Cache, exp: Experiment, result: dict, out_dir
             md += ["", f"Stood ({'; '.join(parts)}). The CoG is judged against the convex hull of the sole "
                    "corners in contact (Drake's contact forces, corners within 1 mm of the ground); statuses and "
                    "thresholds: README, section Execution. The stabilizer (beyond the thesis): "
-                   "`stages/wbc.py`, from the standing start (`plants/free_nao.py: stance_positions`)."]
+                   "`stages/execute/wbc.py`, from the standing start (`plants/floating.py: stance_positions`)."]
         md += [""]
     md += balance_md
     md += noise_md

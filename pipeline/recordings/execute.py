@@ -20,7 +20,7 @@ def _input(inputs: list, stage: str):
 
 def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
     """The executed motion against the plan; torques, tracking error, the status (a text entry,
-    and a log entry at the moment of failure on ``sim_time``) and, for the free-standing Nao, the
+    and a log entry at the moment of failure on ``sim_time``) and, for a floating robot, the
     robot in the world, its contact points, the contact-based support polygon and the CoG's ground
     projection."""
     from planning.objective import objective_from_description
@@ -45,13 +45,13 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
                            blueprint=_execute_blueprint(plots, robot.joint_names, eye, free,
                                                         [*scene_views(objective), *_mpc_views(d)])) as rec:
         sel = rec_mod.plot_indices(len(times), vias)
-        if free:  # the free-standing Nao: its own plant (floating base, floor) and stored positions
-            from plants.free_nao import shared_free_nao
+        if free:  # a floating robot: its own plant (floating base, floor) and stored positions
+            from plants.floating import shared_floating
 
-            nao = shared_free_nao()
-            poses = rec_mod.pose_indices(len(times), rec_mod.n_bodies(nao), vias)
-            rec_mod.log_robot_geometry(rec, nao)
-            rec_mod.log_body_trajectory(rec, nao, times, _hold_last_finite(d["q_free"]), joints=False, poses=poses)
+            floating = shared_floating(robot.spec)
+            poses = rec_mod.pose_indices(len(times), rec_mod.n_bodies(floating), vias)
+            rec_mod.log_robot_geometry(rec, floating)
+            rec_mod.log_body_trajectory(rec, floating, times, _hold_last_finite(d["q_free"]), joints=False, poses=poses)
             rec_mod.log_joint_series(rec, robot.joint_names, times[sel], X[sel, :n],
                                      continuous=rec_mod.continuous_joints(robot))
         else:
@@ -59,7 +59,7 @@ def record_execute(folder: Path, art, inputs: list, lookup=None) -> None:
             rec_mod.log_body_trajectory(rec, robot, times, X[:, :n], keep=vias)
         log_task_plots(rec, plots, times, sel)
         log_task_plots(rec, planned, times, sel, series="planned", targets=False)
-        if not free:  # the free Nao stands elsewhere in its world than the fixed model the tasks are in
+        if not free:  # a floating robot stands elsewhere in its world than the fixed model the tasks are in
             log_task_paths(rec, objective, X, plots)
             log_task_paths(rec, objective, X_plan, planned, label="planned")
             log_scene(rec, objective, times, X, sel)
@@ -135,7 +135,7 @@ def _log_mpc(rec, objective, d, plots: list, times: np.ndarray, free: bool) -> N
 
 def _execute_blueprint(plots: list, joint_names, eye, free: bool, extra: list | tuple = ()):
     """The robot above the status text and the event log; on the right the task views (executed
-    against planned), the tracking error (and the CoG's margin for the free Nao), joints and torques
+    against planned), the tracking error (and the CoG's margin for a floating robot), joints and torques
     by limb."""
     import rerun.blueprint as rrb
 

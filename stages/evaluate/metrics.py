@@ -15,7 +15,7 @@ Execution status, first that applies:
   task; a foot rocking on an edge keeps that edge down and is judged by the torso). Planned values:
   the fixed-base model along the plan (left sole at the world origin, as on the free robot
   at the start). A plan whose initial posture cannot stand on flat ground (its soles not
-  level: ``plants.free_nao``) has fallen at t = 0;
+  level: ``plants.floating``) has fallen at t = 0;
 - ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` (rad; on a
   prismatic joint ``TRACKING_LOST_M``, m) at some sample;
 - ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
@@ -194,12 +194,12 @@ def execution_status(finite: np.ndarray, fell: np.ndarray | None, tracking_error
 
 
 def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, robot, dt: float,
-                      effort_at_limit: np.ndarray, nao: dict | None = None, effort_is_limit: bool = True,
+                      effort_at_limit: np.ndarray, floating: dict | None = None, effort_is_limit: bool = True,
                       effort_clamped: ArrayLike | None = None) -> dict:
     """Metrics of one execution (``X (T+1, n_x)`` executed, ``tau (T, n_q)`` applied torques N m,
     ``effort_at_limit (T, n_q)`` per joint, or ``(T,)``): status (module docstring), via-point errors, planned-vs-executed
-    RMSE and largest error (rad), largest torque (N m), limit shares; for the free-standing Nao
-    (``nao``: per-sample ``cog``, ``corners``, ``sole_force``, torso and planned values) the CoG
+    RMSE and largest error (rad), largest torque (N m), limit shares; for a floating robot
+    (``floating``: per-sample ``cog``, ``corners``, ``sole_force``, torso and planned values) the CoG
     against the contact polygon, the feet's drift and whether it stood. ``effort_is_limit`` False:
     effort saturation is reported (``torque_saturation``) but does not count towards ``limits``
     (the pendulum, whose torque bound is its task's control limit). ``effort_clamped (T,)``: some motor clamped
@@ -224,10 +224,10 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
     at_limit = pos_lim | eff if effort_is_limit else pos_lim
     fell = None
     m: dict = {}
-    if nao is not None:
-        flags = fall_flags(nao["torso_height"], nao["torso_height_plan"], nao["torso_z"], nao["torso_z_plan"],
-                           nao["corners"][..., 2], nao["corners_plan"][..., 2])
-        flags["initial_posture_does_not_stand"] = np.arange(K) == (0 if not bool(nao.get("start_stands", True))
+    if floating is not None:
+        flags = fall_flags(floating["torso_height"], floating["torso_height_plan"], floating["torso_z"], floating["torso_z_plan"],
+                           floating["corners"][..., 2], floating["corners_plan"][..., 2])
+        flags["initial_posture_does_not_stand"] = np.arange(K) == (0 if not bool(floating.get("start_stands", True))
                                                                      else -1)
         fell = flags["torso_dropped"] | flags["torso_tilted"] | flags["foot_lifted"] | \
             flags["initial_posture_does_not_stand"]
@@ -266,18 +266,18 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
          "limits_fraction": float(np.mean(at_limit)),
          "limited_joints": limited,
          "task": task_verdict(task_errors(problem, X)),
-         "thresholds": {**used_thresholds(nao is not None),
+         "thresholds": {**used_thresholds(floating is not None),
                         **({"tracking_lost_m": TRACKING_LOST_M} if prismatic.any() else {})}, **m}
-    if nao is not None:
-        margin = nao["cog_margin"]
+    if floating is not None:
+        margin = floating["cog_margin"]
         with np.errstate(invalid="ignore"):
             inside = margin > 0
         m.update(stood=status != "fell" and status != "diverged",
                  cog_inside_fraction=float(np.mean(inside)),
                  cog_min_margin=float(np.nanmin(margin)) if np.isfinite(margin).any() else float("nan"),
-                 **zmp_metrics(nao.get("zmp_margin")),
+                 **zmp_metrics(floating.get("zmp_margin")),
                  r_sole_drift=_relative_sole_drift(robot, X),
-                 sole_world_drift=_world_drift(nao["corners"]))
+                 sole_world_drift=_world_drift(floating["corners"]))
     return m
 
 

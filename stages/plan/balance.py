@@ -40,7 +40,7 @@ LIFT = 0.02  # m, the right sole's lowest corner above the ground in single supp
 LIFT_BOUND = 0.025  # m, ... planned with 5 mm to spare (the bound is a soft penalty)
 W_LIFT = 1e6  # per m^2 below a height bound
 JOINT_MARGIN = 0.03  # rad, every joint planned this far inside its range ...
-W_RANGE = 1e5  # ... per rad^2 beyond it (the stabilizer keeps 0.02 rad: stages/wbc.py LIMIT_MARGIN)
+W_RANGE = 1e5  # ... per rad^2 beyond it (the stabilizer keeps 0.02 rad: stages/execute/wbc.py LIMIT_MARGIN)
 
 
 # ------------------------------------------------------------------ polygon geometry (world xy, m)

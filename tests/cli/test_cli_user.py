@@ -53,10 +53,10 @@ def test_show_takes_stage_slash_prefix(raico, arm_plan):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--controller", "wbc"], "--controller wbc is for plans of the Nao; this plan is of arm5"),
-    (["--start", "standing"], "--start standing is for plans of the Nao; this plan is of arm5"),
+    (["--controller", "wbc"], "--controller wbc is for plans of a floating robot; this plan is of arm5"),
+    (["--start", "standing"], "--start standing is for plans of a floating robot; this plan is of arm5"),
 ])
-def test_nao_options_refused_for_an_arm_plan(raico, arm_plan, args, needle):
+def test_floating_options_refused_for_an_arm_plan(raico, arm_plan, args, needle):
     root, key = arm_plan
     res = raico("execute", "--plan", key, *args, "--no-record", "--artifacts", root)
     assert res.exit_code == 2, res.stderr

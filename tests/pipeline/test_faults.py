@@ -383,7 +383,7 @@ HELPER = textwrap.dedent("""
     from pipeline.engine.cache import Cache
     from stages.babble import BabbleConfig
     from stages.evaluate.stage import EvaluateConfig
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
     from stages.fit.stage import FitConfig
     from stages.learn import LearnConfig
     from stages.plan.stage import PlanConfig
@@ -615,7 +615,7 @@ def test_corrupted_entry_is_detected_said_and_recomputed(helper, stage, kind):
     from pipeline.engine.cache import Cache
     from stages.babble import BabbleConfig
     from stages.evaluate.stage import EvaluateConfig
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
     from stages.fit.stage import FitConfig
     from stages.plan.stage import PlanConfig
 

@@ -506,8 +506,24 @@ def test_a_model_files_robot_states_facts_and_bad_facts_are_one_line(tmp_path):
         load_model(RobotSpec.from_dict({"file": str(urdf), "hands": ["hands_frame"]}))
     with pytest.raises(ModelError, match="coupled"):
         load_model(RobotSpec.from_dict({"file": str(urdf), "coupled": {"wrist": "shoulder"}}))
-    with pytest.raises(ModelError, match="built for the Nao only"):
+    with pytest.raises(ModelError, match=r"needs the facts feet .*; sole .*; stand \(torso, sole_box"):
         load_model(RobotSpec.from_dict({"file": str(urdf), "execution": "floating"}))
+    with pytest.raises(ModelError, match="stand: keys"):
+        RobotSpec.from_dict({"file": str(urdf), "stand": {"torso": "base"}})
+
+
+def test_floating_is_accepted_for_a_model_file_that_says_how_it_stands():
+    """``execution = "floating"`` is a matter of facts, not of the robot's name: the Nao's model file with its
+    facts (feet, sole, stand) loads as a user's model file would; without ``stand`` it is refused."""
+    from dataclasses import replace
+
+    from plants.robots import builtin_spec
+
+    spec = RobotSpec.from_dict({**builtin_spec("nao").to_dict(), "plant": None})
+    assert spec.plant is None and spec.execution == "floating" and spec.stand is not None
+    assert load_model(spec).floating
+    with pytest.raises(ModelError, match=r"needs the facts stand"):
+        load_model(replace(spec, stand=None))
 
 
 def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(tmp_path):

@@ -221,7 +221,7 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     from pipeline.engine.cache import Cache
     from pipeline.engine.ui import Reporter
     from pipeline.recordings.registry import RECORDERS
-    from stages.execute import ExecuteConfig
+    from stages.execute.config import ExecuteConfig
     from stages.learn import LearnConfig
     from stages.registry import get_stage, stage_names
 

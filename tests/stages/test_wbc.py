@@ -11,13 +11,15 @@ from scipy.spatial import ConvexHull
 from typer.testing import CliRunner
 
 from pipeline.interface.cli import app
-from plants.free_nao import STANCE_MARGIN, shared_free_nao
+from plants.floating import STANCE_MARGIN, shared_floating
+from plants.robots import builtin_spec
 from stages.evaluate.metrics import STATUSES, signed_margin
-from stages.execute import ExecuteConfig, execute
-from tests.stages.test_execute_free_nao import desc_for, pseudo_plan
+from stages.execute.config import ExecuteConfig
+from stages.execute.stage import execute
+from tests.stages.test_execute_floating import desc_for, pseudo_plan
 from tests.tolerance import assert_close, close, scale_of
 
-NAO_MASS = 5.305354  # kg, as tests/stages/test_execute_free_nao.py
+NAO_MASS = 5.305354  # kg, as tests.stages.test_execute_floating.py
 G = 9.81
 
 
@@ -27,7 +29,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
     """The thesis's spread (0.05 rad) on the standing posture puts the feet uneven; the projection
     lays both soles flat on the ground (every corner within 1 mm of z = 0) with the CoG at least the
     stance margin inside their polygon, and reports its size."""
-    free = shared_free_nao()
+    free = shared_floating(builtin_spec("nao"))
     fixed = free.fixed
     rng = np.random.default_rng(seed)
     q = np.clip(fixed.default_q + 0.05 * rng.standard_normal(fixed.n_q), fixed.lower, fixed.upper)
@@ -67,14 +69,14 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
 def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
     2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
-    from stages.wbc import CONTROL_PERIOD, LIMIT_MARGIN, MU
+    from stages.execute.wbc import CONTROL_PERIOD, LIMIT_MARGIN, MU
 
-    nao = shared_free_nao().fixed
+    nao = shared_floating(builtin_spec("nao")).fixed
     T, dt = 200, 0.01
     Q = np.tile(nao.default_q, (T + 1, 1))
     out = execute(ExecuteConfig(plan="hold", controller="wbc", start="standing"),
                   desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt))
-    m, d = out.metrics, out.nao
+    m, d = out.metrics, out.floating
     assert (m["status"], m["stood"], m["wbc_qp_failures"], m["wbc_qp_fallbacks"]) == ("ok", True, 0, 0)
     weight = NAO_MASS * G
     settled = d["sole_force"][10:].sum(axis=1)  # after 0.1 s
@@ -106,12 +108,12 @@ def test_default_execution_is_the_pd_baseline():
     assert ExecuteConfig(plan="p", controller="wbc", start="plan").normalized().start == "plan"
     assert ExecuteConfig(plan="p", controller="wbc").normalized() == ExecuteConfig(plan="p", controller="wbc",
                                                                                   start="standing").normalized()
-    nao = shared_free_nao().fixed
+    nao = shared_floating(builtin_spec("nao")).fixed
     T, dt = 20, 0.01
     out = execute(cfg, desc_for("nao", nao.default_q, T, dt), pseudo_plan(np.tile(nao.default_q, (T + 1, 1)), dt))
     assert out.metrics["status"] == "ok"
     assert not {"start_projection_norm", "wbc_qp_failures"} & set(out.metrics)
-    assert "wbc_corner_force" not in out.nao
+    assert "wbc_corner_force" not in out.floating
 
 
 @pytest.mark.parametrize("field, value, message", [
@@ -200,7 +202,7 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
     """The stabilizer's CoG clamp against Dykstra's alternating projections run to convergence (an
     independent method) on random polygons; a point inside comes back unchanged; a point beyond a
     corner lands on the corner."""
-    from stages.wbc import clamp_to_polygon
+    from stages.execute.wbc import clamp_to_polygon
 
     def dykstra(p, A, b, iterations=2000):
         x, y = p.copy(), np.zeros((len(b), 2))
@@ -295,10 +297,10 @@ def test_proxqp_solves_the_stabilizers_programs_as_clarabel_does():
     the programs of a standing Nao and of a moving one (random joint velocities, a CoG reference off the
     current CoG): the same accelerations (the forces are unique only up to the small force regularization,
     so the check is on the cost and the constraints), every constraint met to 1e-7."""
-    from plants.free_nao import load_free_nao
-    from stages.wbc import ClarabelProgram, ProxQP, make_stabilizer
+    from plants.floating import load_floating
+    from stages.execute.wbc import ClarabelProgram, ProxQP, make_stabilizer
 
-    free = load_free_nao(pd=False)
+    free = load_floating(builtin_spec("nao"), pd=False)
     fixed = free.fixed
     T = 100
     X = np.tile(np.r_[fixed.default_q, np.zeros(fixed.n_q)], (T + 1, 1))
@@ -333,12 +335,12 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     """Process noise under the stabilizer is added to its held torques and the sum clamped at the effort
     limits (as the plant clamps the PD's total): the applied torques never exceed them, and they differ
     from the noise-free run's."""
-    nao = shared_free_nao().fixed
+    nao = shared_floating(builtin_spec("nao")).fixed
     T, dt = 30, 0.01
     Q = np.tile(nao.default_q, (T + 1, 1))
     runs = [execute(ExecuteConfig(plan="hold", controller="wbc", start="standing", process_noise=w, seed=3),
                     desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt)) for w in (0.0, 0.5)]
-    free = shared_free_nao()
+    free = shared_floating(builtin_spec("nao"))
     limit = np.abs(free.A).T @ free.effort  # per planning joint (the coupled hip: both actuators)
     for out in runs:
         assert np.all(np.abs(out.tau) <= limit + 1e-9)
@@ -349,9 +351,9 @@ def test_stabilizer_noise_is_torque_noise_clamped_at_the_effort_limits():
     assert runs[0].metrics["effort_clamped_fraction"] == 0.0 and runs[1].metrics["effort_clamped_fraction"] > 0.5
     assert runs[0].metrics["status"] == "ok" and not runs[0].effort_at_limit.any()
     # without noise the command the limits judge is the torque the plant applied in each sample's last step
-    assert_close(runs[0].nao["torque_asked"] @ free.A, runs[0].tau)
+    assert_close(runs[0].floating["torque_asked"] @ free.A, runs[0].tau)
     for out in runs:
-        asked = out.nao["torque_asked"]
+        asked = out.floating["torque_asked"]
         assert np.all(np.abs(asked) <= free.effort + 1e-6)
         np.testing.assert_array_equal(out.effort_at_limit, (np.abs(asked) >= free.effort * (1 - 1e-9)) @ free.A > 0)
 
@@ -362,10 +364,10 @@ def test_disturbance_observer_recovers_a_known_joint_torque():
     (besides its own command and the contact forces): its estimate is ``w`` exactly (to the fixed point's 1e-9),
     none on a joint within its margin of a limit (the hands, closed at 0), and the next program's torque map
     compensates it (``u = At x + h_j - w``, the torque bounds shifted by it)."""
-    from plants.free_nao import load_free_nao
-    from stages.wbc import LIMIT_MARGIN_OBS, make_stabilizer
+    from plants.floating import load_floating
+    from stages.execute.wbc import LIMIT_MARGIN_OBS, make_stabilizer
 
-    free = load_free_nao(pd=False)
+    free = load_floating(builtin_spec("nao"), pd=False)
     fixed, plant = free.fixed, free.plant
     X = np.tile(np.r_[fixed.default_q, np.zeros(fixed.n_q)], (11, 1))
     stab = make_stabilizer(free, X, 0.01)
@@ -409,13 +411,13 @@ def test_stabilizer_execution_is_repeatable_in_one_process():
     """The same noisy execution twice in one process gives the same numbers, bit for bit: the stabilizer
     loads proxsuite's portable build (its AVX2 build's results depend on where its work arrays lie in
     memory: two identical executions of a fig3.4 plan differed from the first program on)."""
-    from stages.wbc import portable_proxsuite
+    from stages.execute.wbc import portable_proxsuite
 
     loaded = portable_proxsuite()
     import proxsuite  # any later import in the process gets the same build
 
     assert loaded is proxsuite and proxsuite._submodule.__name__ == "proxsuite.proxsuite_pywrap"
-    nao = shared_free_nao().fixed
+    nao = shared_floating(builtin_spec("nao")).fixed
     T, dt = 100, 0.01
     Q = np.tile(nao.default_q, (T + 1, 1))
     cfg = ExecuteConfig(plan="hold", controller="wbc", start="standing", x0_noise=0.02, process_noise=0.5, seed=4)

@@ -1,62 +1,24 @@
-"""A whole-body stabilizer for the free-standing Nao: task-space inverse dynamics.
+"""A whole-body stabilizer for a floating robot: task-space inverse dynamics.
 
-Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP, warm-started
-from the previous step (:class:`ProxQP`; Clarabel, through Drake's ``MathematicalProgram``, takes the
-rare program it does not solve within its iteration cap). Decision variables
-``x = (vdot (nv,), f (8, 3))``: the free plant's generalized accelerations (floating base included)
-and the ground forces at the eight sole corners (world frame). The joint torques are an affine
-function of ``x`` through the equations of motion (not variables of their own: 26 fewer)::
+Every ``CONTROL_PERIOD`` one quadratic program is solved by ``proxsuite``'s dense PROXQP (portable build,
+warm-started: :class:`ProxQP`; Clarabel takes the rare program it does not solve). Decision variables
+``x = (vdot (nv,), f (nc, 3))``: the free plant's generalized accelerations and the ground forces at the
+soles' corners (the Nao: 8); the joint torques are affine in ``x`` through the equations of motion.
 
-    M vdot + C(q, v) v - tau_g(q) = B u + sum_c J_c^T f_c
+- Constraints: the floating base's rows of the equations of motion, the torques within the effort
+  limits, linearized friction cones (``MU``) with a bounded normal force and no force on a lifted
+  corner, each sole's centre of pressure off its edges (``COP_SHARE``), joint limits as acceleration
+  bounds (``LIMIT_MARGIN``, ``KP_LIMIT``, ``KD_LIMIT``).
+- Cost (weights ``W_*``, gains: the robot's ``stand.stabilizer``, ``plants.stand``): both soles held,
+  the CoG (the joint reference's, held ``COG_MARGIN`` inside the support polygon, its capture point
+  too), the via-point frames, the joints along the plan, a regularization.
+- Safeguards: a program no solver solves is solved again without the joint-limit bounds, else the
+  previous torque is held; a disturbance observer (``DISTURBANCE_OBSERVER``); a fallen robot
+  (``LIMP_TILT``) goes limp; single support releases the other sole once the CoG is over the stance
+  one (``RELEASE_MARGIN``, ``RELEASE_EARLIEST``).
 
-Constraints (hard):
-
-- the floating base's six rows of the equations of motion: ``M_b vdot + h_b = J_b^T f``;
-- torques ``u = B^T (M vdot + h - J^T f)`` within the model's effort limits;
-- each corner force unilateral inside a linearized friction cone (four faces, ``|f_x|, |f_y| <= MU f_z``,
-  ``MU`` 0.5 below the simulated 0.8), at most ``FZ_MAX``; a corner more than ``CORNER_UP`` above the
-  ground carries none;
-- every loaded corner carries at least ``COP_SHARE`` of its sole's mean corner load (each sole's
-  centre of pressure kept off its edges);
-- joint position limits as acceleration bounds: ``vdot_j <= KP_LIMIT (q_max - LIMIT_MARGIN - q_j) -
-  KD_LIMIT v_j`` and the mirror bound at the lower limit (every joint is kept ``LIMIT_MARGIN`` inside
-  its range, also where the reference lies at the limit: the hands, closed at 0, are held 0.02 rad open).
-
-Cost (weight times squared acceleration error):
-
-- soles ``W_CONTACT``: both soles held (every Nao task keeps both feet down; single support: the right
-  one until its release): each sole's spatial acceleration ``-KP_CONTACT e - KD_CONTACT V`` towards its pose at the start laid flat;
-- CoG ``W_COG``: ``cddot = cddot_r + KP_COG (c_r - c) + KD_COG (cdot_r - cdot)``; the reference is the
-  CoG of the joint reference (fixed-base model, left sole at the world origin as on the free robot),
-  held ``COG_MARGIN`` inside the feet's support polygon (:func:`clamp_to_polygon`) and its capture point
-  ``c + cdot / omega`` too (the reference velocity cut);
-- via-point frames ``W_FRAME`` (the hand of the reach task): their points along the plan as made;
-- joints ``W_JOINT``: ``vdot_j = a_r + KP (q_r - q) + KD (v_r - v)`` on the 26 tree joints (the
-  reference: the plan, shifted by the start-state projection when the start is ``standing``;
-  positions interpolated within a planning step, the step's velocity ``v_{k+1}`` and acceleration
-  ``(v_{k+1} - v_k) / dt``);
-- regularization ``W_REG |vdot|^2 + W_FORCE |f|^2``.
-
-Safeguards and modes:
-
-- ``proxsuite``'s portable build (:func:`portable_proxsuite`: bit-for-bit repeatable executions); a
-  program it does not solve within its iteration cap goes to Clarabel (``wbc_qp_fallbacks``); one
-  no solver solves is solved again without the joint-limit bounds that ask for an acceleration
-  (``wbc_qp_relaxed``); one that still fails holds the previous torque (``wbc_qp_failures``).
-- A disturbance observer (``DISTURBANCE_OBSERVER``): the joint torque the model does not explain
-  over the last period, ``w = [M (v - v_prev) / dt + h - tau_c]_joints - u_prev`` (``tau_c``: the
-  plant's generalized contact forces of its last step; none for a joint within ``LIMIT_MARGIN_OBS``
-  of a limit), clamped at the effort limits and compensated by the next command
-  (``u = At x + h_j - w``, the torque bounds shifted by it).
-- A fallen robot (torso more than ``LIMP_TILT`` from upright) goes limp: zero torques, no more
-  programs (``wbc_limp_time``).
-- Single support (a ``--balance single`` plan, ``swing``): the right sole is released (its corners
-  carry no force, it is no longer held) once the executed CoG's ground projection is
-  ``RELEASE_MARGIN`` inside the left sole, not before ``RELEASE_EARLIEST``; from then on the CoG
-  reference is clamped to the left sole's polygon and the right sole's corners track the plan as
-  made (the frame task's weight and gains).
-
-Why each weight, gain, bound and solver setting is what it is (measured): ``docs/stabilizer.md``.
+The program term by term: docs/stabilizer.md ("The program"); why each weight, gain, bound and solver
+setting is what it is (measured): the rest of that page.
 """
 
 from __future__ import annotations
@@ -70,11 +32,8 @@ from typing import Any
 import numpy as np
 
 CONTROL_PERIOD = 4e-3  # s, one QP per period (zero-order hold in between)
-KP, KD = 100.0, 20.0  # 1/s^2, 1/s: joint acceleration PD around the plan
-KP_COG, KD_COG = 50.0, 14.0  # 1/s^2, 1/s: CoG acceleration PD around the planned CoG
-KP_CONTACT, KD_CONTACT = 100.0, 20.0  # 1/s^2, 1/s: sole pose and velocity feedback in the contact constraint
+# the acceleration gains (joints, CoG, soles' contact, via-point frames) are the robot's: its stand.stabilizer
 W_JOINT, W_COG, W_FRAME, W_CONTACT, W_REG, W_FORCE = 1.0, 1000.0, 1000.0, 1000.0, 1e-4, 1e-5
-KP_FRAME, KD_FRAME = 100.0, 20.0  # 1/s^2, 1/s: via-point frames (the hand) around the plan
 COG_FROM_JOINT_PLAN = True  # the CoG reference: the joint reference's CoG (True) or the plan's as made
 COG_MARGIN = 0.015  # m, the CoG reference is held this far inside the feet's support polygon
 LIMIT_MARGIN = 0.02  # rad, the joints are kept this far inside their position limits (None: no bounds)
@@ -338,12 +297,12 @@ class ClarabelProgram:
 @dataclass
 class FreePlantLayout:
     """What the stabilizer's programs need of the free plant, fixed for its life: the plant and one
-    context of it, the soles' frames and corners ``(3, 4)`` (m, sole frame), the sizes (``nq``, ``nv``,
-    ``n_act`` actuators, ``nc`` = 8 corners, ``nf = 3 nc`` forces, ``nx = nv + nf`` decision variables),
+    context of it, the soles' frames and corners ``(3, k)`` (m, sole frame), the sizes (``nq``, ``nv``,
+    ``n_act`` actuators, ``nc = 2 k`` corners, ``nf = 3 nc`` forces, ``nx = nv + nf`` decision variables),
     the floating base's six velocity rows ``base_rows``, each actuator's velocity ``jv (n_act,)``, the tree
     joints' velocities in the reference's order ``joint_v (26,)``, each actuator's tree joint
     ``act_joint (n_act,)``, the effort limits ``(n_act,)`` N m and the tree joints' position limits
-    ``lower_q, upper_q (26,)`` rad."""
+    ``lower_q, upper_q (26,)`` rad, and the robot's acceleration gains ``gains`` (its ``stand.stabilizer``)."""
 
     plant: Any
     ctx: Any
@@ -364,25 +323,30 @@ class FreePlantLayout:
     nc: int
     nf: int
     nx: int
+    gains: dict
 
     @classmethod
     def of(cls, free) -> FreePlantLayout:
-        """The layout of ``plants.free_nao.FreeNao`` ``free`` (its plant without PD actuators)."""
-        from plants.free_nao import SOLES, sole_corners_local
+        """The layout of ``plants.floating.FloatingRobot`` ``free`` (its plant without PD actuators)."""
+        from plants.floating import sole_corners_local
 
+        corners = sole_corners_local(free.spec).T
+        if len(free.soles) != 2:
+            raise ValueError(f"the whole-body stabilizer holds two soles; this robot has {len(free.soles)}")
         plant = free.plant
         nv = plant.num_velocities()
         B = plant.MakeActuationMatrix()  # (nv, n_act) selection, gear ratio 1
         jv = np.array([plant.get_joint_actuator(i).joint().velocity_start() for i in plant.GetJointActuatorIndices()])
-        frames = [plant.GetFrameByName(s) for s in SOLES]
-        nc = 4 * len(frames)
+        frames = [plant.GetFrameByName(s) for s in free.soles]
+        nc = corners.shape[1] * len(frames)
         return cls(plant=plant, ctx=plant.CreateDefaultContext(), world=plant.world_frame(), frames=frames,
-                   corners=sole_corners_local().T, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
+                   corners=corners, joint_idx=free.joint_idx, joint_v=free.joint_vidx, jv=jv,
                    act_joint=np.array([list(free.joint_vidx).index(j) for j in jv]),
                    base_rows=np.flatnonzero(np.abs(B).sum(axis=1) == 0), effort=free.effort,
                    lower_q=plant.GetPositionLowerLimits()[free.joint_idx],
                    upper_q=plant.GetPositionUpperLimits()[free.joint_idx],
-                   nq=plant.num_positions(), nv=nv, n_act=B.shape[1], nc=nc, nf=3 * nc, nx=nv + 3 * nc)
+                   nq=plant.num_positions(), nv=nv, n_act=B.shape[1], nc=nc, nf=3 * nc, nx=nv + 3 * nc,
+                   gains=dict(free.spec.stand.stabilizer))
 
 
 def contact_rows(lay: FreePlantLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -392,14 +356,15 @@ def contact_rows(lay: FreePlantLayout) -> tuple[np.ndarray, np.ndarray, np.ndarr
     carries at least ``COP_SHARE`` of its sole's mean corner load, ``>= 0``, its lower bound set per
     program). Returns ``C``, ``l``, ``u`` and the number of friction rows."""
     nv, nc, nx, n_act = lay.nv, lay.nc, lay.nx, lay.n_act
+    k = lay.corners.shape[1]  # corners per sole
     Fr = np.zeros((4 * nc, nx))
     Cp = np.zeros((nc, nx))
     for c in range(nc):
         i = nv + 3 * c
         for r, (a, b) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1))):
             Fr[4 * c + r, [i, i + 1, i + 2]] = (a, b, -MU)
-        s0 = 4 * (c // 4)
-        Cp[c, nv + 3 * np.arange(s0, s0 + 4) + 2] = -COP_SHARE / 4
+        s0 = k * (c // k)  # the first corner of its sole
+        Cp[c, nv + 3 * np.arange(s0, s0 + k) + 2] = -COP_SHARE / k
         Cp[c, nv + 3 * c + 2] += 1.0
     n_in = n_act + len(Fr) + nc
     C = np.zeros((n_in, nx))
@@ -501,13 +466,14 @@ class StabilizerProgram:
         Jc = np.empty((lay.nf, nv))
         sole_err = np.empty(12)
         zc = np.empty(lay.nc)
+        k = lay.corners.shape[1]  # corners per sole
         for s_, X in enumerate(poses):
             R, p = X.rotation().matrix(), X.translation()
-            r = R @ lay.corners  # (3, 4) world offsets of the corners
-            zc[4 * s_:4 * s_ + 4] = r[2] + p[2]
+            r = R @ lay.corners  # (3, k) world offsets of the corners
+            zc[k * s_:k * s_ + k] = r[2] + p[2]
             Jw, Jv = Js[6 * s_:6 * s_ + 3], Js[6 * s_ + 3:6 * s_ + 6]
-            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (4, 1) each
-            Jc_s = Jc[12 * s_:12 * s_ + 12].reshape(4, 3, nv)          # (corner, xyz, nv), a view of Jc
+            rx, ry, rz = r[0][:, None], r[1][:, None], r[2][:, None]  # (k, 1) each
+            Jc_s = Jc[3 * k * s_:3 * k * (s_ + 1)].reshape(k, 3, nv)  # (corner, xyz, nv), a view of Jc
             Jc_s[:, 0] = Jv[0] - (ry * Jw[2] - rz * Jw[1])
             Jc_s[:, 1] = Jv[1] - (rz * Jw[0] - rx * Jw[2])
             Jc_s[:, 2] = Jv[2] - (rx * Jw[1] - ry * Jw[0])
@@ -552,6 +518,7 @@ class StabilizerProgram:
         sole alone)."""
         lay, kV = self.lay, self.kV
         plant, ctx, world = lay.plant, lay.ctx, lay.world
+        gains = lay.gains
         rows_J, rows_a, rows_w = [cog_rows[0]], [cog_rows[1]], [cog_rows[2]]
         tasks = self.tasks[:len(self.tasks) if single else self.n_tasks]
         for (fr, pts, rows), (p_r, pd_r, pdd_r) in zip(tasks, frame_refs):
@@ -559,12 +526,12 @@ class StabilizerProgram:
             bp = plant.CalcBiasTranslationalAcceleration(ctx, kV, fr, pts, world, world).T.reshape(-1)[rows]
             p = plant.CalcPointsPositions(ctx, fr, pts, world).T.reshape(-1)[rows]
             rows_J.append(Jp)
-            rows_a.append(pdd_r + KP_FRAME * (p_r - p) + KD_FRAME * (pd_r - Jp @ v) - bp)
+            rows_a.append(pdd_r + gains["kp_frame"] * (p_r - p) + gains["kd_frame"] * (pd_r - Jp @ v) - bp)
             rows_w.append(W_FRAME * self.ones[:len(Jp)])
         held = slice(0, 6) if single else slice(0, 12)
         Jh = Js[held]
         rows_J.append(Jh)
-        rows_a.append(-bs[held] - KD_CONTACT * (Jh @ v) - KP_CONTACT * sole_err[held])
+        rows_a.append(-bs[held] - gains["kd_contact"] * (Jh @ v) - gains["kp_contact"] * sole_err[held])
         rows_w.append(W_CONTACT * self.ones[:Jh.shape[0]])
         return np.vstack(rows_J), np.concatenate(rows_a), np.concatenate(rows_w)
 
@@ -599,7 +566,7 @@ class StabilizerProgram:
         # a corner more than CORNER_UP above the ground carries no force (the ground cannot pull it back)
         up = zc > (CORNER_UP if CORNER_UP is not None else np.inf)
         if single:
-            up[4:] = True   # the released right sole carries nothing
+            up[self.lay.corners.shape[1]:] = True   # the released right sole carries nothing
         l[n_act + n_fr:] = np.where(up, -np.inf, 0.0)  # a lifted corner: no share of its sole's load
         lb, ub = -self.inf_x, self.inf_x.copy()
         lb[self.fz], ub[self.fz] = FZ_MIN * ~up, np.where(up, 0.0, FZ_MAX)
@@ -633,8 +600,9 @@ class StabilizerProgram:
         (q_r, v_r, a_r), cog_ref, frame_refs = self.ref.at(t)
         single = self._single_support(t, com)
         c_r, cd_r, cdd_r = self._cog_reference(cog_ref, single)
-        a_joint = a_r + KP * (q_r - qj) + KD * (v_r - vj)
-        a_com = cdd_r + KP_COG * (c_r - com) + KD_COG * (cd_r - Jcom @ v)
+        gains = lay.gains
+        a_joint = a_r + gains["kp"] * (q_r - qj) + gains["kd"] * (v_r - vj)
+        a_com = cdd_r + gains["kp_cog"] * (c_r - com) + gains["kd_cog"] * (cd_r - Jcom @ v)
         J, a, w = self._task_rows(v, (Jcom, a_com - bcom, self.w_cog), frame_refs, Js, bs, sole_err, single)
         H, g = self._cost(J, a, w, a_joint)
         Aeq, Cm, l, u, lb, ub, At, hj = self._bounds(M, h, Jc, w_hat, zc, qj, vj, single)
@@ -642,7 +610,7 @@ class StabilizerProgram:
 
     def solve(self, t: float, q: np.ndarray, v: np.ndarray, obs=None) -> tuple[np.ndarray, np.ndarray, bool]:
         """One QP at time ``t`` and state ``(q, v)`` (``obs``: the observer's data, see ``program``): actuation
-        ``(n_act,)`` N m, corner forces ``(8, 3)`` N, success."""
+        ``(n_act,)`` N m, corner forces ``(nc, 3)`` N, success."""
         lay = self.lay
         joint_v = lay.joint_v
         d, (At, hj) = self.program(t, q, v, obs)
@@ -748,7 +716,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
     (``plants.taskmaps.FramePoints`` of the fixed-base robot: the plan's via-point frames, tracked
     along the whole plan) of ``X_task`` (default ``X_plan``); ``swing``: the right sole's corners
     (``FramePoints``) tracked once that sole is released (single support), else None. Its
-    attributes ``log`` (per update: time, solve seconds, corner forces ``(8, 3)`` N, success) and
+    attributes ``log`` (per update: time, solve seconds, corner forces ``(nc, 3)`` N, success) and
     ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
     ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests), ``solve``, ``failed``,
     ``relaxed``, ``observed`` and ``qp`` are :class:`StabilizerProgram`'s."""

@@ -1,29 +1,22 @@
-"""The free-standing Nao: the execution model of the Nao figures.
+"""A floating robot: the execution model of a robot that stands on its own feet (``execution = "floating"``).
 
-The plans are made on the thesis's fixed-base Nao (left sole welded to the world,
-``plants.robots``); they are executed on this model, a robot that stands on its own feet:
+Plans are made on the fixed-base model (its stance sole welded to the world, ``plants.robots``); they are
+executed on this one, built from the robot's facts (its ``feet``, ``sole`` outline and ``stand`` table,
+``plants.stand``):
 
-- the same URDF (``models/nao.urdf``) with a floating base (Drake's quaternion floating
-  joint on ``base_link``/``torso``);
-- a DISCRETE ``MultibodyPlant`` (step ``TIME_STEP``) with Drake's SAP solver in its
-  ``lagged`` approximation (``DISCRETE_CONTACT_APPROXIMATION``) and the contact model
-  ``hydroelastic_with_fallback``: each sole is a compliant-hydroelastic box (the sole plate,
-  ``SOLE_BOX_SIZE`` at ``SOLE_BOX_CENTER`` in the sole frame, hydroelastic modulus
-  ``HYDROELASTIC_MODULUS``, Hunt-Crossley dissipation ``DISSIPATION``) on a rigid ground
-  (the half space z <= 0) with Coulomb friction ``FRICTION``; collision spheres on the torso,
-  head, knees, elbows and hands (rigid, point contact) let a fallen robot lie on the floor.
-  The robot's geometries do not collide with each other, only with the ground;
-- joint position limits (from the URDF) enforced by the discrete plant (SAP limit
-  constraints); effort limits enforced by the plant: every joint actuator is PD-controlled
-  by Drake (implicit in SAP) and its total actuation ``Kp (q_d - q) + Kd (v_d - v) + u_ff``
-  is clamped at the actuator's effort limit;
-- reflected motor inertia as in the planning model (the ``armature`` of ``plants/models/nao.toml``).
+- the same model file with a floating base (Drake's quaternion floating joint on its root body);
+- a DISCRETE ``MultibodyPlant`` (the spec's ``time_step``) with Drake's SAP solver in its ``lagged``
+  approximation and the contact model ``hydroelastic_with_fallback``: each sole a compliant-hydroelastic box
+  (``stand.sole_box``; modulus and Hunt-Crossley dissipation of ``stand.contact``) on a rigid ground (the
+  half space z <= 0) with Coulomb friction; the ``stand.bumpers`` spheres (rigid, point contact) let a fallen
+  robot lie on the floor. The robot's geometries collide with the ground only;
+- joint position limits (from the model file) enforced by the plant (SAP limit constraints); every actuator
+  PD-controlled by Drake (``stand.gains``, implicit in SAP), its total ``Kp (q_d - q) + Kd (v_d - v) + u_ff``
+  clamped at its effort limit; reflected motor inertia as in the planning model (``armature``).
 
-Gains (every joint, both hip yaw-pitch joints included): ``KP`` N m/rad, ``KD`` N m s/rad.
-
-Coordinates: planning ``q (25,)`` -> the 26 tree joints by ``Robot.P`` (RHipYawPitch copies
-LHipYawPitch); the free plant's positions are the floating base's ``(qw, qx, qy, qz, x, y, z)``
-followed by the joints.
+Coordinates: planning ``q (n_q,)`` -> the tree joints by ``Robot.P`` (coupled joints copy their driver);
+the free plant's positions are the floating base's ``(qw, qx, qy, qz, x, y, z)`` followed by the joints.
+The Nao's numbers: docs/execution.md.
 """
 
 from __future__ import annotations
@@ -35,33 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from plants.robots import Robot, builtin_spec, shared_robot
+from plants.model_file import RobotSpec, shared_model
+from plants.robots import Robot, shared_robot
 
-TIME_STEP = builtin_spec("nao").time_step  # s, 2 ms: the discrete plant's step (a 1 ms step with a 2 ms control period gave the same statuses at three times the cost: docs/stabilizer.md)
 DISCRETE_CONTACT_APPROXIMATION = "lagged"  # SAP with lagged friction (Drake's default)
-HYDROELASTIC_MODULUS = 5e6  # Pa, compliant sole boxes
-DISSIPATION = 5.0  # s/m, Hunt-Crossley
-FRICTION = 0.8  # static and dynamic Coulomb friction, soles and bumpers on the ground
-BUMPER_STIFFNESS = 2e4  # N/m, point-contact stiffness of the fall bumpers
-KP = 50.0  # N m/rad, joint PD stiffness
-KD = 1.0  # N m s/rad, joint PD damping
-SOLE_BOX_SIZE = (0.16, 0.088, 0.02)  # m, the sole plate (same as the illustration geometry)
-SOLE_BOX_CENTER = (0.025, 0.0, 0.01)  # m, in the sole frame: the box's bottom face is the sole (z = 0)
-SOLES = ("l_sole", "r_sole")
-# Spheres (body, centre in the body frame m, radius m) that let a fallen robot lie on the ground.
-BUMPERS = (
-    ("torso", (0.0, 0.05, 0.1), 0.04), ("torso", (0.0, -0.05, 0.1), 0.04),
-    ("torso", (0.0, 0.05, -0.05), 0.04), ("torso", (0.0, -0.05, -0.05), 0.04),
-    ("Head", (0.0, 0.0, 0.055), 0.062),
-    ("LTibia", (0.0, 0.0, 0.0), 0.03), ("RTibia", (0.0, 0.0, 0.0), 0.03),
-    ("LForeArm", (0.0, 0.0, 0.0), 0.025), ("RForeArm", (0.0, 0.0, 0.0), 0.025),
-    ("l_wrist", (0.04, 0.0, 0.0), 0.025), ("r_wrist", (0.04, 0.0, 0.0), 0.025),
-)
 
 
-def sole_corners_local() -> np.ndarray:
-    """The four corners ``(4, 3)`` of a sole in its sole frame (m, z = 0: the contact face)."""
-    sole = np.array(builtin_spec("nao").sole)
+def sole_corners_local(spec: RobotSpec) -> np.ndarray:
+    """The corners ``(k, 3)`` of a sole in its sole frame (m, z = 0: the contact face): the spec's outline."""
+    sole = np.array(spec.sole)
     return np.c_[sole, np.zeros(len(sole))]
 
 
@@ -94,8 +69,8 @@ def _tip(C: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class FreeNao:
-    """The free-standing Nao plant with the maps to and from the planning coordinates."""
+class FloatingRobot:
+    """A floating robot's plant with the maps to and from the planning coordinates."""
 
     plant: Any
     scene_graph: Any
@@ -108,9 +83,19 @@ class FreeNao:
     joint_idx: np.ndarray  # (n_fixed_positions,): free-plant position index of each fixed-plant position
     joint_vidx: np.ndarray  # (n_fixed_velocities,): free-plant velocity index of each fixed-plant velocity
     effort: np.ndarray  # (n_act,) N m
-    sole_geometries: dict = field(default_factory=dict)  # GeometryId -> sole index (0 left, 1 right)
-    name: str = "nao"
+    spec: RobotSpec | None = None  # its facts: feet (the stance sole first), sole outline, stand
+    sole_geometries: dict = field(default_factory=dict)  # GeometryId -> sole index (0 stance, 1 other)
+    name: str = ""
     _context: Any = field(default=None, repr=False)
+
+    @property
+    def soles(self) -> tuple[str, ...]:
+        """The sole frames, the stance one first (the spec's ``feet``)."""
+        return self.spec.feet
+
+    @property
+    def time_step(self) -> float:
+        return self.plant.time_step()
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -149,7 +134,7 @@ class FreeNao:
         return np.arange(start, start + 7)
 
     def planning_q(self, qp: np.ndarray) -> np.ndarray:
-        """Planning ``q (n_q,)`` from free-plant positions (least squares for the coupled hip)."""
+        """Planning ``q (n_q,)`` from free-plant positions (least squares for coupled joints)."""
         return self.fixed.from_plant_q(np.asarray(qp)[..., self.joint_idx])
 
     def planning_v(self, vp: np.ndarray) -> np.ndarray:
@@ -159,7 +144,7 @@ class FreeNao:
     def standing_positions(self, q: np.ndarray) -> tuple[np.ndarray, float]:
         """Free-plant positions of a robot at rest on the ground with joints at planning ``q``.
 
-        First the left sole flat on the ground at the fixed-base model's pose (the world frame).
+        First the stance sole flat on the ground at the fixed-base model's pose (the world frame).
         When the other sole then reaches under the ground (the plan's posture has the feet at
         different heights), the robot, rigid at ``q``, is tipped about the world origin onto its
         lowest sole corners: the roll and pitch that locally minimize the CoG height over the
@@ -171,7 +156,7 @@ class FreeNao:
         plant, ctx = self.plant, self.context
         identity = np.r_[1.0, 0, 0, 0, 0, 0, 0]
         plant.SetPositions(ctx, self.free_positions(q, identity))
-        X_WS = plant.GetFrameByName("l_sole").CalcPoseInWorld(ctx)
+        X_WS = plant.GetFrameByName(self.soles[0]).CalcPoseInWorld(ctx)
         X_WB = plant.EvalBodyPoseInWorld(ctx, self.base)
         plant.SetFreeBodyPose(ctx, self.base, X_WS.inverse() @ X_WB)
         C = self.sole_corners(ctx).reshape(-1, 3)
@@ -191,14 +176,14 @@ class FreeNao:
         """Free-plant positions of a double-support stance near planning ``q (n_q,)`` (rad).
 
         Drake's ``InverseKinematics`` (SNOPT) finds the free-plant positions closest to ``q`` in the
-        joints (least squares over the 26 tree joints, the two hip yaw-pitch joints kept equal as
-        on the robot, the joint limits respected) such that the left sole lies flat at the world
+        joints (least squares over the tree joints, coupled joints kept equal as on the robot, the
+        joint limits respected) such that the stance sole lies flat at the world
         origin (the fixed-base model's pose, so that the plan's world frame stays the robot's), the
-        right sole lies flat on the ground (z = 0, its z axis vertical; its x, y and yaw free), and
+        other sole lies flat on the ground (z = 0, its z axis vertical; its x, y and yaw free), and
         the CoG's ground projection, held near where ``q`` puts it on the fixed-base model (a cost
         ``STANCE_COG_WEIGHT``: the plan's CoG via-points stay where the plan has them), is at least
         ``margin`` m inside the support polygon (the convex
-        hull of the eight sole corners with the right sole at its pose under ``q``, projected flat).
+        hull of both soles' corners with the other sole at its pose under ``q``, projected flat).
         Returns the positions and ``{"projection_norm", "projection_max"}`` (rad: the joint-space
         norm and largest absolute change in planning coordinates), ``"sole_height"`` (m, the largest
         |z| of a sole corner), ``"cog_margin"`` (m, against the hull of the projected stance's
@@ -214,14 +199,14 @@ class FreeNao:
         plant = self.plant
         q = np.asarray(q, float)
         guess, _ = self.standing_positions(q)
-        # the support polygon: left sole at the origin, right sole where q puts it, laid flat
+        # the support polygon: the stance sole at the origin, the other where q puts it, laid flat
         fp, fctx = self.fixed.plant, self.fixed.plant.CreateDefaultContext()
         fp.SetPositions(fctx, self.fixed.to_plant_q(q))
-        X_LR = fp.GetFrameByName("l_sole").CalcPoseInWorld(fctx).inverse() @ \
-            fp.GetFrameByName("r_sole").CalcPoseInWorld(fctx)
+        X_LR = fp.GetFrameByName(self.soles[0]).CalcPoseInWorld(fctx).inverse() @ \
+            fp.GetFrameByName(self.soles[1]).CalcPoseInWorld(fctx)
         yaw = float(np.arctan2(X_LR.rotation().matrix()[1, 0], X_LR.rotation().matrix()[0, 0]))
         Rz = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
-        local = sole_corners_local()[:, :2]
+        local = sole_corners_local(self.spec)[:, :2]
         pts = np.vstack([local, local @ Rz.T + X_LR.translation()[:2]])
         hull = ConvexHull(pts)
         A = np.c_[hull.equations[:, :2], np.zeros(len(hull.equations))]  # a . p + b <= 0 inside
@@ -230,7 +215,7 @@ class FreeNao:
         ik = InverseKinematics(plant, with_joint_limits=True)
         qv, prog = ik.q(), ik.get_mutable_prog()
         world = plant.world_frame()
-        lsole, rsole = plant.GetFrameByName("l_sole"), plant.GetFrameByName("r_sole")
+        lsole, rsole = plant.GetFrameByName(self.soles[0]), plant.GetFrameByName(self.soles[1])
         ik.AddPositionConstraint(lsole, np.zeros(3), world, np.zeros(3), np.zeros(3))
         ik.AddOrientationConstraint(lsole, RotationMatrix(), world, RotationMatrix(), 0.0)
         ik.AddPositionConstraint(rsole, np.zeros(3), world, [-1.0, -1.0, 0.0], [1.0, 1.0, 0.0])
@@ -242,9 +227,10 @@ class FreeNao:
         prog.AddLinearConstraint(A, np.full(len(ub), -np.inf), ub, r)
         c_q = fp.CalcCenterOfMassPositionInWorld(fctx)
         prog.AddQuadraticErrorCost(STANCE_COG_WEIGHT * np.eye(2), c_q[:2], r[:2])
-        hl = plant.GetJointByName("LHipYawPitch").position_start()
-        hr = plant.GetJointByName("RHipYawPitch").position_start()
-        prog.AddLinearEqualityConstraint(qv[hl] - qv[hr] == 0)
+        for joint, driver in self.spec.coupled:  # coupled joints kept equal, as one motor drives them
+            hd = plant.GetJointByName(driver).position_start()
+            hj = plant.GetJointByName(joint).position_start()
+            prog.AddLinearEqualityConstraint(qv[hd] - qv[hj] == 0)
         target = self.free_positions(q, guess[self.base_positions])
         W = np.zeros((plant.num_positions(), plant.num_positions()))
         W[self.joint_idx, self.joint_idx] = 1.0
@@ -270,17 +256,17 @@ class FreeNao:
                     "cog_margin": float(signed_margin(poly, c[:2])), "solver": result.get_solver_id().name()}
 
     def sole_corners(self, ctx) -> np.ndarray:
-        """World positions ``(2, 4, 3)`` (m) of the left and right sole corners."""
-        local = sole_corners_local()
-        out = np.empty((2, 4, 3))
-        for i, s in enumerate(SOLES):
+        """World positions ``(2, k, 3)`` (m) of the stance and the other sole's corners."""
+        local = sole_corners_local(self.spec)
+        out = np.empty((2, len(local), 3))
+        for i, s in enumerate(self.soles):
             X = self.plant.GetFrameByName(s).CalcPoseInWorld(ctx)
             out[i] = local @ X.rotation().matrix().T + X.translation()
         return out
 
     def contacts(self, ctx) -> tuple[np.ndarray, np.ndarray]:
         """From Drake's contact results (of the last plant step): the normal force ``(2,)`` N from
-        the ground on the left and right sole, and every contact point ``(k, 3)`` m (centroids of
+        the ground on the stance and the other sole, and every contact point ``(k, 3)`` m (centroids of
         the soles' hydroelastic contact surfaces, point contacts of the bumpers)."""
         results = self.plant.get_contact_results_output_port().Eval(ctx)
         force = np.zeros(2)
@@ -328,7 +314,7 @@ class FreeNao:
         return np.array([-M[1] / F[2], M[0] / F[2]])
 
     def torso_pose(self, ctx):
-        return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName("torso"))
+        return self.plant.EvalBodyPoseInWorld(ctx, self.plant.GetBodyByName(self.spec.stand.torso))
 
 
 class _DropDrakeMessage(logging.Filter):
@@ -350,9 +336,10 @@ def _drop_drake_message(text: str) -> None:
         logger.addFilter(_DropDrakeMessage(text))
 
 
-def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True) -> FreeNao:
-    """A fresh free-standing Nao (its own plant and scene graph, optionally inside ``builder``).
-    ``pd`` False: the actuators have no PD gains (pure torque control, the stabilizer's plant)."""
+def load_floating(spec: RobotSpec, builder=None, time_step: float | None = None, pd: bool = True) -> FloatingRobot:
+    """A fresh floating robot of ``spec`` (its own plant and scene graph, optionally inside ``builder``; the
+    step: the spec's ``time_step``). ``pd`` False: the actuators have no PD gains (pure torque control, the
+    stabilizer's plant)."""
     from pydrake.geometry import (
         AddCompliantHydroelasticProperties,
         AddContactMaterial,
@@ -375,45 +362,47 @@ def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True)
     from pydrake.multibody.tree import PdControllerGains
     from pydrake.systems.framework import DiagramBuilder
 
-    time_step = TIME_STEP if time_step is None else time_step
+    time_step = spec.time_step if time_step is None else time_step
     if time_step <= 0:
-        raise ValueError("the free-standing Nao is a discrete plant: time_step must be > 0")
+        raise ValueError("a floating robot is a discrete plant: time_step must be > 0")
+    stand = spec.stand
+    friction_c, dissipation, stiffness = (stand.value("contact", k) for k in ("friction", "dissipation",
+                                                                               "bumper_stiffness"))
     builder = builder or DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step)
     plant.set_contact_model(ContactModel.kHydroelasticWithFallback)
     plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
-    spec = builtin_spec("nao")
     model, = Parser(plant).AddModels(spec.file)
     for i in plant.GetJointActuatorIndices():
         act = plant.get_joint_actuator(i)
         act.set_default_gear_ratio(1.0)
         act.set_default_rotor_inertia(spec.armature)
         if pd:
-            act.set_controller_gains(PdControllerGains(p=KP, d=KD))
-    friction = CoulombFriction(FRICTION, FRICTION)
+            act.set_controller_gains(PdControllerGains(p=stand.value("gains", "kp"), d=stand.value("gains", "kd")))
+    friction = CoulombFriction(friction_c, friction_c)
     sole_props = ProximityProperties()
-    AddCompliantHydroelasticProperties(0.02, HYDROELASTIC_MODULUS, sole_props)
-    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+    AddCompliantHydroelasticProperties(0.02, stand.value("contact", "modulus"), sole_props)
+    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness, friction=friction,
                        properties=sole_props)
     robot_geoms = []
     soles = {}
-    for k, s in enumerate(SOLES):
-        gid = plant.RegisterCollisionGeometry(plant.GetBodyByName(s), RigidTransform(list(SOLE_BOX_CENTER)),
-                                              Box(*SOLE_BOX_SIZE), f"{s}_box", sole_props)
+    for k, s in enumerate(spec.feet):
+        gid = plant.RegisterCollisionGeometry(plant.GetBodyByName(s), RigidTransform(list(stand.box_center)),
+                                              Box(*stand.box_size), f"{s}_box", sole_props)
         robot_geoms.append(gid)
         soles[gid] = k
     bumper_props = ProximityProperties()
-    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness, friction=friction,
                        properties=bumper_props)
-    for j, (body, centre, r) in enumerate(BUMPERS):
+    for j, (body, centre, r) in enumerate(stand.bumpers):
         robot_geoms.append(plant.RegisterCollisionGeometry(plant.GetBodyByName(body), RigidTransform(list(centre)),
                                                            Sphere(r), f"bumper_{j}_{body}", bumper_props))
     ground_props = ProximityProperties()
     AddRigidHydroelasticProperties(ground_props)
-    AddContactMaterial(dissipation=DISSIPATION, point_stiffness=BUMPER_STIFFNESS, friction=friction,
+    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness, friction=friction,
                        properties=ground_props)
     # the ground: the rigid half space z <= 0. Drake clips the soles' pressure fields against a plane,
-    # not a box's triangles: the same contact, about a quarter less compute for the Nao executions
+    # not a box's triangles: the same contact, about a quarter less compute for the floating executions
     # (measured over a reproduce). Its one-line warning that a rigid half space has no deformable
     # contact (raico has no deformable bodies; Drake logs it at the first contact query) is dropped
     _drop_drake_message("half spaces are not currently supported for deformable contact")
@@ -424,7 +413,7 @@ def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True)
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geoms)))
 
-    fixed = shared_robot("nao")
+    fixed = shared_robot(spec.plant) if spec.plant else shared_model(spec.planning)
     fp = fixed.plant
     joint_idx = np.empty(fp.num_positions(), dtype=int)
     joint_vidx = np.empty(fp.num_velocities(), dtype=int)
@@ -439,11 +428,13 @@ def load_free_nao(builder=None, time_step: float | None = None, pd: bool = True)
     act_fixed_idx = np.array([col[a.joint().name()] for a in acts])
     effort = np.array([a.effort_limit() for a in acts])
     bases = [plant.get_body(b) for b in plant.GetFloatingBaseBodies()]
-    return FreeNao(plant=plant, scene_graph=scene_graph, builder=builder, model=model, fixed=fixed, base=bases[0],
-                   A=fixed.P[act_fixed_idx], act_fixed_idx=act_fixed_idx, joint_idx=joint_idx, joint_vidx=joint_vidx, effort=effort, sole_geometries=soles)
+    return FloatingRobot(plant=plant, scene_graph=scene_graph, builder=builder, model=model, fixed=fixed,
+                         base=bases[0], A=fixed.P[act_fixed_idx], act_fixed_idx=act_fixed_idx, joint_idx=joint_idx,
+                         joint_vidx=joint_vidx, effort=effort, spec=spec, sole_geometries=soles,
+                         name=spec.plant or fixed.name)
 
 
 @cache
-def shared_free_nao() -> FreeNao:
-    """One free-standing Nao per process for kinematics queries and recordings (not for diagrams)."""
-    return load_free_nao()
+def shared_floating(spec: RobotSpec) -> FloatingRobot:
+    """One floating robot per spec and process for kinematics queries and recordings (not for diagrams)."""
+    return load_floating(spec)

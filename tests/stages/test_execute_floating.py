@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from plants.robots import shared_robot
+from plants.robots import builtin_spec, shared_robot
 from stages.evaluate.metrics import CONTACT_TOL, LIMIT_TOL
-from stages.execute import ExecuteConfig, execute
+from stages.execute.config import ExecuteConfig
+from stages.execute.stage import execute
 
 LIMIT_SLACK = LIMIT_TOL  # rad: Drake's SAP limit constraints are stiff but compliant
 
@@ -42,7 +43,7 @@ def test_free_nao_stands_still_in_the_default_posture():
     T, dt = 300, 0.01
     Q = np.tile(nao.default_q, (T + 1, 1))
     out = execute(ExecuteConfig(plan="hold"), desc_for("nao", nao.default_q, T, dt), pseudo_plan(Q, dt))
-    m, d = out.metrics, out.nao
+    m, d = out.metrics, out.floating
     assert (m["status"], m["stood"], m["failure_time"], m["start_tilt"]) == ("ok", True, None, 0.0)
     # the feet carry the robot's weight; the default posture leans over the left leg, whose sole
     # takes (nearly) all of it, the right sole touches the ground
@@ -55,9 +56,9 @@ def test_free_nao_stands_still_in_the_default_posture():
     assert m["max_tracking_error"] < 1e-3 and m["cog_inside_fraction"] == 1.0
     # the controller's command (the PD law at each step's end state plus the feed-forward), clamped, is the
     # torque Drake applied: what the limits status judges is what the motors were asked
-    from plants.free_nao import shared_free_nao
+    from plants.floating import shared_floating
 
-    free = shared_free_nao()
+    free = shared_floating(builtin_spec("nao"))
     np.testing.assert_allclose(np.clip(d["torque_asked"], -free.effort, free.effort) @ free.A, out.tau, atol=1e-6)
     assert np.abs(out.tau).max() > 0.1 and m["effort_clamped_fraction"] == 0.0
     # the contact polygon: all eight sole corners (both feet), the CoG well inside
@@ -88,7 +89,7 @@ def test_free_nao_falls_when_the_plan_pushes_the_cog_outside_the_feet():
     flags = m["fall_conditions"]
     assert min(t for t in flags.values() if t is not None) == m["failure_time"]
     # at the moment of failure the executed CoG has left the contact polygon
-    assert out.nao["cog_margin"][k] < 0
+    assert out.floating["cog_margin"][k] < 0
     assert m["cog_inside_fraction"] < 1.0
     assert_within_limits(out.X, nao)
 
@@ -158,7 +159,7 @@ def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
         assert errs[scheme].max() > 1e-5 and np.all(errs[scheme] >= drift - 1e-8)
     with pytest.raises(ValueError, match="no x0-noise or process-noise"):
         ExecuteConfig(plan="p", open_loop=True, x0_noise=0.01).validate()
-    with pytest.raises(ValueError, match="the Nao stands on its feet"):
+    with pytest.raises(ValueError, match="a floating robot stands on its feet"):
         execute(ExecuteConfig(plan="p", open_loop=True), desc_for("nao", shared_robot("nao").default_q, 2, 0.01),
                 {"X": np.zeros((3, 50)), "U": np.zeros((2, 25))})
 
@@ -174,8 +175,9 @@ def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
     script = ("import logging\n"
               "from pydrake.systems.analysis import Simulator\n"
               "from pydrake.systems.framework import DiagramBuilder\n"
-              "from plants.free_nao import load_free_nao\n"
-              "nao = load_free_nao(DiagramBuilder(), time_step=1e-3)\n"
+              "from plants.floating import load_floating\n"
+              "from plants.robots import builtin_spec\n"
+              "nao = load_floating(builtin_spec('nao'), DiagramBuilder(), time_step=1e-3)\n"
               "Simulator(nao.builder.Build()).AdvanceTo(0.01)\n"
               "logging.getLogger('drake').warning('another drake warning')\n")
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
@@ -201,3 +203,22 @@ def test_a_motor_that_only_clamps_the_noise_is_not_the_controllers_limit():
         assert not out.effort_at_limit.any()
         assert not any("effort" in sh and sh["effort"] > 0 for sh in out.metrics["limited_joints"].values())
     assert np.abs(noisy.tau).max(axis=0)[-1] == pytest.approx(arm.effort[-1])  # the wrist's motor did clamp
+
+
+@pytest.mark.numerics
+def test_a_model_file_that_says_how_it_stands_executes_floating_as_the_nao():
+    """Floating execution is the facts' (feet, sole, stand), not the Nao's name: its model file with those
+    facts and no built-in name (a user's model file, stored in the plan as its spec) stands as the built-in
+    Nao does, with the same numbers."""
+    from plants.model_file import RobotSpec
+
+    nao = shared_robot("nao")
+    T, dt = 30, 0.01
+    Q = np.tile(nao.default_q, (T + 1, 1))
+    desc = desc_for("nao", nao.default_q, T, dt)
+    spec = RobotSpec.from_dict({**builtin_spec("nao").to_dict(), "plant": None})
+    builtin = execute(ExecuteConfig(plan="hold"), desc, pseudo_plan(Q, dt))
+    own = execute(ExecuteConfig(plan="hold"), {**desc, "plant": "own", "robot": spec.to_dict()}, pseudo_plan(Q, dt))
+    assert own.metrics["status"] == builtin.metrics["status"] == "ok" and own.metrics["stood"]
+    np.testing.assert_array_equal(own.X, builtin.X)
+    np.testing.assert_array_equal(own.floating["corners"], builtin.floating["corners"])
