@@ -10,7 +10,7 @@ still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out)
   it registers through an entry point);
 - no stage's code version reads a file of the thesis (editing a claim keeps every cached run);
 - inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``pipeline.errors``
-  the base of all);
+  and ``pipeline.lifecycle`` the base of all);
 - no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl``);
 - no import cycle between modules;
 - no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
@@ -33,10 +33,12 @@ PACKAGES = ("plants", "planning", "stages", "pipeline", "thesis")
 FLOORS = {"plants": {"planning", "stages", "pipeline", "thesis"}, "planning": {"stages", "pipeline", "thesis"},
           "stages": {"pipeline", "thesis"}, "pipeline": {"thesis"}}
 # inside ``pipeline``: sub-package -> the sub-packages it must not import (interface -> experiments -> engine
-# -> recordings; ``pipeline.errors`` is the shared base below them all)
+# -> recordings; ``pipeline.errors`` and ``pipeline.lifecycle`` are the shared base below them all)
+_PIPELINE_SUBS = {"pipeline.recordings", "pipeline.engine", "pipeline.experiments", "pipeline.interface"}
 PIPELINE_FLOORS = {"pipeline.recordings": {"pipeline.engine", "pipeline.experiments", "pipeline.interface"},
                    "pipeline.engine": {"pipeline.experiments", "pipeline.interface"},
-                   "pipeline.experiments": {"pipeline.interface"}}
+                   "pipeline.experiments": {"pipeline.interface"},
+                   "pipeline.errors": _PIPELINE_SUBS | {"pipeline.lifecycle"}, "pipeline.lifecycle": _PIPELINE_SUBS}
 # Package-level loops allowed, each as the sorted packages of one strongly connected set (none left).
 KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = set()
 SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl")

@@ -11,7 +11,7 @@ from pathlib import Path
 from pipeline.engine.cache import Cache, write_file_atomic
 from pipeline.engine.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
 from pipeline.engine.ui import Board, Reporter
-from pipeline.errors import Interrupted
+from pipeline.lifecycle import Interrupted
 from thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
 from thesis.report import SMOKE, folder_name, markdown_claims, write_experiment_report, write_learn_report
 
@@ -47,7 +47,7 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     first; write each figure's report as soon as its runs are done (yielding its summary), then
     (re)write the report README.
 
-    An interrupt (:class:`~pipeline.errors.Interrupted`) stops at once and learns how many runs
+    An interrupt (:class:`~pipeline.lifecycle.Interrupted`) stops at once and learns how many runs
     of this call had finished (each is cached, so the next call starts from there)."""
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)

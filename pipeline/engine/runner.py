@@ -24,7 +24,8 @@ from typing import Any
 
 from pipeline.engine.artifacts import as_artifact
 from pipeline.engine.cache import KEY_LENGTH, Cache, Entry, stage_key
-from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
+from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, UnreadableArtifact
+from pipeline.lifecycle import Interrupted
 from stages.base import Artifact
 
 DEFAULT_ARTIFACTS = "artifacts"

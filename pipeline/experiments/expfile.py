@@ -789,7 +789,7 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     import time
 
     from pipeline.engine.executors import Item, stream
-    from pipeline.errors import Interrupted
+    from pipeline.lifecycle import Interrupted
 
     head, root, total = _Head(exp.name, exp.stages), str(cache.root), run_count(exp)
     writer = TableWriter(cache, exp)

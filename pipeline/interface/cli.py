@@ -29,7 +29,7 @@ def _exit_at_once(signum: int, frame) -> None:
 
 if os.path.basename(sys.argv[0]) == "raico" or __name__ == "__main__":
     if "multiprocessing.spawn" in sys.modules:  # a pool worker of the CLI re-importing its main module
-        from pipeline.errors import die_with_parent
+        from pipeline.lifecycle import die_with_parent
 
         die_with_parent(os.environ.get("RAICO_PARENT_PID"))
     else:  # the CLI itself: Ctrl-C during the imports is one line, too (main() installs the real handlers)
@@ -47,18 +47,8 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperGroup
 
-from pipeline.errors import (
-    BadInput,
-    Interrupted,
-    MissingArtifact,
-    RaicoError,
-    StorageError,
-    check_folder,
-    install_signal_handlers,
-    interrupt_in,
-    os_error_text,
-    stop_resource_tracker,
-)
+from pipeline.errors import BadInput, MissingArtifact, RaicoError, StorageError, check_folder, os_error_text
+from pipeline.lifecycle import Interrupted, install_signal_handlers, interrupt_in, stop_resource_tracker
 
 if typing.TYPE_CHECKING:
     from pipeline.engine.cache import Cache

@@ -114,7 +114,7 @@ def _viewer() -> Iterator[_Viewer]:
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
     from rerun.experimental import ViewerClient
 
-    from pipeline.errors import dies_with_this_process
+    from pipeline.lifecycle import dies_with_this_process
 
     exe = _rerun_executable()
     if exe is None:

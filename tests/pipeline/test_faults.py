@@ -135,7 +135,7 @@ def _sleep_job(args):
 SWEEP_PARENT = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from pipeline.errors import Interrupted, install_signal_handlers, stop_resource_tracker
+    from pipeline.lifecycle import Interrupted, install_signal_handlers, stop_resource_tracker
     from pipeline.engine.executors import Batch, Job, make_executor, run_flow
     from tests.pipeline.test_faults import _sleep_job
 
@@ -939,18 +939,18 @@ def test_sigint_during_exp_run_removes_the_workers_temporary_folders(tmp_path):
 def test_an_interrupt_during_a_held_extension_s_initialization_is_raised_once_it_is_loaded(tmp_path, monkeypatch):
     """Drake's extension logs an exception raised inside its initialization with a C++ stack: a signal that
     lands while such a module loads is held and raised as the one interrupt once the module is in."""
-    from pipeline import errors
+    from pipeline import lifecycle
 
     done = tmp_path / "ran to its end"
     (tmp_path / "slow_ext.py").write_text(f"import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n"
                                           f"open({str(done)!r}, 'w').close()\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(errors, "HOLD_SIGNALS_DURING", ("slow_ext",))
+    monkeypatch.setattr(lifecycle, "HOLD_SIGNALS_DURING", ("slow_ext",))
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     meta = list(sys.meta_path)
     try:
-        errors.install_signal_handlers()
-        with pytest.raises(errors.Interrupted):
+        lifecycle.install_signal_handlers()
+        with pytest.raises(lifecycle.Interrupted):
             import slow_ext  # noqa: F401
         assert done.exists()     # the whole module ran before the interrupt was raised
     finally:
