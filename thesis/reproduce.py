@@ -8,7 +8,8 @@ import time
 from collections.abc import Generator
 from pathlib import Path
 
-from pipeline.engine.cache import Cache, write_file_atomic
+from pipeline.engine.atomic import write_file_atomic
+from pipeline.engine.cache import Cache
 from pipeline.engine.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
 from pipeline.engine.ui import Board, Reporter
 from pipeline.lifecycle import Interrupted

@@ -2,8 +2,8 @@
 
 Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote.
 A stage's key hashes its name, code version, declared config and input keys
-(:func:`stage_key`). Writes go to ``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/``
-and become visible in a single ``os.rename``; a folder is a valid entry only if its
+(:func:`pipeline.engine.keys.stage_key`). Writes go to
+``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/`` and become visible in a single ``os.rename``; a folder is a valid entry only if its
 ``meta.json`` says ``"complete": true`` and every recorded file still has its size
 and sha256 (files under :data:`HASH_LIMIT`; bigger ones: the size).
 
@@ -16,8 +16,8 @@ tick of its stamp) is re-hashed once and its new stamp recorded. ``meta.json`` s
 stale or damaged one costs a re-hash, never a wrong answer.
 
 Identical runs in flight compute once: a miss takes an exclusive ``fcntl`` lock on
-``root/<stage>/.lock-<key>`` (removed on release), checks again, and computes only if the entry is
-still missing; the others wait and find the entry. The derived files (recordings) are written and
+``root/<stage>/.lock-<key>`` (:func:`pipeline.engine.locks.key_lock`; removed on release), checks
+again, and computes only if the entry is still missing; the others wait and find the entry. The derived files (recordings) are written and
 stamped under the same lock, so no two writers interleave their files and records.
 """
 
@@ -26,178 +26,37 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
-import errno
-import fcntl
 import hashlib
 import json
-import math
 import os
 import re
 import secrets
 import shutil
-import socket
-import subprocess
-import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from functools import lru_cache
-from importlib import metadata
 from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
 
+from pipeline.engine import keys
+from pipeline.engine.atomic import fsync_dir
+from pipeline.engine.keys import FORMAT, META_SUM, meta_checksum, version_drift
+from pipeline.engine.locks import TMP_PREFIX, host_tag, key_lock, parse_tmp, pid_alive, tmp_name
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, StorageError, os_error_text
 
-__all__ = [
-    "HASH_LIMIT",
-    "Cache",
-    "Entry",
-    "EntryInfo",
-    "RunResult",
-    "WriteResult",
-    "atomic_path",
-    "canonical_json",
-    "git_commit",
-    "package_versions",
-    "stage_key",
-    "write_file_atomic",
-]
+__all__ = ["HASH_LIMIT", "Cache", "Entry", "EntryInfo", "RunResult", "WriteResult"]
 
 META = "meta.json"
 DERIVED = "derived.json"
 STATE = "state.json"  # stamps of verified files (see the module docstring); not part of the entry's record
-META_SUM = "meta_sha256"
-FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
-TMP_PREFIX = ".tmp-"
 LOCK_PREFIX = ".lock-"  # root/<stage>/.lock-<key>: held while one call computes or records the entry
-# Packages whose versions a stage's numbers depend on: an entry made with other installed
-# versions of these is computed again by the next run, which says which versions differ (``raico ls --verify``
-# flags it). rerun-sdk governs the recordings only: a recording written by another version is written again.
-NUMERIC_PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "crocoddyl", "pin")
-PACKAGES = (*NUMERIC_PACKAGES, "rerun-sdk", "mcap", "typer")
 _STAGE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
-KEY_LENGTH = 16  # hex digits of a stage run's key (stage_key)
 _KEY_RE = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = 1 << 20
-
-
-# --------------------------------------------------------------------------- keys
-
-
-def _canon(obj: Any) -> Any:
-    """Convert ``obj`` to plain JSON values; integral floats become ints (1.0 -> 1)."""
-    if obj is None or isinstance(obj, (bool, np.bool_)):
-        return None if obj is None else bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        x = float(obj)
-        if math.isnan(x):
-            return {"__float__": "nan"}
-        if math.isinf(x):
-            return {"__float__": "inf" if x > 0 else "-inf"}
-        return int(x) if x.is_integer() else x  # also maps -0.0 to 0
-    if isinstance(obj, str):
-        return obj
-    if isinstance(obj, enum.Enum):
-        return _canon(obj.value)
-    if isinstance(obj, PurePath):
-        return obj.as_posix()
-    if isinstance(obj, np.ndarray):
-        if obj.dtype.kind not in "biuf":
-            raise TypeError(f"cannot hash a numpy array of dtype {obj.dtype}")
-        return _canon(obj.tolist())  # nesting keeps the shape; dtype is ignored
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return _canon(dataclasses.asdict(obj))
-    if isinstance(obj, Mapping):
-        out: dict[str, Any] = {}
-        for k, v in obj.items():
-            ks = k if isinstance(k, str) else json.dumps(_canon(k), sort_keys=True)
-            if ks in out:
-                raise TypeError(f"config keys collide after conversion to text: {ks!r}")
-            out[ks] = _canon(v)
-        return out
-    if isinstance(obj, (list, tuple)):
-        return [_canon(v) for v in obj]
-    if isinstance(obj, (set, frozenset)):
-        items = [_canon(v) for v in obj]
-        return sorted(items, key=lambda v: json.dumps(v, sort_keys=True))
-    raise TypeError(f"cannot hash a config value of type {type(obj).__name__}")
-
-
-def canonical_json(obj: Any) -> str:
-    """Canonical JSON text of ``obj``: sorted keys, no spaces, floats normalized."""
-    return json.dumps(
-        _canon(obj), sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
-    )
-
-
-def stage_key(
-    stage: str, code_version: str, config: Mapping[str, Any], input_keys: list[str]
-) -> str:
-    """16-hex key of a stage run: sha256 of the canonical JSON of all it depends on.
-
-    ``input_keys`` is ordered (the stage receives its inputs in that order).
-    """
-    payload = {
-        "format": FORMAT,
-        "stage": stage,
-        "code_version": code_version,
-        "config": config,
-        "inputs": list(input_keys),
-    }
-    return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:KEY_LENGTH]
-
-
-def meta_checksum(meta: Mapping[str, Any]) -> str:
-    """sha256 of the canonical JSON of ``meta`` without its own checksum field."""
-    body = {k: v for k, v in meta.items() if k != META_SUM}
-    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
-
-
-# --------------------------------------------------------------------------- provenance
-
-
-@lru_cache(maxsize=1)
-def package_versions() -> dict[str, str | None]:
-    """Installed versions of the packages a result depends on (None if absent)."""
-    out: dict[str, str | None] = {}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
-
-
-def version_drift(meta: Mapping[str, Any]) -> str:
-    """"" if ``meta`` (an entry's record) was made with the installed versions of ``NUMERIC_PACKAGES``,
-    else which differ: ``made with numpy 2.3.5 (installed 2.4.6)``. A package the record does not name
-    (an entry older than the field) is not compared."""
-    made, now = meta.get("packages") or {}, package_versions()
-    diffs = [f"{p} {made[p]} (installed {now.get(p)})" for p in NUMERIC_PACKAGES
-             if p in made and made[p] != now.get(p)]
-    return f"made with {', '.join(diffs)}" if diffs else ""
-
-
-@lru_cache(maxsize=8)
-def git_commit(path: Path | None = None) -> str | None:
-    """``git rev-parse HEAD`` of the tree holding ``path`` (default: this package), else None."""
-    where = Path(path) if path is not None else Path(__file__).resolve().parent
-    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
-    try:
-        res = subprocess.run(
-            ["git", "-C", str(where), "rev-parse", "--verify", "-q", "HEAD"],
-            capture_output=True, text=True, timeout=10, env=env, check=False,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    sha = res.stdout.strip()
-    return sha if res.returncode == 0 and re.fullmatch(r"[0-9a-f]{40,64}", sha) else None
 
 
 # --------------------------------------------------------------------------- records
@@ -327,19 +186,6 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _dir_size(path: Path) -> int:
     total = 0
     for dirpath, _, names in os.walk(path):
@@ -349,54 +195,6 @@ def _dir_size(path: Path) -> int:
             except OSError:
                 pass
     return total
-
-
-def _host_tag() -> str:
-    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
-
-
-def _proc_stat(pid: int) -> tuple[str, int] | None:
-    """(state, start ticks) of a Linux process from /proc, or None if unavailable."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rfind(")") + 2 :].split()
-    return fields[0], int(fields[19])
-
-
-def _pid_alive(pid: int, start: int) -> bool:
-    """True if process ``pid`` (started at ``start`` ticks, 0 = unknown) still runs."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass
-    except OSError:
-        return False
-    st = _proc_stat(pid)
-    if st is None:
-        return True
-    state, started = st
-    return state not in ("Z", "X") and (start == 0 or started == start)
-
-
-def _tmp_name(key: str) -> str:
-    st = _proc_stat(os.getpid())
-    start = st[1] if st else 0
-    return f"{TMP_PREFIX}{key}-{_host_tag()}-{os.getpid()}-{start}-{secrets.token_hex(4)}"
-
-
-def _parse_tmp(name: str) -> tuple[str, str, int, int] | None:
-    """(key, host tag, pid, start) from a temporary folder name, or None."""
-    parts = name[len(TMP_PREFIX) :].rsplit("-", 4)
-    if not name.startswith(TMP_PREFIX) or len(parts) != 5:
-        return None
-    key, host, pid, start, _ = parts
-    if not (pid.isdigit() and start.isdigit()):
-        return None
-    return key, host, int(pid), int(start)
 
 
 def _os_text(err: OSError, tmp: Path | None, final: Path) -> str:
@@ -424,107 +222,6 @@ def _json_default(obj: Any) -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
     raise TypeError(f"meta value of type {type(obj).__name__} is not JSON serializable")
-
-
-# --------------------------------------------------------------------------- files outside the cache
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix, so writers that go by the extension
-    work) to write to; on success it is fsynced and renamed over ``path`` in one step, on any
-    error removed. Readers see the old file or the new one, never a part."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
-    try:
-        yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except OSError as e:  # name the file being written, not its temporary name
-        if e.filename is None or str(e.filename) == str(tmp):
-            raise OSError(e.errno, e.strerror or str(e), str(path)) from None
-        raise
-    finally:
-        if tmp.exists():
-            tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
-
-
-def write_file_atomic(path: str | Path, data: str | bytes) -> None:
-    """Write ``data`` (text as UTF-8) to ``path`` atomically (see :func:`atomic_path`)."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
-
-
-# --------------------------------------------------------------------------- a lock per key
-
-_held = threading.local()  # the lock files this thread holds -> depth (a nested take of the same key)
-
-
-@contextlib.contextmanager
-def key_lock(path: Path, on_wait: Callable[[], None] | None = None) -> Iterator[None]:
-    """Hold an exclusive ``fcntl.flock`` on the file ``path`` (created if need be, removed on
-    release) for the ``with`` block; ``on_wait()`` is called once if another process holds it.
-
-    Re-entrant within a thread. The file is unlinked while still locked, so a waiter that opened the
-    old file finds it gone after it gets the lock and locks the new one instead (no two holders)."""
-    held: dict[Path, int] = _held.__dict__.setdefault("paths", {})
-    if path in held:
-        held[path] += 1
-        try:
-            yield
-        finally:
-            held[path] -= 1
-        return
-    fd = _lock_file(path, on_wait)
-    if fd is None:   # a file system without locks: the atomic rename still keeps one entry
-        yield
-        return
-    held[path] = 1
-    try:
-        yield
-    finally:
-        del held[path]
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-        os.close(fd)
-
-
-def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int | None:
-    """An open descriptor of ``path`` with its exclusive lock taken (waiting for it if need be); None
-    where the file system has no locks (then identical calls in flight may both compute)."""
-    told = False
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                if on_wait is not None and not told:
-                    on_wait()
-                    told = True
-                fcntl.flock(fd, fcntl.LOCK_EX)
-            mine, now = os.fstat(fd), os.stat(path)
-            if (mine.st_ino, mine.st_dev) == (now.st_ino, now.st_dev):
-                return fd
-        except FileNotFoundError:
-            pass   # the holder removed it on release: lock the next one
-        except OSError as e:
-            if e.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
-                os.close(fd)
-                raise
-            os.close(fd)
-            with contextlib.suppress(OSError):
-                os.unlink(path)
-            return None
-        except BaseException:
-            os.close(fd)
-            raise
-        os.close(fd)
 
 
 # --------------------------------------------------------------------------- cache
@@ -683,7 +380,7 @@ class Cache:
         path = self.path(stage, key)
         if not path.exists():
             return False
-        trash = path.parent / _tmp_name(key)
+        trash = path.parent / tmp_name(key)
         try:
             os.rename(path, trash)
         except FileNotFoundError:
@@ -728,7 +425,7 @@ class Cache:
         """
         final = self.path(stage, key)
         stage_dir = final.parent
-        tmp = stage_dir / _tmp_name(key)
+        tmp = stage_dir / tmp_name(key)
         try:
             stage_dir.mkdir(parents=True, exist_ok=True)
             self.cleanup_stale(stage)
@@ -764,7 +461,7 @@ class Cache:
             f.flush()
             os.fsync(f.fileno())
         _write_state(tmp, stamps)  # the files as published (a rename of their folder keeps their stamps)
-        _fsync_dir(tmp)
+        fsync_dir(tmp)
         return self._publish(stage, key, tmp, final, doc)
 
     def run(
@@ -808,7 +505,7 @@ class Cache:
                 files[name] = {"size": size, "sha256": digest}
                 stamps[name] = _stamp(st, digest)
             if Path(dirpath) != tmp:
-                _fsync_dir(Path(dirpath))
+                fsync_dir(Path(dirpath))
         return files, stamps
 
     @staticmethod
@@ -824,8 +521,8 @@ class Cache:
             "format": FORMAT,
             "stage": stage,
             "key": key,
-            "packages": package_versions(),
-            "git_commit": git_commit(),
+            "packages": keys.package_versions(),
+            "git_commit": keys.git_commit(),
             "timings": {**(meta.get("timings") or {}), **timings},
             "created": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "files": files,
@@ -850,7 +547,7 @@ class Cache:
                 if final.exists():
                     self.remove(stage, key)  # invalid: move aside, then retry
                 continue
-            _fsync_dir(final.parent)
+            fsync_dir(final.parent)
             return Entry(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
         raise CorruptArtifact(f"could not publish artifact {stage}/{key}: {final} keeps changing")
 
@@ -881,8 +578,8 @@ class Cache:
             writer_version = r.get("rerun-sdk", None) if isinstance(r, dict) else None
             if reason:
                 bad[n] = reason.removeprefix("file ")
-            elif writer_version is not None and writer_version != package_versions()["rerun-sdk"]:
-                bad[n] = f"{n} written by rerun-sdk {writer_version} (installed {package_versions()['rerun-sdk']})"
+            elif writer_version is not None and writer_version != keys.package_versions()["rerun-sdk"]:
+                bad[n] = f"{n} written by rerun-sdk {writer_version} (installed {keys.package_versions()['rerun-sdk']})"
             else:
                 good[n] = r
                 fresh.update(new)
@@ -898,7 +595,7 @@ class Cache:
         folder. Returns the records of the files written.
         """
         damaged = self.derived_check(entry)[1]
-        tmp = entry.path.parent / _tmp_name(entry.key)
+        tmp = entry.path.parent / tmp_name(entry.key)
         try:
             tmp.mkdir()
             new = self._write_derived_from(entry, writer, tmp)
@@ -921,14 +618,14 @@ class Cache:
             if p.name in (META, DERIVED, STATE) or p.name in entry.meta.get("files", {}) or not p.is_file():
                 raise ValueError(f"a derived file may not be called {p.name!r}")
             size, digest, _ = _hash_and_sync(p, self.hash_limit)
-            new[p.name] = {"size": size, "sha256": digest, "rerun-sdk": package_versions()["rerun-sdk"]}
+            new[p.name] = {"size": size, "sha256": digest, "rerun-sdk": keys.package_versions()["rerun-sdk"]}
         for name in new:
             os.replace(tmp / name, entry.path / name)
         recs = {**self.derived(entry), **new}
         doc = tmp / DERIVED
         doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         os.replace(doc, entry.path / DERIVED)
-        _fsync_dir(entry.path)
+        fsync_dir(entry.path)
         stamps, _ = _read_state(entry.path)
         for name, rec in new.items():  # stamped where they now are (a rename moves a file's ctime)
             with contextlib.suppress(OSError):
@@ -949,10 +646,10 @@ class Cache:
 
     def _tmp_state(self, path: Path) -> tuple[bool, str]:
         """(stale, description) of a temporary folder."""
-        parsed = _parse_tmp(path.name)
-        if parsed is not None and parsed[1] == _host_tag():
+        parsed = parse_tmp(path.name)
+        if parsed is not None and parsed[1] == host_tag():
             pid, start = parsed[2], parsed[3]
-            if _pid_alive(pid, start):
+            if pid_alive(pid, start):
                 return False, f"write in progress (pid {pid})"
             return True, f"abandoned temporary folder (writer pid {pid} is gone)"
         try:
@@ -989,7 +686,7 @@ class Cache:
                 if not p.is_dir():
                     continue
                 if p.name.startswith(TMP_PREFIX):
-                    parsed = _parse_tmp(p.name)
+                    parsed = parse_tmp(p.name)
                     _, desc = self._tmp_state(p)
                     rows.append(EntryInfo(d.name, parsed[0] if parsed else "?", p, False, desc,
                                           None, _dir_size(p)))

@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.engine.artifacts import as_artifact
-from pipeline.engine.cache import KEY_LENGTH, Cache, Entry, stage_key
+from pipeline.engine.cache import Cache, Entry
+from pipeline.engine.keys import KEY_LENGTH, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, UnreadableArtifact
 from pipeline.lifecycle import Interrupted
 from stages.base import Artifact

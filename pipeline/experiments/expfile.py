@@ -1181,7 +1181,7 @@ def _write_arrow(cache, exp: Experiment, table) -> Path:
     each written atomically; CSV and JSON a chunk of rows at a time (memory: the table's columns)."""
     import pyarrow.parquet as pq
 
-    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.atomic import atomic_path
     from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     out = table_dir(cache, exp.name)

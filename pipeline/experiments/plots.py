@@ -288,7 +288,7 @@ def _legend(ax, entries: int) -> None:
 def _save(fig, out: Path, series: dict[str, dict[str, Any]], clip: Clip | None = None) -> Plot:
     import matplotlib.pyplot as plt
 
-    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.atomic import atomic_path
 
     text = clip.text() if clip is not None else ""
     if text:   # said in the figure, below its title

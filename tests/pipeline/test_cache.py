@@ -19,19 +19,21 @@ import numpy as np
 import pytest
 
 from pipeline.engine import cache as cache_mod
-from pipeline.engine.cache import Cache, Entry, WriteResult, stage_key
+from pipeline.engine import keys as keys_mod
+from pipeline.engine.cache import Cache, Entry, WriteResult
+from pipeline.engine.keys import stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
 from tests.damage import flip_byte
 
 REPO = Path(__file__).resolve().parents[2]
-_REAL_GIT_COMMIT = cache_mod.git_commit
+_REAL_GIT_COMMIT = keys_mod.git_commit
 KEY = stage_key("plan", "v1", {"T": 100, "alpha": 0.5}, ["aaaaaaaaaaaaaaaa"])
 
 
 @pytest.fixture(autouse=True)
 def _no_repo_git(monkeypatch: pytest.MonkeyPatch) -> None:
     """Keep tests from querying the project's git repository."""
-    monkeypatch.setattr(cache_mod, "git_commit", lambda path=None: "0" * 40)
+    monkeypatch.setattr(keys_mod, "git_commit", lambda path=None: "0" * 40)
 
 
 def write_npz(d: Path) -> dict:
@@ -542,9 +544,9 @@ def test_errors_one_line() -> None:
 
 def _installed(monkeypatch: pytest.MonkeyPatch, **versions: str) -> None:
     """Pretend other versions of some packages are installed from now on."""
-    real = dict(cache_mod.package_versions())
+    real = dict(keys_mod.package_versions())
     fake = {**real, **{k.replace("_", "-"): v for k, v in versions.items()}}
-    monkeypatch.setattr(cache_mod, "package_versions", lambda: fake)
+    monkeypatch.setattr(keys_mod, "package_versions", lambda: fake)
 
 
 def test_entry_made_with_other_package_versions_is_computed_again(tmp_path: Path, monkeypatch) -> None:
@@ -552,7 +554,7 @@ def test_entry_made_with_other_package_versions_is_computed_again(tmp_path: Path
     the entry stays a valid input (its data are what they are) and `ls --verify` flags it."""
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
-    made = cache_mod.package_versions()["numpy"]
+    made = keys_mod.package_versions()["numpy"]
     assert c.run("plan", KEY, write_npz).cached
     _installed(monkeypatch, numpy="0.0.test")
     assert c.lookup("plan", KEY) is not None and c.require("plan", KEY)  # an input as it is
@@ -578,7 +580,7 @@ def test_recording_written_by_another_rerun_is_written_again(tmp_path: Path, mon
     e = c.write("plan", KEY, write_npz, {})
     c.write_derived(e, lambda d: (d / "recording.rrd").write_bytes(b"rrd"))
     assert c.derived_check(e) == ({"recording.rrd": c.derived(e)["recording.rrd"]}, {})
-    made = cache_mod.package_versions()["rerun-sdk"]
+    made = keys_mod.package_versions()["rerun-sdk"]
     _installed(monkeypatch, rerun_sdk="0.0.test")
     intact, bad = c.derived_check(e)
     assert intact == {} and bad == {"recording.rrd": f"recording.rrd written by rerun-sdk {made} (installed 0.0.test)"}
@@ -592,7 +594,7 @@ def test_key_lock_one_holder_a_waiter_told_reentrant_and_no_file_left(tmp_path, 
     import fcntl
     import threading
 
-    from pipeline.engine.cache import key_lock
+    from pipeline.engine.locks import key_lock
 
     path, order, told = tmp_path / ".lock-k", [], []
 

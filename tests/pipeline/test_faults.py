@@ -185,7 +185,7 @@ def test_sweep_workers_die_with_the_parent(tmp_path, sig):
 
 # ============================================================================= 2. atomic files, damaged report
 def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypatch):
-    from pipeline.engine.cache import atomic_path, write_file_atomic
+    from pipeline.engine.atomic import atomic_path, write_file_atomic
 
     target = tmp_path / "claims.json"
     write_file_atomic(target, '{"old": 1}\n')

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.engine.cache import Cache, stage_key
+from pipeline.engine.cache import Cache
+from pipeline.engine.keys import stage_key
 from pipeline.engine.runner import Outcome, code_version
 from pipeline.errors import BadInput
 from pipeline.experiments import expfile
