@@ -1,46 +1,15 @@
 """Experiments a user writes: a TOML file of variants over seeds, run through the cache, one runs table.
 
-An experiment file (read with ``tomllib``)::
-
-    name = "alpha-on-the-arm"              # the table's folder: artifacts/exp/<name>/
-    description = "R-AICO's alpha against iLQG on the 5-joint arm"
-    stages = ["plan", "execute"]           # plan | plan, execute | plan, evaluate | plan, execute, evaluate
-                                           # | learn | babble
-    seeds = "range(10)"                    # or a list: the initial states, shared by every point
-    [base]                                 # options of the first stage (raico <stage> --help)
-    plant = "arm5"                         # or problem = "my_robot_reach.toml" (a problem file, relative
-    task = "reach-roll"                    #   to this file) in place of plant and task
-    dynamics = "analytic"
-    iterations = 25
-    [execute]                              # options of a later stage
-    clip_torques = true
-    [grid]                                 # the cartesian product of these lists ...
-    alpha = [0.1, 1.0, 10.0]
-    [zip]                                  # ... times these lists taken side by side (equal lengths)
-    [[point]]                              # and hand-listed variants, each on top of [base]
-    label = "ilqg"
-    solver = "ilqg"
+The file's keys (``name``, ``description``, ``stages``, ``seeds``, ``[base]``, ``[grid]``, ``[zip]``,
+``[[point]]``, a later stage's table such as ``[execute]``; for experiments that carry their own
+analysis ``claims``, ``[quick]``, ``needs`` and ``[reproduce]``) are documented with examples in
+docs/experiment-files.md; the thesis's files are in thesis/experiments/.
 
 Every variant (a grid combination, or a ``[[point]]``) runs at every seed (the stage's ``seed``
 field: the plan's initial state), so comparisons pair by seed; a point's own ``seeds`` (a list or
-``range(N)``, among the experiment's) runs it at those only (an ablation on the first three). A grid or point key ``execute.x0_noise``
+``range(N)``, among the experiment's) runs it at those only. A grid or point key ``execute.x0_noise``
 sets a later stage's option. Every key and value is checked by the stage's own config class before
 anything runs; an unknown key is refused with the valid ones listed.
-
-More keys, for experiments that carry their own analysis (the thesis's files, thesis/experiments/)::
-
-    claims = ["raico_converges", {name = "raico_reaches_fddp", needs = "crocoddyl"}]   # named claims
-    [quick]                                # a smoke-test profile (load(..., quick=True)): its seeds,
-    seeds = "range(2)"                     # options over [base], and the points it keeps (default all)
-    iterations = 6
-    points = ["iLQG", "R-AICO a=1"]
-    [[point]]
-    label = "crocoddyl FDDP (x0 held)"
-    solver = "fddp"
-    iterations = 100
-    quick = {iterations = 12}              # this point's options in the quick profile
-    needs = "crocoddyl"                    # left out (with the claims that need it) where it is not installed
-    [reproduce]                            # read by raico reproduce (thesis/figures.py), carried here
 
 Each run is an ordinary cached stage run (the key a ``raico plan ...`` call with the same options
 has): a second ``run`` computes nothing, a grid value added computes only its runs. A run that fails

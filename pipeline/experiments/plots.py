@@ -1,32 +1,25 @@
 """``raico plot``: an experiment's runs table as figures (PNG, matplotlib's Agg backend).
 
-Three kinds, each over the seeds of every group of runs (a group: the runs that share the grouping
-options, by default every swept option but the x axis's, so a group is a variant or, for ``line``, a
-line through the variants that differ only in x):
+Four kinds, each over the seeds of every group of runs (a group: the runs that share the grouping
+options, by default every swept option but the x axis's); what each draws is documented in
+docs/experiment-files.md:
 
-- ``line``: a metric against a swept option: the median over the seeds at each x and the
-  interquartile range as a band. A group that has one x value only because it does not use the option
-  (iLQG has no alpha) is drawn as a dashed horizontal line at its median, its band across the plot: a
-  baseline to compare the lines with; a group that uses it at one value is a point there.
-  On a categorical option (solver, schedule) the groups are points at each category with the
-  interquartile range as error bars, never a line between categories. Every group has its own colour,
-  marker and line style, and baselines place their markers apart, so no line hides another; a group
-  without a finite value is in the legend with ``n=0``.
-- ``curve``: the cost per iteration (``plan.npz`` ``costs`` of each run's plan), median and
-  interquartile band per group on a log axis; a run that stopped early holds its last cost, a diverged
-  run drops out from its divergence on.
-- ``wall``: the cost against wall time (each run's cost of the last iteration finished by each time,
-  ``plan.npz`` ``elapsed``), median and interquartile band per group on log axes.
+- ``line``: a metric against a swept option: median over the seeds and interquartile band. A group
+  that does not use the option is a dashed baseline at its median; on a categorical option (solver,
+  schedule) the groups are points with error bars, never a line between categories. Every group has
+  its own colour, marker and line style, so no line hides another; a group without a finite value is
+  in the legend with ``n=0``.
+- ``curve``: the cost per iteration (``plan.npz`` ``costs``), median and interquartile band per group
+  on a log axis; a run that stopped early holds its last cost, a diverged run drops out from there on.
+- ``wall``: the cost against wall time (``plan.npz`` ``elapsed``), per group on log axes.
 - ``box``: a box per group (median, quartiles, whiskers at 1.5 IQR) with every run as a dot beside it.
 
 The cost axes (``curve``, ``wall``) span the finite values that do not explode (:func:`clip_range`:
-FDDP's infeasible early iterates reach 1e35 and more, which would flatten every other curve); what is
-left out is said in the figure and by ``raico plot``. ``--ylim LO,HI`` sets the value axis of any kind.
-Axes name their unit (:func:`axis_label`).
-
-Legends name the groups by the options that differ between them, leaving out those a group's runs
-do not use (an option whose value leaves the run's normalized config, so its cache key, unchanged);
-a group whose runs use none of them by its variants' names (``AICO, iLQG``); never by keys. Each legend entry says how many runs it shows (``n=8/10``: two runs had no finite value).
+FDDP's infeasible early iterates reach 1e35); what is left out is said in the figure and by
+``raico plot``. ``--ylim LO,HI`` sets the value axis of any kind. Axes name their unit
+(:func:`axis_label`). Legends name the groups by the options that differ between them, leaving out
+those a group's runs do not use (the option leaves its cache key unchanged), never by keys; each
+entry says how many runs it shows (``n=8/10``: two runs had no finite value).
 """
 
 from __future__ import annotations

@@ -1,58 +1,29 @@
 """A solver suite as files, judged by performance profiles: ``raico bench suite``.
 
-The suite is a list file (``problems/suite/suite.toml``) and every other problem file of its folder::
-
-    name = "suite"
-    iterations = 40            # the iteration budget of every run
-    time_budget_s = 20.0       # the time budget (see below)
-    within = 0.01              # the time profile's target: within 1 % of the best cost
-    reference = true           # the direct-transcription reference (default false) ...
-    reference_time_s = 45.0    # ... and its limit per problem (CPU seconds)
-    [[solver]]                 # a label and plan options; needs = "crocoddyl"; optional = true;
-    label = "FDDP"             # rollout = NAME: the solver to use from the zero-control rollout
-    solver = "fddp"
-    rollout = "fddp-rollout"
-    [[problem]]                # a problem file named here (relative path) or given options:
-    file = "../arm5_reach.toml"
-    label = "arm5-reach analytic"
-    dynamics = "analytic"      # default: the file's
-    start = "rollout"          # held | rollout | quasi-static
-    q0_std = 0.05              # the start posture's spread (seed 0; default 0: the file's posture)
-    iterations = 25            # its own budgets
+The suite is a list file (``problems/suite/suite.toml``: ``name``, ``iterations``, ``time_budget_s``,
+``within``, ``reference``, ``reference_time_s``, ``[[solver]]`` and ``[[problem]]`` tables) and every
+other problem file of its folder; the keys and what the page shows are documented in docs/suite.md and
+docs/benchmarks.md.
 
 Every solver runs on every problem as an ordinary cached plan (seed 0, the problem's start posture,
 q0-std 0) through the experiment machinery (:mod:`pipeline.experiments.expfile`): the runs table is
-``artifacts/exp/<name>/runs.csv`` (``raico exp show suite``), a second call computes nothing.
+``artifacts/exp/<name>/runs.csv`` (``raico exp show suite``), a second call computes nothing. Every
+plan is also executed in Drake (``raico execute`` at its defaults, an ordinary cached run).
 
-Per run (problem x solver), from the plan's per-iteration history (``plan.npz``: ``costs`` and
-``elapsed``, the solver's own clock): the final cost at the budget (the plan's final cost, or where
-the run took longer than the time budget the cost of its last iteration finished within it), the
-status, iterations, wall time, the time at which its cost first came within ``within`` of the best
-final cost any solver reached on the problem, and the plan's limit violations: the largest excess
-over the model's joint range (rad, or m for a prismatic joint) along the trajectory, and the largest
-excess of a joint's torque over its effort limit (N m; for pseudo-dynamics the torques that produce
-the planned accelerations, ``M(q) u + h(q, v)`` of the analytic model).
-
-Every plan is also executed in Drake (``raico execute`` at its defaults, an ordinary cached run): its
-status and execute's one judgement of the task (:func:`stages.evaluate.metrics.executed_task`: every
-via-point term within its tolerance, status ``ok``) are columns, beside whether the plan stays inside the
-limits. With ``reference = true`` the direct-transcription reference
-(:mod:`pipeline.experiments.transcription`, SNOPT, at most ``reference_time_s`` per problem) runs on the
-problems of at most 7 joints and 100 steps, warm-started from the cheapest plan inside the limits: its
-feasible cost joins the best feasible cost known.
+Per run, from the plan's per-iteration history (``plan.npz``: ``costs`` and ``elapsed``): the final
+cost at the budget (or, past the time budget, the cost of the last iteration finished within it),
+status, iterations, wall time, the time to within ``within`` of the best final cost, the largest
+excesses over the joint ranges and effort limits, and the execution's status and task judgement
+(:func:`stages.evaluate.metrics.executed_task`). With ``reference = true`` the direct-transcription
+reference (:mod:`pipeline.experiments.transcription`) joins the best feasible cost known.
 
 Across problems, Dolan and Moré's performance profiles (Math. Program. 91, 2002): for a measure
 ``m[p, s]`` (lower is better; missing = not solved), ``r[p, s] = m[p, s] / min_s m[p, s]`` and
-``rho_s(tau) = |{p : r[p, s] <= tau}| / n_problems``. The cost profile takes the final cost, the
-time profile the time to within ``within`` of the best cost; the inside profile the final cost of the plans
-inside the limits and the executed profile that of the plans executed ``ok`` that achieve their task (any
-other plan not solved), both against the best feasible cost known. A cell without a value (the solver
-could not express the problem, the run raised, diverged or never reached the target) counts as not
-solved; a problem no solver solved stays in the denominator.
-
-Bad input does not stop the suite: a problem file that does not exist, a budget of 0, a solver
-whose options do not make a plan, a run that raises (crocoddyl cannot express a robot welded on a
-frame other than its root) are each one line on stderr, and the table says why the cell is empty.
+``rho_s(tau) = |{p : r[p, s] <= tau}| / n_problems``, for the final cost, the time to the target, the
+cost of plans inside the limits and that of plans executed ``ok``. A cell without a value counts as
+not solved; a problem no solver solved stays in the denominator. Bad input does not stop the suite:
+a missing problem file, a budget of 0, a solver that cannot express a problem or a run that raises
+is one line on stderr, and the table says why the cell is empty.
 """
 
 from __future__ import annotations

@@ -1,37 +1,24 @@
-"""The plan stage's recording (see :mod:`pipeline.recordings` for what every recording shares).
+"""The plan stage's recording (see :mod:`pipeline.recordings` for what every recording shares;
+docs/stages.md shows the views).
 
-Plan recordings:
-
-- ``task/<name>``: one entity per task map, its components named (``x``, ``y``, ``z``; a roll
-  angle ``roll (unwrapped)``); terms on the same map share it (the arm's ``via_x1`` and
-  ``via_x2`` -> ``task/ee``, the Nao's three CoG via-points -> ``task/cog``), otherwise it is
-  named after its term. ``task/<name>/target``: the via-point targets as markers at their steps.
-  A term held over many steps (the Nao's right sole) plots ``task/<name>/deviation``: the largest
-  distance of its points from their targets (m); ``value`` then holds the first point only.
-  Angles (roll) are unwrapped along time and shifted by a multiple of 2 pi so that the first
-  via-point step keeps the wrapped value the cost saw; the MCAP keeps the raw values.
+- ``task/<name>``: one entity per task map, its components named; terms on the same map share it,
+  otherwise it is named after its term. ``task/<name>/target``: the via-point targets at their steps;
+  a term held over many steps plots ``task/<name>/deviation`` (the largest distance of its points
+  from their targets, m). Angles (roll) are unwrapped along time and shifted by a multiple of 2 pi
+  so that the first via-point step keeps the wrapped value the cost saw; the MCAP keeps raw values.
 - ``cost/total``: the cost per iteration on the ``iteration`` timeline, and
-  ``cost/log10_per_iteration``: the same (iteration 0: the initial trajectory) as a static bar
-  chart of log10(cost), which every timeline shows: a time series of data on ``iteration`` is
-  empty while ``sim_time`` is active (Rerun 0.41 has no per-view timeline, and a visible time range
-  on ``iteration`` does not help). The cost views are tabs under the robot: the bar chart first.
-- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recordings.rerun_io``), with the final
-  plan's paths as static lines (``world/paths/<map>``, yellow) and the targets as static dots.
-- The ``iteration`` timeline shows each iteration's own trajectory, read from the plan's
-  ``X_iterations`` (every iterate decimated in time to the steps ``t_iterations``; iteration 0 is
-  the initial guess rolled out): at iteration ``i`` the robot stands at iterate ``i``'s pose at the
-  last via-point step (the final step if there is none) and ``world/iterations/<map>`` holds its
-  paths as LineStrips3D on ``iteration``: every one-point task map with via-points in all three
-  coordinates (the arm's and the pendulum's end effector ``ee``, the Nao's ``cog``), plus the
-  robot's hands (``robot.hands``: the Nao's ``l_gripper`` and ``r_gripper``). The static final path
-  stays visible beside it, so an iterate is seen against the plan. An iteration that diverged
-  (a NaN row) logs nothing: the last finite iterate stays on screen; at most
-  ``MAX_ITERATION_FRAMES`` iterations are drawn (every s-th one and the last). Nothing of this is
-  on ``sim_time``. A plan stored before ``X_iterations`` existed shows its final pose on
-  ``iteration`` instead.
+  ``cost/log10_per_iteration`` as a static bar chart, which every timeline shows (Rerun 0.41 has no
+  per-view timeline). The cost views are tabs under the robot: the bar chart first.
+- The robot's motion is on ``sim_time`` (decimated, see ``pipeline.recordings.rerun_io``), with the
+  final plan's paths as static lines (``world/paths/<map>``) and the targets as static dots.
+- The ``iteration`` timeline shows each iterate from the plan's ``X_iterations``: the robot at its
+  pose at the last via-point step, and ``world/iterations/<map>`` the paths of every one-point task
+  map with via-points in all three coordinates plus the robot's hands (``robot.hands``). A diverged
+  iteration (a NaN row) logs nothing; at most ``MAX_ITERATION_FRAMES`` iterations are drawn. A plan
+  stored before ``X_iterations`` existed shows its final pose there instead.
 - ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
-- A plan with collision terms: the scene, the robot's collision geometry, the closest-distance segments and
-  the smallest distance (:mod:`pipeline.recordings.scene`).
+- A plan with collision terms: the scene, the robot's collision geometry, the closest-distance
+  segments and the smallest distance (:mod:`pipeline.recordings.scene`).
 """
 
 from __future__ import annotations

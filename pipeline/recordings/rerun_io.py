@@ -1,11 +1,9 @@
 """Rerun recordings of stage runs.
 
-One ``.rrd`` per stage run, written by :class:`Recording` (its own
-``rr.RecordingStream``, never the global one, so parallel workers don't mix) with
-``RecordingStream.save`` and one blueprint per stage (:func:`stage_blueprint`; generic
-recordings get :func:`default_blueprint`): the 3D view ``robot`` of ``world/**`` on the left
-and the plots that matter on the right, on the ``sim_time`` timeline, which the blueprint's
-time panel selects.
+One ``.rrd`` per stage run, written by :class:`Recording` (its own ``rr.RecordingStream``, never
+the global one, so parallel workers don't mix) with one blueprint per stage
+(:func:`stage_blueprint`; generic recordings get :func:`default_blueprint`): the 3D view ``robot``
+of ``world/**`` on the left and the plots on the right, on the ``sim_time`` timeline.
 
 Entity layout::
 
@@ -13,23 +11,19 @@ Entity layout::
     world/robot/<body>/<geometry>  static primitive + static pose in the body frame
     joints[/<group>]               Scalars on ``sim_time`` (rad), one series per joint, named
 
-Timelines: ``sim_time`` (duration, s), ``iteration`` and ``episode`` (sequences).
-Drake quaternions are wxyz, Rerun's xyzw; Rerun capsules start at z = 0 while
-Drake's are centred on their frame, so they are shifted by -length/2 along z.
+Timelines: ``sim_time`` (duration, s), ``iteration`` and ``episode`` (sequences). Drake quaternions
+are wxyz, Rerun's xyzw; Rerun capsules start at z = 0 while Drake's are centred on their frame, so
+they are shifted by -length/2 along z.
 
-Legends stay short: a vector is one entity whose series are named (``rr.SeriesLines(names=...)``),
-and joints are grouped by limb where the joint names tell the limbs (the Nao: ``head``,
-``left_arm``, ``right_arm``, ``left_leg``, ``right_leg``, :func:`joint_groups`), one plot per
-group; a robot without limbs logs all its joints at the root (``joints``). Angles of continuous
-joints (a range of more than a full turn: the pendulum's ``theta``) are unwrapped
-(``np.unwrap``) and named ``<joint> (unwrapped)``.
+Legends stay short: a vector is one entity whose series are named, and joints are grouped by limb
+where the joint names tell the limbs (:func:`joint_groups`); a robot without limbs logs all its
+joints at the root. Continuous joints' angles are unwrapped and named ``<joint> (unwrapped)``.
 
-Decimation (:func:`pose_indices`, :func:`plot_indices`): the robot's poses are logged at full
-rate while that is cheap (samples x bodies <= ``POSE_BUDGET`` = 3000, e.g. the pendulum's 751 x 3),
-otherwise at most ``MAX_POSES`` (200) poses per trajectory: every s-th sample, the last one and
-any via-point step; scalar plots are at full rate up to ``MAX_PLOT_SAMPLES`` (2000) samples per
-trajectory, then decimated the same way. A pose lasts until the next one on the timeline, so a
-decimated motion still plays through.
+Decimation (:func:`pose_indices`, :func:`plot_indices`): poses at full rate while samples x bodies
+<= ``POSE_BUDGET``, otherwise at most ``MAX_POSES`` per trajectory (every s-th sample, the last one
+and any via-point step); scalar plots at full rate up to ``MAX_PLOT_SAMPLES`` samples, then
+decimated the same way. A pose lasts until the next one on the timeline, so a decimated motion
+still plays through.
 """
 
 from __future__ import annotations
