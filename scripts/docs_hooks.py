@@ -27,7 +27,7 @@ SCHEMA_MODULES = {
     "registry": "stages.registry",
     "problem_file": "stages.plan.problem_file",
     "expfile": "pipeline.experiments.expfile",
-    "cli": "pipeline.interface.cli",
+    "cli": "pipeline.interface.cli.common",
 }
 
 MARKER = re.compile(r"^<!-- schema: ([\w-]+)(?: ([\w-]+))? -->$", re.M)

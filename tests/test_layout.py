@@ -248,7 +248,7 @@ def test_the_walk_sees_the_known_edges():
     """The walk itself: edges this layout is known to have (so an empty graph cannot pass)."""
     assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
     assert "planning.kernels" in GRAPH["planning.aico"]       # a lazy or module-level import
-    assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli"]
+    assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli.common"]
     assert "thesis.claims" in GRAPH["thesis.report"] and "pipeline.engine.cache" in GRAPH["thesis.report"]
     assert "thesis.cli" in GRAPH and not any(t.startswith("thesis") for t in GRAPH["pipeline.interface.cli"])
     assert len(GRAPH) > 50

@@ -38,7 +38,7 @@ from types import TracebackType
 from typing import Any, Self, TypeAlias
 
 # Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
-# the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli.py); this module leaves
+# the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli/__init__.py); this module leaves
 # RUST_LOG to its importer.
 import numpy as np
 import rerun as rr
