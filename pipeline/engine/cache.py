@@ -1,6 +1,7 @@
 """Content-addressed artifact cache, in the style of DVC's run cache.
 
-Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote.
+Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote; a valid entry is
+returned as a :class:`stages.base.Artifact` (its folder and its record).
 A stage's key hashes its name, code version, declared config and input keys
 (:func:`pipeline.engine.keys.stage_key`). Writes go to
 ``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/`` and become visible in a single ``os.rename``; a folder is a valid entry only if its
@@ -46,8 +47,9 @@ from pipeline.engine.atomic import fsync_dir
 from pipeline.engine.keys import FORMAT, META_SUM, meta_checksum, version_drift
 from pipeline.engine.locks import TMP_PREFIX, host_tag, key_lock, parse_tmp, pid_alive, tmp_name
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, StorageError, os_error_text
+from stages.base import Artifact
 
-__all__ = ["HASH_LIMIT", "Cache", "Entry", "EntryInfo", "RunResult", "WriteResult"]
+__all__ = ["HASH_LIMIT", "Cache", "EntryInfo", "RunResult", "WriteResult"]
 
 META = "meta.json"
 DERIVED = "derived.json"
@@ -63,29 +65,9 @@ _CHUNK = 1 << 20
 
 
 @dataclass(frozen=True)
-class Entry:
-    """A valid, complete cache entry."""
-
-    stage: str
-    key: str
-    path: Path
-    meta: dict[str, Any]
-
-    @property
-    def files(self) -> list[str]:
-        """Relative paths of the files recorded in ``meta.json``."""
-        return sorted(self.meta.get("files", {}))
-
-    def file(self, name: str) -> Path:
-        """Path of a recorded file; :class:`MissingArtifact` if the entry has no such file."""
-        if name not in self.meta.get("files", {}):
-            raise MissingArtifact(f"{self.stage}/{self.key} has no file {name!r}")
-        return self.path / name
-
-
-@dataclass(frozen=True)
 class EntryInfo:
-    """One row of :meth:`Cache.list` (valid entries, invalid ones and temporary folders)."""
+    """One row of :meth:`Cache.list` (valid entries, invalid ones and temporary folders); a valid
+    entry's record is ``entry``."""
 
     stage: str
     key: str
@@ -94,7 +76,7 @@ class EntryInfo:
     reason: str  # "cached" when valid
     created: str | None  # ISO 8601 UTC from meta.json
     size: int  # bytes on disk
-    meta: dict[str, Any] | None = field(default=None, compare=False, repr=False)  # of a valid entry
+    entry: Artifact | None = field(default=None, compare=False, repr=False)  # a valid entry
 
 
 @dataclass
@@ -109,7 +91,7 @@ class WriteResult:
 class RunResult:
     """Outcome of :meth:`Cache.run`: the entry, whether it was a hit, and why it ran."""
 
-    entry: Entry
+    entry: Artifact
     cached: bool
     reason: str  # "cached" or why the writer had to run
 
@@ -256,7 +238,7 @@ class Cache:
             raise BadInput(f"invalid cache key {key!r} (expected lowercase hex)")
         return self.root / stage / key
 
-    def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Entry | None, str]:
+    def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Artifact | None, str]:
         """(entry, "cached") if valid, else (None, reason); ``deep`` re-hashes every file, else only
         those whose stamps do not vouch for them."""
         path = self.path(stage, key)
@@ -270,7 +252,7 @@ class Cache:
             return None, reason
         if fresh:
             _write_state(path, {**stamps, **fresh})
-        return Entry(stage, key, path, meta), "cached"
+        return Artifact(stage, key, path, meta), "cached"
 
     def stored_meta(self, stage: str, key: str) -> tuple[dict[str, Any] | None, str]:
         """(meta, "") if entry ``stage/key`` has an intact, complete ``meta.json`` (whatever the
@@ -337,12 +319,12 @@ class Cache:
             fresh[name] = _stamp(st, digest)
         return "", fresh
 
-    def check(self, stage: str, key: str) -> tuple[Entry | None, str]:
+    def check(self, stage: str, key: str) -> tuple[Artifact | None, str]:
         """(entry, "cached") if ``stage/key`` is valid and was made with the installed versions of
         ``NUMERIC_PACKAGES``, else (None, why not): what a run asks before it computes."""
         return self._check_current(stage, key)
 
-    def _check_current(self, stage: str, key: str) -> tuple[Entry | None, str]:
+    def _check_current(self, stage: str, key: str) -> tuple[Artifact | None, str]:
         entry, reason = self._check(stage, key)
         drift = version_drift(entry.meta) if entry is not None else ""
         return (None, drift) if drift else (entry, reason)
@@ -351,7 +333,7 @@ class Cache:
         """Deep check (every file re-hashed): "cached" if valid, else the reason."""
         return self._check(stage, key, deep=True)[1]
 
-    def lookup(self, stage: str, key: str) -> Entry | None:
+    def lookup(self, stage: str, key: str) -> Artifact | None:
         """The entry if it is complete and valid, else None (see :meth:`why`)."""
         return self._check(stage, key)[0]
 
@@ -359,7 +341,7 @@ class Cache:
         """"cached" for a valid entry, otherwise why the stage must run."""
         return self._check(stage, key)[1]
 
-    def require(self, stage: str, key: str) -> Entry:
+    def require(self, stage: str, key: str) -> Artifact:
         """The entry, or :class:`MissingArtifact` / :class:`CorruptArtifact` (an input; its ``ref``
         and ``reason`` say which entry and why)."""
         entry, reason = self._check(stage, key)
@@ -414,7 +396,7 @@ class Cache:
 
     def write(
         self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
-    ) -> Entry:
+    ) -> Artifact:
         """Run ``writer(tmp_dir)`` and publish its files as entry ``stage/key`` atomically.
 
         Always calls the writer (use :meth:`run` to skip on a hit). If the writer raises
@@ -442,7 +424,7 @@ class Cache:
                 shutil.rmtree(tmp, ignore_errors=True)
 
     def _write_into(self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None, tmp: Path,
-                    final: Path) -> Entry:
+                    final: Path) -> Artifact:
         """The body of :meth:`write`: the writer's files, ``meta.json``, publication."""
         t0 = time.perf_counter()
         result = writer(tmp)
@@ -534,7 +516,7 @@ class Cache:
 
     def _publish(
         self, stage: str, key: str, tmp: Path, final: Path, doc: dict[str, Any]
-    ) -> Entry:
+    ) -> Artifact:
         """Rename ``tmp`` to ``final``; keep a valid, current entry already there, replace an invalid one
         or one made with other package versions (:func:`version_drift`)."""
         for _ in range(5):
@@ -548,17 +530,17 @@ class Cache:
                     self.remove(stage, key)  # invalid: move aside, then retry
                 continue
             fsync_dir(final.parent)
-            return Entry(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
+            return Artifact(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
         raise CorruptArtifact(f"could not publish artifact {stage}/{key}: {final} keeps changing")
 
     # ---- derived files (recordings made from the stored data)
 
-    def derived(self, entry: Entry) -> dict[str, dict[str, Any]]:
+    def derived(self, entry: Artifact) -> dict[str, dict[str, Any]]:
         """Name -> record of the derived files of ``entry`` that are intact (checked like data
         files: stamps, else sha256)."""
         return self.derived_check(entry)[0]
 
-    def derived_check(self, entry: Entry) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+    def derived_check(self, entry: Artifact) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
         """(name -> record of each intact derived file, name -> why each other recorded one is not:
         ``recording.rrd changed (size ...)``, ``trajectory.mcap missing``)."""
         try:
@@ -587,7 +569,7 @@ class Cache:
             _write_state(entry.path, {**stamps, **fresh})
         return good, bad
 
-    def write_derived(self, entry: Entry, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
+    def write_derived(self, entry: Artifact, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
         """Run ``writer(tmp_dir)`` and move what it wrote into ``entry`` beside the data.
 
         Each file is renamed into place (atomic per file), then ``derived.json`` is
@@ -610,7 +592,7 @@ class Cache:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def _write_derived_from(self, entry: Entry, writer: Callable[[Path], None], tmp: Path
+    def _write_derived_from(self, entry: Artifact, writer: Callable[[Path], None], tmp: Path
                             ) -> dict[str, dict[str, Any]]:
         writer(tmp)
         new: dict[str, dict[str, Any]] = {}
@@ -696,5 +678,5 @@ class Cache:
                         reason = version_drift(entry.meta)  # valid data, stale for this installation
                     created = entry.meta.get("created") if entry else None
                     rows.append(EntryInfo(d.name, p.name, p, entry is not None, reason,
-                                          created, _dir_size(p), entry.meta if entry else None))
+                                          created, _dir_size(p), entry))
         return rows

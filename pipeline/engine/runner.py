@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.engine.artifacts import as_artifact
-from pipeline.engine.cache import Cache, Entry
+from pipeline.engine.cache import Cache
 from pipeline.engine.keys import KEY_LENGTH, stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, UnreadableArtifact
 from pipeline.lifecycle import Interrupted
@@ -222,7 +222,7 @@ def _producer_hint(stages: tuple[str, ...]) -> str:
     return "; " + " or ".join(f"`{PRODUCERS[s]}` makes {with_article(s)} artifact" for s in stages if s in PRODUCERS)
 
 
-def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Entry:
+def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Artifact:
     """A valid entry from ``STAGE/KEY`` or a bare ``KEY`` or key prefix (searched in ``stage``,
     in each of a tuple of stages, or everywhere). An empty reference, an unknown one, one of
     another stage or an ambiguous prefix is an error."""
@@ -277,7 +277,7 @@ def code_version(stage) -> str:
     return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
 
 
-Repair = Callable[[CorruptArtifact], Entry]
+Repair = Callable[[CorruptArtifact], Artifact]
 
 
 def resolve_inputs(cache: Cache, stage, config, repair: Repair | None = None) -> dict[str, Any]:
@@ -402,7 +402,7 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
     rebuilt: set[str] = set() if _rebuilt is None else _rebuilt
     name = stage.name if hasattr(stage, "name") else str(stage)
 
-    def repair(err: CorruptArtifact) -> Entry:
+    def repair(err: CorruptArtifact) -> Artifact:
         return rebuild(cache, err, reporter, consumer=name, _rebuilt=rebuilt)
 
     own_damage: str | None = None
@@ -495,7 +495,7 @@ def config_from_meta(stage, meta: dict[str, Any]):
 
 
 def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None = None,
-            _rebuilt: set[str] | None = None) -> Entry:
+            _rebuilt: set[str] | None = None) -> Artifact:
     """Compute the damaged entry ``err.ref`` again from its stored config (and inputs, rebuilt in turn
     if need be), under the same key; the reporter says so in one line. Where that cannot be (its
     ``meta.json`` is damaged too, it is not a stage run, or this code would give it another key), or
@@ -526,7 +526,7 @@ def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None =
         raise refuse(f"its {st_name} config is not one this version reads")
     rebuilt.add(ref)
 
-    def repair(e: CorruptArtifact) -> Entry:
+    def repair(e: CorruptArtifact) -> Artifact:
         return rebuild(cache, e, reporter, consumer=st_name, _rebuilt=rebuilt)
 
     try:
@@ -546,7 +546,7 @@ def _label(cfg: dict) -> str:
     return " ".join(str(cfg[k]) for k in ("plant", "task", "solver") if cfg.get(k))
 
 
-def ensure_recording(cache: Cache, entry: Entry) -> str | None:
+def ensure_recording(cache: Cache, entry: Artifact) -> str | None:
     """Path of the entry's recording, written from its stored data if missing or damaged;
     None for a stage that does not record."""
     from pipeline.recordings import RECORDING

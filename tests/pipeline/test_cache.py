@@ -20,9 +20,10 @@ import pytest
 
 from pipeline.engine import cache as cache_mod
 from pipeline.engine import keys as keys_mod
-from pipeline.engine.cache import Cache, Entry, WriteResult
+from pipeline.engine.cache import Cache, WriteResult
 from pipeline.engine.keys import stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
+from stages.base import Artifact
 from tests.damage import flip_byte
 
 REPO = Path(__file__).resolve().parents[2]
@@ -96,7 +97,7 @@ def test_write_then_lookup(tmp_path: Path) -> None:
     before, t0 = datetime.now(UTC).replace(microsecond=0), time.perf_counter()
     e = c.write("plan", KEY, write_npz, {"config": {"T": 100}, "inputs": ["aaaaaaaaaaaaaaaa"]})
     elapsed, after = time.perf_counter() - t0, datetime.now(UTC)
-    assert type(e) is Entry and e.path == tmp_path / "plan" / KEY
+    assert type(e) is Artifact and e.path == tmp_path / "plan" / KEY
     assert sorted(os.listdir(tmp_path / "plan")) == [KEY]  # no tmp folder left
     m = json.loads((e.path / "meta.json").read_text())
     assert m["complete"] is True and m["stage"] == "plan" and m["key"] == KEY
@@ -116,9 +117,7 @@ def test_write_then_lookup(tmp_path: Path) -> None:
     assert before <= created <= after
     got = c.lookup("plan", KEY)
     assert got is not None and got.meta == e.meta and c.why("plan", KEY) == "cached"
-    assert np.array_equal(np.load(got.file("data.npz"))["x"], np.arange(10.0))
-    with pytest.raises(MissingArtifact, match=f"^plan/{KEY} has no file 'nope.npz'$"):
-        got.file("nope.npz")
+    assert np.array_equal(got.arrays("data.npz")["x"], np.arange(10.0)) and "data.npz" in got.meta["files"]
 
 
 def test_write_result_dataclass(tmp_path: Path) -> None:
@@ -184,41 +183,41 @@ def test_bad_names_rejected(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- corruption
 
 
-def _corrupt_truncate(e: Entry) -> None:
+def _corrupt_truncate(e: Artifact) -> None:
     p = e.path / "data.npz"
     p.write_bytes(p.read_bytes()[:-7])
 
 
-def _corrupt_same_size(e: Entry) -> None:
+def _corrupt_same_size(e: Artifact) -> None:
     p = e.path / "sub" / "notes.txt"
     p.write_text("HELLO")
 
 
-def _corrupt_delete_file(e: Entry) -> None:
+def _corrupt_delete_file(e: Artifact) -> None:
     (e.path / "data.npz").unlink()
 
 
-def _corrupt_delete_meta(e: Entry) -> None:
+def _corrupt_delete_meta(e: Artifact) -> None:
     (e.path / "meta.json").unlink()
 
 
-def _corrupt_flip_complete(e: Entry) -> None:
+def _corrupt_flip_complete(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["complete"] = False
     (e.path / "meta.json").write_text(json.dumps(m))
 
 
-def _corrupt_garble_meta(e: Entry) -> None:
+def _corrupt_garble_meta(e: Artifact) -> None:
     (e.path / "meta.json").write_text('{"complete": tr')
 
 
-def _corrupt_edit_metric(e: Entry) -> None:
+def _corrupt_edit_metric(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["metrics"] = {"final_cost": 2.0}
     (e.path / "meta.json").write_text(json.dumps(m))
 
 
-def _corrupt_empty_file_list(e: Entry) -> None:
+def _corrupt_empty_file_list(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["files"] = {}
     (e.path / "meta.json").write_text(json.dumps(m))
@@ -261,7 +260,7 @@ def _count_hashes(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return calls
 
 
-def _settled(c: Cache, stage: str = "plan", key: str = KEY) -> Entry:
+def _settled(c: Cache, stage: str = "plan", key: str = KEY) -> Artifact:
     """The entry after its first hit once the clock has moved on: its stamps no longer racy."""
     time.sleep(0.05)
     e = c.lookup(stage, key)

@@ -154,7 +154,7 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
     folder = tmp_path / "p"
     folder.mkdir()
     np.savez(folder / "plan.npz", **first.arrays())
-    warm = Artifact("plan", "1" * 16, folder, {}, "ok", {})
+    warm = Artifact("plan", "1" * 16, folder, {"status": "ok"})
     seen = {}
     real = plan_stage.solve
 
@@ -204,7 +204,7 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     assert m["n_points"][1] == m["n_points"][0] + math.ceil(k / 20)
     # the rule itself: ok (and at-a-limit) executions give every step, failed ones the steps before the failure
     def art(status, t):
-        return Artifact("execute", "0" * 16, tmp_path, {}, status, {"failure_time": t})
+        return Artifact("execute", "0" * 16, tmp_path, {"status": status, "metrics": {"failure_time": t}})
     assert usable_steps(art("ok", None), 0.002, 750) == 750
     assert usable_steps(art("limits", 0.5), 0.002, 750) == 750
     assert usable_steps(art("tracking-lost", 0.5), 0.002, 750) == 250

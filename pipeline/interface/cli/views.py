@@ -98,7 +98,7 @@ def compare(
 def describe_entry(cache: Cache, info) -> dict:
     """What a listing shows of an entry: plant, task, solver (or dynamics), status and headline
     metric. An execution or evaluation takes plant, task and solver from its plan."""
-    meta = info.meta or {}
+    meta = info.entry.meta if info.entry is not None else {}
     cfg = dict(meta.get("config") or {})
     for ref in meta.get("inputs") or []:
         if "plant" in cfg or not ref.startswith("plan/"):
