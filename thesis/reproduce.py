@@ -181,7 +181,7 @@ def _report_key(fid: str, result: dict) -> str:
     give the same report)."""
     import hashlib
 
-    from pipeline.engine.runner import source_version
+    from pipeline.engine.keys import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
     code = source_version("report", "thesis.report", "thesis.reproduce", "thesis.figures", "thesis.claims",

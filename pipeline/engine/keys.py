@@ -1,7 +1,8 @@
 """Cache keys: a stage run's key from the canonical JSON of all it depends on, and its provenance.
 
-A stage's key hashes its name, code version, declared config and input keys (:func:`stage_key`)
-as canonical JSON (sorted keys, floats normalized: ``1.0`` and ``1`` are one key). An entry's
+A stage's key hashes its name, code version (:func:`code_version`: a hash of its source files,
+:func:`source_version`), declared config and input keys (:func:`stage_key`) as canonical JSON
+(sorted keys, floats normalized: ``1.0`` and ``1`` are one key). An entry's
 record carries its own checksum (:func:`meta_checksum`), the versions of the packages its numbers
 depend on (:func:`package_versions`, compared by :func:`version_drift`) and the git commit.
 """
@@ -10,7 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import hashlib
+import importlib
 import json
 import math
 import os
@@ -24,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FORMAT", "KEY_LENGTH", "META_SUM", "NUMERIC_PACKAGES", "PACKAGES", "canonical_json", "git_commit",
-           "meta_checksum", "package_versions", "stage_key", "version_drift"]
+__all__ = ["FORMAT", "KEY_LENGTH", "META_SUM", "NUMERIC_PACKAGES", "PACKAGES", "canonical_json", "code_version",
+           "git_commit", "meta_checksum", "package_versions", "source_version", "stage_key", "version_drift"]
 
 META_SUM = "meta_sha256"  # the record's field holding its own checksum
 FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
@@ -106,6 +109,55 @@ def meta_checksum(meta: Mapping[str, Any]) -> str:
     """sha256 of the canonical JSON of ``meta`` without its own checksum field."""
     body = {k: v for k, v in meta.items() if k != META_SUM}
     return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
+
+
+# --------------------------------------------------------------------------- code versions
+
+
+FILES = "files:"  # a source entry naming data files (a glob under the repository root), not a package
+REPO = Path(__file__).resolve().parents[2]
+
+
+def source_version(name: str, *packages: str) -> str:
+    """``name`` plus a hash of the source (``*.py``, ``*.c``: the compiled kernels) and model files
+    (``*.urdf``) of ``packages``, and of the data files an entry ``files:GLOB`` names (the shipped
+    problem files).
+
+    The cache key includes it, so editing a solver or a model file invalidates the stages
+    that depend on it (and only those).
+    """
+    h = hashlib.sha256()
+    for pkg in packages:
+        if pkg.startswith(FILES):  # data files the stage reads (a glob under the repository root)
+            for f in sorted(REPO.glob(pkg[len(FILES):])):
+                h.update(str(f.relative_to(REPO)).encode())
+                h.update(f.read_bytes())
+            continue
+        src = Path(importlib.import_module(pkg).__file__)
+        root = src.parent
+        if src.name != "__init__.py":  # a module: just its file
+            files = [src]
+        else:
+            files = sorted(p for pat in ("*.py", "*.c", "*.urdf") for p in root.rglob(pat)
+                           if "__pycache__" not in p.parts)
+        for f in files:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return f"{name}+{h.hexdigest()[:12]}"
+
+
+@functools.cache
+def _code_version(name: str, sources: tuple[str, ...]) -> str:
+    return source_version(name, *sources)
+
+
+def code_version(stage) -> str:
+    """The stage's name plus a hash of its source files (see :func:`source_version`), once per process;
+    a composite stage's joined with its steps' (``+``), so editing a step's code invalidates it too."""
+    from stages.registry import get_stage
+
+    own = _code_version(stage.name, tuple(stage.sources))
+    return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
 
 
 # --------------------------------------------------------------------------- provenance

@@ -12,7 +12,6 @@ outcome is what the CLI prints: ``{"stage", "key", "path", "cached", "status", "
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import os
@@ -22,6 +21,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.engine import keys
 from pipeline.engine.artifacts import as_artifact
 from pipeline.engine.cache import Cache
 from pipeline.engine.keys import KEY_LENGTH, stage_key
@@ -144,41 +144,6 @@ def finite_json(obj: Any) -> Any:
     return obj
 
 
-FILES = "files:"  # a source entry naming data files (a glob under the repository root), not a package
-REPO = Path(__file__).resolve().parents[2]
-
-
-def source_version(name: str, *packages: str) -> str:
-    """``name`` plus a hash of the source (``*.py``, ``*.c``: the compiled kernels) and model files
-    (``*.urdf``) of ``packages``, and of the data files an entry ``files:GLOB`` names (the shipped
-    problem files).
-
-    The cache key includes it, so editing a solver or a model file invalidates the stages
-    that depend on it (and only those).
-    """
-    import hashlib
-    import importlib
-
-    h = hashlib.sha256()
-    for pkg in packages:
-        if pkg.startswith(FILES):  # data files the stage reads (a glob under the repository root)
-            for f in sorted(REPO.glob(pkg[len(FILES):])):
-                h.update(str(f.relative_to(REPO)).encode())
-                h.update(f.read_bytes())
-            continue
-        src = Path(importlib.import_module(pkg).__file__)
-        root = src.parent
-        if src.name != "__init__.py":  # a module: just its file
-            files = [src]
-        else:
-            files = sorted(p for pat in ("*.py", "*.c", "*.urdf") for p in root.rglob(pat)
-                           if "__pycache__" not in p.parts)
-        for f in files:
-            h.update(str(f.relative_to(root)).encode())
-            h.update(f.read_bytes())
-    return f"{name}+{h.hexdigest()[:12]}"
-
-
 def run_stage(
     cache: Cache,
     stage: str,
@@ -263,20 +228,6 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     return cache.require(valid[0].stage, valid[0].key)
 
 
-@functools.cache
-def _code_version(name: str, sources: tuple[str, ...]) -> str:
-    return source_version(name, *sources)
-
-
-def code_version(stage) -> str:
-    """The stage's name plus a hash of its source files (see :func:`source_version`), once per process;
-    a composite stage's joined with its steps' (``+``), so editing a step's code invalidates it too."""
-    from stages.registry import get_stage
-
-    own = _code_version(stage.name, tuple(stage.sources))
-    return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
-
-
 Repair = Callable[[CorruptArtifact], Artifact]
 
 
@@ -302,10 +253,10 @@ def resolve_inputs(cache: Cache, stage, config, repair: Repair | None = None) ->
 
 
 def _input_keys(inputs: dict[str, Any]) -> list[str]:
-    keys = []
+    refs = []
     for v in inputs.values():
-        keys += [a.ref for a in (v if isinstance(v, tuple) else (v,))]
-    return keys
+        refs += [a.ref for a in (v if isinstance(v, tuple) else (v,))]
+    return refs
 
 
 def _write_outputs(tmp: Path, out) -> None:
@@ -339,7 +290,7 @@ def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
         except ValueError as e:
             raise BadInput(str(e)) from None
     input_keys = _input_keys(inputs)
-    version = code_version(stage)
+    version = keys.code_version(stage)
     key_config = config.key_dict()
     return stage, config, inputs, input_keys, key_config, version, stage_key(stage.name, version, key_config,
                                                                               input_keys)

@@ -707,7 +707,7 @@ def _duration(seconds: float) -> str:
 
 @functools.cache
 def _raico_version() -> str:
-    from pipeline.engine.runner import source_version
+    from pipeline.engine.keys import source_version
 
     return source_version("raico", "pipeline", "stages", "planning", "plants")
 

@@ -727,13 +727,13 @@ def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage)
 def test_damaged_plan_that_cannot_be_rebuilt_is_one_line(helper, tmp_path, monkeypatch):
     """Where raico cannot rebuild the input -- its meta.json (its config) damaged too, or the plan code
     changed since (the same config would give another key) -- one line, exit 4, naming the entry."""
-    from pipeline.engine import runner
+    from pipeline.engine import keys as keys_mod
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
     flip_byte(a / "plan" / plan / "plan.npz")
-    real = runner.code_version
-    monkeypatch.setattr(runner, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
+    real = keys_mod.code_version
+    monkeypatch.setattr(keys_mod, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
     res = cli("execute", "--plan", plan, "--no-record", "--artifacts", a)
     assert res.exit_code == 4
     line = one_error_line(res.stderr)

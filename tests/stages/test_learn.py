@@ -217,7 +217,7 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stages it names."""
     import dataclasses
 
-    from pipeline.engine import runner
+    from pipeline.engine import keys, runner
     from pipeline.engine.cache import Cache
     from pipeline.engine.ui import Reporter
     from pipeline.recordings.registry import RECORDERS
@@ -228,12 +228,12 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stage = get_stage("learn")
     assert "learn" in stage_names() and "learn" in RECORDERS
     assert stage.step_stages == ("babble", "fit", "plan", "execute")
-    version = runner.code_version(stage)
-    assert all(runner.code_version(get_stage(s)) in version for s in stage.step_stages)
+    version = keys.code_version(stage)
+    assert all(keys.code_version(get_stage(s)) in version for s in stage.step_stages)
     cache, cfg = Cache(tmp_path), LearnConfig(plant="pendulum", task="swing-up")
     key = runner.run_key(cache, "learn", cfg)
-    real = runner._code_version
-    monkeypatch.setattr(runner, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
+    real = keys._code_version
+    monkeypatch.setattr(keys, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
     assert runner.run_key(cache, "learn", cfg) != key
     only_babble = dataclasses.replace(stage, step_stages=("babble",))
     with pytest.raises(ValueError, match="runs babble as steps, not execute"):
