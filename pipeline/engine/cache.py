@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine import keys
+from pipeline.engine import keys  # keys.package_versions, keys.git_commit: looked up when called
 from pipeline.engine.atomic import fsync_dir
 from pipeline.engine.keys import FORMAT, META_SUM, meta_checksum, version_drift
 from pipeline.engine.locks import TMP_PREFIX, host_tag, key_lock, parse_tmp, pid_alive, tmp_name
@@ -99,7 +99,7 @@ class RunResult:
 Writer = Callable[[Path], "WriteResult | Mapping[str, Any] | None"]
 
 
-# --------------------------------------------------------------------------- helpers
+# --------------------------------------------------------------------------- stamps and files
 
 
 def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None, os.stat_result]:
