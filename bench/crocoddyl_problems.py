@@ -335,7 +335,7 @@ def run(artifacts: Path, names=tuple(PROBLEMS)) -> dict:
     import os
     import platform
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.atomic import write_file_atomic
 
     doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
            "machine": f"{os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f} at start, Python "

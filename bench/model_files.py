@@ -600,7 +600,7 @@ def run(artifacts: Path | None = None, parts: tuple[str, ...] = PARTS, note: str
     rows.append({"benchmark": "dense dgemm, one BLAS thread (384 x 384)", "dgemm_gflops": dgemm})
     rows += (robot_rows(dgemm) if "robots" in parts else []) + (scaling_rows(dgemm) if "scaling" in parts else [])
     if artifacts is not None:
-        from pipeline.engine.cache import write_file_atomic
+        from pipeline.engine.atomic import write_file_atomic
 
         doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                "machine": f"{os.cpu_count()} cpus, 1-minute load {load0:.1f} at the start and "

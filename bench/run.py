@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.engine.cache import package_versions, write_file_atomic
+from pipeline.engine.atomic import write_file_atomic
+from pipeline.engine.keys import package_versions
 from planning.solvers import solve
 from stages.plan.stage import PlanConfig, build_problem
 

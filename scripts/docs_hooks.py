@@ -28,7 +28,7 @@ SCHEMA_MODULES = {
     "problem_file": "planning.problem_file",
     "term_kinds": "planning.term_kinds",
     "expfile": "pipeline.experiments.expfile",
-    "cli": "pipeline.interface.cli",
+    "cli": "pipeline.interface.cli.common",
 }
 
 MARKER = re.compile(r"^<!-- schema: ([\w-]+)(?: ([\w-]+))? -->$", re.M)

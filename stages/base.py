@@ -3,34 +3,27 @@
 A stage is a plain object that knows nothing of the CLI or the cache:
 
 - ``name``: its folder under the artifacts root and its CLI command;
-- ``config_cls``: a frozen dataclass (subclass of :class:`StageConfig`) whose field
-  defaults are the stage's defaults (the CLI reads them from there, never repeats them);
-- ``sources``: the modules/packages whose source files make its code version (editing
-  them invalidates its cache entries);
+- ``config_cls``: a frozen dataclass (subclass of :class:`StageConfig`) whose field defaults are
+  the stage's defaults (the CLI reads them from there, never repeats them);
+- ``sources``: the modules/packages whose source files make its code version;
 - ``inputs(config)``: the input artifacts the config names, as :class:`InputRef`;
 - ``run(config, inputs, progress) -> StageOutput``: the computation, on a config the runner has
-  normalized (``config.normalized()``, if the class defines it: one spelling per meaning, so one
-  key) and validated (``config.validate()``) once, so ``run`` need not do either again;
+  normalized (``config.normalized()``, if defined) and validated (``config.validate()``) once;
 - ``data_files``: the data files ``run`` returns (``.npz`` arrays or JSON documents).
 
-The pipeline (``pipeline/engine/runner.py``) resolves the inputs, keys the run by
-``(name, code version, config without its input references, input keys)``, calls
-``run`` on a miss and publishes the files atomically. Recordings are derived from the
-stored data by the pipeline's recorder of the stage (``pipeline/recordings/``, one module per stage), so a
-recording is never part of the data's key.
+The pipeline (``pipeline/engine/runner.py``) keys the run by ``(name, code version, config without
+its input references, input keys)``, calls ``run`` on a miss and publishes the files atomically; a
+stored entry is an :class:`Artifact`, the one record the cache returns and a stage reads. Recordings
+are derived from the stored data (``pipeline/recordings/``), never part of the data's key.
 
-A composite stage (``raico learn``) is a stage whose work is a sequence of other stages' runs
-(its *steps*), each cached on its own so that a killed run resumes where it stopped. It names the
-stages it runs in ``step_stages``; the runner then calls ``run(config, inputs, progress, steps=...)``
-with a :class:`Steps`, whose ``run(stage_name, config) -> Artifact`` runs one step through the
-cache (a hit is not computed again) and returns its stored artifact. The stage never sees the cache
-or the pipeline (it cannot import them: the floors); it reads its steps' artifacts as any stage
-reads its inputs. Its code version includes its steps' code versions, so editing a step's code
-invalidates the composite's entries too. The steps are not inputs: the composite's config decides
-them, so they are not part of its key.
+A composite stage (``raico learn``) runs a sequence of other stages' runs (its *steps*, named in
+``step_stages``), each cached on its own so that a killed run resumes where it stopped: ``run`` gets
+``steps=`` a :class:`Steps`, whose ``run(stage_name, config) -> Artifact`` runs one step through the
+cache. Its code version includes its steps' code versions; the steps are not part of its key.
 
 Adding a stage: one module under ``stages/`` defining a ``Stage`` and one line in
-``stages/registry.py``; a recorder, if it records, in ``pipeline/recordings/`` (registered in ``registry.py``).
+``stages/registry.py``; a recorder, if it records, in ``pipeline/recordings/``. docs/stages.md
+says more.
 """
 
 from __future__ import annotations
@@ -104,21 +97,44 @@ class InputRef:
 
 @dataclass(frozen=True)
 class Artifact:
-    """A resolved input as a stage sees it: its stored config, status, metrics and files."""
+    """A stored entry: ``root/<stage>/<key>/`` (``path``) and its record ``meta`` (the entry's
+    ``meta.json``: config, inputs, status, metrics, timings, the files and their hashes, provenance).
+
+    The cache returns it for a valid, complete entry; a stage reads its inputs through it.
+    ``cached``: for a step of a composite stage, whether the run was a cache hit."""
 
     stage: str
     key: str
     path: Path
-    config: dict[str, Any]
-    status: str
-    metrics: dict[str, Any]
-    inputs: tuple[str, ...] = ()
-    timings: dict[str, Any] = field(default_factory=dict)  # the run's wall times (``compute_s``)
-    cached: bool = False  # a step of a composite stage: whether the run was a cache hit
+    meta: dict[str, Any] = field(default_factory=dict)
+    cached: bool = False
 
     @property
     def ref(self) -> str:
         return f"{self.stage}/{self.key}"
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The stored config (what the run was keyed by, input references resolved)."""
+        return self.meta.get("config", {})
+
+    @property
+    def status(self) -> str:
+        return self.meta.get("status", "ok")
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        return self.meta.get("metrics", {})
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """The input entries' ``STAGE/KEY``, in the order the stage received them."""
+        return tuple(self.meta.get("inputs", ()))
+
+    @property
+    def timings(self) -> dict[str, Any]:
+        """The run's wall times (``compute_s``, ...)."""
+        return self.meta.get("timings") or {}
 
     def arrays(self, name: str, keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """The arrays of data file ``name`` (``.npz``; no pickles); only ``keys`` if given."""

@@ -13,7 +13,8 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import DOCS_PAGES, app
+from pipeline.interface.cli import app
+from pipeline.interface.cli.common import DOCS_PAGES
 from scripts import docs_hooks, readme_numbers
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ def register(app: typer.Typer) -> None:
     """Add ``reproduce`` to the ``raico`` group ``app`` (called while :mod:`pipeline.interface.cli` loads;
     the shared options and helpers it uses are defined by then)."""
     from pipeline.errors import BadInput
-    from pipeline.interface.cli import (
+    from pipeline.interface.cli.common import (
         Address,
         Artifacts,
         ExecutorName,

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.engine.cache import Cache, atomic_path, write_file_atomic
+from pipeline.engine.atomic import atomic_path, write_file_atomic
+from pipeline.engine.cache import Cache
 from pipeline.experiments.plots import clip_range, cost_at_times
 from thesis.claims import FDDP_ACCEPT_ANY, FDDP_HELD, FDDP_ILQG_SCHEDULE, FDDP_ROLLOUT, executed_achieved
 from thesis.figures import (

@@ -8,10 +8,11 @@ import time
 from collections.abc import Generator
 from pathlib import Path
 
-from pipeline.engine.cache import Cache, write_file_atomic
+from pipeline.engine.atomic import write_file_atomic
+from pipeline.engine.cache import Cache
 from pipeline.engine.executors import Executor, ProcessExecutor, Scheduler, SerialExecutor, make_executor
 from pipeline.engine.ui import Board, Reporter
-from pipeline.errors import Interrupted
+from pipeline.lifecycle import Interrupted
 from thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS, experiment_flow, learn_flow
 from thesis.report import SMOKE, folder_name, markdown_claims, write_experiment_report, write_learn_report
 
@@ -47,7 +48,7 @@ def reproduce(cache: Cache, ids: list[str], quick: bool = False, jobs: int = 2, 
     first; write each figure's report as soon as its runs are done (yielding its summary), then
     (re)write the report README.
 
-    An interrupt (:class:`~pipeline.errors.Interrupted`) stops at once and learns how many runs
+    An interrupt (:class:`~pipeline.lifecycle.Interrupted`) stops at once and learns how many runs
     of this call had finished (each is cached, so the next call starts from there)."""
     reporter = reporter or Reporter(quiet=True)
     root = report_dir(cache, quick)
@@ -180,7 +181,7 @@ def _report_key(fid: str, result: dict) -> str:
     give the same report)."""
     import hashlib
 
-    from pipeline.engine.runner import source_version
+    from pipeline.engine.keys import source_version
 
     keys = sorted(o.key for o in _outcomes(result))
     code = source_version("report", "thesis.report", "thesis.reproduce", "thesis.figures", "thesis.claims",

@@ -1,1 +1,2 @@
-"""The engine: the content-addressed cache, the stage runner, artifacts, executors and progress."""
+"""The engine: the content-addressed cache (keys, atomic files, locks, the cache), the stage runner,
+artifacts, executors and progress."""

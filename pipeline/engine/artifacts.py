@@ -1,5 +1,5 @@
-"""The stage-side view of a cache entry: :func:`as_artifact` gives a ``stages.base.Artifact`` whose
-loads turn a damaged file into one clean error naming the entry (``UnreadableArtifact``).
+"""A stored entry as a stage reads it: :func:`as_artifact` gives the entry (a ``stages.base.Artifact``)
+whose loads turn a damaged file into one clean error naming the entry (``UnreadableArtifact``).
 
 Used by the runner (a stage's inputs and steps) and by whatever reads entries beside it (the
 recorders, the report), without importing the runner.
@@ -12,17 +12,14 @@ import zipfile
 import zlib
 from typing import Any
 
-from pipeline.engine.cache import Cache, Entry
+from pipeline.engine.cache import Cache
 from pipeline.errors import UnreadableArtifact
 from stages.base import Artifact
 
 
-def as_artifact(entry: Entry) -> CheckedArtifact:
-    """The stage-side view of a cache entry (a ``stages.base.Artifact`` whose loads check the data)."""
-    m = entry.meta
-    return CheckedArtifact(stage=entry.stage, key=entry.key, path=entry.path, config=m.get("config", {}),
-                           status=m.get("status", "ok"), metrics=m.get("metrics", {}),
-                           inputs=tuple(m.get("inputs", ())), timings=m.get("timings") or {})
+def as_artifact(entry: Artifact) -> CheckedArtifact:
+    """The entry as a stage reads it: the same record, whose loads check the data."""
+    return CheckedArtifact(entry.stage, entry.key, entry.path, entry.meta, entry.cached)
 
 
 # what numpy, zipfile, zlib and json raise on a damaged file (a bad CRC, a garbled array header, a

@@ -1,9 +1,10 @@
 """Content-addressed artifact cache, in the style of DVC's run cache.
 
-Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote.
+Layout: ``root/<stage>/<key>/`` holds ``meta.json`` plus the files the stage wrote; a valid entry is
+returned as a :class:`stages.base.Artifact` (its folder and its record).
 A stage's key hashes its name, code version, declared config and input keys
-(:func:`stage_key`). Writes go to ``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/``
-and become visible in a single ``os.rename``; a folder is a valid entry only if its
+(:func:`pipeline.engine.keys.stage_key`). Writes go to
+``root/<stage>/.tmp-<key>-<host>-<pid>-<start>-<rand>/`` and become visible in a single ``os.rename``; a folder is a valid entry only if its
 ``meta.json`` says ``"complete": true`` and every recorded file still has its size
 and sha256 (files under :data:`HASH_LIMIT`; bigger ones: the size).
 
@@ -16,8 +17,8 @@ tick of its stamp) is re-hashed once and its new stamp recorded. ``meta.json`` s
 stale or damaged one costs a re-hash, never a wrong answer.
 
 Identical runs in flight compute once: a miss takes an exclusive ``fcntl`` lock on
-``root/<stage>/.lock-<key>`` (removed on release), checks again, and computes only if the entry is
-still missing; the others wait and find the entry. The derived files (recordings) are written and
+``root/<stage>/.lock-<key>`` (:func:`pipeline.engine.locks.key_lock`; removed on release), checks
+again, and computes only if the entry is still missing; the others wait and find the entry. The derived files (recordings) are written and
 stamped under the same lock, so no two writers interleave their files and records.
 """
 
@@ -26,207 +27,47 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
-import errno
-import fcntl
 import hashlib
 import json
-import math
 import os
 import re
 import secrets
 import shutil
-import socket
-import subprocess
-import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from functools import lru_cache
-from importlib import metadata
 from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
 
+from pipeline.engine import keys  # keys.package_versions, keys.git_commit: looked up when called
+from pipeline.engine.atomic import fsync_dir
+from pipeline.engine.keys import FORMAT, META_SUM, meta_checksum, version_drift
+from pipeline.engine.locks import TMP_PREFIX, host_tag, key_lock, parse_tmp, pid_alive, tmp_name
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, StorageError, os_error_text
+from stages.base import Artifact
 
-__all__ = [
-    "HASH_LIMIT",
-    "Cache",
-    "Entry",
-    "EntryInfo",
-    "RunResult",
-    "WriteResult",
-    "atomic_path",
-    "canonical_json",
-    "git_commit",
-    "package_versions",
-    "stage_key",
-    "write_file_atomic",
-]
+__all__ = ["HASH_LIMIT", "Cache", "EntryInfo", "RunResult", "WriteResult"]
 
 META = "meta.json"
 DERIVED = "derived.json"
 STATE = "state.json"  # stamps of verified files (see the module docstring); not part of the entry's record
-META_SUM = "meta_sha256"
-FORMAT = 2  # bump to invalidate every key (part of the hashed payload)
 HASH_LIMIT = 50 * 1024 * 1024  # files at least this big are checked by size only
-TMP_PREFIX = ".tmp-"
 LOCK_PREFIX = ".lock-"  # root/<stage>/.lock-<key>: held while one call computes or records the entry
-# Packages whose versions a stage's numbers depend on: an entry made with other installed
-# versions of these is computed again by the next run, which says which versions differ (``raico ls --verify``
-# flags it). rerun-sdk governs the recordings only: a recording written by another version is written again.
-NUMERIC_PACKAGES = ("drake", "numpy", "scipy", "scikit-learn", "crocoddyl", "pin")
-PACKAGES = (*NUMERIC_PACKAGES, "rerun-sdk", "mcap", "typer")
 _STAGE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
-KEY_LENGTH = 16  # hex digits of a stage run's key (stage_key)
 _KEY_RE = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = 1 << 20
-
-
-# --------------------------------------------------------------------------- keys
-
-
-def _canon(obj: Any) -> Any:
-    """Convert ``obj`` to plain JSON values; integral floats become ints (1.0 -> 1)."""
-    if obj is None or isinstance(obj, (bool, np.bool_)):
-        return None if obj is None else bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        x = float(obj)
-        if math.isnan(x):
-            return {"__float__": "nan"}
-        if math.isinf(x):
-            return {"__float__": "inf" if x > 0 else "-inf"}
-        return int(x) if x.is_integer() else x  # also maps -0.0 to 0
-    if isinstance(obj, str):
-        return obj
-    if isinstance(obj, enum.Enum):
-        return _canon(obj.value)
-    if isinstance(obj, PurePath):
-        return obj.as_posix()
-    if isinstance(obj, np.ndarray):
-        if obj.dtype.kind not in "biuf":
-            raise TypeError(f"cannot hash a numpy array of dtype {obj.dtype}")
-        return _canon(obj.tolist())  # nesting keeps the shape; dtype is ignored
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return _canon(dataclasses.asdict(obj))
-    if isinstance(obj, Mapping):
-        out: dict[str, Any] = {}
-        for k, v in obj.items():
-            ks = k if isinstance(k, str) else json.dumps(_canon(k), sort_keys=True)
-            if ks in out:
-                raise TypeError(f"config keys collide after conversion to text: {ks!r}")
-            out[ks] = _canon(v)
-        return out
-    if isinstance(obj, (list, tuple)):
-        return [_canon(v) for v in obj]
-    if isinstance(obj, (set, frozenset)):
-        items = [_canon(v) for v in obj]
-        return sorted(items, key=lambda v: json.dumps(v, sort_keys=True))
-    raise TypeError(f"cannot hash a config value of type {type(obj).__name__}")
-
-
-def canonical_json(obj: Any) -> str:
-    """Canonical JSON text of ``obj``: sorted keys, no spaces, floats normalized."""
-    return json.dumps(
-        _canon(obj), sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
-    )
-
-
-def stage_key(
-    stage: str, code_version: str, config: Mapping[str, Any], input_keys: list[str]
-) -> str:
-    """16-hex key of a stage run: sha256 of the canonical JSON of all it depends on.
-
-    ``input_keys`` is ordered (the stage receives its inputs in that order).
-    """
-    payload = {
-        "format": FORMAT,
-        "stage": stage,
-        "code_version": code_version,
-        "config": config,
-        "inputs": list(input_keys),
-    }
-    return hashlib.sha256(canonical_json(payload).encode("utf-8")).hexdigest()[:KEY_LENGTH]
-
-
-def meta_checksum(meta: Mapping[str, Any]) -> str:
-    """sha256 of the canonical JSON of ``meta`` without its own checksum field."""
-    body = {k: v for k, v in meta.items() if k != META_SUM}
-    return hashlib.sha256(canonical_json(body).encode("utf-8")).hexdigest()
-
-
-# --------------------------------------------------------------------------- provenance
-
-
-@lru_cache(maxsize=1)
-def package_versions() -> dict[str, str | None]:
-    """Installed versions of the packages a result depends on (None if absent)."""
-    out: dict[str, str | None] = {}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
-
-
-def version_drift(meta: Mapping[str, Any]) -> str:
-    """"" if ``meta`` (an entry's record) was made with the installed versions of ``NUMERIC_PACKAGES``,
-    else which differ: ``made with numpy 2.3.5 (installed 2.4.6)``. A package the record does not name
-    (an entry older than the field) is not compared."""
-    made, now = meta.get("packages") or {}, package_versions()
-    diffs = [f"{p} {made[p]} (installed {now.get(p)})" for p in NUMERIC_PACKAGES
-             if p in made and made[p] != now.get(p)]
-    return f"made with {', '.join(diffs)}" if diffs else ""
-
-
-@lru_cache(maxsize=8)
-def git_commit(path: Path | None = None) -> str | None:
-    """``git rev-parse HEAD`` of the tree holding ``path`` (default: this package), else None."""
-    where = Path(path) if path is not None else Path(__file__).resolve().parent
-    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
-    try:
-        res = subprocess.run(
-            ["git", "-C", str(where), "rev-parse", "--verify", "-q", "HEAD"],
-            capture_output=True, text=True, timeout=10, env=env, check=False,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    sha = res.stdout.strip()
-    return sha if res.returncode == 0 and re.fullmatch(r"[0-9a-f]{40,64}", sha) else None
 
 
 # --------------------------------------------------------------------------- records
 
 
 @dataclass(frozen=True)
-class Entry:
-    """A valid, complete cache entry."""
-
-    stage: str
-    key: str
-    path: Path
-    meta: dict[str, Any]
-
-    @property
-    def files(self) -> list[str]:
-        """Relative paths of the files recorded in ``meta.json``."""
-        return sorted(self.meta.get("files", {}))
-
-    def file(self, name: str) -> Path:
-        """Path of a recorded file; :class:`MissingArtifact` if the entry has no such file."""
-        if name not in self.meta.get("files", {}):
-            raise MissingArtifact(f"{self.stage}/{self.key} has no file {name!r}")
-        return self.path / name
-
-
-@dataclass(frozen=True)
 class EntryInfo:
-    """One row of :meth:`Cache.list` (valid entries, invalid ones and temporary folders)."""
+    """One row of :meth:`Cache.list` (valid entries, invalid ones and temporary folders); a valid
+    entry's record is ``entry``."""
 
     stage: str
     key: str
@@ -235,7 +76,7 @@ class EntryInfo:
     reason: str  # "cached" when valid
     created: str | None  # ISO 8601 UTC from meta.json
     size: int  # bytes on disk
-    meta: dict[str, Any] | None = field(default=None, compare=False, repr=False)  # of a valid entry
+    entry: Artifact | None = field(default=None, compare=False, repr=False)  # a valid entry
 
 
 @dataclass
@@ -250,7 +91,7 @@ class WriteResult:
 class RunResult:
     """Outcome of :meth:`Cache.run`: the entry, whether it was a hit, and why it ran."""
 
-    entry: Entry
+    entry: Artifact
     cached: bool
     reason: str  # "cached" or why the writer had to run
 
@@ -258,7 +99,7 @@ class RunResult:
 Writer = Callable[[Path], "WriteResult | Mapping[str, Any] | None"]
 
 
-# --------------------------------------------------------------------------- helpers
+# --------------------------------------------------------------------------- stamps and files
 
 
 def _hash_and_sync(path: Path, limit: int) -> tuple[int, str | None, os.stat_result]:
@@ -327,19 +168,6 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _dir_size(path: Path) -> int:
     total = 0
     for dirpath, _, names in os.walk(path):
@@ -349,54 +177,6 @@ def _dir_size(path: Path) -> int:
             except OSError:
                 pass
     return total
-
-
-def _host_tag() -> str:
-    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
-
-
-def _proc_stat(pid: int) -> tuple[str, int] | None:
-    """(state, start ticks) of a Linux process from /proc, or None if unavailable."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rfind(")") + 2 :].split()
-    return fields[0], int(fields[19])
-
-
-def _pid_alive(pid: int, start: int) -> bool:
-    """True if process ``pid`` (started at ``start`` ticks, 0 = unknown) still runs."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass
-    except OSError:
-        return False
-    st = _proc_stat(pid)
-    if st is None:
-        return True
-    state, started = st
-    return state not in ("Z", "X") and (start == 0 or started == start)
-
-
-def _tmp_name(key: str) -> str:
-    st = _proc_stat(os.getpid())
-    start = st[1] if st else 0
-    return f"{TMP_PREFIX}{key}-{_host_tag()}-{os.getpid()}-{start}-{secrets.token_hex(4)}"
-
-
-def _parse_tmp(name: str) -> tuple[str, str, int, int] | None:
-    """(key, host tag, pid, start) from a temporary folder name, or None."""
-    parts = name[len(TMP_PREFIX) :].rsplit("-", 4)
-    if not name.startswith(TMP_PREFIX) or len(parts) != 5:
-        return None
-    key, host, pid, start, _ = parts
-    if not (pid.isdigit() and start.isdigit()):
-        return None
-    return key, host, int(pid), int(start)
 
 
 def _os_text(err: OSError, tmp: Path | None, final: Path) -> str:
@@ -424,107 +204,6 @@ def _json_default(obj: Any) -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
     raise TypeError(f"meta value of type {type(obj).__name__} is not JSON serializable")
-
-
-# --------------------------------------------------------------------------- files outside the cache
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix, so writers that go by the extension
-    work) to write to; on success it is fsynced and renamed over ``path`` in one step, on any
-    error removed. Readers see the old file or the new one, never a part."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
-    try:
-        yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except OSError as e:  # name the file being written, not its temporary name
-        if e.filename is None or str(e.filename) == str(tmp):
-            raise OSError(e.errno, e.strerror or str(e), str(path)) from None
-        raise
-    finally:
-        if tmp.exists():
-            tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
-
-
-def write_file_atomic(path: str | Path, data: str | bytes) -> None:
-    """Write ``data`` (text as UTF-8) to ``path`` atomically (see :func:`atomic_path`)."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
-
-
-# --------------------------------------------------------------------------- a lock per key
-
-_held = threading.local()  # the lock files this thread holds -> depth (a nested take of the same key)
-
-
-@contextlib.contextmanager
-def key_lock(path: Path, on_wait: Callable[[], None] | None = None) -> Iterator[None]:
-    """Hold an exclusive ``fcntl.flock`` on the file ``path`` (created if need be, removed on
-    release) for the ``with`` block; ``on_wait()`` is called once if another process holds it.
-
-    Re-entrant within a thread. The file is unlinked while still locked, so a waiter that opened the
-    old file finds it gone after it gets the lock and locks the new one instead (no two holders)."""
-    held: dict[Path, int] = _held.__dict__.setdefault("paths", {})
-    if path in held:
-        held[path] += 1
-        try:
-            yield
-        finally:
-            held[path] -= 1
-        return
-    fd = _lock_file(path, on_wait)
-    if fd is None:   # a file system without locks: the atomic rename still keeps one entry
-        yield
-        return
-    held[path] = 1
-    try:
-        yield
-    finally:
-        del held[path]
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-        os.close(fd)
-
-
-def _lock_file(path: Path, on_wait: Callable[[], None] | None) -> int | None:
-    """An open descriptor of ``path`` with its exclusive lock taken (waiting for it if need be); None
-    where the file system has no locks (then identical calls in flight may both compute)."""
-    told = False
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                if on_wait is not None and not told:
-                    on_wait()
-                    told = True
-                fcntl.flock(fd, fcntl.LOCK_EX)
-            mine, now = os.fstat(fd), os.stat(path)
-            if (mine.st_ino, mine.st_dev) == (now.st_ino, now.st_dev):
-                return fd
-        except FileNotFoundError:
-            pass   # the holder removed it on release: lock the next one
-        except OSError as e:
-            if e.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
-                os.close(fd)
-                raise
-            os.close(fd)
-            with contextlib.suppress(OSError):
-                os.unlink(path)
-            return None
-        except BaseException:
-            os.close(fd)
-            raise
-        os.close(fd)
 
 
 # --------------------------------------------------------------------------- cache
@@ -559,7 +238,7 @@ class Cache:
             raise BadInput(f"invalid cache key {key!r} (expected lowercase hex)")
         return self.root / stage / key
 
-    def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Entry | None, str]:
+    def _check(self, stage: str, key: str, deep: bool = False) -> tuple[Artifact | None, str]:
         """(entry, "cached") if valid, else (None, reason); ``deep`` re-hashes every file, else only
         those whose stamps do not vouch for them."""
         path = self.path(stage, key)
@@ -573,7 +252,7 @@ class Cache:
             return None, reason
         if fresh:
             _write_state(path, {**stamps, **fresh})
-        return Entry(stage, key, path, meta), "cached"
+        return Artifact(stage, key, path, meta), "cached"
 
     def stored_meta(self, stage: str, key: str) -> tuple[dict[str, Any] | None, str]:
         """(meta, "") if entry ``stage/key`` has an intact, complete ``meta.json`` (whatever the
@@ -640,12 +319,12 @@ class Cache:
             fresh[name] = _stamp(st, digest)
         return "", fresh
 
-    def check(self, stage: str, key: str) -> tuple[Entry | None, str]:
+    def check(self, stage: str, key: str) -> tuple[Artifact | None, str]:
         """(entry, "cached") if ``stage/key`` is valid and was made with the installed versions of
         ``NUMERIC_PACKAGES``, else (None, why not): what a run asks before it computes."""
         return self._check_current(stage, key)
 
-    def _check_current(self, stage: str, key: str) -> tuple[Entry | None, str]:
+    def _check_current(self, stage: str, key: str) -> tuple[Artifact | None, str]:
         entry, reason = self._check(stage, key)
         drift = version_drift(entry.meta) if entry is not None else ""
         return (None, drift) if drift else (entry, reason)
@@ -654,7 +333,7 @@ class Cache:
         """Deep check (every file re-hashed): "cached" if valid, else the reason."""
         return self._check(stage, key, deep=True)[1]
 
-    def lookup(self, stage: str, key: str) -> Entry | None:
+    def lookup(self, stage: str, key: str) -> Artifact | None:
         """The entry if it is complete and valid, else None (see :meth:`why`)."""
         return self._check(stage, key)[0]
 
@@ -662,7 +341,7 @@ class Cache:
         """"cached" for a valid entry, otherwise why the stage must run."""
         return self._check(stage, key)[1]
 
-    def require(self, stage: str, key: str) -> Entry:
+    def require(self, stage: str, key: str) -> Artifact:
         """The entry, or :class:`MissingArtifact` / :class:`CorruptArtifact` (an input; its ``ref``
         and ``reason`` say which entry and why)."""
         entry, reason = self._check(stage, key)
@@ -683,7 +362,7 @@ class Cache:
         path = self.path(stage, key)
         if not path.exists():
             return False
-        trash = path.parent / _tmp_name(key)
+        trash = path.parent / tmp_name(key)
         try:
             os.rename(path, trash)
         except FileNotFoundError:
@@ -717,7 +396,7 @@ class Cache:
 
     def write(
         self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None = None
-    ) -> Entry:
+    ) -> Artifact:
         """Run ``writer(tmp_dir)`` and publish its files as entry ``stage/key`` atomically.
 
         Always calls the writer (use :meth:`run` to skip on a hit). If the writer raises
@@ -728,7 +407,7 @@ class Cache:
         """
         final = self.path(stage, key)
         stage_dir = final.parent
-        tmp = stage_dir / _tmp_name(key)
+        tmp = stage_dir / tmp_name(key)
         try:
             stage_dir.mkdir(parents=True, exist_ok=True)
             self.cleanup_stale(stage)
@@ -745,7 +424,7 @@ class Cache:
                 shutil.rmtree(tmp, ignore_errors=True)
 
     def _write_into(self, stage: str, key: str, writer: Writer, meta: Mapping[str, Any] | None, tmp: Path,
-                    final: Path) -> Entry:
+                    final: Path) -> Artifact:
         """The body of :meth:`write`: the writer's files, ``meta.json``, publication."""
         t0 = time.perf_counter()
         result = writer(tmp)
@@ -764,7 +443,7 @@ class Cache:
             f.flush()
             os.fsync(f.fileno())
         _write_state(tmp, stamps)  # the files as published (a rename of their folder keeps their stamps)
-        _fsync_dir(tmp)
+        fsync_dir(tmp)
         return self._publish(stage, key, tmp, final, doc)
 
     def run(
@@ -808,7 +487,7 @@ class Cache:
                 files[name] = {"size": size, "sha256": digest}
                 stamps[name] = _stamp(st, digest)
             if Path(dirpath) != tmp:
-                _fsync_dir(Path(dirpath))
+                fsync_dir(Path(dirpath))
         return files, stamps
 
     @staticmethod
@@ -824,8 +503,8 @@ class Cache:
             "format": FORMAT,
             "stage": stage,
             "key": key,
-            "packages": package_versions(),
-            "git_commit": git_commit(),
+            "packages": keys.package_versions(),
+            "git_commit": keys.git_commit(),
             "timings": {**(meta.get("timings") or {}), **timings},
             "created": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "files": files,
@@ -837,7 +516,7 @@ class Cache:
 
     def _publish(
         self, stage: str, key: str, tmp: Path, final: Path, doc: dict[str, Any]
-    ) -> Entry:
+    ) -> Artifact:
         """Rename ``tmp`` to ``final``; keep a valid, current entry already there, replace an invalid one
         or one made with other package versions (:func:`version_drift`)."""
         for _ in range(5):
@@ -850,18 +529,18 @@ class Cache:
                 if final.exists():
                     self.remove(stage, key)  # invalid: move aside, then retry
                 continue
-            _fsync_dir(final.parent)
-            return Entry(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
+            fsync_dir(final.parent)
+            return Artifact(stage, key, final, json.loads(json.dumps(doc, default=_json_default)))
         raise CorruptArtifact(f"could not publish artifact {stage}/{key}: {final} keeps changing")
 
     # ---- derived files (recordings made from the stored data)
 
-    def derived(self, entry: Entry) -> dict[str, dict[str, Any]]:
+    def derived(self, entry: Artifact) -> dict[str, dict[str, Any]]:
         """Name -> record of the derived files of ``entry`` that are intact (checked like data
         files: stamps, else sha256)."""
         return self.derived_check(entry)[0]
 
-    def derived_check(self, entry: Entry) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+    def derived_check(self, entry: Artifact) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
         """(name -> record of each intact derived file, name -> why each other recorded one is not:
         ``recording.rrd changed (size ...)``, ``trajectory.mcap missing``)."""
         try:
@@ -881,8 +560,8 @@ class Cache:
             writer_version = r.get("rerun-sdk", None) if isinstance(r, dict) else None
             if reason:
                 bad[n] = reason.removeprefix("file ")
-            elif writer_version is not None and writer_version != package_versions()["rerun-sdk"]:
-                bad[n] = f"{n} written by rerun-sdk {writer_version} (installed {package_versions()['rerun-sdk']})"
+            elif writer_version is not None and writer_version != keys.package_versions()["rerun-sdk"]:
+                bad[n] = f"{n} written by rerun-sdk {writer_version} (installed {keys.package_versions()['rerun-sdk']})"
             else:
                 good[n] = r
                 fresh.update(new)
@@ -890,7 +569,7 @@ class Cache:
             _write_state(entry.path, {**stamps, **fresh})
         return good, bad
 
-    def write_derived(self, entry: Entry, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
+    def write_derived(self, entry: Artifact, writer: Callable[[Path], None]) -> dict[str, dict[str, Any]]:
         """Run ``writer(tmp_dir)`` and move what it wrote into ``entry`` beside the data.
 
         Each file is renamed into place (atomic per file), then ``derived.json`` is
@@ -898,7 +577,7 @@ class Cache:
         folder. Returns the records of the files written.
         """
         damaged = self.derived_check(entry)[1]
-        tmp = entry.path.parent / _tmp_name(entry.key)
+        tmp = entry.path.parent / tmp_name(entry.key)
         try:
             tmp.mkdir()
             new = self._write_derived_from(entry, writer, tmp)
@@ -913,7 +592,7 @@ class Cache:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def _write_derived_from(self, entry: Entry, writer: Callable[[Path], None], tmp: Path
+    def _write_derived_from(self, entry: Artifact, writer: Callable[[Path], None], tmp: Path
                             ) -> dict[str, dict[str, Any]]:
         writer(tmp)
         new: dict[str, dict[str, Any]] = {}
@@ -921,14 +600,14 @@ class Cache:
             if p.name in (META, DERIVED, STATE) or p.name in entry.meta.get("files", {}) or not p.is_file():
                 raise ValueError(f"a derived file may not be called {p.name!r}")
             size, digest, _ = _hash_and_sync(p, self.hash_limit)
-            new[p.name] = {"size": size, "sha256": digest, "rerun-sdk": package_versions()["rerun-sdk"]}
+            new[p.name] = {"size": size, "sha256": digest, "rerun-sdk": keys.package_versions()["rerun-sdk"]}
         for name in new:
             os.replace(tmp / name, entry.path / name)
         recs = {**self.derived(entry), **new}
         doc = tmp / DERIVED
         doc.write_text(json.dumps(recs, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         os.replace(doc, entry.path / DERIVED)
-        _fsync_dir(entry.path)
+        fsync_dir(entry.path)
         stamps, _ = _read_state(entry.path)
         for name, rec in new.items():  # stamped where they now are (a rename moves a file's ctime)
             with contextlib.suppress(OSError):
@@ -949,10 +628,10 @@ class Cache:
 
     def _tmp_state(self, path: Path) -> tuple[bool, str]:
         """(stale, description) of a temporary folder."""
-        parsed = _parse_tmp(path.name)
-        if parsed is not None and parsed[1] == _host_tag():
+        parsed = parse_tmp(path.name)
+        if parsed is not None and parsed[1] == host_tag():
             pid, start = parsed[2], parsed[3]
-            if _pid_alive(pid, start):
+            if pid_alive(pid, start):
                 return False, f"write in progress (pid {pid})"
             return True, f"abandoned temporary folder (writer pid {pid} is gone)"
         try:
@@ -989,7 +668,7 @@ class Cache:
                 if not p.is_dir():
                     continue
                 if p.name.startswith(TMP_PREFIX):
-                    parsed = _parse_tmp(p.name)
+                    parsed = parse_tmp(p.name)
                     _, desc = self._tmp_state(p)
                     rows.append(EntryInfo(d.name, parsed[0] if parsed else "?", p, False, desc,
                                           None, _dir_size(p)))
@@ -999,5 +678,5 @@ class Cache:
                         reason = version_drift(entry.meta)  # valid data, stale for this installation
                     created = entry.meta.get("created") if entry else None
                     rows.append(EntryInfo(d.name, p.name, p, entry is not None, reason,
-                                          created, _dir_size(p), entry.meta if entry else None))
+                                          created, _dir_size(p), entry))
         return rows

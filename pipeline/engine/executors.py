@@ -40,7 +40,8 @@ from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline.errors import BadInput, Interrupted, RaicoError
+from pipeline.errors import BadInput, RaicoError
+from pipeline.lifecycle import Interrupted
 
 EXECUTORS = ("serial", "process", "ray")
 WORKER_DIED = "a worker process died (killed, or out of memory); the runs that finished are cached"
@@ -136,7 +137,7 @@ def _worker_init(parent_pid: int, threads: int = 1) -> None:
 
     os.environ["RAICO_THREADS"] = str(max(1, int(threads)))
 
-    from pipeline.errors import die_with_parent
+    from pipeline.lifecycle import die_with_parent
 
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -12,7 +12,6 @@ outcome is what the CLI prints: ``{"stage", "key", "path", "cached", "status", "
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import os
@@ -22,9 +21,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pipeline.engine import keys
 from pipeline.engine.artifacts import as_artifact
-from pipeline.engine.cache import KEY_LENGTH, Cache, Entry, stage_key
-from pipeline.errors import BadInput, CorruptArtifact, Interrupted, MissingArtifact, UnreadableArtifact
+from pipeline.engine.cache import Cache
+from pipeline.engine.keys import KEY_LENGTH, stage_key
+from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, UnreadableArtifact
+from pipeline.lifecycle import Interrupted
 from stages.base import Artifact
 
 DEFAULT_ARTIFACTS = "artifacts"
@@ -142,41 +144,6 @@ def finite_json(obj: Any) -> Any:
     return obj
 
 
-FILES = "files:"  # a source entry naming data files (a glob under the repository root), not a package
-REPO = Path(__file__).resolve().parents[2]
-
-
-def source_version(name: str, *packages: str) -> str:
-    """``name`` plus a hash of the source (``*.py``, ``*.c``: the compiled kernels) and model files
-    (``*.urdf``) of ``packages``, and of the data files an entry ``files:GLOB`` names (the shipped
-    problem files).
-
-    The cache key includes it, so editing a solver or a model file invalidates the stages
-    that depend on it (and only those).
-    """
-    import hashlib
-    import importlib
-
-    h = hashlib.sha256()
-    for pkg in packages:
-        if pkg.startswith(FILES):  # data files the stage reads (a glob under the repository root)
-            for f in sorted(REPO.glob(pkg[len(FILES):])):
-                h.update(str(f.relative_to(REPO)).encode())
-                h.update(f.read_bytes())
-            continue
-        src = Path(importlib.import_module(pkg).__file__)
-        root = src.parent
-        if src.name != "__init__.py":  # a module: just its file
-            files = [src]
-        else:
-            files = sorted(p for pat in ("*.py", "*.c", "*.urdf") for p in root.rglob(pat)
-                           if "__pycache__" not in p.parts)
-        for f in files:
-            h.update(str(f.relative_to(root)).encode())
-            h.update(f.read_bytes())
-    return f"{name}+{h.hexdigest()[:12]}"
-
-
 def run_stage(
     cache: Cache,
     stage: str,
@@ -220,7 +187,7 @@ def _producer_hint(stages: tuple[str, ...]) -> str:
     return "; " + " or ".join(f"`{PRODUCERS[s]}` makes {with_article(s)} artifact" for s in stages if s in PRODUCERS)
 
 
-def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Entry:
+def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = None) -> Artifact:
     """A valid entry from ``STAGE/KEY`` or a bare ``KEY`` or key prefix (searched in ``stage``,
     in each of a tuple of stages, or everywhere). An empty reference, an unknown one, one of
     another stage or an ambiguous prefix is an error."""
@@ -261,21 +228,7 @@ def find_entry(cache: Cache, ref: str, stage: str | tuple[str, ...] | None = Non
     return cache.require(valid[0].stage, valid[0].key)
 
 
-@functools.cache
-def _code_version(name: str, sources: tuple[str, ...]) -> str:
-    return source_version(name, *sources)
-
-
-def code_version(stage) -> str:
-    """The stage's name plus a hash of its source files (see :func:`source_version`), once per process;
-    a composite stage's joined with its steps' (``+``), so editing a step's code invalidates it too."""
-    from stages.registry import get_stage
-
-    own = _code_version(stage.name, tuple(stage.sources))
-    return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
-
-
-Repair = Callable[[CorruptArtifact], Entry]
+Repair = Callable[[CorruptArtifact], Artifact]
 
 
 def resolve_inputs(cache: Cache, stage, config, repair: Repair | None = None) -> dict[str, Any]:
@@ -300,10 +253,10 @@ def resolve_inputs(cache: Cache, stage, config, repair: Repair | None = None) ->
 
 
 def _input_keys(inputs: dict[str, Any]) -> list[str]:
-    keys = []
+    refs = []
     for v in inputs.values():
-        keys += [a.ref for a in (v if isinstance(v, tuple) else (v,))]
-    return keys
+        refs += [a.ref for a in (v if isinstance(v, tuple) else (v,))]
+    return refs
 
 
 def _write_outputs(tmp: Path, out) -> None:
@@ -337,7 +290,7 @@ def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
         except ValueError as e:
             raise BadInput(str(e)) from None
     input_keys = _input_keys(inputs)
-    version = code_version(stage)
+    version = keys.code_version(stage)
     key_config = config.key_dict()
     return stage, config, inputs, input_keys, key_config, version, stage_key(stage.name, version, key_config,
                                                                               input_keys)
@@ -400,7 +353,7 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
     rebuilt: set[str] = set() if _rebuilt is None else _rebuilt
     name = stage.name if hasattr(stage, "name") else str(stage)
 
-    def repair(err: CorruptArtifact) -> Entry:
+    def repair(err: CorruptArtifact) -> Artifact:
         return rebuild(cache, err, reporter, consumer=name, _rebuilt=rebuilt)
 
     own_damage: str | None = None
@@ -493,7 +446,7 @@ def config_from_meta(stage, meta: dict[str, Any]):
 
 
 def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None = None,
-            _rebuilt: set[str] | None = None) -> Entry:
+            _rebuilt: set[str] | None = None) -> Artifact:
     """Compute the damaged entry ``err.ref`` again from its stored config (and inputs, rebuilt in turn
     if need be), under the same key; the reporter says so in one line. Where that cannot be (its
     ``meta.json`` is damaged too, it is not a stage run, or this code would give it another key), or
@@ -524,7 +477,7 @@ def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None =
         raise refuse(f"its {st_name} config is not one this version reads")
     rebuilt.add(ref)
 
-    def repair(e: CorruptArtifact) -> Entry:
+    def repair(e: CorruptArtifact) -> Artifact:
         return rebuild(cache, e, reporter, consumer=st_name, _rebuilt=rebuilt)
 
     try:
@@ -544,7 +497,7 @@ def _label(cfg: dict) -> str:
     return " ".join(str(cfg[k]) for k in ("plant", "task", "solver") if cfg.get(k))
 
 
-def ensure_recording(cache: Cache, entry: Entry) -> str | None:
+def ensure_recording(cache: Cache, entry: Artifact) -> str | None:
     """Path of the entry's recording, written from its stored data if missing or damaged;
     None for a stage that does not record."""
     from pipeline.recordings import RECORDING

@@ -712,7 +712,7 @@ def _duration(seconds: float) -> str:
 
 @functools.cache
 def _raico_version() -> str:
-    from pipeline.engine.runner import source_version
+    from pipeline.engine.keys import source_version
 
     return source_version("raico", "pipeline", "stages", "planning", "plants")
 
@@ -763,7 +763,7 @@ def run(cache, exp: Experiment, executor: Executor, record: bool = False,
     import time
 
     from pipeline.engine.executors import Item, stream
-    from pipeline.errors import Interrupted
+    from pipeline.lifecycle import Interrupted
 
     head, root, total = _Head(exp.name, exp.stages), str(cache.root), run_count(exp)
     writer = TableWriter(cache, exp)
@@ -1155,7 +1155,7 @@ def _write_arrow(cache, exp: Experiment, table) -> Path:
     each written atomically; CSV and JSON a chunk of rows at a time (memory: the table's columns)."""
     import pyarrow.parquet as pq
 
-    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.atomic import atomic_path
     from pipeline.engine.runner import finite_json  # inf and NaN (a diverged run's cost) as null: strict JSON
 
     out = table_dir(cache, exp.name)

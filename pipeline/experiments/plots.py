@@ -1,8 +1,8 @@
 """``raico plot``: an experiment's runs table as figures (PNG, matplotlib's Agg backend).
 
-Three kinds, each over the seeds of every group of runs (a group: the runs that share the grouping
-options, by default every swept option but the x axis's, so a group is a variant or, for ``line``, a
-line through the variants that differ only in x):
+Four kinds, each over the seeds of every group of runs (a group: the runs that share the grouping
+options, by default every swept option but the x axis's); what each draws is documented in
+docs/experiment-files.md:
 
 - ``line``: a metric against a swept option: the median over the seeds at each x and the
   interquartile range as a band. A group that has one x value only because it does not use the option
@@ -287,7 +287,7 @@ def _legend(ax, entries: int) -> None:
 def _save(fig, out: Path, series: dict[str, dict[str, Any]], clip: Clip | None = None) -> Plot:
     import matplotlib.pyplot as plt
 
-    from pipeline.engine.cache import atomic_path
+    from pipeline.engine.atomic import atomic_path
 
     text = clip.text() if clip is not None else ""
     if text:   # said in the figure, below its title

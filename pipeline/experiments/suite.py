@@ -463,7 +463,7 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
     where it is not cached (said through ``say``: a later call goes on from there)."""
     import json
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.atomic import write_file_atomic
     from pipeline.experiments.transcription import refusal, solve
     from stages.plan.stage import PlanConfig, build_problem
 
@@ -576,7 +576,7 @@ def plot_profiles(doc: dict[str, Any], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.atomic import write_file_atomic
 
     prof = doc["profiles"]["all"]
     solvers = list(prof["cost"]["ratios"])
@@ -627,7 +627,7 @@ def plot_iterations(doc: dict[str, Any], path: Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.atomic import write_file_atomic
 
     recs = [r for r in doc["records"] if r.get("iteration_costs")]
     problems = [p for p in doc["budgets"] if any(r["problem"] == p for r in recs)]
@@ -884,7 +884,7 @@ def bench(cache, suite: Suite, executor, say: Callable[[str], None], out: Path,
     ``<name>_profiles.png``; the document."""
     import json
 
-    from pipeline.engine.cache import write_file_atomic
+    from pipeline.engine.atomic import write_file_atomic
     from pipeline.engine.runner import finite_json
 
     for note in suite.notes:

@@ -1,15 +1,11 @@
-"""The plan stage's recording (see :mod:`pipeline.recordings` for what every recording shares).
+"""The plan stage's recording (see :mod:`pipeline.recordings` for what every recording shares;
+docs/stages.md shows the views).
 
-Plan recordings:
-
-- ``task/<name>``: one entity per task map, its components named (``x``, ``y``, ``z``; a roll
-  angle ``roll (unwrapped)``); terms on the same map share it (the arm's ``via_x1`` and
-  ``via_x2`` -> ``task/ee``, the Nao's three CoG via-points -> ``task/cog``), otherwise it is
-  named after its term. ``task/<name>/target``: the via-point targets as markers at their steps.
-  A term held over many steps (the Nao's right sole) plots ``task/<name>/deviation``: the largest
-  distance of its points from their targets (m); ``value`` then holds the first point only.
-  Angles (roll) are unwrapped along time and shifted by a multiple of 2 pi so that the first
-  via-point step keeps the wrapped value the cost saw; the MCAP keeps the raw values.
+- ``task/<name>``: one entity per task map, its components named; terms on the same map share it,
+  otherwise it is named after its term. ``task/<name>/target``: the via-point targets at their steps;
+  a term held over many steps plots ``task/<name>/deviation`` (the largest distance of its points
+  from their targets, m). Angles (roll) are unwrapped along time and shifted by a multiple of 2 pi
+  so that the first via-point step keeps the wrapped value the cost saw; the MCAP keeps raw values.
 - ``cost/total``: the cost per iteration on the ``iteration`` timeline, and
   ``cost/log10_per_iteration``: the same (iteration 0: the initial trajectory) as a static bar
   chart of log10(cost), which every timeline shows: a time series of data on ``iteration`` is
@@ -24,8 +20,8 @@ Plan recordings:
   final path. A diverged iteration logs nothing; at most ``MAX_ITERATION_FRAMES`` iterations are drawn
   (every s-th one and the last). A plan stored before ``X_iterations`` existed shows its final pose.
 - ``joints/<limb>`` and ``control/<limb>``: grouped joint series (``joint_groups``).
-- A plan with collision terms: the scene, the robot's collision geometry, the closest-distance segments and
-  the smallest distance (:mod:`pipeline.recordings.scene`).
+- A plan with collision terms: the scene, the robot's collision geometry, the closest-distance
+  segments and the smallest distance (:mod:`pipeline.recordings.scene`).
 """
 
 from __future__ import annotations

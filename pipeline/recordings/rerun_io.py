@@ -11,20 +11,19 @@ Entity layout::
     world/robot/<body>/<geometry>  static primitive + static pose in the body frame
     joints[/<group>]               Scalars on ``sim_time`` (rad), one series per joint, named
 
-Timelines: ``sim_time`` (duration, s), ``iteration`` and ``episode`` (sequences).
-Drake quaternions are wxyz, Rerun's xyzw; Rerun capsules start at z = 0 while
-Drake's are centred on their frame, so they are shifted by -length/2 along z.
+Timelines: ``sim_time`` (duration, s), ``iteration`` and ``episode`` (sequences). Drake quaternions
+are wxyz, Rerun's xyzw; Rerun capsules start at z = 0 while Drake's are centred on their frame, so
+they are shifted by -length/2 along z.
 
 Legends stay short: a vector is one entity whose series are named, and joints are grouped by limb
 where the joint names tell the limbs (:func:`joint_groups`), one plot per group; angles of continuous
 joints (the pendulum's ``theta``) are unwrapped and named ``<joint> (unwrapped)``.
 
-Decimation (:func:`pose_indices`, :func:`plot_indices`): the robot's poses are logged at full
-rate while that is cheap (samples x bodies <= ``POSE_BUDGET`` = 3000, e.g. the pendulum's 751 x 3),
-otherwise at most ``MAX_POSES`` (200) poses per trajectory: every s-th sample, the last one and
-any via-point step; scalar plots are at full rate up to ``MAX_PLOT_SAMPLES`` (2000) samples per
-trajectory, then decimated the same way. A pose lasts until the next one on the timeline, so a
-decimated motion still plays through.
+Decimation (:func:`pose_indices`, :func:`plot_indices`): poses at full rate while samples x bodies
+<= ``POSE_BUDGET``, otherwise at most ``MAX_POSES`` per trajectory (every s-th sample, the last one
+and any via-point step); scalar plots at full rate up to ``MAX_PLOT_SAMPLES`` samples, then
+decimated the same way. A pose lasts until the next one on the timeline, so a decimated motion
+still plays through.
 """
 
 from __future__ import annotations
@@ -39,7 +38,7 @@ from types import TracebackType
 from typing import Any, Self, TypeAlias
 
 # Rerun's Rust side logs its own (coloured) error lines to stderr, e.g. when its file writer fails;
-# the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli.py); this module leaves
+# the raico command sets RUST_LOG=off unless the user set it (pipeline/interface/cli/__init__.py); this module leaves
 # RUST_LOG to its importer.
 import numpy as np
 import rerun as rr

@@ -114,7 +114,7 @@ def _viewer() -> Iterator[_Viewer]:
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
     from rerun.experimental import ViewerClient
 
-    from pipeline.errors import dies_with_this_process
+    from pipeline.lifecycle import dies_with_this_process
 
     exe = _rerun_executable()
     if exe is None:
@@ -260,9 +260,9 @@ def _latest_plans(cache: Any, stage: str = "plan") -> dict[str, Any]:
 
     latest: dict[str, Any] = {}
     for info in cache.list(stage):
-        if not info.valid or info.meta is None or not (info.path / RECORDING).is_file():
+        if not info.valid or info.entry is None or not (info.path / RECORDING).is_file():
             continue
-        plant = (info.meta.get("config") or {}).get("plant")
+        plant = (info.entry.meta.get("config") or {}).get("plant")
         if plant is None:
             continue
         best = latest.get(plant)
@@ -298,7 +298,7 @@ def report_screenshots(cache: Any, out_dir: str | Path,
         return out_dir / f"{stage}-{plant}-{info.key}.png"
 
     def caption(stage: str, plant: str, info: Any) -> str:
-        cfg = info.meta.get("config") or {}
+        cfg = info.entry.meta.get("config") or {}
         what = cfg.get("solver", "") if stage == "plan" else f"{cfg.get('episodes', '')} episodes"
         text = (f"{stage} {plant} {cfg.get('task', '')} {what} ({info.key}), "
                 f"as the Rerun viewer opens its recording")

@@ -182,7 +182,7 @@ def test_a_refused_option_loads_neither_drake_nor_crocoddyl_nor_ray(args):
 def test_a_signal_inside_an_import_is_the_interrupt():
     """A SIGTERM that lands while an extension module initializes surfaces as its ImportError; the CLI
     reports the interrupt (exit 143), not the import (tests/pipeline/test_faults.py kills a babble run mid-stage)."""
-    from pipeline.errors import Interrupted, interrupt_in
+    from pipeline.lifecycle import Interrupted, interrupt_in
 
     try:
         try:

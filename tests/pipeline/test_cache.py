@@ -19,19 +19,22 @@ import numpy as np
 import pytest
 
 from pipeline.engine import cache as cache_mod
-from pipeline.engine.cache import Cache, Entry, WriteResult, stage_key
+from pipeline.engine import keys as keys_mod
+from pipeline.engine.cache import Cache, WriteResult
+from pipeline.engine.keys import stage_key
 from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
+from stages.base import Artifact
 from tests.damage import flip_byte
 
 REPO = Path(__file__).resolve().parents[2]
-_REAL_GIT_COMMIT = cache_mod.git_commit
+_REAL_GIT_COMMIT = keys_mod.git_commit
 KEY = stage_key("plan", "v1", {"T": 100, "alpha": 0.5}, ["aaaaaaaaaaaaaaaa"])
 
 
 @pytest.fixture(autouse=True)
 def _no_repo_git(monkeypatch: pytest.MonkeyPatch) -> None:
     """Keep tests from querying the project's git repository."""
-    monkeypatch.setattr(cache_mod, "git_commit", lambda path=None: "0" * 40)
+    monkeypatch.setattr(keys_mod, "git_commit", lambda path=None: "0" * 40)
 
 
 def write_npz(d: Path) -> dict:
@@ -94,7 +97,7 @@ def test_write_then_lookup(tmp_path: Path) -> None:
     before, t0 = datetime.now(UTC).replace(microsecond=0), time.perf_counter()
     e = c.write("plan", KEY, write_npz, {"config": {"T": 100}, "inputs": ["aaaaaaaaaaaaaaaa"]})
     elapsed, after = time.perf_counter() - t0, datetime.now(UTC)
-    assert type(e) is Entry and e.path == tmp_path / "plan" / KEY
+    assert type(e) is Artifact and e.path == tmp_path / "plan" / KEY
     assert sorted(os.listdir(tmp_path / "plan")) == [KEY]  # no tmp folder left
     m = json.loads((e.path / "meta.json").read_text())
     assert m["complete"] is True and m["stage"] == "plan" and m["key"] == KEY
@@ -114,9 +117,7 @@ def test_write_then_lookup(tmp_path: Path) -> None:
     assert before <= created <= after
     got = c.lookup("plan", KEY)
     assert got is not None and got.meta == e.meta and c.why("plan", KEY) == "cached"
-    assert np.array_equal(np.load(got.file("data.npz"))["x"], np.arange(10.0))
-    with pytest.raises(MissingArtifact, match=f"^plan/{KEY} has no file 'nope.npz'$"):
-        got.file("nope.npz")
+    assert np.array_equal(got.arrays("data.npz")["x"], np.arange(10.0)) and "data.npz" in got.meta["files"]
 
 
 def test_write_result_dataclass(tmp_path: Path) -> None:
@@ -182,41 +183,41 @@ def test_bad_names_rejected(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- corruption
 
 
-def _corrupt_truncate(e: Entry) -> None:
+def _corrupt_truncate(e: Artifact) -> None:
     p = e.path / "data.npz"
     p.write_bytes(p.read_bytes()[:-7])
 
 
-def _corrupt_same_size(e: Entry) -> None:
+def _corrupt_same_size(e: Artifact) -> None:
     p = e.path / "sub" / "notes.txt"
     p.write_text("HELLO")
 
 
-def _corrupt_delete_file(e: Entry) -> None:
+def _corrupt_delete_file(e: Artifact) -> None:
     (e.path / "data.npz").unlink()
 
 
-def _corrupt_delete_meta(e: Entry) -> None:
+def _corrupt_delete_meta(e: Artifact) -> None:
     (e.path / "meta.json").unlink()
 
 
-def _corrupt_flip_complete(e: Entry) -> None:
+def _corrupt_flip_complete(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["complete"] = False
     (e.path / "meta.json").write_text(json.dumps(m))
 
 
-def _corrupt_garble_meta(e: Entry) -> None:
+def _corrupt_garble_meta(e: Artifact) -> None:
     (e.path / "meta.json").write_text('{"complete": tr')
 
 
-def _corrupt_edit_metric(e: Entry) -> None:
+def _corrupt_edit_metric(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["metrics"] = {"final_cost": 2.0}
     (e.path / "meta.json").write_text(json.dumps(m))
 
 
-def _corrupt_empty_file_list(e: Entry) -> None:
+def _corrupt_empty_file_list(e: Artifact) -> None:
     m = json.loads((e.path / "meta.json").read_text())
     m["files"] = {}
     (e.path / "meta.json").write_text(json.dumps(m))
@@ -259,7 +260,7 @@ def _count_hashes(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return calls
 
 
-def _settled(c: Cache, stage: str = "plan", key: str = KEY) -> Entry:
+def _settled(c: Cache, stage: str = "plan", key: str = KEY) -> Artifact:
     """The entry after its first hit once the clock has moved on: its stamps no longer racy."""
     time.sleep(0.05)
     e = c.lookup(stage, key)
@@ -542,9 +543,9 @@ def test_errors_one_line() -> None:
 
 def _installed(monkeypatch: pytest.MonkeyPatch, **versions: str) -> None:
     """Pretend other versions of some packages are installed from now on."""
-    real = dict(cache_mod.package_versions())
+    real = dict(keys_mod.package_versions())
     fake = {**real, **{k.replace("_", "-"): v for k, v in versions.items()}}
-    monkeypatch.setattr(cache_mod, "package_versions", lambda: fake)
+    monkeypatch.setattr(keys_mod, "package_versions", lambda: fake)
 
 
 def test_entry_made_with_other_package_versions_is_computed_again(tmp_path: Path, monkeypatch) -> None:
@@ -552,7 +553,7 @@ def test_entry_made_with_other_package_versions_is_computed_again(tmp_path: Path
     the entry stays a valid input (its data are what they are) and `ls --verify` flags it."""
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
-    made = cache_mod.package_versions()["numpy"]
+    made = keys_mod.package_versions()["numpy"]
     assert c.run("plan", KEY, write_npz).cached
     _installed(monkeypatch, numpy="0.0.test")
     assert c.lookup("plan", KEY) is not None and c.require("plan", KEY)  # an input as it is
@@ -578,7 +579,7 @@ def test_recording_written_by_another_rerun_is_written_again(tmp_path: Path, mon
     e = c.write("plan", KEY, write_npz, {})
     c.write_derived(e, lambda d: (d / "recording.rrd").write_bytes(b"rrd"))
     assert c.derived_check(e) == ({"recording.rrd": c.derived(e)["recording.rrd"]}, {})
-    made = cache_mod.package_versions()["rerun-sdk"]
+    made = keys_mod.package_versions()["rerun-sdk"]
     _installed(monkeypatch, rerun_sdk="0.0.test")
     intact, bad = c.derived_check(e)
     assert intact == {} and bad == {"recording.rrd": f"recording.rrd written by rerun-sdk {made} (installed 0.0.test)"}
@@ -592,7 +593,7 @@ def test_key_lock_one_holder_a_waiter_told_reentrant_and_no_file_left(tmp_path, 
     import fcntl
     import threading
 
-    from pipeline.engine.cache import key_lock
+    from pipeline.engine.locks import key_lock
 
     path, order, told = tmp_path / ".lock-k", [], []
 

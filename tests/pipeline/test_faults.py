@@ -135,7 +135,7 @@ def _sleep_job(args):
 SWEEP_PARENT = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from pipeline.errors import Interrupted, install_signal_handlers, stop_resource_tracker
+    from pipeline.lifecycle import Interrupted, install_signal_handlers, stop_resource_tracker
     from pipeline.engine.executors import Batch, Job, make_executor, run_flow
     from tests.pipeline.test_faults import _sleep_job
 
@@ -185,7 +185,7 @@ def test_sweep_workers_die_with_the_parent(tmp_path, sig):
 
 # ============================================================================= 2. atomic files, damaged report
 def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypatch):
-    from pipeline.engine.cache import atomic_path, write_file_atomic
+    from pipeline.engine.atomic import atomic_path, write_file_atomic
 
     target = tmp_path / "claims.json"
     write_file_atomic(target, '{"old": 1}\n')
@@ -727,13 +727,13 @@ def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage)
 def test_damaged_plan_that_cannot_be_rebuilt_is_one_line(helper, tmp_path, monkeypatch):
     """Where raico cannot rebuild the input -- its meta.json (its config) damaged too, or the plan code
     changed since (the same config would give another key) -- one line, exit 4, naming the entry."""
-    from pipeline.engine import runner
+    from pipeline.engine import keys as keys_mod
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
     flip_byte(a / "plan" / plan / "plan.npz")
-    real = runner.code_version
-    monkeypatch.setattr(runner, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
+    real = keys_mod.code_version
+    monkeypatch.setattr(keys_mod, "code_version", lambda st: "plan+edited" if st.name == "plan" else real(st))
     res = cli("execute", "--plan", plan, "--no-record", "--artifacts", a)
     assert res.exit_code == 4
     line = one_error_line(res.stderr)
@@ -939,18 +939,18 @@ def test_sigint_during_exp_run_removes_the_workers_temporary_folders(tmp_path):
 def test_an_interrupt_during_a_held_extension_s_initialization_is_raised_once_it_is_loaded(tmp_path, monkeypatch):
     """Drake's extension logs an exception raised inside its initialization with a C++ stack: a signal that
     lands while such a module loads is held and raised as the one interrupt once the module is in."""
-    from pipeline import errors
+    from pipeline import lifecycle
 
     done = tmp_path / "ran to its end"
     (tmp_path / "slow_ext.py").write_text(f"import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n"
                                           f"open({str(done)!r}, 'w').close()\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(errors, "HOLD_SIGNALS_DURING", ("slow_ext",))
+    monkeypatch.setattr(lifecycle, "HOLD_SIGNALS_DURING", ("slow_ext",))
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     meta = list(sys.meta_path)
     try:
-        errors.install_signal_handlers()
-        with pytest.raises(errors.Interrupted):
+        lifecycle.install_signal_handlers()
+        with pytest.raises(lifecycle.Interrupted):
             import slow_ext  # noqa: F401
         assert done.exists()     # the whole module ran before the interrupt was raised
     finally:

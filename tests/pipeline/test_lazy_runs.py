@@ -97,8 +97,8 @@ def test_an_interrupted_experiment_resumed_recomputes_nothing_finished(tmp_path,
     table of the same experiment run in one go elsewhere, value by value."""
     from pipeline.engine.cache import Cache
     from pipeline.engine.executors import make_executor
-    from pipeline.errors import Interrupted
     from pipeline.experiments import expfile
+    from pipeline.lifecycle import Interrupted
 
     monkeypatch.setattr(expfile.TableWriter, "FLUSH_ROWS", 1)
     exp = expfile.load(pendulum(tmp_path, "alpha = [0.5, 1.0, 2.0, 4.0]"))

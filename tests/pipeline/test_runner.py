@@ -4,7 +4,8 @@ import hashlib
 import sys
 
 from pipeline.engine.cache import Cache
-from pipeline.engine.runner import run_stage, source_version
+from pipeline.engine.keys import source_version
+from pipeline.engine.runner import run_stage
 
 
 def _package(tmp_path, monkeypatch, name: str, files: dict[str, str]):
@@ -78,12 +79,12 @@ def test_json_line_is_strict_json():
 def test_source_version_follows_the_shipped_problem_files(tmp_path, monkeypatch):
     """A built-in task is a problem file (problems/*.toml): editing one invalidates the plans, as editing code does
     (a ``files:GLOB`` source entry, under the repository root)."""
-    from pipeline.engine import runner
+    from pipeline.engine import keys
 
     (tmp_path / "problems").mkdir()
     task = tmp_path / "problems" / "pendulum_swing-up.toml"
     task.write_text("T = 750\n")
-    monkeypatch.setattr(runner, "REPO", tmp_path)
+    monkeypatch.setattr(keys, "REPO", tmp_path)
     v1 = source_version("plan", "files:problems/*.toml")
     assert v1 == source_version("plan", "files:problems/*.toml")
     task.write_text("T = 1000\n")

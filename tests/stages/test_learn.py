@@ -154,7 +154,7 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
     folder = tmp_path / "p"
     folder.mkdir()
     np.savez(folder / "plan.npz", **first.arrays())
-    warm = Artifact("plan", "1" * 16, folder, {}, "ok", {})
+    warm = Artifact("plan", "1" * 16, folder, {"status": "ok"})
     seen = {}
     real = plan_stage.solve
 
@@ -204,7 +204,7 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     assert m["n_points"][1] == m["n_points"][0] + math.ceil(k / 20)
     # the rule itself: ok (and at-a-limit) executions give every step, failed ones the steps before the failure
     def art(status, t):
-        return Artifact("execute", "0" * 16, tmp_path, {}, status, {"failure_time": t})
+        return Artifact("execute", "0" * 16, tmp_path, {"status": status, "metrics": {"failure_time": t}})
     assert usable_steps(art("ok", None), 0.002, 750) == 750
     assert usable_steps(art("limits", 0.5), 0.002, 750) == 750
     assert usable_steps(art("tracking-lost", 0.5), 0.002, 750) == 250
@@ -217,7 +217,7 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stages it names."""
     import dataclasses
 
-    from pipeline.engine import runner
+    from pipeline.engine import keys, runner
     from pipeline.engine.cache import Cache
     from pipeline.engine.ui import Reporter
     from pipeline.recordings.registry import RECORDERS
@@ -228,12 +228,12 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stage = get_stage("learn")
     assert "learn" in stage_names() and "learn" in RECORDERS
     assert stage.step_stages == ("babble", "fit", "plan", "execute")
-    version = runner.code_version(stage)
-    assert all(runner.code_version(get_stage(s)) in version for s in stage.step_stages)
+    version = keys.code_version(stage)
+    assert all(keys.code_version(get_stage(s)) in version for s in stage.step_stages)
     cache, cfg = Cache(tmp_path), LearnConfig(plant="pendulum", task="swing-up")
     key = runner.run_key(cache, "learn", cfg)
-    real = runner._code_version
-    monkeypatch.setattr(runner, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
+    real = keys._code_version
+    monkeypatch.setattr(keys, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
     assert runner.run_key(cache, "learn", cfg) != key
     only_babble = dataclasses.replace(stage, step_stages=("babble",))
     with pytest.raises(ValueError, match="runs babble as steps, not execute"):

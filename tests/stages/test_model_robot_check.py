@@ -22,7 +22,7 @@ def _fit(tmp_path, text: str | bytes | None) -> Artifact:
     folder.mkdir(parents=True)
     if text is not None:
         (folder / "fit.json").write_bytes(text if isinstance(text, bytes) else text.encode())
-    return Artifact("fit", KEY, folder, {}, "ok", {})
+    return Artifact("fit", KEY, folder, {"status": "ok"})
 
 
 def test_a_gp_of_this_robot_passes_and_one_of_another_is_refused(tmp_path):

@@ -612,7 +612,7 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
     new run, while the other variants of a figure do not touch it."""
     from dataclasses import replace
 
-    from pipeline.engine.cache import stage_key
+    from pipeline.engine.keys import stage_key
     from thesis.figures import EXPERIMENTS, REFERENCE, plan_config
 
     def key(cfg):

@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.engine.cache import Cache, stage_key
-from pipeline.engine.runner import Outcome, code_version
+from pipeline.engine.cache import Cache
+from pipeline.engine.keys import code_version, stage_key
+from pipeline.engine.runner import Outcome
 from pipeline.errors import BadInput
 from pipeline.experiments import expfile
 from pipeline.interface.cli import app
