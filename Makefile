@@ -25,16 +25,16 @@ $(STAMP): pyproject.toml
 # a name for it (older instructions say `make install anchors`).
 anchors: install
 
-# The AICO sweep kernel (planning/csweep.c on planning/dense.c, loaded by planning/kernels.py; the plants'
-# generated C is built on first use). Built by the one build helper (plants/codegen/c_backend.py)
-# with planning/kernels.py's FLAGS for this host's CPU into the kernel cache
+# The AICO sweep kernel (raico/planning/csweep.c on raico/planning/dense.c, loaded by raico/planning/kernels.py; the plants'
+# generated C is built on first use). Built by the one build helper (raico/plants/codegen/c_backend.py)
+# with raico/planning/kernels.py's FLAGS for this host's CPU into the kernel cache
 # (RAICO_KERNEL_DIR, default ~/.cache/raico/kernels; the flags are part of the file's key, so an
 # AVX2/FMA build is never loaded on a CPU without them). A failed build stops make; without gcc
 # it says so and the numpy sweeps run.
 kernels: $(KERNEL)
 
-$(KERNEL): planning/csweep.c planning/dense.c planning/kernels.py plants/codegen/c_backend.py $(STAMP)
-	$(BIN)/python -m planning.kernels
+$(KERNEL): raico/planning/csweep.c raico/planning/dense.c raico/planning/kernels.py raico/plants/codegen/c_backend.py $(STAMP)
+	$(BIN)/python -m raico.planning.kernels
 	touch $(KERNEL)
 
 test: $(STAMP) $(KERNEL)
@@ -53,11 +53,11 @@ test-portable: $(STAMP) $(KERNEL)
 
 # Every test that reaches compiled code (marked `compiled`) with every kernel, hand-written and generated,
 # built with AddressSanitizer and UBSan into its own folder and gcc's sanitizer runtimes preloaded into
-# Python (plants/codegen/sanitize.py): an out-of-bounds access or undefined behaviour aborts the run.
+# Python (raico/plants/codegen/sanitize.py): an out-of-bounds access or undefined behaviour aborts the run.
 SANITIZE_KERNELS ?= $(abspath $(VENV))/.kernels-sanitize
 
 test-sanitize: $(STAMP)
-	RAICO_KERNEL_DIR=$(SANITIZE_KERNELS) $(BIN)/python -m plants.codegen.sanitize
+	RAICO_KERNEL_DIR=$(SANITIZE_KERNELS) $(BIN)/python -m raico.plants.codegen.sanitize
 
 reproduce: $(STAMP) $(KERNEL)
 	$(BIN)/raico reproduce --all --jobs $(JOBS) --artifacts $(ARTIFACTS)
@@ -76,7 +76,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck
-	$(BIN)/ruff check pipeline plants planning stages thesis tests bench scripts
+	$(BIN)/ruff check raico tests bench scripts
 
 # mypy over the library packages, configured in pyproject.toml ([tool.mypy]: which checks are on and why).
 typecheck: $(STAMP)

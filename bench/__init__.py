@@ -1,1 +1,1 @@
-import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import raico.plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -7,7 +7,7 @@ all data, R-AICO on the GP model with the uncertainty term, and the plan's contr
 Drake plant. The measure is PILCO's: executed seconds (the random episode's included) until the first episode
 that ends upright (pole within 0.1 rad of upright and turning slower than 1 rad/s, the problem file's
 ``[achieved]``; the discrete plant keeps the cart on its rail), per seed; PILCO reports 17.5 s. A random episode
-that replaced an execution without data (``stages.learn``) counts in its episode's executed seconds. Seeds whose loop never ends upright within ``EPISODES`` count as not reached (infinite). One run
+that replaced an execution without data (``raico.stages.learn``) counts in its episode's executed seconds. Seeds whose loop never ends upright within ``EPISODES`` count as not reached (infinite). One run
 over ``SEEDS`` seeds, in a cache of its own (``--artifacts``, default ``artifacts/bench/cartpole_pilco``); the page
 is ``artifacts/bench/cartpole_pilco.md`` (+ ``.json``, ``.png``: the executed end error per episode, and
 ``_swing.png``: the first upright episode as executed).
@@ -48,8 +48,8 @@ def seconds_to_upright(metrics: dict) -> float:
 
 def run_seed(cache, seed: int, episodes: int) -> dict:
     """One seed's loop: its per-episode executed end errors and statuses, the seconds to upright, the wall time."""
-    from pipeline.engine.runner import run
-    from stages.learn import LearnConfig
+    from raico.pipeline.engine.runner import run
+    from raico.stages.learn import LearnConfig
 
     cfg = LearnConfig(**{**settings(), "episodes": episodes, "seed": seed})
     t0 = time.perf_counter()
@@ -102,7 +102,7 @@ def page(rows: list[dict], load: str, pendulum: str | None = None) -> str:
              + (f"{pendulum} s (the report's fig4.1/4.2)" if pendulum else "see docs/results.md, fig4.1/4.2")
              + " | |", "",
              "Upright: the pole ends within 0.1 rad of upright turning slower than 1 rad/s "
-             "(`problems/cartpole_swing-up.toml`, `[achieved]`).", "",
+             "(`raico/problems/cartpole_swing-up.toml`, `[achieved]`).", "",
              "| seed | seconds to upright | first upright episode | executed end error per episode (rad) | "
              "end speed per episode (rad/s) | random episodes after an execution without data | "
              "fit + plan + execute per episode (s) |", "|---|---|---|---|---|---|---|"]
@@ -168,7 +168,7 @@ def filmstrip(rows: list[dict], path: Path, every: int = 2) -> None:
 def main() -> None:
     import os
 
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)

@@ -4,9 +4,9 @@ executed in Drake, beside crocoddyl's own run of its example.
 ``python -m bench.crocoddyl_problems [--artifacts DIR]`` writes ``DIR/bench/crocoddyl_problems.json``
 and ``crocoddyl_problems.md`` (:func:`markdown_page`); ``make bench`` runs it too (bench/run.py).
 
-Per problem file (``problems/crocoddyl/``): R-AICO (alpha 1, the fixed schedule and the adaptive
+Per problem file (``raico/problems/crocoddyl/``): R-AICO (alpha 1, the fixed schedule and the adaptive
 one), AICO, iLQG and crocoddyl's FDDP (solver ``fddp``: x0 held at every node) through the plan
-stage (``stages.plan.stage.plan``, analytic dynamics, q0-std 0, at most 200 iterations), FDDP from
+stage (``raico.stages.plan.stage.plan``, analytic dynamics, q0-std 0, at most 200 iterations), FDDP from
 crocoddyl's own cold start (the zero state at every node: ``solve()`` without a guess) on the same
 exact translation, and crocoddyl's example as crocoddyl states it (its solver, its start, and for
 the Kinova Pinocchio's cos/sin continuous joints, for the Talos arm no joint damping). Each plan is
@@ -38,24 +38,24 @@ ROOT = Path(__file__).resolve().parents[1]
 ITERATIONS = 200
 ALPHA = 1.0
 PROBLEMS = {
-    "kinova": {"file": "problems/crocoddyl/kinova_reach.toml", "frame": "j2s6s200_end_effector",
+    "kinova": {"file": "raico/problems/crocoddyl/kinova_reach.toml", "frame": "j2s6s200_end_effector",
                "target": [0.6, 0.2, 0.5],
                "example": "crocoddyl's examples/arm_manipulation_fwddyn.py, its log: 72 (0-based: 73 iterations), "
                           "cost 8.125, hand at (0.60058, 0.19808, 0.49717)",
                "reference_cost": 8.125},
-    "kinova_in_range": {"file": "problems/crocoddyl/kinova_reach_in_range.toml", "frame": "j2s6s200_end_effector",
+    "kinova_in_range": {"file": "raico/problems/crocoddyl/kinova_reach_in_range.toml", "frame": "j2s6s200_end_effector",
                         "target": [0.6, 0.2, 0.5],
                         "example": "the Kinova reach with the start's joint 3 one turn higher (inside its range: "
                                    "Drake's executions start where the plan does); crocoddyl's logged cost 8.125 of "
                                    "kinova_reach.toml as the reference",
                         "reference_cost": 8.125},
-    "talos_arm": {"file": "problems/crocoddyl/talos_arm_reach.toml", "frame": "gripper_left_motor_double_link",
+    "talos_arm": {"file": "raico/problems/crocoddyl/talos_arm_reach.toml", "frame": "gripper_left_motor_double_link",
                   "target": [0.0, 0.0, 0.4],
                   "example": "crocoddyl 1.0.0's examples/arm_manipulation.py (DDP), its log: 7 iterations, cost 0.1897",
                   "reference_cost": 0.189677},
     # a humanoid on one foot: the right sole welded where crocoddyl's half_sitting puts it; every solver from the
     # quasi-static start (a zero-torque rollout of the standing humanoid at dt = 0.05 blows up)
-    "talos_taichi": {"file": "problems/crocoddyl/talos_taichi.toml", "frame": "gripper_left_motor_double_link",
+    "talos_taichi": {"file": "raico/problems/crocoddyl/talos_taichi.toml", "frame": "gripper_left_motor_double_link",
                      "target": [0.4, 0.0, 1.2], "options": {"start": "quasi-static"}, "iterations": 60,
                      "example": "crocoddyl's examples/humanoid_taichi.py logs 76 BoxFDDP iterations and cost 7.229 "
                                 "for a different problem: the free-floating Talos with contact models, three phases "
@@ -83,7 +83,7 @@ BENCH_PROBLEMS = ("kinova", "kinova_in_range", "talos_arm", "talos_taichi")
 def plan_config(path: str, iterations: int = ITERATIONS, **options):
     """The plan stage's validated configuration of the problem file at ``path`` (from the repository root):
     analytic dynamics, the start held (no ``q0`` noise), ``iterations`` and the solver's ``options``."""
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
     cfg = PlanConfig(problem=str(ROOT / path), dynamics="analytic", q0_std=0.0, iterations=iterations,
                      **options).normalized()
@@ -102,8 +102,8 @@ def _hand_error(robot, X: np.ndarray, frame: str, target) -> float:
 
 def _row(label: str, out, spec: dict, crocoddyl_cost: float | None = None, note: str = "") -> dict:
     """One solver's numbers, its plan executed in Drake."""
-    from stages.execute.config import ExecuteConfig
-    from stages.execute.stage import execute
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.execute.stage import execute
 
     r, problem, robot = out.result, out.problem, out.robot
     finite = bool(np.all(np.isfinite(r.X)))
@@ -143,7 +143,7 @@ def _not_expressible(label: str, why: str) -> dict:
 def _direct(path: str, label: str, run, spec: dict, note: str) -> dict:
     """A solver called directly on the plan stage's problem (not a registered plan solver), executed
     as a plan of solver ``fddp``."""
-    from stages.plan.stage import PlanOutput, build_problem
+    from raico.stages.plan.stage import PlanOutput, build_problem
 
     cfg = plan_config(path, solver="fddp")
     robot, task, problem, q0, desc = build_problem(cfg)
@@ -153,7 +153,7 @@ def _direct(path: str, label: str, run, spec: dict, note: str) -> dict:
 
 
 def _fddp_cold(problem):
-    from planning.crocoddyl import FDDPOptions, fddp
+    from raico.planning.crocoddyl import FDDPOptions, fddp
 
     r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", box="no"))
     return r, r.cost
@@ -163,7 +163,7 @@ def kinova_example(problem):
     """crocoddyl's own problem: Pinocchio's cos/sin joints, FDDP's cold start; raico's cost of its
     plan differs from crocoddyl's (its state differences wrap at pi). Plain FDDP as the example runs it:
     the problem file's default hard bounds would otherwise make it BoxFDDP (``box="auto"``)."""
-    from planning.crocoddyl import FDDPOptions, fddp
+    from raico.planning.crocoddyl import FDDPOptions, fddp
 
     r = fddp(problem, FDDPOptions(iterations=ITERATIONS, start="zero", continuous="cos-sin", box="no"))
     return r, r.cost
@@ -174,8 +174,8 @@ def _talos_example(problem):
     (sum ||Q_u||^2 < 1e-9); crocoddyl 3.2.0's DDP takes the same iterates."""
     import crocoddyl
 
-    from planning.crocoddyl import build, result
-    from planning.problem import IterationRecord, Status
+    from raico.planning.crocoddyl import build, result
+    from raico.planning.problem import IterationRecord, Status
 
     cp = build(problem, damping=False)
     solver = crocoddyl.SolverDDP(cp.shooting)
@@ -225,8 +225,8 @@ def _talos_example(problem):
 
 
 def run_problem(name: str) -> dict:
-    from planning.crocoddyl import NotExpressible
-    from stages.plan.stage import plan
+    from raico.planning.crocoddyl import NotExpressible
+    from raico.stages.plan.stage import plan
 
     spec = PROBLEMS[name]
     rows = []
@@ -335,7 +335,7 @@ def run(artifacts: Path, names=tuple(PROBLEMS)) -> dict:
     import os
     import platform
 
-    from pipeline.engine.atomic import write_file_atomic
+    from raico.pipeline.engine.atomic import write_file_atomic
 
     doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
            "machine": f"{os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f} at start, Python "

@@ -70,9 +70,9 @@ def rss_mb() -> float:
 
 def overhead(arts: Path, file: Path, cpus: int) -> dict:
     """All runs on a local Ray instance of ``cpus`` CPUs: wall against the runs' own seconds / CPUs."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import make_executor
-    from pipeline.experiments import expfile
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import make_executor
+    from raico.pipeline.experiments import expfile
 
     exp = expfile.load(file)
     total = expfile.run_count(exp)
@@ -108,7 +108,7 @@ def raico(*args: str, **kw) -> subprocess.CompletedProcess:
 
 def resume(arts: Path, file: Path, cpus: int) -> dict:
     """``raico exp run`` SIGKILLed at half the runs, then again: what the second call computes."""
-    from pipeline.experiments import expfile
+    from raico.pipeline.experiments import expfile
 
     total = expfile.run_count(expfile.load(file))
     plans = arts / "plan"
@@ -144,14 +144,14 @@ def _children_cpu() -> float:
 
 
 def _cache(arts: Path):
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     return Cache(arts)
 
 
 def views(arts: Path) -> dict:
     """``exp show`` and ``exp diff`` of two variants: the command's wall time, and its work alone."""
-    from pipeline.experiments import expfile
+    from raico.pipeline.experiments import expfile
 
     cache = _cache(arts)
     t = time.perf_counter()

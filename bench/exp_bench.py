@@ -2,10 +2,10 @@
 
 - building the runs table of a 1000-run experiment: a row per run from its entry (``meta.json``, the
   plan's cost per iteration from ``plan.npz``), then ``runs.csv`` and ``runs.json``
-  (``pipeline.experiments.expfile.table_row`` and ``write_table``, what ``raico exp run`` does after its runs);
+  (``raico.pipeline.experiments.expfile.table_row`` and ``write_table``, what ``raico exp run`` does after its runs);
 - ``raico exp show`` of that experiment, the whole command (Python's start included), warm: it reads
   the runs table only;
-- ``raico exp run FILE --dry-run`` of each thesis file (thesis/experiments/), the whole command: what
+- ``raico exp run FILE --dry-run`` of each thesis file (raico/thesis/experiments/), the whole command: what
   would run and how much of it is cached, in the bench's cache.
 
 The 1000 runs are synthetic entries (a plan's ``meta.json`` with a real plan's metrics, a ``plan.npz``
@@ -65,7 +65,7 @@ def _metrics(rng: np.random.Generator) -> dict:
 def synthetic() -> tuple[Path, object, list]:
     """A temporary cache with the 1000 runs' entries and the experiment file: ``(root, experiment, results)``
     where ``results`` are the runs' outcomes as ``raico exp run`` collects them."""
-    from pipeline.experiments import expfile
+    from raico.pipeline.experiments import expfile
 
     root = Path(tempfile.mkdtemp(prefix="raico-bench-exp-"))
     atexit.register(shutil.rmtree, root, True)   # 1000 entries, about 100 MB: gone with the process
@@ -93,8 +93,8 @@ def synthetic() -> tuple[Path, object, list]:
 
 def build_table() -> float:
     """Seconds to build and write the runs table of the 1000 runs."""
-    from pipeline.engine.cache import Cache
-    from pipeline.experiments import expfile
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.experiments import expfile
 
     root, exp, results = synthetic()
     cache = Cache(root / "arts")
@@ -125,7 +125,7 @@ def bench_exp_show(reps: int) -> list[float]:
 
 def thesis_dry_runs(reps: int, artifacts: str | Path = "artifacts") -> dict[str, list[float]]:
     """Per thesis file, the wall times (s) of ``raico exp run FILE --dry-run`` in the cache ``artifacts``."""
-    from thesis.figures import THESIS_DIR, THESIS_FILES
+    from raico.thesis.figures import THESIS_DIR, THESIS_FILES
 
     out = {}
     for name in THESIS_FILES:

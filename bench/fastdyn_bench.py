@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from plants.codegen.derive import compiled_dynamics
-from plants.dynamics import AnalyticDynamics
-from plants.fast_analytic import FastAnalyticDynamics
-from plants.robots import load_robot
+from raico.plants.codegen.derive import compiled_dynamics
+from raico.plants.dynamics import AnalyticDynamics
+from raico.plants.fast_analytic import FastAnalyticDynamics
+from raico.plants.robots import load_robot
 
 
 def _median_time(fn, reps: int) -> float:

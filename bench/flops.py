@@ -4,7 +4,7 @@ and a dense ``dgemm`` measured in the same run.
     .venv/bin/python -m bench.flops
 
 :func:`sweep_flops` counts the floating-point operations (a multiply and an add are two) of the
-compiled sweep (``planning/csweep.c`` on ``planning/dense.c``) per time step for a state of ``N``
+compiled sweep (``raico/planning/csweep.c`` on ``raico/planning/dense.c``) per time step for a state of ``N``
 and controls of ``m`` entries: the forward message, the backward message, two beliefs and, at a
 repeat of a step, the dynamics' relinearization. ``forward=False`` counts the backward message alone
 (the robust schedule, ``theta = inf``), ``block=False`` the dense products of models without the
@@ -75,8 +75,8 @@ def backward_sweep_rate(problem, reps: int = 5) -> dict:
     ``seconds`` (median, one thread), its ``flops`` (``T`` backward messages by :func:`sweep_flops`) and
     ``gflops``; the achieved rate of the sweeps themselves, where :func:`flop_fields` divides by the whole
     iteration (dynamics derivatives, rollouts and costs included)."""
-    from planning.aico.sweeps import backward_sweep_at_start
-    from planning.problem import single_threaded_blas
+    from raico.planning.aico.sweeps import backward_sweep_at_start
+    from raico.planning.problem import single_threaded_blas
 
     with single_threaded_blas():
         sweep, block = backward_sweep_at_start(problem)

@@ -11,7 +11,7 @@ process CPU time (the machine may be shared: CPU time is the better single-core 
 ``mean_var_all_gradients_ms_per_output`` (the headline figure, target 20 ms): one
 ``GPModel.predict_with_gradients`` call at the ``M`` points (mean, latent variance, their gradients with
 respect to all ``d`` inputs, every output) divided by ``D``, with one BLAS thread (the project's policy
-per process, ``plants/threads.py``); ``..._2threads`` and ``..._2threads_solves_only`` (a bench-only
+per process, ``raico/plants/threads.py``); ``..._2threads`` and ``..._2threads_solves_only`` (a bench-only
 patch, ``_solves_on_threads``) the same call with two BLAS threads, for information. ``sparse``: the
 same call on the sparse GP (FITC) with ``M_SPARSE`` inducing points and its cost in accuracy against the
 exact GP (:func:`bench_sparse`). Where the time goes, what was tried and rejected: docs/benchmarks.md,
@@ -20,7 +20,7 @@ exact GP (:func:`bench_sparse`). Where the time goes, what was tried and rejecte
 ``mean_and_gradient_ms_per_output``: ``mean_with_gradients``; ``mean_and_variance_ms_per_output``:
 ``predict`` (one triangular solve per output). ``cap_cost``: held-out RMSE of
 ``fit_gp(..., max_points=500)`` against the exact GP on all 2000 points at the same
-hyperparameters (``stages.fit.gp_fit.measure_cap_cost``) on pendulum trajectories (time-ordered,
+hyperparameters (``raico.stages.fit.gp_fit.measure_cap_cost``) on pendulum trajectories (time-ordered,
 analytic pendulum, semi-implicit Euler at 10 ms) and on the synthetic biorob-like data (first
 output). Not a test: nothing here fails on a slow machine.
 """
@@ -38,8 +38,8 @@ from contextlib import contextmanager
 import numpy as np
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
-from plants.gp import GPModel, SparseGPModel
-from stages.fit.gp_fit import measure_cap_cost
+from raico.plants.gp import GPModel, SparseGPModel
+from raico.stages.fit.gp_fit import measure_cap_cost
 
 N, M, N_NEW, N_Q = 1000, 500, 100, 5
 M_SPARSE = (100, 200, 300)  # inducing points of the sparse GP rows

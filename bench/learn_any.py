@@ -1,4 +1,4 @@
-"""Learning a model file's mistakes: the UR5 with an unmodelled payload (``problems/examples/ur5_payload.toml``).
+"""Learning a model file's mistakes: the UR5 with an unmodelled payload (``raico/problems/examples/ur5_payload.toml``).
 
 The file's UR5 plans; the robot that executes carries 1 kg at its tool and links 25 % heavier than the
 file says (``[robot.true]``). Rows: the plan on the model file alone (analytic dynamics) executed
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PROBLEM = ROOT / "problems" / "examples" / "ur5_payload.toml"
+PROBLEM = ROOT / "raico" / "problems" / "examples" / "ur5_payload.toml"
 # the learning loop's settings beyond raico learn's defaults (the same for both models): R-AICO with the
 # thesis's fixed alpha, as in its learning experiments (a problem file's default is the robust schedule)
 LEARN = {"babble_points": 200, "babble_amplitude": 0.3, "alpha": 1.0, "alpha_schedule": "fixed", "iterations": 50,
@@ -34,9 +34,9 @@ REACH = 0.01  # m: the learning loop's goal
 
 def model_file_row(cache) -> dict:
     """The plan on the model file alone, executed on the true robot: its distance to the target (m)."""
-    from pipeline.engine.runner import run
-    from stages.execute.config import ExecuteConfig
-    from stages.plan.stage import PlanConfig
+    from raico.pipeline.engine.runner import run
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.plan.stage import PlanConfig
 
     t0 = time.perf_counter()
     plan = run(cache, "plan", PlanConfig(problem=str(PROBLEM)), record=False)
@@ -49,8 +49,8 @@ def model_file_row(cache) -> dict:
 def learn_row(cache, residual: bool, episodes: int, sigma_weight: float | None = None) -> dict:
     """The learning loop with the residual or the full GP, with the uncertainty term (``sigma* = 0``,
     weight ``sigma_weight``, standardized units) or without (None): per-episode numbers and the wall time."""
-    from pipeline.engine.runner import run
-    from stages.learn import LearnConfig
+    from raico.pipeline.engine.runner import run
+    from raico.stages.learn import LearnConfig
 
     sigma = {} if sigma_weight is None else {"sigma_star": "0", "sigma_weight": sigma_weight,
                                               "sigma_units": "standardized"}
@@ -77,7 +77,7 @@ def label(r: dict) -> str:
 def page(rows: list[dict], load: str, gp: dict | None = None) -> str:
     """The markdown page: one summary row per variant, the distance per episode, the GP's prediction cost."""
     lines = [f"UR5 with an unmodelled 1 kg payload at the tool and links 25 % heavier than its file "
-             f"(`problems/examples/ur5_payload.toml`); learning settings {LEARN}; uncertainty term sigma* = 0 "
+             f"(`raico/problems/examples/ur5_payload.toml`); learning settings {LEARN}; uncertainty term sigma* = 0 "
              f"in standardized units; one run, load average {load}. s per episode: median fit + plan + execute; "
              "wall: the whole loop in one cache, so the babbling (and its held-out set) is paid by the first loop "
              "only.", "",
@@ -115,7 +115,7 @@ def gp_timing(points: int = 2000, inducing: int = 200, steps: int = 100, repeats
     of a 7-joint arm (14 state + 7 control inputs, 7 outputs) at ``points`` training points: the sparse GP
     (``inducing`` points) and the exact GP, medians of ``repeats`` calls. Synthetic smooth data (fixed
     hyperparameters: the cost does not depend on their values)."""
-    from plants.gp import GPModel, SparseGPModel
+    from raico.plants.gp import GPModel, SparseGPModel
 
     rng = np.random.default_rng(0)
     d, D = 21, 7
@@ -172,7 +172,7 @@ def plot(rows: list[dict], path: Path) -> None:
 def main() -> None:
     import os
 
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=5, help="episodes of the residual-GP loop")

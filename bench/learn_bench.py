@@ -15,9 +15,9 @@ from pathlib import Path
 
 def bench_learn_episode() -> dict:
     """``{"fit_s", "plan_s", "execute_s", "n_points"}`` of episode 1 of fig4.3's ``every`` setting."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import run
-    from thesis.figures import LEARN_EXPERIMENTS, learn_config
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run
+    from raico.thesis.figures import LEARN_EXPERIMENTS, learn_config
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], 0, quick=True)
@@ -37,9 +37,9 @@ def bench_learn_default(episodes: int = 20, seed: int = 0) -> dict:
     "status_last", "n_points_last"}``."""
     import time
 
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import run
-    from stages.learn import LearnConfig
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run
+    from raico.stages.learn import LearnConfig
 
     cfg = LearnConfig(plant="biorob", task="reach", episodes=episodes, alpha=2.0, seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -63,9 +63,9 @@ def bench_learn_evaluation(gp: str = "exact", inducing: int = 200, points: int =
     random restarts (``refit_restarts`` 0, schedule ``every``), then 10 R-AICO iterations on the GP
     and the execution in Drake. The first fit is set to 0 restarts here (it is not timed).
     Returns ``{"fit_s", "plan_s", "execute_s", "total_s", "n_points", "gp", "n_inducing"}``."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import run
-    from thesis.figures import LEARN_EXPERIMENTS, learn_config
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run
+    from raico.thesis.figures import LEARN_EXPERIMENTS, learn_config
 
     exp = LEARN_EXPERIMENTS["fig4.3"]
     cfg = learn_config(exp, exp.settings[0], seed, quick=True)

@@ -51,13 +51,13 @@ ITERATIONS = 4
 _LOAD = textwrap.dedent("""
     import json, sys, time
     t0 = time.perf_counter()
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
     t_import = time.perf_counter()
     cfg = PlanConfig(problem=sys.argv[1], iterations=1).normalized()
     cfg.validate()
     build_problem(cfg)
-    from plants.fast_analytic import make_fast_or_exact
-    from stages.plan.stage import robot_and_task
+    from raico.plants.fast_analytic import make_fast_or_exact
+    from raico.stages.plan.stage import robot_and_task
     robot, task = robot_and_task(cfg)
     dyn = make_fast_or_exact(robot, task.dt)
     print(json.dumps({"load_s": time.perf_counter() - t_import, "import_s": t_import - t0,
@@ -74,13 +74,13 @@ def _load_in_process(problem: Path, kernels: Path) -> dict:
 
 def load_rows(reps: int = 3) -> list[dict]:
     """First load (empty kernel folder) and a later process's load, per robot, medians of ``reps``."""
-    from plants.model_file import example_robot_data
+    from raico.plants.model_file import example_robot_data
 
     if example_robot_data() is None:
         return []
     root = Path(__file__).resolve().parents[1]
-    cases = [("xArm7 (7 joints)", root / "problems/examples/xarm7_reach.toml", 10.0),
-             ("Talos on its right sole (32 joints)", root / "problems/crocoddyl/talos_taichi.toml", 60.0)]
+    cases = [("xArm7 (7 joints)", root / "raico/problems/examples/xarm7_reach.toml", 10.0),
+             ("Talos on its right sole (32 joints)", root / "raico/problems/crocoddyl/talos_taichi.toml", 60.0)]
     rows = []
     for name, problem, target in cases:
         first, later = [], []
@@ -164,8 +164,8 @@ def chain_problem(n: int, folder: Path) -> Path:
 
 def records_after(solver: str) -> dict:
     """The keyword that keeps raico's bookkeeping out of a crocoddyl solver's iterations (its records made after its
-    solve: ``planning.crocoddyl.fddp``'s ``record="after"``); none for raico's own solvers."""
-    from planning.solvers import CROCODDYL_SOLVERS
+    solve: ``raico.planning.crocoddyl.fddp``'s ``record="after"``); none for raico's own solvers."""
+    from raico.planning.solvers import CROCODDYL_SOLVERS
 
     return {"record": "after"} if solver in CROCODDYL_SOLVERS else {}
 
@@ -173,16 +173,16 @@ def records_after(solver: str) -> dict:
 def timed_solve(problem, solver: str, options: dict):
     """One solve of ``problem`` and its setup (s): the time from the call to its first iteration's start.
 
-    FDDP: crocoddyl's model built from the problem (``planning.crocoddyl.build``, timed here and handed to
+    FDDP: crocoddyl's model built from the problem (``raico.planning.crocoddyl.build``, timed here and handed to
     the solver) and the rollout of its start and its cost (what ``fddp`` does before crocoddyl's solve,
     timed here the same way); its records are made after the solve (``record="after"``: no feedback rollout of
     an infeasible iterate between crocoddyl's iterations). R-AICO and the others: the first callback's
     time, less the call's and the solver's clock at that record (the solver's loop calls it as the iteration's
     clock stops); ``None`` when the first iteration diverged (no callback)."""
-    from planning.solvers import solve
+    from raico.planning.solvers import solve
 
     if records_after(solver):
-        from planning.crocoddyl import build
+        from raico.planning.crocoddyl import build
 
         t0 = time.perf_counter()
         cp = build(problem)
@@ -212,7 +212,7 @@ def per_iteration_details(problem_file: Path, specs: list[tuple[str, dict]], rep
     within the sweeps; 0 for the others), how the run ended (``status``; ``ended``: :func:`ending`), its start's
     and its last iteration's cost and the problem's sizes, and ""; or (None, why the solver could not take the
     problem)."""
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     samples: list[list] = [[] for _ in specs]   # per solver: (own median, setup, repeats, result)
     failed: dict[int, str] = {}
@@ -299,15 +299,15 @@ def _exponent(sizes, times) -> float:
     return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
 
 
-ROBOTS = (("Kinova reach (crocoddyl)", "problems/crocoddyl/kinova_reach.toml"),
-          ("UR5 reach", "problems/examples/ur5_reach.toml"), ("xArm7 reach", "problems/examples/xarm7_reach.toml"))
+ROBOTS = (("Kinova reach (crocoddyl)", "raico/problems/crocoddyl/kinova_reach.toml"),
+          ("UR5 reach", "raico/problems/examples/ur5_reach.toml"), ("xArm7 reach", "raico/problems/examples/xarm7_reach.toml"))
 
 
 def _relocates(options: dict) -> bool:
     """Whether R-AICO with ``options`` runs the forward sweep and the beliefs at every step (relinearizations
     within the sweeps: ``theta`` finite, ``max_repeats`` > 0, not the robust schedule, which sets ``theta``
     to inf): else an iteration's sweep is the backward messages alone."""
-    from planning.solvers import make_options
+    from raico.planning.solvers import make_options
 
     o = make_options("raico", options)
     return o.schedule != "robust" and math.isfinite(o.theta) and o.max_repeats > 0
@@ -324,7 +324,7 @@ def flop_columns(detail: dict, dgemm: float | None, problem_file: Path | None = 
     out = flop_fields(detail["n_x"], detail["n_u"], detail["T"], detail["seconds"], dgemm, detail["repeats"],
                       forward=forward)
     if problem_file is not None:
-        from stages.plan.stage import PlanConfig, build_problem
+        from raico.stages.plan.stage import PlanConfig, build_problem
 
         _, _, problem, _, _ = build_problem(PlanConfig(problem=str(problem_file), bounds="none").normalized())
         alone = backward_sweep_rate(problem)
@@ -372,8 +372,8 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
     cost (:func:`common_cost`), and R-AICO's sweep flops against the dgemm rate. R-AICO runs with what ``raico
     plan`` gives the problem file (:func:`chain_raico_options`). A solver that fails on a robot gives a row
     saying why (and a line on stderr)."""
-    from planning.solvers import SOLVERS
-    from plants.model_file import example_robot_data
+    from raico.planning.solvers import SOLVERS
+    from raico.plants.model_file import example_robot_data
 
     if example_robot_data() is None:
         return []
@@ -403,7 +403,7 @@ def robot_rows(dgemm: float | None = None) -> list[dict]:
 def chain_raico_options(problem_file: Path) -> dict:
     """R-AICO's options on a problem file (a chain, a robot): the ones ``raico plan`` gives it (its robust
     schedule, alpha 1), every iteration run (``tol_rel = 0``)."""
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
     cfg = PlanConfig(problem=str(problem_file), iterations=ITERATIONS, bounds="none").normalized()
     return {**cfg.solver_options(), "tol_rel": 0.0}
@@ -431,7 +431,7 @@ def scaling_rows(dgemm: float | None = None) -> list[dict]:
     the R-AICO sweeps' flops against the dgemm rate (FDDP's time beside). A run that diverged or did not descend
     keeps its row, labelled (``ended``), and stays out of the exponents and the ratios; a size a solver could not
     take is said (here and in ``joint_skipped``)."""
-    from planning.solvers import SOLVERS
+    from raico.planning.solvers import SOLVERS
 
     solvers = [("R-AICO", "raico")]
     if "fddp" in SOLVERS:
@@ -600,7 +600,7 @@ def run(artifacts: Path | None = None, parts: tuple[str, ...] = PARTS, note: str
     rows.append({"benchmark": "dense dgemm, one BLAS thread (384 x 384)", "dgemm_gflops": dgemm})
     rows += (robot_rows(dgemm) if "robots" in parts else []) + (scaling_rows(dgemm) if "scaling" in parts else [])
     if artifacts is not None:
-        from pipeline.engine.atomic import write_file_atomic
+        from raico.pipeline.engine.atomic import write_file_atomic
 
         doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                "machine": f"{os.cpu_count()} cpus, 1-minute load {load0:.1f} at the start and "

@@ -4,11 +4,11 @@
 ``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the plan's controller and under MPC, its runs
 cached in ``DIR/bench/mpc``).
 
-The problems: ``problems/examples/xarm7_reach.toml`` and ``problems/crocoddyl/kinova_reach_in_range.toml``
+The problems: ``raico/problems/examples/xarm7_reach.toml`` and ``raico/problems/crocoddyl/kinova_reach_in_range.toml``
 (7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms, T = 100) with their hard bounds as the plan
 stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
 iteration) and the thesis's relinearization inside the sweep (``theta = 0.1``). The controller
-(``planning.mpc.MPC``): horizon H = 50 (0.5 s), one iteration per tick, each window warm-started from
+(``raico.planning.mpc.MPC``): horizon H = 50 (0.5 s), one iteration per tick, each window warm-started from
 the previous one shifted by a step; the first window solved beforehand (``prepare``, 50 iterations, not
 timed). The loop is closed on the planning model itself (no simulator in the timed path): every tick
 measures the state the previous control led to. Tick time: the wall time of ``MPC.tick``'s solve
@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PROBLEMS = {"xArm7 reach": "problems/examples/xarm7_reach.toml",
-            "Kinova reach (in range)": "problems/crocoddyl/kinova_reach_in_range.toml"}
+PROBLEMS = {"xArm7 reach": "raico/problems/examples/xarm7_reach.toml",
+            "Kinova reach (in range)": "raico/problems/crocoddyl/kinova_reach_in_range.toml"}
 HORIZON = 50
 TARGET_MEDIAN_S, TARGET_P99_S = 1e-3, 2e-3
 SOLVERS = (("R-AICO (alpha 1, one linearization per tick)", "raico", {"alpha": 1.0, "theta": math.inf}),
@@ -39,7 +39,7 @@ SOLVERS = (("R-AICO (alpha 1, one linearization per tick)", "raico", {"alpha": 1
 
 
 def _problem(path: str):
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     cfg = PlanConfig(problem=str(ROOT / path), dynamics="analytic", q0_std=0.0)
     return build_problem(cfg)[2]
@@ -47,8 +47,8 @@ def _problem(path: str):
 
 def run_one(problem, solver: str, options, ticks: int) -> dict:
     """One closed loop of ``ticks`` ticks: tick times (s), iterations, the last window cost, whether x stayed finite."""
-    from planning.mpc import MPC
-    from planning.problem import single_threaded_blas
+    from raico.planning.mpc import MPC
+    from raico.planning.problem import single_threaded_blas
 
     mpc = MPC(problem, HORIZON, solver, options, iterations=1, ticks=ticks)
     with single_threaded_blas():
@@ -73,9 +73,9 @@ def pushed_arm5(cache) -> dict:
     """arm5's reach (R-AICO, 30 iterations) executed in Drake pushed on the hand: the plan's controller and
     MPC (R-AICO, horizon 100, one iteration per 2 ms period); the final target's error (m) of each and the
     arrays the figure draws."""
-    from pipeline.engine.runner import run
-    from stages.execute.config import ExecuteConfig
-    from stages.plan.stage import PlanConfig
+    from raico.pipeline.engine.runner import run
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.plan.stage import PlanConfig
 
     plan = run(cache, "plan", PlanConfig(plant="arm5", task="reach", solver="raico", iterations=30), record=False)
     out: dict = {"plan": plan.path}
@@ -99,8 +99,8 @@ def figure(pushed: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.recordings.tasks import task_plots
-    from planning.objective import objective_from_description
+    from raico.pipeline.recordings.tasks import task_plots
+    from raico.planning.objective import objective_from_description
 
     desc = json.loads((Path(pushed["plan"]) / "problem.json").read_text())
     objective = objective_from_description(desc)
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--artifacts", default="artifacts")
     ap.add_argument("--ticks", type=int, default=100)
     args = ap.parse_args(argv)
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.engine.atomic import write_file_atomic
-from pipeline.engine.keys import package_versions
-from planning.solvers import solve
-from stages.plan.stage import PlanConfig, build_problem
+from raico.pipeline.engine.atomic import write_file_atomic
+from raico.pipeline.engine.keys import package_versions
+from raico.planning.solvers import solve
+from raico.stages.plan.stage import PlanConfig, build_problem
 
 
 def _problem(plant: str, task: str, dynamics: str):
@@ -41,7 +41,7 @@ def bench_solver_total(plant, task, dynamics, solver, options, reps) -> list[flo
 def bench_sweep_share(plant, task, dynamics, solver, options, reps) -> list[float]:
     """Wall time (s) of whole solver runs spent inside the sweeps (``Sweeps.sweep``: the compiled
     kernel and its Python driver), the rest being linearization, rollouts and costs in Python."""
-    from planning.aico.sweeps import Sweeps
+    from raico.planning.aico.sweeps import Sweeps
 
     times, inner = [], [0.0]
     original = Sweeps.sweep
@@ -91,9 +91,9 @@ def bench_nao_linearization(route: str, reps: int) -> list[float]:
     """The Nao's analytic dynamics linearized along a T = 300 trajectory (s): ``route`` "autodiff"
     is ``AnalyticDynamics`` (Drake's AutoDiffXd, per point; what "analytic" builds for the Nao),
     "tree" is ``TreeAnalyticDynamics`` (the tree kernels in C, checked against it)."""
-    from plants.dynamics import AnalyticDynamics
-    from plants.fast_analytic import TreeAnalyticDynamics
-    from plants.robots import shared_robot
+    from raico.plants.dynamics import AnalyticDynamics
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.robots import shared_robot
 
     robot = shared_robot("nao")
     model = (AnalyticDynamics if route == "autodiff" else TreeAnalyticDynamics)(robot, 0.01)
@@ -116,9 +116,9 @@ def bench_stabilizer_execution(reps: int) -> list[float]:
     Nao with the whole-body stabilizer from the standing start: the execute stage's whole computation (start
     projection, simulation with a program every control period, metrics), in a warm process (the first
     execution, which also imports and builds Drake's systems, is left out)."""
-    from stages.execute.config import ExecuteConfig
-    from stages.execute.stage import execute
-    from stages.plan.stage import PlanConfig, plan
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.execute.stage import execute
+    from raico.stages.plan.stage import PlanConfig, plan
 
     cfg = PlanConfig(plant="nao", task="balance-inside", dynamics="pseudo", solver="raico", alpha=1.0, iterations=25,
                      seed=1, q0_std=0.05).normalized()
@@ -208,7 +208,7 @@ CASES = [
      bench_exp_show, (7,)),
     ("building the runs table of a 1000-run experiment (rows from the entries, runs.csv, runs.json)", 5.0,
      bench_exp_table, (3,)),
-    ("raico exp run --dry-run of a thesis file (the slowest of thesis/experiments/)", 2.0, bench_thesis_dry_run, (3,)),
+    ("raico exp run --dry-run of a thesis file (the slowest of raico/thesis/experiments/)", 2.0, bench_thesis_dry_run, (3,)),
 ]
 
 
@@ -291,7 +291,7 @@ def bench_baseline(task: str = "reach") -> dict:
     """raico (R-AICO, iLQG) against crocoddyl FDDP on thesis fig3.2c (``task="reach"``): per-iteration
     time, time to reach R-AICO's 25-iteration cost (+10 %), and cost at R-AICO's 25-iteration wall time,
     with ratios. One run per solver (seed 0) in this process; iteration times are the solvers' own."""
-    from planning.solvers import SOLVERS
+    from raico.planning.solvers import SOLVERS
 
     if "fddp" not in SOLVERS:
         return {"skipped": "crocoddyl not installed (the extra raico[baseline]: make install)"}
@@ -356,9 +356,9 @@ def cached_reproduce_row(artifacts: Path, reps: int = 3, ids: list[str] | None =
     import subprocess
     import sys
 
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import Executor
-    from thesis.reproduce import ALL_IDS, reproduce
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import Executor
+    from raico.thesis.reproduce import ALL_IDS, reproduce
 
     ids = list(ids or ALL_IDS)
     args = ["--all"] if ids == list(ALL_IDS) else [a for fid in ids for a in ("--figure", fid)]
@@ -451,9 +451,9 @@ def main() -> None:
     # to crocoddyl_problems.json and .md)
     croc_problems = crocoddyl_problems(Path(args.artifacts), BENCH_PROBLEMS)
     from bench.suite import run as solver_suite
-    from pipeline.engine.runner import finite_json
+    from raico.pipeline.engine.runner import finite_json
 
-    # every solver on every problem of problems/suite, judged by performance profiles (suite.json, .md, .png)
+    # every solver on every problem of raico/problems/suite, judged by performance profiles (suite.json, .md, .png)
     suite_doc = solver_suite(Path(args.artifacts))
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)

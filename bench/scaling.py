@@ -41,12 +41,12 @@ ITERATIONS = 4
 
 def _problem(plant: str, task: str, dynamics: str, T: int):
     """The task's problem at horizon ``T`` (its via-point steps scaled with the horizon; seed 0)."""
-    from planning.objective import build_terms
-    from planning.problem import Problem
-    from planning.problem_file import read_problem, shipped, with_horizon
-    from planning.tasks import task_from_problem
-    from plants.dynamics_registry import make_dynamics
-    from stages.plan.stage import control_kind, initial_posture, shared_robot
+    from raico.planning.objective import build_terms
+    from raico.planning.problem import Problem
+    from raico.planning.problem_file import read_problem, shipped, with_horizon
+    from raico.planning.tasks import task_from_problem
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.stages.plan.stage import control_kind, initial_posture, shared_robot
 
     robot = shared_robot(plant)
     spec = task_from_problem(with_horizon(read_problem(shipped(plant, task)), T))
@@ -60,8 +60,8 @@ def _problem(plant: str, task: str, dynamics: str, T: int):
 def seconds_per_iteration(plant: str, task: str, dynamics: str, T: int, solver: str, reps: int = 2) -> float:
     """Median wall time (s) of one iteration of ``solver`` (``ITERATIONS`` iterations per run)."""
     from bench.model_files import records_after
-    from planning.solvers import solve
-    from stages.plan.stage import PlanConfig
+    from raico.planning.solvers import solve
+    from raico.stages.plan.stage import PlanConfig
 
     opts = PlanConfig(plant=plant, task=task, dynamics=dynamics, solver=solver, iterations=ITERATIONS).solver_options()
     per = []
@@ -79,8 +79,8 @@ def exponent(sizes, times) -> float:
 
 def _gp_times(N: int, rng: np.random.Generator, reps: int = 3) -> tuple[float, float]:
     """(lml + gradient, posterior with gradients at ``GP_M`` points) in s, one output, ``N`` points."""
-    from plants.gp import GPModel
-    from stages.fit.gp_fit import lml_and_gradient
+    from raico.plants.gp import GPModel
+    from raico.stages.fit.gp_fit import lml_and_gradient
 
     X = rng.normal(size=(N, GP_D))
     Y = np.sin(X[:, :5]).sum(1, keepdims=True) + 0.01 * rng.normal(size=(N, 1))
@@ -104,7 +104,7 @@ def run(out_dir: Path | None = None) -> list[dict]:
     """The three sweeps as result rows (and ``scaling.png`` in ``out_dir``)."""
     from threadpoolctl import threadpool_limits
 
-    from planning.crocoddyl import AVAILABLE
+    from raico.planning.crocoddyl import AVAILABLE
 
     rows, curves = [], {}
     with threadpool_limits(1):

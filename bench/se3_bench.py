@@ -1,5 +1,5 @@
 """The frame pose errors (``FramePlacementError``, ``FrameRotationError``) on the Kinova reach
-(``problems/crocoddyl/kinova_reach.toml``): their batch (the SO(3) / SE(3) logarithms evaluated for
+(``raico/problems/crocoddyl/kinova_reach.toml``): their batch (the SO(3) / SE(3) logarithms evaluated for
 all rows at once) against the same batch with the logarithms row by row, and a whole R-AICO
 iteration on that problem beside crocoddyl FDDP's.
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-PROBLEM = "problems/crocoddyl/kinova_reach.toml"
+PROBLEM = "raico/problems/crocoddyl/kinova_reach.toml"
 FRAME = "j2s6s200_end_effector"
 K = 101   # the problem's T + 1 steps
 
@@ -46,9 +46,9 @@ def _rows_one_by_one(tm, Qp: np.ndarray):
 
 
 def rows(reps: int = 30) -> list[tuple[str, float, list[float]]]:
-    from planning.solvers import SOLVERS, solve
-    from plants.taskmaps import FramePlacementError, FrameRotationError
-    from stages.plan.stage import PlanConfig, build_problem, robot_and_task
+    from raico.planning.solvers import SOLVERS, solve
+    from raico.plants.taskmaps import FramePlacementError, FrameRotationError
+    from raico.stages.plan.stage import PlanConfig, build_problem, robot_and_task
 
     cfg = PlanConfig(problem=PROBLEM, iterations=30).normalized()
     robot, _ = robot_and_task(cfg)

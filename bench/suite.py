@@ -1,6 +1,6 @@
 """The solver suite on ``make bench``'s page: ``python -m bench.suite [--artifacts DIR] [--jobs N]``.
 
-Runs ``problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`pipeline.experiments.suite`: every solver on
+Runs ``raico/problems/suite/suite.toml`` as ``raico bench suite`` does (:mod:`raico.pipeline.experiments.suite`: every solver on
 every problem, each an ordinary cached plan in ``DIR`` executed in Drake, one run at a time in this process for the
 cleanest times) and writes ``DIR/bench/suite.json``, ``suite.md`` (the page; its tables go into
 docs/benchmarks.md through ``scripts/readme_numbers.py``), ``suite_profiles.png`` and ``suite_iterations.png``.
@@ -14,10 +14,10 @@ from pathlib import Path
 
 
 def run(artifacts: Path, file: Path | None = None, jobs: int = 1) -> dict:
-    """The suite's document (see :func:`pipeline.experiments.suite.bench`)."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import make_executor
-    from pipeline.experiments import suite
+    """The suite's document (see :func:`raico.pipeline.experiments.suite.bench`)."""
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import make_executor
+    from raico.pipeline.experiments import suite
 
     s = suite.load(file)
 
@@ -37,7 +37,7 @@ def run(artifacts: Path, file: Path | None = None, jobs: int = 1) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--artifacts", default="artifacts")
-    ap.add_argument("--file", default=None, help="the suite's list file (default problems/suite/suite.toml)")
+    ap.add_argument("--file", default=None, help="the suite's list file (default raico/problems/suite/suite.toml)")
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args()
     run(Path(args.artifacts), args.file, args.jobs)

@@ -50,10 +50,10 @@ margin = 0.02
 
 
 def main(iterations: int = 20) -> None:
-    from plants.scene import SignedDistances
-    from stages.plan.stage import PlanConfig, plan
+    from raico.plants.scene import SignedDistances
+    from raico.stages.plan.stage import PlanConfig, plan
 
-    src = (ROOT / "problems" / "examples" / "xarm7_reach.toml").read_text()
+    src = (ROOT / "raico" / "problems" / "examples" / "xarm7_reach.toml").read_text()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "xarm7_scene.toml"
         path.write_text(src.replace("[costs.reach]", SCENE + "\n[costs.reach]", 1))

@@ -16,9 +16,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipeline.engine.cache import Cache
-from pipeline.experiments import compare, expfile, plots
-from pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable, robot_mask
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.experiments import compare, expfile, plots
+from raico.pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable, robot_mask
 
 ROOT = Path(__file__).resolve().parent.parent
 FILE = ROOT / "experiments" / "arm_alpha.toml"

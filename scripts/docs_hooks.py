@@ -24,11 +24,11 @@ from typing import Any
 
 # where the schema lives: the stage registry, the problem-file loader, the experiment-file loader, the CLI
 SCHEMA_MODULES = {
-    "registry": "stages.registry",
-    "problem_file": "planning.problem_file",
-    "term_kinds": "planning.term_kinds",
-    "expfile": "pipeline.experiments.expfile",
-    "cli": "pipeline.interface.cli.common",
+    "registry": "raico.stages.registry",
+    "problem_file": "raico.planning.problem_file",
+    "term_kinds": "raico.planning.term_kinds",
+    "expfile": "raico.pipeline.experiments.expfile",
+    "cli": "raico.pipeline.interface.cli.common",
 }
 
 MARKER = re.compile(r"^<!-- schema: ([\w-]+)(?: ([\w-]+))? -->$", re.M)

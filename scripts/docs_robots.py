@@ -30,11 +30,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from test_model_file import ARMS, COM_SHIFT, HUMANOIDS, LIMITS, REACH, problem_text
 
-    from pipeline.interface import api
-    from pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable
-    from planning.problem_terms import resolve_frame
-    from plants.model_file import RobotSpec, example_robot_data, load_model
-    from plants.taskmaps import FramePoints
+    from raico.pipeline.interface import api
+    from raico.pipeline.recordings.screenshots import read_png, render_screenshot, renderer_unavailable
+    from raico.planning.problem_terms import resolve_frame
+    from raico.plants.model_file import RobotSpec, example_robot_data, load_model
+    from raico.plants.taskmaps import FramePoints
 
     why = renderer_unavailable() or (None if example_robot_data() else "example-robot-data is not installed")
     if why:

@@ -13,9 +13,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pipeline.interface import api
-from pipeline.recordings.screenshots import render_screenshot, renderer_unavailable
-from plants.robots import PLANTS
+from raico.pipeline.interface import api
+from raico.pipeline.recordings.screenshots import render_screenshot, renderer_unavailable
+from raico.plants.robots import PLANTS
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""Write the project's own URDF model files into plants/models/ (run once; outputs are committed).
+"""Write the project's own URDF model files into raico/plants/models/ (run once; outputs are committed).
 
     python scripts/make_models.py [--nao-json ../shared/reference/nao_h25.json]
 
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-OUT = Path(__file__).resolve().parents[1] / "plants" / "models"
+OUT = Path(__file__).resolve().parents[1] / "raico" / "plants" / "models"
 
 
 def _f(v) -> str:
@@ -216,7 +216,7 @@ def nao(facts: dict) -> str:
     """Nao H25 from the reference facts: links, inertias, joints, limits; primitive visuals.
 
     RHipYawPitch is kept as its own revolute joint (no <mimic>): the planner couples it to
-    LHipYawPitch (plants/models/nao.toml couples them: 25 planning joints drive 26 tree joints).
+    LHipYawPitch (raico/plants/models/nao.toml couples them: 25 planning joints drive 26 tree joints).
     """
     links = {l["name"]: l for l in facts["links"]}
     joints = facts["joints"]

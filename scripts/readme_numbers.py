@@ -25,7 +25,7 @@ import json
 import re
 from pathlib import Path
 
-from thesis.reproduce import CALL, call_line
+from raico.thesis.reproduce import CALL, call_line
 
 
 def section(text: str, start: str) -> str:
@@ -78,7 +78,7 @@ def headline_block(report: Path) -> str:
 
 def exp_block(table_dir: Path) -> str:
     """The example experiment's grouped table (``raico exp show arm-alpha --format md``)."""
-    from pipeline.experiments import expfile
+    from raico.pipeline.experiments import expfile
 
     doc = json.loads((table_dir / "runs.json").read_text())
     import pandas as pd

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)
+import raico.plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -24,7 +24,7 @@ def raico():
     argument turned to text; returns click's ``Result`` (``exit_code``, ``stdout``, ``stderr``)."""
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     runner = CliRunner()
 
@@ -36,9 +36,9 @@ def raico():
 
 @pytest.fixture(scope="session")
 def crocoddyl_baseline():
-    """The crocoddyl adapter (:mod:`planning.crocoddyl`), or the test skipped with the reason it is not
+    """The crocoddyl adapter (:mod:`raico.planning.crocoddyl`), or the test skipped with the reason it is not
     installed."""
-    from planning import crocoddyl as cm
+    from raico.planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")

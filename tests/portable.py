@@ -7,7 +7,7 @@ Each variant runs the marked tests in a fresh Python with one setting changed:
   (AVX2, AVX-512, SSE3: other blockings, other orders of the sums); the compiled kernels are the host's;
 - ``RAICO_ISA`` = x86-64-v2, x86-64-v3: the compiled kernels (the sweeps, the task messages, the plants'
   generated C) are built for that instruction-set level (no AVX; AVX2 and FMA without AVX-512) into
-  their own files of the kernel cache (:mod:`plants.codegen.c_backend`); OpenBLAS picks its own kernels.
+  their own files of the kernel cache (:mod:`raico.plants.codegen.c_backend`); OpenBLAS picks its own kernels.
 
 Each variant prints its name and the OpenBLAS kernel ``threadpoolctl`` reports in it (OpenBLAS falls back
 to another kernel where the CPU lacks the one asked for: the line says which ran), then pytest's result
@@ -43,7 +43,7 @@ MARK = "numerics and not slow"
 # Prescott kernels are its generic SSE3 ones, named Katmai)
 KERNEL_NAMES = {"prescott": {"prescott", "katmai"}}
 PROBE = ("import numpy, threadpoolctl\n"
-         "from plants.codegen import c_backend\n"
+         "from raico.plants.codegen import c_backend\n"
          "blas = [i.get('architecture') or '?' for i in threadpoolctl.threadpool_info() if i.get('internal_api') == 'openblas']\n"
          "print(','.join(blas) or 'no OpenBLAS')\n"
          "print(c_backend.isa_level())\n")

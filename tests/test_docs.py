@@ -13,8 +13,8 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from pipeline.interface.cli.common import DOCS_PAGES
+from raico.pipeline.interface.cli import app
+from raico.pipeline.interface.cli.common import DOCS_PAGES
 from scripts import docs_hooks, readme_numbers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,7 +83,7 @@ def test_help_ends_with_the_page(args):
 
 
 def test_the_options_table_lists_every_field_of_the_stage_config():
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
     table = docs_hooks.options_table("plan")
     flags = re.findall(r"^\| `(--[\w-]+)` \|", table, re.M)
@@ -92,8 +92,8 @@ def test_the_options_table_lists_every_field_of_the_stage_config():
 
 
 def test_the_problem_file_table_lists_every_key_set_of_the_loader():
-    from planning import problem_file as pf
-    from planning.term_kinds import COST_KINDS
+    from raico.planning import problem_file as pf
+    from raico.planning.term_kinds import COST_KINDS
 
     table = docs_hooks.problem_file_table()
     for kind in COST_KINDS:
@@ -198,7 +198,7 @@ def test_every_test_file_the_docs_name_exists():
 
 
 def test_every_import_in_the_docs_python_blocks_resolves():
-    """``from pipeline.interface import api`` as the pages write it: each import line of a ```python block names
+    """``from raico.pipeline.interface import api`` as the pages write it: each import line of a ```python block names
     a module, and each name it takes from one is in it (an attribute or a submodule)."""
     import importlib
     import importlib.util

@@ -57,4 +57,4 @@ def test_a_long_docstring_is_found(tmp_path, monkeypatch):
     here = sys.modules[__name__]
     monkeypatch.setattr(here, "REPO", tmp_path)
     monkeypatch.setattr(here, "PACKAGES", ("plants",))
-    assert long_docstrings() == [("plants/__init__.py", "<module>", MAX_LINES + 1)]
+    assert long_docstrings() == [("raico/plants/__init__.py", "<module>", MAX_LINES + 1)]

@@ -45,6 +45,6 @@ def test_pinned_versions_are_installed():
 
 
 def test_the_baseline_imports():
-    from planning.crocoddyl import AVAILABLE, UNAVAILABLE_REASON
+    from raico.planning.crocoddyl import AVAILABLE, UNAVAILABLE_REASON
 
     assert AVAILABLE, UNAVAILABLE_REASON

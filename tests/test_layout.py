@@ -9,11 +9,11 @@ still ties the modules together; only ``if TYPE_CHECKING:`` blocks are left out)
   and none of the tool's layers the thesis (its figures, claims, report and ``raico reproduce``, which
   it registers through an entry point);
 - no stage's code version reads a file of the thesis (editing a claim keeps every cached run);
-- inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``pipeline.errors``
-  and ``pipeline.lifecycle`` the base of all);
-- no solver imports another (``planning.aico``, ``planning.ilqg``, ``planning.crocoddyl``);
+- inside ``pipeline`` the floors ``interface -> experiments -> engine -> recordings`` (``raico.pipeline.errors``
+  and ``raico.pipeline.lifecycle`` the base of all);
+- no solver imports another (``raico.planning.aico``, ``raico.planning.ilqg``, ``raico.planning.crocoddyl``);
 - no import cycle between modules;
-- no import cycle between packages (``stages.plan``, ``stages.evaluate``, ``plants.codegen``, ...)
+- no import cycle between packages (``raico.stages.plan``, ``raico.stages.evaluate``, ``raico.plants.codegen``, ...)
   beyond :data:`KNOWN_PACKAGE_LOOPS` (none since the planner moved to ``planning``);
   a loop that is gone must leave the list.
 
@@ -33,15 +33,15 @@ PACKAGES = ("plants", "planning", "stages", "pipeline", "thesis")
 FLOORS = {"plants": {"planning", "stages", "pipeline", "thesis"}, "planning": {"stages", "pipeline", "thesis"},
           "stages": {"pipeline", "thesis"}, "pipeline": {"thesis"}}
 # inside ``pipeline``: sub-package -> the sub-packages it must not import (interface -> experiments -> engine
-# -> recordings; ``pipeline.errors`` and ``pipeline.lifecycle`` are the shared base below them all)
-_PIPELINE_SUBS = {"pipeline.recordings", "pipeline.engine", "pipeline.experiments", "pipeline.interface"}
-PIPELINE_FLOORS = {"pipeline.recordings": {"pipeline.engine", "pipeline.experiments", "pipeline.interface"},
-                   "pipeline.engine": {"pipeline.experiments", "pipeline.interface"},
-                   "pipeline.experiments": {"pipeline.interface"},
-                   "pipeline.errors": _PIPELINE_SUBS | {"pipeline.lifecycle"}, "pipeline.lifecycle": _PIPELINE_SUBS}
+# -> recordings; ``raico.pipeline.errors`` and ``raico.pipeline.lifecycle`` are the shared base below them all)
+_PIPELINE_SUBS = {"raico.pipeline.recordings", "raico.pipeline.engine", "raico.pipeline.experiments", "raico.pipeline.interface"}
+PIPELINE_FLOORS = {"raico.pipeline.recordings": {"raico.pipeline.engine", "raico.pipeline.experiments", "raico.pipeline.interface"},
+                   "raico.pipeline.engine": {"raico.pipeline.experiments", "raico.pipeline.interface"},
+                   "raico.pipeline.experiments": {"raico.pipeline.interface"},
+                   "raico.pipeline.errors": _PIPELINE_SUBS | {"raico.pipeline.lifecycle"}, "raico.pipeline.lifecycle": _PIPELINE_SUBS}
 # Package-level loops allowed, each as the sorted packages of one strongly connected set (none left).
 KNOWN_PACKAGE_LOOPS: set[tuple[str, ...]] = set()
-SOLVERS = ("planning.aico", "planning.ilqg", "planning.crocoddyl")
+SOLVERS = ("raico.planning.aico", "raico.planning.ilqg", "raico.planning.crocoddyl")
 
 
 def _modules() -> dict[str, Path]:
@@ -143,9 +143,9 @@ def strongly_connected(graph: dict[str, set[str]]) -> list[set[str]]:
 
 
 def _package(mod: str, mods: dict[str, Path]) -> str:
-    """The unit of the package-level graph a module belongs to: its subpackage (``stages.plan``,
-    ``plants.codegen``; a package's ``__init__`` is the package itself), or, for a module directly
-    in a top-level package (``stages.base``, ``stages.execute``), the module itself: the top-level
+    """The unit of the package-level graph a module belongs to: its subpackage (``raico.stages.plan``,
+    ``raico.plants.codegen``; a package's ``__init__`` is the package itself), or, for a module directly
+    in a top-level package (``raico.stages.base``, ``raico.stages.execute``), the module itself: the top-level
     packages hold the floors' shared bases beside their users, which is no loop."""
     pkg = mod if mods[mod].name == "__init__.py" else mod.rsplit(".", 1)[0]
     return mod if pkg in PACKAGES else pkg
@@ -197,12 +197,12 @@ def test_pipeline_floors(lower):
 
 def test_no_stage_code_version_reads_the_thesis():
     """A stage's code version hashes its ``sources``: none of them lies in the thesis, so editing a claim
-    (thesis/claims.py) leaves every cached run, the evaluate stage's too, valid."""
+    (raico/thesis/claims.py) leaves every cached run, the evaluate stage's too, valid."""
     import importlib
 
-    from stages.registry import get_stage, stage_names
+    from raico.stages.registry import get_stage, stage_names
 
-    thesis = REPO / "thesis"
+    thesis = REPO / "raico" / "thesis"
     for name in stage_names():
         for src in get_stage(name).sources:
             if src.startswith("files:"):
@@ -210,7 +210,7 @@ def test_no_stage_code_version_reads_the_thesis():
                 continue
             path = Path(importlib.import_module(src).__file__).resolve()
             assert thesis not in path.parents, f"stage {name} hashes {src} ({path})"
-    assert "thesis.claims" not in {s for n in stage_names() for s in get_stage(n).sources}
+    assert "raico.thesis.claims" not in {s for n in stage_names() for s in get_stage(n).sources}
 
 
 def test_no_module_import_cycle():
@@ -246,11 +246,11 @@ def test_no_solver_imports_another():
 
 def test_the_walk_sees_the_known_edges():
     """The walk itself: edges this layout is known to have (so an empty graph cannot pass)."""
-    assert "plants.codegen.c_backend" in GRAPH["planning.kernels"]
-    assert "planning.kernels" in GRAPH["planning.aico.sweeps"]       # a lazy or module-level import
-    assert "pipeline.engine.cache" in GRAPH["pipeline.interface.cli.common"]
-    assert "thesis.claims" in GRAPH["thesis.report"] and "pipeline.engine.cache" in GRAPH["thesis.report"]
-    assert "thesis.cli" in GRAPH and not any(t.startswith("thesis") for t in GRAPH["pipeline.interface.cli"])
+    assert "raico.plants.codegen.c_backend" in GRAPH["raico.planning.kernels"]
+    assert "raico.planning.kernels" in GRAPH["raico.planning.aico.sweeps"]       # a lazy or module-level import
+    assert "raico.pipeline.engine.cache" in GRAPH["raico.pipeline.interface.cli.common"]
+    assert "raico.thesis.claims" in GRAPH["raico.thesis.report"] and "raico.pipeline.engine.cache" in GRAPH["raico.thesis.report"]
+    assert "raico.thesis.cli" in GRAPH and not any(t.startswith("thesis") for t in GRAPH["raico.pipeline.interface.cli"])
     assert len(GRAPH) > 50
 
 
@@ -266,14 +266,14 @@ def test_c_lives_in_c_files_shipped_as_package_data():
 
     root = Path(__file__).resolve().parents[1]
     offenders = []
-    for py in [*root.glob("plants/**/*.py"), *root.glob("planning/**/*.py"), *root.glob("stages/**/*.py")]:
+    for py in [*root.glob("raico/plants/**/*.py"), *root.glob("raico/planning/**/*.py"), *root.glob("raico/stages/**/*.py")]:
         for node in ast.walk(ast.parse(py.read_text())):
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.count("\n") > 10 and (
                     "#include" in node.value or C_FUNCTION.search(node.value)):
                 offenders.append(f"{py.relative_to(root)}:{node.lineno}")
     assert not offenders, f"C source inside Python strings: {offenders}"
     data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    c_files = [*root.glob("plants/**/*.c"), *root.glob("planning/**/*.c"), *root.glob("stages/**/*.c")]
+    c_files = [*root.glob("raico/plants/**/*.c"), *root.glob("raico/planning/**/*.c"), *root.glob("raico/stages/**/*.c")]
     assert len(c_files) >= 4
     for c in c_files:
         pkg, rel = c.relative_to(root).parts[0], "/".join(c.relative_to(root).parts[1:])
@@ -305,7 +305,7 @@ def _plant_name_tests(tree: ast.AST) -> list[int]:
 
 def test_no_plant_name_decides_outside_plants_and_the_thesis():
     """What a built-in plant's name decided is a fact of its Robot (floating or welded, soles, hands,
-    execution, learning defaults) read from ``plants/models/NAME.toml``: the tool's layers above
+    execution, learning defaults) read from ``raico/plants/models/NAME.toml``: the tool's layers above
     ``plants`` never test a plant's name."""
     found = []
     for package in ("planning", "stages", "pipeline"):

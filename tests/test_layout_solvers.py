@@ -1,6 +1,6 @@
 """No solver's name decides anything in ``stages`` or ``pipeline``: what a solver can do (its starts,
 warm starts, bounds, sweeps, schedules, MPC warm start, options and their flags) is declared by its
-``planning.solvers.SolverSpec``, and the tool's layers ask the spec. Read with ``ast``, as
+``raico.planning.solvers.SolverSpec``, and the tool's layers ask the spec. Read with ``ast``, as
 ``tests/test_layout.py`` reads the plant names."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from planning.solvers import CROCODDYL_SOLVERS, SOLVERS
+from raico.planning.solvers import CROCODDYL_SOLVERS, SOLVERS
 
 REPO = Path(__file__).resolve().parents[1]
 SOLVER_NAMES = frozenset((*SOLVERS, *CROCODDYL_SOLVERS))   # crocoddyl's too where it is not installed

@@ -1,15 +1,15 @@
 """The thesis's experiments as they were defined in Python before they became the files under
-thesis/experiments/ (a frozen copy of thesis/figures.py's definitions, plan and learn configs and
+raico/thesis/experiments/ (a frozen copy of raico/thesis/figures.py's definitions, plan and learn configs and
 the figure flow of that time), kept only to prove that the files give every run the same cache key
 (tests/thesis/test_thesis_files.py). Nothing else reads it."""
 
 # ruff: noqa: E501
 from __future__ import annotations
 
-from pipeline.engine.cache import Cache
-from pipeline.engine.executors import Batch
-from pipeline.experiments import expfile
-from thesis.figures import (
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.engine.executors import Batch
+from raico.pipeline.experiments import expfile
+from raico.thesis.figures import (
     STABILIZER,
     Experiment,
     LearnExperiment,
@@ -22,7 +22,7 @@ from thesis.figures import (
 
 
 def _baseline_available() -> bool:
-    from planning.crocoddyl import AVAILABLE
+    from raico.planning.crocoddyl import AVAILABLE
 
     return AVAILABLE
 
@@ -41,7 +41,7 @@ FDDP_ABLATION = tuple(Variant(s, iterations=FDDP_ITERATIONS, quick_iterations=FD
 ADAPTIVE = Variant("raico", 1.0, iterations=FDDP_ITERATIONS, quick_iterations=FDDP_QUICK_ITERATIONS,
                    schedule="adaptive")
 ADAPTIVE_CLAIMS = ("adaptive_reaches_fddp",) if FDDP_VARIANTS else ()
-# The reference optimum of a figure (thesis.claims.reference_cost): the lowest median final cost
+# The reference optimum of a figure (raico.thesis.claims.reference_cost): the lowest median final cost
 # any solver reaches on the figure's initial states, including long-budget runs, cached as ordinary plan runs (their
 # keys are the problem's: a changed task, plant, start or cost gives a new run). The adaptive R-AICO at FDDP's
 # budget runs on every problem raico has; crocoddyl FDDP (100 iterations) joins it on the analytic arm.
@@ -144,7 +144,7 @@ EXPERIMENTS: dict[str, Experiment] = {
 
 
 def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
     return PlanConfig(plant=exp.plant, task=v.task or exp.task, dynamics=v.dynamics or exp.dynamics, solver=v.solver,
                       alpha=v.alpha, gamma=v.gamma, start=v.start, x0_nudge=v.nudge,
@@ -157,11 +157,11 @@ def plan_config(exp: Experiment, v: Variant, seed: int, quick: bool):
 
 
 def experiment_flow(cache: Cache, exp: Experiment, quick: bool = False, record: bool = True):
-    """The runs of ``exp`` as a scheduler flow (``pipeline.engine.executors``): its plans, then the runs
+    """The runs of ``exp`` as a scheduler flow (``raico.pipeline.engine.executors``): its plans, then the runs
     that depend on them (the executions of the chosen variants, the noise sweep, and the open-loop
     integrations of the integrator comparison's plans). Returns ``{"plans", "executions", "noise",
     "integrators"}`` (``integrators``: the comparison's plans, each with its ``integration``)."""
-    from stages.execute.config import ExecuteConfig
+    from raico.stages.execute.config import ExecuteConfig
 
     integ = exp.integrator_variants(quick)
     runs = [(v, s, plan_config(exp, v, s, quick)) for v in (*exp.variants, *integ)
@@ -209,7 +209,7 @@ def noise_runs(exp: Experiment, plans: list[dict], quick: bool) -> list[dict]:
     PD's (the figures of ``NOISE_SWEEPS``): the swept variant's plans of the first ``NOISE_RUNS`` initial states at
     every level; the stabilizer's (a ``stabilized`` figure): every executed plan at every level (level 0 is
     the figure's own execution with the stabilizer)."""
-    from stages.execute.config import ExecuteConfig
+    from raico.stages.execute.config import ExecuteConfig
 
     out = []
 
@@ -295,7 +295,7 @@ LEARN_EXPERIMENTS: dict[str, LearnExperiment] = {
 
 
 def learn_config(exp: LearnExperiment, s: LearnSetting, seed: int, quick: bool):
-    from stages.learn import LearnConfig
+    from raico.stages.learn import LearnConfig
 
     return LearnConfig(plant=exp.plant, task=exp.task, **{**dict(exp.base), **dict(s.overrides)}, seed=seed,
                        episodes=exp.quick_episodes if quick else exp.episodes)

@@ -1,4 +1,4 @@
-"""One step of the compiled sweep (``planning/csweep.c`` on ``planning/dense.c``) as scalar Python loops on counted
+"""One step of the compiled sweep (``raico/planning/csweep.c`` on ``raico/planning/dense.c``) as scalar Python loops on counted
 numbers: the kernels' loops with their index ranges (the triangles they skip, the products they take from the
 block form), one scalar at a time instead of in register tiles, each ``+ - * / sqrt`` counted where it happens.
 

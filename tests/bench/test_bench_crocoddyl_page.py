@@ -18,7 +18,7 @@ def _result():
             _row("AICO", None, 0.3, 0.3, None, status="diverged"),
             _row("FDDP (x0 held)", 3.698, 0.15, 0.002, 0.05, croc=3.698),
             _row("crocoddyl's example (FDDP, cos/sin joints)", 8.179, 0.27, 0.0037, None, croc=8.125)]
-    return {"problem": "kinova", "file": "problems/crocoddyl/kinova_reach.toml", "example": "its log",
+    return {"problem": "kinova", "file": "raico/problems/crocoddyl/kinova_reach.toml", "example": "its log",
             "reference_cost": 8.125, "rows": rows}
 
 

@@ -127,7 +127,7 @@ def test_the_backward_sweep_alone_is_timed_on_its_own_flops(tmp_path):
     """The sweeps' own rate: T backward messages of the chain (block form), counted by the formulas."""
     from bench import model_files as mf
     from bench.flops import backward_sweep_rate
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     _, _, problem, _, _ = build_problem(PlanConfig(problem=str(mf.chain_problem(3, tmp_path)), bounds="none").normalized())
     r = backward_sweep_rate(problem, reps=2)

@@ -131,11 +131,11 @@ def test_the_common_cost_is_the_better_final_cost_plus_one_percent_and_each_solv
 
 
 def test_a_robot_a_solver_fails_on_keeps_its_row_with_the_reason(monkeypatch, capsys):
-    from plants.model_file import example_robot_data
+    from raico.plants.model_file import example_robot_data
 
     if example_robot_data() is None:
         pytest.skip("example-robot-data is not installed: no robot rows")
-    monkeypatch.setattr(model_files, "ROBOTS", (("UR5 reach", "problems/examples/ur5_reach.toml"),))
+    monkeypatch.setattr(model_files, "ROBOTS", (("UR5 reach", "raico/problems/examples/ur5_reach.toml"),))
     _each(monkeypatch, lambda f, solver, options, reps=3: (None, f"ValueError: {solver} refused"))
     rows = model_files.robot_rows()
     assert rows == [{"benchmark": "UR5 reach: one R-AICO iteration", "status": "failed", "ended": "failed",
@@ -147,13 +147,13 @@ def test_fddp_is_timed_with_its_records_made_after_its_solve_and_its_setup_apart
     """The bench's FDDP solve: records made after crocoddyl's solve (the same costs and iterates as the live
     recorder's, the infeasible first iterate's feedback rollout included: the 4-joint chain's first step leaves
     gaps), its setup (the model built) measured apart."""
-    from planning.solvers import SOLVERS, solve
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.planning.solvers import SOLVERS, solve
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     if "fddp" not in SOLVERS:
         pytest.skip("crocoddyl is not installed")
-    from planning.crocoddyl import fddp
-    from planning.crocoddyl import solve as croc_solve
+    from raico.planning.crocoddyl import fddp
+    from raico.planning.crocoddyl import solve as croc_solve
 
     f = model_files.chain_problem(4, tmp_path)
     _, _, problem, _, _ = build_problem(PlanConfig(problem=str(f), bounds="none").normalized())
@@ -184,7 +184,7 @@ def test_the_chain_hangs_in_a_stable_posture_and_r_aico_runs_as_raico_plan_does(
     """At every size the page times: the start, held by the torques that hold it, is a stable equilibrium of the
     planning model at dt (the step's spectral radius 1 to rounding: no mode grows), which the upright chain with
     twist joints was not; R-AICO gets the options ``raico plan`` gives a problem file."""
-    from stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
+    from raico.stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
 
     f = model_files.chain_problem(n, tmp_path)
     _, _, problem, q0, _ = build_problem(PlanConfig(problem=str(f), bounds="none").normalized())
@@ -205,7 +205,7 @@ def test_both_solvers_lower_the_cost_of_the_chain(tmp_path, n):
     """At every size the page times, the timed runs are of a problem both solvers solve: their iterations (the
     bench's 4) end below the start's cost, neither diverged nor stalled (the upright chain this bench wrote before
     ended FDDP's at 1e201 at 8 joints). How far each gets is the page's common cost, not asserted here."""
-    from planning.solvers import SOLVERS
+    from raico.planning.solvers import SOLVERS
 
     f = model_files.chain_problem(n, tmp_path)
     solvers = [("raico", model_files.chain_raico_options(f))]

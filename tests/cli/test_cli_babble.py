@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.engine.cache import Cache
-from pipeline.interface.cli import app
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.interface.cli import app
 from tests.tolerance import assert_close, close
 
 
@@ -23,7 +23,7 @@ def test_help_lists_the_stages(raico):
     commands = res.output.split("Commands:")[1].split("\n\n")[0]   # the section, not the docs line after it
     listed = [ln.split()[0] for ln in commands.splitlines() if ln.startswith("  ")]
     assert {"babble", "plan", "execute", "evaluate", "reproduce", "ls", "show"} <= set(listed)
-    from stages.registry import stage_names
+    from raico.stages.registry import stage_names
 
     assert sorted(listed) == sorted([*stage_names(), *(c.name or c.callback.__name__ for c in app.registered_commands),
                                      *(g.name for g in app.registered_groups)])
@@ -92,8 +92,8 @@ def test_babble_data_are_consistent_with_the_plant(raico, tmp_path):
 def test_babble_torques_follow_the_saturated_pd_law():
     """The Drake-native controller (TrajectorySource -> PidController -> Saturation) applies
     ``clip(kp (q_des - q) + kd (qdot_des - qdot), -u_max, u_max)`` at every sample, on a multi-joint arm."""
-    from plants.robots import load_robot
-    from stages.babble import BabbleConfig, babble, desired_trajectory
+    from raico.plants.robots import load_robot
+    from raico.stages.babble import BabbleConfig, babble, desired_trajectory
 
     cfg = BabbleConfig(plant="biorob", episodes=1, duration=2.0, dt=0.01, knots=8, substeps=10, amplitude=1.0)
     d = babble(cfg)
@@ -157,7 +157,7 @@ def test_sigkill_halfway_leaves_nothing_valid_and_next_run_completes(raico, tmp_
 def test_babble_recording_has_a_world_transform_for_every_body(raico, tmp_path, plant):
     from rerun.chunk import RrdReader
 
-    from plants.robots import shared_robot
+    from raico.plants.robots import shared_robot
 
     res = raico("babble", "--plant", plant, "--episodes", 1, "--duration", 0.1, "--json", "--artifacts", tmp_path)
     assert res.exit_code == 0, res.output
@@ -167,7 +167,7 @@ def test_babble_recording_has_a_world_transform_for_every_body(raico, tmp_path, 
     robot = shared_robot(plant)
     from pydrake.multibody.tree import BodyIndex
 
-    from pipeline.recordings.rerun_io import entity_name
+    from raico.pipeline.recordings.rerun_io import entity_name
 
     bodies = [entity_name(robot.plant.get_body(BodyIndex(i)).name()) for i in range(1, robot.plant.num_bodies())]
     assert len(bodies) == robot.plant.num_bodies() - 1 >= {"pendulum": 2, "arm5": 5, "biorob": 5, "nao": 31}[plant]

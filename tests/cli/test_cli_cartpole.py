@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
+from raico.pipeline.interface.cli import app
 
 runner = CliRunner()
 

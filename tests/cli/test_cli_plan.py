@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from planning.tasks import PENDULUM_T
+from raico.pipeline.interface.cli import app
+from raico.planning.tasks import PENDULUM_T
 
 runner = CliRunner()
 
@@ -28,11 +28,11 @@ def ee_positions(robot, Q):
 
 @pytest.mark.numerics
 def test_plan_and_execute_arm5_pseudo(tmp_path):
-    from planning.aico import AICOOptions
-    from planning.objective import objective_from_description
-    from planning.problem import Problem
-    from plants.dynamics import PseudoDynamics
-    from plants.robots import shared_robot
+    from raico.planning.aico import AICOOptions
+    from raico.planning.objective import objective_from_description
+    from raico.planning.problem import Problem
+    from raico.plants.dynamics import PseudoDynamics
+    from raico.plants.robots import shared_robot
 
     line = run_json("plan", "--plant", "arm5", "--task", "reach", "--solver", "raico", "--alpha", 1,
                     "--iterations", 8, "--json", "--artifacts", tmp_path)
@@ -108,7 +108,7 @@ def test_plan_recording_has_costs_robot_and_task(tmp_path):
 
     assert rows("/cost/total", "iteration") == line["metrics"]["iterations"]
     # the T + 1 planned states of the swing-up, the robot's poses decimated (T + 1 times its bodies exceed the budget)
-    from pipeline.recordings.rerun_io import MAX_POSES, POSE_BUDGET, decimate
+    from raico.pipeline.recordings.rerun_io import MAX_POSES, POSE_BUDGET, decimate
 
     assert (PENDULUM_T + 1) * 3 > POSE_BUDGET
     assert rows("/world/robot/rod", "sim_time") == len(decimate(PENDULUM_T + 1, MAX_POSES, [PENDULUM_T]))
@@ -135,9 +135,9 @@ SOLVER_NAMES = ["aico", "raico", "ilqg", "fddp-rollout"]
 def test_every_solver_stores_its_iterates(solver):
     """``X_iterations``: the initial rollout (zero torques, the analytic pendulum falls a little from
     its noisy q0), then each iteration's trajectory as the solver reported it, the last the plan."""
-    from planning.solvers import SOLVERS
-    from plants.dynamics import rollout
-    from stages.plan.stage import PlanConfig, plan
+    from raico.planning.solvers import SOLVERS
+    from raico.plants.dynamics import rollout
+    from raico.stages.plan.stage import PlanConfig, plan
 
     if solver not in SOLVERS:
         pytest.skip("crocoddyl not installed")
@@ -171,7 +171,7 @@ def test_nao_balance_plan_and_execute_reports_cog(tmp_path):
     assert em["cog_inside_fraction"] == pytest.approx(np.mean(r["cog_margin"] > 0))
     assert em["cog_min_margin"] == pytest.approx(np.nanmin(r["cog_margin"]))
     # the right sole's drift: its world position at the end against the start
-    from plants.robots import shared_robot
+    from raico.plants.robots import shared_robot
 
     nao = shared_robot("nao")
     ctx = nao.plant.CreateDefaultContext()
@@ -264,8 +264,8 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     assert img.shape[0] >= 0.95 * 5.2 * 110 and img.shape[1] >= 0.95 * 5.6 * 110 and img[..., :3].std() > 0.05
     claims = json.loads((out / "claims.json").read_text())
     # the table is the claim functions applied to the runs' own metrics
-    from stages.evaluate.summary import summarize
-    from thesis.claims import evaluate_claims
+    from raico.stages.evaluate.summary import summarize
+    from raico.thesis.claims import evaluate_claims
 
     runs = {}
     for r in claims["runs"]:
@@ -274,18 +274,18 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
         metrics = {**meta["metrics"], "cost_history": [float(c) if np.isfinite(c) else None for c in costs]}
         runs.setdefault(r["variant"], []).append({"status": meta["status"], "metrics": metrics})
     S = {label: summarize(label, rs) for label, rs in runs.items()}
-    from thesis.figures import EXPERIMENTS as EXPERIMENTS_
+    from raico.thesis.figures import EXPERIMENTS as EXPERIMENTS_
 
     names = tuple(c for c in EXPERIMENTS_["fig3.2a"].claims if c != "integrators_agree")  # not in --quick
     assert claims["claims"] == evaluate_claims(names, S, [], "fig3.2a")
     # the thesis's solvers' runs are recorded, the long-budget reference's on demand (`raico show KEY --open`)
-    from thesis.figures import EXPERIMENTS
+    from raico.thesis.figures import EXPERIMENTS
 
     recorded = {v.label for v in EXPERIMENTS["fig3.2a"].variants if v.recorded}
     assert recorded == {"iLQG", "AICO", "R-AICO a=1", "R-AICO a=10"}
     assert all(Path(r["recording"]).is_file() == r["recorded"] == (r["variant"] in recorded) for r in claims["runs"])
     # beyond the first RECORDED_SEEDS initial states only on demand (--quick runs 2: all recorded)
-    from thesis.figures import RECORDED_SEEDS, Variant
+    from raico.thesis.figures import RECORDED_SEEDS, Variant
 
     assert [Variant("raico", 1.0).records(s) for s in range(RECORDED_SEEDS + 1)] == [True] * RECORDED_SEEDS + [False]
     assert not any(Variant("raico", 1.0, schedule="adaptive").records(s) for s in range(RECORDED_SEEDS))
@@ -294,7 +294,7 @@ def test_reproduce_quick_figure_writes_png_claims_and_is_cached(tmp_path):
     again = runner.invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "1", "--json",
                                 "--artifacts", str(tmp_path)])
     doc2 = json.loads(again.stdout.strip().splitlines()[-1])
-    from thesis.figures import EXPERIMENTS
+    from raico.thesis.figures import EXPERIMENTS
 
     assert doc2["cached_runs"] == doc2["runs"] == EXPERIMENTS["fig3.2a"].run_count(True)  # 10 with the reference run
 
@@ -341,11 +341,11 @@ def test_no_record_then_record_is_cached_and_writes_the_recording(tmp_path):
 
     chunks = RrdReader(folder / "recording.rrd").stream().to_chunks()
     assert sum(c.num_rows for c in chunks if c.entity_path == "/cost/total" and "iteration" in c.timeline_names) == 2
-    from pipeline.recordings.rerun_io import MAX_POSES, decimate
+    from raico.pipeline.recordings.rerun_io import MAX_POSES, decimate
 
     assert sum(c.num_rows for c in chunks if c.entity_path == "/world/robot/rod" and "sim_time" in c.timeline_names) \
         == len(decimate(PENDULUM_T + 1, MAX_POSES, [PENDULUM_T]))
-    from pipeline.recordings.mcap_io import read_trajectory_mcap
+    from raico.pipeline.recordings.mcap_io import read_trajectory_mcap
 
     np.testing.assert_allclose(read_trajectory_mcap(folder / "trajectory.mcap")["position"],
                                np.load(folder / "plan.npz")["X"][:, :1])
@@ -384,7 +384,7 @@ def test_outcome_lines_say_why_a_plan_diverged_and_what_an_evaluation_found(tmp_
     res = runner.invoke(app, ["evaluate", "--plan", plan["key"], "--json", "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
     m = json.loads(res.stdout)["metrics"]
-    from stages.evaluate.metrics import task_note
+    from raico.stages.evaluate.metrics import task_note
 
     assert m["task"] == plan["metrics"]["task"] and m["task"]["unit"] == "m"
     assert f"[ok; final cost {m['final_cost']:.4g}; planned {task_note(m['task'])}]" in res.stderr
@@ -422,7 +422,7 @@ def test_the_swing_up_is_reachable_within_the_effort_limit():
     """The pendulum's horizon leaves the upright within reach under +-10 N m: on the true model AICO ends within the
     0.1 rad tolerance with room to spare and the torque below its limit in most steps. (At 1.5 s it was out of reach:
     every plan pushed at the limit for 724 of 750 steps and ended 0.097 rad short, whatever the setting.)"""
-    from stages.plan.stage import PlanConfig, plan
+    from raico.stages.plan.stage import PlanConfig, plan
 
     out = plan(PlanConfig(plant="pendulum", task="swing-up", dynamics="analytic", solver="aico", alpha=0.0,
                           iterations=60).normalized())

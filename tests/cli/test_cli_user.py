@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.engine.runner import Outcome, outcome_line, outcome_notes
+from raico.pipeline.engine.runner import Outcome, outcome_line, outcome_notes
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -78,7 +78,7 @@ def test_an_option_the_solver_does_not_use_is_said_and_kept_out_of_the_key(raico
 
 
 def test_plan_config_says_what_it_ignores():
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
     assert PlanConfig(plant="arm5", task="reach", solver="raico", alpha=10).ignored() == {}
     got = PlanConfig(plant="arm5", task="reach", solver="ilqg", alpha=10, belief_rate=0.5, balance_margin=0.02).ignored()
@@ -111,9 +111,9 @@ def test_the_learn_line_says_achieved_or_missed():
 
 
 def test_help_texts_come_from_the_code(raico):
-    from planning.solvers import SOLVERS
-    from stages.plan.balance import MARGIN
-    from stages.registry import DESCRIPTIONS
+    from raico.planning.solvers import SOLVERS
+    from raico.stages.plan.balance import MARGIN
+    from raico.stages.registry import DESCRIPTIONS
 
     plan_help = " ".join(raico("plan", "--help").stdout.split())
     for name in SOLVERS:
@@ -153,10 +153,10 @@ _PROBE = """
 import runpy, sys
 sys.argv = ["raico", *sys.argv[1:]]
 try:
-    runpy.run_module("pipeline.interface.cli", run_name="__main__")
+    runpy.run_module("raico.pipeline.interface.cli", run_name="__main__")
 except SystemExit:
     pass
-print("HEAVY", sorted(m for m in ("pydrake", "crocoddyl", "ray", "scipy", "rerun", "stages.plan.stage")
+print("HEAVY", sorted(m for m in ("pydrake", "crocoddyl", "ray", "scipy", "rerun", "raico.stages.plan.stage")
                       if m in sys.modules))
 """
 
@@ -182,7 +182,7 @@ def test_a_refused_option_loads_neither_drake_nor_crocoddyl_nor_ray(args):
 def test_a_signal_inside_an_import_is_the_interrupt():
     """A SIGTERM that lands while an extension module initializes surfaces as its ImportError; the CLI
     reports the interrupt (exit 143), not the import (tests/pipeline/test_faults.py kills a babble run mid-stage)."""
-    from pipeline.lifecycle import Interrupted, interrupt_in
+    from raico.pipeline.lifecycle import Interrupted, interrupt_in
 
     try:
         try:
@@ -202,7 +202,7 @@ def test_a_signal_inside_an_import_is_the_interrupt():
 
 
 def test_the_quick_report_is_labelled_a_smoke_test():
-    from thesis.report import SMOKE, markdown_claims
+    from raico.thesis.report import SMOKE, markdown_claims
 
     rows = [{"figure": "fig3.2a", "claim": "c", "thesis": '§3.5: "x" (Fig. 3.2A)', "criterion": "k", "measured": "m",
              "verdict": "does not hold", "why": "because"}]
@@ -212,7 +212,7 @@ def test_the_quick_report_is_labelled_a_smoke_test():
 
 
 def test_the_call_line_counts_jobs_in_english():
-    from thesis.reproduce import call_line
+    from raico.thesis.reproduce import call_line
 
     call = {"figures": 1, "runs": 10, "cached_runs": 0, "jobs": 1, "wall_time_s": 3.0, "cpu_time_s": 2.0,
             "main_cpu_time_s": 1.0, "when": "now", "load_average_1min": 0.5}
@@ -223,9 +223,9 @@ def test_the_call_line_counts_jobs_in_english():
 def test_a_whole_stage_slash_key_is_found_without_listing_the_stage(tmp_path, monkeypatch):
     """The pipeline names inputs as STAGE/KEY: resolving one must not check every entry of the stage
     (a reproduce resolves hundreds; listing made a cached reproduce 25 times slower)."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import find_entry
-    from pipeline.errors import MissingArtifact
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import find_entry
+    from raico.pipeline.errors import MissingArtifact
 
     cache = Cache(tmp_path)
     monkeypatch.setattr(Cache, "list", lambda *a, **k: pytest.fail("listed the stage"))

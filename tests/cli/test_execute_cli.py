@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from stages.evaluate.metrics import STATUSES
+from raico.pipeline.interface.cli import app
+from raico.stages.evaluate.metrics import STATUSES
 
 runner = CliRunner()
 

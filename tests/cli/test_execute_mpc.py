@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from stages.evaluate.metrics import STATUSES
+from raico.pipeline.interface.cli import app
+from raico.stages.evaluate.metrics import STATUSES
 
 runner = CliRunner()
 PUSH = "hand:30:0.9:0.1"   # 30 N along world x on arm5's hand from 0.9 s for 0.1 s, before the last via-point's 1 s

@@ -11,9 +11,9 @@ import pytest
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from plants.gp import GPModel
-from stages.fit.gp_fit import refit_fixed
+from raico.pipeline.interface.cli import app
+from raico.plants.gp import GPModel
+from raico.stages.fit.gp_fit import refit_fixed
 
 runner = CliRunner()
 FAST = ("--restarts", 0)  # one optimizer start keeps the test short
@@ -77,8 +77,8 @@ def test_fit_heldout_error_recording_and_cache(base):
 
 @pytest.mark.numerics
 def test_learned_model_of_the_fit_predicts_babbled_accelerations(base):
-    from plants.dynamics_registry import make_dynamics
-    from plants.robots import shared_robot
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.robots import shared_robot
 
     _, data, fit = base
     dyn = make_dynamics("learned", shared_robot("pendulum"), 0.002, dict(np.load(Path(fit["path"]) / "model.npz")))

@@ -1,14 +1,14 @@
-"""The Python API (pipeline/interface/api.py): the same runs and artifacts as the CLI, through the same cache."""
+"""The Python API (raico/pipeline/interface/api.py): the same runs and artifacts as the CLI, through the same cache."""
 
 import json
 
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface import api
-from pipeline.interface.cli import app
-from planning.tasks import PENDULUM_T
-from thesis import api as thesis_api
+from raico.pipeline.interface import api
+from raico.pipeline.interface.cli import app
+from raico.planning.tasks import PENDULUM_T
+from raico.thesis import api as thesis_api
 
 
 def test_api_plan_execute_and_cli_share_the_cache(tmp_path):
@@ -78,7 +78,7 @@ def test_api_experiments_show_plot_and_compare_as_the_cli(tmp_path, capfd):
     import numpy as np
     import pandas as pd
 
-    from pipeline.errors import BadInput
+    from raico.pipeline.errors import BadInput
 
     f = tmp_path / "api.toml"
     f.write_text(EXP)

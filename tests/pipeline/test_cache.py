@@ -1,4 +1,4 @@
-"""Tests of the artifact cache (pipeline/engine/cache.py) and the error classes."""
+"""Tests of the artifact cache (raico/pipeline/engine/cache.py) and the error classes."""
 
 from __future__ import annotations
 
@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.engine import cache as cache_mod
-from pipeline.engine import keys as keys_mod
-from pipeline.engine.cache import Cache, WriteResult
-from pipeline.engine.keys import stage_key
-from pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
-from stages.base import Artifact
+from raico.pipeline.engine import cache as cache_mod
+from raico.pipeline.engine import keys as keys_mod
+from raico.pipeline.engine.cache import Cache, WriteResult
+from raico.pipeline.engine.keys import stage_key
+from raico.pipeline.errors import BadInput, CorruptArtifact, MissingArtifact, RaicoError
+from raico.stages.base import Artifact
 from tests.damage import flip_byte
 
 REPO = Path(__file__).resolve().parents[2]
@@ -334,7 +334,7 @@ def test_damage_the_stamps_do_not_show_is_found_by_verify(tmp_path: Path) -> Non
     """The residual case (DVC's trade-off): damage that keeps size, times and inode -- only possible
     below the file system, simulated here by stamping the damaged file -- is served by a hit; the
     deep check of ``raico ls --verify`` finds it, and a stage that fails to load it says so
-    (``pipeline.engine.artifacts.CheckedArtifact``)."""
+    (``raico.pipeline.engine.artifacts.CheckedArtifact``)."""
     c = Cache(tmp_path)
     c.write("plan", KEY, write_npz, {})
     e = _settled(c)
@@ -482,7 +482,7 @@ def test_sigkill_mid_write_leaves_no_entry(tmp_path: Path) -> None:
         f"""
         import sys, time
         from pathlib import Path
-        from pipeline.engine.cache import Cache
+        from raico.pipeline.engine.cache import Cache
         def writer(d):
             (d / "data.npz").write_bytes(b"x" * 4096)
             print("started", flush=True)
@@ -593,7 +593,7 @@ def test_key_lock_one_holder_a_waiter_told_reentrant_and_no_file_left(tmp_path, 
     import fcntl
     import threading
 
-    from pipeline.engine.locks import key_lock
+    from raico.pipeline.engine.locks import key_lock
 
     path, order, told = tmp_path / ".lock-k", [], []
 

@@ -1,4 +1,4 @@
-"""Executors and the scheduler of ``raico reproduce`` (``pipeline/engine/executors.py``): serial, process and
+"""Executors and the scheduler of ``raico reproduce`` (``raico/pipeline/engine/executors.py``): serial, process and
 Ray give the same results; a failed job stops the rest; a real figure on a local Ray instance equals
 the process pool's; one progress line per finished run in a log.
 
@@ -59,7 +59,7 @@ def ray_instance():
 
 
 def executor(name: str, request):
-    from pipeline.engine.executors import make_executor
+    from raico.pipeline.engine.executors import make_executor
 
     if name == "ray":
         request.getfixturevalue("ray_instance")
@@ -69,7 +69,7 @@ def executor(name: str, request):
 # ----------------------------------------------------------------------------- executors and scheduler
 def _flow(n: int, cached: dict[int, int]):
     """Squares (some answered by a lookup), then sums of neighbours that depend on them."""
-    from pipeline.engine.executors import Batch, Job
+    from raico.pipeline.engine.executors import Batch, Job
 
     squares = yield Batch("square", [Job(_never, i, f"{i}^2", lambda i=i: cached[i]) if i in cached
                                      else Job(_square, i, f"{i}^2") for i in range(n)])
@@ -81,7 +81,7 @@ def _flow(n: int, cached: dict[int, int]):
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "ray" else n  # Ray: 5 s
                                   for n in EXECUTORS])
 def test_executors_give_the_same_results(name, request):
-    from pipeline.engine.executors import Scheduler
+    from raico.pipeline.engine.executors import Scheduler
 
     events = []
     with executor(name, request) as ex, Scheduler(ex, events.append) as sched:
@@ -101,7 +101,7 @@ def test_executors_give_the_same_results(name, request):
 
 @pytest.mark.parametrize("name", EXECUTORS)
 def test_a_failing_job_stops_the_rest(name, request, tmp_path):
-    from pipeline.engine.executors import Batch, Job, run_flow
+    from raico.pipeline.engine.executors import Batch, Job, run_flow
 
     def flow():
         yield Batch("run", [Job(_fail_or_sleep, (str(tmp_path), i, name != "serial")) for i in range(6)])
@@ -121,7 +121,7 @@ def test_a_failing_job_stops_the_rest(name, request, tmp_path):
 def test_bad_executor_values_are_one_line(tmp_path):
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     for args, message in ((["--executor", "threads"], "unknown executor 'threads': choose one of serial, process, ray"),
                           (["--address", "head:6379"], "--address goes with --executor ray"),
@@ -134,8 +134,8 @@ def test_bad_executor_values_are_one_line(tmp_path):
 
 
 def test_unreachable_ray_address_is_one_error_at_once():
-    from pipeline.engine.executors import _check_reachable
-    from pipeline.errors import RaicoError
+    from raico.pipeline.engine.executors import _check_reachable
+    from raico.pipeline.errors import RaicoError
 
     t0 = time.monotonic()
     with pytest.raises(RaicoError, match=r"^cannot reach the Ray cluster at 127\.0\.0\.1:1: "):
@@ -146,15 +146,15 @@ def test_unreachable_ray_address_is_one_error_at_once():
 def test_reproduce_help_lists_every_experiment_and_executor():
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
-    from thesis.reproduce import ALL_IDS
+    from raico.pipeline.interface.cli import app
+    from raico.thesis.reproduce import ALL_IDS
 
     text = " ".join(CliRunner().invoke(app, ["reproduce", "--help"]).output.split())
     assert all(i in text for i in ALL_IDS) and all(e in text for e in ("serial", "process", "ray", "--address"))
 
 
 def test_work_order_is_longest_first():
-    from thesis.reproduce import ALL_IDS, work_order
+    from raico.thesis.reproduce import ALL_IDS, work_order
 
     order = work_order(["fig3.2a", "fig4.1/4.2", "fig3.2c", "fig3.2a", "fig4.3"])
     assert order == ["fig4.3", "fig4.1/4.2", "fig3.2c", "fig3.2a"] and sorted(work_order(ALL_IDS)) == sorted(ALL_IDS)
@@ -163,7 +163,7 @@ def test_work_order_is_longest_first():
 # ----------------------------------------------------------------------------- a real figure on Ray
 def _quick_runs() -> int:
     """fig3.2a's plan runs with --quick (two initial states per variant; the experiment says which)."""
-    from thesis.figures import EXPERIMENTS
+    from raico.thesis.figures import EXPERIMENTS
 
     exp = EXPERIMENTS["fig3.2a"]
     return sum(v.seed_count(exp.seeds, True) for v in exp.variants)
@@ -177,7 +177,7 @@ PROGRESS = re.compile(rf"raico: fig3\.2a plan (\d+)/{N} done \((iLQG|AICO|R-AICO
 def _reproduce(root: Path, *args: str):
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     res = CliRunner().invoke(app, ["reproduce", "--figure", "fig3.2a", "--quick", "--no-record", "--json",
                                    "--artifacts", str(root), *args])
@@ -202,7 +202,7 @@ def _claims(root: Path) -> dict:
 
 def _call(root: Path) -> dict:
     """The whole reproduce call's timing (``timings.json``), checked against the report README's line."""
-    from thesis.reproduce import CALL, call_line
+    from raico.thesis.reproduce import CALL, call_line
 
     call = json.loads((root / "report-quick" / "timings.json").read_text())[CALL]
     assert call_line(call) in (root / "report-quick" / "README.md").read_text()
@@ -246,7 +246,7 @@ def test_ray_reproduces_the_process_pool_with_one_progress_line_per_run(ray_inst
 def test_call_line_compares_a_complete_call_with_the_reproduce_target():
     """A call over every figure from an empty cache is held against the 600 s target (met, or missed by
     how much); any other call (some figures, a warm cache) gets no verdict."""
-    from thesis.reproduce import REPRODUCE_TARGET_S, call_line
+    from raico.thesis.reproduce import REPRODUCE_TARGET_S, call_line
 
     base = {"figures": 11, "runs": 569, "cached_runs": 6, "cpu_time_s": 1255.0, "main_cpu_time_s": 27.4,
             "jobs": 2, "when": "2026-11-24T21:20:42Z", "load_average_1min": 1.89}
@@ -262,7 +262,7 @@ def test_call_line_compares_a_complete_call_with_the_reproduce_target():
 def test_cache_is_empty_until_a_stage_holds_an_entry(tmp_path):
     """``Cache.is_empty``: an empty or missing root, a report folder or stray files are empty; one key folder in
     a stage is not."""
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     assert Cache(tmp_path / "missing").is_empty()
     (tmp_path / "report").mkdir()

@@ -1,4 +1,4 @@
-"""Views of an experiment's runs: ``raico plot`` (pipeline/experiments/plots.py) and ``raico compare`` (pipeline/experiments/compare.py),
+"""Views of an experiment's runs: ``raico plot`` (raico/pipeline/experiments/plots.py) and ``raico compare`` (raico/pipeline/experiments/compare.py),
 on one small experiment (the arm's reach, 3 iterations, R-AICO at two alphas and iLQG, 4 seeds)."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.engine.cache import Cache
-from pipeline.experiments import expfile, plots
-from pipeline.interface.cli import app
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.experiments import expfile, plots
+from raico.pipeline.interface.cli import app
 
 runner = CliRunner()
 
@@ -201,7 +201,7 @@ def test_compare_writes_one_recording_with_a_path_per_run(raico, arts, tmp_path)
 
     from rerun.chunk import RrdReader
 
-    from pipeline.experiments.compare import _path
+    from raico.pipeline.experiments.compare import _path
 
     out = tmp_path / "c.rrd"
     res = raico("compare", "--exp", "small", "--where", "seed == 1", "--out", out, "--json", "--artifacts", arts)
@@ -299,7 +299,7 @@ def ur5_plans(raico, tmp_path_factory) -> tuple[Path, list[str]]:
 
     pytest.importorskip("example_robot_data")
     arts = tmp_path_factory.mktemp("ur5")
-    problem = Path(__file__).resolve().parents[2] / "problems" / "examples" / "ur5_reach.toml"
+    problem = Path(__file__).resolve().parents[2] / "raico" / "problems" / "examples" / "ur5_reach.toml"
     keys = []
     for solver in ("raico", "ilqg"):
         res = raico("plan", "--problem", problem, "--solver", solver, "--iterations", 2, "--no-record", "--json",
@@ -312,7 +312,7 @@ def ur5_plans(raico, tmp_path_factory) -> tuple[Path, list[str]]:
 def test_compare_a_model_file_robot(raico, ur5_plans, tmp_path):
     import json
 
-    from pipeline.experiments.compare import _path
+    from raico.pipeline.experiments.compare import _path
 
     arts, keys = ur5_plans
     out = tmp_path / "ur5.rrd"

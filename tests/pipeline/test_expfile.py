@@ -1,4 +1,4 @@
-"""Experiment files (pipeline/experiments/expfile.py, ``raico exp run`` / ``raico exp show``): variants over seeds as
+"""Experiment files (raico/pipeline/experiments/expfile.py, ``raico exp run`` / ``raico exp show``): variants over seeds as
 ordinary cached stage runs, one runs table, summaries over seeds; bad input refused before anything runs."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from pipeline.errors import BadInput
-from pipeline.experiments import expfile
+from raico.pipeline.errors import BadInput
+from raico.pipeline.experiments import expfile
 
 ARM = '''
 name = "alpha-arm"
@@ -208,7 +208,7 @@ def test_summaries_over_seeds_on_known_numbers():
 
 def test_the_table_takes_non_finite_metrics(tmp_path):
     """A diverged run's inf cost is null in runs.json (strict JSON) and empty in runs.csv."""
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     exp = expfile.load(write(tmp_path, '[base]\nplant = "arm5"\ntask = "reach"\n'))
     row = {"experiment": exp.name, "variant": "base", "seed": 0, "plan.final_cost": math.inf, "status": "diverged",
@@ -346,7 +346,7 @@ needs = "crocoddyl"
 def test_seeds_that_cannot_differ_are_said_in_the_dry_run_and_the_run(raico, tmp_path):
     """A problem file's q0_std defaults to 0: its seeds are identical runs, said in one line; with a spread,
     or execution noise, nothing is said."""
-    problem = Path(__file__).resolve().parents[2] / "problems" / "arm5_reach.toml"
+    problem = Path(__file__).resolve().parents[2] / "raico" / "problems" / "arm5_reach.toml"
     f = write(tmp_path, f'''
 stages = ["plan"]
 seeds = "range(2)"
@@ -374,7 +374,7 @@ iterations = 2
 def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeypatch):
     """An entry of another version (a field or value this version refuses) counts as "nothing unused" and an
     unknown stage as "every field"; any other error is not swallowed."""
-    from stages import registry
+    from raico.stages import registry
 
     cfg = {"plant": "arm5", "task": "reach", "solver": "ilqg", "alpha": 0.5}
     assert expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}}) == {"alpha"}   # iLQG's alpha
@@ -402,7 +402,7 @@ def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeyp
 
 def test_a_model_file_s_load_report_is_said_once_per_experiment(raico, tmp_path):
     pytest.importorskip("example_robot_data")
-    problem = Path(__file__).resolve().parents[2] / "problems" / "examples" / "ur5_reach.toml"
+    problem = Path(__file__).resolve().parents[2] / "raico" / "problems" / "examples" / "ur5_reach.toml"
     f = write(tmp_path, f'name = "ur5"\nstages = ["plan"]\nseeds = "range(3)"\n[base]\nproblem = "{problem}"\n'
                         'iterations = 1\nq0_std = 0.01\n')
     res = raico("exp", "run", f, "--executor", "serial", "--artifacts", tmp_path / "arts")

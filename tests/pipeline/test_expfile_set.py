@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.errors import BadInput
-from pipeline.experiments import expfile
+from raico.pipeline.errors import BadInput
+from raico.pipeline.experiments import expfile
 
 POINTS = '''
 name = "points-only"

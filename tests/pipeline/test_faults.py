@@ -58,7 +58,7 @@ def tmp_folders(root: Path) -> list[Path]:
 
 
 def valid_entries(root: Path, stage: str | None = None) -> list:
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     return [r for r in Cache(root).list(stage) if r.valid]
 
@@ -66,7 +66,7 @@ def valid_entries(root: Path, stage: str | None = None) -> list:
 def cli(*args, env: dict | None = None):
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     return CliRunner().invoke(app, [str(a) for a in args], env=env)
 
@@ -135,8 +135,8 @@ def _sleep_job(args):
 SWEEP_PARENT = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from pipeline.lifecycle import Interrupted, install_signal_handlers, stop_resource_tracker
-    from pipeline.engine.executors import Batch, Job, make_executor, run_flow
+    from raico.pipeline.lifecycle import Interrupted, install_signal_handlers, stop_resource_tracker
+    from raico.pipeline.engine.executors import Batch, Job, make_executor, run_flow
     from tests.pipeline.test_faults import _sleep_job
 
     install_signal_handlers()
@@ -185,7 +185,7 @@ def test_sweep_workers_die_with_the_parent(tmp_path, sig):
 
 # ============================================================================= 2. atomic files, damaged report
 def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypatch):
-    from pipeline.engine.atomic import atomic_path, write_file_atomic
+    from raico.pipeline.engine.atomic import atomic_path, write_file_atomic
 
     target = tmp_path / "claims.json"
     write_file_atomic(target, '{"old": 1}\n')
@@ -199,8 +199,8 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
 
 
 def test_damaged_report_file_is_skipped_with_a_warning_and_rebuilt(tmp_path):
-    from pipeline.engine.ui import Reporter
-    from thesis.reproduce import cached_report, write_readme
+    from raico.pipeline.engine.ui import Reporter
+    from raico.thesis.reproduce import cached_report, write_readme
 
     root = tmp_path / "report-quick"
     good = {"figure": "fig3.2a", "description": "arm", "claims": [
@@ -271,8 +271,8 @@ def test_read_only_artifacts_folder_real(tmp_path):
 
 
 def _babble_key() -> str:
-    from pipeline.engine import runner
-    from stages.babble import BabbleConfig
+    from raico.pipeline.engine import runner
+    from raico.stages.babble import BabbleConfig
 
     return runner._prepare(None, "babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2))[-1]
 
@@ -296,7 +296,7 @@ def test_full_disk_in_numpy_writer_publishes_nothing(tmp_path, monkeypatch):
 
 
 def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
-    import pipeline.recordings.mcap_io as mcap_io
+    import raico.pipeline.recordings.mcap_io as mcap_io
 
     class FullWriter(mcap_io.Writer):
         def finish(self):
@@ -344,7 +344,7 @@ def test_full_disk_in_mcap_writer_keeps_the_data(tmp_path, monkeypatch):
     (["show", " "], 2, "an empty artifact key"),
 ])
 def test_bounds_and_empty_strings_refused_before_work(tmp_path, args, code, message):
-    import pipeline.interface.cli  # noqa: F401  (loaded before the clock starts)
+    import raico.pipeline.interface.cli  # noqa: F401  (loaded before the clock starts)
 
     t0 = time.monotonic()
     if "--artifacts" not in args:
@@ -374,19 +374,19 @@ def test_show_open_without_a_display_is_an_error(tmp_path):
 # ============================================================================= one helper process: CLI runs (1, 3) and every stage (5)
 HELPER = textwrap.dedent("""
     # One process imports the CLI and Drake once, then forks: each fork is a fresh `raico` run
-    # (pipeline.interface.cli.main with its argv) or a stage run, killed or raced as the test asks.
+    # (raico.pipeline.interface.cli.main with its argv) or a stage run, killed or raced as the test asks.
     import json, os, resource, signal, sys, time
     from pathlib import Path
-    import plants.threads  # noqa: F401
-    from pipeline.engine import runner
-    from pipeline.interface import cli
-    from pipeline.engine.cache import Cache
-    from stages.babble import BabbleConfig
-    from stages.evaluate.stage import EvaluateConfig
-    from stages.execute.config import ExecuteConfig
-    from stages.fit.stage import FitConfig
-    from stages.learn import LearnConfig
-    from stages.plan.stage import PlanConfig
+    import raico.plants.threads  # noqa: F401
+    from raico.pipeline.engine import runner
+    from raico.pipeline.interface import cli
+    from raico.pipeline.engine.cache import Cache
+    from raico.stages.babble import BabbleConfig
+    from raico.stages.evaluate.stage import EvaluateConfig
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.fit.stage import FitConfig
+    from raico.stages.learn import LearnConfig
+    from raico.stages.plan.stage import PlanConfig
 
     root = Path(sys.argv[1])
     cache = Cache(root / "matrix")
@@ -611,13 +611,13 @@ CASES += [("plan", "byte flipped, mtime put back")]  # size and mtime as recorde
 
 @pytest.mark.parametrize("stage, kind", CASES)
 def test_corrupted_entry_is_detected_said_and_recomputed(helper, stage, kind):
-    from pipeline.engine import runner
-    from pipeline.engine.cache import Cache
-    from stages.babble import BabbleConfig
-    from stages.evaluate.stage import EvaluateConfig
-    from stages.execute.config import ExecuteConfig
-    from stages.fit.stage import FitConfig
-    from stages.plan.stage import PlanConfig
+    from raico.pipeline.engine import runner
+    from raico.pipeline.engine.cache import Cache
+    from raico.stages.babble import BabbleConfig
+    from raico.stages.evaluate.stage import EvaluateConfig
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.fit.stage import FitConfig
+    from raico.stages.plan.stage import PlanConfig
 
     root, _, keys = helper
     root = root / "matrix"
@@ -683,7 +683,7 @@ def _damage_header(path: Path) -> None:
 def test_stage_on_a_damaged_plan_rebuilds_it_first(helper, tmp_path, command):
     """``raico execute`` / ``evaluate`` on a plan whose data file had a byte flipped: the plan is rebuilt
     from its stored config (one line says so, under its key), then the stage answers; no traceback."""
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
@@ -703,7 +703,7 @@ def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage)
     """Damage the stamps cannot show (stamped as intact) makes numpy fail when execute loads the plan
     (``BadZipFile: Bad CRC-32``, or a garbled array header): one clean line naming the entry and the
     cause -- no traceback, none of the file's bytes, not exit 2 -- and the plan rebuilt, then executed."""
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
@@ -727,7 +727,7 @@ def test_unreadable_plan_is_one_clean_line_and_rebuilt(helper, tmp_path, damage)
 def test_damaged_plan_that_cannot_be_rebuilt_is_one_line(helper, tmp_path, monkeypatch):
     """Where raico cannot rebuild the input -- its meta.json (its config) damaged too, or the plan code
     changed since (the same config would give another key) -- one line, exit 4, naming the entry."""
-    from pipeline.engine import keys as keys_mod
+    from raico.pipeline.engine import keys as keys_mod
 
     a, keys = _matrix_copy(helper, tmp_path)
     plan = keys["plan"]
@@ -810,7 +810,7 @@ def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp
     workers compute, then (the next call, from the cache) while the headless viewer renders the report's
     screenshots: each time the caller's pipes close within 2 s (the viewer's output never went to them)
     and no process of the run is left running; the finished runs stay cached."""
-    from pipeline.recordings.screenshots import renderer_unavailable
+    from raico.pipeline.recordings.screenshots import renderer_unavailable
 
     cmd = [RAICO, "reproduce", "--figure", "fig3.2a", "--quick", "--jobs", "2", "--artifacts", str(tmp_path)]
     seen: dict[int, str] = {}
@@ -833,7 +833,7 @@ def test_sigkill_of_reproduce_leaves_no_process_and_closes_the_callers_pipes(tmp
     assert any("rerun" in c for c in seen.values()), seen
     assert elapsed < 2.0, elapsed
     _wait_for(lambda: not [p for p in seen if running(p)], 5, f"the processes of the run to end: {seen}")
-    from thesis.figures import EXPERIMENTS
+    from raico.thesis.figures import EXPERIMENTS
 
     exp = EXPERIMENTS["fig3.2a"]
     runs = sum(v.seed_count(exp.seeds, True) for v in exp.variants)
@@ -844,7 +844,7 @@ REAPER_OWNER = textwrap.dedent("""
     # Stands in for raico with a local Ray instance: a reaper, a marked child, and below it a process
     # without the mark (like Ray's agents, whose process titles overwrite their environment)
     import os, subprocess, sys, time
-    from pipeline.engine.executors import RAY_OWNER, _start_reaper
+    from raico.pipeline.engine.executors import RAY_OWNER, _start_reaper
 
     mark, reaper = _start_reaper()
     os.environ[RAY_OWNER] = mark.split("=", 1)[1]
@@ -939,7 +939,7 @@ def test_sigint_during_exp_run_removes_the_workers_temporary_folders(tmp_path):
 def test_an_interrupt_during_a_held_extension_s_initialization_is_raised_once_it_is_loaded(tmp_path, monkeypatch):
     """Drake's extension logs an exception raised inside its initialization with a C++ stack: a signal that
     lands while such a module loads is held and raised as the one interrupt once the module is in."""
-    from pipeline import lifecycle
+    from raico.pipeline import lifecycle
 
     done = tmp_path / "ran to its end"
     (tmp_path / "slow_ext.py").write_text(f"import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n"

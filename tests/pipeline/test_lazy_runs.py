@@ -1,4 +1,4 @@
-"""Many runs (``pipeline.engine.executors.stream``, ``expfile.run``): a grid generated as it is consumed,
+"""Many runs (``raico.pipeline.engine.executors.stream``, ``expfile.run``): a grid generated as it is consumed,
 runs batched into tasks (one failing run reports itself, its batch's others finish), resumed experiments
 recompute nothing finished, the runs table written as runs finish, a worker's code version checked.
 
@@ -48,9 +48,9 @@ class Stop(Exception):
 def test_a_lazy_grid_starts_its_first_run_before_the_grid_is_enumerated(tmp_path, monkeypatch):
     """10^5 points (two axes): checked axis value by axis value, counted without enumerating, and the first
     run finishes when a handful of runs have been generated."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import make_executor
-    from pipeline.experiments import expfile
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import make_executor
+    from raico.pipeline.experiments import expfile
 
     alphas = ", ".join(str(0.1 + i / 1000) for i in range(1000))
     stds = ", ".join(str(0.01 + i / 10000) for i in range(100))
@@ -81,7 +81,7 @@ def test_a_lazy_grid_starts_its_first_run_before_the_grid_is_enumerated(tmp_path
 def test_a_failing_run_in_a_batch_reports_itself_and_the_others_finish():
     """Ten runs in tasks of four on two worker processes: run 5 raises; it is reported with its error
     (the exception's kind and text), and every other run of its task and of the others has its value."""
-    from pipeline.engine.executors import Item, make_executor, stream
+    from raico.pipeline.engine.executors import Item, make_executor, stream
 
     with make_executor("process", 2) as pool:
         done = list(stream(pool, (Item(_square_or_fail, i, tag=i) for i in range(10)), batch=4))
@@ -95,10 +95,10 @@ def test_an_interrupted_experiment_resumed_recomputes_nothing_finished(tmp_path,
     """Interrupted after 3 of 8 runs (SIGINT, as Ctrl-C): the rows so far are readable (written as runs
     finish); the second call finds those 3 cached, computes the other 5 only, and its table equals the
     table of the same experiment run in one go elsewhere, value by value."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import make_executor
-    from pipeline.experiments import expfile
-    from pipeline.lifecycle import Interrupted
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import make_executor
+    from raico.pipeline.experiments import expfile
+    from raico.pipeline.lifecycle import Interrupted
 
     monkeypatch.setattr(expfile.TableWriter, "FLUSH_ROWS", 1)
     exp = expfile.load(pendulum(tmp_path, "alpha = [0.5, 1.0, 2.0, 4.0]"))
@@ -124,7 +124,7 @@ def test_an_interrupted_experiment_resumed_recomputes_nothing_finished(tmp_path,
 
 
 def test_a_node_running_other_code_is_named_in_one_line():
-    from pipeline.engine.executors import VersionMismatch, _check_version
+    from raico.pipeline.engine.executors import VersionMismatch, _check_version
 
     _check_version(("head", "raico+abc"), ("head", "raico+abc"))
     with pytest.raises(VersionMismatch) as e:
@@ -154,7 +154,7 @@ def test_the_signed_rank_p_value_is_scipy_s():
     import numpy as np
     from scipy import stats
 
-    from pipeline.experiments.expfile import signed_rank_p
+    from raico.pipeline.experiments.expfile import signed_rank_p
 
     rng = np.random.default_rng(3)
     for n in (1, 2, 6, 10, 25, 50, 51):

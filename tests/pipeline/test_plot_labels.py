@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.engine.cache import Cache
-from pipeline.experiments import expfile, plots
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.experiments import expfile, plots
 
 MIXED = '''
 name = "mixed"

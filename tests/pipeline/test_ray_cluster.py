@@ -114,9 +114,9 @@ def cluster(tmp_path):
 
 
 def test_an_experiment_across_a_cluster_survives_a_killed_node_and_equals_a_serial_run(cluster, tmp_path):
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import make_executor
-    from pipeline.experiments import expfile
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import make_executor
+    from raico.pipeline.experiments import expfile
 
     t0 = time.monotonic()
     cluster.start("head", 0)
@@ -156,7 +156,7 @@ def test_an_experiment_across_a_cluster_survives_a_killed_node_and_equals_a_seri
     other = tmp_path / "other"
     for pkg in ("pipeline", "stages", "planning", "plants"):
         shutil.copytree(ROOT / pkg, other / pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    with open(other / "planning" / "__init__.py", "a") as f:
+    with open(other / "raico" / "planning" / "__init__.py", "a") as f:
         f.write("# another version\n")
     cluster.start("w3", 1, pythonpath=other)
     res = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=90)

@@ -1,4 +1,4 @@
-"""Tests of the Rerun recordings (pipeline/recordings/rerun_io.py) and MCAP rollouts (pipeline/recordings/mcap_io.py)."""
+"""Tests of the Rerun recordings (raico/pipeline/recordings/rerun_io.py) and MCAP rollouts (raico/pipeline/recordings/mcap_io.py)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from mcap.reader import make_reader
 from pydrake.multibody.tree import BodyIndex
 from rerun.chunk import RrdReader
 
-from pipeline.recordings.mcap_io import read_trajectory_mcap, write_trajectory_mcap
-from pipeline.recordings.rerun_io import (
+from raico.pipeline.recordings.mcap_io import read_trajectory_mcap, write_trajectory_mcap
+from raico.pipeline.recordings.rerun_io import (
     MAX_POSES,
     Recording,
     body_poses,
@@ -33,7 +33,7 @@ from pipeline.recordings.rerun_io import (
     rot_to_quat_xyzw,
     unwrap,
 )
-from plants.robots import PLANTS, shared_robot
+from raico.plants.robots import PLANTS, shared_robot
 from tests.tolerance import assert_close
 
 K = 20
@@ -253,7 +253,7 @@ def test_mcap_round_trip(tmp_path: Path) -> None:
 def test_mcap_messages_are_the_bytes_json_dumps_gives(tmp_path: Path) -> None:
     """The messages formatted directly (floats in one pass of the json encoder) are byte for byte what
     ``json.dumps(msg, separators=(",", ":"))`` writes for the same message as a dict (non-finite values as null)."""
-    from pipeline.recordings.mcap_io import _joint_state, _stamp, _transforms
+    from raico.pipeline.recordings.mcap_io import _joint_state, _stamp, _transforms
 
     robot = shared_robot("nao")
     r = _rollout(robot)
@@ -318,7 +318,7 @@ def _blueprint(path: Path) -> tuple[dict[str, str], str | None]:
 def _plan(tmp_path: Path, *args) -> Path:
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     res = CliRunner().invoke(app, ["plan", *map(str, args), "--solver", "raico", "--alpha", "1", "--iterations", "2",
                                    "--json", "--quiet", "--artifacts", str(tmp_path)])

@@ -3,9 +3,9 @@
 import hashlib
 import sys
 
-from pipeline.engine.cache import Cache
-from pipeline.engine.keys import source_version
-from pipeline.engine.runner import run_stage
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.engine.keys import source_version
+from raico.pipeline.engine.runner import run_stage
 
 
 def _package(tmp_path, monkeypatch, name: str, files: dict[str, str]):
@@ -40,7 +40,7 @@ def test_source_version_follows_the_source(tmp_path, monkeypatch):
 
 
 def test_source_version_follows_a_compiled_kernel(tmp_path, monkeypatch):
-    """A C kernel shipped in a stage's package (planning/csweep.c) is code: editing it
+    """A C kernel shipped in a stage's package (raico/planning/csweep.c) is code: editing it
     invalidates the cache like editing the Python."""
     pkg = _package(tmp_path, monkeypatch, "fakekernel",
                    {"__init__.py": "X = 1\n", "sweep.c": "int f(void) { return 1; }\n"})
@@ -69,7 +69,7 @@ def test_run_stage_hit_never_computes(tmp_path):
 def test_json_line_is_strict_json():
     import json
 
-    from pipeline.engine.runner import Outcome
+    from raico.pipeline.engine.runner import Outcome
 
     o = Outcome("plan", "k", "p", False, "diverged", {"final_cost": float("nan"), "e": {"a": float("inf")}})
     text = json.dumps(o.json_line(), allow_nan=False)
@@ -77,9 +77,9 @@ def test_json_line_is_strict_json():
 
 
 def test_source_version_follows_the_shipped_problem_files(tmp_path, monkeypatch):
-    """A built-in task is a problem file (problems/*.toml): editing one invalidates the plans, as editing code does
+    """A built-in task is a problem file (raico/problems/*.toml): editing one invalidates the plans, as editing code does
     (a ``files:GLOB`` source entry, under the repository root)."""
-    from pipeline.engine import keys
+    from raico.pipeline.engine import keys
 
     (tmp_path / "problems").mkdir()
     task = tmp_path / "problems" / "pendulum_swing-up.toml"
@@ -90,6 +90,6 @@ def test_source_version_follows_the_shipped_problem_files(tmp_path, monkeypatch)
     task.write_text("T = 1000\n")
     assert source_version("plan", "files:problems/*.toml") != v1
     # the plan stage hashes the shipped problem files
-    from stages.plan.stage import STAGE
+    from raico.stages.plan.stage import STAGE
 
     assert "files:problems/*.toml" in STAGE.sources

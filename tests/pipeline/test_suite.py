@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.errors import BadInput
-from pipeline.experiments import suite
-from pipeline.interface.cli import app
+from raico.pipeline.errors import BadInput
+from raico.pipeline.experiments import suite
+from raico.pipeline.interface.cli import app
 
 ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()
@@ -107,7 +107,7 @@ def _tiny(tmp_path: Path, extra: str = "", talos: bool = True) -> Path:
     """A suite of the MJCF arm (and with ``talos`` the Talos arm welded on a frame other than its root,
     which crocoddyl cannot express: skipped without example-robot-data) and two solvers, three
     iterations; plus ``extra`` entries."""
-    shutil.copy(ROOT / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
+    shutil.copy(ROOT / "raico" / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
     (tmp_path / "arm3.toml").write_text(PROBLEM.format(name="arm3", model="arm3.xml", weld="", T=20, frame="tip"))
     if talos:
         _talos(tmp_path)
@@ -134,7 +134,7 @@ optional = true
 def _talos(tmp_path: Path) -> None:
     """The Talos left arm welded on its gripper base as ``talos.toml`` (the test skipped without
     example-robot-data, which comes with the extra raico[baseline])."""
-    from plants.model_file import example_robot_data
+    from raico.plants.model_file import example_robot_data
 
     erd = example_robot_data()
     if erd is None:
@@ -148,7 +148,7 @@ def _talos(tmp_path: Path) -> None:
 def test_the_list_file_keeps_bad_entries_with_their_reasons(tmp_path):
     """Pure list-file reading: no robot is loaded, so it runs without example-robot-data and crocoddyl
     (a solver that ``needs`` a missing package is then left out with its note)."""
-    from pipeline.experiments.expfile import available
+    from raico.pipeline.experiments.expfile import available
 
     path = _tiny(tmp_path, '''
 [[problem]]
@@ -276,7 +276,7 @@ def test_the_page_says_why_cells_are_empty_and_the_readme_block_carries_its_numb
     assert "ends above 1.1x the best final cost: 1 of 2 problems:\n\n- p: R-AICO's best 2x (A); the best 1 by B" in page
     assert "| A | 0.00 | 0.00 | 0.00 | 0.00 | 0.50 | 0.50 |" in page      # cost: within 2x on p, q unsolved
     (tmp_path / "suite.md").write_text(page)
-    from pipeline.engine.runner import finite_json
+    from raico.pipeline.engine.runner import finite_json
 
     (tmp_path / "suite.json").write_text(json.dumps(finite_json(doc)))
     spec = importlib.util.spec_from_file_location("readme_numbers", ROOT / "scripts" / "readme_numbers.py")
@@ -310,7 +310,7 @@ def test_bad_arguments_are_one_line_and_exit_2_before_anything_runs(tmp_path, ar
 def test_the_inside_profile_counts_a_plan_outside_the_limits_as_not_solved():
     """Two problems: on the first the cheaper plan leaves a joint range (by 0.1 rad), so inside the limits the
     other solver is the best and the cheaper one unsolved; on the second both stay inside."""
-    from pipeline.experiments import suite as st
+    from raico.pipeline.experiments import suite as st
 
     def rec(p, s, cost, rng, eff=0.0):
         return {"problem": p, "solver": s, "final_cost": cost, "time_to_target_s": 1.0,
@@ -351,7 +351,7 @@ def test_the_executed_profile_counts_only_ok_and_achieved_executions():
 
 
 def test_execution_columns_use_executes_one_judgement():
-    from stages.evaluate.metrics import executed_task, task_note
+    from raico.stages.evaluate.metrics import executed_task, task_note
 
     task = {"achieved": True, "worst": "reach", "kind": "position", "unit": "m", "error": 0.004, "tol": 0.01}
     row = {"execute.key": "k" * 16, "execute.status": "tracking-lost", **{f"execute.task.{k}": v for k, v in task.items()}}
@@ -368,7 +368,7 @@ def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
     """Two problems (the MJCF arm, two targets) x two solvers (R-AICO, iLQG), 3 iterations, end to end: every
     plan executed in Drake; each record's columns are execute's own status and judgement of that run, and the
     executed profile solves exactly the cells executed ok and achieved."""
-    shutil.copy(ROOT / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
+    shutil.copy(ROOT / "raico" / "problems" / "suite" / "models" / "arm3.xml", tmp_path / "arm3.xml")
     for name, target in (("near", "[0.02, 0.0, -0.02]"), ("far", "[0.1, 0.0, -0.1]")):
         (tmp_path / f"{name}.toml").write_text(PROBLEM.format(name=name, model="arm3.xml", weld="", T=20, frame="tip")
                                                .replace("[0.05, 0.0, -0.05]", target))
@@ -379,7 +379,7 @@ def test_bench_suite_executes_every_plan_and_reports_its_verdict(tmp_path):
                               str(out), "--quiet"])
     assert res.exit_code == 0, res.output
     doc = json.loads((out / "two.json").read_text())
-    from stages.evaluate.metrics import STATUSES, executed_task
+    from raico.stages.evaluate.metrics import STATUSES, executed_task
 
     assert len(doc["records"]) == 4
     for r in doc["records"]:

@@ -1,4 +1,4 @@
-"""The direct-transcription reference (pipeline/experiments/transcription.py) on a bounded LQ problem whose feasible
+"""The direct-transcription reference (raico/pipeline/experiments/transcription.py) on a bounded LQ problem whose feasible
 optimum an exact convex QP gives (Clarabel, an interior-point QP solver, through Drake), from a guess that is
 neither feasible nor optimal; and its refusals."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.experiments.transcription import judge, refusal, solve
-from planning.problem import Bounds, Problem
+from raico.pipeline.experiments.transcription import judge, refusal, solve
+from raico.planning.problem import Bounds, Problem
 from tests.planning.test_solvers_lq import make_lq
 
 T = 12

@@ -8,9 +8,9 @@ import json
 
 import numpy as np
 
-from pipeline.engine.cache import Cache
-from pipeline.experiments import expfile
-from pipeline.experiments.plots import cost_curves
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.experiments import expfile
+from raico.pipeline.experiments.plots import cost_curves
 
 GOOD, DAMAGED, OLD = "a" * 16, "b" * 16, "c" * 16
 

@@ -1,4 +1,4 @@
-"""The Rerun viewer renders recordings headless (pipeline/recordings/screenshots.py): one babble recording
+"""The Rerun viewer renders recordings headless (raico/pipeline/recordings/screenshots.py): one babble recording
 per plant shows the robot in frame; a plan recording opens on ``sim_time`` with its cost view drawn, and
 shows the robot in the same pose on the ``iteration`` timeline as at the end of the motion.
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from pipeline.recordings.screenshots import (
+from raico.pipeline.interface.cli import app
+from raico.pipeline.recordings.screenshots import (
     content_mask,
     read_png,
     render_screenshot,
@@ -64,7 +64,7 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     _assert_in_frame(robot_mask(read_png(tmp_path / "robot.png")))
     # the iteration timeline at the last iteration shows the plan's final pose, as sim_time does at the end
     # of the motion (its horizon, in s)
-    from planning.tasks import PENDULUM_T, TASKS
+    from raico.planning.tasks import PENDULUM_T, TASKS
 
     last = int(line["metrics"]["iterations"])
     end_s = PENDULUM_T * TASKS[("pendulum", "swing-up")].dt
@@ -75,14 +75,14 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
     assert it.mean() > 3e-4 and overlap > 0.8, f"the robot on the iteration timeline is not at its final pose " \
                                                 f"(IoU {overlap:.2f} with the end of sim_time)"
     # the report's screenshots: the latest plan of each plant in the cache
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     shots = report_screenshots(Cache(tmp_path), tmp_path / "report")
     key = next(iter(Cache(tmp_path).list("plan"))).key
     assert [p.name for _, p in shots] == [f"plan-pendulum-{key}.png"] and shots[0][1].exists()
     assert "pendulum swing-up ilqg" in shots[0][0]
     # the same plan again: the picture is reused, no viewer is started
-    from pipeline.recordings import screenshots
+    from raico.pipeline.recordings import screenshots
 
     def no_viewer():
         raise AssertionError("a viewer was started for a plan that has its screenshot")
@@ -97,8 +97,8 @@ def test_plan_recording_shows_cost_and_robot_on_both_timelines(tmp_path):
 
 
 def test_report_screenshots_without_plans_or_renderer(tmp_path, monkeypatch):
-    from pipeline.engine.cache import Cache
-    from pipeline.recordings import screenshots
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.recordings import screenshots
 
     assert report_screenshots(Cache(tmp_path), tmp_path / "out") == []
     monkeypatch.setattr(screenshots, "renderer_unavailable", lambda: "no Vulkan driver")
@@ -141,7 +141,7 @@ def _plan_arm5(tmp_path, *extra) -> dict:
 def test_show_png_renders_a_recording_headless(tmp_path):
     """``raico show KEY --png OUT --time T`` and ``api.show_png``: the recording as the viewer opens it, the
     robot drawn in the 3D view (the left 60 % of the window, above the cost view)."""
-    from pipeline.interface import api
+    from raico.pipeline.interface import api
 
     key = _plan_arm5(tmp_path, "--no-record")["key"]   # the recording is written from the entry's data
     out = tmp_path / "shots" / "plan.png"
@@ -156,9 +156,9 @@ def test_show_png_renders_a_recording_headless(tmp_path):
 
 
 def test_show_png_without_a_renderer_names_what_is_missing(tmp_path, monkeypatch):
-    from pipeline.errors import RaicoError
-    from pipeline.interface import api
-    from pipeline.recordings import screenshots
+    from raico.pipeline.errors import RaicoError
+    from raico.pipeline.interface import api
+    from raico.pipeline.recordings import screenshots
 
     key = _plan_arm5(tmp_path, "--no-record")["key"]
     monkeypatch.setattr(screenshots, "VULKAN_ICDS", str(tmp_path / "no-icd" / "*.json"))
@@ -206,7 +206,7 @@ def test_learn_recording_frames_the_robot_and_fills_its_views(tmp_path, plant, t
     for name in list(views)[1:]:
         drawn = content_mask(read_png(views[name])).mean()
         assert drawn > 0.002, f"view {name!r} nearly empty ({drawn:.4f} of its pixels coloured)"
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.cache import Cache
 
     shots = report_screenshots(Cache(tmp_path), tmp_path / "report")
     assert f"learn-{plant}-{line['key']}.png" in [p.name for _, p in shots]

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, aico
-from planning.aico.bounds import cost_curvature
-from planning.aico.steps import RobustStep
-from planning.aico.sweeps import Sweeps
-from planning.driver import Iterate
-from planning.problem import Status
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.aico.bounds import cost_curvature
+from raico.planning.aico.steps import RobustStep
+from raico.planning.aico.sweeps import Sweeps
+from raico.planning.driver import Iterate
+from raico.planning.problem import Status
 from tests.planning.test_solvers_lq import N_U, T, exact_solution, make_lq
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -111,7 +111,7 @@ def test_robust_schedule_grows_lambda_by_lm_factor_when_no_rollout_of_a_trial_is
     """A trial whose rollouts (the full step and both shortened ones) all blow up gives no ratio of actual to
     predicted decrease: lambda grows by lm_factor at once, not by Nielsen's 2, 4, 8 meant for a measured rise
     (from a quasi-static start the first trials' rollouts can blow up: three rejections at lambda 1, 2, 8)."""
-    import planning.aico.steps as steps_module
+    import raico.planning.aico.steps as steps_module
 
     pb = make_lq(seed=2, running=5.0)
     U0 = np.zeros((T, N_U))
@@ -189,7 +189,7 @@ def bounded_lq(T: int = T):
     [-0.3, 0.3] (as joint positions, from step 1 on) and both controls within +-0.8 (as efforts)."""
     import dataclasses
 
-    from planning.problem import Bounds
+    from raico.planning.problem import Bounds
 
     pb = make_lq(seed=2, running=5.0, T=T)
     b = Bounds(u_lower=np.full(N_U, -0.8), u_upper=np.full(N_U, 0.8), q_index=np.array([0, 1]),
@@ -274,12 +274,12 @@ def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bou
 
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
-    from plants.robots import shared_robot
+    from raico.pipeline.interface.cli import app
+    from raico.plants.robots import shared_robot
 
     runner = CliRunner()
     root = Path(__file__).resolve().parents[2]
-    res = runner.invoke(app, ["plan", "--problem", str(root / "problems" / "arm5_reach.toml"), "--dynamics", "analytic",
+    res = runner.invoke(app, ["plan", "--problem", str(root / "raico" / "problems" / "arm5_reach.toml"), "--dynamics", "analytic",
                               "--iterations", "12", "--json", "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
     line = json.loads(res.stdout.strip().splitlines()[-1])
@@ -304,9 +304,9 @@ def test_cli_plan_of_a_problem_file_defaults_to_the_robust_schedule_and_hard_bou
 def test_plan_config_says_the_robust_schedule_does_not_relinearize_inside_the_sweeps():
     """--no-relinearize and --belief-rate are the sweeps' relinearization, which the robust schedule does not
     do: named as ignored, left out of the cache key (the same plan either way); the fixed schedule keeps them."""
-    from stages.plan.stage import PlanConfig
+    from raico.stages.plan.stage import PlanConfig
 
-    file = str(Path(__file__).resolve().parents[2] / "problems" / "arm5_reach.toml")
+    file = str(Path(__file__).resolve().parents[2] / "raico" / "problems" / "arm5_reach.toml")
     robust = PlanConfig(problem=file, relinearize=False, belief_rate=0.5)
     assert set(robust.ignored()) == {"relinearize", "belief_rate"}
     assert robust.normalized() == PlanConfig(problem=file).normalized()
@@ -320,7 +320,7 @@ def test_bounds_never_active_give_the_unbounded_iterates(schedule):
     cost and the messages are the unconstrained ones, so every iterate and the plan are the same bits."""
     import dataclasses
 
-    from planning.problem import Bounds
+    from raico.planning.problem import Bounds
 
     free, _ = bounded_lq(T=12)
     X, U = exact_solution(free)
@@ -348,7 +348,7 @@ def test_a_start_outside_a_range_comes_back_as_its_velocity_limit_lets_it():
     outside and that the plan is inside from step 1."""
     import dataclasses
 
-    from planning.problem import Bounds
+    from raico.planning.problem import Bounds
 
     free, _ = bounded_lq(T=12)
     x0 = free.x0
@@ -357,7 +357,7 @@ def test_a_start_outside_a_range_comes_back_as_its_velocity_limit_lets_it():
                v_index=np.array([free.n_x // 2]), v_lower=np.array([-np.inf]), v_upper=np.array([np.inf]))
     lo, hi = b.position_box(x0, dt, free.T)
     assert lo[1, 0] == x0[0] + 0.5      # no velocity limit on coordinate 0: inside from step 1
-    from planning.constraints import reachable_box
+    from raico.planning.constraints import reachable_box
 
     lo, _ = reachable_box(b.q_lower, b.q_upper, x0[:1], np.array([vmax]), dt, free.T)
     assert lo[1, 0] == x0[0] and lo[3, 0] == pytest.approx(x0[0] + 0.2) and lo[7, 0] == x0[0] + 0.5

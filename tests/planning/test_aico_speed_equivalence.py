@@ -1,6 +1,6 @@
 """The optimized AICO / R-AICO sweeps equal a literal reference implementation.
 
-``planning.aico`` skips work that cannot change a result (relinearizing what does not
+``raico.planning.aico`` skips work that cannot change a result (relinearizing what does not
 depend on the state, recomputing unchanged beliefs and backward messages, shared LTI
 matrices), batches task-map evaluations and uses fused BLAS/LAPACK kernels. ``Reference``
 below is Algorithm 1 written straight from the formulas, with dense ``np.linalg.solve``
@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, aico
-from planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
-from planning.problem import Problem, controller_rollout
-from plants.dynamics import PseudoDynamics
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
+from raico.planning.problem import Problem, controller_rollout
+from raico.plants.dynamics import PseudoDynamics
 from tests.tolerance import assert_close
 from tests.toys import PlanarArm
 
@@ -30,7 +30,7 @@ N_Q, T, DT = 3, 40, 0.02
 
 class CoupledPendulums:
     """Nonlinear test model: ``qddot_i = u_i - k sin(q_i + q_{i-1} / 2) - c v_i``, semi-implicit
-    Euler (the time convention of ``plants.dynamics``)."""
+    Euler (the time convention of ``raico.plants.dynamics``)."""
 
     def __init__(self, n_q: int, dt: float, k: float = 3.0, c: float = 0.5):
         self.n_q, self.n_x, self.n_u, self.dt, self.k, self.c = n_q, 2 * n_q, n_q, dt, k, c
@@ -72,7 +72,7 @@ def make_problem(dynamics: str = "pendulums", limits: bool = False) -> Problem:
 
 # -- the reference: Algorithm 1 from the formulas, nothing skipped --------------------------
 class Reference:
-    """AICO with dense solves (``n = n_x``, ``m = n_u``); messages in the moment forms of ``planning.aico``'s docstring:
+    """AICO with dense solves (``n = n_x``, ``m = n_u``); messages in the moment forms of ``raico.planning.aico``'s docstring:
     forward ``S^-1, S^-1 s``, backward ``V^-1, V^-1 v``, task ``R, r``."""
 
     def __init__(self, p: Problem, o: AICOOptions):

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planning import crocoddyl as cm
+from raico.planning import crocoddyl as cm
 from tests.tolerance import close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
@@ -19,9 +19,9 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """The shipped swing-up at 20 ms steps without substeps (crocoddyl steps its model once per node)."""
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
-    text = (ROOT / "problems" / "cartpole_swing-up.toml").read_text()
+    text = (ROOT / "raico" / "problems" / "cartpole_swing-up.toml").read_text()
     text = text.replace("substeps = 10", "").replace("T = 40", "T = 60").replace("dt = 0.1", "dt = 0.02")
     path = tmp_path_factory.mktemp("cartpole") / "cartpole_fine.toml"
     path.write_text(text)
@@ -30,7 +30,7 @@ def built(tmp_path_factory):
 
 
 def test_rollouts_and_costs_agree(built):
-    from plants.dynamics import rollout
+    from raico.plants.dynamics import rollout
 
     problem, cp = built
     assert problem.n_u == 1 and cp.shooting.runningModels[0].nu == 1
@@ -57,8 +57,8 @@ def test_dynamics_derivatives_agree(built):
 
 
 def test_fddp_result_is_in_motor_commands(built):
-    from planning.problem import controller_rollout
-    from planning.solvers import solve
+    from raico.planning.problem import controller_rollout
+    from raico.planning.solvers import solve
 
     problem, _ = built
     r = solve(problem, "fddp", {"iterations": 3})

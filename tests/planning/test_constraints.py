@@ -1,4 +1,4 @@
-"""The hard constraints' augmented Lagrangian (planning/constraints.py): its gradient against finite
+"""The hard constraints' augmented Lagrangian (raico/planning/constraints.py): its gradient against finite
 differences, its Gauss-Newton Hessian against the exact one where the active set holds, the per-step box of a
 start outside a range, and the direct-transcription reference against the bounded LQ problem's QP."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning.constraints import AugmentedLagrangian, ControlBox, FunctionConstraint, StateBox, reachable_box
+from raico.planning.constraints import AugmentedLagrangian, ControlBox, FunctionConstraint, StateBox, reachable_box
 from tests.planning.test_aico_robust import bounded_lq, bounded_qp_optimum
 
 T, N, M = 4, 3, 2
@@ -97,7 +97,7 @@ def test_reachable_box_follows_the_velocity_limit():
 def test_direct_transcription_matches_the_bounded_qp(solver):
     """The direct-transcription reference on the bounded LQ problem reaches the QP's optimum (SLSQP, ftol
     1e-10) to 1e-6 relative (IPOPT's tol 1e-8 on a cost of order 1e3), with dynamics defects at rounding."""
-    from planning.transcription import transcribe
+    from raico.planning.transcription import transcribe
 
     _, pb = bounded_lq(T=12)
     t = transcribe(pb, np.tile(pb.x0, (pb.T + 1, 1)), np.zeros((pb.T, pb.n_u)), solver=solver)
@@ -105,8 +105,8 @@ def test_direct_transcription_matches_the_bounded_qp(solver):
     assert t.cost == pytest.approx(bounded_qp_optimum(pb), rel=1e-6)
 
 
-# crocoddyl's Kinova from its own start (problems/crocoddyl/kinova_reach.toml, joint 3 1.9 rad below its range,
-# velocity limit 0.63 rad/s): the best feasible cost known, from planning.transcription (SNOPT from x0 held,
+# crocoddyl's Kinova from its own start (raico/problems/crocoddyl/kinova_reach.toml, joint 3 1.9 rad below its range,
+# velocity limit 0.63 rad/s): the best feasible cost known, from raico.planning.transcription (SNOPT from x0 held,
 # kSolutionFound, dynamics defect 1e-12, every bound kept; 485 s on a shared 2-core machine, too slow for a test)
 KINOVA_BEST_FEASIBLE = 13.8886
 
@@ -117,12 +117,12 @@ def test_kinova_from_its_own_start_is_feasible_and_within_1_1x_of_the_best_feasi
     stopping tolerance allows: a lower cost would be a plan outside the bounds)."""
     from pathlib import Path
 
-    from planning.aico import AICOOptions, aico
-    from planning.problem import Status
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.planning.aico import AICOOptions, aico
+    from raico.planning.problem import Status
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     root = Path(__file__).resolve().parents[2]
-    cfg = PlanConfig(problem=str(root / "problems/crocoddyl/kinova_reach.toml"), dynamics="analytic", q0_std=0.0,
+    cfg = PlanConfig(problem=str(root / "raico/problems/crocoddyl/kinova_reach.toml"), dynamics="analytic", q0_std=0.0,
                      solver="raico", alpha=1.0, alpha_schedule="robust", bounds="hard").normalized()
     pb = build_problem(cfg)[2]
     res = aico(pb, AICOOptions(iterations=300, alpha=1.0, schedule="robust"))

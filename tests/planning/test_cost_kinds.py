@@ -1,16 +1,16 @@
-"""The problem-file table (``planning.term_kinds.COST_KINDS``): every row's functions exist, its terms and
+"""The problem-file table (``raico.planning.term_kinds.COST_KINDS``): every row's functions exist, its terms and
 maps are rows of the other two tables, and every shipped problem file's terms have a row."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from planning import problem_terms
-from planning.achieved import TASK_TOLERANCES
-from planning.problem_file import read_problem
-from planning.term_kinds import COST_KINDS, MAP_KINDS, cost_kind, kind_named, term_kinds
+from raico.planning import problem_terms
+from raico.planning.achieved import TASK_TOLERANCES
+from raico.planning.problem_file import read_problem
+from raico.planning.term_kinds import COST_KINDS, MAP_KINDS, cost_kind, kind_named, term_kinds
 
-PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
+PROBLEMS = Path(__file__).resolve().parents[2] / "raico" / "problems"
 
 
 def test_every_cost_kind_names_its_functions_and_rows_that_exist():

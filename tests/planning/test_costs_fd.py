@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
-from planning.problem import Problem
-from plants.dynamics import PseudoDynamics
-from plants.numdiff import check_cost_term, check_taskmap, numdiff_jacobian
+from raico.planning.costs import ControlCost, ControlLimit, StateTarget, ViaPoint
+from raico.planning.problem import Problem
+from raico.plants.dynamics import PseudoDynamics
+from raico.plants.numdiff import check_cost_term, check_taskmap, numdiff_jacobian
 from tests.tolerance import assert_close
 from tests.toys import PlanarArm
 

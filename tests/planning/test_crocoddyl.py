@@ -10,15 +10,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning import crocoddyl as cm
-from plants.robots import shared_robot
+from raico.planning import crocoddyl as cm
+from raico.plants.robots import shared_robot
 from tests.tolerance import close
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
 
 def _problem(plant: str, task: str, dynamics: str = "analytic", seed: int = 0):
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     return build_problem(PlanConfig(plant=plant, task=task, dynamics=dynamics, seed=seed))[2]
 
@@ -38,7 +38,7 @@ def built():
 def _trajectories(problem):
     """Zero-torque rollout, a random-torque rollout (control limits violated on the pendulum)
     and the infeasible 'x0 held' trajectory with random controls."""
-    from plants.dynamics import rollout
+    from raico.plants.dynamics import rollout
 
     rng = np.random.default_rng(3)
     T, m = problem.T, problem.n_u
@@ -129,8 +129,8 @@ def test_what_crocoddyl_cannot_express_is_refused_with_the_reason():
 
 @pytest.mark.numerics
 def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(built):
-    from planning.problem import controller_rollout
-    from planning.solvers import solve
+    from raico.planning.problem import controller_rollout
+    from raico.planning.solvers import solve
 
     problem, _ = built[("arm5", "reach")]
     for name in ("fddp", "fddp-rollout"):
@@ -149,7 +149,7 @@ def test_fddp_returns_a_raico_result_whose_controller_reproduces_its_trajectory(
 
 
 def test_options_are_strict():
-    from planning.solvers import make_options
+    from raico.planning.solvers import make_options
 
     with pytest.raises(ValueError, match="unknown FDDPOptions option"):
         make_options("fddp", {"alpha": 1.0})
@@ -159,7 +159,7 @@ def test_options_are_strict():
 
 
 def test_plan_stage_refuses_fddp_on_pseudo_dynamics_in_one_line():
-    from stages.plan.stage import PlanConfig, plan
+    from raico.stages.plan.stage import PlanConfig, plan
 
     with pytest.raises(ValueError, match=r"^solver fddp: crocoddyl cannot express the pseudo-dynamics exactly"):
         plan(PlanConfig(plant="arm5", task="reach", dynamics="pseudo", solver="fddp", iterations=2))
@@ -169,7 +169,7 @@ def test_plan_stage_refuses_fddp_on_pseudo_dynamics_in_one_line():
 def test_an_fddp_run_stopped_by_its_regularization_limit_says_so():
     """crocoddyl's FDDP also stops when no step is accepted and its regularization reaches reg_max
     (fig3.2d's roll task from the rollout start, seed 5: 23 of 100 iterations); the message says why."""
-    from planning.solvers import solve
+    from raico.planning.solvers import solve
 
     r = solve(_problem("arm5", "reach-roll", seed=5), "fddp-rollout", {"iterations": 100})
     assert r.status == "max-iterations" and r.iterations < 100

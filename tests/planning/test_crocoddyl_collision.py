@@ -16,9 +16,9 @@ def test_collision_pairs_cost_and_derive_in_crocoddyl_as_in_raico(tmp_path):
     others go through two GJK codes (FCL's in Drake, coal's), each accurate to about 1e-7 m: their values agree to
     1e-5 m; their witness points are not unique on parallel faces, so their Jacobians are left out. The term's
     total over a trajectory (margin 0.2 m: most pairs count) agrees to 1e-6 relative."""
-    import planning.crocoddyl.solve as cm
-    from planning.costs import Collision
-    from planning.crocoddyl.collision import PairDistances, geometry_model
+    import raico.planning.crocoddyl.solve as cm
+    from raico.planning.costs import Collision
+    from raico.planning.crocoddyl.collision import PairDistances, geometry_model
     from tests.planning.test_crocoddyl_model_files import _crocoddyl_term_costs, _trajectory, raico_problem
 
     path = _problem(tmp_path, costs=REACH + AVOID.format(dmax=1.0).replace("margin = 0.02", "margin = 0.2"))

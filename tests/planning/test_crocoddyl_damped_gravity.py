@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planning import crocoddyl as cm
+from raico.planning import crocoddyl as cm
 from tests.tolerance import REL
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
@@ -37,10 +37,10 @@ def hold_problem(tmp_path: Path, box: bool) -> Path:
 
 
 def raico_problem(path: Path):
-    from planning.objective import build_terms
-    from planning.problem import Problem
-    from plants.fast_analytic import TreeAnalyticDynamics
-    from stages.plan.stage import PlanConfig, robot_and_task
+    from raico.planning.objective import build_terms
+    from raico.planning.problem import Problem
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
+    from raico.stages.plan.stage import PlanConfig, robot_and_task
 
     cfg = PlanConfig(problem=str(path), solver="fddp", dynamics="analytic", q0_std=0.0).normalized()
     robot, task = robot_and_task(cfg)
@@ -67,9 +67,9 @@ def term_costs(cp, X, U) -> dict[str, float]:
 
 
 def test_the_fixture_damps_every_joint_and_has_a_prismatic_lift():
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
-    from stages.evaluate.metrics import prismatic_joints
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
+    from raico.stages.evaluate.metrics import prismatic_joints
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
     assert robot.n_q == 6 and prismatic_joints(robot).tolist() == [True] + [False] * 5
@@ -117,9 +117,9 @@ def test_the_residual_on_the_control_by_finite_differences():
     is the truncation ``h^2 g'''`` and the rounding ``eps |g| / h``, both below 1e-6 of ``|dg/dq|``)."""
     import crocoddyl
 
-    from planning.crocoddyl.costs import _ControlGravityResidual
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
+    from raico.planning.crocoddyl.costs import _ControlGravityResidual
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
     pmodel, smap = cm.pinocchio_robot(robot, "angle")
@@ -148,7 +148,7 @@ def test_the_residual_on_the_control_by_finite_differences():
 @pytest.mark.parametrize("solver_box", ["no", "yes"])
 def test_fddp_and_boxfddp_plan_the_damped_hold(tmp_path, solver_box):
     """FDDP (box no) and BoxFDDP (box yes) solve the damped problem: a finite plan whose cost fell."""
-    from planning.crocoddyl import FDDPOptions, fddp
+    from raico.planning.crocoddyl import FDDPOptions, fddp
 
     _, problem = raico_problem(hold_problem(tmp_path, box=solver_box == "yes"))
     res = fddp(problem, FDDPOptions(iterations=5, box=solver_box, start="rollout"))

@@ -15,13 +15,13 @@ import warnings
 import numpy as np
 import pytest
 
-from planning import crocoddyl as cm
+from raico.planning import crocoddyl as cm
 from tests.tolerance import assert_close, bound, close, cond_of
 
 pytestmark = pytest.mark.skipif(not cm.AVAILABLE, reason=f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
 
 RTOL = 1e-9
-KINOVA = "problems/crocoddyl/kinova_reach.toml"
+KINOVA = "raico/problems/crocoddyl/kinova_reach.toml"
 # name -> (file under example-robot-data's robots/, locked joints, armature by joint index or one number)
 ARMS = {
     "kinova": ("kinova_description/robots/kinova.urdf", {}, 0.02),
@@ -34,7 +34,7 @@ ARMS = {
 
 
 def _erd():
-    from plants.model_file import example_robot_data
+    from raico.plants.model_file import example_robot_data
 
     erd = example_robot_data()
     if erd is None:
@@ -43,7 +43,7 @@ def _erd():
 
 
 def _spec(name: str):
-    from plants.model_file import RobotSpec
+    from raico.plants.model_file import RobotSpec
 
     file, locked, armature = ARMS[name]
     return RobotSpec(file=str(_erd() / "robots" / file), locked=tuple(sorted(locked.items())),
@@ -59,8 +59,8 @@ def arms():
     continuous joints as Pinocchio reads them (cos, sin), and as angles for "kinova:angle"."""
     from dataclasses import replace
 
-    from planning.crocoddyl import pinocchio_robot
-    from plants.model_file import load_model
+    from raico.planning.crocoddyl import pinocchio_robot
+    from raico.plants.model_file import load_model
 
     out = {}
     with warnings.catch_warnings():
@@ -107,7 +107,7 @@ def _rel(a, b) -> float:
 def test_drake_and_pinocchio_agree_on_mass_matrix_bias_and_frames(arms, name):
     import pinocchio as pin
 
-    from planning.crocoddyl import frame_id
+    from raico.planning.crocoddyl import frame_id
 
     robot, model, smap = arms[name]
     assert sorted(model.names[1:]) == sorted(robot.joint_names)
@@ -153,10 +153,10 @@ def _frame_indices(plant):
 def raico_problem(path):
     """raico's problem of a problem file at its start posture (q0-std 0), with the analytic dynamics
     the plan stage ends up with for these arms (the compiled tree model)."""
-    from planning.objective import build_terms
-    from planning.problem import Problem
-    from plants.fast_analytic import TreeAnalyticDynamics
-    from stages.plan.stage import PlanConfig, robot_and_task
+    from raico.planning.objective import build_terms
+    from raico.planning.problem import Problem
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
+    from raico.stages.plan.stage import PlanConfig, robot_and_task
 
     cfg = PlanConfig(problem=str(path), solver="fddp", dynamics="analytic", q0_std=0.0).normalized()
     robot, task = robot_and_task(cfg)
@@ -321,7 +321,7 @@ def kinova_cos_sin(kinova_problem):
 def test_every_term_of_a_problem_file_costs_the_same_in_crocoddyl(every_term):
     """Every term alike on both translations (the random trajectory keeps the continuous joints
     within pi of every reference, where crocoddyl's wrapped differences are raico's)."""
-    from planning.costs import TaskInequality, ViaPoint
+    from raico.planning.costs import TaskInequality, ViaPoint
 
     robot, problem, cp = every_term
     kinds = {type(t).__name__ + ("/" + type(t.taskmap).__name__ if isinstance(t, (ViaPoint, TaskInequality)) else "")
@@ -509,7 +509,7 @@ def test_the_bench_row_of_crocoddyls_example_is_plain_fddp(crocoddyl_baseline):
     bench builds it (the problem file's default hard bounds, which ``box="auto"`` would turn into BoxFDDP):
     the logged 72 iterations (0-based) and cost 8.125."""
     from bench.crocoddyl_problems import PROBLEMS, kinova_example, plan_config
-    from stages.plan.stage import build_problem
+    from raico.stages.plan.stage import build_problem
 
     problem = build_problem(plan_config(PROBLEMS["kinova"]["file"], solver="fddp"))[2]
     assert problem.bounds is not None
@@ -522,8 +522,8 @@ def test_fddp_solver_on_the_exact_translation_reports_raicos_cost(kinova):
     """The solver ``fddp`` of raico plan (x0 held at every node) and crocoddyl's cold start on the
     exact translation: the gains mapped from crocoddyl's tangent space, the controller rolled out on
     raico's model reaching crocoddyl's cost, which is raico's cost of it."""
-    from planning.crocoddyl import FDDPOptions, fddp
-    from planning.solvers import solve
+    from raico.planning.crocoddyl import FDDPOptions, fddp
+    from raico.planning.solvers import solve
 
     robot, problem, cp = kinova
     for r in (solve(problem, "fddp", {"iterations": 200}),
@@ -535,10 +535,10 @@ def test_fddp_solver_on_the_exact_translation_reports_raicos_cost(kinova):
 
 
 def test_what_pinocchio_cannot_hold_is_refused_in_one_line():
-    from planning.costs import TaskInequality
-    from planning.crocoddyl import pinocchio_robot
-    from plants.model_file import RobotSpec, load_model
-    from plants.taskmaps import CenterOfMass
+    from raico.planning.costs import TaskInequality
+    from raico.planning.crocoddyl import pinocchio_robot
+    from raico.plants.model_file import RobotSpec, load_model
+    from raico.plants.taskmaps import CenterOfMass
 
     spec = RobotSpec(file=str(_erd() / "robots" / ARMS["talos_left_arm"][0]), weld="gripper_left_base_link")
     with warnings.catch_warnings():
@@ -554,7 +554,7 @@ def test_what_pinocchio_cannot_hold_is_refused_in_one_line():
 
 
 # ----------------------------------------------------------------------------- the Talos arm
-TALOS = "problems/crocoddyl/talos_arm_reach.toml"
+TALOS = "raico/problems/crocoddyl/talos_arm_reach.toml"
 # crocoddyl 1.0.0's examples/log/arm_manipulation.log: per DDP iteration its cost and its stopping
 # value (then the sum of ||Q_u||^2 over the nodes), stopped below th_stop = 1e-9 at iteration 6
 TALOS_LOG = [(0.428053, 1.91916e-08), (0.375971, 4.33645e-08), (0.275989, 3.04933e-08), (0.246724, 1.14202e-08),
@@ -621,15 +621,15 @@ def test_crocoddyls_talos_arm_example_is_reproduced_through_the_problem_file(tal
 
 # ----------------------------------------------------------------------------- MJCF and SDF
 @pytest.mark.numerics
-@pytest.mark.parametrize("path", ["problems/suite/arm3_mjcf_reach.toml", "problems/suite/arm3_sdf_reach.toml"])
+@pytest.mark.parametrize("path", ["raico/problems/suite/arm3_mjcf_reach.toml", "raico/problems/suite/arm3_sdf_reach.toml"])
 def test_mjcf_and_sdf_robots_are_the_same_model_in_pinocchio_and_fddp_reports_raicos_cost(path):
     """Pinocchio's own MJCF reader, and the model built from Drake's reading of an SDF file, give Drake's
     mass matrix, bias (gravity, Coriolis, the file's joint damping) and frames; FDDP on the file's problem
     reaches a controller whose rollout on raico's model costs what crocoddyl says."""
     import pinocchio as pin
 
-    from planning.crocoddyl import frame_id, pinocchio_robot
-    from planning.solvers import solve
+    from raico.planning.crocoddyl import frame_id, pinocchio_robot
+    from raico.planning.solvers import solve
 
     robot, problem = raico_problem(path)
     model, smap = pinocchio_robot(robot)
@@ -662,7 +662,7 @@ def test_a_drake_joint_pinocchio_cannot_hold_is_refused_in_one_line():
     from pydrake.multibody.plant import MultibodyPlant
     from pydrake.multibody.tree import SpatialInertia
 
-    from planning.crocoddyl import model_from_drake
+    from raico.planning.crocoddyl import model_from_drake
 
     plant = MultibodyPlant(0.0)
     plant.AddRigidBody("floating", SpatialInertia.SolidSphereWithMass(1.0, 0.1))

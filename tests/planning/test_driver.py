@@ -1,4 +1,4 @@
-"""The solver driver (``planning.driver``) on synthetic steps whose verdict is known."""
+"""The solver driver (``raico.planning.driver``) on synthetic steps whose verdict is known."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from planning.driver import (
+from raico.planning.driver import (
     Iterate,
     Status,
     Step,
@@ -19,7 +19,7 @@ from planning.driver import (
     cost_decrease_below,
     drive,
 )
-from planning.problem import STATUSES, Result
+from raico.planning.problem import STATUSES, Result
 
 
 @dataclass(frozen=True)

@@ -19,18 +19,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from planning import kernels
-from planning.aico import AICOOptions, aico
-from planning.aico.sweeps import Sweeps
-from planning.costs import ControlCost, StateTarget, ViaPoint
-from planning.ilqg import ILQGOptions, _backward, ilqg
-from planning.problem import Problem, controller_rollout
-from plants.codegen import c_backend, rbd
-from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
-from plants.gp import GPModel, SparseGPModel
-from plants.learned import LearnedDynamics
-from plants.robots import PLANTS, shared_robot
-from plants.taskmaps import FramePoints
+from raico.planning import kernels
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.aico.sweeps import Sweeps
+from raico.planning.costs import ControlCost, StateTarget, ViaPoint
+from raico.planning.ilqg import ILQGOptions, _backward, ilqg
+from raico.planning.problem import Problem, controller_rollout
+from raico.plants.codegen import c_backend, rbd
+from raico.plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
+from raico.plants.gp import GPModel, SparseGPModel
+from raico.plants.learned import LearnedDynamics
+from raico.plants.robots import PLANTS, shared_robot
+from raico.plants.taskmaps import FramePoints
 from tests.planning.test_kernels import _assert_same, _dense_lib, _padded, _plan_problem
 from tests.planning.test_solvers_lq import exact_solution, make_lq
 from tests.tolerance import REL, assert_close, close
@@ -109,7 +109,7 @@ def test_compiled_sweeps_equal_numpy_sweeps_on_every_shape(n, m, T, monkeypatch)
 
 class _SemiImplicitToy:
     """``qddot = -k sin(S q) - c v + G u`` (``n_q`` joints, ``n_u`` controls, ``G`` random), semi-implicit
-    Euler as ``plants.dynamics``: a time-varying ``C`` of the block form the sweep kernel exploits."""
+    Euler as ``raico.plants.dynamics``: a time-varying ``C`` of the block form the sweep kernel exploits."""
 
     def __init__(self, n_q: int, n_u: int, dt: float = 0.02, seed: int = 0):
         rng = np.random.default_rng(seed)
@@ -481,7 +481,7 @@ TASK_TREES = [(1, 1, False), (9, 3, False), (9, 2, True), (33, 4, False), (64, 5
 
 
 def _task_tree(n: int, branches: int, leaf: bool, tmp_path):
-    from plants.model_file import RobotSpec, load_model
+    from raico.plants.model_file import RobotSpec, load_model
     from tests.plants.test_tree_kernel_range import tree_urdf
 
     path = tmp_path / f"tree{n}.urdf"
@@ -499,10 +499,10 @@ def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branc
     moving joints: compiled, and the messages equal the Python terms' at every step, relative to their scale;
     the control toward gravity too (its state part at random controls: the gravity torques' analytical
     Jacobian on the tree, mapped by P), and its costs without a gradient."""
-    from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlGravity, TaskInequality
-    from planning.problem import Problem
-    from planning.term_kinds import kind_of_map
-    from plants.dynamics_registry import make_dynamics
+    from raico.planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlGravity, TaskInequality
+    from raico.planning.problem import Problem
+    from raico.planning.term_kinds import kind_of_map
+    from raico.plants.dynamics_registry import make_dynamics
     from tests.planning.test_task_messages import _evaluator
 
     robot = _task_tree(n, branches, leaf, tmp_path)
@@ -549,9 +549,9 @@ def test_task_messages_for_every_compiled_kind_over_the_range_of_robots(n, branc
 
 def test_task_messages_beyond_64_positions_use_python(tmp_path):
     """65 moving joints exceed the kernel's position buffers: no compiled messages."""
-    from planning.costs import COST_TERM_EXAMPLES, ControlCost
-    from planning.problem import Problem
-    from plants.dynamics_registry import make_dynamics
+    from raico.planning.costs import COST_TERM_EXAMPLES, ControlCost
+    from raico.planning.problem import Problem
+    from raico.plants.dynamics_registry import make_dynamics
 
     robot = _task_tree(65, 5, False, tmp_path)
     term = COST_TERM_EXAMPLES["via_joint_positions"].build(robot, robot.default_q)

@@ -1,6 +1,6 @@
 """The compiled kernels (speed only) against the numpy / Drake code they replace.
 
-- the AICO sweep kernel (``planning/csweep.c``) against ``Sweeps``'s numpy code, on every
+- the AICO sweep kernel (``raico/planning/csweep.c``) against ``Sweeps``'s numpy code, on every
   route it takes: dynamics linearized in Python (``NEED_DYN``), compiled (``dyn_linearize``) or
   never (LTI, sparse shared ``C``); task messages from Python (``NEED_TASK``) or compiled
   (``taskset_eval``); theta = inf;
@@ -28,16 +28,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planning import kernels
-from planning.aico import AICOOptions, aico
-from planning.aico.sweeps import Sweeps
-from plants.codegen import c_backend, rbd
-from plants.dynamics import AnalyticDynamics
-from plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
-from plants.numdiff import check_dynamics
-from plants.robots import PLANTS, shared_robot
-from plants.taskmaps import TASKMAP_EXAMPLES
-from stages.plan.stage import PlanConfig, build_problem
+from raico.planning import kernels
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.aico.sweeps import Sweeps
+from raico.plants.codegen import c_backend, rbd
+from raico.plants.dynamics import AnalyticDynamics
+from raico.plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
+from raico.plants.numdiff import check_dynamics
+from raico.plants.robots import PLANTS, shared_robot
+from raico.plants.taskmaps import TASKMAP_EXAMPLES
+from raico.stages.plan.stage import PlanConfig, build_problem
 from tests.planning.test_aico_speed_equivalence import make_problem
 from tests.tolerance import REL, assert_close, bound, cond_of, scale_of
 
@@ -65,7 +65,7 @@ def test_the_compiled_path_is_the_one_that_ran(monkeypatch):
 
 def test_a_broken_kernel_source_fails_loudly(tmp_path):
     """gcc present and the source broken (a syntax error): the build raises CompileError (never the
-    silent numpy fallback), and so does ``python -m planning.kernels`` (make kernels)."""
+    silent numpy fallback), and so does ``python -m raico.planning.kernels`` (make kernels)."""
     broken = kernels.source_text().replace("sweep_run(", "sweep_run((", 1)
     with pytest.raises(c_backend.CompileError, match="gcc failed on csweep"):
         c_backend.build_library(broken, "csweep", directory=tmp_path, flags=kernels.FLAGS)
@@ -74,22 +74,22 @@ def test_a_broken_kernel_source_fails_loudly(tmp_path):
     copy = tmp_path / "repo"
     for pkg in ("plants", "planning"):
         shutil.copytree(REPO / pkg, copy / pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    (copy / "planning" / "csweep.c").write_text(kernels.SOURCES[1].read_text().replace("sweep_run(", "sweep_run((", 1))
+    (copy / "raico" / "planning" / "csweep.c").write_text(kernels.SOURCES[1].read_text().replace("sweep_run(", "sweep_run((", 1))
     env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(copy)}
     env.pop("RAICO_NO_C", None)
-    p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=copy, env=env,
+    p = subprocess.run([sys.executable, "-m", "raico.planning.kernels"], cwd=copy, env=env,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode != 0 and "CompileError" in p.stderr, p.stderr[-2000:]
 
 
 def test_the_kernel_source_is_package_data():
-    """A wheel or non-editable install has ``planning/csweep.c`` (pyproject's package data)."""
+    """A wheel or non-editable install has ``raico/planning/csweep.c`` (pyproject's package data)."""
     data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
     import fnmatch
 
     for name in ("dense.c", "csweep.c"):
         assert any(fnmatch.fnmatch(name, pat) for pat in data["planning"]), name
-        assert (REPO / "planning" / name).exists()
+        assert (REPO / "raico" / "planning" / name).exists()
 
 
 def test_the_kernel_flags_follow_this_cpu():
@@ -165,13 +165,13 @@ def test_an_instruction_set_level_builds_its_own_kernels_with_its_instructions_o
         c_backend.build_library(source + "\n", "csweep", directory=tmp_path / "refused")
     assert not (tmp_path / "refused").exists()
     env = {**os.environ, "RAICO_ISA": "avx9000", "RAICO_KERNEL_DIR": str(tmp_path / "cli")}
-    p = subprocess.run([sys.executable, "-m", "planning.kernels"], cwd=REPO, env=env, capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "raico.planning.kernels"], cwd=REPO, env=env, capture_output=True, text=True,
                        timeout=300)
     assert p.returncode == 2 and p.stderr.strip().count("\n") == 0 and "RAICO_ISA='avx9000'" in p.stderr, p.stderr
 
 
 def _sweep_lib_at(path: Path):
-    """The sweep kernel built at ``path``, its entry points typed as :func:`planning.kernels.library` types them."""
+    """The sweep kernel built at ``path``, its entry points typed as :func:`raico.planning.kernels.library` types them."""
     import ctypes
 
     with pytest.MonkeyPatch.context() as mp:
@@ -185,9 +185,9 @@ def test_wide_tiles_give_the_avx2_numbers_bit_for_bit(tmp_path, monkeypatch):
     the operations of the AVX2 build's 8-column tiles in the same order, so both builds give the same
     bits: the dense kernels on shapes across the tiles' edges, and whole runs on the block form (coupled
     pendulums) and on the dense route of a learned model (whose figures depend on its rounding)."""
-    from planning.costs import ControlCost, StateTarget
-    from planning.problem import Problem
-    from plants.learned import LearnedDynamics
+    from raico.planning.costs import ControlCost, StateTarget
+    from raico.planning.problem import Problem
+    from raico.plants.learned import LearnedDynamics
     from tests.planning.test_aico_speed_equivalence import CoupledPendulums
     from tests.planning.test_kernel_shapes import _gp
 
@@ -354,12 +354,12 @@ def _dense_route(monkeypatch) -> None:
     monkeypatch.setattr(Sweeps, "_kernel_state", state)
 
 
-_MODEL_FILES = ("problems/examples/ur5_reach.toml", "problems/examples/xarm7_reach.toml",
-                "problems/crocoddyl/kinova_reach.toml")
+_MODEL_FILES = ("raico/problems/examples/ur5_reach.toml", "raico/problems/examples/xarm7_reach.toml",
+                "raico/problems/crocoddyl/kinova_reach.toml")
 
 
 def _file_problem(path: str):
-    from plants.model_file import example_robot_data
+    from raico.plants.model_file import example_robot_data
 
     if example_robot_data() is None:
         pytest.skip("example-robot-data is not installed (it comes with the extra raico[baseline])")
@@ -619,7 +619,7 @@ def test_compiled_task_maps_equal_drake(name, plant):
 def test_emitted_c_is_the_python_arithmetic():
     """The generated C evaluates the very operations of the generated Python (bitwise here:
     same libm, no contraction)."""
-    from plants.codegen.derive import compiled_dynamics
+    from raico.plants.codegen.derive import compiled_dynamics
 
     code = compiled_dynamics(shared_robot("arm5"))
     fast = FastAnalyticDynamics(shared_robot("arm5"), 0.01)
@@ -632,12 +632,12 @@ def test_emitted_c_is_the_python_arithmetic():
 
 
 def test_message_kinds_are_named_alike_in_python_and_c():
-    """The compiled task terms are selected by named constants: planning.kernels.MessageKind mirrors
-    ``enum message_kind`` of planning/task_messages.c value for value; the plants floor holds none of it."""
+    """The compiled task terms are selected by named constants: raico.planning.kernels.MessageKind mirrors
+    ``enum message_kind`` of raico/planning/task_messages.c value for value; the plants floor holds none of it."""
     import re
 
-    src = (REPO / "planning" / "task_messages.c").read_text()
-    assert "message_kind" not in (REPO / "plants" / "codegen" / "rbd_kernels.c").read_text()
+    src = (REPO / "raico" / "planning" / "task_messages.c").read_text()
+    assert "message_kind" not in (REPO / "raico" / "plants" / "codegen" / "rbd_kernels.c").read_text()
     body = re.search(r"enum message_kind \{([^}]*)\}", src).group(1)
     c_enum = {name.strip().removeprefix("MK_"): int(v) for name, v in re.findall(r"(MK_\w+)\s*=\s*(\d+)", body)}
     assert c_enum == {k.name: int(k) for k in kernels.MessageKind}
@@ -670,10 +670,10 @@ def test_a_constant_start_is_linearized_once_with_the_same_numbers(compiled, mon
 
 @pytest.mark.numerics
 def test_the_start_rollout_is_the_python_loop_also_where_it_blows_up():
-    """``aico``'s open-loop start rollout on a compiled model: the bits of ``plants.dynamics.rollout``, for
+    """``aico``'s open-loop start rollout on a compiled model: the bits of ``raico.plants.dynamics.rollout``, for
     a rollout that stays finite and for one that leaves the finite numbers part-way."""
-    from planning.aico.solve import open_loop_rollout
-    from plants.dynamics import rollout
+    from raico.planning.aico.solve import open_loop_rollout
+    from raico.plants.dynamics import rollout
 
     problem = _plan_problem("arm5", "reach-roll", "analytic")
     rng = np.random.default_rng(3)
@@ -697,7 +697,7 @@ def test_the_cost_of_a_rollout_gives_the_next_linearization_its_task_rows(monkey
     """``Sweeps.cost`` keeps the compiled task rows' derivatives of the trajectory it costs; a linearization
     at that trajectory (the next iteration's) takes them instead of a second pass, with the same task
     messages as a pass of its own; at another trajectory it makes its own pass."""
-    problem = build_problem(PlanConfig(problem=str(REPO / "problems/examples/ur5_reach.toml"), bounds="none")
+    problem = build_problem(PlanConfig(problem=str(REPO / "raico/problems/examples/ur5_reach.toml"), bounds="none")
                             .normalized())[2]
     rng = np.random.default_rng(4)
     X = np.tile(problem.x0, (problem.T + 1, 1)) + 0.05 * rng.standard_normal((problem.T + 1, problem.n_x))

@@ -1,4 +1,4 @@
-"""The receding-horizon controller (planning.mpc): shift warm start, receding end, pushes, budgets."""
+"""The receding-horizon controller (raico.planning.mpc): shift warm start, receding end, pushes, budgets."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import copy
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, aico
-from planning.costs import ControlCost, ViaPoint
-from planning.mpc import MPC, simulate, window_times
-from planning.problem import Problem
-from plants.dynamics import PseudoDynamics
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.costs import ControlCost, ViaPoint
+from raico.planning.mpc import MPC, simulate, window_times
+from raico.planning.problem import Problem
+from raico.plants.dynamics import PseudoDynamics
 from tests.planning.test_solvers_lq import exact_solution, make_lq
 from tests.tolerance import close
 from tests.toys import PlanarArm

@@ -12,11 +12,11 @@ import itertools
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, aico
-from planning.costs import ControlCost, StateTarget
-from planning.ilqg import ILQGOptions, ilqg
-from planning.problem import Problem, controller_rollout
-from plants.dynamics import LinearDynamics
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.costs import ControlCost, StateTarget
+from raico.planning.ilqg import ILQGOptions, ilqg
+from raico.planning.problem import Problem, controller_rollout
+from raico.plants.dynamics import LinearDynamics
 from tests.tolerance import REL, close
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -199,7 +199,7 @@ def test_larger_alpha_takes_smaller_first_step():
 @pytest.mark.parametrize("scale", [1e-2, 1e2, 1e4, 3e5, 1e8, 1e11])
 def test_vstar_all_regimes(scale):
     """``V* = (q I + P'^-1)^-1`` and ``V* m'`` in every branch (series and Cholesky)."""
-    from planning.aico.sweeps import Sweeps
+    from raico.planning.aico.sweeps import Sweeps
 
     sw = Sweeps(make_lq(), AICOOptions(process_noise=1e-9))
     rng = np.random.default_rng(3)
@@ -238,9 +238,9 @@ def test_adaptive_raico_converges_faster_on_lq():
 @pytest.mark.numerics
 def test_adaptive_schedule_rejects_a_step_that_raises_the_cost():
     """A trial that raises the cost is not taken: the iterate and its cost stay, alpha grows."""
-    from planning.aico.steps import AICOStep
-    from planning.aico.sweeps import Sweeps
-    from planning.driver import Iterate
+    from raico.planning.aico.steps import AICOStep
+    from raico.planning.aico.sweeps import Sweeps
+    from raico.planning.driver import Iterate
 
     pb = make_lq(seed=2, running=5.0)
     opts = AICOOptions(alpha=1.0, schedule="adaptive")
@@ -272,9 +272,9 @@ def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
 
 @pytest.mark.numerics
 def test_compiled_ilqg_backward_equals_numpy():
-    """planning/ilqg_backward.c computes iLQG's backward pass as the numpy code does (to rounding),
+    """raico/planning/ilqg_backward.c computes iLQG's backward pass as the numpy code does (to rounding),
     with and without regularization, and refuses a Q_uu that is not positive definite as numpy does."""
-    from planning.ilqg import _backward, _c_backward_lib, _NotPD
+    from raico.planning.ilqg import _backward, _c_backward_lib, _NotPD
 
     if _c_backward_lib() is None:
         pytest.skip("no C compiler (RAICO_NO_C or no gcc)")
@@ -303,7 +303,7 @@ def test_the_solvers_blas_runs_on_one_thread_and_the_library_scan_is_kept():
 
     from threadpoolctl import threadpool_info
 
-    from planning import problem as pm
+    from raico.planning import problem as pm
 
     before = {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
     with pm.single_threaded_blas():

@@ -13,12 +13,12 @@ import re
 import numpy as np
 import pytest
 
-from planning.aico import AICOOptions, aico
-from planning.costs import ControlCost, ControlLimit, ViaPoint
-from planning.ilqg import ILQGOptions, ilqg
-from planning.problem import Problem
-from planning.solvers import SOLVERS, make_options, solve
-from plants.dynamics import PseudoDynamics
+from raico.planning.aico import AICOOptions, aico
+from raico.planning.costs import ControlCost, ControlLimit, ViaPoint
+from raico.planning.ilqg import ILQGOptions, ilqg
+from raico.planning.problem import Problem
+from raico.planning.solvers import SOLVERS, make_options, solve
+from raico.plants.dynamics import PseudoDynamics
 from tests.toys import PlanarArm
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -246,7 +246,7 @@ def test_options_validate_ranges(cls, bad, message):
 
 
 def test_solver_registry(arm_problem):
-    from planning.crocoddyl import AVAILABLE  # the crocoddyl baseline registers where installed
+    from raico.planning.crocoddyl import AVAILABLE  # the crocoddyl baseline registers where installed
 
     baseline = {"fddp", "fddp-rollout", "fddp-rollout-accept-any", "fddp-rollout-ilqg-schedule",
                 "boxfddp"} if AVAILABLE else set()

@@ -1,7 +1,7 @@
-"""The compiled task messages (planning/task_messages.c through planning.kernels.compile_task_set)
+"""The compiled task messages (raico/planning/task_messages.c through raico.planning.kernels.compile_task_set)
 for every state-term kind of the cost-term examples, on a built-in arm and on a model-file robot:
 
-- every example whose map has a compiled counterpart in the task-map table (planning.term_kinds)
+- every example whose map has a compiled counterpart in the task-map table (raico.planning.term_kinds)
   compiles, and its gradient and Gauss-Newton Hessian equal the Python terms' (Drake's or the tree
   kernels' kinematics, the numpy logarithms) to rounding, relative to their scale;
 - the compiled gradient equals central differences of the term's cost (the exact Jacobians);
@@ -17,13 +17,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from planning import kernels
-from planning.costs import COST_TERM_EXAMPLES, ControlCost, StateTarget, ViaPoint
-from planning.problem import Problem
-from planning.term_kinds import MAP_KINDS, kind_of_map
-from plants.dynamics_registry import make_dynamics
-from plants.robots import shared_robot
-from plants.taskmaps import FramePlacementError, FrameRotationError
+from raico.planning import kernels
+from raico.planning.costs import COST_TERM_EXAMPLES, ControlCost, StateTarget, ViaPoint
+from raico.planning.problem import Problem
+from raico.planning.term_kinds import MAP_KINDS, kind_of_map
+from raico.plants.dynamics_registry import make_dynamics
+from raico.plants.robots import shared_robot
+from raico.plants.taskmaps import FramePlacementError, FrameRotationError
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -36,7 +36,7 @@ def _robot(name: str):
     """``arm5`` (built in) or ``ur5`` (example-robot-data's URDF, skipped where it is missing)."""
     if name not in _ROBOTS:
         if name == "ur5":
-            from plants.model_file import RobotSpec, example_robot_data, load_model
+            from raico.plants.model_file import RobotSpec, example_robot_data, load_model
 
             erd = example_robot_data()
             if erd is None:
@@ -175,8 +175,8 @@ def test_cost_kinds_are_named_alike_in_python_and_c():
 
 # -- the task-map table: every row complete ---------------------------------------------------------
 def _descriptions(robot) -> dict:
-    """A description of every map kind the objective writes (planning.objective's writers)."""
-    from planning import objective as ob
+    """A description of every map kind the objective writes (raico.planning.objective's writers)."""
+    from raico.planning import objective as ob
 
     ee = next(iter(robot.end_effectors.values()))
     R, p = np.eye(3), np.array([0.3, 0.1, 0.4])
@@ -194,12 +194,12 @@ def _distances_description() -> dict:
 
 
 def test_every_row_builds_labels_and_names_a_crocoddyl_residual():
-    """Each row: its description builds its class (planning.objective.build_taskmap), its labels
+    """Each row: its description builds its class (raico.planning.objective.build_taskmap), its labels
     name every component, its crocoddyl residual function exists; and the table has a row for
     every description the objective writes."""
-    from pipeline.recordings.tasks import map_components
-    from planning.crocoddyl import costs as crocoddyl_costs
-    from planning.objective import build_taskmap
+    from raico.pipeline.recordings.tasks import map_components
+    from raico.planning.crocoddyl import costs as crocoddyl_costs
+    from raico.planning.objective import build_taskmap
 
     robot = _robot("arm5")
     descs = _descriptions(robot)
@@ -242,11 +242,11 @@ def test_rows_equal_the_batched_terms(robot_name):
 
 
 def test_every_cost_term_row_builds_and_names_a_crocoddyl_residual():
-    """The cost-term table: each row's description (planning.objective's writers) builds its class on
+    """The cost-term table: each row's description (raico.planning.objective's writers) builds its class on
     its side of the objective, and its crocoddyl function exists."""
-    from planning import objective as ob
-    from planning.crocoddyl import costs as crocoddyl_costs
-    from planning.term_kinds import kind_of_term, term_kinds
+    from raico.planning import objective as ob
+    from raico.planning.crocoddyl import costs as crocoddyl_costs
+    from raico.planning.term_kinds import kind_of_term, term_kinds
 
     robot = _robot("arm5")
     n, ee = robot.n_q, next(iter(robot.end_effectors.values()))
@@ -277,7 +277,7 @@ def test_control_toward_gravity_compiled(robot_name):
     forces and their AutoDiffXd Jacobian), on an arm, on the Nao (planning coordinates mapped to the
     plant's by P, not the identity) and on a model-file robot; nothing at step T. The Python term's
     gravity is the compiled tree's too where it exists: it equals Drake's AutoDiffXd route."""
-    from planning.costs import ControlGravity
+    from raico.planning.costs import ControlGravity
 
     robot = _robot(robot_name)
     term = ControlGravity(robot, 0.3, T, precision=np.linspace(1.0, 2.0, robot.n_q), name="toward_gravity")
@@ -307,8 +307,8 @@ def test_control_toward_gravity_compiled(robot_name):
     np.testing.assert_allclose(costs, ref, rtol=1e-9, atol=1e-9 * ref.max())
     with pytest.raises(ValueError, match="U has shape"):
         kernels.set_task_controls(compiled, U[:-1])
-    from plants.dynamics import GravityTorques
-    from plants.fast_analytic import TreeGravityTorques
+    from raico.plants.dynamics import GravityTorques
+    from raico.plants.fast_analytic import TreeGravityTorques
 
     assert type(term.gravity) is TreeGravityTorques
     drake = GravityTorques(robot)   # Drake's gravity forces and their AutoDiffXd Jacobian
@@ -323,16 +323,16 @@ def test_control_toward_gravity_compiled(robot_name):
 def test_raico_with_the_gravity_term_compiled_equals_the_numpy_sweeps(monkeypatch):
     """R-AICO on the arm with a via-point and the control toward gravity: the compiled sweeps (task
     messages, batched rows, iteration costs in C) give the numpy sweeps' iterations to rounding."""
-    from planning.aico import AICOOptions, aico
-    from planning.aico.sweeps import Sweeps
-    from planning.costs import ControlGravity
+    from raico.planning.aico import AICOOptions, aico
+    from raico.planning.aico.sweeps import Sweeps
+    from raico.planning.costs import ControlGravity
 
     robot = _robot("arm5")
     ee = next(iter(robot.end_effectors.values()))
     Tn = 30
 
     def make():
-        from plants.taskmaps import FramePoints
+        from raico.plants.taskmaps import FramePoints
 
         tm = FramePoints(robot, ee)
         x0 = np.concatenate([robot.default_q, np.zeros(robot.n_q)])

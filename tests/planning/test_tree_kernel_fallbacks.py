@@ -2,18 +2,18 @@
 Drake's and Python's evaluation (the same numbers, slower); a fault while building them (an
 ``AttributeError``: a bug in the code) is raised, never taken for a missing capability.
 
-``plants.codegen.rbd.tree_kernels`` is replaced by one that raises, the one way to make it fail on
+``raico.plants.codegen.rbd.tree_kernels`` is replaced by one that raises, the one way to make it fail on
 demand: the robot itself is real (the pendulum)."""
 
 from __future__ import annotations
 
 import pytest
 
-from planning.kernels import _robot_kernels
-from plants.codegen import c_backend, rbd
-from plants.dynamics import GravityTorques
-from plants.fast_analytic import TreeGravityTorques, gravity_torques
-from plants.robots import shared_robot
+from raico.planning.kernels import _robot_kernels
+from raico.plants.codegen import c_backend, rbd
+from raico.plants.dynamics import GravityTorques
+from raico.plants.fast_analytic import TreeGravityTorques, gravity_torques
+from raico.plants.robots import shared_robot
 
 
 def _raising(exc: BaseException):

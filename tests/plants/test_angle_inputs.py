@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plants.gp import AngleInputGP, GPModel, angle_features, angle_jacobian
-from plants.learned import LearnedDynamics, build_learned
+from raico.plants.gp import AngleInputGP, GPModel, angle_features, angle_jacobian
+from raico.plants.learned import LearnedDynamics, build_learned
 from tests.tolerance import assert_close
 
 WRAP = np.array([1])   # a cart-pole's inputs (x, theta, xdot, thetadot, u): theta is column 1
@@ -117,8 +117,8 @@ def test_learned_dynamics_linearize_through_the_features():
 
 
 def test_continuous_joints_are_found_and_limited_ones_are_not():
-    from plants.robots import shared_robot
-    from stages.fit.stage import angle_inputs
+    from raico.plants.robots import shared_robot
+    from raico.stages.fit.stage import angle_inputs
 
     assert angle_inputs(shared_robot("cartpole")) == (1,)   # the pole: a URDF continuous joint
     assert angle_inputs(shared_robot("pendulum")) == ()     # +-100 rad: a limited revolute joint keeps its angle

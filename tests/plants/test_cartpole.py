@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plants.dynamics import ActuatedDynamics, LinearDynamics, SubstepDynamics
-from plants.dynamics_registry import make_dynamics
-from plants.model_file import ModelError, RobotSpec, load_model
-from plants.numdiff import check_dynamics
-from plants.robots import builtin_spec, shared_robot
+from raico.plants.dynamics import ActuatedDynamics, LinearDynamics, SubstepDynamics
+from raico.plants.dynamics_registry import make_dynamics
+from raico.plants.model_file import ModelError, RobotSpec, load_model
+from raico.plants.numdiff import check_dynamics
+from raico.plants.robots import builtin_spec, shared_robot
 from tests.tolerance import assert_close
 
 # PILCO's values (UCL-SML/pilco-matlab scenarios/cartPole/dynamics_cp.m, settings_cp.m)
@@ -70,7 +70,7 @@ def test_unactuated_joint_must_exist(tmp_path):
 def test_actuated_and_substep_models_linearize(kind):
     """The motor-command model (``B = B_tau S``) and the substepped one (the chain rule through its steps)
     against finite differences, at a rest state and a brisk one, on Drake's model and on a GP's."""
-    from plants.dynamics_registry import DYNAMICS
+    from raico.plants.dynamics_registry import DYNAMICS
 
     robot = shared_robot("cartpole")
     spec = DYNAMICS[kind]
@@ -106,8 +106,8 @@ def test_substeps_equal_the_fine_model_held():
 def cartpole_lq(T: int = 30):
     """The cart-pole linearized about its upright rest (Drake's model, 0.05 s steps, force on the cart only)
     as a time-invariant LQ problem: a terminal state target, a running state cost and a control cost."""
-    from planning.costs import ControlCost, StateTarget
-    from planning.problem import Problem
+    from raico.planning.costs import ControlCost, StateTarget
+    from raico.planning.problem import Problem
 
     robot = shared_robot("cartpole")
     model = ActuatedDynamics(make_dynamics("analytic", robot, 0.05), robot.S)
@@ -150,7 +150,7 @@ def riccati(pb) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("solver", ["aico", "ilqg"])
 def test_underactuated_lq_matches_riccati(solver):
     """AICO and iLQG on the cart-pole's LQ version (one control, four states) find the exact optimum."""
-    from planning.solvers import solve
+    from raico.planning.solvers import solve
 
     pb = cartpole_lq()
     X_ref, U_ref = riccati(pb)
@@ -163,9 +163,9 @@ def test_underactuated_lq_matches_riccati(solver):
 def test_a_model_files_robot_states_its_unactuated_joints(tmp_path):
     """A user's problem file names the joints without a motor and g as the built-in cart-pole's file does:
     the planner's controls are then the motors' (one here)."""
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
-    urdf = Path(__file__).resolve().parents[2] / "plants" / "models" / "cartpole.urdf"
+    urdf = Path(__file__).resolve().parents[2] / "raico" / "plants" / "models" / "cartpole.urdf"
     (tmp_path / "cp.toml").write_text(f'''name = "own-cartpole"
 [robot]
 file = "{urdf}"

@@ -1,9 +1,9 @@
-"""Every registered derivative against finite differences (plants.numdiff), automatically:
+"""Every registered derivative against finite differences (raico.plants.numdiff), automatically:
 
-- every dynamics model in ``plants.dynamics_registry.DYNAMICS`` on every plant (models that need fitted
+- every dynamics model in ``raico.plants.dynamics_registry.DYNAMICS`` on every plant (models that need fitted
   parameters are listed and skipped here; their own tests fit them);
-- every task map example in ``plants.taskmaps.TASKMAP_EXAMPLES`` on every plant it applies to;
-- every cost term example in ``planning.costs.COST_TERM_EXAMPLES`` on every plant it applies to.
+- every task map example in ``raico.plants.taskmaps.TASKMAP_EXAMPLES`` on every plant it applies to;
+- every cost term example in ``raico.planning.costs.COST_TERM_EXAMPLES`` on every plant it applies to.
 
 A model, task map or cost term is checked the moment it is registered. The last tests show
 that each check can fail, and that every class has an example.
@@ -16,12 +16,12 @@ import inspect
 import numpy as np
 import pytest
 
-import planning.costs as costs_module
-import plants.taskmaps as taskmaps_module
-from planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlTerm, StateTerm, ViaPoint
-from plants.dynamics import PseudoDynamics
-from plants.dynamics_registry import DYNAMICS, make_dynamics
-from plants.numdiff import (
+import raico.planning.costs as costs_module
+import raico.plants.taskmaps as taskmaps_module
+from raico.planning.costs import COST_TERM_EXAMPLES, ControlCost, ControlTerm, StateTerm, ViaPoint
+from raico.plants.dynamics import PseudoDynamics
+from raico.plants.dynamics_registry import DYNAMICS, make_dynamics
+from raico.plants.numdiff import (
     check_cost_term,
     check_dynamics,
     check_jacobian,
@@ -29,8 +29,8 @@ from plants.numdiff import (
     compare,
     numdiff_jacobian,
 )
-from plants.robots import PLANTS, shared_robot
-from plants.taskmaps import TASKMAP_EXAMPLES, JointPositions
+from raico.plants.robots import PLANTS, shared_robot
+from raico.plants.taskmaps import TASKMAP_EXAMPLES, JointPositions
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 

@@ -1,4 +1,4 @@
-"""FastAnalyticDynamics (plants.fast_analytic, code from plants.codegen) against
+"""FastAnalyticDynamics (raico.plants.fast_analytic, code from raico.plants.codegen) against
 AnalyticDynamics (AutoDiffXd) and Drake's time derivatives: the verification of the fast route.
 Its linearization against finite differences: ``tests/plants/test_derivatives.py``."""
 
@@ -7,14 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from plants.codegen.derive import compiled_dynamics, is_supported, self_check
-from plants.codegen.drake_reader import cyclic_positions
-from plants.codegen.emit import emit
-from plants.codegen.graph import Graph
-from plants.dynamics import AnalyticDynamics, rollout
-from plants.fast_analytic import FastAnalyticDynamics, make_fast_or_exact
-from plants.numdiff import numdiff_jacobian
-from plants.robots import shared_robot
+from raico.plants.codegen.derive import compiled_dynamics, is_supported, self_check
+from raico.plants.codegen.drake_reader import cyclic_positions
+from raico.plants.codegen.emit import emit
+from raico.plants.codegen.graph import Graph
+from raico.plants.dynamics import AnalyticDynamics, rollout
+from raico.plants.fast_analytic import FastAnalyticDynamics, make_fast_or_exact
+from raico.plants.numdiff import numdiff_jacobian
+from raico.plants.robots import shared_robot
 from tests.tolerance import REL, assert_close, scale_of
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -150,8 +150,8 @@ def test_fallback_for_the_nao():
                        match=r"^nao: 26 tree joints: symbolic dynamics too large \(max 12\)$"):
         FastAnalyticDynamics(nao, DT)
     # the compiled kinematic-tree model where the C route exists, AutoDiffXd where it does not
-    from plants.codegen.c_backend import enabled as compiler_available
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.codegen.c_backend import enabled as compiler_available
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
 
     expected = TreeAnalyticDynamics if compiler_available() else AnalyticDynamics
     assert type(make_fast_or_exact(nao, DT)) is expected
@@ -192,13 +192,13 @@ def test_bad_shapes_are_refused():
 
 @pytest.mark.numerics
 def test_a_plant_with_other_parameters_gets_its_own_code():
-    from plants import robots
+    from raico.plants import robots
 
     code = compiled_dynamics(shared_robot("pendulum"))
     assert FastAnalyticDynamics(robots.load_robot("pendulum"), DT)._code is code
     from dataclasses import replace
 
-    from plants.model_file import load_model
+    from raico.plants.model_file import load_model
 
     other = load_model(replace(robots.builtin_spec("pendulum"), armature=0.2))  # a motor on the pendulum
     fast = FastAnalyticDynamics(other, DT)
@@ -214,7 +214,7 @@ def test_a_plant_with_other_parameters_gets_its_own_code():
 def test_coupled_joints_through_P_equal_analytic(kind):
     """A reduced model (two arm joints driven by one coordinate, as the Nao's hips; the tree route also
     with a coupling of another ratio) gives the numbers of AnalyticDynamics on the same coupling map."""
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
 
     arm = shared_robot("arm5")
     P = np.zeros((5, 4))
@@ -243,7 +243,7 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
     a damaged file or one whose code disagrees with Drake is ignored and replaced by a new derivation."""
     import json
 
-    from plants.codegen import derive as dv
+    from raico.plants.codegen import derive as dv
 
     monkeypatch.setenv("RAICO_KERNEL_DIR", str(tmp_path))
     monkeypatch.setattr(dv, "_COMPILED", {})
@@ -277,10 +277,10 @@ def test_derived_code_is_kept_on_disk_and_checked_when_loaded(tmp_path, monkeypa
 @pytest.mark.numerics
 @pytest.mark.parametrize("kind", ["symbolic", "tree"])
 def test_dynamics_library_flags_keep_every_bit(kind, monkeypatch):
-    """The dynamics libraries' -O3 (plants.fast_analytic.DYN_FLAGS) vectorizes without contraction or
+    """The dynamics libraries' -O3 (raico.plants.fast_analytic.DYN_FLAGS) vectorizes without contraction or
     reassociation: the linearization equals the -O2 build's bit for bit."""
-    import plants.fast_analytic as fa
-    from plants.codegen import c_backend
+    import raico.plants.fast_analytic as fa
+    from raico.plants.codegen import c_backend
 
     robot = shared_robot("arm5")
     make = fa.FastAnalyticDynamics if kind == "symbolic" else fa.TreeAnalyticDynamics

@@ -1,4 +1,4 @@
-"""GP posterior (plants.gp), fitting (stages.fit.gp_fit) and learned dynamics (plants.learned): small, fast."""
+"""GP posterior (raico.plants.gp), fitting (raico.stages.fit.gp_fit) and learned dynamics (raico.plants.learned): small, fast."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from scipy.linalg import solve_triangular
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
-from plants.dynamics import Dynamics
-from plants.gp import NOISE_FLOOR, GPModel
-from plants.learned import LearnedDynamics, build_learned
-from stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
+from raico.plants.dynamics import Dynamics
+from raico.plants.gp import NOISE_FLOOR, GPModel
+from raico.plants.learned import LearnedDynamics, build_learned
+from raico.stages.fit.gp_fit import fit_gp, measure_cap_cost, refit_fixed, subsample_indices
 from tests.tolerance import REL, bound, close, scale_of
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -101,7 +101,7 @@ def test_predictions_equal_sklearn(fitted_toy):
 
 # -- the likelihood and its optimizer ---------------------------------------------------------
 def _sklearn_on(Z: np.ndarray, y: np.ndarray) -> GaussianProcessRegressor:
-    from stages.fit.gp_fit import make_kernel
+    from raico.stages.fit.gp_fit import make_kernel
 
     sk = GaussianProcessRegressor(make_kernel(Z.shape[1]), alpha=0.0, optimizer=None, normalize_y=False)
     return sk.fit(Z, y)
@@ -112,7 +112,7 @@ def _sklearn_on(Z: np.ndarray, y: np.ndarray) -> GaussianProcessRegressor:
                                         # near the bounds, cond(K) ~ 1e10: agreement to rounding of that
                                         ([5.0, 3.0, 4.0, 2.0, np.log(1e-6)], 1e-7)])
 def test_lml_and_gradient_equal_sklearn_and_central_differences(theta, tol):
-    from stages.fit.gp_fit import lml_and_gradient
+    from raico.stages.fit.gp_fit import lml_and_gradient
 
     X, Y = pendulum_data(80, 4)
     Z = (X - X.mean(0)) / X.std(0)
@@ -134,7 +134,7 @@ def test_lml_and_gradient_equal_sklearn_and_central_differences(theta, tol):
 def test_fit_reaches_a_stationary_point_at_least_as_good_as_sklearn():
     """The own L-BFGS-B fit ends where the gradient vanishes (or a parameter is at a bound), with a
     likelihood at least sklearn's own optimizer's from the same start (to 1e-6 relative)."""
-    from stages.fit.gp_fit import initial_theta, lml_and_gradient, log_bounds, make_kernel
+    from raico.stages.fit.gp_fit import initial_theta, lml_and_gradient, log_bounds, make_kernel
 
     X, Y = toy_data(60, 3)
     model, info = fit_gp(X, Y, restarts=0, seed=0)
@@ -342,7 +342,7 @@ def test_learned_linearization_exact_and_batched():
 def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkeypatch):
     """The compiled one-point path (what the sweeps' relinearizations call) against
     ``mean_with_gradients``; after ``update()`` a cached copy of the old training set would fail."""
-    import plants.gp as gp
+    import raico.plants.gp as gp
 
     model = toy_model()
     rng = np.random.default_rng(7)
@@ -369,7 +369,7 @@ def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
     """The compiled one-point mean, variance and gradients (the uncertainty term's relinearization
     in the sweeps) against ``predict_with_gradients``, also after ``update()`` (a cached copy of the
     old factor would fail), NaN for a non-finite query, and the numpy path without a compiler."""
-    import plants.gp as gp
+    import raico.plants.gp as gp
 
     model = toy_model(n=80)
     rng = np.random.default_rng(3)
@@ -392,10 +392,10 @@ def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
 @pytest.mark.numerics
 def test_learned_controller_rollout_compiled_equals_python_steps(monkeypatch):
     """``LearnedDynamics.controller_rollout`` (one compiled call) against stepping ``step`` in
-    Python (planning.problem.controller_rollout), also on the sparse GP, NaN propagated."""
-    import plants.gp as gp
-    from planning.problem import controller_rollout
-    from stages.fit.gp_fit import fit_sparse_gp
+    Python (raico.planning.problem.controller_rollout), also on the sparse GP, NaN propagated."""
+    import raico.plants.gp as gp
+    from raico.planning.problem import controller_rollout
+    from raico.stages.fit.gp_fit import fit_sparse_gp
 
     rng = np.random.default_rng(5)
     X, Y = toy_data(120, 4)
@@ -488,9 +488,9 @@ def test_subsampling_cap_and_its_measured_cost():
 def test_uncertainty_term_units_raw_is_the_predictive_variance():
     """Thesis eq. 4.3: g = var(x*) in (rad/s^2)^2 ('raw'); 'standardized' divides by the training
     outputs' variance. At sigma* = 0 the raw cost is the standardized one times y_std^4 per output."""
-    from planning.costs import Uncertainty
-    from planning.costs import _uncertainty_example as example
-    from plants.robots import shared_robot
+    from raico.planning.costs import Uncertainty
+    from raico.planning.costs import _uncertainty_example as example
+    from raico.plants.robots import shared_robot
 
     robot = shared_robot("arm5")
     raw, std = example(robot, robot.default_q, "raw"), example(robot, robot.default_q, "standardized")
@@ -513,9 +513,9 @@ def test_uncertainty_term_units_raw_is_the_predictive_variance():
 
 @pytest.mark.numerics
 def test_hyperparameter_fits_identical_on_one_or_two_threads(monkeypatch):
-    """The outputs' fits run on ``RAICO_THREADS`` threads (plants.threads.map_outputs): the same
+    """The outputs' fits run on ``RAICO_THREADS`` threads (raico.plants.threads.map_outputs): the same
     hyperparameters bit for bit on 1 and 2; a bad value is one clear error."""
-    from plants import threads
+    from raico.plants import threads
 
     X, Y = toy_data(80, 2)
     fits = []

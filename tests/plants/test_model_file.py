@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from plants.model_file import ModelError, RobotSpec, example_robot_data, load_model
+from raico.plants.model_file import ModelError, RobotSpec, example_robot_data, load_model
 from tests.tolerance import close
 
 ERD = example_robot_data()
@@ -172,9 +172,9 @@ def test_missing_mesh_dropped_and_said():
 @needs_erd
 @pytest.mark.parametrize("name", sorted(ARMS))
 def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
-    from pipeline.interface import api
-    from planning.problem_terms import resolve_frame
-    from plants.taskmaps import FramePoints
+    from raico.pipeline.interface import api
+    from raico.planning.problem_terms import resolve_frame
+    from raico.plants.taskmaps import FramePoints
 
     file, extra, frame, _ = ARMS[name]
     robot = load_model(RobotSpec.from_dict({"file": str(ROBOTS / file), **extra}))
@@ -197,7 +197,7 @@ def test_arm_plans_and_executes_a_short_reach(tmp_path, name):
 @needs_erd
 @pytest.mark.parametrize("name", sorted(HUMANOIDS))
 def test_humanoid_moves_its_com_over_the_welded_sole(tmp_path, name):
-    from pipeline.interface import api
+    from raico.pipeline.interface import api
 
     file, extra = HUMANOIDS[name]
     path = write_problem(tmp_path, name, problem_text(f"package://example-robot-data/robots/{file}", extra,
@@ -250,7 +250,7 @@ def user_robot(tmp_path: Path) -> Path:
 
 
 def test_user_urdf_plan_execute_record(tmp_path):
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     urdf = user_robot(tmp_path)
     costs = """
@@ -282,7 +282,7 @@ def test_user_urdf_plan_execute_record(tmp_path):
 
 
 def test_problem_content_is_part_of_the_key(tmp_path):
-    from pipeline.interface import api
+    from raico.pipeline.interface import api
 
     urdf = user_robot(tmp_path)
     text = problem_text(str(urdf), {}, REACH.format(frame="tip", target=TIP_TARGET), T=10)
@@ -317,7 +317,7 @@ BAD = {
 
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_bad_problem_is_one_line_exit_2_nothing_cached(tmp_path, case):
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     urdf = user_robot(tmp_path)
     robot_line, costs, expected = BAD[case]
@@ -346,12 +346,12 @@ def test_unsupported_joint_is_one_line(tmp_path):
 def test_quasi_static_start_holds_x0():
     """The quasi-static start's torques keep x0 at rest under the model's own dynamics (the start
     crocoddyl's examples use), on a built-in arm and on a humanoid from its file."""
-    from plants.dynamics import rollout
-    from stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
+    from raico.plants.dynamics import rollout
+    from raico.stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
 
     root = Path(__file__).resolve().parents[2]
     for cfg in (PlanConfig(plant="arm5", task="reach", dynamics="analytic"),
-                PlanConfig(problem=str(root / "problems/crocoddyl/talos_taichi.toml"))):
+                PlanConfig(problem=str(root / "raico/problems/crocoddyl/talos_taichi.toml"))):
         _, _, problem, q0, _ = build_problem(cfg.normalized())
         U = quasi_static_controls(problem, q0)
         assert np.abs(U).max() > 0.1  # gravity is held, not zero
@@ -366,7 +366,7 @@ def test_quasi_static_start_holds_x0():
 def test_mjcf_and_sdf_plan_and_execute(tmp_path, fmt, frame):
     """The same two-link arm as MJCF and as SDF (tests/data): the file's own actuators kept, one added
     where the file has none, a reach planned and executed in Drake."""
-    from pipeline.interface import api
+    from raico.pipeline.interface import api
 
     file = Path(__file__).resolve().parents[1] / "data" / f"arm2.{fmt}"
     robot = load_model(RobotSpec(file=str(file)))
@@ -402,7 +402,7 @@ def test_every_example_robot_data_model_loads_or_is_refused_in_one_line():
 
 
 def test_with_horizon_scales_listed_steps():
-    from planning.problem_file import read_problem, shipped, with_horizon
+    from raico.planning.problem_file import read_problem, shipped, with_horizon
 
     pf = with_horizon(read_problem(shipped("arm5", "reach")), 250)
     assert pf.T == 250 and pf.doc["costs"]["terms"]["via_x1"]["times"] == [125]
@@ -415,7 +415,7 @@ def test_without_example_robot_data_only_its_tests_skip():
     import subprocess
     import sys
 
-    code = ("import sys, pytest, plants.model_file as mf; mf.example_robot_data = lambda: None; "
+    code = ("import sys, pytest, raico.plants.model_file as mf; mf.example_robot_data = lambda: None; "
             "sys.exit(pytest.main(['-q', '-p', 'no:cacheprovider', '-rs', sys.argv[1]]))")
     test = f"{Path(__file__).resolve()}::test_unsupported_joint_is_one_line"
     res = subprocess.run([sys.executable, "-c", code, test], capture_output=True, text=True, timeout=300,
@@ -424,13 +424,13 @@ def test_without_example_robot_data_only_its_tests_skip():
 
 
 def test_a_built_in_plants_task_may_start_at_the_zero_posture(tmp_path):
-    """The Nao's reach from the thesis's zero posture (problems/nao_reach-zero.toml): every joint at 0, clipped to
+    """The Nao's reach from the thesis's zero posture (raico/problems/nao_reach-zero.toml): every joint at 0, clipped to
     its range (the elbow rolls stop short of 0); a bad start is refused in one line."""
     from dataclasses import replace
 
-    from planning.problem_file import read_problem
-    from planning.tasks import get_task
-    from plants.robots import shared_robot
+    from raico.planning.problem_file import read_problem
+    from raico.planning.tasks import get_task
+    from raico.plants.robots import shared_robot
 
     nao = shared_robot("nao")
     robot = get_task("nao", "reach-zero").robot(nao)
@@ -441,18 +441,18 @@ def test_a_built_in_plants_task_may_start_at_the_zero_posture(tmp_path):
     with pytest.raises(ValueError, match="unknown joint 'Nope'"):
         replace(get_task("nao", "reach-zero"), start={"Nope": 1.0}).robot(nao)
     with pytest.raises(ValueError, match=r"start of a built-in plant must be \"zero\""):
-        text = (Path(__file__).resolve().parents[2] / "problems" / "nao_reach-zero.toml").read_text()
+        text = (Path(__file__).resolve().parents[2] / "raico" / "problems" / "nao_reach-zero.toml").read_text()
         read_problem(write_problem(tmp_path, "crouch", text.replace('start = "zero"', 'start = "crouch"')))
 
 
 # --------------------------------------------------------------------- one route: the built-in plants and facts
 @pytest.mark.parametrize("name", ["pendulum", "arm5", "biorob", "nao"])
 def test_a_built_in_plant_is_a_model_file_with_its_facts(name):
-    """``load_robot(name)`` is ``load_model`` of ``plants/models/NAME.toml``: the robot carries its spec,
+    """``load_robot(name)`` is ``load_model`` of ``raico/plants/models/NAME.toml``: the robot carries its spec,
     is called by its name and its facts come from the file (none from code keyed by the name)."""
     import tomllib
 
-    from plants.robots import MODELS, builtin_spec, load_robot
+    from raico.plants.robots import MODELS, builtin_spec, load_robot
 
     spec = builtin_spec(name)
     doc = tomllib.loads((MODELS / f"{name}.toml").read_text())
@@ -471,7 +471,7 @@ def test_a_built_in_plant_is_a_model_file_with_its_facts(name):
 
 
 def test_the_nao_couples_its_hip_yaw_pitch_and_keeps_the_files_joint_order():
-    from plants.robots import shared_robot
+    from raico.plants.robots import shared_robot
 
     nao = shared_robot("nao")
     assert nao.n_q == 25 and nao.P.shape == (26, 25) and nao.floating
@@ -517,7 +517,7 @@ def test_floating_is_accepted_for_a_model_file_that_says_how_it_stands():
     facts (feet, sole, stand) loads as a user's model file would; without ``stand`` it is refused."""
     from dataclasses import replace
 
-    from plants.robots import builtin_spec
+    from raico.plants.robots import builtin_spec
 
     spec = RobotSpec.from_dict({**builtin_spec("nao").to_dict(), "plant": None})
     assert spec.plant is None and spec.execution == "floating" and spec.stand is not None
@@ -527,8 +527,8 @@ def test_floating_is_accepted_for_a_model_file_that_says_how_it_stands():
 
 
 def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(tmp_path):
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
 
     urdf = user_robot(tmp_path)
     costs = REACH.format(frame="tip", target=[0.0, 0.0, 0.0])

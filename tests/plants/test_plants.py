@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plants.dynamics import AnalyticDynamics, PseudoDynamics
-from plants.dynamics_registry import DYNAMICS, DynamicsSpec, dynamics_names, make_dynamics, register_dynamics
-from plants.fast_analytic import FastAnalyticDynamics
-from plants.robots import PLANTS, load_robot, shared_robot
-from plants.taskmaps import EndEffectorPosition, RollAngle
+from raico.plants.dynamics import AnalyticDynamics, PseudoDynamics
+from raico.plants.dynamics_registry import DYNAMICS, DynamicsSpec, dynamics_names, make_dynamics, register_dynamics
+from raico.plants.fast_analytic import FastAnalyticDynamics
+from raico.plants.robots import PLANTS, load_robot, shared_robot
+from raico.plants.taskmaps import EndEffectorPosition, RollAngle
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
 
@@ -196,7 +196,7 @@ def test_registry_refuses_bad_input(monkeypatch):
         make_dynamics("pseudo", arm, 0.01, params={"w": np.ones(2)})
     with pytest.raises(ValueError, match="^dynamics name 'pseudo' is empty or already registered$"):
         register_dynamics("pseudo", lambda r, dt, p: PseudoDynamics(r.n_q, dt), "again")
-    monkeypatch.setattr("plants.dynamics_registry.DYNAMICS", dict(DYNAMICS))
+    monkeypatch.setattr("raico.plants.dynamics_registry.DYNAMICS", dict(DYNAMICS))
     seen = []
 
     def build(r, dt, p):
@@ -207,9 +207,9 @@ def test_registry_refuses_bad_input(monkeypatch):
     assert "fitted" not in dynamics_names()
     spec = register_dynamics("fitted", build, "test", needs_params=True,
                              example_params=lambda r: {"w": np.ones(2)})
-    import plants.dynamics_registry
+    import raico.plants.dynamics_registry
 
-    assert spec is plants.dynamics_registry.DYNAMICS["fitted"] and dynamics_names()[-1] == "fitted"
+    assert spec is raico.plants.dynamics_registry.DYNAMICS["fitted"] and dynamics_names()[-1] == "fitted"
     assert "fitted" not in DYNAMICS  # the test's copy of the registry, not the real one
     with pytest.raises(ValueError, match=r"^dynamics 'fitted' needs params \(fitted model parameters\)$"):
         make_dynamics("fitted", arm, 0.01)
@@ -222,7 +222,7 @@ def _plants_imports() -> dict[str, set[str]]:
     """``plants`` module -> the modules it imports (anywhere in the file, lazy imports too)."""
     root = Path(__file__).resolve().parents[2]
     graph = {}
-    for path in sorted((root / "plants").rglob("*.py")):
+    for path in sorted((root / "raico" / "plants").rglob("*.py")):
         name = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
         deps = set()
         for node in ast.walk(ast.parse(path.read_text())):
@@ -258,8 +258,8 @@ def test_plants_has_no_import_cycle():
     everything = _plants_imports()
     assert not any(d.split(".")[0] in ("stages", "pipeline") for deps in everything.values() for d in deps)
     graph = {m: {d for d in deps if d.startswith("plants.")} for m, deps in everything.items()}
-    assert not any(d in ("plants.dynamics_registry", "plants.fast_analytic") or d.startswith("plants.codegen")
-                   for d in graph["plants.dynamics"])
+    assert not any(d in ("raico.plants.dynamics_registry", "raico.plants.fast_analytic") or d.startswith("raico.plants.codegen")
+                   for d in graph["raico.plants.dynamics"])
     assert _cycle(graph) is None, " -> ".join(_cycle(graph))
     assert _cycle({"plants.a": {"plants.b"}, "plants.b": {"plants.a"}}) == ["plants.a", "plants.b", "plants.a"]
 
@@ -291,7 +291,7 @@ def test_biorob_actuator_facts_reach_drake():
 def test_pseudo_dynamics_schemes_of_appendix_c():
     """Euler (C.1), backward Euler (C.2, the default) and Heun (C.3) differ only in B's position block:
     0, dt^2 and dt^2/2; Heun's step is the exact motion under an acceleration held over the step."""
-    from plants.dynamics import PSEUDO_SCHEMES
+    from raico.plants.dynamics import PSEUDO_SCHEMES
 
     dt = 0.1
     for scheme, top in (("euler", 0.0), ("backward-euler", dt * dt), ("heun", dt * dt / 2)):

@@ -1,4 +1,4 @@
-"""Prismatic joints in the compiled kinematic-tree route (``plants.codegen.rbd``).
+"""Prismatic joints in the compiled kinematic-tree route (``raico.plants.codegen.rbd``).
 
 A revolute-prismatic-revolute chain with joint damping, geared actuators (reflected inertia = rotor
 inertia x gear ratio^2) and welds (base to world, a tool on the last link), loaded by Drake's
@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plants.codegen import c_backend, rbd
-from plants.codegen.reference import DrakeReference
-from plants.model_file import RobotSpec
+from raico.plants.codegen import c_backend, rbd
+from raico.plants.codegen.reference import DrakeReference
+from raico.plants.model_file import RobotSpec
 from tests.tolerance import REL, assert_close, bound, scale_of
 
 pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
@@ -53,14 +53,14 @@ ROTOR, GEAR = (0.01, 0.02, 0.005), (3.0, 2.0, 5.0)   # reflected inertia 0.09, 0
 
 
 def make_robot(name: str, rerooted: bool = False, damping: float = 1.7, rotor=ROTOR):
-    """The chain as a :class:`plants.robots.Robot` (``P`` the identity); ``rerooted``: the tool
+    """The chain as a :class:`raico.plants.robots.Robot` (``P`` the identity); ``rerooted``: the tool
     welded to the world instead of the base. ``name`` keys the tree-kernel cache: one per variant."""
     from pydrake.math import RigidTransform, RollPitchYaw
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
     from pydrake.systems.framework import DiagramBuilder
 
-    from plants.robots import Robot
+    from raico.plants.robots import Robot
 
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
@@ -174,8 +174,8 @@ def test_damping_and_reflected_inertia_of_the_prismatic_joint():
 def test_tree_dynamics_model_against_drakes_analytic_model(robot):
     """``TreeAnalyticDynamics`` (the C driver on the tree kernels) against ``AnalyticDynamics``
     (Drake, AutoDiffXd): the step and its linearization."""
-    from plants.dynamics import AnalyticDynamics
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.dynamics import AnalyticDynamics
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
 
     tree, exact = TreeAnalyticDynamics(robot, 0.01), AnalyticDynamics(robot, 0.01)
     for q, v, u in _states(3, 4, seed=6):
@@ -187,8 +187,8 @@ def test_tree_dynamics_model_against_drakes_analytic_model(robot):
 
 def test_task_maps_on_the_prismatic_tree(robot):
     """Task maps through the tree kernels against finite differences and Drake's route."""
-    from plants.numdiff import check_taskmap
-    from plants.taskmaps import CenterOfMass, FramePlacementError, FramePoints, RollAngle
+    from raico.plants.numdiff import check_taskmap
+    from raico.plants.taskmaps import CenterOfMass, FramePlacementError, FramePoints, RollAngle
 
     R_t = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     maps = [FramePoints(robot, "tool", points=[[0, 0, 0], [0.1, 0.02, 0]]), CenterOfMass(robot),
@@ -207,7 +207,7 @@ def test_task_maps_on_the_prismatic_tree(robot):
 def test_the_kernel_shape_checks_on_the_prismatic_tree(robot, monkeypatch):
     """The shape checks of ``tests/planning/test_kernel_shapes.py`` (tree kernels' batches against single calls,
     refused shapes; the compiled dynamics' batches and rollouts) with this robot in the place of a plant."""
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
     from tests.planning import test_kernel_shapes as shapes
 
     monkeypatch.setattr(shapes, "shared_robot", lambda name: robot)

@@ -1,4 +1,4 @@
-"""The sanitizer job itself (``make test-sanitize``: ``python -m plants.codegen.sanitize``).
+"""The sanitizer job itself (``make test-sanitize``: ``python -m raico.plants.codegen.sanitize``).
 
 It is only worth running if it catches the class of bug it is for: a scratch copy of the iLQG
 backward pass with its work buffer one region short (the heap overflow once found in it: ``tmp``
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from planning import ilqg
-from plants.codegen import c_backend
+from raico.planning import ilqg
+from raico.plants.codegen import c_backend
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -30,7 +30,7 @@ import ctypes
 import numpy as np
 import pytest
 
-from plants.codegen import c_backend
+from raico.plants.codegen import c_backend
 
 pytestmark = pytest.mark.compiled
 
@@ -52,14 +52,14 @@ def test_scratch_kernel():
 
 
 def _sanitizer_run(tmp_path: Path, source: str) -> subprocess.CompletedProcess:
-    """``python -m plants.codegen.sanitize`` (the job's entry point) on one test that loads ``source``."""
+    """``python -m raico.plants.codegen.sanitize`` (the job's entry point) on one test that loads ``source``."""
     src = tmp_path / "scratch.c"
     src.write_text(source)
     test = tmp_path / "test_scratch.py"
     test.write_text(_SCRATCH_TEST.format(src=str(src)))
     env = {**os.environ, "RAICO_KERNEL_DIR": str(tmp_path / "kernels"), "PYTHONPATH": str(REPO)}
     env.pop("LD_PRELOAD", None)
-    return subprocess.run([sys.executable, "-m", "plants.codegen.sanitize", "-q", "-p", "no:cacheprovider",
+    return subprocess.run([sys.executable, "-m", "raico.plants.codegen.sanitize", "-q", "-p", "no:cacheprovider",
                            "-m", "compiled", str(test)], cwd=REPO, env=env, capture_output=True, text=True,
                           timeout=300)
 

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from planning.costs import Collision, ControlCost, hard_inequalities
-from planning.objective import build_terms as build_objective
-from planning.objective import objective_from_description
-from planning.problem_file import ProblemFile, build_terms, read_problem
-from plants.model_file import shared_model
-from plants.numdiff import check_cost_term, numdiff_jacobian
-from plants.scene import CollisionWorld, SignedDistances, read_mesh, resolve_pairs
+from raico.pipeline.interface.cli import app
+from raico.planning.costs import Collision, ControlCost, hard_inequalities
+from raico.planning.objective import build_terms as build_objective
+from raico.planning.objective import objective_from_description
+from raico.planning.problem_file import ProblemFile, build_terms, read_problem
+from raico.plants.model_file import shared_model
+from raico.plants.numdiff import check_cost_term, numdiff_jacobian
+from raico.plants.scene import CollisionWorld, SignedDistances, read_mesh, resolve_pairs
 from tests.plants.scene_robot import SCENE, START, arm_file
 from tests.plants.test_model_file import problem_text
 from tests.tolerance import assert_close

@@ -1,4 +1,4 @@
-"""Sparse GP (FITC, plants.gp.SparseGPModel): against the exact GP, derivatives by central
+"""Sparse GP (FITC, raico.plants.gp.SparseGPModel): against the exact GP, derivatives by central
 differences, storage, updates, and its options on raico fit / raico learn (bad input: one line)."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from plants.gp import SELECT_TOL, GPModel, SparseGPModel, select_inducing
-from plants.learned import build_learned
-from stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse
+from raico.pipeline.interface.cli import app
+from raico.plants.gp import SELECT_TOL, GPModel, SparseGPModel, select_inducing
+from raico.plants.learned import build_learned
+from raico.stages.fit.gp_fit import fit_gp, fit_sparse_gp, refit_fixed, rmse
 from tests.plants.test_gp import _rel, central_differences, pendulum_data, toy_data, toy_model
 from tests.tolerance import close
 

@@ -11,7 +11,7 @@ SO(3) / SE(3) logarithms beneath them.
   ``ResidualModelFramePlacement`` on the same robot (arm5, biorob);
 - the batched logarithms (``log3_angle_rows``, ...) and the maps' batches (compiled and Drake's)
   equal the scalar functions row by row, each branch's rows mixed in one batch;
-- the JSON descriptions of ``planning.objective`` build them.
+- the JSON descriptions of ``raico.planning.objective`` build them.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import warnings
 import numpy as np
 import pytest
 
-from planning import objective
-from plants.numdiff import check_taskmap, numdiff_jacobian
-from plants.robots import shared_robot
-from plants.taskmaps import (
+from raico.planning import objective
+from raico.plants.numdiff import check_taskmap, numdiff_jacobian
+from raico.plants.robots import shared_robot
+from raico.plants.taskmaps import (
     FramePlacementError,
     FrameRotationError,
     Jlog3,

@@ -1,4 +1,4 @@
-"""The generated kinematic-tree kernels (``plants/codegen/rbd_kernels.c`` with a tree's numbers baked
+"""The generated kinematic-tree kernels (``raico/plants/codegen/rbd_kernels.c`` with a tree's numbers baked
 in, and the dynamics driver on top) over the range of trees they accept, not only the plants' trees:
 1 to 70 joints, revolute, continuous and prismatic joints, welds between them, branching trees, and
 trees welded to the world at a leaf (traversed against the joints' directions). Each tree is
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plants.model_file import RobotSpec, load_model
+from raico.plants.model_file import RobotSpec, load_model
 from tests.tolerance import assert_close, scale_of
 
 pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
@@ -64,8 +64,8 @@ def tree_robot(request, tmp_path):
 
 
 def test_tree_kernels_over_the_range_of_trees(tree_robot, monkeypatch):
-    from plants.codegen import c_backend, rbd
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.codegen import c_backend, rbd
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
     from tests.planning import test_kernel_shapes as shapes
 
     if not c_backend.enabled():
@@ -97,10 +97,10 @@ def test_analytical_dynamics_derivatives_over_the_range_of_trees(tree_robot):
     kernel, relative to their scale, and against central differences of the inverse dynamics; the driver's
     ``qddot`` derivatives on top against Drake's ``AnalyticDynamics`` (AutoDiffXd) and central differences of
     ``qddot``."""
-    from plants.codegen import rbd
-    from plants.codegen.reference import DrakeReference
-    from plants.dynamics import AnalyticDynamics
-    from plants.fast_analytic import TreeAnalyticDynamics
+    from raico.plants.codegen import rbd
+    from raico.plants.codegen.reference import DrakeReference
+    from raico.plants.dynamics import AnalyticDynamics
+    from raico.plants.fast_analytic import TreeAnalyticDynamics
 
     k = rbd.tree_kernels(tree_robot)
     m = k.m
@@ -128,8 +128,8 @@ def test_gravity_torques_and_their_jacobian_over_the_range_of_trees(tree_robot):
     Newton-Euler torques and the forward-mode ``dID/dq`` at ``v = a = 0`` (the same derivative: to rounding),
     Drake's float and AutoDiffXd evaluation at rest, and central differences of the torques; without the
     Jacobian it gives the same torques."""
-    from plants.codegen import rbd
-    from plants.codegen.reference import DrakeReference
+    from raico.plants.codegen import rbd
+    from raico.plants.codegen.reference import DrakeReference
 
     k = rbd.tree_kernels(tree_robot)
     m, zero = k.m, np.zeros(k.m)

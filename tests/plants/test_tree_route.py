@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from plants import fast_analytic as fa
-from plants.dynamics import AnalyticDynamics
-from plants.model_file import RobotSpec
+from raico.plants import fast_analytic as fa
+from raico.plants.dynamics import AnalyticDynamics
+from raico.plants.model_file import RobotSpec
 
 
 def _fake(n: int):
@@ -61,11 +61,11 @@ CHAIN = ["revolute", "revolute", "prismatic", "revolute", "revolute", "revolute"
 
 def chain_robot(name: str, kinds=CHAIN):
     """A serial chain of ``kinds`` joints (axes and offsets varied), base welded, actuated (rotor
-    inertia, gear ratio 4), as a :class:`plants.robots.Robot`."""
+    inertia, gear ratio 4), as a :class:`raico.plants.robots.Robot`."""
     from pydrake.multibody.parsing import Parser
     from pydrake.multibody.plant import MultibodyPlant
 
-    from plants.robots import Robot
+    from raico.plants.robots import Robot
 
     axes = ["0 0 1", "0 1 0", "1 0 0.3", "1 0 0", "0 1 0", "0.2 0 1"]
     links, joints = [], ['<joint name="fix" type="fixed"><parent link="world"/><child link="l0"/></joint>']
@@ -97,7 +97,7 @@ def chain_robot(name: str, kinds=CHAIN):
 @pytest.mark.numerics
 @pytest.mark.compiled
 def test_a_six_joint_arm_takes_the_tree_route_without_a_symbolic_derivation(monkeypatch):
-    from plants.codegen import c_backend
+    from raico.plants.codegen import c_backend
 
     if not c_backend.enabled():
         pytest.fail(f"compiled kernels unavailable ({c_backend.why_unavailable()}): this test is about them")

@@ -1,4 +1,4 @@
-"""The balance-aware Nao objective (``stages.plan.balance``): the support term's
+"""The balance-aware Nao objective (``raico.stages.plan.balance``): the support term's
 values, the polygon geometry, the infeasibility check of CoG via-points before planning, and
 ``raico plan --balance`` end to end. The term's derivatives against finite differences:
 ``tests/plants/test_derivatives.py`` (the ``support_polygon`` and ``lower_bound`` examples)."""
@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from planning import objective as ob
-from planning.costs import TaskInequality
-from plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
-from plants.robots import shared_robot
-from plants.taskmaps import CenterOfMass, JointPositions
-from stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
-from stages.plan.stage import PlanConfig, build_problem, objective_from_description
+from raico.pipeline.interface.cli import app
+from raico.planning import objective as ob
+from raico.planning.costs import TaskInequality
+from raico.plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
+from raico.plants.robots import shared_robot
+from raico.plants.taskmaps import CenterOfMass, JointPositions
+from raico.stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
+from raico.stages.plan.stage import PlanConfig, build_problem, objective_from_description
 from tests.tolerance import REL, assert_close, close
 
 pytestmark = pytest.mark.compiled   # reaches a C kernel: run under the sanitizers too
@@ -246,8 +246,8 @@ def test_balance_margin_option_sets_the_term_and_the_moved_targets():
 def test_joint_range_term_bounds_every_joint_inside_its_range():
     """The balance objective's joint-range term: zero inside [lower + margin, upper - margin] at every step 1..T,
     a squared hinge beyond it, its gradient against central finite differences."""
-    from planning.objective import build_term
-    from stages.plan.balance import JOINT_MARGIN, W_RANGE, apply_balance
+    from raico.planning.objective import build_term
+    from raico.stages.plan.balance import JOINT_MARGIN, W_RANGE, apply_balance
 
     nao = shared_robot("nao")
     T = 4
@@ -274,7 +274,7 @@ def test_joint_range_term_bounds_every_joint_inside_its_range():
 def test_cog_via_point_margins_against_the_feet():
     """The fig3.4 problem's CoG via-point targets against the feet's polygon: the +0.1 m one 5.5 cm
     outside (as the model says above), the -0.1 m one inside, keys as the via-point errors'."""
-    from stages.evaluate.metrics import cog_via_point_margins
+    from raico.stages.evaluate.metrics import cog_via_point_margins
 
     nao, _, pb, q0, _ = build_problem(PlanConfig(plant="nao", task="balance", seed=0))
     poly = support_polygon(nao, q0, "support")
@@ -288,7 +288,7 @@ def test_cog_via_point_margins_against_the_feet():
 
 @pytest.mark.numerics
 def test_plan_beyond_limits_names_only_the_joints_that_leave_their_range():
-    from stages.evaluate.metrics import plan_beyond_limits
+    from raico.stages.evaluate.metrics import plan_beyond_limits
 
     lower, upper = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 1.0])
     Q = np.array([[0.0, 0.0, 0.5], [1.2, 0.4, 0.0], [0.9, -0.7, 1.0]])

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from plants.robots import builtin_spec, shared_robot
-from stages.evaluate.metrics import CONTACT_TOL, LIMIT_TOL
-from stages.execute.config import ExecuteConfig
-from stages.execute.stage import execute
+from raico.plants.robots import builtin_spec, shared_robot
+from raico.stages.evaluate.metrics import CONTACT_TOL, LIMIT_TOL
+from raico.stages.execute.config import ExecuteConfig
+from raico.stages.execute.stage import execute
 
 LIMIT_SLACK = LIMIT_TOL  # rad: Drake's SAP limit constraints are stiff but compliant
 
@@ -56,7 +56,7 @@ def test_free_nao_stands_still_in_the_default_posture():
     assert m["max_tracking_error"] < 1e-3 and m["cog_inside_fraction"] == 1.0
     # the controller's command (the PD law at each step's end state plus the feed-forward), clamped, is the
     # torque Drake applied: what the limits status judges is what the motors were asked
-    from plants.floating import shared_floating
+    from raico.plants.floating import shared_floating
 
     free = shared_floating(builtin_spec("nao"))
     np.testing.assert_allclose(np.clip(d["torque_asked"], -free.effort, free.effort) @ free.A, out.tau, atol=1e-6)
@@ -71,7 +71,7 @@ def test_free_nao_stands_still_in_the_default_posture():
 def test_free_nao_falls_when_the_plan_pushes_the_cog_outside_the_feet():
     """The fixed-base plan tilts the robot over its left ankle until the CoG is 5 cm outside the
     left sole (the welded model does not mind); the free robot falls."""
-    from plants.taskmaps import CenterOfMass
+    from raico.plants.taskmaps import CenterOfMass
 
     nao = shared_robot("nao")
     T, dt = 200, 0.01
@@ -138,7 +138,7 @@ def test_open_loop_integration_matches_heun_and_measures_the_other_schemes():
     """Appendix C's integration check: the planned accelerations held per step, open loop, on Drake's continuous
     arm through computed torque: Drake's trajectory is Heun's pseudo-dynamics rollout (exact for a held
     acceleration) to round-off, and backward Euler's / Euler's drift by dt/2 times the velocity change."""
-    from plants.dynamics import PseudoDynamics, rollout
+    from raico.plants.dynamics import PseudoDynamics, rollout
 
     arm = shared_robot("arm5")
     T, dt, n = 200, 0.002, arm.n_q
@@ -175,8 +175,8 @@ def test_the_ground_half_space_warning_is_dropped_and_nothing_else():
     script = ("import logging\n"
               "from pydrake.systems.analysis import Simulator\n"
               "from pydrake.systems.framework import DiagramBuilder\n"
-              "from plants.floating import load_floating\n"
-              "from plants.robots import builtin_spec\n"
+              "from raico.plants.floating import load_floating\n"
+              "from raico.plants.robots import builtin_spec\n"
               "nao = load_floating(builtin_spec('nao'), DiagramBuilder(), time_step=1e-3)\n"
               "Simulator(nao.builder.Build()).AdvanceTo(0.01)\n"
               "logging.getLogger('drake').warning('another drake warning')\n")
@@ -210,7 +210,7 @@ def test_a_model_file_that_says_how_it_stands_executes_floating_as_the_nao():
     """Floating execution is the facts' (feet, sole, stand), not the Nao's name: its model file with those
     facts and no built-in name (a user's model file, stored in the plan as its spec) stands as the built-in
     Nao does, with the same numbers."""
-    from plants.model_file import RobotSpec
+    from raico.plants.model_file import RobotSpec
 
     nao = shared_robot("nao")
     T, dt = 30, 0.01

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from planning.tasks import PENDULUM_T
+from raico.pipeline.interface.cli import app
+from raico.planning.tasks import PENDULUM_T
 
 runner = CliRunner()
 SMALL = ["--plant", "pendulum", "--task", "swing-up", "--sigma-star", "0", "--sigma-weight", "1e-2",
@@ -29,8 +29,8 @@ def learn_json(tmp_path, *extra):
 def test_learn_runs_cached_episodes_and_records_each_episode(tmp_path):
     from rerun.chunk import RrdReader
 
-    from pipeline.engine.artifacts import as_artifact
-    from pipeline.engine.cache import Cache
+    from raico.pipeline.engine.artifacts import as_artifact
+    from raico.pipeline.engine.cache import Cache
 
     two, err = learn_json(tmp_path, "--episodes", 2)
     m = two["metrics"]
@@ -121,9 +121,9 @@ def test_killed_learn_resumes_without_recomputing_finished_episodes(tmp_path):
 def test_babbling_pace_and_plant_defaults(tmp_path):
     """One random knot every 0.25 s (the pendulum's 15 samples keep their 5 knots); 0 means
     the plant's default, resolved before the key (one cache entry per meaning)."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import run_key
-    from stages.learn import LearnConfig, babble_knots
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run_key
+    from raico.stages.learn import LearnConfig, babble_knots
 
     assert (babble_knots(15), babble_knots(100), babble_knots(4)) == (5, 33, 1)
     big = LearnConfig(plant="biorob", task="reach", babble_points=1000)  # a valid babbling run
@@ -146,9 +146,9 @@ def test_plan_warm_start_from_the_trajectory_or_the_controls(tmp_path, monkeypat
     earlier plan's states (X_init) and controls; 'controls' rolls the controls out; iLQG always does."""
     import numpy as np
 
-    from stages.base import Artifact
-    from stages.plan import stage as plan_stage
-    from stages.plan.stage import PlanConfig
+    from raico.stages.base import Artifact
+    from raico.stages.plan import stage as plan_stage
+    from raico.stages.plan.stage import PlanConfig
 
     first = plan_stage.plan(PlanConfig(plant="pendulum", task="swing-up", dynamics="analytic", iterations=2))
     folder = tmp_path / "p"
@@ -190,8 +190,8 @@ def test_learn_takes_no_data_after_a_lost_execution(tmp_path):
     before its failure time join the next fit (every 20th), flagged and counted."""
     import math
 
-    from stages.base import Artifact
-    from stages.fit.stage import usable_steps
+    from raico.stages.base import Artifact
+    from raico.stages.fit.stage import usable_steps
 
     res = runner.invoke(app, ["learn", "--plant", "biorob", "--task", "reach", "--episodes", "2", "--babble-points",
                               "15", "--iterations", "3", "--alpha", "2", "--restarts", "0", "--no-record", "--json",
@@ -217,13 +217,13 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     stages it names."""
     import dataclasses
 
-    from pipeline.engine import keys, runner
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.ui import Reporter
-    from pipeline.recordings.registry import RECORDERS
-    from stages.execute.config import ExecuteConfig
-    from stages.learn import LearnConfig
-    from stages.registry import get_stage, stage_names
+    from raico.pipeline.engine import keys, runner
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.ui import Reporter
+    from raico.pipeline.recordings.registry import RECORDERS
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.learn import LearnConfig
+    from raico.stages.registry import get_stage, stage_names
 
     stage = get_stage("learn")
     assert "learn" in stage_names() and "learn" in RECORDERS

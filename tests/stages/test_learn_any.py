@@ -29,8 +29,8 @@ def without_true(tmp_path) -> Path:
 
 
 def robots():
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
 
     pf = read_problem(PROBLEM)
     return shared_model(pf.robot_spec()), shared_model(pf.true_spec())
@@ -38,7 +38,7 @@ def robots():
 
 @pytest.mark.numerics
 def test_true_robot_differs_from_the_model_by_what_the_file_states():
-    from plants.dynamics_registry import make_dynamics
+    from raico.plants.dynamics_registry import make_dynamics
 
     model, true = robots()
     assert model.joint_names == true.joint_names and model.name != true.name
@@ -49,7 +49,7 @@ def test_true_robot_differs_from_the_model_by_what_the_file_states():
     # the generalized forces differ by the payload's and the extra link mass's gravity and the friction
     assert np.linalg.norm(a_true - a_model) > 0.1 * np.linalg.norm(a_model)
     # the true robot's model is Drake's own (the compiled route agrees with AutoDiffXd's evaluation)
-    from plants.dynamics import AnalyticDynamics
+    from raico.plants.dynamics import AnalyticDynamics
 
     np.testing.assert_allclose(AnalyticDynamics(true, 0.01).qddot(q, v, u), a_true, rtol=1e-9,
                                atol=1e-9 * np.abs(a_true).max())
@@ -68,7 +68,7 @@ def test_missing_payload_frame_is_one_line_exit_2(raico, tmp_path):
 
 
 def test_true_table_refused_for_a_built_in_plant_and_bad_values(tmp_path):
-    from planning.problem_file import read_problem
+    from raico.planning.problem_file import read_problem
 
     bad = tmp_path / "b.toml"
     base = PROBLEM.read_text().replace('file = "arm2.urdf"', f'file = "{DATA / "arm2.urdf"}"')
@@ -94,7 +94,7 @@ def test_babble_a_problem_files_robot_within_its_ranges_on_the_true_robot(raico,
     # it moves: the random trajectories and torques spread the joints
     assert np.all(q.std(axis=0) > 0.05)
     # the samples are the true robot's dynamics, not the model file's
-    from plants.dynamics_registry import make_dynamics
+    from raico.plants.dynamics_registry import make_dynamics
 
     X = np.hstack([q, data["qdot"].reshape(-1, 2), u])
     a = data["qddot"].reshape(-1, 2)
@@ -116,8 +116,8 @@ def test_residual_gp_on_the_models_own_data_learns_zero(raico, tmp_path):
                               "--json", "--artifacts", art))
     fit = last_json(raico("fit", "--data", babble["key"], "--residual", "--restarts", 0, "--json",
                            "--artifacts", art))
-    from plants.gp import GPModel
-    from plants.learned import is_residual
+    from raico.plants.gp import GPModel
+    from raico.plants.learned import is_residual
 
     arrays = dict(np.load(Path(fit["path"]) / "model.npz"))
     assert is_residual(arrays)
@@ -132,9 +132,9 @@ def test_residual_gp_on_the_models_own_data_learns_zero(raico, tmp_path):
 
 def residual_dynamics():
     """A ResidualDynamics on the test arm: the model file's dynamics plus a GP of a smooth function."""
-    from plants.fast_analytic import make_fast_or_exact
-    from plants.gp import GPModel
-    from plants.learned import ResidualDynamics
+    from raico.plants.fast_analytic import make_fast_or_exact
+    from raico.plants.gp import GPModel
+    from raico.plants.learned import ResidualDynamics
 
     model, _ = robots()
     rng = np.random.default_rng(0)
@@ -183,7 +183,7 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
     result that holds for every rounding (plain AICO on these learned models diverges or not, and ends
     anywhere from 0.3 to 5e6, by which OpenBLAS kernels the processor picks; in the learn loop it
     diverged, its execution too, and no data joined the second fit)."""
-    from stages.fit.stage import FAILED
+    from raico.stages.fit.stage import FAILED
 
     art = tmp_path / "art"
     babble = last_json(raico("babble", "--problem", PROBLEM, "--episodes", 1, "--duration", 3.0, "--dt", 0.02, "--substeps", 10,
@@ -247,9 +247,9 @@ def test_babble_a_robot_standing_on_a_welded_sole(raico, tmp_path):
     line = last_json(raico("babble", "--problem", p, "--episodes", 1, "--duration", 1.0, "--dt", 0.01,
                             "--json", "--artifacts", tmp_path / "art"))
     data = np.load(Path(line["path"]) / "data.npz")
-    from planning.problem_file import read_problem
-    from plants.dynamics_registry import make_dynamics
-    from plants.model_file import shared_model
+    from raico.planning.problem_file import read_problem
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.model_file import shared_model
 
     robot = shared_model(read_problem(p).robot_spec())
     assert any("welded to the world" in note for note in robot.load_report)
@@ -262,7 +262,7 @@ def test_babble_a_robot_standing_on_a_welded_sole(raico, tmp_path):
 
 
 def test_auto_gp_switches_to_the_sparse_gp_and_says_so(capsys):
-    from stages.fit.stage import AUTO_EXACT_POINTS, FitConfig, gp_kind
+    from raico.stages.fit.stage import AUTO_EXACT_POINTS, FitConfig, gp_kind
 
     cfg = FitConfig(data=("x",), gp="auto", max_points=5000, inducing=300)
     assert gp_kind(cfg, AUTO_EXACT_POINTS) == "exact" and capsys.readouterr().err == ""
@@ -294,8 +294,8 @@ def test_an_experiment_file_sweeps_learn_on_a_problem_file(raico, tmp_path):
 @pytest.mark.numerics
 def test_full_gp_dynamics_of_a_model_files_robot_by_finite_differences():
     """The thesis's model (the GP's mean alone) on a model file's robot: linearization and variance gradient."""
-    from plants.dynamics_registry import make_dynamics
-    from plants.learned import example_params
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.learned import example_params
 
     model, _ = robots()
     dyn = make_dynamics("learned", model, 0.01, example_params(model))

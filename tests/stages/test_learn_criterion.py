@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from stages.learn import own_criterion
+from raico.stages.learn import own_criterion
 
 UPRIGHT = {"joint": "pole", "angle": np.pi, "tol": 0.1, "velocity_tol": 1.0}
 
@@ -37,7 +37,7 @@ def test_without_a_speed_tolerance_the_end_angle_alone_judges():
 
 
 def test_problem_file_reads_velocity_tol_and_refuses_a_bad_one():
-    from planning.problem_file import _achieved
+    from raico.planning.problem_file import _achieved
 
     assert _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 1})["velocity_tol"] == 1.0
     assert "velocity_tol" not in _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1})
@@ -50,8 +50,8 @@ def test_an_episode_without_data_is_followed_by_a_random_episode(tmp_path, monke
     with its own seed joins the next fit, and its seconds count as executed."""
     from typer.testing import CliRunner
 
-    import stages.learn as learn
-    from pipeline.interface.cli import app
+    import raico.stages.learn as learn
+    from raico.pipeline.interface.cli import app
 
     real = learn.episode_measurements
 

@@ -9,9 +9,9 @@ import json
 
 import pytest
 
-from plants.robots import shared_robot
-from stages.base import Artifact
-from stages.plan.stage import check_model_robot
+from raico.plants.robots import shared_robot
+from raico.stages.base import Artifact
+from raico.stages.plan.stage import check_model_robot
 
 KEY = "0123456789abcdef"
 

@@ -27,7 +27,7 @@ WITHIN = {"achieved": True, "worst": "bend", "kind": "posture", "unit": "rad", "
 def cli(*args):
     from typer.testing import CliRunner
 
-    from pipeline.interface.cli import app
+    from raico.pipeline.interface.cli import app
 
     return CliRunner().invoke(app, [str(a) for a in args])
 
@@ -39,8 +39,8 @@ def last_json(res) -> dict:
 
 # ------------------------------------------------------------------ one judgement of "task achieved"
 def test_learn_judges_an_episode_as_execute_does():
-    from stages.evaluate.metrics import executed_task, task_note
-    from stages.learn import episode_task, task_words
+    from raico.stages.evaluate.metrics import executed_task, task_note
+    from raico.stages.learn import episode_task, task_words
 
     v = episode_task(None, float("nan"), {"task": MISSED}, "ok")
     assert v == executed_task(MISSED, "ok") and v["achieved"] is False
@@ -59,8 +59,8 @@ def test_learn_judges_an_episode_as_execute_does():
 
 
 def test_evaluate_names_the_worst_term_in_its_unit_not_a_mixed_maximum():
-    from pipeline.engine.runner import evaluation_notes
-    from stages.evaluate.metrics import executed_task
+    from raico.pipeline.engine.runner import evaluation_notes
+    from raico.stages.evaluate.metrics import executed_task
 
     m = {"final_cost": 2.0, "via_point_errors": {"bend@50": 1.01, "reach@50": 0.004},
          "task": WITHIN, "executed_via_point_errors": {"bend@50": 0.03, "reach@50": 0.0157},
@@ -81,7 +81,7 @@ def lift_learn(tmp_path_factory):
 
 
 def test_learn_reports_execute_s_verdict_of_every_episode(lift_learn):
-    from stages.evaluate.metrics import executed_task, task_note
+    from raico.stages.evaluate.metrics import executed_task, task_note
 
     res, line, art = lift_learn
     doc = json.loads((Path(line["path"]) / "episodes.json").read_text())
@@ -105,7 +105,7 @@ def test_learn_says_the_model_file_s_load_notes_once(lift_learn):
 
 
 def test_evaluate_stores_execute_s_verdicts(lift_learn):
-    from stages.evaluate.metrics import executed_task
+    from raico.stages.evaluate.metrics import executed_task
 
     _, line, art = lift_learn
     ep = json.loads((Path(line["path"]) / "episodes.json").read_text())["episodes"][-1]
@@ -120,7 +120,7 @@ def test_evaluate_stores_execute_s_verdicts(lift_learn):
 
 # ------------------------------------------------------------------ babbling in each joint's units
 def test_the_random_torques_are_capped_at_what_the_pd_holds_inside_the_margin():
-    from stages.babble import MARGIN, BabbleConfig, noise_bound
+    from raico.stages.babble import MARGIN, BabbleConfig, noise_bound
 
     cfg = BabbleConfig(problem=str(PROBLEM), torque_noise=0.1)
     kp = np.array([1000.0, 50.0])
@@ -131,11 +131,11 @@ def test_the_random_torques_are_capped_at_what_the_pd_holds_inside_the_margin():
 
 
 def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
-    from stages.babble import babble, joint_amplitudes, joint_gains
-    from stages.evaluate.metrics import prismatic_joints
-    from stages.learn import LearnConfig
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
+    from raico.stages.babble import babble, joint_amplitudes, joint_gains
+    from raico.stages.evaluate.metrics import prismatic_joints
+    from raico.stages.learn import LearnConfig
 
     cfg = LearnConfig(problem=str(PROBLEM), babble_points=120).normalized().babble_config().normalized()
     robot = shared_model(read_problem(PROBLEM).robot_spec())
@@ -152,10 +152,10 @@ def test_babbling_a_lift_stays_inside_every_joint_range_in_its_own_units():
 def test_q0_std_is_per_joint_type():
     """The start's spread: ``q0_std`` rad on the revolute joints, ``q0_std_prismatic`` m on the lift (the same
     normal draws, each scaled in its joint's unit)."""
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
-    from stages.learn import LearnConfig
-    from stages.plan.stage import initial_posture
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
+    from raico.stages.learn import LearnConfig
+    from raico.stages.plan.stage import initial_posture
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
     z = np.random.default_rng(4).standard_normal(robot.n_q)
@@ -171,9 +171,9 @@ def test_tracking_is_lost_in_each_joint_s_unit():
     more than its whole 0.4 m range); the reason names the joint in its unit."""
     from types import SimpleNamespace
 
-    from planning.problem_file import read_problem
-    from plants.model_file import shared_model
-    from stages.evaluate.metrics import TRACKING_LOST_M, execution_metrics
+    from raico.planning.problem_file import read_problem
+    from raico.plants.model_file import shared_model
+    from raico.stages.evaluate.metrics import TRACKING_LOST_M, execution_metrics
 
     robot = shared_model(read_problem(PROBLEM).robot_spec())
     K, n = 11, robot.n_q

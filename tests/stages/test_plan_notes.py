@@ -57,7 +57,7 @@ def lift_arm(tmp_path: Path) -> Path:
 
 
 def _load(path: Path):
-    from plants.model_file import RobotSpec, load_model
+    from raico.plants.model_file import RobotSpec, load_model
 
     return load_model(RobotSpec(file=str(path)))
 
@@ -85,7 +85,7 @@ def test_the_reach_along_a_direction_is_a_bound_exact_for_a_lift_under_a_horizon
     """Out: the arm's 0.91 m, the lift's travel adds nothing; up: the lift's travel and the column, the
     arm adds nothing; every sampled configuration stays within the bound, and for the lift arm (joints
     about one axis and a lift along it) the bound is attained."""
-    from plants.robots import kinematic_chain
+    from raico.plants.robots import kinematic_chain
 
     robot = _load(lift_arm(tmp_path))
     chain = kinematic_chain(robot, "tip")
@@ -116,7 +116,7 @@ def test_the_reach_along_a_direction_is_a_bound_exact_for_a_lift_under_a_horizon
 def test_a_target_beyond_the_reach_in_its_direction_is_said(tmp_path, target, said):
     """A target farther from the lift's foot along some direction (toward it, along the joints' axes, out
     from them) than the chain can get along it is said, with that direction and both distances."""
-    from stages.plan.stage import PlanConfig, build_problem, reach_notes
+    from raico.stages.plan.stage import PlanConfig, build_problem, reach_notes
 
     p = write_problem(tmp_path, "lift", problem_text(str(lift_arm(tmp_path)), {}, REACH.format(target=target), T=10))
     robot, _, problem, _, _ = build_problem(PlanConfig(problem=str(p)))
@@ -135,8 +135,8 @@ def test_a_target_beyond_the_reach_in_its_direction_is_said(tmp_path, target, sa
 def test_a_start_outside_the_limits_is_said_as_the_bounds_in_force_treat_it(tmp_path, bounds, costs, needle):
     """A problem file plans with hard bounds unless told otherwise: the note says so (it said "planning knows
     no limits" whatever the bounds), and the model's load report no longer guesses."""
-    from plants.robots import load_robot_for
-    from stages.plan.stage import PlanConfig, build_problem, start_limit_notes
+    from raico.plants.robots import load_robot_for
+    from raico.stages.plan.stage import PlanConfig, build_problem, start_limit_notes
 
     text = problem_text(str(user_robot(tmp_path)), {"start": {"shoulder": 2.5}},
                         REACH.format(target=[0.3, 0.0, 0.4]) + costs, T=10, dynamics="analytic")
@@ -156,7 +156,7 @@ def test_a_start_outside_the_limits_is_said_as_the_bounds_in_force_treat_it(tmp_
 def test_the_notes_are_said_once_per_experiment_and_once_within_a_loop(raico, tmp_path, capfd):
     """An experiment says a variant's notes before its runs, not in each run; plan() within
     ``load_notes_said`` (a learning loop's episodes) says each note once; a single plan says it."""
-    from stages.plan.stage import PlanConfig, load_notes_said, plan
+    from raico.stages.plan.stage import PlanConfig, load_notes_said, plan
 
     text = problem_text(str(lift_arm(tmp_path)), {"start": {"shoulder": 3.0}}, REACH.format(target=[1.17, 0.0, 0.5]),
                         T=10)
@@ -183,7 +183,7 @@ def test_the_notes_are_said_once_per_experiment_and_once_within_a_loop(raico, tm
 def test_a_target_at_the_reach_is_within_it(tmp_path):
     """The arm stretched out (0.91 m from the lift's axis, at its top): at the bound, as rounded; no note.
     A millimetre farther: the note."""
-    from stages.plan.stage import PlanConfig, build_problem, reach_notes
+    from raico.stages.plan.stage import PlanConfig, build_problem, reach_notes
 
     for x, said in ((0.91, 0), (0.911, 1)):
         p = write_problem(tmp_path, "edge", problem_text(str(lift_arm(tmp_path)), {},

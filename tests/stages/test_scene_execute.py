@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from planning.costs import Collision
-from planning.objective import objective_from_description
-from stages.evaluate.metrics import STATUSES
+from raico.pipeline.interface.cli import app
+from raico.planning.costs import Collision
+from raico.planning.objective import objective_from_description
+from raico.stages.evaluate.metrics import STATUSES
 from tests.plants.test_scene import _problem
 
 ROOT = Path(__file__).resolve().parents[2]
-POLE = ROOT / "problems" / "examples" / "ur5_pole.toml"
+POLE = ROOT / "raico" / "problems" / "examples" / "ur5_pole.toml"
 
 
 def _plan_and_execute(problem: Path, arts: Path, *plan_args: str) -> tuple[Path, Path]:

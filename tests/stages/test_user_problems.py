@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from plants.model_file import example_robot_data
+from raico.pipeline.interface.cli import app
+from raico.plants.model_file import example_robot_data
 from tests.plants.test_model_file import problem_text, user_robot, write_problem
 from tests.tolerance import close
 
@@ -30,8 +30,8 @@ weight = 1e-2
 
 @pytest.mark.numerics
 def test_chain_reach_is_the_link_lengths_to_the_frame(tmp_path):
-    from plants.model_file import RobotSpec, load_model
-    from plants.robots import chain_reach, shared_robot
+    from raico.plants.model_file import RobotSpec, load_model
+    from raico.plants.robots import chain_reach, shared_robot
 
     robot = load_model(RobotSpec(file=str(user_robot(tmp_path))))
     base, reach = chain_reach(robot, "tip")     # the shoulder 0.1 m up, upper arm 0.3, forearm 0.25 (m)
@@ -54,7 +54,7 @@ def test_a_target_beyond_reach_is_said_before_planning_and_planned_anyway(tmp_pa
     assert r.exit_code == 0 and "beyond its reach" not in r.stderr, r.stderr
 
 
-UR5 = Path(__file__).resolve().parents[2] / "problems" / "examples" / "ur5_reach.toml"
+UR5 = Path(__file__).resolve().parents[2] / "raico" / "problems" / "examples" / "ur5_reach.toml"
 
 
 def _ur5_toward_gravity(tmp_path: Path) -> Path:
@@ -72,8 +72,8 @@ def _ur5_toward_gravity(tmp_path: Path) -> Path:
 def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path, solver, iterations):
     """The UR5 pays for holding itself up under a control cost toward zero; toward gravity it reaches
     closer (and the whole cost falls by two orders of magnitude)."""
-    from planning import crocoddyl as cm
-    from stages.plan.stage import PlanConfig, plan
+    from raico.planning import crocoddyl as cm
+    from raico.stages.plan.stage import PlanConfig, plan
 
     if solver == "fddp" and not cm.AVAILABLE:
         pytest.skip(cm.UNAVAILABLE_REASON)
@@ -87,8 +87,8 @@ def test_control_toward_gravity_lets_an_arm_that_holds_itself_up_reach(tmp_path,
 
 @pytest.mark.numerics
 def test_control_weights_per_joint_and_gravity_target_are_read_and_checked(tmp_path):
-    from planning.costs import ControlCost, ControlGravity
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.planning.costs import ControlCost, ControlGravity
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     urdf = user_robot(tmp_path)
     costs = FAR_REACH.format(target=[0.3, 0.0, 0.4]).replace("weight = 1e-2", "weight = [1e-2, 4e-2]")
@@ -113,9 +113,9 @@ def test_control_weights_per_joint_and_gravity_target_are_read_and_checked(tmp_p
 
 @pytest.mark.numerics
 def test_gravity_torques_hold_the_robot_still_and_their_jacobian_is_exact(tmp_path):
-    from plants.dynamics import AnalyticDynamics, GravityTorques
-    from plants.model_file import RobotSpec, load_model
-    from plants.numdiff import check_jacobian
+    from raico.plants.dynamics import AnalyticDynamics, GravityTorques
+    from raico.plants.model_file import RobotSpec, load_model
+    from raico.plants.numdiff import check_jacobian
 
     robot = load_model(RobotSpec(file=str(user_robot(tmp_path))))
     g = GravityTorques(robot)
@@ -131,8 +131,8 @@ def test_crocoddyl_costs_control_toward_gravity_on_damped_joints_as_raico(tmp_pa
     """crocoddyl's own residual takes the actuation's torque u - D v, raico's term u: on damped joints the
     adapter measures the control itself, so the plan's cost is raico's (tests/planning/
     test_crocoddyl_damped_gravity.py: per term and derivatives)."""
-    from planning import crocoddyl as cm
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.planning import crocoddyl as cm
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     if not cm.AVAILABLE:
         pytest.skip(cm.UNAVAILABLE_REASON)
@@ -174,7 +174,7 @@ weight = 1e-2
 
 
 def _held_problem(tmp_path, tol: str = ""):
-    from stages.plan.stage import PlanConfig, build_problem
+    from raico.stages.plan.stage import PlanConfig, build_problem
 
     urdf = tmp_path / "two_link" / "urdf" / "two_link.urdf"
     urdf = urdf if urdf.exists() else user_robot(tmp_path)
@@ -185,7 +185,7 @@ def _held_problem(tmp_path, tol: str = ""):
 
 @pytest.mark.numerics
 def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
-    from planning.achieved import TASK_TOLERANCES, task_errors, task_line, task_verdict
+    from raico.planning.achieved import TASK_TOLERANCES, task_errors, task_line, task_verdict
 
     problem, X = _held_problem(tmp_path)
     errors = task_errors(problem, X)
@@ -206,7 +206,7 @@ def test_each_term_is_judged_in_its_unit_against_its_kinds_tolerance(tmp_path):
 
 @pytest.mark.numerics
 def test_the_outcome_line_names_the_worst_term_and_its_unit():
-    from pipeline.engine.runner import Outcome, outcome_line
+    from raico.pipeline.engine.runner import Outcome, outcome_line
 
     task = {"achieved": True, "worst": "level", "kind": "orientation", "unit": "rad", "error": 0.0818, "tol": 0.1}
     line = outcome_line(Outcome("execute", "k" * 16, "p", True, "ok", {"task": task, "via_point_errors": {"reach@9": 0.002}}))

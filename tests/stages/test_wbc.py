@@ -10,12 +10,12 @@ import pytest
 from scipy.spatial import ConvexHull
 from typer.testing import CliRunner
 
-from pipeline.interface.cli import app
-from plants.floating import STANCE_MARGIN, shared_floating
-from plants.robots import builtin_spec
-from stages.evaluate.metrics import STATUSES, signed_margin
-from stages.execute.config import ExecuteConfig
-from stages.execute.stage import execute
+from raico.pipeline.interface.cli import app
+from raico.plants.floating import STANCE_MARGIN, shared_floating
+from raico.plants.robots import builtin_spec
+from raico.stages.evaluate.metrics import STATUSES, signed_margin
+from raico.stages.execute.config import ExecuteConfig
+from raico.stages.execute.stage import execute
 from tests.stages.test_execute_floating import desc_for, pseudo_plan
 from tests.tolerance import assert_close, close, scale_of
 
@@ -49,7 +49,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
     assert signed_margin(poly, c[:2]) >= STANCE_MARGIN - 1e-4
     # the CoG's ground projection stays (to 5 mm) where the posture puts it on the fixed-base model,
     # the plan's world frame: a CoG via-point of the plan is still one for the robot
-    from plants.taskmaps import CenterOfMass
+    from raico.plants.taskmaps import CenterOfMass
 
     assert np.linalg.norm(c[:2] - CenterOfMass(fixed).value_and_jacobian(q)[0][:2]) < 5e-3
     assert info["cog_margin"] == pytest.approx(signed_margin(poly, c[:2]))
@@ -69,7 +69,7 @@ def test_stance_projection_puts_both_soles_flat_and_the_cog_inside(seed):
 def test_stabilizer_holds_a_standing_nao_for_two_seconds():
     """No motion: the stabilizer keeps the robot up for 2 s, the ground carries its weight (within
     2 %), the feet stay flat, the QP's corner forces lie inside the linearized friction cone."""
-    from stages.execute.wbc import CONTROL_PERIOD, LIMIT_MARGIN, MU
+    from raico.stages.execute.wbc import CONTROL_PERIOD, LIMIT_MARGIN, MU
 
     nao = shared_floating(builtin_spec("nao")).fixed
     T, dt = 200, 0.01
@@ -150,10 +150,10 @@ def test_cli_executes_a_plan_with_the_stabilizer(tmp_path):
     pd = run_json("execute", "--plan", plan["key"], "--no-record", "--json", "--artifacts", tmp_path)
     assert pd["key"] != r["key"] and "wbc_qp_failures" not in pd["metrics"]
     # the report's balance section: one panel and one table row per controller, from these two runs
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.runner import Outcome
-    from thesis.figures import EXPERIMENTS
-    from thesis.report import balance_section
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import Outcome
+    from raico.thesis.figures import EXPERIMENTS
+    from raico.thesis.report import balance_section
 
     outs = [Outcome("execute", x["key"], x["path"], True, x["status"], metrics=x["metrics"]) for x in (pd, r)]
     md, rows = balance_section(Cache(tmp_path), EXPERIMENTS["fig3.3"], outs, tmp_path)
@@ -167,11 +167,11 @@ def test_stabilized_figures_execute_each_plan_with_both_controllers(tmp_path):
     """A figure marked ``stabilized`` executes each executed variant's plan twice,
     with the joint PD from the plan's start (the thesis rows) and with the stabilizer from the standing start;
     the thesis-set execution claims read the PD runs only, the stabilizer's claim its own."""
-    from pipeline.engine.cache import Cache
-    from pipeline.engine.executors import Batch
-    from pipeline.engine.runner import Outcome
-    from thesis.claims import claim_executed_reaches, claim_stabilizer_stands
-    from thesis.figures import EXPERIMENTS, STABILIZER, experiment_flow
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.executors import Batch
+    from raico.pipeline.engine.runner import Outcome
+    from raico.thesis.claims import claim_executed_reaches, claim_stabilizer_stands
+    from raico.thesis.figures import EXPERIMENTS, STABILIZER, experiment_flow
 
     for fid in ("fig3.3", "fig3.4-inside"):
         exp = EXPERIMENTS[fid]
@@ -202,7 +202,7 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
     """The stabilizer's CoG clamp against Dykstra's alternating projections run to convergence (an
     independent method) on random polygons; a point inside comes back unchanged; a point beyond a
     corner lands on the corner."""
-    from stages.execute.wbc import clamp_to_polygon
+    from raico.stages.execute.wbc import clamp_to_polygon
 
     def dykstra(p, A, b, iterations=2000):
         x, y = p.copy(), np.zeros((len(b), 2))
@@ -230,7 +230,7 @@ def test_clamp_to_polygon_is_the_nearest_point_of_the_polygon():
 @pytest.mark.numerics
 def test_zmp_metrics_on_synthetic_margins():
     """The ZMP criteria on margins whose answer is known: the samples without a ZMP left out."""
-    from stages.evaluate.metrics import ZMP_EDGE, point_margins, zmp_metrics
+    from raico.stages.evaluate.metrics import ZMP_EDGE, point_margins, zmp_metrics
 
     m = zmp_metrics(np.array([np.nan, 0.03, 0.02, ZMP_EDGE / 2, -0.01]))
     assert m == {"zmp_min_margin": -0.01, "zmp_edge_fraction": 0.5}
@@ -243,8 +243,8 @@ def test_zmp_metrics_on_synthetic_margins():
 @pytest.mark.numerics
 def test_single_support_metric_and_claim_on_synthetic_runs():
     """The lift metric and the single-support claim on inputs whose verdict is known."""
-    from stages.evaluate.metrics import LIFT, single_support_lift
-    from thesis.claims import claim_single_support_stands
+    from raico.stages.evaluate.metrics import LIFT, single_support_lift
+    from raico.thesis.claims import claim_single_support_stands
 
     corners = np.zeros((10, 2, 4, 3))
     corners[5:, 1, :, 2] = [LIFT + 0.001, LIFT + 0.002, LIFT + 0.003, LIFT + 0.004]
@@ -297,8 +297,8 @@ def test_proxqp_solves_the_stabilizers_programs_as_clarabel_does():
     the programs of a standing Nao and of a moving one (random joint velocities, a CoG reference off the
     current CoG): the same accelerations (the forces are unique only up to the small force regularization,
     so the check is on the cost and the constraints), every constraint met to 1e-7."""
-    from plants.floating import load_floating
-    from stages.execute.wbc import ClarabelProgram, ProxQP, make_stabilizer
+    from raico.plants.floating import load_floating
+    from raico.stages.execute.wbc import ClarabelProgram, ProxQP, make_stabilizer
 
     free = load_floating(builtin_spec("nao"), pd=False)
     fixed = free.fixed
@@ -364,8 +364,8 @@ def test_disturbance_observer_recovers_a_known_joint_torque():
     (besides its own command and the contact forces): its estimate is ``w`` exactly (to the fixed point's 1e-9),
     none on a joint within its margin of a limit (the hands, closed at 0), and the next program's torque map
     compensates it (``u = At x + h_j - w``, the torque bounds shifted by it)."""
-    from plants.floating import load_floating
-    from stages.execute.wbc import LIMIT_MARGIN_OBS, make_stabilizer
+    from raico.plants.floating import load_floating
+    from raico.stages.execute.wbc import LIMIT_MARGIN_OBS, make_stabilizer
 
     free = load_floating(builtin_spec("nao"), pd=False)
     fixed, plant = free.fixed, free.plant
@@ -411,7 +411,7 @@ def test_stabilizer_execution_is_repeatable_in_one_process():
     """The same noisy execution twice in one process gives the same numbers, bit for bit: the stabilizer
     loads proxsuite's portable build (its AVX2 build's results depend on where its work arrays lie in
     memory: two identical executions of a fig3.4 plan differed from the first program on)."""
-    from stages.execute.wbc import portable_proxsuite
+    from raico.stages.execute.wbc import portable_proxsuite
 
     loaded = portable_proxsuite()
     import proxsuite  # any later import in the process gets the same build

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from stages.evaluate.stage import iterations_to
-from stages.evaluate.summary import largest_via_error, summarize
-from thesis.claims import (
+from raico.stages.evaluate.stage import iterations_to
+from raico.stages.evaluate.summary import largest_via_error, summarize
+from raico.thesis.claims import (
     CLAIMS,
     FDDP_ACCEPT_ANY,
     FDDP_HELD,
@@ -325,7 +325,7 @@ def test_learning_claim_verdicts_on_synthetic_summaries(name, L, holds):
 
 @pytest.mark.numerics
 def test_summarize_learn_curves_and_success_time():
-    from stages.evaluate.summary import seconds_to_success, summarize_learn
+    from raico.stages.evaluate.summary import seconds_to_success, summarize_learn
 
     runs = [{"gp_error": [4.0, 2.0, 1.0, 0.5, 0.25], "rmse_planned_executed": [1, 1, 1, 1, 1],
              "task_error": [1, 1, 0.05, 0.01, 0.01], "fit_time_s": [1, 1, 1, 1, 1], "plan_time_s": [2] * 5,
@@ -401,7 +401,7 @@ EXECUTION_CASES = [
 @pytest.mark.numerics
 def test_noise_claim_reads_the_noisy_runs_only():
     """evaluate_claims hands the noise claim the sweep's noisy runs, every other claim the figure's own runs."""
-    from thesis.claims import evaluate_claims
+    from raico.thesis.claims import evaluate_claims
 
     own = [ex(controller="wbc")] * 3
     noisy = [ex("fell", controller="wbc", noise_level=[0.02, 0.5])] * 3
@@ -482,7 +482,7 @@ def test_iterations_to_relative_change():
 
 @pytest.mark.numerics
 def test_identical_variants_of_two_figures():
-    from stages.evaluate.summary import identical_variants, relative_difference
+    from raico.stages.evaluate.summary import identical_variants, relative_difference
 
     c = table(ilqg=2400, aico={"final": math.nan, "diverged": 10, "via": 0.46}, r1=473.5, r10=788.5)
     d = {k: dict(v) for k, v in c.items()}
@@ -506,7 +506,7 @@ def test_identical_variants_of_two_figures():
 def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
     """Each claim row names the thesis sentence it tests (quoted, with its section and the figures it is written
     about) or says it is raico's own test."""
-    from thesis.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS
+    from raico.thesis.claims import BEYOND, CLAIMS, SECTION_FIGURES, THESIS
 
     assert set(THESIS) == set(CLAIMS)
     for name, q in THESIS.items():
@@ -522,8 +522,8 @@ def test_every_claim_quotes_the_thesis_or_says_it_goes_beyond():
 def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
     """The map of sections to figures decides: a thesis claim listed on a figure its quoted section is not written
     about fails here (e.g. the balancing's "converged after 25 iterations", §3.6.2, on an arm panel)."""
-    from thesis.claims import SECTION_FIGURES, THESIS, Quote
-    from thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS
+    from raico.thesis.claims import SECTION_FIGURES, THESIS, Quote
+    from raico.thesis.figures import EXPERIMENTS, LEARN_EXPERIMENTS
 
     for exp in (*EXPERIMENTS.values(), *LEARN_EXPERIMENTS.values()):
         for name in exp.claims:
@@ -545,7 +545,7 @@ def test_every_thesis_row_is_judged_on_a_figure_its_sentence_is_about():
 
 @pytest.mark.numerics
 def test_decay_fit_recovers_the_rate_and_flat_curves():
-    from thesis.claims import decay_fit
+    from raico.thesis.claims import decay_fit
 
     # a pure exponential: the end sits 100 * 0.6^24 above the asymptote, which biases the gaps read (those more than
     # 1 % above the end: k <= 14) by at most 0.6^10 < 1 % relative, so rho within 0.01
@@ -580,7 +580,7 @@ def _still_falling(first: float) -> list[float]:
 def test_decay_verdict_does_not_hang_on_the_first_iterate(shape, holds):
     """Two curves of the same shape, their first iterates 1.7x and 12x their end (Fig. 3.2C's and 3.2D's), get the
     same verdict: the log-cost rule reads the slope over every iteration, and one iterate cannot move its median."""
-    from thesis.claims import decay_fit
+    from raico.thesis.claims import decay_fit
 
     tails = {math.log(shape(f)[-1] / shape(f)[-6]) / 5 for f in (1.7, 12.0)}
     if not holds:  # the premise: still falling more than 1 % per iteration at the end
@@ -594,7 +594,7 @@ def test_decay_verdict_does_not_hang_on_the_first_iterate(shape, holds):
 
 @pytest.mark.numerics
 def test_summary_cost_curves_and_flatness():
-    from stages.evaluate.summary import median_curve, relative_change
+    from raico.stages.evaluate.summary import median_curve, relative_change
 
     assert median_curve([np.array([4.0, 2.0, 1.0]), np.array([6.0, 3.0])]) == [5.0, 2.5, 2.0]  # 3.0 held
     assert relative_change(np.array([10, 9, 8, 7, 6, 5, 4.0]), 5) == 1.25
@@ -612,8 +612,8 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
     new run, while the other variants of a figure do not touch it."""
     from dataclasses import replace
 
-    from pipeline.engine.keys import stage_key
-    from thesis.figures import EXPERIMENTS, REFERENCE, plan_config
+    from raico.pipeline.engine.keys import stage_key
+    from raico.thesis.figures import EXPERIMENTS, REFERENCE, plan_config
 
     def key(cfg):
         return stage_key("plan", "v", cfg.normalized().key_dict(), [])
@@ -634,8 +634,8 @@ def test_reference_runs_are_cached_plan_runs_keyed_by_the_problem():
 
 @pytest.mark.numerics
 def test_integration_summary_and_integrator_groups():
-    from stages.evaluate.summary import integration_summary
-    from thesis.claims import integrator_groups
+    from raico.stages.evaluate.summary import integration_summary
+    from raico.thesis.claims import integrator_groups
 
     ms = [{"rmse_planned_executed": 1e-4, "max_tracking_error": 3e-4, "via_point_errors": {"a@1": 0.002, "b@2": 0.004}},
           {"rmse_planned_executed": 3e-4, "max_tracking_error": 5e-4, "via_point_errors": {"a@1": 0.001, "b@2": 0.008}},
@@ -651,7 +651,7 @@ def test_integration_summary_and_integrator_groups():
 def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
     """Settings that all swing up first in the same episode cannot be ranked: the row says so instead of a verdict,
     and a row that does not hold says why in the measured numbers."""
-    from thesis.claims import CANNOT
+    from raico.thesis.claims import CANNOT
 
     L = {"sigma*=0, w=0.01": L_(success_ep=[3, 3]), "sigma*=1, w=0.01": L_(success_ep=[3, 3])}
     assert CLAIMS["best_with_sigma_zero"](L, [])[3] is None
@@ -667,7 +667,7 @@ def test_best_with_sigma_zero_cannot_be_tested_when_every_seed_ties():
 
 
 def test_figure_names_as_the_thesis_names_its_panels():
-    from thesis.claims import figure_names
+    from raico.thesis.claims import figure_names
 
     assert figure_names(["fig3.2c", "fig3.2d"]) == "Fig. 3.2C,D"
     assert figure_names(["fig3.4"]) == "Fig. 3.4" and figure_names(["fig4.1/4.2"]) == "Fig. 4.1/4.2"
@@ -676,7 +676,7 @@ def test_figure_names_as_the_thesis_names_its_panels():
 # ----------------------------------------------------------------------------- margins, reasons, fragile verdicts
 @pytest.mark.numerics
 def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed_numbers():
-    from thesis.claims import Check, judged
+    from raico.thesis.claims import Check, judged
 
     rho, r2 = Check("rho", 0.575, "<=", 0.8), Check("R^2", 0.916, ">=", 0.95)
     assert rho.ok and not r2.ok and rho.margin == pytest.approx(0.225) and r2.margin == pytest.approx(-0.034)
@@ -692,7 +692,7 @@ def test_a_check_states_its_margin_in_its_own_terms_and_the_reason_is_the_failed
 
 
 def test_a_margin_inside_the_runs_spread_or_near_its_limit_is_fragile():
-    from thesis.claims import Check, judged
+    from raico.thesis.claims import Check, judged
 
     assert Check("via", 0.0197, "<=", 0.01, " m", spread=0.024).near()  # 1 cm over the rule, runs 2.4 cm apart
     assert not Check("via", 0.0197, "<=", 0.01, " m", spread=0.001).near()
@@ -768,7 +768,7 @@ def test_swing_up_margin_is_the_farthest_seed_against_the_tolerance():
 
 
 def test_only_a_check_whose_flip_flips_the_verdict_makes_it_fragile():
-    from thesis.claims import Check, judged
+    from raico.thesis.claims import Check, judged
 
     close, far = Check("a", 1.01, ">", 1.0, "x", spread=0.0), Check("b", 21.4, ">", 1.0, "x", spread=0.0)
     assert judged([close, far], "any")["near"] == []  # b alone keeps it
@@ -783,7 +783,7 @@ def test_diverged_executions_are_counted_and_left_out_of_the_curves():
     and a seed whose last execution diverged has no end angle to rank it by."""
     from types import SimpleNamespace
 
-    from thesis.figures import summarize_learns
+    from raico.thesis.figures import summarize_learns
 
     def run(seed, gp, status):
         m = {"gp_error": gp, "rmse_planned_executed": [1.0] * len(gp), "task_error": [2.37] * len(gp),
@@ -812,7 +812,7 @@ def test_a_failed_leave_one_out_rerun_is_said_in_the_row():
 def test_large_weight_explores_cannot_be_tested_where_its_executions_diverged():
     """Every seed's last executions with w = 100 diverged: no error level is left to judge exploring by, and the row
     says so (with the counts) instead of a verdict."""
-    from thesis.claims import CANNOT
+    from raico.thesis.claims import CANNOT
 
     nan = math.nan
     big = {**L_(gp_curve=[1, 1, 1, nan, nan, nan, nan, nan], rmse_curve=[1, 1, 1, nan, nan, nan, nan, nan]),

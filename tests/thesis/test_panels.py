@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from plants.robots import shared_robot
-from thesis.figures import COUNTERBALANCE_JOINTS, counterbalance
-from thesis.panels import SKELETON, skeleton
+from raico.plants.robots import shared_robot
+from raico.thesis.figures import COUNTERBALANCE_JOINTS, counterbalance
+from raico.thesis.panels import SKELETON, skeleton
 
 
 def _plan(moved: tuple[str, ...], amount: float = 0.3) -> np.ndarray:

@@ -8,9 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import pipeline.engine.artifacts
-from thesis.figures import EXPERIMENTS, Experiment, Variant, summarize
-from thesis.report import (
+import raico.pipeline.engine.artifacts
+from raico.thesis.figures import EXPERIMENTS, Experiment, Variant, summarize
+from raico.thesis.report import (
     FALLBACK_COLORS,
     SOLVER_COLORS,
     cost_at_times,
@@ -46,7 +46,7 @@ def runs(monkeypatch):
             d = arrays[self.key]
             return {k: v for k, v in d.items() if keys is None or k in keys}
 
-    monkeypatch.setattr(pipeline.engine.artifacts, "as_artifact", lambda entry: Art(entry))
+    monkeypatch.setattr(raico.pipeline.engine.artifacts, "as_artifact", lambda entry: Art(entry))
 
     def add(variant, seed, costs, status="max-iterations", elapsed=None, initial=1e4):
         key = f"{variant.label}/{seed}"
@@ -212,7 +212,7 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
     that stood left out."""
     from types import SimpleNamespace
 
-    from thesis.report import missed_rows, missed_section
+    from raico.thesis.report import missed_rows, missed_section
 
     def run(key, status, errs, ctrl="wbc", margins=None, beyond=None, ref=0.03):
         return SimpleNamespace(key=key, metrics={"status": status, "reason": status, "controller": ctrl,
@@ -246,7 +246,7 @@ def test_missed_rows_keep_the_stabilizer_runs_that_did_not_achieve():
 def test_noise_section_counts_statuses_and_the_motors_clamping_the_noise(tmp_path):
     """The noise table on synthetic runs: success rate, stood, and the median share of samples in which a
     motor clamped the noise (reported beside the statuses, which judge the controller's own command)."""
-    from thesis.report import noise_section
+    from raico.thesis.report import noise_section
 
     def run(status, clamped, seed):
         m = {"status": status, "via_point_errors": {"v": 0.01 * (seed + 1)}, "effort_clamped_fraction": clamped}
@@ -265,8 +265,8 @@ def test_noise_section_counts_statuses_and_the_motors_clamping_the_noise(tmp_pat
 def test_cost_panels_draw_mean_and_standard_deviation_and_split_the_thesis_solvers(runs):
     """The thesis draws mean and standard deviation over the initial states: the panel data carries both (median
     beside); the thesis's solvers at the figure's budget go in one panel, long-budget and other variants in another."""
-    from thesis.figures import REFERENCE
-    from thesis.report import figure_panels, mean_std
+    from raico.thesis.figures import REFERENCE
+    from raico.thesis.report import figure_panels, mean_std
 
     m, sd = mean_std(np.array([[1.0, 4.0], [3.0, np.inf], [5.0, 8.0]]))
     assert list(m) == [3.0, 6.0] and sd[0] == pytest.approx(np.std([1.0, 3.0, 5.0])) and sd[1] == 2.0
@@ -284,7 +284,7 @@ def test_cost_panels_draw_mean_and_standard_deviation_and_split_the_thesis_solve
 
 
 def test_heldout_sentence_says_what_the_curve_does():
-    from thesis.report import heldout_sentence, learn_findings
+    from raico.thesis.report import heldout_sentence, learn_findings
 
     flat = {"gp_error_heldout_curve": [8.1, 7.9, 8.0, 8.2, 7.7, 8.3, 8.0, 7.9], "gp_error_first3": 600.0,
             "gp_error_last3": 0.008}
@@ -300,8 +300,8 @@ def test_heldout_sentence_says_what_the_curve_does():
 
 def test_claims_table_names_section_figure_runs_setup_and_why():
     from tests.thesis.test_evaluate import table
-    from thesis.claims import evaluate_claims
-    from thesis.report import markdown_claims
+    from raico.thesis.claims import evaluate_claims
+    from raico.thesis.report import markdown_claims
 
     rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
                            "fig3.2c")
@@ -320,7 +320,7 @@ def test_cost_and_wall_panels_leave_out_exploding_iterates_and_say_so(runs):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from thesis.report import cost_panel, wall_time_panel
+    from raico.thesis.report import cost_panel, wall_time_panel
 
     fddp = Variant("fddp")
     exp = Experiment("figT", "arm5", "reach", "analytic", (R1, fddp), 6, 2, "synthetic")
@@ -338,7 +338,7 @@ def test_cost_and_wall_panels_leave_out_exploding_iterates_and_say_so(runs):
 
 def test_the_cost_panel_title_names_the_budget_the_runs_had(runs, monkeypatch, tmp_path):
     """--quick runs a figure at its profile's budget: the title says that budget, not the full figure's."""
-    import thesis.report as report
+    import raico.thesis.report as report
 
     exp = Experiment("figT", "arm5", "reach", "pseudo", (ILQG, R1), 6, 2, "synthetic")   # 6 iterations in full
     plans = [{**runs(v, s, np.geomspace(1000, 50, 3)), "iterations": 3} for v in (ILQG, R1) for s in range(2)]
@@ -354,8 +354,8 @@ def test_a_nudged_start_lists_the_chaotic_runs():
     chaotic, listed in the report's processor section."""
     from types import SimpleNamespace
 
-    from thesis.figures import Variant
-    from thesis.report import nudge_effect, processor_section
+    from raico.thesis.figures import Variant
+    from raico.thesis.report import nudge_effect, processor_section
 
     a, b = Variant("aico"), Variant("aico", nudge=1e-9)
     assert b.label == "AICO, start +1e-09 rad"
@@ -376,8 +376,8 @@ def test_a_nudged_start_lists_the_chaotic_runs():
 
 def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
     from tests.thesis.test_evaluate import table
-    from thesis.claims import evaluate_claims
-    from thesis.report import not_holding_section
+    from raico.thesis.claims import evaluate_claims
+    from raico.thesis.report import not_holding_section
 
     rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
                            "fig3.2c")
@@ -388,7 +388,7 @@ def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
 
 
 def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
-    from thesis.report import endings_sentence
+    from raico.thesis.report import endings_sentence
 
     S = {"sigma*=0, w=0.01": {"task_error_last_by_seed": [0.00763, 0.00764], "torque_saturation_curve": [0.9, 0.29],
                               "gp_error_curve": [1.0, 2e-4]},
@@ -405,8 +405,8 @@ def test_the_pendulum_endings_are_said_with_their_spread_and_saturation():
 
 
 def test_a_thesis_setup_row_names_its_set_up_in_place_of_raicos():
-    from thesis.claims import setup_notes
-    from thesis.report import setup_in_place
+    from raico.thesis.claims import setup_notes
+    from raico.thesis.report import setup_in_place
 
     raico = setup_notes("aico_no_balancing", "fig3.4")
     assert "CoG weights read as 1e6" in raico and "right sole held" in raico

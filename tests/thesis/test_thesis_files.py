@@ -1,4 +1,4 @@
-"""The thesis's experiments as files (thesis/experiments/*.toml, read by pipeline.experiments.expfile for raico reproduce and
+"""The thesis's experiments as files (raico/thesis/experiments/*.toml, read by raico.pipeline.experiments.expfile for raico reproduce and
 raico exp run alike): every run keeps the cache key it had when the experiments were Python definitions
 (tests/thesis_reference.py, a frozen copy of them), with and without --quick, plans, executions, noise sweeps,
 open-loop integrations and learning loops; the claims are the ones the definitions named."""
@@ -11,22 +11,22 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.engine.cache import Cache
-from pipeline.engine.keys import code_version, stage_key
-from pipeline.engine.runner import Outcome
-from pipeline.errors import BadInput
-from pipeline.experiments import expfile
-from pipeline.interface.cli import app
-from stages.registry import get_stage
+from raico.pipeline.engine.cache import Cache
+from raico.pipeline.engine.keys import code_version, stage_key
+from raico.pipeline.engine.runner import Outcome
+from raico.pipeline.errors import BadInput
+from raico.pipeline.experiments import expfile
+from raico.pipeline.interface.cli import app
+from raico.stages.registry import get_stage
 from tests import thesis_reference as python
-from thesis import figures as files
+from raico.thesis import figures as files
 
 FIGURES = list(python.EXPERIMENTS)
 LEARNING = list(python.LEARN_EXPERIMENTS)
 
 
 def key_of(stage: str, cfg) -> str:
-    """The cache key of a run of ``cfg`` (as pipeline.engine.runner computes it; its input references are whole
+    """The cache key of a run of ``cfg`` (as raico.pipeline.engine.runner computes it; its input references are whole
     ``STAGE/KEY``s, so no cache is needed to resolve them)."""
     cfg = cfg.normalized() if hasattr(cfg, "normalized") else cfg
     inputs = []
@@ -63,7 +63,7 @@ def test_every_figure_is_a_file_and_the_same_experiment(tmp_path):
         assert files.LEARN_EXPERIMENTS[fid] == python.LEARN_EXPERIMENTS[fid], fid
     assert files.NOISE_SWEEPS == python.NOISE_SWEEPS and files.REFERENCE == python.REFERENCE
     # the claims are Python functions, named from the files
-    from thesis import claims
+    from raico.thesis import claims
 
     named = {c for e in (*files.EXPERIMENTS.values(), *files.LEARN_EXPERIMENTS.values()) for c in e.claims}
     assert named and all(callable(claims.CLAIMS[c]) for c in named)
@@ -126,7 +126,7 @@ def test_the_thesis_setups_run_only_when_asked(monkeypatch):
     """The thesis's set-ups beside raico's (points that need "thesis-setups") are left out of `raico reproduce` unless
     --thesis-setups (the environment's RAICO_THESIS_SETUPS) asks for them; then each figure has them, under the
     labels its claims judge in rows of their own."""
-    from thesis.figures import load_figure
+    from raico.thesis.figures import load_figure
 
     monkeypatch.delenv(expfile.THESIS_SETUPS, raising=False)
     expfile.available.cache_clear()

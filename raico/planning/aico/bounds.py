@@ -1,0 +1,76 @@
+"""Hard bounds in AICO: the joint ranges, velocity and effort limits as an augmented Lagrangian
+(:func:`hard_constraints`), and the cost's curvature, the unit of its penalty and of the robust
+schedule's alpha (:func:`cost_curvature`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from raico.planning.constraints import AugmentedLagrangian, Constraint, ControlBox, StateBox
+from raico.planning.problem import Bounds, Callback, Problem
+
+RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or velocity limit's violation
+AL_INNER_TOL = 1e-3   # the multipliers move where the merit fell by less than this (relative), or inside the limits
+AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
+
+
+def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None
+                     ) -> AugmentedLagrangian | None:
+    """The hard constraints of ``problem.bounds`` (joint ranges, from a start outside one as far as the velocity
+    limits let it come back, :meth:`raico.planning.problem.Bounds.position_box`; joint velocity limits) and the effort
+    limits of ``efforts`` as an augmented Lagrangian with the penalty ``AL_MU0 kappa`` (:func:`cost_curvature`
+    at ``X, U``: invariant to the cost's scale; on the efforts ``AL_MU0`` times the control cost's mean
+    curvature), or ``None`` (no constraint)."""
+    b = problem.bounds
+    has_u = efforts is not None and efforts.has_controls
+    if not has_u and (b is None or not (b.has_positions or b.has_velocities)):
+        return None
+    T, cons = problem.T, list[Constraint]()
+    kappa = cost_curvature(problem, X, U)
+    if b is not None and b.has_positions:
+        dt = getattr(problem.dynamics, "dt", 1.0)
+        lo, hi = b.position_box(problem.x0, float(dt) if isinstance(dt, (int, float)) and dt > 0 else 1.0, T)
+        cons.append(StateBox("joint_range", b.q_index, lo, hi, RANGE_TOL))
+    if b is not None and b.has_velocities:
+        k = len(b.v_index)
+        cons.append(StateBox("joint_velocity", b.v_index, np.broadcast_to(b.v_lower, (T + 1, k)),
+                             np.broadcast_to(b.v_upper, (T + 1, k)), RANGE_TOL))
+    if has_u:
+        idx = np.flatnonzero(np.isfinite(efforts.u_lower) | np.isfinite(efforts.u_upper))
+        _, H = problem.control_derivatives(U)
+        curv = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (control unit)^2
+        scale = np.max(np.abs(np.where(np.isfinite(efforts.u_upper), efforts.u_upper, 0.0)), initial=1.0)
+        cons.append(ControlBox("effort", idx, efforts.u_lower[idx], efforts.u_upper[idx],
+                               np.full(len(idx), RANGE_TOL * scale), scale=curv / kappa))
+    return AugmentedLagrangian(cons, T, AL_MU0 * kappa)
+
+
+def own_costs(problem: Problem, al: AugmentedLagrangian, callback: Callback | None) -> tuple[Callback, dict[int, float]]:
+    """A callback that records the problem's own cost of every iterate (the solver's is the merit) and passes
+    it on to ``callback``, and the record it fills (iteration -> cost)."""
+    costs: dict[int, float] = {}
+
+    def cb(rec, X, U) -> None:  # noqa: ANN001
+        extra = al.value(X, U)      # 0 where no constraint is active: the merit is the solver's own cost
+        costs[rec.iteration] = c = rec.cost if extra == 0.0 else problem.cost(X, U)
+        if callback is not None:
+            callback(dataclasses.replace(rec, cost=c), X, U)
+    return cb, costs
+
+
+def cost_curvature(problem: Problem, X: np.ndarray, U: np.ndarray) -> float:
+    """``kappa``: the mean diagonal of the state cost's Gauss-Newton Hessian along ``X (T+1, n)``
+    (cost per (state unit)^2 and step), or of the control Hessian at ``U (T, m)`` if no state term
+    costs anything; scales with the cost (the robust schedule's unit of alpha)."""
+    problem.set_nominal(X, U)
+    _, R = problem.state_derivatives(X)
+    k = float(np.trace(R, axis1=1, axis2=2).mean()) / problem.n_x
+    if not (math.isfinite(k) and k > 0):
+        _, H = problem.control_derivatives(U)
+        k = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u
+    if not (math.isfinite(k) and k > 0):
+        raise ValueError("the robust schedule needs a cost with positive curvature")
+    return k

@@ -1,0 +1,242 @@
+"""Hard constraints ``g_t(x_t, u_t) <= 0`` of AICO / R-AICO, kept by an augmented Lagrangian whose
+multipliers and penalty move every iteration.
+
+A constraint (:class:`Constraint`) gives, along a trajectory ``X (T+1, n)``, ``U (T, m)``, its values ``G (T+1,
+c)`` (``-inf`` where a step is not constrained), the Jacobians ``G_x (T+1, c, n)`` and ``G_u (T+1, c, m)``
+(row ``T`` has no control: zero) and a tolerance per row (its unit: rad, rad/s, m). The joint ranges and the
+joint velocity limits are :class:`StateBox` es (selection Jacobians, kept sparse); a collision distance
+``d(x) >= margin`` joins as a :class:`FunctionConstraint` with ``g = margin - d``.
+
+The method (:class:`AugmentedLagrangian`): the merit ``L(X, U) = cost + sum_t,i psi(g_ti, y_ti)`` with
+``psi = ((max(0, y + mu g))^2 - y^2) / (2 mu)``; its Gauss-Newton model adds ``G_x^T lam`` to the task
+gradient and ``mu G_x^T diag(lam > 0) G_x`` to the task Hessian (``lam = max(0, y + mu g)``), likewise on the
+controls, so AICO's messages carry the constraints. After every accepted iteration the multipliers take
+their first-order step ``y = lam`` at the new iterate and, where the largest scaled violation has not fallen by
+``DECREASE`` in ``PATIENCE`` updates, ``mu *= MU_GROWTH`` (bounded): the iteration of ProxDDP / CSQP style
+(multipliers inside the iteration, a merit function the step must lower), not an outer loop of inner solves.
+
+Why this method, measured against the chunked augmented Lagrangian it replaces, and what was not built:
+docs/planning.md, "Why this augmented Lagrangian".
+
+Where no row of any constraint is ever active (``y = 0`` and ``g < 0`` at every linearization and rollout) the
+merit is the cost and nothing is added to the messages: the iterates are the unconstrained ones, bit for bit.
+
+The effort limits are a :class:`ControlBox` of the same set (the rollouts inside the iterations unclipped, so
+that the merit sees what the controller asks for); the plan's last rollout clips its controls into the box (a
+projection, :meth:`raico.planning.problem.Problem.bounded_rollout`), which keeps them exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+MU_GROWTH = 10.0     # the penalty's growth where the violation did not fall enough
+DECREASE = 0.25      # ... by this factor since the last multiplier update
+MU_MAX_FACTOR = 1e8  # the penalty's cap, relative to its start
+PATIENCE = 3         # updates without that decrease before the penalty grows
+
+
+class Constraint(Protocol):
+    """``g_t(x_t, u_t) <= 0`` per step ``t = 0..T`` (``c`` rows per step)."""
+
+    name: str
+    tol: np.ndarray   # (c,) the largest violation that counts as feasible, in the row's unit
+
+    def values(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``G (T+1, c)``; ``-inf`` where a row does not constrain a step."""
+        ...
+
+    def add_derivatives(self, X: np.ndarray, U: np.ndarray, lam: np.ndarray, mu: float,
+                        lx: np.ndarray, lxx: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:
+        """Add ``G_x^T lam`` to ``lx (T+1, n)``, ``mu G_x^T diag(lam > 0) G_x`` to ``lxx (T+1, n, n)`` and
+        the control parts to ``lu (T, m)``, ``luu (T, m, m)`` (``lam (T+1, c) >= 0``)."""
+        ...
+
+
+@dataclass
+class StateBox:
+    """``lo_t <= x_t[idx] <= hi_t`` for ``t = 1..T`` (``x_0`` is the start: no plan changes it): rows
+    ``x[idx] - hi`` and ``lo - x[idx]`` (``2k`` per step). ``lo, hi (T+1, k)`` (``-inf`` / ``inf``: none)."""
+
+    name: str
+    idx: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    unit_tol: float
+
+    def __post_init__(self) -> None:
+        self.idx = np.asarray(self.idx, dtype=int)
+        self.lo, self.hi = np.array(self.lo, dtype=float), np.array(self.hi, dtype=float)
+        self.lo[0], self.hi[0] = -np.inf, np.inf
+        self.tol = np.full(2 * len(self.idx), self.unit_tol)
+
+    def values(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        Q = X[:, self.idx]
+        with np.errstate(invalid="ignore"):
+            return np.concatenate([Q - self.hi, self.lo - Q], axis=1)
+
+    def add_derivatives(self, X, U, lam, mu, lx, lxx, lu, luu) -> None:
+        k = len(self.idx)
+        lx[:, self.idx] += lam[:, :k] - lam[:, k:]
+        act = (lam[:, :k] > 0).astype(float) + (lam[:, k:] > 0)
+        lxx[:, self.idx, self.idx] += mu * act
+
+
+@dataclass
+class ControlBox:
+    """``lo <= u_t[idx] <= hi`` for ``t = 0..T-1`` (the effort limits): rows ``u - hi`` and ``lo - u``; ``scale``:
+    the penalty's factor for these rows (per (control unit)^2 against the state's unit)."""
+
+    name: str
+    idx: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    tol_: np.ndarray
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        self.idx = np.asarray(self.idx, dtype=int)
+        self.tol = np.concatenate([self.tol_, self.tol_])
+
+    def values(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        G = np.full((U.shape[0] + 1, 2 * len(self.idx)), -np.inf)
+        W = U[:, self.idx]
+        with np.errstate(invalid="ignore"):
+            G[:-1] = np.nan_to_num(np.concatenate([W - self.hi, self.lo - W], axis=1), nan=-np.inf)
+        return G
+
+    def add_derivatives(self, X, U, lam, mu, lx, lxx, lu, luu) -> None:
+        k = len(self.idx)
+        lu[:, self.idx] += lam[:-1, :k] - lam[:-1, k:]
+        act = (lam[:-1, :k] > 0).astype(float) + (lam[:-1, k:] > 0)
+        luu[:, self.idx, self.idx] += mu * act
+
+
+@dataclass
+class FunctionConstraint:
+    """A general ``g(x_t, u_t) <= 0`` from a function ``fn(X, U) -> (G (T+1, c), G_x (T+1, c, n), G_u (T+1, c,
+    m) or None)`` (a collision distance: ``g = margin - d(x)``); ``tol (c,)``."""
+
+    name: str
+    fn: Callable[[np.ndarray, np.ndarray], tuple]
+    tol: np.ndarray
+
+    def _eval(self, X, U):
+        return self.fn(X, U)
+
+    def values(self, X, U):
+        return self._eval(X, U)[0]
+
+    def add_derivatives(self, X, U, lam, mu, lx, lxx, lu, luu) -> None:
+        _, Gx, Gu = self._eval(X, U)
+        act = (lam > 0).astype(float)
+        lx += np.einsum("tci,tc->ti", Gx, lam)
+        lxx += mu * np.einsum("tci,tc,tcj->tij", Gx, act, Gx)
+        if Gu is not None:
+            lu += np.einsum("tci,tc->ti", Gu[:-1], lam[:-1])
+            luu += mu * np.einsum("tci,tc,tcj->tij", Gu[:-1], act[:-1], Gu[:-1])
+
+
+class AugmentedLagrangian:
+    """The constraints' multipliers ``y`` (one ``(T+1, c)`` array per constraint, ``>= 0``) and penalty ``mu``
+    (per (constraint unit)^2, one for all rows: the constraints share the state's units), the merit's extra
+    terms and their Gauss-Newton model; :meth:`update` is the per-iteration step."""
+
+    def __init__(self, constraints: list, T: int, mu: float):
+        self.constraints, self.T = list(constraints), T
+        self.mu0 = self.mu = float(mu)
+        self.y: list[np.ndarray | None] = [None] * len(self.constraints)
+        self.last_violation = math.inf   # the scaled violation at the last multiplier update
+        self.ref_violation = math.inf    # ... where the penalty last grew or the violation last fell enough
+        self.stalled = 0                 # updates since then
+        self.updates = 0
+
+    def _mu(self, c) -> float:
+        return self.mu * getattr(c, "scale", 1.0)
+
+    def _lams(self, X: np.ndarray, U: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        out = []
+        for k, c in enumerate(self.constraints):
+            G = c.values(X, U)
+            y, mu = self.y[k], self._mu(c)
+            with np.errstate(invalid="ignore"):
+                z = mu * G if y is None else y + mu * G
+            lam = np.maximum(0.0, np.nan_to_num(z, nan=0.0, neginf=0.0, posinf=np.inf))
+            out.append((G, lam))
+        return out
+
+    def value(self, X: np.ndarray, U: np.ndarray) -> float:
+        """``sum psi(g, y)``: 0 where nothing is active (the merit is then the cost, exactly)."""
+        s = 0.0
+        for k, (_, lam) in enumerate(self._lams(X, U)):
+            y, mu = self.y[k], self._mu(self.constraints[k])
+            if lam.any():
+                s += float(np.sum(lam * lam)) / (2.0 * mu)
+            if y is not None and y.any():
+                s -= float(np.sum(y * y)) / (2.0 * mu)
+        return s
+
+    def model(self, X: np.ndarray, U: np.ndarray) -> tuple | None:
+        """The merit's extra gradient and Gauss-Newton Hessian at ``X (T+1, n)``, ``U (T, m)``: ``(l_x (T+1, n),
+        l_xx (T+1, n, n), l_u (T, m), l_uu (T, m, m))``, or ``None`` where no row is active (nothing to add)."""
+        lams = self._lams(X, U)
+        if not any(lam.any() for _, lam in lams):
+            return None
+        (K, n), (T, m) = X.shape, U.shape
+        lx, lxx, lu, luu = np.zeros((K, n)), np.zeros((K, n, n)), np.zeros((T, m)), np.zeros((T, m, m))
+        for c, (_, lam) in zip(self.constraints, lams):
+            if lam.any():
+                c.add_derivatives(X, U, lam, self._mu(c), lx, lxx, lu, luu)
+        return lx, lxx, lu, luu
+
+    def violation(self, X: np.ndarray, U: np.ndarray) -> float:
+        """The largest violation in units of each row's tolerance (<= 1: feasible)."""
+        v = 0.0
+        for c in self.constraints:
+            G = c.values(X, U)
+            if G.size:
+                with np.errstate(invalid="ignore"):
+                    v = max(v, float(np.nanmax(np.where(np.isneginf(G), 0.0, G) / c.tol, initial=0.0)))
+        return v
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        """The first-order multiplier step ``y = max(0, y + mu g)`` at the accepted iterate ``X, U``; ``mu *=
+        MU_GROWTH`` when the scaled violation, beyond tolerance, has not fallen by ``DECREASE`` in ``PATIENCE``
+        updates."""
+        viol = self.violation(X, U)
+        for k, (_, lam) in enumerate(self._lams(X, U)):
+            self.y[k] = lam if (lam.any() or self.y[k] is not None) else None
+        self.updates += 1
+        if viol <= 1.0 or viol <= DECREASE * self.ref_violation:
+            self.ref_violation, self.stalled = viol, 0
+        else:
+            self.stalled += 1
+            if self.stalled >= PATIENCE:
+                self.force_growth()
+                self.ref_violation = viol
+        self.last_violation = viol
+
+    def force_growth(self) -> None:
+        """``mu *= MU_GROWTH`` (up to its cap)."""
+        self.mu = min(self.mu * MU_GROWTH, self.mu0 * MU_MAX_FACTOR)
+        self.stalled = 0
+
+
+def reachable_box(lo: np.ndarray, hi: np.ndarray, q0: np.ndarray, vmax: np.ndarray, dt: float, T: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step ranges ``(T+1, k)`` for a start ``q0 (k,)`` possibly outside ``[lo, hi]``: at step ``t`` a joint
+    below its range must be at least ``min(lo, q0 + t dt vmax)`` (above: at most ``max(hi, q0 - t dt vmax)``),
+    the farthest its velocity limit ``vmax (k,)`` (rad/s; ``inf``: none, then inside from step 1) lets it come
+    back, one step after the start to reach that speed (``(t - 1) dt vmax``); the first step where that reaches
+    the range is the first its dynamics allow (the effort limits' own bound on the acceleration left out)."""
+    t = np.maximum(np.arange(T + 1) - 1, 0)[:, None] * dt
+    with np.errstate(invalid="ignore"):
+        reach = np.where(np.isfinite(vmax), t * vmax, np.where(np.arange(T + 1)[:, None] > 0, np.inf, 0.0))
+    lo_t = np.where(q0 < lo, np.minimum(lo, q0 + reach), lo)
+    hi_t = np.where(q0 > hi, np.maximum(hi, q0 - reach), hi)
+    return np.broadcast_to(lo_t, (T + 1, len(lo))).copy(), np.broadcast_to(hi_t, (T + 1, len(hi))).copy()

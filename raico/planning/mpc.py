@@ -1,0 +1,351 @@
+"""Receding-horizon control (MPC) with AICO / R-AICO or crocoddyl's FDDP (docs/mpc.md tells it in full).
+
+A problem of ``T`` steps is controlled tick by tick: at tick ``k`` (absolute step ``k``) the
+controller takes the measured state ``x``, solves a window problem of ``H`` steps starting at
+``x`` with a fixed number of solver iterations (default 1) or a time budget, warm-started from
+the previous tick's solution shifted by one step, and returns the first control ``u_0`` and
+the window's first feedback gains ``O_0 (n_u, n_x)``, so that between solves (the plant's
+faster steps) ``u = o_0 + O_0 x`` can be applied.
+
+Time in the window: window step ``j`` is the absolute step ``k + j``; a state term with ``times`` keeps
+its absolute times, a term at the problem's last step ``T`` follows the receding end (the window's last
+step while ``T`` lies beyond it, ``T - k`` once inside); the windows' times are computed once.
+
+Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples), by the
+solver spec's ``caps.mpc``: ``"aico"``: the previous controller shifted (the last step repeated) and
+rolled out from the measured state is the start of the tick's iterations (R-AICO's regularization
+anchors there; the fixed schedule's alpha carries over ticks; the messages are not carried); ``"fddp"``:
+the window built in crocoddyl once per pattern of active terms, each tick shifting ``xs``/``us``.
+
+Per-tick records (preallocated arrays in ``TickLog``): solve wall time, iterations, the window's cost,
+whether the tick went past its budget, the window's excess beyond its hard bounds. AICO / R-AICO run
+``iterations`` in one call without a budget, one at a time while the next fits with one; FDDP runs
+``iterations`` in one ``solve``, the budget only recorded.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from raico.planning.aico import aico
+from raico.planning.problem import Problem
+from raico.planning.solvers import SOLVERS, get_solver
+
+# the solvers with a shift warm start (their spec's ``caps.mpc``: "aico" or "fddp"; iLQG has none: rejected)
+WARM_STARTABLE = tuple(name for name, spec in SOLVERS.items() if spec.caps.mpc is not None)
+
+
+@dataclass
+class TickLog:
+    """Per-tick records, preallocated for ``ticks`` ticks.
+
+    Attributes:
+        solve_time: wall time of each tick's solve (s), ``(ticks,)``.
+        iterations: solver iterations run in the tick, ``(ticks,)``.
+        cost: the window's cost after the solve, ``(ticks,)``.
+        over_budget: whether the solve took longer than the time budget, ``(ticks,)`` (False
+            without a budget).
+        violation: the window's largest excess beyond the hard bounds after the solve, ``(ticks, 2)``:
+            joint positions (rad) and controls (0 inside, and without hard bounds).
+        predicted: the window's predicted states after each solve, ``(ticks, H+1, n_x)`` float32 (the
+            predicted horizon; ``None`` unless asked for).
+        n: ticks recorded so far.
+    """
+
+    solve_time: np.ndarray
+    iterations: np.ndarray
+    cost: np.ndarray
+    over_budget: np.ndarray
+    violation: np.ndarray
+    predicted: np.ndarray | None = None
+    n: int = 0
+
+    @classmethod
+    def empty(cls, ticks: int, window: tuple[int, int] | None = None) -> TickLog:
+        """Records for ``ticks`` ticks (NaN / zero until recorded); ``window = (H+1, n_x)``: keep the
+        predicted horizons too."""
+        predicted = None if window is None else np.full((ticks, *window), np.nan, dtype=np.float32)
+        return cls(np.full(ticks, np.nan), np.zeros(ticks, dtype=np.int64), np.full(ticks, np.nan),
+                   np.zeros(ticks, dtype=bool), np.zeros((ticks, 2)), predicted)
+
+    def grow(self, extra: int) -> None:
+        """Room for ``extra`` more ticks."""
+        for name in ("solve_time", "iterations", "cost", "over_budget", "violation", "predicted"):
+            a = getattr(self, name)
+            if a is None:
+                continue
+            setattr(self, name, np.concatenate([a, np.zeros((extra, *a.shape[1:]), a.dtype)]))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The recorded ticks as arrays named ``mpc_*`` (for an artifact)."""
+        k = self.n
+        return {"mpc_solve_time": self.solve_time[:k].copy(), "mpc_iterations": self.iterations[:k].copy(),
+                "mpc_cost": self.cost[:k].copy(), "mpc_over_budget": self.over_budget[:k].copy(),
+                "mpc_violation": self.violation[:k].copy(),
+                **({} if self.predicted is None else {"mpc_predicted": self.predicted[:k].copy()})}
+
+
+def window_times(times: np.ndarray | None, T: int, H: int, k: int) -> np.ndarray | None:
+    """A state term's window times at tick ``k``: its absolute ``times`` in ``[k, min(k+H, T))`` shifted
+    by ``-k``, plus ``min(H, T - k)`` if it costs the problem's last step ``T`` (the receding end, until
+    the problem's end enters the window); ``None`` stays ``None`` (every step)."""
+    if times is None:
+        return None
+    t = np.asarray(times, dtype=int)
+    inside = t[(t >= k) & (t < min(k + H, T))] - k
+    if np.any(t == T):
+        inside = np.append(inside, min(H, T - k))
+    return np.unique(inside)
+
+
+def _window_problem(problem: Problem, H: int) -> tuple[Problem, list[tuple[Any, list]]]:
+    """The window problem (``H`` steps, its own copies of the terms) and, per state term with times,
+    ``(copy, [its window times at tick k for k = 0..T-1])``."""
+    T = problem.T
+    state_terms, timed = [], []
+    for term in problem.state_terms:
+        c = copy.copy(term)
+        times = getattr(term, "times", None)
+        if times is not None:
+            per_tick = [window_times(times, T, H, k) for k in range(T)]
+            c._set_times(per_tick[0])
+            timed.append((c, per_tick))
+        state_terms.append(c)
+    joint_terms = []
+    for term in problem.joint_terms:
+        c = copy.copy(term)
+        c.T, c.times = H, np.arange(H)
+        joint_terms.append(c)
+    window = Problem(problem.dynamics, problem.x0.copy(), H, state_terms, list(problem.control_terms),
+                     joint_terms, problem.bounds)
+    return window, timed
+
+
+class MPC:
+    """A receding-horizon controller of ``problem`` (see the module docstring).
+
+    Args:
+        problem: the problem (its ``T`` is the number of ticks of a run; its terms' times absolute).
+        horizon: window length ``H`` in planning steps (``1 <= H <= T``).
+        solver: one of :data:`WARM_STARTABLE` (``"aico"``, ``"raico"``, ``"fddp"``: BoxFDDP where the problem has
+            control limits).
+        options: the solver's options (``AICOOptions`` / ``FDDPOptions`` or a dict, the solver's defaults
+            applied: :meth:`raico.planning.solvers.SolverSpec.options`); their ``iterations`` is replaced by
+            ``iterations``.
+        iterations: solver iterations per tick (>= 1) when no ``budget`` is given; with a budget the
+            most iterations per tick.
+        budget: time budget per tick (s) or ``None``: with a budget, iterations run one at a time
+            while the next (estimated by the last one's time) fits; at least one runs, and a tick
+            whose solve took longer than the budget is recorded as over budget.
+        ticks: ticks the log is preallocated for (default ``T``; it grows if more are run).
+        keep_predictions: keep every tick's predicted window states in the log (``TickLog.predicted``).
+
+    Raises:
+        ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start,
+            ``iterations < 1``, a budget that is not positive.
+    """
+
+    def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
+                 iterations: int = 1, budget: float | None = None, ticks: int | None = None,
+                 keep_predictions: bool = False):
+        if solver not in WARM_STARTABLE:
+            raise ValueError(f"solver {solver!r} cannot warm-start a receding horizon here; "
+                             f"use one of {', '.join(WARM_STARTABLE)}")
+        if int(horizon) != horizon or not 1 <= horizon <= problem.T:
+            raise ValueError(f"horizon {horizon} must be an integer in [1, T={problem.T}] (the problem's steps)")
+        if int(iterations) != iterations or iterations < 1:
+            raise ValueError(f"iterations per tick must be an integer >= 1, got {iterations}")
+        if budget is not None and not (math.isfinite(budget) and budget > 0):
+            raise ValueError(f"time budget must be a positive number of seconds, got {budget}")
+        self.problem, self.H, self.solver = problem, int(horizon), solver
+        self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
+        self.iterations, self.budget = int(iterations), budget
+        self.window, self._timed = _window_problem(problem, self.H)
+        H, n, m = self.H, problem.n_x, problem.n_u
+        # the shifted solution, preallocated
+        self.X = np.tile(problem.x0, (H + 1, 1))
+        self.U = np.zeros((H, m))
+        self.o = np.zeros((H, m))
+        self.O = np.zeros((H, m, n))
+        self._u = np.zeros(m)
+        self.k = 0
+        self.log = TickLog.empty(ticks or problem.T, (self.H + 1, problem.n_x) if keep_predictions else None)
+        self._solved, self._ticks = False, 0
+        self.opts: Any = None   # AICOOptions or FDDPOptions
+        if self.warm == "fddp":
+            self._init_fddp(options)
+        else:
+            self._init_aico(options)
+
+    # -- AICO / R-AICO
+    def _init_aico(self, options: Any) -> None:
+        opts: Any = get_solver(self.solver).options(options)   # its defaults applied (R-AICO's alpha) and checked
+        self.opts = dataclasses.replace(opts, iterations=1 if self.budget is not None else self.iterations,
+                                        tol_rel=0.0)
+        self.alpha = float(opts.alpha)
+
+    def _start_aico(self, shift: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The start of this tick: the previous controller, shifted by one step if ``shift`` (the last
+        step repeated), rolled out from the window's ``x0``; ``None`` before the first solve or if that
+        rollout is not finite (then AICO's own cold start)."""
+        if not self._solved:
+            return None, None
+        if shift:
+            self.o[:-1] = self.o[1:]
+            self.O[:-1] = self.O[1:]
+        X, U = self.window.controller_rollout(self.o, self.O)
+        if not np.all(np.isfinite(X)):
+            return None, None
+        return X, U
+
+    def _solve_aico(self, shift: bool) -> tuple[int, float]:
+        X0, U0 = self._start_aico(shift)
+        its, t0, cost = 0, time.perf_counter(), math.inf
+        while True:
+            opts = self.opts if self.alpha == self.opts.alpha else dataclasses.replace(self.opts, alpha=self.alpha)
+            res = aico(self.window, opts, X_init=X0, U_init=U0)
+            its += res.iterations
+            if self.opts.schedule == "fixed":
+                self.alpha *= self.opts.gamma ** res.iterations
+            if res.status != "diverged" or its == res.iterations:
+                self.X[:], self.U[:], self.o[:], self.O[:] = res.X, res.U, res.o, res.O
+                cost = res.cost
+            if self.budget is None or res.status == "diverged" or its >= self.iterations:
+                break
+            elapsed = time.perf_counter() - t0
+            if elapsed + elapsed / its > self.budget:
+                break
+            X0, U0 = self.X, self.U
+        return its, cost
+
+    # -- FDDP
+    def _init_fddp(self, options: Any) -> None:
+        from raico.planning.crocoddyl.solve import require
+
+        require()
+        self.opts = get_solver(self.solver).options(options)
+        self._croc: dict[bytes, tuple] = {}   # window pattern -> (CrocoddylProblem, solver)
+
+    def _fddp_for_tick(self) -> tuple:
+        from raico.planning.crocoddyl import solve as cs
+
+        key = b"".join(np.asarray(c.times, dtype=np.int64).tobytes() + b"|" for c, _ in self._timed)
+        hit = self._croc.get(key)
+        if hit is None:
+            cp = cs.build(self.window, self.opts.continuous)
+            box = self.opts.box == "yes" or (self.opts.box == "auto" and cp.bounds is not None)
+            solver = (cs.crocoddyl.SolverBoxFDDP if box else cs.crocoddyl.SolverFDDP)(cp.shooting)
+            solver.th_stop = self.opts.th_stop
+            solver.th_acceptStep = self.opts.th_accept
+            hit = self._croc[key] = (cp, solver)
+        return hit
+
+    def _solve_fddp(self, shift: bool) -> tuple[int, float]:
+        cp, solver = self._fddp_for_tick()
+        x_pin = cp.smap.x_to_pin(self.window.x0)
+        cp.shooting.x0 = x_pin
+        if self._solved:
+            if shift:   # crocoddyl's MPC examples: xs[1:] + [xs[-1]], us[1:] + [us[-1]]
+                self.X[:-1] = self.X[1:]
+                self.U[:-1] = self.U[1:]
+            xs, us = cp.to_pin(self.X), cp.controls_to_pin(self.U)
+            xs[0] = x_pin
+        else:
+            # cold: x held at every node, the quasi-static controls (crocoddyl's examples' guess)
+            xs = [x_pin.copy() for _ in range(self.H + 1)]
+            us = list(cp.shooting.quasiStatic(xs[:-1]))
+        solver.solve(xs, us, self.iterations, False)
+        n = max(int(solver.iter), 1)
+        X, U, K = cp.from_pin(solver.xs), cp.controls_from_pin(solver.us), cp.gains_from_pin(solver.K)
+        self.X[:], self.U[:] = X, U
+        self.O[:] = -K
+        np.einsum("tij,tj->ti", K, X[:-1], out=self.o)
+        self.o += U
+        return n, float(solver.cost)
+
+    # -- the tick
+    def start_from(self, X: np.ndarray, U: np.ndarray, o: np.ndarray, O: np.ndarray) -> None:
+        """Warm-start the first tick from a plan of the whole problem (its first ``H`` steps): states
+        ``X (>= H+1, n_x)``, controls ``U``, controller ``o``, ``O (>= H, ...)``."""
+        H = self.H
+        self.X[:], self.U[:], self.o[:], self.O[:] = X[:H + 1], U[:H], o[:H], O[:H]
+        self._solved = True
+
+    def prepare(self, x: np.ndarray, iterations: int) -> None:
+        """Solve tick 0's window from ``x (n_x,)`` with ``iterations`` iterations before the loop
+        (not recorded); the first ``tick`` then starts from that solution."""
+        saved = self.iterations, self.budget, self.opts
+        self.iterations, self.budget = int(iterations), None
+        if self.warm != "fddp":
+            self.opts = dataclasses.replace(self.opts, iterations=int(iterations))
+        self.window.x0[:] = x
+        self._set_tick(0)
+        self._solve_fddp(False) if self.warm == "fddp" else self._solve_aico(False)
+        self.iterations, self.budget, self.opts = saved
+        self._solved = True
+
+    def _set_tick(self, k: int) -> None:
+        kk = min(k, self.problem.T - 1)
+        for c, per_tick in self._timed:
+            c.times = per_tick[kk]
+            c._active_last = None
+
+    def tick(self, x: np.ndarray, advance: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One control period at the measured state ``x (n_x,)``.
+
+        ``advance``: the window moves on by one planning step (the horizon shifted) unless this is the
+        first tick; ``False`` for a control period shorter than the planning step (the same window
+        solved again from the new measurement).
+
+        Returns:
+            ``(u, o, O)``: the first control ``u_0 = o_0 + O_0 x (n_u,)`` (views into the controller's
+            buffers, valid until the next tick) and the feedback ``u = o + O x`` to apply until the next
+            tick, ``o (n_u,)``, ``O (n_u, n_x)``.
+        """
+        shift = advance and self._ticks > 0
+        if shift:
+            self.k += 1
+        self.window.x0[:] = x
+        self._set_tick(self.k)
+        t0 = time.perf_counter()
+        its, cost = self._solve_fddp(shift) if self.warm == "fddp" else self._solve_aico(shift)
+        dt = time.perf_counter() - t0
+        self._solved = True
+        self._ticks += 1
+        log = self.log
+        if log.n >= log.solve_time.size:   # more ticks than planning steps (sub-step periods): grow once
+            log.grow(log.solve_time.size)
+        i = log.n
+        log.solve_time[i], log.iterations[i], log.cost[i] = dt, its, cost
+        log.over_budget[i] = self.budget is not None and dt > self.budget
+        bounds = self.window.bounds
+        if bounds is not None:
+            log.violation[i] = bounds.violation(self.X, self.U)
+        if log.predicted is not None:
+            log.predicted[i] = self.X
+        log.n += 1
+        np.matmul(self.O[0], x, out=self._u)
+        self._u += self.o[0]      # u_0 = o_0 + O_0 x (FDDP's xs[0] may still be off x after a partial step)
+        return self._u, self.o[0], self.O[0]
+
+
+def simulate(mpc: MPC, step, x0: np.ndarray, ticks: int, push=None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed loop on a plant given by ``step(x, u, k) -> x'`` (one planning step ``dt``; ``push(k)``:
+    an extra control-space disturbance ``(n_u,)`` added at tick ``k``, or ``None``). Returns the
+    states ``(ticks+1, n_x)`` and the applied controls ``(ticks, n_u)``."""
+    n, m = x0.size, mpc.problem.n_u
+    X, U = np.empty((ticks + 1, n)), np.empty((ticks, m))
+    X[0] = x0
+    for k in range(ticks):
+        u, _, _ = mpc.tick(X[k])
+        U[k] = u
+        w = U[k] if push is None else U[k] + push(k)
+        X[k + 1] = step(X[k], w, k)
+    return X, U

@@ -1,0 +1,831 @@
+"""A scene around a robot and the signed distances between them, from Drake's SceneGraph.
+
+A scene is a list of objects (a problem file's ``[[scene]]`` entries, :func:`normalize_scene`), each
+with a ``name`` and a ``pose`` ``[x, y, z, roll, pitch, yaw]`` (m, rad) in the world:
+
+- ``box`` (``size``, 3 edge lengths, m), ``sphere`` (``radius``), ``cylinder`` and ``capsule``
+  (``radius``, ``length`` along the object's z axis, m);
+- ``mesh`` (``file``: ``.obj``, ``.stl`` or ``.dae``, ``scale``): its convex hull (Drake's ``Convex``);
+- ``file``: a URDF or SDF world file (``file``) whose collision geometry is the object; its root
+  link welded to the world at ``pose``.
+
+The robot's collision geometry is its model file's own ``<collision>`` elements (kept here, while
+the planning plant drops them: :mod:`raico.plants.model_file`), meshes as their convex hulls.
+
+:class:`CollisionWorld` is a MultibodyPlant with the robot and the scene registered in a SceneGraph;
+:meth:`CollisionWorld.distances` gives, for a list of geometry pairs, the signed distances (m,
+negative in penetration; pairs farther than ``max_distance`` report it and a zero gradient) and their
+gradients with respect to the plant's positions, ``dd/dq = n^T (J_A(p_A) - J_B(p_B))``: the witness
+points' translational Jacobians (Drake's) projected on the normal ``n`` (from B to A): the reference.
+:class:`SignedDistances` is the task map of those distances on planning coordinates, batched over a
+trajectory: spheres around the geometries cull the pairs first, each remaining pair is one
+``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics.
+
+Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
+cannot be read, a world file that does not parse.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import math
+import struct
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SHAPES: dict[str, set[str]] = {"box": {"size"}, "sphere": {"radius"}, "cylinder": {"radius", "length"},
+                               "capsule": {"radius", "length"}, "mesh": {"file", "scale"}, "file": {"file"}}
+COMMON_KEYS = {"name", "type", "pose", "color"}
+MESH_FORMATS = (".obj", ".stl")
+FRICTION = 0.5          # Coulomb friction of the scene's and the robot's contact (execution)
+ROBOT_PREFIX = "robot:"  # geometry names of the robot's collision elements: "robot:LINK/i"
+
+
+# ------------------------------------------------------------------ meshes
+def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(n, 3)`` and triangles ``(m, 3)`` (0-based) of an ``.obj`` or ``.stl`` (binary or ASCII)
+    file, or a COLLADA ``.dae`` (through trimesh, its ``Y_UP`` turned to z up as the recordings do);
+    ``ValueError`` (one line) where it cannot be read."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (*MESH_FORMATS, ".dae"):
+        raise ValueError(f"mesh {path.name}: cannot be read: format '{path.suffix}' (use "
+                         f"{', '.join((*MESH_FORMATS, '.dae'))})")
+    try:
+        stat = path.stat()
+    except OSError as e:
+        raise ValueError(f"mesh {path}: cannot be read ({e.strerror})") from None
+    return _read_mesh(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=512)
+def _read_mesh(file: str, mtime_ns: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_mesh` of a file as it is (its modification time and size in the key): read once per process."""
+    path = Path(file)
+    suffix = path.suffix.lower()
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ValueError(f"mesh {path}: cannot be read ({e.strerror})") from None
+    try:
+        V, F = (_read_obj(data) if suffix == ".obj" else _read_stl(data) if suffix == ".stl" else _read_dae(path))
+    except (ValueError, IndexError, struct.error) as e:
+        raise ValueError(f"mesh {path.name}: cannot be read ({e})") from None
+    if len(V) < 4 or not np.all(np.isfinite(V)) or np.linalg.matrix_rank(V - V.mean(0), tol=1e-9) < 3:
+        raise ValueError(f"mesh {path.name}: cannot be read (fewer than 4 vertices off one plane, or not finite)")
+    V.flags.writeable = False
+    F.flags.writeable = False
+    return V, F
+
+
+def _read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    V: list[list[float]] = []
+    F: list[list[int]] = []
+    for line in data.decode("utf-8", errors="strict").splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            V.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "f":
+            idx = [int(p.split("/")[0]) for p in parts[1:]]
+            idx = [i - 1 if i > 0 else len(V) + i for i in idx]
+            F.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    return np.asarray(V, dtype=float).reshape(-1, 3), np.asarray(F, dtype=np.int64).reshape(-1, 3)
+
+
+def _read_stl(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    if len(data) >= 84:
+        n = struct.unpack("<I", data[80:84])[0]
+        if len(data) == 84 + 50 * n:   # binary: a 50-byte record per triangle
+            rec = np.frombuffer(data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]),
+                                count=n, offset=84)
+            V = rec["v"].reshape(-1, 3).astype(float)
+            return V, np.arange(3 * n).reshape(-1, 3)
+    text = data.decode("ascii")
+    if not text.lstrip().startswith("solid"):
+        raise ValueError("neither binary nor ASCII STL")
+    rows = [[float(x) for x in line.split()[1:4]] for line in text.splitlines() if line.strip().startswith("vertex")]
+    return np.asarray(rows, dtype=float).reshape(-1, 3), np.arange(len(rows)).reshape(-1, 3)
+
+
+def _read_dae(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import logging
+
+    import trimesh
+
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    try:
+        m = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as e:  # noqa: BLE001 - any reader failure is this mesh's fault: one line
+        raise ValueError(f"{type(e).__name__}") from None
+    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, int)
+    with open(path, "rb") as f:
+        if b"<up_axis>Y_UP</up_axis>" in f.read(4096):
+            V = V[:, [0, 2, 1]] * np.array([1.0, -1.0, 1.0])
+    return V, F
+
+
+def obj_text(V: np.ndarray, F: np.ndarray) -> str:
+    """An ``.obj`` file's text of vertices ``V (n, 3)`` and triangles ``F (m, 3)``."""
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in V] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------ problem-file entries
+def _positive(v, what: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
+        raise ValueError(f"{what} must be a number > 0 (m), got {v!r}")
+    return float(v)
+
+
+def _pose(v, where: str) -> list[float]:
+    if v is None:
+        return [0.0] * 6
+    if (not isinstance(v, list) or len(v) != 6
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+        raise ValueError(f"{where} pose must be [x, y, z, roll, pitch, yaw] (m, rad), got {v!r}")
+    return [float(x) for x in v]
+
+
+def normalize_scene(entries, base: Path, resolve=None) -> list[dict]:
+    """The canonical scene of a problem file's ``[[scene]]`` entries (paths resolved against ``base``
+    or by ``resolve(uri) -> Path`` for ``package://`` URIs, files read and hashed, keys checked)."""
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise ValueError("[[scene]] must be an array of tables, each with a name and a type")
+    out, names = [], set()
+    for i, e in enumerate(entries):
+        name = e.get("name")
+        where = f"[[scene]] '{name}'" if isinstance(name, str) else f"[[scene]] entry {i + 1}"
+        if not isinstance(name, str) or not name or ROBOT_PREFIX in name or "/" in name:
+            raise ValueError(f"{where}: needs a name (a string without '/' or '{ROBOT_PREFIX}')")
+        if name in names:
+            raise ValueError(f"{where}: the name is used twice")
+        names.add(name)
+        kind = e.get("type")
+        if kind not in SHAPES:
+            raise ValueError(f"{where}: unknown type {kind!r}: choose one of {', '.join(SHAPES)}")
+        unknown = sorted(set(e) - COMMON_KEYS - SHAPES[kind])
+        if unknown:
+            raise ValueError(f"{where} ({kind}): unknown key '{unknown[0]}': valid keys are "
+                             f"{', '.join(sorted(COMMON_KEYS | SHAPES[kind]))}")
+        d: dict[str, Any] = {"name": name, "type": kind, "pose": _pose(e.get("pose"), where)}
+        if "color" in e:
+            c = e["color"]
+            if not isinstance(c, list) or len(c) not in (3, 4) or not all(isinstance(x, (int, float)) and 0 <= x <= 1
+                                                                          for x in c):
+                raise ValueError(f"{where}: color must be [r, g, b] or [r, g, b, a] in [0, 1]")
+            d["color"] = [float(x) for x in c]
+        if kind == "box":
+            size = e.get("size")
+            if not isinstance(size, list) or len(size) != 3:
+                raise ValueError(f"{where}: a box needs size = [x, y, z] (m)")
+            d["size"] = [_positive(s, f"{where} size") for s in size]
+        if kind in ("sphere", "cylinder", "capsule"):
+            d["radius"] = _positive(e.get("radius"), f"{where} radius")
+        if kind in ("cylinder", "capsule"):
+            d["length"] = _positive(e.get("length"), f"{where} length")
+        if kind in ("mesh", "file"):
+            f = e.get("file")
+            if not isinstance(f, str):
+                raise ValueError(f"{where}: needs a file")
+            path = resolve(f) if (resolve is not None and f.startswith("package://")) else (base / f).resolve()
+            if kind == "mesh":
+                read_mesh(path)
+                d["scale"] = _positive(e.get("scale", 1.0), f"{where} scale")
+            else:
+                check_world_file(path, where)
+            d["file"] = str(path)
+            d["sha256"] = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+        out.append(d)
+    return out
+
+
+def check_world_file(path: Path, where: str) -> None:
+    """``ValueError`` unless Drake parses the URDF or SDF world file ``path`` into a plant."""
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    if not path.is_file():
+        raise ValueError(f"{where}: world file not found: {path}")
+    if path.suffix.lower() not in (".urdf", ".sdf"):
+        raise ValueError(f"{where}: a world file is a .urdf or .sdf, got '{path.suffix}'")
+    plant, _ = AddMultibodyPlantSceneGraph(DiagramBuilder(), 0.0)
+    try:
+        _add_world_file(plant, path, [0.0] * 6)
+    except (RuntimeError, ValueError) as e:
+        raise ValueError(f"{where}: world file {path.name} does not parse: {str(e).splitlines()[0]}") from None
+
+
+# ------------------------------------------------------------------ geometry
+def rigid_transform(pose):
+    """Drake's ``RigidTransform`` of ``[x, y, z, roll, pitch, yaw]`` (m, rad)."""
+    from pydrake.math import RigidTransform, RollPitchYaw
+
+    return RigidTransform(RollPitchYaw(*pose[3:]), np.asarray(pose[:3], float))
+
+
+@dataclass(frozen=True)
+class Shape:
+    """One collision geometry: ``kind`` (box, sphere, cylinder, capsule, convex), its sizes (m),
+    ``pose`` ``[x, y, z, roll, pitch, yaw]`` in its body's frame (the world's for the scene), and a
+    convex mesh's vertices and triangles (already scaled, m)."""
+
+    name: str
+    body: str                       # link name, or "world"
+    kind: str
+    pose: tuple[float, ...]
+    size: tuple[float, ...] = ()    # box: 3 edges; sphere: (r,); cylinder, capsule: (r, length)
+    vertices: Any = None
+    faces: Any = None
+    color: tuple[float, ...] | None = None
+
+    def drake_shape(self):
+        from pydrake.common import MemoryFile
+        from pydrake.geometry import Box, Capsule, Convex, Cylinder, InMemoryMesh, Sphere
+
+        if self.kind == "box":
+            return Box(*self.size)
+        if self.kind == "sphere":
+            return Sphere(self.size[0])
+        if self.kind == "cylinder":
+            return Cylinder(*self.size)
+        if self.kind == "capsule":
+            return Capsule(*self.size)
+        text = obj_text(np.asarray(self.vertices), np.asarray(self.faces))
+        return Convex(InMemoryMesh(mesh_file=MemoryFile(text, ".obj", self.name)))
+
+
+def scene_shapes(scene: list[dict]) -> list[Shape]:
+    """The shapes of a canonical scene's primitive and mesh objects (world files: in :class:`CollisionWorld`)."""
+    out = []
+    for d in scene:
+        color = tuple(d["color"]) if "color" in d else None
+        pose = tuple(d["pose"])
+        if d["type"] == "box":
+            out.append(Shape(d["name"], "world", "box", pose, tuple(d["size"]), color=color))
+        elif d["type"] == "sphere":
+            out.append(Shape(d["name"], "world", "sphere", pose, (d["radius"],), color=color))
+        elif d["type"] in ("cylinder", "capsule"):
+            out.append(Shape(d["name"], "world", d["type"], pose, (d["radius"], d["length"]), color=color))
+        elif d["type"] == "mesh":
+            V, F = read_mesh(d["file"])
+            out.append(Shape(d["name"], "world", "convex", pose, vertices=V * d["scale"], faces=F, color=color))
+    return out
+
+
+def bounding_sphere(s: Shape) -> tuple[np.ndarray, float]:
+    """A sphere around shape ``s``: its centre ``(3,)`` in the shape's frame and radius (m)."""
+    if s.kind == "box":
+        return np.zeros(3), 0.5 * float(np.linalg.norm(s.size))
+    if s.kind == "sphere":
+        return np.zeros(3), s.size[0]
+    if s.kind == "capsule":
+        return np.zeros(3), s.size[0] + 0.5 * s.size[1]
+    if s.kind == "cylinder":
+        return np.zeros(3), math.hypot(s.size[0], 0.5 * s.size[1])
+    V = np.asarray(s.vertices)
+    c = 0.5 * (V.min(0) + V.max(0))
+    return c, float(np.linalg.norm(V - c, axis=1).max())
+
+
+def point_distance(s: Shape, P: np.ndarray) -> np.ndarray:
+    """Signed distances ``(K,)`` (m) of world points ``P (K, 3)`` to the primitive ``s`` placed in the world
+    (box, sphere, cylinder, capsule; negative inside)."""
+    X = rigid_transform(s.pose)
+    L = (P - X.translation()) @ X.rotation().matrix()     # in the shape's frame
+    if s.kind == "sphere":
+        return np.linalg.norm(L, axis=1) - s.size[0]
+    if s.kind == "capsule":
+        z = np.clip(L[:, 2], -0.5 * s.size[1], 0.5 * s.size[1])
+        return np.linalg.norm(L - np.c_[np.zeros((len(L), 2)), z], axis=1) - s.size[0]
+    if s.kind == "box":
+        q = np.abs(L) - 0.5 * np.asarray(s.size)
+    elif s.kind == "cylinder":
+        q = np.c_[np.hypot(L[:, 0], L[:, 1]) - s.size[0], np.abs(L[:, 2]) - 0.5 * s.size[1]]
+    else:
+        raise ValueError(f"point_distance: no formula for a {s.kind}")
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+
+def _floats(text: str | None, n: int, default: float = 0.0) -> list[float]:
+    vals = [float(x) for x in (text or "").split()]
+    return vals if len(vals) == n else [default] * n
+
+
+def urdf_collisions(text: str, path: Path, resolve) -> list[Shape]:
+    """The ``<collision>`` elements of a URDF's text as shapes on their links (meshes as their convex
+    hulls; ``resolve(uri) -> Path`` finds a mesh file); a mesh that cannot be read is a ``ValueError``."""
+    root = ET.fromstring(text)
+    out = []
+    for link in root.findall("link"):
+        for i, c in enumerate(link.findall("collision")):
+            o = c.find("origin")
+            pose = tuple(_floats(o.get("xyz") if o is not None else None, 3)
+                         + _floats(o.get("rpy") if o is not None else None, 3))
+            g = c.find("geometry")
+            el = next(iter(g), None) if g is not None else None
+            name = f"{ROBOT_PREFIX}{link.get('name')}/{i}"
+            if el is None:
+                continue
+            if el.tag == "box":
+                out.append(Shape(name, link.get("name"), "box", pose, tuple(_floats(el.get("size"), 3))))
+            elif el.tag == "sphere":
+                out.append(Shape(name, link.get("name"), "sphere", pose, (float(el.get("radius")),)))
+            elif el.tag in ("cylinder", "capsule"):
+                out.append(Shape(name, link.get("name"), el.tag, pose, (float(el.get("radius")), float(el.get("length")))))
+            elif el.tag == "mesh":
+                f = resolve(el.get("filename"), path.parent)
+                V, F = read_mesh(f)
+                scale = np.asarray(_floats(el.get("scale"), 3, 1.0))
+                out.append(Shape(name, link.get("name"), "convex", pose, vertices=V * scale, faces=F))
+            else:
+                raise ValueError(f"{path.name}: link '{link.get('name')}': collision geometry <{el.tag}> is not supported")
+    return out
+
+
+def _add_world_file(plant, path: Path, pose) -> list:
+    """Parse a URDF/SDF world file into ``plant``, its first body welded to the world at ``pose``; its model
+    instances."""
+    from pydrake.multibody.parsing import Parser
+
+    parser = Parser(plant, f"scene_{hashlib.sha256(str(path).encode()).hexdigest()[:8]}")
+    models = parser.AddModels(str(path))
+    for m in models:
+        bodies = plant.GetBodyIndices(m)
+        if bodies:
+            body = plant.get_body(bodies[0])
+            if not plant.HasJointNamed(body.name(), m):
+                try:
+                    plant.WeldFrames(plant.world_frame(), body.body_frame(), rigid_transform(pose))
+                except RuntimeError:  # the file attaches it to the world itself
+                    pass
+    return models
+
+
+def proximity_properties():
+    """Contact properties of every collision geometry: point contact with Coulomb friction FRICTION
+    (hydroelastic where Drake falls back: ``kHydroelasticWithFallback`` uses point contact for shapes
+    without a hydroelastic representation)."""
+    from pydrake.geometry import AddContactMaterial, ProximityProperties
+    from pydrake.multibody.plant import CoulombFriction
+
+    props = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(FRICTION, FRICTION), properties=props)
+    return props
+
+
+def register_scene(scene: list[dict], robot_shapes: list[Shape] | None = None):
+    """A ``before_finalize`` hook (``raico.plants.model_file.load_model``) that registers the robot's
+    ``robot_shapes`` on its links and the scene's objects on the world, with contact properties."""
+
+    def hook(plant, text, path, packages) -> None:
+        props = proximity_properties()
+        for s in robot_shapes or []:
+            body = plant.GetBodyByName(s.body)
+            plant.RegisterCollisionGeometry(body, rigid_transform(s.pose), s.drake_shape(), s.name, props)
+        for s in scene_shapes(scene):
+            plant.RegisterCollisionGeometry(plant.world_body(), rigid_transform(s.pose), s.drake_shape(), s.name, props)
+        for d in scene:
+            if d["type"] == "file":
+                _add_world_file(plant, Path(d["file"]), d["pose"])
+    return hook
+
+
+def robot_shapes(spec) -> list[Shape]:
+    """The robot's own collision geometry (its URDF's ``<collision>`` elements; other formats: none
+    here, Drake registers theirs when it parses them)."""
+    from raico.plants.model_file import Packages
+
+    path = Path(spec.file)
+    if path.suffix.lower() != ".urdf":
+        return []
+    text = path.read_text(errors="replace").replace("package:///", "package://")
+    packages = Packages(dict(spec.packages), path)
+    return urdf_collisions(text, path, packages.resolve)
+
+
+# ------------------------------------------------------------------ the collision world
+class CollisionWorld:
+    """The robot of ``spec`` with its collision geometry and the ``scene``, in one plant and SceneGraph
+    (continuous, for queries). ``geometries``: name -> GeometryId; ``body_of``: name -> the body (link)
+    name, ``"world"`` for the scene; ``shapes``: the robot's and the scene's :class:`Shape` (a world
+    file's geometry by its name ``OBJECT/GEOMETRY``, no shape)."""
+
+    def __init__(self, spec, scene: list[dict]):
+        from pydrake.geometry import Role
+        from pydrake.systems.framework import DiagramBuilder
+
+        from raico.plants.model_file import load_model
+
+        self.scene = scene
+        shapes = robot_shapes(spec)
+        builder = DiagramBuilder()
+        self.robot = robot = load_model(spec.planning if hasattr(spec, "planning") else spec, builder, 0.0,
+                                        register_scene(scene, shapes))
+        self.plant, self.scene_graph = robot.plant, robot.scene_graph
+        self.diagram = builder.Build()
+        self.context = self.diagram.CreateDefaultContext()
+        self.plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
+        self.sg_context = self.scene_graph.GetMyContextFromRoot(self.context)
+        self.inspector = self.scene_graph.model_inspector()
+        self.shapes = shapes + scene_shapes(scene)
+        self.shapes_by_name = {s.name: s for s in self.shapes}
+        self.geometries: dict[str, Any] = {}
+        self.body_of: dict[str, str] = {}
+        self.object_of: dict[str, str] = {}   # geometry name -> scene object name (robot geometry: link name)
+        self.fixed_pose: dict[str, Any] = {}  # a world file's geometry -> its pose in the world (RigidTransform)
+        world_files = {d["name"]: d for d in scene if d["type"] == "file"}
+        robot_names = {s.name for s in shapes}
+        scene_names = {s.name for s in self.shapes if s.body == "world"}
+        for gid in self.inspector.GetAllGeometryIds(Role.kProximity):
+            name = self.inspector.GetName(gid).split("::")[-1]   # without its model instance's scope
+            body = self.plant.GetBodyFromFrameId(self.inspector.GetFrameId(gid))
+            bname = "world" if body is None or body.index() == self.plant.world_body().index() else body.name()
+            if name.startswith(ROBOT_PREFIX) or name in robot_names:
+                self.object_of[name] = bname
+            elif name in scene_names:
+                self.object_of[name] = name
+            else:
+                inst = self.plant.GetModelInstanceName(body.model_instance()) if body is not None else ""
+                owner = next((n for n, d in world_files.items() if inst.startswith("scene_")
+                              and self._instance_of_file(body.model_instance(), d)), None)
+                if owner is None:   # geometry Drake registered from the robot's own (SDF, MJCF) file
+                    name = f"{ROBOT_PREFIX}{bname}/{name}"
+                    self.object_of[name] = bname
+                else:   # welded to the world: fixed, its pose in the world kept
+                    name = f"{owner}/{name}"
+                    self.object_of[name] = owner
+                    bname = "world"
+                    self.fixed_pose[name] = self.plant.EvalBodyPoseInWorld(self.plant_context, body).multiply(
+                        self.inspector.GetPoseInFrame(gid))
+            self.geometries[name] = gid
+            self.body_of[name] = bname
+        by_name = self.shapes_by_name
+        self.bounds: dict[str, tuple[np.ndarray, float]] = {}   # name -> (centre in its body's frame, radius)
+        for name in self.geometries:
+            shape = by_name.get(name)
+            if shape is None:   # a world file's geometry, or one Drake registered: never culled early
+                self.bounds[name] = (np.zeros(3), math.inf)
+                continue
+            c_G, r = bounding_sphere(shape)
+            X = rigid_transform(shape.pose)
+            self.bounds[name] = (X.rotation().matrix() @ c_G + X.translation(), r)
+
+    def _instance_of_file(self, instance, d: dict) -> bool:
+        tag = f"scene_{hashlib.sha256(d['file'].encode()).hexdigest()[:8]}"
+        return self.plant.GetModelInstanceName(instance).startswith(tag)
+
+    # -- names
+    def robot_links(self) -> list[str]:
+        """Links of the robot that carry collision geometry (model order)."""
+        return list(dict.fromkeys(b for n, b in self.body_of.items() if n.startswith(ROBOT_PREFIX)))
+
+    def scene_objects(self) -> list[str]:
+        """The scene's object names."""
+        return list(dict.fromkeys(o for n, o in self.object_of.items() if not n.startswith(ROBOT_PREFIX)))
+
+    def link_geometries(self, link: str) -> list[str]:
+        return [n for n, b in self.body_of.items() if n.startswith(ROBOT_PREFIX) and b == link]
+
+    def object_geometries(self, obj: str) -> list[str]:
+        return [n for n, o in self.object_of.items() if not n.startswith(ROBOT_PREFIX) and o == obj]
+
+    def adjacent(self) -> set[frozenset[str]]:
+        """Pairs of links that are adjacent: welded together (fixed joints make one rigid group) or in two
+        groups a moving joint connects."""
+        from pydrake.multibody.tree import JointIndex
+
+        joints = [self.plant.get_joint(JointIndex(i)) for i in range(self.plant.num_joints())]
+        group: dict[str, str] = {}
+
+        def root(b: str) -> str:
+            while group.get(b, b) != b:
+                b = group[b]
+            return b
+
+        for j in joints:
+            if j.type_name() == "weld":
+                a, b = root(j.parent_body().name()), root(j.child_body().name())
+                if a != b:
+                    group[b] = a
+        edges = {frozenset((root(j.parent_body().name()), root(j.child_body().name()))) for j in joints}
+        links = self.robot_links()
+        return {frozenset((a, b)) for i, a in enumerate(links) for b in links[i + 1:]
+                if root(a) == root(b) or frozenset((root(a), root(b))) in edges}
+
+    # -- queries
+    def set_positions(self, qp: np.ndarray) -> None:
+        self.plant.SetPositions(self.plant_context, qp)
+
+    def distances(self, qp: np.ndarray, pairs: list[tuple[str, str]], max_distance: float,
+                  gradients: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """Signed distances ``d (m,)`` (m) of geometry ``pairs`` at plant positions ``qp``, their gradients
+        ``(m, n_plant)`` (None without ``gradients``) and witness points ``(m, 2, 3)`` (world, m; NaN where
+        culled). Pairs farther than ``max_distance`` report ``max_distance`` and a zero gradient."""
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        self.set_positions(qp)
+        qo = self.scene_graph.get_query_output_port().Eval(self.sg_context)
+        m = len(pairs)
+        d = np.full(m, float(max_distance))
+        W = np.full((m, 2, 3), np.nan)
+        normals = np.zeros((m, 3))
+        index = self._pair_index(pairs)
+        for r in qo.ComputeSignedDistancePairwiseClosestPoints(max_distance):
+            self._store(r, index, d, W, normals, max_distance)
+        for k in self._filtered_pairs(pairs):
+            a, b = (self.geometries[n] for n in pairs[k])
+            r = qo.ComputeSignedDistancePairClosestPoints(a, b)
+            self._store(r, index, d, W, normals, max_distance)
+        if not gradients:
+            return d, None, W
+        n_p = self.plant.num_positions()
+        G = np.zeros((m, n_p))
+        world = self.plant.world_frame()
+        jac: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+        def point_jacobian(body: str, p: np.ndarray) -> np.ndarray:
+            if body == "world":
+                return np.zeros((3, n_p))
+            if body not in jac:
+                frame = self.plant.GetBodyByName(body).body_frame()
+                Js = self.plant.CalcJacobianSpatialVelocity(self.plant_context, JacobianWrtVariable.kQDot, frame,
+                                                            np.zeros(3), world, world)
+                o = frame.CalcPoseInWorld(self.plant_context).translation()
+                jac[body] = (Js, o)
+            Js, o = jac[body]
+            r = p - o
+            return Js[3:] - np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]]) @ Js[:3]
+
+        for k in np.flatnonzero(np.isfinite(W[:, 0, 0])):
+            a, b = pairs[k]
+            G[k] = normals[k] @ (point_jacobian(self.body_of[a], W[k, 0]) - point_jacobian(self.body_of[b], W[k, 1]))
+        return d, G, W
+
+    def _pair_index(self, pairs) -> dict:
+        key = tuple(pairs)
+        cached = getattr(self, "_index_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        index = {}
+        for k, (a, b) in enumerate(pairs):
+            ga, gb = self.geometries[a], self.geometries[b]
+            index[(ga, gb)] = (k, False)
+            index[(gb, ga)] = (k, True)
+        self._index_cache = (key, index)
+        return index
+
+    def _filtered_pairs(self, pairs) -> list[int]:
+        key = tuple(pairs)
+        cached = getattr(self, "_filtered_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        out = [k for k, (a, b) in enumerate(pairs)
+               if self.inspector.CollisionFiltered(self.geometries[a], self.geometries[b])
+               or (self.body_of[a] == "world" and self.body_of[b] == "world")]
+        self._filtered_cache = (key, out)
+        return out
+
+    def _store(self, r, index, d, W, normals, max_distance) -> None:
+        hit = index.get((r.id_A, r.id_B))
+        if hit is None or r.distance > max_distance:
+            return
+        k, swapped = hit
+        wa, wb = self._to_world(r.id_A, r.p_ACa), self._to_world(r.id_B, r.p_BCb)
+        n = np.asarray(r.nhat_BA_W)
+        d[k] = r.distance
+        if swapped:
+            W[k] = (wb, wa)
+            normals[k] = -n
+        else:
+            W[k] = (wa, wb)
+            normals[k] = n
+
+    def _to_world(self, gid, p_G: np.ndarray) -> np.ndarray:
+        """A point ``p_G (3,)`` of geometry ``gid``'s frame in the world (m) at the current positions."""
+        X_WG = self.scene_graph.get_query_output_port().Eval(self.sg_context).GetPoseInWorld(gid)
+        return X_WG.rotation().matrix() @ p_G + X_WG.translation()
+
+
+# ------------------------------------------------------------------ pairs of a collision term
+def resolve_pairs(world: CollisionWorld, pairs, groups: dict, self_collision: bool, allow, where: str
+                  ) -> list[tuple[str, str]]:
+    """Geometry pairs of a collision term: ``pairs`` of ``[robot side, scene side]`` names, where a robot
+    side is a link, a group of ``groups`` or ``"robot"`` (every link with collision geometry) and a scene
+    side an object or ``"scene"`` (every object); ``self_collision``: every two links' geometries but
+    those of links a joint connects and the ``allow`` list's pairs of links."""
+    links, objects = world.robot_links(), world.scene_objects()
+
+    def robot_side(name: str) -> list[str]:
+        from raico.plants.model_file import closest_names
+
+        if name == "robot":
+            return links
+        if name in groups:
+            return [ln for g in groups[name] for ln in robot_side(g)]
+        if name in links:
+            return [name]
+        if world.plant.HasBodyNamed(name):
+            raise ValueError(f"{where}: link '{name}' has no collision geometry: links with some are "
+                             f"{closest_names(name, links)}")
+        raise ValueError(f"{where}: unknown link or group '{name}': closest {closest_names(name, links + list(groups))}")
+
+    def scene_side(name: str) -> list[str]:
+        from raico.plants.model_file import closest_names
+
+        if name == "scene":
+            return objects
+        if name in objects:
+            return [name]
+        raise ValueError(f"{where}: unknown scene object '{name}': closest {closest_names(name, objects or ['(none)'])}")
+
+    out: list[tuple[str, str]] = []
+    for p in pairs:
+        for link in robot_side(p[0]):
+            for obj in scene_side(p[1]):
+                out.extend((a, b) for a in world.link_geometries(link) for b in world.object_geometries(obj))
+    if self_collision:
+        skip = world.adjacent() | {frozenset(a) for a in allow}
+        for i, la in enumerate(links):
+            for lb in links[i + 1:]:
+                if frozenset((la, lb)) in skip:
+                    continue
+                out.extend((a, b) for a in world.link_geometries(la) for b in world.link_geometries(lb))
+    return list(dict.fromkeys(out))
+
+
+def srdf_allowed(srdf: str | Path) -> list[list[str]]:
+    """The ``<disable_collisions link1 link2>`` pairs of an SRDF file."""
+    try:
+        root = ET.parse(srdf).getroot()
+    except (OSError, ET.ParseError) as e:
+        raise ValueError(f"SRDF {srdf}: cannot be read ({e})") from None
+    return [[e.get("link1"), e.get("link2")] for e in root.iter("disable_collisions")]
+
+
+# ------------------------------------------------------------------ the task map
+class SignedDistances:
+    """Signed distances of geometry pairs as a task map on planning coordinates: ``phi(q) (m,)`` (m), the
+    distances capped at ``max_distance``, and ``J (m, n_q)`` (zero rows where capped).
+
+    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step by spheres around its
+    geometries (centres by the robot's compiled kinematics where they build, else Drake's), and queries
+    SceneGraph (``ComputeSignedDistancePairClosestPoints``) only where that bound is below
+    ``max_distance``; the witness points' Jacobians come from the same kinematics."""
+
+    def __init__(self, robot, world: CollisionWorld, pairs: list[tuple[str, str]], max_distance: float,
+                 name: str = "distances"):
+        self.robot, self.world, self.pairs = robot, world, list(pairs)
+        self.max_distance = float(max_distance)
+        self.dim = len(self.pairs)
+        self.name = name
+        self._kernels: Any = None
+        names = list(dict.fromkeys(n for p in self.pairs for n in p))
+        self._slot = {n: i for i, n in enumerate(names)}
+        self._names = names
+        self._radius = np.array([world.bounds[n][1] for n in names])
+        self._ia = np.array([self._slot[a] for a, _ in self.pairs], int)
+        self._ib = np.array([self._slot[b] for _, b in self.pairs], int)
+        self._gid = [(world.geometries[a], world.geometries[b]) for a, b in self.pairs]
+        self._X_BG = {}   # name -> (R, p) of the geometry in its body's frame
+        for n in names:   # a world file's geometry: its pose in the world (its body is welded there)
+            X = world.fixed_pose.get(n) or world.inspector.GetPoseInFrame(world.geometries[n])
+            self._X_BG[n] = (X.rotation().matrix(), X.translation())
+        self._bodies = list(dict.fromkeys(world.body_of[n] for n in names if world.body_of[n] != "world"))
+        self._R_BG = np.array([self._X_BG[n][0] for n in names]).reshape(-1, 3, 3)
+        self._p_BG = np.array([self._X_BG[n][1] for n in names]).reshape(-1, 3)
+        self._body_index = np.array([self._bodies.index(world.body_of[n]) if world.body_of[n] != "world"
+                                     else len(self._bodies) for n in names], int)
+        self._against_scene = [(p, (a, b)) for p, (a, b) in enumerate(self.pairs)
+                               if world.body_of[a] != "world" and b in world.shapes_by_name
+                               and world.body_of[b] == "world" and world.shapes_by_name[b].kind != "convex"]
+
+    def tree_kernels(self):
+        """The robot's compiled tree kernels (``raico.plants.codegen.rbd``), or None where they do not build."""
+        if self._kernels is None:
+            from raico.plants.codegen.rbd import tree_kernels
+
+            try:
+                self._kernels = tree_kernels(self.robot)
+            except NotImplementedError:
+                self._kernels = False
+        return self._kernels or None
+
+    def _frames(self, Qp: np.ndarray) -> dict[str, tuple[np.ndarray, ...]]:
+        """Per body of the pairs: origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
+        of the origin ``J_o (K, 3, m)`` and of the axes' tips ``J_e (K, 3, 3, m)`` (tip i at row i) at plant
+        positions ``Qp (K, m)``: a point ``p_B`` of the body is at ``o + R p_B`` with Jacobian
+        ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``)."""
+        K, m = Qp.shape
+        pts = np.vstack([np.zeros(3), np.eye(3)])
+        k = self.tree_kernels()
+        out: dict[str, tuple[np.ndarray, ...]] = {}
+        for body in self._bodies:
+            if k is not None:
+                pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)
+            else:
+                from pydrake.multibody.tree import JacobianWrtVariable
+
+                w = self.world
+                frame, world = w.plant.GetBodyByName(body).body_frame(), w.plant.world_frame()
+                pos, Jp = np.empty((K, 4, 3)), np.empty((K, 12, m))
+                for t, qp in enumerate(Qp):
+                    w.set_positions(qp)
+                    pos[t] = w.plant.CalcPointsPositions(w.plant_context, frame, pts.T, world).T
+                    Jp[t] = w.plant.CalcJacobianTranslationalVelocity(w.plant_context, JacobianWrtVariable.kQDot,
+                                                                      frame, pts.T, world, world)
+            o = pos[:, 0]
+            R = np.swapaxes(pos[:, 1:] - o[:, None], 1, 2)          # columns: the axes in the world
+            Jp = Jp.reshape(K, 4, 3, m)
+            out[body] = (o, R, Jp[:, 0], Jp[:, 1:] - Jp[:, :1])
+        return out
+
+    def _stacked(self, frames: dict, K: int, m: int) -> tuple[np.ndarray, ...]:
+        """The bodies' frames of :meth:`_frames` stacked in ``_bodies`` order, the world last (origin 0, identity,
+        no Jacobian): ``O (b+1, K, 3)``, ``R (b+1, K, 3, 3)``, ``J_o (b+1, K, 3, m)``, ``J_e (b+1, K, 3, 3, m)``."""
+        nb = len(self._bodies)
+        O, R = np.zeros((nb + 1, K, 3)), np.broadcast_to(np.eye(3), (nb + 1, K, 3, 3)).copy()
+        Jo, Je = np.zeros((nb + 1, K, 3, m)), np.zeros((nb + 1, K, 3, 3, m))
+        for i, body in enumerate(self._bodies):
+            O[i], R[i], Jo[i], Je[i] = frames[body]
+        return O, R, Jo, Je
+
+    def evaluate(self, Q: np.ndarray, jacobians: bool = True):
+        """Distances ``(K, m)`` (capped), Jacobians ``(K, m, n_q)`` (None without ``jacobians``) and witness
+        points ``(K, m, 2, 3)`` (world, m; NaN where not queried) at the rows of ``Q (K, n_q)``; rows with
+        a non-finite ``q`` give NaN."""
+        P, w = self.robot.P, self.world
+        Q = np.atleast_2d(Q)
+        K, m = len(Q), self.dim
+        D = np.full((K, m), np.nan)
+        J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
+        W = np.full((K, m, 2, 3), np.nan)
+        ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+        if ok.size == 0 or m == 0:
+            return D, J, W
+        Qp = Q[ok] @ P.T
+        frames = self._frames(Qp)
+        C = np.empty((len(ok), len(self._names), 3))
+        for i, n in enumerate(self._names):
+            c, body = w.bounds[n][0], w.body_of[n]
+            C[:, i] = c if body == "world" else frames[body][0] + frames[body][1] @ c
+        lb = (np.linalg.norm(C[:, self._ia] - C[:, self._ib], axis=2) - self._radius[self._ia] - self._radius[self._ib])
+        for p, (a, b) in self._against_scene:   # a robot geometry's sphere against a scene primitive: sharper
+            lb[:, p] = point_distance(w.shapes_by_name[b], C[:, self._slot[a]]) - self._radius[self._slot[a]]
+        D[ok] = self.max_distance
+        if jacobians:
+            J[ok] = 0.0
+        port = w.scene_graph.get_query_output_port()
+        rows, found = [], []   # (row of ok, pair) and Drake's results, gathered first: the arithmetic after, in batches
+        for t in range(len(ok)):
+            near = np.flatnonzero(lb[t] < self.max_distance)
+            if near.size == 0:
+                continue
+            w.set_positions(Qp[t])
+            qo = port.Eval(w.sg_context)
+            for p in near:
+                r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[p])
+                if r.distance < self.max_distance:
+                    rows.append((t, p))
+                    found.append((r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb))
+        if not rows:
+            return D, J, W
+        tt, pp = np.array(rows).T
+        dist = np.array([f[0] for f in found])
+        nrm = np.array([f[1] for f in found])
+        D[ok[tt], pp] = dist
+        O, R, Jo, Je = self._stacked(frames, len(ok), Qp.shape[1])
+        Jd = 0.0
+        for side, (slots, pts) in enumerate(((self._ia[pp], np.array([f[2] for f in found])),
+                                             (self._ib[pp], np.array([f[3] for f in found])))):
+            p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
+            b = self._body_index[slots]
+            W[ok[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
+            if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
+                nJ = np.einsum("kc,kcm->km", nrm, Jo[b, tt]) + np.einsum("ki,kc,kicm->km", p_B, nrm, Je[b, tt])
+                Jd = Jd + (nJ if side == 0 else -nJ)
+        if jacobians:
+            J[ok[tt], pp] = Jd @ P
+        return D, J, W
+
+    def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        D, J, _ = self.evaluate(q[None])
+        return D[0], J[0]
+
+    def values_and_jacobians(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        D, J, _ = self.evaluate(Q)
+        return D, J
+
+    def value(self, q: np.ndarray) -> np.ndarray:
+        return self.evaluate(q[None], jacobians=False)[0][0]
+
+    def witnesses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distances ``(m,)`` (capped) and witness points ``(m, 2, 3)`` (world, m; NaN where capped) at ``q``."""
+        D, _, W = self.evaluate(q[None], jacobians=False)
+        return D[0], W[0]

@@ -1,0 +1,1 @@
+"""Evaluation: per-run metrics, experiment summaries and the evaluate stage (the thesis's claims are in raico/thesis/claims.py)."""

@@ -1,3 +1,0 @@
-"""Pure stage functions."""
-
-import plants.threads  # noqa: F401  (one BLAS thread: set before numpy loads)

@@ -1,1 +1,0 @@
-"""Evaluation: per-run metrics, experiment summaries and the evaluate stage (the thesis's claims are in thesis/claims.py)."""
