@@ -7,7 +7,7 @@ KERNEL := $(VENV)/.kernels
 ARTIFACTS ?= artifacts
 JOBS ?= 2
 
-.PHONY: install anchors kernels test test-fast test-portable test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
+.PHONY: install anchors kernels wheel-check test test-fast test-portable test-sanitize reproduce reproduce-quick reproduce-thesis bench lint typecheck docs clean
 
 install: $(STAMP)
 
@@ -87,5 +87,23 @@ typecheck: $(STAMP)
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
+# A wheel that works: the project built as a wheel (not the editable install) into a fresh virtual environment
+# outside the checkout, which then plans a built-in task and a shipped problem file from the package's own data;
+# the five floors import only as raico's subpackages there (one install name).
+WHEEL_DIR ?= build/wheel-check
+
+wheel-check: $(STAMP)
+	rm -rf $(WHEEL_DIR) && mkdir -p $(WHEEL_DIR)
+	$(BIN)/pip wheel --quiet --no-deps -w $(WHEEL_DIR) .
+	$(PY) -m venv $(WHEEL_DIR)/venv
+	$(WHEEL_DIR)/venv/bin/pip install --quiet $(WHEEL_DIR)/raico-*.whl
+	cd $(WHEEL_DIR) && venv/bin/python -c "import importlib.util as u; import raico; \
+	    assert [n for n in ('pipeline', 'plants', 'planning', 'stages', 'thesis') if u.find_spec(n)] == []"
+	cd $(WHEEL_DIR) && venv/bin/raico plan --plant arm5 --task reach --iterations 5 --artifacts art --quiet
+	cd $(WHEEL_DIR) && venv/bin/raico plan --problem "$$(venv/bin/python -c 'import raico, pathlib; \
+	    print(pathlib.Path(raico.__file__).parent / "problems" / "pendulum_swing-up.toml")')" \
+	    --iterations 5 --artifacts art --quiet
+	@echo "wheel-check: the wheel installs and plans"
+
 clean:
-	rm -rf $(VENV) .pytest_cache site
+	rm -rf $(VENV) .pytest_cache site build
