@@ -352,7 +352,7 @@ def test_no_robot_named_in_stages_and_pipeline():
     pipeline speak of a floating robot, never of the Nao by an identifier."""
     found = []
     for package in ("stages", "pipeline"):
-        for path in sorted((REPO / package).rglob("*.py")):
+        for path in sorted((REPO / "raico" / package).rglob("*.py")):
             for line, ident in _robot_named_identifiers(ast.parse(path.read_text(), str(path))):
                 found.append(f"{path.relative_to(REPO)}:{line} {ident}")
     assert found == []

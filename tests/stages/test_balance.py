@@ -19,7 +19,14 @@ from raico.planning.costs import TaskInequality
 from raico.plants.polygons import halfplanes, nearest_feasible, shrink, signed_margin
 from raico.plants.robots import shared_robot
 from raico.plants.taskmaps import CenterOfMass, JointPositions
-from raico.stages.plan.balance import MARGIN, NO_BALANCE_MARGIN, apply_balance, cog_margins, sole_corners, support_polygon
+from raico.stages.plan.balance import (
+    MARGIN,
+    NO_BALANCE_MARGIN,
+    apply_balance,
+    cog_margins,
+    sole_corners,
+    support_polygon,
+)
 from raico.stages.plan.stage import PlanConfig, build_problem, objective_from_description
 from tests.tolerance import REL, assert_close, close
 

@@ -299,9 +299,9 @@ def test_heldout_sentence_says_what_the_curve_does():
 
 
 def test_claims_table_names_section_figure_runs_setup_and_why():
-    from tests.thesis.test_evaluate import table
     from raico.thesis.claims import evaluate_claims
     from raico.thesis.report import markdown_claims
+    from tests.thesis.test_evaluate import table
 
     rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
                            "fig3.2c")
@@ -375,9 +375,9 @@ def test_a_nudged_start_lists_the_chaotic_runs():
 
 
 def test_the_rows_that_do_not_hold_are_listed_with_their_reasons():
-    from tests.thesis.test_evaluate import table
     from raico.thesis.claims import evaluate_claims
     from raico.thesis.report import not_holding_section
+    from tests.thesis.test_evaluate import table
 
     rows = evaluate_claims(("ilqg_stalls", "raico_converges"), table(ilqg=150, r1=100, r10=120, aico=100), [],
                            "fig3.2c")

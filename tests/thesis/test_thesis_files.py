@@ -18,8 +18,8 @@ from raico.pipeline.errors import BadInput
 from raico.pipeline.experiments import expfile
 from raico.pipeline.interface.cli import app
 from raico.stages.registry import get_stage
-from tests import thesis_reference as python
 from raico.thesis import figures as files
+from tests import thesis_reference as python
 
 FIGURES = list(python.EXPERIMENTS)
 LEARNING = list(python.LEARN_EXPERIMENTS)
