@@ -908,7 +908,7 @@ register_cost_term_example(
     "control", exact_hessian=True)
 
 
-def _uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> Uncertainty:
+def uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> Uncertainty:
     """The uncertainty term on a small GP (``raico.plants.learned.example_params``), sigma* = 0.2."""
     from raico.plants.learned import build_learned, example_params
 
@@ -916,8 +916,8 @@ def _uncertainty_example(robot, q0: np.ndarray, units: str = "standardized") -> 
     return Uncertainty(model, 0.2, 1e-2, T=4, units=units)
 
 
-register_cost_term_example("uncertainty", _uncertainty_example, "joint")
-register_cost_term_example("uncertainty_raw", lambda r, q0: _uncertainty_example(r, q0, "raw"), "joint")
+register_cost_term_example("uncertainty", uncertainty_example, "joint")
+register_cost_term_example("uncertainty_raw", lambda r, q0: uncertainty_example(r, q0, "raw"), "joint")
 register_cost_term_example(
     "control_gravity", lambda r, q0: ControlGravity(r, 0.3, T=4, precision=np.linspace(0.5, 2.0, len(q0)),
                                                     name="control_gravity"), "joint")

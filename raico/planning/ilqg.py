@@ -92,7 +92,7 @@ class ILQGOptions(OptionsBase):
         object.__setattr__(self, "step_sizes", step_sizes)
 
 
-class _NotPD(Exception):
+class NotPD(Exception):
     """Q_uu was not positive definite at some step."""
 
 
@@ -103,7 +103,7 @@ _C_LIB: Any = None
 COMPILED_MAX_N = 24
 
 
-def _c_backward_lib():
+def c_backward_lib():
     """The compiled backward pass (``ilqg_backward.c``), or ``None`` (``RAICO_NO_C``, no ``gcc``)."""
     global _C_LIB
     if _C_LIB is None:
@@ -121,7 +121,7 @@ def _c_backward_lib():
     return _C_LIB or None
 
 
-def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
+def lq_backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
     """Backward pass. Shapes: ``A (T,n,n)``, ``B (T,n,m)``, ``lx (T+1,n)``, ``lxx (T+1,n,n)``,
     ``lu (T,m)``, ``luu (T,m,m)``. Returns ``k (T,m)``, ``K (T,m,n)``, ``dV (2,)``; compiled
     (``ilqg_backward.c``, the same formulas, equal to rounding) where a C compiler is available."""
@@ -130,7 +130,7 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
     T, n, m = B.shape
     check_shapes("ilqg backward pass", A=(A, (T, n, n)), lx=(lx, (T + 1, n)), lxx=(lxx, (T + 1, n, n)),
                  lu=(lu, (T, m)), luu=(luu, (T, m, m)))
-    lib = _c_backward_lib() if compiled and n <= COMPILED_MAX_N else None
+    lib = c_backward_lib() if compiled and n <= COMPILED_MAX_N else None
     if lib is not None:
         arrs = [np.ascontiguousarray(z, dtype=float) for z in (A, B, lx, lxx, lu, luu)]
         k, K, dV = np.empty((T, m)), np.empty((T, m, n)), np.empty(2)
@@ -139,7 +139,7 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
         if rc < 0:
             raise MemoryError(f"ilqg_backward: no work buffer for n = {n}, m = {m}")
         if rc > 0:
-            raise _NotPD
+            raise NotPD
         return k, K, dV
     k = np.zeros((T, m))
     K = np.zeros((T, m, n))
@@ -159,7 +159,7 @@ def _backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):
         Qux_r = Qux + mu * Bt.T @ At if mu else Qux
         L, info = lapack.dpotrf(0.5 * (QuuF + QuuF.T), lower=1)
         if info != 0 or not np.all(np.isfinite(L)):
-            raise _NotPD
+            raise NotPD
         rhs = np.empty((m, n + 1))
         rhs[:, 0] = Qu
         rhs[:, 1:] = Qux_r
@@ -293,7 +293,7 @@ class _ILQGStep:
 
 
 def _derivatives(problem: Problem, X: np.ndarray, U: np.ndarray):
-    """``(A, B, l_x, l_xx, l_u, l_uu)`` along the trajectory (shapes as in ``_backward``)."""
+    """``(A, B, l_x, l_xx, l_u, l_uu)`` along the trajectory (shapes as in ``lq_backward``)."""
     A, _, B = problem.dynamics.linearize_trajectory(X[:-1], U)
     problem.set_nominal(X, U)
     lx, lxx = problem.state_derivatives(X)
@@ -312,9 +312,9 @@ def _regularized_backward(derivs, lm: _LM):
     while True:
         try:
             A, B, lx, lxx, lu, luu = derivs
-            k, K, dV = _backward(A, B, lx, lxx, lu, luu, lm.mu)
+            k, K, dV = lq_backward(A, B, lx, lxx, lu, luu, lm.mu)
             return k, K, dV, False
-        except _NotPD:
+        except NotPD:
             lm.increase()
             if lm.mu > lm.o.mu_max:
                 return None, None, None, True
@@ -353,8 +353,8 @@ def _final_gains(problem, X, U, mu, K_fallback):
     A, B, lx, lxx, lu, luu = derivs
     for m in (0.0, mu):
         try:
-            return _backward(A, B, lx, lxx, lu, luu, m)[1]
-        except _NotPD:
+            return lq_backward(A, B, lx, lxx, lu, luu, m)[1]
+        except NotPD:
             continue
     return K_fallback
 

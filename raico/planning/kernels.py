@@ -194,7 +194,7 @@ def compile_task_set(problem):
     for term in problem.joint_terms:   # toward gravity: its state part, at the controls of keep[0]
         if term.weight == 0:
             continue
-        k = _robot_kernels(term.gravity.robot)
+        k = robot_kernels(term.gravity.robot)
         if k is None or (kern is not None and k is not kern) or term.c.shape != (nq,) or problem.n_u != nq:
             return None
         kern, robot = k, term.gravity.robot
@@ -265,7 +265,7 @@ def compile_task_set(problem):
     return lib.taskset_eval_address(), ctypes.addressof(ts), keep
 
 
-def _robot_kernels(robot):
+def robot_kernels(robot):
     """The robot's compiled tree kernels (``raico.plants.codegen.rbd``), or ``None`` where the plant has none
     (a joint or force element the generator does not handle, no C compiler): the Python terms then run.
     Any other error is a fault and is raised."""

@@ -147,7 +147,7 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
     if "scene" in raw:
         doc["scene"] = _scene(raw["scene"], base, doc["robot"])
     if "achieved" in raw:
-        doc["achieved"] = _achieved(raw["achieved"])
+        doc["achieved"] = read_achieved(raw["achieved"])
     h = raw["horizon"]
     refuse_unknown(h, HORIZON_KEYS, "[horizon]")
     T, dt = h.get("T"), h.get("dt")
@@ -191,7 +191,7 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
     return doc
 
 
-def _achieved(a) -> dict:
+def read_achieved(a) -> dict:
     """``[achieved]``: how an execution of the task is judged achieved, where the terms' own errors do not say it:
     joint ``joint`` ends within ``tol`` (rad) of ``angle`` (rad), the difference wrapped to (-pi, pi], and with a
     speed within ``velocity_tol`` (rad/s) where it is stated."""

@@ -134,12 +134,12 @@ def test_bad_executor_values_are_one_line(tmp_path):
 
 
 def test_unreachable_ray_address_is_one_error_at_once():
-    from raico.pipeline.engine.executors import _check_reachable
+    from raico.pipeline.engine.executors import check_reachable
     from raico.pipeline.errors import RaicoError
 
     t0 = time.monotonic()
     with pytest.raises(RaicoError, match=r"^cannot reach the Ray cluster at 127\.0\.0\.1:1: "):
-        _check_reachable("127.0.0.1:1")  # ray.init would retry for minutes, deaf to Ctrl-C
+        check_reachable("127.0.0.1:1")  # ray.init would retry for minutes, deaf to Ctrl-C
     assert time.monotonic() - t0 < 10
 
 

@@ -201,7 +201,7 @@ def test_compare_writes_one_recording_with_a_path_per_run(raico, arts, tmp_path)
 
     from rerun.chunk import RrdReader
 
-    from raico.pipeline.experiments.compare import _path
+    from raico.pipeline.experiments.compare import label_path
 
     out = tmp_path / "c.rrd"
     res = raico("compare", "--exp", "small", "--where", "seed == 1", "--out", out, "--json", "--artifacts", arts)
@@ -216,7 +216,7 @@ def test_compare_writes_one_recording_with_a_path_per_run(raico, arts, tmp_path)
     entities = {c.entity_path for c in chunks}
     joints = ("base_yaw", "shoulder_pitch", "elbow_pitch", "forearm_roll", "wrist_pitch")
     for label, ref in runs.items():
-        base = "/" + _path(label)
+        base = "/" + label_path(label)
         assert {f"{base}/joints/{j}" for j in joints} | {f"{base}/cost", f"{base}/world/paths/ee"} <= entities
         assert any(e.startswith(f"{base}/world/robot/") for e in entities)
         # the run's own numbers: its planned elbow angle on sim_time, its cost per iteration (log10)
@@ -312,7 +312,7 @@ def ur5_plans(raico, tmp_path_factory) -> tuple[Path, list[str]]:
 def test_compare_a_model_file_robot(raico, ur5_plans, tmp_path):
     import json
 
-    from raico.pipeline.experiments.compare import _path
+    from raico.pipeline.experiments.compare import label_path
 
     arts, keys = ur5_plans
     out = tmp_path / "ur5.rrd"
@@ -322,7 +322,7 @@ def test_compare_a_model_file_robot(raico, ur5_plans, tmp_path):
     assert sorted(runs.values()) == sorted(f"plan/{k}" for k in keys)
     entities = {c.entity_path for c in _chunks(out)}
     for label in runs:
-        base = "/" + _path(label)
+        base = "/" + label_path(label)
         assert {f"{base}/joints/{j}" for j in ("shoulder_pan_joint", "elbow_joint", "wrist_3_joint")} <= entities
         assert any(e.startswith(f"{base}/world/robot/") for e in entities)
 

@@ -393,11 +393,11 @@ def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeyp
         expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}})
     monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
     with pytest.raises(RuntimeError, match="a bug"):
-        expfile._configs(None, {"keys": {"execute": "k"}}, "plan")
+        expfile.step_configs(None, {"keys": {"execute": "k"}}, "plan")
     monkeypatch.undo()
     monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
-    assert expfile._configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
-    assert expfile._configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
+    assert expfile.step_configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
+    assert expfile.step_configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
 
 
 def test_a_model_file_s_load_report_is_said_once_per_experiment(raico, tmp_path):

@@ -274,7 +274,7 @@ def _babble_key() -> str:
     from raico.pipeline.engine import runner
     from raico.stages.babble import BabbleConfig
 
-    return runner._prepare(None, "babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2))[-1]
+    return runner.prepare(None, "babble", BabbleConfig(plant="pendulum", episodes=1, duration=0.2))[-1]
 
 
 def test_full_disk_in_numpy_writer_publishes_nothing(tmp_path, monkeypatch):
@@ -844,9 +844,9 @@ REAPER_OWNER = textwrap.dedent("""
     # Stands in for raico with a local Ray instance: a reaper, a marked child, and below it a process
     # without the mark (like Ray's agents, whose process titles overwrite their environment)
     import os, subprocess, sys, time
-    from raico.pipeline.engine.executors import RAY_OWNER, _start_reaper
+    from raico.pipeline.engine.executors import RAY_OWNER, start_reaper
 
-    mark, reaper = _start_reaper()
+    mark, reaper = start_reaper()
     os.environ[RAY_OWNER] = mark.split("=", 1)[1]
     child = subprocess.Popen([sys.executable, "-c",
         "import subprocess, sys, time; g = subprocess.Popen(['sleep', '60'], env={}); print(g.pid, flush=True); "

@@ -124,11 +124,11 @@ def test_an_interrupted_experiment_resumed_recomputes_nothing_finished(tmp_path,
 
 
 def test_a_node_running_other_code_is_named_in_one_line():
-    from raico.pipeline.engine.executors import VersionMismatch, _check_version
+    from raico.pipeline.engine.executors import VersionMismatch, check_version
 
-    _check_version(("head", "raico+abc"), ("head", "raico+abc"))
+    check_version(("head", "raico+abc"), ("head", "raico+abc"))
     with pytest.raises(VersionMismatch) as e:
-        _check_version(("10.0.0.7 (Ray node 1234abcd)", "raico+def"), ("head", "raico+abc"))
+        check_version(("10.0.0.7 (Ray node 1234abcd)", "raico+def"), ("head", "raico+abc"))
     assert str(e.value).startswith("node 10.0.0.7 (Ray node 1234abcd) runs code version raico+def, this head "
                                    "raico+abc") and "\n" not in str(e.value)
 

@@ -253,7 +253,7 @@ def test_mcap_round_trip(tmp_path: Path) -> None:
 def test_mcap_messages_are_the_bytes_json_dumps_gives(tmp_path: Path) -> None:
     """The messages formatted directly (floats in one pass of the json encoder) are byte for byte what
     ``json.dumps(msg, separators=(",", ":"))`` writes for the same message as a dict (non-finite values as null)."""
-    from raico.pipeline.recordings.mcap_io import _joint_state, _stamp, _transforms
+    from raico.pipeline.recordings.mcap_io import joint_state_message, stamp_of, transforms_message
 
     robot = shared_robot("nao")
     r = _rollout(robot)
@@ -267,11 +267,11 @@ def test_mcap_messages_are_the_bytes_json_dumps_gives(tmp_path: Path) -> None:
         for _, channel, message in make_reader(f).iter_messages():
             got.setdefault(channel.topic, []).append(message.data.decode())
     for k, ns in enumerate(message_times := [int(round(t * 1e9)) for t in r["times"]]):
-        assert got["/joint_states"][k] == dumps(_joint_state(list(robot.joint_names), ns, r["Q"][k], r["V"][k],
+        assert got["/joint_states"][k] == dumps(joint_state_message(list(robot.joint_names), ns, r["Q"][k], r["V"][k],
                                                              r["U"][k]))
-        assert got["/tf"][k] == dumps(_transforms(names, ns, T[k], R[k]))
+        assert got["/tf"][k] == dumps(transforms_message(names, ns, T[k], R[k]))
         value = [float(v) if np.isfinite(v) else None for v in r["task_values"]["ee"][k]]
-        assert got["/task/ee"][k] == dumps({"timestamp": _stamp(ns), "name": "ee", "value": value})
+        assert got["/task/ee"][k] == dumps({"timestamp": stamp_of(ns), "name": "ee", "value": value})
     assert len(message_times) == K and "null" in got["/joint_states"][1] and "-0.0" in got["/joint_states"][4]
 
 

@@ -117,14 +117,14 @@ def test_the_residual_on_the_control_by_finite_differences():
     is the truncation ``h^2 g'''`` and the rounding ``eps |g| / h``, both below 1e-6 of ``|dg/dq|``)."""
     import crocoddyl
 
-    from raico.planning.crocoddyl.costs import _ControlGravityResidual
+    from raico.planning.crocoddyl.costs import ControlGravityResidual
     from raico.planning.problem_file import read_problem
     from raico.plants.model_file import shared_model
 
     robot = shared_model(read_problem(DATA / "lift6_reach.toml").robot_spec())
     pmodel, smap = cm.pinocchio_robot(robot, "angle")
     state = crocoddyl.StateMultibody(pmodel)
-    res = _ControlGravityResidual(state, state.nv)
+    res = ControlGravityResidual(state, state.nv)
     data = res.createData(crocoddyl.DataCollectorAbstract())
     rng = np.random.default_rng(0)
     x = np.concatenate([np.clip(robot.default_q + 0.3 * rng.standard_normal(6), robot.lower, robot.upper),

@@ -23,7 +23,7 @@ from raico.planning import kernels
 from raico.planning.aico import AICOOptions, aico
 from raico.planning.aico.sweeps import Sweeps
 from raico.planning.costs import ControlCost, StateTarget, ViaPoint
-from raico.planning.ilqg import ILQGOptions, _backward, ilqg
+from raico.planning.ilqg import ILQGOptions, ilqg, lq_backward
 from raico.planning.problem import Problem, controller_rollout
 from raico.plants.codegen import c_backend, rbd
 from raico.plants.fast_analytic import FastAnalyticDynamics, TreeAnalyticDynamics
@@ -189,7 +189,7 @@ def _backward_args(rng, T: int, n: int, m: int):
 
 
 def _backward_equal(args, mu: float) -> None:
-    for got, ref in zip(_backward(*args, mu), _backward(*args, mu, compiled=False)):
+    for got, ref in zip(lq_backward(*args, mu), lq_backward(*args, mu, compiled=False)):
         assert _close(got, ref)
 
 
@@ -217,9 +217,9 @@ def test_ilqg_backward_refuses_wrong_shapes():
         wrong = list(args)
         wrong[i] = bad
         with pytest.raises(ValueError, match="ilqg backward pass: .* has shape"):
-            _backward(*wrong, 0.0)
+            lq_backward(*wrong, 0.0)
     with pytest.raises(ValueError, match=r"T, n, m\) with T, n, m >= 1"):
-        _backward(args[0][:0], args[1][:0], args[2][:1], args[3][:1], args[4][:0], args[5][:0], 0.0)
+        lq_backward(args[0][:0], args[1][:0], args[2][:1], args[3][:1], args[4][:0], args[5][:0], 0.0)
 
 
 # -- the dense algebra of the sweeps (dense.c), on drawn shapes and leading dimensions --------------

@@ -274,9 +274,9 @@ def test_aico_with_a_controller_learning_rate_approaches_the_exact_solution():
 def test_compiled_ilqg_backward_equals_numpy():
     """raico/planning/ilqg_backward.c computes iLQG's backward pass as the numpy code does (to rounding),
     with and without regularization, and refuses a Q_uu that is not positive definite as numpy does."""
-    from raico.planning.ilqg import _backward, _c_backward_lib, _NotPD
+    from raico.planning.ilqg import NotPD, c_backward_lib, lq_backward
 
-    if _c_backward_lib() is None:
+    if c_backward_lib() is None:
         pytest.skip("no C compiler (RAICO_NO_C or no gcc)")
     rng = np.random.default_rng(3)
     for T, n, m in ((40, 4, 2), (200, 10, 5), (30, 24, 12)):
@@ -286,14 +286,14 @@ def test_compiled_ilqg_backward_equals_numpy():
         args = (A, B, rng.normal(size=(T + 1, n)), G @ np.swapaxes(G, 1, 2) / n, rng.normal(size=(T, m)),
                 H @ np.swapaxes(H, 1, 2) / m + 0.1 * np.eye(m))
         for mu in (0.0, 0.5):
-            for got, ref in zip(_backward(*args, mu), _backward(*args, mu, compiled=False)):
+            for got, ref in zip(lq_backward(*args, mu), lq_backward(*args, mu, compiled=False)):
                 assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
         bad = list(args)
         bad[5] = bad[5].copy()
         bad[5][T // 2] = -np.eye(m)
         for compiled in (True, False):
-            with pytest.raises(_NotPD):
-                _backward(*bad, 0.0, compiled=compiled)
+            with pytest.raises(NotPD):
+                lq_backward(*bad, 0.0, compiled=compiled)
 
 
 def test_the_solvers_blas_runs_on_one_thread_and_the_library_scan_is_kept():

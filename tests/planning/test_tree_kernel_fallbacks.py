@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from raico.planning.kernels import _robot_kernels
+from raico.planning.kernels import robot_kernels
 from raico.plants.codegen import c_backend, rbd
 from raico.plants.dynamics import GravityTorques
 from raico.plants.fast_analytic import TreeGravityTorques, gravity_torques
@@ -29,7 +29,7 @@ def test_a_plant_without_tree_kernels_takes_the_slow_route(monkeypatch, missing)
     monkeypatch.setattr(rbd, "tree_kernels", _raising(missing))
     g = gravity_torques(robot)
     assert type(g) is GravityTorques and not isinstance(g, TreeGravityTorques)
-    assert _robot_kernels(robot) is None
+    assert robot_kernels(robot) is None
 
 
 def test_a_bug_while_building_the_tree_kernels_is_raised_not_taken_for_a_missing_route(monkeypatch):
@@ -38,4 +38,4 @@ def test_a_bug_while_building_the_tree_kernels_is_raised_not_taken_for_a_missing
     with pytest.raises(AttributeError, match="no attribute 'axes'"):
         gravity_torques(robot)
     with pytest.raises(AttributeError, match="no attribute 'axes'"):
-        _robot_kernels(robot)
+        robot_kernels(robot)

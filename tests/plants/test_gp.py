@@ -489,7 +489,7 @@ def test_uncertainty_term_units_raw_is_the_predictive_variance():
     """Thesis eq. 4.3: g = var(x*) in (rad/s^2)^2 ('raw'); 'standardized' divides by the training
     outputs' variance. At sigma* = 0 the raw cost is the standardized one times y_std^4 per output."""
     from raico.planning.costs import Uncertainty
-    from raico.planning.costs import _uncertainty_example as example
+    from raico.planning.costs import uncertainty_example as example
     from raico.plants.robots import shared_robot
 
     robot = shared_robot("arm5")

@@ -232,9 +232,9 @@ def test_learn_is_a_composite_stage_keyed_with_its_steps_code(tmp_path, monkeypa
     assert all(keys.code_version(get_stage(s)) in version for s in stage.step_stages)
     cache, cfg = Cache(tmp_path), LearnConfig(plant="pendulum", task="swing-up")
     key = runner.run_key(cache, "learn", cfg)
-    real = keys._code_version
-    monkeypatch.setattr(keys, "_code_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
+    real = keys.sources_version
+    monkeypatch.setattr(keys, "sources_version", lambda name, src: "plan+edited" if name == "plan" else real(name, src))
     assert runner.run_key(cache, "learn", cfg) != key
     only_babble = dataclasses.replace(stage, step_stages=("babble",))
     with pytest.raises(ValueError, match="runs babble as steps, not execute"):
-        runner._steps(cache, only_babble, Reporter(quiet=True)).run("execute", ExecuteConfig(plan="x"))
+        runner.composite_steps(cache, only_babble, Reporter(quiet=True)).run("execute", ExecuteConfig(plan="x"))

@@ -37,12 +37,12 @@ def test_without_a_speed_tolerance_the_end_angle_alone_judges():
 
 
 def test_problem_file_reads_velocity_tol_and_refuses_a_bad_one():
-    from raico.planning.problem_file import _achieved
+    from raico.planning.problem_file import read_achieved
 
-    assert _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 1})["velocity_tol"] == 1.0
-    assert "velocity_tol" not in _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1})
+    assert read_achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 1})["velocity_tol"] == 1.0
+    assert "velocity_tol" not in read_achieved({"joint": "pole", "angle": 3.14, "tol": 0.1})
     with pytest.raises(ValueError, match="velocity_tol"):
-        _achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 0})
+        read_achieved({"joint": "pole", "angle": 3.14, "tol": 0.1, "velocity_tol": 0})
 
 
 def test_an_episode_without_data_is_followed_by_a_random_episode(tmp_path, monkeypatch):

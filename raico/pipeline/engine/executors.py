@@ -277,7 +277,7 @@ class RayExecutor(Executor):
         self._slots: int | None = None
         self._connected_here = False
         self._refs: dict[Future, Any] = {}
-        self._reaper = None  # of a local instance (see _start_reaper)
+        self._reaper = None  # of a local instance (see start_reaper)
 
     @property
     def slots(self) -> int:  # the cluster's CPUs
@@ -305,9 +305,9 @@ class RayExecutor(Executor):
             mark = None
             if self.address is None:
                 kwargs.update(num_cpus=self.workers, include_dashboard=False)
-                mark, self._reaper = _start_reaper()
+                mark, self._reaper = start_reaper()
             else:
-                _check_reachable(self.address)
+                check_reachable(self.address)
                 _token_auth_like_ray_start()
             try:
                 if mark is not None:
@@ -470,7 +470,7 @@ for _ in range(3):
 """
 
 
-def _start_reaper():
+def start_reaper():
     """(the mark ``NAME=VALUE`` for the instance's environment, the reaper) on Linux, else (None, None)."""
     import os
     import secrets
@@ -502,7 +502,7 @@ def _stop_reaper(reaper) -> None:
         reaper.wait()
 
 
-def _check_reachable(address: str, timeout: float = 5.0) -> None:
+def check_reachable(address: str, timeout: float = 5.0) -> None:
     """A ``HOST:PORT`` Ray address must accept a connection: ``ray.init`` would retry an unreachable
     one for minutes, deaf to signals while it waits in Ray's C++ client. ``auto`` and ``ray://``
     addresses are Ray's to resolve."""
@@ -802,7 +802,7 @@ def stream(executor: Executor, items, *, total: int | None = None, probe: Callab
     mine = probe() if probe is not None else None
     if probe is not None and hasattr(executor, "probe_nodes") and getattr(executor, "address", None):
         for answer in executor.probe_nodes(probe):
-            _check_version(answer, mine)
+            check_version(answer, mine)
     source = iter(items)
     exhausted = False
     inflight: dict[Future, tuple[list[Item], int]] = {}
@@ -859,14 +859,14 @@ def stream(executor: Executor, items, *, total: int | None = None, probe: Callab
                 submit(sent, attempt + 1)
                 continue
             if probe is not None:
-                _check_version(node, mine)
+                check_version(node, mine)
             for item, (seconds, error, value) in zip(sent, results):
                 run_s += seconds
                 timed_runs += 1
                 yield Done(item, value, seconds, False, error, node)
 
 
-def _check_version(answer: Any, mine: Any) -> None:
+def check_version(answer: Any, mine: Any) -> None:
     """``answer`` and ``mine`` are ``(node, version)``: a different version is :class:`VersionMismatch`."""
     if answer is None or mine is None or answer[1] == mine[1]:
         return

@@ -147,7 +147,7 @@ def source_version(name: str, *packages: str) -> str:
 
 
 @functools.cache
-def _code_version(name: str, sources: tuple[str, ...]) -> str:
+def sources_version(name: str, sources: tuple[str, ...]) -> str:
     return source_version(name, *sources)
 
 
@@ -156,7 +156,7 @@ def code_version(stage) -> str:
     a composite stage's joined with its steps' (``+``), so editing a step's code invalidates it too."""
     from raico.stages.registry import get_stage
 
-    own = _code_version(stage.name, tuple(stage.sources))
+    own = sources_version(stage.name, tuple(stage.sources))
     return "+".join([own, *(code_version(get_stage(s)) for s in stage.step_stages)])
 
 

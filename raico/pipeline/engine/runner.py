@@ -271,7 +271,7 @@ def _write_outputs(tmp: Path, out) -> None:
         writer(tmp / name)
 
 
-def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
+def prepare(cache: Cache, stage, config, repair: Repair | None = None):
     """(stage, config, inputs, input keys, key config, code version, key) of a run."""
     from raico.stages.registry import get_stage
 
@@ -298,7 +298,7 @@ def _prepare(cache: Cache, stage, config, repair: Repair | None = None):
 
 def run_key(cache: Cache, stage, config) -> str:
     """The key a run of ``config`` has (normalized, validated, its inputs resolved in ``cache``)."""
-    return _prepare(cache, stage, config)[-1]
+    return prepare(cache, stage, config)[-1]
 
 
 def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | None:
@@ -308,7 +308,7 @@ def lookup(cache: Cache, stage, config, *, record: bool = True) -> Outcome | Non
     entry, input or recording is left to the run (which recomputes, rebuilds or writes it again);
     ``cache.notify`` hears why."""
     try:
-        stage, config, _, _, _, _, key = _prepare(cache, stage, config)
+        stage, config, _, _, _, _, key = prepare(cache, stage, config)
     except CorruptArtifact as e:  # a damaged input: the run rebuilds it (or says why it cannot)
         if cache.notify is not None and e.ref is not None:
             cache.notify(f"{e.ref.replace('/', ' ')}: damaged ({e.reason or e}); the run that reads it rebuilds it")
@@ -379,10 +379,10 @@ def run(cache: Cache, stage, config, *, record: bool = True, reporter=None, payl
 def _run_once(cache: Cache, stage, config, record: bool, reporter, payload: dict | None, repair: Repair,
               this: dict[str, str]) -> Outcome:
     """One attempt of :func:`run`; ``this["ref"]`` is the run's ``STAGE/KEY`` once it is known."""
-    stage, config, inputs, input_keys, key_config, version, key = _prepare(cache, stage, config, repair)
+    stage, config, inputs, input_keys, key_config, version, key = prepare(cache, stage, config, repair)
     this["ref"] = f"{stage.name}/{key}"
 
-    steps = {"steps": _steps(cache, stage, reporter)} if stage.step_stages else {}
+    steps = {"steps": composite_steps(cache, stage, reporter)} if stage.step_stages else {}
 
     def compute(tmp: Path) -> dict[str, Any]:
         with reporter.progress(f"{stage.name} {_label(key_config)}", stage.progress_total(config)) as update:
@@ -403,7 +403,7 @@ def _run_once(cache: Cache, stage, config, record: bool, reporter, payload: dict
     return outcome
 
 
-def _steps(cache: Cache, stage, reporter):
+def composite_steps(cache: Cache, stage, reporter):
     """The :class:`raico.stages.base.Steps` of a composite stage: each step a cached run of one of its
     ``step_stages`` (quiet, without recording: the composite records itself), as its stored artifact."""
     from raico.stages.base import Steps
@@ -481,7 +481,7 @@ def rebuild(cache: Cache, err: CorruptArtifact, reporter, consumer: str | None =
         return rebuild(cache, e, reporter, consumer=st_name, _rebuilt=rebuilt)
 
     try:
-        new_key = _prepare(cache, stage, cfg, repair)[-1]
+        new_key = prepare(cache, stage, cfg, repair)[-1]
     except (BadInput, MissingArtifact) as e:
         raise refuse(str(e)) from None
     if new_key != key:

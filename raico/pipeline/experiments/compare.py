@@ -130,7 +130,7 @@ def _hashable(v: Any) -> Any:
     return tuple(v) if isinstance(v, list) else v
 
 
-def _path(label: str) -> str:
+def label_path(label: str) -> str:
     import rerun as rr
 
     return f"runs/{rr.escape_entity_path_part(label)}"
@@ -177,7 +177,7 @@ def write(cache, runs: list[Run], path: Path) -> Path:
         eye = rec_mod.robot_eye(robot, d["Q"])
         controls = rrb.EyeControls3D(position=list(map(float, eye[0])), look_target=list(map(float, eye[1])),
                                      eye_up=[0.0, 0.0, 1.0])
-        base = _path(r.label)
+        base = label_path(r.label)
         views3d.append(rrb.Spatial3DView(origin=f"/{base}/world", contents=f"/{base}/world/**", name=r.label,
                                          eye_controls=controls))
         for joint in robot.joint_names:
@@ -188,7 +188,7 @@ def write(cache, runs: list[Run], path: Path) -> Path:
                                       plot_legend=rrb.PlotLegend(visible=False)) for j, paths in joints_of.items()]
     angles = rrb.Vertical(*joint_views, name="joint angles (sim_time)") if len(joint_views) <= 6 else \
         rrb.Tabs(*joint_views, name="joint angles (sim_time)", active_tab=0)
-    cost = rrb.TimeSeriesView(origin="/runs", contents=[f"/{_path(r.label)}/cost" for r in runs],
+    cost = rrb.TimeSeriesView(origin="/runs", contents=[f"/{label_path(r.label)}/cost" for r in runs],
                               name="log10 cost per iteration (iteration timeline)")
     columns = math.ceil(math.sqrt(len(runs)))
     blueprint = rrb.Blueprint(
@@ -199,7 +199,7 @@ def write(cache, runs: list[Run], path: Path) -> Path:
     with rec_mod.Recording(path, rec_mod.application_id("compare", digest), props,
                            name=f"compare {len(runs)} runs", blueprint=blueprint) as rec:
         for r, d in zip(runs, data):
-            base, robot, color = _path(r.label), d["robot"], d["color"]
+            base, robot, color = label_path(r.label), d["robot"], d["color"]
             times, Q = d["times"], d["Q"]
             rec.rec.log(f"{base}/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
             vias = sorted({s for tp in d["plots"] for s, _ in tp.targets})

@@ -1551,7 +1551,7 @@ def _plain(v: Any) -> Any:
     return v
 
 
-def _configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
+def step_configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
     """The options each stage of a run used (its ``meta.json`` config, input references left out),
     named as the table names them: the first stage's plain, later ones ``stage.option``."""
     from raico.stages.registry import get_stage
@@ -1591,8 +1591,8 @@ def run_diff(df, swept: list[str], a: str, b: str, cache=None) -> RunDiff:
     ia, ib = idx
     who_a, who_b = _who(df, ia), _who(df, ib)
     first = key_columns(df)[0][:-4] if key_columns(df) else "plan"
-    conf_a = _configs(cache, who_a, first) if cache is not None else {}
-    conf_b = _configs(cache, who_b, first) if cache is not None else {}
+    conf_a = step_configs(cache, who_a, first) if cache is not None else {}
+    conf_b = step_configs(cache, who_b, first) if cache is not None else {}
     if not conf_a or not conf_b:   # no entries to read: the swept options and the seed, from the table
         conf_a = {k: _plain(df.at[ia, k]) for k in (*swept, "seed") if k in df.columns}
         conf_b = {k: _plain(df.at[ib, k]) for k in (*swept, "seed") if k in df.columns}

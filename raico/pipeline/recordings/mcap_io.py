@@ -88,7 +88,7 @@ def _ns(times: np.ndarray) -> np.ndarray:
     return ns
 
 
-def _stamp(ns: int) -> dict[str, int]:
+def stamp_of(ns: int) -> dict[str, int]:
     return {"sec": int(ns // 1_000_000_000), "nsec": int(ns % 1_000_000_000)}
 
 
@@ -158,13 +158,13 @@ def _json_stamp(ns: int) -> str:
 
 
 def _json_joint_state(names_json: str, ns: int, q: str, v: str | None, u: str | None) -> str:
-    """:func:`_joint_state` as compact JSON (``q``, ``v``, ``u``: JSON arrays, :func:`_json_rows`)."""
+    """:func:`joint_state_message` as compact JSON (``q``, ``v``, ``u``: JSON arrays, :func:`_json_rows`)."""
     return ('{"timestamp":' + _json_stamp(ns) + ',"name":' + names_json + ',"position":' + q
             + ',"velocity":' + ("[]" if v is None else v) + ',"effort":' + ("[]" if u is None else u) + "}")
 
 
 def _json_transforms(bodies_json: list[str], ns: int, T: list[str], R: list[str]) -> str:
-    """:func:`_transforms` as compact JSON (``bodies_json``: each body's name as a JSON string; ``T``, ``R``: the
+    """:func:`transforms_message` as compact JSON (``bodies_json``: each body's name as a JSON string; ``T``, ``R``: the
     ``3 B`` translation and ``4 B`` xyzw rotation values as JSON tokens, :func:`_float_tokens`)."""
     stamp = _json_stamp(ns)
     parts = []
@@ -177,17 +177,17 @@ def _json_transforms(bodies_json: list[str], ns: int, T: list[str], R: list[str]
     return '{"transforms":[' + ",".join(parts) + "]}"
 
 
-def _joint_state(names: list[str], ns: int, q: np.ndarray, v: np.ndarray | None,
+def joint_state_message(names: list[str], ns: int, q: np.ndarray, v: np.ndarray | None,
                  u: np.ndarray | None) -> dict[str, Any]:
-    msg: dict[str, Any] = {"timestamp": _stamp(ns), "name": names, "position": _floats(q)}
+    msg: dict[str, Any] = {"timestamp": stamp_of(ns), "name": names, "position": _floats(q)}
     msg["velocity"] = [] if v is None else _floats(v)
     msg["effort"] = [] if u is None else _floats(u)
     return msg
 
 
-def _transforms(bodies: list[str], ns: int, T: np.ndarray, R: np.ndarray) -> dict[str, Any]:
+def transforms_message(bodies: list[str], ns: int, T: np.ndarray, R: np.ndarray) -> dict[str, Any]:
     """``T (B, 3)`` m, ``R (B, 4)`` xyzw -> foxglove.FrameTransforms."""
-    stamp = _stamp(ns)
+    stamp = stamp_of(ns)
     return {"transforms": [
         {"timestamp": stamp, "parent_frame_id": "world", "child_frame_id": b,
          "translation": dict(zip("xyz", map(float, t), strict=True)),

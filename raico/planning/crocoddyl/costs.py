@@ -104,7 +104,7 @@ if crocoddyl is not None:
         def createData(self, collector):
             return _OwnKinematicsData(self, collector)
 
-    class _ControlGravityResidual(crocoddyl.ResidualModelAbstract):
+    class ControlGravityResidual(crocoddyl.ResidualModelAbstract):
         """``u - g(q)`` on the control ``u`` itself (N m, Pinocchio's generalized gravity ``g``): raico's
         ``ControlGravity``. crocoddyl's ``ResidualModelControlGrav`` measures the actuation's torque instead,
         ``u - D v`` under a damped actuation (a model file's ``<dynamics damping>``), so its cost differs
@@ -189,10 +189,10 @@ def items_control(term, state, nu, model, smap, robot):
 def items_control_gravity(term, state, nu, model, smap, robot):
     """u - g(q), Pinocchio's generalized gravity: crocoddyl's ``ResidualModelControlGrav`` on an undamped
     model, raico's own residual on the control where the model damps its joints (crocoddyl's would
-    measure the damped actuation's torque ``u - D v``, see ``_ControlGravityResidual``)."""
+    measure the damped actuation's torque ``u - D v``, see ``ControlGravityResidual``)."""
     act = crocoddyl.ActivationModelWeightedQuad(smap.u_to_pin(term.c))
     if np.any(np.asarray(model.damping) != 0):
-        return [(_ControlGravityResidual(state, nu), act)]
+        return [(ControlGravityResidual(state, nu), act)]
     return [(crocoddyl.ResidualModelControlGrav(state, nu), act)]
 
 
