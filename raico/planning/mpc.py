@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 
 from raico.planning.aico import aico
+from raico.planning.aico.shift import ShiftedAICO
+from raico.planning.aico.sweeps import NumericalError
 from raico.planning.problem import Problem
 from raico.planning.solvers import SOLVERS, get_solver
 
@@ -168,6 +170,16 @@ class MPC:
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
         self.window, self._timed = _window_problem(problem, self.H)
+        # per tick: an id of the window's pattern of term times (it changes where a timed term enters, leaves
+        # or the problem's end enters the window)
+        ids, last = np.zeros(problem.T, dtype=np.int64), None
+        for k in range(problem.T):
+            pattern = [pt[k] for _, pt in self._timed]
+            same = last is not None and all(np.array_equal(a, b) for a, b in zip(pattern, last))
+            ids[k] = ids[k - 1] if same else (ids[k - 1] + 1 if k else 0)
+            last = pattern
+        self._pattern = ids
+        self._ws: ShiftedAICO | None = None
         H, n, m = self.H, problem.n_x, problem.n_u
         # the shifted solution, preallocated
         self.X = np.tile(problem.x0, (H + 1, 1))
@@ -190,6 +202,35 @@ class MPC:
         self.opts = dataclasses.replace(opts, iterations=1 if self.budget is not None else self.iterations,
                                         tol_rel=0.0)
         self.alpha = float(opts.alpha)
+        if opts.schedule == "fixed":    # one workspace shifted tick by tick (else: a run of aico() per tick)
+            ws = self._ws = ShiftedAICO(self.window, self.opts)
+            self.X, self.U, self.o, self.O = ws.X, ws.U, ws.o, ws.O
+            self._ws_pattern = -1
+
+    def _solve_shifted(self, shift: bool) -> tuple[int, float]:
+        ws = self._ws
+        assert ws is not None
+        if shift:
+            ws.shift()
+        kk = min(self.k, self.problem.T - 1)
+        if self._pattern[kk] != self._ws_pattern:
+            ws.refresh_times()
+            self._ws_pattern = int(self._pattern[kk])
+        if not ws.start_at(self.window.x0):
+            ws.solved = False          # the shifted controller leaves the finite states: a cold start
+            ws.start_at(self.window.x0)
+        its, t0, most = 0, time.perf_counter(), self.iterations
+        while its < most:
+            try:
+                ws.iterate(1)
+            except NumericalError:     # the shifted controller stays
+                break
+            its += 1
+            if self.budget is not None:
+                elapsed = time.perf_counter() - t0
+                if elapsed + elapsed / its > self.budget:
+                    break
+        return its, (ws.cost if its else math.nan)
 
     def _start_aico(self, shift: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The start of this tick: the previous controller, shifted by one step if ``shift`` (the last
@@ -206,6 +247,8 @@ class MPC:
         return X, U
 
     def _solve_aico(self, shift: bool) -> tuple[int, float]:
+        if self._ws is not None:
+            return self._solve_shifted(shift)
         X0, U0 = self._start_aico(shift)
         its, t0, cost = 0, time.perf_counter(), math.inf
         while True:
@@ -277,6 +320,8 @@ class MPC:
         H = self.H
         self.X[:], self.U[:], self.o[:], self.O[:] = X[:H + 1], U[:H], o[:H], O[:H]
         self._solved = True
+        if self._ws is not None:
+            self._ws.solved = True
 
     def prepare(self, x: np.ndarray, iterations: int) -> None:
         """Solve tick 0's window from ``x (n_x,)`` with ``iterations`` iterations before the loop
