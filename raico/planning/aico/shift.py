@@ -26,6 +26,7 @@ from raico.planning.aico.bounds import hard_constraints
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.solve import check_control_cost
 from raico.planning.aico.sweeps import NumericalError, Sweeps
+from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
 from raico.planning.problem import Problem
 
 
@@ -145,7 +146,7 @@ class ShiftedAICO:
         for i in range(iterations):
             X, U = self.X, self.U
             if not self._al_built:     # the hard constraints' penalty scales with the cost's curvature here
-                self.al = sw.al = hard_constraints(self.inner, X, U, self.efforts)
+                self.al = sw.al = _finite_boxes(hard_constraints(self.inner, X, U, self.efforts))
                 self._al_built = True
             alpha = self.alpha
             try:
@@ -191,3 +192,55 @@ def _compiled_active_views(sw: Sweeps, problem: Problem) -> list:
     T1 = problem.T + 1
     return [(term, np.ctypeslib.as_array((ctypes.c_uint8 * T1).from_address(int(vts[first + i].active))))
             for i, term in enumerate(state)]
+
+
+class FiniteBoxAL(AugmentedLagrangian):
+    """The augmented Lagrangian of joint ranges, velocity and effort limits (boxes) with the same numbers on
+    finite iterates and fewer passes (no ``nan_to_num``: a finite iterate's rows are finite or ``-inf`` where
+    a side has no bound, which ``max(0, .)`` sends to 0 as it does); other iterates or constraints: the
+    general code."""
+
+    def _rows(self, X: np.ndarray, U: np.ndarray) -> list[np.ndarray] | None:
+        if not (np.isfinite(X).all() and np.isfinite(U).all()):
+            return None
+        out = []
+        for c in self.constraints:
+            if type(c) is ControlBox:
+                k = len(c.idx)
+                G = np.full((U.shape[0] + 1, 2 * k), -np.inf)
+                W = U[:, c.idx]
+                np.subtract(W, c.hi, out=G[:-1, :k])
+                np.subtract(c.lo, W, out=G[:-1, k:])
+            elif type(c) is StateBox:
+                G = c.values(X, U)
+            else:
+                return None
+            out.append(G)
+        return out
+
+    def _lams(self, X: np.ndarray, U: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        rows = self._rows(X, U)
+        if rows is None:
+            return super()._lams(X, U)
+        out = []
+        for k, (c, G) in enumerate(zip(self.constraints, rows)):
+            y, mu = self.y[k], self._mu(c)
+            z = mu * G if y is None else y + mu * G
+            out.append((G, np.maximum(z, 0.0, out=z)))
+        return out
+
+    def violation(self, X: np.ndarray, U: np.ndarray) -> float:
+        rows = self._rows(X, U)
+        if rows is None:
+            return super().violation(X, U)
+        return max((float((G / c.tol).max(initial=0.0)) for c, G in zip(self.constraints, rows) if G.size),
+                   default=0.0)
+
+
+def _finite_boxes(al: AugmentedLagrangian | None) -> AugmentedLagrangian | None:
+    """``al`` as a :class:`FiniteBoxAL` (its state taken over)."""
+    if al is None:
+        return None
+    out = FiniteBoxAL.__new__(FiniteBoxAL)
+    out.__dict__.update(al.__dict__)
+    return out
