@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from raico.planning.aico import AICOOptions, aico
-from raico.planning.costs import ControlCost, ViaPoint
 from raico.planning.aico.shift import FiniteBoxAL, shift_rows
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
+from raico.planning.costs import ControlCost, ViaPoint
 from raico.planning.mpc import MPC, simulate, window_times
 from raico.planning.problem import Problem
 from raico.plants.dynamics import PseudoDynamics
