@@ -74,7 +74,7 @@ class ShiftedAICO:
         self._scratch = np.empty((T + 1) * max(n * (n + 1), (n + 1) * (m + n + 1), m * (n + 1)))
         self._sv = float(opts.start_variance)
         self._S0 = np.eye(n) / self._sv          # the start message's precision
-        self.al = None
+        self.al: AugmentedLagrangian | None = None
         self._task_views: list | None = None
         self._al_built = False
         self.solved = False
