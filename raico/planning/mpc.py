@@ -25,6 +25,7 @@ whether the tick went past its budget, the window's excess beyond its hard bound
 
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import math
@@ -274,24 +275,92 @@ class MPC:
 
         require()
         self.opts = get_solver(self.solver).options(options)
-        self._croc: dict[bytes, tuple] = {}   # window pattern -> (CrocoddylProblem, solver)
+        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built at the first solve
+        # the window's nodes' active state terms (indices into the terms with a weight, crocoddyl's order):
+        # per tick, of the node entering at the end (H-1) and of the terminal node
+        costs = [t for t in self.window.state_terms if t.weight != 0]
+        per_tick = {id(c): pt for c, pt in self._timed}
+        T, H = self.problem.T, self.H
 
-    def _fddp_for_tick(self) -> tuple:
-        from raico.planning.crocoddyl import solve as cs
+        def key(k: int, j: int) -> tuple[int, ...]:
+            return tuple(i for i, c in enumerate(costs)
+                         if id(c) not in per_tick or j in per_tick[id(c)][min(k, T - 1)])
+        self._key = key
+        self._costs = costs
+        self._keys_end = [key(k, H - 1) for k in range(T)]
+        self._keys_terminal = [key(k, H) for k in range(T)]
+        self._pool: dict[tuple, list] = {}    # key -> spare (model, data) pairs (the nodes dropped at the start)
+        self._node_models: dict[tuple, tuple] = {}   # key -> (running model, terminal model), built once each
 
-        key = b"".join(np.asarray(c.times, dtype=np.int64).tobytes() + b"|" for c, _ in self._timed)
-        hit = self._croc.get(key)
+    def _models_of(self, key: tuple[int, ...]) -> tuple:
+        """A running and a terminal crocoddyl model whose state terms are those of ``key`` (built once, from a
+        one-step problem with the window's terms active at both of its steps or at none)."""
+        hit = self._node_models.get(key)
         if hit is None:
+            from raico.planning.crocoddyl import solve as cs
+
+            terms = []
+            for i, t in enumerate(self._costs):
+                c = copy.copy(t)
+                c._set_times([0, 1] if i in key else [])
+                terms.append(c)
+            joint = []
+            for t in self.window.joint_terms:
+                c = copy.copy(t)
+                c.T, c.times = 1, np.arange(1)
+                joint.append(c)
+            w = self.window
+            cp = cs.build(Problem(w.dynamics, self.problem.x0.copy(), 1, terms, list(w.control_terms), joint, w.bounds),
+                          self.opts.continuous)
+            hit = self._node_models[key] = (cp.shooting.runningModels[0], cp.shooting.terminalModel)
+        return hit
+
+    def _fddp_window(self) -> tuple:
+        """The crocoddyl problem and solver of the window, built once (at the first solve's tick); each later
+        tick moves it on by one node (:meth:`_advance_fddp`)."""
+        if self._croc is None:
+            from raico.planning.crocoddyl import solve as cs
+
             cp = cs.build(self.window, self.opts.continuous)
             box = self.opts.box == "yes" or (self.opts.box == "auto" and cp.bounds is not None)
             solver = (cs.crocoddyl.SolverBoxFDDP if box else cs.crocoddyl.SolverFDDP)(cp.shooting)
             solver.th_stop = self.opts.th_stop
             solver.th_acceptStep = self.opts.th_accept
-            hit = self._croc[key] = (cp, solver)
-        return hit
+            sp = cp.shooting
+            kk = min(self.k, self.problem.T - 1)
+            self._nodes = collections.deque(
+                (self._key(kk, j), m, d) for j, (m, d) in enumerate(zip(sp.runningModels, sp.runningDatas)))
+            self._terminal_key = self._key(kk, self.H)
+            self._croc = (cp, solver)
+        return self._croc
+
+    def _advance_fddp(self) -> None:
+        """crocoddyl's receding horizon: the first node dropped and a node appended at the end
+        (``circularAppend``), the terminal node replaced where its terms changed; the nodes' models and
+        data are reused (a dropped node's pair goes to the spares of its terms)."""
+        cp, _ = self._fddp_window()
+        kk = min(self.k, self.problem.T - 1)
+        old_key, m0, d0 = self._nodes.popleft()
+        self._pool.setdefault(old_key, []).append((m0, d0))
+        key = self._keys_end[kk]
+        spare = self._pool.get(key)
+        if spare:
+            m, d = spare.pop()
+        else:
+            m = self._models_of(key)[0]
+            d = m.createData()
+        cp.shooting.circularAppend(m, d)
+        self._nodes.append((key, m, d))
+        tkey = self._keys_terminal[kk]
+        if tkey != self._terminal_key:
+            mt = self._models_of(tkey)[1]
+            cp.shooting.updateNode(self.H, mt, mt.createData())
+            self._terminal_key = tkey
 
     def _solve_fddp(self, shift: bool) -> tuple[int, float]:
-        cp, solver = self._fddp_for_tick()
+        if shift and self._croc is not None:
+            self._advance_fddp()
+        cp, solver = self._fddp_window()
         x_pin = cp.smap.x_to_pin(self.window.x0)
         cp.shooting.x0 = x_pin
         if self._solved:
