@@ -12,10 +12,12 @@ its absolute times, a term at the problem's last step ``T`` follows the receding
 step while ``T`` lies beyond it, ``T - k`` once inside); the windows' times are computed once.
 
 Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples), by the
-solver spec's ``caps.mpc``: ``"aico"``: the previous controller shifted (the last step repeated) and
-rolled out from the measured state is the start of the tick's iterations (R-AICO's regularization
-anchors there; the fixed schedule's alpha carries over ticks; the messages are not carried); ``"fddp"``:
-the window built in crocoddyl once per pattern of active terms, each tick shifting ``xs``/``us``.
+solver spec's ``caps.mpc``: ``"aico"``: with the fixed schedule one workspace
+(:class:`raico.planning.aico.shift.ShiftedAICO`: messages, beliefs, task terms, controller, multipliers,
+alpha) shifted by a step, its start reset to the measured state, the shifted controller's rollout the start
+of the tick's iterations; the other schedules a run of ``aico()`` from that rollout; ``"fddp"``: one
+crocoddyl window moved by ``circularAppend`` (the terminal node replaced where its terms change), ``xs``/``us``
+shifted.
 
 Per-tick records (preallocated arrays in ``TickLog``): solve wall time, iterations, the window's cost,
 whether the tick went past its budget, the window's excess beyond its hard bounds. AICO / R-AICO run

@@ -6,6 +6,7 @@ import copy
 import gc
 import math
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -217,3 +218,28 @@ def test_a_tick_allocates_only_temporaries_and_retains_nothing():
     # no array of the window is kept: a tick leaves less than a quarter of its trajectory X (the ~100 bytes a
     # tick measured are the bookkeeping of numpy's and scipy's caches: weak references, sets, small blocks)
     assert retained < 200 * mpc.X.nbytes / 4, retained
+
+
+@pytest.mark.numerics
+def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path):
+    """crocoddyl's window, moved node by node (circularAppend, the terminal node replaced), costs what the raico
+    window of each tick costs, through the problem's end entering the window."""
+    from raico.planning import crocoddyl as cm
+
+    if not cm.AVAILABLE:
+        pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    src = (Path(__file__).resolve().parents[2] / "raico/problems/examples/xarm7_reach.toml").read_text()
+    path = tmp_path / "short.toml"
+    path.write_text(src.replace("T = 100", "T = 16"))
+    pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
+    mpc = MPC(pb, 6, "fddp")
+    rng = np.random.default_rng(2)
+    for _ in range(pb.T):
+        x = pb.x0 + 0.01 * rng.standard_normal(pb.n_x)
+        mpc.tick(x)
+        cp, _ = mpc._fddp_window()
+        X = x + 0.05 * rng.standard_normal((mpc.H + 1, pb.n_x))
+        U = rng.standard_normal((mpc.H, pb.n_u))
+        assert close(cp.shooting.calc(cp.to_pin(X), cp.controls_to_pin(U)), mpc.window.cost(X, U))
