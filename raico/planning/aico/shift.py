@@ -17,6 +17,7 @@ linearization's and task rows' arrays, the augmented Lagrangian's model), see do
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import math
 
@@ -76,6 +77,7 @@ class ShiftedAICO:
         self._S0 = np.eye(n) / self._sv          # the start message's precision
         self.al: AugmentedLagrangian | None = None
         self._task_views: list | None = None
+        self._moves: list | None = None   # (owner, name, array, dst, src, bytes) of the shift's moves
         self._al_built = False
         self.solved = False
         self.cost = math.nan
@@ -85,20 +87,38 @@ class ShiftedAICO:
         """Everything by one step towards the start (aico.cpp's ``shiftSolution``): trajectory, controls,
         controller, forward and backward messages, beliefs, task messages, linearization, the constraints'
         multipliers; the last step repeated, the backward message at the end kept zero."""
-        s, sw, T = self._scratch, self.sw, self.T
-        for a in (self.X, self.U, self.o, self.O, sw.SA, sw.b, sw.RA, sw.Z, sw._lx):
-            shift_rows(a, s)
-        shift_rows(sw.VA, s, stop=T)          # VA[T] = 0 (the end)
-        if sw.C.flags.writeable:              # a time-varying linearization (an LTI one is shared by all steps)
-            shift_rows(sw.C, s)
-        if sw.Qbar is sw._Qbar:
-            shift_rows(sw._Qbar, s)
-        if isinstance(sw.a_eff, np.ndarray) and sw.a_eff.flags.writeable and sw.a_eff.ndim == 2:
-            shift_rows(sw.a_eff, s)
+        if self._moves is None or any(getattr(o, n) is not a for o, n, a, *_ in self._moves):
+            self._moves = self._plan_moves()        # the first shift, or an array replaced since
+        for *_, dst, src, nbytes in self._moves:
+            ctypes.memmove(dst, src, nbytes)        # one overlapping move per array, no temporary
         if self.al is not None:
             for y in self.al.y:
                 if y is not None:
-                    shift_rows(y, s)
+                    shift_rows(y, self._scratch)
+
+    def _targets(self) -> list[tuple[object, str, int | None]]:
+        """The arrays the shift moves: ``(owner, attribute, rows moved or None: all)``."""
+        sw = self.sw
+        out: list[tuple[object, str, int | None]] = [(self, n, None) for n in ("X", "U", "o", "O")]
+        out += [(sw, n, None) for n in ("SA", "b", "RA", "Z", "_lx")]
+        out.append((sw, "VA", self.T))            # VA[T] = 0 (the end)
+        if sw.C.flags.writeable:                  # a time-varying linearization (an LTI one is shared by all steps)
+            out.append((sw, "C", None))
+        if sw.Qbar is sw._Qbar:
+            out.append((sw, "_Qbar", None))
+        return out
+
+    def _plan_moves(self) -> list[tuple]:
+        moves = []
+        for owner, name, stop in self._targets():
+            a = getattr(owner, name)
+            if not a.flags.c_contiguous:
+                raise AssertionError(f"{name} must be C-contiguous")
+            rows = a.shape[0] if stop is None else stop
+            row = a.strides[0]
+            base = a.__array_interface__["data"][0]
+            moves.append((owner, name, a, base, base + row, (rows - 1) * row))
+        return moves
 
     def start_at(self, x: np.ndarray) -> bool:
         """The first belief reset to the measured state ``x (n,)`` (``x0`` and the start message), and the
@@ -178,8 +198,6 @@ def _compiled_active_views(sw: Sweeps, problem: Problem) -> list:
     """``(term, its active steps (T+1,) uint8 as the compiled task messages read them)`` per state term of
     ``problem`` with a nonzero weight (they follow the joint terms with one in ``compile_task_set``'s
     order); empty where the task messages are not compiled."""
-    import ctypes
-
     from raico.planning import kernels
 
     ct = sw._compiled_tasks()
@@ -200,7 +218,18 @@ class FiniteBoxAL(AugmentedLagrangian):
     a side has no bound, which ``max(0, .)`` sends to 0 as it does); other iterates or constraints: the
     general code."""
 
+    _held: list[np.ndarray] | None = None   # the rows of the iterate being updated (one pass for both uses)
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        self._held = self._rows(X, U)
+        try:
+            super().update(X, U)
+        finally:
+            self._held = None
+
     def _rows(self, X: np.ndarray, U: np.ndarray) -> list[np.ndarray] | None:
+        if self._held is not None:
+            return self._held
         if not (np.isfinite(X).all() and np.isfinite(U).all()):
             return None
         out = []
