@@ -104,8 +104,7 @@ class ShiftedAICO:
         out.append((sw, "VA", self.T))            # VA[T] = 0 (the end)
         if sw.C.flags.writeable:                  # a time-varying linearization (an LTI one is shared by all steps)
             out.append((sw, "C", None))
-        if sw.Qbar is sw._Qbar:
-            out.append((sw, "_Qbar", None))
+        out.append((sw, "_Qbar", None))           # the marginals' buffer (where the steps' Qbar differ)
         return out
 
     def _plan_moves(self) -> list[tuple]:
@@ -123,7 +122,7 @@ class ShiftedAICO:
     def start_at(self, x: np.ndarray) -> bool:
         """The first belief reset to the measured state ``x (n,)`` (``x0`` and the start message), and the
         controller rolled out from it (controls clipped into their box) as the trajectory the next iteration
-        linearizes at. Returns False (nothing changed but ``x0``) if that rollout is not finite."""
+        linearizes at. Returns False (the trajectory unchanged) if that rollout is not finite."""
         self.problem.x0[:] = x
         sv, n, SA = self._sv, self.n, self.sw.SA
         np.copyto(SA[0, :, :n], self._S0)
