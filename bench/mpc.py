@@ -45,24 +45,83 @@ def _problem(path: str):
     return build_problem(cfg)[2]
 
 
-def run_one(problem, solver: str, options, ticks: int) -> dict:
-    """One closed loop of ``ticks`` ticks: tick times (s), iterations, the last window cost, whether x stayed finite."""
+def run_one(problem, solver: str, options, ticks: int, phases: bool = False) -> dict:
+    """One closed loop of ``ticks`` ticks: tick times (s; wall and the thread's CPU time, which the other
+    processes of a loaded machine do not inflate), iterations, the last window cost, whether x stayed finite;
+    ``phases``: the CPU time of the tick's parts (:func:`_phase_clock`, R-AICO's workspace only)."""
+    import time
+
     from raico.planning.mpc import MPC
     from raico.planning.problem import single_threaded_blas
 
     mpc = MPC(problem, HORIZON, solver, options, iterations=1, ticks=ticks)
+    cpu = np.full(ticks, np.nan)
     with single_threaded_blas():
         mpc.prepare(problem.x0, 50)
+        clock = _phase_clock(mpc) if phases else None
         x = problem.x0.copy()
-        for _ in range(ticks):
+        for k in range(ticks):
+            c0 = time.thread_time()
             u, _, _ = mpc.tick(x)
+            cpu[k] = time.thread_time() - c0
             x = problem.dynamics.step(x, u)
             if not np.all(np.isfinite(x)):   # the loop blew up: no more ticks to time
                 break
-    t = mpc.log.solve_time[:mpc.log.n]
-    return {"ticks": int(mpc.log.n), "median_s": float(np.median(t)), "p99_s": float(np.percentile(t, 99)),
-            "max_s": float(t.max()), "iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
-            "final_window_cost": float(mpc.log.cost[mpc.log.n - 1]), "finite": bool(np.all(np.isfinite(x)))}
+    n = mpc.log.n
+    t, cpu = mpc.log.solve_time[:n], cpu[:n]
+    out = {"ticks": int(n), "median_s": float(np.median(t)), "p99_s": float(np.percentile(t, 99)),
+           "max_s": float(t.max()), "cpu_median_s": float(np.median(cpu)), "cpu_p99_s": float(np.percentile(cpu, 99)),
+           "iterations": int(mpc.log.iterations[:n].sum()),
+           "final_window_cost": float(mpc.log.cost[n - 1]), "finite": bool(np.all(np.isfinite(x)))}
+    if clock is not None:
+        out["phases_s"] = {name: v / n for name, v in clock.items()}
+        out["phases_s"]["rest of the tick (Python: the tick's bookkeeping, calls, records)"] = (
+            float(cpu.sum()) / n - sum(out["phases_s"].values()))
+    return out
+
+
+PHASES = {"shift (messages, controller, multipliers)": ("ws", "shift"),
+          "warm start: the shifted controller rolled out from the measured state": ("ws", "start_at"),
+          "task rows: cost and its derivatives (compiled)": ("sw", "_cost"),
+          "linearization: dynamics (compiled), control messages, constraints' model (Python)": ("sw", "linearize_all"),
+          "sweep (compiled kernel)": ("sw", "sweep"),
+          "rollout of the new controller, clipped": ("problem", "bounded_rollout"),
+          "constraints' multipliers update (Python)": ("al", "update")}
+
+
+def _phase_clock(mpc) -> dict[str, float]:
+    """Wrap the parts of R-AICO's tick (:data:`PHASES`) on this controller's objects with a CPU-time clock
+    (``time.thread_time``); returns the dict the totals (s) accumulate in. ``start_at`` includes one rollout,
+    counted there and not under the rollout's line."""
+    import time
+
+    ws = mpc._ws
+    if ws is None:
+        return {}
+    owners = {"ws": ws, "sw": ws.sw, "problem": ws.problem, "al": ws.al}
+    total: dict[str, float] = {}
+    depth = [0]
+
+    def wrap(name: str, fn):
+        total[name] = 0.0
+
+        def timed(*a, **kw):
+            if depth[0]:
+                return fn(*a, **kw)
+            depth[0] += 1
+            c0 = time.thread_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                total[name] += time.thread_time() - c0
+                depth[0] -= 1
+        return timed
+
+    for name, (owner, attr) in PHASES.items():
+        obj = owners[owner]
+        if obj is not None:
+            setattr(obj, attr, wrap(name, getattr(obj, attr)))
+    return total
 
 
 PUSH = "hand:30:0.9:0.1"   # arm5's reach: 30 N on the hand along world x from 0.9 s for 0.1 s
@@ -88,6 +147,31 @@ def pushed_arm5(cache) -> dict:
                      "final_error_m": ex.metrics["via_point_errors"]["via_x2@1000"],
                      "first_via_error_m": ex.metrics["via_point_errors"]["via_x1@500"],
                      "median_tick_s": ex.metrics.get("mpc_median_tick_s")}
+    return out
+
+
+DRAKE_SOLVERS = (("R-AICO (alpha 1, relinearized in the sweep, theta 0.1)", "raico"), ("FDDP / BoxFDDP", "fddp"))
+
+
+def xarm7_in_drake(cache) -> dict:
+    """The xArm7's reach planned (R-AICO) and executed in Drake under MPC (horizon 50, one iteration per 10 ms
+    period) with R-AICO and with FDDP: the loop's real-time factor (simulated time over the loop's wall time:
+    Drake's steps, the ticks, the logs), the ticks' median and p99, the reach's final error (m), the status."""
+    from raico.pipeline.engine.runner import run
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.plan.stage import PlanConfig
+
+    plan = run(cache, "plan", PlanConfig(problem=str(ROOT / PROBLEMS["xArm7 reach"]), solver="raico",
+                                         iterations=50), record=False)
+    out: dict = {}
+    for label, solver in DRAKE_SOLVERS:
+        ex = run(cache, "execute", ExecuteConfig(plan=plan.key, controller="mpc", horizon=HORIZON, solver=solver),
+                 record=False)
+        m = ex.metrics
+        errors = m.get("via_point_errors") or {}
+        out[label] = {"status": ex.status, "rtf": m.get("mpc_real_time_factor"),
+                      "median_tick_s": m.get("mpc_median_tick_s"), "p99_tick_s": m.get("mpc_p99_tick_s"),
+                      "final_error_m": max(errors.values()) if errors else None}
     return out
 
 
@@ -139,17 +223,38 @@ def figure(pushed: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = None) -> str:
+def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = None, drake: dict | None = None) -> str:
     lines = [f"7-DOF arms, horizon {HORIZON} at dt = 10 ms, one iteration per tick, the loop closed on the planning "
              f"model; target: median <= {TARGET_MEDIAN_S * 1e3:g} ms, p99 <= {TARGET_P99_S * 1e3:g} ms. Machine: "
-             f"{os.cpu_count()} cores, 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the end.", "",
-             "| problem | solver | ticks | median tick (ms) | p99 tick (ms) | max (ms) | loop stayed finite | "
-             "meets the target |", "|---|---|---|---|---|---|---|---|"]
+             f"{os.cpu_count()} cores, 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the end "
+             "(shared: wall times include the waits for a core; CPU time is the tick's own thread's).", "",
+             "| problem | solver | ticks | median tick (ms) | p99 tick (ms) | CPU median (ms) | CPU p99 (ms) | "
+             "median / FDDP's | loop stayed finite | meets the target (wall) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    fddp = {r["problem"]: r for r in rows if r["solver"].startswith("FDDP")}
     for r in rows:
         ok = r["finite"] and r["median_s"] <= TARGET_MEDIAN_S and r["p99_s"] <= TARGET_P99_S
+        f = fddp.get(r["problem"])
+        ratio = "-" if f is None or r is f else f"{r['median_s'] / f['median_s']:.2f}"
         lines.append(f"| {r['problem']} | {r['solver']} | {r['ticks']} | {r['median_s'] * 1e3:.3f} | "
-                     f"{r['p99_s'] * 1e3:.3f} | {r['max_s'] * 1e3:.3f} | {'yes' if r['finite'] else 'no'} | "
-                     f"{'yes' if ok else 'no'} |")
+                     f"{r['p99_s'] * 1e3:.3f} | {r['cpu_median_s'] * 1e3:.3f} | {r['cpu_p99_s'] * 1e3:.3f} | {ratio} | "
+                     f"{'yes' if r['finite'] else 'no'} | {'yes' if ok else 'no'} |")
+    for r in rows:
+        if "phases_s" not in r:
+            continue
+        lines += ["", f"Where R-AICO's tick goes ({r['problem']}, {r['solver']}; CPU time per tick, mean):", "",
+                  "| part | ms | share |", "|---|---|---|"]
+        tot = sum(r["phases_s"].values())
+        for name, v in r["phases_s"].items():
+            lines.append(f"| {name} | {v * 1e3:.3f} | {100 * v / tot:.0f}% |")
+    if drake is not None:
+        lines += ["", "The xArm7's reach in Drake under MPC (horizon 50, one iteration per 10 ms period, the plan "
+                  "R-AICO's); real-time factor: simulated time over the loop's wall time (>= 1: faster than real time):",
+                  "", "| solver | real-time factor | median tick (ms) | p99 tick (ms) | final error (cm) | status |",
+                  "|---|---|---|---|---|---|"]
+        for name, r in drake.items():
+            err = "-" if r["final_error_m"] is None else f"{r['final_error_m'] * 100:.2f}"
+            lines.append(f"| {name} | {r['rtf']:.2f} | {r['median_tick_s'] * 1e3:.2f} | {r['p99_tick_s'] * 1e3:.2f} | "
+                         f"{err} | {r['status']} |")
     if pushed is not None:
         lines += ["", f"Pushed in Drake: arm5's reach (R-AICO, 30 iterations), `--push {PUSH}`; the final via-point's "
                   "error, the first one's (1 s, the push ends at it) and the execution's status:", "",
@@ -176,12 +281,16 @@ def main(argv: list[str] | None = None) -> int:
     rows, start = [], os.getloadavg()[0]
     for name, path in PROBLEMS.items():
         problem = _problem(path)
-        for label, solver, opts in SOLVERS:
+        for i, (label, solver, opts) in enumerate(SOLVERS):
             rows.append({"problem": name, "solver": label, **run_one(problem, solver, opts, args.ticks)})
+            if i == 0:     # a second run with the parts clocked (the clocks' own calls kept out of the rows' times)
+                rows[-1]["phases_s"] = run_one(problem, solver, opts, args.ticks, phases=True)["phases_s"]
+    drake = xarm7_in_drake(Cache(out / "mpc"))
     pushed = pushed_arm5(Cache(out / "mpc"))
     figure(pushed, out / "mpc_pushed_arm5.png")
-    (out / "mpc.json").write_text(json.dumps({"rows": rows, "pushed": pushed}, indent=2, allow_nan=True))
-    page = markdown(rows, (start, os.getloadavg()[0]), pushed)
+    (out / "mpc.json").write_text(json.dumps({"rows": rows, "drake": drake, "pushed": pushed}, indent=2,
+                                             allow_nan=True))
+    page = markdown(rows, (start, os.getloadavg()[0]), pushed, drake)
     (out / "mpc.md").write_text(page)
     sys.stdout.write(page)
     return 0

@@ -12,10 +12,12 @@ its absolute times, a term at the problem's last step ``T`` follows the receding
 step while ``T`` lies beyond it, ``T - k`` once inside); the windows' times are computed once.
 
 Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples), by the
-solver spec's ``caps.mpc``: ``"aico"``: the previous controller shifted (the last step repeated) and
-rolled out from the measured state is the start of the tick's iterations (R-AICO's regularization
-anchors there; the fixed schedule's alpha carries over ticks; the messages are not carried); ``"fddp"``:
-the window built in crocoddyl once per pattern of active terms, each tick shifting ``xs``/``us``.
+solver spec's ``caps.mpc``: ``"aico"``: with the fixed schedule one workspace
+(:class:`raico.planning.aico.shift.ShiftedAICO`: messages, beliefs, task terms, controller, multipliers,
+alpha) shifted by a step, its start reset to the measured state, the shifted controller's rollout the start
+of the tick's iterations; the other schedules a run of ``aico()`` from that rollout; ``"fddp"``: one
+crocoddyl window moved by ``circularAppend`` (the terminal node replaced where its terms change), ``xs``/``us``
+shifted.
 
 Per-tick records (preallocated arrays in ``TickLog``): solve wall time, iterations, the window's cost,
 whether the tick went past its budget, the window's excess beyond its hard bounds. AICO / R-AICO run
@@ -25,6 +27,7 @@ whether the tick went past its budget, the window's excess beyond its hard bound
 
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import math
@@ -35,6 +38,8 @@ from typing import Any
 import numpy as np
 
 from raico.planning.aico import aico
+from raico.planning.aico.shift import ShiftedAICO
+from raico.planning.aico.sweeps import NumericalError
 from raico.planning.problem import Problem
 from raico.planning.solvers import SOLVERS, get_solver
 
@@ -168,6 +173,16 @@ class MPC:
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
         self.window, self._timed = _window_problem(problem, self.H)
+        # per tick: an id of the window's pattern of term times (it changes where a timed term enters, leaves
+        # or the problem's end enters the window)
+        ids, last = np.zeros(problem.T, dtype=np.int64), None
+        for k in range(problem.T):
+            pattern = [pt[k] for _, pt in self._timed]
+            same = last is not None and all(np.array_equal(a, b) for a, b in zip(pattern, last))
+            ids[k] = ids[k - 1] if same else (ids[k - 1] + 1 if k else 0)
+            last = pattern
+        self._pattern = ids
+        self._ws: ShiftedAICO | None = None
         H, n, m = self.H, problem.n_x, problem.n_u
         # the shifted solution, preallocated
         self.X = np.tile(problem.x0, (H + 1, 1))
@@ -190,6 +205,35 @@ class MPC:
         self.opts = dataclasses.replace(opts, iterations=1 if self.budget is not None else self.iterations,
                                         tol_rel=0.0)
         self.alpha = float(opts.alpha)
+        if opts.schedule == "fixed":    # one workspace shifted tick by tick (else: a run of aico() per tick)
+            ws = self._ws = ShiftedAICO(self.window, self.opts)
+            self.X, self.U, self.o, self.O = ws.X, ws.U, ws.o, ws.O
+            self._ws_pattern = -1
+
+    def _solve_shifted(self, shift: bool) -> tuple[int, float]:
+        ws = self._ws
+        assert ws is not None
+        if shift:
+            ws.shift()
+        kk = min(self.k, self.problem.T - 1)
+        if self._pattern[kk] != self._ws_pattern:
+            ws.refresh_times()
+            self._ws_pattern = int(self._pattern[kk])
+        if not ws.start_at(self.window.x0):
+            ws.solved = False          # the shifted controller leaves the finite states: a cold start
+            ws.start_at(self.window.x0)
+        its, t0, most = 0, time.perf_counter(), self.iterations
+        while its < most:
+            try:
+                ws.iterate(1)
+            except NumericalError:     # the shifted controller stays
+                break
+            its += 1
+            if self.budget is not None:
+                elapsed = time.perf_counter() - t0
+                if elapsed + elapsed / its > self.budget:
+                    break
+        return its, (ws.cost if its else math.nan)
 
     def _start_aico(self, shift: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The start of this tick: the previous controller, shifted by one step if ``shift`` (the last
@@ -206,6 +250,8 @@ class MPC:
         return X, U
 
     def _solve_aico(self, shift: bool) -> tuple[int, float]:
+        if self._ws is not None:
+            return self._solve_shifted(shift)
         X0, U0 = self._start_aico(shift)
         its, t0, cost = 0, time.perf_counter(), math.inf
         while True:
@@ -231,24 +277,92 @@ class MPC:
 
         require()
         self.opts = get_solver(self.solver).options(options)
-        self._croc: dict[bytes, tuple] = {}   # window pattern -> (CrocoddylProblem, solver)
+        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built at the first solve
+        # the window's nodes' active state terms (indices into the terms with a weight, crocoddyl's order):
+        # per tick, of the node entering at the end (H-1) and of the terminal node
+        costs = [t for t in self.window.state_terms if t.weight != 0]
+        per_tick = {id(c): pt for c, pt in self._timed}
+        T, H = self.problem.T, self.H
 
-    def _fddp_for_tick(self) -> tuple:
-        from raico.planning.crocoddyl import solve as cs
+        def key(k: int, j: int) -> tuple[int, ...]:
+            return tuple(i for i, c in enumerate(costs)
+                         if id(c) not in per_tick or j in per_tick[id(c)][min(k, T - 1)])
+        self._key = key
+        self._costs = costs
+        self._keys_end = [key(k, H - 1) for k in range(T)]
+        self._keys_terminal = [key(k, H) for k in range(T)]
+        self._pool: dict[tuple, list] = {}    # key -> spare (model, data) pairs (the nodes dropped at the start)
+        self._node_models: dict[tuple, tuple] = {}   # key -> (running model, terminal model), built once each
 
-        key = b"".join(np.asarray(c.times, dtype=np.int64).tobytes() + b"|" for c, _ in self._timed)
-        hit = self._croc.get(key)
+    def _models_of(self, key: tuple[int, ...]) -> tuple:
+        """A running and a terminal crocoddyl model whose state terms are those of ``key`` (built once, from a
+        one-step problem with the window's terms active at both of its steps or at none)."""
+        hit = self._node_models.get(key)
         if hit is None:
+            from raico.planning.crocoddyl import solve as cs
+
+            terms = []
+            for i, t in enumerate(self._costs):
+                c = copy.copy(t)
+                c._set_times([0, 1] if i in key else [])
+                terms.append(c)
+            joint = []
+            for t in self.window.joint_terms:
+                c = copy.copy(t)
+                c.T, c.times = 1, np.arange(1)
+                joint.append(c)
+            w = self.window
+            cp = cs.build(Problem(w.dynamics, self.problem.x0.copy(), 1, terms, list(w.control_terms), joint, w.bounds),
+                          self.opts.continuous)
+            hit = self._node_models[key] = (cp.shooting.runningModels[0], cp.shooting.terminalModel)
+        return hit
+
+    def _fddp_window(self) -> tuple:
+        """The crocoddyl problem and solver of the window, built once (at the first solve's tick); each later
+        tick moves it on by one node (:meth:`_advance_fddp`)."""
+        if self._croc is None:
+            from raico.planning.crocoddyl import solve as cs
+
             cp = cs.build(self.window, self.opts.continuous)
             box = self.opts.box == "yes" or (self.opts.box == "auto" and cp.bounds is not None)
             solver = (cs.crocoddyl.SolverBoxFDDP if box else cs.crocoddyl.SolverFDDP)(cp.shooting)
             solver.th_stop = self.opts.th_stop
             solver.th_acceptStep = self.opts.th_accept
-            hit = self._croc[key] = (cp, solver)
-        return hit
+            sp = cp.shooting
+            kk = min(self.k, self.problem.T - 1)
+            self._nodes = collections.deque(
+                (self._key(kk, j), m, d) for j, (m, d) in enumerate(zip(sp.runningModels, sp.runningDatas)))
+            self._terminal_key = self._key(kk, self.H)
+            self._croc = (cp, solver)
+        return self._croc
+
+    def _advance_fddp(self) -> None:
+        """crocoddyl's receding horizon: the first node dropped and a node appended at the end
+        (``circularAppend``), the terminal node replaced where its terms changed; the nodes' models and
+        data are reused (a dropped node's pair goes to the spares of its terms)."""
+        cp, _ = self._fddp_window()
+        kk = min(self.k, self.problem.T - 1)
+        old_key, m0, d0 = self._nodes.popleft()
+        self._pool.setdefault(old_key, []).append((m0, d0))
+        key = self._keys_end[kk]
+        spare = self._pool.get(key)
+        if spare:
+            m, d = spare.pop()
+        else:
+            m = self._models_of(key)[0]
+            d = m.createData()
+        cp.shooting.circularAppend(m, d)
+        self._nodes.append((key, m, d))
+        tkey = self._keys_terminal[kk]
+        if tkey != self._terminal_key:
+            mt = self._models_of(tkey)[1]
+            cp.shooting.updateNode(self.H, mt, mt.createData())
+            self._terminal_key = tkey
 
     def _solve_fddp(self, shift: bool) -> tuple[int, float]:
-        cp, solver = self._fddp_for_tick()
+        if shift and self._croc is not None:
+            self._advance_fddp()
+        cp, solver = self._fddp_window()
         x_pin = cp.smap.x_to_pin(self.window.x0)
         cp.shooting.x0 = x_pin
         if self._solved:
@@ -277,6 +391,8 @@ class MPC:
         H = self.H
         self.X[:], self.U[:], self.o[:], self.O[:] = X[:H + 1], U[:H], o[:H], O[:H]
         self._solved = True
+        if self._ws is not None:
+            self._ws.solved = True
 
     def prepare(self, x: np.ndarray, iterations: int) -> None:
         """Solve tick 0's window from ``x (n_x,)`` with ``iterations`` iterations before the loop

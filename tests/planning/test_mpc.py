@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import copy
+import gc
+import math
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from raico.planning.aico import AICOOptions, aico
+from raico.planning.aico.shift import FiniteBoxAL, shift_rows
+from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
 from raico.planning.costs import ControlCost, ViaPoint
 from raico.planning.mpc import MPC, simulate, window_times
 from raico.planning.problem import Problem
@@ -40,10 +46,13 @@ def _cold_window(pb: Problem, H: int, k: int, x: np.ndarray) -> Problem:
     return Problem(pb.dynamics, x, H, terms, list(pb.control_terms))
 
 
-def test_shifted_warm_start_plus_one_iteration_is_the_cold_solve_lq():
+@pytest.mark.numerics
+@pytest.mark.parametrize("theta", [0.1, math.inf])   # relinearized in the sweeps (shifted beliefs read) or not
+def test_shifted_warm_start_plus_one_iteration_is_the_cold_solve_lq(theta):
     pb, H = make_lq(seed=3, T=30), 20
-    opts = AICOOptions(process_noise=1e-9)
+    opts = AICOOptions(process_noise=1e-9, theta=theta)
     mpc = MPC(pb, H, "aico", opts)
+    assert mpc._ws is not None              # the shifted workspace, one for all ticks
     rng = np.random.default_rng(0)
     x = pb.x0.copy()
     for k in range(4):
@@ -129,3 +138,108 @@ def test_bad_input(kwargs, match):
     args = {"horizon": H, **kwargs}
     with pytest.raises(ValueError, match=match):
         MPC(_arm(), **args)
+
+
+def test_shift_rows_moves_every_row_and_repeats_the_last():
+    a = np.arange(24.0).reshape(4, 3, 2)
+    scratch = np.empty(a.size)
+    shift_rows(a, scratch)
+    assert np.array_equal(a[:3], np.arange(6.0, 24.0).reshape(3, 3, 2)) and np.array_equal(a[3], a[2])
+    b = np.arange(5.0)
+    shift_rows(b, scratch, stop=4)             # the backward message's end (row 4) untouched
+    assert list(b) == [1.0, 2.0, 3.0, 3.0, 4.0]
+
+
+def test_the_workspace_shifts_messages_controller_and_multipliers():
+    pb = _arm()
+    mpc = MPC(pb, H, "raico", {"alpha": 1.0})
+    mpc.prepare(pb.x0, 5)
+    ws = mpc._ws
+    VA, SA, O = ws.sw.VA.copy(), ws.sw.SA.copy(), ws.O.copy()
+    ws.shift()
+    assert np.array_equal(ws.sw.VA[:H - 1], VA[1:H]) and not ws.sw.VA[H].any()
+    assert np.array_equal(ws.sw.SA[:H], SA[1:]) and np.array_equal(ws.O[:H - 1], O[1:])
+
+
+@pytest.mark.numerics
+def test_finite_box_lagrangian_is_the_general_one_on_finite_iterates():
+    rng = np.random.default_rng(1)
+    T, n, m = 6, 4, 2
+    lo, hi = np.full((T + 1, 2), -0.3), np.full((T + 1, 2), 0.3)
+    hi[:, 1] = np.inf
+    cons = [StateBox("q", [0, 1], lo, hi, 1e-4),
+            ControlBox("u", np.array([0, 1]), np.array([-1.0, -np.inf]), np.array([1.0, 2.0]), np.full(2, 1e-4), 0.5)]
+    general, fast = AugmentedLagrangian(cons, T, 10.0), FiniteBoxAL(cons, T, 10.0)
+    X, U = rng.normal(size=(T + 1, n)), 2.0 * rng.normal(size=(T, m))
+    with np.errstate(over="ignore"):     # the general code's rows without a bound are -1.8e308, not -inf
+        for al in (general, fast):
+            al.update(X, U)
+        X2, U2 = X + 0.1 * rng.normal(size=X.shape), U + 0.1 * rng.normal(size=U.shape)
+        assert fast.violation(X2, U2) == general.violation(X2, U2)
+        assert close(fast.value(X2, U2), general.value(X2, U2))
+        for a, b in zip(fast.model(X2, U2), general.model(X2, U2)):
+            assert close(a, b)
+
+
+def test_a_tick_allocates_only_temporaries_and_retains_nothing():
+    """tracemalloc over ticks: what a tick leaves allocated does not grow with the ticks (beyond numpy's own
+    bounded caches of small buffers, a few bytes a tick), and its peak (the linearization's and task rows'
+    temporaries) stays below the workspace's message arrays."""
+    pb = _arm()
+    mpc = MPC(pb, H, "raico", {"alpha": 1.0, "theta": math.inf}, ticks=400)
+    mpc.prepare(pb.x0, 5)
+    x = pb.x0.copy()
+
+    def run(ticks: int) -> list[int]:
+        nonlocal x
+        peaks = []
+        for _ in range(ticks):
+            tracemalloc.reset_peak()
+            before = tracemalloc.get_traced_memory()[0]
+            u, _, _ = mpc.tick(x)
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
+            x = pb.dynamics.step(x, u)
+        return peaks
+
+    tracemalloc.start()
+    try:
+        run(100)                                   # warm-up: numpy's small-buffer caches fill
+        gc.collect()
+        start = tracemalloc.get_traced_memory()[0]
+        peaks = run(200)
+        gc.collect()
+        retained = tracemalloc.get_traced_memory()[0] - start
+    finally:
+        tracemalloc.stop()
+    sw = mpc._ws.sw
+    messages = sum(a.nbytes for a in (sw.SA, sw.VA, sw.RA, sw.Z))
+    assert max(peaks) < messages, (max(peaks), messages)
+    assert max(peaks[-50:]) <= 1.5 * max(peaks[:50]) + 1024      # the peak does not grow with the ticks
+    # no array of the window is kept: a tick leaves less than a quarter of its trajectory X (the ~100 bytes a
+    # tick measured are the bookkeeping of numpy's and scipy's caches: weak references, sets, small blocks)
+    assert retained < 200 * mpc.X.nbytes / 4, retained
+
+
+@pytest.mark.numerics
+def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path):
+    """crocoddyl's window, moved node by node (circularAppend, the terminal node replaced), costs what the raico
+    window of each tick costs, through the problem's end entering the window."""
+    from raico.planning import crocoddyl as cm
+
+    if not cm.AVAILABLE:
+        pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    src = (Path(__file__).resolve().parents[2] / "raico/problems/examples/xarm7_reach.toml").read_text()
+    path = tmp_path / "short.toml"
+    path.write_text(src.replace("T = 100", "T = 16"))
+    pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
+    mpc = MPC(pb, 6, "fddp")
+    rng = np.random.default_rng(2)
+    for _ in range(pb.T):
+        x = pb.x0 + 0.01 * rng.standard_normal(pb.n_x)
+        mpc.tick(x)
+        cp, _ = mpc._fddp_window()
+        X = x + 0.05 * rng.standard_normal((mpc.H + 1, pb.n_x))
+        U = rng.standard_normal((mpc.H, pb.n_u))
+        assert close(cp.shooting.calc(cp.to_pin(X), cp.controls_to_pin(U)), mpc.window.cost(X, U))

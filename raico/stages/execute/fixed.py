@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -217,6 +218,7 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     taus, saturated, clamped = [], [], []
     effort_plant = robot.plant_effort()
     ok = sample(0)
+    wall = time.perf_counter()
     for k in range(T):
         if not ok:
             break
@@ -232,6 +234,7 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
         ok = sample(k + 1)
         if progress is not None and (k + 1) % 10 == 0:
             progress(k + 1, T)
+    wall = time.perf_counter() - wall
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     sat = np.array(saturated, bool).reshape(-1, n)
@@ -242,6 +245,8 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     extra = {}
     if mpc is not None:
         metrics.update(_mpc_metrics(mpc, period))
+        # the closed loop's simulated time over its wall time (Drake's steps, the controller's ticks, the logs)
+        metrics["mpc_real_time_factor"] = float(sum(1 for x in X if np.isfinite(x).all()) - 1) * dt / wall
         extra = mpc.log.arrays()
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=X, U=U, tau=tau, X_plan=plan["X"], metrics=metrics,
                          effort_at_limit=sat, problem=problem, robot=robot, mpc=extra)

@@ -1,0 +1,274 @@
+"""One AICO / R-AICO run kept across receding-horizon ticks (Toussaint's aico.cpp ``shiftSolution``).
+
+:class:`ShiftedAICO` owns one workspace for a window problem of ``H`` steps: the sweeps' arrays
+(:class:`raico.planning.aico.sweeps.Sweeps`: forward and backward messages, beliefs, task messages, the
+linearization), the trajectory and controller, the hard constraints' augmented Lagrangian (multipliers and
+penalty) and R-AICO's ``alpha``. Each tick :meth:`ShiftedAICO.shift` moves all of them by one step (the
+last step repeated, the backward message at the end kept zero), :meth:`ShiftedAICO.start_at` resets the
+first belief to the measured state and rolls the shifted controller out from it, and
+:meth:`ShiftedAICO.iterate` runs the fixed schedule's iterations: linearize at the trajectory (R-AICO's
+regularization anchored there), sweep, roll the new controller out (controls clipped into their box).
+The window's cost recorded is that of the trajectory the last iteration linearized at (its task rows give
+the derivatives and the cost in one pass).
+
+Work buffers are allocated once; a tick allocates only temporaries that live within it (the
+linearization's and task rows' arrays, the augmented Lagrangian's model), see docs/mpc.md.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import math
+
+import numpy as np
+
+from raico.planning.aico.bounds import hard_constraints
+from raico.planning.aico.options import AICOOptions
+from raico.planning.aico.solve import check_control_cost
+from raico.planning.aico.sweeps import NumericalError, Sweeps
+from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
+from raico.planning.problem import Problem
+
+
+def shift_rows(a: np.ndarray, scratch: np.ndarray, stop: int | None = None) -> None:
+    """``a[t] = a[t+1]`` for ``t < stop - 1`` (default ``len(a)``; the row ``stop - 1`` kept: the last one
+    repeated) in place, through ``scratch`` (at least ``a``'s size; numpy copies overlapping views through a
+    fresh temporary otherwise)."""
+    stop = a.shape[0] if stop is None else stop
+    if stop < 2:
+        return
+    k = (stop - 1) * (a.size // a.shape[0])
+    buf = scratch.reshape(-1)[:k].reshape((stop - 1, *a.shape[1:]))
+    np.copyto(buf, a[1:stop])
+    np.copyto(a[:stop - 1], buf)
+
+
+class ShiftedAICO:
+    """AICO / R-AICO with the fixed schedule on a window problem, its state carried across ticks.
+
+    Args:
+        window: the window problem (its ``x0`` array is the start; :meth:`start_at` writes it).
+        opts: the options (``schedule`` must be ``"fixed"``; ``alpha`` shrinks by ``gamma`` per iteration
+            over the ticks).
+
+    Attributes:
+        X, U, o, O: the current trajectory ``(H+1, n)``, controls ``(H, m)`` and controller.
+        alpha: the regularization of the next iteration.
+        sw: the sweeps (their arrays are shifted with the solution).
+    """
+
+    def __init__(self, window: Problem, opts: AICOOptions):
+        if opts.schedule != "fixed":
+            raise ValueError("the shifted workspace runs the fixed schedule")
+        b = window.bounds
+        self.problem, self.opts, self.alpha = window, opts, float(opts.alpha)
+        self.efforts = b if b is not None and b.has_controls else None
+        self.inner = window if self.efforts is None else dataclasses.replace(
+            window, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
+        check_control_cost(self.inner)
+        self.sw = Sweeps(self.inner, opts)
+        T, n, m = window.T, window.n_x, window.n_u
+        self.T, self.n, self.m = T, n, m
+        self.X, self.U = np.tile(window.x0, (T + 1, 1)), np.zeros((T, m))
+        self.o, self.O = np.zeros((T, m)), np.zeros((T, m, n))
+        self._scratch = np.empty((T + 1) * max(n * (n + 1), (n + 1) * (m + n + 1), m * (n + 1)))
+        self._sv = float(opts.start_variance)
+        self._S0 = np.eye(n) / self._sv          # the start message's precision
+        self.al: AugmentedLagrangian | None = None
+        self._task_views: list | None = None
+        self._moves: list | None = None   # (owner, name, array, dst, src, bytes) of the shift's moves
+        self._al_built = False
+        self.solved = False
+        self.cost = math.nan
+
+    # -- the shift
+    def shift(self) -> None:
+        """Everything by one step towards the start (aico.cpp's ``shiftSolution``): trajectory, controls,
+        controller, forward and backward messages, beliefs, task messages, linearization, the constraints'
+        multipliers; the last step repeated, the backward message at the end kept zero."""
+        if self._moves is None or any(getattr(o, n) is not a for o, n, a, *_ in self._moves):
+            self._moves = self._plan_moves()        # the first shift, or an array replaced since
+        for *_, dst, src, nbytes in self._moves:
+            ctypes.memmove(dst, src, nbytes)        # one overlapping move per array, no temporary
+        if self.al is not None:
+            for y in self.al.y:
+                if y is not None:
+                    shift_rows(y, self._scratch)
+
+    def _targets(self) -> list[tuple[object, str, int | None]]:
+        """The arrays the shift moves: ``(owner, attribute, rows moved or None: all)``."""
+        sw = self.sw
+        out: list[tuple[object, str, int | None]] = [(self, n, None) for n in ("X", "U", "o", "O")]
+        out += [(sw, n, None) for n in ("SA", "b", "RA", "Z", "_lx")]
+        out.append((sw, "VA", self.T))            # VA[T] = 0 (the end)
+        if sw.C.flags.writeable:                  # a time-varying linearization (an LTI one is shared by all steps)
+            out.append((sw, "C", None))
+        out.append((sw, "_Qbar", None))           # the marginals' buffer (where the steps' Qbar differ)
+        return out
+
+    def _plan_moves(self) -> list[tuple]:
+        moves = []
+        for owner, name, stop in self._targets():
+            a = getattr(owner, name)
+            if not a.flags.c_contiguous:
+                raise AssertionError(f"{name} must be C-contiguous")
+            rows = a.shape[0] if stop is None else stop
+            row = a.strides[0]
+            base = a.__array_interface__["data"][0]
+            moves.append((owner, name, a, base, base + row, (rows - 1) * row))
+        return moves
+
+    def start_at(self, x: np.ndarray) -> bool:
+        """The first belief reset to the measured state ``x (n,)`` (``x0`` and the start message), and the
+        controller rolled out from it (controls clipped into their box) as the trajectory the next iteration
+        linearizes at. Returns False (the trajectory unchanged) if that rollout is not finite."""
+        self.problem.x0[:] = x
+        sv, n, SA = self._sv, self.n, self.sw.SA
+        np.copyto(SA[0, :, :n], self._S0)
+        np.divide(x, sv, out=SA[0, :, n])
+        if not self.solved:
+            self.X[:] = x
+            return True
+        X, U, o, O = self.problem.bounded_rollout(self.o, self.O, kernel=Sweeps.compiled)
+        if not np.all(np.isfinite(X)):
+            return False
+        self.X[:], self.U[:] = X, U
+        if o is not self.o:
+            self.o[:], self.O[:] = o, O
+        return True
+
+    def load(self, X: np.ndarray, U: np.ndarray, o: np.ndarray, O: np.ndarray) -> None:
+        """A solution to continue from (a plan's first ``H`` steps, a cold solve)."""
+        self.X[:], self.U[:], self.o[:], self.O[:] = X, U, o, O
+        self.solved = True
+
+    def refresh_times(self) -> None:
+        """The window's terms changed their times (a tick of the receding horizon): the sweeps' record of
+        which terms cost which step and the compiled task messages' active steps follow (in place)."""
+        sw = self.sw
+        sw.active = self.inner.active_state_terms()
+        for t, a in enumerate(sw.active):
+            sw._active_flags[t] = bool(a)
+        if self._task_views is None:
+            self._task_views = _compiled_active_views(sw, self.inner)
+        steps = sw._steps
+        for term, view in self._task_views:
+            view[:] = term.active(steps)
+
+    # -- the iterations
+    def iterate(self, iterations: int = 1) -> int:
+        """``iterations`` of the fixed schedule from the current trajectory; returns how many ran (fewer
+        after a numerical failure, which keeps the last solution and raises :class:`NumericalError` if
+        none ran)."""
+        sw, n = self.sw, self.n
+        for i in range(iterations):
+            X, U = self.X, self.U
+            if not self._al_built:     # the hard constraints' penalty scales with the cost's curvature here
+                self.al = sw.al = _finite_boxes(hard_constraints(self.inner, X, U, self.efforts))
+                self._al_built = True
+            alpha = self.alpha
+            try:
+                with np.errstate(all="ignore"):
+                    self.cost = sw._cost(X, U)       # the task rows' derivatives too: linearize_all reuses them
+                    sw.repeats = 0
+                    sw.linearize_all(X, U, X, alpha)
+                    sw.sweep()
+            except (NumericalError, ArithmeticError, np.linalg.LinAlgError):
+                if i == 0:
+                    raise
+                return i
+            self.alpha *= self.opts.gamma
+            np.copyto(self.o, sw.Z[:, :, n])
+            np.negative(sw.Z[:, :, :n], out=self.O)
+            Xn, Un, o, O = self.problem.bounded_rollout(self.o, self.O, kernel=Sweeps.compiled)
+            if not np.all(np.isfinite(Xn)):
+                raise NumericalError("the controller's rollout left the finite states")
+            self.X[:], self.U[:] = Xn, Un
+            if o is not self.o:
+                self.o[:], self.O[:] = o, O
+            if self.al is not None:
+                self.al.update(self.X, self.U)
+            self.solved = True
+        return iterations
+
+
+def _compiled_active_views(sw: Sweeps, problem: Problem) -> list:
+    """``(term, its active steps (T+1,) uint8 as the compiled task messages read them)`` per state term of
+    ``problem`` with a nonzero weight (they follow the joint terms with one in ``compile_task_set``'s
+    order); empty where the task messages are not compiled."""
+    from raico.planning import kernels
+
+    ct = sw._compiled_tasks()
+    if ct is None:
+        return []
+    ts = kernels._TaskSet.from_address(ct[1])
+    vts = (kernels._VTerm * int(ts.nterms)).from_address(int(ts.terms))
+    state = [t for t in problem.state_terms if t.weight != 0]
+    first = int(ts.nterms) - len(state)
+    T1 = problem.T + 1
+    return [(term, np.ctypeslib.as_array((ctypes.c_uint8 * T1).from_address(int(vts[first + i].active))))
+            for i, term in enumerate(state)]
+
+
+class FiniteBoxAL(AugmentedLagrangian):
+    """The augmented Lagrangian of joint ranges, velocity and effort limits (boxes) with the same numbers on
+    finite iterates and fewer passes (no ``nan_to_num``: a finite iterate's rows are finite or ``-inf`` where
+    a side has no bound, which ``max(0, .)`` sends to 0 as it does); other iterates or constraints: the
+    general code."""
+
+    _held: list[np.ndarray] | None = None   # the rows of the iterate being updated (one pass for both uses)
+
+    def update(self, X: np.ndarray, U: np.ndarray) -> None:
+        self._held = self._rows(X, U)
+        try:
+            super().update(X, U)
+        finally:
+            self._held = None
+
+    def _rows(self, X: np.ndarray, U: np.ndarray) -> list[np.ndarray] | None:
+        if self._held is not None:
+            return self._held
+        if not (np.isfinite(X).all() and np.isfinite(U).all()):
+            return None
+        out = []
+        for c in self.constraints:
+            if type(c) is ControlBox:
+                k = len(c.idx)
+                G = np.full((U.shape[0] + 1, 2 * k), -np.inf)
+                W = U[:, c.idx]
+                np.subtract(W, c.hi, out=G[:-1, :k])
+                np.subtract(c.lo, W, out=G[:-1, k:])
+            elif type(c) is StateBox:
+                G = c.values(X, U)
+            else:
+                return None
+            out.append(G)
+        return out
+
+    def _lams(self, X: np.ndarray, U: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        rows = self._rows(X, U)
+        if rows is None:
+            return super()._lams(X, U)
+        out = []
+        for k, (c, G) in enumerate(zip(self.constraints, rows)):
+            y, mu = self.y[k], self._mu(c)
+            z = mu * G if y is None else y + mu * G
+            out.append((G, np.maximum(z, 0.0, out=z)))
+        return out
+
+    def violation(self, X: np.ndarray, U: np.ndarray) -> float:
+        rows = self._rows(X, U)
+        if rows is None:
+            return super().violation(X, U)
+        return max((float((G / c.tol).max(initial=0.0)) for c, G in zip(self.constraints, rows) if G.size),
+                   default=0.0)
+
+
+def _finite_boxes(al: AugmentedLagrangian | None) -> AugmentedLagrangian | None:
+    """``al`` as a :class:`FiniteBoxAL` (its state taken over)."""
+    if al is None:
+        return None
+    out = FiniteBoxAL.__new__(FiniteBoxAL)
+    out.__dict__.update(al.__dict__)
+    return out
