@@ -95,6 +95,9 @@ class AICOOptions(OptionsBase):
     lambda_min: float = 1e-9
     #: the robust schedule's largest lambda (a trial rejected there stops the run: max-iterations)
     lambda_max: float = 1e9
+    #: the robust schedule keeps the cost's cross term ``l_ux`` (the control toward gravity's), by a change of
+    #: control variables (:mod:`raico.planning.aico.cross`); ``False``: dropped, as the other schedules do
+    cross_terms: bool = True
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:

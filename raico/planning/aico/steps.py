@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from raico.planning.aico.bounds import AL_INNER_TOL
+from raico.planning.aico.cross import cross_hessian, eliminate
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
 from raico.planning.driver import Iterate, Status, Step, Stop
@@ -30,6 +31,7 @@ class AICOStep:
         self.adaptive = opts is not None and opts.schedule == "adaptive"
         self.cur_cost = initial_cost   # cost of the iterate the next step starts from (adaptive)
         self._last_merit = math.inf    # the merit of the last iterate (the constraints' multiplier updates)
+        self._K: np.ndarray | None = None   # the cross term's change of control variables (robust schedule)
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         step = self._trial(cur)
@@ -56,6 +58,8 @@ class AICOStep:
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
         o_new, O_new = sw.o_, sw.O_
+        if self._K is not None:     # the controller of v = u + K x (the cost's cross term eliminated)
+            O_new = O_new - self._K
         eta = self.opts.controller_rate if self.opts is not None else 1.0
         if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
@@ -112,7 +116,7 @@ class RobustStep(AICOStep):
     State: ``lam`` (relative regularization of the next trial), ``cur_cost`` (cost of the current
     iterate, ``None`` while it is a start that is no trajectory) and the quadratic model of the cost
     at the current iterate (``_model``: ``l_x (T+1, n)``, ``l_xx (T+1, n, n)``, ``l_u (T, m)``,
-    ``l_uu (T, m, m)``, the sweeps' own task and control messages before regularization).
+    ``l_uu (T, m, m)``, ``l_ux (T, m, n)`` or ``None``, the sweeps' own task and control messages before regularization).
     """
 
     def __init__(self, problem: Problem, sw: Sweeps, opts: AICOOptions, kappa: float,
@@ -244,12 +248,17 @@ class RobustStep(AICOStep):
             R = sw.RA[:, :, :n].copy()
             R[:, np.arange(n), np.arange(n)] -= 2.0 * sw.alpha
             lu = np.einsum("tij,tj->ti", sw.H, cur.U) - sw.h
-            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H)), cur, False
+            L = cross_hessian(self.problem, cur.X) if self.opts.cross_terms else None
+            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H), L), cur, False
+        self._K = eliminate(self.sw, self._model[4])
 
     def _predicted_decrease(self, cur: Iterate, new: Iterate) -> float:
-        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur``."""
-        lx, R, lu, H = self._model
+        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur`` (with
+        its cross term ``du^T l_ux dx`` where the schedule keeps it)."""
+        lx, R, lu, H, L = self._model
         dX, dU = new.X - cur.X, new.U - cur.U
         q = float(np.einsum("ti,ti->", lx, dX) + 0.5 * np.einsum("ti,tij,tj->", dX, R, dX)
                   + np.einsum("ti,ti->", lu, dU) + 0.5 * np.einsum("ti,tij,tj->", dU, H, dU))
+        if L is not None:
+            q += float(np.einsum("ti,tij,tj->", dU, L, dX[:-1]))
         return -q
