@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from raico.planning.aico.sweeps import _block_form_dt
 from raico.planning.problem import Problem
 
 
@@ -45,16 +46,38 @@ def eliminate(sw, L: np.ndarray | None) -> np.ndarray | None:
             sw.C = np.broadcast_to(sw._C0, sw.C.shape)
         return None
     X, U = sw.X[:T], sw.U
-    K = np.linalg.solve(sw.H, L)                                   # H^-1 L
-    h = sw.h + np.einsum("tij,tj->ti", L, X)                       # h + L x_bar
+    K = np.matmul(sw.Hinv, L)                                      # H^-1 L
+    Lx = np.matmul(L, X[:, :, None])[:, :, 0]                      # L x_bar
+    h = sw.h + Lx
     if sw.lti:     # a shared C (its one matrix kept unchanged in sw._C0): one per step, made afresh here
-        sw.C = np.array(np.broadcast_to(sw._C0, sw.C.shape))
+        sw.C = np.array(np.broadcast_to(sw._C0, sw.C.shape), order="C")
     B = sw.C[:, :n, :m]
-    sw.C[:, :n, m:m + n] -= B @ K                                  # A - B K
-    RA = sw.RA
-    RA[:T, :, :n] -= np.einsum("tki,tkj->tij", L, K)                # R - L^T H^-1 L
-    RA[:T, :, n] += np.einsum("tki,tk->ti", L, U) - np.einsum("tki,tk->ti", K, h)
-    RA[:T, :, :n] = 0.5 * (RA[:T, :, :n] + np.swapaxes(RA[:T, :, :n], 1, 2))
+    block = _block_steps(sw.C, n, m, _block_form_dt(sw.p.dynamics))
+    sw.C[:, :n, m:m + n] -= np.matmul(B, K)                        # A - B K
+    if block.any():     # keep the block form exact where C had it: the position rows dt times the velocity rows
+        h2, dt = n // 2, _block_form_dt(sw.p.dynamics)
+        Cb = sw.C[block]
+        Cb[:, :h2, :m + n] = dt * Cb[:, h2:n, :m + n]
+        Cb[:, np.arange(h2), m + np.arange(h2)] += 1.0
+        sw.C[block] = Cb
+    Lt = np.swapaxes(L, 1, 2)
+    RA = sw.RA[:T]
+    LK = np.matmul(Lt, K)                                          # L^T H^-1 L, symmetric up to rounding
+    RA[:, :, :n] -= 0.5 * (LK + np.swapaxes(LK, 1, 2))             # the Schur complement R - L^T H^-1 L
+    RA[:, :, n] += np.matmul(Lt, (U - np.matmul(sw.Hinv, h[:, :, None])[:, :, 0])[:, :, None])[:, :, 0]
     sw.h = h
-    sw._control_marginals()
+    # Qbar = q I + B H^-1 B^T is unchanged (B and H are); the drift a + B H^-1 h gains B H^-1 L x_bar
+    sw.a_eff = sw.a_eff + np.matmul(B, np.matmul(K, X[:, :, None]))[:, :, 0]
     return K
+
+
+def _block_steps(C: np.ndarray, n: int, m: int, dt: float) -> np.ndarray:
+    """``(T,)`` bool: the steps whose ``C_t`` has the semi-implicit Euler block form the sweep kernel takes (its
+    position rows ``dt`` times its velocity rows, plus ``I`` on the position block; ``semi_implicit`` of
+    ``raico/planning/csweep.c``, the same test to 8 units in the last place)."""
+    h = n // 2
+    if not dt > 0 or n != 2 * h:
+        return np.zeros(len(C), dtype=bool)
+    top, u = C[:, :h, :m + n], dt * C[:, h:n, :m + n]
+    u[:, np.arange(h), m + np.arange(h)] += 1.0
+    return np.all(np.abs(top - u) <= 8.0 * np.finfo(float).eps * np.abs(u), axis=(1, 2))

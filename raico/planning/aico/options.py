@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from raico.planning.problem import Flag, OptionsBase, check_range
 
 SCHEDULES = ("fixed", "adaptive", "robust")
+LAMBDA_FALLS = ("nielsen", "accelerated")
 
 
 def _resolve_schedule(value: str, problem_file: bool) -> str:
@@ -98,10 +99,16 @@ class AICOOptions(OptionsBase):
     #: the robust schedule keeps the cost's cross term ``l_ux`` (the control toward gravity's), by a change of
     #: control variables (:mod:`raico.planning.aico.cross`); ``False``: dropped, as the other schedules do
     cross_terms: bool = True
+    #: the robust schedule's fall of lambda after a good step: ``"nielsen"`` (Nielsen's rule, at most
+    #: ``/lm_factor``) or ``"accelerated"`` (the k-th very good step in a row divides it by ``lm_factor**k``, up
+    #: to ``lm_factor**3``): :func:`raico.planning.aico.steps.lambda_after`
+    lambda_fall: str = "nielsen"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
             raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
+        if self.lambda_fall not in LAMBDA_FALLS:
+            raise ValueError(f"option lambda_fall must be one of {', '.join(LAMBDA_FALLS)}, got {self.lambda_fall!r}")
         check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
         check_range("accept", self.accept, lo=0.0, hi=1.0)
         check_range("decrease_above", self.decrease_above, lo=self.accept)
