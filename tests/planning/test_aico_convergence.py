@@ -168,7 +168,7 @@ def test_control_toward_gravity_cross_derivative_against_finite_differences():
 
 def test_lambda_after_nielsen_on_synthetic_ratios():
     """Nielsen's rule: ``lambda max(1/lm_factor, 1 - (2 min(rho, 1) - 1)^3)``; no streak is kept."""
-    o = AICOOptions(alpha=1.0, schedule="robust")
+    o = AICOOptions(alpha=1.0, schedule="robust", lambda_fall="nielsen")
     assert lambda_after(1.0, 1.0, 0, o) == (pytest.approx(0.1), 0)          # capped at /lm_factor
     assert lambda_after(1.0, 1.7, 5, o) == (pytest.approx(0.1), 0)
     assert lambda_after(1.0, 0.5, 0, o)[0] == pytest.approx(1.0)            # 1 - 0^3

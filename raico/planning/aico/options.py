@@ -99,10 +99,11 @@ class AICOOptions(OptionsBase):
     #: the robust schedule keeps the cost's cross term ``l_ux`` (the control toward gravity's), by a change of
     #: control variables (:mod:`raico.planning.aico.cross`); ``False``: dropped, as the other schedules do
     cross_terms: bool = True
-    #: the robust schedule's fall of lambda after a good step: ``"nielsen"`` (Nielsen's rule, at most
-    #: ``/lm_factor``) or ``"accelerated"`` (the k-th very good step in a row divides it by ``lm_factor**k``, up
-    #: to ``lm_factor**3``): :func:`raico.planning.aico.steps.lambda_after`
-    lambda_fall: str = "nielsen"
+    #: the robust schedule's fall of lambda after a good step: ``"accelerated"`` (the k-th very good step in a
+    #: row divides it by ``lm_factor**k``, up to ``lm_factor**3``; the first trial from a start that is no
+    #: trajectory judged so too) or ``"nielsen"`` (Nielsen's rule, at most ``/lm_factor``; the rule before):
+    #: :func:`raico.planning.aico.steps.lambda_after`
+    lambda_fall: str = "accelerated"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:

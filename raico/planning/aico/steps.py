@@ -169,7 +169,12 @@ class RobustStep(AICOStep):
             if failed or not math.isfinite(step.cost):
                 return self._reject(cur, step, lam, self._merit(cur.X, cur.U), measured=False)
             start_cost = self._merit(cur.X, cur.U)
-            self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
+            if step.cost > start_cost:
+                self.lam = min(o.lambda_max, lam * o.lm_factor)
+            elif o.lambda_fall == "accelerated":   # judged as every later trial: the cost's model at the start
+                pred = self._predicted_decrease(cur, step.iterate)
+                self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else (start_cost - step.cost) / pred,
+                                                     self.streak, o)
             out = self._update_constraints(Step(step.iterate, step.cost, step=step.step, mu=lam,
                                                 repeats=step.repeats))
             self.cur_cost = out.cost
