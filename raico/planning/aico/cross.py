@@ -46,25 +46,27 @@ def eliminate(sw, L: np.ndarray | None) -> np.ndarray | None:
             sw.C = np.broadcast_to(sw._C0, sw.C.shape)
         return None
     X, U = sw.X[:T], sw.U
-    K = np.matmul(sw.Hinv, L)                                      # H^-1 L
-    Lx = np.matmul(L, X[:, :, None])[:, :, 0]                      # L x_bar
-    h = sw.h + Lx
+    # (batched products on C-contiguous operands: numpy's stacked matmul takes BLAS only for those)
+    Hinv = np.ascontiguousarray(sw.Hinv)
+    K = np.matmul(Hinv, L)                                         # H^-1 L
+    h = sw.h + np.matmul(L, X[:, :, None])[:, :, 0]                # h + L x_bar
     if sw.lti:     # a shared C (its one matrix kept unchanged in sw._C0): one per step, made afresh here
         sw.C = np.array(np.broadcast_to(sw._C0, sw.C.shape), order="C")
-    B = sw.C[:, :n, :m]
-    block = _block_steps(sw.C, n, m, _block_form_dt(sw.p.dynamics))
+    B = np.ascontiguousarray(sw.C[:, :n, :m])
+    dt = _block_form_dt(sw.p.dynamics)
+    block = _block_steps(sw.C, n, m, dt)
     sw.C[:, :n, m:m + n] -= np.matmul(B, K)                        # A - B K
     if block.any():     # keep the block form exact where C had it: the position rows dt times the velocity rows
-        h2, dt = n // 2, _block_form_dt(sw.p.dynamics)
-        Cb = sw.C[block]
-        Cb[:, :h2, :m + n] = dt * Cb[:, h2:n, :m + n]
-        Cb[:, np.arange(h2), m + np.arange(h2)] += 1.0
-        sw.C[block] = Cb
-    Lt = np.swapaxes(L, 1, 2)
-    RA = sw.RA[:T]
+        h2 = n // 2
+        rows = slice(None) if block.all() else np.flatnonzero(block)
+        top = dt * sw.C[rows, h2:n, :m + n]
+        top[:, np.arange(h2), m + np.arange(h2)] += 1.0
+        sw.C[rows, :h2, :m + n] = top
+    Lt = np.ascontiguousarray(np.swapaxes(L, 1, 2))
     LK = np.matmul(Lt, K)                                          # L^T H^-1 L, symmetric up to rounding
+    RA = sw.RA[:T]
     RA[:, :, :n] -= 0.5 * (LK + np.swapaxes(LK, 1, 2))             # the Schur complement R - L^T H^-1 L
-    RA[:, :, n] += np.matmul(Lt, (U - np.matmul(sw.Hinv, h[:, :, None])[:, :, 0])[:, :, None])[:, :, 0]
+    RA[:, :, n] += np.matmul(Lt, (U - np.matmul(Hinv, h[:, :, None])[:, :, 0])[:, :, None])[:, :, 0]
     sw.h = h
     # Qbar = q I + B H^-1 B^T is unchanged (B and H are); the drift a + B H^-1 h gains B H^-1 L x_bar
     sw.a_eff = sw.a_eff + np.matmul(B, np.matmul(K, X[:, :, None]))[:, :, 0]
