@@ -113,7 +113,7 @@ VERY_GOOD = 0.75   # a ratio of actual to predicted decrease at least this: the 
 FALL_MAX = 3      # the accelerated fall divides lambda by at most lm_factor ** FALL_MAX per step
 
 
-def lambda_after(lam: float, rho: float, streak: int, o: AICOOptions) -> tuple[float, int]:
+def lambda_after(lam: float, rho: float, streak: int, o: AICOOptions, fall: str | None = None) -> tuple[float, int]:
     """``lambda`` after an accepted full step whose actual decrease is ``rho`` times the predicted one, and the
     count of such steps in a row with ``rho >= VERY_GOOD`` (``streak`` before this one).
 
@@ -121,9 +121,9 @@ def lambda_after(lam: float, rho: float, streak: int, o: AICOOptions) -> tuple[f
     crocoddyl FDDP's /10 bound). ``"accelerated"``: the same, except that the k-th step in a row with ``rho >=
     VERY_GOOD`` divides ``lambda`` by ``lm_factor ** min(k, FALL_MAX)`` (10, 100, 1000, ...): a model right
     step after step is let reach the Newton step in a few steps, as the rejections' factor grows (2, 4, 8).
-    Within ``[lambda_min, lambda_max]``.
+    Within ``[lambda_min, lambda_max]``. ``fall``: the rule to take instead of ``o.lambda_fall``.
     """
-    if o.lambda_fall == "accelerated" and rho >= VERY_GOOD:
+    if (fall or o.lambda_fall) == "accelerated" and rho >= VERY_GOOD:
         streak += 1
         new = lam / o.lm_factor ** min(streak, FALL_MAX)
     else:
@@ -154,6 +154,7 @@ class RobustStep(AICOStep):
         self.nu = 2.0    # the next rejection's factor (Nielsen: doubles per rejection in a row)
         self.ascents = 0  # rejections in a row whose step the model rightly predicts to raise the cost
         self.streak = 0   # accepted full steps in a row whose ratio is at least VERY_GOOD (lambda_fall)
+        self.constrained = False   # a hard constraint has been active: Nielsen's rule from then on
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
@@ -171,10 +172,10 @@ class RobustStep(AICOStep):
             start_cost = self._merit(cur.X, cur.U)
             if step.cost > start_cost:
                 self.lam = min(o.lambda_max, lam * o.lm_factor)
-            elif o.lambda_fall == "accelerated":   # judged as every later trial: the cost's model at the start
+            elif self._fall() == "accelerated":   # judged as every later trial: the cost's model at the start
                 pred = self._predicted_decrease(cur, step.iterate)
                 self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else (start_cost - step.cost) / pred,
-                                                     self.streak, o)
+                                                     self.streak, o, self._fall())
             out = self._update_constraints(Step(step.iterate, step.cost, step=step.step, mu=lam,
                                                 repeats=step.repeats))
             self.cur_cost = out.cost
@@ -217,11 +218,18 @@ class RobustStep(AICOStep):
         if eps < 1.0:   # the step was too long: more regularization next time
             self.lam, self.streak = min(o.lambda_max, lam * 2.0), 0
         else:
-            self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else actual / pred, self.streak, o)
+            self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else actual / pred, self.streak, o,
+                                                 self._fall())
         self.nu, self.ascents = 2.0, 0
         out = self._update_constraints(Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats))
         self.cur_cost = out.cost
         return out
+
+    def _fall(self) -> str:
+        """The fall of lambda in force: ``lambda_fall``, but Nielsen's rule once a hard constraint has been active
+        (its multiplier updates change the merit between steps; the accelerated fall there was measured worse:
+        docs/planning.md, "Convergence of the robust schedule")."""
+        return "nielsen" if self.constrained else self.opts.lambda_fall
 
     def _stationary_infeasible(self, cur: Iterate, out: Step) -> Step:
         """A stationary point of the merit that breaks a hard constraint is no solution: the multipliers and
@@ -280,6 +288,8 @@ class RobustStep(AICOStep):
             L = cross_hessian(self.problem, cur.X) if self.opts.cross_terms else None
             self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H), L), cur, False
         self._K = eliminate(self.sw, self._model[4])
+        if self.sw._al_model is not None or (self.sw.al is not None and any(y is not None for y in self.sw.al.y)):
+            self.constrained = True
 
     def _predicted_decrease(self, cur: Iterate, new: Iterate) -> float:
         """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur`` (with
