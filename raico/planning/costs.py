@@ -704,7 +704,8 @@ class ControlGravity(JointTerm):
     (:class:`Uncertainty`): the gradient is exact, ``l_x = -2 w G^T C r`` on the ``q`` block
     (``G = dg/dq``, ``r = u - g(q)``) at the nominal controls and ``l_u = 2 w C r`` at the nominal
     states; the Gauss-Newton Hessians ``2 w G^T C G`` and ``2 w C`` (the latter exact); the cross
-    term ``-2 w G^T C`` is dropped (solvers take ``l_ux = 0``).
+    term ``l_ux = -2 w C G`` (``add_cross_derivatives``) is kept by R-AICO's robust schedule and dropped by
+    the other solvers (``l_ux = 0``).
 
     Args:
         robot: a robot (``raico.plants.robots.Robot``) with torque controls.
@@ -784,6 +785,15 @@ class ControlGravity(JointTerm):
         CG = self.c[:, None] * G
         lx[:n] -= 2.0 * self.weight * (CG.T @ (self._U[t] - g))
         lxx[:n, :n] += 2.0 * self.weight * (G.T @ CG)
+
+    def add_cross_derivatives(self, X: np.ndarray, lux: np.ndarray) -> None:
+        """Add the cross term ``l_ux = -2 w C G`` (exact) at rows ``X (T, n_x)`` to ``lux (T, n_u, n_x)``'s
+        ``q`` block (a solver that keeps it: R-AICO's robust schedule, ``AICOOptions.cross_terms``)."""
+        if self.weight == 0:
+            return
+        n = self.c.size
+        _, G = self._g(X)
+        lux[:, :, :n] -= 2.0 * self.weight * self.c[None, :, None] * G
 
     # -- the control part --------------------------------------------------------------------
     def add_control_derivatives(self, U: np.ndarray, lu: np.ndarray, luu: np.ndarray) -> None:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from raico.planning.problem import Flag, OptionsBase, check_range
 
 SCHEDULES = ("fixed", "adaptive", "robust")
+LAMBDA_FALLS = ("nielsen", "accelerated")
 
 
 def _resolve_schedule(value: str, problem_file: bool) -> str:
@@ -95,10 +96,20 @@ class AICOOptions(OptionsBase):
     lambda_min: float = 1e-9
     #: the robust schedule's largest lambda (a trial rejected there stops the run: max-iterations)
     lambda_max: float = 1e9
+    #: the robust schedule keeps the cost's cross term ``l_ux`` (the control toward gravity's), by a change of
+    #: control variables (:mod:`raico.planning.aico.cross`); ``False``: dropped, as the other schedules do
+    cross_terms: bool = True
+    #: the robust schedule's fall of lambda after a good step: ``"accelerated"`` (the k-th very good step in a
+    #: row divides it by ``lm_factor**k``, up to ``lm_factor**3``; the first trial from a start that is no
+    #: trajectory judged so too) or ``"nielsen"`` (Nielsen's rule, at most ``/lm_factor``; the rule before):
+    #: :func:`raico.planning.aico.steps.lambda_after`
+    lambda_fall: str = "accelerated"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
             raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
+        if self.lambda_fall not in LAMBDA_FALLS:
+            raise ValueError(f"option lambda_fall must be one of {', '.join(LAMBDA_FALLS)}, got {self.lambda_fall!r}")
         check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
         check_range("accept", self.accept, lo=0.0, hi=1.0)
         check_range("decrease_above", self.decrease_above, lo=self.accept)

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from raico.planning.aico.bounds import AL_INNER_TOL
+from raico.planning.aico.cross import cross_hessian, eliminate
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
 from raico.planning.driver import Iterate, Status, Step, Stop
@@ -30,6 +31,7 @@ class AICOStep:
         self.adaptive = opts is not None and opts.schedule == "adaptive"
         self.cur_cost = initial_cost   # cost of the iterate the next step starts from (adaptive)
         self._last_merit = math.inf    # the merit of the last iterate (the constraints' multiplier updates)
+        self._K: np.ndarray | None = None   # the cross term's change of control variables (robust schedule)
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         step = self._trial(cur)
@@ -56,6 +58,8 @@ class AICOStep:
         except (NumericalError, ArithmeticError, np.linalg.LinAlgError) as e:
             return self._failed(cur, alpha, f"{type(e).__name__}: {e}")
         o_new, O_new = sw.o_, sw.O_
+        if self._K is not None:     # the controller of v = u + K x (the cost's cross term eliminated)
+            O_new = O_new - self._K
         eta = self.opts.controller_rate if self.opts is not None else 1.0
         if eta < 1.0:  # Algorithm 1 line 18's learning rate: blend with the previous controller
             o_new, O_new = (1.0 - eta) * cur.o + eta * o_new, (1.0 - eta) * cur.O + eta * O_new
@@ -105,6 +109,29 @@ NOISE_MAX = 1e6   # the robust schedule raises the process noise by 10 per faile
 ASCENTS = 5   # the robust schedule stops after this many rejections in a row of steps the model rightly sees rise
 
 
+VERY_GOOD = 0.75   # a ratio of actual to predicted decrease at least this: the model is trusted (lambda_fall)
+FALL_MAX = 3      # the accelerated fall divides lambda by at most lm_factor ** FALL_MAX per step
+
+
+def lambda_after(lam: float, rho: float, streak: int, o: AICOOptions, fall: str | None = None) -> tuple[float, int]:
+    """``lambda`` after an accepted full step whose actual decrease is ``rho`` times the predicted one, and the
+    count of such steps in a row with ``rho >= VERY_GOOD`` (``streak`` before this one).
+
+    ``lambda_fall = "nielsen"``: ``lambda * max(1 / lm_factor, 1 - (2 min(rho, 1) - 1)^3)`` (Nielsen's rule,
+    crocoddyl FDDP's /10 bound). ``"accelerated"``: the same, except that the k-th step in a row with ``rho >=
+    VERY_GOOD`` divides ``lambda`` by ``lm_factor ** min(k, FALL_MAX)`` (10, 100, 1000, ...): a model right
+    step after step is let reach the Newton step in a few steps, as the rejections' factor grows (2, 4, 8).
+    Within ``[lambda_min, lambda_max]``. ``fall``: the rule to take instead of ``o.lambda_fall``.
+    """
+    if (fall or o.lambda_fall) == "accelerated" and rho >= VERY_GOOD:
+        streak += 1
+        new = lam / o.lm_factor ** min(streak, FALL_MAX)
+    else:
+        streak = 0
+        new = lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3)
+    return min(o.lambda_max, max(o.lambda_min, new)), streak
+
+
 class RobustStep(AICOStep):
     """R-AICO's robust schedule (``AICOOptions.schedule = "robust"``): Levenberg-Marquardt style
     ``alpha = lambda kappa`` with acceptance by the ratio of actual to predicted decrease.
@@ -112,7 +139,7 @@ class RobustStep(AICOStep):
     State: ``lam`` (relative regularization of the next trial), ``cur_cost`` (cost of the current
     iterate, ``None`` while it is a start that is no trajectory) and the quadratic model of the cost
     at the current iterate (``_model``: ``l_x (T+1, n)``, ``l_xx (T+1, n, n)``, ``l_u (T, m)``,
-    ``l_uu (T, m, m)``, the sweeps' own task and control messages before regularization).
+    ``l_uu (T, m, m)``, ``l_ux (T, m, n)`` or ``None``, the sweeps' own task and control messages before regularization).
     """
 
     def __init__(self, problem: Problem, sw: Sweeps, opts: AICOOptions, kappa: float,
@@ -126,6 +153,8 @@ class RobustStep(AICOStep):
         self._record_model = False
         self.nu = 2.0    # the next rejection's factor (Nielsen: doubles per rejection in a row)
         self.ascents = 0  # rejections in a row whose step the model rightly predicts to raise the cost
+        self.streak = 0   # accepted full steps in a row whose ratio is at least VERY_GOOD (lambda_fall)
+        self.constrained = False   # a hard constraint has been active: Nielsen's rule from then on
 
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
@@ -141,7 +170,12 @@ class RobustStep(AICOStep):
             if failed or not math.isfinite(step.cost):
                 return self._reject(cur, step, lam, self._merit(cur.X, cur.U), measured=False)
             start_cost = self._merit(cur.X, cur.U)
-            self.lam = min(o.lambda_max, lam * o.lm_factor) if step.cost > start_cost else lam
+            if step.cost > start_cost:
+                self.lam = min(o.lambda_max, lam * o.lm_factor)
+            elif self._fall() == "accelerated":   # judged as every later trial: the cost's model at the start
+                pred = self._predicted_decrease(cur, step.iterate)
+                self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else (start_cost - step.cost) / pred,
+                                                     self.streak, o, self._fall())
             out = self._update_constraints(Step(step.iterate, step.cost, step=step.step, mu=lam,
                                                 repeats=step.repeats))
             self.cur_cost = out.cost
@@ -182,14 +216,20 @@ class RobustStep(AICOStep):
                                                      f"below tol_rel x cost ({tol:.3g}) at lambda = {lam:.3g}"))
             return self._stationary_infeasible(cur, out)
         if eps < 1.0:   # the step was too long: more regularization next time
-            self.lam = min(o.lambda_max, lam * 2.0)
+            self.lam, self.streak = min(o.lambda_max, lam * 2.0), 0
         else:
-            rho = 1.0 if pred <= 0 else actual / pred
-            self.lam = max(o.lambda_min, lam * max(1.0 / o.lm_factor, 1.0 - (2.0 * min(rho, 1.0) - 1.0) ** 3))
+            self.lam, self.streak = lambda_after(lam, 1.0 if pred <= 0 else actual / pred, self.streak, o,
+                                                 self._fall())
         self.nu, self.ascents = 2.0, 0
         out = self._update_constraints(Step(trial, cost, step=step.step * eps, mu=lam, repeats=step.repeats))
         self.cur_cost = out.cost
         return out
+
+    def _fall(self) -> str:
+        """The fall of lambda in force: ``lambda_fall``, but Nielsen's rule once a hard constraint has been active
+        (its multiplier updates change the merit between steps; the accelerated fall there was measured worse:
+        docs/planning.md, "Convergence of the robust schedule")."""
+        return "nielsen" if self.constrained else self.opts.lambda_fall
 
     def _stationary_infeasible(self, cur: Iterate, out: Step) -> Step:
         """A stationary point of the merit that breaks a hard constraint is no solution: the multipliers and
@@ -223,6 +263,7 @@ class RobustStep(AICOStep):
         ratio of actual to predicted decrease to go by); stop when it is at its cap."""
         o = self.opts
         stop = None
+        self.streak = 0
         if not measured:
             self.nu = o.lm_factor
         if lam >= o.lambda_max:
@@ -244,12 +285,19 @@ class RobustStep(AICOStep):
             R = sw.RA[:, :, :n].copy()
             R[:, np.arange(n), np.arange(n)] -= 2.0 * sw.alpha
             lu = np.einsum("tij,tj->ti", sw.H, cur.U) - sw.h
-            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H)), cur, False
+            L = cross_hessian(self.problem, cur.X) if self.opts.cross_terms else None
+            self._model, self._model_of, self._record_model = (sw._lx.copy(), R, lu, np.array(sw.H), L), cur, False
+        self._K = eliminate(self.sw, self._model[4])
+        if self.sw._al_model is not None or (self.sw.al is not None and any(y is not None for y in self.sw.al.y)):
+            self.constrained = True
 
     def _predicted_decrease(self, cur: Iterate, new: Iterate) -> float:
-        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur``."""
-        lx, R, lu, H = self._model
+        """``-(g^T d + 1/2 d^T G d)`` of the cost's quadratic model at ``cur`` along ``d = new - cur`` (with
+        its cross term ``du^T l_ux dx`` where the schedule keeps it)."""
+        lx, R, lu, H, L = self._model
         dX, dU = new.X - cur.X, new.U - cur.U
         q = float(np.einsum("ti,ti->", lx, dX) + 0.5 * np.einsum("ti,tij,tj->", dX, R, dX)
                   + np.einsum("ti,ti->", lu, dU) + 0.5 * np.einsum("ti,tij,tj->", dU, H, dU))
+        if L is not None:
+            q += float(np.einsum("ti,tij,tj->", dU, L, dX[:-1]))
         return -q
