@@ -756,10 +756,14 @@ class SignedDistances:
             O[i], R[i], Jo[i], Je[i] = frames[body]
         return O, R, Jo, Je
 
-    def evaluate(self, Q: np.ndarray, jacobians: bool = True):
+    def evaluate(self, Q: np.ndarray, jacobians: bool = True, cull=None):
         """Distances ``(K, m)`` (capped), Jacobians ``(K, m, n_q)`` (None without ``jacobians``) and witness
         points ``(K, m, 2, 3)`` (world, m; NaN where not queried) at the rows of ``Q (K, n_q)``; rows with
-        a non-finite ``q`` give NaN."""
+        a non-finite ``q`` give NaN.
+
+        ``cull`` (m; a number or ``(K, m)``, at most ``max_distance``; None: ``max_distance``): a pair whose
+        lower bound reaches it is not queried and reports ``max_distance`` (a hinge ``max(0, c - d)`` with
+        ``c <= cull`` needs no more: its value and gradient are exact)."""
         P, w = self.robot.P, self.world
         Q = np.atleast_2d(Q)
         K, m = len(Q), self.dim
@@ -781,10 +785,12 @@ class SignedDistances:
         D[ok] = self.max_distance
         if jacobians:
             J[ok] = 0.0
+        limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
+        near_all = lb < limit[ok]
         port = w.scene_graph.get_query_output_port()
         rows, found = [], []   # (row of ok, pair) and Drake's results, gathered first: the arithmetic after, in batches
-        for t in range(len(ok)):
-            near = np.flatnonzero(lb[t] < self.max_distance)
+        for t in np.flatnonzero(near_all.any(axis=1)):
+            near = np.flatnonzero(near_all[t])
             if near.size == 0:
                 continue
             w.set_positions(Qp[t])
