@@ -1,0 +1,111 @@
+"""Hard collision terms as constraints of AICO's augmented Lagrangian: the constraint's Jacobian against finite
+differences, its culling (only rows that can be active are queried, the others exactly inactive), a start
+inside the margin given the steps its velocity limits need, and a plan around a ball the unconstrained plan
+passes through."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from raico.planning.constraints import AugmentedLagrangian, DistanceConstraint
+from raico.planning.costs import Collision
+from raico.plants.numdiff import numdiff_jacobian
+from tests.plants.test_scene import AVOID, REACH, _postures, _problem, _world
+from tests.tolerance import assert_close
+
+
+def _constraint(tmp_path, margin: float, q0=None, T: int = 5, vmax=None):
+    robot, world, tm = _world(tmp_path)
+    term = Collision(tm, margin, None, 1e6, hard=True, name="avoid")
+    q0 = robot.default_q if q0 is None else np.asarray(q0, float)
+    return robot, tm, DistanceConstraint(term, robot.n_q, T, q0, 0.01, vmax, 1e-4)
+
+
+@pytest.mark.numerics
+def test_the_distance_constraints_jacobian_matches_finite_differences(tmp_path):
+    """Rows ``g = margin - d`` of every step but the start; Jacobian ``-J`` on the positions, zero on the
+    velocities. Tolerances as tests/plants/test_scene.py argues them: sphere pairs (closed form in Drake) to
+    1e-8 with a step of 1e-6, GJK pairs to 1e-3 with a step of 1e-5 (GJK's 1e-9 m accuracy over the step)."""
+    robot, tm, c = _constraint(tmp_path, margin=0.3)
+    world = tm.world
+    sphere = np.array([any(world.shapes_by_name[n].kind == "sphere" for n in p) for p in tm.pairs])
+    Q = _postures(robot, 6, seed=4)
+    X = np.hstack([Q, 0.1 * np.ones_like(Q)])
+    G, Gx = c._eval(X)
+    assert np.all(np.isneginf(G[0])) and not Gx[0].any()           # the start: not constrained
+    assert not Gx[:, :, robot.n_q:].any()
+    checked = 0
+    for t in range(1, 6):
+        g = c.bound[t - 1] - tm.values_and_jacobians(Q[t:t + 1])[0][0]   # the margin (or, from a start
+        # inside it, the start's distance at step 1)
+        live = G[t] > c.bound[t - 1] - tm.max_distance   # queried (culled rows report the cap)
+        assert_close(G[t][g > 0], g[g > 0]) and np.all(G[t][g <= 0] <= 0)
+        assert_close(G[t][live], g[live])
+        fd6 = numdiff_jacobian(lambda q: 0.3 - tm.value(q), Q[t], 1e-6)
+        fd5 = numdiff_jacobian(lambda q: 0.3 - tm.value(q), Q[t], 1e-5)
+        for k in np.flatnonzero(live & (G[t] > c.bound[t - 1] - 0.95)):   # queried rows away from the cap
+            tol, fd = (1e-8, fd6) if sphere[k] else (1e-3, fd5)
+            assert np.max(np.abs(Gx[t, k, :robot.n_q] - fd[k])) <= tol, (tm.pairs[k], G[t, k])
+            checked += 1
+    assert checked >= 20
+
+
+@pytest.mark.numerics
+def test_culled_rows_are_exactly_inactive_and_the_others_exact(tmp_path):
+    """With multipliers ``y`` and penalty ``mu`` a row is queried only where its distance bound is below
+    ``margin + y / mu``: the AL's ``lam`` and its model equal those of the uncapped distances."""
+    robot, tm, c = _constraint(tmp_path, margin=0.05)
+    Q = _postures(robot, 6, seed=5)
+    X, U = np.hstack([Q, np.zeros_like(Q)]), np.zeros((5, robot.n_q))
+    D = tm.values_and_jacobians(Q)[0]
+    al = AugmentedLagrangian([c], 5, 10.0)
+    rng = np.random.default_rng(0)
+    al.y[0] = np.where(rng.random((6, tm.dim)) < 0.3, 0.2, 0.0)
+    al._share_slack()
+    (G, lam), = al._lams(X, U)
+    z = al.y[0][1:] + 10.0 * (c.bound - D[1:])
+    assert_close(lam[1:], np.maximum(0.0, z))
+    assert np.any(lam[1:] > 0) and np.any(G[1:] == 0.05 - tm.max_distance)
+
+
+def test_a_start_inside_the_margin_is_given_the_steps_its_velocity_limits_need(tmp_path):
+    """The pairs closer than the margin at ``q0`` start at their distance and rise, first order, at the speed
+    the velocity limits allow (``|J(q0)| vmax``); the others hold the margin from step 1; without velocity
+    limits the margin holds from step 2."""
+    start = np.array([0.0, 1.2, 1.5])   # the forearm's tip in the table
+    robot, tm, c = _constraint(tmp_path, margin=0.02, q0=start, T=10, vmax=np.full(3, 2.0))
+    d0, J0 = tm.value_and_jacobian(start)
+    inside = d0 < 0.02
+    assert inside.any() and c.start_inside == inside.sum()
+    rate = np.abs(J0[inside]) @ np.full(3, 2.0)
+    t = np.arange(1, 11)[:, None]
+    assert_close(c.bound[:, inside], np.minimum(0.02, d0[inside] + (t - 1) * 0.01 * rate))
+    assert np.all(c.bound[:, ~inside] == 0.02)
+    _, _, free = _constraint(tmp_path, margin=0.02, q0=start, T=10, vmax=None)
+    assert_close(free.bound[0, inside], d0[inside]) and np.all(free.bound[1:] == 0.02)
+
+
+AROUND = REACH.replace("target = [0.0, 0.0, -0.1]", "target = [-0.15, 0.245, -0.05]") + AVOID.format(
+    dmax=0.1).replace('pairs = [["robot", "scene"]]', 'pairs = [["fore", "scene"]]').replace("self = true", "self = false")
+
+
+@pytest.mark.slow
+@pytest.mark.numerics
+def test_the_constrained_plan_keeps_the_margin_where_the_unconstrained_one_passes_through(tmp_path):
+    """The tip swings over a ball at a height the straight reach passes through: R-AICO without the term goes
+    into it (the premise), with the hard term it keeps the margin to 1 mm (the constraints' stopping tolerance
+    is 0.1 mm; a plan 1 mm inside is out-of-bounds)."""
+    from raico.stages.plan.stage import PlanConfig, plan
+
+    smallest = {}
+    for hard in (False, True):
+        costs = AROUND if hard else AROUND.replace("margin = 0.02", "margin = 0.02\nhard = false\nweight = 0.0")
+        out = plan(PlanConfig(problem=str(_problem(tmp_path / str(hard), costs=costs, T=50)), solver="raico",
+                              iterations=150).normalized())
+        term = next(t for t in out.problem.state_terms if isinstance(t, Collision))
+        smallest[hard] = term.smallest(out.result.X)[0]
+        if hard:
+            assert out.metrics()["status"] != "out-of-bounds", out.metrics()["message"]
+    assert smallest[False] < 0.0
+    assert smallest[True] >= 0.02 - 1e-3
