@@ -109,3 +109,50 @@ def test_the_constrained_plan_keeps_the_margin_where_the_unconstrained_one_passe
             assert out.metrics()["status"] != "out-of-bounds", out.metrics()["message"]
     assert smallest[False] < 0.0
     assert smallest[True] >= 0.02 - 1e-3
+
+
+# ------------------------------------------------------------------ culling bounds
+@pytest.mark.numerics
+def test_segment_distances_are_the_closest_points_of_two_segments():
+    """Against a grid of 801 points on each segment (the grid's distance is above the exact one by at most
+    half a grid step times the segments' lengths, ~1e-2 here): never below it by more than rounding, and the
+    closest-point formula exact on points and parallel segments."""
+    from raico.plants.scene import segment_distances
+
+    rng = np.random.default_rng(1)
+    n = 600
+    P0, P1, Q0, Q1 = (rng.standard_normal((n, 3)) for _ in range(4))
+    P1[:100] = P0[:100]
+    Q1[100:200] = Q0[100:200]
+    P1[200:250], Q1[200:250] = P0[200:250], Q0[200:250]
+    Q1[250:300] = Q0[250:300] + 0.7 * (P1 - P0)[250:300]
+    s = np.linspace(0.0, 1.0, 801)
+    A = P0[:, None] + s[None, :, None] * (P1 - P0)[:, None]
+    B = Q0[:, None] + s[None, :, None] * (Q1 - Q0)[:, None]
+    grid = np.array([np.min(np.linalg.norm(A[i][:, None] - B[i][None], axis=-1)) for i in range(n)])
+    d = segment_distances(P0, P1, Q0, Q1)
+    assert np.all(d <= grid + 1e-12) and np.all(grid - d <= 1e-2)
+    assert_close(d[200:250], np.linalg.norm(P0 - Q0, axis=1)[200:250])
+
+
+@pytest.mark.numerics
+def test_the_culling_bounds_never_exceed_the_distances_and_the_last_batch_bounds_the_next(tmp_path):
+    """The spheres', capsules' and point bounds at random postures lie below Drake's distances; a batch after
+    another (the last batch's distances moved by the joints' reach bounds) gives what a fresh map gives."""
+    robot, world, tm = _world(tmp_path)
+    Q = _postures(robot, 40, seed=6)
+    lb = tm.lower_bounds(tm._frames(Q @ robot.P.T), len(Q))
+    tm._known = None
+    D = tm.evaluate(Q, jacobians=False)[0]
+    live = D < tm.max_distance
+    assert live.sum() > 100 and np.all(lb[live] <= D[live])
+    rng = np.random.default_rng(7)
+    for k in range(6):
+        Q2 = Q + (0.02 * k) * rng.standard_normal(Q.shape)
+        for cull in (None, 0.05):
+            D1, J1, _ = tm.evaluate(Q2, cull=cull)
+            tm._known = None
+            D2, J2, _ = tm.evaluate(Q2, cull=cull)
+            c = tm.max_distance if cull is None else cull
+            assert np.array_equal(D1 < c, D2 < c) and np.array_equal(D1[D1 < c], D2[D2 < c])
+            assert np.array_equal(J1[D1 < c], J2[D2 < c])
