@@ -152,7 +152,8 @@ class DistanceConstraint:
     Only rows that can be active are queried: the AL gives each row its slack ``y / mu`` (:meth:`set_slack`)
     and a pair whose distance bound reaches ``b + slack`` has ``lam = 0`` exactly: it is culled there
     (``SignedDistances.evaluate``'s ``cull``). The last evaluations are remembered (the AL asks for values,
-    derivatives and the violation at one iterate)."""
+    derivatives and the violation at one iterate): one serves where its rows' cull distances are at least
+    the ones asked for."""
 
     def __init__(self, term, n_q: int, T: int, q0: np.ndarray, dt: float, vmax: np.ndarray | None, tol: float):
         self.term, self.n_q, self.name = term, n_q, term.name
@@ -182,8 +183,8 @@ class DistanceConstraint:
 
     def _eval(self, X: np.ndarray):
         cull = self.bound if self.slack is None else self.bound + self.slack
-        for key, c, out in self._memo:
-            if np.array_equal(key, X) and np.array_equal(c, cull):
+        for key, c, out in self._memo:   # a row culled at a larger distance is culled at this one
+            if np.array_equal(key, X) and np.all(cull <= c):
                 return out
         T1, n = X.shape
         G = np.full((T1, self.m), -np.inf)

@@ -823,8 +823,8 @@ class SignedDistances:
                 self._kernels = False
         return self._kernels or None
 
-    def _frames(self, Qp: np.ndarray) -> dict[str, tuple[np.ndarray, ...]]:
-        """Per body of the pairs: origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
+    def _frames(self, Qp: np.ndarray, bodies=None) -> dict[str, tuple[np.ndarray, ...]]:
+        """Per body of the pairs (or of ``bodies``): origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
         of the origin ``J_o (K, 3, m)`` and of the axes' tips ``J_e (K, 3, 3, m)`` (tip i at row i) at plant
         positions ``Qp (K, m)``: a point ``p_B`` of the body is at ``o + R p_B`` with Jacobian
         ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``)."""
@@ -832,7 +832,7 @@ class SignedDistances:
         pts = np.vstack([np.zeros(3), np.eye(3)])
         k = self.tree_kernels()
         out: dict[str, tuple[np.ndarray, ...]] = {}
-        for body in self._bodies:
+        for body in (self._bodies if bodies is None else bodies):
             if k is not None:
                 pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)
             else:
@@ -859,7 +859,8 @@ class SignedDistances:
         O, R = np.zeros((nb + 1, K, 3)), np.broadcast_to(np.eye(3), (nb + 1, K, 3, 3)).copy()
         Jo, Je = np.zeros((nb + 1, K, 3, m)), np.zeros((nb + 1, K, 3, 3, m))
         for i, body in enumerate(self._bodies):
-            O[i], R[i], Jo[i], Je[i] = frames[body]
+            if body in frames:
+                O[i], R[i], Jo[i], Je[i] = frames[body]
         return O, R, Jo, Je
 
     def evaluate(self, Q: np.ndarray, jacobians: bool = True, cull=None):
@@ -879,27 +880,35 @@ class SignedDistances:
         ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
         if ok.size == 0 or m == 0:
             return D, J, W
-        Qp = Q[ok] @ P.T
-        frames = self._frames(Qp)
-        lb = self.lower_bounds(frames, len(ok))
-        known = self._known
-        if known is not None and known[0].shape == (K, Qp.shape[1]):   # the last batch's bounds, moved since
-            with np.errstate(invalid="ignore", over="ignore"):
-                moved = np.abs(Qp - known[0][ok]) @ self._rate.T   # no bound (inf): a huge one
-            lb = np.fmax(lb, known[1][ok] - moved)
+        Q_all = Q[ok] @ P.T
+        limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
         D[ok] = self.max_distance
         if jacobians:
             J[ok] = 0.0
-        limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
-        near_all = lb < limit[ok]
+        known, moved_lb = self._known, None
+        if known is not None and known[0].shape == (K, Q_all.shape[1]):   # the last batch's bounds, moved since
+            with np.errstate(invalid="ignore", over="ignore"):
+                moved_lb = known[1][ok] - np.abs(Q_all - known[0][ok]) @ self._rate.T   # no bound (inf): a huge one
+        # the rows where some pair may come within the limit: their frames, their geometric bounds, their queries
+        S = (np.arange(len(ok)) if moved_lb is None
+             else np.flatnonzero(~np.all(moved_lb >= limit[ok], axis=1)))
+        sub, Qp = ok[S], Q_all[S]
+        if moved_lb is None:
+            frames = self._frames(Qp)
+            lb = self.lower_bounds(frames, len(S))
+        else:   # and of those, the pairs that may: their bodies' frames and their geometric bounds
+            cols = np.flatnonzero(np.any(~(moved_lb[S] >= limit[sub]), axis=0))
+            bodies = {w.body_of[self.pairs[p][i]] for p in cols for i in (0, 1)} - {"world"}
+            frames = self._frames(Qp, [b for b in self._bodies if b in bodies])
+            lb = moved_lb[S].copy()
+            lb[:, cols] = np.fmax(self.lower_bounds(frames, len(S), cols), lb[:, cols])
+        near_all = lb < limit[sub]
         port = w.scene_graph.get_query_output_port()
-        rows, found = [], []   # (row of ok, pair) and Drake's results, gathered first: the arithmetic after, in batches
-        exact_rows: tuple[list, list] = ([], [])   # every pair queried (row of ok, pair) and its distance
+        rows, found = [], []   # (row of sub, pair) and Drake's results, gathered first: the arithmetic after, in batches
+        exact_rows: tuple[list, list] = ([], [])   # every pair queried (row of sub, pair) and its distance
         exact_d: list[float] = []
         for t in np.flatnonzero(near_all.any(axis=1)):
             near = np.flatnonzero(near_all[t])
-            if near.size == 0:
-                continue
             w.set_positions(Qp[t])
             qo = port.Eval(w.sg_context)
             for p in near:
@@ -911,10 +920,12 @@ class SignedDistances:
                     rows.append((t, p))
                     found.append((r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb))
         known_lb = np.full((K, m), np.nan)
-        known_lb[ok] = lb
-        known_lb[ok[exact_rows[0]], exact_rows[1]] = exact_d
-        Qk = np.full((K, Qp.shape[1]), np.nan)
-        Qk[ok] = Qp
+        if moved_lb is not None:
+            known_lb[ok] = moved_lb
+        known_lb[sub] = lb
+        known_lb[sub[exact_rows[0]], exact_rows[1]] = exact_d
+        Qk = np.full((K, Q_all.shape[1]), np.nan)
+        Qk[ok] = Q_all
         self._known = (Qk, known_lb)
         self.queries += len(exact_d)
         if not rows:
@@ -922,28 +933,32 @@ class SignedDistances:
         tt, pp = np.array(rows).T
         dist = np.array([f[0] for f in found])
         nrm = np.array([f[1] for f in found])
-        D[ok[tt], pp] = dist
-        O, R, Jo, Je = self._stacked(frames, len(ok), Qp.shape[1])
+        D[sub[tt], pp] = dist
+        O, R, Jo, Je = self._stacked(frames, len(sub), Qp.shape[1])
         Jd = 0.0
         for side, (slots, pts) in enumerate(((self._ia[pp], np.array([f[2] for f in found])),
                                              (self._ib[pp], np.array([f[3] for f in found])))):
             p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
             b = self._body_index[slots]
-            W[ok[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
+            W[sub[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
             if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
                 nJ = np.einsum("kc,kcm->km", nrm, Jo[b, tt]) + np.einsum("ki,kc,kicm->km", p_B, nrm, Je[b, tt])
                 Jd = Jd + (nJ if side == 0 else -nJ)
         if jacobians:
-            J[ok[tt], pp] = Jd @ P
+            J[sub[tt], pp] = Jd @ P
         return D, J, W
 
-    def lower_bounds(self, frames: dict, K: int) -> np.ndarray:
-        """Lower bounds ``(K, m)`` (m) of the pairs' distances at the ``K`` postures of ``frames`` (:meth:`_frames`):
+    def lower_bounds(self, frames: dict, K: int, cols=None) -> np.ndarray:
+        """Lower bounds ``(K, m)`` (m) of the pairs' distances (of pairs ``cols`` only: ``(K, len(cols))``) at the ``K``
+        postures of ``frames`` (:meth:`_frames`, the pairs' bodies at least):
         the largest of the bounding spheres', the bounding capsules' (segment distance less both radii) and,
         for a robot geometry against a scene primitive, the primitive's distance to its sphere less its radius."""
         w, n = self.world, len(self._names)
-        C, E = np.empty((K, n, 3)), np.empty((K, n, 2, 3))
-        for i, name in enumerate(self._names):
+        cols = np.arange(self.dim) if cols is None else np.asarray(cols, int)
+        ia, ib = self._ia[cols], self._ib[cols]
+        C, E = np.full((K, n, 3), np.nan), np.full((K, n, 2, 3), np.nan)
+        for i in np.union1d(ia, ib):
+            name = self._names[i]
             c, body, ends = w.bounds[name][0], w.body_of[name], self._cap_ends[i]
             if body == "world":
                 C[:, i], E[:, i] = c, ends
@@ -951,14 +966,17 @@ class SignedDistances:
                 o, R = frames[body][0], frames[body][1]
                 C[:, i] = o + R @ c
                 E[:, i] = o[:, None] + np.einsum("kij,ej->kei", R, ends)
-        ia, ib = self._ia, self._ib
         with np.errstate(invalid="ignore"):
             lb = np.linalg.norm(C[:, ia] - C[:, ib], axis=2) - self._radius[ia] - self._radius[ib]
             caps = (segment_distances(E[:, ia, 0], E[:, ia, 1], E[:, ib, 0], E[:, ib, 1])
                     - self._cap_radius[ia] - self._cap_radius[ib])
         lb = np.fmax(lb, np.nan_to_num(caps, nan=-np.inf))
+        col_of = {int(p): j for j, p in enumerate(cols)}
         for b, rows in self._scene_objects.items():   # a robot geometry's sphere against a scene primitive
-            p, slots = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+            rows = [r for r in rows if r[0] in col_of]
+            if not rows:
+                continue
+            p, slots = np.array([col_of[r[0]] for r in rows]), np.array([r[1] for r in rows])
             d = point_distance(w.shapes_by_name[b], C[:, slots].reshape(-1, 3)).reshape(K, -1) - self._radius[slots]
             lb[:, p] = np.maximum(lb[:, p], d)
         return lb - 1e-9   # rounding: a bound never above the distance
