@@ -156,3 +156,44 @@ def test_the_culling_bounds_never_exceed_the_distances_and_the_last_batch_bounds
             c = tm.max_distance if cull is None else cull
             assert np.array_equal(D1 < c, D2 < c) and np.array_equal(D1[D1 < c], D2[D2 < c])
             assert np.array_equal(J1[D1 < c], J2[D2 < c])
+
+
+# ------------------------------------------------------------------ bad input
+ROBOT_MESH = ('<collision><origin xyz="0 0 0.12"/><geometry><capsule radius="0.025" length="0.14"/></geometry>'
+              '</collision>')
+BAD = [
+    ("scene_not_tables", '[scene]\nname = "table"\n', AVOID, r"\[\[scene\]\] must be an array of tables"),
+    ("scene_mesh_missing", '[[scene]]\nname = "m"\ntype = "mesh"\nfile = "nowhere.obj"\n', AVOID,
+     r"mesh .*nowhere.obj: cannot be read \(No such file"),
+    ("allow_link", None, AVOID.replace("self = true", 'self = true\nallow = [["base", "elbo"]]'),
+     r"\[costs.avoid\] allow: unknown link 'elbo'"),
+    ("group_link", None, AVOID.replace('[["robot", "scene"]]', '[["arm", "scene"]]\ngroups = {{ arm = ["fore", "uper"] }}'),
+     r"\[costs.avoid\] groups.arm: unknown link 'uper'"),
+    ("robot_mesh", None, AVOID, r"mesh broken.stl: cannot be read"),
+]
+
+
+@pytest.mark.parametrize("case, scene, avoid, pattern", BAD, ids=[b[0] for b in BAD])
+def test_more_bad_collision_input_is_one_line_exit_2_nothing_cached(tmp_path, case, scene, avoid, pattern):
+    """Beyond tests/plants/test_scene.py's cases: a scene that is no array of tables, a scene mesh that is not
+    there, an unknown link in an allow list or a group, a robot collision mesh that cannot be read."""
+    import re
+
+    from typer.testing import CliRunner
+
+    from raico.pipeline.interface.cli import app
+    from tests.plants.scene_robot import SCENE
+
+    problem = _problem(tmp_path, costs=REACH + avoid.format(dmax=1.0), scene=SCENE if scene is None else scene)
+    if case == "robot_mesh":
+        (tmp_path / "broken.stl").write_bytes(b"\x00" * 90)
+        urdf = tmp_path / "three_link.urdf"
+        urdf.write_text(urdf.read_text().replace(ROBOT_MESH, '<collision><geometry><mesh filename="broken.stl"/>'
+                                                             '</geometry></collision>'))
+        assert "broken.stl" in urdf.read_text()
+    arts = tmp_path / "artifacts"
+    r = CliRunner().invoke(app, ["plan", "--problem", str(problem), "--iterations", "1", "--artifacts", str(arts)])
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and "note:" not in ln]
+    assert len(lines) == 1 and re.search(pattern, lines[0]), r.stderr
+    assert not list(arts.glob("plan/*")), "nothing cached"
