@@ -4,8 +4,9 @@ multipliers and penalty move every iteration.
 A constraint (:class:`Constraint`) gives, along a trajectory ``X (T+1, n)``, ``U (T, m)``, its values ``G (T+1,
 c)`` (``-inf`` where a step is not constrained), the Jacobians ``G_x (T+1, c, n)`` and ``G_u (T+1, c, m)``
 (row ``T`` has no control: zero) and a tolerance per row (its unit: rad, rad/s, m). The joint ranges and the
-joint velocity limits are :class:`StateBox` es (selection Jacobians, kept sparse); a collision distance
-``d(x) >= margin`` joins as a :class:`FunctionConstraint` with ``g = margin - d``.
+joint velocity limits are :class:`StateBox` es (selection Jacobians, kept sparse); a hard collision term's
+distances ``d(q_t) >= margin`` are a :class:`DistanceConstraint` (rows ``margin - d``, only those that can be
+active queried); :class:`FunctionConstraint` takes any other ``g(x, u)``.
 
 The method (:class:`AugmentedLagrangian`): the merit ``L(X, U) = cost + sum_t,i psi(g_ti, y_ti)`` with
 ``psi = ((max(0, y + mu g))^2 - y^2) / (2 mu)``; its Gauss-Newton model adds ``G_x^T lam`` to the task
@@ -120,7 +121,7 @@ class ControlBox:
 @dataclass
 class FunctionConstraint:
     """A general ``g(x_t, u_t) <= 0`` from a function ``fn(X, U) -> (G (T+1, c), G_x (T+1, c, n), G_u (T+1, c,
-    m) or None)`` (a collision distance: ``g = margin - d(x)``); ``tol (c,)``."""
+    m) or None)``; ``tol (c,)``."""
 
     name: str
     fn: Callable[[np.ndarray, np.ndarray], tuple]

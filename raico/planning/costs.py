@@ -336,9 +336,12 @@ class Collision(TaskInequality):
     squared hinge on the distance below the margin; :class:`TaskInequality` with ``A = -I``,
     ``b = -margin``).
 
-    ``hard``: the problem asks for ``d >= margin`` as a constraint. Solvers that take constraints read
-    :meth:`constraints` (``g(x_t) <= 0`` per step with its Jacobian); the others minimize the stiff
-    penalty this term is (its weight: the problem's, by default :data:`HARD_COLLISION_WEIGHT`).
+    ``hard``: the problem asks for ``d >= margin`` as a constraint. AICO and R-AICO keep it in their
+    augmented Lagrangian (``raico.planning.constraints.DistanceConstraint``; the term leaves their cost);
+    :meth:`constraints` gives ``g(x_t) <= 0`` per step with its Jacobian to any other constrained solver; the
+    others minimize the stiff penalty this term is (its weight: the problem's, by default
+    :data:`HARD_COLLISION_WEIGHT`). The hinge's distances are queried only where a pair may come within the
+    margin (``SignedDistances.evaluate``'s ``cull``): beyond it the hinge is zero.
 
     Args:
         taskmap: the distances (``raico.plants.scene.SignedDistances``, ``dim`` pairs, capped at its
