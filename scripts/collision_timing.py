@@ -1,9 +1,12 @@
 """Time of the signed-distance queries against a planning iteration: the shipped xArm7 reach (7 DOF, T = 100)
-with a scene of four objects and a collision term on every link against them and the robot against itself
-(its SRDF's allowed pairs left out), planned by R-AICO. Prints the pairs, the iterations, the time per
-iteration and the share of it the distances take (their values and Jacobians at every step).
+with a scene of five objects and a hard collision term on every link against them and the robot against
+itself (its SRDF's allowed pairs left out: 51 pairs), planned by R-AICO. Prints, as medians over REPEATS
+runs, the time per iteration, the time of the distance queries within the iterations (values and Jacobians
+of the batches the solver's iterations ask for; the start's cost, the notes before planning and the
+status after left out) and their
+share, and the time per iteration without the term.
 
-    PYTHONPATH=. .venv/bin/python scripts/collision_timing.py [ITERATIONS]
+    PYTHONPATH=. .venv/bin/python scripts/collision_timing.py [ITERATIONS] [REPEATS]
 """
 
 from __future__ import annotations
@@ -40,6 +43,12 @@ type = "box"
 size = [0.3, 0.6, 0.02]
 pose = [0.7, 0.0, 0.7, 0.0, 0.0, 0.0]
 
+[[scene]]
+name = "wall"
+type = "box"
+size = [1.0, 0.04, 1.0]
+pose = [0.4, -0.55, 0.5, 0.0, 0.0, 0.0]
+
 [costs.avoid]
 type = "collision"
 pairs = [["robot", "scene"]]
@@ -49,46 +58,65 @@ margin = 0.02
 """
 
 
-def main(iterations: int = 20) -> None:
+def _run(path: Path, iterations: int) -> tuple[float, float, int, int, str]:
+    """Time per iteration (s), query time per iteration (s), pairs, iterations and status of one plan."""
+    import traceback
+
     from raico.plants.scene import SignedDistances
     from raico.stages.plan.stage import PlanConfig, plan
 
+    spent = {"s": 0.0, "pairs": 0}
+    evaluate = SignedDistances.evaluate
+
+    def timed(self, Q, jacobians=True, **kw):
+        t = time.perf_counter()
+        try:
+            return evaluate(self, Q, jacobians, **kw)
+        finally:
+            if any(f.name == "drive" for f in traceback.extract_stack()):   # within the iterations
+                spent["s"] += time.perf_counter() - t
+            spent["pairs"] = self.dim
+
+    import raico.planning.aico.solve as solve
+
+    drive = solve.drive
+
+    def timed_drive(*a, **kw):   # the iterations' span: the driver's call, callbacks and all
+        t = time.perf_counter()
+        try:
+            return drive(*a, **kw)
+        finally:
+            spent["drive"] = spent.get("drive", 0.0) + time.perf_counter() - t
+
+    SignedDistances.evaluate, solve.drive = timed, timed_drive
+    try:
+        out = plan(PlanConfig(problem=str(path), solver="raico", iterations=iterations).normalized())
+    finally:
+        SignedDistances.evaluate, solve.drive = evaluate, drive
+    m = out.metrics()
+    n = max(m["iterations"], 1)
+    return spent["drive"] / n, spent["s"] / n, spent["pairs"], m["iterations"], m["status"]
+
+
+def main(iterations: int = 20, repeats: int = 3) -> None:
+    import os
+
+    import numpy as np
+
     src = (ROOT / "raico" / "problems" / "examples" / "xarm7_reach.toml").read_text()
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "xarm7_scene.toml"
+        path, base = Path(tmp) / "xarm7_scene.toml", Path(tmp) / "xarm7.toml"
         path.write_text(src.replace("[costs.reach]", SCENE + "\n[costs.reach]", 1))
-        spent = {"s": 0.0, "calls": 0, "pairs": 0}
-        evaluate = SignedDistances.evaluate
-
-        def timed(self, Q, jacobians=True):
-            t = time.perf_counter()
-            try:
-                return evaluate(self, Q, jacobians)
-            finally:
-                spent["s"] += time.perf_counter() - t
-                spent["calls"] += 1
-                spent["pairs"] = self.dim
-
-        SignedDistances.evaluate = timed
-        try:
-            out = plan(PlanConfig(problem=str(path), solver="raico", iterations=iterations).normalized())
-        finally:
-            SignedDistances.evaluate = evaluate
-    m = out.metrics()
-    per = m["wall_time_s"] / max(m["iterations"], 1)
-    print(f"pairs {spent['pairs']}, T 100, {m['iterations']} iterations in {m['wall_time_s']:.2f} s "
-          f"({1e3 * per:.1f} ms each); distance queries {spent['s']:.2f} s in {spent['calls']} batches of 101 "
-          f"steps ({1e3 * spent['s'] / max(spent['calls'], 1):.1f} ms each, "
-          f"{1e3 * spent['s'] / max(m['iterations'], 1):.1f} ms per iteration, "
-          f"{100 * spent['s'] / m['wall_time_s']:.0f} % of the planning time; planning and setting up)")
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "xarm7.toml"
-        path.write_text(src)
-        base = plan(PlanConfig(problem=str(path), solver="raico", iterations=iterations).normalized()).metrics()
-    without = base["wall_time_s"] / max(base["iterations"], 1)
-    print(f"without the collision term: {1e3 * without:.1f} ms per iteration; the term's share of an iteration "
-          f"with it: {100 * (per - without) / per:.0f} %")
+        base.write_text(src)
+        runs = [_run(path, iterations) for _ in range(repeats)]
+        without = float(np.median([_run(base, iterations)[0] for _ in range(repeats)]))
+    per, q = (float(np.median([r[k] for r in runs])) for k in (0, 1))
+    share = float(np.median([r[1] / r[0] for r in runs]))
+    print(f"pairs {runs[0][2]}, T 100, {runs[0][3]} iterations ({runs[0][4]}); medians of {repeats} runs, load "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"with the term: {1e3 * per:.1f} ms per iteration, of them distance queries {1e3 * q:.1f} ms "
+          f"({100 * share:.0f} %); without the term: {1e3 * without:.1f} ms per iteration")
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20)
+    main(*(int(a) for a in sys.argv[1:3]))

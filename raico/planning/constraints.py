@@ -4,8 +4,9 @@ multipliers and penalty move every iteration.
 A constraint (:class:`Constraint`) gives, along a trajectory ``X (T+1, n)``, ``U (T, m)``, its values ``G (T+1,
 c)`` (``-inf`` where a step is not constrained), the Jacobians ``G_x (T+1, c, n)`` and ``G_u (T+1, c, m)``
 (row ``T`` has no control: zero) and a tolerance per row (its unit: rad, rad/s, m). The joint ranges and the
-joint velocity limits are :class:`StateBox` es (selection Jacobians, kept sparse); a collision distance
-``d(x) >= margin`` joins as a :class:`FunctionConstraint` with ``g = margin - d``.
+joint velocity limits are :class:`StateBox` es (selection Jacobians, kept sparse); a hard collision term's
+distances ``d(q_t) >= margin`` are a :class:`DistanceConstraint` (rows ``margin - d``, only those that can be
+active queried); :class:`FunctionConstraint` takes any other ``g(x, u)``.
 
 The method (:class:`AugmentedLagrangian`): the merit ``L(X, U) = cost + sum_t,i psi(g_ti, y_ti)`` with
 ``psi = ((max(0, y + mu g))^2 - y^2) / (2 mu)``; its Gauss-Newton model adds ``G_x^T lam`` to the task
@@ -120,7 +121,7 @@ class ControlBox:
 @dataclass
 class FunctionConstraint:
     """A general ``g(x_t, u_t) <= 0`` from a function ``fn(X, U) -> (G (T+1, c), G_x (T+1, c, n), G_u (T+1, c,
-    m) or None)`` (a collision distance: ``g = margin - d(x)``); ``tol (c,)``."""
+    m) or None)``; ``tol (c,)``."""
 
     name: str
     fn: Callable[[np.ndarray, np.ndarray], tuple]
@@ -140,6 +141,75 @@ class FunctionConstraint:
         if Gu is not None:
             lu += np.einsum("tci,tc->ti", Gu[:-1], lam[:-1])
             luu += mu * np.einsum("tci,tc,tcj->tij", Gu[:-1], act[:-1], Gu[:-1])
+
+
+class DistanceConstraint:
+    """``d_p(q_t) >= b_tp`` per geometry pair ``p`` and step ``t`` of a collision term (rows ``g = b - d``, m;
+    ``d`` capped at the map's ``max_distance``, zero gradient there), ``b`` the term's margin at the steps it
+    covers but step 0 (the start: no plan moves it). From a start closer than the margin, a pair's bound
+    rises from its start distance ``d0`` as fast as the velocity limits ``vmax`` let it, to first order:
+    ``b_tp = min(margin, d0_p + (t - 1) dt |J_p(q0)| vmax)`` (no limit: the margin from step 1).
+
+    Only rows that can be active are queried: the AL gives each row its slack ``y / mu`` (:meth:`set_slack`)
+    and a pair whose distance bound reaches ``b + slack`` has ``lam = 0`` exactly: it is culled there
+    (``SignedDistances.evaluate``'s ``cull``). The last evaluations are remembered (the AL asks for values,
+    derivatives and the violation at one iterate): one serves where its rows' cull distances are at least
+    the ones asked for."""
+
+    def __init__(self, term, n_q: int, T: int, q0: np.ndarray, dt: float, vmax: np.ndarray | None, tol: float):
+        self.term, self.n_q, self.name = term, n_q, term.name
+        self.m = term.taskmap.dim
+        self.tol = np.full(self.m, tol)
+        self.cap = float(getattr(term.taskmap, "max_distance", math.inf))
+        steps = term.active(np.arange(T + 1)).copy()
+        steps[0] = False
+        self.steps = np.flatnonzero(steps)
+        b = np.full((T + 1, self.m), term.margin)
+        d0, J0 = term.taskmap.value_and_jacobian(np.asarray(q0, float))
+        start = np.flatnonzero(d0 < term.margin)
+        if start.size:
+            v = np.full(n_q, np.inf) if vmax is None else np.asarray(vmax, float)
+            with np.errstate(invalid="ignore"):
+                rate = np.where(J0[start] != 0, np.abs(J0[start]) * v, 0.0).sum(axis=1)
+                t = np.maximum(np.arange(T + 1) - 1, 0)[:, None] * dt
+                b[:, start] = np.minimum(term.margin, d0[start] + np.where(t > 0, t * rate, 0.0))
+        self.bound = b[self.steps]
+        self.start_inside = int(start.size)
+        self.slack: np.ndarray | None = None
+        self._memo: list = []
+
+    def set_slack(self, slack: np.ndarray | None) -> None:
+        """The rows' ``y / mu`` (``(T+1, m)``, m), or None (no multipliers yet)."""
+        self.slack = None if slack is None else slack[self.steps]
+
+    def _eval(self, X: np.ndarray):
+        cull = self.bound if self.slack is None else self.bound + self.slack
+        for key, c, out in self._memo:   # a row culled at a larger distance is culled at this one
+            if np.array_equal(key, X) and np.all(cull <= c):
+                return out
+        T1, n = X.shape
+        G = np.full((T1, self.m), -np.inf)
+        Gx = np.zeros((T1, self.m, n))
+        if self.steps.size and self.m:
+            D, J = self.term.taskmap.evaluate(X[self.steps, :self.n_q], cull=np.minimum(cull, self.cap))[:2]
+            G[self.steps] = self.bound - D
+            Gx[self.steps, :, :self.n_q] = -np.nan_to_num(J)
+        out = (G, Gx)
+        self._memo = [(np.array(X), cull.copy(), out), *self._memo[:2]]
+        return out
+
+    def values(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        return self._eval(X)[0]
+
+    def add_derivatives(self, X, U, lam, mu, lx, lxx, lu, luu) -> None:
+        _, Gx = self._eval(X)
+        rows = np.flatnonzero(lam.any(axis=1))
+        if rows.size == 0:
+            return
+        A, L = Gx[rows][:, :, :self.n_q], lam[rows]
+        lx[rows, :self.n_q] += np.einsum("tci,tc->ti", A, L)
+        Aa = A * (L > 0)[:, :, None]
+        lxx[rows, :self.n_q, :self.n_q] += mu * np.matmul(np.swapaxes(Aa, 1, 2), Aa)
 
 
 class AugmentedLagrangian:
@@ -212,6 +282,7 @@ class AugmentedLagrangian:
         for k, (_, lam) in enumerate(self._lams(X, U)):
             self.y[k] = lam if (lam.any() or self.y[k] is not None) else None
         self.updates += 1
+        self._share_slack()
         if viol <= 1.0 or viol <= DECREASE * self.ref_violation:
             self.ref_violation, self.stalled = viol, 0
         else:
@@ -225,6 +296,14 @@ class AugmentedLagrangian:
         """``mu *= MU_GROWTH`` (up to its cap)."""
         self.mu = min(self.mu * MU_GROWTH, self.mu0 * MU_MAX_FACTOR)
         self.stalled = 0
+        self._share_slack()
+
+    def _share_slack(self) -> None:
+        """Tell the constraints that cull their rows (``set_slack``) each row's ``y / mu``: beyond it ``lam = 0``."""
+        for k, c in enumerate(self.constraints):
+            if hasattr(c, "set_slack"):
+                y = self.y[k]
+                c.set_slack(None if y is None else y / self._mu(c))
 
 
 def reachable_box(lo: np.ndarray, hi: np.ndarray, q0: np.ndarray, vmax: np.ndarray, dt: float, T: int

@@ -336,9 +336,12 @@ class Collision(TaskInequality):
     squared hinge on the distance below the margin; :class:`TaskInequality` with ``A = -I``,
     ``b = -margin``).
 
-    ``hard``: the problem asks for ``d >= margin`` as a constraint. Solvers that take constraints read
-    :meth:`constraints` (``g(x_t) <= 0`` per step with its Jacobian); the others minimize the stiff
-    penalty this term is (its weight: the problem's, by default :data:`HARD_COLLISION_WEIGHT`).
+    ``hard``: the problem asks for ``d >= margin`` as a constraint. AICO and R-AICO keep it in their
+    augmented Lagrangian (``raico.planning.constraints.DistanceConstraint``; the term leaves their cost);
+    :meth:`constraints` gives ``g(x_t) <= 0`` per step with its Jacobian to any other constrained solver; the
+    others minimize the stiff penalty this term is (its weight: the problem's, by default
+    :data:`HARD_COLLISION_WEIGHT`). The hinge's distances are queried only where a pair may come within the
+    margin (``SignedDistances.evaluate``'s ``cull``): beyond it the hinge is zero.
 
     Args:
         taskmap: the distances (``raico.plants.scene.SignedDistances``, ``dim`` pairs, capped at its
@@ -359,6 +362,19 @@ class Collision(TaskInequality):
             raise ValueError(f"{self.name}: margin must be >= 0 (m), got {margin}")
         self.margin, self.hard = float(margin), bool(hard)
 
+    def _map(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`_OnPositions._map`, the pairs culled at the margin (beyond it the hinge is zero: the
+        value and the derivatives are those of the uncapped query)."""
+        last = self._last
+        if (last is not None and last[0] is self.taskmap and last[1].shape == Q.shape
+                and np.array_equal(last[1], Q)):
+            return last[2], last[3]
+        cull = self.margin if hasattr(self.taskmap, "evaluate") else None
+        phi, J = (self.taskmap.evaluate(Q, cull=cull)[:2] if cull is not None
+                  else self.taskmap.values_and_jacobians(Q))
+        self._last = (self.taskmap, np.array(Q, dtype=float), phi, J)
+        return phi, J
+
     def constraints(self, X: np.ndarray, idx=None) -> tuple[np.ndarray, np.ndarray]:
         """The inequality ``g(x_t) = margin - d(q_t) <= 0`` at rows ``X (K, n_x)`` of steps ``idx``: ``g (K, m)``
         (m) and its Jacobian ``G (K, m, n_x)`` (``-J`` on the positions, zero on the velocities); rows of
@@ -371,7 +387,7 @@ class Collision(TaskInequality):
         G = np.zeros((K, self.taskmap.dim, n_x))
         m = self.active(idx)
         if m.any():
-            d, J = self._map(X[m][:, :n_q])
+            d, J = self.taskmap.values_and_jacobians(X[m][:, :n_q])
             g[m] = self.margin - d
             G[np.flatnonzero(m), :, :n_q] = -J
         return g, G
@@ -959,7 +975,7 @@ class _SphereClearance:
     def value(self, q: np.ndarray) -> np.ndarray:
         return self.values_and_jacobians(q[None])[0][0]
 
-    def evaluate(self, Q: np.ndarray, jacobians: bool = True):
+    def evaluate(self, Q: np.ndarray, jacobians: bool = True, cull=None):
         d, J = self.values_and_jacobians(Q)
         return (d, J) if jacobians else (d, None)
 

@@ -377,6 +377,13 @@ def _collision_term(name: str, t: dict, problem, robot, steps, weight: float) ->
         if srdf is None:
             raise ValueError(f"[costs.{name}] allow = \"srdf\": the robot has no SRDF (give srdf in [robot])")
         allow = srdf_allowed(srdf)
+    else:
+        for link in (ln for pair in allow for ln in pair):
+            if not world.plant.HasBodyNamed(link):
+                from raico.plants.model_file import closest_names
+
+                raise ValueError(f"[costs.{name}] allow: unknown link '{link}': closest "
+                                 f"{closest_names(link, world.robot_links())}")
     groups = t["groups"]
     for g, links in groups.items():
         for link in links:

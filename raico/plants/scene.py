@@ -18,7 +18,8 @@ negative in penetration; pairs farther than ``max_distance`` report it and a zer
 gradients with respect to the plant's positions, ``dd/dq = n^T (J_A(p_A) - J_B(p_B))``: the witness
 points' translational Jacobians (Drake's) projected on the normal ``n`` (from B to A): the reference.
 :class:`SignedDistances` is the task map of those distances on planning coordinates, batched over a
-trajectory: spheres around the geometries cull the pairs first, each remaining pair is one
+trajectory: lower bounds cull the pairs first (bounding spheres and capsules, a scene primitive's distance,
+and the last batch's distances less how far the joints moved times their reach), each remaining pair is one
 ``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics.
 
 Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
@@ -294,11 +295,63 @@ def bounding_sphere(s: Shape) -> tuple[np.ndarray, float]:
     return c, float(np.linalg.norm(V - c, axis=1).max())
 
 
+def bounding_capsule(s: Shape) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule around shape ``s``: its segment's ends ``(3,)``, ``(3,)`` in the shape's frame and its radius (m).
+    A capsule or a sphere is its own; a cylinder the capsule of its radius and length; a box or a convex mesh
+    one along the principal axis of its vertices, the radius their largest distance from that axis and the
+    segment as short as keeps every vertex inside (then the hull: a capsule is convex)."""
+    if s.kind == "sphere":
+        return np.zeros(3), np.zeros(3), s.size[0]
+    if s.kind in ("capsule", "cylinder"):
+        h = np.array([0.0, 0.0, 0.5 * s.size[1]])
+        return -h, h, s.size[0]
+    if s.kind == "box":
+        V = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * np.asarray(s.size)
+    else:
+        V = np.asarray(s.vertices, float)
+    c = V.mean(axis=0)
+    axis = np.linalg.eigh(np.cov((V - c).T) + 1e-300 * np.eye(3))[1][:, -1]
+    along = (V - c) @ axis
+    rho = np.linalg.norm((V - c) - along[:, None] * axis, axis=1)
+    r = float(rho.max()) * (1 + 1e-12) + 1e-12
+    reach = np.sqrt(np.maximum(r * r - rho * rho, 0.0))
+    # vertex v is inside where the segment [s0, s1] meets [along_v - reach_v, along_v + reach_v]: s0 <= min(along +
+    # reach), s1 >= max(along - reach); the shortest such segment, a point where those overlap
+    top, bottom = float(np.max(along - reach)), float(np.min(along + reach))
+    s0, s1 = (bottom, top) if top > bottom else (0.5 * (top + bottom),) * 2
+    return c + s0 * axis, c + s1 * axis, r
+
+
+def segment_distances(P0: np.ndarray, P1: np.ndarray, Q0: np.ndarray, Q1: np.ndarray) -> np.ndarray:
+    """Distances ``(...)`` between the segments ``P0 P1`` and ``Q0 Q1`` (``(..., 3)`` each; a segment may be a
+    point): the closest points' parameters clamped to ``[0, 1]`` one after the other (Ericson, *Real-Time
+    Collision Detection*, 5.1.9)."""
+    d1, d2, r = P1 - P0, Q1 - Q0, P0 - Q0
+    a, e = np.einsum("...i,...i", d1, d1), np.einsum("...i,...i", d2, d2)
+    b, c, f = np.einsum("...i,...i", d1, d2), np.einsum("...i,...i", d1, r), np.einsum("...i,...i", d2, r)
+    tiny = 1e-30
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = a * e - b * b
+        s = np.where(denom > tiny * np.maximum(a * e, tiny), np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
+        point_q = e <= tiny   # Q a point: t = 0, s its projection on P
+        t = np.where(point_q, 0.0, (b * s + f) / e)
+        s = np.where(point_q | (t < 0.0), np.where(a > tiny, np.clip(-c / a, 0.0, 1.0), 0.0),
+                     np.where(t > 1.0, np.where(a > tiny, np.clip((b - c) / a, 0.0, 1.0), 0.0), s))
+        t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm(r + d1 * s[..., None] - d2 * t[..., None], axis=-1)
+
+
+@functools.lru_cache(maxsize=1024)
+def _pose_matrix(pose: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    X = rigid_transform(pose)
+    return X.rotation().matrix(), X.translation()
+
+
 def point_distance(s: Shape, P: np.ndarray) -> np.ndarray:
     """Signed distances ``(K,)`` (m) of world points ``P (K, 3)`` to the primitive ``s`` placed in the world
     (box, sphere, cylinder, capsule; negative inside)."""
-    X = rigid_transform(s.pose)
-    L = (P - X.translation()) @ X.rotation().matrix()     # in the shape's frame
+    R, p = _pose_matrix(tuple(s.pose))
+    L = (P - p) @ R     # in the shape's frame
     if s.kind == "sphere":
         return np.linalg.norm(L, axis=1) - s.size[0]
     if s.kind == "capsule":
@@ -468,14 +521,19 @@ class CollisionWorld:
             self.body_of[name] = bname
         by_name = self.shapes_by_name
         self.bounds: dict[str, tuple[np.ndarray, float]] = {}   # name -> (centre in its body's frame, radius)
+        self.capsules: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}   # name -> (ends in its body's frame, r)
         for name in self.geometries:
             shape = by_name.get(name)
             if shape is None:   # a world file's geometry, or one Drake registered: never culled early
                 self.bounds[name] = (np.zeros(3), math.inf)
+                self.capsules[name] = (np.zeros(3), np.zeros(3), math.inf)
                 continue
             c_G, r = bounding_sphere(shape)
             X = rigid_transform(shape.pose)
-            self.bounds[name] = (X.rotation().matrix() @ c_G + X.translation(), r)
+            R, p = X.rotation().matrix(), X.translation()
+            self.bounds[name] = (R @ c_G + p, r)
+            a, b, rc = bounding_capsule(shape)
+            self.capsules[name] = (R @ a + p, R @ b + p, rc)
 
     def _instance_of_file(self, instance, d: dict) -> bool:
         tag = f"scene_{hashlib.sha256(d['file'].encode()).hexdigest()[:8]}"
@@ -674,10 +732,13 @@ class SignedDistances:
     """Signed distances of geometry pairs as a task map on planning coordinates: ``phi(q) (m,)`` (m), the
     distances capped at ``max_distance``, and ``J (m, n_q)`` (zero rows where capped).
 
-    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step by spheres around its
-    geometries (centres by the robot's compiled kinematics where they build, else Drake's), and queries
-    SceneGraph (``ComputeSignedDistancePairClosestPoints``) only where that bound is below
-    ``max_distance``; the witness points' Jacobians come from the same kinematics."""
+    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step: by the last batch's distances
+    (or bounds) less ``rho |q - q_last|`` (:meth:`_pair_rates`; where that settles a row, nothing more), then by
+    the largest of the spheres' and capsules' around its geometries and a scene primitive's distance
+    (:meth:`lower_bounds`; the frames by the robot's compiled kinematics where they build, else Drake's), and
+    queries SceneGraph (``ComputeSignedDistancePairClosestPoints``) only where that bound is below the cull
+    distance (``max_distance``, or less: :meth:`evaluate`); the witness points' Jacobians come from the same
+    kinematics."""
 
     def __init__(self, robot, world: CollisionWorld, pairs: list[tuple[str, str]], max_distance: float,
                  name: str = "distances"):
@@ -705,6 +766,55 @@ class SignedDistances:
         self._against_scene = [(p, (a, b)) for p, (a, b) in enumerate(self.pairs)
                                if world.body_of[a] != "world" and b in world.shapes_by_name
                                and world.body_of[b] == "world" and world.shapes_by_name[b].kind != "convex"]
+        self._cap_ends = np.array([world.capsules[n][:2] for n in names]).reshape(-1, 2, 3)   # in the bodies' frames
+        self._cap_radius = np.array([world.capsules[n][2] for n in names])
+        self._scene_objects = {b: [(p, self._slot[a]) for p, (a, bb) in self._against_scene if bb == b]
+                               for b in dict.fromkeys(b for _, (_, b) in self._against_scene)}
+        self._rate = self._pair_rates()
+        self._known: tuple[np.ndarray, np.ndarray] | None = None   # (Qp, lower bounds) of the last batch
+        self.queries = 0   # pair queries so far (a count for the timing)
+
+    def _pair_rates(self) -> np.ndarray:
+        """``rho (m, n_plant)`` (m/rad): how fast each pair's distance can change with each plant position,
+        anywhere: a revolute joint that moves one geometry of the pair but not the other moves its points at
+        most by their distance from the joint (bounded by the chain's offsets from the joint to the body plus
+        the geometry's bounding sphere) per radian; a joint that moves both or neither, 0; other joints
+        (prismatic, floating): ``inf`` (no such bound)."""
+        from pydrake.multibody.tree import JointIndex
+
+        plant = self.world.plant
+        inboard: dict[str, Any] = {}
+        for i in range(plant.num_joints()):
+            j = plant.get_joint(JointIndex(i))
+            inboard[j.child_body().name()] = j
+
+        def offset(j) -> float:
+            X_FM = j.X_FM().translation() if j.type_name() == "weld" else np.zeros(3)
+            return float(np.linalg.norm(j.frame_on_child().GetFixedPoseInBodyFrame().translation())
+                         + np.linalg.norm(X_FM))
+
+        n_p = plant.num_positions()
+        rho = np.zeros((self.dim, n_p))
+        reach: dict[str, dict[int, float]] = {}   # geometry -> position index -> reach (m), its moving joints
+        for name in self._names:
+            body, (c, r) = self.world.body_of[name], self.world.bounds[name]
+            out: dict[int, float] = {}
+            length = float(np.linalg.norm(c)) + r
+            while body != "world" and body in inboard:
+                j = inboard[body]
+                length += offset(j)
+                if j.num_positions():
+                    for k in range(j.position_start(), j.position_start() + j.num_positions()):
+                        out[k] = length if j.type_name() == "revolute" else math.inf
+                parent = j.parent_body()
+                body = "world" if parent.index() == plant.world_body().index() else parent.name()
+                length += float(np.linalg.norm(j.frame_on_parent().GetFixedPoseInBodyFrame().translation()))
+            reach[name] = out
+        for p, (a, b) in enumerate(self.pairs):
+            ra, rb = reach[a], reach[b]
+            for k in set(ra) ^ set(rb):
+                rho[p, k] = ra.get(k, rb.get(k))
+        return np.minimum(rho, 1e30)   # 0 * rho = 0 where a joint does not move
 
     def tree_kernels(self):
         """The robot's compiled tree kernels (``raico.plants.codegen.rbd``), or None where they do not build."""
@@ -717,8 +827,8 @@ class SignedDistances:
                 self._kernels = False
         return self._kernels or None
 
-    def _frames(self, Qp: np.ndarray) -> dict[str, tuple[np.ndarray, ...]]:
-        """Per body of the pairs: origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
+    def _frames(self, Qp: np.ndarray, bodies=None) -> dict[str, tuple[np.ndarray, ...]]:
+        """Per body of the pairs (or of ``bodies``): origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
         of the origin ``J_o (K, 3, m)`` and of the axes' tips ``J_e (K, 3, 3, m)`` (tip i at row i) at plant
         positions ``Qp (K, m)``: a point ``p_B`` of the body is at ``o + R p_B`` with Jacobian
         ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``)."""
@@ -726,7 +836,7 @@ class SignedDistances:
         pts = np.vstack([np.zeros(3), np.eye(3)])
         k = self.tree_kernels()
         out: dict[str, tuple[np.ndarray, ...]] = {}
-        for body in self._bodies:
+        for body in (self._bodies if bodies is None else bodies):
             if k is not None:
                 pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)
             else:
@@ -753,13 +863,18 @@ class SignedDistances:
         O, R = np.zeros((nb + 1, K, 3)), np.broadcast_to(np.eye(3), (nb + 1, K, 3, 3)).copy()
         Jo, Je = np.zeros((nb + 1, K, 3, m)), np.zeros((nb + 1, K, 3, 3, m))
         for i, body in enumerate(self._bodies):
-            O[i], R[i], Jo[i], Je[i] = frames[body]
+            if body in frames:
+                O[i], R[i], Jo[i], Je[i] = frames[body]
         return O, R, Jo, Je
 
-    def evaluate(self, Q: np.ndarray, jacobians: bool = True):
+    def evaluate(self, Q: np.ndarray, jacobians: bool = True, cull=None):
         """Distances ``(K, m)`` (capped), Jacobians ``(K, m, n_q)`` (None without ``jacobians``) and witness
         points ``(K, m, 2, 3)`` (world, m; NaN where not queried) at the rows of ``Q (K, n_q)``; rows with
-        a non-finite ``q`` give NaN."""
+        a non-finite ``q`` give NaN.
+
+        ``cull`` (m; a number or ``(K, m)``, at most ``max_distance``; None: ``max_distance``): a pair whose
+        lower bound reaches it is not queried and reports ``max_distance`` (a hinge ``max(0, c - d)`` with
+        ``c <= cull`` needs no more: its value and gradient are exact)."""
         P, w = self.robot.P, self.world
         Q = np.atleast_2d(Q)
         K, m = len(Q), self.dim
@@ -769,50 +884,106 @@ class SignedDistances:
         ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
         if ok.size == 0 or m == 0:
             return D, J, W
-        Qp = Q[ok] @ P.T
-        frames = self._frames(Qp)
-        C = np.empty((len(ok), len(self._names), 3))
-        for i, n in enumerate(self._names):
-            c, body = w.bounds[n][0], w.body_of[n]
-            C[:, i] = c if body == "world" else frames[body][0] + frames[body][1] @ c
-        lb = (np.linalg.norm(C[:, self._ia] - C[:, self._ib], axis=2) - self._radius[self._ia] - self._radius[self._ib])
-        for p, (a, b) in self._against_scene:   # a robot geometry's sphere against a scene primitive: sharper
-            lb[:, p] = point_distance(w.shapes_by_name[b], C[:, self._slot[a]]) - self._radius[self._slot[a]]
+        Q_all = Q[ok] @ P.T
+        limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
         D[ok] = self.max_distance
         if jacobians:
             J[ok] = 0.0
+        known, moved_lb = self._known, None
+        if known is not None and known[0].shape == (K, Q_all.shape[1]):   # the last batch's bounds, moved since
+            with np.errstate(invalid="ignore", over="ignore"):
+                moved_lb = known[1][ok] - np.abs(Q_all - known[0][ok]) @ self._rate.T   # no bound (inf): a huge one
+        # the rows where some pair may come within the limit: their frames, their geometric bounds, their queries
+        S = (np.arange(len(ok)) if moved_lb is None
+             else np.flatnonzero(~np.all(moved_lb >= limit[ok], axis=1)))
+        sub, Qp = ok[S], Q_all[S]
+        if moved_lb is None:
+            frames = self._frames(Qp)
+            lb = self.lower_bounds(frames, len(S))
+        else:   # and of those, the pairs that may: their bodies' frames and their geometric bounds
+            cols = np.flatnonzero(np.any(~(moved_lb[S] >= limit[sub]), axis=0))
+            bodies = {w.body_of[self.pairs[p][i]] for p in cols for i in (0, 1)} - {"world"}
+            frames = self._frames(Qp, [b for b in self._bodies if b in bodies])
+            lb = moved_lb[S].copy()
+            lb[:, cols] = np.fmax(self.lower_bounds(frames, len(S), cols), lb[:, cols])
+        near_all = lb < limit[sub]
         port = w.scene_graph.get_query_output_port()
-        rows, found = [], []   # (row of ok, pair) and Drake's results, gathered first: the arithmetic after, in batches
-        for t in range(len(ok)):
-            near = np.flatnonzero(lb[t] < self.max_distance)
-            if near.size == 0:
-                continue
+        rows, found = [], []   # (row of sub, pair) and Drake's results, gathered first: the arithmetic after, in batches
+        exact_rows: tuple[list, list] = ([], [])   # every pair queried (row of sub, pair) and its distance
+        exact_d: list[float] = []
+        for t in np.flatnonzero(near_all.any(axis=1)):
+            near = np.flatnonzero(near_all[t])
             w.set_positions(Qp[t])
             qo = port.Eval(w.sg_context)
             for p in near:
                 r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[p])
+                exact_rows[0].append(t)
+                exact_rows[1].append(p)
+                exact_d.append(r.distance)
                 if r.distance < self.max_distance:
                     rows.append((t, p))
                     found.append((r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb))
+        known_lb = np.full((K, m), np.nan)
+        if moved_lb is not None:
+            known_lb[ok] = moved_lb
+        known_lb[sub] = lb
+        known_lb[sub[exact_rows[0]], exact_rows[1]] = exact_d
+        Qk = np.full((K, Q_all.shape[1]), np.nan)
+        Qk[ok] = Q_all
+        self._known = (Qk, known_lb)
+        self.queries += len(exact_d)
         if not rows:
             return D, J, W
         tt, pp = np.array(rows).T
         dist = np.array([f[0] for f in found])
         nrm = np.array([f[1] for f in found])
-        D[ok[tt], pp] = dist
-        O, R, Jo, Je = self._stacked(frames, len(ok), Qp.shape[1])
+        D[sub[tt], pp] = dist
+        O, R, Jo, Je = self._stacked(frames, len(sub), Qp.shape[1])
         Jd = 0.0
         for side, (slots, pts) in enumerate(((self._ia[pp], np.array([f[2] for f in found])),
                                              (self._ib[pp], np.array([f[3] for f in found])))):
             p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
             b = self._body_index[slots]
-            W[ok[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
+            W[sub[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
             if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
                 nJ = np.einsum("kc,kcm->km", nrm, Jo[b, tt]) + np.einsum("ki,kc,kicm->km", p_B, nrm, Je[b, tt])
                 Jd = Jd + (nJ if side == 0 else -nJ)
         if jacobians:
-            J[ok[tt], pp] = Jd @ P
+            J[sub[tt], pp] = Jd @ P
         return D, J, W
+
+    def lower_bounds(self, frames: dict, K: int, cols=None) -> np.ndarray:
+        """Lower bounds ``(K, m)`` (m) of the pairs' distances (of pairs ``cols`` only: ``(K, len(cols))``) at the ``K``
+        postures of ``frames`` (:meth:`_frames`, the pairs' bodies at least):
+        the largest of the bounding spheres', the bounding capsules' (segment distance less both radii) and,
+        for a robot geometry against a scene primitive, the primitive's distance to its sphere less its radius."""
+        w, n = self.world, len(self._names)
+        cols = np.arange(self.dim) if cols is None else np.asarray(cols, int)
+        ia, ib = self._ia[cols], self._ib[cols]
+        C, E = np.full((K, n, 3), np.nan), np.full((K, n, 2, 3), np.nan)
+        for i in np.union1d(ia, ib):
+            name = self._names[i]
+            c, body, ends = w.bounds[name][0], w.body_of[name], self._cap_ends[i]
+            if body == "world":
+                C[:, i], E[:, i] = c, ends
+            else:
+                o, R = frames[body][0], frames[body][1]
+                C[:, i] = o + R @ c
+                E[:, i] = o[:, None] + np.einsum("kij,ej->kei", R, ends)
+        with np.errstate(invalid="ignore"):
+            lb = np.linalg.norm(C[:, ia] - C[:, ib], axis=2) - self._radius[ia] - self._radius[ib]
+            caps = (segment_distances(E[:, ia, 0], E[:, ia, 1], E[:, ib, 0], E[:, ib, 1])
+                    - self._cap_radius[ia] - self._cap_radius[ib])
+        lb = np.fmax(lb, np.nan_to_num(caps, nan=-np.inf))
+        col_of = {int(p): j for j, p in enumerate(cols)}
+        for b, rows in self._scene_objects.items():   # a robot geometry's sphere against a scene primitive
+            rows = [r for r in rows if r[0] in col_of]
+            if not rows:
+                continue
+            p, slots = np.array([col_of[r[0]] for r in rows]), np.array([r[1] for r in rows])
+            d = point_distance(w.shapes_by_name[b], C[:, slots].reshape(-1, 3)).reshape(K, -1) - self._radius[slots]
+            lb[:, p] = np.maximum(lb[:, p], d)
+        return lb - 1e-9   # rounding: a bound never above the distance
 
     def value_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         D, J, _ = self.evaluate(q[None])

@@ -9,24 +9,26 @@ import math
 
 import numpy as np
 
-from raico.planning.constraints import AugmentedLagrangian, Constraint, ControlBox, StateBox
+from raico.planning.constraints import AugmentedLagrangian, Constraint, ControlBox, DistanceConstraint, StateBox
 from raico.planning.problem import Bounds, Callback, Problem
 
 RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or velocity limit's violation
+DISTANCE_TOL = 1e-4   # m: the collision constraints' target on a distance below its margin
 AL_INNER_TOL = 1e-3   # the multipliers move where the merit fell by less than this (relative), or inside the limits
 AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
 
 
-def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None
-                     ) -> AugmentedLagrangian | None:
+def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None,
+                     hard: list | None = None) -> AugmentedLagrangian | None:
     """The hard constraints of ``problem.bounds`` (joint ranges, from a start outside one as far as the velocity
     limits let it come back, :meth:`raico.planning.problem.Bounds.position_box`; joint velocity limits) and the effort
     limits of ``efforts`` as an augmented Lagrangian with the penalty ``AL_MU0 kappa`` (:func:`cost_curvature`
     at ``X, U``: invariant to the cost's scale; on the efforts ``AL_MU0`` times the control cost's mean
-    curvature), or ``None`` (no constraint)."""
+    curvature), or ``None`` (no constraint); ``hard``: the collision terms kept as constraints
+    (:class:`raico.planning.constraints.DistanceConstraint`, their penalty not in ``problem``)."""
     b = problem.bounds
     has_u = efforts is not None and efforts.has_controls
-    if not has_u and (b is None or not (b.has_positions or b.has_velocities)):
+    if not has_u and not hard and (b is None or not (b.has_positions or b.has_velocities)):
         return None
     T, cons = problem.T, list[Constraint]()
     kappa = cost_curvature(problem, X, U)
@@ -38,6 +40,7 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
         k = len(b.v_index)
         cons.append(StateBox("joint_velocity", b.v_index, np.broadcast_to(b.v_lower, (T + 1, k)),
                              np.broadcast_to(b.v_upper, (T + 1, k)), RANGE_TOL))
+    cons.extend(distance_constraints(problem, hard or []))
     if has_u:
         idx = np.flatnonzero(np.isfinite(efforts.u_lower) | np.isfinite(efforts.u_upper))
         _, H = problem.control_derivatives(U)
@@ -46,6 +49,18 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
         cons.append(ControlBox("effort", idx, efforts.u_lower[idx], efforts.u_upper[idx],
                                np.full(len(idx), RANGE_TOL * scale), scale=curv / kappa))
     return AugmentedLagrangian(cons, T, AL_MU0 * kappa)
+
+
+def distance_constraints(problem: Problem, hard: list) -> list[DistanceConstraint]:
+    """The hard collision terms ``hard`` as constraints ``d >= margin`` from step 1, a start inside a margin
+    given as long as the velocity limits of ``problem.bounds`` need to leave it (:class:`DistanceConstraint`)."""
+    b, n_q = problem.bounds, problem.n_x // 2
+    vmax = np.full(n_q, np.inf)
+    if b is not None and b.has_velocities:
+        vmax[np.asarray(b.v_index) - n_q] = np.maximum(np.abs(b.v_lower), np.abs(b.v_upper))
+    dt = getattr(problem.dynamics, "dt", 1.0)
+    dt = float(dt) if isinstance(dt, (int, float)) and dt > 0 else 1.0
+    return [DistanceConstraint(t, n_q, problem.T, problem.x0[:n_q], dt, vmax, DISTANCE_TOL) for t in hard]
 
 
 def own_costs(problem: Problem, al: AugmentedLagrangian, callback: Callback | None) -> tuple[Callback, dict[int, float]]:

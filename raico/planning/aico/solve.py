@@ -17,13 +17,16 @@ import math
 
 import numpy as np
 
-from raico.planning.aico.bounds import cost_curvature, hard_constraints, own_costs
+from raico.planning.aico.bounds import cost_curvature, distance_constraints, hard_constraints, own_costs
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.steps import AICOStep, RobustStep
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
+from raico.planning.costs import hard_inequalities
 from raico.planning.driver import Iterate, Status, cost_change_within, drive
 from raico.planning.problem import Bounds, Callback, Problem, Result, bounds_status, single_threaded_blas
 from raico.plants.dynamics import rollout
+
+DISTANCE_STATUS_TOL = 1e-3   # m: a plan closer than a hard collision term's margin by more is out-of-bounds
 
 
 def aico(problem: Problem, options: AICOOptions | None = None, *,
@@ -46,23 +49,46 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
     opts = options or AICOOptions()
     with single_threaded_blas():
         b = problem.bounds
+        hard = hard_inequalities(problem.state_terms)   # kept as constraints: their penalty leaves the cost
+        objective = dataclasses.replace(problem, state_terms=[t for t in problem.state_terms
+                                                              if not any(t is h for h in hard)]) if hard else problem
         if b is None or not b.has_controls:
-            res = _aico(problem, opts, X_init, U_init, callback)
+            res = _aico(objective, opts, X_init, U_init, callback, hard=hard)
         else:   # the efforts are constraints of the iterations, unclipped; the plan's rollout clips them
-            inner = dataclasses.replace(problem, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
-            res = _aico(inner, opts, X_init, U_init, callback, efforts=b)
+            inner = dataclasses.replace(objective, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
+            res = _aico(inner, opts, X_init, U_init, callback, efforts=b, hard=hard)
             if res.status is not Status.DIVERGED:
                 X, U, o, O = bounded_rollout(problem, res.o, res.O)
                 if np.all(np.isfinite(X)):   # else the unclipped plan stays, its status says out-of-bounds
                     res.X, res.U, res.o, res.O = X, U, o, O
                     if res.history:
-                        res.history[-1] = dataclasses.replace(res.history[-1], cost=problem.cost(X, U))
+                        res.history[-1] = dataclasses.replace(res.history[-1], cost=objective.cost(X, U))
         if b is not None:
             bounds_status(problem, res)
+        if hard:
+            distance_status(problem, hard, res)
         return res
 
 
-def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts: Bounds | None = None) -> Result:
+def distance_status(problem: Problem, hard: list, res: Result) -> None:
+    """Status ``out-of-bounds`` (and by how much) for a plan whose distances fall below a hard collision term's
+    bound (its margin; from a start inside it, :class:`raico.planning.constraints.DistanceConstraint`'s) by more
+    than ``DISTANCE_STATUS_TOL`` (m); a diverged plan keeps its status."""
+    if res.status is Status.DIVERGED or not np.all(np.isfinite(res.X)):
+        return
+    for c in distance_constraints(problem, hard):
+        G = c.values(res.X, res.U)
+        t, p = np.unravel_index(int(np.argmax(G)), G.shape)
+        if G[t, p] > DISTANCE_STATUS_TOL:
+            a, b = (n.removeprefix("robot:") for n in c.term.taskmap.pairs[p])
+            res.status = Status.OUT_OF_BOUNDS
+            res.message = (f"the plan comes {1e3 * G[t, p]:.3g} mm inside the margin of '{c.name}' ({a} | {b} at "
+                           f"step {t}) ({res.message})")
+            return
+
+
+def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts: Bounds | None = None,
+          hard: list | None = None) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
     if U.shape != (T, n_u):
@@ -78,7 +104,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
     check_control_cost(problem)
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
     step: RobustStep | AICOStep
-    al = hard_constraints(problem, X, U, efforts)
+    al = hard_constraints(problem, X, U, efforts, hard)
     if al is not None:
         callback, costs = own_costs(problem, al, callback)
     if opts.schedule == "robust":
