@@ -2,6 +2,7 @@
 residual GP and its derivatives, fit / plan / learn through the CLI on small settings."""
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -215,6 +216,9 @@ def test_fit_plan_learned_and_learn_on_a_problem_file(raico, tmp_path):
     first, second = doc["episodes"][:2]
     assert first["plan_status"] != "diverged" and first["execution_status"] not in FAILED, first
     assert first["data_steps"] > 0 and second["n_points"] > first["n_points"], (first, second)
+    # the data count per episode: the babbling's samples, then every 5th usable executed step of each episode
+    assert first["n_points"] == 40
+    assert second["n_points"] == first["n_points"] + math.ceil(first["data_steps"] / 5), (first, second)
 
 
 @pytest.mark.parametrize("args, needle", [(("--episodes", 0), "episodes must be in [1, 100]"),
@@ -310,3 +314,29 @@ def test_full_gp_dynamics_of_a_model_files_robot_by_finite_differences():
     fd = np.column_stack([(dyn.predict_variance(x[None], (u + h * e)[None])[0][0]
                            - dyn.predict_variance(x[None], (u - h * e)[None])[0][0]) / (2 * h) for e in np.eye(2)])
     np.testing.assert_allclose(dvu[0], fd, rtol=1e-5, atol=1e-7 * np.abs(dvu).max())
+
+
+@pytest.mark.numerics
+def test_ur5_payload_example_parses_and_its_true_robot_carries_the_payload():
+    """``ur5_payload_5kg.toml``: the model file's UR5 plans, the executed robot carries 5 kg at ``tool0``; at the
+    start posture, under the model file's gravity compensation, the model stays at rest and the true robot sags."""
+    from raico.planning.problem_file import read_problem
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.model_file import example_robot_data, shared_model
+
+    if example_robot_data() is None:
+        pytest.skip("example-robot-data is not installed (it comes with the extra raico[baseline])")
+    pf = read_problem(Path(__file__).resolve().parents[2] / "raico" / "problems" / "examples" / "ur5_payload_5kg.toml")
+    assert pf.substeps == 5
+    model, true = shared_model(pf.robot_spec()), shared_model(pf.true_spec())
+    assert model.joint_names == true.joint_names and model.name != true.name
+    assert any("5 kg payload at 'tool0'" in line for line in true.load_report), true.load_report
+    dm, dt = make_dynamics("analytic", model, 0.01), make_dynamics("analytic", true, 0.01)
+    q, v = model.default_q.copy(), np.zeros(model.n_q)
+    # the torque that holds the model at rest: qddot is affine in u, solve qddot(u) = 0
+    a0 = dm.qddot(q, v, np.zeros(model.n_q))
+    B = np.column_stack([dm.qddot(q, v, e) - a0 for e in np.eye(model.n_q)])
+    g = np.linalg.solve(B, -a0)
+    assert np.abs(dm.qddot(q, v, g)).max() < 1e-6 * np.abs(g).max()
+    sag = dt.qddot(q, v, g)
+    assert np.linalg.norm(sag) > 1.0, sag    # rad/s^2: 5 kg the model's torques do not hold
