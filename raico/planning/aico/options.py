@@ -102,8 +102,8 @@ class AICOOptions(OptionsBase):
     #: the robust schedule's fall of lambda after a good step: ``"accelerated"`` (the k-th very good step in a
     #: row divides it by ``lm_factor**k``, up to ``lm_factor**3``; the first trial from a start that is no
     #: trajectory judged so too) or ``"nielsen"`` (Nielsen's rule, at most ``/lm_factor``; the rule before):
-    #: :func:`raico.planning.aico.steps.lambda_after`
-    lambda_fall: str = "accelerated"
+    #: :func:`raico.planning.aico.steps.lambda_after`; Nielsen's by default (docs/planning.md: why)
+    lambda_fall: str = "nielsen"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
