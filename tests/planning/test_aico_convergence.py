@@ -57,35 +57,15 @@ def lq_with_cross_term(seed: int = 3) -> Problem:
 
 
 def exact_solution_with_cross(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """The QP's optimum with the joint term's cross blocks: ``exact_solution`` of the problem without the
-    cross term, then the KKT system again with ``l_ux`` put in (the terms are exactly quadratic)."""
-    n, m, T, dyn = pb.n_x, pb.n_u, pb.T, pb.dynamics
+    """The QP's optimum with the joint term's cross blocks ``l_ux``: ``exact_solution``'s KKT system with
+    them put in (the terms are exactly quadratic)."""
+    n, m, T = pb.n_x, pb.n_u, pb.T
     Z = (np.zeros((T + 1, n)), np.zeros((T, m)))
     pb.set_nominal(*Z)
-    R, r = pb.quadratize_states(Z[0])
-    H, h = pb.quadratize_controls(Z[1])
     L = np.zeros((T, m, n))
     for term in pb.joint_terms:
         term.add_cross_derivatives(Z[0][:T], L)
-    off, nz = (T + 1) * n, (T + 1) * n + T * m
-    Hq, g = np.zeros((nz, nz)), np.zeros(nz)
-    for t in range(T + 1):
-        Hq[t * n:(t + 1) * n, t * n:(t + 1) * n], g[t * n:(t + 1) * n] = R[t], r[t]
-    for t in range(T):
-        s, sx = slice(off + t * m, off + (t + 1) * m), slice(t * n, (t + 1) * n)
-        Hq[s, s], g[s] = H[t], h[t]
-        Hq[s, sx], Hq[sx, s] = L[t], L[t].T
-    Ceq, d = np.zeros(((T + 1) * n, nz)), np.zeros((T + 1) * n)
-    Ceq[:n, :n], d[:n] = np.eye(n), pb.x0
-    for t in range(T):
-        rows = slice((t + 1) * n, (t + 2) * n)
-        Ceq[rows, (t + 1) * n:(t + 2) * n] = np.eye(n)
-        Ceq[rows, t * n:(t + 1) * n] = -dyn.A
-        Ceq[rows, off + t * m:off + (t + 1) * m] = -dyn.B
-        d[rows] = dyn.a
-    kkt = np.block([[Hq, Ceq.T], [Ceq, np.zeros((Ceq.shape[0], Ceq.shape[0]))]])
-    z = np.linalg.solve(kkt, np.concatenate([g, d]))
-    return z[:off].reshape(T + 1, n), z[off:nz].reshape(T, m)
+    return exact_solution(pb, L)
 
 
 @pytest.mark.numerics

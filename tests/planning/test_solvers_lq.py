@@ -49,10 +49,10 @@ def make_lq(seed: int = 0, running: float = 0.0, n: int = N_X, m: int = N_U, T: 
     return Problem(LinearDynamics(A=A, a=a, B=B), rng.standard_normal(n), T, terms, controls)
 
 
-def exact_solution(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
+def exact_solution(pb: Problem, L: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Optimal ``X (T+1, n)``, ``U (T, m)`` from the KKT system of the QP
-    ``min sum 1/2 x^T R x - r^T x + 1/2 u^T H u - h^T u`` s.t. ``x_0 = x0``,
-    ``x_{t+1} = A x_t + a + B u_t`` (the terms are exactly quadratic)."""
+    ``min sum 1/2 x^T R x - r^T x + 1/2 u^T H u - h^T u (+ u^T L x)`` s.t. ``x_0 = x0``,
+    ``x_{t+1} = A x_t + a + B u_t`` (the terms are exactly quadratic; ``L (T, m, n)``: cross blocks)."""
     n, m, dyn, T = pb.n_x, pb.n_u, pb.dynamics, pb.T
     R, r = pb.quadratize_states(np.zeros((T + 1, n)))
     H, h = pb.quadratize_controls(np.zeros((T, m)))
@@ -65,6 +65,9 @@ def exact_solution(pb: Problem) -> tuple[np.ndarray, np.ndarray]:
     for t in range(T):
         s = slice(off + t * m, off + (t + 1) * m)
         Hq[s, s], g[s] = H[t], h[t]
+        if L is not None:
+            sx = slice(t * n, (t + 1) * n)
+            Hq[s, sx], Hq[sx, s] = L[t], L[t].T
     Ceq, d = np.zeros(((T + 1) * n, nz)), np.zeros((T + 1) * n)
     Ceq[:n, :n], d[:n] = np.eye(n), pb.x0
     for t in range(T):
