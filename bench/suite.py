@@ -24,9 +24,9 @@ def run(artifacts: Path, file: Path | None = None, jobs: int = 1) -> dict:
     def say(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    def progress(done: int, total: int, label: str | None) -> None:
-        if label:
-            print(f"suite {s.name}: {done}/{total} runs done ({label})", flush=True)
+    def progress(p) -> None:  # an experiment's Progress (raico.pipeline.experiments.expfile)
+        if p.label:
+            print(p.line(s.name), flush=True)
 
     doc = suite.bench(Cache(Path(artifacts)), s, make_executor("process", jobs), say, Path(artifacts) / "bench",
                       progress)
