@@ -391,11 +391,11 @@ def test_unused_options_and_stage_fields_drop_only_an_old_entry_s_errors(monkeyp
     monkeypatch.setattr(registry, "get_stage", broken)
     with pytest.raises(RuntimeError, match="a bug"):
         expfile.unused_in("plan", cfg, ["alpha"], {"alpha": {0.5, 5.0}})
-    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    monkeypatch.setattr(expfile, "entry_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
     with pytest.raises(RuntimeError, match="a bug"):
         expfile.step_configs(None, {"keys": {"execute": "k"}}, "plan")
     monkeypatch.undo()
-    monkeypatch.setattr(expfile, "_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
+    monkeypatch.setattr(expfile, "entry_meta", lambda cache, stage, key: {"config": {"alpha": 2.0, "plan": "k"}})
     assert expfile.step_configs(None, {"keys": {"dance": "k"}}, "plan") == {"dance.alpha": 2.0, "dance.plan": "k"}
     assert expfile.step_configs(None, {"keys": {"execute": "k"}}, "plan") == {"execute.alpha": 2.0}
 

@@ -107,7 +107,7 @@ def label_runs(runs: list[Run]) -> None:
     """Each run's label: the options whose values differ between the runs (``option=value``, those
     a run does not use left out: iLQG's alpha), or its stage and key when every option is the same."""
     from raico.pipeline.experiments.expfile import unused_in
-    from raico.pipeline.experiments.plots import _value
+    from raico.pipeline.experiments.plots import option_text
 
     names = list(dict.fromkeys(k for r in runs for k in r.options))
     values = {k: {_hashable(r.options.get(k)) for r in runs} for k in names}
@@ -116,10 +116,10 @@ def label_runs(runs: list[Run]) -> None:
     for r in runs:
         first = {k: v for k, v in r.options.items() if not k.startswith("execute.")}
         skip = unused_in("plan", first, differ, values) if differ else set()
-        parts = [f"{k}={_value(r.options.get(k))}" for k in differ if k not in skip]
+        parts = [f"{k}={option_text(r.options.get(k))}" for k in differ if k not in skip]
         labels.append(", ".join(parts))
     if len(set(labels)) < len(labels) or not all(labels):   # leaving out unused options made two alike
-        labels = [", ".join(f"{k}={_value(r.options.get(k))}" for k in differ) for r in runs]
+        labels = [", ".join(f"{k}={option_text(r.options.get(k))}" for k in differ) for r in runs]
     if len(set(labels)) < len(labels) or not all(labels):   # the same options: the keys tell them apart
         labels = [f"{r.entry.stage} {r.entry.key[:8]}" for r in runs]
     for r, lab in zip(runs, labels):

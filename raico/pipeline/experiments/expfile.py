@@ -497,7 +497,7 @@ def _used_value(exp: Experiment, options: dict, key: str) -> Any:
     return getattr(cfg, option.replace("-", "_"), options[stage].get(option))
 
 
-def _config(stage: str, options: Mapping[str, Any], **inputs: Any):
+def stage_config(stage: str, options: Mapping[str, Any], **inputs: Any):
     """The stage's config from ``options`` (plus input references), validated: :class:`BadInput`
     naming the option and listing the valid ones."""
     from raico.stages.registry import get_stage
@@ -519,7 +519,7 @@ def _config(stage: str, options: Mapping[str, Any], **inputs: Any):
 
 def first_config(exp: Experiment, run: Run):
     """The first stage's config of ``run`` (its seed set)."""
-    return _config(exp.stages[0], {**run.variant.options[exp.stages[0]], "seed": run.seed})
+    return stage_config(exp.stages[0], {**run.variant.options[exp.stages[0]], "seed": run.seed})
 
 
 def validate(exp: Experiment) -> None:
@@ -531,7 +531,7 @@ def validate(exp: Experiment) -> None:
         try:
             first_config(exp, Run(v, (v.seeds or exp.seeds)[0]))
             for stage in exp.stages[1:]:
-                _config(stage, v.options[stage], **{"plan": "0" * 16})
+                stage_config(stage, v.options[stage], **{"plan": "0" * 16})
         except BadInput as e:
             raise BadInput(f"variant '{v.label}': {e}") from None
         if "seed" in v.options[exp.stages[0]]:
@@ -585,7 +585,7 @@ def _chain_config(stage: str, options: Mapping[str, dict], seed: int, refs: Mapp
     if stage == "evaluate" and "execute" in refs:
         inputs["rollout"] = refs["execute"]
     opts = {**options[stage], **({"seed": seed} if stage in SEEDED else {})}
-    return _config(stage, opts, **inputs)
+    return stage_config(stage, opts, **inputs)
 
 
 def _run_chain(args) -> dict:
@@ -888,7 +888,7 @@ def table_row(cache, exp: Experiment | _Head, run: Run, result: Mapping[str, Any
             if k != "status":
                 _flat(f"{stage}.{k}", v, metrics)
         row.update(metrics)
-        meta = _meta(cache, stage, res["key"])
+        meta = entry_meta(cache, stage, res["key"])
         row[f"{stage}.compute_s"] = (meta.get("timings") or {}).get("compute_s")
         row[f"{stage}.code_version"] = meta.get("code_version")
         if stage == "plan":
@@ -915,7 +915,7 @@ def achieved(result: Mapping[str, Any], stages: Sequence[str]) -> bool | None:
     return None
 
 
-def _meta(cache, stage: str, key: str) -> dict:
+def entry_meta(cache, stage: str, key: str) -> dict:
     """The entry's ``meta.json``; ``{}`` where it cannot be read (said in one line on stderr: the row's
     compute time and code version stay empty)."""
     try:
@@ -1558,7 +1558,7 @@ def step_configs(cache, who: dict[str, Any], first: str) -> dict[str, Any]:
 
     out: dict[str, Any] = {}
     for stage, key in who["keys"].items():
-        cfg = _meta(cache, stage, key).get("config") or {}
+        cfg = entry_meta(cache, stage, key).get("config") or {}
         try:
             inputs = set(get_stage(stage).config_cls.INPUTS)
         except ValueError:  # a stage this version does not know (get_stage's error): every field

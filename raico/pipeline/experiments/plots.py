@@ -195,20 +195,21 @@ def _plain(v: Any) -> Any:
     return None if isinstance(v, float) and math.isnan(v) else v
 
 
-def _value(v: Any) -> str:
+def option_text(v: Any) -> str:
+    """An option's value as a label shows it (floats in ``%g``)."""
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def unused_options(cache, row, options: Sequence[str], others: dict[str, set]) -> set[str]:
     """:func:`raico.pipeline.experiments.expfile.unused_in` for the run of a runs-table ``row`` (its first stage's ``meta.json``);
     none without a cache or an entry."""
-    from raico.pipeline.experiments.expfile import _meta, unused_in
+    from raico.pipeline.experiments.expfile import entry_meta, unused_in
 
     cols = [c for c in row.index if str(c).endswith(".key")]
     if cache is None or not cols or not isinstance(row[cols[0]], str):
         return set()
     stage = cols[0][:-4]
-    return unused_in(stage, _meta(cache, stage, row[cols[0]]).get("config") or {}, options, others)
+    return unused_in(stage, entry_meta(cache, stage, row[cols[0]]).get("config") or {}, options, others)
 
 
 def _variant_names(rows) -> str:
@@ -227,14 +228,14 @@ def labels(cache, grouped: list[tuple[dict[str, Any], Any]], drop_unused: bool =
         return ["all runs"]
     keys = list(grouped[0][0])
     values = {k: {opts.get(k) for opts, _ in grouped} for k in keys}
-    differ = [k for k in keys if len({_value(v) for v in values[k]}) > 1] or keys
+    differ = [k for k in keys if len({option_text(v) for v in values[k]}) > 1] or keys
     out = []
     for opts, rows in grouped:
         skip = unused_options(cache, rows.iloc[0], differ, values) if drop_unused else set()
-        parts = [f"{k}={_value(opts[k])}" for k in differ if k not in skip]
-        out.append(", ".join(parts) or _variant_names(rows) or ", ".join(f"{k}={_value(opts[k])}" for k in differ))
+        parts = [f"{k}={option_text(opts[k])}" for k in differ if k not in skip]
+        out.append(", ".join(parts) or _variant_names(rows) or ", ".join(f"{k}={option_text(opts[k])}" for k in differ))
     if len(set(out)) < len(out):   # dropping unused options made two the same: name every differing option
-        out = [", ".join(f"{k}={_value(opts[k])}" for k in differ) for opts, _ in grouped]
+        out = [", ".join(f"{k}={option_text(opts[k])}" for k in differ) for opts, _ in grouped]
     return out
 
 
@@ -381,7 +382,7 @@ def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, c
         joined = numeric and len(X) > 1
         series[label] = {"x": [p[0] for p in pts], "median": med.tolist(), "q25": lo.tolist(), "q75": hi.tolist(),
                          "n": ns, "drawn": "line" if joined else "points", "style": _style_key(style)}
-        at = f", at {x}={_value(pts[0][0])} only" if numeric and len(X) == 1 and varied else ""
+        at = f", at {x}={option_text(pts[0][0])} only" if numeric and len(X) == 1 and varied else ""
         text = f"{label} ({n_text} per point{at})" if max(ns) else f"{label} (n=0/{max(totals)}: no finite value)"
         if joined:
             ax.plot(X, med, color=style["color"], ls=style["ls"], marker=style["marker"], ms=style["ms"] * 0.7,
@@ -414,7 +415,7 @@ def line_plot(df, swept: list[str], x: str, metric: str, out: Path, name: str, c
         if xv.size > 1 and xv.min() > 0 and xv.max() / xv.min() >= 10:
             ax.set_xscale("log")
         ax.set_xticks(xv)
-        ax.set_xticklabels([_value(v) for v in order])
+        ax.set_xticklabels([option_text(v) for v in order])
         ax.minorticks_off() if ax.get_xscale() == "log" else None
     else:
         ax.set_xticks(range(len(order)))

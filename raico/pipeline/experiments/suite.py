@@ -175,10 +175,10 @@ def _solvers(path: Path, entries: Any, notes: list[str]) -> list[SolverEntry]:
 def _solver_refusal(opts: dict) -> str:
     """Why a solver's options do not make a plan on any problem ("" where they do), checked on a
     built-in task."""
-    from raico.pipeline.experiments.expfile import _config
+    from raico.pipeline.experiments.expfile import stage_config
 
     try:
-        _config("plan", {"plant": "arm5", "task": "reach", **opts})
+        stage_config("plan", {"plant": "arm5", "task": "reach", **opts})
     except BadInput as e:
         return str(e).removeprefix("plan: ")
     return ""
@@ -230,7 +230,7 @@ class Cell:
 def cells(suite: Suite, say: Callable[[str], None]) -> list[Cell]:
     """Every problem x solver cell, the options of those that can run checked by the plan stage's
     config; each that cannot is one line through ``say`` and keeps its reason."""
-    from raico.pipeline.experiments.expfile import _config
+    from raico.pipeline.experiments.expfile import stage_config
 
     out = []
     for p in suite.problems:
@@ -243,7 +243,7 @@ def cells(suite: Suite, say: Callable[[str], None]) -> list[Cell]:
             else:
                 opts = options(p, s)
                 try:
-                    _config("plan", opts)
+                    stage_config("plan", opts)
                     cell.options = opts
                 except BadInput as e:
                     cell.reason = str(e).removeprefix("plan: ")
