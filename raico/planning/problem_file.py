@@ -184,8 +184,9 @@ def normalize(raw: dict, base: Path, default_name: str) -> dict:
         if not isinstance(term, dict):
             raise ValueError(f"[costs] '{name}' must be a table [costs.{name}] with a type")
         terms[name] = _term(name, term, T)
-        if term.get("type") == "collision" and "plant" in doc["robot"]:
-            raise ValueError(f"[costs.{name}] collision terms need a robot from a model file (file), "
+        kind = cost_kind(term.get("type"))
+        if kind is not None and kind.geometry and "plant" in doc["robot"]:
+            raise ValueError(f"[costs.{name}] {kind.type} terms need a robot from a model file (file), "
                              f"not the built-in plant '{doc['robot']['plant']}'")
     doc["costs"] = {"convention": convention, "terms": terms}
     return doc

@@ -292,7 +292,8 @@ class CostKind:
     ``describe(name, t, ctx, steps, factor)``: its description on the robot), ``terms`` and ``maps``: the
     keys of the rows of :func:`term_kinds` and :data:`MAP_KINDS` its descriptions use (their classes,
     compiled cases, crocoddyl residuals, tolerance kinds and labels). A term without ``times`` in its
-    keys is on the controls (every step)."""
+    keys is on the controls (every step). ``geometry``: the kind needs the robot's collision geometry,
+    which only a model file carries (a built-in plant has none)."""
 
     type: str
     keys: frozenset[str]
@@ -300,6 +301,7 @@ class CostKind:
     describe: str
     terms: tuple[str, ...]
     maps: tuple[str, ...] = ()
+    geometry: bool = False
 
     @property
     def tolerance_parts(self) -> int:
@@ -327,7 +329,7 @@ COST_KINDS: tuple[CostKind, ...] = (
     CostKind("joint_limit", _COMMON | {"joints", "lower", "upper"}, "check_task", "describe_joint_limit",
              ("inequality",), ("joints",)),
     CostKind("collision", _COMMON | {"pairs", "groups", "self", "allow", "margin", "hard", "max_distance"},
-             "check_collision", "describe_collision", ("collision",), ("distances",)),
+             "check_collision", "describe_collision", ("collision",), ("distances",), geometry=True),
 )
 _BY_TYPE = {k.type: k for k in COST_KINDS}
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from raico.planning import problem_terms
 from raico.planning.achieved import TASK_TOLERANCES
 from raico.planning.problem_file import read_problem
@@ -33,3 +35,13 @@ def test_every_shipped_problem_files_terms_have_a_row():
     assert len(files) > 20
     types = {t["type"] for f in files for t in read_problem(f).doc["costs"]["terms"].values()}
     assert types <= {row.type for row in COST_KINDS}
+
+
+def test_a_kind_that_needs_geometry_is_refused_on_a_built_in_plant(tmp_path):
+    """The ``geometry`` column, not the kind's name, refuses a collision term on a plant without a model file."""
+    assert [row.type for row in COST_KINDS if row.geometry] == ["collision"]
+    text = (PROBLEMS / "arm5_reach.toml").read_text() + (
+        '\n[costs.clear]\ntype = "collision"\npairs = [["ee", "world"]]\nmargin = 0.01\n')
+    (tmp_path / "p.toml").write_text(text)
+    with pytest.raises(ValueError, match=r"\[costs.clear\] collision terms need a robot from a model file"):
+        read_problem(tmp_path / "p.toml")
