@@ -17,12 +17,13 @@ is ``artifacts/bench/cartpole_pilco.md`` (+ ``.json``, ``.png``: the executed en
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from bench.learning_common import load_text, parser
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "cartpole_pilco.toml"
@@ -166,15 +167,11 @@ def filmstrip(rows: list[dict], path: Path, every: int = 2) -> None:
 
 
 def main() -> None:
-    import os
-
     from raico.pipeline.engine.cache import Cache
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__.splitlines()[0], "cartpole_pilco.json")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--episodes", type=int, default=settings()["episodes"])
-    ap.add_argument("--artifacts", default=str(ROOT / "artifacts"))
-    ap.add_argument("--render", action="store_true", help="only write the page and plot again from cartpole_pilco.json")
     args = ap.parse_args()
     out = Path(args.artifacts) / "bench"
     if args.render:
@@ -188,7 +185,7 @@ def main() -> None:
     for seed in range(args.seeds):
         rows.append(run_seed(cache, seed, args.episodes))
         print(f"seed {seed}: {rows[-1]['seconds']} s to upright", flush=True)
-    load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    load = load_text()
     out.mkdir(parents=True, exist_ok=True)
     (out / "cartpole_pilco.json").write_text(json.dumps({"rows": rows, "summary": summary(rows), "load": load,
                                                          "settings": settings()}, indent=1))

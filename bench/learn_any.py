@@ -15,12 +15,13 @@ the wall time of fit + plan + execute. One run, in a cache of its own (``--artif
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from bench.learning_common import episode_axes, load_text, parser
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = ROOT / "raico" / "problems" / "examples" / "ur5_payload.toml"
@@ -161,28 +162,18 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set(yscale="log", xlabel="episode", ylabel="executed distance to the target (cm)",
            title="UR5, 1 kg unmodelled payload")
     ax2.set(yscale="log", xlabel="episode", ylabel="GP held-out error (rad/s^2)", title="model error")
-    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
-
-    for a in (ax, ax2):
-        a.xaxis.set_major_locator(MaxNLocator(integer=True))
-        a.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-        a.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-        a.legend(fontsize=8)
+    episode_axes((ax, ax2))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def main() -> None:
-    import os
-
     from raico.pipeline.engine.cache import Cache
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__.splitlines()[0], "learn_any.json")
     ap.add_argument("--episodes", type=int, default=5, help="episodes of the residual-GP loop")
     ap.add_argument("--full-episodes", type=int, default=20, help="episodes of the full-GP loop (0: skip it)")
-    ap.add_argument("--artifacts", default=str(ROOT / "artifacts"))
-    ap.add_argument("--render", action="store_true", help="only write the page and plot again from learn_any.json")
     args = ap.parse_args()
     out = Path(args.artifacts) / "bench"
     if args.render:
@@ -197,7 +188,7 @@ def main() -> None:
     for weight in SIGMA_WEIGHTS if args.full_episodes else ():
         rows.append(learn_row(cache, False, args.full_episodes, weight))
     gp = gp_timing()
-    load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    load = load_text()
     out.mkdir(parents=True, exist_ok=True)
     (out / "learn_any.json").write_text(json.dumps({"rows": rows, "settings": LEARN, "load": load, "gp": gp},
                                                    indent=1))

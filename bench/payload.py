@@ -15,14 +15,14 @@ fit + plan <= 10 s. One run, in a cache of its own; the page is ``artifacts/benc
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from bench.learning_common import episode_axes, load_text, parser
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "ur5_payload_5kg.toml"
@@ -150,8 +150,6 @@ def plot(doc: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
-
     runs = doc["runs"]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.4))
     for i, lab in enumerate(dict.fromkeys(r["label"] for r in runs)):
@@ -171,22 +169,16 @@ def plot(doc: dict, path: Path) -> None:
     ax.set(yscale="log", xlabel="episode", ylabel="executed distance to the target (cm)",
            title="UR5, 5 kg unmodelled payload: residual GP")
     ax2.set(yscale="log", xlabel="episode", ylabel="GP error (rad/s^2), median", title="model error")
-    for a in (ax, ax2):
-        a.xaxis.set_major_locator(MaxNLocator(integer=True))
-        a.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-        a.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-        a.legend(fontsize=7)
+    episode_axes((ax, ax2), fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__.splitlines()[0], "payload.json")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--jobs", type=int, default=2, help="loops run at once (processes)")
-    ap.add_argument("--artifacts", default=str(ROOT / "artifacts"))
-    ap.add_argument("--render", action="store_true", help="only write the page and plot again from payload.json")
     args = ap.parse_args()
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
@@ -197,7 +189,7 @@ def main() -> None:
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
             runs = list(pool.map(run_seed, jobs))
         settings = {k: v for k, v in base.items() if k != "problem"}
-        load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+        load = load_text()
         (out / "payload.json").write_text(json.dumps({"model_file": mf, "runs": runs, "settings": settings,
                                                       "seeds": args.seeds, "load": load}, indent=1))
     doc = json.loads((out / "payload.json").read_text())
