@@ -221,18 +221,24 @@ def test_a_tick_allocates_only_temporaries_and_retains_nothing():
 
 
 @pytest.mark.numerics
-def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path):
-    """crocoddyl's window, moved node by node (circularAppend, the terminal node replaced), costs what the raico
-    window of each tick costs, through the problem's end entering the window."""
+@pytest.mark.parametrize("name, short", [
+    ("xarm7_reach", (("T = 100", "T = 16"),)),
+    ("xarm7_track", (("T = 200", "T = 16"), ("from = 10, to = 200", "from = 2, to = 16")))])
+def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path, name, short):
+    """crocoddyl's window, moved node by node (circularAppend of the nodes built before the loop, the terminal
+    node replaced), costs what the raico window of each tick costs, through the problem's end entering the
+    window; a moving target (a term per step) too."""
     from raico.planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
     from raico.stages.plan.stage import PlanConfig, build_problem
 
-    src = (Path(__file__).resolve().parents[2] / "raico/problems/examples/xarm7_reach.toml").read_text()
+    src = (Path(__file__).resolve().parents[2] / f"raico/problems/examples/{name}.toml").read_text()
+    for a, b in short:
+        src = src.replace(a, b)
     path = tmp_path / "short.toml"
-    path.write_text(src.replace("T = 100", "T = 16"))
+    path.write_text(src)
     pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
     mpc = MPC(pb, 6, "fddp")
     rng = np.random.default_rng(2)
