@@ -287,7 +287,7 @@ class MPC:
 
         require()
         self.opts = get_solver(self.solver).options(options)
-        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built at the first solve
+        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built below
         # the window's nodes' active state terms (indices into the terms with a weight, crocoddyl's order):
         # per tick, of the node entering at the end (H-1) and of the terminal node
         costs = [t for t in self.window.state_terms if t.weight != 0]
@@ -310,9 +310,10 @@ class MPC:
         self._node_models = running
         self._pool: dict[tuple, list] = {k: [(m, m.createData())] for k, m in running.items()}
         self._terminal_models = {k: (m, m.createData()) for k, m in terminal.items()}
+        self._fddp_window()   # the window's crocoddyl problem and solver, before the first tick
 
     def _fddp_window(self) -> tuple:
-        """The crocoddyl problem and solver of the window, built once (at the first solve's tick); each later
+        """The crocoddyl problem and solver of the window, built once (with the controller); each later
         tick moves it on by one node (:meth:`_advance_fddp`)."""
         if self._croc is None:
             from raico.planning.crocoddyl import solve as cs
