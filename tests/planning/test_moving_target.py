@@ -16,7 +16,7 @@ TRACK = ROOT / "raico/problems/examples/xarm7_track.toml"
 
 
 def _short(tmp_path, moving: str | None = None) -> Path:
-    src = TRACK.read_text().replace("T = 200", "T = 20").replace("from = 10, to = 200", "from = 4, to = 20")
+    src = TRACK.read_text().replace("T = 200", "T = 20").replace("from = 10, to = 199", "from = 4, to = 20")
     if moving is not None:
         src = src.replace("moving = { radius = 0.05, period = 1.0, axes = [1, 2] }", moving)
     path = tmp_path / "track.toml"
