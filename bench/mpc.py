@@ -1,12 +1,13 @@
 """Receding-horizon control's tick time on a 7-DOF arm: R-AICO against crocoddyl's FDDP in one harness.
 
-``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md`` and
-``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the plan's controller and under MPC, its runs
-cached in ``DIR/bench/mpc``).
+``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md``,
+``mpc_predicted_horizons.png`` (the xArm7 tracking a moving target in Drake: the predicted windows, the
+executed paths, the solve time per tick) and ``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the
+plan's controller and under MPC); the Drake runs cached in ``DIR/bench/mpc``.
 
-The problems: ``raico/problems/examples/xarm7_reach.toml`` and ``raico/problems/crocoddyl/kinova_reach_in_range.toml``
-(7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms, T = 100) with their hard bounds as the plan
-stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
+The problems: ``raico/problems/examples/xarm7_reach.toml``, ``raico/problems/crocoddyl/kinova_reach_in_range.toml``
+and ``raico/problems/examples/xarm7_track.toml`` (7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms,
+T = 100; the tracking T = 200) with their hard bounds as the plan stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
 iteration) and the thesis's relinearization inside the sweep (``theta = 0.1``). The controller
 (``raico.planning.mpc.MPC``): horizon H = 50 (0.5 s), one iteration per tick, each window warm-started from
 the previous one shifted by a step; the first window solved beforehand (``prepare``, 50 iterations, not
