@@ -185,12 +185,21 @@ class MPC:
         # per timed term, its window's active steps 0..H at each tick as a read-only mask (the term's cache of
         # ``active``, seeded at each tick: a term per step of a moving target makes hundreds of timed terms)
         self._steps = np.arange(self.H + 1)
-        self._masks = []
-        for _, per_tick in self._timed:
-            masks = np.zeros((problem.T, self.H + 1), dtype=bool)
+        none = np.zeros(self.H + 1, dtype=bool)
+        none.flags.writeable = False
+        self._masks: list[list[np.ndarray]] = []
+        for _, per_tick in self._timed:   # one mask per change of the term's window times (none: shared)
+            masks: list[np.ndarray] = []
             for k, t in enumerate(per_tick):
-                masks[k, t] = True
-            masks.flags.writeable = False
+                if len(t) == 0:
+                    masks.append(none)
+                elif k and np.array_equal(t, per_tick[k - 1]):
+                    masks.append(masks[-1])
+                else:
+                    mask = np.zeros(self.H + 1, dtype=bool)
+                    mask[t] = True
+                    mask.flags.writeable = False
+                    masks.append(mask)
             self._masks.append(masks)
         self._ws: ShiftedAICO | None = None
         H, n, m = self.H, problem.n_x, problem.n_u
