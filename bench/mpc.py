@@ -1,12 +1,13 @@
 """Receding-horizon control's tick time on a 7-DOF arm: R-AICO against crocoddyl's FDDP in one harness.
 
-``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md`` and
-``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the plan's controller and under MPC, its runs
-cached in ``DIR/bench/mpc``).
+``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md``,
+``mpc_predicted_horizons.png`` (the xArm7 tracking a moving target in Drake: the predicted windows, the
+executed paths, the solve time per tick) and ``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the
+plan's controller and under MPC); the Drake runs cached in ``DIR/bench/mpc``.
 
-The problems: ``raico/problems/examples/xarm7_reach.toml`` and ``raico/problems/crocoddyl/kinova_reach_in_range.toml``
-(7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms, T = 100) with their hard bounds as the plan
-stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
+The problems: ``raico/problems/examples/xarm7_reach.toml``, ``raico/problems/crocoddyl/kinova_reach_in_range.toml``
+and ``raico/problems/examples/xarm7_track.toml`` (7-DOF arms, torque-controlled, analytic dynamics, dt = 10 ms,
+T = 100; the tracking T = 200) with their hard bounds as the plan stage sets them by default. R-AICO twice: one linearization per tick (``theta = inf``, as FDDP's one
 iteration) and the thesis's relinearization inside the sweep (``theta = 0.1``). The controller
 (``raico.planning.mpc.MPC``): horizon H = 50 (0.5 s), one iteration per tick, each window warm-started from
 the previous one shifted by a step; the first window solved beforehand (``prepare``, 50 iterations, not
@@ -30,7 +31,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {"xArm7 reach": "raico/problems/examples/xarm7_reach.toml",
-            "Kinova reach (in range)": "raico/problems/crocoddyl/kinova_reach_in_range.toml"}
+            "Kinova reach (in range)": "raico/problems/crocoddyl/kinova_reach_in_range.toml",
+            "xArm7 tracking a moving target": "raico/problems/examples/xarm7_track.toml"}
 HORIZON = 50
 TARGET_MEDIAN_S, TARGET_P99_S = 1e-3, 2e-3
 SOLVERS = (("R-AICO (alpha 1, one linearization per tick)", "raico", {"alpha": 1.0, "theta": math.inf}),
@@ -80,13 +82,39 @@ def run_one(problem, solver: str, options, ticks: int, phases: bool = False) -> 
     return out
 
 
+def window_end(problem, substeps: int = 10) -> dict:
+    """Why FDDP's loop leaves the finite states on a problem: its first window (``prepare``, 50 iterations from
+    ``x0`` held) against R-AICO's (alpha 1): each window's cost, its largest joint velocity (rad/s) at the
+    window's last step and 10 steps before it, and the same controls stepped at ``dt / substeps`` on the robot's
+    analytic model (the discretization's share); and the loops' fates (``run_one``'s ticks, finite)."""
+    from raico.planning.mpc import MPC
+    from raico.plants.dynamics import AnalyticDynamics
+
+    fine = AnalyticDynamics(problem.dynamics.robot, problem.dynamics.dt / substeps)
+    n = problem.n_x // 2
+    out = {}
+    for label, solver, opts in (("FDDP / BoxFDDP", "fddp", None), ("R-AICO (alpha 1)", "raico", {"alpha": 1.0})):
+        mpc = MPC(problem, HORIZON, solver, opts, iterations=1, ticks=1)
+        mpc.prepare(problem.x0, 50)
+        x, v_fine = problem.x0.copy(), 0.0
+        for u in mpc.U:
+            for _ in range(substeps):
+                x = fine.step(x, u)
+            v_fine = max(v_fine, float(np.abs(x[n:]).max()))
+        out[label] = {"cost": float(mpc.window.cost(mpc.X, mpc.U)),
+                      "v_end": float(np.abs(mpc.X[-1, n:]).max()), "v_before": float(np.abs(mpc.X[-11, n:]).max()),
+                      "v_fine_max": v_fine, "u_max": float(np.abs(mpc.U).max())}
+    return out
+
+
 PHASES = {"shift (messages, controller, multipliers)": ("ws", "shift"),
           "warm start: the shifted controller rolled out from the measured state": ("ws", "start_at"),
           "task rows: cost and its derivatives (compiled)": ("sw", "_cost"),
           "linearization: dynamics (compiled), control messages, constraints' model (Python)": ("sw", "linearize_all"),
           "sweep (compiled kernel)": ("sw", "sweep"),
           "rollout of the new controller, clipped": ("problem", "bounded_rollout"),
-          "constraints' multipliers update (Python)": ("al", "update")}
+          "constraints' multipliers update (Python)": ("al", "update"),
+          "the window's term times refreshed (Python, each term asked; where they changed)": ("ws", "refresh_times")}
 
 
 def _phase_clock(mpc) -> dict[str, float]:
@@ -175,6 +203,124 @@ def xarm7_in_drake(cache) -> dict:
     return out
 
 
+TRACK = "raico/problems/examples/xarm7_track.toml"
+TRACK_RUNS = (("plan's controller", {}),
+              ("MPC R-AICO", {"controller": "mpc", "horizon": HORIZON, "solver": "raico"}),
+              ("MPC FDDP", {"controller": "mpc", "horizon": HORIZON, "solver": "fddp"}))
+
+
+def _track_errors(metrics: dict) -> np.ndarray:
+    """The moving target's per-step errors (m) of an execution's metrics (its terms ``track_t<step>``)."""
+    e = metrics.get("via_point_errors") or {}
+    return np.array([v for k, v in sorted(e.items(), key=lambda kv: int(kv[0].split("_t")[-1].split("@")[0]))
+                     if k.startswith("track_t")])
+
+
+def xarm7_track(cache) -> dict:
+    """The xArm7 tracking a moving target with a payload its model does not know (``TRACK``), planned by
+    R-AICO (50 iterations) and executed in Drake by the plan's own controller and under MPC (R-AICO, FDDP;
+    horizon 50, one iteration per 10 ms period): per run the tracking error's mean, max and final (m), the
+    status, the ticks' median and p99, the loop's real-time factor, its artifact's path."""
+    from raico.pipeline.engine.runner import run
+    from raico.planning.costs import via_point_errors
+    from raico.planning.objective import objective_from_description
+    from raico.stages.execute.config import ExecuteConfig
+    from raico.stages.plan.stage import PlanConfig
+
+    plan = run(cache, "plan", PlanConfig(problem=str(ROOT / TRACK), solver="raico", iterations=50), record=False)
+    out: dict = {"plan": plan.path, "plan_key": plan.key}
+    desc = json.loads((Path(plan.path) / "problem.json").read_text())
+    planned = None
+    for label, kw in TRACK_RUNS:
+        ex = run(cache, "execute", ExecuteConfig(plan=plan.key, **kw), record=False)
+        m, e = ex.metrics, _track_errors(ex.metrics)
+        out[label] = {"path": ex.path, "status": ex.status, "mean_error_m": float(e.mean()),
+                      "max_error_m": float(e.max()), "final_error_m": float(e[-1]),
+                      "median_tick_s": m.get("mpc_median_tick_s"), "p99_tick_s": m.get("mpc_p99_tick_s"),
+                      "rtf": m.get("mpc_real_time_factor")}
+        if planned is None:
+            planned = np.load(Path(ex.path) / "rollout.npz")["X_plan"]
+    e = _track_errors({"via_point_errors": via_point_errors(objective_from_description(desc), planned)})
+    out["planned"] = {"mean_error_m": float(e.mean()), "max_error_m": float(e.max()), "final_error_m": float(e[-1])}
+    return out
+
+
+def horizon_figure(track: dict, path: Path) -> None:
+    """From the tracking runs' records (``rollout.npz``: the executed states, every tick's predicted window,
+    its solve time): the end effector's path in the circle's plane with MPC R-AICO's predicted windows as a
+    fading path (every 4th tick, the older paler), the executed paths of the three controllers and the
+    target; beside it each tick's solve time against the period, R-AICO's and FDDP's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from raico.pipeline.recordings.tasks import task_plots
+    from raico.planning.objective import objective_from_description
+
+    objective = objective_from_description(json.loads((Path(track["plan"]) / "problem.json").read_text()))
+
+    def ee(X: np.ndarray):
+        return next(p for p in task_plots(objective, np.asarray(X, float)) if p.raw.shape[1] == 3 and p.targets)
+
+    rolls = {label: np.load(Path(track[label]["path"]) / "rollout.npz") for label, _ in TRACK_RUNS}
+    mpc = rolls["MPC R-AICO"]
+    a, b = 1, 2    # the circle's plane (world y, z)
+    fig, (ax, at) = plt.subplots(1, 2, figsize=(12, 6.4), gridspec_kw={"width_ratios": [1, 1.25]})
+    pred = mpc["mpc_predicted"]
+    every = 4
+    drawn = range(0, len(pred), every)
+    for i in drawn:
+        P = ee(pred[i]).raw
+        f = i / max(len(pred) - 1, 1)
+        ax.plot(P[:, a], P[:, b], color=plt.cm.viridis(f), alpha=0.15 + 0.35 * f, lw=0.8)
+    ax.plot([], [], color=plt.cm.viridis(0.6), lw=0.8,
+            label=f"MPC R-AICO's predicted windows (every {every} ticks; colour: tick)")
+    tp = ee(mpc["X_plan"])
+    T = np.array([t for _, t in tp.targets])
+    ax.plot(T[:, a], T[:, b], "k:", lw=1.2, label="moving target")
+    for label, style in (("plan's controller", dict(color="tab:red")), ("MPC R-AICO", dict(color="tab:green")),
+                         ("MPC FDDP", dict(color="tab:blue", ls="--"))):
+        P = ee(rolls[label]["X"]).raw
+        ax.plot(P[:, a], P[:, b], lw=1.5, label=f"{label}: mean error {track[label]['mean_error_m'] * 100:.2f} cm",
+                **style)
+    lo, hi = T[:, [a, b]].min(axis=0) - 0.03, T[:, [a, b]].max(axis=0) + 0.03
+    ax.set(aspect="equal", xlabel="end effector y (m)", ylabel="end effector z (m)", xlim=(lo[0], hi[0]),
+           ylim=(lo[1], hi[1]), title="xArm7 tracking a moving target (5 cm circle, 1 turn/s),\n"
+                                      "0.5 kg payload its model does not know, in Drake")
+    ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(0.0, -0.12))
+    for label, color in (("MPC R-AICO", "tab:green"), ("MPC FDDP", "tab:blue")):
+        r = rolls[label]
+        solve = r["mpc_solve_time"] * 1e3
+        period = float(r["times"][-1]) / len(solve)
+        at.plot(np.arange(len(solve)) * period, solve, color=color, lw=0.9,
+                label=f"{label} (median {np.median(solve):.1f} ms)")
+    at.axhline(period * 1e3, color="k", ls="--", lw=1, label=f"period ({period * 1e3:.0f} ms)")
+    at.set(xlabel="time (s)", ylabel="solve time per tick (ms)", yscale="log", yticks=[1, 2, 5, 10, 20, 50, 100, 200],
+           yticklabels=["1", "2", "5", "10", "20", "50", "100", "200"],
+           title="solve time per tick against the period (wall time, a shared machine)")
+    at.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    at.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def recorded_entities(cache, track: dict) -> dict[str, int]:
+    """The MPC R-AICO tracking run recorded (its Rerun recording derived from the stored run): the chunks per
+    entity of the predicted windows (``world/predicted/...``) and of the solve times (``mpc/tick``)."""
+    import collections
+
+    from rerun.chunk import RrdReader
+
+    from raico.pipeline.engine.runner import run
+    from raico.stages.execute.config import ExecuteConfig
+
+    ex = run(cache, "execute", ExecuteConfig(plan=track["plan_key"], **dict(TRACK_RUNS)["MPC R-AICO"]), record=True)
+    chunks = collections.Counter(str(c.entity_path) for c in RrdReader(str(ex.recording)).stream())
+    return {e: n for e, n in sorted(chunks.items()) if e.startswith(("/world/predicted", "/mpc"))}
+
+
 def figure(pushed: dict, path: Path) -> None:
     """The hand's path (in the plane it moves in most) of the pushed arm5: planned, under the plan's controller, under MPC, and
     MPC's predicted windows every 50 ticks (pale: early, dark: late); the via-points as crosses."""
@@ -223,7 +369,8 @@ def figure(pushed: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = None, drake: dict | None = None) -> str:
+def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = None, drake: dict | None = None,
+             track: dict | None = None, ends: dict | None = None) -> str:
     lines = [f"7-DOF arms, horizon {HORIZON} at dt = 10 ms, one iteration per tick, the loop closed on the planning "
              f"model; target: median <= {TARGET_MEDIAN_S * 1e3:g} ms, p99 <= {TARGET_P99_S * 1e3:g} ms. Machine: "
              f"{os.cpu_count()} cores, 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the end "
@@ -246,6 +393,17 @@ def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = 
         tot = sum(r["phases_s"].values())
         for name, v in r["phases_s"].items():
             lines.append(f"| {name} | {v * 1e3:.3f} | {100 * v / tot:.0f}% |")
+    if ends is not None:
+        lines += ["", "Why FDDP's loop leaves the finite states on the xArm7's reach: the first window (50 iterations "
+                  "from the start held), FDDP's and R-AICO's; the largest joint velocity 10 steps before the window's "
+                  "end and at its end, and the largest along the same controls stepped at 1 ms on the same model:", "",
+                  "| problem | solver | window cost | max joint velocity 10 steps before the end (rad/s) | "
+                  "at the end (rad/s) | same controls at 1 ms: max (rad/s) | max torque (N m) |",
+                  "|---|---|---|---|---|---|---|"]
+        for problem, per in ends.items():
+            for label, r in per.items():
+                lines.append(f"| {problem} | {label} | {r['cost']:.3g} | {r['v_before']:.2f} | {r['v_end']:.1f} | "
+                             f"{r['v_fine_max']:.2f} | {r['u_max']:.2f} |")
     if drake is not None:
         lines += ["", "The xArm7's reach in Drake under MPC (horizon 50, one iteration per 10 ms period, the plan "
                   "R-AICO's); real-time factor: simulated time over the loop's wall time (>= 1: faster than real time):",
@@ -255,6 +413,29 @@ def markdown(rows: list[dict], load: tuple[float, float], pushed: dict | None = 
             err = "-" if r["final_error_m"] is None else f"{r['final_error_m'] * 100:.2f}"
             lines.append(f"| {name} | {r['rtf']:.2f} | {r['median_tick_s'] * 1e3:.2f} | {r['p99_tick_s'] * 1e3:.2f} | "
                          f"{err} | {r['status']} |")
+    if track is not None:
+        lines += ["", "The xArm7 tracking a moving target (`raico/problems/examples/xarm7_track.toml`: a 5 cm circle, "
+                  "one turn a second for 2 s, a 0.5 kg payload the model does not know), planned by R-AICO (50 "
+                  "iterations) and executed in Drake; MPC: horizon 50, one iteration per 10 ms period. Tracking error: "
+                  "the end effector's distance to the target at each step from 0.1 s to 1.99 s:", "",
+                  "| controller | mean tracking error (cm) | max (cm) | at the end (cm) | status | median tick (ms) | "
+                  "p99 tick (ms) | real-time factor |", "|---|---|---|---|---|---|---|---|"]
+        p = track["planned"]
+        lines.append(f"| the plan on its own model (no payload) | {p['mean_error_m'] * 100:.2f} | {p['max_error_m'] * 100:.2f} | "
+                     f"{p['final_error_m'] * 100:.2f} | - | - | - | - |")
+        for label, _ in TRACK_RUNS:
+            r = track[label]
+
+            def ms(v):
+                return "-" if v is None else f"{v * 1e3:.2f}"
+            rtf = "-" if r["rtf"] is None else f"{r['rtf']:.2f}"
+            lines.append(f"| {label} | {r['mean_error_m'] * 100:.2f} | {r['max_error_m'] * 100:.2f} | "
+                         f"{r['final_error_m'] * 100:.2f} | {r['status']} | {ms(r['median_tick_s'])} | "
+                         f"{ms(r['p99_tick_s'])} | {rtf} |")
+        lines += ["", "![predicted horizons of the tracking xArm7](mpc_predicted_horizons.png)"]
+        if track.get("recorded"):
+            ents = ", ".join(f"`{e}` ({n})" for e, n in track["recorded"].items())
+            lines += ["", f"Its Rerun recording (MPC R-AICO) holds the entities (chunks): {ents}."]
     if pushed is not None:
         lines += ["", f"Pushed in Drake: arm5's reach (R-AICO, 30 iterations), `--push {PUSH}`; the final via-point's "
                   "error, the first one's (1 s, the push ends at it) and the execution's status:", "",
@@ -279,18 +460,24 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     rows, start = [], os.getloadavg()[0]
+    ends = {}
     for name, path in PROBLEMS.items():
         problem = _problem(path)
+        if name in ("xArm7 reach", "xArm7 tracking a moving target"):
+            ends[name] = window_end(problem)
         for i, (label, solver, opts) in enumerate(SOLVERS):
             rows.append({"problem": name, "solver": label, **run_one(problem, solver, opts, args.ticks)})
             if i == 0:     # a second run with the parts clocked (the clocks' own calls kept out of the rows' times)
                 rows[-1]["phases_s"] = run_one(problem, solver, opts, args.ticks, phases=True)["phases_s"]
     drake = xarm7_in_drake(Cache(out / "mpc"))
+    track = xarm7_track(Cache(out / "mpc"))
+    horizon_figure(track, out / "mpc_predicted_horizons.png")
+    track["recorded"] = recorded_entities(Cache(out / "mpc"), track)
     pushed = pushed_arm5(Cache(out / "mpc"))
     figure(pushed, out / "mpc_pushed_arm5.png")
-    (out / "mpc.json").write_text(json.dumps({"rows": rows, "drake": drake, "pushed": pushed}, indent=2,
-                                             allow_nan=True))
-    page = markdown(rows, (start, os.getloadavg()[0]), pushed, drake)
+    (out / "mpc.json").write_text(json.dumps({"rows": rows, "drake": drake, "track": track, "pushed": pushed,
+                                              "window_end": ends}, indent=2, allow_nan=True))
+    page = markdown(rows, (start, os.getloadavg()[0]), pushed, drake, track, ends)
     (out / "mpc.md").write_text(page)
     sys.stdout.write(page)
     return 0

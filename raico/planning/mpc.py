@@ -182,6 +182,25 @@ class MPC:
             ids[k] = ids[k - 1] if same else (ids[k - 1] + 1 if k else 0)
             last = pattern
         self._pattern = ids
+        # per timed term, its window's active steps 0..H at each tick as a read-only mask (the term's cache of
+        # ``active``, seeded at each tick: a term per step of a moving target makes hundreds of timed terms)
+        self._steps = np.arange(self.H + 1)
+        none = np.zeros(self.H + 1, dtype=bool)
+        none.flags.writeable = False
+        self._masks: list[list[np.ndarray]] = []
+        for _, per_tick in self._timed:   # one mask per change of the term's window times (none: shared)
+            masks: list[np.ndarray] = []
+            for k, t in enumerate(per_tick):
+                if len(t) == 0:
+                    masks.append(none)
+                elif k and np.array_equal(t, per_tick[k - 1]):
+                    masks.append(masks[-1])
+                else:
+                    mask = np.zeros(self.H + 1, dtype=bool)
+                    mask[t] = True
+                    mask.flags.writeable = False
+                    masks.append(mask)
+            self._masks.append(masks)
         self._ws: ShiftedAICO | None = None
         H, n, m = self.H, problem.n_x, problem.n_u
         # the shifted solution, preallocated
@@ -277,7 +296,7 @@ class MPC:
 
         require()
         self.opts = get_solver(self.solver).options(options)
-        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built at the first solve
+        self._croc: tuple | None = None   # (CrocoddylProblem, solver), built below
         # the window's nodes' active state terms (indices into the terms with a weight, crocoddyl's order):
         # per tick, of the node entering at the end (H-1) and of the terminal node
         costs = [t for t in self.window.state_terms if t.weight != 0]
@@ -291,34 +310,19 @@ class MPC:
         self._costs = costs
         self._keys_end = [key(k, H - 1) for k in range(T)]
         self._keys_terminal = [key(k, H) for k in range(T)]
-        self._pool: dict[tuple, list] = {}    # key -> spare (model, data) pairs (the nodes dropped at the start)
-        self._node_models: dict[tuple, tuple] = {}   # key -> (running model, terminal model), built once each
+        # every node model the run appends (its running keys) or puts at the end (its terminal keys), built
+        # before the loop on one Pinocchio model, each with a spare data; a dropped node's pair goes to the
+        # spares of its key
+        from raico.planning.crocoddyl import solve as cs
 
-    def _models_of(self, key: tuple[int, ...]) -> tuple:
-        """A running and a terminal crocoddyl model whose state terms are those of ``key`` (built once, from a
-        one-step problem with the window's terms active at both of its steps or at none)."""
-        hit = self._node_models.get(key)
-        if hit is None:
-            from raico.planning.crocoddyl import solve as cs
-
-            terms = []
-            for i, t in enumerate(self._costs):
-                c = copy.copy(t)
-                c._set_times([0, 1] if i in key else [])
-                terms.append(c)
-            joint = []
-            for t in self.window.joint_terms:
-                c = copy.copy(t)
-                c.T, c.times = 1, np.arange(1)
-                joint.append(c)
-            w = self.window
-            cp = cs.build(Problem(w.dynamics, self.problem.x0.copy(), 1, terms, list(w.control_terms), joint, w.bounds),
-                          self.opts.continuous)
-            hit = self._node_models[key] = (cp.shooting.runningModels[0], cp.shooting.terminalModel)
-        return hit
+        running, terminal = cs.node_models(self.window, self._keys_end, self._keys_terminal, self.opts.continuous)
+        self._node_models = running
+        self._pool: dict[tuple, list] = {k: [(m, m.createData())] for k, m in running.items()}
+        self._terminal_models = {k: (m, m.createData()) for k, m in terminal.items()}
+        self._fddp_window()   # the window's crocoddyl problem and solver, before the first tick
 
     def _fddp_window(self) -> tuple:
-        """The crocoddyl problem and solver of the window, built once (at the first solve's tick); each later
+        """The crocoddyl problem and solver of the window, built once (with the controller); each later
         tick moves it on by one node (:meth:`_advance_fddp`)."""
         if self._croc is None:
             from raico.planning.crocoddyl import solve as cs
@@ -348,15 +352,15 @@ class MPC:
         spare = self._pool.get(key)
         if spare:
             m, d = spare.pop()
-        else:
-            m = self._models_of(key)[0]
+        else:   # the key's spare is still in the window
+            m = self._node_models[key]
             d = m.createData()
         cp.shooting.circularAppend(m, d)
         self._nodes.append((key, m, d))
         tkey = self._keys_terminal[kk]
         if tkey != self._terminal_key:
-            mt = self._models_of(tkey)[1]
-            cp.shooting.updateNode(self.H, mt, mt.createData())
+            mt, dt = self._terminal_models[tkey]
+            cp.shooting.updateNode(self.H, mt, dt)
             self._terminal_key = tkey
 
     def _solve_fddp(self, shift: bool) -> tuple[int, float]:
@@ -409,9 +413,9 @@ class MPC:
 
     def _set_tick(self, k: int) -> None:
         kk = min(k, self.problem.T - 1)
-        for c, per_tick in self._timed:
+        for (c, per_tick), masks in zip(self._timed, self._masks):
             c.times = per_tick[kk]
-            c._active_last = None
+            c._active_last = (self._steps, masks[kk])
 
     def tick(self, x: np.ndarray, advance: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One control period at the measured state ``x (n_x,)``.

@@ -300,7 +300,8 @@ class Problem:
         steps = np.arange(self.T + 1)
         out: list[list] = [[] for _ in steps]
         for term in self.state_terms + self.joint_terms:
-            if term.weight == 0:
+            times = getattr(term, "times", None)
+            if term.weight == 0 or (times is not None and len(times) == 0):   # costs no step (outside a window)
                 continue
             for t in np.flatnonzero(term.active(steps)):
                 out[t].append(term)

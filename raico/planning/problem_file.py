@@ -382,8 +382,18 @@ def build_terms(problem: ProblemFile, robot, q0: np.ndarray, T: int) -> list:
         pieces = _scale(convention, t["times"], T, dt)
         for k, (steps, factor) in enumerate(pieces):
             suffix = "" if len(pieces) == 1 else ("_running" if k == 0 and len(pieces) == 2 else "_terminal")
-            out.append(describe(f"{name}{suffix}", t, ctx, steps, factor))
+            if "moving" in t:   # a moving target: one term per step, each with the target of its time
+                out += [describe(f"{name}{suffix}_t{s}", _moved(t, s * dt), ctx, [s], factor) for s in steps]
+            else:
+                out.append(describe(f"{name}{suffix}", t, ctx, steps, factor))
     return out
+
+
+def _moved(t: dict, time: float) -> dict:
+    """A moving target's term (``moving``) at ``time`` (s): its ``target`` (zero where not given) plus
+    the offset of :func:`raico.planning.problem_terms.moving_offset`."""
+    base = np.zeros(3) if t.get("target") is None else np.asarray(t["target"], float)
+    return {**t, "target": (base + problem_terms.moving_offset(t["moving"], time)).tolist()}
 
 
 def with_horizon(problem: ProblemFile, T: int) -> ProblemFile:

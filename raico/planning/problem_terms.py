@@ -126,7 +126,59 @@ def check_task(name: str, t: dict, T: int) -> dict:
 
 
 def check_frame_position(name: str, t: dict, T: int) -> dict:
-    return _with_frame(name, t, _common(name, t, T))
+    out = _with_frame(name, t, _common(name, t, T))
+    if "moving" in t:
+        out["moving"] = check_moving(name, t)
+    return out
+
+
+MOVING_KEYS = frozenset({"radius", "period", "axes", "phase", "velocity"})
+
+
+def check_moving(name: str, t: dict) -> dict:
+    """A moving target (``moving = {radius, period, axes, phase, velocity}``): a circle of ``radius`` (m) in
+    the world axes ``axes`` (two of 0, 1, 2; default ``[1, 2]``) about ``target`` with ``period`` (s), starting
+    at angle ``phase`` (rad), and/or a constant ``velocity`` (m/s, 3 values); a frame's origin only."""
+    m = t["moving"]
+    where = f"[costs.{name}] moving"
+    if not isinstance(m, dict) or not m:
+        raise ValueError(f"{where} must be a table of {', '.join(sorted(MOVING_KEYS))}")
+    refuse_unknown(m, MOVING_KEYS, where)
+    if "axes" in t or "points" in t or t.get("target") == "start":
+        raise ValueError(f"[costs.{name}] a moving target is a frame's origin in 3-D (no axes or points) about "
+                         "a target in m (relative = \"start\" for one relative to the start)")
+    out: dict = {}
+    if "radius" in m or "period" in m:
+        out["radius"] = nonneg(m.get("radius", 0.0), f"{where} radius")
+        period = number(m.get("period", math.nan), f"{where} period")
+        if not period > 0:
+            raise ValueError(f"{where} period must be a positive number of seconds")
+        out["period"] = period
+        axes = m.get("axes", [1, 2])
+        if not (isinstance(axes, list) and len(axes) == 2 and set(axes) <= {0, 1, 2} and axes[0] != axes[1]):
+            raise ValueError(f"{where} axes must be two different world axes of 0, 1, 2, got {axes!r}")
+        out["axes"] = list(axes)
+        out["phase"] = number(m.get("phase", 0.0), f"{where} phase")
+    if "velocity" in m:
+        out["velocity"] = vector(m["velocity"], f"{where} velocity", 3)
+    if not out:
+        raise ValueError(f"{where} needs a radius and a period, or a velocity")
+    return out
+
+
+def moving_offset(m: dict, time: float) -> np.ndarray:
+    """The moving target's offset from ``target`` at ``time`` (s): ``r (cos(wt + phase) - cos(phase))`` on the
+    first axis, ``r (sin(wt + phase) - sin(phase))`` on the second (``w = 2 pi / period``; the circle starts at
+    ``target``), plus ``velocity * time``."""
+    off = np.zeros(3)
+    if "radius" in m:
+        a, b = m["axes"]
+        w, ph, r = 2.0 * math.pi / m["period"], m["phase"], m["radius"]
+        off[a] += r * (math.cos(w * time + ph) - math.cos(ph))
+        off[b] += r * (math.sin(w * time + ph) - math.sin(ph))
+    if "velocity" in m:
+        off += np.asarray(m["velocity"], float) * time
+    return off
 
 
 def check_frame_orientation(name: str, t: dict, T: int) -> dict:

@@ -312,7 +312,7 @@ class CostKind:
 _COMMON = frozenset({"type", "weight", "times", "map"})
 _VIA = _COMMON | {"precision", "tol"}
 COST_KINDS: tuple[CostKind, ...] = (
-    CostKind("frame_position", _VIA | {"frame", "target", "axes", "points", "relative", "in_frame"},
+    CostKind("frame_position", _VIA | {"frame", "target", "axes", "points", "relative", "in_frame", "moving"},
              "check_frame_position", "describe_frame_position", ("via",), ("frame_points",)),
     CostKind("frame_orientation", _VIA | {"frame", "rotation", "rpy", "angle", "target"},
              "check_frame_orientation", "describe_frame_orientation", ("via",), ("frame_rotation", "roll")),

@@ -221,18 +221,24 @@ def test_a_tick_allocates_only_temporaries_and_retains_nothing():
 
 
 @pytest.mark.numerics
-def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path):
-    """crocoddyl's window, moved node by node (circularAppend, the terminal node replaced), costs what the raico
-    window of each tick costs, through the problem's end entering the window."""
+@pytest.mark.parametrize("name, short", [
+    ("xarm7_reach", (("T = 100", "T = 16"),)),
+    ("xarm7_track", (("T = 200", "T = 16"), ("from = 10, to = 199", "from = 2, to = 16")))])
+def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path, name, short):
+    """crocoddyl's window, moved node by node (circularAppend of the nodes built before the loop, the terminal
+    node replaced), costs what the raico window of each tick costs, through the problem's end entering the
+    window; a moving target (a term per step) too."""
     from raico.planning import crocoddyl as cm
 
     if not cm.AVAILABLE:
         pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
     from raico.stages.plan.stage import PlanConfig, build_problem
 
-    src = (Path(__file__).resolve().parents[2] / "raico/problems/examples/xarm7_reach.toml").read_text()
+    src = (Path(__file__).resolve().parents[2] / f"raico/problems/examples/{name}.toml").read_text()
+    for a, b in short:
+        src = src.replace(a, b)
     path = tmp_path / "short.toml"
-    path.write_text(src.replace("T = 100", "T = 16"))
+    path.write_text(src)
     pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
     mpc = MPC(pb, 6, "fddp")
     rng = np.random.default_rng(2)
@@ -243,3 +249,31 @@ def test_fddp_window_moved_by_circular_append_is_the_window_problem(tmp_path):
         X = x + 0.05 * rng.standard_normal((mpc.H + 1, pb.n_x))
         U = rng.standard_normal((mpc.H, pb.n_u))
         assert close(cp.shooting.calc(cp.to_pin(X), cp.controls_to_pin(U)), mpc.window.cost(X, U))
+
+
+def test_fddp_loop_builds_no_crocoddyl_model(tmp_path, monkeypatch):
+    """Every node the FDDP window appends or puts at its end is built with the controller: a loop through
+    the problem's end with a moving target (a new set of terms each tick) builds no crocoddyl model."""
+    from raico.planning import crocoddyl as cm
+
+    if not cm.AVAILABLE:
+        pytest.skip(f"crocoddyl baseline: {cm.UNAVAILABLE_REASON}")
+    from raico.planning.crocoddyl import solve as cs
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    src = (Path(__file__).resolve().parents[2] / "raico/problems/examples/xarm7_track.toml").read_text()
+    path = tmp_path / "short.toml"
+    path.write_text(src.replace("T = 200", "T = 12").replace("from = 10, to = 199", "from = 1, to = 12"))
+    pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
+    mpc = MPC(pb, 5, "fddp")
+
+    def refused(*a, **k):
+        raise AssertionError("a crocoddyl model built inside the loop")
+    for name in ("build", "node_models"):
+        monkeypatch.setattr(cs, name, refused)
+    monkeypatch.setattr(cs._Nodes, "model", refused)
+    x = pb.x0.copy()
+    for _ in range(pb.T):
+        u, _, _ = mpc.tick(x)
+        x = pb.dynamics.step(x, u)
+    assert mpc.log.n == pb.T

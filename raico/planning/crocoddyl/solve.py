@@ -178,71 +178,94 @@ def build(problem: Problem, continuous: str = "angle", damping: bool = True) -> 
     crocoddyl's examples; its state differences wrap at pi). ``damping=False`` leaves out the joint
     damping of the model file, as crocoddyl's examples do (Pinocchio's ABA ignores it): not raico's
     problem then (Drake's plant damps the joints), only crocoddyl's own."""
-    require()
-    from raico.planning.costs import ControlGravity, ControlLimit
-    from raico.planning.crocoddyl.costs import cost_items
-    from raico.plants.dynamics import ActuatedDynamics
-
-    robot = problem_robot(problem)
-    if any(not isinstance(t, ControlGravity) for t in problem.joint_terms):
-        raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
-    pmodel, smap = pinocchio_of(robot, continuous)
-    pmodel.gravity.linear = np.asarray(robot.plant.gravity_field().gravity_vector(), float)  # the model file's g
-    state_costs = [t for t in problem.state_terms if t.weight != 0]
-    control_costs = [t for t in [*problem.control_terms, *problem.joint_terms] if t.weight != 0]
-    add_frames(state_costs, pmodel, robot)  # before crocoddyl's state takes the model
-    state = crocoddyl.StateMultibody(pmodel)
-    D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
-    if isinstance(problem.dynamics, ActuatedDynamics):   # motors on some joints only
-        smap = ActuatedMap.of(smap, problem.dynamics.S)
-        actuation = SelectedActuation(state, smap.sel, D)
-    else:
-        actuation = (DampedActuation(state, D) if np.any(D != 0)
-                     else crocoddyl.ActuationModelFull(state))
-    nu, T, dt = actuation.nu, problem.T, float(problem.dynamics.dt)
-    items = {id(t): cost_items(t, state, nu, pmodel, smap, robot) for t in [*state_costs, *control_costs]}
-    limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
-    bounds = None
-    n = problem.n_u
-    boxes = [(np.broadcast_to(t.lower, (n,)), np.broadcast_to(t.upper, (n,))) for t in limits]
-    if problem.bounds is not None and problem.bounds.has_controls:   # the model's effort limits, hard
-        boxes.append((problem.bounds.u_lower, problem.bounds.u_upper))
-    if boxes:
-        bounds = (np.max([lo for lo, _ in boxes], axis=0), np.min([hi for _, hi in boxes], axis=0))
-
-    def add(costs, term, scale: float) -> None:
-        pairs = items[id(term)]
-        for k, (res, act) in enumerate(pairs):
-            name = term.name if len(pairs) == 1 else f"{term.name}/{k}"
-            costs.addCost(name, crocoddyl.CostModelResidual(state, act, res), 2.0 * term.weight * scale)
-
-    def node_model(active: tuple[int, ...], terminal: bool):
-        costs = crocoddyl.CostModelSum(state, nu)
-        scale = 1.0 if terminal else 1.0 / dt
-        for i in active:
-            add(costs, state_costs[i], scale)
-        if not terminal:
-            for term in control_costs:
-                add(costs, term, scale)
-        dam = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
-        if bounds is not None and not terminal:
-            dam.u_lb, dam.u_ub = smap.u_to_pin(bounds[0]), smap.u_to_pin(bounds[1])
-        return crocoddyl.IntegratedActionModelEuler(dam, 0.0 if terminal else dt)
+    nodes = _Nodes(problem, continuous, damping)
+    T = problem.T
 
     def active_at(t: int) -> tuple[int, ...]:
-        return tuple(i for i, term in enumerate(state_costs) if term.is_active_at(t))
+        return tuple(i for i, term in enumerate(nodes.state_costs) if term.is_active_at(t))
 
     by_set: dict = {}
     running = []
     for t in range(T):  # one model per distinct set of active terms, shared by its nodes
         key = active_at(t)
         if key not in by_set:
-            by_set[key] = node_model(key, False)
+            by_set[key] = nodes.model(key, False)
         running.append(by_set[key])
-    terminal = node_model(active_at(T), True)
+    terminal = nodes.model(active_at(T), True)
     x0 = np.asarray(problem.x0, float).copy()
-    shooting = crocoddyl.ShootingProblem(smap.x_to_pin(x0), running, terminal)
-    return CrocoddylProblem(shooting, state, pmodel, T, dt, x0, bounds, smap)
+    shooting = crocoddyl.ShootingProblem(nodes.smap.x_to_pin(x0), running, terminal)
+    return CrocoddylProblem(shooting, nodes.state, nodes.pmodel, T, nodes.dt, x0, nodes.bounds, nodes.smap)
+
+
+def node_models(problem: Problem, running, terminal, continuous: str = "angle",
+                damping: bool = True) -> tuple[dict, dict]:
+    """Running and terminal crocoddyl node models of ``problem``'s robot, controls and state terms, one per
+    set of active state terms (tuples of indices into the terms with a nonzero weight, in order):
+    ``({key: running model}, {key: terminal model})`` for the keys in ``running`` and ``terminal``, all on
+    one Pinocchio model and one set of residuals (a receding horizon's nodes, built before its loop)."""
+    nodes = _Nodes(problem, continuous, damping)
+    return ({k: nodes.model(k, False) for k in dict.fromkeys(running)},
+            {k: nodes.model(k, True) for k in dict.fromkeys(terminal)})
+
+
+class _Nodes:
+    """What :func:`build` and :func:`node_models` share: the robot in Pinocchio, the actuation, the control
+    bounds and each term's residuals, built once; :meth:`model` makes a node of a set of active terms."""
+
+    def __init__(self, problem: Problem, continuous: str, damping: bool):
+        require()
+        from raico.planning.costs import ControlGravity, ControlLimit
+        from raico.planning.crocoddyl.costs import cost_items
+        from raico.plants.dynamics import ActuatedDynamics
+
+        robot = problem_robot(problem)
+        if any(not isinstance(t, ControlGravity) for t in problem.joint_terms):
+            raise NotExpressible("crocoddyl: the uncertainty term of the learned model has no equivalent")
+        pmodel, smap = pinocchio_of(robot, continuous)
+        pmodel.gravity.linear = np.asarray(robot.plant.gravity_field().gravity_vector(), float)  # the model file's g
+        self.state_costs = [t for t in problem.state_terms if t.weight != 0]
+        self.control_costs = [t for t in [*problem.control_terms, *problem.joint_terms] if t.weight != 0]
+        add_frames(self.state_costs, pmodel, robot)  # before crocoddyl's state takes the model
+        state = crocoddyl.StateMultibody(pmodel)
+        D = np.asarray(pmodel.damping, float) if damping else np.zeros(pmodel.nv)
+        if isinstance(problem.dynamics, ActuatedDynamics):   # motors on some joints only
+            smap = ActuatedMap.of(smap, problem.dynamics.S)
+            actuation = SelectedActuation(state, smap.sel, D)
+        else:
+            actuation = (DampedActuation(state, D) if np.any(D != 0)
+                         else crocoddyl.ActuationModelFull(state))
+        self.nu, self.dt = actuation.nu, float(problem.dynamics.dt)
+        self.items = {id(t): cost_items(t, state, self.nu, pmodel, smap, robot)
+                      for t in [*self.state_costs, *self.control_costs]}
+        limits = [t for t in problem.control_terms if isinstance(t, ControlLimit)]
+        n = problem.n_u
+        boxes = [(np.broadcast_to(t.lower, (n,)), np.broadcast_to(t.upper, (n,))) for t in limits]
+        if problem.bounds is not None and problem.bounds.has_controls:   # the model's effort limits, hard
+            boxes.append((problem.bounds.u_lower, problem.bounds.u_upper))
+        self.bounds = None if not boxes else (np.max([lo for lo, _ in boxes], axis=0),
+                                              np.min([hi for _, hi in boxes], axis=0))
+        self.state, self.pmodel, self.smap, self.actuation = state, pmodel, smap, actuation
+
+    def _add(self, costs, term, scale: float) -> None:
+        pairs = self.items[id(term)]
+        for k, (res, act) in enumerate(pairs):
+            name = term.name if len(pairs) == 1 else f"{term.name}/{k}"
+            costs.addCost(name, crocoddyl.CostModelResidual(self.state, act, res), 2.0 * term.weight * scale)
+
+    def model(self, active: tuple[int, ...], terminal: bool):
+        """A node whose state terms are ``active`` (indices into ``state_costs``); running nodes add the
+        control terms and the control box, and cost ``1/dt`` times a terminal node's."""
+        costs = crocoddyl.CostModelSum(self.state, self.nu)
+        scale = 1.0 if terminal else 1.0 / self.dt
+        for i in active:
+            self._add(costs, self.state_costs[i], scale)
+        if not terminal:
+            for term in self.control_costs:
+                self._add(costs, term, scale)
+        dam = crocoddyl.DifferentialActionModelFreeFwdDynamics(self.state, self.actuation, costs)
+        if self.bounds is not None and not terminal:
+            dam.u_lb, dam.u_ub = self.smap.u_to_pin(self.bounds[0]), self.smap.u_to_pin(self.bounds[1])
+        return crocoddyl.IntegratedActionModelEuler(dam, 0.0 if terminal else self.dt)
 
 
 # ----------------------------------------------------------------------------- the solver
