@@ -86,9 +86,11 @@ def figure(cache_root: Path, table: dict[str, dict[int, dict]], path: Path, push
 
 
 def what_the_model_sees(cache_root: Path, table: dict[str, dict[int, dict]], times: tuple[float, ...]) -> dict:
-    """Per variant and time (s), medians over its seeds (runs fallen by then left out): the CoG's lateral
-    position in the world and on the planning model (the fixed-base Nao, left sole at the origin, at the
-    measured joints: what the MPC's problem sees) (m), and the torso's sideways lean (rad)."""
+    """Per variant and time (s), medians over its seeds (runs fallen by then left out; a run that stood
+    and lost the plan's track stays): the CoG's forward and
+    lateral position in the world, its lateral position on the planning model (the fixed-base Nao, left sole
+    at the origin, at the measured joints: what the MPC's problem sees) (m), the largest joint deviation
+    from the plan (rad) and the torso's tilt from upright (rad)."""
     from raico.plants.robots import shared_robot
     from raico.stages.execute.wbc import plan_cog
 
@@ -101,10 +103,12 @@ def what_the_model_sees(cache_root: Path, table: dict[str, dict[int, dict]], tim
             dt = float(d["times"][1] - d["times"][0])
             for t in times:
                 k = int(round(t / dt))
-                if run["failure_time"] is not None and t >= run["failure_time"]:
+                if not run["stood"] and run["failure_time"] is not None and t >= run["failure_time"]:
                     continue
                 c_model = plan_cog(fixed, d["X"][k:k + 1], dt)[0][0, 1]
-                rows[t].append((d["cog"][k, 1], c_model, float(np.arcsin(np.clip(d["torso_z"][k, 1], -1, 1)))))
+                dev = float(np.max(np.abs(d["X"][k, :fixed.n_q] - d["X_plan"][k, :fixed.n_q])))
+                tilt = float(np.arccos(np.clip(d["torso_z"][k, 2], -1, 1)))
+                rows[t].append((d["cog"][k, 0], d["cog"][k, 1], c_model, dev, tilt))
         out[label] = {t: (np.median(np.array(v), axis=0).tolist(), len(v)) if v else (None, 0) for t, v in rows.items()}
     return out
 
@@ -143,18 +147,19 @@ def markdown(table: dict[str, dict[int, dict]], push: str, load: tuple[float, fl
                   f"more: {'met' if met else 'missed'} ({mpc[0]}: stood {s_mpc}; {base[0]}: fell {f_base}, "
                   f"{mpc[0]}: fell {f_mpc})."]
     if seen:
-        lines += ["", "What the MPC's problem sees (medians over the seeds still standing at that time): the CoG's "
-                  "lateral position in the world and on the planning model at the measured joints (the fixed-base "
-                  "Nao, left sole at the origin), and the torso's sideways lean:", "",
-                  "| controller | t (s) | runs | CoG y world (cm) | CoG y on the model (cm) | world - model (cm) | "
-                  "torso lean (rad) |", "|---|---|---|---|---|---|---|"]
+        lines += ["", "Before the push (1.75 s), at its end (1.9 s) and at the second via-point (2.0 s), medians over "
+                  "the seeds still standing then: the CoG in the world (x forward, y lateral), its lateral position "
+                  "on the planning model at the measured joints (the fixed-base Nao, left sole at the origin: what "
+                  "the MPC's problem sees), the largest joint deviation from the plan and the torso's tilt:", "",
+                  "| controller | t (s) | runs | CoG x (cm) | CoG y (cm) | CoG y on the model (cm) | "
+                  "largest joint deviation (rad) | torso tilt (rad) |", "|---|---|---|---|---|---|---|---|"]
         for label, per_t in seen.items():
             for t, (v, n) in per_t.items():
                 if v is None:
-                    lines.append(f"| {label} | {t:.2f} | 0 | - | - | - | - |")
+                    lines.append(f"| {label} | {t:.2f} | 0 | - | - | - | - | - |")
                     continue
-                lines.append(f"| {label} | {t:.2f} | {n} | {100 * v[0]:.2f} | {100 * v[1]:.2f} | "
-                             f"{100 * (v[0] - v[1]):.2f} | {v[2]:.3f} |")
+                lines.append(f"| {label} | {t:.2f} | {n} | {100 * v[0]:.2f} | {100 * v[1]:.2f} | {100 * v[2]:.2f} | "
+                             f"{v[3]:.2f} | {v[4]:.3f} |")
     lines += ["", "| seed | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
     for s in seeds:
         cells = []
@@ -187,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     _, _, t0, dur = push.rsplit(":", 3)
     figure(cache.root, table, out / "nao_mpc.png", (float(t0), float(dur)))
     (out / "nao_mpc.json").write_text(json.dumps({"push": push, "runs": table}, indent=2, allow_nan=True))
-    seen = what_the_model_sees(cache.root, {k: v for k, v in table.items() if "no push" not in k}, SEEN_AT)
+    seen = what_the_model_sees(cache.root, table, SEEN_AT)
     page = markdown(table, push, (start, os.getloadavg()[0]), seen)
     (out / "nao_mpc.md").write_text(page)
     sys.stdout.write(page)
