@@ -112,3 +112,13 @@ def test_a_final_target_enters_the_window_only_with_the_problems_end_without_the
         assert window_times(times, T, H, k, receding_end=False).tolist() == window_times(times, T, H, k).tolist()
     assert window_times(times, T, H, 250, receding_end=False).tolist() == [50]
     assert window_times(None, T, H, 5, receding_end=False) is None
+
+
+def test_the_nao_scenario_file_expands(tmp_path):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    res = CliRunner().invoke(app, ["exp", "run", str(root / "experiments" / "nao_push_mpc.toml"), "--dry-run",
+                                   "--artifacts", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "4 variants x 10 seeds = 40 runs" in res.output
