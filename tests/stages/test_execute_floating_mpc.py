@@ -122,3 +122,18 @@ def test_the_nao_scenario_file_expands(tmp_path):
                                    "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
     assert "4 variants x 10 seeds = 40 runs" in res.output
+
+
+def test_the_cog_via_point_margins_pass_over_a_state_term(tmp_path):
+    from pathlib import Path
+
+    from raico.stages.evaluate.metrics import cog_via_point_margins
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    text = (Path(__file__).resolve().parents[2] / "raico" / "problems" / "nao_balance-inside.toml").read_text()
+    path = tmp_path / "nao_damped.toml"
+    path.write_text(text + '\n[costs.damping]\ntype = "state"\ntarget = "start"\nprecision = {q = 0.0, v = 1.0}\n'
+                    'times = "all"\nweight = 1e-2\n')
+    problem = build_problem(PlanConfig(problem=str(path), dynamics="pseudo"))[2]
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    assert sorted(cog_via_point_margins(problem, square)) == ["via_cog1@100", "via_cog2@200", "via_cog3@300"]
