@@ -97,20 +97,21 @@ class TickLog:
                 **({} if self.predicted is None else {"mpc_predicted": self.predicted[:k].copy()})}
 
 
-def window_times(times: np.ndarray | None, T: int, H: int, k: int) -> np.ndarray | None:
+def window_times(times: np.ndarray | None, T: int, H: int, k: int, receding_end: bool = True) -> np.ndarray | None:
     """A state term's window times at tick ``k``: its absolute ``times`` in ``[k, min(k+H, T))`` shifted
     by ``-k``, plus ``min(H, T - k)`` if it costs the problem's last step ``T`` (the receding end, until
-    the problem's end enters the window); ``None`` stays ``None`` (every step)."""
+    the problem's end enters the window; without ``receding_end`` only once it is inside); ``None`` stays
+    ``None`` (every step)."""
     if times is None:
         return None
     t = np.asarray(times, dtype=int)
     inside = t[(t >= k) & (t < min(k + H, T))] - k
-    if np.any(t == T):
+    if np.any(t == T) and (receding_end or T - k <= H):
         inside = np.append(inside, min(H, T - k))
     return np.unique(inside)
 
 
-def _window_problem(problem: Problem, H: int) -> tuple[Problem, list[tuple[Any, list]]]:
+def _window_problem(problem: Problem, H: int, receding_end: bool = True) -> tuple[Problem, list[tuple[Any, list]]]:
     """The window problem (``H`` steps, its own copies of the terms) and, per state term with times,
     ``(copy, [its window times at tick k for k = 0..T-1])``."""
     T = problem.T
@@ -119,7 +120,7 @@ def _window_problem(problem: Problem, H: int) -> tuple[Problem, list[tuple[Any, 
         c = copy.copy(term)
         times = getattr(term, "times", None)
         if times is not None:
-            per_tick = [window_times(times, T, H, k) for k in range(T)]
+            per_tick = [window_times(times, T, H, k, receding_end) for k in range(T)]
             c._set_times(per_tick[0])
             timed.append((c, per_tick))
         state_terms.append(c)
@@ -151,6 +152,8 @@ class MPC:
             whose solve took longer than the budget is recorded as over budget.
         ticks: ticks the log is preallocated for (default ``T``; it grows if more are run).
         keep_predictions: keep every tick's predicted window states in the log (``TickLog.predicted``).
+        receding_end: a term at the problem's last step costs the window's last step until the problem's
+            end enters the window (default); ``False``: only from then on (via-points alone pull before).
 
     Raises:
         ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start,
@@ -159,7 +162,7 @@ class MPC:
 
     def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
                  iterations: int = 1, budget: float | None = None, ticks: int | None = None,
-                 keep_predictions: bool = False):
+                 keep_predictions: bool = False, receding_end: bool = True):
         if solver not in WARM_STARTABLE:
             raise ValueError(f"solver {solver!r} cannot warm-start a receding horizon here; "
                              f"use one of {', '.join(WARM_STARTABLE)}")
@@ -172,7 +175,7 @@ class MPC:
         self.problem, self.H, self.solver = problem, int(horizon), solver
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
-        self.window, self._timed = _window_problem(problem, self.H)
+        self.window, self._timed = _window_problem(problem, self.H, receding_end)
         # per tick: an id of the window's pattern of term times (it changes where a timed term enters, leaves
         # or the problem's end enters the window)
         ids, last = np.zeros(problem.T, dtype=np.int64), None

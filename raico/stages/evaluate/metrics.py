@@ -315,8 +315,9 @@ def cog_via_point_margins(problem, poly: np.ndarray) -> dict[str, float]:
 
     out = {}
     for term in problem.state_terms:
-        axes = list(getattr(term.taskmap, "axes", []))
-        if isinstance(term, ViaPoint) and isinstance(term.taskmap, CenterOfMass) and 0 in axes and 1 in axes:
+        taskmap = getattr(term, "taskmap", None)   # a state term has none
+        axes = list(getattr(taskmap, "axes", []))
+        if isinstance(term, ViaPoint) and isinstance(taskmap, CenterOfMass) and 0 in axes and 1 in axes:
             xy = term.target[[axes.index(0), axes.index(1)]]
             for t in np.flatnonzero(term.active(np.arange(problem.T + 1))):
                 out[f"{term.name}@{t}"] = signed_margin(poly, xy)

@@ -15,7 +15,7 @@ from raico.stages.base import StageConfig
 from raico.stages.plan.stage import PROBLEM_FILE
 
 STARTS = ("plan", "standing")  # a floating robot's start state (docs/execution.md)
-CONTROLLERS = ("pd", "wbc", "mpc")  # a floating robot's controller, or receding-horizon control of a fixed one
+CONTROLLERS = ("pd", "wbc", "mpc")  # pd, wbc (floating), mpc (fixed: re-planning; floating: above the stabilizer)
 MPC_SOLVERS = WARM_STARTABLE  # the solvers with a shift warm start (their spec's caps.mpc, raico.planning.mpc)
 MPC_HORIZON = 50  # planning steps: --controller mpc's default horizon (at most the problem's T)
 
@@ -37,13 +37,14 @@ class ExecuteConfig(StageConfig):
                      "--controller wbc, plan with the joint PD.",
             "controller": "Nao controller: pd (joint PD + inverse-dynamics feed-forward) or wbc (the whole-body "
                           "stabilizer, a task-space inverse-dynamics QP with contact); arms: mpc (receding-horizon "
-                          "control re-planning every --period from the measured state, raico.planning.mpc).",
+                          "control re-planning every --period from the measured state, raico.planning.mpc; a floating robot: the "
+                          "window's reference handed to the whole-body stabilizer).",
             "period": "--controller mpc: control period (s); default the planning step; a divisor of it, at least "
                       "the simulation step.",
             "horizon": f"--controller mpc: horizon in planning steps (default min(T, {MPC_HORIZON})).",
             "iterations_per_tick": "--controller mpc: solver iterations per control period.",
             "solver": "--controller mpc: the solver of each period: " + ", ".join(MPC_SOLVERS) + ".",
-            "push": "--controller mpc or the plan's controller (arms): a scripted push FRAME:NEWTONS:START:DURATION "
+            "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
 
@@ -59,15 +60,16 @@ class ExecuteConfig(StageConfig):
     horizon: int | None = None  # planning steps, --controller mpc (None: min(T, MPC_HORIZON))
     iterations_per_tick: int = 1  # --controller mpc
     solver: str = "raico"  # --controller mpc (MPC_SOLVERS)
-    push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION (arms)
+    push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "push", tuple(self.push or ()))   # the CLI gives None for no --push
 
     def normalized(self) -> ExecuteConfig:
         """The start state spelled out: the standing start with the stabilizer (which needs both soles on the
-        ground), the plan's start with the joint PD (the thesis rows)."""
-        if self.start is not None:
+        ground), the plan's start with the joint PD (the thesis rows); with MPC left open (a floating robot's
+        MPC, above the stabilizer, starts standing; a fixed one's has no start to choose)."""
+        if self.start is not None or self.controller == "mpc":
             return self
         return dataclasses.replace(self, start="standing" if self.controller == "wbc" else "plan")
 
@@ -75,17 +77,14 @@ class ExecuteConfig(StageConfig):
         """The options of a robot executed on its soles refused for another robot's plan, and the other way
         round (they would change the key, not the run)."""
         plan = inputs["plan"]
-        if robot_for(plan.document(PROBLEM_FILE)).floating:
-            if self.controller == "mpc" or self.push:
-                raise ValueError("--controller mpc and --push are for fixed-base robots; a floating robot's "
-                                 "controllers are pd and wbc")
-            return
-        plant = plan.config.get("plant")
         if self.controller == "mpc":
             T = int(plan.document(PROBLEM_FILE)["T"])
             if self.horizon is not None and self.horizon > T:
                 raise ValueError(f"--horizon {self.horizon} is longer than the problem's {T} steps")
-        elif self.controller != "pd":
+        if robot_for(plan.document(PROBLEM_FILE)).floating:
+            return
+        plant = plan.config.get("plant")
+        if self.controller not in ("pd", "mpc"):
             raise ValueError(f"--controller {self.controller} is for plans of a floating robot; this plan is of "
                              f"{plant} (its executions use the computed-torque controller)")
         if self.start not in (None, "plan"):

@@ -1,9 +1,13 @@
 """Floating execution: a robot free on its soles with contact (``raico.plants.floating``), its plan tracked by
 Drake's joint PD plus an inverse-dynamics feed-forward (``pd``) or by the whole-body stabilizer (``wbc``,
-``raico.stages.execute.wbc``), from the plan's start tipped onto its soles or a standing start (docs/execution.md)."""
+``raico.stages.execute.wbc``), or the stabilizer tracking a receding-horizon controller's window (``mpc``: the
+plan's problem re-solved every planning step from the measured joint state, ``raico.planning.mpc``), from the
+plan's start tipped onto its soles or a standing start, optionally pushed (docs/execution.md, docs/mpc.md)."""
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -71,12 +75,16 @@ def planned_stance(robot: Robot, X_plan: np.ndarray, spec) -> dict[str, np.ndarr
     return out
 
 
-def execute_floating(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress) -> ExecuteOutput:
+def execute_floating(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress, planning=None
+                     ) -> ExecuteOutput:
     """The plan tracked on the floating robot (docs/execution.md): the start state and the
     reference, the simulator with its controller, the simulation sampled at every planning step, then
-    the arrays and metrics of the rollout."""
+    the arrays and metrics of the rollout. ``planning``: with ``--controller mpc``, the plan's planning
+    problem as a function of the start posture (``q0 (n_q,)`` rad)."""
     from raico.plants.floating import load_floating
 
+    if cfg.controller == "mpc" and cfg.start is None:
+        cfg = dataclasses.replace(cfg, start="standing")  # above the stabilizer, which needs both soles down
     spec = robot_for(desc).spec
     dt, T, step = float(desc["dt"]), int(desc["T"]), spec.time_step
     sub = int(round(dt / step))
@@ -87,15 +95,53 @@ def execute_floating(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, p
     X_plan, qp0, stance, tilt = _floating_start(cfg, desc, plan, free, rng)
     ff = feedforward(fixed, X_plan, np.asarray(plan["U"], float), desc["control_kind"])[:, free.act_fixed_idx]
     lift_from = _lift_step(desc)  # a single-support plan's lift step (None: both soles stay down)
-    run = _FloatingRun(free, cfg, X_plan, np.asarray(plan["X"], float), dt, problem, lift_from, qp0, ff[0])
+    mpc = _floating_mpc(cfg, plan, X_plan, free.planning_q(qp0), planning, dt, step) if cfg.controller == "mpc" else None
+    run = _FloatingRun(free, cfg, X_plan, np.asarray(plan["X"], float), dt, problem, lift_from, qp0, ff[0], mpc)
     log = _FloatingLog.empty(T + 1, fixed.n_q, free.plant.num_positions(), len(spec.sole))
+    wall = time.perf_counter()
     applied, asked, U_log = run.simulate(log, ff, cfg.process_noise, rng, T, sub, progress)
+    wall = time.perf_counter() - wall
     if run.stab is not None:
         _stabilizer_commands(run.stab, applied, asked, dt, step)
     arrays, metrics, tau, at_limit = _floating_results(free, problem, plan, X_plan, log, applied, asked, dt, tilt,
                                                     stance, lift_from, run.stab)
+    extra = {}
+    if mpc is not None:
+        from raico.stages.execute.fixed import _mpc_metrics
+
+        metrics.update(_mpc_metrics(mpc, dt), controller="mpc",
+                       mpc_real_time_factor=float(np.isfinite(log.X).all(axis=1).sum() - 1) * dt / wall)
+        extra = mpc.log.arrays()
     return ExecuteOutput(times=np.arange(T + 1) * dt, X=log.X, U=U_log, tau=tau, X_plan=X_plan, metrics=metrics,
-                         effort_at_limit=at_limit, floating=arrays, problem=problem, robot=fixed)
+                         effort_at_limit=at_limit, floating=arrays, problem=problem, robot=fixed, mpc=extra)
+
+
+def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: np.ndarray, planning, dt: float,
+                  step: float):
+    """The receding-horizon controller above the stabilizer: the plan's problem rebuilt from the executed start
+    posture ``q_start (n_q,)`` (the planning model, stance sole fixed; its terms relative to the start made
+    relative to it), warm-started from the joint reference ``X_plan`` (the plan shifted by the start
+    projection: its controller's offsets shifted with it). One tick per planning step. The problem's final
+    target costs the window only once the problem's end is inside it (``receding_end=False``): at the
+    receding end it would ask the window's last step for the start's CoG one step after a via-point's
+    (docs/mpc.md, "The Nao")."""
+    from raico.planning.mpc import MPC
+
+    if cfg.period is not None and abs(cfg.period - dt) > 1e-12:
+        raise ValueError(f"--period {cfg.period:g} s: a floating robot's MPC ticks once per planning step ({dt:g} s), "
+                         "its window handed to the stabilizer")
+    if planning is None:
+        raise ValueError("--controller mpc needs the plan's planning problem")
+    problem = planning(q_start)
+    horizon = cfg.mpc_horizon(problem.T)
+    if horizon > problem.T:
+        raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    mpc = MPC(problem, horizon, cfg.solver, None, iterations=cfg.iterations_per_tick, budget=dt, ticks=problem.T,
+              keep_predictions=True, receding_end=False)
+    O = np.asarray(plan["O"], float)
+    shift = X_plan[0] - np.asarray(plan["X"], float)[0]   # the start projection (constant along the plan)
+    mpc.start_from(X_plan, np.asarray(plan["U"], float), np.asarray(plan["o"], float) - O @ shift, O)
+    return mpc
 
 
 def _floating_start(cfg: ExecuteConfig, desc: dict, plan: dict, free, rng
@@ -170,14 +216,15 @@ class _FloatingRun:
     port and takes the process noise on its ``w`` input. Set to ``qp0`` at rest and initialized."""
 
     def __init__(self, free, cfg: ExecuteConfig, X_plan: np.ndarray, X_made: np.ndarray, dt: float, problem,
-                 lift_from: int | None, qp0: np.ndarray, ff0: np.ndarray):
+                 lift_from: int | None, qp0: np.ndarray, ff0: np.ndarray, mpc=None):
         """``X_plan (T+1, 2 n_q)``: the joint reference; ``X_made``: the plan as made (the stabilizer's CoG and
-        frame tasks); ``ff0 (n_act,)`` N m: the first step's feed-forward."""
+        frame tasks); ``ff0 (n_act,)`` N m: the first step's feed-forward; ``mpc``: a receding-horizon
+        controller whose window the stabilizer tracks (ticked at every planning step), else None."""
         from pydrake.systems.analysis import Simulator
 
-        self.free, self.X_plan, self.dt = free, X_plan, dt
+        self.free, self.X_plan, self.dt, self.mpc = free, X_plan, dt, mpc
         plant, fixed, n = free.plant, free.fixed, free.fixed.n_q
-        self.wbc = cfg.controller == "wbc"
+        self.wbc = cfg.controller in ("wbc", "mpc")
         self.stab = None
         if self.wbc:
             from raico.stages.execute.wbc import make_stabilizer
@@ -188,6 +235,11 @@ class _FloatingRun:
             free.builder.Connect(plant.get_state_output_port(), self.stab.get_input_port(0))
             free.builder.Connect(plant.get_generalized_contact_forces_output_port(free.model), self.stab.contact_port)
             free.builder.Connect(self.stab.get_output_port(0), plant.get_actuation_input_port())
+        if cfg.push:
+            from raico.stages.execute.fixed import _pusher
+
+            pusher = free.builder.AddSystem(_pusher(free, cfg.pushes()))
+            free.builder.Connect(pusher.get_output_port(0), plant.get_applied_spatial_force_input_port())
         self.sim = Simulator(free.builder.Build())
         self.pctx = plant.GetMyMutableContextFromRoot(self.sim.get_mutable_context())
         self.sctx = self.stab.GetMyMutableContextFromRoot(self.sim.get_mutable_context()) if self.wbc else None
@@ -239,6 +291,9 @@ class _FloatingRun:
             self.set_actuation(ff[k], w)
             U_log[k] = (ff[k] + w) @ Aq  # planning coordinates
             q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
+            if self.mpc is not None:  # the window from the measured state, the stabilizer's reference from step k on
+                self.mpc.tick(log.X[k])
+                self.stab.reference.follow(k, self.mpc.X)
             try:
                 if self.wbc:  # the stabilizer updates itself (its own period): one advance per planning step
                     self.sim.AdvanceTo((k + 1) * dt)

@@ -50,7 +50,8 @@ def _not_executed(desc: dict, plan: dict, problem, reason: str) -> ExecuteOutput
 def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int, int], None] | None = None,
             plan_status: str | None = None, planning=None) -> ExecuteOutput:
     """Execute a plan (its arrays, stored problem description and status) in Drake (docs/execution.md);
-    ``planning``: the plan's planning problem (``--controller mpc``)."""
+    ``planning``: the plan's planning problem (``--controller mpc``; a floating robot's: a function of the
+    start posture giving it, ``planning_problem`` of the plan)."""
     cfg = cfg.normalized()
     cfg.validate()
     problem = objective_from_description(desc)
@@ -63,7 +64,7 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
         return _not_executed(desc, plan, problem, "the plan is not finite: not executed")
     rng = np.random.default_rng(cfg.seed)
     if floating:
-        out = execute_floating(cfg, desc, plan, problem, rng, progress)
+        out = execute_floating(cfg, desc, plan, problem, rng, progress, planning)
     else:
         out = execute_fixed(cfg, desc, plan, problem, rng, progress, planning)
     if plan_status == "diverged":  # executed (its data may still be of use), never reported as a success
@@ -74,15 +75,17 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
     return out
 
 
-def planning_problem(plan: Artifact):
-    """The plan's planning problem rebuilt from its config (the MPC's model; its start is the plan's)."""
+def planning_problem(plan: Artifact, q0: np.ndarray | None = None):
+    """The plan's planning problem rebuilt from its config (the MPC's model; its start is the plan's, or the
+    posture ``q0`` at rest with the terms relative to the start made relative to it)."""
     from raico.stages.plan.stage import PlanConfig, build_problem
 
     pcfg = PlanConfig.from_dict(plan.config)
     if pcfg.model is not None or pcfg.dynamics == "learned":
         raise ValueError("--controller mpc on a plan of a learned model: not supported yet (plan with the model file)")
-    problem = build_problem(pcfg)[2]
-    problem.x0[:] = np.asarray(plan.document(PROBLEM_FILE)["x0"], float)
+    problem = build_problem(pcfg, q0=q0)[2]
+    if q0 is None:
+        problem.x0[:] = np.asarray(plan.document(PROBLEM_FILE)["x0"], float)
     return problem
 
 
@@ -90,7 +93,10 @@ def run(cfg: ExecuteConfig, inputs: dict[str, Artifact], progress: Callable[[int
         ) -> StageOutput:
     """The execute stage: ``rollout.npz`` of the plan executed in Drake."""
     plan = inputs["plan"]
-    planning = planning_problem(plan) if cfg.controller == "mpc" else None
+    planning = None
+    if cfg.controller == "mpc":
+        floating = robot_for(plan.document(PROBLEM_FILE)).floating
+        planning = (lambda q0: planning_problem(plan, q0)) if floating else planning_problem(plan)
     out = execute(cfg, plan.document(PROBLEM_FILE), plan.arrays(PLAN_FILE), progress, plan_status=plan.status,
                   planning=planning)
     return StageOutput(status=out.metrics["status"], metrics=out.metrics, arrays={ROLLOUT_FILE: out.arrays()},

@@ -99,9 +99,25 @@ class Reference:
         A = np.zeros_like(V)
         A[:-1] = np.diff(V, axis=0) / dt
         P = fixed.P  # (n_tree, n_q)
+        self.fixed = fixed
         self.Q, self.V, self.A = Q @ P.T, V @ P.T, A @ P.T
         self.c, self.cd, self.cdd = plan_cog(fixed, X_joint if COG_FROM_JOINT_PLAN else X_task, dt)
         self.frames = [plan_points(m, X_task, dt) for m in frame_maps]
+
+    def follow(self, k: int, X: np.ndarray) -> None:
+        """From step ``k`` on, the joints (and the CoG, with ``COG_FROM_JOINT_PLAN``) follow ``X (m, 2 n_q)``
+        (a receding-horizon controller's predicted window, ``X[0]`` at step ``k``): its first three samples
+        overwrite steps ``k .. k+2``, what the updates of one planning step read (accelerations ``k, k+1``)."""
+        fixed, n = self.fixed, self.fixed.n_q
+        m = min(3, len(X), self.T + 1 - k)
+        Xw = X[:m]
+        P = fixed.P
+        self.Q[k:k + m] = np.clip(Xw[:, :n], fixed.lower, fixed.upper) @ P.T
+        self.V[k:k + m] = Xw[:, n:] @ P.T
+        self.A[k:k + m - 1] = np.diff(self.V[k:k + m], axis=0) / self.dt
+        if COG_FROM_JOINT_PLAN:
+            c, cd, cdd = plan_cog(fixed, Xw, self.dt)
+            self.c[k:k + m], self.cd[k:k + m], self.cdd[k:k + m - 1] = c, cd, cdd[:m - 1]
 
     def _pick(self, k: int, s: float, pos, vel, acc):
         if k >= self.T:
@@ -719,7 +735,7 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
     attributes ``log`` (per update: time, solve seconds, corner forces ``(nc, 3)`` N, success) and
     ``failures`` (updates whose QP failed: the previous torque is held) are filled as it runs; its
     ``program(t, q, v)`` gives the :class:`QPData` of one update (for the tests), ``solve``, ``failed``,
-    ``relaxed``, ``observed`` and ``qp`` are :class:`StabilizerProgram`'s."""
+    ``relaxed``, ``observed``, ``qp`` and ``reference`` (its :class:`Reference`) are :class:`StabilizerProgram`'s."""
     period = CONTROL_PERIOD if period is None else period
     program = StabilizerProgram(free, X_plan, dt, X_task, frame_maps, swing)
     system = _leaf_system(program, period)
@@ -729,4 +745,5 @@ def make_stabilizer(free, X_plan: np.ndarray, dt: float, period: float | None = 
     system.relaxed = program.relaxed
     system.observed = program.observed
     system.qp = program.solver
+    system.reference = program.ref
     return system

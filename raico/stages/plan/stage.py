@@ -634,13 +634,16 @@ def check_model_robot(model: Artifact, robot: Robot) -> None:
                          "fit it on data of this robot")
 
 
-def build_problem(cfg: PlanConfig, model: Artifact | None = None) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
+def build_problem(cfg: PlanConfig, model: Artifact | None = None, q0: np.ndarray | None = None
+                  ) -> tuple[Robot, TaskSpec, Problem, np.ndarray, dict]:
     """Robot, task, problem, ``q0`` and the problem's description for ``cfg`` (normalized here: the
-    task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it)."""
+    task's dynamics and spread of ``q0`` where ``cfg`` leaves them to it); ``q0``: another start posture
+    (the terms relative to the start then relative to it)."""
     cfg = cfg.normalized()
     robot, task = robot_and_task(cfg)
-    q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed,
-                         cfg.q0_std_prismatic) + cfg.x0_nudge
+    if q0 is None:
+        q0 = initial_posture(robot, Q0_STD if cfg.q0_std is None else cfg.q0_std, cfg.seed,
+                             cfg.q0_std_prismatic) + cfg.x0_nudge
     params = model.arrays("model.npz") if model is not None else None
     if model is not None:
         check_model_robot(model, robot)
