@@ -23,7 +23,7 @@
 typedef int (*lin_t)(const void *, const double *, const double *, double *, double *, double *);
 typedef int (*task_t)(const void *, long, const double *, double *, double *);
 
-enum { ERR_CHOL = -1, ERR_LIN = -2 };
+enum { ERR_CHOL = -1, ERR_LIN = -2, ERR_H = -3 };
 enum { PH_FWD = 0, PH_BWD = 1, PH_DONE = 2 };
 enum { SUB_STEP = 0, SUB_CHECK = 1, SUB_AFTER = 2, SUB_LEAVE = 3 };
 enum { DYN_NONE = 0, DYN_C = 1, DYN_PY = 2 };
@@ -70,12 +70,12 @@ long sweep_work_size(long n, long m)
 {
     long N1 = n + 1, K = m + n + 1, h = n / 2;
     return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3
-        + n * h + 2 * h * h + h * K + n + m * n;
+        + n * h + 2 * h * h + h * K + n + m * n + 2 * m * m;
 }
 
 /* work layout */
 typedef struct { double *Pa, *Vs, *Ba, *Y0, *Y1, *FA, *W, *S, *G, *GT, *FB, *y, *tmp, *rhs, *Ad, *ad, *Bd, *BHi, *E, *lx, *lxx;
-                 double *Ve, *E1, *D, *Yb, *gv, *Bt; } work_t;
+                 double *Ve, *E1, *D, *Yb, *gv, *Bt, *Hc, *Hy; } work_t;
 
 static work_t layout(const sweep_t *s)
 {
@@ -110,6 +110,8 @@ static work_t layout(const sweep_t *s)
     w.Yb = p; p += h * K;
     w.gv = p; p += n;
     w.Bt = p; p += m * n;
+    w.Hc = p; p += m * m;   /* sweep_linearize: H_t's factor and the inverse's work */
+    w.Hy = p; p += m * m;
     w.Ad = w.E + n * N1;    /* n * (n+1) >= n * n */
     return w;
 }
@@ -501,11 +503,13 @@ static int belief(sweep_t *s, work_t *w, long t)
     return 0;
 }
 
+static int marginals(sweep_t *s, work_t *w, long t, const double *a, const double *B);
+
 /* compiled relinearization of the dynamics at step t (Sweeps.relinearize, dynamics part) */
 static int relin_dyn(sweep_t *s, work_t *w, long t)
 {
     int n = (int)s->n, m = (int)s->m, K = m + n + 1;
-    double *A = w->Ad, *a = w->ad, *B = w->Bd, *BHi = w->BHi;
+    double *A = w->Ad, *a = w->ad, *B = w->Bd;
     ((lin_t)s->lin_fn)(s->lin_ctx, s->X + t * n, s->U + t * m, A, a, B);
     double *Ct = s->C + t * s->C_s, sum = 0.0;
     for (int i = 0; i < n; i++) {
@@ -516,9 +520,19 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
     #pragma omp simd reduction(+:sum)
     for (long i = 0; i < (long)(n + 1) * K; i++) sum += Ct[i];
     if (!isfinite(sum)) return ERR_LIN;
+    s->blk[t] = 0;
+    return marginals(s, w, t, a, B);
+}
+
+/* Qbar[t] = q I + B H^-1 B^T and a_eff[t] = a + B H^-1 h from C[t]'s B and the drift a (n) (Sweeps._relinearize_dynamics's
+ * marginals); B (n x m, row-major) is C[t]'s B copied out (the dense route reads it) */
+static int marginals(sweep_t *s, work_t *w, long t, const double *a, const double *B)
+{
+    int n = (int)s->n, m = (int)s->m, K = m + n + 1;
+    const double *Ct = s->C + t * s->C_s;
+    double *BHi = w->BHi;
     const double *Hi = s->Hinv + t * s->Hinv_s, *ht = s->h + t * m;
     double *Qb = s->Qbar + t * s->Qbar_s, *ae = s->a_eff + t * n, *Bt = w->Bt, *bh = w->tmp;
-    s->blk[t] = 0;
     if (block_form(s, t)) {
         /* B = e B_b: B H^-1 B^T = e D e^T with D = B_b H^-1 B_b^T (h x h), B H^-1 h = e (B_b H^-1 h) */
         int h = n / 2;
@@ -564,6 +578,7 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
     }
     return 0;
 }
+
 
 /* compiled task message RA[t] at X[t] (Sweeps._relinearize_task) */
 static int relin_task(sweep_t *s, work_t *w, long t)
@@ -662,6 +677,83 @@ int sweep_run(sweep_t *s)
             s->sub = SUB_CHECK;
         }
     }
+}
+
+/* The linearization of one iteration along X, U in one call (the shifted workspace's, raico/planning/aico/shift.py;
+ * Sweeps.linearize_all's formulas): flags & LIN_DYN: the dynamics at every step t < T (lin_fn at X[t], U[t] into
+ * C[t], as relin_dyn); H[t] (H_s = 0: one shared) checked positive definite, H and h finite; flags & LIN_MARG: the
+ * control marginals Hinv[t] = H[t]^-1, Qbar[t], a_eff[t] (as relin_dyn's; only the forward messages read them);
+ * flags & LIN_TASK: the task messages RA[t] = [R + 2 alpha I | R x_t - lx_t + 2 alpha Xprev_t], t = 0..T, in place
+ * from R = RA[t][:, :n] and lx (T+1, n). blk zeroed (C[t]'s block form not known). Shapes: sweep_run's; H_s, Hinv_s: 0 or m*m, Hinv_s =
+ * H_s; Qbar_s = n*n (LIN_MARG). Returns 0, ERR_LIN (a non-finite C[t], H[t], h[t] or RA[t]) or ERR_H (H[t] not
+ * positive definite; err_info = t). */
+enum { LIN_DYN = 1, LIN_MARG = 2, LIN_TASK = 4 };
+
+int sweep_linearize(sweep_t *s, const double *lx, long flags)
+{
+    work_t w = layout(s);
+    long T = s->T, n = s->n, m = s->m, N1 = n + 1, K = m + n + 1;
+    memset(s->blk, 0, (size_t)T);
+    if ((flags & LIN_DYN) && s->dyn_mode == DYN_C && s->C_s) {
+        for (long t = 0; t < T; t++) {
+            ((lin_t)s->lin_fn)(s->lin_ctx, s->X + t * n, s->U + t * m, w.Ad, w.ad, w.Bd);
+            double *Ct = s->C + t * s->C_s, sum = 0.0;
+            for (long i = 0; i < n; i++) {
+                for (long j = 0; j < m; j++) Ct[i * K + j] = w.Bd[i * m + j];
+                for (long j = 0; j < n; j++) Ct[i * K + m + j] = w.Ad[i * n + j];
+                Ct[i * K + m + n] = -w.ad[i];
+            }
+            #pragma omp simd reduction(+:sum)
+            for (long i = 0; i < N1 * K; i++) sum += Ct[i];
+            if (!isfinite(sum)) return ERR_LIN;
+        }
+    }
+    for (long t = 0; t < T; t++) {
+        const double *Ht = s->H + t * s->H_s, *ht = s->h + t * m;
+        double sum = 0.0;
+        for (long i = 0; i < m; i++) sum += ht[i];
+        if (t == 0 || s->H_s) {
+            for (long i = 0; i < m * m; i++) { w.Hc[i] = Ht[i]; sum += Ht[i]; }
+            if (!isfinite(sum)) return ERR_LIN;
+            if (chol_u((int)m, w.Hc, (int)m) != 0) { s->err_info = t; return ERR_H; }
+            if (flags & LIN_MARG) spd_inverse((int)m, w.Hc, (int)m, s->Hinv + t * s->Hinv_s, (int)m, w.Hy);
+        } else if (!isfinite(sum)) return ERR_LIN;
+    }
+    if (flags & LIN_MARG) {
+        for (long t = 0; t < T; t++) {
+            const double *Ct = s->C + t * s->C_s;
+            for (long i = 0; i < n; i++) {
+                for (long j = 0; j < m; j++) w.Bd[i * m + j] = Ct[i * K + j];
+                w.ad[i] = -Ct[i * K + m + n];
+            }
+            int rc = marginals(s, &w, t, w.ad, w.Bd);
+            if (rc) return rc;
+        }
+    }
+    double a2 = 2.0 * s->alpha;
+    for (long t = 0; t <= T && (flags & LIN_TASK); t++) {
+        const double *x = s->X + t * n, *xp = s->Xprev + t * n, *lt = lx + t * n;
+        double *out = s->RA + t * n * N1, sum = 0.0;
+        for (long i = 0; i < n; i++) {
+            double *oi = out + i * N1, v = 0.0;
+            #pragma omp simd reduction(+:v)
+            for (long j = 0; j < n; j++) v += oi[j] * x[j];
+            oi[i] += a2;
+            oi[n] = v - lt[i] + a2 * xp[i];
+        }
+        #pragma omp simd reduction(+:sum)
+        for (long i = 0; i < n * N1; i++) sum += out[i];
+        if (!isfinite(sum)) return ERR_LIN;
+    }
+    return 0;
+}
+
+/* whether all of a (k doubles) is finite */
+int all_finite(const double *a, long k)
+{
+    int ok = 1;
+    for (long i = 0; i < k; i++) ok &= isfinite(a[i]) != 0;
+    return ok;
 }
 
 /* forward messages t = 1..T and every belief, no relinearization (Sweeps.beliefs, theta = inf) */

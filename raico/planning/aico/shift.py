@@ -26,6 +26,7 @@ import numpy as np
 from raico.planning.aico.bounds import hard_constraints
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.solve import check_control_cost
+from raico.planning import kernels
 from raico.planning.aico.sweeps import NumericalError, Sweeps
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
 from raico.planning.problem import Problem
@@ -67,7 +68,7 @@ class ShiftedAICO:
         self.inner = window if self.efforts is None else dataclasses.replace(
             window, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
         check_control_cost(self.inner)
-        self.sw = Sweeps(self.inner, opts)
+        self.sw = ShiftSweeps(self.inner, opts)
         T, n, m = window.T, window.n_x, window.n_u
         self.T, self.n, self.m = T, n, m
         self.X, self.U = np.tile(window.x0, (T + 1, 1)), np.zeros((T, m))
@@ -191,6 +192,122 @@ class ShiftedAICO:
                 self.al.update(self.X, self.U)
             self.solved = True
         return iterations
+
+
+class ShiftSweeps(Sweeps):
+    """:class:`Sweeps` whose linearization's assembly runs compiled in one call (``sweep_linearize`` of
+    ``csweep.c``: the dynamics at every step where the model has a compiled linearization, the control
+    Hessians' check, the control marginals only where the forward messages read them (``theta`` finite), the
+    task messages ``[R + 2 alpha I | R x - l_x + 2 alpha x^[n-1]]``) into arrays kept across iterations (the
+    kernel's state built once); the same formulas as ``Sweeps.linearize_all``, the numbers equal to rounding
+    (the marginals' inverse by Cholesky instead of LU; the sums in another order). Without the kernel
+    (``compiled`` off, no compiler): ``Sweeps``'s code."""
+
+    def __init__(self, problem: Problem, opts: AICOOptions):
+        super().__init__(problem, opts)
+        T, n, m = self.T, self.n, self.m
+        self._Xlin = np.empty((T + 1, n))
+        self._Hb, self._hb, self._Hinvb = np.empty((T, m, m)), np.empty((T, m)), np.empty((T, m, m))
+        self._aeff = np.zeros((T, n))
+        self._2aIb = np.empty((n, n))
+        self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
+        self._kkey: tuple | None = None
+
+    def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray, alpha: float) -> None:
+        lib = kernels.library() if self.compiled else None
+        if lib is None:
+            super().linearize_all(X, U, Xprev, alpha)
+            return
+        p, n = self.p, self.n
+        np.copyto(self._Xlin, X)
+        self.X, self.U, self.Xprev, self.alpha = self._Xlin, U, Xprev, alpha
+        p.set_nominal(X, U)
+        ct = self._compiled_tasks()
+        if ct is not None:
+            kernels.set_task_controls(ct, U)
+        H, h = p.quadratize_controls(U)
+        al = self.al.model(X, U) if self.al is not None else None
+        if al is not None:     # the constraints' control part: h = H u - l_u
+            H = H + al[3]
+            h = h + np.einsum("tij,tj->ti", al[3], U) - al[2]
+        np.copyto(self._Hb, H)
+        np.copyto(self._hb, h)
+        self.H, self.h, self.Hinv, self.a_eff, self.Qbar = self._Hb, self._hb, self._Hinvb, self._aeff, self._Qbar
+        flags = kernels.LIN_TASK | (kernels.LIN_MARG if self.relocate else 0)
+        if self.lti:
+            if not self._C_filled:
+                A, a, B = p.dynamics.linearize(X[0], U[0])
+                self._C0[:n] = np.column_stack([B, A, -a])
+                self._check_finite(self._C0)
+                self._C_filled = True
+        elif getattr(p.dynamics, "c_linearizer", None) is not None and p.dynamics.c_linearizer() is not None:
+            flags |= kernels.LIN_DYN
+        else:
+            C, m = self.C, self.m
+            A, a, B = self._linearize_dynamics(X[:-1], U)
+            C[:, :n, :m] = B
+            C[:, :n, m:m + n] = A
+            np.negative(a, out=C[:, :n, m + n])
+            self._check_finite(C)
+        RA, lx = self.RA, self._lx
+        R = RA[:, :, :n]
+        memo = self._task_memo
+        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
+            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
+        elif ct is not None and np.isfinite(X).all():
+            (lx[:], R[:]), _ = kernels.task_rows(ct, self.T, X, self._steps)
+        else:
+            p.state_derivatives(X, out=(lx, R))
+        self._al_model = None
+        if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
+            lx += al[0]
+            R += al[1]
+            self._al_model = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0])
+        self._run_linearize(lib, flags)
+        self._marginals = self.relocate
+        self._2aI = np.multiply(self.I, 2.0 * alpha, out=self._2aIb)
+
+    def _run_linearize(self, lib, flags: int) -> None:
+        st = self._kernel_state(lib)
+        rc = lib.sweep_linearize(ctypes.byref(st), self._lx.ctypes.data, flags)
+        if rc == kernels.ERR_H:
+            raise NumericalError("control Hessian H_t is not positive definite")
+        self._kernel_check(st, rc)
+
+    def _kernel_state(self, lib) -> kernels.SweepState:
+        """``Sweeps._kernel_state``, built once and reused while the arrays it points to are the same ones
+        (the iteration's alpha and whether the task messages are compiled updated)."""
+        key = (self.X, self.U, self.Xprev, self.H, self.h, self.Hinv, self.a_eff, self.C, self.Qbar)
+        old = self._kkey
+        if self._kstate is None or old is None or any(a is not b for a, b in zip(key, old)):
+            st = super()._kernel_state(lib)
+            self._kkey = key
+            self._kfn = (st.task_fn, st.task_ctx)
+            if not st.task_fn and self._ctask:
+                self._kfn = (self._ctask[0], self._ctask[1])
+            return st
+        st = self._kstate[0]
+        st.alpha = self.alpha
+        st.task_fn, st.task_ctx = self._kfn if self._al_model is None else (None, None)
+        st.sp_state = 0
+        ctypes.memset(st.blk, 0, self.T)
+        return st
+
+    def sweep(self) -> None:
+        lib = kernels.library() if self.compiled else None
+        if lib is None:
+            super().sweep()
+            return
+        self._sweep_compiled(lib)
+        if not lib.all_finite(self.Z.ctypes.data, self.Z.size):
+            raise NumericalError("non-finite controller")
+
+    def beliefs(self) -> np.ndarray:
+        lib = kernels.library() if self.compiled else None
+        if lib is not None and not self._marginals:
+            self._run_linearize(lib, kernels.LIN_MARG)
+            self._marginals = True
+        return super().beliefs()
 
 
 def _compiled_active_views(sw: Sweeps, problem: Problem) -> list:
