@@ -165,6 +165,28 @@ def task_library() -> ctypes.CDLL | None:
     return _TASK_LIB or None
 
 
+_BOX_LIB: ctypes.CDLL | None | Literal[False] = None
+
+
+def box_library() -> ctypes.CDLL | None:
+    """The box constraints' augmented Lagrangian (``box_al.c``, the default flags: no contraction, the numpy
+    code's numbers), or ``None`` as :func:`library`."""
+    global _BOX_LIB
+    if _BOX_LIB is None:
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(c_backend.c_source(__file__, "box_al.c"), "box_al")
+            lib.box_lams.argtypes = [_L, _L, _V, _V, _L, _V, _V, _L, _V, _D, _V, _V, _V]
+            lib.box_lams.restype = _L
+            lib.box_model.argtypes = [_L, _L, _V, _V, _D, _V, _L, _V, _L, _L, _V, _L, _V, _L]
+            lib.box_model.restype = None
+            _BOX_LIB = lib
+        except c_backend.CompileUnavailable:
+            _BOX_LIB = False
+    return _BOX_LIB or None
+
+
 def compile_task_set(problem):
     """The state terms of ``problem`` as a compiled task-message evaluator (``taskset_eval`` of
     ``task_messages.c``, calling the robot's tree library of :mod:`raico.plants.codegen.rbd` for the
@@ -290,12 +312,13 @@ def set_task_controls(compiled, U) -> None:
     buf[:] = U
 
 
-def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False):
+def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False, out=None):
     """The compiled task terms (``compile_task_set``'s result for a horizon of ``T`` steps) at the
     rows ``X (K, n_x)`` of steps ``steps (K,)`` (each in ``0..T``): ``(l_x (K, n_x), l_xx (K, n_x, n_x))`` as
     ``Problem.state_derivatives`` (``None`` without ``derivatives``) and the per-row costs ``(K,)``
     as the state terms' ``value`` summed (``None`` without ``costs``). ``X`` must be finite (the
-    tree kernels are not asked at NaN; callers keep the Python terms for such rows)."""
+    tree kernels are not asked at NaN; callers keep the Python terms for such rows). ``out``: ``(l_x,
+    l_xx, costs)`` C-contiguous arrays of those shapes to write into (the ones asked for)."""
     import numpy as np
 
     lib = task_library()
@@ -306,12 +329,23 @@ def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool 
     c_backend.check_shapes("taskset_rows", X=(X, (len(steps), int(ts.nx))))
     if len(steps) and (steps.min() < 0 or steps.max() > T):
         raise ValueError(f"taskset_rows: steps must lie in 0..{T}")
-    lx = np.empty((K, nx)) if derivatives else None
-    lxx = np.empty((K, nx, nx)) if derivatives else None
-    out = np.empty(K) if costs else None
+    if out is not None:
+        lx, lxx, per_row = out
+        c_backend.check_shapes("taskset_rows", **{k: (a, shape) for k, a, shape in (
+            ("lx", lx, (K, nx)), ("lxx", lxx, (K, nx, nx)), ("costs", per_row, (K,))) if a is not None})
+        if not all(a is None or (a.flags.c_contiguous and a.dtype == np.float64) for a in out):
+            raise ValueError("taskset_rows: out arrays must be C-contiguous float64")
+        lx, lxx = (lx, lxx) if derivatives else (None, None)
+        per_row = per_row if costs else None
+    else:
+        lx = np.empty((K, nx)) if derivatives else None
+        lxx = np.empty((K, nx, nx)) if derivatives else None
+        per_row = np.empty(K) if costs else None
+    if (derivatives and (lx is None or lxx is None)) or (costs and per_row is None):
+        raise ValueError("taskset_rows: an out array asked for is missing")
     lib.taskset_rows(compiled[1], K, steps.ctypes.data, X.ctypes.data, *(None if a is None else a.ctypes.data
-                                                                         for a in (lx, lxx, out)))
-    return (lx, lxx) if derivatives else None, out
+                                                                         for a in (lx, lxx, per_row)))
+    return (lx, lxx) if derivatives else None, per_row
 
 
 if __name__ == "__main__":  # python -m raico.planning.kernels (make kernels): build (or find) the kernel

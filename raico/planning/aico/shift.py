@@ -80,6 +80,8 @@ class ShiftedAICO:
         self._task_views: list | None = None
         self._moves: list | None = None   # (owner, name, array, dst, src, bytes) of the shift's moves
         self._al_built = False
+        self._fast = None     # the compiled rollout's call (built at the first rollout), False: none
+        self._box_work = np.empty((T, m), dtype=bool)
         self.solved = False
         self.cost = math.nan
 
@@ -131,6 +133,21 @@ class ShiftedAICO:
         if not self.solved:
             self.X[:] = x
             return True
+        return self._rollout()
+
+    def _rollout(self) -> bool:
+        """The controller ``o, O`` rolled out from ``x0`` (``Problem.bounded_rollout``: controls clipped into their
+        box, the controller made the consistent one where one was) into ``X, U``; False (nothing changed) if the
+        rollout is not finite. The model's compiled rollout writes into work arrays where nothing is clipped."""
+        fast = self._fast_rollout()
+        if fast is not None:
+            fast()
+            X2, U2, lib = self._X2, self._U2, kernels.library()
+            if (lib.all_finite(X2.ctypes.data, X2.size) if lib is not None else np.isfinite(X2).all()) and (
+                    self.efforts is None or _inside(U2, self.efforts, self._box_work)):
+                np.copyto(self.X, X2)
+                np.copyto(self.U, U2)
+                return True
         X, U, o, O = self.problem.bounded_rollout(self.o, self.O, kernel=Sweeps.compiled)
         if not np.all(np.isfinite(X)):
             return False
@@ -138,6 +155,26 @@ class ShiftedAICO:
         if o is not self.o:
             self.o[:], self.O[:] = o, O
         return True
+
+    def _fast_rollout(self):
+        """A call rolling ``o, O`` out from ``x0`` into ``_X2, _U2`` with the model's compiled rollout (the one
+        ``Problem.controller_rollout`` takes; addresses taken once, again if an array was replaced), or None
+        where the model has none."""
+        keep = (self.problem.x0, self.o, self.O)
+        if self._fast is None or (self._fast and any(a is not b for a, b in zip(keep, self._fast[0]))):
+            from raico.plants.fast_analytic import FastAnalyticDynamics
+
+            dyn, self._fast = self.problem.dynamics, False
+            if isinstance(dyn, FastAnalyticDynamics) and \
+                    type(dyn).controller_rollout is FastAnalyticDynamics.controller_rollout and \
+                    all(a.flags.c_contiguous and a.dtype == np.float64 for a in keep):
+                c = dyn._compiled()
+                if c is not None and c.n == self.m and 2 * c.n == self.n:
+                    self._X2, self._U2 = np.empty_like(self.X), np.empty_like(self.U)
+                    args = (c.ctx_address, self.T, *(a.ctypes.data for a in (*keep, self._X2, self._U2)))
+                    fn = c.lib.dyn_controller_rollout
+                    self._fast = (keep, lambda: fn(*args))
+        return self._fast[1] if self._fast else None
 
     def load(self, X: np.ndarray, U: np.ndarray, o: np.ndarray, O: np.ndarray) -> None:
         """A solution to continue from (a plan's first ``H`` steps, a cold solve)."""
@@ -182,16 +219,21 @@ class ShiftedAICO:
             self.alpha *= self.opts.gamma
             np.copyto(self.o, sw.Z[:, :, n])
             np.negative(sw.Z[:, :, :n], out=self.O)
-            Xn, Un, o, O = self.problem.bounded_rollout(self.o, self.O, kernel=Sweeps.compiled)
-            if not np.all(np.isfinite(Xn)):
+            if not self._rollout():
                 raise NumericalError("the controller's rollout left the finite states")
-            self.X[:], self.U[:] = Xn, Un
-            if o is not self.o:
-                self.o[:], self.O[:] = o, O
             if self.al is not None:
                 self.al.update(self.X, self.U)
             self.solved = True
         return iterations
+
+
+def _inside(U: np.ndarray, b, work: np.ndarray) -> bool:
+    """Whether every control of ``U`` lies in the box of ``b`` (``Bounds``: ``u_lower <= u <= u_upper``)."""
+    np.greater_equal(U, b.u_lower, out=work)
+    if not work.all():
+        return False
+    np.less_equal(U, b.u_upper, out=work)
+    return bool(work.all())
 
 
 class ShiftSweeps(Sweeps):
@@ -212,6 +254,26 @@ class ShiftSweeps(Sweeps):
         self._2aIb = np.empty((n, n))
         self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
         self._kkey: tuple | None = None
+        # the cost's task rows (the next linearization's derivatives): X, U, l_x, l_xx, per-step cost
+        self._memo_bufs = (np.empty((T + 1, n)), np.empty((T, m)), np.empty((T + 1, n)), np.empty((T + 1, n, n)),
+                           np.empty(T + 1))
+
+    def _cost(self, X: np.ndarray, U: np.ndarray) -> float:
+        ct = self._compiled_tasks()
+        lib = kernels.library()
+        if ct is None or lib is None or not (X.flags.c_contiguous and U.flags.c_contiguous and X.dtype == np.float64
+                                             and lib.all_finite(X.ctypes.data, X.size)
+                                             and lib.all_finite(U.ctypes.data, U.size)):
+            return super()._cost(X, U)
+        kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
+        mx, mu, lx, lxx, per_step = self._memo_bufs
+        kernels.task_rows(ct, self.T, X, self._steps, costs=True, out=(lx, lxx, per_step))
+        np.copyto(mx, X)
+        np.copyto(mu, U)
+        self._task_memo = (mx, mu, lx, lxx)
+        with np.errstate(all="ignore"):
+            c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
+        return c if math.isfinite(c) else math.inf
 
     def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray, alpha: float) -> None:
         lib = kernels.library() if self.compiled else None
@@ -226,7 +288,9 @@ class ShiftSweeps(Sweeps):
         if ct is not None:
             kernels.set_task_controls(ct, U)
         H, h = p.quadratize_controls(U)
-        al = self.al.model(X, U) if self.al is not None else None
+        # the boxes' model compiled (added in place below) where no relinearization reads it (theta = inf)
+        boxes = not self.relocate and isinstance(self.al, FiniteBoxAL) and self.al._compiled(X, U) is not None
+        al = self.al.model(X, U) if self.al is not None and not boxes else None
         if al is not None:     # the constraints' control part: h = H u - l_u
             H = H + al[3]
             h = h + np.einsum("tij,tj->ti", al[3], U) - al[2]
@@ -263,6 +327,8 @@ class ShiftSweeps(Sweeps):
             lx += al[0]
             R += al[1]
             self._al_model = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0])
+        elif boxes:
+            self.al.model_into(X, U, lx, RA, self._Hb, self._hb)
         self._run_linearize(lib, flags)
         self._marginals = self.relocate
         self._2aI = np.multiply(self.I, 2.0 * alpha, out=self._2aIb)
@@ -332,16 +398,79 @@ class FiniteBoxAL(AugmentedLagrangian):
     """The augmented Lagrangian of joint ranges, velocity and effort limits (boxes) with the same numbers on
     finite iterates and fewer passes (no ``nan_to_num``: a finite iterate's rows are finite or ``-inf`` where
     a side has no bound, which ``max(0, .)`` sends to 0 as it does); other iterates or constraints: the
-    general code."""
+    general code. Where the boxes' kernel is built (``box_al.c``) and every constraint is a box (the boxes
+    on the states on distinct columns, likewise on the controls), the multipliers' step and the model run
+    compiled with the numpy code's operations (the same bits): :meth:`model_into` adds the model to the
+    messages in place, :meth:`update` writes the multipliers into arrays kept across updates."""
 
     _held: list[np.ndarray] | None = None   # the rows of the iterate being updated (one pass for both uses)
+    _held_c: tuple[float, list] | None = None   # compiled: (violation, [(None, lam)]) of that iterate
+    _boxes: list | None = None   # compiled: per constraint (control?, k, idx, lo, hi, b_s, tol, y, lam); []: not
+
+    def _compiled(self, X: np.ndarray, U: np.ndarray) -> list | None:
+        """The compiled boxes for finite ``X, U`` (built once), or None."""
+        if self._boxes is None:
+            self._boxes = _box_plan(self.constraints, X.shape, U.shape)
+            self._viol = ctypes.c_double()
+        lib = kernels.library()
+        if not self._boxes or lib is None or not (lib.all_finite(X.ctypes.data, X.size)
+                                                 and lib.all_finite(U.ctypes.data, U.size)):
+            return None
+        if X.shape[0] != self._boxes[0][7].shape[0] or not (X.flags.c_contiguous and U.flags.c_contiguous):
+            return None
+        return self._boxes
+
+    def _c_lams(self, boxes: list, X: np.ndarray, U: np.ndarray, into_y: bool) -> float:
+        """lam of every box at ``X, U`` into its ``lam`` buffer (``into_y``: into its ``y`` buffer, the current
+        multipliers moved there first); returns the scaled violation (``into_y``) or the active rows' count."""
+        lib, out = kernels.box_library(), 0.0
+        for k, (ctl, nk, idx, lo, hi, b_s, tol, ybuf, lam) in enumerate(boxes):
+            Z = U if ctl else X
+            y = self.y[k]
+            if into_y and y is not None and y is not ybuf:
+                np.copyto(ybuf, y)
+                y = ybuf
+            dst = ybuf if into_y else lam
+            viol = ctypes.byref(self._viol) if into_y else None
+            cnt = lib.box_lams(Z.shape[0], nk, idx.ctypes.data, Z.ctypes.data, Z.shape[1], lo.ctypes.data,
+                               hi.ctypes.data, b_s, None if y is None else y.ctypes.data, self._mu(self.constraints[k]),
+                               dst.ctypes.data, tol.ctypes.data, viol)
+            out = max(out, self._viol.value) if into_y else out + cnt
+        return out
+
+    def model_into(self, X: np.ndarray, U: np.ndarray, lx: np.ndarray, RA: np.ndarray, H: np.ndarray,
+                   h: np.ndarray) -> bool | None:
+        """``model`` added in place, compiled: ``l_x`` to ``lx (T+1, n)``, the Hessian's diagonal to
+        ``RA[:, :, :n]`` (``RA (T+1, n, n+1)``) and to ``H (T, m, m)``, the control message's ``H u - l_u`` to
+        ``h (T, m)``; returns whether a row is active (False: nothing added), None: not compiled here."""
+        boxes = self._compiled(X, U)
+        if boxes is None or not all(a.flags.c_contiguous for a in (lx, RA, H, h)):
+            return None
+        if not self._c_lams(boxes, X, U, into_y=False):
+            return False
+        lib = kernels.box_library()
+        (T1, n), (T, m) = X.shape, U.shape
+        for k, (ctl, nk, idx, *_, lam) in enumerate(boxes):
+            mu = self._mu(self.constraints[k])
+            if ctl:
+                lib.box_model(T, nk, idx.ctypes.data, lam.ctypes.data, mu, None, 0, H.ctypes.data, m * m, m + 1,
+                              U.ctypes.data, m, h.ctypes.data, m)
+            else:
+                lib.box_model(T1, nk, idx.ctypes.data, lam.ctypes.data, mu, lx.ctypes.data, n, RA.ctypes.data,
+                              n * (n + 1), n + 2, None, 0, None, 0)
+        return True
 
     def update(self, X: np.ndarray, U: np.ndarray) -> None:
-        self._held = self._rows(X, U)
+        boxes = self._compiled(X, U)
+        if boxes is not None:
+            viol = self._c_lams(boxes, X, U, into_y=True)
+            self._held_c = (viol, [(None, b[7]) for b in boxes])
+        else:
+            self._held = self._rows(X, U)
         try:
             super().update(X, U)
         finally:
-            self._held = None
+            self._held, self._held_c = None, None
 
     def _rows(self, X: np.ndarray, U: np.ndarray) -> list[np.ndarray] | None:
         if self._held is not None:
@@ -364,6 +493,8 @@ class FiniteBoxAL(AugmentedLagrangian):
         return out
 
     def _lams(self, X: np.ndarray, U: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        if self._held_c is not None:
+            return self._held_c[1]
         rows = self._rows(X, U)
         if rows is None:
             return super()._lams(X, U)
@@ -375,11 +506,38 @@ class FiniteBoxAL(AugmentedLagrangian):
         return out
 
     def violation(self, X: np.ndarray, U: np.ndarray) -> float:
+        if self._held_c is not None:
+            return self._held_c[0]
         rows = self._rows(X, U)
         if rows is None:
             return super().violation(X, U)
         return max((float((G / c.tol).max(initial=0.0)) for c, G in zip(self.constraints, rows) if G.size),
                    default=0.0)
+
+
+def _box_plan(constraints: list, xshape: tuple[int, int], ushape: tuple[int, int]) -> list:
+    """Per constraint the compiled boxes' arrays ``(control?, k, idx, lo, hi, b_s, tol, y, lam)`` (``y``, ``lam``
+    zeros ``(T+1, 2k)``), or ``[]``: no kernel, a constraint that is not a box, two boxes on one column."""
+    if kernels.box_library() is None or not constraints:
+        return []
+    (T1, n), (T, m) = xshape, ushape
+    out, seen = [], {False: set(), True: set()}
+    for c in constraints:
+        ctl = type(c) is ControlBox
+        if not ctl and type(c) is not StateBox:
+            return []
+        idx = np.ascontiguousarray(c.idx, dtype=np.int64)
+        k, width = len(idx), (m if ctl else n)
+        if len(set(idx.tolist())) != k or seen[ctl] & set(idx.tolist()) or (k and not 0 <= idx.min() <= idx.max() < width):
+            return []
+        seen[ctl] |= set(idx.tolist())
+        lo, hi = (np.ascontiguousarray(b, dtype=float) for b in (c.lo, c.hi))
+        shape = (k,) if ctl else (T1, k)
+        if lo.shape != shape or hi.shape != shape or c.tol.shape != (2 * k,):
+            return []
+        tol = np.ascontiguousarray(c.tol, dtype=float)
+        out.append((ctl, k, idx, lo, hi, 0 if ctl else k, tol, np.zeros((T1, 2 * k)), np.zeros((T1, 2 * k))))
+    return out
 
 
 def _finite_boxes(al: AugmentedLagrangian | None) -> AugmentedLagrangian | None:
