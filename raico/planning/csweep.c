@@ -70,12 +70,12 @@ long sweep_work_size(long n, long m)
 {
     long N1 = n + 1, K = m + n + 1, h = n / 2;
     return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3
-        + n * h + 2 * h * h + h * K + n + m * n + 2 * m * m;
+        + n * h + 2 * h * h + h * K + n + m * n + m * m;
 }
 
 /* work layout */
 typedef struct { double *Pa, *Vs, *Ba, *Y0, *Y1, *FA, *W, *S, *G, *GT, *FB, *y, *tmp, *rhs, *Ad, *ad, *Bd, *BHi, *E, *lx, *lxx;
-                 double *Ve, *E1, *D, *Yb, *gv, *Bt, *Hc, *Hy; } work_t;
+                 double *Ve, *E1, *D, *Yb, *gv, *Bt, *Hc; } work_t;
 
 static work_t layout(const sweep_t *s)
 {
@@ -110,8 +110,7 @@ static work_t layout(const sweep_t *s)
     w.Yb = p; p += h * K;
     w.gv = p; p += n;
     w.Bt = p; p += m * n;
-    w.Hc = p; p += m * m;   /* sweep_linearize: H_t's factor and the inverse's work */
-    w.Hy = p; p += m * m;
+    w.Hc = p; p += m * m;   /* sweep_linearize: H_t's factor */
     w.Ad = w.E + n * N1;    /* n * (n+1) >= n * n */
     return w;
 }
@@ -503,13 +502,11 @@ static int belief(sweep_t *s, work_t *w, long t)
     return 0;
 }
 
-static int marginals(sweep_t *s, work_t *w, long t, const double *a, const double *B);
-
 /* compiled relinearization of the dynamics at step t (Sweeps.relinearize, dynamics part) */
 static int relin_dyn(sweep_t *s, work_t *w, long t)
 {
     int n = (int)s->n, m = (int)s->m, K = m + n + 1;
-    double *A = w->Ad, *a = w->ad, *B = w->Bd;
+    double *A = w->Ad, *a = w->ad, *B = w->Bd, *BHi = w->BHi;
     ((lin_t)s->lin_fn)(s->lin_ctx, s->X + t * n, s->U + t * m, A, a, B);
     double *Ct = s->C + t * s->C_s, sum = 0.0;
     for (int i = 0; i < n; i++) {
@@ -520,19 +517,9 @@ static int relin_dyn(sweep_t *s, work_t *w, long t)
     #pragma omp simd reduction(+:sum)
     for (long i = 0; i < (long)(n + 1) * K; i++) sum += Ct[i];
     if (!isfinite(sum)) return ERR_LIN;
-    s->blk[t] = 0;
-    return marginals(s, w, t, a, B);
-}
-
-/* Qbar[t] = q I + B H^-1 B^T and a_eff[t] = a + B H^-1 h from C[t]'s B and the drift a (n) (Sweeps._relinearize_dynamics's
- * marginals); B (n x m, row-major) is C[t]'s B copied out (the dense route reads it) */
-static int marginals(sweep_t *s, work_t *w, long t, const double *a, const double *B)
-{
-    int n = (int)s->n, m = (int)s->m, K = m + n + 1;
-    const double *Ct = s->C + t * s->C_s;
-    double *BHi = w->BHi;
     const double *Hi = s->Hinv + t * s->Hinv_s, *ht = s->h + t * m;
     double *Qb = s->Qbar + t * s->Qbar_s, *ae = s->a_eff + t * n, *Bt = w->Bt, *bh = w->tmp;
+    s->blk[t] = 0;
     if (block_form(s, t)) {
         /* B = e B_b: B H^-1 B^T = e D e^T with D = B_b H^-1 B_b^T (h x h), B H^-1 h = e (B_b H^-1 h) */
         int h = n / 2;
@@ -578,7 +565,6 @@ static int marginals(sweep_t *s, work_t *w, long t, const double *a, const doubl
     }
     return 0;
 }
-
 
 /* compiled task message RA[t] at X[t] (Sweeps._relinearize_task) */
 static int relin_task(sweep_t *s, work_t *w, long t)
@@ -679,17 +665,16 @@ int sweep_run(sweep_t *s)
     }
 }
 
-/* The linearization of one iteration along X, U in one call (the shifted workspace's, raico/planning/aico/shift.py;
- * Sweeps.linearize_all's formulas): flags & LIN_DYN: the dynamics at every step t < T (lin_fn at X[t], U[t] into
- * C[t], as relin_dyn); H[t] (H_s = 0: one shared) checked positive definite, H and h finite; flags & LIN_MARG: the
- * control marginals Hinv[t] = H[t]^-1, Qbar[t], a_eff[t] (as relin_dyn's; only the forward messages read them);
- * flags & LIN_TASK: the task messages RA[t] = [R + 2 alpha I | R x_t - lx_t + 2 alpha Xprev_t], t = 0..T, in place
- * from R = RA[t][:, :n] and lx (T+1, n). blk zeroed (C[t]'s block form not known). Shapes: sweep_run's; H_s, Hinv_s: 0 or m*m, Hinv_s =
- * H_s; Qbar_s = n*n (LIN_MARG). Returns 0, ERR_LIN (a non-finite C[t], H[t], h[t] or RA[t]) or ERR_H (H[t] not
+/* The dynamics' part of one iteration's linearization along X, U in one call (the shifted workspace's,
+ * raico/planning/aico/shift.py; Sweeps.linearize_all's): flags & LIN_DYN (dyn_mode DYN_C, a C per step): the
+ * dynamics at every step t < T (lin_fn at X[t], U[t] into C[t], as relin_dyn: the numbers of the model's batch
+ * linearization, bit for bit); then H[t] (H_s = 0: one shared) checked positive definite and H, h finite (the
+ * checks of Sweeps._control_marginals and _check_finite; nothing else is written). blk zeroed (C[t]'s block form
+ * not known). Shapes: sweep_run's. Returns 0, ERR_LIN (a non-finite C[t], H[t] or h[t]) or ERR_H (H[t] not
  * positive definite; err_info = t). */
-enum { LIN_DYN = 1, LIN_MARG = 2, LIN_TASK = 4 };
+enum { LIN_DYN = 1 };
 
-int sweep_linearize(sweep_t *s, const double *lx, long flags)
+int sweep_linearize(sweep_t *s, long flags)
 {
     work_t w = layout(s);
     long T = s->T, n = s->n, m = s->m, N1 = n + 1, K = m + n + 1;
@@ -716,34 +701,7 @@ int sweep_linearize(sweep_t *s, const double *lx, long flags)
             for (long i = 0; i < m * m; i++) { w.Hc[i] = Ht[i]; sum += Ht[i]; }
             if (!isfinite(sum)) return ERR_LIN;
             if (chol_u((int)m, w.Hc, (int)m) != 0) { s->err_info = t; return ERR_H; }
-            if (flags & LIN_MARG) spd_inverse((int)m, w.Hc, (int)m, s->Hinv + t * s->Hinv_s, (int)m, w.Hy);
         } else if (!isfinite(sum)) return ERR_LIN;
-    }
-    if (flags & LIN_MARG) {
-        for (long t = 0; t < T; t++) {
-            const double *Ct = s->C + t * s->C_s;
-            for (long i = 0; i < n; i++) {
-                for (long j = 0; j < m; j++) w.Bd[i * m + j] = Ct[i * K + j];
-                w.ad[i] = -Ct[i * K + m + n];
-            }
-            int rc = marginals(s, &w, t, w.ad, w.Bd);
-            if (rc) return rc;
-        }
-    }
-    double a2 = 2.0 * s->alpha;
-    for (long t = 0; t <= T && (flags & LIN_TASK); t++) {
-        const double *x = s->X + t * n, *xp = s->Xprev + t * n, *lt = lx + t * n;
-        double *out = s->RA + t * n * N1, sum = 0.0;
-        for (long i = 0; i < n; i++) {
-            double *oi = out + i * N1, v = 0.0;
-            #pragma omp simd reduction(+:v)
-            for (long j = 0; j < n; j++) v += oi[j] * x[j];
-            oi[i] += a2;
-            oi[n] = v - lt[i] + a2 * xp[i];
-        }
-        #pragma omp simd reduction(+:sum)
-        for (long i = 0; i < n * N1; i++) sum += out[i];
-        if (!isfinite(sum)) return ERR_LIN;
     }
     return 0;
 }

@@ -66,7 +66,7 @@ FLAGS = flags_for()
 PH_FWD, PH_BWD = 0, 1
 DYN_NONE, DYN_C, DYN_PY = 0, 1, 2
 ERR_CHOL, ERR_LIN, ERR_H = -1, -2, -3
-LIN_DYN, LIN_MARG, LIN_TASK = 1, 2, 4         # sweep_linearize's flags
+LIN_DYN = 1                       # sweep_linearize's flag: the dynamics at every step
 NEED_DYN, NEED_TASK = 1, 2
 
 _L, _D, _V = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
@@ -100,7 +100,7 @@ def _load() -> ctypes.CDLL:
     for f in ("sweep_run", "sweep_beliefs"):
         getattr(lib, f).argtypes = [ctypes.POINTER(SweepState)]
         getattr(lib, f).restype = ctypes.c_int
-    lib.sweep_linearize.argtypes = [ctypes.POINTER(SweepState), _V, _L]
+    lib.sweep_linearize.argtypes = [ctypes.POINTER(SweepState), _L]
     lib.sweep_linearize.restype = ctypes.c_int
     lib.all_finite.argtypes = [_V, _L]
     lib.all_finite.restype = ctypes.c_int

@@ -20,6 +20,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import math
+import weakref
 
 import numpy as np
 
@@ -30,6 +31,20 @@ from raico.planning import kernels
 from raico.planning.aico.sweeps import NumericalError, Sweeps
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
 from raico.planning.problem import Problem
+
+
+_ADDRS: dict[int, tuple[weakref.ref, int]] = {}
+
+
+def _addr(a: np.ndarray) -> int:
+    """The data address of ``a`` (numpy's ``.ctypes.data`` costs a microsecond: taken once per array, while
+    it lives; the workspace passes the same arrays every tick)."""
+    hit = _ADDRS.get(id(a))
+    if hit is None or hit[0]() is not a:
+        if len(_ADDRS) > 256:
+            _ADDRS.clear()
+        hit = _ADDRS[id(a)] = (weakref.ref(a), a.ctypes.data)
+    return hit[1]
 
 
 def shift_rows(a: np.ndarray, scratch: np.ndarray, stop: int | None = None) -> None:
@@ -143,7 +158,7 @@ class ShiftedAICO:
         if fast is not None:
             fast()
             X2, U2, lib = self._X2, self._U2, kernels.library()
-            if (lib.all_finite(X2.ctypes.data, X2.size) if lib is not None else np.isfinite(X2).all()) and (
+            if (lib.all_finite(_addr(X2), X2.size) if lib is not None else np.isfinite(X2).all()) and (
                     self.efforts is None or _inside(U2, self.efforts, self._box_work)):
                 np.copyto(self.X, X2)
                 np.copyto(self.U, U2)
@@ -237,20 +252,19 @@ def _inside(U: np.ndarray, b, work: np.ndarray) -> bool:
 
 
 class ShiftSweeps(Sweeps):
-    """:class:`Sweeps` whose linearization's assembly runs compiled in one call (``sweep_linearize`` of
-    ``csweep.c``: the dynamics at every step where the model has a compiled linearization, the control
-    Hessians' check, the control marginals only where the forward messages read them (``theta`` finite), the
-    task messages ``[R + 2 alpha I | R x - l_x + 2 alpha x^[n-1]]``) into arrays kept across iterations (the
-    kernel's state built once); the same formulas as ``Sweeps.linearize_all``, the numbers equal to rounding
-    (the marginals' inverse by Cholesky instead of LU; the sums in another order). Without the kernel
-    (``compiled`` off, no compiler): ``Sweeps``'s code."""
+    """:class:`Sweeps` whose linearization keeps its arrays across iterations and runs its loops compiled:
+    the dynamics at every step and the control Hessians' checks in one call (``sweep_linearize`` of
+    ``csweep.c``, where the model has a compiled linearization: its batch's numbers), the boxes' model
+    (:meth:`FiniteBoxAL.model_into`), the cost's task rows into kept buffers, the kernel's state built once.
+    The control marginals are computed only where the forward messages read them (``theta`` finite, or
+    :meth:`beliefs`). The numbers are ``Sweeps``'s bit for bit. Without the kernel: ``Sweeps``'s code."""
 
     def __init__(self, problem: Problem, opts: AICOOptions):
         super().__init__(problem, opts)
         T, n, m = self.T, self.n, self.m
         self._Xlin = np.empty((T + 1, n))
         self._Hb, self._hb, self._Hinvb = np.empty((T, m, m)), np.empty((T, m)), np.empty((T, m, m))
-        self._aeff = np.zeros((T, n))
+        self._aeff, self._Xp2 = np.zeros((T, n)), np.empty((T + 1, n))
         self._2aIb = np.empty((n, n))
         self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
         self._kkey: tuple | None = None
@@ -258,46 +272,43 @@ class ShiftSweeps(Sweeps):
         self._memo_bufs = (np.empty((T + 1, n)), np.empty((T, m)), np.empty((T + 1, n)), np.empty((T + 1, n, n)),
                            np.empty(T + 1))
 
-    def _cost(self, X: np.ndarray, U: np.ndarray) -> float:
-        ct = self._compiled_tasks()
-        lib = kernels.library()
-        if ct is None or lib is None or not (X.flags.c_contiguous and U.flags.c_contiguous and X.dtype == np.float64
-                                             and lib.all_finite(X.ctypes.data, X.size)
-                                             and lib.all_finite(U.ctypes.data, U.size)):
-            return super()._cost(X, U)
-        kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
-        mx, mu, lx, lxx, per_step = self._memo_bufs
-        kernels.task_rows(ct, self.T, X, self._steps, costs=True, out=(lx, lxx, per_step))
-        np.copyto(mx, X)
-        np.copyto(mu, U)
-        self._task_memo = (mx, mu, lx, lxx)
-        with np.errstate(all="ignore"):
-            c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
-        return c if math.isfinite(c) else math.inf
-
     def linearize_all(self, X: np.ndarray, U: np.ndarray, Xprev: np.ndarray, alpha: float) -> None:
         lib = kernels.library() if self.compiled else None
         if lib is None:
             super().linearize_all(X, U, Xprev, alpha)
             return
-        p, n = self.p, self.n
+        p, T, n = self.p, self.T, self.n
         np.copyto(self._Xlin, X)
         self.X, self.U, self.Xprev, self.alpha = self._Xlin, U, Xprev, alpha
         p.set_nominal(X, U)
         ct = self._compiled_tasks()
         if ct is not None:
-            kernels.set_task_controls(ct, U)
+            kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         H, h = p.quadratize_controls(U)
         # the boxes' model compiled (added in place below) where no relinearization reads it (theta = inf)
-        boxes = not self.relocate and isinstance(self.al, FiniteBoxAL) and self.al._compiled(X, U) is not None
-        al = self.al.model(X, U) if self.al is not None and not boxes else None
+        boxes = self.al if isinstance(self.al, FiniteBoxAL) and not self.relocate else None
+        if boxes is not None and boxes._compiled(X, U) is None:
+            boxes = None
+        al = self.al.model(X, U) if self.al is not None and boxes is None else None
         if al is not None:     # the constraints' control part: h = H u - l_u
             H = H + al[3]
             h = h + np.einsum("tij,tj->ti", al[3], U) - al[2]
         np.copyto(self._Hb, H)
         np.copyto(self._hb, h)
+        # (the marginals' arrays: the buffers until _control_marginals below replaces them, theta finite)
         self.H, self.h, self.Hinv, self.a_eff, self.Qbar = self._Hb, self._hb, self._Hinvb, self._aeff, self._Qbar
-        flags = kernels.LIN_TASK | (kernels.LIN_MARG if self.relocate else 0)
+        RA, lx = self.RA, self._lx
+        R = RA[:, :, :n]
+        memo = self._task_memo
+        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
+            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
+        elif ct is not None and np.isfinite(X).all():           # R = l_xx, compiled
+            (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
+        else:
+            p.state_derivatives(X, out=(lx, R))                # R = l_xx
+        if boxes is not None:
+            boxes.model_into(X, U, lx, RA, self._Hb, self._hb)
+        flags = 0
         if self.lti:
             if not self._C_filled:
                 A, a, B = p.dynamics.linearize(X[0], U[0])
@@ -305,7 +316,7 @@ class ShiftSweeps(Sweeps):
                 self._check_finite(self._C0)
                 self._C_filled = True
         elif getattr(p.dynamics, "c_linearizer", None) is not None and p.dynamics.c_linearizer() is not None:
-            flags |= kernels.LIN_DYN
+            flags = kernels.LIN_DYN
         else:
             C, m = self.C, self.m
             A, a, B = self._linearize_dynamics(X[:-1], U)
@@ -313,32 +324,51 @@ class ShiftSweeps(Sweeps):
             C[:, :n, m:m + n] = A
             np.negative(a, out=C[:, :n, m + n])
             self._check_finite(C)
-        RA, lx = self.RA, self._lx
-        R = RA[:, :, :n]
-        memo = self._task_memo
-        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
-            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
-        elif ct is not None and np.isfinite(X).all():
-            (lx[:], R[:]), _ = kernels.task_rows(ct, self.T, X, self._steps)
-        else:
-            p.state_derivatives(X, out=(lx, R))
+        self._run_linearize(lib, flags)           # the dynamics (flags), the checks of H and h
+        self._marginals = self.relocate
+        if self.relocate:
+            self._control_marginals()
         self._al_model = None
         if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
             lx += al[0]
             R += al[1]
             self._al_model = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0])
-        elif boxes:
-            self.al.model_into(X, U, lx, RA, self._Hb, self._hb)
-        self._run_linearize(lib, flags)
-        self._marginals = self.relocate
+        np.matmul(R, X[:, :, None], out=RA[:, :, n:])          # r = l_xx x - l_x
+        RA[:, :, n] -= lx
+        if alpha:
+            diag = RA.reshape(T + 1, n * (n + 1))[:, ::n + 2]  # R[:, i, i] (a view)
+            diag += 2.0 * alpha
+            RA[:, :, n] += np.multiply(Xprev, 2.0 * alpha, out=self._Xp2)
+        self._check_finite(RA)
         self._2aI = np.multiply(self.I, 2.0 * alpha, out=self._2aIb)
 
     def _run_linearize(self, lib, flags: int) -> None:
         st = self._kernel_state(lib)
-        rc = lib.sweep_linearize(ctypes.byref(st), self._lx.ctypes.data, flags)
+        rc = lib.sweep_linearize(ctypes.byref(st), flags)
         if rc == kernels.ERR_H:
             raise NumericalError("control Hessian H_t is not positive definite")
         self._kernel_check(st, rc)
+
+    def _cost(self, X: np.ndarray, U: np.ndarray) -> float:
+        ct = self._compiled_tasks()
+        lib = kernels.library()
+        if ct is None or lib is None or not (X.flags.c_contiguous and U.flags.c_contiguous and X.dtype == np.float64
+                                             and lib.all_finite(_addr(X), X.size)
+                                             and lib.all_finite(_addr(U), U.size)):
+            return super()._cost(X, U)
+        kernels.set_task_controls(ct, U)     # the joint terms' costs at these controls (reset by linearize_all)
+        mx, mu, lx, lxx, per_step = self._memo_bufs
+        if X.shape == mx.shape:     # the checks of kernels.task_rows hold: its call without them
+            kernels.task_library().taskset_rows(ct[1], self.T + 1, _addr(self._steps), _addr(X), _addr(lx), _addr(lxx),
+                                                _addr(per_step))
+        else:
+            kernels.task_rows(ct, self.T, X, self._steps, costs=True, out=(lx, lxx, per_step))
+        np.copyto(mx, X)
+        np.copyto(mu, U)
+        self._task_memo = (mx, mu, lx, lxx)
+        with np.errstate(all="ignore"):
+            c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
+        return c if math.isfinite(c) else math.inf
 
     def _kernel_state(self, lib) -> kernels.SweepState:
         """``Sweeps._kernel_state``, built once and reused while the arrays it points to are the same ones
@@ -365,13 +395,12 @@ class ShiftSweeps(Sweeps):
             super().sweep()
             return
         self._sweep_compiled(lib)
-        if not lib.all_finite(self.Z.ctypes.data, self.Z.size):
+        if not lib.all_finite(_addr(self.Z), self.Z.size):
             raise NumericalError("non-finite controller")
 
     def beliefs(self) -> np.ndarray:
-        lib = kernels.library() if self.compiled else None
-        if lib is not None and not self._marginals:
-            self._run_linearize(lib, kernels.LIN_MARG)
+        if self.compiled and kernels.library() is not None and not self._marginals:
+            self._control_marginals()
             self._marginals = True
         return super().beliefs()
 
@@ -413,8 +442,8 @@ class FiniteBoxAL(AugmentedLagrangian):
             self._boxes = _box_plan(self.constraints, X.shape, U.shape)
             self._viol = ctypes.c_double()
         lib = kernels.library()
-        if not self._boxes or lib is None or not (lib.all_finite(X.ctypes.data, X.size)
-                                                 and lib.all_finite(U.ctypes.data, U.size)):
+        if not self._boxes or lib is None or not (lib.all_finite(_addr(X), X.size)
+                                                 and lib.all_finite(_addr(U), U.size)):
             return None
         if X.shape[0] != self._boxes[0][7].shape[0] or not (X.flags.c_contiguous and U.flags.c_contiguous):
             return None
@@ -432,9 +461,9 @@ class FiniteBoxAL(AugmentedLagrangian):
                 y = ybuf
             dst = ybuf if into_y else lam
             viol = ctypes.byref(self._viol) if into_y else None
-            cnt = lib.box_lams(Z.shape[0], nk, idx.ctypes.data, Z.ctypes.data, Z.shape[1], lo.ctypes.data,
-                               hi.ctypes.data, b_s, None if y is None else y.ctypes.data, self._mu(self.constraints[k]),
-                               dst.ctypes.data, tol.ctypes.data, viol)
+            cnt = lib.box_lams(Z.shape[0], nk, _addr(idx), _addr(Z), Z.shape[1], _addr(lo), _addr(hi), b_s,
+                               None if y is None else _addr(y), self._mu(self.constraints[k]), _addr(dst), _addr(tol),
+                               viol)
             out = max(out, self._viol.value) if into_y else out + cnt
         return out
 
@@ -453,11 +482,10 @@ class FiniteBoxAL(AugmentedLagrangian):
         for k, (ctl, nk, idx, *_, lam) in enumerate(boxes):
             mu = self._mu(self.constraints[k])
             if ctl:
-                lib.box_model(T, nk, idx.ctypes.data, lam.ctypes.data, mu, None, 0, H.ctypes.data, m * m, m + 1,
-                              U.ctypes.data, m, h.ctypes.data, m)
+                lib.box_model(T, nk, _addr(idx), _addr(lam), mu, None, 0, _addr(H), m * m, m + 1, _addr(U), m, _addr(h), m)
             else:
-                lib.box_model(T1, nk, idx.ctypes.data, lam.ctypes.data, mu, lx.ctypes.data, n, RA.ctypes.data,
-                              n * (n + 1), n + 2, None, 0, None, 0)
+                lib.box_model(T1, nk, _addr(idx), _addr(lam), mu, _addr(lx), n, _addr(RA), n * (n + 1), n + 2, None, 0,
+                              None, 0)
         return True
 
     def update(self, X: np.ndarray, U: np.ndarray) -> None:
