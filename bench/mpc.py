@@ -83,10 +83,10 @@ def run_one(problem, solver: str, options, ticks: int, phases: bool = False) -> 
 PHASES = {"shift (messages, controller, multipliers)": ("ws", "shift"),
           "warm start: the shifted controller rolled out from the measured state": ("ws", "start_at"),
           "task rows: cost and its derivatives (compiled)": ("sw", "_cost"),
-          "linearization: dynamics (compiled), control messages, constraints' model (Python)": ("sw", "linearize_all"),
+          "linearization: dynamics, checks, boxes' model (compiled), control and task messages (numpy)": ("sw", "linearize_all"),
           "sweep (compiled kernel)": ("sw", "sweep"),
-          "rollout of the new controller, clipped": ("problem", "bounded_rollout"),
-          "constraints' multipliers update (Python)": ("al", "update")}
+          "rollout of the new controller, clipped": ("ws", "_rollout"),
+          "constraints' multipliers update (compiled boxes)": ("al", "update")}
 
 
 def _phase_clock(mpc) -> dict[str, float]:

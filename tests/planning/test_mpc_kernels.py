@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import ctypes
 import math
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,9 +31,9 @@ def _need_kernels():
         pytest.skip("no compiled kernels")
 
 
-def _arm5(T: int, tight: bool = True) -> Problem:
+def _arm5(T: int, tight: bool = True, effort: float = 1.2) -> Problem:
     """arm5 (compiled dynamics) driven to a far state target under joint ranges, velocity and effort limits
-    tight enough to be active."""
+    tight enough to be active (``effort``: the effort limit, 1.2 saturates the controls)."""
     robot = shared_robot("arm5")
     dyn = FastAnalyticDynamics(robot, 0.01)
     n = robot.n_q
@@ -39,7 +41,7 @@ def _arm5(T: int, tight: bool = True) -> Problem:
     target = x0.copy()
     target[:n] += 1.2
     lim = 0.4 if tight else 10.0
-    bounds = Bounds(u_lower=np.full(n, -3.0 * lim), u_upper=np.full(n, 3.0 * lim),
+    bounds = Bounds(u_lower=np.full(n, -effort), u_upper=np.full(n, effort),
                     q_index=np.arange(n), q_lower=x0[:n] - lim, q_upper=x0[:n] + lim,
                     v_index=np.arange(n, 2 * n), v_lower=np.full(n, -2.0 * lim), v_upper=np.full(n, 2.0 * lim))
     return Problem(dyn, x0, T, [StateTarget(target, weight=10.0, name="far")], [ControlCost(1e-3)], [], bounds)
@@ -227,3 +229,35 @@ def test_all_finite():
                 b = a.copy()
                 b[k - 1] = bad
                 assert lib.all_finite(b.ctypes.data, k) == 0
+
+
+@pytest.mark.slow
+def test_a_compiled_tick_allocates_less_than_a_few_trajectories():
+    """tracemalloc over ticks of the compiled workspace on the xArm7's reach (its joint range active, no
+    control clipped: a clipped rollout runs the Python loop of ``Problem.bounded_rollout``): a tick's peak of
+    temporaries stays below four trajectories ``X`` (the numpy assembly of the task messages into strided
+    views, the tick's record of the bounds' excess; the former code's peak was above 60 of them)."""
+    _need_kernels()
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    path = Path(__file__).resolve().parents[2] / "raico" / "problems" / "examples" / "xarm7_reach.toml"
+    pb = build_problem(PlanConfig(problem=str(path), dynamics="analytic", q0_std=0.0))[2]
+    mpc = MPC(pb, 50, "raico", {"alpha": 1.0, "theta": math.inf}, ticks=pb.T)
+    mpc.prepare(pb.x0, 50)
+    x = pb.x0.copy()
+    for _ in range(10):                         # warm-up: buffers, addresses, numpy's caches
+        u, _, _ = mpc.tick(x)
+        x = pb.dynamics.step(x, u)
+    peaks = []
+    tracemalloc.start()
+    try:
+        for _ in range(20):
+            tracemalloc.reset_peak()
+            before = tracemalloc.get_traced_memory()[0]
+            u, _, _ = mpc.tick(x)
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
+            x = pb.dynamics.step(x, u)
+    finally:
+        tracemalloc.stop()
+    assert any(y is not None for y in mpc._ws.al.y)          # the boxes were active
+    assert max(peaks) < 4 * mpc.X.nbytes, (max(peaks), mpc.X.nbytes)

@@ -30,6 +30,7 @@ from raico.planning.aico.solve import check_control_cost
 from raico.planning import kernels
 from raico.planning.aico.sweeps import NumericalError, Sweeps
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
+from raico.planning.costs import ControlCost
 from raico.planning.problem import Problem
 
 
@@ -233,7 +234,8 @@ class ShiftedAICO:
                 return i
             self.alpha *= self.opts.gamma
             np.copyto(self.o, sw.Z[:, :, n])
-            np.negative(sw.Z[:, :, :n], out=self.O)
+            np.copyto(self.O, sw.Z[:, :, :n])       # O = -Z[:, :, :n] (numpy's negative of a strided view buffers it)
+            np.negative(self.O, out=self.O)
             if not self._rollout():
                 raise NumericalError("the controller's rollout left the finite states")
             if self.al is not None:
@@ -268,6 +270,7 @@ class ShiftSweeps(Sweeps):
         self._2aIb = np.empty((n, n))
         self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
         self._kkey: tuple | None = None
+        self._ctl: tuple | None | bool = None   # the control messages' buffers (_control_messages), False: none
         # the cost's task rows (the next linearization's derivatives): X, U, l_x, l_xx, per-step cost
         self._memo_bufs = (np.empty((T + 1, n)), np.empty((T, m)), np.empty((T + 1, n)), np.empty((T + 1, n, n)),
                            np.empty(T + 1))
@@ -284,7 +287,7 @@ class ShiftSweeps(Sweeps):
         ct = self._compiled_tasks()
         if ct is not None:
             kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
-        H, h = p.quadratize_controls(U)
+        H, h = self._control_messages(U)
         # the boxes' model compiled (added in place below) where no relinearization reads it (theta = inf)
         boxes = self.al if isinstance(self.al, FiniteBoxAL) and not self.relocate else None
         if boxes is not None and boxes._compiled(X, U) is None:
@@ -341,6 +344,32 @@ class ShiftSweeps(Sweeps):
             RA[:, :, n] += np.multiply(Xprev, 2.0 * alpha, out=self._Xp2)
         self._check_finite(RA)
         self._2aI = np.multiply(self.I, 2.0 * alpha, out=self._2aIb)
+
+    def _control_messages(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``Problem.quadratize_controls(U)``: ``H (T, m, m)``, ``h (T, m)``; where every control term is a
+        :class:`raico.planning.costs.ControlCost` and there is no joint term, into kept buffers with its
+        operations (``H`` does not depend on ``U``: taken from the first call), else the problem's."""
+        p = self.p
+        if self._ctl is None:
+            plain = not p.joint_terms and all(type(t) is ControlCost for t in p.control_terms)
+            self._ctl = (p.quadratize_controls(U)[0].copy(), np.empty_like(U), np.empty_like(U),
+                         np.empty_like(U)) if plain else False
+        if not self._ctl or U.shape != self._ctl[1].shape:
+            return p.quadratize_controls(U)
+        luu, lu, e, h = self._ctl
+        lu.fill(0.0)
+        for t in p.control_terms:     # ControlCost.derivatives: 2 w (e or e c), e = U - target
+            if t.target is None:
+                np.copyto(e, U)
+            else:
+                np.subtract(U, t.target, out=e)
+            if t.c is not None:
+                np.multiply(e, t.c, out=e)
+            np.multiply(2.0 * t.weight, e, out=e)
+            lu += e
+        np.einsum("kij,kj->ki", luu, U, out=h)
+        h -= lu
+        return luu, h
 
     def _run_linearize(self, lib, flags: int) -> None:
         st = self._kernel_state(lib)
