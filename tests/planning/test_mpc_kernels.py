@@ -102,7 +102,7 @@ def test_the_boxes_kernel_is_the_general_lagrangian_bit_for_bit(T, n, m):
     cons = _boxes(T, n, m, rng)
     fast = shift_mod._finite_boxes(AugmentedLagrangian(cons, T, 10.0))
     general = AugmentedLagrangian(cons, T, 10.0)
-    for step in range(3):
+    for _ in range(3):
         X, U = rng.normal(size=(T + 1, n)), 2.0 * rng.normal(size=(T, m))
         with np.errstate(over="ignore"):   # the general code's rows without a bound are -1.8e308, not -inf
             ref = general.model(X, U)

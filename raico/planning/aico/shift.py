@@ -11,8 +11,12 @@ regularization anchored there), sweep, roll the new controller out (controls cli
 The window's cost recorded is that of the trajectory the last iteration linearized at (its task rows give
 the derivatives and the cost in one pass).
 
-Work buffers are allocated once; a tick allocates only temporaries that live within it (the
-linearization's and task rows' arrays, the augmented Lagrangian's model), see docs/mpc.md.
+The sweeps are :class:`ShiftSweeps`: the linearization's loops compiled (the dynamics at every step and the
+control Hessians' checks in one call, the boxes' augmented Lagrangian in ``box_al.c``), the model's compiled
+rollout into work arrays, the control messages and the cost's task rows into kept buffers; the numbers are
+those of ``Sweeps`` and the numpy boxes bit for bit (tests/planning/test_mpc_kernels.py). Work buffers are
+allocated once; a tick allocates only small temporaries that live within it (the numpy assembly of the task
+messages into strided views, views and scalars), see docs/mpc.md.
 """
 
 from __future__ import annotations
@@ -24,15 +28,14 @@ import weakref
 
 import numpy as np
 
+from raico.planning import kernels
 from raico.planning.aico.bounds import hard_constraints
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.solve import check_control_cost
-from raico.planning import kernels
 from raico.planning.aico.sweeps import NumericalError, Sweeps
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, StateBox
 from raico.planning.costs import ControlCost
 from raico.planning.problem import Problem
-
 
 _ADDRS: dict[int, tuple[weakref.ref, int]] = {}
 
@@ -270,7 +273,7 @@ class ShiftSweeps(Sweeps):
         self._2aIb = np.empty((n, n))
         self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
         self._kkey: tuple | None = None
-        self._ctl: tuple | None | bool = None   # the control messages' buffers (_control_messages), False: none
+        self._ctl: tuple | None = None   # the control messages' buffers (_control_messages), (): none
         # the cost's task rows (the next linearization's derivatives): X, U, l_x, l_xx, per-step cost
         self._memo_bufs = (np.empty((T + 1, n)), np.empty((T, m)), np.empty((T + 1, n)), np.empty((T + 1, n, n)),
                            np.empty(T + 1))
@@ -318,7 +321,7 @@ class ShiftSweeps(Sweeps):
                 self._C0[:n] = np.column_stack([B, A, -a])
                 self._check_finite(self._C0)
                 self._C_filled = True
-        elif getattr(p.dynamics, "c_linearizer", None) is not None and p.dynamics.c_linearizer() is not None:
+        elif (getter := getattr(p.dynamics, "c_linearizer", None)) is not None and getter() is not None:
             flags = kernels.LIN_DYN
         else:
             C, m = self.C, self.m
@@ -353,7 +356,7 @@ class ShiftSweeps(Sweeps):
         if self._ctl is None:
             plain = not p.joint_terms and all(type(t) is ControlCost for t in p.control_terms)
             self._ctl = (p.quadratize_controls(U)[0].copy(), np.empty_like(U), np.empty_like(U),
-                         np.empty_like(U)) if plain else False
+                         np.empty_like(U)) if plain else ()
         if not self._ctl or U.shape != self._ctl[1].shape:
             return p.quadratize_controls(U)
         luu, lu, e, h = self._ctl
@@ -577,8 +580,9 @@ def _box_plan(constraints: list, xshape: tuple[int, int], ushape: tuple[int, int
     zeros ``(T+1, 2k)``), or ``[]``: no kernel, a constraint that is not a box, two boxes on one column."""
     if kernels.box_library() is None or not constraints:
         return []
-    (T1, n), (T, m) = xshape, ushape
-    out, seen = [], {False: set(), True: set()}
+    (T1, n), m = xshape, ushape[1]
+    out: list = []
+    seen: dict[bool, set[int]] = {False: set(), True: set()}
     for c in constraints:
         ctl = type(c) is ControlBox
         if not ctl and type(c) is not StateBox:
