@@ -17,7 +17,8 @@ Only an explicit opt-out (``RAICO_NO_C=1``) or a machine without ``gcc`` gives :
 ``None`` (then ``Sweeps`` runs its numpy code); a failed build where ``gcc`` exists raises
 :class:`raico.plants.codegen.c_backend.CompileError`.
 
-``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields).
+``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields). The MPC
+workspace's kernels: ``sweep_linearize`` and ``all_finite`` (``csweep.c``), :func:`box_library` (``box_al.c``).
 """
 
 from __future__ import annotations
@@ -361,3 +362,5 @@ if __name__ == "__main__":  # python -m raico.planning.kernels (make kernels): b
           else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
     print("task_messages:", "compiled" if task_library() is not None
           else f"not built ({c_backend.why_unavailable()}): the sweeps ask Python for task messages")
+    print("box_al:", "compiled" if box_library() is not None
+          else f"not built ({c_backend.why_unavailable()}): the MPC workspace's boxes run in numpy")
