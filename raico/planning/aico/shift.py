@@ -332,8 +332,13 @@ class ShiftSweeps(Sweeps):
             self._check_finite(C)
         self._run_linearize(lib, flags)           # the dynamics (flags), the checks of H and h
         self._marginals = self.relocate
-        if self.relocate:
+        if self.relocate:     # numpy's marginals, kept in the buffers the kernel's state points to
             self._control_marginals()
+            np.copyto(self._Hinvb, self.Hinv)
+            np.copyto(self._aeff, self.a_eff)
+            if self.Qbar is not self._Qbar:
+                np.copyto(self._Qbar, self.Qbar)
+            self.Hinv, self.a_eff, self.Qbar = self._Hinvb, self._aeff, self._Qbar
         self._al_model = None
         if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
             lx += al[0]
