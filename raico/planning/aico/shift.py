@@ -274,6 +274,7 @@ class ShiftSweeps(Sweeps):
         self._marginals = False      # whether Hinv, Qbar, a_eff hold this linearization's
         self._kkey: tuple | None = None
         self._ctl: tuple | None = None   # the control messages' buffers (_control_messages), (): none
+        self._al_lazy: tuple | None = None   # (X, U) of the linearization whose boxes' dense model is not built
         # the cost's task rows (the next linearization's derivatives): X, U, l_x, l_xx, per-step cost
         self._memo_bufs = (np.empty((T + 1, n)), np.empty((T, m)), np.empty((T + 1, n)), np.empty((T + 1, n, n)),
                            np.empty(T + 1))
@@ -291,8 +292,9 @@ class ShiftSweeps(Sweeps):
         if ct is not None:
             kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         H, h = self._control_messages(U)
-        # the boxes' model compiled (added in place below) where no relinearization reads it (theta = inf)
-        boxes = self.al if isinstance(self.al, FiniteBoxAL) and not self.relocate else None
+        # the boxes' model compiled (added in place below; theta finite: its dense form for the relinearizations
+        # in Python built when one asks for it, _relinearize_task)
+        boxes = self.al if isinstance(self.al, FiniteBoxAL) else None
         if boxes is not None and boxes._compiled(X, U) is None:
             boxes = None
         al = self.al.model(X, U) if self.al is not None and boxes is None else None
@@ -312,8 +314,7 @@ class ShiftSweeps(Sweeps):
             (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
         else:
             p.state_derivatives(X, out=(lx, R))                # R = l_xx
-        if boxes is not None:
-            boxes.model_into(X, U, lx, RA, self._Hb, self._hb)
+        active = boxes is not None and bool(boxes.model_into(X, U, lx, RA, self._Hb, self._hb))
         flags = 0
         if self.lti:
             if not self._C_filled:
@@ -339,11 +340,13 @@ class ShiftSweeps(Sweeps):
             if self.Qbar is not self._Qbar:
                 np.copyto(self._Qbar, self.Qbar)
             self.Hinv, self.a_eff, self.Qbar = self._Hinvb, self._aeff, self._Qbar
-        self._al_model = None
+        self._al_model, self._al_lazy = None, None
         if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
             lx += al[0]
             R += al[1]
             self._al_model = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0])
+        elif active:           # not None: the kernel leaves the task messages to Python, which builds it
+            self._al_model, self._al_lazy = (), (X, U)
         np.matmul(R, X[:, :, None], out=RA[:, :, n:])          # r = l_xx x - l_x
         RA[:, :, n] -= lx
         if alpha:
@@ -352,6 +355,15 @@ class ShiftSweeps(Sweeps):
             RA[:, :, n] += np.multiply(Xprev, 2.0 * alpha, out=self._Xp2)
         self._check_finite(RA)
         self._2aI = np.multiply(self.I, 2.0 * alpha, out=self._2aIb)
+
+    def _relinearize_task(self, t: int) -> None:
+        if self._al_lazy is not None:    # the boxes' model at the linearization, dense (Sweeps.linearize_all's)
+            X, U = self._al_lazy
+            al = self.al.model(X, U) if self.al is not None else None
+            if al is None:
+                raise AssertionError("the compiled boxes were active, the general model finds none")
+            self._al_model, self._al_lazy = (al[1], np.einsum("tij,tj->ti", al[1], X) - al[0]), None
+        super()._relinearize_task(t)
 
     def _control_messages(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``Problem.quadratize_controls(U)``: ``H (T, m, m)``, ``h (T, m)``; where every control term is a
