@@ -292,15 +292,6 @@ class ShiftSweeps(Sweeps):
         if ct is not None:
             kernels.set_task_controls(ct, U)                   # the joint terms' nominal controls
         H, h = self._control_messages(U)
-        # the boxes' model compiled (added in place below; theta finite: its dense form for the relinearizations
-        # in Python built when one asks for it, _relinearize_task)
-        boxes = self.al if isinstance(self.al, FiniteBoxAL) else None
-        if boxes is not None and boxes._compiled(X, U) is None:
-            boxes = None
-        al = self.al.model(X, U) if self.al is not None and boxes is None else None
-        if al is not None:     # the constraints' control part: h = H u - l_u
-            H = H + al[3]
-            h = h + np.einsum("tij,tj->ti", al[3], U) - al[2]
         np.copyto(self._Hb, H)
         np.copyto(self._hb, h)
         # (the marginals' arrays: the buffers until _control_marginals below replaces them, theta finite)
@@ -314,7 +305,18 @@ class ShiftSweeps(Sweeps):
             (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
         else:
             p.state_derivatives(X, out=(lx, R))                # R = l_xx
-        active = boxes is not None and bool(boxes.model_into(X, U, lx, RA, self._Hb, self._hb))
+        # the boxes' model compiled, added in place (theta finite: its dense form for the relinearizations in
+        # Python built when one asks for it, _relinearize_task); other constraints: the general model
+        active, al = False, None
+        if self.al is not None:
+            done = self.al.model_into(X, U, lx, RA, self._Hb, self._hb) if isinstance(self.al, FiniteBoxAL) else None
+            active = bool(done)
+            if done is None:
+                al = self.al.model(X, U)
+        if al is not None:     # the constraints' control part: h = H u - l_u (Sweeps's operations, in place)
+            self._Hb += al[3]
+            self._hb += np.einsum("tij,tj->ti", al[3], U)
+            self._hb -= al[2]
         flags = 0
         if self.lti:
             if not self._C_filled:
@@ -401,7 +403,7 @@ class ShiftSweeps(Sweeps):
     def _cost(self, X: np.ndarray, U: np.ndarray) -> float:
         ct = self._compiled_tasks()
         lib = kernels.library()
-        if ct is None or lib is None or not (X.flags.c_contiguous and U.flags.c_contiguous and X.dtype == np.float64
+        if ct is None or lib is None or not (all(a.flags.c_contiguous and a.dtype == np.float64 for a in (X, U))
                                              and lib.all_finite(_addr(X), X.size)
                                              and lib.all_finite(_addr(U), U.size)):
             return super()._cost(X, U)
@@ -483,18 +485,19 @@ class FiniteBoxAL(AugmentedLagrangian):
 
     _held: list[np.ndarray] | None = None   # the rows of the iterate being updated (one pass for both uses)
     _held_c: tuple[float, list] | None = None   # compiled: (violation, [(None, lam)]) of that iterate
-    _boxes: list | None = None   # compiled: per constraint (control?, k, idx, lo, hi, b_s, tol, y, lam); []: not
+    _boxes: list | None = None   # compiled: per constraint (_box_plan), for the shapes _shapes; []: not
 
     def _compiled(self, X: np.ndarray, U: np.ndarray) -> list | None:
         """The compiled boxes for finite ``X, U`` (built once), or None."""
         if self._boxes is None:
             self._boxes = _box_plan(self.constraints, X.shape, U.shape)
             self._viol = ctypes.c_double()
+            self._shapes = (X.shape, U.shape)
         lib = kernels.library()
-        if not self._boxes or lib is None or not (lib.all_finite(_addr(X), X.size)
-                                                 and lib.all_finite(_addr(U), U.size)):
+        if not self._boxes or lib is None or (X.shape, U.shape) != self._shapes or not all(
+                a.flags.c_contiguous and a.dtype == np.float64 for a in (X, U)):
             return None
-        if X.shape[0] != self._boxes[0][7].shape[0] or not (X.flags.c_contiguous and U.flags.c_contiguous):
+        if not (lib.all_finite(_addr(X), X.size) and lib.all_finite(_addr(U), U.size)):
             return None
         return self._boxes
 
@@ -502,17 +505,17 @@ class FiniteBoxAL(AugmentedLagrangian):
         """lam of every box at ``X, U`` into its ``lam`` buffer (``into_y``: into its ``y`` buffer, the current
         multipliers moved there first); returns the scaled violation (``into_y``) or the active rows' count."""
         lib, out = kernels.box_library(), 0.0
-        for k, (ctl, nk, idx, lo, hi, b_s, tol, ybuf, lam) in enumerate(boxes):
-            Z = U if ctl else X
+        xa, ua = _addr(X), _addr(U)
+        viol = ctypes.byref(self._viol) if into_y else None
+        for k, (ctl, nk, _, _, _, b_s, _, ybuf, _, (ia, loa, hia, ta, ya, la)) in enumerate(boxes):
             y = self.y[k]
             if into_y and y is not None and y is not ybuf:
                 np.copyto(ybuf, y)
                 y = ybuf
-            dst = ybuf if into_y else lam
-            viol = ctypes.byref(self._viol) if into_y else None
-            cnt = lib.box_lams(Z.shape[0], nk, _addr(idx), _addr(Z), Z.shape[1], _addr(lo), _addr(hi), b_s,
-                               None if y is None else _addr(y), self._mu(self.constraints[k]), _addr(dst), _addr(tol),
-                               viol)
+            src = None if y is None else (ya if y is ybuf else _addr(y))
+            cnt = lib.box_lams(U.shape[0] if ctl else X.shape[0], nk, ia, ua if ctl else xa, U.shape[1] if ctl else
+                               X.shape[1], loa, hia, b_s, src, self._mu(self.constraints[k]), ya if into_y else la,
+                               ta, viol)
             out = max(out, self._viol.value) if into_y else out + cnt
         return out
 
@@ -528,13 +531,12 @@ class FiniteBoxAL(AugmentedLagrangian):
             return False
         lib = kernels.box_library()
         (T1, n), (T, m) = X.shape, U.shape
-        for k, (ctl, nk, idx, *_, lam) in enumerate(boxes):
+        for k, (ctl, nk, *_, (ia, *_, la)) in enumerate(boxes):
             mu = self._mu(self.constraints[k])
             if ctl:
-                lib.box_model(T, nk, _addr(idx), _addr(lam), mu, None, 0, _addr(H), m * m, m + 1, _addr(U), m, _addr(h), m)
+                lib.box_model(T, nk, ia, la, mu, None, 0, _addr(H), m * m, m + 1, _addr(U), m, _addr(h), m)
             else:
-                lib.box_model(T1, nk, _addr(idx), _addr(lam), mu, _addr(lx), n, _addr(RA), n * (n + 1), n + 2, None, 0,
-                              None, 0)
+                lib.box_model(T1, nk, ia, la, mu, _addr(lx), n, _addr(RA), n * (n + 1), n + 2, None, 0, None, 0)
         return True
 
     def update(self, X: np.ndarray, U: np.ndarray) -> None:
@@ -593,8 +595,9 @@ class FiniteBoxAL(AugmentedLagrangian):
 
 
 def _box_plan(constraints: list, xshape: tuple[int, int], ushape: tuple[int, int]) -> list:
-    """Per constraint the compiled boxes' arrays ``(control?, k, idx, lo, hi, b_s, tol, y, lam)`` (``y``, ``lam``
-    zeros ``(T+1, 2k)``), or ``[]``: no kernel, a constraint that is not a box, two boxes on one column."""
+    """Per constraint the compiled boxes' arrays ``(control?, k, idx, lo, hi, b_s, tol, y, lam, their addresses)``
+    (``y``, ``lam`` zeros ``(T+1, 2k)``), or ``[]``: no kernel, a constraint that is not a box, two boxes on one
+    column."""
     if kernels.box_library() is None or not constraints:
         return []
     (T1, n), m = xshape, ushape[1]
@@ -614,7 +617,9 @@ def _box_plan(constraints: list, xshape: tuple[int, int], ushape: tuple[int, int
         if lo.shape != shape or hi.shape != shape or c.tol.shape != (2 * k,):
             return []
         tol = np.ascontiguousarray(c.tol, dtype=float)
-        out.append((ctl, k, idx, lo, hi, 0 if ctl else k, tol, np.zeros((T1, 2 * k)), np.zeros((T1, 2 * k))))
+        y, lam = np.zeros((T1, 2 * k)), np.zeros((T1, 2 * k))
+        out.append((ctl, k, idx, lo, hi, 0 if ctl else k, tol, y, lam,
+                    tuple(a.ctypes.data for a in (idx, lo, hi, tol, y, lam))))
     return out
 
 
