@@ -108,7 +108,10 @@ class ShiftedAICO:
     def shift(self) -> None:
         """Everything by one step towards the start (aico.cpp's ``shiftSolution``): trajectory, controls,
         controller, forward and backward messages, beliefs, task messages, linearization, the constraints'
-        multipliers; the last step repeated, the backward message at the end kept zero."""
+        multipliers; the last step repeated, the backward message at the end kept zero. Without relinearization
+        in the sweeps (``theta = inf``) the messages, beliefs and linearization are written anew before anything
+        reads them (the backward sweep starts from the zero end, the forward messages and beliefs are not
+        computed): only the trajectory, controls, controller and multipliers move."""
         if self._moves is None or any(getattr(o, n) is not a for o, n, a, *_ in self._moves):
             self._moves = self._plan_moves()        # the first shift, or an array replaced since
         for *_, dst, src, nbytes in self._moves:
@@ -122,6 +125,8 @@ class ShiftedAICO:
         """The arrays the shift moves: ``(owner, attribute, rows moved or None: all)``."""
         sw = self.sw
         out: list[tuple[object, str, int | None]] = [(self, n, None) for n in ("X", "U", "o", "O")]
+        if not sw.relocate:
+            return out
         out += [(sw, n, None) for n in ("SA", "b", "RA", "Z", "_lx")]
         out.append((sw, "VA", self.T))            # VA[T] = 0 (the end)
         if sw.C.flags.writeable:                  # a time-varying linearization (an LTI one is shared by all steps)
