@@ -110,10 +110,10 @@ def window_end(problem, substeps: int = 10) -> dict:
 PHASES = {"shift (messages, controller, multipliers)": ("ws", "shift"),
           "warm start: the shifted controller rolled out from the measured state": ("ws", "start_at"),
           "task rows: cost and its derivatives (compiled)": ("sw", "_cost"),
-          "linearization: dynamics (compiled), control messages, constraints' model (Python)": ("sw", "linearize_all"),
+          "linearization: dynamics, checks, boxes' model (compiled), control and task messages (numpy)": ("sw", "linearize_all"),
           "sweep (compiled kernel)": ("sw", "sweep"),
-          "rollout of the new controller, clipped": ("problem", "bounded_rollout"),
-          "constraints' multipliers update (Python)": ("al", "update"),
+          "rollout of the new controller, clipped": ("ws", "_rollout"),
+          "constraints' multipliers update (compiled boxes)": ("al", "update"),
           "the window's term times refreshed (Python, each term asked; where they changed)": ("ws", "refresh_times")}
 
 

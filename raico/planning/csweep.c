@@ -23,7 +23,7 @@
 typedef int (*lin_t)(const void *, const double *, const double *, double *, double *, double *);
 typedef int (*task_t)(const void *, long, const double *, double *, double *);
 
-enum { ERR_CHOL = -1, ERR_LIN = -2 };
+enum { ERR_CHOL = -1, ERR_LIN = -2, ERR_H = -3 };
 enum { PH_FWD = 0, PH_BWD = 1, PH_DONE = 2 };
 enum { SUB_STEP = 0, SUB_CHECK = 1, SUB_AFTER = 2, SUB_LEAVE = 3 };
 enum { DYN_NONE = 0, DYN_C = 1, DYN_PY = 2 };
@@ -70,12 +70,12 @@ long sweep_work_size(long n, long m)
 {
     long N1 = n + 1, K = m + n + 1, h = n / 2;
     return 8 * n * N1 + 3 * n * n + 2 * n * K + m * K + 5 * n + n * m * 3
-        + n * h + 2 * h * h + h * K + n + m * n;
+        + n * h + 2 * h * h + h * K + n + m * n + m * m;
 }
 
 /* work layout */
 typedef struct { double *Pa, *Vs, *Ba, *Y0, *Y1, *FA, *W, *S, *G, *GT, *FB, *y, *tmp, *rhs, *Ad, *ad, *Bd, *BHi, *E, *lx, *lxx;
-                 double *Ve, *E1, *D, *Yb, *gv, *Bt; } work_t;
+                 double *Ve, *E1, *D, *Yb, *gv, *Bt, *Hc; } work_t;
 
 static work_t layout(const sweep_t *s)
 {
@@ -110,6 +110,7 @@ static work_t layout(const sweep_t *s)
     w.Yb = p; p += h * K;
     w.gv = p; p += n;
     w.Bt = p; p += m * n;
+    w.Hc = p; p += m * m;   /* sweep_linearize: H_t's factor */
     w.Ad = w.E + n * N1;    /* n * (n+1) >= n * n */
     return w;
 }
@@ -662,6 +663,55 @@ int sweep_run(sweep_t *s)
             s->sub = SUB_CHECK;
         }
     }
+}
+
+/* The dynamics' part of one iteration's linearization along X, U in one call (the shifted workspace's,
+ * raico/planning/aico/shift.py; Sweeps.linearize_all's): flags & LIN_DYN (dyn_mode DYN_C, a C per step): the
+ * dynamics at every step t < T (lin_fn at X[t], U[t] into C[t], as relin_dyn: the numbers of the model's batch
+ * linearization, bit for bit); then H[t] (H_s = 0: one shared) checked positive definite and H, h finite (the
+ * checks of Sweeps._control_marginals and _check_finite; nothing else is written). blk zeroed (C[t]'s block form
+ * not known). Shapes: sweep_run's. Returns 0, ERR_LIN (a non-finite C[t], H[t] or h[t]) or ERR_H (H[t] not
+ * positive definite; err_info = t). */
+enum { LIN_DYN = 1 };
+
+int sweep_linearize(sweep_t *s, long flags)
+{
+    work_t w = layout(s);
+    long T = s->T, n = s->n, m = s->m, N1 = n + 1, K = m + n + 1;
+    memset(s->blk, 0, (size_t)T);
+    if ((flags & LIN_DYN) && s->dyn_mode == DYN_C && s->C_s) {
+        for (long t = 0; t < T; t++) {
+            ((lin_t)s->lin_fn)(s->lin_ctx, s->X + t * n, s->U + t * m, w.Ad, w.ad, w.Bd);
+            double *Ct = s->C + t * s->C_s, sum = 0.0;
+            for (long i = 0; i < n; i++) {
+                for (long j = 0; j < m; j++) Ct[i * K + j] = w.Bd[i * m + j];
+                for (long j = 0; j < n; j++) Ct[i * K + m + j] = w.Ad[i * n + j];
+                Ct[i * K + m + n] = -w.ad[i];
+            }
+            #pragma omp simd reduction(+:sum)
+            for (long i = 0; i < N1 * K; i++) sum += Ct[i];
+            if (!isfinite(sum)) return ERR_LIN;
+        }
+    }
+    for (long t = 0; t < T; t++) {
+        const double *Ht = s->H + t * s->H_s, *ht = s->h + t * m;
+        double sum = 0.0;
+        for (long i = 0; i < m; i++) sum += ht[i];
+        if (t == 0 || s->H_s) {
+            for (long i = 0; i < m * m; i++) { w.Hc[i] = Ht[i]; sum += Ht[i]; }
+            if (!isfinite(sum)) return ERR_LIN;
+            if (chol_u((int)m, w.Hc, (int)m) != 0) { s->err_info = t; return ERR_H; }
+        } else if (!isfinite(sum)) return ERR_LIN;
+    }
+    return 0;
+}
+
+/* whether all of a (k doubles) is finite */
+int all_finite(const double *a, long k)
+{
+    int ok = 1;
+    for (long i = 0; i < k; i++) ok &= isfinite(a[i]) != 0;
+    return ok;
 }
 
 /* forward messages t = 1..T and every belief, no relinearization (Sweeps.beliefs, theta = inf) */

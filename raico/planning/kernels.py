@@ -17,7 +17,8 @@ Only an explicit opt-out (``RAICO_NO_C=1``) or a machine without ``gcc`` gives :
 ``None`` (then ``Sweeps`` runs its numpy code); a failed build where ``gcc`` exists raises
 :class:`raico.plants.codegen.c_backend.CompileError`.
 
-``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields).
+``SweepState`` mirrors ``sweep_t`` of ``csweep.c`` field for field (all 8-byte fields). The MPC
+workspace's kernels: ``sweep_linearize`` and ``all_finite`` (``csweep.c``), :func:`box_library` (``box_al.c``).
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ FLAGS = flags_for()
 # sweep_t.phase / dyn_mode values and sweep_run's error codes
 PH_FWD, PH_BWD = 0, 1
 DYN_NONE, DYN_C, DYN_PY = 0, 1, 2
-ERR_CHOL, ERR_LIN = -1, -2
+ERR_CHOL, ERR_LIN, ERR_H = -1, -2, -3
+LIN_DYN = 1                       # sweep_linearize's flag: the dynamics at every step
 NEED_DYN, NEED_TASK = 1, 2
 
 _L, _D, _V = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
@@ -99,6 +101,10 @@ def _load() -> ctypes.CDLL:
     for f in ("sweep_run", "sweep_beliefs"):
         getattr(lib, f).argtypes = [ctypes.POINTER(SweepState)]
         getattr(lib, f).restype = ctypes.c_int
+    lib.sweep_linearize.argtypes = [ctypes.POINTER(SweepState), _L]
+    lib.sweep_linearize.restype = ctypes.c_int
+    lib.all_finite.argtypes = [_V, _L]
+    lib.all_finite.restype = ctypes.c_int
     return lib
 
 
@@ -158,6 +164,28 @@ def task_library() -> ctypes.CDLL | None:
         except c_backend.CompileUnavailable:
             _TASK_LIB = False
     return _TASK_LIB or None
+
+
+_BOX_LIB: ctypes.CDLL | None | Literal[False] = None
+
+
+def box_library() -> ctypes.CDLL | None:
+    """The box constraints' augmented Lagrangian (``box_al.c``, the default flags: no contraction, the numpy
+    code's numbers), or ``None`` as :func:`library`."""
+    global _BOX_LIB
+    if _BOX_LIB is None:
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(c_backend.c_source(__file__, "box_al.c"), "box_al")
+            lib.box_lams.argtypes = [_L, _L, _V, _V, _L, _V, _V, _L, _V, _D, _V, _V, _V]
+            lib.box_lams.restype = _L
+            lib.box_model.argtypes = [_L, _L, _V, _V, _D, _V, _L, _V, _L, _L, _V, _L, _V, _L]
+            lib.box_model.restype = None
+            _BOX_LIB = lib
+        except c_backend.CompileUnavailable:
+            _BOX_LIB = False
+    return _BOX_LIB or None
 
 
 def compile_task_set(problem):
@@ -285,12 +313,13 @@ def set_task_controls(compiled, U) -> None:
     buf[:] = U
 
 
-def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False):
+def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool = False, out=None):
     """The compiled task terms (``compile_task_set``'s result for a horizon of ``T`` steps) at the
     rows ``X (K, n_x)`` of steps ``steps (K,)`` (each in ``0..T``): ``(l_x (K, n_x), l_xx (K, n_x, n_x))`` as
     ``Problem.state_derivatives`` (``None`` without ``derivatives``) and the per-row costs ``(K,)``
     as the state terms' ``value`` summed (``None`` without ``costs``). ``X`` must be finite (the
-    tree kernels are not asked at NaN; callers keep the Python terms for such rows)."""
+    tree kernels are not asked at NaN; callers keep the Python terms for such rows). ``out``: ``(l_x,
+    l_xx, costs)`` C-contiguous arrays of those shapes to write into (the ones asked for)."""
     import numpy as np
 
     lib = task_library()
@@ -301,12 +330,23 @@ def task_rows(compiled, T: int, X, steps, derivatives: bool = True, costs: bool 
     c_backend.check_shapes("taskset_rows", X=(X, (len(steps), int(ts.nx))))
     if len(steps) and (steps.min() < 0 or steps.max() > T):
         raise ValueError(f"taskset_rows: steps must lie in 0..{T}")
-    lx = np.empty((K, nx)) if derivatives else None
-    lxx = np.empty((K, nx, nx)) if derivatives else None
-    out = np.empty(K) if costs else None
+    if out is not None:
+        lx, lxx, per_row = out
+        c_backend.check_shapes("taskset_rows", **{k: (a, shape) for k, a, shape in (
+            ("lx", lx, (K, nx)), ("lxx", lxx, (K, nx, nx)), ("costs", per_row, (K,))) if a is not None})
+        if not all(a is None or (a.flags.c_contiguous and a.dtype == np.float64) for a in out):
+            raise ValueError("taskset_rows: out arrays must be C-contiguous float64")
+        lx, lxx = (lx, lxx) if derivatives else (None, None)
+        per_row = per_row if costs else None
+    else:
+        lx = np.empty((K, nx)) if derivatives else None
+        lxx = np.empty((K, nx, nx)) if derivatives else None
+        per_row = np.empty(K) if costs else None
+    if (derivatives and (lx is None or lxx is None)) or (costs and per_row is None):
+        raise ValueError("taskset_rows: an out array asked for is missing")
     lib.taskset_rows(compiled[1], K, steps.ctypes.data, X.ctypes.data, *(None if a is None else a.ctypes.data
-                                                                         for a in (lx, lxx, out)))
-    return (lx, lxx) if derivatives else None, out
+                                                                         for a in (lx, lxx, per_row)))
+    return (lx, lxx) if derivatives else None, per_row
 
 
 if __name__ == "__main__":  # python -m raico.planning.kernels (make kernels): build (or find) the kernel
@@ -322,3 +362,5 @@ if __name__ == "__main__":  # python -m raico.planning.kernels (make kernels): b
           else f"not built ({c_backend.why_unavailable()}): the numpy sweeps run")
     print("task_messages:", "compiled" if task_library() is not None
           else f"not built ({c_backend.why_unavailable()}): the sweeps ask Python for task messages")
+    print("box_al:", "compiled" if box_library() is not None
+          else f"not built ({c_backend.why_unavailable()}): the MPC workspace's boxes run in numpy")
