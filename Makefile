@@ -74,6 +74,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.cartpole_pilco --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.payload --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.mpc --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.mpc_learn --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck
