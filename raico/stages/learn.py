@@ -14,7 +14,8 @@ Any robot: ``--problem FILE`` replaces ``--plant`` and ``--task``; the problem f
 (``raico.stages.babble``: PD around random trajectories with the model file's gravity compensation and
 per-joint random torques), the plans are the problem's with ``--dynamics learned`` and the
 executions run on ``[robot.true]``'s robot where the file states one. ``--residual`` fits the GP
-to what the model file misses (``raico.stages.fit``) and plans with model + GP.
+to what the model file misses (``raico.stages.fit``) and plans with model + GP. ``--controller mpc`` executes
+every episode under receding-horizon control on the episode's model (:meth:`LearnConfig.execute_config`).
 
 An episode whose execution gives no data (its plan diverged, or was not finite and so not executed) is
 followed by a random episode (babbling with its own seed, ``RECOVERY_SEED``) whose data join the next fit
