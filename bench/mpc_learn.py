@@ -184,7 +184,7 @@ def plot(doc: dict, path: Path) -> None:
     from matplotlib.ticker import FormatStrFormatter, MaxNLocator
 
     runs = doc["runs"]
-    fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    fig, ax = plt.subplots(figsize=(11, 4.6))
     for i, lab in enumerate(dict.fromkeys(r["label"] for r in runs)):
         rs = [r for r in runs if r["label"] == lab]
         D = 100 * np.array([r["distance_m"] for r in rs], float)
@@ -194,14 +194,14 @@ def plot(doc: dict, path: Path) -> None:
         ax.plot(k, np.median(D, 0), "o-", color=f"C{i}", lw=2, label=f"learned residual, {lab} (median, {len(rs)} seeds)")
     for j, r in enumerate(r for r in doc["model_file"] if "error" not in r):
         ax.axhline(100 * r["distance_m"], color=f"C{j + 3}", ls=":", lw=1.4,
-                   label=f"model file, {r['label']} ({100 * r['distance_m']:.1f} cm)")
+                   label=f"{r.get('model', 'model file')}, {r['label']} ({100 * r['distance_m']:.1f} cm)")
     ax.axhline(100 * REACH, color="g", ls="--", lw=1, label="1 cm")
     ax.set(yscale="log", xlabel="episode", ylabel="executed distance to the target (cm)",
            title="UR5, unmodelled 5 kg, pushed 20 N mid-reach")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
     ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

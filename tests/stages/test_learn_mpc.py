@@ -60,6 +60,8 @@ def test_the_mpc_of_a_learned_plan_runs_on_its_model(raico, tmp_path):
         x = np.concatenate([np.array([0.3, 0.5]) + 0.2 * rng.standard_normal(2), rng.standard_normal(2)])
         u = rng.standard_normal(problem.n_u)
         assert_close(dyn.step(x, u), ref.step(x, u), rel=bound(200, 10.0))
+    with pytest.raises(ValueError, match="cannot"):   # crocoddyl's window is the model file's, not this model
+        MPC(problem, 10, "fddp")
     mpc = MPC(problem, 10, "raico", iterations=1)
     X = np.load(Path(plan["path"]) / "plan.npz")
     mpc.start_from(X["X"], X["U"], X["o"], X["O"])
