@@ -43,6 +43,16 @@ def variants() -> tuple[dict, list[dict]]:
     return base, [dict(p) for p in doc["point"]]
 
 
+def one_step_error(X: np.ndarray, predicted: np.ndarray | None) -> float | None:
+    """The controller's model against the robot along the executed path: per tick, the largest error of the
+    window's predicted next joint velocities (rad/s) against the executed ones; their median (None: no MPC)."""
+    if predicted is None or len(predicted) == 0:
+        return None
+    n = X.shape[1] // 2
+    k = min(len(predicted), len(X) - 1)
+    return float(np.nanmedian(np.abs(predicted[:k, 1, n:] - X[1:k + 1, n:]).max(axis=1)))
+
+
 def model_file_rows(artifacts: str) -> list[dict]:
     """The model file's plan (the planner's defaults for a problem file) executed pushed on the true robot: the
     plan's controller, MPC R-AICO and MPC FDDP (a row saying why where it cannot run)."""
@@ -65,9 +75,11 @@ def model_file_rows(artifacts: str) -> list[dict]:
             rows.append({"label": label, "error": f"{type(e).__name__}: {e}"})
             continue
         m = ex.metrics
+        with np.load(Path(ex.path) / "rollout.npz") as f:
+            err = one_step_error(f["X"], f["mpc_predicted"] if "mpc_predicted" in f.files else None)
         rows.append({"label": label, "distance_m": m["via_point_errors"][REACH_TERM], "status": ex.status,
                      "planned_m": plan.metrics["via_point_errors"][REACH_TERM],
-                     "tick_s": m.get("mpc_median_tick_s")})
+                     "tick_s": m.get("mpc_median_tick_s"), "one_step_error": err})
     rows += [oracle_row(cache, plan.key, push, h) for h in (HORIZON, 100)]
     return rows
 
@@ -94,7 +106,7 @@ def oracle_row(cache, plan_key: str, push: tuple, horizon: int) -> dict:
     m = out.metrics
     return {"label": f"MPC R-AICO, horizon {horizon}", "model": "the true robot's dynamics (oracle)",
             "distance_m": m["via_point_errors"][REACH_TERM], "status": m["status"],
-            "tick_s": m.get("mpc_median_tick_s")}
+            "tick_s": m.get("mpc_median_tick_s"), "one_step_error": one_step_error(out.X, out.mpc.get("mpc_predicted"))}
 
 
 def run_seed(job: tuple[str, int, dict]) -> dict:
@@ -112,12 +124,15 @@ def run_seed(job: tuple[str, int, dict]) -> dict:
     t0 = time.perf_counter()
     out = run(cache, "learn", LearnConfig(**cfg), record=False)
     eps = json.loads((Path(out.path) / "episodes.json").read_text())["episodes"]
-    ex = [cache.require("execute", e["execute"]).metrics for e in eps]
+    arts = [cache.require("execute", e["execute"]) for e in eps]
+    ex = [a.metrics for a in arts]
+    rolls = [a.arrays("rollout.npz") for a in arts]
     return {"label": point["label"], "seed": seed, "wall_s": time.perf_counter() - t0,
             "distance_m": [m["via_point_errors"][REACH_TERM] for m in ex],
             "status": [e["execution_status"] for e in eps], "data_steps": [e["data_steps"] for e in eps],
             "n_points": [e["n_points"] for e in eps], "gp_error": [e["gp_error"] for e in eps],
             "tick_s": [m.get("mpc_median_tick_s") for m in ex],
+            "one_step_error": [one_step_error(r["X"], r.get("mpc_predicted")) for r in rolls],
             "fit_s": [e["fit_time_s"] for e in eps], "plan_s": [e["plan_time_s"] for e in eps],
             "execute_s": [e["execute_time_s"] for e in eps]}
 
@@ -137,22 +152,25 @@ def page(doc: dict) -> str:
              "shared: times under load). Aimed at before the run: the learned MPC within 1 cm after at most "
              f"{EPISODES_TARGET} episodes, the model file's plan more than {100 * OPEN_LOOP_MISS:g} cm off, the "
              "model-file MPC farther off than the learned one.", "",
-             "| controller | model | executed distance to the target (cm) | status | median tick (ms) |",
-             "|---|---|---|---|---|"]
+             "| controller | model | executed distance to the target (cm) | status | median tick (ms) | model's "
+             "one-step error, median (rad/s) |",
+             "|---|---|---|---|---|---|"]
     for r in base_rows:
         if "error" in r:
-            lines.append(f"| {r['label']} | model file | not run: {r['error'].splitlines()[0]} | - | - |")
+            lines.append(f"| {r['label']} | model file | not run: {r['error'].splitlines()[0]} | - | - | - |")
             continue
         tick = f"{1e3 * r['tick_s']:.1f}" if r.get("tick_s") else "-"
+        err = f"{r['one_step_error']:.3g}" if r.get("one_step_error") is not None else "-"
         lines.append(f"| {r['label']} | {r.get('model', 'model file')} | {100 * r['distance_m']:.2f} | {r['status']} | "
-                     f"{tick} |")
+                     f"{tick} | {err} |")
     lines.append("| MPC FDDP, learned model | - | not run: crocoddyl's window is the model file's in Pinocchio; "
-                 "the GP residual has no action model there | - | - |")
+                 "the GP residual has no action model there | - | - | - |")
     lines += ["", "The residual-GP loop, per episode (medians over the seeds; cm):", "",
               f"| episodes' controller | seeds within 1 cm by episode {EPISODES_TARGET} | executed distance per "
               "episode, median (cm) | worst seed per episode (cm) | execution statuses | data steps fed per "
-              "episode, median | MPC median tick (ms), median | fit + plan + execute per episode, median (s) |",
-              "|---|---|---|---|---|---|---|---|"]
+              "episode, median | MPC's model, one-step error per episode, median (rad/s) | MPC median tick (ms), "
+              "median | fit + plan + execute per episode, median (s) |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for lab in dict.fromkeys(r["label"] for r in runs):
         rs = [r for r in runs if r["label"] == lab]
         D = 100 * np.array([r["distance_m"] for r in rs], float)
@@ -162,9 +180,12 @@ def page(doc: dict) -> str:
         ticks = [t for r in rs for t in r["tick_s"] if t]
         tk = f"{1e3 * np.median(ticks):.0f}" if ticks else "-"
         per = [a + b + c for r in rs for a, b, c in zip(r["fit_s"], r["plan_s"], r["execute_s"])]
+        errs = [r.get("one_step_error") for r in rs]
+        one = ("-" if not errs or errs[0] is None or errs[0][0] is None else
+               " / ".join(f"{v:.3g}" for v in np.median(np.array(errs, float), 0)))
         lines.append(f"| {lab} | {hit} of {len(rs)} | {' / '.join(f'{v:.2f}' for v in np.median(D, 0))} | "
                      f"{' / '.join(f'{v:.2f}' for v in D.max(0))} | {st} | "
-                     f"{' / '.join(f'{v:g}' for v in np.median([r['data_steps'] for r in rs], 0))} | {tk} | "
+                     f"{' / '.join(f'{v:g}' for v in np.median([r['data_steps'] for r in rs], 0))} | {one} | {tk} | "
                      f"{np.median(per):.1f} |")
     lines += ["", "Per seed: executed distance per episode (cm) and statuses.", "",
               "| episodes' controller | seed | distance (cm) | statuses |", "|---|---|---|---|"]
