@@ -149,7 +149,7 @@ def page(doc: dict) -> str:
              f"(`{' '.join(doc['push'])}`: 20 N on the tool for 0.1 s mid-reach); the loop of "
              f"`experiments/ur5_payload_push_mpc_learn.toml` ({doc['settings']}); MPC: horizon {HORIZON} steps, "
              f"one R-AICO iteration per 10 ms period; {doc['seeds']} seeds; load average {doc['load']} (2 cores "
-             "shared: times under load). Aimed at before the run: the learned MPC within 1 cm after at most "
+             "shared: times under load; the times of steps found in the cache are those of their own runs). Aimed at before the run: the learned MPC within 1 cm after at most "
              f"{EPISODES_TARGET} episodes, the model file's plan more than {100 * OPEN_LOOP_MISS:g} cm off, the "
              "model-file MPC farther off than the learned one.", "",
              "| controller | model | executed distance to the target (cm) | status | median tick (ms) | model's "
