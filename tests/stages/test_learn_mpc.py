@@ -69,6 +69,8 @@ def test_the_mpc_of_a_learned_plan_runs_on_its_model(raico, tmp_path):
         mpc.tick(X["X"][k] + 1e-3)
     W, U = mpc.X, mpc.U
     assert mpc.window.dynamics is problem.dynamics
+    window_unc = [t for t in mpc.window.joint_terms if isinstance(t, Uncertainty)]   # in the window's cost
+    assert len(window_unc) == 1 and window_unc[0].T == mpc.H and window_unc[0].model is unc[0].model
     for j in range(mpc.H):   # the window's trajectory: its controls rolled out on the learned model
         assert_close(W[j + 1], problem.dynamics.step(W[j], U[j]), rel=bound(500, 100.0))
 
