@@ -75,6 +75,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.payload --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.mpc --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.nao_mpc --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.mpc_learn --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck

@@ -45,6 +45,21 @@ from raico.planning.solvers import SOLVERS, get_solver
 
 # the solvers with a shift warm start (their spec's ``caps.mpc``: "aico" or "fddp"; iLQG has none: rejected)
 WARM_STARTABLE = tuple(name for name, spec in SOLVERS.items() if spec.caps.mpc is not None)
+# those whose window runs on the problem's own model, whatever it is (a learned one too); crocoddyl's window is
+# built from the model file in Pinocchio and has no learned model
+OWN_MODEL = tuple(name for name in WARM_STARTABLE if SOLVERS[name].caps.mpc == "aico")
+
+
+def learned_model(dynamics: Any) -> Any:
+    """The learned layer of a controller's model, or ``None``: ``dynamics`` itself or the model inside its
+    wrappers (``ActuatedDynamics``, ``SubstepDynamics``: their ``inner``) that carries a GP
+    (``raico.plants.learned.LearnedDynamics``; ``ResidualDynamics``: the model file plus the residual GP)."""
+    from raico.plants.learned import LearnedDynamics
+
+    d = dynamics
+    while d is not None and not isinstance(d, LearnedDynamics):
+        d = getattr(d, "inner", None)
+    return d
 
 
 @dataclass
@@ -138,7 +153,9 @@ class MPC:
     """A receding-horizon controller of ``problem`` (see the module docstring).
 
     Args:
-        problem: the problem (its ``T`` is the number of ticks of a run; its terms' times absolute).
+        problem: the problem (its ``T`` is the number of ticks of a run; its terms' times absolute); its
+            dynamics are the controller's model: a learned one (:func:`learned_model`: the model file plus a
+            residual GP, refit between a learning loop's episodes) with its uncertainty term among the joint terms.
         horizon: window length ``H`` in planning steps (``1 <= H <= T``).
         solver: one of :data:`WARM_STARTABLE` (``"aico"``, ``"raico"``, ``"fddp"``: BoxFDDP where the problem has
             control limits).
@@ -156,8 +173,8 @@ class MPC:
             end enters the window (default); ``False``: only from then on (via-points alone pull before).
 
     Raises:
-        ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start,
-            ``iterations < 1``, a budget that is not positive.
+        ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start (or
+            cannot run on a learned model), ``iterations < 1``, a budget that is not positive.
     """
 
     def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
@@ -172,6 +189,9 @@ class MPC:
             raise ValueError(f"iterations per tick must be an integer >= 1, got {iterations}")
         if budget is not None and not (math.isfinite(budget) and budget > 0):
             raise ValueError(f"time budget must be a positive number of seconds, got {budget}")
+        if solver not in OWN_MODEL and learned_model(problem.dynamics) is not None:
+            raise ValueError(f"solver {solver!r} cannot control with a learned model (its window is the model "
+                             f"file's in Pinocchio); use one of {', '.join(OWN_MODEL)}")
         self.problem, self.H, self.solver = problem, int(horizon), solver
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget

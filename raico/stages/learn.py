@@ -14,7 +14,8 @@ Any robot: ``--problem FILE`` replaces ``--plant`` and ``--task``; the problem f
 (``raico.stages.babble``: PD around random trajectories with the model file's gravity compensation and
 per-joint random torques), the plans are the problem's with ``--dynamics learned`` and the
 executions run on ``[robot.true]``'s robot where the file states one. ``--residual`` fits the GP
-to what the model file misses (``raico.stages.fit``) and plans with model + GP.
+to what the model file misses (``raico.stages.fit``) and plans with model + GP. ``--controller mpc`` executes
+every episode under receding-horizon control on the episode's model (:meth:`LearnConfig.execute_config`).
 
 An episode whose execution gives no data (its plan diverged, or was not finite and so not executed) is
 followed by a random episode (babbling with its own seed, ``RECOVERY_SEED``) whose data join the next fit
@@ -92,7 +93,16 @@ class LearnConfig(StageConfig):
                         "(the model file's, or the plant's analytic model) and plan with model + GP.",
             "babble_amplitude": "Spread of the babbling's random knots around the start posture on a revolute "
                                 "joint (rad).",
-            "babble_amplitude_prismatic": "Spread of the babbling's random knots on a prismatic joint (m)."}
+            "babble_amplitude_prismatic": "Spread of the babbling's random knots on a prismatic joint (m).",
+            "controller": "Controller of the episodes' executions: pd (the plan's own feedback controller) or mpc "
+                          "(receding-horizon control on the episode's model, the model file plus the residual GP with "
+                          "the uncertainty term, refit between episodes; raico execute --controller mpc).",
+            "period": "--controller mpc: control period (s); default the planning step.",
+            "horizon": "--controller mpc: horizon in planning steps (default min(T, 50)).",
+            "iterations_per_tick": "--controller mpc: solver iterations per control period.",
+            "mpc_solver": "--controller mpc: the solver of each period (one that runs on the learned model).",
+            "push": "A scripted push in every episode's execution, FRAME:NEWTONS:START:DURATION (raico execute "
+                    "--push); repeatable."}
 
     plant: str = ""
     task: str = ""
@@ -120,6 +130,15 @@ class LearnConfig(StageConfig):
     seed: int = 0
     gp: str = ""  # "": exact for a built-in plant, auto for a problem file's robot
     inducing: int = 200
+    controller: str = "pd"  # the episodes' executions: "pd" (the plan's controller) or "mpc"
+    period: float | None = None  # s, --controller mpc (None: the planning step)
+    horizon: int | None = None  # planning steps, --controller mpc (None: the execute stage's default)
+    iterations_per_tick: int = 1  # --controller mpc
+    mpc_solver: str = "raico"  # --controller mpc (raico.planning.mpc.OWN_MODEL)
+    push: tuple[str, ...] = ()  # scripted pushes of every episode's execution
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "push", tuple(self.push or ()))   # the CLI gives None for no --push
 
     def normalized(self) -> LearnConfig:
         """The config with the robot's defaults in place of 0 (its spec's ``learn``): one key per meaning
@@ -204,8 +223,72 @@ class LearnConfig(StageConfig):
             if not ok:
                 raise ValueError(msg)
         parse_schedule(self.schedule)
+        self._validate_controller()
         self.plan_config(model="x", warm_start=None).validate()
         self.babble_config().validate()
+
+    def _validate_controller(self) -> None:
+        """The episodes' controller: its options as ``raico execute`` checks them, and with ``mpc`` a solver
+        that runs on the learned model and a fixed-base robot."""
+        from raico.planning.mpc import OWN_MODEL
+
+        if self.controller not in ("pd", "mpc"):
+            raise ValueError(f"controller must be pd or mpc, got '{self.controller}'")
+        d = LearnConfig.__dataclass_fields__
+        if self.controller == "pd":
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "mpc_solver") if getattr(self, n) != d[n].default]
+            if given:
+                raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
+        elif self.mpc_solver not in OWN_MODEL:
+            raise ValueError(f"--mpc-solver {self.mpc_solver} cannot control with the learned model (its window is "
+                             f"the model file's); use one of {', '.join(OWN_MODEL)}")
+        elif self._robot_spec() is not None and self._robot_spec().execution == "floating":
+            raise ValueError("--controller mpc is for fixed-base robots; a floating robot's controllers are pd and wbc")
+        else:
+            self._check_window()
+        self.execute_config("plan/x").validate()
+
+    def _check_window(self) -> None:
+        """``--period`` and ``--horizon`` against the task's steps, as the execute stage checks them (before any
+        episode runs): the period a divisor of the planning step and at least the robot's simulation step, the
+        horizon at most the task's ``T``."""
+        if self.problem is not None:
+            pf = self.problem_file()
+            T, dt = pf.T, pf.dt
+        else:
+            task = get_task(self.plant, self.task)
+            T, dt = task.T, task.dt
+        spec = self._robot_spec()
+        step = spec.time_step if spec is not None else 0.0
+        if self.horizon is not None and self.horizon > T:
+            raise ValueError(f"--horizon {self.horizon} is longer than the problem's {T} steps")
+        if self.period is not None and self.period > 0:   # not positive: the execute stage's check says so
+            every = dt / self.period
+            if self.period < step - 1e-12:
+                raise ValueError(f"--period {self.period:g} s is shorter than the simulation step {step:g} s")
+            if self.period > dt + 1e-12 or abs(every - round(every)) > 1e-9:
+                raise ValueError(f"--period {self.period:g} s must divide the planning step {dt:g} s")
+
+    def _robot_spec(self):
+        """The robot's spec (its facts), read without loading the robot."""
+        from raico.plants.model_file import RobotSpec
+        from raico.plants.robots import PLANTS, builtin_spec
+
+        if self.problem is not None:
+            pf = self.problem_file()
+            return builtin_spec(pf.plant) if pf.plant is not None else RobotSpec.from_dict(pf.doc["robot"])
+        return builtin_spec(self.plant) if self.plant in PLANTS else None
+
+    def execute_config(self, plan: str):
+        """The execute stage's config of an episode's plan ``plan`` (a plan ref): the plan's controller, or
+        receding-horizon control with the episode's model; the pushes."""
+        from raico.stages.execute.config import ExecuteConfig
+
+        mpc: dict[str, Any] = {}
+        if self.controller == "mpc":
+            mpc = {"controller": "mpc", "period": self.period, "horizon": self.horizon,
+                   "iterations_per_tick": self.iterations_per_tick, "solver": self.mpc_solver}
+        return ExecuteConfig(plan=plan, seed=self.seed, push=self.push, **mpc)
 
     @property
     def solver(self) -> str:
@@ -275,14 +358,9 @@ WARM_FROM = ("trajectory", "controls", "none")
 def _robot_defaults(cfg: LearnConfig) -> dict[str, int]:
     """The robot's learning defaults (``babble_points``, ``stride``: its spec's ``learn``; an arm's where it
     states none), read from its spec without loading the robot."""
-    from raico.plants.model_file import RobotSpec
-    from raico.plants.robots import LEARN_DEFAULTS, PLANTS, builtin_spec
+    from raico.plants.robots import LEARN_DEFAULTS
 
-    if cfg.problem is not None:
-        pf = cfg.problem_file()
-        spec = builtin_spec(pf.plant) if pf.plant is not None else RobotSpec.from_dict(pf.doc["robot"])
-    else:
-        spec = builtin_spec(cfg.plant) if cfg.plant in PLANTS else None
+    spec = cfg._robot_spec()
     return {**LEARN_DEFAULTS, **dict(spec.learn if spec is not None else ())}
 
 
@@ -411,8 +489,6 @@ def run(cfg: LearnConfig, inputs: dict | None = None, progress: Progress | None 
 
 def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | None, steps: Steps) -> StageOutput:
     """:func:`run`'s loop (``acc``: the GP error's unit)."""
-    from raico.stages.execute.config import ExecuteConfig
-
     babble = steps.run("babble", cfg.babble_config())
     held_out = heldout_set(steps.run("babble", cfg.heldout_babble_config()))
     data, prior, warm = [babble.ref], None, None
@@ -421,7 +497,7 @@ def _loop(cfg: LearnConfig, robot, acc: str, t0: float, progress: Progress | Non
     for k in range(1, cfg.episodes + 1):
         fit = steps.run("fit", cfg.fit_config(tuple(data), prior))
         plan = steps.run("plan", cfg.plan_config(model=fit.ref, warm_start=warm))
-        execution = steps.run("execute", ExecuteConfig(plan=plan.ref, seed=cfg.seed))
+        execution = steps.run("execute", cfg.execute_config(plan.ref))
         m = episode_measurements(cfg, robot, fit, plan, execution, held_out)
         episodes.append({"episode": k, **m})
         steps.say(f"learn episode {k}/{cfg.episodes}: GP error {m['gp_error']:.3g} {acc} "
@@ -503,6 +579,7 @@ def episode_measurements(cfg: LearnConfig, robots, fit: Artifact, plan: Artifact
             "execution_status": execution.status, "plan_status": plan.status,
             "planned_task": planned, "planned_task_error": verdict_error(planned),
             "fit_time_s": fit.metrics.get("fit_time_s"), "plan_time_s": pm.get("wall_time_s"),
+            "mpc_median_tick_s": em.get("mpc_median_tick_s"),
             "execute_time_s": execution.timings.get("compute_s"),
             "n_points": fit.metrics.get("n_points"), "optimized": fit.metrics.get("optimized"),
             "executed_seconds": float(np.sum(ok) * dt), "random_seconds": 0.0, "final_cost": pm.get("final_cost"),

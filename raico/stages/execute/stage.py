@@ -77,13 +77,23 @@ def execute(cfg: ExecuteConfig, desc: dict, plan: dict, progress: Callable[[int,
 
 def planning_problem(plan: Artifact, q0: np.ndarray | None = None):
     """The plan's planning problem rebuilt from its config (the MPC's model; its start is the plan's, or the
-    posture ``q0`` at rest with the terms relative to the start made relative to it)."""
+    posture ``q0`` at rest with the terms relative to the start made relative to it): a plan of a learned
+    model (``--dynamics learned --model FIT``) gives that model, the model file plus the residual GP where the
+    fit is one, with the plan's uncertainty term (``raico.planning.mpc.learned_model`` finds it)."""
+    import dataclasses
+    import json
+
     from raico.stages.plan.stage import PlanConfig, build_problem
 
     pcfg = PlanConfig.from_dict(plan.config)
-    if pcfg.model is not None or pcfg.dynamics == "learned":
-        raise ValueError("--controller mpc on a plan of a learned model: not supported yet (plan with the model file)")
-    problem = build_problem(pcfg, q0=q0)[2]
+    model = None
+    fits = [ref for ref in plan.inputs if ref.startswith("fit/")]
+    if fits:   # its fit, beside the plan in the same store: root/fit/KEY
+        key = fits[0].split("/", 1)[1]
+        path = plan.path.parent.parent / "fit" / key
+        model = Artifact("fit", key, path, json.loads((path / "meta.json").read_text(encoding="utf-8")))
+        pcfg = dataclasses.replace(pcfg, model=model.ref)
+    problem = build_problem(pcfg, model, q0=q0)[2]
     if q0 is None:
         problem.x0[:] = np.asarray(plan.document(PROBLEM_FILE)["x0"], float)
     return problem
