@@ -26,17 +26,25 @@ DEFAULT = "R-AICO robust, bounded"
 BEGIN, END = "<!-- suite-losses:begin -->", "<!-- suite-losses:end -->"
 
 
-def replan(suite, label: str, iterations: int) -> dict:
-    """The default plan of problem ``label`` at ``iterations``: status, cost, the plan's own task verdict."""
+def replan(suite, label: str, iterations: int, velocity: bool = True) -> dict:
+    """The default plan of problem ``label`` at ``iterations``: status, cost, the plan's own task verdict, and the
+    largest ratio of a joint's speed to its velocity limit; ``velocity = False``: without the velocity limits."""
+    import dataclasses
+
     from raico.pipeline.experiments import suite as S
     from raico.planning.achieved import task_errors, task_verdict
+    from raico.planning.problem import Problem
     from raico.planning.solvers import solve
     from raico.stages.plan.stage import PlanConfig, build_problem, quasi_static_controls
 
     p = next(p for p in suite.problems if p.label == label)
     s = next(s for s in suite.solvers if s.label == DEFAULT)
     cfg = PlanConfig(**{**S.options(p, s), "iterations": int(iterations)}).normalized()
-    _, _, problem, q0, _ = build_problem(cfg)
+    robot, _, problem, q0, _ = build_problem(cfg)
+    b = problem.bounds
+    if not velocity and b is not None:
+        problem = Problem(problem.dynamics, problem.x0, problem.T, problem.state_terms, problem.control_terms,
+                          problem.joint_terms, dataclasses.replace(b, v_index=None, v_lower=None, v_upper=None))
     init = {}
     if cfg.start == "rollout":
         init["U_init"] = np.zeros((problem.T, problem.n_u))
@@ -45,7 +53,11 @@ def replan(suite, label: str, iterations: int) -> dict:
     t0 = time.process_time()
     res = solve(problem, cfg.solver, cfg.solver_options(), **init)
     v = task_verdict(task_errors(problem, res.X)) or {}
-    return {"iterations": res.iterations, "status": res.status.value, "cost": float(problem.cost(res.X, res.U)),
+    u_excess = b.violation(res.X, res.U)[1] if b is not None and b.has_controls and np.all(np.isfinite(res.X)) else 0.0
+    vlim = robot.velocity if robot.velocity is not None else np.full(robot.n_q, np.inf)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        speed = float(np.nanmax(np.abs(res.X[:, robot.n_q:]) / vlim, initial=0.0))
+    return {"u_excess": float(u_excess), "speed_ratio": speed,"iterations": res.iterations, "status": res.status.value, "cost": float(problem.cost(res.X, res.U)),
             "achieved": bool(v.get("achieved")), "term": v.get("worst"), "error": v.get("error"), "tol": v.get("tol"),
             "unit": v.get("unit"), "message": res.message, "cpu_s": time.process_time() - t0}
 
@@ -77,10 +89,11 @@ def _miss(note: str) -> tuple[float | None, float | None, str]:
 
 
 def cause(rec: dict, at: dict, long: dict, anyone: bool | None, best: float | None = None,
-          ref: dict | None = None) -> str:
+          ref: dict | None = None, free: dict | None = None) -> str:
     """The cause of a default plan's failure, read from its execution and its re-plans ``at`` the suite's
     budget and at the ``long`` one (in this order: the start, the execution, the budget, the optimum);
-    ``best``: the best feasible cost known, ``ref``: the direct-transcription reference (feasible or not)."""
+    ``best``: the best feasible cost known, ``ref``: the direct-transcription reference (feasible or not);
+    ``free``: the plan at the budget without the velocity limits (a velocity limit that binds: before the optimum)."""
     ex, effort = rec["execution"], rec.get("effort_excess") or 0.0
     if "start is outside" in (at["message"] or "") and "inside at no step" in (at["message"] or ""):
         return ("start outside a joint range: the velocity limits cannot bring it back within the horizon; "
@@ -88,6 +101,9 @@ def cause(rec: dict, at: dict, long: dict, anyone: bool | None, best: float | No
     plan_ok = at["achieved"] and at["status"] != "out-of-bounds"
     if ex not in ("ok", None):
         extra = f", its torques {effort:.3g} N m beyond an effort limit" if effort > 1e-6 else ""
+        if at.get("u_excess", 0.0) > 0:   # the plan's controls were not clipped: its clipped rollout failed
+            extra += (" (the effort constraint not met in the budget, and the plan's controller rolled out with its "
+                      "controls clipped diverges: the plan keeps them)")
         return f"execution {ex}{extra}" + (" (the plan itself achieves the task)" if plan_ok else
                                            f"; the plan misses too ({at['status']})")
     if plan_ok:
@@ -95,6 +111,9 @@ def cause(rec: dict, at: dict, long: dict, anyone: bool | None, best: float | No
     if long["achieved"] and long["status"] != "out-of-bounds":
         return (f"budget: the augmented Lagrangian needs more iterations (achieved at {long['iterations']}, "
                 f"cost {long['cost']:.4g}; at the budget {at['status']})")
+    if free is not None and free["achieved"] and free["status"] != "out-of-bounds" and free["speed_ratio"] > 1.0:
+        return (f"velocity limits bind: without them the plan achieves the task in the budget at cost "
+                f"{free['cost']:.4g}, its joints up to {free['speed_ratio']:.3g}x their velocity limits")
     lower = []
     if best is not None and best < long["cost"] / 1.1:
         lower.append(f"a feasible plan costs {best:.4g}")
@@ -122,13 +141,25 @@ def analyse(run: dict, full: dict | None, suite_file: str | None, say) -> list[d
         n = int(run["budgets"][p]["iterations"])
         at = replan(suite, p, n)
         long = replan(suite, p, min(LONG * n, LONG_MAX))
+        free = replan(suite, p, n, velocity=False) if not long["achieved"] or long["status"] == "out-of-bounds" else None
         err, tol, unit = _miss(rec.get("task_note", ""))
         row = {"problem": p, "execution": rec["execution"], "error": err, "tol": tol, "unit": unit,
                "final_cost": rec["final_cost"], "best_feasible": best.get(p), "status": rec["status"],
-               "at": at, "long": long, "cause": cause(rec, at, long, anyone.get(p) if full else None, best.get(p), refs.get(p))}
+               "at": at, "long": long, "free": free, "cause": cause(rec, at, long, anyone.get(p) if full else None, best.get(p), refs.get(p), free)}
         say(f"{p}: {row['cause']}")
         rows.append(row)
     return rows
+
+
+KINDS = (("start outside", "start outside a range"), ("execution", "execution"), ("budget", "iteration budget"),
+         ("velocity limits bind", "velocity limits bind"),
+         ("the cost's optimum", "the cost's optimum misses the tolerance"),
+         ("constrained local minimum", "augmented Lagrangian stalls"))
+
+
+def kind_of(text: str) -> str:
+    """The short name of a cause (:func:`cause`'s first words)."""
+    return next((k for pre, k in KINDS if text.startswith(pre)), "other")
 
 
 def _g(x, spec=".4g") -> str:
@@ -143,6 +174,10 @@ def markdown(run: dict, rows: list[dict], full_name: str | None) -> str:
             + (f"; the best feasible cost known from `{full_name}`." if full_name else "."), "",
             "| problem | execution | executed miss (tol) | final cost | best feasible known | plan at the budget "
             f"| plan at {LONG}x | cause |", "|---|---|---|---|---|---|---|---|"]
+    kinds: dict[str, list[str]] = {}
+    for r in rows:
+        kinds.setdefault(kind_of(r["cause"]), []).append(r["problem"])
+    head[1:1] = ["", "By cause: " + "; ".join(f"{k} **{len(v)}** ({', '.join(v)})" for k, v in kinds.items()) + "."]
     for r in rows:
         a, lg = r["at"], r["long"]
         miss = f"{_g(r['error'], '.3g')} {r['unit']} ({_g(r['tol'], '.3g')})" if r["error"] is not None else "-"
