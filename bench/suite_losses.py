@@ -171,7 +171,7 @@ def markdown(run: dict, rows: list[dict], full_name: str | None) -> str:
     head = [f"From `{run.get('date', '')}`'s run of the default plan ({DEFAULT}): **{e['problems_default_ok']} of "
             f"{e['problems']}** problems executed `ok` with the task achieved; the {len(rows)} others below, each "
             f"re-planned (plan only) at the suite's budget and at {LONG}x it (at most {LONG_MAX} iterations)"
-            + (f"; the best feasible cost known from `{full_name}`." if full_name else "."), "",
+            + (f"; the best feasible cost known from {full_name}." if full_name else "."), "",
             "| problem | execution | executed miss (tol) | final cost | best feasible known | plan at the budget "
             f"| plan at {LONG}x | cause |", "|---|---|---|---|---|---|---|---|"]
     kinds: dict[str, list[str]] = {}
@@ -200,7 +200,7 @@ def main() -> None:
     run = json.loads(Path(args.run).read_text())
     full = json.loads(Path(args.best).read_text()) if args.best else None
     rows = analyse(run, full, args.file, lambda s: print(s, file=sys.stderr, flush=True))
-    md = markdown(run, rows, Path(args.best).name if args.best else None)
+    md = markdown(run, rows, f"the full run of {full.get('date', '')} (`{Path(args.best).name}`)" if full else None)
     out = Path(args.run).parent
     (out / "suite_losses.json").write_text(json.dumps(rows, indent=1, default=str))
     (out / "suite_losses.md").write_text(md)
