@@ -148,10 +148,10 @@ class TorqueBox:
     dynamics), ``t = 0..T-1``: rows ``tau / limit - 1`` and ``-tau / limit - 1`` (fractions of the limit) of the
     joints ``idx`` with a finite one. ``model``: ``inverse_dynamics(q, v, a)`` and ``qddot_derivatives(q, v,
     tau)``, whose ``a_q, a_v, M^-1`` give ``tau_q = -M a_q``, ``tau_v = -M a_v``, ``tau_u = M`` (differentiating
-    ``a(q, v, tau(q, v, a)) = a``)."""
+    ``a(q, v, tau(q, v, a)) = a``); ``scale``: the penalty's factor for these rows (as :class:`ControlBox`'s)."""
 
-    def __init__(self, name: str, model, limit: np.ndarray, tol: float):
-        self.name, self.model = name, model
+    def __init__(self, name: str, model, limit: np.ndarray, tol: float, scale: float = 1.0):
+        self.name, self.model, self.scale = name, model, scale
         self.idx = np.flatnonzero(np.isfinite(limit) & (limit > 0))
         self.limit = np.asarray(limit, float)[self.idx]
         self.tol = np.full(2 * len(self.idx), tol)

@@ -50,7 +50,16 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
                              np.broadcast_to(b.v_upper, (T + 1, k)), RANGE_TOL))
     cons.extend(distance_constraints(problem, hard or []))
     if b is not None and b.has_torques:   # accelerations as controls: the torques they ask for, in their limits
-        cons.append(TorqueBox("effort", b.tau_model, b.tau_limit, RANGE_TOL))
+        box = TorqueBox("effort", b.tau_model, b.tau_limit, RANGE_TOL)
+        # its penalty as the effort box's: the control cost's curvature, per acceleration that moves a row by
+        # one (a joint's limit over its inertia at the start; the smallest of them), over kappa
+        _, H = problem.control_derivatives(U)
+        curv = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (rad/s^2)^2
+        n = problem.n_u
+        M = np.linalg.inv(b.tau_model.qddot_derivatives(problem.x0[:n], np.zeros(n), np.zeros(n))[3])
+        acc = float(np.min(box.limit / np.maximum(np.abs(np.diag(M))[box.idx], 1e-12)))
+        box.scale = curv * acc * acc / kappa
+        cons.append(box)
     if has_u:
         idx = np.flatnonzero(np.isfinite(efforts.u_lower) | np.isfinite(efforts.u_upper))
         _, H = problem.control_derivatives(U)
