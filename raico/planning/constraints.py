@@ -143,6 +143,63 @@ class FunctionConstraint:
             luu += mu * np.einsum("tci,tc,tcj->tij", Gu[:-1], act[:-1], Gu[:-1])
 
 
+class TorqueBox:
+    """``|tau_t| <= limit`` for the torques ``tau_t = M(q_t) u_t + h(q_t, v_t)`` of accelerations ``u_t`` (pseudo-
+    dynamics), ``t = 0..T-1``: rows ``tau / limit - 1`` and ``-tau / limit - 1`` (fractions of the limit) of the
+    joints ``idx`` with a finite one. ``model``: ``inverse_dynamics(q, v, a)`` and ``qddot_derivatives(q, v,
+    tau)``, whose ``a_q, a_v, M^-1`` give ``tau_q = -M a_q``, ``tau_v = -M a_v``, ``tau_u = M`` (differentiating
+    ``a(q, v, tau(q, v, a)) = a``); ``scale``: the penalty's factor for these rows (as :class:`ControlBox`'s)."""
+
+    def __init__(self, name: str, model, limit: np.ndarray, tol: float, scale: float = 1.0):
+        self.name, self.model, self.scale = name, model, scale
+        self.idx = np.flatnonzero(np.isfinite(limit) & (limit > 0))
+        self.limit = np.asarray(limit, float)[self.idx]
+        self.tol = np.full(2 * len(self.idx), tol)
+        self._memo: tuple | None = None
+
+    def _eval(self, X: np.ndarray, U: np.ndarray, derivatives: bool):
+        if self._memo is not None and np.array_equal(self._memo[0], X) and np.array_equal(self._memo[1], U) \
+                and (self._memo[3] is not None or not derivatives):
+            return self._memo[2], self._memo[3]
+        T, n = U.shape
+        k = len(self.idx)
+        G = np.full((T + 1, 2 * k), -np.inf)
+        D = None
+        if derivatives:
+            D = (np.zeros((T + 1, 2 * k, X.shape[1])), np.zeros((T + 1, 2 * k, n)))
+        for t in range(T):
+            q, v = X[t, :n], X[t, n:]
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(U[t]))):
+                continue
+            tau = np.asarray(self.model.inverse_dynamics(q, v, U[t]), float)
+            r = tau[self.idx] / self.limit
+            G[t] = np.concatenate([r - 1.0, -r - 1.0])
+            if D is not None:
+                _, a_q, a_v, Minv = self.model.qddot_derivatives(q, v, tau)
+                M = np.linalg.inv(Minv)
+                J = np.concatenate([-M @ a_q, -M @ a_v], axis=1)[self.idx] / self.limit[:, None]
+                Ju = M[self.idx] / self.limit[:, None]
+                D[0][t] = np.concatenate([J, -J])
+                D[1][t] = np.concatenate([Ju, -Ju])
+        self._memo = (np.array(X), np.array(U), G, D)
+        return G, D
+
+    def values(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        return self._eval(X, U, False)[0]
+
+    def add_derivatives(self, X, U, lam, mu, lx, lxx, lu, luu) -> None:
+        rows = np.flatnonzero(lam[:-1].any(axis=1))
+        if rows.size == 0:
+            return
+        _, (Gx, Gu) = self._eval(X, U, True)
+        L = lam[rows]
+        act = (L > 0).astype(float)[:, :, None]
+        lx[rows] += np.einsum("tci,tc->ti", Gx[rows], L)
+        lxx[rows] += mu * np.matmul(np.swapaxes(Gx[rows] * act, 1, 2), Gx[rows] * act)
+        lu[rows] += np.einsum("tci,tc->ti", Gu[rows], L)
+        luu[rows] += mu * np.matmul(np.swapaxes(Gu[rows] * act, 1, 2), Gu[rows] * act)
+
+
 class DistanceConstraint:
     """``d_p(q_t) >= b_tp`` per geometry pair ``p`` and step ``t`` of a collision term (rows ``g = b - d``, m;
     ``d`` capped at the map's ``max_distance``, zero gradient there), ``b`` the term's margin at the steps it

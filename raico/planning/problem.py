@@ -48,6 +48,7 @@ STATUSES = tuple(s.value for s in Status)
 
 
 RANGE_STATUS_TOL = 1e-3  # rad: a plan beyond a joint range by more than this says so in its status
+TORQUE_STATUS_TOL = 1e-3  # relative to the largest effort limit: a plan's torques beyond one by more say so
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,10 @@ class Bounds:
     """Hard bounds a solver keeps (beside any soft limit term): controls ``u_lower <= u_t <= u_upper``
     ``(n_u,)`` (``None``: unbounded; ``inf`` entries unbounded) and the positions ``q_lower <= x_t[j] <=
     q_upper`` of the state coordinates ``q_index (k,)`` (rad; ``None``: none), and the joint velocities
-    ``v_lower <= x_t[j] <= v_upper`` of the state coordinates ``v_index`` (rad/s; ``None``: none)."""
+    ``v_lower <= x_t[j] <= v_upper`` of the state coordinates ``v_index`` (rad/s; ``None``: none). Where
+    the controls are accelerations (pseudo-dynamics), ``tau_model`` (``inverse_dynamics(q, v, a)`` and
+    ``qddot_derivatives(q, v, tau)``: an analytic model) and ``tau_limit (n_q,)`` (N m, ``inf``: none) bound
+    the torques ``|M(q) u_t + h(q, v)| <= tau_limit`` the plan asks of the robot's motors."""
 
     u_lower: np.ndarray | None = None
     u_upper: np.ndarray | None = None
@@ -65,6 +69,24 @@ class Bounds:
     v_index: np.ndarray | None = None
     v_lower: np.ndarray | None = None
     v_upper: np.ndarray | None = None
+    tau_model: Any = None
+    tau_limit: np.ndarray | None = None
+
+    @property
+    def has_torques(self) -> bool:
+        return self.tau_model is not None and self.tau_limit is not None and bool(np.any(np.isfinite(self.tau_limit)))
+
+    def torques(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``tau (T, n_q)``: the torques of the accelerations ``U (T, n_q)`` at ``X[:-1]`` (``tau_model``)."""
+        n = U.shape[1]
+        return np.array([self.tau_model.inverse_dynamics(x[:n], x[n:], u) for x, u in zip(X[:-1], U)])
+
+    def torque_violation(self, X: np.ndarray, U: np.ndarray) -> float:
+        """Largest excess (N m) of the torques of ``U`` beyond ``tau_limit`` (0 inside or without one)."""
+        if not self.has_torques or not np.all(np.isfinite(X)):
+            return 0.0
+        with np.errstate(invalid="ignore"):
+            return float(np.nanmax(np.abs(self.torques(X, U)) - self.tau_limit, initial=0.0))
 
     @property
     def has_controls(self) -> bool:
@@ -451,9 +473,13 @@ def bounds_status(problem: Problem, res: Result) -> None:
         q = float(max(0.0, np.max(Q - hi[1:]), np.max(lo[1:] - Q)))
     v = b.velocity_violation(res.X)
     scale = float(np.max(np.abs(np.where(np.isfinite(b.u_upper), b.u_upper, 0.0)))) if b.has_controls else 0.0
-    if q > RANGE_STATUS_TOL or v > RANGE_STATUS_TOL or u > 1e-9 * max(scale, 1.0):
+    tau = b.torque_violation(res.X, res.U)
+    tau_tol = TORQUE_STATUS_TOL * float(np.max(np.where(np.isfinite(b.tau_limit), b.tau_limit, 0.0))) if b.has_torques else 0.0
+    if q > RANGE_STATUS_TOL or v > RANGE_STATUS_TOL or u > 1e-9 * max(scale, 1.0) or tau > tau_tol:
         what = (f"a joint range by {q:.3g} rad" if q > RANGE_STATUS_TOL else
-                f"a velocity limit by {v:.3g} rad/s" if v > RANGE_STATUS_TOL else f"an effort limit by {u:.3g}")
+                f"a velocity limit by {v:.3g} rad/s" if v > RANGE_STATUS_TOL else
+                f"an effort limit by {u:.3g}" if u > 1e-9 * max(scale, 1.0) else
+                f"an effort limit by {tau:.3g} N m (the torques of its accelerations)")
         res.status = Status.OUT_OF_BOUNDS
         res.message = f"the plan leaves {what} ({res.message})"
 

@@ -129,3 +129,69 @@ def test_kinova_from_its_own_start_is_feasible_and_within_1_1x_of_the_best_feasi
     assert res.status is not Status.OUT_OF_BOUNDS and res.status is not Status.DIVERGED, res.message
     assert "the start is outside a joint range" in res.message
     assert KINOVA_BEST_FEASIBLE * (1 - 1e-3) <= res.cost <= 1.1 * KINOVA_BEST_FEASIBLE, res.cost
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+def test_the_torque_rows_derivatives_match_finite_differences():
+    """:class:`TorqueBox` (the torques ``M(q) u + h(q, v)`` of accelerations ``u``, in fractions of the effort
+    limit): the Jacobians it adds (``lam = 1`` on every row: ``l_x = sum_c G_x``) against central differences
+    of its values (step 1e-6 on a smooth map: error O(1e-12), tolerance 1e-6 of the rows' scale)."""
+    from raico.planning.constraints import TorqueBox
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.robots import shared_robot
+
+    robot = shared_robot("arm5")
+    model = make_dynamics("analytic", robot, 0.01)
+    n, steps = robot.n_q, 3
+    rng = np.random.default_rng(11)
+    X = np.concatenate([rng.normal(scale=0.7, size=(steps + 1, n)), rng.normal(size=(steps + 1, n))], axis=1)
+    U = rng.normal(scale=3.0, size=(steps, n))
+    limit = np.full(n, 2.0)
+    limit[1] = np.inf
+    box = TorqueBox("effort", model, limit, 1e-4)
+    k = 2 * len(box.idx)
+    lx, lxx = np.zeros((steps + 1, 2 * n)), np.zeros((steps + 1, 2 * n, 2 * n))
+    lu, luu = np.zeros((steps, n)), np.zeros((steps, n, n))
+    lam = np.ones((steps + 1, k))
+    box.add_derivatives(X, U, lam, 1.0, lx, lxx, lu, luu)
+    h = 1e-6
+
+    def rows(Xa, Ua):   # the sum of every finite row per step: its gradient is l_x, l_u above
+        return np.where(np.isfinite(G := box.values(Xa, Ua)), G, 0.0).sum(axis=1)
+    for Z, g in ((X, lx), (U, lu)):
+        fd = np.zeros_like(Z)
+        for idx in np.ndindex(Z.shape):
+            Zp, Zm = Z.copy(), Z.copy()
+            Zp[idx] += h
+            Zm[idx] -= h
+            p = rows(Zp, U) if Z is X else rows(X, Zp)
+            m = rows(Zm, U) if Z is X else rows(X, Zm)
+            fd[idx] = (p - m)[idx[0]] / (2 * h)
+        scale = max(1.0, float(np.abs(g).max()))
+        assert np.allclose(g, fd, atol=1e-6 * scale, rtol=0.0), np.abs(g - fd).max()
+    # the two rows of a joint are +-tau / limit - 1: their gradients cancel in the sum, so check one row
+    one = np.zeros_like(lam)
+    one[:, 0] = 1.0
+    lx1, lu1 = np.zeros_like(lx), np.zeros_like(lu)
+    box.add_derivatives(X, U, one, 1.0, lx1, np.zeros_like(lxx), lu1, np.zeros_like(luu))
+    for t in range(steps):
+        f = lambda z, t=t: box.values(np.vstack([X[:t], z[None, :], X[t + 1:]]), U)[t, :1]  # noqa: E731
+        fd = np.array([(f(X[t] + h * e) - f(X[t] - h * e))[0] / (2 * h) for e in np.eye(2 * n)])
+        assert np.allclose(lx1[t], fd, atol=1e-6 * max(1.0, np.abs(fd).max()), rtol=0.0)
+        tau = model.inverse_dynamics(X[t, :n], X[t, n:], U[t])
+        assert np.isclose(box.values(X, U)[t, 0], tau[box.idx[0]] / limit[box.idx[0]] - 1.0, rtol=1e-9, atol=1e-9)
+
+
+def test_pseudo_dynamics_bounds_carry_the_torques_of_a_fixed_base_robot_only():
+    """For acceleration controls the hard bounds bound the torques of the accelerations (a welded robot),
+    not those of a robot on its soles (its welded model's torques are not its motors')."""
+    from raico.plants.robots import shared_robot
+    from raico.stages.plan.stage import hard_bounds
+
+    arm = hard_bounds(shared_robot("pendulum"), "acceleration", 0.002)
+    assert arm is not None and arm.has_torques and not arm.has_controls
+    assert hard_bounds(shared_robot("pendulum"), "acceleration") is None or not hard_bounds(
+        shared_robot("pendulum"), "acceleration").has_torques
+    nao = hard_bounds(shared_robot("nao"), "acceleration", 0.01)
+    assert nao is None or not nao.has_torques

@@ -9,7 +9,14 @@ import math
 
 import numpy as np
 
-from raico.planning.constraints import AugmentedLagrangian, Constraint, ControlBox, DistanceConstraint, StateBox
+from raico.planning.constraints import (
+    AugmentedLagrangian,
+    Constraint,
+    ControlBox,
+    DistanceConstraint,
+    StateBox,
+    TorqueBox,
+)
 from raico.planning.problem import Bounds, Callback, Problem
 
 RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or velocity limit's violation
@@ -21,14 +28,15 @@ AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cos
 def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None,
                      hard: list | None = None) -> AugmentedLagrangian | None:
     """The hard constraints of ``problem.bounds`` (joint ranges, from a start outside one as far as the velocity
-    limits let it come back, :meth:`raico.planning.problem.Bounds.position_box`; joint velocity limits) and the effort
+    limits let it come back, :meth:`raico.planning.problem.Bounds.position_box`; joint velocity limits; for accelerations
+    as controls the torques they ask for, :class:`raico.planning.constraints.TorqueBox`) and the effort
     limits of ``efforts`` as an augmented Lagrangian with the penalty ``AL_MU0 kappa`` (:func:`cost_curvature`
     at ``X, U``: invariant to the cost's scale; on the efforts ``AL_MU0`` times the control cost's mean
     curvature), or ``None`` (no constraint); ``hard``: the collision terms kept as constraints
     (:class:`raico.planning.constraints.DistanceConstraint`, their penalty not in ``problem``)."""
     b = problem.bounds
     has_u = efforts is not None and efforts.has_controls
-    if not has_u and not hard and (b is None or not (b.has_positions or b.has_velocities)):
+    if not has_u and not hard and (b is None or not (b.has_positions or b.has_velocities or b.has_torques)):
         return None
     T, cons = problem.T, list[Constraint]()
     kappa = cost_curvature(problem, X, U)
@@ -41,6 +49,17 @@ def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bo
         cons.append(StateBox("joint_velocity", b.v_index, np.broadcast_to(b.v_lower, (T + 1, k)),
                              np.broadcast_to(b.v_upper, (T + 1, k)), RANGE_TOL))
     cons.extend(distance_constraints(problem, hard or []))
+    if b is not None and b.has_torques:   # accelerations as controls: the torques they ask for, in their limits
+        box = TorqueBox("effort", b.tau_model, b.tau_limit, RANGE_TOL)
+        # its penalty as the effort box's: the control cost's curvature, per acceleration that moves a row by
+        # one (a joint's limit over its inertia at the start; the smallest of them), over kappa
+        _, H = problem.control_derivatives(U)
+        curv = float(np.trace(H, axis1=1, axis2=2).mean()) / problem.n_u   # per (rad/s^2)^2
+        n = problem.n_u
+        M = np.linalg.inv(b.tau_model.qddot_derivatives(problem.x0[:n], np.zeros(n), np.zeros(n))[3])
+        acc = float(np.min(box.limit / np.maximum(np.abs(np.diag(M))[box.idx], 1e-12)))
+        box.scale = curv * acc * acc / kappa
+        cons.append(box)
     if has_u:
         idx = np.flatnonzero(np.isfinite(efforts.u_lower) | np.isfinite(efforts.u_upper))
         _, H = problem.control_derivatives(U)

@@ -455,10 +455,11 @@ def quasi_static_controls(problem: Problem, q0: np.ndarray) -> np.ndarray:
     return np.tile(np.asarray(inverse(q0, zero, zero), float), (problem.T, 1))
 
 
-def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
+def hard_bounds(robot: Robot, kind: str, dt: float | None = None) -> Bounds | None:
     """The robot's joint ranges (rad; the joints with a finite one), its velocity limits (rad/s; the joints with
-    a finite one) and, for torque controls, its effort limits (N m; unlimited joints ``inf``) as a problem's
-    hard bounds (``None`` if it has none)."""
+    a finite one) and its effort limits (N m; unlimited joints ``inf``): on the torque controls, or for
+    acceleration controls (with ``dt``; a fixed base) on the torques of the accelerations (the analytic model's
+    inverse dynamics), as a problem's hard bounds (``None`` if it has none)."""
     idx = np.flatnonzero(np.isfinite(robot.lower) | np.isfinite(robot.upper))
     eff = np.where((robot.effort > 0) & np.isfinite(robot.effort), robot.effort, np.inf)
     if kind == "torque" and robot.underactuated:  # the controls are the motors' commands
@@ -466,11 +467,14 @@ def hard_bounds(robot: Robot, kind: str) -> Bounds | None:
     torque = kind == "torque" and bool(np.any(np.isfinite(eff)))
     vel = robot.velocity if robot.velocity is not None else np.full(robot.n_q, np.inf)
     vidx = np.flatnonzero(np.isfinite(vel))
-    if not len(idx) and not torque and not len(vidx):
+    # a robot on its soles: the welded model's inverse dynamics are not its motors' torques
+    tau = kind == "acceleration" and dt is not None and not robot.floating and bool(np.any(np.isfinite(eff)))
+    if not len(idx) and not torque and not len(vidx) and not tau:
         return None
     return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
                   q_index=idx if len(idx) else None, q_lower=robot.lower[idx], q_upper=robot.upper[idx],
-                  v_index=robot.n_q + vidx if len(vidx) else None, v_lower=-vel[vidx], v_upper=vel[vidx])
+                  v_index=robot.n_q + vidx if len(vidx) else None, v_lower=-vel[vidx], v_upper=vel[vidx],
+                  tau_model=make_dynamics("analytic", robot, dt) if tau else None, tau_limit=eff if tau else None)
 
 
 def actuated(dyn, robot: Robot, substeps: int = 1):
@@ -658,7 +662,7 @@ def build_problem(cfg: PlanConfig, model: Artifact | None = None, q0: np.ndarray
         descriptions = [*descriptions, uncertainty(cfg.sigma, cfg.sigma_weight, units=cfg.sigma_units)]
     x0 = np.concatenate([q0, np.zeros(robot.n_q)])
     problem = Problem(dyn, x0, task.T, objective.state_terms, objective.control_terms, joint,
-                      hard_bounds(robot, kind) if cfg.hard_bounds() == "hard" else None)
+                      hard_bounds(robot, kind, task.dt / task.substeps) if cfg.hard_bounds() == "hard" else None)
     desc = describe_problem(cfg, task, q0, descriptions, model.ref if model else None, kind)
     if not robot.builtin:  # a model file's robot: execute, evaluate and the recordings rebuild it
         desc.update(plant=robot.name, robot=robot.spec.to_dict(), load_report=list(robot.load_report))
