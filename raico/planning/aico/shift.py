@@ -286,7 +286,7 @@ class ShiftedAICO:
     def feedback(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The feedback phase: ``out (m,) = o_0 + O_0 x`` from the current controller, clipped into the effort
         box (the control the consistent controller of :meth:`settle`'s rollout gives), ``x`` kept as the start
-        ``x0``, ``o_0, O_0`` copied to ``fb_o, fb_O``. Allocates nothing (``out`` float64, contiguous)."""
+        ``x0``. Allocates nothing (``out`` float64, contiguous)."""
         o0, O0, lo, hi = self._fb
         x0 = self.problem.x0
         np.copyto(x0, x)
@@ -295,8 +295,6 @@ class ShiftedAICO:
         if lo is not None:
             np.minimum(out, hi, out=out)
             np.maximum(out, lo, out=out)
-        np.copyto(self.fb_o, o0)
-        np.copyto(self.fb_O, O0)
         return out
 
 
@@ -337,8 +335,11 @@ class SplitTick:
         return ws.feedback(x, mpc._u)
 
     def prepare(self) -> None:
-        """After the control went out: settle at the measured state, then the next window prepared."""
+        """After the control went out: the controller's first step kept (``fb_o, fb_O``), settled at the
+        measured state, then the next window prepared."""
         mpc, ws = self.mpc, self.ws
+        np.copyto(ws.fb_o, ws.o[0])
+        np.copyto(ws.fb_O, ws.O[0])
         ws.settle()
         self._record()
         np.copyto(mpc.window.x0, ws.X[1])      # the prediction x_hat: the model's step under the control sent

@@ -149,9 +149,11 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    if cfg.rti and period < dt - 1e-12:
+        raise ValueError(f"--rti prepares the next planning step: --period {period:g} s must be the planning step")
     mpc = MPC(problem, horizon, cfg.solver, None,  # the solver's defaults (R-AICO: alpha 1)
               iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
-              keep_predictions=True)
+              keep_predictions=True, split=cfg.rti)
     mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))
     return mpc, period
 
