@@ -167,7 +167,9 @@ def _mpc_metrics(mpc, period: float) -> dict:
             "mpc_median_tick_s": float(np.median(t)), "mpc_p99_tick_s": float(np.percentile(t, 99)),
             "mpc_over_period": int(mpc.log.over_budget[:mpc.log.n].sum()),
             "mpc_iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
-            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)]}
+            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)],
+            **({} if mpc.log.feedback_time is None else   # the split: the feedback phase's own time
+               {"mpc_median_feedback_s": float(np.median(mpc.log.feedback_time[:mpc.log.n]))})}
 
 
 def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress, planning=None) -> ExecuteOutput:
