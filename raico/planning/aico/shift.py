@@ -17,6 +17,9 @@ rollout into work arrays, the control messages and the cost's task rows into kep
 those of ``Sweeps`` and the numpy boxes bit for bit (tests/planning/test_mpc_kernels.py). Work buffers are
 allocated once; a tick allocates only small temporaries that live within it (the numpy assembly of the task
 messages into strided views, views and scalars), see docs/mpc.md.
+
+:class:`SplitTick` splits the tick into a feedback phase (``u = o_0 + O_0 x``, nothing allocated) and the
+preparation of the next window from the model's prediction (Diehl's real-time iteration; ``MPC(..., split=True)``).
 """
 
 from __future__ import annotations
