@@ -69,13 +69,14 @@ def test_on_lq_raico_split_is_the_whole_tick_at_the_prediction():
 
 
 @pytest.mark.numerics
-@pytest.mark.parametrize("theta", [math.inf, 0.1])
-def test_split_with_clipped_controls_is_the_whole_tick_without_disturbance(theta):
+@pytest.mark.parametrize("theta, iterations", [(math.inf, 1), (0.1, 1), (math.inf, 3)])
+def test_split_with_clipped_controls_is_the_whole_tick_without_disturbance(theta, iterations):
     """arm5 (compiled, nonlinear) with its controls at the effort limit: the split clips the feedback's
-    control as the whole tick's consistent controller does; with the plant the model both run alike."""
+    control as the whole tick's consistent controller does; with the plant the model both run alike (with
+    several iterations per tick the earlier ones' rollouts start at the prediction)."""
     _need_kernels()
     pb = _arm5(60)
-    split, whole = _pair(pb, 12, "raico", {"alpha": 1.0, "theta": theta})
+    split, whole = _pair(pb, 12, "raico", {"alpha": 1.0, "theta": theta}, iterations=iterations)
     split.prepare(pb.x0, 8)
     whole.prepare(pb.x0, 8)
     x, clipped = pb.x0.copy(), 0
