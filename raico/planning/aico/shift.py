@@ -315,8 +315,8 @@ class SplitTick:
     has nothing prepared: its window is solved whole at ``x`` (the whole tick's numbers).
 
     Relation to the whole tick (docs/mpc.md): the prepared controller is the one the whole tick computes
-    at the measurement ``x_hat``; the gains ``O`` do not depend on the start. On a linear-quadratic problem
-    without active bounds the controller of AICO (alpha 0) does not depend on the trajectory it is
+    at the measurement ``x_hat``. On a linear-quadratic problem without active bounds the gains ``O`` do not
+    depend on the start and the controller of AICO (alpha 0) does not depend on the trajectory it is
     linearized at, so the split's controls are the whole tick's; R-AICO's ``o`` reads its anchor (the
     trajectory linearized at), and its controls are the whole tick's where ``x = x_hat``.
     """
