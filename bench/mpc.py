@@ -1,6 +1,8 @@
 """Receding-horizon control's tick time on a 7-DOF arm: R-AICO against crocoddyl's FDDP in one harness.
 
-``python -m bench.mpc [--artifacts DIR] [--ticks N]`` writes ``DIR/bench/mpc.json``, ``mpc.md``,
+``python -m bench.mpc [--artifacts DIR] [--ticks N] [--split-only]`` writes ``DIR/bench/mpc.json``, ``mpc.md``,
+``mpc_split.md`` / ``.json`` (the preparation / feedback split's latency against the whole tick; ``--split-only``:
+only these),
 ``mpc_predicted_horizons.png`` (the xArm7 tracking a moving target in Drake: the predicted windows, the
 executed paths, the solve time per tick) and ``mpc_pushed_arm5.png`` (arm5's reach pushed in Drake under the
 plan's controller and under MPC); the Drake runs cached in ``DIR/bench/mpc``.
@@ -80,6 +82,85 @@ def run_one(problem, solver: str, options, ticks: int, phases: bool = False) -> 
         out["phases_s"]["rest of the tick (Python: the tick's bookkeeping, calls, records)"] = (
             float(cpu.sum()) / n - sum(out["phases_s"].values()))
     return out
+
+
+def split_latency(problem, solver: str, options, ticks: int) -> dict:
+    """:func:`run_one`'s loop with the split tick (``MPC(..., split=True)``): per tick the thread's CPU time and
+    the wall time of the feedback phase (measurement in, control out: ``SplitTick.feedback``) and the CPU time
+    of the preparation (``SplitTick.prepare``); the first tick (its window solved whole in the feedback) left
+    out of the statistics."""
+    import time
+
+    from raico.planning.mpc import MPC
+    from raico.planning.problem import single_threaded_blas
+
+    mpc = MPC(problem, HORIZON, solver, options, iterations=1, ticks=ticks, split=True)
+    fb, wall, prep, empty = (np.full(ticks, np.nan) for _ in range(4))
+    with single_threaded_blas():
+        mpc.prepare(problem.x0, 50)
+        sp, x = mpc.split, problem.x0.copy()
+        for k in range(ticks):
+            w0, c0 = time.perf_counter(), time.thread_time()
+            u = sp.feedback(x)
+            c1, w1 = time.thread_time(), time.perf_counter()
+            x = problem.dynamics.step(x, u)     # the control out: the plant moves while the next tick is prepared
+            sp.prepare()
+            fb[k], wall[k], prep[k] = c1 - c0, w1 - w0, time.thread_time() - c1
+            e0 = time.thread_time()
+            empty[k] = time.thread_time() - e0     # the clock's own share of an interval
+            if not np.all(np.isfinite(x)):
+                break
+    n = mpc.log.n
+    f, w, p = fb[1:n], wall[1:n], prep[1:n]
+    return {"ticks": int(n), "feedback_cpu_median_s": float(np.median(f)), "feedback_cpu_p99_s": float(np.percentile(f, 99)),
+            "feedback_median_s": float(np.median(w)), "feedback_p99_s": float(np.percentile(w, 99)),
+            "prepare_cpu_median_s": float(np.median(p)), "finite": bool(np.all(np.isfinite(x))),
+            "empty_interval_cpu_median_s": float(np.median(empty[1:n])),
+            "final_window_cost": float(mpc.log.cost[n - 1])}
+
+
+def split_rows(ticks: int) -> list[dict]:
+    """Per problem and R-AICO configuration: the whole tick (:func:`run_one`) and the split (:func:`split_latency`),
+    one after the other in this process."""
+    rows = []
+    for name, path in PROBLEMS.items():
+        problem = _problem(path)
+        for label, solver, opts in SOLVERS:
+            if solver == "fddp":
+                continue
+            rows.append({"problem": name, "solver": label, "whole": run_one(problem, solver, opts, ticks),
+                         "split": split_latency(problem, solver, opts, ticks)})
+    return rows
+
+
+def split_markdown(rows: list[dict], load: tuple[float, float]) -> str:
+    clock = float(np.median([r["split"]["empty_interval_cpu_median_s"] for r in rows]))
+    lines = [f"The preparation / feedback split (`MPC(..., split=True)`, `--rti`): the feedback phase (measurement in, "
+             f"control out: `u = o_0 + O_0 x`) against today's whole tick, in the loop above (horizon {HORIZON}, one "
+             "iteration per tick, the loop closed on the planning model; the first tick, solved whole, left out). "
+             f"Machine: {os.cpu_count()} cores, 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the "
+             "end (shared). CPU: the thread's time (`time.thread_time`; an empty interval measures "
+             f"{clock * 1e6:.1f} us, included in the feedback's); wall: `time.perf_counter`.", "",
+             "| problem | solver | whole tick CPU median (ms) | whole tick CPU p99 (ms) | feedback CPU median (us) | "
+             "feedback CPU p99 (us) | feedback wall median (us) | feedback wall p99 (us) | preparation CPU median (ms) | "
+             "loop finite (whole / split) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        w, s = r["whole"], r["split"]
+        lines.append(f"| {r['problem']} | {r['solver']} | {w['cpu_median_s'] * 1e3:.3f} | {w['cpu_p99_s'] * 1e3:.3f} | "
+                     f"{s['feedback_cpu_median_s'] * 1e6:.1f} | {s['feedback_cpu_p99_s'] * 1e6:.1f} | "
+                     f"{s['feedback_median_s'] * 1e6:.1f} | {s['feedback_p99_s'] * 1e6:.1f} | "
+                     f"{s['prepare_cpu_median_s'] * 1e3:.3f} | {'yes' if w['finite'] else 'no'} / "
+                     f"{'yes' if s['finite'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_split(out: Path, ticks: int) -> str:
+    start = os.getloadavg()[0]
+    rows = split_rows(ticks)
+    page = split_markdown(rows, (start, os.getloadavg()[0]))
+    (out / "mpc_split.json").write_text(json.dumps(rows, indent=2, allow_nan=True))
+    (out / "mpc_split.md").write_text(page)
+    return page
 
 
 def window_end(problem, substeps: int = 10) -> dict:
@@ -454,11 +535,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--artifacts", default="artifacts")
     ap.add_argument("--ticks", type=int, default=100)
+    ap.add_argument("--split-only", action="store_true", help="only the split's latency table (mpc_split.md)")
     args = ap.parse_args(argv)
     from raico.pipeline.engine.cache import Cache
 
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
+    split_page = write_split(out, args.ticks)
+    if args.split_only:
+        sys.stdout.write(split_page)
+        return 0
     rows, start = [], os.getloadavg()[0]
     ends = {}
     for name, path in PROBLEMS.items():

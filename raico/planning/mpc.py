@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from raico.planning.aico import aico
-from raico.planning.aico.shift import ShiftedAICO
+from raico.planning.aico.shift import ShiftedAICO, SplitTick
 from raico.planning.aico.sweeps import NumericalError
 from raico.planning.problem import Problem
 from raico.planning.solvers import SOLVERS, get_solver
@@ -86,6 +86,7 @@ class TickLog:
     violation: np.ndarray
     predicted: np.ndarray | None = None
     n: int = 0
+    feedback_time: np.ndarray | None = None   # the split's feedback phase, wall time (s), (ticks,)
 
     @classmethod
     def empty(cls, ticks: int, window: tuple[int, int] | None = None) -> TickLog:
@@ -97,7 +98,7 @@ class TickLog:
 
     def grow(self, extra: int) -> None:
         """Room for ``extra`` more ticks."""
-        for name in ("solve_time", "iterations", "cost", "over_budget", "violation", "predicted"):
+        for name in ("solve_time", "iterations", "cost", "over_budget", "violation", "predicted", "feedback_time"):
             a = getattr(self, name)
             if a is None:
                 continue
@@ -109,7 +110,8 @@ class TickLog:
         return {"mpc_solve_time": self.solve_time[:k].copy(), "mpc_iterations": self.iterations[:k].copy(),
                 "mpc_cost": self.cost[:k].copy(), "mpc_over_budget": self.over_budget[:k].copy(),
                 "mpc_violation": self.violation[:k].copy(),
-                **({} if self.predicted is None else {"mpc_predicted": self.predicted[:k].copy()})}
+                **({} if self.predicted is None else {"mpc_predicted": self.predicted[:k].copy()}),
+                **({} if self.feedback_time is None else {"mpc_feedback_time": self.feedback_time[:k].copy()})}
 
 
 def window_times(times: np.ndarray | None, T: int, H: int, k: int, receding_end: bool = True) -> np.ndarray | None:
@@ -171,6 +173,8 @@ class MPC:
         keep_predictions: keep every tick's predicted window states in the log (``TickLog.predicted``).
         receding_end: a term at the problem's last step costs the window's last step until the problem's
             end enters the window (default); ``False``: only from then on (via-points alone pull before).
+        split: the preparation / feedback split (:class:`raico.planning.aico.shift.SplitTick`; solvers whose
+            spec has ``caps.split``, the fixed schedule; a tick per planning step).
 
     Raises:
         ValueError: a horizon outside ``[1, T]``, an unknown solver or one that cannot warm-start (or
@@ -179,7 +183,7 @@ class MPC:
 
     def __init__(self, problem: Problem, horizon: int, solver: str = "raico", options: Any = None,
                  iterations: int = 1, budget: float | None = None, ticks: int | None = None,
-                 keep_predictions: bool = False, receding_end: bool = True):
+                 keep_predictions: bool = False, receding_end: bool = True, split: bool = False):
         if solver not in WARM_STARTABLE:
             raise ValueError(f"solver {solver!r} cannot warm-start a receding horizon here; "
                              f"use one of {', '.join(WARM_STARTABLE)}")
@@ -192,6 +196,8 @@ class MPC:
         if solver not in OWN_MODEL and learned_model(problem.dynamics) is not None:
             raise ValueError(f"solver {solver!r} cannot control with a learned model (its window is the model "
                              f"file's in Pinocchio); use one of {', '.join(OWN_MODEL)}")
+        if split and not get_solver(solver).caps.split:
+            raise ValueError(f"solver {solver!r} has no preparation / feedback split")
         self.problem, self.H, self.solver = problem, int(horizon), solver
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
@@ -240,6 +246,11 @@ class MPC:
             self._init_fddp(options)
         else:
             self._init_aico(options)
+        self.split = None if not split else SplitTick(self)
+        if split and self._ws is None:
+            raise ValueError("the preparation / feedback split runs the fixed schedule (one shifted workspace)")
+        if split:
+            self.log.feedback_time = np.full(self.log.solve_time.size, np.nan)
 
     # -- AICO / R-AICO
     def _init_aico(self, options: Any) -> None:
@@ -452,6 +463,10 @@ class MPC:
             buffers, valid until the next tick) and the feedback ``u = o + O x`` to apply until the next
             tick, ``o (n_u,)``, ``O (n_u, n_x)``.
         """
+        if self.split is not None:
+            if not advance:
+                raise ValueError("the preparation / feedback split prepares the next planning step: one tick per step")
+            return self.split.tick(x)
         shift = advance and self._ticks > 0
         if shift:
             self.k += 1

@@ -35,7 +35,8 @@ class Capabilities:
     and velocity limits itself; ``control_box``: keeps effort limits as a box on the controls;
     ``sweeps``: AICO's sweeps (relinearization repeats per iteration); ``schedules``: its alpha
     schedules; ``control_kinds``: the dynamics' controls it takes; ``mpc``: its shift warm start in
-    :mod:`raico.planning.mpc` (``"aico"``, ``"fddp"``), ``None`` where it has none."""
+    :mod:`raico.planning.mpc` (``"aico"``, ``"fddp"``), ``None`` where it has none; ``split``: its MPC tick
+    splits into preparation and feedback (``MPC(..., split=True)``)."""
 
     starts: tuple[str, ...] = ("held", "quasi-static")
     warm_from: tuple[str, ...] = ("controls",)
@@ -45,6 +46,7 @@ class Capabilities:
     schedules: tuple[str, ...] = ()
     control_kinds: tuple[str, ...] = CONTROL_KINDS
     mpc: str | None = None
+    split: bool = False
 
 
 @dataclass(frozen=True)
@@ -114,7 +116,8 @@ def _check_raico(o) -> None:  # noqa: ANN001
 
 
 _AICO_CAPS = Capabilities(starts=("held", "rollout", "quasi-static"), warm_from=("trajectory", "controls"),
-                          hard_bounds=True, control_box=True, sweeps=True, mpc="aico")
+                          hard_bounds=True, control_box=True, sweeps=True, mpc="aico",
+                          split=True)
 
 SOLVERS: dict[str, SolverSpec] = {
     "aico": SolverSpec("aico", "AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions", _AICO_CAPS,

@@ -66,6 +66,19 @@ def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     assert np.array_equal(d["mpc_over_budget"], d["mpc_solve_time"] > m["mpc_period"])
 
 
+@pytest.mark.slow
+def test_the_split_mpc_absorbs_the_push_too(arm5_plan):
+    """``--rti``: the feedback phase's times recorded, and the final target reached as the whole tick's MPC does."""
+    key, root = arm5_plan
+    r = run_json("execute", "--plan", key, "--push", PUSH, "--json", "--artifacts", root, "--no-record",
+                 "--controller", "mpc", "--horizon", 100, "--solver", "raico", "--rti")
+    m = r["metrics"]
+    assert m["via_point_errors"]["via_x2@1000"] < 0.01 and m["mpc_ticks"] == 1000
+    d = np.load(Path(r["path"]) / "rollout.npz")
+    assert d["mpc_feedback_time"].shape == (1000,) and np.all(d["mpc_feedback_time"] > 0)
+    assert m["mpc_median_feedback_s"] == float(np.median(d["mpc_feedback_time"]))
+
+
 @pytest.mark.parametrize("args, message", [
     (("--controller", "mpc", "--period", 0.0005), "shorter than the simulation step"),
     (("--controller", "mpc", "--period", 0.0015), "must divide the planning step"),
@@ -74,6 +87,9 @@ def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     (("--controller", "mpc", "--push", "nosuchframe:10:0.1:0.1"), "no such frame"),
     (("--push", "hand:10:0.1"), "expected FRAME:NEWTONS:START:DURATION"),
     (("--horizon", 10), "is an option of --controller mpc"),
+    (("--controller", "mpc", "--solver", "fddp", "--rti"), "solver fddp has no preparation / feedback split"),
+    (("--controller", "mpc", "--rti", "--period", 0.001), "--rti prepares the next planning step"),
+    (("--rti",), "is an option of --controller mpc"),
 ])
 def test_bad_input(arm5_plan, args, message):
     key, root = arm5_plan

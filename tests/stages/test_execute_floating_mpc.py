@@ -91,6 +91,7 @@ def nao_plan(tmp_path_factory):
     (("--controller", "wbc", "--push", "nosuchframe:10:0.1:0.1"), "no such frame"),
     (("--controller", "mpc", "--period", 0.005), "once per planning step"),
     (("--controller", "mpc", "--horizon", 301), "longer than the problem's 300 steps"),
+    (("--controller", "mpc", "--rti"), "runs on a fixed-base robot's MPC"),
 ])
 def test_bad_input_on_the_floating_robot(nao_plan, args, message):
     key, root = nao_plan

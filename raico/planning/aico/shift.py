@@ -17,6 +17,9 @@ rollout into work arrays, the control messages and the cost's task rows into kep
 those of ``Sweeps`` and the numpy boxes bit for bit (tests/planning/test_mpc_kernels.py). Work buffers are
 allocated once; a tick allocates only small temporaries that live within it (the numpy assembly of the task
 messages into strided views, views and scalars), see docs/mpc.md.
+
+:class:`SplitTick` splits the tick into a feedback phase (``u = o_0 + O_0 x``, nothing allocated) and the
+preparation of the next window from the model's prediction (Diehl's real-time iteration; ``MPC(..., split=True)``).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import math
+import time
 import weakref
 
 import numpy as np
@@ -103,6 +107,12 @@ class ShiftedAICO:
         self._box_work = np.empty((T, m), dtype=bool)
         self.solved = False
         self.cost = math.nan
+        self.defer = False      # the split: the last iteration's rollout and multiplier step wait (settle)
+        self.pending = False    # an iteration's rollout and multiplier step are waiting
+        self.fb_o, self.fb_O = np.zeros(m), np.zeros((m, n))   # the controller's first step the feedback used
+        box = (None, None) if self.efforts is None else (
+            np.ascontiguousarray(self.efforts.u_lower, dtype=float), np.ascontiguousarray(self.efforts.u_upper, dtype=float))
+        self._fb = (self.o[0], self.O[0], *box)
 
     # -- the shift
     def shift(self) -> None:
@@ -111,7 +121,10 @@ class ShiftedAICO:
         multipliers; the last step repeated, the backward message at the end kept zero. Without relinearization
         in the sweeps (``theta = inf``) the messages, beliefs and linearization are written anew before anything
         reads them (the backward sweep starts from the zero end, the forward messages and beliefs are not
-        computed): only the trajectory, controls, controller and multipliers move."""
+        computed): only the trajectory, controls, controller and multipliers move. A waiting rollout
+        (:meth:`settle`) runs first."""
+        if self.pending:
+            self.settle()
         if self._moves is None or any(getattr(o, n) is not a for o, n, a, *_ in self._moves):
             self._moves = self._plan_moves()        # the first shift, or an array replaced since
         for *_, dst, src, nbytes in self._moves:
@@ -149,7 +162,10 @@ class ShiftedAICO:
     def start_at(self, x: np.ndarray) -> bool:
         """The first belief reset to the measured state ``x (n,)`` (``x0`` and the start message), and the
         controller rolled out from it (controls clipped into their box) as the trajectory the next iteration
-        linearizes at. Returns False (the trajectory unchanged) if that rollout is not finite."""
+        linearizes at. Returns False (the trajectory unchanged) if that rollout is not finite. A waiting
+        rollout (:meth:`settle`) runs first, from the start it was waiting for."""
+        if self.pending:
+            self.settle()
         self.problem.x0[:] = x
         sv, n, SA = self._sv, self.n, self.sw.SA
         np.copyto(SA[0, :, :n], self._S0)
@@ -225,6 +241,8 @@ class ShiftedAICO:
         none ran)."""
         sw, n = self.sw, self.n
         for i in range(iterations):
+            if self.pending and not self.settle():
+                raise NumericalError("the controller's rollout left the finite states")
             X, U = self.X, self.U
             if not self._al_built:     # the hard constraints' penalty scales with the cost's curvature here
                 self.al = sw.al = _finite_boxes(hard_constraints(self.inner, X, U, self.efforts))
@@ -244,12 +262,124 @@ class ShiftedAICO:
             np.copyto(self.o, sw.Z[:, :, n])
             np.copyto(self.O, sw.Z[:, :, :n])       # O = -Z[:, :, :n] (numpy's negative of a strided view buffers it)
             np.negative(self.O, out=self.O)
+            if self.defer:      # the split: rolled out once the start it is for is in (settle)
+                self.pending = self.solved = True
+                continue
             if not self._rollout():
                 raise NumericalError("the controller's rollout left the finite states")
             if self.al is not None:
                 self.al.update(self.X, self.U)
             self.solved = True
         return iterations
+
+    # -- the preparation / feedback split
+    def settle(self) -> bool:
+        """The end of an iteration run with ``defer`` (the split), once its start is in ``x0``: the controller
+        rolled out from ``x0`` (as :meth:`iterate` does) and the multipliers' step there. False (the trajectory
+        unchanged, no step) if that rollout is not finite; nothing to do (True) where nothing waits."""
+        if not self.pending:
+            return True
+        self.pending = False
+        if not self._rollout():
+            return False
+        if self.al is not None:
+            self.al.update(self.X, self.U)
+        return True
+
+    def feedback(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The feedback phase: ``out (m,) = o_0 + O_0 x`` from the current controller, clipped into the effort
+        box (the control the consistent controller of :meth:`settle`'s rollout gives), ``x`` kept as the start
+        ``x0``. Allocates nothing (``out`` float64, contiguous)."""
+        o0, O0, lo, hi = self._fb
+        x0 = self.problem.x0
+        np.copyto(x0, x)
+        np.dot(O0, x0, out=out)     # (numpy's matmul allocates its iterator; dot into out does not)
+        out += o0
+        if lo is not None:
+            np.minimum(out, hi, out=out)
+            np.maximum(out, lo, out=out)
+        return out
+
+
+class SplitTick:
+    """The MPC tick split into a feedback phase and a preparation phase (Diehl's real-time iteration,
+    acados' RTI), on the shifted workspace of an :class:`raico.planning.mpc.MPC` (``MPC(..., split=True)``).
+
+    :meth:`feedback` (measurement in, control out): ``u = o_0 + O_0 x`` from the controller prepared for
+    this window, clipped into the effort box; nothing else depends on ``x``. :meth:`prepare` (after the
+    control is out, before the next measurement): the prepared controller rolled out from ``x`` and the
+    multipliers' step there (what the whole tick does last), the window shifted to the next tick, its start
+    reset to the prediction ``x_hat = X[1]`` (the model's next state under the control sent) and the tick's
+    iterations run from the shifted controller's rollout from ``x_hat`` (linearization, sweeps, controller;
+    the last iteration's rollout waits for the next measurement, :meth:`ShiftedAICO.settle`). The first tick
+    has nothing prepared: its window is solved whole at ``x`` (the whole tick's numbers).
+
+    Relation to the whole tick (docs/mpc.md): the prepared controller is the one the whole tick computes
+    at the measurement ``x_hat``. On a linear-quadratic problem without active bounds the gains ``O`` do not
+    depend on the start and the controller of AICO (alpha 0) does not depend on the trajectory it is
+    linearized at, so the split's controls are the whole tick's; R-AICO's ``o`` reads its anchor (the
+    trajectory linearized at), and its controls are the whole tick's where ``x = x_hat``.
+    """
+
+    def __init__(self, mpc):  # noqa: ANN001 (raico.planning.mpc.MPC)
+        self.mpc, self.ws = mpc, mpc._ws
+        self.prepared = False
+        self._its, self._cost = 0, math.nan
+
+    def feedback(self, x: np.ndarray) -> np.ndarray:
+        """The control at the measured state ``x`` (the MPC's ``u`` buffer); the first tick: its window
+        solved whole first."""
+        mpc, ws = self.mpc, self.ws
+        if not self.prepared:
+            np.copyto(mpc.window.x0, x)
+            mpc._set_tick(mpc.k)
+            ws.defer = False
+            self._its, self._cost = mpc._solve_shifted(False)
+        return ws.feedback(x, mpc._u)
+
+    def prepare(self) -> None:
+        """After the control went out: the controller's first step kept (``fb_o, fb_O``), settled at the
+        measured state, then the next window prepared."""
+        mpc, ws = self.mpc, self.ws
+        np.copyto(ws.fb_o, ws.o[0])
+        np.copyto(ws.fb_O, ws.O[0])
+        ws.settle()
+        self._record()
+        np.copyto(mpc.window.x0, ws.X[1])      # the prediction x_hat: the model's step under the control sent
+        mpc.k += 1
+        mpc._set_tick(mpc.k)
+        ws.defer = True
+        self._its, self._cost = mpc._solve_shifted(True)
+        self.prepared = True
+
+    def tick(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`feedback` then :meth:`prepare`, recorded (``MPC.tick``'s records; the window's after its
+        settling at ``x``; the solve time: the whole call, the feedback's own in ``feedback_time``)."""
+        t0 = time.perf_counter()
+        u = self.feedback(x)
+        t1 = time.perf_counter()
+        self.prepare()
+        log = self.mpc.log
+        log.feedback_time[log.n - 1] = t1 - t0
+        dt = time.perf_counter() - t0
+        log.solve_time[log.n - 1] = dt
+        log.over_budget[log.n - 1] = self.mpc.budget is not None and dt > self.mpc.budget
+        return u, self.ws.fb_o, self.ws.fb_O
+
+    def _record(self) -> None:
+        mpc, ws = self.mpc, self.ws
+        mpc._solved = True
+        mpc._ticks += 1
+        log = mpc.log
+        if log.n >= log.solve_time.size:
+            log.grow(log.solve_time.size)
+        i = log.n
+        log.iterations[i], log.cost[i] = self._its, self._cost
+        if mpc.window.bounds is not None:
+            log.violation[i] = mpc.window.bounds.violation(ws.X, ws.U)
+        if log.predicted is not None:
+            log.predicted[i] = ws.X
+        log.n += 1
 
 
 def _inside(U: np.ndarray, b, work: np.ndarray) -> bool:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from raico.planning.mpc import WARM_STARTABLE
+from raico.planning.solvers import get_solver
 from raico.plants.robots import Robot, robot_for
 from raico.stages.base import StageConfig
 from raico.stages.plan.stage import PROBLEM_FILE
@@ -44,6 +45,9 @@ class ExecuteConfig(StageConfig):
             "horizon": f"--controller mpc: horizon in planning steps (default min(T, {MPC_HORIZON})).",
             "iterations_per_tick": "--controller mpc: solver iterations per control period.",
             "solver": "--controller mpc: the solver of each period: " + ", ".join(MPC_SOLVERS) + ".",
+            "rti": "--controller mpc: the preparation / feedback split (real-time iteration): the control from the "
+                   "controller prepared for the model's prediction, the next period's solve after it (solvers that "
+                   "split: raico, aico; a fixed-base robot; the period the planning step).",
             "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
@@ -60,6 +64,7 @@ class ExecuteConfig(StageConfig):
     horizon: int | None = None  # planning steps, --controller mpc (None: min(T, MPC_HORIZON))
     iterations_per_tick: int = 1  # --controller mpc
     solver: str = "raico"  # --controller mpc (MPC_SOLVERS)
+    rti: bool = False  # --controller mpc: the preparation / feedback split (MPC(..., split=True))
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
 
     def __post_init__(self) -> None:
@@ -82,6 +87,8 @@ class ExecuteConfig(StageConfig):
             if self.horizon is not None and self.horizon > T:
                 raise ValueError(f"--horizon {self.horizon} is longer than the problem's {T} steps")
         if robot_for(plan.document(PROBLEM_FILE)).floating:
+            if self.rti:
+                raise ValueError("--rti: the preparation / feedback split runs on a fixed-base robot's MPC")
             return
         plant = plan.config.get("plant")
         if self.controller not in ("pd", "mpc"):
@@ -118,13 +125,16 @@ class ExecuteConfig(StageConfig):
     def _validate_mpc(self) -> None:
         d = ExecuteConfig.__dataclass_fields__
         if self.controller != "mpc":
-            given = [n for n in ("period", "horizon", "iterations_per_tick", "solver") if getattr(self, n) != d[n].default]
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti")
+                     if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
             return
         if self.solver not in MPC_SOLVERS:
             raise ValueError(f"--solver {self.solver} cannot warm-start a receding horizon; use one of "
                              f"{', '.join(MPC_SOLVERS)}")
+        if self.rti and not get_solver(self.solver).caps.split:
+            raise ValueError(f"--rti: solver {self.solver} has no preparation / feedback split")
         if self.period is not None and not (math.isfinite(self.period) and self.period > 0):
             raise ValueError(f"--period must be a positive number of seconds, got {self.period}")
         if self.horizon is not None and self.horizon < 1:

@@ -149,9 +149,11 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    if cfg.rti and period < dt - 1e-12:
+        raise ValueError(f"--rti prepares the next planning step: --period {period:g} s must be the planning step")
     mpc = MPC(problem, horizon, cfg.solver, None,  # the solver's defaults (R-AICO: alpha 1)
               iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
-              keep_predictions=True)
+              keep_predictions=True, split=cfg.rti)
     mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))
     return mpc, period
 
@@ -165,7 +167,9 @@ def _mpc_metrics(mpc, period: float) -> dict:
             "mpc_median_tick_s": float(np.median(t)), "mpc_p99_tick_s": float(np.percentile(t, 99)),
             "mpc_over_period": int(mpc.log.over_budget[:mpc.log.n].sum()),
             "mpc_iterations": int(mpc.log.iterations[:mpc.log.n].sum()),
-            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)]}
+            "mpc_max_violation": [float(v) for v in mpc.log.violation[:mpc.log.n].max(axis=0)],
+            **({} if mpc.log.feedback_time is None else   # the split: the feedback phase's own time
+               {"mpc_median_feedback_s": float(np.median(mpc.log.feedback_time[:mpc.log.n]))})}
 
 
 def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, progress, planning=None) -> ExecuteOutput:
