@@ -30,9 +30,9 @@ def test_moving_offset_is_a_circle_from_its_start_plus_a_line():
     assert np.array_equal(moving_offset(m, 0.0), np.zeros(3))
     for t in (0.1, 0.37, 0.9):
         off = moving_offset(m, t)
-        assert math.isclose(off[0], 0.1 * t, rel_tol=1e-12)
+        assert math.isclose(off[0], 0.1 * t, rel_tol=1e-9)
         centre = -0.05 * np.array([math.cos(0.3), math.sin(0.3)])   # the circle's centre from its start
-        assert math.isclose(np.linalg.norm(off[1:] - centre), 0.05, rel_tol=1e-12)
+        assert math.isclose(np.linalg.norm(off[1:] - centre), 0.05, rel_tol=1e-9)
 
 
 @pytest.mark.numerics
@@ -47,7 +47,7 @@ def test_a_moving_target_is_one_via_point_per_step_on_the_path(tmp_path):
     for s, term in zip(range(4, 21), track):
         assert list(np.flatnonzero(term.active(np.arange(pb.T + 1)))) == [s]
         off = term.target - start
-        assert abs(off[0]) < 1e-12
+        assert abs(off[0]) <= 1e-9 * np.abs(term.target).max()   # the path lies in y-z
         assert math.isclose(np.linalg.norm(off[1:] - [-0.05, 0.0]), 0.05, rel_tol=1e-9)
 
 
