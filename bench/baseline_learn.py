@@ -31,6 +31,7 @@ from bench.baseline_pets import Controller, Ensemble, Task, transitions
 ROOT = Path(__file__).resolve().parents[1]
 PAYLOAD = ROOT / "raico" / "problems" / "examples" / "ur5_payload_5kg.toml"
 CARTPOLE = ROOT / "raico" / "problems" / "cartpole_swing-up.toml"
+PILCO_S = 17.5      # s, PILCO's executed seconds to the cart-pole swing-up (bench/cartpole_pilco.py)
 REACH = 0.01        # m: the payload arm's goal (bench/payload.py)
 SETTINGS = {   # chosen after the trials the docs page states
     "cartpole": {"members": 5, "hidden": [64, 64], "horizon": 20, "population": 400, "elites": 40, "iterations": 5},
@@ -299,7 +300,10 @@ def page(doc: dict) -> str:
         lines += [f"Cart-pole (settings {c['settings']}; at most {c['episodes']} episodes after the random one; "
                   f"{len(c['rows'])} seeds):", "",
                   "| learner | task | executed seconds to the first upright episode (median) | seeds within 8 s |",
-                  "|---|---|---|---|", cartpole_row(doc), "",
+                  "|---|---|---|---|", cartpole_row(doc),
+                  f"| PILCO (Deisenroth and Rasmussen, ICML 2011) | cart-pole swing-up | {PILCO_S:g} s | |", "",
+                  "raico's loop on the same task: the table above (`bench/cartpole_pilco.py`, which adds this row "
+                  "to its table when this run's `baseline_learn.json` is in its artifacts).", "",
                   "| seed | seconds to upright | end error per episode (rad) | end speed per episode (rad/s) | "
                   "transitions per fit | fit + episode wall (s) |", "|---|---|---|---|---|---|"]
         for r in c["rows"]:

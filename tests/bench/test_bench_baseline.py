@@ -137,3 +137,22 @@ def test_page_names_the_baseline_and_counts_seeds():
     text = baseline_learn.page(doc)
     assert "| PETS-style baseline" in text and "(1/2 seeds reached it within 1 episodes) | 1/2 |" in text
     assert "| 0 | 20.0 | 20 | 4 |" in text
+
+
+def test_cartpole_and_payload_tables_take_the_baselines_row():
+    from bench import cartpole_pilco, payload
+    from tests.bench.test_bench_payload import doc as payload_doc
+
+    ep = {"error": 0.05, "speed": 0.2, "achieved": True, "points": 40, "fit_s": 1.0, "run_s": 10.0}
+    base = {"load": "1 1 1", "cartpole": {"settings": {}, "episodes": 3,
+                                         "rows": [{"seed": 0, "seconds": 12.0, "first_episode": 2, "episodes": [ep]}]},
+            "payload": {"settings": {"control_dt": 0.05}, "episodes": 2, "rows": [{"seed": 0, "seconds": float("inf"),
+                        "first_episode": None, "episodes": [{"distance_m": 0.2, "achieved": False, "points": 20,
+                                                             "fit_s": 1.0, "run_s": 3.0}]}]}}
+    raico = [{"seed": 0, "seconds": 8.0, "first_episode": 1, "task_error": [0.05], "episode_s": [3.0]}]
+    text = cartpole_pilco.page(raico, "1 1 1", None, base)
+    assert "| PETS-style baseline" in text and "| 12 s (1/1 seeds reached it within 3 episodes) | 0/1 |" in text
+    assert "PETS-style" not in cartpole_pilco.page(raico, "1 1 1")
+    row = next(line for line in payload.page({**payload_doc(), "baseline": base}).splitlines()
+               if line.startswith("| PETS-style"))
+    assert row.count("|") == 13 and "| 0 of 1 | none in 2 | 20 |" in row
