@@ -292,13 +292,13 @@ def load_doc(artifacts) -> dict | None:
 
 def page(doc: dict) -> str:
     """The baseline's markdown block: its settings, the two tables' rows and the per-seed numbers."""
-    lines = [f"Baseline: PETS-style model-based RL (Chua et al. 2018) written on scikit-learn "
-             f"(`bench/baseline_pets.py`), run by `python -m bench.baseline_learn`; load average {doc['load']} "
-             f"(2 cores shared with other jobs: wall times are under load).", ""]
+    lines = ["Baseline: PETS-style model-based RL (Chua et al. 2018) written on scikit-learn "
+             "(`bench/baseline_pets.py`), run by `python -m bench.baseline_learn` (load averages at the end of each "
+             "task's run below; 2 cores shared with other jobs: wall times are under load).", ""]
     if "cartpole" in doc:
         c = doc["cartpole"]
         lines += [f"Cart-pole (settings {c['settings']}; at most {c['episodes']} episodes after the random one; "
-                  f"{len(c['rows'])} seeds):", "",
+                  f"{len(c['rows'])} seeds; load average {c.get('load', doc['load'])}):", "",
                   "| learner | task | executed seconds to the first upright episode (median) | seeds within 8 s |",
                   "|---|---|---|---|", cartpole_row(doc),
                   f"| PILCO (Deisenroth and Rasmussen, ICML 2011) | cart-pole swing-up | {PILCO_S:g} s | |", "",
@@ -318,7 +318,7 @@ def page(doc: dict) -> str:
         sec = np.array([r["seconds"] for r in rows], float)
         within2 = sum(1 for r in rows if r["first_episode"] is not None and r["first_episode"] <= 2)
         lines += [f"UR5 with 5 kg (settings {p['settings']}; at most {p['episodes']} episodes after the 1 s random "
-                  f"one; {len(rows)} seeds):", "",
+                  f"one; {len(rows)} seeds; load average {p.get('load', doc['load'])}):", "",
                   "| learner | executed seconds to the first episode within 1 cm (median) | seeds within 1 cm "
                   "after at most 2 episodes | best distance per seed (cm) |", "|---|---|---|---|",
                   f"| PETS-style baseline (not raico) | {fmt_s(float(np.median(sec)))} "
@@ -351,7 +351,7 @@ def main() -> None:
             doc[name] = {"settings": SETTINGS[name], "episodes": episodes, "rows": []}
             for seed in range(args.seeds):
                 doc[name]["rows"].append(RUNNERS[name](seed, episodes, SETTINGS[name]))
-                doc["load"] = " ".join(f"{v:.2f}" for v in os.getloadavg())
+                doc["load"] = doc[name]["load"] = " ".join(f"{v:.2f}" for v in os.getloadavg())
                 path.write_text(json.dumps(doc, indent=1))   # after every seed: a killed run keeps its seeds
     (out / "baseline_learn.md").write_text(page(doc))
     print(page(doc))
