@@ -305,11 +305,13 @@ def page(doc: dict) -> str:
                   "raico's loop on the same task: the table above (`bench/cartpole_pilco.py`, which adds this row "
                   "to its table when this run's `baseline_learn.json` is in its artifacts).", "",
                   "| seed | seconds to upright | end error per episode (rad) | end speed per episode (rad/s) | "
-                  "transitions per fit | fit + episode wall (s) |", "|---|---|---|---|---|---|"]
+                  "largest cart distance from the centre per episode (m; the rail ends at 2) | transitions per fit | "
+                  "fit + episode wall (s) |", "|---|---|---|---|---|---|---|"]
         for r in c["rows"]:
             e = r["episodes"]
             lines.append(f"| {r['seed']} | {fmt_s(r['seconds'])} | {join('.3g', [x['error'] for x in e])} | "
-                         f"{join('.2g', [x['speed'] for x in e])} | {join('d', [x['points'] for x in e])} | "
+                         f"{join('.2g', [x['speed'] for x in e])} | {join('.2f', [x['cart_max'] for x in e])} | "
+                         f"{join('d', [x['points'] for x in e])} | "
                          f"{join('.0f', [x['fit_s'] + x['run_s'] for x in e])} |")
         lines.append("")
     if "payload" in doc:

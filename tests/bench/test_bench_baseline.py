@@ -127,7 +127,7 @@ def test_cartpole_loop_fits_forty_transitions_per_episode():
 
 
 def test_page_names_the_baseline_and_counts_seeds():
-    ep = {"error": 0.05, "speed": 0.2, "achieved": True, "points": 40, "fit_s": 1.0, "run_s": 10.0}
+    ep = {"error": 0.05, "speed": 0.2, "achieved": True, "points": 40, "fit_s": 1.0, "run_s": 10.0, "cart_max": 0.5}
     rows = [{"seed": 0, "seconds": 8.0, "first_episode": 1, "episodes": [ep]},
             {"seed": 1, "seconds": float("inf"), "first_episode": None, "episodes": [dict(ep, achieved=False)]}]
     pl = [{"seed": 0, "seconds": float("inf"), "first_episode": None,
@@ -143,7 +143,7 @@ def test_cartpole_and_payload_tables_take_the_baselines_row():
     from bench import cartpole_pilco, payload
     from tests.bench.test_bench_payload import doc as payload_doc
 
-    ep = {"error": 0.05, "speed": 0.2, "achieved": True, "points": 40, "fit_s": 1.0, "run_s": 10.0}
+    ep = {"error": 0.05, "speed": 0.2, "achieved": True, "points": 40, "fit_s": 1.0, "run_s": 10.0, "cart_max": 0.5}
     base = {"load": "1 1 1", "cartpole": {"settings": {}, "episodes": 3,
                                          "rows": [{"seed": 0, "seconds": 12.0, "first_episode": 2, "episodes": [ep]}]},
             "payload": {"settings": {"control_dt": 0.05}, "episodes": 2, "rows": [{"seed": 0, "seconds": float("inf"),
