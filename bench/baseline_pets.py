@@ -11,7 +11,7 @@ uncertainty. The rollout of a candidate is a numpy forward pass through the memb
 (:meth:`Ensemble.predict_all`, equal to ``MLPRegressor.predict``).
 
 Why not torch (mbrl-lib's PETS, stable-baselines3's SAC): on this project's package index ``pip install torch``
-resolves to the CUDA build (nvidia-* wheels, several GB); the 190 MB CPU wheel needs PyTorch's own index,
+resolves to the CUDA build (nvidia-* wheels, about 3 GB); the 190 MB CPU wheel needs PyTorch's own index,
 which a pyproject extra cannot name. scikit-learn is already a dependency (raico's GP fit uses its kernels).
 """
 
