@@ -13,7 +13,7 @@ tip over the rail's centre. The UR5: the reach of ``raico/problems/examples/ur5_
 tool 0.15 m forward, 0.1 m down in 1 s), torques on top of the model file's gravity compensation (as
 raico's babbling), one random episode first; success: the tool within 1 cm of the target at the end.
 
-    python -m bench.baseline_learn [--seeds 10] [--episodes 15] [--only cartpole|payload] [--render]
+    python -m bench.baseline_learn [--seeds 10] [--episodes 10] [--only cartpole|payload] [--render]
 """
 
 from __future__ import annotations
@@ -338,7 +338,7 @@ def page(doc: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--episodes", type=int, default=0, help="cap after the random episode (0: 10 cart-pole, 20 payload)")
+    ap.add_argument("--episodes", type=int, default=0, help="cap after the random episode (0: 10 each)")
     ap.add_argument("--only", choices=sorted(RUNNERS), action="append")
     ap.add_argument("--artifacts", default=str(ROOT / "artifacts"))
     ap.add_argument("--render", action="store_true", help="only write the page again from baseline_learn.json")
@@ -349,7 +349,7 @@ def main() -> None:
     doc = json.loads(path.read_text()) if path.exists() else {}
     if not args.render:
         for name in args.only or sorted(RUNNERS):
-            episodes = args.episodes or {"cartpole": 10, "payload": 20}[name]
+            episodes = args.episodes or {"cartpole": 10, "payload": 10}[name]
             doc[name] = {"settings": SETTINGS[name], "episodes": episodes, "rows": []}
             for seed in range(args.seeds):
                 doc[name]["rows"].append(RUNNERS[name](seed, episodes, SETTINGS[name]))
