@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import baseline_learn
 from bench.learning_common import load_text, parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,7 +89,7 @@ def pendulum_seconds(artifacts: Path) -> str | None:
     return None
 
 
-def page(rows: list[dict], load: str, pendulum: str | None = None) -> str:
+def page(rows: list[dict], load: str, pendulum: str | None = None, baseline: dict | None = None) -> str:
     s = summary(rows)
     fmt = lambda v: "not reached" if not np.isfinite(v) else f"{v:g} s"  # noqa: E731
     lines = [f"Cart-pole swing-up from scratch in PILCO's setting (`experiments/cartpole_pilco.toml`; settings "
@@ -98,6 +99,7 @@ def page(rows: list[dict], load: str, pendulum: str | None = None) -> str:
              f"| raico (R-AICO on a GP, uncertainty term) | cart-pole swing-up | {fmt(s['median_s'])} "
              f"({s['reached']}/{s['seeds']} seeds reached it) | {s['within_target']}/{s['seeds']} |",
              f"| PILCO (Deisenroth and Rasmussen, ICML 2011) | cart-pole swing-up | {PILCO_S:g} s | |",
+             *([baseline_learn.cartpole_row(baseline)] if baseline and "cartpole" in baseline else []),
              "| raico (thesis Fig. 4.1/4.2 setting) | pendulum swing-up: an easier task (fully actuated, its 15 "
              "babbling samples; not PILCO's) | "
              + (f"{pendulum} s (the report's fig4.1/4.2)" if pendulum else "see docs/results.md, fig4.1/4.2")
@@ -176,7 +178,8 @@ def main() -> None:
     out = Path(args.artifacts) / "bench"
     if args.render:
         doc = json.loads((out / "cartpole_pilco.json").read_text())
-        (out / "cartpole_pilco.md").write_text(page(doc["rows"], doc["load"], pendulum_seconds(Path(args.artifacts))))
+        (out / "cartpole_pilco.md").write_text(page(doc["rows"], doc["load"], pendulum_seconds(Path(args.artifacts)),
+                                                    baseline_learn.load_doc(args.artifacts)))
         plot(doc["rows"], out / "cartpole_pilco.png")
         filmstrip(doc["rows"], out / "cartpole_pilco_swing.png")
         return
@@ -190,7 +193,7 @@ def main() -> None:
     (out / "cartpole_pilco.json").write_text(json.dumps({"rows": rows, "summary": summary(rows), "load": load,
                                                          "settings": settings()}, indent=1))
     pendulum = pendulum_seconds(Path(args.artifacts))
-    (out / "cartpole_pilco.md").write_text(page(rows, load, pendulum))
+    (out / "cartpole_pilco.md").write_text(page(rows, load, pendulum, baseline_learn.load_doc(args.artifacts)))
     plot(rows, out / "cartpole_pilco.png")
     filmstrip(rows, out / "cartpole_pilco_swing.png")
     print(page(rows, load, pendulum))

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import baseline_learn
 from bench.learning_common import episode_axes, load_text, parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,6 +133,8 @@ def page(doc: dict) -> str:
                      f"{medians(rs, 'level_rad')} | {achieved} of {n} | {medians(rs, 'gp_error')} | "
                      f"{medians(rs, 'gp_error_heldout')} | {np.median(fp):.1f} / {max(fp):.1f} | "
                      f"{counts(rs, 'status')} | {counts(rs, 'plan_status')} |")
+    if doc.get("baseline") and "payload" in doc["baseline"]:   # a learner that is not raico, from bench.baseline_learn
+        lines.append(baseline_learn.payload_row(doc["baseline"]))
     lines += ["", "Per seed: executed distance per episode (cm), training points per episode, fit + plan per "
               "episode (s).", "", "| uncertainty term | seed | distance (cm) | points | fit + plan (s) | statuses |",
               "|---|---|---|---|---|---|"]
@@ -193,6 +196,7 @@ def main() -> None:
         (out / "payload.json").write_text(json.dumps({"model_file": mf, "runs": runs, "settings": settings,
                                                       "seeds": args.seeds, "load": load}, indent=1))
     doc = json.loads((out / "payload.json").read_text())
+    doc["baseline"] = baseline_learn.load_doc(args.artifacts)
     (out / "payload.md").write_text(page(doc))
     plot(doc, out / "payload.png")
     print(page(doc))

@@ -42,6 +42,7 @@ def test_every_docs_link_of_the_readme_and_the_pages_names_a_page_that_exists():
                                         ("learn_any", "docs/learning.md"), ("exp-ur5", "docs/problem-files.md"),
                                         ("cartpole", "docs/learning.md"), ("payload", "docs/learning.md"), ("mpc", "docs/mpc.md"),
                                         ("nao_mpc", "docs/mpc.md"),
+                                        ("baseline", "docs/learning.md"),
                                         ("executors", "docs/executors.md"), ("suite-exec", "docs/suite.md")])
 def test_each_generated_block_lives_in_exactly_one_file(name, home):
     assert readme_numbers.home(name) == ROOT / home
