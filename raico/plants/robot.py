@@ -86,6 +86,17 @@ class Robot:
         return self.spec.plant is not None
 
     @property
+    def stands_on_a_link(self) -> bool:
+        """Welded to the world at a link inside its tree (a humanoid on its sole), not at its root: the welded
+        model's joint torques then carry what the unmodelled contacts carry, and are not its motors'."""
+        from pydrake.multibody.tree import JointIndex
+
+        plant, world = self.plant, self.plant.world_body().index()
+        joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+        welded = {j.child_body().index() for j in joints if j.parent_body().index() == world}
+        return any(j.child_body().index() in welded and j.parent_body().index() != world for j in joints)
+
+    @property
     def floating(self) -> bool:
         """Executed free-floating on its soles (a humanoid), not welded to the world."""
         return self.execution == "floating"

@@ -544,3 +544,17 @@ def test_a_problem_file_states_its_robots_facts_and_its_own_achieved_criterion(t
         bad = write_problem(tmp_path, "bad", problem_text(str(urdf), robot_keys, costs) + extra)
         with pytest.raises(ValueError, match=match):
             read_problem(bad)
+
+
+@needs_erd
+@pytest.mark.parametrize("name", sorted(HUMANOIDS))
+def test_a_humanoid_welded_at_its_sole_stands_on_a_link_and_gets_no_torque_bounds(name):
+    """Its welded model's torques are not its motors': the hard bounds hold ranges and speeds, no torque rows."""
+    from raico.plants.robots import load_robot
+    from raico.stages.plan.stage import hard_bounds
+
+    file, extra = HUMANOIDS[name]
+    robot = load_model(RobotSpec.from_dict({"file": str(ROBOTS / file), **extra}))
+    assert robot.stands_on_a_link and not load_robot("arm5").stands_on_a_link
+    assert hard_bounds(robot, "acceleration", 0.01).tau_model is None
+    assert hard_bounds(load_robot("arm5"), "acceleration", 0.01).tau_model is not None

@@ -468,7 +468,8 @@ def hard_bounds(robot: Robot, kind: str, dt: float | None = None) -> Bounds | No
     vel = robot.velocity if robot.velocity is not None else np.full(robot.n_q, np.inf)
     vidx = np.flatnonzero(np.isfinite(vel))
     # a robot on its soles: the welded model's inverse dynamics are not its motors' torques
-    tau = kind == "acceleration" and dt is not None and not robot.floating and bool(np.any(np.isfinite(eff)))
+    tau = (kind == "acceleration" and dt is not None and not robot.floating and not robot.stands_on_a_link
+           and bool(np.any(np.isfinite(eff))))
     if not len(idx) and not torque and not len(vidx) and not tau:
         return None
     return Bounds(u_lower=-eff if torque else None, u_upper=eff if torque else None,
