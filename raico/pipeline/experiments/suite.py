@@ -541,7 +541,7 @@ def profile(ratios: list[float], taus) -> list[float]:
 
 
 RANGE_TOL = 1e-3     # rad (m for a prismatic joint): a plan farther outside a joint range leaves it
-VELOCITY_TOL = 1e-3  # rad/s (m/s) above a joint's velocity limit
+VELOCITY_TOL = 1e-3  # rad/s (m/s) above a velocity limit (the planners' own status tolerance, RANGE_STATUS_TOL)
 EFFORT_TOL = 1e-6    # N m above an effort limit
 
 
