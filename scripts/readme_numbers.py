@@ -230,8 +230,10 @@ def suite_exec_block(page: Path, doc: Path) -> str:
 
     for r in d["records"]:
         task = "-" if r.get("task_achieved") is None else ("achieved" if r["task_achieved"] else "missed")
+        vel = r.get("velocity_excess")
         inside = "-" if r.get("inside_limits") is None else ("yes" if r["inside_limits"] else
-                                                              f"no ({num(r.get('joint_range_excess'))} rad)")
+                                                              f"no ({num(r.get('joint_range_excess'))} rad"
+                                                              + (f", {num(vel)} rad/s" if vel else "") + ")")
         out.append(f"| {r['problem']} | {r['solver']} | {num(r.get('final_cost'))} | {inside} | "
                    f"{r.get('execution') or '-'} | {task} |")
     refs = text.find("### The direct-transcription reference")

@@ -72,10 +72,28 @@ def test_limit_violations_are_the_largest_excess_over_range_and_effort():
     X = np.array([[0.0, 0.0, 0, 0], [1.25, -2.5, 0, 0], [0.5, 1.0, 0, 0]])
     U = np.array([[6.0, 100.0], [-4.0, -1e9]])
     v = suite.limit_violations(robot, X, U, None)
-    assert v == {"joint_range": 0.5, "effort": 1.0}
+    assert v == {"joint_range": 0.5, "velocity": 0.0, "effort": 1.0}
     inside = suite.limit_violations(robot, X[[0, 2]], U[:1] * 0, None)
-    assert inside == {"joint_range": 0.0, "effort": 0.0}
-    assert suite.limit_violations(robot, X * np.nan, U, None) == {"joint_range": None, "effort": None}
+    assert inside == {"joint_range": 0.0, "velocity": 0.0, "effort": 0.0}
+    assert suite.limit_violations(robot, X * np.nan, U, None) == {"joint_range": None, "velocity": None,
+                                                                  "effort": None}
+
+
+def test_a_plan_faster_than_a_velocity_limit_is_outside():
+    """Joint 0 limited to 2 rad/s, joint 1 without a limit: a plan at 2.5 rad/s on joint 0 (step 2) leaves it by
+    0.5 and is judged outside although its ranges and efforts are kept; the start's speed is not the plan's."""
+    robot = SimpleNamespace(n_q=2, lower=np.array([-1.0, -2.0]), upper=np.array([1.0, 2.0]),
+                            effort=np.array([5.0, 5.0]), velocity=np.array([2.0, np.inf]))
+    X = np.array([[0.0, 0.0, 9.0, 0], [0.02, 0.0, 2.0, 50.0], [0.045, 0.0, -2.5, 0]])
+    U = np.zeros((2, 2))
+    v = suite.limit_violations(robot, X, U, None)
+    assert v == {"joint_range": 0.0, "velocity": 0.5, "effort": 0.0}
+    rec = {"joint_range_excess": v["joint_range"], "velocity_excess": v["velocity"], "effort_excess": v["effort"]}
+    assert not suite.inside_limits(rec)
+    assert suite.inside_limits({**rec, "velocity_excess": 0.5 * suite.VELOCITY_TOL})
+    assert not suite.inside_limits({**rec, "velocity_excess": 2 * suite.VELOCITY_TOL})
+    X[2, 2] = -2.0
+    assert suite.limit_violations(robot, X, U, None)["velocity"] == 0.0
 
 
 # ----------------------------------------------------------------------------- the list file
@@ -430,15 +448,25 @@ def test_the_reference_key_is_a_boolean(tmp_path):
 
 
 def test_a_spent_reference_budget_reads_the_cache_and_solves_nothing(tmp_path):
+    from raico.pipeline.experiments.transcription import cache_key
+    from raico.stages.plan.stage import PlanConfig, build_problem
+
+    file = Path(suite.__file__).resolve().parents[2] / "problems" / "suite" / "arm3_sdf_reach.toml"
     s = suite.Suite("mini", "", tmp_path / "suite.toml", [suite.SolverEntry("A", {"solver": "raico"})],
-                    [suite.ProblemEntry("p", tmp_path / "p.toml")])
+                    [suite.ProblemEntry("p", file)])
     recs = [{"problem": "p", "solver": "A", "key": "k" * 16, "final_cost": 2.0, "inside_limits": True}]
     cache = SimpleNamespace(root=tmp_path)
     said: list[str] = []
     assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True) is None
     assert said == ["suite: p: no transcription reference in this call (reference_total_s = inf s spent; "
                     "the next call goes on)"]
-    kept = tmp_path / "reference" / f"{'k' * 16}-snopt-{suite.REFERENCE_ITERATIONS}.json"
-    kept.parent.mkdir()
+    old = tmp_path / "reference" / f"{'k' * 16}-snopt-{suite.REFERENCE_ITERATIONS}.json"
+    old.parent.mkdir()
+    old.write_text(json.dumps({"cost": 0.5, "feasible": True}))   # a reference of the old key: not reused
+    assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True) is None
+    cfg = PlanConfig(**{**suite.options(s.problems[0], s.solvers[0]), "bounds": "hard"})
+    pb = build_problem(cfg)[2]
+    kept = tmp_path / "reference" / f"{cache_key(pb, 'k' * 16, 'snopt', suite.REFERENCE_ITERATIONS)}.json"
+    kept.parent.mkdir(exist_ok=True)
     kept.write_text(json.dumps({"cost": 1.5, "feasible": True}))
     assert suite.reference_record(cache, s, s.problems[0], recs, said.append, cached_only=True)["cost"] == 1.5

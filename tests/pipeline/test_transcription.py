@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from raico.pipeline.experiments.transcription import judge, refusal, solve
+from raico.pipeline.experiments.transcription import cache_key, judge, refusal, solve
 from raico.planning.problem import Bounds, Problem
 from tests.planning.test_solvers_lq import make_lq
 
@@ -48,6 +48,9 @@ def exact_qp(pb: Problem, bounded: bool = True) -> tuple[np.ndarray, np.ndarray,
             prog.AddBoundingBoxConstraint(b.q_lower, b.q_upper, X[t, b.q_index])
         for t in range(T):
             prog.AddBoundingBoxConstraint(b.u_lower, b.u_upper, U[t])
+        if b.has_velocities:
+            for t in range(1, T + 1):
+                prog.AddBoundingBoxConstraint(b.v_lower, b.v_upper, X[t, b.v_index])
     res = ClarabelSolver().Solve(prog)
     assert res.is_success()
     Xs, Us = res.GetSolution(X), res.GetSolution(U)
@@ -88,3 +91,48 @@ def test_refusals():
     assert "T = 12" in refusal(pb, max_steps=10)
     outside = Problem(pb.dynamics, np.r_[1.2, pb.x0[1:]], pb.T, pb.state_terms, pb.control_terms, bounds=pb.bounds)
     assert "outside a joint range" in refusal(outside)
+
+
+def velocity_bounded_lq(limit: float = 0.5) -> Problem:
+    """:func:`bounded_lq` with its last two state coordinates taken as joint velocities, limited to
+    ``+-limit`` (rad/s) from step 1."""
+    import dataclasses
+
+    pb = bounded_lq()
+    b = dataclasses.replace(pb.bounds, v_index=np.array([2, 3]), v_lower=np.full(2, -limit),
+                            v_upper=np.full(2, limit))
+    return Problem(pb.dynamics, np.clip(pb.x0, -limit, limit), pb.T, pb.state_terms, pb.control_terms, bounds=b)
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("solver", ["snopt", "ipopt"])
+def test_reference_keeps_the_velocity_limits_at_the_qp_optimum(solver):
+    pb = velocity_bounded_lq()
+    X_qp, U_qp, c_qp = exact_qp(pb)
+    X_free, U_free, _ = exact_qp(velocity_bounded_lq(limit=1e3))
+    assert pb.bounds.velocity_violation(X_free) > 0.05   # without them the optimum goes faster: they bind
+    U0 = np.zeros((T, pb.n_u))
+    X0 = np.repeat(pb.x0[None, :], T + 1, axis=0)
+    out = solve(pb, X0, U0, solver=solver)
+    assert out.feasible, (out.status, out.defect, out.bound_excess, out.velocity_excess)
+    assert out.velocity_excess <= 1e-5 and out.record()["velocity_excess"] == out.velocity_excess
+    assert out.cost == pytest.approx(c_qp, rel=1e-5)   # as the QP test above: KKT tolerances 1e-6
+    np.testing.assert_allclose(out.X, X_qp, atol=1e-3)
+
+
+def test_judge_counts_a_velocity_limit():
+    pb = velocity_bounded_lq()
+    X_free, U_free, _ = exact_qp(velocity_bounded_lq(limit=1e3))
+    out = judge(pb, X_free, U_free, "x", "qp", 0.0)
+    assert not out.feasible and out.velocity_excess == pytest.approx(pb.bounds.velocity_violation(X_free))
+
+
+def test_the_cache_key_changes_with_the_limits_and_the_start():
+    pb, pv = bounded_lq(), velocity_bounded_lq()
+    key = cache_key(pb, "k" * 16, "snopt", 300)
+    assert key.startswith("k" * 16 + "-snopt-300-") and key == cache_key(bounded_lq(), "k" * 16, "snopt", 300)
+    assert cache_key(pv, "k" * 16, "snopt", 300) != key
+    none = Problem(pb.dynamics, pb.x0, pb.T, pb.state_terms, pb.control_terms)
+    moved = Problem(pb.dynamics, pb.x0 + 0.1, pb.T, pb.state_terms, pb.control_terms, bounds=pb.bounds)
+    assert len({key, cache_key(none, "k" * 16, "snopt", 300), cache_key(moved, "k" * 16, "snopt", 300),
+                cache_key(pb, "k" * 16, "ipopt", 300), cache_key(pb, "k" * 16, "snopt", 100)}) == 5

@@ -8,7 +8,8 @@ Every solver runs on every problem as an ordinary cached plan (seed 0, the probl
 q0-std 0) through the experiment machinery (:mod:`raico.pipeline.experiments.expfile`): the runs table is
 ``artifacts/exp/<name>/runs.csv`` (``raico exp show suite``), a second call computes nothing. Per run:
 the final cost at the iteration and time budgets, status, iterations, wall time, the time to within
-``within`` of the best final cost, and the plan's largest excess over the joint ranges and effort limits.
+``within`` of the best final cost, and the plan's largest excess over the joint ranges, the model file's
+velocity limits and the effort limits.
 
 Every plan is also executed in Drake (``raico execute`` at its defaults, an ordinary cached run): its
 status and execute's one judgement of the task (:func:`raico.stages.evaluate.metrics.executed_task`) are
@@ -314,16 +315,21 @@ def target_of(best: float, within: float) -> float:
 
 def limit_violations(robot, X: np.ndarray, U: np.ndarray, torques: np.ndarray | None) -> dict[str, float | None]:
     """``joint_range``: the largest excess of a planned joint position over the model's range (rad or
-    m, 0 inside); ``effort``: the largest excess of a joint torque over its effort limit (N m).
-    ``torques (T, n)``: the plan's torques (``U`` for torque-controlled dynamics)."""
+    m, 0 inside); ``velocity``: the largest excess of a planned joint speed over the model file's velocity
+    limit (rad/s or m/s, steps 1..T: the start is given; 0 inside or without limits); ``effort``: the largest
+    excess of a joint torque over its effort limit (N m). ``torques (T, n)``: the plan's torques (``U`` for
+    torque-controlled dynamics)."""
     n = robot.n_q
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(U))):
-        return {"joint_range": None, "effort": None}
+        return {"joint_range": None, "velocity": None, "effort": None}
     Q = X[:, :n]
     excess = np.maximum(np.maximum(Q - robot.upper, robot.lower - Q), 0.0)
+    vmax = np.full(n, np.inf) if getattr(robot, "velocity", None) is None else np.asarray(robot.velocity, float)
+    V = X[1:, n:2 * n]
+    speed = np.maximum(np.abs(V) - vmax, 0.0) if V.size else np.zeros(1)
     tau = U if torques is None else torques
     effort = np.maximum(np.abs(tau) - np.asarray(robot.effort, float), 0.0) if tau is not None else None
-    return {"joint_range": float(excess.max()),
+    return {"joint_range": float(excess.max()), "velocity": float(speed.max()),
             "effort": None if effort is None or not np.all(np.isfinite(tau)) else float(effort.max())}
 
 
@@ -395,7 +401,8 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
     for c in all_cells:
         rec: dict[str, Any] = {"problem": c.problem, "solver": c.solver, "status": "not run", "iterations": None,
                                "final_cost": None, "wall_time_s": None, "time_to_target_s": None,
-                               "cost_ratio": None, "joint_range_excess": None, "effort_excess": None,
+                               "cost_ratio": None, "joint_range_excess": None, "velocity_excess": None,
+                               "effort_excess": None,
                                "key": None, "reason": c.reason, "over_time_budget": False, "cached": False,
                                "inside_limits": None, "execution": None, "task_achieved": None, "task_note": None,
                                "execute_key": None}
@@ -416,6 +423,7 @@ def measure(cache, suite: Suite, all_cells: list[Cell]) -> list[dict[str, Any]]:
             robot, tau = _torques(robots, c.options, X, U)
             v = limit_violations(robot, X, U, tau)
             rec["joint_range_excess"], rec["effort_excess"] = v["joint_range"], v["effort"]
+            rec["velocity_excess"] = v["velocity"]
             rec["inside_limits"] = inside_limits(rec)
             rec["iteration_costs"] = [float(c) if math.isfinite(c) else None for c in costs]
             rec["iteration_range_excess"] = (None if iterates is None else
@@ -458,32 +466,33 @@ def reference_record(cache, suite: Suite, problem: ProblemEntry, records: list[d
     problem with its hard bounds (the robot's ranges, and effort limits for torques), warm-started from the
     cheapest plan inside the limits (else the cheapest plan), by ``solver``. Its record (cost, status,
     feasible, dynamics defect, bounds' excess, time, warm start) is kept under ``<cache>/reference/`` by
-    the warm start's plan key and the solver's iteration limit, so a second call solves nothing; ``None`` where the problem is too large
-    or no plan of it has a finite cost, or, with ``cached_only`` (the call's ``reference_total_s`` is spent),
-    where it is not cached (said through ``say``: a later call goes on from there)."""
+    :func:`raico.pipeline.experiments.transcription.cache_key` (the warm start's plan key, the solver's iteration
+    limit, the problem's start and hard bounds, velocity limits included), so a second call solves nothing;
+    ``None`` where the problem is too large or no plan of it has a finite cost, or, with ``cached_only`` (the
+    call's ``reference_total_s`` is spent), where it is not cached (said through ``say``: a later call goes on)."""
     import json
 
     from raico.pipeline.engine.atomic import write_file_atomic
-    from raico.pipeline.experiments.transcription import refusal, solve
+    from raico.pipeline.experiments.transcription import cache_key, refusal, solve
     from raico.stages.plan.stage import PlanConfig, build_problem
 
     mine = [r for r in records if r["problem"] == problem.label and r["key"] and r["final_cost"] is not None]
     if not mine:
         return None
     warm = min(mine, key=lambda r: (not r.get("inside_limits"), r["final_cost"]))
-    path = cache.root / "reference" / f"{warm['key']}-{solver}-{REFERENCE_ITERATIONS}.json"
-    if path.exists():
-        return json.loads(path.read_text())
-    if cached_only:
-        say(f"suite: {problem.label}: no transcription reference in this call (reference_total_s = "
-            f"{suite.reference_total_s:g} s spent; the next call goes on)")
-        return None
     entry = next(s for s in suite.solvers if s.label == warm["solver"])
     cfg = PlanConfig(**{**options(problem, entry), "bounds": "hard"})
     _, _, pb, _, _ = build_problem(cfg)
+    path = cache.root / "reference" / f"{cache_key(pb, warm['key'], solver, REFERENCE_ITERATIONS)}.json"
+    if path.exists():
+        return json.loads(path.read_text())
     why = refusal(pb, REFERENCE_JOINTS, REFERENCE_STEPS)
     if why:
         say(f"suite: {problem.label}: no transcription reference ({why})")
+        return None
+    if cached_only:
+        say(f"suite: {problem.label}: no transcription reference in this call (reference_total_s = "
+            f"{suite.reference_total_s:g} s spent; the next call goes on)")
         return None
     with np.load(cache.root / "plan" / warm["key"] / "plan.npz", allow_pickle=False) as f:
         X, U = np.asarray(f["X"], float), np.asarray(f["U"], float)
@@ -531,15 +540,19 @@ def profile(ratios: list[float], taus) -> list[float]:
     return [float(np.mean(r <= tau)) if r.size else 0.0 for tau in taus]
 
 
-RANGE_TOL = 1e-3    # rad (m for a prismatic joint): a plan farther outside a joint range leaves it
-EFFORT_TOL = 1e-6   # N m above an effort limit
+RANGE_TOL = 1e-3     # rad (m for a prismatic joint): a plan farther outside a joint range leaves it
+VELOCITY_TOL = 1e-3  # rad/s (m/s) above a velocity limit (the planners' own status tolerance, RANGE_STATUS_TOL)
+EFFORT_TOL = 1e-6    # N m above an effort limit
 
 
 def inside_limits(record: dict) -> bool:
-    """Whether a run's plan stays in the model's joint ranges (to :data:`RANGE_TOL`) and effort limits
-    (to :data:`EFFORT_TOL`); a run without a measurement is not inside."""
+    """Whether a run's plan stays in the model's joint ranges (to :data:`RANGE_TOL`), velocity limits (to
+    :data:`VELOCITY_TOL`) and effort limits (to :data:`EFFORT_TOL`); a run without a range measurement is
+    not inside."""
     rng, eff = record.get("joint_range_excess"), record.get("effort_excess")
-    return rng is not None and rng <= RANGE_TOL and (eff is None or eff <= EFFORT_TOL)
+    vel = record.get("velocity_excess")
+    return (rng is not None and rng <= RANGE_TOL and (vel is None or vel <= VELOCITY_TOL)
+            and (eff is None or eff <= EFFORT_TOL))
 
 
 # the profiles: (kind, the record's measure, which plans count as solved (None: every plan with a value),
@@ -782,19 +795,21 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
         lines.append(f"| {p} | " + " | ".join(cells) + " |")
     lines += ["", *_execution_section(doc, by, problems, solvers), "", "## Every run", "",
               "| problem | solver | status | iterations | final cost | wall (s) | time to target (s) "
-              "| joint range excess | effort excess (N m) | inside | execution | task | plan |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| joint range excess | velocity excess | effort excess (N m) | inside | execution | task | plan |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in recs:
         status = r["status"] + (" (over the time budget)" if r["over_time_budget"] else "")
         lines.append(f"| {r['problem']} | {r['solver']} | {status} | {_f(r['iterations'], 'd')} | "
                      f"{_f(r['final_cost'])} | {_f(r['wall_time_s'], '.3g')} | {_f(r['time_to_target_s'], '.3g')} | "
-                     f"{_f(r['joint_range_excess'], '.3g')} | {_f(r['effort_excess'], '.3g')} | "
+                     f"{_f(r['joint_range_excess'], '.3g')} | {_f(r.get('velocity_excess'), '.3g')} | "
+                     f"{_f(r['effort_excess'], '.3g')} | "
                      f"{_yes(r.get('inside_limits'))} | {r.get('execution') or '-'} | {r.get('task_note') or '-'} | "
                      f"{r['key'] or why(r)} |")
     lines += ["", "Joint range excess: the largest distance of a planned joint position outside the model's range "
-              "(rad; m for a prismatic joint). Effort excess: the largest torque above a joint's effort limit (for "
-              "pseudo-dynamics the torques of the planned accelerations). Inside: both within "
-              f"{RANGE_TOL:g} rad and {EFFORT_TOL:g} N m. Execution: execute's status of the plan run in Drake "
+              "(rad; m for a prismatic joint). Velocity excess: the largest planned joint speed above the model file's "
+              "velocity limit (rad/s; steps 1..T). Effort excess: the largest torque above a joint's effort limit (for "
+              "pseudo-dynamics the torques of the planned accelerations). Inside: all three within "
+              f"{RANGE_TOL:g} rad, {VELOCITY_TOL:g} rad/s and {EFFORT_TOL:g} N m. Execution: execute's status of the plan run in Drake "
               "(`raico execute`, its defaults); task: execute's one judgement (`executed_task`: every via-point term "
               "within its tolerance, and the status ok).", ""]
     for name, title in (("all", "every problem"), ("every_solver_ran", "the problems every solver ran")):
@@ -821,7 +836,7 @@ def markdown(doc: dict[str, Any], png_name: str = "suite_profiles.png") -> str:
             lines.append("")
         if "inside" in prof:
             lines += [f"Inside the limits: the final cost of the plans that stay in every joint range (to {RANGE_TOL:g} "
-                      f"rad) and effort limit (to {EFFORT_TOL:g} N m) against the best feasible cost known (the best "
+                      f"rad), velocity limit (to {VELOCITY_TOL:g} rad/s) and effort limit (to {EFFORT_TOL:g} N m) against the best feasible cost known (the best "
                       "such plan, or the reference's); a plan that leaves them counts as not solved.", "",
                       "| solver | " + " | ".join(f"inside {t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus)]
             lines += [f"| {s} | " + " | ".join(f"{v:.2f}" for v in prof["inside"]["rho"][s]) + " |" for s in solvers]
@@ -866,14 +881,14 @@ def _execution_section(doc: dict[str, Any], by: dict, problems: list[str], solve
     if refs:
         lines += ["", "### The direct-transcription reference", "",
                   "Drake's MathematicalProgram over the states and controls of the same discrete dynamics, costs "
-                  "and bounds (raico/pipeline/experiments/transcription.py), warm-started from the best plan inside the limits (else "
+                  "and bounds, velocity limits included (raico/pipeline/experiments/transcription.py), warm-started from the best plan inside the limits (else "
                   "the best plan); its cost joins the best feasible cost known where it is feasible.", "",
-                  "| problem | solver | warm start | status | cost | feasible | range excess | dynamics defect | time (s) |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| problem | solver | warm start | status | cost | feasible | range excess | velocity excess "
+                  "| dynamics defect | time (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
         for p, r in refs.items():
             lines.append(f"| {p} | {r.get('solver', '-')} | {r.get('warm_start', '-')} | {r.get('status', '-')} | "
                          f"{_f(r.get('cost'))} | {_yes(r.get('feasible'))} | {_f(r.get('range_excess'), '.3g')} | "
-                         f"{_f(r.get('defect'), '.3g')} | {_f(r.get('time_s'), '.3g')} |")
+                         f"{_f(r.get('velocity_excess'), '.3g')} | {_f(r.get('defect'), '.3g')} | {_f(r.get('time_s'), '.3g')} |")
     return lines
 
 

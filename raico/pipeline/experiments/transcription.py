@@ -8,14 +8,17 @@ solves, written out:
   problem.dynamics.step`` (the planners' own discretization, its Jacobians from ``dynamics.linearize``);
 - the cost ``sum_t sum_i c_i(X[t]) + sum_t sum_j c_j(U[t])`` (``problem.cost``), one cost per state and
   per control with the terms' exact gradients (``l_x``, ``l_u``);
-- the hard bounds ``problem.bounds``: the positions ``q_lower <= X[t, q_index] <= q_upper`` from step 1
-  (``x_0`` is the start, no plan changes it) and the controls' box.
+- the hard bounds ``problem.bounds``: the positions ``q_lower <= X[t, q_index] <= q_upper`` and the joint
+  velocities ``v_lower <= X[t, v_index] <= v_upper`` (the model file's velocity limits) from step 1 (``x_0``
+  is the start, no plan changes it), and the controls' box (the torques of acceleration controls are not
+  bounded here).
 
 Second derivatives are left to the solver's quasi-Newton approximation (SNOPT's, IPOPT's limited-memory
 BFGS). Warm-started from a plan (``X``, ``U`` of a solver), it gives the best feasible cost known for
 problems small enough to transcribe (a few joints, a hundred steps: the program has ``(T+1) n_x + T n_u``
 variables). Joint terms (cost terms on a state and its control together) are not transcribed:
-:func:`refusal` says so.
+:func:`refusal` says so. A reference is kept by :func:`cache_key`: its warm start, solver, iteration limit and
+the transcribed problem's start, horizon and bounds.
 """
 
 from __future__ import annotations
@@ -31,13 +34,14 @@ from raico.planning.problem import Problem
 
 SOLVERS = ("snopt", "ipopt")
 FEASIBILITY_TOL = 1e-6   # the solvers' constraint tolerance (dynamics defect, bounds), in the variables' units
+FORMAT = 2               # what the transcription constrains: 2 with the velocity limits (in every cache key)
 
 
 @dataclass
 class Transcribed:
     """The reference's result: the plan ``X (T+1, n_x)``, ``U (T, n_u)``, its cost (``problem.cost``), the
     solver's status, whether the plan is feasible (the dynamics defect and the bounds' excess below
-    ``tol``), those two numbers, the solver and its wall time (s)."""
+    ``tol``), those numbers (the velocity limits' excess apart), the solver and its wall time (s)."""
 
     X: np.ndarray
     U: np.ndarray
@@ -45,14 +49,16 @@ class Transcribed:
     status: str
     feasible: bool
     defect: float        # largest |X[t+1] - f(X[t], U[t])| (state units)
-    bound_excess: float  # largest excess over the hard bounds (rad, N m)
+    bound_excess: float  # largest excess over the hard bounds' ranges and controls (rad, N m)
     solver: str
     time_s: float
+    velocity_excess: float = 0.0  # largest excess over the velocity limits (rad/s)
 
     def record(self) -> dict[str, Any]:
         """The scalars, for a table."""
         return {"cost": self.cost if math.isfinite(self.cost) else None, "status": self.status,
                 "feasible": self.feasible, "defect": self.defect, "range_excess": self.bound_excess,
+                "velocity_excess": self.velocity_excess,
                 "solver": self.solver, "time_s": self.time_s}
 
 
@@ -140,6 +146,9 @@ def transcribe(problem: Problem, X0: np.ndarray, U0: np.ndarray):
     if b is not None and b.has_positions:
         for t in range(1, T + 1):
             prog.AddBoundingBoxConstraint(b.q_lower, b.q_upper, X[t, b.q_index])
+    if b is not None and b.has_velocities:
+        for t in range(1, T + 1):
+            prog.AddBoundingBoxConstraint(b.v_lower, b.v_upper, X[t, b.v_index])
     if b is not None and b.has_controls:
         for t in range(T):
             prog.AddBoundingBoxConstraint(b.u_lower, b.u_upper, U[t])
@@ -187,15 +196,35 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
 
 def judge(problem: Problem, X: np.ndarray, U: np.ndarray, status: str, solver: str, time_s: float,
           tol: float = FEASIBILITY_TOL) -> Transcribed:
-    """The plan ``X``, ``U`` measured: its cost, dynamics defect and bounds' excess, feasible where both
-    are within ``tol`` (scaled by the states' magnitude for the defect)."""
+    """The plan ``X``, ``U`` measured: its cost, dynamics defect and bounds' excess (ranges, controls,
+    velocity limits), feasible where all are within ``tol`` (scaled by the states' magnitude for the
+    defect)."""
     with np.errstate(all="ignore"):
         pred = np.array([problem.dynamics.step(x, u) for x, u in zip(X[:-1], U)])
         defect = float(np.max(np.abs(pred - X[1:]))) if len(U) else 0.0
-    excess = max(problem.bounds.violation(X, U)) if problem.bounds is not None else 0.0
-    scale = max(1.0, float(np.max(np.abs(X))))
+    b = problem.bounds
     finite = bool(np.all(np.isfinite(X)) and np.all(np.isfinite(U)))
-    feasible = finite and defect <= 10 * tol * scale and excess <= 10 * tol
+    excess = max(b.violation(X, U)) if b is not None and finite else 0.0
+    v_excess = b.velocity_violation(X) if b is not None and finite else 0.0
+    scale = max(1.0, float(np.max(np.abs(X))))
+    feasible = finite and defect <= 10 * tol * scale and excess <= 10 * tol and v_excess <= 10 * tol
     cost = problem.cost(X, U) if finite else math.inf
     return Transcribed(X, U, cost, status, feasible, defect if finite else math.inf,
-                       excess if finite else math.inf, solver, time_s)
+                       excess if finite else math.inf, solver, time_s, v_excess if finite else math.inf)
+
+
+def cache_key(problem: Problem, warm_key: str, solver: str, max_iterations: int) -> str:
+    """The name a reference is kept under: its warm start's plan key, ``solver``, ``max_iterations`` and a
+    hash of what is transcribed (:data:`FORMAT`, the start, the horizon, the step and every array of the
+    hard bounds), so a reference of other limits or another start is never reused."""
+    import hashlib
+
+    h = hashlib.sha256(f"{FORMAT} {problem.T} {problem.n_x} {problem.n_u} "
+                       f"{getattr(problem.dynamics, 'dt', None)!r}".encode())
+    h.update(np.ascontiguousarray(problem.x0, float).tobytes())
+    b = problem.bounds
+    for name in ("q_index", "q_lower", "q_upper", "v_index", "v_lower", "v_upper", "u_lower", "u_upper",
+                 "tau_limit"):
+        value = None if b is None else getattr(b, name)
+        h.update(name.encode() + (b"-" if value is None else np.ascontiguousarray(value, float).tobytes()))
+    return f"{warm_key}-{solver}-{int(max_iterations)}-{h.hexdigest()[:12]}"
