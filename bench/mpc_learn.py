@@ -31,7 +31,7 @@ EPISODES_TARGET = 2  # within REACH after at most this many episodes
 OPEN_LOOP_MISS = 0.03  # m: the model file's plan should miss by more than this
 REACH_TERM = "reach@100"   # the problem's final position term (m)
 HORIZON = 50         # the model-file MPC's horizon, as the experiment file's
-OPTIMUM_ITERATIONS = (50, 200)  # the cold plans of the problem on the true robot (its own optimum's row)
+OPTIMUM_ITERATIONS = (50, 100, 150, 200)  # the cold plans of the problem on the true robot (its own optimum's row)
 
 
 def variants() -> tuple[dict, list[dict]]:

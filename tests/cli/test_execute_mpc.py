@@ -74,6 +74,8 @@ def test_mpc_absorbs_a_push_the_plans_controller_does_not(arm5_plan):
     (("--controller", "mpc", "--push", "nosuchframe:10:0.1:0.1"), "no such frame"),
     (("--push", "hand:10:0.1"), "expected FRAME:NEWTONS:START:DURATION"),
     (("--horizon", 10), "is an option of --controller mpc"),
+    (("--controller", "mpc", "--final-target", "end"), "--final-target must be one of receding, fixed"),
+    (("--final-target", "fixed"), "--final-target is an option of --controller mpc"),
 ])
 def test_bad_input(arm5_plan, args, message):
     key, root = arm5_plan
