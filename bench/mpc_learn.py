@@ -31,6 +31,7 @@ EPISODES_TARGET = 2  # within REACH after at most this many episodes
 OPEN_LOOP_MISS = 0.03  # m: the model file's plan should miss by more than this
 REACH_TERM = "reach@100"   # the problem's final position term (m)
 HORIZON = 50         # the model-file MPC's horizon, as the experiment file's
+OPTIMUM_ITERATIONS = (50, 100, 150, 200)  # the cold plans of the problem on the true robot (its own optimum's row)
 
 
 def variants() -> tuple[dict, list[dict]]:
@@ -41,6 +42,16 @@ def variants() -> tuple[dict, list[dict]]:
     base = dict(doc["base"])
     base["problem"] = str((EXPERIMENT.parent / base["problem"]).resolve())
     return base, [dict(p) for p in doc["point"]]
+
+
+def final_target() -> str:
+    """The experiment file's MPC point's ``final_target`` (``receding`` or ``fixed``; the execute default if
+    not given)."""
+    from raico.stages.execute.config import ARM_FINAL_TARGET
+
+    _, points = variants()
+    return next((p.get("final_target") or ARM_FINAL_TARGET for p in points if p.get("controller") == "mpc"),
+                ARM_FINAL_TARGET)
 
 
 def one_step_error(X: np.ndarray, predicted: np.ndarray | None) -> float | None:
@@ -65,10 +76,12 @@ def model_file_rows(artifacts: str) -> list[dict]:
     cache = Cache(Path(artifacts) / "bench" / "mpc_learn")
     plan = run(cache, "plan", PlanConfig(problem=base["problem"]), record=False)
     push = tuple(base["push"])
+    end = final_target()
     rows = []
+    mpc = {"controller": "mpc", "horizon": HORIZON, "final_target": end}
     for label, over in (("plan's controller", {}),
-                        ("MPC R-AICO, horizon 50", {"controller": "mpc", "horizon": HORIZON, "solver": "raico"}),
-                        ("MPC FDDP, horizon 50", {"controller": "mpc", "horizon": HORIZON, "solver": "fddp"})):
+                        ("MPC R-AICO, horizon 50", {**mpc, "solver": "raico"}),
+                        ("MPC FDDP, horizon 50", {**mpc, "solver": "fddp"})):
         try:
             ex = run(cache, "execute", ExecuteConfig(plan=plan.key, push=push, **over), record=False)
         except Exception as e:   # crocoddyl not installed, or its loop failing: say so in the row
@@ -80,31 +93,65 @@ def model_file_rows(artifacts: str) -> list[dict]:
         rows.append({"label": label, "distance_m": m["via_point_errors"][REACH_TERM], "status": ex.status,
                      "planned_m": plan.metrics["via_point_errors"][REACH_TERM],
                      "tick_s": m.get("mpc_median_tick_s"), "one_step_error": err})
-    rows += [oracle_row(cache, plan.key, push, h) for h in (HORIZON, 100)]
+    other = "fixed" if end == "receding" else "receding"
+    rows += [oracle_row(cache, plan.key, push, h, t) for h, t in ((HORIZON, end), (HORIZON, other), (100, end))]
     return rows
 
 
-def oracle_row(cache, plan_key: str, push: tuple, horizon: int) -> dict:
+def true_dynamics(problem, pf) -> None:
+    """Give ``problem`` the true robot's own dynamics (the problem file's ``[robot.true]``, its substeps)."""
+    from raico.plants.dynamics_registry import make_dynamics
+    from raico.plants.model_file import shared_model
+    from raico.stages.plan.stage import actuated
+
+    true = shared_model(pf.true_spec())
+    problem.dynamics = actuated(make_dynamics("analytic", true, pf.dt / pf.substeps), true, pf.substeps)
+
+
+def optimum_rows(artifacts: str) -> list[dict]:
+    """The problem's own optimum on the true robot: cold R-AICO plans of the problem on the true dynamics
+    (``OPTIMUM_ITERATIONS``), their planned distance to the target and the cost's terms. Where the lower cost
+    lies farther from the target, a controller minimizing the problem's cost on a perfect model misses so."""
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run
+    from raico.planning.problem_file import read_problem
+    from raico.planning.solvers import solve
+    from raico.stages.execute.stage import planning_problem
+    from raico.stages.plan.stage import PlanConfig
+
+    base, _ = variants()
+    cache = Cache(Path(artifacts) / "bench" / "mpc_learn")
+    plan = run(cache, "plan", PlanConfig(problem=base["problem"]), record=False)
+    pf = read_problem(base["problem"])
+    rows = []
+    for its in OPTIMUM_ITERATIONS:
+        problem = planning_problem(cache.require("plan", plan.key))
+        true_dynamics(problem, pf)
+        r = solve(problem, "raico", {"iterations": its})
+        reach = problem.term(REACH_TERM.split("@")[0])
+        d = float(np.linalg.norm(reach._errors(r.X[-1:])[0]))
+        rows.append({"iterations": its, "status": r.status, "distance_m": d,
+                     "cost": {k: float(v) for k, v in problem.cost_terms(r.X, r.U).items()}})
+    return rows
+
+
+def oracle_row(cache, plan_key: str, push: tuple, horizon: int, end: str) -> dict:
     """MPC R-AICO whose model is the true robot's own dynamics (the payload known: what a perfect learner would
     give the controller), from the model file's plan, pushed alike: how close the controller itself gets. Run in
     this process, not stored (its model is no stage's option)."""
     from raico.planning.problem_file import read_problem
-    from raico.plants.dynamics_registry import make_dynamics
-    from raico.plants.model_file import shared_model
     from raico.stages.execute.config import ExecuteConfig
     from raico.stages.execute.stage import execute, planning_problem
-    from raico.stages.plan.stage import PLAN_FILE, PROBLEM_FILE, actuated
+    from raico.stages.plan.stage import PLAN_FILE, PROBLEM_FILE
 
     base, _ = variants()
     art = cache.require("plan", plan_key)
     problem = planning_problem(art)
-    pf = read_problem(base["problem"])
-    true = shared_model(pf.true_spec())
-    problem.dynamics = actuated(make_dynamics("analytic", true, pf.dt / pf.substeps), true, pf.substeps)
-    cfg = ExecuteConfig(plan=plan_key, push=push, controller="mpc", horizon=horizon, solver="raico")
+    true_dynamics(problem, read_problem(base["problem"]))
+    cfg = ExecuteConfig(plan=plan_key, push=push, controller="mpc", horizon=horizon, solver="raico", final_target=end)
     out = execute(cfg, art.document(PROBLEM_FILE), art.arrays(PLAN_FILE), plan_status=art.status, planning=problem)
     m = out.metrics
-    return {"label": f"MPC R-AICO, horizon {horizon}", "model": "the true robot's dynamics (oracle)",
+    return {"label": f"MPC R-AICO, horizon {horizon}, final target {end}", "model": "the true robot's dynamics (oracle)",
             "distance_m": m["via_point_errors"][REACH_TERM], "status": m["status"],
             "tick_s": m.get("mpc_median_tick_s"), "one_step_error": one_step_error(out.X, out.mpc.get("mpc_predicted"))}
 
@@ -148,7 +195,9 @@ def page(doc: dict) -> str:
     lines = ["UR5 carrying an unmodelled 5 kg at the tool (`raico/problems/examples/ur5_payload_5kg.toml`), pushed "
              f"(`{' '.join(doc['push'])}`: 20 N on the tool for 0.1 s mid-reach); the loop of "
              f"`experiments/ur5_payload_push_mpc_learn.toml` ({doc['settings']}); MPC: horizon {HORIZON} steps, "
-             f"one R-AICO iteration per 10 ms period; {doc['seeds']} seeds; load average {doc['load']} (2 cores "
+             f"one R-AICO iteration per 10 ms period, the final target {doc.get('final_target', 'receding')} "
+             "(`--final-target`); "
+             f"{doc['seeds']} seeds; load average {doc['load']} (2 cores "
              "shared: times under load; the times of steps found in the cache are those of their own runs). Aimed at before the run: the learned MPC within 1 cm after at most "
              f"{EPISODES_TARGET} episodes, the model file's plan more than {100 * OPEN_LOOP_MISS:g} cm off, the "
              "model-file MPC farther off than the learned one.", "",
@@ -165,6 +214,14 @@ def page(doc: dict) -> str:
                      f"{tick} | {err} |")
     lines.append("| MPC FDDP, learned model | - | not run: crocoddyl's window is the model file's in Pinocchio; "
                  "the GP residual has no action model there | - | - | - |")
+    if doc.get("optimum"):
+        lines += ["", "The problem's own optimum on the true robot (cold R-AICO plans on the true dynamics, no push):",
+                  "", "| R-AICO iterations | status | planned distance to the target (cm) | cost: reach | effort | "
+                  "level | total |", "|---|---|---|---|---|---|---|"]
+        for o in doc["optimum"]:
+            c = o["cost"]
+            lines.append(f"| {o['iterations']} | {o['status']} | {100 * o['distance_m']:.2f} | {c.get('reach', 0):.1f} "
+                         f"| {c.get('effort', 0):.1f} | {c.get('level', 0):.1f} | {sum(c.values()):.1f} |")
     lines += ["", "The residual-GP loop, per episode (medians over the seeds; cm):", "",
               f"| episodes' controller | seeds within 1 cm by episode {EPISODES_TARGET} | executed distance per "
               "episode, median (cm) | worst seed per episode (cm) | execution statuses | data steps fed per "
@@ -241,6 +298,7 @@ def main() -> None:
         base, points = variants()
         load0 = os.getloadavg()[0]
         rows = model_file_rows(args.artifacts)
+        optimum = optimum_rows(args.artifacts)
         jobs = [(args.artifacts, s, p) for s in range(args.seeds) for p in points]
         settings = {k: v for k, v in base.items() if k not in ("problem", "push")}
         runs: list[dict] = []
@@ -250,7 +308,7 @@ def main() -> None:
                 load = f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end"
                 seeds = len({x["seed"] for x in runs})
                 (out / "mpc_learn.json").write_text(json.dumps(
-                    {"model_file": rows, "runs": runs, "settings": settings, "push": base["push"], "seeds": seeds,
+                    {"model_file": rows, "optimum": optimum, "final_target": final_target(), "runs": runs, "settings": settings, "push": base["push"], "seeds": seeds,
                      "load": load}, indent=1))
     doc = json.loads((out / "mpc_learn.json").read_text())
     (out / "mpc_learn.md").write_text(page(doc))

@@ -101,6 +101,8 @@ class LearnConfig(StageConfig):
             "horizon": "--controller mpc: horizon in planning steps (default min(T, 50)).",
             "iterations_per_tick": "--controller mpc: solver iterations per control period.",
             "mpc_solver": "--controller mpc: the solver of each period (one that runs on the learned model).",
+            "final_target": "--controller mpc: a term at the problem's last step in the window, receding or fixed "
+                            "(raico execute --final-target; default: the execute stage's).",
             "push": "A scripted push in every episode's execution, FRAME:NEWTONS:START:DURATION (raico execute "
                     "--push); repeatable."}
 
@@ -135,6 +137,7 @@ class LearnConfig(StageConfig):
     horizon: int | None = None  # planning steps, --controller mpc (None: the execute stage's default)
     iterations_per_tick: int = 1  # --controller mpc
     mpc_solver: str = "raico"  # --controller mpc (raico.planning.mpc.OWN_MODEL)
+    final_target: str | None = None  # --controller mpc: "receding" or "fixed" (None: the execute stage's default)
     push: tuple[str, ...] = ()  # scripted pushes of every episode's execution
 
     def __post_init__(self) -> None:
@@ -236,7 +239,8 @@ class LearnConfig(StageConfig):
             raise ValueError(f"controller must be pd or mpc, got '{self.controller}'")
         d = LearnConfig.__dataclass_fields__
         if self.controller == "pd":
-            given = [n for n in ("period", "horizon", "iterations_per_tick", "mpc_solver") if getattr(self, n) != d[n].default]
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "mpc_solver", "final_target")
+                     if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
         elif self.mpc_solver not in OWN_MODEL:
@@ -287,7 +291,8 @@ class LearnConfig(StageConfig):
         mpc: dict[str, Any] = {}
         if self.controller == "mpc":
             mpc = {"controller": "mpc", "period": self.period, "horizon": self.horizon,
-                   "iterations_per_tick": self.iterations_per_tick, "solver": self.mpc_solver}
+                   "iterations_per_tick": self.iterations_per_tick, "solver": self.mpc_solver,
+                   "final_target": self.final_target}
         return ExecuteConfig(plan=plan, seed=self.seed, push=self.push, **mpc)
 
     @property

@@ -90,6 +90,8 @@ def test_the_split_mpc_absorbs_the_push_too(arm5_plan):
     (("--controller", "mpc", "--solver", "fddp", "--rti"), "solver fddp has no preparation / feedback split"),
     (("--controller", "mpc", "--rti", "--period", 0.001), "--rti prepares the next planning step"),
     (("--rti",), "is an option of --controller mpc"),
+    (("--controller", "mpc", "--final-target", "end"), "--final-target must be one of receding, fixed"),
+    (("--final-target", "fixed"), "--final-target is an option of --controller mpc"),
 ])
 def test_bad_input(arm5_plan, args, message):
     key, root = arm5_plan

@@ -98,6 +98,8 @@ def test_learn_with_episodes_under_mpc_feeds_their_data(raico, tmp_path):
     (("--controller", "mpc", "--mpc-solver", "fddp"), "cannot control with the learned model"),
     (("--controller", "mpc", "--mpc-solver", "ilqg"), "cannot control with the learned model"),
     (("--horizon", 10), "--horizon is an option of --controller mpc"),
+    (("--final-target", "fixed"), "--final-target is an option of --controller mpc"),
+    (("--controller", "mpc", "--final-target", "end"), "--final-target must be one of receding, fixed"),
     (("--controller", "mpc", "--period", 0.003), "must divide the planning step"),
     (("--controller", "wbc"), "controller must be pd or mpc"),
     (("--push", "nowhere:2:0.2"), "expected FRAME:NEWTONS:START:DURATION"),

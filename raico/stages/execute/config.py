@@ -19,6 +19,8 @@ STARTS = ("plan", "standing")  # a floating robot's start state (docs/execution.
 CONTROLLERS = ("pd", "wbc", "mpc")  # pd, wbc (floating), mpc (fixed: re-planning; floating: above the stabilizer)
 MPC_SOLVERS = WARM_STARTABLE  # the solvers with a shift warm start (their spec's caps.mpc, raico.planning.mpc)
 MPC_HORIZON = 50  # planning steps: --controller mpc's default horizon (at most the problem's T)
+FINAL_TARGETS = ("receding", "fixed")  # --final-target: a term at the problem's last step in the MPC's window
+ARM_FINAL_TARGET = "receding"  # --final-target's default for a fixed-base arm (a floating robot's: fixed)
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,10 @@ class ExecuteConfig(StageConfig):
             "rti": "--controller mpc: the preparation / feedback split (real-time iteration): the control from the "
                    "controller prepared for the model's prediction, the next period's solve after it (solvers that "
                    "split: raico, aico; a fixed-base robot; the period the planning step).",
+            "final_target": "--controller mpc: a term at the problem's last step in the window: receding (the "
+                            "window's last step costs it while the problem's end lies beyond the window) or fixed "
+                            "(only once the problem's end is inside the window); default: receding for a fixed-base "
+                            "arm, fixed above a floating robot's stabilizer (docs/mpc.md).",
             "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
@@ -65,6 +71,7 @@ class ExecuteConfig(StageConfig):
     iterations_per_tick: int = 1  # --controller mpc
     solver: str = "raico"  # --controller mpc (MPC_SOLVERS)
     rti: bool = False  # --controller mpc: the preparation / feedback split (MPC(..., split=True))
+    final_target: str | None = None  # --controller mpc: FINAL_TARGETS (None: the controller's default, see HELP)
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
 
     def __post_init__(self) -> None:
@@ -103,6 +110,11 @@ class ExecuteConfig(StageConfig):
             return self.horizon
         return MPC_HORIZON if T is None else min(T, MPC_HORIZON)
 
+    def receding_end(self, default: str) -> bool:
+        """Whether a term at the problem's last step follows the window's receding end (``--final-target``, or
+        the controller's ``default``, one of :data:`FINAL_TARGETS`)."""
+        return (self.final_target or default) == "receding"
+
     def pushes(self) -> list[tuple[str, np.ndarray, float, float]]:
         """The scripted pushes ``(frame, force (3,) N in world, start s, duration s)``."""
         out = []
@@ -125,7 +137,8 @@ class ExecuteConfig(StageConfig):
     def _validate_mpc(self) -> None:
         d = ExecuteConfig.__dataclass_fields__
         if self.controller != "mpc":
-            given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti")
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti",
+                                 "final_target")
                      if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
@@ -141,6 +154,8 @@ class ExecuteConfig(StageConfig):
             raise ValueError(f"--horizon must be at least 1 planning step, got {self.horizon}")
         if self.iterations_per_tick < 1:
             raise ValueError(f"--iterations-per-tick must be at least 1, got {self.iterations_per_tick}")
+        if self.final_target not in (None, *FINAL_TARGETS):
+            raise ValueError(f"--final-target must be one of {', '.join(FINAL_TARGETS)}, got {self.final_target!r}")
         if self.open_loop:
             raise ValueError("--open-loop holds the plan's controls; --controller mpc re-plans: choose one")
 

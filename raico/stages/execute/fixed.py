@@ -11,7 +11,7 @@ import numpy as np
 
 from raico.plants.robots import Robot, load_robot_for, robot_for
 from raico.stages.evaluate.metrics import execution_metrics
-from raico.stages.execute.config import ExecuteConfig, ExecuteOutput, initial_q
+from raico.stages.execute.config import ARM_FINAL_TARGET, ExecuteConfig, ExecuteOutput, initial_q
 
 
 def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng, mpc=None,
@@ -153,7 +153,7 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
         raise ValueError(f"--rti prepares the next planning step: --period {period:g} s must be the planning step")
     mpc = MPC(problem, horizon, cfg.solver, None,  # the solver's defaults (R-AICO: alpha 1)
               iterations=cfg.iterations_per_tick, budget=period, ticks=problem.T * int(round(every)),
-              keep_predictions=True, split=cfg.rti)
+              keep_predictions=True, split=cfg.rti, receding_end=cfg.receding_end(ARM_FINAL_TARGET))
     mpc.start_from(np.asarray(plan["X"]), np.asarray(plan["U"]), np.asarray(plan["o"]), np.asarray(plan["O"]))
     return mpc, period
 

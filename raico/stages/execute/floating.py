@@ -137,7 +137,7 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
     mpc = MPC(problem, horizon, cfg.solver, None, iterations=cfg.iterations_per_tick, budget=dt, ticks=problem.T,
-              keep_predictions=True, receding_end=False)
+              keep_predictions=True, receding_end=cfg.receding_end("fixed"))
     O = np.asarray(plan["O"], float)
     shift = X_plan[0] - np.asarray(plan["X"], float)[0]   # the start projection (constant along the plan)
     mpc.start_from(X_plan, np.asarray(plan["U"], float), np.asarray(plan["o"], float) - O @ shift, O)
