@@ -433,13 +433,7 @@ class ShiftSweeps(Sweeps):
         self.H, self.h, self.Hinv, self.a_eff, self.Qbar = self._Hb, self._hb, self._Hinvb, self._aeff, self._Qbar
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
-        memo = self._task_memo
-        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
-            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
-        elif ct is not None and np.isfinite(X).all():           # R = l_xx, compiled
-            (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
-        else:
-            p.state_derivatives(X, out=(lx, R))                # R = l_xx
+        self._state_rows(X, U, ct, lx, R)
         # the boxes' model compiled, added in place (theta finite: its dense form for the relinearizations in
         # Python built when one asks for it, _relinearize_task); other constraints: the general model
         active, al = False, None

@@ -199,13 +199,7 @@ class Sweeps:
         self._control_marginals()
         RA, lx = self.RA, self._lx
         R = RA[:, :, :n]
-        memo = self._task_memo
-        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
-            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
-        elif ct is not None and np.isfinite(X).all():           # R = l_xx, compiled
-            (lx[:], R[:]), _ = kernels.task_rows(ct, T, X, self._steps)
-        else:
-            p.state_derivatives(X, out=(lx, R))                # R = l_xx
+        self._state_rows(X, U, ct, lx, R)
         self._al_model = None
         if al is not None:     # the constraints' state part, kept for the relinearizations within the sweeps
             lx += al[0]
@@ -263,6 +257,18 @@ class Sweeps:
         with np.errstate(all="ignore"):
             c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
         return c if math.isfinite(c) else math.inf
+
+    def _state_rows(self, X: np.ndarray, U: np.ndarray, ct, lx: np.ndarray, R: np.ndarray) -> None:
+        """The state terms' gradient ``lx (T+1, n)`` and Gauss-Newton Hessian ``R = l_xx (T+1, n, n)`` at
+        ``X, U``, in place: the last cost's rows where ``X, U`` are its point, else the compiled task rows
+        (``ct``, a finite ``X``), else the problem's own derivatives."""
+        memo = self._task_memo
+        if memo is not None and np.array_equal(X, memo[0]) and np.array_equal(U, memo[1]):
+            lx[:], R[:] = memo[2], memo[3]                     # the last cost's rows: the same numbers
+        elif ct is not None and np.isfinite(X).all():           # R = l_xx, compiled
+            (lx[:], R[:]), _ = kernels.task_rows(ct, self.T, X, self._steps)
+        else:
+            self.p.state_derivatives(X, out=(lx, R))           # R = l_xx
 
     def _control_marginals(self) -> None:
         """``Qbar_t = q I + B_t H_t^-1 B_t^T`` and ``a_eff_t = a_t + B_t H_t^-1 h_t`` for all t."""
