@@ -54,6 +54,12 @@ class ExecuteConfig(StageConfig):
                             "window's last step costs it while the problem's end lies beyond the window) or fixed "
                             "(only once the problem's end is inside the window); default: receding for a fixed-base "
                             "arm, fixed above a floating robot's stabilizer (docs/mpc.md).",
+            "window_posture": "--controller mpc on a floating robot: the weight (1/rad^2) of a term on the joint "
+                              "positions' distance from the standing start at every step of the window (not of the "
+                              "plan): what the problem leaves free held instead of carried on; default 0 (none; "
+                              "docs/mpc.md).",
+            "window_damping": "--controller mpc on a floating robot: the weight (s^2/rad^2) of a term on the joint "
+                              "velocities at every step of the window (not of the plan); default 0 (none).",
             "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
@@ -72,6 +78,8 @@ class ExecuteConfig(StageConfig):
     solver: str = "raico"  # --controller mpc (MPC_SOLVERS)
     rti: bool = False  # --controller mpc: the preparation / feedback split (MPC(..., split=True))
     final_target: str | None = None  # --controller mpc: FINAL_TARGETS (None: the controller's default, see HELP)
+    window_posture: float = 0.0  # --controller mpc, floating robot: the window's posture term's weight (1/rad^2)
+    window_damping: float = 0.0  # --controller mpc, floating robot: the window's joint-velocity term's weight
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
 
     def __post_init__(self) -> None:
@@ -97,6 +105,9 @@ class ExecuteConfig(StageConfig):
             if self.rti:
                 raise ValueError("--rti: the preparation / feedback split runs on a fixed-base robot's MPC")
             return
+        for name in ("window_posture", "window_damping"):
+            if getattr(self, name) != 0.0:
+                raise ValueError(f"--{name.replace('_', '-')} is for a floating robot's MPC (above its stabilizer)")
         plant = plan.config.get("plant")
         if self.controller not in ("pd", "mpc"):
             raise ValueError(f"--controller {self.controller} is for plans of a floating robot; this plan is of "
@@ -138,7 +149,7 @@ class ExecuteConfig(StageConfig):
         d = ExecuteConfig.__dataclass_fields__
         if self.controller != "mpc":
             given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti",
-                                 "final_target")
+                                 "final_target", "window_posture", "window_damping")
                      if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
@@ -156,6 +167,10 @@ class ExecuteConfig(StageConfig):
             raise ValueError(f"--iterations-per-tick must be at least 1, got {self.iterations_per_tick}")
         if self.final_target not in (None, *FINAL_TARGETS):
             raise ValueError(f"--final-target must be one of {', '.join(FINAL_TARGETS)}, got {self.final_target!r}")
+        for name in ("window_posture", "window_damping"):
+            w = getattr(self, name)
+            if not (math.isfinite(w) and w >= 0):
+                raise ValueError(f"--{name.replace('_', '-')} must be a finite weight >= 0, got {w}")
         if self.open_loop:
             raise ValueError("--open-loop holds the plan's controls; --controller mpc re-plans: choose one")
 

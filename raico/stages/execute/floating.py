@@ -124,7 +124,8 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     projection: its controller's offsets shifted with it). One tick per planning step. The problem's final
     target costs the window only once the problem's end is inside it (``receding_end=False``): at the
     receding end it would ask the window's last step for the start's CoG one step after a via-point's
-    (docs/mpc.md, "The Nao")."""
+    (docs/mpc.md, "The Nao"). ``--window-posture`` / ``--window-damping``: a state term at every window step
+    on the joints' distance from ``q_start`` and on their velocities (the plan is made without it)."""
     from raico.planning.mpc import MPC
 
     if cfg.period is not None and abs(cfg.period - dt) > 1e-12:
@@ -133,6 +134,13 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     if planning is None:
         raise ValueError("--controller mpc needs the plan's planning problem")
     problem = planning(q_start)
+    if cfg.window_posture > 0 or cfg.window_damping > 0:  # the window holds the standing start (not the plan)
+        from raico.planning.costs import StateTarget
+
+        n = len(q_start)
+        hold = StateTarget(np.r_[q_start, np.zeros(n)], None, 1.0,
+                           np.r_[np.full(n, cfg.window_posture), np.full(n, cfg.window_damping)], name="window_hold")
+        problem = dataclasses.replace(problem, state_terms=[*problem.state_terms, hold])
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
