@@ -62,7 +62,7 @@ def figure(cache_root: Path, table: dict[str, dict[int, dict]], path: Path, push
     rows = 2 if len(table) > 2 else 1
     cols = -(-len(table) // rows)
     fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.4 * rows), sharex=True, sharey=True, squeeze=False)
-    for ax, (label, seeds) in zip(axes.T.ravel(), table.items()):
+    for ax, (label, seeds) in zip(axes.ravel(), table.items()):   # a row per push (the file's order)
         for _, run in sorted(seeds.items()):
             d = np.load(cache_root / "execute" / run["key"] / "rollout.npz")
             t, y = d["times"], d["cog"][:, 1]

@@ -51,6 +51,32 @@ def test_the_floating_execution_runs_mpc_above_the_stabilizer_pushed():
     assert out.mpc["mpc_solve_time"].shape == (T,)
 
 
+@pytest.mark.slow
+@pytest.mark.numerics
+def test_the_window_holds_the_standing_start_only_with_its_weights():
+    from raico.stages.execute.floating import _floating_mpc
+
+    nao = shared_robot("nao")
+    n = nao.n_q
+    plan = pseudo_plan(np.tile(nao.default_q, (T + 1, 1)), DT)
+    q = nao.default_q + 0.01
+    old = _floating_mpc(ExecuteConfig(plan="hold", controller="mpc", horizon=H), plan, plan["X"], q, nao_problem,
+                        DT, 0.001)
+    assert "window_hold" not in old.problem.term_names()      # the default: the plan's problem alone
+    cfg = ExecuteConfig(plan="hold", controller="mpc", horizon=H, window_posture=1.0, window_damping=0.1)
+    mpc = _floating_mpc(cfg, plan, plan["X"], q, nao_problem, DT, 0.001)
+    hold = mpc.problem.term("window_hold")
+    assert hold.times is None and hold.weight == 1.0           # every window step
+    np.testing.assert_array_equal(hold.target, np.r_[q, np.zeros(n)])
+    np.testing.assert_array_equal(np.diag(hold.C), np.r_[np.full(n, 1.0), np.full(n, 0.1)])
+    assert sorted(mpc.problem.term_names()) == sorted([*old.problem.term_names(), "window_hold"])
+    # the run: a few ticks of the held window above the stabilizer
+    out = execute(cfg, desc_for("nao", nao.default_q, T, DT), plan, planning=nao_problem)
+    m = out.metrics
+    assert m["status"] in STATUSES and m["controller"] == "mpc" and m["mpc_ticks"] == T
+    assert np.all(np.isfinite(out.mpc["mpc_predicted"]))
+
+
 @pytest.mark.numerics
 def test_the_reference_follows_a_window():
     from raico.plants.floating import shared_floating
@@ -92,6 +118,9 @@ def nao_plan(tmp_path_factory):
     (("--controller", "mpc", "--period", 0.005), "once per planning step"),
     (("--controller", "mpc", "--horizon", 301), "longer than the problem's 300 steps"),
     (("--controller", "mpc", "--rti"), "runs on a fixed-base robot's MPC"),
+    (("--controller", "mpc", "--window-posture", -1), "--window-posture must be a finite weight >= 0"),
+    (("--controller", "mpc", "--window-damping", "nan"), "--window-damping must be a finite weight >= 0"),
+    (("--controller", "wbc", "--window-damping", 0.1), "--window-damping is an option of --controller mpc"),
 ])
 def test_bad_input_on_the_floating_robot(nao_plan, args, message):
     key, root = nao_plan
@@ -122,7 +151,7 @@ def test_the_nao_scenario_file_expands(tmp_path):
     res = CliRunner().invoke(app, ["exp", "run", str(root / "experiments" / "nao_push_mpc.toml"), "--dry-run",
                                    "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "4 variants x 10 seeds = 40 runs" in res.output
+    assert "6 variants x 10 seeds = 60 runs" in res.output
 
 
 def test_the_cog_via_point_margins_pass_over_a_state_term(tmp_path):
