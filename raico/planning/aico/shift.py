@@ -448,11 +448,7 @@ class ShiftSweeps(Sweeps):
             self._hb -= al[2]
         flags = 0
         if self.lti:
-            if not self._C_filled:
-                A, a, B = p.dynamics.linearize(X[0], U[0])
-                self._C0[:n] = np.column_stack([B, A, -a])
-                self._check_finite(self._C0)
-                self._C_filled = True
+            self._fill_lti(X, U)
         elif (getter := getattr(p.dynamics, "c_linearizer", None)) is not None and getter() is not None:
             flags = kernels.LIN_DYN
         else:

@@ -183,11 +183,7 @@ class Sweeps:
             self.H = self.H + al[3]
             self.h = self.h + np.einsum("tij,tj->ti", al[3], U) - al[2]
         if self.lti:
-            if not self._C_filled:
-                A, a, B = p.dynamics.linearize(X[0], U[0])
-                self._C0[:n] = np.column_stack([B, A, -a])
-                self._check_finite(self._C0)
-                self._C_filled = True
+            self._fill_lti(X, U)
         else:
             C = self.C
             A, a, B = self._linearize_dynamics(X[:-1], U)
@@ -257,6 +253,14 @@ class Sweeps:
         with np.errstate(all="ignore"):
             c = float(per_step.sum()) + sum((float(np.sum(t.value(U))) for t in self.p.control_terms), 0.0)
         return c if math.isfinite(c) else math.inf
+
+    def _fill_lti(self, X: np.ndarray, U: np.ndarray) -> None:
+        """A linear time-invariant model's one linearization ``[B, A, -a]`` into ``C0``, once per solve."""
+        if not self._C_filled:
+            A, a, B = self.p.dynamics.linearize(X[0], U[0])
+            self._C0[:self.n] = np.column_stack([B, A, -a])
+            self._check_finite(self._C0)
+            self._C_filled = True
 
     def _state_rows(self, X: np.ndarray, U: np.ndarray, ct, lx: np.ndarray, R: np.ndarray) -> None:
         """The state terms' gradient ``lx (T+1, n)`` and Gauss-Newton Hessian ``R = l_xx (T+1, n, n)`` at
