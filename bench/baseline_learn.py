@@ -86,6 +86,17 @@ class DrakeEpisodes:
 
 
 # ----------------------------------------------------------------------------- the cart-pole
+def episode_controller(task: Task, settings: dict, seed: int, Zs: list, Ys: list) -> tuple[Controller, float]:
+    """The episode's CEM controller on an ensemble fit to every transition so far (``Zs``, ``Ys``: the
+    episodes' inputs and state changes), and the fit's wall time (s)."""
+    t0 = time.perf_counter()
+    model = Ensemble(settings["members"], tuple(settings["hidden"]), seed=seed).fit(np.concatenate(Zs),
+                                                                                    np.concatenate(Ys))
+    t_fit = time.perf_counter() - t0
+    return Controller(task, model, settings["horizon"], settings["population"], settings["elites"],
+                      settings["iterations"], seed=seed), t_fit
+
+
 def cartpole_task() -> tuple[Task, dict]:
     """The learner's view of the swing-up: features ``[x, sin th, cos th, xdot, thdot]``, PILCO's saturating
     cost on the tip's distance to upright, the motor's +-10 N, 0.1 s steps, 40 per episode; and the criterion."""
@@ -121,12 +132,7 @@ def run_cartpole(seed: int, episodes: int, settings: dict) -> dict:
     seconds, rows = task.steps * task.dt, []
     first = None
     for ep in range(1, episodes + 1):
-        t0 = time.perf_counter()
-        model = Ensemble(settings["members"], tuple(settings["hidden"]), seed=seed * 1000 + ep).fit(
-            np.concatenate(Zs), np.concatenate(Ys))
-        t_fit = time.perf_counter() - t0
-        ctrl = Controller(task, model, settings["horizon"], settings["population"], settings["elites"],
-                          settings["iterations"], seed=seed * 1000 + ep)
+        ctrl, t_fit = episode_controller(task, settings, seed * 1000 + ep, Zs, Ys)
         t0 = time.perf_counter()
         X, U = env.run(q0, ctrl.act, task.steps)
         t_run = time.perf_counter() - t0
@@ -136,7 +142,7 @@ def run_cartpole(seed: int, episodes: int, settings: dict) -> dict:
         end = X[-1]
         verdict = own_criterion(crit, float(end[1]), "ok" if np.all(np.isfinite(X)) else "diverged", float(end[3]))
         rows.append({"error": verdict["error"], "speed": verdict["speed"], "achieved": verdict["achieved"],
-                     "points": model.n_points, "fit_s": t_fit, "run_s": t_run, "cart_max": float(np.nanmax(np.abs(X[:, 0])))})
+                     "points": ctrl.model.n_points, "fit_s": t_fit, "run_s": t_run, "cart_max": float(np.nanmax(np.abs(X[:, 0])))})
         print(f"cartpole seed {seed} ep {ep}: err {verdict['error']:.3f} speed {verdict['speed']:.2f} "
               f"fit {t_fit:.1f}s run {t_run:.1f}s", flush=True)
         if verdict["achieved"]:
@@ -220,12 +226,7 @@ def run_payload(seed: int, episodes: int, settings: dict) -> dict:
     Zs.append(Z), Ys.append(Y)
     seconds, rows, first = steps * dt, [], None
     for ep in range(1, episodes + 1):
-        t0 = time.perf_counter()
-        net = Ensemble(settings["members"], tuple(settings["hidden"]), seed=seed * 1000 + ep).fit(
-            np.concatenate(Zs), np.concatenate(Ys))
-        t_fit = time.perf_counter() - t0
-        ctrl = Controller(task, net, settings["horizon"], settings["population"], settings["elites"],
-                          settings["iterations"], seed=seed * 1000 + ep)
+        ctrl, t_fit = episode_controller(task, settings, seed * 1000 + ep, Zs, Ys)
         t0 = time.perf_counter()
         X, U = env.run(q0, ctrl.act, steps)
         t_run = time.perf_counter() - t0
@@ -233,7 +234,7 @@ def run_payload(seed: int, episodes: int, settings: dict) -> dict:
         Z, Y = transitions(X, U, task.features)
         Zs.append(Z), Ys.append(Y)
         dist = float(np.linalg.norm(fk(X[-1, :len(q0)]) - target)) if np.all(np.isfinite(X[-1])) else float("inf")
-        rows.append({"distance_m": dist, "achieved": dist <= REACH, "points": net.n_points, "fit_s": t_fit,
+        rows.append({"distance_m": dist, "achieved": dist <= REACH, "points": ctrl.model.n_points, "fit_s": t_fit,
                      "run_s": t_run})
         print(f"payload seed {seed} ep {ep}: {100 * dist:.2f} cm fit {t_fit:.1f}s run {t_run:.1f}s", flush=True)
         if dist <= REACH:
