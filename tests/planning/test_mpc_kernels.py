@@ -93,7 +93,8 @@ def _boxes(T: int, n: int, m: int, rng) -> list:
     return cons
 
 
-@pytest.mark.parametrize("T, n, m", [(1, 1, 1), (2, 3, 1), (5, 4, 2), (7, 6, 9), (30, 14, 7)])
+@pytest.mark.parametrize("T, n, m", [(1, 1, 1), (2, 3, 1), (5, 4, 2), (7, 6, 9), (30, 14, 7), (2, 16, 17),
+                                     (3, 33, 32), (1, 32, 1)])
 def test_the_boxes_kernel_is_the_general_lagrangian_bit_for_bit(T, n, m):
     """FiniteBoxAL's compiled multipliers' step, violation and model (added in place) against the general
     AugmentedLagrangian on finite iterates with active rows on every box, over shapes (``k = 0`` boxes too)."""
@@ -155,7 +156,8 @@ def _lti_sweeps(T: int, n: int, m: int, rng) -> Sweeps:
     return sw
 
 
-@pytest.mark.parametrize("T, n, m", [(1, 1, 1), (3, 2, 5), (6, 5, 2), (4, 9, 9)])
+@pytest.mark.parametrize("T, n, m", [(1, 1, 1), (3, 2, 5), (6, 5, 2), (4, 9, 9), (2, 16, 17), (2, 33, 32),
+                                     (1, 32, 1)])
 def test_sweep_linearize_checks_every_control_hessian(T, n, m):
     """``sweep_linearize``'s checks over shapes (m > n too): a control Hessian not positive definite at step t
     (err_info t), a non-finite h, a shared H (stride 0) checked once."""
