@@ -180,6 +180,20 @@ def test_recording_properties_and_capsule_offset(tmp_path: Path) -> None:
     np.testing.assert_allclose(shift, [0.0, 0.0, -0.25])
 
 
+def test_unset_property_then_a_number_converts(tmp_path: Path) -> None:
+    """An option unset (None) in one run and a number in the next, in one process: no conversion
+    warning (Rerun types a property name by its first value), and None stays in the JSON."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Recording(tmp_path / "a.rrd", properties={"window": None, "key": "a"}).close()
+        Recording(tmp_path / "b.rrd", properties={"window": 50, "key": "b"}).close()
+    chunks = _chunks(tmp_path / "a.rrd")
+    assert json.loads(_column(chunks, "/__properties/raico_json", "json")[0][0])["window"] is None
+    assert _column(_chunks(tmp_path / "b.rrd"), "/__properties/raico", "window") == [[50]]
+
+
 def test_parallel_recordings_do_not_mix(tmp_path: Path) -> None:
     a, b = Recording(tmp_path / "a.rrd"), Recording(tmp_path / "b.rrd")
     log_scalars(a, "cost/a", "iteration", np.arange(3), np.ones(3))

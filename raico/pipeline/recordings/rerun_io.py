@@ -186,7 +186,9 @@ class Recording:
     initial camera).
 
     ``properties`` (the run's config, key, ...) become recording properties under
-    ``raico``, plus the whole dict as JSON text in ``raico_json``.
+    ``raico``, plus the whole dict as JSON text in ``raico_json``. An unset (None) option is
+    left out of ``raico`` (it stays in the JSON): Rerun types a property name by its first
+    value in a process, so ``"null"`` text there would make a later run's number fail to convert.
     """
 
     def __init__(
@@ -216,7 +218,7 @@ class Recording:
         if name is not None:
             self.rec.send_recording_name(name)
         if self.properties:
-            values = {str(k): _property_value(v) for k, v in self.properties.items()}
+            values = {str(k): _property_value(v) for k, v in self.properties.items() if v is not None}
             self.rec.send_property("raico", rr.AnyValues(**values))
             blob = json.dumps(self.properties, sort_keys=True, default=str)
             self.rec.send_property("raico_json", rr.AnyValues(json=blob))
