@@ -6,7 +6,8 @@ method (:data:`METHODS`: the augmented Lagrangian, the default; EP at AICO's own
 returns one row per (problem, method): final cost, largest excess over the ranges (rad, against the box a
 plan from the start can keep, ``Bounds.position_box``) and the velocity limits (rad/s), the first iteration
 from which every later iterate is inside by 1e-3, the iterations run, status and CPU time. ``main`` prints
-them as a Markdown table (the docs' numbers) and writes them as JSON.
+them as a Markdown table (the docs' numbers) and writes them as JSON. :func:`register_candidates` adds EP to
+``bench.constraint_candidates``'s registry (its rows, its format): one call.
 """
 
 from __future__ import annotations
@@ -36,6 +37,38 @@ METHODS = {    # label: AICOOptions on top of the problem file's defaults (EP: u
     "EP T=1 to 1e-4": {"ranges": "ep", "ep_temperature": 1.0, "ep_temperature_min": 1e-4},
 }
 INSIDE = 1e-3   # rad, rad/s: "inside" for the iterations-to-inside column
+
+
+CANDIDATES = {   # name: (label, AICOOptions over the default plan's) for bench.constraint_candidates
+    "ep": ("ranges as EP messages, T = 1", {"ranges": "ep", "ep_temperature": 1.0}),
+    "ep-anneal": ("ranges as EP messages, T = 1 to 0.01, damped 0.5",
+                  {"ranges": "ep", "ep_temperature": 1.0, "ep_temperature_min": 1e-2, "ep_damping": 0.5}),
+}
+
+
+def _has_ranges(problem) -> bool:  # noqa: ANN001
+    b = problem.bounds
+    return b is not None and (b.has_positions or b.has_velocities)
+
+
+def _run_ep(problem, options: dict, init: dict, callback, over: dict):  # noqa: ANN001, ANN201
+    """``aico`` with the default plan's options (those AICO knows) and ``over``."""
+    from raico.planning.aico import AICOOptions, aico
+
+    keys = set(AICOOptions.field_names())
+    return aico(problem, AICOOptions(**{k: v for k, v in {**options, **over}.items() if k in keys}),
+                callback=callback, **init)
+
+
+def register_candidates() -> None:
+    """Register :data:`CANDIDATES` in ``bench.constraint_candidates`` (``Candidate(name, label, applies, run)``,
+    ``run(problem, options, init, callback)``), where a problem has joint ranges or velocity limits."""
+    import functools
+
+    from bench.constraint_candidates import Candidate, register
+
+    for name, (label, over) in CANDIDATES.items():
+        register(Candidate(name, label, _has_ranges, functools.partial(_run_ep, over=over)))
 
 
 def _excess(problem, X: np.ndarray) -> tuple[float, float]:
@@ -98,6 +131,36 @@ def rows(problems: dict[str, str] | None = None, methods: dict[str, dict] | None
     return out
 
 
+def lq_rows(iterations: int = 200) -> list[dict]:
+    """The bounded LQ problem of the tests (``tests.planning.test_aico_robust.bounded_lq``, T = 12: two state
+    coordinates in [-0.3, 0.3], both controls in +-0.8) against its QP's feasible optimum: per method and
+    annealing floor, the relative gap, the range excess and the iterations."""
+    from raico.planning.aico import AICOOptions, aico
+    from tests.planning.test_aico_robust import bounded_lq, bounded_qp_optimum
+
+    _, pb = bounded_lq(T=12)
+    qp = bounded_qp_optimum(pb)
+    out = []
+    variants = [("AL (default)", {})] + [
+        (f"EP T=1{'' if f is None else f' to {f:g}'}{' damped 0.5' if d < 1 else ''}",
+         {"ranges": "ep", "ep_temperature_min": f, "ep_damping": d})
+        for d in (1.0, 0.5) for f in (None, 1e-2, 1e-4, 1e-6)]
+    for label, extra in variants:
+        res = aico(pb, AICOOptions(iterations=iterations, alpha=1.0, schedule="robust", **extra))
+        q, _ = pb.bounds.violation(res.X, res.U)
+        out.append({"method": label, "gap": pb.cost(res.X, res.U) / qp - 1.0, "range_excess": q,
+                    "iterations": res.iterations, "status": res.status.value})
+    return out
+
+
+def lq_table(rs: list[dict]) -> str:
+    """:func:`lq_rows` as a Markdown table."""
+    lines = ["| method | cost / QP optimum - 1 | range excess (rad) | iterations | status |", "|" + "---|" * 5]
+    lines += [f"| {r['method']} | {r['gap']:.2g} | {r['range_excess']:.2g} | {r['iterations']} | {r['status']} |"
+              for r in rs]
+    return "\n".join(lines)
+
+
 def table(rs: list[dict]) -> str:
     """The rows as a Markdown table, each cost also as a ratio to the lowest cost of a plan inside the
     limits on its problem."""
@@ -120,7 +183,11 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=200)
     ap.add_argument("--problems", default="", help="comma-separated labels of PROBLEMS (default all)")
     ap.add_argument("--out", default="", help="write the rows as JSON here")
+    ap.add_argument("--lq", action="store_true", help="the bounded LQ problem against its QP instead")
     args = ap.parse_args()
+    if args.lq:
+        print(lq_table(lq_rows(args.iterations)))
+        return
     probs = {k: PROBLEMS[k] for k in args.problems.split(",")} if args.problems else None
     rs = rows(probs, iterations=args.iterations)
     print(table(rs))
