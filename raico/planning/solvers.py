@@ -36,7 +36,8 @@ class Capabilities:
     ``sweeps``: AICO's sweeps (relinearization repeats per iteration); ``schedules``: its alpha
     schedules; ``control_kinds``: the dynamics' controls it takes; ``mpc``: its shift warm start in
     :mod:`raico.planning.mpc` (``"aico"``, ``"fddp"``), ``None`` where it has none; ``split``: its MPC tick
-    splits into preparation and feedback (``MPC(..., split=True)``)."""
+    splits into preparation and feedback (``MPC(..., split=True)``); ``range_messages``: keeps the ranges as
+    truncated-Gaussian (EP) messages on request (option ``ranges = "ep"``)."""
 
     starts: tuple[str, ...] = ("held", "quasi-static")
     warm_from: tuple[str, ...] = ("controls",)
@@ -47,6 +48,7 @@ class Capabilities:
     control_kinds: tuple[str, ...] = CONTROL_KINDS
     mpc: str | None = None
     split: bool = False
+    range_messages: bool = False
 
 
 @dataclass(frozen=True)
@@ -117,7 +119,7 @@ def _check_raico(o) -> None:  # noqa: ANN001
 
 _AICO_CAPS = Capabilities(starts=("held", "rollout", "quasi-static"), warm_from=("trajectory", "controls"),
                           hard_bounds=True, control_box=True, sweeps=True, mpc="aico",
-                          split=True)
+                          split=True, range_messages=True)
 
 SOLVERS: dict[str, SolverSpec] = {
     "aico": SolverSpec("aico", "AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions", _AICO_CAPS,

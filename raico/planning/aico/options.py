@@ -9,6 +9,7 @@ from raico.planning.problem import Flag, OptionsBase, check_range
 
 SCHEDULES = ("fixed", "adaptive", "robust")
 LAMBDA_FALLS = ("nielsen", "accelerated")
+RANGE_METHODS = ("al", "ep")
 
 
 def _resolve_schedule(value: str, problem_file: bool) -> str:
@@ -104,12 +105,29 @@ class AICOOptions(OptionsBase):
     #: trajectory judged so too) or ``"nielsen"`` (Nielsen's rule, at most ``/lm_factor``; the rule before):
     #: :func:`raico.planning.aico.steps.lambda_after`; Nielsen's by default (docs/planning.md: why)
     lambda_fall: str = "nielsen"
+    #: the hard joint ranges and velocity limits: ``"al"`` (the augmented Lagrangian, :mod:`raico.planning.aico.bounds`)
+    #: or ``"ep"`` (truncated-Gaussian EP messages into the task messages, :mod:`raico.planning.aico.truncated`)
+    ranges: str = "al"
+    #: ``ranges = "ep"``: the posterior ``exp(-cost / ep_temperature)`` whose truncated moments the sites match (1:
+    #: AICO's own posterior; smaller: nearer the constrained optimum, stiffer sites)
+    ep_temperature: float = 1.0
+    #: ``ranges = "ep"``: at a feasible stationary point the temperature falls tenfold, down to this (an
+    #: interior method's path; ``None``: it stays at ``ep_temperature``)
+    ep_temperature_min: float | None = None
+    #: ``ranges = "ep"``: the new site's share in a site update, in (0, 1]
+    ep_damping: float = 1.0
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
             raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.lambda_fall not in LAMBDA_FALLS:
             raise ValueError(f"option lambda_fall must be one of {', '.join(LAMBDA_FALLS)}, got {self.lambda_fall!r}")
+        if self.ranges not in RANGE_METHODS:
+            raise ValueError(f"option ranges must be one of {', '.join(RANGE_METHODS)}, got {self.ranges!r}")
+        check_range("ep_temperature", self.ep_temperature, lo=0.0, lo_open=True)
+        if self.ep_temperature_min is not None:
+            check_range("ep_temperature_min", self.ep_temperature_min, lo=0.0, lo_open=True)
+        check_range("ep_damping", self.ep_damping, lo=0.0, hi=1.0, lo_open=True)
         check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
         check_range("accept", self.accept, lo=0.0, hi=1.0)
         check_range("decrease_above", self.decrease_above, lo=self.accept)

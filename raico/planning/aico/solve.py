@@ -21,6 +21,7 @@ from raico.planning.aico.bounds import cost_curvature, distance_constraints, har
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.steps import AICOStep, RobustStep
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
+from raico.planning.aico.truncated import TruncatedSites, truncated_ranges
 from raico.planning.costs import hard_inequalities
 from raico.planning.driver import Iterate, Status, cost_change_within, drive
 from raico.planning.problem import Bounds, Callback, Problem, Result, bounds_status, single_threaded_blas
@@ -105,6 +106,8 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
     start = Iterate(X, U, U.copy(), np.zeros((T, n_u, problem.n_x)))
     step: RobustStep | AICOStep
     al = hard_constraints(problem, X, U, efforts, hard)
+    if opts.ranges == "ep":   # the ranges as truncated-Gaussian (EP) messages, the rest an augmented Lagrangian
+        al = truncated_ranges(al, opts.ep_temperature, opts.ep_damping, opts.ep_temperature_min)
     if al is not None:
         callback, costs = own_costs(problem, al, callback)
     if opts.schedule == "robust":
@@ -116,20 +119,27 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
                                                   start_variance=opts.start_variance / kappa))
         feasible = bool(np.all(np.isfinite(X0_roll))) and np.allclose(X, X0_roll, rtol=1e-12, atol=0.0)
         sw.al = al
+        if isinstance(al, TruncatedSites):
+            al.sweeps = sw
         start_merit = initial_cost + (al.value(X0_roll, U) if al is not None and feasible else 0.0)
         step = RobustStep(problem, sw, opts, kappa, start_merit if feasible else None)
     else:
         sw = Sweeps(problem, opts)
         sw.al = al
+        if isinstance(al, TruncatedSites):
+            al.sweeps = sw
         step = AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
     test = cost_change_within
     if al is not None:     # no convergence outside the constraints
         def test(previous: float, cost: float, tol: float) -> bool:
-            return al.last_violation <= 1.0 and cost_change_within(previous, cost, tol)
+            done = al.last_violation <= 1.0 and cost_change_within(previous, cost, tol)
+            return done and (not isinstance(al, TruncatedSites) or al.anneal())   # EP: colder, until its floor
     out = drive(step, start, opts, initial_cost=initial_cost, callback=callback, test=test)
     if al is not None:     # the history reports the problem's own cost (the merit's constraint terms left out)
         out.history = [dataclasses.replace(h, cost=costs.get(h.iteration, h.cost)) for h in out.history]
-        if any(y is not None for y in al.y):
+        if isinstance(al, TruncatedSites):
+            out.message += f" (ranges: {al.updates} EP updates, temperature {al.temperature:.3g})"
+        elif any(y is not None for y in al.y):
             out.message += f" (constraints: {al.updates} multiplier updates, penalty {al.mu / al.mu0:.3g} x its start)"
     last = out.last_finite
     beliefs = None

@@ -12,6 +12,7 @@ from raico.planning.aico.bounds import AL_INNER_TOL
 from raico.planning.aico.cross import cross_hessian, eliminate
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
+from raico.planning.aico.truncated import TruncatedSites
 from raico.planning.driver import Iterate, Status, Step, Stop
 from raico.planning.problem import Problem
 
@@ -90,11 +91,17 @@ class AICOStep:
                 or not math.isfinite(step.cost):
             return step
         prev, self._last_merit = self._last_merit, step.cost
-        if abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost) and al.violation(step.iterate.X, step.iterate.U) > 1.0:
+        falls = abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost)
+        every = isinstance(al, TruncatedSites)    # EP's sites: every step; their temperature where it settled
+        settled = not falls if every else not (falls and al.violation(step.iterate.X, step.iterate.U) > 1.0)
+        if not settled and not every:
             return step     # the merit still falls: its minimizer is not yet found (the multipliers wait)
         X, U = step.iterate.X, step.iterate.U
         base = step.cost - al.value(X, U)
-        al.update(X, U)
+        if settled:
+            al.update(X, U)
+        elif isinstance(al, TruncatedSites):    # EP's sites move every step
+            al.step_sites(X, U)
         self._last_merit = base + al.value(X, U)
         return dataclasses.replace(step, cost=self._last_merit)
 
@@ -235,11 +242,15 @@ class RobustStep(AICOStep):
         """A stationary point of the merit that breaks a hard constraint is no solution: the multipliers and
         penalty move there (the merit changes, so does its model) and the run goes on."""
         al = self.sw.al
-        if al is None or out.stop is None or out.stop.status is not Status.CONVERGED \
-                or al.violation(cur.X, cur.U) <= 1.0:
+        if al is None or out.stop is None or out.stop.status is not Status.CONVERGED:
             return out
-        al.update(cur.X, cur.U)
-        al.force_growth()
+        if al.violation(cur.X, cur.U) <= 1.0:   # feasible: stationary, unless EP's sites are to be colder
+            if not isinstance(al, TruncatedSites) or al.anneal():
+                return out
+            al.step_sites(cur.X, cur.U)
+        else:
+            al.update(cur.X, cur.U)
+            al.force_growth()
         self.cur_cost = self._merit(cur.X, cur.U)
         self._model_of, self.ascents = None, 0
         return dataclasses.replace(out, cost=self.cur_cost, stop=None)

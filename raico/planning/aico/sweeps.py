@@ -36,6 +36,7 @@ from raico.plants.codegen.c_backend import check_shapes
 from raico.plants.lazy import LazyModule
 
 if TYPE_CHECKING:
+    from raico.planning.aico.truncated import TruncatedSites
     from raico.planning.constraints import AugmentedLagrangian
 
 blas, lapack = LazyModule("scipy.linalg.blas"), LazyModule("scipy.linalg.lapack")  # imported at first use
@@ -156,7 +157,7 @@ class Sweeps:
         self._ctask: Any = None   # compiled task messages (kernels.compile_task_set), on first use
         self._steps = np.arange(T + 1)
         self._task_memo: tuple | None = None   # (X, U, l_x, l_xx) of the last compiled cost's rows
-        self.al: AugmentedLagrangian | None = None   # hard constraints (raico.planning.constraints), set by the caller
+        self.al: AugmentedLagrangian | TruncatedSites | None = None   # hard constraints (raico.planning.constraints), set by the caller
         self._al_model: tuple | None = None   # (R, r) the constraints add to the task messages, None: nothing
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
