@@ -23,6 +23,15 @@ RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or v
 DISTANCE_TOL = 1e-4   # m: the collision constraints' target on a distance below its margin
 AL_INNER_TOL = 1e-3   # the multipliers move where the merit fell by less than this (relative), or inside the limits
 AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
+AL_ENDGAME = 0.25   # the robust schedule's last quarter of its iteration budget puts feasibility first (endgame)
+
+
+def in_endgame(it: int, iterations: int) -> bool:
+    """Whether iteration ``it`` (1-based) of a budget of ``iterations`` is in its last ``AL_ENDGAME`` part (at least
+    the last iteration): the augmented Lagrangian's endgame (:class:`raico.planning.constraints.AugmentedLagrangian`:
+    the multipliers step after every accepted iteration while the iterate is beyond tolerance, the penalty grows
+    at once where the violation did not fall), so that the plan the budget ends on keeps its limits."""
+    return it > iterations - max(1, math.ceil(AL_ENDGAME * iterations))
 
 
 def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None,

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from raico.planning.aico.bounds import AL_INNER_TOL
+from raico.planning.aico.bounds import AL_INNER_TOL, in_endgame
 from raico.planning.aico.cross import cross_hessian, eliminate
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
@@ -90,7 +90,8 @@ class AICOStep:
                 or not math.isfinite(step.cost):
             return step
         prev, self._last_merit = self._last_merit, step.cost
-        if abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost) and al.violation(step.iterate.X, step.iterate.U) > 1.0:
+        if abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost) and not al.endgame \
+                and al.violation(step.iterate.X, step.iterate.U) > 1.0:
             return step     # the merit still falls: its minimizer is not yet found (the multipliers wait)
         X, U = step.iterate.X, step.iterate.U
         base = step.cost - al.value(X, U)
@@ -159,6 +160,8 @@ class RobustStep(AICOStep):
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
         self.alpha = self.lam * self.kappa
+        if self.sw.al is not None:    # the budget's last part: feasibility first
+            self.sw.al.endgame = in_endgame(it, o.iterations)
         step = self._trial(cur)
         lam = self.lam
         failed = step.stop is not None and step.stop.status is Status.DIVERGED
