@@ -1,6 +1,7 @@
-"""The augmented Lagrangian's endgame (raico/planning/constraints.py, raico/planning/aico/bounds.py): the budget's
-last quarter steps the multipliers after every accepted iteration and grows the penalty at the first update whose
-violation did not fall by ``DECREASE``; before it the penalty waits ``PATIENCE`` updates."""
+"""The augmented Lagrangian's endgame (raico/planning/constraints.py, raico/planning/aico/bounds.py): in the budget's
+last quarter, from an iterate beyond a plan's status tolerance, the multipliers step after every accepted iteration
+and the penalty grows at the first update whose violation did not fall by ``DECREASE``; before it the penalty waits
+``PATIENCE`` updates."""
 
 from __future__ import annotations
 
@@ -10,21 +11,29 @@ import pytest
 from raico.planning.aico import AICOOptions, aico
 from raico.planning.aico.bounds import in_endgame
 from raico.planning.constraints import MU_GROWTH, PATIENCE, AugmentedLagrangian, StateBox
-from raico.planning.problem import Status
+from raico.planning.problem import RANGE_STATUS_TOL, Status
 from tests.planning.test_aico_robust import bounded_lq, bounded_qp_optimum
 
 
-def test_the_endgame_is_the_budgets_last_quarter():
-    assert [it for it in range(1, 41) if in_endgame(it, 40)] == list(range(31, 41))
-    assert in_endgame(1, 1) and not in_endgame(1, 2) and in_endgame(2, 2)
+def _box(T: int = 3) -> AugmentedLagrangian:
+    return AugmentedLagrangian([StateBox("range", [0], np.full((T + 1, 1), -1.0), np.full((T + 1, 1), 1.0), 1e-4)],
+                               T, mu=2.0)
+
+
+def test_the_endgame_is_the_budgets_last_quarter_beyond_the_status_tolerance():
+    al, U = _box(), np.zeros((3, 1))
+    out, edge, inside = (np.full((4, 2), x) for x in (1.5, 1.0 + 0.9 * RANGE_STATUS_TOL, 0.5))
+    assert [it for it in range(1, 41) if in_endgame(it, 40, al, out, U)] == list(range(31, 41))
+    assert in_endgame(1, 1, al, out, U) and not in_endgame(1, 2, al, out, U) and in_endgame(2, 2, al, out, U)
+    # a plan within its status tolerance (not out-of-bounds) is left to the merit
+    assert not in_endgame(40, 40, al, edge, U) and not in_endgame(40, 40, al, inside, U)
 
 
 def _stalled_updates(endgame: bool) -> list[float]:
     """The penalty (over its start) after each of ``PATIENCE + 1`` updates at one iterate beyond its box: the
     violation never falls after the first."""
     T = 3
-    al = AugmentedLagrangian([StateBox("range", [0], np.full((T + 1, 1), -1.0), np.full((T + 1, 1), 1.0), 1e-4)],
-                             T, mu=2.0)
+    al = _box(T)
     al.endgame = endgame
     X, U = np.full((T + 1, 2), 1.5), np.zeros((T, 1))
     out = []

@@ -160,8 +160,8 @@ class RobustStep(AICOStep):
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
         self.alpha = self.lam * self.kappa
-        if self.sw.al is not None:    # the budget's last part: feasibility first
-            self.sw.al.endgame = in_endgame(it, o.iterations)
+        if self.sw.al is not None:    # the budget's last part, beyond a plan's status: feasibility first
+            self.sw.al.endgame = in_endgame(it, o.iterations, self.sw.al, cur.X, cur.U)
         step = self._trial(cur)
         lam = self.lam
         failed = step.stop is not None and step.stop.status is Status.DIVERGED
