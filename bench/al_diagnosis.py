@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ def diagnose(label: str, iterations: int | None = None, noise: float = 1.0, say=
     _, _, problem, q0, _ = build_problem(cfg)
     init = {"rollout": lambda: {"U_init": np.zeros((problem.T, problem.n_u))},
             "quasi-static": lambda: {"U_init": quasi_static_controls(problem, q0)}}.get(cfg.start, dict)()
-    b, out = problem.bounds, {"first_ascent": None}
+    b, out = problem.bounds, dict[str, Any](first_ascent=None)
     trial, inner = steps.RobustStep._trial, aico_solve._aico
 
     def traced(self, cur):
@@ -66,11 +67,15 @@ def diagnose(label: str, iterations: int | None = None, noise: float = 1.0, say=
     def noisy(problem, o, *a, **k):
         return inner(problem, dataclasses.replace(o, process_noise=o.process_noise * noise), *a, **k)
 
-    steps.RobustStep._trial, steps.RobustStep.__call__, aico_solve._aico = traced, counted, noisy
+    wrapped = {(steps.RobustStep, "_trial"): traced, (steps.RobustStep, "__call__"): counted, (aico_solve, "_aico"): noisy}
+    kept = {k: getattr(*k) for k in wrapped}
+    for (owner, name), fn in wrapped.items():
+        setattr(owner, name, fn)
     try:
         res = solve(problem, cfg.solver, cfg.solver_options(), **init)
     finally:
-        steps.RobustStep._trial, steps.RobustStep.__call__, aico_solve._aico = trial, call, inner
+        for (owner, name), fn in kept.items():
+            setattr(owner, name, fn)
     cost = problem.cost(res.X, res.U)
     out.update(status=res.status.value, cost=cost if math.isfinite(cost) else None, iterations=res.iterations,
                message=res.message)
