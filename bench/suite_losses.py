@@ -6,7 +6,9 @@ its tolerance), the final cost against the best feasible cost known (from ``--be
 lowest final cost of a plan inside the limits, or the direct-transcription reference's feasible cost), and the
 plan itself re-planned in this process at the suite's budget and at ``LONG`` times it (plan-level task verdict
 and status, no execution), from which the cause is read (:func:`cause`). Writes ``DIR/suite_losses.md`` and
-``.json`` beside ``RUN.json`` and, with ``--docs``, the table into docs/suite.md between its markers.
+``.json`` beside ``RUN.json`` and, with ``--docs``, the table into docs/suite.md between its markers. With ``--base
+FULL.json`` a rerun of a few problems (``RUN.json``) replaces those runs of a full one (:func:`overlay`): the table
+then covers every problem, its rerun ones marked.
 """
 
 from __future__ import annotations
@@ -168,7 +170,9 @@ def _g(x, spec=".4g") -> str:
 
 def markdown(run: dict, rows: list[dict], full_name: str | None) -> str:
     e = run["executions"]
-    head = [f"From `{run.get('date', '')}`'s run of the default plan ({DEFAULT}): **{e['problems_default_ok']} of "
+    since = (f" (the rerun of {len(run['rerun'])} problems, marked *, over the full run of {run['base_date']})"
+             if run.get("rerun") else "")
+    head = [f"From `{run.get('date', '')}`'s run of the default plan ({DEFAULT}){since}: **{e['problems_default_ok']} of "
             f"{e['problems']}** problems executed `ok` with the task achieved; the {len(rows)} others below, each "
             f"re-planned (plan only) at the suite's budget and at {LONG}x it (at most {LONG_MAX} iterations)"
             + (f"; the best feasible cost known from {full_name}." if full_name else "."), "",
@@ -185,9 +189,27 @@ def markdown(run: dict, rows: list[dict], full_name: str | None) -> str:
         def plan(x):
             return (f"{x['status']}, {_g(x['cost'])}, {'achieved' if x['achieved'] else 'missed'} "
                     f"{_g(x['error'], '.3g')} {x['unit'] or ''}")
-        head.append(f"| {r['problem']} | {r['execution']} | {miss} | {_g(r['final_cost'])} | {_g(r['best_feasible'])} "
+        star = "*" if r["problem"] in run.get("rerun", ()) else ""
+        head.append(f"| {r['problem']}{star} | {r['execution']} | {miss} | {_g(r['final_cost'])} | {_g(r['best_feasible'])} "
                     f"| {plan(a)} | {plan(lg)} ({lg['iterations']} it.) | {r['cause']} |")
     return "\n".join(head) + "\n"
+
+
+def overlay(run: dict, base: dict) -> dict:
+    """``base`` (a full run's document) with the records of ``run`` (a rerun of some problems and solvers) in place
+    of its records of the same problem and solver, the default plan's execution counts recounted, the rerun's
+    date and the problems it covers (``rerun``) kept."""
+    from raico.pipeline.experiments.suite import executed_ok
+
+    new = {(r["problem"], r["solver"]): r for r in run["records"]}
+    records = [new.pop((r["problem"], r["solver"]), r) for r in base["records"]] + list(new.values())
+    mine = [r for r in records if r["solver"] == DEFAULT]
+    problems = sorted({r["problem"] for r in records})
+    e = dict(base.get("executions") or {})
+    e.update(problems=len(problems), problems_default_ok=sum(map(executed_ok, mine)))
+    return {**base, "records": records, "executions": e, "budgets": {**base["budgets"], **run["budgets"]},
+            "date": run.get("date", ""), "base_date": base.get("date", ""),
+            "rerun": sorted({r["problem"] for r in run["records"]})}
 
 
 def main() -> None:
@@ -195,10 +217,13 @@ def main() -> None:
     ap.add_argument("run", help="suite.json of a run with the default plan")
     ap.add_argument("--best", default=None, help="suite.json of a full run (every solver, the reference)")
     ap.add_argument("--file", default=None, help="the suite's list file the run used")
+    ap.add_argument("--base", default=None, help="suite.json of a full run the RUN (a rerun of some problems) updates")
     ap.add_argument("--docs", action="store_true", help="write the table into docs/suite.md")
     args = ap.parse_args()
     run = json.loads(Path(args.run).read_text())
     full = json.loads(Path(args.best).read_text()) if args.best else None
+    if args.base:
+        run = overlay(run, json.loads(Path(args.base).read_text()))
     rows = analyse(run, full, args.file, lambda s: print(s, file=sys.stderr, flush=True))
     md = markdown(run, rows, f"the full run of {full.get('date', '')} (`{Path(args.best).name}`)" if full else None)
     out = Path(args.run).parent

@@ -15,9 +15,10 @@ controls, so AICO's messages carry the constraints. After every accepted iterati
 their first-order step ``y = lam`` at the new iterate and, where the largest scaled violation has not fallen by
 ``DECREASE`` in ``PATIENCE`` updates, ``mu *= MU_GROWTH`` (bounded): the iteration of ProxDDP / CSQP style
 (multipliers inside the iteration, a merit function the step must lower), not an outer loop of inner solves.
+In the **endgame** (the budget's last iterations) the multipliers step after every accepted iteration and the
+penalty grows at the first update without that decrease: the plan the budget ends on is driven inside its limits.
 
-Why this method, measured against the chunked augmented Lagrangian it replaces, and what was not built:
-docs/planning.md, "Why this augmented Lagrangian".
+Why this method, and what was not built: docs/planning.md, "Why this augmented Lagrangian".
 
 Where no row of any constraint is ever active (``y = 0`` and ``g < 0`` at every linearization and rollout) the
 merit is the cost and nothing is added to the messages: the iterates are the unconstrained ones, bit for bit.
@@ -39,7 +40,7 @@ import numpy as np
 MU_GROWTH = 10.0     # the penalty's growth where the violation did not fall enough
 DECREASE = 0.25      # ... by this factor since the last multiplier update
 MU_MAX_FACTOR = 1e8  # the penalty's cap, relative to its start
-PATIENCE = 3         # updates without that decrease before the penalty grows
+PATIENCE = 3         # updates without that decrease before the penalty grows (1 in the endgame)
 
 
 class Constraint(Protocol):
@@ -282,6 +283,7 @@ class AugmentedLagrangian:
         self.ref_violation = math.inf    # ... where the penalty last grew or the violation last fell enough
         self.stalled = 0                 # updates since then
         self.updates = 0
+        self.endgame = False             # the budget's last iterations: feasibility first (update, patience 1)
 
     def _mu(self, c) -> float:
         return self.mu * getattr(c, "scale", 1.0)
@@ -334,7 +336,7 @@ class AugmentedLagrangian:
     def update(self, X: np.ndarray, U: np.ndarray) -> None:
         """The first-order multiplier step ``y = max(0, y + mu g)`` at the accepted iterate ``X, U``; ``mu *=
         MU_GROWTH`` when the scaled violation, beyond tolerance, has not fallen by ``DECREASE`` in ``PATIENCE``
-        updates."""
+        updates (in the endgame: in one)."""
         viol = self.violation(X, U)
         for k, (_, lam) in enumerate(self._lams(X, U)):
             self.y[k] = lam if (lam.any() or self.y[k] is not None) else None
@@ -344,7 +346,7 @@ class AugmentedLagrangian:
             self.ref_violation, self.stalled = viol, 0
         else:
             self.stalled += 1
-            if self.stalled >= PATIENCE:
+            if self.stalled >= (1 if self.endgame else PATIENCE):
                 self.force_growth()
                 self.ref_violation = viol
         self.last_violation = viol

@@ -42,3 +42,25 @@ def test_the_table_counts_each_cause():
     md = markdown(run, rows, None)
     assert "**1 of 3**" in md and "the cost's optimum misses the tolerance **2** (a, b)" in md
     assert md.count("\n| a |") == 1 and md.count("\n| b |") == 1
+
+
+def test_a_rerun_of_some_problems_overlays_the_full_run():
+    """``--base``: the rerun's records replace the full run's of the same problem and solver, the default plan's
+    problems executed ``ok`` with the task achieved are recounted, and the table marks the rerun problems."""
+    from bench.suite_losses import DEFAULT, overlay
+
+    def rec(p, solver=DEFAULT, ok=False):
+        return {"problem": p, "solver": solver, "execution": "ok", "task_achieved": ok, "inside_limits": True}
+    base = {"date": "then", "records": [rec("a"), rec("b", ok=True), rec("a", "FDDP", ok=True)],
+            "executions": {"runs": 3, "problems": 2, "problems_default_ok": 1}, "budgets": {"a": 1, "b": 2}}
+    run = {"date": "now", "records": [rec("a", ok=True)], "budgets": {"a": 5}}
+    out = overlay(run, base)
+    assert [r["task_achieved"] for r in out["records"]] == [True, True, True]
+    assert out["executions"]["problems_default_ok"] == 2 and out["executions"]["problems"] == 2
+    assert out["budgets"] == {"a": 5, "b": 2} and out["rerun"] == ["a"] and out["base_date"] == "then"
+    stuck = _plan(status="converged")
+    rows = [{"problem": p, "execution": "ok", "error": 0.02, "tol": 0.01, "unit": "m", "final_cost": 10.0,
+             "best_feasible": None, "status": "converged", "at": stuck, "long": stuck,
+             "cause": cause({"execution": "ok"}, stuck, stuck, False)} for p in ("a", "b")]
+    md = markdown(out, rows, None)
+    assert "\n| a* |" in md and "\n| b |" in md and "over the full run of then" in md

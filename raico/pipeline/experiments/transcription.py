@@ -10,8 +10,9 @@ solves, written out:
   per control with the terms' exact gradients (``l_x``, ``l_u``);
 - the hard bounds ``problem.bounds``: the positions ``q_lower <= X[t, q_index] <= q_upper`` and the joint
   velocities ``v_lower <= X[t, v_index] <= v_upper`` (the model file's velocity limits) from step 1 (``x_0``
-  is the start, no plan changes it), and the controls' box (the torques of acceleration controls are not
-  bounded here).
+  is the start, no plan changes it), the controls' box, and for acceleration controls the torques they ask
+  for, ``|tau(x_t, u_t)| <= tau_limit`` (``M(q) u + h(q, v)``, the bounds' ``tau_model``; its Jacobians as
+  :class:`raico.planning.constraints.TorqueBox` takes them) at steps ``0..T-1``.
 
 Second derivatives are left to the solver's quasi-Newton approximation (SNOPT's, IPOPT's limited-memory
 BFGS). Warm-started from a plan (``X``, ``U`` of a solver), it gives the best feasible cost known for
@@ -34,7 +35,8 @@ from raico.planning.problem import Problem
 
 SOLVERS = ("snopt", "ipopt")
 FEASIBILITY_TOL = 1e-6   # the solvers' constraint tolerance (dynamics defect, bounds), in the variables' units
-FORMAT = 2               # what the transcription constrains: 2 with the velocity limits (in every cache key)
+FORMAT = 2               # what the transcription constrains: 2 with the velocity limits (in every cache key) ...
+FORMAT_TORQUES = 3       # ... 3 the torques of acceleration controls too (the key of a problem with them)
 
 
 @dataclass
@@ -53,12 +55,13 @@ class Transcribed:
     solver: str
     time_s: float
     velocity_excess: float = 0.0  # largest excess over the velocity limits (rad/s)
+    torque_excess: float = 0.0    # largest excess of the accelerations' torques over the effort limits (N m)
 
     def record(self) -> dict[str, Any]:
         """The scalars, for a table."""
         return {"cost": self.cost if math.isfinite(self.cost) else None, "status": self.status,
                 "feasible": self.feasible, "defect": self.defect, "range_excess": self.bound_excess,
-                "velocity_excess": self.velocity_excess,
+                "velocity_excess": self.velocity_excess, "torque_excess": self.torque_excess,
                 "solver": self.solver, "time_s": self.time_s}
 
 
@@ -152,11 +155,34 @@ def transcribe(problem: Problem, X0: np.ndarray, U0: np.ndarray):
     if b is not None and b.has_controls:
         for t in range(T):
             prog.AddBoundingBoxConstraint(b.u_lower, b.u_upper, U[t])
+    if b is not None and b.has_torques:
+        torque_eval, idx, limit = _torques(b, n)
+        for t in range(T):
+            prog.AddConstraint(torque_eval, -limit, limit, np.concatenate([X[t], U[t]]))
     X0 = np.array(X0, float, copy=True)
     X0[0] = problem.x0
     prog.SetInitialGuess(X, X0)
     prog.SetInitialGuess(U, np.asarray(U0, float))
     return prog, X, U
+
+
+def _torques(b, n: int):
+    """The torques of acceleration controls as a Drake evaluator of ``(x_t, u_t)`` (the joints ``idx`` with a finite
+    effort limit), ``idx`` and their limits: ``tau = M(q) u + h(q, v)`` by ``b.tau_model.inverse_dynamics``, its
+    Jacobians ``tau_q = -M a_q``, ``tau_v = -M a_v``, ``tau_u = M`` from ``qddot_derivatives`` (differentiating
+    ``a(q, v, tau(q, v, u)) = u``, as :class:`raico.planning.constraints.TorqueBox`)."""
+    n_q = n // 2
+    idx = np.flatnonzero(np.isfinite(b.tau_limit) & (np.asarray(b.tau_limit, float) > 0))
+    model = b.tau_model
+
+    def torque(z):
+        q, v, u = z[:n_q], z[n_q:n], z[n:]
+        tau = np.asarray(model.inverse_dynamics(q, v, u), float)
+        _, a_q, a_v, Minv = model.qddot_derivatives(q, v, tau)
+        M = np.linalg.inv(Minv)
+        return tau[idx], np.hstack([-M @ a_q, -M @ a_v, M])[idx]
+
+    return _autodiff(torque), idx, np.asarray(b.tau_limit, float)[idx]
 
 
 def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt",
@@ -197,8 +223,8 @@ def solve(problem: Problem, X0: np.ndarray, U0: np.ndarray, solver: str = "snopt
 def judge(problem: Problem, X: np.ndarray, U: np.ndarray, status: str, solver: str, time_s: float,
           tol: float = FEASIBILITY_TOL) -> Transcribed:
     """The plan ``X``, ``U`` measured: its cost, dynamics defect and bounds' excess (ranges, controls,
-    velocity limits), feasible where all are within ``tol`` (scaled by the states' magnitude for the
-    defect)."""
+    velocity limits, the torques of acceleration controls), feasible where all are within ``tol`` (scaled by the
+    states' magnitude for the defect, by the largest effort limit for the torques)."""
     with np.errstate(all="ignore"):
         pred = np.array([problem.dynamics.step(x, u) for x, u in zip(X[:-1], U)])
         defect = float(np.max(np.abs(pred - X[1:]))) if len(U) else 0.0
@@ -206,23 +232,35 @@ def judge(problem: Problem, X: np.ndarray, U: np.ndarray, status: str, solver: s
     finite = bool(np.all(np.isfinite(X)) and np.all(np.isfinite(U)))
     excess = max(b.violation(X, U)) if b is not None and finite else 0.0
     v_excess = b.velocity_violation(X) if b is not None and finite else 0.0
+    t_excess = b.torque_violation(X, U) if b is not None and b.has_torques and finite else 0.0
     scale = max(1.0, float(np.max(np.abs(X))))
-    feasible = finite and defect <= 10 * tol * scale and excess <= 10 * tol and v_excess <= 10 * tol
+    t_scale = max(1.0, float(np.max(np.where(np.isfinite(b.tau_limit), b.tau_limit, 0.0)))) if t_excess else 1.0
+    feasible = finite and defect <= 10 * tol * scale and excess <= 10 * tol and v_excess <= 10 * tol \
+        and t_excess <= 10 * tol * t_scale
     cost = problem.cost(X, U) if finite else math.inf
     return Transcribed(X, U, cost, status, feasible, defect if finite else math.inf,
-                       excess if finite else math.inf, solver, time_s, v_excess if finite else math.inf)
+                       excess if finite else math.inf, solver, time_s, v_excess if finite else math.inf,
+                       t_excess if finite else math.inf)
+
+
+def key_format(problem: Problem) -> int:
+    """The transcription's format for ``problem``'s cache key: :data:`FORMAT_TORQUES` where its bounds carry the
+    torques of acceleration controls (transcribed since that format), else :data:`FORMAT` (what an earlier
+    reference of it transcribed: still valid)."""
+    b = problem.bounds
+    return FORMAT_TORQUES if b is not None and b.has_torques else FORMAT
 
 
 def cache_key(problem: Problem, warm_key: str, solver: str, max_iterations: int) -> str:
     """The name a reference is kept under: its warm start's plan key, ``solver``, ``max_iterations`` and a
-    hash of what is transcribed (:data:`FORMAT`, the start, the horizon, the step and every array of the
+    hash of what is transcribed (:func:`key_format`, the start, the horizon, the step and every array of the
     hard bounds), so a reference of other limits or another start is never reused."""
     import hashlib
 
-    h = hashlib.sha256(f"{FORMAT} {problem.T} {problem.n_x} {problem.n_u} "
+    b = problem.bounds
+    h = hashlib.sha256(f"{key_format(problem)} {problem.T} {problem.n_x} {problem.n_u} "
                        f"{getattr(problem.dynamics, 'dt', None)!r}".encode())
     h.update(np.ascontiguousarray(problem.x0, float).tobytes())
-    b = problem.bounds
     for name in ("q_index", "q_lower", "q_upper", "v_index", "v_lower", "v_upper", "u_lower", "u_upper",
                  "tau_limit"):
         value = None if b is None else getattr(b, name)

@@ -17,12 +17,25 @@ from raico.planning.constraints import (
     StateBox,
     TorqueBox,
 )
-from raico.planning.problem import Bounds, Callback, Problem
+from raico.planning.problem import RANGE_STATUS_TOL, Bounds, Callback, Problem
 
 RANGE_TOL = 1e-4   # rad, rad/s: the constraints' target on a joint range's or velocity limit's violation
 DISTANCE_TOL = 1e-4   # m: the collision constraints' target on a distance below its margin
 AL_INNER_TOL = 1e-3   # the multipliers move where the merit fell by less than this (relative), or inside the limits
 AL_MU0 = 100.0   # the augmented Lagrangian's first penalty, in units of the cost's curvature (cost_curvature)
+AL_ENDGAME = 0.25   # the robust schedule's last quarter of its iteration budget puts feasibility first (endgame)
+
+
+def in_endgame(it: int, iterations: int, al: AugmentedLagrangian, X: np.ndarray, U: np.ndarray) -> bool:
+    """Whether iteration ``it`` (1-based) of a budget of ``iterations``, from the iterate ``X, U``, is in the
+    augmented Lagrangian's endgame: in the budget's last ``AL_ENDGAME`` part (at least the last iteration) with
+    the iterate beyond a limit by more than a plan's status allows (``RANGE_STATUS_TOL``, ten of the constraints'
+    tolerances ``RANGE_TOL``). There the multipliers step after every accepted iteration and the penalty grows at
+    once where the violation did not fall (:class:`raico.planning.constraints.AugmentedLagrangian`), so that the
+    plan the budget ends on is not ``out-of-bounds``; an iterate within its status is left to the merit."""
+    if it <= iterations - max(1, math.ceil(AL_ENDGAME * iterations)):
+        return False
+    return al.violation(X, U) > RANGE_STATUS_TOL / RANGE_TOL
 
 
 def hard_constraints(problem: Problem, X: np.ndarray, U: np.ndarray, efforts: Bounds | None = None,

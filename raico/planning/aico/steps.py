@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from raico.planning.aico.bounds import AL_INNER_TOL
+from raico.planning.aico.bounds import AL_INNER_TOL, in_endgame
 from raico.planning.aico.cross import cross_hessian, eliminate
 from raico.planning.aico.options import AICOOptions
 from raico.planning.aico.sweeps import NumericalError, Sweeps, bounded_rollout
@@ -93,7 +93,8 @@ class AICOStep:
         prev, self._last_merit = self._last_merit, step.cost
         falls = abs(prev - step.cost) > AL_INNER_TOL * abs(step.cost)
         every = isinstance(al, TruncatedSites)    # EP's sites: every step; their temperature where it settled
-        settled = not falls if every else not (falls and al.violation(step.iterate.X, step.iterate.U) > 1.0)
+        settled = not falls if every else \
+            not (falls and not getattr(al, "endgame", False) and al.violation(step.iterate.X, step.iterate.U) > 1.0)
         if not settled and not every:
             return step     # the merit still falls: its minimizer is not yet found (the multipliers wait)
         X, U = step.iterate.X, step.iterate.U
@@ -166,6 +167,9 @@ class RobustStep(AICOStep):
     def __call__(self, it: int, cur: Iterate) -> Step:
         o = self.opts
         self.alpha = self.lam * self.kappa
+        al = self.sw.al
+        if al is not None and not isinstance(al, TruncatedSites):    # the budget's last part, beyond a
+            al.endgame = in_endgame(it, o.iterations, al, cur.X, cur.U)    # plan's status: feasibility first
         step = self._trial(cur)
         lam = self.lam
         failed = step.stop is not None and step.stop.status is Status.DIVERGED
