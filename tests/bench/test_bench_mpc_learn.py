@@ -32,6 +32,12 @@ def test_the_variant_changes_only_the_effort_target(monkeypatch):
     assert b["costs"]["effort"].pop("target") == "gravity"
     assert {k: v for k, v in a.items() if k not in ("name", "description")} == \
         {k: v for k, v in b.items() if k not in ("name", "description")}
+    from raico.planning.problem_file import read_problem
+
+    pa, pb = (read_problem(p.parent / d["base"]["problem"]).doc for p, d in ((mpc_learn.FIRST, first), (GRAV, grav)))
+    assert pb["costs"]["terms"]["effort"].pop("target") == "gravity"
+    assert {k: v for k, v in pa.items() if k not in ("name", "description")} == \
+        {k: v for k, v in pb.items() if k not in ("name", "description")}
 
 
 def _doc(effort: str | None) -> dict:
