@@ -282,7 +282,7 @@ def plot(doc: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
+    from matplotlib.ticker import FormatStrFormatter, FuncFormatter, MaxNLocator
 
     runs = doc["runs"]
     fig, ax = plt.subplots(figsize=(11, 4.6))
@@ -301,7 +301,7 @@ def plot(doc: dict, path: Path) -> None:
            title=f"UR5, unmodelled 5 kg, pushed 20 N mid-reach; effort toward {doc.get('effort', 'zero')}")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-    ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}".lstrip("0.")[:1] in "25" else ""))
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
