@@ -77,6 +77,7 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.mpc --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.nao_mpc --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.mpc_learn --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck

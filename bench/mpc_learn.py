@@ -8,9 +8,11 @@ executions under MPC on the episode's learned model (model file + residual GP + 
 plan's controller. Per episode: the executed distance to the reach target, the status, the training points fed,
 the MPC's median tick. Aimed at (stated before the first run): the learned MPC within 1 cm after at most 2
 episodes, the model file's plan more than 3 cm off, the model-file MPC farther off than the learned one. One run
-in a cache of its own; the page is ``artifacts/bench/mpc_learn.md`` (+ ``.json``, ``.png``).
+in a cache of its own; the page is ``artifacts/bench/mpc_learn.md`` (+ ``.json``, ``.png``). ``--experiment``: another
+experiment file of the scenario (its page ``mpc_learn<suffix>.md``, the suffix its name's after the first's, e.g.
+``experiments/ur5_payload_push_mpc_learn_grav.toml``, the effort toward gravity: ``mpc_learn_grav.md``).
 
-    python -m bench.mpc_learn [--seeds 10] [--jobs 1] [--render]
+    python -m bench.mpc_learn [--experiment FILE] [--seeds 10] [--jobs 1] [--render]
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-EXPERIMENT = ROOT / "experiments" / "ur5_payload_push_mpc_learn.toml"
+FIRST = ROOT / "experiments" / "ur5_payload_push_mpc_learn.toml"
+EXPERIMENT = FIRST   # the scenario's experiment file (``--experiment``)
 REACH = 0.01         # m: the goal
 EPISODES_TARGET = 2  # within REACH after at most this many episodes
 OPEN_LOOP_MISS = 0.03  # m: the model file's plan should miss by more than this
@@ -42,6 +45,22 @@ def variants() -> tuple[dict, list[dict]]:
     base = dict(doc["base"])
     base["problem"] = str((EXPERIMENT.parent / base["problem"]).resolve())
     return base, [dict(p) for p in doc["point"]]
+
+
+def page_name(experiment: Path) -> str:
+    """The page's name (no extension) of ``experiment``: ``mpc_learn`` for the first file, ``mpc_learn`` plus the
+    part of another's name after the first's (``..._grav.toml``: ``mpc_learn_grav``)."""
+    stem = Path(experiment).stem
+    return "mpc_learn" + (stem.removeprefix(FIRST.stem) if stem.startswith(FIRST.stem) else f"_{stem}")
+
+
+def effort_target() -> str:
+    """What the problem file's ``[costs.effort]`` costs the torque against: ``zero`` or ``gravity`` (the model file's)."""
+    import tomllib
+
+    base, _ = variants()
+    t = tomllib.loads(Path(base["problem"]).read_text()).get("costs", {}).get("effort", {}).get("target")
+    return "gravity" if t == "gravity" else "zero"
 
 
 def final_target() -> str:
@@ -156,13 +175,15 @@ def oracle_row(cache, plan_key: str, push: tuple, horizon: int, end: str) -> dic
             "tick_s": m.get("mpc_median_tick_s"), "one_step_error": one_step_error(out.X, out.mpc.get("mpc_predicted"))}
 
 
-def run_seed(job: tuple[str, int, dict]) -> dict:
+def run_seed(job: tuple[str, int, dict, str]) -> dict:
     """One seed's loop of one point: per-episode numbers (``raico.stages.learn``'s episodes.json)."""
     from raico.pipeline.engine.cache import Cache
     from raico.pipeline.engine.runner import run
     from raico.stages.learn import LearnConfig
 
-    artifacts, seed, point = job
+    global EXPERIMENT
+    artifacts, seed, point, experiment = job
+    EXPERIMENT = Path(experiment)   # the worker's own module (a spawned process starts from the default)
     base, _ = variants()
     over = {k: v for k, v in point.items() if k != "label"}
     cfg = {**base, **over, "seed": seed}
@@ -192,9 +213,11 @@ def first_within(r: dict) -> int | None:
 def page(doc: dict) -> str:
     """The markdown block: the model file's rows, one row per loop, the per-seed distances."""
     base_rows, runs = doc["model_file"], doc["runs"]
-    lines = ["UR5 carrying an unmodelled 5 kg at the tool (`raico/problems/examples/ur5_payload_5kg.toml`), pushed "
+    problem = doc.get("problem", "raico/problems/examples/ur5_payload_5kg.toml")
+    lines = [f"UR5 carrying an unmodelled 5 kg at the tool (`{problem}`, the effort term toward "
+             f"{'the model file' + chr(39) + 's gravity torque, u - g(q)' if doc.get('effort') == 'gravity' else 'zero torque'}), pushed "
              f"(`{' '.join(doc['push'])}`: 20 N on the tool for 0.1 s mid-reach); the loop of "
-             f"`experiments/ur5_payload_push_mpc_learn.toml` ({doc['settings']}); MPC: horizon {HORIZON} steps, "
+             f"`{doc.get('experiment', 'experiments/ur5_payload_push_mpc_learn.toml')}` ({doc['settings']}); MPC: horizon {HORIZON} steps, "
              f"one R-AICO iteration per 10 ms period, the final target {doc.get('final_target', 'receding')} "
              "(`--final-target`); "
              f"{doc['seeds']} seeds; load average {doc['load']} (2 cores "
@@ -259,7 +282,7 @@ def plot(doc: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
+    from matplotlib.ticker import FormatStrFormatter, FuncFormatter, MaxNLocator
 
     runs = doc["runs"]
     fig, ax = plt.subplots(figsize=(11, 4.6))
@@ -275,10 +298,10 @@ def plot(doc: dict, path: Path) -> None:
                    label=f"{r.get('model', 'model file')}, {r['label']} ({100 * r['distance_m']:.1f} cm)")
     ax.axhline(100 * REACH, color="g", ls="--", lw=1, label="1 cm")
     ax.set(yscale="log", xlabel="episode", ylabel="executed distance to the target (cm)",
-           title="UR5, unmodelled 5 kg, pushed 20 N mid-reach")
+           title=f"UR5, unmodelled 5 kg, pushed 20 N mid-reach; effort toward {doc.get('effort', 'zero')}")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-    ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}".lstrip("0.")[:1] in "25" else ""))
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -287,11 +310,15 @@ def plot(doc: dict, path: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--experiment", default=str(FIRST), help="the scenario's experiment file")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--jobs", type=int, default=1, help="loops run at once (processes)")
     ap.add_argument("--artifacts", default=str(ROOT / "artifacts"))
     ap.add_argument("--render", action="store_true", help="only write the page and plot again from mpc_learn.json")
     args = ap.parse_args()
+    global EXPERIMENT
+    EXPERIMENT = Path(args.experiment).resolve()
+    name = page_name(EXPERIMENT)
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
     if not args.render:
@@ -299,7 +326,7 @@ def main() -> None:
         load0 = os.getloadavg()[0]
         rows = model_file_rows(args.artifacts)
         optimum = optimum_rows(args.artifacts)
-        jobs = [(args.artifacts, s, p) for s in range(args.seeds) for p in points]
+        jobs = [(args.artifacts, s, p, str(EXPERIMENT)) for s in range(args.seeds) for p in points]
         settings = {k: v for k, v in base.items() if k not in ("problem", "push")}
         runs: list[dict] = []
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -307,12 +334,13 @@ def main() -> None:
                 runs.append(r)
                 load = f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end"
                 seeds = len({x["seed"] for x in runs})
-                (out / "mpc_learn.json").write_text(json.dumps(
+                (out / f"{name}.json").write_text(json.dumps(
                     {"model_file": rows, "optimum": optimum, "final_target": final_target(), "runs": runs, "settings": settings, "push": base["push"], "seeds": seeds,
-                     "load": load}, indent=1))
-    doc = json.loads((out / "mpc_learn.json").read_text())
-    (out / "mpc_learn.md").write_text(page(doc))
-    plot(doc, out / "mpc_learn.png")
+                     "load": load, "problem": os.path.relpath(base["problem"], ROOT),
+                     "experiment": os.path.relpath(EXPERIMENT, ROOT), "effort": effort_target()}, indent=1))
+    doc = json.loads((out / f"{name}.json").read_text())
+    (out / f"{name}.md").write_text(page(doc))
+    plot(doc, out / f"{name}.png")
     print(page(doc))
 
 

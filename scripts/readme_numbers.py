@@ -14,7 +14,9 @@ between ``<!-- learn_any:begin -->`` / ``<!-- learn_any:end -->`` with ``artifac
 ``artifacts/bench/cartpole_pilco.md`` (``python -m bench.cartpole_pilco``), between ``<!-- payload:begin -->`` /
 ``<!-- payload:end -->`` with ``artifacts/bench/payload.md`` (``python -m bench.payload``), between
 ``<!-- mpc_learn:begin -->`` / ``<!-- mpc_learn:end -->`` with ``artifacts/bench/mpc_learn.md`` (``python -m
-bench.mpc_learn``), between
+bench.mpc_learn``), between ``<!-- mpc_learn_grav:begin -->`` / ``<!-- mpc_learn_grav:end -->`` with
+``artifacts/bench/mpc_learn_grav.md`` (``python -m bench.mpc_learn --experiment
+experiments/ur5_payload_push_mpc_learn_grav.toml``), between
 ``<!-- baseline:begin -->`` / ``<!-- baseline:end -->`` with ``artifacts/bench/baseline_learn.md``
 (``python -m bench.baseline_learn``), and between
 ``<!-- executors:begin -->`` / ``<!-- executors:end -->`` with ``artifacts/bench/executors.md``
@@ -295,6 +297,7 @@ PAGE_BLOCKS = (
     ("mpc_split", "mpc_split.md", "bench.mpc"),
     ("nao_mpc", "nao_mpc.md", "bench.nao_mpc"),
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
+    ("mpc_learn_grav", "mpc_learn_grav.md", "bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml"),
     ("executors", "executors.md", "bench.executors"),
 )
 
