@@ -17,7 +17,8 @@ Execution status, first that applies:
   at the start). A plan whose initial posture cannot stand on flat ground (its soles not
   level: ``raico.plants.floating``) has fallen at t = 0;
 - ``tracking-lost``: the largest joint error ``|q - q_plan|`` exceeds ``TRACKING_LOST`` (rad; on a
-  prismatic joint ``TRACKING_LOST_M``, m) at some sample;
+  prismatic joint ``TRACKING_LOST_M``, m) at some sample; under receding-horizon control ``q_plan`` is
+  the controller's own prediction of the sample, which may leave the plan on purpose;
 - ``limits``: in more than ``LIMITS_SHARE`` of the samples some joint is held at a position
   limit (within ``LIMIT_TOL`` of it, or past it, while the plan wants it more than ``LIMIT_TOL``
   elsewhere) or some actuator is at its effort limit because the controller asks for it (not a motor
@@ -195,7 +196,7 @@ def execution_status(finite: np.ndarray, fell: np.ndarray | None, tracking_error
 
 def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarray, robot, dt: float,
                       effort_at_limit: np.ndarray, floating: dict | None = None, effort_is_limit: bool = True,
-                      effort_clamped: ArrayLike | None = None) -> dict:
+                      effort_clamped: ArrayLike | None = None, X_track: np.ndarray | None = None) -> dict:
     """Metrics of one execution (``X (T+1, n_x)`` executed, ``tau (T, n_q)`` applied torques N m,
     ``effort_at_limit (T, n_q)`` per joint, or ``(T,)``): status (module docstring), via-point errors, planned-vs-executed
     RMSE and largest error (rad), largest torque (N m), limit shares; for a floating robot
@@ -203,24 +204,28 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
     against the contact polygon, the feet's drift and whether it stood. ``effort_is_limit`` False:
     effort saturation is reported (``torque_saturation``) but does not count towards ``limits``
     (the pendulum, whose torque bound is its task's control limit). ``effort_clamped (T,)``: some motor clamped
-    the command plus the noise in step k (``effort_clamped_fraction``, per sample as the limit shares)."""
+    the command plus the noise in step k (``effort_clamped_fraction``, per sample as the limit shares).
+    ``X_track (T+1, n_x)``: what the controller aimed at, where it is not the plan (a receding-horizon
+    controller's own predictions): ``tracking-lost`` and a joint held at a limit it was not aimed at are
+    judged against it; the planned-vs-executed errors stay against the plan."""
     n = X.shape[1] // 2
     K = len(X)
     finite = np.all(np.isfinite(X), axis=1)
     Q, Qp = X[:, :n], X_plan[:, :n]
+    Qt = Qp if X_track is None else X_track[:, :n]    # the controller's aim
     prismatic = prismatic_joints(robot)
     # a joint's error in TRACKING_LOST's terms: a prismatic joint's m scaled by TRACKING_LOST / TRACKING_LOST_M
     lost_scale = np.where(prismatic, TRACKING_LOST / TRACKING_LOST_M, 1.0)
     with np.errstate(invalid="ignore"):
         err = np.nanmax(np.abs(Q - Qp), axis=1) if finite.any() else np.full(K, np.inf)
-        lost_err = np.nanmax(np.abs(Q - Qp) * lost_scale, axis=1) if finite.any() else np.full(K, np.inf)
+        lost_err = np.nanmax(np.abs(Q - Qt) * lost_scale, axis=1) if finite.any() else np.full(K, np.inf)
         rmse = float(np.sqrt(np.mean((Q - Qp) ** 2))) if finite.all() else float("inf")
-    pos_lim = position_limit_flags(Q, Qp, robot.lower, robot.upper)
+    pos_lim = position_limit_flags(Q, Qt, robot.lower, robot.upper)
     e = np.asarray(effort_at_limit, bool).reshape(len(effort_at_limit), -1)[:K - 1]
     eff_j = np.zeros((K, e.shape[1]), bool)  # sample k + 1 ends step k
     eff_j[1:1 + len(e)] = e
     eff = eff_j.any(axis=1)
-    pos_j = position_limit_joints(Q, Qp, robot.lower, robot.upper)
+    pos_j = position_limit_joints(Q, Qt, robot.lower, robot.upper)
     at_limit = pos_lim | eff if effort_is_limit else pos_lim
     fell = None
     m: dict = {}
@@ -246,11 +251,12 @@ def execution_metrics(problem, X: np.ndarray, X_plan: np.ndarray, tau: np.ndarra
                                    for j, sh in worst)
     if status == "tracking-lost":  # the joint that lost it, in its unit
         k = int(round(t_fail / dt))
-        j = int(np.nanargmax(np.abs(Q[k] - Qp[k]) * lost_scale))
+        j = int(np.nanargmax(np.abs(Q[k] - Qt[k]) * lost_scale))
         if prismatic.any():
             reason = reason.replace(f"above {TRACKING_LOST} rad",
                                     f"above {TRACKING_LOST} rad ({TRACKING_LOST_M} m on a prismatic joint)")
-        reason += f": {robot.joint_names[j]} {abs(Q[k, j] - Qp[k, j]):.2f} {'m' if prismatic[j] else 'rad'} from its plan"
+        aim = "its plan" if X_track is None else "the controller's prediction"
+        reason += f": {robot.joint_names[j]} {abs(Q[k, j] - Qt[k, j]):.2f} {'m' if prismatic[j] else 'rad'} from {aim}"
     if status == "fell":
         why = [k.replace("_", " ") for k, t in m["fall_conditions"].items() if t == t_fail]
         reason = f"{reason}: {', '.join(why)}"

@@ -158,6 +158,18 @@ def _mpc_for(cfg: ExecuteConfig, problem, plan: dict, dt: float, sim_step: float
     return mpc, period
 
 
+def mpc_aim(mpc, X_plan: np.ndarray, every: int) -> np.ndarray:
+    """``(T+1, n_x)``: what a receding-horizon controller aimed each sample at, its prediction of step ``k``
+    from the first tick of step ``k - 1`` (that window's second state: ``every`` ticks per planning step);
+    the plan's start at ``k = 0``, NaN after the last tick (a run that stopped)."""
+    aim = np.full(X_plan.shape, np.nan)
+    aim[0] = X_plan[0]
+    pred = mpc.log.predicted[:mpc.log.n:every, 1] if mpc.log.predicted is not None else np.empty((0, 0))
+    k = min(len(pred), len(aim) - 1)
+    aim[1:1 + k] = pred[:k]
+    return aim
+
+
 def _mpc_metrics(mpc, period: float) -> dict:
     """The MPC's tick statistics: ticks, median and 99th-percentile solve time (s), ticks past the period."""
     t = mpc.log.solve_time[:mpc.log.n]
@@ -242,8 +254,9 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     U = np.array(ctrl.log_u[:T]).reshape(-1, n)
     tau = np.array(taus).reshape(-1, n)
     sat = np.array(saturated, bool).reshape(-1, n)
+    aim = None if mpc is None else mpc_aim(mpc, np.asarray(plan["X"], float), int(round(dt / period)))
     metrics = execution_metrics(problem, X, plan["X"], tau, robot, dt, sat, effort_is_limit=execution != "continuous",
-                                effort_clamped=clamped)
+                                effort_clamped=clamped, X_track=aim)
     if scene is not None:
         metrics.update(collision_metrics(problem, X, dt, metrics))
     extra = {}
