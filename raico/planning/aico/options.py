@@ -9,6 +9,7 @@ from raico.planning.problem import Flag, OptionsBase, check_range
 
 SCHEDULES = ("fixed", "adaptive", "robust")
 LAMBDA_FALLS = ("nielsen", "accelerated")
+CONTROL_BOXES = ("lagrangian", "boxddp")   # raico.planning.aico.boxqp.METHODS
 
 
 def _resolve_schedule(value: str, problem_file: bool) -> str:
@@ -104,12 +105,18 @@ class AICOOptions(OptionsBase):
     #: trajectory judged so too) or ``"nielsen"`` (Nielsen's rule, at most ``/lm_factor``; the rule before):
     #: :func:`raico.planning.aico.steps.lambda_after`; Nielsen's by default (docs/planning.md: why)
     lambda_fall: str = "nielsen"
+    #: how the effort limits (a box on torque controls) are kept: ``"lagrangian"`` (the augmented Lagrangian
+    #: with the joint ranges, :mod:`raico.planning.aico.bounds`) or ``"boxddp"`` (a box QP inside the backward
+    #: pass, BoxDDP's: :mod:`raico.planning.aico.boxqp`; the sweeps then run in Python)
+    control_box: str = "lagrangian"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
             raise ValueError(f"option schedule must be one of {', '.join(SCHEDULES)}, got {self.schedule!r}")
         if self.lambda_fall not in LAMBDA_FALLS:
             raise ValueError(f"option lambda_fall must be one of {', '.join(LAMBDA_FALLS)}, got {self.lambda_fall!r}")
+        if self.control_box not in CONTROL_BOXES:
+            raise ValueError(f"option control_box must be one of {', '.join(CONTROL_BOXES)}, got {self.control_box!r}")
         check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
         check_range("accept", self.accept, lo=0.0, hi=1.0)
         check_range("decrease_above", self.decrease_above, lo=self.accept)
