@@ -125,7 +125,8 @@ _AICO_CAPS = Capabilities(starts=("held", "rollout", "quasi-static"), warm_from=
 
 SOLVERS: dict[str, SolverSpec] = {
     "aico": SolverSpec("aico", "AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions", _AICO_CAPS,
-                       {"alpha": 0.0}, _check_aico, takes=("relinearize", "belief_rate", "controller_rate")),
+                       {"alpha": 0.0}, _check_aico, takes=("relinearize", "belief_rate", "controller_rate",
+                                                          "control_box")),
     "raico": SolverSpec("raico", "R-AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions",
                         dataclasses.replace(_AICO_CAPS, schedules=("fixed", "adaptive", "robust")),
                         {"alpha": 1.0}, _check_raico),

@@ -45,6 +45,10 @@ class AICOOptions(OptionsBase):
                    "not used by the robust schedule (one linearization per trial)")),
         Flag("controller_rate", float, 1.0, "AICO/R-AICO: learning rate on the controller (Algorithm 1 line 18): "
              "the new controller blended with the previous one, in (0, 1].", unused=1.0),
+        Flag("control_box", str, "lagrangian", "AICO/R-AICO: how the effort limits of torque controls are kept: "
+             "lagrangian (the augmented Lagrangian, with the joint ranges) or boxddp (a box QP on each step's "
+             "controls inside the backward pass, BoxDDP's; the joint ranges stay on the Lagrangian).",
+             unused="lagrangian"),
     )
 
     #: maximum number of iterations (>= 1)
