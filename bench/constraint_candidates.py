@@ -132,7 +132,12 @@ def measure(robot, problem, opts: dict, init: dict, c: Candidate) -> dict[str, A
         if not inside:
             break
         first = [it]
+    if lim["inside"] and not (seen and seen[-1][1]):   # only the plan itself, its last controller's rollout clipped
+        first = [res.iterations]
+    b = problem.bounds
+    at_box = int(np.sum((res.U <= b.u_lower) | (res.U >= b.u_upper))) if b is not None and b.has_controls else 0
     return {"candidate": c.name, "label": c.label, "status": res.status.value, "iterations": res.iterations,
+            "at_box": at_box,
             "final_cost": float(problem.cost(res.X, res.U)) if np.all(np.isfinite(res.X)) else None,
             "first_inside": first[0] if first else None, "cpu_s": cpu, **lim}
 
@@ -186,14 +191,15 @@ def markdown(doc: dict[str, Any]) -> str:
     la, lb = doc["load"], doc.get("load_end", doc["load"])
     lines = [f"Measured {doc['date']} on {doc['cpus']} cpus under load {la[0]:.1f} at the start, {lb[0]:.1f} at the "
              "end (CPU seconds; shared machine). Each problem at the suite's start and iteration budget.", "",
-             "| problem | method | budget | status | final cost | inside the limits | inside from | iterations | CPU s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| problem | method | budget | status | final cost | inside the limits | inside from | controls at the box "
+             "| iterations | CPU s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in doc["rows"]:
         inside = "yes" if r.get("inside") else "no" + (
             f" (effort {_f(r.get('effort_excess'), '.3g')} N m, range {_f(r.get('joint_range_excess'), '.3g')} rad, "
             f"speed {_f(r.get('velocity_excess'), '.3g')} rad/s)" if r.get("effort_excess") is not None else "")
         lines.append(f"| {r['problem']} | {r['label']} | {r['budget']} | {r['status']} | {_f(r['final_cost'])} | "
-                     f"{inside} | {_f(r['first_inside'], 'd')} | {r['iterations']} | {r['cpu_s']:.1f} |")
+                     f"{inside} | {_f(r['first_inside'], 'd')} | {r.get('at_box', '-')} | {r['iterations']} | "
+                     f"{r['cpu_s']:.1f} |")
     if doc["skipped"]:
         lines += ["", "Not measured: " + "; ".join(f"{k} ({v})" for k, v in doc["skipped"].items()) + "."]
     return "\n".join(lines) + "\n"

@@ -18,7 +18,8 @@ bench.mpc_learn``), between
 ``<!-- baseline:begin -->`` / ``<!-- baseline:end -->`` with ``artifacts/bench/baseline_learn.md``
 (``python -m bench.baseline_learn``), and between
 ``<!-- executors:begin -->`` / ``<!-- executors:end -->`` with ``artifacts/bench/executors.md``
-(``python -m bench.executors``).
+(``python -m bench.executors``), and between ``<!-- constraints:begin -->`` / ``<!-- constraints:end -->`` with
+``artifacts/bench/constraint_candidates.md`` (``python -m bench.constraint_candidates``).
 
     .venv/bin/python scripts/readme_numbers.py [--artifacts artifacts]
 """
@@ -296,6 +297,7 @@ PAGE_BLOCKS = (
     ("nao_mpc", "nao_mpc.md", "bench.nao_mpc"),
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
     ("executors", "executors.md", "bench.executors"),
+    ("constraints", "constraint_candidates.md", "bench.constraint_candidates"),
 )
 
 
