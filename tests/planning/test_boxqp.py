@@ -157,16 +157,18 @@ def active_set_optimum(pb, at_lo: np.ndarray, at_hi: np.ndarray) -> tuple[np.nda
 
 
 @pytest.mark.numerics
-@pytest.mark.parametrize("schedule", ["robust", "fixed", "adaptive"])
-def test_boxddp_reaches_the_bounded_lq_optimum(schedule):
-    """On the LQ problem with controls boxed, R-AICO with the box in its backward pass converges to the bounded
+@pytest.mark.compiled
+@pytest.mark.parametrize("schedule, alpha", [("robust", 1.0), ("fixed", 1.0), ("adaptive", 1.0), ("fixed", 0.0)])
+def test_boxddp_reaches_the_bounded_lq_optimum(schedule, alpha):
+    """On the LQ problem with controls boxed, R-AICO (and plain AICO, ``alpha = 0``, relinearizing inside its
+    sweeps) with the box in its backward pass converges to the bounded
     QP's optimum: the KKT point of the plan's active set, certified by every held control's multiplier sign,
     has the plan's cost to the rounding of that system and its states and controls to 1e-5 (the stopping rule's
     reach); every control within its box, no multiplier in the message (no augmented Lagrangian)."""
     free, pb = bounded_lq()
     u_out = pb.bounds.violation(*exact_solution(free))[1]
     assert u_out > 1.0
-    res = aico(pb, AICOOptions(iterations=60, alpha=1.0, schedule=schedule, control_box="boxddp", tol_rel=1e-12))
+    res = aico(pb, AICOOptions(iterations=60, alpha=alpha, schedule=schedule, control_box="boxddp", tol_rel=1e-12))
     assert res.status is Status.CONVERGED and "multiplier" not in res.message, res.message
     lo, hi = pb.bounds.u_lower, pb.bounds.u_upper
     assert np.all((res.U >= lo) & (res.U <= hi))
@@ -183,6 +185,7 @@ def test_boxddp_reaches_the_bounded_lq_optimum(schedule):
 
 
 @pytest.mark.numerics
+@pytest.mark.compiled
 def test_boxddp_with_a_box_never_active_gives_the_unbounded_iterates():
     """A box far beyond the unbounded plan's controls: the backward pass never clamps and the iterates are the
     unbounded run's (the sweeps in Python against compiled: equal to rounding)."""
@@ -194,6 +197,7 @@ def test_boxddp_with_a_box_never_active_gives_the_unbounded_iterates():
     assert_close(runs[1].X, runs[0].X, rel=max(REL, bound(free.T * free.n_x * 15)))
 
 
+@pytest.mark.compiled
 def test_the_capability_and_the_option_say_where_the_box_applies():
     """Only solvers declaring ``control_box_methods`` take it; it applies to a box on the controls, not to the
     torques of accelerations as controls (their limit is no box); unknown methods are refused."""
