@@ -6,7 +6,8 @@ plan's options with hard bounds) every candidate (:data:`CANDIDATES`) whose ``ap
 once, in this process, niced by the caller: final cost, inside the limits (the suite's tolerances: ranges 1e-3 rad,
 velocity limits 1e-3 rad/s, efforts 1e-6 N m), the iteration from which every iterate is inside them, iterations, CPU
 time and status, at the suite's budget and at 10x it (at most 400). ``unbounded`` (R-AICO robust without hard bounds) runs first on each: a problem is measured only
-where a candidate applies and, with ``--binding``, where the unbounded plan leaves a box the candidates keep.
+where a candidate applies and, with ``--binding``, where the unbounded plan leaves a box the candidates keep;
+where it leaves the effort box, the problem with only that box (:func:`efforts_only`, BoxFDDP's problem) too.
 Writes ``DIR/bench/constraint_candidates.json`` and ``.md`` (docs/suite.md's "Constraint methods measured"
 through ``scripts/readme_numbers.py``).
 
@@ -87,6 +88,33 @@ register(Candidate("boxddp", "box QP in the backward pass (BoxDDP)", _control_bo
                    lambda pb, o, i, cb: _aico(pb, o, i, cb, control_box="boxddp")))
 
 
+def _boxfddp_applies(problem) -> bool:
+    """crocoddyl's BoxFDDP keeps only the effort box: a peer where nothing else is bounded."""
+    from raico.planning.solvers import SOLVERS
+
+    b = problem.bounds
+    return ("boxfddp" in SOLVERS and _control_box(problem)
+            and not (b.has_positions or b.has_velocities or b.has_torques))
+
+
+def _boxfddp(problem, options: dict, init: dict, callback):
+    from raico.planning.solvers import solve
+
+    return solve(problem, "boxfddp", {"iterations": options["iterations"]}, callback=callback)
+
+
+register(Candidate("boxfddp", "crocoddyl's BoxFDDP", _boxfddp_applies, _boxfddp))
+
+
+def efforts_only(problem):
+    """``problem`` with only its effort box (the joint ranges and velocity limits dropped): BoxFDDP's problem."""
+    import dataclasses
+
+    b = problem.bounds
+    return dataclasses.replace(problem, bounds=dataclasses.replace(
+        b, q_index=None, q_lower=None, q_upper=None, v_index=None, v_lower=None, v_upper=None))
+
+
 def setup(suite, label: str) -> tuple[Any, Any, dict, dict, int]:
     """Problem ``label`` of the suite with the default plan's options: robot, problem (hard bounds), solver
     options, the start (``X_init``/``U_init``) and the iteration budget."""
@@ -109,11 +137,14 @@ def setup(suite, label: str) -> tuple[Any, Any, dict, dict, int]:
 
 def violations(robot, problem, X: np.ndarray, U: np.ndarray) -> dict[str, float | None]:
     """The suite's limit measures of a plan (its torques ``U``: the candidates here plan torques) and whether
-    it is inside the suite's tolerances."""
+    it is inside the suite's tolerances (of the effort limits only where ``problem`` bounds nothing else)."""
     from raico.pipeline.experiments import suite as S
 
     v = S.limit_violations(robot, X, U, None)
     rec = {"joint_range_excess": v["joint_range"], "velocity_excess": v["velocity"], "effort_excess": v["effort"]}
+    b = problem.bounds
+    if b is not None and not (b.has_positions or b.has_velocities):
+        return {**rec, "inside": rec["effort_excess"] is not None and rec["effort_excess"] <= S.EFFORT_TOL}
     return {**rec, "inside": S.inside_limits(rec)}
 
 
@@ -169,15 +200,17 @@ def run(labels: list[str] | None, names: list[str] | None, binding: bool, scales
         say(f"{label}: unbounded {free['final_cost']}, effort excess {free.get('effort_excess')}")
         head = {"problem": label, "T": problem.T, "n_u": problem.n_u, "box_binds": bool(u_out)}
         rows.append({**head, "budget": budget, **free})
-        for scale in scales:
-            iters = min(MAX_ITERATIONS, budget * scale)
-            for c in todo:
-                if c.name == "unbounded":
-                    continue
-                r = measure(robot, problem, {**opts, "iterations": iters}, init, c)
-                say(f"  {c.name} ({iters} it.): {r['status']} cost {r['final_cost']} inside {r['inside']} from "
-                    f"{r['first_inside']} it {r['iterations']} {r['cpu_s']:.1f} s")
-                rows.append({**head, "budget": iters, **r})
+        variants = [(label, problem)] + ([(f"{label} (efforts only)", efforts_only(problem))] if u_out else [])
+        for name, pb in variants:
+            for scale in scales:
+                iters = min(MAX_ITERATIONS, budget * scale)
+                for c in (CANDIDATES[n] for n in names if n != "unbounded"):
+                    if not c.applies(pb):
+                        continue
+                    r = measure(robot, pb, {**opts, "iterations": iters}, init, c)
+                    say(f"  {name} {c.name} ({iters} it.): {r['status']} cost {r['final_cost']} inside {r['inside']} "
+                        f"from {r['first_inside']} it {r['iterations']} {r['cpu_s']:.1f} s")
+                    rows.append({**head, "problem": name, "budget": iters, **r})
     return {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load": os.getloadavg(),
             "cpus": os.cpu_count(), "rows": rows, "skipped": skipped}
 
