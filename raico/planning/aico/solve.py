@@ -54,6 +54,9 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
                                                               if not any(t is h for h in hard)]) if hard else problem
         if b is None or not b.has_controls:
             res = _aico(objective, opts, X_init, U_init, callback, hard=hard)
+            if opts.control_box == "boxddp" and b is not None and b.has_torques:
+                res.message += " (control_box boxddp: the torques of acceleration controls are no box on them, " \
+                               "kept by the augmented Lagrangian)"
         elif opts.control_box == "boxddp":   # the box inside the backward pass; every rollout clips into it
             res = _aico(objective, opts, X_init, U_init, callback, hard=hard, box=(b.u_lower, b.u_upper))
         else:   # the efforts are constraints of the iterations, unclipped; the plan's rollout clips them
