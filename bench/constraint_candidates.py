@@ -155,7 +155,12 @@ def measure(robot, problem, opts: dict, init: dict, c: Candidate) -> dict[str, A
     def cb(rec, X, U) -> None:  # noqa: ANN001
         seen.append((rec.iteration, bool(np.all(np.isfinite(X)) and violations(robot, problem, X, U)["inside"])))
     t0 = time.process_time()
-    res = c.run(problem, opts, init, cb)
+    try:
+        res = c.run(problem, opts, init, cb)
+    except Exception as e:   # a peer that cannot express the problem: its row says why  # noqa: BLE001
+        return {"candidate": c.name, "label": c.label, "status": f"refused: {str(e).split(':')[0]}",
+                "iterations": 0, "at_box": None, "final_cost": None, "first_inside": None,
+                "cpu_s": time.process_time() - t0, "inside": False}
     cpu = time.process_time() - t0
     lim = violations(robot, problem, res.X, res.U) if np.all(np.isfinite(res.X)) else {"inside": False}
     first = []     # the iteration from which every later iterate is inside (none: the plan ends outside)
@@ -244,6 +249,7 @@ def main() -> None:
     ap.add_argument("--problems", nargs="*", default=None, help="suite labels (default: every torque problem)")
     ap.add_argument("--candidates", nargs="*", default=None, help=f"of {', '.join(CANDIDATES)} (default: all)")
     ap.add_argument("--binding", action="store_true", help="only problems whose unbounded plan leaves the box")
+    ap.add_argument("--append", action="store_true", help="keep the earlier run's rows of the other problems")
     ap.add_argument("--scales", type=int, nargs="*", default=[1, 10],
                     help=f"budgets: the suite's iterations times each (at most {MAX_ITERATIONS})")
     args = ap.parse_args()
@@ -252,6 +258,13 @@ def main() -> None:
     doc["load_end"] = os.getloadavg()
     out = Path(args.artifacts) / "bench"
     out.mkdir(parents=True, exist_ok=True)
+    old = out / "constraint_candidates.json"
+    if args.append and old.exists():   # the earlier run's other problems kept, in their order, with its loads
+        prev = json.loads(old.read_text())
+        done = {r["problem"].split(" (")[0] for r in doc["rows"]}
+        doc["rows"] = [r for r in prev["rows"] if r["problem"].split(" (")[0] not in done] + doc["rows"]
+        doc["skipped"] = {**prev["skipped"], **doc["skipped"]}
+        doc["load"], doc["date"] = prev["load"], prev["date"]
     (out / "constraint_candidates.json").write_text(json.dumps(doc, indent=1))
     (out / "constraint_candidates.md").write_text(markdown(doc))
     print(f"wrote {out / 'constraint_candidates.md'}", flush=True)
