@@ -20,7 +20,8 @@ experiments/ur5_payload_push_mpc_learn_grav.toml``), between
 ``<!-- baseline:begin -->`` / ``<!-- baseline:end -->`` with ``artifacts/bench/baseline_learn.md``
 (``python -m bench.baseline_learn``), and between
 ``<!-- executors:begin -->`` / ``<!-- executors:end -->`` with ``artifacts/bench/executors.md``
-(``python -m bench.executors``).
+(``python -m bench.executors``), and between ``<!-- constraints:begin -->`` / ``<!-- constraints:end -->`` with
+``artifacts/bench/constraint_candidates.md`` (``python -m bench.constraint_candidates``).
 
     .venv/bin/python scripts/readme_numbers.py [--artifacts artifacts]
 """
@@ -299,6 +300,7 @@ PAGE_BLOCKS = (
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
     ("mpc_learn_grav", "mpc_learn_grav.md", "bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml"),
     ("executors", "executors.md", "bench.executors"),
+    ("constraints", "constraint_candidates.md", "bench.constraint_candidates"),
 )
 
 

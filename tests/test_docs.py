@@ -43,7 +43,8 @@ def test_every_docs_link_of_the_readme_and_the_pages_names_a_page_that_exists():
                                         ("cartpole", "docs/learning.md"), ("payload", "docs/learning.md"), ("mpc", "docs/mpc.md"),
                                         ("nao_mpc", "docs/mpc.md"),
                                         ("baseline", "docs/learning.md"),
-                                        ("executors", "docs/executors.md"), ("suite-exec", "docs/suite.md")])
+                                        ("executors", "docs/executors.md"), ("suite-exec", "docs/suite.md"),
+                                        ("constraints", "docs/suite.md")])
 def test_each_generated_block_lives_in_exactly_one_file(name, home):
     assert readme_numbers.home(name) == ROOT / home
 

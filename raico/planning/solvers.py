@@ -33,6 +33,8 @@ class Capabilities:
     ``x0``, rolled out); ``warm_from``: what of an earlier plan starts it (``trajectory``: its states and
     controls; ``controls``: its controls rolled out); ``hard_bounds``: keeps the problem's joint ranges
     and velocity limits itself; ``control_box``: keeps effort limits as a box on the controls;
+    ``control_box_methods``: the ways it can keep that box, its options' ``control_box`` values (AICO: the
+    augmented Lagrangian, or BoxDDP's box QP in the backward pass; empty: one way, its own);
     ``sweeps``: AICO's sweeps (relinearization repeats per iteration); ``schedules``: its alpha
     schedules; ``control_kinds``: the dynamics' controls it takes; ``mpc``: its shift warm start in
     :mod:`raico.planning.mpc` (``"aico"``, ``"fddp"``), ``None`` where it has none; ``split``: its MPC tick
@@ -43,6 +45,7 @@ class Capabilities:
     warm_from: tuple[str, ...] = ("controls",)
     hard_bounds: bool = False
     control_box: bool = False
+    control_box_methods: tuple[str, ...] = ()
     sweeps: bool = False
     schedules: tuple[str, ...] = ()
     control_kinds: tuple[str, ...] = CONTROL_KINDS
@@ -118,12 +121,13 @@ def _check_raico(o) -> None:  # noqa: ANN001
 
 
 _AICO_CAPS = Capabilities(starts=("held", "rollout", "quasi-static"), warm_from=("trajectory", "controls"),
-                          hard_bounds=True, control_box=True, sweeps=True, mpc="aico",
-                          split=True, range_messages=True)
+                          hard_bounds=True, control_box=True, control_box_methods=("lagrangian", "boxddp"),
+                          sweeps=True, mpc="aico", split=True, range_messages=True)
 
 SOLVERS: dict[str, SolverSpec] = {
     "aico": SolverSpec("aico", "AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions", _AICO_CAPS,
-                       {"alpha": 0.0}, _check_aico, takes=("relinearize", "belief_rate", "controller_rate")),
+                       {"alpha": 0.0}, _check_aico, takes=("relinearize", "belief_rate", "controller_rate",
+                                                          "control_box")),
     "raico": SolverSpec("raico", "R-AICO", "raico.planning.aico:aico", "raico.planning.aico:AICOOptions",
                         dataclasses.replace(_AICO_CAPS, schedules=("fixed", "adaptive", "robust")),
                         {"alpha": 1.0}, _check_raico),

@@ -41,6 +41,7 @@ def eliminate(sw, L: np.ndarray | None) -> np.ndarray | None:
     ``linearize_all``) for ``v = u + K x``; returns ``K (T, n_u, n_x)`` (the controller's ``O`` is ``O - K``),
     or ``None`` without a cross term (``L`` ``None``: the linearization as it is)."""
     n, m, T = sw.n, sw.m, sw.T
+    sw.cross_K = None
     if L is None:
         if sw.lti:     # the shared C again (an earlier elimination made one per step)
             sw.C = np.broadcast_to(sw._C0, sw.C.shape)
@@ -67,7 +68,7 @@ def eliminate(sw, L: np.ndarray | None) -> np.ndarray | None:
     RA = sw.RA[:T]
     RA[:, :, :n] -= 0.5 * (LK + np.swapaxes(LK, 1, 2))             # the Schur complement R - L^T H^-1 L
     RA[:, :, n] += np.matmul(Lt, (U - np.matmul(Hinv, h[:, :, None])[:, :, 0])[:, :, None])[:, :, 0]
-    sw.h = h
+    sw.h, sw.cross_K = h, K
     # Qbar = q I + B H^-1 B^T is unchanged (B and H are); the drift a + B H^-1 h gains B H^-1 L x_bar
     sw.a_eff = sw.a_eff + np.matmul(B, np.matmul(K, X[:, :, None]))[:, :, 0]
     return K

@@ -10,6 +10,7 @@ from raico.planning.problem import Flag, OptionsBase, check_range
 SCHEDULES = ("fixed", "adaptive", "robust")
 LAMBDA_FALLS = ("nielsen", "accelerated")
 RANGE_METHODS = ("al", "ep")
+CONTROL_BOXES = ("lagrangian", "boxddp")   # raico.planning.aico.boxqp.METHODS
 
 
 def _resolve_schedule(value: str, problem_file: bool) -> str:
@@ -45,6 +46,10 @@ class AICOOptions(OptionsBase):
                    "not used by the robust schedule (one linearization per trial)")),
         Flag("controller_rate", float, 1.0, "AICO/R-AICO: learning rate on the controller (Algorithm 1 line 18): "
              "the new controller blended with the previous one, in (0, 1].", unused=1.0),
+        Flag("control_box", str, "lagrangian", "AICO/R-AICO: how the effort limits of torque controls are kept: "
+             "lagrangian (the augmented Lagrangian, with the joint ranges) or boxddp (a box QP on each step's "
+             "controls inside the backward pass, BoxDDP's; the joint ranges stay on the Lagrangian).",
+             unused="lagrangian"),
     )
 
     #: maximum number of iterations (>= 1)
@@ -116,6 +121,10 @@ class AICOOptions(OptionsBase):
     ep_temperature_min: float | None = None
     #: ``ranges = "ep"``: the new site's share in a site update, in (0, 1]
     ep_damping: float = 1.0
+    #: how the effort limits (a box on torque controls) are kept: ``"lagrangian"`` (the augmented Lagrangian
+    #: with the joint ranges, :mod:`raico.planning.aico.bounds`) or ``"boxddp"`` (a box QP inside the backward
+    #: pass, BoxDDP's: :mod:`raico.planning.aico.boxqp`; the sweeps then run in Python)
+    control_box: str = "lagrangian"
 
     def validate(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -128,6 +137,8 @@ class AICOOptions(OptionsBase):
         if self.ep_temperature_min is not None:
             check_range("ep_temperature_min", self.ep_temperature_min, lo=0.0, lo_open=True)
         check_range("ep_damping", self.ep_damping, lo=0.0, hi=1.0, lo_open=True)
+        if self.control_box not in CONTROL_BOXES:
+            raise ValueError(f"option control_box must be one of {', '.join(CONTROL_BOXES)}, got {self.control_box!r}")
         check_range("lm_factor", self.lm_factor, lo=1.0, lo_open=True)
         check_range("accept", self.accept, lo=0.0, hi=1.0)
         check_range("decrease_above", self.decrease_above, lo=self.accept)

@@ -55,6 +55,11 @@ def aico(problem: Problem, options: AICOOptions | None = None, *,
                                                               if not any(t is h for h in hard)]) if hard else problem
         if b is None or not b.has_controls:
             res = _aico(objective, opts, X_init, U_init, callback, hard=hard)
+            if opts.control_box == "boxddp" and b is not None and b.has_torques:
+                res.message += " (control_box boxddp: the torques of acceleration controls are no box on them, " \
+                               "kept by the augmented Lagrangian)"
+        elif opts.control_box == "boxddp":   # the box inside the backward pass; every rollout clips into it
+            res = _aico(objective, opts, X_init, U_init, callback, hard=hard, box=(b.u_lower, b.u_upper))
         else:   # the efforts are constraints of the iterations, unclipped; the plan's rollout clips them
             inner = dataclasses.replace(objective, bounds=dataclasses.replace(b, u_lower=None, u_upper=None))
             res = _aico(inner, opts, X_init, U_init, callback, efforts=b, hard=hard)
@@ -89,7 +94,7 @@ def distance_status(problem: Problem, hard: list, res: Result) -> None:
 
 
 def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts: Bounds | None = None,
-          hard: list | None = None) -> Result:
+          hard: list | None = None, box: tuple[np.ndarray, np.ndarray] | None = None) -> Result:
     T, n_u = problem.T, problem.n_u
     U = np.zeros((T, n_u)) if U_init is None else np.array(U_init, dtype=float)
     if U.shape != (T, n_u):
@@ -129,6 +134,7 @@ def _aico(problem: Problem, opts: AICOOptions, X_init, U_init, callback, efforts
         if isinstance(al, TruncatedSites):
             al.sweeps = sw
         step = AICOStep(problem, sw, float(opts.alpha), opts.gamma, opts, initial_cost)
+    sw.box = box
     test = cost_change_within
     if al is not None:     # no convergence outside the constraints
         def test(previous: float, cost: float, tol: float) -> bool:

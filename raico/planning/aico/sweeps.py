@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from raico.planning import kernels
+from raico.planning.aico.boxqp import backward_boxed
 from raico.planning.aico.options import AICOOptions
 from raico.planning.problem import Problem, is_lti
 from raico.plants.codegen.c_backend import check_shapes
@@ -159,6 +160,8 @@ class Sweeps:
         self._task_memo: tuple | None = None   # (X, U, l_x, l_xx) of the last compiled cost's rows
         self.al: AugmentedLagrangian | TruncatedSites | None = None   # hard constraints (raico.planning.constraints), set by the caller
         self._al_model: tuple | None = None   # (R, r) the constraints add to the task messages, None: nothing
+        self.box: tuple[np.ndarray, np.ndarray] | None = None   # (lo, hi) of the controls kept in the backward pass
+        self.cross_K: np.ndarray | None = None   # the cross term's change of controls v = u + K x (cross.eliminate)
         # work buffers of the per-step kernels
         self._Pa = np.empty((n, n + 1))      # [P | p] of the forward / backward step
         self._Vs = np.empty((n, n + 1))      # [V* | V* m'] of the last backward step
@@ -430,6 +433,8 @@ class Sweeps:
         Li = _tri_inv(_chol(FB[:, :m]))
         rhs = FB[:, m:]                                         # [B^T V* A | B^T V*(m'-a)]
         rhs[:, n] += self.h[t]
+        if self.box is not None and backward_boxed(self, t, FB[:, :m], rhs, FA):
+            return
         K = Li @ rhs
         np.matmul(Li.T, K, out=self.Z[t])                       # [-O_t | o_t]
         FA -= K[:, :n].T @ K                                    # [V_t^-1 | V_t^-1 v_t]
@@ -480,7 +485,7 @@ class Sweeps:
     def sweep(self) -> None:
         """One forward (t = 1..T) and one backward (t = T-1..0) sweep with relinearization;
         without relinearization (``theta = inf``) only the backward sweep."""
-        lib = kernels.library() if self.compiled else None
+        lib = kernels.library() if self.compiled and self.box is None else None   # (the box: in Python)
         if lib is not None:
             self._sweep_compiled(lib)
         elif self.relocate:
