@@ -121,3 +121,13 @@ def test_fddp_refuses_a_per_step_target():
     pb = Problem(base.dynamics, base.x0, base.T, [_reference_term(rng, base.T, base.n_x)], list(base.control_terms))
     with pytest.raises(ValueError, match="per step"):
         MPC(pb, 5, "fddp")
+
+
+def test_crocoddyl_refuses_a_per_step_target():
+    pytest.importorskip("crocoddyl")
+    from raico.planning.crocoddyl.costs import items_state
+    from raico.planning.crocoddyl.model import NotExpressible
+
+    term = _reference_term(np.random.default_rng(6), 4, 2)
+    with pytest.raises(NotExpressible, match="per step"):
+        items_state(term, None, 0, None, None, None)
