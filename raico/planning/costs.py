@@ -433,7 +433,8 @@ class StateTarget(StateTerm):
     """Quadratic cost on the full state ``w (x_t - x*)^T C (x_t - x*)`` at the listed steps.
 
     Args:
-        target: ``x* (n_x,)`` (rad, rad/s).
+        target: ``x* (n_x,)`` (rad, rad/s), or one per step, ``(T+1, n_x)`` (a reference trajectory: row ``t``
+            is step ``t``'s target; an MPC window's copy follows the absolute steps, raico.planning.mpc).
         times: step indices in ``[0, T]``; ``None`` means every step.
         weight: ``w``.
         precision: diagonal ``(n_x,)`` (default ones) or full ``(n_x, n_x)`` PSD matrix ``C``.
@@ -442,18 +443,27 @@ class StateTarget(StateTerm):
 
     def __init__(self, target, times=None, weight: float = 1.0, precision=None,
                  name: str = "state_target"):
-        self.target = np.asarray(target, dtype=float).reshape(-1)
+        t = np.asarray(target, dtype=float)
+        self.target = np.ascontiguousarray(t) if t.ndim == 2 else t.reshape(-1)
         self.name = name
         self.weight = _check_weight(weight, name)
-        self.C = _diag_or_matrix(precision, self.target.shape[0], name)
+        self.C = _diag_or_matrix(precision, self.target.shape[-1], name)
         self._set_times(times)
 
+    @property
+    def per_step(self) -> bool:
+        """Whether the target is one per step (``(T+1, n_x)``)."""
+        return self.target.ndim == 2
+
+    def _target(self, idx):
+        return self.target[idx] if self.target.ndim == 2 else self.target
+
     def _value(self, X, idx):
-        e = X - self.target
+        e = X - self._target(idx)
         return self.weight * np.einsum("ki,ij,kj->k", e, self.C, e)
 
     def _derivs(self, X, idx):
-        e = X - self.target
+        e = X - self._target(idx)
         lx = 2.0 * self.weight * e @ self.C
         lxx = np.broadcast_to(2.0 * self.weight * self.C, (X.shape[0], *self.C.shape))
         return lx, lxx

@@ -239,8 +239,11 @@ def compile_task_set(problem):
         vt.active = arr(term.active(steps), np.uint8)
         if type(term) is StateTarget:
             vt.kind, vt.dim = MessageKind.STATE_TARGET, nx
-            c_backend.check_shapes("taskset_eval", target=(term.target, (nx,)), C=(term.C, (nx, nx)))
+            per_step = term.target.ndim == 2   # one target per step: read in place (an MPC window refills it)
+            c_backend.check_shapes("taskset_eval", target=(term.target, (T + 1, nx) if per_step else (nx,)),
+                                   C=(term.C, (nx, nx)))
             vt.target, vt.C = arr(term.target), arr(term.C)
+            vt.target_stride = nx if per_step else 0
             terms.append(vt)
             continue
         if type(term) not in (ViaPoint, TaskInequality):

@@ -8,7 +8,7 @@ the window's first feedback gains ``O_0 (n_u, n_x)``, so that between solves (th
 faster steps) ``u = o_0 + O_0 x`` can be applied.
 
 Time in the window: window step ``j`` is the absolute step ``k + j``; a state term with ``times`` keeps
-its absolute times, a term at the problem's last step ``T`` follows the receding end (the window's last
+its absolute times (a state target per step, its targets: :func:`follow_references`), a term at the problem's last step ``T`` follows the receding end (the window's last
 step while ``T`` lies beyond it, ``T - k`` once inside); the windows' times are computed once.
 
 Warm start (shift by one step, as aico.cpp's ``shiftSolution`` and crocoddyl's MPC examples), by the
@@ -151,6 +151,34 @@ def _window_problem(problem: Problem, H: int, receding_end: bool = True) -> tupl
     return window, timed
 
 
+def _window_references(window: Problem, problem: Problem) -> list[tuple[Any, np.ndarray]]:
+    """The window's state targets with a target per step (``StateTarget.per_step``): each copy given its own
+    ``(H+1, n_x)`` target buffer (the compiled task messages read it in place), paired with the problem's
+    ``(T+1, n_x)`` targets; filled for tick 0."""
+    refs = []
+    for i, term in enumerate(window.state_terms):
+        if getattr(term, "per_step", False):
+            full = problem.state_terms[i].target
+            if full.shape[0] != problem.T + 1:
+                raise ValueError(f"state term {term.name!r}: {full.shape[0]} targets for a problem of "
+                                 f"{problem.T + 1} steps")
+            term.target = np.empty((window.T + 1, full.shape[1]))
+            refs.append((term, full))
+    follow_references(refs, 0)
+    return refs
+
+
+def follow_references(refs: list[tuple[Any, np.ndarray]], k: int) -> None:
+    """Tick ``k``: each window copy's per-step targets are the problem's at the absolute steps ``k..k+H``
+    (past the problem's end its last one), written in place."""
+    for term, full in refs:
+        buf = term.target
+        T = full.shape[0] - 1
+        n = min(buf.shape[0], T + 1 - k)
+        buf[:n] = full[k:k + n]
+        buf[n:] = full[T]
+
+
 class MPC:
     """A receding-horizon controller of ``problem`` (see the module docstring).
 
@@ -202,6 +230,9 @@ class MPC:
         self.warm = get_solver(solver).caps.mpc   # the shift warm start: "aico" or "fddp"
         self.iterations, self.budget = int(iterations), budget
         self.window, self._timed = _window_problem(problem, self.H, receding_end)
+        self._refs = _window_references(self.window, problem)   # targets per step: they follow the window
+        if self._refs and self.warm == "fddp":
+            raise ValueError(f"solver {solver!r}: a state target per step is not expressible in its window")
         # per tick: an id of the window's pattern of term times (it changes where a timed term enters, leaves
         # or the problem's end enters the window)
         ids, last = np.zeros(problem.T, dtype=np.int64), None
@@ -447,6 +478,7 @@ class MPC:
 
     def _set_tick(self, k: int) -> None:
         kk = min(k, self.problem.T - 1)
+        follow_references(self._refs, kk)
         for (c, per_tick), masks in zip(self._timed, self._masks):
             c.times = per_tick[kk]
             c._active_last = (self._steps, masks[kk])

@@ -42,7 +42,8 @@ typedef struct {
     long cost, nb;           /* enum cost_kind; bounds: their number */
     const double *A, *b;     /* bounds: A (nb, dim), b (nb) */
     const double *R_target, *p_target;   /* rotation / placement: the target pose (world) */
-    long target_stride;      /* > 0: the target of step t is target + t * target_stride (gravity: u_t) */
+    long target_stride;      /* > 0: the target of step t is target + t * target_stride (gravity: u_t; a
+                              * state target per step) */
     long last_step;          /* > 0: the term costs steps t < last_step only (a joint term: 0..T-1) */
 } vterm_t;
 
@@ -241,7 +242,7 @@ static void eval_terms(const taskset_t *ts, long t, const double *x, double *lx,
         const double *target = tm->target + (tm->target_stride > 0 ? t * tm->target_stride : 0);
         double w2 = 2.0 * tm->weight;
         if (tm->kind == MK_STATE_TARGET) {   /* state target: lx = 2w C (x - x*), lxx = 2w C */
-            for (int i = 0; i < nx; i++) e[i] = x[i] - tm->target[i];
+            for (int i = 0; i < nx; i++) e[i] = x[i] - target[i];
             if (cost) {
                 double c = 0.0;
                 for (int i = 0; i < nx; i++) { double v = 0.0; for (int j = 0; j < nx; j++) v += tm->C[i * nx + j] * e[j]; c += e[i] * v; }

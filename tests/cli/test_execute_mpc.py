@@ -93,6 +93,7 @@ def test_the_split_mpc_absorbs_the_push_too(arm5_plan):
     (("--controller", "mpc", "--final-target", "end"), "--final-target must be one of receding, fixed"),
     (("--final-target", "fixed"), "--final-target is an option of --controller mpc"),
     (("--controller", "mpc", "--window-posture", 1), "--window-posture is for a floating robot's MPC"),
+    (("--controller", "mpc", "--window-target", "plan"), "--window-target is for a floating robot's MPC"),
 ])
 def test_bad_input(arm5_plan, args, message):
     key, root = arm5_plan

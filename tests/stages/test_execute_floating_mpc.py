@@ -1,6 +1,8 @@
 """MPC above the whole-body stabilizer on the free-standing Nao, pushes on the floating execution: a short
 run (few ticks, a short horizon) and bad input."""
 
+import copy
+import dataclasses
 import json
 
 import numpy as np
@@ -77,6 +79,41 @@ def test_the_window_holds_the_standing_start_only_with_its_weights():
     assert np.all(np.isfinite(out.mpc["mpc_predicted"]))
 
 
+@pytest.mark.slow
+@pytest.mark.numerics
+def test_the_window_tracks_the_plan_step_by_step():
+    from raico.stages.execute.floating import _floating_mpc
+
+    nao = shared_robot("nao")
+    n = nao.n_q
+    Q = nao.default_q + 0.02 * np.sin(np.linspace(0, 3, T + 1))[:, None]   # a plan that moves
+    plan = pseudo_plan(Q, DT)
+    cfg = ExecuteConfig(plan="hold", controller="mpc", horizon=H, window_posture=10.0, window_damping=0.1,
+                        window_target="plan")
+
+    def short(q0):   # the balance problem cut to the plan's T steps (a target per step of the plan)
+        p, terms = nao_problem(q0), []
+        for term in p.state_terms:
+            c = copy.copy(term)
+            if term.times is not None:
+                c._set_times(term.times[term.times <= T])
+            terms.append(c)
+        return dataclasses.replace(p, T=T, state_terms=terms)
+
+    mpc = _floating_mpc(cfg, plan, plan["X"], Q[0], short, DT, 0.001)
+    hold = mpc.problem.term("window_hold")
+    assert hold.per_step and hold.times is None
+    np.testing.assert_array_equal(hold.target, plan["X"])           # the plan's positions and velocities
+    np.testing.assert_array_equal(np.diag(hold.C), np.r_[np.full(n, 10.0), np.full(n, 0.1)])
+    window = next(t for t in mpc.window.state_terms if t.name == "window_hold")
+    for k in (0, 3, T - 2):                                          # the window's targets: the absolute steps
+        mpc._set_tick(k)
+        np.testing.assert_array_equal(window.target, plan["X"][np.minimum(np.arange(k, k + H + 1), T)])
+    out = execute(cfg, desc_for("nao", nao.default_q, T, DT), plan, planning=short)
+    assert out.metrics["status"] in STATUSES and out.metrics["mpc_ticks"] == T
+    assert np.all(np.isfinite(out.mpc["mpc_predicted"]))
+
+
 @pytest.mark.numerics
 def test_the_reference_follows_a_window():
     from raico.plants.floating import shared_floating
@@ -121,6 +158,7 @@ def nao_plan(tmp_path_factory):
     (("--controller", "mpc", "--window-posture", -1), "--window-posture must be a finite weight >= 0"),
     (("--controller", "mpc", "--window-damping", "nan"), "--window-damping must be a finite weight >= 0"),
     (("--controller", "wbc", "--window-damping", 0.1), "--window-damping is an option of --controller mpc"),
+    (("--controller", "mpc", "--window-target", "nowhere"), "--window-target must be one of start, plan"),
 ])
 def test_bad_input_on_the_floating_robot(nao_plan, args, message):
     key, root = nao_plan
@@ -151,7 +189,7 @@ def test_the_nao_scenario_file_expands(tmp_path):
     res = CliRunner().invoke(app, ["exp", "run", str(root / "experiments" / "nao_push_mpc.toml"), "--dry-run",
                                    "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "6 variants x 10 seeds = 60 runs" in res.output
+    assert "8 variants x 10 seeds = 80 runs" in res.output
 
 
 def test_the_cog_via_point_margins_pass_over_a_state_term(tmp_path):

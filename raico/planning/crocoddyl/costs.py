@@ -171,6 +171,8 @@ def cost_items(term, state, nu: int, model, smap: StateMap, robot) -> list[tuple
 
 
 def items_state(term, state, nu, model, smap, robot):
+    if term.target.ndim == 2:
+        raise NotExpressible(f"crocoddyl: state term {term.name!r} has a target per step (one residual per node)")
     w = np.zeros(state.ndx)
     w[smap.tangent_index] = _diag(term.C, term.name)
     n = smap.n

@@ -20,6 +20,7 @@ CONTROLLERS = ("pd", "wbc", "mpc")  # pd, wbc (floating), mpc (fixed: re-plannin
 MPC_SOLVERS = WARM_STARTABLE  # the solvers with a shift warm start (their spec's caps.mpc, raico.planning.mpc)
 MPC_HORIZON = 50  # planning steps: --controller mpc's default horizon (at most the problem's T)
 FINAL_TARGETS = ("receding", "fixed")  # --final-target: a term at the problem's last step in the MPC's window
+WINDOW_TARGETS = ("start", "plan")  # --window-target: what the window's posture and velocity terms hold
 ARM_FINAL_TARGET = "receding"  # --final-target's default for a fixed-base arm (a floating robot's: fixed)
 
 
@@ -60,6 +61,9 @@ class ExecuteConfig(StageConfig):
                               "docs/mpc.md).",
             "window_damping": "--controller mpc on a floating robot: the weight (s^2/rad^2) of a term on the joint "
                               "velocities at every step of the window (not of the plan); default 0 (none).",
+            "window_target": "--controller mpc on a floating robot: what --window-posture and --window-damping hold: "
+                             "start (the standing start at rest, default) or plan (the plan's joint positions and "
+                             "velocities at each window step's absolute time, moving with the window).",
             "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
@@ -80,6 +84,7 @@ class ExecuteConfig(StageConfig):
     final_target: str | None = None  # --controller mpc: FINAL_TARGETS (None: the controller's default, see HELP)
     window_posture: float = 0.0  # --controller mpc, floating robot: the window's posture term's weight (1/rad^2)
     window_damping: float = 0.0  # --controller mpc, floating robot: the window's joint-velocity term's weight
+    window_target: str = "start"  # --controller mpc, floating robot: WINDOW_TARGETS
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
 
     def __post_init__(self) -> None:
@@ -105,8 +110,8 @@ class ExecuteConfig(StageConfig):
             if self.rti:
                 raise ValueError("--rti: the preparation / feedback split runs on a fixed-base robot's MPC")
             return
-        for name in ("window_posture", "window_damping"):
-            if getattr(self, name) != 0.0:
+        for name in ("window_posture", "window_damping", "window_target"):
+            if getattr(self, name) != ExecuteConfig.__dataclass_fields__[name].default:
                 raise ValueError(f"--{name.replace('_', '-')} is for a floating robot's MPC (above its stabilizer)")
         plant = plan.config.get("plant")
         if self.controller not in ("pd", "mpc"):
@@ -149,7 +154,7 @@ class ExecuteConfig(StageConfig):
         d = ExecuteConfig.__dataclass_fields__
         if self.controller != "mpc":
             given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti",
-                                 "final_target", "window_posture", "window_damping")
+                                 "final_target", "window_posture", "window_damping", "window_target")
                      if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
@@ -171,6 +176,8 @@ class ExecuteConfig(StageConfig):
             w = getattr(self, name)
             if not (math.isfinite(w) and w >= 0):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite weight >= 0, got {w}")
+        if self.window_target not in WINDOW_TARGETS:
+            raise ValueError(f"--window-target must be one of {', '.join(WINDOW_TARGETS)}, got {self.window_target!r}")
         if self.open_loop:
             raise ValueError("--open-loop holds the plan's controls; --controller mpc re-plans: choose one")
 

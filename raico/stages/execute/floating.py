@@ -125,7 +125,9 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     target costs the window only once the problem's end is inside it (``receding_end=False``): at the
     receding end it would ask the window's last step for the start's CoG one step after a via-point's
     (docs/mpc.md, "The Nao"). ``--window-posture`` / ``--window-damping``: a state term at every window step
-    on the joints' distance from ``q_start`` and on their velocities (the plan is made without it)."""
+    on the joints' distance from ``q_start`` and on their velocities (the plan is made without it); with
+    ``--window-target plan`` on their distance from the joint reference's state at each step's absolute time
+    (``X_plan``: a target per step, moving with the window)."""
     from raico.planning.mpc import MPC
 
     if cfg.period is not None and abs(cfg.period - dt) > 1e-12:
@@ -134,13 +136,8 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     if planning is None:
         raise ValueError("--controller mpc needs the plan's planning problem")
     problem = planning(q_start)
-    if cfg.window_posture > 0 or cfg.window_damping > 0:  # the window holds the standing start (not the plan)
-        from raico.planning.costs import StateTarget
-
-        n = len(q_start)
-        hold = StateTarget(np.r_[q_start, np.zeros(n)], None, 1.0,
-                           np.r_[np.full(n, cfg.window_posture), np.full(n, cfg.window_damping)], name="window_hold")
-        problem = dataclasses.replace(problem, state_terms=[*problem.state_terms, hold])
+    if cfg.window_posture > 0 or cfg.window_damping > 0:  # the window holds the standing start or the plan
+        problem = dataclasses.replace(problem, state_terms=[*problem.state_terms, _window_hold(cfg, q_start, X_plan)])
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
@@ -150,6 +147,18 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     shift = X_plan[0] - np.asarray(plan["X"], float)[0]   # the start projection (constant along the plan)
     mpc.start_from(X_plan, np.asarray(plan["U"], float), np.asarray(plan["o"], float) - O @ shift, O)
     return mpc
+
+
+def _window_hold(cfg: ExecuteConfig, q_start: np.ndarray, X_plan: np.ndarray):
+    """The window's state term (weights ``--window-posture`` on the joint positions, ``--window-damping`` on
+    the velocities, every step): toward the standing start at rest (``--window-target start``), or toward the
+    joint reference ``X_plan (T+1, 2 n_q)`` step by step (``plan``: a target per step, its absolute times)."""
+    from raico.planning.costs import StateTarget
+
+    n = len(q_start)
+    target = np.r_[q_start, np.zeros(n)] if cfg.window_target == "start" else X_plan
+    return StateTarget(target, None, 1.0, np.r_[np.full(n, cfg.window_posture), np.full(n, cfg.window_damping)],
+                       name="window_hold")
 
 
 def _floating_start(cfg: ExecuteConfig, desc: dict, plan: dict, free, rng
