@@ -79,6 +79,8 @@ bench: $(STAMP) $(KERNEL)
 	$(BIN)/python -m bench.mpc_learn --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml --artifacts $(ARTIFACTS)
 	$(BIN)/python -m bench.executors --runs 10000 --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.constraint_candidates --artifacts $(ARTIFACTS)
+	$(BIN)/python -m bench.truncated_candidate --artifacts $(ARTIFACTS)
 
 lint: $(STAMP) typecheck
 	$(BIN)/ruff check raico tests bench scripts

@@ -244,6 +244,9 @@ def markdown(doc: dict[str, Any]) -> str:
 
 
 def main() -> None:
+    from bench import truncated_candidate
+
+    truncated_candidate.register_candidates(sys.modules[__name__])   # the joint ranges' EP messages
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--artifacts", default="artifacts")
     ap.add_argument("--problems", nargs="*", default=None, help="suite labels (default: every torque problem)")

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -60,15 +62,16 @@ def _run_ep(problem, options: dict, init: dict, callback, over: dict):  # noqa: 
                 callback=callback, **init)
 
 
-def register_candidates() -> None:
-    """Register :data:`CANDIDATES` in ``bench.constraint_candidates`` (``Candidate(name, label, applies, run)``,
-    ``run(problem, options, init, callback)``), where a problem has joint ranges or velocity limits."""
+def register_candidates(registry: Any = None) -> None:
+    """Register :data:`CANDIDATES` in ``registry`` (default ``bench.constraint_candidates``; the module itself when
+    it runs as ``__main__``: ``Candidate(name, label, applies, run)``, ``run(problem, options, init, callback)``),
+    where a problem has joint ranges or velocity limits."""
     import functools
 
-    from bench.constraint_candidates import Candidate, register
-
+    if registry is None:
+        import bench.constraint_candidates as registry
     for name, (label, over) in CANDIDATES.items():
-        register(Candidate(name, label, _has_ranges, functools.partial(_run_ep, over=over)))
+        registry.register(registry.Candidate(name, label, _has_ranges, functools.partial(_run_ep, over=over)))
 
 
 def _excess(problem, X: np.ndarray) -> tuple[float, float]:
@@ -183,16 +186,34 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=200)
     ap.add_argument("--problems", default="", help="comma-separated labels of PROBLEMS (default all)")
     ap.add_argument("--out", default="", help="write the rows as JSON here")
-    ap.add_argument("--lq", action="store_true", help="the bounded LQ problem against its QP instead")
+    ap.add_argument("--lq", action="store_true", help="the bounded LQ problem against its QP only")
+    ap.add_argument("--artifacts", default="", help="write both tables as the page artifacts/bench/truncated_candidate.md")
     args = ap.parse_args()
+    lq = lq_table(lq_rows(args.iterations))
     if args.lq:
-        print(lq_table(lq_rows(args.iterations)))
+        print(lq)
         return
+    load = os.getloadavg()[0]
     probs = {k: PROBLEMS[k] for k in args.problems.split(",")} if args.problems else None
     rs = rows(probs, iterations=args.iterations)
     print(table(rs))
     if args.out:
         Path(args.out).write_text(json.dumps(rs, indent=1))
+    if args.artifacts:
+        out = Path(args.artifacts) / "bench"
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "truncated_candidate.md").write_text(page(lq, table(rs), args.iterations, load, os.getloadavg()[0]))
+
+
+def page(lq: str, problems: str, iterations: int, load0: float, load1: float) -> str:
+    """The page of one run: the bounded LQ problem against its QP, then the robot problems."""
+    return (f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; machine: {os.cpu_count()} cpus, 1-minute "
+            f"load {load0:.1f} at the start and {load1:.1f} at the end (CPU seconds).\n\n"
+            "The bounded LQ problem (tests/planning/test_aico_robust.py `bounded_lq`, T = 12) against its QP's "
+            f"feasible optimum:\n\n{lq}\n\nProblems where a range binds, bounded R-AICO (robust schedule, "
+            f"{iterations} iterations), the augmented Lagrangian against EP (excess against the box a plan from its "
+            "start can keep; \"inside from\": the iteration from which every iterate is inside by 1e-3):\n\n"
+            f"{problems}\n")
 
 
 if __name__ == "__main__":

@@ -301,6 +301,7 @@ PAGE_BLOCKS = (
     ("mpc_learn_grav", "mpc_learn_grav.md", "bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml"),
     ("executors", "executors.md", "bench.executors"),
     ("constraints", "constraint_candidates.md", "bench.constraint_candidates"),
+    ("truncated", "truncated_candidate.md", "bench.truncated_candidate"),
 )
 
 
