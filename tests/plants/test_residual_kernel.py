@@ -1,0 +1,136 @@
+"""The model file plus a residual GP, compiled (``raico.plants.learned.ResidualKernel``, ``residual_step.c``): one
+control step of ``k`` substeps, its linearization and rollout equal to the Python path (``ResidualDynamics`` inside
+``SubstepDynamics``), the linearization against central differences, the batched window linearization against the
+per-step one; the sweeps and the MPC take the compiled path."""
+
+import numpy as np
+import pytest
+
+from tests.tolerance import assert_close, bound
+
+
+def residual(k: int, n_points: int = 40):
+    from raico.plants.dynamics import SubstepDynamics
+    from raico.plants.learned import RESIDUAL_KEY, build_learned, example_params
+    from raico.plants.robots import shared_robot
+
+    robot = shared_robot("arm5")
+    params = {**example_params(robot, n_points=n_points), RESIDUAL_KEY: np.array(1.0)}
+    inner = build_learned(robot, 0.01 / k, params)
+    return robot, inner, SubstepDynamics(inner, k)
+
+
+def points(robot, n: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    q = robot.default_q + 0.3 * rng.standard_normal((n, robot.n_q))
+    return np.hstack([q, rng.standard_normal((n, robot.n_q))]), rng.standard_normal((n, robot.n_q))
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+@pytest.mark.parametrize("k", [1, 5])
+def test_the_compiled_step_and_linearization_equal_the_python_ones(k):
+    """``res_linearize`` and ``res_step`` of k substeps equal ``SubstepDynamics(ResidualDynamics)``'s Python path
+    (its ``linearize`` chaining the base's compiled linearization and the GP's mean and gradient)."""
+    from raico.plants.dynamics import SubstepDynamics
+
+    robot, inner, dyn = residual(k)
+    kern = inner.substep_kernel(k)
+    assert kern is not None and dyn.c_linearizer() is not None
+    X, U = points(robot, 6)
+    for x, u in zip(X, U):
+        A, a, B = kern.linearize(x, u)
+        A0, a0, B0 = SubstepDynamics.linearize(dyn, x, u)      # the Python chain over the inner models
+        if k == 1:
+            A0, a0, B0 = type(inner).linearize(inner, x, u)
+        n_ops = 40 * k * (2 * robot.n_q)
+        assert_close(A, A0, rel=bound(n_ops, 10.0))
+        assert_close(B, B0, rel=bound(n_ops, 10.0))
+        assert_close(a, a0, rel=bound(n_ops, 10.0), scale=float(np.abs(A0 @ x).max()))
+        x1 = x
+        for _ in range(k):
+            x1 = type(inner).step(inner, x1, u)                # SemiImplicitEuler with base qddot + GP mean
+        assert_close(kern.step(x, u), x1, rel=bound(n_ops, 10.0))
+        assert_close(A @ x + a + B @ u, x1, rel=bound(n_ops, 10.0))
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+def test_the_compiled_linearization_by_finite_differences():
+    """``A``, ``B`` of the compiled five substeps against central differences of its own step."""
+    from raico.plants.numdiff import numdiff_jacobian
+
+    robot, inner, dyn = residual(5)
+    kern = inner.substep_kernel(5)
+    X, U = points(robot, 3, seed=1)
+    for x, u in zip(X, U):
+        A, _, B = kern.linearize(x, u)
+        A_fd = numdiff_jacobian(lambda z: kern.step(z, u), x)
+        B_fd = numdiff_jacobian(lambda w: kern.step(x, w), u)
+        assert_close(A, A_fd, rel=1e-6, scale=float(np.abs(A).max()))
+        assert_close(B, B_fd, rel=1e-6, scale=float(np.abs(B).max()))
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+def test_the_compiled_rollout_equals_stepping_in_python_and_nan_propagates():
+    """``SubstepDynamics.controller_rollout`` (compiled) equals the Python loop; a NaN state gives NaN after it."""
+    robot, inner, dyn = residual(5)
+    T, n, m = 12, 2 * robot.n_q, robot.n_q
+    rng = np.random.default_rng(2)
+    x0 = points(robot, 1)[0][0]
+    o, O = rng.standard_normal((T, m)), 0.1 * rng.standard_normal((T, m, n))
+    X, U = dyn.controller_rollout(x0, o, O)
+    X0, U0 = _python_rollout(dyn, x0, o, O)
+    assert_close(X, X0, rel=bound(40 * 5 * T * n, 100.0))
+    assert_close(U, U0, rel=bound(40 * 5 * T * n, 100.0))
+    x_bad = x0.copy()
+    x_bad[0] = np.nan
+    Xn, _ = dyn.controller_rollout(x_bad, o, O)
+    assert np.isnan(Xn[1:]).all()
+
+
+def _python_rollout(dyn, x0, o, O):
+    """The reference loop with the inner model's Python step (no compiled kernel)."""
+    inner = dyn.inner
+    T = o.shape[0]
+    X, U = np.empty((T + 1, x0.size)), np.empty(o.shape)
+    X[0] = x0
+    for t in range(T):
+        U[t] = o[t] + O[t] @ X[t]
+        x = X[t]
+        for _ in range(dyn.k):
+            x = type(inner).step(inner, x, U[t])
+        X[t + 1] = x
+    return X, U
+
+
+@pytest.mark.numerics
+def test_the_batched_window_linearization_equals_the_per_step_one():
+    """``ResidualDynamics.linearize_trajectory`` (the base's batch and one GP call for all steps, no step of its
+    own) equals ``linearize`` step by step, and its ``A``, ``B`` the central differences of the step."""
+    from raico.plants.numdiff import numdiff_jacobian
+
+    robot, inner, _ = residual(1)
+    X, U = points(robot, 8, seed=3)
+    A, a, B = inner.linearize_trajectory(X, U)
+    for t, (x, u) in enumerate(zip(X, U)):
+        A0, a0, B0 = inner.linearize(x, u)
+        assert_close(A[t], A0, rel=bound(200, 10.0))
+        assert_close(B[t], B0, rel=bound(200, 10.0))
+        assert_close(a[t], a0, rel=bound(200, 10.0), scale=float(np.abs(A0 @ x).max()))
+    x, u = X[0], U[0]
+    assert_close(A[0], numdiff_jacobian(lambda z: inner.step(z, u), x), rel=1e-6, scale=float(np.abs(A[0]).max()))
+    assert_close(B[0], numdiff_jacobian(lambda w: inner.step(x, w), u), rel=1e-6, scale=float(np.abs(B[0]).max()))
+
+
+@pytest.mark.compiled
+def test_a_gp_whose_arrays_were_replaced_gets_a_new_kernel():
+    """The kernel reads the GP's arrays of its build: a GP whose arrays were replaced (an update) gets a new one."""
+    robot, inner, _ = residual(1)
+    k1 = inner.substep_kernel(1)
+    assert inner.substep_kernel(1) is k1
+    rng = np.random.default_rng(4)
+    Xn = np.hstack([points(robot, 3)[0], rng.standard_normal((3, robot.n_q))])
+    inner.model = inner.model.update(Xn, rng.standard_normal((3, robot.n_q)))
+    assert inner.substep_kernel(1) is not k1
