@@ -285,6 +285,17 @@ def plot(doc: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def learned_tick(artifacts: str) -> None:
+    """The learned model's tick, compiled against the Python path, on this run's loop (``bench.learned_tick``:
+    its page ``artifacts/bench/learned_tick.md``)."""
+    from bench import learned_tick as lt
+
+    doc = lt.measure(artifacts)
+    out = Path(artifacts) / "bench"
+    (out / "learned_tick.json").write_text(json.dumps(doc, indent=1))
+    (out / "learned_tick.md").write_text(lt.page(doc))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -310,6 +321,7 @@ def main() -> None:
                 (out / "mpc_learn.json").write_text(json.dumps(
                     {"model_file": rows, "optimum": optimum, "final_target": final_target(), "runs": runs, "settings": settings, "push": base["push"], "seeds": seeds,
                      "load": load}, indent=1))
+        learned_tick(args.artifacts)
     doc = json.loads((out / "mpc_learn.json").read_text())
     (out / "mpc_learn.md").write_text(page(doc))
     plot(doc, out / "mpc_learn.png")

@@ -130,6 +130,8 @@ class ResidualDynamics(LearnedDynamics):
     :meth:`substep_kernel`) where the base is the compiled model file and the GP an exact or sparse one
     (not ``AngleInputGP``); else the sweeps call ``linearize`` and the rollout steps in Python."""
 
+    compiled = True   # the compiled kernel where it builds (False: the Python path, for comparisons)
+
     def __init__(self, model: GPBase | AngleInputGP, base, dt: float):
         super().__init__(model, base.n_q, dt)
         if abs(base.dt - self.dt) > 1e-12:
@@ -146,7 +148,7 @@ class ResidualDynamics(LearnedDynamics):
         """The compiled model of ``k`` steps per control step (:class:`ResidualKernel`), or ``None`` (no C
         compiler, a base without compiled code, an ``AngleInputGP``); rebuilt when the GP's arrays change."""
         model, get = self.model, getattr(self.base, "_compiled", None)
-        if not isinstance(model, GPBase) or get is None or model.d > POINT_MAX_INPUTS:
+        if not self.compiled or not isinstance(model, GPBase) or get is None or model.d > POINT_MAX_INPUTS:
             return None
         base_c, gp_lib, lib = get(), _point_lib(), _residual_lib()
         if base_c is None or gp_lib is None or lib is None or getattr(base_c, "n", None) != self.n_q:

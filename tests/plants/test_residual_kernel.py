@@ -65,8 +65,8 @@ def test_the_compiled_linearization_by_finite_differences():
     X, U = points(robot, 3, seed=1)
     for x, u in zip(X, U):
         A, _, B = kern.linearize(x, u)
-        A_fd = numdiff_jacobian(lambda z: kern.step(z, u), x)
-        B_fd = numdiff_jacobian(lambda w: kern.step(x, w), u)
+        A_fd = numdiff_jacobian(lambda z, u=u: kern.step(z, u), x)
+        B_fd = numdiff_jacobian(lambda w, x=x: kern.step(x, w), u)
         assert_close(A, A_fd, rel=1e-6, scale=float(np.abs(A).max()))
         assert_close(B, B_fd, rel=1e-6, scale=float(np.abs(B).max()))
 
@@ -134,3 +134,43 @@ def test_a_gp_whose_arrays_were_replaced_gets_a_new_kernel():
     Xn = np.hstack([points(robot, 3)[0], rng.standard_normal((3, robot.n_q))])
     inner.model = inner.model.update(Xn, rng.standard_normal((3, robot.n_q)))
     assert inner.substep_kernel(1) is not k1
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+def test_the_learned_mpc_takes_the_compiled_path_and_its_windows_equal_the_python_ones():
+    """R-AICO's MPC on the model file plus the residual GP (5 substeps, the uncertainty term in the window): with
+    the compiled kernel (the sweeps' relinearizations and the rollouts in C) its windows over a few ticks equal
+    those of the Python path (``ResidualDynamics.compiled = False``)."""
+    from raico.planning.costs import ControlCost, StateTarget, Uncertainty
+    from raico.planning.mpc import MPC
+    from raico.planning.problem import Problem
+    from raico.plants.learned import ResidualDynamics
+
+    robot, inner, dyn = residual(5)
+    n = robot.n_q
+    x0 = np.concatenate([robot.default_q, np.zeros(n)])
+    target = np.concatenate([robot.default_q + 0.2, np.zeros(n)])
+    T, H = 12, 6
+
+    def windows(compiled: bool) -> np.ndarray:
+        saved = ResidualDynamics.compiled
+        ResidualDynamics.compiled = compiled
+        try:
+            assert (dyn.c_linearizer() is not None) == compiled
+            p = Problem(dyn, x0, T, [StateTarget(target, times=[T], weight=100.0, name="reach")],
+                        [ControlCost(1e-3)], [Uncertainty(dyn, 0.0, 1e-2, T, units="standardized")])
+            mpc = MPC(p, H, "raico", iterations=1)
+            mpc.prepare(x0, 3)
+            out, x = [], x0
+            for _ in range(4):
+                u, _, _ = mpc.tick(x)
+                out.append(mpc.X.copy())
+                x = dyn.step(x, u)
+            return np.array(out)
+        finally:
+            ResidualDynamics.compiled = saved
+
+    fast, slow = windows(True), windows(False)
+    assert np.all(np.isfinite(slow))
+    assert_close(fast, slow, rel=bound(4 * 4 * 40 * 5 * H * 2 * n, 100.0))
