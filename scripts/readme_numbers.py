@@ -295,6 +295,7 @@ PAGE_BLOCKS = (
     ("mpc_split", "mpc_split.md", "bench.mpc"),
     ("nao_mpc", "nao_mpc.md", "bench.nao_mpc"),
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
+    ("learned_tick", "learned_tick.md", "bench.learned_tick"),
     ("executors", "executors.md", "bench.executors"),
 )
 
