@@ -690,6 +690,8 @@ class SparseGPModel(GPBase):
     one-point variance is the exact GP's: here the batch call on one row.
     """
 
+    _online: tuple[np.ndarray, ...] | None = None   # add_points' sums (None: from the data at the next call)
+
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                  *, inducing: int | np.ndarray, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
                  y_mean: np.ndarray | None = None, y_std: np.ndarray | None = None,
@@ -797,7 +799,7 @@ class SparseGPModel(GPBase):
         Xn, Yn = self._new_data(X_new, Y_new)
         if Xn.shape[0] == 0:
             return self
-        if getattr(self, "_online", None) is None:
+        if self._online is None:
             self._online = self._posterior_stats(self.Z_train, self.y)[:4]
         Zn, yn = self.scale_x(Xn), (Yn - self.y_mean) / self.y_std
         Bs, rs, ss, add = self._online
@@ -824,7 +826,7 @@ class SparseGPModel(GPBase):
         output: ``I + A A^T`` for the first call's data (``A A^T`` else: pass the old data once), ``A ys``,
         ``ys . ys``, ``sum log lam`` and ``lam (D, n)``, with ``A = L_U^-1 K_Un Lam^-1/2``, ``ys = y Lam^-1/2``."""
         D, M, n = self.D, self.M, Z.shape[0]
-        first = getattr(self, "_online", None) is None
+        first = self._online is None
         B, r, s2, logs, lam = np.empty((D, M, M)), np.empty((D, M)), np.empty(D), np.empty(D), np.empty((D, n))
         for j in range(D):
             A = _linalg.solve_triangular(self.L_U[j], se_kernel(self.Z, Z, self.ell[j], self.sf2[j]), lower=True,

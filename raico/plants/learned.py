@@ -155,8 +155,10 @@ class ResidualDynamics(LearnedDynamics):
             return None
         pc = model._point_arrays()
         kern = self._kernels.get(k)
-        if kern is None or kern._keep[2] is not pc:
+        if kern is None:
             kern = self._kernels[k] = ResidualKernel(lib, base_c, gp_lib, pc, model, self.dt, k)
+        elif kern._keep[2] is not pc:
+            kern.refresh(pc, model)
         return kern
 
     def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -257,13 +259,13 @@ class ResidualKernel:
     """The model file plus the residual GP stepped ``k`` times per control step, compiled (``residual_step.c``):
     one control step's linearization (``res_linearize``, the AICO sweep kernel's ``lin_t``), step and rollout,
     the formulas of :meth:`ResidualDynamics.linearize` chained as ``SubstepDynamics.linearize`` (equal to
-    rounding). Built by :meth:`ResidualDynamics.compiled`; it reads the GP's arrays of the moment it was built
-    (``key``: they are the same objects). Not thread-safe (one work array)."""
+    rounding). Built by :meth:`ResidualDynamics.substep_kernel`, which refreshes it in place when the GP's arrays
+    were replaced (an online update): its context keeps its address, so a sweep kernel holding it reads the new
+    GP. Not thread-safe (one work array)."""
 
     def __init__(self, lib, base_c, gp_lib, pc: dict, gp, dt: float, k: int):
         nq, d = gp.D, gp.d
         self.lib, self.k, self.nx, self.nu = lib, int(k), 2 * nq, d - 2 * nq
-        self.key = pc["key"]
         self.work = np.empty(lib.res_work_size(nq, d))
         addr = ctypes.cast
         self.ctx = _ResCtx(addr(base_c.lib.dyn_qddot, ctypes.c_void_p).value, base_c.lin_address,
@@ -275,6 +277,14 @@ class ResidualKernel:
         self.address = ctypes.addressof(self.ctx)
         self._x, self._u, self._xn = np.empty(self.nx), np.empty(self.nu), np.empty(self.nx)
         self._A, self._a, self._B = np.empty((self.nx, self.nx)), np.empty(self.nx), np.empty((self.nx, self.nu))
+
+    def refresh(self, pc: dict, gp) -> None:
+        """Point the context at the GP's arrays ``pc`` (``GPBase._point_arrays``) of now, in place."""
+        self.ctx.N = gp.Z.shape[0]
+        for name, ptr in zip(("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std", "y_mean", "y_std"),
+                             (*pc["ptrs"][:4], *pc["stat_ptrs"])):
+            setattr(self.ctx, name, ptr)
+        self._keep = (*self._keep[:2], pc)
 
     def linearizer(self) -> tuple[int, int, object]:
         """``(address of res_linearize, address of its context, keep-alive)`` (``c_linearizer``'s form)."""

@@ -129,16 +129,24 @@ def test_the_batched_window_linearization_equals_the_per_step_one():
     assert_close(B[0], numdiff_jacobian(lambda w: inner.step(x, w), u), rel=1e-6, scale=float(np.abs(B[0]).max()))
 
 
+@pytest.mark.numerics
 @pytest.mark.compiled
-def test_a_gp_whose_arrays_were_replaced_gets_a_new_kernel():
-    """The kernel reads the GP's arrays of its build: a GP whose arrays were replaced (an update) gets a new one."""
+def test_a_gp_whose_arrays_were_replaced_refreshes_its_kernel_in_place():
+    """After an update of the GP (its arrays replaced) the kernel is the same object at the same context address
+    (a sweep kernel holding it stays valid) and steps with the new GP: the Python step's numbers."""
     robot, inner, _ = residual(1)
     k1 = inner.substep_kernel(1)
-    assert inner.substep_kernel(1) is k1
+    addr = k1.linearizer()[1]
+    x, u = points(robot, 1, seed=5)[0][0], points(robot, 1, seed=5)[1][0]
+    before = k1.step(x, u)
     rng = np.random.default_rng(4)
     Xn = np.hstack([points(robot, 3)[0], rng.standard_normal((3, robot.n_q))])
-    inner.model = inner.model.update(Xn, rng.standard_normal((3, robot.n_q)))
-    assert inner.substep_kernel(1) is not k1
+    inner.model = inner.model.update(Xn, 10.0 * rng.standard_normal((3, robot.n_q)))
+    k2 = inner.substep_kernel(1)
+    assert k2 is k1 and k2.linearizer()[1] == addr
+    after = k2.step(x, u)
+    assert not np.array_equal(before, after)
+    assert_close(after, type(inner).step(inner, x, u), rel=tol(400, 10.0))
 
 
 @pytest.mark.numerics
@@ -179,3 +187,59 @@ def test_the_learned_mpc_takes_the_compiled_path_and_its_windows_equal_the_pytho
     fast, slow = windows(True), windows(False)
     assert np.all(np.isfinite(slow))
     assert_close(fast, slow, rel=tol(4 * 4 * 40 * 5 * H * 2 * n, 100.0))
+
+
+def sparse_residual(k: int, n_points: int = 40, inducing: int = 20):
+    """``residual(k)`` whose GP is a sparse one (FITC, fixed inducing inputs) on the same data and hyperparameters."""
+    from raico.plants.gp import SparseGPModel
+
+    robot, inner, dyn = residual(k, n_points)
+    g = inner.model
+    inner.model = SparseGPModel(g.X, g.Y, g.ell, g.sf2, g.sn2, inducing=inducing, x_mean=g.x_mean, x_std=g.x_std,
+                                y_mean=g.y_mean, y_std=g.y_std, noise_floor=g.noise_floor)
+    return robot, inner, dyn
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+def test_the_online_update_feeds_the_executed_steps_to_the_mpcs_model():
+    """``OnlineResidual`` every 3 planning steps: the executed steps' samples join the sparse GP in rank-k updates
+    (6 points after 7 observed states), the compiled window model reads the new posterior (its step the Python
+    one), the GP's mean at the samples moves towards their targets; refused without a sparse GP or with K < 1."""
+    from raico.planning.costs import ControlCost, StateTarget
+    from raico.planning.mpc import MPC, OnlineResidual
+    from raico.planning.problem import Problem
+
+    robot, inner, dyn = sparse_residual(5)
+    n = robot.n_q
+    x0 = np.concatenate([robot.default_q, np.zeros(n)])
+    p = Problem(dyn, x0, 12, [StateTarget(np.concatenate([robot.default_q + 0.2, np.zeros(n)]), times=[12],
+                                          weight=100.0, name="reach")], [ControlCost(1e-3)])
+    mpc = MPC(p, 6, "raico", iterations=1)
+    mpc.prepare(x0, 3)
+    with pytest.raises(ValueError, match="integer >= 1"):
+        OnlineResidual(mpc, 0)
+    online = OnlineResidual(mpc, 3)
+    bias = 0.5 * np.ones(n)    # the plant: the model's step plus a constant acceleration it does not know
+
+    def plant(x, u):
+        x1 = dyn.step(x, u)
+        return x1 + np.concatenate([dyn.dt ** 2 * bias, dyn.dt * bias])
+
+    N0, x = inner.model.N, x0
+    samples = []
+    for _ in range(7):
+        u = mpc.tick(x)[0].copy()
+        online.observe(x, u)
+        samples.append(np.concatenate([x, u]))
+        x = plant(x, u)
+    assert online.updates == 2 and online.points == 6 and inner.model.N == N0 + 6
+    Z = np.array(samples[:6])
+    kern = inner.substep_kernel(5)
+    assert_close(kern.step(Z[0, :2 * n], Z[0, 2 * n:]), dyn.step(Z[0, :2 * n], Z[0, 2 * n:]), rel=tol(40 * 5 * 2 * n, 10.0))
+    target = inner.model.Y[-6:]      # the samples' targets, as fed
+    fresh = sparse_residual(5)[1].model
+    assert np.abs(inner.model.predict_mean(Z) - target).max() < np.abs(fresh.predict_mean(Z) - target).max()
+    _, plain, pdyn = residual(5)
+    with pytest.raises(ValueError, match="sparse"):
+        OnlineResidual(MPC(Problem(pdyn, x0, 12, [], [ControlCost(1e-3)]), 6, "raico"), 3)
