@@ -7,7 +7,8 @@ is the learned model: the tick's cost, not the task, is measured), once with the
 plus the residual GP (``raico.plants.learned.ResidualKernel``: the sweeps' relinearizations, the rollouts and the
 window's linearization in C) and once stepping it in Python (``ResidualDynamics.compiled = False``). Per tick: CPU
 time (``time.process_time``, this process) and wall time of the solve; medians and p90 over the ticks; the two
-paths' windows compared. The page: ``artifacts/bench/learned_tick.md`` (+ ``.json``).
+paths' windows compared. Then episode 1 of the loop with a sparse GP, without and with the online update
+(``online_rows``). The page: ``artifacts/bench/learned_tick.md`` (+ ``.json``).
 
     python -m bench.learned_tick [--ticks 100] [--artifacts artifacts]
 """
@@ -24,6 +25,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 HORIZON = 50
+INDUCING = 100       # the online rows' sparse GP: fixed inducing points
+ONLINE_EVERY = 10    # planning steps between the online updates
+ONLINE_SEEDS = 3
 
 
 def learned_plans(artifacts: str) -> list:
@@ -92,7 +96,37 @@ def measure(artifacts: str, ticks: int = 100) -> dict:
                      "cpu_p90_ms": [1e3 * float(np.percentile(r["cpu"], 90)) for r in (slow, fast)],
                      "wall_ms": [1e3 * float(np.median(r["wall"])) for r in (slow, fast)],
                      "window_diff": float(np.abs(fast["windows"] - slow["windows"]).max()) / scale})
-    return {"rows": rows, "horizon": HORIZON, "load": f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end"}
+    online = online_rows(artifacts)
+    return {"rows": rows, "online": online, "horizon": HORIZON,
+            "load": f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end"}
+
+
+def online_rows(artifacts: str, seeds: int = ONLINE_SEEDS) -> list[dict]:
+    """Episode 1 of the MPC point's loop with a sparse GP (``INDUCING`` fixed inducing points), without and with
+    the online update every ``ONLINE_EVERY`` planning steps, per seed: the executed distance, the status, the MPC
+    model's one-step error along the execution, the median tick and the updates made."""
+    from bench.mpc_learn import REACH_TERM, one_step_error, variants
+    from raico.pipeline.engine.cache import Cache
+    from raico.pipeline.engine.runner import run
+    from raico.stages.learn import LearnConfig
+
+    base, points = variants()
+    point = next(p for p in points if p.get("controller") == "mpc")
+    cache = Cache(Path(artifacts) / "bench" / "mpc_learn")
+    rows = []
+    for seed in range(seeds):
+        for every in (0, ONLINE_EVERY):
+            cfg = {**base, **{k: v for k, v in point.items() if k != "label"}, "seed": seed, "episodes": 1,
+                   "gp": "sparse", "inducing": INDUCING, "online_every": every}
+            cfg["push"] = tuple(cfg["push"])
+            out = run(cache, "learn", LearnConfig(**cfg), record=False)
+            ep = json.loads((Path(out.path) / "episodes.json").read_text())["episodes"][0]
+            ex = cache.require("execute", ep["execute"])
+            r, m = ex.arrays("rollout.npz"), ex.metrics
+            rows.append({"seed": seed, "online_every": every, "distance_m": m["via_point_errors"][REACH_TERM],
+                         "status": ex.status, "one_step_error": one_step_error(r["X"], r.get("mpc_predicted")),
+                         "tick_s": m.get("mpc_median_tick_s"), "updates": m.get("mpc_online_updates", 0)})
+    return rows
 
 
 def page(doc: dict) -> str:
@@ -111,6 +145,17 @@ def page(doc: dict) -> str:
         lines.append(f"| {r['episode']} | {r['n_points']} | {r['ticks']} | {c[0]:.1f} / {c[1]:.1f} | "
                      f"{p[0]:.1f} / {p[1]:.1f} | {w[0]:.1f} / {w[1]:.1f} | {c[0] / c[1]:.2f}x | "
                      f"{r['window_diff']:.1e} |")
+    if doc.get("online"):
+        lines += ["", f"The online update (`--online-every {ONLINE_EVERY}`) in episode 1 of the same loop with a sparse "
+                  f"GP ({INDUCING} fixed inducing points; `--gp sparse`), per seed, without and with it:", "",
+                  "| seed | online update | executed distance to the target (cm) | status | MPC's model, one-step error, "
+                  "median (rad/s) | updates | median tick, wall (ms) |", "|---|---|---|---|---|---|---|"]
+        for r in doc["online"]:
+            every = f"every {r['online_every']} steps" if r["online_every"] else "none"
+            err = "-" if r["one_step_error"] is None else f"{r['one_step_error']:.3g}"
+            tick = "-" if not r["tick_s"] else f"{1e3 * r['tick_s']:.0f}"
+            lines.append(f"| {r['seed']} | {every} | {100 * r['distance_m']:.2f} | {r['status']} | {err} | "
+                         f"{r['updates']} | {tick} |")
     return "\n".join(lines) + "\n"
 
 

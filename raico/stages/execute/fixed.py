@@ -261,6 +261,8 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     extra = {}
     if mpc is not None:
         metrics.update(_mpc_metrics(mpc, period))
+        if online is not None:   # the learned model's online updates: how many, and the points they fed
+            metrics.update({"mpc_online_updates": online.updates, "mpc_online_points": online.points})
         # the closed loop's simulated time over its wall time (Drake's steps, the controller's ticks, the logs)
         metrics["mpc_real_time_factor"] = float(sum(1 for x in X if np.isfinite(x).all()) - 1) * dt / wall
         extra = mpc.log.arrays()
