@@ -308,6 +308,17 @@ def plot(doc: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def learned_tick(artifacts: str) -> None:
+    """The learned model's tick, compiled against the Python path, on this run's loop (``bench.learned_tick``:
+    its page ``artifacts/bench/learned_tick.md``)."""
+    from bench import learned_tick as lt
+
+    doc = lt.measure(artifacts)
+    out = Path(artifacts) / "bench"
+    (out / "learned_tick.json").write_text(json.dumps(doc, indent=1))
+    (out / "learned_tick.md").write_text(lt.page(doc))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiment", default=str(FIRST), help="the scenario's experiment file")
@@ -338,6 +349,8 @@ def main() -> None:
                     {"model_file": rows, "optimum": optimum, "final_target": final_target(), "runs": runs, "settings": settings, "push": base["push"], "seeds": seeds,
                      "load": load, "problem": os.path.relpath(base["problem"], ROOT),
                      "experiment": os.path.relpath(EXPERIMENT, ROOT), "effort": effort_target()}, indent=1))
+        if EXPERIMENT == FIRST.resolve():   # the learned model's tick, on the first scenario's loop
+            learned_tick(args.artifacts)
     doc = json.loads((out / f"{name}.json").read_text())
     (out / f"{name}.md").write_text(page(doc))
     plot(doc, out / f"{name}.png")

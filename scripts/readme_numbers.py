@@ -299,6 +299,7 @@ PAGE_BLOCKS = (
     ("nao_mpc", "nao_mpc.md", "bench.nao_mpc"),
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
     ("mpc_learn_grav", "mpc_learn_grav.md", "bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml"),
+    ("learned_tick", "learned_tick.md", "bench.learned_tick"),
     ("executors", "executors.md", "bench.executors"),
     ("constraints", "constraint_candidates.md", "bench.constraint_candidates"),
     ("truncated", "truncated_candidate.md", "bench.truncated_candidate"),

@@ -539,3 +539,52 @@ def simulate(mpc: MPC, step, x0: np.ndarray, ticks: int, push=None) -> tuple[np.
         w = U[k] if push is None else U[k] + push(k)
         X[k + 1] = step(X[k], w, k)
     return X, U
+
+
+class OnlineResidual:
+    """The MPC's learned model updated from the executed steps every ``every`` planning steps, inside the run.
+
+    The controller's model is the model file plus a residual GP with fixed inducing inputs
+    (``raico.plants.gp.SparseGPModel``); its hyperparameters, scaling and inducing inputs stay, and its posterior
+    over the inducing outputs takes a rank-``k`` update (``SparseGPModel.add_points``). A step executed from
+    ``(x_t, u_t)`` to the measured ``x_{t+1}`` gives the GP the sample ``(x_t, u_t) -> m(x_t, u_t) + (v_{t+1} -
+    v_hat_{t+1}) / dt``: the current mean plus the velocity the model missed over the step, per second (``v_hat``:
+    the model's own step, ``dt`` the planning step), so the mean moves towards what the step showed. The window's
+    compiled model reads the new posterior (``ResidualKernel.refresh``), the uncertainty term the same GP.
+    ``observe(x, u)`` at every planning step: the measured state and the control then applied.
+
+    Raises:
+        ValueError: ``every < 1`` or a model without a sparse residual GP.
+    """
+
+    def __init__(self, mpc: MPC, every: int):
+        dyn = learned_model(mpc.problem.dynamics)
+        if int(every) != every or every < 1:
+            raise ValueError(f"the online update's interval must be an integer >= 1 planning steps, got {every}")
+        if dyn is None or not hasattr(dyn.model, "add_points"):
+            raise ValueError("the online update needs a learned model whose GP is sparse (fixed inducing points: "
+                             "--gp sparse)")
+        self.mpc, self.every, self.dyn = mpc, int(every), dyn
+        n_x, n_u = mpc.problem.n_x, mpc.problem.n_u
+        self._Z, self._Y = np.empty((self.every, n_x + n_u)), np.empty((self.every, n_x // 2))
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self.n, self.updates, self.points = 0, 0, 0
+
+    def observe(self, x: np.ndarray, u: np.ndarray) -> None:
+        """The measured state ``x`` (the end of the previous step) and the control ``u`` applied from it."""
+        model, n = self.mpc.problem.dynamics, self.mpc.problem.n_x // 2
+        if self._last is not None:
+            x0, u0 = self._last
+            with np.errstate(all="ignore"):
+                v_hat = model.step(x0, u0)[n:]
+                z = np.concatenate([x0, u0])
+                y = self.dyn.model.predict_mean(z[None])[0] + (x[n:] - v_hat) / model.dt
+            if np.all(np.isfinite(y)) and np.all(np.isfinite(z)):
+                self._Z[self.n], self._Y[self.n] = z, y
+                self.n += 1
+        self._last = (np.array(x, float), np.array(u, float))
+        if self.n == self.every:
+            self.dyn.model.add_points(self._Z, self._Y)
+            getattr(model, "c_linearizer", lambda: None)()   # the compiled model refreshed (its substeps')
+            self.dyn.c_linearizer()
+            self.updates, self.points, self.n = self.updates + 1, self.points + self.n, 0

@@ -408,9 +408,24 @@ class SubstepDynamics:
             Xi = np.einsum("tij,tj->ti", Ai, Xi) + ai + np.einsum("tij,tj->ti", Bi, U)
         return A, Xi - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U), B
 
+    def _kernel(self):
+        """The inner model's compiled ``k`` substeps (its ``substep_kernel``: the model file plus a residual
+        GP), or ``None``."""
+        get = getattr(self.inner, "substep_kernel", None)
+        return None if get is None else get(self.k)
+
+    def c_linearizer(self):
+        """The compiled linearization of the ``k`` substeps (the sweep kernel's), or ``None`` (the sweeps
+        call :meth:`linearize`)."""
+        kern = self._kernel()
+        return None if kern is None else kern.linearizer()
+
     def controller_rollout(self, x0, o, O):
-        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` held over each step's substeps."""
-        return stepped_rollout(self, np.asarray(x0, float), o, O)
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` held over each step's substeps
+        (compiled where the inner model compiles its substeps, else stepped in Python)."""
+        x0 = np.asarray(x0, float)
+        kern = self._kernel()
+        return stepped_rollout(self, x0, o, O) if kern is None else kern.rollout(x0.reshape(-1), o, O)
 
     def inverse_dynamics(self, q, v, a):
         return self.inner.inverse_dynamics(q, v, a)

@@ -690,6 +690,8 @@ class SparseGPModel(GPBase):
     one-point variance is the exact GP's: here the batch call on one row.
     """
 
+    _online: tuple[np.ndarray, ...] | None = None   # add_points' sums (None: from the data at the next call)
+
     def __init__(self, X: np.ndarray, Y: np.ndarray, ell: np.ndarray, sf2: np.ndarray, sn2: np.ndarray,
                  *, inducing: int | np.ndarray, x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None,
                  y_mean: np.ndarray | None = None, y_std: np.ndarray | None = None,
@@ -783,7 +785,61 @@ class SparseGPModel(GPBase):
                             inducing=self.m_requested, x_mean=self.x_mean, x_std=self.x_std, y_mean=self.y_mean,
                             y_std=self.y_std, noise_floor=self.noise_floor)
         self.__dict__.update(new.__dict__)
+        self._online = None   # add_points' sums start again from these data
         return self
+
+    def add_points(self, X_new: np.ndarray, Y_new: np.ndarray) -> SparseGPModel:
+        """Add data ``X_new (k, d)``, ``Y_new (k, D)`` (physical) at fixed hyperparameters, scaling and inducing
+        inputs, in place: FITC's posterior over the inducing outputs takes a rank-``k`` update. Each new point
+        ``z`` adds the column ``a = L_U^-1 k_U(z) / sqrt(lam(z))`` to ``A`` (its ``lam`` is its own: the inducing
+        inputs are fixed), so ``B = I + A A^T`` gains ``a a^T`` and ``A ys`` gains ``a y / sqrt(lam)``; ``L_B`` is
+        refactorized from ``B`` (``O(D M^3)``, no pass over the old data) and the weights solved again. Equal to
+        the batch posterior of all the data at these inducing inputs (``SparseGPModel(..., inducing=self.U)``, the
+        same scaling). Returns ``self``; unchanged on an error."""
+        Xn, Yn = self._new_data(X_new, Y_new)
+        if Xn.shape[0] == 0:
+            return self
+        if self._online is None:
+            self._online = self._posterior_stats(self.Z_train, self.y)[:4]
+        Zn, yn = self.scale_x(Xn), (Yn - self.y_mean) / self.y_std
+        Bs, rs, ss, add = self._online
+        new = self._posterior_stats(Zn, yn)
+        B, r, s2 = Bs + new[0], rs + new[1], ss + new[2]
+        L_B, weights, lml = np.empty_like(self.L_B), np.empty_like(self.weights), np.empty(self.D)
+        N = self.N + Zn.shape[0]
+        for j in range(self.D):
+            LB = _linalg.cholesky(B[j], lower=True, check_finite=False)
+            c = _linalg.solve_triangular(LB, r[j], lower=True, check_finite=False)
+            weights[j] = _linalg.solve_triangular(self.L_U[j], _linalg.solve_triangular(
+                LB, c, lower=True, trans="T", check_finite=False), lower=True, trans="T", check_finite=False)
+            L_B[j] = LB
+            lml[j] = (-0.5 * (s2[j] - c @ c) - 0.5 * (add[j] + new[3][j]) - np.log(np.diagonal(LB)).sum()
+                      - 0.5 * N * _LOG_2PI)
+        self.Z_train, self.y = np.vstack([self.Z_train, Zn]), np.vstack([self.y, yn])
+        self.lam = np.hstack([self.lam, new[4]])
+        self.L_B, self.weights, self._lml = L_B, weights, lml
+        self._online = (B, r, s2, add + new[3])
+        return self
+
+    def _posterior_stats(self, Z: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:
+        """FITC's sums over the points ``Z (n, d)``, ``y (n, D)`` (scaled) at the fixed inducing inputs, per
+        output: ``I + A A^T`` for the first call's data (``A A^T`` else: pass the old data once), ``A ys``,
+        ``ys . ys``, ``sum log lam`` and ``lam (D, n)``, with ``A = L_U^-1 K_Un Lam^-1/2``, ``ys = y Lam^-1/2``."""
+        D, M, n = self.D, self.M, Z.shape[0]
+        first = self._online is None
+        B, r, s2, logs, lam = np.empty((D, M, M)), np.empty((D, M)), np.empty(D), np.empty(D), np.empty((D, n))
+        for j in range(D):
+            A = _linalg.solve_triangular(self.L_U[j], se_kernel(self.Z, Z, self.ell[j], self.sf2[j]), lower=True,
+                                         check_finite=False)
+            lam[j] = self.sn2[j] + np.maximum(self.sf2[j] - np.einsum("mn,mn->n", A, A), 0.0)
+            w = 1.0 / np.sqrt(lam[j])
+            A *= w
+            B[j] = A @ A.T
+            if first:
+                B[j][np.diag_indices(M)] += 1.0
+            ys = y[:, j] * w
+            r[j], s2[j], logs[j] = A @ ys, ys @ ys, np.log(lam[j]).sum()
+        return B, r, s2, logs, lam
 
     # -- the variance ----------------------------------------------------------------------
     def _var_solves(self, j: int, Ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -40,6 +40,18 @@ void gp_point(long N, long d, long D, const double *Zs, const double *weights, c
     }
 }
 
+/* gp_point's scaled mean out_m (D,) alone (the same numbers, no gradient). */
+void gp_point_mean(long N, long d, long D, const double *Zs, const double *weights, const double *sf2,
+                   const double *inv_ell, const double *z, double *out_m)
+{
+    double zs[256];
+    for (long j = 0; j < D; j++) {
+        const double *ie = inv_ell + j * d;
+        for (long c = 0; c < d; c++) zs[c] = z[c] * ie[c];
+        out_m[j] = gp_mean_one(N, d, Zs + j * N * d, weights + j * N, sf2[j], zs, 0, 0);
+    }
+}
+
 /* gp_point plus the scaled latent variance out_v (D,) (not clipped) and its gradient out_gv (D, d):
  * with L (D, N, N) the lower Cholesky factors of K + sn2 I (row-major), v = L^-1 k,
  * var = sf2 - v.v, w = L^-T v = (K + sn2 I)^-1 k, dvar/dz = -2 sum_i w_i k_i (z_i - z) / ell^2

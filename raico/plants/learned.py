@@ -14,12 +14,14 @@ come through the chain rule, so the linearization below is unchanged (and exact 
 
 from __future__ import annotations
 
+import ctypes
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from raico.plants.dynamics import SemiImplicitEuler, stepped_rollout
-from raico.plants.gp import AngleInputGP, GPBase, GPModel
+from raico.plants.gp import POINT_MAX_INPUTS, AngleInputGP, GPBase, GPModel, _point_lib
 
 
 class LearnedDynamics(SemiImplicitEuler):
@@ -123,14 +125,41 @@ class ResidualDynamics(LearnedDynamics):
     Euler of the same ``dt``); the GP was fitted to ``qddot_executed - f_model`` (``raico.stages.fit``,
     ``--residual``). A step is linear in ``qddot``, so the linearization is the base's plus the GP
     mean's: ``dv'/dx += dt F_x``, ``dq'/dx += dt^2 F_x`` (and ``F_u`` for ``B``), exact at the point.
-    The variance (the uncertainty term) is the GP's alone: the model file adds none. No compiled
-    one-point linearization or rollout (``c_linearizer`` is None): the sweeps call ``linearize``."""
+    The variance (the uncertainty term) is the GP's alone: the model file adds none. The one-point
+    linearization and the rollout are compiled (:class:`ResidualKernel`, also ``k`` steps per control step:
+    :meth:`substep_kernel`) where the base is the compiled model file and the GP an exact or sparse one
+    (not ``AngleInputGP``); else the sweeps call ``linearize`` and the rollout steps in Python."""
+
+    compiled = True   # the compiled kernel where it builds (False: the Python path, for comparisons)
 
     def __init__(self, model: GPBase | AngleInputGP, base, dt: float):
         super().__init__(model, base.n_q, dt)
         if abs(base.dt - self.dt) > 1e-12:
             raise ValueError(f"the base model's step {base.dt} s differs from {dt} s")
         self.base = base
+        self._kernels: dict[int, ResidualKernel] = {}
+
+    def __getstate__(self):  # the compiled kernels hold ctypes pointers: rebuilt on first use
+        d = dict(self.__dict__)
+        d["_kernels"] = {}
+        return d
+
+    def substep_kernel(self, k: int = 1) -> ResidualKernel | None:
+        """The compiled model of ``k`` steps per control step (:class:`ResidualKernel`), or ``None`` (no C
+        compiler, a base without compiled code, an ``AngleInputGP``); rebuilt when the GP's arrays change."""
+        model, get = self.model, getattr(self.base, "_compiled", None)
+        if not self.compiled or not isinstance(model, GPBase) or get is None or model.d > POINT_MAX_INPUTS:
+            return None
+        base_c, gp_lib, lib = get(), _point_lib(), _residual_lib()
+        if base_c is None or gp_lib is None or lib is None or getattr(base_c, "n", None) != self.n_q:
+            return None
+        pc = model._point_arrays()
+        kern = self._kernels.get(k)
+        if kern is None:
+            kern = self._kernels[k] = ResidualKernel(lib, base_c, gp_lib, pc, model, self.dt, k)
+        elif kern._keep[2] is not pc:
+            kern.refresh(pc, model)
+        return kern
 
     def qddot(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``f_model + GP mean`` ``(n_q,)`` (rad/s^2) at one state and control (NaN if not finite)."""
@@ -163,22 +192,126 @@ class ResidualDynamics(LearnedDynamics):
         return A, self.step(x, u) - A @ x - B @ u, B
 
     def linearize_trajectory(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)`` along ``X (T, n_x)``, ``U (T, n_u)``."""
+        """``A (T, n_x, n_x)``, ``a (T, n_x)``, ``B (T, n_x, n_u)`` along ``X (T, n_x)``, ``U (T, n_u)``: the
+        base's batch plus the GP's mean and gradient at every step in one call. A step is the base's plus
+        ``(dt^2 m, dt m)``, so ``a = a_base + (dt^2, dt) (m - F (x, u))`` (no step of its own)."""
         X, U = np.asarray(X, float), np.asarray(U, float)
-        A, _, B = self.base.linearize_trajectory(X, U)
-        A, B = np.array(A, float), np.array(B, float)
-        _, F = self.model.mean_with_gradients(np.hstack([X, U]))
+        A, a, B = self.base.linearize_trajectory(X, U)
+        A, a, B = np.array(A, float), np.array(a, float), np.array(B, float)
+        Z = np.hstack([X, U])
+        mean, F = self.model.mean_with_gradients(Z)
         self._add_gp(A, B, F)
-        a = self.step_batch(X, U) - np.einsum("tij,tj->ti", A, X) - np.einsum("tij,tj->ti", B, U)
+        r = mean - np.einsum("tij,tj->ti", F, Z)
+        n, dt = self.n_q, self.dt
+        a[:, n:] += dt * r
+        a[:, :n] += dt * dt * r
         return A, a, B
 
     def controller_rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0``, stepped in Python."""
-        return stepped_rollout(self, np.asarray(x0, float).reshape(-1), o, O)
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0``: compiled where
+        :meth:`substep_kernel` is, else stepped in Python."""
+        x0 = np.asarray(x0, float).reshape(-1)
+        kern = self.substep_kernel(1)
+        return stepped_rollout(self, x0, o, O) if kern is None else kern.rollout(x0, o, O)
 
-    def c_linearizer(self) -> None:
-        """No compiled linearization of the sum (the sweeps call :meth:`linearize`)."""
-        return None
+    def c_linearizer(self) -> tuple[int, int, object] | None:
+        """The compiled linearization of the sum (:meth:`substep_kernel`), or ``None`` (the sweeps call
+        :meth:`linearize`)."""
+        kern = self.substep_kernel(1)
+        return None if kern is None else kern.linearizer()
+
+
+# -- the compiled residual step (residual_step.c) -----------------------------------------------------------------
+_RES_LIB: Any = None
+
+
+def _residual_lib():
+    """The compiled ``residual_step`` (``None`` without a C compiler or with ``RAICO_NO_C``)."""
+    global _RES_LIB
+    if _RES_LIB is None:
+        from raico.plants.codegen import c_backend
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(c_backend.c_source(__file__, "residual_step.c"), "residual_step",
+                                         flags=(*c_backend.CFLAGS, "-O3"))
+            vp = ctypes.c_void_p
+            lib.res_work_size.argtypes, lib.res_work_size.restype = [ctypes.c_long] * 2, ctypes.c_long
+            lib.res_linearize.argtypes, lib.res_linearize.restype = [vp] * 6, ctypes.c_int
+            lib.res_step.argtypes, lib.res_step.restype = [vp] * 4, ctypes.c_int
+            lib.res_rollout.argtypes, lib.res_rollout.restype = [vp, ctypes.c_long] + [vp] * 4, ctypes.c_int
+            lib.res_linearize_address.restype = vp
+            _RES_LIB = lib
+        except (c_backend.CompileUnavailable, OSError):
+            _RES_LIB = False
+    return _RES_LIB or None
+
+
+class _ResCtx(ctypes.Structure):
+    _fields_ = [*((k, ctypes.c_void_p) for k in ("base_qdd", "base_lin", "base_ctx", "gp_point", "gp_mean")),
+                *((k, ctypes.c_long) for k in ("N", "d", "nq", "k")),
+                *((k, ctypes.c_void_p) for k in ("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std", "y_mean",
+                                                 "y_std")),
+                ("dt", ctypes.c_double), ("work", ctypes.c_void_p)]
+
+
+class ResidualKernel:
+    """The model file plus the residual GP stepped ``k`` times per control step, compiled (``residual_step.c``):
+    one control step's linearization (``res_linearize``, the AICO sweep kernel's ``lin_t``), step and rollout,
+    the formulas of :meth:`ResidualDynamics.linearize` chained as ``SubstepDynamics.linearize`` (equal to
+    rounding). Built by :meth:`ResidualDynamics.substep_kernel`, which refreshes it in place when the GP's arrays
+    were replaced (an online update): its context keeps its address, so a sweep kernel holding it reads the new
+    GP. Not thread-safe (one work array)."""
+
+    def __init__(self, lib, base_c, gp_lib, pc: dict, gp, dt: float, k: int):
+        nq, d = gp.D, gp.d
+        self.lib, self.k, self.nx, self.nu = lib, int(k), 2 * nq, d - 2 * nq
+        self.work = np.empty(lib.res_work_size(nq, d))
+        addr = ctypes.cast
+        self.ctx = _ResCtx(addr(base_c.lib.dyn_qddot, ctypes.c_void_p).value, base_c.lin_address,
+                           base_c.ctx_address, addr(gp_lib.gp_point, ctypes.c_void_p).value,
+                           addr(gp_lib.gp_point_mean, ctypes.c_void_p).value,
+                           gp.Z.shape[0], d, nq, self.k, *pc["ptrs"][:4], *pc["stat_ptrs"], float(dt),
+                           self.work.ctypes.data)
+        self._keep = (base_c, gp_lib, pc)
+        self.address = ctypes.addressof(self.ctx)
+        self._x, self._u, self._xn = np.empty(self.nx), np.empty(self.nu), np.empty(self.nx)
+        self._A, self._a, self._B = np.empty((self.nx, self.nx)), np.empty(self.nx), np.empty((self.nx, self.nu))
+
+    def refresh(self, pc: dict, gp) -> None:
+        """Point the context at the GP's arrays ``pc`` (``GPBase._point_arrays``) of now, in place."""
+        self.ctx.N = gp.Z.shape[0]
+        for name, ptr in zip(("Zs", "weights", "sf2", "inv_ell", "x_mean", "x_std", "y_mean", "y_std"),
+                             (*pc["ptrs"][:4], *pc["stat_ptrs"])):
+            setattr(self.ctx, name, ptr)
+        self._keep = (*self._keep[:2], pc)
+
+    def linearizer(self) -> tuple[int, int, object]:
+        """``(address of res_linearize, address of its context, keep-alive)`` (``c_linearizer``'s form)."""
+        return self.lib.res_linearize_address(), self.address, self
+
+    def linearize(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, a, B)`` of one control step at ``(x, u)`` (new arrays)."""
+        self._x[:], self._u[:] = x, u
+        self.lib.res_linearize(self.address, *(z.ctypes.data for z in (self._x, self._u, self._A, self._a, self._B)))
+        return self._A.copy(), self._a.copy(), self._B.copy()
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """One control step ``(n_x,)`` from ``x`` with ``u`` held (a new array)."""
+        self._x[:], self._u[:] = x, u
+        self.lib.res_step(self.address, *(z.ctypes.data for z in (self._x, self._u, self._xn)))
+        return self._xn.copy()
+
+    def rollout(self, x0: np.ndarray, o: np.ndarray, O: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``X (T+1, n_x)``, ``U (T, n_u)`` of ``u_t = o_t + O_t x_t`` from ``x0`` (NaN propagates)."""
+        T = np.shape(o)[0]
+        o, O = np.ascontiguousarray(o, dtype=float), np.ascontiguousarray(O, dtype=float)
+        if o.shape != (T, self.nu) or O.shape != (T, self.nu, self.nx) or np.shape(x0) != (self.nx,):
+            raise ValueError(f"rollout expects x0 ({self.nx},), o (T, {self.nu}), O (T, {self.nu}, {self.nx})")
+        X, U = np.empty((T + 1, self.nx)), np.empty((T, self.nu))
+        X[0] = x0
+        self.lib.res_rollout(self.address, T, o.ctypes.data, O.ctypes.data, X.ctypes.data, U.ctypes.data)
+        return X, U
 
 
 RESIDUAL_KEY = "residual"  # in a fit's stored arrays: 1 when the GP models f_true - f_model (ResidualDynamics)

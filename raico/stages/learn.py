@@ -103,6 +103,8 @@ class LearnConfig(StageConfig):
             "mpc_solver": "--controller mpc: the solver of each period (one that runs on the learned model).",
             "final_target": "--controller mpc: a term at the problem's last step in the window, receding or fixed "
                             "(raico execute --final-target; default: the execute stage's).",
+            "online_every": "--controller mpc with --gp sparse: the episode's model updated from its executed steps "
+                            "every K planning steps within the execution (raico execute --online-every); 0: none.",
             "push": "A scripted push in every episode's execution, FRAME:NEWTONS:START:DURATION (raico execute "
                     "--push); repeatable."}
 
@@ -138,6 +140,7 @@ class LearnConfig(StageConfig):
     iterations_per_tick: int = 1  # --controller mpc
     mpc_solver: str = "raico"  # --controller mpc (raico.planning.mpc.OWN_MODEL)
     final_target: str | None = None  # --controller mpc: "receding" or "fixed" (None: the execute stage's default)
+    online_every: int = 0  # --controller mpc, --gp sparse: the online update's interval (planning steps; 0: none)
     push: tuple[str, ...] = ()  # scripted pushes of every episode's execution
 
     def __post_init__(self) -> None:
@@ -239,8 +242,8 @@ class LearnConfig(StageConfig):
             raise ValueError(f"controller must be pd or mpc, got '{self.controller}'")
         d = LearnConfig.__dataclass_fields__
         if self.controller == "pd":
-            given = [n for n in ("period", "horizon", "iterations_per_tick", "mpc_solver", "final_target")
-                     if getattr(self, n) != d[n].default]
+            given = [n for n in ("period", "horizon", "iterations_per_tick", "mpc_solver", "final_target",
+                                 "online_every") if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
         elif self.mpc_solver not in OWN_MODEL:
@@ -292,7 +295,7 @@ class LearnConfig(StageConfig):
         if self.controller == "mpc":
             mpc = {"controller": "mpc", "period": self.period, "horizon": self.horizon,
                    "iterations_per_tick": self.iterations_per_tick, "solver": self.mpc_solver,
-                   "final_target": self.final_target}
+                   "final_target": self.final_target, "online_every": self.online_every}
         return ExecuteConfig(plan=plan, seed=self.seed, push=self.push, **mpc)
 
     @property

@@ -219,3 +219,33 @@ def test_learn_bad_sparse_input_is_one_line(tmp_path, args, needle):
                   "--artifacts", tmp_path)
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.exit_code == 2 and len(lines) == 1 and needle in lines[0], res.stderr
+
+
+@pytest.mark.numerics
+def test_add_points_is_the_batch_posterior_at_the_same_inducing_inputs():
+    """The online update (rank-k, the inducing inputs and hyperparameters fixed), in two chunks, equals the batch
+    FITC posterior of all the data at those inducing inputs: weights, factors, likelihood, predictions; a bad
+    chunk leaves the model as it was; the compiled one-point path reads the new weights."""
+    from tests.tolerance import REL, assert_close, bound, cond_of
+
+    X, Y = toy_data(90, 7)
+    base = toy_model(90, 7)
+    model = sparse_like(base, X[:60], Y[:60], 20)
+    batch = sparse_like(base, X, Y, model.U)
+    Xq, _ = toy_data(8, 8)
+    before = model.predict(Xq)
+    with pytest.raises(ValueError):
+        model.add_points(X[60:], Y[60:, :1])
+    assert np.array_equal(model.predict(Xq)[1], before[1])
+    m0 = model.point_mean_with_gradients(Xq[0])[0]
+    model.add_points(X[60:70], Y[60:70]).add_points(X[70:], Y[70:])
+    assert model.N == 90 and model.M == batch.M == 20
+    rel = max(REL, bound(90 * 20, cond_of(*(batch.kernel_matrix(j) + batch.sn2[j] * np.eye(20) for j in range(batch.D)))))
+    assert_close(model.weights, batch.weights, rel=rel)
+    assert_close(model.L_B, batch.L_B, rel=rel)
+    assert_close(model.lam, batch.lam, rel=rel)
+    assert_close(model.log_marginal_likelihood(), batch.log_marginal_likelihood(), rel=rel)
+    for a, b in zip(model.predict_with_gradients(Xq), batch.predict_with_gradients(Xq)):
+        assert_close(a, b, rel=rel)
+    m1 = model.point_mean_with_gradients(Xq[0])[0]
+    assert_close(m1, batch.predict(Xq[:1])[0][0], rel=rel) and not np.array_equal(m0, m1)

@@ -174,7 +174,11 @@ def test_residual_dynamics_derivatives_by_finite_differences():
     fd = np.column_stack([(dyn.predict_variance((x + h * e)[None], u[None])[0][0]
                            - dyn.predict_variance((x - h * e)[None], u[None])[0][0]) / (2 * h) for e in np.eye(4)])
     np.testing.assert_allclose(dvx[0], fd, rtol=1e-5, atol=1e-7 * np.abs(dvx).max())
-    assert dyn.c_linearizer() is None
+    if dyn.c_linearizer() is not None:   # compiled (residual_step.c): the same linearization
+        Ac, ac, Bc = dyn.substep_kernel(1).linearize(x, u)
+        assert_close(Ac, A)
+        assert_close(Bc, B)
+        assert_close(Ac @ x + ac + Bc @ u, f0)
 
 
 @pytest.mark.numerics

@@ -59,6 +59,9 @@ class ExecuteConfig(StageConfig):
                               "positions' distance from the standing start at every step of the window (not of the "
                               "plan): what the problem leaves free held instead of carried on; default 0 (none; "
                               "docs/mpc.md).",
+            "online_every": "--controller mpc on a learned model with a sparse GP (fixed inducing points): its "
+                            "posterior updated from the executed steps every K planning steps within the run "
+                            "(raico.planning.mpc.OnlineResidual; no refit of hyperparameters); default 0 (none).",
             "window_damping": "--controller mpc on a floating robot: the weight (s^2/rad^2) of a term on the joint "
                               "velocities at every step of the window (not of the plan); default 0 (none).",
             "window_target": "--controller mpc on a floating robot: what --window-posture and --window-damping hold: "
@@ -86,6 +89,7 @@ class ExecuteConfig(StageConfig):
     window_damping: float = 0.0  # --controller mpc, floating robot: the window's joint-velocity term's weight
     window_target: str = "start"  # --controller mpc, floating robot: WINDOW_TARGETS
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
+    online_every: int = 0  # --controller mpc, learned sparse model: update it every K planning steps (0: never)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "push", tuple(self.push or ()))   # the CLI gives None for no --push
@@ -154,7 +158,8 @@ class ExecuteConfig(StageConfig):
         d = ExecuteConfig.__dataclass_fields__
         if self.controller != "mpc":
             given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti",
-                                 "final_target", "window_posture", "window_damping", "window_target")
+                                 "final_target", "window_posture", "window_damping", "window_target",
+                                 "online_every")
                      if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
@@ -170,6 +175,8 @@ class ExecuteConfig(StageConfig):
             raise ValueError(f"--horizon must be at least 1 planning step, got {self.horizon}")
         if self.iterations_per_tick < 1:
             raise ValueError(f"--iterations-per-tick must be at least 1, got {self.iterations_per_tick}")
+        if self.online_every < 0:
+            raise ValueError(f"--online-every must be 0 (none) or a number of planning steps, got {self.online_every}")
         if self.final_target not in (None, *FINAL_TARGETS):
             raise ValueError(f"--final-target must be one of {', '.join(FINAL_TARGETS)}, got {self.final_target!r}")
         for name in ("window_posture", "window_damping"):

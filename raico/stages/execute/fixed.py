@@ -15,7 +15,7 @@ from raico.stages.execute.config import ARM_FINAL_TARGET, ExecuteConfig, Execute
 
 
 def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: float, rng, mpc=None,
-                period: float | None = None):
+                period: float | None = None, online=None):
     """LeafSystem: plant state in, held actuation out; logs the commanded controls. With ``mpc``
     (``raico.planning.mpc.MPC``) the control is re-planned every ``period`` s (a divisor of ``dt``) from the measured
     state, the horizon shifted at every planning step, its first control held for the period."""
@@ -65,6 +65,8 @@ def _controller(robot: Robot, plan: dict, pseudo: bool, cfg: ExecuteConfig, dt: 
             x = np.concatenate([Pinv @ xp[:n_plant], Pinv @ xp[n_plant:]])
             if mpc is not None:
                 u = mpc.tick(x, advance=first)[0].copy()
+                if online is not None and first:   # the learned model's online update (every K steps)
+                    online.observe(x, u)
             else:
                 u = o[k] + O[k] @ x
             if first:   # the process noise: drawn per planning step
@@ -170,6 +172,15 @@ def mpc_aim(mpc, X_plan: np.ndarray, every: int) -> np.ndarray:
     return aim
 
 
+def _online_for(cfg: ExecuteConfig, mpc):
+    """The learned model's online update of ``--online-every`` (``raico.planning.mpc.OnlineResidual``), or None."""
+    if mpc is None or cfg.online_every <= 0:
+        return None
+    from raico.planning.mpc import OnlineResidual
+
+    return OnlineResidual(mpc, cfg.online_every)
+
+
 def _mpc_metrics(mpc, period: float) -> dict:
     """The MPC's tick statistics: ticks, median and 99th-percentile solve time (s), ticks past the period."""
     t = mpc.log.solve_time[:mpc.log.n]
@@ -203,8 +214,9 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     q_start = initial_q(desc, robot, cfg, rng)
     sim_step = step if discrete else dt / math.ceil(dt / step - 1e-9)
     mpc, period = _mpc_for(cfg, planning, plan, dt, sim_step) if cfg.controller == "mpc" else (None, dt)
+    online = _online_for(cfg, mpc)
     ctrl = robot.builder.AddSystem(_controller(robot, plan, desc["control_kind"] == "acceleration", cfg, dt, rng,
-                                               mpc, period))
+                                               mpc, period, online))
     robot.builder.Connect(robot.plant.get_state_output_port(), ctrl.get_input_port(0))
     robot.builder.Connect(ctrl.get_output_port(0), robot.plant.get_actuation_input_port())
     if cfg.push:
@@ -262,6 +274,8 @@ def execute_fixed(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, prog
     extra = {}
     if mpc is not None:
         metrics.update(_mpc_metrics(mpc, period))
+        if online is not None:   # the learned model's online updates: how many, and the points they fed
+            metrics.update({"mpc_online_updates": online.updates, "mpc_online_points": online.points})
         # the closed loop's simulated time over its wall time (Drake's steps, the controller's ticks, the logs)
         metrics["mpc_real_time_factor"] = float(sum(1 for x in X if np.isfinite(x).all()) - 1) * dt / wall
         extra = mpc.log.arrays()
