@@ -12,10 +12,14 @@
  *   4 cylinder: radius params[0], z in [-params[2], params[2]].
  * Spheres and capsules enter GJK as their cores (a point, a segment); their radii are taken off after.
  *
- * Query q: shapes ga[q], gb[q] at world poses (R row-major 3x3, p) RA + 9 q, pA + 3 q (B alike).
+ * Query q: shapes ga[q], gb[q] at world poses (R row-major 3x3, p) RA + 9 q, pA + 3 q (B alike), of the pair
+ * key[q] (0 <= key < nkeys): hints + 2 key[q] is where each convex shape's support search starts (vertex
+ * indices), in and out: the last support vertices, the start of the pair's next query (a nearby posture).
  * Out: dist[q] (m), the witness points in each shape's own frame wa + 3 q, wb + 3 q, the unit normal
  * from B to A in the world nrm + 3 q, status[q]: 0 done; 1 the cores overlap or come closer than
- * `tiny` (m) (penetration: the caller asks another method); 2 no convergence in `max_iter` iterations.
+ * `tiny` (m) (penetration: the caller asks another method); 2 no convergence in `max_iter` iterations;
+ * 3 culled: a separating plane puts the shapes at least limit[q] apart, dist[q] that lower bound (the
+ * witness points and the normal not written).
  * Converged: ||v||^2 - v.w <= eps ||v||^2 (v the closest point of the simplex, w the new support point),
  * i.e. the distance is within a factor (1 - eps) of its lower bound v.w / ||v||.
  */
@@ -184,8 +188,9 @@ static int closest(vert_t *s, int n, double *lam) {
     return closest_tetrahedron(s, lam);
 }
 
-static long gjk_pair(shape_t *A, shape_t *B, double eps, double tiny, long max_iter,
+static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double tiny, long max_iter,
                      double *dist, double *wa, double *wb, double *nrm) {
+    double ra = core_radius(A), rb = core_radius(B), reach = limit + ra + rb;
     vert_t s[4];
     double lam[4] = {1.0, 0.0, 0.0, 0.0}, v[3], d[3];
     int n = 1;
@@ -207,7 +212,12 @@ static long gjk_pair(shape_t *A, shape_t *B, double eps, double tiny, long max_i
         support_world(A, md, w.a, aw);
         support_world(B, v, w.b, bw);
         for (int i = 0; i < 3; ++i) w.w[i] = aw[i] - bw[i];
-        if (vv - dot3(v, w.w) <= eps * vv) { status = 0; break; }
+        double vw = dot3(v, w.w);
+        if (vw > 0.0 && vw * vw >= reach * reach * vv) {   /* the plane normal to v separates them by >= limit */
+            *dist = vw / sqrt(vv) - ra - rb;
+            return 3;
+        }
+        if (vv - vw <= eps * vv) { status = 0; break; }
         int dup = 0;
         for (int k = 0; k < n; ++k) dup |= (w.w[0] == s[k].w[0] && w.w[1] == s[k].w[1] && w.w[2] == s[k].w[2]);
         if (dup) { status = 0; break; }
@@ -231,7 +241,7 @@ static long gjk_pair(shape_t *A, shape_t *B, double eps, double tiny, long max_i
         memcpy(v, vn, sizeof v);
         vv = vvn;
     }
-    double ra = core_radius(A), rb = core_radius(B), nv = sqrt(vv);
+    double nv = sqrt(vv);
     if (status == 0 && nv - ra - rb <= tiny) status = 1;
     if (status != 0) return status;
     double pa[3] = {0, 0, 0}, pb[3] = {0, 0, 0};
@@ -261,9 +271,9 @@ static void make_shape(shape_t *S, long g, const long *kinds, const double *para
     S->hint = 0;
 }
 
-/* every query; returns the number with a nonzero status */
+/* every query; returns the number with status 1 or 2 */
 long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const double *pA, const double *RB,
-               const double *pB, const long *kinds, const double *params, const long *vstart, const double *V,
+               const double *pB, const double *limit, const long *key, long nkeys, long *hints, const long *kinds, const double *params, const long *vstart, const double *V,
                const long *astart, const long *adj, double eps, double tiny, long max_iter,
                double *dist, double *wa, double *wb, double *nrm, long *status) {
     long bad = 0;
@@ -272,9 +282,15 @@ long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const 
         make_shape(&A, ga[q], kinds, params, vstart, V, astart, adj, RA + 9 * q, pA + 3 * q);
         make_shape(&B, gb[q], kinds, params, vstart, V, astart, adj, RB + 9 * q, pB + 3 * q);
         if ((A.kind == 0 && A.nv < 1) || (B.kind == 0 && B.nv < 1)) { status[q] = 2; ++bad; continue; }
+        if (key[q] < 0 || key[q] >= nkeys) { status[q] = 2; ++bad; continue; }
+        long *h = hints + 2 * key[q];
+        if (A.kind == 0 && h[0] >= 0 && h[0] < A.nv) A.hint = h[0];
+        if (B.kind == 0 && h[1] >= 0 && h[1] < B.nv) B.hint = h[1];
         dist[q] = NAN;
-        status[q] = gjk_pair(&A, &B, eps, tiny, max_iter, dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
-        bad += status[q] != 0;
+        status[q] = gjk_pair(&A, &B, limit[q], eps, tiny, max_iter, dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
+        h[0] = A.hint;
+        h[1] = B.hint;
+        bad += status[q] == 1 || status[q] == 2;
     }
     return bad;
 }

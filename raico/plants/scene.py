@@ -487,7 +487,7 @@ def gjk_library():
         except c_backend.CompileUnavailable:
             _GJK_LIB = False
         else:
-            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, V, V, V, V, D, D, L, V, V, V, V, V]
+            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, D, D, L, V, V, V, V, V]
             lib.gjk_batch.restype = L
             lib.gjk_support.argtypes = [L, V, V, V, V, V, V, V, L, V]
             lib.gjk_support.restype = None
@@ -562,10 +562,13 @@ class GJKShapes:
         gjk_library().gjk_support(int(g), d.ctypes.data, *self._tables(), int(hint), s.ctypes.data)
         return s
 
-    def distances(self, ga, gb, RA, pA, RB, pB):
+    def distances(self, ga, gb, RA, pA, RB, pB, limit=np.inf, key=None, hints=None):
         """GJK on queries ``ga``, ``gb`` (shape indices, ``(k,)``) at world poses ``RA (k, 3, 3)``, ``pA (k, 3)``
-        (B alike): distances ``(k,)``, witness points in the shapes' frames ``(k, 3)`` twice, normals from B to
-        A ``(k, 3)`` (world) and the statuses ``(k,)`` (0 done; else the pair goes to Drake)."""
+        (B alike), stopped where a separating plane puts a pair at least ``limit`` (m, ``(k,)`` or a number) apart, query ``i``'s support searches started at ``hints[key[i]]`` (``hints (h, 2)``, vertex indices,
+        updated in place to the last support vertices: the start of the key's next query, a nearby posture;
+        None: each query its own key, from vertex 0): distances ``(k,)``, witness points in the shapes' frames ``(k, 3)`` twice, normals from B to
+        A ``(k, 3)`` (world) and the statuses ``(k,)`` (0 done; 3 beyond ``limit``, the distance that lower bound; 1, 2:
+        penetration or no convergence, the pair goes to Drake)."""
         k = len(ga)
         ga, gb = np.ascontiguousarray(ga, np.int64), np.ascontiguousarray(gb, np.int64)
         if k and (ga.min() < 0 or gb.min() < 0 or max(ga.max(), gb.max()) >= len(self.kinds)
@@ -574,11 +577,17 @@ class GJKShapes:
         RA, pA, RB, pB = (np.ascontiguousarray(a, float) for a in (RA, pA, RB, pB))
         from raico.plants.codegen.c_backend import check_shapes
 
-        check_shapes("gjk_batch", RA=(RA, (k, 3, 3)), pA=(pA, (k, 3)), RB=(RB, (k, 3, 3)), pB=(pB, (k, 3)))
+        hints = np.zeros((k, 2), np.int64) if hints is None else hints
+        key = np.arange(k) if key is None else np.ascontiguousarray(key, np.int64)
+        limit = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, float), (k,)))
+        check_shapes("gjk_batch", RA=(RA, (k, 3, 3)), pA=(pA, (k, 3)), RB=(RB, (k, 3, 3)), pB=(pB, (k, 3)),
+                     hints=(hints, (len(hints), 2)), key=(key, (k,)))
+        if hints.dtype != np.int64 or not hints.flags.c_contiguous or (k and not 0 <= key.min() <= key.max() < len(hints)):
+            raise ValueError("GJKShapes.distances: hints must be a C-contiguous int64 array (h, 2), keys in [0, h)")
         dist, wa, wb, nrm = np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
         status = np.empty(k, np.int64)
         gjk_library().gjk_batch(k, ga.ctypes.data, gb.ctypes.data, RA.ctypes.data, pA.ctypes.data, RB.ctypes.data,
-                                pB.ctypes.data, *self._tables(), GJK_EPS, GJK_TINY, GJK_MAX_ITER,
+                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data, *self._tables(), GJK_EPS, GJK_TINY, GJK_MAX_ITER,
                                 dist.ctypes.data, wa.ctypes.data, wb.ctypes.data, nrm.ctypes.data,
                                 status.ctypes.data)
         return dist, wa, wb, nrm, status
@@ -899,6 +908,7 @@ class SignedDistances:
         # a pair with a convex mesh (a hull of hundreds of vertices) by distance.c's GJK, the primitives' by Drake
         self._gjk_pair = known[self._ia] & known[self._ib] & (convex[self._ia] | convex[self._ib])
         self._gjk_shapes: GJKShapes | None = None
+        self._hints = np.zeros((self.dim, 2), np.int64)   # per pair: where the next support searches start
         self.compiled = bool(self._gjk_pair.any()) and gjk_library() is not None
         self.queries = 0   # pair queries so far (a count for the timing)
 
@@ -955,15 +965,32 @@ class SignedDistances:
                 self._kernels = False
         return self._kernels or None
 
-    def _frames(self, Qp: np.ndarray, bodies=None) -> dict[str, tuple[np.ndarray, ...]]:
+    def _frames(self, Qp: np.ndarray, bodies=None, rows=None) -> dict[str, tuple[np.ndarray, ...]]:
         """Per body of the pairs (or of ``bodies``): origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
         of the origin ``J_o (K, 3, m)`` and of the axes' tips ``J_e (K, 3, 3, m)`` (tip i at row i) at plant
         positions ``Qp (K, m)``: a point ``p_B`` of the body is at ``o + R p_B`` with Jacobian
-        ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``)."""
+        ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``). ``rows``: body -> the row indices computed
+        (the others NaN; None: every row)."""
         K, m = Qp.shape
+        if rows is not None:
+            out = {}
+            for body in (self._bodies if bodies is None else bodies):
+                r = rows.get(body)
+                if r is not None and len(r) == K:
+                    out[body] = self._frames(Qp, [body])[body]
+                    continue
+                part = self._frames(Qp[r], [body])[body] if r is not None and len(r) else None
+                full = tuple(np.full((K, *x.shape[1:]), np.nan) for x in
+                             ((np.empty((0, 3)), np.empty((0, 3, 3)), np.empty((0, 3, m)), np.empty((0, 3, 3, m)))
+                              if part is None else part))
+                if part is not None:
+                    for f, x in zip(full, part):
+                        f[r] = x
+                out[body] = full
+            return out
         pts = np.vstack([np.zeros(3), np.eye(3)])
         k = self.tree_kernels()
-        out: dict[str, tuple[np.ndarray, ...]] = {}
+        out = {}
         for body in (self._bodies if bodies is None else bodies):
             if k is not None:
                 pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)
@@ -1028,14 +1055,26 @@ class SignedDistances:
         if moved_lb is None:
             frames = self._frames(Qp)
             lb = self.lower_bounds(frames, len(S))
-        else:   # and of those, the pairs that may: their bodies' frames and their geometric bounds
-            cols = np.flatnonzero(np.any(~(moved_lb[S] >= limit[sub]), axis=0))
-            bodies = {w.body_of[self.pairs[p][i]] for p in cols for i in (0, 1)} - {"world"}
-            frames = self._frames(Qp, [b for b in self._bodies if b in bodies])
+        else:   # and of those, the pairs that may: their bodies' frames there and their geometric bounds
+            need = ~(moved_lb[S] >= limit[sub])
+            cols = np.flatnonzero(need.any(axis=0))
+            rows: dict[str, np.ndarray] = {}
+            for p in cols:
+                for g in self.pairs[p]:
+                    b = w.body_of[g]
+                    if b != "world":
+                        rows[b] = rows[b] | need[:, p] if b in rows else need[:, p]
+            frames = self._frames(Qp, [b for b in self._bodies if b in rows],
+                                  {b: np.flatnonzero(r) for b, r in rows.items()})
             lb = moved_lb[S].copy()
-            lb[:, cols] = np.fmax(self.lower_bounds(frames, len(S), cols), lb[:, cols])
+            # a pair GJK measures is queried where the motion bound does not settle it (a geometric bound
+            # costs about what its query does); the others' geometric bounds first
+            geo = cols[~self._gjk_pair[cols]] if self.compiled else cols
+            if geo.size:
+                with np.errstate(invalid="ignore"):
+                    lb[:, geo] = np.fmax(self.lower_bounds(frames, len(S), geo), lb[:, geo])
         near_all = lb < limit[sub]
-        tt, pp, dist, nrm, pa, pb, exact = self._query(near_all, Qp, frames)
+        tt, pp, dist, nrm, pa, pb, exact = self._query(near_all, Qp, frames, limit[sub])
         known_lb = np.full((K, m), np.nan)
         if moved_lb is not None:
             known_lb[ok] = moved_lb
@@ -1061,15 +1100,15 @@ class SignedDistances:
             J[sub[tt], pp] = Jd @ P
         return D, J, W
 
-    def _query(self, near_all: np.ndarray, Qp: np.ndarray, frames: dict):
+    def _query(self, near_all: np.ndarray, Qp: np.ndarray, frames: dict, limit: np.ndarray):
         """The pairs ``near_all (K, m)`` queried at postures ``Qp``: those with a convex mesh by :class:`GJKShapes`
-        (where it converges with the cores apart), the rest (and those) by Drake's
-        ``ComputeSignedDistancePairClosestPoints``. Returns the pairs within ``max_distance`` (row, pair,
-        distance, normal from B to A, witness points in the geometries' frames) and every query's (rows, pairs,
-        distances)."""
+        (where it converges with the cores apart; stopped where a separating plane puts them ``limit (K, m)``
+        apart), the rest (and those) by Drake's ``ComputeSignedDistancePairClosestPoints``. Returns the pairs
+        within ``max_distance`` (row, pair, distance, normal from B to A, witness points in the geometries'
+        frames) and every query's (rows, pairs, distances or the separating plane's lower bound)."""
         w = self.world
         tq, pq = np.nonzero(near_all)
-        drake = np.ones(len(tq), bool)
+        drake, culled = np.ones(len(tq), bool), np.zeros(len(tq), bool)
         dist, nrm, pa, pb = np.full(len(tq), np.nan), np.zeros((len(tq), 3)), np.zeros((len(tq), 3)), np.zeros((len(tq), 3))
         if self.compiled and len(tq):
             g = np.flatnonzero(self._gjk_pair[pq])
@@ -1086,10 +1125,13 @@ class SignedDistances:
                 RA, RB = R[ba, t] @ self._R_BG[sa], R[bb, t] @ self._R_BG[sb]
                 pA = O[ba, t] + np.einsum("kij,kj->ki", R[ba, t], self._p_BG[sa])
                 pB = O[bb, t] + np.einsum("kij,kj->ki", R[bb, t], self._p_BG[sb])
-                d, wa, wb, n, status = self._gjk_shapes.distances(sa, sb, RA, pA, RB, pB)
+                d, wa, wb, n, status = self._gjk_shapes.distances(sa, sb, RA, pA, RB, pB, limit[tq[g], pq[g]],
+                                                                  pq[g], self._hints)
                 done = g[status == 0]
                 dist[done], pa[done], pb[done], nrm[done] = (x[status == 0] for x in (d, wa, wb, n))
-                drake[done] = False
+                dist[g[status == 3]] = d[status == 3]
+                culled[g[status == 3]] = True
+                drake[g[(status == 0) | (status == 3)]] = False
         port = w.scene_graph.get_query_output_port()
         last = -1
         for i in np.flatnonzero(drake):
@@ -1099,7 +1141,7 @@ class SignedDistances:
                 qo, last = port.Eval(w.sg_context), t
             r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[pq[i]])
             dist[i], nrm[i], pa[i], pb[i] = r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb
-        live = dist < self.max_distance
+        live = (dist < self.max_distance) & ~culled
         return tq[live], pq[live], dist[live], nrm[live], pa[live], pb[live], (tq, pq, dist)
 
     def lower_bounds(self, frames: dict, K: int, cols=None) -> np.ndarray:
