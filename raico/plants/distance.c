@@ -17,7 +17,9 @@
  * indices), in and out: the last support vertices, the start of the pair's next query (a nearby posture).
  * Out: dist[q] (m), the witness points in each shape's own frame wa + 3 q, wb + 3 q, the unit normal
  * from B to A in the world nrm + 3 q, status[q]: 0 done; 1 the cores overlap or come closer than
- * `tiny` (m) (penetration: the caller asks another method); 2 no convergence in `max_iter` iterations;
+ * `tiny` (m) (penetration: the caller asks another method); 2 no convergence in `max_iter` iterations, or
+ * a stop (rounding: no more progress) with the distance more than `gap` (m) above the lower bound of the
+ * plane normal to the last v (the one the normal and the witness points come from);
  * 3 culled: a separating plane puts the shapes at least limit[q] apart, dist[q] that lower bound (the
  * witness points and the normal not written).
  * Converged: ||v||^2 - v.w <= eps ||v||^2 (v the closest point of the simplex, w the new support point),
@@ -188,7 +190,7 @@ static int closest(vert_t *s, int n, double *lam) {
     return closest_tetrahedron(s, lam);
 }
 
-static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double tiny, long max_iter,
+static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double tiny, double gap, long max_iter,
                      double *dist, double *wa, double *wb, double *nrm) {
     double ra = core_radius(A), rb = core_radius(B), reach = limit + ra + rb;
     vert_t s[4];
@@ -204,7 +206,7 @@ static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double ti
     }
     memcpy(v, s[0].w, sizeof v);
     long status = 2;
-    double vv = dot3(v, v);
+    double vv = dot3(v, v), bound = -INFINITY;   /* v.w / |v|: the lower bound of the plane normal to v */
     for (long it = 0; it < max_iter; ++it) {
         if (vv <= tiny * tiny) { status = 1; break; }
         double md[3] = {-v[0], -v[1], -v[2]}, aw[3], bw[3];
@@ -213,6 +215,7 @@ static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double ti
         support_world(B, v, w.b, bw);
         for (int i = 0; i < 3; ++i) w.w[i] = aw[i] - bw[i];
         double vw = dot3(v, w.w);
+        bound = vw / sqrt(vv);
         if (vw > 0.0 && vw * vw >= reach * reach * vv) {   /* the plane normal to v separates them by >= limit */
             *dist = vw / sqrt(vv) - ra - rb;
             return 3;
@@ -242,6 +245,7 @@ static long gjk_pair(shape_t *A, shape_t *B, double limit, double eps, double ti
         vv = vvn;
     }
     double nv = sqrt(vv);
+    if (status == 0 && nv - bound > gap) status = 2;
     if (status == 0 && nv - ra - rb <= tiny) status = 1;
     if (status != 0) return status;
     double pa[3] = {0, 0, 0}, pb[3] = {0, 0, 0};
@@ -274,7 +278,7 @@ static void make_shape(shape_t *S, long g, const long *kinds, const double *para
 /* every query; returns the number with status 1 or 2 */
 long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const double *pA, const double *RB,
                const double *pB, const double *limit, const long *key, long nkeys, long *hints, const long *kinds, const double *params, const long *vstart, const double *V,
-               const long *astart, const long *adj, double eps, double tiny, long max_iter,
+               const long *astart, const long *adj, double eps, double tiny, double gap, long max_iter,
                double *dist, double *wa, double *wb, double *nrm, long *status) {
     long bad = 0;
     for (long q = 0; q < nq; ++q) {
@@ -287,7 +291,7 @@ long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const 
         if (A.kind == 0 && h[0] >= 0 && h[0] < A.nv) A.hint = h[0];
         if (B.kind == 0 && h[1] >= 0 && h[1] < B.nv) B.hint = h[1];
         dist[q] = NAN;
-        status[q] = gjk_pair(&A, &B, limit[q], eps, tiny, max_iter, dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
+        status[q] = gjk_pair(&A, &B, limit[q], eps, tiny, gap, max_iter, dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
         h[0] = A.hint;
         h[1] = B.hint;
         bad += status[q] == 1 || status[q] == 2;

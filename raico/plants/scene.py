@@ -466,7 +466,9 @@ def robot_shapes(spec) -> list[Shape]:
 # ------------------------------------------------------------------ the compiled distances (distance.c)
 GJK_EPS = 1e-12      # distance.c's convergence: ||v||^2 - v.w <= eps ||v||^2 (the distance within eps of its bound)
 GJK_TINY = 1e-6      # m: cores closer than this (or overlapping) go to Drake (penetration)
+GJK_GAP = 1e-9      # m: a stop (rounding) with the distance more than this above GJK's lower bound goes to Drake
 GJK_MAX_ITER = 128
+BATCHES_KEPT = 6     # SignedDistances keeps its last batches (a merit asks again for an iterate it had)
 GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
 _GJK_LIB: Any = None
 
@@ -487,7 +489,7 @@ def gjk_library():
         except c_backend.CompileUnavailable:
             _GJK_LIB = False
         else:
-            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, D, D, L, V, V, V, V, V]
+            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, D, D, D, L, V, V, V, V, V]
             lib.gjk_batch.restype = L
             lib.gjk_support.argtypes = [L, V, V, V, V, V, V, V, L, V]
             lib.gjk_support.restype = None
@@ -587,7 +589,7 @@ class GJKShapes:
         dist, wa, wb, nrm = np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
         status = np.empty(k, np.int64)
         gjk_library().gjk_batch(k, ga.ctypes.data, gb.ctypes.data, RA.ctypes.data, pA.ctypes.data, RB.ctypes.data,
-                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data, *self._tables(), GJK_EPS, GJK_TINY, GJK_MAX_ITER,
+                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data, *self._tables(), GJK_EPS, GJK_TINY, GJK_GAP, GJK_MAX_ITER,
                                 dist.ctypes.data, wa.ctypes.data, wb.ctypes.data, nrm.ctypes.data,
                                 status.ctypes.data)
         return dist, wa, wb, nrm, status
@@ -909,6 +911,7 @@ class SignedDistances:
         self._gjk_pair = known[self._ia] & known[self._ib] & (convex[self._ia] | convex[self._ib])
         self._gjk_shapes: GJKShapes | None = None
         self._hints = np.zeros((self.dim, 2), np.int64)   # per pair: where the next support searches start
+        self._batches: list = []   # the last batches: (Q, cull distances, jacobians, compiled, (D, J, W))
         self.compiled = bool(self._gjk_pair.any()) and gjk_library() is not None
         self.queries = 0   # pair queries so far (a count for the timing)
 
@@ -1029,9 +1032,23 @@ class SignedDistances:
 
         ``cull`` (m; a number or ``(K, m)``, at most ``max_distance``; None: ``max_distance``): a pair whose
         lower bound reaches it is not queried and reports ``max_distance`` (a hinge ``max(0, c - d)`` with
-        ``c <= cull`` needs no more: its value and gradient are exact)."""
+        ``c <= cull`` needs no more: its value and gradient are exact). The last batches are kept: the same
+        ``Q`` again at cull distances no larger gives the kept results (copies; a pair culled now may then
+        report its distance, which the hinge reads alike)."""
         P, w = self.robot.P, self.world
         Q = np.atleast_2d(Q)
+        K, m = len(Q), self.dim
+        ask = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
+        for Qc, lc, jc, cc, out in self._batches:
+            if jc >= jacobians and cc == self.compiled and Qc.shape == Q.shape and np.array_equal(Qc, Q) and np.all(ask <= lc):
+                return out[0].copy(), (out[1].copy() if jacobians else None), out[2].copy()
+        out = self._evaluate(Q, jacobians, cull)
+        self._batches = [(np.array(Q), np.array(ask), jacobians, self.compiled, out), *self._batches[:BATCHES_KEPT - 1]]
+        return out[0].copy(), (out[1].copy() if jacobians else None), out[2].copy()
+
+    def _evaluate(self, Q: np.ndarray, jacobians: bool, cull):
+        """:meth:`evaluate` without the kept batches."""
+        P, w = self.robot.P, self.world
         K, m = len(Q), self.dim
         D = np.full((K, m), np.nan)
         J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
