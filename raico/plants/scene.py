@@ -975,6 +975,21 @@ class SignedDistances:
         ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``). ``rows``: body -> the row indices computed
         (the others NaN; None: every row)."""
         K, m = Qp.shape
+        k = self.tree_kernels()
+        if k is not None and hasattr(k, "body_frames_batch"):   # every body at once: the kinematics once per row
+            names = list(self._bodies if bodies is None else bodies)
+            r = (np.arange(K) if rows is None
+                 else np.flatnonzero(np.any([np.isin(np.arange(K), rows.get(b, ())) for b in names] or [[]], axis=0)))
+            pos, Jp = k.body_frames_batch(Qp[r], [k.tree.body(b) for b in names])
+            if len(r) < K:
+                full_pos, full_J = np.full((K, *pos.shape[1:]), np.nan), np.full((K, *Jp.shape[1:]), np.nan)
+                full_pos[r], full_J[r] = pos, Jp
+                pos, Jp = full_pos, full_J
+            o = pos[:, :, 0]
+            R = np.swapaxes(pos[:, :, 1:] - o[:, :, None], 2, 3)    # columns: the axes in the world
+            Jp = Jp.reshape(K, len(names), 4, 3, m)
+            Je = Jp[:, :, 1:] - Jp[:, :, :1]
+            return {b: (o[:, i], R[:, i], Jp[:, i, 0], Je[:, i]) for i, b in enumerate(names)}
         if rows is not None:
             out = {}
             for body in (self._bodies if bodies is None else bodies):
@@ -992,7 +1007,6 @@ class SignedDistances:
                 out[body] = full
             return out
         pts = np.vstack([np.zeros(3), np.eye(3)])
-        k = self.tree_kernels()
         out = {}
         for body in (self._bodies if bodies is None else bodies):
             if k is not None:
