@@ -11,6 +11,8 @@
  *   3 capsule: the segment z in [-params[2], params[2]], radius params[3];
  *   4 cylinder: radius params[0], z in [-params[2], params[2]].
  * Spheres and capsules enter GJK as their cores (a point, a segment); their radii are taken off after.
+ * A sphere around each shape (centre spheres + 4 s in its frame, radius spheres[4 s + 3]) culls first: a
+ * pair whose spheres are limit[q] apart is not measured (status 3, dist[q] the spheres' distance).
  *
  * Query q: shapes ga[q], gb[q] at world poses (R row-major 3x3, p) RA + 9 q, pA + 3 q (B alike), of the pair
  * key[q] (0 <= key < nkeys): hints + 2 key[q] is where each convex shape's support search starts (vertex
@@ -278,7 +280,8 @@ static void make_shape(shape_t *S, long g, const long *kinds, const double *para
 /* every query; returns the number with status 1 or 2 */
 long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const double *pA, const double *RB,
                const double *pB, const double *limit, const long *key, long nkeys, long *hints, const long *kinds, const double *params, const long *vstart, const double *V,
-               const long *astart, const long *adj, double eps, double tiny, double gap, long max_iter,
+               const long *astart, const long *adj, const double *spheres, double eps, double tiny, double gap,
+               long max_iter,
                double *dist, double *wa, double *wb, double *nrm, long *status) {
     long bad = 0;
     for (long q = 0; q < nq; ++q) {
@@ -287,6 +290,17 @@ long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const 
         make_shape(&B, gb[q], kinds, params, vstart, V, astart, adj, RB + 9 * q, pB + 3 * q);
         if ((A.kind == 0 && A.nv < 1) || (B.kind == 0 && B.nv < 1)) { status[q] = 2; ++bad; continue; }
         if (key[q] < 0 || key[q] >= nkeys) { status[q] = 2; ++bad; continue; }
+        {   /* the bounding spheres first */
+            const double *ca = spheres + 4 * ga[q], *cb = spheres + 4 * gb[q];
+            double wa_[3], wb_[3], e[3];
+            for (int i = 0; i < 3; ++i) {
+                wa_[i] = A.R[3 * i] * ca[0] + A.R[3 * i + 1] * ca[1] + A.R[3 * i + 2] * ca[2] + A.p[i];
+                wb_[i] = B.R[3 * i] * cb[0] + B.R[3 * i + 1] * cb[1] + B.R[3 * i + 2] * cb[2] + B.p[i];
+                e[i] = wa_[i] - wb_[i];
+            }
+            double lb = sqrt(dot3(e, e)) - ca[3] - cb[3];
+            if (lb >= limit[q]) { dist[q] = lb; status[q] = 3; continue; }
+        }
         long *h = hints + 2 * key[q];
         if (A.kind == 0 && h[0] >= 0 && h[0] < A.nv) A.hint = h[0];
         if (B.kind == 0 && h[1] >= 0 && h[1] < B.nv) B.hint = h[1];

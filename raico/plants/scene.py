@@ -489,7 +489,7 @@ def gjk_library():
         except c_backend.CompileUnavailable:
             _GJK_LIB = False
         else:
-            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, D, D, D, L, V, V, V, V, V]
+            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, V, D, D, D, L, V, V, V, V, V]
             lib.gjk_batch.restype = L
             lib.gjk_support.argtypes = [L, V, V, V, V, V, V, V, L, V]
             lib.gjk_support.restype = None
@@ -523,10 +523,17 @@ def hull_graph(V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 class GJKShapes:
     """The shapes of a list of geometries in ``distance.c``'s tables (``None`` for a geometry it has no
-    kind for: a world file's): ``kinds``, ``params (n, 4)``, ``vstart``, ``V``, ``astart``, ``adj``."""
+    kind for: a world file's): ``kinds``, ``params (n, 4)``, ``vstart``, ``V``, ``astart``, ``adj`` and
+    ``spheres (n, 4)`` (a bounding sphere's centre in the shape's frame and radius: :func:`bounding_sphere`)."""
 
     def __init__(self, shapes: list[Shape | None]):
-        kinds, params, Vs, starts, adjs, vstart, off = [], [], [], [], [], [0], 0
+        kinds: list[int] = []
+        params: list[np.ndarray] = []
+        Vs: list[np.ndarray] = []
+        starts: list[np.ndarray] = []
+        adjs: list[np.ndarray] = []
+        spheres: list[list[float]] = []
+        vstart, off = [0], 0
         self.known = np.array([s is not None and s.kind in GJK_KINDS for s in shapes])
         for s in shapes:
             k = GJK_KINDS.get(s.kind, -1) if s is not None else -1
@@ -546,6 +553,8 @@ class GJKShapes:
                 prm[0], prm[2], prm[3] = s.size[0], 0.5 * s.size[1], s.size[0]
             params.append(prm)
             vstart.append(off)
+            c, r = bounding_sphere(s) if k >= 0 else (np.zeros(3), math.inf)
+            spheres.append([*c, r * (1 + 1e-12) + 1e-12])   # rounding: never inside the shape
         self.kinds = np.array(kinds, np.int64)
         self.params = np.ascontiguousarray(params, float).reshape(-1, 4)
         self.vstart = np.array(vstart, np.int64)
@@ -553,6 +562,7 @@ class GJKShapes:
         total = sum(len(a) for a in adjs)
         self.astart = np.array([*(int(x) for st in starts for x in st), total], np.int64)
         self.adj = np.ascontiguousarray(np.concatenate(adjs) if adjs else np.zeros(0, np.int64), np.int64)
+        self.spheres = np.ascontiguousarray(spheres, float).reshape(-1, 4)
 
     def _tables(self):
         return (self.kinds.ctypes.data, self.params.ctypes.data, self.vstart.ctypes.data, self.V.ctypes.data,
@@ -589,7 +599,8 @@ class GJKShapes:
         dist, wa, wb, nrm = np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
         status = np.empty(k, np.int64)
         gjk_library().gjk_batch(k, ga.ctypes.data, gb.ctypes.data, RA.ctypes.data, pA.ctypes.data, RB.ctypes.data,
-                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data, *self._tables(), GJK_EPS, GJK_TINY, GJK_GAP, GJK_MAX_ITER,
+                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data,
+                                *self._tables(), self.spheres.ctypes.data, GJK_EPS, GJK_TINY, GJK_GAP, GJK_MAX_ITER,
                                 dist.ctypes.data, wa.ctypes.data, wb.ctypes.data, nrm.ctypes.data,
                                 status.ctypes.data)
         return dist, wa, wb, nrm, status
@@ -978,8 +989,13 @@ class SignedDistances:
         k = self.tree_kernels()
         if k is not None and hasattr(k, "body_frames_batch"):   # every body at once: the kinematics once per row
             names = list(self._bodies if bodies is None else bodies)
-            r = (np.arange(K) if rows is None
-                 else np.flatnonzero(np.any([np.isin(np.arange(K), rows.get(b, ())) for b in names] or [[]], axis=0)))
+            if rows is None:
+                r = np.arange(K)
+            else:
+                mask = np.zeros(K, bool)
+                for b in names:
+                    mask[rows.get(b, np.zeros(0, int))] = True
+                r = np.flatnonzero(mask)
             pos, Jp = k.body_frames_batch(Qp[r], [k.tree.body(b) for b in names])
             if len(r) < K:
                 full_pos, full_J = np.full((K, *pos.shape[1:]), np.nan), np.full((K, *Jp.shape[1:]), np.nan)
@@ -1049,7 +1065,6 @@ class SignedDistances:
         ``c <= cull`` needs no more: its value and gradient are exact). The last batches are kept: the same
         ``Q`` again at cull distances no larger gives the kept results (copies; a pair culled now may then
         report its distance, which the hinge reads alike)."""
-        P, w = self.robot.P, self.world
         Q = np.atleast_2d(Q)
         K, m = len(Q), self.dim
         ask = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))

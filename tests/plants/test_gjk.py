@@ -12,8 +12,7 @@ import pytest
 
 from raico.plants.model_file import shared_model
 from raico.plants.numdiff import numdiff_jacobian
-from raico.plants.scene import (GJKShapes, Shape, gjk_library, hull_graph, obj_text, point_distance,
-                                rigid_transform)
+from raico.plants.scene import GJKShapes, Shape, gjk_library, hull_graph, obj_text, point_distance, rigid_transform
 from tests.plants.scene_robot import SCENE, START, arm_file
 from tests.plants.test_model_file import problem_text
 
@@ -143,8 +142,8 @@ max_distance = 1.0
 def _mesh_world(tmp_path: Path):
     from scipy.spatial import ConvexHull
 
-    from raico.plants.scene import CollisionWorld, SignedDistances, resolve_pairs
     from raico.planning.problem_file import read_problem
+    from raico.plants.scene import CollisionWorld, SignedDistances, resolve_pairs
 
     tmp_path.mkdir(exist_ok=True)
     arm_file(tmp_path)
@@ -198,3 +197,21 @@ def test_a_batch_asked_again_is_the_kept_one_and_a_larger_cull_queries_anew(tmp_
     assert tm.queries == n and np.array_equal(D1, D2) and np.array_equal(J1, J2) and D2 is not D1
     D3, _, _ = tm.evaluate(Q, cull=0.5)
     assert tm.queries > n and np.sum(D3 < 0.5) >= np.sum(D1 < 0.05)
+
+
+def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
+    """``body_frames_batch`` (the kinematics once per row) against ``frame_points_batch`` body by body: the same
+    arithmetic, so equal to rounding (1e-14)."""
+    robot, world, tm = _mesh_world(tmp_path)
+    k = tm.tree_kernels()
+    assert k is not None
+    Qp = (robot.default_q + 0.3 * np.random.default_rng(6).standard_normal((5, robot.n_q))) @ robot.P.T
+    bodies = [k.tree.body(b) for b in tm._bodies]
+    pos, J = k.body_frames_batch(Qp, bodies)
+    pts = np.vstack([np.zeros(3), np.eye(3)])
+    for i, b in enumerate(bodies):
+        p1, J1 = k.frame_points_batch(Qp, b, np.eye(3), np.zeros(3), pts)
+        np.testing.assert_allclose(pos[:, i], p1, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=1e-14)
+    with pytest.raises(ValueError, match="out of range"):
+        k.body_frames_batch(Qp, [len(k.tree.names)])
