@@ -105,7 +105,7 @@ def _run(path: Path, iterations: int, compiled: bool = True) -> tuple[float, flo
         SignedDistances.evaluate, solve.drive = evaluate, drive
     m = out.metrics()
     n = max(m["iterations"], 1)
-    if compiled:
+    if compiled and "last" in spent:
         _LAST[:] = [spent["last"]]
     return spent["drive"] / n, spent["s"] / n, spent["pairs"], m["iterations"], m["status"], spent.get("queries", 0) / n
 
