@@ -215,3 +215,19 @@ def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
         np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=1e-14)
     with pytest.raises(ValueError, match="out of range"):
         k.body_frames_batch(Qp, [len(k.tree.names)])
+
+
+def test_pairs_gjk_hands_on_are_drakes(tmp_path, monkeypatch):
+    """Cores closer than the kernel's threshold (penetration) go to Drake: with the threshold at 1 m every pair
+    does, and the batch is Drake's exactly (the same queries)."""
+    import raico.plants.scene as scene
+
+    robot, world, tm = _mesh_world(tmp_path)
+    Q = robot.default_q + 0.3 * np.random.default_rng(8).standard_normal((3, robot.n_q))
+    tm.compiled = False
+    D0, J0 = tm.values_and_jacobians(Q)
+    tm.compiled, tm._known = True, None
+    monkeypatch.setattr(scene, "GJK_TINY", 1.0)
+    D1, J1 = tm.values_and_jacobians(Q)
+    assert np.any(D0 < 1.0)
+    assert np.array_equal(D0, D1) and np.array_equal(J0, J1)
