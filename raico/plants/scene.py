@@ -463,6 +463,149 @@ def robot_shapes(spec) -> list[Shape]:
     return urdf_collisions(text, path, packages.resolve)
 
 
+# ------------------------------------------------------------------ the compiled distances (distance.c)
+GJK_EPS = 1e-12      # distance.c's convergence: ||v||^2 - v.w <= eps ||v||^2 (the distance within eps of its bound)
+GJK_TINY = 1e-6      # m: cores closer than this (or overlapping) go to Drake (penetration)
+GJK_GAP = 1e-9      # m: a stop (rounding) with the distance more than this above GJK's lower bound goes to Drake
+GJK_MAX_ITER = 128
+BATCHES_KEPT = 6     # SignedDistances keeps its last batches (a merit asks again for an iterate it had)
+GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
+_GJK_LIB: Any = None
+
+
+def gjk_library():
+    """``distance.c`` compiled (``ctypes``), or None where compiled kernels are off or unavailable."""
+    global _GJK_LIB
+    if _GJK_LIB is None:
+        import ctypes
+
+        from raico.plants.codegen import c_backend
+
+        L, D, V = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
+        try:
+            if not c_backend.enabled():
+                raise c_backend.CompileUnavailable("disabled")
+            lib = c_backend.load_library(c_backend.c_source(__file__, "distance.c"), "distance")
+        except c_backend.CompileUnavailable:
+            _GJK_LIB = False
+        else:
+            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, V, D, D, D, L, V, V, V, V, V]
+            lib.gjk_batch.restype = L
+            lib.gjk_support.argtypes = [L, V, V, V, V, V, V, V, L, V]
+            lib.gjk_support.restype = None
+            _GJK_LIB = lib
+    return _GJK_LIB or None
+
+
+@functools.lru_cache(maxsize=256)
+def _hull(key: bytes, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from scipy.spatial import ConvexHull
+
+    V = np.frombuffer(key).reshape(n, 3)
+    h = ConvexHull(V)
+    idx = np.asarray(h.vertices)
+    local = np.full(n, -1)
+    local[idx] = np.arange(len(idx))
+    T = local[np.asarray(h.simplices)]
+    E = np.unique(np.sort(np.vstack([T[:, [0, 1]], T[:, [1, 2]], T[:, [0, 2]]]), axis=1), axis=0)
+    E = np.vstack([E, E[:, ::-1]])
+    E = E[np.lexsort((E[:, 1], E[:, 0]))]
+    start = np.searchsorted(E[:, 0], np.arange(len(idx) + 1))
+    return np.ascontiguousarray(V[idx]), start.astype(np.int64), E[:, 1].astype(np.int64)
+
+
+def hull_graph(V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The convex hull of points ``V (n, 3)``: its vertices ``(h, 3)`` and their neighbours along the hull's
+    (triangulated) edges as ``start (h + 1,)``, ``adj``: vertex ``i``'s neighbours are ``adj[start[i]:start[i+1]]``."""
+    V = np.ascontiguousarray(V, dtype=float)
+    return _hull(V.tobytes(), len(V))
+
+
+class GJKShapes:
+    """The shapes of a list of geometries in ``distance.c``'s tables (``None`` for a geometry it has no
+    kind for: a world file's): ``kinds``, ``params (n, 4)``, ``vstart``, ``V``, ``astart``, ``adj`` and
+    ``spheres (n, 4)`` (a bounding sphere's centre in the shape's frame and radius: :func:`bounding_sphere`)."""
+
+    def __init__(self, shapes: list[Shape | None]):
+        kinds: list[int] = []
+        params: list[np.ndarray] = []
+        Vs: list[np.ndarray] = []
+        starts: list[np.ndarray] = []
+        adjs: list[np.ndarray] = []
+        spheres: list[list[float]] = []
+        vstart, off = [0], 0
+        self.known = np.array([s is not None and s.kind in GJK_KINDS for s in shapes])
+        for s in shapes:
+            k = GJK_KINDS.get(s.kind, -1) if s is not None else -1
+            kinds.append(k)
+            prm = np.zeros(4)
+            if k == 0:
+                V, start, adj = hull_graph(np.asarray(s.vertices, float))
+                Vs.append(V)
+                starts.append(start[:-1] + sum(len(a) for a in adjs))
+                adjs.append(adj + off)
+                off += len(V)
+            elif k == 1:
+                prm[:3] = 0.5 * np.asarray(s.size)
+            elif k == 2:
+                prm[3] = s.size[0]
+            elif k in (3, 4):
+                prm[0], prm[2], prm[3] = s.size[0], 0.5 * s.size[1], s.size[0]
+            params.append(prm)
+            vstart.append(off)
+            c, r = bounding_sphere(s) if k >= 0 else (np.zeros(3), math.inf)
+            spheres.append([*c, r * (1 + 1e-12) + 1e-12])   # rounding: never inside the shape
+        self.kinds = np.array(kinds, np.int64)
+        self.params = np.ascontiguousarray(params, float).reshape(-1, 4)
+        self.vstart = np.array(vstart, np.int64)
+        self.V = np.ascontiguousarray(np.vstack(Vs) if Vs else np.zeros((0, 3)))
+        total = sum(len(a) for a in adjs)
+        self.astart = np.array([*(int(x) for st in starts for x in st), total], np.int64)
+        self.adj = np.ascontiguousarray(np.concatenate(adjs) if adjs else np.zeros(0, np.int64), np.int64)
+        self.spheres = np.ascontiguousarray(spheres, float).reshape(-1, 4)
+
+    def _tables(self):
+        return (self.kinds.ctypes.data, self.params.ctypes.data, self.vstart.ctypes.data, self.V.ctypes.data,
+                self.astart.ctypes.data, self.adj.ctypes.data)
+
+    def support(self, g: int, d: np.ndarray, hint: int = 0) -> np.ndarray:
+        """Shape ``g``'s core's support point (its frame) in the direction ``d (3,)`` (its frame)."""
+        d, s = np.ascontiguousarray(d, float), np.zeros(3)
+        gjk_library().gjk_support(int(g), d.ctypes.data, *self._tables(), int(hint), s.ctypes.data)
+        return s
+
+    def distances(self, ga, gb, RA, pA, RB, pB, limit=np.inf, key=None, hints=None):
+        """GJK on queries ``ga``, ``gb`` (shape indices, ``(k,)``) at world poses ``RA (k, 3, 3)``, ``pA (k, 3)``
+        (B alike), stopped where a separating plane puts a pair at least ``limit`` (m, ``(k,)`` or a number) apart, query ``i``'s support searches started at ``hints[key[i]]`` (``hints (h, 2)``, vertex indices,
+        updated in place to the last support vertices: the start of the key's next query, a nearby posture;
+        None: each query its own key, from vertex 0): distances ``(k,)``, witness points in the shapes' frames ``(k, 3)`` twice, normals from B to
+        A ``(k, 3)`` (world) and the statuses ``(k,)`` (0 done; 3 beyond ``limit``, the distance that lower bound; 1, 2:
+        penetration or no convergence, the pair goes to Drake)."""
+        k = len(ga)
+        ga, gb = np.ascontiguousarray(ga, np.int64), np.ascontiguousarray(gb, np.int64)
+        if k and (ga.min() < 0 or gb.min() < 0 or max(ga.max(), gb.max()) >= len(self.kinds)
+                  or not (self.known[ga].all() and self.known[gb].all())):
+            raise ValueError("GJKShapes.distances: a shape index out of range or of no kind")
+        RA, pA, RB, pB = (np.ascontiguousarray(a, float) for a in (RA, pA, RB, pB))
+        from raico.plants.codegen.c_backend import check_shapes
+
+        hints = np.zeros((k, 2), np.int64) if hints is None else hints
+        key = np.arange(k) if key is None else np.ascontiguousarray(key, np.int64)
+        limit = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, float), (k,)))
+        check_shapes("gjk_batch", RA=(RA, (k, 3, 3)), pA=(pA, (k, 3)), RB=(RB, (k, 3, 3)), pB=(pB, (k, 3)),
+                     hints=(hints, (len(hints), 2)), key=(key, (k,)))
+        if hints.dtype != np.int64 or not hints.flags.c_contiguous or (k and not 0 <= key.min() <= key.max() < len(hints)):
+            raise ValueError("GJKShapes.distances: hints must be a C-contiguous int64 array (h, 2), keys in [0, h)")
+        dist, wa, wb, nrm = np.empty(k), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+        status = np.empty(k, np.int64)
+        gjk_library().gjk_batch(k, ga.ctypes.data, gb.ctypes.data, RA.ctypes.data, pA.ctypes.data, RB.ctypes.data,
+                                pB.ctypes.data, limit.ctypes.data, key.ctypes.data, len(hints), hints.ctypes.data,
+                                *self._tables(), self.spheres.ctypes.data, GJK_EPS, GJK_TINY, GJK_GAP, GJK_MAX_ITER,
+                                dist.ctypes.data, wa.ctypes.data, wb.ctypes.data, nrm.ctypes.data,
+                                status.ctypes.data)
+        return dist, wa, wb, nrm, status
+
+
 # ------------------------------------------------------------------ the collision world
 class CollisionWorld:
     """The robot of ``spec`` with its collision geometry and the ``scene``, in one plant and SceneGraph
@@ -772,6 +915,15 @@ class SignedDistances:
                                for b in dict.fromkeys(b for _, (_, b) in self._against_scene)}
         self._rate = self._pair_rates()
         self._known: tuple[np.ndarray, np.ndarray] | None = None   # (Qp, lower bounds) of the last batch
+        shapes = [world.shapes_by_name.get(n) for n in names]
+        known = np.array([sh is not None and sh.kind in GJK_KINDS for sh in shapes])
+        convex = np.array([sh is not None and sh.kind == "convex" for sh in shapes])
+        # a pair with a convex mesh (a hull of hundreds of vertices) by distance.c's GJK, the primitives' by Drake
+        self._gjk_pair = known[self._ia] & known[self._ib] & (convex[self._ia] | convex[self._ib])
+        self._gjk_shapes: GJKShapes | None = None
+        self._hints = np.zeros((self.dim, 2), np.int64)   # per pair: where the next support searches start
+        self._batches: list = []   # the last batches: (Q, cull distances, jacobians, compiled, (D, J, W))
+        self.compiled = bool(self._gjk_pair.any()) and gjk_library() is not None
         self.queries = 0   # pair queries so far (a count for the timing)
 
     def _pair_rates(self) -> np.ndarray:
@@ -827,15 +979,51 @@ class SignedDistances:
                 self._kernels = False
         return self._kernels or None
 
-    def _frames(self, Qp: np.ndarray, bodies=None) -> dict[str, tuple[np.ndarray, ...]]:
+    def _frames(self, Qp: np.ndarray, bodies=None, rows=None) -> dict[str, tuple[np.ndarray, ...]]:
         """Per body of the pairs (or of ``bodies``): origins ``o (K, 3)``, rotations ``R (K, 3, 3)`` (world) and the Jacobians
         of the origin ``J_o (K, 3, m)`` and of the axes' tips ``J_e (K, 3, 3, m)`` (tip i at row i) at plant
         positions ``Qp (K, m)``: a point ``p_B`` of the body is at ``o + R p_B`` with Jacobian
-        ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``)."""
+        ``J_o + sum_i p_B[i] (J_e[i] - J_o)`` (linear in ``p_B``). ``rows``: body -> the row indices computed
+        (the others NaN; None: every row)."""
         K, m = Qp.shape
-        pts = np.vstack([np.zeros(3), np.eye(3)])
         k = self.tree_kernels()
-        out: dict[str, tuple[np.ndarray, ...]] = {}
+        if k is not None and hasattr(k, "body_frames_batch"):   # every body at once: the kinematics once per row
+            names = list(self._bodies if bodies is None else bodies)
+            if rows is None:
+                r = np.arange(K)
+            else:
+                mask = np.zeros(K, bool)
+                for b in names:
+                    mask[rows.get(b, np.zeros(0, int))] = True
+                r = np.flatnonzero(mask)
+            pos, Jp = k.body_frames_batch(Qp[r], [k.tree.body(b) for b in names])
+            if len(r) < K:
+                full_pos, full_J = np.full((K, *pos.shape[1:]), np.nan), np.full((K, *Jp.shape[1:]), np.nan)
+                full_pos[r], full_J[r] = pos, Jp
+                pos, Jp = full_pos, full_J
+            o = pos[:, :, 0]
+            R = np.swapaxes(pos[:, :, 1:] - o[:, :, None], 2, 3)    # columns: the axes in the world
+            Jp = Jp.reshape(K, len(names), 4, 3, m)
+            Je = Jp[:, :, 1:] - Jp[:, :, :1]
+            return {b: (o[:, i], R[:, i], Jp[:, i, 0], Je[:, i]) for i, b in enumerate(names)}
+        if rows is not None:
+            out = {}
+            for body in (self._bodies if bodies is None else bodies):
+                r = rows.get(body)
+                if r is not None and len(r) == K:
+                    out[body] = self._frames(Qp, [body])[body]
+                    continue
+                part = self._frames(Qp[r], [body])[body] if r is not None and len(r) else None
+                full = tuple(np.full((K, *x.shape[1:]), np.nan) for x in
+                             ((np.empty((0, 3)), np.empty((0, 3, 3)), np.empty((0, 3, m)), np.empty((0, 3, 3, m)))
+                              if part is None else part))
+                if part is not None:
+                    for f, x in zip(full, part):
+                        f[r] = x
+                out[body] = full
+            return out
+        pts = np.vstack([np.zeros(3), np.eye(3)])
+        out = {}
         for body in (self._bodies if bodies is None else bodies):
             if k is not None:
                 pos, Jp = k.frame_points_batch(Qp, k.tree.body(body), np.eye(3), np.zeros(3), pts)
@@ -874,9 +1062,22 @@ class SignedDistances:
 
         ``cull`` (m; a number or ``(K, m)``, at most ``max_distance``; None: ``max_distance``): a pair whose
         lower bound reaches it is not queried and reports ``max_distance`` (a hinge ``max(0, c - d)`` with
-        ``c <= cull`` needs no more: its value and gradient are exact)."""
-        P, w = self.robot.P, self.world
+        ``c <= cull`` needs no more: its value and gradient are exact). The last batches are kept: the same
+        ``Q`` again at cull distances no larger gives the kept results (copies; a pair culled now may then
+        report its distance, which the hinge reads alike)."""
         Q = np.atleast_2d(Q)
+        K, m = len(Q), self.dim
+        ask = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
+        for Qc, lc, jc, cc, out in self._batches:
+            if jc >= jacobians and cc == self.compiled and Qc.shape == Q.shape and np.array_equal(Qc, Q) and np.all(ask <= lc):
+                return out[0].copy(), (out[1].copy() if jacobians else None), out[2].copy()
+        out = self._evaluate(Q, jacobians, cull)
+        self._batches = [(np.array(Q), np.array(ask), jacobians, self.compiled, out), *self._batches[:BATCHES_KEPT - 1]]
+        return out[0].copy(), (out[1].copy() if jacobians else None), out[2].copy()
+
+    def _evaluate(self, Q: np.ndarray, jacobians: bool, cull):
+        """:meth:`evaluate` without the kept batches."""
+        P, w = self.robot.P, self.world
         K, m = len(Q), self.dim
         D = np.full((K, m), np.nan)
         J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
@@ -900,48 +1101,41 @@ class SignedDistances:
         if moved_lb is None:
             frames = self._frames(Qp)
             lb = self.lower_bounds(frames, len(S))
-        else:   # and of those, the pairs that may: their bodies' frames and their geometric bounds
-            cols = np.flatnonzero(np.any(~(moved_lb[S] >= limit[sub]), axis=0))
-            bodies = {w.body_of[self.pairs[p][i]] for p in cols for i in (0, 1)} - {"world"}
-            frames = self._frames(Qp, [b for b in self._bodies if b in bodies])
+        else:   # and of those, the pairs that may: their bodies' frames there and their geometric bounds
+            need = ~(moved_lb[S] >= limit[sub])
+            cols = np.flatnonzero(need.any(axis=0))
+            rows: dict[str, np.ndarray] = {}
+            for p in cols:
+                for g in self.pairs[p]:
+                    b = w.body_of[g]
+                    if b != "world":
+                        rows[b] = rows[b] | need[:, p] if b in rows else need[:, p]
+            frames = self._frames(Qp, [b for b in self._bodies if b in rows],
+                                  {b: np.flatnonzero(r) for b, r in rows.items()})
             lb = moved_lb[S].copy()
-            lb[:, cols] = np.fmax(self.lower_bounds(frames, len(S), cols), lb[:, cols])
+            # a pair GJK measures is queried where the motion bound does not settle it (a geometric bound
+            # costs about what its query does); the others' geometric bounds first
+            geo = cols[~self._gjk_pair[cols]] if self.compiled else cols
+            if geo.size:
+                with np.errstate(invalid="ignore"):
+                    lb[:, geo] = np.fmax(self.lower_bounds(frames, len(S), geo), lb[:, geo])
         near_all = lb < limit[sub]
-        port = w.scene_graph.get_query_output_port()
-        rows, found = [], []   # (row of sub, pair) and Drake's results, gathered first: the arithmetic after, in batches
-        exact_rows: tuple[list, list] = ([], [])   # every pair queried (row of sub, pair) and its distance
-        exact_d: list[float] = []
-        for t in np.flatnonzero(near_all.any(axis=1)):
-            near = np.flatnonzero(near_all[t])
-            w.set_positions(Qp[t])
-            qo = port.Eval(w.sg_context)
-            for p in near:
-                r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[p])
-                exact_rows[0].append(t)
-                exact_rows[1].append(p)
-                exact_d.append(r.distance)
-                if r.distance < self.max_distance:
-                    rows.append((t, p))
-                    found.append((r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb))
+        tt, pp, dist, nrm, pa, pb, exact = self._query(near_all, Qp, frames, limit[sub])
         known_lb = np.full((K, m), np.nan)
         if moved_lb is not None:
             known_lb[ok] = moved_lb
         known_lb[sub] = lb
-        known_lb[sub[exact_rows[0]], exact_rows[1]] = exact_d
+        known_lb[sub[exact[0]], exact[1]] = exact[2]
         Qk = np.full((K, Q_all.shape[1]), np.nan)
         Qk[ok] = Q_all
         self._known = (Qk, known_lb)
-        self.queries += len(exact_d)
-        if not rows:
+        self.queries += len(exact[2])
+        if not len(tt):
             return D, J, W
-        tt, pp = np.array(rows).T
-        dist = np.array([f[0] for f in found])
-        nrm = np.array([f[1] for f in found])
         D[sub[tt], pp] = dist
         O, R, Jo, Je = self._stacked(frames, len(sub), Qp.shape[1])
         Jd = 0.0
-        for side, (slots, pts) in enumerate(((self._ia[pp], np.array([f[2] for f in found])),
-                                             (self._ib[pp], np.array([f[3] for f in found])))):
+        for side, (slots, pts) in enumerate(((self._ia[pp], pa), (self._ib[pp], pb))):
             p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
             b = self._body_index[slots]
             W[sub[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
@@ -951,6 +1145,50 @@ class SignedDistances:
         if jacobians:
             J[sub[tt], pp] = Jd @ P
         return D, J, W
+
+    def _query(self, near_all: np.ndarray, Qp: np.ndarray, frames: dict, limit: np.ndarray):
+        """The pairs ``near_all (K, m)`` queried at postures ``Qp``: those with a convex mesh by :class:`GJKShapes`
+        (where it converges with the cores apart; stopped where a separating plane puts them ``limit (K, m)``
+        apart), the rest (and those) by Drake's ``ComputeSignedDistancePairClosestPoints``. Returns the pairs
+        within ``max_distance`` (row, pair, distance, normal from B to A, witness points in the geometries'
+        frames) and every query's (rows, pairs, distances or the separating plane's lower bound)."""
+        w = self.world
+        tq, pq = np.nonzero(near_all)
+        drake, culled = np.ones(len(tq), bool), np.zeros(len(tq), bool)
+        dist, nrm, pa, pb = np.full(len(tq), np.nan), np.zeros((len(tq), 3)), np.zeros((len(tq), 3)), np.zeros((len(tq), 3))
+        if self.compiled and len(tq):
+            g = np.flatnonzero(self._gjk_pair[pq])
+            if g.size:
+                if self._gjk_shapes is None:
+                    self._gjk_shapes = GJKShapes([w.shapes_by_name.get(n) for n in self._names])
+                nb = len(self._bodies)
+                O, R = np.zeros((nb + 1, len(Qp), 3)), np.broadcast_to(np.eye(3), (nb + 1, len(Qp), 3, 3)).copy()
+                for i, body in enumerate(self._bodies):
+                    if body in frames:
+                        O[i], R[i] = frames[body][:2]
+                t, sa, sb = tq[g], self._ia[pq[g]], self._ib[pq[g]]
+                ba, bb = self._body_index[sa], self._body_index[sb]
+                RA, RB = R[ba, t] @ self._R_BG[sa], R[bb, t] @ self._R_BG[sb]
+                pA = O[ba, t] + np.einsum("kij,kj->ki", R[ba, t], self._p_BG[sa])
+                pB = O[bb, t] + np.einsum("kij,kj->ki", R[bb, t], self._p_BG[sb])
+                d, wa, wb, n, status = self._gjk_shapes.distances(sa, sb, RA, pA, RB, pB, limit[tq[g], pq[g]],
+                                                                  pq[g], self._hints)
+                done = g[status == 0]
+                dist[done], pa[done], pb[done], nrm[done] = (x[status == 0] for x in (d, wa, wb, n))
+                dist[g[status == 3]] = d[status == 3]
+                culled[g[status == 3]] = True
+                drake[g[(status == 0) | (status == 3)]] = False
+        port = w.scene_graph.get_query_output_port()
+        last = -1
+        for i in np.flatnonzero(drake):
+            t = tq[i]
+            if t != last:
+                w.set_positions(Qp[t])
+                qo, last = port.Eval(w.sg_context), t
+            r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[pq[i]])
+            dist[i], nrm[i], pa[i], pb[i] = r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb
+        live = (dist < self.max_distance) & ~culled
+        return tq[live], pq[live], dist[live], nrm[live], pa[live], pb[live], (tq, pq, dist)
 
     def lower_bounds(self, frames: dict, K: int, cols=None) -> np.ndarray:
         """Lower bounds ``(K, m)`` (m) of the pairs' distances (of pairs ``cols`` only: ``(K, len(cols))``) at the ``K``

@@ -263,7 +263,8 @@ class TreeKernels:
                 "tree_id_derivatives": [vp, vp, vp, vp], "tree_id_analytic": [vp] * 6,
                 "tree_gravity": [vp, vp, vp],
                 "tree_frame_points_batch": [i, vp, i, vp, vp, i, vp, vp, vp],
-                "tree_com_batch": [i, vp, vp, vp], "tree_frame_rotation_batch": [i, vp, i, vp, vp, vp]}
+                "tree_com_batch": [i, vp, vp, vp], "tree_frame_rotation_batch": [i, vp, i, vp, vp, vp],
+                "tree_body_frames_batch": [i, vp, i, vp, vp, vp]}
         for f, args in sigs.items():
             getattr(lib, f).argtypes = args
             getattr(lib, f).restype = ctypes.c_int
@@ -308,6 +309,19 @@ class TreeKernels:
         pos, J = np.empty((K, k, 3)), np.empty((K, 3 * k, self.m))
         self.lib.tree_frame_points_batch(K, Qp.ctypes.data, body, R_BF.ctypes.data, p_BF.ctypes.data,
                                          k, points.ctypes.data, pos.ctypes.data, J.ctypes.data)
+        return pos, J
+
+    def body_frames_batch(self, Qp, bodies):
+        """Per row of ``Qp (K, m)`` and body index of ``bodies``, the kinematics once per row: the body's origin and
+        its axes' tips in the world ``(K, nb, 4, 3)`` and their Jacobians ``(K, nb, 12, m)``."""
+        Qp = self._a(Qp)
+        K = Qp.shape[0] if Qp.ndim else 0
+        b = np.ascontiguousarray(bodies, dtype=np.intc)
+        self._check("tree_body_frames_batch", Qp=(Qp, (K, self.m)), bodies=(b, (len(b),)))
+        if len(b) and not (0 <= b.min() and b.max() < len(self.tree.names)):
+            raise ValueError(f"tree_body_frames_batch: a body index out of range (the tree has {len(self.tree.names)})")
+        pos, J = np.empty((K, len(b), 4, 3)), np.empty((K, len(b), 12, self.m))
+        self.lib.tree_body_frames_batch(K, Qp.ctypes.data, len(b), b.ctypes.data, pos.ctypes.data, J.ctypes.data)
         return pos, J
 
     def com_batch(self, Qp):

@@ -787,3 +787,20 @@ int tree_frame_rotation_batch(int K, const double *Q, int b, const double *RBF, 
     for (int k = 0; k < K; k++) tree_frame_rotation(Q + (long)k * MP, b, RBF, R + 9L * k, Jw + 3L * k * MP);
     return 0;
 }
+/* the frames of nb bodies at each row of Q (K, MP), the kinematics once per row: each body's origin and the
+ * tips of its axes (4 points: 0, e_x, e_y, e_z in its frame) in the world, pos (K, nb, 4, 3), and their
+ * Jacobians J (K, nb, 12, MP) */
+int tree_body_frames_batch(int K, const double *Q, int nb, const int *bodies, double *pos, double *J)
+{
+    static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, Z3[3] = {0, 0, 0};
+    static const double P4[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};
+    if (K < 0 || nb < 0) return -1;
+    for (int j = 0; j < nb; j++)
+        if (bodies[j] < 0 || bodies[j] >= NB) return -1;
+    for (int k = 0; k < K; k++)
+        for (int j = 0; j < nb; j++) {
+            long at = (long)k * nb + j;
+            tree_frame_points(Q + (long)k * MP, bodies[j], I3, Z3, 4, P4, pos + 12 * at, J + 12 * at * MP);
+        }
+    return 0;
+}
