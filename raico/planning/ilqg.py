@@ -25,9 +25,9 @@ Initial controls are zero.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -41,6 +41,7 @@ from raico.planning.problem import (
     check_range,
     single_threaded_blas,
 )
+from raico.plants.codegen import c_backend
 from raico.plants.codegen.c_backend import check_shapes
 from raico.plants.dynamics import rollout
 from raico.plants.lazy import LazyModule
@@ -96,29 +97,16 @@ class NotPD(Exception):
     """Q_uu was not positive definite at some step."""
 
 
-_C_LIB: Any = None
 # The compiled backward pass is used up to this state dimension: its plain loops beat numpy's per-call
 # overhead on the arms (T = 1000, n_x = 10: 4 ms against 56 ms a pass) but lose to BLAS on the Nao
 # (n_x = 50: 37 ms against 14 ms); measured crossover near n_x = 30 (one run, this 2-core machine).
 COMPILED_MAX_N = 24
 
 
-def c_backward_lib():
-    """The compiled backward pass (``ilqg_backward.c``), or ``None`` (``RAICO_NO_C``, no ``gcc``)."""
-    global _C_LIB
-    if _C_LIB is None:
-        import ctypes
-
-        from raico.plants.codegen import c_backend
-        if not c_backend.enabled():
-            _C_LIB = False
-        else:  # gcc present: a failed build raises (never a silent fallback)
-            lib = c_backend.load_library(c_backend.c_source(__file__, "ilqg_backward.c"), "ilqg_backward")
-            L, V = ctypes.c_long, ctypes.c_void_p
-            lib.ilqg_backward.argtypes = [L, L, L, V, V, V, V, V, V, ctypes.c_double, V, V, V]
-            lib.ilqg_backward.restype = ctypes.c_int
-            _C_LIB = lib
-    return _C_LIB or None
+#: The compiled backward pass (``ilqg_backward.c``), or ``None`` (``RAICO_NO_C``, no ``gcc``); a failed build raises.
+c_backward_lib = c_backend.CompiledLibrary("ilqg_backward", lambda: c_backend.c_source(__file__, "ilqg_backward.c"), {
+    "ilqg_backward": ([ctypes.c_long] * 3 + [ctypes.c_void_p] * 6 + [ctypes.c_double] + [ctypes.c_void_p] * 3,
+                      ctypes.c_int)})
 
 
 def lq_backward(A, B, lx, lxx, lu, luu, mu: float, *, compiled: bool = True):

@@ -26,7 +26,6 @@ from __future__ import annotations
 import ctypes
 from enum import IntEnum
 from pathlib import Path
-from typing import Literal
 
 from raico.planning.term_kinds import TASK_MAX_ROWS, MessageKind, kind_of_map
 from raico.plants.codegen import c_backend
@@ -88,38 +87,15 @@ class SweepState(ctypes.Structure):
     ]
 
 
-_LIB: ctypes.CDLL | None | Literal[False] = None
-
-
-def _load() -> ctypes.CDLL:
-    lib = c_backend.load_library(source_text(), "csweep", flags=FLAGS)
-    for f in ("sweep_work_size", "sweep_iwork_size"):
-        getattr(lib, f).argtypes = [_L, _L]
-        getattr(lib, f).restype = _L
-    lib.lti_rollout.argtypes = [_L, _L, _L] + [_V] * 8
-    lib.lti_rollout.restype = None
-    for f in ("sweep_run", "sweep_beliefs"):
-        getattr(lib, f).argtypes = [ctypes.POINTER(SweepState)]
-        getattr(lib, f).restype = ctypes.c_int
-    lib.sweep_linearize.argtypes = [ctypes.POINTER(SweepState), _L]
-    lib.sweep_linearize.restype = ctypes.c_int
-    lib.all_finite.argtypes = [_V, _L]
-    lib.all_finite.restype = ctypes.c_int
-    return lib
-
-
-def library() -> ctypes.CDLL | None:
-    """The compiled sweep kernel, or ``None`` (``RAICO_NO_C=1`` or no ``gcc``). A failed build
-    (``CompileError``) or a library that does not load (``OSError``) propagates."""
-    global _LIB
-    if _LIB is None:
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            _LIB = _load()
-        except c_backend.CompileUnavailable:
-            _LIB = False
-    return _LIB or None
+#: The compiled sweep kernel, or ``None`` (``RAICO_NO_C=1`` or no ``gcc``); a failed build (``CompileError``) or a
+#: library that does not load (``OSError``) propagates.
+library = c_backend.CompiledLibrary("csweep", source_text, {
+    "sweep_work_size": ([_L, _L], _L), "sweep_iwork_size": ([_L, _L], _L),
+    "lti_rollout": ([_L, _L, _L] + [_V] * 8, None),
+    "sweep_run": ([ctypes.POINTER(SweepState)], ctypes.c_int),
+    "sweep_beliefs": ([ctypes.POINTER(SweepState)], ctypes.c_int),
+    "sweep_linearize": ([ctypes.POINTER(SweepState), _L], ctypes.c_int),
+    "all_finite": ([_V, _L], ctypes.c_int)}, flags=FLAGS)
 
 
 # -- compiled task messages -------------------------------------------------------------------------
@@ -144,48 +120,16 @@ class _TaskSet(ctypes.Structure):
 
 TASK_MAX_POSITIONS = 64   # MPMAX of task_messages.c
 TASK_MAX_BOUNDS = 128     # BMAX of task_messages.c: bounds of one term
-_TASK_LIB: ctypes.CDLL | None | Literal[False] = None
+#: The compiled task messages (``task_messages.c``, the tree libraries' flags: no contraction into fused
+#: multiply-adds, the numbers of the former in-tree build), or ``None`` as :func:`library`.
+task_library = c_backend.CompiledLibrary("task_messages", lambda: c_backend.c_source(__file__, "task_messages.c"), {
+    "taskset_eval_address": (None, ctypes.c_void_p), "taskset_rows": ([_V, _L, _V, _V, _V, _V, _V], ctypes.c_int)})
 
-
-def task_library() -> ctypes.CDLL | None:
-    """The compiled task messages (``task_messages.c``, the tree libraries' flags: no contraction
-    into fused multiply-adds, the numbers of the former in-tree build), or ``None`` as
-    :func:`library`."""
-    global _TASK_LIB
-    if _TASK_LIB is None:
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(c_backend.c_source(__file__, "task_messages.c"), "task_messages")
-            lib.taskset_eval_address.restype = ctypes.c_void_p
-            lib.taskset_rows.argtypes = [_V, _L, _V, _V, _V, _V, _V]
-            lib.taskset_rows.restype = ctypes.c_int
-            _TASK_LIB = lib
-        except c_backend.CompileUnavailable:
-            _TASK_LIB = False
-    return _TASK_LIB or None
-
-
-_BOX_LIB: ctypes.CDLL | None | Literal[False] = None
-
-
-def box_library() -> ctypes.CDLL | None:
-    """The box constraints' augmented Lagrangian (``box_al.c``, the default flags: no contraction, the numpy
-    code's numbers), or ``None`` as :func:`library`."""
-    global _BOX_LIB
-    if _BOX_LIB is None:
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(c_backend.c_source(__file__, "box_al.c"), "box_al")
-            lib.box_lams.argtypes = [_L, _L, _V, _V, _L, _V, _V, _L, _V, _D, _V, _V, _V]
-            lib.box_lams.restype = _L
-            lib.box_model.argtypes = [_L, _L, _V, _V, _D, _V, _L, _V, _L, _L, _V, _L, _V, _L]
-            lib.box_model.restype = None
-            _BOX_LIB = lib
-        except c_backend.CompileUnavailable:
-            _BOX_LIB = False
-    return _BOX_LIB or None
+#: The box constraints' augmented Lagrangian (``box_al.c``, the default flags: no contraction, the numpy code's
+#: numbers), or ``None`` as :func:`library`.
+box_library = c_backend.CompiledLibrary("box_al", lambda: c_backend.c_source(__file__, "box_al.c"), {
+    "box_lams": ([_L, _L, _V, _V, _L, _V, _V, _L, _V, _D, _V, _V, _V], _L),
+    "box_model": ([_L, _L, _V, _V, _D, _V, _L, _V, _L, _L, _V, _L, _V, _L], None)})
 
 
 def compile_task_set(problem):

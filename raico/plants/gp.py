@@ -29,11 +29,13 @@ Non-finite query rows give NaN outputs (and NaN gradients), never an exception.
 
 from __future__ import annotations
 
+import ctypes
 from collections.abc import Mapping
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
+from raico.plants.codegen import c_backend
 from raico.plants.lazy import LazyModule
 
 # scipy, imported at first use (see raico.plants.lazy)
@@ -46,36 +48,18 @@ NOISE_FLOOR = 1e-6  # lower bound of sn2 in standardized output units (see the m
 # calls: a planner's relinearization inside the sweeps asks for one point at a time). The same
 # formulas as ``mean_with_gradients``; the distance is summed directly (no expansion), so the two
 # agree to rounding (tests/plants/test_gp.py). The source: gp_point.c beside this module.
-_POINT_LIB: Any = None
 # The point kernels' stack buffers (gp_point.c): at most this many inputs, and for the compiled
 # relinearization this many outputs; larger models run the numpy code.
 POINT_MAX_INPUTS = 256
 POINT_MAX_OUTPUTS = 128
 
 
-def _point_lib():
-    """The compiled ``gp_point`` (``None`` without a C compiler or with ``RAICO_NO_C``)."""
-    global _POINT_LIB
-    if _POINT_LIB is None:
-        import ctypes
-
-        from raico.plants.codegen import c_backend
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(c_backend.c_source(__file__, "gp_point.c"), "gp_point",
-                                         flags=(*c_backend.CFLAGS, "-O3"))
-            lib.gp_point.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 7
-            lib.gp_point_var.argtypes = [ctypes.c_long] * 3 + [ctypes.c_void_p] * 11
-            lib.gp_rollout.argtypes = ([ctypes.c_long] * 4 + [ctypes.c_void_p] * 8 + [ctypes.c_double]
-                                       + [ctypes.c_void_p] * 4)
-            for fn in (lib.gp_point, lib.gp_point_var, lib.gp_rollout):
-                fn.restype = None
-            lib.gp_linearize_address.restype = ctypes.c_void_p
-            _POINT_LIB = lib
-        except (c_backend.CompileUnavailable, OSError):
-            _POINT_LIB = False
-    return _POINT_LIB or None
+#: The compiled ``gp_point`` (``None`` without a C compiler or with ``RAICO_NO_C``).
+_point_lib = c_backend.CompiledLibrary("gp_point", lambda: c_backend.c_source(__file__, "gp_point.c"), {
+    "gp_point": ([ctypes.c_long] * 3 + [ctypes.c_void_p] * 7, None),
+    "gp_point_var": ([ctypes.c_long] * 3 + [ctypes.c_void_p] * 11, None),
+    "gp_rollout": ([ctypes.c_long] * 4 + [ctypes.c_void_p] * 8 + [ctypes.c_double] + [ctypes.c_void_p] * 4, None),
+    "gp_linearize_address": (None, ctypes.c_void_p)}, flags=(*c_backend.CFLAGS, "-O3"))
 
 _GP_DYN = None
 

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import ctypes
 from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
+from raico.plants.codegen import c_backend
 from raico.plants.dynamics import SemiImplicitEuler, stepped_rollout
 from raico.plants.gp import POINT_MAX_INPUTS, AngleInputGP, GPBase, GPModel, _point_lib
 
@@ -222,29 +222,15 @@ class ResidualDynamics(LearnedDynamics):
 
 
 # -- the compiled residual step (residual_step.c) -----------------------------------------------------------------
-_RES_LIB: Any = None
 
 
-def _residual_lib():
-    """The compiled ``residual_step`` (``None`` without a C compiler or with ``RAICO_NO_C``)."""
-    global _RES_LIB
-    if _RES_LIB is None:
-        from raico.plants.codegen import c_backend
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(c_backend.c_source(__file__, "residual_step.c"), "residual_step",
-                                         flags=(*c_backend.CFLAGS, "-O3"))
-            vp = ctypes.c_void_p
-            lib.res_work_size.argtypes, lib.res_work_size.restype = [ctypes.c_long] * 2, ctypes.c_long
-            lib.res_linearize.argtypes, lib.res_linearize.restype = [vp] * 6, ctypes.c_int
-            lib.res_step.argtypes, lib.res_step.restype = [vp] * 4, ctypes.c_int
-            lib.res_rollout.argtypes, lib.res_rollout.restype = [vp, ctypes.c_long] + [vp] * 4, ctypes.c_int
-            lib.res_linearize_address.restype = vp
-            _RES_LIB = lib
-        except (c_backend.CompileUnavailable, OSError):
-            _RES_LIB = False
-    return _RES_LIB or None
+#: The compiled ``residual_step`` (``None`` without a C compiler or with ``RAICO_NO_C``).
+_residual_lib = c_backend.CompiledLibrary("residual_step", lambda: c_backend.c_source(__file__, "residual_step.c"), {
+    "res_work_size": ([ctypes.c_long] * 2, ctypes.c_long),
+    "res_linearize": ([ctypes.c_void_p] * 6, ctypes.c_int),
+    "res_step": ([ctypes.c_void_p] * 4, ctypes.c_int),
+    "res_rollout": ([ctypes.c_void_p, ctypes.c_long] + [ctypes.c_void_p] * 4, ctypes.c_int),
+    "res_linearize_address": (None, ctypes.c_void_p)}, flags=(*c_backend.CFLAGS, "-O3"))
 
 
 class _ResCtx(ctypes.Structure):

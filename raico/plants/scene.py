@@ -28,6 +28,7 @@ cannot be read, a world file that does not parse.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
 import math
@@ -38,6 +39,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from raico.plants.codegen import c_backend
 
 SHAPES: dict[str, set[str]] = {"box": {"size"}, "sphere": {"radius"}, "cylinder": {"radius", "length"},
                                "capsule": {"radius", "length"}, "mesh": {"file", "scale"}, "file": {"file"}}
@@ -470,31 +473,13 @@ GJK_GAP = 1e-9      # m: a stop (rounding) with the distance more than this abov
 GJK_MAX_ITER = 128
 BATCHES_KEPT = 6     # SignedDistances keeps its last batches (a merit asks again for an iterate it had)
 GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
-_GJK_LIB: Any = None
 
 
-def gjk_library():
-    """``distance.c`` compiled (``ctypes``), or None where compiled kernels are off or unavailable."""
-    global _GJK_LIB
-    if _GJK_LIB is None:
-        import ctypes
-
-        from raico.plants.codegen import c_backend
-
-        L, D, V = ctypes.c_long, ctypes.c_double, ctypes.c_void_p
-        try:
-            if not c_backend.enabled():
-                raise c_backend.CompileUnavailable("disabled")
-            lib = c_backend.load_library(c_backend.c_source(__file__, "distance.c"), "distance")
-        except c_backend.CompileUnavailable:
-            _GJK_LIB = False
-        else:
-            lib.gjk_batch.argtypes = [L, V, V, V, V, V, V, V, V, L, V, V, V, V, V, V, V, V, D, D, D, L, V, V, V, V, V]
-            lib.gjk_batch.restype = L
-            lib.gjk_support.argtypes = [L, V, V, V, V, V, V, V, L, V]
-            lib.gjk_support.restype = None
-            _GJK_LIB = lib
-    return _GJK_LIB or None
+#: ``distance.c`` compiled (``ctypes``), or None where compiled kernels are off or unavailable.
+gjk_library = c_backend.CompiledLibrary("distance", lambda: c_backend.c_source(__file__, "distance.c"), {
+    "gjk_batch": ([ctypes.c_long] + [ctypes.c_void_p] * 8 + [ctypes.c_long] + [ctypes.c_void_p] * 8
+                  + [ctypes.c_double] * 3 + [ctypes.c_long] + [ctypes.c_void_p] * 5, ctypes.c_long),
+    "gjk_support": ([ctypes.c_long] + [ctypes.c_void_p] * 7 + [ctypes.c_long, ctypes.c_void_p], None)})
 
 
 @functools.lru_cache(maxsize=256)

@@ -157,7 +157,8 @@ def test_an_instruction_set_level_builds_its_own_kernels_with_its_instructions_o
     compiled, ref, rel = _both_with_bound(make_problem, opts, monkeypatch)
     _assert_same(compiled, ref, rel)
     monkeypatch.setattr(Sweeps, "compiled", True)
-    monkeypatch.setattr(kernels, "_LIB", _sweep_lib_at(built["x86-64-v2"]))
+    monkeypatch.setattr(kernels.library, "_lib", _sweep_lib_at(built["x86-64-v2"]))
+    monkeypatch.setattr(kernels.library, "_loaded", True)
     _assert_same(aico(make_problem(), opts), ref, rel)
     # an unknown level: one line, before anything is built
     monkeypatch.setenv("RAICO_ISA", "x86-64-v9")
@@ -174,9 +175,7 @@ def _sweep_lib_at(path: Path):
     """The sweep kernel built at ``path``, its entry points typed as :func:`raico.planning.kernels.library` types them."""
     import ctypes
 
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(c_backend, "load_library", lambda *args, **kw: ctypes.CDLL(str(path)))
-        return kernels._load()
+    return kernels.library.typed(ctypes.CDLL(str(path)))
 
 
 @pytest.mark.numerics
@@ -217,7 +216,8 @@ def test_wide_tiles_give_the_avx2_numbers_bit_for_bit(tmp_path, monkeypatch):
     for make_dyn in cases:
         runs = []
         for lib in (wide_lib, narrow_lib):
-            monkeypatch.setattr(kernels, "_LIB", lib)
+            monkeypatch.setattr(kernels.library, "_lib", lib)
+            monkeypatch.setattr(kernels.library, "_loaded", True)
             problem = Problem(make_dyn(), np.zeros(2 * nq), T, [StateTarget(goal, [T], weight=1e3, name="goal")],
                               [ControlCost(1e-2)])
             runs.append(aico(problem, AICOOptions(alpha=1.0, iterations=2, tol_rel=0.0, theta=0.01)))

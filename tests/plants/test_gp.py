@@ -358,7 +358,8 @@ def test_point_mean_and_gradient_equal_the_batched_path_also_after_update(monkey
             model.update(Xn, np.sin(Xn[:, :model.D]))
     m, g = model.point_mean_with_gradients(np.full(model.d, np.nan))
     assert np.all(np.isnan(m)) and np.all(np.isnan(g))
-    monkeypatch.setattr(gp, "_POINT_LIB", False)          # no compiler: the numpy path, same numbers
+    monkeypatch.setattr(gp._point_lib, "_lib", None)
+    monkeypatch.setattr(gp._point_lib, "_loaded", True)          # no compiler: the numpy path, same numbers
     m2, g2 = model.point_mean_with_gradients(Q[0])
     m_ref, g_ref = model.mean_with_gradients(Q[:1])
     assert np.array_equal(m2, m_ref[0]) and np.array_equal(g2, g_ref[0])
@@ -383,7 +384,8 @@ def test_point_variance_equals_the_batched_path_also_after_update(monkeypatch):
             Xn = rng.normal(size=(5, model.d))
             model.update(Xn, np.sin(Xn[:, :model.D]))
     assert all(np.all(np.isnan(a)) for a in model.point_predict_with_gradients(np.full(model.d, np.nan)))
-    monkeypatch.setattr(gp, "_POINT_LIB", False)
+    monkeypatch.setattr(gp._point_lib, "_lib", None)
+    monkeypatch.setattr(gp._point_lib, "_loaded", True)
     ref = model.predict_with_gradients(Q[:1])
     for got, r in zip(model.point_predict_with_gradients(Q[0]), ref):
         assert np.array_equal(got, r[0])
@@ -412,7 +414,8 @@ def test_learned_controller_rollout_compiled_equals_python_steps(monkeypatch):
         o_bad[30, 0] = np.nan
         Xn, _ = dyn.controller_rollout(x0, o_bad, O)
         assert np.all(np.isfinite(Xn[:31])) and np.all(np.isnan(Xn[31:, 2:]))
-        monkeypatch.setattr(gp, "_POINT_LIB", False)      # no compiler: the Python steps
+        monkeypatch.setattr(gp._point_lib, "_lib", None)
+        monkeypatch.setattr(gp._point_lib, "_loaded", True)      # no compiler: the Python steps
         Xf, _ = dyn.controller_rollout(x0, o, O)
         assert np.array_equal(Xf, controller_rollout(dyn, x0, o, O)[0]) and close(Xf, Xp, scale=1.0)
         monkeypatch.undo()

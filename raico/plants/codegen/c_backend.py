@@ -247,6 +247,44 @@ def load_library(source: str, name: str, directory: Path | None = None,
     return lib
 
 
+Signature = tuple  # (argtypes or None, restype) of one C entry point
+
+
+class CompiledLibrary:
+    """A loader of one compiled library, built on its first call and kept for the process: calling it gives the
+    ``ctypes`` handle with ``signatures`` (``{function: (argtypes or None, restype)}``) set, or ``None`` where
+    compiling is off (``RAICO_NO_C=1``, no ``gcc``). A failed build (``CompileError``) or a library that does
+    not load (``OSError``) propagates: never a silent fallback. ``source``: the C text, or a function giving
+    it (read at the first call); ``flags``: :data:`CFLAGS` unless given."""
+
+    def __init__(self, name: str, source, signatures: dict[str, Signature],
+                 flags: tuple[str, ...] | None = None) -> None:
+        self.name, self.source, self.signatures = name, source, signatures
+        self.flags = CFLAGS if flags is None else flags
+        self._lib: ctypes.CDLL | None = None
+        self._loaded = False
+
+    def typed(self, lib: ctypes.CDLL) -> ctypes.CDLL:
+        """``lib`` (this library, built anywhere) with its entry points' signatures set."""
+        for fn, (args, res) in self.signatures.items():
+            f = getattr(lib, fn)
+            if args is not None:
+                f.argtypes = list(args)
+            f.restype = res
+        return lib
+
+    def __call__(self) -> ctypes.CDLL | None:
+        if not self._loaded:
+            if enabled():
+                try:
+                    self._lib = self.typed(load_library(self.source() if callable(self.source) else self.source,
+                                                        self.name, flags=self.flags))
+                except CompileUnavailable:
+                    self._lib = None
+            self._loaded = True
+        return self._lib
+
+
 def check_shapes(kernel: str, **arrays) -> None:
     """Refuse a call into compiled code whose arrays do not have the shapes its C entry point accepts:
     ``name=(array, expected_shape)`` pairs; raises ``ValueError`` naming the kernel, the array, the
