@@ -32,7 +32,7 @@ def exact_box_qp(M: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray) -
         if f.any():
             u[f] = np.linalg.solve(M[np.ix_(f, f)], -(q[f] + M[np.ix_(f, ~f)] @ u[~f]))
         g = q + M @ u
-        tol = 1e-12 * (1.0 + np.abs(q).max() + np.abs(M).max())
+        tol = REL * (1.0 + np.abs(q).max() + np.abs(M).max())   # the floor of tests/tolerance.py
         if np.all(u >= lo - tol) and np.all(u <= hi + tol) and np.all(g[s == 0] >= -tol) and np.all(g[s == 1] <= tol):
             return u
     raise AssertionError("no KKT point")
