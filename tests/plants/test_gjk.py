@@ -231,3 +231,53 @@ def test_pairs_gjk_hands_on_are_drakes(tmp_path, monkeypatch):
     D1, J1 = tm.values_and_jacobians(Q)
     assert np.any(D0 < 1.0)
     assert np.array_equal(D0, D1) and np.array_equal(J0, J1)
+
+
+def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_path):
+    """``GJKShapes.frames_distances`` (the geometries' poses from the bodies' frames, the witness points in the
+    world and ``n . (J_A - J_B)`` in C) against ``distances`` on poses built in numpy with the witness points and
+    rows assembled as before: the same GJK from the same start, so equal to rounding (the frames' scale, 1 m,
+    times ``REL``), statuses alike; a row without frames and a body column out of range are refused or handed on."""
+    from tests.tolerance import REL
+
+    robot, world, tm = _mesh_world(tmp_path)
+    Q = robot.default_q + 0.4 * np.random.default_rng(9).standard_normal((6, robot.n_q))
+    Qp = Q @ robot.P.T
+    K, m = Qp.shape
+    names, fr, Jf, rowmap = tm._frame_arrays(Qp)
+    frames = tm._frames_of((names, fr, Jf, rowmap), K, m)
+    O, R, Jo, Je = tm._stacked(frames, K, m)
+    G = GJKShapes([world.shapes_by_name.get(n) for n in tm._names])
+    tq, pq = np.nonzero(np.ones((K, tm.dim), bool))
+    sa, sb = tm._ia[pq], tm._ib[pq]
+    ba, bb = tm._body_index[sa], tm._body_index[sb]
+    RA, RB = R[ba, tq] @ tm._R_BG[sa], R[bb, tq] @ tm._R_BG[sb]
+    pA = O[ba, tq] + np.einsum("kij,kj->ki", R[ba, tq], tm._p_BG[sa])
+    pB = O[bb, tq] + np.einsum("kij,kj->ki", R[bb, tq], tm._p_BG[sb])
+    limit = np.where(np.arange(len(tq)) % 3 == 0, 0.05, np.inf)
+    d0, wa, wb, n0, s0 = G.distances(sa, sb, RA, pA, RB, pB, limit, pq, np.zeros((tm.dim, 2), np.int64))
+    col = {b: i for i, b in enumerate(names)}
+    gbody = np.array([-1 if world.body_of[n] == "world" else col[world.body_of[n]] for n in tm._names])
+    d1, W1, n1, J1, s1 = G.frames_distances(tq, pq, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, rowmap, fr, Jf,
+                                            limit, np.zeros((tm.dim, 2), np.int64))
+    assert np.array_equal(s0, s1) and np.sum(s0 == 0) >= 20 and np.sum(s0 == 3) >= 3
+    done = (s0 == 0) | (s0 == 3)
+    np.testing.assert_allclose(d1[done], d0[done], rtol=0, atol=REL)
+    ok = s0 == 0
+    np.testing.assert_allclose(n1[ok], n0[ok], rtol=0, atol=REL)
+    Jd = 0.0
+    for side, (slots, pts) in enumerate(((sa, wa), (sb, wb))):
+        p_B = np.einsum("kij,kj->ki", tm._R_BG[slots], pts) + tm._p_BG[slots]
+        b = tm._body_index[slots]
+        Wp = O[b, tq] + np.einsum("kij,kj->ki", R[b, tq], p_B)
+        np.testing.assert_allclose(W1[ok, side], Wp[ok], rtol=0, atol=REL)
+        nJ = np.einsum("kc,kcm->km", n0, Jo[b, tq]) + np.einsum("ki,kc,kicm->km", p_B, n0, Je[b, tq])
+        Jd = Jd + (nJ if side == 0 else -nJ)
+    np.testing.assert_allclose(J1[ok], Jd[ok], rtol=0, atol=REL)
+    none = np.full(K, -1, np.int64)   # no frames at any row: handed on (status 2), nothing read
+    s2 = G.frames_distances(tq, pq, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, none, fr, Jf, limit,
+                            np.zeros((tm.dim, 2), np.int64))[4]
+    assert np.all(s2 == 2)
+    with pytest.raises(ValueError, match="out of range"):
+        G.frames_distances(tq, pq + tm.dim, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, rowmap, fr, Jf, limit,
+                           np.zeros((tm.dim, 2), np.int64))
