@@ -471,6 +471,7 @@ GJK_EPS = 1e-12      # distance.c's convergence: ||v||^2 - v.w <= eps ||v||^2 (t
 GJK_TINY = 1e-6      # m: cores closer than this (or overlapping) go to Drake (penetration)
 GJK_GAP = 1e-9      # m: a stop (rounding) with the distance more than this above GJK's lower bound goes to Drake
 GJK_MAX_ITER = 128
+KNOWN_KEPT = 4       # SignedDistances bounds a batch by its last batches' bounds (a merit's trials near each other)
 BATCHES_KEPT = 6     # SignedDistances keeps its last batches (a merit asks again for an iterate it had)
 GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
 
@@ -941,7 +942,13 @@ class SignedDistances:
         self._scene_objects = {b: [(p, self._slot[a]) for p, (a, bb) in self._against_scene if bb == b]
                                for b in dict.fromkeys(b for _, (_, b) in self._against_scene)}
         self._rate = self._pair_rates()
-        self._known: tuple[np.ndarray, np.ndarray] | None = None   # (Qp, lower bounds) of the last batch
+        self._pair_body = np.zeros((self.dim, len(self._bodies)))   # pair p moves with body i: 1
+        for p, (a, b) in enumerate(self.pairs):
+            for g in (a, b):
+                if world.body_of[g] != "world":
+                    self._pair_body[p, self._bodies.index(world.body_of[g])] = 1.0
+        self._gbody: dict = {}   # the frames' bodies -> each geometry's column in them (-1: the world)
+        self._known: list | None = None   # (Qp, lower bounds) of the last batches, the newest first (None: none)
         shapes = [world.shapes_by_name.get(n) for n in names]
         known = np.array([sh is not None and sh.kind in GJK_KINDS for sh in shapes])
         convex = np.array([sh is not None and sh.kind == "convex" for sh in shapes])
@@ -1055,17 +1062,19 @@ class SignedDistances:
             out[body] = (o, R, Jp[:, 0], Jp[:, 1:] - Jp[:, :1])
         return out
 
-    def _frame_arrays(self, Qp: np.ndarray, bodies=None, rows=None):
+    def _frame_arrays(self, Qp: np.ndarray, bodies=None, rows=None, row_index=None):
         """The compiled kinematics' frames (every body at once, once per row) of ``bodies`` (None: the pairs') at
         the rows of ``Qp (K, m)`` that ``rows`` (as :meth:`_frames`) asks for: the bodies' names, their origins and
         axes' tips ``(r, nb, 4, 3)``, their Jacobians ``(r, nb, 12, m)`` and ``rowmap (K,)`` (a row's index in
-        them, -1: not computed); None where the kernels do not build."""
+        them, -1: not computed; ``row_index``: the rows instead of ``rows``); None where the kernels do not build."""
         k = self.tree_kernels()
         if k is None or not hasattr(k, "body_frames_batch"):
             return None
         K = len(Qp)
         names = list(self._bodies if bodies is None else bodies)
-        if rows is None:
+        if row_index is not None:
+            r = np.asarray(row_index, int)
+        elif rows is None:
             r = np.arange(K)
         else:
             mask = np.zeros(K, bool)
@@ -1136,7 +1145,7 @@ class SignedDistances:
 
     def _evaluate(self, Q: np.ndarray, jacobians: bool, cull):
         """:meth:`evaluate` without the kept batches."""
-        P, w = self.robot.P, self.world
+        P = self.robot.P
         K, m = len(Q), self.dim
         D = np.full((K, m), np.nan)
         J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
@@ -1149,10 +1158,12 @@ class SignedDistances:
         D[ok] = self.max_distance
         if jacobians:
             J[ok] = 0.0
-        known, moved_lb = self._known, None
-        if known is not None and known[0].shape == (K, Q_all.shape[1]):   # the last batch's bounds, moved since
-            with np.errstate(invalid="ignore", over="ignore"):
-                moved_lb = known[1][ok] - np.abs(Q_all - known[0][ok]) @ self._rate.T   # no bound (inf): a huge one
+        moved_lb = None
+        for Qk, lbk in self._known or []:   # the last batches' bounds, moved since: the largest
+            if Qk.shape == (K, Q_all.shape[1]):
+                with np.errstate(invalid="ignore", over="ignore"):
+                    b = lbk[ok] - np.abs(Q_all - Qk[ok]) @ self._rate.T   # no bound (inf): a huge one
+                moved_lb = b if moved_lb is None else np.fmax(moved_lb, b)
         # the rows where some pair may come within the limit: their frames, their geometric bounds, their queries
         S = (np.arange(len(ok)) if moved_lb is None
              else np.flatnonzero(~np.all(moved_lb >= limit[ok], axis=1)))
@@ -1171,14 +1182,11 @@ class SignedDistances:
         else:   # and of those, the pairs that may: their bodies' frames there and their geometric bounds
             need = ~(moved_lb[S] >= limit[sub])
             cols = np.flatnonzero(need.any(axis=0))
-            rows: dict[str, np.ndarray] = {}
-            for p in cols:
-                for g in self.pairs[p]:
-                    b = w.body_of[g]
-                    if b != "world":
-                        rows[b] = rows[b] | need[:, p] if b in rows else need[:, p]
-            kept["args"] = ([b for b in self._bodies if b in rows], {b: np.flatnonzero(r) for b, r in rows.items()})
-            kept["arrays"] = self._frame_arrays(Qp, *kept["args"])
+            at = need[:, cols].astype(float) @ self._pair_body[cols]   # (rows, bodies): pairs needing the body
+            bodies = [b for i, b in enumerate(self._bodies) if at[:, i].any()]
+            kept["arrays"] = self._frame_arrays(Qp, bodies, row_index=np.flatnonzero(at.any(axis=1)))
+            if kept["arrays"] is None:
+                kept["args"] = (bodies, {b: np.flatnonzero(at[:, i]) for i, b in enumerate(self._bodies) if b in bodies})
             lb = moved_lb[S].copy()
             # a pair GJK measures is queried where the motion bound does not settle it (a geometric bound
             # costs about what its query does); the others' geometric bounds first
@@ -1195,7 +1203,7 @@ class SignedDistances:
         known_lb[sub[exact[0]], exact[1]] = exact[2]
         Qk = np.full((K, Q_all.shape[1]), np.nan)
         Qk[ok] = Q_all
-        self._known = (Qk, known_lb)
+        self._known = [(Qk, known_lb), *(self._known or [])[:KNOWN_KEPT - 1]]
         self.queries += len(exact[2])
         if not len(tt):
             return D, J, W
@@ -1248,9 +1256,12 @@ class SignedDistances:
                 if arrays is None:
                     arrays = self._arrays_of(frames_of(), *Qp.shape)
                 names, fr, Jf, rowmap = arrays
-                col = {b: i for i, b in enumerate(names)}
-                gbody = np.array([-1 if w.body_of[n] == "world" else col.get(w.body_of[n], len(names))
-                                  for n in self._names], np.int64)
+                gbody = self._gbody.get(tuple(names))
+                if gbody is None:
+                    col = {b: i for i, b in enumerate(names)}
+                    gbody = self._gbody[tuple(names)] = np.array(
+                        [-1 if w.body_of[n] == "world" else col.get(w.body_of[n], len(names)) for n in self._names],
+                        np.int64)
                 d, Wc, n, Jc, status = self._gjk_shapes.frames_distances(
                     tq[g], pq[g], self._ia, self._ib, gbody, self._R_BG, self._p_BG, rowmap, fr,
                     Jf if jacobians else None, limit[tq[g], pq[g]], self._hints)
@@ -1265,9 +1276,9 @@ class SignedDistances:
                 dist[g[status == 3]] = d[status == 3]
                 culled[g[status == 3]] = True
                 drake[g[ok | (status == 3)]] = False
-        port = w.scene_graph.get_query_output_port()
-        last = -1
-        for i in np.flatnonzero(drake):
+        handed, last = np.flatnonzero(drake), -1
+        port = w.scene_graph.get_query_output_port() if handed.size else None
+        for i in handed:
             t = tq[i]
             if t != last:
                 w.set_positions(Qp[t])
