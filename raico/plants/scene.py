@@ -1147,22 +1147,26 @@ class SignedDistances:
         """:meth:`evaluate` without the kept batches."""
         P = self.robot.P
         K, m = len(Q), self.dim
-        D = np.full((K, m), np.nan)
-        J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
+        finite = np.all(np.isfinite(Q), axis=1)
+        ok = np.flatnonzero(finite)
+        D = np.full((K, m), self.max_distance)
+        J = np.zeros((K, m, Q.shape[1])) if jacobians else None
         W = np.full((K, m, 2, 3), np.nan)
-        ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+        if ok.size < K:   # rows with a non-finite q: NaN
+            D[~finite] = np.nan
+            if J is not None:
+                J[~finite] = np.nan
         if ok.size == 0 or m == 0:
-            return D, J, W
+            D[:] = np.nan
+            return D, (None if J is None else np.full_like(J, np.nan)), W
         Q_all = Q[ok] @ P.T
         limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
-        D[ok] = self.max_distance
-        if jacobians:
-            J[ok] = 0.0
         moved_lb = None
         for Qk, lbk in self._known or []:   # the last batches' bounds, moved since: the largest
             if Qk.shape == (K, Q_all.shape[1]):
-                with np.errstate(invalid="ignore", over="ignore"):
-                    b = lbk[ok] - np.abs(Q_all - Qk[ok]) @ self._rate.T   # no bound (inf): a huge one
+                with np.errstate(invalid="ignore", over="ignore"):   # no bound (inf): a huge one
+                    b = ((lbk - np.abs(Q_all - Qk) @ self._rate.T) if ok.size == K
+                         else lbk[ok] - np.abs(Q_all - Qk[ok]) @ self._rate.T)
                 moved_lb = b if moved_lb is None else np.fmax(moved_lb, b)
         # the rows where some pair may come within the limit: their frames, their geometric bounds, their queries
         S = (np.arange(len(ok)) if moved_lb is None
