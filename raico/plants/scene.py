@@ -19,7 +19,7 @@ gradients with respect to the plant's positions, ``dd/dq = n^T (J_A(p_A) - J_B(p
 points' translational Jacobians (Drake's) projected on the normal ``n`` (from B to A): the reference.
 :class:`SignedDistances` is the task map of those distances on planning coordinates, batched over a
 trajectory: lower bounds cull the pairs first (bounding spheres and capsules, a scene primitive's distance,
-and the last batch's distances less how far the joints moved times their reach), each remaining pair is one
+and the last batches' distances less how far the joints moved since times their reach), each remaining pair is one
 ``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics.
 
 Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
@@ -903,13 +903,14 @@ class SignedDistances:
     """Signed distances of geometry pairs as a task map on planning coordinates: ``phi(q) (m,)`` (m), the
     distances capped at ``max_distance``, and ``J (m, n_q)`` (zero rows where capped).
 
-    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step: by the last batch's distances
-    (or bounds) less ``rho |q - q_last|`` (:meth:`_pair_rates`; where that settles a row, nothing more), then by
-    the largest of the spheres' and capsules' around its geometries and a scene primitive's distance
-    (:meth:`lower_bounds`; the frames by the robot's compiled kinematics where they build, else Drake's), and
-    queries SceneGraph (``ComputeSignedDistancePairClosestPoints``) only where that bound is below the cull
-    distance (``max_distance``, or less: :meth:`evaluate`); the witness points' Jacobians come from the same
-    kinematics."""
+    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step: by the last batches'
+    distances (or bounds) less ``rho |q - q_k|``, the largest (:meth:`_pair_rates`; where that settles a row,
+    nothing more), then by the largest of the spheres' and capsules' around its geometries and a scene
+    primitive's distance (:meth:`lower_bounds`; the frames by the robot's compiled kinematics where they build,
+    else Drake's), and queries only where that bound is below the cull distance (``max_distance``, or less:
+    :meth:`evaluate`): a pair with a convex mesh by ``distance.c`` (one call per batch: poses, GJK, witness
+    points and gradient rows from the frames), the others by SceneGraph
+    (``ComputeSignedDistancePairClosestPoints``), their witness points' Jacobians from the same kinematics."""
 
     def __init__(self, robot, world: CollisionWorld, pairs: list[tuple[str, str]], max_distance: float,
                  name: str = "distances"):

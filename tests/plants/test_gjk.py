@@ -15,6 +15,7 @@ from raico.plants.numdiff import numdiff_jacobian
 from raico.plants.scene import GJKShapes, Shape, gjk_library, hull_graph, obj_text, point_distance, rigid_transform
 from tests.plants.scene_robot import SCENE, START, arm_file
 from tests.plants.test_model_file import problem_text
+from tests.tolerance import REL
 
 pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
 
@@ -72,20 +73,20 @@ def _random_pose(rng, spread: float) -> tuple[np.ndarray, np.ndarray]:
 
 def test_hull_support_by_climbing_is_the_largest_vertex():
     """From any start vertex, the climb along the hull's edges ends at a vertex as far along the direction as
-    the farthest of all: exact (the same vertices' products), so compared to rounding (1e-15 m)."""
+    the farthest of all: exact (the same vertices' products), so compared to rounding (``REL`` of the products)."""
     G = GJKShapes(SHAPES)
     V = hull_graph(np.asarray(SHAPES[0].vertices))[0]
     rng = np.random.default_rng(1)
     for _ in range(500):
         d = rng.standard_normal(3)
         s = G.support(0, d, hint=int(rng.integers(len(V))))
-        assert s @ d >= (V @ d).max() - 1e-15
+        assert s @ d >= (V @ d).max() - REL * np.abs(V @ d).max()
         assert np.min(np.abs(V - s).sum(axis=1)) == 0.0   # a hull vertex
 
 
 def test_every_distance_is_certified_by_a_separating_plane():
     """For every pair of kinds at random poses: the witness points lie on their shapes (1e-9 m), their distance
-    is the one reported (rounding: 1e-12 m), and the plane normal to the reported normal separates the
+    is the one reported (rounding: ``REL`` of 1 m), and the plane normal to the reported normal separates the
     shapes by no less (GJK's stop: a relative 1e-12 of the distance, plus rounding: 1e-9 m) — the distance
     is then the exact one to 1e-9 m. Pairs reported as overlapping or beyond the limit are checked as such; a
     stop short of that (a cylinder's curved side, rounding) is handed on, rarely."""
@@ -115,8 +116,8 @@ def test_every_distance_is_certified_by_a_separating_plane():
                     continue
                 xa, xb = RA @ wa[0] + pA, RB @ wb[0] + pB
                 assert _inside(sa, wa[0]) <= 1e-9 and _inside(sb, wb[0]) <= 1e-9
-                assert abs(np.linalg.norm(xa - xb) - d[0]) <= 1e-12
-                assert np.linalg.norm(n[0]) == pytest.approx(1.0, abs=1e-12)
+                assert abs(np.linalg.norm(xa - xb) - d[0]) <= REL
+                assert np.linalg.norm(n[0]) == pytest.approx(1.0, abs=REL)
                 plane = n[0] @ _support(sa, RA, pA, -n[0]) - n[0] @ _support(sb, RB, pB, n[0])
                 assert plane >= d[0] - 1e-9, (sa.kind, sb.kind, d[0], plane)
                 checked += 1
@@ -201,7 +202,7 @@ def test_a_batch_asked_again_is_the_kept_one_and_a_larger_cull_queries_anew(tmp_
 
 def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
     """``body_frames_batch`` (the kinematics once per row) against ``frame_points_batch`` body by body: the same
-    arithmetic, so equal to rounding (1e-14)."""
+    arithmetic, so equal to rounding (``REL`` of the frames' 1 m scale)."""
     robot, world, tm = _mesh_world(tmp_path)
     k = tm.tree_kernels()
     assert k is not None
@@ -211,8 +212,8 @@ def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
     pts = np.vstack([np.zeros(3), np.eye(3)])
     for i, b in enumerate(bodies):
         p1, J1 = k.frame_points_batch(Qp, b, np.eye(3), np.zeros(3), pts)
-        np.testing.assert_allclose(pos[:, i], p1, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(pos[:, i], p1, rtol=0, atol=REL)
+        np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=REL)
     with pytest.raises(ValueError, match="out of range"):
         k.body_frames_batch(Qp, [len(k.tree.names)])
 
@@ -238,8 +239,6 @@ def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_p
     world and ``n . (J_A - J_B)`` in C) against ``distances`` on poses built in numpy with the witness points and
     rows assembled as before: the same GJK from the same start, so equal to rounding (the frames' scale, 1 m,
     times ``REL``), statuses alike; a row without frames and a body column out of range are refused or handed on."""
-    from tests.tolerance import REL
-
     robot, world, tm = _mesh_world(tmp_path)
     Q = robot.default_q + 0.4 * np.random.default_rng(9).standard_normal((6, robot.n_q))
     Qp = Q @ robot.P.T
