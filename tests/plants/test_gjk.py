@@ -234,11 +234,13 @@ def test_pairs_gjk_hands_on_are_drakes(tmp_path, monkeypatch):
     assert np.array_equal(D0, D1) and np.array_equal(J0, J1)
 
 
-def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_path):
+@pytest.mark.parametrize("carried", [False, True])
+def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_path, carried):
     """``GJKShapes.frames_distances`` (the geometries' poses from the bodies' frames, the witness points in the
     world and ``n . (J_A - J_B)`` in C) against ``distances`` on poses built in numpy with the witness points and
     rows assembled as before: the same GJK from the same start, so equal to rounding (the frames' scale, 1 m,
-    times ``REL``), statuses alike; a row without frames and a body column out of range are refused or handed on."""
+    times ``REL``), statuses alike; a row without frames and a body column out of range are refused or handed on.
+    ``carried``: the mesh on the first body instead of the world (both sides moving, as the robot against itself)."""
     robot, world, tm = _mesh_world(tmp_path)
     Q = robot.default_q + 0.4 * np.random.default_rng(9).standard_normal((6, robot.n_q))
     Qp = Q @ robot.P.T
@@ -249,14 +251,16 @@ def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_p
     G = GJKShapes([world.shapes_by_name.get(n) for n in tm._names])
     tq, pq = np.nonzero(np.ones((K, tm.dim), bool))
     sa, sb = tm._ia[pq], tm._ib[pq]
-    ba, bb = tm._body_index[sa], tm._body_index[sb]
+    body_index = np.where(tm._body_index == len(tm._bodies), 0, tm._body_index) if carried else tm._body_index
+    ba, bb = body_index[sa], body_index[sb]
     RA, RB = R[ba, tq] @ tm._R_BG[sa], R[bb, tq] @ tm._R_BG[sb]
     pA = O[ba, tq] + np.einsum("kij,kj->ki", R[ba, tq], tm._p_BG[sa])
     pB = O[bb, tq] + np.einsum("kij,kj->ki", R[bb, tq], tm._p_BG[sb])
     limit = np.where(np.arange(len(tq)) % 3 == 0, 0.05, np.inf)
     d0, wa, wb, n0, s0 = G.distances(sa, sb, RA, pA, RB, pB, limit, pq, np.zeros((tm.dim, 2), np.int64))
     col = {b: i for i, b in enumerate(names)}
-    gbody = np.array([-1 if world.body_of[n] == "world" else col[world.body_of[n]] for n in tm._names])
+    gbody = np.array([(0 if carried else -1) if world.body_of[n] == "world" else col[world.body_of[n]]
+                      for n in tm._names])
     d1, W1, n1, J1, s1 = G.frames_distances(tq, pq, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, rowmap, fr, Jf,
                                             limit, np.zeros((tm.dim, 2), np.int64))
     assert np.array_equal(s0, s1) and np.sum(s0 == 0) >= 20 and np.sum(s0 == 3) >= 3
@@ -267,7 +271,7 @@ def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_p
     Jd = 0.0
     for side, (slots, pts) in enumerate(((sa, wa), (sb, wb))):
         p_B = np.einsum("kij,kj->ki", tm._R_BG[slots], pts) + tm._p_BG[slots]
-        b = tm._body_index[slots]
+        b = body_index[slots]
         Wp = O[b, tq] + np.einsum("kij,kj->ki", R[b, tq], p_B)
         np.testing.assert_allclose(W1[ok, side], Wp[ok], rtol=0, atol=REL)
         nJ = np.einsum("kc,kcm->km", n0, Jo[b, tq]) + np.einsum("ki,kc,kicm->km", p_B, n0, Je[b, tq])
