@@ -4,7 +4,8 @@ itself (its SRDF's allowed pairs left out: 51 pairs), planned by R-AICO. Prints,
 runs, the time per iteration, the time of the distance queries within the iterations (values and Jacobians
 of the batches the solver's iterations ask for; the start's cost, the notes before planning and the
 status after left out) and their
-share, and the time per iteration without the term; once with the pairs of a convex mesh measured by the
+share (of the wall time and, steadier on a loaded machine, of the processor time), and the time per iteration
+without the term; once with the pairs of a convex mesh measured by the
 compiled GJK (``raico.plants.scene``, distance.c; the default) and once with every pair queried from Drake's
 SceneGraph (the route before it); and the two routes' distances on the last batch of one plan (every pair
 within ``max_distance``, no cull).
@@ -63,24 +64,26 @@ margin = 0.02
 """
 
 
-def _run(path: Path, iterations: int, compiled: bool = True) -> tuple[float, float, int, int, str, float]:
-    """Time per iteration (s), query time per iteration (s), pairs, iterations, status and pair queries per
-    iteration of one plan (``compiled``: False, every pair by Drake)."""
+def _run(path: Path, iterations: int, compiled: bool = True) -> tuple[float, float, int, int, str, float, float]:
+    """Time per iteration (s), query time per iteration (s), pairs, iterations, status, pair queries per
+    iteration and the queries' share of the iterations' processor time of one plan (``compiled``: False, every
+    pair by Drake)."""
     from raico.plants.scene import SignedDistances
     from raico.stages.plan.stage import PlanConfig, plan
 
-    spent: dict = {"s": 0.0, "pairs": 0, "inside": 0}
+    spent: dict = {"s": 0.0, "cpu": 0.0, "pairs": 0, "inside": 0}
     evaluate = SignedDistances.evaluate
 
     def timed(self, Q, jacobians=True, **kw):
         self.compiled = self.compiled and compiled
-        t, n = time.perf_counter(), self.queries
+        t, c, n = time.perf_counter(), time.process_time(), self.queries
         try:
             return evaluate(self, Q, jacobians, **kw)
         finally:
-            dt = time.perf_counter() - t
+            dt, dc = time.perf_counter() - t, time.process_time() - c
             if spent["inside"]:   # within the iterations
                 spent["s"] += dt
+                spent["cpu"] += dc
                 spent["queries"] = spent.get("queries", 0) + self.queries - n
             spent["pairs"] = self.dim
             spent["last"] = (self, np.array(Q))
@@ -90,13 +93,14 @@ def _run(path: Path, iterations: int, compiled: bool = True) -> tuple[float, flo
     drive = solve.drive
 
     def timed_drive(*a, **kw):   # the iterations' span: the driver's call, callbacks and all
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         spent["inside"] += 1
         try:
             return drive(*a, **kw)
         finally:
             spent["inside"] -= 1
             spent["drive"] = spent.get("drive", 0.0) + time.perf_counter() - t
+            spent["drive_cpu"] = spent.get("drive_cpu", 0.0) + time.process_time() - c
 
     SignedDistances.evaluate, solve.drive = timed, timed_drive
     try:
@@ -107,7 +111,8 @@ def _run(path: Path, iterations: int, compiled: bool = True) -> tuple[float, flo
     n = max(m["iterations"], 1)
     if compiled and "last" in spent:
         _LAST[:] = [spent["last"]]
-    return spent["drive"] / n, spent["s"] / n, spent["pairs"], m["iterations"], m["status"], spent.get("queries", 0) / n
+    return (spent["drive"] / n, spent["s"] / n, spent["pairs"], m["iterations"], m["status"], spent.get("queries", 0) / n,
+            spent["cpu"] / spent["drive_cpu"])
 
 
 _LAST: list = []
@@ -151,8 +156,10 @@ def main(iterations: int = 20, repeats: int = 3) -> None:
         runs = routes[compiled]
         per, q, nq = (float(np.median([r[k] for r in runs])) for k in (0, 1, 5))
         share = float(np.median([r[1] / r[0] for r in runs]))
+        cpu = float(np.median([r[6] for r in runs]))
         print(f"with the term ({label}): {1e3 * per:.1f} ms per iteration, of them distance queries "
-              f"{1e3 * q:.1f} ms ({100 * share:.0f} %), {nq:.0f} pair queries per iteration")
+              f"{1e3 * q:.1f} ms ({100 * share:.0f} %; of the processor time {100 * cpu:.0f} %), "
+              f"{nq:.0f} pair queries per iteration")
     print(f"without the term: {1e3 * without:.1f} ms per iteration")
     print(_routes_compared())
 

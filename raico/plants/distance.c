@@ -24,6 +24,9 @@
  * plane normal to the last v (the one the normal and the witness points come from);
  * 3 culled: a separating plane puts the shapes at least limit[q] apart, dist[q] that lower bound (the
  * witness points and the normal not written).
+ * gjk_frames_batch: the same queries where the poses come from the bodies' frames (origins and axes' tips, the
+ * compiled kinematics') and each geometry's pose in its body, and with the witness points in the world and the
+ * distance's gradient row n . (J_A(p_A) - J_B(p_B)) from the frames' Jacobians: a batch's pair loop in one call.
  * Converged: ||v||^2 - v.w <= eps ||v||^2 (v the closest point of the simplex, w the new support point),
  * i.e. the distance is within a factor (1 - eps) of its lower bound v.w / ||v||.
  */
@@ -277,6 +280,29 @@ static void make_shape(shape_t *S, long g, const long *kinds, const double *para
     S->hint = 0;
 }
 
+/* one query of shapes ga, gb (their poses in A, B) of hint pair h: the bounding spheres, then GJK */
+static long one_query(shape_t *A, shape_t *B, long ga, long gb, double limit, long *h, const double *spheres,
+                      double eps, double tiny, double gap, long max_iter, double *dist, double *wa, double *wb,
+                      double *nrm) {
+    if ((A->kind == 0 && A->nv < 1) || (B->kind == 0 && B->nv < 1)) return 2;
+    {   /* the bounding spheres first */
+        const double *ca = spheres + 4 * ga, *cb = spheres + 4 * gb;
+        double e[3];
+        for (int i = 0; i < 3; ++i)
+            e[i] = A->R[3 * i] * ca[0] + A->R[3 * i + 1] * ca[1] + A->R[3 * i + 2] * ca[2] + A->p[i]
+                   - (B->R[3 * i] * cb[0] + B->R[3 * i + 1] * cb[1] + B->R[3 * i + 2] * cb[2] + B->p[i]);
+        double lb = sqrt(dot3(e, e)) - ca[3] - cb[3];
+        if (lb >= limit) { *dist = lb; return 3; }
+    }
+    if (A->kind == 0 && h[0] >= 0 && h[0] < A->nv) A->hint = h[0];
+    if (B->kind == 0 && h[1] >= 0 && h[1] < B->nv) B->hint = h[1];
+    *dist = NAN;
+    long st = gjk_pair(A, B, limit, eps, tiny, gap, max_iter, dist, wa, wb, nrm);
+    h[0] = A->hint;
+    h[1] = B->hint;
+    return st;
+}
+
 /* every query; returns the number with status 1 or 2 */
 long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const double *pA, const double *RB,
                const double *pB, const double *limit, const long *key, long nkeys, long *hints, const long *kinds, const double *params, const long *vstart, const double *V,
@@ -286,28 +312,89 @@ long gjk_batch(long nq, const long *ga, const long *gb, const double *RA, const 
     long bad = 0;
     for (long q = 0; q < nq; ++q) {
         shape_t A, B;
+        if (key[q] < 0 || key[q] >= nkeys) { status[q] = 2; ++bad; continue; }
         make_shape(&A, ga[q], kinds, params, vstart, V, astart, adj, RA + 9 * q, pA + 3 * q);
         make_shape(&B, gb[q], kinds, params, vstart, V, astart, adj, RB + 9 * q, pB + 3 * q);
-        if ((A.kind == 0 && A.nv < 1) || (B.kind == 0 && B.nv < 1)) { status[q] = 2; ++bad; continue; }
-        if (key[q] < 0 || key[q] >= nkeys) { status[q] = 2; ++bad; continue; }
-        {   /* the bounding spheres first */
-            const double *ca = spheres + 4 * ga[q], *cb = spheres + 4 * gb[q];
-            double wa_[3], wb_[3], e[3];
-            for (int i = 0; i < 3; ++i) {
-                wa_[i] = A.R[3 * i] * ca[0] + A.R[3 * i + 1] * ca[1] + A.R[3 * i + 2] * ca[2] + A.p[i];
-                wb_[i] = B.R[3 * i] * cb[0] + B.R[3 * i + 1] * cb[1] + B.R[3 * i + 2] * cb[2] + B.p[i];
-                e[i] = wa_[i] - wb_[i];
-            }
-            double lb = sqrt(dot3(e, e)) - ca[3] - cb[3];
-            if (lb >= limit[q]) { dist[q] = lb; status[q] = 3; continue; }
-        }
-        long *h = hints + 2 * key[q];
-        if (A.kind == 0 && h[0] >= 0 && h[0] < A.nv) A.hint = h[0];
-        if (B.kind == 0 && h[1] >= 0 && h[1] < B.nv) B.hint = h[1];
+        status[q] = one_query(&A, &B, ga[q], gb[q], limit[q], hints + 2 * key[q], spheres, eps, tiny, gap, max_iter,
+                              dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
+        bad += status[q] == 1 || status[q] == 2;
+    }
+    return bad;
+}
+
+/* a geometry's world pose from its body's frame: the body's origin and axes' tips fr (4 x 3, world; NULL: the
+ * world itself), the geometry's pose in the body R_BG (3x3), p_BG -> R (3x3), p (3) */
+static void geometry_pose(const double *fr, const double *R_BG, const double *p_BG, double *R, double *p) {
+    if (!fr) { memcpy(R, R_BG, 9 * sizeof(double)); memcpy(p, p_BG, 3 * sizeof(double)); return; }
+    double RB[9];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) RB[3 * i + j] = fr[3 * (1 + j) + i] - fr[i];   /* column j: axis j */
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j)
+            R[3 * i + j] = RB[3 * i] * R_BG[j] + RB[3 * i + 1] * R_BG[3 + j] + RB[3 * i + 2] * R_BG[6 + j];
+        p[i] = fr[i] + RB[3 * i] * p_BG[0] + RB[3 * i + 1] * p_BG[1] + RB[3 * i + 2] * p_BG[2];
+    }
+}
+
+/* a geometry's point w (its frame) in its body's frame p_B, in the world W, and (Jf not NULL: the frame's
+ * Jacobians, rows 0-2 the origin's, 3 + 3 i.. axis tip i's, 12 x m) jrow += sign n . J(p_B), where
+ * J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o) */
+static void witness(const double *fr, const double *Jf, long m, const double *R_BG, const double *p_BG,
+                    const double *w, const double *n, double sign, double *W, double *jrow) {
+    double pB[3];
+    for (int i = 0; i < 3; ++i) pB[i] = R_BG[3 * i] * w[0] + R_BG[3 * i + 1] * w[1] + R_BG[3 * i + 2] * w[2] + p_BG[i];
+    if (!fr) { memcpy(W, pB, sizeof pB); return; }
+    for (int i = 0; i < 3; ++i)
+        W[i] = fr[i] + (fr[3 + i] - fr[i]) * pB[0] + (fr[6 + i] - fr[i]) * pB[1] + (fr[9 + i] - fr[i]) * pB[2];
+    if (!Jf || !jrow) return;
+    double c0 = 1.0 - pB[0] - pB[1] - pB[2];   /* J(p_B) = c0 J_o + sum_i p_B[i] J_tip[i] */
+    for (int c = 0; c < 3; ++c) {
+        double a0 = sign * n[c] * c0, a[3] = {sign * n[c] * pB[0], sign * n[c] * pB[1], sign * n[c] * pB[2]};
+        const double *J0 = Jf + c * m, *J1 = Jf + (3 + c) * m, *J2 = Jf + (6 + c) * m, *J3 = Jf + (9 + c) * m;
+        for (long k = 0; k < m; ++k) jrow[k] += a0 * J0[k] + a[0] * J1[k] + a[1] * J2[k] + a[2] * J3[k];
+    }
+}
+
+/* queries q of the rows tq[q] of a batch and the pairs pq[q] (the geometries ia[pq], ib[pq], each the
+ * GJK shape of its index; geometry g on body column gbody[g] of the frames, -1: the world; at R_BG + 9 g,
+ * p_BG + 3 g in it), the frames computed at the rows' rowmap[t] (-1: none: status 2):
+ * fr (rows, nbf, 4, 3) origins and axes' tips, Jf (rows, nbf, 12, m) their Jacobians (NULL: no jrow).
+ * hints + 2 pq[q] as gjk_batch's key. Out as gjk_batch, and where done (status 0) the witness points in the
+ * world W + 6 q (A's, B's) and jrow + m q = n . (J_A(p_A) - J_B(p_B)) (m); returns the number with status 1, 2 */
+long gjk_frames_batch(long nq, const long *tq, const long *pq, long npairs, const long *ia, const long *ib,
+                      long ngeo, const long *gbody, const double *R_BG, const double *p_BG, long nrows,
+                      const long *rowmap, long nbf, const double *fr, const double *Jf, long m,
+                      const double *limit, long *hints, const long *kinds, const double *params, const long *vstart,
+                      const double *V, const long *astart, const long *adj, const double *spheres, double eps,
+                      double tiny, double gap, long max_iter,
+                      double *dist, double *W, double *nrm, double *jrow, long *status) {
+    long bad = 0;
+    for (long q = 0; q < nq; ++q) {
+        long p = pq[q], t = tq[q];
+        status[q] = 2;
         dist[q] = NAN;
-        status[q] = gjk_pair(&A, &B, limit[q], eps, tiny, gap, max_iter, dist + q, wa + 3 * q, wb + 3 * q, nrm + 3 * q);
-        h[0] = A.hint;
-        h[1] = B.hint;
+        if (p < 0 || p >= npairs || t < 0 || t >= nrows) { ++bad; continue; }
+        long ga = ia[p], gb = ib[p], r = rowmap[t];
+        if (ga < 0 || ga >= ngeo || gb < 0 || gb >= ngeo || gbody[ga] >= nbf || gbody[gb] >= nbf
+            || ((gbody[ga] >= 0 || gbody[gb] >= 0) && r < 0)) { ++bad; continue; }
+        const double *fa = gbody[ga] >= 0 ? fr + 12 * (r * nbf + gbody[ga]) : NULL;
+        const double *fb = gbody[gb] >= 0 ? fr + 12 * (r * nbf + gbody[gb]) : NULL;
+        double RA[9], pA[3], RB[9], pB[3], wa[3], wb[3];
+        geometry_pose(fa, R_BG + 9 * ga, p_BG + 3 * ga, RA, pA);
+        geometry_pose(fb, R_BG + 9 * gb, p_BG + 3 * gb, RB, pB);
+        shape_t A, B;
+        make_shape(&A, ga, kinds, params, vstart, V, astart, adj, RA, pA);
+        make_shape(&B, gb, kinds, params, vstart, V, astart, adj, RB, pB);
+        status[q] = one_query(&A, &B, ga, gb, limit[q], hints + 2 * p, spheres, eps, tiny, gap, max_iter,
+                              dist + q, wa, wb, nrm + 3 * q);
+        if (status[q] == 0) {
+            double *jq = Jf ? jrow + m * q : NULL;
+            if (jq) memset(jq, 0, (size_t)m * sizeof(double));
+            witness(fa, fa && Jf ? Jf + 12 * m * (r * nbf + gbody[ga]) : NULL, m, R_BG + 9 * ga, p_BG + 3 * ga, wa,
+                    nrm + 3 * q, 1.0, W + 6 * q, jq);
+            witness(fb, fb && Jf ? Jf + 12 * m * (r * nbf + gbody[gb]) : NULL, m, R_BG + 9 * gb, p_BG + 3 * gb, wb,
+                    nrm + 3 * q, -1.0, W + 6 * q + 3, jq);
+        }
         bad += status[q] == 1 || status[q] == 2;
     }
     return bad;

@@ -19,7 +19,7 @@ gradients with respect to the plant's positions, ``dd/dq = n^T (J_A(p_A) - J_B(p
 points' translational Jacobians (Drake's) projected on the normal ``n`` (from B to A): the reference.
 :class:`SignedDistances` is the task map of those distances on planning coordinates, batched over a
 trajectory: lower bounds cull the pairs first (bounding spheres and capsules, a scene primitive's distance,
-and the last batch's distances less how far the joints moved times their reach), each remaining pair is one
+and the last batches' distances less how far the joints moved since times their reach), each remaining pair is one
 ``ComputeSignedDistancePairClosestPoints``, and the Jacobians come from the compiled kinematics.
 
 Faults (``ValueError``, one line): an unknown key or shape, a non-positive size, a mesh that
@@ -471,6 +471,7 @@ GJK_EPS = 1e-12      # distance.c's convergence: ||v||^2 - v.w <= eps ||v||^2 (t
 GJK_TINY = 1e-6      # m: cores closer than this (or overlapping) go to Drake (penetration)
 GJK_GAP = 1e-9      # m: a stop (rounding) with the distance more than this above GJK's lower bound goes to Drake
 GJK_MAX_ITER = 128
+KNOWN_KEPT = 4       # SignedDistances bounds a batch by its last batches' bounds (a merit's trials near each other)
 BATCHES_KEPT = 6     # SignedDistances keeps its last batches (a merit asks again for an iterate it had)
 GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
 
@@ -479,6 +480,10 @@ GJK_KINDS = {"convex": 0, "box": 1, "sphere": 2, "capsule": 3, "cylinder": 4}
 gjk_library = c_backend.CompiledLibrary("distance", lambda: c_backend.c_source(__file__, "distance.c"), {
     "gjk_batch": ([ctypes.c_long] + [ctypes.c_void_p] * 8 + [ctypes.c_long] + [ctypes.c_void_p] * 8
                   + [ctypes.c_double] * 3 + [ctypes.c_long] + [ctypes.c_void_p] * 5, ctypes.c_long),
+    "gjk_frames_batch": ([ctypes.c_long] + [ctypes.c_void_p] * 2 + [ctypes.c_long] + [ctypes.c_void_p] * 2
+                         + [ctypes.c_long] + [ctypes.c_void_p] * 3 + [ctypes.c_long, ctypes.c_void_p, ctypes.c_long]
+                         + [ctypes.c_void_p] * 2 + [ctypes.c_long] + [ctypes.c_void_p] * 9 + [ctypes.c_double] * 3
+                         + [ctypes.c_long] + [ctypes.c_void_p] * 5, ctypes.c_long),
     "gjk_support": ([ctypes.c_long] + [ctypes.c_void_p] * 7 + [ctypes.c_long, ctypes.c_void_p], None)})
 
 
@@ -589,6 +594,44 @@ class GJKShapes:
                                 dist.ctypes.data, wa.ctypes.data, wb.ctypes.data, nrm.ctypes.data,
                                 status.ctypes.data)
         return dist, wa, wb, nrm, status
+
+
+    def frames_distances(self, tq, pq, ia, ib, gbody, R_BG, p_BG, rowmap, fr, Jf, limit, hints):
+        """GJK on the pairs ``pq (k,)`` (geometries ``ia[pq]``, ``ib[pq]``, shape indices) at the rows ``tq (k,)``
+        of a batch, their poses from the bodies' frames: geometry ``g`` on column ``gbody[g]`` of the frames (-1:
+        the world), at ``R_BG[g]``, ``p_BG[g]`` in it; ``fr (r, nb, 4, 3)`` the bodies' origins and axes' tips,
+        ``Jf (r, nb, 12, m)`` their Jacobians (None: no gradient rows), row ``t`` at ``rowmap[t]``; ``limit``,
+        ``hints`` (per pair) as :meth:`distances`. Returns distances ``(k,)``, witness points in the world
+        ``(k, 2, 3)``, normals from B to A ``(k, 3)``, gradient rows ``n . (J_A(p_A) - J_B(p_B)) (k, m)`` (None
+        without ``Jf``) and the statuses (as :meth:`distances`; the points and rows written where 0)."""
+        k = len(tq)
+        tq, pq, ia, ib, gbody, rowmap = (np.ascontiguousarray(a, np.int64) for a in (tq, pq, ia, ib, gbody, rowmap))
+        R_BG, p_BG, fr = (np.ascontiguousarray(a, float) for a in (R_BG, p_BG, fr))
+        n, nr, nbf = len(gbody), len(fr), (fr.shape[1] if fr.ndim == 4 else 0)
+        m = Jf.shape[-1] if Jf is not None else 0
+        from raico.plants.codegen.c_backend import check_shapes
+
+        limit = np.ascontiguousarray(np.broadcast_to(np.asarray(limit, float), (k,)))
+        check_shapes("gjk_frames_batch", tq=(tq, (k,)), pq=(pq, (k,)), ib=(ib, ia.shape), R_BG=(R_BG, (n, 3, 3)),
+                     p_BG=(p_BG, (n, 3)), fr=(fr, (nr, nbf, 4, 3)), hints=(hints, (len(ia), 2)))
+        if Jf is not None:
+            Jf = np.ascontiguousarray(Jf, float)
+            check_shapes("gjk_frames_batch", Jf=(Jf, (nr, nbf, 12, m)))
+        if (n != len(self.kinds) or hints.dtype != np.int64 or not hints.flags.c_contiguous
+                or (len(ia) and (min(ia.min(), ib.min()) < 0 or max(ia.max(), ib.max()) >= n))
+                or (k and (pq.min() < 0 or pq.max() >= len(ia))) or (n and gbody.min() < -1)
+                or (len(rowmap) and rowmap.max() >= nr) or not (self.known[ia[pq]].all() and self.known[ib[pq]].all())):
+            raise ValueError("GJKShapes.frames_distances: a geometry, body column or row out of range or of no kind")
+        dist, W, nrm, status = np.empty(k), np.full((k, 2, 3), np.nan), np.empty((k, 3)), np.empty(k, np.int64)
+        J = np.empty((k, m)) if Jf is not None else None
+        gjk_library().gjk_frames_batch(k, tq.ctypes.data, pq.ctypes.data, len(ia), ia.ctypes.data, ib.ctypes.data,
+                                       n, gbody.ctypes.data, R_BG.ctypes.data, p_BG.ctypes.data, len(rowmap),
+                                       rowmap.ctypes.data, nbf, fr.ctypes.data, None if Jf is None else Jf.ctypes.data,
+                                       m, limit.ctypes.data, hints.ctypes.data, *self._tables(),
+                                       self.spheres.ctypes.data, GJK_EPS, GJK_TINY, GJK_GAP, GJK_MAX_ITER,
+                                       dist.ctypes.data, W.ctypes.data, nrm.ctypes.data,
+                                       None if J is None else J.ctypes.data, status.ctypes.data)
+        return dist, W, nrm, J, status
 
 
 # ------------------------------------------------------------------ the collision world
@@ -860,13 +903,14 @@ class SignedDistances:
     """Signed distances of geometry pairs as a task map on planning coordinates: ``phi(q) (m,)`` (m), the
     distances capped at ``max_distance``, and ``J (m, n_q)`` (zero rows where capped).
 
-    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step: by the last batch's distances
-    (or bounds) less ``rho |q - q_last|`` (:meth:`_pair_rates`; where that settles a row, nothing more), then by
-    the largest of the spheres' and capsules' around its geometries and a scene primitive's distance
-    (:meth:`lower_bounds`; the frames by the robot's compiled kinematics where they build, else Drake's), and
-    queries SceneGraph (``ComputeSignedDistancePairClosestPoints``) only where that bound is below the cull
-    distance (``max_distance``, or less: :meth:`evaluate`); the witness points' Jacobians come from the same
-    kinematics."""
+    A batch ``Q (K, n_q)`` first bounds every pair's distance below at every step: by the last batches'
+    distances (or bounds) less ``rho |q - q_k|``, the largest (:meth:`_pair_rates`; where that settles a row,
+    nothing more), then by the largest of the spheres' and capsules' around its geometries and a scene
+    primitive's distance (:meth:`lower_bounds`; the frames by the robot's compiled kinematics where they build,
+    else Drake's), and queries only where that bound is below the cull distance (``max_distance``, or less:
+    :meth:`evaluate`): a pair with a convex mesh by ``distance.c`` (one call per batch: poses, GJK, witness
+    points and gradient rows from the frames), the others by SceneGraph
+    (``ComputeSignedDistancePairClosestPoints``), their witness points' Jacobians from the same kinematics."""
 
     def __init__(self, robot, world: CollisionWorld, pairs: list[tuple[str, str]], max_distance: float,
                  name: str = "distances"):
@@ -899,7 +943,13 @@ class SignedDistances:
         self._scene_objects = {b: [(p, self._slot[a]) for p, (a, bb) in self._against_scene if bb == b]
                                for b in dict.fromkeys(b for _, (_, b) in self._against_scene)}
         self._rate = self._pair_rates()
-        self._known: tuple[np.ndarray, np.ndarray] | None = None   # (Qp, lower bounds) of the last batch
+        self._pair_body = np.zeros((self.dim, len(self._bodies)))   # pair p moves with body i: 1
+        for p, (a, b) in enumerate(self.pairs):
+            for g in (a, b):
+                if world.body_of[g] != "world":
+                    self._pair_body[p, self._bodies.index(world.body_of[g])] = 1.0
+        self._gbody: dict = {}   # the frames' bodies -> each geometry's column in them (-1: the world)
+        self._known: list | None = None   # (Qp, lower bounds) of the last batches, the newest first (None: none)
         shapes = [world.shapes_by_name.get(n) for n in names]
         known = np.array([sh is not None and sh.kind in GJK_KINDS for sh in shapes])
         convex = np.array([sh is not None and sh.kind == "convex" for sh in shapes])
@@ -972,25 +1022,9 @@ class SignedDistances:
         (the others NaN; None: every row)."""
         K, m = Qp.shape
         k = self.tree_kernels()
-        if k is not None and hasattr(k, "body_frames_batch"):   # every body at once: the kinematics once per row
-            names = list(self._bodies if bodies is None else bodies)
-            if rows is None:
-                r = np.arange(K)
-            else:
-                mask = np.zeros(K, bool)
-                for b in names:
-                    mask[rows.get(b, np.zeros(0, int))] = True
-                r = np.flatnonzero(mask)
-            pos, Jp = k.body_frames_batch(Qp[r], [k.tree.body(b) for b in names])
-            if len(r) < K:
-                full_pos, full_J = np.full((K, *pos.shape[1:]), np.nan), np.full((K, *Jp.shape[1:]), np.nan)
-                full_pos[r], full_J[r] = pos, Jp
-                pos, Jp = full_pos, full_J
-            o = pos[:, :, 0]
-            R = np.swapaxes(pos[:, :, 1:] - o[:, :, None], 2, 3)    # columns: the axes in the world
-            Jp = Jp.reshape(K, len(names), 4, 3, m)
-            Je = Jp[:, :, 1:] - Jp[:, :, :1]
-            return {b: (o[:, i], R[:, i], Jp[:, i, 0], Je[:, i]) for i, b in enumerate(names)}
+        arrays = self._frame_arrays(Qp, bodies, rows)
+        if arrays is not None:
+            return self._frames_of(arrays, K, m)
         if rows is not None:
             out = {}
             for body in (self._bodies if bodies is None else bodies):
@@ -1029,6 +1063,56 @@ class SignedDistances:
             out[body] = (o, R, Jp[:, 0], Jp[:, 1:] - Jp[:, :1])
         return out
 
+    def _frame_arrays(self, Qp: np.ndarray, bodies=None, rows=None, row_index=None):
+        """The compiled kinematics' frames (every body at once, once per row) of ``bodies`` (None: the pairs') at
+        the rows of ``Qp (K, m)`` that ``rows`` (as :meth:`_frames`) asks for: the bodies' names, their origins and
+        axes' tips ``(r, nb, 4, 3)``, their Jacobians ``(r, nb, 12, m)`` and ``rowmap (K,)`` (a row's index in
+        them, -1: not computed; ``row_index``: the rows instead of ``rows``); None where the kernels do not build."""
+        k = self.tree_kernels()
+        if k is None or not hasattr(k, "body_frames_batch"):
+            return None
+        K = len(Qp)
+        names = list(self._bodies if bodies is None else bodies)
+        if row_index is not None:
+            r = np.asarray(row_index, int)
+        elif rows is None:
+            r = np.arange(K)
+        else:
+            mask = np.zeros(K, bool)
+            for b in names:
+                mask[rows.get(b, np.zeros(0, int))] = True
+            r = np.flatnonzero(mask)
+        pos, Jp = k.body_frames_batch(Qp[r], [k.tree.body(b) for b in names])
+        rowmap = np.full(K, -1, np.int64)
+        rowmap[r] = np.arange(len(r))
+        return names, pos, Jp, rowmap
+
+    @staticmethod
+    def _frames_of(arrays, K: int, m: int) -> dict[str, tuple[np.ndarray, ...]]:
+        """:meth:`_frames`' dictionary of :meth:`_frame_arrays` (rows not computed: NaN)."""
+        names, pos, Jp, rowmap = arrays
+        r = np.flatnonzero(rowmap >= 0)
+        if len(r) < K:
+            full_pos, full_J = np.full((K, *pos.shape[1:]), np.nan), np.full((K, *Jp.shape[1:]), np.nan)
+            full_pos[r], full_J[r] = pos, Jp
+            pos, Jp = full_pos, full_J
+        o = pos[:, :, 0]
+        R = np.swapaxes(pos[:, :, 1:] - o[:, :, None], 2, 3)    # columns: the axes in the world
+        Jp = Jp.reshape(K, len(names), 4, 3, m)
+        Je = Jp[:, :, 1:] - Jp[:, :, :1]
+        return {b: (o[:, i], R[:, i], Jp[:, i, 0], Je[:, i]) for i, b in enumerate(names)}
+
+    @staticmethod
+    def _arrays_of(frames: dict, K: int, m: int):
+        """:meth:`_frame_arrays`' form of a :meth:`_frames` dictionary (every row)."""
+        names = list(frames)
+        pos, Jp = np.empty((K, len(names), 4, 3)), np.empty((K, len(names), 4, 3, m))
+        for i, b in enumerate(names):
+            o, R, Jo, Je = frames[b]
+            pos[:, i, 0], pos[:, i, 1:] = o, o[:, None] + np.swapaxes(R, 1, 2)
+            Jp[:, i, 0], Jp[:, i, 1:] = Jo, Jo[:, None] + Je
+        return names, pos, Jp.reshape(K, len(names), 12, m), np.arange(K, dtype=np.int64)
+
     def _stacked(self, frames: dict, K: int, m: int) -> tuple[np.ndarray, ...]:
         """The bodies' frames of :meth:`_frames` stacked in ``_bodies`` order, the world last (origin 0, identity,
         no Jacobian): ``O (b+1, K, 3)``, ``R (b+1, K, 3, 3)``, ``J_o (b+1, K, 3, m)``, ``J_e (b+1, K, 3, 3, m)``."""
@@ -1062,50 +1146,61 @@ class SignedDistances:
 
     def _evaluate(self, Q: np.ndarray, jacobians: bool, cull):
         """:meth:`evaluate` without the kept batches."""
-        P, w = self.robot.P, self.world
+        P = self.robot.P
         K, m = len(Q), self.dim
-        D = np.full((K, m), np.nan)
-        J = np.full((K, m, Q.shape[1]), np.nan) if jacobians else None
+        finite = np.all(np.isfinite(Q), axis=1)
+        ok = np.flatnonzero(finite)
+        D = np.full((K, m), self.max_distance)
+        J = np.zeros((K, m, Q.shape[1])) if jacobians else None
         W = np.full((K, m, 2, 3), np.nan)
-        ok = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+        if ok.size < K:   # rows with a non-finite q: NaN
+            D[~finite] = np.nan
+            if J is not None:
+                J[~finite] = np.nan
         if ok.size == 0 or m == 0:
-            return D, J, W
+            D[:] = np.nan
+            return D, (None if J is None else np.full_like(J, np.nan)), W
         Q_all = Q[ok] @ P.T
         limit = np.broadcast_to(self.max_distance if cull is None else np.minimum(cull, self.max_distance), (K, m))
-        D[ok] = self.max_distance
-        if jacobians:
-            J[ok] = 0.0
-        known, moved_lb = self._known, None
-        if known is not None and known[0].shape == (K, Q_all.shape[1]):   # the last batch's bounds, moved since
-            with np.errstate(invalid="ignore", over="ignore"):
-                moved_lb = known[1][ok] - np.abs(Q_all - known[0][ok]) @ self._rate.T   # no bound (inf): a huge one
+        moved_lb = None
+        for Qk, lbk in self._known or []:   # the last batches' bounds, moved since: the largest
+            if Qk.shape == (K, Q_all.shape[1]):
+                with np.errstate(invalid="ignore", over="ignore"):   # no bound (inf): a huge one
+                    b = ((lbk - np.abs(Q_all - Qk) @ self._rate.T) if ok.size == K
+                         else lbk[ok] - np.abs(Q_all - Qk[ok]) @ self._rate.T)
+                moved_lb = b if moved_lb is None else np.fmax(moved_lb, b)
         # the rows where some pair may come within the limit: their frames, their geometric bounds, their queries
         S = (np.arange(len(ok)) if moved_lb is None
              else np.flatnonzero(~np.all(moved_lb >= limit[ok], axis=1)))
         sub, Qp = ok[S], Q_all[S]
+        kept: dict = {"args": (None, None)}   # the frames' bodies and rows, their arrays, their dictionary
+
+        def frames_of():   # the dictionary where asked (the compiled queries read the arrays)
+            if "frames" not in kept:
+                a = kept.get("arrays")
+                kept["frames"] = self._frames(Qp, *kept["args"]) if a is None else self._frames_of(a, *Qp.shape)
+            return kept["frames"]
+
         if moved_lb is None:
-            frames = self._frames(Qp)
-            lb = self.lower_bounds(frames, len(S))
+            kept["arrays"] = self._frame_arrays(Qp)
+            lb = self.lower_bounds(frames_of(), len(S))
         else:   # and of those, the pairs that may: their bodies' frames there and their geometric bounds
             need = ~(moved_lb[S] >= limit[sub])
             cols = np.flatnonzero(need.any(axis=0))
-            rows: dict[str, np.ndarray] = {}
-            for p in cols:
-                for g in self.pairs[p]:
-                    b = w.body_of[g]
-                    if b != "world":
-                        rows[b] = rows[b] | need[:, p] if b in rows else need[:, p]
-            frames = self._frames(Qp, [b for b in self._bodies if b in rows],
-                                  {b: np.flatnonzero(r) for b, r in rows.items()})
+            at = need[:, cols].astype(float) @ self._pair_body[cols]   # (rows, bodies): pairs needing the body
+            bodies = [b for i, b in enumerate(self._bodies) if at[:, i].any()]
+            kept["arrays"] = self._frame_arrays(Qp, bodies, row_index=np.flatnonzero(at.any(axis=1)))
+            if kept["arrays"] is None:
+                kept["args"] = (bodies, {b: np.flatnonzero(at[:, i]) for i, b in enumerate(self._bodies) if b in bodies})
             lb = moved_lb[S].copy()
             # a pair GJK measures is queried where the motion bound does not settle it (a geometric bound
             # costs about what its query does); the others' geometric bounds first
             geo = cols[~self._gjk_pair[cols]] if self.compiled else cols
             if geo.size:
                 with np.errstate(invalid="ignore"):
-                    lb[:, geo] = np.fmax(self.lower_bounds(frames, len(S), geo), lb[:, geo])
+                    lb[:, geo] = np.fmax(self.lower_bounds(frames_of(), len(S), geo), lb[:, geo])
         near_all = lb < limit[sub]
-        tt, pp, dist, nrm, pa, pb, exact = self._query(near_all, Qp, frames, limit[sub])
+        tt, pp, dist, nrm, pa, pb, exact, done = self._query(near_all, Qp, frames_of, kept, limit[sub], jacobians)
         known_lb = np.full((K, m), np.nan)
         if moved_lb is not None:
             known_lb[ok] = moved_lb
@@ -1113,59 +1208,82 @@ class SignedDistances:
         known_lb[sub[exact[0]], exact[1]] = exact[2]
         Qk = np.full((K, Q_all.shape[1]), np.nan)
         Qk[ok] = Q_all
-        self._known = (Qk, known_lb)
+        self._known = [(Qk, known_lb), *(self._known or [])[:KNOWN_KEPT - 1]]
         self.queries += len(exact[2])
         if not len(tt):
             return D, J, W
         D[sub[tt], pp] = dist
-        O, R, Jo, Je = self._stacked(frames, len(sub), Qp.shape[1])
-        Jd = 0.0
-        for side, (slots, pts) in enumerate(((self._ia[pp], pa), (self._ib[pp], pb))):
-            p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
-            b = self._body_index[slots]
-            W[sub[tt], pp, side] = O[b, tt] + np.einsum("kij,kj->ki", R[b, tt], p_B)
-            if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
-                nJ = np.einsum("kc,kcm->km", nrm, Jo[b, tt]) + np.einsum("ki,kc,kicm->km", p_B, nrm, Je[b, tt])
-                Jd = Jd + (nJ if side == 0 else -nJ)
+        Jd = np.zeros((len(tt), Qp.shape[1])) if jacobians else None
+        py = np.arange(len(tt))
+        if done is not None:   # the compiled queries' witness points and gradient rows
+            W[sub[tt[done[0]]], pp[done[0]]] = done[1][done[0]]
+            if jacobians:
+                Jd[done[0]] = done[2][done[0]]
+            py = np.flatnonzero(~done[0])
+        if len(py):   # Drake's: from the frames here
+            O, R, Jo, Je = self._stacked(frames_of(), len(sub), Qp.shape[1])
+            t2, p2, jd = tt[py], pp[py], 0.0
+            for side, (slots, pts) in enumerate(((self._ia[p2], pa[py]), (self._ib[p2], pb[py]))):
+                p_B = np.einsum("kij,kj->ki", self._R_BG[slots], pts) + self._p_BG[slots]   # in the body's frame
+                b = self._body_index[slots]
+                W[sub[t2], p2, side] = O[b, t2] + np.einsum("kij,kj->ki", R[b, t2], p_B)
+                if jacobians:   # n . J(p_B), J(p_B) = J_o + sum_i p_B[i] (J_e[i] - J_o)
+                    nJ = (np.einsum("kc,kcm->km", nrm[py], Jo[b, t2])
+                          + np.einsum("ki,kc,kicm->km", p_B, nrm[py], Je[b, t2]))
+                    jd = jd + (nJ if side == 0 else -nJ)
+            if jacobians:
+                Jd[py] = jd
         if jacobians:
             J[sub[tt], pp] = Jd @ P
         return D, J, W
 
-    def _query(self, near_all: np.ndarray, Qp: np.ndarray, frames: dict, limit: np.ndarray):
+    def _query(self, near_all: np.ndarray, Qp: np.ndarray, frames_of, kept: dict, limit: np.ndarray,
+               jacobians: bool = True):
         """The pairs ``near_all (K, m)`` queried at postures ``Qp``: those with a convex mesh by :class:`GJKShapes`
         (where it converges with the cores apart; stopped where a separating plane puts them ``limit (K, m)``
-        apart), the rest (and those) by Drake's ``ComputeSignedDistancePairClosestPoints``. Returns the pairs
+        apart), the rest (and those) by Drake's ``ComputeSignedDistancePairClosestPoints``; the frames from
+        ``kept["arrays"]`` (:meth:`_frame_arrays`) or ``frames_of()`` (:meth:`_frames`). Returns the pairs
         within ``max_distance`` (row, pair, distance, normal from B to A, witness points in the geometries'
-        frames) and every query's (rows, pairs, distances or the separating plane's lower bound)."""
+        frames), every query's (rows, pairs, distances or the separating plane's lower bound) and, for the
+        returned pairs, which the compiled queries finished with their world witness points ``(n, 2, 3)`` and
+        gradient rows on plant positions (None without ``jacobians``); None where none were compiled."""
         w = self.world
         tq, pq = np.nonzero(near_all)
         drake, culled = np.ones(len(tq), bool), np.zeros(len(tq), bool)
         dist, nrm, pa, pb = np.full(len(tq), np.nan), np.zeros((len(tq), 3)), np.zeros((len(tq), 3)), np.zeros((len(tq), 3))
+        compiled = None
         if self.compiled and len(tq):
             g = np.flatnonzero(self._gjk_pair[pq])
             if g.size:
                 if self._gjk_shapes is None:
                     self._gjk_shapes = GJKShapes([w.shapes_by_name.get(n) for n in self._names])
-                nb = len(self._bodies)
-                O, R = np.zeros((nb + 1, len(Qp), 3)), np.broadcast_to(np.eye(3), (nb + 1, len(Qp), 3, 3)).copy()
-                for i, body in enumerate(self._bodies):
-                    if body in frames:
-                        O[i], R[i] = frames[body][:2]
-                t, sa, sb = tq[g], self._ia[pq[g]], self._ib[pq[g]]
-                ba, bb = self._body_index[sa], self._body_index[sb]
-                RA, RB = R[ba, t] @ self._R_BG[sa], R[bb, t] @ self._R_BG[sb]
-                pA = O[ba, t] + np.einsum("kij,kj->ki", R[ba, t], self._p_BG[sa])
-                pB = O[bb, t] + np.einsum("kij,kj->ki", R[bb, t], self._p_BG[sb])
-                d, wa, wb, n, status = self._gjk_shapes.distances(sa, sb, RA, pA, RB, pB, limit[tq[g], pq[g]],
-                                                                  pq[g], self._hints)
-                done = g[status == 0]
-                dist[done], pa[done], pb[done], nrm[done] = (x[status == 0] for x in (d, wa, wb, n))
+                arrays = kept.get("arrays")
+                if arrays is None:
+                    arrays = self._arrays_of(frames_of(), *Qp.shape)
+                names, fr, Jf, rowmap = arrays
+                gbody = self._gbody.get(tuple(names))
+                if gbody is None:
+                    col = {b: i for i, b in enumerate(names)}
+                    gbody = self._gbody[tuple(names)] = np.array(
+                        [-1 if w.body_of[n] == "world" else col.get(w.body_of[n], len(names)) for n in self._names],
+                        np.int64)
+                d, Wc, n, Jc, status = self._gjk_shapes.frames_distances(
+                    tq[g], pq[g], self._ia, self._ib, gbody, self._R_BG, self._p_BG, rowmap, fr,
+                    Jf if jacobians else None, limit[tq[g], pq[g]], self._hints)
+                ok = status == 0
+                compiled = np.zeros(len(tq), bool), np.full((len(tq), 2, 3), np.nan), (
+                    np.zeros((len(tq), Qp.shape[1])) if jacobians else None)
+                done = g[ok]
+                dist[done], nrm[done] = d[ok], n[ok]
+                compiled[0][done], compiled[1][done] = True, Wc[ok]
+                if jacobians:
+                    compiled[2][done] = Jc[ok]
                 dist[g[status == 3]] = d[status == 3]
                 culled[g[status == 3]] = True
-                drake[g[(status == 0) | (status == 3)]] = False
-        port = w.scene_graph.get_query_output_port()
-        last = -1
-        for i in np.flatnonzero(drake):
+                drake[g[ok | (status == 3)]] = False
+        handed, last = np.flatnonzero(drake), -1
+        port = w.scene_graph.get_query_output_port() if handed.size else None
+        for i in handed:
             t = tq[i]
             if t != last:
                 w.set_positions(Qp[t])
@@ -1173,7 +1291,8 @@ class SignedDistances:
             r = qo.ComputeSignedDistancePairClosestPoints(*self._gid[pq[i]])
             dist[i], nrm[i], pa[i], pb[i] = r.distance, r.nhat_BA_W, r.p_ACa, r.p_BCb
         live = (dist < self.max_distance) & ~culled
-        return tq[live], pq[live], dist[live], nrm[live], pa[live], pb[live], (tq, pq, dist)
+        done_live = None if compiled is None else tuple(None if x is None else x[live] for x in compiled)
+        return tq[live], pq[live], dist[live], nrm[live], pa[live], pb[live], (tq, pq, dist), done_live
 
     def lower_bounds(self, frames: dict, K: int, cols=None) -> np.ndarray:
         """Lower bounds ``(K, m)`` (m) of the pairs' distances (of pairs ``cols`` only: ``(K, len(cols))``) at the ``K``

@@ -15,6 +15,7 @@ from raico.plants.numdiff import numdiff_jacobian
 from raico.plants.scene import GJKShapes, Shape, gjk_library, hull_graph, obj_text, point_distance, rigid_transform
 from tests.plants.scene_robot import SCENE, START, arm_file
 from tests.plants.test_model_file import problem_text
+from tests.tolerance import REL
 
 pytestmark = [pytest.mark.compiled, pytest.mark.numerics]
 
@@ -72,20 +73,20 @@ def _random_pose(rng, spread: float) -> tuple[np.ndarray, np.ndarray]:
 
 def test_hull_support_by_climbing_is_the_largest_vertex():
     """From any start vertex, the climb along the hull's edges ends at a vertex as far along the direction as
-    the farthest of all: exact (the same vertices' products), so compared to rounding (1e-15 m)."""
+    the farthest of all: exact (the same vertices' products), so compared to rounding (``REL`` of the products)."""
     G = GJKShapes(SHAPES)
     V = hull_graph(np.asarray(SHAPES[0].vertices))[0]
     rng = np.random.default_rng(1)
     for _ in range(500):
         d = rng.standard_normal(3)
         s = G.support(0, d, hint=int(rng.integers(len(V))))
-        assert s @ d >= (V @ d).max() - 1e-15
+        assert s @ d >= (V @ d).max() - REL * np.abs(V @ d).max()
         assert np.min(np.abs(V - s).sum(axis=1)) == 0.0   # a hull vertex
 
 
 def test_every_distance_is_certified_by_a_separating_plane():
     """For every pair of kinds at random poses: the witness points lie on their shapes (1e-9 m), their distance
-    is the one reported (rounding: 1e-12 m), and the plane normal to the reported normal separates the
+    is the one reported (rounding: ``REL`` of 1 m), and the plane normal to the reported normal separates the
     shapes by no less (GJK's stop: a relative 1e-12 of the distance, plus rounding: 1e-9 m) — the distance
     is then the exact one to 1e-9 m. Pairs reported as overlapping or beyond the limit are checked as such; a
     stop short of that (a cylinder's curved side, rounding) is handed on, rarely."""
@@ -115,8 +116,8 @@ def test_every_distance_is_certified_by_a_separating_plane():
                     continue
                 xa, xb = RA @ wa[0] + pA, RB @ wb[0] + pB
                 assert _inside(sa, wa[0]) <= 1e-9 and _inside(sb, wb[0]) <= 1e-9
-                assert abs(np.linalg.norm(xa - xb) - d[0]) <= 1e-12
-                assert np.linalg.norm(n[0]) == pytest.approx(1.0, abs=1e-12)
+                assert abs(np.linalg.norm(xa - xb) - d[0]) <= REL
+                assert np.linalg.norm(n[0]) == pytest.approx(1.0, abs=REL)
                 plane = n[0] @ _support(sa, RA, pA, -n[0]) - n[0] @ _support(sb, RB, pB, n[0])
                 assert plane >= d[0] - 1e-9, (sa.kind, sb.kind, d[0], plane)
                 checked += 1
@@ -201,7 +202,7 @@ def test_a_batch_asked_again_is_the_kept_one_and_a_larger_cull_queries_anew(tmp_
 
 def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
     """``body_frames_batch`` (the kinematics once per row) against ``frame_points_batch`` body by body: the same
-    arithmetic, so equal to rounding (1e-14)."""
+    arithmetic, so equal to rounding (``REL`` of the frames' 1 m scale)."""
     robot, world, tm = _mesh_world(tmp_path)
     k = tm.tree_kernels()
     assert k is not None
@@ -211,8 +212,8 @@ def test_every_bodys_frame_in_one_batch_is_each_bodys_own(tmp_path):
     pts = np.vstack([np.zeros(3), np.eye(3)])
     for i, b in enumerate(bodies):
         p1, J1 = k.frame_points_batch(Qp, b, np.eye(3), np.zeros(3), pts)
-        np.testing.assert_allclose(pos[:, i], p1, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(pos[:, i], p1, rtol=0, atol=REL)
+        np.testing.assert_allclose(J[:, i], J1, rtol=0, atol=REL)
     with pytest.raises(ValueError, match="out of range"):
         k.body_frames_batch(Qp, [len(k.tree.names)])
 
@@ -231,3 +232,55 @@ def test_pairs_gjk_hands_on_are_drakes(tmp_path, monkeypatch):
     D1, J1 = tm.values_and_jacobians(Q)
     assert np.any(D0 < 1.0)
     assert np.array_equal(D0, D1) and np.array_equal(J0, J1)
+
+
+@pytest.mark.parametrize("carried", [False, True])
+def test_poses_witness_points_and_gradient_rows_in_c_are_the_python_routes(tmp_path, carried):
+    """``GJKShapes.frames_distances`` (the geometries' poses from the bodies' frames, the witness points in the
+    world and ``n . (J_A - J_B)`` in C) against ``distances`` on poses built in numpy with the witness points and
+    rows assembled as before: the same GJK from the same start, so equal to rounding (the frames' scale, 1 m,
+    times ``REL``), statuses alike; a row without frames and a body column out of range are refused or handed on.
+    ``carried``: the mesh on the first body instead of the world (both sides moving, as the robot against itself)."""
+    robot, world, tm = _mesh_world(tmp_path)
+    Q = robot.default_q + 0.4 * np.random.default_rng(9).standard_normal((6, robot.n_q))
+    Qp = Q @ robot.P.T
+    K, m = Qp.shape
+    names, fr, Jf, rowmap = tm._frame_arrays(Qp)
+    frames = tm._frames_of((names, fr, Jf, rowmap), K, m)
+    O, R, Jo, Je = tm._stacked(frames, K, m)
+    G = GJKShapes([world.shapes_by_name.get(n) for n in tm._names])
+    tq, pq = np.nonzero(np.ones((K, tm.dim), bool))
+    sa, sb = tm._ia[pq], tm._ib[pq]
+    body_index = np.where(tm._body_index == len(tm._bodies), 0, tm._body_index) if carried else tm._body_index
+    ba, bb = body_index[sa], body_index[sb]
+    RA, RB = R[ba, tq] @ tm._R_BG[sa], R[bb, tq] @ tm._R_BG[sb]
+    pA = O[ba, tq] + np.einsum("kij,kj->ki", R[ba, tq], tm._p_BG[sa])
+    pB = O[bb, tq] + np.einsum("kij,kj->ki", R[bb, tq], tm._p_BG[sb])
+    limit = np.where(np.arange(len(tq)) % 3 == 0, 0.05, np.inf)
+    d0, wa, wb, n0, s0 = G.distances(sa, sb, RA, pA, RB, pB, limit, pq, np.zeros((tm.dim, 2), np.int64))
+    col = {b: i for i, b in enumerate(names)}
+    gbody = np.array([(0 if carried else -1) if world.body_of[n] == "world" else col[world.body_of[n]]
+                      for n in tm._names])
+    d1, W1, n1, J1, s1 = G.frames_distances(tq, pq, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, rowmap, fr, Jf,
+                                            limit, np.zeros((tm.dim, 2), np.int64))
+    assert np.array_equal(s0, s1) and np.sum(s0 == 0) >= 20 and np.sum(s0 == 3) >= 3
+    done = (s0 == 0) | (s0 == 3)
+    np.testing.assert_allclose(d1[done], d0[done], rtol=0, atol=REL)
+    ok = s0 == 0
+    np.testing.assert_allclose(n1[ok], n0[ok], rtol=0, atol=REL)
+    Jd = 0.0
+    for side, (slots, pts) in enumerate(((sa, wa), (sb, wb))):
+        p_B = np.einsum("kij,kj->ki", tm._R_BG[slots], pts) + tm._p_BG[slots]
+        b = body_index[slots]
+        Wp = O[b, tq] + np.einsum("kij,kj->ki", R[b, tq], p_B)
+        np.testing.assert_allclose(W1[ok, side], Wp[ok], rtol=0, atol=REL)
+        nJ = np.einsum("kc,kcm->km", n0, Jo[b, tq]) + np.einsum("ki,kc,kicm->km", p_B, n0, Je[b, tq])
+        Jd = Jd + (nJ if side == 0 else -nJ)
+    np.testing.assert_allclose(J1[ok], Jd[ok], rtol=0, atol=REL)
+    none = np.full(K, -1, np.int64)   # no frames at any row: handed on (status 2), nothing read
+    s2 = G.frames_distances(tq, pq, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, none, fr, Jf, limit,
+                            np.zeros((tm.dim, 2), np.int64))[4]
+    assert np.all(s2 == 2)
+    with pytest.raises(ValueError, match="out of range"):
+        G.frames_distances(tq, pq + tm.dim, tm._ia, tm._ib, gbody, tm._R_BG, tm._p_BG, rowmap, fr, Jf, limit,
+                           np.zeros((tm.dim, 2), np.int64))
