@@ -141,6 +141,9 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    if cfg.window_lead + 2 > horizon:
+        raise ValueError(f"--window-lead {cfg.window_lead}: the stabilizer reads three of the window's states from "
+                         f"it on, past the horizon's {horizon} steps")
     mpc = MPC(problem, horizon, cfg.solver, None, iterations=cfg.iterations_per_tick, budget=dt, ticks=problem.T,
               keep_predictions=True, receding_end=cfg.receding_end("fixed"))
     O = np.asarray(plan["O"], float)
@@ -239,7 +242,7 @@ class _FloatingRun:
         controller whose window the stabilizer tracks (ticked at every planning step), else None."""
         from pydrake.systems.analysis import Simulator
 
-        self.free, self.X_plan, self.dt, self.mpc = free, X_plan, dt, mpc
+        self.free, self.X_plan, self.dt, self.mpc, self.lead = free, X_plan, dt, mpc, cfg.window_lead
         plant, fixed, n = free.plant, free.fixed, free.fixed.n_q
         self.wbc = cfg.controller in ("wbc", "mpc")
         self.stab = None
@@ -310,7 +313,7 @@ class _FloatingRun:
             q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
             if self.mpc is not None:  # the window from the measured state, the stabilizer's reference from step k on
                 self.mpc.tick(log.X[k])
-                self.stab.reference.follow(k, self.mpc.X)
+                self.stab.reference.follow(k, self.mpc.X[self.lead:])
             try:
                 if self.wbc:  # the stabilizer updates itself (its own period): one advance per planning step
                     self.sim.AdvanceTo((k + 1) * dt)
