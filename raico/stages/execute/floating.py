@@ -103,8 +103,13 @@ def execute_floating(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, p
     wall = time.perf_counter() - wall
     if run.stab is not None:
         _stabilizer_commands(run.stab, applied, asked, dt, step)
+    aim = None
+    if mpc is not None:  # an MPC run is judged against the controller's own predictions, as on a fixed base
+        from raico.stages.execute.fixed import mpc_aim
+
+        aim = mpc_aim(mpc, X_plan, 1)
     arrays, metrics, tau, at_limit = _floating_results(free, problem, plan, X_plan, log, applied, asked, dt, tilt,
-                                                    stance, lift_from, run.stab)
+                                                    stance, lift_from, run.stab, aim)
     extra = {}
     if mpc is not None:
         from raico.stages.execute.fixed import _mpc_metrics
@@ -350,10 +355,12 @@ def _stabilizer_commands(stab, applied: np.ndarray, asked: np.ndarray, dt: float
 
 
 def _floating_results(free, problem, plan: dict, X_plan: np.ndarray, log: _FloatingLog, applied: np.ndarray,
-                      asked: np.ndarray, dt: float, tilt: float, stance: dict, lift_from: int | None, stab
-                      ) -> tuple[dict, dict, np.ndarray, np.ndarray]:
+                      asked: np.ndarray, dt: float, tilt: float, stance: dict, lift_from: int | None, stab,
+                      X_track: np.ndarray | None = None) -> tuple[dict, dict, np.ndarray, np.ndarray]:
     """The floating robot's arrays of the rollout, the execution's metrics, the applied torques in planning
-    coordinates ``tau (T, n_q)`` N m and the effort-limit flags ``(T, n_q)``."""
+    coordinates ``tau (T, n_q)`` N m and the effort-limit flags ``(T, n_q)``. ``X_track (T+1, 2 n_q)``: a
+    receding-horizon controller's predictions (``mpc_aim``), what ``tracking-lost`` is judged against (else
+    the joint reference ``X_plan``)."""
     from raico.plants.floating import MAX_TIP
 
     fixed, n = free.fixed, free.fixed.n_q
@@ -383,7 +390,7 @@ def _floating_results(free, problem, plan: dict, X_plan: np.ndarray, log: _Float
         arrays["wbc_corner_force"] = np.array([e[2] for e in stab.log]).reshape(-1, 2 * len(free.spec.sole), 3)
     metrics = execution_metrics(problem, log.X, X_plan, tau, fixed, dt, at_limit,
                                 floating={**arrays, "torso_height": log.torso_p[:, 2]},
-                                effort_clamped=np.any(np.abs(applied) >= at_effort, axis=1))
+                                effort_clamped=np.any(np.abs(applied) >= at_effort, axis=1), X_track=X_track)
     metrics["start_tilt"] = tilt
     # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
