@@ -226,7 +226,7 @@ def test_the_nao_scenario_file_expands(tmp_path):
     res = CliRunner().invoke(app, ["exp", "run", str(root / "experiments" / "nao_push_mpc.toml"), "--dry-run",
                                    "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "8 variants x 10 seeds = 80 runs" in res.output
+    assert "10 variants x 10 seeds = 100 runs" in res.output
 
 
 def test_the_cog_via_point_margins_pass_over_a_state_term(tmp_path):
