@@ -114,6 +114,41 @@ def test_the_window_tracks_the_plan_step_by_step():
     assert np.all(np.isfinite(out.mpc["mpc_predicted"]))
 
 
+@pytest.mark.slow
+@pytest.mark.numerics
+def test_the_stabilizer_follows_the_window_ahead_and_the_run_is_judged_against_its_predictions(monkeypatch):
+    from raico.stages.execute import floating
+    from raico.stages.execute.wbc import Reference
+
+    nao = shared_robot("nao")
+    followed: list[tuple[int, np.ndarray]] = []
+    judged: dict = {}
+    follow, metrics = Reference.follow, floating.execution_metrics
+
+    def spy_follow(self, k, X):
+        followed.append((k, np.array(X[0])))
+        follow(self, k, X)
+
+    def spy_metrics(*args, **kw):
+        judged["X_track"] = kw.get("X_track")
+        return metrics(*args, **kw)
+
+    monkeypatch.setattr(Reference, "follow", spy_follow)
+    monkeypatch.setattr(floating, "execution_metrics", spy_metrics)
+    cfg = ExecuteConfig(plan="hold", controller="mpc", horizon=H, window_lead=2)
+    out = execute(cfg, desc_for("nao", nao.default_q, T, DT), pseudo_plan(np.tile(nao.default_q, (T + 1, 1)), DT),
+                  planning=nao_problem)
+    pred = out.mpc["mpc_predicted"]
+    # the stabilizer's reference at the tick's step: the window's state two steps ahead (float32 windows)
+    assert [k for k, _ in followed] == list(range(T))
+    eps = float(np.finfo(np.float32).eps)
+    assert_close(np.array([x for _, x in followed]), pred[:, 2], rel=eps)
+    # tracking-lost judged against each step's prediction from the tick before (the window's second state)
+    aim = judged["X_track"]
+    assert aim.shape == out.X.shape and np.array_equal(aim[0], out.X_plan[0])
+    assert_close(aim[1:], pred[:, 1], rel=eps)
+
+
 @pytest.mark.numerics
 def test_the_reference_follows_a_window():
     from raico.plants.floating import shared_floating
@@ -159,6 +194,8 @@ def nao_plan(tmp_path_factory):
     (("--controller", "mpc", "--window-damping", "nan"), "--window-damping must be a finite weight >= 0"),
     (("--controller", "wbc", "--window-damping", 0.1), "--window-damping is an option of --controller mpc"),
     (("--controller", "mpc", "--window-target", "nowhere"), "--window-target must be one of start, plan"),
+    (("--controller", "mpc", "--window-lead", -1), "--window-lead must be 0 or a number of planning steps"),
+    (("--controller", "mpc", "--horizon", 5, "--window-lead", 4), "past the horizon's 5 steps"),
 ])
 def test_bad_input_on_the_floating_robot(nao_plan, args, message):
     key, root = nao_plan
@@ -189,7 +226,7 @@ def test_the_nao_scenario_file_expands(tmp_path):
     res = CliRunner().invoke(app, ["exp", "run", str(root / "experiments" / "nao_push_mpc.toml"), "--dry-run",
                                    "--artifacts", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "8 variants x 10 seeds = 80 runs" in res.output
+    assert "10 variants x 10 seeds = 100 runs" in res.output
 
 
 def test_the_cog_via_point_margins_pass_over_a_state_term(tmp_path):

@@ -67,6 +67,9 @@ class ExecuteConfig(StageConfig):
             "window_target": "--controller mpc on a floating robot: what --window-posture and --window-damping hold: "
                              "start (the standing start at rest, default) or plan (the plan's joint positions and "
                              "velocities at each window step's absolute time, moving with the window).",
+            "window_lead": "--controller mpc on a floating robot: the stabilizer's joint and CoG reference at the "
+                           "tick's step from the window's state that many steps ahead (0, default: the window's "
+                           "first state, the measured one; docs/mpc.md).",
             "push": "Any controller: a scripted push FRAME:NEWTONS:START:DURATION "
                     "(a force at the frame's origin on its body, NEWTONS along the world x axis or FX,FY,FZ; START "
                     "and DURATION in s); repeatable."}
@@ -88,6 +91,7 @@ class ExecuteConfig(StageConfig):
     window_posture: float = 0.0  # --controller mpc, floating robot: the window's posture term's weight (1/rad^2)
     window_damping: float = 0.0  # --controller mpc, floating robot: the window's joint-velocity term's weight
     window_target: str = "start"  # --controller mpc, floating robot: WINDOW_TARGETS
+    window_lead: int = 0  # --controller mpc, floating robot: the stabilizer follows the window from this state on
     push: tuple[str, ...] = ()  # scripted pushes FRAME:NEWTONS:START:DURATION
     online_every: int = 0  # --controller mpc, learned sparse model: update it every K planning steps (0: never)
 
@@ -114,7 +118,7 @@ class ExecuteConfig(StageConfig):
             if self.rti:
                 raise ValueError("--rti: the preparation / feedback split runs on a fixed-base robot's MPC")
             return
-        for name in ("window_posture", "window_damping", "window_target"):
+        for name in ("window_posture", "window_damping", "window_target", "window_lead"):
             if getattr(self, name) != ExecuteConfig.__dataclass_fields__[name].default:
                 raise ValueError(f"--{name.replace('_', '-')} is for a floating robot's MPC (above its stabilizer)")
         plant = plan.config.get("plant")
@@ -159,7 +163,7 @@ class ExecuteConfig(StageConfig):
         if self.controller != "mpc":
             given = [n for n in ("period", "horizon", "iterations_per_tick", "solver", "rti",
                                  "final_target", "window_posture", "window_damping", "window_target",
-                                 "online_every")
+                                 "window_lead", "online_every")
                      if getattr(self, n) != d[n].default]
             if given:
                 raise ValueError(f"--{given[0].replace('_', '-')} is an option of --controller mpc")
@@ -183,6 +187,8 @@ class ExecuteConfig(StageConfig):
             w = getattr(self, name)
             if not (math.isfinite(w) and w >= 0):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite weight >= 0, got {w}")
+        if self.window_lead < 0:
+            raise ValueError(f"--window-lead must be 0 or a number of planning steps, got {self.window_lead}")
         if self.window_target not in WINDOW_TARGETS:
             raise ValueError(f"--window-target must be one of {', '.join(WINDOW_TARGETS)}, got {self.window_target!r}")
         if self.open_loop:

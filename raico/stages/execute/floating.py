@@ -103,8 +103,13 @@ def execute_floating(cfg: ExecuteConfig, desc: dict, plan: dict, problem, rng, p
     wall = time.perf_counter() - wall
     if run.stab is not None:
         _stabilizer_commands(run.stab, applied, asked, dt, step)
+    aim = None
+    if mpc is not None:  # an MPC run is judged against the controller's own predictions, as on a fixed base
+        from raico.stages.execute.fixed import mpc_aim
+
+        aim = mpc_aim(mpc, X_plan, 1)
     arrays, metrics, tau, at_limit = _floating_results(free, problem, plan, X_plan, log, applied, asked, dt, tilt,
-                                                    stance, lift_from, run.stab)
+                                                    stance, lift_from, run.stab, aim)
     extra = {}
     if mpc is not None:
         from raico.stages.execute.fixed import _mpc_metrics
@@ -141,6 +146,9 @@ def _floating_mpc(cfg: ExecuteConfig, plan: dict, X_plan: np.ndarray, q_start: n
     horizon = cfg.mpc_horizon(problem.T)
     if horizon > problem.T:
         raise ValueError(f"--horizon {horizon} is longer than the problem's {problem.T} steps")
+    if cfg.window_lead + 2 > horizon:
+        raise ValueError(f"--window-lead {cfg.window_lead}: the stabilizer reads three of the window's states from "
+                         f"it on, past the horizon's {horizon} steps")
     mpc = MPC(problem, horizon, cfg.solver, None, iterations=cfg.iterations_per_tick, budget=dt, ticks=problem.T,
               keep_predictions=True, receding_end=cfg.receding_end("fixed"))
     O = np.asarray(plan["O"], float)
@@ -239,7 +247,7 @@ class _FloatingRun:
         controller whose window the stabilizer tracks (ticked at every planning step), else None."""
         from pydrake.systems.analysis import Simulator
 
-        self.free, self.X_plan, self.dt, self.mpc = free, X_plan, dt, mpc
+        self.free, self.X_plan, self.dt, self.mpc, self.lead = free, X_plan, dt, mpc, cfg.window_lead
         plant, fixed, n = free.plant, free.fixed, free.fixed.n_q
         self.wbc = cfg.controller in ("wbc", "mpc")
         self.stab = None
@@ -310,7 +318,7 @@ class _FloatingRun:
             q_a, q_b, v_b = X_plan[k, :n], X_plan[k + 1, :n], X_plan[k + 1, n:]
             if self.mpc is not None:  # the window from the measured state, the stabilizer's reference from step k on
                 self.mpc.tick(log.X[k])
-                self.stab.reference.follow(k, self.mpc.X)
+                self.stab.reference.follow(k, self.mpc.X[self.lead:])
             try:
                 if self.wbc:  # the stabilizer updates itself (its own period): one advance per planning step
                     self.sim.AdvanceTo((k + 1) * dt)
@@ -347,10 +355,12 @@ def _stabilizer_commands(stab, applied: np.ndarray, asked: np.ndarray, dt: float
 
 
 def _floating_results(free, problem, plan: dict, X_plan: np.ndarray, log: _FloatingLog, applied: np.ndarray,
-                      asked: np.ndarray, dt: float, tilt: float, stance: dict, lift_from: int | None, stab
-                      ) -> tuple[dict, dict, np.ndarray, np.ndarray]:
+                      asked: np.ndarray, dt: float, tilt: float, stance: dict, lift_from: int | None, stab,
+                      X_track: np.ndarray | None = None) -> tuple[dict, dict, np.ndarray, np.ndarray]:
     """The floating robot's arrays of the rollout, the execution's metrics, the applied torques in planning
-    coordinates ``tau (T, n_q)`` N m and the effort-limit flags ``(T, n_q)``."""
+    coordinates ``tau (T, n_q)`` N m and the effort-limit flags ``(T, n_q)``. ``X_track (T+1, 2 n_q)``: a
+    receding-horizon controller's predictions (``mpc_aim``), what ``tracking-lost`` is judged against (else
+    the joint reference ``X_plan``)."""
     from raico.plants.floating import MAX_TIP
 
     fixed, n = free.fixed, free.fixed.n_q
@@ -380,7 +390,7 @@ def _floating_results(free, problem, plan: dict, X_plan: np.ndarray, log: _Float
         arrays["wbc_corner_force"] = np.array([e[2] for e in stab.log]).reshape(-1, 2 * len(free.spec.sole), 3)
     metrics = execution_metrics(problem, log.X, X_plan, tau, fixed, dt, at_limit,
                                 floating={**arrays, "torso_height": log.torso_p[:, 2]},
-                                effort_clamped=np.any(np.abs(applied) >= at_effort, axis=1))
+                                effort_clamped=np.any(np.abs(applied) >= at_effort, axis=1), X_track=X_track)
     metrics["start_tilt"] = tilt
     # what the reference asks that the free robot cannot give: joints past their range (the joint reference: the
     # plan, shifted by the start projection on the standing start), CoG via-points near the feet's edge
