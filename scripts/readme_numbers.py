@@ -297,6 +297,7 @@ PAGE_BLOCKS = (
     ("mpc", "mpc.md", "bench.mpc"),
     ("mpc_split", "mpc_split.md", "bench.mpc"),
     ("nao_mpc", "nao_mpc.md", "bench.nao_mpc"),
+    ("nao_mpc_lead", "nao_mpc_lead.md", "bench.nao_mpc"),
     ("mpc_learn", "mpc_learn.md", "bench.mpc_learn"),
     ("mpc_learn_grav", "mpc_learn_grav.md", "bench.mpc_learn --experiment experiments/ur5_payload_push_mpc_learn_grav.toml"),
     ("learned_tick", "learned_tick.md", "bench.learned_tick"),
