@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from raico.planning.constraints import AugmentedLagrangian, ControlBox, FunctionConstraint, StateBox, reachable_box
+from raico.plants.numdiff import numdiff_jacobian
 from tests.planning.test_aico_robust import bounded_lq, bounded_qp_optimum
 
 T, N, M = 4, 3, 2
@@ -31,6 +32,17 @@ def _set(rng: np.random.Generator) -> tuple[AugmentedLagrangian, np.ndarray, np.
     return al, X, U
 
 
+def _central(f, Z: np.ndarray, h: float = 1e-6) -> dict:
+    """Central differences of ``f`` at ``Z`` along each entry: ``{idx: (f(Z + h e) - f(Z - h e)) / 2h}``."""
+    out = {}
+    for idx in np.ndindex(Z.shape):
+        Zp, Zm = Z.copy(), Z.copy()
+        Zp[idx] += h
+        Zm[idx] -= h
+        out[idx] = (f(Zp) - f(Zm)) / (2 * h)
+    return out
+
+
 def test_the_merit_gradient_matches_finite_differences():
     """``l_x``, ``l_u`` of :meth:`AugmentedLagrangian.model` are the gradient of :meth:`value` (a sum of
     piecewise quadratics, C1: central differences with step 1e-6 have error O(1e-12 / 1e-6) away from kinks;
@@ -38,16 +50,8 @@ def test_the_merit_gradient_matches_finite_differences():
     rng = np.random.default_rng(3)
     al, X, U = _set(rng)
     lx, _, lu, _ = al.model(X, U)
-    h = 1e-6
-    for Z, g in ((X, lx), (U, lu)):
-        fd = np.zeros_like(Z)
-        for idx in np.ndindex(Z.shape):
-            Zp, Zm = Z.copy(), Z.copy()
-            Zp[idx] += h
-            Zm[idx] -= h
-            args_p = (Zp, U) if Z is X else (X, Zp)
-            args_m = (Zm, U) if Z is X else (X, Zm)
-            fd[idx] = (al.value(*args_p) - al.value(*args_m)) / (2 * h)
+    for g, f in ((lx, lambda Z: al.value(Z, U)), (lu, lambda Z: al.value(X, Z))):
+        fd = np.array(list(_central(f, X if g is lx else U).values())).reshape(g.shape)
         assert np.allclose(g, fd, atol=1e-5), np.abs(g - fd).max()
 
 
@@ -155,19 +159,12 @@ def test_the_torque_rows_derivatives_match_finite_differences():
     lu, luu = np.zeros((steps, n)), np.zeros((steps, n, n))
     lam = np.ones((steps + 1, k))
     box.add_derivatives(X, U, lam, 1.0, lx, lxx, lu, luu)
-    h = 1e-6
 
     def rows(Xa, Ua):   # the sum of every finite row per step: its gradient is l_x, l_u above
         return np.where(np.isfinite(G := box.values(Xa, Ua)), G, 0.0).sum(axis=1)
     for Z, g in ((X, lx), (U, lu)):
-        fd = np.zeros_like(Z)
-        for idx in np.ndindex(Z.shape):
-            Zp, Zm = Z.copy(), Z.copy()
-            Zp[idx] += h
-            Zm[idx] -= h
-            p = rows(Zp, U) if Z is X else rows(X, Zp)
-            m = rows(Zm, U) if Z is X else rows(X, Zm)
-            fd[idx] = (p - m)[idx[0]] / (2 * h)
+        d = _central(lambda W, Z=Z: rows(W, U) if Z is X else rows(X, W), Z)
+        fd = np.array([d[idx][idx[0]] for idx in np.ndindex(Z.shape)]).reshape(Z.shape)
         scale = max(1.0, float(np.abs(g).max()))
         assert np.allclose(g, fd, atol=1e-6 * scale, rtol=0.0), np.abs(g - fd).max()
     # the two rows of a joint are +-tau / limit - 1: their gradients cancel in the sum, so check one row
@@ -177,7 +174,7 @@ def test_the_torque_rows_derivatives_match_finite_differences():
     box.add_derivatives(X, U, one, 1.0, lx1, np.zeros_like(lxx), lu1, np.zeros_like(luu))
     for t in range(steps):
         f = lambda z, t=t: box.values(np.vstack([X[:t], z[None, :], X[t + 1:]]), U)[t, :1]  # noqa: E731
-        fd = np.array([(f(X[t] + h * e) - f(X[t] - h * e))[0] / (2 * h) for e in np.eye(2 * n)])
+        fd = numdiff_jacobian(f, X[t])[0]
         assert np.allclose(lx1[t], fd, atol=1e-6 * max(1.0, np.abs(fd).max()), rtol=0.0)
         tau = model.inverse_dynamics(X[t, :n], X[t, n:], U[t])
         assert np.isclose(box.values(X, U)[t, 0], tau[box.idx[0]] / limit[box.idx[0]] - 1.0, rtol=1e-9, atol=1e-9)
