@@ -124,6 +124,39 @@ def test_every_distance_is_certified_by_a_separating_plane():
     assert checked >= 200 and overlap >= 5 and culled >= 5 and handed <= 0.02 * checked
 
 
+def test_the_kernel_over_the_corners_of_its_shapes():
+    """The corners of ``gjk_batch``'s shapes (run under ASan/UBSan by ``make test-sanitize``): an empty batch; the
+    smallest hull (a tetrahedron, 4 vertices) and a hull of 5000 cloud points; one batch of 150 queries with shared
+    support hints equal to the same queries one at a time, each certified as above."""
+    tet = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]])
+    shapes = [Shape("tet", "world", "convex", (0,) * 6, vertices=tet, faces=np.zeros((0, 3), int)),
+              Shape("big", "world", "convex", (0,) * 6, vertices=_cloud(4, 5000), faces=np.zeros((0, 3), int)),
+              *SHAPES[1:]]
+    G = GJKShapes(shapes)
+    e = np.zeros((0, 3))
+    d, wa, wb, n, status = G.distances([], [], np.zeros((0, 3, 3)), e, np.zeros((0, 3, 3)), e)
+    assert d.shape == (0,) and wa.shape == wb.shape == n.shape == (0, 3) and status.shape == (0,)
+    rng = np.random.default_rng(7)
+    k = 150
+    ga, gb = rng.integers(0, 2, k), rng.integers(0, len(shapes), k)
+    poses = [(_random_pose(rng, 0.2), _random_pose(rng, 0.2)) for _ in range(k)]
+    RA, pA = np.array([a[0] for a, _ in poses]), np.array([a[1] for a, _ in poses])
+    RB, pB = np.array([b[0] for _, b in poses]), np.array([b[1] for _, b in poses])
+    hints = np.zeros((3, 2), np.int64)
+    batch = G.distances(ga, gb, RA, pA, RB, pB, key=np.arange(k) % 3, hints=hints)
+    for i in range(k):
+        one = G.distances(ga[i:i + 1], gb[i:i + 1], RA[i:i + 1], pA[i:i + 1], RB[i:i + 1], pB[i:i + 1])
+        assert one[4][0] == batch[4][i]
+        if batch[4][i] != 0:
+            continue
+        assert abs(one[0][0] - batch[0][i]) <= 1e-9    # GJK's stop from another start vertex: 1e-9 m
+        sa, sb = shapes[ga[i]], shapes[gb[i]]
+        assert _inside(sa, batch[1][i]) <= 1e-9 and _inside(sb, batch[2][i]) <= 1e-9
+        nn = batch[3][i]
+        plane = nn @ _support(sa, RA[i], pA[i], -nn) - nn @ _support(sb, RB[i], pB[i], nn)
+        assert plane >= batch[0][i] - 1e-9
+
+
 MESH = """
 [[scene]]
 name = "blob"

@@ -14,12 +14,12 @@ def tol(n_ops: float, cond: float) -> float:
     return max(REL, bound(n_ops, cond))
 
 
-def residual(k: int, n_points: int = 40):
+def residual(k: int, n_points: int = 40, plant: str = "arm5"):
     from raico.plants.dynamics import SubstepDynamics
     from raico.plants.learned import RESIDUAL_KEY, build_learned, example_params
     from raico.plants.robots import shared_robot
 
-    robot = shared_robot("arm5")
+    robot = shared_robot(plant)
     params = {**example_params(robot, n_points=n_points), RESIDUAL_KEY: np.array(1.0)}
     inner = build_learned(robot, 0.01 / k, params)
     return robot, inner, SubstepDynamics(inner, k)
@@ -57,6 +57,35 @@ def test_the_compiled_step_and_linearization_equal_the_python_ones(k):
             x1 = type(inner).step(inner, x1, u)                # SemiImplicitEuler with base qddot + GP mean
         assert_close(kern.step(x, u), x1, rel=tol(n_ops, 10.0))
         assert_close(A @ x + a + B @ u, x1, rel=tol(n_ops, 10.0))
+
+
+@pytest.mark.numerics
+@pytest.mark.compiled
+@pytest.mark.parametrize("plant, n_points, k", [("pendulum", 1, 1), ("cartpole", 40, 3), ("nao", 1, 1), ("nao", 40, 2)])
+def test_the_kernel_over_the_corners_of_its_shapes(plant, n_points, k):
+    """The corners of ``residual_step.c``'s shapes (run under ASan/UBSan by ``make test-sanitize``): one joint and
+    one training point, a prismatic joint, the largest plant (25 joints: 75 GP inputs, 25 outputs) with one and 40
+    points; its step, linearization and controller rollout against the Python path."""
+    robot, inner, dyn = residual(k, n_points, plant)
+    kern = inner.substep_kernel(k)
+    assert kern is not None
+    X, U = points(robot, 2, seed=1)
+    n_ops = max(n_points, 1) * k * 3 * robot.n_q
+    for x, u in zip(X, U):
+        x1 = x
+        for _ in range(k):
+            x1 = type(inner).step(inner, x1, u)
+        assert_close(kern.step(x, u), x1, rel=tol(n_ops, 10.0))
+        A, a, B = kern.linearize(x, u)
+        assert A.shape == (2 * robot.n_q, 2 * robot.n_q) and B.shape == (2 * robot.n_q, robot.n_q)
+        assert_close(A @ x + a + B @ u, x1, rel=tol(n_ops, 10.0))
+    T, n, m = 3, 2 * robot.n_q, robot.n_q
+    rng = np.random.default_rng(4)
+    o, O = 0.1 * rng.standard_normal((T, m)), 0.01 * rng.standard_normal((T, m, n))
+    Xr, Ur = dyn.controller_rollout(X[0], o, O)
+    X0, U0 = _python_rollout(dyn, X[0], o, O)
+    assert_close(Xr, X0, rel=tol(n_ops * T, 100.0))
+    assert_close(Ur, U0, rel=tol(n_ops * T, 100.0))
 
 
 @pytest.mark.numerics
