@@ -1,6 +1,6 @@
 """What the learning benches (``bench.learn_any``, ``bench.payload``, ``bench.cartpole_pilco``) share: their
 command line (``--artifacts``, ``--render``), the machine's load as the pages print it, and the axes of a
-per-episode plot."""
+per-episode plot, and how they read an experiment file's base and points."""
 
 from __future__ import annotations
 
@@ -35,3 +35,14 @@ def episode_axes(axes, fontsize: float = 8) -> None:
         a.yaxis.set_major_formatter(FormatStrFormatter("%g"))
         a.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
         a.legend(fontsize=fontsize)
+
+
+def experiment_points(path: Path) -> tuple[dict, list[dict]]:
+    """The experiment file's ``[base]`` (its problem's path resolved against the file) and its ``[[point]]`` tables
+    (label and overrides)."""
+    import tomllib
+
+    doc = tomllib.loads(path.read_text())
+    base = dict(doc["base"])
+    base["problem"] = str((path.parent / base["problem"]).resolve())
+    return base, [dict(p) for p in doc["point"]]

@@ -38,13 +38,10 @@ OPTIMUM_ITERATIONS = (50, 100, 150, 200)  # the cold plans of the problem on the
 
 
 def variants() -> tuple[dict, list[dict]]:
-    """The experiment file's ``[base]`` (the problem's path resolved) and its points (label and overrides)."""
-    import tomllib
+    """The experiment file's ``[base]`` and its points (:func:`bench.learning_common.experiment_points`)."""
+    from bench.learning_common import experiment_points
 
-    doc = tomllib.loads(EXPERIMENT.read_text())
-    base = dict(doc["base"])
-    base["problem"] = str((EXPERIMENT.parent / base["problem"]).resolve())
-    return base, [dict(p) for p in doc["point"]]
+    return experiment_points(EXPERIMENT)
 
 
 def page_name(experiment: Path) -> str:

@@ -35,13 +35,10 @@ REACH_TERM, LEVEL_TERM = "reach@100", "level@max"   # the problem's via-point te
 
 
 def variants() -> tuple[dict, list[dict]]:
-    """The experiment file's ``[base]`` (the problem's path resolved) and its points (label and overrides)."""
-    import tomllib
+    """The experiment file's ``[base]`` and its points (:func:`bench.learning_common.experiment_points`)."""
+    from bench.learning_common import experiment_points
 
-    doc = tomllib.loads(EXPERIMENT.read_text())
-    base = dict(doc["base"])
-    base["problem"] = str((EXPERIMENT.parent / base["problem"]).resolve())
-    return base, [dict(p) for p in doc["point"]]
+    return experiment_points(EXPERIMENT)
 
 
 def model_file_row(artifacts: str) -> dict:
